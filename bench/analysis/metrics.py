@@ -1,0 +1,27 @@
+"""Accuracy metrics of paper eqs. 52-54."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def mse(estimate, reference) -> float:
+    """Mean squared error (eq. 52), °C²."""
+    e = np.asarray(estimate, dtype=np.float64) - np.asarray(reference, dtype=np.float64)
+    return float(np.mean(e * e))
+
+
+def rmse(estimate, reference) -> float:
+    """Root mean squared error (eq. 53), °C."""
+    return float(np.sqrt(mse(estimate, reference)))
+
+
+def nrmse(estimate, reference) -> float:
+    """RMSE divided by the standard deviation of the reference (eq. 54), dimensionless."""
+    ref = np.asarray(reference, dtype=np.float64)
+    sigma = float(np.std(ref))
+    return rmse(estimate, ref) / sigma if sigma > 0 else float("nan")
+
+
+def error_metrics(estimate, reference) -> dict[str, float]:
+    return {"mse": mse(estimate, reference), "rmse": rmse(estimate, reference), "nrmse": nrmse(estimate, reference)}

@@ -1,0 +1,124 @@
+"""Build model artifacts (the JSON the target runs) from a parameter set, loss maps and a fitted model."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
+
+import numpy as np
+
+from bench.drive.motor import LossMaps, MotorSpec
+from bench.thermal.discretize import discretize
+from bench.thermal.lptn import lti_matrices
+from bench.thermal.parameters import ALPHA_CU_PER_K, LptnParameters
+from bench.thermal.losses import COPPER_REFERENCE_C
+from bench.thermal.realizations import Realization, physical, realize
+from target_sim import artifact as schema
+
+
+@dataclass(frozen=True)
+class SigmoidInputs:
+    """Per-loss-input nonlinearity S(u) = gain·σ(weight·u + bias) + linear·u + offset, u = P/scale (eqs. 28-30)."""
+
+    scale_W: np.ndarray
+    weight: np.ndarray
+    bias: np.ndarray
+    gain: np.ndarray
+    linear: np.ndarray
+    offset: np.ndarray
+
+    @classmethod
+    def identity(cls, scale_w) -> SigmoidInputs:
+        z = np.zeros(4)
+        return cls(np.asarray(scale_w, float), np.ones(4), z, z, np.ones(4), z)
+
+    def as_vector(self) -> np.ndarray:
+        return np.concatenate([self.weight, self.bias, self.gain, self.linear, self.offset])
+
+    @classmethod
+    def from_vector(cls, scale_w, v) -> SigmoidInputs:
+        w, b, g, lin, off = np.split(np.asarray(v, float), 5)
+        return cls(np.asarray(scale_w, float), w, b, g, lin, off)
+
+
+@dataclass
+class ModelSpec:
+    """Everything an artifact is built from."""
+
+    kind: str                          # lti-lptn | pv-lptn | hammerstein
+    params: LptnParameters
+    dt: float
+    discretization: str                # zoh | tustin (euler for pv-lptn)
+    realization: str
+    loss_maps: LossMaps
+    motor: MotorSpec
+    data_sample_period_s: float = 0.2
+    sigmoid: SigmoidInputs | None = None
+    linear_block: Realization | None = None   # the fitted block in physical coordinates (default: the LPTN)
+    provenance: dict[str, Any] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+
+def package_version() -> str:
+    try:
+        return version("pmsm-thermal-bench")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def physical_block(spec: ModelSpec) -> Realization:
+    if spec.linear_block is not None:
+        return spec.linear_block
+    a, b, c, d = lti_matrices(spec.params)
+    a_d, b_d = discretize(a, b, spec.dt, spec.discretization)
+    return physical(a_d, b_d, c, d)
+
+
+def artifact_content(spec: ModelSpec) -> dict[str, Any]:
+    """The unsealed artifact dictionary for `spec`."""
+    if spec.kind not in schema.MODEL_KINDS:
+        raise ValueError(f"unknown model kind {spec.kind!r}")
+    enc = schema.encode_array
+    content: dict[str, Any] = {
+        "schema": schema.SCHEMA,
+        "schema_version": schema.SCHEMA_VERSION,
+        "model_kind": spec.kind,
+        "discretization": spec.discretization,
+        "realization": spec.realization if spec.kind != "pv-lptn" else "physical",
+        "outputs": list(schema.OUTPUTS),
+        "timing": {"dt_s": float(spec.dt), "data_sample_period_s": float(spec.data_sample_period_s),
+                   "input_rule": "float32 mean of the data samples in [k*dt, (k+1)*dt); the step runs on the "
+                                 "last sample of the interval"},
+        "lptn": {"parameters": {k: enc(v) for k, v in spec.params.as_dict().items()},
+                 "speed_max_rpm": enc(spec.motor.max_speed_rpm)},
+        "losses": {
+            "torque_axis_Nm": enc(spec.loss_maps.torque_Nm), "speed_axis_rpm": enc(spec.loss_maps.speed_rpm),
+            "tables": {name: enc(spec.loss_maps.tables[name]) for name in schema.LOSS_TABLES},
+            "current_max_A": enc(spec.motor.i_max_A), "alpha_cu_per_K": enc(ALPHA_CU_PER_K),
+            "copper_reference_C": enc(COPPER_REFERENCE_C),
+        },
+        "initial_state": {"rule": "x0 = C_inv @ y0 with y0 = [yoke, winding, tooth, magnet] from the RESET frames; "
+                                  "the host sends the first measured coolant temperature for yoke and tooth and the "
+                                  "first measured winding and PM temperatures"},
+        "provenance": {"generator": f"pmsm-thermal-bench {package_version()}", **spec.provenance},
+        "metrics": spec.metrics,
+    }
+    if spec.kind != "pv-lptn":
+        block = realize(physical_block(spec), spec.realization)
+        content["linear_block"] = {"A": enc(block.a), "B": enc(block.b), "C": enc(block.c),
+                                   "C_inv": enc(np.linalg.inv(block.c)),
+                                   "condition_number": float(np.linalg.cond(block.a))}
+    if spec.kind == "hammerstein":
+        if spec.sigmoid is None:
+            raise ValueError("a hammerstein artifact needs its sigmoid parameters")
+        s = spec.sigmoid
+        content["input_nonlinearity"] = {
+            "kind": "sigmoidnet-1", "inputs": ["P_y", "P_w", "P_t", "P_m"],
+            **{k: enc(getattr(s, k)) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")}}
+    return content
+
+
+def build_artifact(spec: ModelSpec) -> dict[str, Any]:
+    """The sealed artifact (with its sha256)."""
+    return schema.seal(artifact_content(spec))

@@ -1,0 +1,137 @@
+"""Levenberg-Marquardt fit of the Hammerstein model (paper eqs. 1, 28-30; section II-D).
+
+Structure: one single-neuron sigmoid network per power-loss input, S(u) = gain·σ(weight·u + bias) + linear·u
++ offset on the normalized loss u = P/scale, followed by the discrete LTI LPTN whose poles stay fixed. The
+numerator of the linear block, i.e. the loss columns of B in the coordinates the fit works in, is fitted too
+(as a relative change of each entry), the source columns and C are kept. Two fit paths, same model set:
+- `polynomial`: the paper's: the linear block in transfer-function form, which comes back to state space as the
+  companion (`original`) realization; the fit works in those ill-conditioned coordinates.
+- `statespace`: the fit works directly in `balanced` (default) or `modal` coordinates.
+The temperature sources and copper losses use the model's own previous estimate, as the target does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from bench.model.builder import SigmoidInputs
+from bench.model.runs import ModelRun
+from bench.thermal.estimator import loop_parameters, run_batch
+from bench.thermal.parameters import LptnParameters
+from bench.thermal.realizations import Realization, realize
+
+FIT_PATHS = {"polynomial": "original", "statespace": "balanced", "statespace-modal": "modal"}
+N_SIGMOID = 20
+
+
+@dataclass(frozen=True)
+class HammersteinModel:
+    """A fitted Hammerstein model: its sigmoid inputs and its linear block in physical coordinates."""
+
+    sigmoid: SigmoidInputs
+    block: Realization
+
+
+@dataclass(frozen=True)
+class HammersteinFit:
+    model: HammersteinModel
+    path: str
+    coordinates: str
+    cost_initial: float
+    cost_final: float
+    iterations: int
+    evaluations: int
+    status: str
+
+
+def loss_scales(runs: Sequence[ModelRun], params: LptnParameters) -> np.ndarray:
+    """Normalization of each loss input: its largest nominal value over the identification runs."""
+    peak = np.zeros(4)
+    for run in runs:
+        t = run.inputs.table_losses
+        peak = np.maximum(peak, [t[:, 2].max(), (t[:, 0] + t[:, 1]).max() * 1.3, t[:, 2].max(), t[:, 3].max()])
+    return np.maximum(peak, 1.0)
+
+
+def initial_sigmoid_vector() -> np.ndarray:
+    """Close to the identity (so the fit starts from the LTI LPTN) with a small sigmoid term to learn from."""
+    gain = np.full(4, 0.05)
+    bias = np.zeros(4)
+    offset = -gain / 2  # gain·σ(0) = gain/2 is taken back by the offset
+    return np.concatenate([np.ones(4), bias, gain, np.ones(4), offset])
+
+
+class _Problem:
+    """Maps a parameter vector to models in the fit coordinates and to residuals."""
+
+    def __init__(self, base: Realization, coordinates: str, params: LptnParameters, runs: Sequence[ModelRun],
+                 scale_w: np.ndarray):
+        self.fit_block = realize(base, coordinates)
+        self.transform = self.fit_block.c  # x_physical = C_z z, since C is the identity in physical coordinates
+        self.theta = loop_parameters(params)
+        self.runs, self.scale_w = runs, scale_w
+        self.b_loss0 = self.fit_block.b[:, :4].copy()
+
+    def models(self, vectors: np.ndarray):
+        n = len(vectors)
+        sig = np.zeros((n, 6, 4))
+        b = np.broadcast_to(self.fit_block.b, (n, 4, 8)).copy()
+        for p, v in enumerate(vectors):
+            sig[p, 0] = self.scale_w
+            sig[p, 1:] = v[:N_SIGMOID].reshape(5, 4)
+            b[p, :, :4] = self.b_loss0 * (1.0 + v[N_SIGMOID:].reshape(4, 4))
+        a = np.broadcast_to(self.fit_block.a, (n, 4, 4))
+        c = np.broadcast_to(self.fit_block.c, (n, 4, 4))
+        return a, b, c, np.broadcast_to(self.theta, (n, self.theta.size)), sig
+
+    def residuals(self, vectors: np.ndarray) -> np.ndarray:
+        """(P, residuals): winding and PM errors over every run, in °C."""
+        a, b, c, theta, sig = self.models(vectors)
+        parts = []
+        for run in self.runs:
+            _, traj = run_batch(a, b, c, theta, sig, run.inputs, run.initial, keep_trajectories=True)
+            parts += [traj[:, :, 1] - run.ref_winding, traj[:, :, 3] - run.ref_pm]
+        return np.concatenate(parts, axis=1)
+
+    def physical_model(self, v: np.ndarray) -> HammersteinModel:
+        _, b, _, _, sig = self.models(v[None])
+        t, t_inv = self.transform, np.linalg.inv(self.transform)
+        fitted = Realization("physical", t @ self.fit_block.a @ t_inv, t @ b[0], self.fit_block.c @ t_inv,
+                             self.fit_block.d)
+        return HammersteinModel(SigmoidInputs.from_vector(self.scale_w, sig[0, 1:].ravel()), fitted)
+
+
+def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[ModelRun], *,
+                    path: str = "statespace", iterations: int = 100,
+                    on_iteration: Callable[[int, float], None] | None = None) -> HammersteinFit:
+    """Fit sigmoid inputs and B's loss columns with the poles of `base` (physical, discrete) held fixed."""
+    if path not in FIT_PATHS:
+        raise ValueError(f"unknown fit path {path!r}; choose one of {', '.join(FIT_PATHS)}")
+    coordinates = FIT_PATHS[path]
+    problem = _Problem(base, coordinates, params, runs, loss_scales(runs, params))
+    v0 = np.concatenate([initial_sigmoid_vector(), np.zeros(16)])
+    calls = {"n": 0}
+
+    def fun(v):
+        r = problem.residuals(v[None])[0]
+        calls["n"] += 1
+        if on_iteration is not None:
+            on_iteration(calls["n"], float(np.sqrt(np.mean(r * r))))
+        return np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)
+
+    def jac(v):
+        # Forward differences, all perturbed models simulated in one parallel batch.
+        steps = 1e-6 * np.maximum(1.0, np.abs(v))
+        batch = np.vstack([v, v + np.diag(steps)])
+        r = np.nan_to_num(problem.residuals(batch), nan=1e6, posinf=1e6, neginf=-1e6)
+        return ((r[1:] - r[0]) / steps[:, None]).T
+
+    r0 = fun(v0)
+    result = least_squares(fun, v0, jac=jac, method="lm", max_nfev=iterations, x_scale="jac")
+    return HammersteinFit(problem.physical_model(result.x), path, coordinates,
+                          float(np.sqrt(np.mean(r0 ** 2))), float(np.sqrt(np.mean(result.fun ** 2))),
+                          int(result.njev or 0), int(result.nfev), result.message)

@@ -1,0 +1,114 @@
+"""Identification of the 22 LPTN parameters by particle swarm (paper section II-D).
+
+Cost: the maximum-likelihood criterion for independent Gaussian output errors with unknown variances,
+J = Σ_outputs log(MSE_output), over the winding and PM temperatures of all identification runs (20 and 60 °C)
+together; it is scale-free, so winding and PM weigh by their relative fit, not by their size in °C.
+Each candidate is simulated exactly as the estimator runs (closed loop, sources from its previous estimate).
+The search is done in log coordinates for the positive parameters, so a factor of two up or down is one step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm
+
+from bench.model.runs import ModelRun
+from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
+from bench.thermal.lptn import lti_matrices
+from bench.thermal.parameters import TABLE1, LptnParameters
+
+# (lower, upper) of every parameter; positive ones searched on a log scale between them.
+BOUNDS: dict[str, tuple[float, float]] = {
+    "C_y": (1000, 10000), "C_w": (1500, 15000), "C_t": (1000, 10000), "C_m": (2000, 20000),
+    "R_yw": (0.003, 0.03), "R_yt": (0.005, 0.05), "R_wt": (0.1, 1.5), "R_cy0": (0.0015, 0.015),
+    "R_wm0": (0.2, 2.0), "a_wm": (0.15, 1.5), "b_wm": (0.3, 3.0),
+    "R_tm0": (0.15, 1.5), "a_tm": (0.03, 0.3), "b_tm": (0.06, 0.6),
+    "R_ma0": (0.1, 1.0), "a_ma": (0.012, 0.12), "b_ma": (-0.6, -0.06),
+    "alpha_cy": (-0.03, 0.03),
+    "k_0": (0.4, 1.0), "k_1": (-0.3, 0.3), "k_2": (-0.3, 0.3), "k_3": (-0.4, 0.4),
+}
+LOG_SCALED = tuple(n for n, (lo, _) in BOUNDS.items() if lo > 0)
+
+
+def to_search(values: np.ndarray) -> np.ndarray:
+    """Parameter vectors (…, 22) -> search coordinates (log for positive parameters)."""
+    out = np.array(values, dtype=float)
+    for i, name in enumerate(LptnParameters.names()):
+        if name in LOG_SCALED:
+            out[..., i] = np.log(out[..., i])
+    return out
+
+
+def from_search(coords: np.ndarray) -> np.ndarray:
+    out = np.array(coords, dtype=float)
+    for i, name in enumerate(LptnParameters.names()):
+        if name in LOG_SCALED:
+            out[..., i] = np.exp(out[..., i])
+    return out
+
+
+def search_bounds() -> tuple[np.ndarray, np.ndarray]:
+    names = LptnParameters.names()
+    lower = np.array([BOUNDS[n][0] for n in names])
+    upper = np.array([BOUNDS[n][1] for n in names])
+    return to_search(lower), to_search(upper)
+
+
+def discrete_blocks(vectors: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """ZOH (A_d, B_d) for a batch of parameter vectors, one batched matrix exponential."""
+    blocks = np.zeros((len(vectors), 12, 12))
+    for p, vec in enumerate(vectors):
+        a, b, _, _ = lti_matrices(LptnParameters.from_vector(vec))
+        blocks[p, :4, :4], blocks[p, :4, 4:] = a, b
+    phi = expm(blocks * dt)
+    return phi[:, :4, :4], phi[:, :4, 4:]
+
+
+def likelihood_cost(sse: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Σ log(MSE) over winding and PM; sse (P, 2) summed over runs, counts (2,) samples per output."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.sum(np.log(sse / counts), axis=1)
+
+
+def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w: np.ndarray) -> np.ndarray:
+    """The cost of each parameter vector (P, 22) over all runs."""
+    a_d, b_d = discrete_blocks(vectors, dt)
+    n = len(vectors)
+    c = np.broadcast_to(np.eye(4), (n, 4, 4))
+    theta = np.array([loop_parameters(LptnParameters.from_vector(v)) for v in vectors])
+    sig = np.broadcast_to(identity_sigmoid(scale_w), (n, 6, 4))
+    sse = np.zeros((n, 2))
+    for run in runs:
+        part, _ = run_batch(a_d, b_d, c, theta, sig, run.inputs, run.initial, run.ref_winding, run.ref_pm)
+        sse += part
+    counts = np.full(2, float(sum(len(r.ref_winding) for r in runs)))
+    return likelihood_cost(sse, counts)
+
+
+@dataclass(frozen=True)
+class LptnFit:
+    params: LptnParameters
+    cost: float
+    history: list[float]
+    evaluations: int
+    seed: int
+    swarm_size: int
+    iterations: int
+
+
+def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220, iterations: int = 100,
+                  seed: int = 0, start: LptnParameters = TABLE1,
+                  on_iteration: Callable[[int, float], None] | None = None) -> LptnFit:
+    """PSO over the 22 parameters (Table 1 is one of the initial particles)."""
+    from bench.thermal.pso import particle_swarm
+
+    scale_w = np.ones(4)
+    lower, upper = search_bounds()
+    result = particle_swarm(lambda pos: batch_cost(from_search(pos), runs, dt, scale_w), lower, upper,
+                            swarm_size=swarm_size, iterations=iterations, seed=seed,
+                            initial=to_search(np.array(start.as_vector())), on_iteration=on_iteration)
+    params = LptnParameters.from_vector(from_search(result.best))
+    return LptnFit(params, result.best_cost, result.history.tolist(), result.evaluations, seed, swarm_size, iterations)

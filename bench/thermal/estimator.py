@@ -1,0 +1,113 @@
+"""The estimator in float64, compiled with numba and run for many parameter sets at once.
+
+It is the model the target runs (target_sim.model), step for step: losses from the look-up tables with eqs. 3-8
+at the previous winding estimate, the optional sigmoid input nonlinearity, temperature sources (eqs. 9-18) from
+the previous estimate, and the discrete linear block. Identification evaluates hundreds of candidate models per
+iteration, so the kernel runs a batch of them in parallel and can return either trajectories or error sums.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from bench.thermal.parameters import ALPHA_CU_PER_K, LptnParameters
+from bench.thermal.losses import COPPER_REFERENCE_C
+
+# The per-model scalars the closed loop needs besides the linear block, in this order.
+LOOP_PARAMETERS = ("k_0", "k_1", "k_2", "k_3", "R_wm0", "b_wm", "a_wm", "R_tm0", "b_tm", "a_tm",
+                   "R_ma0", "b_ma", "a_ma", "alpha_cy")
+SIGMOID_ROWS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
+
+
+@dataclass(frozen=True)
+class StepInputs:
+    """Per-model-step inputs of one run, independent of the model: table losses and operating point."""
+
+    table_losses: np.ndarray   # (steps, 5): p_dc0, p_ac0, p_stator, p_magnet, current
+    speed_ratio: np.ndarray    # (steps,) ω/ω_max
+    coolant: np.ndarray        # (steps,)
+    ambient: np.ndarray        # (steps,)
+    current_max: float
+
+
+def loop_parameters(params: LptnParameters) -> np.ndarray:
+    return np.array([getattr(params, n) for n in LOOP_PARAMETERS])
+
+
+def identity_sigmoid(scale_w) -> np.ndarray:
+    """(6, 4) sigmoid rows that pass the losses through unchanged (the LTI LPTN)."""
+    sig = np.zeros((6, 4))
+    sig[0], sig[1], sig[4] = scale_w, 1.0, 1.0
+    return sig
+
+
+@numba.njit(cache=True, fastmath=False)
+def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep):
+    n_steps = ratio.shape[0]
+    x = c_inv @ y0
+    y = y0.copy()
+    u = np.empty(8)
+    sse_w = 0.0
+    sse_m = 0.0
+    k0, k1, k2, k3 = theta[0], theta[1], theta[2], theta[3]
+    for k in range(n_steps):
+        # losses at the previous winding estimate (eqs. 3-8)
+        factor = 1.0 + ALPHA_CU_PER_K * (y[1] - COPPER_REFERENCE_C)
+        i_ratio = lut[k, 4] / i_max
+        k_s = k0 + k1 * i_ratio + k2 * ratio[k] + k3 * i_ratio * ratio[k]
+        u[0] = k_s * lut[k, 2]
+        u[1] = lut[k, 0] * factor + lut[k, 1] / factor
+        u[2] = (1.0 - k_s) * lut[k, 2]
+        u[3] = lut[k, 3]
+        for i in range(4):  # sigmoid input nonlinearity on normalized losses (eqs. 28-30)
+            v = u[i] / sig[0, i]
+            s = sig[3, i] / (1.0 + np.exp(-(sig[1, i] * v + sig[2, i]))) + sig[4, i] * v + sig[5, i]
+            u[i] = s * sig[0, i]
+        # temperature sources from the previous estimate (eqs. 9-18)
+        g_wm = theta[4] * np.exp(-ratio[k] / theta[5]) / theta[6]
+        g_tm = theta[7] * np.exp(-ratio[k] / theta[8]) / theta[9]
+        g_ma = theta[10] * np.exp(-ratio[k] / theta[11]) / theta[12]
+        g_cy = theta[13] * (coolant[k] - 40.0)
+        u[4] = coolant[k] + g_cy * (y[0] - coolant[k]) / (1.0 + g_cy)
+        u[5] = ambient[k] + g_ma * (y[3] - ambient[k]) / (1.0 + g_ma)
+        u[6] = (y[3] + g_tm * y[2]) / (1.0 + g_tm)
+        u[7] = (y[1] + g_wm * y[3]) / (1.0 + g_wm)
+        x = a @ x + b @ u
+        y = c @ x
+        if keep:
+            traj[k] = y
+        dw = y[1] - ref_w[k]
+        dm = y[3] - ref_m[k]
+        sse_w += dw * dw
+        sse_m += dm * dm
+    return sse_w, sse_m
+
+
+@numba.njit(parallel=True, cache=True)
+def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep, sse):
+    for p in numba.prange(a.shape[0]):
+        sse[p, 0], sse[p, 1] = _one_model(a[p], b[p], c[p], c_inv[p], theta[p], sig[p], lut, ratio, coolant,
+                                          ambient, i_max, y0, ref_w, ref_m, traj[p], keep)
+
+
+def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=None, keep_trajectories=False):
+    """Run P models over one run. Shapes: a (P,4,4), b (P,4,8), c (P,4,4), theta (P,14), sig (P,6,4).
+
+    Returns (sse (P, 2) for winding and PM against the references, trajectories (P, steps, 4) or None).
+    """
+    a, b, c = (np.ascontiguousarray(m, dtype=np.float64) for m in (a, b, c))
+    n_models, n_steps = a.shape[0], inputs.speed_ratio.shape[0]
+    c_inv = np.linalg.inv(c)
+    zeros = np.zeros(n_steps)
+    ref_w = zeros if ref_w is None else np.ascontiguousarray(ref_w, dtype=np.float64)
+    ref_m = zeros if ref_m is None else np.ascontiguousarray(ref_m, dtype=np.float64)
+    traj = np.zeros((n_models, n_steps if keep_trajectories else 1, 4))
+    sse = np.zeros((n_models, 2))
+    _batch(a, b, c, c_inv, np.ascontiguousarray(theta, dtype=np.float64), np.ascontiguousarray(sig, dtype=np.float64),
+           np.ascontiguousarray(inputs.table_losses), np.ascontiguousarray(inputs.speed_ratio),
+           np.ascontiguousarray(inputs.coolant), np.ascontiguousarray(inputs.ambient), float(inputs.current_max),
+           np.asarray(y0, dtype=np.float64), ref_w, ref_m, traj, keep_trajectories, sse)
+    return sse, (traj if keep_trajectories else None)

@@ -1,0 +1,184 @@
+"""The model artifact: the contract between `bench` (which builds it) and the target (which runs it).
+
+A JSON document, schema-versioned and sealed with a sha256 over its canonical form. Every coefficient is kept
+twice: `f64` (the value it was derived from) and `f32_hex` (the float32 the target runs, as an exact hex string,
+`float.hex()` of the rounded value). Loading verifies the schema, the checksum and that every f32 value is the
+float32 rounding of its f64 twin, and refuses anything else in one sentence. Like firmware, this module knows
+only json, hashlib and numpy.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SCHEMA = "pmsm-thermal-bench.model-artifact"
+SCHEMA_VERSION = 1
+MODEL_KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
+REALIZATIONS = ("physical", "original", "balanced", "modal")
+OUTPUTS = ("yoke", "winding", "tooth", "magnet")
+LOSS_TABLES = ("p_dc0", "p_ac0", "p_stator", "p_magnet", "current")
+LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
+                   "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
+
+
+class ArtifactError(Exception):
+    """The artifact cannot be used; the message says why and what to do."""
+
+
+def encode_array(values) -> dict[str, Any]:
+    """{"shape", "f64", "f32_hex"} for a scalar, vector or matrix."""
+    arr = np.asarray(values, dtype=np.float64)
+    flat64 = [float(v) for v in arr.ravel()]
+    flat32 = [float(v).hex() for v in arr.astype(np.float32).astype(np.float64).ravel()]
+    return {"shape": list(arr.shape), "f64": flat64, "f32_hex": flat32}
+
+
+def decode_array(entry: dict[str, Any], where: str, dtype=np.float32) -> np.ndarray:
+    """The float32 (or float64) array of an encoded entry, checking shape and f32/f64 agreement."""
+    try:
+        shape = tuple(int(n) for n in entry["shape"])
+        f64 = np.array(entry["f64"], dtype=np.float64)
+        f32 = np.array([float.fromhex(h) for h in entry["f32_hex"]], dtype=np.float64)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ArtifactError(f"artifact field {where} is malformed ({exc})") from None
+    if f64.size != int(np.prod(shape)) or f32.size != f64.size:
+        raise ArtifactError(f"artifact field {where} does not have shape {list(shape)}")
+    if not np.array_equal(f64.astype(np.float32).astype(np.float64), f32, equal_nan=False):
+        raise ArtifactError(f"artifact field {where}: the float32 values are not the rounding of the float64 ones")
+    return (f32 if dtype == np.float32 else f64).reshape(shape).astype(dtype)
+
+
+def canonical_bytes(content: dict[str, Any]) -> bytes:
+    body = {k: v for k, v in content.items() if k != "sha256"}
+    return json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()
+
+
+def seal(content: dict[str, Any]) -> dict[str, Any]:
+    """The content with its sha256 added (over everything else, canonical JSON)."""
+    sealed = {k: v for k, v in content.items() if k != "sha256"}
+    sealed["sha256"] = hashlib.sha256(canonical_bytes(sealed)).hexdigest()
+    return sealed
+
+
+def dumps(content: dict[str, Any]) -> str:
+    return json.dumps(seal(content), indent=1, allow_nan=False) + "\n"
+
+
+@dataclass(frozen=True)
+class ModelArtifact:
+    """A verified artifact: the raw content plus the float32 arrays the target runs."""
+
+    content: dict[str, Any]
+    path: Path | None
+
+    @property
+    def sha256(self) -> str:
+        return self.content["sha256"]
+
+    @property
+    def model_id(self) -> int:
+        """The first 32 bits of the checksum: what the target reports on the bus as its identity."""
+        return int(self.sha256[:8], 16)
+
+    @property
+    def kind(self) -> str:
+        return self.content["model_kind"]
+
+    @property
+    def realization(self) -> str:
+        return self.content["realization"]
+
+    @property
+    def dt(self) -> float:
+        return float(self.content["timing"]["dt_s"])
+
+    @property
+    def data_sample_period(self) -> float:
+        return float(self.content["timing"]["data_sample_period_s"])
+
+    def array(self, *keys: str, dtype=np.float32) -> np.ndarray:
+        node = self.content
+        for key in keys:
+            node = node[key]
+        return decode_array(node, ".".join(keys), dtype)
+
+
+def _require(content: dict, key: str, kind: type | tuple[type, ...]):
+    if key not in content:
+        raise ArtifactError(f"artifact is missing the field {key!r}; rebuild it with 'bench identify'")
+    if not isinstance(content[key], kind):
+        raise ArtifactError(f"artifact field {key!r} has the wrong type")
+    return content[key]
+
+
+def verify(content: Any, path: Path | None = None) -> ModelArtifact:
+    """Check schema, checksum and every array; return the artifact or raise ArtifactError."""
+    if not isinstance(content, dict):
+        raise ArtifactError("artifact is not a JSON object")
+    if content.get("schema") != SCHEMA:
+        raise ArtifactError(f"this is not a model artifact (schema {content.get('schema')!r}, expected {SCHEMA!r})")
+    if content.get("schema_version") != SCHEMA_VERSION:
+        raise ArtifactError(f"artifact schema version {content.get('schema_version')!r} is not supported "
+                            f"(this target runs version {SCHEMA_VERSION}); rebuild it with 'bench identify'")
+    expected = hashlib.sha256(canonical_bytes(content)).hexdigest()
+    if content.get("sha256") != expected:
+        raise ArtifactError("artifact checksum does not match its content (corrupted or edited); "
+                            "rebuild it with 'bench identify'")
+    kind = _require(content, "model_kind", str)
+    if kind not in MODEL_KINDS:
+        raise ArtifactError(f"artifact model kind {kind!r} is not one of {', '.join(MODEL_KINDS)}")
+    if _require(content, "realization", str) not in REALIZATIONS:
+        raise ArtifactError(f"artifact realization {content['realization']!r} is unknown")
+    timing = _require(content, "timing", dict)
+    if not all(isinstance(timing.get(k), int | float) and timing[k] > 0 for k in ("dt_s", "data_sample_period_s")):
+        raise ArtifactError("artifact timing needs positive dt_s and data_sample_period_s")
+    artifact = ModelArtifact(content, path)
+    for keys in _array_fields(content):
+        artifact.array(*keys)  # decodes and cross-checks every array once
+    return artifact
+
+
+def _array_fields(content: dict) -> list[tuple[str, ...]]:
+    fields = [("linear_block", m) for m in ("A", "B", "C", "C_inv")] if content["model_kind"] != "pv-lptn" else []
+    fields += [("lptn", "parameters", name) for name in LPTN_PARAMETERS]
+    fields += [("lptn", "speed_max_rpm")]
+    fields += [("losses", k) for k in ("torque_axis_Nm", "speed_axis_rpm", "current_max_A", "alpha_cu_per_K",
+                                       "copper_reference_C")]
+    fields += [("losses", "tables", name) for name in LOSS_TABLES]
+    if content["model_kind"] == "hammerstein":
+        fields += [("input_nonlinearity", k) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")]
+    for keys in fields:
+        node = content
+        for key in keys:
+            if not isinstance(node, dict) or key not in node:
+                raise ArtifactError(f"artifact is missing the field {'.'.join(keys)}; rebuild it with 'bench identify'")
+            node = node[key]
+    return fields
+
+
+def load_artifact(path: str | Path) -> ModelArtifact:
+    """Read and verify an artifact file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ArtifactError(f"model artifact {path} does not exist; pass an existing file with --model") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ArtifactError(f"model artifact {path} cannot be read ({exc.__class__.__name__})") from None
+    if not text.strip():
+        raise ArtifactError(f"model artifact {path} is empty; rebuild it with 'bench identify'")
+    try:
+        content = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ArtifactError(f"model artifact {path} is not valid JSON (truncated or corrupted at line {exc.lineno}); "
+                            "rebuild it with 'bench identify'") from None
+    try:
+        return verify(content, path)
+    except ArtifactError as exc:
+        raise ArtifactError(f"model artifact {path}: {exc}") from None

@@ -1,0 +1,209 @@
+"""The DBC file itself: structure, conventions and the layout the bench relies on."""
+
+import re
+
+import cantools
+import pytest
+
+import dbc
+from dbc import DBC_PATH, load_database
+
+DB = load_database()
+MESSAGES = DB.messages
+E2E_SIGNALS = {f"{m.name}_{suffix}" for m in MESSAGES for suffix in ("CRC", "Counter")}
+# Signals without a physical unit: E2E fields, enums, bit fields, identifiers and version numbers.
+UNITLESS = E2E_SIGNALS | {
+    "Command",
+    "State",
+    "FaultBits",
+    "ModelId",
+    "DbcVersionMajor",
+    "DbcVersionMinor",
+    "ModelKind",
+    "Realization",
+}
+ENUMS = {
+    "Command": dbc.Command,
+    "State": dbc.TargetState,
+    "ModelKind": dbc.ModelKind,
+    "Realization": dbc.Realization,
+}
+
+
+def app_signals(message):
+    return [s for s in message.signals if s.name not in E2E_SIGNALS]
+
+
+def test_loads_with_strict_checks_and_is_ascii():
+    database = cantools.database.load_file(DBC_PATH, strict=True)
+    assert len(database.messages) == 13
+    DBC_PATH.read_bytes().decode("ascii")  # cantools reads DBC files as cp1252: keep them plain ASCII
+
+
+def test_version_is_in_the_file_and_exposed():
+    text = DBC_PATH.read_text(encoding="ascii")
+    version_line = re.search(r'^VERSION "(\d+)\.(\d+)\.(\d+)"$', text, re.MULTILINE)
+    assert version_line is not None
+    assert dbc.DBC_VERSION == DB.version == ".".join(version_line.groups())
+    assert dbc.DBC_VERSION_INFO == tuple(int(part) for part in version_line.groups())
+    assert DB.dbc.attributes["DBName"].value == "thermal_bench"
+
+
+def test_nodes_and_frame_format():
+    assert sorted(node.name for node in DB.nodes) == ["HOST", "TARGET"]
+    for message in MESSAGES:
+        assert message.length == 8, message.name
+        assert not message.is_extended_frame and not message.is_fd, message.name
+        assert 0 <= message.frame_id <= 0x7FF, message.name
+        assert len(message.senders) == 1 and message.senders[0] in dbc.NODES, message.name
+        receiver = "TARGET" if message.senders[0] == "HOST" else "HOST"
+        assert all(s.receivers == [receiver] for s in message.signals), message.name
+        assert all(s.byte_order == "little_endian" for s in message.signals), message.name
+
+
+def test_host_frames_win_arbitration_over_target_frames():
+    host = [m.frame_id for m in MESSAGES if m.senders == ["HOST"]]
+    target = [m.frame_id for m in MESSAGES if m.senders == ["TARGET"]]
+    assert all(0x100 <= fid < 0x200 for fid in host)
+    assert all(0x200 <= fid < 0x300 for fid in target)
+    assert max(host) < min(target)
+    assert frozenset(host) == dbc.HOST_FRAME_IDS
+    assert frozenset(target) == dbc.TARGET_FRAME_IDS
+    assert dict(dbc.FRAME_IDS) == {m.name: m.frame_id for m in MESSAGES}
+
+
+def test_every_message_has_comment_cycle_time_and_e2e_data_id():
+    data_ids = set()
+    for message in MESSAGES:
+        assert message.comment and len(message.comment) > 20, message.name
+        assert "GenMsgCycleTime" in message.dbc.attributes, message.name  # set explicitly, not by default
+        data_id = message.dbc.attributes["E2EDataID"].value
+        assert data_id == message.frame_id & 0xFF == dbc.E2E_DATA_IDS[message.frame_id], message.name
+        assert f"E2E data id 0x{data_id:02X}." in message.comment, message.name
+        data_ids.add(data_id)
+    assert len(data_ids) == len(MESSAGES)  # a frame on the wrong id fails the CRC
+
+
+@pytest.mark.parametrize(
+    ("name", "cycle_ms"),
+    [
+        ("Control", 0),
+        ("ResetTemps1", 0),
+        ("ResetTemps2", 0),
+        ("DriveInputs", 200),
+        ("DriveTemps", 200),
+        ("Temperatures1", 200),
+        ("Temperatures2", 200),
+        ("Timing1", 200),
+        ("Timing2", 200),
+        ("Timing3", 200),
+        ("Status", 100),
+        ("RxErrors", 100),
+        ("TargetInfo", 0),
+    ],
+)
+def test_cycle_times(name, cycle_ms):
+    assert DB.get_message_by_name(name).dbc.attributes["GenMsgCycleTime"].value == cycle_ms
+
+
+def test_e2e_header_layout():
+    for message in MESSAGES:
+        crc = message.get_signal_by_name(f"{message.name}_CRC")
+        counter = message.get_signal_by_name(f"{message.name}_Counter")
+        assert (crc.start, crc.length, crc.is_signed) == (0, 8, False), message.name
+        assert (counter.start, counter.length, counter.is_signed) == (8, 4, False), message.name
+        used = 0
+        for signal in app_signals(message):
+            assert signal.start >= 12, signal.name
+            bits = ((1 << signal.length) - 1) << signal.start
+            assert used & bits == 0, signal.name
+            used |= bits
+        assert used >> 64 == 0, message.name
+        assert sum(s.length for s in app_signals(message)) <= 52, message.name
+
+
+def test_every_signal_has_unit_comment_and_range():
+    for message in MESSAGES:
+        for signal in message.signals:
+            label = f"{message.name}.{signal.name}"
+            assert signal.comment and len(signal.comment) > 10, label
+            assert signal.minimum is not None and signal.maximum is not None, label
+            assert signal.minimum < signal.maximum, label
+            if signal.name in UNITLESS:
+                assert not signal.unit, label
+            else:
+                assert signal.unit, label
+
+
+def test_ranges_are_representable_and_on_the_raw_grid():
+    for message in MESSAGES:
+        for signal in message.signals:
+            low = -(1 << (signal.length - 1)) if signal.is_signed else 0
+            high = (1 << (signal.length - 1)) - 1 if signal.is_signed else (1 << signal.length) - 1
+            for limit in (signal.minimum, signal.maximum):
+                raw = (limit - signal.offset) / signal.scale
+                assert abs(raw - round(raw)) < 1e-6, (signal.name, limit)
+                assert low <= round(raw) <= high, (signal.name, limit)
+
+
+def test_value_tables_match_python_enums():
+    for message in MESSAGES:
+        for signal in message.signals:
+            if signal.name in ENUMS:
+                enum = ENUMS[signal.name]
+                table = {int(raw): str(text).lower() for raw, text in signal.choices.items()}
+                assert table == {m.value: m.name.lower().replace("_", "-") for m in enum}, signal.name
+                assert (signal.minimum, signal.maximum) == (0, max(table)), signal.name
+            else:
+                assert not signal.choices, signal.name
+
+
+def test_fault_bits_are_documented():
+    comment = DB.get_message_by_name("Status").get_signal_by_name("FaultBits").comment
+    for bit in dbc.FaultBit:
+        assert f"bit {bit.value.bit_length() - 1} {bit.name} " in comment, bit.name
+    assert len(list(dbc.FaultBit)) == 8
+
+
+def signal(message_name, signal_name):
+    return DB.get_message_by_name(message_name).get_signal_by_name(signal_name)
+
+
+def test_layout_meets_the_resolution_and_range_requirements():
+    for name in ("Control", "ResetTemps1", "ResetTemps2", "DriveInputs", "DriveTemps"):
+        step = signal(name, "Step")
+        assert (step.length, step.is_signed, step.scale, step.minimum, step.maximum) == (16, False, 1, 0, 65535)
+    for name in ("Temperatures1", "Temperatures2", "Timing1", "Timing2", "Timing3"):
+        assert signal(name, "Step").length == 16
+    torque = signal("DriveInputs", "MotorTorque")
+    assert (torque.scale, torque.minimum, torque.maximum, torque.unit) == (0.1, -2000, 2000, "Nm")
+    speed = signal("DriveInputs", "MotorSpeed")
+    assert (speed.scale, speed.minimum, speed.maximum, speed.unit) == (0.5, -1000, 15000, "rpm")
+    for name in ("CoolantTemp", "AmbientTemp"):
+        temp = signal("DriveTemps", name)
+        assert (temp.scale, temp.minimum, temp.maximum, temp.unit) == (0.1, -40, 150, "degC")
+    for message_name, names in [
+        ("Temperatures1", ("WindingTemp", "MagnetTemp")),
+        ("Temperatures2", ("YokeTemp", "ToothTemp")),
+        ("ResetTemps1", ("WindingTempInit", "MagnetTempInit")),
+        ("ResetTemps2", ("YokeTempInit", "ToothTempInit")),
+    ]:
+        for name in names:
+            temp = signal(message_name, name)
+            assert (temp.length, temp.scale, temp.minimum, temp.maximum) == (16, 0.01, -50, 600), name
+    step_time = signal("Timing1", "StepTimeMeasured")
+    assert step_time.scale <= 1 and step_time.maximum >= 60_000 and step_time.unit == "us"
+    assert (signal("Timing1", "Overruns").length, signal("Timing1", "Overruns").maximum) == (8, 255)
+    cycles = signal("Timing2", "EstCycles")
+    assert cycles.scale == 1 and cycles.maximum >= 500_000
+    exec_time = signal("Timing2", "EstExecTime")
+    assert exec_time.scale <= 0.1 and exec_time.maximum >= cycles.maximum / 90  # 90 MHz
+    load = signal("Timing3", "CpuLoad")
+    assert load.scale <= 0.0001 and load.maximum >= 100 and load.unit == "%"
+    model_id = signal("Status", "ModelId")
+    assert (model_id.length, model_id.maximum) == (32, 0xFFFFFFFF)
+    dt = signal("TargetInfo", "ModelDt")
+    assert (dt.scale, dt.minimum, dt.maximum, dt.unit) == (0.1, 0, 25.5, "s")
+    counters = ("UnknownId", "WrongLength", "CrcError", "CounterError", "OutOfRange", "SequenceError")
+    assert [s.name for s in app_signals(DB.get_message_by_name("RxErrors"))] == list(counters)
+    assert all(signal("RxErrors", name).length == 8 for name in counters)
