@@ -10,9 +10,9 @@ import numpy as np
 
 from bench.drive.motor import LossMaps, MotorSpec
 from bench.thermal.discretize import discretize
+from bench.thermal.losses import COPPER_REFERENCE_C
 from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import ALPHA_CU_PER_K, LptnParameters
-from bench.thermal.losses import COPPER_REFERENCE_C
 from bench.thermal.realizations import Realization, physical, realize
 from target_sim import artifact as schema
 

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from bench.model.runs import ModelRun
-from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
+from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
 from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import TABLE1, LptnParameters
 
@@ -59,10 +59,10 @@ def search_bounds() -> tuple[np.ndarray, np.ndarray]:
 
 def discrete_blocks(vectors: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """ZOH (A_d, B_d) for a batch of parameter vectors, one batched matrix exponential."""
+    batch = LptnParameters(**dict(zip(LptnParameters.names(), np.asarray(vectors, float).T, strict=True)))
+    a, b, _, _ = lti_matrices(batch)
     blocks = np.zeros((len(vectors), 12, 12))
-    for p, vec in enumerate(vectors):
-        a, b, _, _ = lti_matrices(LptnParameters.from_vector(vec))
-        blocks[p, :4, :4], blocks[p, :4, 4:] = a, b
+    blocks[:, :4, :4], blocks[:, :4, 4:] = a, b
     phi = expm(blocks * dt)
     return phi[:, :4, :4], phi[:, :4, 4:]
 
@@ -78,7 +78,8 @@ def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w
     a_d, b_d = discrete_blocks(vectors, dt)
     n = len(vectors)
     c = np.broadcast_to(np.eye(4), (n, 4, 4))
-    theta = np.array([loop_parameters(LptnParameters.from_vector(v)) for v in vectors])
+    names = LptnParameters.names()
+    theta = np.asarray(vectors, float)[:, [names.index(n) for n in LOOP_PARAMETERS]]
     sig = np.broadcast_to(identity_sigmoid(scale_w), (n, 6, 4))
     sse = np.zeros((n, 2))
     for run in runs:

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from bench.thermal.parameters import ALPHA_CU_PER_K, LptnParameters
 from bench.thermal.losses import COPPER_REFERENCE_C
+from bench.thermal.parameters import ALPHA_CU_PER_K, LptnParameters
 
 # The per-model scalars the closed loop needs besides the linear block, in this order.
 LOOP_PARAMETERS = ("k_0", "k_1", "k_2", "k_3", "R_wm0", "b_wm", "a_wm", "R_tm0", "b_tm", "a_tm",
@@ -38,18 +38,24 @@ def loop_parameters(params: LptnParameters) -> np.ndarray:
 
 
 def identity_sigmoid(scale_w) -> np.ndarray:
-    """(6, 4) sigmoid rows that pass the losses through unchanged (the LTI LPTN)."""
-    sig = np.zeros((6, 4))
-    sig[0], sig[1], sig[4] = scale_w, 1.0, 1.0
+    """(…, 6, 4) sigmoid rows that pass the losses through unchanged (the LTI LPTN)."""
+    scale_w = np.asarray(scale_w, dtype=float)
+    sig = np.zeros(scale_w.shape[:-1] + (6, 4))
+    sig[..., 0, :], sig[..., 1, :], sig[..., 4, :] = scale_w, 1.0, 1.0
     return sig
 
 
 @numba.njit(cache=True, fastmath=False)
-def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep):
+def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep,
+               use_sigmoid):
     n_steps = ratio.shape[0]
-    x = c_inv @ y0
+    x = np.zeros(4)
+    x_new = np.zeros(4)
     y = y0.copy()
     u = np.empty(8)
+    for i in range(4):
+        for j in range(4):
+            x[i] += c_inv[i, j] * y0[j]
     sse_w = 0.0
     sse_m = 0.0
     k0, k1, k2, k3 = theta[0], theta[1], theta[2], theta[3]
@@ -62,10 +68,11 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
         u[1] = lut[k, 0] * factor + lut[k, 1] / factor
         u[2] = (1.0 - k_s) * lut[k, 2]
         u[3] = lut[k, 3]
-        for i in range(4):  # sigmoid input nonlinearity on normalized losses (eqs. 28-30)
-            v = u[i] / sig[0, i]
-            s = sig[3, i] / (1.0 + np.exp(-(sig[1, i] * v + sig[2, i]))) + sig[4, i] * v + sig[5, i]
-            u[i] = s * sig[0, i]
+        if use_sigmoid:  # sigmoid input nonlinearity on normalized losses (eqs. 28-30)
+            for i in range(4):
+                v = u[i] / sig[0, i]
+                s = sig[3, i] / (1.0 + np.exp(-(sig[1, i] * v + sig[2, i]))) + sig[4, i] * v + sig[5, i]
+                u[i] = s * sig[0, i]
         # temperature sources from the previous estimate (eqs. 9-18)
         g_wm = theta[4] * np.exp(-ratio[k] / theta[5]) / theta[6]
         g_tm = theta[7] * np.exp(-ratio[k] / theta[8]) / theta[9]
@@ -75,10 +82,23 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
         u[5] = ambient[k] + g_ma * (y[3] - ambient[k]) / (1.0 + g_ma)
         u[6] = (y[3] + g_tm * y[2]) / (1.0 + g_tm)
         u[7] = (y[1] + g_wm * y[3]) / (1.0 + g_wm)
-        x = a @ x + b @ u
-        y = c @ x
+        for i in range(4):  # x <- A x + B u, y = C x, without allocating
+            acc = 0.0
+            for j in range(4):
+                acc += a[i, j] * x[j]
+            for j in range(8):
+                acc += b[i, j] * u[j]
+            x_new[i] = acc
+        for i in range(4):
+            x[i] = x_new[i]
+        for i in range(4):
+            acc = 0.0
+            for j in range(4):
+                acc += c[i, j] * x[j]
+            y[i] = acc
         if keep:
-            traj[k] = y
+            for i in range(4):
+                traj[k, i] = y[i]
         dw = y[1] - ref_w[k]
         dm = y[3] - ref_m[k]
         sse_w += dw * dw
@@ -87,10 +107,11 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
 
 
 @numba.njit(parallel=True, cache=True)
-def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep, sse):
+def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep, sse,
+           use_sigmoid):
     for p in numba.prange(a.shape[0]):
         sse[p, 0], sse[p, 1] = _one_model(a[p], b[p], c[p], c_inv[p], theta[p], sig[p], lut, ratio, coolant,
-                                          ambient, i_max, y0, ref_w, ref_m, traj[p], keep)
+                                          ambient, i_max, y0, ref_w, ref_m, traj[p], keep, use_sigmoid)
 
 
 def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=None, keep_trajectories=False):
@@ -106,8 +127,10 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
     ref_m = zeros if ref_m is None else np.ascontiguousarray(ref_m, dtype=np.float64)
     traj = np.zeros((n_models, n_steps if keep_trajectories else 1, 4))
     sse = np.zeros((n_models, 2))
-    _batch(a, b, c, c_inv, np.ascontiguousarray(theta, dtype=np.float64), np.ascontiguousarray(sig, dtype=np.float64),
+    sig = np.ascontiguousarray(sig, dtype=np.float64)
+    use_sigmoid = not np.allclose(sig, identity_sigmoid(sig[:, 0, :]), rtol=0, atol=0)
+    _batch(a, b, c, c_inv, np.ascontiguousarray(theta, dtype=np.float64), sig,
            np.ascontiguousarray(inputs.table_losses), np.ascontiguousarray(inputs.speed_ratio),
            np.ascontiguousarray(inputs.coolant), np.ascontiguousarray(inputs.ambient), float(inputs.current_max),
-           np.asarray(y0, dtype=np.float64), ref_w, ref_m, traj, keep_trajectories, sse)
+           np.asarray(y0, dtype=np.float64), ref_w, ref_m, traj, keep_trajectories, sse, use_sigmoid)
     return sse, (traj if keep_trajectories else None)

@@ -39,19 +39,25 @@ def varying_resistances(p: LptnParameters, speed_ratio, coolant_c) -> dict[str, 
 
 
 def lti_matrices(p: LptnParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Continuous A (4x4), B (4x8), C = I4, D = 0 of the LTI LPTN with temperature sources."""
-    a = np.array([
-        [-(1 / p.R_yw + 1 / p.R_yt + 1 / p.R_cy0) / p.C_y, 1 / (p.C_y * p.R_yw), 1 / (p.C_y * p.R_yt), 0.0],
-        [1 / (p.C_w * p.R_yw), -(1 / p.R_yw + 1 / p.R_wt) / p.C_w, 1 / (p.C_w * p.R_wt), 1 / (p.C_w * p.a_wm)],
-        [1 / (p.C_t * p.R_yt), 1 / (p.C_t * p.R_wt), -(1 / p.R_yt + 1 / p.R_wt + 1 / p.a_tm) / p.C_t, 0.0],
-        [0.0, 0.0, 1 / (p.C_m * p.a_tm), -(1 / p.a_wm + 1 / p.a_ma) / p.C_m],
-    ])
-    b = np.zeros((4, 8))
-    b[0, 0], b[1, 1], b[2, 2], b[3, 3] = 1 / p.C_y, 1 / p.C_w, 1 / p.C_t, 1 / p.C_m
-    b[0, 4] = 1 / (p.C_y * p.R_cy0)
-    b[3, 5] = 1 / (p.C_m * p.a_ma)
-    b[2, 6], b[3, 6] = 1 / (p.C_t * p.a_tm), -1 / (p.C_m * p.a_tm)
-    b[1, 7], b[3, 7] = -1 / (p.C_w * p.a_wm), 1 / (p.C_m * p.a_wm)
+    """Continuous A (4x4), B (4x8), C = I4, D = 0 of the LTI LPTN with temperature sources.
+
+    The parameters may be arrays of one shape S (a batch of candidate models); A and B are then S + (4, 4|8).
+    """
+    shape = np.shape(p.C_y)
+    a = np.zeros(shape + (4, 4))
+    a[..., 0, 0] = -(1 / p.R_yw + 1 / p.R_yt + 1 / p.R_cy0) / p.C_y
+    a[..., 0, 1], a[..., 0, 2] = 1 / (p.C_y * p.R_yw), 1 / (p.C_y * p.R_yt)
+    a[..., 1, 0], a[..., 1, 1] = 1 / (p.C_w * p.R_yw), -(1 / p.R_yw + 1 / p.R_wt) / p.C_w
+    a[..., 1, 2], a[..., 1, 3] = 1 / (p.C_w * p.R_wt), 1 / (p.C_w * p.a_wm)
+    a[..., 2, 0], a[..., 2, 1] = 1 / (p.C_t * p.R_yt), 1 / (p.C_t * p.R_wt)
+    a[..., 2, 2] = -(1 / p.R_yt + 1 / p.R_wt + 1 / p.a_tm) / p.C_t
+    a[..., 3, 2], a[..., 3, 3] = 1 / (p.C_m * p.a_tm), -(1 / p.a_wm + 1 / p.a_ma) / p.C_m
+    b = np.zeros(shape + (4, 8))
+    b[..., 0, 0], b[..., 1, 1], b[..., 2, 2], b[..., 3, 3] = 1 / p.C_y, 1 / p.C_w, 1 / p.C_t, 1 / p.C_m
+    b[..., 0, 4] = 1 / (p.C_y * p.R_cy0)
+    b[..., 3, 5] = 1 / (p.C_m * p.a_ma)
+    b[..., 2, 6], b[..., 3, 6] = 1 / (p.C_t * p.a_tm), -1 / (p.C_m * p.a_tm)
+    b[..., 1, 7], b[..., 3, 7] = -1 / (p.C_w * p.a_wm), 1 / (p.C_m * p.a_wm)
     return a, b, np.eye(4), np.zeros((4, 8))
 
 
