@@ -1,0 +1,445 @@
+"""Dataset files: the schema, the writer (CSV + JSON sidecar), the loader and the column mapping.
+
+Schema (one header line, comma-separated, one row per sample, no blank lines in between):
+
+| column | unit | resolution in generated files | accepted range |
+|---|---|---|---|
+| time_s | s | 0.2 s steps from 0 | finite, strictly increasing, regular |
+| torque_Nm | Nm | 0.1 | -2000 .. 2000 |
+| speed_rpm | rpm | 1 | -1000 .. 15000 |
+| coolant_C | °C | 0.1 | -40 .. 150 |
+| ambient_C | °C | 0.1 | -40 .. 150 |
+| winding_C | °C | 0.1 | -40 .. 250 |
+| rotor_surface_C | °C | 0.1 | -40 .. 250 |
+| pm_C | °C | 0.1 | -40 .. 250 |
+
+pm_C is the PM reference, rotor_surface_C + 5 °C (paper section II-A). A user's file may carry either of the two;
+the loader then derives the other with the same 5 °C offset and records that in `Dataset.metadata["derived"]`.
+Other columns are ignored (listed in metadata). The ranges are those the CAN DBC can carry and a machine can
+reach. The sidecar `<name>.json` beside `<name>.csv` is optional for a user's data; when present its sha256
+must match the CSV.
+
+The loader never drops, reorders or repairs a row: the first problem ends the load with one DatasetError
+sentence naming the file, the column and the data row (1-based, the header is line 1, so data row n is line
+n + 1).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bench.commands.common import write_atomically
+from bench.errors import BenchError
+
+if TYPE_CHECKING:
+    from bench.drive.generate import Generated
+
+SCHEMA_VERSION = 1
+# Bump when anything that changes the generated numbers changes (plant, sensors, stand, sequence, motor).
+GENERATOR_VERSION = "1.0.0"
+DEFAULT_SEED = 20240
+COOLANT_SETPOINTS_C = (20.0, 40.0, 60.0)
+ROLES = {20.0: "identification", 40.0: "validation", 60.0: "identification"}
+SAMPLE_PERIOD_S = 0.2
+PM_OFFSET_K = 5.0
+# Relative tolerance on each time step; generated files are exact, logged data may jitter a little.
+TIME_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class Column:
+    name: str
+    unit: str
+    quantity: str
+    resolution: float
+    low: float
+    high: float
+    description: str
+    fmt: str
+
+
+SCHEMA: tuple[Column, ...] = (
+    Column("time_s", "s", "time", 0.2, -math.inf, math.inf, "time since the start of the test", "%.1f"),
+    Column("torque_Nm", "Nm", "torque", 0.1, -2000.0, 2000.0, "motor shaft torque", "%.1f"),
+    Column("speed_rpm", "rpm", "speed", 1.0, -1000.0, 15000.0, "motor speed", "%.0f"),
+    Column("coolant_C", "°C", "temperature", 0.1, -40.0, 150.0, "coolant inlet temperature", "%.1f"),
+    Column("ambient_C", "°C", "temperature", 0.1, -40.0, 150.0, "ambient (test cell) temperature", "%.1f"),
+    Column("winding_C", "°C", "temperature", 0.1, -40.0, 250.0, "stator winding temperature", "%.1f"),
+    Column("rotor_surface_C", "°C", "temperature", 0.1, -40.0, 250.0, "rotor surface temperature", "%.1f"),
+    Column("pm_C", "°C", "temperature", 0.1, -40.0, 250.0, "PM reference = rotor surface + 5 °C", "%.1f"),
+)
+COLUMNS = tuple(c.name for c in SCHEMA)
+BY_NAME = {c.name: c for c in SCHEMA}
+
+# Source unit -> (scale, offset) so that schema value = value·scale + offset.
+UNITS: dict[str, dict[str, tuple[float, float]]] = {
+    "time": {"s": (1.0, 0.0), "ms": (1e-3, 0.0), "min": (60.0, 0.0)},
+    "torque": {"Nm": (1.0, 0.0), "N·m": (1.0, 0.0), "kNm": (1000.0, 0.0)},
+    "speed": {"rpm": (1.0, 0.0), "1/min": (1.0, 0.0), "rad/s": (60.0 / (2 * math.pi), 0.0),
+              "1/s": (60.0, 0.0), "Hz": (60.0, 0.0)},
+    "temperature": {"°C": (1.0, 0.0), "C": (1.0, 0.0), "degC": (1.0, 0.0), "K": (1.0, -273.15),
+                    "°F": (5.0 / 9.0, -32.0 * 5.0 / 9.0), "F": (5.0 / 9.0, -32.0 * 5.0 / 9.0),
+                    "degF": (5.0 / 9.0, -32.0 * 5.0 / 9.0)},
+}
+
+
+class DatasetError(BenchError):
+    """A dataset file (or its column mapping) that the bench cannot use as it is."""
+
+
+@dataclass(frozen=True)
+class ColumnMapping:
+    """How a user's file maps onto the schema.
+
+    columns: source column name -> schema column name (unmapped names are used as they are);
+    units: schema column name -> unit of the source values (see UNITS), converted on load.
+    Example: ColumnMapping({"T_mot": "torque_Nm", "n_mot": "speed_rpm"}, {"speed_rpm": "rad/s"}).
+    """
+
+    columns: Mapping[str, str] = field(default_factory=dict)
+    units: Mapping[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for source, target in self.columns.items():
+            if target not in BY_NAME:
+                raise DatasetError(f"column mapping: {source!r} maps to {target!r}, which is not a schema column "
+                                   f"({', '.join(COLUMNS)})")
+        targets = list(self.columns.values())
+        for target in targets:
+            if targets.count(target) > 1:
+                raise DatasetError(f"column mapping: more than one source column maps to {target!r}")
+        for target, unit in self.units.items():
+            if target not in BY_NAME:
+                raise DatasetError(f"column mapping: unit given for {target!r}, which is not a schema column")
+            known = UNITS[BY_NAME[target].quantity]
+            if unit not in known:
+                raise DatasetError(f"column mapping: unit {unit!r} of {target!r} is not one of {', '.join(known)}")
+
+    @classmethod
+    def from_dict(cls, data: Mapping) -> ColumnMapping:
+        return cls(dict(data.get("columns", {})), dict(data.get("units", {})))
+
+    @classmethod
+    def from_json(cls, path: Path) -> ColumnMapping:
+        try:
+            return cls.from_dict(json.loads(Path(path).read_text(encoding="utf-8")))
+        except (OSError, ValueError, AttributeError) as exc:
+            raise DatasetError(f"column mapping {path} cannot be read as JSON ({exc})") from None
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """One loaded dataset: read-only float64 arrays per schema column, plus what is known about it."""
+
+    path: Path
+    time_s: np.ndarray
+    torque_Nm: np.ndarray
+    speed_rpm: np.ndarray
+    coolant_C: np.ndarray
+    ambient_C: np.ndarray
+    winding_C: np.ndarray
+    rotor_surface_C: np.ndarray
+    pm_C: np.ndarray
+    sample_period_s: float
+    coolant_setpoint_C: float | None   # from the sidecar; None for a file without one
+    sha256: str
+    metadata: dict
+
+    @property
+    def rows(self) -> int:
+        return len(self.time_s)
+
+    @property
+    def name(self) -> str:
+        return self.path.stem
+
+    def column(self, name: str) -> np.ndarray:
+        if name not in BY_NAME:
+            raise KeyError(f"unknown column {name!r}; the schema has {', '.join(COLUMNS)}")
+        return getattr(self, name)
+
+    def drive_inputs(self) -> np.ndarray:
+        """(rows, 4): torque_Nm, speed_rpm, coolant_C, ambient_C, the estimator's measured inputs."""
+        return np.column_stack([self.torque_Nm, self.speed_rpm, self.coolant_C, self.ambient_C])
+
+
+def dataset_sha256(path: Path) -> str:
+    """Hex sha256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def sidecar_path(csv_path: Path) -> Path:
+    return Path(csv_path).with_suffix(".json")
+
+
+def dataset_filename(setpoint_C: float) -> str:
+    return f"cycle_coolant{setpoint_C:g}.csv"
+
+
+def default_dataset_dir() -> Path:
+    """out/data in the current directory."""
+    return Path.cwd() / "out" / "data"
+
+
+# ---------------------------------------------------------------- writing
+
+
+def csv_bytes(columns: Mapping[str, np.ndarray]) -> bytes:
+    """The CSV text of a dataset in schema order, '\\n' line ends, values at their resolution."""
+    fmt = ",".join(BY_NAME[c].fmt for c in COLUMNS)
+    data = np.column_stack([np.asarray(columns[c], dtype=float) for c in COLUMNS])
+    out = io.StringIO()
+    out.write(",".join(COLUMNS) + "\n")
+    np.savetxt(out, data, fmt=fmt, delimiter=",", newline="\n")
+    return out.getvalue().encode("ascii")
+
+
+def write_file(path: Path, payload: bytes) -> None:
+    """Write bytes through a temporary name and a rename: never a half-written file."""
+    write_atomically(path, lambda tmp: tmp.write_bytes(payload))
+
+
+def write_dataset(csv_path: Path, columns: Mapping[str, np.ndarray], sidecar: dict) -> str:
+    """Write the CSV, then its sidecar with the CSV's sha256 (each atomically); returns the sha256."""
+    payload = csv_bytes(columns)
+    sha = hashlib.sha256(payload).hexdigest()
+    write_file(csv_path, payload)
+    meta = {**sidecar, "schema_version": SCHEMA_VERSION, "rows": len(columns["time_s"]), "sha256": sha,
+            "columns": [{"name": c.name, "unit": c.unit, "resolution": c.resolution, "description": c.description}
+                        for c in SCHEMA]}
+    text = json.dumps(meta, indent=2, sort_keys=True, ensure_ascii=False) + "\n"
+    write_file(sidecar_path(csv_path), text.encode("utf-8"))
+    return sha
+
+
+def ensure_default_datasets(out_dir: Path | None = None, seed: int | None = None) -> dict[int, Path]:
+    """The three datasets (coolant 20, 40, 60 °C) in out_dir, generated where missing or stale.
+
+    A file is reused when its sidecar names this generator version and seed and its sha256 matches.
+    """
+    out_dir = Path(out_dir) if out_dir is not None else default_dataset_dir()
+    seed = DEFAULT_SEED if seed is None else seed
+    paths = {}
+    for setpoint in COOLANT_SETPOINTS_C:
+        path = out_dir / dataset_filename(setpoint)
+        if not _is_current(path, seed, GENERATOR_VERSION):
+            generate_and_write(path, setpoint, seed)
+        paths[int(setpoint)] = path
+    return paths
+
+
+def _is_current(path: Path, seed: int, version: str) -> bool:
+    try:
+        meta = json.loads(sidecar_path(path).read_text(encoding="utf-8"))
+        return (meta.get("seed") == seed and meta.get("generator_version") == version
+                and meta.get("sha256") == dataset_sha256(path))
+    except (OSError, ValueError):
+        return False
+
+
+def generate_and_write(path: Path, setpoint_C: float, seed: int) -> tuple[Generated, str]:
+    """Generate one dataset and write it with its sidecar; returns (Generated, sha256)."""
+    from bench.drive import generate as gen
+    from bench.drive.plant import TRUE_EFFECTS
+    from bench.drive.sequence import TestSequence
+    from bench.drive.stand import STAND
+
+    sequence = TestSequence()
+    result = gen.generate(setpoint_C, seed, sequence)
+    sidecar = {
+        "generator": "bench.drive", "generator_version": GENERATOR_VERSION, "seed": seed,
+        "coolant_setpoint_C": setpoint_C, "role": ROLES.get(setpoint_C, "extra"),
+        "sample_period_s": SAMPLE_PERIOD_S, "duration_s": sequence.duration_s,
+        "initial_state": "all nodes at the coolant set point",
+        "phases": [{"name": p.name, "kind": p.kind, "start_s": p.start_s, "end_s": p.end_s} for p in sequence.phases],
+        "preheat": {"torque_Nm": sequence.preheat.torque_Nm, "speed_rpm": sequence.preheat.speed_rpm,
+                    "ramp_s": sequence.preheat.ramp_s},
+        "thermal_parameters": gen.PARAMETER_SET, "motor": sequence.motor.as_dict(),
+        "vehicle": sequence.vehicle.as_dict(), "true_effects": TRUE_EFFECTS.as_dict(), "stand": STAND.as_dict(),
+    }
+    sha = write_dataset(path, result.columns, sidecar)
+    return result, sha
+
+
+# ---------------------------------------------------------------- loading
+
+
+def load_dataset(path: Path, mapping: ColumnMapping | None = None,
+                 sample_period_s: float | None = SAMPLE_PERIOD_S) -> Dataset:
+    """Read and check a dataset CSV (and its sidecar, if any); raises DatasetError on the first problem.
+
+    sample_period_s: the period the file must have (the bench's 5 Hz by default); None accepts any
+    regular period.
+    """
+    path = Path(path)
+    mapping = mapping or ColumnMapping()
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise DatasetError(f"{path} cannot be read ({exc.strerror or exc}); check the path") from None
+    sha = hashlib.sha256(raw).hexdigest()
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path} is not UTF-8 text; save it as a UTF-8 CSV") from None
+    header, rows = _split(path, text)
+    sources = _locate_columns(path, header, mapping)
+    values = {name: _parse_column(path, name, src, idx, rows, mapping) for name, (src, idx) in sources.items()}
+    derived = _derive_pm(values)
+    if len(rows) < 2:
+        raise DatasetError(f"{path} has {len(rows)} data row(s); a dataset needs at least two")
+    period = _check_time(path, sources["time_s"][0], values["time_s"], sample_period_s)
+    for name, column in BY_NAME.items():
+        if name in sources:
+            _check_range(path, column, sources[name][0], values[name])
+    meta = _read_sidecar(path, sha)
+    meta.update({
+        "derived": derived,
+        "source_columns": {name: src for name, (src, _) in sources.items()},
+        "ignored_columns": [h for i, h in enumerate(header) if i not in {idx for _, idx in sources.values()}],
+        "units_converted": dict(mapping.units),
+    })
+    setpoint = meta.get("coolant_setpoint_C")
+    for array in values.values():
+        array.setflags(write=False)
+    return Dataset(path=path, **values, sample_period_s=period,
+                   coolant_setpoint_C=None if setpoint is None else float(setpoint), sha256=sha, metadata=meta)
+
+
+def _split(path: Path, text: str) -> tuple[list[str], list[list[str]]]:
+    lines = list(csv.reader(io.StringIO(text)))
+    while lines and not lines[-1]:
+        lines.pop()  # trailing empty lines are the end of the file, not rows
+    if not lines:
+        raise DatasetError(f"{path} is empty; it needs a header line ({','.join(COLUMNS)}) and data rows")
+    header = [h.strip() for h in lines[0]]
+    for i, name in enumerate(header):
+        if name in header[:i]:
+            raise DatasetError(f"{path}, line 1: column {name!r} appears twice in the header")
+    rows = lines[1:]
+    for n, row in enumerate(rows, start=1):
+        if len(row) != len(header):
+            what = "is empty" if not row else f"has {len(row)} fields, the header has {len(header)}"
+            raise DatasetError(f"{path}, data row {n} (line {n + 1}) {what}; fix or remove that line")
+    return header, rows
+
+
+def _locate_columns(path: Path, header: list[str], mapping: ColumnMapping) -> dict[str, tuple[str, int]]:
+    """schema name -> (source name, index), applying the mapping."""
+    for source in mapping.columns:
+        if source not in header:
+            raise DatasetError(f"{path}: column {source!r} named in the column mapping is not in the header "
+                               f"({', '.join(header)})")
+    found: dict[str, tuple[str, int]] = {}
+    for i, name in enumerate(header):
+        target = mapping.columns.get(name, name if name not in mapping.columns.values() else None)
+        if target in BY_NAME:
+            found[target] = (name, i)
+    required = [c for c in COLUMNS if c not in ("rotor_surface_C", "pm_C")]
+    for name in required:
+        if name not in found:
+            raise DatasetError(f"{path}: column {name!r} is missing (header: {', '.join(header)}); "
+                               "rename it or map it with a column mapping")
+    if "pm_C" not in found and "rotor_surface_C" not in found:
+        raise DatasetError(f"{path}: column 'pm_C' (or 'rotor_surface_C') is missing (header: {', '.join(header)}); "
+                           "rename it or map it with a column mapping")
+    return found
+
+
+def _parse_column(path, name, source, index, rows, mapping: ColumnMapping) -> np.ndarray:
+    label = name if source == name else f"{source!r} ({name})"
+    values = np.empty(len(rows))
+    for n, row in enumerate(rows):
+        try:
+            values[n] = float(row[index])
+        except ValueError:
+            shown = repr(row[index]) if row[index].strip() else "empty"
+            raise DatasetError(f"{path}, column {label}, data row {n + 1} (line {n + 2}): value {shown} "
+                               "is not a number") from None
+    bad = ~np.isfinite(values)
+    if bad.any():
+        n = int(np.argmax(bad)) + 1
+        kind = "NaN" if np.isnan(values[n - 1]) else "infinite"
+        raise DatasetError(f"{path}, column {label}, data row {n} (line {n + 1}): value is {kind}; "
+                           "the bench never fills gaps, so fix the source data")
+    unit = mapping.units.get(name)
+    if unit is not None:
+        scale, offset = UNITS[BY_NAME[name].quantity][unit]
+        values = values * scale + offset
+    return values
+
+
+def _derive_pm(values: dict[str, np.ndarray]) -> list[str]:
+    """Fill the one of pm_C / rotor_surface_C a file lacks from the other (PM reference = surface + 5 °C)."""
+    if "pm_C" not in values:
+        values["pm_C"] = values["rotor_surface_C"] + PM_OFFSET_K
+        return ["pm_C = rotor_surface_C + 5"]
+    if "rotor_surface_C" not in values:
+        values["rotor_surface_C"] = values["pm_C"] - PM_OFFSET_K
+        return ["rotor_surface_C = pm_C - 5"]
+    return []
+
+
+def _check_time(path: Path, source: str, t: np.ndarray, expected: float | None) -> float:
+    label = "time_s" if source == "time_s" else f"{source!r} (time_s)"
+    steps = np.diff(t)
+    bad = steps <= 0
+    if bad.any():
+        n = int(np.argmax(bad)) + 2
+        raise DatasetError(f"{path}, column {label}, data row {n} (line {n + 1}): time {t[n - 1]:g} s does not "
+                           f"increase after {t[n - 2]:g} s; rows must be in time order without repeats")
+    period = float(np.median(steps))
+    if expected is not None and abs(period - expected) > TIME_TOLERANCE * expected:
+        raise DatasetError(f"{path}, column {label}: the sample period is {period:g} s ({1 / period:g} Hz), "
+                           f"the bench needs {expected:g} s ({1 / expected:g} Hz); resample the data first")
+    period = expected if expected is not None else period
+    off = np.abs(steps - period) > TIME_TOLERANCE * period
+    if off.any():
+        n = int(np.argmax(off)) + 2
+        raise DatasetError(f"{path}, column {label}, data row {n} (line {n + 1}): irregular time step "
+                           f"{steps[n - 2]:g} s (from {t[n - 2]:g} s to {t[n - 1]:g} s), the sample period "
+                           f"is {period:g} s; the data need a gap-free regular time base")
+    return period
+
+
+def _check_range(path: Path, column: Column, source: str, values: np.ndarray) -> None:
+    bad = (values < column.low) | (values > column.high)
+    if bad.any():
+        n = int(np.argmax(bad)) + 1
+        label = column.name if source == column.name else f"{source!r} ({column.name})"
+        raise DatasetError(f"{path}, column {label}, data row {n} (line {n + 1}): value {values[n - 1]:g} "
+                           f"{column.unit} is outside the physical range {column.low:g} .. {column.high:g} "
+                           f"{column.unit}; check the column's unit and mapping")
+
+
+def _read_sidecar(path: Path, sha: str) -> dict:
+    side = sidecar_path(path)
+    if not side.exists():
+        return {"sidecar": None}
+    try:
+        meta = json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{side} is not valid JSON ({exc}); regenerate it or delete it") from None
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{side} must hold a JSON object; regenerate it or delete it")
+    if meta.get("schema_version") != SCHEMA_VERSION:
+        raise DatasetError(f"{side} has schema version {meta.get('schema_version')!r}, this bench reads "
+                           f"version {SCHEMA_VERSION}; regenerate the dataset with 'bench data'")
+    if meta.get("sha256") not in (None, sha):
+        raise DatasetError(f"{path} does not match the sha256 in its sidecar {side.name} (the CSV was changed "
+                           "after it was written); regenerate it with 'bench data' or delete the sidecar")
+    return {**meta, "sidecar": str(side)}

@@ -1,0 +1,17 @@
+"""Generate the three default datasets once per test session."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.drive.dataset import DEFAULT_SEED, ensure_default_datasets, load_dataset
+
+
+@pytest.fixture(scope="session")
+def dataset_paths(tmp_path_factory):
+    return ensure_default_datasets(tmp_path_factory.mktemp("data"), DEFAULT_SEED)
+
+
+@pytest.fixture(scope="session")
+def datasets(dataset_paths):
+    return {c: load_dataset(p) for c, p in dataset_paths.items()}
