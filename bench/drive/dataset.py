@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 
 SCHEMA_VERSION = 1
 # Bump when anything that changes the generated numbers changes (plant, sensors, stand, sequence, motor).
-GENERATOR_VERSION = "1.0.0"
+GENERATOR_VERSION = "1.1.0"
 DEFAULT_SEED = 20240
 COOLANT_SETPOINTS_C = (20.0, 40.0, 60.0)
 ROLES = {20.0: "identification", 40.0: "validation", 60.0: "identification"}

@@ -14,10 +14,14 @@ nominal maps and an LTI network driven by them do not capture (`TrueEffects`):
   flux in the iron;
 - iron losses fall with iron temperature (higher steel resistivity, lower hysteresis), -0.1 %/K;
 - magnet eddy losses fall as the magnet's resistivity rises, +0.4 %/K;
-- map error growing with load: the FE maps miss PWM-ripple, end-winding and local-saturation losses, so the
-  real copper loss is the map's times (1 + 0.30·(I/I_max)²) and the real iron loss times (1 + 0.30·|T|/T_peak).
-The load errors are static functions of each loss, which a Hammerstein input nonlinearity can learn; the
-temperature effects are only partly learnable, which keeps the problem honest.
+- map error growing with load: the FE maps miss PWM-ripple, end-winding and local-saturation copper losses, so
+  the real copper loss is the map's times (1 + 1.5·(I/I_max)²), i.e. up to 2.5 times the map at I_max; and they
+  miss the 3-D eddy paths in the magnets, so the real magnet loss is the map's times (1 + 1.5·P_m,map/P_m,ref).
+  An iron-loss load error (× (1 + e·|T|/T_peak)) is available but off by default: it is not a function of the
+  iron loss alone, so no per-input nonlinearity could learn it and it would only blur the comparison.
+The copper and magnet load errors are static functions of their losses, which a Hammerstein input nonlinearity can learn
+(an identified LTI network can only split the difference between preheat and cycles); the temperature effects
+are only partly learnable, which keeps the problem honest.
 """
 
 from __future__ import annotations
@@ -41,14 +45,18 @@ class TrueEffects:
     remanence_per_K: float = -0.0012         # B_r(ϑ_m) = B_r20·(1 + α(ϑ_m - 20))
     iron_per_K: float = -0.001               # iron loss × (1 + α(ϑ_iron - 20)), ϑ_iron = mean(yoke, tooth)
     magnet_resistivity_per_K: float = 0.004  # magnet eddy loss ÷ (1 + α(ϑ_m - 20))
-    copper_load_error: float = 0.30          # copper loss × (1 + e·(I/I_max)²)
-    iron_load_error: float = 0.30            # iron loss × (1 + e·|T|/T_peak)
+    copper_load_error: float = 1.5           # copper loss × (1 + e·((I/I_max)² - knee))
+    copper_load_knee: float = 0.0            # below this (I/I_max)² the map overestimates the copper loss
+    saturation_loss: float = 0.0             # extra copper loss share once the teeth saturate: × (1 + e·σ(…))
+    saturation_current: float = 0.43         # I/I_max where tooth-tip saturation sets in
+    magnet_load_error: float = 1.5           # magnet loss × (1 + e·P_m,map/P_m,ref), P_m,ref = MotorSpec.magnet_W
+    iron_load_error: float = 0.0             # iron loss × (1 + e·|T|/T_peak); see the module docstring
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
 
 
-NO_EFFECTS = TrueEffects(0.0, 0.0, 0.0, 0.0, 0.0)
+NO_EFFECTS = TrueEffects(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 TRUE_EFFECTS = TrueEffects()
 
 
@@ -92,7 +100,9 @@ def make_true_losses(spec: MotorSpec, effects: TrueEffects, p: LptnParameters):
     p_h, p_e, c_d, c_q = spec.iron_hysteresis_W, spec.iron_eddy_W, spec.demagnetization, spec.armature_flux
     mag, c0, share = spec.magnet_W, spec.magnet_no_load_share, spec.magnet_torque_share
     rem, a_fe, a_pm = effects.remanence_per_K, effects.iron_per_K, effects.magnet_resistivity_per_K
-    e_cu, e_fe = effects.copper_load_error, effects.iron_load_error
+    e_cu, e_fe, knee = effects.copper_load_error, effects.iron_load_error, effects.copper_load_knee
+    e_pm = effects.magnet_load_error
+    e_sat, r_sat = effects.saturation_loss, effects.saturation_current
     k0, k1, k2, k3 = p.k_0, p.k_1, p.k_2, p.k_3
 
     def losses(i_q, i_d, tau, w, f, th_y, th_w, th_t, th_m):
@@ -103,13 +113,15 @@ def make_true_losses(spec: MotorSpec, effects: TrueEffects, p: LptnParameters):
         p_dc0 = r15 * i2
         p_ac0 = w * w * (k_ac * p_dc0 + ac_pm * flux * flux)
         cu = 1.0 + alpha_cu * (th_w - ref)
-        p_w = (p_dc0 * cu + p_ac0 / cu) * (1.0 + e_cu * r * r)                      # eqs. 3-5, load error
+        saturation = e_sat / (1.0 + 2.718281828459045 ** (-(r - r_sat) / 0.03))
+        p_w = (p_dc0 * cu + p_ac0 / cu) * (1.0 + e_cu * (r * r - knee) + saturation)      # eqs. 3-5, load error
         b = flux * (1.0 - c_d * i_d / i_max)
         p_s = (p_h * f + p_e * f * f) * (b * b + c_q * c_q * tau * tau)
         p_s = p_s * (1.0 + a_fe * (0.5 * (th_y + th_t) - ref)) * (1.0 + e_fe * tau)
         k_s = k0 + k1 * r + k2 * w + k3 * r * w                                      # eq. 8
         m = c0 * flux + (1.0 - c0) * r
-        p_m = mag * w * w * m * m / (1.0 + a_pm * (th_m - ref))
+        p_m_map = mag * w * w * m * m
+        p_m = p_m_map * (1.0 + e_pm * p_m_map / mag) / (1.0 + a_pm * (th_m - ref))
         return k_s * p_s, p_w, (1.0 - k_s) * p_s, p_m                               # eqs. 6-7
 
     return losses

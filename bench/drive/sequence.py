@@ -1,7 +1,7 @@
 """The paper's test sequence: preheat 1800 s, FTP-75 1874 s, preheat 1800 s, WLTC3 1800 s = 7274 s.
 
 Each drive cycle is preceded by a preheat: the machine runs at one constant operating point (motor torque
-controlled, the dynamometer holding speed), 360 Nm at 3000 rpm (113 kW, roughly the continuous rating of a
+controlled, the dynamometer holding speed), 345 Nm at 3000 rpm (108 kW, roughly the continuous rating of a
 200 kW-peak machine), which lifts the winding about 60 K above the coolant; 20 s linear ramps lead in and
 out so the cycle starts from standstill. Torque and speed are functions of continuous time:
 speed is the cycle trace interpolated linearly between its 1 Hz points, torque follows from the
@@ -26,7 +26,7 @@ PREHEAT_S = 1800.0
 class OperatingPoint:
     """The preheat: constant torque and speed, reached and left by linear ramps of ramp_s."""
 
-    torque_Nm: float = 360.0
+    torque_Nm: float = 345.0
     speed_rpm: float = 3000.0
     ramp_s: float = 20.0
 

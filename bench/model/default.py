@@ -1,4 +1,9 @@
-"""The model artifact shipped in the package, so `bench run` works on a fresh clone."""
+"""The model artifacts shipped in the package, so `bench run` works on a fresh clone.
+
+They are what `bench identify --all-kinds --out bench/data/default_model.json` writes on the default datasets
+(`bench data`, default seed) with the default PSO seed; tests/model/test_default_artifact.py regenerates them
+and checks that the content is identical.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +11,10 @@ from importlib.resources import files
 from pathlib import Path
 
 DEFAULT_ARTIFACT_NAME = "default_model.json"
+DEFAULT_KIND = "hammerstein"
 
 
-def default_artifact_path() -> Path:
-    return Path(str(files("bench") / "data" / DEFAULT_ARTIFACT_NAME))
+def default_artifact_path(kind: str = DEFAULT_KIND) -> Path:
+    """The packaged artifact of a model kind (hammerstein, lti-lptn or pv-lptn)."""
+    name = DEFAULT_ARTIFACT_NAME if kind == DEFAULT_KIND else f"default_model-{kind}.json"
+    return Path(str(files("bench") / "data" / name))

@@ -74,7 +74,7 @@ def test_energy_balance_at_steady_state():
     heat_out = g_cy * (x[0] - 40.0) + g_ma * (x[3] - 25.0)
     assert heat_out == pytest.approx(losses.sum(), rel=1e-6)
     np.testing.assert_allclose(steady_state(P, losses, li.w, 40.0, 25.0), x, atol=1e-5)
-    assert 30 < x[1] - 40 < 120                             # a hot, plausible winding
+    assert 30 < x[1] - 40 < 150                             # hot but below class-H insulation (180 °C)
 
 
 @pytest.fixture(scope="module")

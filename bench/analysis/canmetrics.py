@@ -1,0 +1,263 @@
+"""From a decoded bus log to the bench's numbers: references, agreement, accuracy, timing, bus load.
+
+References, both fed with the drive values *as decoded from the frames the host sent* and the initial
+temperatures as decoded from the ResetTemps frames, so CAN quantization is the same for all:
+* offline float32: `target_sim.model.run_offline`, the target's own code (agreement must be within the 0.01 °C
+  quantization of the temperature signals, ±0.005 °C);
+* offline float64: the interval means in float64 through the artifact's float64 coefficients: the numba kernel
+  `bench.thermal.estimator.run_batch` for the LTI LPTN and the Hammerstein model, the float64 twin of the target's
+  estimator for the parameter-varying LPTN (which has no batch kernel).
+The measured winding and PM temperatures (when the dataset is given) are interpolated at the step times
+(k+1)·Δt, as in `bench.model.runs`. Yoke and tooth have no measurement: their RMSE is against the float64 model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.analysis.logdecode import BusRecord
+from bench.drive.motor import MAP_TABLES, LossMaps
+from bench.thermal.estimator import SIGMOID_ROWS, StepInputs, identity_sigmoid, loop_parameters, run_batch
+from bench.thermal.excitation import interval_means
+from bench.thermal.parameters import LptnParameters
+from host.results import gap_count, percentiles
+from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
+from target_sim.model import Float32Estimator, run_offline
+from target_sim.transport import NOMINAL_BITRATE
+
+TEMPERATURES = ("yoke", "winding", "tooth", "magnet")
+QUANTIZATION_C = 0.005          # half the 0.01 °C resolution of the temperature signals
+AGREEMENT_TOLERANCE_C = QUANTIZATION_C + 1e-9
+HEARTBEAT_TIMEOUT_S = 0.5
+CAN_TEMP_RANGE = (-50.0, 600.0)
+
+
+@dataclass
+class References:
+    step_rows: np.ndarray           # (steps,) data row after which model step k ran
+    step_time_s: np.ndarray         # (steps,) (k+1)·Δt
+    f32: np.ndarray                 # (steps, 4) yoke, winding, tooth, magnet
+    f64: np.ndarray
+    measured_winding: np.ndarray | None
+    measured_pm: np.ndarray | None
+
+
+def float64_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np.ndarray:
+    """(steps, 4) outputs of the model in double precision on the float64 interval means of `drive`."""
+    means = interval_means(drive, artifact.data_sample_period, artifact.dt)
+    if len(means) == 0:
+        return np.zeros((0, 4))
+    if artifact.kind == "pv-lptn":
+        model = Float32Estimator(artifact, dtype=np.float64)
+        model.reset(np.asarray(initial, dtype=np.float64))
+        return np.array([model.step(*row) for row in means], dtype=np.float64).reshape(-1, 4)
+
+    def f64(*keys):
+        return artifact.array(*keys, dtype=np.float64)
+
+    maps = LossMaps(f64("losses", "torque_axis_Nm"), f64("losses", "speed_axis_rpm"),
+                    {name: f64("losses", "tables", name) for name in MAP_TABLES})
+    table = maps.evaluate(means[:, 0], means[:, 1])
+    inputs = StepInputs(table_losses=np.column_stack([table[name] for name in MAP_TABLES]),
+                        speed_ratio=means[:, 1] / float(f64("lptn", "speed_max_rpm")),
+                        coolant=means[:, 2], ambient=means[:, 3],
+                        current_max=float(f64("losses", "current_max_A")))
+    params = LptnParameters(**{name: float(f64("lptn", "parameters", name)) for name in LPTN_PARAMETERS})
+    if artifact.kind == "hammerstein":
+        sig = np.stack([f64("input_nonlinearity", row) for row in SIGMOID_ROWS])
+    else:
+        sig = identity_sigmoid(np.ones(4))
+    a, b, c = (f64("linear_block", m) for m in ("A", "B", "C"))
+    _, traj = run_batch(a[None], b[None], c[None], loop_parameters(params)[None], sig[None], inputs,
+                        np.asarray(initial, dtype=np.float64), keep_trajectories=True)
+    return traj[0]
+
+
+def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None) -> References:
+    step_rows, f32 = run_offline(artifact, drive, initial)
+    f64 = float64_reference(artifact, drive, initial)
+    steps = min(len(step_rows), len(f64))
+    step_time = (np.arange(steps) + 1) * artifact.dt
+    winding = pm = None
+    if dataset is not None:
+        winding = np.interp(step_time, dataset.time_s, dataset.winding_C)
+        pm = np.interp(step_time, dataset.time_s, dataset.pm_C)
+    return References(step_rows[:steps], step_time, f32[:steps].astype(np.float64), f64[:steps], winding, pm)
+
+
+def _rmse(a: np.ndarray, b: np.ndarray) -> float | None:
+    ok = np.isfinite(a) & np.isfinite(b)
+    return float(np.sqrt(np.mean((a[ok] - b[ok]) ** 2))) if ok.any() else None
+
+
+def _max_abs(a: np.ndarray) -> float | None:
+    a = a[np.isfinite(a)]
+    return float(np.max(np.abs(a))) if a.size else None
+
+
+# ------------------------------------------------------------------------------------------------ bus load
+def _crc15(bits: np.ndarray) -> np.ndarray:
+    """CAN CRC-15 (polynomial 0x4599) of each row of a (frames, n) bit matrix."""
+    crc = np.zeros(bits.shape[0], dtype=np.int64)
+    for i in range(bits.shape[1]):
+        feedback = bits[:, i] ^ ((crc >> 14) & 1)
+        crc = (crc << 1) & 0x7FFF
+        crc ^= np.where(feedback == 1, 0x4599, 0)
+    return crc
+
+
+def frame_bits(ids: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """Exact bits on the wire of classic 11-bit data frames with 8 data bytes, stuff bits and 3-bit IFS included."""
+    n = len(ids)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    id_bits = (ids[:, None] >> np.arange(10, -1, -1)) & 1
+    dlc_bits = np.tile(np.array([1, 0, 0, 0]), (n, 1))      # DLC = 8
+    data_bits = np.unpackbits(data.astype(np.uint8), axis=1)  # MSB first per byte, bytes in order
+    head = np.column_stack([np.zeros(n, dtype=np.int64), id_bits, np.zeros((n, 3), dtype=np.int64), dlc_bits,
+                            data_bits]).astype(np.int64)  # SOF, ID, RTR, IDE, r0, DLC, data
+    crc = _crc15(head)
+    crc_bits = (crc[:, None] >> np.arange(14, -1, -1)) & 1
+    stuffed = np.column_stack([head, crc_bits])              # the bit-stuffed region: SOF .. CRC
+    # count stuff bits: after 5 equal bits a complementary one is inserted (and counts toward the next run)
+    stuff = np.zeros(n, dtype=np.int64)
+    last = stuffed[:, 0].copy()
+    run = np.ones(n, dtype=np.int64)
+    for i in range(1, stuffed.shape[1]):
+        bit = stuffed[:, i]
+        same = bit == last
+        run = np.where(same, run + 1, 1)
+        last = bit
+        insert = run == 5
+        stuff += insert
+        # the stuff bit is the complement of `last`: a new run of length 1 with the opposite value
+        last = np.where(insert, 1 - last, last)
+        run = np.where(insert, 1, run)
+    fixed_tail = 1 + 2 + 7 + 3                                # CRC delimiter, ACK slot+delimiter, EOF, IFS
+    return stuffed.shape[1] + stuff + fixed_tail
+
+
+def bus_load(record: BusRecord, data: np.ndarray, sample_period_s: float, bitrate: int = NOMINAL_BITRATE,
+             window_s: float = 1.0) -> dict:
+    """Bus load at `bitrate`: of the schedule at the data rate, and of this log over its own time."""
+    bits = frame_bits(record.frame_ids, data) if len(data) else np.zeros(0, dtype=np.int64)
+    out: dict = {"bitrate": bitrate, "bits_per_frame_mean": float(bits.mean()) if bits.size else None}
+    if not bits.size or record.rows == 0:
+        return {**out, "data_rate_percent": None, "window_s": window_s, "window_start_s": [],
+                "window_percent": []}
+    heartbeat_ids = {0x230, 0x231}
+    is_heartbeat = np.isin(record.frame_ids, list(heartbeat_ids))
+    per_row_bits = bits[~is_heartbeat].sum() / record.rows
+    heartbeat_bits_per_s = float(bits[is_heartbeat].mean()) * len(heartbeat_ids) * 10 if is_heartbeat.any() else 0.0
+    out["data_rate_percent"] = float((per_row_bits / sample_period_s + heartbeat_bits_per_s) / bitrate * 100.0)
+    t = record.frame_s - record.frame_s[0]
+    edges = np.arange(0.0, max(t[-1], window_s) + window_s, window_s)
+    sums, _ = np.histogram(t, bins=edges, weights=bits)
+    out.update({"window_s": window_s, "window_start_s": edges[:-1].tolist(),
+                "window_percent": (sums / (bitrate * window_s) * 100.0).tolist(),
+                "replay_peak_percent": float(sums.max() / (bitrate * window_s) * 100.0)})
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ metrics
+def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
+            bitrate: int = NOMINAL_BITRATE) -> tuple[dict, References]:
+    """The report's metric table (JSON-ready) and the reference trajectories."""
+    if record.initial is None:
+        raise ValueError("the log has no complete RESET (ResetTemps1, ResetTemps2, Control RESET)")
+    refs = references(artifact, record.drive, record.initial, dataset)
+    answered = record.answered
+    can_at_steps = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+    in_range = (refs.f32 >= CAN_TEMP_RANGE[0]) & (refs.f32 <= CAN_TEMP_RANGE[1])
+    agree = np.where(in_range, can_at_steps - refs.f32, np.nan)
+    saturated = int(np.count_nonzero(~in_range))
+    f32_err = refs.f32 - refs.f64
+    rmse = {}
+    rmse_vs = {}
+    for i, name in enumerate(TEMPERATURES):
+        measured = {"winding": refs.measured_winding, "magnet": refs.measured_pm}.get(name)
+        if measured is not None:
+            rmse[name] = _rmse(can_at_steps[:, i], measured)
+            rmse_vs[name] = "measured"
+        else:
+            rmse[name] = _rmse(can_at_steps[:, i], refs.f64[:, i])
+            rmse_vs[name] = "float64 model"
+    model_rmse = {}
+    if refs.measured_winding is not None:
+        for label, traj in (("float64", refs.f64), ("float32", refs.f32)):
+            model_rmse[label] = {"winding": _rmse(traj[:, 1], refs.measured_winding),
+                                 "magnet": _rmse(traj[:, 3], refs.measured_pm)}
+    rtt_us = (record.replied_s - record.sent_s)[answered] * 1e6
+    span = (np.nanmax(record.replied_s) - record.sent_s[0]) if answered.any() else float("nan")
+    status_gaps = np.diff(record.status_s) if len(record.status_s) > 1 else np.zeros(0)
+    timing = record.timing
+    info = record.target_info
+    dt = artifact.dt
+    max_agree = {name: _max_abs(agree[:, i]) for i, name in enumerate(TEMPERATURES)}
+    metrics = {
+        "model": {"id": f"{artifact.model_id:08x}", "kind": artifact.kind, "realization": artifact.realization,
+                  "dt_s": dt, "log_model_id": f"{record.model_id:08x}" if record.model_id is not None else None},
+        "steps_sent": record.rows,
+        "replies": int(np.count_nonzero(answered)),
+        "missing": int(record.rows - np.count_nonzero(answered)),
+        "sequence_gaps": gap_count(answered),
+        "model_steps": int(len(refs.step_rows)),
+        "max_abs_can_minus_float32_C": max_agree,
+        "can_agrees_with_float32": all(v is None or v <= AGREEMENT_TOLERANCE_C for v in max_agree.values()),
+        "saturated_values": saturated,
+        "max_abs_float32_minus_float64_C": {name: _max_abs(f32_err[:, i]) for i, name in enumerate(TEMPERATURES)},
+        "rmse_C": rmse,
+        "rmse_reference": rmse_vs,
+        "model_rmse_vs_measured_C": model_rmse,
+        "step_time_us": percentiles(timing.get("measured_us", [])),
+        "overruns": int(timing["overruns"].max()) if timing.get("overruns") is not None and
+        timing["overruns"].size else 0,
+        "est_cycles": int(timing["cycles"].max()) if timing.get("cycles") is not None and timing["cycles"].size
+        else None,
+        "est_exec_time_us": float(timing["exec_us"].max()) if timing.get("exec_us") is not None and
+        timing["exec_us"].size else None,
+        "cpu_load_percent": float(timing["cpu_load"].max()) if timing.get("cpu_load") is not None and
+        timing["cpu_load"].size else None,
+        "flash_bytes": info.get("flash_bytes"),
+        "ram_bytes": info.get("ram_bytes"),
+        "round_trip_us": percentiles(rtt_us),
+        "wall_time_s": float(span) if np.isfinite(span) else None,
+        "throughput_steps_per_s": float(record.rows / span) if np.isfinite(span) and span > 0 else None,
+        "throughput_model_steps_per_s": float(len(refs.step_rows) / span) if np.isfinite(span) and span > 0
+        else None,
+        "heartbeat": {"frames": int(len(record.status_s)),
+                      "max_gap_s": float(status_gaps.max()) if status_gaps.size else None,
+                      "losses": int(np.count_nonzero(status_gaps > HEARTBEAT_TIMEOUT_S))},
+        "target_rx_errors": record.rx_errors,
+        "invalid_frames_in_log": record.invalid,
+        "target_faults_seen": _fault_names(record.faults_seen),
+        "frames_in_log": record.frames,
+        "log": str(record.path),
+    }
+    metrics["bus_load"] = bus_load(record, record.frame_data, artifact.data_sample_period, bitrate)
+    return metrics, refs
+
+
+def _fault_names(bits: int) -> list[str]:
+    from dbc import FaultBit
+    return [bit.name for bit in FaultBit if bit & bits]
+
+
+def problems(metrics: dict) -> list[str]:
+    """Reasons the run is not clean, one sentence each."""
+    out = []
+    if metrics["missing"]:
+        out.append(f"{metrics['missing']} of {metrics['steps_sent']} steps got no reply "
+                   f"({metrics['sequence_gaps']} gaps)")
+    if metrics["heartbeat"]["losses"]:
+        out.append(f"the target's heartbeat was lost {metrics['heartbeat']['losses']} time(s)")
+    if not metrics["can_agrees_with_float32"]:
+        worst = max(v for v in metrics["max_abs_can_minus_float32_C"].values() if v is not None)
+        out.append(f"CAN temperatures differ from the offline float32 reference by up to {worst:.4f} °C "
+                   f"(more than the {QUANTIZATION_C} °C quantization)")
+    bad = {k: v for k, v in metrics["target_rx_errors"].items() if v}
+    if bad:
+        out.append(f"the target rejected or could not sequence frames: {bad}")
+    return out

@@ -1,0 +1,124 @@
+"""The report's PNG figures (matplotlib, Agg backend, imported only when a report is written)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bench.analysis.canmetrics import TEMPERATURES, References
+from bench.analysis.logdecode import BusRecord
+
+LABELS = {"yoke": "stator yoke", "winding": "stator winding", "tooth": "stator tooth", "magnet": "permanent magnet"}
+ORDER = (1, 3, 0, 2)  # winding, magnet, yoke, tooth
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> None:
+    tmp = path.with_name(f".{path.stem}.partial.png")
+    fig.savefig(tmp, dpi=110)
+    tmp.replace(path)
+
+
+def temperatures(path: Path, record: BusRecord, refs: References, title: str) -> None:
+    """CAN temperatures vs measured reference vs offline float64 and float32 model, per node."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(4, 1, figsize=(11, 12), sharex=True)
+    t_h = refs.step_time_s / 3600.0
+    can = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+    for ax, i in zip(axes, ORDER, strict=True):
+        name = TEMPERATURES[i]
+        measured = {"winding": refs.measured_winding, "magnet": refs.measured_pm}.get(name)
+        if measured is not None:
+            ax.plot(t_h, measured, color="0.55", lw=1.6, label="measured (reference)")
+        ax.plot(t_h, refs.f64[:, i], color="tab:blue", lw=1.0, label="offline float64")
+        ax.plot(t_h, refs.f32[:, i], color="tab:orange", lw=1.0, ls="--", label="offline float32")
+        ax.plot(t_h, can[:, i], color="tab:red", lw=0, marker=".", ms=1.2, label="CAN (target, float32)")
+        ax.set_ylabel(f"{LABELS[name]} (°C)")
+        ax.grid(alpha=0.3)
+        finite = np.concatenate([refs.f64[:, i], can[:, i][np.isfinite(can[:, i])]])
+        if finite.size and (np.ptp(finite) > 1e3):
+            ax.set_yscale("symlog", linthresh=100)
+    axes[0].legend(loc="best", fontsize=8, markerscale=6)
+    axes[-1].set_xlabel("time (h)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def float32_error(path: Path, record: BusRecord, refs: References) -> None:
+    """float32 − float64 (the precision loss of the target's arithmetic) and CAN − float32 (the transport)."""
+    plt = _pyplot()
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
+    t_h = refs.step_time_s / 3600.0
+    err = refs.f32 - refs.f64
+    for i in ORDER:
+        top.plot(t_h, err[:, i], lw=0.8, label=LABELS[TEMPERATURES[i]])
+    top.set_ylabel("float32 − float64 (°C)")
+    if err.size and np.nanmax(np.abs(err)) > 10:
+        top.set_yscale("symlog", linthresh=0.01)
+    top.grid(alpha=0.3)
+    top.legend(fontsize=8)
+    can = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+    diff = can - refs.f32
+    for i in ORDER:
+        bottom.plot(t_h, diff[:, i], lw=0, marker=".", ms=1, label=LABELS[TEMPERATURES[i]])
+    bottom.axhline(0.005, color="k", lw=0.6, ls=":")
+    bottom.axhline(-0.005, color="k", lw=0.6, ls=":")
+    bottom.set_ylabel("CAN − float32 (°C)")
+    if diff.size and np.nanmax(np.abs(diff)) > 0.05:
+        bottom.set_yscale("symlog", linthresh=0.01)
+    bottom.set_xlabel("time (h)")
+    bottom.grid(alpha=0.3)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def step_time_histogram(path: Path, measured_us: np.ndarray, est_us: float | None) -> None:
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    values = np.asarray(measured_us, dtype=float)
+    if values.size:
+        high = np.percentile(values, 99.9)
+        ax.hist(np.clip(values, 0, high), bins=80, color="tab:blue", alpha=0.8,
+                label=f"measured on the target process (n = {values.size})")
+    if est_us is not None:
+        ax.axvline(est_us, color="tab:red", lw=1.5, label=f"estimated C28x @ 90 MHz: {est_us:.1f} µs")
+    ax.set_xlabel("model step time (µs)")
+    ax.set_ylabel("model steps")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def bus_load(path: Path, load: dict) -> None:
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    start = np.asarray(load.get("window_start_s", []), dtype=float)
+    percent = np.asarray(load.get("window_percent", []), dtype=float)
+    if start.size:
+        ax.step(start, percent, where="post", color="tab:blue",
+                label=f"this replay, per {load['window_s']:g} s of log time")
+    if load.get("data_rate_percent") is not None:
+        ax.axhline(load["data_rate_percent"], color="tab:red",
+                   label=f"at the data rate (5 Hz): {load['data_rate_percent']:.2f} %")
+    ax.axhline(100.0, color="k", lw=0.6, ls=":")
+    ax.set_xlabel("log time (s)")
+    ax.set_ylabel(f"bus load at {load['bitrate'] / 1000:g} kbit/s (%)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)

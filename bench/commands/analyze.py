@@ -1,0 +1,95 @@
+"""`bench analyze LOG`: decode a bus log of this bench offline into the same report as `bench run`.
+
+    bench analyze LOG [--model FILE] [--data FILE] [--report DIR] [--json] [--quiet]
+
+The model defaults to the packaged artifact and must carry the log's model id (Status.ModelId). The measured
+reference comes from --data, or else from a dataset in out/data whose rows match the drive values in the log
+(so a log of the default `bench run` gets the same report); without one, RMSE is against the float64 model only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bench.commands.common import add_output_flags, print_json
+from bench.errors import BenchError
+from bench.runner import load_data, load_model
+from host.canlog import LogError
+
+# half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C
+DRIVE_HALF_RESOLUTION = np.array([0.05, 0.25, 0.05, 0.05]) + 1e-9
+
+
+def add_subparser(subparsers) -> None:
+    p = subparsers.add_parser("analyze", help="decode a bus log offline into the bench report",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("log", type=Path, help="bus log (.blf .asc .log .csv .mf4)")
+    p.add_argument("--model", type=Path, default=None, help="artifact the log was made with (default: packaged)")
+    p.add_argument("--data", type=Path, default=None, help="dataset with the measured reference")
+    p.add_argument("--report", type=Path, default=None,
+                   help="report directory (default: <log dir>/<log name>-report)")
+    add_output_flags(p)
+    p.set_defaults(func=run)
+
+
+def matching_dataset(drive: np.ndarray, artifact):
+    """A dataset in out/data whose first rows carry the log's drive values (within the CAN resolution)."""
+    from bench.drive.dataset import DatasetError, default_dataset_dir
+
+    directory = default_dataset_dir()
+    for csv in sorted(directory.glob("*.csv")) if directory.is_dir() else []:
+        try:
+            dataset = load_data(csv, artifact)
+        except DatasetError:
+            continue
+        from bench.model.runs import drive_matrix
+
+        values = drive_matrix(dataset)
+        if len(values) >= len(drive) and np.all(np.abs(values[: len(drive)] - drive) <= DRIVE_HALF_RESOLUTION):
+            return dataset
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    from bench.analysis.canmetrics import compute, problems
+    from bench.analysis.logdecode import decode_log
+    from bench.analysis.report import write_report
+
+    artifact, model_path = load_model(args.model)
+    try:
+        record = decode_log(args.log)
+    except LogError as exc:
+        raise BenchError(str(exc)) from None
+    if record.model_id is not None and record.model_id != artifact.model_id:
+        raise BenchError(f"log {args.log} was made with model {record.model_id:08x}, but {model_path} is "
+                         f"{artifact.model_id:08x}; pass the log's artifact with --model")
+    if record.initial is None:
+        raise BenchError(f"log {args.log} has no complete RESET (ResetTemps1, ResetTemps2, Control RESET); "
+                         "it cannot be compared with the model")
+    dataset = load_data(args.data, artifact) if args.data else matching_dataset(record.drive, artifact)
+    metrics, refs = compute(record, artifact, dataset)
+    found = problems(metrics)
+    report_dir = args.report or args.log.with_name(f"{args.log.stem}-report")
+    metrics["report"] = str(write_report(report_dir, metrics, found, record, refs, dataset,
+                                         {"mode": "analyzed from the log"}))
+    if args.json:
+        out = {k: v for k, v in metrics.items() if k != "bus_load"}
+        out["bus_load"] = {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}
+        print_json({**out, "problems": found, "clean": not found})
+    else:
+        from bench.commands.run import print_summary
+
+        print_summary({"metrics": metrics, "steps_sent": metrics["steps_sent"], "replies": metrics["replies"],
+                       "missing": metrics["missing"], "max_abs_can_minus_float32_C":
+                       metrics["max_abs_can_minus_float32_C"], "rmse_C": metrics["rmse_C"],
+                       "step_time_us": metrics["step_time_us"], "throughput_steps_per_s":
+                       metrics["throughput_steps_per_s"], "log": metrics["log"], "report": metrics["report"],
+                       "problems": found, "clean": not found})
+        if dataset is None and not args.quiet:
+            print("bench: no dataset matched the log: RMSE is against the float64 model only (pass --data)",
+                  file=sys.stderr)
+    return 0 if not found else 1

@@ -1,0 +1,151 @@
+"""`bench compare`: the three model kinds through the CAN bench, side by side (the paper's Table 6 analogue).
+
+    bench compare [--data FILE] [--dt 0.5] [--rows N] [--models A.json,B.json,C.json] [--out DIR]
+                  [--json] [--quiet] [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
+
+Each artifact runs on its own target process in lockstep over the dataset (default the 40 °C validation run;
+--rows N shortens it), and its log is analyzed like `bench run`'s. Columns: measured step time on the target
+process, estimated C28x cycles and µs at 90 MHz, CPU utilization at Δt, flash and RAM estimates, RMSE of the
+CAN winding and PM temperatures against the measurement, and the agreement with the offline float32 model.
+Without --models the three artifacts are built here from Table 1 (refined) and the virtual motor's loss maps:
+LTI LPTN (ZOH, balanced), PV LPTN (Euler, physical) and a Hammerstein model with an identity sigmoid (a
+placeholder until `bench identify` has made the fitted one: pass it with --models).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bench.commands.common import add_output_flags, print_json, write_atomically
+from bench.errors import UsageError
+from bench.runner import ProgressBar, bus_from_args, load_data, load_model, positive_float, positive_int
+from target_sim.artifact import ModelArtifact, dumps
+from target_sim.transport import add_bus_arguments
+
+KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
+
+
+def add_subparser(subparsers) -> None:
+    p = subparsers.add_parser("compare", help="run the three model kinds through the bench (Table 6 analogue)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", type=Path, default=None, help="dataset CSV (default: the 40 °C validation run)")
+    p.add_argument("--dt", type=positive_float, default=0.5, help="model step of the built artifacts (default 0.5)")
+    p.add_argument("--rows", type=positive_int, default=None, help="replay only the first N data rows")
+    p.add_argument("--models", default=None,
+                   help="comma-separated artifacts to compare instead of the built ones")
+    p.add_argument("--out", type=Path, default=Path("out/compare"),
+                   help="logs and built artifacts (default out/compare)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+    add_output_flags(p)
+    add_bus_arguments(p)
+    p.set_defaults(func=run)
+
+
+def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
+    """LTI LPTN, PV LPTN and identity-sigmoid Hammerstein artifacts from the reference parameters."""
+    from bench.drive.motor import VIRTUAL_MOTOR, nominal_loss_maps
+    from bench.model.builder import ModelSpec, SigmoidInputs, build_artifact
+    from bench.thermal.parameters import TABLE1_REFINED
+
+    maps = nominal_loss_maps()
+    specs = {
+        "lti-lptn": ModelSpec("lti-lptn", TABLE1_REFINED, dt, "zoh", "balanced", maps, VIRTUAL_MOTOR),
+        "pv-lptn": ModelSpec("pv-lptn", TABLE1_REFINED, dt, "euler", "physical", maps, VIRTUAL_MOTOR),
+        "hammerstein": ModelSpec("hammerstein", TABLE1_REFINED, dt, "zoh", "balanced", maps, VIRTUAL_MOTOR,
+                                 sigmoid=SigmoidInputs.identity([1000.0, 5000.0, 1000.0, 500.0]),
+                                 provenance={"note": "identity sigmoid placeholder for bench compare"}),
+    }
+    paths = []
+    for kind, spec in specs.items():
+        path = out_dir / f"{kind}-dt{dt:g}.json"
+        text = dumps(build_artifact(spec))
+        write_atomically(path, lambda tmp, text=text: tmp.write_text(text, encoding="utf-8"))
+        paths.append(path)
+    return paths
+
+
+def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, out_dir: Path,
+                   quiet: bool = True) -> list[dict]:
+    """Run each artifact through the bench; one table row per artifact (plug identified artifacts in here)."""
+    from bench.analysis.report import analyze_log
+    from bench.model.runs import drive_matrix, initial_temperatures
+    from bench.runner import run_with_target
+
+    drive = drive_matrix(dataset)[:rows] if rows else drive_matrix(dataset)
+    table = []
+    for path in model_paths:
+        artifact, model_path = load_model(path)
+        log_path = out_dir / f"{model_path.stem}.blf"
+        bar = ProgressBar(len(drive), artifact.kind, quiet)
+        try:
+            outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset),
+                                      sample_period_s=dataset.sample_period_s, log_path=log_path, progress=bar)
+        finally:
+            bar.close()
+        metrics, found, _ = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate)
+        table.append(table_row(artifact, model_path, metrics, outcome.result.problems() + found))
+    return table
+
+
+def table_row(artifact: ModelArtifact, path: Path, m: dict, found: list[str]) -> dict:
+    return {
+        "model": str(path), "kind": artifact.kind, "realization": artifact.realization, "dt_s": artifact.dt,
+        "model_id": f"{artifact.model_id:08x}", "steps": m["steps_sent"], "model_steps": m["model_steps"],
+        "missing": m["missing"],
+        "measured_step_us_p50": m["step_time_us"]["p50"], "measured_step_us_p99": m["step_time_us"]["p99"],
+        "est_cycles": m["est_cycles"], "est_exec_us_90MHz": m["est_exec_time_us"],
+        "cpu_load_percent": m["cpu_load_percent"], "flash_bytes": m["flash_bytes"], "ram_bytes": m["ram_bytes"],
+        "rmse_winding_C": m["rmse_C"]["winding"], "rmse_magnet_C": m["rmse_C"]["magnet"],
+        "rmse_reference": m["rmse_reference"]["winding"],
+        "max_abs_can_minus_float32_C": max((v for v in m["max_abs_can_minus_float32_C"].values() if v is not None),
+                                           default=None),
+        "max_abs_float32_minus_float64_C": max(
+            (v for v in m["max_abs_float32_minus_float64_C"].values() if v is not None), default=None),
+        "throughput_steps_per_s": m["throughput_steps_per_s"], "problems": found,
+    }
+
+
+def _f(value, digits) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def print_table(table: list[dict]) -> None:
+    header = (f"{'kind':12} {'realization':11} {'step µs':>8} {'cycles':>7} {'µs@90MHz':>9} {'CPU %':>7} "
+              f"{'flash kB':>8} {'RAM kB':>7} {'RMSE w':>7} {'RMSE PM':>7} {'|CAN-f32|':>9} {'missing':>7}")
+    print(header)
+    for r in table:
+        print(f"{r['kind']:12} {r['realization']:11} {_f(r['measured_step_us_p50'], 1):>8} "
+              f"{r['est_cycles'] if r['est_cycles'] is not None else '–':>7} {_f(r['est_exec_us_90MHz'], 1):>9} "
+              f"{_f(r['cpu_load_percent'], 4):>7} {_f((r['flash_bytes'] or 0) / 1024, 2):>8} "
+              f"{_f((r['ram_bytes'] or 0) / 1024, 2):>7} {_f(r['rmse_winding_C'], 3):>7} "
+              f"{_f(r['rmse_magnet_C'], 3):>7} {_f(r['max_abs_can_minus_float32_C'], 4):>9} {r['missing']:>7}")
+    print("step µs: measured p50 on the target process (Python); cycles and µs@90MHz: the C28x cost-table "
+          "estimate; RMSE against " + (table[0]["rmse_reference"] if table else "measured") + " (°C).")
+
+
+def run(args: argparse.Namespace) -> int:
+    quiet = args.quiet or args.json
+    if args.models:
+        paths = [Path(p.strip()) for p in args.models.split(",") if p.strip()]
+        if not paths:
+            raise UsageError("--models needs comma-separated artifact files")
+    else:
+        paths = build_default_artifacts(args.dt, args.out)
+    first, _ = load_model(paths[0])
+    dataset = load_data(args.data, first, args.seed, quiet=quiet)
+    bus = bus_from_args(args)
+    table = compare_models(paths, dataset, bus, rows=args.rows, out_dir=args.out, quiet=quiet)
+    if args.json:
+        print_json({"data": str(dataset.path), "rows": args.rows, "models": table})
+    else:
+        print_table(table)
+    bad = [f"{r['kind']}: {'; '.join(r['problems'])}" for r in table if r["problems"]]
+    if bad:
+        print("bench: error: not clean: " + " | ".join(bad), file=sys.stderr)
+        return 1
+    return 0
+
+
+

@@ -1,0 +1,128 @@
+"""`bench replay LOG`: re-send the host frames of a recorded log and compare the new replies with the recorded ones.
+
+    bench replay LOG [--speed X | --as-fast-as-possible] [--model FILE] [--no-start-target] [--log FILE]
+                     [--reply-timeout S] [--json] [--quiet] [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
+
+The host frames (ResetTemps, Control, DriveInputs, DriveTemps) go out byte for byte, counters and CRCs as
+recorded, with the recorded timing (`can.MessageSync`, scaled by --speed) or as fast as possible in lockstep
+(each row waits for its replies). A target is started with the log's model (default: the packaged artifact,
+which must have the log's model id; --model names another) unless --no-start-target, which talks to a target
+already running on the given bus. The new session is logged (default out/replay/<log name>.replay.blf). Exit 0
+when every recorded reply came back identical.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bench.commands.common import add_output_flags, print_json
+from bench.errors import BenchError
+from bench.runner import ProgressBar, bus_from_args, load_model, positive_float, replay_with_target
+from dbc import FrameError, frame_id
+from host.canlog import LogError, check_log_path, read_log
+from host.replay import count_rows, host_frames, recorded_replies
+from target_sim.fastframes import fast_decode_any
+from target_sim.transport import add_bus_arguments
+
+
+def add_subparser(subparsers) -> None:
+    p = subparsers.add_parser("replay", help="re-send a recorded log's host frames and compare the replies",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("log", type=Path, help="a bus log written by 'bench run' or the host")
+    timing = p.add_mutually_exclusive_group()
+    timing.add_argument("--speed", type=positive_float, default=1.0,
+                        help="replay the recorded timing this many times faster (default 1)")
+    timing.add_argument("--as-fast-as-possible", action="store_true",
+                        help="ignore the recorded timing: lockstep, each row waits for its replies")
+    p.add_argument("--model", type=Path, default=None, help="artifact for the target (default: the packaged one)")
+    p.add_argument("--no-start-target", action="store_true",
+                   help="do not start a target: use the one running on the given bus")
+    p.add_argument("--log", dest="new_log", type=Path, default=None,
+                   help="log of the new session (default out/replay/<name>.replay.blf)")
+    p.add_argument("--reply-timeout", type=positive_float, default=0.05,
+                   help="seconds to wait for a row's replies (default 0.05)")
+    add_output_flags(p)
+    add_bus_arguments(p)
+    p.set_defaults(func=run)
+
+
+def log_model_id(messages) -> int | None:
+    status = frame_id("Status")
+    for msg in messages:
+        if msg.arbitration_id == status and not msg.is_extended_id:
+            try:
+                return int(fast_decode_any(msg).signals["ModelId"])
+            except FrameError:
+                continue
+    return None
+
+
+def compare_replies(recorded: np.ndarray, recorded_ok: np.ndarray, new: np.ndarray, new_ok: np.ndarray) -> dict:
+    rows = min(len(recorded), len(new))
+    both = recorded_ok[:rows] & new_ok[:rows]
+    same = np.all(recorded[:rows] == new[:rows], axis=1) & both
+    diff = np.abs(recorded[:rows] - new[:rows])[both]
+    return {"rows_recorded": int(len(recorded)), "rows_replayed": int(len(new)),
+            "recorded_answered": int(np.count_nonzero(recorded_ok)),
+            "replayed_answered": int(np.count_nonzero(new_ok)),
+            "compared": int(np.count_nonzero(both)), "identical": int(np.count_nonzero(same)),
+            "different": int(np.count_nonzero(both & ~same)),
+            "missing_in_replay": int(np.count_nonzero(recorded_ok[:rows] & ~new_ok[:rows])),
+            "max_abs_difference_C": float(diff.max()) if diff.size else 0.0}
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        path = check_log_path(args.log, for_reading=True)
+        messages = list(read_log(path))
+    except LogError as exc:
+        raise BenchError(str(exc)) from None
+    frames = host_frames(messages)
+    if count_rows(frames) == 0:
+        raise BenchError(f"log {path} has no DriveInputs frames to replay; is it a log of this bench?")
+    recorded_id = log_model_id(messages)
+    artifact, model_path = load_model(args.model)
+    if recorded_id is not None and recorded_id != artifact.model_id:
+        raise BenchError(f"log {path} was recorded with model {recorded_id:08x}, but {model_path} is "
+                         f"{artifact.model_id:08x}; pass the log's artifact with --model")
+    new_log = args.new_log or Path("out/replay") / f"{path.stem}.replay.blf"
+    try:
+        check_log_path(new_log)
+    except LogError as exc:
+        raise BenchError(str(exc)) from None
+    bus = bus_from_args(args)
+    quiet = args.quiet or args.json
+    if not quiet:
+        print(f"bench: replaying {count_rows(frames)} rows of {path} "
+              f"({'as fast as possible' if args.as_fast_as_possible else f'recorded timing x{args.speed:g}'}) "
+              f"over {bus.describe()}", file=sys.stderr)
+    bar = ProgressBar(count_rows(frames), "replay", quiet)
+    try:
+        outcome = replay_with_target(None if args.no_start_target else model_path, artifact, bus, messages,
+                                     timed=not args.as_fast_as_possible, speed=args.speed, log_path=new_log,
+                                     reply_timeout_s=args.reply_timeout, progress=bar)
+    finally:
+        bar.close()
+    result = outcome.result
+    recorded, recorded_ok = recorded_replies(messages)
+    comparison = compare_replies(recorded, recorded_ok, result.arrays["temps"], result.arrays["answered"])
+    reproduced = (comparison["different"] == 0 and comparison["missing_in_replay"] == 0
+                  and comparison["compared"] == comparison["recorded_answered"])
+    summary = {"log": str(path), "replay_log": result.log_path, "reproduced": reproduced, **comparison,
+               "mode": result.mode, "speed": result.speed, "wall_time_s": result.wall_time_s,
+               "rows_per_s": result.rows_per_s, "round_trip_us": result.round_trip_us,
+               "problems": result.problems()}
+    if args.json:
+        print_json(summary)
+    else:
+        print(f"replayed {comparison['rows_replayed']} rows in {result.wall_time_s:.2f} s: "
+              f"{comparison['identical']} of {comparison['recorded_answered']} recorded replies identical, "
+              f"{comparison['different']} different (max {comparison['max_abs_difference_C']:.4f} °C), "
+              f"{comparison['missing_in_replay']} missing")
+        print(f"new log {result.log_path}")
+        print("reproduced" if reproduced else "NOT reproduced")
+    return 0 if reproduced else 1

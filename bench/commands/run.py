@@ -1,0 +1,159 @@
+"""`bench run`: the main job. Start the simulated target, replay a dataset over CAN, log, report.
+
+    bench run [--data FILE] [--model FILE] [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
+              [--report DIR | --no-report] [--reply-timeout S] [--tolerate-gaps] [--seed N] [--json] [--quiet]
+              [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
+
+Defaults: the generated 40 °C validation run (out/data, made if missing), the packaged model artifact, lockstep,
+log out/run/bench.blf (format by suffix: .blf .asc .log .csv .mf4), report out/run/report/report.md with PNGs.
+Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
+±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from bench.commands.common import add_output_flags, print_json
+from bench.errors import BenchError
+from bench.runner import (
+    ProgressBar,
+    bus_from_args,
+    load_data,
+    load_model,
+    positive_float,
+    positive_int,
+    run_with_target,
+)
+from host.canlog import LogError, check_log_path
+from target_sim.transport import add_bus_arguments
+
+DEFAULT_LOG = Path("out/run/bench.blf")
+DEFAULT_REPORT = Path("out/run/report")
+
+
+def add_subparser(subparsers) -> None:
+    p = subparsers.add_parser("run", help="run the CAN bench: target process + host replay + log + report",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_run_arguments(p)
+    p.add_argument("--log", type=Path, default=DEFAULT_LOG, help=f"bus log to write (default {DEFAULT_LOG})")
+    p.add_argument("--report", type=Path, default=DEFAULT_REPORT,
+                   help=f"report directory (default {DEFAULT_REPORT})")
+    p.add_argument("--no-report", action="store_true", help="skip the report (metrics are still computed)")
+    add_output_flags(p)
+    add_bus_arguments(p)
+    p.set_defaults(func=run)
+
+
+def add_run_arguments(p) -> None:
+    p.add_argument("--data", type=Path, default=None,
+                   help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
+    p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged one)")
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
+                   help="lockstep: each step waits for its reply (default); realtime: at the data rate x --speed")
+    p.add_argument("--speed", type=positive_float, default=1.0, help="realtime speed factor (default 1)")
+    p.add_argument("--rows", type=positive_int, default=None, help="replay only the first N data rows")
+    p.add_argument("--reply-timeout", type=positive_float, default=0.05,
+                   help="seconds to wait for a step's reply before counting it missing (default 0.05)")
+    p.add_argument("--tolerate-gaps", action="store_true",
+                   help="exit 0 even with missing replies, sequence gaps or heartbeat loss (still reported)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+
+
+def run(args: argparse.Namespace) -> int:
+    artifact, model_path = load_model(args.model)
+    dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json)
+    try:
+        log_path = check_log_path(args.log)
+    except LogError as exc:
+        raise BenchError(str(exc)) from None
+    bus = bus_from_args(args)
+    from bench.model.runs import drive_matrix, initial_temperatures
+
+    drive = drive_matrix(dataset)
+    if args.rows is not None:
+        drive = drive[: args.rows]
+    quiet = args.quiet or args.json
+    if not quiet:
+        print(f"bench: {artifact.kind} model {artifact.model_id:08x} on {len(drive)} rows of {dataset.path} "
+              f"({args.mode}) over {bus.describe()}", file=sys.stderr)
+    bar = ProgressBar(len(drive), args.mode, quiet)
+    started = time.perf_counter()
+    try:
+        outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset), mode=args.mode,
+                                  speed=args.speed, sample_period_s=dataset.sample_period_s, log_path=log_path,
+                                  reply_timeout_s=args.reply_timeout, progress=bar)
+    finally:
+        bar.close()
+    host = outcome.result
+    from bench.analysis.report import analyze_log
+
+    run_info = {"mode": f"{args.mode}" + (f" x{args.speed:g}" if args.mode == "realtime" else ""),
+                "bus": bus.describe()}
+    try:
+        metrics, found, _ = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
+                                        args.report, bitrate=bus.nominal_bitrate, run_info=run_info)
+    except (LogError, ValueError) as exc:
+        raise BenchError(f"the log {log_path} cannot be analyzed ({exc})") from None
+    found = list(dict.fromkeys(host.problems() + found))
+    summary = json_summary(metrics, host, found, time.perf_counter() - started)
+    if args.json:
+        print_json(summary)
+    else:
+        print_summary(summary)
+    if found and not args.tolerate_gaps:
+        if not args.json:
+            print("bench: error: the run is not clean: " + "; ".join(found), file=sys.stderr)
+        return 1
+    return 0
+
+
+def json_summary(metrics: dict, host, found: list[str], elapsed_s: float) -> dict:
+    """What `--json` prints: the brief's numbers first, then the rest of the metrics."""
+    return {
+        "steps_sent": metrics["steps_sent"],
+        "replies": metrics["replies"],
+        "missing": metrics["missing"],
+        "max_abs_can_minus_float32_C": metrics["max_abs_can_minus_float32_C"],
+        "rmse_C": metrics["rmse_C"],
+        "step_time_us": metrics["step_time_us"],
+        "est_cycles": metrics["est_cycles"],
+        "throughput_steps_per_s": metrics["throughput_steps_per_s"],
+        "log": metrics["log"],
+        "report": metrics.get("report"),
+        "problems": found,
+        "clean": not found,
+        "host": {k: v for k, v in host.to_dict().items() if k not in ("log_path",)},
+        "metrics": {k: v for k, v in metrics.items() if k != "bus_load"}
+        | {"bus_load": {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}},
+        "elapsed_s": round(elapsed_s, 2),
+    }
+
+
+def _f(value, digits=3) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def print_summary(s: dict) -> None:
+    m = s["metrics"]
+    temps = ("winding", "magnet", "yoke", "tooth")
+    print(f"model {m['model']['id']} {m['model']['kind']} ({m['model']['realization']}, dt {m['model']['dt_s']:g} s)")
+    print(f"steps sent {s['steps_sent']}, answered {s['replies']}, missing {s['missing']}, "
+          f"model steps {m['model_steps']}")
+    print("max |CAN - float32| (°C): " + ", ".join(f"{t} {_f(s['max_abs_can_minus_float32_C'][t], 4)}"
+                                                  for t in temps))
+    print("max |float32 - float64| (°C): " + ", ".join(
+        f"{t} {_f(m['max_abs_float32_minus_float64_C'][t], 4)}" for t in temps))
+    print("RMSE (°C): " + ", ".join(f"{t} {_f(s['rmse_C'][t])} (vs {m['rmse_reference'][t]})" for t in temps))
+    st, rtt = s["step_time_us"], m["round_trip_us"]
+    print(f"step time on the target process p50/p99/max: {_f(st['p50'], 1)}/{_f(st['p99'], 1)}/{_f(st['max'], 1)} µs;"
+          f" estimated C28x: {m['est_cycles']} cycles = {_f(m['est_exec_time_us'], 1)} µs at 90 MHz "
+          f"({_f(m['cpu_load_percent'], 4)} % CPU), flash {m['flash_bytes']} B, RAM {m['ram_bytes']} B")
+    print(f"throughput {_f(s['throughput_steps_per_s'], 0)} steps/s, round trip p50/p99 "
+          f"{_f(rtt['p50'], 0)}/{_f(rtt['p99'], 0)} µs, bus load at the data rate "
+          f"{_f(m['bus_load']['data_rate_percent'], 2)} %")
+    print(f"log {s['log']}" + (f", report {s['report']}" if s.get("report") else ""))
+    print("clean" if s["clean"] else "NOT clean: " + "; ".join(s["problems"]))

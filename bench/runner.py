@@ -1,0 +1,243 @@
+"""Orchestration of a bench run: resolve the bus, start the target process, run the host, stop the target.
+
+The target is a separate OS process (`python -m target_sim`) on the same bus options as the host, which runs
+in this process. With `auto` the bus is SocketCAN vcan0 where usable, else udp_multicast on a port unique to
+this run (handed to the target on its command line). The target's stderr goes to a temporary file, so a
+target that fails to start is reported with its own last line.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.errors import BenchError, UsageError
+from host.canlog import LogError
+from host.replay import DataRangeError, Progress
+from host.results import HostResult
+from host.run import replay_log, run_dataset
+from host.session import SessionError
+from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
+from target_sim.transport import BusConfig, BusUnavailable, config_from_args, resolve
+
+TARGET_STOP_TIMEOUT_S = 5.0
+
+
+def bus_from_args(args) -> BusConfig:
+    """The bus the command-line options describe, `auto` resolved with a run-unique udp_multicast port."""
+    try:
+        return resolve(config_from_args(args), session_unique=True)
+    except BusUnavailable as exc:
+        raise BenchError(str(exc)) from None
+
+
+def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
+    from bench.model.default import default_artifact_path
+
+    model_path = Path(path) if path else default_artifact_path()
+    try:
+        return load_artifact(model_path), model_path
+    except ArtifactError as exc:
+        raise BenchError(str(exc)) from None
+
+
+def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, seed: int | None = None,
+              quiet: bool = True):
+    """The dataset (default: the generated 40 °C validation run, made in out/data if missing)."""
+    from bench.drive.dataset import ensure_default_datasets, load_dataset
+
+    if path is None:
+        if not quiet:
+            print("bench: preparing the default datasets in out/data", file=sys.stderr)
+        path = ensure_default_datasets(Path("out/data"), seed)[40]
+    period = artifact.data_sample_period if artifact is not None else None
+    dataset = load_dataset(Path(path), sample_period_s=period)
+    return dataset
+
+
+class TargetProcess:
+    """`python -m target_sim` on a bus, started and stopped cleanly (SIGTERM, then kill after a timeout)."""
+
+    def __init__(self, model_path: str | Path, bus: BusConfig, *, stats_path: str | Path | None = None):
+        self.model_path = Path(model_path)
+        self.bus = bus
+        self.stats_path = stats_path
+        self.process: subprocess.Popen | None = None
+        self._stderr = tempfile.TemporaryFile(mode="w+b")
+
+    @property
+    def argv(self) -> list[str]:
+        argv = [sys.executable, "-m", "target_sim", "--model", str(self.model_path), *self.bus.to_argv()]
+        if self.stats_path is not None:
+            argv += ["--stats", str(self.stats_path)]
+        return argv
+
+    def start(self) -> TargetProcess:
+        env = dict(os.environ)
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        try:
+            self.process = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                            stderr=self._stderr, env=env)
+        except OSError as exc:
+            raise BenchError(f"cannot start the target process ({exc})") from None
+        return self
+
+    def stderr_text(self) -> str:
+        self._stderr.flush()
+        self._stderr.seek(0)
+        return self._stderr.read().decode("utf-8", "replace")
+
+    def last_stderr_line(self) -> str:
+        lines = [line.strip() for line in self.stderr_text().splitlines() if line.strip()]
+        return lines[-1] if lines else "(no output)"
+
+    def exit_reason(self) -> str | None:
+        """None while the process runs; else one sentence with its status and last stderr line."""
+        if self.process is None or self.process.poll() is None:
+            return None
+        return (f"the target process exited with status {self.process.returncode}: "
+                f"{self.last_stderr_line().removeprefix('target_sim: error: ').removeprefix('target_sim: ')}")
+
+    def stop(self, timeout: float = TARGET_STOP_TIMEOUT_S) -> int | None:
+        """SIGTERM and wait; kill if it does not exit in time. Returns the exit status."""
+        if self.process is None:
+            return None
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        return self.process.returncode
+
+    def close(self) -> None:
+        self.stop()
+        self._stderr.close()
+
+    def __enter__(self) -> TargetProcess:
+        return self.start()
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+
+
+@dataclass
+class RunOutcome:
+    result: HostResult
+    target_status: int | None
+    target_stderr: str
+
+
+def _open(bus: BusConfig):
+    try:
+        return bus.open()
+    except BusUnavailable as exc:
+        raise BenchError(str(exc)) from None
+
+
+def _host_errors(fn: Callable[[], HostResult], target: TargetProcess) -> HostResult:
+    try:
+        return fn()
+    except SessionError as exc:
+        reason = target.exit_reason()
+        raise BenchError(reason or str(exc)) from None
+    except (LogError, DataRangeError) as exc:
+        raise BenchError(str(exc)) from None
+
+
+def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, drive: np.ndarray, initial,
+                    *, mode: str = "lockstep", speed: float = 1.0, sample_period_s: float = 0.2,
+                    log_path: str | Path | None = None, reply_timeout_s: float = 0.05,
+                    progress: Progress | None = None) -> RunOutcome:
+    """Start the target on `bus`, replay `drive` from this process, stop the target."""
+    host_bus = _open(bus)
+    try:
+        with TargetProcess(model_path, bus) as target:
+            result = _host_errors(lambda: run_dataset(
+                host_bus, drive, initial, model_id=artifact.model_id, mode=mode, speed=speed,
+                sample_period_s=sample_period_s, log_path=log_path, reply_timeout_s=reply_timeout_s,
+                alive=target.exit_reason, progress=progress), target)
+            status = target.stop()
+            stderr = target.stderr_text()
+    finally:
+        host_bus.shutdown()
+    if status not in (0, None):
+        raise BenchError(f"the target process ended with status {status} after the run: "
+                         f"{stderr.strip().splitlines()[-1] if stderr.strip() else '(no output)'}")
+    return RunOutcome(result, status, stderr)
+
+
+def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, bus: BusConfig, messages, *,
+                       timed: bool, speed: float = 1.0, log_path: str | Path | None = None,
+                       reply_timeout_s: float = 0.05, progress: Progress | None = None) -> RunOutcome:
+    """Re-send a log's host frames to a target started here (or, with model_path None, one already running)."""
+    host_bus = _open(bus)
+    target = TargetProcess(model_path, bus).start() if model_path is not None else None
+    try:
+        alive = target.exit_reason if target is not None else None
+        try:
+            result = replay_log(host_bus, messages, model_id=artifact.model_id if artifact else None, timed=timed,
+                                speed=speed, log_path=log_path, reply_timeout_s=reply_timeout_s, alive=alive,
+                                progress=progress)
+        except SessionError as exc:
+            reason = target.exit_reason() if target is not None else None
+            raise BenchError(reason or str(exc)) from None
+        except LogError as exc:
+            raise BenchError(str(exc)) from None
+        status = target.stop() if target is not None else None
+        stderr = target.stderr_text() if target is not None else ""
+    finally:
+        if target is not None:
+            target.close()
+        host_bus.shutdown()
+    return RunOutcome(result, status, stderr)
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"{text!r} is not a number") from None
+    if not value > 0 or value != value or value == float("inf"):
+        raise UsageError(f"{text!r} must be a positive number")
+    return value
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise UsageError(f"{text!r} is not a whole number") from None
+    if value <= 0:
+        raise UsageError(f"{text!r} must be a positive whole number")
+    return value
+
+
+class ProgressBar:
+    """tqdm on stderr for a long replay; silent when `quiet`."""
+
+    def __init__(self, total: int, description: str, quiet: bool):
+        self._bar = None
+        if not quiet:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, desc=description, unit="row", file=sys.stderr, leave=False,
+                             mininterval=0.5, smoothing=0.1)
+
+    def __call__(self, done: int, total: int) -> None:
+        if self._bar is not None:
+            self._bar.n = done
+            self._bar.refresh()
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
