@@ -71,7 +71,7 @@ def test_mismatched_schema_version_and_float32_values_are_refused(spec):
     with pytest.raises(ArtifactError, match="schema version 99"):
         verify(seal(content))
     content = build_artifact(spec)
-    content["linear_block"]["B"]["f32_hex"][3] = float(1.0).hex()
+    content["linear_block"]["B"]["f32_hex"][3] = 1.0.hex()
     with pytest.raises(ArtifactError, match="not the rounding of the float64"):
         verify(seal(content))
     content = build_artifact(spec)

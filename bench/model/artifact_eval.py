@@ -1,0 +1,81 @@
+"""Evaluate a model artifact on a dataset: float64 reference, float32 as the target runs it, and metrics."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.drive.dataset import Dataset
+from bench.drive.motor import LossMaps, MotorSpec
+from bench.model.identify import winding_pm_metrics
+from bench.model.runs import ModelRun, drive_matrix, model_run
+from bench.thermal.estimator import loop_parameters, run_batch
+from bench.thermal.excitation import interval_means
+from bench.thermal.parameters import LptnParameters
+from target_sim.artifact import LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+from target_sim.model import Float32Estimator, run_offline
+
+SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
+
+
+def artifact_parameters(artifact: ModelArtifact) -> LptnParameters:
+    return LptnParameters(**{n: float(artifact.array("lptn", "parameters", n, dtype=np.float64)) for n in
+                             LPTN_PARAMETERS})
+
+
+def artifact_loss_maps(artifact: ModelArtifact) -> tuple[LossMaps, MotorSpec]:
+    """The artifact's tables as LossMaps, and a MotorSpec carrying its I_max and n_max (float64 values)."""
+    f64 = np.float64
+    maps = LossMaps(artifact.array("losses", "torque_axis_Nm", dtype=f64),
+                    artifact.array("losses", "speed_axis_rpm", dtype=f64),
+                    {n: artifact.array("losses", "tables", n, dtype=f64) for n in LOSS_TABLES})
+    motor = MotorSpec(i_max_A=float(artifact.array("losses", "current_max_A", dtype=f64)),
+                      max_speed_rpm=float(artifact.array("lptn", "speed_max_rpm", dtype=f64)))
+    return maps, motor
+
+
+def float64_estimate(artifact: ModelArtifact, dataset: Dataset, run: ModelRun) -> np.ndarray:
+    """(steps, 4) in double precision from the artifact's float64 coefficients.
+
+    The LTI and Hammerstein kinds go through the compiled batch kernel (an independent implementation of
+    the target's step); the PV LPTN through the target's own code in float64.
+    """
+    if artifact.kind == "pv-lptn":
+        model = Float32Estimator(artifact, dtype=np.float64)
+        model.reset(run.initial)
+        means = interval_means(drive_matrix(dataset), artifact.data_sample_period, artifact.dt)
+        return np.array([model.step(*row) for row in means])
+    f64 = np.float64
+    a, b, c = (artifact.array("linear_block", m, dtype=f64) for m in ("A", "B", "C"))
+    if artifact.kind == "hammerstein":
+        sig = np.vstack([artifact.array("input_nonlinearity", k, dtype=f64) for k in SIGMOID_KEYS])
+    else:
+        sig = np.vstack([np.ones(4), np.ones(4), np.zeros(4), np.zeros(4), np.ones(4), np.zeros(4)])
+    _, traj = run_batch(a[None], b[None], c[None], loop_parameters(artifact_parameters(artifact))[None],
+                        sig[None], run.inputs, run.initial, keep_trajectories=True)
+    return traj[0]
+
+
+@dataclass(frozen=True)
+class ArtifactEvaluation:
+    run: ModelRun
+    float64: np.ndarray
+    float32: np.ndarray
+    metrics: dict
+
+    @property
+    def max_abs_f32_minus_f64(self) -> float:
+        diff = np.abs(self.float32 - self.float64)
+        return float(np.max(diff)) if np.all(np.isfinite(diff)) else float("inf")
+
+
+def evaluate_artifact(artifact: ModelArtifact, dataset: Dataset) -> ArtifactEvaluation:
+    maps, motor = artifact_loss_maps(artifact)
+    run = model_run(dataset, maps, motor, artifact.dt, name=dataset.name)
+    y64 = float64_estimate(artifact, dataset, run)
+    _, y32 = run_offline(artifact, drive_matrix(dataset), run.initial)
+    y32 = y32.astype(np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        metrics = {"float64": winding_pm_metrics(y64, run), "float32": winding_pm_metrics(y32, run)}
+    return ArtifactEvaluation(run, y64, y32, metrics)
