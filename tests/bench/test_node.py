@@ -1,0 +1,339 @@
+"""The target node in-process: protocol, frame validation, sequence handling, replies (no bus, or `virtual`)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import can
+import numpy as np
+import pytest
+from cantools.autosar.end_to_end import compute_profile2_crc
+
+from dbc import Command, FaultBit, FrameCodec, TargetState, decode_any
+from target_sim.artifact import load_artifact
+from target_sim.model import run_offline
+from target_sim.node import TargetNode, serve
+
+INITIAL = [40.0, 45.0, 41.0, 50.0]  # yoke, winding, tooth, magnet
+
+
+class Host:
+    """A minimal host side: encodes what a host sends, decodes what the node answers."""
+
+    def __init__(self, node: TargetNode):
+        self.node = node
+        self.codec = FrameCodec("HOST")
+
+    def send(self, *frames: can.Message) -> list:
+        out = []
+        for frame in frames:
+            out += [decode_any(reply) for reply in self.node.handle(frame)]
+        return out
+
+    def frame(self, name, **signals):
+        return self.codec.encode(name, signals)
+
+    def reset(self, temps=INITIAL, step=0):
+        yoke, winding, tooth, magnet = temps
+        return self.send(self.frame("ResetTemps1", Step=step, WindingTempInit=winding, MagnetTempInit=magnet),
+                         self.frame("ResetTemps2", Step=step, YokeTempInit=yoke, ToothTempInit=tooth),
+                         self.frame("Control", Command=int(Command.RESET), Step=step))
+
+    def start(self, step=0):
+        return self.send(self.frame("Control", Command=int(Command.START), Step=step))
+
+    def row_frames(self, step, values):
+        torque, speed, coolant, ambient = values
+        return (self.frame("DriveInputs", Step=step, MotorTorque=torque, MotorSpeed=speed),
+                self.frame("DriveTemps", Step=step, CoolantTemp=coolant, AmbientTemp=ambient))
+
+    def row(self, step, values):
+        return self.send(*self.row_frames(step, values))
+
+
+def drive_rows(n: int, seed: int = 2) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack([np.round(rng.uniform(-300, 500, n), 1), np.round(rng.uniform(0, 8000, n), 1) // 0.5 * 0.5,
+                            np.round(40 + rng.normal(0, 1, n), 1), np.round(25 + rng.normal(0, 0.5, n), 1)])
+
+
+def temps_of(replies) -> dict[str, dict]:
+    return {f.name: f.signals for f in replies if f.name.startswith("Temperatures")}
+
+
+@pytest.fixture
+def lti(artifacts):
+    return load_artifact(artifacts["lti"])
+
+
+@pytest.fixture
+def running(lti):
+    node = TargetNode(lti)
+    host = Host(node)
+    host.reset()
+    host.start()
+    assert node.state == TargetState.RUNNING
+    return node, host
+
+
+def test_startup_announces_model_and_idle(lti):
+    node = TargetNode(lti)
+    frames = [decode_any(f) for f in node.startup_frames()]
+    assert [f.name for f in frames] == ["TargetInfo", "Status", "RxErrors"]
+    info, status = frames[0].signals, frames[1].signals
+    assert info["ModelKind"] == 0 and info["Realization"] == 2 and info["ModelDt"] == pytest.approx(0.5)
+    assert info["FlashBytes"] == node.memory.flash_bytes and info["RamBytes"] == node.memory.ram_bytes
+    assert status["State"] == TargetState.IDLE and status["ModelId"] == lti.model_id and status["FaultBits"] == 0
+
+
+def test_session_replies_equal_the_offline_float32_reference(lti):
+    node = TargetNode(lti)
+    host = Host(node)
+    replies = host.reset()
+    assert [f.name for f in replies] == ["TargetInfo", "Status"] and replies[1].signals["State"] == TargetState.READY
+    assert host.start()[0].signals["State"] == TargetState.RUNNING
+    drive = drive_rows(50)
+    sent = []  # the drive values as the target decoded them
+    answers = []
+    for step, values in enumerate(drive):
+        frames = host.row_frames(step, values)
+        d1, d2 = decode_any(frames[0]).signals, decode_any(frames[1]).signals
+        sent.append([d1["MotorTorque"], d1["MotorSpeed"], d2["CoolantTemp"], d2["AmbientTemp"]])
+        out = host.send(*frames)
+        names = [f.name for f in out]
+        assert names[:2] == ["Temperatures1", "Temperatures2"]  # temperatures first, then the timing frames
+        assert all(f.signals["Step"] == step for f in out)
+        answers.append(out)
+    rows, expected = run_offline(lti, np.array(sent), INITIAL)
+    np.testing.assert_array_equal(rows, [2, 4, 7, 9, 12, 14, 17, 19, 22, 24, 27, 29, 32, 34, 37, 39, 42, 44, 47, 49])
+    for i, row in enumerate(rows):
+        t = temps_of(answers[row])
+        got = [t["Temperatures2"]["YokeTemp"], t["Temperatures1"]["WindingTemp"], t["Temperatures2"]["ToothTemp"],
+               t["Temperatures1"]["MagnetTemp"]]
+        assert np.max(np.abs(np.array(got) - expected[i])) <= 0.005 + 1e-9
+        assert [f.name for f in answers[row]] == ["Temperatures1", "Temperatures2", "Timing1", "Timing2", "Timing3"]
+    # rows before the first model step carry the reset temperatures
+    first = temps_of(answers[0])
+    assert first["Temperatures1"]["WindingTemp"] == pytest.approx(45.0)
+    assert first["Temperatures2"]["YokeTemp"] == pytest.approx(40.0)
+    assert node.model_steps == len(rows) and node.rows_used == 50
+    timing2 = [f for f in answers[2] if f.name == "Timing2"][0].signals
+    assert timing2["EstCycles"] == node.cost.cycles
+    assert timing2["EstExecTime"] == pytest.approx(round(node.cost.exec_time_us, 1))
+
+
+def _bad_frames(host: Host, step: int):
+    """One frame of each rejection kind, each a DriveInputs/DriveTemps the model must never see."""
+    good = host.frame("DriveInputs", Step=step, MotorTorque=100.0, MotorSpeed=1000.0)
+    crc = bytearray(good.data)
+    crc[4] ^= 0x01
+    word = int.from_bytes(bytes(good.data), "little") & ~(0xFFFF << 44) | (0x7FFF << 44)  # 16383.5 rpm
+    out_of_range = bytearray(word.to_bytes(8, "little"))
+    out_of_range[0] = compute_profile2_crc(bytes(out_of_range), 0x10)
+    skipped = host.frame("DriveTemps", Step=step, CoolantTemp=40.0, AmbientTemp=25.0)
+    del skipped  # never sent: the next DriveTemps has a counter one too far
+    counter_jump = host.frame("DriveTemps", Step=step, CoolantTemp=40.0, AmbientTemp=25.0)
+    return {
+        "unknown_id": can.Message(arbitration_id=0x7FF, data=bytes(8), is_extended_id=False),
+        "wrong_length": can.Message(arbitration_id=0x110, data=bytes(good.data[:6]), dlc=6, is_extended_id=False),
+        "crc": can.Message(arbitration_id=0x110, data=bytes(crc), is_extended_id=False),
+        "out_of_range": can.Message(arbitration_id=0x110, data=bytes(out_of_range), is_extended_id=False),
+        "counter": counter_jump,
+    }
+
+
+def test_every_rejection_kind_is_counted_and_never_reaches_the_model(running):
+    node, host = running
+    drive = drive_rows(6)
+    for step in range(3):
+        host.row(step, drive[step])
+    state = (node.rows_used, node.model_steps, node.estimate.copy(), node.accumulator.count)
+    bad = _bad_frames(host, 3)
+    for kind, frame in bad.items():
+        before = dict(node.errors)
+        assert node.handle(frame) == []
+        assert node.errors[kind] == before[kind] + 1, kind
+        assert sum(node.errors.values()) == sum(before.values()) + 1, kind
+    assert (node.rows_used, node.model_steps, node.accumulator.count) == state[:2] + (state[3],)
+    np.testing.assert_array_equal(node.estimate, state[2])
+    assert node.faults & FaultBit.RX_ERROR
+    rx = decode_any(node.rx_error_frames()[0]).signals
+    assert (rx["UnknownId"], rx["WrongLength"], rx["CrcError"], rx["OutOfRange"], rx["CounterError"]) == (1,) * 5
+    assert node.state == TargetState.RUNNING
+
+
+def test_sequence_errors_are_counted_and_not_fed(running):
+    node, host = running
+    drive = drive_rows(10)
+    host.row(0, drive[0])
+    used = node.rows_used
+    # DriveTemps without its DriveInputs
+    temps = host.frame("DriveTemps", Step=1, CoolantTemp=40.0, AmbientTemp=25.0)
+    assert host.send(temps) == [] and node.errors["sequence"] == 1
+    # a pair with different Steps
+    inputs = host.frame("DriveInputs", Step=1, MotorTorque=10.0, MotorSpeed=100.0)
+    temps = host.frame("DriveTemps", Step=2, CoolantTemp=40.0, AmbientTemp=25.0)
+    assert host.send(inputs, temps) == [] and node.errors["sequence"] == 2
+    # a repeated (old) row is not answered
+    assert host.row(0, drive[0]) == [] and node.errors["sequence"] == 3
+    assert node.rows_used == used
+    assert node.faults & FaultBit.SEQUENCE
+    # the expected row is still accepted
+    assert temps_of(host.row(1, drive[1]))["Temperatures1"]["Step"] == 1
+
+
+def test_a_gap_is_one_sequence_error_and_the_model_keeps_time(running):
+    node, host = running
+    drive = drive_rows(20)
+    for step in range(3):
+        host.row(step, drive[step])
+    steps_before = node.model_steps       # 1 step after row 2
+    out = host.row(8, drive[8])           # rows 3..7 lost: intervals ending at rows 4 and 7 still step
+    assert node.errors["sequence"] == 1
+    assert temps_of(out)["Temperatures1"]["Step"] == 8
+    assert node.model_steps == steps_before + 2
+    assert sum(1 for f in out if f.name == "Timing1") == 2
+    assert node.next_row == 9
+
+
+def test_drive_frames_outside_running_and_start_outside_ready(lti):
+    node = TargetNode(lti)
+    host = Host(node)
+    assert host.row(0, drive_rows(1)[0]) == []
+    assert node.errors["sequence"] == 1 and node.rows_used == 0
+    assert host.start() == [] and node.state == TargetState.IDLE and node.errors["sequence"] == 2
+
+
+def test_incomplete_reset_is_refused(lti):
+    node = TargetNode(lti)
+    host = Host(node)
+    replies = host.send(host.frame("ResetTemps1", Step=5, WindingTempInit=45.0, MagnetTempInit=50.0),
+                        host.frame("Control", Command=int(Command.RESET), Step=5))
+    assert node.state == TargetState.IDLE and node.faults & FaultBit.RESET_INCOMPLETE
+    assert replies == []  # state unchanged: no extra Status
+    # ResetTemps of another Step do not complete it either
+    host.send(host.frame("ResetTemps1", Step=1, WindingTempInit=45.0, MagnetTempInit=50.0),
+              host.frame("ResetTemps2", Step=1, YokeTempInit=40.0, ToothTempInit=41.0),
+              host.frame("Control", Command=int(Command.RESET), Step=2))
+    assert node.state == TargetState.IDLE
+    host.reset(step=3)
+    assert node.state == TargetState.READY and node.faults == 0  # a good RESET clears the latched faults
+
+
+def test_stop_ends_the_session_and_a_new_host_starts_clean(running):
+    node, host = running
+    host.row(0, drive_rows(1)[0])
+    out = host.send(host.frame("Control", Command=int(Command.STOP), Step=0))
+    assert out[0].signals["State"] == TargetState.STOPPED
+    fresh = Host(node)  # new host: its alive counters restart at 0
+    assert fresh.reset()[-1].signals["State"] == TargetState.READY
+    assert fresh.start()[0].signals["State"] == TargetState.RUNNING
+    assert temps_of(fresh.row(0, drive_rows(1)[0]))["Temperatures1"]["Step"] == 0
+    assert node.errors["counter"] == 0
+
+
+def test_a_diverging_float32_model_is_clamped_and_flagged(artifacts):
+    node = TargetNode(load_artifact(artifacts["original"]))
+    host = Host(node)
+    host.reset()
+    host.start()
+    drive = np.tile([500.0, 6000.0, 40.0, 25.0], (3000, 1))
+    last = None
+    for step, values in enumerate(drive):
+        out = host.row(step, values)
+        last = temps_of(out) or last
+    assert node.faults & FaultBit.SATURATED
+    values = [last["Temperatures1"]["WindingTemp"], last["Temperatures1"]["MagnetTemp"],
+              last["Temperatures2"]["YokeTemp"], last["Temperatures2"]["ToothTemp"]]
+    assert all(-50.0 <= v <= 600.0 for v in values)
+    assert any(v in (-50.0, 600.0) for v in values)
+
+
+def test_an_internal_error_is_a_fault_not_a_crash(running, monkeypatch):
+    node, host = running
+    drive = drive_rows(3)
+
+    def broken(*args):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(node.model, "step", broken)
+    host.row(0, drive[0])
+    host.row(1, drive[1])
+    out = host.row(2, drive[2])  # completes a model step
+    assert node.state == TargetState.FAULT and node.faults & FaultBit.INTERNAL
+    assert out[0].name == "Status" and out[0].signals["State"] == TargetState.FAULT
+
+
+def test_serve_on_a_virtual_bus_heartbeats_and_answers(lti):
+    channel = f"node-test-{time.monotonic_ns()}"
+    target_bus = can.Bus(interface="virtual", channel=channel)
+    host_bus = can.Bus(interface="virtual", channel=channel)
+    node = TargetNode(lti)
+    stop = threading.Event()
+    thread = threading.Thread(target=serve, args=(node, target_bus, stop.is_set), daemon=True)
+    thread.start()
+    try:
+        codec = FrameCodec("HOST")
+        yoke, winding, tooth, magnet = INITIAL
+        for frame in (codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
+                      codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
+                      codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
+                      codec.encode("Control", {"Command": int(Command.START), "Step": 0}),
+                      codec.encode("DriveInputs", {"Step": 0, "MotorTorque": 50.0, "MotorSpeed": 500.0}),
+                      codec.encode("DriveTemps", {"Step": 0, "CoolantTemp": 40.0, "AmbientTemp": 25.0})):
+            host_bus.send(frame)
+        seen = []
+        deadline = time.monotonic() + 0.55
+        while time.monotonic() < deadline:
+            msg = host_bus.recv(0.05)
+            if msg is not None:
+                seen.append(decode_any(msg))
+    finally:
+        stop.set()
+        thread.join(2)
+        target_bus.shutdown()
+        host_bus.shutdown()
+    names = [f.name for f in seen]
+    assert "Temperatures1" in names and "Temperatures2" in names
+    cyclic = [f for f in seen if f.name == "Status"]
+    assert 5 <= len(cyclic) <= 9            # 100 ms heartbeat (plus the state-change Status frames)
+    assert names.count("RxErrors") >= 4
+    assert node.errors == dict.fromkeys(node.errors, 0)
+
+
+def test_random_frames_never_crash_the_node(lti):
+    """Valid frames in random order and values, mixed with garbage: counted, answered or refused, never fatal."""
+    import random
+
+    from dbc import HOST_FRAME_IDS, apply_crc, signal_ranges
+
+    rng = random.Random(7)
+    node = TargetNode(lti)
+    host = Host(node)
+    codec = host.codec
+    names = ["ResetTemps1", "ResetTemps2", "Control", "DriveInputs", "DriveTemps", "DriveInputs", "DriveTemps"]
+    good = drive_rows(5)
+    for i in range(6000):
+        if i % 500 == 0:  # now and then a proper session start and a few good rows
+            host.reset()
+            host.start()
+            for step, values in enumerate(good):
+                host.row(step, values)
+        if rng.random() < 0.6:
+            name = rng.choice(names)
+            signals = {}
+            for signal, (low, high) in signal_ranges(name).items():
+                signals[signal] = rng.randint(0, 5) if signal == "Step" else (
+                    rng.randint(int(low), int(high)) if name == "Control" else rng.uniform(low, high))
+            frame = codec.encode(name, signals)
+        else:
+            fid = rng.choice(sorted(HOST_FRAME_IDS) + [0x7FF, 0x221])
+            data = bytes(rng.randrange(256) for _ in range(8))
+            frame = can.Message(arbitration_id=fid, data=apply_crc(fid, data) if fid in HOST_FRAME_IDS else data,
+                                is_extended_id=False)
+        for reply in node.handle(frame):
+            decode_any(reply)  # everything the node sends is a valid frame of the contract
+    assert not node.faults & FaultBit.INTERNAL
+    assert sum(node.errors.values()) > 1000 and node.errors["out_of_range"] > 0 and node.errors["sequence"] > 0
+    assert node.rows_used > 0

@@ -1,0 +1,76 @@
+"""Bus options like python-can's tools: precedence of options, environment and config file; `auto`."""
+
+from __future__ import annotations
+
+import argparse
+
+import can.util
+import pytest
+
+from target_sim import transport
+from target_sim.transport import (
+    AUTO,
+    BusConfig,
+    BusUnavailable,
+    add_bus_arguments,
+    config_from_args,
+    resolve,
+)
+
+
+def parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_bus_arguments(parser)
+    return parser.parse_args(list(argv))
+
+
+@pytest.fixture(autouse=True)
+def clean_env(monkeypatch, tmp_path):
+    for name in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(can.util, "CONFIG_FILES", [])  # no ~/.canrc or /etc/can.conf of the machine
+
+
+def test_nothing_configured_means_auto():
+    assert config_from_args(parse()) == BusConfig(AUTO)
+
+
+def test_options_win_over_environment_which_wins_over_a_config_file(monkeypatch, tmp_path):
+    conf = tmp_path / "can.ini"
+    conf.write_text("[default]\ninterface = virtual\nchannel = from-file\nbitrate = 250000\n")
+    assert config_from_args(parse("--can-config", str(conf))) == BusConfig("virtual", "from-file", 250000)
+    monkeypatch.setenv("CAN_INTERFACE", "udp_multicast")
+    monkeypatch.setenv("CAN_CHANNEL", "239.74.163.77")
+    cfg = config_from_args(parse("--can-config", str(conf)))
+    assert (cfg.interface, cfg.channel, cfg.bitrate) == ("udp_multicast", "239.74.163.77", 250000)
+    cfg = config_from_args(parse("-i", "virtual", "-c", "x", "-b", "500000", "--can-config", str(conf)))
+    assert (cfg.interface, cfg.channel, cfg.bitrate) == ("virtual", "x", 500000)
+    assert config_from_args(parse("-i", "auto")).interface == AUTO  # explicit auto ignores the environment
+
+
+def test_bus_kwargs_and_argv_round_trip():
+    cfg = config_from_args(parse("-i", "udp_multicast", "-c", "239.74.163.9", "--bus-kwargs", "port=45123"))
+    assert cfg.kwargs == {"port": 45123}
+    assert config_from_args(parse(*cfg.to_argv())) == cfg
+    assert cfg.describe() == "udp_multicast 239.74.163.9 port 45123"
+
+
+def test_auto_falls_back_to_udp_multicast_with_a_unique_port(monkeypatch):
+    monkeypatch.setattr(transport, "socketcan_usable", lambda channel="vcan0": False)
+    a = resolve(BusConfig(AUTO), session_unique=True)
+    b = resolve(BusConfig(AUTO), session_unique=True)
+    assert a.interface == b.interface == "udp_multicast"
+    assert a.kwargs["port"] != b.kwargs["port"]
+    by_hand = resolve(BusConfig(AUTO))
+    assert (by_hand.channel, by_hand.kwargs["port"]) == ("239.74.163.2", 43113)
+    monkeypatch.setattr(transport, "socketcan_usable", lambda channel="vcan0": True)
+    assert resolve(BusConfig(AUTO)) == BusConfig("socketcan", "vcan0")
+
+
+def test_unusable_buses_are_one_sentence(monkeypatch):
+    monkeypatch.setenv("CAN_INTERFACE", "no-such-interface")
+    with pytest.raises(BusUnavailable, match="no-such-interface"):
+        config_from_args(parse())
+    if not hasattr(__import__("socket"), "AF_CAN") or not transport.socketcan_usable("vcan7"):
+        with pytest.raises(BusUnavailable, match=r"cannot open the CAN bus socketcan vcan7 \("):
+            BusConfig("socketcan", "vcan7").open()
