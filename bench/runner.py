@@ -55,8 +55,8 @@ def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, se
     from bench.drive.dataset import ensure_default_datasets, load_dataset
 
     if path is None:
-        if not quiet:
-            print("bench: preparing the default datasets in out/data", file=sys.stderr)
+        if not quiet and not Path("out/data/cycle_coolant40.csv").is_file():
+            print("bench: generating the default datasets in out/data (once)", file=sys.stderr)
         path = ensure_default_datasets(Path("out/data"), seed)[40]
     period = artifact.data_sample_period if artifact is not None else None
     dataset = load_dataset(Path(path), sample_period_s=period)
@@ -227,7 +227,7 @@ class ProgressBar:
 
     def __init__(self, total: int, description: str, quiet: bool):
         self._bar = None
-        if not quiet:
+        if not quiet and sys.stderr.isatty():
             from tqdm import tqdm
 
             self._bar = tqdm(total=total, desc=description, unit="row", file=sys.stderr, leave=False,

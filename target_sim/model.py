@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from target_sim.artifact import LPTN_PARAMETERS, LOSS_TABLES, ModelArtifact
+from target_sim.artifact import LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
 
 F32 = np.float32
 ONE = F32(1.0)
@@ -29,20 +29,21 @@ ONE = F32(1.0)
 class LossTables:
     """The artifact's loss look-up tables over the (torque, speed) grid, interpolated in float32."""
 
-    def __init__(self, artifact: ModelArtifact):
-        self.torque_axis = artifact.array("losses", "torque_axis_Nm")
-        self.speed_axis = artifact.array("losses", "speed_axis_rpm")
-        self.tables = np.stack([artifact.array("losses", "tables", name) for name in LOSS_TABLES])
-        self.torque_step = F32(self.torque_axis[1] - self.torque_axis[0])
-        self.speed_step = F32(self.speed_axis[1] - self.speed_axis[0])
+    def __init__(self, artifact: ModelArtifact, dtype=F32):
+        self.f = f = np.dtype(dtype).type
+        self.torque_axis = artifact.array("losses", "torque_axis_Nm", dtype=f)
+        self.speed_axis = artifact.array("losses", "speed_axis_rpm", dtype=f)
+        self.tables = np.stack([artifact.array("losses", "tables", name, dtype=f) for name in LOSS_TABLES])
+        self.torque_step = f(self.torque_axis[1] - self.torque_axis[0])
+        self.speed_step = f(self.speed_axis[1] - self.speed_axis[0])
 
-    @staticmethod
-    def _cell(value, start, step, size):
+    def _cell(self, value, start, step, size):
         """Index of the grid cell holding value, and the fraction inside it (clamped to the grid)."""
-        pos = (F32(value) - start) / step
-        pos = min(max(pos, F32(0.0)), F32(size - 1))
+        f = self.f
+        pos = (f(value) - start) / step
+        pos = min(max(pos, f(0.0)), f(size - 1))
         i = min(int(pos), size - 2)
-        return i, F32(pos - F32(i))
+        return i, f(pos - f(i))
 
     def lookup(self, torque, speed) -> np.ndarray:
         """[p_dc0, p_ac0, p_stator, p_magnet, current] at one operating point."""
@@ -55,81 +56,91 @@ class LossTables:
 
 
 class Float32Estimator:
-    """The target's model: load once, `reset` with initial temperatures, then `step` every Δt."""
+    """The target's model: load once, `reset` with initial temperatures, then `step` every Δt.
 
-    def __init__(self, artifact: ModelArtifact):
+    `dtype` is float32 on the target; float64 gives the same code in double precision from the artifact's
+    float64 coefficients (the double-precision reference of the parameter-varying LPTN).
+    """
+
+    def __init__(self, artifact: ModelArtifact, dtype=F32):
+        self.f = f = np.dtype(dtype).type
+        self.one = f(1.0)
+
+        def arr(*keys):
+            return artifact.array(*keys, dtype=f)
+
         self.artifact = artifact
         self.kind = artifact.kind
-        self.dt = F32(artifact.dt)
-        self.luts = LossTables(artifact)
-        self.p = {name: artifact.array("lptn", "parameters", name)[()] for name in LPTN_PARAMETERS}
-        self.speed_max = artifact.array("lptn", "speed_max_rpm")[()]
-        self.current_max = artifact.array("losses", "current_max_A")[()]
-        self.alpha_cu = artifact.array("losses", "alpha_cu_per_K")[()]
-        self.copper_ref = artifact.array("losses", "copper_reference_C")[()]
+        self.dt = f(artifact.dt)
+        self.luts = LossTables(artifact, f)
+        self.p = {name: arr("lptn", "parameters", name)[()] for name in LPTN_PARAMETERS}
+        self.speed_max = arr("lptn", "speed_max_rpm")[()]
+        self.current_max = arr("losses", "current_max_A")[()]
+        self.alpha_cu = arr("losses", "alpha_cu_per_K")[()]
+        self.copper_ref = arr("losses", "copper_reference_C")[()]
         if self.kind != "pv-lptn":
-            self.a, self.b = artifact.array("linear_block", "A"), artifact.array("linear_block", "B")
-            self.c, self.c_inv = artifact.array("linear_block", "C"), artifact.array("linear_block", "C_inv")
+            self.a, self.b = arr("linear_block", "A"), arr("linear_block", "B")
+            self.c, self.c_inv = arr("linear_block", "C"), arr("linear_block", "C_inv")
         if self.kind == "hammerstein":
-            self.sigmoid = {k: artifact.array("input_nonlinearity", k)
+            self.sigmoid = {k: arr("input_nonlinearity", k)
                             for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")}
-        self.x = np.zeros(4, dtype=F32)
-        self.y = np.zeros(4, dtype=F32)
+        self.x = np.zeros(4, dtype=f)
+        self.y = np.zeros(4, dtype=f)
 
     def reset(self, temperatures: Sequence[float]) -> None:
         """Start from physical temperatures [yoke, winding, tooth, magnet] (°C): x0 = C^-1 y0."""
-        self.y = np.asarray(temperatures, dtype=F32).copy()
+        self.y = np.asarray(temperatures, dtype=self.f).copy()
         self.x = self.y.copy() if self.kind == "pv-lptn" else self.c_inv @ self.y
 
     def node_losses(self, torque, speed) -> np.ndarray:
         """[P_y, P_w, P_t, P_m] in W from the tables and the previous winding estimate (eqs. 3-8)."""
         p_dc0, p_ac0, p_stator, p_magnet, current = self.luts.lookup(torque, speed)
-        p = self.p
-        factor = ONE + self.alpha_cu * (self.y[1] - self.copper_ref)
+        p, f, one = self.p, self.f, self.one
+        factor = one + self.alpha_cu * (self.y[1] - self.copper_ref)
         p_w = p_dc0 * factor + p_ac0 / factor
-        i_ratio, n_ratio = current / self.current_max, F32(speed) / self.speed_max
+        i_ratio, n_ratio = current / self.current_max, f(speed) / self.speed_max
         k_s = p["k_0"] + p["k_1"] * i_ratio + p["k_2"] * n_ratio + p["k_3"] * i_ratio * n_ratio
-        return np.array([k_s * p_stator, p_w, (ONE - k_s) * p_stator, p_magnet], dtype=F32)
+        return np.array([k_s * p_stator, p_w, (one - k_s) * p_stator, p_magnet], dtype=f)
 
     def input_nonlinearity(self, losses: np.ndarray) -> np.ndarray:
         s = self.sigmoid
         u = losses / s["scale_W"]
-        out = s["gain"] / (ONE + np.exp(-(s["weight"] * u + s["bias"]))) + s["linear"] * u + s["offset"]
+        out = s["gain"] / (self.one + np.exp(-(s["weight"] * u + s["bias"]))) + s["linear"] * u + s["offset"]
         return out * s["scale_W"]
 
     def temperature_sources(self, speed, coolant, ambient) -> np.ndarray:
         """[ϑ_cv, ϑ_av, ϑ_a1, ϑ_a2] of eqs. 9-18 from the previous estimate."""
-        p, y = self.p, self.y
-        n_ratio = F32(speed) / self.speed_max
-        coolant, ambient = F32(coolant), F32(ambient)
+        p, y, f, one = self.p, self.y, self.f, self.one
+        n_ratio = f(speed) / self.speed_max
+        coolant, ambient = f(coolant), f(ambient)
         g_tm = p["R_tm0"] * np.exp(-n_ratio / p["b_tm"]) / p["a_tm"]
         g_wm = p["R_wm0"] * np.exp(-n_ratio / p["b_wm"]) / p["a_wm"]
         g_ma = p["R_ma0"] * np.exp(-n_ratio / p["b_ma"]) / p["a_ma"]
-        g_cy = p["alpha_cy"] * (coolant - F32(40.0))  # R_cy01 / R_cy0 (eq. 16)
+        g_cy = p["alpha_cy"] * (coolant - f(40.0))  # R_cy01 / R_cy0 (eq. 16)
         th_y, th_w, th_t, th_m = y
         return np.array([
-            coolant + g_cy * (th_y - coolant) / (ONE + g_cy),
-            ambient + g_ma * (th_m - ambient) / (ONE + g_ma),
-            (th_m + g_tm * th_t) / (ONE + g_tm),
-            (th_w + g_wm * th_m) / (ONE + g_wm),
-        ], dtype=F32)
+            coolant + g_cy * (th_y - coolant) / (one + g_cy),
+            ambient + g_ma * (th_m - ambient) / (one + g_ma),
+            (th_m + g_tm * th_t) / (one + g_tm),
+            (th_w + g_wm * th_m) / (one + g_wm),
+        ], dtype=f)
 
     def pv_network(self, speed, coolant) -> tuple[np.ndarray, np.ndarray]:
         """Continuous A (4x4) and B (4x6) of the parameter-varying LPTN, built in float32."""
-        p = self.p
-        n_ratio = F32(speed) / self.speed_max
+        p, f, one = self.p, self.f, self.one
+        n_ratio = f(speed) / self.speed_max
         r_wm = p["R_wm0"] * np.exp(-n_ratio / p["b_wm"]) + p["a_wm"]
         r_tm = p["R_tm0"] * np.exp(-n_ratio / p["b_tm"]) + p["a_tm"]
         r_ma = p["R_ma0"] * np.exp(-n_ratio / p["b_ma"]) + p["a_ma"]
-        r_cy = p["R_cy0"] * (ONE + p["alpha_cy"] * (F32(coolant) - F32(40.0)))
-        g = np.zeros((4, 6), dtype=F32)  # conductances from node i to node j (y, w, t, m, coolant, ambient)
+        r_cy = p["R_cy0"] * (one + p["alpha_cy"] * (f(coolant) - f(40.0)))
+        g = np.zeros((4, 6), dtype=f)  # conductances from node i to node j (y, w, t, m, coolant, ambient)
         for i, j, res in ((0, 1, p["R_yw"]), (0, 2, p["R_yt"]), (1, 2, p["R_wt"]), (1, 3, r_wm), (2, 3, r_tm)):
-            g[i, j] = g[j, i] = ONE / res
-        g[3, 5], g[0, 4] = ONE / r_ma, ONE / r_cy
-        inv_c = ONE / np.array([p["C_y"], p["C_w"], p["C_t"], p["C_m"]], dtype=F32)
+            g[i, j] = g[j, i] = one / res
+        g[3, 5], g[0, 4] = one / r_ma, one / r_cy
+        inv_c = one / np.array([p["C_y"], p["C_w"], p["C_t"], p["C_m"]], dtype=f)
         a = g[:, :4] * inv_c[:, None]
-        a[np.diag_indices(4)] = -g.sum(axis=1, dtype=F32) * inv_c
-        b = np.zeros((4, 6), dtype=F32)
+        a[np.diag_indices(4)] = -g.sum(axis=1, dtype=f) * inv_c
+        b = np.zeros((4, 6), dtype=f)
         b[np.diag_indices(4)] = inv_c
         b[:, 4:] = g[:, 4:] * inv_c[:, None]
         return a, b
@@ -141,7 +152,7 @@ class Float32Estimator:
             losses = self.input_nonlinearity(losses)
         if self.kind == "pv-lptn":
             a, b = self.pv_network(speed, coolant)
-            u = np.concatenate([losses, np.array([coolant, ambient], dtype=F32)])
+            u = np.concatenate([losses, np.array([coolant, ambient], dtype=self.f)])
             self.x = self.x + self.dt * (a @ self.x + b @ u)
             self.y = self.x.copy()
         else:

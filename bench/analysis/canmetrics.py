@@ -22,6 +22,7 @@ from bench.drive.motor import MAP_TABLES, LossMaps
 from bench.thermal.estimator import SIGMOID_ROWS, StepInputs, identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
 from bench.thermal.parameters import LptnParameters
+from dbc import frame_id
 from host.results import gap_count, percentiles
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
 from target_sim.model import Float32Estimator, run_offline
@@ -147,7 +148,7 @@ def bus_load(record: BusRecord, data: np.ndarray, sample_period_s: float, bitrat
     if not bits.size or record.rows == 0:
         return {**out, "data_rate_percent": None, "window_s": window_s, "window_start_s": [],
                 "window_percent": []}
-    heartbeat_ids = {0x230, 0x231}
+    heartbeat_ids = {frame_id("Status"), frame_id("RxErrors")}
     is_heartbeat = np.isin(record.frame_ids, list(heartbeat_ids))
     per_row_bits = bits[~is_heartbeat].sum() / record.rows
     heartbeat_bits_per_s = float(bits[is_heartbeat].mean()) * len(heartbeat_ids) * 10 if is_heartbeat.any() else 0.0
@@ -237,12 +238,29 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         "log": str(record.path),
     }
     metrics["bus_load"] = bus_load(record, record.frame_data, artifact.data_sample_period, bitrate)
+    metrics["notes"] = notes(metrics)
     return metrics, refs
 
 
 def _fault_names(bits: int) -> list[str]:
     from dbc import FaultBit
     return [bit.name for bit in FaultBit if bit & bits]
+
+
+DIVERGENCE_NOTE_C = 1.0
+
+
+def notes(metrics: dict) -> list[str]:
+    """Facts about the model (not faults of the run) the report must not hide."""
+    out = []
+    worst = max((v for v in metrics["max_abs_float32_minus_float64_C"].values() if v is not None), default=0.0)
+    if worst > DIVERGENCE_NOTE_C:
+        out.append(f"the float32 model departs from float64 by up to {worst:.4g} °C: the "
+                   f"{metrics['model']['realization']} realization does not survive single precision")
+    if metrics["saturated_values"]:
+        out.append(f"{metrics['saturated_values']} float32 values lay outside the DBC range (-50..600 °C) and "
+                   "went out clamped (SATURATED); they are left out of the CAN - float32 comparison")
+    return out
 
 
 def problems(metrics: dict) -> list[str]:

@@ -68,7 +68,9 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
     lines += [f"**Result: {verdict}.**", ""]
     for problem in found:
         lines.append(f"- {problem}")
-    if found:
+    for note in m.get("notes", []):
+        lines.append(f"- **Note:** {note}")
+    if found or m.get("notes"):
         lines.append("")
     lines += ["| | |", "|---|---|"]
     info = [("log", f"`{m['log']}` ({m['frames_in_log']} frames)"),

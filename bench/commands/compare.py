@@ -103,7 +103,7 @@ def table_row(artifact: ModelArtifact, path: Path, m: dict, found: list[str]) ->
                                            default=None),
         "max_abs_float32_minus_float64_C": max(
             (v for v in m["max_abs_float32_minus_float64_C"].values() if v is not None), default=None),
-        "throughput_steps_per_s": m["throughput_steps_per_s"], "problems": found,
+        "throughput_steps_per_s": m["throughput_steps_per_s"], "problems": found, "notes": m.get("notes", []),
     }
 
 

@@ -125,6 +125,7 @@ def json_summary(metrics: dict, host, found: list[str], elapsed_s: float) -> dic
         "log": metrics["log"],
         "report": metrics.get("report"),
         "problems": found,
+        "notes": metrics.get("notes", []),
         "clean": not found,
         "host": {k: v for k, v in host.to_dict().items() if k not in ("log_path",)},
         "metrics": {k: v for k, v in metrics.items() if k != "bus_load"}
@@ -156,4 +157,6 @@ def print_summary(s: dict) -> None:
           f"{_f(rtt['p50'], 0)}/{_f(rtt['p99'], 0)} µs, bus load at the data rate "
           f"{_f(m['bus_load']['data_rate_percent'], 2)} %")
     print(f"log {s['log']}" + (f", report {s['report']}" if s.get("report") else ""))
+    for note in m.get("notes", []):
+        print(f"note: {note}")
     print("clean" if s["clean"] else "NOT clean: " + "; ".join(s["problems"]))

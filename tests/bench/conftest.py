@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import random
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from target_sim.transport import BusConfig, free_udp_port
+from target_sim.transport import BusConfig, resolve
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -69,8 +68,8 @@ def artifacts(tmp_path_factory) -> dict[str, Path]:
 
 @pytest.fixture
 def udp_bus() -> BusConfig:
-    """A udp_multicast bus no other test (or run) shares."""
-    return BusConfig("udp_multicast", f"239.74.163.{random.randint(10, 250)}", kwargs={"port": free_udp_port()})
+    """A udp_multicast bus no other test (or run) shares, on the machine-local group `auto` uses."""
+    return resolve(BusConfig("udp_multicast"), session_unique=True)
 
 
 def subprocess_env() -> dict[str, str]:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import os
 
+import can
 import can.util
 import pytest
 
@@ -55,6 +57,32 @@ def test_bus_kwargs_and_argv_round_trip():
     assert cfg.describe() == "udp_multicast 239.74.163.9 port 45123"
 
 
+def test_auto_multicast_never_leaves_the_machine(tmp_path):
+    """The interface-local group: frames reach another socket here, and the network interfaces send nothing."""
+    if not transport.ipv6_multicast_usable():
+        pytest.skip("IPv6 is off: auto falls back to the IPv4 link-local-TTL group")
+    from pathlib import Path
+
+    def tx_packets() -> int:
+        return sum(int(Path(f"/sys/class/net/{dev}/statistics/tx_packets").read_text())
+                   for dev in os.listdir("/sys/class/net") if dev != "lo")
+
+    cfg = resolve(BusConfig("udp_multicast"), session_unique=True)
+    a, b = cfg.open(), cfg.open()
+    try:
+        before = tx_packets()
+        for i in range(200):
+            a.send(can.Message(arbitration_id=0x110, data=bytes([i]) * 8, is_extended_id=False))
+        got = [b.recv(1.0) for _ in range(200)]
+        after = tx_packets()
+    finally:
+        a.shutdown()
+        b.shutdown()
+    assert all(m is not None and m.arbitration_id == 0x110 for m in got)
+    assert [m.data[0] for m in got] == list(range(200))
+    assert after - before < 50  # nothing of ours (other traffic of the machine may add a few)
+
+
 def test_auto_falls_back_to_udp_multicast_with_a_unique_port(monkeypatch):
     monkeypatch.setattr(transport, "socketcan_usable", lambda channel="vcan0": False)
     a = resolve(BusConfig(AUTO), session_unique=True)
@@ -62,7 +90,11 @@ def test_auto_falls_back_to_udp_multicast_with_a_unique_port(monkeypatch):
     assert a.interface == b.interface == "udp_multicast"
     assert a.kwargs["port"] != b.kwargs["port"]
     by_hand = resolve(BusConfig(AUTO))
-    assert (by_hand.channel, by_hand.kwargs["port"]) == ("239.74.163.2", 43113)
+    assert by_hand.kwargs["port"] == 43113
+    assert by_hand.channel == (transport.UDP_LOCAL_GROUP if transport.ipv6_multicast_usable()
+                               else transport.UDP_IPV4_GROUP)
+    monkeypatch.setattr(transport, "ipv6_multicast_usable", lambda: False)
+    assert resolve(BusConfig(AUTO)).channel == "239.74.163.2"
     monkeypatch.setattr(transport, "socketcan_usable", lambda channel="vcan0": True)
     assert resolve(BusConfig(AUTO)) == BusConfig("socketcan", "vcan0")
 

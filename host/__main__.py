@@ -1,0 +1,111 @@
+"""`python -m host`: replay a dataset to a running target over CAN, log every frame, report what came back.
+
+    python -m host --data FILE [--model FILE] [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
+                   [--reply-timeout S] [--connect-timeout S] [--tolerate-gaps] [--json] [--quiet]
+                   [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
+
+The target (`python -m target_sim`) must run on the same bus; its heartbeat must carry the model id of --model
+(default: the packaged artifact). Exit status 0 when every row was answered and nothing was lost, 1 when the run
+had missing replies, sequence gaps or heartbeat loss (unless --tolerate-gaps), 2 for bad arguments; every error
+is one sentence on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from host.canlog import LogError, check_log_path
+from host.replay import DataRangeError
+from host.run import MODES, run_dataset
+from host.session import SessionError
+from target_sim.artifact import ArtifactError, load_artifact
+from target_sim.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:
+        print(f"host: error: {message} (see 'python -m host --help')", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="python -m host", description=__doc__.split("\n\n")[0],
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", type=Path, required=True, help="dataset CSV (bench.drive schema)")
+    p.add_argument("--model", type=Path, default=None,
+                   help="artifact the target must run (default: the packaged one)")
+    p.add_argument("--mode", choices=MODES, default="lockstep")
+    p.add_argument("--speed", type=_positive, default=1.0, help="realtime speed factor (default 1)")
+    p.add_argument("--rows", type=int, default=None, help="replay only the first N rows")
+    p.add_argument("--log", type=Path, default=Path("out/host/host.blf"),
+                   help="bus log, format by suffix .blf .asc .log .csv .mf4 (default out/host/host.blf)")
+    p.add_argument("--reply-timeout", type=_positive, default=0.05, help="seconds per reply (default 0.05)")
+    p.add_argument("--connect-timeout", type=_positive, default=15.0,
+                   help="seconds to wait for the target's heartbeat (default 15)")
+    p.add_argument("--tolerate-gaps", action="store_true", help="exit 0 despite missing replies (still reported)")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    add_bus_arguments(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from bench.drive.dataset import DatasetError, load_dataset
+    from bench.model.default import default_artifact_path
+    from bench.model.runs import drive_matrix, initial_temperatures
+
+    bus = None
+    try:
+        artifact = load_artifact(args.model or default_artifact_path())
+        dataset = load_dataset(args.data, sample_period_s=artifact.data_sample_period)
+        log_path = check_log_path(args.log)
+        config = resolve(config_from_args(args))
+        bus = config.open()
+        drive = drive_matrix(dataset)
+        if args.rows is not None:
+            drive = drive[: max(args.rows, 1)]
+        if not (args.quiet or args.json):
+            print(f"host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}",
+                  file=sys.stderr)
+        result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
+                             mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,
+                             log_path=log_path, reply_timeout_s=args.reply_timeout,
+                             connect_timeout_s=args.connect_timeout)
+    except (ArtifactError, DatasetError, LogError, BusUnavailable, SessionError, DataRangeError) as exc:
+        print(f"host: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("host: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        if bus is not None:
+            bus.shutdown()
+    problems = result.problems()
+    if args.json:
+        json.dump({**result.to_dict(), "problems": problems, "clean": not problems}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(f"{result.rows_sent} rows sent, {result.replies} answered, {result.missing} missing, "
+              f"{result.rows_per_s:.0f} rows/s, round trip p50 {result.round_trip_us['p50'] or 0:.0f} µs; "
+              f"log {result.log_path}")
+        for problem in problems:
+            print(f"host: {problem}", file=sys.stderr)
+    return 1 if problems and not args.tolerate_gaps else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,306 @@
+"""Replaying data rows (or a recorded log's host frames) onto the bus.
+
+Dataset replay, one DriveInputs + DriveTemps pair per data row, Step = row number (mod 65536):
+
+* `lockstep`: send row n, wait for its Temperatures1 + Temperatures2 (up to `reply_timeout_s`), then row n+1.
+  A row without both replies in time is missing; the run goes on (a silent heartbeat, or `abort_after`
+  missing rows in a row, ends it). The next row's frames are encoded and the log is written while the target
+  works, so neither is on the round trip.
+* `realtime`: row n is sent at t0 + n·T_s/speed by a deadline scheduler (wait in `recv` until 1 ms before the
+  deadline, then spin on perf_counter: the same thread receives replies between sends). python-can's periodic
+  sending does not fit: every frame carries a new Step, alive counter and CRC. Send-time jitter (actual − planned)
+  is recorded per row.
+
+Log replay (`bench replay`) re-sends a log's host frames byte for byte (same counters and CRCs), either with the
+recorded timing (`can.MessageSync`, scaled by `speed`, each row's DriveInputs held back until the previous row is
+answered) or as fast as possible in lockstep (after each DriveTemps wait for that row's replies).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import can
+import numpy as np
+
+from dbc import HOST_FRAME_IDS, FrameCodec, decode_any, frame_id, signal_ranges
+from host.session import HostSession, RowBook, SessionError
+
+Progress = Callable[[int, int], None]
+DRIVE_SIGNALS = (("DriveInputs", "MotorTorque"), ("DriveInputs", "MotorSpeed"), ("DriveTemps", "CoolantTemp"),
+                 ("DriveTemps", "AmbientTemp"))
+DEFAULT_ABORT_AFTER = 25
+SPIN_S = float(os.environ.get("HOST_SPIN_S", "0.0003"))  # lockstep: busy-poll for the reply before blocking
+_DRIVE_INPUTS, _DRIVE_TEMPS = frame_id("DriveInputs"), frame_id("DriveTemps")
+_TEMPERATURES = (frame_id("Temperatures1"), frame_id("Temperatures2"))
+
+
+class DataRangeError(ValueError):
+    """A data value the DBC cannot carry."""
+
+
+def check_drive_range(drive: np.ndarray) -> None:
+    """Every value must be finite and inside its DBC signal range (the codec refuses to wrap)."""
+    names = ("torque", "speed", "coolant temperature", "ambient temperature")
+    for column, ((message, signal), name) in enumerate(zip(DRIVE_SIGNALS, names, strict=True)):
+        low, high = signal_ranges(message)[signal]
+        values = drive[:, column]
+        bad = np.flatnonzero(~np.isfinite(values) | (values < low) | (values > high))
+        if bad.size:
+            row = int(bad[0])
+            raise DataRangeError(f"data row {row} has {name} {values[row]!r}, outside what {message}.{signal} can "
+                                 f"carry ({low:g} to {high:g}); fix or clip the data")
+
+
+def encode_row(codec: FrameCodec, row: int, values: Sequence[float]) -> list[can.Message]:
+    step = row % 65536
+    torque, speed, coolant, ambient = values
+    return [codec.encode("DriveInputs", {"Step": step, "MotorTorque": torque, "MotorSpeed": speed}),
+            codec.encode("DriveTemps", {"Step": step, "CoolantTemp": coolant, "AmbientTemp": ambient})]
+
+
+@dataclass
+class ReplayStats:
+    mode: str
+    rows_sent: int
+    wall_time_s: float
+    missing_during_run: int
+    aborted: str | None = None
+    send_jitter_s: np.ndarray | None = None
+
+
+def _silent(session: HostSession) -> bool:
+    return session.monitor.silent_for() > session.monitor.heartbeat_timeout_s
+
+
+def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: float,
+                 abort_after: int = DEFAULT_ABORT_AFTER, progress: Progress | None = None) -> ReplayStats:
+    rows = len(drive)
+    book = session.book = RowBook(rows)
+    values = drive.tolist()
+    codec = session.codec
+    perf, perf_ns = time.perf_counter, time.perf_counter_ns
+    missing = consecutive = 0
+    aborted = None
+    next_frames = encode_row(codec, 0, values[0]) if rows else []
+    started = perf()
+    sent = 0
+    for n in range(rows):
+        frames = next_frames
+        session.last_sent_row = n
+        book.sent_ns[n] = perf_ns()
+        session.send(frames)
+        sent += 1
+        session.flush_log()
+        if n + 1 < rows:
+            next_frames = encode_row(codec, n + 1, values[n + 1])
+        deadline = perf() + reply_timeout_s
+        got = book.got
+        spin_until = perf() + SPIN_S
+        while got[n] != 3 and perf() < spin_until:  # poll first: the reply is usually < 0.3 ms away
+            session.receive(0.0)
+        while got[n] != 3:
+            remaining = deadline - perf()
+            if remaining <= 0:
+                break
+            session.receive(remaining)
+        if got[n] != 3:
+            missing += 1
+            consecutive += 1
+            if _silent(session):
+                aborted = (f"the target went silent (no heartbeat for more than "
+                           f"{session.monitor.heartbeat_timeout_s:g} s) at row {n}")
+                break
+            if consecutive >= abort_after:
+                aborted = f"the target stopped answering: {consecutive} rows in a row without a reply (row {n})"
+                break
+        else:
+            consecutive = 0
+        if progress is not None and (n & 127) == 0:
+            progress(n, rows)
+    elapsed = perf() - started
+    session.flush_log()
+    if progress is not None:
+        progress(sent, rows)
+    return ReplayStats("lockstep", sent, elapsed, missing, aborted)
+
+
+def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: float, speed: float = 1.0,
+                 reply_timeout_s: float, progress: Progress | None = None) -> ReplayStats:
+    rows = len(drive)
+    book = session.book = RowBook(rows)
+    values = drive.tolist()
+    codec = session.codec
+    perf, perf_ns = time.perf_counter, time.perf_counter_ns
+    interval = sample_period_s / speed
+    margin = min(0.001, interval / 4)
+    jitter = np.zeros(rows)
+    aborted = None
+    frames = encode_row(codec, 0, values[0]) if rows else []
+    start = perf() + 0.05
+    sent = 0
+    for n in range(rows):
+        deadline = start + n * interval
+        while (remaining := deadline - perf()) > margin:
+            session.receive(remaining - margin)
+        while perf() < deadline:
+            pass
+        actual = perf()
+        session.last_sent_row = n
+        book.sent_ns[n] = perf_ns()
+        session.send(frames)
+        jitter[n] = actual - deadline
+        sent += 1
+        session.flush_log()
+        if n + 1 < rows:
+            frames = encode_row(codec, n + 1, values[n + 1])
+        if (n & 63) == 0:
+            if _silent(session):
+                aborted = (f"the target went silent (no heartbeat for more than "
+                           f"{session.monitor.heartbeat_timeout_s:g} s) at row {n}")
+                break
+            if progress is not None:
+                progress(n, rows)
+    # the last replies
+    end = perf() + reply_timeout_s
+    while sent and book.got[sent - 1] != 3 and (remaining := end - perf()) > 0:
+        session.receive(remaining)
+    elapsed = perf() - start
+    session.flush_log()
+    if progress is not None:
+        progress(sent, rows)
+    missing = int(np.count_nonzero(book.got[:sent] != 3))
+    return ReplayStats("realtime", sent, elapsed, missing, aborted, send_jitter_s=jitter[:sent])
+
+
+# ---------------------------------------------------------------------------------------------- log replay
+def host_frames(messages: Sequence[can.Message]) -> list[can.Message]:
+    """The frames a host sent (standard ids of the DBC's HOST node), as fresh copies with the recorded bytes."""
+    out = []
+    for m in messages:
+        if m.is_extended_id or m.is_error_frame or m.is_remote_frame or m.arbitration_id not in HOST_FRAME_IDS:
+            continue
+        out.append(can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id, is_extended_id=False,
+                               dlc=m.dlc, data=bytes(m.data)))
+    return out
+
+
+def count_rows(frames: Sequence[can.Message]) -> int:
+    return sum(1 for f in frames if f.arbitration_id == _DRIVE_INPUTS)
+
+
+def replay_frames(session: HostSession, frames: Sequence[can.Message], *, timed: bool, speed: float = 1.0,
+                  reply_timeout_s: float, progress: Progress | None = None) -> ReplayStats:
+    """Re-send recorded host frames; replies land in `session.book` by row (the n-th DriveInputs is row n)."""
+    rows = count_rows(frames)
+    book = session.book = RowBook(rows)
+    started = time.perf_counter()
+    if not timed:
+        missing = _replay_lockstep(session, frames, book, reply_timeout_s, progress)
+    else:
+        missing = _replay_timed(session, frames, book, speed, reply_timeout_s, progress)
+    return ReplayStats("timed" if timed else "lockstep", rows, time.perf_counter() - started, missing)
+
+
+def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> int:
+    row = -1
+    missing = 0
+    perf = time.perf_counter
+    for frame in frames:
+        if frame.arbitration_id == _DRIVE_INPUTS:
+            row += 1
+            session.last_sent_row = row
+            book.sent_ns[row] = time.perf_counter_ns()
+        session.send([frame])
+        session.flush_log()
+        if frame.arbitration_id == _DRIVE_TEMPS and row >= 0:
+            deadline = perf() + reply_timeout_s
+            while book.got[row] != 3 and (remaining := deadline - perf()) > 0:
+                session.receive(remaining)
+            if book.got[row] != 3:
+                missing += 1
+                if _silent(session):
+                    raise SessionError(f"the target went silent during the replay (row {row})")
+            if progress is not None and (row & 1023) == 0:
+                progress(row, book.rows)
+        elif frame.arbitration_id != _DRIVE_INPUTS:
+            # control frames: give the target its turn (state changes are answered by a Status frame)
+            session.wait_for(lambda f: f.name == "Status", 0.02)
+    session.flush_log()
+    return missing
+
+
+def _replay_timed(session, frames, book, speed, reply_timeout_s, progress) -> int:
+    """Recorded timing through can.MessageSync, gated by the replies: a row's DriveInputs waits until the
+    previous row is answered (or `reply_timeout_s` passes). A log recorded in lockstep was paced by its round
+    trips, so it has no slack: without the gate one slow moment of the target would queue frames until the
+    socket drops some. In the gaps MessageSync sleeps, replies wait in the socket and are read before the next
+    send, so the log stays in time order."""
+    base = frames[0].timestamp if frames else 0.0
+    scaled = [can.Message(timestamp=base + (f.timestamp - base) / speed, arbitration_id=f.arbitration_id,
+                          is_extended_id=False, dlc=f.dlc, data=f.data) for f in frames]
+    perf = time.perf_counter
+    row = -1
+    for frame in can.MessageSync(scaled, timestamps=True, gap=0.0, skip=60.0):
+        while session.receive(0.0) is not None:  # what arrived while MessageSync slept
+            pass
+        if frame.arbitration_id == _DRIVE_INPUTS:
+            if row >= 0:
+                deadline = perf() + reply_timeout_s
+                while book.got[row] != 3 and (remaining := deadline - perf()) > 0:
+                    session.receive(remaining)
+                if book.got[row] != 3 and _silent(session):
+                    raise SessionError(f"the target went silent during the replay (row {row})")
+            row += 1
+            session.last_sent_row = row
+            book.sent_ns[row] = time.perf_counter_ns()
+            if progress is not None and (row & 1023) == 0:
+                progress(row, book.rows)
+        session.flush_log()
+        session.send([frame])
+        session.flush_log()
+    deadline = perf() + reply_timeout_s
+    while book.rows and book.got[book.rows - 1] != 3 and (remaining := deadline - perf()) > 0:
+        session.receive(remaining)
+    session.flush_log()
+    return int(np.count_nonzero(book.got != 3))
+
+
+def recorded_replies(messages: Sequence[can.Message]) -> tuple[np.ndarray, np.ndarray]:
+    """(temps (rows, 4) yoke/winding/tooth/magnet, answered (rows,) bool) of a log, rows by DriveInputs order."""
+    row = -1
+    last_step_row: dict[int, int] = {}
+    collected: list[list[float]] = []
+    got: list[int] = []
+    for m in messages:
+        if m.is_extended_id:
+            continue
+        if m.arbitration_id == _DRIVE_INPUTS:
+            try:
+                frame = decode_any(m)
+            except ValueError:
+                continue
+            row += 1
+            last_step_row[int(frame.signals["Step"])] = row
+            collected.append([math.nan] * 4)
+            got.append(0)
+        elif m.arbitration_id in _TEMPERATURES:
+            try:
+                frame = decode_any(m)
+            except ValueError:
+                continue
+            r = last_step_row.get(int(frame.signals["Step"]))
+            if r is None:
+                continue
+            s = frame.signals
+            if frame.name == "Temperatures1":
+                collected[r][1], collected[r][3] = s["WindingTemp"], s["MagnetTemp"]
+                got[r] |= 1
+            else:
+                collected[r][0], collected[r][2] = s["YokeTemp"], s["ToothTemp"]
+                got[r] |= 2
+    return np.array(collected, dtype=float).reshape(-1, 4), np.array(got, dtype=np.uint8) == 3

@@ -1,0 +1,279 @@
+"""The host's side of one session with the target: handshake, sending, receiving, monitoring.
+
+Handshake: wait for a Status heartbeat whose ModelId is the artifact's (else one sentence naming both ids);
+send ResetTemps1, ResetTemps2 and Control RESET (Step 0) and wait for Status READY (up to three tries: a target
+that saw an earlier session resynchronizes its alive counters on the first try); Control START (Step 0) and wait
+for RUNNING. At the end Control STOP, wait for STOPPED, and collect the trailing frames.
+
+Every frame the host sends or receives (its own loopback copies excepted) is written to the log. Received
+frames are validated (`dbc.FrameValidator`); rejected ones are counted per kind. Status frames feed the
+heartbeat monitor: a gap longer than `heartbeat_timeout_s` is a heartbeat loss.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+
+from dbc import (
+    HOST_FRAME_IDS,
+    Command,
+    DecodedFrame,
+    FaultBit,
+    FrameError,
+    ModelKind,
+    Realization,
+    TargetState,
+)
+from host.canlog import FrameLog
+from target_sim.fastframes import FastFrameCodec, FastFrameValidator
+from target_sim.transport import OwnFrameFilter
+
+STEP_MODULO = 1 << 16
+DEFAULT_REPLY_TIMEOUT_S = 0.05
+DEFAULT_HEARTBEAT_TIMEOUT_S = 0.5
+DEFAULT_CONNECT_TIMEOUT_S = 15.0
+
+
+class SessionError(Exception):
+    """The session cannot go on (wrong model, silent target, refused reset); one sentence."""
+
+
+@dataclass
+class RowBook:
+    """What came back for each data row: temperatures (yoke, winding, tooth, magnet) and when."""
+
+    rows: int
+    temps: np.ndarray = field(init=False)
+    got: np.ndarray = field(init=False)        # bit 0: Temperatures1, bit 1: Temperatures2
+    sent_ns: np.ndarray = field(init=False)
+    replied_ns: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.temps = np.full((self.rows, 4), np.nan)
+        self.got = np.zeros(self.rows, dtype=np.uint8)
+        self.sent_ns = np.zeros(self.rows, dtype=np.int64)
+        self.replied_ns = np.zeros(self.rows, dtype=np.int64)
+
+    def answered(self) -> np.ndarray:
+        return self.got == 3
+
+
+@dataclass
+class Monitor:
+    """Heartbeat, target state and error counters as last seen."""
+
+    heartbeat_timeout_s: float
+    last_status_s: float | None = None
+    max_gap_s: float = 0.0
+    heartbeat_losses: int = 0
+    state: TargetState | None = None
+    faults: int = 0
+    faults_seen: int = 0
+    model_id: int | None = None
+    rx_errors: dict[str, int] = field(default_factory=dict)
+    target_info: dict[str, object] = field(default_factory=dict)
+    status_count: int = 0
+
+    def status(self, signals: dict, now_s: float) -> None:
+        if self.last_status_s is not None:
+            gap = now_s - self.last_status_s
+            self.max_gap_s = max(self.max_gap_s, gap)
+            if gap > self.heartbeat_timeout_s:
+                self.heartbeat_losses += 1
+        self.last_status_s = now_s
+        self.status_count += 1
+        self.state = TargetState(int(signals["State"]))
+        self.faults = int(signals["FaultBits"])
+        self.faults_seen |= self.faults
+        self.model_id = int(signals["ModelId"])
+
+    def silent_for(self, now_s: float | None = None) -> float:
+        """Seconds since the last Status frame was received (wall clock, like the frames' timestamps)."""
+        now_s = time.time() if now_s is None else now_s
+        return 0.0 if self.last_status_s is None else now_s - self.last_status_s
+
+
+class HostSession:
+    """Sends and receives for one run; knows nothing of datasets (see host.replay)."""
+
+    def __init__(self, bus: can.BusABC, *, log: FrameLog | None = None, expected_model_id: int | None = None,
+                 heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S):
+        self.bus = bus
+        self.log = log
+        self.expected_model_id = expected_model_id
+        self.codec = FastFrameCodec("HOST")
+        self.validator = FastFrameValidator("HOST")
+        self.own = OwnFrameFilter(HOST_FRAME_IDS)
+        self.monitor = Monitor(heartbeat_timeout_s)
+        self.invalid = {kind: 0 for kind in ("unknown_id", "wrong_length", "crc", "counter", "out_of_range")}
+        self.book: RowBook | None = None
+        self.last_sent_row = -1
+        self.late_replies = 0
+        # per model step, as (row, value) pairs: measured µs, overruns, est. cycles, est. µs, CPU load %
+        self.timing: dict[str, list[tuple[int, float]]] = {
+            "measured_us": [], "overruns": [], "cycles": [], "exec_us": [], "cpu_load": []}
+        self.on_frame: Callable[[DecodedFrame], None] | None = None
+        self._pending_log: list[can.Message] = []
+
+    # ------------------------------------------------------------------ sending
+    def send(self, frames: Sequence[can.Message]) -> None:
+        for frame in frames:
+            frame.timestamp = time.time()
+            frame.is_rx = False
+            try:
+                self.bus.send(frame)
+            except can.CanError as exc:
+                raise SessionError(f"sending on the CAN bus failed ({exc}); is the bus still up?") from None
+            if self.log is not None:
+                self._pending_log.append(frame)
+
+    def flush_log(self) -> None:
+        if self.log is not None:
+            for frame in self._pending_log:
+                self.log.write(frame)
+        self._pending_log.clear()
+
+    def control(self, command: Command, step: int = 0) -> can.Message:
+        return self.codec.encode("Control", {"Command": int(command), "Step": step})
+
+    # ------------------------------------------------------------------ receiving
+    def receive(self, timeout: float) -> DecodedFrame | None:
+        """One frame from the target (validated and dispatched), or None when `timeout` passes without one."""
+        deadline = time.perf_counter() + timeout
+        while True:
+            msg = self.bus.recv(max(0.0, deadline - time.perf_counter()))
+            if msg is None:
+                return None
+            if self.own.is_own(msg):
+                continue
+            frame = self.accept(msg)
+            if frame is not None:
+                return frame
+
+    def accept(self, msg: can.Message) -> DecodedFrame | None:
+        """Log, validate and dispatch one received frame; None if it was rejected (and counted)."""
+        if self.log is not None:
+            self._pending_log.append(msg)
+        try:
+            frame = self.validator.validate(msg)
+        except FrameError as exc:
+            self.invalid[exc.kind] += 1
+            return None
+        self._dispatch(frame)
+        return frame
+
+    def _dispatch(self, frame: DecodedFrame) -> None:
+        name, s = frame.name, frame.signals
+        if name == "Temperatures1" or name == "Temperatures2":
+            self._reply(name, s)
+        elif name == "Status":
+            self.monitor.status(s, frame.timestamp)  # the receive time stamped by the bus (wall clock)
+        elif name == "Timing1":
+            row = self._row_of(int(s["Step"]))
+            self.timing["measured_us"].append((row, float(s["StepTimeMeasured"])))
+            self.timing["overruns"].append((row, int(s["Overruns"])))
+        elif name == "Timing2":
+            row = self._row_of(int(s["Step"]))
+            self.timing["cycles"].append((row, int(s["EstCycles"])))
+            self.timing["exec_us"].append((row, float(s["EstExecTime"])))
+        elif name == "Timing3":
+            self.timing["cpu_load"].append((self._row_of(int(s["Step"])), float(s["CpuLoad"])))
+        elif name == "RxErrors":
+            self.monitor.rx_errors = {k: int(v) for k, v in s.items()}
+        elif name == "TargetInfo":
+            self.monitor.target_info = {
+                "model_kind": ModelKind(int(s["ModelKind"])).name.lower().replace("_", "-"),
+                "realization": Realization(int(s["Realization"])).name.lower(),
+                "dt_s": float(s["ModelDt"]), "flash_bytes": int(s["FlashBytes"]), "ram_bytes": int(s["RamBytes"])}
+        if self.on_frame is not None:
+            self.on_frame(frame)
+
+    def _row_of(self, step: int) -> int:
+        """The most recent row sent with this Step (mod 65536)."""
+        return self.last_sent_row - ((self.last_sent_row - step) % STEP_MODULO)
+
+    def _reply(self, name: str, s: dict) -> None:
+        book = self.book
+        if book is None:
+            return
+        row = self._row_of(int(s["Step"]))
+        if row < 0 or row >= book.rows:
+            self.late_replies += 1
+            return
+        if name == "Temperatures1":
+            book.temps[row, 1], book.temps[row, 3] = s["WindingTemp"], s["MagnetTemp"]
+            bit = 1
+        else:
+            book.temps[row, 0], book.temps[row, 2] = s["YokeTemp"], s["ToothTemp"]
+            bit = 2
+        book.got[row] |= bit
+        if book.got[row] == 3:
+            book.replied_ns[row] = time.perf_counter_ns()
+
+    def wait_for(self, predicate: Callable[[DecodedFrame], bool], timeout: float) -> DecodedFrame | None:
+        deadline = time.perf_counter() + timeout
+        while (remaining := deadline - time.perf_counter()) > 0:
+            frame = self.receive(remaining)
+            if frame is not None and predicate(frame):
+                return frame
+        return None
+
+    # ------------------------------------------------------------------ handshake
+    def connect(self, timeout: float = DEFAULT_CONNECT_TIMEOUT_S,
+                alive: Callable[[], str | None] | None = None) -> DecodedFrame:
+        """Wait for a heartbeat of the expected model; `alive()` returns a reason when the target has died."""
+        deadline = time.perf_counter() + timeout
+        while time.perf_counter() < deadline:
+            frame = self.wait_for(lambda f: f.name == "Status", 0.25)
+            if frame is None:
+                reason = alive() if alive else None
+                if reason:
+                    raise SessionError(reason)
+                continue
+            model_id = int(frame.signals["ModelId"])
+            if self.expected_model_id is not None and model_id != self.expected_model_id:
+                raise SessionError(f"the target runs model {model_id:08x}, not {self.expected_model_id:08x} of the "
+                                   "artifact given; start it with the same --model")
+            return frame
+        raise SessionError(f"no heartbeat from the target within {timeout:g} s on this bus; start "
+                           "'python -m target_sim' with the same bus options")
+
+    def _await_state(self, state: TargetState, timeout: float) -> bool:
+        return self.wait_for(lambda f: f.name == "Status" and int(f.signals["State"]) == state, timeout) is not None
+
+    def reset(self, initial: Sequence[float], step: int = 0, tries: int = 3) -> None:
+        """Send the initial temperatures [yoke, winding, tooth, magnet] and RESET; wait for READY."""
+        yoke, winding, tooth, magnet = (round(float(v), 2) for v in initial)
+        for _ in range(tries):
+            self.send([
+                self.codec.encode("ResetTemps1", {"Step": step, "WindingTempInit": winding, "MagnetTempInit": magnet}),
+                self.codec.encode("ResetTemps2", {"Step": step, "YokeTempInit": yoke, "ToothTempInit": tooth}),
+                self.control(Command.RESET, step)])
+            self.flush_log()
+            if self._await_state(TargetState.READY, 0.5):
+                return
+        faults = FaultBit(self.monitor.faults)
+        raise SessionError(f"the target did not become READY after {tries} RESETs (state "
+                           f"{self.monitor.state.name if self.monitor.state is not None else 'unknown'}, faults "
+                           f"{faults!r}); check that no other host is on this bus")
+
+    def start(self, step: int = 0) -> None:
+        self.send([self.control(Command.START, step)])
+        self.flush_log()
+        if not self._await_state(TargetState.RUNNING, 1.0):
+            raise SessionError("the target did not start RUNNING after START")
+
+    def stop(self, drain_s: float = 0.15) -> None:
+        """STOP, wait for STOPPED (best effort), and collect what is still on the way."""
+        self.send([self.control(Command.STOP)])
+        self.flush_log()
+        self._await_state(TargetState.STOPPED, 1.0)
+        deadline = time.perf_counter() + drain_s
+        while (remaining := deadline - time.perf_counter()) > 0:
+            self.receive(remaining)
+        self.flush_log()

@@ -1,0 +1,85 @@
+"""`python -m target_sim`: the simulated C2000 target process.
+
+    python -m target_sim --model MODEL.json [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...]
+                         [--can-config FILE] [--stats FILE] [--quiet]
+
+Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1), opens the bus (`auto`: socketcan
+vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms) and serves
+until SIGTERM or SIGINT, then shuts the bus down and exits 0. `--stats FILE` writes the node's counters (JSON)
+at exit. See `target_sim.node` for the protocol.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import tempfile
+from pathlib import Path
+
+from target_sim.artifact import ArtifactError, load_artifact
+from target_sim.node import TargetNode, log_error, serve
+from target_sim.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:
+        print(f"target_sim: error: {message} (see 'python -m target_sim --help')", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="python -m target_sim", description=__doc__.split("\n\n")[0],
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", required=True, help="model artifact (JSON) to run")
+    parser.add_argument("--stats", default=None, help="write the node's counters to this JSON file at exit")
+    parser.add_argument("--quiet", action="store_true", help="no start/stop lines on stderr")
+    add_bus_arguments(parser)
+    return parser
+
+
+def _write_stats(path: str, stats: dict) -> None:
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    with os.fdopen(fd, "w") as handle:
+        json.dump(stats, handle, indent=1)
+    os.replace(tmp, target)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        artifact = load_artifact(args.model)
+        node = TargetNode(artifact)
+        config = resolve(config_from_args(args))
+        bus = config.open()
+    except (ArtifactError, BusUnavailable) as exc:
+        print(f"target_sim: error: {exc}", file=sys.stderr)
+        return 1
+    stop = {"requested": False}
+
+    def request_stop(signum, frame) -> None:  # noqa: ARG001 - signal API
+        stop["requested"] = True
+
+    signal.signal(signal.SIGTERM, request_stop)
+    signal.signal(signal.SIGINT, request_stop)
+    if not args.quiet:
+        log_error(f"model {artifact.model_id:08x} ({artifact.kind}, {artifact.realization}, dt {artifact.dt:g} s, "
+                  f"{node.cost.cycles} est. cycles) on {config.describe()}; serving")
+    try:
+        serve(node, bus, lambda: stop["requested"], on_error=log_error)
+    finally:
+        bus.shutdown()
+        if args.stats:
+            _write_stats(args.stats, node.stats())
+    if not args.quiet:
+        s = node.stats()
+        log_error(f"stopped: {s['rows_used']} rows, {s['model_steps']} model steps, frame errors {s['errors']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

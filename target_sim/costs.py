@@ -1,0 +1,196 @@
+"""Estimated cost of one model step on the TMS320F28069M (C28x CPU + FPU32 at 90 MHz), and its memory footprint.
+
+The target process measures its own wall time per step, but a Python process says little about the C28x, so
+the timing frames also carry an estimate: the operation count of one step (per model kind and realization,
+counted from the code in `target_sim.model`) times a per-operation cycle cost.
+
+Per-operation cost table (CPU cycles, `CYCLES`), single-precision code compiled for FPU32, no TMU (the F28069M
+has none):
+
+| operation   | cycles | why                                                                                   |
+|-------------|--------|---------------------------------------------------------------------------------------|
+| multiply    | 2      | MPYF32: one cycle to issue, two pipeline cycles before the result can be used          |
+| add         | 2      | ADDF32/SUBF32 (also compares, min/max and negation): same pipeline as the multiply     |
+| divide      | 24     | no divide instruction: EINVF32 estimate + two Newton-Raphson steps + multiply, as TI's  |
+|             |        | FPU fastRTS division, call included                                                   |
+| exp         | 80     | range reduction + polynomial in FPU32 (fastRTS-style expf), call included               |
+| table       | 20     | one axis of a table look-up: clamp, F32TOI32 conversion, index and address arithmetic  |
+| load/store  | 1      | MOV32 between memory and an FPU register (coefficients, states, inputs, results)       |
+| call        | 40     | function entry/exit and loop set-up, counted once per step and per block               |
+
+Counting rules: a matrix-vector product counts one multiply, one add and two loads per *nonzero* float32
+coefficient (structure a code generator exploits: modal A is diagonal, physical C is the identity), minus one add
+per row; every scalar of the formulas in `target_sim.model` counts as written; the loss look-up is two axis
+searches plus 3 multiplies and 6 adds per table (bilinear). The estimate is a model of the compiled code, not a
+measurement: it ranks kinds and realizations and shows the order of magnitude (the paper's Table 6 measured
+61-161 µs for Simulink-generated code, which adds its own overhead).
+
+Memory: flash = every float32 constant the step needs (4 bytes each) + code (4 bytes per counted operation, a
+C28x instruction being 2-4 bytes, plus 1.5 kB of run-time library: division, exp, look-up, CAN glue); RAM =
+states, inputs, accumulator and work buffers (4 bytes each) + 512 bytes of stack.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from target_sim.artifact import LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+
+CPU_HZ = 90e6
+OPERATIONS = ("multiply", "add", "divide", "exp", "table", "load_store", "call")
+CYCLES: dict[str, int] = {"multiply": 2, "add": 2, "divide": 24, "exp": 80, "table": 20, "load_store": 1,
+                          "call": 40}
+CODE_BYTES_PER_OPERATION = 4
+LIBRARY_CODE_BYTES = 1536
+STACK_BYTES = 512
+FLOAT_BYTES = 4
+
+
+@dataclass(frozen=True)
+class StepCost:
+    """Operation counts of one model step and what they cost on the C28x."""
+
+    operations: dict[str, int]
+    blocks: dict[str, dict[str, int]]
+
+    @property
+    def cycles(self) -> int:
+        return int(sum(CYCLES[op] * n for op, n in self.operations.items()))
+
+    @property
+    def exec_time_us(self) -> float:
+        """Estimated execution time at 90 MHz."""
+        return self.cycles / CPU_HZ * 1e6
+
+    def cpu_load_percent(self, dt_s: float) -> float:
+        """Share of the model step Δt the estimated execution takes."""
+        return self.exec_time_us / (dt_s * 1e6) * 100.0
+
+
+@dataclass(frozen=True)
+class MemoryEstimate:
+    coefficient_bytes: int
+    code_bytes: int
+    state_bytes: int
+    work_bytes: int
+
+    @property
+    def flash_bytes(self) -> int:
+        return self.coefficient_bytes + self.code_bytes
+
+    @property
+    def ram_bytes(self) -> int:
+        return self.state_bytes + self.work_bytes + STACK_BYTES
+
+
+def _ops(**counts: int) -> Counter:
+    unknown = set(counts) - set(OPERATIONS)
+    if unknown:
+        raise ValueError(f"unknown operations {sorted(unknown)}")
+    return Counter({k: v for k, v in counts.items() if v})
+
+
+def matvec(matrix: np.ndarray) -> Counter:
+    """y = M v over the nonzero coefficients: one multiply-add and two loads each, one add fewer per row."""
+    m = np.asarray(matrix)
+    nonzero_per_row = np.count_nonzero(m, axis=1)
+    nnz = int(nonzero_per_row.sum())
+    adds = int(np.maximum(nonzero_per_row - 1, 0).sum())
+    return _ops(multiply=nnz, add=adds, load_store=2 * nnz + m.shape[0])
+
+
+def loss_lookup_ops() -> Counter:
+    """Bilinear look-up of the five loss tables at (torque, speed)."""
+    tables = len(LOSS_TABLES)
+    per_axis = _ops(table=1, add=2, multiply=1)  # (v - start) * (1/step), fraction = pos - i
+    interpolate = _ops(multiply=3 * tables, add=6 * tables, load_store=4 * tables + tables)
+    return per_axis + per_axis + interpolate + _ops(call=1)
+
+
+def node_losses_ops() -> Counter:
+    """Eqs. 3-8 after the look-up: copper temperature factor, ac/dc split, stator split k_s."""
+    copper = _ops(multiply=2, add=3, divide=1)        # factor = 1 + a(y_w - ref); p_w = dc·f + ac/f
+    ratios = _ops(divide=2)                           # I/I_max, n/n_max
+    split = _ops(multiply=4 + 2, add=3 + 1)           # k_s polynomial; k_s·P_s and (1 - k_s)·P_s
+    return copper + ratios + split + _ops(load_store=8 + 4)
+
+
+def sigmoid_ops() -> Counter:
+    """S(u) = gain·σ(w·u + b) + lin·u + off on u = P/scale, times scale, for the four loss inputs."""
+    per_input = _ops(divide=2, multiply=3, add=4, exp=1, load_store=7)
+    return Counter({k: 4 * v for k, v in per_input.items()}) + _ops(call=1)
+
+
+def temperature_sources_ops() -> Counter:
+    """Eqs. 9-18: three speed-dependent conductance ratios, the coolant factor and four sources."""
+    ratio = _ops(divide=1)
+    conductances = Counter({k: 3 * v for k, v in _ops(divide=2, multiply=1, add=1, exp=1).items()})
+    coolant = _ops(multiply=1, add=1)
+    sources = _ops(multiply=2, add=6, divide=2) + _ops(multiply=2, add=4, divide=2)
+    return ratio + conductances + coolant + sources + _ops(load_store=12 + 4)
+
+
+def pv_network_ops() -> Counter:
+    """The parameter-varying LPTN rebuilt every step (1/C precomputed) and one forward-Euler step."""
+    resistances = Counter({k: 3 * v for k, v in _ops(divide=2, multiply=1, add=1, exp=1).items()})
+    coolant = _ops(multiply=2, add=2)
+    conductances = _ops(divide=7)                     # 1/R of the seven branches
+    a_off = _ops(multiply=10)                         # g_ij / C_i
+    a_diag = _ops(add=2 + 3 + 2 + 2, multiply=4)      # row sums of the conductances, times 1/C_i
+    b = _ops(multiply=2)                              # coolant and ambient columns
+    build = resistances + coolant + conductances + a_off + a_diag + b + _ops(load_store=20 + 30)
+    # Euler: x += dt·(A x + B u); A has 14 nonzeros, B 6
+    euler = _ops(multiply=14 + 6 + 4, add=10 + 2 + 4 + 4, load_store=2 * 20 + 8)
+    return build + euler + _ops(call=1)
+
+
+def step_cost(artifact: ModelArtifact) -> StepCost:
+    """Operation counts of one step of this artifact's model on the C28x."""
+    blocks: dict[str, Counter] = {
+        "call": _ops(call=1, load_store=8),           # step entry, read the 4 interval-mean inputs, write 4 outputs
+        "losses": loss_lookup_ops() + node_losses_ops(),
+    }
+    if artifact.kind == "hammerstein":
+        blocks["sigmoid"] = sigmoid_ops()
+    if artifact.kind == "pv-lptn":
+        blocks["linear"] = pv_network_ops()
+    else:
+        blocks["sources"] = temperature_sources_ops()
+        a, b, c = (artifact.array("linear_block", m) for m in ("A", "B", "C"))
+        blocks["linear"] = matvec(a) + matvec(b) + _ops(add=a.shape[0]) + matvec(c) + _ops(call=1)
+    total: Counter = Counter()
+    for ops in blocks.values():
+        total += ops
+    return StepCost(operations={op: int(total.get(op, 0)) for op in OPERATIONS},
+                    blocks={name: dict(ops) for name, ops in blocks.items()})
+
+
+def coefficient_count(artifact: ModelArtifact) -> int:
+    """float32 constants the step reads: look-up tables and axes, LPTN parameters, linear block, sigmoid."""
+    count = sum(artifact.array("losses", "tables", name).size for name in LOSS_TABLES)
+    count += artifact.array("losses", "torque_axis_Nm").size + artifact.array("losses", "speed_axis_rpm").size
+    count += 3 + len(LPTN_PARAMETERS) + 1             # current_max, alpha_cu, copper reference; speed_max
+    if artifact.kind == "pv-lptn":
+        count += 4                                     # 1/C_i
+    else:
+        count += sum(int(np.count_nonzero(artifact.array("linear_block", m))) for m in ("A", "B", "C", "C_inv"))
+    if artifact.kind == "hammerstein":
+        count += 6 * 4
+    return count
+
+
+def memory_estimate(artifact: ModelArtifact, cost: StepCost | None = None) -> MemoryEstimate:
+    """Flash (constants + code) and RAM (states + work buffers) of the model on the C28x."""
+    cost = cost or step_cost(artifact)
+    counted = sum(n for op, n in cost.operations.items() if op != "call")
+    states = 4 + 4                                     # x and the previous estimate y
+    accumulator = 4 + 1                                # interval sums and count
+    work = 5 + 4 + 8 + 4                               # table outputs, node losses, input vector u, outputs
+    if artifact.kind == "pv-lptn":
+        work += 4 * 4 + 4 * 6 + 4 * 6                  # A, B and the conductances rebuilt every step
+    return MemoryEstimate(coefficient_bytes=FLOAT_BYTES * coefficient_count(artifact),
+                          code_bytes=CODE_BYTES_PER_OPERATION * counted + LIBRARY_CODE_BYTES,
+                          state_bytes=FLOAT_BYTES * (states + accumulator), work_bytes=FLOAT_BYTES * work)

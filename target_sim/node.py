@@ -1,0 +1,368 @@
+"""The simulated C2000 target as a CAN node: state machine, frame validation, model steps, replies, heartbeat.
+
+Protocol (the DBC's comments are the contract; this is how the target implements it):
+
+* On start the node is IDLE with its artifact loaded: it sends TargetInfo once, then Status and RxErrors every
+  100 ms (the heartbeat), and an extra Status at every state change.
+* ResetTemps1/ResetTemps2 (any state) store initial temperatures under their Step. Control RESET with the same
+  Step sets the model state from them (x0 = C⁻¹y0), clears the latched fault bits, and goes READY (sending
+  TargetInfo and Status); without both frames of that Step it sets RESET_INCOMPLETE and goes IDLE.
+  Control START (only from READY) goes RUNNING and expects the Step it carries as the first data row.
+  Control STOP goes STOPPED and forgets the alive counters it expects (the session is over; the next host
+  starts its counters at 0). NOP does nothing.
+* A data row is the pair DriveInputs + DriveTemps with the same Step. A row is used only when both frames passed
+  validation, the node is RUNNING, and its Step is the next one or ahead of it. The row then goes into the
+  InputAccumulator (the interval-mean rule of `target_sim.model`); when it completes a model step's interval the
+  Float32Estimator steps once (wall time measured with perf_counter_ns). Every used row is answered with
+  Temperatures1 and Temperatures2 (Step = the row's Step, the latest estimate: the reset temperatures before the
+  first model step), and every model step with Timing1, Timing2, Timing3 (Step = the row that completed it),
+  temperatures first so a host waiting for them is not held up by the timing frames.
+* Sequence errors (counted, SEQUENCE fault bit, nothing reaches the model): a drive frame outside RUNNING, a
+  DriveTemps without its DriveInputs, a pair with different Steps, a DriveInputs whose DriveTemps never came,
+  a row that repeats or goes back (not answered), START outside READY. A row ahead of the expected one (rows
+  lost on the bus) is one sequence error; the lost rows are left out of their intervals' means, a model step
+  whose interval ended among them runs on the rows of it that did arrive (or holds the previous step's inputs if
+  none did), so the model keeps time, and then the row is used.
+* Rejected frames (unknown id, wrong length, CRC, signal out of range, alive-counter jump: `dbc.FrameValidator`)
+  are counted per kind and set RX_ERROR; they change nothing else. Nothing a frame carries can crash the node:
+  an unexpected exception sets INTERNAL and the state FAULT (a RESET recovers).
+* Transmitted temperatures outside the DBC range are clamped (SATURATED; NaN or Inf also set NONFINITE), so a
+  diverging float32 model (e.g. the `original` realization) is still answered.
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable
+
+import can
+import numpy as np
+
+from dbc import (
+    DBC_VERSION_INFO,
+    FRAME_ERROR_KINDS,
+    TARGET_FRAME_IDS,
+    Command,
+    FaultBit,
+    FrameError,
+    ModelKind,
+    Realization,
+    TargetState,
+    signal_ranges,
+)
+from target_sim.artifact import ModelArtifact
+from target_sim.costs import memory_estimate, step_cost
+from target_sim.fastframes import FastFrameCodec, FastFrameValidator
+from target_sim.model import F32, Float32Estimator, InputAccumulator
+from target_sim.transport import OwnFrameFilter
+
+STEP_MODULO = 1 << 16
+HEARTBEAT_PERIOD_S = 0.1
+SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll before blocking (0 disables)
+ERROR_KINDS = (*FRAME_ERROR_KINDS, "sequence")
+_TEMP_LIMITS = signal_ranges("Temperatures1")["WindingTemp"]
+_LIMITS = {name: signal_ranges(name) for name in ("Timing1", "Timing2", "Timing3", "RxErrors")}
+
+
+def _clamp(value: float, limits: tuple[float, float]) -> float:
+    return min(max(value, limits[0]), limits[1])
+
+
+class RowAccumulator(InputAccumulator):
+    """The interval-mean rule, plus what to do with rows lost on the bus (see the module docstring)."""
+
+    def __init__(self, sample_period_s: float, dt_s: float):
+        super().__init__(sample_period_s, dt_s)
+        self.last_inputs: np.ndarray | None = None
+
+    def add(self, row, sample):
+        mean = super().add(row, sample)
+        if mean is not None:
+            self.last_inputs = mean
+        return mean
+
+    def skip(self, first: int, stop: int) -> list[np.ndarray]:
+        """Rows first..stop-1 were lost: the inputs of each model step whose interval ended among them."""
+        inputs = []
+        for row in range(first, stop):
+            if self.model_step_of(row + 1) == self.model_step_of(row):
+                continue
+            if self.count:
+                mean = self.sum / F32(self.count)
+                self.clear()
+                self.last_inputs = mean
+            elif self.last_inputs is not None:
+                mean = self.last_inputs.copy()
+            else:
+                continue  # nothing ever arrived: no inputs to step on
+            inputs.append(mean)
+        return inputs
+
+    def clear(self) -> None:
+        super().clear()
+
+    def reset(self) -> None:
+        self.clear()
+        self.last_inputs = None
+
+
+class TargetNode:
+    """The target's behaviour on the bus, without the bus: `handle(frame)` returns the frames to send."""
+
+    def __init__(self, artifact: ModelArtifact, *, clock_ns: Callable[[], int] = time.perf_counter_ns):
+        self.artifact = artifact
+        self.model = Float32Estimator(artifact)
+        self.cost = step_cost(artifact)
+        self.memory = memory_estimate(artifact, self.cost)
+        self.dt_ns = int(round(artifact.dt * 1e9))
+        self.clock_ns = clock_ns
+        self.codec = FastFrameCodec("TARGET")
+        self.validator = FastFrameValidator("TARGET")
+        self.state = TargetState.IDLE
+        self.faults = FaultBit(0)
+        self.errors = dict.fromkeys(ERROR_KINDS, 0)
+        self.last_error = ""
+        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt)
+        self._reset_frames: dict[str, dict] = {}
+        self._pending_inputs: dict | None = None
+        self.next_row: int | None = None
+        self.rows_used = 0
+        self.model_steps = 0
+        self.overruns = 0
+        self.frames_received = 0
+        self.estimate = np.zeros(4, dtype=np.float32)
+        cycles = self.cost.cycles
+        self._timing2 = {"EstCycles": _clamp(cycles, _LIMITS["Timing2"]["EstCycles"]),
+                         "EstExecTime": _clamp(round(self.cost.exec_time_us, 1), _LIMITS["Timing2"]["EstExecTime"])}
+        self._timing3 = {"CpuLoad": _clamp(round(self.cost.cpu_load_percent(artifact.dt), 4),
+                                           _LIMITS["Timing3"]["CpuLoad"])}
+
+    # ------------------------------------------------------------------ frames the node sends
+    def _encode(self, name: str, signals: dict) -> list[can.Message]:
+        try:
+            return [self.codec.encode(name, signals)]
+        except (FrameError, ValueError) as exc:  # a value the DBC cannot carry: should not happen, never fatal
+            self.faults |= FaultBit.INTERNAL
+            self.last_error = f"cannot send {name}: {exc}"
+            return []
+
+    def status_frames(self) -> list[can.Message]:
+        return self._encode("Status", {
+            "State": int(self.state), "FaultBits": int(self.faults), "ModelId": self.artifact.model_id,
+            "DbcVersionMajor": DBC_VERSION_INFO[0], "DbcVersionMinor": DBC_VERSION_INFO[1]})
+
+    def rx_error_frames(self) -> list[can.Message]:
+        names = {"unknown_id": "UnknownId", "wrong_length": "WrongLength", "crc": "CrcError",
+                 "counter": "CounterError", "out_of_range": "OutOfRange", "sequence": "SequenceError"}
+        return self._encode("RxErrors", {signal: min(self.errors[kind], 255) for kind, signal in names.items()})
+
+    def target_info_frames(self) -> list[can.Message]:
+        dt_limits = signal_ranges("TargetInfo")["ModelDt"]
+        return self._encode("TargetInfo", {
+            "ModelKind": int(ModelKind[self.artifact.kind.upper().replace("-", "_")]),
+            "Realization": int(Realization[self.artifact.realization.upper()]),
+            "ModelDt": _clamp(round(self.artifact.dt, 1), dt_limits),
+            "FlashBytes": _clamp(self.memory.flash_bytes, signal_ranges("TargetInfo")["FlashBytes"]),
+            "RamBytes": _clamp(self.memory.ram_bytes, signal_ranges("TargetInfo")["RamBytes"])})
+
+    def startup_frames(self) -> list[can.Message]:
+        return self.target_info_frames() + self.status_frames() + self.rx_error_frames()
+
+    def heartbeat_frames(self) -> list[can.Message]:
+        return self.status_frames() + self.rx_error_frames()
+
+    def _temperature_frames(self, step: int) -> list[can.Message]:
+        values = []
+        for value in self.estimate.tolist():
+            if not math.isfinite(value):
+                self.faults |= FaultBit.NONFINITE | FaultBit.SATURATED
+                value = _TEMP_LIMITS[1] if value > 0 or math.isnan(value) else _TEMP_LIMITS[0]
+            elif not _TEMP_LIMITS[0] <= value <= _TEMP_LIMITS[1]:
+                self.faults |= FaultBit.SATURATED
+                value = _clamp(value, _TEMP_LIMITS)
+            values.append(value)
+        yoke, winding, tooth, magnet = values
+        return (self._encode("Temperatures1", {"Step": step, "WindingTemp": winding, "MagnetTemp": magnet})
+                + self._encode("Temperatures2", {"Step": step, "YokeTemp": yoke, "ToothTemp": tooth}))
+
+    def _timing_frames(self, step: int, elapsed_ns: int) -> list[can.Message]:
+        measured = _clamp(round(elapsed_ns / 1000.0, 1), _LIMITS["Timing1"]["StepTimeMeasured"])
+        return (self._encode("Timing1", {"Step": step, "StepTimeMeasured": measured,
+                                         "Overruns": min(self.overruns, 255)})
+                + self._encode("Timing2", {"Step": step, **self._timing2})
+                + self._encode("Timing3", {"Step": step, **self._timing3}))
+
+    # ------------------------------------------------------------------ receiving
+    def _set_state(self, state: TargetState) -> list[can.Message]:
+        changed = state != self.state
+        self.state = state
+        return self.status_frames() if changed else []
+
+    def _sequence_error(self, why: str) -> list[can.Message]:
+        self.errors["sequence"] += 1
+        self.faults |= FaultBit.SEQUENCE
+        self.last_error = why
+        return []
+
+    def handle(self, msg: can.Message) -> list[can.Message]:
+        """Validate one received frame, act on it, and return the frames to send in reply (maybe none)."""
+        self.frames_received += 1
+        try:
+            frame = self.validator.validate(msg)
+        except FrameError as exc:
+            self.errors[exc.kind] += 1
+            self.faults |= FaultBit.RX_ERROR
+            self.last_error = exc.message
+            return []
+        except Exception as exc:  # noqa: BLE001 - a frame the codec cannot even judge must not end the node
+            self.faults |= FaultBit.INTERNAL | FaultBit.RX_ERROR
+            self.last_error = f"frame 0x{msg.arbitration_id:X} could not be validated: {exc!r}"
+            return []
+        try:
+            return self._dispatch(frame.name, frame.signals)
+        except Exception as exc:  # noqa: BLE001 - the node must survive anything a frame causes
+            self.faults |= FaultBit.INTERNAL
+            self.last_error = f"internal error on {frame.name}: {exc!r}"
+            return self._set_state(TargetState.FAULT)
+
+    def _dispatch(self, name: str, signals: dict) -> list[can.Message]:
+        if name == "DriveInputs":
+            out = []
+            if self._pending_inputs is not None:
+                out = self._sequence_error(f"DriveInputs of step {self._pending_inputs['Step']} had no DriveTemps")
+            self._pending_inputs = signals
+            return out
+        if name == "DriveTemps":
+            inputs, self._pending_inputs = self._pending_inputs, None
+            if inputs is None:
+                return self._sequence_error(f"DriveTemps of step {signals['Step']} without its DriveInputs")
+            if inputs["Step"] != signals["Step"]:
+                return self._sequence_error(f"DriveInputs step {inputs['Step']} paired with DriveTemps step "
+                                            f"{signals['Step']}")
+            sample = (inputs["MotorTorque"], inputs["MotorSpeed"], signals["CoolantTemp"], signals["AmbientTemp"])
+            return self._row(int(signals["Step"]), sample)
+        if name in ("ResetTemps1", "ResetTemps2"):
+            self._reset_frames[name] = signals
+            return []
+        if name == "Control":
+            return self._control(Command(int(signals["Command"])), int(signals["Step"]))
+        return []  # a frame of the contract the target does not act on (none today)
+
+    def _control(self, command: Command, step: int) -> list[can.Message]:
+        if command == Command.RESET:
+            r1, r2 = self._reset_frames.get("ResetTemps1"), self._reset_frames.get("ResetTemps2")
+            self._reset_frames.clear()
+            if r1 is None or r2 is None or r1["Step"] != step or r2["Step"] != step:
+                self.faults |= FaultBit.RESET_INCOMPLETE
+                self.last_error = f"RESET of step {step} without ResetTemps1 and ResetTemps2 of that step"
+                return self._set_state(TargetState.IDLE)
+            self.model.reset([r2["YokeTempInit"], r1["WindingTempInit"], r2["ToothTempInit"], r1["MagnetTempInit"]])
+            self.estimate = self.model.y.copy()
+            self.accumulator.reset()
+            self._pending_inputs = None
+            self.next_row = None
+            self.rows_used = self.model_steps = self.overruns = 0
+            self.faults &= FaultBit.NO_ARTIFACT
+            self.state = TargetState.READY
+            return self.target_info_frames() + self.status_frames()
+        if command == Command.START:
+            if self.state != TargetState.READY:
+                return self._sequence_error(f"START in state {self.state.name} (needs READY after a RESET)")
+            self.next_row = step
+            return self._set_state(TargetState.RUNNING)
+        if command == Command.STOP:
+            self.validator.reset_counters()
+            self._pending_inputs = None
+            return self._set_state(TargetState.STOPPED)
+        return []
+
+    def _row(self, step: int, sample) -> list[can.Message]:
+        if self.state != TargetState.RUNNING or self.next_row is None:
+            return self._sequence_error(f"drive frames of step {step} in state {self.state.name}")
+        ahead = (step - self.next_row) % STEP_MODULO
+        if ahead >= STEP_MODULO // 2:
+            return self._sequence_error(f"step {step} repeats or goes back (expected {self.next_row % STEP_MODULO})")
+        out: list[can.Message] = []
+        row = self.next_row + ahead
+        inputs = []
+        if ahead:
+            self._sequence_error(f"steps {self.next_row % STEP_MODULO}..{(row - 1) % STEP_MODULO} never arrived")
+            inputs = self.accumulator.skip(self.next_row, row)
+        self.next_row = row + 1
+        self.rows_used += 1
+        mean = self.accumulator.add(row, sample)
+        if mean is not None:
+            inputs.append(mean)
+        timing = []
+        for step_inputs in inputs:
+            started = self.clock_ns()
+            self.estimate = self.model.step(*step_inputs)
+            elapsed = self.clock_ns() - started
+            self.model_steps += 1
+            if elapsed > self.dt_ns:
+                self.overruns += 1
+                self.faults |= FaultBit.OVERRUN
+            timing.append(elapsed)
+        out += self._temperature_frames(step)
+        for elapsed in timing:
+            out += self._timing_frames(step, elapsed)
+        return out
+
+    # ------------------------------------------------------------------ reporting
+    def stats(self) -> dict:
+        return {"state": self.state.name, "faults": [bit.name for bit in FaultBit if bit & self.faults],
+                "errors": dict(self.errors), "frames_received": self.frames_received, "rows_used": self.rows_used,
+                "model_steps": self.model_steps, "overruns": self.overruns, "last_error": self.last_error,
+                "model_id": self.artifact.model_id, "est_cycles": self.cost.cycles,
+                "flash_bytes": self.memory.flash_bytes, "ram_bytes": self.memory.ram_bytes}
+
+
+def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
+          heartbeat_period_s: float = HEARTBEAT_PERIOD_S, on_error: Callable[[str], None] | None = None,
+          spin_s: float | None = None) -> None:
+    """Run the node on a bus until `should_stop()`: receive, handle, reply; heartbeat every period."""
+    own = OwnFrameFilter(TARGET_FRAME_IDS)
+    send_failures = 0
+
+    def send(frames: Iterable[can.Message]) -> None:
+        nonlocal send_failures
+        for frame in frames:
+            try:
+                bus.send(frame)
+            except can.CanError as exc:
+                send_failures += 1
+                if on_error is not None and send_failures in (1, 10, 100, 1000):
+                    on_error(f"sending 0x{frame.arbitration_id:03X} failed ({exc}); {send_failures} so far")
+
+    monotonic = time.monotonic
+    gc.freeze()  # everything loaded so far is permanent: keep it out of the collector's scans
+    send(node.startup_frames())
+    next_beat = monotonic() + heartbeat_period_s
+    perf = time.perf_counter
+    spin_s = SPIN_S if spin_s is None else spin_s
+    while not should_stop():
+        # poll briefly before sleeping: in lockstep the next frame is usually microseconds away, and waking a
+        # sleeping process costs more than the poll
+        msg = bus.recv(0.0)
+        if msg is None and spin_s > 0:
+            until = perf() + spin_s
+            while msg is None and perf() < until:
+                msg = bus.recv(0.0)
+        if msg is None:
+            msg = bus.recv(max(0.0, next_beat - monotonic()))
+        if msg is not None and not own.is_own(msg):
+            send(node.handle(msg))
+        now = monotonic()
+        if now >= next_beat:
+            send(node.heartbeat_frames())
+            next_beat += heartbeat_period_s
+            if next_beat <= now:
+                next_beat = now + heartbeat_period_s
+
+
+def log_error(message: str) -> None:
+    print(f"target_sim: {message}", file=sys.stderr, flush=True)

@@ -1,0 +1,228 @@
+"""Bus options shared by the target, the host and `bench`: python-can's own conventions plus `auto`.
+
+Options as python-can's tools (`can.logger`, `can.player`): `-i/--interface`, `-c/--channel`, `-b/--bitrate`,
+`--bus-kwargs KEY=VALUE ...`, and python-can's configuration sources through `can.util.load_config`: the
+environment (`CAN_INTERFACE`, `CAN_CHANNEL`, `CAN_BITRATE`, `CAN_CONFIG`), a config file given with
+`--can-config FILE` (section `[default]`) or the default files (`~/can.conf`, `~/.canrc`, ...). An explicit
+option wins over the environment, which wins over files.
+
+`auto` (the default when nothing is configured): SocketCAN on `vcan0` when the kernel has SocketCAN and the
+interface exists; otherwise python-can's `udp_multicast`, a real bus between processes of this machine, on the
+interface-local IPv6 group ff11:7079:7468:6f6e:6465:6d6f:6d63:6173 (python-can's default group with scope 1:
+the kernel loops it back to the sockets of this machine and never puts it on a network link; python-can's
+ff15:: default and the IPv4 groups would go out on eth0 with every frame). Only where IPv6 is off does `auto`
+fall back to the IPv4 group 239.74.163.2 (TTL 1: the local link). A node started by hand uses port 43113, so two
+hand-started nodes meet; the orchestrators (`bench run`, `bench compare`, `bench replay`) choose a port unique
+to the run and hand the concrete options to every process they start, so parallel runs never hear each other.
+
+udp_multicast delivers every frame to its own sender too (multicast loopback), so each node drops frames with
+its own ids (`OwnFrameFilter`); with SocketCAN a node does not hear itself. Only the standard library and
+python-can are used here: the target imports this module.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import can
+from can.util import cast_from_string, load_environment_config, load_file_config
+
+AUTO = "auto"
+AUTO_SOCKETCAN_CHANNEL = "vcan0"
+UDP_INTERFACE = "udp_multicast"
+UDP_LOCAL_GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:6173"  # interface-local scope: never leaves the machine
+UDP_IPV4_GROUP = "239.74.163.2"      # python-can's UdpMulticastBus.DEFAULT_GROUP_IPv4 (fallback without IPv6)
+UDP_DEFAULT_PORT = 43113             # python-can's default port
+NOMINAL_BITRATE = 500_000            # the vehicle bus the report's bus load refers to
+
+
+class BusUnavailable(Exception):
+    """The configured bus cannot be opened; the message names it and what to do."""
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """A bus as python-can opens it: can.Bus(interface=..., channel=..., bitrate=..., **kwargs)."""
+
+    interface: str
+    channel: str | int | None = None
+    bitrate: int | None = None
+    kwargs: dict[str, Any] = field(default_factory=dict)
+
+    def describe(self) -> str:
+        if self.interface == UDP_INTERFACE:
+            return f"udp_multicast {self.channel or '(default group)'} port {self.kwargs.get('port', UDP_DEFAULT_PORT)}"
+        channel = "" if self.channel is None else f" {self.channel}"
+        return f"{self.interface}{channel}"
+
+    def to_argv(self) -> list[str]:
+        """The command-line options that open this same bus in another process."""
+        argv = ["-i", self.interface]
+        if self.channel is not None:
+            argv += ["-c", str(self.channel)]
+        if self.bitrate is not None:
+            argv += ["-b", str(self.bitrate)]
+        if self.kwargs:
+            argv += ["--bus-kwargs", *(f"{k}={v}" for k, v in self.kwargs.items())]
+        return argv
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"interface": self.interface, "channel": self.channel, "bitrate": self.bitrate, **self.kwargs}
+
+    @property
+    def nominal_bitrate(self) -> int:
+        return int(self.bitrate or NOMINAL_BITRATE)
+
+    def open(self) -> can.BusABC:
+        """Open the bus or raise BusUnavailable (one sentence)."""
+        if self.interface == AUTO:
+            raise BusUnavailable("resolve the 'auto' interface before opening it")
+        config: dict[str, Any] = {"interface": self.interface, **self.kwargs}
+        if self.channel is not None:
+            config["channel"] = self.channel
+        if self.bitrate is not None:
+            config["bitrate"] = self.bitrate
+        try:
+            return can.Bus(**config)
+        except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
+            reason = str(exc).strip().rstrip(".") or exc.__class__.__name__
+            hint = ("install python-can's multicast extra (msgpack)" if "msgpack" in reason
+                    else "choose another with -i/--interface and -c/--channel")
+            raise BusUnavailable(f"cannot open the CAN bus {self.describe()} ({reason}); {hint}") from None
+
+
+class _KeyValueAction(argparse.Action):
+    def __call__(self, parser, namespace, values, option_string=None):
+        result = {}
+        for item in values or []:
+            key, sep, value = item.partition("=")
+            if not sep or not key:
+                parser.error(f"{option_string} takes KEY=VALUE items, not {item!r}")
+            result[key.strip()] = cast_from_string(value.strip())
+        setattr(namespace, self.dest, result)
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """-i/-c/-b/--bus-kwargs/--can-config, as python-can's command-line tools spell them (plus `auto`)."""
+    group = parser.add_argument_group("bus (python-can)")
+    group.add_argument("-i", "--interface", default=None, choices=[AUTO, *sorted(can.VALID_INTERFACES)],
+                       metavar="INTERFACE",
+                       help="python-can interface, e.g. socketcan, udp_multicast, virtual; 'auto' (default unless "
+                            "CAN_INTERFACE or a python-can config file sets one): socketcan vcan0 if usable, else "
+                            "udp_multicast")
+    group.add_argument("-c", "--channel", default=None,
+                       help="channel, e.g. vcan0 (socketcan) or a multicast group (udp_multicast; default: an "
+                            "interface-local IPv6 group that never leaves the machine)")
+    group.add_argument("-b", "--bitrate", type=int, default=None, help="bit rate (default: the interface's; the "
+                       "report's bus load assumes 500 kbit/s unless given)")
+    group.add_argument("--bus-kwargs", nargs="+", action=_KeyValueAction, default={}, metavar="KEY=VALUE",
+                       help="more keyword arguments for can.Bus, e.g. port=43113 for udp_multicast")
+    group.add_argument("--can-config", default=None, metavar="FILE",
+                       help="python-can configuration file to read (section [default])")
+
+
+def config_from_args(args: argparse.Namespace) -> BusConfig:
+    """The bus the options, the environment and python-can's config files describe (possibly `auto`)."""
+    explicit: dict[str, Any] = dict(getattr(args, "bus_kwargs", None) or {})
+    for key in ("channel", "bitrate"):
+        if getattr(args, key, None) is not None:
+            explicit[key] = getattr(args, key)
+    interface = getattr(args, "interface", None)
+    if interface and interface != AUTO:
+        explicit["interface"] = interface
+    if interface == AUTO:
+        merged = explicit  # an explicit 'auto' ignores interfaces configured elsewhere
+    else:
+        merged = _merge_config_sources(explicit, getattr(args, "can_config", None))
+        if merged.get("interface") not in (None, AUTO) and merged["interface"] not in can.VALID_INTERFACES:
+            raise BusUnavailable(f"the python-can interface {merged['interface']!r} (from the environment or a "
+                                 "config file) is unknown; pass -i with one python-can knows, or -i auto")
+    kwargs = {k: v for k, v in merged.items() if k not in ("interface", "channel", "bitrate") and v is not None}
+    kwargs.pop("auto_reset", None)
+    bitrate = merged.get("bitrate")
+    return BusConfig(interface=merged.get("interface") or AUTO, channel=merged.get("channel"),
+                     bitrate=int(bitrate) if bitrate is not None else None, kwargs=kwargs)
+
+
+def _merge_config_sources(explicit: dict[str, Any], path: str | None) -> dict[str, Any]:
+    """python-can's load_config order (given > can.rc > environment > config file) without its check that an
+    interface is set: none set anywhere means `auto` here."""
+    merged: dict[str, Any] = {}
+    try:
+        sources = [explicit, dict(can.rc), load_environment_config(), load_file_config(path)]
+    except Exception as exc:  # a malformed CAN_CONFIG (JSON) or config file
+        raise BusUnavailable(f"the python-can configuration cannot be read ({exc}); fix it or pass -i") from None
+    for source in sources:
+        source = dict(source)
+        if "bustype" in source:
+            source.setdefault("interface", source.pop("bustype"))
+        for key, value in source.items():
+            if key not in merged:
+                merged[key] = cast_from_string(value) if isinstance(value, str) else value
+    return merged
+
+
+def socketcan_usable(channel: str = AUTO_SOCKETCAN_CHANNEL) -> bool:
+    """True when a SocketCAN bus on `channel` opens (kernel with AF_CAN and the interface up)."""
+    if not hasattr(socket, "AF_CAN"):
+        return False
+    try:
+        bus = can.Bus(interface="socketcan", channel=channel)
+    except (can.CanError, OSError, ValueError, ImportError):
+        return False
+    bus.shutdown()
+    return True
+
+
+def free_udp_port() -> int:
+    """A port no socket of this machine is bound to right now (the kernel's choice), for one run's bus."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("", 0))
+        return int(sock.getsockname()[1])
+
+
+def resolve(config: BusConfig, *, session_unique: bool = False) -> BusConfig:
+    """Replace `auto` by a concrete interface; give udp_multicast a run-unique port if `session_unique`."""
+    if config.interface == AUTO:
+        channel = config.channel
+        if (channel is None or channel == AUTO_SOCKETCAN_CHANNEL) and socketcan_usable():
+            return replace(config, interface="socketcan", channel=AUTO_SOCKETCAN_CHANNEL)
+        if channel == AUTO_SOCKETCAN_CHANNEL:
+            channel = None
+        config = replace(config, interface=UDP_INTERFACE, channel=channel)
+    if config.interface == UDP_INTERFACE:
+        kwargs = dict(config.kwargs)
+        if session_unique and "port" not in kwargs:
+            kwargs["port"] = free_udp_port()
+        else:
+            kwargs.setdefault("port", UDP_DEFAULT_PORT)
+        channel = config.channel or (UDP_LOCAL_GROUP if ipv6_multicast_usable() else UDP_IPV4_GROUP)
+        config = replace(config, channel=channel, kwargs=kwargs)
+    return config
+
+
+def ipv6_multicast_usable() -> bool:
+    """True when this machine can join the interface-local IPv6 group (IPv6 on)."""
+    if not socket.has_ipv6:
+        return False
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as sock:
+            sock.bind(("", 0))
+            request = socket.inet_pton(socket.AF_INET6, UDP_LOCAL_GROUP) + (0).to_bytes(4, "little")
+            sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_JOIN_GROUP, request)
+    except OSError:
+        return False
+    return True
+
+
+class OwnFrameFilter:
+    """Drops the frames a node sent itself (udp_multicast loopback): standard ids in `own_ids`."""
+
+    def __init__(self, own_ids) -> None:
+        self.own_ids = frozenset(own_ids)
+
+    def is_own(self, msg: can.Message) -> bool:
+        return not msg.is_extended_id and msg.arbitration_id in self.own_ids and not msg.is_error_frame
