@@ -7,9 +7,9 @@ Each artifact runs on its own target process in lockstep over the dataset (defau
 --rows N shortens it), and its log is analyzed like `bench run`'s. Columns: measured step time on the target
 process, estimated C28x cycles and µs at 90 MHz, CPU utilization at Δt, flash and RAM estimates, RMSE of the
 CAN winding and PM temperatures against the measurement, and the agreement with the offline float32 model.
-Without --models the three artifacts are built here from Table 1 (refined) and the virtual motor's loss maps:
-LTI LPTN (ZOH, balanced), PV LPTN (Euler, physical) and a Hammerstein model with an identity sigmoid (a
-placeholder until `bench identify` has made the fitted one: pass it with --models).
+Without --models the three packaged identified artifacts are compared (LTI LPTN ZOH balanced, PV LPTN Euler,
+Hammerstein balanced); at another --dt they are re-discretized from the identified parameters and the
+Hammerstein model is refitted.
 """
 
 from __future__ import annotations
@@ -44,19 +44,34 @@ def add_subparser(subparsers) -> None:
 
 
 def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
-    """LTI LPTN, PV LPTN and identity-sigmoid Hammerstein artifacts from the reference parameters."""
-    from bench.drive.motor import VIRTUAL_MOTOR, nominal_loss_maps
-    from bench.model.builder import ModelSpec, SigmoidInputs, build_artifact
-    from bench.thermal.parameters import TABLE1_REFINED
+    """The packaged identified artifacts (LTI LPTN, PV LPTN, Hammerstein); rebuilt at another Δt if asked.
 
-    maps = nominal_loss_maps()
+    At a Δt other than the packaged one the LTI and PV LPTN are re-discretized from the identified parameters
+    and the Hammerstein model is refitted at that Δt (Levenberg-Marquardt on the default 20/60 °C datasets, as
+    `bench evaluate` does).
+    """
+    import numpy as np
+
+    from bench.model.artifact_eval import artifact_loss_maps, artifact_parameters
+    from bench.model.builder import ModelSpec, build_artifact
+    from bench.model.default import default_artifact_path
+    from bench.model.evaluate import hammerstein_models
+    from bench.model.pipeline import load_campaign
+
+    packaged = {kind: default_artifact_path(kind) for kind in KINDS}
+    reference, _ = load_model(packaged["hammerstein"])
+    if np.isclose(dt, reference.dt):
+        return list(packaged.values())
+    params = artifact_parameters(reference)
+    maps, motor = artifact_loss_maps(reference)
+    note = {"derived_from": reference.sha256, "note": f"re-discretized at {dt:g} s for bench compare"}
     specs = {
-        "lti-lptn": ModelSpec("lti-lptn", TABLE1_REFINED, dt, "zoh", "balanced", maps, VIRTUAL_MOTOR),
-        "pv-lptn": ModelSpec("pv-lptn", TABLE1_REFINED, dt, "euler", "physical", maps, VIRTUAL_MOTOR),
-        "hammerstein": ModelSpec("hammerstein", TABLE1_REFINED, dt, "zoh", "balanced", maps, VIRTUAL_MOTOR,
-                                 sigmoid=SigmoidInputs.identity([1000.0, 5000.0, 1000.0, 500.0]),
-                                 provenance={"note": "identity sigmoid placeholder for bench compare"}),
+        "lti-lptn": ModelSpec("lti-lptn", params, dt, "zoh", "balanced", maps, motor, provenance=note),
+        "pv-lptn": ModelSpec("pv-lptn", params, dt, "euler", "physical", maps, motor, provenance=note),
     }
+    block, sigmoid = hammerstein_models(reference, load_campaign(None), [dt])[dt]
+    specs["hammerstein"] = ModelSpec("hammerstein", params, dt, "zoh", "balanced", maps, motor, sigmoid=sigmoid,
+                                     linear_block=block, provenance={**note, "note": note["note"] + ", refitted"})
     paths = []
     for kind, spec in specs.items():
         path = out_dir / f"{kind}-dt{dt:g}.json"
