@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     result, datasets = identify_from_directory(args.data, dt=args.dt, swarm_size=args.swarm,
                                                pso_iterations=args.iterations, lm_iterations=args.lm_iterations,
                                                seed=args.seed, fit_path=args.fit_path, progress=progress)
-    metrics = validation_metrics(result, datasets)
+    metrics = validation_metrics(result, datasets, args.realization)
     written = {}
     kinds = KINDS if args.all_kinds else (args.kind,)
     for kind in kinds:
@@ -95,6 +95,8 @@ def _print_summary(s: dict) -> None:
           f"LM {s['timings_s']['lm']:.1f} s (RMS {s['lm']['rms_initial']:.3f} -> {s['lm']['rms_final']:.3f} °C)")
     print("validation (40 °C), RMSE °C:")
     for model, m in s["validation"].items():
-        print(f"  {model:28} winding {m['winding']['rmse']:.4f}   PM {m['pm']['rmse']:.4f}")
+        for prec in ("float64", "float32"):
+            print(f"  {model:12} {prec}  winding {m[prec]['winding']['rmse']:.4f}   PM {m[prec]['pm']['rmse']:.4f}")
+        print(f"  {model:12} largest |float32 - float64|: {m['max_abs_f32_minus_f64_C']:.4g} °C")
     for kind, path in s["artifacts"].items():
         print(f"wrote {kind} artifact {path}")

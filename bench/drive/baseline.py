@@ -21,8 +21,13 @@ from bench.thermal.parameters import LptnParameters
 
 
 def lti_lptn_estimate(dataset: Dataset, params: LptnParameters, loss_maps: LossMaps, spec: MotorSpec,
-                      dt: float = 0.5, method: str = "zoh") -> np.ndarray:
-    """(steps, 4) estimates [yoke, winding, tooth, magnet] in °C at t = (k+1)·Δt."""
+                      dt: float = 0.5, method: str = "zoh", initial=None) -> np.ndarray:
+    """(steps, 4) estimates [yoke, winding, tooth, magnet] in °C at t = (k+1)·Δt.
+
+    A plain-numpy statement of the estimator, kept beside the compiled kernel of bench.thermal.estimator as
+    its independent cross-check (tests/model/test_estimator_kernel.py). `initial` defaults to every node at
+    the first coolant sample.
+    """
     means = interval_means(dataset.drive_inputs(), dataset.sample_period_s, dt)
     torque, speed, coolant, ambient = means.T
     maps = loss_maps.evaluate(torque, speed)   # state-independent: all steps at once
@@ -30,7 +35,7 @@ def lti_lptn_estimate(dataset: Dataset, params: LptnParameters, loss_maps: LossM
     speed_ratio = np.abs(speed) / spec.max_speed_rpm
     a, b, _, _ = lti_matrices(params)
     a_d, b_d = discretize(a, b, dt, method)
-    x = np.full(4, float(dataset.coolant_C[0]))
+    x = np.full(4, float(dataset.coolant_C[0])) if initial is None else np.asarray(initial, dtype=float).copy()
     out = np.empty((len(means), 4))
     for k in range(len(means)):
         p = node_losses(params, maps["p_dc0"][k], maps["p_ac0"][k], maps["p_stator"][k], maps["p_magnet"][k],

@@ -9,7 +9,7 @@ from bench.analysis.metrics import rmse
 from bench.model.artifact_eval import evaluate_artifact
 from bench.model.default import default_artifact_path
 from bench.model.pipeline import identify_from_directory
-from target_sim.artifact import load_artifact
+from target_sim.artifact import load_artifact, seal
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,5 @@ def test_regenerating_the_default_artifacts_gives_the_same_content(default_data_
     for kind in ("hammerstein", "lti-lptn", "pv-lptn"):
         shipped = json.loads(default_artifact_path(kind).read_text())
         realization = "physical" if kind == "pv-lptn" else "balanced"
-        from target_sim.artifact import seal
-
         assert seal(result.content(kind, realization, metrics)) == shipped, kind
     assert np.isfinite(result.lptn.cost)
