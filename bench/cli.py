@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
 
 from bench.errors import BenchError, UsageError
@@ -33,7 +34,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(message: str) -> str:
+    """An error message as one line: a library's multi-line reason (a config parser's, say) is folded in."""
+    return " ".join(message.split())
+
+
+def _os_error_sentence(exc: OSError) -> str:
+    """An OSError nobody caught closer to its cause, as one sentence naming the file and what to do."""
+    where = exc.filename if exc.filename is not None else "a file"
+    reason = exc.strerror or exc.__class__.__name__
+    return f"{where}: {reason}; check that the path exists, is of the right kind and is writable, or choose another"
+
+
 def main(argv: list[str] | None = None) -> int:
+    # python-can reports a bus that failed half-way through its constructor once more from __del__ ("... was not
+    # properly shut down"), after the one-sentence error: its warnings are not for the bench's users.
+    logging.getLogger("can").addHandler(logging.NullHandler())
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -42,11 +58,20 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         return int(args.func(args) or 0)
     except BenchError as exc:
-        print(f"bench: error: {exc}", file=sys.stderr)
+        print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_status
-    except BrokenPipeError:  # `bench ... | head` closed the pipe: not an error of ours
-        sys.stderr.close()
-        return 0
+    except OSError as exc:  # a file or directory the command could not use (last resort: name it, no traceback)
+        if isinstance(exc, BrokenPipeError):
+            sys.stderr.close()
+            return 0
+        print(f"bench: error: {_os_error_sentence(exc)}", file=sys.stderr)
+        return 1
+    except Exception as exc:
+        # a broken DBC fails while `dbc` is imported, so its error class cannot be imported here to be caught
+        if type(exc).__name__ != "DbcError":
+            raise
+        print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("bench: interrupted", file=sys.stderr)
         return 130

@@ -4,6 +4,11 @@ The target is a separate OS process (`python -m target_sim`) on the same bus opt
 in this process. With `auto` the bus is SocketCAN vcan0 where usable, else udp_multicast on a port unique to
 this run (handed to the target on its command line). The target's stderr goes to a temporary file, so a
 target that fails to start is reported with its own last line.
+
+Fault injection (`host.faults`): the runner owns the target process, so it lends the host a `ProcessControl`
+to kill it (SIGKILL), freeze it (SIGSTOP, and SIGCONT from a timer) and, once the host has noticed the loss,
+restart it (same command line). Every target process of the run appends its detection journal (`--events`) to
+one temporary file, which the host matches against the injected faults.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +27,7 @@ import numpy as np
 
 from bench.errors import BenchError, UsageError
 from host.canlog import LogError
+from host.faults import FaultSpec, FaultSpecError
 from host.replay import DataRangeError, Progress
 from host.results import HostResult
 from host.run import replay_log, run_dataset
@@ -66,19 +73,74 @@ def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, se
 class TargetProcess:
     """`python -m target_sim` on a bus, started and stopped cleanly (SIGTERM, then kill after a timeout)."""
 
-    def __init__(self, model_path: str | Path, bus: BusConfig, *, stats_path: str | Path | None = None):
+    def __init__(self, model_path: str | Path, bus: BusConfig, *, stats_path: str | Path | None = None,
+                 events_path: str | Path | None = None):
         self.model_path = Path(model_path)
         self.bus = bus
         self.stats_path = stats_path
+        self.events_path = events_path
         self.process: subprocess.Popen | None = None
+        self.restarts = 0
+        self.kills = 0
+        self.freezes = 0
         self._stderr = tempfile.TemporaryFile(mode="w+b")
+        self._thaw: threading.Timer | None = None
+        self._frozen = False
+        self._lock = threading.Lock()
 
     @property
     def argv(self) -> list[str]:
         argv = [sys.executable, "-m", "target_sim", "--model", str(self.model_path), *self.bus.to_argv()]
         if self.stats_path is not None:
             argv += ["--stats", str(self.stats_path)]
+        if self.events_path is not None:
+            argv += ["--events", str(self.events_path)]
         return argv
+
+    # ------------------------------------------------------------------ process faults
+    def kill(self) -> None:
+        """SIGKILL the target and reap it (a frozen one too)."""
+        self._cancel_thaw()
+        if self.process is not None and self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+        self._frozen = False
+        self.kills += 1
+
+    def freeze(self, seconds: float) -> None:
+        """SIGSTOP the target now and SIGCONT it after `seconds` (from a timer thread)."""
+        if self.process is None or self.process.poll() is not None:
+            return
+        self._cancel_thaw()
+        self.process.send_signal(signal.SIGSTOP)
+        self._frozen = True
+        self.freezes += 1
+        self._thaw = threading.Timer(seconds, self.thaw)
+        self._thaw.daemon = True
+        self._thaw.start()
+
+    def thaw(self) -> None:
+        with self._lock:
+            if self._frozen and self.process is not None and self.process.poll() is None:
+                self.process.send_signal(signal.SIGCONT)
+            self._frozen = False
+
+    def _cancel_thaw(self) -> None:
+        if self._thaw is not None:
+            self._thaw.cancel()
+            self._thaw = None
+
+    def ensure_running(self) -> None:
+        """Start the target again if it has died (a frozen one is left to its timer)."""
+        if self.process is not None and self.process.poll() is not None:
+            self.restarts += 1
+            self.start()
+
+    def control(self):
+        from host.faults import ProcessControl
+
+        return ProcessControl(kill=self.kill, freeze=self.freeze, ensure_running=self.ensure_running,
+                              exit_reason=self.exit_reason)
 
     def start(self) -> TargetProcess:
         env = dict(os.environ)
@@ -110,6 +172,9 @@ class TargetProcess:
         """SIGTERM and wait; kill if it does not exit in time. Returns the exit status."""
         if self.process is None:
             return None
+        self._cancel_thaw()
+        if self._frozen:
+            self.thaw()  # a stopped process would not act on SIGTERM
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGTERM)
             try:
@@ -152,24 +217,37 @@ def _host_errors(fn: Callable[[], HostResult], target: TargetProcess) -> HostRes
         raise BenchError(reason or str(exc)) from None
     except (LogError, DataRangeError) as exc:
         raise BenchError(str(exc)) from None
+    except FaultSpecError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, drive: np.ndarray, initial,
                     *, mode: str = "lockstep", speed: float = 1.0, sample_period_s: float = 0.2,
                     log_path: str | Path | None = None, reply_timeout_s: float = 0.05,
-                    progress: Progress | None = None) -> RunOutcome:
-    """Start the target on `bus`, replay `drive` from this process, stop the target."""
+                    progress: Progress | None = None, faults: FaultSpec | None = None) -> RunOutcome:
+    """Start the target on `bus`, replay `drive` from this process, stop the target.
+
+    With `faults` (active), the target writes its detection journal to a temporary file and the host may kill,
+    freeze and restart it; the result carries the fault summary (`result.faults`)."""
+    injecting = faults is not None and faults.active
+    if injecting and mode != "lockstep":
+        raise UsageError("fault injection runs in lockstep mode only; drop --mode realtime")
+    events_dir = tempfile.TemporaryDirectory(prefix="bench-events-") if injecting else None
+    events = Path(events_dir.name) / "target-events.jsonl" if events_dir is not None else None
     host_bus = _open(bus)
     try:
-        with TargetProcess(model_path, bus) as target:
+        with TargetProcess(model_path, bus, events_path=events) as target:
             result = _host_errors(lambda: run_dataset(
                 host_bus, drive, initial, model_id=artifact.model_id, mode=mode, speed=speed,
                 sample_period_s=sample_period_s, log_path=log_path, reply_timeout_s=reply_timeout_s,
-                alive=target.exit_reason, progress=progress), target)
+                alive=target.exit_reason, progress=progress, faults=faults if injecting else None,
+                control=target.control() if injecting else None, dt_s=artifact.dt, target_events=events), target)
             status = target.stop()
             stderr = target.stderr_text()
     finally:
         host_bus.shutdown()
+        if events_dir is not None:
+            events_dir.cleanup()
     if status not in (0, None):
         raise BenchError(f"the target process ended with status {status} after the run: "
                          f"{stderr.strip().splitlines()[-1] if stderr.strip() else '(no output)'}")

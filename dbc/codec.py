@@ -41,11 +41,52 @@ FRAME_ERROR_KINDS: tuple[FrameErrorKind, ...] = get_args(FrameErrorKind)
 SignalValue = int | float
 
 
+class DbcError(Exception):
+    """The DBC file is missing or not the bench's contract; one sentence with what to do."""
+
+
 @cache
 def load_database() -> Database:
-    """The DBC, loaded once with cantools' strict checks (shared between callers: do not modify it)."""
-    database = cantools.database.load_file(DBC_PATH, database_format="dbc", strict=True)
-    return cast(Database, database)
+    """The DBC, loaded once with cantools' strict checks (shared between callers: do not modify it).
+
+    DbcError (one sentence) when the file is missing, unreadable, not a DBC, or lacks what the codec needs.
+    """
+    path = Path(DBC_PATH)
+    fix = "reinstall the package or restore dbc/thermal_bench.dbc from the repository"
+    try:
+        database = cast(Database, cantools.database.load_file(path, database_format="dbc", strict=True))
+    except FileNotFoundError:
+        raise DbcError(f"the CAN contract {path} does not exist; {fix}") from None
+    except OSError as exc:
+        raise DbcError(f"the CAN contract {path} cannot be read ({exc.strerror or exc}); {fix}") from None
+    except Exception as exc:  # noqa: BLE001 - cantools raises parse, value and unicode errors of many kinds
+        reason = " ".join(str(exc).split())[:120] or exc.__class__.__name__
+        raise DbcError(f"the CAN contract {path} is not a valid DBC ({reason}); {fix}") from None
+    problem = _contract_problem(database)
+    if problem:
+        raise DbcError(f"the CAN contract {path} {problem}; {fix}")
+    return database
+
+
+def _contract_problem(database: Database) -> str | None:
+    """What the codec needs from the DBC and this one lacks (None if nothing): a version, and per message one
+    sender, an E2EDataID attribute and its CRC and counter signals."""
+    version = str(database.version or "")
+    parts = version.split(".")
+    if len(parts) != 3 or not all(part.isdigit() for part in parts):
+        return f"has no VERSION \"major.minor.patch\" (found {version!r})"
+    if not database.messages:
+        return "defines no messages (empty or truncated)"
+    for message in database.messages:
+        names = {signal.name for signal in message.signals}
+        attributes = message.dbc.attributes if message.dbc is not None else {}
+        if not message.senders:
+            return f"gives message {message.name} no sender"
+        if "E2EDataID" not in attributes:
+            return f"gives message {message.name} no E2EDataID attribute (truncated?)"
+        if f"{message.name}_CRC" not in names or f"{message.name}_Counter" not in names:
+            return f"gives message {message.name} no {message.name}_CRC and {message.name}_Counter signals"
+    return None
 
 
 class Command(IntEnum):
@@ -83,6 +124,32 @@ class Realization(IntEnum):
     ORIGINAL = 1
     BALANCED = 2
     MODAL = 3
+
+
+class BenchEvent(IntEnum):
+    """``BenchEvent.Event`` (VAL_ table of the DBC): the marks a bench host puts into the bus and its log."""
+
+    FAULT = 0  # a fault was injected
+    TARGET_LOST = 1  # heartbeat lost or the target restarted: a gap in the replies begins
+    REINIT = 2  # the target is re-initialized from the last good estimate: the gap ends
+    RETRANSMIT = 3  # a row is sent again after its reply deadline passed
+
+
+class FaultKind(IntEnum):
+    """``BenchEvent.FaultKind`` (VAL_ table of the DBC): the faults a bench host can inject."""
+
+    NONE = 0
+    DROP = 1
+    DELAY = 2
+    DUPLICATE = 3
+    REORDER = 4
+    CORRUPT = 5
+    STALE_COUNTER = 6
+    WRONG_LENGTH = 7
+    UNKNOWN_ID = 8
+    OUT_OF_RANGE = 9
+    KILL = 10
+    FREEZE = 11
 
 
 class FaultBit(IntFlag):

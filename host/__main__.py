@@ -2,12 +2,19 @@
 
     python -m host --data FILE [--model FILE] [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
                    [--reply-timeout S] [--connect-timeout S] [--tolerate-gaps] [--json] [--quiet]
+                   [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
+                   [--target-events FILE]
                    [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
 
 The target (`python -m target_sim`) must run on the same bus; its heartbeat must carry the model id of --model
 (default: the packaged artifact). Exit status 0 when every row was answered and nothing was lost, 1 when the run
 had missing replies, sequence gaps or heartbeat loss (unless --tolerate-gaps), 2 for bad arguments; every error
 is one sentence on stderr.
+
+Bus faults (`host.faults`; lockstep) are injected as by `bench run`; kill and freeze need `bench run`, which
+owns the target process. To check detection, start the target with `--events FILE` and pass the same file as
+`--target-events`; the summary goes into the JSON result ("faults") and next to the log (`<log>.faults.json`).
+A run with injected faults exits 1 unless --tolerate-faults (and then only if every fault was detected).
 """
 
 from __future__ import annotations
@@ -15,9 +22,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
 from host.canlog import LogError, check_log_path
+from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
 from host.replay import DataRangeError
 from host.run import MODES, run_dataset
 from host.session import SessionError
@@ -58,12 +67,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerate-gaps", action="store_true", help="exit 0 despite missing replies (still reported)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    add_fault_arguments(p, process_faults=False)
+    p.add_argument("--target-events", type=Path, default=None, metavar="FILE",
+                   help="the target's detection journal (its --events file), to check that faults were detected")
     add_bus_arguments(p)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        faults = spec_from_args(args)
+    except FaultSpecError as exc:
+        parser.error(str(exc))
+    if faults is not None and args.mode != "lockstep":
+        parser.error("fault injection runs in lockstep mode only; drop --mode realtime")
+    if faults is not None and faults.process_faults:
+        parser.error("kill and freeze faults need the bench runner, which owns the target process: use 'bench run'")
     from bench.drive.dataset import DatasetError, load_dataset
     from bench.model.default import default_artifact_path
     from bench.model.runs import drive_matrix, initial_temperatures
@@ -79,13 +100,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.rows is not None:
             drive = drive[: max(args.rows, 1)]
         if not (args.quiet or args.json):
-            print(f"host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}",
-                  file=sys.stderr)
+            print(f"host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
+                  + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
+        started = time.time()
         result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
                              mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,
                              log_path=log_path, reply_timeout_s=args.reply_timeout,
-                             connect_timeout_s=args.connect_timeout)
-    except (ArtifactError, DatasetError, LogError, BusUnavailable, SessionError, DataRangeError) as exc:
+                             connect_timeout_s=args.connect_timeout, faults=faults, dt_s=artifact.dt,
+                             target_events=args.target_events, events_since=started)
+    except (ArtifactError, DatasetError, LogError, BusUnavailable, SessionError, DataRangeError,
+            FaultSpecError) as exc:
         print(f"host: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
@@ -95,8 +119,13 @@ def main(argv: list[str] | None = None) -> int:
         if bus is not None:
             bus.shutdown()
     problems = result.problems()
+    note = fault_note(result.faults)
+    if note and not args.tolerate_faults:
+        problems.append(note)
     if args.json:
-        json.dump({**result.to_dict(), "problems": problems, "clean": not problems}, sys.stdout, indent=2)
+        injected = bool(result.faults and result.faults["injected_total"])
+        json.dump({**result.to_dict(), "problems": problems, "clean": not problems and not injected}, sys.stdout,
+                  indent=2)
         sys.stdout.write("\n")
     else:
         print(f"{result.rows_sent} rows sent, {result.replies} answered, {result.missing} missing, "
@@ -104,7 +133,9 @@ def main(argv: list[str] | None = None) -> int:
               f"log {result.log_path}")
         for problem in problems:
             print(f"host: {problem}", file=sys.stderr)
-    return 1 if problems and not args.tolerate_gaps else 0
+    if problems and (result.faults is not None or not args.tolerate_gaps):  # --tolerate-gaps: not for faults
+        return 1
+    return 0
 
 
 if __name__ == "__main__":

@@ -8,8 +8,10 @@ no half file; timestamps are made non-decreasing (a frame never goes back in tim
 
 from __future__ import annotations
 
+import gc
 import importlib.util
 import os
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -84,16 +86,79 @@ class FrameLog:
         self.close(commit=exc_type is None)
 
 
+READ_FIX = "pass a complete log written by 'bench run' or the host"
+# BLF file header (python-can's FILE_HEADER_STRUCT "<4sLBBBBBBBBQQLL8H8H"): the file size is the Q at byte 16
+BLF_FILE_SIZE_OFFSET = 16
+BLF_HEADER_PEEK = 512
+
+
+def _reason(exc: BaseException, limit: int = 120) -> str:
+    """An exception as a short single-line reason for a message."""
+    text = " ".join(f"{exc.__class__.__name__}: {exc}".split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _ignore_unraisable(unraisable) -> None:  # noqa: ARG001 - sys.unraisablehook API
+    """A reader that failed half-built (asammdf's MDF4) complains again from __del__: not news to the user."""
+
+
+def _check_complete(path: Path) -> None:
+    """Refuse an empty log, and one whose end is missing where the format shows it (before any frame is read).
+
+    .blf: the header records the file size at close; .asc: our writer and Vector's end with 'End TriggerBlock';
+    .log/.csv: every line, the last one too, ends with a newline.
+    """
+    size = path.stat().st_size
+    if size == 0:
+        raise LogError(f"log {path} is empty; {READ_FIX}")
+    suffix = path.suffix.lower()
+    with open(path, "rb") as fh:
+        head = fh.read(BLF_HEADER_PEEK)
+        fh.seek(max(0, size - 256))
+        tail = fh.read()
+    if suffix == ".blf" and head[:4] == b"LOGG" and len(head) >= BLF_FILE_SIZE_OFFSET + 8:
+        recorded = int.from_bytes(head[BLF_FILE_SIZE_OFFSET:BLF_FILE_SIZE_OFFSET + 8], "little")
+        if recorded > size:
+            raise LogError(f"log {path} is truncated ({size} of the {recorded} bytes its header records); {READ_FIX}")
+    elif suffix == ".asc" and b"begin triggerblock" in head.lower() and b"end triggerblock" not in tail.lower():
+        raise LogError(f"log {path} is truncated (no 'End TriggerBlock' at its end); {READ_FIX}")
+    elif suffix in (".log", ".csv") and not tail.endswith(b"\n"):
+        raise LogError(f"log {path} is truncated (its last line is incomplete); {READ_FIX}")
+
+
+
 def read_log(path: str | Path) -> Iterator[can.Message]:
-    """Every frame of a log, in order (python-can's LogReader)."""
+    """Every frame of a log, in order (python-can's LogReader); LogError (one sentence) for a log that is
+    missing, empty, truncated, damaged or holds no frame."""
     path = check_log_path(path, for_reading=True)
     try:
-        reader = can.LogReader(str(path))
-    except Exception as exc:  # noqa: BLE001 - any reader failure is a bad file for the user
-        raise LogError(f"cannot read the log {path} ({exc.__class__.__name__}: {exc})") from None
+        _check_complete(path)
+    except OSError as exc:
+        raise LogError(f"cannot read the log {path} ({exc.strerror or _reason(exc)}); {READ_FIX}") from None
+    hook = sys.unraisablehook
+    sys.unraisablehook = _ignore_unraisable
     try:
-        yield from reader
+        try:
+            reader = can.LogReader(str(path))
+        except Exception as exc:  # noqa: BLE001 - any reader failure is a bad file for the user
+            reason = _reason(exc)
+        else:
+            reason = None
+        if reason is not None:
+            gc.collect()  # a half-built reader goes now, while its complaint is ignored
+    finally:
+        sys.unraisablehook = hook
+    if reason is not None:
+        raise LogError(f"log {path} is not a readable {path.suffix.lower()} log ({reason}); {READ_FIX}")
+    count = 0
+    try:
+        for msg in reader:
+            count += 1
+            yield msg
     except Exception as exc:  # noqa: BLE001
-        raise LogError(f"log {path} is damaged or truncated ({exc.__class__.__name__}: {exc})") from None
+        raise LogError(f"log {path} is damaged or truncated after {count} frames ({_reason(exc)}); {READ_FIX}"
+                       ) from None
     finally:
         reader.stop()
+    if count == 0:
+        raise LogError(f"log {path} holds no CAN frames; {READ_FIX}")

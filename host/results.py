@@ -57,10 +57,18 @@ class HostResult:
     cpu_load_percent: float | None
     log_path: str | None = None
     aborted: str | None = None
+    log_frames: int | None = None
+    faults: dict | None = None      # the fault summary (host.faults.reconcile) of a run with injected faults
     arrays: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def problems(self) -> list[str]:
-        """Every reason this run is not clean, one sentence each (empty: clean)."""
+        """Every reason this run is not clean, one sentence each (empty: clean).
+
+        With injected faults, what the faults explain is not a problem (the target's rejections, the heartbeat
+        losses of kills and freezes, rows answered after a retransmission or a re-initialization); what they do
+        not explain is, and so is every fault that went undetected. That faults were injected at all is
+        `host.faults.fault_note`, which the command lines add unless --tolerate-faults.
+        """
         out = []
         if self.aborted:
             out.append(f"the run was aborted: {self.aborted}")
@@ -69,6 +77,13 @@ class HostResult:
         if self.missing:
             out.append(f"{self.missing} of {self.rows_sent} rows got no reply ({self.sequence_gaps} gaps in the "
                        "reply sequence)")
+        if self.faults is not None:
+            from host.faults import fault_problems
+
+            bad = {k: v for k, v in self.invalid_frames.items() if v}
+            if bad:
+                out.append(f"the host rejected frames from the target: {bad}")
+            return out + fault_problems(self.faults)
         if self.heartbeat_losses:
             out.append(f"the target's heartbeat was lost {self.heartbeat_losses} time(s) (longest silence "
                        f"{self.max_heartbeat_gap_s:.2f} s)")
@@ -87,7 +102,7 @@ class HostResult:
 
 
 def build_result(session: HostSession, stats: ReplayStats, *, rows: int, speed: float | None,
-                 log_path: str | None) -> HostResult:
+                 log_path: str | None, log_frames: int | None = None, faults: dict | None = None) -> HostResult:
     book = session.book
     assert book is not None
     sent = stats.rows_sent
@@ -116,7 +131,7 @@ def build_result(session: HostSession, stats: ReplayStats, *, rows: int, speed: 
         send_jitter_us=percentiles(stats.send_jitter_s, 1e6) if stats.send_jitter_s is not None else None,
         step_time_us=percentiles(measured), est_cycles=int(max(cycles)) if cycles else None,
         est_exec_us=float(max(exec_us)) if exec_us else None, cpu_load_percent=float(max(load)) if load else None,
-        log_path=log_path, aborted=stats.aborted,
+        log_path=log_path, aborted=stats.aborted, log_frames=log_frames, faults=faults,
         arrays={"temps": book.temps[:sent], "answered": answered, "round_trip_ns": book.replied_ns[:sent]
                 - book.sent_ns[:sent], **({"send_jitter_s": stats.send_jitter_s}
                                           if stats.send_jitter_s is not None else {})})

@@ -8,6 +8,10 @@ for RUNNING. At the end Control STOP, wait for STOPPED, and collect the trailing
 Every frame the host sends or receives (its own loopback copies excepted) is written to the log. Received
 frames are validated (`dbc.FrameValidator`); rejected ones are counted per kind. Status frames feed the
 heartbeat monitor: a gap longer than `heartbeat_timeout_s` is a heartbeat loss.
+
+With a fault layer (`host.faults.FaultyBus`) as the bus, the layer reports each frame as it actually goes on the
+bus (altered, duplicated or late) and that is what the log gets. `marker` puts a BenchEvent (an injected fault,
+a lost target, a re-initialization, a retransmitted row) on the bus, past the fault layer, and into the log.
 """
 
 from __future__ import annotations
@@ -21,9 +25,11 @@ import numpy as np
 
 from dbc import (
     HOST_FRAME_IDS,
+    BenchEvent,
     Command,
     DecodedFrame,
     FaultBit,
+    FaultKind,
     FrameError,
     ModelKind,
     Realization,
@@ -119,6 +125,10 @@ class HostSession:
             "measured_us": [], "overruns": [], "cycles": [], "exec_us": [], "cpu_load": []}
         self.on_frame: Callable[[DecodedFrame], None] | None = None
         self._pending_log: list[can.Message] = []
+        # a fault layer logs what it really transmits; a plain bus sends what it is given
+        self._log_sends = not getattr(bus, "reports_transmissions", False)
+        if not self._log_sends and log is not None:
+            bus.on_transmit = self._pending_log.append
 
     # ------------------------------------------------------------------ sending
     def send(self, frames: Sequence[can.Message]) -> None:
@@ -129,8 +139,23 @@ class HostSession:
                 self.bus.send(frame)
             except can.CanError as exc:
                 raise SessionError(f"sending on the CAN bus failed ({exc}); is the bus still up?") from None
-            if self.log is not None:
+            if self.log is not None and self._log_sends:
                 self._pending_log.append(frame)
+
+    def marker(self, event: BenchEvent, row: int, kind: FaultKind = FaultKind.NONE,
+               frame_id: int | None = None) -> None:
+        """Put a BenchEvent mark on the bus (past any fault layer) and into the log."""
+        frame = self.codec.encode("BenchEvent", {"Step": row % STEP_MODULO, "Event": int(event),
+                                                 "FaultKind": int(kind), "FrameId": int(frame_id or 0)})
+        frame.timestamp = time.time()
+        frame.is_rx = False
+        direct = getattr(self.bus, "send_direct", None)
+        try:
+            (direct or self.bus.send)(frame)
+        except can.CanError as exc:
+            raise SessionError(f"sending on the CAN bus failed ({exc}); is the bus still up?") from None
+        if self.log is not None and (direct is None or self._log_sends):
+            self._pending_log.append(frame)
 
     def flush_log(self) -> None:
         if self.log is not None:

@@ -1,12 +1,15 @@
 """`python -m target_sim`: the simulated C2000 target process.
 
     python -m target_sim --model MODEL.json [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...]
-                         [--can-config FILE] [--stats FILE] [--quiet]
+                         [--can-config FILE] [--stats FILE] [--events FILE] [--quiet]
 
 Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1), opens the bus (`auto`: socketcan
 vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms) and serves
 until SIGTERM or SIGINT, then shuts the bus down and exits 0. `--stats FILE` writes the node's counters (JSON)
-at exit. See `target_sim.node` for the protocol.
+at exit. `--events FILE` appends one JSON line per rejected frame or sequence error (the node's detection
+journal), plus a "start" line with the process id and a "stop" line with the counters; each line is one
+write(2) to a file opened O_APPEND, so what was written survives a SIGKILL and a restarted target appends to the
+same file. See `target_sim.node` for the protocol.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import os
 import signal
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from target_sim.artifact import ArtifactError, load_artifact
@@ -35,6 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", required=True, help="model artifact (JSON) to run")
     parser.add_argument("--stats", default=None, help="write the node's counters to this JSON file at exit")
+    parser.add_argument("--events", default=None,
+                        help="append the detection journal (one JSON line per rejected frame) to this file")
     parser.add_argument("--quiet", action="store_true", help="no start/stop lines on stderr")
     add_bus_arguments(parser)
     return parser
@@ -49,16 +55,45 @@ def _write_stats(path: str, stats: dict) -> None:
     os.replace(tmp, target)
 
 
+class JournalError(Exception):
+    """The --events file cannot be written; one sentence."""
+
+
+class EventJournal:
+    """Appends JSON lines to a file, one os.write per line on an O_APPEND descriptor (nothing buffered)."""
+
+    def __init__(self, path: str):
+        target = Path(path)
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            self.fd = os.open(target, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise JournalError(f"cannot write the events file {target} ({exc.strerror or exc}); choose a writable "
+                               "path for --events") from None
+
+    def __call__(self, record: dict) -> None:
+        os.write(self.fd, (json.dumps({"t": round(time.time(), 6), **record}, separators=(",", ":")) + "\n")
+                 .encode())
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    journal = None
     try:
         artifact = load_artifact(args.model)
-        node = TargetNode(artifact)
+        if args.events:
+            journal = EventJournal(args.events)
+        node = TargetNode(artifact, journal=journal)
         config = resolve(config_from_args(args))
         bus = config.open()
-    except (ArtifactError, BusUnavailable) as exc:
+    except (ArtifactError, BusUnavailable, JournalError) as exc:
         print(f"target_sim: error: {exc}", file=sys.stderr)
         return 1
+    if journal is not None:
+        journal({"event": "start", "pid": os.getpid(), "model_id": artifact.model_id})
     stop = {"requested": False}
 
     def request_stop(signum, frame) -> None:  # noqa: ARG001 - signal API
@@ -75,6 +110,9 @@ def main(argv: list[str] | None = None) -> int:
         bus.shutdown()
         if args.stats:
             _write_stats(args.stats, node.stats())
+        if journal is not None:
+            journal({"event": "stop", "pid": os.getpid(), "errors": dict(node.errors)})
+            journal.close()
     if not args.quiet:
         s = node.stats()
         log_error(f"stopped: {s['rows_used']} rows, {s['model_steps']} model steps, frame errors {s['errors']}")

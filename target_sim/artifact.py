@@ -42,15 +42,30 @@ def encode_array(values) -> dict[str, Any]:
 def decode_array(entry: dict[str, Any], where: str, dtype=np.float32) -> np.ndarray:
     """The float32 (or float64) array of an encoded entry, checking shape and f32/f64 agreement."""
     try:
-        shape = tuple(int(n) for n in entry["shape"])
-        f64 = np.array(entry["f64"], dtype=np.float64)
-        f32 = np.array([float.fromhex(h) for h in entry["f32_hex"]], dtype=np.float64)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ArtifactError(f"artifact field {where} is malformed ({exc})") from None
-    if f64.size != int(np.prod(shape)) or f32.size != f64.size:
-        raise ArtifactError(f"artifact field {where} does not have shape {list(shape)}")
-    if not np.array_equal(f64.astype(np.float32).astype(np.float64), f32, equal_nan=False):
-        raise ArtifactError(f"artifact field {where}: the float32 values are not the rounding of the float64 ones")
+        if not isinstance(entry, dict):
+            raise TypeError(f"expected an object with shape, f64 and f32_hex, not {type(entry).__name__}")
+        raw_shape, raw_f64, raw_f32 = entry["shape"], entry["f64"], entry["f32_hex"]
+        if not isinstance(raw_shape, list) or not all(type(n) is int and 0 <= n <= 1 << 16 for n in raw_shape) \
+                or len(raw_shape) > 2:
+            raise ValueError(f"shape {_shown(raw_shape)} is not a list of at most two sizes")
+        if not isinstance(raw_f64, list) or not all(type(v) in (int, float) for v in raw_f64):
+            raise ValueError("f64 is not a flat list of numbers")
+        if not isinstance(raw_f32, list) or not all(isinstance(h, str) and len(h) < 64 for h in raw_f32):
+            raise ValueError("f32_hex is not a flat list of hex strings")
+        shape = tuple(raw_shape)
+        f64 = np.array(raw_f64, dtype=np.float64)
+        f32 = np.array([float.fromhex(h) for h in raw_f32], dtype=np.float64)
+    except (KeyError, TypeError, ValueError, OverflowError) as exc:
+        raise ArtifactError(f"artifact field {where} is malformed ({_shown(exc, 120)}); "
+                            "rebuild it with 'bench identify'") from None
+    if f64.size != int(np.prod(shape, dtype=np.int64)) or f32.size != f64.size:
+        raise ArtifactError(f"artifact field {where} does not have shape {list(shape)}; "
+                            "rebuild it with 'bench identify'")
+    with np.errstate(over="ignore", invalid="ignore"):
+        rounded = f64.astype(np.float32).astype(np.float64)
+    if not np.array_equal(rounded, f32, equal_nan=False):
+        raise ArtifactError(f"artifact field {where}: the float32 values are not the rounding of the float64 ones; "
+                            "rebuild it with 'bench identify'")
     return (f32 if dtype == np.float32 else f64).reshape(shape).astype(dtype)
 
 
@@ -105,6 +120,8 @@ class ModelArtifact:
     def array(self, *keys: str, dtype=np.float32) -> np.ndarray:
         node = self.content
         for key in keys:
+            if not isinstance(node, dict) or key not in node:
+                raise ArtifactError(f"artifact is missing the field {'.'.join(keys)}; rebuild it with 'bench identify'")
             node = node[key]
         return decode_array(node, ".".join(keys), dtype)
 
@@ -113,35 +130,94 @@ def _require(content: dict, key: str, kind: type | tuple[type, ...]):
     if key not in content:
         raise ArtifactError(f"artifact is missing the field {key!r}; rebuild it with 'bench identify'")
     if not isinstance(content[key], kind):
-        raise ArtifactError(f"artifact field {key!r} has the wrong type")
+        raise ArtifactError(f"artifact field {key!r} has the wrong type; rebuild it with 'bench identify'")
     return content[key]
 
 
+def _shown(value: Any, limit: int = 40) -> str:
+    """A value of the file for a one-line message: repr, shortened."""
+    try:
+        shown = repr(value)
+    except (RecursionError, ValueError):  # a deeply nested value, an int too long to print
+        shown = f"<{type(value).__name__}>"
+    return shown if len(shown) <= limit else shown[: limit - 4] + "…" + shown[-3:]
+
+
+# Bounds of the timing an artifact may carry (s): anything else cannot be a model step or a CAN data rate.
+TIMING_RANGE_S = (1e-3, 3600.0)
+
+
 def verify(content: Any, path: Path | None = None) -> ModelArtifact:
-    """Check schema, checksum and every array; return the artifact or raise ArtifactError."""
+    """Check schema, checksum, every array and its shape; return the artifact or raise ArtifactError."""
     if not isinstance(content, dict):
-        raise ArtifactError("artifact is not a JSON object")
+        raise ArtifactError("artifact is not a JSON object; rebuild it with 'bench identify'")
     if content.get("schema") != SCHEMA:
-        raise ArtifactError(f"this is not a model artifact (schema {content.get('schema')!r}, expected {SCHEMA!r})")
-    if content.get("schema_version") != SCHEMA_VERSION:
-        raise ArtifactError(f"artifact schema version {content.get('schema_version')!r} is not supported "
+        raise ArtifactError(f"this is not a model artifact (schema {_shown(content.get('schema'))}, expected "
+                            f"{SCHEMA!r}); pass a file written by 'bench identify'")
+    version = content.get("schema_version")
+    if type(version) is not int or version != SCHEMA_VERSION:
+        raise ArtifactError(f"artifact schema version {_shown(version)} is not supported "
                             f"(this target runs version {SCHEMA_VERSION}); rebuild it with 'bench identify'")
-    expected = hashlib.sha256(canonical_bytes(content)).hexdigest()
+    try:
+        expected = hashlib.sha256(canonical_bytes(content)).hexdigest()
+    except (TypeError, ValueError, RecursionError) as exc:  # NaN/Infinity, non-string keys, absurd nesting
+        reason = "nested too deeply" if isinstance(exc, RecursionError) else str(exc).split(";")[0]
+        raise ArtifactError(f"artifact content is not plain JSON ({reason}); rebuild it with 'bench identify'"
+                            ) from None
     if content.get("sha256") != expected:
         raise ArtifactError("artifact checksum does not match its content (corrupted or edited); "
                             "rebuild it with 'bench identify'")
     kind = _require(content, "model_kind", str)
     if kind not in MODEL_KINDS:
-        raise ArtifactError(f"artifact model kind {kind!r} is not one of {', '.join(MODEL_KINDS)}")
+        raise ArtifactError(f"artifact model kind {_shown(kind)} is not one of {', '.join(MODEL_KINDS)}; "
+                            "rebuild it with 'bench identify'")
     if _require(content, "realization", str) not in REALIZATIONS:
-        raise ArtifactError(f"artifact realization {content['realization']!r} is unknown")
+        raise ArtifactError(f"artifact realization {_shown(content['realization'])} is not one of "
+                            f"{', '.join(REALIZATIONS)}; rebuild it with 'bench identify'")
     timing = _require(content, "timing", dict)
-    if not all(isinstance(timing.get(k), int | float) and timing[k] > 0 for k in ("dt_s", "data_sample_period_s")):
-        raise ArtifactError("artifact timing needs positive dt_s and data_sample_period_s")
+    low, high = TIMING_RANGE_S
+    for key in ("dt_s", "data_sample_period_s"):
+        value = timing.get(key)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
+            raise ArtifactError(f"artifact timing.{key} is {_shown(value)}, it must be a number of seconds from "
+                                f"{low:g} to {high:g}; rebuild it with 'bench identify'")
     artifact = ModelArtifact(content, path)
+    shapes = _expected_shapes(content)
     for keys in _array_fields(content):
-        artifact.array(*keys)  # decodes and cross-checks every array once
+        values = artifact.array(*keys)  # decodes and cross-checks every array once
+        where = ".".join(keys)
+        expected_shape = shapes.get(keys, ())
+        if values.shape != expected_shape:
+            raise ArtifactError(f"artifact field {where} has shape {list(values.shape)}, the target needs "
+                                f"{list(expected_shape)}; rebuild it with 'bench identify'")
+        if not np.all(np.isfinite(values)):
+            raise ArtifactError(f"artifact field {where} holds a value that is not finite in float32; "
+                                "rebuild it with 'bench identify'")
+    for axis in ("torque_axis_Nm", "speed_axis_rpm"):
+        steps = np.diff(artifact.array("losses", axis, dtype=np.float64))
+        if not np.all(steps > 0) or not np.allclose(steps, steps[0], rtol=1e-6):
+            raise ArtifactError(f"artifact field losses.{axis} is not an increasing, evenly spaced grid; "
+                                "rebuild it with 'bench identify'")
     return artifact
+
+
+def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
+    """The shape the target's code needs for each non-scalar array field (scalars are ())."""
+    n_states, n_outputs, n_inputs = 4, len(OUTPUTS), 8
+    shapes: dict[tuple[str, ...], tuple[int, ...]] = {
+        ("linear_block", "A"): (n_states, n_states), ("linear_block", "B"): (n_states, n_inputs),
+        ("linear_block", "C"): (n_outputs, n_states), ("linear_block", "C_inv"): (n_states, n_outputs),
+    }
+    grid = []
+    for axis in ("torque_axis_Nm", "speed_axis_rpm"):
+        entry = content.get("losses", {}).get(axis) if isinstance(content.get("losses"), dict) else None
+        shape = entry.get("shape") if isinstance(entry, dict) else None
+        size = shape[0] if isinstance(shape, list) and len(shape) == 1 and type(shape[0]) is int else 0
+        shapes[("losses", axis)] = (max(size, 2),)  # at least two points per axis
+        grid.append(max(size, 2))
+    shapes.update({("losses", "tables", name): tuple(grid) for name in LOSS_TABLES})
+    shapes.update({("input_nonlinearity", k): (4,) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")})
+    return shapes
 
 
 def _array_fields(content: dict) -> list[tuple[str, ...]]:
@@ -169,14 +245,24 @@ def load_artifact(path: str | Path) -> ModelArtifact:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ArtifactError(f"model artifact {path} does not exist; pass an existing file with --model") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ArtifactError(f"model artifact {path} cannot be read ({exc.__class__.__name__})") from None
+    except IsADirectoryError:
+        raise ArtifactError(f"model artifact {path} is a directory; pass the artifact's JSON file with --model"
+                            ) from None
+    except UnicodeDecodeError:
+        raise ArtifactError(f"model artifact {path} is not UTF-8 JSON text (corrupted or not an artifact); "
+                            "rebuild it with 'bench identify'") from None
+    except OSError as exc:
+        raise ArtifactError(f"model artifact {path} cannot be read ({exc.strerror or exc.__class__.__name__}); "
+                            "check the file's permissions or pass another with --model") from None
     if not text.strip():
         raise ArtifactError(f"model artifact {path} is empty; rebuild it with 'bench identify'")
     try:
         content = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ArtifactError(f"model artifact {path} is not valid JSON (truncated or corrupted at line {exc.lineno}); "
+                            "rebuild it with 'bench identify'") from None
+    except (ValueError, RecursionError):  # an integer too long to convert, nesting too deep for the parser
+        raise ArtifactError(f"model artifact {path} is not an artifact's JSON (absurd numbers or nesting); "
                             "rebuild it with 'bench identify'") from None
     try:
         return verify(content, path)

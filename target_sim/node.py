@@ -28,6 +28,13 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   an unexpected exception sets INTERNAL and the state FAULT (a RESET recovers).
 * Transmitted temperatures outside the DBC range are clamped (SATURATED; NaN or Inf also set NONFINITE), so a
   diverging float32 model (e.g. the `original` realization) is still answered.
+* BenchEvent frames (a bench host's marks of injected faults and gaps) are validated like every frame and
+  otherwise ignored.
+* Detection journal: with a `journal` callable the node reports every rejected frame and every sequence error
+  as one record {"kind": one of ERROR_KINDS, "id", "dlc", "data" (hex), "detail"} naming the frame it judged,
+  so a fault-injecting bench can tell which injected frame was caught and why (`host.faults.reconcile`);
+  `python -m target_sim --events FILE` appends them to a file that survives a SIGKILL. The counters in RxErrors
+  are the same events counted (8 bits, saturating).
 """
 
 from __future__ import annotations
@@ -113,8 +120,11 @@ class RowAccumulator(InputAccumulator):
 class TargetNode:
     """The target's behaviour on the bus, without the bus: `handle(frame)` returns the frames to send."""
 
-    def __init__(self, artifact: ModelArtifact, *, clock_ns: Callable[[], int] = time.perf_counter_ns):
+    def __init__(self, artifact: ModelArtifact, *, clock_ns: Callable[[], int] = time.perf_counter_ns,
+                 journal: Callable[[dict], None] | None = None):
         self.artifact = artifact
+        self.journal = journal
+        self._msg: can.Message | None = None
         self.model = Float32Estimator(artifact)
         self.cost = step_cost(artifact)
         self.memory = memory_estimate(artifact, self.cost)
@@ -206,17 +216,28 @@ class TargetNode:
         self.errors["sequence"] += 1
         self.faults |= FaultBit.SEQUENCE
         self.last_error = why
+        self._record("sequence", why)
         return []
+
+    def _record(self, kind: str, detail: str) -> None:
+        """One journal record about the frame being handled (no-op without a journal)."""
+        if self.journal is None or self._msg is None:
+            return
+        msg = self._msg
+        self.journal({"kind": kind, "id": msg.arbitration_id, "dlc": msg.dlc, "data": bytes(msg.data).hex(),
+                      "detail": detail})
 
     def handle(self, msg: can.Message) -> list[can.Message]:
         """Validate one received frame, act on it, and return the frames to send in reply (maybe none)."""
         self.frames_received += 1
+        self._msg = msg
         try:
             frame = self.validator.validate(msg)
         except FrameError as exc:
             self.errors[exc.kind] += 1
             self.faults |= FaultBit.RX_ERROR
             self.last_error = exc.message
+            self._record(exc.kind, exc.message)
             return []
         except Exception as exc:  # noqa: BLE001 - a frame the codec cannot even judge must not end the node
             self.faults |= FaultBit.INTERNAL | FaultBit.RX_ERROR
@@ -250,7 +271,7 @@ class TargetNode:
             return []
         if name == "Control":
             return self._control(Command(int(signals["Command"])), int(signals["Step"]))
-        return []  # a frame of the contract the target does not act on (none today)
+        return []  # a frame of the contract the target does not act on (BenchEvent)
 
     def _control(self, command: Command, step: int) -> list[can.Message]:
         if command == Command.RESET:

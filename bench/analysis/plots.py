@@ -28,11 +28,31 @@ def _save(fig, path: Path) -> None:
     tmp.replace(path)
 
 
+def _gap_spans_h(record: BusRecord, refs: References) -> list[tuple[float, float]]:
+    """The marked gaps (rows restart..lost) as spans of model time in hours."""
+    if not len(refs.step_rows):
+        return []
+    spans = []
+    for gap in record.gaps:
+        first, last = gap["rows"]
+        t0, t1 = np.interp([first - 1, last + 1], refs.step_rows, refs.step_time_s) / 3600.0
+        spans.append((float(t0), float(t1)))
+    return spans
+
+
+def _shade_gaps(ax, spans: list[tuple[float, float]], label: bool) -> None:
+    for i, (t0, t1) in enumerate(spans):
+        ax.axvspan(t0, t1, color="tab:purple", alpha=0.25, lw=0,
+                   label="marked gap (target lost, re-initialized)" if label and i == 0 else None)
+        ax.axvline(t1, color="tab:purple", lw=0.6, ls=":")
+
+
 def temperatures(path: Path, record: BusRecord, refs: References, title: str) -> None:
     """CAN temperatures vs measured reference vs offline float64 and float32 model, per node."""
     plt = _pyplot()
     fig, axes = plt.subplots(4, 1, figsize=(11, 12), sharex=True)
     t_h = refs.step_time_s / 3600.0
+    spans = _gap_spans_h(record, refs)
     can = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
     for ax, i in zip(axes, ORDER, strict=True):
         name = TEMPERATURES[i]
@@ -42,6 +62,7 @@ def temperatures(path: Path, record: BusRecord, refs: References, title: str) ->
         ax.plot(t_h, refs.f64[:, i], color="tab:blue", lw=1.0, label="offline float64")
         ax.plot(t_h, refs.f32[:, i], color="tab:orange", lw=1.0, ls="--", label="offline float32")
         ax.plot(t_h, can[:, i], color="tab:red", lw=0, marker=".", ms=1.2, label="CAN (target, float32)")
+        _shade_gaps(ax, spans, ax is axes[0])
         ax.set_ylabel(f"{LABELS[name]} (°C)")
         ax.grid(alpha=0.3)
         finite = np.concatenate([refs.f64[:, i], can[:, i][np.isfinite(can[:, i])]])
@@ -69,9 +90,11 @@ def float32_error(path: Path, record: BusRecord, refs: References) -> None:
     top.grid(alpha=0.3)
     top.legend(fontsize=8)
     can = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
-    diff = can - refs.f32
+    reference = refs.can_reference if refs.can_reference is not None else refs.f32
+    diff = can - reference
     for i in ORDER:
         bottom.plot(t_h, diff[:, i], lw=0, marker=".", ms=1, label=LABELS[TEMPERATURES[i]])
+    _shade_gaps(bottom, _gap_spans_h(record, refs), False)
     bottom.axhline(0.005, color="k", lw=0.6, ls=":")
     bottom.axhline(-0.005, color="k", lw=0.6, ls=":")
     bottom.set_ylabel("CAN − float32 (°C)")

@@ -20,11 +20,14 @@ FIGURES = {"temperatures": "temperatures.png", "float32_error": "float32_error.p
 
 
 def analyze_log(log_path: str | Path, artifact: ModelArtifact, dataset=None, *, report_dir: str | Path | None = None,
-                bitrate: int | None = None, run_info: dict | None = None) -> tuple[dict, list[str], BusRecord]:
-    """Decode the log, compute the metrics against the references, write the report if `report_dir`."""
+                bitrate: int | None = None, run_info: dict | None = None,
+                extra_problems: list[str] | None = None) -> tuple[dict, list[str], BusRecord]:
+    """Decode the log, compute the metrics against the references, write the report if `report_dir`.
+
+    `extra_problems` (what the live run saw, e.g. the host's) are listed in the report too."""
     record = decode_log(log_path)
     metrics, refs = compute(record, artifact, dataset, **({"bitrate": bitrate} if bitrate else {}))
-    found = problems(metrics)
+    found = list(dict.fromkeys((extra_problems or []) + problems(metrics)))
     if report_dir is not None:
         report_path = write_report(Path(report_dir), metrics, found, record, refs, dataset, run_info or {})
         metrics["report"] = str(report_path)
@@ -60,11 +63,43 @@ def write_report(report_dir: Path, metrics: dict, found: list[str], record: BusR
     return path
 
 
+def fault_section(faults: dict) -> list[str]:
+    """Injected versus detected per kind, the marked gaps, retransmissions."""
+    lines = ["## Injected faults", "",
+             "Every injected fault is marked in the log by a BenchEvent frame (id 0x1FF); detection comes from the "
+             f"sidecar {('`' + Path(faults['sidecar']).name + '`') if faults['sidecar'] else '(missing)'}.", "",
+             "| kind | injected | detected | detected by |", "|---|---|---|---|"]
+    detected = faults["detected"] or {}
+    for kind, count in faults["injected"].items():
+        lines.append(f"| {kind} | {count} | {_fmt(detected.get(kind))} | {faults['detection'][kind]} |")
+    lines += ["", f"Rows sent again after their reply deadline: {faults['retransmitted_rows']}; re-initializations "
+              f"of a lost target: {faults['reinitializations']}.", ""]
+    if faults["gaps"]:
+        lines += ["| marked gap: rows | target lost at row | re-initialized at row | lasted (s) |", "|---|---|---|---|"]
+        for gap in faults["gaps"]:
+            first, last = gap["rows"]
+            lines.append(f"| {first}–{last} | {gap['lost_row']} | {_fmt(gap['restart_row'])} | "
+                         f"{_fmt(gap['duration_s'], 2)} |")
+        lines += ["", "In a gap the target was lost (killed, frozen or restarted); the host re-initialized it from "
+                  "the last good estimate (the reply to the row before the gap, 0.01 °C resolution) and replayed "
+                  "the gap's rows again, so every row has a reply. The CAN − float32 check compares every reply "
+                  "with the float32 reference restarted the same way.", ""]
+    return lines
+
+
 def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) -> str:
     m = metrics
     model = m["model"]
     lines = [f"# Bench report: {model['kind']} ({model['realization']}), model {model['id']}", ""]
-    verdict = "clean: every step answered, CAN = offline float32 within ±0.005 °C" if not found else "NOT clean"
+    faults = m.get("faults")
+    if found:
+        verdict = "NOT clean"
+    elif faults and faults["injected_total"]:
+        verdict = (f"faults injected and survived: every step answered, CAN = offline float32 (restarted as the "
+                   f"target was) within ±0.005 °C, {faults['injected_total']} injected fault(s)"
+                   + (", all detected" if faults["undetected"] == 0 else ""))
+    else:
+        verdict = "clean: every step answered, CAN = offline float32 within ±0.005 °C"
     lines += [f"**Result: {verdict}.**", ""]
     for problem in found:
         lines.append(f"- {problem}")
@@ -114,6 +149,8 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
               f"| invalid frames in the log | {m['invalid_frames_in_log'] or 'none'} |",
               f"| target faults seen | {', '.join(m['target_faults_seen']) or 'none'} |",
               ""]
+    if faults:
+        lines += fault_section(faults)
     lines += ["## Figures", "",
               "Temperatures: CAN values (the target's float32 estimate as transmitted), the measured reference "
               "(winding and PM), and the offline float64 and float32 models on the same decoded inputs.", "",

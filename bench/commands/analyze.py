@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.commands.common import add_output_flags, print_json
+from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
 from bench.runner import load_data, load_model
 from host.canlog import LogError
@@ -46,11 +46,22 @@ def matching_dataset(drive: np.ndarray, artifact):
             dataset = load_data(csv, artifact)
         except DatasetError:
             continue
-        from bench.model.runs import drive_matrix
-
-        values = drive_matrix(dataset)
-        if len(values) >= len(drive) and np.all(np.abs(values[: len(drive)] - drive) <= DRIVE_HALF_RESOLUTION):
+        if data_mismatch(dataset, drive) is None:
             return dataset
+    return None
+
+
+def data_mismatch(dataset, drive: np.ndarray) -> str | None:
+    """Why `dataset` is not the one the log's drive frames came from (None if it is, within the CAN resolution)."""
+    from bench.model.runs import drive_matrix
+
+    values = drive_matrix(dataset)
+    if len(values) < len(drive):
+        return f"has {len(values)} rows, the log {len(drive)}"
+    off = np.any(np.abs(values[: len(drive)] - drive) > DRIVE_HALF_RESOLUTION, axis=1)
+    if off.any():
+        row = int(np.argmax(off))
+        return f"differs from the log's drive values at data row {row + 1}"
     return None
 
 
@@ -60,6 +71,8 @@ def run(args: argparse.Namespace) -> int:
     from bench.analysis.report import write_report
 
     artifact, model_path = load_model(args.model)
+    report_dir = args.report or args.log.with_name(f"{args.log.stem}-report")
+    check_writable(report_dir, "--report", directory=True)
     try:
         record = decode_log(args.log)
     except LogError as exc:
@@ -70,10 +83,16 @@ def run(args: argparse.Namespace) -> int:
     if record.initial is None:
         raise BenchError(f"log {args.log} has no complete RESET (ResetTemps1, ResetTemps2, Control RESET); "
                          "it cannot be compared with the model")
-    dataset = load_data(args.data, artifact) if args.data else matching_dataset(record.drive, artifact)
+    if args.data:
+        dataset = load_data(args.data, artifact)
+        mismatch = data_mismatch(dataset, record.drive)
+        if mismatch:
+            raise BenchError(f"--data {args.data} {mismatch}, so it is not the dataset log {args.log} was recorded "
+                             "from; pass that one, or leave --data out to compare with the model only")
+    else:
+        dataset = matching_dataset(record.drive, artifact)
     metrics, refs = compute(record, artifact, dataset)
     found = problems(metrics)
-    report_dir = args.report or args.log.with_name(f"{args.log.stem}-report")
     metrics["report"] = str(write_report(report_dir, metrics, found, record, refs, dataset,
                                          {"mode": "analyzed from the log"}))
     if args.json:

@@ -18,7 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, print_json, write_atomically
+from bench.commands.common import add_output_flags, check_writable, print_json, write_atomically
 from bench.errors import UsageError
 from bench.runner import ProgressBar, bus_from_args, load_data, load_model, positive_float, positive_int
 from target_sim.artifact import ModelArtifact, dumps
@@ -142,14 +142,16 @@ def print_table(table: list[dict]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     quiet = args.quiet or args.json
+    check_writable(args.out, "--out", directory=True)
     if args.models:
         paths = [Path(p.strip()) for p in args.models.split(",") if p.strip()]
         if not paths:
             raise UsageError("--models needs comma-separated artifact files")
     else:
         paths = build_default_artifacts(args.dt, args.out)
-    first, _ = load_model(paths[0])
-    dataset = load_data(args.data, first, args.seed, quiet=quiet)
+    # every artifact is checked before the first run, so a bad one leaves no logs of the others behind
+    artifacts = [load_model(path)[0] for path in paths]
+    dataset = load_data(args.data, artifacts[0], args.seed, quiet=quiet)
     bus = bus_from_args(args)
     table = compare_models(paths, dataset, bus, rows=args.rows, out_dir=args.out, quiet=quiet)
     if args.json:

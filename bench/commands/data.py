@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, print_json
+from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 
 COOLANT_LIMITS_C = (-30.0, 120.0)
@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from bench.drive.sequence import TestSequence
 
     out_dir = args.out if args.out is not None else default_dataset_dir()
+    check_writable(out_dir, "--out", directory=True)  # before seconds of generation, not after
     started = time.perf_counter()
     records = []
     for setpoint in args.coolant:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, choice_list, float_list, print_json
+from bench.commands.common import add_output_flags, check_writable, choice_list, float_list, print_json
 from bench.errors import BenchError
 from bench.thermal.realizations import REALIZATIONS
 
@@ -33,12 +33,16 @@ def run(args: argparse.Namespace) -> int:
     from bench.model.pipeline import load_campaign
     from target_sim.artifact import ArtifactError, load_artifact
 
+    model_path = args.model or default_artifact_path()
     try:
-        artifact = load_artifact(args.model or default_artifact_path())
+        artifact = load_artifact(model_path)
     except ArtifactError as exc:
         raise BenchError(str(exc)) from None
     if artifact.kind != "hammerstein":
-        raise BenchError(f"{args.model} is a {artifact.kind} artifact; the comparison needs a hammerstein one")
+        raise BenchError(f"{model_path} is a {artifact.kind} artifact; the comparison needs a hammerstein one "
+                         "(pass one with --model)")
+    if args.plots:
+        check_writable(args.plots, "--plots", directory=True)
     datasets = load_campaign(args.data)
     say = None if (args.quiet or args.json) else (lambda msg: print(msg, file=sys.stderr))
     models = hammerstein_models(artifact, datasets, args.dt, progress=say)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, print_json, write_atomically
+from bench.commands.common import add_output_flags, check_writable, print_json, write_atomically
 from bench.errors import UsageError
 from bench.model.hammerstein_fit import FIT_PATHS
 from bench.thermal.realizations import REALIZATIONS
@@ -39,17 +39,20 @@ def add_subparser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.model.pipeline import identify_from_directory, validation_metrics
 
-    if args.dt <= 0 or args.swarm < 2 or args.iterations < 1 or args.lm_iterations < 1:
+    if not 0 < args.dt < float("inf") or args.swarm < 2 or args.iterations < 1 or args.lm_iterations < 1:
         raise UsageError("--dt must be positive, --swarm at least 2 and the iteration counts at least 1")
+    kinds = KINDS if args.all_kinds else (args.kind,)
+    outputs = {kind: args.out if kind == args.kind else args.out.with_name(f"{args.out.stem}-{kind}.json")
+               for kind in kinds}
+    for path in outputs.values():  # before the identification, not after it
+        check_writable(path, "--out")
     progress = None if (args.quiet or args.json) else _progress_bar()
     result, datasets = identify_from_directory(args.data, dt=args.dt, swarm_size=args.swarm,
                                                pso_iterations=args.iterations, lm_iterations=args.lm_iterations,
                                                seed=args.seed, fit_path=args.fit_path, progress=progress)
     metrics = validation_metrics(result, datasets, args.realization)
     written = {}
-    kinds = KINDS if args.all_kinds else (args.kind,)
-    for kind in kinds:
-        path = args.out if kind == args.kind else args.out.with_name(f"{args.out.stem}-{kind}.json")
+    for kind, path in outputs.items():
         realization = args.realization if kind != "pv-lptn" else "physical"
         text = _artifact_text(result.content(kind, realization, metrics))
         write_atomically(path, lambda tmp, text=text: tmp.write_text(text, encoding="utf-8"))

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.commands.common import add_output_flags, print_json
+from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
 from bench.runner import ProgressBar, bus_from_args, load_model, positive_float, replay_with_target
 from dbc import FrameError, frame_id
@@ -94,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         check_log_path(new_log)
     except LogError as exc:
         raise BenchError(str(exc)) from None
+    check_writable(new_log, "--log")
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
     if not quiet:

@@ -2,12 +2,21 @@
 
     bench run [--data FILE] [--model FILE] [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
               [--report DIR | --no-report] [--reply-timeout S] [--tolerate-gaps] [--seed N] [--json] [--quiet]
+              [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
               [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
 
 Defaults: the generated 40 °C validation run (out/data, made if missing), the packaged model artifact, lockstep,
 log out/run/bench.blf (format by suffix: .blf .asc .log .csv .mf4), report out/run/report/report.md with PNGs.
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
 ±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0).
+
+Fault injection (lockstep; `host.faults`): e.g. `--faults drop=0.01,corrupt=0.001,kill=1 --fault-seed 7`.
+Bus faults (drop, delay, duplicate, reorder, corrupt, stale_counter, wrong_length, unknown_id, out_of_range) hit
+the host's drive frames; kill and freeze hit the target process, which the runner restarts. The host retransmits
+rows that got no reply and re-initializes a lost target from the last good estimate; every fault and gap is
+marked in the log (BenchEvent frames) and in `<log>.faults.json`; the JSON summary's "faults" holds injected
+and detected counts per kind. A run with injected faults exits 1 unless `--tolerate-faults`, and even then
+when a fault went undetected or anything the faults do not explain went wrong.
 """
 
 from __future__ import annotations
@@ -18,7 +27,7 @@ import time
 from pathlib import Path
 
 from bench.commands.common import add_output_flags, print_json
-from bench.errors import BenchError
+from bench.errors import BenchError, UsageError
 from bench.runner import (
     ProgressBar,
     bus_from_args,
@@ -29,6 +38,7 @@ from bench.runner import (
     run_with_target,
 )
 from host.canlog import LogError, check_log_path
+from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
 from target_sim.transport import add_bus_arguments
 
 DEFAULT_LOG = Path("out/run/bench.blf")
@@ -43,6 +53,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--report", type=Path, default=DEFAULT_REPORT,
                    help=f"report directory (default {DEFAULT_REPORT})")
     p.add_argument("--no-report", action="store_true", help="skip the report (metrics are still computed)")
+    add_fault_arguments(p)
     add_output_flags(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
@@ -59,11 +70,24 @@ def add_run_arguments(p) -> None:
     p.add_argument("--reply-timeout", type=positive_float, default=0.05,
                    help="seconds to wait for a step's reply before counting it missing (default 0.05)")
     p.add_argument("--tolerate-gaps", action="store_true",
-                   help="exit 0 even with missing replies, sequence gaps or heartbeat loss (still reported)")
+                   help="exit 0 even with missing replies, sequence gaps or heartbeat loss (still reported); "
+                        "not for runs with injected faults (see --tolerate-faults)")
     p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
 
 
+def fault_spec(args: argparse.Namespace):
+    """The fault options as a FaultSpec (None without faults); UsageError for a bad one."""
+    try:
+        spec = spec_from_args(args)
+    except FaultSpecError as exc:
+        raise UsageError(str(exc)) from None
+    if spec is not None and getattr(args, "mode", "lockstep") != "lockstep":
+        raise UsageError("fault injection runs in lockstep mode only; drop --mode realtime")
+    return spec
+
+
 def run(args: argparse.Namespace) -> int:
+    faults = fault_spec(args)
     artifact, model_path = load_model(args.model)
     dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json)
     try:
@@ -79,13 +103,14 @@ def run(args: argparse.Namespace) -> int:
     quiet = args.quiet or args.json
     if not quiet:
         print(f"bench: {artifact.kind} model {artifact.model_id:08x} on {len(drive)} rows of {dataset.path} "
-              f"({args.mode}) over {bus.describe()}", file=sys.stderr)
+              f"({args.mode}) over {bus.describe()}" + (f", injecting {faults.describe()}" if faults else ""),
+              file=sys.stderr)
     bar = ProgressBar(len(drive), args.mode, quiet)
     started = time.perf_counter()
     try:
         outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset), mode=args.mode,
                                   speed=args.speed, sample_period_s=dataset.sample_period_s, log_path=log_path,
-                                  reply_timeout_s=args.reply_timeout, progress=bar)
+                                  reply_timeout_s=args.reply_timeout, progress=bar, faults=faults)
     finally:
         bar.close()
     host = outcome.result
@@ -95,16 +120,20 @@ def run(args: argparse.Namespace) -> int:
                 "bus": bus.describe()}
     try:
         metrics, found, _ = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
-                                        args.report, bitrate=bus.nominal_bitrate, run_info=run_info)
+                                        args.report, bitrate=bus.nominal_bitrate, run_info=run_info,
+                                        extra_problems=host.problems())
     except (LogError, ValueError) as exc:
         raise BenchError(f"the log {log_path} cannot be analyzed ({exc})") from None
     found = list(dict.fromkeys(host.problems() + found))
+    note = fault_note(host.faults)
+    if note and not args.tolerate_faults:
+        found.append(note)
     summary = json_summary(metrics, host, found, time.perf_counter() - started)
     if args.json:
         print_json(summary)
     else:
         print_summary(summary)
-    if found and not args.tolerate_gaps:
+    if found and (host.faults is not None or not args.tolerate_gaps):  # --tolerate-gaps does not cover faults
         if not args.json:
             print("bench: error: the run is not clean: " + "; ".join(found), file=sys.stderr)
         return 1
@@ -126,12 +155,25 @@ def json_summary(metrics: dict, host, found: list[str], elapsed_s: float) -> dic
         "report": metrics.get("report"),
         "problems": found,
         "notes": metrics.get("notes", []),
-        "clean": not found,
-        "host": {k: v for k, v in host.to_dict().items() if k not in ("log_path",)},
+        "clean": not found and not (host.faults and host.faults["injected_total"]),
+        "faults": _fault_summary(host.faults, metrics.get("faults")),
+        "host": {k: v for k, v in host.to_dict().items() if k not in ("log_path", "faults")},
         "metrics": {k: v for k, v in metrics.items() if k != "bus_load"}
         | {"bus_load": {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}},
         "elapsed_s": round(elapsed_s, 2),
     }
+
+
+def _fault_summary(host_faults: dict | None, log_faults: dict | None) -> dict | None:
+    """The run's fault figures: the host's reconciliation, plus what the log's marks show."""
+    if host_faults is None:
+        return None
+    out = {k: v for k, v in host_faults.items() if k != "undetected_faults"}
+    out["undetected_faults"] = host_faults.get("undetected_faults", [])
+    if log_faults is not None:
+        out["marked_in_log"] = log_faults["injected"]
+        out["gaps_in_log"] = log_faults["gaps"]
+    return out
 
 
 def _f(value, digits=3) -> str:
@@ -156,7 +198,21 @@ def print_summary(s: dict) -> None:
     print(f"throughput {_f(s['throughput_steps_per_s'], 0)} steps/s, round trip p50/p99 "
           f"{_f(rtt['p50'], 0)}/{_f(rtt['p99'], 0)} µs, bus load at the data rate "
           f"{_f(m['bus_load']['data_rate_percent'], 2)} %")
+    faults = s.get("faults") or m.get("faults")
+    if faults:
+        detected = faults["detected"] or {}
+        print("faults injected/detected: " + ", ".join(
+            f"{k} {n}/{'?' if detected.get(k) is None else detected[k]}" for k, n in faults["injected"].items())
+            + f"; {faults['retransmitted_rows']} rows retransmitted, {len(faults['gaps'])} gap(s)"
+            + "".join(f" rows {g['rows'][0]}-{g['rows'][1]}" for g in faults["gaps"][:5]))
     print(f"log {s['log']}" + (f", report {s['report']}" if s.get("report") else ""))
     for note in m.get("notes", []):
         print(f"note: {note}")
-    print("clean" if s["clean"] else "NOT clean: " + "; ".join(s["problems"]))
+    if s["problems"]:
+        print("NOT clean: " + "; ".join(s["problems"]))
+    elif faults and faults.get("injected_total"):
+        print(f"{faults['injected_total']} faults injected, "
+              + ("all detected" if faults.get("undetected") == 0 else "detection not verified")
+              + ", nothing else went wrong")
+    else:
+        print("clean")

@@ -320,8 +320,27 @@ def load_dataset(path: Path, mapping: ColumnMapping | None = None,
                    coolant_setpoint_C=None if setpoint is None else float(setpoint), sha256=sha, metadata=meta)
 
 
+def _shown(text: str, limit: int = 40) -> str:
+    """A field for a one-line message: repr (so control characters and line breaks stay visible), shortened."""
+    shown = repr(text)
+    return shown if len(shown) <= limit else shown[: limit - 4] + "…" + shown[-3:]
+
+
+def _shown_header(header: list[str], limit: int = 200) -> str:
+    """The header for a one-line message: plain names as they are, odd ones quoted, the whole shortened."""
+    names = [h if h.isprintable() and len(h) <= 40 else _shown(h) for h in header]
+    text = ", ".join(names)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
 def _split(path: Path, text: str) -> tuple[list[str], list[list[str]]]:
-    lines = list(csv.reader(io.StringIO(text)))
+    # newline=None: universal newlines, so CR-only and CRLF files read like LF files
+    reader = csv.reader(io.StringIO(text, newline=None), strict=True)
+    try:
+        lines = list(reader)
+    except csv.Error as exc:
+        raise DatasetError(f"{path}, line {reader.line_num} cannot be read as CSV ({exc}: an unclosed quote or a "
+                           "damaged file?); save it as a plain comma-separated file") from None
     while lines and not lines[-1]:
         lines.pop()  # trailing empty lines are the end of the file, not rows
     if not lines:
@@ -329,7 +348,8 @@ def _split(path: Path, text: str) -> tuple[list[str], list[list[str]]]:
     header = [h.strip() for h in lines[0]]
     for i, name in enumerate(header):
         if name in header[:i]:
-            raise DatasetError(f"{path}, line 1: column {name!r} appears twice in the header")
+            raise DatasetError(f"{path}, line 1: column {_shown(name)} appears twice in the header; rename or "
+                               "remove one of them")
     rows = lines[1:]
     for n, row in enumerate(rows, start=1):
         if len(row) != len(header):
@@ -342,8 +362,8 @@ def _locate_columns(path: Path, header: list[str], mapping: ColumnMapping) -> di
     """schema name -> (source name, index), applying the mapping."""
     for source in mapping.columns:
         if source not in header:
-            raise DatasetError(f"{path}: column {source!r} named in the column mapping is not in the header "
-                               f"({', '.join(header)})")
+            raise DatasetError(f"{path}: column {_shown(source)} named in the column mapping is not in the header "
+                               f"({_shown_header(header)}); fix the mapping or the header")
     found: dict[str, tuple[str, int]] = {}
     for i, name in enumerate(header):
         target = mapping.columns.get(name, name if name not in mapping.columns.values() else None)
@@ -352,24 +372,24 @@ def _locate_columns(path: Path, header: list[str], mapping: ColumnMapping) -> di
     required = [c for c in COLUMNS if c not in ("rotor_surface_C", "pm_C")]
     for name in required:
         if name not in found:
-            raise DatasetError(f"{path}: column {name!r} is missing (header: {', '.join(header)}); "
+            raise DatasetError(f"{path}: column {name!r} is missing (header: {_shown_header(header)}); "
                                "rename it or map it with a column mapping")
     if "pm_C" not in found and "rotor_surface_C" not in found:
-        raise DatasetError(f"{path}: column 'pm_C' (or 'rotor_surface_C') is missing (header: {', '.join(header)}); "
-                           "rename it or map it with a column mapping")
+        raise DatasetError(f"{path}: column 'pm_C' (or 'rotor_surface_C') is missing (header: "
+                           f"{_shown_header(header)}); rename it or map it with a column mapping")
     return found
 
 
 def _parse_column(path, name, source, index, rows, mapping: ColumnMapping) -> np.ndarray:
-    label = name if source == name else f"{source!r} ({name})"
+    label = name if source == name else f"{_shown(source)} ({name})"
     values = np.empty(len(rows))
     for n, row in enumerate(rows):
         try:
             values[n] = float(row[index])
         except ValueError:
-            shown = repr(row[index]) if row[index].strip() else "empty"
+            shown = _shown(row[index]) if row[index].strip() else "empty"
             raise DatasetError(f"{path}, column {label}, data row {n + 1} (line {n + 2}): value {shown} "
-                               "is not a number") from None
+                               "is not a number; fix or remove that row") from None
     bad = ~np.isfinite(values)
     if bad.any():
         n = int(np.argmax(bad)) + 1
@@ -395,7 +415,7 @@ def _derive_pm(values: dict[str, np.ndarray]) -> list[str]:
 
 
 def _check_time(path: Path, source: str, t: np.ndarray, expected: float | None) -> float:
-    label = "time_s" if source == "time_s" else f"{source!r} (time_s)"
+    label = "time_s" if source == "time_s" else f"{_shown(source)} (time_s)"
     steps = np.diff(t)
     bad = steps <= 0
     if bad.any():
@@ -420,7 +440,7 @@ def _check_range(path: Path, column: Column, source: str, values: np.ndarray) ->
     bad = (values < column.low) | (values > column.high)
     if bad.any():
         n = int(np.argmax(bad)) + 1
-        label = column.name if source == column.name else f"{source!r} ({column.name})"
+        label = column.name if source == column.name else f"{_shown(source)} ({column.name})"
         raise DatasetError(f"{path}, column {label}, data row {n} (line {n + 1}): value {values[n - 1]:g} "
                            f"{column.unit} is outside the physical range {column.low:g} .. {column.high:g} "
                            f"{column.unit}; check the column's unit and mapping")

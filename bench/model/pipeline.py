@@ -22,7 +22,15 @@ def load_campaign(data_dir: Path | None) -> dict[int, Dataset]:
     if data_dir is None:
         paths = ensure_default_datasets()
     else:
-        paths = {c: Path(data_dir) / dataset_filename(c) for c in (*IDENTIFICATION_COOLANTS, VALIDATION_COOLANT)}
+        data_dir = Path(data_dir)
+        names = ", ".join(dataset_filename(c) for c in sorted((*IDENTIFICATION_COOLANTS, VALIDATION_COOLANT)))
+        if data_dir.is_file():
+            raise BenchError(f"--data {data_dir} is a file; pass the directory that holds {names} "
+                             f"(e.g. 'bench data --out DIR' writes them)")
+        if not data_dir.is_dir():
+            raise BenchError(f"--data {data_dir} does not exist; run 'bench data --out {data_dir}' to create "
+                             f"{names} there, or pass the directory that holds them")
+        paths = {c: data_dir / dataset_filename(c) for c in (*IDENTIFICATION_COOLANTS, VALIDATION_COOLANT)}
         missing = [str(p) for p in paths.values() if not p.is_file()]
         if missing:
             raise BenchError(f"dataset {missing[0]} is missing; run 'bench data --out {data_dir}' to create it")

@@ -337,3 +337,20 @@ def test_random_frames_never_crash_the_node(lti):
     assert not node.faults & FaultBit.INTERNAL
     assert sum(node.errors.values()) > 1000 and node.errors["out_of_range"] > 0 and node.errors["sequence"] > 0
     assert node.rows_used > 0
+
+
+def test_the_journal_names_every_rejected_frame_and_sequence_error(lti):
+    records: list[dict] = []
+    node = TargetNode(lti, journal=records.append)
+    host = Host(node)
+    host.reset()
+    host.start()
+    di, dt = host.row_frames(0, (10.0, 1000.0, 40.0, 25.0))
+    bad = bytearray(di.data)
+    bad[5] ^= 0x10
+    host.send(can.Message(arbitration_id=di.arbitration_id, is_extended_id=False, dlc=8, data=bytes(bad)))
+    host.send(dt)  # its DriveInputs was refused: a sequence error
+    assert [(r["kind"], r["id"], r["dlc"], r["data"]) for r in records] == [
+        ("crc", di.arbitration_id, 8, bytes(bad).hex()), ("sequence", dt.arbitration_id, 8, bytes(dt.data).hex())]
+    assert "without its DriveInputs" in records[1]["detail"]
+    assert sum(node.errors.values()) == len(records) == 2

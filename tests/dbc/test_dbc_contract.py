@@ -21,12 +21,17 @@ UNITLESS = E2E_SIGNALS | {
     "DbcVersionMinor",
     "ModelKind",
     "Realization",
+    "Event",
+    "FaultKind",
+    "FrameId",
 }
 ENUMS = {
     "Command": dbc.Command,
     "State": dbc.TargetState,
     "ModelKind": dbc.ModelKind,
     "Realization": dbc.Realization,
+    "Event": dbc.BenchEvent,
+    "FaultKind": dbc.FaultKind,
 }
 
 
@@ -36,7 +41,7 @@ def app_signals(message):
 
 def test_loads_with_strict_checks_and_is_ascii():
     database = cantools.database.load_file(DBC_PATH, strict=True)
-    assert len(database.messages) == 13
+    assert len(database.messages) == 14
     DBC_PATH.read_bytes().decode("ascii")  # cantools reads DBC files as cp1252: keep them plain ASCII
 
 
@@ -100,6 +105,7 @@ def test_every_message_has_comment_cycle_time_and_e2e_data_id():
         ("Status", 100),
         ("RxErrors", 100),
         ("TargetInfo", 0),
+        ("BenchEvent", 0),
     ],
 )
 def test_cycle_times(name, cycle_ms):

@@ -1,0 +1,266 @@
+"""`FaultyBus`: the fault layer between the host and the bus, with python-can's `send`/`recv` interface.
+
+The host's session sends through it as through any `can.BusABC`; the lockstep loop tells it which data row (and
+which pass of it) the next drive frames belong to (`begin_row`/`end_row`) and whether they are a retransmission
+(never faulted). Every frame that actually goes on the bus (altered, duplicated or late as it may be) is handed
+to `on_transmit`, so the host's log holds what was on the bus, and every injected fault is recorded as an
+`Injection` (kind, row, frame id, the bytes that went out) for the run's summary and the report.
+
+What each kind does to a drive frame (F = DriveInputs or DriveTemps of row n, alive counter c):
+
+* drop: F is not sent. The next F the host sends (its retransmission) is the `witness`: it carries c+1 after
+  c-1, so the target sees an alive-counter jump.
+* duplicate: F goes out twice, byte for byte; the second copy repeats counter c.
+* corrupt: 1 to 3 distinct bits of the 8 bytes are flipped. CRC8H2F has Hamming distance 4 over these 64 bits, so
+  the CRC catches every such corruption by construction (checked again here for each frame).
+* stale_counter: F carries counter c-1 (the previous frame's) with a valid CRC: a sender that did not count.
+* wrong_length: F goes out with its first 0..7 bytes only (DLC 0..7).
+* unknown_id: F goes out on an id no DBC message has (its id with bit 3 flipped: 0x118, 0x119).
+* out_of_range: MotorTorque (DriveInputs) or CoolantTemp (DriveTemps) carries the raw value 0x7FFF (3276.7 Nm or
+  3276.7 degC, beyond the DBC range) with a valid CRC and counter.
+* reorder (per row): DriveTemps n goes out before DriveInputs n.
+* delay (per row): the row's frames, and every frame queued behind them, are held for `delay_s` (first-in first-
+  out, as a congested gateway would), released by `recv`/`send` calls once due.
+
+The frames the host injects on foreign ids come back to it on udp_multicast (multicast loopback): `recv` drops
+them, as the session drops its own ids.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import can
+
+from dbc import FRAME_IDS, apply_crc
+from target_sim.fastframes import profile2_crc
+
+from .plan import FaultPlan, RowFaults
+
+DRIVE_INDEX = {FRAME_IDS["DriveInputs"]: 0, FRAME_IDS["DriveTemps"]: 1}
+_DATA_IDS = {fid: fid & 0xFF for fid in FRAME_IDS.values()}
+UNKNOWN_ID_FLIP = 0x008
+OUT_OF_RANGE_RAW = 0x7FFF      # 16-bit signed maximum: 3276.7 in MotorTorque and CoolantTemp (0.1 per bit)
+OUT_OF_RANGE_START = 28        # MotorTorque (DriveInputs) and CoolantTemp (DriveTemps) both start at bit 28
+for _fid in DRIVE_INDEX:
+    assert _fid ^ UNKNOWN_ID_FLIP not in _DATA_IDS, "an unknown-id fault must not land on a DBC id"
+
+
+@dataclass
+class Injection:
+    """One injected fault. `data` is what went on the bus (hex; None for drop, reorder's DriveTemps for reorder)."""
+
+    kind: str
+    row: int
+    pass_: int
+    frame_id: int | None        # the frame the fault hit (None for process faults)
+    sent_id: int | None         # the id it went out on (differs for unknown_id)
+    counter: int | None
+    data: str | None
+    t: float
+    witness: str | None = None  # drop: the next frame of the same id that went out (where the loss shows)
+    detected: bool = False
+    detected_by: str | None = None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _copy(msg: can.Message, *, arbitration_id: int | None = None, data: bytes | None = None) -> can.Message:
+    data = bytes(msg.data) if data is None else data
+    return can.Message(timestamp=msg.timestamp, arbitration_id=msg.arbitration_id if arbitration_id is None else
+                       arbitration_id, is_extended_id=False, dlc=len(data), data=data, is_rx=False, check=False)
+
+
+class FaultyBus:
+    """Wraps a python-can bus; `send` applies the current row's faults, `recv` releases delayed frames."""
+
+    reports_transmissions = True
+
+    def __init__(self, bus: can.BusABC, plan: FaultPlan, *, delay_s: float):
+        self.inner = bus
+        self.plan = plan
+        self.delay_s = delay_s
+        self.on_transmit: Callable[[can.Message], None] | None = None
+        self.injections: list[Injection] = []
+        self.transmitted = 0
+        self._new: list[Injection] = []
+        self._faults: RowFaults | None = None
+        self._row = -1
+        self._pass = 0
+        self._reorder_held: can.Message | None = None
+        self._delay_started = False
+        self._held: collections.deque[can.Message] = collections.deque()
+        self._hold_until = 0.0
+        self._witness: dict[int, Injection] = {}
+        self._foreign_ids: set[int] = set()
+
+    # ------------------------------------------------------------------ row context (from the lockstep loop)
+    def begin_row(self, row: int, pass_: int, *, eligible: bool = True, retransmission: bool = False) -> None:
+        self._row, self._pass = row, pass_
+        self._faults = self.plan.row_faults(row, pass_) if eligible and not retransmission else None
+        self._delay_started = False
+
+    def end_row(self) -> None:
+        if self._reorder_held is not None:  # only one drive frame came: nothing to reorder it with
+            self._out(self._reorder_held)
+            self._reorder_held = None
+        self._faults = None
+
+    def take_new_injections(self) -> list[Injection]:
+        new, self._new = self._new, []
+        return new
+
+    def record(self, kind: str, msg: can.Message | None, *, frame_id: int | None = None, row: int | None = None,
+               pass_: int | None = None) -> Injection:
+        """Note an injected fault (the frame as it went out, if any) for the summary and the log's marks."""
+        data = None if msg is None else bytes(msg.data)
+        fid = frame_id if frame_id is not None else (None if msg is None else msg.arbitration_id)
+        counter = None if msg is None or len(msg.data) < 2 else msg.data[1] & 0x0F
+        injection = Injection(kind, self._row if row is None else row, self._pass if pass_ is None else pass_, fid,
+                              None if msg is None else msg.arbitration_id, counter,
+                              None if data is None else data.hex(), time.time())
+        self.injections.append(injection)
+        self._new.append(injection)
+        return injection
+
+    # ------------------------------------------------------------------ python-can interface
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:  # noqa: ARG002 - BusABC signature
+        self._pump()
+        faults = self._faults
+        index = DRIVE_INDEX.get(msg.arbitration_id) if not msg.is_extended_id else None
+        if faults is None or index is None:
+            self._out(msg)
+            return
+        if faults.row_kind == "delay":
+            if not self._delay_started:
+                self._delay_started = True
+                self._hold_until = max(self._hold_until, time.perf_counter() + self.delay_s)
+                self.record("delay", msg)
+            self._out(msg)
+            return
+        if faults.row_kind == "reorder":
+            if index == 0 and self._reorder_held is None:
+                self._reorder_held = msg
+                return
+            if index == 1 and self._reorder_held is not None:
+                self.record("reorder", msg)
+                self._out(msg)
+                self._out(self._reorder_held)
+                self._reorder_held = None
+                return
+            self._out(msg)
+            return
+        kind = faults.frame_kinds[index]
+        if kind is None:
+            self._out(msg)
+        else:
+            self._inject(kind, msg, index, faults)
+
+    def send_direct(self, msg: can.Message) -> None:
+        """Send now, past any fault and any held frame (the bench's own marks)."""
+        self._transmit(msg)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        perf = time.perf_counter
+        deadline = None if timeout is None else perf() + timeout
+        while True:
+            self._pump()
+            wait = None if deadline is None else max(0.0, deadline - perf())
+            if self._held:
+                due = max(0.0, self._hold_until - perf())
+                wait = due if wait is None else min(wait, due)
+            msg = self.inner.recv(wait)
+            if msg is not None:
+                if not msg.is_extended_id and msg.arbitration_id in self._foreign_ids:
+                    continue  # our own injected frame on a foreign id, looped back
+                return msg
+            if deadline is not None and perf() >= deadline:
+                self._pump()
+                return None
+
+    def flush_held(self) -> None:
+        """Release every held frame now (end of a run)."""
+        self._hold_until = 0.0
+        self._pump()
+
+    def shutdown(self) -> None:
+        self.inner.shutdown()
+
+    def __getattr__(self, name):  # channel_info, state, ... of the wrapped bus
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    # ------------------------------------------------------------------ internals
+    def _inject(self, kind: str, msg: can.Message, index: int, faults: RowFaults) -> None:
+        data = bytearray(msg.data)
+        fid = msg.arbitration_id
+        if kind == "drop":
+            injection = self.record("drop", None, frame_id=fid)
+            injection.counter = data[1] & 0x0F
+            self._witness[fid] = injection
+            return
+        if kind == "duplicate":
+            self._out(msg)
+            copy = _copy(msg)
+            self.record("duplicate", copy)
+            self._out(copy)
+            return
+        if kind == "corrupt":
+            flips = 1 + int(faults.draw(10 * index) * 3)
+            bits: list[int] = []
+            slot = 1
+            while len(bits) < flips:
+                bit = int(faults.draw(10 * index + slot) * 64)
+                slot += 1
+                if bit not in bits:
+                    bits.append(bit)
+            for bit in bits:
+                data[bit // 8] ^= 1 << (bit % 8)
+            # CRC8H2F has Hamming distance 4 over 64 bits: 1..3 flipped bits always break the CRC
+            assert data[0] != profile2_crc(bytes(data), _DATA_IDS[fid]), "an undetectable corruption"
+            out = _copy(msg, data=bytes(data))
+        elif kind == "stale_counter":
+            data[1] = (data[1] & 0xF0) | ((data[1] - 1) & 0x0F)
+            out = _copy(msg, data=apply_crc(fid, bytes(data)))
+        elif kind == "wrong_length":
+            length = int(faults.draw(10 * index) * 8)
+            out = _copy(msg, data=bytes(data[:length]))
+        elif kind == "unknown_id":
+            out = _copy(msg, arbitration_id=fid ^ UNKNOWN_ID_FLIP)
+            self._foreign_ids.add(out.arbitration_id)
+        elif kind == "out_of_range":
+            word = int.from_bytes(bytes(data), "little")
+            word = (word & ~(0xFFFF << OUT_OF_RANGE_START)) | (OUT_OF_RANGE_RAW << OUT_OF_RANGE_START)
+            out = _copy(msg, data=apply_crc(fid, word.to_bytes(8, "little")))
+        else:  # pragma: no cover - the plan draws only known kinds
+            raise ValueError(f"unknown fault kind {kind}")
+        injection = self.record(kind, out, frame_id=fid)
+        injection.counter = msg.data[1] & 0x0F
+        self._out(out)
+
+    def _out(self, msg: can.Message) -> None:
+        if self._held or time.perf_counter() < self._hold_until:
+            self._held.append(msg)
+        else:
+            self._transmit(msg)
+
+    def _pump(self) -> None:
+        if self._held and time.perf_counter() >= self._hold_until:
+            while self._held:
+                self._transmit(self._held.popleft())
+
+    def _transmit(self, msg: can.Message) -> None:
+        msg.timestamp = time.time()
+        msg.is_rx = False
+        self.inner.send(msg)
+        self.transmitted += 1
+        if self.on_transmit is not None:
+            self.on_transmit(msg)
+        waiting = self._witness.pop(msg.arbitration_id, None) if self._witness else None
+        if waiting is not None:
+            waiting.witness = bytes(msg.data).hex()

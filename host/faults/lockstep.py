@@ -1,0 +1,233 @@
+"""Lockstep replay that survives faults: retransmission of unanswered rows and re-initialization of a target that
+was lost, with BenchEvent marks in the log.
+
+Per data row n (as `host.replay.run_lockstep`): send DriveInputs + DriveTemps, wait for Temperatures1 + 2 up to
+the reply timeout. When the deadline passes (the row's *deadline miss*, recorded):
+
+1. Retransmit: mark RETRANSMIT, send row n twice more with fresh alive counters. After a lost or rejected frame
+   the target's validator refuses the next frame of that id (its counter jumps) and resynchronizes on it, so the
+   first copy may be refused; the second is then accepted. A target that already used row n refuses both as a
+   repeated Step. Either way row n reaches the model exactly once, with the values the clean run has, so the
+   estimates stay equal to the clean run's.
+2. Wait for the reply. If instead the target is *lost* — no Status for longer than the heartbeat timeout, or a
+   Status whose state is no longer RUNNING (it restarted) — re-initialize it:
+   mark TARGET_LOST (Step = n, the first row without a reply), forget the target's alive counters (a restarted
+   target starts its own at 0), let the runner restart a dead target (`ProcessControl.ensure_running`), wait for
+   its heartbeat (model id checked), then start a new *segment* at row s, the first row of the model step
+   interval holding n (rows s..n-1 were answered, but their inputs belong to a model step that has not run):
+   mark REINIT (Step = s), send ResetTemps with the last good estimate (the reply to row s-1, i.e. the output of
+   the last completed model step, as received: 0.01 degC resolution; the session's initial temperatures if
+   s is the session's first row), RESET and START at Step s, and replay on from row s. The replies of rows s..n
+   are cleared and come again from the new segment. The offline float32 reference restarts the same way
+   (`bench.analysis.canmetrics`), so CAN == reference holds across the restart; against the clean run the
+   restart costs at most the 0.005 degC rounding of the reset temperatures, decaying.
+3. A target that keeps its heartbeat but does not answer for `abort_after` reply timeouts ends the run (aborted),
+   as does a re-initialization that fails.
+
+Process faults are applied before the first send of their row: the runner kills the target (SIGKILL) or freezes it
+(SIGSTOP, SIGCONT after `freeze_s`, twice the heartbeat timeout), and a FAULT mark (KILL/FREEZE) goes into the log.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from dbc import BenchEvent, FaultKind, TargetState
+from host.replay import SPIN_S, Progress, ReplayStats, encode_row
+from host.session import HostSession, RowBook, SessionError
+
+from .bus import FaultyBus, Injection
+from .plan import FaultPlan
+from .spec import FaultSpec
+
+DELAY_FACTOR = 1.5        # a delayed row is held this many reply timeouts: it misses its deadline, not the next
+FREEZE_FACTOR = 2.0       # a freeze lasts this many heartbeat timeouts
+
+
+@dataclass
+class ProcessControl:
+    """What the bench runner (which owns the target process) lets the host do to it."""
+
+    kill: Callable[[], None]
+    freeze: Callable[[float], None]
+    ensure_running: Callable[[], None]
+    exit_reason: Callable[[], str | None] | None = None
+
+
+@dataclass
+class Recovery:
+    """One re-initialization: the target was lost at `lost_row` and restarted at `restart_row`."""
+
+    lost_row: int
+    restart_row: int
+    reason: str
+    silent_s: float
+    lost_at: float
+    reinit_at: float
+    reset_temps: list[float]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class FaultRun:
+    """What the fault-mode replay did and saw (the host's side of the evidence)."""
+
+    spec: FaultSpec
+    injections: list[Injection] = field(default_factory=list)
+    recoveries: list[Recovery] = field(default_factory=list)
+    deadline_misses: list[int] = field(default_factory=list)
+    retransmitted_rows: int = 0
+    segments: list[tuple[int, list[float]]] = field(default_factory=list)
+    started_at: float = 0.0
+    frames_transmitted: int = 0
+
+
+def interval_start(row: int, sample_period_s: float, dt_s: float) -> int:
+    """The first data row of the model step interval holding `row` (the target's interval-mean rule)."""
+    sample_us, dt_us = int(round(sample_period_s * 1e6)), int(round(dt_s * 1e6))
+    step = row * sample_us // dt_us
+    first = -(-step * dt_us // sample_us)
+    return min(max(first, 0), row)
+
+
+def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *, faulty: FaultyBus,
+                             plan: FaultPlan, control: ProcessControl | None, reply_timeout_s: float,
+                             sample_period_s: float, dt_s: float, connect_timeout_s: float, abort_after: int,
+                             progress: Progress | None = None) -> tuple[ReplayStats, FaultRun]:
+    rows = len(drive)
+    book = session.book = RowBook(rows)
+    values = drive.tolist()
+    codec = session.codec
+    monitor = session.monitor
+    perf, perf_ns = time.perf_counter, time.perf_counter_ns
+    run = FaultRun(plan.spec, injections=faulty.injections, started_at=time.time())
+    run.segments.append((0, [float(v) for v in initial]))
+    passes: dict[int, int] = {}
+    session_start, session_initial = 0, [float(v) for v in initial]
+    freeze_s = FREEZE_FACTOR * monitor.heartbeat_timeout_s
+    give_up_s = max(abort_after * reply_timeout_s, 2.5 * monitor.heartbeat_timeout_s)
+    aborted: str | None = None
+    sent_rows = 0
+    got = book.got
+
+    def wait_reply(n: int, timeout: float) -> bool:
+        deadline = perf() + timeout
+        spin_until = perf() + SPIN_S
+        while got[n] != 3 and perf() < spin_until:
+            session.receive(0.0)
+        while got[n] != 3:
+            remaining = deadline - perf()
+            if remaining <= 0:
+                break
+            session.receive(remaining)
+        return bool(got[n] == 3)
+
+    def lost() -> str | None:
+        silent = monitor.silent_for()
+        if silent > monitor.heartbeat_timeout_s:
+            return f"no heartbeat for {silent:.2f} s"
+        if monitor.state is not None and monitor.state != TargetState.RUNNING:
+            return f"the target reports state {monitor.state.name}"
+        return None
+
+    def mark_injections(row: int) -> None:
+        for injection in faulty.take_new_injections():
+            session.marker(BenchEvent.FAULT, row, FaultKind[injection.kind.upper()], injection.frame_id)
+
+    def retry(n: int, pass_: int) -> str:
+        session.marker(BenchEvent.RETRANSMIT, n)
+        faulty.begin_row(n, pass_, retransmission=True)
+        session.send(encode_row(codec, n, values[n]) + encode_row(codec, n, values[n]))
+        faulty.end_row()
+        session.flush_log()
+        run.retransmitted_rows += 1
+        deadline = perf() + give_up_s
+        while (remaining := deadline - perf()) > 0:
+            session.receive(min(remaining, 0.02))
+            if got[n] == 3:
+                return "answered"
+            if lost() is not None:
+                return "lost"
+        return "unanswered"
+
+    def recover(n: int) -> int:
+        nonlocal session_start, session_initial
+        reason = lost() or "lost"
+        silent = monitor.silent_for()
+        lost_at = time.time()
+        session.marker(BenchEvent.TARGET_LOST, n)
+        session.flush_log()
+        session.validator.reset_counters()
+        if control is not None:
+            control.ensure_running()
+        session.connect(connect_timeout_s, control.exit_reason if control is not None else None)
+        s = max(interval_start(n, sample_period_s, dt_s), session_start)
+        temps = session_initial if s == session_start else [float(v) for v in book.temps[s - 1]]
+        if not all(math.isfinite(v) for v in temps):  # cannot happen in lockstep: rows before n were answered
+            raise SessionError(f"no good estimate before row {n} to re-initialize the target from")
+        session.marker(BenchEvent.REINIT, s)
+        session.reset(temps, step=s % 65536)
+        session.start(step=s % 65536)
+        got[s:n + 1] = 0
+        book.temps[s:n + 1] = np.nan
+        run.recoveries.append(Recovery(n, s, reason, round(silent, 4), lost_at, time.time(), temps))
+        run.segments.append((s, temps))
+        session_start, session_initial = s, temps
+        return s
+
+    started = perf()
+    n = 0
+    while n < rows:
+        pass_ = passes.get(n, 0)
+        passes[n] = pass_ + 1
+        process = plan.process_fault(n, pass_)
+        if process is not None:
+            if control is None:
+                raise SessionError(f"a {process} fault needs the bench runner, which owns the target process")
+            faulty.record(process, None, row=n, pass_=pass_)
+            mark_injections(n)
+            session.flush_log()
+            if process == "kill":
+                control.kill()
+            else:
+                control.freeze(freeze_s)
+        session.last_sent_row = n
+        book.sent_ns[n] = perf_ns()
+        faulty.begin_row(n, pass_, eligible=n != session_start and process is None)
+        session.send(encode_row(codec, n, values[n]))
+        faulty.end_row()
+        mark_injections(n)
+        session.flush_log()
+        sent_rows = max(sent_rows, n + 1)
+        if not wait_reply(n, reply_timeout_s):
+            run.deadline_misses.append(n)
+            outcome = retry(n, pass_)
+            if outcome == "lost":
+                try:
+                    n = recover(n)
+                except SessionError as exc:
+                    aborted = f"the target was lost at row {n} and could not be re-initialized: {exc}"
+                    break
+                continue
+            if outcome == "unanswered":
+                aborted = (f"the target stopped answering: row {n} got no reply in {give_up_s:g} s although its "
+                           "heartbeat went on")
+                break
+        n += 1
+        if progress is not None and (n & 127) == 0:
+            progress(n, rows)
+    elapsed = perf() - started
+    faulty.flush_held()
+    session.flush_log()
+    run.frames_transmitted = faulty.transmitted
+    if progress is not None:
+        progress(sent_rows, rows)
+    missing = int(np.count_nonzero(got[:sent_rows] != 3))
+    return ReplayStats("lockstep", sent_rows, elapsed, missing, aborted), run

@@ -1,0 +1,242 @@
+"""Injected versus detected: match every injected fault with the receiver's record of it.
+
+"Detected" means, per kind, that the side receiving the fault recorded exactly that fault:
+
+| kind | detected by | evidence |
+|---|---|---|
+| corrupt | target | a `crc` rejection of the very bytes that went out |
+| wrong_length | target | a `wrong_length` rejection of the very (short) frame |
+| unknown_id | target | an `unknown_id` rejection of the frame on its foreign id |
+| out_of_range | target | an `out_of_range` rejection of the very frame |
+| stale_counter | target | a `counter` rejection of the very frame (repeated counter) |
+| duplicate | target | a `counter` rejection of the second copy (repeated counter) |
+| drop | target | a `counter` rejection of the witness: the next frame of the same id, whose counter jumps |
+| reorder | target | a `sequence` error on the DriveTemps that came before its DriveInputs |
+| delay | host | the row's reply deadline passed (deadline miss) |
+| kill, freeze | host | after the fault the target was declared lost (no Status for longer than the heartbeat |
+| | | timeout, or a Status not RUNNING) and re-initialized |
+
+The target's records come from its detection journal (`python -m target_sim --events FILE`, one JSON line per
+rejected frame or sequence error, written as it happens, so a killed target's records survive and a restarted
+one appends). Each record can confirm one injected fault. Records that confirm none are the faults'
+consequences (a lost frame also leaves its row without a partner: sequence errors; a retransmission after a lost
+frame jumps the counter), counted but not problems. The RxErrors counters the target broadcasts are the same
+events counted per target process in 8 bits; after the run the host reads a last RxErrors (after STOP) and it
+must equal the journal's counts of the last target process.
+
+A deadline miss on a row without an injected fault, or a heartbeat loss beyond the number of kills and freezes,
+is unexplained: a problem of the run, as is any fault that went undetected.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .lockstep import FaultRun
+from .spec import KINDS, PROCESS_KINDS, TARGET_DETECTED
+
+TARGET_EVIDENCE = {"drop": "counter", "duplicate": "counter", "stale_counter": "counter", "corrupt": "crc",
+                   "wrong_length": "wrong_length", "unknown_id": "unknown_id", "out_of_range": "out_of_range",
+                   "reorder": "sequence"}
+DETECTION = {
+    "drop": "target: alive-counter jump on the next frame of the same id",
+    "delay": "host: the row's reply deadline passed",
+    "duplicate": "target: repeated alive counter on the second copy",
+    "reorder": "target: sequence error on the DriveTemps sent before its DriveInputs",
+    "corrupt": "target: E2E CRC error on the corrupted frame",
+    "stale_counter": "target: repeated alive counter on the stale frame",
+    "wrong_length": "target: wrong-length rejection of the short frame",
+    "unknown_id": "target: unknown-id rejection of the frame on a foreign id",
+    "out_of_range": "target: out-of-range rejection of the frame",
+    "kill": "host: heartbeat lost, target restarted and re-initialized",
+    "freeze": "host: heartbeat lost, target re-initialized after it resumed",
+}
+RX_NAMES = {"UnknownId": "unknown_id", "WrongLength": "wrong_length", "CrcError": "crc", "CounterError": "counter",
+            "OutOfRange": "out_of_range", "SequenceError": "sequence"}
+CATEGORIES = ("unknown_id", "wrong_length", "crc", "counter", "out_of_range", "sequence")
+SIDECAR_SUFFIX = ".faults.json"
+LISTED = 20
+
+
+@dataclass
+class Journal:
+    """The target's detection records of one run, over every target process that served it."""
+
+    entries: list[dict] = field(default_factory=list)
+    instances: int = 0
+    last_instance: Counter = field(default_factory=Counter)
+
+
+def read_journal(path: str | Path, since: float | None = None) -> Journal:
+    """The records in a target's --events file (those stamped at or after `since`); a torn last line is skipped."""
+    journal = Journal()
+    try:
+        text = Path(path).read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        return journal
+    for line in text.splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if not isinstance(record, dict) or (since is not None and record.get("t", 0) < since):
+            continue
+        if record.get("event") == "start":
+            journal.instances += 1
+            journal.last_instance = Counter()
+        elif record.get("kind") in CATEGORIES:
+            journal.entries.append(record)
+            journal.last_instance[record["kind"]] += 1
+    return journal
+
+
+def _key(kind: str, frame_id, data) -> tuple:
+    return kind, int(frame_id) if frame_id is not None else None, data
+
+
+def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int = 0,
+              final_rx_errors: dict | None = None) -> dict:
+    """The fault summary of a run (JSON-ready); marks each injection's `detected`/`detected_by`."""
+    records = Counter(_key(e["kind"], e.get("id"), e.get("data")) for e in journal.entries) if journal else Counter()
+    matched_categories: Counter = Counter()
+    misses = Counter(run.deadline_misses)
+    recoveries = sorted(run.recoveries, key=lambda r: r.lost_at)
+    used_recoveries: set[int] = set()
+    for injection in run.injections:
+        injection.detected, injection.detected_by = False, None
+        if injection.kind in TARGET_DETECTED:
+            if journal is None:
+                continue
+            category = TARGET_EVIDENCE[injection.kind]
+            data = injection.witness if injection.kind == "drop" else injection.data
+            key = _key(category, injection.frame_id if injection.kind == "drop" else injection.sent_id, data)
+            if data is not None and records[key] > 0:
+                records[key] -= 1
+                matched_categories[category] += 1
+                injection.detected, injection.detected_by = True, f"target {category}"
+        elif injection.kind == "delay":
+            if misses[injection.row] > 0:
+                misses[injection.row] -= 1
+                injection.detected, injection.detected_by = True, "host deadline miss"
+        elif injection.kind in PROCESS_KINDS:
+            for i, recovery in enumerate(recoveries):
+                if i not in used_recoveries and recovery.lost_at >= injection.t and recovery.lost_row >= injection.row:
+                    used_recoveries.add(i)
+                    injection.detected, injection.detected_by = True, f"host: {recovery.reason}"
+                    break
+    injected = Counter(i.kind for i in run.injections)
+    detected = Counter(i.kind for i in run.injections if i.detected)
+    unknown = journal is None and any(k in TARGET_DETECTED for k in injected)
+    explained = Counter(i.row for i in run.injections) + Counter(r.lost_row for r in run.recoveries)
+    unexplained_misses = []
+    for row in run.deadline_misses:
+        if explained[row] > 0:
+            explained[row] -= 1
+        else:
+            unexplained_misses.append(row)
+    process = sum(injected[k] for k in PROCESS_KINDS)
+    totals = Counter(e["kind"] for e in journal.entries) if journal else None
+    consistent = None
+    if journal is not None and journal.instances and final_rx_errors:  # the journal covers the target's life
+        final = {RX_NAMES.get(k, k): int(v) for k, v in final_rx_errors.items()}
+        consistent = all(final.get(c, 0) == min(journal.last_instance[c], 255) for c in CATEGORIES)
+    kinds = [k for k in KINDS if injected[k] or run.spec.rates.get(k, 0) or run.spec.counts.get(k, 0)]
+    undetected = [i for i in run.injections if not i.detected]
+    return {
+        "spec": run.spec.describe(),
+        **run.spec.to_dict(),
+        "injected": {k: injected[k] for k in kinds},
+        "detected": {k: (None if unknown and k in TARGET_DETECTED else detected[k]) for k in kinds},
+        "injected_total": sum(injected.values()),
+        "detected_total": sum(detected.values()),
+        "undetected": None if unknown else len(undetected),
+        "undetected_faults": [] if unknown else [i.to_dict() for i in undetected[:LISTED]],
+        "detection": {k: DETECTION[k] for k in kinds},
+        "target_rejections": dict(totals) if totals is not None else None,
+        "target_rejections_confirming_faults": dict(matched_categories),
+        "target_processes": journal.instances if journal is not None else None,
+        "recoveries": [r.to_dict() for r in run.recoveries],
+        "gaps": [{"rows": [r.restart_row, r.lost_row], "lost_row": r.lost_row, "restart_row": r.restart_row,
+                  "reason": r.reason, "silent_s": r.silent_s, "duration_s": round(r.reinit_at - r.lost_at, 3)}
+                 for r in run.recoveries],
+        "retransmitted_rows": run.retransmitted_rows,
+        "deadline_misses": len(run.deadline_misses),
+        "unexplained_deadline_misses": len(unexplained_misses),
+        "unexplained_deadline_miss_rows": unexplained_misses[:LISTED],
+        "heartbeat_losses": heartbeat_losses,
+        "unexplained_heartbeat_losses": max(0, heartbeat_losses - process),
+        "final_rx_errors": {RX_NAMES.get(k, k): int(v) for k, v in (final_rx_errors or {}).items()},
+        "final_rx_errors_match_journal": consistent,
+    }
+
+
+def fault_problems(summary: dict) -> list[str]:
+    """What the faults do not explain, one sentence each (empty: every fault detected, nothing unexplained)."""
+    out = []
+    if summary["undetected"] is None:
+        out.append("the target's detection journal is not available, so detection of target-side faults cannot be "
+                   "checked; start the target with --events FILE and pass the same file to the host with "
+                   "--target-events")
+    elif summary["undetected"]:
+        kinds = Counter(f["kind"] for f in summary["undetected_faults"])
+        out.append(f"{summary['undetected']} injected fault(s) went undetected "
+                   f"({', '.join(f'{k} {n}' for k, n in kinds.items())})")
+    if summary["unexplained_deadline_misses"]:
+        out.append(late_sentence(summary["unexplained_deadline_misses"], summary["unexplained_deadline_miss_rows"]))
+    if summary["unexplained_heartbeat_losses"]:
+        out.append(f"the heartbeat was lost {summary['unexplained_heartbeat_losses']} time(s) more than the injected "
+                   "kills and freezes explain")
+    if summary["final_rx_errors_match_journal"] is False:
+        out.append(f"the target's last RxErrors {summary['final_rx_errors']} differ from its detection journal")
+    return out
+
+
+def late_sentence(count: int, rows: list[int]) -> str:
+    return f"{count} row(s) missed their reply deadline without an injected fault (rows {list(rows)[:5]})"
+
+
+def fault_note(summary: dict | None) -> str | None:
+    """'N faults were injected (...)', the sentence that makes a faulted run non-zero without --tolerate-faults."""
+    if not summary or not summary["injected_total"]:
+        return None
+    kinds = ", ".join(f"{k} {n}" for k, n in summary["injected"].items() if n)
+    detected = ("detection unchecked" if summary["undetected"] is None else
+                "all detected" if not summary["undetected"] else f"{summary['undetected']} undetected")
+    return (f"{summary['injected_total']} fault(s) were injected ({kinds}), {detected}; pass --tolerate-faults to "
+            "accept a run with injected faults")
+
+
+def sidecar_path(log_path: str | Path) -> Path:
+    log_path = Path(log_path)
+    return log_path.with_name(log_path.name + SIDECAR_SUFFIX)
+
+
+def write_sidecar(log_path: str | Path, summary: dict, injections: Iterable) -> Path:
+    """`<log>.faults.json`: the summary and every injection, written atomically next to the log."""
+    path = sidecar_path(log_path)
+    body = {"log": Path(log_path).name, **summary, "injections": [i.to_dict() for i in injections]}
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            json.dump(body, handle, indent=1, allow_nan=False)
+            handle.write("\n")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_sidecar(log_path: str | Path) -> dict | None:
+    path = sidecar_path(log_path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None

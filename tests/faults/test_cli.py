@@ -1,0 +1,77 @@
+"""`bench run` and `python -m host` with fault options: exit status, JSON summary, log marks, report, errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from .conftest import ROOT, run_cli
+
+DBC = ROOT / "dbc" / "thermal_bench.dbc"
+LATE = "missed their reply deadline without an injected fault"  # a reply later than 50 ms: a loaded machine
+
+
+def load_only(problems: list[str]) -> bool:
+    """True when every problem is a late reply that no fault explains (seen on a heavily loaded machine)."""
+    return all(LATE in p for p in problems)
+
+
+@pytest.fixture(scope="module")
+def faulted_run(tmp_path_factory, fault_dataset):
+    out = tmp_path_factory.mktemp("faultrun")
+    log, report = out / "bench.log", out / "report"
+    proc = run_cli("-m", "bench", "run", "--data", str(fault_dataset), "--rows", "400", "--log", str(log),
+                   "--report", str(report), "--faults", "drop=0.02,corrupt=0.01,kill=1", "--fault-seed", "2",
+                   "--json", "--tolerate-faults")
+    return proc, log, report
+
+
+def test_a_tolerated_faulted_run_exits_0_and_reports_every_fault(faulted_run):
+    proc, log, report = faulted_run
+    s = json.loads(proc.stdout)
+    assert proc.returncode == 0 or load_only(s["problems"]), proc.stderr
+    faults = s["faults"]
+    assert faults["injected"]["drop"] >= 3 and faults["injected"]["corrupt"] >= 1 and faults["injected"]["kill"] == 1
+    assert faults["detected"] == faults["injected"] and faults["undetected"] == 0
+    assert faults["marked_in_log"] == faults["injected"]
+    assert len(faults["gaps"]) == 1 and faults["gaps_in_log"][0]["rows"] == faults["gaps"][0]["rows"]
+    assert (s["steps_sent"], s["replies"], s["missing"]) == (400, 400, 0)
+    assert load_only(s["problems"]) and s["clean"] is False  # survived, not clean
+    assert max(s["max_abs_can_minus_float32_C"].values()) <= 0.005 + 1e-9
+    text = (report / "report.md").read_text()
+    assert "## Injected faults" in text and "| kill | 1 | 1 |" in text and "marked gap" in text
+    assert (log.with_name(log.name + ".faults.json")).is_file()
+
+
+def test_the_marks_decode_with_cantools(faulted_run):
+    _, log, _ = faulted_run
+    decoded = subprocess.run([sys.executable, "-m", "cantools", "decode", str(DBC)], stdin=log.open(),
+                             capture_output=True, text=True, timeout=60)
+    assert decoded.returncode == 0, decoded.stderr
+    out = decoded.stdout
+    assert "BenchEvent(" in out and "FaultKind: DROP" in out and "FaultKind: KILL" in out
+    assert "Event: TARGET-LOST" in out and "Event: REINIT" in out and "Event: RETRANSMIT" in out
+
+
+def test_injected_faults_make_the_run_fail_unless_tolerated(fault_dataset, tmp_path):
+    proc = run_cli("-m", "bench", "run", "--data", str(fault_dataset), "--rows", "200", "--log",
+                   str(tmp_path / "f.blf"), "--no-report", "--fault", "duplicate=0.05", "--fault-seed", "1", "--json")
+    assert proc.returncode == 1, proc.stderr
+    s = json.loads(proc.stdout)
+    assert s["faults"]["injected"]["duplicate"] >= 3 and s["faults"]["undetected"] == 0
+    assert "pass --tolerate-faults" in s["problems"][-1] and load_only(s["problems"][:-1])
+
+
+@pytest.mark.parametrize(("argv", "needle"), [
+    (["-m", "bench", "run", "--fault", "bitrot=0.1"], "unknown fault kind 'bitrot'"),
+    (["-m", "bench", "run", "--mode", "realtime", "--faults", "drop=0.1"], "lockstep mode only"),
+    (["-m", "host", "--data", "x.csv", "--fault", "kill=1"], "need the bench runner"),
+])
+def test_bad_fault_options_are_one_sentence_exit_2(argv, needle):
+    proc = run_cli(*argv, "--quiet")
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and "Traceback" not in proc.stderr

@@ -1,0 +1,226 @@
+"""Fixtures of the hardening tests: good and broken inputs of every kind, and a runner for the real CLIs.
+
+`cli` runs `python -m bench ...` / `python -m target_sim ...` in a child process and returns exit status,
+stdout and stderr. By default the child is forked from a server that has the CLIs' modules imported already
+(tests/hardening/zygote.py: a fresh interpreter, not pytest's), which makes a bad-input case cost ~0.1 s instead
+of ~2 s of imports; HARDENING_SUBPROCESS=1 runs every case as `sys.executable -m ...` instead, and cases that
+need a fresh interpreter (a broken DBC is found while importing) always do.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+ZYGOTE = Path(__file__).with_name("zygote.py")
+ALWAYS_SUBPROCESS = os.environ.get("HARDENING_SUBPROCESS") == "1"
+
+
+def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update({"MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1", "OPENBLAS_NUM_THREADS": "1"})
+    for key in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
+        env.pop(key, None)  # the developer's python-can settings must not change the cases
+    env.update(extra or {})
+    return env
+
+
+@dataclass
+class Result:
+    argv: list[str]
+    rc: int
+    stdout: str
+    stderr: str
+    seconds: float = 0.0
+
+    @property
+    def lines(self) -> list[str]:
+        return self.stderr.splitlines()
+
+    def __str__(self) -> str:
+        return (f"$ {' '.join(self.argv)}\nexit {self.rc} after {self.seconds:.2f} s\n--- stderr ---\n{self.stderr}"
+                f"--- stdout ---\n{self.stdout[-2000:]}")
+
+
+class Cli:
+    """Runs `python -m MODULE ARGS` in a child process (forked from the zygote, or a plain subprocess)."""
+
+    def __init__(self, workdir: Path):
+        self.workdir = workdir
+        self._lock = threading.Lock()
+        self._server: subprocess.Popen | None = None
+        self._count = 0
+
+    def _zygote(self) -> subprocess.Popen:
+        if self._server is None or self._server.poll() is not None:
+            self._server = subprocess.Popen([sys.executable, str(ZYGOTE)], cwd=ROOT, env=child_env(),
+                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                            stderr=open(self.workdir / "zygote.stderr", "ab"), text=True, bufsize=1)
+        return self._server
+
+    def __call__(self, module: str, *args: str, cwd: Path | None = None, env: dict[str, str] | None = None,
+                 timeout: float = 60, fresh: bool = False) -> Result:
+        args = [str(a) for a in args]
+        cwd = Path(cwd or self.workdir)
+        if fresh or ALWAYS_SUBPROCESS:
+            return self.subprocess(module, *args, cwd=cwd, env=env, timeout=timeout)
+        with self._lock:
+            self._count += 1
+            stdout = self.workdir / f"run{self._count}.stdout"
+            stderr = self.workdir / f"run{self._count}.stderr"
+            server = self._zygote()
+            environment = child_env(env)
+            request = {"module": module, "args": args, "cwd": str(cwd), "timeout": timeout, "env": environment,
+                       "stdout": str(stdout), "stderr": str(stderr)}
+            server.stdin.write(json.dumps(request) + "\n")
+            server.stdin.flush()
+            reply = server.stdout.readline()
+            if not reply:
+                raise RuntimeError(f"the fork server died; see {self.workdir / 'zygote.stderr'}")
+            reply = json.loads(reply)
+        result = Result(["python", "-m", module, *args], reply["rc"], stdout.read_text(errors="replace"),
+                        stderr.read_text(errors="replace"), reply["seconds"])
+        if reply["timed_out"]:
+            pytest.fail(f"timed out after {timeout} s\n{result}")
+        return result
+
+    def subprocess(self, module: str, *args: str, cwd: Path | None = None, env: dict[str, str] | None = None,
+                   timeout: float = 60) -> Result:
+        argv = [sys.executable, "-m", module, *map(str, args)]
+        try:
+            done = subprocess.run(argv, cwd=cwd or self.workdir, env=child_env(env), capture_output=True, text=True,
+                                  timeout=timeout, stdin=subprocess.DEVNULL)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"timed out after {timeout} s: {' '.join(argv)}")
+        return Result(["python", "-m", module, *map(str, args)], done.returncode, done.stdout, done.stderr)
+
+    def close(self) -> None:
+        if self._server is not None:
+            self._server.stdin.close()
+            try:
+                self._server.wait(10)
+            except subprocess.TimeoutExpired:
+                self._server.kill()
+                self._server.wait()
+
+
+@pytest.fixture(scope="session")
+def cli(tmp_path_factory) -> Cli:
+    runner = Cli(tmp_path_factory.mktemp("cli"))
+    yield runner
+    runner.close()
+
+
+# ---------------------------------------------------------------- good inputs
+
+
+def synthetic_columns(rows: int, seed: int = 11) -> dict[str, np.ndarray]:
+    """A small drive-like dataset at 5 Hz (values at the CAN resolution)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(rows) * 0.2
+    torque = np.round(np.clip(np.cumsum(rng.normal(0, 20, rows)), -600, 600), 1)
+    speed = np.round(np.clip(np.abs(np.cumsum(rng.normal(0, 100, rows))), 0, 9000), 0)
+    coolant = np.round(40 + 1.5 * np.sin(t / 30.0), 1)
+    ambient = np.round(25 + 0.5 * np.sin(t / 45.0), 1)
+    winding = np.round(40 + 0.05 * t, 1)
+    surface = np.round(40 + 0.02 * t, 1)
+    return {"time_s": t, "torque_Nm": torque, "speed_rpm": speed, "coolant_C": coolant, "ambient_C": ambient,
+            "winding_C": winding, "rotor_surface_C": surface, "pm_C": np.round(surface + 5.0, 1)}
+
+
+def build_artifact_text(kind: str = "hammerstein") -> str:
+    from bench.drive.motor import VIRTUAL_MOTOR, nominal_loss_maps
+    from bench.model.builder import ModelSpec, SigmoidInputs, build_artifact
+    from bench.thermal.parameters import TABLE1_REFINED
+    from target_sim.artifact import dumps
+
+    maps = nominal_loss_maps()
+    if kind == "hammerstein":
+        sigmoid = SigmoidInputs.from_vector([900.0, 3000.0, 700.0, 120.0],
+                                            np.r_[np.full(4, 2.0), np.zeros(4), np.full(4, 0.3), np.full(4, 0.8),
+                                                  np.zeros(4)])
+        spec = ModelSpec("hammerstein", TABLE1_REFINED, 0.5, "zoh", "balanced", maps, VIRTUAL_MOTOR, sigmoid=sigmoid)
+    elif kind == "pv-lptn":
+        spec = ModelSpec("pv-lptn", TABLE1_REFINED, 0.5, "euler", "physical", maps, VIRTUAL_MOTOR)
+    else:
+        spec = ModelSpec("lti-lptn", TABLE1_REFINED, 0.5, "zoh", "balanced", maps, VIRTUAL_MOTOR)
+    return dumps(build_artifact(spec))
+
+
+@dataclass
+class Material:
+    root: Path
+    art: Path            # a hammerstein artifact (what every good --model is)
+    lti: Path            # another model (another model id)
+    data: Path           # a valid 60-row dataset with its sidecar
+    campaign: Path       # a directory with valid (small) cycle_coolant20/40/60.csv
+    log: Path            # a .blf of `bench run` with `art` and `data` (50 rows)
+    logs: dict[str, Path]  # the same frames in every format: suffix -> path
+    bad: Path            # broken inputs are written here by the tests' builders
+    afile: Path          # a regular file: a path "below" it cannot be created, even by root
+
+    def model_id(self, path: Path) -> str:
+        from target_sim.artifact import load_artifact
+
+        return f"{load_artifact(path).model_id:08x}"
+
+
+@pytest.fixture(scope="session")
+def material(tmp_path_factory, cli) -> Material:
+    from bench.drive.dataset import csv_bytes, write_dataset
+
+    root = tmp_path_factory.mktemp("material")
+    art, lti = root / "art.json", root / "lti.json"
+    art.write_text(build_artifact_text("hammerstein"), encoding="utf-8")
+    lti.write_text(build_artifact_text("lti-lptn"), encoding="utf-8")
+    data = root / "data" / "small.csv"
+    columns = synthetic_columns(60)
+    write_dataset(data, columns, {"coolant_setpoint_C": 40.0, "note": "hardening tests"})
+    campaign = root / "campaign"
+    campaign.mkdir()
+    for coolant in (20, 40, 60):
+        (campaign / f"cycle_coolant{coolant}.csv").write_bytes(csv_bytes(columns))
+    log = root / "logs" / "run.blf"
+    made = cli("bench", "run", "--data", data, "--model", art, "--rows", 50, "--log", log, "--no-report", "--quiet",
+               "--tolerate-gaps", timeout=90)
+    assert made.rc == 0 and log.is_file(), str(made)
+    import can
+
+    frames = list(can.LogReader(str(log)))
+    logs = {".blf": log}
+    for suffix in (".asc", ".log", ".csv"):
+        path = log.with_suffix(suffix)
+        with can.Logger(str(path)) as writer:
+            for msg in frames:
+                writer.on_message_received(msg)
+        logs[suffix] = path
+    bad = root / "bad"
+    bad.mkdir()
+    afile = root / "afile"
+    afile.write_text("a regular file, not a directory\n")
+    return Material(root, art, lti, data, campaign, log, logs, bad, afile)
+
+
+@pytest.fixture(scope="session")
+def artifact_texts() -> dict[str, str]:
+    """Valid artifacts of the three kinds, as JSON text."""
+    return {kind: build_artifact_text(kind) for kind in ("hammerstein", "lti-lptn", "pv-lptn")}
+
+
+@pytest.fixture
+def scratch():
+    """A fresh directory outside the repository (the working directory of a case)."""
+    path = Path(tempfile.mkdtemp(prefix="hardening-"))
+    yield path
+    shutil.rmtree(path, ignore_errors=True)

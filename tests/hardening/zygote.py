@@ -1,0 +1,111 @@
+"""Fork server for the hardening tests: `python -m bench` / `python -m target_sim`, minus the import time.
+
+Every `bench` process spends about 2 s importing (numpy, scipy, python-can with asammdf) before it looks at its
+arguments; the bad-input matrix has dozens of cases. This interpreter imports what those entry points import
+once, then forks one child per request that runs the entry point exactly as `python -m MODULE ARGS` does
+(`runpy.run_module(MODULE, run_name="__main__")`, fd 1 and 2 redirected to files, its own cwd, environment and
+session) and reports the exit status. The child is a fresh process of a fresh interpreter that never ran pytest,
+so no test state (logging handlers, warning filters, captured streams) leaks into what is asserted.
+
+Protocol: one JSON request per line on stdin ({"module", "args", "cwd", "env" (the whole environment),
+"stdout", "stderr", "timeout"}), one JSON reply per line on stdout ({"rc", "timed_out", "seconds"}).
+EOF ends the server.
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import os
+import runpy
+import signal
+import sys
+import time
+import traceback
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import bench.cli  # noqa: E402
+import target_sim.node  # noqa: E402, F401 - what `python -m target_sim` imports
+import target_sim.transport  # noqa: E402, F401
+
+bench.cli.build_parser()  # imports every subcommand module, as every `bench` invocation does first
+gc.collect()
+gc.freeze()  # what was imported is permanent: a child's collections scan only what the child made
+
+PROTOCOL_OUT = os.fdopen(os.dup(1), "w", buffering=1)
+os.dup2(2, 1)  # a stray print of the server itself must not corrupt the protocol
+
+
+def _child(request: dict) -> int:
+    out = os.open(request["stdout"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    err = os.open(request["stderr"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    null = os.open(os.devnull, os.O_RDONLY)
+    os.dup2(null, 0)
+    os.dup2(out, 1)
+    os.dup2(err, 2)
+    for fd in (null, out, err, PROTOCOL_OUT.fileno()):
+        os.close(fd)
+    os.setsid()
+    os.chdir(request["cwd"])
+    os.environ.clear()
+    os.environ.update(request["env"])
+    sys.argv = ["-m", *request["args"]]
+    code = 0
+    try:
+        runpy.run_module(request["module"], run_name="__main__", alter_sys=True)
+    except SystemExit as exc:
+        if exc.code is None:
+            code = 0
+        elif isinstance(exc.code, int):
+            code = exc.code
+        else:
+            print(exc.code, file=sys.stderr)
+            code = 1
+    except BaseException:  # noqa: BLE001 - exactly what the interpreter would print
+        traceback.print_exc()
+        code = 1
+    gc.collect()  # finalizers that would run at interpreter exit write their complaints now
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    return code
+
+
+def serve() -> None:
+    for line in sys.stdin:
+        request = json.loads(line)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        started = time.perf_counter()
+        pid = os.fork()
+        if pid == 0:
+            code = 1
+            try:
+                code = _child(request)
+            finally:
+                os._exit(code & 0xFF if code >= 0 else 1)
+        deadline = started + float(request.get("timeout", 60))
+        timed_out = False
+        while True:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                break
+            if time.perf_counter() > deadline:
+                timed_out = True
+                try:
+                    os.killpg(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                _, status = os.waitpid(pid, 0)
+                break
+            time.sleep(0.005)
+        rc = os.waitstatus_to_exitcode(status)
+        PROTOCOL_OUT.write(json.dumps({"rc": rc, "timed_out": timed_out,
+                                       "seconds": round(time.perf_counter() - started, 3)}) + "\n")
+
+
+if __name__ == "__main__":
+    serve()
