@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import signal
 import sys
@@ -24,7 +25,6 @@ import time
 from pathlib import Path
 
 from target_sim.artifact import ArtifactError, load_artifact
-from target_sim.node import TargetNode, log_error, serve
 from target_sim.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 
 
@@ -80,7 +80,16 @@ class EventJournal:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # python-can repeats a half-constructed bus's failure from __del__ ("not properly shut down") after our sentence.
+    logging.getLogger("can").addHandler(logging.NullHandler())
     args = build_parser().parse_args(argv)
+    try:
+        from target_sim.node import TargetNode, log_error, serve  # loads the DBC: a broken one fails here
+    except Exception as exc:
+        if type(exc).__name__ != "DbcError":  # its class lives in the module whose import just failed
+            raise
+        print(f"target_sim: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 1
     journal = None
     try:
         artifact = load_artifact(args.model)

@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, print_json
+from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.runner import (
     ProgressBar,
@@ -94,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
         log_path = check_log_path(args.log)
     except LogError as exc:
         raise BenchError(str(exc)) from None
+    if not args.no_report:  # before the run: a report that cannot be written must not cost a run and leave a log
+        check_writable(Path(args.report), "--report", directory=True)
     bus = bus_from_args(args)
     from bench.model.runs import drive_matrix, initial_temperatures
 

@@ -412,10 +412,7 @@ def bus_cases() -> list[Case]:
              ("'nosuchbus'", "choose from"), (), prefix="target_sim: error: ", rc=2, timeout=20),
         Case("target_sim-group-invalid", "target_sim",
              ("--model", "{art}", "--stats", "{out}/stats.json", "-i", "udp_multicast", "-c", "no-group.invalid"),
-             ("no-group.invalid", BUS_FIX), ("stats.json",), prefix="target_sim: error: ", timeout=20,
-             marks=(pytest.mark.xfail(strict=True, reason="target_sim/__main__.py: python-can's 'UdpMulticastBus "
-                                      "was not properly shut down' warning follows the error as a second line "
-                                      "(reported; bench/cli.py silences it with a NullHandler on 'can')"),)),
+             ("no-group.invalid", BUS_FIX), ("stats.json",), prefix="target_sim: error: ", timeout=20),
     ]
 
 
@@ -451,9 +448,7 @@ def output_cases() -> list[Case]:
              ("afile",), ("rep",)),
         Case("run-report-below-a-file", "bench", ("run", "--data", "{data}", "--model", "{art}", "--rows", "50",
                                                   "--log", "{out}/x.blf", "--report", "{afile}/rep", "--quiet"),
-             ("afile",), ("x.blf",),
-             marks=(pytest.mark.xfail(strict=True, reason="bench/commands/run.py checks --report only after the "
-                                      "run, so the log of a run whose report cannot be written stays (reported)"),)),
+             ("afile",), ("x.blf",)),
     ]
 
 
@@ -606,8 +601,6 @@ def test_broken_dbc_is_one_sentence(cli, material, scratch, variant):
     assert tree(out) is None
 
 
-@pytest.mark.xfail(strict=True, reason="target_sim/__main__.py imports the node (and so the DBC) before its error "
-                   "handling: a broken DBC is a traceback, not dbc.codec.DbcError's sentence (reported)")
 def test_broken_dbc_target_sim_is_one_sentence(cli, material, scratch):
     shadow = _shadow_dbc(scratch, "truncated")
     result = cli.subprocess("target_sim", "--model", material.art, cwd=scratch, env={"PYTHONPATH": str(shadow)},
