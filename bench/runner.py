@@ -31,7 +31,7 @@ from host.faults import FaultSpec, FaultSpecError
 from host.replay import DataRangeError, Progress
 from host.results import HostResult
 from host.run import replay_log, run_dataset
-from host.session import SessionError
+from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
 from target_sim.transport import BusConfig, BusUnavailable, config_from_args, resolve
 
@@ -41,9 +41,12 @@ TARGET_STOP_TIMEOUT_S = 5.0
 def bus_from_args(args) -> BusConfig:
     """The bus the command-line options describe, `auto` resolved with a run-unique udp_multicast port."""
     try:
-        return resolve(config_from_args(args), session_unique=True)
+        config = resolve(config_from_args(args), session_unique=True)
     except BusUnavailable as exc:
         raise BenchError(str(exc)) from None
+    if config.interface == "virtual":  # python-can's virtual bus lives inside one process; the target is another
+        raise UsageError("the 'virtual' interface does not cross processes; use udp_multicast, socketcan or auto")
+    return config
 
 
 def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
@@ -221,6 +224,11 @@ def _host_errors(fn: Callable[[], HostResult], target: TargetProcess) -> HostRes
         raise UsageError(str(exc)) from None
 
 
+# A target process started here reports its death through `alive`, so waiting long for its first heartbeat only
+# matters when it starts slowly (a loaded CI runner, the SocketCAN VM where Python takes seconds to import).
+OWN_TARGET_CONNECT_TIMEOUT_S = 120.0
+
+
 def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, drive: np.ndarray, initial,
                     *, mode: str = "lockstep", speed: float = 1.0, sample_period_s: float = 0.2,
                     log_path: str | Path | None = None, reply_timeout_s: float = 0.05,
@@ -240,7 +248,8 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
             result = _host_errors(lambda: run_dataset(
                 host_bus, drive, initial, model_id=artifact.model_id, mode=mode, speed=speed,
                 sample_period_s=sample_period_s, log_path=log_path, reply_timeout_s=reply_timeout_s,
-                alive=target.exit_reason, progress=progress, faults=faults if injecting else None,
+                alive=target.exit_reason, connect_timeout_s=OWN_TARGET_CONNECT_TIMEOUT_S, progress=progress,
+                faults=faults if injecting else None,
                 control=target.control() if injecting else None, dt_s=artifact.dt, target_events=events), target)
             status = target.stop()
             stderr = target.stderr_text()
@@ -265,6 +274,7 @@ def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, 
         try:
             result = replay_log(host_bus, messages, model_id=artifact.model_id if artifact else None, timed=timed,
                                 speed=speed, log_path=log_path, reply_timeout_s=reply_timeout_s, alive=alive,
+                                connect_timeout_s=OWN_TARGET_CONNECT_TIMEOUT_S if target else DEFAULT_CONNECT_TIMEOUT_S,
                                 progress=progress)
         except SessionError as exc:
             reason = target.exit_reason() if target is not None else None

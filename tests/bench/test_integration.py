@@ -212,12 +212,3 @@ def test_the_host_reports_a_target_that_dies(small_dataset, udp_bus, tmp_path):
     problems = " ".join(result.problems())
     assert "aborted" in problems and "got no reply" in problems
     assert log.is_file()  # the log of what happened is kept
-
-
-@pytest.mark.socketcan
-def test_bench_run_on_socketcan_vcan0(small_dataset, tmp_path):
-    proc = run_cli("-m", "bench", "run", "--data", str(small_dataset), "--rows", "100", "-i", "socketcan", "-c",
-                   "vcan0", "--log", str(tmp_path / "vcan.blf"), "--no-report", "--json", timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    s = json.loads(proc.stdout)
-    assert s["replies"] == 100 and max(s["max_abs_can_minus_float32_C"].values()) <= 0.005 + 1e-9

@@ -1,0 +1,88 @@
+"""The bench end to end on SocketCAN vcan0: target and host as separate processes on the kernel's CAN bus.
+
+Deselected by default (marker `socketcan`); run with `python3 -m pytest -m socketcan tests/socketcan` where vcan0
+exists, or anywhere with tests/vm/run-socketcan-tests (a throwaway VM whose kernel has SocketCAN). Kept short:
+Python runs 10-20x slower in that software-emulated VM.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.analysis.logdecode import decode_log
+from bench.model.default import default_artifact_path
+from target_sim.artifact import load_artifact
+from target_sim.model import run_offline
+
+from .conftest import ROOT, run_cli
+
+pytestmark = pytest.mark.socketcan
+
+ROWS = 300
+TOLERANCE_C = 0.005 + 1e-9
+# lockstep waits this long for each reply: generous, the emulated VM has rare multi-10-ms stalls
+REPLY_TIMEOUT = "1.0"
+
+
+def can_minus_float32(log: Path) -> tuple[int, float]:
+    """Rows the log holds and the largest |CAN temperature - offline float32 reference| over them."""
+    record = decode_log(log)
+    rows, expected = run_offline(load_artifact(default_artifact_path()), record.drive, record.initial)
+    return record.rows, float(np.max(np.abs(record.temps[rows] - expected)))
+
+
+def test_bench_run_on_vcan0_answers_every_step_and_matches_float32(vcan0, small_dataset, tmp_path):
+    log = tmp_path / "x.log"
+    proc = run_cli("-m", "bench", "run", "--data", str(small_dataset), "--rows", str(ROWS), "-i", "socketcan",
+                   "-c", vcan0, "--reply-timeout", REPLY_TIMEOUT, "--json", "--no-report", "--log", str(log))
+    assert proc.returncode == 0, proc.stderr
+    s = json.loads(proc.stdout)
+    assert (s["steps_sent"], s["replies"], s["missing"]) == (ROWS, ROWS, 0)
+    assert s["clean"] and s["problems"] == [], s["problems"]
+    assert s["host"]["sequence_gaps"] == 0
+    assert set(s["max_abs_can_minus_float32_C"]) == {"yoke", "winding", "tooth", "magnet"}
+    assert max(s["max_abs_can_minus_float32_C"].values()) <= TOLERANCE_C
+    assert s["log"] == str(log)
+    # the candump log decodes on its own, every row answered, and agrees with an offline float32 run
+    rows, err = can_minus_float32(log)
+    assert rows == ROWS and err <= TOLERANCE_C
+    assert decode_log(log).answered.all()
+
+
+def test_target_sim_and_host_as_separate_processes_on_vcan0(vcan0, small_dataset, tmp_path):
+    stats, log = tmp_path / "target.json", tmp_path / "host.log"
+    bus = ["-i", "socketcan", "-c", vcan0]
+    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
+                               "--stats", str(stats), *bus], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    try:
+        host = run_cli("-m", "host", "--data", str(small_dataset), "--rows", str(ROWS), "--log", str(log),
+                       "--reply-timeout", REPLY_TIMEOUT, "--connect-timeout", "120", "--json", *bus)
+    finally:
+        target.send_signal(signal.SIGTERM)
+        _, target_err = target.communicate(timeout=60)
+    assert host.returncode == 0, host.stderr
+    result = json.loads(host.stdout)
+    assert (result["rows_sent"], result["replies"], result["missing"], result["sequence_gaps"]) == (ROWS, ROWS, 0, 0)
+    assert result["clean"] and result["target_state"] == "STOPPED"
+    assert target.returncode == 0, target_err
+    counters = json.loads(stats.read_text())
+    assert counters["rows_used"] == ROWS and counters["model_steps"] == ROWS * 2 // 5  # 0.2 s rows, 0.5 s steps
+    assert counters["errors"] == dict.fromkeys(counters["errors"], 0)
+    rows, err = can_minus_float32(log)
+    assert rows == ROWS and err <= TOLERANCE_C
+
+
+def test_auto_interface_picks_socketcan_vcan0(vcan0, small_dataset, tmp_path):
+    proc = run_cli("-m", "bench", "run", "--data", str(small_dataset), "--rows", "100", "-i", "auto",
+                   "--reply-timeout", REPLY_TIMEOUT, "--no-report", "--log", str(tmp_path / "auto.log"))
+    assert proc.returncode == 0, proc.stderr
+    assert f"over socketcan {vcan0}" in proc.stderr and "udp_multicast" not in proc.stderr, proc.stderr
+    assert "steps sent 100, answered 100, missing 0" in proc.stdout, proc.stdout
+    assert proc.stdout.strip().splitlines()[-1] == "clean", proc.stdout
