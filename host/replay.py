@@ -73,6 +73,25 @@ class ReplayStats:
     send_jitter_s: np.ndarray | None = None
 
 
+def wait_for_reply(session: HostSession, book: RowBook, row: int, timeout: float) -> bool:
+    """Receive until both temperature replies of `row` are in (got == 3) or `timeout` s have passed.
+
+    Polls for SPIN_S first: in lockstep the reply is usually less than 0.3 ms away, and blocking costs more.
+    """
+    perf = time.perf_counter
+    got = book.got
+    deadline = perf() + timeout
+    spin_until = perf() + SPIN_S
+    while got[row] != 3 and perf() < spin_until:
+        session.receive(0.0)
+    while got[row] != 3:
+        remaining = deadline - perf()
+        if remaining <= 0:
+            break
+        session.receive(remaining)
+    return bool(got[row] == 3)
+
+
 def _silent(session: HostSession) -> bool:
     return session.monitor.silent_for() > session.monitor.heartbeat_timeout_s
 
@@ -98,17 +117,7 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
         session.flush_log()
         if n + 1 < rows:
             next_frames = encode_row(codec, n + 1, values[n + 1])
-        deadline = perf() + reply_timeout_s
-        got = book.got
-        spin_until = perf() + SPIN_S
-        while got[n] != 3 and perf() < spin_until:  # poll first: the reply is usually < 0.3 ms away
-            session.receive(0.0)
-        while got[n] != 3:
-            remaining = deadline - perf()
-            if remaining <= 0:
-                break
-            session.receive(remaining)
-        if got[n] != 3:
+        if not wait_for_reply(session, book, n, reply_timeout_s):
             missing += 1
             consecutive += 1
             if _silent(session):
@@ -209,7 +218,6 @@ def replay_frames(session: HostSession, frames: Sequence[can.Message], *, timed:
 def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> int:
     row = -1
     missing = 0
-    perf = time.perf_counter
     for frame in frames:
         if frame.arbitration_id == _DRIVE_INPUTS:
             row += 1
@@ -218,10 +226,7 @@ def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> int:
         session.send([frame])
         session.flush_log()
         if frame.arbitration_id == _DRIVE_TEMPS and row >= 0:
-            deadline = perf() + reply_timeout_s
-            while book.got[row] != 3 and (remaining := deadline - perf()) > 0:
-                session.receive(remaining)
-            if book.got[row] != 3:
+            if not wait_for_reply(session, book, row, reply_timeout_s):
                 missing += 1
                 if _silent(session):
                     raise SessionError(f"the target went silent during the replay (row {row})")

@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from dbc import BenchEvent, FaultKind, TargetState
-from host.replay import SPIN_S, Progress, ReplayStats, encode_row
+from host.replay import Progress, ReplayStats, encode_row, wait_for_reply
 from host.session import HostSession, RowBook, SessionError
 
 from .bus import FaultyBus, Injection
@@ -118,16 +118,7 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
     got = book.got
 
     def wait_reply(n: int, timeout: float) -> bool:
-        deadline = perf() + timeout
-        spin_until = perf() + SPIN_S
-        while got[n] != 3 and perf() < spin_until:
-            session.receive(0.0)
-        while got[n] != 3:
-            remaining = deadline - perf()
-            if remaining <= 0:
-                break
-            session.receive(remaining)
-        return bool(got[n] == 3)
+        return wait_for_reply(session, book, n, timeout)
 
     def lost() -> str | None:
         silent = monitor.silent_for()
