@@ -96,6 +96,7 @@ class Command(IntEnum):
     RESET = 1
     START = 2
     STOP = 3
+    RESTORE = 4  # set the model state from the RestoreState frames (an echoed StateCheckpoint)
 
 
 class TargetState(IntEnum):

@@ -47,12 +47,12 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
                 log_path: str | Path | None = None, reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S,
                 abort_after: int = DEFAULT_ABORT_AFTER, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
                 alive: Callable[[], str | None] | None = None, progress: Progress | None = None,
-                faults: FaultSpec | None = None, control: ProcessControl | None = None, dt_s: float | None = None,
+                faults: FaultSpec | None = None, control: ProcessControl | None = None,
                 target_events: str | Path | None = None, events_since: float | None = None) -> HostResult:
     """Replay `drive` (rows, 4: torque, speed, coolant, ambient) to the target on `bus`.
 
-    `faults` (active) injects faults (lockstep only; kill/freeze need `control`); `dt_s` is the model step (for
-    the re-initialization row); `target_events` the target's detection journal, read from `events_since` on.
+    `faults` (active) injects faults (lockstep only; kill/freeze need `control`); `target_events` is the target's
+    detection journal, read from `events_since` on.
     """
     if mode not in MODES:
         raise ValueError(f"mode {mode!r} is not one of {', '.join(MODES)}")
@@ -78,8 +78,7 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
         if faulty is not None and plan is not None:
             stats, fault_run = run_lockstep_with_faults(
                 session, drive, initial, faulty=faulty, plan=plan, control=control, reply_timeout_s=reply_timeout_s,
-                sample_period_s=sample_period_s, dt_s=dt_s or sample_period_s, connect_timeout_s=connect_timeout_s,
-                abort_after=abort_after, progress=progress)
+                connect_timeout_s=connect_timeout_s, abort_after=abort_after, progress=progress)
         elif mode == "lockstep":
             stats = run_lockstep(session, drive, reply_timeout_s=reply_timeout_s, abort_after=abort_after,
                                  progress=progress)

@@ -43,6 +43,7 @@ STEP_MODULO = 1 << 16
 DEFAULT_REPLY_TIMEOUT_S = 0.05
 DEFAULT_HEARTBEAT_TIMEOUT_S = 0.5
 DEFAULT_CONNECT_TIMEOUT_S = 15.0
+CHECKPOINT_SIZE = 4            # elements of the model state vector in a StateCheckpoint
 
 
 class SessionError(Exception):
@@ -124,6 +125,9 @@ class HostSession:
         self.timing: dict[str, list[tuple[int, float]]] = {
             "measured_us": [], "overruns": [], "cycles": [], "exec_us": [], "cpu_load": []}
         self.on_frame: Callable[[DecodedFrame], None] | None = None
+        # the target's state checkpoints: elements per Step until all four are in, then the complete ones by row
+        self._checkpoint_parts: dict[int, dict[int, float]] = {}
+        self.checkpoints: dict[int, list[float]] = {}
         self._pending_log: list[can.Message] = []
         # a fault layer logs what it really transmits; a plain bus sends what it is given
         self._log_sends = not getattr(bus, "reports_transmissions", False)
@@ -208,6 +212,8 @@ class HostSession:
             self.timing["exec_us"].append((row, float(s["EstExecTime"])))
         elif name == "Timing3":
             self.timing["cpu_load"].append((self._row_of(int(s["Step"])), float(s["CpuLoad"])))
+        elif name == "StateCheckpoint":
+            self._checkpoint(int(s["Step"]), int(s["StateIndex"]), float(s["StateValue"]))
         elif name == "RxErrors":
             self.monitor.rx_errors = {k: int(v) for k, v in s.items()}
         elif name == "TargetInfo":
@@ -217,6 +223,21 @@ class HostSession:
                 "dt_s": float(s["ModelDt"]), "flash_bytes": int(s["FlashBytes"]), "ram_bytes": int(s["RamBytes"])}
         if self.on_frame is not None:
             self.on_frame(frame)
+
+    def _checkpoint(self, step: int, index: int, value: float) -> None:
+        """Collect one element; four valid elements of one Step make a checkpoint of that row's state."""
+        parts = self._checkpoint_parts.setdefault(step, {})
+        parts[index] = value
+        if len(parts) == CHECKPOINT_SIZE:
+            del self._checkpoint_parts[step]
+            self.checkpoints[self._row_of(step)] = [parts[i] for i in range(CHECKPOINT_SIZE)]
+        if len(self._checkpoint_parts) > 4:  # elements of checkpoints that never completed (a lost frame)
+            self._checkpoint_parts.pop(next(iter(self._checkpoint_parts)))
+
+    def last_checkpoint(self, before_row: int) -> tuple[int, list[float]] | None:
+        """(row, state) of the newest complete checkpoint taken after a row before `before_row`, or None."""
+        rows = [row for row in self.checkpoints if row < before_row]
+        return (max(rows), self.checkpoints[max(rows)]) if rows else None
 
     def _row_of(self, step: int) -> int:
         """The most recent row sent with this Step (mod 65536)."""
@@ -286,6 +307,18 @@ class HostSession:
         raise SessionError(f"the target did not become READY after {tries} RESETs (state "
                            f"{self.monitor.state.name if self.monitor.state is not None else 'unknown'}, faults "
                            f"{faults!r}); check that no other host is on this bus")
+
+    def restore(self, state: Sequence[float], step: int, tries: int = 3) -> None:
+        """Echo a checkpointed state vector in RestoreState frames and RESTORE at `step`; wait for READY."""
+        for _ in range(tries):
+            self.send([self.codec.encode("RestoreState", {"Step": step, "StateIndex": index, "StateValue": value})
+                       for index, value in enumerate(state)] + [self.control(Command.RESTORE, step)])
+            self.flush_log()
+            if self._await_state(TargetState.READY, 0.5):
+                return
+        raise SessionError(f"the target did not become READY after {tries} RESTOREs (state "
+                           f"{self.monitor.state.name if self.monitor.state is not None else 'unknown'}); check that "
+                           "no other host is on this bus")
 
     def start(self, step: int = 0) -> None:
         self.send([self.control(Command.START, step)])

@@ -12,6 +12,7 @@ compare both paths over every message.
 from __future__ import annotations
 
 import math
+import struct
 import time
 from collections.abc import Mapping
 
@@ -45,8 +46,12 @@ def profile2_crc(payload: bytes, data_id: int) -> int:
     return table[crc ^ data_id] ^ 0xFF
 
 
+_FLOAT_FORMATS = {32: ("<f", "<I"), 64: ("<d", "<Q")}
+
+
 class _Layout:
-    """One message: its application signals as (name, start, length, signed, mask, conversion, low, high)."""
+    """One message: its application signals as (name, start, length, signed, mask, conversion, low, high, inline,
+    offset, scale, is_float); an IEEE float signal (SIG_VALTYPE_) carries the bits of a float32 or float64."""
 
     def __init__(self, message, data_id: int, sender: str):
         self.name = message.name
@@ -58,8 +63,9 @@ class _Layout:
         for s in message.signals:
             if s.name in (crc_name, counter_name):
                 continue
-            if s.byte_order != "little_endian" or s.conversion.is_float:
-                raise ValueError(f"fast path supports Intel integer signals only ({message.name}.{s.name})")
+            if s.byte_order != "little_endian" or (s.conversion.is_float and s.length not in (32, 64)):
+                raise ValueError(f"fast path supports Intel integer and IEEE float signals only "
+                                 f"({message.name}.{s.name})")
             tolerance = abs(s.conversion.scale) * 1e-6
             low = -math.inf if s.minimum is None else float(s.minimum) - tolerance
             high = math.inf if s.maximum is None else float(s.maximum) + tolerance
@@ -67,7 +73,8 @@ class _Layout:
             inline = type(s.conversion).__name__ in ("IdentityConversion", "LinearConversion",
                                                      "NamedSignalConversion")
             self.signals.append((s.name, s.start, s.length, s.is_signed, (1 << s.length) - 1, s.conversion,
-                                 low, high, inline, s.conversion.offset, s.conversion.scale))
+                                 low, high, inline, s.conversion.offset, s.conversion.scale,
+                                 _FLOAT_FORMATS[s.length] if s.conversion.is_float else None))
         self.names = frozenset(entry[0] for entry in self.signals)
 
 
@@ -92,13 +99,16 @@ class FastFrameCodec(FrameCodec):
         if layout is None or layout.sender != self.sender or len(signals) != len(layout.names):
             return super().encode(name, signals, timestamp=timestamp)
         word = 0
-        for sig_name, start, length, signed, mask, conversion, low, high, inline, offset, scale in layout.signals:
+        for sig_name, start, length, signed, mask, conversion, low, high, inline, offset, scale, ieee in layout.signals:
             value = signals.get(sig_name)
             if value is None or isinstance(value, str):
                 return super().encode(name, signals, timestamp=timestamp)
             number = float(value)
             if not low <= number <= high:  # also refuses NaN
                 return super().encode(name, signals, timestamp=timestamp)
+            if ieee is not None:  # the bits of the IEEE value, as cantools packs a SIG_VALTYPE_ signal
+                word |= struct.unpack(ieee[1], struct.pack(ieee[0], number))[0] << start
+                continue
             if inline:
                 raw = round(((value if isinstance(value, int) else number) - offset) / scale)
             else:
@@ -133,11 +143,14 @@ def _fast_decode(msg: can.Message, accepted: frozenset[int] | None) -> tuple[_La
         return None
     word = int.from_bytes(payload, "little")
     values: dict[str, SignalValue] = {}
-    for sig_name, start, length, signed, mask, conversion, low, high, *_ in layout.signals:
+    for sig_name, start, length, signed, mask, conversion, low, high, *_, ieee in layout.signals:
         raw = (word >> start) & mask
-        if signed and raw >> (length - 1):
-            raw -= 1 << length
-        value = conversion.raw_to_scaled(raw, False)
+        if ieee is not None:
+            value = struct.unpack(ieee[0], struct.pack(ieee[1], raw))[0]
+        else:
+            if signed and raw >> (length - 1):
+                raw -= 1 << length
+            value = conversion.raw_to_scaled(raw, False)
         if not low <= value <= high:
             return None
         values[sig_name] = value

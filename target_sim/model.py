@@ -92,6 +92,12 @@ class Float32Estimator:
         self.y = np.asarray(temperatures, dtype=self.f).copy()
         self.x = self.y.copy() if self.kind == "pv-lptn" else self.c_inv @ self.y
 
+    def restore(self, state: Sequence[float]) -> None:
+        """Continue from a checkpointed state vector x (the realization's coordinates), bit for bit: y = C x is
+        what `step` left after the model step the checkpoint was taken at."""
+        self.x = np.asarray(state, dtype=self.f).copy()
+        self.y = self.x.copy() if self.kind == "pv-lptn" else self.c @ self.x
+
     def node_losses(self, torque, speed) -> np.ndarray:
         """[P_y, P_w, P_t, P_m] in W from the tables and the previous winding estimate (eqs. 3-8)."""
         p_dc0, p_ac0, p_stator, p_magnet, current = self.luts.lookup(torque, speed)

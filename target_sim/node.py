@@ -7,6 +7,10 @@ Protocol (the DBC's comments are the contract; this is how the target implements
 * ResetTemps1/ResetTemps2 (any state) store initial temperatures under their Step. Control RESET with the same
   Step sets the model state from them (x0 = C⁻¹y0), clears the latched fault bits, and goes READY (sending
   TargetInfo and Status); without both frames of that Step it sets RESET_INCOMPLETE and goes IDLE.
+  RestoreState (any state) stores one element of a state vector under its Step; Control RESTORE with the same
+  Step sets the model state x to the four elements bit for bit (y = C x) and goes READY like RESET; without all
+  four it sets RESET_INCOMPLETE and goes IDLE. A host echoes a StateCheckpoint the target sent (below), so a
+  restarted target continues exactly where the checkpoint left it.
   Control START (only from READY) goes RUNNING and expects the Step it carries as the first data row.
   Control STOP goes STOPPED and forgets the alive counters it expects (the session is over; the next host
   starts its counters at 0). NOP does nothing.
@@ -16,13 +20,16 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   Float32Estimator steps once (wall time measured with perf_counter_ns). Every used row is answered with
   Temperatures1 and Temperatures2 (Step = the row's Step, the latest estimate: the reset temperatures before the
   first model step), and every model step with Timing1, Timing2, Timing3 (Step = the row that completed it),
-  temperatures first so a host waiting for them is not held up by the timing frames.
+  temperatures first so a host waiting for them is not held up by the timing frames; after every
+  CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames (x after that step).
+  The last used row sent again (a host retransmitting a row whose reply it did not get) is answered again with
+  the same temperatures and steps nothing (`repeats`).
 * Sequence errors (counted, SEQUENCE fault bit, nothing reaches the model): a drive frame outside RUNNING, a
   DriveTemps without its DriveInputs, a pair with different Steps, a DriveInputs whose DriveTemps never came,
-  a row that repeats or goes back (not answered), START outside READY. A row ahead of the expected one (rows
-  lost on the bus) is one sequence error; the lost rows are left out of their intervals' means, a model step
-  whose interval ended among them runs on the rows of it that did arrive (or holds the previous step's inputs if
-  none did), so the model keeps time, and then the row is used.
+  a row that goes back (or repeats one before the last: not answered), START outside READY. A row ahead of the
+  expected one (rows lost on the bus) is one sequence error; the lost rows are left out of their intervals'
+  means, a model step whose interval ended among them runs on the rows of it that did arrive (or holds the
+  previous step's inputs if none did), so the model keeps time, and then the row is used.
 * Rejected frames (unknown id, wrong length, CRC, signal out of range, alive-counter jump: `dbc.FrameValidator`)
   are counted per kind and set RX_ERROR; they change nothing else. Nothing a frame carries can crash the node:
   an unexpected exception sets INTERNAL and the state FAULT (a RESET recovers).
@@ -73,6 +80,10 @@ SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll befor
 ERROR_KINDS = (*FRAME_ERROR_KINDS, "sequence")
 _TEMP_LIMITS = signal_ranges("Temperatures1")["WindingTemp"]
 _LIMITS = {name: signal_ranges(name) for name in ("Timing1", "Timing2", "Timing3", "RxErrors")}
+_STATE_LIMITS = signal_ranges("StateCheckpoint")["StateValue"]
+STATE_SIZE = 4
+CHECKPOINT_EVERY_STEPS = 20   # model steps between two StateCheckpoints (10 s at Δt 0.5 s): the most a restored
+                              # target has to re-run, at 4 frames per checkpoint
 
 
 def _clamp(value: float, limits: tuple[float, float]) -> float:
@@ -138,6 +149,9 @@ class TargetNode:
         self.last_error = ""
         self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt)
         self._reset_frames: dict[str, dict] = {}
+        self._restore_frames: dict[int, dict] = {}
+        self.last_reply_row: int | None = None
+        self.repeats = 0
         self._pending_inputs: dict | None = None
         self.next_row: int | None = None
         self.rows_used = 0
@@ -269,6 +283,9 @@ class TargetNode:
         if name in ("ResetTemps1", "ResetTemps2"):
             self._reset_frames[name] = signals
             return []
+        if name == "RestoreState":
+            self._restore_frames[int(signals["StateIndex"])] = signals
+            return []
         if name == "Control":
             return self._control(Command(int(signals["Command"])), int(signals["Step"]))
         return []  # a frame of the contract the target does not act on (BenchEvent)
@@ -278,18 +295,18 @@ class TargetNode:
             r1, r2 = self._reset_frames.get("ResetTemps1"), self._reset_frames.get("ResetTemps2")
             self._reset_frames.clear()
             if r1 is None or r2 is None or r1["Step"] != step or r2["Step"] != step:
-                self.faults |= FaultBit.RESET_INCOMPLETE
-                self.last_error = f"RESET of step {step} without ResetTemps1 and ResetTemps2 of that step"
-                return self._set_state(TargetState.IDLE)
+                return self._incomplete(f"RESET of step {step} without ResetTemps1 and ResetTemps2 of that step")
             self.model.reset([r2["YokeTempInit"], r1["WindingTempInit"], r2["ToothTempInit"], r1["MagnetTempInit"]])
-            self.estimate = self.model.y.copy()
-            self.accumulator.reset()
-            self._pending_inputs = None
-            self.next_row = None
-            self.rows_used = self.model_steps = self.overruns = 0
-            self.faults &= FaultBit.NO_ARTIFACT
-            self.state = TargetState.READY
-            return self.target_info_frames() + self.status_frames()
+            return self._ready()
+        if command == Command.RESTORE:
+            elements, self._restore_frames = self._restore_frames, {}
+            state = [elements[i]["StateValue"] for i in range(STATE_SIZE)
+                     if i in elements and elements[i]["Step"] == step]
+            if len(state) != STATE_SIZE:
+                return self._incomplete(f"RESTORE of step {step} without the {STATE_SIZE} RestoreState elements "
+                                        "of that step")
+            self.model.restore(state)
+            return self._ready()
         if command == Command.START:
             if self.state != TargetState.READY:
                 return self._sequence_error(f"START in state {self.state.name} (needs READY after a RESET)")
@@ -301,10 +318,41 @@ class TargetNode:
             return self._set_state(TargetState.STOPPED)
         return []
 
+    def _incomplete(self, why: str) -> list[can.Message]:
+        """A RESET or RESTORE without its data: nothing of the model changes, the node waits in IDLE."""
+        self.faults |= FaultBit.RESET_INCOMPLETE
+        self.last_error = why
+        return self._set_state(TargetState.IDLE)
+
+    def _ready(self) -> list[can.Message]:
+        """After the model state was set (RESET or RESTORE): a fresh interval, counters and latched faults."""
+        self.estimate = self.model.y.copy()
+        self.accumulator.reset()
+        self._pending_inputs = None
+        self.next_row = None
+        self.last_reply_row = None
+        self.rows_used = self.model_steps = self.overruns = 0
+        self.faults &= FaultBit.NO_ARTIFACT
+        self.state = TargetState.READY
+        return self.target_info_frames() + self.status_frames()
+
+    def _checkpoint_frames(self, step: int) -> list[can.Message]:
+        """The model state x after this row's model step, one frame per element; none if x cannot be carried
+        (a diverging model: the host then re-initializes from an older checkpoint)."""
+        state = self.model.x.tolist()
+        if len(state) != STATE_SIZE or not all(_STATE_LIMITS[0] <= v <= _STATE_LIMITS[1] for v in state):
+            return []
+        return [frame for index, value in enumerate(state)
+                for frame in self._encode("StateCheckpoint", {"Step": step, "StateIndex": index, "StateValue": value})]
+
     def _row(self, step: int, sample) -> list[can.Message]:
         if self.state != TargetState.RUNNING or self.next_row is None:
             return self._sequence_error(f"drive frames of step {step} in state {self.state.name}")
         ahead = (step - self.next_row) % STEP_MODULO
+        if self.last_reply_row is not None and step == self.last_reply_row % STEP_MODULO:
+            # the host sent the last row again (its reply did not reach it): answer again, step nothing
+            self.repeats += 1
+            return self._temperature_frames(step)
         if ahead >= STEP_MODULO // 2:
             return self._sequence_error(f"step {step} repeats or goes back (expected {self.next_row % STEP_MODULO})")
         out: list[can.Message] = []
@@ -329,14 +377,18 @@ class TargetNode:
                 self.faults |= FaultBit.OVERRUN
             timing.append(elapsed)
         out += self._temperature_frames(step)
+        self.last_reply_row = row
         for elapsed in timing:
             out += self._timing_frames(step, elapsed)
+        if timing and self.model_steps % CHECKPOINT_EVERY_STEPS == 0:
+            out += self._checkpoint_frames(step)
         return out
 
     # ------------------------------------------------------------------ reporting
     def stats(self) -> dict:
         return {"state": self.state.name, "faults": [bit.name for bit in FaultBit if bit & self.faults],
                 "errors": dict(self.errors), "frames_received": self.frames_received, "rows_used": self.rows_used,
+                "repeats": self.repeats,
                 "model_steps": self.model_steps, "overruns": self.overruns, "last_error": self.last_error,
                 "model_id": self.artifact.model_id, "est_cycles": self.cost.cycles,
                 "flash_bytes": self.memory.flash_bytes, "ram_bytes": self.memory.ram_bytes}

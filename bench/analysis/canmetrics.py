@@ -10,12 +10,13 @@ temperatures as decoded from the ResetTemps frames, so CAN quantization is the s
 The measured winding and PM temperatures (when the dataset is given) are interpolated at the step times
 (k+1)·Δt, as in `bench.model.runs`. Yoke and tooth have no measurement: their RMSE is against the float64 model.
 
-CAN agreement is checked on every reply of every segment (`logdecode`): a segment that starts at row s from
-reset temperatures y (a re-initialization after the target was lost: its ResetTemps carry the last good
-estimate, quantized to 0.01 °C) is compared with the float32 reference restarted the same way — the target's
-own code from y (decoded from the frames) at row s, the interval accumulator empty — so "CAN = reference within
-±0.005 °C" holds across restarts. The restarted reference departs from the clean run's by the rounding of y
-(≤ 0.005 °C, decaying); the float32 − float64 and RMSE figures describe the model on the clean run.
+CAN agreement is checked on every reply of every segment (`logdecode`): a segment that starts at row s (a
+re-initialization after the target was lost) from the state vector of its RESTORE (an echoed StateCheckpoint) or
+the temperatures of its RESET is compared with the float32 reference restarted the same way — the target's own
+code from that state, decoded from the frames, at row s with the interval accumulator empty — so "CAN =
+reference within ±0.005 °C" holds across restarts and checks the restore itself. A checkpoint is the target's
+float32 state bit for bit, so the restarted reference is the clean run's exactly (the tests compare them); the
+float32 − float64 and RMSE figures describe the model on the clean run.
 The faults marked in the log (BenchEvent) and, when the `<log>.faults.json` sidecar is there, their detection,
 go into `metrics["faults"]`.
 """
@@ -55,11 +56,16 @@ class References:
     can_reference: np.ndarray | None = None   # (steps, 4) float32 restarted as the target was (= f32 if never)
 
 
-def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int, initial, stop_row: int) -> np.ndarray:
+def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int, initial, stop_row: int, *,
+                      state=None) -> np.ndarray:
     """(stop_row - start_row, 4): the estimate the target replies with after each row, for a target reset to
-    `initial` at `start_row` (the target's own float32 code and interval-mean rule, accumulator empty)."""
+    `initial` (or restored to the state vector `state`) at `start_row` (the target's own float32 code and
+    interval-mean rule, accumulator empty)."""
     model = Float32Estimator(artifact)
-    model.reset(initial)
+    if state is not None:
+        model.restore(state)
+    else:
+        model.reset(initial)
     acc = InputAccumulator(artifact.data_sample_period, artifact.dt)
     estimate = model.y.copy()
     out = np.empty((max(stop_row - start_row, 0), 4), dtype=np.float32)
@@ -91,13 +97,14 @@ def restarted_agreement(artifact: ModelArtifact, record: BusRecord, refs: Refere
     worst = np.full(4, np.nan)
     compared = saturated = 0
     for index, segment in enumerate(record.segments):
-        if segment.initial is None or not len(segment.reply_rows):
+        if (segment.initial is None and segment.state is None) or not len(segment.reply_rows):
             continue
         stop = int(segment.reply_rows.max()) + 1
-        if segment.start_row == 0 and np.array_equal(segment.initial, record.initial):
+        if segment.start_row == 0 and segment.state is None and np.array_equal(segment.initial, record.initial):
             ref = clean[:stop]
         else:
-            ref = segment_estimates(artifact, record.drive, segment.start_row, segment.initial, stop)
+            ref = segment_estimates(artifact, record.drive, segment.start_row, segment.initial, stop,
+                                    state=segment.state)
         offset = segment.start_row
         keep = (segment.reply_rows >= offset) & (segment.reply_rows < rows)
         at = segment.reply_rows[keep]

@@ -8,7 +8,8 @@ ResetTemps frames the session's RESET used. Frames that fail the DBC checks (unk
 are counted and skipped; the drive values of a row come from its frames that pass them.
 
 Segments: a Control START announced by a BenchEvent REINIT (the host re-initialized a lost target) starts a new
-segment of the same session at its Step's row, from the temperatures of its RESET. Replies belong to the
+segment of the same session at its Step's row, from the state vector of its RESTORE (an echoed StateCheckpoint,
+float32 bit for bit) or from the temperatures of its RESET. Replies belong to the
 segment the target was running when it sent them: the target's k-th transition into RUNNING (Status frames)
 starts segment k; so the late replies of a target that was frozen are told apart from the new segment's
 replies, even when they arrive after the host's RESET. Each segment keeps its own replies; the final reply of a
@@ -41,8 +42,9 @@ class Segment:
     """Rows start_row.. as one target process state ran them from `initial`, and the replies it sent."""
 
     start_row: int
-    initial: np.ndarray                     # [yoke, winding, tooth, magnet]
+    initial: np.ndarray | None              # [yoke, winding, tooth, magnet] of a RESET
     recovery: bool = False                  # started by a re-initialization (REINIT)
+    state: np.ndarray | None = None         # float32 state vector of a RESTORE (then `initial` is None)
     reply_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     reply_temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     reply_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -112,9 +114,10 @@ class BusRecord:
 
 
 class _SegmentBuilder:
-    def __init__(self, start_row: int, initial, recovery: bool):
+    def __init__(self, start_row: int, initial, recovery: bool, state=None):
         self.start_row = start_row
         self.initial = initial
+        self.state = state
         self.recovery = recovery
         self.host_row = start_row - 1          # the last row sent in this segment
         self.replies: dict[int, list] = {}     # row -> [yoke, winding, tooth, magnet, got bits, time]
@@ -126,8 +129,9 @@ class _SegmentBuilder:
     def build(self) -> Segment:
         rows = sorted(r for r, v in self.replies.items() if v[4] == 3)
         temps = np.array([self.replies[r][:4] for r in rows], dtype=float).reshape(-1, 4)
-        return Segment(self.start_row, self.initial, self.recovery, np.array(rows, dtype=np.int64), temps,
-                       np.array([self.replies[r][5] for r in rows], dtype=float))
+        return Segment(self.start_row, self.initial, self.recovery, self.state,
+                       reply_rows=np.array(rows, dtype=np.int64), reply_temps=temps,
+                       reply_s=np.array([self.replies[r][5] for r in rows], dtype=float))
 
 
 def _nearest(rel_step: int, reference: int) -> int:
@@ -149,7 +153,9 @@ def decode_log(path: str | Path) -> BusRecord:
     pending_inputs: dict | None = None
     pending_inputs_time = 0.0
     reset_frames: dict[str, dict] = {}
+    restore_frames: dict[int, dict] = {}
     pending_initial = None
+    pending_state = None
     reinit_announced = False
     transitions = 0               # the target's transitions into RUNNING
     epoch_base = 0                # transitions before the fresh session
@@ -228,6 +234,8 @@ def decode_log(path: str | Path) -> BusRecord:
                 timing["cpu_load"].append(s["CpuLoad"])
         elif name in ("ResetTemps1", "ResetTemps2"):
             reset_frames[name] = s
+        elif name == "RestoreState":
+            restore_frames[int(s["StateIndex"])] = s
         elif name == "Control":
             command = int(s["Command"])
             if command == Command.RESET:
@@ -235,12 +243,19 @@ def decode_log(path: str | Path) -> BusRecord:
                 if r1 is not None and r2 is not None and r1["Step"] == r2["Step"] == s["Step"]:
                     pending_initial = np.array([r2["YokeTempInit"], r1["WindingTempInit"], r2["ToothTempInit"],
                                                 r1["MagnetTempInit"]], dtype=float)
+                    pending_state = None
+            elif command == Command.RESTORE:
+                elements = [restore_frames[i]["StateValue"] for i in range(4)
+                            if i in restore_frames and restore_frames[i]["Step"] == s["Step"]]
+                if len(elements) == 4:
+                    pending_state, pending_initial = np.array(elements, dtype=np.float32), None
+                restore_frames = {}
             elif command == Command.START:
                 record.sessions += 1
                 if reinit_announced and segments:
                     last = segments[-1]
                     start = _nearest(int(s["Step"]) - base_step, max(last.host_row, last.start_row))
-                    segments.append(_SegmentBuilder(start, pending_initial, True))
+                    segments.append(_SegmentBuilder(start, pending_initial, True, pending_state))
                 else:
                     base_step = int(s["Step"])
                     record.initial = pending_initial

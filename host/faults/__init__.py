@@ -17,7 +17,6 @@ from host.faults.lockstep import (
     FaultRun,
     ProcessControl,
     Recovery,
-    interval_start,
     run_lockstep_with_faults,
 )
 from host.faults.plan import FaultPlan
@@ -60,7 +59,6 @@ __all__ = [
     "canonical_kind",
     "fault_note",
     "fault_problems",
-    "interval_start",
     "parse_faults",
     "read_journal",
     "read_sidecar",

@@ -13,14 +13,14 @@ the reply timeout. When the deadline passes (the row's *deadline miss*, recorded
    Status whose state is no longer RUNNING (it restarted) — re-initialize it:
    mark TARGET_LOST (Step = n, the first row without a reply), forget the target's alive counters (a restarted
    target starts its own at 0), let the runner restart a dead target (`ProcessControl.ensure_running`), wait for
-   its heartbeat (model id checked), then start a new *segment* at row s, the first row of the model step
-   interval holding n (rows s..n-1 were answered, but their inputs belong to a model step that has not run):
-   mark REINIT (Step = s), send ResetTemps with the last good estimate (the reply to row s-1, i.e. the output of
-   the last completed model step, as received: 0.01 degC resolution; the session's initial temperatures if
-   s is the session's first row), RESET and START at Step s, and replay on from row s. The replies of rows s..n
-   are cleared and come again from the new segment. The offline float32 reference restarts the same way
-   (`bench.analysis.canmetrics`), so CAN == reference holds across the restart; against the clean run the
-   restart costs at most the 0.005 degC rounding of the reset temperatures, decaying.
+   its heartbeat (model id checked), then start a new *segment* at row s from the last good estimate: the newest
+   complete StateCheckpoint the target sent for a row c < n (every 20 model steps: its float32 state vector, bit
+   for bit), so s = c + 1, the first row of a model step interval; mark REINIT (Step = s), echo the checkpoint in
+   RestoreState, RESTORE and START at Step s, and replay on from row s. Without a checkpoint yet, s is the
+   session's first row and the target is RESET to the session's initial temperatures. The replies of rows s..n
+   are cleared and come again from the new segment. Either way the restarted target runs the very float32
+   arithmetic of an uninterrupted run, so its replies equal the clean run's exactly; the offline reference
+   restarts the same way (`bench.analysis.canmetrics`).
 3. A target that keeps its heartbeat but does not answer for `abort_after` reply timeouts ends the run (aborted),
    as does a re-initialization that fails.
 
@@ -30,7 +30,6 @@ Process faults are applied before the first send of their row: the runner kills 
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -61,7 +60,8 @@ class ProcessControl:
 
 @dataclass
 class Recovery:
-    """One re-initialization: the target was lost at `lost_row` and restarted at `restart_row`."""
+    """One re-initialization: the target was lost at `lost_row` and restarted at `restart_row` from the checkpoint
+    of `checkpoint_row` (its state vector `state`), or, with no checkpoint yet, from the initial temperatures."""
 
     lost_row: int
     restart_row: int
@@ -69,7 +69,9 @@ class Recovery:
     silent_s: float
     lost_at: float
     reinit_at: float
-    reset_temps: list[float]
+    checkpoint_row: int | None
+    state: list[float] | None
+    reset_temps: list[float] | None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -84,22 +86,13 @@ class FaultRun:
     recoveries: list[Recovery] = field(default_factory=list)
     deadline_misses: list[int] = field(default_factory=list)
     retransmitted_rows: int = 0
-    segments: list[tuple[int, list[float]]] = field(default_factory=list)
     started_at: float = 0.0
     frames_transmitted: int = 0
 
 
-def interval_start(row: int, sample_period_s: float, dt_s: float) -> int:
-    """The first data row of the model step interval holding `row` (the target's interval-mean rule)."""
-    sample_us, dt_us = int(round(sample_period_s * 1e6)), int(round(dt_s * 1e6))
-    step = row * sample_us // dt_us
-    first = -(-step * dt_us // sample_us)
-    return min(max(first, 0), row)
-
-
 def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *, faulty: FaultyBus,
                              plan: FaultPlan, control: ProcessControl | None, reply_timeout_s: float,
-                             sample_period_s: float, dt_s: float, connect_timeout_s: float, abort_after: int,
+                             connect_timeout_s: float, abort_after: int,
                              progress: Progress | None = None) -> tuple[ReplayStats, FaultRun]:
     rows = len(drive)
     book = session.book = RowBook(rows)
@@ -108,9 +101,8 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
     monitor = session.monitor
     perf, perf_ns = time.perf_counter, time.perf_counter_ns
     run = FaultRun(plan.spec, injections=faulty.injections, started_at=time.time())
-    run.segments.append((0, [float(v) for v in initial]))
     passes: dict[int, int] = {}
-    session_start, session_initial = 0, [float(v) for v in initial]
+    initial = [float(v) for v in initial]
     freeze_s = FREEZE_FACTOR * monitor.heartbeat_timeout_s
     give_up_s = max(abort_after * reply_timeout_s, 2.5 * monitor.heartbeat_timeout_s)
     aborted: str | None = None
@@ -149,7 +141,6 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
         return "unanswered"
 
     def recover(n: int) -> int:
-        nonlocal session_start, session_initial
         reason = lost() or "lost"
         silent = monitor.silent_for()
         lost_at = time.time()
@@ -159,22 +150,24 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
         if control is not None:
             control.ensure_running()
         session.connect(connect_timeout_s, control.exit_reason if control is not None else None)
-        s = max(interval_start(n, sample_period_s, dt_s), session_start)
-        temps = session_initial if s == session_start else [float(v) for v in book.temps[s - 1]]
-        if not all(math.isfinite(v) for v in temps):  # cannot happen in lockstep: rows before n were answered
-            raise SessionError(f"no good estimate before row {n} to re-initialize the target from")
+        checkpoint = session.last_checkpoint(n)
+        s = 0 if checkpoint is None else checkpoint[0] + 1
         session.marker(BenchEvent.REINIT, s)
-        session.reset(temps, step=s % 65536)
+        if checkpoint is None:
+            session.reset(initial, step=0)
+        else:
+            session.restore(checkpoint[1], step=s % 65536)
         session.start(step=s % 65536)
         got[s:n + 1] = 0
         book.temps[s:n + 1] = np.nan
-        run.recoveries.append(Recovery(n, s, reason, round(silent, 4), lost_at, time.time(), temps))
-        run.segments.append((s, temps))
-        session_start, session_initial = s, temps
+        run.recoveries.append(Recovery(n, s, reason, round(silent, 4), lost_at, time.time(),
+                                       None if checkpoint is None else checkpoint[0],
+                                       None if checkpoint is None else checkpoint[1],
+                                       initial if checkpoint is None else None))
         return s
 
     started = perf()
-    n = 0
+    n = segment_start = 0
     while n < rows:
         pass_ = passes.get(n, 0)
         passes[n] = pass_ + 1
@@ -191,7 +184,7 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
                 control.freeze(freeze_s)
         session.last_sent_row = n
         book.sent_ns[n] = perf_ns()
-        faulty.begin_row(n, pass_, eligible=n != session_start and process is None)
+        faulty.begin_row(n, pass_, eligible=n != segment_start and process is None)
         session.send(encode_row(codec, n, values[n]))
         faulty.end_row()
         mark_injections(n)
@@ -202,7 +195,7 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
             outcome = retry(n, pass_)
             if outcome == "lost":
                 try:
-                    n = recover(n)
+                    n = segment_start = recover(n)
                 except SessionError as exc:
                     aborted = f"the target was lost at row {n} and could not be re-initialized: {exc}"
                     break

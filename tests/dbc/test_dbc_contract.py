@@ -3,6 +3,7 @@
 import re
 
 import cantools
+import numpy as np
 import pytest
 
 import dbc
@@ -24,6 +25,8 @@ UNITLESS = E2E_SIGNALS | {
     "Event",
     "FaultKind",
     "FrameId",
+    "StateIndex",
+    "StateValue",
 }
 ENUMS = {
     "Command": dbc.Command,
@@ -41,7 +44,7 @@ def app_signals(message):
 
 def test_loads_with_strict_checks_and_is_ascii():
     database = cantools.database.load_file(DBC_PATH, strict=True)
-    assert len(database.messages) == 14
+    assert len(database.messages) == 16
     DBC_PATH.read_bytes().decode("ascii")  # cantools reads DBC files as cp1252: keep them plain ASCII
 
 
@@ -144,6 +147,10 @@ def test_every_signal_has_unit_comment_and_range():
 def test_ranges_are_representable_and_on_the_raw_grid():
     for message in MESSAGES:
         for signal in message.signals:
+            if signal.is_float:  # IEEE single: the range must hold exactly in float32
+                assert signal.length == 32 and (signal.scale, signal.offset) == (1, 0), signal.name
+                assert all(float(np.float32(limit)) == limit for limit in (signal.minimum, signal.maximum))
+                continue
             low = -(1 << (signal.length - 1)) if signal.is_signed else 0
             high = (1 << (signal.length - 1)) - 1 if signal.is_signed else (1 << signal.length) - 1
             for limit in (signal.minimum, signal.maximum):
@@ -210,6 +217,11 @@ def test_layout_meets_the_resolution_and_range_requirements():
     assert (model_id.length, model_id.maximum) == (32, 0xFFFFFFFF)
     dt = signal("TargetInfo", "ModelDt")
     assert (dt.scale, dt.minimum, dt.maximum, dt.unit) == (0.1, 0, 25.5, "s")
+    for name in ("RestoreState", "StateCheckpoint"):  # one float32 state element per frame, bit for bit
+        value = signal(name, "StateValue")
+        assert (value.length, value.is_float, value.scale, value.offset) == (32, True, 1, 0)
+        assert (signal(name, "StateIndex").minimum, signal(name, "StateIndex").maximum) == (0, 3)
+        assert signal(name, "Step").length == 16
     counters = ("UnknownId", "WrongLength", "CrcError", "CounterError", "OutOfRange", "SequenceError")
     assert [s.name for s in app_signals(DB.get_message_by_name("RxErrors"))] == list(counters)
     assert all(signal("RxErrors", name).length == 8 for name in counters)

@@ -16,7 +16,6 @@ from host.faults import (
     FaultPlan,
     FaultSpecError,
     FaultyBus,
-    interval_start,
     parse_faults,
     reconcile,
 )
@@ -97,13 +96,6 @@ def test_process_faults_fall_in_the_middle_of_the_run_and_apart():
     assert plan.process_fault(rows[0], 0) is not None and plan.process_fault(rows[0], 1) is None
     with pytest.raises(FaultSpecError, match="need at least"):
         FaultPlan(parse_faults(["kill=30"]), 100)
-
-
-def test_interval_start_is_the_first_row_of_the_model_step():
-    # 5 Hz rows, 0.5 s model step: intervals [0,1,2], [3,4], [5,6,7], [8,9], ...
-    assert [interval_start(r, 0.2, 0.5) for r in range(10)] == [0, 0, 0, 3, 3, 5, 5, 5, 8, 8]
-    assert [interval_start(r, 0.2, 0.2) for r in range(4)] == [0, 1, 2, 3]
-    assert interval_start(41, 0.2, 4.0) == 40
 
 
 # ---------------------------------------------------------------- what each kind does
@@ -213,7 +205,8 @@ def test_the_target_journal_names_each_injected_frame(kind):
             bus.end_row()
             replies = deliver()
         answered += [int(r.signals["Step"]) for r in replies]
-    assert answered == list(range(200))       # every row used once, in order
+    # every row used once, in order (a row retransmitted after it was used is answered again, not stepped again)
+    assert sorted(set(answered)) == list(range(200)) and answered == sorted(answered)
     assert node.rows_used == 200
     run = FaultRun(spec, injections=bus.injections)
     summary = reconcile(run, Journal(entries=node_journal, instances=1))
