@@ -19,13 +19,16 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import can
 import numpy as np
 
 from bench.errors import BenchError, UsageError
+from dbc import FRAME_IDS, TARGET_FRAME_IDS, FrameError, decode_any
 from host.canlog import LogError
 from host.faults import FaultSpec, FaultSpecError
 from host.replay import DataRangeError, Progress
@@ -77,11 +80,12 @@ class TargetProcess:
     """`python -m target_sim` on a bus, started and stopped cleanly (SIGTERM, then kill after a timeout)."""
 
     def __init__(self, model_path: str | Path, bus: BusConfig, *, stats_path: str | Path | None = None,
-                 events_path: str | Path | None = None):
+                 events_path: str | Path | None = None, extra_argv: list[str] | None = None):
         self.model_path = Path(model_path)
         self.bus = bus
         self.stats_path = stats_path
         self.events_path = events_path
+        self.extra_argv = list(extra_argv or [])   # e.g. the reply faults the target injects
         self.process: subprocess.Popen | None = None
         self.restarts = 0
         self.kills = 0
@@ -98,7 +102,7 @@ class TargetProcess:
             argv += ["--stats", str(self.stats_path)]
         if self.events_path is not None:
             argv += ["--events", str(self.events_path)]
-        return argv
+        return argv + self.extra_argv
 
     # ------------------------------------------------------------------ process faults
     def kill(self) -> None:
@@ -224,6 +228,45 @@ def _host_errors(fn: Callable[[], HostResult], target: TargetProcess) -> HostRes
         raise UsageError(str(exc)) from None
 
 
+# How long a run listens, before it starts its own target, for one already on the channel. The target sends Status
+# every 100 ms, so 0.3 s hears two or three heartbeats; every run pays it, so it stays short.
+FOREIGN_TARGET_LISTEN_S = 0.3
+
+
+def refuse_foreign_target(host_bus: can.BusABC, bus: BusConfig, artifact: ModelArtifact | None,
+                          listen_s: float = FOREIGN_TARGET_LISTEN_S) -> None:
+    """BenchError if a target already sends on the channel: its replies would mix with those of the run's own.
+
+    udp_multicast lets any number of processes share a group and port, so "in use" can only be heard, and a
+    target of the same model would even pass the handshake."""
+    status_id = FRAME_IDS["Status"]
+    heard: can.Message | None = None
+    deadline = time.monotonic() + listen_s
+    while (remaining := deadline - time.monotonic()) > 0:
+        msg = host_bus.recv(remaining)
+        if msg is None:
+            break
+        if msg.is_extended_id or msg.is_error_frame or msg.arbitration_id not in TARGET_FRAME_IDS | {status_id}:
+            continue
+        heard = msg
+        if msg.arbitration_id == status_id:
+            break  # a heartbeat names the model: no need to listen longer
+    if heard is None:
+        return
+    channel = f"channel {bus.channel}" + (f" port {bus.kwargs['port']}" if "port" in bus.kwargs else "")
+    try:
+        model_id = int(decode_any(heard).signals["ModelId"]) if heard.arbitration_id == status_id else None
+    except FrameError:
+        model_id = None
+    if model_id is None:
+        what = f"sending frames (id 0x{heard.arbitration_id:03x})"
+    elif artifact is not None and model_id != artifact.model_id:
+        what = f"sending heartbeats (it runs model {model_id:08x}, not {artifact.model_id:08x} of the artifact given)"
+    else:
+        what = f"sending heartbeats (it runs model {model_id:08x}, the same as this run's)"
+    raise BenchError(f"{channel} on {bus.interface} already has a target {what}; stop it or pick another channel")
+
+
 # A target process started here reports its death through `alive`, so waiting long for its first heartbeat only
 # matters when it starts slowly (a loaded CI runner, the SocketCAN VM where Python takes seconds to import).
 OWN_TARGET_CONNECT_TIMEOUT_S = 120.0
@@ -244,13 +287,15 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     events = Path(events_dir.name) / "target-events.jsonl" if events_dir is not None else None
     host_bus = _open(bus)
     try:
-        with TargetProcess(model_path, bus, events_path=events) as target:
+        refuse_foreign_target(host_bus, bus, artifact)
+        with TargetProcess(model_path, bus, events_path=events,
+                           extra_argv=faults.reply_argv() if injecting else None) as target:
             result = _host_errors(lambda: run_dataset(
                 host_bus, drive, initial, model_id=artifact.model_id, mode=mode, speed=speed,
                 sample_period_s=sample_period_s, log_path=log_path, reply_timeout_s=reply_timeout_s,
                 alive=target.exit_reason, connect_timeout_s=OWN_TARGET_CONNECT_TIMEOUT_S, progress=progress,
                 faults=faults if injecting else None,
-                control=target.control() if injecting else None, dt_s=artifact.dt, target_events=events), target)
+                control=target.control() if injecting else None, target_events=events), target)
             status = target.stop()
             stderr = target.stderr_text()
     finally:
@@ -268,6 +313,12 @@ def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, 
                        reply_timeout_s: float = 0.05, progress: Progress | None = None) -> RunOutcome:
     """Re-send a log's host frames to a target started here (or, with model_path None, one already running)."""
     host_bus = _open(bus)
+    if model_path is not None:  # a target of our own: none may be on the channel already
+        try:
+            refuse_foreign_target(host_bus, bus, artifact)
+        except BenchError:
+            host_bus.shutdown()
+            raise
     target = TargetProcess(model_path, bus).start() if model_path is not None else None
     try:
         alive = target.exit_reason if target is not None else None

@@ -85,16 +85,22 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("fault injection runs in lockstep mode only; drop --mode realtime")
     if faults is not None and faults.process_faults:
         parser.error("kill and freeze faults need the bench runner, which owns the target process: use 'bench run'")
+    if faults is not None and faults.reply_rates():
+        parser.error("reply faults are injected by the target: start it with 'python -m target_sim --faults "
+                     f"{','.join(faults.reply_rates())}=P' (or use 'bench run')")
     from bench.drive.dataset import DatasetError, load_dataset
     from bench.model.default import default_artifact_path
     from bench.model.runs import drive_matrix, initial_temperatures
 
     bus = None
     try:
+        config = resolve(config_from_args(args))
+        if config.interface == "virtual":  # python-can's virtual bus lives in one process: no target could answer
+            parser.error("the 'virtual' interface does not cross processes, so no target could answer the host; "
+                         "use udp_multicast, socketcan or auto")
         artifact = load_artifact(args.model or default_artifact_path())
         dataset = load_dataset(args.data, sample_period_s=artifact.data_sample_period)
         log_path = check_log_path(args.log)
-        config = resolve(config_from_args(args))
         bus = config.open()
         drive = drive_matrix(dataset)
         if args.rows is not None:
@@ -106,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
                              mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,
                              log_path=log_path, reply_timeout_s=args.reply_timeout,
-                             connect_timeout_s=args.connect_timeout, faults=faults, dt_s=artifact.dt,
+                             connect_timeout_s=args.connect_timeout, faults=faults,
                              target_events=args.target_events, events_since=started)
     except (ArtifactError, DatasetError, LogError, BusUnavailable, SessionError, DataRangeError,
             FaultSpecError) as exc:

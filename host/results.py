@@ -80,10 +80,7 @@ class HostResult:
         if self.faults is not None:
             from host.faults import fault_problems
 
-            bad = {k: v for k, v in self.invalid_frames.items() if v}
-            if bad:
-                out.append(f"the host rejected frames from the target: {bad}")
-            return out + fault_problems(self.faults)
+            return out + fault_problems(self.faults)  # it judges the host's rejections against the reply faults
         if self.heartbeat_losses:
             out.append(f"the target's heartbeat was lost {self.heartbeat_losses} time(s) (longest silence "
                        f"{self.max_heartbeat_gap_s:.2f} s)")

@@ -14,6 +14,7 @@ from pathlib import Path
 import can
 import numpy as np
 
+from dbc import FRAME_IDS, HOST_FRAME_IDS, FrameError
 from host.canlog import FrameLog
 from host.faults import (
     DELAY_FACTOR,
@@ -31,13 +32,14 @@ from host.replay import (
     DEFAULT_ABORT_AFTER,
     Progress,
     check_drive_range,
-    host_frames,
     replay_frames,
     run_lockstep,
     run_realtime,
 )
 from host.results import HostResult, build_result
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_REPLY_TIMEOUT_S, HostSession
+from target_sim.fastframes import fast_decode_any
+from target_sim.transport import OwnFrameFilter
 
 MODES = ("lockstep", "realtime")
 
@@ -100,22 +102,59 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
     if fault_run is not None:
         journal = read_journal(target_events, since=events_since) if target_events is not None else None
         summary = reconcile(fault_run, journal, heartbeat_losses=session.monitor.heartbeat_losses,
-                            final_rx_errors=session.monitor.rx_errors)
+                            final_rx_errors=session.monitor.rx_errors, host_rejections=session.rejections)
         if final is not None:
-            write_sidecar(final, summary, fault_run.injections)
+            write_sidecar(final, summary, fault_run.injections + (journal.injections if journal else []))
     return build_result(session, stats, rows=len(drive), speed=speed if mode == "realtime" else None,
                         log_path=final, log_frames=log_frames, faults=summary)
+
+
+# The ids the unknown_id fault puts the host's drive frames on (bit 3 flipped, as the fault layer does): a replay of
+# a faulted log re-sends those frames too, so the target rejects what it rejected when the log was made.
+INJECTED_IDS = frozenset(FRAME_IDS[name] ^ 0x008 for name in ("DriveInputs", "DriveTemps"))
+
+
+def sent_frames(messages: Sequence[can.Message]) -> list[can.Message]:
+    """What the host put on the bus, byte for byte: its DBC frames and the unknown_id fault's frames."""
+    keep = HOST_FRAME_IDS | INJECTED_IDS
+    return [can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id, is_extended_id=False, dlc=m.dlc,
+                        data=bytes(m.data)) for m in messages
+            if not (m.is_extended_id or m.is_error_frame or m.is_remote_frame) and m.arbitration_id in keep]
+
+
+class ReplaySession(HostSession):
+    """A session that re-sends a log: a reply belongs to the last DriveInputs sent with its Step.
+
+    The log replay numbers rows by DriveInputs frames (`host.replay.replay_frames`); in a log of a faulted run a
+    row went out more than once (retransmitted, duplicated), so a reply's Step is not that number any more."""
+
+    def __init__(self, bus: can.BusABC, **kwargs) -> None:
+        super().__init__(bus, **kwargs)
+        self.own = OwnFrameFilter(HOST_FRAME_IDS | INJECTED_IDS)  # udp_multicast loops those back to us too
+        self._row_of_step: dict[int, int] = {}
+
+    def send(self, frames: Sequence[can.Message]) -> None:
+        for frame in frames:
+            if frame.arbitration_id == FRAME_IDS["DriveInputs"] and not frame.is_extended_id:
+                try:
+                    self._row_of_step[int(fast_decode_any(frame).signals["Step"])] = self.last_sent_row
+                except FrameError:
+                    pass  # damaged on purpose: the target rejects it, no reply will name it
+        super().send(frames)
+
+    def _row_of(self, step: int) -> int:
+        return self._row_of_step.get(step, -1)
 
 
 def replay_log(bus: can.BusABC, messages: Sequence[can.Message], *, model_id: int | None, timed: bool,
                speed: float = 1.0, log_path: str | Path | None = None,
                reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
                alive: Callable[[], str | None] | None = None, progress: Progress | None = None) -> HostResult:
-    """Re-send the host frames of a recorded log; the result's arrays hold the new replies by row."""
-    frames = host_frames(messages)
+    """Re-send the host frames of a recorded log; the result's arrays hold the new replies by DriveInputs frame."""
+    frames = sent_frames(messages)
     log = FrameLog(log_path) if log_path is not None else None
     try:
-        session = HostSession(bus, log=log, expected_model_id=model_id)
+        session = ReplaySession(bus, log=log, expected_model_id=model_id)
         session.connect(connect_timeout_s, alive)
         stats = replay_frames(session, frames, timed=timed, speed=speed, reply_timeout_s=reply_timeout_s,
                               progress=progress)

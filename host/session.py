@@ -43,6 +43,7 @@ STEP_MODULO = 1 << 16
 DEFAULT_REPLY_TIMEOUT_S = 0.05
 DEFAULT_HEARTBEAT_TIMEOUT_S = 0.5
 DEFAULT_CONNECT_TIMEOUT_S = 15.0
+MAX_REJECTIONS_KEPT = 100_000   # refused frames recorded one by one (counted beyond)
 CHECKPOINT_SIZE = 4            # elements of the model state vector in a StateCheckpoint
 
 
@@ -118,6 +119,7 @@ class HostSession:
         self.own = OwnFrameFilter(HOST_FRAME_IDS)
         self.monitor = Monitor(heartbeat_timeout_s)
         self.invalid = {kind: 0 for kind in ("unknown_id", "wrong_length", "crc", "counter", "out_of_range")}
+        self.rejections: list[dict] = []   # each refused frame (kind, id, data): the evidence of reply faults
         self.book: RowBook | None = None
         self.last_sent_row = -1
         self.late_replies = 0
@@ -192,6 +194,9 @@ class HostSession:
             frame = self.validator.validate(msg)
         except FrameError as exc:
             self.invalid[exc.kind] += 1
+            if len(self.rejections) < MAX_REJECTIONS_KEPT:
+                self.rejections.append({"kind": exc.kind, "id": msg.arbitration_id, "data": bytes(msg.data).hex(),
+                                        "t": msg.timestamp})
             return None
         self._dispatch(frame)
         return frame

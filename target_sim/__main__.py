@@ -1,7 +1,8 @@
 """`python -m target_sim`: the simulated C2000 target process.
 
     python -m target_sim --model MODEL.json [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...]
-                         [--can-config FILE] [--stats FILE] [--events FILE] [--quiet]
+                         [--can-config FILE] [--stats FILE] [--events FILE] [--faults K=P,...] [--fault-seed N]
+                         [--quiet]
 
 Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1), opens the bus (`auto`: socketcan
 vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms) and serves
@@ -9,7 +10,8 @@ until SIGTERM or SIGINT, then shuts the bus down and exits 0. `--stats FILE` wri
 at exit. `--events FILE` appends one JSON line per rejected frame or sequence error (the node's detection
 journal), plus a "start" line with the process id and a "stop" line with the counters; each line is one
 write(2) to a file opened O_APPEND, so what was written survives a SIGKILL and a restarted target appends to the
-same file. See `target_sim.node` for the protocol.
+same file. `--faults reply_drop=0.01,...` alters the temperature replies on their way out (`target_sim.faults`)
+and journals each injection in the same file. See `target_sim.node` for the protocol.
 """
 
 from __future__ import annotations
@@ -41,6 +43,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stats", default=None, help="write the node's counters to this JSON file at exit")
     parser.add_argument("--events", default=None,
                         help="append the detection journal (one JSON line per rejected frame) to this file")
+    parser.add_argument("--faults", default=None, metavar="K=P,K=P",
+                        help="inject faults into the temperature replies, e.g. reply_drop=0.01,reply_corrupt=0.001 "
+                             "(each injection is journaled in --events)")
+    parser.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the reply faults")
     parser.add_argument("--quiet", action="store_true", help="no start/stop lines on stderr")
     add_bus_arguments(parser)
     return parser
@@ -82,21 +88,34 @@ class EventJournal:
 def main(argv: list[str] | None = None) -> int:
     # python-can repeats a half-constructed bus's failure from __del__ ("not properly shut down") after our sentence.
     logging.getLogger("can").addHandler(logging.NullHandler())
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     try:
+        from target_sim.faults import ReplyFaults
         from target_sim.node import TargetNode, log_error, serve  # loads the DBC: a broken one fails here
     except Exception as exc:
         if type(exc).__name__ != "DbcError":  # its class lives in the module whose import just failed
             raise
         print(f"target_sim: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
+    reply_rates = {}
+    if args.faults:
+        from target_sim.faults import parse_reply_faults
+
+        try:
+            reply_rates = parse_reply_faults(args.faults)
+        except ValueError as exc:
+            parser.error(f"--faults: {exc}")
     journal = None
     try:
+        config = resolve(config_from_args(args))
+        if config.interface == "virtual":  # python-can's virtual bus lives in one process: no host could reach us
+            parser.error("the 'virtual' interface does not cross processes, so no host could reach the target; "
+                         "use udp_multicast, socketcan or auto")
         artifact = load_artifact(args.model)
         if args.events:
             journal = EventJournal(args.events)
         node = TargetNode(artifact, journal=journal)
-        config = resolve(config_from_args(args))
         bus = config.open()
     except (ArtifactError, BusUnavailable, JournalError) as exc:
         print(f"target_sim: error: {exc}", file=sys.stderr)
@@ -114,7 +133,8 @@ def main(argv: list[str] | None = None) -> int:
         log_error(f"model {artifact.model_id:08x} ({artifact.kind}, {artifact.realization}, dt {artifact.dt:g} s, "
                   f"{node.cost.cycles} est. cycles) on {config.describe()}; serving")
     try:
-        serve(node, bus, lambda: stop["requested"], on_error=log_error)
+        serve(node, bus, lambda: stop["requested"], on_error=log_error,
+              reply_faults=ReplyFaults(reply_rates, args.fault_seed, journal) if reply_rates else None)
     finally:
         bus.shutdown()
         if args.stats:

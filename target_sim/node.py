@@ -71,6 +71,7 @@ from dbc import (
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import memory_estimate, step_cost
 from target_sim.fastframes import FastFrameCodec, FastFrameValidator
+from target_sim.faults import ReplyFaults
 from target_sim.model import F32, Float32Estimator, InputAccumulator
 from target_sim.transport import OwnFrameFilter
 
@@ -152,6 +153,7 @@ class TargetNode:
         self._restore_frames: dict[int, dict] = {}
         self.last_reply_row: int | None = None
         self.repeats = 0
+        self.answered_again = False    # the last handle() answered a row again (a retransmission)
         self._pending_inputs: dict | None = None
         self.next_row: int | None = None
         self.rows_used = 0
@@ -245,6 +247,7 @@ class TargetNode:
         """Validate one received frame, act on it, and return the frames to send in reply (maybe none)."""
         self.frames_received += 1
         self._msg = msg
+        self.answered_again = False
         try:
             frame = self.validator.validate(msg)
         except FrameError as exc:
@@ -352,6 +355,7 @@ class TargetNode:
         if self.last_reply_row is not None and step == self.last_reply_row % STEP_MODULO:
             # the host sent the last row again (its reply did not reach it): answer again, step nothing
             self.repeats += 1
+            self.answered_again = True
             return self._temperature_frames(step)
         if ahead >= STEP_MODULO // 2:
             return self._sequence_error(f"step {step} repeats or goes back (expected {self.next_row % STEP_MODULO})")
@@ -396,9 +400,12 @@ class TargetNode:
 
 def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
           heartbeat_period_s: float = HEARTBEAT_PERIOD_S, on_error: Callable[[str], None] | None = None,
-          spin_s: float | None = None) -> None:
-    """Run the node on a bus until `should_stop()`: receive, handle, reply; heartbeat every period."""
+          spin_s: float | None = None, reply_faults: ReplyFaults | None = None) -> None:
+    """Run the node on a bus until `should_stop()`: receive, handle, reply; heartbeat every period.
+
+    With `reply_faults` the replies go out through the fault layer (`target_sim.faults`)."""
     own = OwnFrameFilter(TARGET_FRAME_IDS)
+    foreign = reply_faults.foreign_ids if reply_faults is not None else set()
     send_failures = 0
 
     def send(frames: Iterable[can.Message]) -> None:
@@ -428,7 +435,12 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
         if msg is None:
             msg = bus.recv(max(0.0, next_beat - monotonic()))
         if msg is not None and not own.is_own(msg):
-            send(node.handle(msg))
+            if foreign and not msg.is_extended_id and msg.arbitration_id in foreign:
+                continue  # our own reply fault on a foreign id, looped back
+            replies = node.handle(msg)
+            if reply_faults is not None:
+                replies = reply_faults.apply(replies, again=node.answered_again)
+            send(replies)
         now = monotonic()
         if now >= next_beat:
             send(node.heartbeat_frames())

@@ -324,8 +324,11 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
 
 
 def fault_metrics(record: BusRecord) -> dict | None:
-    """Faults marked in the log (BenchEvent), gaps and restarts, and detection from the sidecar; None if none."""
-    from host.faults import DETECTION, KINDS, read_sidecar
+    """Faults marked in the log (BenchEvent), gaps and restarts, and detection from the sidecar; None if none.
+
+    The target's reply faults are not marked in the log (the host learns of them only by detecting them): their
+    counts come from the sidecar, which has them from the target's journal."""
+    from host.faults import DETECTION, KINDS, REPLY_KINDS, read_sidecar
 
     sidecar = read_sidecar(record.path)
     if not record.marks and sidecar is None:
@@ -334,6 +337,9 @@ def fault_metrics(record: BusRecord) -> dict | None:
     for mark in record.marks:
         if mark.event == "fault" and mark.fault:
             marked[mark.fault] = marked.get(mark.fault, 0) + 1
+    for kind in REPLY_KINDS:
+        if sidecar and sidecar.get("injected", {}).get(kind):
+            marked[kind] = int(sidecar["injected"][kind])
     kinds = [k for k in KINDS if marked.get(k) or (sidecar and sidecar.get("injected", {}).get(k) is not None)]
     gaps = []
     for gap in record.gaps:

@@ -33,6 +33,8 @@ from host.faults.reconcile import (
 )
 from host.faults.spec import (
     KINDS,
+    MARKED_KINDS,
+    REPLY_KINDS,
     FaultSpec,
     FaultSpecError,
     add_fault_arguments,
@@ -46,6 +48,8 @@ __all__ = [
     "DETECTION",
     "FREEZE_FACTOR",
     "KINDS",
+    "MARKED_KINDS",
+    "REPLY_KINDS",
     "FaultPlan",
     "FaultRun",
     "FaultSpec",

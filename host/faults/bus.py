@@ -6,18 +6,11 @@ which pass of it) the next drive frames belong to (`begin_row`/`end_row`) and wh
 to `on_transmit`, so the host's log holds what was on the bus, and every injected fault is recorded as an
 `Injection` (kind, row, frame id, the bytes that went out) for the run's summary and the report.
 
-What each kind does to a drive frame (F = DriveInputs or DriveTemps of row n, alive counter c):
+What each kind does to a drive frame is `target_sim.faults.mutate` (the target alters its replies with the same
+code): drop (the next frame of the same id, its `witness`, shows a counter jump), duplicate, corrupt (1-3 bit
+flips the CRC always catches), stale_counter, wrong_length, unknown_id, out_of_range (MotorTorque or CoolantTemp
+at its raw maximum 0x7FFF). The row kinds are the host's own:
 
-* drop: F is not sent. The next F the host sends (its retransmission) is the `witness`: it carries c+1 after
-  c-1, so the target sees an alive-counter jump.
-* duplicate: F goes out twice, byte for byte; the second copy repeats counter c.
-* corrupt: 1 to 3 distinct bits of the 8 bytes are flipped. CRC8H2F has Hamming distance 4 over these 64 bits, so
-  the CRC catches every such corruption by construction (checked again here for each frame).
-* stale_counter: F carries counter c-1 (the previous frame's) with a valid CRC: a sender that did not count.
-* wrong_length: F goes out with its first 0..7 bytes only (DLC 0..7).
-* unknown_id: F goes out on an id no DBC message has (its id with bit 3 flipped: 0x118, 0x119).
-* out_of_range: MotorTorque (DriveInputs) or CoolantTemp (DriveTemps) carries the raw value 0x7FFF (3276.7 Nm or
-  3276.7 degC, beyond the DBC range) with a valid CRC and counter.
 * reorder (per row): DriveTemps n goes out before DriveInputs n.
 * delay (per row): the row's frames, and every frame queued behind them, are held for `delay_s` (first-in first-
   out, as a congested gateway would), released by `recv`/`send` calls once due.
@@ -35,18 +28,12 @@ from dataclasses import asdict, dataclass
 
 import can
 
-from dbc import FRAME_IDS, apply_crc
-from target_sim.fastframes import profile2_crc
+from dbc import FRAME_IDS
+from target_sim.faults import mutate
 
 from .plan import FaultPlan, RowFaults
 
 DRIVE_INDEX = {FRAME_IDS["DriveInputs"]: 0, FRAME_IDS["DriveTemps"]: 1}
-_DATA_IDS = {fid: fid & 0xFF for fid in FRAME_IDS.values()}
-UNKNOWN_ID_FLIP = 0x008
-OUT_OF_RANGE_RAW = 0x7FFF      # 16-bit signed maximum: 3276.7 in MotorTorque and CoolantTemp (0.1 per bit)
-OUT_OF_RANGE_START = 28        # MotorTorque (DriveInputs) and CoolantTemp (DriveTemps) both start at bit 28
-for _fid in DRIVE_INDEX:
-    assert _fid ^ UNKNOWN_ID_FLIP not in _DATA_IDS, "an unknown-id fault must not land on a DBC id"
 
 
 @dataclass
@@ -67,12 +54,6 @@ class Injection:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-def _copy(msg: can.Message, *, arbitration_id: int | None = None, data: bytes | None = None) -> can.Message:
-    data = bytes(msg.data) if data is None else data
-    return can.Message(timestamp=msg.timestamp, arbitration_id=msg.arbitration_id if arbitration_id is None else
-                       arbitration_id, is_extended_id=False, dlc=len(data), data=data, is_rx=False, check=False)
 
 
 class FaultyBus:
@@ -197,51 +178,16 @@ class FaultyBus:
 
     # ------------------------------------------------------------------ internals
     def _inject(self, kind: str, msg: can.Message, index: int, faults: RowFaults) -> None:
-        data = bytearray(msg.data)
+        sent = mutate(kind, msg, lambda slot: faults.draw(10 * index + slot))
         fid = msg.arbitration_id
-        if kind == "drop":
-            injection = self.record("drop", None, frame_id=fid)
-            injection.counter = data[1] & 0x0F
-            self._witness[fid] = injection
-            return
-        if kind == "duplicate":
-            self._out(msg)
-            copy = _copy(msg)
-            self.record("duplicate", copy)
-            self._out(copy)
-            return
-        if kind == "corrupt":
-            flips = 1 + int(faults.draw(10 * index) * 3)
-            bits: list[int] = []
-            slot = 1
-            while len(bits) < flips:
-                bit = int(faults.draw(10 * index + slot) * 64)
-                slot += 1
-                if bit not in bits:
-                    bits.append(bit)
-            for bit in bits:
-                data[bit // 8] ^= 1 << (bit % 8)
-            # CRC8H2F has Hamming distance 4 over 64 bits: 1..3 flipped bits always break the CRC
-            assert data[0] != profile2_crc(bytes(data), _DATA_IDS[fid]), "an undetectable corruption"
-            out = _copy(msg, data=bytes(data))
-        elif kind == "stale_counter":
-            data[1] = (data[1] & 0xF0) | ((data[1] - 1) & 0x0F)
-            out = _copy(msg, data=apply_crc(fid, bytes(data)))
-        elif kind == "wrong_length":
-            length = int(faults.draw(10 * index) * 8)
-            out = _copy(msg, data=bytes(data[:length]))
-        elif kind == "unknown_id":
-            out = _copy(msg, arbitration_id=fid ^ UNKNOWN_ID_FLIP)
-            self._foreign_ids.add(out.arbitration_id)
-        elif kind == "out_of_range":
-            word = int.from_bytes(bytes(data), "little")
-            word = (word & ~(0xFFFF << OUT_OF_RANGE_START)) | (OUT_OF_RANGE_RAW << OUT_OF_RANGE_START)
-            out = _copy(msg, data=apply_crc(fid, word.to_bytes(8, "little")))
-        else:  # pragma: no cover - the plan draws only known kinds
-            raise ValueError(f"unknown fault kind {kind}")
-        injection = self.record(kind, out, frame_id=fid)
+        injection = self.record(kind, sent[-1] if sent else None, frame_id=fid)
         injection.counter = msg.data[1] & 0x0F
-        self._out(out)
+        if kind == "drop":
+            self._witness[fid] = injection
+        elif kind == "unknown_id":
+            self._foreign_ids.add(sent[0].arbitration_id)
+        for frame in sent:
+            self._out(frame)
 
     def _out(self, msg: can.Message) -> None:
         if self._held or time.perf_counter() < self._hold_until:

@@ -19,25 +19,10 @@ import random
 from dataclasses import dataclass
 
 from host.faults.spec import FRAME_KINDS, PROCESS_KINDS, ROW_KINDS, FaultSpec, FaultSpecError
+from target_sim.faults import pick, unit
 
-_MASK = (1 << 64) - 1
 PROCESS_MIN_SPACING = 5        # rows between two process faults
 PROCESS_WINDOW = (0.1, 0.9)    # process faults fall in this part of the run
-
-
-def _mix(x: int) -> int:
-    x = (x + 0x9E3779B97F4A7C15) & _MASK
-    x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
-    x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & _MASK
-    return x ^ (x >> 31)
-
-
-def unit(seed: int, *keys: int) -> float:
-    """A uniform number in [0, 1) determined by the seed and the keys (splitmix64 chain)."""
-    h = _mix(seed & _MASK)
-    for key in keys:
-        h = _mix(h ^ (key & _MASK))
-    return (h >> 11) / float(1 << 53)
 
 
 @dataclass(frozen=True)
@@ -94,25 +79,12 @@ class FaultPlan:
         """The bus faults of this pass of this (eligible) row, or None."""
         seed = self.spec.seed
         if self._row:
-            u = unit(seed, row, pass_, 0)
-            edge = 0.0
-            for kind, rate in self._row:
-                edge += rate
-                if u < edge:
-                    return RowFaults(row, pass_, seed, kind, (None, None))
+            kind = pick(unit(seed, row, pass_, 0), self._row)
+            if kind is not None:
+                return RowFaults(row, pass_, seed, kind, (None, None))
         if not self._frame:
             return None
-        kinds: list[str | None] = []
-        for index in range(2):
-            u = unit(seed, row, pass_, 1 + index)
-            chosen = None
-            edge = 0.0
-            for kind, rate in self._frame:
-                edge += rate
-                if u < edge:
-                    chosen = kind
-                    break
-            kinds.append(chosen)
+        kinds = (pick(unit(seed, row, pass_, 1), self._frame), pick(unit(seed, row, pass_, 2), self._frame))
         if kinds[0] is None and kinds[1] is None:
             return None
-        return RowFaults(row, pass_, seed, None, (kinds[0], kinds[1]))
+        return RowFaults(row, pass_, seed, None, kinds)

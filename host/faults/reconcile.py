@@ -15,6 +15,8 @@
 | delay | host | the row's reply deadline passed (deadline miss) |
 | kill, freeze | host | after the fault the target was declared lost (no Status for longer than the heartbeat |
 | | | timeout, or a Status not RUNNING) and re-initialized |
+| reply_* | host | the host validator's rejection of the very frame the target sent (as for the target's kinds: |
+| | | crc, wrong_length, unknown_id, out_of_range, counter; a dropped reply by its witness's counter jump) |
 
 The target's records come from its detection journal (`python -m target_sim --events FILE`, one JSON line per
 rejected frame or sequence error, written as it happens, so a killed target's records survive and a restarted
@@ -23,6 +25,9 @@ consequences (a lost frame also leaves its row without a partner: sequence error
 frame jumps the counter), counted but not problems. The RxErrors counters the target broadcasts are the same
 events counted per target process in 8 bits; after the run the host reads a last RxErrors (after STOP) and it
 must equal the journal's counts of the last target process.
+
+The target also journals the reply faults it injects ("inject" and "witness" records); the host keeps its own
+validator's rejections (`HostSession.rejections`), which confirm them.
 
 A deadline miss on a row without an injected fault, or a heartbeat loss beyond the number of kills and freezes,
 is unexplained: a problem of the run, as is any fault that went undetected.
@@ -38,8 +43,11 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from target_sim.faults import REPLY_PREFIX
+
+from .bus import Injection
 from .lockstep import FaultRun
-from .spec import KINDS, PROCESS_KINDS, TARGET_DETECTED
+from .spec import KINDS, PROCESS_KINDS, REPLY_KINDS, TARGET_DETECTED
 
 TARGET_EVIDENCE = {"drop": "counter", "duplicate": "counter", "stale_counter": "counter", "corrupt": "crc",
                    "wrong_length": "wrong_length", "unknown_id": "unknown_id", "out_of_range": "out_of_range",
@@ -56,7 +64,16 @@ DETECTION = {
     "out_of_range": "target: out-of-range rejection of the frame",
     "kill": "host: heartbeat lost, target restarted and re-initialized",
     "freeze": "host: heartbeat lost, target re-initialized after it resumed",
+    **{REPLY_PREFIX + k: "host" + v.removeprefix("target") for k, v in (
+        ("drop", "target: alive-counter jump on the next reply of the same id"),
+        ("duplicate", "target: repeated alive counter on the second copy"),
+        ("corrupt", "target: E2E CRC error on the corrupted reply"),
+        ("stale_counter", "target: repeated alive counter on the stale reply"),
+        ("wrong_length", "target: wrong-length rejection of the short reply"),
+        ("unknown_id", "target: unknown-id rejection of the reply on a foreign id"),
+        ("out_of_range", "target: out-of-range rejection of the reply"))},
 }
+assert set(DETECTION) == set(KINDS)
 RX_NAMES = {"UnknownId": "unknown_id", "WrongLength": "wrong_length", "CrcError": "crc", "CounterError": "counter",
             "OutOfRange": "out_of_range", "SequenceError": "sequence"}
 CATEGORIES = ("unknown_id", "wrong_length", "crc", "counter", "out_of_range", "sequence")
@@ -71,11 +88,13 @@ class Journal:
     entries: list[dict] = field(default_factory=list)
     instances: int = 0
     last_instance: Counter = field(default_factory=Counter)
+    injections: list[Injection] = field(default_factory=list)   # the target's own (reply) injections
 
 
 def read_journal(path: str | Path, since: float | None = None) -> Journal:
     """The records in a target's --events file (those stamped at or after `since`); a torn last line is skipped."""
     journal = Journal()
+    waiting: dict = {}  # seq -> a drop whose witness record is still to come
     try:
         text = Path(path).read_text(encoding="utf-8", errors="replace")
     except FileNotFoundError:
@@ -87,9 +106,19 @@ def read_journal(path: str | Path, since: float | None = None) -> Journal:
             continue
         if not isinstance(record, dict) or (since is not None and record.get("t", 0) < since):
             continue
-        if record.get("event") == "start":
+        event = record.get("event")
+        if event == "start":
             journal.instances += 1
             journal.last_instance = Counter()
+            waiting = {}  # a restarted target numbers its injections anew
+        elif event == "inject" and record.get("kind") in REPLY_KINDS:
+            injection = Injection(record["kind"], int(record.get("step", -1)), 0, record.get("id"),
+                                  record.get("sent_id"), record.get("counter"), record.get("data"),
+                                  float(record.get("t", 0.0)))
+            journal.injections.append(injection)
+            waiting[record.get("seq")] = injection
+        elif event == "witness" and record.get("seq") in waiting:
+            waiting.pop(record["seq"]).witness = record.get("data")
         elif record.get("kind") in CATEGORIES:
             journal.entries.append(record)
             journal.last_instance[record["kind"]] += 1
@@ -100,26 +129,42 @@ def _key(kind: str, frame_id, data) -> tuple:
     return kind, int(frame_id) if frame_id is not None else None, data
 
 
+def _confirm(injection: Injection, records: Counter, side: str) -> str | None:
+    """Use up the receiver's record of this frame fault (from `records`); its category, or None if there is none."""
+    kind = injection.kind.removeprefix(REPLY_PREFIX)
+    category = TARGET_EVIDENCE[kind]
+    data = injection.witness if kind == "drop" else injection.data
+    key = _key(category, injection.frame_id if kind == "drop" else injection.sent_id, data)
+    if data is None or records[key] <= 0:
+        return None
+    records[key] -= 1
+    injection.detected, injection.detected_by = True, f"{side} {category}"
+    return category
+
+
 def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int = 0,
-              final_rx_errors: dict | None = None) -> dict:
-    """The fault summary of a run (JSON-ready); marks each injection's `detected`/`detected_by`."""
+              final_rx_errors: dict | None = None, host_rejections: Iterable[dict] = ()) -> dict:
+    """The fault summary of a run (JSON-ready); marks each injection's `detected`/`detected_by`.
+
+    `run.injections` are the host's; the target's reply injections come from its journal and are confirmed by
+    `host_rejections` (the host validator's records of the frames it refused)."""
     records = Counter(_key(e["kind"], e.get("id"), e.get("data")) for e in journal.entries) if journal else Counter()
+    host_rejections = list(host_rejections)
+    host_records = Counter(_key(r["kind"], r.get("id"), r.get("data")) for r in host_rejections)
     matched_categories: Counter = Counter()
+    host_confirming: Counter = Counter()
     misses = Counter(run.deadline_misses)
     recoveries = sorted(run.recoveries, key=lambda r: r.lost_at)
     used_recoveries: set[int] = set()
-    for injection in run.injections:
+    injections = run.injections + (journal.injections if journal is not None else [])
+    for injection in injections:
         injection.detected, injection.detected_by = False, None
         if injection.kind in TARGET_DETECTED:
-            if journal is None:
-                continue
-            category = TARGET_EVIDENCE[injection.kind]
-            data = injection.witness if injection.kind == "drop" else injection.data
-            key = _key(category, injection.frame_id if injection.kind == "drop" else injection.sent_id, data)
-            if data is not None and records[key] > 0:
-                records[key] -= 1
+            if journal is not None and (category := _confirm(injection, records, "target")) is not None:
                 matched_categories[category] += 1
-                injection.detected, injection.detected_by = True, f"target {category}"
+        elif injection.kind in REPLY_KINDS:
+            if (category := _confirm(injection, host_records, "host")) is not None:
+                host_confirming[category] += 1
         elif injection.kind == "delay":
             if misses[injection.row] > 0:
                 misses[injection.row] -= 1
@@ -130,24 +175,31 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
                     used_recoveries.add(i)
                     injection.detected, injection.detected_by = True, f"host: {recovery.reason}"
                     break
-    injected = Counter(i.kind for i in run.injections)
-    detected = Counter(i.kind for i in run.injections if i.detected)
+    injected = Counter(i.kind for i in injections)
+    detected = Counter(i.kind for i in injections if i.detected)
     unknown = journal is None and any(k in TARGET_DETECTED for k in injected)
-    explained = Counter(i.row for i in run.injections) + Counter(r.lost_row for r in run.recoveries)
+    # a reply injection knows its Step (the row mod 65536), so deadline misses are explained by Step
+    explained = Counter(i.row % 65536 for i in injections) + Counter(r.lost_row % 65536 for r in run.recoveries)
     unexplained_misses = []
     for row in run.deadline_misses:
-        if explained[row] > 0:
-            explained[row] -= 1
+        if explained[row % 65536] > 0:
+            explained[row % 65536] -= 1
         else:
             unexplained_misses.append(row)
     process = sum(injected[k] for k in PROCESS_KINDS)
+    # the host refuses nothing the target sends unless a reply fault made it so: a refused reply that confirms no
+    # injection is a problem, except the counter jumps that follow a lost or refused reply (its consequences)
+    host_totals = Counter(r["kind"] for r in host_rejections)
+    replies_faulted = any(injected[k] for k in REPLY_KINDS)
+    unexplained_host = {k: n - host_confirming[k] for k, n in host_totals.items()
+                        if n > host_confirming[k] and not (k == "counter" and replies_faulted)}
     totals = Counter(e["kind"] for e in journal.entries) if journal else None
     consistent = None
     if journal is not None and journal.instances and final_rx_errors:  # the journal covers the target's life
         final = {RX_NAMES.get(k, k): int(v) for k, v in final_rx_errors.items()}
         consistent = all(final.get(c, 0) == min(journal.last_instance[c], 255) for c in CATEGORIES)
     kinds = [k for k in KINDS if injected[k] or run.spec.rates.get(k, 0) or run.spec.counts.get(k, 0)]
-    undetected = [i for i in run.injections if not i.detected]
+    undetected = [i for i in injections if not i.detected]
     return {
         "spec": run.spec.describe(),
         **run.spec.to_dict(),
@@ -160,6 +212,9 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
         "detection": {k: DETECTION[k] for k in kinds},
         "target_rejections": dict(totals) if totals is not None else None,
         "target_rejections_confirming_faults": dict(matched_categories),
+        "host_rejections": dict(host_totals),
+        "host_rejections_confirming_faults": dict(host_confirming),
+        "unexplained_host_rejections": unexplained_host,
         "target_processes": journal.instances if journal is not None else None,
         "recoveries": [r.to_dict() for r in run.recoveries],
         "gaps": [{"rows": [r.restart_row, r.lost_row], "lost_row": r.lost_row, "restart_row": r.restart_row,
@@ -189,6 +244,9 @@ def fault_problems(summary: dict) -> list[str]:
                    f"({', '.join(f'{k} {n}' for k, n in kinds.items())})")
     if summary["unexplained_deadline_misses"]:
         out.append(late_sentence(summary["unexplained_deadline_misses"], summary["unexplained_deadline_miss_rows"]))
+    if summary.get("unexplained_host_rejections"):
+        out.append(f"the host rejected frames from the target that no reply fault explains: "
+                   f"{summary['unexplained_host_rejections']}")
     if summary["unexplained_heartbeat_losses"]:
         out.append(f"the heartbeat was lost {summary['unexplained_heartbeat_losses']} time(s) more than the injected "
                    "kills and freezes explain")

@@ -12,6 +12,11 @@ Bus faults hit the host's data-row frames (DriveInputs, DriveTemps) on their way
 * per data row: `reorder` (DriveTemps goes out before DriveInputs) and `delay` (the row's frames, and everything
   queued behind them, are held for 1.5 x the reply timeout).
 
+Reply faults (`reply_drop`, `reply_duplicate`, `reply_corrupt`, `reply_stale_counter`, `reply_wrong_length`,
+`reply_unknown_id`, `reply_out_of_range`) are probabilities per temperature reply frame (Temperatures1/2); the
+target injects them (`python -m target_sim --faults`, started so by `bench run`) and the host's validator
+detects them. They are not marked in the log (the host learns of them only by detecting them).
+
 Process faults are counts over the run: `kill` (SIGKILL the target, the bench restarts it) and `freeze` (SIGSTOP
 for twice the heartbeat timeout, then SIGCONT), at rows drawn from the middle 80 % of the run. They need the
 bench runner, which owns the target process (`bench run`), not `python -m host`.
@@ -26,20 +31,23 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 from dbc import FaultKind
+from target_sim.faults import FRAME_FAULT_KINDS, REPLY_KINDS
 
-# Every kind, in the order of the DBC's FaultKind value table (BenchEvent.FaultKind).
-KINDS: tuple[str, ...] = tuple(k.name.lower() for k in FaultKind if k != FaultKind.NONE)
-FRAME_KINDS: tuple[str, ...] = ("drop", "duplicate", "corrupt", "stale_counter", "wrong_length", "unknown_id",
-                                "out_of_range")
+# The host's kinds, in the order of the DBC's FaultKind value table (BenchEvent.FaultKind: marked in the log),
+# then the target's reply kinds.
+MARKED_KINDS: tuple[str, ...] = tuple(k.name.lower() for k in FaultKind if k != FaultKind.NONE)
+KINDS: tuple[str, ...] = MARKED_KINDS + REPLY_KINDS
+FRAME_KINDS: tuple[str, ...] = FRAME_FAULT_KINDS
 ROW_KINDS: tuple[str, ...] = ("reorder", "delay")
 PROCESS_KINDS: tuple[str, ...] = ("kill", "freeze")
 BUS_KINDS: tuple[str, ...] = FRAME_KINDS + ROW_KINDS
 TARGET_DETECTED: frozenset[str] = frozenset(FRAME_KINDS) | {"reorder"}   # seen in the target's journal
-HOST_DETECTED: frozenset[str] = frozenset({"delay", "kill", "freeze"})    # seen by the host itself
+HOST_DETECTED: frozenset[str] = frozenset({"delay", "kill", "freeze", *REPLY_KINDS})  # seen by the host itself
 ALIASES = {"kill_target": "kill", "freeze_target": "freeze", "stale": "stale_counter", "corruption": "corrupt",
            "duplicate_frame": "duplicate", "wrong_id": "unknown_id"}
 
-assert set(KINDS) == set(BUS_KINDS) | set(PROCESS_KINDS)
+assert set(KINDS) == set(BUS_KINDS) | set(PROCESS_KINDS) | set(REPLY_KINDS)
+assert set(MARKED_KINDS) == set(BUS_KINDS) | set(PROCESS_KINDS)
 assert set(KINDS) == TARGET_DETECTED | HOST_DETECTED
 
 
@@ -75,6 +83,17 @@ class FaultSpec:
     @property
     def process_faults(self) -> int:
         return sum(self.counts.values())
+
+    def reply_rates(self) -> dict[str, float]:
+        """The target's part: rates of the reply kinds asked for."""
+        return {k: v for k, v in self.rates.items() if k in REPLY_KINDS and v > 0}
+
+    def reply_argv(self) -> list[str]:
+        """`python -m target_sim` options that make the target inject this spec's reply faults (none: [])."""
+        rates = self.reply_rates()
+        if not rates:
+            return []
+        return ["--faults", ",".join(f"{k}={v!r}" for k, v in rates.items()), "--fault-seed", str(self.seed)]
 
     def kinds(self) -> list[str]:
         """The kinds asked for (rate or count above 0), in DBC order."""
@@ -119,7 +138,7 @@ def parse_faults(items: Iterable[str], seed: int = 0) -> FaultSpec:
                 if not math.isfinite(rate) or not 0.0 <= rate <= 1.0:
                     raise FaultSpecError(f"{kind}={text} must be a probability between 0 and 1")
                 rates[kind] = rate
-    for group, label in ((FRAME_KINDS, "per-frame"), (ROW_KINDS, "per-row")):
+    for group, label in ((FRAME_KINDS, "per-frame"), (ROW_KINDS, "per-row"), (REPLY_KINDS, "per-reply-frame")):
         total = sum(rates.get(k, 0.0) for k in group)
         if total > 1.0 + 1e-12:
             raise FaultSpecError(f"the {label} fault rates ({', '.join(k for k in group if k in rates)}) add up to "

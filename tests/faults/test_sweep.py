@@ -1,11 +1,13 @@
 """Each fault kind through a real target process on a real bus: injected == detected, and the temperatures
 outside the marked gaps are the clean run's.
 
-Every kind runs once over the same 500 rows (lockstep, udp_multicast, a port per run) with a seed that injects
-several faults, and is compared with a clean run of the same rows:
+Every kind (the host's drive-frame and process faults, the target's reply faults) runs once over the same 500
+rows (lockstep, udp_multicast, a port per run) with a seed that injects several faults, and is compared with a
+clean run of the same rows:
 
-* every injected fault is detected by the side that receives it (the target's journal, the host's deadline
-  misses and heartbeat monitor), exactly, and each is marked in the log (BenchEvent) and in the sidecar;
+* every injected fault is detected by the side that receives it (the target's journal, the host's validator,
+  deadline misses and heartbeat monitor), exactly, and each is in the sidecar and, for the host's own kinds,
+  marked in the log (BenchEvent);
 * every row has a reply, and every reply equals the offline float32 reference restarted as the target was, within
   the 0.005 °C quantization;
 * the temperatures outside the marked gaps are the clean run's within 0.005 °C — in fact equal: bus faults
@@ -33,7 +35,9 @@ from target_sim.artifact import load_artifact
 ROWS = 500
 RATES = {"drop": "0.015", "duplicate": "0.015", "corrupt": "0.015", "stale_counter": "0.015",
          "wrong_length": "0.015", "unknown_id": "0.015", "out_of_range": "0.015", "reorder": "0.02",
-         "delay": "0.02", "kill": "1", "freeze": "1"}
+         "delay": "0.02", "kill": "1", "freeze": "1",
+         **{f"reply_{k}": "0.015" for k in ("drop", "duplicate", "corrupt", "stale_counter", "wrong_length",
+                                             "unknown_id", "out_of_range")}}
 assert set(RATES) == set(KINDS)
 
 
@@ -97,8 +101,17 @@ def test_each_fault_kind_is_detected_and_the_temperatures_survive(kind, clean, f
     else:
         # no gap, so the whole trajectory is the clean run's (a gap here can only be a heartbeat lost to load)
         assert len(gaps) == faults["unexplained_heartbeat_losses"]
-        if kind != "duplicate":
+        if kind not in ("duplicate", "reply_duplicate"):  # a duplicate loses nothing: nothing to send again
             assert faults["retransmitted_rows"] >= 1
     if kind in ("corrupt", "out_of_range", "wrong_length", "unknown_id"):
         category = {"corrupt": "crc"}.get(kind, kind)
         assert faults["target_rejections"][category] == injected  # none of them reached the model
+    if kind.startswith("reply_"):
+        # the host refused every faulted reply and reported none of them as a temperature (diff == 0 above); the
+        # refusals other than the counter jumps that follow a lost reply are exactly the injected faults
+        category = {"corrupt": "crc", "drop": "counter", "duplicate": "counter", "stale_counter": "counter"}.get(
+            kind.removeprefix("reply_"), kind.removeprefix("reply_"))
+        assert faults["host_rejections_confirming_faults"] == {category: injected}
+        assert faults["unexplained_host_rejections"] == {}
+        if category != "counter":
+            assert faults["host_rejections"][category] == injected
