@@ -4,11 +4,12 @@ was lost, with BenchEvent marks in the log.
 Per data row n (as `host.replay.run_lockstep`): send DriveInputs + DriveTemps, wait for Temperatures1 + 2 up to
 the reply timeout. When the deadline passes (the row's *deadline miss*, recorded):
 
-1. Retransmit: mark RETRANSMIT, send row n twice more with fresh alive counters. After a lost or rejected frame
-   the target's validator refuses the next frame of that id (its counter jumps) and resynchronizes on it, so the
-   first copy may be refused; the second is then accepted. A target that already used row n refuses both as a
-   repeated Step. Either way row n reaches the model exactly once, with the values the clean run has, so the
-   estimates stay equal to the clean run's.
+1. Retransmit: mark RETRANSMIT, send row n twice more with fresh alive counters (and again every RETRY_FACTOR
+   reply timeouts while it stays unanswered: the reply to the retransmission may be lost too). After a lost or
+   rejected frame the target's validator refuses the next frame of that id (its counter jumps) and
+   resynchronizes on it, so the first copy may be refused; the second is then accepted. A target that already
+   used row n answers it again without stepping (its reply was lost on the way back). Either way row n reaches
+   the model exactly once, with the values the clean run has, so the estimates stay equal to the clean run's.
 2. Wait for the reply. If instead the target is *lost* — no Status for longer than the heartbeat timeout, or a
    Status whose state is no longer RUNNING (it restarted) — re-initialize it:
    mark TARGET_LOST (Step = n, the first row without a reply), forget the target's alive counters (a restarted
@@ -46,6 +47,7 @@ from .spec import FaultSpec
 
 DELAY_FACTOR = 1.5        # a delayed row is held this many reply timeouts: it misses its deadline, not the next
 FREEZE_FACTOR = 2.0       # a freeze lasts this many heartbeat timeouts
+RETRY_FACTOR = 4.0        # an unanswered retransmission is sent again after this many reply timeouts
 
 
 @dataclass
@@ -125,19 +127,23 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
             session.marker(BenchEvent.FAULT, row, FaultKind[injection.kind.upper()], injection.frame_id)
 
     def retry(n: int, pass_: int) -> str:
-        session.marker(BenchEvent.RETRANSMIT, n)
-        faulty.begin_row(n, pass_, retransmission=True)
-        session.send(encode_row(codec, n, values[n]) + encode_row(codec, n, values[n]))
-        faulty.end_row()
-        session.flush_log()
+        """Send row n again (twice) until it is answered, the target is lost, or `give_up_s` passes: the reply
+        to a retransmission can itself be lost (a reply fault on the row's first use by the target)."""
         run.retransmitted_rows += 1
         deadline = perf() + give_up_s
-        while (remaining := deadline - perf()) > 0:
-            session.receive(min(remaining, 0.02))
-            if got[n] == 3:
-                return "answered"
-            if lost() is not None:
-                return "lost"
+        while perf() < deadline:
+            session.marker(BenchEvent.RETRANSMIT, n)
+            faulty.begin_row(n, pass_, retransmission=True)
+            session.send(encode_row(codec, n, values[n]) + encode_row(codec, n, values[n]))
+            faulty.end_row()
+            session.flush_log()
+            again_at = min(deadline, perf() + RETRY_FACTOR * reply_timeout_s)
+            while (remaining := again_at - perf()) > 0:
+                session.receive(min(remaining, 0.02))
+                if got[n] == 3:
+                    return "answered"
+                if lost() is not None:
+                    return "lost"
         return "unanswered"
 
     def recover(n: int) -> int:

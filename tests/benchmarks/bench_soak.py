@@ -2,14 +2,16 @@
 corrupted drive frames and one killed target, on a real target process and a real bus.
 
     python tests/benchmarks/bench_soak.py [--runs 10] [--rows N] [--drop 0.01] [--corrupt 0.001] [--kills 1]
-                                          [--seed S] [--reply-timeout S] [--data FILE] [-i ... -c ...]
+                                          [--reply-drop P] [--reply-corrupt P] [--seed S] [--reply-timeout S]
+                                          [--data FILE] [-i ... -c ...]
 
 Default: 10 runs of the full 40 °C validation run (36 371 rows), 1 % drop + 0.1 % corruption per drive frame and
-one SIGKILL of the target per run (the runner restarts it, the host re-initializes it from the last good
-estimate), fault seed S + run number. A clean run of the same rows comes first, as the reference. Goals: every
-run completes with every row answered, zero undetected faults, zero lost log frames (every frame the host logged
-reads back from the log file), CAN = offline float32 restarted as the target was within ±0.005 °C, and outside
-the marked gaps the clean run's temperatures (after a re-initialization within their 0.01 °C rounding).
+one SIGKILL of the target per run (the runner restarts it, the host restores it from its last StateCheckpoint),
+fault seed S + run number; `--reply-drop`/`--reply-corrupt` add the target's reply faults. A clean run of the
+same rows comes first, as the reference. Goals: every run completes with every row answered, zero undetected
+faults, zero lost log frames (every frame the host logged reads back from the log file), CAN = offline float32
+restarted as the target was within ±0.005 °C, and the clean run's temperatures outside the marked gaps within
+0.005 °C (the restore is exact, so in fact equal, inside the gaps too).
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ def main() -> int:
     parser.add_argument("--drop", type=float, default=0.01)
     parser.add_argument("--corrupt", type=float, default=0.001)
     parser.add_argument("--kills", type=int, default=1)
+    parser.add_argument("--reply-drop", type=float, default=0.0, help="probability per temperature reply frame")
+    parser.add_argument("--reply-corrupt", type=float, default=0.0, help="probability per temperature reply frame")
     parser.add_argument("--seed", type=int, default=100, help="fault seed of run 0 (run i uses seed + i)")
     parser.add_argument("--reply-timeout", type=float, default=0.05)
     parser.add_argument("--data", type=Path, default=None, help="dataset (default: the 40 °C run in out/data)")
@@ -59,7 +63,8 @@ def main() -> int:
     initial = initial_temperatures(dataset)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}; bus {bus.describe()}; "
           f"model {artifact.kind} {artifact.model_id:08x}; {len(drive)} rows of {dataset.path}")
-    print(f"faults per run: drop={args.drop:g}, corrupt={args.corrupt:g} per drive frame, kill={args.kills}; "
+    print(f"faults per run: drop={args.drop:g}, corrupt={args.corrupt:g} per drive frame, kill={args.kills}, "
+          f"reply_drop={args.reply_drop:g}, reply_corrupt={args.reply_corrupt:g} per reply frame; "
           f"seeds {args.seed}..{args.seed + args.runs - 1}; reply timeout {args.reply_timeout:g} s")
 
     def one_run(log: Path, faults=None):
@@ -80,11 +85,12 @@ def main() -> int:
               f"{max(clean_metrics['max_abs_can_minus_float32_C'].values()):.4f} °C")
         soak_started = time.perf_counter()
         completed = answered_all = 0
-        worst_ref = worst_clean_seg0 = worst_clean_after = 0.0
+        worst_ref = worst_clean_outside = worst_clean_all = 0.0
         lost_frames = undetected = unexplained = 0
         walls = []
         for run in range(args.runs):
-            spec = parse_faults([f"drop={args.drop}", f"corrupt={args.corrupt}", f"kill={args.kills}"],
+            spec = parse_faults([f"drop={args.drop}", f"corrupt={args.corrupt}", f"kill={args.kills}",
+                                 f"reply_drop={args.reply_drop}", f"reply_corrupt={args.reply_corrupt}"],
                                 seed=args.seed + run)
             log = Path(tmp) / f"soak{run}.blf"
             result, record, metrics, read_back, wall = one_run(log, spec)
@@ -101,21 +107,19 @@ def main() -> int:
             ref = max(v for v in metrics["max_abs_can_minus_float32_C"].values() if v is not None)
             worst_ref = max(worst_ref, ref)
             diff = np.abs(record.temps - clean_record.temps)
-            seg0 = record.owner == 0
-            worst_clean_seg0 = max(worst_clean_seg0, float(np.nanmax(diff[seg0])) if seg0.any() else 0.0)
-            after = ~seg0
+            outside = np.ones(len(diff), dtype=bool)
             for gap in f["gaps"]:
-                after[gap["rows"][0]:gap["rows"][1] + 1] = False
-            after_max = float(np.nanmax(diff[after])) if after.any() else 0.0
-            worst_clean_after = max(worst_clean_after, after_max)
-            one_step = int(np.count_nonzero(diff[after].max(axis=1) > 0.005)) if after.any() else 0
+                outside[gap["rows"][0]:gap["rows"][1] + 1] = False
+            outside_max = float(np.nanmax(diff[outside])) if outside.any() else 0.0
+            all_max = float(np.nanmax(diff))
+            worst_clean_outside = max(worst_clean_outside, outside_max)
+            worst_clean_all = max(worst_clean_all, all_max)
             gaps = ", ".join(f"rows {g['rows'][0]}-{g['rows'][1]} ({g['duration_s']:.2f} s)" for g in f["gaps"])
             print(f"run {run}: {result.rows_sent} rows, {result.replies} answered, "
                   + ", ".join(f"{k} {f['injected'][k]}/{f['detected'][k]}" for k in f["injected"])
                   + f" injected/detected; {f['retransmitted_rows']} rows retransmitted; gap {gaps or '-'}; "
                   f"log {result.log_frames} frames, {lost} lost; max |CAN - restarted float32| {ref:.4f} °C, "
-                  f"|CAN - clean| {float(np.nanmax(diff[seg0])):.4f} before / {after_max:.4f} after the restart "
-                  f"({one_step} of {int(np.count_nonzero(after))} rows after it differ by one 0.01 °C step); "
+                  f"|CAN - clean| {outside_max:.4f} °C outside the gaps, {all_max:.4f} °C over all rows; "
                   f"unexplained late replies {f['unexplained_deadline_misses']}; replay {result.wall_time_s:.1f} s, "
                   f"{wall:.1f} s in all")
         soak_s = time.perf_counter() - soak_started
@@ -124,9 +128,10 @@ def main() -> int:
     print("injected/detected: " + ", ".join(f"{k} {totals[k]}/{detected_totals[k]}" for k in KINDS if totals[k])
           + f"; undetected {undetected}; lost log frames {lost_frames}; unexplained late replies or heartbeat "
           f"losses {unexplained}")
-    print(f"max |CAN - restarted float32| {worst_ref:.4f} °C; max |CAN - clean run| {worst_clean_seg0:.4f} °C before "
-          f"the first restart, {worst_clean_after:.4f} °C after it (restart from a 0.01 °C estimate)")
-    ok = completed == answered_all == args.runs and undetected == 0 and lost_frames == 0 and worst_ref <= 0.005 + 1e-9
+    print(f"max |CAN - restarted float32| {worst_ref:.4f} °C; max |CAN - clean run| {worst_clean_outside:.4f} °C "
+          f"outside the marked gaps, {worst_clean_all:.4f} °C over all rows")
+    ok = (completed == answered_all == args.runs and undetected == 0 and lost_frames == 0
+          and worst_ref <= 0.005 + 1e-9 and worst_clean_outside <= 0.005 + 1e-9)
     print("soak goals met" if ok else "soak goals NOT met")
     return 0 if ok else 1
 
