@@ -132,7 +132,7 @@ class BenchEvent(IntEnum):
 
     FAULT = 0  # a fault was injected
     TARGET_LOST = 1  # heartbeat lost or the target restarted: a gap in the replies begins
-    REINIT = 2  # the target is re-initialized from the last good estimate: the gap ends
+    REINIT = 2  # the target is restored from its last StateCheckpoint (the last good estimate): the gap ends
     RETRANSMIT = 3  # a row is sent again after its reply deadline passed
 
 

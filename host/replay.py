@@ -35,7 +35,7 @@ DRIVE_SIGNALS = (("DriveInputs", "MotorTorque"), ("DriveInputs", "MotorSpeed"), 
                  ("DriveTemps", "AmbientTemp"))
 DEFAULT_ABORT_AFTER = 25
 SPIN_S = float(os.environ.get("HOST_SPIN_S", "0.0003"))  # lockstep: busy-poll for the reply before blocking
-_DRIVE_INPUTS, _DRIVE_TEMPS = frame_id("DriveInputs"), frame_id("DriveTemps")
+_DRIVE_INPUTS, _DRIVE_TEMPS, _CONTROL = frame_id("DriveInputs"), frame_id("DriveTemps"), frame_id("Control")
 _TEMPERATURES = (frame_id("Temperatures1"), frame_id("Temperatures2"))
 
 
@@ -232,8 +232,9 @@ def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> int:
                     raise SessionError(f"the target went silent during the replay (row {row})")
             if progress is not None and (row & 1023) == 0:
                 progress(row, book.rows)
-        elif frame.arbitration_id != _DRIVE_INPUTS:
-            # control frames: give the target its turn (state changes are answered by a Status frame)
+        elif frame.arbitration_id == _CONTROL:
+            # a command: give the target its turn (state changes are answered by a Status frame); the other frames
+            # (ResetTemps, RestoreState, BenchEvent marks, a faulted drive frame) change no state on their own
             session.wait_for(lambda f: f.name == "Status", 0.02)
     session.flush_log()
     return missing

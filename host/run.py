@@ -39,6 +39,7 @@ from host.replay import (
 from host.results import HostResult, build_result
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_REPLY_TIMEOUT_S, HostSession
 from target_sim.fastframes import fast_decode_any
+from target_sim.faults import UNKNOWN_ID_FLIP
 from target_sim.transport import OwnFrameFilter
 
 MODES = ("lockstep", "realtime")
@@ -109,9 +110,9 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
                         log_path=final, log_frames=log_frames, faults=summary)
 
 
-# The ids the unknown_id fault puts the host's drive frames on (bit 3 flipped, as the fault layer does): a replay of
+# The ids the unknown_id fault puts the host's drive frames on (`target_sim.faults.mutate`): a replay of
 # a faulted log re-sends those frames too, so the target rejects what it rejected when the log was made.
-INJECTED_IDS = frozenset(FRAME_IDS[name] ^ 0x008 for name in ("DriveInputs", "DriveTemps"))
+INJECTED_IDS = frozenset(FRAME_IDS[name] ^ UNKNOWN_ID_FLIP for name in ("DriveInputs", "DriveTemps"))
 
 
 def sent_frames(messages: Sequence[can.Message]) -> list[can.Message]:

@@ -328,7 +328,7 @@ def fault_metrics(record: BusRecord) -> dict | None:
 
     The target's reply faults are not marked in the log (the host learns of them only by detecting them): their
     counts come from the sidecar, which has them from the target's journal."""
-    from host.faults import DETECTION, KINDS, REPLY_KINDS, read_sidecar
+    from host.faults import DETECTION, KINDS, REPLY_KINDS, fault_problems, read_sidecar
 
     sidecar = read_sidecar(record.path)
     if not record.marks and sidecar is None:
@@ -360,20 +360,17 @@ def fault_metrics(record: BusRecord) -> dict | None:
         "unexplained_deadline_misses": None if sidecar is None else sidecar.get("unexplained_deadline_misses"),
         "unexplained_deadline_miss_rows": [] if sidecar is None else sidecar.get("unexplained_deadline_miss_rows", []),
         "seed": None if sidecar is None else sidecar.get("seed"),
+        # what the run's own fault summary does not explain (undetected faults, late replies, refused frames, ...)
+        "sidecar_problems": None if sidecar is None else fault_problems(sidecar),
         "sidecar": None if sidecar is None else str(record.path.with_name(record.path.name + ".faults.json")),
     }
 
 
 def fault_note(metrics: dict) -> str | None:
     """'N faults are marked in the log ...': what makes a faulted log non-zero without --tolerate-faults."""
-    faults = metrics.get("faults")
-    if not faults or not faults["injected_total"]:
-        return None
-    kinds = ", ".join(f"{k} {n}" for k, n in faults["injected"].items() if n)
-    detected = ("detection not verified (no sidecar)" if faults["undetected"] is None else
-                "all detected" if not faults["undetected"] else f"{faults['undetected']} undetected")
-    return (f"{faults['injected_total']} injected fault(s) are marked in the log ({kinds}), {detected}; pass "
-            "--tolerate-faults to accept a run with injected faults")
+    from host.faults import fault_note as note
+
+    return note(metrics.get("faults"), what="injected fault(s) are marked in the log")
 
 
 def _fault_names(bits: int) -> list[str]:
@@ -413,12 +410,8 @@ def problems(metrics: dict) -> list[str]:
     if metrics["heartbeat"]["losses"] > process:
         extra = " more than the injected kills and freezes explain" if process else ""
         out.append(f"the target's heartbeat was lost {metrics['heartbeat']['losses'] - process} time(s){extra}")
-    if faults.get("undetected"):
-        out.append(f"{faults['undetected']} injected fault(s) went undetected (see {faults['sidecar']})")
-    if faults.get("unexplained_deadline_misses"):
-        from host.faults.reconcile import late_sentence
-
-        out.append(late_sentence(faults["unexplained_deadline_misses"], faults["unexplained_deadline_miss_rows"]))
+    if faults.get("sidecar_problems"):
+        out += [f"{sentence} (see {faults['sidecar']})" for sentence in faults["sidecar_problems"]]
     if not metrics["can_agrees_with_float32"]:
         worst = max(v for v in metrics["max_abs_can_minus_float32_C"].values() if v is not None)
         out.append(f"CAN temperatures differ from the offline float32 reference by up to {worst:.4f} °C "

@@ -80,10 +80,11 @@ def fault_section(faults: dict) -> list[str]:
             first, last = gap["rows"]
             lines.append(f"| {first}–{last} | {gap['lost_row']} | {_fmt(gap['restart_row'])} | "
                          f"{_fmt(gap['duration_s'], 2)} |")
-        lines += ["", "In a gap the target was lost (killed, frozen or restarted); the host re-initialized it from "
-                  "the last good estimate (the reply to the row before the gap, 0.01 °C resolution) and replayed "
-                  "the gap's rows again, so every row has a reply. The CAN − float32 check compares every reply "
-                  "with the float32 reference restarted the same way.", ""]
+        lines += ["", "In a gap the target was lost (killed, frozen or restarted); the host restored it from its "
+                  "last StateCheckpoint (the float32 state vector after the gap's first row minus one, echoed back "
+                  "bit for bit in RestoreState) and replayed the gap's rows again, so every row has a reply and "
+                  "the restarted target continues exactly as an uninterrupted one. The CAN − float32 check "
+                  "compares every reply with the float32 reference restarted the same way.", ""]
     return lines
 
 

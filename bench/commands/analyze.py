@@ -1,10 +1,14 @@
 """`bench analyze LOG`: decode a bus log of this bench offline into the same report as `bench run`.
 
-    bench analyze LOG [--model FILE] [--data FILE] [--report DIR] [--json] [--quiet]
+    bench analyze LOG [--model FILE] [--data FILE] [--report DIR] [--tolerate-faults] [--json] [--quiet]
 
 The model defaults to the packaged artifact and must carry the log's model id (Status.ModelId). The measured
 reference comes from --data, or else from a dataset in out/data whose rows match the drive values in the log
 (so a log of the default `bench run` gets the same report); without one, RMSE is against the float64 model only.
+
+Exit status as `bench run`'s: 1 when the log is not clean, and a log with injected faults (BenchEvent marks; the
+`<log>.faults.json` sidecar beside it says whether each was detected) is not, unless --tolerate-faults; a fault
+the sidecar lists as undetected fails even then.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.commands.common import add_output_flags, check_writable, print_json
+from bench.commands.common import add_output_flags, check_writable, print_json, verdict
 from bench.errors import BenchError
 from bench.runner import load_data, load_model
 from host.canlog import LogError
@@ -32,6 +36,8 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--data", type=Path, default=None, help="dataset with the measured reference")
     p.add_argument("--report", type=Path, default=None,
                    help="report directory (default: <log dir>/<log name>-report)")
+    p.add_argument("--tolerate-faults", action="store_true",
+                   help="exit 0 for a log with injected faults if every one was detected and nothing else went wrong")
     add_output_flags(p)
     p.set_defaults(func=run)
 
@@ -66,7 +72,7 @@ def data_mismatch(dataset, drive: np.ndarray) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.analysis.canmetrics import compute, problems
+    from bench.analysis.canmetrics import compute, fault_note, problems
     from bench.analysis.logdecode import decode_log
     from bench.analysis.report import write_report
 
@@ -92,13 +98,17 @@ def run(args: argparse.Namespace) -> int:
     else:
         dataset = matching_dataset(record.drive, artifact)
     metrics, refs = compute(record, artifact, dataset)
-    found = problems(metrics)
-    metrics["report"] = str(write_report(report_dir, metrics, found, record, refs, dataset,
-                                         {"mode": "analyzed from the log"}))
+    in_log = problems(metrics)
+    metrics["report"] = str(write_report(report_dir, metrics, in_log, record, refs, dataset,
+                                         {"mode": "analyzed from the log"}))  # the report `bench run` writes
+    outcome = verdict(in_log, fault_note(metrics), faulted=metrics["faults"] is not None,
+                      tolerate_faults=args.tolerate_faults)
+    found = outcome.problems
+    injected = bool(metrics["faults"] and metrics["faults"]["injected_total"])
     if args.json:
         out = {k: v for k, v in metrics.items() if k != "bus_load"}
         out["bus_load"] = {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}
-        print_json({**out, "problems": found, "clean": not found})
+        print_json({**out, "problems": found, "clean": not found and not injected})
     else:
         from bench.commands.run import print_summary
 
@@ -107,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
                        metrics["max_abs_can_minus_float32_C"], "rmse_C": metrics["rmse_C"],
                        "step_time_us": metrics["step_time_us"], "throughput_steps_per_s":
                        metrics["throughput_steps_per_s"], "log": metrics["log"], "report": metrics["report"],
-                       "problems": found, "clean": not found})
+                       "problems": found, "clean": not found and not injected})
         if dataset is None and not args.quiet:
             print("bench: no dataset matched the log: RMSE is against the float64 model only (pass --data)",
                   file=sys.stderr)
-    return 0 if not found else 1
+    return outcome.exit_status(f"the log {args.log}", args.json)

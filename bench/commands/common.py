@@ -8,6 +8,7 @@ import os
 import sys
 import tempfile
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from bench.errors import BenchError, UsageError
@@ -90,3 +91,28 @@ def check_writable(path: Path, option: str, *, directory: bool = False) -> Path:
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise BenchError(f"cannot write {path}: the directory {ancestor} is not writable; choose another {option}")
     return path
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Whether a run, or the log of one, passes: the problems to report and the exit status."""
+
+    problems: list[str]
+    status: int
+
+    def exit_status(self, subject: str, as_json: bool) -> int:
+        """The status, after one sentence on stderr when it fails (with --json the problems are in the JSON)."""
+        if self.status and not as_json:
+            print(f"bench: error: {subject} is not clean: " + "; ".join(self.problems), file=sys.stderr)
+        return self.status
+
+
+def verdict(problems: list[str], fault_note: str | None, *, faulted: bool, tolerate_faults: bool,
+            tolerate_gaps: bool = False) -> Verdict:
+    """The rule of `bench run` and `bench analyze`: every problem fails (status 1); injected faults are one
+    (`fault_note`, the sentence that says so) unless tolerated; --tolerate-gaps forgives only a run without faults,
+    so an undetected fault, or anything the faults do not explain, always fails."""
+    found = list(dict.fromkeys(problems))
+    if fault_note and not tolerate_faults:
+        found.append(fault_note)
+    return Verdict(found, 1 if found and (faulted or not tolerate_gaps) else 0)

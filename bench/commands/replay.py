@@ -8,25 +8,36 @@ recorded, with the recorded timing (`can.MessageSync`, scaled by --speed) or as 
 (each row waits for its replies). A target is started with the log's model (default: the packaged artifact,
 which must have the log's model id; --model names another) unless --no-start-target, which talks to a target
 already running on the given bus. The new session is logged (default out/replay/<log name>.replay.blf). Exit 0
-when every recorded reply came back identical.
+when every recorded reply came back identical: both logs are decoded (`bench.analysis.logdecode`) and each data
+row's final reply is compared, so a row the recorded run sent twice counts once.
+
+A log of a run with bus faults (`bench run --faults drop=...`) replays as it was made: its faulty frames go out
+again byte for byte (those on the unknown_id fault's ids too), the target rejects the same frames, and the replay
+is reproduced only if its rejection counters (RxErrors) also equal the recorded ones. A log with process faults
+(kill, freeze: the target was lost and re-initialized mid-run) cannot be replayed and is refused.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from bench.analysis.logdecode import BusRecord, decode_log
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
 from bench.runner import ProgressBar, bus_from_args, load_model, positive_float, replay_with_target
 from dbc import FrameError, frame_id
 from host.canlog import LogError, check_log_path, read_log
-from host.replay import count_rows, host_frames, recorded_replies
+from host.replay import count_rows, host_frames
 from target_sim.fastframes import fast_decode_any
 from target_sim.transport import add_bus_arguments
+
+PROCESS_FAULTS = ("kill", "freeze")
 
 
 def add_subparser(subparsers) -> None:
@@ -61,6 +72,29 @@ def log_model_id(messages) -> int | None:
     return None
 
 
+def decoded(path: Path) -> BusRecord:
+    try:
+        return decode_log(path)
+    except LogError as exc:
+        raise BenchError(str(exc)) from None
+
+
+def refuse_process_faults(path: Path, record: BusRecord) -> None:
+    """A killed or frozen target was re-initialized mid-run from the host's last good estimate: which frames it
+    missed depends on timing no replay can reproduce, so such a log is refused in one sentence."""
+    kinds = Counter(m.fault for m in record.marks if m.fault in PROCESS_FAULTS)
+    if kinds or any(m.event in ("target-lost", "reinit") for m in record.marks):
+        what = ", ".join(f"{k} {n}" for k, n in kinds.items()) or "a lost target"
+        raise BenchError(f"log {path} records process faults ({what}): its target was lost and re-initialized "
+                         "mid-run, which a replay cannot reproduce; replay a log made with bus faults only, or "
+                         f"check this one with 'bench analyze {path} --tolerate-faults'")
+
+
+def injected_faults(record: BusRecord) -> dict[str, int]:
+    """The faults marked in a log (BenchEvent FAULT marks) per kind."""
+    return dict(Counter(m.fault for m in record.marks if m.event == "fault" and m.fault))
+
+
 def compare_replies(recorded: np.ndarray, recorded_ok: np.ndarray, new: np.ndarray, new_ok: np.ndarray) -> dict:
     rows = min(len(recorded), len(new))
     both = recorded_ok[:rows] & new_ok[:rows]
@@ -84,6 +118,9 @@ def run(args: argparse.Namespace) -> int:
     frames = host_frames(messages)
     if count_rows(frames) == 0:
         raise BenchError(f"log {path} has no DriveInputs frames to replay; is it a log of this bench?")
+    recorded = decoded(path)
+    refuse_process_faults(path, recorded)
+    faults = injected_faults(recorded)
     recorded_id = log_model_id(messages)
     artifact, model_path = load_model(args.model)
     if recorded_id is not None and recorded_id != artifact.model_id:
@@ -98,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
     if not quiet:
-        print(f"bench: replaying {count_rows(frames)} rows of {path} "
+        print(f"bench: replaying {recorded.rows} rows of {path} "
               f"({'as fast as possible' if args.as_fast_as_possible else f'recorded timing x{args.speed:g}'}) "
               f"over {bus.describe()}", file=sys.stderr)
     bar = ProgressBar(count_rows(frames), "replay", quiet)
@@ -109,14 +146,22 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     result = outcome.result
-    recorded, recorded_ok = recorded_replies(messages)
-    comparison = compare_replies(recorded, recorded_ok, result.arrays["temps"], result.arrays["answered"])
+    replayed = decoded(Path(result.log_path))
+    comparison = compare_replies(recorded.temps, recorded.answered, replayed.temps, replayed.answered)
+    # the target must reject what it rejected then; a target that ran before (--no-start-target) counted before
+    same_rejections = not faults or args.no_start_target or replayed.rx_errors == recorded.rx_errors
     reproduced = (comparison["different"] == 0 and comparison["missing_in_replay"] == 0
-                  and comparison["compared"] == comparison["recorded_answered"])
+                  and comparison["compared"] == comparison["recorded_answered"] and same_rejections)
+    # of a faulted log, the passes the faults left unanswered and the target's rejections are expected
+    problems = (replace(result, missing=0, target_rx_errors={}) if faults else result).problems()
+    if not same_rejections:
+        problems.append(f"the target's rejections {replayed.rx_errors} differ from the recorded "
+                        f"{recorded.rx_errors}")
     summary = {"log": str(path), "replay_log": result.log_path, "reproduced": reproduced, **comparison,
+               "faults_in_log": faults or None,
+               "target_rejections": {"recorded": recorded.rx_errors, "replayed": replayed.rx_errors},
                "mode": result.mode, "speed": result.speed, "wall_time_s": result.wall_time_s,
-               "rows_per_s": result.rows_per_s, "round_trip_us": result.round_trip_us,
-               "problems": result.problems()}
+               "rows_per_s": result.rows_per_s, "round_trip_us": result.round_trip_us, "problems": problems}
     if args.json:
         print_json(summary)
     else:
@@ -124,6 +169,9 @@ def run(args: argparse.Namespace) -> int:
               f"{comparison['identical']} of {comparison['recorded_answered']} recorded replies identical, "
               f"{comparison['different']} different (max {comparison['max_abs_difference_C']:.4f} °C), "
               f"{comparison['missing_in_replay']} missing")
+        if faults:
+            print(f"faults in the log: {', '.join(f'{k} {n}' for k, n in faults.items())}; target rejections "
+                  f"recorded {recorded.rx_errors}, replayed {replayed.rx_errors}")
         print(f"new log {result.log_path}")
-        print("reproduced" if reproduced else "NOT reproduced")
+        print("reproduced" if reproduced else "NOT reproduced" + "".join(f"; {p}" for p in problems))
     return 0 if reproduced else 1

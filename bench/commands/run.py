@@ -8,7 +8,9 @@
 Defaults: the generated 40 °C validation run (out/data, made if missing), the packaged model artifact, lockstep,
 log out/run/bench.blf (format by suffix: .blf .asc .log .csv .mf4), report out/run/report/report.md with PNGs.
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
-±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0).
+±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). The JSON summary names the bus
+it used ("bus": interface, channel, and the port of udp_multicast), `auto` resolved. A target already sending on
+the channel is refused before the run starts its own.
 
 Fault injection (lockstep; `host.faults`): e.g. `--faults drop=0.01,corrupt=0.001,kill=1 --fault-seed 7`.
 Bus faults (drop, delay, duplicate, reorder, corrupt, stale_counter, wrong_length, unknown_id, out_of_range) hit
@@ -26,7 +28,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, print_json
+from bench.commands.common import add_output_flags, check_writable, print_json, verdict
 from bench.errors import BenchError, UsageError
 from bench.runner import (
     ProgressBar,
@@ -39,7 +41,7 @@ from bench.runner import (
 )
 from host.canlog import LogError, check_log_path
 from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
-from target_sim.transport import add_bus_arguments
+from target_sim.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 
 DEFAULT_LOG = Path("out/run/bench.blf")
 DEFAULT_REPORT = Path("out/run/report")
@@ -126,23 +128,25 @@ def run(args: argparse.Namespace) -> int:
                                         extra_problems=host.problems())
     except (LogError, ValueError) as exc:
         raise BenchError(f"the log {log_path} cannot be analyzed ({exc})") from None
-    found = list(dict.fromkeys(host.problems() + found))
-    note = fault_note(host.faults)
-    if note and not args.tolerate_faults:
-        found.append(note)
-    summary = json_summary(metrics, host, found, time.perf_counter() - started)
+    outcome = verdict(host.problems() + found, fault_note(host.faults), faulted=host.faults is not None,
+                      tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
+    summary = json_summary(metrics, host, outcome.problems, time.perf_counter() - started, bus)
     if args.json:
         print_json(summary)
     else:
         print_summary(summary)
-    if found and (host.faults is not None or not args.tolerate_gaps):  # --tolerate-gaps does not cover faults
-        if not args.json:
-            print("bench: error: the run is not clean: " + "; ".join(found), file=sys.stderr)
-        return 1
-    return 0
+    return outcome.exit_status("the run", args.json)
 
 
-def json_summary(metrics: dict, host, found: list[str], elapsed_s: float) -> dict:
+def bus_summary(bus: BusConfig) -> dict:
+    """The bus a run used, `auto` resolved (a script needs it to reach the same bus, e.g. its udp port)."""
+    out = {"interface": bus.interface, "channel": bus.channel}
+    if bus.interface == UDP_INTERFACE and "port" in bus.kwargs:
+        out["port"] = bus.kwargs["port"]
+    return out
+
+
+def json_summary(metrics: dict, host, found: list[str], elapsed_s: float, bus: BusConfig) -> dict:
     """What `--json` prints: the brief's numbers first, then the rest of the metrics."""
     return {
         "steps_sent": metrics["steps_sent"],
@@ -155,6 +159,7 @@ def json_summary(metrics: dict, host, found: list[str], elapsed_s: float) -> dic
         "throughput_steps_per_s": metrics["throughput_steps_per_s"],
         "log": metrics["log"],
         "report": metrics.get("report"),
+        "bus": bus_summary(bus),
         "problems": found,
         "notes": metrics.get("notes", []),
         "clean": not found and not (host.faults and host.faults["injected_total"]),

@@ -259,15 +259,16 @@ def late_sentence(count: int, rows: list[int]) -> str:
     return f"{count} row(s) missed their reply deadline without an injected fault (rows {list(rows)[:5]})"
 
 
-def fault_note(summary: dict | None) -> str | None:
-    """'N faults were injected (...)', the sentence that makes a faulted run non-zero without --tolerate-faults."""
+def fault_note(summary: dict | None, *, what: str = "fault(s) were injected") -> str | None:
+    """'N faults were injected (...)', the sentence that makes a faulted run non-zero without --tolerate-faults
+    (`summary`: a run's fault summary, or the fault metrics of a log)."""
     if not summary or not summary["injected_total"]:
         return None
     kinds = ", ".join(f"{k} {n}" for k, n in summary["injected"].items() if n)
     detected = ("detection unchecked" if summary["undetected"] is None else
                 "all detected" if not summary["undetected"] else f"{summary['undetected']} undetected")
-    return (f"{summary['injected_total']} fault(s) were injected ({kinds}), {detected}; pass --tolerate-faults to "
-            "accept a run with injected faults")
+    return (f"{summary['injected_total']} {what} ({kinds}), {detected}; pass --tolerate-faults to accept a run with "
+            "injected faults")
 
 
 def sidecar_path(log_path: str | Path) -> Path:

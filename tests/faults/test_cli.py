@@ -75,3 +75,52 @@ def test_bad_fault_options_are_one_sentence_exit_2(argv, needle):
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in proc.stderr
+
+
+def _analyze(log, tmp_path, *extra: str) -> subprocess.CompletedProcess:
+    return run_cli("-m", "bench", "analyze", str(log), "--report", str(tmp_path / "rep"), *extra)
+
+
+def test_analyze_of_a_faulted_log_exits_1_unless_tolerated(faulted_run, tmp_path):
+    """As `bench run`: the injected faults marked in the log are a problem unless --tolerate-faults."""
+    _, log, _ = faulted_run
+    strict = _analyze(log, tmp_path, "--json")
+    assert strict.returncode == 1, strict.stderr
+    s = json.loads(strict.stdout)
+    assert s["faults"]["injected"]["kill"] == 1 and s["faults"]["undetected"] == 0 and s["clean"] is False
+    assert "injected fault(s) are marked in the log" in s["problems"][-1], s["problems"]
+    assert "pass --tolerate-faults" in s["problems"][-1] and load_only(s["problems"][:-1])
+    lines = _analyze(log, tmp_path, "--quiet").stderr.strip().splitlines()  # without --json: one sentence
+    assert len(lines) == 1 and lines[0].startswith(f"bench: error: the log {log} is not clean: "), lines
+    assert "pass --tolerate-faults" in lines[0] and "Traceback" not in lines[0]
+    tolerated = _analyze(log, tmp_path, "--json", "--tolerate-faults")
+    t = json.loads(tolerated.stdout)
+    assert load_only(t["problems"]) and t["clean"] is False
+    assert tolerated.returncode == (1 if t["problems"] else 0), tolerated.stderr
+
+
+def test_analyze_fails_when_the_sidecar_says_a_fault_went_undetected(faulted_run, tmp_path):
+    _, log, _ = faulted_run
+    copy = tmp_path / log.name
+    copy.write_bytes(log.read_bytes())
+    sidecar = json.loads(log.with_name(log.name + ".faults.json").read_text())
+    sidecar["undetected"] = 1
+    sidecar["undetected_faults"] = [dict(sidecar["injections"][0], detected=False, detected_by=None)]
+    copy.with_name(copy.name + ".faults.json").write_text(json.dumps(sidecar))
+    proc = _analyze(copy, tmp_path, "--json", "--tolerate-faults")
+    assert proc.returncode == 1, proc.stderr
+    s = json.loads(proc.stdout)
+    assert any("1 injected fault(s) went undetected" in p for p in s["problems"]), s["problems"]
+
+
+def test_replay_refuses_a_log_with_process_faults(faulted_run, tmp_path):
+    """A killed target was re-initialized mid-run: no replay can reproduce that, so it is refused up front."""
+    _, log, _ = faulted_run
+    new_log = tmp_path / "r.blf"
+    proc = run_cli("-m", "bench", "replay", str(log), "--log", str(new_log), "--quiet")
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert f"log {log} records process faults (kill 1)" in lines[0] and "replay a log made with bus faults only" \
+        in lines[0] and f"bench analyze {log} --tolerate-faults" in lines[0], lines[0]
+    assert not new_log.exists() and list(tmp_path.iterdir()) == []

@@ -413,6 +413,31 @@ def bus_cases() -> list[Case]:
         Case("target_sim-group-invalid", "target_sim",
              ("--model", "{art}", "--stats", "{out}/stats.json", "-i", "udp_multicast", "-c", "no-group.invalid"),
              ("no-group.invalid", BUS_FIX), ("stats.json",), prefix="target_sim: error: ", timeout=20),
+        *virtual_cases(),
+    ]
+
+
+VIRTUAL = ("'virtual' interface does not cross processes", "use udp_multicast, socketcan or auto")
+
+
+def virtual_cases() -> list[Case]:
+    """python-can's virtual bus lives in one process: every command that talks to another process refuses it up
+    front (exit 2), instead of waiting out a connect timeout (host) or serving nobody until killed (target).
+    The short timeouts are the point: before the fix the host failed after 15 s and the target never."""
+    host = ("--data", "{data}", "--model", "{art}", "--log", "{out}/h.blf", "--quiet")
+    target = ("--model", "{art}", "--stats", "{out}/stats.json", "--events", "{out}/events.jsonl")
+    return [
+        Case("run-interface-virtual", "bench", ("run", "--data", "{data}", "--model", "{art}", "--rows", "50",
+                                                "--log", "{out}/x.blf", "--report", "{out}/rep", "--quiet", "-i",
+                                                "virtual"), VIRTUAL, ("x.blf", "rep"), rc=2, timeout=10),
+        Case("host-interface-virtual", "host", (*host, "-i", "virtual"), VIRTUAL, ("h.blf",), rc=2,
+             prefix="host: error: ", timeout=5),
+        Case("host-interface-env-virtual", "host", host, VIRTUAL, ("h.blf",), rc=2, prefix="host: error: ",
+             env={"CAN_INTERFACE": "virtual"}, timeout=5),
+        Case("target_sim-interface-virtual", "target_sim", (*target, "-i", "virtual"), VIRTUAL,
+             ("stats.json", "events.jsonl"), rc=2, prefix="target_sim: error: ", timeout=5),
+        Case("target_sim-interface-env-virtual", "target_sim", target, VIRTUAL, ("stats.json", "events.jsonl"),
+             rc=2, prefix="target_sim: error: ", env={"CAN_INTERFACE": "virtual"}, timeout=5),
     ]
 
 
@@ -550,10 +575,9 @@ def test_channel_in_use_by_a_target_of_another_model(cli, material, scratch):
     assert tree(out) is None or tree(out) == {}
 
 
-@pytest.mark.xfail(strict=False, reason="bench/runner.py does not look for a target already on the bus before it "
-                   "starts its own: with the same model the foreign target answers the run, the run's own target is "
-                   "killed while still starting ('status -15') and the log stays (reported)")
 def test_channel_in_use_by_a_target_of_the_same_model(cli, material, scratch):
+    """A target of the run's own model would pass the handshake and answer the run: the runner listens for one
+    before it starts its own and refuses, naming the channel and the model, before anything is written."""
     port = _port()
     foreign = _start_target(material.art, port, scratch)
     try:
@@ -563,8 +587,26 @@ def test_channel_in_use_by_a_target_of_the_same_model(cli, material, scratch):
                      cwd=scratch, timeout=60)
     finally:
         _stop(foreign)
-    line = assert_one_sentence(result)
+    line = assert_one_sentence(result, (f"port {port} on udp_multicast already has a target sending heartbeats",
+                                        f"runs model {material.model_id(material.art)}, the same as this run's",
+                                        "stop it or pick another channel"))
     assert re.search(r"already|in use|another target", line), str(result)
+    assert tree(out) is None or tree(out) == {}
+
+
+def test_replay_refuses_a_channel_with_a_target_on_it(cli, material, scratch):
+    """`bench replay` starts a target of its own too (unless --no-start-target): the same check, the same line."""
+    port = _port()
+    foreign = _start_target(material.art, port, scratch)
+    try:
+        out = scratch / "out"
+        result = cli("bench", "replay", material.log, "--model", material.art, "--log", out / "r.blf", "--quiet",
+                     "--as-fast-as-possible", "-i", "udp_multicast", "--bus-kwargs", f"port={port}", cwd=scratch,
+                     timeout=60)
+    finally:
+        _stop(foreign)
+    assert_one_sentence(result, (f"port {port} on udp_multicast already has a target sending heartbeats",
+                                 "stop it or pick another channel"))
     assert tree(out) is None or tree(out) == {}
 
 

@@ -44,6 +44,7 @@ def test_bench_run_on_vcan0_answers_every_step_and_matches_float32(vcan0, small_
                    "-c", vcan0, "--reply-timeout", REPLY_TIMEOUT, "--json", "--no-report", "--log", str(log))
     assert proc.returncode == 0, proc.stderr
     s = json.loads(proc.stdout)
+    assert s["bus"] == {"interface": "socketcan", "channel": vcan0}, s["bus"]
     assert (s["steps_sent"], s["replies"], s["missing"]) == (ROWS, ROWS, 0)
     assert s["clean"] and s["problems"] == [], s["problems"]
     assert s["host"]["sequence_gaps"] == 0
@@ -81,8 +82,9 @@ def test_target_sim_and_host_as_separate_processes_on_vcan0(vcan0, small_dataset
 
 def test_auto_interface_picks_socketcan_vcan0(vcan0, small_dataset, tmp_path):
     proc = run_cli("-m", "bench", "run", "--data", str(small_dataset), "--rows", "100", "-i", "auto",
-                   "--reply-timeout", REPLY_TIMEOUT, "--no-report", "--log", str(tmp_path / "auto.log"))
+                   "--reply-timeout", REPLY_TIMEOUT, "--no-report", "--log", str(tmp_path / "auto.log"), "--json")
     assert proc.returncode == 0, proc.stderr
-    assert f"over socketcan {vcan0}" in proc.stderr and "udp_multicast" not in proc.stderr, proc.stderr
-    assert "steps sent 100, answered 100, missing 0" in proc.stdout, proc.stdout
-    assert proc.stdout.strip().splitlines()[-1] == "clean", proc.stdout
+    s = json.loads(proc.stdout)
+    assert s["bus"] == {"interface": "socketcan", "channel": vcan0}, s["bus"]
+    assert (s["steps_sent"], s["replies"], s["missing"]) == (100, 100, 0)
+    assert s["clean"] and s["problems"] == [], s["problems"]
