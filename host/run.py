@@ -8,7 +8,8 @@ given) is matched against the injections, and the summary goes into the result a
 from __future__ import annotations
 
 import gc
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import can
@@ -45,6 +46,17 @@ from target_sim.transport import OwnFrameFilter
 MODES = ("lockstep", "realtime")
 
 
+@contextmanager
+def discarded_on_error(log: FrameLog | None) -> Iterator[None]:
+    """Nothing half-written: a run that fails leaves no log behind (its temporary file is deleted)."""
+    try:
+        yield
+    except BaseException:
+        if log is not None:
+            log.close(commit=False)
+        raise
+
+
 def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *, model_id: int | None,
                 mode: str = "lockstep", speed: float = 1.0, sample_period_s: float = 0.2,
                 log_path: str | Path | None = None, reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S,
@@ -73,7 +85,7 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
     log = FrameLog(log_path) if log_path is not None else None
     gc.freeze()  # the loaded data and modules stay out of the collector's scans during the replay
     fault_run = None
-    try:
+    with discarded_on_error(log):
         session = HostSession(faulty or bus, log=log, expected_model_id=model_id)
         session.connect(connect_timeout_s, alive)
         session.reset(initial)
@@ -93,10 +105,6 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
         if fault_run is not None:  # the target's final counters: a RxErrors sent after it stopped
             session.wait_for(lambda f: f.name == "RxErrors", 0.3)
             session.flush_log()
-    except BaseException:
-        if log is not None:
-            log.close(commit=False)
-        raise
     log_frames = log.count if log is not None else None
     final = str(log.close()) if log is not None else None
     summary = None
@@ -154,7 +162,7 @@ def replay_log(bus: can.BusABC, messages: Sequence[can.Message], *, model_id: in
     """Re-send the host frames of a recorded log; the result's arrays hold the new replies by DriveInputs frame."""
     frames = sent_frames(messages)
     log = FrameLog(log_path) if log_path is not None else None
-    try:
+    with discarded_on_error(log):
         session = ReplaySession(bus, log=log, expected_model_id=model_id)
         session.connect(connect_timeout_s, alive)
         stats = replay_frames(session, frames, timed=timed, speed=speed, reply_timeout_s=reply_timeout_s,
@@ -162,9 +170,5 @@ def replay_log(bus: can.BusABC, messages: Sequence[can.Message], *, model_id: in
         # collect the last heartbeat and the trailing frames
         session.wait_for(lambda f: f.name == "RxErrors", 0.3)
         session.flush_log()
-    except BaseException:
-        if log is not None:
-            log.close(commit=False)
-        raise
     final = str(log.close()) if log is not None else None
     return build_result(session, stats, rows=stats.rows_sent, speed=speed if timed else None, log_path=final)

@@ -177,7 +177,8 @@ def node_snapshot(node) -> tuple:
     return (node.state, int(node.faults) & ~int(FaultBit.RX_ERROR), node.next_row, node.rows_used, node.model_steps,
             node.overruns, _array(node.estimate), _array(model.x), _array(model.y), _array(acc.sum), acc.count,
             _array(getattr(acc, "last_inputs", None)), repr(getattr(node, "_pending_inputs", None)),
-            repr(getattr(node, "_reset_frames", None)), node.errors.get("sequence"))
+            repr(getattr(node, "_reset_frames", None)), repr(getattr(node, "_restore_frames", None)),
+            getattr(node, "last_reply_row", None), node.errors.get("sequence"))
 
 
 def start_session(node, host: FrameCodec, rows: int) -> None:

@@ -88,3 +88,23 @@ def test_auto_interface_picks_socketcan_vcan0(vcan0, small_dataset, tmp_path):
     assert s["bus"] == {"interface": "socketcan", "channel": vcan0}, s["bus"]
     assert (s["steps_sent"], s["replies"], s["missing"]) == (100, 100, 0)
     assert s["clean"] and s["problems"] == [], s["problems"]
+
+
+def test_faults_on_vcan0_are_detected_and_a_killed_target_continues_exactly(vcan0, small_dataset, tmp_path):
+    """Bus faults on the host's frames, reply faults from the target and a SIGKILL, on the kernel's CAN bus."""
+    log = tmp_path / "faults.log"
+    proc = run_cli("-m", "bench", "run", "--data", str(small_dataset), "--rows", str(ROWS), "-i", "socketcan",
+                   "-c", vcan0, "--reply-timeout", REPLY_TIMEOUT, "--no-report", "--log", str(log), "--json",
+                   "--faults", "drop=0.02,corrupt=0.01,reply_corrupt=0.01,kill=1", "--fault-seed", "3",
+                   "--tolerate-faults")
+    assert proc.returncode == 0, proc.stderr
+    s = json.loads(proc.stdout)
+    faults = s["faults"]
+    assert faults["injected"]["kill"] == 1 and faults["injected_total"] >= 5, faults["injected"]
+    assert faults["detected"] == faults["injected"] and faults["undetected"] == 0, faults["undetected_faults"]
+    assert [r["checkpoint_row"] is not None for r in faults["recoveries"]] == [True]
+    assert (s["steps_sent"], s["replies"], s["missing"]) == (ROWS, ROWS, 0)
+    # restored from its checkpoint, the restarted target continued exactly: the whole log is the offline float32
+    # run from row 0, as if nothing had happened
+    rows, err = can_minus_float32(log)
+    assert rows == ROWS and err <= TOLERANCE_C
