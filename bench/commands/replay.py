@@ -14,7 +14,9 @@ row's final reply is compared, so a row the recorded run sent twice counts once.
 A log of a run with bus faults (`bench run --faults drop=...`) replays as it was made: its faulty frames go out
 again byte for byte (those on the unknown_id fault's ids too), the target rejects the same frames, and the replay
 is reproduced only if its rejection counters (RxErrors) also equal the recorded ones. A log with process faults
-(kill, freeze: the target was lost and re-initialized mid-run) cannot be replayed and is refused.
+(kill, freeze: the target was lost and restored from its StateCheckpoint mid-run) replays too: the replay's
+target is not killed, it receives the recorded RestoreState and RESTORE and, since a restore is exact, answers
+every row as recorded; its rejection counters are not compared (the recorded ones are the last process's).
 """
 
 from __future__ import annotations
@@ -79,15 +81,13 @@ def decoded(path: Path) -> BusRecord:
         raise BenchError(str(exc)) from None
 
 
-def refuse_process_faults(path: Path, record: BusRecord) -> None:
-    """A killed or frozen target was re-initialized mid-run from the host's last good estimate: which frames it
-    missed depends on timing no replay can reproduce, so such a log is refused in one sentence."""
+def process_faults(record: BusRecord) -> dict[str, int]:
+    """The kills and freezes marked in a log (with its target-lost marks: a target lost for another reason)."""
     kinds = Counter(m.fault for m in record.marks if m.fault in PROCESS_FAULTS)
-    if kinds or any(m.event in ("target-lost", "reinit") for m in record.marks):
-        what = ", ".join(f"{k} {n}" for k, n in kinds.items()) or "a lost target"
-        raise BenchError(f"log {path} records process faults ({what}): its target was lost and re-initialized "
-                         "mid-run, which a replay cannot reproduce; replay a log made with bus faults only, or "
-                         f"check this one with 'bench analyze {path} --tolerate-faults'")
+    lost = sum(1 for m in record.marks if m.event == "target-lost")
+    if lost > sum(kinds.values()):
+        kinds["lost"] = lost - sum(kinds.values())
+    return dict(kinds)
 
 
 def injected_faults(record: BusRecord) -> dict[str, int]:
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     if count_rows(frames) == 0:
         raise BenchError(f"log {path} has no DriveInputs frames to replay; is it a log of this bench?")
     recorded = decoded(path)
-    refuse_process_faults(path, recorded)
+    restarted = process_faults(recorded)
     faults = injected_faults(recorded)
     recorded_id = log_model_id(messages)
     artifact, model_path = load_model(args.model)
@@ -148,8 +148,10 @@ def run(args: argparse.Namespace) -> int:
     result = outcome.result
     replayed = decoded(Path(result.log_path))
     comparison = compare_replies(recorded.temps, recorded.answered, replayed.temps, replayed.answered)
-    # the target must reject what it rejected then; a target that ran before (--no-start-target) counted before
-    same_rejections = not faults or args.no_start_target or replayed.rx_errors == recorded.rx_errors
+    # the target must reject what it rejected then; a target that ran before (--no-start-target) counted before,
+    # and the recorded counters of a log whose target restarted are only those of its last process
+    compare_rejections = bool(faults) and not args.no_start_target and not restarted
+    same_rejections = not compare_rejections or replayed.rx_errors == recorded.rx_errors
     reproduced = (comparison["different"] == 0 and comparison["missing_in_replay"] == 0
                   and comparison["compared"] == comparison["recorded_answered"] and same_rejections)
     # of a faulted log, the passes the faults left unanswered and the target's rejections are expected
@@ -159,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
                         f"{recorded.rx_errors}")
     summary = {"log": str(path), "replay_log": result.log_path, "reproduced": reproduced, **comparison,
                "faults_in_log": faults or None,
+               "rejections_compared": compare_rejections,
                "target_rejections": {"recorded": recorded.rx_errors, "replayed": replayed.rx_errors},
                "mode": result.mode, "speed": result.speed, "wall_time_s": result.wall_time_s,
                "rows_per_s": result.rows_per_s, "round_trip_us": result.round_trip_us, "problems": problems}
