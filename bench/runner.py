@@ -281,8 +281,6 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     With `faults` (active), the target writes its detection journal to a temporary file and the host may kill,
     freeze and restart it; the result carries the fault summary (`result.faults`)."""
     injecting = faults is not None and faults.active
-    if injecting and mode != "lockstep":
-        raise UsageError("fault injection runs in lockstep mode only; drop --mode realtime")
     events_dir = tempfile.TemporaryDirectory(prefix="bench-events-") if injecting else None
     events = Path(events_dir.name) / "target-events.jsonl" if events_dir is not None else None
     host_bus = _open(bus)

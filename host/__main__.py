@@ -81,8 +81,6 @@ def main(argv: list[str] | None = None) -> int:
         faults = spec_from_args(args)
     except FaultSpecError as exc:
         parser.error(str(exc))
-    if faults is not None and args.mode != "lockstep":
-        parser.error("fault injection runs in lockstep mode only; drop --mode realtime")
     if faults is not None and faults.process_faults:
         parser.error("kill and freeze faults need the bench runner, which owns the target process: use 'bench run'")
     if faults is not None and faults.reply_rates():

@@ -23,6 +23,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import can
 import numpy as np
@@ -138,8 +139,17 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
     return ReplayStats("lockstep", sent, elapsed, missing, aborted)
 
 
+class RowHooks(Protocol):
+    """What a fault layer does around the send of each row (`begin` before, `end` after)."""
+
+    def begin(self, row: int) -> None: ...
+
+    def end(self, row: int) -> None: ...
+
+
 def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: float, speed: float = 1.0,
-                 reply_timeout_s: float, progress: Progress | None = None) -> ReplayStats:
+                 reply_timeout_s: float, progress: Progress | None = None,
+                 hooks: RowHooks | None = None) -> ReplayStats:
     rows = len(drive)
     book = session.book = RowBook(rows)
     values = drive.tolist()
@@ -161,7 +171,11 @@ def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: fl
         actual = perf()
         session.last_sent_row = n
         book.sent_ns[n] = perf_ns()
+        if hooks is not None:
+            hooks.begin(n)
         session.send(frames)
+        if hooks is not None:
+            hooks.end(n)
         jitter[n] = actual - deadline
         sent += 1
         session.flush_log()

@@ -74,7 +74,8 @@ class HostResult:
             out.append(f"the run was aborted: {self.aborted}")
         if self.rows_sent < self.rows:
             out.append(f"only {self.rows_sent} of {self.rows} rows were sent")
-        if self.missing:
+        realtime_faults = self.faults is not None and self.faults.get("mode") == "realtime"
+        if self.missing and not realtime_faults:  # in real time a faulted row stays unanswered: see fault_problems
             out.append(f"{self.missing} of {self.rows_sent} rows got no reply ({self.sequence_gaps} gaps in the "
                        "reply sequence)")
         if self.faults is not None:

@@ -24,9 +24,11 @@ from host.faults import (
     FaultSpecError,
     FaultyBus,
     ProcessControl,
+    check_realtime_faults,
     read_journal,
     reconcile,
     run_lockstep_with_faults,
+    run_realtime_with_faults,
     write_sidecar,
 )
 from host.replay import (
@@ -75,9 +77,9 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
     check_drive_range(drive)
     faulty = plan = None
     if faults is not None and faults.active:
-        if mode != "lockstep":
-            raise FaultSpecError("fault injection runs in lockstep mode only; drop --mode realtime")
         plan = FaultPlan(faults, len(drive))
+        if mode == "realtime":
+            check_realtime_faults(plan, sample_period_s, speed, reply_timeout_s)
         if plan.process_rows and control is None:
             raise FaultSpecError("kill and freeze faults need the bench runner, which owns the target process: "
                                  "use 'bench run'")
@@ -90,7 +92,11 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
         session.connect(connect_timeout_s, alive)
         session.reset(initial)
         session.start()
-        if faulty is not None and plan is not None:
+        if faulty is not None and plan is not None and mode == "realtime":
+            stats, fault_run = run_realtime_with_faults(
+                session, drive, faulty=faulty, plan=plan, sample_period_s=sample_period_s, speed=speed,
+                reply_timeout_s=reply_timeout_s, progress=progress)
+        elif faulty is not None and plan is not None:
             stats, fault_run = run_lockstep_with_faults(
                 session, drive, initial, faulty=faulty, plan=plan, control=control, reply_timeout_s=reply_timeout_s,
                 connect_timeout_s=connect_timeout_s, abort_after=abort_after, progress=progress)

@@ -16,11 +16,12 @@ as a temperature. What each kind does to a frame F with alive counter c (`mutate
   largest raw value (3276.7 Nm, 3276.7 degC, 605.35 degC: beyond the DBC range) with a valid CRC and counter.
 
 Reply faults hit Temperatures1 and Temperatures2, at most one kind per frame with the given probabilities, never
-a reply the target sends again for a retransmitted row (so one retransmission always recovers, as the host's
-retransmissions are never faulted either). Every injection is appended to the target's detection journal
-(`--events`) as it happens — {"event": "inject", "kind": "reply_<kind>", "seq", "step", "id", "sent_id",
-"counter", "data"} — and, for a drop, {"event": "witness", "seq", "data"} once the witness went out, so a
-killed target's injections are not lost; the host matches them with the frames its validator rejected.
+a drop's witness (its counter jump must show the loss) and never a reply the target sends again for a
+retransmitted row (so one retransmission always recovers, as the host's retransmissions are never faulted).
+Every injection is appended to the target's detection journal (`--events`) as it happens — {"event": "inject",
+"kind": "reply_<kind>", "seq", "step", "id", "sent_id", "counter", "data"} — and, for a drop, {"event":
+"witness", "seq", "data"} once the witness went out, so a killed target's injections are not lost; the host
+matches them with the frames its validator rejected.
 """
 
 from __future__ import annotations
@@ -155,7 +156,8 @@ class ReplyFaults:
         out: list[can.Message] = []
         for msg in frames:
             sent, kind, seq = [msg], None, -1
-            if msg.arbitration_id in REPLY_IDS and not again and self.rates:
+            # a drop's witness (the next frame of its id) goes out intact: its counter jump is what shows the loss
+            if msg.arbitration_id in REPLY_IDS and not again and self.rates and msg.arbitration_id not in self._witness:
                 seq = self.sequence
                 self.sequence += 1
                 kind = pick(unit(self.seed, seq, 0), self.rates)

@@ -239,17 +239,56 @@ def bus_load(record: BusRecord, data: np.ndarray, sample_period_s: float, bitrat
 
 
 # ------------------------------------------------------------------------------------------------ metrics
+def intended_drive(record: BusRecord, dataset=None) -> tuple[np.ndarray, int]:
+    """The drive values the host meant to send, and how many rows never reached the bus intact (faults in real
+    time): those come from the dataset when it is given, else they repeat the row before (an approximation)."""
+    drive = record.drive.copy()
+    lost = ~np.isfinite(drive).all(axis=1)
+    if not lost.any():
+        return drive, 0
+    if dataset is not None:
+        from bench.model.runs import drive_matrix
+
+        values = drive_matrix(dataset)
+        rows = np.flatnonzero(lost[:len(values)])
+        drive[rows] = values[rows]
+    for row in np.flatnonzero(~np.isfinite(drive).all(axis=1)):
+        drive[row] = drive[row - 1] if row > 0 else np.nan_to_num(drive[row])
+    return drive, int(np.count_nonzero(lost))
+
+
+def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarray, dict]:
+    """Every final reply against the target's twin fed the logged frames (`bench.analysis.twin`)."""
+    from bench.analysis.twin import twin_estimates
+
+    twin = twin_estimates(artifact, record)
+    both = record.answered & np.isfinite(twin).all(axis=1)
+    in_range = (twin >= CAN_TEMP_RANGE[0]) & (twin <= CAN_TEMP_RANGE[1])
+    diff = np.where(in_range, np.abs(record.temps - twin), np.nan)[both]
+    worst = np.nanmax(np.where(np.isnan(diff), -np.inf, diff), axis=0) if diff.size else np.full(4, np.nan)
+    worst = np.where(np.isinf(worst), np.nan, worst)
+    return twin, {"max_abs": worst, "compared": int(np.count_nonzero(both)),
+                  "saturated": int(np.count_nonzero(~in_range[both]))}
+
+
 def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
             bitrate: int = NOMINAL_BITRATE) -> tuple[dict, References]:
-    """The report's metric table (JSON-ready) and the reference trajectories."""
+    """The report's metric table (JSON-ready) and the reference trajectories.
+
+    A log whose rows did not all reach the target (faults in real time) is checked against the target's twin,
+    and the clean references run on the drive values the host meant to send."""
     if record.initial is None:
         raise ValueError("the log has no complete RESET (ResetTemps1, ResetTemps2, Control RESET)")
-    refs = references(artifact, record.drive, record.initial, dataset)
+    drive, lost_rows = intended_drive(record, dataset)
+    refs = references(artifact, drive, record.initial, dataset)
     answered = record.answered
     can_at_steps = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
     in_range = (refs.f32 >= CAN_TEMP_RANGE[0]) & (refs.f32 <= CAN_TEMP_RANGE[1])
     saturated = int(np.count_nonzero(~in_range))
-    final_ref, agreement = restarted_agreement(artifact, record, refs)
+    if lost_rows:
+        final_ref, agreement = twin_agreement(artifact, record)
+    else:
+        final_ref, agreement = restarted_agreement(artifact, record, refs)
     refs.can_reference = final_ref[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
     f32_err = refs.f32 - refs.f64
     rmse = {}
@@ -286,6 +325,9 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         "max_abs_can_minus_float32_C": max_agree,
         "can_agrees_with_float32": all(v is None or v <= AGREEMENT_TOLERANCE_C for v in max_agree.values()),
         "replies_compared": agreement["compared"],
+        "can_reference": "target twin" if lost_rows else "offline float32",
+        "rows_lost_on_the_bus": lost_rows,
+        "max_abs_can_minus_clean_C": _deviation(record, refs),
         "segments": len(record.segments),
         "saturated_values": saturated,
         "max_abs_float32_minus_float64_C": {name: _max_abs(f32_err[:, i]) for i, name in enumerate(TEMPERATURES)},
@@ -321,6 +363,14 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     metrics["bus_load"] = bus_load(record, record.frame_data, artifact.data_sample_period, bitrate)
     metrics["notes"] = notes(metrics)
     return metrics, refs
+
+
+def _deviation(record: BusRecord, refs: References) -> dict[str, float | None]:
+    """Per temperature, the largest |CAN - the clean run's float32 estimate| over the answered rows: zero unless
+    faults changed what the model saw (rows lost in real time)."""
+    clean = _clean_estimates(refs, record.rows, record.initial)
+    diff = np.abs(record.temps - clean)
+    return {name: _max_abs(diff[:, i]) for i, name in enumerate(TEMPERATURES)}
 
 
 def fault_metrics(record: BusRecord) -> dict | None:
@@ -360,6 +410,7 @@ def fault_metrics(record: BusRecord) -> dict | None:
         "unexplained_deadline_misses": None if sidecar is None else sidecar.get("unexplained_deadline_misses"),
         "unexplained_deadline_miss_rows": [] if sidecar is None else sidecar.get("unexplained_deadline_miss_rows", []),
         "seed": None if sidecar is None else sidecar.get("seed"),
+        "mode": None if sidecar is None else sidecar.get("mode", "lockstep"),
         # what the run's own fault summary does not explain (undetected faults, late replies, refused frames, ...)
         "sidecar_problems": None if sidecar is None else fault_problems(sidecar),
         "sidecar": None if sidecar is None else str(record.path.with_name(record.path.name + ".faults.json")),
@@ -404,14 +455,16 @@ def problems(metrics: dict) -> list[str]:
     faults = metrics.get("faults") or {}
     injected = faults.get("injected_total", 0)
     process = sum((faults.get("injected") or {}).get(k, 0) for k in ("kill", "freeze"))
-    if metrics["missing"]:
+    # in real time a faulted row stays unanswered: the sidecar judges those (unexplained deadline misses)
+    explained = faults.get("mode") == "realtime" and faults.get("unexplained_deadline_misses") == 0
+    if metrics["missing"] and not explained:
         out.append(f"{metrics['missing']} of {metrics['steps_sent']} steps got no reply "
                    f"({metrics['sequence_gaps']} gaps)")
     if metrics["heartbeat"]["losses"] > process:
         extra = " more than the injected kills and freezes explain" if process else ""
         out.append(f"the target's heartbeat was lost {metrics['heartbeat']['losses'] - process} time(s){extra}")
-    if faults.get("sidecar_problems"):
-        out += [f"{sentence} (see {faults['sidecar']})" for sentence in faults["sidecar_problems"]]
+    if faults.get("sidecar_problems"):  # the same sentences the run gave (`host.faults.fault_problems`)
+        out += faults["sidecar_problems"]
     if not metrics["can_agrees_with_float32"]:
         worst = max(v for v in metrics["max_abs_can_minus_float32_C"].values() if v is not None)
         out.append(f"CAN temperatures differ from the offline float32 reference by up to {worst:.4f} °C "

@@ -74,6 +74,11 @@ def fault_section(faults: dict) -> list[str]:
         lines.append(f"| {kind} | {count} | {_fmt(detected.get(kind))} | {faults['detection'][kind]} |")
     lines += ["", f"Rows sent again after their reply deadline: {faults['retransmitted_rows']}; re-initializations "
               f"of a lost target: {faults['reinitializations']}.", ""]
+    if faults.get("mode") == "realtime":
+        lines += ["Real time: nothing is sent again, so a faulted row stays lost (and the row after it, whose frame "
+                  "shows the alive-counter jump, too); the target leaves the lost rows out of its interval means. "
+                  "The CAN values are checked against the target's twin (its own code fed the logged frames), and "
+                  "their departure from the clean run is what the faults cost the estimate.", ""]
     if faults["gaps"]:
         lines += ["| marked gap: rows | target lost at row | re-initialized at row | lasted (s) |", "|---|---|---|---|"]
         for gap in faults["gaps"]:
@@ -115,8 +120,12 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
             ("bus", run_info.get("bus", "–"))]
     lines += [f"| {k} | {v} |" for k, v in info]
     lines += ["", "## Metrics", "", "| metric | " + " | ".join(TEMPERATURES) + " |", "|---|---|---|---|---|"]
-    lines.append("| max \\|CAN − offline float32\\| (°C) | "
+    reference = "target twin" if m.get("can_reference") == "target twin" else "offline float32"
+    lines.append(f"| max \\|CAN − {reference}\\| (°C) | "
                  + " | ".join(_fmt(m["max_abs_can_minus_float32_C"][t], 4) for t in TEMPERATURES) + " |")
+    if m.get("rows_lost_on_the_bus"):  # faults in real time: what the lost rows cost the estimate
+        lines.append("| max \\|CAN − clean run\\| (°C) | "
+                     + " | ".join(_fmt(m["max_abs_can_minus_clean_C"][t], 4) for t in TEMPERATURES) + " |")
     lines.append("| max \\|float32 − float64\\| (°C) | "
                  + " | ".join(_fmt(m["max_abs_float32_minus_float64_C"][t], 4) for t in TEMPERATURES) + " |")
     lines.append("| RMSE of the CAN values (°C) | "

@@ -12,13 +12,16 @@ Exit status 0 only when every step was answered, CAN temperatures equal the offl
 it used ("bus": interface, channel, and the port of udp_multicast), `auto` resolved. A target already sending on
 the channel is refused before the run starts its own.
 
-Fault injection (lockstep; `host.faults`): e.g. `--faults drop=0.01,corrupt=0.001,kill=1 --fault-seed 7`.
-Bus faults (drop, delay, duplicate, reorder, corrupt, stale_counter, wrong_length, unknown_id, out_of_range) hit
-the host's drive frames; kill and freeze hit the target process, which the runner restarts. The host retransmits
-rows that got no reply and re-initializes a lost target from the last good estimate; every fault and gap is
-marked in the log (BenchEvent frames) and in `<log>.faults.json`; the JSON summary's "faults" holds injected
-and detected counts per kind. A run with injected faults exits 1 unless `--tolerate-faults`, and even then
-when a fault went undetected or anything the faults do not explain went wrong.
+Fault injection (`host.faults`): e.g. `--faults drop=0.01,corrupt=0.001,kill=1 --fault-seed 7`. Bus faults
+(drop, delay, duplicate, reorder, corrupt, stale_counter, wrong_length, unknown_id, out_of_range) hit the host's
+drive frames; reply faults (reply_drop, reply_corrupt, ...) the target's temperature replies (the target injects
+them); kill and freeze hit the target process, which the runner restarts. In lockstep the host retransmits rows
+that got no reply and restores a lost target from its last StateCheckpoint, so the estimates stay the clean
+run's; in real time (bus and reply faults only) nothing is sent again, a faulted row stays lost, and the report
+shows what that cost the estimate. Every fault and gap is marked in the log (BenchEvent frames) and in
+`<log>.faults.json`; the JSON summary's "faults" holds injected and detected counts per kind. A run with
+injected faults exits 1 unless `--tolerate-faults`, and even then when a fault went undetected or anything the
+faults do not explain went wrong.
 """
 
 from __future__ import annotations
@@ -83,8 +86,9 @@ def fault_spec(args: argparse.Namespace):
         spec = spec_from_args(args)
     except FaultSpecError as exc:
         raise UsageError(str(exc)) from None
-    if spec is not None and getattr(args, "mode", "lockstep") != "lockstep":
-        raise UsageError("fault injection runs in lockstep mode only; drop --mode realtime")
+    if spec is not None and spec.process_faults and getattr(args, "mode", "lockstep") != "lockstep":
+        raise UsageError("kill and freeze faults need lockstep mode (a lost target's rows cannot be sent again on a "
+                         "real-time clock); drop them or --mode realtime")
     return spec
 
 
@@ -193,8 +197,11 @@ def print_summary(s: dict) -> None:
     print(f"model {m['model']['id']} {m['model']['kind']} ({m['model']['realization']}, dt {m['model']['dt_s']:g} s)")
     print(f"steps sent {s['steps_sent']}, answered {s['replies']}, missing {s['missing']}, "
           f"model steps {m['model_steps']}")
-    print("max |CAN - float32| (°C): " + ", ".join(f"{t} {_f(s['max_abs_can_minus_float32_C'][t], 4)}"
-                                                  for t in temps))
+    print(f"max |CAN - {m.get('can_reference', 'offline float32')}| (°C): "
+          + ", ".join(f"{t} {_f(s['max_abs_can_minus_float32_C'][t], 4)}" for t in temps))
+    if m.get("rows_lost_on_the_bus"):
+        print(f"{m['rows_lost_on_the_bus']} rows never reached the target intact; max |CAN - clean run| (°C): "
+              + ", ".join(f"{t} {_f(m['max_abs_can_minus_clean_C'][t], 4)}" for t in temps))
     print("max |float32 - float64| (°C): " + ", ".join(
         f"{t} {_f(m['max_abs_float32_minus_float64_C'][t], 4)}" for t in temps))
     print("RMSE (°C): " + ", ".join(f"{t} {_f(s['rmse_C'][t])} (vs {m['rmse_reference'][t]})" for t in temps))

@@ -20,6 +20,7 @@ from host.faults.lockstep import (
     run_lockstep_with_faults,
 )
 from host.faults.plan import FaultPlan
+from host.faults.realtime import check_realtime_faults, run_realtime_with_faults
 from host.faults.reconcile import (
     DETECTION,
     Journal,
@@ -68,6 +69,8 @@ __all__ = [
     "read_sidecar",
     "reconcile",
     "run_lockstep_with_faults",
+    "run_realtime_with_faults",
+    "check_realtime_faults",
     "spec_from_args",
     "sidecar_path",
     "write_sidecar",

@@ -136,7 +136,7 @@ class FaultyBus:
             self._out(msg)
             return
         kind = faults.frame_kinds[index]
-        if kind is None:
+        if kind is None or msg.arbitration_id in self._witness:  # a drop's witness goes out intact: it shows the loss
             self._out(msg)
         else:
             self._inject(kind, msg, index, faults)

@@ -90,6 +90,13 @@ class FaultRun:
     retransmitted_rows: int = 0
     started_at: float = 0.0
     frames_transmitted: int = 0
+    mode: str = "lockstep"      # realtime: nothing is sent again, a fault also costs the next row
+
+
+def mark_new_injections(session: HostSession, faulty: FaultyBus, row: int) -> None:
+    """A BenchEvent FAULT mark in the log for each fault the layer injected since the last call."""
+    for injection in faulty.take_new_injections():
+        session.marker(BenchEvent.FAULT, row, FaultKind[injection.kind.upper()], injection.frame_id)
 
 
 def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *, faulty: FaultyBus,
@@ -123,8 +130,7 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
         return None
 
     def mark_injections(row: int) -> None:
-        for injection in faulty.take_new_injections():
-            session.marker(BenchEvent.FAULT, row, FaultKind[injection.kind.upper()], injection.frame_id)
+        mark_new_injections(session, faulty, row)
 
     def retry(n: int, pass_: int) -> str:
         """Send row n again (twice) until it is answered, the target is lost, or `give_up_s` passes: the reply

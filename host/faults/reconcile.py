@@ -78,6 +78,10 @@ RX_NAMES = {"UnknownId": "unknown_id", "WrongLength": "wrong_length", "CrcError"
             "OutOfRange": "out_of_range", "SequenceError": "sequence"}
 CATEGORIES = ("unknown_id", "wrong_length", "crc", "counter", "out_of_range", "sequence")
 SIDECAR_SUFFIX = ".faults.json"
+# kinds after which the next frame of the same id carries an alive-counter jump (a copy repeats, it does not jump)
+CHAINED = frozenset({"drop", "corrupt", "stale_counter", "wrong_length", "unknown_id", "out_of_range"}
+                    | {REPLY_PREFIX + k for k in ("drop", "corrupt", "stale_counter", "wrong_length", "unknown_id",
+                                                  "out_of_range")})
 LISTED = 20
 
 
@@ -178,8 +182,11 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
     injected = Counter(i.kind for i in injections)
     detected = Counter(i.kind for i in injections if i.detected)
     unknown = journal is None and any(k in TARGET_DETECTED for k in injected)
-    # a reply injection knows its Step (the row mod 65536), so deadline misses are explained by Step
+    # a reply injection knows its Step (the row mod 65536), so deadline misses are explained by Step; in real
+    # time a lost or refused frame also costs the next row (the next frame of its id is refused for the jump)
     explained = Counter(i.row % 65536 for i in injections) + Counter(r.lost_row % 65536 for r in run.recoveries)
+    if run.mode == "realtime":
+        explained += Counter((i.row + 1) % 65536 for i in injections if i.kind in CHAINED)
     unexplained_misses = []
     for row in run.deadline_misses:
         if explained[row % 65536] > 0:
@@ -202,6 +209,7 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
     undetected = [i for i in injections if not i.detected]
     return {
         "spec": run.spec.describe(),
+        "mode": run.mode,
         **run.spec.to_dict(),
         "injected": {k: injected[k] for k in kinds},
         "detected": {k: (None if unknown and k in TARGET_DETECTED else detected[k]) for k in kinds},

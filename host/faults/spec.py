@@ -150,7 +150,7 @@ def parse_faults(items: Iterable[str], seed: int = 0) -> FaultSpec:
 
 def add_fault_arguments(parser, *, process_faults: bool = True) -> None:
     """--fault, --faults, --fault-seed, --tolerate-faults (parsed later by `spec_from_args`)."""
-    group = parser.add_argument_group("fault injection (lockstep only)")
+    group = parser.add_argument_group("fault injection (kill and freeze in lockstep only)")
     kinds = ", ".join(KINDS if process_faults else BUS_KINDS)
     group.add_argument("--fault", action="append", default=[], metavar="KIND=VALUE",
                        help=f"inject a fault kind: a probability per drive frame or row, or a count for "

@@ -67,7 +67,7 @@ def test_injected_faults_make_the_run_fail_unless_tolerated(fault_dataset, tmp_p
 
 @pytest.mark.parametrize(("argv", "needle"), [
     (["-m", "bench", "run", "--fault", "bitrot=0.1"], "unknown fault kind 'bitrot'"),
-    (["-m", "bench", "run", "--mode", "realtime", "--faults", "drop=0.1"], "lockstep mode only"),
+    (["-m", "bench", "run", "--mode", "realtime", "--faults", "drop=0.1,kill=1"], "need lockstep mode"),
     (["-m", "host", "--data", "x.csv", "--fault", "kill=1"], "need the bench runner"),
 ])
 def test_bad_fault_options_are_one_sentence_exit_2(argv, needle):
@@ -125,3 +125,13 @@ def test_replay_of_a_log_with_process_faults_reproduces_every_reply(faulted_run,
     assert s["identical"] == s["recorded_answered"] == s["rows_recorded"]
     assert s["faults_in_log"]["kill"] == 1 and s["rejections_compared"] is False
     assert new_log.exists()
+
+
+def test_realtime_faults_need_room_for_the_reply_timeout_in_the_sample_interval(fault_dataset, tmp_path):
+    log = tmp_path / "f.blf"
+    proc = run_cli("-m", "bench", "run", "--data", str(fault_dataset), "--rows", "50", "--mode", "realtime",
+                   "--speed", "10", "--faults", "drop=0.1", "--log", str(log), "--no-report", "--quiet")
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "at least 4 reply timeouts (20 ms < 4 x 50 ms)" in lines[0], proc.stderr
+    assert not log.exists()

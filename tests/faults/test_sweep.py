@@ -115,3 +115,16 @@ def test_each_fault_kind_is_detected_and_the_temperatures_survive(kind, clean, f
         assert faults["unexplained_host_rejections"] == {}
         if category != "counter":
             assert faults["host_rejections"][category] == injected
+
+
+def test_the_twin_answers_a_clean_run_as_the_target_and_the_offline_float32_run(clean):
+    """The real-time fault reference (the target's node code fed the logged frames) is the offline float32 run
+    where nothing was lost, reply for reply."""
+    from bench.analysis.canmetrics import segment_estimates
+    from bench.analysis.twin import twin_estimates
+
+    artifact = load_artifact(default_artifact_path())
+    twin = twin_estimates(artifact, clean)
+    assert clean.answered.all() and np.array_equal(twin, clean.temps)
+    offline = segment_estimates(artifact, clean.drive, 0, clean.initial, clean.rows)
+    assert np.abs(twin - offline).max() <= 0.005 + 1e-9
