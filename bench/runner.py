@@ -19,7 +19,6 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,7 +35,7 @@ from host.results import HostResult
 from host.run import replay_log, run_dataset
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
-from target_sim.transport import BusConfig, BusUnavailable, config_from_args, resolve
+from target_sim.transport import IN_USE_LISTEN_S, BusConfig, BusUnavailable, config_from_args, first_heard, resolve
 
 TARGET_STOP_TIMEOUT_S = 5.0
 
@@ -228,29 +227,12 @@ def _host_errors(fn: Callable[[], HostResult], target: TargetProcess) -> HostRes
         raise UsageError(str(exc)) from None
 
 
-# How long a run listens, before it starts its own target, for one already on the channel. The target sends Status
-# every 100 ms, so 0.3 s hears two or three heartbeats; every run pays it, so it stays short.
-FOREIGN_TARGET_LISTEN_S = 0.3
-
-
 def refuse_foreign_target(host_bus: can.BusABC, bus: BusConfig, artifact: ModelArtifact | None,
-                          listen_s: float = FOREIGN_TARGET_LISTEN_S) -> None:
-    """BenchError if a target already sends on the channel: its replies would mix with those of the run's own.
-
-    udp_multicast lets any number of processes share a group and port, so "in use" can only be heard, and a
-    target of the same model would even pass the handshake."""
+                          listen_s: float = IN_USE_LISTEN_S) -> None:
+    """BenchError if a target already sends on the channel: its replies would mix with those of the run's own
+    (and a target of the same model would even pass the handshake)."""
     status_id = FRAME_IDS["Status"]
-    heard: can.Message | None = None
-    deadline = time.monotonic() + listen_s
-    while (remaining := deadline - time.monotonic()) > 0:
-        msg = host_bus.recv(remaining)
-        if msg is None:
-            break
-        if msg.is_extended_id or msg.is_error_frame or msg.arbitration_id not in TARGET_FRAME_IDS | {status_id}:
-            continue
-        heard = msg
-        if msg.arbitration_id == status_id:
-            break  # a heartbeat names the model: no need to listen longer
+    heard = first_heard(host_bus, TARGET_FRAME_IDS, listen_s, prefer=status_id)  # a heartbeat names the model
     if heard is None:
         return
     channel = f"channel {bus.channel}" + (f" port {bus.kwargs['port']}" if "port" in bus.kwargs else "")

@@ -25,13 +25,14 @@ import sys
 import time
 from pathlib import Path
 
+from dbc import HOST_FRAME_IDS
 from host.canlog import LogError, check_log_path
 from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
 from host.replay import DataRangeError
 from host.run import MODES, run_dataset
 from host.session import SessionError
 from target_sim.artifact import ArtifactError, load_artifact
-from target_sim.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
+from target_sim.transport import BusUnavailable, add_bus_arguments, config_from_args, first_heard, resolve
 
 
 class _Parser(argparse.ArgumentParser):
@@ -100,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
         dataset = load_dataset(args.data, sample_period_s=artifact.data_sample_period)
         log_path = check_log_path(args.log)
         bus = config.open()
+        if (other := first_heard(bus, HOST_FRAME_IDS)) is not None:  # two hosts would both drive the target
+            raise SessionError(f"{config.describe()} already has a host sending (frame id "
+                               f"0x{other.arbitration_id:03x}); stop it or pick another channel")
         drive = drive_matrix(dataset)
         if args.rows is not None:
             drive = drive[: max(args.rows, 1)]

@@ -85,6 +85,20 @@ class EventJournal:
         os.close(self.fd)
 
 
+def in_use_by_a_target(bus) -> str | None:
+    """What another target already on the channel says of itself (its model), or None when none is heard."""
+    from dbc import FRAME_IDS, TARGET_FRAME_IDS, FrameError, decode_any
+    from target_sim.transport import first_heard
+
+    heard = first_heard(bus, TARGET_FRAME_IDS, prefer=FRAME_IDS["Status"])
+    if heard is None:
+        return None
+    try:
+        return f"heartbeats of model {int(decode_any(heard).signals['ModelId']):08x}"
+    except (FrameError, KeyError):
+        return f"frames with id 0x{heard.arbitration_id:03x}"
+
+
 def main(argv: list[str] | None = None) -> int:
     # python-can repeats a half-constructed bus's failure from __del__ ("not properly shut down") after our sentence.
     logging.getLogger("can").addHandler(logging.NullHandler())
@@ -113,13 +127,24 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("the 'virtual' interface does not cross processes, so no host could reach the target; "
                          "use udp_multicast, socketcan or auto")
         artifact = load_artifact(args.model)
-        if args.events:
-            journal = EventJournal(args.events)
-        node = TargetNode(artifact, journal=journal)
         bus = config.open()
-    except (ArtifactError, BusUnavailable, JournalError) as exc:
+    except (ArtifactError, BusUnavailable) as exc:
         print(f"target_sim: error: {exc}", file=sys.stderr)
         return 1
+    other = in_use_by_a_target(bus)
+    if other is not None:  # two targets would both answer every row
+        bus.shutdown()
+        print(f"target_sim: error: {config.describe()} already has a target sending ({other}); stop it or pick "
+              "another channel", file=sys.stderr)
+        return 1
+    try:
+        if args.events:
+            journal = EventJournal(args.events)
+    except JournalError as exc:
+        bus.shutdown()
+        print(f"target_sim: error: {exc}", file=sys.stderr)
+        return 1
+    node = TargetNode(artifact, journal=journal)
     if journal is not None:
         journal({"event": "start", "pid": os.getpid(), "model_id": artifact.model_id})
     stop = {"requested": False}

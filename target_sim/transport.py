@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import socket
+import time
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -226,3 +227,28 @@ class OwnFrameFilter:
 
     def is_own(self, msg: can.Message) -> bool:
         return not msg.is_extended_id and msg.arbitration_id in self.own_ids and not msg.is_error_frame
+
+
+# How long a node listens, before it joins a channel, for another node of its kind already sending there. Status
+# and RxErrors go out every 100 ms, so 0.3 s hears two or three; every start pays it, so it stays short.
+IN_USE_LISTEN_S = 0.3
+
+
+def first_heard(bus: can.BusABC, ids, listen_s: float = IN_USE_LISTEN_S, *, prefer: int | None = None) \
+        -> can.Message | None:
+    """The first standard frame with an id in `ids` heard on `bus` within `listen_s` (the frame with id `prefer`,
+    if one comes in that time), or None. udp_multicast lets any number of processes share a group and port, so
+    whether a channel is in use can only be heard."""
+    ids = frozenset(ids)
+    heard = None
+    deadline = time.monotonic() + listen_s
+    while (remaining := deadline - time.monotonic()) > 0:
+        msg = bus.recv(remaining)
+        if msg is None:
+            break
+        if msg.is_extended_id or msg.is_error_frame or msg.arbitration_id not in ids:
+            continue
+        heard = heard or msg
+        if prefer is None or msg.arbitration_id == prefer:
+            return msg
+    return heard

@@ -11,9 +11,9 @@ import pytest
 
 from bench.commands.common import verdict
 from bench.errors import BenchError
-from bench.runner import FOREIGN_TARGET_LISTEN_S, refuse_foreign_target
+from bench.runner import refuse_foreign_target
 from dbc import DBC_VERSION_INFO, FrameCodec
-from target_sim.transport import UDP_IPV4_GROUP, UDP_LOCAL_GROUP, BusConfig
+from target_sim.transport import IN_USE_LISTEN_S, UDP_IPV4_GROUP, UDP_LOCAL_GROUP, BusConfig
 
 from .conftest import run_cli
 
@@ -82,7 +82,7 @@ def test_a_quiet_channel_costs_the_listening_time_only(virtual_pair):
     other.send(FrameCodec("HOST").encode("Control", {"Command": 0, "Step": 0}))  # another host: not a target
     started = time.perf_counter()
     refuse_foreign_target(host, BusConfig("socketcan", "vcan0"), _Artifact())
-    assert FOREIGN_TARGET_LISTEN_S <= time.perf_counter() - started < FOREIGN_TARGET_LISTEN_S + 0.2
+    assert IN_USE_LISTEN_S <= time.perf_counter() - started < IN_USE_LISTEN_S + 0.2
 
 
 NOTE = "3 fault(s) were injected (drop 3), all detected; pass --tolerate-faults to accept a run with injected faults"

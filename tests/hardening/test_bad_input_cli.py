@@ -610,6 +610,60 @@ def test_replay_refuses_a_channel_with_a_target_on_it(cli, material, scratch):
     assert tree(out) is None or tree(out) == {}
 
 
+def test_target_sim_refuses_a_channel_with_a_target_on_it(cli, material, scratch):
+    """A second target would answer every row too: `python -m target_sim` listens before it joins, and refuses in
+    one sentence naming the channel and the other target's model, writing neither stats nor events."""
+    port = _port()
+    foreign = _start_target(material.art, port, scratch)
+    try:
+        out = scratch / "out"
+        result = cli("target_sim", "--model", material.art, "--stats", out / "stats.json", "--events",
+                     out / "events.jsonl", "-i", "udp_multicast", "--bus-kwargs", f"port={port}", cwd=scratch,
+                     timeout=30)
+    finally:
+        _stop(foreign)
+    assert_one_sentence(result, (f"port {port} already has a target sending",
+                                 f"heartbeats of model {material.model_id(material.art)}",
+                                 "stop it or pick another channel"), prefix="target_sim: error: ", rc=1)
+    assert tree(out) is None or tree(out) == {}
+
+
+FOREIGN_HOST = """
+import sys, time
+import can
+from dbc import FrameCodec
+bus = can.Bus(interface="udp_multicast", channel=sys.argv[1], port=int(sys.argv[2]))
+codec = FrameCodec("HOST")
+print("sending", flush=True)
+try:
+    while True:
+        bus.send(codec.encode("Control", {"Command": 0, "Step": 0}))
+        time.sleep(0.05)
+finally:
+    bus.shutdown()
+"""
+
+
+def test_host_refuses_a_channel_with_another_host_on_it(cli, material, scratch):
+    """Two hosts would both drive the target: `python -m host` listens before it joins and refuses."""
+    from target_sim.transport import UDP_LOCAL_GROUP
+
+    port = _port()
+    foreign = subprocess.Popen([sys.executable, "-c", FOREIGN_HOST, UDP_LOCAL_GROUP, str(port)], cwd=ROOT,
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert foreign.stdout.readline().strip() == "sending"
+        out = scratch / "out"
+        result = cli("host", "--data", material.data, "--model", material.art, "--log", out / "h.blf", "--quiet",
+                     "-i", "udp_multicast", "-c", UDP_LOCAL_GROUP, "--bus-kwargs", f"port={port}", cwd=scratch,
+                     timeout=30)
+    finally:
+        _stop(foreign)
+    assert_one_sentence(result, (f"port {port} already has a host sending (frame id 0x100)",
+                                 "stop it or pick another channel"), prefix="host: error: ", rc=1)
+    assert tree(out) is None or tree(out) == {}
+
+
 # ---------------------------------------------------------------- a broken DBC (package data): real interpreters
 
 
