@@ -68,7 +68,7 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
                 target_events: str | Path | None = None, events_since: float | None = None) -> HostResult:
     """Replay `drive` (rows, 4: torque, speed, coolant, ambient) to the target on `bus`.
 
-    `faults` (active) injects faults (lockstep only; kill/freeze need `control`); `target_events` is the target's
+    `faults` (active) injects faults (kill/freeze: lockstep only, with `control`); `target_events` is the target's
     detection journal, read from `events_since` on.
     """
     if mode not in MODES:
