@@ -27,7 +27,6 @@ import can
 import numpy as np
 
 from bench.errors import BenchError, UsageError
-from dbc import FRAME_IDS, TARGET_FRAME_IDS, FrameError, decode_any
 from host.canlog import LogError
 from host.faults import FaultSpec, FaultSpecError
 from host.replay import DataRangeError, Progress
@@ -35,7 +34,8 @@ from host.results import HostResult
 from host.run import replay_log, run_dataset
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
-from target_sim.transport import IN_USE_LISTEN_S, BusConfig, BusUnavailable, config_from_args, first_heard, resolve
+from target_sim.node import target_on_channel
+from target_sim.transport import IN_USE_LISTEN_S, BusConfig, BusUnavailable, config_from_args, resolve
 
 TARGET_STOP_TIMEOUT_S = 5.0
 
@@ -231,17 +231,13 @@ def refuse_foreign_target(host_bus: can.BusABC, bus: BusConfig, artifact: ModelA
                           listen_s: float = IN_USE_LISTEN_S) -> None:
     """BenchError if a target already sends on the channel: its replies would mix with those of the run's own
     (and a target of the same model would even pass the handshake)."""
-    status_id = FRAME_IDS["Status"]
-    heard = first_heard(host_bus, TARGET_FRAME_IDS, listen_s, prefer=status_id)  # a heartbeat names the model
+    heard = target_on_channel(host_bus, listen_s)
     if heard is None:
         return
+    frame, model_id = heard
     channel = f"channel {bus.channel}" + (f" port {bus.kwargs['port']}" if "port" in bus.kwargs else "")
-    try:
-        model_id = int(decode_any(heard).signals["ModelId"]) if heard.arbitration_id == status_id else None
-    except FrameError:
-        model_id = None
     if model_id is None:
-        what = f"sending frames (id 0x{heard.arbitration_id:03x})"
+        what = f"sending frames (id 0x{frame:03x})"
     elif artifact is not None and model_id != artifact.model_id:
         what = f"sending heartbeats (it runs model {model_id:08x}, not {artifact.model_id:08x} of the artifact given)"
     else:

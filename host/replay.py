@@ -18,7 +18,6 @@ answered) or as fast as possible in lockstep (after each DriveTemps wait for tha
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -28,7 +27,7 @@ from typing import Protocol
 import can
 import numpy as np
 
-from dbc import HOST_FRAME_IDS, FrameCodec, decode_any, frame_id, signal_ranges
+from dbc import HOST_FRAME_IDS, FrameCodec, frame_id, signal_ranges
 from host.session import HostSession, RowBook, SessionError
 
 Progress = Callable[[int, int], None]
@@ -201,11 +200,13 @@ def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: fl
 
 
 # ---------------------------------------------------------------------------------------------- log replay
-def host_frames(messages: Sequence[can.Message]) -> list[can.Message]:
-    """The frames a host sent (standard ids of the DBC's HOST node), as fresh copies with the recorded bytes."""
+def host_frames(messages: Sequence[can.Message], also: frozenset[int] = frozenset()) -> list[can.Message]:
+    """The frames a host sent (standard ids of the DBC's HOST node, and the ids in `also`), as fresh copies with
+    the recorded bytes."""
+    keep = HOST_FRAME_IDS | also
     out = []
     for m in messages:
-        if m.is_extended_id or m.is_error_frame or m.is_remote_frame or m.arbitration_id not in HOST_FRAME_IDS:
+        if m.is_extended_id or m.is_error_frame or m.is_remote_frame or m.arbitration_id not in keep:
             continue
         out.append(can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id, is_extended_id=False,
                                dlc=m.dlc, data=bytes(m.data)))
@@ -288,39 +289,3 @@ def _replay_timed(session, frames, book, speed, reply_timeout_s, progress) -> in
         session.receive(remaining)
     session.flush_log()
     return int(np.count_nonzero(book.got != 3))
-
-
-def recorded_replies(messages: Sequence[can.Message]) -> tuple[np.ndarray, np.ndarray]:
-    """(temps (rows, 4) yoke/winding/tooth/magnet, answered (rows,) bool) of a log, rows by DriveInputs order."""
-    row = -1
-    last_step_row: dict[int, int] = {}
-    collected: list[list[float]] = []
-    got: list[int] = []
-    for m in messages:
-        if m.is_extended_id:
-            continue
-        if m.arbitration_id == _DRIVE_INPUTS:
-            try:
-                frame = decode_any(m)
-            except ValueError:
-                continue
-            row += 1
-            last_step_row[int(frame.signals["Step"])] = row
-            collected.append([math.nan] * 4)
-            got.append(0)
-        elif m.arbitration_id in _TEMPERATURES:
-            try:
-                frame = decode_any(m)
-            except ValueError:
-                continue
-            r = last_step_row.get(int(frame.signals["Step"]))
-            if r is None:
-                continue
-            s = frame.signals
-            if frame.name == "Temperatures1":
-                collected[r][1], collected[r][3] = s["WindingTemp"], s["MagnetTemp"]
-                got[r] |= 1
-            else:
-                collected[r][0], collected[r][2] = s["YokeTemp"], s["ToothTemp"]
-                got[r] |= 2
-    return np.array(collected, dtype=float).reshape(-1, 4), np.array(got, dtype=np.uint8) == 3

@@ -35,6 +35,7 @@ from host.replay import (
     DEFAULT_ABORT_AFTER,
     Progress,
     check_drive_range,
+    host_frames,
     replay_frames,
     run_lockstep,
     run_realtime,
@@ -129,14 +130,6 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
 INJECTED_IDS = frozenset(FRAME_IDS[name] ^ UNKNOWN_ID_FLIP for name in ("DriveInputs", "DriveTemps"))
 
 
-def sent_frames(messages: Sequence[can.Message]) -> list[can.Message]:
-    """What the host put on the bus, byte for byte: its DBC frames and the unknown_id fault's frames."""
-    keep = HOST_FRAME_IDS | INJECTED_IDS
-    return [can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id, is_extended_id=False, dlc=m.dlc,
-                        data=bytes(m.data)) for m in messages
-            if not (m.is_extended_id or m.is_error_frame or m.is_remote_frame) and m.arbitration_id in keep]
-
-
 class ReplaySession(HostSession):
     """A session that re-sends a log: a reply belongs to the last DriveInputs sent with its Step.
 
@@ -166,7 +159,7 @@ def replay_log(bus: can.BusABC, messages: Sequence[can.Message], *, model_id: in
                reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
                alive: Callable[[], str | None] | None = None, progress: Progress | None = None) -> HostResult:
     """Re-send the host frames of a recorded log; the result's arrays hold the new replies by DriveInputs frame."""
-    frames = sent_frames(messages)
+    frames = host_frames(messages, also=INJECTED_IDS)  # the unknown_id fault's frames too
     log = FrameLog(log_path) if log_path is not None else None
     with discarded_on_error(log):
         session = ReplaySession(bus, log=log, expected_model_id=model_id)

@@ -85,20 +85,6 @@ class EventJournal:
         os.close(self.fd)
 
 
-def in_use_by_a_target(bus) -> str | None:
-    """What another target already on the channel says of itself (its model), or None when none is heard."""
-    from dbc import FRAME_IDS, TARGET_FRAME_IDS, FrameError, decode_any
-    from target_sim.transport import first_heard
-
-    heard = first_heard(bus, TARGET_FRAME_IDS, prefer=FRAME_IDS["Status"])
-    if heard is None:
-        return None
-    try:
-        return f"heartbeats of model {int(decode_any(heard).signals['ModelId']):08x}"
-    except (FrameError, KeyError):
-        return f"frames with id 0x{heard.arbitration_id:03x}"
-
-
 def main(argv: list[str] | None = None) -> int:
     # python-can repeats a half-constructed bus's failure from __del__ ("not properly shut down") after our sentence.
     logging.getLogger("can").addHandler(logging.NullHandler())
@@ -106,7 +92,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         from target_sim.faults import ReplyFaults
-        from target_sim.node import TargetNode, log_error, serve  # loads the DBC: a broken one fails here
+        from target_sim.node import (  # loads the DBC: a broken one fails here
+            TargetNode,
+            log_error,
+            serve,
+            target_on_channel,
+        )
     except Exception as exc:
         if type(exc).__name__ != "DbcError":  # its class lives in the module whose import just failed
             raise
@@ -131,10 +122,12 @@ def main(argv: list[str] | None = None) -> int:
     except (ArtifactError, BusUnavailable) as exc:
         print(f"target_sim: error: {exc}", file=sys.stderr)
         return 1
-    other = in_use_by_a_target(bus)
+    other = target_on_channel(bus)
     if other is not None:  # two targets would both answer every row
         bus.shutdown()
-        print(f"target_sim: error: {config.describe()} already has a target sending ({other}); stop it or pick "
+        frame, model_id = other
+        what = f"frames with id 0x{frame:03x}" if model_id is None else f"heartbeats of model {model_id:08x}"
+        print(f"target_sim: error: {config.describe()} already has a target sending ({what}); stop it or pick "
               "another channel", file=sys.stderr)
         return 1
     try:

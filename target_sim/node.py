@@ -59,6 +59,7 @@ import numpy as np
 from dbc import (
     DBC_VERSION_INFO,
     FRAME_ERROR_KINDS,
+    FRAME_IDS,
     TARGET_FRAME_IDS,
     Command,
     FaultBit,
@@ -66,6 +67,7 @@ from dbc import (
     ModelKind,
     Realization,
     TargetState,
+    decode_any,
     signal_ranges,
 )
 from target_sim.artifact import ModelArtifact
@@ -73,7 +75,7 @@ from target_sim.costs import memory_estimate, step_cost
 from target_sim.fastframes import FastFrameCodec, FastFrameValidator
 from target_sim.faults import ReplyFaults
 from target_sim.model import F32, Float32Estimator, InputAccumulator
-from target_sim.transport import OwnFrameFilter
+from target_sim.transport import IN_USE_LISTEN_S, OwnFrameFilter, first_heard
 
 STEP_MODULO = 1 << 16
 HEARTBEAT_PERIOD_S = 0.1
@@ -396,6 +398,20 @@ class TargetNode:
                 "model_steps": self.model_steps, "overruns": self.overruns, "last_error": self.last_error,
                 "model_id": self.artifact.model_id, "est_cycles": self.cost.cycles,
                 "flash_bytes": self.memory.flash_bytes, "ram_bytes": self.memory.ram_bytes}
+
+
+def target_on_channel(bus: can.BusABC, listen_s: float = IN_USE_LISTEN_S) -> tuple[int, int | None] | None:
+    """(frame id, model id) of a target already sending on `bus` — the model id from its heartbeat, None when
+    only another of its frames was heard — or None when none is heard within `listen_s`."""
+    status_id = FRAME_IDS["Status"]
+    heard = first_heard(bus, TARGET_FRAME_IDS, listen_s, prefer=status_id)  # a heartbeat names the model
+    if heard is None:
+        return None
+    try:
+        model_id = int(decode_any(heard).signals["ModelId"]) if heard.arbitration_id == status_id else None
+    except FrameError:
+        model_id = None
+    return heard.arbitration_id, model_id
 
 
 def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],

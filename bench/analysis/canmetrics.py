@@ -87,12 +87,12 @@ def _clean_estimates(refs: References, rows: int, initial) -> np.ndarray:
     return np.where(index[:, None] >= 0, refs.f32[np.maximum(index, 0)], start)
 
 
-def restarted_agreement(artifact: ModelArtifact, record: BusRecord, refs: References) -> tuple[np.ndarray, dict]:
-    """Every reply of every segment against the float32 reference restarted as that segment was.
+def restarted_agreement(artifact: ModelArtifact, record: BusRecord, clean: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Every reply of every segment against the float32 reference restarted as that segment was (`clean`, the
+    clean run's estimate after each row, is segment 0's).
 
     Returns (final reference per row (rows, 4), {max_abs: per temperature, compared, saturated})."""
     rows = record.rows
-    clean = _clean_estimates(refs, rows, record.initial)
     final = np.full((rows, 4), np.nan)
     worst = np.full(4, np.nan)
     compared = saturated = 0
@@ -285,10 +285,11 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     can_at_steps = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
     in_range = (refs.f32 >= CAN_TEMP_RANGE[0]) & (refs.f32 <= CAN_TEMP_RANGE[1])
     saturated = int(np.count_nonzero(~in_range))
+    clean = _clean_estimates(refs, record.rows, record.initial)   # the clean run's estimate after each row
     if lost_rows:
         final_ref, agreement = twin_agreement(artifact, record)
     else:
-        final_ref, agreement = restarted_agreement(artifact, record, refs)
+        final_ref, agreement = restarted_agreement(artifact, record, clean)
     refs.can_reference = final_ref[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
     f32_err = refs.f32 - refs.f64
     rmse = {}
@@ -327,7 +328,7 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         "replies_compared": agreement["compared"],
         "can_reference": "target twin" if lost_rows else "offline float32",
         "rows_lost_on_the_bus": lost_rows,
-        "max_abs_can_minus_clean_C": _deviation(record, refs),
+        "max_abs_can_minus_clean_C": _deviation(record, clean),
         "segments": len(record.segments),
         "saturated_values": saturated,
         "max_abs_float32_minus_float64_C": {name: _max_abs(f32_err[:, i]) for i, name in enumerate(TEMPERATURES)},
@@ -365,10 +366,9 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     return metrics, refs
 
 
-def _deviation(record: BusRecord, refs: References) -> dict[str, float | None]:
+def _deviation(record: BusRecord, clean: np.ndarray) -> dict[str, float | None]:
     """Per temperature, the largest |CAN - the clean run's float32 estimate| over the answered rows: zero unless
     faults changed what the model saw (rows lost in real time)."""
-    clean = _clean_estimates(refs, record.rows, record.initial)
     diff = np.abs(record.temps - clean)
     return {name: _max_abs(diff[:, i]) for i, name in enumerate(TEMPERATURES)}
 

@@ -124,7 +124,7 @@ class _SegmentBuilder:
         self.pair_s: dict[int, float] = {}     # row -> send time of the pair that was answered
 
     def row_of(self, rel_step: int) -> int:
-        return _nearest(rel_step, max(self.host_row, self.start_row))
+        return nearest_row(rel_step, max(self.host_row, self.start_row))
 
     def build(self) -> Segment:
         rows = sorted(r for r, v in self.replies.items() if v[4] == 3)
@@ -134,7 +134,7 @@ class _SegmentBuilder:
                        reply_s=np.array([self.replies[r][5] for r in rows], dtype=float))
 
 
-def _nearest(rel_step: int, reference: int) -> int:
+def nearest_row(rel_step: int, reference: int) -> int:
     """The row congruent to `rel_step` mod 65536 nearest to `reference`."""
     delta = (rel_step - reference) % STEP_MODULO
     if delta >= STEP_MODULO // 2:
@@ -254,7 +254,7 @@ def decode_log(path: str | Path) -> BusRecord:
                 record.sessions += 1
                 if reinit_announced and segments:
                     last = segments[-1]
-                    start = _nearest(int(s["Step"]) - base_step, max(last.host_row, last.start_row))
+                    start = nearest_row(int(s["Step"]) - base_step, max(last.host_row, last.start_row))
                     segments.append(_SegmentBuilder(start, pending_initial, True, pending_state))
                 else:
                     base_step = int(s["Step"])
@@ -270,7 +270,7 @@ def decode_log(path: str | Path) -> BusRecord:
             event = BenchEvent(int(s["Event"]))
             kind = FaultKind(int(s["FaultKind"]))
             reference = max(segments[-1].host_row, segments[-1].start_row) if segments else 0
-            marks.append(Mark(event.name.lower().replace("_", "-"), _nearest(int(s["Step"]) - base_step, reference),
+            marks.append(Mark(event.name.lower().replace("_", "-"), nearest_row(int(s["Step"]) - base_step, reference),
                               None if kind == FaultKind.NONE else kind.name.lower(),
                               int(s["FrameId"]) or None, msg.timestamp))
             if event == BenchEvent.REINIT:

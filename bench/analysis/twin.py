@@ -13,7 +13,7 @@ from __future__ import annotations
 import can
 import numpy as np
 
-from bench.analysis.logdecode import STEP_MODULO, BusRecord
+from bench.analysis.logdecode import BusRecord, nearest_row
 from dbc import TARGET_FRAME_IDS, frame_id
 from target_sim.artifact import ModelArtifact
 from target_sim.fastframes import fast_decode_any
@@ -22,11 +22,6 @@ from target_sim.node import TargetNode
 
 _NOT_RECEIVED = TARGET_FRAME_IDS | {fid ^ UNKNOWN_ID_FLIP for fid in REPLY_IDS}
 _TEMPERATURES1, _TEMPERATURES2 = frame_id("Temperatures1"), frame_id("Temperatures2")
-
-
-def _nearest(step: int, reference: int) -> int:
-    delta = (step - reference) % STEP_MODULO
-    return reference + (delta - STEP_MODULO if delta >= STEP_MODULO // 2 else delta)
 
 
 def twin_estimates(artifact: ModelArtifact, record: BusRecord) -> np.ndarray:
@@ -42,7 +37,7 @@ def twin_estimates(artifact: ModelArtifact, record: BusRecord) -> np.ndarray:
             if reply.arbitration_id not in (_TEMPERATURES1, _TEMPERATURES2):
                 continue
             signals = fast_decode_any(reply).signals
-            row = _nearest(int(signals["Step"]), latest)
+            row = nearest_row(int(signals["Step"]), latest)
             latest = max(latest, row)
             if not 0 <= row < record.rows:
                 continue

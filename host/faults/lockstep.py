@@ -129,9 +129,6 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
             return f"the target reports state {monitor.state.name}"
         return None
 
-    def mark_injections(row: int) -> None:
-        mark_new_injections(session, faulty, row)
-
     def retry(n: int, pass_: int) -> str:
         """Send row n again (twice) until it is answered, the target is lost, or `give_up_s` passes: the reply
         to a retransmission can itself be lost (a reply fault on the row's first use by the target)."""
@@ -188,7 +185,7 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
             if control is None:
                 raise SessionError(f"a {process} fault needs the bench runner, which owns the target process")
             faulty.record(process, None, row=n, pass_=pass_)
-            mark_injections(n)
+            mark_new_injections(session, faulty, n)
             session.flush_log()
             if process == "kill":
                 control.kill()
@@ -199,7 +196,7 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
         faulty.begin_row(n, pass_, eligible=n != segment_start and process is None)
         session.send(encode_row(codec, n, values[n]))
         faulty.end_row()
-        mark_injections(n)
+        mark_new_injections(session, faulty, n)
         session.flush_log()
         sent_rows = max(sent_rows, n + 1)
         if not wait_reply(n, reply_timeout_s):

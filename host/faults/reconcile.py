@@ -43,7 +43,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from target_sim.faults import REPLY_PREFIX
+from target_sim.faults import FRAME_FAULT_KINDS, REPLY_PREFIX
 
 from .bus import Injection
 from .lockstep import FaultRun
@@ -64,14 +64,13 @@ DETECTION = {
     "out_of_range": "target: out-of-range rejection of the frame",
     "kill": "host: heartbeat lost, target restarted and re-initialized",
     "freeze": "host: heartbeat lost, target re-initialized after it resumed",
-    **{REPLY_PREFIX + k: "host" + v.removeprefix("target") for k, v in (
-        ("drop", "target: alive-counter jump on the next reply of the same id"),
-        ("duplicate", "target: repeated alive counter on the second copy"),
-        ("corrupt", "target: E2E CRC error on the corrupted reply"),
-        ("stale_counter", "target: repeated alive counter on the stale reply"),
-        ("wrong_length", "target: wrong-length rejection of the short reply"),
-        ("unknown_id", "target: unknown-id rejection of the reply on a foreign id"),
-        ("out_of_range", "target: out-of-range rejection of the reply"))},
+    "reply_drop": "host: alive-counter jump on the next reply of the same id",
+    "reply_duplicate": "host: repeated alive counter on the second copy",
+    "reply_corrupt": "host: E2E CRC error on the corrupted reply",
+    "reply_stale_counter": "host: repeated alive counter on the stale reply",
+    "reply_wrong_length": "host: wrong-length rejection of the short reply",
+    "reply_unknown_id": "host: unknown-id rejection of the reply on a foreign id",
+    "reply_out_of_range": "host: out-of-range rejection of the reply",
 }
 assert set(DETECTION) == set(KINDS)
 RX_NAMES = {"UnknownId": "unknown_id", "WrongLength": "wrong_length", "CrcError": "crc", "CounterError": "counter",
@@ -79,9 +78,7 @@ RX_NAMES = {"UnknownId": "unknown_id", "WrongLength": "wrong_length", "CrcError"
 CATEGORIES = ("unknown_id", "wrong_length", "crc", "counter", "out_of_range", "sequence")
 SIDECAR_SUFFIX = ".faults.json"
 # kinds after which the next frame of the same id carries an alive-counter jump (a copy repeats, it does not jump)
-CHAINED = frozenset({"drop", "corrupt", "stale_counter", "wrong_length", "unknown_id", "out_of_range"}
-                    | {REPLY_PREFIX + k for k in ("drop", "corrupt", "stale_counter", "wrong_length", "unknown_id",
-                                                  "out_of_range")})
+CHAINED = frozenset(prefix + k for k in FRAME_FAULT_KINDS if k != "duplicate" for prefix in ("", REPLY_PREFIX))
 LISTED = 20
 
 

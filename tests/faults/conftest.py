@@ -47,3 +47,24 @@ def run_cli(*argv: str, timeout: float = 180) -> subprocess.CompletedProcess:
     env = dict(os.environ, MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
     return subprocess.run([sys.executable, *argv], cwd=ROOT, env=env, capture_output=True, text=True,
                           timeout=timeout)
+
+
+def bench_run(dataset_path: Path, log: Path, bus: BusConfig, faults=None, *, rows: int, **options):
+    """`rows` rows of the dataset through a real target process (the packaged model), then the log decoded and
+    analysed: (host result, metrics, decoded log). `options` go to the runner (mode, speed, reply_timeout_s)."""
+    from bench.analysis.canmetrics import compute
+    from bench.analysis.logdecode import decode_log
+    from bench.drive.dataset import load_dataset
+    from bench.model.default import default_artifact_path
+    from bench.model.runs import drive_matrix, initial_temperatures
+    from bench.runner import run_with_target
+    from target_sim.artifact import load_artifact
+
+    dataset = load_dataset(dataset_path)
+    artifact = load_artifact(default_artifact_path())
+    outcome = run_with_target(default_artifact_path(), artifact, bus, drive_matrix(dataset)[:rows],
+                              initial_temperatures(dataset), sample_period_s=dataset.sample_period_s, log_path=log,
+                              faults=faults, **options)
+    record = decode_log(log)
+    metrics, _ = compute(record, artifact, dataset)
+    return outcome.result, metrics, record

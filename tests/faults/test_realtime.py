@@ -7,16 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.analysis.canmetrics import compute
-from bench.analysis.logdecode import decode_log
-from bench.drive.dataset import load_dataset
-from bench.model.default import default_artifact_path
-from bench.model.runs import drive_matrix, initial_temperatures
-from bench.runner import run_with_target
 from host.faults import parse_faults, read_sidecar
 from host.faults.bus import Injection
 from host.faults.reconcile import CHAINED
-from target_sim.artifact import load_artifact
+
+from .conftest import bench_run
 
 ROWS = 200
 SPEED = 2.0              # 100 ms between rows: room for 4 reply timeouts
@@ -29,29 +24,18 @@ def result_injections(result) -> list[Injection]:
     return [Injection(**i) for i in read_sidecar(result.log_path)["injections"]]
 
 
-def run(dataset_path, log, bus, faults=None):
-    dataset = load_dataset(dataset_path)
-    artifact = load_artifact(default_artifact_path())
-    outcome = run_with_target(default_artifact_path(), artifact, bus, drive_matrix(dataset)[:ROWS],
-                              initial_temperatures(dataset), mode="realtime", speed=SPEED,
-                              sample_period_s=dataset.sample_period_s, log_path=log, reply_timeout_s=REPLY_TIMEOUT_S,
-                              faults=faults)
-    record = decode_log(log)
-    metrics, _ = compute(record, artifact, dataset)
-    return outcome.result, metrics, record, artifact
-
-
 @pytest.fixture(scope="module")
 def faulted(tmp_path_factory, fault_dataset):
     from target_sim.transport import BusConfig, resolve
 
     bus = resolve(BusConfig("udp_multicast"), session_unique=True)
     spec = parse_faults([",".join(f"{k}=0.02" for k in KINDS)], seed=2)
-    return run(fault_dataset, tmp_path_factory.mktemp("rt") / "rt.blf", bus, spec)
+    return bench_run(fault_dataset, tmp_path_factory.mktemp("rt") / "rt.blf", bus, spec, rows=ROWS, mode="realtime",
+                     speed=SPEED, reply_timeout_s=REPLY_TIMEOUT_S)
 
 
 def test_every_realtime_fault_is_detected_and_no_faulted_value_is_reported(faulted):
-    result, metrics, record, _ = faulted
+    result, metrics, record = faulted
     faults = result.faults
     assert faults["mode"] == "realtime"
     assert all(faults["injected"].get(k, 0) >= 1 for k in KINDS), faults["injected"]
@@ -59,8 +43,8 @@ def test_every_realtime_fault_is_detected_and_no_faulted_value_is_reported(fault
     assert faults["retransmitted_rows"] == 0                      # real time: nothing is sent again
     # rows were lost, each to a fault of its own or of the row before (the next frame of its id is refused for
     # the counter jump); a loaded machine may make a reply late (reported as unexplained), never lose one
-    explained = {i.row for i in result_injections(result)} | {i.row + 1 for i in result_injections(result)
-                                                               if i.kind in CHAINED}
+    injections = result_injections(result)
+    explained = {i.row for i in injections} | {i.row + 1 for i in injections if i.kind in CHAINED}
     lost = set(np.flatnonzero(~record.answered).tolist())
     assert lost and lost <= explained, sorted(lost - explained)
     assert all(record.answered[row] for row in faults["unexplained_deadline_miss_rows"])

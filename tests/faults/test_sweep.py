@@ -18,19 +18,14 @@ clean run of the same rows:
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from bench.analysis.canmetrics import compute
-from bench.analysis.logdecode import decode_log
-from bench.drive.dataset import load_dataset
 from bench.model.default import default_artifact_path
-from bench.model.runs import drive_matrix, initial_temperatures
-from bench.runner import run_with_target
 from host.faults import KINDS, parse_faults, read_sidecar
 from target_sim.artifact import load_artifact
+
+from .conftest import bench_run
 
 ROWS = 500
 RATES = {"drop": "0.015", "duplicate": "0.015", "corrupt": "0.015", "stale_counter": "0.015",
@@ -41,23 +36,13 @@ RATES = {"drop": "0.015", "duplicate": "0.015", "corrupt": "0.015", "stale_count
 assert set(RATES) == set(KINDS)
 
 
-def bench_run(dataset_path: Path, log: Path, bus, faults=None):
-    dataset = load_dataset(dataset_path)
-    artifact = load_artifact(default_artifact_path())
-    outcome = run_with_target(default_artifact_path(), artifact, bus, drive_matrix(dataset)[:ROWS],
-                              initial_temperatures(dataset), sample_period_s=dataset.sample_period_s, log_path=log,
-                              faults=faults)
-    record = decode_log(log)
-    metrics, _ = compute(record, artifact, dataset)
-    return outcome.result, metrics, record
-
-
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory, fault_dataset):
     from target_sim.transport import BusConfig, resolve
 
     bus = resolve(BusConfig("udp_multicast"), session_unique=True)
-    result, metrics, record = bench_run(fault_dataset, tmp_path_factory.mktemp("clean") / "clean.blf", bus)
+    log = tmp_path_factory.mktemp("clean") / "clean.blf"
+    result, metrics, record = bench_run(fault_dataset, log, bus, rows=ROWS)
     assert result.aborted is None and result.missing == 0 and metrics["missing"] == 0, result.problems()
     return record
 
@@ -66,7 +51,7 @@ def clean(tmp_path_factory, fault_dataset):
 def test_each_fault_kind_is_detected_and_the_temperatures_survive(kind, clean, fault_dataset, tmp_path, udp_bus):
     spec = parse_faults([f"{kind}={RATES[kind]}"], seed=3)
     log = tmp_path / f"{kind}.blf"
-    result, metrics, record = bench_run(fault_dataset, log, udp_bus, spec)
+    result, metrics, record = bench_run(fault_dataset, log, udp_bus, spec, rows=ROWS)
     faults = result.faults
     injected, detected = faults["injected"][kind], faults["detected"][kind]
     assert injected >= (1 if kind in ("kill", "freeze") else 3), faults
