@@ -8,9 +8,10 @@ import logging
 import sys
 
 from bench.errors import BenchError, UsageError
+from dbc.database import DbcError
 
 # Subcommand modules under bench.commands, in the order `bench --help` lists them.
-SUBCOMMANDS = ("numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "compare")
+SUBCOMMANDS = ("numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "compare", "host")
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -60,17 +61,14 @@ def main(argv: list[str] | None = None) -> int:
     except BenchError as exc:
         print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_status
+    except DbcError as exc:  # the CAN contract, read on first use by whichever command needs it
+        print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
+        return 1
     except OSError as exc:  # a file or directory the command could not use (last resort: name it, no traceback)
         if isinstance(exc, BrokenPipeError):
             sys.stderr.close()
             return 0
         print(f"bench: error: {_os_error_sentence(exc)}", file=sys.stderr)
-        return 1
-    except Exception as exc:
-        # a broken DBC fails while `dbc` is imported, so its error class cannot be imported here to be caught
-        if type(exc).__name__ != "DbcError":
-            raise
-        print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("bench: interrupted", file=sys.stderr)

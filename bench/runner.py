@@ -27,6 +27,8 @@ import can
 import numpy as np
 
 from bench.errors import BenchError, UsageError
+from dbc.database import contract
+from dbc.transport import IN_USE_LISTEN_S, BusConfig, BusUnavailable, config_from_args, resolve
 from host.canlog import LogError
 from host.faults import FaultSpec, FaultSpecError
 from host.replay import DataRangeError, Progress
@@ -35,13 +37,14 @@ from host.run import replay_log, run_dataset
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
 from target_sim.node import target_on_channel
-from target_sim.transport import IN_USE_LISTEN_S, BusConfig, BusUnavailable, config_from_args, resolve
 
 TARGET_STOP_TIMEOUT_S = 5.0
 
 
 def bus_from_args(args) -> BusConfig:
-    """The bus the command-line options describe, `auto` resolved with a run-unique udp_multicast port."""
+    """The bus the command-line options describe, `auto` resolved with a run-unique udp_multicast port (and the
+    CAN contract read first: a broken DBC is one sentence before anything starts)."""
+    contract()
     try:
         config = resolve(config_from_args(args), session_unique=True)
     except BusUnavailable as exc:
@@ -64,7 +67,8 @@ def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
 def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, seed: int | None = None,
               quiet: bool = True):
     """The dataset (default: the generated 40 °C validation run, made in out/data if missing)."""
-    from bench.drive.dataset import ensure_default_datasets, load_dataset
+    from bench.drive.dataset import load_dataset
+    from bench.drive.generate import ensure_default_datasets
 
     if path is None:
         if not quiet and not Path("out/data/cycle_coolant40.csv").is_file():

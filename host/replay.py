@@ -27,16 +27,14 @@ from typing import Protocol
 import can
 import numpy as np
 
-from dbc import HOST_FRAME_IDS, FrameCodec, frame_id, signal_ranges
+from dbc.codec import FrameCodec
+from dbc.contract import DRIVE_SIGNALS, step_of
+from dbc.database import frame_id, host_frame_ids, signal_ranges
 from host.session import HostSession, RowBook, SessionError
 
 Progress = Callable[[int, int], None]
-DRIVE_SIGNALS = (("DriveInputs", "MotorTorque"), ("DriveInputs", "MotorSpeed"), ("DriveTemps", "CoolantTemp"),
-                 ("DriveTemps", "AmbientTemp"))
 DEFAULT_ABORT_AFTER = 25
 SPIN_S = float(os.environ.get("HOST_SPIN_S", "0.0003"))  # lockstep: busy-poll for the reply before blocking
-_DRIVE_INPUTS, _DRIVE_TEMPS, _CONTROL = frame_id("DriveInputs"), frame_id("DriveTemps"), frame_id("Control")
-_TEMPERATURES = (frame_id("Temperatures1"), frame_id("Temperatures2"))
 
 
 class DataRangeError(ValueError):
@@ -57,10 +55,12 @@ def check_drive_range(drive: np.ndarray) -> None:
 
 
 def encode_row(codec: FrameCodec, row: int, values: Sequence[float]) -> list[can.Message]:
-    step = row % 65536
-    torque, speed, coolant, ambient = values
-    return [codec.encode("DriveInputs", {"Step": step, "MotorTorque": torque, "MotorSpeed": speed}),
-            codec.encode("DriveTemps", {"Step": step, "CoolantTemp": coolant, "AmbientTemp": ambient})]
+    """The frames of data row `row` (values in DRIVE_SIGNALS order: torque, speed, coolant, ambient)."""
+    step = step_of(row)
+    signals: dict[str, dict[str, float]] = {}
+    for (message, signal), value in zip(DRIVE_SIGNALS, values, strict=True):
+        signals.setdefault(message, {"Step": step})[signal] = value
+    return [codec.encode(message, values) for message, values in signals.items()]
 
 
 @dataclass
@@ -68,28 +68,27 @@ class ReplayStats:
     mode: str
     rows_sent: int
     wall_time_s: float
-    missing_during_run: int
     aborted: str | None = None
     send_jitter_s: np.ndarray | None = None
 
 
 def wait_for_reply(session: HostSession, book: RowBook, row: int, timeout: float) -> bool:
-    """Receive until both temperature replies of `row` are in (got == 3) or `timeout` s have passed.
+    """Receive until both temperature replies of `row` are in or `timeout` s have passed.
 
     Polls for SPIN_S first: in lockstep the reply is usually less than 0.3 ms away, and blocking costs more.
     """
     perf = time.perf_counter
-    got = book.got
+    answered = book.is_answered
     deadline = perf() + timeout
     spin_until = perf() + SPIN_S
-    while got[row] != 3 and perf() < spin_until:
+    while not answered(row) and perf() < spin_until:
         session.receive(0.0)
-    while got[row] != 3:
+    while not answered(row):
         remaining = deadline - perf()
         if remaining <= 0:
             break
         session.receive(remaining)
-    return bool(got[row] == 3)
+    return answered(row)
 
 
 def _silent(session: HostSession) -> bool:
@@ -103,7 +102,7 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
     values = drive.tolist()
     codec = session.codec
     perf, perf_ns = time.perf_counter, time.perf_counter_ns
-    missing = consecutive = 0
+    consecutive = 0
     aborted = None
     next_frames = encode_row(codec, 0, values[0]) if rows else []
     started = perf()
@@ -118,7 +117,6 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
         if n + 1 < rows:
             next_frames = encode_row(codec, n + 1, values[n + 1])
         if not wait_for_reply(session, book, n, reply_timeout_s):
-            missing += 1
             consecutive += 1
             if _silent(session):
                 aborted = (f"the target went silent (no heartbeat for more than "
@@ -135,7 +133,7 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
     session.flush_log()
     if progress is not None:
         progress(sent, rows)
-    return ReplayStats("lockstep", sent, elapsed, missing, aborted)
+    return ReplayStats("lockstep", sent, elapsed, aborted)
 
 
 class RowHooks(Protocol):
@@ -187,23 +185,20 @@ def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: fl
                 break
             if progress is not None:
                 progress(n, rows)
-    # the last replies
-    end = perf() + reply_timeout_s
-    while sent and book.got[sent - 1] != 3 and (remaining := end - perf()) > 0:
-        session.receive(remaining)
+    if sent:  # the last replies
+        wait_for_reply(session, book, sent - 1, reply_timeout_s)
     elapsed = perf() - start
     session.flush_log()
     if progress is not None:
         progress(sent, rows)
-    missing = int(np.count_nonzero(book.got[:sent] != 3))
-    return ReplayStats("realtime", sent, elapsed, missing, aborted, send_jitter_s=jitter[:sent])
+    return ReplayStats("realtime", sent, elapsed, aborted, send_jitter_s=jitter[:sent])
 
 
 # ---------------------------------------------------------------------------------------------- log replay
 def host_frames(messages: Sequence[can.Message], also: frozenset[int] = frozenset()) -> list[can.Message]:
     """The frames a host sent (standard ids of the DBC's HOST node, and the ids in `also`), as fresh copies with
     the recorded bytes."""
-    keep = HOST_FRAME_IDS | also
+    keep = host_frame_ids() | also
     out = []
     for m in messages:
         if m.is_extended_id or m.is_error_frame or m.is_remote_frame or m.arbitration_id not in keep:
@@ -214,7 +209,8 @@ def host_frames(messages: Sequence[can.Message], also: frozenset[int] = frozense
 
 
 def count_rows(frames: Sequence[can.Message]) -> int:
-    return sum(1 for f in frames if f.arbitration_id == _DRIVE_INPUTS)
+    drive_inputs = frame_id("DriveInputs")
+    return sum(1 for f in frames if f.arbitration_id == drive_inputs)
 
 
 def replay_frames(session: HostSession, frames: Sequence[can.Message], *, timed: bool, speed: float = 1.0,
@@ -224,38 +220,35 @@ def replay_frames(session: HostSession, frames: Sequence[can.Message], *, timed:
     book = session.book = RowBook(rows)
     started = time.perf_counter()
     if not timed:
-        missing = _replay_lockstep(session, frames, book, reply_timeout_s, progress)
+        _replay_lockstep(session, frames, book, reply_timeout_s, progress)
     else:
-        missing = _replay_timed(session, frames, book, speed, reply_timeout_s, progress)
-    return ReplayStats("timed" if timed else "lockstep", rows, time.perf_counter() - started, missing)
+        _replay_timed(session, frames, book, speed, reply_timeout_s, progress)
+    return ReplayStats("timed" if timed else "lockstep", rows, time.perf_counter() - started)
 
 
-def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> int:
+def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> None:
+    drive_inputs, drive_temps, control = frame_id("DriveInputs"), frame_id("DriveTemps"), frame_id("Control")
     row = -1
-    missing = 0
     for frame in frames:
-        if frame.arbitration_id == _DRIVE_INPUTS:
+        if frame.arbitration_id == drive_inputs:
             row += 1
             session.last_sent_row = row
             book.sent_ns[row] = time.perf_counter_ns()
         session.send([frame])
         session.flush_log()
-        if frame.arbitration_id == _DRIVE_TEMPS and row >= 0:
-            if not wait_for_reply(session, book, row, reply_timeout_s):
-                missing += 1
-                if _silent(session):
-                    raise SessionError(f"the target went silent during the replay (row {row})")
+        if frame.arbitration_id == drive_temps and row >= 0:
+            if not wait_for_reply(session, book, row, reply_timeout_s) and _silent(session):
+                raise SessionError(f"the target went silent during the replay (row {row})")
             if progress is not None and (row & 1023) == 0:
                 progress(row, book.rows)
-        elif frame.arbitration_id == _CONTROL:
+        elif frame.arbitration_id == control:
             # a command: give the target its turn (state changes are answered by a Status frame); the other frames
             # (ResetTemps, RestoreState, BenchEvent marks, a faulted drive frame) change no state on their own
             session.wait_for(lambda f: f.name == "Status", 0.02)
     session.flush_log()
-    return missing
 
 
-def _replay_timed(session, frames, book, speed, reply_timeout_s, progress) -> int:
+def _replay_timed(session, frames, book, speed, reply_timeout_s, progress) -> None:
     """Recorded timing through can.MessageSync, gated by the replies: a row's DriveInputs waits until the
     previous row is answered (or `reply_timeout_s` passes). A log recorded in lockstep was paced by its round
     trips, so it has no slack: without the gate one slow moment of the target would queue frames until the
@@ -264,17 +257,14 @@ def _replay_timed(session, frames, book, speed, reply_timeout_s, progress) -> in
     base = frames[0].timestamp if frames else 0.0
     scaled = [can.Message(timestamp=base + (f.timestamp - base) / speed, arbitration_id=f.arbitration_id,
                           is_extended_id=False, dlc=f.dlc, data=f.data) for f in frames]
-    perf = time.perf_counter
+    drive_inputs = frame_id("DriveInputs")
     row = -1
     for frame in can.MessageSync(scaled, timestamps=True, gap=0.0, skip=60.0):
         while session.receive(0.0) is not None:  # what arrived while MessageSync slept
             pass
-        if frame.arbitration_id == _DRIVE_INPUTS:
+        if frame.arbitration_id == drive_inputs:
             if row >= 0:
-                deadline = perf() + reply_timeout_s
-                while book.got[row] != 3 and (remaining := deadline - perf()) > 0:
-                    session.receive(remaining)
-                if book.got[row] != 3 and _silent(session):
+                if not wait_for_reply(session, book, row, reply_timeout_s) and _silent(session):
                     raise SessionError(f"the target went silent during the replay (row {row})")
             row += 1
             session.last_sent_row = row
@@ -284,8 +274,6 @@ def _replay_timed(session, frames, book, speed, reply_timeout_s, progress) -> in
         session.flush_log()
         session.send([frame])
         session.flush_log()
-    deadline = perf() + reply_timeout_s
-    while book.rows and book.got[book.rows - 1] != 3 and (remaining := deadline - perf()) > 0:
-        session.receive(remaining)
+    if book.rows:
+        wait_for_reply(session, book, book.rows - 1, reply_timeout_s)
     session.flush_log()
-    return int(np.count_nonzero(book.got != 3))

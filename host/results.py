@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from dbc import FaultBit
+from dbc.contract import FaultBit
 from host.replay import ReplayStats
 from host.session import HostSession
 
@@ -112,14 +112,12 @@ def build_result(session: HostSession, stats: ReplayStats, *, rows: int, speed: 
     cycles = [v for _, v in timing["cycles"]]
     exec_us = [v for _, v in timing["exec_us"]]
     load = [v for _, v in timing["cpu_load"]]
-    rx_names = {"UnknownId": "unknown_id", "WrongLength": "wrong_length", "CrcError": "crc",
-                "CounterError": "counter", "OutOfRange": "out_of_range", "SequenceError": "sequence"}
     return HostResult(
         mode=stats.mode, speed=speed, rows=rows, rows_sent=sent, replies=int(np.count_nonzero(answered)),
         missing=int(sent - np.count_nonzero(answered)), late_replies=session.late_replies,
         sequence_gaps=gap_count(answered), heartbeat_losses=mon.heartbeat_losses,
         max_heartbeat_gap_s=round(mon.max_gap_s, 4), invalid_frames=dict(session.invalid),
-        target_rx_errors={rx_names.get(k, k): v for k, v in mon.rx_errors.items()},
+        target_rx_errors=dict(mon.rx_errors),
         target_faults_seen=[bit.name for bit in FaultBit if bit & mon.faults_seen],
         target_state=mon.state.name if mon.state is not None else None, target_info=dict(mon.target_info),
         model_id=f"{mon.model_id:08x}" if mon.model_id is not None else None,

@@ -15,7 +15,11 @@ from pathlib import Path
 import can
 import numpy as np
 
-from dbc import FRAME_IDS, HOST_FRAME_IDS, FrameError
+from dbc.codec import decode_any
+from dbc.contract import FrameError
+from dbc.database import frame_id, host_frame_ids
+from dbc.mutations import FAULTED_HOST_MESSAGES, foreign_ids
+from dbc.transport import OwnFrameFilter
 from host.canlog import FrameLog
 from host.faults import (
     DELAY_FACTOR,
@@ -42,9 +46,6 @@ from host.replay import (
 )
 from host.results import HostResult, build_result
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_REPLY_TIMEOUT_S, HostSession
-from target_sim.fastframes import fast_decode_any
-from target_sim.faults import UNKNOWN_ID_FLIP
-from target_sim.transport import OwnFrameFilter
 
 MODES = ("lockstep", "realtime")
 
@@ -125,9 +126,10 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
                         log_path=final, log_frames=log_frames, faults=summary)
 
 
-# The ids the unknown_id fault puts the host's drive frames on (`target_sim.faults.mutate`): a replay of
-# a faulted log re-sends those frames too, so the target rejects what it rejected when the log was made.
-INJECTED_IDS = frozenset(FRAME_IDS[name] ^ UNKNOWN_ID_FLIP for name in ("DriveInputs", "DriveTemps"))
+def injected_ids() -> frozenset[int]:
+    """The ids the unknown_id fault puts the host's drive frames on (`dbc.mutations.mutate`): a replay of a
+    faulted log re-sends those frames too, so the target rejects what it rejected when the log was made."""
+    return foreign_ids(FAULTED_HOST_MESSAGES)
 
 
 class ReplaySession(HostSession):
@@ -138,14 +140,15 @@ class ReplaySession(HostSession):
 
     def __init__(self, bus: can.BusABC, **kwargs) -> None:
         super().__init__(bus, **kwargs)
-        self.own = OwnFrameFilter(HOST_FRAME_IDS | INJECTED_IDS)  # udp_multicast loops those back to us too
+        self.own = OwnFrameFilter(host_frame_ids() | injected_ids())  # udp_multicast loops those back to us too
+        self._drive_inputs = frame_id("DriveInputs")
         self._row_of_step: dict[int, int] = {}
 
     def send(self, frames: Sequence[can.Message]) -> None:
         for frame in frames:
-            if frame.arbitration_id == FRAME_IDS["DriveInputs"] and not frame.is_extended_id:
+            if frame.arbitration_id == self._drive_inputs and not frame.is_extended_id:
                 try:
-                    self._row_of_step[int(fast_decode_any(frame).signals["Step"])] = self.last_sent_row
+                    self._row_of_step[int(decode_any(frame).signals["Step"])] = self.last_sent_row
                 except FrameError:
                     pass  # damaged on purpose: the target rejects it, no reply will name it
         super().send(frames)
@@ -159,7 +162,7 @@ def replay_log(bus: can.BusABC, messages: Sequence[can.Message], *, model_id: in
                reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
                alive: Callable[[], str | None] | None = None, progress: Progress | None = None) -> HostResult:
     """Re-send the host frames of a recorded log; the result's arrays hold the new replies by DriveInputs frame."""
-    frames = host_frames(messages, also=INJECTED_IDS)  # the unknown_id fault's frames too
+    frames = host_frames(messages, also=injected_ids())  # the unknown_id fault's frames too
     log = FrameLog(log_path) if log_path is not None else None
     with discarded_on_error(log):
         session = ReplaySession(bus, log=log, expected_model_id=model_id)

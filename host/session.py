@@ -23,28 +23,34 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from dbc import (
-    HOST_FRAME_IDS,
+from dbc.codec import DecodedFrame, FrameCodec, FrameValidator
+from dbc.contract import (
+    FRAME_ERROR_KINDS,
+    HEARTBEAT_TIMEOUT_S,
+    REPLY_COMPLETE,
+    REPLY_SIGNALS,
+    RESET_SIGNALS,
+    STATE_SIZE,
     BenchEvent,
     Command,
-    DecodedFrame,
     FaultBit,
     FaultKind,
     FrameError,
-    ModelKind,
-    Realization,
     TargetState,
+    latest_row,
+    place_temperatures,
+    rx_error_counts,
+    split_temperatures,
+    step_of,
+    target_info,
 )
+from dbc.database import host_frame_ids
+from dbc.transport import OwnFrameFilter
 from host.canlog import FrameLog
-from target_sim.fastframes import FastFrameCodec, FastFrameValidator
-from target_sim.transport import OwnFrameFilter
 
-STEP_MODULO = 1 << 16
 DEFAULT_REPLY_TIMEOUT_S = 0.05
-DEFAULT_HEARTBEAT_TIMEOUT_S = 0.5
 DEFAULT_CONNECT_TIMEOUT_S = 15.0
 MAX_REJECTIONS_KEPT = 100_000   # refused frames recorded one by one (counted beyond)
-CHECKPOINT_SIZE = 4            # elements of the model state vector in a StateCheckpoint
 
 
 class SessionError(Exception):
@@ -57,18 +63,25 @@ class RowBook:
 
     rows: int
     temps: np.ndarray = field(init=False)
-    got: np.ndarray = field(init=False)        # bit 0: Temperatures1, bit 1: Temperatures2
+    got: np.ndarray = field(init=False)        # the reply bits of the messages in (dbc.contract.REPLY_BIT)
     sent_ns: np.ndarray = field(init=False)
     replied_ns: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
-        self.temps = np.full((self.rows, 4), np.nan)
+        self.temps = np.full((self.rows, STATE_SIZE), np.nan)
         self.got = np.zeros(self.rows, dtype=np.uint8)
         self.sent_ns = np.zeros(self.rows, dtype=np.int64)
         self.replied_ns = np.zeros(self.rows, dtype=np.int64)
 
     def answered(self) -> np.ndarray:
-        return self.got == 3
+        return self.got == REPLY_COMPLETE
+
+    def is_answered(self, row: int) -> bool:
+        return bool(self.got[row] == REPLY_COMPLETE)
+
+    def unanswered(self, stop: int | None = None) -> int:
+        """Rows before `stop` (all rows: None) without both replies."""
+        return int(np.count_nonzero(self.got[:stop] != REPLY_COMPLETE))
 
 
 @dataclass
@@ -85,7 +98,6 @@ class Monitor:
     model_id: int | None = None
     rx_errors: dict[str, int] = field(default_factory=dict)
     target_info: dict[str, object] = field(default_factory=dict)
-    status_count: int = 0
 
     def status(self, signals: dict, now_s: float) -> None:
         if self.last_status_s is not None:
@@ -94,7 +106,6 @@ class Monitor:
             if gap > self.heartbeat_timeout_s:
                 self.heartbeat_losses += 1
         self.last_status_s = now_s
-        self.status_count += 1
         self.state = TargetState(int(signals["State"]))
         self.faults = int(signals["FaultBits"])
         self.faults_seen |= self.faults
@@ -110,15 +121,15 @@ class HostSession:
     """Sends and receives for one run; knows nothing of datasets (see host.replay)."""
 
     def __init__(self, bus: can.BusABC, *, log: FrameLog | None = None, expected_model_id: int | None = None,
-                 heartbeat_timeout_s: float = DEFAULT_HEARTBEAT_TIMEOUT_S):
+                 heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S):
         self.bus = bus
         self.log = log
         self.expected_model_id = expected_model_id
-        self.codec = FastFrameCodec("HOST")
-        self.validator = FastFrameValidator("HOST")
-        self.own = OwnFrameFilter(HOST_FRAME_IDS)
+        self.codec = FrameCodec("HOST")
+        self.validator = FrameValidator("HOST")
+        self.own = OwnFrameFilter(host_frame_ids())
         self.monitor = Monitor(heartbeat_timeout_s)
-        self.invalid = {kind: 0 for kind in ("unknown_id", "wrong_length", "crc", "counter", "out_of_range")}
+        self.invalid = dict.fromkeys(FRAME_ERROR_KINDS, 0)
         self.rejections: list[dict] = []   # each refused frame (kind, id, data): the evidence of reply faults
         self.book: RowBook | None = None
         self.last_sent_row = -1
@@ -151,7 +162,7 @@ class HostSession:
     def marker(self, event: BenchEvent, row: int, kind: FaultKind = FaultKind.NONE,
                frame_id: int | None = None) -> None:
         """Put a BenchEvent mark on the bus (past any fault layer) and into the log."""
-        frame = self.codec.encode("BenchEvent", {"Step": row % STEP_MODULO, "Event": int(event),
+        frame = self.codec.encode("BenchEvent", {"Step": step_of(row), "Event": int(event),
                                                  "FaultKind": int(kind), "FrameId": int(frame_id or 0)})
         frame.timestamp = time.time()
         frame.is_rx = False
@@ -203,7 +214,7 @@ class HostSession:
 
     def _dispatch(self, frame: DecodedFrame) -> None:
         name, s = frame.name, frame.signals
-        if name == "Temperatures1" or name == "Temperatures2":
+        if name in REPLY_SIGNALS:
             self._reply(name, s)
         elif name == "Status":
             self.monitor.status(s, frame.timestamp)  # the receive time stamped by the bus (wall clock)
@@ -220,12 +231,9 @@ class HostSession:
         elif name == "StateCheckpoint":
             self._checkpoint(int(s["Step"]), int(s["StateIndex"]), float(s["StateValue"]))
         elif name == "RxErrors":
-            self.monitor.rx_errors = {k: int(v) for k, v in s.items()}
+            self.monitor.rx_errors = rx_error_counts(s)
         elif name == "TargetInfo":
-            self.monitor.target_info = {
-                "model_kind": ModelKind(int(s["ModelKind"])).name.lower().replace("_", "-"),
-                "realization": Realization(int(s["Realization"])).name.lower(),
-                "dt_s": float(s["ModelDt"]), "flash_bytes": int(s["FlashBytes"]), "ram_bytes": int(s["RamBytes"])}
+            self.monitor.target_info = target_info(s)
         if self.on_frame is not None:
             self.on_frame(frame)
 
@@ -233,9 +241,9 @@ class HostSession:
         """Collect one element; four valid elements of one Step make a checkpoint of that row's state."""
         parts = self._checkpoint_parts.setdefault(step, {})
         parts[index] = value
-        if len(parts) == CHECKPOINT_SIZE:
+        if len(parts) == STATE_SIZE:
             del self._checkpoint_parts[step]
-            self.checkpoints[self._row_of(step)] = [parts[i] for i in range(CHECKPOINT_SIZE)]
+            self.checkpoints[self._row_of(step)] = [parts[i] for i in range(STATE_SIZE)]
         if len(self._checkpoint_parts) > 4:  # elements of checkpoints that never completed (a lost frame)
             self._checkpoint_parts.pop(next(iter(self._checkpoint_parts)))
 
@@ -245,8 +253,8 @@ class HostSession:
         return (max(rows), self.checkpoints[max(rows)]) if rows else None
 
     def _row_of(self, step: int) -> int:
-        """The most recent row sent with this Step (mod 65536)."""
-        return self.last_sent_row - ((self.last_sent_row - step) % STEP_MODULO)
+        """The most recent row sent with this Step."""
+        return latest_row(step, self.last_sent_row)
 
     def _reply(self, name: str, s: dict) -> None:
         book = self.book
@@ -256,14 +264,8 @@ class HostSession:
         if row < 0 or row >= book.rows:
             self.late_replies += 1
             return
-        if name == "Temperatures1":
-            book.temps[row, 1], book.temps[row, 3] = s["WindingTemp"], s["MagnetTemp"]
-            bit = 1
-        else:
-            book.temps[row, 0], book.temps[row, 2] = s["YokeTemp"], s["ToothTemp"]
-            bit = 2
-        book.got[row] |= bit
-        if book.got[row] == 3:
+        book.got[row] |= place_temperatures(name, s, book.temps[row])
+        if book.got[row] == REPLY_COMPLETE:
             book.replied_ns[row] = time.perf_counter_ns()
 
     def wait_for(self, predicate: Callable[[DecodedFrame], bool], timeout: float) -> DecodedFrame | None:
@@ -299,12 +301,10 @@ class HostSession:
 
     def reset(self, initial: Sequence[float], step: int = 0, tries: int = 3) -> None:
         """Send the initial temperatures [yoke, winding, tooth, magnet] and RESET; wait for READY."""
-        yoke, winding, tooth, magnet = (round(float(v), 2) for v in initial)
+        frames = split_temperatures([round(float(v), 2) for v in initial], RESET_SIGNALS)
         for _ in range(tries):
-            self.send([
-                self.codec.encode("ResetTemps1", {"Step": step, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-                self.codec.encode("ResetTemps2", {"Step": step, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-                self.control(Command.RESET, step)])
+            self.send([self.codec.encode(name, {"Step": step, **signals}) for name, signals in frames.items()]
+                      + [self.control(Command.RESET, step)])
             self.flush_log()
             if self._await_state(TargetState.READY, 0.5):
                 return

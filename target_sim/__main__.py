@@ -26,8 +26,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from dbc.database import DbcError, contract
+from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 from target_sim.artifact import ArtifactError, load_artifact
-from target_sim.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
+from target_sim.faults import ReplyFaults, parse_reply_faults
+from target_sim.node import TargetNode, log_error, serve, target_on_channel
 
 
 class _Parser(argparse.ArgumentParser):
@@ -91,22 +94,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        from target_sim.faults import ReplyFaults
-        from target_sim.node import (  # loads the DBC: a broken one fails here
-            TargetNode,
-            log_error,
-            serve,
-            target_on_channel,
-        )
-    except Exception as exc:
-        if type(exc).__name__ != "DbcError":  # its class lives in the module whose import just failed
-            raise
+        contract()  # the DBC, read before anything else: a broken one is one sentence here
+    except DbcError as exc:
         print(f"target_sim: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     reply_rates = {}
     if args.faults:
-        from target_sim.faults import parse_reply_faults
-
         try:
             reply_rates = parse_reply_faults(args.faults)
         except ValueError as exc:

@@ -38,7 +38,7 @@ Protocol (the DBC's comments are the contract; this is how the target implements
 * BenchEvent frames (a bench host's marks of injected faults and gaps) are validated like every frame and
   otherwise ignored.
 * Detection journal: with a `journal` callable the node reports every rejected frame and every sequence error
-  as one record {"kind": one of ERROR_KINDS, "id", "dlc", "data" (hex), "detail"} naming the frame it judged,
+  as one record {"kind": one of RX_ERROR_KINDS, "id", "dlc", "data" (hex), "detail"} naming the frame it judged,
   so a fault-injecting bench can tell which injected frame was caught and why (`host.faults.reconcile`);
   `python -m target_sim --events FILE` appends them to a file that survives a SIGKILL. The counters in RxErrors
   are the same events counted (8 bits, saturating).
@@ -56,37 +56,34 @@ from collections.abc import Callable, Iterable
 import can
 import numpy as np
 
-from dbc import (
-    DBC_VERSION_INFO,
-    FRAME_ERROR_KINDS,
-    FRAME_IDS,
-    TARGET_FRAME_IDS,
+from dbc.codec import FrameCodec, FrameValidator, decode_any
+from dbc.contract import (
+    CHECKPOINT_EVERY_STEPS,
+    REPLY_SIGNALS,
+    RESET_SIGNALS,
+    RX_ERROR_KINDS,
+    RX_ERROR_SIGNALS,
+    STATE_SIZE,
+    STEP_MODULO,
     Command,
     FaultBit,
     FrameError,
     ModelKind,
     Realization,
     TargetState,
-    decode_any,
-    signal_ranges,
+    join_temperatures,
+    split_temperatures,
 )
+from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids
+from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
+from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, first_heard
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import memory_estimate, step_cost
-from target_sim.fastframes import FastFrameCodec, FastFrameValidator
 from target_sim.faults import ReplyFaults
 from target_sim.model import F32, Float32Estimator, InputAccumulator
-from target_sim.transport import IN_USE_LISTEN_S, OwnFrameFilter, first_heard
 
-STEP_MODULO = 1 << 16
-HEARTBEAT_PERIOD_S = 0.1
 SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll before blocking (0 disables)
-ERROR_KINDS = (*FRAME_ERROR_KINDS, "sequence")
-_TEMP_LIMITS = signal_ranges("Temperatures1")["WindingTemp"]
-_LIMITS = {name: signal_ranges(name) for name in ("Timing1", "Timing2", "Timing3", "RxErrors")}
-_STATE_LIMITS = signal_ranges("StateCheckpoint")["StateValue"]
-STATE_SIZE = 4
-CHECKPOINT_EVERY_STEPS = 20   # model steps between two StateCheckpoints (10 s at Δt 0.5 s): the most a restored
-                              # target has to re-run, at 4 frames per checkpoint
+_TEMPERATURE_SIGNAL = ("Temperatures1", "WindingTemp")  # every temperature signal has this one's range
 
 
 def _clamp(value: float, limits: tuple[float, float]) -> float:
@@ -144,11 +141,11 @@ class TargetNode:
         self.memory = memory_estimate(artifact, self.cost)
         self.dt_ns = int(round(artifact.dt * 1e9))
         self.clock_ns = clock_ns
-        self.codec = FastFrameCodec("TARGET")
-        self.validator = FastFrameValidator("TARGET")
+        self.codec = FrameCodec("TARGET")
+        self.validator = FrameValidator("TARGET")
         self.state = TargetState.IDLE
         self.faults = FaultBit(0)
-        self.errors = dict.fromkeys(ERROR_KINDS, 0)
+        self.errors = dict.fromkeys(RX_ERROR_KINDS, 0)
         self.last_error = ""
         self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt)
         self._reset_frames: dict[str, dict] = {}
@@ -162,12 +159,15 @@ class TargetNode:
         self.model_steps = 0
         self.overruns = 0
         self.frames_received = 0
-        self.estimate = np.zeros(4, dtype=np.float32)
-        cycles = self.cost.cycles
-        self._timing2 = {"EstCycles": _clamp(cycles, _LIMITS["Timing2"]["EstCycles"]),
-                         "EstExecTime": _clamp(round(self.cost.exec_time_us, 1), _LIMITS["Timing2"]["EstExecTime"])}
-        self._timing3 = {"CpuLoad": _clamp(round(self.cost.cpu_load_percent(artifact.dt), 4),
-                                           _LIMITS["Timing3"]["CpuLoad"])}
+        self.estimate = np.zeros(STATE_SIZE, dtype=np.float32)
+        self._version = dbc_version_info()
+        self._temp_limits = signal_ranges(_TEMPERATURE_SIGNAL[0])[_TEMPERATURE_SIGNAL[1]]
+        self._state_limits = signal_ranges("StateCheckpoint")["StateValue"]
+        self._timing1_limits = signal_ranges("Timing1")["StepTimeMeasured"]
+        timing2, timing3 = signal_ranges("Timing2"), signal_ranges("Timing3")
+        self._timing2 = {"EstCycles": _clamp(self.cost.cycles, timing2["EstCycles"]),
+                         "EstExecTime": _clamp(round(self.cost.exec_time_us, 1), timing2["EstExecTime"])}
+        self._timing3 = {"CpuLoad": _clamp(round(self.cost.cpu_load_percent(artifact.dt), 4), timing3["CpuLoad"])}
 
     # ------------------------------------------------------------------ frames the node sends
     def _encode(self, name: str, signals: dict) -> list[can.Message]:
@@ -181,21 +181,20 @@ class TargetNode:
     def status_frames(self) -> list[can.Message]:
         return self._encode("Status", {
             "State": int(self.state), "FaultBits": int(self.faults), "ModelId": self.artifact.model_id,
-            "DbcVersionMajor": DBC_VERSION_INFO[0], "DbcVersionMinor": DBC_VERSION_INFO[1]})
+            "DbcVersionMajor": self._version[0], "DbcVersionMinor": self._version[1]})
 
     def rx_error_frames(self) -> list[can.Message]:
-        names = {"unknown_id": "UnknownId", "wrong_length": "WrongLength", "crc": "CrcError",
-                 "counter": "CounterError", "out_of_range": "OutOfRange", "sequence": "SequenceError"}
-        return self._encode("RxErrors", {signal: min(self.errors[kind], 255) for kind, signal in names.items()})
+        return self._encode("RxErrors", {signal: min(self.errors[kind], 255)
+                                         for kind, signal in RX_ERROR_SIGNALS.items()})
 
     def target_info_frames(self) -> list[can.Message]:
-        dt_limits = signal_ranges("TargetInfo")["ModelDt"]
+        limits = signal_ranges("TargetInfo")
         return self._encode("TargetInfo", {
-            "ModelKind": int(ModelKind[self.artifact.kind.upper().replace("-", "_")]),
+            "ModelKind": int(ModelKind.of(self.artifact.kind)),
             "Realization": int(Realization[self.artifact.realization.upper()]),
-            "ModelDt": _clamp(round(self.artifact.dt, 1), dt_limits),
-            "FlashBytes": _clamp(self.memory.flash_bytes, signal_ranges("TargetInfo")["FlashBytes"]),
-            "RamBytes": _clamp(self.memory.ram_bytes, signal_ranges("TargetInfo")["RamBytes"])})
+            "ModelDt": _clamp(round(self.artifact.dt, 1), limits["ModelDt"]),
+            "FlashBytes": _clamp(self.memory.flash_bytes, limits["FlashBytes"]),
+            "RamBytes": _clamp(self.memory.ram_bytes, limits["RamBytes"])})
 
     def startup_frames(self) -> list[can.Message]:
         return self.target_info_frames() + self.status_frames() + self.rx_error_frames()
@@ -205,20 +204,20 @@ class TargetNode:
 
     def _temperature_frames(self, step: int) -> list[can.Message]:
         values = []
+        limits = self._temp_limits
         for value in self.estimate.tolist():
             if not math.isfinite(value):
                 self.faults |= FaultBit.NONFINITE | FaultBit.SATURATED
-                value = _TEMP_LIMITS[1] if value > 0 or math.isnan(value) else _TEMP_LIMITS[0]
-            elif not _TEMP_LIMITS[0] <= value <= _TEMP_LIMITS[1]:
+                value = limits[1] if value > 0 or math.isnan(value) else limits[0]
+            elif not limits[0] <= value <= limits[1]:
                 self.faults |= FaultBit.SATURATED
-                value = _clamp(value, _TEMP_LIMITS)
+                value = _clamp(value, limits)
             values.append(value)
-        yoke, winding, tooth, magnet = values
-        return (self._encode("Temperatures1", {"Step": step, "WindingTemp": winding, "MagnetTemp": magnet})
-                + self._encode("Temperatures2", {"Step": step, "YokeTemp": yoke, "ToothTemp": tooth}))
+        return [frame for name, signals in split_temperatures(values, REPLY_SIGNALS).items()
+                for frame in self._encode(name, {"Step": step, **signals})]
 
     def _timing_frames(self, step: int, elapsed_ns: int) -> list[can.Message]:
-        measured = _clamp(round(elapsed_ns / 1000.0, 1), _LIMITS["Timing1"]["StepTimeMeasured"])
+        measured = _clamp(round(elapsed_ns / 1000.0, 1), self._timing1_limits)
         return (self._encode("Timing1", {"Step": step, "StepTimeMeasured": measured,
                                          "Overruns": min(self.overruns, 255)})
                 + self._encode("Timing2", {"Step": step, **self._timing2})
@@ -285,7 +284,7 @@ class TargetNode:
                                             f"{signals['Step']}")
             sample = (inputs["MotorTorque"], inputs["MotorSpeed"], signals["CoolantTemp"], signals["AmbientTemp"])
             return self._row(int(signals["Step"]), sample)
-        if name in ("ResetTemps1", "ResetTemps2"):
+        if name in RESET_SIGNALS:
             self._reset_frames[name] = signals
             return []
         if name == "RestoreState":
@@ -297,11 +296,10 @@ class TargetNode:
 
     def _control(self, command: Command, step: int) -> list[can.Message]:
         if command == Command.RESET:
-            r1, r2 = self._reset_frames.get("ResetTemps1"), self._reset_frames.get("ResetTemps2")
-            self._reset_frames.clear()
-            if r1 is None or r2 is None or r1["Step"] != step or r2["Step"] != step:
-                return self._incomplete(f"RESET of step {step} without ResetTemps1 and ResetTemps2 of that step")
-            self.model.reset([r2["YokeTempInit"], r1["WindingTempInit"], r2["ToothTempInit"], r1["MagnetTempInit"]])
+            frames, self._reset_frames = self._reset_frames, {}
+            if len(frames) != len(RESET_SIGNALS) or any(f["Step"] != step for f in frames.values()):
+                return self._incomplete(f"RESET of step {step} without {' and '.join(RESET_SIGNALS)} of that step")
+            self.model.reset(join_temperatures(frames, RESET_SIGNALS))
             return self._ready()
         if command == Command.RESTORE:
             elements, self._restore_frames = self._restore_frames, {}
@@ -345,7 +343,7 @@ class TargetNode:
         """The model state x after this row's model step, one frame per element; none if x cannot be carried
         (a diverging model: the host then re-initializes from an older checkpoint)."""
         state = self.model.x.tolist()
-        if len(state) != STATE_SIZE or not all(_STATE_LIMITS[0] <= v <= _STATE_LIMITS[1] for v in state):
+        if len(state) != STATE_SIZE or not all(self._state_limits[0] <= v <= self._state_limits[1] for v in state):
             return []
         return [frame for index, value in enumerate(state)
                 for frame in self._encode("StateCheckpoint", {"Step": step, "StateIndex": index, "StateValue": value})]
@@ -403,8 +401,8 @@ class TargetNode:
 def target_on_channel(bus: can.BusABC, listen_s: float = IN_USE_LISTEN_S) -> tuple[int, int | None] | None:
     """(frame id, model id) of a target already sending on `bus` — the model id from its heartbeat, None when
     only another of its frames was heard — or None when none is heard within `listen_s`."""
-    status_id = FRAME_IDS["Status"]
-    heard = first_heard(bus, TARGET_FRAME_IDS, listen_s, prefer=status_id)  # a heartbeat names the model
+    status_id = frame_id("Status")
+    heard = first_heard(bus, target_frame_ids(), listen_s, prefer=status_id)  # a heartbeat names the model
     if heard is None:
         return None
     try:
@@ -415,12 +413,14 @@ def target_on_channel(bus: can.BusABC, listen_s: float = IN_USE_LISTEN_S) -> tup
 
 
 def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
-          heartbeat_period_s: float = HEARTBEAT_PERIOD_S, on_error: Callable[[str], None] | None = None,
+          heartbeat_period_s: float | None = None, on_error: Callable[[str], None] | None = None,
           spin_s: float | None = None, reply_faults: ReplyFaults | None = None) -> None:
     """Run the node on a bus until `should_stop()`: receive, handle, reply; heartbeat every period.
 
-    With `reply_faults` the replies go out through the fault layer (`target_sim.faults`)."""
-    own = OwnFrameFilter(TARGET_FRAME_IDS)
+    With `reply_faults` the replies go out through the fault layer (`target_sim.faults`); the heartbeat period
+    is the DBC's unless given."""
+    heartbeat_period_s = heartbeat_period_s or heartbeat_period_s_of_dbc()
+    own = OwnFrameFilter(target_frame_ids())
     foreign = reply_faults.foreign_ids if reply_faults is not None else set()
     send_failures = 0
 

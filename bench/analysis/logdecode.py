@@ -28,13 +28,24 @@ from pathlib import Path
 
 import numpy as np
 
-from dbc import BenchEvent, Command, FaultKind, FrameError, ModelKind, Realization, TargetState
+from dbc.codec import decode_any
+from dbc.contract import (
+    REPLY_COMPLETE,
+    REPLY_SIGNALS,
+    RESET_SIGNALS,
+    STATE_SIZE,
+    BenchEvent,
+    Command,
+    FaultKind,
+    FrameError,
+    TargetState,
+    join_temperatures,
+    nearest_row,
+    place_temperatures,
+    rx_error_counts,
+    target_info,
+)
 from host.canlog import LogError, read_log
-from target_sim.fastframes import fast_decode_any
-
-STEP_MODULO = 1 << 16
-RX_ERROR_NAMES = {"UnknownId": "unknown_id", "WrongLength": "wrong_length", "CrcError": "crc",
-                  "CounterError": "counter", "OutOfRange": "out_of_range", "SequenceError": "sequence"}
 
 
 @dataclass
@@ -113,6 +124,19 @@ class BusRecord:
         return out
 
 
+@dataclass
+class _Reply:
+    """What came back for one row so far: temperatures in the state order, the reply bits, the last frame's time."""
+
+    temps: list[float] = field(default_factory=lambda: [math.nan] * STATE_SIZE)
+    got: int = 0
+    t: float = math.nan
+
+    @property
+    def complete(self) -> bool:
+        return self.got == REPLY_COMPLETE
+
+
 class _SegmentBuilder:
     def __init__(self, start_row: int, initial, recovery: bool, state=None):
         self.start_row = start_row
@@ -120,210 +144,238 @@ class _SegmentBuilder:
         self.state = state
         self.recovery = recovery
         self.host_row = start_row - 1          # the last row sent in this segment
-        self.replies: dict[int, list] = {}     # row -> [yoke, winding, tooth, magnet, got bits, time]
+        self.replies: dict[int, _Reply] = {}
         self.pair_s: dict[int, float] = {}     # row -> send time of the pair that was answered
 
-    def row_of(self, rel_step: int) -> int:
-        return nearest_row(rel_step, max(self.host_row, self.start_row))
+    @property
+    def reference_row(self) -> int:
+        """The row a Step of this segment is read near: the last row sent (or its first row)."""
+        return max(self.host_row, self.start_row)
 
     def build(self) -> Segment:
-        rows = sorted(r for r, v in self.replies.items() if v[4] == 3)
-        temps = np.array([self.replies[r][:4] for r in rows], dtype=float).reshape(-1, 4)
+        rows = sorted(r for r, reply in self.replies.items() if reply.complete)
+        temps = np.array([self.replies[r].temps for r in rows], dtype=float).reshape(-1, STATE_SIZE)
         return Segment(self.start_row, self.initial, self.recovery, self.state,
                        reply_rows=np.array(rows, dtype=np.int64), reply_temps=temps,
-                       reply_s=np.array([self.replies[r][5] for r in rows], dtype=float))
+                       reply_s=np.array([self.replies[r].t for r in rows], dtype=float))
 
 
-def nearest_row(rel_step: int, reference: int) -> int:
-    """The row congruent to `rel_step` mod 65536 nearest to `reference`."""
-    delta = (rel_step - reference) % STEP_MODULO
-    if delta >= STEP_MODULO // 2:
-        delta -= STEP_MODULO
-    return reference + delta
+_TIMING_SIGNALS = {"Timing1": ("row_t1", (("measured_us", "StepTimeMeasured"), ("overruns", "Overruns"))),
+                   "Timing2": ("row_t2", (("cycles", "EstCycles"), ("exec_us", "EstExecTime"))),
+                   "Timing3": ("row_t3", (("cpu_load", "CpuLoad"),))}
+
+
+class _LogDecoder:
+    """Reads a log frame by frame; one handler per message of the contract (see the module docstring)."""
+
+    def __init__(self, path: Path) -> None:
+        self.record = BusRecord(path)
+        self.invalid: dict[str, int] = {}
+        self.drive: dict[int, list[float]] = {}
+        self.segments: list[_SegmentBuilder] = []
+        self.marks: list[Mark] = []
+        self.base_step = 0                 # Step of the fresh session's START: row 0
+        self.pending_inputs: tuple[dict, float] | None = None   # a DriveInputs waiting for its DriveTemps
+        self.reset_frames: dict[str, dict] = {}
+        self.restore_frames: dict[int, dict] = {}
+        self.pending_initial: np.ndarray | None = None
+        self.pending_state: np.ndarray | None = None
+        self.reinit_announced = False
+        self.transitions = 0               # the target's transitions into RUNNING
+        self.epoch_base = 0                # transitions before the fresh session
+        self.last_state: int | None = None
+        self.timing: dict[str, list] = self._empty_timing()
+        self.status_s: list[float] = []
+        self.frame_s: list[float] = []
+        self.frame_dlc: list[int] = []
+        self.frame_ids: list[int] = []
+        self.frame_bytes = bytearray()
+        self.handlers = {"DriveInputs": self.drive_inputs, "DriveTemps": self.drive_temps,
+                         **dict.fromkeys(REPLY_SIGNALS, self.temperatures),
+                         **dict.fromkeys(_TIMING_SIGNALS, self.timing_frame),
+                         **dict.fromkeys(RESET_SIGNALS, self.reset_temps),
+                         "RestoreState": self.restore_state, "Control": self.control,
+                         "BenchEvent": self.bench_event, "Status": self.status, "RxErrors": self.rx_errors,
+                         "TargetInfo": self.target_info}
+
+    @staticmethod
+    def _empty_timing() -> dict[str, list]:
+        return {key: [] for row_key, signals in _TIMING_SIGNALS.values() for key in (row_key, *(k for k, _ in signals))}
+
+    def _row(self, segment: _SegmentBuilder, step) -> int:
+        return nearest_row(int(step) - self.base_step, segment.reference_row)
+
+    def target_segment(self) -> _SegmentBuilder | None:
+        """The segment the target was running when it sent a frame (its k-th transition into RUNNING)."""
+        index = self.transitions - self.epoch_base - 1
+        return self.segments[index] if 0 <= index < len(self.segments) else None
+
+    # ------------------------------------------------------------------ frames
+    def feed(self, msg) -> None:
+        self.record.frames += 1
+        self.frame_s.append(msg.timestamp)
+        self.frame_dlc.append(msg.dlc)
+        self.frame_ids.append(msg.arbitration_id)
+        self.frame_bytes += bytes(msg.data[:8]).ljust(8, b"\0")
+        try:
+            frame = decode_any(msg)
+        except FrameError as exc:
+            self.invalid[exc.kind] = self.invalid.get(exc.kind, 0) + 1
+            return
+        handler = self.handlers.get(frame.name)
+        if handler is not None:
+            handler(frame.name, frame.signals, msg.timestamp)
+
+    def drive_inputs(self, name: str, s: dict, t: float) -> None:
+        self.pending_inputs = (s, t)
+
+    def drive_temps(self, name: str, s: dict, t: float) -> None:
+        pending, self.pending_inputs = self.pending_inputs, None
+        if pending is None or pending[0]["Step"] != s["Step"] or not self.segments:
+            return
+        inputs, inputs_t = pending
+        segment = self.segments[-1]
+        row = self._row(segment, s["Step"])
+        if row < 0:
+            return
+        self.drive[row] = [inputs["MotorTorque"], inputs["MotorSpeed"], s["CoolantTemp"], s["AmbientTemp"]]
+        segment.host_row = row
+        reply = segment.replies.get(row)
+        if reply is None or not reply.complete:
+            segment.pair_s[row] = inputs_t
+
+    def temperatures(self, name: str, s: dict, t: float) -> None:
+        segment = self.target_segment()
+        if segment is None:
+            return
+        reply = segment.replies.setdefault(self._row(segment, s["Step"]), _Reply())
+        reply.got |= place_temperatures(name, s, reply.temps)
+        reply.t = t if math.isnan(reply.t) else max(reply.t, t)
+
+    def timing_frame(self, name: str, s: dict, t: float) -> None:
+        segment = self.target_segment()
+        if segment is None:
+            return
+        row_key, signals = _TIMING_SIGNALS[name]
+        self.timing[row_key].append(self._row(segment, s["Step"]))
+        for key, signal in signals:
+            self.timing[key].append(s[signal])
+
+    def reset_temps(self, name: str, s: dict, t: float) -> None:
+        self.reset_frames[name] = s
+
+    def restore_state(self, name: str, s: dict, t: float) -> None:
+        self.restore_frames[int(s["StateIndex"])] = s
+
+    def control(self, name: str, s: dict, t: float) -> None:
+        command = int(s["Command"])
+        if command == Command.RESET:
+            frames = self.reset_frames
+            if len(frames) == len(RESET_SIGNALS) and all(f["Step"] == s["Step"] for f in frames.values()):
+                self.pending_initial = np.array(join_temperatures(frames, RESET_SIGNALS), dtype=float)
+                self.pending_state = None
+        elif command == Command.RESTORE:
+            elements = [self.restore_frames[i]["StateValue"] for i in range(STATE_SIZE)
+                        if i in self.restore_frames and self.restore_frames[i]["Step"] == s["Step"]]
+            if len(elements) == STATE_SIZE:
+                self.pending_state, self.pending_initial = np.array(elements, dtype=np.float32), None
+            self.restore_frames = {}
+        elif command == Command.START:
+            self.start(int(s["Step"]))
+
+    def start(self, step: int) -> None:
+        """A START: a new segment after a REINIT mark, else a fresh session (the last session of a log wins)."""
+        self.record.sessions += 1
+        if self.reinit_announced and self.segments:
+            start = self._row(self.segments[-1], step)
+            self.segments.append(_SegmentBuilder(start, self.pending_initial, True, self.pending_state))
+        else:
+            self.base_step = step
+            self.record.initial = self.pending_initial
+            self.segments = [_SegmentBuilder(0, self.pending_initial, False)]
+            self.drive = {}
+            self.marks = []
+            self.timing = self._empty_timing()
+            # the session's first transition into RUNNING starts segment 0 (one already RUNNING: its own)
+            self.epoch_base = self.transitions - (1 if self.last_state == TargetState.RUNNING else 0)
+        self.reinit_announced = False
+
+    def bench_event(self, name: str, s: dict, t: float) -> None:
+        event = BenchEvent(int(s["Event"]))
+        kind = FaultKind(int(s["FaultKind"]))
+        reference = self.segments[-1].reference_row if self.segments else 0
+        self.marks.append(Mark(event.name.lower().replace("_", "-"),
+                               nearest_row(int(s["Step"]) - self.base_step, reference),
+                               None if kind == FaultKind.NONE else kind.name.lower(), int(s["FrameId"]) or None, t))
+        if event == BenchEvent.REINIT:
+            self.reinit_announced = True
+
+    def status(self, name: str, s: dict, t: float) -> None:
+        self.status_s.append(t)
+        state = int(s["State"])
+        if state == TargetState.RUNNING and self.last_state != TargetState.RUNNING:
+            self.transitions += 1
+        self.last_state = state
+        self.record.states.append(TargetState(state).name)
+        self.record.faults_seen |= int(s["FaultBits"])
+        self.record.model_id = int(s["ModelId"])
+
+    def rx_errors(self, name: str, s: dict, t: float) -> None:
+        self.record.rx_errors = rx_error_counts(s)
+
+    def target_info(self, name: str, s: dict, t: float) -> None:
+        self.record.target_info = target_info(s)
+
+    # ------------------------------------------------------------------ the record
+    def finish(self) -> BusRecord:
+        record = self.record
+        path = record.path
+        if record.frames == 0:
+            raise LogError(f"log {path} holds no frames")
+        if record.sessions == 0:
+            raise LogError(f"log {path} holds no session (no Control START); is it a log of this bench?")
+        rows = max(self.drive) + 1 if self.drive else 0
+        record.invalid = self.invalid
+        record.drive = np.full((rows, 4), np.nan)
+        for row, values in self.drive.items():
+            record.drive[row] = values
+        record.segments = [segment.build() for segment in self.segments]
+        self._final_replies(rows)
+        record.timing = {k: np.array(v, dtype=float) for k, v in self.timing.items()}
+        record.status_s = np.array(self.status_s, dtype=float)
+        record.frame_s = np.array(self.frame_s, dtype=float)
+        record.frame_dlc = np.array(self.frame_dlc, dtype=np.int64)
+        record.frame_ids = np.array(self.frame_ids, dtype=np.int64)
+        record.frame_data = np.frombuffer(bytes(self.frame_bytes), dtype=np.uint8).reshape(-1, 8)
+        record.marks = self.marks
+        return record
+
+    def _final_replies(self, rows: int) -> None:
+        """Each row's final reply: that of the last segment that answered it, and when its pair was sent."""
+        record = self.record
+        record.temps = np.full((rows, STATE_SIZE), np.nan)
+        record.replied_s = np.full(rows, np.nan)
+        record.sent_s = np.full(rows, np.nan)
+        record.owner = np.full(rows, -1, dtype=np.int64)
+        for index, (builder, segment) in enumerate(zip(self.segments, record.segments, strict=True)):
+            keep = segment.reply_rows < rows
+            replied = segment.reply_rows[keep]
+            record.temps[replied] = segment.reply_temps[keep]
+            record.replied_s[replied] = segment.reply_s[keep]
+            record.owner[replied] = index
+            for row in replied.tolist():
+                record.sent_s[row] = builder.pair_s.get(row, math.nan)
+        unanswered = np.isnan(record.sent_s)
+        if unanswered.any():  # rows never answered: when they were (last) sent
+            for builder in self.segments:
+                for row, t in builder.pair_s.items():
+                    if row < rows and unanswered[row]:
+                        record.sent_s[row] = t
 
 
 def decode_log(path: str | Path) -> BusRecord:
     """Read and decode a log; LogError for a file that cannot be read or holds no session."""
-    record = BusRecord(Path(path))
-    invalid: dict[str, int] = {}
-    drive: dict[int, list[float]] = {}
-    segments: list[_SegmentBuilder] = []
-    marks: list[Mark] = []
-    base_step = 0                 # Step of the fresh session's START: row 0
-    pending_inputs: dict | None = None
-    pending_inputs_time = 0.0
-    reset_frames: dict[str, dict] = {}
-    restore_frames: dict[int, dict] = {}
-    pending_initial = None
-    pending_state = None
-    reinit_announced = False
-    transitions = 0               # the target's transitions into RUNNING
-    epoch_base = 0                # transitions before the fresh session
-    last_state: int | None = None
-    timing: dict[str, list] = {k: [] for k in ("row_t1", "measured_us", "overruns", "row_t2", "cycles", "exec_us",
-                                               "row_t3", "cpu_load")}
-    status_s: list[float] = []
-    frame_s: list[float] = []
-    frame_dlc: list[int] = []
-    frame_ids: list[int] = []
-    frame_bytes = bytearray()
-
-    def target_segment() -> _SegmentBuilder | None:
-        index = transitions - epoch_base - 1
-        return segments[index] if 0 <= index < len(segments) else None
-
+    decoder = _LogDecoder(Path(path))
     for msg in read_log(path):
-        record.frames += 1
-        frame_s.append(msg.timestamp)
-        frame_dlc.append(msg.dlc)
-        frame_ids.append(msg.arbitration_id)
-        frame_bytes += bytes(msg.data[:8]).ljust(8, b"\0")
-        try:
-            frame = fast_decode_any(msg)
-        except FrameError as exc:
-            invalid[exc.kind] = invalid.get(exc.kind, 0) + 1
-            continue
-        name, s = frame.name, frame.signals
-        if name == "DriveInputs":
-            pending_inputs = s
-            pending_inputs_time = msg.timestamp
-        elif name == "DriveTemps":
-            if pending_inputs is None or pending_inputs["Step"] != s["Step"] or not segments:
-                pending_inputs = None
-                continue
-            segment = segments[-1]
-            row = segment.row_of(int(s["Step"]) - base_step)
-            if row < 0:
-                pending_inputs = None
-                continue
-            drive[row] = [pending_inputs["MotorTorque"], pending_inputs["MotorSpeed"], s["CoolantTemp"],
-                          s["AmbientTemp"]]
-            segment.host_row = row
-            reply = segment.replies.get(row)
-            if reply is None or reply[4] != 3:
-                segment.pair_s[row] = pending_inputs_time
-            pending_inputs = None
-        elif name in ("Temperatures1", "Temperatures2"):
-            segment = target_segment()
-            if segment is None:
-                continue
-            row = segment.row_of(int(s["Step"]) - base_step)
-            reply = segment.replies.setdefault(row, [math.nan] * 4 + [0, math.nan])
-            if name == "Temperatures1":
-                reply[1], reply[3] = s["WindingTemp"], s["MagnetTemp"]
-                reply[4] |= 1
-            else:
-                reply[0], reply[2] = s["YokeTemp"], s["ToothTemp"]
-                reply[4] |= 2
-            reply[5] = msg.timestamp if math.isnan(reply[5]) else max(reply[5], msg.timestamp)
-        elif name in ("Timing1", "Timing2", "Timing3"):
-            segment = target_segment()
-            if segment is None:
-                continue
-            row = segment.row_of(int(s["Step"]) - base_step)
-            if name == "Timing1":
-                timing["row_t1"].append(row)
-                timing["measured_us"].append(s["StepTimeMeasured"])
-                timing["overruns"].append(s["Overruns"])
-            elif name == "Timing2":
-                timing["row_t2"].append(row)
-                timing["cycles"].append(s["EstCycles"])
-                timing["exec_us"].append(s["EstExecTime"])
-            else:
-                timing["row_t3"].append(row)
-                timing["cpu_load"].append(s["CpuLoad"])
-        elif name in ("ResetTemps1", "ResetTemps2"):
-            reset_frames[name] = s
-        elif name == "RestoreState":
-            restore_frames[int(s["StateIndex"])] = s
-        elif name == "Control":
-            command = int(s["Command"])
-            if command == Command.RESET:
-                r1, r2 = reset_frames.get("ResetTemps1"), reset_frames.get("ResetTemps2")
-                if r1 is not None and r2 is not None and r1["Step"] == r2["Step"] == s["Step"]:
-                    pending_initial = np.array([r2["YokeTempInit"], r1["WindingTempInit"], r2["ToothTempInit"],
-                                                r1["MagnetTempInit"]], dtype=float)
-                    pending_state = None
-            elif command == Command.RESTORE:
-                elements = [restore_frames[i]["StateValue"] for i in range(4)
-                            if i in restore_frames and restore_frames[i]["Step"] == s["Step"]]
-                if len(elements) == 4:
-                    pending_state, pending_initial = np.array(elements, dtype=np.float32), None
-                restore_frames = {}
-            elif command == Command.START:
-                record.sessions += 1
-                if reinit_announced and segments:
-                    last = segments[-1]
-                    start = nearest_row(int(s["Step"]) - base_step, max(last.host_row, last.start_row))
-                    segments.append(_SegmentBuilder(start, pending_initial, True, pending_state))
-                else:
-                    base_step = int(s["Step"])
-                    record.initial = pending_initial
-                    segments = [_SegmentBuilder(0, pending_initial, False)]
-                    drive = {}
-                    marks = []
-                    timing = {k: [] for k in timing}
-                    # the session's first transition into RUNNING starts segment 0 (one already RUNNING: its own)
-                    epoch_base = transitions - (1 if last_state == TargetState.RUNNING else 0)
-                reinit_announced = False
-        elif name == "BenchEvent":
-            event = BenchEvent(int(s["Event"]))
-            kind = FaultKind(int(s["FaultKind"]))
-            reference = max(segments[-1].host_row, segments[-1].start_row) if segments else 0
-            marks.append(Mark(event.name.lower().replace("_", "-"), nearest_row(int(s["Step"]) - base_step, reference),
-                              None if kind == FaultKind.NONE else kind.name.lower(),
-                              int(s["FrameId"]) or None, msg.timestamp))
-            if event == BenchEvent.REINIT:
-                reinit_announced = True
-        elif name == "Status":
-            status_s.append(msg.timestamp)
-            state = int(s["State"])
-            if state == TargetState.RUNNING and last_state != TargetState.RUNNING:
-                transitions += 1
-            last_state = state
-            record.states.append(TargetState(state).name)
-            record.faults_seen |= int(s["FaultBits"])
-            record.model_id = int(s["ModelId"])
-        elif name == "RxErrors":
-            record.rx_errors = {RX_ERROR_NAMES.get(k, k): int(v) for k, v in s.items()}
-        elif name == "TargetInfo":
-            record.target_info = {
-                "model_kind": ModelKind(int(s["ModelKind"])).name.lower().replace("_", "-"),
-                "realization": Realization(int(s["Realization"])).name.lower(),
-                "dt_s": float(s["ModelDt"]), "flash_bytes": int(s["FlashBytes"]), "ram_bytes": int(s["RamBytes"])}
-    if record.frames == 0:
-        raise LogError(f"log {path} holds no frames")
-    if record.sessions == 0:
-        raise LogError(f"log {path} holds no session (no Control START); is it a log of this bench?")
-    rows = max(drive) + 1 if drive else 0
-    record.invalid = invalid
-    record.drive = np.full((rows, 4), np.nan)
-    for row, values in drive.items():
-        record.drive[row] = values
-    record.segments = [segment.build() for segment in segments]
-    record.temps = np.full((rows, 4), np.nan)
-    record.replied_s = np.full(rows, np.nan)
-    record.sent_s = np.full(rows, np.nan)
-    record.owner = np.full(rows, -1, dtype=np.int64)
-    for index, (builder, segment) in enumerate(zip(segments, record.segments, strict=True)):
-        keep = segment.reply_rows < rows
-        replied = segment.reply_rows[keep]
-        record.temps[replied] = segment.reply_temps[keep]
-        record.replied_s[replied] = segment.reply_s[keep]
-        record.owner[replied] = index
-        for row in replied.tolist():
-            record.sent_s[row] = builder.pair_s.get(row, math.nan)
-    unanswered = np.isnan(record.sent_s)
-    if unanswered.any():  # rows never answered: when they were (last) sent
-        for builder in segments:
-            for row, t in builder.pair_s.items():
-                if row < rows and unanswered[row]:
-                    record.sent_s[row] = t
-    record.timing = {k: np.array(v, dtype=float) for k, v in timing.items()}
-    record.status_s = np.array(status_s, dtype=float)
-    record.frame_s = np.array(frame_s, dtype=float)
-    record.frame_dlc = np.array(frame_dlc, dtype=np.int64)
-    record.frame_ids = np.array(frame_ids, dtype=np.int64)
-    record.frame_data = np.frombuffer(bytes(frame_bytes), dtype=np.uint8).reshape(-1, 8)
-    record.marks = marks
-    return record
+        decoder.feed(msg)
+    return decoder.finish()

@@ -13,36 +13,32 @@ from __future__ import annotations
 import can
 import numpy as np
 
-from bench.analysis.logdecode import BusRecord, nearest_row
-from dbc import TARGET_FRAME_IDS, frame_id
+from bench.analysis.logdecode import BusRecord
+from dbc.codec import decode_any
+from dbc.contract import REPLY_SIGNALS, STATE_SIZE, nearest_row, place_temperatures
+from dbc.database import target_frame_ids
+from dbc.mutations import foreign_ids, reply_ids
 from target_sim.artifact import ModelArtifact
-from target_sim.fastframes import fast_decode_any
-from target_sim.faults import REPLY_IDS, UNKNOWN_ID_FLIP
 from target_sim.node import TargetNode
-
-_NOT_RECEIVED = TARGET_FRAME_IDS | {fid ^ UNKNOWN_ID_FLIP for fid in REPLY_IDS}
-_TEMPERATURES1, _TEMPERATURES2 = frame_id("Temperatures1"), frame_id("Temperatures2")
 
 
 def twin_estimates(artifact: ModelArtifact, record: BusRecord) -> np.ndarray:
     """(rows, 4) yoke, winding, tooth, magnet the twin answered after each row (its last answer; NaN: none)."""
     node = TargetNode(artifact, clock_ns=lambda: 0)
-    out = np.full((record.rows, 4), np.nan)
+    out = np.full((record.rows, STATE_SIZE), np.nan)
+    not_received = target_frame_ids() | foreign_ids(REPLY_SIGNALS)  # its own frames, its reply faults' foreign ids
+    replies = reply_ids()
     latest = 0
     for fid, dlc, data in zip(record.frame_ids.tolist(), record.frame_dlc.tolist(), record.frame_data, strict=True):
-        if fid in _NOT_RECEIVED:
+        if fid in not_received:
             continue
         msg = can.Message(arbitration_id=fid, is_extended_id=False, dlc=dlc, data=bytes(data[:dlc]), check=False)
         for reply in node.handle(msg):
-            if reply.arbitration_id not in (_TEMPERATURES1, _TEMPERATURES2):
+            if reply.arbitration_id not in replies:
                 continue
-            signals = fast_decode_any(reply).signals
-            row = nearest_row(int(signals["Step"]), latest)
+            frame = decode_any(reply)
+            row = nearest_row(int(frame.signals["Step"]), latest)
             latest = max(latest, row)
-            if not 0 <= row < record.rows:
-                continue
-            if reply.arbitration_id == _TEMPERATURES1:
-                out[row, 1], out[row, 3] = signals["WindingTemp"], signals["MagnetTemp"]
-            else:
-                out[row, 0], out[row, 2] = signals["YokeTemp"], signals["ToothTemp"]
+            if 0 <= row < record.rows:
+                place_temperatures(frame.name, frame.signals, out[row])
     return out

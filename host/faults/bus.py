@@ -6,7 +6,7 @@ which pass of it) the next drive frames belong to (`begin_row`/`end_row`) and wh
 to `on_transmit`, so the host's log holds what was on the bus, and every injected fault is recorded as an
 `Injection` (kind, row, frame id, the bytes that went out) for the run's summary and the report.
 
-What each kind does to a drive frame is `target_sim.faults.mutate` (the target alters its replies with the same
+What each kind does to a drive frame is `dbc.mutations.mutate` (the target alters its replies with the same
 code): drop (the next frame of the same id, its `witness`, shows a counter jump), duplicate, corrupt (1-3 bit
 flips the CRC always catches), stale_counter, wrong_length, unknown_id, out_of_range (MotorTorque or CoolantTemp
 at its raw maximum 0x7FFF). The row kinds are the host's own:
@@ -28,12 +28,10 @@ from dataclasses import asdict, dataclass
 
 import can
 
-from dbc import FRAME_IDS
-from target_sim.faults import mutate
+from dbc.database import frame_id
+from dbc.mutations import FAULTED_HOST_MESSAGES, mutate
 
 from .plan import FaultPlan, RowFaults
-
-DRIVE_INDEX = {FRAME_IDS["DriveInputs"]: 0, FRAME_IDS["DriveTemps"]: 1}
 
 
 @dataclass
@@ -78,6 +76,8 @@ class FaultyBus:
         self._hold_until = 0.0
         self._witness: dict[int, Injection] = {}
         self._foreign_ids: set[int] = set()
+        # index of each faultable drive frame in its row (0: DriveInputs, 1: DriveTemps)
+        self._drive_index = {frame_id(name): i for i, name in enumerate(FAULTED_HOST_MESSAGES)}
 
     # ------------------------------------------------------------------ row context (from the lockstep loop)
     def begin_row(self, row: int, pass_: int, *, eligible: bool = True, retransmission: bool = False) -> None:
@@ -112,7 +112,7 @@ class FaultyBus:
     def send(self, msg: can.Message, timeout: float | None = None) -> None:  # noqa: ARG002 - BusABC signature
         self._pump()
         faults = self._faults
-        index = DRIVE_INDEX.get(msg.arbitration_id) if not msg.is_extended_id else None
+        index = self._drive_index.get(msg.arbitration_id) if not msg.is_extended_id else None
         if faults is None or index is None:
             self._out(msg)
             return

@@ -37,7 +37,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from dbc import BenchEvent, FaultKind, TargetState
+from dbc.contract import BenchEvent, FaultKind, TargetState, step_of
 from host.replay import Progress, ReplayStats, encode_row, wait_for_reply
 from host.session import HostSession, RowBook, SessionError
 
@@ -99,29 +99,94 @@ def mark_new_injections(session: HostSession, faulty: FaultyBus, row: int) -> No
         session.marker(BenchEvent.FAULT, row, FaultKind[injection.kind.upper()], injection.frame_id)
 
 
-def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *, faulty: FaultyBus,
-                             plan: FaultPlan, control: ProcessControl | None, reply_timeout_s: float,
-                             connect_timeout_s: float, abort_after: int,
-                             progress: Progress | None = None) -> tuple[ReplayStats, FaultRun]:
-    rows = len(drive)
-    book = session.book = RowBook(rows)
-    values = drive.tolist()
-    codec = session.codec
-    monitor = session.monitor
-    perf, perf_ns = time.perf_counter, time.perf_counter_ns
-    run = FaultRun(plan.spec, injections=faulty.injections, started_at=time.time())
-    passes: dict[int, int] = {}
-    initial = [float(v) for v in initial]
-    freeze_s = FREEZE_FACTOR * monitor.heartbeat_timeout_s
-    give_up_s = max(abort_after * reply_timeout_s, 2.5 * monitor.heartbeat_timeout_s)
-    aborted: str | None = None
-    sent_rows = 0
-    got = book.got
+class FaultLockstep:
+    """The fault-surviving lockstep replay of one run (see the module docstring): `run()` sends every row once,
+    retransmits unanswered ones, and re-initializes a lost target from its last checkpoint."""
 
-    def wait_reply(n: int, timeout: float) -> bool:
-        return wait_for_reply(session, book, n, timeout)
+    def __init__(self, session: HostSession, drive: np.ndarray, initial, *, faulty: FaultyBus, plan: FaultPlan,
+                 control: ProcessControl | None, reply_timeout_s: float, connect_timeout_s: float,
+                 abort_after: int, progress: Progress | None = None) -> None:
+        self.session = session
+        self.values = drive.tolist()
+        self.rows = len(drive)
+        self.book = session.book = RowBook(self.rows)
+        self.initial = [float(v) for v in initial]
+        self.faulty = faulty
+        self.plan = plan
+        self.control = control
+        self.reply_timeout_s = reply_timeout_s
+        self.connect_timeout_s = connect_timeout_s
+        self.progress = progress
+        monitor = session.monitor
+        self.freeze_s = FREEZE_FACTOR * monitor.heartbeat_timeout_s
+        self.give_up_s = max(abort_after * reply_timeout_s, 2.5 * monitor.heartbeat_timeout_s)
+        self.fault_run = FaultRun(plan.spec, injections=faulty.injections, started_at=time.time())
+        self.passes: dict[int, int] = {}   # how often each row has gone out as a first send (a pass of it)
 
-    def lost() -> str | None:
+    def run(self) -> tuple[ReplayStats, FaultRun]:
+        perf = time.perf_counter
+        aborted: str | None = None
+        sent_rows = 0
+        started = perf()
+        n = segment_start = 0
+        while n < self.rows:
+            pass_ = self.passes.get(n, 0)
+            self.passes[n] = pass_ + 1
+            process = self.plan.process_fault(n, pass_)
+            if process is not None:
+                self._process_fault(process, n, pass_)
+            self._send_row(n, pass_, eligible=n != segment_start and process is None)
+            sent_rows = max(sent_rows, n + 1)
+            if not wait_for_reply(self.session, self.book, n, self.reply_timeout_s):
+                self.fault_run.deadline_misses.append(n)
+                outcome = self._retry(n, pass_)
+                if outcome == "lost":
+                    try:
+                        n = segment_start = self._recover(n)
+                    except SessionError as exc:
+                        aborted = f"the target was lost at row {n} and could not be re-initialized: {exc}"
+                        break
+                    continue
+                if outcome == "unanswered":
+                    aborted = (f"the target stopped answering: row {n} got no reply in {self.give_up_s:g} s although "
+                               "its heartbeat went on")
+                    break
+            n += 1
+            if self.progress is not None and (n & 127) == 0:
+                self.progress(n, self.rows)
+        elapsed = perf() - started
+        self.faulty.flush_held()
+        self.session.flush_log()
+        self.fault_run.frames_transmitted = self.faulty.transmitted
+        if self.progress is not None:
+            self.progress(sent_rows, self.rows)
+        return ReplayStats("lockstep", sent_rows, elapsed, aborted), self.fault_run
+
+    def _process_fault(self, kind: str, n: int, pass_: int) -> None:
+        """Kill or freeze the target before row n goes out, marked in the log."""
+        if self.control is None:
+            raise SessionError(f"a {kind} fault needs the bench runner, which owns the target process")
+        self.faulty.record(kind, None, row=n, pass_=pass_)
+        mark_new_injections(self.session, self.faulty, n)
+        self.session.flush_log()
+        if kind == "kill":
+            self.control.kill()
+        else:
+            self.control.freeze(self.freeze_s)
+
+    def _send_row(self, n: int, pass_: int, *, eligible: bool) -> None:
+        """Row n's first send in this pass, through the fault layer (faulted where the plan says so)."""
+        self.session.last_sent_row = n
+        self.book.sent_ns[n] = time.perf_counter_ns()
+        self.faulty.begin_row(n, pass_, eligible=eligible)
+        self.session.send(encode_row(self.session.codec, n, self.values[n]))
+        self.faulty.end_row()
+        mark_new_injections(self.session, self.faulty, n)
+        self.session.flush_log()
+
+    def _lost(self) -> str | None:
+        """Why the target counts as lost (silent, or no longer RUNNING: it restarted), or None."""
+        monitor = self.session.monitor
         silent = monitor.silent_for()
         if silent > monitor.heartbeat_timeout_s:
             return f"no heartbeat for {silent:.2f} s"
@@ -129,98 +194,61 @@ def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *
             return f"the target reports state {monitor.state.name}"
         return None
 
-    def retry(n: int, pass_: int) -> str:
+    def _retry(self, n: int, pass_: int) -> str:
         """Send row n again (twice) until it is answered, the target is lost, or `give_up_s` passes: the reply
         to a retransmission can itself be lost (a reply fault on the row's first use by the target)."""
-        run.retransmitted_rows += 1
-        deadline = perf() + give_up_s
+        session, perf = self.session, time.perf_counter
+        self.fault_run.retransmitted_rows += 1
+        deadline = perf() + self.give_up_s
         while perf() < deadline:
             session.marker(BenchEvent.RETRANSMIT, n)
-            faulty.begin_row(n, pass_, retransmission=True)
-            session.send(encode_row(codec, n, values[n]) + encode_row(codec, n, values[n]))
-            faulty.end_row()
+            self.faulty.begin_row(n, pass_, retransmission=True)
+            row = encode_row(session.codec, n, self.values[n])
+            session.send(row + encode_row(session.codec, n, self.values[n]))
+            self.faulty.end_row()
             session.flush_log()
-            again_at = min(deadline, perf() + RETRY_FACTOR * reply_timeout_s)
+            again_at = min(deadline, perf() + RETRY_FACTOR * self.reply_timeout_s)
             while (remaining := again_at - perf()) > 0:
                 session.receive(min(remaining, 0.02))
-                if got[n] == 3:
+                if self.book.is_answered(n):
                     return "answered"
-                if lost() is not None:
+                if self._lost() is not None:
                     return "lost"
         return "unanswered"
 
-    def recover(n: int) -> int:
-        reason = lost() or "lost"
-        silent = monitor.silent_for()
+    def _recover(self, n: int) -> int:
+        """Re-initialize a lost target from its newest checkpoint before row n (or RESET it); the row to go on."""
+        session, control = self.session, self.control
+        reason = self._lost() or "lost"
+        silent = session.monitor.silent_for()
         lost_at = time.time()
         session.marker(BenchEvent.TARGET_LOST, n)
         session.flush_log()
         session.validator.reset_counters()
         if control is not None:
             control.ensure_running()
-        session.connect(connect_timeout_s, control.exit_reason if control is not None else None)
+        session.connect(self.connect_timeout_s, control.exit_reason if control is not None else None)
         checkpoint = session.last_checkpoint(n)
         s = 0 if checkpoint is None else checkpoint[0] + 1
         session.marker(BenchEvent.REINIT, s)
         if checkpoint is None:
-            session.reset(initial, step=0)
+            session.reset(self.initial, step=0)
         else:
-            session.restore(checkpoint[1], step=s % 65536)
-        session.start(step=s % 65536)
-        got[s:n + 1] = 0
-        book.temps[s:n + 1] = np.nan
-        run.recoveries.append(Recovery(n, s, reason, round(silent, 4), lost_at, time.time(),
-                                       None if checkpoint is None else checkpoint[0],
-                                       None if checkpoint is None else checkpoint[1],
-                                       initial if checkpoint is None else None))
+            session.restore(checkpoint[1], step=step_of(s))
+        session.start(step=step_of(s))
+        self.book.got[s:n + 1] = 0
+        self.book.temps[s:n + 1] = np.nan
+        self.fault_run.recoveries.append(Recovery(
+            n, s, reason, round(silent, 4), lost_at, time.time(), None if checkpoint is None else checkpoint[0],
+            None if checkpoint is None else checkpoint[1], self.initial if checkpoint is None else None))
         return s
 
-    started = perf()
-    n = segment_start = 0
-    while n < rows:
-        pass_ = passes.get(n, 0)
-        passes[n] = pass_ + 1
-        process = plan.process_fault(n, pass_)
-        if process is not None:
-            if control is None:
-                raise SessionError(f"a {process} fault needs the bench runner, which owns the target process")
-            faulty.record(process, None, row=n, pass_=pass_)
-            mark_new_injections(session, faulty, n)
-            session.flush_log()
-            if process == "kill":
-                control.kill()
-            else:
-                control.freeze(freeze_s)
-        session.last_sent_row = n
-        book.sent_ns[n] = perf_ns()
-        faulty.begin_row(n, pass_, eligible=n != segment_start and process is None)
-        session.send(encode_row(codec, n, values[n]))
-        faulty.end_row()
-        mark_new_injections(session, faulty, n)
-        session.flush_log()
-        sent_rows = max(sent_rows, n + 1)
-        if not wait_reply(n, reply_timeout_s):
-            run.deadline_misses.append(n)
-            outcome = retry(n, pass_)
-            if outcome == "lost":
-                try:
-                    n = segment_start = recover(n)
-                except SessionError as exc:
-                    aborted = f"the target was lost at row {n} and could not be re-initialized: {exc}"
-                    break
-                continue
-            if outcome == "unanswered":
-                aborted = (f"the target stopped answering: row {n} got no reply in {give_up_s:g} s although its "
-                           "heartbeat went on")
-                break
-        n += 1
-        if progress is not None and (n & 127) == 0:
-            progress(n, rows)
-    elapsed = perf() - started
-    faulty.flush_held()
-    session.flush_log()
-    run.frames_transmitted = faulty.transmitted
-    if progress is not None:
-        progress(sent_rows, rows)
-    missing = int(np.count_nonzero(got[:sent_rows] != 3))
-    return ReplayStats("lockstep", sent_rows, elapsed, missing, aborted), run
+
+def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *, faulty: FaultyBus,
+                             plan: FaultPlan, control: ProcessControl | None, reply_timeout_s: float,
+                             connect_timeout_s: float, abort_after: int,
+                             progress: Progress | None = None) -> tuple[ReplayStats, FaultRun]:
+    """Replay `drive` in lockstep through the fault layer `faulty` (see `FaultLockstep`)."""
+    return FaultLockstep(session, drive, initial, faulty=faulty, plan=plan, control=control,
+                         reply_timeout_s=reply_timeout_s, connect_timeout_s=connect_timeout_s,
+                         abort_after=abort_after, progress=progress).run()

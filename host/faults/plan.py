@@ -18,8 +18,8 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass
 
+from dbc.mutations import pick, unit
 from host.faults.spec import FRAME_KINDS, PROCESS_KINDS, ROW_KINDS, FaultSpec, FaultSpecError
-from target_sim.faults import pick, unit
 
 PROCESS_MIN_SPACING = 5        # rows between two process faults
 PROCESS_WINDOW = (0.1, 0.9)    # process faults fall in this part of the run

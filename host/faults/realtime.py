@@ -70,6 +70,6 @@ def run_realtime_with_faults(session: HostSession, drive: np.ndarray, *, faulty:
     book = session.book
     sent = stats.rows_sent
     late = (book.replied_ns[:sent] - book.sent_ns[:sent]) > reply_timeout_s * 1e9
-    run.deadline_misses = np.flatnonzero((book.got[:sent] != 3) | late).tolist()
+    run.deadline_misses = np.flatnonzero(~book.answered()[:sent] | late).tolist()
     run.frames_transmitted = faulty.transmitted
     return stats, run

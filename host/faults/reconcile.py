@@ -43,7 +43,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from target_sim.faults import FRAME_FAULT_KINDS, REPLY_PREFIX
+from dbc.contract import RX_ERROR_KINDS, step_of
+from dbc.mutations import FRAME_FAULT_KINDS, REPLY_PREFIX
 
 from .bus import Injection
 from .lockstep import FaultRun
@@ -73,9 +74,7 @@ DETECTION = {
     "reply_out_of_range": "host: out-of-range rejection of the reply",
 }
 assert set(DETECTION) == set(KINDS)
-RX_NAMES = {"UnknownId": "unknown_id", "WrongLength": "wrong_length", "CrcError": "crc", "CounterError": "counter",
-            "OutOfRange": "out_of_range", "SequenceError": "sequence"}
-CATEGORIES = ("unknown_id", "wrong_length", "crc", "counter", "out_of_range", "sequence")
+CATEGORIES = RX_ERROR_KINDS
 SIDECAR_SUFFIX = ".faults.json"
 # kinds after which the next frame of the same id carries an alive-counter jump (a copy repeats, it does not jump)
 CHAINED = frozenset(prefix + k for k in FRAME_FAULT_KINDS if k != "duplicate" for prefix in ("", REPLY_PREFIX))
@@ -179,15 +178,15 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
     injected = Counter(i.kind for i in injections)
     detected = Counter(i.kind for i in injections if i.detected)
     unknown = journal is None and any(k in TARGET_DETECTED for k in injected)
-    # a reply injection knows its Step (the row mod 65536), so deadline misses are explained by Step; in real
+    # a reply injection knows its Step (not the row), so deadline misses are explained by Step; in real
     # time a lost or refused frame also costs the next row (the next frame of its id is refused for the jump)
-    explained = Counter(i.row % 65536 for i in injections) + Counter(r.lost_row % 65536 for r in run.recoveries)
+    explained = Counter(step_of(i.row) for i in injections) + Counter(step_of(r.lost_row) for r in run.recoveries)
     if run.mode == "realtime":
-        explained += Counter((i.row + 1) % 65536 for i in injections if i.kind in CHAINED)
+        explained += Counter(step_of(i.row + 1) for i in injections if i.kind in CHAINED)
     unexplained_misses = []
     for row in run.deadline_misses:
-        if explained[row % 65536] > 0:
-            explained[row % 65536] -= 1
+        if explained[step_of(row)] > 0:
+            explained[step_of(row)] -= 1
         else:
             unexplained_misses.append(row)
     process = sum(injected[k] for k in PROCESS_KINDS)
@@ -200,7 +199,7 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
     totals = Counter(e["kind"] for e in journal.entries) if journal else None
     consistent = None
     if journal is not None and journal.instances and final_rx_errors:  # the journal covers the target's life
-        final = {RX_NAMES.get(k, k): int(v) for k, v in final_rx_errors.items()}
+        final = dict(final_rx_errors)
         consistent = all(final.get(c, 0) == min(journal.last_instance[c], 255) for c in CATEGORIES)
     kinds = [k for k in KINDS if injected[k] or run.spec.rates.get(k, 0) or run.spec.counts.get(k, 0)]
     undetected = [i for i in injections if not i.detected]
@@ -231,7 +230,7 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
         "unexplained_deadline_miss_rows": unexplained_misses[:LISTED],
         "heartbeat_losses": heartbeat_losses,
         "unexplained_heartbeat_losses": max(0, heartbeat_losses - process),
-        "final_rx_errors": {RX_NAMES.get(k, k): int(v) for k, v in (final_rx_errors or {}).items()},
+        "final_rx_errors": dict(final_rx_errors or {}),
         "final_rx_errors_match_journal": consistent,
     }
 

@@ -30,8 +30,10 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-from dbc import FaultKind
-from target_sim.faults import FRAME_FAULT_KINDS, REPLY_KINDS
+from dbc.contract import FaultKind
+from dbc.mutations import FRAME_FAULT_KINDS, REPLY_FAULT_KINDS
+
+REPLY_KINDS: tuple[str, ...] = REPLY_FAULT_KINDS
 
 # The host's kinds, in the order of the DBC's FaultKind value table (BenchEvent.FaultKind: marked in the log),
 # then the target's reply kinds.

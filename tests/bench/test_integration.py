@@ -16,9 +16,9 @@ import pytest
 from bench.analysis.logdecode import decode_log
 from bench.model.default import default_artifact_path
 from bench.runner import TargetProcess
+from dbc.transport import BusConfig, free_udp_port
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
-from target_sim.transport import BusConfig, free_udp_port
 
 from .conftest import ROOT, run_cli, subprocess_env
 
@@ -42,8 +42,8 @@ def test_target_and_host_processes_over_udp_multicast(tmp_path, small_dataset, u
                               stderr=subprocess.PIPE, text=True)
     try:
         log = tmp_path / "host.log"
-        host = run_cli("-m", "host", "--data", str(small_dataset), "--rows", "300", "--log", str(log), "--json",
-                       *bus_argv(udp_bus))
+        host = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", "300", "--log", str(log),
+                       "--json", *bus_argv(udp_bus))
     finally:
         target.send_signal(signal.SIGTERM)
         _, target_err = target.communicate(timeout=10)

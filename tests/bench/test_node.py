@@ -11,9 +11,10 @@ import pytest
 from cantools.autosar.end_to_end import compute_profile2_crc
 
 from dbc import Command, FaultBit, FrameCodec, TargetState, decode_any
+from dbc.contract import CHECKPOINT_EVERY_STEPS
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
-from target_sim.node import CHECKPOINT_EVERY_STEPS, TargetNode, serve
+from target_sim.node import TargetNode, serve
 
 INITIAL = [40.0, 45.0, 41.0, 50.0]  # yoke, winding, tooth, magnet
 
@@ -314,7 +315,7 @@ def test_random_frames_never_crash_the_node(lti):
     """Valid frames in random order and values, mixed with garbage: counted, answered or refused, never fatal."""
     import random
 
-    from dbc import HOST_FRAME_IDS, apply_crc, signal_ranges
+    from dbc import apply_crc, host_frame_ids, signal_ranges
 
     rng = random.Random(7)
     node = TargetNode(lti)
@@ -338,9 +339,9 @@ def test_random_frames_never_crash_the_node(lti):
                     rng.randint(int(low), int(high)) if name == "Control" else rng.uniform(low, high))
             frame = codec.encode(name, signals)
         else:
-            fid = rng.choice(sorted(HOST_FRAME_IDS) + [0x7FF, 0x221])
+            fid = rng.choice(sorted(host_frame_ids()) + [0x7FF, 0x221])
             data = bytes(rng.randrange(256) for _ in range(8))
-            frame = can.Message(arbitration_id=fid, data=apply_crc(fid, data) if fid in HOST_FRAME_IDS else data,
+            frame = can.Message(arbitration_id=fid, data=apply_crc(fid, data) if fid in host_frame_ids() else data,
                                 is_extended_id=False)
         for reply in node.handle(frame):
             # everything the node sends is a valid frame of the contract

@@ -12,8 +12,8 @@ import pytest
 from bench.commands.common import verdict
 from bench.errors import BenchError
 from bench.runner import refuse_foreign_target
-from dbc import DBC_VERSION_INFO, FrameCodec
-from target_sim.transport import IN_USE_LISTEN_S, UDP_IPV4_GROUP, UDP_LOCAL_GROUP, BusConfig
+from dbc import FrameCodec, dbc_version_info
+from dbc.transport import IN_USE_LISTEN_S, UDP_IPV4_GROUP, UDP_LOCAL_GROUP, BusConfig
 
 from .conftest import run_cli
 
@@ -35,8 +35,8 @@ def test_bench_run_json_names_the_udp_multicast_bus(small_dataset, tmp_path):
 
 def _status(model_id: int) -> can.Message:
     return FrameCodec("TARGET").encode("Status", {"State": 0, "FaultBits": 0, "ModelId": model_id,
-                                                  "DbcVersionMajor": DBC_VERSION_INFO[0],
-                                                  "DbcVersionMinor": DBC_VERSION_INFO[1]})
+                                                  "DbcVersionMajor": dbc_version_info()[0],
+                                                  "DbcVersionMinor": dbc_version_info()[1]})
 
 
 class _Artifact:

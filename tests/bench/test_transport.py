@@ -9,8 +9,8 @@ import can
 import can.util
 import pytest
 
-from target_sim import transport
-from target_sim.transport import (
+from dbc import transport
+from dbc.transport import (
     AUTO,
     BusConfig,
     BusUnavailable,

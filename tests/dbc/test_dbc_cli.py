@@ -3,7 +3,7 @@
 import subprocess
 import sys
 
-from dbc import DBC_PATH, FRAME_IDS, FrameCodec
+from dbc import DBC_PATH, FrameCodec, frame_ids
 
 
 def run_cantools(*args, stdin=""):
@@ -24,7 +24,7 @@ def candump_line(msg, timestamp):
 def test_cantools_dump_lists_every_message():
     result = run_cantools("dump", str(DBC_PATH))
     assert result.returncode == 0, result.stderr
-    for name, frame_id in FRAME_IDS.items():
+    for name, frame_id in frame_ids().items():
         assert f"Name:           {name}\n" in result.stdout
         assert f"Id:             0x{frame_id:x}\n" in result.stdout
 

@@ -14,7 +14,6 @@ from hypothesis import strategies as st
 
 import dbc
 from dbc import (
-    FRAME_IDS,
     Command,
     FrameCodec,
     FrameError,
@@ -22,6 +21,7 @@ from dbc import (
     TargetState,
     apply_crc,
     decode_any,
+    frame_id,
     load_database,
 )
 
@@ -51,7 +51,7 @@ def mid(name):
 
 
 def assert_round_trip(name, values, decoded):
-    assert decoded.name == name and decoded.frame_id == FRAME_IDS[name]
+    assert decoded.name == name and decoded.frame_id == frame_id(name)
     assert set(decoded.signals) == set(values)
     for s in app_signals(name):
         half = abs(s.scale) / 2
@@ -80,7 +80,7 @@ def kind_of(validator, msg):
 def test_round_trip_at_range_limits(name, which):
     values = at(name, which)
     msg = FrameCodec(sender_of(name)).encode(name, values)
-    assert (msg.arbitration_id, msg.is_extended_id, msg.dlc, len(msg.data)) == (FRAME_IDS[name], False, 8, 8)
+    assert (msg.arbitration_id, msg.is_extended_id, msg.dlc, len(msg.data)) == (frame_id(name), False, 8, 8)
     assert not msg.is_remote_frame and not msg.is_fd
     decoded = FrameValidator(receiver_of(name)).validate(msg)
     assert_round_trip(name, values, decoded)
@@ -156,7 +156,7 @@ def test_alive_counter_increments_mod_16_per_message():
 
 def test_crc_is_autosar_profile2_with_the_frame_data_id():
     msg = FrameCodec("HOST").encode("DriveTemps", {"Step": 1, "CoolantTemp": 20, "AmbientTemp": 25})
-    data_id = FRAME_IDS["DriveTemps"] & 0xFF
+    data_id = frame_id("DriveTemps") & 0xFF
     assert end_to_end.check_profile2_crc(bytes(msg.data), data_id) is True
     assert msg.data[0] == end_to_end.compute_profile2_crc(bytes(msg.data), data_id)
     assert end_to_end.check_profile2_crc(bytes(msg.data), data_id ^ 1) is False
@@ -343,9 +343,9 @@ def test_decode_any_has_no_counter_state():
 
 
 def test_frame_id_sets_partition_the_database():
-    assert dbc.HOST_FRAME_IDS.isdisjoint(dbc.TARGET_FRAME_IDS)
-    assert dbc.HOST_FRAME_IDS | dbc.TARGET_FRAME_IDS == {m.frame_id for m in DB.messages}
-    assert dbc.frame_id("Status") == FRAME_IDS["Status"] == 0x230
+    assert dbc.host_frame_ids().isdisjoint(dbc.target_frame_ids())
+    assert dbc.host_frame_ids() | dbc.target_frame_ids() == {m.frame_id for m in DB.messages}
+    assert dbc.frame_id("Status") == frame_id("Status") == 0x230
     assert set(dbc.FRAME_ERROR_KINDS) == {"unknown_id", "wrong_length", "crc", "counter", "out_of_range"}
     assert dbc.signal_ranges("DriveTemps") == {"Step": (0, 65535), "CoolantTemp": (-40, 150), "AmbientTemp": (-40, 150)}
 

@@ -52,8 +52,8 @@ def test_version_is_in_the_file_and_exposed():
     text = DBC_PATH.read_text(encoding="ascii")
     version_line = re.search(r'^VERSION "(\d+)\.(\d+)\.(\d+)"$', text, re.MULTILINE)
     assert version_line is not None
-    assert dbc.DBC_VERSION == DB.version == ".".join(version_line.groups())
-    assert dbc.DBC_VERSION_INFO == tuple(int(part) for part in version_line.groups())
+    assert dbc.dbc_version() == DB.version == ".".join(version_line.groups())
+    assert dbc.dbc_version_info() == tuple(int(part) for part in version_line.groups())
     assert DB.dbc.attributes["DBName"].value == "thermal_bench"
 
 
@@ -75,9 +75,9 @@ def test_host_frames_win_arbitration_over_target_frames():
     assert all(0x100 <= fid < 0x200 for fid in host)
     assert all(0x200 <= fid < 0x300 for fid in target)
     assert max(host) < min(target)
-    assert frozenset(host) == dbc.HOST_FRAME_IDS
-    assert frozenset(target) == dbc.TARGET_FRAME_IDS
-    assert dict(dbc.FRAME_IDS) == {m.name: m.frame_id for m in MESSAGES}
+    assert frozenset(host) == dbc.host_frame_ids()
+    assert frozenset(target) == dbc.target_frame_ids()
+    assert dict(dbc.frame_ids()) == {m.name: m.frame_id for m in MESSAGES}
 
 
 def test_every_message_has_comment_cycle_time_and_e2e_data_id():
@@ -86,7 +86,7 @@ def test_every_message_has_comment_cycle_time_and_e2e_data_id():
         assert message.comment and len(message.comment) > 20, message.name
         assert "GenMsgCycleTime" in message.dbc.attributes, message.name  # set explicitly, not by default
         data_id = message.dbc.attributes["E2EDataID"].value
-        assert data_id == message.frame_id & 0xFF == dbc.E2E_DATA_IDS[message.frame_id], message.name
+        assert data_id == message.frame_id & 0xFF == dbc.database.e2e_data_id(message.frame_id), message.name
         assert f"E2E data id 0x{data_id:02X}." in message.comment, message.name
         data_ids.add(data_id)
     assert len(data_ids) == len(MESSAGES)  # a frame on the wrong id fails the CRC

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from target_sim.transport import BusConfig, resolve
+from dbc.transport import BusConfig, resolve
 
 ROOT = Path(__file__).resolve().parents[2]
 

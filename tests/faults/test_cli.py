@@ -1,4 +1,4 @@
-"""`bench run` and `python -m host` with fault options: exit status, JSON summary, log marks, report, errors."""
+"""`bench run` and `bench host` with fault options: exit status, JSON summary, log marks, report, errors."""
 
 from __future__ import annotations
 
@@ -68,7 +68,7 @@ def test_injected_faults_make_the_run_fail_unless_tolerated(fault_dataset, tmp_p
 @pytest.mark.parametrize(("argv", "needle"), [
     (["-m", "bench", "run", "--fault", "bitrot=0.1"], "unknown fault kind 'bitrot'"),
     (["-m", "bench", "run", "--mode", "realtime", "--faults", "drop=0.1,kill=1"], "need lockstep mode"),
-    (["-m", "host", "--data", "x.csv", "--fault", "kill=1"], "need the bench runner"),
+    (["-m", "bench", "host", "--data", "x.csv", "--fault", "kill=1"], "need the bench runner"),
 ])
 def test_bad_fault_options_are_one_sentence_exit_2(argv, needle):
     proc = run_cli(*argv, "--quiet")

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from bench.model.default import default_artifact_path
-from dbc import FRAME_IDS, FrameCodec, decode_any
+from dbc import FrameCodec, decode_any, frame_id, frame_ids
+from dbc.codec import profile2_crc
 from host.faults import (
     KINDS,
     FaultPlan,
@@ -22,7 +23,6 @@ from host.faults import (
 from host.faults.lockstep import FaultRun
 from host.faults.reconcile import Journal
 from target_sim.artifact import load_artifact
-from target_sim.fastframes import profile2_crc
 from target_sim.node import TargetNode
 
 
@@ -104,7 +104,7 @@ def test_process_faults_fall_in_the_middle_of_the_run_and_apart():
 def test_every_corruption_the_injector_makes_is_caught_by_the_crc():
     """1 to 3 flipped bits of 64: CRC8H2F's Hamming distance 4 catches every pattern (all 43 744 checked)."""
     msg = FrameCodec("HOST").encode("DriveInputs", {"Step": 1234, "MotorTorque": 345.6, "MotorSpeed": 3000})
-    data_id = FRAME_IDS["DriveInputs"] & 0xFF
+    data_id = frame_id("DriveInputs") & 0xFF
     word = int.from_bytes(bytes(msg.data), "little")
     escaped = 0
     for flips in (1, 2, 3):
@@ -139,7 +139,7 @@ def test_what_each_bus_fault_puts_on_the_bus(kind):
     expected = {"reorder": [1, 2, 3], "delay": [1, 2, 3], "drop": [1, 1, 3, 3]}.get(kind, [1, 1, 2, 2, 3, 3])
     assert [i.row for i in injections] == expected
     ids = [m.arbitration_id for m in sent]
-    di, dt = FRAME_IDS["DriveInputs"], FRAME_IDS["DriveTemps"]
+    di, dt = frame_id("DriveInputs"), frame_id("DriveTemps")
     if kind == "drop":
         assert ids == [di, dt] * 2  # rows 0 and 2 went out
         assert [i.witness for i in injections[:2]] == [bytes(m.data).hex() for m in sent[2:]]
@@ -150,7 +150,7 @@ def test_what_each_bus_fault_puts_on_the_bus(kind):
     elif kind == "delay":
         assert ids == [di, dt] * 4
     elif kind == "unknown_id":
-        assert ids[2:] == [di ^ 8, dt ^ 8] * 3 and not set(ids[2:]) & set(FRAME_IDS.values())
+        assert ids[2:] == [di ^ 8, dt ^ 8] * 3 and not set(ids[2:]) & set(frame_ids().values())
     elif kind == "wrong_length":
         assert all(len(m.data) < 8 and m.dlc == len(m.data) for m in sent[2:])
     elif kind == "stale_counter":  # a valid CRC and the counter of the frame before
@@ -182,7 +182,7 @@ def test_the_target_journal_names_each_injected_frame(kind):
         for msg in inner.sent:
             out += node.handle(msg)
         inner.sent.clear()
-        return [decode_any(m) for m in out if m.arbitration_id == FRAME_IDS["Temperatures1"]]
+        return [decode_any(m) for m in out if m.arbitration_id == frame_id("Temperatures1")]
 
     def row_frames(row):
         return [codec.encode("DriveInputs", {"Step": row, "MotorTorque": 100.0 + row, "MotorSpeed": 2000}),

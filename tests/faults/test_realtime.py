@@ -26,7 +26,7 @@ def result_injections(result) -> list[Injection]:
 
 @pytest.fixture(scope="module")
 def faulted(tmp_path_factory, fault_dataset):
-    from target_sim.transport import BusConfig, resolve
+    from dbc.transport import BusConfig, resolve
 
     bus = resolve(BusConfig("udp_multicast"), session_unique=True)
     spec = parse_faults([",".join(f"{k}=0.02" for k in KINDS)], seed=2)

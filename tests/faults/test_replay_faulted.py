@@ -10,7 +10,7 @@ import can
 import pytest
 
 from bench.analysis.logdecode import decode_log
-from host.run import INJECTED_IDS
+from host.run import injected_ids
 
 from .conftest import run_cli
 from .test_cli import load_only
@@ -35,10 +35,10 @@ def bus_fault_log(tmp_path_factory, fault_dataset):
 
 def _sent(log) -> list[tuple[int, bytes]]:
     """The frames the host put on the bus, in order: (id, bytes)."""
-    from dbc import HOST_FRAME_IDS
+    from dbc import host_frame_ids
 
     return [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(str(log))
-            if m.arbitration_id in HOST_FRAME_IDS | INJECTED_IDS]
+            if m.arbitration_id in host_frame_ids() | injected_ids()]
 
 
 @pytest.mark.parametrize("timing", ["--as-fast-as-possible", "recorded"])

@@ -38,7 +38,7 @@ assert set(RATES) == set(KINDS)
 
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory, fault_dataset):
-    from target_sim.transport import BusConfig, resolve
+    from dbc.transport import BusConfig, resolve
 
     bus = resolve(BusConfig("udp_multicast"), session_unique=True)
     log = tmp_path_factory.mktemp("clean") / "clean.blf"

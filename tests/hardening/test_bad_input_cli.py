@@ -424,15 +424,14 @@ def virtual_cases() -> list[Case]:
     """python-can's virtual bus lives in one process: every command that talks to another process refuses it up
     front (exit 2), instead of waiting out a connect timeout (host) or serving nobody until killed (target).
     The short timeouts are the point: before the fix the host failed after 15 s and the target never."""
-    host = ("--data", "{data}", "--model", "{art}", "--log", "{out}/h.blf", "--quiet")
+    host = ("host", "--data", "{data}", "--model", "{art}", "--log", "{out}/h.blf", "--quiet")
     target = ("--model", "{art}", "--stats", "{out}/stats.json", "--events", "{out}/events.jsonl")
     return [
         Case("run-interface-virtual", "bench", ("run", "--data", "{data}", "--model", "{art}", "--rows", "50",
                                                 "--log", "{out}/x.blf", "--report", "{out}/rep", "--quiet", "-i",
                                                 "virtual"), VIRTUAL, ("x.blf", "rep"), rc=2, timeout=10),
-        Case("host-interface-virtual", "host", (*host, "-i", "virtual"), VIRTUAL, ("h.blf",), rc=2,
-             prefix="host: error: ", timeout=5),
-        Case("host-interface-env-virtual", "host", host, VIRTUAL, ("h.blf",), rc=2, prefix="host: error: ",
+        Case("host-interface-virtual", "bench", (*host, "-i", "virtual"), VIRTUAL, ("h.blf",), rc=2, timeout=5),
+        Case("host-interface-env-virtual", "bench", host, VIRTUAL, ("h.blf",), rc=2,
              env={"CAN_INTERFACE": "virtual"}, timeout=5),
         Case("target_sim-interface-virtual", "target_sim", (*target, "-i", "virtual"), VIRTUAL,
              ("stats.json", "events.jsonl"), rc=2, prefix="target_sim: error: ", timeout=5),
@@ -553,7 +552,7 @@ def _stop(process: subprocess.Popen) -> None:
 
 
 def _port() -> int:
-    from target_sim.transport import free_udp_port
+    from dbc.transport import free_udp_port
 
     return free_udp_port()
 
@@ -645,8 +644,8 @@ finally:
 
 
 def test_host_refuses_a_channel_with_another_host_on_it(cli, material, scratch):
-    """Two hosts would both drive the target: `python -m host` listens before it joins and refuses."""
-    from target_sim.transport import UDP_LOCAL_GROUP
+    """Two hosts would both drive the target: `bench host` listens before it joins and refuses."""
+    from dbc.transport import UDP_LOCAL_GROUP
 
     port = _port()
     foreign = subprocess.Popen([sys.executable, "-c", FOREIGN_HOST, UDP_LOCAL_GROUP, str(port)], cwd=ROOT,
@@ -654,13 +653,13 @@ def test_host_refuses_a_channel_with_another_host_on_it(cli, material, scratch):
     try:
         assert foreign.stdout.readline().strip() == "sending"
         out = scratch / "out"
-        result = cli("host", "--data", material.data, "--model", material.art, "--log", out / "h.blf", "--quiet",
-                     "-i", "udp_multicast", "-c", UDP_LOCAL_GROUP, "--bus-kwargs", f"port={port}", cwd=scratch,
-                     timeout=30)
+        result = cli("bench", "host", "--data", material.data, "--model", material.art, "--log", out / "h.blf",
+                     "--quiet", "-i", "udp_multicast", "-c", UDP_LOCAL_GROUP, "--bus-kwargs", f"port={port}",
+                     cwd=scratch, timeout=30)
     finally:
         _stop(foreign)
     assert_one_sentence(result, (f"port {port} already has a host sending (frame id 0x100)",
-                                 "stop it or pick another channel"), prefix="host: error: ", rc=1)
+                                 "stop it or pick another channel"), rc=1)
     assert tree(out) is None or tree(out) == {}
 
 
@@ -674,8 +673,8 @@ def _shadow_dbc(root: Path, variant: str) -> Path:
     package = root / "shadow" / "dbc"
     package.mkdir(parents=True)
     source = Path(dbc.codec.__file__).parent
-    for name in ("__init__.py", "codec.py"):
-        shutil.copy(source / name, package / name)
+    for module in source.glob("*.py"):
+        shutil.copy(module, package / module.name)
     text = (source / "thermal_bench.dbc").read_bytes()
     if variant == "truncated":
         (package / "thermal_bench.dbc").write_bytes(text[: len(text) // 2])

@@ -26,8 +26,8 @@ import traceback
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import bench.cli  # noqa: E402
+import dbc.transport  # noqa: E402, F401
 import target_sim.node  # noqa: E402, F401 - what `python -m target_sim` imports
-import target_sim.transport  # noqa: E402, F401
 
 bench.cli.build_parser()  # imports every subcommand module, as every `bench` invocation does first
 gc.collect()

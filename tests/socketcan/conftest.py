@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from target_sim.transport import socketcan_usable
+from dbc.transport import socketcan_usable
 
 ROOT = Path(__file__).resolve().parents[2]
 CHANNEL = "vcan0"

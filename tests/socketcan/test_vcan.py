@@ -63,7 +63,7 @@ def test_target_sim_and_host_as_separate_processes_on_vcan0(vcan0, small_dataset
     target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
                                "--stats", str(stats), *bus], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     try:
-        host = run_cli("-m", "host", "--data", str(small_dataset), "--rows", str(ROWS), "--log", str(log),
+        host = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", str(ROWS), "--log", str(log),
                        "--reply-timeout", REPLY_TIMEOUT, "--connect-timeout", "120", "--json", *bus)
     finally:
         target.send_signal(signal.SIGTERM)

@@ -1,4 +1,4 @@
-"""Bus options shared by the target, the host and `bench`: python-can's own conventions plus `auto`.
+"""The bus both nodes and `bench` open: python-can's own conventions plus `auto`.
 
 Options as python-can's tools (`can.logger`, `can.player`): `-i/--interface`, `-c/--channel`, `-b/--bitrate`,
 `--bus-kwargs KEY=VALUE ...`, and python-can's configuration sources through `can.util.load_config`: the
@@ -17,7 +17,7 @@ to the run and hand the concrete options to every process they start, so paralle
 
 udp_multicast delivers every frame to its own sender too (multicast loopback), so each node drops frames with
 its own ids (`OwnFrameFilter`); with SocketCAN a node does not hear itself. Only the standard library and
-python-can are used here: the target imports this module.
+python-can are used here: both nodes stand on this module.
 """
 
 from __future__ import annotations

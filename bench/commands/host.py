@@ -1,0 +1,131 @@
+"""`bench host`: the host node on its own: replay a dataset to a target already on the bus, log every frame,
+report what came back.
+
+    bench host --data FILE [--model FILE] [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
+               [--reply-timeout S] [--connect-timeout S] [--tolerate-gaps] [--json] [--quiet]
+               [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
+               [--target-events FILE]
+               [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
+
+The target (`python -m target_sim`, or a real ECU) must run on the same bus; its heartbeat must carry the model
+id of --model (default: the packaged artifact). Exit status 0 when every row was answered and nothing was lost,
+1 when the run had missing replies, sequence gaps or heartbeat loss (unless --tolerate-gaps), 2 for bad
+arguments; every error is one sentence on stderr. The `host` package is the node itself (session, replay,
+faults, logs) and knows no datasets: this command reads the dataset and hands the host its drive rows.
+
+Bus faults (`host.faults`; lockstep) are injected as by `bench run`; kill and freeze need `bench run`, which
+owns the target process. To check detection, start the target with `--events FILE` and pass the same file as
+`--target-events`; the summary goes into the JSON result ("faults") and next to the log (`<log>.faults.json`).
+A run with injected faults exits 1 unless --tolerate-faults (and then only if every fault was detected).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from bench.commands.common import add_output_flags, print_json
+from bench.errors import BenchError, UsageError
+from bench.runner import load_data, load_model, positive_float, positive_int
+from dbc.database import host_frame_ids
+from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, first_heard, resolve
+from host.canlog import LogError, check_log_path
+from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
+from host.replay import DataRangeError
+from host.run import MODES, run_dataset
+from host.session import DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_REPLY_TIMEOUT_S, SessionError
+
+
+def add_subparser(subparsers) -> None:
+    p = subparsers.add_parser("host", help="the host node alone, against a target already on the bus",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", type=Path, required=True, help="dataset CSV (bench.drive schema)")
+    p.add_argument("--model", type=Path, default=None,
+                   help="artifact the target must run (default: the packaged one)")
+    p.add_argument("--mode", choices=MODES, default="lockstep")
+    p.add_argument("--speed", type=positive_float, default=1.0, help="realtime speed factor (default 1)")
+    p.add_argument("--rows", type=positive_int, default=None, help="replay only the first N rows")
+    p.add_argument("--log", type=Path, default=Path("out/host/host.blf"),
+                   help="bus log, format by suffix .blf .asc .log .csv .mf4 (default out/host/host.blf)")
+    p.add_argument("--reply-timeout", type=positive_float, default=DEFAULT_REPLY_TIMEOUT_S,
+                   help=f"seconds per reply (default {DEFAULT_REPLY_TIMEOUT_S:g})")
+    p.add_argument("--connect-timeout", type=positive_float, default=DEFAULT_CONNECT_TIMEOUT_S,
+                   help=f"seconds to wait for the target's heartbeat (default {DEFAULT_CONNECT_TIMEOUT_S:g})")
+    p.add_argument("--tolerate-gaps", action="store_true", help="exit 0 despite missing replies (still reported)")
+    add_fault_arguments(p, process_faults=False)
+    p.add_argument("--target-events", type=Path, default=None, metavar="FILE",
+                   help="the target's detection journal (its --events file), to check that faults were detected")
+    add_output_flags(p)
+    add_bus_arguments(p)
+    p.set_defaults(func=run_host)
+
+
+def _faults(args: argparse.Namespace):
+    try:
+        faults = spec_from_args(args)
+    except FaultSpecError as exc:
+        raise UsageError(str(exc)) from None
+    if faults is not None and faults.process_faults:
+        raise UsageError("kill and freeze faults need the bench runner, which owns the target process: use "
+                         "'bench run'")
+    if faults is not None and faults.reply_rates():
+        raise UsageError("reply faults are injected by the target: start it with 'python -m target_sim --faults "
+                         f"{','.join(faults.reply_rates())}=P' (or use 'bench run')")
+    return faults
+
+
+def run_host(args: argparse.Namespace) -> int:
+    faults = _faults(args)
+    try:
+        config = resolve(config_from_args(args))
+    except BusUnavailable as exc:
+        raise BenchError(str(exc)) from None
+    if config.interface == "virtual":  # python-can's virtual bus lives in one process: no target could answer
+        raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
+                         "use udp_multicast, socketcan or auto")
+    artifact, _ = load_model(args.model)
+    dataset = load_data(args.data, artifact)
+    from bench.model.runs import drive_matrix, initial_temperatures
+
+    bus = None
+    try:
+        log_path = check_log_path(args.log)
+        bus = config.open()
+        if (other := first_heard(bus, host_frame_ids())) is not None:  # two hosts would both drive the target
+            raise SessionError(f"{config.describe()} already has a host sending (frame id "
+                               f"0x{other.arbitration_id:03x}); stop it or pick another channel")
+        drive = drive_matrix(dataset)
+        if args.rows is not None:
+            drive = drive[: args.rows]
+        if not (args.quiet or args.json):
+            print(f"bench: host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
+                  + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
+        started = time.time()
+        result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
+                             mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,
+                             log_path=log_path, reply_timeout_s=args.reply_timeout,
+                             connect_timeout_s=args.connect_timeout, faults=faults,
+                             target_events=args.target_events, events_since=started)
+    except (LogError, BusUnavailable, SessionError, DataRangeError, FaultSpecError) as exc:
+        raise BenchError(str(exc)) from None
+    finally:
+        if bus is not None:
+            bus.shutdown()
+    problems = result.problems()
+    note = fault_note(result.faults)
+    if note and not args.tolerate_faults:
+        problems.append(note)
+    if args.json:
+        injected = bool(result.faults and result.faults["injected_total"])
+        print_json({**result.to_dict(), "problems": problems, "clean": not problems and not injected})
+    else:
+        print(f"{result.rows_sent} rows sent, {result.replies} answered, {result.missing} missing, "
+              f"{result.rows_per_s:.0f} rows/s, round trip p50 {result.round_trip_us['p50'] or 0:.0f} µs; "
+              f"log {result.log_path}")
+        for problem in problems:
+            print(f"bench: host: {problem}", file=sys.stderr)
+    if problems and (result.faults is not None or not args.tolerate_gaps):  # --tolerate-gaps: not for faults
+        return 1
+    return 0

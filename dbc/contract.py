@@ -1,0 +1,214 @@
+"""The facts of the bench's CAN contract that code needs by name, each defined once (no file is read here).
+
+The DBC (`thermal_bench.dbc`) is the contract; what it states about ids, layouts, ranges, cycle times and
+E2E data ids is read from it (`dbc.database`). This module holds what both nodes must agree on beyond the
+file's syntax: the enums of its value tables (a test checks them against the DBC), the arithmetic of Step
+and alive counters, which messages make a reply and in which order the temperatures are carried, the
+RxErrors counters, and the heartbeat timeout a receiver applies.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from enum import IntEnum, IntFlag
+from pathlib import Path
+from types import MappingProxyType
+from typing import Literal, get_args
+
+DBC_PATH: Path = Path(__file__).with_name("thermal_bench.dbc")
+NODES: tuple[str, str] = ("HOST", "TARGET")
+FRAME_LENGTH = 8                 # classic CAN, every message DLC 8
+COUNTER_MODULO = 16              # 4-bit alive counter in the low nibble of byte 1
+STEP_MODULO = 1 << 16            # `Step` is 16 bits: the data row number modulo 65536
+HEARTBEAT_MESSAGE = "Status"     # its GenMsgCycleTime in the DBC is the heartbeat period
+HEARTBEAT_TIMEOUT_S = 0.5        # five heartbeat periods without a Status: the target is lost
+
+FrameErrorKind = Literal["unknown_id", "wrong_length", "crc", "counter", "out_of_range"]
+FRAME_ERROR_KINDS: tuple[FrameErrorKind, ...] = get_args(FrameErrorKind)
+# What the target counts: every frame error kind, and sequence errors (frames valid on their own, out of order)
+RX_ERROR_KINDS: tuple[str, ...] = (*FRAME_ERROR_KINDS, "sequence")
+# RxErrors signal of each counted kind
+RX_ERROR_SIGNALS: Mapping[str, str] = MappingProxyType({
+    "unknown_id": "UnknownId", "wrong_length": "WrongLength", "crc": "CrcError", "counter": "CounterError",
+    "out_of_range": "OutOfRange", "sequence": "SequenceError"})
+
+# Temperatures travel in the state order of the model: x = [yoke, winding, tooth, magnet]
+TEMPERATURE_NODES: tuple[str, str, str, str] = ("yoke", "winding", "tooth", "magnet")
+STATE_SIZE = len(TEMPERATURE_NODES)
+# message -> ((signal, index into the temperature order), ...) for the reply and for the RESET's initial values
+REPLY_SIGNALS: Mapping[str, tuple[tuple[str, int], ...]] = MappingProxyType({
+    "Temperatures1": (("WindingTemp", 1), ("MagnetTemp", 3)),
+    "Temperatures2": (("YokeTemp", 0), ("ToothTemp", 2))})
+RESET_SIGNALS: Mapping[str, tuple[tuple[str, int], ...]] = MappingProxyType({
+    "ResetTemps1": (("WindingTempInit", 1), ("MagnetTempInit", 3)),
+    "ResetTemps2": (("YokeTempInit", 0), ("ToothTempInit", 2))})
+REPLY_MESSAGES: tuple[str, ...] = tuple(REPLY_SIGNALS)
+# a row is answered when both reply messages are in: one bit per message, all bits set
+REPLY_BIT: Mapping[str, int] = MappingProxyType({name: 1 << i for i, name in enumerate(REPLY_MESSAGES)})
+REPLY_COMPLETE = (1 << len(REPLY_MESSAGES)) - 1
+# the drive values of a data row, in the order the host reads them from a dataset: torque, speed, coolant, ambient
+DRIVE_SIGNALS: tuple[tuple[str, str], ...] = (("DriveInputs", "MotorTorque"), ("DriveInputs", "MotorSpeed"),
+                                              ("DriveTemps", "CoolantTemp"), ("DriveTemps", "AmbientTemp"))
+CHECKPOINT_EVERY_STEPS = 20   # model steps between two StateCheckpoints (10 s at Δt 0.5 s): the most a restored
+                              # target has to re-run, at 4 frames per checkpoint
+
+
+def step_of(row: int) -> int:
+    """The Step signal that carries data row `row`."""
+    return row % STEP_MODULO
+
+
+def nearest_row(step: int, reference: int) -> int:
+    """The row whose Step is `step` nearest to row `reference` (a Step names a row only up to 65536)."""
+    delta = (step - reference) % STEP_MODULO
+    if delta >= STEP_MODULO // 2:
+        delta -= STEP_MODULO
+    return reference + delta
+
+
+def latest_row(step: int, last_sent: int) -> int:
+    """The most recent row up to `last_sent` whose Step is `step`."""
+    return last_sent - ((last_sent - step) % STEP_MODULO)
+
+
+def split_temperatures(values: Sequence[float],
+                       layout: Mapping[str, tuple[tuple[str, int], ...]] = REPLY_SIGNALS) -> dict[str, dict]:
+    """[yoke, winding, tooth, magnet] as {message: {signal: value}} of `layout` (REPLY_SIGNALS or RESET_SIGNALS)."""
+    return {message: {signal: values[index] for signal, index in signals} for message, signals in layout.items()}
+
+
+def place_temperatures(message: str, signals: Mapping[str, float], out,
+                       layout: Mapping[str, tuple[tuple[str, int], ...]] = REPLY_SIGNALS) -> int:
+    """Write the temperatures `message` carries into `out` (indexed in the temperature order); its reply bit."""
+    for signal, index in layout[message]:
+        out[index] = signals[signal]
+    return REPLY_BIT.get(message, 0)
+
+
+def join_temperatures(frames: Mapping[str, Mapping[str, float]],
+                      layout: Mapping[str, tuple[tuple[str, int], ...]] = RESET_SIGNALS) -> list[float]:
+    """[yoke, winding, tooth, magnet] from the signals of every message of `layout`."""
+    out = [0.0] * STATE_SIZE
+    for message in layout:
+        place_temperatures(message, frames[message], out, layout)
+    return out
+
+
+class FrameError(ValueError):
+    """A frame that may not be sent or was rejected on receipt; ``kind`` is one of FRAME_ERROR_KINDS."""
+
+    def __init__(self, kind: FrameErrorKind, message: str) -> None:
+        if kind not in FRAME_ERROR_KINDS:
+            raise ValueError(f"unknown frame error kind {kind!r}")
+        super().__init__(message)
+        self.kind: FrameErrorKind = kind
+        self.message = message
+
+
+def model_id_from_sha256(hexdigest: str) -> int:
+    """``Status.ModelId`` for an artifact: its sha256's first 8 hex digits as an unsigned 32-bit integer."""
+    return int(hexdigest[:8], 16)
+
+
+class Command(IntEnum):
+    """``Control.Command`` (VAL_ table of the DBC)."""
+
+    NOP = 0
+    RESET = 1
+    START = 2
+    STOP = 3
+    RESTORE = 4  # set the model state from the RestoreState frames (an echoed StateCheckpoint)
+
+
+class TargetState(IntEnum):
+    """``Status.State`` (VAL_ table of the DBC)."""
+
+    BOOT = 0
+    IDLE = 1  # artifact loaded, waiting for a RESET
+    READY = 2  # RESET done, waiting for START
+    RUNNING = 3
+    STOPPED = 4
+    FAULT = 5
+
+
+class ModelKind(IntEnum):
+    """``TargetInfo.ModelKind`` (VAL_ table of the DBC)."""
+
+    LTI_LPTN = 0
+    PV_LPTN = 1
+    HAMMERSTEIN = 2
+
+    @property
+    def label(self) -> str:
+        """The artifact's spelling, e.g. "lti-lptn"."""
+        return self.name.lower().replace("_", "-")
+
+    @classmethod
+    def of(cls, label: str) -> ModelKind:
+        return cls[label.upper().replace("-", "_")]
+
+
+class Realization(IntEnum):
+    """``TargetInfo.Realization`` (VAL_ table of the DBC)."""
+
+    PHYSICAL = 0
+    ORIGINAL = 1
+    BALANCED = 2
+    MODAL = 3
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+class BenchEvent(IntEnum):
+    """``BenchEvent.Event`` (VAL_ table of the DBC): the marks a bench host puts into the bus and its log."""
+
+    FAULT = 0  # a fault was injected
+    TARGET_LOST = 1  # heartbeat lost or the target restarted: a gap in the replies begins
+    REINIT = 2  # the target is restored from its last StateCheckpoint (the last good estimate): the gap ends
+    RETRANSMIT = 3  # a row is sent again after its reply deadline passed
+
+
+class FaultKind(IntEnum):
+    """``BenchEvent.FaultKind`` (VAL_ table of the DBC): the faults a bench host can inject."""
+
+    NONE = 0
+    DROP = 1
+    DELAY = 2
+    DUPLICATE = 3
+    REORDER = 4
+    CORRUPT = 5
+    STALE_COUNTER = 6
+    WRONG_LENGTH = 7
+    UNKNOWN_ID = 8
+    OUT_OF_RANGE = 9
+    KILL = 10
+    FREEZE = 11
+
+
+class FaultBit(IntFlag):
+    """Bits of ``Status.FaultBits``; the signal comment in the DBC defines each one."""
+
+    NO_ARTIFACT = 1 << 0
+    RESET_INCOMPLETE = 1 << 1
+    RX_ERROR = 1 << 2
+    SEQUENCE = 1 << 3
+    OVERRUN = 1 << 4
+    NONFINITE = 1 << 5
+    SATURATED = 1 << 6
+    INTERNAL = 1 << 7
+
+
+def target_info(signals: Mapping[str, float]) -> dict[str, object]:
+    """A TargetInfo frame's signals as the host and the log analysis report them."""
+    return {"model_kind": ModelKind(int(signals["ModelKind"])).label,
+            "realization": Realization(int(signals["Realization"])).label,
+            "dt_s": float(signals["ModelDt"]), "flash_bytes": int(signals["FlashBytes"]),
+            "ram_bytes": int(signals["RamBytes"])}
+
+
+def rx_error_counts(signals: Mapping[str, float]) -> dict[str, int]:
+    """An RxErrors frame's counters by error kind."""
+    kind_of = {signal: kind for kind, signal in RX_ERROR_SIGNALS.items()}
+    return {kind_of.get(signal, signal): int(value) for signal, value in signals.items()}

@@ -1,0 +1,230 @@
+"""``thermal_bench.dbc`` read once, on first use, into what the codec and the nodes need per message.
+
+Nothing here runs at import: the first call that needs the file loads it (cantools, strict) and checks that it
+is the bench's contract; a missing or broken file is one `DbcError` sentence at that call, which the command
+line reports like any other bad input.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from types import MappingProxyType
+from typing import cast
+
+import cantools
+from cantools.database.can import Database
+from cantools.database.can import Message as DbcMessage
+
+from dbc.contract import DBC_PATH, HEARTBEAT_MESSAGE, NODES, FrameError
+
+_FLOAT_FORMATS = {32: ("<f", "<I"), 64: ("<d", "<Q")}
+
+
+class DbcError(Exception):
+    """The DBC file is missing or not the bench's contract; one sentence with what to do."""
+
+
+@dataclass(frozen=True)
+class SignalLayout:
+    """One application signal (not CRC, not counter) as the codec packs it."""
+
+    name: str
+    start: int
+    length: int
+    signed: bool
+    mask: int
+    conversion: object          # cantools' conversion object: scaled <-> raw exactly as cantools does it
+    minimum: float
+    maximum: float
+    tolerance: float            # as cantools' strict encoder, so whatever encodes also validates
+    unit: str
+    inline: bool                # raw = round((value - offset) / scale), what cantools does for these conversions
+    offset: float
+    scale: float
+    ieee: tuple[str, str] | None  # struct formats (float, bits) of an IEEE float signal (SIG_VALTYPE_)
+    choices: Mapping[str, int]  # value-table names -> raw values of an enum signal
+
+    @property
+    def low(self) -> float:
+        return self.minimum - self.tolerance
+
+    @property
+    def high(self) -> float:
+        return self.maximum + self.tolerance
+
+
+@dataclass(frozen=True)
+class MessageLayout:
+    """One message of the contract: id, sender, E2E data id, its application signals, cycle time."""
+
+    name: str
+    frame_id: int
+    sender: str
+    data_id: int
+    signals: tuple[SignalLayout, ...]
+    cycle_time_ms: int
+    message: DbcMessage
+
+    @property
+    def label(self) -> str:
+        return f"frame 0x{self.frame_id:03X} ({self.name})"
+
+    @property
+    def signal_names(self) -> frozenset[str]:
+        return frozenset(s.name for s in self.signals)
+
+    def signal(self, name: str) -> SignalLayout:
+        return next(s for s in self.signals if s.name == name)
+
+
+@dataclass(frozen=True)
+class Contract:
+    """The DBC as the codec sees it."""
+
+    database: Database
+    version: str
+    by_id: Mapping[int, MessageLayout]
+    by_name: Mapping[str, MessageLayout]
+
+    @property
+    def version_info(self) -> tuple[int, int, int]:
+        return cast("tuple[int, int, int]", tuple(int(part) for part in self.version.split(".")))
+
+    def frame_ids(self, sender: str | None = None) -> frozenset[int]:
+        return frozenset(fid for fid, m in self.by_id.items() if sender is None or m.sender == sender)
+
+
+@cache
+def load_database() -> Database:
+    """The DBC, loaded once with cantools' strict checks (shared between callers: do not modify it).
+
+    DbcError (one sentence) when the file is missing, unreadable, not a DBC, or lacks what the codec needs.
+    """
+    path = Path(DBC_PATH)
+    fix = "reinstall the package or restore dbc/thermal_bench.dbc from the repository"
+    try:
+        database = cast(Database, cantools.database.load_file(path, database_format="dbc", strict=True))
+    except FileNotFoundError:
+        raise DbcError(f"the CAN contract {path} does not exist; {fix}") from None
+    except OSError as exc:
+        raise DbcError(f"the CAN contract {path} cannot be read ({exc.strerror or exc}); {fix}") from None
+    except Exception as exc:  # noqa: BLE001 - cantools raises parse, value and unicode errors of many kinds
+        reason = " ".join(str(exc).split())[:120] or exc.__class__.__name__
+        raise DbcError(f"the CAN contract {path} is not a valid DBC ({reason}); {fix}") from None
+    problem = _contract_problem(database)
+    if problem:
+        raise DbcError(f"the CAN contract {path} {problem}; {fix}")
+    return database
+
+
+def _contract_problem(database: Database) -> str | None:
+    """What the codec needs from the DBC and this one lacks (None if nothing): a version, and per message one
+    sender of the two nodes, an E2EDataID attribute, its CRC and counter signals, and signals it can pack."""
+    version = str(database.version or "")
+    parts = version.split(".")
+    if len(parts) != 3 or not all(part.isdigit() for part in parts):
+        return f"has no VERSION \"major.minor.patch\" (found {version!r})"
+    if not database.messages:
+        return "defines no messages (empty or truncated)"
+    for message in database.messages:
+        names = {signal.name for signal in message.signals}
+        attributes = message.dbc.attributes if message.dbc is not None else {}
+        if not message.senders or message.senders[0] not in NODES:
+            return f"gives message {message.name} no sender of {' or '.join(NODES)}"
+        if "E2EDataID" not in attributes:
+            return f"gives message {message.name} no E2EDataID attribute (truncated?)"
+        if f"{message.name}_CRC" not in names or f"{message.name}_Counter" not in names:
+            return f"gives message {message.name} no {message.name}_CRC and {message.name}_Counter signals"
+        for s in message.signals:
+            if s.byte_order != "little_endian" or (s.conversion.is_float and s.length not in _FLOAT_FORMATS):
+                return f"gives signal {message.name}.{s.name} a layout the codec does not pack (Intel integer " \
+                       "or IEEE float only)"
+    return None
+
+
+def _signal_layout(s) -> SignalLayout:
+    return SignalLayout(
+        name=s.name, start=s.start, length=s.length, signed=s.is_signed, mask=(1 << s.length) - 1,
+        conversion=s.conversion,
+        minimum=-math.inf if s.minimum is None else float(s.minimum),
+        maximum=math.inf if s.maximum is None else float(s.maximum),
+        tolerance=abs(s.conversion.scale) * 1e-6, unit=s.unit or "",
+        inline=type(s.conversion).__name__ in ("IdentityConversion", "LinearConversion", "NamedSignalConversion"),
+        offset=s.conversion.offset, scale=s.conversion.scale,
+        ieee=_FLOAT_FORMATS[s.length] if s.conversion.is_float else None,
+        choices=MappingProxyType({str(text): int(raw) for raw, text in (s.choices or {}).items()}))
+
+
+@cache
+def contract() -> Contract:
+    """The loaded contract (first call reads the DBC; DbcError if it is broken)."""
+    database = load_database()
+    layouts = []
+    for message in database.messages:
+        attributes = message.dbc.attributes
+        cycle = attributes.get("GenMsgCycleTime")
+        layouts.append(MessageLayout(
+            name=message.name, frame_id=message.frame_id, sender=message.senders[0],
+            data_id=int(attributes["E2EDataID"].value),
+            signals=tuple(_signal_layout(s) for s in message.signals
+                          if s.name not in (f"{message.name}_CRC", f"{message.name}_Counter")),
+            cycle_time_ms=int(cycle.value) if cycle is not None else 0, message=message))
+    return Contract(database=database, version=str(database.version),
+                    by_id=MappingProxyType({m.frame_id: m for m in layouts}),
+                    by_name=MappingProxyType({m.name: m for m in layouts}))
+
+
+def frame_id(name: str) -> int:
+    """The frame id of message `name`; FrameError("unknown_id") if the DBC has no such message."""
+    return layout_named(name).frame_id
+
+
+def layout_named(name: str) -> MessageLayout:
+    """Message `name`'s layout; FrameError("unknown_id") if the DBC has no such message."""
+    layout = contract().by_name.get(name)
+    if layout is None:
+        raise FrameError("unknown_id", f"{DBC_PATH.name} has no message named {name!r}.")
+    return layout
+
+
+def frame_ids() -> Mapping[str, int]:
+    """Every message's frame id by name."""
+    return MappingProxyType({name: m.frame_id for name, m in contract().by_name.items()})
+
+
+@cache
+def host_frame_ids() -> frozenset[int]:
+    """The ids the HOST node sends."""
+    return contract().frame_ids("HOST")
+
+
+@cache
+def target_frame_ids() -> frozenset[int]:
+    """The ids the TARGET node sends."""
+    return contract().frame_ids("TARGET")
+
+
+def dbc_version() -> str:
+    return contract().version
+
+
+def dbc_version_info() -> tuple[int, int, int]:
+    return contract().version_info
+
+
+def e2e_data_id(fid: int) -> int:
+    return contract().by_id[fid].data_id
+
+
+def signal_ranges(name: str) -> dict[str, tuple[float, float]]:
+    """(minimum, maximum) of every application signal of message `name`, e.g. for a sender to saturate."""
+    return {s.name: (s.minimum, s.maximum) for s in layout_named(name).signals}
+
+
+def heartbeat_period_s() -> float:
+    """The heartbeat period: the cycle time the DBC gives the Status message."""
+    return contract().by_name[HEARTBEAT_MESSAGE].cycle_time_ms / 1000.0
