@@ -19,7 +19,7 @@ import cantools
 from cantools.database.can import Database
 from cantools.database.can import Message as DbcMessage
 
-from dbc.contract import DBC_PATH, HEARTBEAT_MESSAGE, NODES, FrameError
+from dbc.contract import DBC_PATH, HEARTBEAT_MESSAGE, NODES, REPLY_SIGNALS, FrameError
 
 _FLOAT_FORMATS = {32: ("<f", "<I"), 64: ("<d", "<Q")}
 
@@ -223,6 +223,13 @@ def e2e_data_id(fid: int) -> int:
 def signal_ranges(name: str) -> dict[str, tuple[float, float]]:
     """(minimum, maximum) of every application signal of message `name`, e.g. for a sender to saturate."""
     return {s.name: (s.minimum, s.maximum) for s in layout_named(name).signals}
+
+
+def temperature_range() -> tuple[float, float]:
+    """What a reply's temperature signal can carry (they share one range, a test checks it); the target clamps
+    to it and the analysis leaves values beyond it out of the comparisons."""
+    message, signals = next(iter(REPLY_SIGNALS.items()))
+    return signal_ranges(message)[signals[0][0]]
 
 
 def heartbeat_period_s() -> float:

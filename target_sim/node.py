@@ -74,7 +74,7 @@ from dbc.contract import (
     join_temperatures,
     split_temperatures,
 )
-from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids
+from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
 from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
 from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, first_heard
 from target_sim.artifact import ModelArtifact
@@ -83,7 +83,6 @@ from target_sim.faults import ReplyFaults
 from target_sim.model import F32, Float32Estimator, InputAccumulator
 
 SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll before blocking (0 disables)
-_TEMPERATURE_SIGNAL = ("Temperatures1", "WindingTemp")  # every temperature signal has this one's range
 
 
 def _clamp(value: float, limits: tuple[float, float]) -> float:
@@ -161,7 +160,7 @@ class TargetNode:
         self.frames_received = 0
         self.estimate = np.zeros(STATE_SIZE, dtype=np.float32)
         self._version = dbc_version_info()
-        self._temp_limits = signal_ranges(_TEMPERATURE_SIGNAL[0])[_TEMPERATURE_SIGNAL[1]]
+        self._temp_limits = temperature_range()
         self._state_limits = signal_ranges("StateCheckpoint")["StateValue"]
         self._timing1_limits = signal_ranges("Timing1")["StepTimeMeasured"]
         timing2, timing3 = signal_ranges("Timing2"), signal_ranges("Timing3")

@@ -33,7 +33,7 @@ from bench.thermal.estimator import SIGMOID_ROWS, StepInputs, identity_sigmoid, 
 from bench.thermal.excitation import interval_means
 from bench.thermal.parameters import LptnParameters
 from dbc.contract import HEARTBEAT_TIMEOUT_S, TEMPERATURE_NODES
-from dbc.database import frame_id, signal_ranges
+from dbc.database import frame_id, temperature_range
 from dbc.transport import NOMINAL_BITRATE
 from host.results import gap_count, percentiles
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
@@ -42,11 +42,6 @@ from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 TEMPERATURES = TEMPERATURE_NODES
 QUANTIZATION_C = 0.005          # half the 0.01 °C resolution of the temperature signals
 AGREEMENT_TOLERANCE_C = QUANTIZATION_C + 1e-9
-
-
-def can_temperature_range() -> tuple[float, float]:
-    """What a temperature signal can carry (the DBC's range; the target clamps to it)."""
-    return signal_ranges("Temperatures1")["WindingTemp"]
 
 
 @dataclass
@@ -113,7 +108,7 @@ def restarted_agreement(artifact: ModelArtifact, record: BusRecord, clean: np.nd
         keep = (segment.reply_rows >= offset) & (segment.reply_rows < rows)
         at = segment.reply_rows[keep]
         expected = ref[at - offset]
-        low, high = can_temperature_range()
+        low, high = temperature_range()
         in_range = (expected >= low) & (expected <= high)
         diff = np.abs(np.where(in_range, segment.reply_temps[keep] - expected, np.nan))
         saturated += int(np.count_nonzero(~in_range))
@@ -268,7 +263,7 @@ def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarr
 
     twin = twin_estimates(artifact, record)
     both = record.answered & np.isfinite(twin).all(axis=1)
-    low, high = can_temperature_range()
+    low, high = temperature_range()
     in_range = (twin >= low) & (twin <= high)
     diff = np.where(in_range, np.abs(record.temps - twin), np.nan)[both]
     worst = np.nanmax(np.where(np.isnan(diff), -np.inf, diff), axis=0) if diff.size else np.full(4, np.nan)
@@ -289,7 +284,7 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     refs = references(artifact, drive, record.initial, dataset)
     answered = record.answered
     can_at_steps = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
-    low, high = can_temperature_range()
+    low, high = temperature_range()
     in_range = (refs.f32 >= low) & (refs.f32 <= high)
     saturated = int(np.count_nonzero(~in_range))
     clean = _clean_estimates(refs, record.rows, record.initial)   # the clean run's estimate after each row
