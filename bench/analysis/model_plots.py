@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.commands.common import write_atomically
+from bench.fileio import write_atomically
 
 
 def realization_figure(evaluations: dict, realization: str, path: Path, title: str) -> Path:

@@ -12,7 +12,7 @@ from pathlib import Path
 from bench.analysis import plots
 from bench.analysis.canmetrics import TEMPERATURES, compute, problems
 from bench.analysis.logdecode import BusRecord, decode_log
-from bench.commands.common import write_atomically
+from bench.fileio import write_text_atomically
 from target_sim.artifact import ModelArtifact
 
 FIGURES = {"temperatures": "temperatures.png", "float32_error": "float32_error.png",
@@ -21,7 +21,7 @@ FIGURES = {"temperatures": "temperatures.png", "float32_error": "float32_error.p
 
 def analyze_log(log_path: str | Path, artifact: ModelArtifact, dataset=None, *, report_dir: str | Path | None = None,
                 bitrate: int | None = None, run_info: dict | None = None,
-                extra_problems: list[str] | None = None) -> tuple[dict, list[str], BusRecord]:
+                extra_problems: list[str] | None = None) -> tuple[dict, list[str]]:
     """Decode the log, compute the metrics against the references, write the report if `report_dir`.
 
     `extra_problems` (what the live run saw, e.g. the host's) are listed in the report too."""
@@ -31,7 +31,7 @@ def analyze_log(log_path: str | Path, artifact: ModelArtifact, dataset=None, *, 
     if report_dir is not None:
         report_path = write_report(Path(report_dir), metrics, found, record, refs, dataset, run_info or {})
         metrics["report"] = str(report_path)
-    return metrics, found, record
+    return metrics, found
 
 
 def _fmt(value, digits: int = 3) -> str:
@@ -54,12 +54,11 @@ def write_report(report_dir: Path, metrics: dict, found: list[str], record: BusR
     plots.bus_load(report_dir / FIGURES["bus_load"], metrics["bus_load"])
     text = render_markdown(metrics, found, dataset, run_info)
     path = report_dir / "report.md"
-    write_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    write_text_atomically(path, text)
     metrics_path = report_dir / "metrics.json"
     body = {k: v for k, v in metrics.items() if k != "bus_load"}
     body["bus_load"] = {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}
-    write_atomically(metrics_path, lambda tmp: tmp.write_text(json.dumps(body, indent=1, allow_nan=False,
-                                                                         default=str) + "\n"))
+    write_text_atomically(metrics_path, json.dumps(body, indent=1, allow_nan=False, default=str) + "\n")
     return path
 
 

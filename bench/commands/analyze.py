@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.commands.common import add_output_flags, check_writable, print_json, verdict
+from bench.commands.common import add_output_flags, check_writable, print_json, print_summary, verdict
 from bench.errors import BenchError
 from bench.runner import load_data, load_model
 from host.canlog import LogError
@@ -110,8 +110,6 @@ def run(args: argparse.Namespace) -> int:
         out["bus_load"] = {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}
         print_json({**out, "problems": found, "clean": not found and not injected})
     else:
-        from bench.commands.run import print_summary
-
         print_summary({"metrics": metrics, "steps_sent": metrics["steps_sent"], "replies": metrics["replies"],
                        "missing": metrics["missing"], "max_abs_can_minus_float32_C":
                        metrics["max_abs_can_minus_float32_C"], "rmse_C": metrics["rmse_C"],

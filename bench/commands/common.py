@@ -1,4 +1,5 @@
-"""Argument types and output helpers shared by the subcommands."""
+"""Argument types and output helpers shared by the subcommands, and the rule and summary of a run or a log that
+`bench run` and `bench analyze` share."""
 
 from __future__ import annotations
 
@@ -6,7 +7,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,23 +57,6 @@ def print_json(obj) -> None:
     sys.stdout.write("\n")
 
 
-def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
-    """Write through a temporary file in the same directory, then rename: never a half-written output."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the output should look like any other file
-    try:
-        write(Path(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def check_writable(path: Path, option: str, *, directory: bool = False) -> Path:
     """Refuse an output path before any work is done, creating nothing: `path` (a file, or with `directory` a
     directory) must be creatable or replaceable, i.e. not of the other kind, and its nearest existing ancestor a
@@ -116,3 +99,51 @@ def verdict(problems: list[str], fault_note: str | None, *, faulted: bool, toler
     if fault_note and not tolerate_faults:
         found.append(fault_note)
     return Verdict(found, 1 if found and (faulted or not tolerate_gaps) else 0)
+
+
+def fmt(value, digits: int = 3) -> str:
+    """A number for a summary line, '–' for none."""
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def print_summary(s: dict) -> None:
+    """The lines `bench run` and `bench analyze` print without --json (`s`: the run's JSON summary)."""
+    m = s["metrics"]
+    temps = ("winding", "magnet", "yoke", "tooth")
+    print(f"model {m['model']['id']} {m['model']['kind']} ({m['model']['realization']}, dt {m['model']['dt_s']:g} s)")
+    print(f"steps sent {s['steps_sent']}, answered {s['replies']}, missing {s['missing']}, "
+          f"model steps {m['model_steps']}")
+    print(f"max |CAN - {m.get('can_reference', 'offline float32')}| (°C): "
+          + ", ".join(f"{t} {fmt(s['max_abs_can_minus_float32_C'][t], 4)}" for t in temps))
+    if m.get("rows_lost_on_the_bus"):
+        print(f"{m['rows_lost_on_the_bus']} rows never reached the target intact; max |CAN - clean run| (°C): "
+              + ", ".join(f"{t} {fmt(m['max_abs_can_minus_clean_C'][t], 4)}" for t in temps))
+    print("max |float32 - float64| (°C): " + ", ".join(
+        f"{t} {fmt(m['max_abs_float32_minus_float64_C'][t], 4)}" for t in temps))
+    print("RMSE (°C): " + ", ".join(f"{t} {fmt(s['rmse_C'][t])} (vs {m['rmse_reference'][t]})" for t in temps))
+    st, rtt = s["step_time_us"], m["round_trip_us"]
+    print(f"step time on the target process p50/p99/max: {fmt(st['p50'], 1)}/{fmt(st['p99'], 1)}/"
+          f"{fmt(st['max'], 1)} µs;"
+          f" estimated C28x: {m['est_cycles']} cycles = {fmt(m['est_exec_time_us'], 1)} µs at 90 MHz "
+          f"({fmt(m['cpu_load_percent'], 4)} % CPU), flash {m['flash_bytes']} B, RAM {m['ram_bytes']} B")
+    print(f"throughput {fmt(s['throughput_steps_per_s'], 0)} steps/s, round trip p50/p99 "
+          f"{fmt(rtt['p50'], 0)}/{fmt(rtt['p99'], 0)} µs, bus load at the data rate "
+          f"{fmt(m['bus_load']['data_rate_percent'], 2)} %")
+    faults = s.get("faults") or m.get("faults")
+    if faults:
+        detected = faults["detected"] or {}
+        print("faults injected/detected: " + ", ".join(
+            f"{k} {n}/{'?' if detected.get(k) is None else detected[k]}" for k, n in faults["injected"].items())
+            + f"; {faults['retransmitted_rows']} rows retransmitted, {len(faults['gaps'])} gap(s)"
+            + "".join(f" rows {g['rows'][0]}-{g['rows'][1]}" for g in faults["gaps"][:5]))
+    print(f"log {s['log']}" + (f", report {s['report']}" if s.get("report") else ""))
+    for note in m.get("notes", []):
+        print(f"note: {note}")
+    if s["problems"]:
+        print("NOT clean: " + "; ".join(s["problems"]))
+    elif faults and faults.get("injected_total"):
+        print(f"{faults['injected_total']} faults injected, "
+              + ("all detected" if faults.get("undetected") == 0 else "detection not verified")
+              + ", nothing else went wrong")
+    else:
+        print("clean")

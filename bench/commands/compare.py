@@ -18,11 +18,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, print_json, write_atomically
+from bench.commands.common import add_output_flags, check_writable, fmt, print_json
 from bench.errors import UsageError
+from bench.fileio import write_text_atomically
 from bench.runner import ProgressBar, bus_from_args, load_data, load_model, positive_float, positive_int
+from dbc.transport import add_bus_arguments
 from target_sim.artifact import ModelArtifact, dumps
-from target_sim.transport import add_bus_arguments
 
 KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
 
@@ -75,8 +76,7 @@ def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
     paths = []
     for kind, spec in specs.items():
         path = out_dir / f"{kind}-dt{dt:g}.json"
-        text = dumps(build_artifact(spec))
-        write_atomically(path, lambda tmp, text=text: tmp.write_text(text, encoding="utf-8"))
+        write_text_atomically(path, dumps(build_artifact(spec)))
         paths.append(path)
     return paths
 
@@ -99,7 +99,7 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
                                       sample_period_s=dataset.sample_period_s, log_path=log_path, progress=bar)
         finally:
             bar.close()
-        metrics, found, _ = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate)
+        metrics, found = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate)
         table.append(table_row(artifact, model_path, metrics, outcome.result.problems() + found))
     return table
 
@@ -122,20 +122,16 @@ def table_row(artifact: ModelArtifact, path: Path, m: dict, found: list[str]) ->
     }
 
 
-def _f(value, digits) -> str:
-    return "–" if value is None else f"{value:.{digits}f}"
-
-
 def print_table(table: list[dict]) -> None:
     header = (f"{'kind':12} {'realization':11} {'step µs':>8} {'cycles':>7} {'µs@90MHz':>9} {'CPU %':>7} "
               f"{'flash kB':>8} {'RAM kB':>7} {'RMSE w':>7} {'RMSE PM':>7} {'|CAN-f32|':>9} {'missing':>7}")
     print(header)
     for r in table:
-        print(f"{r['kind']:12} {r['realization']:11} {_f(r['measured_step_us_p50'], 1):>8} "
-              f"{r['est_cycles'] if r['est_cycles'] is not None else '–':>7} {_f(r['est_exec_us_90MHz'], 1):>9} "
-              f"{_f(r['cpu_load_percent'], 4):>7} {_f((r['flash_bytes'] or 0) / 1024, 2):>8} "
-              f"{_f((r['ram_bytes'] or 0) / 1024, 2):>7} {_f(r['rmse_winding_C'], 3):>7} "
-              f"{_f(r['rmse_magnet_C'], 3):>7} {_f(r['max_abs_can_minus_float32_C'], 4):>9} {r['missing']:>7}")
+        print(f"{r['kind']:12} {r['realization']:11} {fmt(r['measured_step_us_p50'], 1):>8} "
+              f"{r['est_cycles'] if r['est_cycles'] is not None else '–':>7} {fmt(r['est_exec_us_90MHz'], 1):>9} "
+              f"{fmt(r['cpu_load_percent'], 4):>7} {fmt((r['flash_bytes'] or 0) / 1024, 2):>8} "
+              f"{fmt((r['ram_bytes'] or 0) / 1024, 2):>7} {fmt(r['rmse_winding_C'], 3):>7} "
+              f"{fmt(r['rmse_magnet_C'], 3):>7} {fmt(r['max_abs_can_minus_float32_C'], 4):>9} {r['missing']:>7}")
     print("step µs: measured p50 on the target process (Python); cycles and µs@90MHz: the C28x cost-table "
           "estimate; RMSE against " + (table[0]["rmse_reference"] if table else "measured") + " (°C).")
 

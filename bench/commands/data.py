@@ -39,7 +39,7 @@ def seed_value(text: str) -> int:
 
 
 def add_subparser(subparsers) -> None:
-    from bench.drive.dataset import COOLANT_SETPOINTS_C, DEFAULT_SEED
+    from bench.drive.generate import COOLANT_SETPOINTS_C, DEFAULT_SEED
 
     p = subparsers.add_parser("data", help="generate the FTP-75/WLTC3 datasets of the virtual 200 kW motor",
                               description=__doc__ + " Identification uses 20 and 60 °C, validation 40 °C.")
@@ -53,14 +53,8 @@ def add_subparser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.drive.dataset import (
-        GENERATOR_VERSION,
-        ROLES,
-        dataset_filename,
-        default_dataset_dir,
-        generate_and_write,
-        load_dataset,
-    )
+    from bench.drive.dataset import dataset_filename, default_dataset_dir, load_dataset
+    from bench.drive.generate import GENERATOR_VERSION, ROLES, generate_and_write
     from bench.drive.sequence import TestSequence
 
     out_dir = args.out if args.out is not None else default_dataset_dir()

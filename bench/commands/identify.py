@@ -6,8 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, print_json, write_atomically
+from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import UsageError
+from bench.fileio import write_text_atomically
 from bench.model.hammerstein_fit import FIT_PATHS
 from bench.thermal.realizations import REALIZATIONS
 
@@ -54,8 +55,7 @@ def run(args: argparse.Namespace) -> int:
     written = {}
     for kind, path in outputs.items():
         realization = args.realization if kind != "pv-lptn" else "physical"
-        text = _artifact_text(result.content(kind, realization, metrics))
-        write_atomically(path, lambda tmp, text=text: tmp.write_text(text, encoding="utf-8"))
+        write_text_atomically(path, _artifact_text(result.content(kind, realization, metrics)))
         written[kind] = str(path)
     summary = {"artifacts": written, "dt": args.dt, "fit_path": args.fit_path, "realization": args.realization,
                "lptn_parameters": result.lptn.params.as_dict(), "pso_cost": result.lptn.cost,

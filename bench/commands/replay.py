@@ -34,10 +34,10 @@ from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
 from bench.runner import ProgressBar, bus_from_args, load_model, positive_float, replay_with_target
 from dbc import FrameError, frame_id
+from dbc.codec import decode_any
+from dbc.transport import add_bus_arguments
 from host.canlog import LogError, check_log_path, read_log
 from host.replay import count_rows, host_frames
-from target_sim.fastframes import fast_decode_any
-from target_sim.transport import add_bus_arguments
 
 PROCESS_FAULTS = ("kill", "freeze")
 
@@ -68,7 +68,7 @@ def log_model_id(messages) -> int | None:
     for msg in messages:
         if msg.arbitration_id == status and not msg.is_extended_id:
             try:
-                return int(fast_decode_any(msg).signals["ModelId"])
+                return int(decode_any(msg).signals["ModelId"])
             except FrameError:
                 continue
     return None

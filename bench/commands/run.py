@@ -31,7 +31,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, print_json, verdict
+from bench.commands.common import add_output_flags, check_writable, print_json, print_summary, verdict
 from bench.errors import BenchError, UsageError
 from bench.runner import (
     ProgressBar,
@@ -42,9 +42,9 @@ from bench.runner import (
     positive_int,
     run_with_target,
 )
+from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 from host.canlog import LogError, check_log_path
 from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
-from target_sim.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 
 DEFAULT_LOG = Path("out/run/bench.blf")
 DEFAULT_REPORT = Path("out/run/report")
@@ -127,9 +127,9 @@ def run(args: argparse.Namespace) -> int:
     run_info = {"mode": f"{args.mode}" + (f" x{args.speed:g}" if args.mode == "realtime" else ""),
                 "bus": bus.describe()}
     try:
-        metrics, found, _ = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
-                                        args.report, bitrate=bus.nominal_bitrate, run_info=run_info,
-                                        extra_problems=host.problems())
+        metrics, found = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
+                                     args.report, bitrate=bus.nominal_bitrate, run_info=run_info,
+                                     extra_problems=host.problems())
     except (LogError, ValueError) as exc:
         raise BenchError(f"the log {log_path} cannot be analyzed ({exc})") from None
     outcome = verdict(host.problems() + found, fault_note(host.faults), faulted=host.faults is not None,
@@ -185,48 +185,3 @@ def _fault_summary(host_faults: dict | None, log_faults: dict | None) -> dict | 
         out["marked_in_log"] = log_faults["injected"]
         out["gaps_in_log"] = log_faults["gaps"]
     return out
-
-
-def _f(value, digits=3) -> str:
-    return "–" if value is None else f"{value:.{digits}f}"
-
-
-def print_summary(s: dict) -> None:
-    m = s["metrics"]
-    temps = ("winding", "magnet", "yoke", "tooth")
-    print(f"model {m['model']['id']} {m['model']['kind']} ({m['model']['realization']}, dt {m['model']['dt_s']:g} s)")
-    print(f"steps sent {s['steps_sent']}, answered {s['replies']}, missing {s['missing']}, "
-          f"model steps {m['model_steps']}")
-    print(f"max |CAN - {m.get('can_reference', 'offline float32')}| (°C): "
-          + ", ".join(f"{t} {_f(s['max_abs_can_minus_float32_C'][t], 4)}" for t in temps))
-    if m.get("rows_lost_on_the_bus"):
-        print(f"{m['rows_lost_on_the_bus']} rows never reached the target intact; max |CAN - clean run| (°C): "
-              + ", ".join(f"{t} {_f(m['max_abs_can_minus_clean_C'][t], 4)}" for t in temps))
-    print("max |float32 - float64| (°C): " + ", ".join(
-        f"{t} {_f(m['max_abs_float32_minus_float64_C'][t], 4)}" for t in temps))
-    print("RMSE (°C): " + ", ".join(f"{t} {_f(s['rmse_C'][t])} (vs {m['rmse_reference'][t]})" for t in temps))
-    st, rtt = s["step_time_us"], m["round_trip_us"]
-    print(f"step time on the target process p50/p99/max: {_f(st['p50'], 1)}/{_f(st['p99'], 1)}/{_f(st['max'], 1)} µs;"
-          f" estimated C28x: {m['est_cycles']} cycles = {_f(m['est_exec_time_us'], 1)} µs at 90 MHz "
-          f"({_f(m['cpu_load_percent'], 4)} % CPU), flash {m['flash_bytes']} B, RAM {m['ram_bytes']} B")
-    print(f"throughput {_f(s['throughput_steps_per_s'], 0)} steps/s, round trip p50/p99 "
-          f"{_f(rtt['p50'], 0)}/{_f(rtt['p99'], 0)} µs, bus load at the data rate "
-          f"{_f(m['bus_load']['data_rate_percent'], 2)} %")
-    faults = s.get("faults") or m.get("faults")
-    if faults:
-        detected = faults["detected"] or {}
-        print("faults injected/detected: " + ", ".join(
-            f"{k} {n}/{'?' if detected.get(k) is None else detected[k]}" for k, n in faults["injected"].items())
-            + f"; {faults['retransmitted_rows']} rows retransmitted, {len(faults['gaps'])} gap(s)"
-            + "".join(f" rows {g['rows'][0]}-{g['rows'][1]}" for g in faults["gaps"][:5]))
-    print(f"log {s['log']}" + (f", report {s['report']}" if s.get("report") else ""))
-    for note in m.get("notes", []):
-        print(f"note: {note}")
-    if s["problems"]:
-        print("NOT clean: " + "; ".join(s["problems"]))
-    elif faults and faults.get("injected_total"):
-        print(f"{faults['injected_total']} faults injected, "
-              + ("all detected" if faults.get("undetected") == 0 else "detection not verified")
-              + ", nothing else went wrong")
-    else:
-        print("clean")

@@ -8,8 +8,8 @@ Modules (imported on demand; this package imports nothing heavy):
 - stand: coolant inlet and test-cell temperature of the virtual test stand
 - plant: the thermal truth (parameter-varying LPTN, true losses), exact-step and ODE integration
 - sensors: 5 Hz instruments with noise and quantization
-- generate: one measurement run for one coolant set point
-- dataset: schema, CSV + JSON sidecar writer, loader with column mapping, DatasetError
+- generate: one measurement run for one coolant set point, and the default datasets written from them
+- dataset: the file format: schema, CSV + JSON sidecar writer, loader with column mapping, DatasetError
 - baseline: the LTI LPTN with nominal maps, the gap the Hammerstein model has to close
 - plots: PNGs of a dataset (matplotlib, imported lazily)
 """

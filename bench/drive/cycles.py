@@ -34,7 +34,6 @@ CHECKS: dict[str, CycleCheck] = {
     "ftp75": CycleCheck(points=1875, duration_s=1874.0, distance_km=17.769, max_speed_kmh=91.25),
     "wltc3b": CycleCheck(points=1801, duration_s=1800.0, distance_km=23.266, max_speed_kmh=131.3),
 }
-TITLES = {"ftp75": "FTP-75", "wltc3b": "WLTC class 3b"}
 
 
 @dataclass(frozen=True, eq=False)

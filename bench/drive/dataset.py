@@ -1,5 +1,8 @@
 """Dataset files: the schema, the writer (CSV + JSON sidecar), the loader and the column mapping.
 
+Generating the bench's own datasets (the virtual motor's runs) is `bench.drive.generate`'s; this module only
+knows the file format.
+
 Schema (one header line, comma-separated, one row per sample, no blank lines in between):
 
 | column | unit | resolution in generated files | accepted range |
@@ -34,22 +37,13 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bench.commands.common import write_atomically
 from bench.errors import BenchError
-
-if TYPE_CHECKING:
-    from bench.drive.generate import Generated
+from bench.fileio import write_bytes_atomically
 
 SCHEMA_VERSION = 1
-# Bump when anything that changes the generated numbers changes (plant, sensors, stand, sequence, motor).
-GENERATOR_VERSION = "1.1.0"
-DEFAULT_SEED = 20240
-COOLANT_SETPOINTS_C = (20.0, 40.0, 60.0)
-ROLES = {20.0: "identification", 40.0: "validation", 60.0: "identification"}
 SAMPLE_PERIOD_S = 0.2
 PM_OFFSET_K = 5.0
 # Relative tolerance on each time step; generated files are exact, logged data may jitter a little.
@@ -125,17 +119,6 @@ class ColumnMapping:
             if unit not in known:
                 raise DatasetError(f"column mapping: unit {unit!r} of {target!r} is not one of {', '.join(known)}")
 
-    @classmethod
-    def from_dict(cls, data: Mapping) -> ColumnMapping:
-        return cls(dict(data.get("columns", {})), dict(data.get("units", {})))
-
-    @classmethod
-    def from_json(cls, path: Path) -> ColumnMapping:
-        try:
-            return cls.from_dict(json.loads(Path(path).read_text(encoding="utf-8")))
-        except (OSError, ValueError, AttributeError) as exc:
-            raise DatasetError(f"column mapping {path} cannot be read as JSON ({exc})") from None
-
 
 @dataclass(frozen=True, eq=False)
 class Dataset:
@@ -208,71 +191,17 @@ def csv_bytes(columns: Mapping[str, np.ndarray]) -> bytes:
     return out.getvalue().encode("ascii")
 
 
-def write_file(path: Path, payload: bytes) -> None:
-    """Write bytes through a temporary name and a rename: never a half-written file."""
-    write_atomically(path, lambda tmp: tmp.write_bytes(payload))
-
-
 def write_dataset(csv_path: Path, columns: Mapping[str, np.ndarray], sidecar: dict) -> str:
     """Write the CSV, then its sidecar with the CSV's sha256 (each atomically); returns the sha256."""
     payload = csv_bytes(columns)
     sha = hashlib.sha256(payload).hexdigest()
-    write_file(csv_path, payload)
+    write_bytes_atomically(csv_path, payload)
     meta = {**sidecar, "schema_version": SCHEMA_VERSION, "rows": len(columns["time_s"]), "sha256": sha,
             "columns": [{"name": c.name, "unit": c.unit, "resolution": c.resolution, "description": c.description}
                         for c in SCHEMA]}
     text = json.dumps(meta, indent=2, sort_keys=True, ensure_ascii=False) + "\n"
-    write_file(sidecar_path(csv_path), text.encode("utf-8"))
+    write_bytes_atomically(sidecar_path(csv_path), text.encode("utf-8"))
     return sha
-
-
-def ensure_default_datasets(out_dir: Path | None = None, seed: int | None = None) -> dict[int, Path]:
-    """The three datasets (coolant 20, 40, 60 °C) in out_dir, generated where missing or stale.
-
-    A file is reused when its sidecar names this generator version and seed and its sha256 matches.
-    """
-    out_dir = Path(out_dir) if out_dir is not None else default_dataset_dir()
-    seed = DEFAULT_SEED if seed is None else seed
-    paths = {}
-    for setpoint in COOLANT_SETPOINTS_C:
-        path = out_dir / dataset_filename(setpoint)
-        if not _is_current(path, seed, GENERATOR_VERSION):
-            generate_and_write(path, setpoint, seed)
-        paths[int(setpoint)] = path
-    return paths
-
-
-def _is_current(path: Path, seed: int, version: str) -> bool:
-    try:
-        meta = json.loads(sidecar_path(path).read_text(encoding="utf-8"))
-        return (meta.get("seed") == seed and meta.get("generator_version") == version
-                and meta.get("sha256") == dataset_sha256(path))
-    except (OSError, ValueError):
-        return False
-
-
-def generate_and_write(path: Path, setpoint_C: float, seed: int) -> tuple[Generated, str]:
-    """Generate one dataset and write it with its sidecar; returns (Generated, sha256)."""
-    from bench.drive import generate as gen
-    from bench.drive.plant import TRUE_EFFECTS
-    from bench.drive.sequence import TestSequence
-    from bench.drive.stand import STAND
-
-    sequence = TestSequence()
-    result = gen.generate(setpoint_C, seed, sequence)
-    sidecar = {
-        "generator": "bench.drive", "generator_version": GENERATOR_VERSION, "seed": seed,
-        "coolant_setpoint_C": setpoint_C, "role": ROLES.get(setpoint_C, "extra"),
-        "sample_period_s": SAMPLE_PERIOD_S, "duration_s": sequence.duration_s,
-        "initial_state": "all nodes at the coolant set point",
-        "phases": [{"name": p.name, "kind": p.kind, "start_s": p.start_s, "end_s": p.end_s} for p in sequence.phases],
-        "preheat": {"torque_Nm": sequence.preheat.torque_Nm, "speed_rpm": sequence.preheat.speed_rpm,
-                    "ramp_s": sequence.preheat.ramp_s},
-        "thermal_parameters": gen.PARAMETER_SET, "motor": sequence.motor.as_dict(),
-        "vehicle": sequence.vehicle.as_dict(), "true_effects": TRUE_EFFECTS.as_dict(), "stand": STAND.as_dict(),
-    }
-    sha = write_dataset(path, result.columns, sidecar)
-    return result, sha
 
 
 # ---------------------------------------------------------------- loading

@@ -1,12 +1,15 @@
-"""One synthetic measurement run: test sequence -> stand -> virtual motor -> sensors, for one coolant set point."""
+"""The bench's own datasets: one synthetic measurement run (test sequence -> stand -> virtual motor -> sensors) per
+coolant set point, written as dataset files (`bench.drive.dataset`'s format) with the sidecar that says how."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from bench.drive.dataset import DEFAULT_SEED
+from bench.drive.dataset import dataset_filename, dataset_sha256, default_dataset_dir, sidecar_path, write_dataset
 from bench.drive.plant import PLANT_STEP_S, TRUE_EFFECTS, TrueEffects, simulate
 from bench.drive.sensors import SAMPLE_PERIOD_S, measure
 from bench.drive.sequence import TestSequence
@@ -14,6 +17,11 @@ from bench.drive.stand import STAND, StandSpec, environment
 from bench.thermal.parameters import TABLE1_REFINED, LptnParameters
 
 PARAMETER_SET = "table1-refined"
+# Bump when anything that changes the generated numbers changes (plant, sensors, stand, sequence, motor).
+GENERATOR_VERSION = "1.1.0"
+DEFAULT_SEED = 20240
+COOLANT_SETPOINTS_C = (20.0, 40.0, 60.0)
+ROLES = {20.0: "identification", 40.0: "validation", 60.0: "identification"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,3 +64,47 @@ def generate(setpoint_C: float, seed: int = DEFAULT_SEED, sequence: TestSequence
              "tooth_C": states[:, 2], "magnet_C": states[:, 3]}
     measured = measure(truth, np.random.default_rng(sensor_ss))
     return Generated(setpoint_C, seed, {"time_s": t, **measured}, truth)
+
+
+def ensure_default_datasets(out_dir: Path | None = None, seed: int | None = None) -> dict[int, Path]:
+    """The three datasets (coolant 20, 40, 60 °C) in out_dir, generated where missing or stale.
+
+    A file is reused when its sidecar names this generator version and seed and its sha256 matches.
+    """
+    out_dir = Path(out_dir) if out_dir is not None else default_dataset_dir()
+    seed = DEFAULT_SEED if seed is None else seed
+    paths = {}
+    for setpoint in COOLANT_SETPOINTS_C:
+        path = out_dir / dataset_filename(setpoint)
+        if not _is_current(path, seed, GENERATOR_VERSION):
+            generate_and_write(path, setpoint, seed)
+        paths[int(setpoint)] = path
+    return paths
+
+
+def _is_current(path: Path, seed: int, version: str) -> bool:
+    try:
+        meta = json.loads(sidecar_path(path).read_text(encoding="utf-8"))
+        return (meta.get("seed") == seed and meta.get("generator_version") == version
+                and meta.get("sha256") == dataset_sha256(path))
+    except (OSError, ValueError):
+        return False
+
+
+def generate_and_write(path: Path, setpoint_C: float, seed: int) -> tuple[Generated, str]:
+    """Generate one dataset and write it with its sidecar; returns (Generated, sha256)."""
+    sequence = TestSequence()
+    result = generate(setpoint_C, seed, sequence)
+    sidecar = {
+        "generator": "bench.drive", "generator_version": GENERATOR_VERSION, "seed": seed,
+        "coolant_setpoint_C": setpoint_C, "role": ROLES.get(setpoint_C, "extra"),
+        "sample_period_s": SAMPLE_PERIOD_S, "duration_s": sequence.duration_s,
+        "initial_state": "all nodes at the coolant set point",
+        "phases": [{"name": p.name, "kind": p.kind, "start_s": p.start_s, "end_s": p.end_s} for p in sequence.phases],
+        "preheat": {"torque_Nm": sequence.preheat.torque_Nm, "speed_rpm": sequence.preheat.speed_rpm,
+                    "ramp_s": sequence.preheat.ramp_s},
+        "thermal_parameters": PARAMETER_SET, "motor": sequence.motor.as_dict(),
+        "vehicle": sequence.vehicle.as_dict(), "true_effects": TRUE_EFFECTS.as_dict(), "stand": STAND.as_dict(),
+    }
+    sha = write_dataset(path, result.columns, sidecar)
+    return result, sha

@@ -8,9 +8,10 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
-from bench.drive.dataset import Dataset, write_file
+from bench.drive.dataset import Dataset
 from bench.drive.motor import VIRTUAL_MOTOR, MotorSpec
 from bench.drive.sequence import TestSequence
+from bench.fileio import write_bytes_atomically
 
 
 def plot_dataset(dataset: Dataset, png: Path, spec: MotorSpec = VIRTUAL_MOTOR) -> Path:
@@ -44,6 +45,6 @@ def plot_dataset(dataset: Dataset, png: Path, spec: MotorSpec = VIRTUAL_MOTOR) -
     fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
-    write_file(png, buffer.getvalue())
+    write_bytes_atomically(png, buffer.getvalue())
     plt.close(fig)
     return png

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.analysis.metrics import error_metrics
 from bench.drive.motor import VIRTUAL_MOTOR, LossMaps, MotorSpec, nominal_loss_maps
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.hammerstein_fit import HammersteinFit, fit_hammerstein
 from bench.model.lptn_fit import LptnFit, identify_lptn
+from bench.model.metrics import error_metrics
 from bench.model.runs import ModelRun, model_run
 from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.parameters import LptnParameters

@@ -5,7 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from bench.drive.dataset import Dataset, dataset_filename, ensure_default_datasets, load_dataset
+from bench.drive.dataset import Dataset, dataset_filename, load_dataset
+from bench.drive.generate import ensure_default_datasets
 from bench.errors import BenchError
 from bench.model.artifact_eval import evaluate_artifact
 from bench.model.identify import (

@@ -12,11 +12,6 @@ import numpy as np
 
 from bench.thermal.parameters import COOLANT_REFERENCE_C, LptnParameters
 
-STATE_NAMES = ("yoke", "winding", "tooth", "magnet")
-LTI_INPUT_NAMES = ("P_y", "P_w", "P_t", "P_m", "theta_cv", "theta_av", "theta_a1", "theta_a2")
-PV_INPUT_NAMES = ("P_y", "P_w", "P_t", "P_m", "theta_c", "theta_a")
-N_STATES = 4
-
 
 def speed_varying_part(r0, b, speed_ratio):
     """R_xx1 of eq. 15: the speed-dependent part R0·exp(-(ω/ω_max)/b) of a convection resistance."""

@@ -20,7 +20,7 @@ from dbc.transport import BusConfig, free_udp_port
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
 
-from .conftest import ROOT, run_cli, subprocess_env
+from helpers import ROOT, run_cli, subprocess_env
 
 DBC = ROOT / "dbc" / "thermal_bench.dbc"
 

@@ -15,7 +15,7 @@ from bench.runner import refuse_foreign_target
 from dbc import FrameCodec, dbc_version_info
 from dbc.transport import IN_USE_LISTEN_S, UDP_IPV4_GROUP, UDP_LOCAL_GROUP, BusConfig
 
-from .conftest import run_cli
+from helpers import run_cli
 
 MODEL_ID = 0x1A2B3C4D
 

@@ -10,7 +10,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.drive.dataset import COOLANT_SETPOINTS_C, DEFAULT_SEED, dataset_filename, generate_and_write
+from bench.drive.dataset import dataset_filename
+from bench.drive.generate import COOLANT_SETPOINTS_C, DEFAULT_SEED, generate_and_write
 
 
 def main() -> int:

@@ -12,7 +12,8 @@ import resource
 import time
 from pathlib import Path
 
-from bench.drive.dataset import ensure_default_datasets, load_dataset
+from bench.drive.dataset import load_dataset
+from bench.drive.generate import ensure_default_datasets
 from bench.drive.motor import VIRTUAL_MOTOR, nominal_loss_maps
 from bench.model.builder import ModelSpec, physical_block
 from bench.model.hammerstein_fit import fit_hammerstein

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from bench.drive.dataset import DEFAULT_SEED, ensure_default_datasets, load_dataset
+from bench.drive.dataset import load_dataset
+from bench.drive.generate import DEFAULT_SEED, ensure_default_datasets
 
 
 @pytest.fixture(scope="session")

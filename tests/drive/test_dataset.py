@@ -5,16 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from bench.drive.dataset import (
-    COLUMNS,
-    DEFAULT_SEED,
-    GENERATOR_VERSION,
-    dataset_sha256,
-    ensure_default_datasets,
-    generate_and_write,
-    sidecar_path,
-)
-from bench.drive.generate import generate
+from bench.drive.dataset import COLUMNS, dataset_sha256, sidecar_path
+from bench.drive.generate import DEFAULT_SEED, GENERATOR_VERSION, ensure_default_datasets, generate, generate_and_write
 
 
 def test_three_datasets_with_roles_rows_and_sidecars(dataset_paths, datasets):

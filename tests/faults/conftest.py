@@ -1,52 +1,24 @@
-"""Fixtures of the fault-injection tests: a small synthetic dataset and run-unique udp_multicast buses."""
+"""Fixtures of the fault-injection tests: a small synthetic dataset (`udp_bus`: tests/conftest.py), and
+`bench_run`, a run through a real target process analysed as `bench run` does."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from dbc.transport import BusConfig, resolve
+from dbc.transport import BusConfig
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def synthetic_columns(rows: int, seed: int = 11) -> dict[str, np.ndarray]:
-    """A drive-like dataset at 5 Hz: torque and speed random walks, slow coolant/ambient drift."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(rows) * 0.2
-    torque = np.round(np.clip(np.cumsum(rng.normal(0, 25, rows)) + 150, -600, 640), 1)
-    speed = np.round(np.clip(np.abs(np.cumsum(rng.normal(0, 120, rows))) + 500, 0, 9000), 0)
-    coolant = np.round(40 + 2 * np.sin(t / 40.0), 1)
-    ambient = np.round(25 + 0.5 * np.sin(t / 70.0), 1)
-    winding = np.round(40 + 30 * (1 - np.exp(-t / 300.0)), 1)
-    surface = np.round(40 + 10 * (1 - np.exp(-t / 900.0)), 1)
-    return {"time_s": t, "torque_Nm": torque, "speed_rpm": speed, "coolant_C": coolant, "ambient_C": ambient,
-            "winding_C": winding, "rotor_surface_C": surface, "pm_C": np.round(surface + 5.0, 1)}
+from helpers import synthetic_columns, write_synthetic_dataset
 
 
 @pytest.fixture(scope="session")
 def fault_dataset(tmp_path_factory) -> Path:
-    from bench.drive.dataset import write_dataset
-
-    path = tmp_path_factory.mktemp("faultdata") / "drive.csv"
-    write_dataset(path, synthetic_columns(700), {"coolant_setpoint_C": 40.0, "note": "synthetic fault-test data"})
-    return path
-
-
-@pytest.fixture
-def udp_bus() -> BusConfig:
-    return resolve(BusConfig("udp_multicast"), session_unique=True)
-
-
-def run_cli(*argv: str, timeout: float = 180) -> subprocess.CompletedProcess:
-    env = dict(os.environ, MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
-    return subprocess.run([sys.executable, *argv], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=timeout)
+    """700 rows of torque and speed random walks with some load (150 Nm, 500 rpm on average)."""
+    columns = synthetic_columns(700, seed=11, torque_sd=25.0, torque_offset=150.0, torque_max=640.0, speed_sd=120.0,
+                                speed_offset=500.0, coolant_period=40.0, ambient_period=70.0)
+    return write_synthetic_dataset(tmp_path_factory.mktemp("faultdata") / "drive.csv", columns,
+                                   "synthetic fault-test data")
 
 
 def bench_run(dataset_path: Path, log: Path, bus: BusConfig, faults=None, *, rows: int, **options):

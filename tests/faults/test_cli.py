@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from .conftest import ROOT, run_cli
+from helpers import ROOT, run_cli
 
 DBC = ROOT / "dbc" / "thermal_bench.dbc"
 LATE = "missed their reply deadline without an injected fault"  # a reply later than 50 ms: a loaded machine

@@ -12,6 +12,7 @@ from host.faults.bus import Injection
 from host.faults.reconcile import CHAINED
 
 from .conftest import bench_run
+from helpers import private_udp_bus
 
 ROWS = 200
 SPEED = 2.0              # 100 ms between rows: room for 4 reply timeouts
@@ -26,9 +27,7 @@ def result_injections(result) -> list[Injection]:
 
 @pytest.fixture(scope="module")
 def faulted(tmp_path_factory, fault_dataset):
-    from dbc.transport import BusConfig, resolve
-
-    bus = resolve(BusConfig("udp_multicast"), session_unique=True)
+    bus = private_udp_bus()
     spec = parse_faults([",".join(f"{k}=0.02" for k in KINDS)], seed=2)
     return bench_run(fault_dataset, tmp_path_factory.mktemp("rt") / "rt.blf", bus, spec, rows=ROWS, mode="realtime",
                      speed=SPEED, reply_timeout_s=REPLY_TIMEOUT_S)

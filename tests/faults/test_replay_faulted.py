@@ -12,8 +12,8 @@ import pytest
 from bench.analysis.logdecode import decode_log
 from host.run import injected_ids
 
-from .conftest import run_cli
 from .test_cli import load_only
+from helpers import run_cli
 
 ROWS = 500
 # every bus fault; rates high enough that each kind occurs in 500 rows with this seed

@@ -26,6 +26,7 @@ from host.faults import KINDS, parse_faults, read_sidecar
 from target_sim.artifact import load_artifact
 
 from .conftest import bench_run
+from helpers import private_udp_bus
 
 ROWS = 500
 RATES = {"drop": "0.015", "duplicate": "0.015", "corrupt": "0.015", "stale_counter": "0.015",
@@ -38,9 +39,7 @@ assert set(RATES) == set(KINDS)
 
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory, fault_dataset):
-    from dbc.transport import BusConfig, resolve
-
-    bus = resolve(BusConfig("udp_multicast"), session_unique=True)
+    bus = private_udp_bus()
     log = tmp_path_factory.mktemp("clean") / "clean.blf"
     result, metrics, record = bench_run(fault_dataset, log, bus, rows=ROWS)
     assert result.aborted is None and result.missing == 0 and metrics["missing"] == 0, result.problems()

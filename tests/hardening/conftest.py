@@ -19,21 +19,17 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from helpers import ROOT, artifact_text, subprocess_env, synthetic_columns, write_synthetic_dataset
+
 ZYGOTE = Path(__file__).with_name("zygote.py")
 ALWAYS_SUBPROCESS = os.environ.get("HARDENING_SUBPROCESS") == "1"
 
 
 def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
-    env = dict(os.environ)
-    env.update({"MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1", "OPENBLAS_NUM_THREADS": "1"})
-    for key in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
-        env.pop(key, None)  # the developer's python-can settings must not change the cases
-    env.update(extra or {})
-    return env
+    # the developer's python-can settings must not change the cases
+    return subprocess_env(can_settings=False, OPENBLAS_NUM_THREADS="1", **(extra or {}))
 
 
 @dataclass
@@ -125,39 +121,6 @@ def cli(tmp_path_factory) -> Cli:
 # ---------------------------------------------------------------- good inputs
 
 
-def synthetic_columns(rows: int, seed: int = 11) -> dict[str, np.ndarray]:
-    """A small drive-like dataset at 5 Hz (values at the CAN resolution)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(rows) * 0.2
-    torque = np.round(np.clip(np.cumsum(rng.normal(0, 20, rows)), -600, 600), 1)
-    speed = np.round(np.clip(np.abs(np.cumsum(rng.normal(0, 100, rows))), 0, 9000), 0)
-    coolant = np.round(40 + 1.5 * np.sin(t / 30.0), 1)
-    ambient = np.round(25 + 0.5 * np.sin(t / 45.0), 1)
-    winding = np.round(40 + 0.05 * t, 1)
-    surface = np.round(40 + 0.02 * t, 1)
-    return {"time_s": t, "torque_Nm": torque, "speed_rpm": speed, "coolant_C": coolant, "ambient_C": ambient,
-            "winding_C": winding, "rotor_surface_C": surface, "pm_C": np.round(surface + 5.0, 1)}
-
-
-def build_artifact_text(kind: str = "hammerstein") -> str:
-    from bench.drive.motor import VIRTUAL_MOTOR, nominal_loss_maps
-    from bench.model.builder import ModelSpec, SigmoidInputs, build_artifact
-    from bench.thermal.parameters import TABLE1_REFINED
-    from target_sim.artifact import dumps
-
-    maps = nominal_loss_maps()
-    if kind == "hammerstein":
-        sigmoid = SigmoidInputs.from_vector([900.0, 3000.0, 700.0, 120.0],
-                                            np.r_[np.full(4, 2.0), np.zeros(4), np.full(4, 0.3), np.full(4, 0.8),
-                                                  np.zeros(4)])
-        spec = ModelSpec("hammerstein", TABLE1_REFINED, 0.5, "zoh", "balanced", maps, VIRTUAL_MOTOR, sigmoid=sigmoid)
-    elif kind == "pv-lptn":
-        spec = ModelSpec("pv-lptn", TABLE1_REFINED, 0.5, "euler", "physical", maps, VIRTUAL_MOTOR)
-    else:
-        spec = ModelSpec("lti-lptn", TABLE1_REFINED, 0.5, "zoh", "balanced", maps, VIRTUAL_MOTOR)
-    return dumps(build_artifact(spec))
-
-
 @dataclass
 class Material:
     root: Path
@@ -178,15 +141,16 @@ class Material:
 
 @pytest.fixture(scope="session")
 def material(tmp_path_factory, cli) -> Material:
-    from bench.drive.dataset import csv_bytes, write_dataset
+    from bench.drive.dataset import csv_bytes
 
     root = tmp_path_factory.mktemp("material")
     art, lti = root / "art.json", root / "lti.json"
-    art.write_text(build_artifact_text("hammerstein"), encoding="utf-8")
-    lti.write_text(build_artifact_text("lti-lptn"), encoding="utf-8")
+    art.write_text(artifact_text("hammerstein"), encoding="utf-8")
+    lti.write_text(artifact_text("lti-lptn"), encoding="utf-8")
     data = root / "data" / "small.csv"
-    columns = synthetic_columns(60)
-    write_dataset(data, columns, {"coolant_setpoint_C": 40.0, "note": "hardening tests"})
+    columns = synthetic_columns(60, seed=11, torque_sd=20.0, speed_sd=100.0, coolant_amplitude=1.5, coolant_period=30.0,
+                                ambient_period=45.0, linear_warming=True)
+    write_synthetic_dataset(data, columns, "hardening tests")
     campaign = root / "campaign"
     campaign.mkdir()
     for coolant in (20, 40, 60):
@@ -215,7 +179,7 @@ def material(tmp_path_factory, cli) -> Material:
 @pytest.fixture(scope="session")
 def artifact_texts() -> dict[str, str]:
     """Valid artifacts of the three kinds, as JSON text."""
-    return {kind: build_artifact_text(kind) for kind in ("hammerstein", "lti-lptn", "pv-lptn")}
+    return {kind: artifact_text(kind) for kind in ("hammerstein", "lti-lptn", "pv-lptn")}
 
 
 @pytest.fixture

@@ -28,7 +28,8 @@ import pytest
 
 from host.canlog import mf4_available
 
-ROOT = Path(__file__).resolve().parents[2]
+from helpers import ROOT
+
 IDENTIFY_FAST = ("--swarm", "6", "--iterations", "2", "--lm-iterations", "2", "--quiet")
 REBUILD = "rebuild it with 'bench identify'"
 LOG_FIX = "pass a complete log written by 'bench run' or the host"

@@ -1,6 +1,7 @@
 import pytest
 
-from bench.drive.dataset import ensure_default_datasets, load_dataset
+from bench.drive.dataset import load_dataset
+from bench.drive.generate import ensure_default_datasets
 
 
 @pytest.fixture(scope="session")

@@ -1,10 +1,10 @@
 import json
-import subprocess
-import sys
 
 import pytest
 
 from bench.cli import main
+
+from helpers import run_cli
 
 
 def test_numerics_json_has_the_documented_shape(capsys):
@@ -37,7 +37,7 @@ def test_numerics_table_mentions_every_realization(capsys):
     (["--bogus"], "unrecognized arguments"),
 ])
 def test_bad_arguments_give_one_sentence_and_status_2(args, fragment):
-    proc = subprocess.run([sys.executable, "-m", "bench", "numerics", *args], capture_output=True, text=True)
+    proc = run_cli("-m", "bench", "numerics", *args)
     assert proc.returncode == 2
     assert fragment in proc.stderr
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1

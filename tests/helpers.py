@@ -1,0 +1,108 @@
+"""What the test directories share: the repository root, synthetic drive data, small model artifacts, a private
+udp_multicast bus, and a runner for the command-line entry points in a child process.
+
+The tests run with `--import-mode=importlib`, which puts nothing on sys.path; tests/conftest.py loads this file
+as the module `helpers` (see there why not through sys.path), so any test module or conftest can
+`from helpers import ...`.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# ---------------------------------------------------------------- data
+
+
+def synthetic_columns(rows: int, seed: int = 5, *, torque_sd: float = 15.0, torque_offset: float = 0.0,
+                      torque_max: float = 600.0, speed_sd: float = 80.0, speed_offset: float = 0.0,
+                      coolant_amplitude: float = 2.0, coolant_period: float = 60.0, ambient_period: float = 90.0,
+                      linear_warming: bool = False) -> dict[str, np.ndarray]:
+    """A drive-like dataset at 5 Hz, values at the CAN resolution: torque and speed random walks (clipped to
+    -600..`torque_max` Nm and 0..9000 rpm), slow sinusoidal coolant and ambient drift (periods in units of
+    2π seconds), winding and rotor surface warming from 40 °C (exponentially, or linearly with
+    `linear_warming`), PM = surface + 5 °C."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(rows) * 0.2
+    torque = np.round(np.clip(np.cumsum(rng.normal(0, torque_sd, rows)) + torque_offset, -600, torque_max), 1)
+    speed = np.round(np.clip(np.abs(np.cumsum(rng.normal(0, speed_sd, rows))) + speed_offset, 0, 9000), 0)
+    coolant = np.round(40 + coolant_amplitude * np.sin(t / coolant_period), 1)
+    ambient = np.round(25 + 0.5 * np.sin(t / ambient_period), 1)
+    if linear_warming:
+        winding = np.round(40 + 0.05 * t, 1)
+        surface = np.round(40 + 0.02 * t, 1)
+    else:
+        winding = np.round(40 + 30 * (1 - np.exp(-t / 300.0)), 1)
+        surface = np.round(40 + 10 * (1 - np.exp(-t / 900.0)), 1)
+    return {"time_s": t, "torque_Nm": torque, "speed_rpm": speed, "coolant_C": coolant, "ambient_C": ambient,
+            "winding_C": winding, "rotor_surface_C": surface, "pm_C": np.round(surface + 5.0, 1)}
+
+
+def write_synthetic_dataset(path: Path, columns: dict[str, np.ndarray], note: str) -> Path:
+    """`columns` as a dataset file with its sidecar (coolant set point 40 °C); returns `path`."""
+    from bench.drive.dataset import write_dataset
+
+    write_dataset(path, columns, {"coolant_setpoint_C": 40.0, "note": note})
+    return path
+
+
+# ---------------------------------------------------------------- models
+
+
+def model_spec(kind: str = "hammerstein", realization: str = "balanced"):
+    """A ModelSpec of the packaged parameters at Δt = 0.5 s with nominal maps: pv-lptn (euler, physical), or
+    lti-lptn / hammerstein (zoh, `realization`); the Hammerstein model with a real (non-identity) sigmoid."""
+    from bench.drive.motor import VIRTUAL_MOTOR, nominal_loss_maps
+    from bench.model.builder import ModelSpec, SigmoidInputs
+    from bench.thermal.parameters import TABLE1_REFINED
+
+    maps = nominal_loss_maps()
+    if kind == "pv-lptn":
+        return ModelSpec("pv-lptn", TABLE1_REFINED, 0.5, "euler", "physical", maps, VIRTUAL_MOTOR)
+    sigmoid = None
+    if kind == "hammerstein":
+        sigmoid = SigmoidInputs.from_vector([900.0, 3000.0, 700.0, 120.0],
+                                            np.r_[np.full(4, 2.0), np.zeros(4), np.full(4, 0.3), np.full(4, 0.8),
+                                                  np.zeros(4)])
+    return ModelSpec(kind, TABLE1_REFINED, 0.5, "zoh", realization, maps, VIRTUAL_MOTOR, sigmoid=sigmoid)
+
+
+def artifact_text(kind: str = "hammerstein", realization: str = "balanced") -> str:
+    """The model artifact of `model_spec(kind, realization)` as JSON text."""
+    from bench.model.builder import build_artifact
+    from target_sim.artifact import dumps
+
+    return dumps(build_artifact(model_spec(kind, realization)))
+
+
+# ---------------------------------------------------------------- processes and buses
+
+
+def subprocess_env(*, can_settings: bool = True, **extra: str) -> dict[str, str]:
+    """The environment of a child process: this one's, with the Agg backend and unbuffered output; without the
+    developer's python-can settings (CAN_INTERFACE, CAN_CHANNEL, ...) unless `can_settings`; then `extra`."""
+    env = {k: v for k, v in os.environ.items() if can_settings or not k.startswith("CAN_")}
+    env.update(MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
+    env.update(extra)
+    return env
+
+
+def run_cli(*argv: str, cwd: Path | None = None, timeout: float = 180,
+            can_settings: bool = True) -> subprocess.CompletedProcess:
+    """`python ARGV...` (e.g. "-m", "bench", "run", ...) in the repository root by default, output captured."""
+    return subprocess.run([sys.executable, *argv], cwd=cwd or ROOT, env=subprocess_env(can_settings=can_settings),
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def private_udp_bus():
+    """A udp_multicast bus no other test (or run) shares, on the machine-local group `auto` uses."""
+    from dbc.transport import BusConfig, resolve
+
+    return resolve(BusConfig("udp_multicast"), session_unique=True)
