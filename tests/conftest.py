@@ -26,10 +26,30 @@ def _load_helpers():
 
 _load_helpers()
 
-from helpers import private_udp_bus  # noqa: E402
+from helpers import artifact_text, private_udp_bus, synthetic_columns, write_synthetic_dataset  # noqa: E402
 
 
 @pytest.fixture
 def udp_bus():
     """A udp_multicast bus no other test (or run) shares, on the machine-local group `auto` uses."""
     return private_udp_bus()
+
+
+@pytest.fixture(scope="session")
+def small_dataset(tmp_path_factory) -> Path:
+    return write_synthetic_dataset(tmp_path_factory.mktemp("data") / "small.csv", synthetic_columns(600),
+                                   "synthetic test data")
+
+
+@pytest.fixture(scope="session")
+def artifacts(tmp_path_factory) -> dict[str, Path]:
+    """lti (balanced), original (lti, the paper's polynomial realization), modal (lti), pv, hammerstein (a real
+    sigmoid)."""
+    kinds = {"lti": ("lti-lptn", "balanced"), "original": ("lti-lptn", "original"), "modal": ("lti-lptn", "modal"),
+             "pv": ("pv-lptn", "physical"), "hammerstein": ("hammerstein", "balanced")}
+    out = tmp_path_factory.mktemp("artifacts")
+    paths = {}
+    for name, (kind, realization) in kinds.items():
+        paths[name] = out / f"{name}.json"
+        paths[name].write_text(artifact_text(kind, realization), encoding="utf-8")
+    return paths
