@@ -148,16 +148,30 @@ class FrameCodec:
         units; enum signals also take their value-table names. Values outside the DBC range raise
         FrameError("out_of_range") instead of wrapping, and a refused frame does not use up a counter value.
         """
-        layout = layout_named(name)
+        layout = contract().by_name.get(name) or layout_named(name)
         if layout.sender != self.sender:
             raise FrameError("unknown_id", f"message {name} is sent by {layout.sender}, not by {self.sender}.")
-        if len(signals) != len(layout.signals):
+        if len(signals) != len(layout.packed):
             _check_signal_set(layout, signals)
         word = 0
-        for s in layout.signals:
-            if s.name not in signals:
-                _check_signal_set(layout, signals)
-            word |= _raw_value(layout, s, signals[s.name]) << s.start
+        # the common case inline (a number in range); anything else through _raw_value, which also words the error
+        for sig_name, start, length, signed, mask, conversion, low, high, inline, offset, scale, ieee in layout.packed:
+            value = signals.get(sig_name)
+            kind = type(value)
+            if (kind is not float and kind is not int) or ieee is not None or not low <= value <= high:  # type: ignore
+                if value is None:
+                    _check_signal_set(layout, signals)
+                word |= _raw_value(layout, layout.signal(sig_name), value) << start  # type: ignore[arg-type]
+                continue
+            raw = round((value - offset) / scale) if inline else conversion.numeric_scaled_to_raw(value)
+            if signed:
+                if not -(1 << (length - 1)) <= raw < (1 << (length - 1)):
+                    raw = _raw_value(layout, layout.signal(sig_name), value)   # raises, in words
+                word |= (raw & mask) << start
+            elif 0 <= raw <= mask:
+                word |= raw << start
+            else:
+                word |= _raw_value(layout, layout.signal(sig_name), value) << start  # raises, in words
         fid = layout.frame_id
         counter = self._next_counter.get(fid, 0)
         payload = bytearray((word | counter << 8).to_bytes(FRAME_LENGTH, "little"))
@@ -199,18 +213,19 @@ def _check_frame(msg: can.Message, accepted: frozenset[int] | None) -> tuple[Mes
         raise FrameError("crc", f"{layout.label} has CRC 0x{payload[0]:02X} instead of 0x{expected_crc:02X}.")
     word = int.from_bytes(payload, "little")
     values: dict[str, SignalValue] = {}
-    for s in layout.signals:
-        raw = (word >> s.start) & s.mask
-        if s.ieee is not None:
-            value = struct.unpack(s.ieee[0], struct.pack(s.ieee[1], raw))[0]
+    for name, start, length, signed, mask, conversion, low, high, _, _, _, ieee in layout.packed:
+        raw = (word >> start) & mask
+        if ieee is not None:
+            value = struct.unpack(ieee[0], struct.pack(ieee[1], raw))[0]
         else:
-            if s.signed and raw >> (s.length - 1):
-                raw -= 1 << s.length
-            value = s.conversion.raw_to_scaled(raw, False)
-        if not s.low <= value <= s.high:
-            raise FrameError("out_of_range", f"{layout.label} carries {s.name} = {_format_value(float(value), s.unit)}"
+            if signed and raw >> (length - 1):
+                raw -= 1 << length
+            value = conversion.raw_to_scaled(raw, False)
+        if not low <= value <= high:
+            s = layout.signal(name)
+            raise FrameError("out_of_range", f"{layout.label} carries {name} = {_format_value(float(value), s.unit)}"
                              f", outside its range {_format_range(s)}.")
-        values[s.name] = value
+        values[name] = value
     return layout, values, payload[1] & 0x0F
 
 

@@ -47,14 +47,13 @@ class SignalLayout:
     scale: float
     ieee: tuple[str, str] | None  # struct formats (float, bits) of an IEEE float signal (SIG_VALTYPE_)
     choices: Mapping[str, int]  # value-table names -> raw values of an enum signal
+    low: float                  # minimum - tolerance: what still encodes and validates
+    high: float                 # maximum + tolerance
 
-    @property
-    def low(self) -> float:
-        return self.minimum - self.tolerance
-
-    @property
-    def high(self) -> float:
-        return self.maximum + self.tolerance
+    def packed(self) -> tuple:
+        """The fields the codec's per-frame loops read, as one tuple (unpacked once per signal: fast)."""
+        return (self.name, self.start, self.length, self.signed, self.mask, self.conversion, self.low, self.high,
+                self.inline, self.offset, self.scale, self.ieee)
 
 
 @dataclass(frozen=True)
@@ -68,6 +67,7 @@ class MessageLayout:
     signals: tuple[SignalLayout, ...]
     cycle_time_ms: int
     message: DbcMessage
+    packed: tuple[tuple, ...]   # SignalLayout.packed() of every signal, in order
 
     @property
     def label(self) -> str:
@@ -147,12 +147,14 @@ def _contract_problem(database: Database) -> str | None:
 
 
 def _signal_layout(s) -> SignalLayout:
+    minimum = -math.inf if s.minimum is None else float(s.minimum)
+    maximum = math.inf if s.maximum is None else float(s.maximum)
+    tolerance = abs(s.conversion.scale) * 1e-6
     return SignalLayout(
         name=s.name, start=s.start, length=s.length, signed=s.is_signed, mask=(1 << s.length) - 1,
         conversion=s.conversion,
-        minimum=-math.inf if s.minimum is None else float(s.minimum),
-        maximum=math.inf if s.maximum is None else float(s.maximum),
-        tolerance=abs(s.conversion.scale) * 1e-6, unit=s.unit or "",
+        minimum=minimum, maximum=maximum, tolerance=tolerance, low=minimum - tolerance, high=maximum + tolerance,
+        unit=s.unit or "",
         inline=type(s.conversion).__name__ in ("IdentityConversion", "LinearConversion", "NamedSignalConversion"),
         offset=s.conversion.offset, scale=s.conversion.scale,
         ieee=_FLOAT_FORMATS[s.length] if s.conversion.is_float else None,
@@ -167,12 +169,13 @@ def contract() -> Contract:
     for message in database.messages:
         attributes = message.dbc.attributes
         cycle = attributes.get("GenMsgCycleTime")
+        signals = tuple(_signal_layout(s) for s in message.signals
+                        if s.name not in (f"{message.name}_CRC", f"{message.name}_Counter"))
         layouts.append(MessageLayout(
             name=message.name, frame_id=message.frame_id, sender=message.senders[0],
-            data_id=int(attributes["E2EDataID"].value),
-            signals=tuple(_signal_layout(s) for s in message.signals
-                          if s.name not in (f"{message.name}_CRC", f"{message.name}_Counter")),
-            cycle_time_ms=int(cycle.value) if cycle is not None else 0, message=message))
+            data_id=int(attributes["E2EDataID"].value), signals=signals,
+            cycle_time_ms=int(cycle.value) if cycle is not None else 0, message=message,
+            packed=tuple(signal.packed() for signal in signals)))
     return Contract(database=database, version=str(database.version),
                     by_id=MappingProxyType({m.frame_id: m for m in layouts}),
                     by_name=MappingProxyType({m.name: m for m in layouts}))
