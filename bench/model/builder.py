@@ -13,7 +13,8 @@ from bench.thermal.discretize import discretize
 from bench.thermal.losses import COPPER_REFERENCE_C
 from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import ALPHA_CU_PER_K, LptnParameters
-from bench.thermal.realizations import Realization, physical, realize
+from bench.thermal.portable import inv
+from bench.thermal.realizations import Realization, condition_number, physical, realize
 from target_sim import artifact as schema
 
 
@@ -107,8 +108,8 @@ def artifact_content(spec: ModelSpec) -> dict[str, Any]:
     if spec.kind != "pv-lptn":
         block = realize(physical_block(spec), spec.realization)
         content["linear_block"] = {"A": enc(block.a), "B": enc(block.b), "C": enc(block.c),
-                                   "C_inv": enc(np.linalg.inv(block.c)),
-                                   "condition_number": float(np.linalg.cond(block.a))}
+                                   "C_inv": enc(inv(block.c)),  # portable: the same bits on every CPU
+                                   "condition_number": condition_number(block.a)}
     if spec.kind == "hammerstein":
         if spec.sigmoid is None:
             raise ValueError("a hammerstein artifact needs its sigmoid parameters")

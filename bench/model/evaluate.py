@@ -17,6 +17,7 @@ from bench.model.artifact_eval import ArtifactEvaluation, artifact_loss_maps, ar
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.hammerstein_fit import fit_hammerstein
 from bench.model.identify import IDENTIFICATION_COOLANTS, VALIDATION_COOLANT, prepare_runs
+from bench.thermal import portable
 from bench.thermal.realizations import Realization
 from target_sim.artifact import ModelArtifact, seal, verify
 
@@ -27,8 +28,8 @@ def physical_from_artifact(artifact: ModelArtifact) -> Realization:
     """The artifact's linear block brought back to nodal coordinates (x_physical = C z)."""
     f64 = np.float64
     a, b, c = (artifact.array("linear_block", m, dtype=f64) for m in ("A", "B", "C"))
-    c_inv = np.linalg.inv(c)
-    return Realization("physical", c @ a @ c_inv, c @ b, np.eye(4), np.zeros((4, 8)))
+    mm = portable.matmul
+    return Realization("physical", mm(c, a, portable.inv(c)), mm(c, b), np.eye(4), np.zeros((4, 8)))
 
 
 def sigmoid_from_artifact(artifact: ModelArtifact) -> SigmoidInputs:

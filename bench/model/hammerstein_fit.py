@@ -20,6 +20,7 @@ from scipy.optimize import least_squares
 
 from bench.model.builder import SigmoidInputs
 from bench.model.runs import ModelRun
+from bench.thermal import portable
 from bench.thermal.estimator import loop_parameters, run_batch
 from bench.thermal.parameters import LptnParameters
 from bench.thermal.realizations import Realization, realize
@@ -107,8 +108,8 @@ class _Problem:
 
     def physical_model(self, v: np.ndarray) -> HammersteinModel:
         _, b, _, _, sig = self.models(v[None])
-        t, t_inv = self.transform, np.linalg.inv(self.transform)
-        fitted = Realization("physical", t @ self.fit_block.a @ t_inv, t @ b[0], self.fit_block.c @ t_inv,
+        t, t_inv, mm = self.transform, portable.inv(self.transform), portable.matmul  # same bits on every CPU
+        fitted = Realization("physical", mm(t, self.fit_block.a, t_inv), mm(t, b[0]), mm(self.fit_block.c, t_inv),
                              self.fit_block.d)
         return HammersteinModel(SigmoidInputs.from_vector(self.scale_w, sig[0, 1:].ravel()), fitted)
 

@@ -13,9 +13,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
 from bench.model.runs import ModelRun
+from bench.thermal import portable
 from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
 from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import TABLE1, LptnParameters
@@ -37,11 +37,15 @@ LOG_SCALED = tuple(n for n, (lo, _) in BOUNDS.items() if lo > 0)
 
 
 def to_search(values: np.ndarray) -> np.ndarray:
-    """Parameter vectors (…, 22) -> search coordinates (log for positive parameters)."""
+    """Parameter vectors (…, 22) -> search coordinates (log for positive parameters).
+
+    exp and log here and in the cost come from bench.thermal.portable: numpy's differ in the last bit between
+    AVX-512 and AVX2 CPUs, and the swarm's comparisons would amplify that.
+    """
     out = np.array(values, dtype=float)
     for i, name in enumerate(LptnParameters.names()):
         if name in LOG_SCALED:
-            out[..., i] = np.log(out[..., i])
+            out[..., i] = portable.log_array(out[..., i])
     return out
 
 
@@ -49,7 +53,7 @@ def from_search(coords: np.ndarray) -> np.ndarray:
     out = np.array(coords, dtype=float)
     for i, name in enumerate(LptnParameters.names()):
         if name in LOG_SCALED:
-            out[..., i] = np.exp(out[..., i])
+            out[..., i] = portable.exp_array(out[..., i])
     return out
 
 
@@ -61,19 +65,19 @@ def search_bounds() -> tuple[np.ndarray, np.ndarray]:
 
 
 def discrete_blocks(vectors: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """ZOH (A_d, B_d) for a batch of parameter vectors, one batched matrix exponential."""
+    """ZOH (A_d, B_d) for a batch of parameter vectors (portable.expm: the same bits on every CPU)."""
     batch = LptnParameters(**dict(zip(LptnParameters.names(), np.asarray(vectors, float).T, strict=True)))
     a, b, _, _ = lti_matrices(batch)
     blocks = np.zeros((len(vectors), 12, 12))
     blocks[:, :4, :4], blocks[:, :4, 4:] = a, b
-    phi = expm(blocks * dt)
+    phi = portable.expm(blocks * dt)
     return phi[:, :4, :4], phi[:, :4, 4:]
 
 
 def likelihood_cost(sse: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Σ log(MSE) over winding and PM; sse (P, 2) summed over runs, counts (2,) samples per output."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.sum(np.log(sse / counts), axis=1)
+        return np.sum(portable.log_array(sse / counts), axis=1)
 
 
 def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w: np.ndarray) -> np.ndarray:

@@ -6,12 +6,14 @@ x[k+1] = A_d x[k] + B_d u[k], the form the target executes:
 - `tustin`: the bilinear pole map z = (1 + λΔt/2)/(1 - λΔt/2) with B_d = (I - AΔt/2)^-1 B Δt; this keeps
   the DC gain exact without the feed-through a full bilinear transform adds.
 - `euler`: forward Euler, eq. 51, as the paper ran the parameter-varying LPTN.
+The matrix functions come from bench.thermal.portable, so a discrete model is the same bits on every CPU.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import expm
+
+from bench.thermal import portable
 
 METHODS = ("zoh", "tustin", "euler")
 
@@ -24,11 +26,11 @@ def discretize(a: np.ndarray, b: np.ndarray, dt: float, method: str) -> tuple[np
     if method == "zoh":
         block = np.zeros((n + m, n + m))
         block[:n, :n], block[:n, n:] = a, b
-        phi = expm(block * dt)
+        phi = portable.expm(block * dt)
         return phi[:n, :n], phi[:n, n:]
     if method == "tustin":
         left = np.eye(n) - a * dt / 2
-        return np.linalg.solve(left, np.eye(n) + a * dt / 2), np.linalg.solve(left, b * dt)
+        return portable.solve(left, np.eye(n) + a * dt / 2), portable.solve(left, b * dt)
     if method == "euler":
         return np.eye(n) + a * dt, b * dt
     raise ValueError(f"unknown discretization {method!r}; choose one of {', '.join(METHODS)}")

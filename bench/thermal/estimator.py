@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from bench.thermal import portable
 from bench.thermal.losses import COPPER_REFERENCE_C
 from bench.thermal.parameters import ALPHA_CU_PER_K, LptnParameters
 
@@ -45,6 +46,8 @@ def identity_sigmoid(scale_w) -> np.ndarray:
     return sig
 
 
+# No fastmath (it would let LLVM reorder sums and fuse multiply-adds by CPU), and exp from portable (glibc's
+# has an FMA variant): the kernel's results are the same bits on every x86-64 CPU and at any thread count.
 @numba.njit(cache=True, fastmath=False)
 def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep,
                use_sigmoid):
@@ -71,12 +74,12 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
         if use_sigmoid:  # sigmoid input nonlinearity on normalized losses (eqs. 28-30)
             for i in range(4):
                 v = u[i] / sig[0, i]
-                s = sig[3, i] / (1.0 + np.exp(-(sig[1, i] * v + sig[2, i]))) + sig[4, i] * v + sig[5, i]
+                s = sig[3, i] / (1.0 + portable.exp(-(sig[1, i] * v + sig[2, i]))) + sig[4, i] * v + sig[5, i]
                 u[i] = s * sig[0, i]
         # temperature sources from the previous estimate (eqs. 9-18)
-        g_wm = theta[4] * np.exp(-ratio[k] / theta[5]) / theta[6]
-        g_tm = theta[7] * np.exp(-ratio[k] / theta[8]) / theta[9]
-        g_ma = theta[10] * np.exp(-ratio[k] / theta[11]) / theta[12]
+        g_wm = theta[4] * portable.exp(-ratio[k] / theta[5]) / theta[6]
+        g_tm = theta[7] * portable.exp(-ratio[k] / theta[8]) / theta[9]
+        g_ma = theta[10] * portable.exp(-ratio[k] / theta[11]) / theta[12]
         g_cy = theta[13] * (coolant[k] - 40.0)
         u[4] = coolant[k] + g_cy * (y[0] - coolant[k]) / (1.0 + g_cy)
         u[5] = ambient[k] + g_ma * (y[3] - ambient[k]) / (1.0 + g_ma)
@@ -121,7 +124,7 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
     """
     a, b, c = (np.ascontiguousarray(m, dtype=np.float64) for m in (a, b, c))
     n_models, n_steps = a.shape[0], inputs.speed_ratio.shape[0]
-    c_inv = np.linalg.inv(c)
+    c_inv = portable.inv(c)
     zeros = np.zeros(n_steps)
     ref_w = zeros if ref_w is None else np.ascontiguousarray(ref_w, dtype=np.float64)
     ref_m = zeros if ref_m is None else np.ascontiguousarray(ref_m, dtype=np.float64)

@@ -6,6 +6,10 @@
 - `balanced`: Gramian-balanced, square-root method (Laub, Heath, Paige, Ward 1987); the paper's
   eigendecomposition method (eqs. 35-42) is kept as `balance_by_eigendecomposition` for cross-checks.
 - `modal`: real diagonal A; attains the bound κ₂(A) = |λ|max/|λ|min.
+
+`physical` and `balanced` (what identification and the packaged artifacts use), similarity transforms and the
+condition number are computed with bench.thermal.portable, the same bits on every CPU; `original` and `modal`
+need eigenvectors and use LAPACK's, whose last bits depend on the OpenBLAS kernel.
 """
 
 from __future__ import annotations
@@ -13,7 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cholesky, matrix_balance, solve_discrete_lyapunov, svd
+from scipy.linalg import matrix_balance
+
+from bench.thermal import portable
 
 REALIZATIONS = ("physical", "original", "balanced", "modal")
 
@@ -30,8 +36,9 @@ class Realization:
 
     def transformed(self, name: str, t: np.ndarray, t_inv: np.ndarray | None = None) -> Realization:
         """The similar realization with x = T z."""
-        t_inv = np.linalg.inv(t) if t_inv is None else t_inv
-        return Realization(name, t_inv @ self.a @ t, t_inv @ self.b, self.c @ t, self.d.copy())
+        t_inv = portable.inv(t) if t_inv is None else t_inv
+        mm = portable.matmul
+        return Realization(name, mm(t_inv, self.a, t), mm(t_inv, self.b), mm(self.c, t), self.d.copy())
 
     def astype(self, dtype) -> Realization:
         return Realization(self.name, *(np.asarray(m, dtype=dtype) for m in (self.a, self.b, self.c, self.d)))
@@ -76,8 +83,9 @@ def original(sys: Realization) -> Realization:
 
 def gramians(sys: Realization) -> tuple[np.ndarray, np.ndarray]:
     """Discrete controllability and observability Gramians (eqs. 45-46)."""
-    wc = solve_discrete_lyapunov(sys.a, sys.b @ sys.b.T)
-    wo = solve_discrete_lyapunov(sys.a.T, sys.c.T @ sys.c)
+    mm = portable.matmul
+    wc = portable.solve_discrete_lyapunov(sys.a, mm(sys.b, sys.b.T))
+    wo = portable.solve_discrete_lyapunov(sys.a.T, mm(sys.c.T, sys.c))
     return (wc + wc.T) / 2, (wo + wo.T) / 2
 
 
@@ -89,11 +97,11 @@ def hankel_singular_values(sys: Realization) -> np.ndarray:
 def balanced(sys: Realization) -> Realization:
     """Square-root balancing: Cholesky factors of both Gramians and the SVD of their product."""
     wc, wo = gramians(sys)
-    lc, lo = cholesky(wc, lower=True), cholesky(wo, lower=True)
-    u, s, vt = svd(lo.T @ lc)
+    lc, lo = portable.cholesky_lower(wc), portable.cholesky_lower(wo)
+    u, s, vt = portable.svd(portable.matmul(lo.T, lc))
     root = np.sqrt(s)
-    t = lc @ vt.T / root
-    t_inv = (u / root).T @ lo.T
+    t = portable.matmul(lc, vt.T) / root
+    t_inv = portable.matmul((u / root).T, lo.T)
     return sys.transformed("balanced", t, t_inv)
 
 
@@ -135,7 +143,8 @@ def realize(sys: Realization, name: str) -> Realization:
 
 def condition_number(a: np.ndarray) -> float:
     """2-norm condition number σ_max/σ_min (eq. 48)."""
-    return float(np.linalg.cond(np.asarray(a, dtype=np.float64), 2))
+    s = portable.singular_values(a)
+    return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
 
 
 def condition_bound(a: np.ndarray) -> float:
