@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import ROOT
+
 PACKAGES = ("dbc", "target_sim", "host", "bench")
 ALLOWED: dict[str, frozenset[str]] = {
     "dbc": frozenset({"dbc"}),

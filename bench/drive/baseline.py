@@ -25,7 +25,7 @@ def lti_lptn_estimate(dataset: Dataset, params: LptnParameters, loss_maps: LossM
     """(steps, 4) estimates [yoke, winding, tooth, magnet] in °C at t = (k+1)·Δt.
 
     A plain-numpy statement of the estimator, kept beside the compiled kernel of bench.thermal.estimator as
-    its independent cross-check (tests/model/test_estimator_kernel.py). `initial` defaults to every node at
+    its independent cross-check (tests/bench/model/test_estimator_kernel.py). `initial` defaults to every node at
     the first coolant sample.
     """
     means = interval_means(dataset.drive_inputs(), dataset.sample_period_s, dt)

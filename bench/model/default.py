@@ -1,7 +1,7 @@
 """The model artifacts shipped in the package, so `bench run` works on a fresh clone.
 
 They are what `bench identify --all-kinds --out bench/data/default_model.json` writes on the default datasets
-(`bench data`, default seed) with the default PSO seed; tests/model/test_default_artifact.py regenerates them
+(`bench data`, default seed) with the default PSO seed; tests/bench/model/test_default_artifact.py regenerates them
 and checks that the content is identical, bit for bit on any x86-64 CPU (bench.thermal.portable), except the
 float32 figures in the metrics, which come from the target's float32 code and are compared within a tolerance.
 """
