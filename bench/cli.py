@@ -11,7 +11,8 @@ from bench.errors import BenchError, UsageError
 from dbc.database import DbcError
 
 # Subcommand modules under bench.commands, in the order `bench --help` lists them.
-SUBCOMMANDS = ("numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "compare", "host")
+SUBCOMMANDS = ("numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "compare", "host",
+               "firmware")
 
 
 class OneLineParser(argparse.ArgumentParser):

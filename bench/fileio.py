@@ -4,8 +4,9 @@ interrupted command never leaves a half-written file. Imported by every part of 
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 
 
@@ -34,3 +35,57 @@ def write_bytes_atomically(path: Path, payload: bytes) -> None:
 def write_text_atomically(path: Path, text: str) -> None:
     """`path` holds exactly `text` (UTF-8), or is as it was before."""
     write_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def foreign_entries(path: Path, replaceable: Collection[str]) -> list[str]:
+    """Names in the existing directory `path` that `write_directory_atomically` would refuse to replace: anything
+    not a regular file named in `replaceable` (an earlier output of the same command). [] if `path` is absent."""
+    path = Path(path)
+    if not path.is_dir():
+        return []
+    return sorted(entry.name for entry in path.iterdir()
+                  if entry.name not in replaceable or entry.is_symlink() or not entry.is_file())
+
+
+def write_directory_atomically(path: Path, contents: Mapping[str, bytes], *,
+                               replaceable: Collection[str] = ()) -> None:
+    """`path` becomes a directory holding exactly `contents` (file name -> bytes), or stays as it was.
+
+    The files are written into a temporary directory beside `path`, which is then renamed into place. An
+    existing `path` is replaced only if it holds nothing but regular files named in `replaceable` (an earlier
+    output of the same command): else FileExistsError, and nothing is written. (Between moving the old directory
+    aside and renaming the new one in, `path` is briefly absent; it is never half-written.)"""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(f"{path} is a file, not a directory")
+    foreign = foreign_entries(path, replaceable)
+    if foreign:
+        raise FileExistsError(f"{path} holds {', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''}, "
+                              "which this command did not write")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    old: Path | None = None
+    try:
+        for name, payload in contents.items():
+            target = tmp / name
+            target.write_bytes(payload)
+            os.chmod(target, 0o666 & ~umask)   # mkdtemp makes 0700 and files follow the umask
+        os.chmod(tmp, 0o777 & ~umask)
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            os.replace(path, old / path.name)
+            try:
+                os.replace(tmp, path)
+            except BaseException:
+                os.replace(old / path.name, path)   # put the previous output back
+                raise
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    finally:
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)

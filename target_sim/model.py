@@ -12,6 +12,13 @@ One model step (period Δt from the artifact) does, in order:
 Drive samples arrive at the data rate (5 Hz) and model steps run every Δt: the inputs of model step k are the
 float32 mean of the samples whose times n·T_s fall in [kΔt, (k+1)Δt), and the step runs as soon as the last
 sample of that interval has arrived (`InputAccumulator`). The offline float32 reference uses this same code.
+
+The firmware engine runs the same computation as generated C (`bench firmware export`, fw_model.c), and the two
+must agree bit for bit, so every operation here has a fixed order and a float32 rounding the C repeats: products
+and sums written out left to right with explicit parentheses (the comments name the C function that mirrors each
+method), matrix-vector products by `fmath.matvec` (no BLAS), exp by `fmath.exp_f32` (no np.exp), clamps written
+as comparisons that send NaN the same way in both. Where this file changes an operation, fw_model.c must change
+with it (bench/firmware/codegen.py), and tests/bench/firmware checks that they still agree.
 """
 
 from __future__ import annotations
@@ -21,13 +28,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from target_sim.artifact import LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+from target_sim.fmath import exp_f32, matvec
 
 F32 = np.float32
 ONE = F32(1.0)
+COOLANT_REFERENCE_C = 40.0   # the coolant temperature R_cy0 is given at (eq. 16)
 
 
 class LossTables:
-    """The artifact's loss look-up tables over the (torque, speed) grid, interpolated in float32."""
+    """The artifact's loss look-up tables over the (torque, speed) grid, interpolated in float32 (C: loss_lookup)."""
 
     def __init__(self, artifact: ModelArtifact, dtype=F32):
         self.f = f = np.dtype(dtype).type
@@ -38,15 +47,22 @@ class LossTables:
         self.speed_step = f(self.speed_axis[1] - self.speed_axis[0])
 
     def _cell(self, value, start, step, size):
-        """Index of the grid cell holding value, and the fraction inside it (clamped to the grid)."""
+        """Index of the grid cell holding value, and the fraction inside it (clamped to the grid; NaN -> 0)."""
         f = self.f
         pos = (f(value) - start) / step
-        pos = min(max(pos, f(0.0)), f(size - 1))
-        i = min(int(pos), size - 2)
+        if not pos >= 0:                # C: if (!(pos >= 0.0f)) pos = 0.0f;
+            pos = f(0.0)
+        last = f(size - 1)
+        if pos > last:                  # C: if (pos > last) pos = last;
+            pos = last
+        i = int(pos)                    # C: (int)pos, truncation (pos >= 0)
+        if i > size - 2:
+            i = size - 2
         return i, f(pos - f(i))
 
     def lookup(self, torque, speed) -> np.ndarray:
-        """[p_dc0, p_ac0, p_stator, p_magnet, current] at one operating point."""
+        """[p_dc0, p_ac0, p_stator, p_magnet, current] at one operating point (bilinear, per table:
+        low = t00 + fj·(t01 - t00), high = t10 + fj·(t11 - t10), value = low + fi·(high - low))."""
         i, fi = self._cell(torque, self.torque_axis[0], self.torque_step, self.torque_axis.size)
         j, fj = self._cell(speed, self.speed_axis[0], self.speed_step, self.speed_axis.size)
         t = self.tables[:, i:i + 2, j:j + 2]
@@ -59,12 +75,13 @@ class Float32Estimator:
     """The target's model: load once, `reset` with initial temperatures, then `step` every Δt.
 
     `dtype` is float32 on the target; float64 gives the same code in double precision from the artifact's
-    float64 coefficients (the double-precision reference of the parameter-varying LPTN).
+    float64 coefficients (the double-precision reference of the parameter-varying LPTN), with np.exp for exp.
     """
 
     def __init__(self, artifact: ModelArtifact, dtype=F32):
         self.f = f = np.dtype(dtype).type
         self.one = f(1.0)
+        self.exp = exp_f32 if f is F32 else np.exp   # float32: the firmware's own exp, bit for bit
 
         def arr(*keys):
             return artifact.array(*keys, dtype=f)
@@ -73,11 +90,15 @@ class Float32Estimator:
         self.kind = artifact.kind
         self.dt = f(artifact.dt)
         self.luts = LossTables(artifact, f)
-        self.p = {name: arr("lptn", "parameters", name)[()] for name in LPTN_PARAMETERS}
+        self.p = p = {name: arr("lptn", "parameters", name)[()] for name in LPTN_PARAMETERS}
         self.speed_max = arr("lptn", "speed_max_rpm")[()]
         self.current_max = arr("losses", "current_max_A")[()]
         self.alpha_cu = arr("losses", "alpha_cu_per_K")[()]
         self.copper_ref = arr("losses", "copper_reference_C")[()]
+        # the three speed-dependent convection resistances (eq. 15), vectorized: [tm, wm, ma] (C: in this order)
+        self.conv_b = np.array([p["b_tm"], p["b_wm"], p["b_ma"]], dtype=f)
+        self.conv_r0 = np.array([p["R_tm0"], p["R_wm0"], p["R_ma0"]], dtype=f)
+        self.conv_a = np.array([p["a_tm"], p["a_wm"], p["a_ma"]], dtype=f)
         if self.kind != "pv-lptn":
             self.a, self.b = arr("linear_block", "A"), arr("linear_block", "B")
             self.c, self.c_inv = arr("linear_block", "C"), arr("linear_block", "C_inv")
@@ -88,88 +109,103 @@ class Float32Estimator:
         self.y = np.zeros(4, dtype=f)
 
     def reset(self, temperatures: Sequence[float]) -> None:
-        """Start from physical temperatures [yoke, winding, tooth, magnet] (°C): x0 = C^-1 y0."""
+        """Start from physical temperatures [yoke, winding, tooth, magnet] (°C): x0 = C^-1 y0 (C: fw_reset)."""
         self.y = np.asarray(temperatures, dtype=self.f).copy()
-        self.x = self.y.copy() if self.kind == "pv-lptn" else self.c_inv @ self.y
+        self.x = self.y.copy() if self.kind == "pv-lptn" else matvec(self.c_inv, self.y)
 
     def restore(self, state: Sequence[float]) -> None:
         """Continue from a checkpointed state vector x (the realization's coordinates), bit for bit: y = C x is
-        what `step` left after the model step the checkpoint was taken at."""
+        what `step` left after the model step the checkpoint was taken at (C: fw_restore)."""
         self.x = np.asarray(state, dtype=self.f).copy()
-        self.y = self.x.copy() if self.kind == "pv-lptn" else self.c @ self.x
+        self.y = self.x.copy() if self.kind == "pv-lptn" else matvec(self.c, self.x)
 
     def node_losses(self, torque, speed) -> np.ndarray:
-        """[P_y, P_w, P_t, P_m] in W from the tables and the previous winding estimate (eqs. 3-8)."""
+        """[P_y, P_w, P_t, P_m] in W from the tables and the previous winding estimate (eqs. 3-8; C: node_losses)."""
         p_dc0, p_ac0, p_stator, p_magnet, current = self.luts.lookup(torque, speed)
         p, f, one = self.p, self.f, self.one
-        factor = one + self.alpha_cu * (self.y[1] - self.copper_ref)
-        p_w = p_dc0 * factor + p_ac0 / factor
+        factor = one + self.alpha_cu * (self.y[1] - self.copper_ref)                 # eqs. 3-5
+        p_w = (p_dc0 * factor) + (p_ac0 / factor)
         i_ratio, n_ratio = current / self.current_max, f(speed) / self.speed_max
-        k_s = p["k_0"] + p["k_1"] * i_ratio + p["k_2"] * n_ratio + p["k_3"] * i_ratio * n_ratio
+        k_s = ((p["k_0"] + p["k_1"] * i_ratio) + p["k_2"] * n_ratio) + (p["k_3"] * i_ratio) * n_ratio   # eqs. 6-8
         return np.array([k_s * p_stator, p_w, (one - k_s) * p_stator, p_magnet], dtype=f)
 
     def input_nonlinearity(self, losses: np.ndarray) -> np.ndarray:
+        """S(u)·scale per loss input, u = P/scale, S(u) = (gain/(1 + exp(-(w·u + b))) + lin·u) + off
+        (eqs. 28-30; C: input_nonlinearity)."""
         s = self.sigmoid
         u = losses / s["scale_W"]
-        out = s["gain"] / (self.one + np.exp(-(s["weight"] * u + s["bias"]))) + s["linear"] * u + s["offset"]
+        z = s["weight"] * u + s["bias"]
+        out = (s["gain"] / (self.one + self.exp(-z)) + s["linear"] * u) + s["offset"]
         return out * s["scale_W"]
 
+    def _convection(self, n_ratio) -> np.ndarray:
+        """[e_tm, e_wm, e_ma] = exp(-n_ratio / b) of eq. 15 (C: the three fw_exp calls, in this order)."""
+        return self.exp(-n_ratio / self.conv_b)
+
     def temperature_sources(self, speed, coolant, ambient) -> np.ndarray:
-        """[ϑ_cv, ϑ_av, ϑ_a1, ϑ_a2] of eqs. 9-18 from the previous estimate."""
+        """[ϑ_cv, ϑ_av, ϑ_a1, ϑ_a2] of eqs. 9-18 from the previous estimate (C: temperature_sources)."""
         p, y, f, one = self.p, self.y, self.f, self.one
         n_ratio = f(speed) / self.speed_max
         coolant, ambient = f(coolant), f(ambient)
-        g_tm = p["R_tm0"] * np.exp(-n_ratio / p["b_tm"]) / p["a_tm"]
-        g_wm = p["R_wm0"] * np.exp(-n_ratio / p["b_wm"]) / p["a_wm"]
-        g_ma = p["R_ma0"] * np.exp(-n_ratio / p["b_ma"]) / p["a_ma"]
-        g_cy = p["alpha_cy"] * (coolant - f(40.0))  # R_cy01 / R_cy0 (eq. 16)
+        g_tm, g_wm, g_ma = (self.conv_r0 * self._convection(n_ratio)) / self.conv_a    # R_xx1 / a_xx
+        g_cy = p["alpha_cy"] * (coolant - f(COOLANT_REFERENCE_C))  # R_cy01 / R_cy0 (eq. 16)
         th_y, th_w, th_t, th_m = y
         return np.array([
-            coolant + g_cy * (th_y - coolant) / (one + g_cy),
-            ambient + g_ma * (th_m - ambient) / (one + g_ma),
+            coolant + (g_cy * (th_y - coolant)) / (one + g_cy),
+            ambient + (g_ma * (th_m - ambient)) / (one + g_ma),
             (th_m + g_tm * th_t) / (one + g_tm),
             (th_w + g_wm * th_m) / (one + g_wm),
         ], dtype=f)
 
     def pv_network(self, speed, coolant) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous A (4x4) and B (4x6) of the parameter-varying LPTN, built in float32."""
+        """Continuous A (4x4) and B (4x6) of the parameter-varying LPTN, built in float32 (C: pv_network).
+
+        g[i, j] is the conductance between nodes i and j of (yoke, winding, tooth, magnet, coolant, ambient);
+        A[i, j] = g[i, j]/C_i off the diagonal, A[i, i] = -(row sum of g[i])/C_i with the row summed left to
+        right over all six columns, B = [diag(1/C) | g[:, 4:]/C_i]."""
         p, f, one = self.p, self.f, self.one
         n_ratio = f(speed) / self.speed_max
-        r_wm = p["R_wm0"] * np.exp(-n_ratio / p["b_wm"]) + p["a_wm"]
-        r_tm = p["R_tm0"] * np.exp(-n_ratio / p["b_tm"]) + p["a_tm"]
-        r_ma = p["R_ma0"] * np.exp(-n_ratio / p["b_ma"]) + p["a_ma"]
-        r_cy = p["R_cy0"] * (one + p["alpha_cy"] * (f(coolant) - f(40.0)))
-        g = np.zeros((4, 6), dtype=f)  # conductances from node i to node j (y, w, t, m, coolant, ambient)
+        r_tm, r_wm, r_ma = self.conv_r0 * self._convection(n_ratio) + self.conv_a     # eq. 15
+        r_cy = p["R_cy0"] * (one + p["alpha_cy"] * (f(coolant) - f(COOLANT_REFERENCE_C)))  # eq. 16
+        g = np.zeros((4, 6), dtype=f)
         for i, j, res in ((0, 1, p["R_yw"]), (0, 2, p["R_yt"]), (1, 2, p["R_wt"]), (1, 3, r_wm), (2, 3, r_tm)):
             g[i, j] = g[j, i] = one / res
         g[3, 5], g[0, 4] = one / r_ma, one / r_cy
         inv_c = one / np.array([p["C_y"], p["C_w"], p["C_t"], p["C_m"]], dtype=f)
         a = g[:, :4] * inv_c[:, None]
-        a[np.diag_indices(4)] = -g.sum(axis=1, dtype=f) * inv_c
+        row_sum = g[:, 0]
+        for j in range(1, 6):
+            row_sum = row_sum + g[:, j]
+        a[np.diag_indices(4)] = -row_sum * inv_c
         b = np.zeros((4, 6), dtype=f)
         b[np.diag_indices(4)] = inv_c
         b[:, 4:] = g[:, 4:] * inv_c[:, None]
         return a, b
 
     def step(self, torque, speed, coolant, ambient) -> np.ndarray:
-        """One model step with the interval-mean inputs; returns [yoke, winding, tooth, magnet] in °C."""
+        """One model step with the interval-mean inputs; returns [yoke, winding, tooth, magnet] in °C (C: fw_step).
+
+        LTI/Hammerstein: x <- (A x) + (B u) row by row, y = C x; PV LPTN: x <- x + Δt·((A x) + (B u))."""
         losses = self.node_losses(torque, speed)
         if self.kind == "hammerstein":
             losses = self.input_nonlinearity(losses)
         if self.kind == "pv-lptn":
             a, b = self.pv_network(speed, coolant)
             u = np.concatenate([losses, np.array([coolant, ambient], dtype=self.f)])
-            self.x = self.x + self.dt * (a @ self.x + b @ u)
+            self.x = self.x + self.dt * (matvec(a, self.x) + matvec(b, u))
             self.y = self.x.copy()
         else:
             u = np.concatenate([losses, self.temperature_sources(speed, coolant, ambient)])
-            self.x = self.a @ self.x + self.b @ u
-            self.y = self.c @ self.x
+            self.x = matvec(self.a, self.x) + matvec(self.b, u)
+            self.y = matvec(self.c, self.x)
         return self.y.copy()
 
 
 class InputAccumulator:
-    """Collects 5 Hz drive samples and releases the float32 interval mean when a model step is due."""
+    """Collects 5 Hz drive samples and releases the float32 interval mean when a model step is due.
+
+    sum <- sum + sample elementwise in float32, mean = sum / float32(count) (C: fw_accumulate, fw_mean); when an
+    interval ends is integer row logic that stays here (and in the node)."""
 
     def __init__(self, sample_period_s: float, dt_s: float):
         self.sample_us = int(round(sample_period_s * 1e6))

@@ -1,0 +1,158 @@
+"""`bench firmware`: the model as compiled firmware for a Cortex-M4F.
+
+    bench firmware export [--model A] [--out DIR]           portable C99 of the artifact's model (fw_model.h/.c)
+    bench firmware build  [--model A] [--out DIR] [--json]  that C + start-up code + linker script -> firmware.elf,
+                                                             firmware.map, and its flash and RAM figures
+
+The generated C equals the Python float32 reference bit for bit (bench/firmware/codegen.py); `build` needs the
+ziglang package (the `firmware` extra).
+"""
+# Each action is an `_add_<action>(actions)` that registers its parser and sets `func`; ACTIONS lists them in the
+# order `bench firmware --help` shows them (a new action, e.g. `check`, is one function and one entry).
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bench.commands.common import add_output_flags, check_writable, print_json
+from bench.errors import BenchError, UsageError
+
+DEFAULT_OUT = Path("out/firmware")
+
+
+def add_subparser(subparsers) -> None:
+    p = subparsers.add_parser("firmware", help="the model as C firmware for a Cortex-M4F (export, build)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    actions = p.add_subparsers(title="actions", dest="action", parser_class=type(p))
+    for add in ACTIONS.values():
+        add(actions)
+    p.set_defaults(func=_no_action)
+
+
+def _no_action(_args: argparse.Namespace) -> int:
+    raise UsageError(f"bench firmware: name an action, one of {', '.join(ACTIONS)} "
+                     "(see 'bench firmware --help')")
+
+
+def _common(p: argparse.ArgumentParser, out_help: str) -> None:
+    p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged hammerstein one)")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"{out_help} (default {DEFAULT_OUT})")
+    add_output_flags(p)
+
+
+def _add_export(actions) -> None:
+    p = actions.add_parser("export", help="write the artifact's model as portable C99 (fw_model.h, fw_model.c)",
+                           description="Write the model of an artifact as portable C99: fw_model.h (the API) and "
+                                       "fw_model.c (coefficients, state, step), the same computation as the "
+                                       "Python float32 reference, operation for operation.")
+    _common(p, "directory for fw_model.h and fw_model.c")
+    p.set_defaults(func=run_export)
+
+
+def _add_build(actions) -> None:
+    p = actions.add_parser("build", help="compile the model for a Cortex-M4F: firmware.elf, firmware.map, sizes",
+                           description="Generate the C of an artifact's model and cross-compile it with the start-up "
+                                       "code for a Cortex-M4F (256 kB flash, 64 kB RAM): firmware.elf and "
+                                       "firmware.map, with the sources, in --out; flash and RAM from the ELF.")
+    _common(p, "directory for firmware.elf, firmware.map and the sources")
+    p.set_defaults(func=run_build)
+
+
+ACTIONS = {"export": _add_export, "build": _add_build}
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+
+
+def _load(model: Path | None):
+    from bench.model.default import default_artifact_path
+    from target_sim.artifact import ArtifactError, load_artifact
+
+    path = model or default_artifact_path()
+    try:
+        return path, load_artifact(path)
+    except ArtifactError as exc:
+        raise BenchError(str(exc)) from None
+
+
+def _check_out(out: Path, replaceable: tuple[str, ...]) -> None:
+    from bench.fileio import foreign_entries
+
+    check_writable(out, "--out", directory=True)
+    foreign = foreign_entries(out, replaceable)
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+        raise BenchError(f"--out {out} already holds {shown}, which 'bench firmware' did not write; choose a new or "
+                         "empty directory (an earlier firmware output there is replaced)")
+
+
+def _write(out: Path, contents: dict[str, bytes], replaceable: tuple[str, ...]) -> None:
+    from bench.fileio import write_directory_atomically
+
+    try:
+        write_directory_atomically(out, contents, replaceable=replaceable)
+    except FileExistsError as exc:     # the directory changed since _check_out
+        raise BenchError(f"--out {exc}; choose a new or empty directory") from None
+
+
+def _identity(path: Path, artifact) -> dict:
+    return {"model": str(path), "sha256": artifact.sha256, "kind": artifact.kind,
+            "realization": artifact.realization, "dt_s": artifact.dt}
+
+
+def _output_names() -> tuple[str, ...]:
+    from bench.firmware import toolchain
+
+    return (toolchain.HEADER_NAME, toolchain.SOURCE_NAME, toolchain.STARTUP_NAME, toolchain.LINKER_SCRIPT_NAME,
+            toolchain.ELF_NAME, toolchain.MAP_NAME)
+
+
+# ------------------------------------------------------------------------------------------------ actions
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from bench.firmware.codegen import generate
+
+    path, artifact = _load(args.model)
+    names = _output_names()
+    _check_out(args.out, names)
+    generated = generate(artifact)
+    _write(args.out, {name: text.encode("utf-8") for name, text in generated.files.items()}, names)
+    report = {**_identity(path, artifact), "out": str(args.out), "files": sorted(generated.files)}
+    if args.json:
+        print_json(report)
+    else:
+        print(f"wrote {', '.join(str(args.out / name) for name in sorted(generated.files))} "
+              f"({artifact.kind}, {artifact.realization} realization, dt {artifact.dt:g} s)")
+    return 0
+
+
+def run_build(args: argparse.Namespace) -> int:
+    from bench.firmware.codegen import generate
+    from bench.firmware.toolchain import ELF_NAME, MAP_NAME, build_firmware
+
+    path, artifact = _load(args.model)
+    names = _output_names()
+    _check_out(args.out, names)
+    generated = generate(artifact)
+    if not (args.quiet or args.json):
+        print(f"compiling the {artifact.kind} model for the Cortex-M4F ...", file=sys.stderr)
+    result = build_firmware(generated)
+    _write(args.out, result.files, names)
+    memory = result.memory
+    report = {**_identity(path, artifact), "out": str(args.out), "elf": str(args.out / ELF_NAME),
+              "map": str(args.out / MAP_NAME), "elf_sha256": result.elf_sha256, "toolchain": result.toolchain,
+              "flash_bytes": memory["flash_bytes"], "ram_bytes": memory["ram_bytes"],
+              "stack_bytes": memory["stack_bytes"], "sections": memory["sections"]}
+    if args.json:
+        print_json(report)
+    else:
+        print(f"wrote {report['elf']} and {report['map']} ({artifact.kind}, {artifact.realization} realization, "
+              f"dt {artifact.dt:g} s; {result.toolchain})")
+        for name, size in memory["sections"].items():
+            print(f"  {name:12} {size:7d} bytes")
+        print(f"flash {memory['flash_bytes']} bytes (of 256 kB), RAM {memory['ram_bytes']} bytes (of 64 kB, "
+              f"{memory['stack_bytes']} of them stack)")
+    return 0

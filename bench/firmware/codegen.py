@@ -1,0 +1,579 @@
+"""Model artifact -> portable C99: `fw_model.h` (the API) and `fw_model.c` (coefficients, state, step).
+
+The C is the Python float32 reference (`target_sim.model`) written out again, operation for operation, so that
+the compiled firmware's outputs equal the reference's bit for bit. Each C function names the Python method it
+mirrors, and both spell every sum and product in the same order with the same parentheses:
+
+| C (fw_model.c)          | Python (target_sim)                         | what                                   |
+|-------------------------|---------------------------------------------|----------------------------------------|
+| fw_exp                  | fmath.exp_f32                               | our float32 exp (no libm)              |
+| dot                     | fmath.matvec (one row)                      | left-to-right sum of products          |
+| grid_cell, loss_lookup  | model.LossTables._cell, .lookup             | bilinear loss tables                   |
+| node_losses             | Float32Estimator.node_losses                | eqs. 3-8                               |
+| input_nonlinearity      | Float32Estimator.input_nonlinearity         | sigmoid, eqs. 28-30 (hammerstein)      |
+| temperature_sources     | Float32Estimator.temperature_sources        | eqs. 9-18 (lti-lptn, hammerstein)      |
+| pv_network              | Float32Estimator.pv_network                 | parameter-varying network (pv-lptn)    |
+| fw_step, fw_reset, ...  | Float32Estimator.step, .reset, .restore     | the state update                       |
+| fw_accumulate, fw_mean  | model.InputAccumulator                      | interval means                         |
+
+Every coefficient is a `static const float` written as a C hex-float literal of the artifact's `f32_hex`
+(exact: no decimal round trip); the few derived constants (grid steps) are computed by the reference's own code
+in float32 and written the same way. Every literal carries the `f` suffix and every intermediate is a float:
+no double anywhere (the build checks with -Wdouble-promotion). No libc, no malloc, no recursion; the state is
+four static arrays (.bss). Matrices are used densely (zeros included) in both languages, so the results agree
+even for a diverging model (0·inf is NaN on both sides).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.errors import BenchError
+from target_sim.artifact import LOSS_TABLES, MODEL_KINDS, OUTPUTS, ModelArtifact
+from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
+from target_sim.model import COOLANT_REFERENCE_C, LossTables
+
+HEADER_NAME = "fw_model.h"
+SOURCE_NAME = "fw_model.c"
+KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
+REALIZATIONS = ("physical", "original", "balanced", "modal")   # they differ only in the matrices A, B, C, C_inv
+SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
+LINEAR_BLOCK = {"A": (4, 4), "B": (4, 8), "C": (4, 4), "C_inv": (4, 4)}
+MAX_GRID_POINTS = 256                   # per axis: a table beyond that is no motor map (and no MCU's flash)
+
+assert set(KINDS) == set(MODEL_KINDS)   # a new kind in the artifact schema needs a generator here first
+
+
+class FirmwareGenerationError(BenchError):
+    """The artifact holds something the generator cannot express in C."""
+
+
+@dataclass(frozen=True)
+class GeneratedSource:
+    """The generated files: name -> text."""
+
+    header: str
+    source: str
+
+    @property
+    def files(self) -> dict[str, str]:
+        return {HEADER_NAME: self.header, SOURCE_NAME: self.source}
+
+
+# ------------------------------------------------------------------------------------------------ literals
+
+
+def c_float(value: float | np.floating) -> str:
+    """A float32 value as an exact C99 hex-float literal with the f suffix: 0x1.8p+3f, -0x0p+0f."""
+    value = float(value)
+    if not np.isfinite(value) or float(np.float32(value)) != value:
+        raise FirmwareGenerationError(f"{value!r} is not a finite float32 value; rebuild the artifact with "
+                                      "'bench identify'")
+    sign, mantissa_exponent = ("-", value.hex()[1:]) if value.hex().startswith("-") else ("", value.hex())
+    mantissa, exponent = mantissa_exponent.split("p")
+    mantissa = mantissa.rstrip("0").rstrip(".")
+    return f"{sign}{mantissa}p{exponent}f"
+
+
+def c_float_of_hex(text: str, where: str) -> str:
+    """The artifact's f32_hex string as a C literal (it must be a float32 value exactly)."""
+    try:
+        value = float.fromhex(text)
+    except (ValueError, TypeError, OverflowError):
+        raise FirmwareGenerationError(f"artifact field {where} holds {text!r}, not a hex float; rebuild the "
+                                      "artifact with 'bench identify'") from None
+    return c_float(value)
+
+
+def _artifact_literals(artifact: ModelArtifact, *keys: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    """The literals of an artifact array, from its f32_hex strings, shaped; checked against the decoded float32
+    values the Python reference runs (the same numbers, or the generator refuses)."""
+    where = ".".join(keys)
+    values = artifact.array(*keys)                      # decodes and cross-checks f64/f32
+    if shape is not None and values.shape != shape:
+        raise FirmwareGenerationError(f"artifact field {where} has shape {list(values.shape)}, the firmware "
+                                      f"generator needs {list(shape)}; rebuild the artifact with 'bench identify'")
+    node = artifact.content
+    for key in keys:
+        node = node[key]
+    literals = np.array([c_float_of_hex(h, where) for h in node["f32_hex"]], dtype=object).reshape(values.shape)
+    if not all(float.fromhex(h) == float(v) for h, v in zip(node["f32_hex"], values.ravel(), strict=True)):
+        raise FirmwareGenerationError(f"artifact field {where}: f32_hex and the decoded values differ")
+    return literals
+
+
+def _c_array(name: str, literals: np.ndarray, comment: str, per_line: int = 4) -> str:
+    dims = "".join(f"[{n}]" for n in literals.shape)
+
+    def body(block: np.ndarray, indent: str) -> str:
+        if block.ndim == 1:
+            items = list(block)
+            lines = [", ".join(items[k:k + per_line]) for k in range(0, len(items), per_line)]
+            if len(lines) == 1:
+                return "{" + lines[0] + "}"
+            inner = f",\n{indent}    ".join(lines)
+            return "{\n" + indent + "    " + inner + "\n" + indent + "}"
+        parts = [body(sub, indent + "    ") for sub in block]
+        return "{\n" + indent + "    " + f",\n{indent}    ".join(parts) + "\n" + indent + "}"
+
+    return f"/* {comment} */\nstatic const float {name}{dims} = {body(literals, '')};\n"
+
+
+# ------------------------------------------------------------------------------------------------ checks
+
+
+def check_expressible(artifact: ModelArtifact) -> None:
+    """Refuse, in one sentence, an artifact whose kind, realization or shapes the generator cannot express."""
+    kind, realization = artifact.content.get("model_kind"), artifact.content.get("realization")
+    if kind not in KINDS:
+        raise FirmwareGenerationError(f"model kind {kind!r} cannot be generated as firmware (the generator knows "
+                                      f"{', '.join(KINDS)}); use an artifact of one of those kinds")
+    if realization not in REALIZATIONS:
+        raise FirmwareGenerationError(f"realization {realization!r} cannot be generated as firmware (the generator "
+                                      f"knows {', '.join(REALIZATIONS)}); rebuild the artifact with "
+                                      "'bench identify --realization'")
+    sizes = []
+    for axis in ("torque_axis_Nm", "speed_axis_rpm"):
+        values = artifact.array("losses", axis)
+        if values.ndim != 1 or not 2 <= values.size <= MAX_GRID_POINTS:
+            raise FirmwareGenerationError(f"artifact field losses.{axis} has shape {list(values.shape)}; the "
+                                          f"firmware generator needs 2 to {MAX_GRID_POINTS} grid points")
+        sizes.append(values.size)
+    for name in LOSS_TABLES:
+        shape = artifact.array("losses", "tables", name).shape
+        if shape != tuple(sizes):
+            raise FirmwareGenerationError(f"artifact field losses.tables.{name} has shape {list(shape)}, the "
+                                          f"firmware generator needs {sizes} (the grid's)")
+
+
+# ------------------------------------------------------------------------------------------------ the C text
+
+_EXP_C = """\
+/* e^x in float32: fmath.exp_f32, the same operations in the same order (its docstring has the derivation).
+ * x is clamped to [EXP_X_MIN, EXP_X_MAX] = [-80, 80] (NaN -> -80); n = round(x log2 e) by the shifter trick,
+ * r = x - n ln2 in two parts (Cody-Waite), e^r = (P(r) r^2 + r) + 1 with the Cephes expf polynomial (Horner),
+ * times 2^n built from its bits. Max error {max_ulp} ulp against the exact value. */
+float fw_exp(float x)
+{{
+    fw_bits scale;
+    float k, r, z, p;
+    if (!(x >= EXP_X_MIN)) x = EXP_X_MIN;
+    if (x > EXP_X_MAX) x = EXP_X_MAX;
+    k = (x * EXP_LOG2E + EXP_SHIFTER) - EXP_SHIFTER;
+    r = (x - k * EXP_LN2_HI) - k * EXP_LN2_LO;
+    z = r * r;
+{horner}
+    scale.u = (uint32_t)((int32_t)k + {bias}) << 23;
+    return ((p * z + r) + 1.0f) * scale.f;
+}}
+"""
+
+_COMMON_C = """\
+/* fmath.matvec, one row: ((m[0] v[0] + m[1] v[1]) + m[2] v[2]) + ..., left to right, zeros included */
+static float dot(const float *m, const float *v, int n)
+{
+    float acc = m[0] * v[0];
+    int j;
+    for (j = 1; j < n; j++) acc = acc + m[j] * v[j];
+    return acc;
+}
+
+/* LossTables._cell: the grid cell holding value and the fraction inside it, clamped to the grid (NaN -> 0) */
+static int grid_cell(float value, float start, float step, int size, float *fraction)
+{
+    const float last = (float)(size - 1);
+    float pos = (value - start) / step;
+    int i;
+    if (!(pos >= 0.0f)) pos = 0.0f;
+    if (pos > last) pos = last;
+    i = (int)pos;
+    if (i > size - 2) i = size - 2;
+    *fraction = pos - (float)i;
+    return i;
+}
+
+/* LossTables.lookup: [p_dc0, p_ac0, p_stator, p_magnet, current] at (torque, speed), bilinear per table */
+static void loss_lookup(float torque, float speed, float out[LOSS_TABLE_COUNT])
+{
+    float fi, fj;
+    const int i = grid_cell(torque, TORQUE_START, TORQUE_STEP, TORQUE_POINTS, &fi);
+    const int j = grid_cell(speed, SPEED_START, SPEED_STEP, SPEED_POINTS, &fj);
+    int k;
+    for (k = 0; k < LOSS_TABLE_COUNT; k++) {
+        const float t00 = LOSS_TABLES[k][i][j], t01 = LOSS_TABLES[k][i][j + 1];
+        const float t10 = LOSS_TABLES[k][i + 1][j], t11 = LOSS_TABLES[k][i + 1][j + 1];
+        const float low = t00 + fj * (t01 - t00);
+        const float high = t10 + fj * (t11 - t10);
+        out[k] = low + fi * (high - low);
+    }
+}
+
+/* Float32Estimator.node_losses: [P_y, P_w, P_t, P_m] in W from the tables and the previous winding estimate:
+ * copper temperature factor (eqs. 3-5), stator split k_s (eqs. 6-8) */
+static void node_losses(float torque, float speed, float losses[4])
+{
+    float table[LOSS_TABLE_COUNT];
+    float factor, p_w, i_ratio, n_ratio, k_s;
+    loss_lookup(torque, speed, table);
+    factor = 1.0f + ALPHA_CU * (y_est[1] - COPPER_REF);
+    p_w = (table[0] * factor) + (table[1] / factor);
+    i_ratio = table[4] / CURRENT_MAX;
+    n_ratio = speed / SPEED_MAX;
+    k_s = ((K_0 + K_1 * i_ratio) + K_2 * n_ratio) + (K_3 * i_ratio) * n_ratio;
+    losses[0] = k_s * table[2];
+    losses[1] = p_w;
+    losses[2] = (1.0f - k_s) * table[2];
+    losses[3] = table[3];
+}
+"""
+
+_SIGMOID_C = """\
+/* Float32Estimator.input_nonlinearity (eqs. 28-30): per loss input, u = P/scale,
+ * S(u) = (gain / (1 + exp(-(w u + b))) + lin u) + off, times scale */
+static void input_nonlinearity(float losses[4])
+{
+    int k;
+    for (k = 0; k < 4; k++) {
+        const float u = losses[k] / SIG_SCALE[k];
+        const float z = SIG_WEIGHT[k] * u + SIG_BIAS[k];
+        const float out = (SIG_GAIN[k] / (1.0f + fw_exp(-z)) + SIG_LINEAR[k] * u) + SIG_OFFSET[k];
+        losses[k] = out * SIG_SCALE[k];
+    }
+}
+"""
+
+_SOURCES_C = """\
+/* Float32Estimator.temperature_sources: [th_cv, th_av, th_a1, th_a2] of eqs. 9-18 from the previous estimate;
+ * g_xx = R_xx1 / a_xx with R_xx1 = R_xx0 exp(-n/n_max / b_xx) (eq. 15), g_cy = R_cy01 / R_cy0 (eq. 16) */
+static void temperature_sources(float speed, float coolant, float ambient, float src[4])
+{
+    const float n_ratio = speed / SPEED_MAX;
+    const float g_tm = (R_TM0 * fw_exp(-n_ratio / B_TM)) / A_TM;
+    const float g_wm = (R_WM0 * fw_exp(-n_ratio / B_WM)) / A_WM;
+    const float g_ma = (R_MA0 * fw_exp(-n_ratio / B_MA)) / A_MA;
+    const float g_cy = ALPHA_CY * (coolant - COOLANT_REF);
+    src[0] = coolant + (g_cy * (y_est[0] - coolant)) / (1.0f + g_cy);
+    src[1] = ambient + (g_ma * (y_est[3] - ambient)) / (1.0f + g_ma);
+    src[2] = (y_est[3] + g_tm * y_est[2]) / (1.0f + g_tm);
+    src[3] = (y_est[1] + g_wm * y_est[3]) / (1.0f + g_wm);
+}
+"""
+
+_PV_C = """\
+/* Float32Estimator.pv_network: continuous A (4x4) and B (4x6) of the parameter-varying LPTN. g[i][j] is the
+ * conductance between nodes i, j of (yoke, winding, tooth, magnet, coolant, ambient); A[i][j] = g[i][j] / C_i off
+ * the diagonal, A[i][i] = -(row sum of g[i], left to right over all six) / C_i, B = [diag(1/C) | g[:, 4:] / C_i] */
+static void pv_network(float speed, float coolant, float a[4][4], float b[4][6])
+{
+    const float n_ratio = speed / SPEED_MAX;
+    const float r_tm = R_TM0 * fw_exp(-n_ratio / B_TM) + A_TM;                      /* eq. 15 */
+    const float r_wm = R_WM0 * fw_exp(-n_ratio / B_WM) + A_WM;
+    const float r_ma = R_MA0 * fw_exp(-n_ratio / B_MA) + A_MA;
+    const float r_cy = R_CY0 * (1.0f + ALPHA_CY * (coolant - COOLANT_REF));         /* eq. 16 */
+    float g[4][6];
+    float inv_c[4];
+    int i, j;
+    for (i = 0; i < 4; i++)
+        for (j = 0; j < 6; j++) g[i][j] = 0.0f;
+    g[0][1] = g[1][0] = 1.0f / R_YW;
+    g[0][2] = g[2][0] = 1.0f / R_YT;
+    g[1][2] = g[2][1] = 1.0f / R_WT;
+    g[1][3] = g[3][1] = 1.0f / r_wm;
+    g[2][3] = g[3][2] = 1.0f / r_tm;
+    g[3][5] = 1.0f / r_ma;
+    g[0][4] = 1.0f / r_cy;
+    inv_c[0] = 1.0f / C_Y;
+    inv_c[1] = 1.0f / C_W;
+    inv_c[2] = 1.0f / C_T;
+    inv_c[3] = 1.0f / C_M;
+    for (i = 0; i < 4; i++) {
+        float row_sum = g[i][0];
+        for (j = 1; j < 6; j++) row_sum = row_sum + g[i][j];
+        for (j = 0; j < 4; j++) a[i][j] = g[i][j] * inv_c[i];
+        a[i][i] = -row_sum * inv_c[i];
+        for (j = 0; j < 4; j++) b[i][j] = 0.0f;
+        b[i][i] = inv_c[i];
+        b[i][4] = g[i][4] * inv_c[i];
+        b[i][5] = g[i][5] * inv_c[i];
+    }
+}
+"""
+
+_STEP_LINEAR_C = """\
+/* Float32Estimator.step (lti-lptn, hammerstein): u = [P_y, P_w, P_t, P_m, th_cv, th_av, th_a1, th_a2];
+ * x <- (A x) + (B u) row by row; y = C x */
+void fw_step(const float inputs[4], float y[4])
+{{
+    float u[8];
+    float x_next[4];
+    int i;
+    node_losses(inputs[0], inputs[1], u);
+{nonlinearity}    temperature_sources(inputs[1], inputs[2], inputs[3], &u[4]);
+    for (i = 0; i < 4; i++) x_next[i] = dot(LB_A[i], x_state, 4) + dot(LB_B[i], u, 8);
+    for (i = 0; i < 4; i++) x_state[i] = x_next[i];
+    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4);
+    for (i = 0; i < 4; i++) y[i] = y_est[i];
+}}
+
+/* Float32Estimator.reset: y = y0, x = C_inv y0 */
+void fw_reset(const float y0[4])
+{{
+    int i;
+    for (i = 0; i < 4; i++) y_est[i] = y0[i];
+    for (i = 0; i < 4; i++) x_state[i] = dot(LB_C_INV[i], y_est, 4);
+    fw_clear();
+}}
+
+/* Float32Estimator.restore: x bit for bit, y = C x */
+void fw_restore(const float x[4])
+{{
+    int i;
+    for (i = 0; i < 4; i++) x_state[i] = x[i];
+    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4);
+    fw_clear();
+}}
+"""
+
+_STEP_PV_C = """\
+/* Float32Estimator.step (pv-lptn): u = [P_y, P_w, P_t, P_m, coolant, ambient];
+ * forward Euler (eq. 51): x <- x + dt ((A x) + (B u)); y = x */
+void fw_step(const float inputs[4], float y[4])
+{
+    float a[4][4], b[4][6];
+    float u[6];
+    float x_next[4];
+    int i;
+    node_losses(inputs[0], inputs[1], u);
+    pv_network(inputs[1], inputs[2], a, b);
+    u[4] = inputs[2];
+    u[5] = inputs[3];
+    for (i = 0; i < 4; i++) x_next[i] = x_state[i] + DT * (dot(a[i], x_state, 4) + dot(b[i], u, 6));
+    for (i = 0; i < 4; i++) x_state[i] = x_next[i];
+    for (i = 0; i < 4; i++) y_est[i] = x_state[i];
+    for (i = 0; i < 4; i++) y[i] = y_est[i];
+}
+
+/* Float32Estimator.reset: the pv-lptn's state is the temperatures themselves, x = y = y0 */
+void fw_reset(const float y0[4])
+{
+    int i;
+    for (i = 0; i < 4; i++) y_est[i] = y0[i];
+    for (i = 0; i < 4; i++) x_state[i] = y_est[i];
+    fw_clear();
+}
+
+/* Float32Estimator.restore: x bit for bit, y = x */
+void fw_restore(const float x[4])
+{
+    int i;
+    for (i = 0; i < 4; i++) x_state[i] = x[i];
+    for (i = 0; i < 4; i++) y_est[i] = x_state[i];
+    fw_clear();
+}
+"""
+
+_API_C = """\
+void fw_state(float x[4])
+{
+    int i;
+    for (i = 0; i < 4; i++) x[i] = x_state[i];
+}
+
+void fw_output(float y[4])
+{
+    int i;
+    for (i = 0; i < 4; i++) y[i] = y_est[i];
+}
+
+/* InputAccumulator.add: sum <- sum + sample, elementwise */
+void fw_accumulate(const float sample[4])
+{
+    int i;
+    for (i = 0; i < 4; i++) acc_sum[i] = acc_sum[i] + sample[i];
+    acc_count = acc_count + 1u;
+}
+
+/* InputAccumulator.add (interval complete): mean = sum / float32(count), then cleared */
+unsigned int fw_mean(float u[4])
+{
+    const unsigned int count = acc_count;
+    int i;
+    if (count == 0u) return 0u;
+    for (i = 0; i < 4; i++) u[i] = acc_sum[i] / (float)count;
+    fw_clear();
+    return count;
+}
+
+/* InputAccumulator.clear */
+void fw_clear(void)
+{
+    int i;
+    for (i = 0; i < 4; i++) acc_sum[i] = 0.0f;
+    acc_count = 0u;
+}
+"""
+
+_HEADER = """\
+/* {header} - the {kind} model ({realization} realization, dt {dt} s) as C99 firmware.
+ * Generated by 'bench firmware export' from the model artifact with sha256
+ * {sha256}.
+ * Do not edit: regenerate it from the artifact.
+ *
+ * Portable C99 (no libc, no malloc, no double, no recursion): every operation in float32, in the same order as
+ * the bench's Python reference (target_sim.model), so both give the same bits. Compile with FMA contraction off
+ * (-ffp-contract=off) and without -ffast-math, under round-to-nearest with denormals kept (the FPU's reset state).
+ *
+ * The model state lives in this module's static RAM (.bss): one model instance. Typical use on the target:
+ *   fw_reset(y0);                              at start, from measured temperatures
+ *   every 5 Hz drive sample:  fw_accumulate(sample);
+ *   when an interval of FW_DT_S has ended:  if (fw_mean(u)) fw_step(u, y);
+ *   every N steps, send fw_state(x) as a checkpoint; after a restart fw_restore(x) continues bit for bit.
+ * Deciding WHEN an interval ends (integer row logic: step k takes the samples in [k dt, (k+1) dt)) is the
+ * caller's job, as in target_sim.model.InputAccumulator.
+ *
+ * Temperatures are [yoke, winding, tooth, magnet] in deg C; drive inputs [torque Nm, speed rpm, coolant deg C,
+ * ambient deg C]. No function keeps a pointer it was given; arrays may not overlap.
+ */
+#ifndef FW_MODEL_H
+#define FW_MODEL_H
+
+#include <stdint.h> /* uint32_t: a header of the compiler's, not of a libc (C99 freestanding) */
+
+/* What this file was generated from: model kind, realization, model step and drive data period (s), and the
+ * first 32 bits of the artifact's sha256 (the model's identity on the bus). */
+#define FW_MODEL_KIND "{kind}"
+#define FW_REALIZATION "{realization}"
+#define FW_DT_S {dt_literal}
+#define FW_SAMPLE_PERIOD_S {sample_literal}
+#define FW_MODEL_ID 0x{model_id:08x}u
+
+/* The first 32 bits of the artifact's sha256, what the target reports on the bus (= FW_MODEL_ID), kept in the
+ * image so a flashed firmware can be matched with its artifact. */
+extern const uint32_t fw_model_id;
+
+/* Start from temperatures y0: y = y0, x = C_inv y0 (pv-lptn: x = y0); the accumulator is cleared. */
+void fw_reset(const float y0[4]);
+
+/* Continue from a checkpointed state vector x, bit for bit: y = C x (pv-lptn: y = x); accumulator cleared. */
+void fw_restore(const float x[4]);
+
+/* The state vector x (the realization's coordinates): what a StateCheckpoint carries. */
+void fw_state(float x[4]);
+
+/* The latest outputs y [yoke, winding, tooth, magnet] (deg C): y0 after fw_reset, else the last step's. */
+void fw_output(float y[4]);
+
+/* One model step from the interval means u = [torque, speed, coolant, ambient]; writes the outputs to y. */
+void fw_step(const float u[4], float y[4]);
+
+/* Add one drive sample [torque, speed, coolant, ambient] to the interval sum (float32, elementwise). */
+void fw_accumulate(const float sample[4]);
+
+/* The float32 mean of the accumulated samples into u, then clear; returns their count (0: u untouched). */
+unsigned int fw_mean(float u[4]);
+
+/* Forget the accumulated samples. */
+void fw_clear(void);
+
+/* The model's own e^x in float32 (argument clamped to [-80, 80], NaN -> -80; max error {max_ulp} ulp), the
+ * function target_sim.fmath.exp_f32 equals bit for bit; exposed for verification. */
+float fw_exp(float x);
+
+#endif /* FW_MODEL_H */
+"""
+
+
+def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
+    """(C name, literal, comment) of every scalar the step may use; only the used ones are emitted."""
+    tables = LossTables(artifact)       # the reference's own derived constants (grid steps), in float32
+    out: list[tuple[str, str, str]] = []
+    for name in ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
+                 "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3"):
+        literal = _artifact_literals(artifact, "lptn", "parameters", name, shape=())[()]
+        out.append((name.upper(), literal, f"lptn.parameters.{name}"))
+    for c_name, keys in (("SPEED_MAX", ("lptn", "speed_max_rpm")), ("CURRENT_MAX", ("losses", "current_max_A")),
+                         ("ALPHA_CU", ("losses", "alpha_cu_per_K")),
+                         ("COPPER_REF", ("losses", "copper_reference_C"))):
+        out.append((c_name, _artifact_literals(artifact, *keys, shape=())[()], ".".join(keys)))
+    torque = _artifact_literals(artifact, "losses", "torque_axis_Nm")
+    speed = _artifact_literals(artifact, "losses", "speed_axis_rpm")
+    out += [("TORQUE_START", torque[0], "losses.torque_axis_Nm[0]"),
+            ("TORQUE_STEP", c_float(tables.torque_step), "torque_axis_Nm[1] - torque_axis_Nm[0] in float32"),
+            ("SPEED_START", speed[0], "losses.speed_axis_rpm[0]"),
+            ("SPEED_STEP", c_float(tables.speed_step), "speed_axis_rpm[1] - speed_axis_rpm[0] in float32"),
+            ("COOLANT_REF", c_float(np.float32(COOLANT_REFERENCE_C)), "coolant temperature of R_cy0 (eq. 16)"),
+            ("DT", c_float(np.float32(artifact.dt)), "timing.dt_s: the model step (s)")]
+    return out
+
+
+def _value_comment(literal: str) -> str:
+    return f"{np.float32(float.fromhex(literal[:-1])):.9g}"
+
+
+def generate(artifact: ModelArtifact) -> GeneratedSource:
+    """The C header and source of `artifact`'s model (kind and realization as the artifact says)."""
+    check_expressible(artifact)
+    kind = artifact.kind
+    model_id = artifact.model_id
+    dt_literal = c_float(np.float32(artifact.dt))
+    sample_literal = c_float(np.float32(artifact.data_sample_period))
+    header = _HEADER.format(header=HEADER_NAME, kind=kind, realization=artifact.realization, dt=f"{artifact.dt:g}",
+                            sha256=artifact.sha256, dt_literal=dt_literal, sample_literal=sample_literal,
+                            model_id=model_id, max_ulp=EXP_MAX_ULP)
+
+    # the code first: only the constants it names are emitted (an unused static const is a warning)
+    horner = [f"    p = EXP_{EXP_POLYNOMIAL[0]};"]
+    horner += [f"    p = p * r + EXP_{name};" for name in EXP_POLYNOMIAL[1:]]
+    code = [_EXP_C.format(horner="\n".join(horner), bias=EXP_EXPONENT_BIAS, max_ulp=EXP_MAX_ULP), _COMMON_C]
+    if kind == "hammerstein":
+        code.append(_SIGMOID_C)
+    if kind == "pv-lptn":
+        code += [_PV_C, _STEP_PV_C]
+    else:
+        code += [_SOURCES_C, _STEP_LINEAR_C.format(
+            nonlinearity="    input_nonlinearity(u);\n" if kind == "hammerstein" else "")]
+    code.append(_API_C)
+    code_text = "\n".join(code)
+    used = set(re.findall(r"\b[A-Z][A-Z0-9_]*\b", code_text))
+
+    parts = [f"/* {SOURCE_NAME} - generated by 'bench firmware export' from the model artifact with sha256\n"
+             f" * {artifact.sha256} ({kind}, {artifact.realization} realization, dt {artifact.dt:g} s).\n"
+             " * Do not edit: regenerate it. The Python reference it equals bit for bit is target_sim.model;\n"
+             " * each function below names the method it mirrors. */\n",
+             f'#include <float.h>\n#include "{HEADER_NAME}"\n',
+             "/* Type punning through a union: defined behaviour in C99 (TC3), used to build 2^n from its bits;\n"
+             " * float must be IEEE binary32 (a negative array size stops the build otherwise). */\n"
+             "typedef union {\n    float f;\n    uint32_t u;\n} fw_bits;\n"
+             "typedef char fw_float_is_binary32[(sizeof(float) == sizeof(uint32_t) && FLT_MANT_DIG == 24) ? 1 : -1];\n",
+             f"const uint32_t fw_model_id = 0x{model_id:08x}u;\n",
+             "/* ---- coefficients: float32, written exactly as the artifact's f32_hex ---- */\n"]
+    exp_lines = [f"static const float EXP_{name} = {c_float(value)}; /* {float(value):.9g} */"
+                 for name, value in EXP_CONSTANTS.items()]
+    parts.append("/* fw_exp's constants (target_sim.fmath.EXP_CONSTANTS) */\n" + "\n".join(exp_lines) + "\n")
+    scalars = [f"static const float {name} = {literal}; /* {comment} = {_value_comment(literal)} */"
+               for name, literal, comment in _scalar_constants(artifact) if name in used]
+    parts.append("\n".join(scalars) + "\n")
+    grid = artifact.array("losses", "tables", LOSS_TABLES[0]).shape
+    parts.append(f"#define TORQUE_POINTS {grid[0]}\n#define SPEED_POINTS {grid[1]}\n"
+                 f"#define LOSS_TABLE_COUNT {len(LOSS_TABLES)}\n")
+    tables = np.stack([_artifact_literals(artifact, "losses", "tables", name, shape=grid) for name in LOSS_TABLES])
+    parts.append(_c_array("LOSS_TABLES", tables, f"losses.tables [{', '.join(LOSS_TABLES)}][torque][speed]"))
+    if kind == "hammerstein":
+        for key in SIGMOID_KEYS:
+            c_name = "SIG_" + key.split("_")[0].upper()
+            parts.append(_c_array(c_name, _artifact_literals(artifact, "input_nonlinearity", key, shape=(4,)),
+                                  f"input_nonlinearity.{key} [P_y, P_w, P_t, P_m]"))
+    if kind != "pv-lptn":
+        for key, shape in LINEAR_BLOCK.items():
+            parts.append(_c_array(f"LB_{key.upper()}", _artifact_literals(artifact, "linear_block", key, shape=shape),
+                                  f"linear_block.{key} ({artifact.realization} realization)"))
+    parts.append("/* ---- state (.bss): x, the latest outputs y, the interval sum and count ---- */\n"
+                 "static float x_state[4];\n"
+                 f"static float y_est[4]; /* [{', '.join(OUTPUTS)}] */\n"
+                 "static float acc_sum[4];\n"
+                 "static unsigned int acc_count;\n")
+    parts.append(code_text)
+    return GeneratedSource(header=header, source="\n".join(parts))

@@ -1,0 +1,153 @@
+"""Cross-compile the generated C for a Cortex-M4F (clang and lld from the `ziglang` package) into firmware.elf.
+
+    python -m ziglang cc  COMPILE_FLAGS -c fw_model.c -o fw_model.o     (and startup.c)
+    python -m ziglang ld.lld LINK_FLAGS -T firmware.ld -Map=firmware.map -o firmware.elf startup.o fw_model.o
+
+The build runs in a fresh temporary directory with fixed file names and relative paths, no debug information
+(-g0) and no build id, so the ELF holds no path, time or random bytes: the same sources and toolchain give the
+same bytes (a test builds twice and compares). The compiler runs with every warning an error, -Wdouble-promotion
+and -Wconversion included, and with FMA contraction off: the firmware must do exactly the float32 operations the
+Python reference does (`target_sim.model`).
+
+Flags, and why:
+* -target thumb-freestanding-eabihf -mcpu=cortex_m4+vfp4d16sp: Armv7E-M, FPv4-SP-D16, hard-float ABI (without
+  +vfp4d16sp clang calls soft-float helpers, which -nostdlib cannot link);
+* -O2 -ffp-contract=off (no fused multiply-add: the reference rounds every product);
+* -ffreestanding -nostdlib: no libc, and no memcpy/memset calls invented by the optimizer;
+* -ffunction-sections -fdata-sections + --gc-sections: only what the entry points reach (firmware.ld KEEPs the
+  fw_* functions, which nothing in the image calls);
+* -fno-unwind-tables -fno-asynchronous-unwind-tables (and firmware.ld discards .ARM.exidx): no unwind tables in
+  flash; -fomit-frame-pointer: zig's clang keeps r7 as a frame pointer otherwise.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from importlib.resources import files
+from pathlib import Path
+
+from bench.errors import BenchError
+from bench.firmware.codegen import HEADER_NAME, SOURCE_NAME, GeneratedSource
+from target_sim.firmware import FirmwareError, memory_from_elf
+
+COMPILER: list[str] = [sys.executable, "-m", "ziglang"]    # tests point this elsewhere to simulate a missing one
+TIMEOUT_S = 300.0
+STARTUP_NAME = "startup.c"
+LINKER_SCRIPT_NAME = "firmware.ld"
+ELF_NAME = "firmware.elf"
+MAP_NAME = "firmware.map"
+
+TARGET_FLAGS = ("-target", "thumb-freestanding-eabihf", "-mcpu=cortex_m4+vfp4d16sp")
+CODE_FLAGS = ("-std=c99", "-O2", "-g0", "-ffp-contract=off", "-ffreestanding", "-nostdlib", "-fno-common",
+              "-fno-unwind-tables", "-fno-asynchronous-unwind-tables", "-fomit-frame-pointer",
+              "-ffunction-sections", "-fdata-sections", "-fno-stack-protector")
+WARNING_FLAGS = ("-Wall", "-Wextra", "-Werror", "-Wpedantic", "-Wdouble-promotion", "-Wconversion", "-Wshadow",
+                 "-Wmissing-prototypes", "-Wstrict-prototypes", "-Wcast-qual", "-Wundef")
+LINK_FLAGS = ("--gc-sections", "--build-id=none", "-nostdlib", "-static", "--no-undefined", "--nmagic")
+
+
+class ToolchainError(BenchError):
+    """The cross-compiler is missing or failed; the message is one sentence."""
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    """What a build produced: the ELF's bytes, its map, the sources it was built from and its memory figures."""
+
+    elf: bytes
+    map_text: str
+    sources: dict[str, str]          # file name -> text: fw_model.h/.c, startup.c, firmware.ld
+    memory: dict                     # target_sim.firmware.memory_from_elf
+    toolchain: str
+
+    @property
+    def elf_sha256(self) -> str:
+        return hashlib.sha256(self.elf).hexdigest()
+
+    @property
+    def files(self) -> dict[str, bytes]:
+        """Every output file of `bench firmware build`, by name."""
+        out = {name: text.encode("utf-8") for name, text in self.sources.items()}
+        out[ELF_NAME] = self.elf
+        out[MAP_NAME] = self.map_text.encode("utf-8")
+        return out
+
+
+def support_file(name: str) -> str:
+    """startup.c or firmware.ld, shipped beside this module."""
+    return (files("bench.firmware") / name).read_text(encoding="utf-8")
+
+
+def _first_line(text: str) -> str:
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    errors = [line for line in lines if "error" in line.lower()]
+    return (errors or lines or ["no output"])[0][:300]
+
+
+def _run(args: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
+    command = [*COMPILER, *args]
+    try:
+        done = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S)
+    except FileNotFoundError:
+        raise ToolchainError(f"the C cross-compiler cannot be started ({command[0]} not found); install it with "
+                             "pip install 'pmsm-thermal-bench[firmware]'") from None
+    except subprocess.TimeoutExpired:
+        raise ToolchainError(f"{what} took longer than {TIMEOUT_S:g} s and was stopped; try again on a less "
+                             "loaded machine") from None
+    return done
+
+
+def toolchain_version(cwd: Path | None = None) -> str:
+    """'zig 0.17.1', or ToolchainError (one sentence) when `python -m ziglang` does not run."""
+    done = _run(["version"], cwd or Path(tempfile.gettempdir()), "asking the compiler for its version")
+    if done.returncode != 0 or not done.stdout.strip():
+        raise ToolchainError(f"the C cross-compiler (python {' '.join(COMPILER[1:])}) is not available "
+                             f"({_first_line(done.stderr + done.stdout)}); install it with "
+                             "pip install 'pmsm-thermal-bench[firmware]'")
+    return f"zig {done.stdout.strip()}"
+
+
+def compile_flags(work: Path) -> list[str]:
+    # the build directory's path never reaches the objects (there is no debug info, but be sure)
+    return [*TARGET_FLAGS, *CODE_FLAGS, *WARNING_FLAGS, f"-ffile-prefix-map={work}=."]
+
+
+def build_firmware(generated: GeneratedSource) -> BuildResult:
+    """Compile and link `generated` with the start-up code and linker script; ToolchainError if that fails."""
+    version = toolchain_version()
+    sources = {**generated.files, STARTUP_NAME: support_file(STARTUP_NAME),
+               LINKER_SCRIPT_NAME: support_file(LINKER_SCRIPT_NAME)}
+    with tempfile.TemporaryDirectory(prefix="bench-firmware-") as tmp:
+        work = Path(tmp)
+        for name, text in sources.items():
+            (work / name).write_text(text, encoding="utf-8")
+        objects = []
+        for source in (STARTUP_NAME, SOURCE_NAME):
+            obj = Path(source).with_suffix(".o").name
+            done = _run(["cc", *compile_flags(work), "-c", source, "-o", obj], work, f"compiling {source}")
+            if done.returncode != 0:
+                raise ToolchainError(f"compiling {source} for the Cortex-M4F failed: "
+                                     f"{_first_line(done.stderr + done.stdout)}")
+            objects.append(obj)
+        done = _run(["ld.lld", *LINK_FLAGS, "-T", LINKER_SCRIPT_NAME, f"-Map={MAP_NAME}", "-o", ELF_NAME, *objects],
+                    work, "linking the firmware")
+        if done.returncode != 0:
+            reason = _first_line(done.stderr + done.stdout)
+            hint = ("the model does not fit the 256 kB flash / 64 kB RAM map" if "will not fit" in reason
+                    or "overflowed" in reason else "see the linker's message")
+            raise ToolchainError(f"linking the firmware failed ({hint}): {reason}")
+        elf = (work / ELF_NAME).read_bytes()
+        map_text = (work / MAP_NAME).read_text(encoding="utf-8")
+    try:
+        memory = memory_from_elf(elf)
+    except FirmwareError as exc:     # the linker wrote something the emulator cannot load: a toolchain problem
+        raise ToolchainError(f"the linked firmware is not a Cortex-M4F image the emulator accepts: {exc}") from None
+    return BuildResult(elf=elf, map_text=map_text, sources=sources, memory=memory, toolchain=version)
+
+
+__all__ = ["BuildResult", "COMPILER", "ELF_NAME", "HEADER_NAME", "MAP_NAME", "SOURCE_NAME", "ToolchainError",
+           "build_firmware", "support_file", "toolchain_version"]
