@@ -64,6 +64,19 @@ def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
         raise BenchError(str(exc)) from None
 
 
+ENGINES = ("python", "firmware")
+
+
+def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True) -> Path | None:
+    """The ELF the target runs with `engine` "firmware" (None for "python"): the packaged one of a packaged
+    artifact, else built once into `cache_dir` (BenchError, one sentence, without the compiler)."""
+    if engine != "firmware":
+        return None
+    from bench.firmware.images import firmware_for
+
+    return firmware_for(artifact, cache_dir, quiet=quiet)
+
+
 def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, seed: int | None = None,
               quiet: bool = True):
     """The dataset (default: the generated 40 °C validation run, made in out/data if missing)."""
@@ -83,9 +96,11 @@ class TargetProcess:
     """`python -m target_sim` on a bus, started and stopped cleanly (SIGTERM, then kill after a timeout)."""
 
     def __init__(self, model_path: str | Path, bus: BusConfig, *, stats_path: str | Path | None = None,
-                 events_path: str | Path | None = None, extra_argv: list[str] | None = None):
+                 events_path: str | Path | None = None, extra_argv: list[str] | None = None,
+                 firmware: str | Path | None = None):
         self.model_path = Path(model_path)
         self.bus = bus
+        self.firmware = firmware      # the model's ELF: the target runs the firmware engine (else the Python one)
         self.stats_path = stats_path
         self.events_path = events_path
         self.extra_argv = list(extra_argv or [])   # e.g. the reply faults the target injects
@@ -101,6 +116,8 @@ class TargetProcess:
     @property
     def argv(self) -> list[str]:
         argv = [sys.executable, "-m", "target_sim", "--model", str(self.model_path), *self.bus.to_argv()]
+        if self.firmware is not None:
+            argv += ["--engine", "firmware", "--firmware", str(self.firmware)]
         if self.stats_path is not None:
             argv += ["--stats", str(self.stats_path)]
         if self.events_path is not None:
@@ -257,18 +274,20 @@ OWN_TARGET_CONNECT_TIMEOUT_S = 120.0
 def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, drive: np.ndarray, initial,
                     *, mode: str = "lockstep", speed: float = 1.0, sample_period_s: float = 0.2,
                     log_path: str | Path | None = None, reply_timeout_s: float = 0.05,
-                    progress: Progress | None = None, faults: FaultSpec | None = None) -> RunOutcome:
+                    progress: Progress | None = None, faults: FaultSpec | None = None,
+                    firmware: Path | None = None) -> RunOutcome:
     """Start the target on `bus`, replay `drive` from this process, stop the target.
 
     With `faults` (active), the target writes its detection journal to a temporary file and the host may kill,
-    freeze and restart it; the result carries the fault summary (`result.faults`)."""
+    freeze and restart it; the result carries the fault summary (`result.faults`). With `firmware` (an ELF,
+    `firmware_for_engine`) the target runs the firmware engine."""
     injecting = faults is not None and faults.active
     events_dir = tempfile.TemporaryDirectory(prefix="bench-events-") if injecting else None
     events = Path(events_dir.name) / "target-events.jsonl" if events_dir is not None else None
     host_bus = _open(bus)
     try:
         refuse_foreign_target(host_bus, bus, artifact)
-        with TargetProcess(model_path, bus, events_path=events,
+        with TargetProcess(model_path, bus, events_path=events, firmware=firmware,
                            extra_argv=faults.reply_argv() if injecting else None) as target:
             result = _host_errors(lambda: run_dataset(
                 host_bus, drive, initial, model_id=artifact.model_id, mode=mode, speed=speed,
@@ -278,6 +297,7 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
                 control=target.control() if injecting else None, target_events=events), target)
             status = target.stop()
             stderr = target.stderr_text()
+            _name_the_fault(result, stderr)
     finally:
         host_bus.shutdown()
         if events_dir is not None:
@@ -288,10 +308,22 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     return RunOutcome(result, status, stderr)
 
 
+def _name_the_fault(result: HostResult, stderr: str) -> None:
+    """A run the host aborted because the target faulted: the target's own sentence (e.g. the emulated core's
+    FirmwareFault) goes into the reason, so the user reads the cause, not only the effect."""
+    if not result.aborted:
+        return
+    faults = [line.removeprefix("target_sim: ") for line in stderr.splitlines() if "internal fault" in line]
+    if faults:
+        result.aborted = f"{result.aborted}: {faults[-1]}"
+
+
 def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, bus: BusConfig, messages, *,
                        timed: bool, speed: float = 1.0, log_path: str | Path | None = None,
-                       reply_timeout_s: float = 0.05, progress: Progress | None = None) -> RunOutcome:
-    """Re-send a log's host frames to a target started here (or, with model_path None, one already running)."""
+                       reply_timeout_s: float = 0.05, progress: Progress | None = None,
+                       firmware: Path | None = None) -> RunOutcome:
+    """Re-send a log's host frames to a target started here (or, with model_path None, one already running),
+    which runs the firmware engine on the ELF `firmware` if one is given."""
     host_bus = _open(bus)
     if model_path is not None:  # a target of our own: none may be on the channel already
         try:
@@ -299,7 +331,7 @@ def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, 
         except BenchError:
             host_bus.shutdown()
             raise
-    target = TargetProcess(model_path, bus).start() if model_path is not None else None
+    target = TargetProcess(model_path, bus, firmware=firmware).start() if model_path is not None else None
     try:
         alive = target.exit_reason if target is not None else None
         try:

@@ -49,6 +49,11 @@ REPLY_COMPLETE = (1 << len(REPLY_MESSAGES)) - 1
 # the drive values of a data row, in the order the host reads them from a dataset: torque, speed, coolant, ambient
 DRIVE_SIGNALS: tuple[tuple[str, str], ...] = (("DriveInputs", "MotorTorque"), ("DriveInputs", "MotorSpeed"),
                                               ("DriveTemps", "CoolantTemp"), ("DriveTemps", "AmbientTemp"))
+# The firmware engine's timing frame: Cortex-M4F cycles the emulated core counted for a model step, and their time
+# at M4_CLOCK_HZ (90 MHz, the clock of the paper's C28x F28069M, so the two µs figures compare cycle for cycle).
+# Sent only by a target that runs the compiled firmware; Timing2 carries the C28x estimate beside it.
+FIRMWARE_TIMING_MESSAGE = "Timing4"
+M4_CLOCK_HZ = 90_000_000
 CHECKPOINT_EVERY_STEPS = 20   # model steps between two StateCheckpoints (10 s at Δt 0.5 s): the most a restored
                               # target has to re-run, at 4 frames per checkpoint
 

@@ -28,7 +28,7 @@ import can
 import numpy as np
 
 from dbc.codec import FrameCodec
-from dbc.contract import DRIVE_SIGNALS, step_of
+from dbc.contract import DRIVE_SIGNALS, FaultBit, TargetState, step_of
 from dbc.database import frame_id, host_frame_ids, signal_ranges
 from host.session import HostSession, RowBook, SessionError
 
@@ -122,6 +122,10 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
                 aborted = (f"the target went silent (no heartbeat for more than "
                            f"{session.monitor.heartbeat_timeout_s:g} s) at row {n}")
                 break
+            if session.monitor.state == TargetState.FAULT:   # it answers nothing until a RESET: stop now
+                aborted = (f"the target reported an internal fault at row {n} (state FAULT, fault bits "
+                           f"{_fault_names(session.monitor.faults)}); its own log names the cause")
+                break
             if consecutive >= abort_after:
                 aborted = f"the target stopped answering: {consecutive} rows in a row without a reply (row {n})"
                 break
@@ -134,6 +138,10 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
     if progress is not None:
         progress(sent, rows)
     return ReplayStats("lockstep", sent, elapsed, aborted)
+
+
+def _fault_names(bits: int) -> str:
+    return ", ".join(bit.name for bit in FaultBit if bit & bits) or "none"
 
 
 class RowHooks(Protocol):

@@ -55,6 +55,9 @@ class HostResult:
     est_cycles: int | None
     est_exec_us: float | None
     cpu_load_percent: float | None
+    # the Cortex-M4F cycles the firmware engine counted per model step (Timing4), p50/p99/max; None without them
+    m4_cycles: dict[str, float | None] | None = None
+    engine: str | None = None       # "firmware" when the target sent Timing4, else "python"
     log_path: str | None = None
     aborted: str | None = None
     log_frames: int | None = None
@@ -112,6 +115,7 @@ def build_result(session: HostSession, stats: ReplayStats, *, rows: int, speed: 
     cycles = [v for _, v in timing["cycles"]]
     exec_us = [v for _, v in timing["exec_us"]]
     load = [v for _, v in timing["cpu_load"]]
+    m4_cycles = [v for _, v in timing["m4_cycles"]]
     return HostResult(
         mode=stats.mode, speed=speed, rows=rows, rows_sent=sent, replies=int(np.count_nonzero(answered)),
         missing=int(sent - np.count_nonzero(answered)), late_replies=session.late_replies,
@@ -127,6 +131,7 @@ def build_result(session: HostSession, stats: ReplayStats, *, rows: int, speed: 
         send_jitter_us=percentiles(stats.send_jitter_s, 1e6) if stats.send_jitter_s is not None else None,
         step_time_us=percentiles(measured), est_cycles=int(max(cycles)) if cycles else None,
         est_exec_us=float(max(exec_us)) if exec_us else None, cpu_load_percent=float(max(load)) if load else None,
+        m4_cycles=percentiles(m4_cycles) if m4_cycles else None, engine="firmware" if m4_cycles else "python",
         log_path=log_path, aborted=stats.aborted, log_frames=log_frames, faults=faults,
         arrays={"temps": book.temps[:sent], "answered": answered, "round_trip_ns": book.replied_ns[:sent]
                 - book.sent_ns[:sent], **({"send_jitter_s": stats.send_jitter_s}

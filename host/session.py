@@ -25,6 +25,7 @@ import numpy as np
 
 from dbc.codec import DecodedFrame, FrameCodec, FrameValidator
 from dbc.contract import (
+    FIRMWARE_TIMING_MESSAGE,
     FRAME_ERROR_KINDS,
     HEARTBEAT_TIMEOUT_S,
     REPLY_COMPLETE,
@@ -134,9 +135,11 @@ class HostSession:
         self.book: RowBook | None = None
         self.last_sent_row = -1
         self.late_replies = 0
-        # per model step, as (row, value) pairs: measured µs, overruns, est. cycles, est. µs, CPU load %
+        # per model step, as (row, value) pairs: measured µs, overruns, est. C28x cycles, est. µs, CPU load %, and
+        # (firmware engine only) the Cortex-M4F cycles counted in the emulated core and their µs at 90 MHz
         self.timing: dict[str, list[tuple[int, float]]] = {
-            "measured_us": [], "overruns": [], "cycles": [], "exec_us": [], "cpu_load": []}
+            "measured_us": [], "overruns": [], "cycles": [], "exec_us": [], "cpu_load": [], "m4_cycles": [],
+            "m4_exec_us": []}
         self.on_frame: Callable[[DecodedFrame], None] | None = None
         # the target's state checkpoints: elements per Step until all four are in, then the complete ones by row
         self._checkpoint_parts: dict[int, dict[int, float]] = {}
@@ -228,6 +231,10 @@ class HostSession:
             self.timing["exec_us"].append((row, float(s["EstExecTime"])))
         elif name == "Timing3":
             self.timing["cpu_load"].append((self._row_of(int(s["Step"])), float(s["CpuLoad"])))
+        elif name == FIRMWARE_TIMING_MESSAGE:
+            row = self._row_of(int(s["Step"]))
+            self.timing["m4_cycles"].append((row, int(s["M4Cycles"])))
+            self.timing["m4_exec_us"].append((row, float(s["M4ExecTime"])))
         elif name == "StateCheckpoint":
             self._checkpoint(int(s["Step"]), int(s["StateIndex"]), float(s["StateValue"]))
         elif name == "RxErrors":

@@ -1,13 +1,17 @@
 """`python -m target_sim`: the simulated C2000 target process.
 
-    python -m target_sim --model MODEL.json [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...]
+    python -m target_sim --model MODEL.json [--engine python|firmware] [--firmware ELF]
+                         [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...]
                          [--can-config FILE] [--stats FILE] [--events FILE] [--faults K=P,...] [--fault-seed N]
                          [--quiet]
 
-Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1), opens the bus (`auto`: socketcan
-vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms) and serves
-until SIGTERM or SIGINT, then shuts the bus down and exits 0. `--stats FILE` writes the node's counters (JSON)
-at exit. `--events FILE` appends one JSON line per rejected frame or sequence error (the node's detection
+Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1) and, with `--engine firmware`, the
+model's firmware ELF (`bench firmware build`), which the emulated Cortex-M4F runs instead of the Python model: an
+ELF for another core, or of another model than the artifact's (its `fw_model_id`), is refused in one sentence,
+exit 1 (`--firmware` implies the firmware engine; `--engine firmware` needs it). Then it opens the bus (`auto`:
+socketcan vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms)
+and serves until SIGTERM or SIGINT, then shuts the bus down and exits 0. `--stats FILE` writes the node's counters
+(JSON) at exit. `--events FILE` appends one JSON line per rejected frame or sequence error (the node's detection
 journal), plus a "start" line with the process id and a "stop" line with the counters; each line is one
 write(2) to a file opened O_APPEND, so what was written survives a SIGKILL and a restarted target appends to the
 same file. `--faults reply_drop=0.01,...` alters the temperature replies on their way out (`target_sim.faults`)
@@ -30,7 +34,7 @@ from dbc.database import DbcError, contract
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 from target_sim.artifact import ArtifactError, load_artifact
 from target_sim.faults import ReplyFaults, parse_reply_faults
-from target_sim.node import TargetNode, log_error, serve, target_on_channel
+from target_sim.node import ENGINES, TargetNode, log_error, serve, target_on_channel
 
 
 class _Parser(argparse.ArgumentParser):
@@ -43,6 +47,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="python -m target_sim", description=__doc__.split("\n\n")[0],
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", required=True, help="model artifact (JSON) to run")
+    parser.add_argument("--engine", choices=ENGINES, default=None,
+                        help="python: the float32 model in Python (default); firmware: the compiled model (--firmware "
+                             "ELF) in the emulated Cortex-M4F, with measured cycles (Timing4)")
+    parser.add_argument("--firmware", default=None, metavar="ELF",
+                        help="the model's firmware ELF ('bench firmware build'), for --engine firmware")
     parser.add_argument("--stats", default=None, help="write the node's counters to this JSON file at exit")
     parser.add_argument("--events", default=None,
                         help="append the detection journal (one JSON line per rejected frame) to this file")
@@ -104,6 +113,16 @@ def main(argv: list[str] | None = None) -> int:
             reply_rates = parse_reply_faults(args.faults)
         except ValueError as exc:
             parser.error(f"--faults: {exc}")
+    engine = args.engine or ("firmware" if args.firmware else "python")
+    if engine == "firmware" and not args.firmware:
+        parser.error("--engine firmware needs the model's firmware: --firmware ELF (see 'bench firmware build')")
+    if engine == "python" and args.firmware:
+        parser.error("--firmware is the firmware engine's ELF; drop it or use --engine firmware")
+    firmware_errors: tuple[type[Exception], ...] = ()
+    if engine == "firmware":   # the emulator (unicorn) loads only for this engine
+        from target_sim.firmware import FirmwareError
+
+        firmware_errors = (FirmwareError,)
     journal = None
     try:
         config = resolve(config_from_args(args))
@@ -111,8 +130,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("the 'virtual' interface does not cross processes, so no host could reach the target; "
                          "use udp_multicast, socketcan or auto")
         artifact = load_artifact(args.model)
+        node = TargetNode(artifact, engine=engine, firmware=args.firmware)   # the ELF checked before the bus opens
         bus = config.open()
-    except (ArtifactError, BusUnavailable) as exc:
+    except (ArtifactError, BusUnavailable, *firmware_errors) as exc:
         print(f"target_sim: error: {exc}", file=sys.stderr)
         return 1
     other = target_on_channel(bus)
@@ -130,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         bus.shutdown()
         print(f"target_sim: error: {exc}", file=sys.stderr)
         return 1
-    node = TargetNode(artifact, journal=journal)
+    node.journal = journal
     if journal is not None:
         journal({"event": "start", "pid": os.getpid(), "model_id": artifact.model_id})
     stop = {"requested": False}
@@ -141,8 +161,9 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, request_stop)
     signal.signal(signal.SIGINT, request_stop)
     if not args.quiet:
+        engine_note = f"firmware {node.model.name}" if engine == "firmware" else "python engine"
         log_error(f"model {artifact.model_id:08x} ({artifact.kind}, {artifact.realization}, dt {artifact.dt:g} s, "
-                  f"{node.cost.cycles} est. cycles) on {config.describe()}; serving")
+                  f"{node.cost.cycles} est. C28x cycles, {engine_note}) on {config.describe()}; serving")
     try:
         serve(node, bus, lambda: stop["requested"], on_error=log_error,
               reply_faults=ReplyFaults(reply_rates, args.fault_seed, journal) if reply_rates else None)

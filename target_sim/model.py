@@ -205,7 +205,8 @@ class InputAccumulator:
     """Collects 5 Hz drive samples and releases the float32 interval mean when a model step is due.
 
     sum <- sum + sample elementwise in float32, mean = sum / float32(count) (C: fw_accumulate, fw_mean); when an
-    interval ends is integer row logic that stays here (and in the node)."""
+    interval ends is integer row logic that stays here (and in the node). `accumulate`, `mean` and `clear` are the
+    sum alone, the interface the firmware engine offers too (`target_sim.firmware.FirmwareEstimator`)."""
 
     def __init__(self, sample_period_s: float, dt_s: float):
         self.sample_us = int(round(sample_period_s * 1e6))
@@ -216,19 +217,32 @@ class InputAccumulator:
     def model_step_of(self, row: int) -> int:
         return row * self.sample_us // self.dt_us
 
+    def ends_interval(self, row: int) -> bool:
+        """Row `row` is the last sample of its model step's interval."""
+        return self.model_step_of(row + 1) != self.model_step_of(row)
+
     def add(self, row: int, sample: Sequence[float]) -> np.ndarray | None:
         """Add row `row`; return the inputs of its model step if this row completes the interval."""
+        self.accumulate(sample)
+        if not self.ends_interval(row):
+            return None
+        return self.mean()
+
+    def accumulate(self, sample: Sequence[float]) -> None:
+        """sum <- sum + sample (C: fw_accumulate)."""
         self.sum += np.asarray(sample, dtype=F32)
         self.count += 1
-        if self.model_step_of(row + 1) == self.model_step_of(row):
+
+    def mean(self) -> np.ndarray | None:
+        """sum / float32(count), then cleared; None when nothing was accumulated (C: fw_mean)."""
+        if not self.count:
             return None
         mean = self.sum / F32(self.count)
-        self.sum = np.zeros(4, dtype=F32)
-        self.count = 0
+        self.clear()
         return mean
 
     def clear(self) -> None:
-        self.sum[:] = 0
+        self.sum = np.zeros(4, dtype=F32)
         self.count = 0
 
 

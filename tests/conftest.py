@@ -1,6 +1,7 @@
 import importlib.util
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -53,3 +54,29 @@ def artifacts(tmp_path_factory) -> dict[str, Path]:
         paths[name] = out / f"{name}.json"
         paths[name].write_text(artifact_text(kind, realization), encoding="utf-8")
     return paths
+
+
+@pytest.fixture(scope="session")
+def firmware_elf(tmp_path_factory, artifacts) -> Callable[[str | Path], Path]:
+    """firmware_elf(name of `artifacts` or an artifact path) -> its firmware ELF, built once per session (the
+    packaged artifacts' shipped ELF without building); skips the test when the compiler (ziglang) is missing."""
+    built: dict[Path, Path] = {}
+    out = tmp_path_factory.mktemp("firmware")
+
+    def get(which: str | Path) -> Path:
+        from bench.firmware.images import packaged_elf
+        from target_sim.artifact import load_artifact
+
+        path = Path(artifacts[which]) if isinstance(which, str) and which in artifacts else Path(which)
+        if path not in built:
+            artifact = load_artifact(path)
+            shipped = packaged_elf(artifact)
+            if shipped is None:
+                pytest.importorskip("ziglang", reason="the ziglang package (the C cross-compiler) is not installed")
+                from bench.firmware.images import firmware_for
+
+                shipped = firmware_for(artifact, out)
+            built[path] = shipped
+        return built[path]
+
+    return get

@@ -106,3 +106,22 @@ def private_udp_bus():
     from dbc.transport import BusConfig, resolve
 
     return resolve(BusConfig("udp_multicast"), session_unique=True)
+
+
+# ---------------------------------------------------------------- firmware
+
+
+def patched_elf(path: Path, symbol: str, data: bytes, offset: int = 0) -> bytes:
+    """The ELF's bytes with `data` written over `symbol` (+ `offset`) in its file image: a firmware that loads
+    like the original and computes or faults differently (e.g. b"\\xfe\\xde", a Thumb UDF, at a function's entry)."""
+    from elftools.elf.elffile import ELFFile
+
+    image = bytearray(Path(path).read_bytes())
+    with Path(path).open("rb") as handle:
+        elf = ELFFile(handle)
+        address = (elf.get_section_by_name(".symtab").get_symbol_by_name(symbol)[0]["st_value"] & ~1) + offset
+        section = next(s for s in elf.iter_sections()
+                       if s["sh_addr"] <= address < s["sh_addr"] + s["sh_size"] and s["sh_type"] != "SHT_NOBITS")
+        at = section["sh_offset"] + address - section["sh_addr"]
+    image[at:at + len(data)] = data
+    return bytes(image)

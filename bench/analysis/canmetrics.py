@@ -32,11 +32,12 @@ from bench.drive.motor import MAP_TABLES, LossMaps
 from bench.thermal.estimator import SIGMOID_ROWS, StepInputs, identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
 from bench.thermal.parameters import LptnParameters
-from dbc.contract import HEARTBEAT_TIMEOUT_S, TEMPERATURE_NODES
+from dbc.contract import HEARTBEAT_TIMEOUT_S, M4_CLOCK_HZ, TEMPERATURE_NODES
 from dbc.database import frame_id, temperature_range
 from dbc.transport import NOMINAL_BITRATE
 from host.results import gap_count, percentiles
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
+from target_sim.costs import memory_estimate
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 
 TEMPERATURES = TEMPERATURE_NODES
@@ -314,6 +315,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     status_gaps = np.diff(record.status_s) if len(record.status_s) > 1 else np.zeros(0)
     timing = record.timing
     info = record.target_info
+    firmware = timing.get("m4_cycles") is not None and timing["m4_cycles"].size > 0
+    estimate = memory_estimate(artifact)
     dt = artifact.dt
     max_agree = {name: (None if np.isnan(agreement["max_abs"][i]) else float(agreement["max_abs"][i]))
                  for i, name in enumerate(TEMPERATURES)}
@@ -346,8 +349,17 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         timing["exec_us"].size else None,
         "cpu_load_percent": float(timing["cpu_load"].max()) if timing.get("cpu_load") is not None and
         timing["cpu_load"].size else None,
+        # the firmware engine's measured Cortex-M4F figures (Timing4), beside the C28x estimate above
+        "engine": "firmware" if firmware else "python",
+        "m4_cycles": cycle_figures(timing.get("m4_cycles")),
+        "m4_exec_time_us": cycle_figures(timing.get("m4_exec_us"), as_int=False),
+        "m4_clock_mhz": M4_CLOCK_HZ / 1e6,
+        # TargetInfo's flash and RAM: the ELF's measured figures with the firmware engine, else the C28x estimate
         "flash_bytes": info.get("flash_bytes"),
         "ram_bytes": info.get("ram_bytes"),
+        "memory_source": "firmware ELF" if firmware else "C28x estimate",
+        "est_flash_bytes": estimate.flash_bytes,
+        "est_ram_bytes": estimate.ram_bytes,
         "round_trip_us": percentiles(rtt_us),
         "wall_time_s": float(span) if np.isfinite(span) else None,
         "throughput_steps_per_s": float(record.rows / span) if np.isfinite(span) and span > 0 else None,
@@ -432,6 +444,15 @@ def _fault_names(bits: int) -> list[str]:
 
 
 DIVERGENCE_NOTE_C = 1.0
+
+
+def cycle_figures(values, *, as_int: bool = True) -> dict[str, float | None] | None:
+    """{p50, max} of per-step figures (Timing4), None when there are none (the Python engine sends none)."""
+    if values is None or len(values) == 0:
+        return None
+    arr = np.asarray(values, dtype=float)
+    p50, top = float(np.percentile(arr, 50)), float(arr.max())
+    return {"p50": int(round(p50)), "max": int(top)} if as_int else {"p50": round(p50, 1), "max": top}
 
 
 def notes(metrics: dict) -> list[str]:

@@ -30,6 +30,7 @@ import numpy as np
 
 from dbc.codec import decode_any
 from dbc.contract import (
+    FIRMWARE_TIMING_MESSAGE,
     REPLY_COMPLETE,
     REPLY_SIGNALS,
     RESET_SIGNALS,
@@ -162,7 +163,9 @@ class _SegmentBuilder:
 
 _TIMING_SIGNALS = {"Timing1": ("row_t1", (("measured_us", "StepTimeMeasured"), ("overruns", "Overruns"))),
                    "Timing2": ("row_t2", (("cycles", "EstCycles"), ("exec_us", "EstExecTime"))),
-                   "Timing3": ("row_t3", (("cpu_load", "CpuLoad"),))}
+                   "Timing3": ("row_t3", (("cpu_load", "CpuLoad"),)),
+                   # the firmware engine's measured Cortex-M4F cycles (absent with the Python engine)
+                   FIRMWARE_TIMING_MESSAGE: ("row_t4", (("m4_cycles", "M4Cycles"), ("m4_exec_us", "M4ExecTime")))}
 
 
 class _LogDecoder:

@@ -107,7 +107,8 @@ def float32_error(path: Path, record: BusRecord, refs: References) -> None:
     plt.close(fig)
 
 
-def step_time_histogram(path: Path, measured_us: np.ndarray, est_us: float | None) -> None:
+def step_time_histogram(path: Path, measured_us: np.ndarray, est_us: float | None,
+                        m4_us: float | None = None) -> None:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     values = np.asarray(measured_us, dtype=float)
@@ -117,6 +118,9 @@ def step_time_histogram(path: Path, measured_us: np.ndarray, est_us: float | Non
                 label=f"measured on the target process (n = {values.size})")
     if est_us is not None:
         ax.axvline(est_us, color="tab:red", lw=1.5, label=f"estimated C28x @ 90 MHz: {est_us:.1f} µs")
+    if m4_us is not None:
+        ax.axvline(m4_us, color="tab:green", lw=1.5,
+                   label=f"measured Cortex-M4F @ 90 MHz (emulated firmware, p50): {m4_us:.1f} µs")
     ax.set_xlabel("model step time (µs)")
     ax.set_ylabel("model steps")
     ax.legend(fontsize=8)

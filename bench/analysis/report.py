@@ -34,6 +34,19 @@ def analyze_log(log_path: str | Path, artifact: ModelArtifact, dataset=None, *, 
     return metrics, found
 
 
+def _m4_rows(m: dict) -> list[str]:
+    """The measured Cortex-M4F cycles (firmware engine) and the flash/RAM rows: measured beside the estimate."""
+    est = f"{_fmt(m.get('est_flash_bytes'))} B / {_fmt(m.get('est_ram_bytes'))} B"
+    if m.get("engine") != "firmware":
+        return ["| measured Cortex-M4F cycles | – (the Python engine; `--engine firmware` measures them) |",
+                f"| flash / RAM, C28x estimate | {est} |"]
+    cycles, exec_us = m["m4_cycles"] or {}, m["m4_exec_time_us"] or {}
+    return [f"| measured Cortex-M4F cycles p50 / max (emulated firmware) / time at {m['m4_clock_mhz']:g} MHz | "
+            f"{_fmt(cycles.get('p50'))} / {_fmt(cycles.get('max'))} / {_fmt(exec_us.get('p50'), 1)} µs |",
+            f"| flash / RAM, Cortex-M4F ELF (measured) | {_fmt(m['flash_bytes'])} B / {_fmt(m['ram_bytes'])} B |",
+            f"| flash / RAM, C28x estimate | {est} |"]
+
+
 def _fmt(value, digits: int = 3) -> str:
     if value is None:
         return "–"
@@ -50,7 +63,7 @@ def write_report(report_dir: Path, metrics: dict, found: list[str], record: BusR
     plots.temperatures(report_dir / FIGURES["temperatures"], record, refs, title)
     plots.float32_error(report_dir / FIGURES["float32_error"], record, refs)
     plots.step_time_histogram(report_dir / FIGURES["step_time"], record.timing.get("measured_us", []),
-                              metrics.get("est_exec_time_us"))
+                              metrics.get("est_exec_time_us"), (metrics.get("m4_exec_time_us") or {}).get("p50"))
     plots.bus_load(report_dir / FIGURES["bus_load"], metrics["bus_load"])
     text = render_markdown(metrics, found, dataset, run_info)
     path = report_dir / "report.md"
@@ -116,7 +129,9 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
     info = [("log", f"`{m['log']}` ({m['frames_in_log']} frames)"),
             ("data", f"`{dataset.path}`" if dataset is not None else "– (no measured reference given)"),
             ("model step Δt", f"{model['dt_s']:g} s"), ("mode", run_info.get("mode", "–")),
-            ("bus", run_info.get("bus", "–"))]
+            ("bus", run_info.get("bus", "–")),
+            ("target engine", run_info.get("engine") or ("firmware (emulated Cortex-M4F)" if m.get("engine") ==
+                                                          "firmware" else "python (float32 model)"))]
     lines += [f"| {k} | {v} |" for k, v in info]
     lines += ["", "## Metrics", "", "| metric | " + " | ".join(TEMPERATURES) + " |", "|---|---|---|---|---|"]
     reference = "target twin" if m.get("can_reference") == "target twin" else "offline float32"
@@ -143,7 +158,7 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
               f"{_fmt(st['p99'], 1)} / {_fmt(st['max'], 1)} |",
               f"| estimated C28x cycles / time at 90 MHz / CPU load | {_fmt(m['est_cycles'])} / "
               f"{_fmt(m['est_exec_time_us'], 1)} µs / {_fmt(m['cpu_load_percent'], 4)} % |",
-              f"| flash / RAM estimate | {_fmt(m['flash_bytes'])} B / {_fmt(m['ram_bytes'])} B |",
+              *_m4_rows(m),
               f"| overruns (step time > Δt) | {m['overruns']} |",
               f"| round trip p50 / p99 / max (µs) | {_fmt(rtt['p50'], 0)} / {_fmt(rtt['p99'], 0)} / "
               f"{_fmt(rtt['max'], 0)} |",
@@ -173,5 +188,7 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
               "Inputs of model step k are the float32 mean of the 5 Hz samples in [kΔt, (k+1)Δt); the step runs "
               "when the last sample of the interval arrives, and every data row is answered with the latest "
               "estimate. References are fed with the drive values as decoded from the frames the host sent. "
-              "Estimated cycles come from the per-operation cost table in `target_sim/costs.py`.", ""]
+              "Estimated C28x cycles come from the per-operation cost table in `target_sim/costs.py`; measured "
+              "Cortex-M4F cycles (firmware engine) are counted per executed basic block in the emulated core from "
+              "the Cortex-M4 TRM timings (`target_sim/firmware/cycles.py`), and its flash and RAM are the ELF's.", ""]
     return "\n".join(lines)

@@ -41,6 +41,13 @@ def add_output_flags(parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
+def add_engine_argument(parser, default: str = "python") -> None:
+    parser.add_argument("--engine", choices=("python", "firmware"), default=default,
+                        help="what the target runs: the float32 model in Python, or the model compiled for a "
+                             "Cortex-M4F in the emulated core, with measured cycles (the packaged artifacts ship "
+                             f"their firmware; another artifact needs the compiler) (default {default})")
+
+
 def finite_or_none(value):
     """JSON has no infinity or NaN: those become null."""
     if isinstance(value, float) and not math.isfinite(value):
@@ -125,7 +132,13 @@ def print_summary(s: dict) -> None:
     print(f"step time on the target process p50/p99/max: {fmt(st['p50'], 1)}/{fmt(st['p99'], 1)}/"
           f"{fmt(st['max'], 1)} µs;"
           f" estimated C28x: {m['est_cycles']} cycles = {fmt(m['est_exec_time_us'], 1)} µs at 90 MHz "
-          f"({fmt(m['cpu_load_percent'], 4)} % CPU), flash {m['flash_bytes']} B, RAM {m['ram_bytes']} B")
+          f"({fmt(m['cpu_load_percent'], 4)} % CPU), flash {m.get('est_flash_bytes', m['flash_bytes'])} B, "
+          f"RAM {m.get('est_ram_bytes', m['ram_bytes'])} B")
+    if m.get("engine") == "firmware":
+        cycles, exec_us = m["m4_cycles"] or {}, m["m4_exec_time_us"] or {}
+        print(f"firmware engine, measured Cortex-M4F (emulated): {cycles.get('p50')} cycles p50, "
+              f"{cycles.get('max')} max = {fmt(exec_us.get('p50'), 1)} µs at {m['m4_clock_mhz']:g} MHz; "
+              f"ELF flash {m['flash_bytes']} B, RAM {m['ram_bytes']} B")
     print(f"throughput {fmt(s['throughput_steps_per_s'], 0)} steps/s, round trip p50/p99 "
           f"{fmt(rtt['p50'], 0)}/{fmt(rtt['p99'], 0)} µs, bus load at the data rate "
           f"{fmt(m['bus_load']['data_rate_percent'], 2)} %")

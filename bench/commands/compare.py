@@ -1,12 +1,16 @@
 """`bench compare`: the three model kinds through the CAN bench, side by side (the paper's Table 6 analogue).
 
     bench compare [--data FILE] [--dt 0.5] [--rows N] [--models A.json,B.json,C.json] [--out DIR]
-                  [--json] [--quiet] [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
+                  [--engine firmware|python] [--json] [--quiet] [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
 
 Each artifact runs on its own target process in lockstep over the dataset (default the 40 °C validation run;
---rows N shortens it), and its log is analyzed like `bench run`'s. Columns: measured step time on the target
-process, estimated C28x cycles and µs at 90 MHz, CPU utilization at Δt, flash and RAM estimates, RMSE of the
-CAN winding and PM temperatures against the measurement, and the agreement with the offline float32 model.
+--rows N shortens it), and its log is analyzed like `bench run`'s. The target runs the firmware engine by default
+(the model compiled for a Cortex-M4F, in the emulated core; the packaged artifacts ship their ELF, others are
+built into <out>/firmware-cache with the compiler). Columns: measured step time on the target process, estimated
+C28x cycles and µs at 90 MHz beside the measured Cortex-M4F cycles (p50, max) and µs at 90 MHz, CPU utilization
+at Δt (C28x estimate), flash and RAM of the Cortex-M4F ELF beside the C28x estimates, RMSE of the CAN winding and
+PM temperatures against the measurement, and the agreement with the offline float32 model. With --engine python
+the measured Cortex-M4F columns stay empty.
 Without --models the three packaged identified artifacts are compared (LTI LPTN ZOH balanced, PV LPTN Euler,
 Hammerstein balanced); at another --dt they are re-discretized from the identified parameters and the
 Hammerstein model is refitted.
@@ -18,7 +22,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, fmt, print_json
+from bench.commands.common import add_engine_argument, add_output_flags, check_writable, fmt, print_json
 from bench.errors import UsageError
 from bench.fileio import write_text_atomically
 from bench.runner import ProgressBar, bus_from_args, load_data, load_model, positive_float, positive_int
@@ -39,6 +43,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--out", type=Path, default=Path("out/compare"),
                    help="logs and built artifacts (default out/compare)")
     p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+    add_engine_argument(p, default="firmware")
     add_output_flags(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
@@ -82,21 +87,25 @@ def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
 
 
 def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, out_dir: Path,
-                   quiet: bool = True) -> list[dict]:
+                   quiet: bool = True, engine: str = "firmware") -> list[dict]:
     """Run each artifact through the bench; one table row per artifact (plug identified artifacts in here)."""
     from bench.analysis.report import analyze_log
     from bench.model.runs import drive_matrix, initial_temperatures
-    from bench.runner import run_with_target
+    from bench.runner import firmware_for_engine, run_with_target
 
     drive = drive_matrix(dataset)[:rows] if rows else drive_matrix(dataset)
+    # every ELF first (built where not packaged): a missing compiler stops the comparison before any run
+    loaded = [load_model(path) for path in model_paths]
+    elves = [firmware_for_engine(engine, artifact, out_dir / "firmware-cache", quiet=quiet)
+             for artifact, _ in loaded]
     table = []
-    for path in model_paths:
-        artifact, model_path = load_model(path)
+    for (artifact, model_path), firmware in zip(loaded, elves, strict=True):
         log_path = out_dir / f"{model_path.stem}.blf"
         bar = ProgressBar(len(drive), artifact.kind, quiet)
         try:
             outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset),
-                                      sample_period_s=dataset.sample_period_s, log_path=log_path, progress=bar)
+                                      sample_period_s=dataset.sample_period_s, log_path=log_path, progress=bar,
+                                      firmware=firmware)
         finally:
             bar.close()
         metrics, found = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate)
@@ -111,7 +120,14 @@ def table_row(artifact: ModelArtifact, path: Path, m: dict, found: list[str]) ->
         "missing": m["missing"],
         "measured_step_us_p50": m["step_time_us"]["p50"], "measured_step_us_p99": m["step_time_us"]["p99"],
         "est_cycles": m["est_cycles"], "est_exec_us_90MHz": m["est_exec_time_us"],
-        "cpu_load_percent": m["cpu_load_percent"], "flash_bytes": m["flash_bytes"], "ram_bytes": m["ram_bytes"],
+        "m4_cycles_p50": (m["m4_cycles"] or {}).get("p50"), "m4_cycles_max": (m["m4_cycles"] or {}).get("max"),
+        "m4_exec_us_90MHz": (m["m4_exec_time_us"] or {}).get("p50"),
+        "cpu_load_percent": m["cpu_load_percent"], "engine": m["engine"],
+        "est_flash_bytes": m["est_flash_bytes"], "est_ram_bytes": m["est_ram_bytes"],
+        "m4_flash_bytes": m["flash_bytes"] if m["engine"] == "firmware" else None,
+        "m4_ram_bytes": m["ram_bytes"] if m["engine"] == "firmware" else None,
+        # what TargetInfo carried: the ELF's figures with the firmware engine, else the estimate
+        "flash_bytes": m["flash_bytes"], "ram_bytes": m["ram_bytes"],
         "rmse_winding_C": m["rmse_C"]["winding"], "rmse_magnet_C": m["rmse_C"]["magnet"],
         "rmse_reference": m["rmse_reference"]["winding"],
         "max_abs_can_minus_float32_C": max((v for v in m["max_abs_can_minus_float32_C"].values() if v is not None),
@@ -122,18 +138,27 @@ def table_row(artifact: ModelArtifact, path: Path, m: dict, found: list[str]) ->
     }
 
 
+def _kb(value) -> str:
+    return "–" if value is None else fmt(value / 1024, 2)
+
+
 def print_table(table: list[dict]) -> None:
-    header = (f"{'kind':12} {'realization':11} {'step µs':>8} {'cycles':>7} {'µs@90MHz':>9} {'CPU %':>7} "
-              f"{'flash kB':>8} {'RAM kB':>7} {'RMSE w':>7} {'RMSE PM':>7} {'|CAN-f32|':>9} {'missing':>7}")
+    header = (f"{'kind':12} {'realization':11} {'step µs':>8} {'C28x cyc':>8} {'C28x µs':>7} {'M4 cyc':>6} "
+              f"{'M4 max':>6} {'M4 µs':>6} {'CPU %':>7} {'flash kB':>8} {'M4 flash':>8} {'RAM kB':>6} "
+              f"{'M4 RAM':>6} {'RMSE w':>7} {'RMSE PM':>7} {'|CAN-f32|':>9} {'missing':>7}")
     print(header)
     for r in table:
         print(f"{r['kind']:12} {r['realization']:11} {fmt(r['measured_step_us_p50'], 1):>8} "
-              f"{r['est_cycles'] if r['est_cycles'] is not None else '–':>7} {fmt(r['est_exec_us_90MHz'], 1):>9} "
-              f"{fmt(r['cpu_load_percent'], 4):>7} {fmt((r['flash_bytes'] or 0) / 1024, 2):>8} "
-              f"{fmt((r['ram_bytes'] or 0) / 1024, 2):>7} {fmt(r['rmse_winding_C'], 3):>7} "
+              f"{r['est_cycles'] if r['est_cycles'] is not None else '–':>8} {fmt(r['est_exec_us_90MHz'], 1):>7} "
+              f"{fmt(r['m4_cycles_p50'], 0):>6} {fmt(r['m4_cycles_max'], 0):>6} {fmt(r['m4_exec_us_90MHz'], 1):>6} "
+              f"{fmt(r['cpu_load_percent'], 4):>7} {_kb(r['est_flash_bytes']):>8} {_kb(r['m4_flash_bytes']):>8} "
+              f"{_kb(r['est_ram_bytes']):>6} {_kb(r['m4_ram_bytes']):>6} {fmt(r['rmse_winding_C'], 3):>7} "
               f"{fmt(r['rmse_magnet_C'], 3):>7} {fmt(r['max_abs_can_minus_float32_C'], 4):>9} {r['missing']:>7}")
-    print("step µs: measured p50 on the target process (Python); cycles and µs@90MHz: the C28x cost-table "
-          "estimate; RMSE against " + (table[0]["rmse_reference"] if table else "measured") + " (°C).")
+    print("step µs: measured p50 wall time of a step on the target process (Python or emulated); C28x cyc, "
+          "C28x µs (at 90 MHz), CPU %, flash kB, RAM kB: the C28x cost-table estimate; M4 cyc (p50), M4 max, "
+          "M4 µs (at 90 MHz), M4 flash, M4 RAM: "
+          "measured on the Cortex-M4F firmware in the emulated core and its ELF (firmware engine); RMSE against "
+          + (table[0]["rmse_reference"] if table else "measured") + " (°C).")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -149,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
     artifacts = [load_model(path)[0] for path in paths]
     dataset = load_data(args.data, artifacts[0], args.seed, quiet=quiet)
     bus = bus_from_args(args)
-    table = compare_models(paths, dataset, bus, rows=args.rows, out_dir=args.out, quiet=quiet)
+    table = compare_models(paths, dataset, bus, rows=args.rows, out_dir=args.out, quiet=quiet, engine=args.engine)
     if args.json:
         print_json({"data": str(dataset.path), "rows": args.rows, "models": table})
     else:

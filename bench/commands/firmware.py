@@ -3,9 +3,13 @@
     bench firmware export [--model A] [--out DIR]           portable C99 of the artifact's model (fw_model.h/.c)
     bench firmware build  [--model A] [--out DIR] [--json]  that C + start-up code + linker script -> firmware.elf,
                                                              firmware.map, and its flash and RAM figures
+    bench firmware check  [--model A] [--data F] [--firmware ELF] [--rows N] [--json]
+                          the whole validation run through the emulated firmware and through the Python float32
+                          reference, every output compared bit for bit; cycles, flash, RAM; exit 1 on a mismatch
 
 The generated C equals the Python float32 reference bit for bit (bench/firmware/codegen.py); `build` needs the
-ziglang package (the `firmware` extra).
+ziglang package (the `firmware` extra), and so does `check` of an artifact other than the packaged ones (which
+ship their ELF) unless --firmware names one.
 """
 # Each action is an `_add_<action>(actions)` that registers its parser and sets `func`; ACTIONS lists them in the
 # order `bench firmware --help` shows them (a new action, e.g. `check`, is one function and one entry).
@@ -23,7 +27,7 @@ DEFAULT_OUT = Path("out/firmware")
 
 
 def add_subparser(subparsers) -> None:
-    p = subparsers.add_parser("firmware", help="the model as C firmware for a Cortex-M4F (export, build)",
+    p = subparsers.add_parser("firmware", help="the model as C firmware for a Cortex-M4F (export, build, check)",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     actions = p.add_subparsers(title="actions", dest="action", parser_class=type(p))
     for add in ACTIONS.values():
@@ -60,7 +64,33 @@ def _add_build(actions) -> None:
     p.set_defaults(func=run_build)
 
 
-ACTIONS = {"export": _add_export, "build": _add_build}
+def _add_check(actions) -> None:
+    p = actions.add_parser("check", help="run the validation data through the emulated firmware and the Python "
+                                         "float32 reference: bit for bit, cycles, flash, RAM",
+                           description="Run a whole dataset (default: the 40 °C validation run in out/data, "
+                                       "generated if missing) through the model firmware in the emulated "
+                                       "Cortex-M4F and through the Python float32 reference, as the target does "
+                                       "(interval means, then a model step), and compare every output bit for "
+                                       "bit. Reports the counted Cortex-M4 cycles per step (p50, max), the ELF's "
+                                       "flash and RAM and the emulated steps per second; exit 1 on any mismatch.")
+    p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged hammerstein one)")
+    p.add_argument("--data", type=Path, default=None,
+                   help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
+    p.add_argument("--firmware", type=Path, default=None, metavar="ELF",
+                   help="the model's firmware ELF (default: the packaged one, or built with the compiler)")
+    p.add_argument("--rows", type=_positive_int, default=None, help="only the first N data rows")
+    p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+    add_output_flags(p)
+    p.set_defaults(func=run_check)
+
+
+def _positive_int(text: str) -> int:
+    from bench.runner import positive_int
+
+    return positive_int(text)
+
+
+ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check}
 
 
 # ------------------------------------------------------------------------------------------------ helpers
@@ -155,4 +185,40 @@ def run_build(args: argparse.Namespace) -> int:
             print(f"  {name:12} {size:7d} bytes")
         print(f"flash {memory['flash_bytes']} bytes (of 256 kB), RAM {memory['ram_bytes']} bytes (of 64 kB, "
               f"{memory['stack_bytes']} of them stack)")
+    return 0
+
+
+def run_check(args: argparse.Namespace) -> int:
+    import tempfile
+
+    from bench.firmware.check import check_firmware
+    from bench.firmware.images import firmware_for
+    from bench.model.runs import drive_matrix, initial_temperatures
+    from bench.runner import load_data
+
+    path, artifact = _load(args.model)
+    dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json)
+    drive = drive_matrix(dataset)
+    if args.rows is not None:
+        drive = drive[: args.rows]
+    with tempfile.TemporaryDirectory(prefix="bench-firmware-check-") as cache:
+        elf = args.firmware or firmware_for(artifact, Path(cache), quiet=args.quiet or args.json)
+        result = check_firmware(artifact, elf, drive, initial_temperatures(dataset))
+    report = {**_identity(path, artifact), "data": str(dataset.path), "firmware": str(elf), **result}
+    if args.json:
+        print_json(report)
+    else:
+        cycles = result["cycles"]
+        print(f"{artifact.kind} ({artifact.realization}, dt {artifact.dt:g} s), {result['rows']} rows of "
+              f"{dataset.path}: {result['steps']} model steps through {elf}")
+        print(f"mismatches {result['mismatches']} (firmware vs Python float32 reference, bit for bit); Cortex-M4 "
+              f"cycles per step p50 {cycles['p50']}, max {cycles['max']} ({result['exec_us_at_90MHz']['p50']} µs "
+              f"at 90 MHz); flash {result['flash_bytes']} B, RAM {result['ram_bytes']} B (stack used "
+              f"{result['stack_used_bytes']} B); {result['emulated_steps_per_s']:.0f} emulated steps/s")
+    if result["mismatches"]:
+        first = result["first_mismatch"]
+        print(f"bench: error: the firmware differs from the Python float32 reference in {result['mismatches']} of "
+              f"{result['steps']} model steps, first at step {first['step']} (row {first['row']}); regenerate the "
+              "firmware from this artifact ('bench firmware build') or report the generator bug", file=sys.stderr)
+        return 1
     return 0

@@ -1,15 +1,17 @@
 """`bench replay LOG`: re-send the host frames of a recorded log and compare the new replies with the recorded ones.
 
     bench replay LOG [--speed X | --as-fast-as-possible] [--model FILE] [--no-start-target] [--log FILE]
-                     [--reply-timeout S] [--json] [--quiet] [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
+                     [--engine python|firmware] [--reply-timeout S] [--json] [--quiet]
+                     [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
 
-The host frames (ResetTemps, Control, DriveInputs, DriveTemps) go out byte for byte, counters and CRCs as
-recorded, with the recorded timing (`can.MessageSync`, scaled by --speed) or as fast as possible in lockstep
-(each row waits for its replies). A target is started with the log's model (default: the packaged artifact,
-which must have the log's model id; --model names another) unless --no-start-target, which talks to a target
-already running on the given bus. The new session is logged (default out/replay/<log name>.replay.blf). Exit 0
-when every recorded reply came back identical: both logs are decoded (`bench.analysis.logdecode`) and each data
-row's final reply is compared, so a row the recorded run sent twice counts once.
+The host frames (ResetTemps, Control, DriveInputs, DriveTemps) go out byte for byte, counters and CRCs as recorded,
+with the recorded timing (`can.MessageSync`, scaled by --speed) or as fast as possible in lockstep (each row waits
+for its replies). A target is started with the log's model (default: the packaged artifact, which must have the
+log's model id; --model names another) unless --no-start-target, which talks to a target already running on the
+given bus; the started target runs the engine the log's target ran (a log with Timing4 frames: the firmware engine)
+unless --engine says otherwise. The new session is logged (default out/replay/<log name>.replay.blf). Exit 0 when
+every recorded reply came back identical: both logs are decoded (`bench.analysis.logdecode`) and each data row's
+final reply is compared, so a row the recorded run sent twice counts once.
 
 A log of a run with bus faults (`bench run --faults drop=...`) replays as it was made: its faulty frames go out
 again byte for byte (those on the unknown_id fault's ids too), the target rejects the same frames, and the replay
@@ -32,7 +34,15 @@ import numpy as np
 from bench.analysis.logdecode import BusRecord, decode_log
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
-from bench.runner import ProgressBar, bus_from_args, load_model, positive_float, replay_with_target
+from bench.runner import (
+    ENGINES,
+    ProgressBar,
+    bus_from_args,
+    firmware_for_engine,
+    load_model,
+    positive_float,
+    replay_with_target,
+)
 from dbc import FrameError, frame_id
 from dbc.codec import decode_any
 from dbc.transport import add_bus_arguments
@@ -58,6 +68,9 @@ def add_subparser(subparsers) -> None:
                    help="log of the new session (default out/replay/<name>.replay.blf)")
     p.add_argument("--reply-timeout", type=positive_float, default=0.05,
                    help="seconds to wait for a row's replies (default 0.05)")
+    p.add_argument("--engine", choices=ENGINES, default=None,
+                   help="what the started target runs: the Python model or the firmware in the emulated core "
+                        "(default: what the log's target ran)")
     add_output_flags(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
@@ -134,6 +147,9 @@ def run(args: argparse.Namespace) -> int:
     check_writable(new_log, "--log")
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
+    engine = args.engine or ("firmware" if len(recorded.timing.get("m4_cycles", ())) else "python")
+    firmware = None if args.no_start_target else firmware_for_engine(engine, artifact,
+                                                                     new_log.parent / "firmware-cache", quiet=quiet)
     if not quiet:
         print(f"bench: replaying {recorded.rows} rows of {path} "
               f"({'as fast as possible' if args.as_fast_as_possible else f'recorded timing x{args.speed:g}'}) "
@@ -142,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         outcome = replay_with_target(None if args.no_start_target else model_path, artifact, bus, messages,
                                      timed=not args.as_fast_as_possible, speed=args.speed, log_path=new_log,
-                                     reply_timeout_s=args.reply_timeout, progress=bar)
+                                     reply_timeout_s=args.reply_timeout, progress=bar, firmware=firmware)
     finally:
         bar.close()
     result = outcome.result
@@ -160,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
         problems.append(f"the target's rejections {replayed.rx_errors} differ from the recorded "
                         f"{recorded.rx_errors}")
     summary = {"log": str(path), "replay_log": result.log_path, "reproduced": reproduced, **comparison,
+               "engine": None if args.no_start_target else engine, "m4_cycles": result.m4_cycles,
                "faults_in_log": faults or None,
                "rejections_compared": compare_rejections,
                "target_rejections": {"recorded": recorded.rx_errors, "replayed": replayed.rx_errors},

@@ -31,11 +31,19 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, print_json, print_summary, verdict
+from bench.commands.common import (
+    add_engine_argument,
+    add_output_flags,
+    check_writable,
+    print_json,
+    print_summary,
+    verdict,
+)
 from bench.errors import BenchError, UsageError
 from bench.runner import (
     ProgressBar,
     bus_from_args,
+    firmware_for_engine,
     load_data,
     load_model,
     positive_float,
@@ -78,6 +86,7 @@ def add_run_arguments(p) -> None:
                    help="exit 0 even with missing replies, sequence gaps or heartbeat loss (still reported); "
                         "not for runs with injected faults (see --tolerate-faults)")
     p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+    add_engine_argument(p)
 
 
 def fault_spec(args: argparse.Namespace):
@@ -103,29 +112,32 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_report:  # before the run: a report that cannot be written must not cost a run and leave a log
         check_writable(Path(args.report), "--report", directory=True)
     bus = bus_from_args(args)
+    quiet = args.quiet or args.json
+    # the firmware engine's ELF: packaged, or built once beside the log (before the run: no compiler, no run)
+    firmware = firmware_for_engine(args.engine, artifact, Path(log_path).parent / "firmware-cache", quiet=quiet)
     from bench.model.runs import drive_matrix, initial_temperatures
 
     drive = drive_matrix(dataset)
     if args.rows is not None:
         drive = drive[: args.rows]
-    quiet = args.quiet or args.json
     if not quiet:
-        print(f"bench: {artifact.kind} model {artifact.model_id:08x} on {len(drive)} rows of {dataset.path} "
-              f"({args.mode}) over {bus.describe()}" + (f", injecting {faults.describe()}" if faults else ""),
-              file=sys.stderr)
+        injecting = f", injecting {faults.describe()}" if faults else ""
+        print(f"bench: {artifact.kind} model {artifact.model_id:08x} ({args.engine} engine) on {len(drive)} rows of "
+              f"{dataset.path} ({args.mode}) over {bus.describe()}{injecting}", file=sys.stderr)
     bar = ProgressBar(len(drive), args.mode, quiet)
     started = time.perf_counter()
     try:
         outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset), mode=args.mode,
                                   speed=args.speed, sample_period_s=dataset.sample_period_s, log_path=log_path,
-                                  reply_timeout_s=args.reply_timeout, progress=bar, faults=faults)
+                                  reply_timeout_s=args.reply_timeout, progress=bar, faults=faults,
+                                  firmware=firmware)
     finally:
         bar.close()
     host = outcome.result
     from bench.analysis.report import analyze_log
 
     run_info = {"mode": f"{args.mode}" + (f" x{args.speed:g}" if args.mode == "realtime" else ""),
-                "bus": bus.describe()}
+                "bus": bus.describe(), "engine": _engine_label(args.engine, firmware)}
     try:
         metrics, found = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
                                      args.report, bitrate=bus.nominal_bitrate, run_info=run_info,
@@ -134,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
         raise BenchError(f"the log {log_path} cannot be analyzed ({exc})") from None
     outcome = verdict(host.problems() + found, fault_note(host.faults), faulted=host.faults is not None,
                       tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
-    summary = json_summary(metrics, host, outcome.problems, time.perf_counter() - started, bus)
+    summary = json_summary(metrics, host, outcome.problems, time.perf_counter() - started, bus, args.engine,
+                           firmware)
     if args.json:
         print_json(summary)
     else:
@@ -150,9 +163,17 @@ def bus_summary(bus: BusConfig) -> dict:
     return out
 
 
-def json_summary(metrics: dict, host, found: list[str], elapsed_s: float, bus: BusConfig) -> dict:
-    """What `--json` prints: the brief's numbers first, then the rest of the metrics."""
+def _engine_label(engine: str, firmware: Path | None) -> str:
+    return f"firmware ({firmware.name}, emulated Cortex-M4F)" if firmware is not None else f"{engine} (float32 model)"
+
+
+def json_summary(metrics: dict, host, found: list[str], elapsed_s: float, bus: BusConfig, engine: str | None = None,
+                 firmware: Path | None = None) -> dict:
+    """What `--json` prints: the brief's numbers first, then the rest of the metrics (`engine`: the target's, by
+    default what the log shows: Timing4 frames come from the firmware engine)."""
     return {
+        "engine": engine or metrics.get("engine"),
+        "firmware": str(firmware) if firmware is not None else None,
         "steps_sent": metrics["steps_sent"],
         "replies": metrics["replies"],
         "missing": metrics["missing"],
@@ -160,6 +181,10 @@ def json_summary(metrics: dict, host, found: list[str], elapsed_s: float, bus: B
         "rmse_C": metrics["rmse_C"],
         "step_time_us": metrics["step_time_us"],
         "est_cycles": metrics["est_cycles"],
+        "m4_cycles": metrics["m4_cycles"],
+        "flash_bytes": metrics["flash_bytes"],
+        "ram_bytes": metrics["ram_bytes"],
+        "memory_source": metrics["memory_source"],
         "throughput_steps_per_s": metrics["throughput_steps_per_s"],
         "log": metrics["log"],
         "report": metrics.get("report"),

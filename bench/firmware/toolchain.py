@@ -93,8 +93,8 @@ def _run(args: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
     try:
         done = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S)
     except FileNotFoundError:
-        raise ToolchainError(f"the C cross-compiler cannot be started ({command[0]} not found); install it with "
-                             "pip install 'pmsm-thermal-bench[firmware]'") from None
+        raise ToolchainError(f"the C cross-compiler cannot be started ({command[0]} not found); install the "
+                             "firmware extra: pip install 'pmsm-thermal-bench[firmware]'") from None
     except subprocess.TimeoutExpired:
         raise ToolchainError(f"{what} took longer than {TIMEOUT_S:g} s and was stopped; try again on a less "
                              "loaded machine") from None
@@ -106,7 +106,7 @@ def toolchain_version(cwd: Path | None = None) -> str:
     done = _run(["version"], cwd or Path(tempfile.gettempdir()), "asking the compiler for its version")
     if done.returncode != 0 or not done.stdout.strip():
         raise ToolchainError(f"the C cross-compiler (python {' '.join(COMPILER[1:])}) is not available "
-                             f"({_first_line(done.stderr + done.stdout)}); install it with "
+                             f"({_first_line(done.stderr + done.stdout)}); install the firmware extra: "
                              "pip install 'pmsm-thermal-bench[firmware]'")
     return f"zig {done.stdout.strip()}"
 

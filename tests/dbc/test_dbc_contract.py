@@ -44,7 +44,7 @@ def app_signals(message):
 
 def test_loads_with_strict_checks_and_is_ascii():
     database = cantools.database.load_file(DBC_PATH, strict=True)
-    assert len(database.messages) == 16
+    assert len(database.messages) == 17
     DBC_PATH.read_bytes().decode("ascii")  # cantools reads DBC files as cp1252: keep them plain ASCII
 
 
@@ -105,6 +105,7 @@ def test_every_message_has_comment_cycle_time_and_e2e_data_id():
         ("Timing1", 200),
         ("Timing2", 200),
         ("Timing3", 200),
+        ("Timing4", 200),
         ("Status", 100),
         ("RxErrors", 100),
         ("TargetInfo", 0),
@@ -186,7 +187,7 @@ def test_layout_meets_the_resolution_and_range_requirements():
     for name in ("Control", "ResetTemps1", "ResetTemps2", "DriveInputs", "DriveTemps"):
         step = signal(name, "Step")
         assert (step.length, step.is_signed, step.scale, step.minimum, step.maximum) == (16, False, 1, 0, 65535)
-    for name in ("Temperatures1", "Temperatures2", "Timing1", "Timing2", "Timing3"):
+    for name in ("Temperatures1", "Temperatures2", "Timing1", "Timing2", "Timing3", "Timing4"):
         assert signal(name, "Step").length == 16
     torque = signal("DriveInputs", "MotorTorque")
     assert (torque.scale, torque.minimum, torque.maximum, torque.unit) == (0.1, -2000, 2000, "Nm")
@@ -225,3 +226,26 @@ def test_layout_meets_the_resolution_and_range_requirements():
     counters = ("UnknownId", "WrongLength", "CrcError", "CounterError", "OutOfRange", "SequenceError")
     assert [s.name for s in app_signals(DB.get_message_by_name("RxErrors"))] == list(counters)
     assert all(signal("RxErrors", name).length == 8 for name in counters)
+
+
+def test_version_1_3_adds_timing4_beside_the_c28x_estimate_and_says_so():
+    """1.3.0: the firmware engine's measured Cortex-M4F cycles in a message of their own, laid out like the C28x
+    estimate of Timing2 (same range, same µs resolution at the same 90 MHz), sent by the target; the history in
+    the DBC's comment; TargetInfo's flash and RAM say when they are measured."""
+    assert dbc.dbc_version_info()[:2] == (1, 3)
+    timing4 = DB.get_message_by_name(dbc.contract.FIRMWARE_TIMING_MESSAGE)
+    assert timing4.frame_id == 0x225 and timing4.senders == ["TARGET"] and 0x200 <= timing4.frame_id <= 0x2FF
+    assert [s.name for s in app_signals(timing4)] == ["Step", "M4Cycles", "M4ExecTime"]
+    cycles, exec_time = signal("Timing4", "M4Cycles"), signal("Timing4", "M4ExecTime")
+    est_cycles, est_time = signal("Timing2", "EstCycles"), signal("Timing2", "EstExecTime")
+    assert (cycles.length, cycles.scale, cycles.maximum, cycles.unit) == (est_cycles.length, 1, est_cycles.maximum,
+                                                                          "cycles")
+    assert (exec_time.scale, exec_time.maximum, exec_time.unit) == (est_time.scale, est_time.maximum, "us")
+    assert exec_time.maximum == pytest.approx(cycles.maximum / (dbc.contract.M4_CLOCK_HZ / 1e6), abs=0.1)
+    assert dbc.contract.M4_CLOCK_HZ == 90_000_000 and "at 90 MHz" in exec_time.comment
+    assert "Cortex-M4" in timing4.comment and "C28x estimate of Timing2" in timing4.comment
+    assert "Python model sends none" in timing4.comment
+    network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
+    assert "History: 1.3.0 adds Timing4" in network and "1.2.0 added StateCheckpoint" in network
+    for name in ("FlashBytes", "RamBytes"):
+        assert "measured from the firmware ELF" in signal("TargetInfo", name).comment

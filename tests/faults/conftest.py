@@ -21,12 +21,15 @@ def fault_dataset(tmp_path_factory) -> Path:
                                    "synthetic fault-test data")
 
 
-def bench_run(dataset_path: Path, log: Path, bus: BusConfig, faults=None, *, rows: int, **options):
-    """`rows` rows of the dataset through a real target process (the packaged model), then the log decoded and
-    analysed: (host result, metrics, decoded log). `options` go to the runner (mode, speed, reply_timeout_s)."""
+def bench_run(dataset_path: Path, log: Path, bus: BusConfig, faults=None, *, rows: int, engine: str = "python",
+              **options):
+    """`rows` rows of the dataset through a real target process (the packaged model; `engine` "firmware": its
+    packaged ELF in the emulated core), then the log decoded and analysed: (host result, metrics, decoded log).
+    `options` go to the runner (mode, speed, reply_timeout_s)."""
     from bench.analysis.canmetrics import compute
     from bench.analysis.logdecode import decode_log
     from bench.drive.dataset import load_dataset
+    from bench.firmware.images import packaged_elf
     from bench.model.default import default_artifact_path
     from bench.model.runs import drive_matrix, initial_temperatures
     from bench.runner import run_with_target
@@ -34,9 +37,10 @@ def bench_run(dataset_path: Path, log: Path, bus: BusConfig, faults=None, *, row
 
     dataset = load_dataset(dataset_path)
     artifact = load_artifact(default_artifact_path())
+    firmware = packaged_elf(artifact) if engine == "firmware" else None
     outcome = run_with_target(default_artifact_path(), artifact, bus, drive_matrix(dataset)[:rows],
                               initial_temperatures(dataset), sample_period_s=dataset.sample_period_s, log_path=log,
-                              faults=faults, **options)
+                              faults=faults, firmware=firmware, **options)
     record = decode_log(log)
     metrics, _ = compute(record, artifact, dataset)
     return outcome.result, metrics, record

@@ -1,5 +1,6 @@
 """Each fault kind through a real target process on a real bus: injected == detected, and the temperatures
-outside the marked gaps are the clean run's.
+outside the marked gaps are the clean run's. With the Python engine every kind; with the firmware engine (the
+compiled model in the emulated core) a representative subset, the rest under `-m slow`.
 
 Every kind (the host's drive-frame and process faults, the target's reply faults) runs once over the same 500
 rows (lockstep, udp_multicast, a port per run) with a seed that injects several faults, and is compared with a
@@ -46,11 +47,22 @@ def clean(tmp_path_factory, fault_dataset):
     return record
 
 
-@pytest.mark.parametrize("kind", KINDS)
-def test_each_fault_kind_is_detected_and_the_temperatures_survive(kind, clean, fault_dataset, tmp_path, udp_bus):
+# The firmware engine (the packaged ELF in the emulated Cortex-M4F) through a representative subset in the default
+# run: a kill restored from a checkpoint, a lost and a corrupted drive frame, a lost and a corrupted reply; the
+# whole sweep with `-m slow`. Its replies are compared with the Python engine's clean run: equal, bit for bit.
+FIRMWARE_DEFAULT = ("kill", "drop", "corrupt", "reply_drop", "reply_corrupt")
+CASES = [pytest.param(kind, "python", id=kind) for kind in KINDS] + [
+    pytest.param(kind, "firmware", id=f"{kind}-firmware",
+                 marks=() if kind in FIRMWARE_DEFAULT else (pytest.mark.slow,)) for kind in KINDS]
+
+
+@pytest.mark.parametrize(("kind", "engine"), CASES)
+def test_each_fault_kind_is_detected_and_the_temperatures_survive(kind, engine, clean, fault_dataset, tmp_path,
+                                                                  udp_bus):
     spec = parse_faults([f"{kind}={RATES[kind]}"], seed=3)
     log = tmp_path / f"{kind}.blf"
-    result, metrics, record = bench_run(fault_dataset, log, udp_bus, spec, rows=ROWS)
+    result, metrics, record = bench_run(fault_dataset, log, udp_bus, spec, rows=ROWS, engine=engine)
+    assert metrics["engine"] == engine and (metrics["m4_cycles"] is not None) == (engine == "firmware")
     faults = result.faults
     injected, detected = faults["injected"][kind], faults["detected"][kind]
     assert injected >= (1 if kind in ("kill", "freeze") else 3), faults

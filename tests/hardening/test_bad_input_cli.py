@@ -477,7 +477,132 @@ def output_cases() -> list[Case]:
     ]
 
 
-CASES = dataset_cases() + artifact_cases() + log_cases() + bus_cases() + output_cases()
+# ---------------------------------------------------------------- the firmware: toolchain, ELF, emulator
+
+EXTRA = "install the firmware extra"
+SHADOW_ZIG = {  # a `ziglang` package first on PYTHONPATH: `python -m ziglang` as a missing or a failing compiler
+    "missing": {"__init__.py": "raise ImportError('No module named ziglang (shadowed by the test)')\n"},
+    "failing": {"__init__.py": "", "__main__.py": "import sys\nif sys.argv[1:] == ['version']:\n"
+                "    print('0.17.1')\n    sys.exit(0)\nprint('error: the compiler fails (a test double)', "
+                "file=sys.stderr)\nsys.exit(1)\n"},
+}
+
+
+def _shadow_zig(variant: str) -> Callable:
+    def prepare(material) -> dict:
+        root = material.bad / f"zig-{variant}"
+        package = root / "ziglang"
+        package.mkdir(parents=True, exist_ok=True)
+        for name, text in SHADOW_ZIG[variant].items():
+            (package / name).write_text(text)
+        return {"shadow": root}
+
+    return prepare
+
+
+def _elf(variant: str) -> Callable:
+    """A bad firmware ELF for the default (packaged hammerstein) model, or the path of one."""
+    def prepare(material) -> dict:
+        from bench.firmware.images import packaged_elf_path
+
+        from helpers import patched_elf
+
+        good = packaged_elf_path("hammerstein")
+        path = material.bad / f"fw_{variant}.elf"
+        if variant == "other-core":
+            path = Path(os.path.realpath(sys.executable))   # an ELF, for this machine's core
+        elif variant == "other-model":
+            path = good                                     # the packaged model's, not the test artifact's
+        elif variant == "truncated":
+            path.write_bytes(good.read_bytes()[:3000])
+        elif variant == "udf":
+            path.write_bytes(patched_elf(good, "fw_step", b"\xfe\xde"))   # loads, faults in fw_step
+        elif variant == "text":
+            path.write_text("not firmware\n")
+        elif variant != "missing":
+            raise ValueError(variant)
+        return {"bad": path, "badname": path.name}
+
+    return prepare
+
+
+def firmware_cases() -> list[Case]:
+    build = ("firmware", "build", "--model", "{art}", "--out", "{out}/fw", "--quiet")
+    check = ("firmware", "check", "--data", "{data}", "--quiet")
+    target = ("--model", "{art}", "--stats", "{out}/stats.json", "--events", "{out}/events.jsonl")
+    t_prefix = "target_sim: error: "
+    run = ("run", "--engine", "firmware", "--data", "{data}", "--model", "{art}", "--rows", "50", "--log",
+           "{out}/x.blf", "--report", "{out}/rep", "--quiet")
+    return [
+        Case("firmware-build-toolchain-missing", "bench", build,
+             ("the C cross-compiler (python -m ziglang) is not available", EXTRA), ("fw",),
+             env={"PYTHONPATH": "{shadow}"}, prepare=_shadow_zig("missing")),
+        Case("firmware-build-toolchain-failing", "bench", build,
+             ("compiling startup.c for the Cortex-M4F failed", "the compiler fails"), ("fw",),
+             env={"PYTHONPATH": "{shadow}"}, prepare=_shadow_zig("failing")),
+        Case("firmware-build-inexpressible", "bench", ("firmware", "build", "--model", "{bad}", "--out",
+                                                       "{out}/fw", "--quiet"),
+             ("{badname}", "realization 'jordan'"), ("fw",),
+             prepare=lambda m: {"bad": _resealed(m, "jordan"), "badname": "art_jordan.json"}),
+        Case("firmware-check-toolchain-missing", "bench", (*check, "--model", "{art}"),
+             ("firmware is not packaged and must be built", "is not available", EXTRA), (),
+             env={"PYTHONPATH": "{shadow}"}, prepare=_shadow_zig("missing")),
+        Case("firmware-check-elf-other-core", "bench", (*check, "--firmware", "{bad}"),
+             ("{badname}", "not for an ARM Cortex-M4F"), (), prepare=_elf("other-core")),
+        Case("firmware-check-elf-other-model", "bench", (*check, "--model", "{art}", "--firmware", "{bad}"),
+             ("{badname}", "is the firmware of model", "build it from this artifact"), (),
+             prepare=_elf("other-model")),
+        Case("firmware-check-elf-truncated", "bench", (*check, "--firmware", "{bad}"),
+             ("{badname}", "is not a readable ELF file"), (), prepare=_elf("truncated")),
+        Case("firmware-check-elf-text", "bench", (*check, "--firmware", "{bad}"),
+             ("{badname}", "is not an ELF file"), (), prepare=_elf("text")),
+        Case("firmware-check-elf-missing", "bench", (*check, "--firmware", "{bad}"),
+             ("cannot read firmware", "{badname}"), (), prepare=_elf("missing")),
+        Case("firmware-check-emulator-fault", "bench", (*check, "--firmware", "{bad}"),
+             ("{badname}", "faulted in the emulated core", "fw_step", "undefined instruction"), (),
+             prepare=_elf("udf")),
+        Case("firmware-check-rows-zero", "bench", (*check, "--rows", "0"), ("must be a positive whole number",), (),
+             rc=2),
+        Case("target_sim-firmware-other-core", "target_sim", (*target, "--engine", "firmware", "--firmware", "{bad}"),
+             ("{badname}", "not for an ARM Cortex-M4F"), ("stats.json", "events.jsonl"), prefix=t_prefix, rc=1,
+             prepare=_elf("other-core"), timeout=20),
+        Case("target_sim-firmware-other-model", "target_sim", (*target, "--firmware", "{bad}"),
+             ("{badname}", "is the firmware of model", "not of the artifact's model"), ("stats.json", "events.jsonl"),
+             prefix=t_prefix, rc=1, prepare=_elf("other-model"), timeout=20),
+        Case("target_sim-firmware-truncated", "target_sim", (*target, "--engine", "firmware", "--firmware", "{bad}"),
+             ("{badname}", "is not a readable ELF file"), ("stats.json", "events.jsonl"), prefix=t_prefix, rc=1,
+             prepare=_elf("truncated"), timeout=20),
+        Case("target_sim-firmware-missing", "target_sim", (*target, "--engine", "firmware", "--firmware", "{bad}"),
+             ("cannot read firmware", "{badname}"), ("stats.json", "events.jsonl"), prefix=t_prefix, rc=1,
+             prepare=_elf("missing"), timeout=20),
+        Case("target_sim-engine-firmware-without-elf", "target_sim", (*target, "--engine", "firmware"),
+             ("--engine firmware needs the model's firmware: --firmware ELF",), ("stats.json", "events.jsonl"),
+             prefix=t_prefix, rc=2, timeout=20),
+        Case("target_sim-python-engine-with-elf", "target_sim", (*target, "--engine", "python", "--firmware",
+                                                                 "{bad}"),
+             ("--firmware is the firmware engine's ELF",), ("stats.json", "events.jsonl"), prefix=t_prefix, rc=2,
+             prepare=_elf("other-model"), timeout=20),
+        Case("run-engine-firmware-toolchain-missing", "bench", run,
+             ("firmware is not packaged and must be built", EXTRA), ("x.blf", "rep"),
+             env={"PYTHONPATH": "{shadow}"}, prepare=_shadow_zig("missing")),
+        Case("compare-engine-firmware-toolchain-missing", "bench",
+             ("compare", "--models", "{art}", "--data", "{data}", "--rows", "50", "--out", "{out}/cmp", "--quiet"),
+             ("firmware is not packaged and must be built", EXTRA), ("cmp",),
+             env={"PYTHONPATH": "{shadow}"}, prepare=_shadow_zig("missing")),
+    ]
+
+
+def _resealed(material, realization: str) -> Path:
+    from target_sim.artifact import dumps, seal
+
+    path = material.bad / f"art_{realization}.json"
+    content = json.loads(material.art.read_text())
+    content["realization"] = realization
+    path.write_text(dumps(seal(content)))
+    return path
+
+
+CASES = dataset_cases() + artifact_cases() + log_cases() + bus_cases() + output_cases() + firmware_cases()
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, id=c.id, marks=c.marks) for c in CASES])
@@ -498,7 +623,8 @@ def test_bad_input_is_one_sentence_and_leaves_no_output(case: Case, cli, materia
                 target.mkdir()
                 (target / "report.md").write_text("an earlier report\n")
     before = {name: tree(out / name) for name in case.outputs}
-    result = cli(case.module, *args, cwd=scratch, env=case.env, timeout=case.timeout)
+    env = {key: value.format(**places) for key, value in case.env.items()}
+    result = cli(case.module, *args, cwd=scratch, env=env, timeout=case.timeout)
     assert_one_sentence(result, [f.format(**places) for f in case.fragments], prefix=case.prefix, rc=case.rc)
     for name in case.outputs:
         assert tree(out / name) == before[name], f"output {name} changed\n{result}"

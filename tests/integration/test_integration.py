@@ -131,6 +131,14 @@ def test_every_kind_and_the_original_realization(artifacts, small_dataset, tmp_p
         assert r["max_abs_can_minus_float32_C"] <= 0.005 + 1e-9
         assert r["max_abs_float32_minus_float64_C"] < 0.05
     assert rows["hammerstein"]["est_cycles"] > rows["lti"]["est_cycles"]
+    # the measured Cortex-M4F columns (firmware engine, the default; these artifacts' ELFs built into --out)
+    for r in rows.values():
+        assert r["engine"] == "firmware" and 300 < r["m4_cycles_p50"] <= r["m4_cycles_max"] < 3000
+        assert r["m4_exec_us_90MHz"] == pytest.approx(r["m4_cycles_p50"] / 90, abs=0.06)
+        assert 8000 < r["m4_flash_bytes"] < 16000 and 1024 < r["m4_ram_bytes"] < 2048
+        assert r["est_flash_bytes"] > 0 and r["est_ram_bytes"] > 0 and r["est_cycles"] > r["m4_cycles_p50"]
+    assert rows["hammerstein"]["m4_cycles_p50"] > rows["lti"]["m4_cycles_p50"]
+    assert len(list((tmp_path / "firmware-cache").glob("*.elf"))) == 4
     assert rows["pv"]["kind"] == "pv-lptn" and rows["hammerstein"]["kind"] == "hammerstein"
     # the paper's polynomial realization does not survive float32 (Fig. 6): the report shows the divergence
     assert rows["original"]["max_abs_float32_minus_float64_C"] > 1.0

@@ -246,6 +246,27 @@ def test_the_bindings_hook_add_counts_the_same(elf, monkeypatch):
     assert (fw.last.instructions, fw.last.cycles) == (24, 38)
 
 
+@pytest.mark.parametrize("function", ["read_bad_pointer", "trap", "spin_forever", "recurse"])
+def test_the_bindings_calls_give_the_same_results_counts_and_faults(elf, fw, monkeypatch, function):
+    """RAW_CALLS off: registers, memory and emu_start through the binding's wrappers, as before the fast path."""
+    monkeypatch.setattr(emulator, "RAW_CALLS", False)
+    slow = Firmware.load(elf)
+    assert slow._raw is None and fw._raw is not None
+    results = []
+    for firmware in (fw, slow):
+        u, y = firmware.alloc_f32([5.0, 90.0]), firmware.alloc_f32(4)
+        firmware.call("fw_reset", firmware.alloc_f32([50.0, 60.0, 70.0, 80.0]))
+        firmware.call("fw_step", u, y)
+        mixed = firmware.call("mixed_args", 1.1, 3, 0.3, -7, returns=float)
+        results.append((firmware.read_f32(y, 4).tobytes(), firmware.last.cycles, mixed,
+                        firmware.call("int_mix", 7, -5, 4, returns=int), firmware.call("count_down", 5, returns=int),
+                        firmware.last.cycles))
+        with pytest.raises(FirmwareFault) as raised:
+            firmware.call(function, *((100,) if function == "recurse" else ()))
+        results.append((raised.value.kind, raised.value.pc))
+    assert results[:2] == results[2:]
+
+
 def test_an_error_inside_the_block_hook_stops_the_call_and_is_reported(fw, monkeypatch):
     def broken(address: int, size: int):
         raise ValueError("no such block")

@@ -151,14 +151,14 @@ def test_every_rejection_kind_is_counted_and_never_reaches_the_model(running):
     drive = drive_rows(6)
     for step in range(3):
         host.row(step, drive[step])
-    state = (node.rows_used, node.model_steps, node.estimate.copy(), node.accumulator.count)
+    state = (node.rows_used, node.model_steps, node.estimate.copy(), node.accumulator.sums.count)
     bad = _bad_frames(host, 3)
     for kind, frame in bad.items():
         before = dict(node.errors)
         assert node.handle(frame) == []
         assert node.errors[kind] == before[kind] + 1, kind
         assert sum(node.errors.values()) == sum(before.values()) + 1, kind
-    assert (node.rows_used, node.model_steps, node.accumulator.count) == state[:2] + (state[3],)
+    assert (node.rows_used, node.model_steps, node.accumulator.sums.count) == state[:2] + (state[3],)
     np.testing.assert_array_equal(node.estimate, state[2])
     assert node.faults & FaultBit.RX_ERROR
     rx = decode_any(node.rx_error_frames()[0]).signals

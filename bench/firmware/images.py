@@ -1,0 +1,113 @@
+"""Where the firmware engine's ELF comes from: shipped for the packaged artifacts, built (and cached) for any other.
+
+The three packaged artifacts (`bench/data/default_model*.json`) ship their ELF in `bench/data/firmware/` (same
+stem, `.elf`), so `bench run --engine firmware` needs no compiler for them; tests/bench/firmware/test_packaged.py
+rebuilds them and compares byte for byte (the compiler is pinned in pyproject for that). Regenerate them after a
+change of the generator, the start-up code, the linker script or the flags with
+
+    python -m bench.firmware.images
+
+Any other artifact is built with the compiler (the `firmware` extra) into a cache directory the caller names
+(under its output or temporary directory), under a key over everything the ELF is made of (the generated C, the
+start-up code, the linker script, the flags and the toolchain's version), so a cached ELF is never stale.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+from importlib.resources import files
+from pathlib import Path
+
+from bench.errors import BenchError
+from bench.fileio import write_bytes_atomically
+from bench.firmware import toolchain
+from bench.firmware.codegen import FirmwareGenerationError, generate
+from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
+
+PACKAGED_KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
+
+
+def packaged_elf_path(kind: str) -> Path:
+    """The shipped ELF of the packaged artifact of `kind` (bench/data/firmware/<artifact stem>.elf)."""
+    from bench.model.default import default_artifact_path
+
+    return Path(str(files("bench") / "data" / "firmware" / f"{default_artifact_path(kind).stem}.elf"))
+
+
+def packaged_elf(artifact: ModelArtifact) -> Path | None:
+    """The shipped ELF when `artifact` is one of the packaged artifacts (same sha256), else None."""
+    from bench.model.default import default_artifact_path
+
+    for kind in PACKAGED_KINDS:
+        if artifact.kind != kind:
+            continue
+        try:
+            packaged = load_artifact(default_artifact_path(kind))
+        except ArtifactError:
+            return None
+        path = packaged_elf_path(kind)
+        if packaged.sha256 == artifact.sha256 and path.is_file():
+            return path
+    return None
+
+
+def _cache_key(artifact: ModelArtifact, sources: dict[str, str]) -> str:
+    digest = hashlib.sha256(artifact.sha256.encode())
+    for name in sorted(sources):
+        digest.update(name.encode() + b"\0" + sources[name].encode() + b"\0")
+    digest.update(repr((toolchain.TARGET_FLAGS, toolchain.CODE_FLAGS, toolchain.LINK_FLAGS)).encode())
+    return digest.hexdigest()[:16]
+
+
+def firmware_for(artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True) -> Path:
+    """The ELF of `artifact`'s model: the shipped one, else `cache_dir`/<kind>-<key>.elf, built if not there yet.
+
+    BenchError (one sentence) when the generator cannot express the artifact or the compiler is missing or fails."""
+    shipped = packaged_elf(artifact)
+    if shipped is not None:
+        return shipped
+    try:
+        generated = generate(artifact)
+    except FirmwareGenerationError as exc:
+        raise BenchError(f"the firmware engine cannot run this artifact: {exc}") from None
+    sources = {**generated.files, toolchain.STARTUP_NAME: toolchain.support_file(toolchain.STARTUP_NAME),
+               toolchain.LINKER_SCRIPT_NAME: toolchain.support_file(toolchain.LINKER_SCRIPT_NAME)}
+    try:
+        version = toolchain.toolchain_version()
+    except toolchain.ToolchainError as exc:
+        raise BenchError(f"the artifact's firmware is not packaged and must be built, but {exc}") from None
+    path = cache_dir / f"{artifact.kind}-{_cache_key(artifact, {**sources, 'toolchain': version})}.elf"
+    if path.is_file():
+        return path
+    if not quiet:
+        print(f"bench: compiling the {artifact.kind} model's firmware into {path} (once)", file=sys.stderr)
+    try:
+        result = toolchain.build_firmware(generated)
+    except toolchain.ToolchainError as exc:
+        raise BenchError(f"the artifact's firmware is not packaged and must be built, but {exc}") from None
+    try:
+        write_bytes_atomically(path, result.elf)
+    except OSError as exc:
+        raise BenchError(f"cannot write the firmware cache {path} ({exc.strerror or exc}); choose another output "
+                         "directory") from None
+    return path
+
+
+def write_packaged() -> list[Path]:
+    """Rebuild the shipped ELFs of the packaged artifacts (needs the compiler)."""
+    from bench.model.default import default_artifact_path
+
+    written = []
+    for kind in PACKAGED_KINDS:
+        build = toolchain.build_firmware(generate(load_artifact(default_artifact_path(kind))))
+        path = packaged_elf_path(kind)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_bytes_atomically(path, build.elf)
+        written.append(path)
+    return written
+
+
+if __name__ == "__main__":
+    for written_path in write_packaged():
+        print(f"wrote {written_path}")

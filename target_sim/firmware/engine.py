@@ -1,0 +1,101 @@
+"""The firmware engine: the model compiled for a Cortex-M4F (`bench firmware build`), run in the emulated core with
+the interface of the Python float32 reference (`target_sim.model.Float32Estimator`).
+
+    model = FirmwareEstimator(artifact, "firmware.elf")   # FirmwareError: another core, another model, no fw_*
+    model.reset(y0); y = model.step(torque, speed, coolant, ambient); model.last_cycles; model.x; model.y
+    model.accumulate(sample); inputs = model.mean(); model.clear()        # the interval sum, in firmware RAM
+
+One Unicorn call per firmware function: `step` writes the inputs, calls fw_step and reads the outputs (its counted
+Cortex-M4 cycles are `last_cycles`); `x` asks fw_state only when read (a checkpoint every 20 steps). The node's
+integer row logic (which row ends an interval, what to do with rows lost on the bus) stays in Python
+(`target_sim.node.RowAccumulator`); the sums and means it asks for are the firmware's (fw_accumulate, fw_mean,
+fw_clear), so every float32 operation of the target is the compiled code's. A fault of the emulated core
+(`FirmwareFault`, one sentence) propagates to the caller; the node turns it into its INTERNAL fault.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from target_sim.artifact import ModelArtifact
+from target_sim.firmware.elf import ElfImage, FirmwareError, memory_from_elf, read_elf
+from target_sim.firmware.emulator import Firmware
+
+MODEL_ID_SYMBOL = "fw_model_id"
+ENTRY_POINTS = ("fw_reset", "fw_restore", "fw_state", "fw_output", "fw_step", "fw_accumulate", "fw_mean",
+                "fw_clear")
+F32 = np.float32
+
+
+class FirmwareEstimator:
+    """The artifact's model as compiled firmware in the emulated Cortex-M4F (see the module docstring)."""
+
+    def __init__(self, artifact: ModelArtifact, elf: str | os.PathLike | bytes | ElfImage, *,
+                 count_cycles: bool = True):
+        image = elf if isinstance(elf, ElfImage) else read_elf(elf)
+        self.artifact = artifact
+        self.kind = artifact.kind
+        self.fw = fw = Firmware(image, count_cycles=count_cycles)
+        self.name = image.name
+        self.memory = memory_from_elf(image)
+        missing = [name for name in (MODEL_ID_SYMBOL, *ENTRY_POINTS) if name not in fw.symbols]
+        if missing:
+            raise FirmwareError(f"{image.name} has no {', '.join(missing)}: it is not a model firmware of "
+                                "'bench firmware build'")
+        model_id = int(fw.read_i32(fw.address(MODEL_ID_SYMBOL), 1).view(np.uint32)[0])
+        if model_id != artifact.model_id:
+            raise FirmwareError(f"{image.name} is the firmware of model {model_id:08x}, not of the artifact's model "
+                                f"{artifact.model_id:08x}; build it from this artifact with 'bench firmware build'")
+        # the caller's buffers, allocated once in the scratch area (no firmware RAM)
+        self._inputs, self._outputs, self._state, self._sample, self._mean = (fw.alloc_f32(4) for _ in range(5))
+        self.last_cycles: int | None = None
+        self.y = np.zeros(4, dtype=F32)
+
+    # ------------------------------------------------------------------ the estimator (Float32Estimator's interface)
+    def reset(self, temperatures: Sequence[float]) -> None:
+        """x0 = C^-1 y0 (fw_reset, which also clears the interval sum)."""
+        self.fw.write_f32(self._inputs, temperatures)
+        self.fw.call("fw_reset", self._inputs)
+        self.y = self._read("fw_output")
+
+    def restore(self, state: Sequence[float]) -> None:
+        """x bit for bit, y = C x (fw_restore, which also clears the interval sum)."""
+        self.fw.write_f32(self._inputs, state)
+        self.fw.call("fw_restore", self._inputs)
+        self.y = self._read("fw_output")
+
+    def step(self, torque, speed, coolant, ambient) -> np.ndarray:
+        """One model step (fw_step); the counted Cortex-M4 cycles of the call are then in `last_cycles`."""
+        fw = self.fw
+        fw.write_f32(self._inputs, (torque, speed, coolant, ambient))
+        fw.call("fw_step", self._inputs, self._outputs)
+        self.last_cycles = fw.last.cycles
+        self.y = fw.read_f32(self._outputs, 4)
+        return self.y.copy()
+
+    @property
+    def x(self) -> np.ndarray:
+        """The state vector (fw_state), read when asked for: a checkpoint needs it every 20 steps."""
+        return self._read("fw_state")
+
+    def _read(self, function: str) -> np.ndarray:
+        self.fw.call(function, self._state)
+        return self.fw.read_f32(self._state, 4)
+
+    # ------------------------------------------------------------------ the interval sum (InputAccumulator's)
+    def accumulate(self, sample: Sequence[float]) -> None:
+        """sum <- sum + sample in float32 (fw_accumulate)."""
+        self.fw.write_f32(self._sample, sample)
+        self.fw.call("fw_accumulate", self._sample)
+
+    def mean(self) -> np.ndarray | None:
+        """The float32 mean of the accumulated samples, then cleared (fw_mean); None when there were none."""
+        if not self.fw.call("fw_mean", self._mean, returns=int):
+            return None
+        return self.fw.read_f32(self._mean, 4)
+
+    def clear(self) -> None:
+        self.fw.call("fw_clear")

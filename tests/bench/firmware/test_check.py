@@ -1,0 +1,105 @@
+"""`bench firmware check`: a dataset through the emulated firmware and the Python float32 reference, bit for bit;
+the packaged ELFs are what the compiler builds from the packaged artifacts, byte for byte."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import pytest
+
+from bench.cli import main
+from bench.firmware.images import PACKAGED_KINDS, firmware_for, packaged_elf, packaged_elf_path
+from bench.model.default import default_artifact_path
+from target_sim.artifact import load_artifact
+
+from helpers import patched_elf
+
+REPORT_KEYS = {"kind", "realization", "dt", "steps", "mismatches", "first_mismatch", "cycles", "flash_bytes",
+               "ram_bytes", "emulated_steps_per_s"}
+
+
+def check(capsys, *argv: str) -> tuple[int, str, str]:
+    status = main(["firmware", "check", *argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+@pytest.mark.parametrize("kind", PACKAGED_KINDS)
+def test_the_packaged_elf_is_what_the_compiler_builds_byte_for_byte(kind):
+    pytest.importorskip("ziglang", reason="the ziglang package (the C cross-compiler) is not installed")
+    from bench.firmware.codegen import generate
+    from bench.firmware.toolchain import build_firmware
+
+    artifact = load_artifact(default_artifact_path(kind))
+    assert packaged_elf(artifact) == packaged_elf_path(kind)
+    assert build_firmware(generate(artifact)).elf == packaged_elf_path(kind).read_bytes(), \
+        "regenerate the shipped ELFs: python -m bench.firmware.images"
+
+
+@pytest.mark.parametrize("kind", PACKAGED_KINDS)
+def test_check_of_a_packaged_artifact_is_bit_exact_with_cycles_and_sizes(kind, capsys, small_dataset):
+    status, out, err = check(capsys, "--model", str(default_artifact_path(kind)), "--data", str(small_dataset),
+                             "--json")
+    assert status == 0, err
+    report = json.loads(out)
+    assert REPORT_KEYS <= set(report)
+    assert report["kind"] == kind and report["dt"] == 0.5 and report["steps"] == 600 * 0.2 / 0.5
+    assert report["mismatches"] == 0 and report["first_mismatch"] is None
+    assert 500 < report["cycles"]["p50"] <= report["cycles"]["max"] < 3000
+    assert 8_000 < report["flash_bytes"] < 16_000 and 1024 < report["ram_bytes"] < 2048
+    assert report["emulated_steps_per_s"] > 500
+    assert report["firmware"] == str(packaged_elf_path(kind))
+
+
+def test_check_of_another_artifact_builds_its_firmware(capsys, small_dataset, artifacts):
+    pytest.importorskip("ziglang", reason="the ziglang package (the C cross-compiler) is not installed")
+    status, out, err = check(capsys, "--model", str(artifacts["modal"]), "--data", str(small_dataset), "--rows",
+                             "101", "--quiet")
+    assert status == 0, err
+    assert "mismatches 0" in out and "40 model steps" in out
+
+
+def test_a_firmware_that_computes_otherwise_is_a_mismatch_and_exit_1(capsys, small_dataset, tmp_path):
+    elf = tmp_path / "off.elf"    # one bit of one sigmoid gain changed: the same model id, other outputs
+    gain = packaged_elf_path("hammerstein").read_bytes()
+    elf.write_bytes(patched_elf(packaged_elf_path("hammerstein"), "SIG_GAIN", b"\x01", offset=4))
+    assert elf.read_bytes() != gain
+    status, out, err = check(capsys, "--data", str(small_dataset), "--firmware", str(elf), "--json")
+    report = json.loads(out)
+    assert status == 1 and report["mismatches"] > 0
+    first = report["first_mismatch"]
+    assert first["firmware_hex"] != first["reference_hex"] and (first["step"], first["row"]) in ((0, 2), (1, 4))
+    line = err.strip()
+    assert "\n" not in line and line.startswith("bench: error: the firmware differs from the Python float32 "
+                                                f"reference in {report['mismatches']} of {report['steps']} model "
+                                                f"steps, first at step {first['step']} (row {first['row']})")
+
+
+def test_an_elf_for_another_core_or_model_is_one_sentence(capsys, small_dataset):
+    status, _, err = check(capsys, "--data", str(small_dataset), "--firmware", os.path.realpath(sys.executable))
+    assert status == 1 and err.count("\n") == 1 and "not for an ARM Cortex-M4F" in err
+    status, _, err = check(capsys, "--data", str(small_dataset), "--firmware",
+                           str(packaged_elf_path("lti-lptn")))
+    assert status == 1 and err.count("\n") == 1 and "is the firmware of model" in err
+
+
+def test_firmware_for_caches_a_build_under_a_key_of_its_sources(tmp_path, artifacts, monkeypatch):
+    pytest.importorskip("ziglang", reason="the ziglang package (the C cross-compiler) is not installed")
+    from bench.firmware import toolchain
+
+    artifact = load_artifact(artifacts["lti"])
+    first = firmware_for(artifact, tmp_path)
+    assert first.parent == tmp_path and first.name.startswith("lti-lptn-") and first.suffix == ".elf"
+    calls = []
+    monkeypatch.setattr(toolchain, "build_firmware", lambda generated: calls.append(generated))
+    assert firmware_for(artifact, tmp_path) == first and calls == []       # cached: not built again
+    # the packaged artifacts need no compiler at all
+    monkeypatch.setattr(toolchain, "COMPILER", [str(tmp_path / "no-such-compiler")])
+    assert firmware_for(load_artifact(default_artifact_path()), tmp_path) == packaged_elf_path("hammerstein")
+    from bench.errors import BenchError
+
+    with pytest.raises(BenchError, match="not packaged and must be built, but the C cross-compiler cannot be "
+                                         "started .*install the firmware extra"):
+        firmware_for(load_artifact(artifacts["modal"]), tmp_path / "other")

@@ -1,0 +1,123 @@
+"""The firmware engine through real processes: `bench run --engine firmware` answers exactly as the Python engine,
+with measured Cortex-M4F cycles and the ELF's flash and RAM in the log, the JSON and the report; `bench replay`
+and `bench analyze` read them back; `python -m target_sim --engine firmware` serves a host; a firmware that faults
+ends the run in one sentence naming the fault, never a hang."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bench.analysis.logdecode import decode_log
+from bench.firmware.images import packaged_elf_path
+from bench.model.default import default_artifact_path
+from target_sim.firmware import memory_from_elf
+
+from helpers import ROOT, patched_elf, run_cli, subprocess_env
+
+ROWS = 400
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory, small_dataset):
+    """{engine: (json summary, log, report dir)} of `bench run` with each engine on the same rows."""
+    out = {}
+    for engine in ("python", "firmware"):
+        directory = tmp_path_factory.mktemp(engine)
+        log, report = directory / "bench.blf", directory / "report"
+        proc = run_cli("-m", "bench", "run", "--engine", engine, "--data", str(small_dataset), "--rows", str(ROWS),
+                       "--log", str(log), "--report", str(report), "--json")
+        assert proc.returncode == 0, proc.stderr
+        out[engine] = (json.loads(proc.stdout), log, report)
+    return out
+
+
+def test_bench_run_with_the_firmware_engine_answers_as_the_python_engine(runs):
+    firmware, log, report = runs["firmware"]
+    python, python_log, _ = runs["python"]
+    assert (firmware["engine"], python["engine"]) == ("firmware", "python")
+    assert firmware["firmware"] == str(packaged_elf_path("hammerstein")) and python["firmware"] is None
+    assert firmware["clean"] and (firmware["steps_sent"], firmware["missing"]) == (ROWS, 0)
+    assert np.array_equal(decode_log(log).temps, decode_log(python_log).temps)   # every reply, exactly
+    # the measured Cortex-M4F cycles beside the C28x estimate; the ELF's flash and RAM instead of the estimate
+    assert firmware["m4_cycles"] == {"p50": 1380, "max": 1380} and python["m4_cycles"] is None
+    assert firmware["est_cycles"] == python["est_cycles"] > 0
+    measured = memory_from_elf(packaged_elf_path("hammerstein"))
+    assert (firmware["flash_bytes"], firmware["ram_bytes"]) == (measured["flash_bytes"], measured["ram_bytes"])
+    assert firmware["memory_source"] == "firmware ELF" and python["memory_source"] == "C28x estimate"
+    m = firmware["metrics"]
+    assert (m["est_flash_bytes"], m["est_ram_bytes"]) == (python["flash_bytes"], python["ram_bytes"])
+    assert m["m4_exec_time_us"]["p50"] == pytest.approx(1380 / 90, abs=0.05) and m["m4_clock_mhz"] == 90
+    text = (report / "report.md").read_text()
+    assert "| measured Cortex-M4F cycles p50 / max (emulated firmware) / time at 90 MHz | 1380 / 1380 / 15.3 µs |" \
+        in text
+    assert f"| flash / RAM, Cortex-M4F ELF (measured) | {measured['flash_bytes']} B / {measured['ram_bytes']} B |" \
+        in text
+    assert "| target engine | firmware (default_model.elf, emulated Cortex-M4F) |" in text
+    assert "measured Cortex-M4F cycles | – (the Python engine" in (runs["python"][2] / "report.md").read_text()
+
+
+def test_replay_and_analyze_of_a_firmware_log(runs, tmp_path, small_dataset):
+    summary, log, _ = runs["firmware"]
+    replay = run_cli("-m", "bench", "replay", str(log), "--as-fast-as-possible", "--log", str(tmp_path / "r.blf"),
+                     "--json")
+    assert replay.returncode == 0, replay.stderr
+    r = json.loads(replay.stdout)
+    assert r["reproduced"] and r["identical"] == ROWS and r["engine"] == "firmware"   # the log's engine
+    assert r["m4_cycles"]["p50"] == 1380
+    analyzed = run_cli("-m", "bench", "analyze", str(log), "--data", str(small_dataset), "--report",
+                       str(tmp_path / "rep"), "--json")
+    assert analyzed.returncode == 0, analyzed.stderr
+    a = json.loads(analyzed.stdout)
+    assert a["m4_cycles"] == summary["m4_cycles"] and a["engine"] == "firmware"
+
+
+def test_target_sim_with_the_firmware_engine_serves_a_host(tmp_path, small_dataset, udp_bus):
+    stats = tmp_path / "target.json"
+    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
+                               "--engine", "firmware", "--firmware", str(packaged_elf_path("hammerstein")),
+                               "--stats", str(stats), *udp_bus.to_argv()], cwd=ROOT, env=subprocess_env(),
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        host = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", "200", "--log",
+                       str(tmp_path / "h.blf"), "--json", *udp_bus.to_argv())
+    finally:
+        target.send_signal(signal.SIGTERM)
+        _, target_err = target.communicate(timeout=10)
+    assert host.returncode == 0, host.stderr
+    result = json.loads(host.stdout)
+    assert result["replies"] == 200 and result["engine"] == "firmware" and result["m4_cycles"]["max"] == 1380
+    assert target.returncode == 0, target_err
+    assert f"firmware {packaged_elf_path('hammerstein')}" in target_err
+    counters = json.loads(stats.read_text())
+    assert counters["engine"] == "firmware" and counters["m4_cycles"] == {"p50": 1380, "max": 1380}
+    assert counters["memory"] == "measured from the firmware ELF"
+
+
+def test_a_firmware_fault_ends_the_run_in_one_sentence_naming_it(tmp_path, small_dataset, udp_bus):
+    """The emulated core hits an undefined instruction in fw_step: the target goes FAULT (INTERNAL) and keeps its
+    heartbeat, the host stops at once instead of waiting out the rows, and the reason names the fault."""
+    from bench.drive.dataset import load_dataset
+    from bench.model.runs import drive_matrix, initial_temperatures
+    from bench.runner import run_with_target
+    from target_sim.artifact import load_artifact
+
+    broken = tmp_path / "broken.elf"
+    broken.write_bytes(patched_elf(packaged_elf_path("hammerstein"), "fw_step", b"\xfe\xde"))
+    dataset = load_dataset(small_dataset)
+    outcome = run_with_target(default_artifact_path(), load_artifact(default_artifact_path()), udp_bus,
+                              drive_matrix(dataset)[:200], initial_temperatures(dataset),
+                              log_path=tmp_path / "x.blf", firmware=broken)
+    result = outcome.result
+    assert result.aborted is not None and result.rows_sent < 10
+    assert result.aborted.startswith("the target reported an internal fault at row 2 (state FAULT, fault bits "
+                                     "INTERNAL)")
+    assert "firmware fault on DriveTemps: fw_step in " in result.aborted and "undefined instruction" in \
+        result.aborted
+    assert outcome.target_status == 0       # it kept serving until it was stopped
+    assert result.problems()[0].startswith("the run was aborted: the target reported an internal fault")

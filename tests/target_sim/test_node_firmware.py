@@ -1,0 +1,187 @@
+"""The target node with the firmware engine: the compiled model in the emulated Cortex-M4F answers every frame
+as the Python engine does, bit for bit, plus Timing4 (measured cycles) and the ELF's flash and RAM in TargetInfo;
+an ELF of another model or core is refused in one sentence; an emulator fault is an INTERNAL fault, not a crash."""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from collections import Counter
+
+import can
+import numpy as np
+import pytest
+
+from dbc import Command, FaultBit, TargetState, decode_any
+from dbc.contract import FIRMWARE_TIMING_MESSAGE, M4_CLOCK_HZ
+from target_sim.artifact import load_artifact
+from target_sim.firmware import FirmwareError, FirmwareEstimator, memory_from_elf
+from target_sim.node import TargetNode, serve
+
+from .test_node import INITIAL, Host, checkpoints_of, drive_rows
+from helpers import patched_elf
+
+UDF = b"\xfe\xde"     # Thumb UDF #0xFE: an undefined instruction
+
+
+def nodes(artifacts, firmware_elf, name: str) -> tuple[TargetNode, TargetNode]:
+    """(python engine, firmware engine) nodes of one artifact, both with a clock that reads 0 (Timing1 equal)."""
+    artifact = load_artifact(artifacts[name])
+    return (TargetNode(artifact, clock_ns=lambda: 0),
+            TargetNode(artifact, engine="firmware", firmware=firmware_elf(name), clock_ns=lambda: 0))
+
+
+def session(node: TargetNode, drive: np.ndarray, lost: set[int] = frozenset()) -> list[can.Message]:
+    """RESET, START, every row but the `lost` ones (and row 30 sent twice): every frame the node sent."""
+    host = Host(node)
+    out = [f for frame in (*host_frames_reset(host), host.frame("Control", Command=int(Command.START), Step=0))
+           for f in node.handle(frame)]
+    for step, values in enumerate(drive):
+        frames = host.row_frames(step, values)
+        if step in lost:
+            continue
+        for frame in frames:
+            out += node.handle(frame)
+        if step == 30:   # a retransmission: answered again, no step
+            for frame in host.row_frames(step, values):
+                out += node.handle(frame)
+    return out
+
+
+def host_frames_reset(host: Host):
+    yoke, winding, tooth, magnet = INITIAL
+    return (host.frame("ResetTemps1", Step=0, WindingTempInit=winding, MagnetTempInit=magnet),
+            host.frame("ResetTemps2", Step=0, YokeTempInit=yoke, ToothTempInit=tooth),
+            host.frame("Control", Command=int(Command.RESET), Step=0))
+
+
+@pytest.mark.parametrize("name", ["lti", "pv", "hammerstein", "modal"])
+def test_the_firmware_engine_answers_bit_for_bit_as_the_python_engine(artifacts, firmware_elf, name):
+    python, firmware = nodes(artifacts, firmware_elf, name)
+    drive = drive_rows(130, seed=4)
+    lost = {50, 51, 52, 53, 54, 55, 56, 90}     # rows lost on the bus: intervals ending among them, held inputs
+    expected = session(python, drive, lost)
+    got = session(firmware, drive, lost)
+    timing4 = [decode_any(f) for f in got if f.arbitration_id == 0x225]
+    others = [f for f in got if f.arbitration_id != 0x225]
+    # every frame the python engine sends, byte for byte (counters, CRCs, temperatures, checkpoints, TargetInfo
+    # apart: its flash and RAM are the ELF's)
+    info = {f.arbitration_id for f in expected if decode_any(f).name == "TargetInfo"}
+    assert [(f.arbitration_id, bytes(f.data)) for f in others if f.arbitration_id not in info] == \
+        [(f.arbitration_id, bytes(f.data)) for f in expected if f.arbitration_id not in info]
+    assert python.model_steps == firmware.model_steps == len(timing4) > 40
+    assert checkpoints_of(decode_any(f) for f in got)
+    assert np.array_equal(python.model.x.view(np.uint32), firmware.model.x.view(np.uint32))
+    assert python.errors["sequence"] == firmware.errors["sequence"] == 2 and firmware.repeats == 1
+    # Timing4: the cycles the emulated core counted for fw_step, and their time at 90 MHz
+    cycles = [f.signals["M4Cycles"] for f in timing4]
+    assert all(200 < c < 5000 for c in cycles) and Counter(cycles) == firmware.m4_cycles
+    assert all(f.signals["M4ExecTime"] == pytest.approx(round(f.signals["M4Cycles"] * 1e6 / M4_CLOCK_HZ, 1))
+               for f in timing4)
+    names = [decode_any(f).name for f in got if decode_any(f).name.startswith("Timing")]
+    assert names[:4] == ["Timing1", "Timing2", "Timing3", FIRMWARE_TIMING_MESSAGE]
+    stats = firmware.stats()
+    assert stats["engine"] == "firmware" and stats["m4_cycles"]["max"] == max(cycles)
+    assert python.stats()["engine"] == "python" and python.stats()["m4_cycles"] is None
+
+
+def test_target_info_carries_the_elf_figures_with_the_firmware_engine(artifacts, firmware_elf):
+    python, firmware = nodes(artifacts, firmware_elf, "hammerstein")
+    measured = memory_from_elf(firmware_elf("hammerstein"))
+    info = decode_any(firmware.startup_frames()[0]).signals
+    assert (info["FlashBytes"], info["RamBytes"]) == (measured["flash_bytes"], measured["ram_bytes"])
+    estimate = decode_any(python.startup_frames()[0]).signals
+    assert (estimate["FlashBytes"], estimate["RamBytes"]) == (python.memory_estimate.flash_bytes,
+                                                              python.memory_estimate.ram_bytes)
+    assert firmware.stats()["memory"] == "measured from the firmware ELF"
+
+
+def test_a_checkpoint_of_the_python_engine_restores_into_the_firmware_engine(artifacts, firmware_elf):
+    python, firmware = nodes(artifacts, firmware_elf, "hammerstein")
+    drive = drive_rows(120, seed=9)
+    host = Host(python)
+    host.reset()
+    host.start()
+    clean = [host.row(step, drive[step]) for step in range(120)]
+    checkpoints = checkpoints_of([f for out in clean for f in out])
+    c = min(checkpoints)
+    other = Host(firmware)
+    frames = [other.frame("RestoreState", Step=c + 1, StateIndex=i, StateValue=v)
+              for i, v in enumerate(checkpoints[c])]
+    other.send(*frames, other.frame("Control", Command=int(Command.RESTORE), Step=c + 1))
+    other.start(c + 1)
+    for step in range(c + 1, 120):
+        again = [f for f in other.row(step, drive[step]) if f.name != FIRMWARE_TIMING_MESSAGE]
+        assert [(f.name, f.signals) for f in again] == [(f.name, f.signals) for f in clean[step]], step
+
+
+def test_an_elf_of_another_model_or_core_is_refused_in_one_sentence(artifacts, firmware_elf):
+    lti = load_artifact(artifacts["lti"])
+    with pytest.raises(FirmwareError, match=r"is the firmware of model [0-9a-f]{8}, not of the artifact's model "
+                                            f"{lti.model_id:08x}; build it from this artifact"):
+        TargetNode(lti, engine="firmware", firmware=firmware_elf("hammerstein"))
+    with pytest.raises(FirmwareError, match="is an ELF for .*x86|not for an ARM Cortex-M4F"):
+        FirmwareEstimator(lti, os.path.realpath(sys.executable))     # an ELF, for this machine's core
+    with pytest.raises(FirmwareError, match="is not an ELF file"):
+        FirmwareEstimator(lti, artifacts["lti"])
+    with pytest.raises(ValueError, match="needs the firmware ELF"):
+        TargetNode(lti, engine="firmware")
+
+
+def test_an_emulator_fault_is_an_internal_fault_and_a_reset_recovers(artifacts, firmware_elf):
+    artifact = load_artifact(artifacts["lti"])
+    node = TargetNode(artifact, engine="firmware", firmware=firmware_elf("lti"))
+    host = Host(node)
+    host.reset()
+    host.start()
+    drive = drive_rows(10)
+    node.model.fw.max_instructions = 100         # fw_step runs ~500 (the others < 40): it "does not return"
+    host.row(0, drive[0])
+    host.row(1, drive[1])
+    out = host.row(2, drive[2])                  # completes a model step
+    assert node.state == TargetState.FAULT and node.faults & FaultBit.INTERNAL
+    assert out[0].name == "Status" and out[0].signals["State"] == TargetState.FAULT
+    assert node.last_error.startswith("firmware fault on DriveTemps: fw_step in ") and "did not return" in \
+        node.last_error
+    assert decode_any(node.heartbeat_frames()[0]).signals["State"] == TargetState.FAULT   # the heartbeat goes on
+    assert host.row(3, drive[3]) == [] and node.errors["sequence"] == 1                   # nothing answered
+    node.model.fw.max_instructions = 1_000_000
+    host.reset()
+    host.start()
+    assert node.state == TargetState.RUNNING and not node.faults & FaultBit.INTERNAL
+    assert [f.name for f in host.row(0, drive[0])][:2] == ["Temperatures1", "Temperatures2"]
+
+
+def test_a_broken_elf_faults_on_the_bus_and_the_heartbeat_goes_on(artifacts, firmware_elf):
+    artifact = load_artifact(artifacts["lti"])
+    node = TargetNode(artifact, engine="firmware", firmware=patched_elf(firmware_elf("lti"), "fw_step", UDF))
+    channel = f"node-fw-test-{time.monotonic_ns()}"
+    target_bus = can.Bus(interface="virtual", channel=channel)
+    host_bus = can.Bus(interface="virtual", channel=channel)
+    errors: list[str] = []
+    stop = threading.Event()
+    thread = threading.Thread(target=serve, args=(node, target_bus, stop.is_set), kwargs={"on_error": errors.append},
+                              daemon=True)
+    thread.start()
+    try:
+        host = Host(node)
+        for frame in (*host_frames_reset(host), host.frame("Control", Command=int(Command.START), Step=0),
+                      *[f for step in range(3) for f in host.row_frames(step, (50.0, 500.0, 40.0, 25.0))]):
+            host_bus.send(frame)
+        seen = []
+        deadline = time.monotonic() + 0.6
+        while time.monotonic() < deadline:
+            msg = host_bus.recv(0.05)
+            if msg is not None:
+                seen.append(decode_any(msg))
+    finally:
+        stop.set()
+        thread.join(2)
+        target_bus.shutdown()
+        host_bus.shutdown()
+    states = [f.signals["State"] for f in seen if f.name == "Status"]
+    assert states.count(TargetState.FAULT) >= 4           # the heartbeat goes on, in FAULT
+    assert node.faults & FaultBit.INTERNAL and "undefined instruction" in node.last_error
+    assert len(errors) == 1 and errors[0].startswith("internal fault, state FAULT until a RESET: firmware fault")
