@@ -27,11 +27,12 @@ even for a diverging model (0·inf is NaN on both sides).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.errors import BenchError
+from bench.firmware.literals import FirmwareGenerationError, c_float
+from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
 from target_sim.artifact import LOSS_TABLES, MODEL_KINDS, OUTPUTS, ModelArtifact
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
 from target_sim.model import COOLANT_REFERENCE_C, LossTables
@@ -47,35 +48,20 @@ MAX_GRID_POINTS = 256                   # per axis: a table beyond that is no mo
 assert set(KINDS) == set(MODEL_KINDS)   # a new kind in the artifact schema needs a generator here first
 
 
-class FirmwareGenerationError(BenchError):
-    """The artifact holds something the generator cannot express in C."""
-
-
 @dataclass(frozen=True)
 class GeneratedSource:
     """The generated files: name -> text."""
 
     header: str
     source: str
+    node: dict[str, str] = field(default_factory=dict)   # the CAN node's generated files (bench.firmware.nodegen)
 
     @property
     def files(self) -> dict[str, str]:
-        return {HEADER_NAME: self.header, SOURCE_NAME: self.source}
+        return {HEADER_NAME: self.header, SOURCE_NAME: self.source, **self.node}
 
 
 # ------------------------------------------------------------------------------------------------ literals
-
-
-def c_float(value: float | np.floating) -> str:
-    """A float32 value as an exact C99 hex-float literal with the f suffix: 0x1.8p+3f, -0x0p+0f."""
-    value = float(value)
-    if not np.isfinite(value) or float(np.float32(value)) != value:
-        raise FirmwareGenerationError(f"{value!r} is not a finite float32 value; rebuild the artifact with "
-                                      "'bench identify'")
-    sign, mantissa_exponent = ("-", value.hex()[1:]) if value.hex().startswith("-") else ("", value.hex())
-    mantissa, exponent = mantissa_exponent.split("p")
-    mantissa = mantissa.rstrip("0").rstrip(".")
-    return f"{sign}{mantissa}p{exponent}f"
 
 
 def c_float_of_hex(text: str, where: str) -> str:
@@ -576,4 +562,5 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
                  "static float acc_sum[4];\n"
                  "static unsigned int acc_count;\n")
     parts.append(code_text)
-    return GeneratedSource(header=header, source="\n".join(parts))
+    node = {CONFIG_NAME: node_config(artifact), **packers()}
+    return GeneratedSource(header=header, source="\n".join(parts), node=node)

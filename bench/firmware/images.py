@@ -22,7 +22,8 @@ from pathlib import Path
 from bench.errors import BenchError
 from bench.fileio import write_bytes_atomically
 from bench.firmware import toolchain
-from bench.firmware.codegen import FirmwareGenerationError, generate
+from bench.firmware.codegen import generate
+from bench.firmware.literals import FirmwareGenerationError
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
 
 PACKAGED_KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
@@ -71,8 +72,7 @@ def firmware_for(artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True
         generated = generate(artifact)
     except FirmwareGenerationError as exc:
         raise BenchError(f"the firmware engine cannot run this artifact: {exc}") from None
-    sources = {**generated.files, toolchain.STARTUP_NAME: toolchain.support_file(toolchain.STARTUP_NAME),
-               toolchain.LINKER_SCRIPT_NAME: toolchain.support_file(toolchain.LINKER_SCRIPT_NAME)}
+    sources = toolchain.firmware_sources(generated)
     try:
         version = toolchain.toolchain_version()
     except toolchain.ToolchainError as exc:

@@ -38,6 +38,9 @@ COMPILER: list[str] = [sys.executable, "-m", "ziglang"]    # tests point this el
 TIMEOUT_S = 300.0
 STARTUP_NAME = "startup.c"
 LINKER_SCRIPT_NAME = "firmware.ld"
+NODE_NAMES = ("node.c", "node.h")        # the CAN node, hand-written (bench/firmware/node.c)
+SHIM_NAME = "string.h"                   # declares the two memory functions node.c defines (there is no libc)
+SUPPORT_FILES = (STARTUP_NAME, *NODE_NAMES, SHIM_NAME, LINKER_SCRIPT_NAME)
 ELF_NAME = "firmware.elf"
 MAP_NAME = "firmware.map"
 
@@ -113,20 +116,24 @@ def toolchain_version(cwd: Path | None = None) -> str:
 
 def compile_flags(work: Path) -> list[str]:
     # the build directory's path never reaches the objects (there is no debug info, but be sure)
-    return [*TARGET_FLAGS, *CODE_FLAGS, *WARNING_FLAGS, f"-ffile-prefix-map={work}=."]
+    return [*TARGET_FLAGS, *CODE_FLAGS, *WARNING_FLAGS, "-I.", f"-ffile-prefix-map={work}=."]
+
+
+def firmware_sources(generated: GeneratedSource) -> dict[str, str]:
+    """Every file a build compiles or links: the generated model and node files and the shipped support files."""
+    return {**generated.files, **{name: support_file(name) for name in SUPPORT_FILES}}
 
 
 def build_firmware(generated: GeneratedSource) -> BuildResult:
     """Compile and link `generated` with the start-up code and linker script; ToolchainError if that fails."""
     version = toolchain_version()
-    sources = {**generated.files, STARTUP_NAME: support_file(STARTUP_NAME),
-               LINKER_SCRIPT_NAME: support_file(LINKER_SCRIPT_NAME)}
+    sources = firmware_sources(generated)
     with tempfile.TemporaryDirectory(prefix="bench-firmware-") as tmp:
         work = Path(tmp)
         for name, text in sources.items():
             (work / name).write_text(text, encoding="utf-8")
         objects = []
-        for source in (STARTUP_NAME, SOURCE_NAME):
+        for source in sorted(name for name in sources if name.endswith(".c")):
             obj = Path(source).with_suffix(".o").name
             done = _run(["cc", *compile_flags(work), "-c", source, "-o", obj], work, f"compiling {source}")
             if done.returncode != 0:
@@ -150,4 +157,4 @@ def build_firmware(generated: GeneratedSource) -> BuildResult:
 
 
 __all__ = ["BuildResult", "COMPILER", "ELF_NAME", "HEADER_NAME", "MAP_NAME", "SOURCE_NAME", "ToolchainError",
-           "build_firmware", "support_file", "toolchain_version"]
+           "build_firmware", "firmware_sources", "support_file", "toolchain_version"]

@@ -83,6 +83,8 @@ FLASH = (0x0800_0000, 256 * 1024)      # (base, size): STM32-like Cortex-M4F
 RAM = (0x2000_0000, 64 * 1024)
 SCRATCH = (0x3000_0000, 64 * 1024)     # the host's buffers: not target RAM
 HALT = 0x1F00_0000                     # every call returns here: below EXC_RETURN values, far from flash/RAM
+SCS = 0xE000_E000                      # System Control Space page (DEMCR at +0xDFC): writes taken, reads 0
+DWT = 0xE000_1000                      # Data Watchpoint and Trace unit page: DWT_CTRL +0, DWT_CYCCNT +4
 PAGE = 0x1000                          # Unicorn maps 4 kB pages
 MAX_INSTRUCTIONS = 1_000_000           # per call: an endless loop stops here (a model step runs ~300-20,000)
 RAW_BLOCK_HOOK = True                  # hook blocks through libunicorn's C API (faster); False: the binding's hook_add
@@ -252,6 +254,11 @@ class Firmware:
                                 "non-overlapping regions needed)") from None
         uc.mem_write(HALT, _HALT_CODE + _FPU_PROBE)
         self._check_fpu()
+        # the cycle counter firmware reads to time itself (DWT_CYCCNT): the counted cycles, running across calls
+        self.total_cycles = 0
+        self._cyccnt_base = 0
+        uc.mmio_map(DWT, PAGE, self._on_dwt_read, None, self._on_dwt_write, None)
+        uc.mmio_map(SCS, PAGE, lambda *_: 0, None, lambda *_: None, None)
         self._stack_top, self._stack_bottom = self._stack_range()
         self._scratch_next = scratch[0]
         self._entries: dict[str, int] = {}
@@ -337,10 +344,13 @@ class Firmware:
         return symbol.address
 
     def write_bytes(self, address: int, data: bytes) -> None:
-        self._uc.mem_write(address, bytes(data))
+        if self._raw is not None:
+            self._raw.write(address, bytes(data))
+        else:
+            self._uc.mem_write(address, bytes(data))
 
     def read_bytes(self, address: int, size: int) -> bytes:
-        return bytes(self._uc.mem_read(address, size))
+        return self._raw.read(address, size) if self._raw is not None else bytes(self._uc.mem_read(address, size))
 
     def write_f32(self, address: int, values: Iterable[float] | np.ndarray) -> None:
         """Store values as little-endian float32 (numpy's conversion: round to nearest) from `address` on."""
@@ -484,6 +494,7 @@ class Firmware:
             if self._fall != HALT:     # the return itself is the last block's branch, taken
                 self._cycles += self._extra
             self.last = CallStats(name, self._instructions, self._cycles)
+            self.total_cycles += self._cycles
         else:
             self.last = CallStats(name, None, None)
         if returns is None:
@@ -510,6 +521,17 @@ class Firmware:
         except Exception as error:         # a C callback must not raise: stop and report it
             self._hook_error = error
             self._uc.emu_stop()
+
+    def _on_dwt_read(self, _uc: Uc, offset: int, _size: int, _user: object) -> int:
+        """DWT_CYCCNT: the cycles counted so far (whole blocks: a block's cost is added when it is entered, so a
+        difference of two reads is exact to within the instructions after the second read in its block)."""
+        if offset != 4:
+            return 0
+        return (self.total_cycles + self._cycles - self._cyccnt_base) & 0xFFFF_FFFF
+
+    def _on_dwt_write(self, _uc: Uc, offset: int, _size: int, value: int, _user: object) -> None:
+        if offset == 4:            # DWT_CYCCNT = value
+            self._cyccnt_base = (self.total_cycles + self._cycles - value) & 0xFFFF_FFFF
 
     def _on_invalid_memory(self, uc: Uc, access: int, address: int, size: int, value: int, _user: object) -> bool:
         what = _ACCESS.get(access, f"invalid access {access} to address")

@@ -1,0 +1,822 @@
+/* node.c - the bench target's CAN node as firmware (see node.h): target_sim/node.py's rules, in C99.
+ *
+ * Each function names the method of target_sim.node.TargetNode it mirrors; the Python node stays the reference
+ * implementation and the bench's conformance suite feeds both the same frames and compares the replies byte for
+ * byte. Arithmetic that must give the Python codec's bits is done exactly in integers (node_temperature_raw) or in
+ * float32 operations proven equal to it (the NODE_DECODE_* macros of fw_node_config.h; the tests check every raw
+ * value).
+ */
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "fw_model.h"
+#include "fw_node_config.h"
+#include "node.h"
+#include "thermal_bench.h"
+
+struct node_frame node_rx;
+struct node_output node_out;
+struct node_counters node_counters;
+
+/* The DWT cycle counter (ARMv7-M debug unit): the model step is timed with it, as on the silicon. */
+#define DEMCR (*(volatile uint32_t *)0xE000EDFCu)
+#define DWT_CTRL (*(volatile uint32_t *)0xE0001000u)
+#define DWT_CYCCNT (*(volatile uint32_t *)0xE0001004u)
+
+/* The messages the node receives (HOST -> TARGET), in one table: index, id and E2E data id. */
+enum rx_message { RX_CONTROL, RX_RESET1, RX_RESET2, RX_RESTORE, RX_DRIVE_INPUTS, RX_DRIVE_TEMPS, RX_BENCH_EVENT,
+                  RX_COUNT };
+static const uint32_t rx_ids[RX_COUNT] = {
+    THERMAL_BENCH_CONTROL_FRAME_ID, THERMAL_BENCH_RESET_TEMPS1_FRAME_ID, THERMAL_BENCH_RESET_TEMPS2_FRAME_ID,
+    THERMAL_BENCH_RESTORE_STATE_FRAME_ID, THERMAL_BENCH_DRIVE_INPUTS_FRAME_ID, THERMAL_BENCH_DRIVE_TEMPS_FRAME_ID,
+    THERMAL_BENCH_BENCH_EVENT_FRAME_ID};
+static const uint8_t rx_data_ids[RX_COUNT] = {
+    NODE_DATA_ID_CONTROL, NODE_DATA_ID_RESET_TEMPS1, NODE_DATA_ID_RESET_TEMPS2, NODE_DATA_ID_RESTORE_STATE,
+    NODE_DATA_ID_DRIVE_INPUTS, NODE_DATA_ID_DRIVE_TEMPS, NODE_DATA_ID_BENCH_EVENT};
+
+/* ---- the node's state (TargetNode's attributes) ---- */
+static uint8_t state;
+static uint8_t faults;
+static uint8_t counter_known[RX_COUNT];          /* FrameValidator._last_counter */
+static uint8_t counter_last[RX_COUNT];
+static uint8_t tx_counter[NODE_TX_MESSAGES];      /* FrameCodec._next_counter, by NODE_TX_* index */
+static const struct node_frame *rx_frame;         /* the frame being handled, for the journal */
+
+static struct {                                   /* ResetTemps1/2 by message: _reset_frames */
+    uint8_t have;
+    uint16_t step;
+    uint16_t raw[2];
+} reset_frames[2];
+static struct {                                   /* RestoreState by element: _restore_frames */
+    uint8_t have;
+    uint16_t step;
+    float value;
+} restore_frames[NODE_STATE_SIZE];
+static struct {                                   /* _pending_inputs */
+    uint8_t have;
+    struct thermal_bench_drive_inputs_t m;
+} pending;
+
+static uint8_t running_rows;                      /* next_row is not None */
+static uint32_t next_row;
+static uint8_t have_reply_row;                    /* last_reply_row is not None */
+static uint16_t last_reply_step;
+static uint8_t have_last_inputs;                  /* RowAccumulator.last_inputs */
+static float last_inputs[4];
+static float estimate[NODE_STATE_SIZE];
+static uint32_t next_beat_ms;
+
+/* ------------------------------------------------------------------------------------------------ no libc */
+/* The generated packers call these two; -ffreestanding leaves them to us. */
+void *memset(void *s, int c, size_t n)
+{
+    uint8_t *p = (uint8_t *)s;
+    while (n-- > 0u) *p++ = (uint8_t)c;
+    return s;
+}
+
+void *memcpy(void *restrict d, const void *restrict s, size_t n)
+{
+    uint8_t *to = (uint8_t *)d;
+    const uint8_t *from = (const uint8_t *)s;
+    while (n-- > 0u) *to++ = *from++;
+    return d;
+}
+
+/* ------------------------------------------------------------------------------------------------ E2E */
+/* dbc.codec.profile2_crc: AUTOSAR CRC8H2F (poly 0x2F, init and xor-out 0xFF) over bytes 1..7 and the data id. */
+static uint8_t crc8h2f_step(uint8_t crc, uint8_t byte)
+{
+    int bit;
+    crc = (uint8_t)(crc ^ byte);
+    for (bit = 0; bit < 8; bit++) crc = (uint8_t)((crc & 0x80u) ? (((uint32_t)crc << 1) ^ 0x2Fu) : ((uint32_t)crc << 1));
+    return crc;
+}
+
+static uint8_t profile2_crc(const uint8_t data[8], uint8_t data_id)
+{
+    uint8_t crc = 0xFFu;
+    int i;
+    for (i = 1; i < 8; i++) crc = crc8h2f_step(crc, data[i]);
+    return (uint8_t)(crc8h2f_step(crc, data_id) ^ 0xFFu);
+}
+
+/* ------------------------------------------------------------------------------------------------ queues */
+static struct node_frame *tx_slot(void)
+{
+    if (node_out.tx_count >= NODE_TX_CAPACITY) {
+        node_out.tx_dropped++;
+        return NULL;
+    }
+    return &node_out.tx[node_out.tx_count++];
+}
+
+/* FrameCodec.encode's tail: alive counter into byte 1's low nibble (already packed), CRC into byte 0. */
+static void tx_finish(struct node_frame *frame, uint32_t id, unsigned int tx_index, uint8_t data_id)
+{
+    frame->id = id;
+    frame->dlc = 8u;
+    frame->data[0] = profile2_crc(frame->data, data_id);
+    tx_counter[tx_index] = (uint8_t)((tx_counter[tx_index] + 1u) % NODE_COUNTER_MODULO);
+}
+
+static void record(uint8_t kind, uint8_t code, int32_t a, int32_t b)
+{
+    struct node_event *event = &node_counters.last_error;
+    event->kind = kind;
+    event->code = code;
+    event->a = a;
+    event->b = b;
+    event->id = rx_frame != NULL ? rx_frame->id : 0u;
+    event->dlc = rx_frame != NULL ? (uint8_t)rx_frame->dlc : 0u;
+    memcpy(event->data, rx_frame != NULL ? rx_frame->data : node_rx.data, sizeof event->data);
+    if (kind > NODE_KIND_SEQUENCE || rx_frame == NULL) return;      /* the journal: rejected frames, sequence */
+    if (node_out.event_count >= NODE_EVENT_CAPACITY) {
+        node_out.events_dropped++;
+        return;
+    }
+    node_out.events[node_out.event_count++] = *event;
+}
+
+/* ------------------------------------------------------------------------------------------------ sending */
+static uint8_t saturate8(uint32_t value)
+{
+    return (uint8_t)(value > 255u ? 255u : value);
+}
+
+/* TargetNode.status_frames */
+static void send_status(void)
+{
+    struct thermal_bench_status_t m;
+    struct node_frame *frame = tx_slot();
+    if (frame == NULL) return;
+    thermal_bench_status_init(&m);
+    m.status_counter = tx_counter[NODE_TX_STATUS];
+    m.state = state;
+    m.fault_bits = faults;
+    m.model_id = FW_MODEL_ID;
+    m.dbc_version_major = NODE_DBC_VERSION_MAJOR;
+    m.dbc_version_minor = NODE_DBC_VERSION_MINOR;
+    (void)thermal_bench_status_pack(frame->data, &m, 8u);
+    tx_finish(frame, THERMAL_BENCH_STATUS_FRAME_ID, NODE_TX_STATUS, NODE_DATA_ID_STATUS);
+}
+
+/* TargetNode.rx_error_frames */
+static void send_rx_errors(void)
+{
+    struct thermal_bench_rx_errors_t m;
+    struct node_frame *frame = tx_slot();
+    const uint32_t *e = node_counters.errors;
+    if (frame == NULL) return;
+    thermal_bench_rx_errors_init(&m);
+    m.rx_errors_counter = tx_counter[NODE_TX_RX_ERRORS];
+    NODE_FILL_RX_ERRORS(m, e);
+    (void)thermal_bench_rx_errors_pack(frame->data, &m, 8u);
+    tx_finish(frame, THERMAL_BENCH_RX_ERRORS_FRAME_ID, NODE_TX_RX_ERRORS, NODE_DATA_ID_RX_ERRORS);
+}
+
+/* The image's own size, from the linker script (what memory_from_elf reads from the sections). */
+extern const char _fw_flash_bytes[], _fw_ram_bytes[];
+
+static uint32_t clamp_u32(uint32_t value, uint32_t maximum)
+{
+    return value > maximum ? maximum : value;
+}
+
+/* TargetNode.target_info_frames: flash and RAM of this very image. */
+static void send_target_info(void)
+{
+    struct thermal_bench_target_info_t m;
+    struct node_frame *frame = tx_slot();
+    if (frame == NULL) return;
+    thermal_bench_target_info_init(&m);
+    m.target_info_counter = tx_counter[NODE_TX_TARGET_INFO];
+    m.model_kind = NODE_MODEL_KIND;
+    m.realization = NODE_REALIZATION;
+    m.model_dt = NODE_MODEL_DT_RAW;
+    m.flash_bytes = clamp_u32((uint32_t)(uintptr_t)_fw_flash_bytes, NODE_FLASH_BYTES_MAX);
+    m.ram_bytes = (uint16_t)clamp_u32((uint32_t)(uintptr_t)_fw_ram_bytes, NODE_RAM_BYTES_MAX);
+    (void)thermal_bench_target_info_pack(frame->data, &m, 8u);
+    tx_finish(frame, THERMAL_BENCH_TARGET_INFO_FRAME_ID, NODE_TX_TARGET_INFO, NODE_DATA_ID_TARGET_INFO);
+}
+
+uint32_t node_temperature_raw(float value)
+{
+    /* value = sign * M * 2^E exactly (M < 2^24); raw = round_half_even(value * INV + OFFSET), INV = 1/scale and
+     * OFFSET = -offset/scale integers: exact in 64-bit integers for the DBC range (|E| <= 40 there). */
+    union {
+        float f;
+        uint32_t u;
+    } bits;
+    uint32_t exponent, mantissa;
+    int32_t shift;
+    int64_t numerator, quotient, remainder, half;
+    bits.f = value;
+    exponent = (bits.u >> 23) & 0xFFu;
+    mantissa = bits.u & 0x7FFFFFu;
+    if (exponent < 127u - NODE_TEMP_TINY_EXPONENT) return NODE_TEMP_OFFSET_RAW;  /* |v| * INV < 1/64: no effect */
+    mantissa |= 0x800000u;
+    shift = 150 - (int32_t)exponent;                                           /* value = M * 2^-shift */
+    numerator = (int64_t)mantissa * NODE_TEMP_INV_SCALE;
+    if (bits.u & 0x80000000u) numerator = -numerator;
+    if (shift <= 0) return (uint32_t)(numerator * ((int64_t)1 << -shift) + NODE_TEMP_OFFSET_RAW);
+    numerator += (int64_t)NODE_TEMP_OFFSET_RAW << shift;                       /* >= 0 in the DBC range */
+    quotient = numerator >> shift;
+    remainder = numerator - (quotient << shift);
+    half = (int64_t)1 << (shift - 1);
+    if (remainder > half || (remainder == half && (quotient & 1))) quotient++;
+    return (uint32_t)quotient;
+}
+
+static int is_finite(float value)
+{
+    union {
+        float f;
+        uint32_t u;
+    } bits;
+    bits.f = value;
+    return ((bits.u >> 23) & 0xFFu) != 0xFFu;
+}
+
+/* TargetNode._temperature_frames: clamp (SATURATED, NONFINITE), then Temperatures1 and Temperatures2. */
+static void send_temperatures(uint16_t step)
+{
+    uint32_t raw[NODE_STATE_SIZE];
+    unsigned int i;
+    for (i = 0; i < NODE_STATE_SIZE; i++) {
+        float value = estimate[i];
+        if (!is_finite(value)) {
+            faults |= NODE_FAULT_NONFINITE | NODE_FAULT_SATURATED;
+            value = (value > 0.0f || value != value) ? NODE_TEMP_MAX : NODE_TEMP_MIN;
+        } else if (value < NODE_TEMP_MIN || value > NODE_TEMP_MAX) {
+            faults |= NODE_FAULT_SATURATED;
+            value = value < NODE_TEMP_MIN ? NODE_TEMP_MIN : NODE_TEMP_MAX;
+        }
+        raw[i] = node_temperature_raw(value);
+    }
+    {
+        struct thermal_bench_temperatures1_t m;
+        struct node_frame *frame = tx_slot();
+        if (frame != NULL) {
+            thermal_bench_temperatures1_init(&m);
+            m.temperatures1_counter = tx_counter[NODE_TX_TEMPERATURES1];
+            m.step = step;
+            NODE_FILL_TEMPERATURES1(m, raw);
+            (void)thermal_bench_temperatures1_pack(frame->data, &m, 8u);
+            tx_finish(frame, THERMAL_BENCH_TEMPERATURES1_FRAME_ID, NODE_TX_TEMPERATURES1,
+                      NODE_DATA_ID_TEMPERATURES1);
+        }
+    }
+    {
+        struct thermal_bench_temperatures2_t m;
+        struct node_frame *frame = tx_slot();
+        if (frame != NULL) {
+            thermal_bench_temperatures2_init(&m);
+            m.temperatures2_counter = tx_counter[NODE_TX_TEMPERATURES2];
+            m.step = step;
+            NODE_FILL_TEMPERATURES2(m, raw);
+            (void)thermal_bench_temperatures2_pack(frame->data, &m, 8u);
+            tx_finish(frame, THERMAL_BENCH_TEMPERATURES2_FRAME_ID, NODE_TX_TEMPERATURES2,
+                      NODE_DATA_ID_TEMPERATURES2);
+        }
+    }
+}
+
+/* TargetNode._timing_frames: Timing1 (measured), Timing2 and Timing3 (the C28x estimate), Timing4 (M4 cycles). */
+static void send_timing(uint16_t step, uint32_t cycles)
+{
+    /* 0.1 us at NODE_CLOCK_HZ, rounded to nearest (an odd divisor such as 9 at 90 MHz has no ties) */
+    const uint32_t tenths_us = (cycles + NODE_CYCLES_PER_TENTH_US / 2u) / NODE_CYCLES_PER_TENTH_US;
+    struct node_frame *frame;
+    if ((frame = tx_slot()) != NULL) {
+        struct thermal_bench_timing1_t m;
+        thermal_bench_timing1_init(&m);
+        m.timing1_counter = tx_counter[NODE_TX_TIMING1];
+        m.step = step;
+        m.step_time_measured = clamp_u32(tenths_us, NODE_STEP_TIME_MEASURED_MAX);
+        m.overruns = saturate8(node_counters.overruns);   /* after all of the row's steps */
+        (void)thermal_bench_timing1_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_TIMING1_FRAME_ID, NODE_TX_TIMING1, NODE_DATA_ID_TIMING1);
+    }
+    if ((frame = tx_slot()) != NULL) {
+        struct thermal_bench_timing2_t m;
+        thermal_bench_timing2_init(&m);
+        m.timing2_counter = tx_counter[NODE_TX_TIMING2];
+        m.step = step;
+        m.est_cycles = NODE_EST_CYCLES_RAW;
+        m.est_exec_time = NODE_EST_EXEC_TIME_RAW;
+        (void)thermal_bench_timing2_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_TIMING2_FRAME_ID, NODE_TX_TIMING2, NODE_DATA_ID_TIMING2);
+    }
+    if ((frame = tx_slot()) != NULL) {
+        struct thermal_bench_timing3_t m;
+        thermal_bench_timing3_init(&m);
+        m.timing3_counter = tx_counter[NODE_TX_TIMING3];
+        m.step = step;
+        m.cpu_load = NODE_CPU_LOAD_RAW;
+        (void)thermal_bench_timing3_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_TIMING3_FRAME_ID, NODE_TX_TIMING3, NODE_DATA_ID_TIMING3);
+    }
+    if ((frame = tx_slot()) != NULL) {
+        struct thermal_bench_timing4_t m;
+        thermal_bench_timing4_init(&m);
+        m.timing4_counter = tx_counter[NODE_TX_TIMING4];
+        m.step = step;
+        m.m4_cycles = clamp_u32(cycles, NODE_M4_CYCLES_MAX);
+        m.m4_exec_time = (uint16_t)clamp_u32(tenths_us, NODE_M4_EXEC_TIME_MAX);
+        (void)thermal_bench_timing4_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_TIMING4_FRAME_ID, NODE_TX_TIMING4, NODE_DATA_ID_TIMING4);
+    }
+}
+
+/* TargetNode._checkpoint_frames: x after this row's model step; none if an element is outside the DBC range. */
+static void send_checkpoint(uint16_t step)
+{
+    float x[NODE_STATE_SIZE];
+    unsigned int i;
+    fw_state(x);
+    for (i = 0; i < NODE_STATE_SIZE; i++) {
+        if (!(x[i] >= NODE_STATE_VALUE_MIN && x[i] <= NODE_STATE_VALUE_MAX)) return;     /* NaN too */
+    }
+    for (i = 0; i < NODE_STATE_SIZE; i++) {
+        struct thermal_bench_state_checkpoint_t m;
+        struct node_frame *frame = tx_slot();
+        if (frame == NULL) return;
+        thermal_bench_state_checkpoint_init(&m);
+        m.state_checkpoint_counter = tx_counter[NODE_TX_STATE_CHECKPOINT];
+        m.step = step;
+        m.state_index = (uint8_t)i;
+        m.state_value = x[i];
+        (void)thermal_bench_state_checkpoint_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_STATE_CHECKPOINT_FRAME_ID, NODE_TX_STATE_CHECKPOINT,
+                  NODE_DATA_ID_STATE_CHECKPOINT);
+    }
+}
+
+/* ------------------------------------------------------------------------------------------------ state */
+/* TargetNode._set_state: an extra Status at every change. */
+static void set_state(uint8_t next)
+{
+    const uint8_t changed = (uint8_t)(next != state);
+    state = next;
+    if (changed) send_status();
+}
+
+/* TargetNode._sequence_error */
+static void sequence_error(uint8_t code, int32_t a, int32_t b)
+{
+    node_counters.errors[NODE_KIND_SEQUENCE - 1]++;
+    faults |= NODE_FAULT_SEQUENCE;
+    record(NODE_KIND_SEQUENCE, code, a, b);
+}
+
+/* TargetNode._incomplete: a RESET or RESTORE without its data changes nothing of the model; IDLE. */
+static void incomplete(uint8_t code, uint16_t step)
+{
+    faults |= NODE_FAULT_RESET_INCOMPLETE;
+    record(NODE_KIND_INCOMPLETE, code, step, 0);
+    set_state(NODE_STATE_IDLE);
+}
+
+/* RowAccumulator.reset */
+static void rows_reset(void)
+{
+    fw_clear();
+    have_last_inputs = 0u;
+}
+
+/* TargetNode._ready: after the model state was set by RESET or RESTORE. */
+static void ready(void)
+{
+    fw_output(estimate);
+    rows_reset();
+    pending.have = 0u;
+    running_rows = 0u;
+    have_reply_row = 0u;
+    node_counters.rows_used = node_counters.model_steps = node_counters.overruns = 0u;
+    faults &= NODE_FAULT_NO_ARTIFACT;
+    state = NODE_STATE_READY;
+    send_target_info();
+    send_status();
+}
+
+/* InputAccumulator.ends_interval: row k is the last sample of its model step's interval. The rule is periodic
+ * in the row with period NODE_ROWS_PER_PERIOD (rows and steps in lowest terms), so the phase is enough. */
+static int ends_interval(uint32_t row)
+{
+    const uint32_t phase = row % NODE_ROWS_PER_PERIOD;
+    return (phase + 1u) * NODE_STEPS_PER_PERIOD / NODE_ROWS_PER_PERIOD
+           != phase * NODE_STEPS_PER_PERIOD / NODE_ROWS_PER_PERIOD;
+}
+
+/* ------------------------------------------------------------------------------------------------ rows */
+/* One model step on `inputs` (TargetNode._row's loop body); returns its DWT cycles. */
+static uint32_t model_step(const float inputs[4])
+{
+    uint32_t started, cycles;
+    started = DWT_CYCCNT;
+    fw_step(inputs, estimate);
+    cycles = DWT_CYCCNT - started;
+    node_counters.model_steps++;
+    if (cycles > NODE_DT_CYCLES) {
+        node_counters.overruns++;
+        faults |= NODE_FAULT_OVERRUN;
+    }
+    node_out.last_step_cycles = cycles;
+    node_out.step_cycles += cycles;
+    return cycles;
+}
+
+/* RowAccumulator.skip's means and the steps on them, one by one (no list: bounded RAM), then the row's own. */
+static void handle_row(uint16_t step, const float sample[4])
+{
+    const uint32_t expected = next_row;
+    const uint16_t ahead = (uint16_t)(step - (uint16_t)expected);       /* mod 2^16 */
+    uint32_t row, lost, cycles_of[NODE_TX_CAPACITY / 4u];
+    uint32_t steps = 0u;
+    float mean[4];
+    if (state != NODE_STATE_RUNNING || !running_rows) {
+        sequence_error(NODE_WHY_ROW_STATE, step, state);
+        return;
+    }
+    if (have_reply_row && step == last_reply_step) {        /* the host sent the last row again: answer again */
+        node_counters.repeats++;
+        node_out.answered_again = 1u;
+        send_temperatures(step);
+        return;
+    }
+    if (ahead >= NODE_STEP_MODULO / 2u) {
+        sequence_error(NODE_WHY_ROW_BACK, step, (uint16_t)expected);
+        return;
+    }
+    row = expected + ahead;
+    if (ahead) sequence_error(NODE_WHY_ROWS_LOST, (uint16_t)expected, (uint16_t)(row - 1u));
+    for (lost = expected; lost < row; lost++) {             /* RowAccumulator.skip */
+        if (!ends_interval(lost)) continue;
+        if (fw_mean(mean)) {                                /* the rows of the interval that did arrive */
+            memcpy(last_inputs, mean, sizeof mean);
+            have_last_inputs = 1u;
+        } else if (have_last_inputs) {
+            memcpy(mean, last_inputs, sizeof mean);         /* none did: hold the previous step's inputs */
+        } else {
+            continue;                                       /* nothing ever arrived: no inputs to step on */
+        }
+        if (steps < NODE_TX_CAPACITY / 4u) {
+            cycles_of[steps] = model_step(mean);
+        } else {
+            (void)model_step(mean);                         /* its timing frames could not be queued anyway */
+            node_out.tx_dropped += 4u;
+        }
+        steps++;
+    }
+    next_row = row + 1u;
+    node_counters.rows_used++;
+    fw_accumulate(sample);                                  /* RowAccumulator.add */
+    if (ends_interval(row) && fw_mean(mean)) {
+        memcpy(last_inputs, mean, sizeof mean);
+        have_last_inputs = 1u;
+        if (steps < NODE_TX_CAPACITY / 4u) {
+            cycles_of[steps] = model_step(mean);
+        } else {
+            (void)model_step(mean);
+            node_out.tx_dropped += 4u;
+        }
+        steps++;
+    }
+    send_temperatures(step);
+    last_reply_step = step;
+    have_reply_row = 1u;
+    {
+        uint32_t i;
+        for (i = 0u; i < steps && i < NODE_TX_CAPACITY / 4u; i++) send_timing(step, cycles_of[i]);
+    }
+    if (steps && node_counters.model_steps % NODE_CHECKPOINT_EVERY == 0u) send_checkpoint(step);
+}
+
+/* ------------------------------------------------------------------------------------------------ control */
+/* TargetNode._control */
+static void control(uint8_t command, uint16_t step)
+{
+    if (command == NODE_COMMAND_RESET) {
+        float y0[NODE_STATE_SIZE];
+        const int complete = reset_frames[0].have && reset_frames[1].have && reset_frames[0].step == step
+                             && reset_frames[1].step == step;
+        reset_frames[0].have = reset_frames[1].have = 0u;
+        if (!complete) {
+            incomplete(NODE_WHY_RESET_INCOMPLETE, step);
+            return;
+        }
+        NODE_RESET_TEMPERATURES(y0, reset_frames[0].raw, reset_frames[1].raw);
+        fw_reset(y0);
+        ready();
+    } else if (command == NODE_COMMAND_RESTORE) {
+        float x[NODE_STATE_SIZE];
+        unsigned int i;
+        int complete = 1;
+        for (i = 0; i < NODE_STATE_SIZE; i++) {
+            if (!restore_frames[i].have || restore_frames[i].step != step) complete = 0;
+            x[i] = restore_frames[i].value;
+            restore_frames[i].have = 0u;
+        }
+        if (!complete) {
+            incomplete(NODE_WHY_RESTORE_INCOMPLETE, step);
+            return;
+        }
+        fw_restore(x);
+        ready();
+    } else if (command == NODE_COMMAND_START) {
+        if (state != NODE_STATE_READY) {
+            sequence_error(NODE_WHY_START_STATE, state, 0);
+            return;
+        }
+        next_row = step;
+        running_rows = 1u;
+        set_state(NODE_STATE_RUNNING);
+    } else if (command == NODE_COMMAND_STOP) {
+        int i;
+        for (i = 0; i < RX_COUNT; i++) counter_known[i] = 0u;     /* FrameValidator.reset_counters */
+        pending.have = 0u;
+        set_state(NODE_STATE_STOPPED);
+    }
+}
+
+/* ------------------------------------------------------------------------------------------------ receiving */
+static void reject(uint8_t kind, uint8_t code, int32_t a, int32_t b)
+{
+    node_counters.errors[kind - 1u]++;
+    faults |= NODE_FAULT_RX_ERROR;
+    record(kind, code, a, b);
+}
+
+/* The application part of a valid frame (TargetNode._dispatch). */
+static void dispatch(int index, const uint8_t *data)
+{
+    switch (index) {
+    case RX_DRIVE_INPUTS: {
+        struct thermal_bench_drive_inputs_t m;
+        (void)thermal_bench_drive_inputs_unpack(&m, data, 8u);
+        if (pending.have) sequence_error(NODE_WHY_INPUTS_ALONE, pending.m.step, 0);
+        pending.have = 1u;
+        pending.m = m;
+        break;
+    }
+    case RX_DRIVE_TEMPS: {
+        struct thermal_bench_drive_temps_t m;
+        float sample[4];
+        (void)thermal_bench_drive_temps_unpack(&m, data, 8u);
+        if (!pending.have) {
+            sequence_error(NODE_WHY_TEMPS_ALONE, m.step, 0);
+            break;
+        }
+        pending.have = 0u;
+        if (pending.m.step != m.step) {
+            sequence_error(NODE_WHY_PAIR_STEPS, pending.m.step, m.step);
+            break;
+        }
+        NODE_DRIVE_SAMPLE(sample, pending.m, m);
+        handle_row(m.step, sample);
+        break;
+    }
+    case RX_RESET1: {
+        struct thermal_bench_reset_temps1_t m;
+        (void)thermal_bench_reset_temps1_unpack(&m, data, 8u);
+        reset_frames[0].have = 1u;
+        reset_frames[0].step = m.step;
+        NODE_RESET1_RAW(reset_frames[0].raw, m);
+        break;
+    }
+    case RX_RESET2: {
+        struct thermal_bench_reset_temps2_t m;
+        (void)thermal_bench_reset_temps2_unpack(&m, data, 8u);
+        reset_frames[1].have = 1u;
+        reset_frames[1].step = m.step;
+        NODE_RESET2_RAW(reset_frames[1].raw, m);
+        break;
+    }
+    case RX_RESTORE: {
+        struct thermal_bench_restore_state_t m;
+        (void)thermal_bench_restore_state_unpack(&m, data, 8u);
+        restore_frames[m.state_index].have = 1u;                    /* 0..3: checked by the range check */
+        restore_frames[m.state_index].step = m.step;
+        restore_frames[m.state_index].value = m.state_value;
+        break;
+    }
+    case RX_CONTROL: {
+        struct thermal_bench_control_t m;
+        (void)thermal_bench_control_unpack(&m, data, 8u);
+        control(m.command, m.step);
+        break;
+    }
+    default:                                                        /* BenchEvent: validated, otherwise ignored */
+        break;
+    }
+}
+
+/* The first signal of a valid-length frame outside its DBC range, as its index in the message (DBC order), or
+ * -1 (FrameValidator's range check, through the generated *_is_in_range). */
+static int out_of_range_signal(int index, const uint8_t *data)
+{
+    switch (index) {
+    case RX_CONTROL: {
+        struct thermal_bench_control_t m;
+        (void)thermal_bench_control_unpack(&m, data, 8u);
+        if (!thermal_bench_control_step_is_in_range(m.step)) return 2;
+        if (!thermal_bench_control_command_is_in_range(m.command)) return 3;
+        return -1;
+    }
+    case RX_RESET1: {
+        struct thermal_bench_reset_temps1_t m;
+        (void)thermal_bench_reset_temps1_unpack(&m, data, 8u);
+        if (!thermal_bench_reset_temps1_step_is_in_range(m.step)) return 2;
+        if (!thermal_bench_reset_temps1_winding_temp_init_is_in_range(m.winding_temp_init)) return 3;
+        if (!thermal_bench_reset_temps1_magnet_temp_init_is_in_range(m.magnet_temp_init)) return 4;
+        return -1;
+    }
+    case RX_RESET2: {
+        struct thermal_bench_reset_temps2_t m;
+        (void)thermal_bench_reset_temps2_unpack(&m, data, 8u);
+        if (!thermal_bench_reset_temps2_step_is_in_range(m.step)) return 2;
+        if (!thermal_bench_reset_temps2_yoke_temp_init_is_in_range(m.yoke_temp_init)) return 3;
+        if (!thermal_bench_reset_temps2_tooth_temp_init_is_in_range(m.tooth_temp_init)) return 4;
+        return -1;
+    }
+    case RX_RESTORE: {
+        struct thermal_bench_restore_state_t m;
+        (void)thermal_bench_restore_state_unpack(&m, data, 8u);
+        if (!thermal_bench_restore_state_step_is_in_range(m.step)) return 2;
+        if (!thermal_bench_restore_state_state_index_is_in_range(m.state_index)) return 3;
+        if (!thermal_bench_restore_state_state_value_is_in_range(m.state_value)) return 4;
+        return -1;
+    }
+    case RX_DRIVE_INPUTS: {
+        struct thermal_bench_drive_inputs_t m;
+        (void)thermal_bench_drive_inputs_unpack(&m, data, 8u);
+        if (!thermal_bench_drive_inputs_step_is_in_range(m.step)) return 2;
+        if (!thermal_bench_drive_inputs_motor_torque_is_in_range(m.motor_torque)) return 3;
+        if (!thermal_bench_drive_inputs_motor_speed_is_in_range(m.motor_speed)) return 4;
+        return -1;
+    }
+    case RX_DRIVE_TEMPS: {
+        struct thermal_bench_drive_temps_t m;
+        (void)thermal_bench_drive_temps_unpack(&m, data, 8u);
+        if (!thermal_bench_drive_temps_step_is_in_range(m.step)) return 2;
+        if (!thermal_bench_drive_temps_coolant_temp_is_in_range(m.coolant_temp)) return 3;
+        if (!thermal_bench_drive_temps_ambient_temp_is_in_range(m.ambient_temp)) return 4;
+        return -1;
+    }
+    default: {
+        struct thermal_bench_bench_event_t m;
+        (void)thermal_bench_bench_event_unpack(&m, data, 8u);
+        if (!thermal_bench_bench_event_step_is_in_range(m.step)) return 2;
+        if (!thermal_bench_bench_event_event_is_in_range(m.event)) return 3;
+        if (!thermal_bench_bench_event_fault_kind_is_in_range(m.fault_kind)) return 4;
+        if (!thermal_bench_bench_event_frame_id_is_in_range(m.frame_id)) return 5;
+        return -1;
+    }
+    }
+}
+
+/* Any id of the DBC (to tell "not received here" from "not in the DBC"). */
+static int in_dbc(uint32_t id)
+{
+    static const uint32_t ids[] = {NODE_DBC_FRAME_IDS};
+    unsigned int i;
+    for (i = 0u; i < sizeof ids / sizeof ids[0]; i++) {
+        if (ids[i] == id) return 1;
+    }
+    return 0;
+}
+
+/* FrameValidator.validate, in the contract's order: id, DLC, CRC, ranges, alive counter. */
+static int validate(uint32_t id, uint32_t dlc, const uint8_t *data)
+{
+    int index, signal;
+    uint8_t crc, counter;
+    if (id & NODE_ID_ERROR) {
+        reject(NODE_KIND_UNKNOWN_ID, NODE_WHY_ERROR_FRAME, 0, 0);
+        return -1;
+    }
+    if (id & NODE_ID_REMOTE) {
+        reject(NODE_KIND_UNKNOWN_ID, NODE_WHY_REMOTE_FRAME, (int32_t)(id & 0x1FFFFFFFu), 0);
+        return -1;
+    }
+    if (id & NODE_ID_EXTENDED) {
+        reject(NODE_KIND_UNKNOWN_ID, NODE_WHY_EXTENDED_FRAME, (int32_t)(id & 0x1FFFFFFFu), 0);
+        return -1;
+    }
+    if (id & NODE_ID_FD) {
+        reject(NODE_KIND_UNKNOWN_ID, NODE_WHY_FD_FRAME, (int32_t)(id & 0x7FFu), 0);
+        return -1;
+    }
+    for (index = 0; index < RX_COUNT && rx_ids[index] != id; index++) {
+    }
+    if (index == RX_COUNT) {
+        reject(NODE_KIND_UNKNOWN_ID, in_dbc(id) ? NODE_WHY_NOT_RECEIVED : NODE_WHY_NOT_IN_DBC, (int32_t)id, 0);
+        return -1;
+    }
+    if (dlc != 8u) {
+        reject(NODE_KIND_WRONG_LENGTH, NODE_WHY_LENGTH, (int32_t)dlc, 0);
+        return -1;
+    }
+    crc = profile2_crc(data, rx_data_ids[index]);
+    if (data[0] != crc) {
+        reject(NODE_KIND_CRC, NODE_WHY_CRC, data[0], crc);
+        return -1;
+    }
+    signal = out_of_range_signal(index, data);
+    if (signal >= 0) {
+        reject(NODE_KIND_OUT_OF_RANGE, NODE_WHY_RANGE, signal, 0);
+        return -1;
+    }
+    counter = (uint8_t)(data[1] & 0x0Fu);
+    if (counter_known[index] && counter != (uint8_t)((counter_last[index] + 1u) % NODE_COUNTER_MODULO)) {
+        const uint8_t last = counter_last[index];
+        counter_last[index] = counter;                          /* resynchronize: one lost frame, one error */
+        reject(NODE_KIND_COUNTER, NODE_WHY_COUNTER, counter, last);
+        return -1;
+    }
+    counter_known[index] = 1u;
+    counter_last[index] = counter;
+    return index;
+}
+
+/* ------------------------------------------------------------------------------------------------ entry points */
+static void begin_call(void)
+{
+    node_out.tx_count = 0u;
+    node_out.event_count = 0u;
+    node_out.answered_again = 0u;
+    node_out.step_cycles = 0u;
+    rx_frame = NULL;
+}
+
+static void end_call(void)
+{
+    node_out.state = state;
+    node_out.faults = faults;
+    node_out.next_beat_ms = next_beat_ms;
+}
+
+void node_init(uint32_t now_ms)
+{
+    DEMCR |= 1u << 24;                                      /* TRCENA: the DWT on */
+    DWT_CYCCNT = 0u;
+    DWT_CTRL |= 1u;                                         /* CYCCNTENA */
+    memset(&node_out, 0, sizeof node_out);
+    memset(&node_counters, 0, sizeof node_counters);
+    memset(counter_known, 0, sizeof counter_known);
+    memset(tx_counter, 0, sizeof tx_counter);
+    memset(reset_frames, 0, sizeof reset_frames);
+    memset(restore_frames, 0, sizeof restore_frames);
+    memset(&pending, 0, sizeof pending);
+    memset(estimate, 0, sizeof estimate);
+    running_rows = have_reply_row = have_last_inputs = 0u;
+    next_row = 0u;
+    fw_clear();
+    state = NODE_STATE_IDLE;
+    faults = 0u;
+    begin_call();
+    send_target_info();                                     /* TargetNode.startup_frames */
+    send_status();
+    send_rx_errors();
+    next_beat_ms = now_ms + NODE_HEARTBEAT_MS;
+    end_call();
+}
+
+void node_on_frame(uint32_t id, uint32_t dlc, const uint8_t *data)
+{
+    int index;
+    begin_call();
+    node_counters.frames_received++;
+    rx_frame = &node_rx;
+    if (data != node_rx.data) {                             /* a frame not in the mailbox: judge a copy of it */
+        node_rx.id = id;
+        node_rx.dlc = dlc;
+        memcpy(node_rx.data, data, dlc < 8u ? dlc : 8u);
+    }
+    index = validate(id, dlc, node_rx.data);
+    if (index >= 0) dispatch(index, node_rx.data);
+    end_call();
+}
+
+void node_on_tick(uint32_t now_ms)
+{
+    begin_call();
+    if ((int32_t)(now_ms - next_beat_ms) >= 0) {            /* serve()'s heartbeat schedule */
+        send_status();
+        send_rx_errors();
+        next_beat_ms += NODE_HEARTBEAT_MS;
+        if ((int32_t)(next_beat_ms - now_ms) <= 0) next_beat_ms = now_ms + NODE_HEARTBEAT_MS;
+    }
+    end_call();
+}
+
+void node_internal_fault(uint32_t code)
+{
+    begin_call();
+    faults |= NODE_FAULT_INTERNAL;
+    record(NODE_KIND_INTERNAL, (uint8_t)code, 0, 0);
+    set_state(NODE_STATE_FAULT);
+    end_call();
+}

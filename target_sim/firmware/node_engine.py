@@ -1,0 +1,238 @@
+"""The firmware engine: the whole target node (bench/firmware/node.c with the model) in the emulated Cortex-M4F.
+
+    node = FirmwareNode(artifact, "firmware.elf")     # FirmwareError: another core, another model, no node_*
+    node.startup_frames(); node.handle(msg) -> frames; node.tick(now_s) -> heartbeat frames; node.stats()
+
+The Python side only moves frames: a received frame goes into the MCU's receive mailbox (`node_rx`) and
+`node_on_frame` runs; what the firmware queued (`node_out.tx`) goes out as python-can messages, in order; its
+journal records (`node_out.events`) go to `journal` with the frame they judged. Every rule of the protocol is the
+firmware's; this class has the interface of the Python reference node (`target_sim.node.TargetNode`), so `serve`,
+the bench and the conformance tests drive either.
+
+A fault of the emulated core (invalid access, hard fault, endless loop: `FirmwareFault`, one sentence) is the
+node's INTERNAL fault: the shell calls `node_internal_fault`, which sets the fault bit and the state FAULT and
+queues a Status, so the heartbeat reports it and a RESET recovers. If even that call faults, the shell resets the
+core as a watchdog would (RAM re-initialized, `node_init`) and reports the fault from the fresh node.
+
+Measured per call: the cycles of `node_on_frame` (the emulator's count) minus those of the model steps in it (the
+firmware's DWT reads): frame handling per received frame, and per reply frame for calls that queued replies.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections import Counter
+from collections.abc import Callable
+
+import can
+
+from dbc.contract import FIRMWARE_TIMING_MESSAGE, RX_ERROR_KINDS, TargetState
+from dbc.database import frame_id, layout_named
+from target_sim.artifact import ModelArtifact
+from target_sim.costs import step_cost
+from target_sim.firmware.elf import ElfImage, FirmwareError, memory_from_elf, read_elf
+from target_sim.firmware.emulator import Firmware, FirmwareFault
+from target_sim.firmware.node_protocol import (
+    COUNTERS,
+    EVENT,
+    EVENTS_OFFSET,
+    FRAME,
+    ID_ERROR,
+    ID_EXTENDED,
+    ID_FD,
+    ID_REMOTE,
+    OUTPUT_HEADER,
+    TX_OFFSET,
+    WHY_CODES,
+    Event,
+)
+
+ENTRY_POINTS = ("node_init", "node_on_frame", "node_on_tick", "node_internal_fault")
+BUFFERS = ("node_rx", "node_out", "node_counters", "fw_model_id")
+_MASK32 = 0xFFFF_FFFF
+
+
+def _ms(seconds: float) -> int:
+    return int(seconds * 1000.0) & _MASK32
+
+
+def cycle_figures(cycles: Counter[int]) -> dict[str, int | None]:
+    """p50 (the lower median) and max of counted cycles (None before the first)."""
+    if not cycles:
+        return {"p50": None, "max": None}
+    values = sorted(cycles)
+    seen, half = 0, (sum(cycles.values()) + 1) // 2
+    for value in values:
+        seen += cycles[value]
+        if seen >= half:
+            return {"p50": value, "max": values[-1]}
+    return {"p50": values[-1], "max": values[-1]}
+
+
+class FirmwareNode:
+    """The target node as compiled firmware in the emulated Cortex-M4F (see the module docstring)."""
+
+    engine = "firmware"
+
+    def __init__(self, artifact: ModelArtifact, elf: str | os.PathLike | bytes | ElfImage, *,
+                 clock_s: Callable[[], float] = time.monotonic, journal: Callable[[dict], None] | None = None):
+        image = elf if isinstance(elf, ElfImage) else read_elf(elf)
+        self.artifact = artifact
+        self.journal = journal
+        self.clock_s = clock_s
+        self.name = image.name
+        self.fw = fw = Firmware(image)
+        missing = [name for name in (*ENTRY_POINTS, *BUFFERS) if name not in fw.symbols]
+        if missing:
+            raise FirmwareError(f"{image.name} has no {', '.join(missing)}: it is not a node firmware of "
+                                "'bench firmware build'; rebuild it")
+        model_id = int.from_bytes(fw.read_bytes(fw.address("fw_model_id"), 4), "little")
+        if model_id != artifact.model_id:
+            raise FirmwareError(f"{image.name} is the firmware of model {model_id:08x}, not of the artifact's model "
+                                f"{artifact.model_id:08x}; build it from this artifact with 'bench firmware build'")
+        self.cost = step_cost(artifact)      # the C28x estimate the firmware's Timing2/3 carry
+        memory = memory_from_elf(image)
+        self.memory_figures = memory
+        self._rx, self._out, self._counters = (fw.address(name) for name in BUFFERS[:3])
+        self._rx_data = self._rx + 8
+        timing4 = layout_named(FIRMWARE_TIMING_MESSAGE).signal("M4Cycles")
+        self._timing4 = (frame_id(FIRMWARE_TIMING_MESSAGE), timing4.start, timing4.mask)
+        self.m4_cycles: Counter[int] = Counter()      # per model step (Timing4), value -> steps
+        self.frame_cycles: Counter[int] = Counter()   # per received frame, model steps excluded
+        self.reply_cycles: Counter[int] = Counter()   # per reply frame of calls that queued replies
+        self.answered_again = False
+        self.state = TargetState.BOOT
+        self.faults = 0
+        self.next_tick_s = 0.0
+        self._t0 = clock_s()
+        self._startup = self._run("node_init", 0)
+
+    # ------------------------------------------------------------------ calls into the firmware
+    def _run(self, function: str, *args: int) -> list[can.Message]:
+        """Call an entry point; its queued frames as messages (journal records handed on)."""
+        fw = self.fw
+        try:
+            fw.call(function, *args)
+        except FirmwareFault as fault:
+            return self._core_faulted(fault)
+        return self._collect(function == "node_on_frame", fw.last.cycles)
+
+    def _collect(self, on_frame: bool, cycles: int | None) -> list[can.Message]:
+        fw = self.fw
+        header = OUTPUT_HEADER.unpack(fw.read_bytes(self._out, OUTPUT_HEADER.size))
+        tx_count, event_count, state, faults, again, _, _, _, step_cycles, next_beat_ms = header
+        self.state = TargetState(state)
+        self.faults = faults
+        self.answered_again = bool(again)
+        self.next_tick_s = self._t0 + ((next_beat_ms - _ms(0.0)) & _MASK32) / 1000.0
+        frames: list[can.Message] = []
+        if tx_count:
+            raw = fw.read_bytes(self._out + TX_OFFSET, tx_count * FRAME.size)
+            now = time.time()
+            timing4, start, mask = self._timing4
+            for fid, dlc, data in FRAME.iter_unpack(raw):
+                if fid == timing4:
+                    self.m4_cycles[(int.from_bytes(data, "little") >> start) & mask] += 1
+                frames.append(can.Message(timestamp=now, arbitration_id=fid, is_extended_id=False, dlc=dlc,
+                                          data=data[:dlc], check=False))
+        if event_count and self.journal is not None and self._msg is not None:
+            raw = fw.read_bytes(self._out + EVENTS_OFFSET, event_count * EVENT.size)
+            msg = self._msg
+            for index in range(event_count):
+                event = Event.unpack(raw[index * EVENT.size:(index + 1) * EVENT.size])
+                self.journal({"kind": event.kind, "id": msg.arbitration_id, "dlc": msg.dlc,
+                              "data": bytes(msg.data).hex(), "detail": event.sentence})
+        if on_frame and cycles is not None:
+            handling = max(cycles - step_cycles, 0)
+            self.frame_cycles[handling] += 1
+            if frames:
+                self.reply_cycles[handling // len(frames)] += 1
+        return frames
+
+    def _core_faulted(self, fault: FirmwareFault) -> list[can.Message]:
+        """The node's INTERNAL fault (see the module docstring); the fault's sentence is the last error."""
+        self.fault_message = str(fault)
+        try:
+            self.fw.call("node_internal_fault", WHY_CODES["CORE_FAULT"])
+            return self._collect(False, None)
+        except FirmwareFault:
+            pass
+        self.fw.reset()                 # the watchdog: RAM as at power-on, then the node starts again
+        frames: list[can.Message] = []
+        try:
+            self.fw.call("node_init", _ms(self.clock_s() - self._t0))
+            frames = self._collect(False, None)
+            self.fw.call("node_internal_fault", WHY_CODES["CORE_FAULT"])
+            frames += self._collect(False, None)
+        except FirmwareFault as again:   # the image cannot even start: report FAULT from here, nothing to send
+            self.fault_message = str(again)
+            self.state = TargetState.FAULT
+        return frames
+
+    # ------------------------------------------------------------------ TargetNode's interface
+    fault_message = ""
+    _msg: can.Message | None = None
+
+    def startup_frames(self) -> list[can.Message]:
+        """What node_init queued: TargetInfo, Status, RxErrors."""
+        frames, self._startup = self._startup, []
+        return frames
+
+    def handle(self, msg: can.Message) -> list[can.Message]:
+        """Put one received frame into the mailbox, run node_on_frame, return what the firmware queued."""
+        fid = msg.arbitration_id & 0x1FFF_FFFF
+        if msg.is_extended_id:
+            fid |= ID_EXTENDED
+        if msg.is_remote_frame:
+            fid |= ID_REMOTE
+        if msg.is_error_frame:
+            fid |= ID_ERROR
+        if msg.is_fd:
+            fid |= ID_FD
+        data = bytes(msg.data)
+        self.fw.write_bytes(self._rx, FRAME.pack(fid, msg.dlc, data[:8].ljust(8, b"\0")))
+        self._msg = msg
+        try:
+            return self._run("node_on_frame", fid, msg.dlc & _MASK32, self._rx_data)
+        finally:
+            self._msg = None
+
+    def tick(self, now_s: float) -> list[can.Message]:
+        """node_on_tick: the heartbeat (Status, RxErrors) when the firmware's period is over."""
+        return self._run("node_on_tick", _ms(now_s - self._t0))
+
+    def heartbeat_frames(self) -> list[can.Message]:
+        """A heartbeat now (the firmware's schedule permitting): what serve() calls every period."""
+        return self.tick(self.next_tick_s)
+
+    # ------------------------------------------------------------------ what the bench reads
+    def counters(self) -> dict:
+        values = COUNTERS.unpack(self.fw.read_bytes(self._counters, COUNTERS.size))
+        raw_last = self.fw.read_bytes(self._counters + COUNTERS.size, EVENT.size)
+        last_error = ""
+        if raw_last[0]:                  # kind 0: no error yet
+            last = Event.unpack(raw_last)
+            last_error = self.fault_message if last.why == "CORE_FAULT" and self.fault_message else last.sentence
+        return {"errors": dict(zip(RX_ERROR_KINDS, values[:6], strict=True)), "frames_received": values[6],
+                "rows_used": values[7], "repeats": values[8], "model_steps": values[9], "overruns": values[10],
+                "last_error": last_error}
+
+    @property
+    def errors(self) -> dict[str, int]:
+        return self.counters()["errors"]
+
+    @property
+    def last_error(self) -> str:
+        return self.counters()["last_error"]
+
+    def stats(self) -> dict:
+        counters = self.counters()
+        header = OUTPUT_HEADER.unpack(self.fw.read_bytes(self._out, OUTPUT_HEADER.size))
+        return {"state": self.state.name, "faults": int(self.faults), **counters,
+                "model_id": self.artifact.model_id, "engine": self.engine, "est_cycles": self.cost.cycles,
+                "m4_cycles": cycle_figures(self.m4_cycles), "frame_cycles": cycle_figures(self.frame_cycles),
+                "reply_cycles": cycle_figures(self.reply_cycles), "tx_dropped": header[5],
+                "events_dropped": header[6], "flash_bytes": self.memory_figures["flash_bytes"],
+                "ram_bytes": self.memory_figures["ram_bytes"], "memory": "measured from the firmware ELF",
+                "stack_used_bytes": self.fw.stack_used()}

@@ -1,0 +1,90 @@
+"""What the firmware node (bench/firmware/node.c) and its shell (`target_sim.firmware.node_engine`) agree on
+beyond the DBC: the layout of the node's output block in RAM, the kinds and reason codes of its journal records,
+and the sentences the shell writes for them. The generator (`bench.firmware.nodegen`) writes the codes into
+fw_node_config.h from here, so each is defined once.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+from dbc.contract import RX_ERROR_KINDS, TargetState
+
+# the journal's kinds: the RxErrors kinds (1-based, their order), then two that only name the last error
+KINDS: tuple[str, ...] = (*RX_ERROR_KINDS, "incomplete", "internal")
+KIND_CODES: dict[str, int] = {kind: index + 1 for index, kind in enumerate(KINDS)}
+
+# reason code -> sentence template over the record's numbers a, b (and the frame's id, dlc)
+WHY: dict[str, str] = {
+    "ERROR_FRAME": "an error frame is not a frame of the contract.",
+    "REMOTE_FRAME": "remote frame 0x{a:X} is not a frame of the contract.",
+    "EXTENDED_FRAME": "extended frame 0x{a:08X} is not a frame of the contract.",
+    "FD_FRAME": "CAN FD frame 0x{a:03X} is not a frame of the classic-CAN contract.",
+    "NOT_IN_DBC": "frame 0x{a:03X} is not in the DBC.",
+    "NOT_RECEIVED": "frame 0x{a:03X} is sent by the target and not received here.",
+    "LENGTH": "frame 0x{id:03X} has DLC {a} instead of 8.",
+    "CRC": "frame 0x{id:03X} has CRC 0x{a:02X} instead of 0x{b:02X}.",
+    "RANGE": "frame 0x{id:03X} carries signal #{a} outside its range.",
+    "COUNTER": "frame 0x{id:03X} has alive counter {a} after {b}.",
+    "ROW_STATE": "drive frames of step {a} in state {state_b}",
+    "ROW_BACK": "step {a} repeats or goes back (expected {b})",
+    "ROWS_LOST": "steps {a}..{b} never arrived",
+    "INPUTS_ALONE": "DriveInputs of step {a} had no DriveTemps",
+    "TEMPS_ALONE": "DriveTemps of step {a} without its DriveInputs",
+    "PAIR_STEPS": "DriveInputs step {a} paired with DriveTemps step {b}",
+    "START_STATE": "START in state {state_a} (needs READY after a RESET)",
+    "RESET_INCOMPLETE": "RESET of step {a} without ResetTemps1 and ResetTemps2 of that step",
+    "RESTORE_INCOMPLETE": "RESTORE of step {a} without the 4 RestoreState elements of that step",
+    "CORE_FAULT": "the emulated core faulted",
+}
+WHY_CODES: dict[str, int] = {name: index + 1 for index, name in enumerate(WHY)}
+_WHY_NAMES = {code: name for name, code in WHY_CODES.items()}
+
+# node.h's structs, little-endian
+FRAME = struct.Struct("<II8s")                      # struct node_frame
+EVENT = struct.Struct("<BBBBI8sii")                 # struct node_event
+OUTPUT_HEADER = struct.Struct("<10I")               # struct node_output up to tx[]
+COUNTERS = struct.Struct("<11I")                    # struct node_counters up to last_error
+TX_CAPACITY = 40                                    # node.h NODE_TX_CAPACITY
+EVENT_CAPACITY = 8                                  # node.h NODE_EVENT_CAPACITY
+TX_OFFSET = OUTPUT_HEADER.size
+EVENTS_OFFSET = TX_OFFSET + TX_CAPACITY * FRAME.size
+
+# node.h's flags on the id of a received frame
+ID_EXTENDED, ID_REMOTE, ID_ERROR, ID_FD = 0x8000_0000, 0x4000_0000, 0x2000_0000, 0x1000_0000
+
+
+@dataclass(frozen=True)
+class Event:
+    """One journal record of the firmware node."""
+
+    kind: str
+    why: str
+    frame_id: int
+    dlc: int
+    data: bytes
+    a: int
+    b: int
+
+    @classmethod
+    def unpack(cls, raw: bytes) -> Event:
+        kind, code, dlc, _, frame_id, data, a, b = EVENT.unpack(raw)
+        return cls(KINDS[kind - 1] if 0 < kind <= len(KINDS) else "internal", _WHY_NAMES.get(code, "CORE_FAULT"),
+                   frame_id, dlc, data, a, b)
+
+    @property
+    def sentence(self) -> str:
+        def state(value: int) -> str:
+            try:
+                return TargetState(value).name
+            except ValueError:
+                return str(value)
+
+        return WHY[self.why].format(a=self.a, b=self.b, id=self.frame_id & 0x7FF, state_a=state(self.a),
+                                    state_b=state(self.b))
+
+    def journal(self) -> dict:
+        """The record as target_sim.node's journal writes it."""
+        return {"kind": self.kind, "id": self.frame_id & 0x1FFF_FFFF, "dlc": self.dlc,
+                "data": self.data[:min(self.dlc, 8)].hex(), "detail": self.sentence}
