@@ -32,7 +32,8 @@ SignalValue = int | float
 _POLY = 0x2F
 
 
-def _crc8h2f_table() -> tuple[int, ...]:
+def crc8h2f_table() -> tuple[int, ...]:
+    """The CRC8H2F look-up table (polynomial 0x2F), also written into the firmware node (bench.firmware.nodegen)."""
     table = []
     for byte in range(256):
         crc = byte
@@ -42,7 +43,7 @@ def _crc8h2f_table() -> tuple[int, ...]:
     return tuple(table)
 
 
-_TABLE = _crc8h2f_table()
+_TABLE = crc8h2f_table()
 
 
 def profile2_crc(payload: bytes, data_id: int) -> int:

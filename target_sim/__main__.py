@@ -6,7 +6,8 @@
                          [--quiet]
 
 Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1) and, with `--engine firmware`, the
-model's firmware ELF (`bench firmware build`), which the emulated Cortex-M4F runs instead of the Python model: an
+model's firmware ELF (`bench firmware build`): the whole node (bench/firmware/node.c and the model) runs in the
+emulated Cortex-M4F and this process only moves frames between the bus and its mailbox (`target_sim.engines`). An
 ELF for another core, or of another model than the artifact's (its `fw_model_id`), is refused in one sentence,
 exit 1 (`--firmware` implies the firmware engine; `--engine firmware` needs it). Then it opens the bus (`auto`:
 socketcan vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms)
@@ -34,7 +35,8 @@ from dbc.database import DbcError, contract
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 from target_sim.artifact import ArtifactError, load_artifact
 from target_sim.faults import ReplyFaults, parse_reply_faults
-from target_sim.node import ENGINES, TargetNode, log_error, serve, target_on_channel
+from target_sim.engines import ENGINES, make_node
+from target_sim.node import log_error, serve, target_on_channel
 
 
 class _Parser(argparse.ArgumentParser):
@@ -48,8 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", required=True, help="model artifact (JSON) to run")
     parser.add_argument("--engine", choices=ENGINES, default=None,
-                        help="python: the float32 model in Python (default); firmware: the compiled model (--firmware "
-                             "ELF) in the emulated Cortex-M4F, with measured cycles (Timing4)")
+                        help="python: the reference node in Python (default); firmware: the node and model compiled for "
+                             "a Cortex-M4F (--firmware ELF) in the emulated core, with measured cycles (Timing4)")
     parser.add_argument("--firmware", default=None, metavar="ELF",
                         help="the model's firmware ELF ('bench firmware build'), for --engine firmware")
     parser.add_argument("--stats", default=None, help="write the node's counters to this JSON file at exit")
@@ -130,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("the 'virtual' interface does not cross processes, so no host could reach the target; "
                          "use udp_multicast, socketcan or auto")
         artifact = load_artifact(args.model)
-        node = TargetNode(artifact, engine=engine, firmware=args.firmware)   # the ELF checked before the bus opens
+        node = make_node(artifact, engine=engine, firmware=args.firmware)   # the ELF checked before the bus opens
         bus = config.open()
     except (ArtifactError, BusUnavailable, *firmware_errors) as exc:
         print(f"target_sim: error: {exc}", file=sys.stderr)
@@ -161,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, request_stop)
     signal.signal(signal.SIGINT, request_stop)
     if not args.quiet:
-        engine_note = f"firmware {node.model.name}" if engine == "firmware" else "python engine"
+        engine_note = f"firmware node {node.name}" if engine == "firmware" else "python engine"
         log_error(f"model {artifact.model_id:08x} ({artifact.kind}, {artifact.realization}, dt {artifact.dt:g} s, "
                   f"{node.cost.cycles} est. C28x cycles, {engine_note}) on {config.describe()}; serving")
     try:

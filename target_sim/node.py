@@ -19,9 +19,8 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   InputAccumulator (the interval-mean rule of `target_sim.model`); when it completes a model step's interval the
   engine steps once (wall time measured with perf_counter_ns). Every used row is answered with
   Temperatures1 and Temperatures2 (Step = the row's Step, the latest estimate: the reset temperatures before the
-  first model step), and every model step with Timing1, Timing2, Timing3 (Step = the row that completed it) and,
-  with the firmware engine, Timing4 (the Cortex-M4 cycles the emulated core counted for the step),
-  temperatures first so a host waiting for them is not held up by the timing frames; after every
+  first model step), and every model step with Timing1, Timing2, Timing3 (Step = the row that completed it; the
+  firmware node adds Timing4, the step's Cortex-M4 cycles), temperatures first so a host waiting for them is not held up by the timing frames; after every
   CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames (x after that step).
   The last used row sent again (a host retransmitting a row whose reply it did not get) is answered again with
   the same temperatures and steps nothing (`repeats`).
@@ -34,13 +33,9 @@ Protocol (the DBC's comments are the contract; this is how the target implements
 * Rejected frames (unknown id, wrong length, CRC, signal out of range, alive-counter jump: `dbc.FrameValidator`)
   are counted per kind and set RX_ERROR; they change nothing else. Nothing a frame carries can crash the node:
   an unexpected exception sets INTERNAL and the state FAULT (a RESET recovers).
-* Engines (`engine=`): "python" steps the float32 reference (`target_sim.model.Float32Estimator`) and keeps the
-  interval sums in numpy; "firmware" runs the model compiled for a Cortex-M4F (`bench firmware build`) in the
-  emulated core (`target_sim.firmware.FirmwareEstimator`): fw_step per model step, fw_accumulate per row,
-  fw_mean/fw_clear at an interval's end, the same bits. The integer row logic and the lost-row rule stay here in
-  both. With the firmware engine TargetInfo carries the ELF's measured flash and RAM instead of the C28x
-  estimate; a fault of the emulated core (FirmwareFault) is an internal error like any other: INTERNAL, state
-  FAULT, `last_error` names it, the heartbeat goes on, a RESET recovers.
+* This class is the reference implementation (`--engine python`); the firmware engine runs the same rules as
+  compiled C in the emulated core (`target_sim.firmware.node_engine.FirmwareNode`, bench/firmware/node.c), and
+  the conformance suite (tests/target_sim/test_conformance.py) holds the two to the same bytes.
 * Transmitted temperatures outside the DBC range are clamped (SATURATED; NaN or Inf also set NONFINITE), so a
   diverging float32 model (e.g. the `original` realization) is still answered.
 * BenchEvent frames (a bench host's marks of injected faults and gaps) are validated like every frame and
@@ -59,10 +54,7 @@ import math
 import os
 import sys
 import time
-from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from collections.abc import Callable, Iterable
 
 import can
 import numpy as np
@@ -70,8 +62,6 @@ import numpy as np
 from dbc.codec import FrameCodec, FrameValidator, decode_any
 from dbc.contract import (
     CHECKPOINT_EVERY_STEPS,
-    FIRMWARE_TIMING_MESSAGE,
-    M4_CLOCK_HZ,
     REPLY_SIGNALS,
     RESET_SIGNALS,
     RX_ERROR_KINDS,
@@ -95,43 +85,19 @@ from target_sim.costs import memory_estimate, step_cost
 from target_sim.faults import ReplyFaults
 from target_sim.model import Float32Estimator, InputAccumulator
 
-if TYPE_CHECKING:
-    from target_sim.firmware import FirmwareEstimator
-
 SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll before blocking (0 disables)
-ENGINES = ("python", "firmware")   # the float32 reference in Python, or the compiled model in the emulated core
-
-
-@dataclass(frozen=True)
-class Memory:
-    """What TargetInfo reports: the firmware ELF's figures, or the C28x estimate (`target_sim.costs`)."""
-
-    flash_bytes: int
-    ram_bytes: int
 
 
 def _clamp(value: float, limits: tuple[float, float]) -> float:
     return min(max(value, limits[0]), limits[1])
 
 
-class IntervalSums(Protocol):
-    """The float32 interval sum the node accumulates into: the Python reference's (`InputAccumulator`) or the
-    firmware's (`FirmwareEstimator`: fw_accumulate, fw_mean, fw_clear)."""
-
-    def accumulate(self, sample: Sequence[float]) -> None: ...
-
-    def mean(self) -> np.ndarray | None: ...
-
-    def clear(self) -> None: ...
-
-
 class RowAccumulator:
-    """The interval-mean rule (which row ends a model step's interval: integer logic, here), plus what to do with
-    rows lost on the bus (see the module docstring), over the engine's float32 sums."""
+    """The interval-mean rule (`InputAccumulator`: which row ends a model step's interval, the float32 sums), plus
+    what to do with rows lost on the bus (see the module docstring)."""
 
-    def __init__(self, sample_period_s: float, dt_s: float, sums: IntervalSums | None = None):
-        self.rule = InputAccumulator(sample_period_s, dt_s)
-        self.sums: IntervalSums = sums if sums is not None else self.rule
+    def __init__(self, sample_period_s: float, dt_s: float):
+        self.rule = self.sums = InputAccumulator(sample_period_s, dt_s)
         self.last_inputs: np.ndarray | None = None
 
     def model_step_of(self, row: int) -> int:
@@ -171,39 +137,16 @@ class RowAccumulator:
 class TargetNode:
     """The target's behaviour on the bus, without the bus: `handle(frame)` returns the frames to send."""
 
-    def __init__(self, artifact: ModelArtifact, *, engine: str = "python",
-                 firmware: str | os.PathLike | bytes | None = None,
-                 clock_ns: Callable[[], int] = time.perf_counter_ns, journal: Callable[[dict], None] | None = None):
-        """`engine` "python" runs the float32 reference (`Float32Estimator`), "firmware" the compiled model in the
-        emulated Cortex-M4F (`target_sim.firmware.FirmwareEstimator`, from the ELF `firmware`; FirmwareError,
-        one sentence, for an ELF of another core or another model)."""
-        if engine not in ENGINES:
-            raise ValueError(f"engine {engine!r} is not one of {', '.join(ENGINES)}")
+    engine = "python"
+
+    def __init__(self, artifact: ModelArtifact, *, clock_ns: Callable[[], int] = time.perf_counter_ns,
+                 journal: Callable[[dict], None] | None = None):
         self.artifact = artifact
         self.journal = journal
-        self.engine = engine
         self._msg: can.Message | None = None
+        self.model = Float32Estimator(artifact)
         self.cost = step_cost(artifact)
-        self.memory_estimate = memory_estimate(artifact, self.cost)
-        self.model: Float32Estimator | FirmwareEstimator
-        # what an engine raises when its core faults: the node's INTERNAL fault, named (not a crash)
-        self._engine_faults: tuple[type[Exception], ...] = ()
-        sums: IntervalSums | None = None
-        if engine == "firmware":
-            if firmware is None:
-                raise ValueError("the firmware engine needs the firmware ELF")
-            from target_sim.firmware import FirmwareEstimator, FirmwareFault  # unicorn only when asked for
-
-            self.model = sums = FirmwareEstimator(artifact, firmware)
-            self._engine_faults = (FirmwareFault,)
-            # the ELF's own figures (`memory_from_elf`), what TargetInfo reports with this engine
-            self.memory: Memory = Memory(self.model.memory["flash_bytes"], self.model.memory["ram_bytes"])
-        else:
-            self.model = Float32Estimator(artifact)
-            self.memory = Memory(self.memory_estimate.flash_bytes, self.memory_estimate.ram_bytes)
-        # counted Cortex-M4 cycles of the model steps (firmware engine), as value -> steps: a step's count varies
-        # little (only the clamps branch), so this stays small however long the target runs
-        self.m4_cycles: Counter[int] = Counter()
+        self.memory = memory_estimate(artifact, self.cost)
         self.dt_ns = int(round(artifact.dt * 1e9))
         self.clock_ns = clock_ns
         self.codec = FrameCodec("TARGET")
@@ -212,7 +155,7 @@ class TargetNode:
         self.faults = FaultBit(0)
         self.errors = dict.fromkeys(RX_ERROR_KINDS, 0)
         self.last_error = ""
-        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt, sums)
+        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt)
         self._reset_frames: dict[str, dict] = {}
         self._restore_frames: dict[int, dict] = {}
         self.last_reply_row: int | None = None
@@ -233,8 +176,6 @@ class TargetNode:
         self._timing2 = {"EstCycles": _clamp(self.cost.cycles, timing2["EstCycles"]),
                          "EstExecTime": _clamp(round(self.cost.exec_time_us, 1), timing2["EstExecTime"])}
         self._timing3 = {"CpuLoad": _clamp(round(self.cost.cpu_load_percent(artifact.dt), 4), timing3["CpuLoad"])}
-        timing4 = signal_ranges(FIRMWARE_TIMING_MESSAGE)
-        self._m4_cycle_limits, self._m4_time_limits = timing4["M4Cycles"], timing4["M4ExecTime"]
 
     # ------------------------------------------------------------------ frames the node sends
     def _encode(self, name: str, signals: dict) -> list[can.Message]:
@@ -283,17 +224,12 @@ class TargetNode:
         return [frame for name, signals in split_temperatures(values, REPLY_SIGNALS).items()
                 for frame in self._encode(name, {"Step": step, **signals})]
 
-    def _timing_frames(self, step: int, elapsed_ns: int, cycles: int | None) -> list[can.Message]:
+    def _timing_frames(self, step: int, elapsed_ns: int) -> list[can.Message]:
         measured = _clamp(round(elapsed_ns / 1000.0, 1), self._timing1_limits)
-        frames = (self._encode("Timing1", {"Step": step, "StepTimeMeasured": measured,
-                                           "Overruns": min(self.overruns, 255)})
-                  + self._encode("Timing2", {"Step": step, **self._timing2})
-                  + self._encode("Timing3", {"Step": step, **self._timing3}))
-        if cycles is not None:   # the firmware engine only: cycles the emulated Cortex-M4F counted for this step
-            frames += self._encode(FIRMWARE_TIMING_MESSAGE, {
-                "Step": step, "M4Cycles": _clamp(cycles, self._m4_cycle_limits),
-                "M4ExecTime": _clamp(round(cycles * 1e6 / M4_CLOCK_HZ, 1), self._m4_time_limits)})
-        return frames
+        return (self._encode("Timing1", {"Step": step, "StepTimeMeasured": measured,
+                                         "Overruns": min(self.overruns, 255)})
+                + self._encode("Timing2", {"Step": step, **self._timing2})
+                + self._encode("Timing3", {"Step": step, **self._timing3}))
 
     # ------------------------------------------------------------------ receiving
     def _set_state(self, state: TargetState) -> list[can.Message]:
@@ -335,10 +271,6 @@ class TargetNode:
             return []
         try:
             return self._dispatch(frame.name, frame.signals)
-        except self._engine_faults as exc:  # the emulated core faulted (one sentence): the same INTERNAL fault
-            self.faults |= FaultBit.INTERNAL
-            self.last_error = f"firmware fault on {frame.name}: {exc}"
-            return self._set_state(TargetState.FAULT)
         except Exception as exc:  # noqa: BLE001 - the node must survive anything a frame causes
             self.faults |= FaultBit.INTERNAL
             self.last_error = f"internal error on {frame.name}: {exc!r}"
@@ -456,14 +388,11 @@ class TargetNode:
             if elapsed > self.dt_ns:
                 self.overruns += 1
                 self.faults |= FaultBit.OVERRUN
-            cycles = getattr(model, "last_cycles", None)
-            if cycles is not None:
-                self.m4_cycles[cycles] += 1
-            timing.append((elapsed, cycles))
+            timing.append(elapsed)
         out += self._temperature_frames(step)
         self.last_reply_row = row
-        for elapsed, cycles in timing:
-            out += self._timing_frames(step, elapsed, cycles)
+        for elapsed in timing:
+            out += self._timing_frames(step, elapsed)
         if timing and self.model_steps % CHECKPOINT_EVERY_STEPS == 0:
             out += self._checkpoint_frames(step)
         return out
@@ -475,22 +404,8 @@ class TargetNode:
                 "repeats": self.repeats,
                 "model_steps": self.model_steps, "overruns": self.overruns, "last_error": self.last_error,
                 "model_id": self.artifact.model_id, "engine": self.engine, "est_cycles": self.cost.cycles,
-                "m4_cycles": _cycle_figures(self.m4_cycles) if self.engine == "firmware" else None,
-                "flash_bytes": self.memory.flash_bytes, "ram_bytes": self.memory.ram_bytes,
-                "memory": "measured from the firmware ELF" if self.engine == "firmware" else "C28x estimate"}
-
-
-def _cycle_figures(cycles: Counter[int]) -> dict[str, int | None]:
-    """p50 (the lower median) and max of the counted cycles per step (None before the first step)."""
-    if not cycles:
-        return {"p50": None, "max": None}
-    values = sorted(cycles)
-    seen, half = 0, (sum(cycles.values()) + 1) // 2
-    for value in values:
-        seen += cycles[value]
-        if seen >= half:
-            return {"p50": value, "max": values[-1]}
-    return {"p50": values[-1], "max": values[-1]}
+                "m4_cycles": None, "flash_bytes": self.memory.flash_bytes, "ram_bytes": self.memory.ram_bytes,
+                "memory": "C28x estimate"}
 
 
 def target_on_channel(bus: can.BusABC, listen_s: float = IN_USE_LISTEN_S) -> tuple[int, int | None] | None:

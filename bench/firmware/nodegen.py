@@ -47,6 +47,7 @@ from dbc.contract import (
     Realization,
     TargetState,
 )
+from dbc.codec import crc8h2f_table
 from dbc.database import contract, heartbeat_period_s, layout_named, signal_ranges, temperature_range
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
@@ -183,6 +184,7 @@ def node_config(artifact: ModelArtifact) -> str:
     lines += _defines("NODE_DATA_ID_", {_snake_upper(m.name): m.data_id for m in c.by_id.values()})
     lines += _defines("NODE_TX_", {_snake_upper(m.name): index for index, m in enumerate(sent)})
     lines.append(f"#define NODE_TX_MESSAGES {len(sent)}u")
+    lines.append("#define NODE_CRC8H2F_TABLE " + ", ".join(f"0x{value:02X}u" for value in crc8h2f_table()))
     lines.append("#define NODE_DBC_FRAME_IDS " + ", ".join(f"0x{fid:03X}u" for fid in sorted(c.by_id)))
     lines += _defines("NODE_", {
         "COUNTER_MODULO": COUNTER_MODULO, "STEP_MODULO": STEP_MODULO, "STATE_SIZE": STATE_SIZE,

@@ -133,7 +133,7 @@ def build_firmware(generated: GeneratedSource) -> BuildResult:
         for name, text in sources.items():
             (work / name).write_text(text, encoding="utf-8")
         objects = []
-        for source in sorted(name for name in sources if name.endswith(".c")):
+        for source in (STARTUP_NAME, SOURCE_NAME, NODE_NAMES[0]):       # node.c includes the packers' .c
             obj = Path(source).with_suffix(".o").name
             done = _run(["cc", *compile_flags(work), "-c", source, "-o", obj], work, f"compiling {source}")
             if done.returncode != 0:

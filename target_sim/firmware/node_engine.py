@@ -104,7 +104,7 @@ class FirmwareNode:
         self.answered_again = False
         self.state = TargetState.BOOT
         self.faults = 0
-        self.next_tick_s = 0.0
+        self._next_beat_ms = 0
         self._t0 = clock_s()
         self._startup = self._run("node_init", 0)
 
@@ -125,7 +125,7 @@ class FirmwareNode:
         self.state = TargetState(state)
         self.faults = faults
         self.answered_again = bool(again)
-        self.next_tick_s = self._t0 + ((next_beat_ms - _ms(0.0)) & _MASK32) / 1000.0
+        self._next_beat_ms = next_beat_ms
         frames: list[can.Message] = []
         if tx_count:
             raw = fw.read_bytes(self._out + TX_OFFSET, tx_count * FRAME.size)
@@ -203,8 +203,8 @@ class FirmwareNode:
         return self._run("node_on_tick", _ms(now_s - self._t0))
 
     def heartbeat_frames(self) -> list[can.Message]:
-        """A heartbeat now (the firmware's schedule permitting): what serve() calls every period."""
-        return self.tick(self.next_tick_s)
+        """A heartbeat now: node_on_tick at the firmware's own next heartbeat time (serve() keeps the period)."""
+        return self._run("node_on_tick", self._next_beat_ms)
 
     # ------------------------------------------------------------------ what the bench reads
     def counters(self) -> dict:

@@ -1,0 +1,39 @@
+"""The target's two engines behind one constructor: the Python reference node or the node as firmware.
+
+    node = make_node(artifact, engine="firmware", firmware="model.elf", journal=...)
+
+"python" is `target_sim.node.TargetNode` (the reference implementation of the protocol, the float32 model in
+numpy); "firmware" is `target_sim.firmware.node_engine.FirmwareNode`: bench/firmware/node.c and the generated model,
+compiled for a Cortex-M4F and run in the emulated core, the Python process only moving frames. Both have the same
+interface (`startup_frames`, `handle`, `heartbeat_frames`, `stats`, `state`, `last_error`, `answered_again`,
+`journal`), which `target_sim.node.serve` drives.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from target_sim.artifact import ModelArtifact
+from target_sim.node import TargetNode
+
+if TYPE_CHECKING:
+    from target_sim.firmware.node_engine import FirmwareNode
+
+ENGINES = ("python", "firmware")
+
+
+def make_node(artifact: ModelArtifact, *, engine: str = "python", firmware: str | os.PathLike | bytes | None = None,
+              journal: Callable[[dict], None] | None = None) -> TargetNode | FirmwareNode:
+    """The node of `engine`; the firmware engine needs the model's node ELF (FirmwareError, one sentence, for an
+    ELF of another core, another model, or without the node)."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine {engine!r} is not one of {', '.join(ENGINES)}")
+    if engine == "python":
+        return TargetNode(artifact, journal=journal)
+    if firmware is None:
+        raise ValueError("the firmware engine needs the model's firmware ELF ('bench firmware build')")
+    from target_sim.firmware.node_engine import FirmwareNode  # unicorn loads only for this engine
+
+    return FirmwareNode(artifact, firmware, journal=journal)
