@@ -24,10 +24,12 @@ import os
 import time
 from collections import Counter
 from collections.abc import Callable
+from types import SimpleNamespace
 
 import can
+import numpy as np
 
-from dbc.contract import FIRMWARE_TIMING_MESSAGE, RX_ERROR_KINDS, TargetState
+from dbc.contract import FIRMWARE_TIMING_MESSAGE, RX_ERROR_KINDS, FaultBit, TargetState
 from dbc.database import frame_id, layout_named
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
@@ -168,11 +170,13 @@ class FirmwareNode:
         except FirmwareFault as again:   # the image cannot even start: report FAULT from here, nothing to send
             self.fault_message = str(again)
             self.state = TargetState.FAULT
+            self.faults |= int(FaultBit.INTERNAL)
         return frames
 
     # ------------------------------------------------------------------ TargetNode's interface
     fault_message = ""
     _msg: can.Message | None = None
+    _scratch: int | None = None
 
     def startup_frames(self) -> list[can.Message]:
         """What node_init queued: TargetInfo, Status, RxErrors."""
@@ -207,6 +211,39 @@ class FirmwareNode:
         return self._run("node_on_tick", self._next_beat_ms)
 
     # ------------------------------------------------------------------ what the bench reads
+    def _floats(self, function: str) -> np.ndarray:
+        """fw_state / fw_output into a scratch buffer (not the node's RAM), bit for bit."""
+        if self._scratch is None:
+            self._scratch = self.fw.alloc_f32(4)
+        self.fw.call(function, self._scratch)
+        return self.fw.read_f32(self._scratch, 4)
+
+    @property
+    def x(self) -> np.ndarray:
+        """The model's state vector (fw_state)."""
+        return self._floats("fw_state")
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """The latest outputs (fw_output): what the next temperature replies carry."""
+        return self._floats("fw_output")
+
+    @property
+    def memory(self) -> SimpleNamespace:
+        """What TargetInfo reports: flash and RAM of the ELF."""
+        return SimpleNamespace(flash_bytes=self.memory_figures["flash_bytes"],
+                               ram_bytes=self.memory_figures["ram_bytes"])
+
+    def rx_error_frames(self) -> list[can.Message]:
+        """The RxErrors frame of a heartbeat (the firmware sends it only with Status)."""
+        rx_errors = frame_id("RxErrors")
+        return [frame for frame in self.heartbeat_frames() if frame.arbitration_id == rx_errors]
+
+    def __getattr__(self, name: str):
+        if name in ("frames_received", "rows_used", "repeats", "model_steps", "overruns"):
+            return self.counters()[name]
+        raise AttributeError(name)
+
     def counters(self) -> dict:
         values = COUNTERS.unpack(self.fw.read_bytes(self._counters, COUNTERS.size))
         raw_last = self.fw.read_bytes(self._counters + COUNTERS.size, EVENT.size)
