@@ -1,6 +1,6 @@
 """`bench firmware`: the model as compiled firmware for a Cortex-M4F.
 
-    bench firmware export [--model A] [--out DIR]           portable C99 of the artifact's model (fw_model.h/.c)
+    bench firmware export [--model A] [--out DIR]           portable C99: the model (fw_model.h/.c) and the CAN node
     bench firmware build  [--model A] [--out DIR] [--json]  that C + start-up code + linker script -> firmware.elf,
                                                              firmware.map, and its flash and RAM figures
     bench firmware check  [--model A] [--data F] [--firmware ELF] [--rows N] [--json]
@@ -47,7 +47,7 @@ def _common(p: argparse.ArgumentParser, out_help: str) -> None:
 
 
 def _add_export(actions) -> None:
-    p = actions.add_parser("export", help="write the artifact's model as portable C99 (fw_model.h, fw_model.c)",
+    p = actions.add_parser("export", help="write the artifact's model and the CAN node as portable C99 (fw_model.c, node.c, ...)",
                            description="Write the model of an artifact as portable C99: fw_model.h (the API) and "
                                        "fw_model.c (coefficients, state, step), the same computation as the "
                                        "Python float32 reference, operation for operation.")
@@ -135,7 +135,9 @@ def _identity(path: Path, artifact) -> dict:
 def _output_names() -> tuple[str, ...]:
     from bench.firmware import toolchain
 
-    return (toolchain.HEADER_NAME, toolchain.SOURCE_NAME, toolchain.STARTUP_NAME, toolchain.LINKER_SCRIPT_NAME,
+    from bench.firmware.nodegen import CONFIG_NAME, PACKERS
+
+    return (toolchain.HEADER_NAME, toolchain.SOURCE_NAME, CONFIG_NAME, *PACKERS, *toolchain.SUPPORT_FILES,
             toolchain.ELF_NAME, toolchain.MAP_NAME)
 
 
@@ -148,13 +150,15 @@ def run_export(args: argparse.Namespace) -> int:
     path, artifact = _load(args.model)
     names = _output_names()
     _check_out(args.out, names)
-    generated = generate(artifact)
-    _write(args.out, {name: text.encode("utf-8") for name, text in generated.files.items()}, names)
-    report = {**_identity(path, artifact), "out": str(args.out), "files": sorted(generated.files)}
+    from bench.firmware.toolchain import firmware_sources
+
+    sources = firmware_sources(generate(artifact))     # the generated files and node.c, startup.c, firmware.ld
+    _write(args.out, {name: text.encode("utf-8") for name, text in sources.items()}, names)
+    report = {**_identity(path, artifact), "out": str(args.out), "files": sorted(sources)}
     if args.json:
         print_json(report)
     else:
-        print(f"wrote {', '.join(str(args.out / name) for name in sorted(generated.files))} "
+        print(f"wrote {', '.join(str(args.out / name) for name in sorted(sources))} "
               f"({artifact.kind}, {artifact.realization} realization, dt {artifact.dt:g} s)")
     return 0
 

@@ -14,6 +14,10 @@ import pytest
 from bench.cli import main
 from bench.firmware import codegen, toolchain
 from bench.firmware.codegen import FirmwareGenerationError, c_float, generate
+
+# what export writes (and build beside the ELF and map): the generated model and node files, the shipped ones
+SOURCES = ["fw_model.c", "fw_model.h", "fw_node_config.h", "thermal_bench.c", "thermal_bench.h", "node.c", "node.h",
+           "string.h", "startup.c", "firmware.ld"]
 from target_sim.artifact import ModelArtifact, dumps, seal
 from target_sim.firmware import Firmware, memory_from_elf
 
@@ -99,8 +103,7 @@ def test_build_json_gives_the_elf_section_sizes(tmp_path, capsys, artifacts):
     status, stdout, stderr = run(capsys, "build", "--model", str(artifacts["pv"]), "--out", str(out), "--json")
     assert status == 0, stderr
     report = json.loads(stdout)
-    assert sorted(p.name for p in out.iterdir()) == sorted(["fw_model.c", "fw_model.h", "startup.c", "firmware.ld",
-                                                            "firmware.elf", "firmware.map"])
+    assert sorted(p.name for p in out.iterdir()) == sorted([*SOURCES, "firmware.elf", "firmware.map"])
     elf = out / "firmware.elf"
     assert report["elf"] == str(elf) and report["kind"] == "pv-lptn" and report["realization"] == "physical"
     assert report["toolchain"].startswith("zig ")
@@ -120,7 +123,7 @@ def test_export_writes_the_header_and_source(tmp_path, capsys, artifacts):
     out = tmp_path / "c"
     status, stdout, _ = run(capsys, "export", "--model", str(artifacts["hammerstein"]), "--out", str(out))
     assert status == 0 and "fw_model.c" in stdout
-    assert sorted(p.name for p in out.iterdir()) == ["fw_model.c", "fw_model.h"]
+    assert sorted(p.name for p in out.iterdir()) == sorted(SOURCES)
     header = (out / "fw_model.h").read_text()
     for declaration in ("void fw_reset(const float y0[4]);", "void fw_step(const float u[4], float y[4]);",
                         "unsigned int fw_mean(float u[4]);", "float fw_exp(float x);"):
@@ -153,7 +156,8 @@ def test_a_failing_compile_is_one_sentence(monkeypatch, artifacts):
     from target_sim.artifact import load_artifact
 
     generated = generate(load_artifact(artifacts["lti"]))
-    broken = codegen.GeneratedSource(generated.header, generated.source + "\nstatic double unused_double;\n")
+    broken = codegen.GeneratedSource(generated.header, generated.source + "\nstatic double unused_double;\n",
+                                     generated.node)
     with pytest.raises(toolchain.ToolchainError, match=r"^compiling fw_model\.c for the Cortex-M4F failed: .*error"):
         toolchain.build_firmware(broken)
 
