@@ -34,8 +34,8 @@ from pathlib import Path
 from dbc.database import DbcError, contract
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 from target_sim.artifact import ArtifactError, load_artifact
-from target_sim.faults import ReplyFaults, parse_reply_faults
 from target_sim.engines import ENGINES, make_node
+from target_sim.faults import ReplyFaults, parse_reply_faults
 from target_sim.node import log_error, serve, target_on_channel
 
 
@@ -50,8 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", required=True, help="model artifact (JSON) to run")
     parser.add_argument("--engine", choices=ENGINES, default=None,
-                        help="python: the reference node in Python (default); firmware: the node and model compiled for "
-                             "a Cortex-M4F (--firmware ELF) in the emulated core, with measured cycles (Timing4)")
+                        help="python: the reference node in Python (default); firmware: the node and model compiled "
+                             "for a Cortex-M4F (--firmware ELF) in the emulated core, with measured cycles (Timing4)")
     parser.add_argument("--firmware", default=None, metavar="ELF",
                         help="the model's firmware ELF ('bench firmware build'), for --engine firmware")
     parser.add_argument("--stats", default=None, help="write the node's counters to this JSON file at exit")

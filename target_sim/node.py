@@ -20,7 +20,8 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   engine steps once (wall time measured with perf_counter_ns). Every used row is answered with
   Temperatures1 and Temperatures2 (Step = the row's Step, the latest estimate: the reset temperatures before the
   first model step), and every model step with Timing1, Timing2, Timing3 (Step = the row that completed it; the
-  firmware node adds Timing4, the step's Cortex-M4 cycles), temperatures first so a host waiting for them is not held up by the timing frames; after every
+  firmware node adds Timing4, the step's Cortex-M4 cycles), temperatures first so a host waiting for them is not
+  held up by the timing frames; after every
   CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames (x after that step).
   The last used row sent again (a host retransmitting a row whose reply it did not get) is answered again with
   the same temperatures and steps nothing (`repeats`).

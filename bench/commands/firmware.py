@@ -47,7 +47,8 @@ def _common(p: argparse.ArgumentParser, out_help: str) -> None:
 
 
 def _add_export(actions) -> None:
-    p = actions.add_parser("export", help="write the artifact's model and the CAN node as portable C99 (fw_model.c, node.c, ...)",
+    p = actions.add_parser("export", help="write the artifact's model and the CAN node as portable C99 "
+                                          "(fw_model.c, node.c, ...)",
                            description="Write the model of an artifact as portable C99: fw_model.h (the API) and "
                                        "fw_model.c (coefficients, state, step), the same computation as the "
                                        "Python float32 reference, operation for operation.")
@@ -134,7 +135,6 @@ def _identity(path: Path, artifact) -> dict:
 
 def _output_names() -> tuple[str, ...]:
     from bench.firmware import toolchain
-
     from bench.firmware.nodegen import CONFIG_NAME, PACKERS
 
     return (toolchain.HEADER_NAME, toolchain.SOURCE_NAME, CONFIG_NAME, *PACKERS, *toolchain.SUPPORT_FILES,

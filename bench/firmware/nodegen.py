@@ -28,10 +28,11 @@ import numpy as np
 from cantools.database.can.c_source import camel_to_snake_case, generate
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
+from dbc.codec import crc8h2f_table
 from dbc.contract import (
-    DBC_PATH,
     CHECKPOINT_EVERY_STEPS,
     COUNTER_MODULO,
+    DBC_PATH,
     DRIVE_SIGNALS,
     FIRMWARE_TIMING_MESSAGE,
     M4_CLOCK_HZ,
@@ -47,7 +48,6 @@ from dbc.contract import (
     Realization,
     TargetState,
 )
-from dbc.codec import crc8h2f_table
 from dbc.database import contract, heartbeat_period_s, layout_named, signal_ranges, temperature_range
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
@@ -205,7 +205,8 @@ def node_config(artifact: ModelArtifact) -> str:
         "M4_CYCLES_MAX": _raw_max(FIRMWARE_TIMING_MESSAGE, "M4Cycles"),
         "M4_EXEC_TIME_MAX": _raw_max(FIRMWARE_TIMING_MESSAGE, "M4ExecTime")})
     state_low, state_high = signal_ranges("StateCheckpoint")["StateValue"]
-    lines += [f"#define NODE_STATE_VALUE_MIN {c_float(state_low)}", f"#define NODE_STATE_VALUE_MAX {c_float(state_high)}"]
+    lines += [f"#define NODE_STATE_VALUE_MIN {c_float(state_low)}",
+              f"#define NODE_STATE_VALUE_MAX {c_float(state_high)}"]
     lines += _temperature_encoding()
     lines += _signal_macros()
     lines += ["", "#endif /* FW_NODE_CONFIG_H */", ""]

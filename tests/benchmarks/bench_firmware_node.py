@@ -29,8 +29,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from bench.drive.generate import ensure_default_datasets  # noqa: E402
 from bench.drive.dataset import load_dataset  # noqa: E402
+from bench.drive.generate import ensure_default_datasets  # noqa: E402
 from bench.firmware.images import packaged_elf_path  # noqa: E402
 from bench.model.default import default_artifact_path  # noqa: E402
 from dbc.codec import FrameCodec  # noqa: E402

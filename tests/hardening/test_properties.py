@@ -196,29 +196,43 @@ def _array(value):
 
 
 def node_snapshot(node) -> tuple:
-    """What a rejected frame must not change (RX_ERROR and the error counters aside); with the firmware engine the
-    interval sum is the firmware's RAM, read whole."""
+    """What a rejected frame must not change in the Python node (RX_ERROR and the error counters aside)."""
     model, acc = node.model, node.accumulator
-    if node.engine == "firmware":
-        sums = (model.fw.read_bytes(model.fw.ram[0], model.fw.stack[0] - model.fw.ram[0]),)
-    else:
-        sums = (_array(acc.sums.sum), acc.sums.count)
     return (node.state, int(node.faults) & ~int(FaultBit.RX_ERROR), node.next_row, node.rows_used, node.model_steps,
-            node.overruns, _array(node.estimate), _array(model.x), _array(model.y), *sums,
-            _array(getattr(acc, "last_inputs", None)), repr(getattr(node, "_pending_inputs", None)),
-            repr(getattr(node, "_reset_frames", None)), repr(getattr(node, "_restore_frames", None)),
-            getattr(node, "last_reply_row", None), node.errors.get("sequence"))
+            node.overruns, _array(node.estimate), _array(model.x), _array(model.y), _array(acc.sums.sum),
+            acc.sums.count, _array(acc.last_inputs), repr(node._pending_inputs), repr(node._reset_frames),
+            repr(node._restore_frames), node.last_reply_row, node.errors.get("sequence"))
 
 
-def start_session(node, host: FrameCodec, rows: int) -> None:
+def firmware_snapshot(node) -> bytes:
+    """The firmware node's RAM but its output block, counters, mailbox, fault bits (compared with the Python
+    node's) and stack: what a rejected frame must not change (a counter error resynchronizes the alive counter)."""
+    fw = node.fw
+    ram = bytearray(fw.read_bytes(fw.ram[0], fw.stack[0] - fw.ram[0]))
+    for name in ("node_out", "node_counters", "node_rx", "faults"):
+        symbol = fw.symbols[name]
+        start = symbol.address - fw.ram[0]
+        ram[start:start + symbol.size] = bytes(symbol.size)
+    return bytes(ram)
+
+
+def comparable(frames) -> list[tuple[int, bytes]]:
+    """Replies as both engines must send them: timing frames (measured times) and TargetInfo (the ELF's flash and
+    RAM against the estimate) by id only; Timing4 is the firmware's alone."""
+    return [(f.arbitration_id, b"" if 0x222 <= f.arbitration_id <= 0x225 or f.arbitration_id == 0x232
+             else bytes(f.data)) for f in frames if f.arbitration_id != 0x225]
+
+
+def session_frames(host: FrameCodec, rows: int) -> list:
     """RESET, START and `rows` data rows, as a host sends them."""
-    for name, signals in (("ResetTemps1", {"Step": 0, "WindingTempInit": 60.0, "MagnetTempInit": 50.0}),
-                          ("ResetTemps2", {"Step": 0, "YokeTempInit": 45.0, "ToothTempInit": 55.0}),
-                          ("Control", {"Command": 1, "Step": 0}), ("Control", {"Command": 2, "Step": 0})):
-        node.handle(host.encode(name, signals))
+    frames = [host.encode(name, signals) for name, signals in (
+        ("ResetTemps1", {"Step": 0, "WindingTempInit": 60.0, "MagnetTempInit": 50.0}),
+        ("ResetTemps2", {"Step": 0, "YokeTempInit": 45.0, "ToothTempInit": 55.0}),
+        ("Control", {"Command": 1, "Step": 0}), ("Control", {"Command": 2, "Step": 0}))]
     for row in range(rows):
-        node.handle(host.encode("DriveInputs", {"Step": row, "MotorTorque": 100.0 + row, "MotorSpeed": 2000.0}))
-        node.handle(host.encode("DriveTemps", {"Step": row, "CoolantTemp": 40.0, "AmbientTemp": 25.0}))
+        frames.append(host.encode("DriveInputs", {"Step": row, "MotorTorque": 100.0 + row, "MotorSpeed": 2000.0}))
+        frames.append(host.encode("DriveTemps", {"Step": row, "CoolantTemp": 40.0, "AmbientTemp": 25.0}))
+    return frames
 
 
 @st.composite
@@ -254,19 +268,34 @@ def node_elves(node_artifacts, tmp_path_factory):
        engine=st.sampled_from(["python", "firmware"]))
 def test_node_survives_random_frames_and_rejects_without_a_trace(node_artifacts, node_elves, data, kind, rows,
                                                                  engine):
+    """The Python node: a rejected frame leaves no trace but its counter; with engine "firmware" the firmware node
+    gets every frame too and must answer byte for byte the same, with the same fault bits and error counts, its
+    RAM untouched by a rejected frame."""
+    from target_sim.firmware.node_engine import FirmwareNode
     from target_sim.node import TargetNode
 
     assume(engine == "python" or node_elves is not None)
-    node = TargetNode(node_artifacts[kind], clock_ns=lambda: 0, engine=engine,
-                      firmware=node_elves[kind] if engine == "firmware" else None)
+    node = TargetNode(node_artifacts[kind], clock_ns=lambda: 0)
+    twin = FirmwareNode(node_artifacts[kind], node_elves[kind]) if engine == "firmware" else None
     host = FrameCodec("HOST")
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")  # a wild but valid input may overflow float32: that is the node's business
-        start_session(node, host, rows)
+        frames = session_frames(host, rows)
+        startup = node.startup_frames()      # as serve() sends them (the firmware's node_init queued its own)
+        if twin is not None:
+            assert comparable(twin.startup_frames()) == comparable(startup)
+        for msg in frames:
+            out = node.handle(msg)
+            if twin is not None:
+                assert comparable(twin.handle(msg)) == comparable(out)
         for _ in range(data.draw(st.integers(1, 15))):
             msg = data.draw(node_inputs(host))
             before, counters, errors = node_snapshot(node), dict(node.validator._last_counter), dict(node.errors)
+            ram = firmware_snapshot(twin) if twin is not None else b""
             out = node.handle(msg)
+            if twin is not None:
+                assert comparable(twin.handle(msg)) == comparable(out)
+                assert (twin.faults, twin.errors, twin.state) == (int(node.faults), node.errors, node.state)
             assert not node.faults & FaultBit.INTERNAL, node.last_error
             changed = [k for k in FRAME_ERROR_KINDS if node.errors[k] != errors[k]]
             if not changed:
@@ -278,6 +307,8 @@ def test_node_survives_random_frames_and_rejects_without_a_trace(node_artifacts,
                 assert node.validator._last_counter == {**counters, msg.arbitration_id: msg.data[1] & 0x0F}
             else:
                 assert node.validator._last_counter == counters
+                if twin is not None:
+                    assert firmware_snapshot(twin) == ram, f"a rejected frame ({changed[0]}) changed the firmware"
 
 
 # ---------------------------------------------------------------- the artifact loader

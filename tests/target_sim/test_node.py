@@ -17,8 +17,8 @@ from cantools.autosar.end_to_end import compute_profile2_crc
 from dbc import Command, FaultBit, FrameCodec, TargetState, decode_any
 from dbc.contract import CHECKPOINT_EVERY_STEPS
 from target_sim.artifact import load_artifact
-from target_sim.model import run_offline
 from target_sim.engines import ENGINES, make_node
+from target_sim.model import run_offline
 from target_sim.node import TargetNode, serve
 
 INITIAL = [40.0, 45.0, 41.0, 50.0]  # yoke, winding, tooth, magnet
@@ -409,7 +409,6 @@ def test_a_target_restored_from_its_checkpoint_continues_bit_for_bit(make, kind)
 
     path = default_artifact_path() if kind == "hammerstein" else default_artifact_path().with_name(
         "default_model-pv-lptn.json")
-    artifact = load_artifact(path)
     drive = drive_rows(160)
     # the uninterrupted run
     node = make(path)

@@ -14,12 +14,12 @@ import pytest
 from bench.cli import main
 from bench.firmware import codegen, toolchain
 from bench.firmware.codegen import FirmwareGenerationError, c_float, generate
+from target_sim.artifact import ModelArtifact, dumps, seal
+from target_sim.firmware import Firmware, memory_from_elf
 
 # what export writes (and build beside the ELF and map): the generated model and node files, the shipped ones
 SOURCES = ["fw_model.c", "fw_model.h", "fw_node_config.h", "thermal_bench.c", "thermal_bench.h", "node.c", "node.h",
            "string.h", "startup.c", "firmware.ld"]
-from target_sim.artifact import ModelArtifact, dumps, seal
-from target_sim.firmware import Firmware, memory_from_elf
 
 KIND_REALIZATIONS = [("lti-lptn", r) for r in ("physical", "original", "balanced", "modal")]
 KIND_REALIZATIONS += [("hammerstein", r) for r in ("physical", "original", "balanced", "modal")]

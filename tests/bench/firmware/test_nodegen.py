@@ -54,8 +54,7 @@ def _cantools_bounds(source: str, message: str, signal: str) -> tuple[float | No
     body = re.search(name + r"\([^)]*\)\s*\{(.*?)\}", source, re.S).group(1)
     low = re.search(r"value >= (-?[\d.e+]+)", body)
     high = re.search(r"value <= (-?[\d.e+]+)", body)
-    as_number = (lambda m: float(m.group(1).rstrip("uf")) if m else None)
-    return as_number(low), as_number(high)
+    return tuple(float(m.group(1).rstrip("uf")) if m else None for m in (low, high))
 
 
 @pytest.mark.parametrize("message,signal", RECEIVED, ids=[f"{m}.{s.name}" for m, s in RECEIVED])
