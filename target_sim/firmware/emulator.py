@@ -477,7 +477,7 @@ class Firmware:
         pc = raw.read_register(arm.UC_ARM_REG_PC) if raw is not None else uc.reg_read(arm.UC_ARM_REG_PC)
         if self._fault is not None:
             kind, what, at = self._fault
-            raise self._failed(FirmwareFault(f"{name} in {self.name} raised a CPU exception at PC {at:#010x}: "
+            raise self._failed(FirmwareFault(f"{name} in {self.name} raised a CPU exception at PC {at:#010x}{self._inside(at)}: "
                                              f"{what}", function=name, pc=at, kind=kind))
         if pc != HALT:
             raise self._failed(FirmwareFault(f"{name} in {self.name} did not return within "
@@ -559,13 +559,20 @@ class Firmware:
                 return FirmwareFault(f"{name} in {self.name} overflowed its stack (SP {sp:#010x} below its bottom "
                                      f"{self._stack_bottom:#010x}) and faulted at PC {at:#010x}: {what}",
                                      function=name, pc=at, kind="stack overflow")
-            return FirmwareFault(f"{name} in {self.name} faulted at PC {at:#010x}: {what}", function=name, pc=at,
+            return FirmwareFault(f"{name} in {self.name} faulted at PC {at:#010x}{self._inside(at)}: {what}", function=name, pc=at,
                                  kind="memory")
         if error.errno == UC_ERR_INSN_INVALID:
-            return FirmwareFault(f"{name} in {self.name} hit an undefined instruction at PC {pc:#010x}"
+            return FirmwareFault(f"{name} in {self.name} hit an undefined instruction at PC {pc:#010x}{self._inside(pc)}"
                                  f"{self._disassemble(pc)}", function=name, pc=pc, kind="undefined instruction")
         return FirmwareFault(f"{name} in {self.name} stopped at PC {pc:#010x} with an emulator error: {error}",
                              function=name, pc=pc, kind="exception")
+
+    def _inside(self, pc: int) -> str:
+        """" (in fw_step)": the function of the image holding `pc`, when the symbol table says."""
+        for name, symbol in self.symbols.items():
+            if symbol.kind == "STT_FUNC" and symbol.address <= pc < symbol.address + max(symbol.size, 1):
+                return f" (in {name})"
+        return ""
 
     def _disassemble(self, pc: int) -> str:
         try:
