@@ -477,8 +477,8 @@ class Firmware:
         pc = raw.read_register(arm.UC_ARM_REG_PC) if raw is not None else uc.reg_read(arm.UC_ARM_REG_PC)
         if self._fault is not None:
             kind, what, at = self._fault
-            raise self._failed(FirmwareFault(f"{name} in {self.name} raised a CPU exception at PC {at:#010x}{self._inside(at)}: "
-                                             f"{what}", function=name, pc=at, kind=kind))
+            raise self._failed(FirmwareFault(f"{name} in {self.name} raised a CPU exception at PC {at:#010x}"
+                                             f"{self._inside(at)}: {what}", function=name, pc=at, kind=kind))
         if pc != HALT:
             raise self._failed(FirmwareFault(f"{name} in {self.name} did not return within "
                                              f"{self.max_instructions:,} instructions (an endless loop?), stopped at "
@@ -559,11 +559,12 @@ class Firmware:
                 return FirmwareFault(f"{name} in {self.name} overflowed its stack (SP {sp:#010x} below its bottom "
                                      f"{self._stack_bottom:#010x}) and faulted at PC {at:#010x}: {what}",
                                      function=name, pc=at, kind="stack overflow")
-            return FirmwareFault(f"{name} in {self.name} faulted at PC {at:#010x}{self._inside(at)}: {what}", function=name, pc=at,
-                                 kind="memory")
+            return FirmwareFault(f"{name} in {self.name} faulted at PC {at:#010x}{self._inside(at)}: {what}",
+                                 function=name, pc=at, kind="memory")
         if error.errno == UC_ERR_INSN_INVALID:
-            return FirmwareFault(f"{name} in {self.name} hit an undefined instruction at PC {pc:#010x}{self._inside(pc)}"
-                                 f"{self._disassemble(pc)}", function=name, pc=pc, kind="undefined instruction")
+            return FirmwareFault(f"{name} in {self.name} hit an undefined instruction at PC {pc:#010x}"
+                                 f"{self._inside(pc)}{self._disassemble(pc)}", function=name, pc=pc,
+                                 kind="undefined instruction")
         return FirmwareFault(f"{name} in {self.name} stopped at PC {pc:#010x} with an emulator error: {error}",
                              function=name, pc=pc, kind="exception")
 
