@@ -13,6 +13,7 @@ one temporary file, which the host matches against the injected faults.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -62,9 +63,6 @@ def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
         return load_artifact(model_path), model_path
     except ArtifactError as exc:
         raise BenchError(str(exc)) from None
-
-
-ENGINES = ("python", "firmware")
 
 
 def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True) -> Path | None:
@@ -227,6 +225,7 @@ class RunOutcome:
     result: HostResult
     target_status: int | None
     target_stderr: str
+    target_stats: dict | None = None    # the target's counters at exit (`python -m target_sim --stats`)
 
 
 def _open(bus: BusConfig):
@@ -282,12 +281,14 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     freeze and restart it; the result carries the fault summary (`result.faults`). With `firmware` (an ELF,
     `firmware_for_engine`) the target runs the firmware engine."""
     injecting = faults is not None and faults.active
-    events_dir = tempfile.TemporaryDirectory(prefix="bench-events-") if injecting else None
-    events = Path(events_dir.name) / "target-events.jsonl" if events_dir is not None else None
+    events_dir = tempfile.TemporaryDirectory(prefix="bench-events-")
+    events = Path(events_dir.name) / "target-events.jsonl" if injecting else None
+    stats_path = Path(events_dir.name) / "target-stats.json"
+    target_stats = None
     host_bus = _open(bus)
     try:
         refuse_foreign_target(host_bus, bus, artifact)
-        with TargetProcess(model_path, bus, events_path=events, firmware=firmware,
+        with TargetProcess(model_path, bus, events_path=events, firmware=firmware, stats_path=stats_path,
                            extra_argv=faults.reply_argv() if injecting else None) as target:
             result = _host_errors(lambda: run_dataset(
                 host_bus, drive, initial, model_id=artifact.model_id, mode=mode, speed=speed,
@@ -298,14 +299,22 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
             status = target.stop()
             stderr = target.stderr_text()
             _name_the_fault(result, stderr)
+        target_stats = _read_stats(stats_path)
     finally:
         host_bus.shutdown()
-        if events_dir is not None:
-            events_dir.cleanup()
+        events_dir.cleanup()
     if status not in (0, None):
         raise BenchError(f"the target process ended with status {status} after the run: "
                          f"{stderr.strip().splitlines()[-1] if stderr.strip() else '(no output)'}")
-    return RunOutcome(result, status, stderr)
+    return RunOutcome(result, status, stderr, target_stats)
+
+
+def _read_stats(path: Path) -> dict | None:
+    """The target's counters at exit, or None when it wrote none (killed, or an older target)."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
 
 
 def _name_the_fault(result: HostResult, stderr: str) -> None:

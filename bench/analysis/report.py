@@ -132,6 +132,8 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
             ("bus", run_info.get("bus", "–")),
             ("target engine", run_info.get("engine") or ("firmware (emulated Cortex-M4F)" if m.get("engine") ==
                                                           "firmware" else "python (float32 model)"))]
+    if run_info.get("node_cycles"):      # the firmware node's own statistics (the target's --stats)
+        info.append(("firmware node Cortex-M4F cycles, model steps excluded (p50 / max)", run_info["node_cycles"]))
     lines += [f"| {k} | {v} |" for k, v in info]
     lines += ["", "## Metrics", "", "| metric | " + " | ".join(TEMPERATURES) + " |", "|---|---|---|---|---|"]
     reference = "target twin" if m.get("can_reference") == "target twin" else "offline float32"

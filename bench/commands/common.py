@@ -42,10 +42,12 @@ def add_output_flags(parser) -> None:
 
 
 def add_engine_argument(parser, default: str = "python") -> None:
-    parser.add_argument("--engine", choices=("python", "firmware"), default=default,
-                        help="what the target runs: the float32 model in Python, or the model compiled for a "
-                             "Cortex-M4F in the emulated core, with measured cycles (the packaged artifacts ship "
-                             f"their firmware; another artifact needs the compiler) (default {default})")
+    from target_sim.engines import ENGINES
+
+    parser.add_argument("--engine", choices=ENGINES, default=default,
+                        help="what the target runs: the reference node in Python, or the node and model compiled "
+                             "for a Cortex-M4F in the emulated core, with measured cycles (the packaged artifacts "
+                             f"ship their firmware; another artifact needs the compiler) (default {default})")
 
 
 def finite_or_none(value):

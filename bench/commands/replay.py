@@ -35,7 +35,6 @@ from bench.analysis.logdecode import BusRecord, decode_log
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
 from bench.runner import (
-    ENGINES,
     ProgressBar,
     bus_from_args,
     firmware_for_engine,
@@ -48,6 +47,7 @@ from dbc.codec import decode_any
 from dbc.transport import add_bus_arguments
 from host.canlog import LogError, check_log_path, read_log
 from host.replay import count_rows, host_frames
+from target_sim.engines import ENGINES
 
 PROCESS_FAULTS = ("kill", "freeze")
 

@@ -136,8 +136,10 @@ def run(args: argparse.Namespace) -> int:
     host = outcome.result
     from bench.analysis.report import analyze_log
 
+    node_cycles = _node_cycles(outcome.target_stats)
     run_info = {"mode": f"{args.mode}" + (f" x{args.speed:g}" if args.mode == "realtime" else ""),
-                "bus": bus.describe(), "engine": _engine_label(args.engine, firmware)}
+                "bus": bus.describe(), "engine": _engine_label(args.engine, firmware),
+                "node_cycles": _node_cycles_text(node_cycles)}
     try:
         metrics, found = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
                                      args.report, bitrate=bus.nominal_bitrate, run_info=run_info,
@@ -148,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
                       tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
     summary = json_summary(metrics, host, outcome.problems, time.perf_counter() - started, bus, args.engine,
                            firmware)
+    summary["node_cycles"] = node_cycles
     if args.json:
         print_json(summary)
     else:
@@ -161,6 +164,22 @@ def bus_summary(bus: BusConfig) -> dict:
     if bus.interface == UDP_INTERFACE and "port" in bus.kwargs:
         out["port"] = bus.kwargs["port"]
     return out
+
+
+def _node_cycles(stats: dict | None) -> dict | None:
+    """The firmware node's cycles per received frame and per reply frame (model steps excluded), from its stats."""
+    if not stats or stats.get("engine") != "firmware":
+        return None
+    return {"per_received_frame": stats.get("frame_cycles"), "per_reply_frame": stats.get("reply_cycles"),
+            "stack_used_bytes": stats.get("stack_used_bytes"), "tx_dropped": stats.get("tx_dropped")}
+
+
+def _node_cycles_text(node_cycles: dict | None) -> str | None:
+    if node_cycles is None:
+        return None
+    frame, reply = node_cycles["per_received_frame"] or {}, node_cycles["per_reply_frame"] or {}
+    return (f"{frame.get('p50')} / {frame.get('max')} per received frame, {reply.get('p50')} / {reply.get('max')} "
+            f"per reply frame; stack used {node_cycles['stack_used_bytes']} B")
 
 
 def _engine_label(engine: str, firmware: Path | None) -> str:
