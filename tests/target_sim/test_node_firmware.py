@@ -198,3 +198,22 @@ def test_a_broken_elf_faults_on_the_bus_and_the_heartbeat_goes_on(artifacts, fir
     assert states.count(TargetState.FAULT) >= 4           # the heartbeat goes on, in FAULT
     assert node.faults & FaultBit.INTERNAL and "undefined instruction" in node.last_error
     assert len(errors) == 1 and errors[0].startswith("internal fault, state FAULT until a RESET: node_on_frame")
+
+
+def test_a_long_gap_overflows_the_bounded_queue_without_losing_the_temperatures(artifacts, firmware_elf):
+    """Rows lost for more model steps than the 40-frame transmit queue holds: the temperatures go first, the
+    timing frames that do not fit are dropped and counted, the model still keeps time (as the Python node)."""
+    python, firmware = nodes(artifacts, firmware_elf, "lti")
+    drive = drive_rows(60, seed=5)
+    hosts = Host(python), Host(firmware)
+    for host in hosts:
+        host.reset()
+        host.start()
+        host.row(0, drive[0])
+    expected, got = (host.row(40, drive[40]) for host in hosts)    # rows 1..39 lost: 16 model steps
+    assert [f.name for f in got[:2]] == ["Temperatures1", "Temperatures2"]
+    assert [(f.name, f.signals) for f in got[:2]] == [(f.name, f.signals) for f in expected[:2]]
+    assert len(got) == 40 and len(expected) == 2 + 3 * 16
+    assert firmware.stats()["tx_dropped"] == 2 + 4 * 16 - 40
+    assert python.model_steps == firmware.model_steps == 16
+    assert np.array_equal(python.model.x.view(np.uint32), firmware.x.view(np.uint32))
