@@ -8,7 +8,7 @@
                           reference, every output compared bit for bit; cycles, flash, RAM; exit 1 on a mismatch
 
 The generated C equals the Python float32 reference bit for bit (bench/firmware/codegen.py); `build` needs the
-ziglang package (the `firmware` extra), and so does `check` of an artifact other than the packaged ones (which
+ziglang package (a dependency), and so does `check` of an artifact other than the packaged ones (which
 ship their ELF) unless --firmware names one.
 """
 # Each action is an `_add_<action>(actions)` that registers its parser and sets `func`; ACTIONS lists them in the

@@ -7,7 +7,7 @@ change of the generator, the start-up code, the linker script or the flags with
 
     python -m bench.firmware.images
 
-Any other artifact is built with the compiler (the `firmware` extra) into a cache directory the caller names
+Any other artifact is built with the compiler (the `ziglang` dependency) into a cache directory the caller names
 (under its output or temporary directory), under a key over everything the ELF is made of (the generated C, the
 start-up code, the linker script, the flags and the toolchain's version), so a cached ELF is never stale.
 """

@@ -35,6 +35,8 @@ from bench.firmware.codegen import HEADER_NAME, SOURCE_NAME, GeneratedSource
 from target_sim.firmware import FirmwareError, memory_from_elf
 
 COMPILER: list[str] = [sys.executable, "-m", "ziglang"]    # tests point this elsewhere to simulate a missing one
+# the compiler is the project's `ziglang` dependency, so a missing one means a broken installation
+INSTALL_HINT = "reinstall the project (pip install -e . in a checkout), whose ziglang dependency is the compiler"
 TIMEOUT_S = 300.0
 STARTUP_NAME = "startup.c"
 LINKER_SCRIPT_NAME = "firmware.ld"
@@ -96,8 +98,8 @@ def _run(args: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
     try:
         done = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S)
     except FileNotFoundError:
-        raise ToolchainError(f"the C cross-compiler cannot be started ({command[0]} not found); install the "
-                             "firmware extra: pip install 'pmsm-thermal-bench[firmware]'") from None
+        raise ToolchainError(f"the C cross-compiler cannot be started ({command[0]} not found); {INSTALL_HINT}"
+                             ) from None
     except subprocess.TimeoutExpired:
         raise ToolchainError(f"{what} took longer than {TIMEOUT_S:g} s and was stopped; try again on a less "
                              "loaded machine") from None
@@ -109,8 +111,7 @@ def toolchain_version(cwd: Path | None = None) -> str:
     done = _run(["version"], cwd or Path(tempfile.gettempdir()), "asking the compiler for its version")
     if done.returncode != 0 or not done.stdout.strip():
         raise ToolchainError(f"the C cross-compiler (python {' '.join(COMPILER[1:])}) is not available "
-                             f"({_first_line(done.stderr + done.stdout)}); install the firmware extra: "
-                             "pip install 'pmsm-thermal-bench[firmware]'")
+                             f"({_first_line(done.stderr + done.stdout)}); {INSTALL_HINT}")
     return f"zig {done.stdout.strip()}"
 
 

@@ -479,7 +479,7 @@ def output_cases() -> list[Case]:
 
 # ---------------------------------------------------------------- the firmware: toolchain, ELF, emulator
 
-EXTRA = "install the firmware extra"
+EXTRA = "reinstall the project"
 SHADOW_ZIG = {  # a `ziglang` package first on PYTHONPATH: `python -m ziglang` as a missing or a failing compiler
     "missing": {"__init__.py": "raise ImportError('No module named ziglang (shadowed by the test)')\n"},
     "failing": {"__init__.py": "", "__main__.py": "import sys\nif sys.argv[1:] == ['version']:\n"

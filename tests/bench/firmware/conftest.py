@@ -11,8 +11,6 @@ import pytest
 
 from helpers import model_spec, synthetic_columns
 
-pytest.importorskip("ziglang", reason="the ziglang package (the C cross-compiler) is not installed")
-
 KIND_REALIZATIONS = [("lti-lptn", r) for r in ("physical", "original", "balanced", "modal")]
 KIND_REALIZATIONS += [("hammerstein", r) for r in ("physical", "original", "balanced", "modal")]
 KIND_REALIZATIONS += [("pv-lptn", "physical")]
