@@ -248,4 +248,5 @@ def test_version_1_3_adds_timing4_beside_the_c28x_estimate_and_says_so():
     network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
     assert "History: 1.3.0 adds Timing4" in network and "1.2.0 added StateCheckpoint" in network
     for name in ("FlashBytes", "RamBytes"):
-        assert "measured from the firmware ELF" in signal("TargetInfo", name).comment
+        assert "measured from its ELF" in signal("TargetInfo", name).comment and "C28x estimate" in \
+            signal("TargetInfo", name).comment
