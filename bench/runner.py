@@ -281,9 +281,9 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     freeze and restart it; the result carries the fault summary (`result.faults`). With `firmware` (an ELF,
     `firmware_for_engine`) the target runs the firmware engine."""
     injecting = faults is not None and faults.active
-    events_dir = tempfile.TemporaryDirectory(prefix="bench-events-")
-    events = Path(events_dir.name) / "target-events.jsonl" if injecting else None
-    stats_path = Path(events_dir.name) / "target-stats.json"
+    target_files = tempfile.TemporaryDirectory(prefix="bench-target-")   # its stats; its journal when injecting
+    events = Path(target_files.name) / "target-events.jsonl" if injecting else None
+    stats_path = Path(target_files.name) / "target-stats.json"
     target_stats = None
     host_bus = _open(bus)
     try:
@@ -302,7 +302,7 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
         target_stats = _read_stats(stats_path)
     finally:
         host_bus.shutdown()
-        events_dir.cleanup()
+        target_files.cleanup()
     if status not in (0, None):
         raise BenchError(f"the target process ended with status {status} after the run: "
                          f"{stderr.strip().splitlines()[-1] if stderr.strip() else '(no output)'}")

@@ -206,7 +206,7 @@ class InputAccumulator:
 
     sum <- sum + sample elementwise in float32, mean = sum / float32(count) (C: fw_accumulate, fw_mean); when an
     interval ends is integer row logic that stays here (and in the node). `accumulate`, `mean` and `clear` are the
-    sum alone, the interface the firmware engine offers too (`target_sim.firmware.FirmwareEstimator`)."""
+    sum alone, the interface the model firmware offers too (`target_sim.firmware.FirmwareEstimator`)."""
 
     def __init__(self, sample_period_s: float, dt_s: float):
         self.sample_us = int(round(sample_period_s * 1e6))

@@ -93,23 +93,17 @@ def _clamp(value: float, limits: tuple[float, float]) -> float:
     return min(max(value, limits[0]), limits[1])
 
 
-class RowAccumulator:
-    """The interval-mean rule (`InputAccumulator`: which row ends a model step's interval, the float32 sums), plus
-    what to do with rows lost on the bus (see the module docstring)."""
+class RowAccumulator(InputAccumulator):
+    """The interval-mean rule (`InputAccumulator`), plus what to do with rows lost on the bus (see the module
+    docstring)."""
 
     def __init__(self, sample_period_s: float, dt_s: float):
-        self.rule = self.sums = InputAccumulator(sample_period_s, dt_s)
+        super().__init__(sample_period_s, dt_s)
         self.last_inputs: np.ndarray | None = None
-
-    def model_step_of(self, row: int) -> int:
-        return self.rule.model_step_of(row)
 
     def add(self, row: int, sample) -> np.ndarray | None:
         """Add row `row`; the inputs of its model step if this row completes the interval."""
-        self.sums.accumulate(sample)
-        if not self.rule.ends_interval(row):
-            return None
-        mean = self.sums.mean()
+        mean = super().add(row, sample)
         if mean is not None:
             self.last_inputs = mean
         return mean
@@ -118,9 +112,9 @@ class RowAccumulator:
         """Rows first..stop-1 were lost: the inputs of each model step whose interval ended among them."""
         inputs = []
         for row in range(first, stop):
-            if not self.rule.ends_interval(row):
+            if not self.ends_interval(row):
                 continue
-            mean = self.sums.mean()           # the rows of the interval that did arrive
+            mean = self.mean()                # the rows of the interval that did arrive
             if mean is not None:
                 self.last_inputs = mean
             elif self.last_inputs is not None:
@@ -131,7 +125,7 @@ class RowAccumulator:
         return inputs
 
     def reset(self) -> None:
-        self.sums.clear()
+        self.clear()
         self.last_inputs = None
 
 

@@ -425,12 +425,28 @@ static uint32_t model_step(const float inputs[4])
     return cycles;
 }
 
+/* The model steps of one row whose timing frames (4 each) can be queued; a step beyond runs untimed on the bus. */
+#define TIMED_STEPS (NODE_TX_CAPACITY / 4u)
+
+/* One model step of a row; its cycles kept for the row's timing frames while they fit, else those are counted as
+ * dropped. */
+static void step_on(const float inputs[4], uint32_t cycles_of[TIMED_STEPS], uint32_t *steps)
+{
+    const uint32_t cycles = model_step(inputs);
+    if (*steps < TIMED_STEPS) {
+        cycles_of[*steps] = cycles;
+    } else {
+        node_out.tx_dropped += 4u;                          /* its timing frames could not be queued anyway */
+    }
+    (*steps)++;
+}
+
 /* RowAccumulator.skip's means and the steps on them, one by one (no list: bounded RAM), then the row's own. */
 static void handle_row(uint16_t step, const float sample[4])
 {
     const uint32_t expected = next_row;
     const uint16_t ahead = (uint16_t)(step - (uint16_t)expected);       /* mod 2^16 */
-    uint32_t row, lost, cycles_of[NODE_TX_CAPACITY / 4u];
+    uint32_t row, lost, cycles_of[TIMED_STEPS];
     uint32_t steps = 0u;
     float mean[4];
     if (state != NODE_STATE_RUNNING || !running_rows) {
@@ -459,13 +475,7 @@ static void handle_row(uint16_t step, const float sample[4])
         } else {
             continue;                                       /* nothing ever arrived: no inputs to step on */
         }
-        if (steps < NODE_TX_CAPACITY / 4u) {
-            cycles_of[steps] = model_step(mean);
-        } else {
-            (void)model_step(mean);                         /* its timing frames could not be queued anyway */
-            node_out.tx_dropped += 4u;
-        }
-        steps++;
+        step_on(mean, cycles_of, &steps);
     }
     next_row = row + 1u;
     node_counters.rows_used++;
@@ -473,20 +483,14 @@ static void handle_row(uint16_t step, const float sample[4])
     if (ends_interval(row) && fw_mean(mean)) {
         memcpy(last_inputs, mean, sizeof mean);
         have_last_inputs = 1u;
-        if (steps < NODE_TX_CAPACITY / 4u) {
-            cycles_of[steps] = model_step(mean);
-        } else {
-            (void)model_step(mean);
-            node_out.tx_dropped += 4u;
-        }
-        steps++;
+        step_on(mean, cycles_of, &steps);
     }
     send_temperatures(step);
     last_reply_step = step;
     have_reply_row = 1u;
     {
         uint32_t i;
-        for (i = 0u; i < steps && i < NODE_TX_CAPACITY / 4u; i++) send_timing(step, cycles_of[i]);
+        for (i = 0u; i < steps && i < TIMED_STEPS; i++) send_timing(step, cycles_of[i]);
     }
     if (steps && node_counters.model_steps % NODE_CHECKPOINT_EVERY == 0u) send_checkpoint(step);
 }
@@ -546,131 +550,117 @@ static void reject(uint8_t kind, uint8_t code, int32_t a, int32_t b)
     record(kind, code, a, b);
 }
 
-/* The application part of a valid frame (TargetNode._dispatch). */
-static void dispatch(int index, const uint8_t *data)
+/* A received frame, unpacked once by the generated unpack function of its message (`validate`). */
+union rx_signals {
+    struct thermal_bench_control_t control;
+    struct thermal_bench_reset_temps1_t reset1;
+    struct thermal_bench_reset_temps2_t reset2;
+    struct thermal_bench_restore_state_t restore;
+    struct thermal_bench_drive_inputs_t inputs;
+    struct thermal_bench_drive_temps_t temps;
+    struct thermal_bench_bench_event_t event;
+};
+
+static void unpack(int index, const uint8_t *data, union rx_signals *m)
 {
     switch (index) {
-    case RX_DRIVE_INPUTS: {
-        struct thermal_bench_drive_inputs_t m;
-        (void)thermal_bench_drive_inputs_unpack(&m, data, 8u);
+    case RX_CONTROL: (void)thermal_bench_control_unpack(&m->control, data, 8u); break;
+    case RX_RESET1: (void)thermal_bench_reset_temps1_unpack(&m->reset1, data, 8u); break;
+    case RX_RESET2: (void)thermal_bench_reset_temps2_unpack(&m->reset2, data, 8u); break;
+    case RX_RESTORE: (void)thermal_bench_restore_state_unpack(&m->restore, data, 8u); break;
+    case RX_DRIVE_INPUTS: (void)thermal_bench_drive_inputs_unpack(&m->inputs, data, 8u); break;
+    case RX_DRIVE_TEMPS: (void)thermal_bench_drive_temps_unpack(&m->temps, data, 8u); break;
+    default: (void)thermal_bench_bench_event_unpack(&m->event, data, 8u); break;
+    }
+}
+
+/* The application part of a valid frame (TargetNode._dispatch). */
+static void dispatch(int index, const union rx_signals *m)
+{
+    switch (index) {
+    case RX_DRIVE_INPUTS:
         if (pending.have) sequence_error(NODE_WHY_INPUTS_ALONE, pending.m.step, 0);
         pending.have = 1u;
-        pending.m = m;
+        pending.m = m->inputs;
         break;
-    }
     case RX_DRIVE_TEMPS: {
-        struct thermal_bench_drive_temps_t m;
         float sample[4];
-        (void)thermal_bench_drive_temps_unpack(&m, data, 8u);
         if (!pending.have) {
-            sequence_error(NODE_WHY_TEMPS_ALONE, m.step, 0);
+            sequence_error(NODE_WHY_TEMPS_ALONE, m->temps.step, 0);
             break;
         }
         pending.have = 0u;
-        if (pending.m.step != m.step) {
-            sequence_error(NODE_WHY_PAIR_STEPS, pending.m.step, m.step);
+        if (pending.m.step != m->temps.step) {
+            sequence_error(NODE_WHY_PAIR_STEPS, pending.m.step, m->temps.step);
             break;
         }
-        NODE_DRIVE_SAMPLE(sample, pending.m, m);
-        handle_row(m.step, sample);
+        NODE_DRIVE_SAMPLE(sample, pending.m, m->temps);
+        handle_row(m->temps.step, sample);
         break;
     }
-    case RX_RESET1: {
-        struct thermal_bench_reset_temps1_t m;
-        (void)thermal_bench_reset_temps1_unpack(&m, data, 8u);
+    case RX_RESET1:
         reset_frames[0].have = 1u;
-        reset_frames[0].step = m.step;
-        NODE_RESET1_RAW(reset_frames[0].raw, m);
+        reset_frames[0].step = m->reset1.step;
+        NODE_RESET1_RAW(reset_frames[0].raw, m->reset1);
         break;
-    }
-    case RX_RESET2: {
-        struct thermal_bench_reset_temps2_t m;
-        (void)thermal_bench_reset_temps2_unpack(&m, data, 8u);
+    case RX_RESET2:
         reset_frames[1].have = 1u;
-        reset_frames[1].step = m.step;
-        NODE_RESET2_RAW(reset_frames[1].raw, m);
+        reset_frames[1].step = m->reset2.step;
+        NODE_RESET2_RAW(reset_frames[1].raw, m->reset2);
         break;
-    }
-    case RX_RESTORE: {
-        struct thermal_bench_restore_state_t m;
-        (void)thermal_bench_restore_state_unpack(&m, data, 8u);
-        restore_frames[m.state_index].have = 1u;                    /* 0..3: checked by the range check */
-        restore_frames[m.state_index].step = m.step;
-        restore_frames[m.state_index].value = m.state_value;
+    case RX_RESTORE:
+        restore_frames[m->restore.state_index].have = 1u;           /* 0..3: checked by the range check */
+        restore_frames[m->restore.state_index].step = m->restore.step;
+        restore_frames[m->restore.state_index].value = m->restore.state_value;
         break;
-    }
-    case RX_CONTROL: {
-        struct thermal_bench_control_t m;
-        (void)thermal_bench_control_unpack(&m, data, 8u);
-        control(m.command, m.step);
+    case RX_CONTROL:
+        control(m->control.command, m->control.step);
         break;
-    }
     default:                                                        /* BenchEvent: validated, otherwise ignored */
         break;
     }
 }
 
-/* The first signal of a valid-length frame outside its DBC range, as its index in the message (DBC order), or
- * -1 (FrameValidator's range check, through the generated *_is_in_range). */
-static int out_of_range_signal(int index, const uint8_t *data)
+/* The first signal of a frame outside its DBC range, as its index in the message (DBC order), or -1
+ * (FrameValidator's range check, through the generated *_is_in_range). */
+static int out_of_range_signal(int index, const union rx_signals *m)
 {
     switch (index) {
-    case RX_CONTROL: {
-        struct thermal_bench_control_t m;
-        (void)thermal_bench_control_unpack(&m, data, 8u);
-        if (!thermal_bench_control_step_is_in_range(m.step)) return 2;
-        if (!thermal_bench_control_command_is_in_range(m.command)) return 3;
+    case RX_CONTROL:
+        if (!thermal_bench_control_step_is_in_range(m->control.step)) return 2;
+        if (!thermal_bench_control_command_is_in_range(m->control.command)) return 3;
         return -1;
-    }
-    case RX_RESET1: {
-        struct thermal_bench_reset_temps1_t m;
-        (void)thermal_bench_reset_temps1_unpack(&m, data, 8u);
-        if (!thermal_bench_reset_temps1_step_is_in_range(m.step)) return 2;
-        if (!thermal_bench_reset_temps1_winding_temp_init_is_in_range(m.winding_temp_init)) return 3;
-        if (!thermal_bench_reset_temps1_magnet_temp_init_is_in_range(m.magnet_temp_init)) return 4;
+    case RX_RESET1:
+        if (!thermal_bench_reset_temps1_step_is_in_range(m->reset1.step)) return 2;
+        if (!thermal_bench_reset_temps1_winding_temp_init_is_in_range(m->reset1.winding_temp_init)) return 3;
+        if (!thermal_bench_reset_temps1_magnet_temp_init_is_in_range(m->reset1.magnet_temp_init)) return 4;
         return -1;
-    }
-    case RX_RESET2: {
-        struct thermal_bench_reset_temps2_t m;
-        (void)thermal_bench_reset_temps2_unpack(&m, data, 8u);
-        if (!thermal_bench_reset_temps2_step_is_in_range(m.step)) return 2;
-        if (!thermal_bench_reset_temps2_yoke_temp_init_is_in_range(m.yoke_temp_init)) return 3;
-        if (!thermal_bench_reset_temps2_tooth_temp_init_is_in_range(m.tooth_temp_init)) return 4;
+    case RX_RESET2:
+        if (!thermal_bench_reset_temps2_step_is_in_range(m->reset2.step)) return 2;
+        if (!thermal_bench_reset_temps2_yoke_temp_init_is_in_range(m->reset2.yoke_temp_init)) return 3;
+        if (!thermal_bench_reset_temps2_tooth_temp_init_is_in_range(m->reset2.tooth_temp_init)) return 4;
         return -1;
-    }
-    case RX_RESTORE: {
-        struct thermal_bench_restore_state_t m;
-        (void)thermal_bench_restore_state_unpack(&m, data, 8u);
-        if (!thermal_bench_restore_state_step_is_in_range(m.step)) return 2;
-        if (!thermal_bench_restore_state_state_index_is_in_range(m.state_index)) return 3;
-        if (!thermal_bench_restore_state_state_value_is_in_range(m.state_value)) return 4;
+    case RX_RESTORE:
+        if (!thermal_bench_restore_state_step_is_in_range(m->restore.step)) return 2;
+        if (!thermal_bench_restore_state_state_index_is_in_range(m->restore.state_index)) return 3;
+        if (!thermal_bench_restore_state_state_value_is_in_range(m->restore.state_value)) return 4;
         return -1;
-    }
-    case RX_DRIVE_INPUTS: {
-        struct thermal_bench_drive_inputs_t m;
-        (void)thermal_bench_drive_inputs_unpack(&m, data, 8u);
-        if (!thermal_bench_drive_inputs_step_is_in_range(m.step)) return 2;
-        if (!thermal_bench_drive_inputs_motor_torque_is_in_range(m.motor_torque)) return 3;
-        if (!thermal_bench_drive_inputs_motor_speed_is_in_range(m.motor_speed)) return 4;
+    case RX_DRIVE_INPUTS:
+        if (!thermal_bench_drive_inputs_step_is_in_range(m->inputs.step)) return 2;
+        if (!thermal_bench_drive_inputs_motor_torque_is_in_range(m->inputs.motor_torque)) return 3;
+        if (!thermal_bench_drive_inputs_motor_speed_is_in_range(m->inputs.motor_speed)) return 4;
         return -1;
-    }
-    case RX_DRIVE_TEMPS: {
-        struct thermal_bench_drive_temps_t m;
-        (void)thermal_bench_drive_temps_unpack(&m, data, 8u);
-        if (!thermal_bench_drive_temps_step_is_in_range(m.step)) return 2;
-        if (!thermal_bench_drive_temps_coolant_temp_is_in_range(m.coolant_temp)) return 3;
-        if (!thermal_bench_drive_temps_ambient_temp_is_in_range(m.ambient_temp)) return 4;
+    case RX_DRIVE_TEMPS:
+        if (!thermal_bench_drive_temps_step_is_in_range(m->temps.step)) return 2;
+        if (!thermal_bench_drive_temps_coolant_temp_is_in_range(m->temps.coolant_temp)) return 3;
+        if (!thermal_bench_drive_temps_ambient_temp_is_in_range(m->temps.ambient_temp)) return 4;
         return -1;
-    }
-    default: {
-        struct thermal_bench_bench_event_t m;
-        (void)thermal_bench_bench_event_unpack(&m, data, 8u);
-        if (!thermal_bench_bench_event_step_is_in_range(m.step)) return 2;
-        if (!thermal_bench_bench_event_event_is_in_range(m.event)) return 3;
-        if (!thermal_bench_bench_event_fault_kind_is_in_range(m.fault_kind)) return 4;
-        if (!thermal_bench_bench_event_frame_id_is_in_range(m.frame_id)) return 5;
+    default:
+        if (!thermal_bench_bench_event_step_is_in_range(m->event.step)) return 2;
+        if (!thermal_bench_bench_event_event_is_in_range(m->event.event)) return 3;
+        if (!thermal_bench_bench_event_fault_kind_is_in_range(m->event.fault_kind)) return 4;
+        if (!thermal_bench_bench_event_frame_id_is_in_range(m->event.frame_id)) return 5;
         return -1;
-    }
     }
 }
 
@@ -685,8 +675,9 @@ static int in_dbc(uint32_t id)
     return 0;
 }
 
-/* FrameValidator.validate, in the contract's order: id, DLC, CRC, ranges, alive counter. */
-static int validate(uint32_t id, uint32_t dlc, const uint8_t *data)
+/* FrameValidator.validate, in the contract's order: id, DLC, CRC, ranges, alive counter; a valid frame's signals
+ * are in `m`. */
+static int validate(uint32_t id, uint32_t dlc, const uint8_t *data, union rx_signals *m)
 {
     int index, signal;
     uint8_t crc, counter;
@@ -721,7 +712,8 @@ static int validate(uint32_t id, uint32_t dlc, const uint8_t *data)
         reject(NODE_KIND_CRC, NODE_WHY_CRC, data[0], crc);
         return -1;
     }
-    signal = out_of_range_signal(index, data);
+    unpack(index, data, m);
+    signal = out_of_range_signal(index, m);
     if (signal >= 0) {
         reject(NODE_KIND_OUT_OF_RANGE, NODE_WHY_RANGE, signal, 0);
         return -1;
@@ -783,6 +775,7 @@ void node_init(uint32_t now_ms)
 
 void node_on_frame(uint32_t id, uint32_t dlc, const uint8_t *data)
 {
+    union rx_signals m;
     int index;
     begin_call();
     node_counters.frames_received++;
@@ -792,8 +785,8 @@ void node_on_frame(uint32_t id, uint32_t dlc, const uint8_t *data)
         node_rx.dlc = dlc;
         memcpy(node_rx.data, data, dlc < 8u ? dlc : 8u);
     }
-    index = validate(id, dlc, node_rx.data);
-    if (index >= 0) dispatch(index, node_rx.data);
+    index = validate(id, dlc, node_rx.data, &m);
+    if (index >= 0) dispatch(index, &m);
     end_call();
 }
 

@@ -36,13 +36,12 @@
 
 #include <stdint.h>
 
+#include "fw_node_config.h" /* NODE_TX_CAPACITY, NODE_EVENT_CAPACITY: target_sim.firmware.node_protocol's */
+
 #define NODE_ID_EXTENDED 0x80000000u
 #define NODE_ID_REMOTE 0x40000000u
 #define NODE_ID_ERROR 0x20000000u
 #define NODE_ID_FD 0x10000000u
-
-#define NODE_TX_CAPACITY 40u
-#define NODE_EVENT_CAPACITY 8u
 
 /* One CAN frame (classic, 8 data bytes at most). */
 struct node_frame {

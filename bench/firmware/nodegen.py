@@ -51,7 +51,7 @@ from dbc.contract import (
 from dbc.database import contract, heartbeat_period_s, layout_named, signal_ranges, temperature_range
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
-from target_sim.firmware.node_protocol import KIND_CODES, WHY_CODES
+from target_sim.firmware.node_protocol import EVENT_CAPACITY, KIND_CODES, TX_CAPACITY, WHY_CODES
 
 DATABASE_NAME = "thermal_bench"
 PACKERS = (f"{DATABASE_NAME}.h", f"{DATABASE_NAME}.c")
@@ -181,6 +181,7 @@ def node_config(artifact: ModelArtifact) -> str:
     lines += _defines("NODE_COMMAND_", {cmd.name: int(cmd) for cmd in Command})
     lines += _defines("NODE_KIND_", {kind.upper(): code for kind, code in KIND_CODES.items()})
     lines += _defines("NODE_WHY_", WHY_CODES)
+    lines += _defines("NODE_", {"TX_CAPACITY": TX_CAPACITY, "EVENT_CAPACITY": EVENT_CAPACITY})
     lines += _defines("NODE_DATA_ID_", {_snake_upper(m.name): m.data_id for m in c.by_id.values()})
     lines += _defines("NODE_TX_", {_snake_upper(m.name): index for index, m in enumerate(sent)})
     lines.append(f"#define NODE_TX_MESSAGES {len(sent)}u")

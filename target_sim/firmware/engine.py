@@ -1,16 +1,15 @@
-"""The firmware engine: the model compiled for a Cortex-M4F (`bench firmware build`), run in the emulated core with
-the interface of the Python float32 reference (`target_sim.model.Float32Estimator`).
+"""The model firmware alone: the model compiled for a Cortex-M4F (`bench firmware build`), run in the emulated core
+with the interface of the Python float32 reference (`target_sim.model.Float32Estimator`), for `bench firmware
+check`. (The target's firmware engine runs the whole node: `target_sim.firmware.node_engine`.)
 
     model = FirmwareEstimator(artifact, "firmware.elf")   # FirmwareError: another core, another model, no fw_*
     model.reset(y0); y = model.step(torque, speed, coolant, ambient); model.last_cycles; model.x; model.y
     model.accumulate(sample); inputs = model.mean(); model.clear()        # the interval sum, in firmware RAM
 
 One Unicorn call per firmware function: `step` writes the inputs, calls fw_step and reads the outputs (its counted
-Cortex-M4 cycles are `last_cycles`); `x` asks fw_state only when read (a checkpoint every 20 steps). The node's
-integer row logic (which row ends an interval, what to do with rows lost on the bus) stays in Python
-(`target_sim.node.RowAccumulator`); the sums and means it asks for are the firmware's (fw_accumulate, fw_mean,
-fw_clear), so every float32 operation of the target is the compiled code's. A fault of the emulated core
-(`FirmwareFault`, one sentence) propagates to the caller; the node turns it into its INTERNAL fault.
+Cortex-M4 cycles are `last_cycles`); `x` asks fw_state only when read. Which row ends an interval is the
+caller's integer logic; the sums and means are the firmware's (fw_accumulate, fw_mean, fw_clear). A fault of the
+emulated core (`FirmwareFault`, one sentence) propagates to the caller.
 """
 
 from __future__ import annotations

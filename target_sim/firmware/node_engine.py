@@ -1,11 +1,12 @@
 """The firmware engine: the whole target node (bench/firmware/node.c with the model) in the emulated Cortex-M4F.
 
     node = FirmwareNode(artifact, "firmware.elf")     # FirmwareError: another core, another model, no node_*
-    node.startup_frames(); node.handle(msg) -> frames; node.tick(now_s) -> heartbeat frames; node.stats()
+    node.startup_frames(); node.handle(msg) -> frames; node.heartbeat_frames(); node.stats()
 
 The Python side only moves frames: a received frame goes into the MCU's receive mailbox (`node_rx`) and
-`node_on_frame` runs; what the firmware queued (`node_out.tx`) goes out as python-can messages, in order; its
-journal records (`node_out.events`) go to `journal` with the frame they judged. Every rule of the protocol is the
+`node_on_frame` runs; what the firmware queued (`node_out.tx`) goes out as python-can messages, in order
+(`node_on_tick` queues the heartbeat); its journal records (`node_out.events`) go to `journal` with the frame
+they judged. Every rule of the protocol is the
 firmware's; this class has the interface of the Python reference node (`target_sim.node.TargetNode`), so `serve`,
 the bench and the conformance tests drive either.
 
@@ -37,6 +38,7 @@ from target_sim.firmware.elf import ElfImage, FirmwareError, memory_from_elf, re
 from target_sim.firmware.emulator import Firmware, FirmwareFault
 from target_sim.firmware.node_protocol import (
     COUNTERS,
+    COUNTERS_SIZE,
     EVENT,
     EVENTS_OFFSET,
     FRAME,
@@ -45,6 +47,7 @@ from target_sim.firmware.node_protocol import (
     ID_FD,
     ID_REMOTE,
     OUTPUT_HEADER,
+    OUTPUT_SIZE,
     TX_OFFSET,
     WHY_CODES,
     Event,
@@ -89,6 +92,12 @@ class FirmwareNode:
         if missing:
             raise FirmwareError(f"{image.name} has no {', '.join(missing)}: it is not a node firmware of "
                                 "'bench firmware build'; rebuild it")
+        layout = {"node_out": OUTPUT_SIZE, "node_counters": COUNTERS_SIZE, "node_rx": FRAME.size}
+        wrong = [f"{name} is {fw.symbols[name].size} bytes, not {size}" for name, size in layout.items()
+                 if fw.symbols[name].size != size]
+        if wrong:
+            raise FirmwareError(f"{image.name} has another node layout than this bench ({'; '.join(wrong)}); "
+                                "rebuild it with 'bench firmware build'")
         model_id = int.from_bytes(fw.read_bytes(fw.address("fw_model_id"), 4), "little")
         if model_id != artifact.model_id:
             raise FirmwareError(f"{image.name} is the firmware of model {model_id:08x}, not of the artifact's model "
@@ -201,10 +210,6 @@ class FirmwareNode:
             return self._run("node_on_frame", fid, msg.dlc & _MASK32, self._rx_data)
         finally:
             self._msg = None
-
-    def tick(self, now_s: float) -> list[can.Message]:
-        """node_on_tick: the heartbeat (Status, RxErrors) when the firmware's period is over."""
-        return self._run("node_on_tick", _ms(now_s - self._t0))
 
     def heartbeat_frames(self) -> list[can.Message]:
         """A heartbeat now: node_on_tick at the firmware's own next heartbeat time (serve() keeps the period)."""

@@ -46,10 +46,12 @@ FRAME = struct.Struct("<II8s")                      # struct node_frame
 EVENT = struct.Struct("<BBBBI8sii")                 # struct node_event
 OUTPUT_HEADER = struct.Struct("<10I")               # struct node_output up to tx[]
 COUNTERS = struct.Struct("<11I")                    # struct node_counters up to last_error
-TX_CAPACITY = 40                                    # node.h NODE_TX_CAPACITY
-EVENT_CAPACITY = 8                                  # node.h NODE_EVENT_CAPACITY
+TX_CAPACITY = 40                                    # NODE_TX_CAPACITY of fw_node_config.h (nodegen)
+EVENT_CAPACITY = 8                                  # NODE_EVENT_CAPACITY
 TX_OFFSET = OUTPUT_HEADER.size
 EVENTS_OFFSET = TX_OFFSET + TX_CAPACITY * FRAME.size
+OUTPUT_SIZE = EVENTS_OFFSET + EVENT_CAPACITY * EVENT.size      # sizeof(struct node_output)
+COUNTERS_SIZE = COUNTERS.size + EVENT.size                     # sizeof(struct node_counters)
 
 # node.h's flags on the id of a received frame
 ID_EXTENDED, ID_REMOTE, ID_ERROR, ID_FD = 0x8000_0000, 0x4000_0000, 0x2000_0000, 0x1000_0000
@@ -83,8 +85,3 @@ class Event:
 
         return WHY[self.why].format(a=self.a, b=self.b, id=self.frame_id & 0x7FF, state_a=state(self.a),
                                     state_b=state(self.b))
-
-    def journal(self) -> dict:
-        """The record as target_sim.node's journal writes it."""
-        return {"kind": self.kind, "id": self.frame_id & 0x1FFF_FFFF, "dlc": self.dlc,
-                "data": self.data[:min(self.dlc, 8)].hex(), "detail": self.sentence}

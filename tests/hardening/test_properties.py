@@ -199,8 +199,8 @@ def node_snapshot(node) -> tuple:
     """What a rejected frame must not change in the Python node (RX_ERROR and the error counters aside)."""
     model, acc = node.model, node.accumulator
     return (node.state, int(node.faults) & ~int(FaultBit.RX_ERROR), node.next_row, node.rows_used, node.model_steps,
-            node.overruns, _array(node.estimate), _array(model.x), _array(model.y), _array(acc.sums.sum),
-            acc.sums.count, _array(acc.last_inputs), repr(node._pending_inputs), repr(node._reset_frames),
+            node.overruns, _array(node.estimate), _array(model.x), _array(model.y), _array(acc.sum),
+            acc.count, _array(acc.last_inputs), repr(node._pending_inputs), repr(node._reset_frames),
             repr(node._restore_frames), node.last_reply_row, node.errors.get("sequence"))
 
 

@@ -295,26 +295,21 @@ def test_an_internal_error_is_a_fault_not_a_crash(running, monkeypatch):
     assert out[0].name == "Status" and out[0].signals["State"] == TargetState.FAULT
 
 
-def test_serve_on_a_virtual_bus_heartbeats_and_answers(make, lti):
+def serve_and_listen(node, frames, seconds: float, on_error=None) -> list:
+    """`serve` the node on a fresh virtual bus in a thread, send `frames` as a host, and decode what the node sends
+    within `seconds`."""
     channel = f"node-test-{time.monotonic_ns()}"
     target_bus = can.Bus(interface="virtual", channel=channel)
     host_bus = can.Bus(interface="virtual", channel=channel)
-    node = make("lti")
     stop = threading.Event()
-    thread = threading.Thread(target=serve, args=(node, target_bus, stop.is_set), daemon=True)
+    thread = threading.Thread(target=serve, args=(node, target_bus, stop.is_set), kwargs={"on_error": on_error},
+                              daemon=True)
     thread.start()
     try:
-        codec = FrameCodec("HOST")
-        yoke, winding, tooth, magnet = INITIAL
-        for frame in (codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-                      codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-                      codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-                      codec.encode("Control", {"Command": int(Command.START), "Step": 0}),
-                      codec.encode("DriveInputs", {"Step": 0, "MotorTorque": 50.0, "MotorSpeed": 500.0}),
-                      codec.encode("DriveTemps", {"Step": 0, "CoolantTemp": 40.0, "AmbientTemp": 25.0})):
+        for frame in frames:
             host_bus.send(frame)
         seen = []
-        deadline = time.monotonic() + 0.55
+        deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
             msg = host_bus.recv(0.05)
             if msg is not None:
@@ -324,6 +319,20 @@ def test_serve_on_a_virtual_bus_heartbeats_and_answers(make, lti):
         thread.join(2)
         target_bus.shutdown()
         host_bus.shutdown()
+    return seen
+
+
+def test_serve_on_a_virtual_bus_heartbeats_and_answers(make, lti):
+    node = make("lti")
+    codec = FrameCodec("HOST")
+    yoke, winding, tooth, magnet = INITIAL
+    seen = serve_and_listen(node, (
+        codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
+        codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
+        codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
+        codec.encode("Control", {"Command": int(Command.START), "Step": 0}),
+        codec.encode("DriveInputs", {"Step": 0, "MotorTorque": 50.0, "MotorSpeed": 500.0}),
+        codec.encode("DriveTemps", {"Step": 0, "CoolantTemp": 40.0, "AmbientTemp": 25.0})), 0.55)
     names = [f.name for f in seen]
     assert "Temperatures1" in names and "Temperatures2" in names
     cyclic = [f for f in seen if f.name == "Status"]

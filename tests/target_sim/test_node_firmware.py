@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import os
 import sys
-import threading
-import time
 from collections import Counter
 
 import can
@@ -22,9 +20,9 @@ from target_sim.artifact import load_artifact
 from target_sim.engines import make_node
 from target_sim.firmware import FirmwareError, FirmwareEstimator, memory_from_elf
 from target_sim.firmware.node_engine import FirmwareNode
-from target_sim.node import TargetNode, serve
+from target_sim.node import TargetNode
 
-from .test_node import INITIAL, Host, checkpoints_of, drive_rows
+from .test_node import INITIAL, Host, checkpoints_of, drive_rows, serve_and_listen
 from helpers import patched_elf
 
 UDF = b"\xfe\xde"     # Thumb UDF #0xFE: an undefined instruction
@@ -170,30 +168,11 @@ def test_an_emulator_fault_is_an_internal_fault_and_a_reset_recovers(artifacts, 
 def test_a_broken_elf_faults_on_the_bus_and_the_heartbeat_goes_on(artifacts, firmware_elf):
     artifact = load_artifact(artifacts["lti"])
     node = FirmwareNode(artifact, patched_elf(firmware_elf("lti"), "fw_step", UDF))
-    channel = f"node-fw-test-{time.monotonic_ns()}"
-    target_bus = can.Bus(interface="virtual", channel=channel)
-    host_bus = can.Bus(interface="virtual", channel=channel)
     errors: list[str] = []
-    stop = threading.Event()
-    thread = threading.Thread(target=serve, args=(node, target_bus, stop.is_set), kwargs={"on_error": errors.append},
-                              daemon=True)
-    thread.start()
-    try:
-        host = Host(node)
-        for frame in (*host_frames_reset(host), host.frame("Control", Command=int(Command.START), Step=0),
-                      *[f for step in range(3) for f in host.row_frames(step, (50.0, 500.0, 40.0, 25.0))]):
-            host_bus.send(frame)
-        seen = []
-        deadline = time.monotonic() + 0.6
-        while time.monotonic() < deadline:
-            msg = host_bus.recv(0.05)
-            if msg is not None:
-                seen.append(decode_any(msg))
-    finally:
-        stop.set()
-        thread.join(2)
-        target_bus.shutdown()
-        host_bus.shutdown()
+    host = Host(node)
+    seen = serve_and_listen(node, (*host_frames_reset(host), host.frame("Control", Command=int(Command.START), Step=0),
+                                   *[f for step in range(3) for f in host.row_frames(step, (50.0, 500.0, 40.0, 25.0))]),
+                            0.6, on_error=errors.append)
     states = [f.signals["State"] for f in seen if f.name == "Status"]
     assert states.count(TargetState.FAULT) >= 4           # the heartbeat goes on, in FAULT
     assert node.faults & FaultBit.INTERNAL and "undefined instruction" in node.last_error
