@@ -18,11 +18,22 @@ from typing import Any
 import numpy as np
 
 SCHEMA = "pmsm-thermal-bench.model-artifact"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+# Version 1 had loss maps only (no losses.model); it is read as "maps".
+READABLE_VERSIONS = (1, 2)
 MODEL_KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
 REALIZATIONS = ("physical", "original", "balanced", "modal")
 OUTPUTS = ("yoke", "winding", "tooth", "magnet")
 LOSS_TABLES = ("p_dc0", "p_ac0", "p_stator", "p_magnet", "current")
+# losses.model: "maps" (tables over torque × speed) or "electrical" (from the d/q currents and the speed)
+LOSS_MODELS = ("maps", "electrical")
+ELECTRICAL_COEFFICIENTS = ("pole_pairs", "stator_resistance_ohm", "ac_factor", "ac_reference_Hz",
+                           "iron_hysteresis_W", "iron_eddy_W", "iron_reference_Hz", "iron_current_factor",
+                           "magnet_W", "magnet_reference_Hz", "magnet_no_load_share")
+# What the target accumulates per data row, in this order: the drive inputs, and the d/q currents when the loss
+# model needs them (DBC DriveInputs, DriveTemps and DriveCurrents).
+DRIVE_SIGNALS = ("torque_Nm", "speed_rpm", "coolant_C", "ambient_C")
+CURRENT_SIGNALS = ("i_d_A", "i_q_A")
 LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
                    "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
 
@@ -117,6 +128,15 @@ class ModelArtifact:
     def data_sample_period(self) -> float:
         return float(self.content["timing"]["data_sample_period_s"])
 
+    @property
+    def loss_model(self) -> str:
+        return loss_model_of(self.content)
+
+    @property
+    def drive_signals(self) -> tuple[str, ...]:
+        """The per-row values the model needs, in accumulation order (4, or 6 with the d/q currents)."""
+        return DRIVE_SIGNALS + (CURRENT_SIGNALS if self.loss_model == "electrical" else ())
+
     def array(self, *keys: str, dtype=np.float32) -> np.ndarray:
         node = self.content
         for key in keys:
@@ -155,9 +175,10 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
         raise ArtifactError(f"this is not a model artifact (schema {_shown(content.get('schema'))}, expected "
                             f"{SCHEMA!r}); pass a file written by 'bench identify'")
     version = content.get("schema_version")
-    if type(version) is not int or version != SCHEMA_VERSION:
+    if type(version) is not int or version not in READABLE_VERSIONS:
         raise ArtifactError(f"artifact schema version {_shown(version)} is not supported "
-                            f"(this target runs version {SCHEMA_VERSION}); rebuild it with 'bench identify'")
+                            f"(this target runs versions {READABLE_VERSIONS[0]} to {READABLE_VERSIONS[-1]}); "
+                            "rebuild it with 'bench identify'")
     try:
         expected = hashlib.sha256(canonical_bytes(content)).hexdigest()
     except (TypeError, ValueError, RecursionError) as exc:  # NaN/Infinity, non-string keys, absurd nesting
@@ -174,6 +195,11 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
     if _require(content, "realization", str) not in REALIZATIONS:
         raise ArtifactError(f"artifact realization {_shown(content['realization'])} is not one of "
                             f"{', '.join(REALIZATIONS)}; rebuild it with 'bench identify'")
+    losses = _require(content, "losses", dict)
+    model = losses.get("model", "maps")
+    if model not in LOSS_MODELS or (version == 1 and "model" in losses):
+        raise ArtifactError(f"artifact losses.model {_shown(model)} is not one of {', '.join(LOSS_MODELS)}; "
+                            "rebuild it with 'bench identify'")
     timing = _require(content, "timing", dict)
     low, high = TIMING_RANGE_S
     for key in ("dt_s", "data_sample_period_s"):
@@ -193,7 +219,7 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
         if not np.all(np.isfinite(values)):
             raise ArtifactError(f"artifact field {where} holds a value that is not finite in float32; "
                                 "rebuild it with 'bench identify'")
-    for axis in ("torque_axis_Nm", "speed_axis_rpm"):
+    for axis in ("torque_axis_Nm", "speed_axis_rpm") if model == "maps" else ():
         steps = np.diff(artifact.array("losses", axis, dtype=np.float64))
         if not np.all(steps > 0) or not np.allclose(steps, steps[0], rtol=1e-6):
             raise ArtifactError(f"artifact field losses.{axis} is not an increasing, evenly spaced grid; "
@@ -224,9 +250,12 @@ def _array_fields(content: dict) -> list[tuple[str, ...]]:
     fields = [("linear_block", m) for m in ("A", "B", "C", "C_inv")] if content["model_kind"] != "pv-lptn" else []
     fields += [("lptn", "parameters", name) for name in LPTN_PARAMETERS]
     fields += [("lptn", "speed_max_rpm")]
-    fields += [("losses", k) for k in ("torque_axis_Nm", "speed_axis_rpm", "current_max_A", "alpha_cu_per_K",
-                                       "copper_reference_C")]
-    fields += [("losses", "tables", name) for name in LOSS_TABLES]
+    fields += [("losses", k) for k in ("current_max_A", "alpha_cu_per_K", "copper_reference_C")]
+    if loss_model_of(content) == "maps":
+        fields += [("losses", k) for k in ("torque_axis_Nm", "speed_axis_rpm")]
+        fields += [("losses", "tables", name) for name in LOSS_TABLES]
+    else:
+        fields += [("losses", k) for k in ELECTRICAL_COEFFICIENTS]
     if content["model_kind"] == "hammerstein":
         fields += [("input_nonlinearity", k) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")]
     for keys in fields:
@@ -236,6 +265,12 @@ def _array_fields(content: dict) -> list[tuple[str, ...]]:
                 raise ArtifactError(f"artifact is missing the field {'.'.join(keys)}; rebuild it with 'bench identify'")
             node = node[key]
     return fields
+
+
+def loss_model_of(content: dict) -> str:
+    """The artifact's loss model; version 1 artifacts (no losses.model) have loss maps."""
+    losses = content.get("losses")
+    return losses.get("model", "maps") if isinstance(losses, dict) else "maps"
 
 
 def load_artifact(path: str | Path) -> ModelArtifact:

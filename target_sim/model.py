@@ -27,7 +27,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from target_sim.artifact import LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
 from target_sim.fmath import exp_f32, matvec
 
 F32 = np.float32
@@ -71,6 +71,39 @@ class LossTables:
         return low + fi * (high - low)
 
 
+class ElectricalLosses:
+    """Losses from the d/q currents and the speed (artifact losses.model "electrical"), in float32 (C: not yet;
+    the firmware engine runs loss-map models only). Same formulas as bench.motor.losses.ElectricalLosses:
+    f = pp·|n|/60, I² = i_d² + i_q², p_dc0 = (1.5·R)·I², p_ac0 = p_dc0·(k_ac·(f/f_ac)²),
+    p_stator = (P_h·(f/f_fe) + P_e·(f/f_fe)²)·(1 + c_I·(I/I_max)²), p_magnet = (P_m·(f/f_m)²)·(c0 + (1 - c0)·I/I_max)²."""
+
+    def __init__(self, artifact: ModelArtifact, dtype=F32):
+        self.f = f = np.dtype(dtype).type
+        self.c = {name: artifact.array("losses", name, dtype=f)[()] for name in ELECTRICAL_COEFFICIENTS}
+        self.current_max = artifact.array("losses", "current_max_A", dtype=f)[()]
+        self.sqrt = np.sqrt
+
+    def lookup(self, speed, i_d, i_q) -> np.ndarray:
+        """[p_dc0, p_ac0, p_stator, p_magnet, current] at one operating point."""
+        c, f = self.c, self.f
+        one = f(1.0)
+        speed, i_d, i_q = f(speed), f(i_d), f(i_q)
+        freq = (c["pole_pairs"] * abs(speed)) / f(60.0)
+        i2 = i_d * i_d + i_q * i_q
+        current = self.sqrt(i2)
+        ratio = current / self.current_max
+        p_dc0 = (f(1.5) * c["stator_resistance_ohm"]) * i2
+        f_ac = freq / c["ac_reference_Hz"]
+        p_ac0 = p_dc0 * (c["ac_factor"] * (f_ac * f_ac))
+        f_fe = freq / c["iron_reference_Hz"]
+        p_stator = (c["iron_hysteresis_W"] * f_fe + c["iron_eddy_W"] * (f_fe * f_fe)) * (
+            one + c["iron_current_factor"] * (ratio * ratio))
+        f_m = freq / c["magnet_reference_Hz"]
+        m = c["magnet_no_load_share"] + (one - c["magnet_no_load_share"]) * ratio
+        p_magnet = (c["magnet_W"] * (f_m * f_m)) * (m * m)
+        return np.array([p_dc0, p_ac0, p_stator, p_magnet, current], dtype=f)
+
+
 class Float32Estimator:
     """The target's model: load once, `reset` with initial temperatures, then `step` every Δt.
 
@@ -89,7 +122,8 @@ class Float32Estimator:
         self.artifact = artifact
         self.kind = artifact.kind
         self.dt = f(artifact.dt)
-        self.luts = LossTables(artifact, f)
+        self.electrical = artifact.loss_model == "electrical"
+        self.luts = ElectricalLosses(artifact, f) if self.electrical else LossTables(artifact, f)
         self.p = p = {name: arr("lptn", "parameters", name)[()] for name in LPTN_PARAMETERS}
         self.speed_max = arr("lptn", "speed_max_rpm")[()]
         self.current_max = arr("losses", "current_max_A")[()]
@@ -119,9 +153,13 @@ class Float32Estimator:
         self.x = np.asarray(state, dtype=self.f).copy()
         self.y = self.x.copy() if self.kind == "pv-lptn" else matvec(self.c, self.x)
 
-    def node_losses(self, torque, speed) -> np.ndarray:
-        """[P_y, P_w, P_t, P_m] in W from the tables and the previous winding estimate (eqs. 3-8; C: node_losses)."""
-        p_dc0, p_ac0, p_stator, p_magnet, current = self.luts.lookup(torque, speed)
+    def node_losses(self, torque, speed, i_d=0.0, i_q=0.0) -> np.ndarray:
+        """[P_y, P_w, P_t, P_m] in W from the loss model and the previous winding estimate (eqs. 3-8; C:
+        node_losses)."""
+        if self.electrical:
+            p_dc0, p_ac0, p_stator, p_magnet, current = self.luts.lookup(speed, i_d, i_q)
+        else:
+            p_dc0, p_ac0, p_stator, p_magnet, current = self.luts.lookup(torque, speed)
         p, f, one = self.p, self.f, self.one
         factor = one + self.alpha_cu * (self.y[1] - self.copper_ref)                 # eqs. 3-5
         p_w = (p_dc0 * factor) + (p_ac0 / factor)
@@ -182,11 +220,12 @@ class Float32Estimator:
         b[:, 4:] = g[:, 4:] * inv_c[:, None]
         return a, b
 
-    def step(self, torque, speed, coolant, ambient) -> np.ndarray:
-        """One model step with the interval-mean inputs; returns [yoke, winding, tooth, magnet] in °C (C: fw_step).
+    def step(self, torque, speed, coolant, ambient, i_d=0.0, i_q=0.0) -> np.ndarray:
+        """One model step with the interval-mean inputs (the d/q currents only for an electrical loss model);
+        returns [yoke, winding, tooth, magnet] in °C (C: fw_step).
 
         LTI/Hammerstein: x <- (A x) + (B u) row by row, y = C x; PV LPTN: x <- x + Δt·((A x) + (B u))."""
-        losses = self.node_losses(torque, speed)
+        losses = self.node_losses(torque, speed, i_d, i_q)
         if self.kind == "hammerstein":
             losses = self.input_nonlinearity(losses)
         if self.kind == "pv-lptn":
@@ -208,10 +247,11 @@ class InputAccumulator:
     interval ends is integer row logic that stays here (and in the node). `accumulate`, `mean` and `clear` are the
     sum alone, the interface the model firmware offers too (`target_sim.firmware.FirmwareEstimator`)."""
 
-    def __init__(self, sample_period_s: float, dt_s: float):
+    def __init__(self, sample_period_s: float, dt_s: float, width: int = 4):
         self.sample_us = int(round(sample_period_s * 1e6))
         self.dt_us = int(round(dt_s * 1e6))
-        self.sum = np.zeros(4, dtype=F32)
+        self.width = width   # 4 drive values, 6 with the d/q currents
+        self.sum = np.zeros(width, dtype=F32)
         self.count = 0
 
     def model_step_of(self, row: int) -> int:
@@ -242,19 +282,25 @@ class InputAccumulator:
         return mean
 
     def clear(self) -> None:
-        self.sum = np.zeros(4, dtype=F32)
+        self.sum = np.zeros(self.width, dtype=F32)
         self.count = 0
 
 
 def run_offline(artifact: ModelArtifact, drive: np.ndarray, initial: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-    """The float32 reference over a whole dataset: drive is (rows, 4) [torque, speed, coolant, ambient].
+    """The float32 reference over a whole dataset: drive is (rows, 4) [torque, speed, coolant, ambient], or
+    (rows, 6) with [i_d, i_q] after them for an electrical loss model (`artifact.drive_signals`).
 
     Returns (rows_with_a_step, outputs): the row after which each model step ran and its (steps, 4) outputs,
     exactly what the target replies over CAN.
     """
     model = Float32Estimator(artifact)
     model.reset(initial)
-    acc = InputAccumulator(artifact.data_sample_period, artifact.dt)
+    width = len(artifact.drive_signals)
+    drive = np.asarray(drive)
+    if drive.ndim != 2 or drive.shape[1] != width:
+        raise ValueError(f"the {artifact.loss_model} loss model needs {width} drive columns "
+                         f"({', '.join(artifact.drive_signals)}), not {drive.shape}")
+    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width)
     rows, outputs = [], []
     for row, sample in enumerate(np.asarray(drive, dtype=F32)):
         inputs = acc.add(row, sample)

@@ -15,6 +15,13 @@ Schema (one header line, comma-separated, one row per sample, no blank lines in 
 | winding_C | °C | 0.1 | -40 .. 250 |
 | rotor_surface_C | °C | 0.1 | -40 .. 250 |
 | pm_C | °C | 0.1 | -40 .. 250 |
+| i_d_A, i_q_A (optional) | A | 0.1 | -3000 .. 3000 |
+| u_d_V, u_q_V (optional) | V | 0.1 | -2000 .. 2000 |
+| yoke_C, tooth_C (optional) | °C | 0.1 | -40 .. 250 |
+
+The optional columns are read when present: the d/q currents feed a motor whose loss model is "electrical"
+(bench.motor), the voltages are kept for the user's own use, and measured yoke and tooth temperatures are
+evaluated like winding and PM.
 
 pm_C is the PM reference, rotor_surface_C + 5 °C (paper section II-A). A user's file may carry either of the two;
 the loader then derives the other with the same 5 °C offset and records that in `Dataset.metadata["derived"]`.
@@ -73,7 +80,18 @@ SCHEMA: tuple[Column, ...] = (
     Column("pm_C", "°C", "temperature", 0.1, -40.0, 250.0, "PM reference = rotor surface + 5 °C", "%.1f"),
 )
 COLUMNS = tuple(c.name for c in SCHEMA)
-BY_NAME = {c.name: c for c in SCHEMA}
+OPTIONAL_SCHEMA: tuple[Column, ...] = (
+    Column("i_d_A", "A", "current", 0.1, -3000.0, 3000.0, "d-axis stator current (amplitude-invariant)", "%.1f"),
+    Column("i_q_A", "A", "current", 0.1, -3000.0, 3000.0, "q-axis stator current (amplitude-invariant)", "%.1f"),
+    Column("u_d_V", "V", "voltage", 0.1, -2000.0, 2000.0, "d-axis stator voltage", "%.1f"),
+    Column("u_q_V", "V", "voltage", 0.1, -2000.0, 2000.0, "q-axis stator voltage", "%.1f"),
+    Column("yoke_C", "°C", "temperature", 0.1, -40.0, 250.0, "stator yoke temperature", "%.1f"),
+    Column("tooth_C", "°C", "temperature", 0.1, -40.0, 250.0, "stator tooth temperature", "%.1f"),
+)
+OPTIONAL_COLUMNS = tuple(c.name for c in OPTIONAL_SCHEMA)
+# the measured temperatures a model's output can be compared with, by model output index
+MEASURED_NODES = {"winding": "winding_C", "pm": "pm_C", "yoke": "yoke_C", "tooth": "tooth_C"}
+BY_NAME = {c.name: c for c in (*SCHEMA, *OPTIONAL_SCHEMA)}
 
 # Source unit -> (scale, offset) so that schema value = value·scale + offset.
 UNITS: dict[str, dict[str, tuple[float, float]]] = {
@@ -84,6 +102,8 @@ UNITS: dict[str, dict[str, tuple[float, float]]] = {
     "temperature": {"°C": (1.0, 0.0), "C": (1.0, 0.0), "degC": (1.0, 0.0), "K": (1.0, -273.15),
                     "°F": (5.0 / 9.0, -32.0 * 5.0 / 9.0), "F": (5.0 / 9.0, -32.0 * 5.0 / 9.0),
                     "degF": (5.0 / 9.0, -32.0 * 5.0 / 9.0)},
+    "current": {"A": (1.0, 0.0), "kA": (1000.0, 0.0), "mA": (1e-3, 0.0)},
+    "voltage": {"V": (1.0, 0.0), "kV": (1000.0, 0.0), "mV": (1e-3, 0.0)},
 }
 
 
@@ -137,6 +157,20 @@ class Dataset:
     coolant_setpoint_C: float | None   # from the sidecar; None for a file without one
     sha256: str
     metadata: dict
+    i_d_A: np.ndarray | None = None
+    i_q_A: np.ndarray | None = None
+    u_d_V: np.ndarray | None = None
+    u_q_V: np.ndarray | None = None
+    yoke_C: np.ndarray | None = None
+    tooth_C: np.ndarray | None = None
+
+    def has(self, name: str) -> bool:
+        """Whether the file had (or the loader derived) this column; the required ones always."""
+        return name in BY_NAME and getattr(self, name) is not None
+
+    @property
+    def has_currents(self) -> bool:
+        return self.has("i_d_A") and self.has("i_q_A")
 
     @property
     def rows(self) -> int:
@@ -148,8 +182,11 @@ class Dataset:
 
     def column(self, name: str) -> np.ndarray:
         if name not in BY_NAME:
-            raise KeyError(f"unknown column {name!r}; the schema has {', '.join(COLUMNS)}")
-        return getattr(self, name)
+            raise KeyError(f"unknown column {name!r}; the schema has {', '.join(BY_NAME)}")
+        value = getattr(self, name)
+        if value is None:
+            raise KeyError(f"{self.path} has no column {name!r}")
+        return value
 
     def drive_inputs(self) -> np.ndarray:
         """(rows, 4): torque_Nm, speed_rpm, coolant_C, ambient_C, the estimator's measured inputs."""
@@ -182,11 +219,13 @@ def default_dataset_dir() -> Path:
 
 
 def csv_bytes(columns: Mapping[str, np.ndarray]) -> bytes:
-    """The CSV text of a dataset in schema order, '\\n' line ends, values at their resolution."""
-    fmt = ",".join(BY_NAME[c].fmt for c in COLUMNS)
-    data = np.column_stack([np.asarray(columns[c], dtype=float) for c in COLUMNS])
+    """The CSV text of a dataset in schema order (then the optional columns it has), '\\n' line ends, values at
+    their resolution."""
+    names = [*COLUMNS, *(c for c in OPTIONAL_COLUMNS if c in columns)]
+    fmt = ",".join(BY_NAME[c].fmt for c in names)
+    data = np.column_stack([np.asarray(columns[c], dtype=float) for c in names])
     out = io.StringIO()
-    out.write(",".join(COLUMNS) + "\n")
+    out.write(",".join(names) + "\n")
     np.savetxt(out, data, fmt=fmt, delimiter=",", newline="\n")
     return out.getvalue().encode("ascii")
 
@@ -198,7 +237,7 @@ def write_dataset(csv_path: Path, columns: Mapping[str, np.ndarray], sidecar: di
     write_bytes_atomically(csv_path, payload)
     meta = {**sidecar, "schema_version": SCHEMA_VERSION, "rows": len(columns["time_s"]), "sha256": sha,
             "columns": [{"name": c.name, "unit": c.unit, "resolution": c.resolution, "description": c.description}
-                        for c in SCHEMA]}
+                        for c in (*SCHEMA, *OPTIONAL_SCHEMA) if c.name in columns]}
     text = json.dumps(meta, indent=2, sort_keys=True, ensure_ascii=False) + "\n"
     write_bytes_atomically(sidecar_path(csv_path), text.encode("utf-8"))
     return sha
