@@ -11,7 +11,7 @@ from bench.errors import BenchError, UsageError
 from dbc.database import DbcError
 
 # Subcommand modules under bench.commands, in the order `bench --help` lists them.
-SUBCOMMANDS = ("numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "compare", "host",
+SUBCOMMANDS = ("motor", "numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "compare", "host",
                "firmware")
 
 

@@ -1,4 +1,12 @@
-"""`bench evaluate`: the Table 5 analogue (MSE, RMSE, NRMSE, LTI LPTN vs Hammerstein, float64 and float32)."""
+"""`bench evaluate`: accuracy of model artifacts on data.
+
+- `--data FILE…` (files or globs, read through `--mapping`): each model on each file, nothing refitted and no
+  training file needed: MSE, RMSE, NRMSE and max |error| per file and pooled, for winding and PM and every other
+  measured node, float64 and float32, beside the baselines the artifact records (coolant; a low-pass of the
+  copper loss fitted on the training files); `--plots DIR` draws one figure per file.
+- `--data DIR` (or nothing): the Table 5 analogue on the built-in motor's 40 °C run, LTI LPTN vs Hammerstein at
+  Δt 0.5-4 s (the Hammerstein model refitted at every Δt other than the artifact's).
+"""
 
 from __future__ import annotations
 
@@ -6,21 +14,36 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, choice_list, float_list, print_json
-from bench.errors import BenchError
+from bench.commands.common import (
+    add_data_arguments,
+    add_output_flags,
+    check_writable,
+    choice_list,
+    float_list,
+    print_json,
+)
+from bench.errors import BenchError, UsageError
 from bench.thermal.realizations import REALIZATIONS
+
+DEFAULT_DTS = [0.5, 1.0, 2.0, 4.0]
 
 
 def add_subparser(subparsers) -> None:
-    p = subparsers.add_parser("evaluate", help="accuracy of a model artifact on the 40 °C validation run",
-                              description=__doc__)
-    p.add_argument("--model", type=Path, default=None, help="hammerstein artifact (default: the packaged one)")
-    p.add_argument("--data", type=Path, default=None, help="directory with the three datasets (default out/data)")
-    p.add_argument("--dt", type=float_list, default=[0.5, 1.0, 2.0, 4.0], help="steps in s (default 0.5,1,2,4)")
+    p = subparsers.add_parser("evaluate", help="accuracy of model artifacts on data files (or the Table 5 analogue)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--model", type=Path, action="append", default=None,
+                   help="model artifact (repeat to compare several on --data files; default: the packaged "
+                        "hammerstein one)")
+    p.add_argument("--data", nargs="+", default=None, metavar="FILE",
+                   help="data files or globs to evaluate on; or one directory with the built-in motor's three "
+                        "datasets for the Table 5 analogue (default out/data)")
+    add_data_arguments(p)
+    p.add_argument("--dt", type=float_list, default=DEFAULT_DTS, help="Table 5: steps in s (default 0.5,1,2,4)")
     p.add_argument("--realization", choices=REALIZATIONS, default=None,
                    help="deployed realization for the float32 rows (default: the artifact's)")
     p.add_argument("--plots", type=Path, default=None,
-                   help="directory for the Figs. 6/7 analogues (original vs balanced realization in float32)")
+                   help="directory for the figures: one per data file, or with a directory the Figs. 6/7 analogues "
+                        "(original vs balanced realization in float32)")
     p.add_argument("--plot-realizations", type=choice_list(REALIZATIONS), default=["original", "balanced"],
                    help="realizations to plot (default original,balanced)")
     add_output_flags(p)
@@ -29,25 +52,108 @@ def add_subparser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.model.default import default_artifact_path
-    from bench.model.evaluate import hammerstein_models, realization_comparison, table5
-    from bench.model.pipeline import load_campaign
+
+    if args.plots:
+        check_writable(args.plots, "--plots", directory=True)
+    paths = args.model or [default_artifact_path()]
+    if args.data is not None and not (len(args.data) == 1 and Path(args.data[0]).is_dir()):
+        return run_on_files(args, [_load(p) for p in paths], paths)
+    if len(paths) > 1:
+        raise UsageError("the Table 5 analogue takes one --model; pass data files with --data to compare several")
+    if args.mapping is not None:
+        raise UsageError("--mapping applies to --data files, not to the built-in motor's dataset directory")
+    return run_table5(args, _load(paths[0]), paths[0], Path(args.data[0]) if args.data else None)
+
+
+def _load(path: Path):
     from target_sim.artifact import ArtifactError, load_artifact
 
-    model_path = args.model or default_artifact_path()
     try:
-        artifact = load_artifact(model_path)
+        return load_artifact(path)
     except ArtifactError as exc:
         raise BenchError(str(exc)) from None
+
+
+def run_on_files(args: argparse.Namespace, artifacts: list, paths: list[Path]) -> int:
+    from bench.commands.common import data_options
+    from bench.drive.files import expand_data_paths, load_datasets
+    from bench.model.fileeval import evaluate_files
+
+    if args.dt != DEFAULT_DTS or args.realization is not None:
+        raise UsageError("--dt and --realization belong to the Table 5 analogue (a dataset directory); on data "
+                         "files each model runs as its artifact says")
+    period = {a.data_sample_period for a in artifacts}
+    if len(period) > 1:
+        raise UsageError("the models expect different data sample periods; evaluate them one at a time")
+    mapping, given = data_options(args)
+    files = expand_data_paths(args.data, "--data")
+    datasets = load_datasets(files, mapping, given if given is not None else period.pop())
+    say = None if (args.quiet or args.json) else (lambda msg: print(msg, file=sys.stderr))
+    models, results = [], []
+    for artifact, path in zip(artifacts, paths, strict=True):
+        if say:
+            say(f"evaluating {path} on {len(datasets)} file(s)")
+        per_file, report = evaluate_files(artifact, datasets)
+        results.append(per_file)
+        models.append({"model": str(path), "sha256": artifact.sha256, "kind": artifact.kind,
+                       "loss_model": artifact.loss_model, "dt": artifact.dt,
+                       "motor": artifact.content.get("provenance", {}).get("motor", {}).get("name"), **report})
+    report = {"models": models}
+    if args.plots:
+        from bench.analysis.file_plots import file_figure
+
+        labels = [f"{m['kind']} ({Path(m['model']).name})" for m in models]
+        report["plots"] = [str(file_figure(d.name, [r[i] for r in results], labels, args.plots / f"{d.name}.png"))
+                           for i, d in enumerate(datasets)]
+    if args.json:
+        print_json(report)
+    else:
+        print_file_table(report)
+    return 0
+
+
+def print_file_table(report: dict) -> None:
+    head = f"{'file':24} {'estimator':28} {'node':8} {'prec':7} {'RMSE °C':>8} {'max|e| °C':>9} {'NRMSE':>7}"
+    for m in report["models"]:
+        print(f"model {m['model']} ({m['kind']}, {m['loss_model']} losses, Δt {m['dt']:g} s, "
+              f"sha256 {m['sha256'][:12]})")
+    print(head)
+    print("-" * len(head))
+    first = report["models"][0]
+    for index, file in enumerate([*first["files"], None]):
+        name = "pooled" if file is None else Path(file["file"]).name
+        for node in first["pooled"]["nodes"]:
+            for m in report["models"]:
+                block = m["pooled"] if file is None else m["files"][index]
+                for prec in ("float64", "float32"):
+                    _row(name, f"{m['kind']} ({Path(m['model']).stem})", node, prec, block["nodes"][node][prec])
+            block = first["pooled"] if file is None else first["files"][index]
+            for baseline, per_node in block["baselines"].items():
+                if node in per_node:
+                    _row(name, f"baseline: {baseline}", node, "float64", per_node[node])
+    worst = max(m["pooled"]["max_abs_f32_minus_f64_C"] for m in report["models"])
+    print(f"largest |float32 - float64|: {worst:.4g} °C")
+    for path in report.get("plots", []):
+        print(f"wrote {path}")
+
+
+def _row(name: str, estimator: str, node: str, prec: str, m: dict) -> None:
+    print(f"{name[:24]:24} {estimator[:28]:28} {node:8} {prec:7} {m['rmse']:8.4f} {m['max_abs']:9.3f} "
+          f"{m['nrmse']:7.4f}")
+
+
+def run_table5(args: argparse.Namespace, artifact, model_path: Path, data_dir: Path | None) -> int:
+    from bench.model.evaluate import hammerstein_models, realization_comparison, table5
+    from bench.model.pipeline import load_campaign
+
     if artifact.kind != "hammerstein":
         raise BenchError(f"{model_path} is a {artifact.kind} artifact; the comparison needs a hammerstein one "
                          "(pass one with --model)")
-    if args.plots:
-        check_writable(args.plots, "--plots", directory=True)
-    datasets = load_campaign(args.data)
+    datasets = load_campaign(data_dir)
     say = None if (args.quiet or args.json) else (lambda msg: print(msg, file=sys.stderr))
     models = hammerstein_models(artifact, datasets, args.dt, progress=say)
     rows = table5(artifact, datasets, models, args.realization or artifact.realization)
-    report = {"model": str(args.model or default_artifact_path()), "sha256": artifact.sha256,
+    report = {"model": str(model_path), "sha256": artifact.sha256,
               "validation": datasets[40].name, "rows": [r.as_dict() for r in rows]}
     if args.plots:
         from bench.analysis.model_plots import realization_figure

@@ -1,26 +1,52 @@
-"""`bench identify`: PSO LPTN + Levenberg-Marquardt Hammerstein on the 20 and 60 °C runs -> model artifacts."""
+"""`bench identify`: PSO LPTN + Levenberg-Marquardt Hammerstein -> model artifacts.
+
+Two ways to name the data: the built-in motor's campaign (`--data DIR` with cycle_coolant20/40/60.csv, trained
+on 20 and 60 °C, validated on 40 °C), or any motor's own files (`--motor FILE --train FILES… --validate FILES…`,
+each file its own run from its own initial state, globs allowed, read through `--mapping`).
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, print_json
-from bench.errors import UsageError
+from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
+from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.hammerstein_fit import FIT_PATHS
 from bench.thermal.realizations import REALIZATIONS
 
 KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
+DEFAULT_DT_S = 0.5
+# a model step must hold a whole number of data samples (the target averages the samples of each step)
+PERIOD_TOLERANCE = 1e-6
 
 
 def add_subparser(subparsers) -> None:
     p = subparsers.add_parser("identify", help="identify the LPTN and Hammerstein models and write artifacts",
-                              description=__doc__)
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--motor", type=Path, default=None,
+                   help="motor description (.json/.toml, see 'bench motor template'; default: the built-in virtual "
+                        "200 kW motor)")
     p.add_argument("--data", type=Path, default=None,
-                   help="directory with cycle_coolant20/40/60.csv (default out/data, generated if missing)")
-    p.add_argument("--dt", type=float, default=0.5, help="model step in s (default 0.5)")
+                   help="built-in motor only: directory with cycle_coolant20/40/60.csv (default out/data, generated "
+                        "if missing)")
+    p.add_argument("--train", nargs="+", default=None, metavar="FILE",
+                   help="training data files or globs (each file its own run)")
+    p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
+                   help="validation data files or globs (held out: used only for the reported figures)")
+    add_data_arguments(p)
+    prior = p.add_mutually_exclusive_group()
+    prior.add_argument("--bounds", default=None, metavar="LOW,HIGH",
+                       help="search capacitances and resistances within LOW..HIGH × the prior (default: the motor's "
+                            "thermal_prior bounds, 0.6,1.6 without one)")
+    prior.add_argument("--prior", type=Path, default=None,
+                       help="prior file (.json/.toml: 'parameters' = a set name or all 22 values, optional 'bounds'); "
+                            "default: the motor's thermal_prior, else Table 1")
+    p.add_argument("--dt", type=float, default=None,
+                   help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
     p.add_argument("--kind", choices=KINDS, default="hammerstein", help="model kind of --out")
     p.add_argument("--realization", choices=REALIZATIONS, default="balanced",
@@ -38,36 +64,110 @@ def add_subparser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.model.pipeline import identify_from_directory, validation_metrics
+    from bench.model.identify import identify
+    from bench.model.pipeline import validation_metrics
+    from bench.motor.description import default_motor, load_motor, load_prior, parse_bounds
 
-    if not 0 < args.dt < float("inf") or args.swarm < 2 or args.iterations < 1 or args.lm_iterations < 1:
-        raise UsageError("--dt must be positive, --swarm at least 2 and the iteration counts at least 1")
+    if args.dt is not None and not 0 < args.dt < math.inf:
+        raise UsageError("--dt must be a positive number of seconds")
+    if args.swarm < 2 or args.iterations < 1 or args.lm_iterations < 1:
+        raise UsageError("--swarm must be at least 2 and the iteration counts at least 1")
+    motor = load_motor(args.motor) if args.motor else default_motor()
+    prior = load_prior(args.prior) if args.prior else None
+    width = parse_bounds(args.bounds, "--bounds") if args.bounds else None
     kinds = KINDS if args.all_kinds else (args.kind,)
     outputs = {kind: args.out if kind == args.kind else args.out.with_name(f"{args.out.stem}-{kind}.json")
                for kind in kinds}
     for path in outputs.values():  # before the identification, not after it
         check_writable(path, "--out")
+    train, validate = _split(args, motor)
+    dt = _model_step(args.dt, train + validate)
     progress = None if (args.quiet or args.json) else _progress_bar()
-    result, datasets = identify_from_directory(args.data, dt=args.dt, swarm_size=args.swarm,
-                                               pso_iterations=args.iterations, lm_iterations=args.lm_iterations,
-                                               seed=args.seed, fit_path=args.fit_path, progress=progress)
-    metrics = validation_metrics(result, datasets, args.realization)
+    result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
+                      lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
+                      prior=prior, width=width, progress=progress)
+    metrics = validation_metrics(result, validate, args.realization)
     written = {}
     for kind, path in outputs.items():
         realization = args.realization if kind != "pv-lptn" else "physical"
         write_text_atomically(path, _artifact_text(result.content(kind, realization, metrics)))
         written[kind] = str(path)
-    summary = {"artifacts": written, "dt": args.dt, "fit_path": args.fit_path, "realization": args.realization,
-               "lptn_parameters": result.lptn.params.as_dict(), "pso_cost": result.lptn.cost,
-               "pso_history": result.lptn.history, "lm": {"rms_initial": result.hammerstein.cost_initial,
-                                                          "rms_final": result.hammerstein.cost_final,
-                                                          "evaluations": result.hammerstein.evaluations},
-               "timings_s": result.timings_s, "validation": metrics}
+    warnings = [_bound_warning(hit) for hit in result.lptn.on_bounds]
+    summary = {"artifacts": written, "motor": motor.name, "loss_model": motor.loss_kind, "dt": dt,
+               "data_sample_period_s": result.data_sample_period_s, "split": result.provenance["split"],
+               "fit_path": args.fit_path, "realization": args.realization,
+               "prior": result.provenance["pso"]["prior"], "bounds": result.provenance["pso"]["bounds"],
+               "lptn_parameters": result.lptn.params.as_dict(), "parameters_on_bounds": result.lptn.on_bounds,
+               "pso_cost": result.lptn.cost, "pso_history": result.lptn.history,
+               "lm": {"rms_initial": result.hammerstein.cost_initial, "rms_final": result.hammerstein.cost_final,
+                      "evaluations": result.hammerstein.evaluations},
+               "baselines": result.provenance["baselines"], "timings_s": result.timings_s, "validation": metrics,
+               "warnings": warnings}
+    if not args.quiet:
+        for warning in warnings:
+            print(f"bench: warning: {warning}", file=sys.stderr)
     if args.json:
         print_json(summary)
     else:
         _print_summary(summary)
     return 0
+
+
+def _split(args: argparse.Namespace, motor) -> tuple[list, list]:
+    """(training, validation) datasets from --train/--validate, or the built-in campaign from --data."""
+    from bench.commands.common import data_options
+    from bench.drive.files import expand_data_paths, load_datasets
+
+    if args.train is None and args.validate is None:
+        if args.motor is not None:
+            raise UsageError("with --motor, name the data with --train FILE… and --validate FILE…")
+        if args.mapping is not None:
+            raise UsageError("--mapping applies to --train/--validate files, not to the built-in --data directory")
+        from bench.model.identify import IDENTIFICATION_COOLANTS, VALIDATION_COOLANT
+        from bench.model.pipeline import load_campaign
+
+        datasets = load_campaign(args.data)
+        return [datasets[c] for c in IDENTIFICATION_COOLANTS], [datasets[VALIDATION_COOLANT]]
+    if args.data is not None:
+        raise UsageError("give either --data DIR (the built-in campaign) or --train/--validate files, not both")
+    if not args.train or not args.validate:
+        missing = "--validate" if args.train else "--train"
+        raise UsageError(f"{missing} is missing: name both the training and the held-out validation files")
+    train_paths = expand_data_paths(args.train, "--train")
+    validate_paths = expand_data_paths(args.validate, "--validate")
+    both = sorted({p.resolve() for p in train_paths} & {p.resolve() for p in validate_paths})
+    if both:
+        raise UsageError(f"{both[0]} is in both --train and --validate; a held-out file must not be trained on")
+    mapping, period = data_options(args)
+    train = load_datasets(train_paths, mapping, period)
+    validate = load_datasets(validate_paths, mapping, period)
+    if motor.needs_currents:
+        for dataset in train + validate:
+            if not dataset.has_currents:
+                raise BenchError(f"{dataset.path} has no d/q current columns (i_d_A, i_q_A), which the electrical "
+                                 f"loss model of motor {motor.name!r} needs; map them with --mapping")
+    return train, validate
+
+
+def _model_step(dt: float | None, datasets) -> float:
+    """--dt, or the default; checked against the data: one sample period for all files, whole samples per step."""
+    period = datasets[0].sample_period_s
+    for dataset in datasets[1:]:
+        if abs(dataset.sample_period_s - period) > PERIOD_TOLERANCE * period:
+            raise BenchError(f"{dataset.path} is sampled every {dataset.sample_period_s:g} s, {datasets[0].path} "
+                             f"every {period:g} s; resample the files to one period")
+    if dt is None:
+        dt = DEFAULT_DT_S if DEFAULT_DT_S >= period else period
+    samples = dt / period
+    if samples < 1 - PERIOD_TOLERANCE or abs(samples - round(samples)) > PERIOD_TOLERANCE:
+        raise UsageError(f"--dt {dt:g} s is not a whole number of the data's {period:g} s sample period; "
+                         f"choose a multiple of {period:g} s")
+    return dt
+
+
+def _bound_warning(hit: dict) -> str:
+    return (f"LPTN parameter {hit['name']} = {hit['value']:.6g} ended on its {hit['bound']} bound "
+            f"({hit['limit']:.6g}); the prior or the bounds may be off (widen --bounds or give a --prior)")
 
 
 def _artifact_text(content: dict) -> str:
@@ -94,12 +194,16 @@ def _progress_bar():
 
 
 def _print_summary(s: dict) -> None:
+    print(f"motor {s['motor']} ({s['loss_model']} losses), Δt {s['dt']:g} s; trained on "
+          f"{len(s['split']['train'])} file(s), validated on {len(s['split']['validate'])}")
     print(f"PSO {s['timings_s']['pso']:.1f} s (cost {s['pso_cost']:.4f}), "
           f"LM {s['timings_s']['lm']:.1f} s (RMS {s['lm']['rms_initial']:.3f} -> {s['lm']['rms_final']:.3f} °C)")
-    print("validation (40 °C), RMSE °C:")
+    print("validation (held-out files together), RMSE / max |error| °C:")
     for model, m in s["validation"].items():
         for prec in ("float64", "float32"):
-            print(f"  {model:12} {prec}  winding {m[prec]['winding']['rmse']:.4f}   PM {m[prec]['pm']['rmse']:.4f}")
+            w, pm = m[prec]["winding"], m[prec]["pm"]
+            print(f"  {model:12} {prec}  winding {w['rmse']:.4f} / {w['max_abs']:.3f}   "
+                  f"PM {pm['rmse']:.4f} / {pm['max_abs']:.3f}")
         print(f"  {model:12} largest |float32 - float64|: {m['max_abs_f32_minus_f64_C']:.4g} °C")
     for kind, path in s["artifacts"].items():
         print(f"wrote {kind} artifact {path}")

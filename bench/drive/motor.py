@@ -18,6 +18,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from bench.motor.losses import MAP_TABLES, LossMaps  # noqa: F401  (re-exported: the maps are the motor's)
+
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 
 
@@ -102,62 +104,6 @@ def parametric_losses(spec: MotorSpec, torque, speed_rpm, magnet_flux=1.0) -> di
     c0 = spec.magnet_no_load_share
     p_magnet = spec.magnet_W * w * w * (c0 * magnet_flux + (1 - c0) * current / spec.i_max_A) ** 2
     return {"p_dc0": p_dc0, "p_ac0": p_ac0, "p_stator": p_stator, "p_magnet": p_magnet, "current": current}
-
-
-MAP_TABLES = ("p_dc0", "p_ac0", "p_stator", "p_magnet", "current")
-
-
-@dataclass(frozen=True, eq=False)
-class LossMaps:
-    """Look-up tables over a regular (torque, speed) grid; tables are indexed [torque, speed].
-
-    p_dc0, p_ac0: copper losses at ϑ_ref (W); p_stator: iron losses, yoke + tooth (W); p_magnet (W);
-    current: phase current amplitude (A).
-    """
-
-    torque_Nm: np.ndarray
-    speed_rpm: np.ndarray
-    tables: dict[str, np.ndarray]
-
-    def __post_init__(self) -> None:
-        shape = (len(self.torque_Nm), len(self.speed_rpm))
-        if set(self.tables) != set(MAP_TABLES):
-            raise ValueError(f"loss maps need the tables {', '.join(MAP_TABLES)}")
-        for name, table in self.tables.items():
-            if np.shape(table) != shape:
-                raise ValueError(f"table {name} has shape {np.shape(table)}, the grid is {shape}")
-        for axis in (self.torque_Nm, self.speed_rpm):
-            if len(axis) < 2 or np.any(np.diff(axis) <= 0):
-                raise ValueError("loss-map axes must be strictly increasing with at least two points")
-
-    def evaluate(self, torque, speed_rpm) -> dict[str, np.ndarray]:
-        """Bilinear interpolation of every table, vectorized; points outside the grid are clamped to it."""
-        tq, sp = np.broadcast_arrays(np.asarray(torque, dtype=float), np.asarray(speed_rpm, dtype=float))
-        i, fi = _cell(self.torque_Nm, tq)
-        j, fj = _cell(self.speed_rpm, sp)
-        out = {}
-        for name, t in self.tables.items():
-            low = t[i, j] * (1 - fj) + t[i, j + 1] * fj
-            high = t[i + 1, j] * (1 - fj) + t[i + 1, j + 1] * fj
-            out[name] = low * (1 - fi) + high * fi
-        return out
-
-    def to_dict(self) -> dict:
-        """Plain lists, for the model artifact (JSON)."""
-        return {"torque_Nm": self.torque_Nm.tolist(), "speed_rpm": self.speed_rpm.tolist(),
-                "tables": {k: np.asarray(self.tables[k]).tolist() for k in MAP_TABLES}}
-
-    @classmethod
-    def from_dict(cls, data: dict) -> LossMaps:
-        return cls(np.asarray(data["torque_Nm"], dtype=float), np.asarray(data["speed_rpm"], dtype=float),
-                   {k: np.asarray(data["tables"][k], dtype=float) for k in MAP_TABLES})
-
-
-def _cell(axis: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index of the grid cell holding x (clamped) and the fraction across it."""
-    x = np.clip(x, axis[0], axis[-1])
-    i = np.clip(np.searchsorted(axis, x, side="right") - 1, 0, len(axis) - 2)
-    return i, (x - axis[i]) / (axis[i + 1] - axis[i])
 
 
 def nominal_loss_maps(spec: MotorSpec = VIRTUAL_MOTOR, torque_points: int = 21, speed_points: int = 16) -> LossMaps:

@@ -7,13 +7,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.drive.dataset import Dataset
-from bench.drive.motor import LossMaps, MotorSpec
+from bench.drive.motor import LossMaps
 from bench.model.identify import winding_pm_metrics
 from bench.model.runs import ModelRun, drive_matrix, model_run
+from bench.motor.losses import ElectricalLosses, LossModel, MotorConstants
 from bench.thermal.estimator import loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
 from bench.thermal.parameters import LptnParameters
-from target_sim.artifact import LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
 from target_sim.model import Float32Estimator, run_offline
 
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
@@ -24,14 +25,21 @@ def artifact_parameters(artifact: ModelArtifact) -> LptnParameters:
                              LPTN_PARAMETERS})
 
 
-def artifact_loss_maps(artifact: ModelArtifact) -> tuple[LossMaps, MotorSpec]:
-    """The artifact's tables as LossMaps, and a MotorSpec carrying its I_max and n_max (float64 values)."""
-    f64 = np.float64
-    maps = LossMaps(artifact.array("losses", "torque_axis_Nm", dtype=f64),
-                    artifact.array("losses", "speed_axis_rpm", dtype=f64),
-                    {n: artifact.array("losses", "tables", n, dtype=f64) for n in LOSS_TABLES})
-    motor = MotorSpec(i_max_A=float(artifact.array("losses", "current_max_A", dtype=f64)),
-                      max_speed_rpm=float(artifact.array("lptn", "speed_max_rpm", dtype=f64)))
+def artifact_loss_model(artifact: ModelArtifact) -> tuple[LossModel, MotorConstants]:
+    """The artifact's loss model (LossMaps or ElectricalLosses) and motor constants, from its float64 values."""
+    def f64(*keys):
+        return artifact.array(*keys, dtype=np.float64)
+
+    motor = MotorConstants(i_max_A=float(f64("losses", "current_max_A")),
+                           max_speed_rpm=float(f64("lptn", "speed_max_rpm")),
+                           alpha_cu_per_K=float(f64("losses", "alpha_cu_per_K")),
+                           reference_C=float(f64("losses", "copper_reference_C")))
+    if artifact.loss_model == "electrical":
+        model = ElectricalLosses(**{n: float(f64("losses", n)) for n in ELECTRICAL_COEFFICIENTS},
+                                 current_max_A=motor.i_max_A)
+        return model, motor
+    maps = LossMaps(f64("losses", "torque_axis_Nm"), f64("losses", "speed_axis_rpm"),
+                    {n: f64("losses", "tables", n) for n in LOSS_TABLES})
     return maps, motor
 
 
@@ -44,7 +52,7 @@ def float64_estimate(artifact: ModelArtifact, dataset: Dataset, run: ModelRun) -
     if artifact.kind == "pv-lptn":
         model = Float32Estimator(artifact, dtype=np.float64)
         model.reset(run.initial)
-        means = interval_means(drive_matrix(dataset), artifact.data_sample_period, artifact.dt)
+        means = interval_means(artifact_drive(artifact, dataset), artifact.data_sample_period, artifact.dt)
         return np.array([model.step(*row) for row in means])
     f64 = np.float64
     a, b, c = (artifact.array("linear_block", m, dtype=f64) for m in ("A", "B", "C"))
@@ -70,11 +78,16 @@ class ArtifactEvaluation:
         return float(np.max(diff)) if np.all(np.isfinite(diff)) else float("inf")
 
 
+def artifact_drive(artifact: ModelArtifact, dataset: Dataset) -> np.ndarray:
+    """The dataset's rows as the target receives them for this artifact (with the currents if it needs them)."""
+    return drive_matrix(dataset, with_currents=artifact.loss_model == "electrical")
+
+
 def evaluate_artifact(artifact: ModelArtifact, dataset: Dataset) -> ArtifactEvaluation:
-    maps, motor = artifact_loss_maps(artifact)
-    run = model_run(dataset, maps, motor, artifact.dt, name=dataset.name)
+    loss_model, motor = artifact_loss_model(artifact)
+    run = model_run(dataset, loss_model, motor, artifact.dt, name=dataset.name)
     y64 = float64_estimate(artifact, dataset, run)
-    _, y32 = run_offline(artifact, drive_matrix(dataset), run.initial)
+    _, y32 = run_offline(artifact, artifact_drive(artifact, dataset), run.initial)
     y32 = y32.astype(np.float64)
     with np.errstate(over="ignore", invalid="ignore"):
         metrics = {"float64": winding_pm_metrics(y64, run), "float32": winding_pm_metrics(y32, run)}

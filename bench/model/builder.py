@@ -8,11 +8,10 @@ from typing import Any
 
 import numpy as np
 
-from bench.drive.motor import LossMaps, MotorSpec
+from bench.motor.losses import EstimatorMotor, LossModel
 from bench.thermal.discretize import discretize
-from bench.thermal.losses import COPPER_REFERENCE_C
 from bench.thermal.lptn import lti_matrices
-from bench.thermal.parameters import ALPHA_CU_PER_K, LptnParameters
+from bench.thermal.parameters import LptnParameters
 from bench.thermal.portable import inv
 from bench.thermal.realizations import Realization, condition_number, physical, realize
 from target_sim import artifact as schema
@@ -52,8 +51,8 @@ class ModelSpec:
     dt: float
     discretization: str                # zoh | tustin (euler for pv-lptn)
     realization: str
-    loss_maps: LossMaps
-    motor: MotorSpec
+    loss_maps: LossModel               # LossMaps or ElectricalLosses (bench.motor.losses)
+    motor: EstimatorMotor              # I_max, n_max and the copper coefficients (a MotorSpec is one)
     data_sample_period_s: float = 0.2
     sigmoid: SigmoidInputs | None = None
     linear_block: Realization | None = None   # the fitted block in physical coordinates (default: the LPTN)
@@ -93,12 +92,7 @@ def artifact_content(spec: ModelSpec) -> dict[str, Any]:
                                  "last sample of the interval"},
         "lptn": {"parameters": {k: enc(v) for k, v in spec.params.as_dict().items()},
                  "speed_max_rpm": enc(spec.motor.max_speed_rpm)},
-        "losses": {
-            "torque_axis_Nm": enc(spec.loss_maps.torque_Nm), "speed_axis_rpm": enc(spec.loss_maps.speed_rpm),
-            "tables": {name: enc(spec.loss_maps.tables[name]) for name in schema.LOSS_TABLES},
-            "current_max_A": enc(spec.motor.i_max_A), "alpha_cu_per_K": enc(ALPHA_CU_PER_K),
-            "copper_reference_C": enc(COPPER_REFERENCE_C),
-        },
+        "losses": losses_section(spec.loss_maps, spec.motor),
         "initial_state": {"rule": "x0 = C_inv @ y0 with y0 = [yoke, winding, tooth, magnet] from the RESET frames; "
                                   "the host sends the first measured coolant temperature for yoke and tooth and the "
                                   "first measured winding and PM temperatures"},
@@ -118,6 +112,21 @@ def artifact_content(spec: ModelSpec) -> dict[str, Any]:
             "kind": "sigmoidnet-1", "inputs": ["P_y", "P_w", "P_t", "P_m"],
             **{k: enc(getattr(s, k)) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")}}
     return content
+
+
+def losses_section(loss_model: LossModel, motor: EstimatorMotor) -> dict[str, Any]:
+    """The artifact's `losses`: the loss model (tables or electrical coefficients) and the copper constants."""
+    enc = schema.encode_array
+    section: dict[str, Any] = {"model": loss_model.kind}
+    if loss_model.kind == "maps":
+        section.update({"torque_axis_Nm": enc(loss_model.torque_Nm), "speed_axis_rpm": enc(loss_model.speed_rpm),
+                        "tables": {name: enc(loss_model.tables[name]) for name in schema.LOSS_TABLES}})
+    else:
+        coefficients = loss_model.coefficients()
+        section.update({name: enc(coefficients[name]) for name in schema.ELECTRICAL_COEFFICIENTS})
+    section.update({"current_max_A": enc(motor.i_max_A), "alpha_cu_per_K": enc(motor.alpha_cu_per_K),
+                    "copper_reference_C": enc(motor.reference_C)})
+    return section
 
 
 def build_artifact(spec: ModelSpec) -> dict[str, Any]:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.drive.dataset import Dataset
-from bench.model.artifact_eval import ArtifactEvaluation, artifact_loss_maps, artifact_parameters, evaluate_artifact
+from bench.model.artifact_eval import ArtifactEvaluation, artifact_loss_model, artifact_parameters, evaluate_artifact
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.hammerstein_fit import fit_hammerstein
 from bench.model.identify import IDENTIFICATION_COOLANTS, VALIDATION_COOLANT, prepare_runs
@@ -53,7 +53,7 @@ class Table5Row:
 
 def spec_at(artifact: ModelArtifact, kind: str, dt: float, realization: str, block: Realization | None = None,
             sigmoid: SigmoidInputs | None = None) -> ModelSpec:
-    maps, motor = artifact_loss_maps(artifact)
+    maps, motor = artifact_loss_model(artifact)
     return ModelSpec(kind, artifact_parameters(artifact), dt, "zoh", realization, maps, motor,
                      data_sample_period_s=artifact.data_sample_period, sigmoid=sigmoid, linear_block=block,
                      provenance={"derived_from": artifact.sha256})
@@ -73,7 +73,7 @@ def hammerstein_models(artifact: ModelArtifact, datasets: dict[int, Dataset], dt
             continue
         if progress:
             progress(f"refitting the Hammerstein model at dt = {dt:g} s")
-        maps, motor = artifact_loss_maps(artifact)
+        maps, motor = artifact_loss_model(artifact)
         runs = prepare_runs([datasets[c] for c in IDENTIFICATION_COOLANTS], maps, motor, dt)
         base = physical_block(spec_at(artifact, "lti-lptn", dt, "physical"))
         fit = fit_hammerstein(base, artifact_parameters(artifact), runs)

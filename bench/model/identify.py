@@ -9,14 +9,16 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.drive.motor import VIRTUAL_MOTOR, LossMaps, MotorSpec, nominal_loss_maps
+from bench.model.baselines import fit_baselines
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.hammerstein_fit import HammersteinFit, fit_hammerstein
-from bench.model.lptn_fit import LptnFit, identify_lptn
+from bench.model.lptn_fit import DEFAULT_WIDTH, LptnFit, identify_lptn
 from bench.model.metrics import error_metrics
 from bench.model.runs import ModelRun, model_run
+from bench.motor.description import MotorDescription, ThermalPrior, default_motor
+from bench.motor.losses import EstimatorMotor, LossModel
 from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
-from bench.thermal.parameters import LptnParameters
+from bench.thermal.parameters import TABLE1, LptnParameters
 from bench.thermal.realizations import Realization
 
 IDENTIFICATION_COOLANTS = (20, 60)
@@ -31,13 +33,15 @@ class Identification:
     discretization: str
     lptn: LptnFit
     hammerstein: HammersteinFit
-    loss_maps: LossMaps
-    motor: MotorSpec
+    loss_model: LossModel
+    motor: EstimatorMotor
     provenance: dict
+    data_sample_period_s: float = 0.2
     timings_s: dict = field(default_factory=dict)
 
     def spec(self, kind: str, realization: str = "balanced", metrics: dict | None = None) -> ModelSpec:
-        common = {"params": self.lptn.params, "dt": self.dt, "loss_maps": self.loss_maps, "motor": self.motor,
+        common = {"params": self.lptn.params, "dt": self.dt, "loss_maps": self.loss_model, "motor": self.motor,
+                  "data_sample_period_s": self.data_sample_period_s,
                   "provenance": self.provenance, "metrics": metrics or {}}
         if kind == "hammerstein":
             return ModelSpec("hammerstein", discretization=self.discretization, realization=realization,
@@ -51,38 +55,58 @@ class Identification:
         return artifact_content(self.spec(kind, realization, metrics))
 
 
-def prepare_runs(datasets, loss_maps: LossMaps, motor: MotorSpec, dt: float) -> list[ModelRun]:
-    return [model_run(d, loss_maps, motor, dt, name=str(d.path)) for d in datasets]
+def prepare_runs(datasets, loss_model: LossModel, motor: EstimatorMotor, dt: float) -> list[ModelRun]:
+    """One run per dataset, each with its own initial state (files are never joined)."""
+    return [model_run(d, loss_model, motor, dt, name=str(d.path)) for d in datasets]
 
 
 def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_size: int = 220,
              pso_iterations: int = 100, lm_iterations: int = 100, seed: int = 0, fit_path: str = "statespace",
-             motor: MotorSpec = VIRTUAL_MOTOR, progress: Callable[[str, int, float], None] | None = None
-             ) -> Identification:
-    """Identify the LPTN (PSO) and the Hammerstein model (LM) on the identification datasets."""
+             motor: MotorDescription | None = None, prior: ThermalPrior | None = None,
+             width: tuple[float, float] | None = None, validation=(),
+             progress: Callable[[str, int, float], None] | None = None) -> Identification:
+    """Identify the LPTN (PSO) and the Hammerstein model (LM) on the training datasets of `motor` (default: the
+    built-in virtual motor). The prior and bounds: `prior`, else the motor's thermal_prior, else Table 1 at
+    0.6-1.6; `width` overrides the prior's bounds. `validation` datasets are only recorded in the provenance."""
     if discretization != "zoh":
         raise ValueError("identification discretizes by zero-order hold, as the paper's Hammerstein fit did")
-    loss_maps = nominal_loss_maps(motor)
-    runs = prepare_runs(datasets, loss_maps, motor, dt)
+    motor = motor or default_motor()
+    prior = prior or motor.prior
+    start = prior.parameters if prior else TABLE1
+    width = width or (prior.bounds if prior else DEFAULT_WIDTH)
+    constants = motor.constants()
+    runs = prepare_runs(datasets, motor.loss_model, constants, dt)
     timings = {}
     started = time.perf_counter()
-    lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed,
-                         on_iteration=(lambda i, c: progress("pso", i, c)) if progress else None)
+    lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
+                         width=width, on_iteration=(lambda i, c: progress("pso", i, c)) if progress else None)
     timings["pso"] = time.perf_counter() - started
     started = time.perf_counter()
-    base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", loss_maps, motor))
+    base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", motor.loss_model,
+                                    constants))
     ham = fit_hammerstein(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
                           on_iteration=(lambda i, c: progress("lm", i, c)) if progress else None)
     timings["lm"] = time.perf_counter() - started
     provenance = {
-        "datasets": [{"path": Path(d.path).name, "sha256": d.sha256,
-                      "coolant_C": getattr(d, "coolant_setpoint_C", None)} for d in datasets],
+        "motor": motor.provenance(),
+        "split": {"train": [_file_record(d) for d in datasets], "validate": [_file_record(d) for d in validation]},
         "seed": seed, "pso": {"swarm": swarm_size, "iterations": pso_iterations, "cost": "sum of log MSE "
-                              "(winding, PM): Gaussian maximum likelihood with unknown variances"},
+                              "(winding, PM): Gaussian maximum likelihood with unknown variances",
+                              "prior": prior.source if prior else "table1", "bounds": list(width),
+                              "on_bounds": lptn.on_bounds},
         "lm": {"iterations": lm_iterations, "path": fit_path, "coordinates": ham.coordinates},
+        "baselines": fit_baselines(runs),
         "versions": _versions(),
     }
-    return Identification(dt, discretization, lptn, ham, loss_maps, motor, provenance, timings)
+    period = datasets[0].sample_period_s
+    return Identification(dt, discretization, lptn, ham, motor.loss_model, constants, provenance, period, timings)
+
+
+def _file_record(dataset) -> dict:
+    record = {"file": Path(dataset.path).name, "sha256": dataset.sha256, "rows": dataset.rows}
+    if getattr(dataset, "coolant_setpoint_C", None) is not None:
+        record["coolant_C"] = dataset.coolant_setpoint_C
+    return record
 
 
 def _versions() -> dict:

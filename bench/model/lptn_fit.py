@@ -20,23 +20,38 @@ from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
 from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import TABLE1, LptnParameters
 
-# (lower, upper) of every parameter; positive ones searched on a log scale between them. Capacitances and
-# resistances may move by a factor 0.6-1.6 around Table 1: the prior a machine designer has from geometry and
-# materials. Wider bounds let the swarm distort the network until it absorbs loss-map errors, which hides them
-# instead of fixing them (that is the Hammerstein nonlinearity's job).
-_WIDTH = (0.6, 1.6)
-BOUNDS: dict[str, tuple[float, float]] = {
-    **{n: (TABLE1.as_dict()[n] * _WIDTH[0], TABLE1.as_dict()[n] * _WIDTH[1])
-       for n in ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm",
-                 "R_tm0", "a_tm", "b_tm", "R_ma0", "a_ma")},
-    "b_ma": (-0.176 * _WIDTH[1], -0.176 * _WIDTH[0]),
-    "alpha_cy": (-0.02, 0.0),
-    "k_0": (0.6, 0.95), "k_1": (-0.2, 0.05), "k_2": (-0.1, 0.1), "k_3": (-0.25, 0.0),
-}
-LOG_SCALED = tuple(n for n, (lo, _) in BOUNDS.items() if lo > 0)
+# Capacitances, resistances and the convection exponents may move by a factor around the prior (Table 1 for the
+# built-in motor, a motor file's thermal_prior, or --prior): 0.6-1.6 by default, the prior a machine designer has
+# from geometry and materials. Wider bounds let the swarm distort the network until it absorbs loss-map errors,
+# which hides them instead of fixing them (that is the Hammerstein nonlinearity's job). The coolant coefficient
+# and the stator split (eq. 8) have fixed physical bounds.
+DEFAULT_WIDTH = (0.6, 1.6)
+SCALED = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0", "a_tm",
+          "b_tm", "R_ma0", "a_ma", "b_ma")
+FIXED_BOUNDS = {"alpha_cy": (-0.02, 0.0), "k_0": (0.6, 0.95), "k_1": (-0.2, 0.05), "k_2": (-0.1, 0.1),
+                "k_3": (-0.25, 0.0)}
 
 
-def to_search(values: np.ndarray) -> np.ndarray:
+def parameter_bounds(prior: LptnParameters = TABLE1, width: tuple[float, float] = DEFAULT_WIDTH
+                     ) -> dict[str, tuple[float, float]]:
+    """(lower, upper) of every parameter: width × prior for the scaled ones (either sign), fixed for the rest."""
+    values = prior.as_dict()
+    bounds = {n: tuple(sorted((values[n] * width[0], values[n] * width[1]))) for n in SCALED}
+    return {n: bounds[n] if n in bounds else FIXED_BOUNDS[n] for n in LptnParameters.names()}
+
+
+BOUNDS = parameter_bounds()
+
+
+def log_scaled(bounds: dict[str, tuple[float, float]]) -> tuple[str, ...]:
+    """The parameters searched on a log scale: those whose bounds are both positive."""
+    return tuple(n for n, (lo, _) in bounds.items() if lo > 0)
+
+
+LOG_SCALED = log_scaled(BOUNDS)
+
+
+def to_search(values: np.ndarray, scaled: tuple[str, ...] = LOG_SCALED) -> np.ndarray:
     """Parameter vectors (…, 22) -> search coordinates (log for positive parameters).
 
     exp and log here and in the cost come from bench.thermal.portable: numpy's differ in the last bit between
@@ -44,24 +59,45 @@ def to_search(values: np.ndarray) -> np.ndarray:
     """
     out = np.array(values, dtype=float)
     for i, name in enumerate(LptnParameters.names()):
-        if name in LOG_SCALED:
+        if name in scaled:
             out[..., i] = portable.log_array(out[..., i])
     return out
 
 
-def from_search(coords: np.ndarray) -> np.ndarray:
+def from_search(coords: np.ndarray, scaled: tuple[str, ...] = LOG_SCALED) -> np.ndarray:
     out = np.array(coords, dtype=float)
     for i, name in enumerate(LptnParameters.names()):
-        if name in LOG_SCALED:
+        if name in scaled:
             out[..., i] = portable.exp_array(out[..., i])
     return out
 
 
-def search_bounds() -> tuple[np.ndarray, np.ndarray]:
+def search_bounds(bounds: dict[str, tuple[float, float]] = BOUNDS) -> tuple[np.ndarray, np.ndarray]:
     names = LptnParameters.names()
-    lower = np.array([BOUNDS[n][0] for n in names])
-    upper = np.array([BOUNDS[n][1] for n in names])
-    return to_search(lower), to_search(upper)
+    scaled = log_scaled(bounds)
+    lower = np.array([bounds[n][0] for n in names])
+    upper = np.array([bounds[n][1] for n in names])
+    return to_search(lower, scaled), to_search(upper, scaled)
+
+
+# A parameter within this share of its search range from a bound has ended on it.
+ON_BOUND_SHARE = 1e-3
+
+
+def parameters_on_bounds(params: LptnParameters, bounds: dict[str, tuple[float, float]]) -> list[dict]:
+    """[{name, value, bound: "lower"|"upper", limit}] for every parameter that ended on a bound of its search."""
+    scaled = log_scaled(bounds)
+    lower, upper = search_bounds(bounds)
+    coords = to_search(np.array(params.as_vector()), scaled)
+    found = []
+    for i, name in enumerate(LptnParameters.names()):
+        margin = ON_BOUND_SHARE * (upper[i] - lower[i])
+        for side, limit, hit in (("lower", bounds[name][0], coords[i] <= lower[i] + margin),
+                                 ("upper", bounds[name][1], coords[i] >= upper[i] - margin)):
+            if hit:
+                found.append({"name": name, "value": float(getattr(params, name)), "bound": side,
+                              "limit": float(limit)})
+    return found
 
 
 def discrete_blocks(vectors: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -105,18 +141,25 @@ class LptnFit:
     seed: int
     swarm_size: int
     iterations: int
+    bounds: dict[str, tuple[float, float]]
+    on_bounds: list[dict]          # the parameters that ended on a bound (parameters_on_bounds)
 
 
 def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220, iterations: int = 100,
-                  seed: int = 0, start: LptnParameters = TABLE1,
+                  seed: int = 0, start: LptnParameters = TABLE1, width: tuple[float, float] = DEFAULT_WIDTH,
                   on_iteration: Callable[[int, float], None] | None = None) -> LptnFit:
-    """PSO over the 22 parameters (Table 1 is one of the initial particles)."""
+    """PSO over the 22 parameters within `width` × `start` (the prior, which is one of the initial particles)."""
     from bench.thermal.pso import particle_swarm
 
     scale_w = np.ones(4)
-    lower, upper = search_bounds()
-    result = particle_swarm(lambda pos: batch_cost(from_search(pos), runs, dt, scale_w), lower, upper,
+    bounds = parameter_bounds(start, width)
+    scaled = log_scaled(bounds)
+    lower, upper = search_bounds(bounds)
+    initial = to_search(np.clip(start.as_vector(), [b[0] for b in bounds.values()], [b[1] for b in bounds.values()]),
+                        scaled)
+    result = particle_swarm(lambda pos: batch_cost(from_search(pos, scaled), runs, dt, scale_w), lower, upper,
                             swarm_size=swarm_size, iterations=iterations, seed=seed,
-                            initial=to_search(np.array(start.as_vector())), on_iteration=on_iteration)
-    params = LptnParameters.from_vector(from_search(result.best))
-    return LptnFit(params, result.best_cost, result.history.tolist(), result.evaluations, seed, swarm_size, iterations)
+                            initial=initial, on_iteration=on_iteration)
+    params = LptnParameters.from_vector(from_search(result.best, scaled))
+    return LptnFit(params, result.best_cost, result.history.tolist(), result.evaluations, seed, swarm_size,
+                   iterations, bounds, parameters_on_bounds(params, bounds))

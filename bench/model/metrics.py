@@ -23,5 +23,12 @@ def nrmse(estimate, reference) -> float:
     return rmse(estimate, ref) / sigma if sigma > 0 else float("nan")
 
 
+def max_abs_error(estimate, reference) -> float:
+    """Largest |estimate - reference|, °C."""
+    e = np.asarray(estimate, dtype=np.float64) - np.asarray(reference, dtype=np.float64)
+    return float(np.max(np.abs(e))) if e.size else float("nan")
+
+
 def error_metrics(estimate, reference) -> dict[str, float]:
-    return {"mse": mse(estimate, reference), "rmse": rmse(estimate, reference), "nrmse": nrmse(estimate, reference)}
+    return {"mse": mse(estimate, reference), "rmse": rmse(estimate, reference), "nrmse": nrmse(estimate, reference),
+            "max_abs": max_abs_error(estimate, reference)}

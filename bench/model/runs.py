@@ -6,9 +6,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.drive.motor import MAP_TABLES, LossMaps, MotorSpec
+from bench.drive.motor import MAP_TABLES
+from bench.errors import BenchError
+from bench.motor.losses import EstimatorMotor, LossModel
 from bench.thermal.estimator import StepInputs
 from bench.thermal.excitation import interval_means
+
+DRIVE_COLUMNS = ("torque_Nm", "speed_rpm", "coolant_C", "ambient_C")
+CURRENT_COLUMNS = ("i_d_A", "i_q_A")
 
 
 @dataclass(frozen=True)
@@ -24,9 +29,13 @@ class ModelRun:
     initial: np.ndarray         # y0 = [yoke, winding, tooth, magnet] at t = 0
 
 
-def drive_matrix(dataset) -> np.ndarray:
-    """(rows, 4) [torque, speed, coolant, ambient]: what the host sends over CAN."""
-    return np.column_stack([dataset.torque_Nm, dataset.speed_rpm, dataset.coolant_C, dataset.ambient_C])
+def drive_matrix(dataset, with_currents: bool = False) -> np.ndarray:
+    """(rows, 4) [torque, speed, coolant, ambient], what the host sends over CAN; (rows, 6) with [i_d, i_q]."""
+    columns = DRIVE_COLUMNS + (CURRENT_COLUMNS if with_currents else ())
+    if with_currents and not dataset.has_currents:
+        raise BenchError(f"{dataset.path} has no d/q current columns (i_d_A, i_q_A), which this motor's electrical "
+                         "loss model needs; map them with --mapping or use a motor with loss maps")
+    return np.column_stack([dataset.column(c) for c in columns])
 
 
 def initial_temperatures(dataset) -> np.ndarray:
@@ -35,20 +44,23 @@ def initial_temperatures(dataset) -> np.ndarray:
     return np.array([coolant, float(dataset.winding_C[0]), coolant, float(dataset.pm_C[0])])
 
 
-def step_inputs(drive: np.ndarray, loss_maps: LossMaps, motor: MotorSpec, dt: float,
+def step_inputs(drive: np.ndarray, loss_model: LossModel, motor: EstimatorMotor, dt: float,
                 sample_period_s: float) -> StepInputs:
+    """Interval means of the drive columns (4, or 6 with the currents) and the losses at them."""
     means = interval_means(drive, sample_period_s, dt)
-    table = loss_maps.evaluate(means[:, 0], means[:, 1])
+    names = DRIVE_COLUMNS + CURRENT_COLUMNS[: means.shape[1] - len(DRIVE_COLUMNS)]
+    table = loss_model.evaluate_columns(dict(zip(names, means.T, strict=True)))
     return StepInputs(
         table_losses=np.column_stack([table[name] for name in MAP_TABLES]),
         speed_ratio=means[:, 1] / motor.max_speed_rpm,
-        coolant=means[:, 2], ambient=means[:, 3], current_max=motor.i_max_A)
+        coolant=means[:, 2], ambient=means[:, 3], current_max=motor.i_max_A,
+        alpha_cu=motor.alpha_cu_per_K, copper_reference=motor.reference_C)
 
 
-def model_run(dataset, loss_maps: LossMaps, motor: MotorSpec, dt: float, name: str | None = None) -> ModelRun:
-    drive = drive_matrix(dataset)
-    inputs = step_inputs(drive, loss_maps, motor, dt, dataset.sample_period_s)
-    t_steps = (np.arange(len(inputs.speed_ratio)) + 1) * dt
+def model_run(dataset, loss_model: LossModel, motor: EstimatorMotor, dt: float, name: str | None = None) -> ModelRun:
+    drive = drive_matrix(dataset, with_currents=loss_model.kind == "electrical")
+    inputs = step_inputs(drive, loss_model, motor, dt, dataset.sample_period_s)
+    t_steps = float(dataset.time_s[0]) + (np.arange(len(inputs.speed_ratio)) + 1) * dt   # a file may start at t > 0
     return ModelRun(
         name=name or str(getattr(dataset, "path", "run")), dt=dt, inputs=inputs, step_time_s=t_steps,
         ref_winding=np.interp(t_steps, dataset.time_s, dataset.winding_C),

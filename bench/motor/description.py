@@ -46,9 +46,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.drive.motor import LossMaps
-from bench.errors import BenchError
-from bench.motor.losses import ElectricalLosses
+from bench.motor.errors import MotorFileError
+from bench.motor.losses import ElectricalLosses, LossMaps, MotorConstants
 from bench.thermal.parameters import PARAMETER_SETS, LptnParameters
 
 SCHEMA = "pmsm-thermal-bench.motor"
@@ -63,10 +62,6 @@ LIMIT_KEYS = ("torque_Nm", "speed_rpm", "current_A")
 DEFAULT_BOUNDS = (0.6, 1.6)
 TOP_KEYS = ("schema", "schema_version", "name", "description", "pole_pairs", "limits", "losses", "thermal_prior",
             "virtual_plant")
-
-
-class MotorFileError(BenchError):
-    """A motor description file the bench cannot use."""
 
 
 @dataclass(frozen=True)
@@ -108,6 +103,11 @@ class MotorDescription:
     def needs_currents(self) -> bool:
         return self.loss_kind == "electrical"
 
+    def constants(self) -> MotorConstants:
+        """What the estimator needs of the motor besides its loss model."""
+        return MotorConstants(self.limits.current_A, self.limits.speed_rpm, self.copper_alpha_per_K,
+                              self.copper_reference_C)
+
     def provenance(self) -> dict[str, Any]:
         """What an artifact records of the motor it was identified for."""
         record = {"name": self.name, "file": self.path.name if self.path else None, "sha256": self.sha256,
@@ -139,23 +139,22 @@ def _parse(path: Path, raw: bytes) -> dict:
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        raise MotorFileError(f"motor file {path} is not UTF-8 text; save it as UTF-8 JSON or TOML") from None
+        raise MotorFileError(f"{path} is not UTF-8 text; save it as UTF-8 JSON or TOML") from None
     suffix = path.suffix.lower()
     if suffix not in (".json", ".toml"):
-        raise MotorFileError(f"motor file {path} must end in .json or .toml (it says which format it is)")
+        raise MotorFileError(f"{path} must end in .json or .toml (the suffix says which format it is)")
     try:
         content = json.loads(text) if suffix == ".json" else tomllib.loads(text)
     except json.JSONDecodeError as exc:
-        raise MotorFileError(f"motor file {path} is not valid JSON (line {exc.lineno}: {exc.msg}); fix it or start "
+        raise MotorFileError(f"{path} is not valid JSON (line {exc.lineno}: {exc.msg}); fix it or start "
                              "from 'bench motor template --format json'") from None
     except tomllib.TOMLDecodeError as exc:
-        raise MotorFileError(f"motor file {path} is not valid TOML ({exc}); fix it or start from "
+        raise MotorFileError(f"{path} is not valid TOML ({exc}); fix it or start from "
                              "'bench motor template'") from None
     except (ValueError, RecursionError):
-        raise MotorFileError(f"motor file {path} cannot be parsed (absurd numbers or nesting)") from None
+        raise MotorFileError(f"{path} cannot be parsed (absurd numbers or nesting)") from None
     if not isinstance(content, dict):
-        raise MotorFileError(f"motor file {path} must hold one object (a table of keys), not "
-                             f"{type(content).__name__}")
+        raise MotorFileError(f"{path} must hold one object (a table of keys), not {type(content).__name__}")
     return content
 
 
@@ -210,6 +209,21 @@ def motor_from_dict(content: dict, path: Path | None = None, sha256: str | None 
         raise MotorFileError(f"{where}: virtual_plant must be a table")
     return MotorDescription(name, description, pole_pairs, limits, loss_model, reference, alpha, prior, path,
                             sha256, maps_sha, plant)
+
+
+def load_prior(path: str | Path) -> ThermalPrior:
+    """A prior file (.json or .toml): the thermal_prior table of a motor file on its own."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise MotorFileError(f"prior file {path} cannot be read ({exc.strerror or exc}); pass an existing .json or "
+                             ".toml file with --prior") from None
+    content = _parse(path, raw)
+    prior = _prior(content, f"prior file {path}")
+    if "parameters" not in content:
+        raise MotorFileError(f"prior file {path} has no 'parameters' (a parameter set name or all 22 values)")
+    return prior
 
 
 def _prior(table: Any, where: str) -> ThermalPrior | None:
@@ -307,3 +321,13 @@ class _Checker:
         if unknown:
             raise MotorFileError(f"{self.where}: {name}.{unknown[0]} is not a known key here (known: "
                                  f"{', '.join(keys)})")
+
+
+
+def default_motor_path() -> Path:
+    """The built-in virtual 200 kW motor, shipped with the package."""
+    return Path(__file__).resolve().parent.parent / "data" / "motors" / "virtual-200kw.json"
+
+
+def default_motor() -> MotorDescription:
+    return load_motor(default_motor_path())

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.drive.motor import MAP_TABLES, LossMaps
-from bench.errors import BenchError
+from bench.motor.errors import MotorFileError
+from bench.motor.losses import MAP_TABLES, LossMaps
 
 # file column -> LossMaps table
 FILE_COLUMNS = {"copper_dc_W": "p_dc0", "copper_ac_W": "p_ac0", "iron_W": "p_stator", "magnet_W": "p_magnet",
@@ -30,43 +30,43 @@ def read_loss_maps(path: Path, where: str) -> tuple[LossMaps, str]:
     try:
         raw = path.read_bytes()
     except OSError as exc:
-        raise BenchError(f"{where}: loss-map file {path} cannot be read ({exc.strerror or exc}); losses.file is "
+        raise MotorFileError(f"{where}: loss-map file {path} cannot be read ({exc.strerror or exc}); losses.file is "
                          "relative to the motor file") from None
     try:
         text = raw.decode("utf-8-sig")
         data = np.genfromtxt(io.StringIO(text), delimiter=",", names=True, dtype=float, encoding=None,
                              invalid_raise=True)
     except (UnicodeDecodeError, ValueError) as exc:
-        raise BenchError(f"loss-map file {path} is not a comma-separated table of numbers with a header line "
+        raise MotorFileError(f"loss-map file {path} is not a comma-separated table of numbers with a header line "
                          f"({str(exc).splitlines()[0][:80]})") from None
     names = data.dtype.names or ()
     missing = [c for c in HEADER if c not in names]
     if missing:
-        raise BenchError(f"loss-map file {path} lacks the column {missing[0]!r}; it needs {', '.join(HEADER)}")
+        raise MotorFileError(f"loss-map file {path} lacks the column {missing[0]!r}; it needs {', '.join(HEADER)}")
     data = np.atleast_1d(data)
     columns = {c: np.asarray(data[c], dtype=float) for c in HEADER}
     for c, v in columns.items():
         if not np.all(np.isfinite(v)):
-            raise BenchError(f"loss-map file {path}, column {c}: row {int(np.argmax(~np.isfinite(v))) + 1} is not a "
-                             "finite number")
+            row = int(np.argmax(~np.isfinite(v))) + 1
+            raise MotorFileError(f"loss-map file {path}, column {c}: row {row} is not a finite number")
         if c in FILE_COLUMNS and np.any(v < 0):
-            raise BenchError(f"loss-map file {path}, column {c}: row {int(np.argmax(v < 0)) + 1} is negative; "
+            raise MotorFileError(f"loss-map file {path}, column {c}: row {int(np.argmax(v < 0)) + 1} is negative; "
                              "losses and currents are magnitudes")
     torque, speed = (np.unique(columns[a]) for a in AXES)
     for axis, values in zip(AXES, (torque, speed), strict=True):
         steps = np.diff(values)
         if len(values) < 2 or not np.allclose(steps, steps[0], rtol=SPACING_TOLERANCE, atol=0):
-            raise BenchError(f"loss-map file {path}: the {axis} points ({len(values)}) are not an evenly spaced "
+            raise MotorFileError(f"loss-map file {path}: the {axis} points ({len(values)}) are not an evenly spaced "
                              "axis of at least two points; resample the maps onto an even grid")
     if len(columns["torque_Nm"]) != len(torque) * len(speed):
-        raise BenchError(f"loss-map file {path} has {len(columns['torque_Nm'])} rows, a full {len(torque)} × "
+        raise MotorFileError(f"loss-map file {path} has {len(columns['torque_Nm'])} rows, a full {len(torque)} × "
                          f"{len(speed)} torque × speed grid needs {len(torque) * len(speed)} (one per point)")
     i = np.searchsorted(torque, columns["torque_Nm"])
     j = np.searchsorted(speed, columns["speed_rpm"])
     seen = np.zeros((len(torque), len(speed)), dtype=bool)
     seen[i, j] = True
     if not seen.all():
-        raise BenchError(f"loss-map file {path} repeats a grid point and misses another; give each torque × speed "
+        raise MotorFileError(f"loss-map file {path} repeats a grid point and misses another; give each torque × speed "
                          "point once")
     tables = {name: np.zeros((len(torque), len(speed))) for name in MAP_TABLES}
     for column, name in FILE_COLUMNS.items():

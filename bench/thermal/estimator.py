@@ -32,6 +32,8 @@ class StepInputs:
     coolant: np.ndarray        # (steps,)
     ambient: np.ndarray        # (steps,)
     current_max: float
+    alpha_cu: float = ALPHA_CU_PER_K          # the motor's copper temperature coefficient (eqs. 3-4)
+    copper_reference: float = COPPER_REFERENCE_C   # the temperature its copper losses are given at
 
 
 def loop_parameters(params: LptnParameters) -> np.ndarray:
@@ -49,8 +51,8 @@ def identity_sigmoid(scale_w) -> np.ndarray:
 # No fastmath (it would let LLVM reorder sums and fuse multiply-adds by CPU), and exp from portable (glibc's
 # has an FMA variant): the kernel's results are the same bits on every x86-64 CPU and at any thread count.
 @numba.njit(cache=True, fastmath=False)
-def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep,
-               use_sigmoid):
+def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w,
+               ref_m, traj, keep, use_sigmoid):
     n_steps = ratio.shape[0]
     x = np.zeros(4)
     x_new = np.zeros(4)
@@ -64,7 +66,7 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
     k0, k1, k2, k3 = theta[0], theta[1], theta[2], theta[3]
     for k in range(n_steps):
         # losses at the previous winding estimate (eqs. 3-8)
-        factor = 1.0 + ALPHA_CU_PER_K * (y[1] - COPPER_REFERENCE_C)
+        factor = 1.0 + alpha_cu * (y[1] - copper_ref)
         i_ratio = lut[k, 4] / i_max
         k_s = k0 + k1 * i_ratio + k2 * ratio[k] + k3 * i_ratio * ratio[k]
         u[0] = k_s * lut[k, 2]
@@ -110,11 +112,12 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
 
 
 @numba.njit(parallel=True, cache=True)
-def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, y0, ref_w, ref_m, traj, keep, sse,
-           use_sigmoid):
+def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w, ref_m,
+           traj, keep, sse, use_sigmoid):
     for p in numba.prange(a.shape[0]):
         sse[p, 0], sse[p, 1] = _one_model(a[p], b[p], c[p], c_inv[p], theta[p], sig[p], lut, ratio, coolant,
-                                          ambient, i_max, y0, ref_w, ref_m, traj[p], keep, use_sigmoid)
+                                          ambient, i_max, alpha_cu, copper_ref, y0, ref_w, ref_m, traj[p], keep,
+                                          use_sigmoid)
 
 
 def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=None, keep_trajectories=False):
@@ -135,5 +138,6 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
     _batch(a, b, c, c_inv, np.ascontiguousarray(theta, dtype=np.float64), sig,
            np.ascontiguousarray(inputs.table_losses), np.ascontiguousarray(inputs.speed_ratio),
            np.ascontiguousarray(inputs.coolant), np.ascontiguousarray(inputs.ambient), float(inputs.current_max),
+           float(inputs.alpha_cu), float(inputs.copper_reference),
            np.asarray(y0, dtype=np.float64), ref_w, ref_m, traj, keep_trajectories, sse, use_sigmoid)
     return sse, (traj if keep_trajectories else None)

@@ -64,12 +64,12 @@ def matrix_artifacts():
     """(label, artifact) over kinds x realizations x Δt from the packaged Hammerstein artifact's identification."""
     import numpy as np
 
-    from bench.model.artifact_eval import artifact_loss_maps, artifact_parameters
+    from bench.model.artifact_eval import artifact_loss_model, artifact_parameters
     from bench.model.builder import ModelSpec, SigmoidInputs, build_artifact
 
     reference = load_artifact(default_artifact_path())
     params = artifact_parameters(reference)
-    maps, motor = artifact_loss_maps(reference)
+    maps, motor = artifact_loss_model(reference)
     sigmoid = SigmoidInputs(*(np.asarray(reference.array("input_nonlinearity", key), dtype=float)
                               for key in ("scale_W", "weight", "bias", "gain", "linear", "offset")))
     for kind in ("lti-lptn", "hammerstein"):

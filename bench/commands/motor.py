@@ -1,0 +1,62 @@
+"""`bench motor`: motor description files: `template` prints an example to start from, `check FILE` validates
+one and shows what the bench reads from it."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from bench.commands.common import add_output_flags, print_json
+
+
+def add_subparser(subparsers) -> None:
+    p = subparsers.add_parser("motor", help="motor description files: print a template, check a file",
+                              description=__doc__)
+    actions = p.add_subparsers(title="actions", dest="action", parser_class=type(p))
+    template = actions.add_parser("template", help="print an example motor description")
+    template.add_argument("--format", choices=("toml", "json"), default="toml", help="file format (default toml)")
+    template.set_defaults(func=run_template)
+    check = actions.add_parser("check", help="validate a motor description and summarize it")
+    check.add_argument("file", type=Path, help="the motor's .json or .toml file")
+    add_output_flags(check)
+    check.set_defaults(func=run_check)
+    p.set_defaults(func=lambda args: p.print_help() or 2)
+
+
+def run_template(args: argparse.Namespace) -> int:
+    from bench.motor.template import template
+
+    print(template(args.format), end="")
+    return 0
+
+
+def run_check(args: argparse.Namespace) -> int:
+    from bench.motor.description import load_motor
+
+    motor = load_motor(args.file)
+    summary = {**motor.provenance(), "description": motor.description,
+               "copper_reference_C": motor.copper_reference_C, "copper_alpha_per_K": motor.copper_alpha_per_K,
+               "needs_currents": motor.needs_currents,
+               "thermal_prior": None if motor.prior is None else {"source": motor.prior.source,
+                                                                  "bounds": list(motor.prior.bounds)},
+               "virtual_plant": motor.virtual_plant is not None}
+    if motor.loss_kind == "maps":
+        maps = motor.loss_model
+        summary["loss_maps_grid"] = {"torque_Nm": [float(maps.torque_Nm[0]), float(maps.torque_Nm[-1]),
+                                                   len(maps.torque_Nm)],
+                                     "speed_rpm": [float(maps.speed_rpm[0]), float(maps.speed_rpm[-1]),
+                                                   len(maps.speed_rpm)]}
+    else:
+        summary["loss_coefficients"] = motor.loss_model.coefficients()
+    if args.json:
+        print_json(summary)
+    else:
+        lim = summary["limits"]
+        print(f"motor {motor.name}: {motor.pole_pairs} pole pairs, {lim['torque_Nm']:g} Nm, {lim['speed_rpm']:g} rpm, "
+              f"{lim['current_A']:g} A; {motor.loss_kind} losses"
+              + (" (needs i_d_A and i_q_A in the data)" if motor.needs_currents else "")
+              + (f"; thermal prior {motor.prior.source} within {motor.prior.bounds[0]:g}..{motor.prior.bounds[1]:g}"
+                 if motor.prior else "; thermal prior: Table 1 within 0.6..1.6")
+              + ("; describes a virtual plant ('bench data --motor' can generate its data)"
+                 if motor.virtual_plant else ""))
+    return 0

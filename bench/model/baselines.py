@@ -1,0 +1,80 @@
+"""Simple estimators a thermal model has to beat, fitted on the training runs and recorded in the artifact.
+
+- `coolant`: the coolant temperature as the estimate of every node (what a drive without a model assumes);
+- `copper_lowpass`: coolant + K·LP_τ(P_cu) + r0·e^(-t/τ), a first-order low-pass of the nominal copper loss (dc +
+  ac at the copper reference temperature) with one gain K (K/W) and time constant τ (s) per node, fitted by least
+  squares on the training runs (τ on a logarithmic grid, K in closed form for each τ); r0, the measured rise at
+  the start, decays with the same τ, so the baseline starts where the model starts.
+Both use only what the model itself gets (coolant, the loss model's copper loss), so a model that does not beat
+them clearly has not learnt the machine.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from bench.model.runs import ModelRun
+
+TAU_GRID_S = np.geomspace(5.0, 20000.0, 121)
+NODES = ("winding", "pm")
+
+
+def copper_loss(run: ModelRun) -> np.ndarray:
+    """Nominal copper loss per step (W): p_dc0 + p_ac0 of the loss model."""
+    return run.inputs.table_losses[:, 0] + run.inputs.table_losses[:, 1]
+
+
+def lowpass(signal: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
+    """Exact first-order lag of a signal held over each step, starting from 0."""
+    from scipy.signal import lfilter
+
+    a = np.exp(-dt / tau_s)
+    return lfilter([1.0 - a], [1.0, -a], signal)
+
+
+def _reference(run: ModelRun, node: str) -> np.ndarray:
+    return run.ref_winding if node == "winding" else run.ref_pm
+
+
+def _initial_rise(run: ModelRun, node: str) -> float:
+    return float(run.initial[1 if node == "winding" else 3] - run.initial[0])   # initial[0]: first coolant sample
+
+
+def _decay(run: ModelRun, tau: float) -> np.ndarray:
+    return np.exp(-(np.arange(len(run.inputs.coolant)) + 1) * run.dt / tau)
+
+
+def fit_copper_lowpass(runs: Sequence[ModelRun], node: str) -> dict[str, float]:
+    """{gain_K_per_W, tau_s, rmse_C} minimizing the pooled squared error over the runs."""
+    best = None
+    for tau in TAU_GRID_S:
+        rises = [_reference(r, node) - r.inputs.coolant - _initial_rise(r, node) * _decay(r, tau) for r in runs]
+        filtered = [lowpass(copper_loss(r), tau, r.dt) for r in runs]
+        num = sum(float(f @ y) for f, y in zip(filtered, rises, strict=True))
+        den = sum(float(f @ f) for f in filtered)
+        gain = num / den if den > 0 else 0.0
+        sse = sum(float(np.sum((y - gain * f) ** 2)) for f, y in zip(filtered, rises, strict=True))
+        if best is None or sse < best[0]:
+            best = (sse, gain, float(tau))
+    count = sum(len(r.inputs.coolant) for r in runs)
+    return {"gain_K_per_W": best[1], "tau_s": best[2], "rmse_C": float(np.sqrt(best[0] / count))}
+
+
+def fit_baselines(runs: Sequence[ModelRun]) -> dict:
+    """What the artifact records: the fitted copper low-pass per node (the coolant baseline has no parameter)."""
+    return {"copper_lowpass": {node: fit_copper_lowpass(runs, node) for node in NODES}}
+
+
+def baseline_estimates(baselines: dict, run: ModelRun) -> dict[str, dict[str, np.ndarray]]:
+    """{baseline: {node: (steps,) estimate}} on one run."""
+    out = {"coolant": {node: np.asarray(run.inputs.coolant, dtype=float) for node in NODES}}
+    fitted = baselines.get("copper_lowpass") if isinstance(baselines, dict) else None
+    if fitted:
+        out["copper_lowpass"] = {}
+        for node in NODES:
+            gain, tau = fitted[node]["gain_K_per_W"], fitted[node]["tau_s"]
+            out["copper_lowpass"][node] = (run.inputs.coolant + gain * lowpass(copper_loss(run), tau, run.dt)
+                                           + _initial_rise(run, node) * _decay(run, tau))
+    return out
