@@ -162,3 +162,56 @@ def print_summary(s: dict) -> None:
               + ", nothing else went wrong")
     else:
         print("clean")
+
+
+# ---------------------------------------------------------------- a user's data: --mapping and --sample-period
+
+from typing import TYPE_CHECKING  # noqa: E402 (appended section)
+
+if TYPE_CHECKING:  # the CLI imports every subcommand at start: the loader only when a command runs
+    from bench.drive.dataset import ColumnMapping
+
+
+def sample_period(text: str) -> float | None:
+    """'--sample-period' value: a positive number of seconds, or 'auto' (None: inferred from the time column)."""
+    if str(text).strip().lower() == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"--sample-period {text!r} is neither a number of seconds nor 'auto'; "
+                         "e.g. --sample-period 1") from None
+    if not math.isfinite(value) or value <= 0:
+        raise UsageError(f"--sample-period {text!r} must be a positive number of seconds (or 'auto')")
+    return value
+
+
+def add_data_arguments(parser) -> None:
+    """--mapping FILE and --sample-period S|auto, how a user's own data files are read (see bench.drive.mapping)."""
+    parser.add_argument("--mapping", type=Path, default=None, metavar="FILE",
+                        help="JSON or TOML mapping of your data files onto the bench's columns: names, units, "
+                             "derived columns (mean of several sensors), time column or none, separator and "
+                             "decimal mark")
+    parser.add_argument("--sample-period", type=sample_period, default="auto", metavar="S|auto",
+                        help="the data's sample period in seconds, or 'auto': the mapping's, else inferred from the "
+                             "time column (a file without one needs it given) (default auto)")
+
+
+def data_options(args) -> tuple[ColumnMapping | None, float | None]:
+    """(ColumnMapping or None, sample period in s or None for auto) from add_data_arguments' options; a period
+    given on the command line replaces the mapping's, with 'auto' the mapping's period (if any) is used."""
+    from dataclasses import replace
+
+    from bench.drive.mapping import load_mapping
+
+    period = getattr(args, "sample_period", None)
+    if isinstance(period, str):
+        period = sample_period(period)
+    path = getattr(args, "mapping", None)
+    mapping = load_mapping(path) if path is not None else None
+    if mapping is not None:
+        if period is None:
+            period = mapping.sample_period_s
+        else:
+            mapping = replace(mapping, sample_period_s=period)
+    return mapping, period

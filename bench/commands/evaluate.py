@@ -82,12 +82,18 @@ def run_on_files(args: argparse.Namespace, artifacts: list, paths: list[Path]) -
     if args.dt != DEFAULT_DTS or args.realization is not None:
         raise UsageError("--dt and --realization belong to the Table 5 analogue (a dataset directory); on data "
                          "files each model runs as its artifact says")
-    period = {a.data_sample_period for a in artifacts}
-    if len(period) > 1:
+    periods = {a.data_sample_period for a in artifacts}
+    if len(periods) > 1:
         raise UsageError("the models expect different data sample periods; evaluate them one at a time")
+    period = periods.pop()
     mapping, given = data_options(args)
     files = expand_data_paths(args.data, "--data")
-    datasets = load_datasets(files, mapping, given if given is not None else period.pop())
+    datasets = load_datasets(files, mapping, given)
+    for dataset in datasets:
+        if abs(dataset.sample_period_s - period) > 1e-6 * period:
+            raise BenchError(f"{dataset.path} is sampled every {dataset.sample_period_s:g} s, the model "
+                             f"{paths[0]} was identified on data at {period:g} s; resample the file or use a model "
+                             "identified at its period")
     say = None if (args.quiet or args.json) else (lambda msg: print(msg, file=sys.stderr))
     models, results = [], []
     for artifact, path in zip(artifacts, paths, strict=True):

@@ -158,3 +158,42 @@ def test_bad_mappings(tmp_path):
         ColumnMapping({"a": "winding_C", "b": "winding_C"})
     fails(write(tmp_path, rows()), "column 'Twind' named in the column mapping is not in the header",
           mapping=ColumnMapping({"Twind": "winding_C"}))
+
+
+def test_krpm_derived_mean_and_no_time_column_in_code(tmp_path):
+    header = "n_krpm,torque_Nm,coolant_C,ambient_C,w1,w2,pm_C"
+    data = [[f"{1.5 + 0.5 * k:g}", "10", "40", "25", f"{60 + k}", f"{70 + k}", "50"] for k in range(5)]
+    mapping = ColumnMapping({"n_krpm": "speed_rpm"}, {"speed_rpm": "krpm"}, derived={"winding_C": ["w1", "w2"]},
+                            time_column=None, sample_period_s=2.0)
+    d = load_dataset(write(tmp_path, data, header), mapping, None)
+    np.testing.assert_allclose(d.speed_rpm, [1500, 2000, 2500, 3000, 3500])
+    np.testing.assert_allclose(d.winding_C, [65, 66, 67, 68, 69])
+    np.testing.assert_allclose(d.time_s, [0, 2, 4, 6, 8])
+    assert d.sample_period_s == 2.0 and d.metadata["source_columns"]["winding_C"] == "mean(w1, w2)"
+    assert d.metadata["ignored_columns"] == [] and "mapping" not in d.metadata
+
+
+def test_a_semicolon_header_names_the_separator(tmp_path):
+    path = tmp_path / "excel.csv"
+    path.write_text(";".join(COLUMNS) + "\n" + "\n".join(";".join(r).replace(".", ",") for r in rows()) + "\n")
+    message = fails(path, "the header is one field 'time_s;torque_Nm;", "semicolon-separated with decimal commas")
+    assert "fields, the header has" not in message
+    d = load_dataset(path, ColumnMapping(separator=";", decimal=","))
+    assert d.rows == 12 and d.torque_Nm[0] == 120.5 and d.winding_C[3] == pytest.approx(60.3)
+
+
+def test_currents_without_their_partner(tmp_path):
+    data = [r + ["12.5"] for r in rows()]
+    fails(write(tmp_path, data, HEADER + ",i_q_A"), "column i_q_A has no partner 'i_d_A'")
+    data = [r + ["12.5", "-3"] for r in rows()]
+    d = load_dataset(write(tmp_path, data, HEADER + ",i_q_A,i_d_A"))
+    assert d.has_currents and d.i_q_A[0] == 12.5 and d.i_d_A[0] == -3.0
+
+
+def test_bad_mappings_in_code():
+    with pytest.raises(DatasetError, match=r"key 'derived.winding_C.mean_of': give a list"):
+        ColumnMapping(derived={"winding_C": "w1"})
+    with pytest.raises(DatasetError, match=r"key 'decimal': the decimal mark ','"):
+        ColumnMapping(decimal=",")
+    with pytest.raises(DatasetError, match=r"key 'time.sample_period_s': -1 is not a positive number"):
+        ColumnMapping(sample_period_s=-1)

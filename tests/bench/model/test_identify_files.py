@@ -1,0 +1,142 @@
+"""`bench identify --motor --train --validate` and `bench evaluate --data FILE…` on a motor's own files."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bench.cli import main
+from bench.motor.template import template
+from target_sim.artifact import load_artifact
+
+ROWS = 1500   # 25 min at 1 s
+
+
+def _profile(seed: int) -> dict[str, np.ndarray]:
+    """A 1 s profile of the template motor in the user's own names and units (speed in krpm, coolant in K, two
+    winding sensors), with d/q currents."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(ROWS, dtype=float)
+    torque = np.clip(np.cumsum(rng.normal(0, 6, ROWS)) + 60, 0, 170)
+    speed = np.clip(np.abs(np.cumsum(rng.normal(0, 150, ROWS))) + 2000, 0, 12000)
+    i_q, i_d = 2.1 * torque, -0.012 * speed
+    copper = 1.5 * 0.018 * (i_q**2 + i_d**2)
+    rise = np.convolve(copper, np.exp(-np.arange(600) / 200.0) / 200.0)[:ROWS] * 0.05
+    coolant = 40 + 3 * np.sin(t / 300)
+    return {"speed_krpm": np.round(speed / 1000, 4), "torque": np.round(torque, 1),
+            "coolant_K": np.round(coolant + 273.15, 2), "ambient": np.full(ROWS, 25.0),
+            "w1": np.round(coolant + rise + 0.2, 1), "w2": np.round(coolant + rise - 0.2, 1),
+            "magnet": np.round(coolant + 0.4 * rise, 1), "id": np.round(i_d, 1), "iq": np.round(i_q, 1)}
+
+
+@pytest.fixture(scope="module")
+def motor_files(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ipm")
+    (root / "motor.toml").write_text(template("toml"))
+    mapping = {"columns": {"speed_krpm": "speed_rpm", "torque": "torque_Nm", "coolant_K": "coolant_C",
+                           "ambient": "ambient_C", "magnet": "pm_C", "id": "i_d_A", "iq": "i_q_A"},
+               "units": {"speed_rpm": "krpm", "coolant_C": "K"},
+               "derived": {"winding_C": {"mean_of": ["w1", "w2"]}},
+               "time": {"column": None, "sample_period_s": 1.0}}
+    (root / "mapping.json").write_text(json.dumps(mapping))
+    for n in range(1, 4):
+        columns = _profile(n)
+        rows = zip(*columns.values(), strict=True)
+        lines = [",".join(columns)] + [",".join(repr(float(v)) for v in row) for row in rows]
+        (root / f"profile_{n:02d}.csv").write_text("\n".join(lines) + "\n")
+    return root
+
+
+def _identify(root, out, *extra):
+    return main(["identify", "--motor", str(root / "motor.toml"), "--train", str(root / "profile_0[12].csv"),
+                 "--validate", str(root / "profile_03.csv"), "--mapping", str(root / "mapping.json"),
+                 "--swarm", "8", "--iterations", "2", "--lm-iterations", "3", "--all-kinds", "--out", str(out),
+                 "--json", *extra])
+
+
+@pytest.fixture(scope="module")
+def identified(motor_files, tmp_path_factory):
+    out = tmp_path_factory.mktemp("model") / "ham.json"
+    capture = pytest.MonkeyPatch()
+    import io
+    import sys
+    buffer = io.StringIO()
+    capture.setattr(sys, "stdout", buffer)
+    try:
+        assert _identify(motor_files, out) == 0
+    finally:
+        capture.undo()
+    return out, json.loads(buffer.getvalue())
+
+
+def test_identify_on_files_records_the_motor_and_the_split(identified, motor_files):
+    out, summary = identified
+    art = load_artifact(out)
+    assert art.loss_model == "electrical" and art.drive_signals[-2:] == ("i_d_A", "i_q_A")
+    assert art.dt == 1.0 and art.data_sample_period == 1.0   # Δt defaults to the data's period when longer
+    prov = art.content["provenance"]
+    assert prov["motor"]["name"] == "my-ipm-60kw" and len(prov["motor"]["sha256"]) == 64
+    assert [f["file"] for f in prov["split"]["train"]] == ["profile_01.csv", "profile_02.csv"]
+    assert [f["file"] for f in prov["split"]["validate"]] == ["profile_03.csv"]
+    assert all(len(f["sha256"]) == 64 and f["rows"] == ROWS for f in prov["split"]["train"])
+    assert prov["pso"]["prior"] == "table1" and prov["pso"]["bounds"] == [0.5, 2.0]
+    assert set(prov["baselines"]["copper_lowpass"]) == {"winding", "pm"}
+    assert summary["split"] == prov["split"]
+    # every parameter the swarm left on a bound is named, in JSON and as a warning
+    assert len(summary["warnings"]) == len(summary["parameters_on_bounds"])
+    for hit, warning in zip(summary["parameters_on_bounds"], summary["warnings"], strict=True):
+        assert hit["name"] in warning and hit["bound"] in warning
+    for metrics in summary["validation"].values():
+        assert {"rmse", "max_abs", "mse", "nrmse"} <= set(metrics["float32"]["winding"])
+
+
+def test_evaluate_on_files_gives_per_file_pooled_and_baselines(identified, motor_files, tmp_path, capsys):
+    out, _ = identified
+    lti = out.with_name("ham-lti-lptn.json")
+    plots = tmp_path / "plots"
+    assert main(["evaluate", "--model", str(out), "--model", str(lti), "--data", str(motor_files / "profile_0[23].csv"),
+                 "--mapping", str(motor_files / "mapping.json"), "--plots", str(plots), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    ham, lti_report = report["models"]
+    assert ham["kind"] == "hammerstein" and lti_report["kind"] == "lti-lptn"
+    assert [f["file"].split("/")[-1] for f in ham["files"]] == ["profile_02.csv", "profile_03.csv"]
+    for node in ("winding", "pm"):
+        per_file = [f["nodes"][node]["float32"] for f in ham["files"]]
+        pooled = ham["pooled"]["nodes"][node]["float32"]
+        assert pooled["max_abs"] == max(m["max_abs"] for m in per_file)
+        assert pooled["mse"] == pytest.approx(np.mean([m["mse"] for m in per_file]))   # equal lengths
+        assert set(ham["pooled"]["baselines"]) == {"coolant", "copper_lowpass"}
+    assert ham["pooled"]["max_abs_f32_minus_f64_C"] < 0.01
+    assert sorted(p.name for p in plots.iterdir()) == ["profile_02.png", "profile_03.png"]
+
+
+def test_a_bad_split_is_one_sentence(motor_files, tmp_path, capsys):
+    base = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+            "--out", str(tmp_path / "m.json")]
+    cases = [
+        (["--train", str(motor_files / "profile_01.csv")], "--validate is missing"),
+        (["--train", str(motor_files / "profile_0*.csv"), "--validate", str(motor_files / "profile_03.csv")],
+         "is in both --train and --validate"),
+        (["--train", str(motor_files / "nothing_*.csv"), "--validate", str(motor_files / "profile_03.csv")],
+         "--train"),
+        ([], "with --motor, name the data with --train"),
+        (["--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_03.csv"),
+          "--dt", "1.5"], "is not a whole number of the data's 1 s sample period"),
+    ]
+    for extra, expected in cases:
+        assert main(base + extra) != 0
+        err = capsys.readouterr().err
+        assert expected in err and err.count("\n") == 1 and "Traceback" not in err, (extra, err)
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_an_electrical_motor_needs_currents(motor_files, tmp_path, capsys):
+    mapping = json.loads((motor_files / "mapping.json").read_text())
+    for source in ("id", "iq"):
+        mapping["columns"].pop(source)
+    (tmp_path / "mapping.json").write_text(json.dumps(mapping))
+    assert main(["identify", "--motor", str(motor_files / "motor.toml"), "--train",
+                 str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_03.csv"),
+                 "--mapping", str(tmp_path / "mapping.json"), "--out", str(tmp_path / "m.json")]) == 1
+    err = capsys.readouterr().err
+    assert "has no d/q current columns" in err and "my-ipm-60kw" in err
