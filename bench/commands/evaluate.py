@@ -26,6 +26,7 @@ from bench.errors import BenchError, UsageError
 from bench.thermal.realizations import REALIZATIONS
 
 DEFAULT_DTS = [0.5, 1.0, 2.0, 4.0]
+BUILT_IN_MOTOR = "virtual-200kw"
 
 
 def add_subparser(subparsers) -> None:
@@ -155,6 +156,10 @@ def run_table5(args: argparse.Namespace, artifact, model_path: Path, data_dir: P
     if artifact.kind != "hammerstein":
         raise BenchError(f"{model_path} is a {artifact.kind} artifact; the comparison needs a hammerstein one "
                          "(pass one with --model)")
+    motor = artifact.content.get("provenance", {}).get("motor", {}).get("name")
+    if motor not in (None, BUILT_IN_MOTOR):
+        raise BenchError(f"{model_path} was identified for motor {motor!r}; the Table 5 analogue runs on the built-in "
+                         "motor's datasets, so evaluate it on its own files with --data FILE…")
     datasets = load_campaign(data_dir)
     say = None if (args.quiet or args.json) else (lambda msg: print(msg, file=sys.stderr))
     models = hammerstein_models(artifact, datasets, args.dt, progress=say)

@@ -121,7 +121,7 @@ def test_a_bad_split_is_one_sentence(motor_files, tmp_path, capsys):
          "--train"),
         ([], "with --motor, name the data with --train"),
         (["--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_03.csv"),
-          "--dt", "1.5"], "is not a whole number of the data's 1 s sample period"),
+          "--dt", "0.5"], "is shorter than the data's 1 s sample period"),
     ]
     for extra, expected in cases:
         assert main(base + extra) != 0
