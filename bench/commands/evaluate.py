@@ -57,13 +57,21 @@ def run(args: argparse.Namespace) -> int:
     if args.plots:
         check_writable(args.plots, "--plots", directory=True)
     paths = args.model or [default_artifact_path()]
-    if args.data is not None and not (len(args.data) == 1 and Path(args.data[0]).is_dir()):
+    if args.data is not None and not _names_a_directory(args.data):
         return run_on_files(args, [_load(p) for p in paths], paths)
     if len(paths) > 1:
         raise UsageError("the Table 5 analogue takes one --model; pass data files with --data to compare several")
     if args.mapping is not None:
         raise UsageError("--mapping applies to --data files, not to the built-in motor's dataset directory")
     return run_table5(args, _load(paths[0]), paths[0], Path(args.data[0]) if args.data else None)
+
+
+def _names_a_directory(data: list[str]) -> bool:
+    """One --data argument that is a directory, or would be one (no such path, no suffix, no glob)."""
+    if len(data) != 1:
+        return False
+    path = Path(data[0])
+    return path.is_dir() or (not path.exists() and not path.suffix and not any(c in data[0] for c in "*?["))
 
 
 def _load(path: Path):
