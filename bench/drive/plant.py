@@ -197,13 +197,25 @@ def simulate(sequence: DriveProfile, coolant, ambient, t_end: float, x0, h: floa
     a_d, b_loss, b_env = exact_steps(params, li.w, cool, h)
     drift = (b_env @ np.stack([cool, amb], axis=-1)[..., None])[..., 0]
     losses_fn = make_true_losses(spec, effects, params)
-    steps = zip(a_d.reshape(n, 16).tolist(), b_loss.reshape(n, 16).tolist(), drift.tolist(), li.i_q.tolist(),
-                li.i_d.tolist(), li.tau.tolist(), li.w.tolist(), li.f.tolist(), strict=True)
+    return integrate_exact(a_d, b_loss, drift, (li.i_q, li.i_d, li.tau, li.w, li.f), losses_fn, x0, t_start, h)
+
+
+def integrate_exact(a_d, b_loss, drift, step_inputs, losses_fn, x0, t_start: float = 0.0,
+                    h: float = PLANT_STEP_S) -> PlantRun:
+    """The exact-step loop shared by every virtual plant: x ← A_d x + B_loss·P(inputs, x) + drift, per step.
+
+    a_d, b_loss (n, 4, 4) and drift (n, 4) come from `exact_steps` (drift = b_env @ [coolant, ambient]);
+    step_inputs is a sequence of n-long arrays, the state-independent loss inputs of each step; losses_fn(*inputs,
+    th_y, th_w, th_t, th_m) -> (P_y, P_w, P_t, P_m) at the step's start state (plain-float arithmetic).
+    """
+    n = len(a_d)
+    steps = zip(a_d.reshape(n, 16).tolist(), b_loss.reshape(n, 16).tolist(), drift.tolist(),
+                *(np.asarray(v, dtype=float).tolist() for v in step_inputs), strict=True)
     y, w_, t_, m = (float(v) for v in x0)
     states = [(y, w_, t_, m)]
     losses = []
-    for a, b, d, iq, i_d, tau, w, f in steps:   # plain floats: ~10 µs a step instead of ~100 with numpy
-        py, pw, pt, pm = losses_fn(iq, i_d, tau, w, f, y, w_, t_, m)
+    for a, b, d, *inputs in steps:   # plain floats: ~10 µs a step instead of ~100 with numpy
+        py, pw, pt, pm = losses_fn(*inputs, y, w_, t_, m)
         y, w_, t_, m = (
             a[0] * y + a[1] * w_ + a[2] * t_ + a[3] * m + b[0] * py + b[1] * pw + b[2] * pt + b[3] * pm + d[0],
             a[4] * y + a[5] * w_ + a[6] * t_ + a[7] * m + b[4] * py + b[5] * pw + b[6] * pt + b[7] * pm + d[1],
