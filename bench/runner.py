@@ -14,6 +14,7 @@ one temporary file, which the host matches against the injected faults.
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -67,17 +68,27 @@ def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
 
 def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True) -> Path | None:
     """The ELF the target runs with `engine` "firmware" (None for "python"): the packaged one of a packaged
-    artifact, else built once into `cache_dir` (BenchError, one sentence, without the compiler)."""
+    artifact, else built once into `cache_dir` (BenchError, one sentence, without the compiler, or for a model the
+    firmware cannot run)."""
     if engine != "firmware":
         return None
+    from target_sim.firmware.node_protocol import firmware_refusal
+
+    refusal = firmware_refusal(artifact)
+    if refusal is not None:
+        raise BenchError(refusal)
     from bench.firmware.images import firmware_for
 
     return firmware_for(artifact, cache_dir, quiet=quiet)
 
 
 def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, seed: int | None = None,
-              quiet: bool = True):
-    """The dataset (default: the generated 40 °C validation run, made in out/data if missing)."""
+              quiet: bool = True, *, mapping=None, sample_period_s: float | None = None):
+    """The dataset (default: the generated 40 °C validation run, made in out/data if missing).
+
+    A user's own file is read through `mapping` (a `bench.drive.dataset.ColumnMapping`, from --mapping) at
+    `sample_period_s` (--sample-period; None: the mapping's, else the artifact's). The data's sample period must be
+    the one the artifact's model runs on (BenchError, one sentence, if not)."""
     from bench.drive.dataset import load_dataset
     from bench.drive.generate import ensure_default_datasets
 
@@ -85,9 +96,35 @@ def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, se
         if not quiet and not Path("out/data/cycle_coolant40.csv").is_file():
             print("bench: generating the default datasets in out/data (once)", file=sys.stderr)
         path = ensure_default_datasets(Path("out/data"), seed)[40]
-    period = artifact.data_sample_period if artifact is not None else None
-    dataset = load_dataset(Path(path), sample_period_s=period)
+    given = sample_period_s if sample_period_s is not None else getattr(mapping, "sample_period_s", None)
+    period = given if given is not None else (artifact.data_sample_period if artifact is not None else None)
+    dataset = load_dataset(Path(path), mapping, sample_period_s=period)
+    if artifact is not None and not math.isclose(dataset.sample_period_s, artifact.data_sample_period,
+                                                  rel_tol=1e-6):
+        where = f" ({artifact.path})" if artifact.path is not None else ""
+        raise BenchError(f"{dataset.path} is sampled every {dataset.sample_period_s:g} s, but model "
+                         f"{artifact.model_id:08x}{where} runs on data sampled every {artifact.data_sample_period:g} "
+                         f"s; resample the data or use a model identified on data at {dataset.sample_period_s:g} s")
     return dataset
+
+
+def check_drive_data(dataset, artifact: ModelArtifact) -> None:
+    """BenchError (one sentence) when the model needs the d/q currents (an electrical loss model) and the data has
+    none: refused before anything starts (the target would otherwise never see a complete row)."""
+    if artifact.loss_model == "electrical" and not dataset.has_currents:
+        where = f" ({artifact.path})" if artifact.path is not None else ""
+        raise BenchError(f"model {artifact.model_id:08x}{where} has an electrical loss model, which needs the d/q "
+                         f"currents, and {dataset.path} has none (columns i_d_A, i_q_A); map them with --mapping or "
+                         "use a model with loss maps")
+
+
+def drive_for(dataset, artifact: ModelArtifact):
+    """What the host sends per row: (rows, 4) [torque, speed, coolant, ambient], and [i_d, i_q] after them (rows,
+    6) when the model has an electrical loss model (after `check_drive_data`)."""
+    from bench.model.runs import drive_matrix
+
+    check_drive_data(dataset, artifact)
+    return drive_matrix(dataset, with_currents=artifact.loss_model == "electrical")
 
 
 class TargetProcess:

@@ -49,6 +49,26 @@ REPLY_COMPLETE = (1 << len(REPLY_MESSAGES)) - 1
 # the drive values of a data row, in the order the host reads them from a dataset: torque, speed, coolant, ambient
 DRIVE_SIGNALS: tuple[tuple[str, str], ...] = (("DriveInputs", "MotorTorque"), ("DriveInputs", "MotorSpeed"),
                                               ("DriveTemps", "CoolantTemp"), ("DriveTemps", "AmbientTemp"))
+# and after them, when the drive data has them (DBC 1.4.0), the d/q stator currents: a model with an electrical
+# loss model needs them (the artifact's drive_signals), one with loss maps ignores them
+CURRENT_SIGNALS: tuple[tuple[str, str], ...] = (("DriveCurrents", "CurrentD"), ("DriveCurrents", "CurrentQ"))
+CURRENT_MESSAGE = "DriveCurrents"
+
+
+def row_signals(width: int) -> tuple[tuple[str, str], ...]:
+    """(message, signal) of each value of a data row of `width` values: the 4 drive values, or 6 with the currents."""
+    if width == len(DRIVE_SIGNALS):
+        return DRIVE_SIGNALS
+    if width == len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS):
+        return DRIVE_SIGNALS + CURRENT_SIGNALS
+    raise ValueError(f"a data row has {len(DRIVE_SIGNALS)} or {len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS)} values, "
+                     f"not {width}")
+
+
+def row_messages(width: int) -> tuple[str, ...]:
+    """The messages of a data row of `width` values, in the order they are sent (and must arrive): DriveInputs,
+    DriveTemps, then DriveCurrents with the currents."""
+    return tuple(dict.fromkeys(message for message, _ in row_signals(width)))
 # The firmware engine's timing frame: Cortex-M4F cycles the emulated core counted for a model step, and their time
 # at M4_CLOCK_HZ (90 MHz, the clock of the paper's C28x F28069M, so the two µs figures compare cycle for cycle).
 # Sent only by a target that runs the compiled firmware; Timing2 carries the C28x estimate beside it.

@@ -1,6 +1,7 @@
 """Replaying data rows (or a recorded log's host frames) onto the bus.
 
-Dataset replay, one DriveInputs + DriveTemps pair per data row, Step = row number (mod 65536):
+Dataset replay, one DriveInputs + DriveTemps pair per data row, Step = row number (mod 65536), followed by the
+row's DriveCurrents when the drive matrix carries the d/q currents (6 columns; with 4 nothing else is sent):
 
 * `lockstep`: send row n, wait for its Temperatures1 + Temperatures2 (up to `reply_timeout_s`), then row n+1.
   A row without both replies in time is missing; the run goes on (a silent heartbeat, or `abort_after`
@@ -13,7 +14,8 @@ Dataset replay, one DriveInputs + DriveTemps pair per data row, Step = row numbe
 
 Log replay (`bench replay`) re-sends a log's host frames byte for byte (same counters and CRCs), either with the
 recorded timing (`can.MessageSync`, scaled by `speed`, each row's DriveInputs held back until the previous row is
-answered) or as fast as possible in lockstep (after each DriveTemps wait for that row's replies).
+answered) or as fast as possible in lockstep (after each row's last frame, DriveTemps or, in a log with currents,
+DriveCurrents, wait for that row's replies).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import can
 import numpy as np
 
 from dbc.codec import FrameCodec
-from dbc.contract import DRIVE_SIGNALS, FaultBit, TargetState, step_of
+from dbc.contract import CURRENT_MESSAGE, DRIVE_SIGNALS, FaultBit, TargetState, row_messages, row_signals, step_of
 from dbc.database import frame_id, host_frame_ids, signal_ranges
 from host.session import HostSession, RowBook, SessionError
 
@@ -41,24 +43,33 @@ class DataRangeError(ValueError):
     """A data value the DBC cannot carry."""
 
 
+ROW_VALUE_NAMES = ("torque", "speed", "coolant temperature", "ambient temperature", "d-axis current",
+                   "q-axis current")
+
+
 def check_drive_range(drive: np.ndarray) -> None:
-    """Every value must be finite and inside its DBC signal range (the codec refuses to wrap)."""
-    names = ("torque", "speed", "coolant temperature", "ambient temperature")
-    for column, ((message, signal), name) in enumerate(zip(DRIVE_SIGNALS, names, strict=True)):
+    """Every value must be finite and inside its DBC signal range (the codec refuses to wrap); `drive` has the 4
+    drive columns, or 6 with the d/q currents."""
+    if drive.ndim != 2 or drive.shape[1] not in (len(DRIVE_SIGNALS), len(ROW_VALUE_NAMES)):
+        raise DataRangeError(f"the drive data has shape {drive.shape}, not (rows, {len(DRIVE_SIGNALS)}) or "
+                             f"(rows, {len(ROW_VALUE_NAMES)}) with the d/q currents")
+    signals = row_signals(drive.shape[1])
+    for column, ((message, signal), name) in enumerate(zip(signals, ROW_VALUE_NAMES, strict=False)):
         low, high = signal_ranges(message)[signal]
         values = drive[:, column]
         bad = np.flatnonzero(~np.isfinite(values) | (values < low) | (values > high))
         if bad.size:
             row = int(bad[0])
-            raise DataRangeError(f"data row {row} has {name} {values[row]!r}, outside what {message}.{signal} can "
-                                 f"carry ({low:g} to {high:g}); fix or clip the data")
+            raise DataRangeError(f"data row {row} has {name} {float(values[row])!r}, outside what "
+                                 f"{message}.{signal} can carry ({low:g} to {high:g}); fix or clip the data")
 
 
 def encode_row(codec: FrameCodec, row: int, values: Sequence[float]) -> list[can.Message]:
-    """The frames of data row `row` (values in DRIVE_SIGNALS order: torque, speed, coolant, ambient)."""
+    """The frames of data row `row` (values in DRIVE_SIGNALS order: torque, speed, coolant, ambient; then i_d, i_q
+    for DriveCurrents when there are 6), in the order of `dbc.contract.row_messages`."""
     step = step_of(row)
     signals: dict[str, dict[str, float]] = {}
-    for (message, signal), value in zip(DRIVE_SIGNALS, values, strict=True):
+    for (message, signal), value in zip(row_signals(len(values)), values, strict=True):
         signals.setdefault(message, {"Step": step})[signal] = value
     return [codec.encode(message, values) for message, values in signals.items()]
 
@@ -234,8 +245,17 @@ def replay_frames(session: HostSession, frames: Sequence[can.Message], *, timed:
     return ReplayStats("timed" if timed else "lockstep", rows, time.perf_counter() - started)
 
 
+def last_row_frame_id(frames: Sequence[can.Message]) -> int:
+    """The id of a row's last frame in these recorded frames: DriveCurrents when the log's rows carry the currents
+    (its target answered a row only after it), else DriveTemps."""
+    currents = frame_id(CURRENT_MESSAGE)
+    with_currents = any(f.arbitration_id == currents for f in frames)
+    return currents if with_currents else frame_id(row_messages(len(DRIVE_SIGNALS))[-1])
+
+
 def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> None:
-    drive_inputs, drive_temps, control = frame_id("DriveInputs"), frame_id("DriveTemps"), frame_id("Control")
+    drive_inputs, control = frame_id("DriveInputs"), frame_id("Control")
+    last_of_row = last_row_frame_id(frames)
     row = -1
     for frame in frames:
         if frame.arbitration_id == drive_inputs:
@@ -244,7 +264,7 @@ def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> None:
             book.sent_ns[row] = time.perf_counter_ns()
         session.send([frame])
         session.flush_log()
-        if frame.arbitration_id == drive_temps and row >= 0:
+        if frame.arbitration_id == last_of_row and row >= 0:
             if not wait_for_reply(session, book, row, reply_timeout_s) and _silent(session):
                 raise SessionError(f"the target went silent during the replay (row {row})")
             if progress is not None and (row & 1023) == 0:

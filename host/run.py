@@ -16,7 +16,7 @@ import can
 import numpy as np
 
 from dbc.codec import decode_any
-from dbc.contract import FrameError
+from dbc.contract import FrameError, row_messages
 from dbc.database import frame_id, host_frame_ids
 from dbc.mutations import FAULTED_HOST_MESSAGES, foreign_ids
 from dbc.transport import OwnFrameFilter
@@ -68,7 +68,8 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
                 alive: Callable[[], str | None] | None = None, progress: Progress | None = None,
                 faults: FaultSpec | None = None, control: ProcessControl | None = None,
                 target_events: str | Path | None = None, events_since: float | None = None) -> HostResult:
-    """Replay `drive` (rows, 4: torque, speed, coolant, ambient) to the target on `bus`.
+    """Replay `drive` (rows, 4: torque, speed, coolant, ambient; or rows, 6 with i_d, i_q, which then go out in
+    DriveCurrents) to the target on `bus`.
 
     `faults` (active) injects faults (kill/freeze: lockstep only, with `control`); `target_events` is the target's
     detection journal, read from `events_since` on.
@@ -79,7 +80,7 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
     check_drive_range(drive)
     faulty = plan = None
     if faults is not None and faults.active:
-        plan = FaultPlan(faults, len(drive))
+        plan = FaultPlan(faults, len(drive), frames_per_row=len(row_messages(drive.shape[1])))
         if mode == "realtime":
             check_realtime_faults(plan, sample_period_s, speed, reply_timeout_s)
         if plan.process_rows and control is None:

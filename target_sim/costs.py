@@ -21,9 +21,11 @@ has none):
 Counting rules: a matrix-vector product counts one multiply, one add and two loads per *nonzero* float32
 coefficient (structure a code generator exploits: modal A is diagonal, physical C is the identity), minus one add
 per row; every scalar of the formulas in `target_sim.model` counts as written; the loss look-up is two axis
-searches plus 3 multiplies and 6 adds per table (bilinear). The estimate is a model of the compiled code, not a
-measurement: it ranks kinds and realizations and shows the order of magnitude (the paper's Table 6 measured
-61-161 µs for Simulink-generated code, which adds its own overhead).
+searches plus 3 multiplies and 6 adds per table (bilinear); an electrical loss model (losses from the d/q currents
+and the speed) counts its formulas as written, a square root as a divide (EISQRTF32 estimate + two Newton-Raphson
+steps, as fastRTS's sqrtf), and reads two more interval means (i_d, i_q). The estimate is a model of the compiled
+code, not a measurement: it ranks kinds and realizations and shows the order of magnitude (the paper's Table 6
+measured 61-161 µs for Simulink-generated code, which adds its own overhead).
 
 Memory: flash = every float32 constant the step needs (4 bytes each) + code (4 bytes per counted operation, a
 C28x instruction being 2-4 bytes, plus 1.5 kB of run-time library: division, exp, look-up, CAN glue); RAM =
@@ -37,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from target_sim.artifact import LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
 
 CPU_HZ = 90e6
 OPERATIONS = ("multiply", "add", "divide", "exp", "table", "load_store", "call")
@@ -110,6 +112,17 @@ def loss_lookup_ops() -> Counter:
     return per_axis + per_axis + interpolate + _ops(call=1)
 
 
+def electrical_losses_ops() -> Counter:
+    """[p_dc0, p_ac0, p_stator, p_magnet, I] from the d/q currents and the speed (`ElectricalLosses.lookup`)."""
+    frequency = _ops(multiply=1, divide=1, add=1)     # f = (pp·|n|)/60, |n| as a compare
+    current = _ops(multiply=2, add=1, divide=2)       # I² = i_d² + i_q², I = √I² (a divide's cost), I/I_max
+    copper = _ops(multiply=2 + 3, divide=1)           # p_dc0 = (1.5·R)·I²; p_ac0 = p_dc0·(k_ac·(f/f_ac)²)
+    iron = _ops(multiply=6, add=2, divide=1)          # (P_h·f_fe + P_e·f_fe²)·(1 + c_I·ratio²)
+    magnet = _ops(multiply=5, add=2, divide=1)        # (P_m·f_m²)·(c0 + (1 - c0)·ratio)²
+    reads = _ops(load_store=len(ELECTRICAL_COEFFICIENTS) + 2 + 3 + 5)   # coefficients, I_max, inputs, results
+    return frequency + current + copper + iron + magnet + reads + _ops(call=1)
+
+
 def node_losses_ops() -> Counter:
     """Eqs. 3-8 after the look-up: copper temperature factor, ac/dc split, stator split k_s."""
     copper = _ops(multiply=2, add=3, divide=1)        # factor = 1 + a(y_w - ref); p_w = dc·f + ac/f
@@ -149,9 +162,11 @@ def pv_network_ops() -> Counter:
 
 def step_cost(artifact: ModelArtifact) -> StepCost:
     """Operation counts of one step of this artifact's model on the C28x."""
+    electrical = artifact.loss_model == "electrical"
     blocks: dict[str, Counter] = {
-        "call": _ops(call=1, load_store=8),           # step entry, read the 4 interval-mean inputs, write 4 outputs
-        "losses": loss_lookup_ops() + node_losses_ops(),
+        # step entry, read the 4 interval-mean inputs (6 with the currents), write 4 outputs
+        "call": _ops(call=1, load_store=8 + (2 if electrical else 0)),
+        "losses": (electrical_losses_ops() if electrical else loss_lookup_ops()) + node_losses_ops(),
     }
     if artifact.kind == "hammerstein":
         blocks["sigmoid"] = sigmoid_ops()
@@ -169,9 +184,13 @@ def step_cost(artifact: ModelArtifact) -> StepCost:
 
 
 def coefficient_count(artifact: ModelArtifact) -> int:
-    """float32 constants the step reads: look-up tables and axes, LPTN parameters, linear block, sigmoid."""
-    count = sum(artifact.array("losses", "tables", name).size for name in LOSS_TABLES)
-    count += artifact.array("losses", "torque_axis_Nm").size + artifact.array("losses", "speed_axis_rpm").size
+    """float32 constants the step reads: look-up tables and axes (or the electrical loss model's coefficients),
+    LPTN parameters, linear block, sigmoid."""
+    if artifact.loss_model == "electrical":
+        count = len(ELECTRICAL_COEFFICIENTS)
+    else:
+        count = sum(artifact.array("losses", "tables", name).size for name in LOSS_TABLES)
+        count += artifact.array("losses", "torque_axis_Nm").size + artifact.array("losses", "speed_axis_rpm").size
     count += 3 + len(LPTN_PARAMETERS) + 1             # current_max, alpha_cu, copper reference; speed_max
     if artifact.kind == "pv-lptn":
         count += 4                                     # 1/C_i
@@ -187,7 +206,7 @@ def memory_estimate(artifact: ModelArtifact, cost: StepCost | None = None) -> Me
     cost = cost or step_cost(artifact)
     counted = sum(n for op, n in cost.operations.items() if op != "call")
     states = 4 + 4                                     # x and the previous estimate y
-    accumulator = 4 + 1                                # interval sums and count
+    accumulator = len(artifact.drive_signals) + 1     # interval sums (4, or 6 with the currents) and count
     work = 5 + 4 + 8 + 4                               # table outputs, node losses, input vector u, outputs
     if artifact.kind == "pv-lptn":
         work += 4 * 4 + 4 * 6 + 4 * 6                  # A, B and the conductances rebuilt every step

@@ -7,6 +7,10 @@ numpy); "firmware" is `target_sim.firmware.node_engine.FirmwareNode`: bench/firm
 compiled for a Cortex-M4F and run in the emulated core, the Python process only moving frames. Both have the same
 interface (`startup_frames`, `handle`, `heartbeat_frames`, `stats`, `state`, `last_error`, `answered_again`,
 `journal`), which `target_sim.node.serve` drives.
+
+The firmware runs models with loss maps only (its generated C has no electrical loss model yet): an artifact with an
+electrical loss model is refused for it in one sentence (`target_sim.firmware.node_protocol.firmware_refusal`),
+wherever the firmware engine starts.
 """
 
 from __future__ import annotations
@@ -27,11 +31,17 @@ ENGINES = ("python", "firmware")
 def make_node(artifact: ModelArtifact, *, engine: str = "python", firmware: str | os.PathLike | bytes | None = None,
               journal: Callable[[dict], None] | None = None) -> TargetNode | FirmwareNode:
     """The node of `engine`; the firmware engine needs the model's node ELF (FirmwareError, one sentence, for an
-    ELF of another core, another model, or without the node)."""
+    ELF of another core, another model, or without the node, and for a model the firmware cannot run)."""
     if engine not in ENGINES:
         raise ValueError(f"engine {engine!r} is not one of {', '.join(ENGINES)}")
     if engine == "python":
         return TargetNode(artifact, journal=journal)
+    from target_sim.firmware.elf import FirmwareError
+    from target_sim.firmware.node_protocol import firmware_refusal
+
+    refusal = firmware_refusal(artifact)
+    if refusal is not None:
+        raise FirmwareError(refusal)
     if firmware is None:
         raise ValueError("the firmware engine needs the model's firmware ELF ('bench firmware build')")
     from target_sim.firmware.node_engine import FirmwareNode  # unicorn loads only for this engine

@@ -14,23 +14,26 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   Control START (only from READY) goes RUNNING and expects the Step it carries as the first data row.
   Control STOP goes STOPPED and forgets the alive counters it expects (the session is over; the next host
   starts its counters at 0). NOP does nothing.
-* A data row is the pair DriveInputs + DriveTemps with the same Step. A row is used only when both frames passed
-  validation, the node is RUNNING, and its Step is the next one or ahead of it. The row then goes into the
-  InputAccumulator (the interval-mean rule of `target_sim.model`); when it completes a model step's interval the
-  engine steps once (wall time measured with perf_counter_ns). Every used row is answered with
-  Temperatures1 and Temperatures2 (Step = the row's Step, the latest estimate: the reset temperatures before the
-  first model step), and every model step with Timing1, Timing2, Timing3 (Step = the row that completed it; the
-  firmware node adds Timing4, the step's Cortex-M4 cycles), temperatures first so a host waiting for them is not
-  held up by the timing frames; after every
-  CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames (x after that step).
-  The last used row sent again (a host retransmitting a row whose reply it did not get) is answered again with
-  the same temperatures and steps nothing (`repeats`).
+* A data row is the pair DriveInputs + DriveTemps with the same Step, and for a model with an electrical loss
+  model (the artifact's `drive_signals` include the d/q currents) the DriveCurrents of that Step after them: the
+  row's messages (`dbc.contract.row_messages`), in this order. A row is used only when all its frames passed
+  validation, the node is RUNNING, and its Step is the next one or ahead of it. A model with loss maps validates
+  DriveCurrents frames like any other and otherwise ignores them. The row then goes into the InputAccumulator
+  (the interval-mean rule of `target_sim.model`); when it completes a model step's interval the engine steps
+  once (wall time measured with perf_counter_ns). Every used row is answered with Temperatures1 and
+  Temperatures2 (Step = the row's Step, the latest estimate: the reset temperatures before the first model
+  step), and every model step with Timing1, Timing2, Timing3 (Step = the row that completed it; the firmware node
+  adds Timing4, the step's Cortex-M4 cycles), temperatures first so a host waiting for them is not held up by the
+  timing frames; after every CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames
+  (x after that step). The last used row sent again (a host retransmitting a row whose reply it did not get) is
+  answered again with the same temperatures and steps nothing (`repeats`).
 * Sequence errors (counted, SEQUENCE fault bit, nothing reaches the model): a drive frame outside RUNNING, a
-  DriveTemps without its DriveInputs, a pair with different Steps, a DriveInputs whose DriveTemps never came,
-  a row that goes back (or repeats one before the last: not answered), START outside READY. A row ahead of the
-  expected one (rows lost on the bus) is one sequence error; the lost rows are left out of their intervals'
-  means, a model step whose interval ended among them runs on the rows of it that did arrive (or holds the
-  previous step's inputs if none did), so the model keeps time, and then the row is used.
+  DriveTemps without its DriveInputs (a DriveCurrents without its DriveTemps), a row whose frames have different
+  Steps, a DriveInputs whose row never completed, a row that goes back (or repeats one before the last: not
+  answered), START outside READY. A row ahead of the expected one (rows lost on the bus) is one sequence error;
+  the lost rows are left out of their intervals' means, a model step whose interval ended among them runs on the
+  rows of it that did arrive (or holds the previous step's inputs if none did), so the model keeps time, and then
+  the row is used.
 * Rejected frames (unknown id, wrong length, CRC, signal out of range, alive-counter jump: `dbc.FrameValidator`)
   are counted per kind and set RX_ERROR; they change nothing else. Nothing a frame carries can crash the node:
   an unexpected exception sets INTERNAL and the state FAULT (a RESET recovers).
@@ -76,6 +79,8 @@ from dbc.contract import (
     Realization,
     TargetState,
     join_temperatures,
+    row_messages,
+    row_signals,
     split_temperatures,
 )
 from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
@@ -97,8 +102,8 @@ class RowAccumulator(InputAccumulator):
     """The interval-mean rule (`InputAccumulator`), plus what to do with rows lost on the bus (see the module
     docstring)."""
 
-    def __init__(self, sample_period_s: float, dt_s: float):
-        super().__init__(sample_period_s, dt_s)
+    def __init__(self, sample_period_s: float, dt_s: float, width: int = 4):
+        super().__init__(sample_period_s, dt_s, width)
         self.last_inputs: np.ndarray | None = None
 
     def add(self, row: int, sample) -> np.ndarray | None:
@@ -150,13 +155,17 @@ class TargetNode:
         self.faults = FaultBit(0)
         self.errors = dict.fromkeys(RX_ERROR_KINDS, 0)
         self.last_error = ""
-        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt)
+        width = len(artifact.drive_signals)    # 4 drive values, 6 with the d/q currents
+        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt, width)
+        self.row_messages = row_messages(width)    # DriveInputs, DriveTemps (, DriveCurrents): a row, in order
+        self._row_index = {name: index for index, name in enumerate(self.row_messages)}
+        self._row_signals = row_signals(width)
         self._reset_frames: dict[str, dict] = {}
         self._restore_frames: dict[int, dict] = {}
         self.last_reply_row: int | None = None
         self.repeats = 0
         self.answered_again = False    # the last handle() answered a row again (a retransmission)
-        self._pending_inputs: dict | None = None
+        self._pending: list[dict] = []     # the frames of the row being received, in row order
         self.next_row: int | None = None
         self.rows_used = 0
         self.model_steps = 0
@@ -272,21 +281,9 @@ class TargetNode:
             return self._set_state(TargetState.FAULT)
 
     def _dispatch(self, name: str, signals: dict) -> list[can.Message]:
-        if name == "DriveInputs":
-            out = []
-            if self._pending_inputs is not None:
-                out = self._sequence_error(f"DriveInputs of step {self._pending_inputs['Step']} had no DriveTemps")
-            self._pending_inputs = signals
-            return out
-        if name == "DriveTemps":
-            inputs, self._pending_inputs = self._pending_inputs, None
-            if inputs is None:
-                return self._sequence_error(f"DriveTemps of step {signals['Step']} without its DriveInputs")
-            if inputs["Step"] != signals["Step"]:
-                return self._sequence_error(f"DriveInputs step {inputs['Step']} paired with DriveTemps step "
-                                            f"{signals['Step']}")
-            sample = (inputs["MotorTorque"], inputs["MotorSpeed"], signals["CoolantTemp"], signals["AmbientTemp"])
-            return self._row(int(signals["Step"]), sample)
+        index = self._row_index.get(name)
+        if index is not None:
+            return self._row_frame(name, index, signals)
         if name in RESET_SIGNALS:
             self._reset_frames[name] = signals
             return []
@@ -295,7 +292,35 @@ class TargetNode:
             return []
         if name == "Control":
             return self._control(Command(int(signals["Command"])), int(signals["Step"]))
-        return []  # a frame of the contract the target does not act on (BenchEvent)
+        return []  # a frame of the contract the target does not act on (BenchEvent; DriveCurrents with loss maps)
+
+    def _row_frame(self, name: str, index: int, signals: dict) -> list[can.Message]:
+        """One frame of a data row, the `index`-th of the row's messages: the row is used when its last one comes
+        after all the others, in order and of the same Step."""
+        pending, row = self._pending, self.row_messages
+        first = row[0]
+        if index == 0:
+            out = []
+            if pending:
+                out = self._sequence_error(f"{first} of step {pending[0]['Step']} had no {row[len(pending)]}")
+            self._pending = [signals]
+            return out
+        if len(pending) != index:
+            self._pending = []
+            if len(pending) < index:
+                return self._sequence_error(f"{name} of step {signals['Step']} without its {row[len(pending)]}")
+            return self._sequence_error(f"{first} of step {pending[0]['Step']} had no {row[len(pending)]}")
+        if pending[0]["Step"] != signals["Step"]:
+            self._pending = []
+            return self._sequence_error(f"{first} step {pending[0]['Step']} paired with {name} step "
+                                        f"{signals['Step']}")
+        if index + 1 < len(row):
+            pending.append(signals)
+            return []
+        self._pending = []
+        frames = {message: frame for message, frame in zip(row, (*pending, signals), strict=True)}
+        sample = tuple(frames[message][signal] for message, signal in self._row_signals)
+        return self._row(int(signals["Step"]), sample)
 
     def _control(self, command: Command, step: int) -> list[can.Message]:
         if command == Command.RESET:
@@ -320,7 +345,7 @@ class TargetNode:
             return self._set_state(TargetState.RUNNING)
         if command == Command.STOP:
             self.validator.reset_counters()
-            self._pending_inputs = None
+            self._pending = []
             return self._set_state(TargetState.STOPPED)
         return []
 
@@ -334,7 +359,7 @@ class TargetNode:
         """After the model state was set (RESET or RESTORE): a fresh interval, counters and latched faults."""
         self.estimate = self.model.y.copy()
         self.accumulator.reset()
-        self._pending_inputs = None
+        self._pending = []
         self.next_row = None
         self.last_reply_row = None
         self.rows_used = self.model_steps = self.overruns = 0

@@ -125,3 +125,41 @@ def patched_elf(path: Path, symbol: str, data: bytes, offset: int = 0) -> bytes:
         at = section["sh_offset"] + address - section["sh_addr"]
     image[at:at + len(data)] = data
     return bytes(image)
+
+
+# ---------------------------------------------------------------- electrical loss model (d/q currents)
+
+# The coefficients of a plausible electrical loss model of the virtual 200 kW motor (losses from the d/q currents and
+# the speed, target_sim.model.ElectricalLosses), for artifacts built without the identification.
+ELECTRICAL_TEST_COEFFICIENTS = {
+    "pole_pairs": 10.0, "stator_resistance_ohm": 0.008, "ac_factor": 0.3, "ac_reference_Hz": 1000.0,
+    "iron_hysteresis_W": 600.0, "iron_eddy_W": 900.0, "iron_reference_Hz": 1000.0, "iron_current_factor": 0.3,
+    "magnet_W": 150.0, "magnet_reference_Hz": 1000.0, "magnet_no_load_share": 0.4}
+
+
+def electrical_artifact_text(base: str | Path | None = None) -> str:
+    """A schema-2 artifact with an electrical loss model (`losses.model` "electrical"): the packaged Hammerstein
+    artifact (or the artifact file `base`) with its loss maps replaced by ELECTRICAL_TEST_COEFFICIENTS, resealed."""
+    import json
+
+    from target_sim.artifact import ELECTRICAL_COEFFICIENTS, dumps, encode_array
+
+    path = Path(base) if base is not None else ROOT / "bench" / "data" / "default_model.json"
+    content = json.loads(path.read_text(encoding="utf-8"))
+    content.pop("sha256", None)
+    content["losses"] = {"model": "electrical", "current_max_A": encode_array(400.0),
+                         "alpha_cu_per_K": encode_array(0.0039), "copper_reference_C": encode_array(20.0),
+                         **{k: encode_array(ELECTRICAL_TEST_COEFFICIENTS[k]) for k in ELECTRICAL_COEFFICIENTS}}
+    content["schema_version"] = 2
+    return dumps(content)
+
+
+def with_currents(columns: dict[str, np.ndarray], seed: int = 7) -> dict[str, np.ndarray]:
+    """`columns` plus d/q current columns at the CAN resolution (0.1 A) that follow the torque: i_q about
+    torque / 1.5 A/Nm, i_d field weakening with the speed, a little noise; within ±3000 A."""
+    rng = np.random.default_rng(seed)
+    torque, speed = columns["torque_Nm"], columns["speed_rpm"]
+    i_q = np.round(np.clip(torque / 1.5 + rng.normal(0, 2.0, torque.size), -2900, 2900), 1)
+    i_d = np.round(np.clip(-0.04 * np.abs(speed) - 0.2 * np.abs(i_q) + rng.normal(0, 2.0, torque.size), -2900, 0),
+                   1)
+    return {**columns, "i_d_A": i_d, "i_q_A": i_q}

@@ -5,8 +5,12 @@ temperatures as decoded from the ResetTemps frames, so CAN quantization is the s
 * offline float32: `target_sim.model.run_offline`, the target's own code (agreement must be within the 0.01 °C
   quantization of the temperature signals, ±0.005 °C);
 * offline float64: the interval means in float64 through the artifact's float64 coefficients: the numba kernel
-  `bench.thermal.estimator.run_batch` for the LTI LPTN and the Hammerstein model, the float64 twin of the target's
-  estimator for the parameter-varying LPTN (which has no batch kernel).
+  `bench.thermal.estimator.run_batch` for the LTI LPTN and the Hammerstein model with loss maps, the float64 twin of
+  the target's estimator for the parameter-varying LPTN (which has no batch kernel) and for a model with an
+  electrical loss model.
+A model with an electrical loss model needs the d/q currents: the references then run on the six values of each
+row, the currents decoded from the logged DriveCurrents frames (a log without them cannot be compared with such a
+model); a loss-map model uses the first four (it ignores DriveCurrents).
 The measured winding and PM temperatures (when the dataset is given) are interpolated at the step times
 (k+1)·Δt, as in `bench.model.runs`. Yoke and tooth have no measurement: their RMSE is against the float64 model.
 
@@ -23,7 +27,7 @@ go into `metrics["faults"]`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -66,7 +70,7 @@ def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int
         model.restore(state)
     else:
         model.reset(initial)
-    acc = InputAccumulator(artifact.data_sample_period, artifact.dt)
+    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, len(artifact.drive_signals))
     estimate = model.y.copy()
     out = np.empty((max(stop_row - start_row, 0), 4), dtype=np.float32)
     samples = np.asarray(drive[start_row:stop_row], dtype=np.float32)
@@ -127,7 +131,7 @@ def float64_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np
     means = interval_means(drive, artifact.data_sample_period, artifact.dt)
     if len(means) == 0:
         return np.zeros((0, 4))
-    if artifact.kind == "pv-lptn":
+    if artifact.kind == "pv-lptn" or artifact.loss_model != "maps":   # no batch kernel: the estimator in float64
         model = Float32Estimator(artifact, dtype=np.float64)
         model.reset(np.asarray(initial, dtype=np.float64))
         return np.array([model.step(*row) for row in means], dtype=np.float64).reshape(-1, 4)
@@ -248,14 +252,29 @@ def intended_drive(record: BusRecord, dataset=None) -> tuple[np.ndarray, int]:
     if not lost.any():
         return drive, 0
     if dataset is not None:
-        from bench.model.runs import drive_matrix
+        from bench.model.runs import DRIVE_COLUMNS, drive_matrix
 
-        values = drive_matrix(dataset)
-        rows = np.flatnonzero(lost[:len(values)])
-        drive[rows] = values[rows]
+        currents = drive.shape[1] > len(DRIVE_COLUMNS)    # the rows carry the d/q currents: so must the data
+        if dataset.has_currents or not currents:
+            values = drive_matrix(dataset, with_currents=currents)
+            rows = np.flatnonzero(lost[:len(values)])
+            drive[rows] = values[rows]
     for row in np.flatnonzero(~np.isfinite(drive).all(axis=1)):
         drive[row] = drive[row - 1] if row > 0 else np.nan_to_num(drive[row])
     return drive, int(np.count_nonzero(lost))
+
+
+def drive_for_model(record: BusRecord, artifact: ModelArtifact) -> BusRecord:
+    """The record with the drive values the model uses: all six (with the d/q currents of the logged DriveCurrents)
+    for an electrical loss model, the first four for loss maps; ValueError (one sentence) when the log has no
+    currents and the model needs them."""
+    width = len(artifact.drive_signals)
+    if record.drive.shape[1] == width:
+        return record
+    if record.drive.shape[1] < width:
+        raise ValueError(f"model {artifact.model_id:08x} has an {artifact.loss_model} loss model, which needs the d/q "
+                         f"currents, and the log's rows carry none (no DriveCurrents frames)")
+    return replace(record, drive=record.drive[:, :width])
 
 
 def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarray, dict]:
@@ -281,6 +300,7 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     and the clean references run on the drive values the host meant to send."""
     if record.initial is None:
         raise ValueError("the log has no complete RESET (ResetTemps1, ResetTemps2, Control RESET)")
+    record = drive_for_model(record, artifact)
     drive, lost_rows = intended_drive(record, dataset)
     refs = references(artifact, drive, record.initial, dataset)
     answered = record.answered
@@ -322,7 +342,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
                  for i, name in enumerate(TEMPERATURES)}
     metrics = {
         "model": {"id": f"{artifact.model_id:08x}", "kind": artifact.kind, "realization": artifact.realization,
-                  "dt_s": dt, "log_model_id": f"{record.model_id:08x}" if record.model_id is not None else None},
+                  "dt_s": dt, "loss_model": artifact.loss_model,
+                  "log_model_id": f"{record.model_id:08x}" if record.model_id is not None else None},
         "steps_sent": record.rows,
         "replies": int(np.count_nonzero(answered)),
         "missing": int(record.rows - np.count_nonzero(answered)),

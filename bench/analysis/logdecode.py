@@ -3,7 +3,10 @@
 Rows: a fresh session begins at a Control START not announced by a BenchEvent REINIT (everything before it is
 forgotten: the last session of a log wins); its START Step is data row 0, and a drive frame's Step maps to the
 row nearest to the last row sent (mod 65536), so a row sent again (a retransmission) is the same row. A data row
-is a DriveInputs followed by the DriveTemps of the same Step. The initial temperatures are those of the
+is a DriveInputs followed by the DriveTemps of the same Step, and in a log whose host sent the d/q currents (DBC
+1.4.0) the DriveCurrents of that Step right after them: such a log's drive matrix has six columns (torque, speed,
+coolant, ambient, i_d, i_q; NaN where a row's DriveCurrents never came intact), else four. The initial temperatures
+are those of the
 ResetTemps frames the session's RESET used. Frames that fail the DBC checks (unknown id, length, CRC, range)
 are counted and skipped; the drive values of a row come from its frames that pass them.
 
@@ -30,6 +33,9 @@ import numpy as np
 
 from dbc.codec import decode_any
 from dbc.contract import (
+    CURRENT_MESSAGE,
+    CURRENT_SIGNALS,
+    DRIVE_SIGNALS,
     FIRMWARE_TIMING_MESSAGE,
     REPLY_COMPLETE,
     REPLY_SIGNALS,
@@ -79,7 +85,7 @@ class BusRecord:
     frames: int = 0
     invalid: dict[str, int] = field(default_factory=dict)
     initial: np.ndarray | None = None            # [yoke, winding, tooth, magnet] of the session's first RESET
-    drive: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    drive: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))   # (rows, 4), or 6 with the d/q currents
     sent_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     replied_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -179,6 +185,9 @@ class _LogDecoder:
         self.marks: list[Mark] = []
         self.base_step = 0                 # Step of the fresh session's START: row 0
         self.pending_inputs: tuple[dict, float] | None = None   # a DriveInputs waiting for its DriveTemps
+        self.pending_pair: tuple[int, int, dict] | None = None   # (Step, row, DriveTemps) of the last pair: its
+        # DriveCurrents comes next
+        self.currents: dict[int, list[float]] = {}         # row -> [i_d, i_q] of its DriveCurrents
         self.reset_frames: dict[str, dict] = {}
         self.restore_frames: dict[int, dict] = {}
         self.pending_initial: np.ndarray | None = None
@@ -194,6 +203,7 @@ class _LogDecoder:
         self.frame_ids: list[int] = []
         self.frame_bytes = bytearray()
         self.handlers = {"DriveInputs": self.drive_inputs, "DriveTemps": self.drive_temps,
+                         CURRENT_MESSAGE: self.drive_currents,
                          **dict.fromkeys(REPLY_SIGNALS, self.temperatures),
                          **dict.fromkeys(_TIMING_SIGNALS, self.timing_frame),
                          **dict.fromkeys(RESET_SIGNALS, self.reset_temps),
@@ -231,9 +241,12 @@ class _LogDecoder:
 
     def drive_inputs(self, name: str, s: dict, t: float) -> None:
         self.pending_inputs = (s, t)
+        self.pending_pair = None
 
     def drive_temps(self, name: str, s: dict, t: float) -> None:
         pending, self.pending_inputs = self.pending_inputs, None
+        if pending is None and self.pending_pair is not None and self.pending_pair[2] != s:
+            self.pending_pair = None   # a DriveTemps between a pair and its currents (not a copy of the pair's)
         if pending is None or pending[0]["Step"] != s["Step"] or not self.segments:
             return
         inputs, inputs_t = pending
@@ -242,10 +255,23 @@ class _LogDecoder:
         if row < 0:
             return
         self.drive[row] = [inputs["MotorTorque"], inputs["MotorSpeed"], s["CoolantTemp"], s["AmbientTemp"]]
+        self.currents.pop(row, None)        # a row sent again: its currents come again after this pair
+        self.pending_pair = (int(s["Step"]), row, s)
         segment.host_row = row
         reply = segment.replies.get(row)
         if reply is None or not reply.complete:
             segment.pair_s[row] = inputs_t
+
+    def drive_currents(self, name: str, s: dict, t: float) -> None:
+        """The d/q currents of the pair right before them (same Step): the row's last two values, as the target
+        completes a row. A DriveCurrents of another Step ends the pair without currents (the target drops the row);
+        copies of a frame (the target refuses them for their alive counter, which the decoder does not judge)
+        carry the same values and change nothing."""
+        pair = self.pending_pair
+        if pair is not None and pair[0] == int(s["Step"]):
+            self.currents[pair[1]] = [s["CurrentD"], s["CurrentQ"]]
+        else:
+            self.pending_pair = None
 
     def temperatures(self, name: str, s: dict, t: float) -> None:
         segment = self.target_segment()
@@ -297,6 +323,7 @@ class _LogDecoder:
             self.record.initial = self.pending_initial
             self.segments = [_SegmentBuilder(0, self.pending_initial, False)]
             self.drive = {}
+            self.currents = {}
             self.marks = []
             self.timing = self._empty_timing()
             # the session's first transition into RUNNING starts segment 0 (one already RUNNING: its own)
@@ -339,9 +366,12 @@ class _LogDecoder:
             raise LogError(f"log {path} holds no session (no Control START); is it a log of this bench?")
         rows = max(self.drive) + 1 if self.drive else 0
         record.invalid = self.invalid
-        record.drive = np.full((rows, 4), np.nan)
+        width = len(DRIVE_SIGNALS) + (len(CURRENT_SIGNALS) if self.currents else 0)
+        record.drive = np.full((rows, width), np.nan)
         for row, values in self.drive.items():
-            record.drive[row] = values
+            record.drive[row, :len(values)] = values
+            if width > len(values) and row in self.currents:
+                record.drive[row, len(values):] = self.currents[row]
         record.segments = [segment.build() for segment in self.segments]
         self._final_replies(rows)
         record.timing = {k: np.array(v, dtype=float) for k, v in self.timing.items()}

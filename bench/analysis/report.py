@@ -128,7 +128,10 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
     lines += ["| | |", "|---|---|"]
     info = [("log", f"`{m['log']}` ({m['frames_in_log']} frames)"),
             ("data", f"`{dataset.path}`" if dataset is not None else "– (no measured reference given)"),
-            ("model step Δt", f"{model['dt_s']:g} s"), ("mode", run_info.get("mode", "–")),
+            ("model step Δt", f"{model['dt_s']:g} s"),
+            ("loss model", "electrical: from the d/q currents of each row's DriveCurrents and the speed"
+             if model.get("loss_model") == "electrical" else "loss maps over torque and speed"),
+            ("mode", run_info.get("mode", "–")),
             ("bus", run_info.get("bus", "–")),
             ("target engine", run_info.get("engine") or ("firmware (emulated Cortex-M4F)" if m.get("engine") ==
                                                           "firmware" else "python (float32 model)"))]

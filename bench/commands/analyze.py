@@ -1,10 +1,13 @@
 """`bench analyze LOG`: decode a bus log of this bench offline into the same report as `bench run`.
 
-    bench analyze LOG [--model FILE] [--data FILE] [--report DIR] [--tolerate-faults] [--json] [--quiet]
+    bench analyze LOG [--model FILE] [--data FILE [--mapping FILE] [--sample-period S|auto]] [--report DIR]
+                      [--tolerate-faults] [--json] [--quiet]
 
 The model defaults to the packaged artifact and must carry the log's model id (Status.ModelId). The measured
 reference comes from --data, or else from a dataset in out/data whose rows match the drive values in the log
 (so a log of the default `bench run` gets the same report); without one, RMSE is against the float64 model only.
+A log of a model with an electrical loss model carries each row's d/q currents (DriveCurrents): the references
+run on them, and --data must have them too.
 
 Exit status as `bench run`'s: 1 when the log is not clean, and a log with injected faults (BenchEvent marks; the
 `<log>.faults.json` sidecar beside it says whether each was detected) is not, unless --tolerate-faults; a fault
@@ -19,13 +22,22 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.commands.common import add_output_flags, check_writable, print_json, print_summary, verdict
+from bench.commands.common import (
+    add_data_arguments,
+    add_output_flags,
+    check_writable,
+    data_options,
+    print_json,
+    print_summary,
+    verdict,
+)
 from bench.errors import BenchError
 from bench.runner import load_data, load_model
 from host.canlog import LogError
 
-# half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C
-DRIVE_HALF_RESOLUTION = np.array([0.05, 0.25, 0.05, 0.05]) + 1e-9
+# half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C, and the
+# d/q currents of DriveCurrents 0.1 A
+DRIVE_HALF_RESOLUTION = np.array([0.05, 0.25, 0.05, 0.05, 0.05, 0.05]) + 1e-9
 
 
 def add_subparser(subparsers) -> None:
@@ -34,6 +46,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("log", type=Path, help="bus log (.blf .asc .log .csv .mf4)")
     p.add_argument("--model", type=Path, default=None, help="artifact the log was made with (default: packaged)")
     p.add_argument("--data", type=Path, default=None, help="dataset with the measured reference")
+    add_data_arguments(p)
     p.add_argument("--report", type=Path, default=None,
                    help="report directory (default: <log dir>/<log name>-report)")
     p.add_argument("--tolerate-faults", action="store_true",
@@ -58,13 +71,18 @@ def matching_dataset(drive: np.ndarray, artifact):
 
 
 def data_mismatch(dataset, drive: np.ndarray) -> str | None:
-    """Why `dataset` is not the one the log's drive frames came from (None if it is, within the CAN resolution)."""
-    from bench.model.runs import drive_matrix
+    """Why `dataset` is not the one the log's drive frames came from (None if it is, within the CAN resolution;
+    a log whose rows carry the d/q currents needs a dataset with them, and they must match too)."""
+    from bench.model.runs import DRIVE_COLUMNS, drive_matrix
 
-    values = drive_matrix(dataset)
+    currents = drive.shape[1] > len(DRIVE_COLUMNS)
+    if currents and not dataset.has_currents:
+        return "has no d/q current columns (i_d_A, i_q_A), the log's rows carry them"
+    values = drive_matrix(dataset, with_currents=currents)
     if len(values) < len(drive):
         return f"has {len(values)} rows, the log {len(drive)}"
-    off = np.any(np.abs(values[: len(drive)] - drive) > DRIVE_HALF_RESOLUTION, axis=1)
+    with np.errstate(invalid="ignore"):   # a row whose frames never came intact (NaN) differs from nothing
+        off = np.any(np.abs(values[: len(drive)] - drive) > DRIVE_HALF_RESOLUTION[: drive.shape[1]], axis=1)
     if off.any():
         row = int(np.argmax(off))
         return f"differs from the log's drive values at data row {row + 1}"
@@ -90,14 +108,18 @@ def run(args: argparse.Namespace) -> int:
         raise BenchError(f"log {args.log} has no complete RESET (ResetTemps1, ResetTemps2, Control RESET); "
                          "it cannot be compared with the model")
     if args.data:
-        dataset = load_data(args.data, artifact)
+        mapping, period = data_options(args)
+        dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
         mismatch = data_mismatch(dataset, record.drive)
         if mismatch:
             raise BenchError(f"--data {args.data} {mismatch}, so it is not the dataset log {args.log} was recorded "
                              "from; pass that one, or leave --data out to compare with the model only")
     else:
         dataset = matching_dataset(record.drive, artifact)
-    metrics, refs = compute(record, artifact, dataset)
+    try:
+        metrics, refs = compute(record, artifact, dataset)
+    except ValueError as exc:     # e.g. an electrical loss model and a log without the d/q currents
+        raise BenchError(f"log {args.log} cannot be compared with {model_path}: {exc}") from None
     in_log = problems(metrics)
     metrics["report"] = str(write_report(report_dir, metrics, in_log, record, refs, dataset,
                                          {"mode": "analyzed from the log"}))  # the report `bench run` writes

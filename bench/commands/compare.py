@@ -58,7 +58,7 @@ def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
     """
     import numpy as np
 
-    from bench.model.artifact_eval import artifact_loss_maps, artifact_parameters
+    from bench.model.artifact_eval import artifact_loss_model, artifact_parameters
     from bench.model.builder import ModelSpec, build_artifact
     from bench.model.default import default_artifact_path
     from bench.model.evaluate import hammerstein_models
@@ -69,7 +69,7 @@ def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
     if np.isclose(dt, reference.dt):
         return list(packaged.values())
     params = artifact_parameters(reference)
-    maps, motor = artifact_loss_maps(reference)
+    maps, motor = artifact_loss_model(reference)
     note = {"derived_from": reference.sha256, "note": f"re-discretized at {dt:g} s for bench compare"}
     specs = {
         "lti-lptn": ModelSpec("lti-lptn", params, dt, "zoh", "balanced", maps, motor, provenance=note),
@@ -90,16 +90,17 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
                    quiet: bool = True, engine: str = "firmware") -> list[dict]:
     """Run each artifact through the bench; one table row per artifact (plug identified artifacts in here)."""
     from bench.analysis.report import analyze_log
-    from bench.model.runs import drive_matrix, initial_temperatures
+    from bench.model.artifact_eval import artifact_drive
+    from bench.model.runs import initial_temperatures
     from bench.runner import firmware_for_engine, run_with_target
 
-    drive = drive_matrix(dataset)[:rows] if rows else drive_matrix(dataset)
     # every ELF first (built where not packaged): a missing compiler stops the comparison before any run
     loaded = [load_model(path) for path in model_paths]
     elves = [firmware_for_engine(engine, artifact, out_dir / "firmware-cache", quiet=quiet)
              for artifact, _ in loaded]
     table = []
     for (artifact, model_path), firmware in zip(loaded, elves, strict=True):
+        drive = artifact_drive(artifact, dataset)[:rows] if rows else artifact_drive(artifact, dataset)
         log_path = out_dir / f"{model_path.stem}.blf"
         bar = ProgressBar(len(drive), artifact.kind, quiet)
         try:

@@ -1,7 +1,8 @@
 """`bench host`: the host node on its own: replay a dataset to a target already on the bus, log every frame,
 report what came back.
 
-    bench host --data FILE [--model FILE] [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
+    bench host --data FILE [--mapping FILE] [--sample-period S|auto] [--model FILE] [--mode lockstep|realtime]
+               [--speed X] [--rows N] [--log FILE]
                [--reply-timeout S] [--connect-timeout S] [--tolerate-gaps] [--json] [--quiet]
                [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
                [--target-events FILE]
@@ -11,7 +12,8 @@ The target (`python -m target_sim`, or a real ECU) must run on the same bus; its
 id of --model (default: the packaged artifact). Exit status 0 when every row was answered and nothing was lost,
 1 when the run had missing replies, sequence gaps or heartbeat loss (unless --tolerate-gaps), 2 for bad
 arguments; every error is one sentence on stderr. The `host` package is the node itself (session, replay,
-faults, logs) and knows no datasets: this command reads the dataset and hands the host its drive rows.
+faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as `bench run`) and hands
+the host its drive rows, with the d/q currents (DriveCurrents) when the model has an electrical loss model.
 
 Bus faults (`host.faults`; lockstep) are injected as by `bench run`; kill and freeze need `bench run`, which
 owns the target process. To check detection, start the target with `--events FILE` and pass the same file as
@@ -26,9 +28,9 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, print_json
+from bench.commands.common import add_data_arguments, add_output_flags, data_options, print_json
 from bench.errors import BenchError, UsageError
-from bench.runner import load_data, load_model, positive_float, positive_int
+from bench.runner import drive_for, load_data, load_model, positive_float, positive_int
 from dbc.database import host_frame_ids
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, first_heard, resolve
 from host.canlog import LogError, check_log_path
@@ -41,7 +43,8 @@ from host.session import DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_REPLY_TIMEOUT_S, Ses
 def add_subparser(subparsers) -> None:
     p = subparsers.add_parser("host", help="the host node alone, against a target already on the bus",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", type=Path, required=True, help="dataset CSV (bench.drive schema)")
+    p.add_argument("--data", type=Path, required=True, help="dataset CSV (bench.drive schema, or --mapping)")
+    add_data_arguments(p)
     p.add_argument("--model", type=Path, default=None,
                    help="artifact the target must run (default: the packaged one)")
     p.add_argument("--mode", choices=MODES, default="lockstep")
@@ -86,8 +89,12 @@ def run_host(args: argparse.Namespace) -> int:
         raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
                          "use udp_multicast, socketcan or auto")
     artifact, _ = load_model(args.model)
-    dataset = load_data(args.data, artifact)
-    from bench.model.runs import drive_matrix, initial_temperatures
+    mapping, period = data_options(args)
+    dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
+    drive = drive_for(dataset, artifact)     # with the currents for an electrical loss model; refused without
+    if args.rows is not None:
+        drive = drive[: args.rows]
+    from bench.model.runs import initial_temperatures
 
     bus = None
     try:
@@ -96,9 +103,6 @@ def run_host(args: argparse.Namespace) -> int:
         if (other := first_heard(bus, host_frame_ids())) is not None:  # two hosts would both drive the target
             raise SessionError(f"{config.describe()} already has a host sending (frame id "
                                f"0x{other.arbitration_id:03x}); stop it or pick another channel")
-        drive = drive_matrix(dataset)
-        if args.rows is not None:
-            drive = drive[: args.rows]
         if not (args.quiet or args.json):
             print(f"bench: host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
                   + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)

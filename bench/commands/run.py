@@ -1,12 +1,17 @@
 """`bench run`: the main job. Start the simulated target, replay a dataset over CAN, log, report.
 
-    bench run [--data FILE] [--model FILE] [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
+    bench run [--data FILE [--mapping FILE] [--sample-period S|auto]] [--model FILE] [--engine python|firmware]
+              [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
               [--report DIR | --no-report] [--reply-timeout S] [--tolerate-gaps] [--seed N] [--json] [--quiet]
               [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
               [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
 
 Defaults: the generated 40 °C validation run (out/data, made if missing), the packaged model artifact, lockstep,
 log out/run/bench.blf (format by suffix: .blf .asc .log .csv .mf4), report out/run/report/report.md with PNGs.
+A user's own data file is read through --mapping (column names, units, derived columns, time column, separator)
+at --sample-period (default auto: the mapping's, else the model's); its sample period must be the model's. A model
+with an electrical loss model needs the d/q currents: the host then sends each row's DriveCurrents after its
+DriveInputs and DriveTemps, and data without them is refused in one sentence before anything starts.
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
 ±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). The JSON summary names the bus
 it used ("bus": interface, channel, and the port of udp_multicast), `auto` resolved. A target already sending on
@@ -32,9 +37,11 @@ import time
 from pathlib import Path
 
 from bench.commands.common import (
+    add_data_arguments,
     add_engine_argument,
     add_output_flags,
     check_writable,
+    data_options,
     print_json,
     print_summary,
     verdict,
@@ -43,6 +50,7 @@ from bench.errors import BenchError, UsageError
 from bench.runner import (
     ProgressBar,
     bus_from_args,
+    drive_for,
     firmware_for_engine,
     load_data,
     load_model,
@@ -86,6 +94,7 @@ def add_run_arguments(p) -> None:
                    help="exit 0 even with missing replies, sequence gaps or heartbeat loss (still reported); "
                         "not for runs with injected faults (see --tolerate-faults)")
     p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+    add_data_arguments(p)
     add_engine_argument(p)
 
 
@@ -101,10 +110,25 @@ def fault_spec(args: argparse.Namespace):
     return spec
 
 
+def load_run_data(args: argparse.Namespace, artifact):
+    """The run's dataset (--data through --mapping at --sample-period) and the drive rows the host sends: 4 values
+    per row, 6 with the d/q currents for an electrical loss model (BenchError, one sentence, when the data lacks
+    them or its sample period is not the model's)."""
+    if args.data is None and getattr(args, "mapping", None) is not None:
+        raise UsageError("--mapping says how to read your own data file: pass it with --data FILE")
+    mapping, period = data_options(args)
+    dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json, mapping=mapping,
+                        sample_period_s=period)
+    drive = drive_for(dataset, artifact)
+    if args.rows is not None:
+        drive = drive[: args.rows]
+    return dataset, drive
+
+
 def run(args: argparse.Namespace) -> int:
     faults = fault_spec(args)
     artifact, model_path = load_model(args.model)
-    dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json)
+    dataset, drive = load_run_data(args, artifact)     # before anything starts: data the model cannot run on
     try:
         log_path = check_log_path(args.log)
     except LogError as exc:
@@ -115,11 +139,8 @@ def run(args: argparse.Namespace) -> int:
     quiet = args.quiet or args.json
     # the firmware engine's ELF: packaged, or built once beside the log (before the run: no compiler, no run)
     firmware = firmware_for_engine(args.engine, artifact, Path(log_path).parent / "firmware-cache", quiet=quiet)
-    from bench.model.runs import drive_matrix, initial_temperatures
+    from bench.model.runs import initial_temperatures
 
-    drive = drive_matrix(dataset)
-    if args.rows is not None:
-        drive = drive[: args.rows]
     if not quiet:
         injecting = f", injecting {faults.describe()}" if faults else ""
         print(f"bench: {artifact.kind} model {artifact.model_id:08x} ({args.engine} engine) on {len(drive)} rows of "

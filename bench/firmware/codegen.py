@@ -34,6 +34,7 @@ import numpy as np
 from bench.firmware.literals import FirmwareGenerationError, c_float
 from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
 from target_sim.artifact import LOSS_TABLES, MODEL_KINDS, OUTPUTS, ModelArtifact
+from target_sim.firmware.node_protocol import firmware_refusal
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
 from target_sim.model import COOLANT_REFERENCE_C, LossTables
 
@@ -112,7 +113,11 @@ def _c_array(name: str, literals: np.ndarray, comment: str, per_line: int = 4) -
 
 
 def check_expressible(artifact: ModelArtifact) -> None:
-    """Refuse, in one sentence, an artifact whose kind, realization or shapes the generator cannot express."""
+    """Refuse, in one sentence, an artifact whose kind, realization, loss model or shapes the generator cannot
+    express."""
+    refusal = firmware_refusal(artifact)
+    if refusal:
+        raise FirmwareGenerationError(refusal)
     kind, realization = artifact.content.get("model_kind"), artifact.content.get("realization")
     if kind not in KINDS:
         raise FirmwareGenerationError(f"model kind {kind!r} cannot be generated as firmware (the generator knows "

@@ -27,15 +27,15 @@ struct node_counters node_counters;
 #define DWT_CYCCNT (*(volatile uint32_t *)0xE0001004u)
 
 /* The messages the node receives (HOST -> TARGET), in one table: index, id and E2E data id. */
-enum rx_message { RX_CONTROL, RX_RESET1, RX_RESET2, RX_RESTORE, RX_DRIVE_INPUTS, RX_DRIVE_TEMPS, RX_BENCH_EVENT,
-                  RX_COUNT };
+enum rx_message { RX_CONTROL, RX_RESET1, RX_RESET2, RX_RESTORE, RX_DRIVE_INPUTS, RX_DRIVE_TEMPS, RX_DRIVE_CURRENTS,
+                  RX_BENCH_EVENT, RX_COUNT };
 static const uint32_t rx_ids[RX_COUNT] = {
     THERMAL_BENCH_CONTROL_FRAME_ID, THERMAL_BENCH_RESET_TEMPS1_FRAME_ID, THERMAL_BENCH_RESET_TEMPS2_FRAME_ID,
     THERMAL_BENCH_RESTORE_STATE_FRAME_ID, THERMAL_BENCH_DRIVE_INPUTS_FRAME_ID, THERMAL_BENCH_DRIVE_TEMPS_FRAME_ID,
-    THERMAL_BENCH_BENCH_EVENT_FRAME_ID};
+    THERMAL_BENCH_DRIVE_CURRENTS_FRAME_ID, THERMAL_BENCH_BENCH_EVENT_FRAME_ID};
 static const uint8_t rx_data_ids[RX_COUNT] = {
     NODE_DATA_ID_CONTROL, NODE_DATA_ID_RESET_TEMPS1, NODE_DATA_ID_RESET_TEMPS2, NODE_DATA_ID_RESTORE_STATE,
-    NODE_DATA_ID_DRIVE_INPUTS, NODE_DATA_ID_DRIVE_TEMPS, NODE_DATA_ID_BENCH_EVENT};
+    NODE_DATA_ID_DRIVE_INPUTS, NODE_DATA_ID_DRIVE_TEMPS, NODE_DATA_ID_DRIVE_CURRENTS, NODE_DATA_ID_BENCH_EVENT};
 
 /* ---- the node's state (TargetNode's attributes) ---- */
 static uint8_t state;
@@ -558,6 +558,7 @@ union rx_signals {
     struct thermal_bench_restore_state_t restore;
     struct thermal_bench_drive_inputs_t inputs;
     struct thermal_bench_drive_temps_t temps;
+    struct thermal_bench_drive_currents_t currents;
     struct thermal_bench_bench_event_t event;
 };
 
@@ -570,6 +571,7 @@ static void unpack(int index, const uint8_t *data, union rx_signals *m)
     case RX_RESTORE: (void)thermal_bench_restore_state_unpack(&m->restore, data, 8u); break;
     case RX_DRIVE_INPUTS: (void)thermal_bench_drive_inputs_unpack(&m->inputs, data, 8u); break;
     case RX_DRIVE_TEMPS: (void)thermal_bench_drive_temps_unpack(&m->temps, data, 8u); break;
+    case RX_DRIVE_CURRENTS: (void)thermal_bench_drive_currents_unpack(&m->currents, data, 8u); break;
     default: (void)thermal_bench_bench_event_unpack(&m->event, data, 8u); break;
     }
 }
@@ -616,7 +618,7 @@ static void dispatch(int index, const union rx_signals *m)
     case RX_CONTROL:
         control(m->control.command, m->control.step);
         break;
-    default:                                                        /* BenchEvent: validated, otherwise ignored */
+    default:            /* BenchEvent, and DriveCurrents (the node runs loss-map models): validated, otherwise ignored */
         break;
     }
 }
@@ -654,6 +656,11 @@ static int out_of_range_signal(int index, const union rx_signals *m)
         if (!thermal_bench_drive_temps_step_is_in_range(m->temps.step)) return 2;
         if (!thermal_bench_drive_temps_coolant_temp_is_in_range(m->temps.coolant_temp)) return 3;
         if (!thermal_bench_drive_temps_ambient_temp_is_in_range(m->temps.ambient_temp)) return 4;
+        return -1;
+    case RX_DRIVE_CURRENTS:
+        if (!thermal_bench_drive_currents_step_is_in_range(m->currents.step)) return 2;
+        if (!thermal_bench_drive_currents_current_d_is_in_range(m->currents.current_d)) return 3;
+        if (!thermal_bench_drive_currents_current_q_is_in_range(m->currents.current_q)) return 4;
         return -1;
     default:
         if (!thermal_bench_bench_event_step_is_in_range(m->event.step)) return 2;

@@ -8,6 +8,10 @@
  * enums, E2E data ids, scalings, heartbeat period) from fw_node_config.h, which `bench firmware export` writes
  * from the DBC and the project's contract module, so none of them is typed in here.
  *
+ * The node runs models with loss maps (a data row: DriveInputs + DriveTemps); it validates DriveCurrents (DBC 1.4.0,
+ * the d/q currents an electrical loss model needs) like every frame and otherwise ignores it, as the Python node does
+ * with a loss-map model. A model with an electrical loss model is not generated as firmware (nodegen refuses it).
+ *
  * No heap, no libc (the two memory functions the generated packers call are defined in node.c), no recursion,
  * no double. One node instance, in static RAM.
  *

@@ -51,7 +51,7 @@ from dbc.contract import (
 from dbc.database import contract, heartbeat_period_s, layout_named, signal_ranges, temperature_range
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
-from target_sim.firmware.node_protocol import EVENT_CAPACITY, KIND_CODES, TX_CAPACITY, WHY_CODES
+from target_sim.firmware.node_protocol import EVENT_CAPACITY, KIND_CODES, TX_CAPACITY, WHY_CODES, firmware_refusal
 
 DATABASE_NAME = "thermal_bench"
 PACKERS = (f"{DATABASE_NAME}.h", f"{DATABASE_NAME}.c")
@@ -161,7 +161,11 @@ def _signal_macros() -> list[str]:
 
 
 def node_config(artifact: ModelArtifact) -> str:
-    """fw_node_config.h for `artifact`'s model."""
+    """fw_node_config.h for `artifact`'s model (FirmwareGenerationError for a model the node cannot run: one whose
+    loss model needs the d/q currents)."""
+    refusal = firmware_refusal(artifact)
+    if refusal is not None:
+        raise FirmwareGenerationError(refusal)
     c = contract()
     cost = step_cost(artifact)
     timing2, timing3 = signal_ranges("Timing2"), signal_ranges("Timing3")

@@ -11,7 +11,7 @@ code): drop (the next frame of the same id, its `witness`, shows a counter jump)
 flips the CRC always catches), stale_counter, wrong_length, unknown_id, out_of_range (MotorTorque or CoolantTemp
 at its raw maximum 0x7FFF). The row kinds are the host's own:
 
-* reorder (per row): DriveTemps n goes out before DriveInputs n.
+* reorder (per row): DriveTemps n goes out before DriveInputs n (a row's DriveCurrents after both).
 * delay (per row): the row's frames, and every frame queued behind them, are held for `delay_s` (first-in first-
   out, as a congested gateway would), released by `recv`/`send` calls once due.
 
@@ -76,7 +76,7 @@ class FaultyBus:
         self._hold_until = 0.0
         self._witness: dict[int, Injection] = {}
         self._foreign_ids: set[int] = set()
-        # index of each faultable drive frame in its row (0: DriveInputs, 1: DriveTemps)
+        # index of each faultable drive frame in its row (0: DriveInputs, 1: DriveTemps, 2: DriveCurrents)
         self._drive_index = {frame_id(name): i for i, name in enumerate(FAULTED_HOST_MESSAGES)}
 
     # ------------------------------------------------------------------ row context (from the lockstep loop)
@@ -135,7 +135,7 @@ class FaultyBus:
                 return
             self._out(msg)
             return
-        kind = faults.frame_kinds[index]
+        kind = faults.frame_kinds[index] if index < len(faults.frame_kinds) else None
         if kind is None or msg.arbitration_id in self._witness:  # a drop's witness goes out intact: it shows the loss
             self._out(msg)
         else:

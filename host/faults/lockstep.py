@@ -1,8 +1,8 @@
 """Lockstep replay that survives faults: retransmission of unanswered rows and re-initialization of a target that
 was lost, with BenchEvent marks in the log.
 
-Per data row n (as `host.replay.run_lockstep`): send DriveInputs + DriveTemps, wait for Temperatures1 + 2 up to
-the reply timeout. When the deadline passes (the row's *deadline miss*, recorded):
+Per data row n (as `host.replay.run_lockstep`): send DriveInputs + DriveTemps (+ DriveCurrents), wait for
+Temperatures1 + 2 up to the reply timeout. When the deadline passes (the row's *deadline miss*, recorded):
 
 1. Retransmit: mark RETRANSMIT, send row n twice more with fresh alive counters (and again every RETRY_FACTOR
    reply timeouts while it stays unanswered: the reply to the retransmission may be lost too). After a lost or

@@ -10,7 +10,9 @@ the target's validator may have no alive counter for a drive frame yet (it start
 then could not show as a counter jump. A row that gets a process fault gets no bus fault.
 
 Per eligible row: first `reorder` or `delay` with their per-row rates (at most one); otherwise, per drive frame,
-at most one of the per-frame kinds with their per-frame rates.
+at most one of the per-frame kinds with their per-frame rates (DriveInputs, DriveTemps, and DriveCurrents when the
+rows carry the currents: a third draw that leaves the first two, and so the faults of a run without currents,
+unchanged).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ class RowFaults:
     pass_: int
     seed: int
     row_kind: str | None
-    frame_kinds: tuple[str | None, str | None]   # DriveInputs, DriveTemps
+    frame_kinds: tuple[str | None, ...]   # DriveInputs, DriveTemps (, DriveCurrents)
 
     def draw(self, slot: int) -> float:
         """A further uniform number for this row and pass (bit positions, lengths, ...)."""
@@ -47,9 +49,10 @@ class RowFaults:
 class FaultPlan:
     """The faults of one run over `rows` data rows."""
 
-    def __init__(self, spec: FaultSpec, rows: int):
+    def __init__(self, spec: FaultSpec, rows: int, frames_per_row: int = 2):
         self.spec = spec
         self.rows = rows
+        self.frames_per_row = frames_per_row   # the drive frames of a row: 2, or 3 with DriveCurrents
         self._frame = [(k, spec.rates.get(k, 0.0)) for k in FRAME_KINDS if spec.rates.get(k, 0.0) > 0]
         self._row = [(k, spec.rates.get(k, 0.0)) for k in ROW_KINDS if spec.rates.get(k, 0.0) > 0]
         self.process_rows = self._process_rows()
@@ -81,10 +84,10 @@ class FaultPlan:
         if self._row:
             kind = pick(unit(seed, row, pass_, 0), self._row)
             if kind is not None:
-                return RowFaults(row, pass_, seed, kind, (None, None))
+                return RowFaults(row, pass_, seed, kind, (None,) * self.frames_per_row)
         if not self._frame:
             return None
-        kinds = (pick(unit(seed, row, pass_, 1), self._frame), pick(unit(seed, row, pass_, 2), self._frame))
-        if kinds[0] is None and kinds[1] is None:
+        kinds = tuple(pick(unit(seed, row, pass_, 1 + index), self._frame) for index in range(self.frames_per_row))
+        if all(kind is None for kind in kinds):
             return None
         return RowFaults(row, pass_, seed, None, kinds)

@@ -22,6 +22,7 @@ import numpy as np
 from target_sim.artifact import ModelArtifact
 from target_sim.firmware.elf import ElfImage, FirmwareError, memory_from_elf, read_elf
 from target_sim.firmware.emulator import Firmware
+from target_sim.firmware.node_protocol import firmware_refusal
 
 MODEL_ID_SYMBOL = "fw_model_id"
 ENTRY_POINTS = ("fw_reset", "fw_restore", "fw_state", "fw_output", "fw_step", "fw_accumulate", "fw_mean",
@@ -34,6 +35,9 @@ class FirmwareEstimator:
 
     def __init__(self, artifact: ModelArtifact, elf: str | os.PathLike | bytes | ElfImage, *,
                  count_cycles: bool = True):
+        refusal = firmware_refusal(artifact)   # before the ELF is read: the firmware has loss maps only
+        if refusal is not None:
+            raise FirmwareError(refusal)
         image = elf if isinstance(elf, ElfImage) else read_elf(elf)
         self.artifact = artifact
         self.kind = artifact.kind

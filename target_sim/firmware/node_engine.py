@@ -51,6 +51,7 @@ from target_sim.firmware.node_protocol import (
     TX_OFFSET,
     WHY_CODES,
     Event,
+    firmware_refusal,
 )
 
 ENTRY_POINTS = ("node_init", "node_on_frame", "node_on_tick", "node_internal_fault")
@@ -82,6 +83,9 @@ class FirmwareNode:
 
     def __init__(self, artifact: ModelArtifact, elf: str | os.PathLike | bytes | ElfImage, *,
                  clock_s: Callable[[], float] = time.monotonic, journal: Callable[[dict], None] | None = None):
+        refusal = firmware_refusal(artifact)   # before the ELF is read: the firmware has loss maps only
+        if refusal is not None:
+            raise FirmwareError(refusal)
         image = elf if isinstance(elf, ElfImage) else read_elf(elf)
         self.artifact = artifact
         self.journal = journal

@@ -1,7 +1,7 @@
 """What the firmware node (bench/firmware/node.c) and its shell (`target_sim.firmware.node_engine`) agree on
 beyond the DBC: the layout of the node's output block in RAM, the kinds and reason codes of its journal records,
-and the sentences the shell writes for them. The generator (`bench.firmware.nodegen`) writes the codes into
-fw_node_config.h from here, so each is defined once.
+the sentences the shell writes for them, and the loss models the firmware can run. The generator
+(`bench.firmware.nodegen`) writes the codes into fw_node_config.h from here, so each is defined once.
 """
 
 from __future__ import annotations
@@ -10,6 +10,20 @@ import struct
 from dataclasses import dataclass
 
 from dbc.contract import RX_ERROR_KINDS, TargetState
+from target_sim.artifact import ModelArtifact
+
+# The loss models the firmware's generated C has: its node takes a data row as DriveInputs + DriveTemps and
+# validates and ignores DriveCurrents, so a model whose losses come from the d/q currents cannot run as firmware yet.
+FIRMWARE_LOSS_MODELS = ("maps",)
+
+
+def firmware_refusal(artifact: ModelArtifact) -> str | None:
+    """Why the firmware engine cannot run `artifact` (one sentence), or None when it can."""
+    if artifact.loss_model in FIRMWARE_LOSS_MODELS:
+        return None
+    name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
+    return (f"the firmware engine runs loss-map models only; {name} has an {artifact.loss_model} loss model: "
+            "use --engine python")
 
 # the journal's kinds: the RxErrors kinds (1-based, their order), then two that only name the last error
 KINDS: tuple[str, ...] = (*RX_ERROR_KINDS, "incomplete", "internal")

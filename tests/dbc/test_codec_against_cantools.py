@@ -120,3 +120,29 @@ def test_what_the_codec_refuses():
     # a refused frame does not use up a counter value
     ok = codec.encode("DriveInputs", {"Step": 0, "MotorTorque": 1.0, "MotorSpeed": 0.0})
     assert ok.data[1] & 0x0F == 0
+
+
+def test_drive_currents_round_trip_through_cantools_and_the_codec():
+    """DriveCurrents (DBC 1.4.0): the codec's bytes are cantools', both decode them to the same currents, and the
+    validator refuses a bad CRC and a current beyond ±3000 A."""
+    message = load_database().get_message_by_name("DriveCurrents")
+    codec, validator = FrameCodec("HOST"), FrameValidator("TARGET")
+    for counter, (i_d, i_q) in enumerate([(-123.4, 456.7), (-3000.0, 3000.0), (0.0, -0.1), (2999.9, -2999.9)]):
+        signals = {"Step": 40000 + counter, "CurrentD": i_d, "CurrentQ": i_q}
+        frame = codec.encode("DriveCurrents", signals)
+        assert frame.arbitration_id == 0x112 and bytes(frame.data) == cantools_encode(message, signals, counter)
+        assert cantools_decode(message, bytes(frame.data)) == pytest.approx(signals)
+        decoded = validator.validate(frame)
+        assert decoded.name == "DriveCurrents" and decoded.signals == pytest.approx(signals)
+        assert decoded.counter == counter
+    raw = int.from_bytes(bytes(frame.data), "little")
+    assert (raw >> 28) & 0xFFFF == (29999 & 0xFFFF) and (raw >> 44) & 0xFFFF == (-29999 & 0xFFFF)
+    assert _kind(codec.encode, "DriveCurrents", {"Step": 0, "CurrentD": 3000.1, "CurrentQ": 0.0}) == "out_of_range"
+    corrupt = bytearray(codec.encode("DriveCurrents", {"Step": 1, "CurrentD": 1.0, "CurrentQ": 2.0}).data)
+    corrupt[3] ^= 0x10
+    bad = can.Message(arbitration_id=0x112, is_extended_id=False, data=bytes(corrupt))
+    assert _kind(validator.validate, bad) == "crc"
+    beyond = (int.from_bytes(bytes(corrupt), "little") & ~(0xFFFF << 44)) | ((30001 & 0xFFFF) << 44)
+    beyond_frame = can.Message(arbitration_id=0x112, is_extended_id=False,
+                               data=bytes(apply_profile2_crc(bytearray(beyond.to_bytes(8, "little")), 0x12)))
+    assert _kind(decode_any, beyond_frame) == "out_of_range"

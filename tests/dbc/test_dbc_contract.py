@@ -44,7 +44,7 @@ def app_signals(message):
 
 def test_loads_with_strict_checks_and_is_ascii():
     database = cantools.database.load_file(DBC_PATH, strict=True)
-    assert len(database.messages) == 17
+    assert len(database.messages) == 18
     DBC_PATH.read_bytes().decode("ascii")  # cantools reads DBC files as cp1252: keep them plain ASCII
 
 
@@ -100,6 +100,7 @@ def test_every_message_has_comment_cycle_time_and_e2e_data_id():
         ("ResetTemps2", 0),
         ("DriveInputs", 200),
         ("DriveTemps", 200),
+        ("DriveCurrents", 200),
         ("Temperatures1", 200),
         ("Temperatures2", 200),
         ("Timing1", 200),
@@ -184,7 +185,7 @@ def signal(message_name, signal_name):
 
 
 def test_layout_meets_the_resolution_and_range_requirements():
-    for name in ("Control", "ResetTemps1", "ResetTemps2", "DriveInputs", "DriveTemps"):
+    for name in ("Control", "ResetTemps1", "ResetTemps2", "DriveInputs", "DriveTemps", "DriveCurrents"):
         step = signal(name, "Step")
         assert (step.length, step.is_signed, step.scale, step.minimum, step.maximum) == (16, False, 1, 0, 65535)
     for name in ("Temperatures1", "Temperatures2", "Timing1", "Timing2", "Timing3", "Timing4"):
@@ -232,7 +233,7 @@ def test_version_1_3_adds_timing4_beside_the_c28x_estimate_and_says_so():
     """1.3.0: the firmware engine's measured Cortex-M4F cycles in a message of their own, laid out like the C28x
     estimate of Timing2 (same range, same µs resolution at the same 90 MHz), sent by the target; the history in
     the DBC's comment; TargetInfo's flash and RAM say when they are measured."""
-    assert dbc.dbc_version_info()[:2] == (1, 3)
+    assert dbc.dbc_version_info()[:2] >= (1, 3)
     timing4 = DB.get_message_by_name(dbc.contract.FIRMWARE_TIMING_MESSAGE)
     assert timing4.frame_id == 0x225 and timing4.senders == ["TARGET"] and 0x200 <= timing4.frame_id <= 0x2FF
     assert [s.name for s in app_signals(timing4)] == ["Step", "M4Cycles", "M4ExecTime"]
@@ -246,7 +247,35 @@ def test_version_1_3_adds_timing4_beside_the_c28x_estimate_and_says_so():
     assert "Cortex-M4" in timing4.comment and "C28x estimate of Timing2" in timing4.comment
     assert "Python model sends none" in timing4.comment
     network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
-    assert "History: 1.3.0 adds Timing4" in network and "1.2.0 added StateCheckpoint" in network
+    assert "1.3.0 added Timing4" in network and "1.2.0 added StateCheckpoint" in network
     for name in ("FlashBytes", "RamBytes"):
         assert "measured from its ELF" in signal("TargetInfo", name).comment and "C28x estimate" in \
             signal("TargetInfo", name).comment
+
+
+def test_version_1_4_adds_drive_currents_for_electrical_loss_models_and_says_so():
+    """1.4.0: the d/q stator currents of a data row in a host message of their own, laid out like every host frame
+    (CRC8, counter, Step, two 16-bit signals from bit 28), at the drive data's cycle; the history in the DBC's
+    comment; the contract's row layout (`dbc.contract.row_signals`) names them after the four drive values."""
+    assert dbc.dbc_version_info()[:2] == (1, 4)
+    currents = DB.get_message_by_name("DriveCurrents")
+    assert currents.frame_id == 0x112 and currents.senders == ["HOST"] and currents.frame_id in dbc.host_frame_ids()
+    assert [s.name for s in app_signals(currents)] == ["Step", "CurrentD", "CurrentQ"]
+    for name, start in (("CurrentD", 28), ("CurrentQ", 44)):
+        s = signal("DriveCurrents", name)
+        assert (s.start, s.length, s.is_signed, s.scale, s.offset, s.minimum, s.maximum, s.unit) == \
+            (start, 16, True, 0.1, 0, -3000, 3000, "A"), name
+        assert "stator current" in s.comment
+    assert currents.dbc.attributes["E2EDataID"].value == 0x12
+    assert currents.cycle_time == DB.get_message_by_name("DriveInputs").cycle_time == 200
+    assert "electrical loss model" in currents.comment and "ignores it" in currents.comment
+    network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
+    assert "History: 1.4.0 adds DriveCurrents" in network and "1.3.0 added Timing4" in network
+    contract = dbc.contract
+    assert contract.CURRENT_SIGNALS == (("DriveCurrents", "CurrentD"), ("DriveCurrents", "CurrentQ"))
+    assert contract.row_signals(4) == contract.DRIVE_SIGNALS
+    assert contract.row_signals(6) == contract.DRIVE_SIGNALS + contract.CURRENT_SIGNALS
+    assert contract.row_messages(4) == ("DriveInputs", "DriveTemps")
+    assert contract.row_messages(6) == ("DriveInputs", "DriveTemps", "DriveCurrents")
+    with pytest.raises(ValueError, match="4 or 6 values, not 5"):
+        contract.row_signals(5)

@@ -200,7 +200,7 @@ def node_snapshot(node) -> tuple:
     model, acc = node.model, node.accumulator
     return (node.state, int(node.faults) & ~int(FaultBit.RX_ERROR), node.next_row, node.rows_used, node.model_steps,
             node.overruns, _array(node.estimate), _array(model.x), _array(model.y), _array(acc.sum),
-            acc.count, _array(acc.last_inputs), repr(node._pending_inputs), repr(node._reset_frames),
+            acc.count, _array(acc.last_inputs), repr(node._pending), repr(node._reset_frames),
             repr(node._restore_frames), node.last_reply_row, node.errors.get("sequence"))
 
 

@@ -73,3 +73,22 @@ def test_the_generated_range_checks_accept_what_the_python_validator_accepts(mes
     if high is not None:
         generated &= raw <= high
     assert np.array_equal(python, generated)
+
+
+def test_the_node_is_generated_for_loss_map_models_only():
+    """The firmware node validates and ignores DriveCurrents (its range checks are generated, above); a model with
+    an electrical loss model, which needs the currents, is refused in one sentence."""
+    import json
+
+    from bench.firmware.literals import FirmwareGenerationError
+    from bench.firmware.nodegen import node_config
+    from target_sim.artifact import verify
+
+    from helpers import electrical_artifact_text
+
+    assert "thermal_bench_drive_currents_current_d_is_in_range" in packers()["thermal_bench.c"]
+    artifact = verify(json.loads(electrical_artifact_text()))
+    with pytest.raises(FirmwareGenerationError) as info:
+        node_config(artifact)
+    assert str(info.value) == (f"the firmware engine runs loss-map models only; model {artifact.model_id:08x} has an "
+                               "electrical loss model: use --engine python")
