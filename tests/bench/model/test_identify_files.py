@@ -140,3 +140,23 @@ def test_an_electrical_motor_needs_currents(motor_files, tmp_path, capsys):
                  "--mapping", str(tmp_path / "mapping.json"), "--out", str(tmp_path / "m.json")]) == 1
     err = capsys.readouterr().err
     assert "has no d/q current columns" in err and "my-ipm-60kw" in err
+
+
+def test_a_bad_mapping_or_motor_is_one_sentence_and_writes_nothing(motor_files, tmp_path, capsys):
+    bad_mapping = tmp_path / "mapping.json"
+    bad_mapping.write_text(json.dumps({"columns": {"speed_krpm": "speed"}}))
+    bad_motor = tmp_path / "motor.json"
+    bad_motor.write_text(json.dumps({**json.loads(template("json")), "pole_pairs": 0}))
+    common = ["--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_03.csv"),
+              "--out", str(tmp_path / "m.json")]
+    cases = [
+        (["--motor", str(motor_files / "motor.toml"), "--mapping", str(bad_mapping)], "'speed'"),
+        (["--motor", str(bad_motor), "--mapping", str(motor_files / "mapping.json")], "pole_pairs"),
+        (["--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+          "--bounds", "2,3"], "--bounds must be two factors"),
+    ]
+    for extra, expected in cases:
+        assert main(["identify", *extra, *common]) != 0
+        err = capsys.readouterr().err
+        assert expected in err and err.count("\n") == 1 and "Traceback" not in err, (extra, err)
+    assert set(tmp_path.iterdir()) == {bad_mapping, bad_motor}   # no artifact, no temporary file
