@@ -157,10 +157,16 @@ class Float32Estimator:
     def node_losses(self, torque, speed, i_d=0.0, i_q=0.0) -> np.ndarray:
         """[P_y, P_w, P_t, P_m] in W from the loss model and the previous winding estimate (eqs. 3-8; C:
         node_losses)."""
-        if self.electrical:
-            p_dc0, p_ac0, p_stator, p_magnet, current = self.luts.lookup(speed, i_d, i_q)
-        else:
-            p_dc0, p_ac0, p_stator, p_magnet, current = self.luts.lookup(torque, speed)
+        return self.corrected_losses(self.loss_lookup(torque, speed, i_d, i_q), speed)
+
+    def loss_lookup(self, torque, speed, i_d=0.0, i_q=0.0) -> np.ndarray:
+        """[p_dc0, p_ac0, p_stator, p_magnet, current] of the loss model at the operating point."""
+        return self.luts.lookup(speed, i_d, i_q) if self.electrical else self.luts.lookup(torque, speed)
+
+    def corrected_losses(self, lookup: np.ndarray, speed) -> np.ndarray:
+        """[P_y, P_w, P_t, P_m]: the copper temperature correction at the previous winding estimate (eqs. 3-5) and
+        the stator split (eqs. 6-8) of the looked-up losses."""
+        p_dc0, p_ac0, p_stator, p_magnet, current = lookup
         p, f, one = self.p, self.f, self.one
         factor = one + self.alpha_cu * (self.y[1] - self.copper_ref)                 # eqs. 3-5
         p_w = (p_dc0 * factor) + (p_ac0 / factor)

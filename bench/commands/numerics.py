@@ -1,12 +1,14 @@
-"""`bench numerics`: the paper's Tables 2-4 analogue for every realization of the linear block."""
+"""`bench numerics`: the paper's Tables 2-4 analogue for every realization of the linear block; with `--budget`,
+the float32 error budget of a model artifact over a whole run (which part of the step costs how much)."""
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
-from bench.commands.common import add_output_flags, choice_list, float_list, print_json
-from bench.errors import UsageError
+from bench.commands.common import add_data_arguments, add_output_flags, choice_list, float_list, print_json
+from bench.errors import BenchError, UsageError
 from bench.thermal.excitation import SAMPLE_PERIOD_S, interval_means, synthetic_lti_inputs
 from bench.thermal.parameters import PARAMETER_SETS, parameter_set
 from bench.thermal.precision import PrecisionRow, numerics_report, precision_table
@@ -23,11 +25,21 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--realizations", type=choice_list(REALIZATIONS), default=list(REALIZATIONS),
                    help="realizations, comma-separated (default all)")
     p.add_argument("--seed", type=int, default=7, help="seed of the synthetic 7274 s excitation")
+    p.add_argument("--budget", action="store_true",
+                   help="the float32 error budget of --model on --data: float32 in one part of the step at a time")
+    p.add_argument("--model", type=Path, default=None, help="--budget: model artifact (default: the packaged one)")
+    p.add_argument("--data", type=Path, default=None,
+                   help="--budget: dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
+    add_data_arguments(p)
     add_output_flags(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.budget:
+        return run_budget(args)
+    if args.model is not None or args.data is not None or args.mapping is not None:
+        raise UsageError("--model, --data and --mapping belong to --budget")
     try:
         params = parameter_set(args.params)
     except KeyError as exc:
@@ -64,3 +76,43 @@ def print_tables(report: dict, rows: list[PrecisionRow]) -> None:
         err = f"{r.max_output_error_f32_C:.3e}" + (" (diverged)" if r.diverged_f32 else "")
         print(f"{r.discretization:7} {r.dt:4g} {r.realization:11} {r.cond:9.4f}  {_fmt_list(r.eig_f64):32}  "
               f"{_fmt_list(r.eig_f32_abs):32} {stable:8} {err:>16}")
+
+
+def run_budget(args: argparse.Namespace) -> int:
+    import sys
+
+    from bench.commands.common import data_options
+    from bench.model.artifact_eval import artifact_drive
+    from bench.model.budget import error_budget
+    from bench.model.default import default_artifact_path
+    from bench.model.runs import initial_temperatures
+    from bench.runner import load_data, load_model
+    from target_sim.artifact import ArtifactError
+
+    try:
+        artifact, model_path = load_model(args.model or default_artifact_path())
+    except ArtifactError as exc:
+        raise BenchError(str(exc)) from None
+    if artifact.kind == "pv-lptn":
+        raise BenchError(f"{model_path} is a pv-lptn model; the error budget covers the LTI LPTN and Hammerstein "
+                         "kinds (a fixed linear block)")
+    mapping, period = data_options(args)
+    dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
+    say = None if (args.quiet or args.json) else (lambda part: print(f"budget: float32 in {part}", file=sys.stderr))
+    started = time.perf_counter()
+    rows, info = error_budget(artifact, artifact_drive(artifact, dataset), initial_temperatures(dataset), say)
+    report = {"model": str(model_path), "sha256": artifact.sha256, "kind": artifact.kind,
+              "realization": artifact.realization, "dt": artifact.dt, "data": str(dataset.path), **info,
+              "rows": [{"part": r.part, "max_abs_C": r.max_abs_C, "worst_C": r.worst_C} for r in rows],
+              "seconds": round(time.perf_counter() - started, 2)}
+    if args.json:
+        print_json(report)
+    else:
+        print(f"float32 error budget of {model_path} ({artifact.kind}, {artifact.realization}, Δt {artifact.dt:g} s) "
+              f"on {dataset.path.name}, {info['steps']} steps: largest |y - y_float64| (°C) with float32 in one part")
+        print(f"{'part':13} {'yoke':>10} {'winding':>10} {'tooth':>10} {'magnet':>10}")
+        for r in rows:
+            label = {"all": "all parts", "target": "the target"}.get(r.part, r.part)
+            print(f"{label:13} " + " ".join(f"{r.max_abs_C[n]:10.2e}" for n in ("yoke", "winding", "tooth", "magnet")))
+        print(f"all parts vs the target's own float32 code: {info['all_vs_target_max_abs_C']:.2e} °C")
+    return 0
