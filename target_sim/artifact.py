@@ -22,7 +22,9 @@ SCHEMA_VERSION = 2
 # Version 1 had loss maps only (no losses.model); it is read as "maps".
 READABLE_VERSIONS = (1, 2)
 MODEL_KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
-REALIZATIONS = ("physical", "original", "balanced", "modal")
+REALIZATIONS = ("physical", "original", "balanced", "modal", "delta")
+# The delta realization's linear block is x <- x + Δ·(A x + B ũ), y = C x + r, with ũ the inputs whose four
+# temperature sources are taken relative to r = linear_block.reference_C (the states are deviations from r).
 OUTPUTS = ("yoke", "winding", "tooth", "magnet")
 LOSS_TABLES = ("p_dc0", "p_ac0", "p_stator", "p_magnet", "current")
 # losses.model: "maps" (tables over torque × speed) or "electrical" (from the d/q currents and the speed)
@@ -248,6 +250,8 @@ def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
 
 def _array_fields(content: dict) -> list[tuple[str, ...]]:
     fields = [("linear_block", m) for m in ("A", "B", "C", "C_inv")] if content["model_kind"] != "pv-lptn" else []
+    if content["model_kind"] != "pv-lptn" and content.get("realization") == "delta":
+        fields.append(("linear_block", "reference_C"))
     fields += [("lptn", "parameters", name) for name in LPTN_PARAMETERS]
     fields += [("lptn", "speed_max_rpm")]
     fields += [("losses", k) for k in ("current_max_A", "alpha_cu_per_K", "copper_reference_C")]

@@ -134,6 +134,9 @@ class Float32Estimator:
         self.conv_b = np.array([p["b_tm"], p["b_wm"], p["b_ma"]], dtype=f)
         self.conv_r0 = np.array([p["R_tm0"], p["R_wm0"], p["R_ma0"]], dtype=f)
         self.conv_a = np.array([p["a_tm"], p["a_wm"], p["a_ma"]], dtype=f)
+        # the delta realization: x <- x + Δ·(A x + B ũ) with the states and temperature sources relative to r
+        self.delta = self.kind != "pv-lptn" and artifact.realization == "delta"
+        self.reference = arr("linear_block", "reference_C")[()] if self.delta else f(0.0)
         if self.kind != "pv-lptn":
             self.a, self.b = arr("linear_block", "A"), arr("linear_block", "B")
             self.c, self.c_inv = arr("linear_block", "C"), arr("linear_block", "C_inv")
@@ -144,15 +147,24 @@ class Float32Estimator:
         self.y = np.zeros(4, dtype=f)
 
     def reset(self, temperatures: Sequence[float]) -> None:
-        """Start from physical temperatures [yoke, winding, tooth, magnet] (°C): x0 = C^-1 y0 (C: fw_reset)."""
+        """Start from physical temperatures [yoke, winding, tooth, magnet] (°C): x0 = C^-1 y0, delta: C^-1 (y0 - r)
+        (C: fw_reset)."""
         self.y = np.asarray(temperatures, dtype=self.f).copy()
-        self.x = self.y.copy() if self.kind == "pv-lptn" else matvec(self.c_inv, self.y)
+        if self.kind == "pv-lptn":
+            self.x = self.y.copy()
+        else:
+            self.x = matvec(self.c_inv, self.y - self.reference if self.delta else self.y)
 
     def restore(self, state: Sequence[float]) -> None:
-        """Continue from a checkpointed state vector x (the realization's coordinates), bit for bit: y = C x is
-        what `step` left after the model step the checkpoint was taken at (C: fw_restore)."""
+        """Continue from a checkpointed state vector x (the realization's coordinates), bit for bit: y = C x (+ r)
+        is what `step` left after the model step the checkpoint was taken at (C: fw_restore)."""
         self.x = np.asarray(state, dtype=self.f).copy()
-        self.y = self.x.copy() if self.kind == "pv-lptn" else matvec(self.c, self.x)
+        self.y = self.x.copy() if self.kind == "pv-lptn" else self.output()
+
+    def output(self) -> np.ndarray:
+        """y = C x, delta: (C x) + r."""
+        y = matvec(self.c, self.x)
+        return y + self.reference if self.delta else y
 
     def node_losses(self, torque, speed, i_d=0.0, i_q=0.0) -> np.ndarray:
         """[P_y, P_w, P_t, P_m] in W from the loss model and the previous winding estimate (eqs. 3-8; C:
@@ -231,7 +243,8 @@ class Float32Estimator:
         """One model step with the interval-mean inputs (the d/q currents only for an electrical loss model);
         returns [yoke, winding, tooth, magnet] in °C (C: fw_step).
 
-        LTI/Hammerstein: x <- (A x) + (B u) row by row, y = C x; PV LPTN: x <- x + Δt·((A x) + (B u))."""
+        LTI/Hammerstein: x <- (A x) + (B u) row by row, y = C x; delta realization: x <- x + Δ·((A x) + (B ũ)),
+        ũ with the sources minus r, y = (C x) + r; PV LPTN: x <- x + Δt·((A x) + (B u))."""
         losses = self.node_losses(torque, speed, i_d, i_q)
         if self.kind == "hammerstein":
             losses = self.input_nonlinearity(losses)
@@ -240,10 +253,15 @@ class Float32Estimator:
             u = np.concatenate([losses, np.array([coolant, ambient], dtype=self.f)])
             self.x = self.x + self.dt * (matvec(a, self.x) + matvec(b, u))
             self.y = self.x.copy()
+        elif self.delta:
+            sources = self.temperature_sources(speed, coolant, ambient) - self.reference
+            increment = matvec(self.a, self.x) + matvec(self.b, np.concatenate([losses, sources]))
+            self.x = self.x + self.dt * increment
+            self.y = self.output()
         else:
             u = np.concatenate([losses, self.temperature_sources(speed, coolant, ambient)])
             self.x = matvec(self.a, self.x) + matvec(self.b, u)
-            self.y = matvec(self.c, self.x)
+            self.y = self.output()
         return self.y.copy()
 
 

@@ -43,6 +43,17 @@ def artifact_loss_model(artifact: ModelArtifact) -> tuple[LossModel, MotorConsta
     return maps, motor
 
 
+def shift_form(artifact: ModelArtifact) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The artifact's linear block as float64 (A, B, C) of x <- A x + B u, y = C x; a delta block becomes
+    A = I + Δ·A_δ, B = Δ·B_δ (its reference temperature drops out: a uniform temperature with no losses is an
+    equilibrium of the network, so the deviation form and the absolute form are the same model)."""
+    f64 = np.float64
+    a, b, c = (artifact.array("linear_block", m, dtype=f64) for m in ("A", "B", "C"))
+    if artifact.realization == "delta":
+        a, b = np.eye(a.shape[0]) + artifact.dt * a, artifact.dt * b
+    return a, b, c
+
+
 def float64_estimate(artifact: ModelArtifact, dataset: Dataset, run: ModelRun) -> np.ndarray:
     """(steps, 4) in double precision from the artifact's float64 coefficients.
 
@@ -55,7 +66,7 @@ def float64_estimate(artifact: ModelArtifact, dataset: Dataset, run: ModelRun) -
         means = interval_means(artifact_drive(artifact, dataset), artifact.data_sample_period, artifact.dt)
         return np.array([model.step(*row) for row in means])
     f64 = np.float64
-    a, b, c = (artifact.array("linear_block", m, dtype=f64) for m in ("A", "B", "C"))
+    a, b, c = shift_form(artifact)
     if artifact.kind == "hammerstein":
         sig = np.vstack([artifact.array("input_nonlinearity", k, dtype=f64) for k in SIGMOID_KEYS])
     else:

@@ -10,9 +10,10 @@ own all-float32 run. The parts, in the order a step runs them:
 - `sigmoid`: the Hammerstein input nonlinearity in float32, with the firmware's float32 exp;
 - `sources`: the temperature sources (eqs. 9-18, with the convection exp) in float32;
 - `coefficients`: A, B, C and C⁻¹ rounded to float32, the arithmetic in float64;
-- `update`: every product and sum of x <- A x + B u rounded to float32 (coefficients in float64);
-- `state`: the state vector stored in float32 after each update;
-- `output`: every product and sum of y = C x rounded to float32.
+- `update`: every product and sum of x <- A x + B u rounded to float32 (coefficients in float64); for the delta
+  realization those of the increment Δ·(A x + B ũ) and of ũ's sources relative to the reference;
+- `state`: the state vector stored in float32 after each update (delta: the sum x + increment);
+- `output`: every product and sum of y = C x (delta: + r) rounded to float32.
 
 `update`, `state` and `output` round float64 results to float32 operation by operation, which is what float32
 arithmetic on float32 operands gives (a product of two float32 values is exact in float64); so with every part in
@@ -75,6 +76,9 @@ class MixedPrecisionEstimator:
         self.a, self.b, self.c, self.c_inv = (np.asarray(m, dtype=F64) for m in
                                               (source.a, source.b, source.c, source.c_inv))
         self.hammerstein = artifact.kind == "hammerstein"
+        self.delta = source.delta
+        self.reference = float(source.reference)
+        self.dt = float(self.models[F32 if "update" in self.parts else F64].dt)
         self.x = np.zeros(4)
         self.y = np.zeros(4)
 
@@ -85,7 +89,7 @@ class MixedPrecisionEstimator:
 
     def reset(self, temperatures: Sequence[float]) -> None:
         self.y = np.asarray(temperatures, dtype=F64).copy()
-        self.x = matvec64(self.c_inv, self.y)
+        self.x = matvec64(self.c_inv, self.y - self.reference)
         if "state" in self.parts:
             self.x = rounded(self.x)
 
@@ -97,11 +101,18 @@ class MixedPrecisionEstimator:
             model = self._model("sigmoid")
             losses = np.asarray(model.input_nonlinearity(losses.astype(model.f)), dtype=F64)
         sources = np.asarray(self._model("sources").temperature_sources(speed, coolant, ambient), dtype=F64)
-        u = np.concatenate([losses, sources])
-        product = matvec_rounded if "update" in self.parts else matvec64
-        x = product(self.a, self.x) + product(self.b, u)
-        self.x = rounded(x) if ("update" in self.parts or "state" in self.parts) else x
-        self.y = matvec_rounded(self.c, self.x) if "output" in self.parts else matvec64(self.c, self.x)
+        update = "update" in self.parts
+        keep = rounded if update else np.asarray
+        product = matvec_rounded if update else matvec64
+        if self.delta:   # x <- x + Δ·(A x + B ũ), the sources relative to r
+            u = np.concatenate([losses, keep(sources - self.reference)])
+            x = self.x + keep(self.dt * keep(product(self.a, self.x) + product(self.b, u)))
+        else:
+            x = keep(product(self.a, self.x) + product(self.b, np.concatenate([losses, sources])))
+        self.x = rounded(x) if (update or "state" in self.parts) else x
+        output = "output" in self.parts
+        y = matvec_rounded(self.c, self.x) if output else matvec64(self.c, self.x)
+        self.y = (rounded(y + self.reference) if output else y + self.reference) if self.delta else y
         return self.y.copy()
 
 

@@ -56,6 +56,7 @@ class ModelSpec:
     data_sample_period_s: float = 0.2
     sigmoid: SigmoidInputs | None = None
     linear_block: Realization | None = None   # the fitted block in physical coordinates (default: the LPTN)
+    reference_C: float = 0.0           # delta realization: the temperature its states are deviations from
     provenance: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
 
@@ -100,10 +101,12 @@ def artifact_content(spec: ModelSpec) -> dict[str, Any]:
         "metrics": spec.metrics,
     }
     if spec.kind != "pv-lptn":
-        block = realize(physical_block(spec), spec.realization)
+        block = realize(physical_block(spec), spec.realization, spec.dt)
         content["linear_block"] = {"A": enc(block.a), "B": enc(block.b), "C": enc(block.c),
                                    "C_inv": enc(inv(block.c)),  # portable: the same bits on every CPU
-                                   "condition_number": condition_number(block.a)}
+                                   "condition_number": condition_number(block.a), "form": block.form}
+        if block.form == "delta":
+            content["linear_block"]["reference_C"] = enc(spec.reference_C)
     if spec.kind == "hammerstein":
         if spec.sigmoid is None:
             raise ValueError("a hammerstein artifact needs its sigmoid parameters")

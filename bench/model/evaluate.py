@@ -13,7 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.drive.dataset import Dataset
-from bench.model.artifact_eval import ArtifactEvaluation, artifact_loss_model, artifact_parameters, evaluate_artifact
+from bench.model.artifact_eval import (
+    ArtifactEvaluation,
+    artifact_loss_model,
+    artifact_parameters,
+    evaluate_artifact,
+    shift_form,
+)
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.hammerstein_fit import fit_hammerstein
 from bench.model.identify import IDENTIFICATION_COOLANTS, VALIDATION_COOLANT, prepare_runs
@@ -26,8 +32,7 @@ METRIC_MODELS = ("lti-lptn", "hammerstein")
 
 def physical_from_artifact(artifact: ModelArtifact) -> Realization:
     """The artifact's linear block brought back to nodal coordinates (x_physical = C z)."""
-    f64 = np.float64
-    a, b, c = (artifact.array("linear_block", m, dtype=f64) for m in ("A", "B", "C"))
+    a, b, c = shift_form(artifact)
     mm = portable.matmul
     return Realization("physical", mm(c, a, portable.inv(c)), mm(c, b), np.eye(4), np.zeros((4, 8)))
 

@@ -38,10 +38,11 @@ class Identification:
     provenance: dict
     data_sample_period_s: float = 0.2
     timings_s: dict = field(default_factory=dict)
+    reference_C: float = 0.0            # of a delta realization (delta_reference)
 
     def spec(self, kind: str, realization: str = "balanced", metrics: dict | None = None) -> ModelSpec:
         common = {"params": self.lptn.params, "dt": self.dt, "loss_maps": self.loss_model, "motor": self.motor,
-                  "data_sample_period_s": self.data_sample_period_s,
+                  "data_sample_period_s": self.data_sample_period_s, "reference_C": self.reference_C,
                   "provenance": self.provenance, "metrics": metrics or {}}
         if kind == "hammerstein":
             return ModelSpec("hammerstein", discretization=self.discretization, realization=realization,
@@ -99,7 +100,16 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         "versions": _versions(),
     }
     period = datasets[0].sample_period_s
-    return Identification(dt, discretization, lptn, ham, motor.loss_model, constants, provenance, period, timings)
+    return Identification(dt, discretization, lptn, ham, motor.loss_model, constants, provenance, period, timings,
+                          delta_reference(datasets))
+
+
+def delta_reference(datasets) -> float:
+    """The temperature a delta realization's states are deviations from: the middle of the winding and PM
+    temperatures measured in the training runs, in whole °C (the float32 state then holds the smallest values)."""
+    low = min(min(float(d.winding_C.min()), float(d.pm_C.min())) for d in datasets)
+    high = max(max(float(d.winding_C.max()), float(d.pm_C.max())) for d in datasets)
+    return float(round((low + high) / 2))
 
 
 def _file_record(dataset) -> dict:

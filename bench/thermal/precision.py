@@ -60,8 +60,9 @@ def max_finite(err: np.ndarray) -> float:
 
 def analyse(sys: Realization, method: str, dt: float, inputs: np.ndarray) -> PrecisionRow:
     """One row of the Table 2/3/4 analogue for the realization `sys`."""
-    eig64 = np.linalg.eigvals(sys.a)
-    eig32 = np.linalg.eigvals(sys.a.astype(np.float32).astype(np.float64))
+    eig64 = np.linalg.eigvals(sys.transition())
+    rounded = sys.astype(np.float32).astype(np.float64)   # the float32 coefficients; delta: poles 1 + Δ·λ(A_δ)
+    eig32 = np.linalg.eigvals(rounded.transition())
     mags32 = sorted_magnitudes(eig32)
     err = output_error_f32(sys, inputs)
     return PrecisionRow(
@@ -80,7 +81,7 @@ def precision_table(p: LptnParameters, methods: Iterable[str], dts: Iterable[flo
         for dt in dts:
             base = discrete_lptn(p, dt, method)
             inputs = inputs_for_dt(dt)
-            rows.extend(analyse(realize(base, name), method, dt, inputs) for name in realizations)
+            rows.extend(analyse(realize(base, name, dt), method, dt, inputs) for name in realizations)
     return rows
 
 

@@ -21,18 +21,31 @@ from scipy.linalg import matrix_balance
 
 from bench.thermal import portable
 
-REALIZATIONS = ("physical", "original", "balanced", "modal")
+REALIZATIONS = ("physical", "original", "balanced", "modal", "delta")
 
 
 @dataclass(frozen=True)
 class Realization:
-    """A discrete state-space model x[k+1] = A x[k] + B u[k], y[k] = C x[k] + D u[k]."""
+    """A discrete state-space model x[k+1] = A x[k] + B u[k], y[k] = C x[k] + D u[k] (form "shift"), or in delta
+    form (Middleton and Goodwin) x[k+1] = x[k] + Δ·(A x[k] + B u[k]) with A = A_δ = (A_shift - I)/Δ, B = B_shift/Δ."""
 
     name: str
     a: np.ndarray
     b: np.ndarray
     c: np.ndarray
     d: np.ndarray
+    form: str = "shift"
+    dt: float | None = None          # Δ of the delta form
+
+    def shift(self) -> Realization:
+        """The same model in shift form (float64): A = I + Δ·A_δ, B = Δ·B_δ."""
+        if self.form == "shift":
+            return self
+        return Realization(self.name, np.eye(self.a.shape[0]) + self.dt * self.a, self.dt * self.b, self.c, self.d)
+
+    def transition(self) -> np.ndarray:
+        """The state transition matrix of the shift form (what the poles are the eigenvalues of)."""
+        return self.shift().a
 
     def transformed(self, name: str, t: np.ndarray, t_inv: np.ndarray | None = None) -> Realization:
         """The similar realization with x = T z."""
@@ -41,7 +54,8 @@ class Realization:
         return Realization(name, mm(t_inv, self.a, t), mm(t_inv, self.b), mm(self.c, t), self.d.copy())
 
     def astype(self, dtype) -> Realization:
-        return Realization(self.name, *(np.asarray(m, dtype=dtype) for m in (self.a, self.b, self.c, self.d)))
+        return Realization(self.name, *(np.asarray(m, dtype=dtype) for m in (self.a, self.b, self.c, self.d)),
+                           self.form, self.dt)
 
 
 def physical(a_d: np.ndarray, b_d: np.ndarray, c: np.ndarray, d: np.ndarray) -> Realization:
@@ -132,8 +146,22 @@ def modal(sys: Realization) -> Realization:
     return Realization("modal", np.diag(lam), result.b, result.c, result.d)
 
 
-def realize(sys: Realization, name: str) -> Realization:
-    """One of REALIZATIONS from the physical realization `sys`."""
+def delta(sys: Realization, dt: float) -> Realization:
+    """The delta-operator form over the balanced coordinates of `sys` (a shift-form realization) at step Δ = dt.
+
+    With Δ = 0.5 s the slowest pole is z ≈ 0.9989: A is close to I and its float32 entries carry little of A - I,
+    which sets the steady-state gain (I - A)⁻¹B; A_δ = (A - I)/Δ keeps A - I at full relative precision."""
+    bal = balanced(sys)
+    a_delta = (bal.a - np.eye(bal.a.shape[0])) / dt
+    return Realization("delta", a_delta, bal.b / dt, bal.c, bal.d, form="delta", dt=float(dt))
+
+
+def realize(sys: Realization, name: str, dt: float | None = None) -> Realization:
+    """One of REALIZATIONS from the physical realization `sys` (`delta` needs the step Δ)."""
+    if name == "delta":
+        if dt is None:
+            raise ValueError("the delta realization needs the model step dt")
+        return delta(sys, dt)
     builders = {"physical": lambda s: s, "original": original, "balanced": balanced, "modal": modal}
     try:
         return builders[name](sys)

@@ -13,7 +13,7 @@ def test_numerics_json_has_the_documented_shape(capsys):
     assert report["params"] == "table1-refined"
     assert len(report["eigenvalues_continuous"]) == 4 and len(report["time_constants_s"]) == 4
     assert {(r["dt"], r["realization"]) for r in report["rows"]} == {
-        (dt, name) for dt in (0.5, 4.0) for name in ("physical", "original", "balanced", "modal")}
+        (dt, name) for dt in (0.5, 4.0) for name in ("physical", "original", "balanced", "modal", "delta")}
     keys = {"discretization", "dt", "realization", "cond", "eig_f64", "eig_f32_abs", "stable_f32",
             "max_output_error_f32_C"}
     for row in report["rows"]:
@@ -25,7 +25,7 @@ def test_numerics_table_mentions_every_realization(capsys):
     assert main(["numerics", "--params", "table1", "--dt", "1", "--disc", "tustin"]) == 0
     out = capsys.readouterr().out
     assert "parameter set: table1" in out
-    for name in ("physical", "original", "balanced", "modal"):
+    for name in ("physical", "original", "balanced", "modal", "delta"):
         assert name in out
 
 
