@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
 
 from bench.errors import BenchError, UsageError
@@ -48,7 +49,52 @@ def _os_error_sentence(exc: OSError) -> str:
     return f"{where}: {reason}; check that the path exists, is of the right kind and is writable, or choose another"
 
 
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP, raised in the main thread as SIGINT raises KeyboardInterrupt: every `finally` and context
+    manager on the way out runs (a target process started is stopped, temporary files are deleted)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+TERMINATING = (signal.SIGTERM, signal.SIGHUP)
+STOP_NOTE = "no half-written file is left and any target process it started was stopped"
+
+
+def _catch_termination() -> dict:
+    """Turn SIGTERM and SIGHUP into `Terminated` (once: a second signal does not cut the cleanup short); returns
+    the handlers to put back."""
+    raised = []
+
+    def terminate(signum, frame) -> None:  # noqa: ARG001 - signal API
+        if not raised:
+            raised.append(signum)
+            raise Terminated(signum)
+
+    previous = {}
+    for signum in TERMINATING:
+        try:
+            previous[signum] = signal.signal(signum, terminate)
+        except ValueError:   # not the main thread (a test calling main()): leave the signals alone
+            break
+    return previous
+
+
 def main(argv: list[str] | None = None) -> int:
+    previous = _catch_termination()
+    try:
+        try:
+            return _main(argv)
+        except Terminated as exc:   # wherever it came, even while an error was being reported
+            print(f"bench: terminated ({signal.Signals(exc.signum).name}); {STOP_NOTE}", file=sys.stderr)
+            return 128 + exc.signum
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _main(argv: list[str] | None) -> int:
     # python-can reports a bus that failed half-way through its constructor once more from __del__ ("... was not
     # properly shut down"), after the one-sentence error: its warnings are not for the bench's users.
     logging.getLogger("can").addHandler(logging.NullHandler())
@@ -72,8 +118,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench: error: {_os_error_sentence(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print("bench: interrupted", file=sys.stderr)
-        return 130
+        print(f"bench: interrupted (SIGINT); {STOP_NOTE}", file=sys.stderr)
+        return 128 + signal.SIGINT
 
 
 if __name__ == "__main__":

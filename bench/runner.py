@@ -5,6 +5,10 @@ in this process. With `auto` the bus is SocketCAN vcan0 where usable, else udp_m
 this run (handed to the target on its command line). The target's stderr goes to a temporary file, so a
 target that fails to start is reported with its own last line.
 
+The target is told this process's id (`--parent-pid`), so it stops by itself when this process dies without
+stopping it (SIGKILL, a crash). The host's bus is a `dbc.transport.SenderGuard`: a host frame this process did not
+send (another host on the channel, heard before the run or during it) ends the run in one sentence.
+
 Fault injection (`host.faults`): the runner owns the target process, so it lends the host a `ProcessControl`
 to kill it (SIGKILL), freeze it (SIGSTOP, and SIGCONT from a timer) and, once the host has noticed the loss,
 restart it (same command line). Every target process of the run appends its detection journal (`--events`) to
@@ -29,8 +33,16 @@ import can
 import numpy as np
 
 from bench.errors import BenchError, UsageError
-from dbc.database import contract
-from dbc.transport import IN_USE_LISTEN_S, BusConfig, BusUnavailable, config_from_args, resolve
+from dbc.database import contract, host_frame_ids
+from dbc.transport import (
+    IN_USE_LISTEN_S,
+    BusConfig,
+    BusUnavailable,
+    OtherSender,
+    SenderGuard,
+    config_from_args,
+    resolve,
+)
 from host.canlog import LogError
 from host.faults import FaultSpec, FaultSpecError
 from host.replay import DataRangeError, Progress
@@ -150,7 +162,8 @@ class TargetProcess:
 
     @property
     def argv(self) -> list[str]:
-        argv = [sys.executable, "-m", "target_sim", "--model", str(self.model_path), *self.bus.to_argv()]
+        argv = [sys.executable, "-m", "target_sim", "--model", str(self.model_path), *self.bus.to_argv(),
+                "--parent-pid", str(os.getpid())]   # it stops by itself if this process dies without stopping it
         if self.firmware is not None:
             argv += ["--engine", "firmware", "--firmware", str(self.firmware)]
         if self.stats_path is not None:
@@ -265,9 +278,10 @@ class RunOutcome:
     target_stats: dict | None = None    # the target's counters at exit (`python -m target_sim --stats`)
 
 
-def _open(bus: BusConfig):
+def _open(bus: BusConfig) -> SenderGuard:
+    """The host's bus, guarded against another host on the channel (`dbc.transport.SenderGuard`)."""
     try:
-        return bus.open()
+        return SenderGuard(bus.open(), bus, host_frame_ids(), "host")
     except BusUnavailable as exc:
         raise BenchError(str(exc)) from None
 
@@ -278,7 +292,7 @@ def _host_errors(fn: Callable[[], HostResult], target: TargetProcess) -> HostRes
     except SessionError as exc:
         reason = target.exit_reason()
         raise BenchError(reason or str(exc)) from None
-    except (LogError, DataRangeError) as exc:
+    except (LogError, DataRangeError, OtherSender) as exc:
         raise BenchError(str(exc)) from None
     except FaultSpecError as exc:
         raise UsageError(str(exc)) from None
@@ -300,6 +314,15 @@ def refuse_foreign_target(host_bus: can.BusABC, bus: BusConfig, artifact: ModelA
     else:
         what = f"sending heartbeats (it runs model {model_id:08x}, the same as this run's)"
     raise BenchError(f"{channel} on {bus.interface} already has a target {what}; stop it or pick another channel")
+
+
+def _refuse_others(host_bus: SenderGuard, bus: BusConfig, artifact: ModelArtifact | None) -> None:
+    """BenchError (one sentence) if a target, or another host, already sends on the channel (the guard hears a
+    host's frames while the runner listens for a target's)."""
+    try:
+        refuse_foreign_target(host_bus, bus, artifact)
+    except OtherSender as exc:
+        raise BenchError(str(exc)) from None
 
 
 # A target process started here reports its death through `alive`, so waiting long for its first heartbeat only
@@ -324,7 +347,7 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     target_stats = None
     host_bus = _open(bus)
     try:
-        refuse_foreign_target(host_bus, bus, artifact)
+        _refuse_others(host_bus, bus, artifact)
         with TargetProcess(model_path, bus, events_path=events, firmware=firmware, stats_path=stats_path,
                            extra_argv=faults.reply_argv() if injecting else None) as target:
             result = _host_errors(lambda: run_dataset(
@@ -371,14 +394,11 @@ def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, 
     """Re-send a log's host frames to a target started here (or, with model_path None, one already running),
     which runs the firmware engine on the ELF `firmware` if one is given."""
     host_bus = _open(bus)
-    if model_path is not None:  # a target of our own: none may be on the channel already
-        try:
-            refuse_foreign_target(host_bus, bus, artifact)
-        except BenchError:
-            host_bus.shutdown()
-            raise
-    target = TargetProcess(model_path, bus, firmware=firmware).start() if model_path is not None else None
+    target = None
     try:
+        if model_path is not None:  # a target of our own: none may be on the channel already
+            _refuse_others(host_bus, bus, artifact)
+            target = TargetProcess(model_path, bus, firmware=firmware).start()
         alive = target.exit_reason if target is not None else None
         try:
             result = replay_log(host_bus, messages, model_id=artifact.model_id if artifact else None, timed=timed,
@@ -388,7 +408,7 @@ def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, 
         except SessionError as exc:
             reason = target.exit_reason() if target is not None else None
             raise BenchError(reason or str(exc)) from None
-        except LogError as exc:
+        except (LogError, OtherSender) as exc:
             raise BenchError(str(exc)) from None
         status = target.stop() if target is not None else None
         stderr = target.stderr_text() if target is not None else ""

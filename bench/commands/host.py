@@ -28,11 +28,19 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.common import add_data_arguments, add_output_flags, data_options, print_json
+from bench.commands.common import add_data_arguments, add_output_flags, check_writable, data_options, print_json
 from bench.errors import BenchError, UsageError
 from bench.runner import drive_for, load_data, load_model, positive_float, positive_int
 from dbc.database import host_frame_ids
-from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, first_heard, resolve
+from dbc.transport import (
+    BusUnavailable,
+    OtherSender,
+    SenderGuard,
+    add_bus_arguments,
+    config_from_args,
+    first_heard,
+    resolve,
+)
 from host.canlog import LogError, check_log_path
 from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
 from host.replay import DataRangeError
@@ -96,13 +104,18 @@ def run_host(args: argparse.Namespace) -> int:
         drive = drive[: args.rows]
     from bench.model.runs import initial_temperatures
 
-    bus = None
     try:
         log_path = check_log_path(args.log)
+    except LogError as exc:
+        raise BenchError(str(exc)) from None
+    check_writable(log_path, "--log")   # before the run: a directory there would fail it only at the end
+    bus = None
+    try:
         bus = config.open()
         if (other := first_heard(bus, host_frame_ids())) is not None:  # two hosts would both drive the target
             raise SessionError(f"{config.describe()} already has a host sending (frame id "
                                f"0x{other.arbitration_id:03x}); stop it or pick another channel")
+        bus = SenderGuard(bus, config, host_frame_ids(), "host")   # and one that starts later stops this run
         if not (args.quiet or args.json):
             print(f"bench: host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
                   + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
@@ -112,7 +125,7 @@ def run_host(args: argparse.Namespace) -> int:
                              log_path=log_path, reply_timeout_s=args.reply_timeout,
                              connect_timeout_s=args.connect_timeout, faults=faults,
                              target_events=args.target_events, events_since=started)
-    except (LogError, BusUnavailable, SessionError, DataRangeError, FaultSpecError) as exc:
+    except (LogError, BusUnavailable, SessionError, DataRangeError, FaultSpecError, OtherSender) as exc:
         raise BenchError(str(exc)) from None
     finally:
         if bus is not None:

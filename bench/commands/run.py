@@ -133,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         log_path = check_log_path(args.log)
     except LogError as exc:
         raise BenchError(str(exc)) from None
+    check_writable(log_path, "--log")   # before the run: a directory there would fail it only at the end
     if not args.no_report:  # before the run: a report that cannot be written must not cost a run and leave a log
         check_writable(Path(args.report), "--report", directory=True)
     bus = bus_from_args(args)

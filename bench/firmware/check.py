@@ -4,7 +4,8 @@ every output compared bit for bit.
 Both sides run as the target does: the rows' samples are summed per model-step interval (fw_accumulate /
 `InputAccumulator.accumulate`), the interval mean taken at its last row (fw_mean / `mean`) and one model step run
 on it (fw_step / `Float32Estimator.step`). A mismatch is a model step whose four outputs are not the same 32 bits
-on both sides. The emulated run is timed on its own (emulated steps per second, block hook and all) and its
+on both sides. The drive has the artifact's `drive_signals` as columns: 4, or 6 with the d/q currents for a model
+with an electrical loss model. The emulated run is timed on its own (emulated steps per second, block hook and all) and its
 counted Cortex-M4 cycles per step are summarized.
 """
 
@@ -49,7 +50,7 @@ def _run_firmware(model: FirmwareEstimator, drive: np.ndarray, initial, rule: In
 def _run_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np.ndarray:
     model = Float32Estimator(artifact)
     model.reset(initial)
-    acc = InputAccumulator(artifact.data_sample_period, artifact.dt)
+    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, len(artifact.drive_signals))
     outputs = []
     for row, sample in enumerate(drive):
         inputs = acc.add(row, sample)
@@ -66,7 +67,15 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
     except FirmwareError as exc:
         raise BenchError(str(exc)) from None
     drive = np.asarray(drive, dtype=F32)
-    rule = InputAccumulator(artifact.data_sample_period, artifact.dt)
+    width = len(artifact.drive_signals)
+    if drive.ndim != 2 or drive.shape[1] != width:
+        where = f" ({artifact.path})" if artifact.path is not None else ""
+        given = drive.shape[1] if drive.ndim == 2 else 0
+        hint = ("; its electrical loss model needs the d/q currents (columns i_d_A, i_q_A: map them with --mapping)"
+                if artifact.loss_model == "electrical" else "")
+        raise BenchError(f"model {artifact.model_id:08x}{where} runs on {width} drive values per row "
+                         f"({', '.join(artifact.drive_signals)}), the data gives {given}{hint}")
+    rule = InputAccumulator(artifact.data_sample_period, artifact.dt, width)
     try:
         rows, firmware, cycles, seconds = _run_firmware(model, drive, initial, rule)
     except FirmwareFault as exc:

@@ -8,7 +8,8 @@ mirrors, and both spell every sum and product in the same order with the same pa
 |-------------------------|---------------------------------------------|----------------------------------------|
 | fw_exp                  | fmath.exp_f32                               | our float32 exp (no libm)              |
 | dot                     | fmath.matvec (one row)                      | left-to-right sum of products          |
-| grid_cell, loss_lookup  | model.LossTables._cell, .lookup             | bilinear loss tables                   |
+| grid_cell, loss_lookup  | model.LossTables._cell, .lookup             | bilinear loss tables (losses "maps")   |
+| electrical_losses       | model.ElectricalLosses.lookup               | losses from i_d, i_q, speed            |
 | node_losses             | Float32Estimator.node_losses                | eqs. 3-8                               |
 | input_nonlinearity      | Float32Estimator.input_nonlinearity         | sigmoid, eqs. 28-30 (hammerstein)      |
 | temperature_sources     | Float32Estimator.temperature_sources        | eqs. 9-18 (lti-lptn, hammerstein)      |
@@ -20,7 +21,10 @@ Every coefficient is a `static const float` written as a C hex-float literal of 
 (exact: no decimal round trip); the few derived constants (grid steps) are computed by the reference's own code
 in float32 and written the same way. Every literal carries the `f` suffix and every intermediate is a float:
 no double anywhere (the build checks with -Wdouble-promotion). No libc, no malloc, no recursion; the state is
-four static arrays (.bss). Matrices are used densely (zeros included) in both languages, so the results agree
+four static arrays (.bss). An electrical loss model's square root and |speed| are the FPU's VSQRT.F32 and VABS.F32
+(`__builtin_sqrtf`, `__builtin_fabsf` with -fno-math-errno: no libm call; VSQRT is correctly rounded, as np.sqrt
+on float32 is), and its model takes 6 inputs per row (the drive values, then i_d and i_q) where a loss-map model
+takes 4. Matrices are used densely (zeros included) in both languages, so the results agree
 even for a diverging model (0·inf is NaN on both sides).
 """
 
@@ -33,7 +37,7 @@ import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
 from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
-from target_sim.artifact import LOSS_TABLES, MODEL_KINDS, OUTPUTS, ModelArtifact
+from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_MODELS, LOSS_TABLES, MODEL_KINDS, OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import firmware_refusal
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
 from target_sim.model import COOLANT_REFERENCE_C, LossTables
@@ -45,8 +49,10 @@ REALIZATIONS = ("physical", "original", "balanced", "modal")   # they differ onl
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 LINEAR_BLOCK = {"A": (4, 4), "B": (4, 8), "C": (4, 4), "C_inv": (4, 4)}
 MAX_GRID_POINTS = 256                   # per axis: a table beyond that is no motor map (and no MCU's flash)
+GENERATED_LOSS_MODELS = ("maps", "electrical")
 
 assert set(KINDS) == set(MODEL_KINDS)   # a new kind in the artifact schema needs a generator here first
+assert set(GENERATED_LOSS_MODELS) == set(LOSS_MODELS)   # and so does a new loss model
 
 
 @dataclass(frozen=True)
@@ -126,6 +132,13 @@ def check_expressible(artifact: ModelArtifact) -> None:
         raise FirmwareGenerationError(f"realization {realization!r} cannot be generated as firmware (the generator "
                                       f"knows {', '.join(REALIZATIONS)}); rebuild the artifact with "
                                       "'bench identify --realization'")
+    if artifact.loss_model not in GENERATED_LOSS_MODELS:
+        raise FirmwareGenerationError(f"loss model {artifact.loss_model!r} cannot be generated as firmware (the "
+                                      f"generator knows {', '.join(GENERATED_LOSS_MODELS)})")
+    if artifact.loss_model == "electrical":
+        for name in ("current_max_A", *ELECTRICAL_COEFFICIENTS):
+            _artifact_literals(artifact, "losses", name, shape=())
+        return
     sizes = []
     for axis in ("torque_axis_Nm", "speed_axis_rpm"):
         values = artifact.array("losses", axis)
@@ -162,7 +175,7 @@ float fw_exp(float x)
 }}
 """
 
-_COMMON_C = """\
+_DOT_C = """\
 /* fmath.matvec, one row: ((m[0] v[0] + m[1] v[1]) + m[2] v[2]) + ..., left to right, zeros included */
 static float dot(const float *m, const float *v, int n)
 {
@@ -171,7 +184,9 @@ static float dot(const float *m, const float *v, int n)
     for (j = 1; j < n; j++) acc = acc + m[j] * v[j];
     return acc;
 }
+"""
 
+_MAPS_C = """\
 /* LossTables._cell: the grid cell holding value and the fraction inside it, clamped to the grid (NaN -> 0) */
 static int grid_cell(float value, float start, float step, int size, float *fraction)
 {
@@ -201,14 +216,54 @@ static void loss_lookup(float torque, float speed, float out[LOSS_TABLE_COUNT])
         out[k] = low + fi * (high - low);
     }
 }
+"""
 
-/* Float32Estimator.node_losses: [P_y, P_w, P_t, P_m] in W from the tables and the previous winding estimate:
- * copper temperature factor (eqs. 3-5), stator split k_s (eqs. 6-8) */
-static void node_losses(float torque, float speed, float losses[4])
+_ELECTRICAL_C = """\
+/* sqrt and |x| in float32: the FPU's VSQRT.F32 (correctly rounded, as np.sqrt on float32) and VABS.F32. GCC and
+ * clang lower the builtins to the instructions (with -fno-math-errno: no libm call, no errno); another compiler
+ * gets C99's sqrtf and fabsf, which Annex F (IEC 60559) requires to be exact too. */
+#if defined(__GNUC__)
+#define FW_SQRTF(x) __builtin_sqrtf(x)
+#define FW_FABSF(x) __builtin_fabsf(x)
+#else
+#include <math.h>
+#define FW_SQRTF(x) sqrtf(x)
+#define FW_FABSF(x) fabsf(x)
+#endif
+
+/* ElectricalLosses.lookup: [p_dc0, p_ac0, p_stator, p_magnet, current] from the speed and the d/q currents:
+ * f = pp |n| / 60, I^2 = i_d^2 + i_q^2, I = sqrt(I^2), p_dc0 = (1.5 R) I^2, p_ac0 = p_dc0 (k_ac (f/f_ac)^2),
+ * p_stator = (P_h (f/f_fe) + P_e (f/f_fe)^2) (1 + c_I (I/I_max)^2), p_magnet = (P_m (f/f_m)^2) (c0 + (1 - c0) I/I_max)^2 */
+static void electrical_losses(float speed, float i_d, float i_q, float out[LOSS_TABLE_COUNT])
 {
+    const float freq = (POLE_PAIRS * FW_FABSF(speed)) / 60.0f;
+    const float i2 = i_d * i_d + i_q * i_q;
+    const float current = FW_SQRTF(i2);
+    const float ratio = current / CURRENT_MAX;
+    const float p_dc0 = (1.5f * STATOR_RESISTANCE_OHM) * i2;
+    const float f_ac = freq / AC_REFERENCE_HZ;
+    const float p_ac0 = p_dc0 * (AC_FACTOR * (f_ac * f_ac));
+    const float f_fe = freq / IRON_REFERENCE_HZ;
+    const float p_stator = (IRON_HYSTERESIS_W * f_fe + IRON_EDDY_W * (f_fe * f_fe)) * (
+        1.0f + IRON_CURRENT_FACTOR * (ratio * ratio));
+    const float f_m = freq / MAGNET_REFERENCE_HZ;
+    const float m = MAGNET_NO_LOAD_SHARE + (1.0f - MAGNET_NO_LOAD_SHARE) * ratio;
+    out[0] = p_dc0;
+    out[1] = p_ac0;
+    out[2] = p_stator;
+    out[3] = (MAGNET_W * (f_m * f_m)) * (m * m);
+    out[4] = current;
+}
+"""
+
+_NODE_LOSSES_C = """\
+/* Float32Estimator.node_losses: [P_y, P_w, P_t, P_m] in W from the {source} and the previous winding estimate:
+ * copper temperature factor (eqs. 3-5), stator split k_s (eqs. 6-8) */
+static void node_losses({parameters}, float losses[4])
+{{
     float table[LOSS_TABLE_COUNT];
     float factor, p_w, i_ratio, n_ratio, k_s;
-    loss_lookup(torque, speed, table);
+    {lookup}
     factor = 1.0f + ALPHA_CU * (y_est[1] - COPPER_REF);
     p_w = (table[0] * factor) + (table[1] / factor);
     i_ratio = table[4] / CURRENT_MAX;
@@ -218,8 +273,26 @@ static void node_losses(float torque, float speed, float losses[4])
     losses[1] = p_w;
     losses[2] = (1.0f - k_s) * table[2];
     losses[3] = table[3];
-}
+}}
 """
+
+# per loss model: the node_losses template's words, the lookup before it, and fw_step's call of node_losses
+_LOSS_MODEL_C = {
+    "maps": {"source": "tables", "parameters": "float torque, float speed", "lookup": "loss_lookup(torque, speed, table);",
+             "code": _MAPS_C, "call": "node_losses(inputs[0], inputs[1], u);"},
+    "electrical": {"source": "electrical loss model", "parameters": "float speed, float i_d, float i_q",
+                   "lookup": "electrical_losses(speed, i_d, i_q, table);", "code": _ELECTRICAL_C,
+                   "call": "node_losses(inputs[1], inputs[4], inputs[5], u);"},
+}
+
+
+def _common_c(loss_model: str) -> str:
+    """dot, the loss model's lookup and node_losses (for loss maps the text the generator always wrote)."""
+    words = _LOSS_MODEL_C[loss_model]
+    node_losses = _NODE_LOSSES_C.format(source=words["source"], parameters=words["parameters"],
+                                        lookup=words["lookup"])
+    return "\n".join([_DOT_C, words["code"], node_losses])
+
 
 _SIGMOID_C = """\
 /* Float32Estimator.input_nonlinearity (eqs. 28-30): per loss input, u = P/scale,
@@ -368,43 +441,43 @@ void fw_restore(const float x[4])
 
 _API_C = """\
 void fw_state(float x[4])
-{
+{{
     int i;
     for (i = 0; i < 4; i++) x[i] = x_state[i];
-}
+}}
 
 void fw_output(float y[4])
-{
+{{
     int i;
     for (i = 0; i < 4; i++) y[i] = y_est[i];
-}
+}}
 
 /* InputAccumulator.add: sum <- sum + sample, elementwise */
-void fw_accumulate(const float sample[4])
-{
+void fw_accumulate(const float sample[{width}])
+{{
     int i;
-    for (i = 0; i < 4; i++) acc_sum[i] = acc_sum[i] + sample[i];
+    for (i = 0; i < {width}; i++) acc_sum[i] = acc_sum[i] + sample[i];
     acc_count = acc_count + 1u;
-}
+}}
 
 /* InputAccumulator.add (interval complete): mean = sum / float32(count), then cleared */
-unsigned int fw_mean(float u[4])
-{
+unsigned int fw_mean(float u[{width}])
+{{
     const unsigned int count = acc_count;
     int i;
     if (count == 0u) return 0u;
-    for (i = 0; i < 4; i++) u[i] = acc_sum[i] / (float)count;
+    for (i = 0; i < {width}; i++) u[i] = acc_sum[i] / (float)count;
     fw_clear();
     return count;
-}
+}}
 
 /* InputAccumulator.clear */
 void fw_clear(void)
-{
+{{
     int i;
-    for (i = 0; i < 4; i++) acc_sum[i] = 0.0f;
+    for (i = 0; i < {width}; i++) acc_sum[i] = 0.0f;
     acc_count = 0u;
-}
+}}
 """
 
 _HEADER = """\
@@ -425,8 +498,8 @@ _HEADER = """\
  * Deciding WHEN an interval ends (integer row logic: step k takes the samples in [k dt, (k+1) dt)) is the
  * caller's job, as in target_sim.model.InputAccumulator.
  *
- * Temperatures are [yoke, winding, tooth, magnet] in deg C; drive inputs [torque Nm, speed rpm, coolant deg C,
- * ambient deg C]. No function keeps a pointer it was given; arrays may not overlap.
+ * Temperatures are [yoke, winding, tooth, magnet] in deg C; drive inputs [{inputs_doc}]
+ * ({loss_doc}). No function keeps a pointer it was given; arrays may not overlap.
  */
 #ifndef FW_MODEL_H
 #define FW_MODEL_H
@@ -440,6 +513,8 @@ _HEADER = """\
 #define FW_DT_S {dt_literal}
 #define FW_SAMPLE_PERIOD_S {sample_literal}
 #define FW_MODEL_ID 0x{model_id:08x}u
+#define FW_LOSS_MODEL "{loss_model}"
+#define FW_INPUTS {width} /* drive values per sample and per model step: 4, or 6 with the d/q currents */
 
 /* The first 32 bits of the artifact's sha256, what the target reports on the bus (= FW_MODEL_ID), kept in the
  * image so a flashed firmware can be matched with its artifact. */
@@ -457,14 +532,14 @@ void fw_state(float x[4]);
 /* The latest outputs y [yoke, winding, tooth, magnet] (deg C): y0 after fw_reset, else the last step's. */
 void fw_output(float y[4]);
 
-/* One model step from the interval means u = [torque, speed, coolant, ambient]; writes the outputs to y. */
-void fw_step(const float u[4], float y[4]);
+/* One model step from the interval means u = [{inputs}]; writes the outputs to y. */
+void fw_step(const float u[{width}], float y[4]);
 
-/* Add one drive sample [torque, speed, coolant, ambient] to the interval sum (float32, elementwise). */
-void fw_accumulate(const float sample[4]);
+/* Add one drive sample [{inputs}] to the interval sum (float32, elementwise). */
+void fw_accumulate(const float sample[{width}]);
 
 /* The float32 mean of the accumulated samples into u, then clear; returns their count (0: u untouched). */
-unsigned int fw_mean(float u[4]);
+unsigned int fw_mean(float u[{width}]);
 
 /* Forget the accumulated samples. */
 void fw_clear(void);
@@ -479,7 +554,6 @@ float fw_exp(float x);
 
 def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
     """(C name, literal, comment) of every scalar the step may use; only the used ones are emitted."""
-    tables = LossTables(artifact)       # the reference's own derived constants (grid steps), in float32
     out: list[tuple[str, str, str]] = []
     for name in ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
                  "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3"):
@@ -489,13 +563,18 @@ def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
                          ("ALPHA_CU", ("losses", "alpha_cu_per_K")),
                          ("COPPER_REF", ("losses", "copper_reference_C"))):
         out.append((c_name, _artifact_literals(artifact, *keys, shape=())[()], ".".join(keys)))
-    torque = _artifact_literals(artifact, "losses", "torque_axis_Nm")
-    speed = _artifact_literals(artifact, "losses", "speed_axis_rpm")
-    out += [("TORQUE_START", torque[0], "losses.torque_axis_Nm[0]"),
-            ("TORQUE_STEP", c_float(tables.torque_step), "torque_axis_Nm[1] - torque_axis_Nm[0] in float32"),
-            ("SPEED_START", speed[0], "losses.speed_axis_rpm[0]"),
-            ("SPEED_STEP", c_float(tables.speed_step), "speed_axis_rpm[1] - speed_axis_rpm[0] in float32"),
-            ("COOLANT_REF", c_float(np.float32(COOLANT_REFERENCE_C)), "coolant temperature of R_cy0 (eq. 16)"),
+    if artifact.loss_model == "maps":
+        tables = LossTables(artifact)       # the reference's own derived constants (grid steps), in float32
+        torque = _artifact_literals(artifact, "losses", "torque_axis_Nm")
+        speed = _artifact_literals(artifact, "losses", "speed_axis_rpm")
+        out += [("TORQUE_START", torque[0], "losses.torque_axis_Nm[0]"),
+                ("TORQUE_STEP", c_float(tables.torque_step), "torque_axis_Nm[1] - torque_axis_Nm[0] in float32"),
+                ("SPEED_START", speed[0], "losses.speed_axis_rpm[0]"),
+                ("SPEED_STEP", c_float(tables.speed_step), "speed_axis_rpm[1] - speed_axis_rpm[0] in float32")]
+    else:
+        out += [(name.upper(), _artifact_literals(artifact, "losses", name, shape=())[()], f"losses.{name}")
+                for name in ELECTRICAL_COEFFICIENTS]
+    out += [("COOLANT_REF", c_float(np.float32(COOLANT_REFERENCE_C)), "coolant temperature of R_cy0 (eq. 16)"),
             ("DT", c_float(np.float32(artifact.dt)), "timing.dt_s: the model step (s)")]
     return out
 
@@ -511,22 +590,36 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     model_id = artifact.model_id
     dt_literal = c_float(np.float32(artifact.dt))
     sample_literal = c_float(np.float32(artifact.data_sample_period))
+    loss_model = artifact.loss_model
+    width = len(artifact.drive_signals)     # 4 drive values, 6 with the d/q currents
+    inputs = "torque, speed, coolant, ambient" + (", i_d, i_q" if loss_model == "electrical" else "")
+    inputs_doc = "torque Nm, speed rpm, coolant deg C,\n * ambient deg C" + (
+        ", i_d A, i_q A" if loss_model == "electrical" else "")
+    loss_doc = ("losses from loss maps over torque and speed" if loss_model == "maps" else
+                "losses from the d/q currents and the speed; the torque is not used")
     header = _HEADER.format(header=HEADER_NAME, kind=kind, realization=artifact.realization, dt=f"{artifact.dt:g}",
                             sha256=artifact.sha256, dt_literal=dt_literal, sample_literal=sample_literal,
-                            model_id=model_id, max_ulp=EXP_MAX_ULP)
+                            model_id=model_id, max_ulp=EXP_MAX_ULP, loss_model=loss_model, width=width,
+                            inputs=inputs, inputs_doc=inputs_doc, loss_doc=loss_doc)
 
     # the code first: only the constants it names are emitted (an unused static const is a warning)
     horner = [f"    p = EXP_{EXP_POLYNOMIAL[0]};"]
     horner += [f"    p = p * r + EXP_{name};" for name in EXP_POLYNOMIAL[1:]]
-    code = [_EXP_C.format(horner="\n".join(horner), bias=EXP_EXPONENT_BIAS, max_ulp=EXP_MAX_ULP), _COMMON_C]
+    code = [_EXP_C.format(horner="\n".join(horner), bias=EXP_EXPONENT_BIAS, max_ulp=EXP_MAX_ULP),
+            _common_c(loss_model)]
     if kind == "hammerstein":
         code.append(_SIGMOID_C)
     if kind == "pv-lptn":
-        code += [_PV_C, _STEP_PV_C]
+        step = _STEP_PV_C
+        code += [_PV_C]
     else:
-        code += [_SOURCES_C, _STEP_LINEAR_C.format(
-            nonlinearity="    input_nonlinearity(u);\n" if kind == "hammerstein" else "")]
-    code.append(_API_C)
+        step = _STEP_LINEAR_C.format(nonlinearity="    input_nonlinearity(u);\n" if kind == "hammerstein" else "")
+        code += [_SOURCES_C]
+    # fw_step takes the row's width of inputs and hands node_losses what the loss model needs
+    step = step.replace("void fw_step(const float inputs[4], float y[4])",
+                        f"void fw_step(const float inputs[{width}], float y[4])")
+    code.append(step.replace(_LOSS_MODEL_C["maps"]["call"], _LOSS_MODEL_C[loss_model]["call"]))
+    code.append(_API_C.format(width=width))
     code_text = "\n".join(code)
     used = set(re.findall(r"\b[A-Z][A-Z0-9_]*\b", code_text))
 
@@ -547,11 +640,15 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     scalars = [f"static const float {name} = {literal}; /* {comment} = {_value_comment(literal)} */"
                for name, literal, comment in _scalar_constants(artifact) if name in used]
     parts.append("\n".join(scalars) + "\n")
-    grid = artifact.array("losses", "tables", LOSS_TABLES[0]).shape
-    parts.append(f"#define TORQUE_POINTS {grid[0]}\n#define SPEED_POINTS {grid[1]}\n"
-                 f"#define LOSS_TABLE_COUNT {len(LOSS_TABLES)}\n")
-    tables = np.stack([_artifact_literals(artifact, "losses", "tables", name, shape=grid) for name in LOSS_TABLES])
-    parts.append(_c_array("LOSS_TABLES", tables, f"losses.tables [{', '.join(LOSS_TABLES)}][torque][speed]"))
+    if loss_model == "maps":
+        grid = artifact.array("losses", "tables", LOSS_TABLES[0]).shape
+        parts.append(f"#define TORQUE_POINTS {grid[0]}\n#define SPEED_POINTS {grid[1]}\n"
+                     f"#define LOSS_TABLE_COUNT {len(LOSS_TABLES)}\n")
+        tables = np.stack([_artifact_literals(artifact, "losses", "tables", name, shape=grid)
+                           for name in LOSS_TABLES])
+        parts.append(_c_array("LOSS_TABLES", tables, f"losses.tables [{', '.join(LOSS_TABLES)}][torque][speed]"))
+    else:
+        parts.append(f"#define LOSS_TABLE_COUNT {len(LOSS_TABLES)} /* [{', '.join(LOSS_TABLES)}] */\n")
     if kind == "hammerstein":
         for key in SIGMOID_KEYS:
             c_name = "SIG_" + key.split("_")[0].upper()
@@ -564,7 +661,7 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     parts.append("/* ---- state (.bss): x, the latest outputs y, the interval sum and count ---- */\n"
                  "static float x_state[4];\n"
                  f"static float y_est[4]; /* [{', '.join(OUTPUTS)}] */\n"
-                 "static float acc_sum[4];\n"
+                 f"static float acc_sum[{width}];\n"
                  "static unsigned int acc_count;\n")
     parts.append(code_text)
     node = {CONFIG_NAME: node_config(artifact), **packers()}

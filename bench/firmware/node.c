@@ -17,6 +17,10 @@
  * code, fewer basic blocks for the emulator to hook (the build compiles thermal_bench.c only through here). */
 #include "thermal_bench.c"
 
+/* A data row is what the model accumulates: the node's row (fw_node_config.h) and the model's inputs (fw_model.h)
+ * are generated from one artifact and must agree (a negative array size stops the build otherwise). */
+typedef char node_row_is_the_model_input[(NODE_ROW_WIDTH == FW_INPUTS) ? 1 : -1];
+
 struct node_frame node_rx;
 struct node_output node_out;
 struct node_counters node_counters;
@@ -55,9 +59,10 @@ static struct {                                   /* RestoreState by element: _r
     uint16_t step;
     float value;
 } restore_frames[NODE_STATE_SIZE];
-static struct {                                   /* _pending_inputs */
-    uint8_t have;
-    struct thermal_bench_drive_inputs_t m;
+static struct {                                   /* _pending: the row being received */
+    uint8_t count;                                /* its frames so far, in row order (NODE_ROW_INDEX_*) */
+    uint16_t step;                                /* the Step of its first frame */
+    float sample[NODE_ROW_WIDTH];                 /* their values, decoded into their places of the row */
 } pending;
 
 static uint8_t running_rows;                      /* next_row is not None */
@@ -65,7 +70,7 @@ static uint32_t next_row;
 static uint8_t have_reply_row;                    /* last_reply_row is not None */
 static uint16_t last_reply_step;
 static uint8_t have_last_inputs;                  /* RowAccumulator.last_inputs */
-static float last_inputs[4];
+static float last_inputs[NODE_ROW_WIDTH];
 static float estimate[NODE_STATE_SIZE];
 static uint32_t next_beat_ms;
 
@@ -388,7 +393,7 @@ static void ready(void)
 {
     fw_output(estimate);
     rows_reset();
-    pending.have = 0u;
+    pending.count = 0u;
     running_rows = 0u;
     have_reply_row = 0u;
     node_counters.rows_used = node_counters.model_steps = node_counters.overruns = 0u;
@@ -409,7 +414,7 @@ static int ends_interval(uint32_t row)
 
 /* ------------------------------------------------------------------------------------------------ rows */
 /* One model step on `inputs` (TargetNode._row's loop body); returns its DWT cycles. */
-static uint32_t model_step(const float inputs[4])
+static uint32_t model_step(const float inputs[NODE_ROW_WIDTH])
 {
     uint32_t started, cycles;
     started = DWT_CYCCNT;
@@ -430,7 +435,7 @@ static uint32_t model_step(const float inputs[4])
 
 /* One model step of a row; its cycles kept for the row's timing frames while they fit, else those are counted as
  * dropped. */
-static void step_on(const float inputs[4], uint32_t cycles_of[TIMED_STEPS], uint32_t *steps)
+static void step_on(const float inputs[NODE_ROW_WIDTH], uint32_t cycles_of[TIMED_STEPS], uint32_t *steps)
 {
     const uint32_t cycles = model_step(inputs);
     if (*steps < TIMED_STEPS) {
@@ -442,13 +447,13 @@ static void step_on(const float inputs[4], uint32_t cycles_of[TIMED_STEPS], uint
 }
 
 /* RowAccumulator.skip's means and the steps on them, one by one (no list: bounded RAM), then the row's own. */
-static void handle_row(uint16_t step, const float sample[4])
+static void handle_row(uint16_t step, const float sample[NODE_ROW_WIDTH])
 {
     const uint32_t expected = next_row;
     const uint16_t ahead = (uint16_t)(step - (uint16_t)expected);       /* mod 2^16 */
     uint32_t row, lost, cycles_of[TIMED_STEPS];
     uint32_t steps = 0u;
-    float mean[4];
+    float mean[NODE_ROW_WIDTH];
     if (state != NODE_STATE_RUNNING || !running_rows) {
         sequence_error(NODE_WHY_ROW_STATE, step, state);
         return;
@@ -537,7 +542,7 @@ static void control(uint8_t command, uint16_t step)
     } else if (command == NODE_COMMAND_STOP) {
         int i;
         for (i = 0; i < RX_COUNT; i++) counter_known[i] = 0u;     /* FrameValidator.reset_counters */
-        pending.have = 0u;
+        pending.count = 0u;
         set_state(NODE_STATE_STOPPED);
     }
 }
@@ -576,30 +581,70 @@ static void unpack(int index, const uint8_t *data, union rx_signals *m)
     }
 }
 
+/* TargetNode._row_frame's rules for the `index`-th frame of a data row (NODE_ROW_INDEX_*), of Step `step`: 1 when
+ * it continues the pending row (the caller decodes it into pending.sample, then calls row_frame_done), 0 after a
+ * sequence error (the pending row forgotten). */
+static int row_frame(unsigned int index, uint16_t step)
+{
+    const uint8_t count = pending.count;
+    if (index == 0u) {                                      /* a new row; an unfinished one is an error */
+        if (count) sequence_error(NODE_WHY_ROW_UNFINISHED, pending.step, count);
+        pending.count = 0u;
+        pending.step = step;
+        return 1;
+    }
+    if (count != index) {                                   /* not the next frame of the row */
+        pending.count = 0u;
+        if (count < index) {
+            sequence_error(NODE_WHY_ROW_WITHOUT, step, count);
+        } else {
+            sequence_error(NODE_WHY_ROW_UNFINISHED, pending.step, count);
+        }
+        return 0;
+    }
+    if (pending.step != step) {                             /* of another row */
+        pending.count = 0u;
+        sequence_error(NODE_WHY_ROW_STEPS, pending.step, step);
+        return 0;
+    }
+    return 1;
+}
+
+/* The `index`-th frame of the row is decoded: wait for the next one, or the row is complete and used. */
+static void row_frame_done(unsigned int index, uint16_t step)
+{
+    if (index + 1u < NODE_ROW_MESSAGES) {
+        pending.count = (uint8_t)(index + 1u);
+        return;
+    }
+    pending.count = 0u;
+    handle_row(step, pending.sample);
+}
+
+/* One frame of a data row: MESSAGE (DRIVE_INPUTS, ...) with its signals in `m` (fw_node_config.h's macros). */
+#define ROW_FRAME(MESSAGE, m)                                                                                         \
+    do {                                                                                                              \
+        if (row_frame(NODE_ROW_INDEX_##MESSAGE, (m).step)) {                                                          \
+            NODE_DECODE_##MESSAGE(pending.sample, m);                                                                 \
+            row_frame_done(NODE_ROW_INDEX_##MESSAGE, (m).step);                                                       \
+        }                                                                                                             \
+    } while (0)
+
 /* The application part of a valid frame (TargetNode._dispatch). */
 static void dispatch(int index, const union rx_signals *m)
 {
     switch (index) {
     case RX_DRIVE_INPUTS:
-        if (pending.have) sequence_error(NODE_WHY_INPUTS_ALONE, pending.m.step, 0);
-        pending.have = 1u;
-        pending.m = m->inputs;
+        ROW_FRAME(DRIVE_INPUTS, m->inputs);
         break;
-    case RX_DRIVE_TEMPS: {
-        float sample[4];
-        if (!pending.have) {
-            sequence_error(NODE_WHY_TEMPS_ALONE, m->temps.step, 0);
-            break;
-        }
-        pending.have = 0u;
-        if (pending.m.step != m->temps.step) {
-            sequence_error(NODE_WHY_PAIR_STEPS, pending.m.step, m->temps.step);
-            break;
-        }
-        NODE_DRIVE_SAMPLE(sample, pending.m, m->temps);
-        handle_row(m->temps.step, sample);
+    case RX_DRIVE_TEMPS:
+        ROW_FRAME(DRIVE_TEMPS, m->temps);
         break;
-    }
+#ifdef NODE_ROW_INDEX_DRIVE_CURRENTS
+    case RX_DRIVE_CURRENTS:                                 /* an electrical loss model's row: the d/q currents */
+        ROW_FRAME(DRIVE_CURRENTS, m->currents);
+        break;
+#endif
     case RX_RESET1:
         reset_frames[0].have = 1u;
         reset_frames[0].step = m->reset1.step;
@@ -618,7 +663,7 @@ static void dispatch(int index, const union rx_signals *m)
     case RX_CONTROL:
         control(m->control.command, m->control.step);
         break;
-    default:            /* BenchEvent, and DriveCurrents (the node runs loss-map models): validated, otherwise ignored */
+    default:            /* BenchEvent, and DriveCurrents for a loss-map model: validated, otherwise ignored */
         break;
     }
 }

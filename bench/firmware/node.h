@@ -8,9 +8,10 @@
  * enums, E2E data ids, scalings, heartbeat period) from fw_node_config.h, which `bench firmware export` writes
  * from the DBC and the project's contract module, so none of them is typed in here.
  *
- * The node runs models with loss maps (a data row: DriveInputs + DriveTemps); it validates DriveCurrents (DBC 1.4.0,
- * the d/q currents an electrical loss model needs) like every frame and otherwise ignores it, as the Python node does
- * with a loss-map model. A model with an electrical loss model is not generated as firmware (nodegen refuses it).
+ * A data row is the row messages of the model's loss model, in order and of one Step (fw_node_config.h's
+ * NODE_ROW_*, from dbc.contract.row_messages): DriveInputs + DriveTemps for loss maps, and DriveCurrents (DBC 1.4.0,
+ * the d/q currents) after them for an electrical loss model, whose model then accumulates 6 values per row. A
+ * loss-map model's node validates DriveCurrents like every frame and otherwise ignores it, as the Python node does.
  *
  * No heap, no libc (the two memory functions the generated packers call are defined in node.c), no recursion,
  * no double. One node instance, in static RAM.

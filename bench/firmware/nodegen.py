@@ -7,8 +7,10 @@ bench/firmware/node.c (hand-written) is the node; what it must not spell out its
   nothing (they take raw values), so the node computes the raw values with the exact rules below.
 * fw_node_config.h: the facts of the contract (`dbc.contract`, `dbc.database`) and of the model the node runs, as
   C constants and macros: enums, E2E data ids, heartbeat period, checkpoint interval, reply/reset signal order,
-  RxErrors signal names, the decode rule of every drive and reset signal, the temperature encoding, Timing2/3's
-  C28x estimate as raw values, the interval rule, the journal's reason codes (`target_sim.firmware.node_protocol`).
+  RxErrors signal names, the data row of the model's loss model (its messages in order, `dbc.contract.row_messages`,
+  and where each drive value goes: DriveInputs and DriveTemps, and DriveCurrents for an electrical loss model), the
+  decode rule of every drive, current and reset signal, the temperature encoding, Timing2/3's C28x estimate as raw
+  values, the interval rule, the journal's reason codes (`target_sim.firmware.node_protocol`).
 
 Decoding in float32 without double: the Python codec decodes raw * scale + offset in double and the node rounds
 that to float32. For the DBC's scalings (scale = 1/n, offset = k/n for integers n, k) that float32 value is
@@ -33,7 +35,6 @@ from dbc.contract import (
     CHECKPOINT_EVERY_STEPS,
     COUNTER_MODULO,
     DBC_PATH,
-    DRIVE_SIGNALS,
     FIRMWARE_TIMING_MESSAGE,
     M4_CLOCK_HZ,
     REPLY_SIGNALS,
@@ -47,11 +48,20 @@ from dbc.contract import (
     ModelKind,
     Realization,
     TargetState,
+    row_messages,
+    row_signals,
 )
 from dbc.database import contract, heartbeat_period_s, layout_named, signal_ranges, temperature_range
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
-from target_sim.firmware.node_protocol import EVENT_CAPACITY, KIND_CODES, TX_CAPACITY, WHY_CODES, firmware_refusal
+from target_sim.firmware.node_protocol import (
+    EVENT_CAPACITY,
+    KIND_CODES,
+    ROW_MESSAGES,
+    TX_CAPACITY,
+    WHY_CODES,
+    firmware_refusal,
+)
 
 DATABASE_NAME = "thermal_bench"
 PACKERS = (f"{DATABASE_NAME}.h", f"{DATABASE_NAME}.c")
@@ -135,6 +145,26 @@ def _temperature_encoding() -> list[str]:
             f"#define NODE_TEMP_TINY_EXPONENT {TEMP_TINY_EXPONENT}u"]
 
 
+def _row_macros(artifact: ModelArtifact) -> list[str]:
+    """The data row of `artifact`'s model (TargetNode's row_messages and row_signals): its width and messages, each
+    message's index in the row (NODE_ROW_INDEX_<MESSAGE>, only for the row's messages), and per message the decode
+    of its values into their places of the row's sample (NODE_DECODE_<MESSAGE>(sample, m), one float32 division per
+    signal)."""
+    width = len(artifact.drive_signals)
+    messages = row_messages(width)
+    if messages != ROW_MESSAGES[:len(messages)]:
+        raise FirmwareGenerationError("the data row's messages are not a prefix of the longest row's; the node's "
+                                      "journal names them by index")
+    out = [f"#define NODE_ROW_WIDTH {width}u", f"#define NODE_ROW_MESSAGES {len(messages)}u"]
+    out += [f"#define NODE_ROW_INDEX_{_snake_upper(message)} {index}u" for index, message in enumerate(messages)]
+    places = list(enumerate(row_signals(width)))
+    for message in messages:
+        fills = "; ".join(f"(sample)[{index}] = {_decode(message, signal, f'(m).{camel_to_snake_case(signal)}')}"
+                          for index, (owner, signal) in places if owner == message)
+        out.append(f"#define NODE_DECODE_{_snake_upper(message)}(sample, m) do {{ {fills}; }} while (0)")
+    return out
+
+
 def _signal_macros() -> list[str]:
     out = []
     fills = "; ".join(f"(m).{camel_to_snake_case(signal)} = (uint8_t)((e)[{RX_ERROR_KINDS.index(kind)}] > 255u ? "
@@ -152,17 +182,12 @@ def _signal_macros() -> list[str]:
                       for number, message in enumerate(messages, start=1)
                       for slot, (signal, index) in enumerate(RESET_SIGNALS[message]))
     out.append(f"#define NODE_RESET_TEMPERATURES(y, r1, r2) do {{ {fills}; }} while (0)")
-    first = DRIVE_SIGNALS[0][0]
-    fills = "; ".join(f"(sample)[{index}] = "
-                      + _decode(message, signal, f"({'p' if message == first else 'm'}).{camel_to_snake_case(signal)}")
-                      for index, (message, signal) in enumerate(DRIVE_SIGNALS))
-    out.append(f"#define NODE_DRIVE_SAMPLE(sample, p, m) do {{ {fills}; }} while (0)")
     return out
 
 
 def node_config(artifact: ModelArtifact) -> str:
-    """fw_node_config.h for `artifact`'s model (FirmwareGenerationError for a model the node cannot run: one whose
-    loss model needs the d/q currents)."""
+    """fw_node_config.h for `artifact`'s model (FirmwareGenerationError, one sentence, for a model the node cannot
+    run)."""
     refusal = firmware_refusal(artifact)
     if refusal is not None:
         raise FirmwareGenerationError(refusal)
@@ -214,5 +239,6 @@ def node_config(artifact: ModelArtifact) -> str:
               f"#define NODE_STATE_VALUE_MAX {c_float(state_high)}"]
     lines += _temperature_encoding()
     lines += _signal_macros()
+    lines += _row_macros(artifact)
     lines += ["", "#endif /* FW_NODE_CONFIG_H */", ""]
     return "\n".join(lines)

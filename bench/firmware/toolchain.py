@@ -13,6 +13,8 @@ Flags, and why:
 * -target thumb-freestanding-eabihf -mcpu=cortex_m4+vfp4d16sp: Armv7E-M, FPv4-SP-D16, hard-float ABI (without
   +vfp4d16sp clang calls soft-float helpers, which -nostdlib cannot link);
 * -O2 -ffp-contract=off (no fused multiply-add: the reference rounds every product);
+* -fno-math-errno: __builtin_sqrtf (an electrical loss model's current) becomes the FPU's VSQRT.F32 alone, with no
+  call to a libm sqrtf for the errno of a negative argument (there is no libm; the link would fail);
 * -ffreestanding -nostdlib: no libc, and no memcpy/memset calls invented by the optimizer;
 * -ffunction-sections -fdata-sections + --gc-sections: only what the entry points reach (firmware.ld KEEPs the
   fw_* functions, which nothing in the image calls);
@@ -47,7 +49,7 @@ ELF_NAME = "firmware.elf"
 MAP_NAME = "firmware.map"
 
 TARGET_FLAGS = ("-target", "thumb-freestanding-eabihf", "-mcpu=cortex_m4+vfp4d16sp")
-CODE_FLAGS = ("-std=c99", "-O2", "-g0", "-ffp-contract=off", "-ffreestanding", "-nostdlib", "-fno-common",
+CODE_FLAGS = ("-std=c99", "-O2", "-g0", "-ffp-contract=off", "-fno-math-errno", "-ffreestanding", "-nostdlib", "-fno-common",
               "-fno-unwind-tables", "-fno-asynchronous-unwind-tables", "-fomit-frame-pointer",
               "-ffunction-sections", "-fdata-sections", "-fno-stack-protector")
 WARNING_FLAGS = ("-Wall", "-Wextra", "-Werror", "-Wpedantic", "-Wdouble-promotion", "-Wconversion", "-Wshadow",

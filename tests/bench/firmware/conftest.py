@@ -1,5 +1,6 @@
 """Fixtures of the firmware tests: small artifacts of every kind x realization x Δt, their ELFs (built once per
-session), and a drive that runs the model through the loss tables' edges."""
+session), and a drive that runs the model through the loss tables' edges; the same with an electrical loss model
+(losses from the d/q currents) and a drive with currents."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from helpers import model_spec, synthetic_columns
+from helpers import electrical_artifact_text, model_spec, synthetic_columns, with_currents
 
 KIND_REALIZATIONS = [("lti-lptn", r) for r in ("physical", "original", "balanced", "modal")]
 KIND_REALIZATIONS += [("hammerstein", r) for r in ("physical", "original", "balanced", "modal")]
@@ -49,6 +50,41 @@ def firmware_of() -> Callable:
     return get
 
 
+def _electrical(kind: str, realization: str, dt: float, directory):
+    """`_artifact(kind, realization, dt)` with an electrical loss model (`helpers.electrical_artifact_text`)."""
+    import json
+
+    from target_sim.artifact import dumps, verify
+
+    base = directory / f"{kind}-{realization}-{dt:g}.json"
+    base.write_text(dumps(_artifact(kind, realization, dt).content), encoding="utf-8")
+    return verify(json.loads(electrical_artifact_text(base)))
+
+
+@pytest.fixture(scope="session")
+def electrical_of(tmp_path_factory) -> Callable:
+    """electrical_of(kind, realization, dt) -> (artifact with an electrical loss model, BuildResult), built once."""
+    from bench.firmware.codegen import generate
+    from bench.firmware.toolchain import build_firmware
+
+    directory = tmp_path_factory.mktemp("electrical")
+    built: dict = {}
+
+    def get(kind: str, realization: str, dt: float):
+        key = (kind, realization, dt)
+        if key not in built:
+            artifact = _electrical(kind, realization, dt, directory)
+            built[key] = (artifact, build_firmware(generate(artifact)))
+        return built[key]
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def electrical_drive() -> np.ndarray:
+    return drive_rows_with_currents()
+
+
 @pytest.fixture(scope="session")
 def drive() -> np.ndarray:
     return drive_rows()
@@ -69,4 +105,18 @@ def drive_rows(rows: int = 300, seed: int = 5) -> np.ndarray:
                                (43, -640.0, 0.0), (44, 0.0, -20.0)):
         if row < rows:
             drive[row, :2] = torque, speed
+    return drive.astype(np.float32)
+
+
+def drive_rows_with_currents(rows: int = 300, seed: int = 5) -> np.ndarray:
+    """(rows, 6) float32 [torque, speed, coolant, ambient, i_d, i_q] at 5 Hz (CAN resolution): `drive_rows` with
+    d/q currents that follow the torque (`helpers.with_currents`), and a few rows at the edges of the DBC's ranges
+    and of the formulas: no current (sqrt(0)), ±3000 A, a reverse and a standing speed, a tiny current."""
+    c = with_currents(synthetic_columns(rows, seed, torque_offset=150.0, speed_offset=2500.0), seed=seed)
+    drive = np.column_stack([c["torque_Nm"], c["speed_rpm"], c["coolant_C"], c["ambient_C"], c["i_d_A"],
+                             c["i_q_A"]])
+    for row, speed, i_d, i_q in ((40, 9500.0, -3000.0, 3000.0), (41, -900.0, 0.0, 0.0), (42, 0.0, -0.1, 0.1),
+                                 (43, -500.0, 3000.0, -3000.0), (44, 0.0, 0.0, 0.0), (45, 15000.0, -1234.5, 7.3)):
+        if row < rows:
+            drive[row, [1, 4, 5]] = speed, i_d, i_q
     return drive.astype(np.float32)

@@ -1,5 +1,6 @@
 """The compiled firmware, run in the emulated Cortex-M4F, equals the Python float32 reference bit for bit: every
-kind and realization at Δt 0.5 and 2 s, the packaged artifacts, the accumulator, reset/restore/checkpoint and
+kind and realization at Δt 0.5 and 2 s, the packaged artifacts, the electrical loss model (losses from the d/q
+currents: VSQRT.F32, VABS.F32) of every kind, the accumulator of 4 and 6 values, reset/restore/checkpoint and
 the exp."""
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ class Session:
     def __init__(self, elf: bytes, artifact, *, count_cycles: bool = False):
         self.fw = fw = Firmware.load(elf, count_cycles=count_cycles)
         self.rule = InputAccumulator(artifact.data_sample_period, artifact.dt)   # only its integer row rule
-        self.sample, self.u, self.y, self.x = (fw.alloc_f32(4) for _ in range(4))
+        self.width = width = len(artifact.drive_signals)      # 4 values per row, 6 with the d/q currents
+        self.sample, self.u = (fw.alloc_f32(width) for _ in range(2))
+        self.y, self.x = (fw.alloc_f32(4) for _ in range(2))
         self.inputs, self.outputs, self.states, self.cycles = [], [], [], []
 
     def reset(self, initial) -> None:
@@ -56,7 +59,7 @@ class Session:
             assert fw.call("fw_mean", self.u, returns=int) > 0
             fw.call("fw_step", self.u, self.y)
             self.cycles.append(fw.last.cycles)
-            self.inputs.append(fw.read_f32(self.u, 4))
+            self.inputs.append(fw.read_f32(self.u, self.width))
             self.outputs.append(fw.read_f32(self.y, 4))
             self.states.append(self.read("fw_state"))
 
@@ -68,7 +71,7 @@ def reference(artifact, drive: np.ndarray, initial=None, *, state=None, first_ro
         model.restore(state)
     else:
         model.reset(initial)
-    acc = InputAccumulator(artifact.data_sample_period, artifact.dt)
+    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, len(artifact.drive_signals))
     inputs, outputs, states = [], [], []
     for row, sample in enumerate(drive, start=first_row):
         mean = acc.add(row, sample)
@@ -98,6 +101,57 @@ def test_firmware_equals_the_float32_reference_bit_for_bit(firmware_of, drive, i
     assert not np.array_equal(outputs[0], outputs[-1])    # the model moved: the test compares something
 
 
+ELECTRICAL_KINDS = [("hammerstein", "balanced"), ("hammerstein", "modal"), ("lti-lptn", "physical"),
+                    ("pv-lptn", "physical")]
+
+
+@pytest.mark.parametrize("dt", [0.5, 2.0])
+@pytest.mark.parametrize(("kind", "realization"), ELECTRICAL_KINDS)
+def test_an_electrical_loss_model_equals_the_float32_reference_bit_for_bit(electrical_of, electrical_drive, initial,
+                                                                          kind, realization, dt):
+    """Losses from the d/q currents and the speed (ElectricalLosses.lookup; VSQRT.F32 and VABS.F32 in the C), six
+    values accumulated per row: every interval mean, output and state, also at no current, ±3000 A and reverse
+    speed."""
+    artifact, build = electrical_of(kind, realization, dt)
+    assert artifact.loss_model == "electrical" and len(artifact.drive_signals) == 6
+    session = Session(build.elf, artifact, count_cycles=True)
+    session.reset(initial)
+    session.run(electrical_drive)
+    inputs, outputs, states = reference(artifact, electrical_drive, initial)
+    assert len(outputs) == len(session.outputs) == len(electrical_drive) * 0.2 // dt
+    assert np.asarray(inputs).shape == (len(outputs), 6)
+    assert mismatches(session.inputs, inputs) == 0
+    assert mismatches(session.outputs, outputs) == 0
+    assert mismatches(session.states, states) == 0
+    _, offline = run_offline(artifact, electrical_drive, initial)
+    assert mismatches(session.outputs, offline) == 0
+    assert np.all(np.isfinite(outputs)) and not np.array_equal(outputs[0], outputs[-1])
+    # the currents matter: with half of them the reference departs
+    _, other = run_offline(artifact, electrical_drive * np.float32([1, 1, 1, 1, 0.5, 0.5]), initial)
+    assert np.max(np.abs(other - offline)) > 0.01
+    # the square root and |speed| are the FPU's instructions, counted by the TRM's table; no libm call
+    fw = session.fw
+    step = fw.symbols["fw_step"]
+    texts = [cost.mnemonic for address, cost in fw.cycle_model.instructions.items()
+             if step.address <= address < step.address + step.size]
+    assert texts.count("vsqrt") == 1 and "vabs" in texts
+    assert not fw.cycle_model.unknown
+    assert not any("sqrt" in name or "fabs" in name for name in fw.symbols)
+    assert 200 < min(session.cycles) <= max(session.cycles) < 5000
+
+
+def test_an_electrical_model_ignores_the_torque_and_follows_the_currents(electrical_of, electrical_drive, initial):
+    artifact, build = electrical_of("hammerstein", "balanced", 0.5)
+    runs = []
+    for drive in (electrical_drive, electrical_drive * np.float32([0, 1, 1, 1, 1, 1]),
+                  electrical_drive * np.float32([1, 1, 1, 1, -1, -1])):       # no torque; currents of reverse sign
+        session = Session(build.elf, artifact)
+        session.reset(initial)
+        session.run(drive)
+        runs.append(np.asarray(session.outputs))
+    assert mismatches(runs[0], runs[1]) == 0 and mismatches(runs[0], runs[2]) == 0   # I^2 and |n| only
+
+
 @pytest.mark.parametrize("kind", ["hammerstein", "lti-lptn", "pv-lptn"])
 def test_packaged_artifacts_bit_for_bit_with_cycles_and_stack(kind, drive, initial):
     from bench.firmware.codegen import generate
@@ -119,9 +173,14 @@ def test_packaged_artifacts_bit_for_bit_with_cycles_and_stack(kind, drive, initi
 
 
 @pytest.mark.parametrize(("kind", "realization"), [("hammerstein", "balanced"), ("lti-lptn", "modal"),
-                                                   ("pv-lptn", "physical")])
-def test_reset_restore_and_checkpoint_continue_bit_for_bit(firmware_of, drive, initial, kind, realization):
-    artifact, build = firmware_of(kind, realization, 0.5)
+                                                   ("pv-lptn", "physical"), ("electrical", "hammerstein")])
+def test_reset_restore_and_checkpoint_continue_bit_for_bit(firmware_of, electrical_of, drive, electrical_drive,
+                                                           initial, kind, realization):
+    if kind == "electrical":
+        artifact, build = electrical_of(realization, "balanced", 0.5)
+        drive = electrical_drive
+    else:
+        artifact, build = firmware_of(kind, realization, 0.5)
     session = Session(build.elf, artifact)
     session.reset(initial)
     model = Float32Estimator(artifact)
@@ -165,6 +224,24 @@ def test_accumulator_mean_and_clear(firmware_of):
     assert fw.call("fw_mean", u, returns=int) == 0                      # fw_mean cleared it
     fw.call("fw_accumulate", s)
     fw.call("fw_clear")
+    assert fw.call("fw_mean", u, returns=int) == 0
+
+
+def test_the_accumulator_of_an_electrical_model_takes_six_values(electrical_of):
+    artifact, build = electrical_of("lti-lptn", "physical", 0.5)
+    fw = Firmware.load(build.elf, count_cycles=False)
+    u = fw.alloc_f32([7.0] * 6)
+    assert fw.call("fw_mean", u, returns=int) == 0
+    samples = np.array([[0.1, 3001.0, 40.3, 25.1, -120.3, 250.7], [-12.7, 2999.0, 40.4, 25.2, -0.1, 2999.9],
+                        [1e-3, 1.0, 1.0 / 3, 2.0 / 3, 1.0 / 7, -3000.0]], np.float32)
+    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, 6)
+    s = fw.alloc_f32(6)
+    for sample in samples:
+        fw.write_f32(s, sample)
+        fw.call("fw_accumulate", s)
+        acc.accumulate(sample)
+    assert fw.call("fw_mean", u, returns=int) == 3
+    assert mismatches(fw.read_f32(u, 6), acc.mean()) == 0
     assert fw.call("fw_mean", u, returns=int) == 0
 
 

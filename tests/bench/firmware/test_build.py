@@ -66,6 +66,41 @@ def test_generated_c_is_float_only_and_compiles_warning_free(firmware_of, kind, 
     assert elf.read_i32(elf.address("fw_model_id"), 1).view(np.uint32)[0] == artifact.model_id
 
 
+@pytest.mark.parametrize("kind", ["hammerstein", "pv-lptn"])
+def test_an_electrical_loss_model_is_generated_float_only_without_tables_or_libm(electrical_of, kind):
+    """The electrical loss model's C: its coefficients as the artifact's f32_hex, no loss tables, six inputs per
+    row in the API, sqrt and |x| by the builtins (VSQRT.F32, VABS.F32 with -fno-math-errno), nothing to link."""
+    from target_sim.artifact import ELECTRICAL_COEFFICIENTS
+
+    artifact, build = electrical_of(kind, "physical" if kind == "pv-lptn" else "balanced", 0.5)
+    source, header = build.sources[codegen.SOURCE_NAME], build.sources[codegen.HEADER_NAME]
+    code = re.sub(r"/\*.*?\*/", "", source, flags=re.S)
+    assert not re.search(r"\bdouble\b", code) and not re.search(r"(?<![\w.])\d+\.\d*(?![\w.])", code)
+    assert "electrical_losses" in code and "LOSS_TABLES" not in code and "loss_lookup" not in code
+    assert "__builtin_sqrtf" in code and "__builtin_fabsf" in code and "-fno-math-errno" in toolchain.CODE_FLAGS
+    values = {float.fromhex(lit[:-1]) for lit in HEX_FLOAT.findall(source)}
+    for name in ("current_max_A", *ELECTRICAL_COEFFICIENTS):
+        assert {float.fromhex(h) for h in artifact.content["losses"][name]["f32_hex"]} <= values, name
+    for declaration in ("#define FW_INPUTS 6", '#define FW_LOSS_MODEL "electrical"',
+                        "void fw_step(const float u[6], float y[4]);", "void fw_accumulate(const float sample[6]);",
+                        "unsigned int fw_mean(float u[6]);"):
+        assert declaration in header
+    assert "static float acc_sum[6];" in source
+    config = build.sources["fw_node_config.h"]
+    assert "#define NODE_ROW_WIDTH 6u" in config and "#define NODE_ROW_INDEX_DRIVE_CURRENTS 2u" in config
+    elf = Firmware.load(build.elf, count_cycles=False)
+    assert elf.read_i32(elf.address("fw_model_id"), 1).view(np.uint32)[0] == artifact.model_id
+    assert "node_on_frame" in elf.symbols and not [n for n in elf.symbols if "sqrt" in n]
+
+
+def test_a_loss_map_model_keeps_its_four_inputs(firmware_of):
+    _, build = firmware_of("lti-lptn", "balanced", 0.5)
+    assert "#define FW_INPUTS 4" in build.sources[codegen.HEADER_NAME]
+    assert "electrical_losses" not in build.sources[codegen.SOURCE_NAME]
+    config = build.sources["fw_node_config.h"]
+    assert "#define NODE_ROW_MESSAGES 2u" in config and "NODE_ROW_INDEX_DRIVE_CURRENTS" not in config
+
+
 def test_build_is_deterministic_and_holds_no_path(firmware_of):
     artifact, first = firmware_of("hammerstein", "balanced", 0.5)
     second = toolchain.build_firmware(generate(artifact))
@@ -179,6 +214,22 @@ def test_an_artifact_the_generator_cannot_express_is_refused(tmp_path, capsys, a
                            ({"model_kind": "neural"}, "model kind 'neural' cannot be generated")):
         with pytest.raises(FirmwareGenerationError, match=words):
             generate(ModelArtifact(resealed(artifacts["lti"], **changes), None))
+
+
+def test_export_and_build_of_an_electrical_model(tmp_path, capsys):
+    from helpers import electrical_artifact_text
+
+    model = tmp_path / "electrical.json"
+    model.write_text(electrical_artifact_text(), encoding="utf-8")
+    status, stdout, err = run(capsys, "export", "--model", str(model), "--out", str(tmp_path / "c"))
+    assert status == 0, err
+    assert "void fw_step(const float u[6], float y[4]);" in (tmp_path / "c" / "fw_model.h").read_text()
+    status, stdout, err = run(capsys, "build", "--model", str(model), "--out", str(tmp_path / "fw"), "--json")
+    assert status == 0, err
+    report = json.loads(stdout)
+    assert report["kind"] == "hammerstein" and memory_from_elf(tmp_path / "fw" / "firmware.elf")["flash_bytes"] == \
+        report["flash_bytes"]
+    assert 2_000 < report["flash_bytes"] < 32_000 and 1024 < report["ram_bytes"] < 4096
 
 
 def test_a_directory_with_other_files_is_not_replaced(tmp_path, capsys, artifacts):

@@ -83,6 +83,33 @@ def test_an_elf_for_another_core_or_model_is_one_sentence(capsys, small_dataset)
     assert status == 1 and err.count("\n") == 1 and "is the firmware of model" in err
 
 
+def test_check_of_an_electrical_model_on_data_with_currents(tmp_path):
+    """check_firmware (what `bench firmware check` runs) on an electrical loss model's firmware: a drive with the d/q
+    currents, bit for bit; a drive without them is one sentence."""
+    import numpy as np
+
+    from bench.errors import BenchError
+    from bench.firmware.check import check_firmware
+
+    from helpers import electrical_artifact_text, synthetic_columns, with_currents
+
+    model = tmp_path / "electrical.json"
+    model.write_text(electrical_artifact_text(), encoding="utf-8")
+    artifact = load_artifact(model)
+    elf = firmware_for(artifact, tmp_path / "cache")
+    c = with_currents(synthetic_columns(600, seed=21, torque_offset=150.0, speed_offset=2000.0))
+    drive = np.column_stack([c[name] for name in ("torque_Nm", "speed_rpm", "coolant_C", "ambient_C", "i_d_A",
+                                                  "i_q_A")])
+    report = check_firmware(artifact, elf, drive, [40.0, 41.0, 40.0, 45.0])
+    assert (report["steps"], report["mismatches"], report["first_mismatch"]) == (240, 0, None)
+    assert 500 < report["cycles"]["p50"] <= report["cycles"]["max"] < 3000
+    with pytest.raises(BenchError) as info:
+        check_firmware(artifact, elf, drive[:, :4], [40.0, 41.0, 40.0, 45.0])
+    assert str(info.value) == (f"model {artifact.model_id:08x} ({model}) runs on 6 drive values per row (torque_Nm, "
+                               "speed_rpm, coolant_C, ambient_C, i_d_A, i_q_A), the data gives 4; its electrical "
+                               "loss model needs the d/q currents (columns i_d_A, i_q_A: map them with --mapping)")
+
+
 def test_firmware_for_caches_a_build_under_a_key_of_its_sources(tmp_path, artifacts, monkeypatch):
     from bench.firmware import toolchain
 

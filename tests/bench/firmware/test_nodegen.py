@@ -1,5 +1,5 @@
-"""The firmware node's arithmetic equals the Python codec's: every drive and reset raw value decodes to the same
-float32, every temperature encodes to the same raw value (including the exact ties the codec rounds half to even),
+"""The firmware node's arithmetic equals the Python codec's: every drive, current and reset raw value decodes to
+the same float32, every temperature encodes to the same raw value (including the exact ties the codec rounds half to even),
 and the generated range checks accept exactly what the Python validator accepts."""
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 
 from bench.firmware.nodegen import _divisor, packers
-from dbc.contract import DRIVE_SIGNALS, RESET_SIGNALS
+from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RESET_SIGNALS
 from dbc.database import contract, layout_named
 
 RECEIVED = [(m.name, s) for m in contract().by_id.values() if m.sender == "HOST" for s in m.signals]
 
 
-@pytest.mark.parametrize("message,signal", [*DRIVE_SIGNALS, *[(m, s) for m, pairs in RESET_SIGNALS.items()
-                                                               for s, _ in pairs]])
+@pytest.mark.parametrize("message,signal", [*DRIVE_SIGNALS, *CURRENT_SIGNALS,
+                                            *[(m, s) for m, pairs in RESET_SIGNALS.items() for s, _ in pairs]])
 def test_every_raw_value_decodes_to_the_codecs_float32(message, signal):
     layout = layout_named(message).signal(signal)
     n, k = _divisor(message, signal)
@@ -75,20 +75,30 @@ def test_the_generated_range_checks_accept_what_the_python_validator_accepts(mes
     assert np.array_equal(python, generated)
 
 
-def test_the_node_is_generated_for_loss_map_models_only():
-    """The firmware node validates and ignores DriveCurrents (its range checks are generated, above); a model with
-    an electrical loss model, which needs the currents, is refused in one sentence."""
+def test_the_row_of_each_loss_model_is_generated_from_the_contract():
+    """A loss-map model's row is DriveInputs + DriveTemps (DriveCurrents validated, otherwise ignored); an electrical
+    model's adds DriveCurrents, whose currents go to places 4 and 5 of the row: `dbc.contract.row_signals`, decoded
+    with one float32 division each (above)."""
     import json
 
-    from bench.firmware.literals import FirmwareGenerationError
     from bench.firmware.nodegen import node_config
-    from target_sim.artifact import verify
+    from dbc.contract import row_signals
+    from target_sim.artifact import load_artifact, verify
 
-    from helpers import electrical_artifact_text
+    from helpers import ROOT, electrical_artifact_text
 
     assert "thermal_bench_drive_currents_current_d_is_in_range" in packers()["thermal_bench.c"]
-    artifact = verify(json.loads(electrical_artifact_text()))
-    with pytest.raises(FirmwareGenerationError) as info:
-        node_config(artifact)
-    assert str(info.value) == (f"the firmware engine runs loss-map models only; model {artifact.model_id:08x} has an "
-                               "electrical loss model: use --engine python")
+    maps = node_config(load_artifact(ROOT / "bench" / "data" / "default_model.json"))
+    electrical = node_config(verify(json.loads(electrical_artifact_text())))
+    for config, width in ((maps, 4), (electrical, 6)):
+        signals = row_signals(width)
+        messages = list(dict.fromkeys(message for message, _ in signals))
+        assert f"#define NODE_ROW_WIDTH {width}u" in config
+        assert f"#define NODE_ROW_MESSAGES {len(messages)}u" in config
+        for index, message in enumerate(messages):
+            snake = re.sub(r"(?<!^)(?=[A-Z])", "_", message).upper()
+            assert f"#define NODE_ROW_INDEX_{snake} {index}u" in config
+            decode = re.search(rf"#define NODE_DECODE_{snake}\(sample, m\) do {{ (.*) }} while", config).group(1)
+            places = [int(place) for place in re.findall(r"\(sample\)\[(\d)\]", decode)]
+            assert places == [place for place, (owner, _) in enumerate(signals) if owner == message]
+    assert "NODE_ROW_INDEX_DRIVE_CURRENTS" not in maps and "NODE_DECODE_DRIVE_CURRENTS" not in maps
