@@ -5,8 +5,8 @@ Both sides run as the target does: the rows' samples are summed per model-step i
 `InputAccumulator.accumulate`), the interval mean taken at its last row (fw_mean / `mean`) and one model step run
 on it (fw_step / `Float32Estimator.step`). A mismatch is a model step whose four outputs are not the same 32 bits
 on both sides. The drive has the artifact's `drive_signals` as columns: 4, or 6 with the d/q currents for a model
-with an electrical loss model. The emulated run is timed on its own (emulated steps per second, block hook and all) and its
-counted Cortex-M4 cycles per step are summarized.
+with an electrical loss model. The emulated run is timed on its own (emulated steps per second, block hook and all)
+and its counted Cortex-M4 cycles per step are summarized.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
     if drive.ndim != 2 or drive.shape[1] != width:
         where = f" ({artifact.path})" if artifact.path is not None else ""
         given = drive.shape[1] if drive.ndim == 2 else 0
-        hint = ("; its electrical loss model needs the d/q currents (columns i_d_A, i_q_A: map them with --mapping)"
+        hint = ("; its electrical loss model needs the d/q currents (data columns i_d_A, i_q_A)"
                 if artifact.loss_model == "electrical" else "")
         raise BenchError(f"model {artifact.model_id:08x}{where} runs on {width} drive values per row "
                          f"({', '.join(artifact.drive_signals)}), the data gives {given}{hint}")

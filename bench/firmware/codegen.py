@@ -233,7 +233,8 @@ _ELECTRICAL_C = """\
 
 /* ElectricalLosses.lookup: [p_dc0, p_ac0, p_stator, p_magnet, current] from the speed and the d/q currents:
  * f = pp |n| / 60, I^2 = i_d^2 + i_q^2, I = sqrt(I^2), p_dc0 = (1.5 R) I^2, p_ac0 = p_dc0 (k_ac (f/f_ac)^2),
- * p_stator = (P_h (f/f_fe) + P_e (f/f_fe)^2) (1 + c_I (I/I_max)^2), p_magnet = (P_m (f/f_m)^2) (c0 + (1 - c0) I/I_max)^2 */
+ * p_stator = (P_h (f/f_fe) + P_e (f/f_fe)^2) (1 + c_I (I/I_max)^2),
+ * p_magnet = (P_m (f/f_m)^2) (c0 + (1 - c0) I/I_max)^2; every sum and product in this order, as in Python */
 static void electrical_losses(float speed, float i_d, float i_q, float out[LOSS_TABLE_COUNT])
 {
     const float freq = (POLE_PAIRS * FW_FABSF(speed)) / 60.0f;
@@ -278,8 +279,9 @@ static void node_losses({parameters}, float losses[4])
 
 # per loss model: the node_losses template's words, the lookup before it, and fw_step's call of node_losses
 _LOSS_MODEL_C = {
-    "maps": {"source": "tables", "parameters": "float torque, float speed", "lookup": "loss_lookup(torque, speed, table);",
-             "code": _MAPS_C, "call": "node_losses(inputs[0], inputs[1], u);"},
+    "maps": {"source": "tables", "parameters": "float torque, float speed",
+             "lookup": "loss_lookup(torque, speed, table);", "code": _MAPS_C,
+             "call": "node_losses(inputs[0], inputs[1], u);"},
     "electrical": {"source": "electrical loss model", "parameters": "float speed, float i_d, float i_q",
                    "lookup": "electrical_losses(speed, i_d, i_q, table);", "code": _ELECTRICAL_C,
                    "call": "node_losses(inputs[1], inputs[4], inputs[5], u);"},

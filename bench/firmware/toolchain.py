@@ -49,8 +49,8 @@ ELF_NAME = "firmware.elf"
 MAP_NAME = "firmware.map"
 
 TARGET_FLAGS = ("-target", "thumb-freestanding-eabihf", "-mcpu=cortex_m4+vfp4d16sp")
-CODE_FLAGS = ("-std=c99", "-O2", "-g0", "-ffp-contract=off", "-fno-math-errno", "-ffreestanding", "-nostdlib", "-fno-common",
-              "-fno-unwind-tables", "-fno-asynchronous-unwind-tables", "-fomit-frame-pointer",
+CODE_FLAGS = ("-std=c99", "-O2", "-g0", "-ffp-contract=off", "-fno-math-errno", "-ffreestanding", "-nostdlib",
+              "-fno-common", "-fno-unwind-tables", "-fno-asynchronous-unwind-tables", "-fomit-frame-pointer",
               "-ffunction-sections", "-fdata-sections", "-fno-stack-protector")
 WARNING_FLAGS = ("-Wall", "-Wextra", "-Werror", "-Wpedantic", "-Wdouble-promotion", "-Wconversion", "-Wshadow",
                  "-Wmissing-prototypes", "-Wstrict-prototypes", "-Wcast-qual", "-Wundef")

@@ -28,7 +28,7 @@ width or type suffix):
 | VADD/VSUB/VMUL/VNMUL/VNEG/VABS/VCMP(E)/VCVT/VMOV/VMRS/VMSR        | 1                                 |
 | VMOV two core registers <-> two singles or one double             | 2                                 |
 | VMLA/VMLS/VNMLA/VNMLS/VFMA/VFMS/VFNMA/VFNMS                       | 3                                 |
-| VDIV/VSQRT                                                        | 14                                |
+| VDIV, VSQRT (.F32: an electrical loss model's current)            | 14                                |
 | VLDR/VSTR                                                         | 2 (3 for a double)                |
 | VLDM/VSTM/VPUSH/VPOP                                              | 1 + N (N words)                   |
 
@@ -96,7 +96,8 @@ CYCLES: dict[str, int] = {
     "tbb": 2, "tbh": 2,                               # + P (always taken)
     **dict.fromkeys(_FPU_1, 1),
     **dict.fromkeys(_FPU_MAC, 3),
-    "vdiv": 14, "vsqrt": 14,
+    "vdiv": 14,
+    "vsqrt": 14,        # VSQRT.F32, TRM Table 7-1: 14 cycles (the electrical loss model's sqrt(i_d^2 + i_q^2))
     "vldr": 2, "vstr": 2,                             # + 1 for a double register
     "vldm": 1, "vstm": 1, "vpush": 1, "vpop": 1,      # + N words (MULTIPLE)
 }

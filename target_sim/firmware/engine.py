@@ -6,6 +6,9 @@ check`. (The target's firmware engine runs the whole node: `target_sim.firmware.
     model.reset(y0); y = model.step(torque, speed, coolant, ambient); model.last_cycles; model.x; model.y
     model.accumulate(sample); inputs = model.mean(); model.clear()        # the interval sum, in firmware RAM
 
+A model with an electrical loss model takes the d/q currents after the four drive values, in `step(..., i_d, i_q)`
+and in every sample and mean (`width` 6, the artifact's `drive_signals`), as `Float32Estimator` does.
+
 One Unicorn call per firmware function: `step` writes the inputs, calls fw_step and reads the outputs (its counted
 Cortex-M4 cycles are `last_cycles`); `x` asks fw_state only when read. Which row ends an interval is the
 caller's integer logic; the sums and means are the firmware's (fw_accumulate, fw_mean, fw_clear). A fault of the
@@ -35,7 +38,7 @@ class FirmwareEstimator:
 
     def __init__(self, artifact: ModelArtifact, elf: str | os.PathLike | bytes | ElfImage, *,
                  count_cycles: bool = True):
-        refusal = firmware_refusal(artifact)   # before the ELF is read: the firmware has loss maps only
+        refusal = firmware_refusal(artifact)   # before the ELF is read: a loss model the firmware has not
         if refusal is not None:
             raise FirmwareError(refusal)
         image = elf if isinstance(elf, ElfImage) else read_elf(elf)
@@ -52,8 +55,10 @@ class FirmwareEstimator:
         if model_id != artifact.model_id:
             raise FirmwareError(f"{image.name} is the firmware of model {model_id:08x}, not of the artifact's model "
                                 f"{artifact.model_id:08x}; build it from this artifact with 'bench firmware build'")
+        self.width = width = len(artifact.drive_signals)    # values per sample and step: 4, or 6 with the currents
         # the caller's buffers, allocated once in the scratch area (no firmware RAM)
-        self._inputs, self._outputs, self._state, self._sample, self._mean = (fw.alloc_f32(4) for _ in range(5))
+        self._inputs, self._sample, self._mean = (fw.alloc_f32(width) for _ in range(3))
+        self._outputs, self._state = (fw.alloc_f32(4) for _ in range(2))
         self.last_cycles: int | None = None
         self.y = np.zeros(4, dtype=F32)
 
@@ -70,10 +75,14 @@ class FirmwareEstimator:
         self.fw.call("fw_restore", self._inputs)
         self.y = self._read("fw_output")
 
-    def step(self, torque, speed, coolant, ambient) -> np.ndarray:
-        """One model step (fw_step); the counted Cortex-M4 cycles of the call are then in `last_cycles`."""
+    def step(self, *inputs: float) -> np.ndarray:
+        """One model step (fw_step) on [torque, speed, coolant, ambient] (and [i_d, i_q] for an electrical loss
+        model); the counted Cortex-M4 cycles of the call are then in `last_cycles`."""
+        if len(inputs) != self.width:
+            raise ValueError(f"the {self.artifact.loss_model} loss model's step takes {self.width} inputs "
+                             f"({', '.join(self.artifact.drive_signals)}), not {len(inputs)}")
         fw = self.fw
-        fw.write_f32(self._inputs, (torque, speed, coolant, ambient))
+        fw.write_f32(self._inputs, inputs)
         fw.call("fw_step", self._inputs, self._outputs)
         self.last_cycles = fw.last.cycles
         self.y = fw.read_f32(self._outputs, 4)
@@ -91,6 +100,9 @@ class FirmwareEstimator:
     # ------------------------------------------------------------------ the interval sum (InputAccumulator's)
     def accumulate(self, sample: Sequence[float]) -> None:
         """sum <- sum + sample in float32 (fw_accumulate)."""
+        if len(sample) != self.width:
+            raise ValueError(f"a sample of the {self.artifact.loss_model} loss model has {self.width} values, "
+                             f"not {len(sample)}")
         self.fw.write_f32(self._sample, sample)
         self.fw.call("fw_accumulate", self._sample)
 
@@ -98,7 +110,7 @@ class FirmwareEstimator:
         """The float32 mean of the accumulated samples, then cleared (fw_mean); None when there were none."""
         if not self.fw.call("fw_mean", self._mean, returns=int):
             return None
-        return self.fw.read_f32(self._mean, 4)
+        return self.fw.read_f32(self._mean, self.width)
 
     def clear(self) -> None:
         self.fw.call("fw_clear")

@@ -83,7 +83,7 @@ class FirmwareNode:
 
     def __init__(self, artifact: ModelArtifact, elf: str | os.PathLike | bytes | ElfImage, *,
                  clock_s: Callable[[], float] = time.monotonic, journal: Callable[[dict], None] | None = None):
-        refusal = firmware_refusal(artifact)   # before the ELF is read: the firmware has loss maps only
+        refusal = firmware_refusal(artifact)   # before the ELF is read: a loss model the firmware has not
         if refusal is not None:
             raise FirmwareError(refusal)
         image = elf if isinstance(elf, ElfImage) else read_elf(elf)

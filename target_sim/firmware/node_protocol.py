@@ -2,6 +2,11 @@
 beyond the DBC: the layout of the node's output block in RAM, the kinds and reason codes of its journal records,
 the sentences the shell writes for them, and the loss models the firmware can run. The generator
 (`bench.firmware.nodegen`) writes the codes into fw_node_config.h from here, so each is defined once.
+
+The sentences of the data-row sequence errors name the row's messages as the Python node does
+(`target_sim.node.TargetNode._row_frame`): a record carries the index of the missing message in the row
+(`dbc.contract.row_messages`, DriveInputs, DriveTemps, DriveCurrents) and the frame it judged, whose id names the
+other one.
 """
 
 from __future__ import annotations
@@ -9,21 +14,28 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from dbc.contract import RX_ERROR_KINDS, TargetState
+from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RX_ERROR_KINDS, TargetState, row_messages
+from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 
-# The loss models the firmware's generated C has: its node takes a data row as DriveInputs + DriveTemps and
-# validates and ignores DriveCurrents, so a model whose losses come from the d/q currents cannot run as firmware yet.
-FIRMWARE_LOSS_MODELS = ("maps",)
+# The loss models the firmware's generated C has (bench.firmware.codegen): loss maps over torque and speed, whose
+# node takes a data row as DriveInputs + DriveTemps and validates and ignores DriveCurrents, and the electrical loss
+# model, whose node takes DriveInputs + DriveTemps + DriveCurrents. An artifact's schema has no other.
+FIRMWARE_LOSS_MODELS = ("maps", "electrical")
 
 
 def firmware_refusal(artifact: ModelArtifact) -> str | None:
-    """Why the firmware engine cannot run `artifact` (one sentence), or None when it can."""
+    """Why the firmware engine cannot run `artifact` (one sentence), or None when it can (every loss model the
+    artifact schema knows today: the check stays for a loss model added to the schema before the generator)."""
     if artifact.loss_model in FIRMWARE_LOSS_MODELS:
         return None
     name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
-    return (f"the firmware engine runs loss-map models only; {name} has an {artifact.loss_model} loss model: "
-            "use --engine python")
+    return (f"the firmware engine runs the loss models {', '.join(FIRMWARE_LOSS_MODELS)}; {name} has an "
+            f"{artifact.loss_model} loss model: use --engine python")
+
+
+# the messages of the longest data row, in order: a journal record's row-message index is into this
+ROW_MESSAGES: tuple[str, ...] = row_messages(len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS))
 
 # the journal's kinds: the RxErrors kinds (1-based, their order), then two that only name the last error
 KINDS: tuple[str, ...] = (*RX_ERROR_KINDS, "incomplete", "internal")
@@ -44,9 +56,9 @@ WHY: dict[str, str] = {
     "ROW_STATE": "drive frames of step {a} in state {state_b}",
     "ROW_BACK": "step {a} repeats or goes back (expected {b})",
     "ROWS_LOST": "steps {a}..{b} never arrived",
-    "INPUTS_ALONE": "DriveInputs of step {a} had no DriveTemps",
-    "TEMPS_ALONE": "DriveTemps of step {a} without its DriveInputs",
-    "PAIR_STEPS": "DriveInputs step {a} paired with DriveTemps step {b}",
+    "ROW_UNFINISHED": "{first} of step {a} had no {row_b}",          # a: the pending row's step, b: what it lacked
+    "ROW_WITHOUT": "{name} of step {a} without its {row_b}",            # a: the frame's step, b: what came not first
+    "ROW_STEPS": "{first} step {a} paired with {name} step {b}",
     "START_STATE": "START in state {state_a} (needs READY after a RESET)",
     "RESET_INCOMPLETE": "RESET of step {a} without ResetTemps1 and ResetTemps2 of that step",
     "RESTORE_INCOMPLETE": "RESTORE of step {a} without the 4 RestoreState elements of that step",
@@ -97,5 +109,10 @@ class Event:
             except ValueError:
                 return str(value)
 
+        def row(index: int) -> str:
+            return ROW_MESSAGES[index] if 0 <= index < len(ROW_MESSAGES) else f"row message #{index}"
+
+        layout = contract().by_id.get(self.frame_id & 0x7FF)
         return WHY[self.why].format(a=self.a, b=self.b, id=self.frame_id & 0x7FF, state_a=state(self.a),
-                                    state_b=state(self.b))
+                                    state_b=state(self.b), first=ROW_MESSAGES[0], row_b=row(self.b),
+                                    name=layout.name if layout is not None else f"frame 0x{self.frame_id:03X}")

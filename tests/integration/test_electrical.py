@@ -1,8 +1,9 @@
 """A model with an electrical loss model over CAN, end to end: `bench run --model M --data F --mapping FILE` on a
 user's own file with d/q current columns sends DriveCurrents, the target steps on complete rows, and the run's
-verdict (CAN = offline float32 on the decoded currents) holds; `bench replay` and `bench analyze` of its log; data
-without currents, data at another sample period and the firmware engine are refused in one sentence before
-anything starts."""
+verdict (CAN = offline float32 on the decoded currents) holds; `bench replay` and `bench analyze` of its log; the
+firmware engine (the node and the electrical loss model compiled for the Cortex-M4F) answers exactly as the Python
+engine; data without currents and data at another sample period are refused in one sentence before anything
+starts."""
 
 from __future__ import annotations
 
@@ -111,7 +112,28 @@ def test_data_without_currents_is_refused_before_anything_starts(files, tmp_path
     assert not log.exists() and not report.exists() and list(tmp_path.iterdir()) == []
 
 
-def test_data_at_another_sample_period_and_the_firmware_engine_are_refused(files, tmp_path, capsys):
+def test_bench_run_of_an_electrical_model_with_the_firmware_engine_answers_as_the_python_engine(run, files,
+                                                                                                 tmp_path):
+    """`bench run --engine firmware`: the artifact's firmware built once into the log's firmware cache, the emulated
+    node steps on the three-frame rows, every reply equals the Python engine's, the run is clean."""
+    _, python_log, _ = run
+    log = tmp_path / "firmware.blf"
+    proc = run_cli("-m", "bench", "run", "--engine", "firmware", "--model", str(files["model"]), "--data",
+                   str(files["own"]), "--mapping", str(files["mapping"]), "--rows", str(ROWS), "--log", str(log),
+                   "--no-report", "--json")
+    assert proc.returncode == 0, proc.stderr
+    s = json.loads(proc.stdout)
+    assert (s["steps_sent"], s["replies"], s["missing"], s["problems"], s["clean"]) == (ROWS, ROWS, 0, [], True)
+    assert s["engine"] == "firmware" and s["firmware"].startswith(str(tmp_path / "firmware-cache" / "hammerstein-"))
+    assert s["metrics"]["model_steps"] == 120 and s["memory_source"] == "firmware ELF"
+    assert 500 < s["m4_cycles"]["p50"] <= s["m4_cycles"]["max"] < 3000
+    assert all(0 <= v <= 0.005 + 1e-9 for v in s["max_abs_can_minus_float32_C"].values())
+    record, python = decode_log(log), decode_log(python_log)
+    assert int(np.count_nonzero(record.frame_ids == 0x112)) == ROWS
+    assert np.array_equal(record.temps, python.temps)                # every reply, exactly
+
+
+def test_data_at_another_sample_period_is_refused(files, tmp_path, capsys):
     model = load_artifact(files["model"])
     slow = tmp_path / "slow.json"    # the same file, read at 1 s per row (its time column says otherwise)
     slow.write_text(json.dumps({"columns": {k: v for k, v in OWN_NAMES.items() if k not in ("t", v)},
@@ -120,9 +142,4 @@ def test_data_at_another_sample_period_and_the_firmware_engine_are_refused(files
                             "--log", str(tmp_path / "a.blf"), "--no-report"])
     assert f"is sampled every 1 s, but model {model.model_id:08x} ({files['model']}) runs on data sampled every " \
            "0.2 s" in err
-    err = _refused(capsys, ["run", "--model", str(files["model"]), "--data", str(files["own"]), "--mapping",
-                            str(files["mapping"]), "--engine", "firmware", "--log", str(tmp_path / "b.blf"),
-                            "--no-report"])
-    assert err.strip() == (f"bench: error: the firmware engine runs loss-map models only; model "
-                           f"{model.model_id:08x} ({files['model']}) has an electrical loss model: use --engine python")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.json"]

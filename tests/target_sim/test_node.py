@@ -2,7 +2,8 @@
 
 The conformance suite of the two engines: every test that takes `make` runs against the Python reference node
 and against the firmware node (bench/firmware/node.c in the emulated Cortex-M4F), with the same frames and the
-same expectations, the way python-can runs one back-to-back test over its interfaces."""
+same expectations, the way python-can runs one back-to-back test over its interfaces; loss-map models and a model
+with an electrical loss model (a data row of DriveInputs, DriveTemps and DriveCurrents, six values accumulated)."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ from target_sim.artifact import load_artifact
 from target_sim.engines import ENGINES, make_node
 from target_sim.model import run_offline
 from target_sim.node import TargetNode, serve
+
+from helpers import electrical_artifact_text
 
 INITIAL = [40.0, 45.0, 41.0, 50.0]  # yoke, winding, tooth, magnet
 
@@ -58,10 +61,25 @@ class Host:
         return self.send(*self.row_frames(step, values))
 
 
+class CurrentsHost(Host):
+    """A host whose rows carry the d/q currents (DBC 1.4.0): DriveInputs, DriveTemps, DriveCurrents."""
+
+    def row_frames(self, step, values):
+        return (*super().row_frames(step, values[:4]),
+                self.frame("DriveCurrents", Step=step, CurrentD=values[4], CurrentQ=values[5]))
+
+
 def drive_rows(n: int, seed: int = 2) -> np.ndarray:
     rng = np.random.default_rng(seed)
     return np.column_stack([np.round(rng.uniform(-300, 500, n), 1), np.round(rng.uniform(0, 8000, n), 1) // 0.5 * 0.5,
                             np.round(40 + rng.normal(0, 1, n), 1), np.round(25 + rng.normal(0, 0.5, n), 1)])
+
+
+def drive_rows_with_currents(n: int, seed: int = 2) -> np.ndarray:
+    """`drive_rows` and d/q currents (0.1 A): i_d in -400..0 A, i_q in -300..450 A."""
+    rng = np.random.default_rng(seed + 100)
+    currents = np.round(np.column_stack([rng.uniform(-400, 0, n), rng.uniform(-300, 450, n)]), 1)
+    return np.column_stack([drive_rows(n, seed), currents])
 
 
 def temps_of(replies) -> dict[str, dict]:
@@ -78,6 +96,14 @@ def make(request, artifacts, firmware_elf):
         return make_node(load_artifact(path), engine=request.param, firmware=firmware, journal=journal)
 
     return new
+
+
+@pytest.fixture(scope="module")
+def electrical(tmp_path_factory):
+    """The packaged Hammerstein model with an electrical loss model (`helpers.electrical_artifact_text`)."""
+    path = tmp_path_factory.mktemp("electrical") / "electrical.json"
+    path.write_text(electrical_artifact_text(), encoding="utf-8")
+    return path
 
 
 @pytest.fixture
@@ -452,3 +478,122 @@ def test_an_incomplete_restore_changes_nothing(make, lti):
     host.send(*frames, host.frame("Control", Command=int(Command.RESTORE), Step=5))
     assert node.state == TargetState.IDLE and node.faults & FaultBit.RESET_INCOMPLETE
     assert np.array_equal(state_of(node), x_before)
+
+
+# ---------------------------------------------------------------- an electrical loss model (DriveCurrents)
+
+
+def decoded_row(frames) -> list[float]:
+    """The row's six values as the target decodes them (DriveInputs, DriveTemps, DriveCurrents)."""
+    signals = {f.name: f.signals for f in map(decode_any, frames)}
+    return [signals["DriveInputs"]["MotorTorque"], signals["DriveInputs"]["MotorSpeed"],
+            signals["DriveTemps"]["CoolantTemp"], signals["DriveTemps"]["AmbientTemp"],
+            signals["DriveCurrents"]["CurrentD"], signals["DriveCurrents"]["CurrentQ"]]
+
+
+def test_an_electrical_model_steps_on_complete_rows_and_equals_the_offline_reference(make, electrical):
+    """A row is DriveInputs, DriveTemps and DriveCurrents: the pair alone is answered by nothing, the currents
+    complete it; the estimate is the offline float32 reference's on the six decoded values, bit for bit."""
+    artifact = load_artifact(electrical)
+    node = make(electrical)
+    host = CurrentsHost(node)
+    host.reset()
+    host.start()
+    drive = drive_rows_with_currents(60, seed=3)
+    sent, answers = [], []
+    for step, values in enumerate(drive):
+        frames = host.row_frames(step, values)
+        sent.append(decoded_row(frames))
+        assert host.send(*frames[:2]) == [] and node.rows_used == step
+        out = host.send(frames[2])
+        assert [f.name for f in out][:2] == ["Temperatures1", "Temperatures2"]
+        assert all(f.signals["Step"] == step for f in out)
+        answers.append(out)
+    assert sum(node.errors.values()) == 0 and node.rows_used == 60
+    rows, expected = run_offline(artifact, np.array(sent), INITIAL)
+    assert len(rows) == node.model_steps == 24
+    assert np.array_equal(np.asarray(node.estimate, np.float32).view(np.uint32), expected[-1].view(np.uint32))
+    for i, row in enumerate(rows):
+        t = temps_of(answers[row])
+        got = [t["Temperatures2"]["YokeTemp"], t["Temperatures1"]["WindingTemp"], t["Temperatures2"]["ToothTemp"],
+               t["Temperatures1"]["MagnetTemp"]]
+        assert np.max(np.abs(np.array(got) - expected[i])) <= 0.005 + 1e-9
+    # a retransmitted row is answered again without a step; an older one not at all
+    again = host.row(59, drive[59])
+    assert [f.name for f in again] == ["Temperatures1", "Temperatures2"] and temps_of(again) == temps_of(answers[59])
+    assert (node.repeats, node.model_steps) == (1, 24)
+    assert host.row(50, drive[50]) == [] and node.errors["sequence"] == 1
+
+
+def test_an_electrical_row_needs_its_three_frames_in_order_and_of_one_step(make, electrical):
+    """Every sequence rule of a three-frame row, with the journal's sentences: both engines alike."""
+    records: list[dict] = []
+    node = make(electrical, journal=records.append)
+    host = CurrentsHost(node)
+    host.reset()
+    host.start()
+
+    def frame(name, step):   # one frame of row `step`, encoded only when sent (the alive counters stay in step)
+        signals = {"DriveInputs": {"MotorTorque": 100.0, "MotorSpeed": 2000.0},
+                   "DriveTemps": {"CoolantTemp": 40.0, "AmbientTemp": 25.0},
+                   "DriveCurrents": {"CurrentD": -50.0, "CurrentQ": 120.0}}[name]
+        return host.frame(name, Step=step, **signals)
+
+    def last(detail: str, errors: int) -> None:
+        assert records[-1]["kind"] == "sequence" and records[-1]["detail"] == detail
+        assert node.errors["sequence"] == errors == len(records)
+
+    assert host.send(frame("DriveInputs", 0), frame("DriveTemps", 0)) == []
+    assert host.send(frame("DriveInputs", 1)) == []
+    last("DriveInputs of step 0 had no DriveCurrents", 1)
+    assert host.send(frame("DriveCurrents", 1)) == []
+    last("DriveCurrents of step 1 without its DriveTemps", 2)
+    assert host.send(frame("DriveCurrents", 1)) == []
+    last("DriveCurrents of step 1 without its DriveInputs", 3)
+    assert host.send(frame("DriveInputs", 2), frame("DriveTemps", 2), frame("DriveCurrents", 3)) == []
+    last("DriveInputs step 2 paired with DriveCurrents step 3", 4)
+    assert host.send(frame("DriveInputs", 3), frame("DriveTemps", 4)) == []
+    last("DriveInputs step 3 paired with DriveTemps step 4", 5)
+    assert host.send(frame("DriveTemps", 3)) == []
+    last("DriveTemps of step 3 without its DriveInputs", 6)
+    assert host.send(frame("DriveInputs", 3), frame("DriveTemps", 3), frame("DriveTemps", 3)) == []
+    last("DriveInputs of step 3 had no DriveCurrents", 7)
+    assert node.rows_used == 0 and node.model_steps == 0
+    out = host.send(frame("DriveInputs", 4), frame("DriveTemps", 4), frame("DriveCurrents", 4))
+    assert temps_of(out)["Temperatures1"]["Step"] == 4 and node.rows_used == 1     # rows 0..3 lost, row 4 used
+    last("steps 0..3 never arrived", 8)
+    assert node.faults & FaultBit.SEQUENCE and sum(node.errors.values()) == 8
+    # STOP forgets a row begun; a new session's row is whole again
+    host.send(frame("DriveInputs", 5), frame("DriveTemps", 5))
+    host.send(host.frame("Control", Command=int(Command.STOP), Step=0))
+    fresh = CurrentsHost(node)
+    fresh.reset()
+    fresh.start()
+    assert temps_of(fresh.row(0, (10.0, 1000.0, 40.0, 25.0, -10.0, 20.0)))["Temperatures1"]["Step"] == 0
+    assert node.errors["sequence"] == 8
+
+
+def test_an_electrical_model_keeps_time_over_lost_rows_and_a_bad_drive_currents(make, electrical):
+    """Rows lost on the bus and a DriveCurrents refused for its CRC: the model steps on the rows that arrived (or
+    holds the previous inputs), as the Python node's RowAccumulator, on both engines alike."""
+    node = make(electrical)
+    host = CurrentsHost(node)
+    host.reset()
+    host.start()
+    drive = drive_rows_with_currents(30, seed=8)
+    for step in range(3):
+        host.row(step, drive[step])
+    out = host.row(12, drive[12])     # rows 3..11 lost: the intervals ending at 4, 7, 9 step (held inputs), then 12
+    assert temps_of(out)["Temperatures1"]["Step"] == 12 and node.model_steps == 1 + 3 + 1
+    inputs, temps, currents = host.row_frames(13, drive[13])
+    bad = bytearray(currents.data)
+    bad[5] ^= 0x04
+    assert host.send(inputs, temps, can.Message(arbitration_id=currents.arbitration_id, data=bytes(bad),
+                                                is_extended_id=False)) == []
+    assert (node.errors["crc"], node.rows_used) == (1, 4)
+    out = host.row(14, drive[14])              # its DriveCurrents shows the counter jump: row 14 is lost too
+    assert out == [] and node.errors["counter"] == 1
+    out = host.row(15, drive[15])     # the interval of rows 13..14 had none: it steps on the held inputs
+    assert temps_of(out)["Temperatures1"]["Step"] == 15 and node.model_steps == 6 and node.rows_used == 5
+    # sequence: rows 3..11 lost; rows 13 and 14 never completed; rows 13..14 lost
+    assert (node.errors["sequence"], node.errors["crc"], node.errors["counter"]) == (1 + 2 + 1, 1, 1)

@@ -2,7 +2,8 @@
 node: the same frames in, the same bytes out (timing and TargetInfo aside), plus Timing4 (the cycles the firmware
 measured with DWT_CYCCNT) and the ELF's flash and RAM in TargetInfo; an ELF of another model or core is refused in
 one sentence; an emulator fault is an INTERNAL fault, not a crash. (The shared behaviour is tested on both engines
-by test_node.py.)"""
+by test_node.py.) A model with an electrical loss model, whose rows carry DriveCurrents, is held to the same
+bytes."""
 
 from __future__ import annotations
 
@@ -22,8 +23,16 @@ from target_sim.firmware import FirmwareError, FirmwareEstimator, memory_from_el
 from target_sim.firmware.node_engine import FirmwareNode
 from target_sim.node import TargetNode
 
-from .test_node import INITIAL, Host, checkpoints_of, drive_rows, serve_and_listen
-from helpers import patched_elf
+from .test_node import (
+    INITIAL,
+    CurrentsHost,
+    Host,
+    checkpoints_of,
+    drive_rows,
+    drive_rows_with_currents,
+    serve_and_listen,
+)
+from helpers import electrical_artifact_text, patched_elf
 
 UDF = b"\xfe\xde"     # Thumb UDF #0xFE: an undefined instruction
 
@@ -143,6 +152,81 @@ def test_the_engines_answer_alike_with_drive_currents_in_the_stream(artifacts, f
             python.errors["sequence"]) == (1, 1, 2 + 3, 1)
     assert python.rows_used == firmware.rows_used == 78 and python.model_steps == firmware.model_steps == 32
     assert np.array_equal(python.model.x.view(np.uint32), firmware.x.view(np.uint32))
+
+
+def electrical_session(node, drive: np.ndarray) -> list[can.Message]:
+    """RESET, START, then every row as DriveInputs, DriveTemps, DriveCurrents, with what a bus does to them: rows
+    50-56 and 90 lost (all three frames), row 30 retransmitted whole, row 70's DriveCurrents refused for its CRC
+    (row 71's then shows the counter jump), row 110's frames out of order (DriveCurrents first), row 120's
+    DriveCurrents of another Step, at row 150 a restore from the latest checkpoint (a restarted target's), then the
+    rows after it. Every frame the node sent."""
+    host = CurrentsHost(node)
+    out = node.startup_frames()
+    out += [f for frame in (*host_frames_reset(host), host.frame("Control", Command=int(Command.START), Step=0))
+            for f in node.handle(frame)]
+    checkpoint = None
+    for step, values in enumerate(drive):
+        frames = list(host.row_frames(step, values))
+        if step in (50, 51, 52, 53, 54, 55, 56, 90):
+            continue
+        if step == 70:
+            data = bytearray(frames[2].data)
+            data[6] ^= 0x20
+            frames[2] = can.Message(arbitration_id=frames[2].arbitration_id, is_extended_id=False, data=bytes(data))
+        elif step == 110:
+            frames = [frames[2], frames[0], frames[1]]
+        elif step == 120:
+            frames[2] = host.frame("DriveCurrents", Step=121, CurrentD=-1.0, CurrentQ=2.0)
+        elif step == 150:
+            c, state = checkpoint
+            restore = [host.frame("RestoreState", Step=c + 1, StateIndex=i, StateValue=v) for i, v in enumerate(state)]
+            restore += [host.frame("Control", Command=int(Command.RESTORE), Step=c + 1),
+                        host.frame("Control", Command=int(Command.START), Step=c + 1)]
+            for frame in restore:
+                out += node.handle(frame)
+        for frame in frames:
+            replies = node.handle(frame)
+            out += replies
+            found = checkpoints_of(decode_any(f) for f in replies)
+            if found:
+                checkpoint = max(found.items())
+        if step == 30:
+            for frame in host.row_frames(step, values):
+                out += node.handle(frame)
+    return out
+
+
+@pytest.fixture(scope="module")
+def electrical(tmp_path_factory):
+    path = tmp_path_factory.mktemp("electrical") / "electrical.json"
+    path.write_text(electrical_artifact_text(), encoding="utf-8")
+    return path
+
+
+def test_the_engines_answer_alike_for_an_electrical_model(electrical, firmware_elf):
+    """An electrical loss model (rows of DriveInputs, DriveTemps, DriveCurrents; six values accumulated): every
+    frame byte for byte through lost rows, a retransmission, a refused DriveCurrents, frames out of order or of
+    another Step and a restore; the same rejection counts and the same model state, bit for bit."""
+    artifact = load_artifact(electrical)
+    python, firmware = TargetNode(artifact), FirmwareNode(artifact, firmware_elf(electrical))
+    drive = drive_rows_with_currents(200, seed=12)
+    expected = electrical_session(python, drive)
+    got = electrical_session(firmware, drive)
+    info = {f.arbitration_id for f in expected if decode_any(f).name == "TargetInfo"}
+    assert comparable(got, info) == comparable(expected, info)
+    assert [f.arbitration_id for f in got if f.arbitration_id != 0x225] == [f.arbitration_id for f in expected]
+    assert python.errors == firmware.errors
+    # counter jumps: the three frames after each gap (rows 50-56 and 90), row 71's DriveCurrents after the refused
+    # one, row 120's after the DriveCurrents encoded and not sent
+    assert (python.errors["crc"], python.errors["counter"]) == (1, 3 + 3 + 1 + 1)
+    assert python.errors["sequence"] >= 6
+    assert python.repeats == firmware.repeats == 1
+    assert python.rows_used == firmware.rows_used and python.model_steps == firmware.model_steps > 15
+    assert len(checkpoints_of(decode_any(f) for f in got)) >= 2
+    assert np.array_equal(python.model.x.view(np.uint32), firmware.x.view(np.uint32))
+    assert np.array_equal(python.estimate.view(np.uint32), firmware.estimate.view(np.uint32))
+    timing4 = [decode_any(f).signals["M4Cycles"] for f in got if f.arbitration_id == 0x225]
+    assert len(timing4) == sum(f.arbitration_id == 0x222 for f in got) and all(200 < c < 5000 for c in timing4)
 
 
 def test_target_info_carries_the_elf_figures_with_the_firmware_engine(artifacts, firmware_elf):

@@ -107,7 +107,7 @@ def test_check_of_an_electrical_model_on_data_with_currents(tmp_path):
         check_firmware(artifact, elf, drive[:, :4], [40.0, 41.0, 40.0, 45.0])
     assert str(info.value) == (f"model {artifact.model_id:08x} ({model}) runs on 6 drive values per row (torque_Nm, "
                                "speed_rpm, coolant_C, ambient_C, i_d_A, i_q_A), the data gives 4; its electrical "
-                               "loss model needs the d/q currents (columns i_d_A, i_q_A: map them with --mapping)")
+                               "loss model needs the d/q currents (data columns i_d_A, i_q_A)")
 
 
 def test_firmware_for_caches_a_build_under_a_key_of_its_sources(tmp_path, artifacts, monkeypatch):

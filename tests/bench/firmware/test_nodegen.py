@@ -1,6 +1,7 @@
 """The firmware node's arithmetic equals the Python codec's: every drive, current and reset raw value decodes to
-the same float32, every temperature encodes to the same raw value (including the exact ties the codec rounds half to even),
-and the generated range checks accept exactly what the Python validator accepts."""
+the same float32, every temperature encodes to the same raw value (including the exact ties the codec rounds half
+to even), and the generated range checks accept exactly what the Python validator accepts; the data row of each
+loss model comes from the contract."""
 
 from __future__ import annotations
 
