@@ -72,8 +72,8 @@ class LossTables:
 
 
 class ElectricalLosses:
-    """Losses from the d/q currents and the speed (artifact losses.model "electrical"), in float32 (C: not yet,
-    the firmware engine runs loss-map models only). Same formulas as bench.motor.losses.ElectricalLosses:
+    """Losses from the d/q currents and the speed (artifact losses.model "electrical"), in float32 (C:
+    electrical_losses). Same formulas as bench.motor.losses.ElectricalLosses:
     f = pp·|n|/60, I² = i_d² + i_q², p_dc0 = (1.5·R)·I², p_ac0 = p_dc0·(k_ac·(f/f_ac)²),
     p_stator = (P_h·(f/f_fe) + P_e·(f/f_fe)²)·(1 + c_I·(I/I_max)²),
     p_magnet = (P_m·(f/f_m)²)·(c0 + (1 - c0)·I/I_max)²."""

@@ -20,7 +20,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.common import add_output_flags, check_writable, print_json
+from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 
 DEFAULT_OUT = Path("out/firmware")
@@ -81,6 +81,7 @@ def _add_check(actions) -> None:
                    help="the model's firmware ELF (default: the packaged one, or built with the compiler)")
     p.add_argument("--rows", type=_positive_int, default=None, help="only the first N data rows")
     p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+    add_data_arguments(p)
     add_output_flags(p)
     p.set_defaults(func=run_check)
 
@@ -195,14 +196,17 @@ def run_build(args: argparse.Namespace) -> int:
 def run_check(args: argparse.Namespace) -> int:
     import tempfile
 
+    from bench.commands.common import data_options
     from bench.firmware.check import check_firmware
     from bench.firmware.images import firmware_for
-    from bench.model.runs import drive_matrix, initial_temperatures
-    from bench.runner import load_data
+    from bench.model.runs import initial_temperatures
+    from bench.runner import drive_for, load_data
 
     path, artifact = _load(args.model)
-    dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json)
-    drive = drive_matrix(dataset)
+    mapping, period = data_options(args)
+    dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json, mapping=mapping,
+                        sample_period_s=period)
+    drive = drive_for(dataset, artifact)   # with the d/q currents for an electrical loss model
     if args.rows is not None:
         drive = drive[: args.rows]
     with tempfile.TemporaryDirectory(prefix="bench-firmware-check-") as cache:

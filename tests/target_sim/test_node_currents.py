@@ -1,12 +1,9 @@
 """DriveCurrents (DBC 1.4.0) at the target: a model with an electrical loss model uses a row only with DriveInputs,
 DriveTemps and DriveCurrents of its Step and equals the offline float32 reference on the six values; a model with
 loss maps accepts valid DriveCurrents and ignores them (both engines); a bad DriveCurrents is counted like any bad
-frame (both engines); the firmware engine refuses an electrical model in one sentence."""
+frame (both engines)."""
 
 from __future__ import annotations
-
-import subprocess
-import sys
 
 import can
 import numpy as np
@@ -21,7 +18,7 @@ from target_sim.model import run_offline
 from target_sim.node import TargetNode
 
 from .test_node import INITIAL, Host, drive_rows, temps_of
-from helpers import ROOT, electrical_artifact_text, subprocess_env
+from helpers import electrical_artifact_text
 
 CURRENTS_ID = 0x112
 
@@ -215,24 +212,3 @@ def test_a_bad_drive_currents_is_counted_in_rx_errors(make):
     rx = decode_any(node.rx_error_frames()[0]).signals
     assert (rx["CrcError"], rx["OutOfRange"], rx["CounterError"], rx["SequenceError"]) == (1, 1, 0, 0)
     assert temps_of(host.row(1, drive[1]))["Temperatures1"]["Step"] == 1       # the session goes on
-
-
-def test_the_firmware_engine_refuses_an_electrical_model_in_one_sentence(electrical, firmware_elf, artifacts):
-    from target_sim.firmware import FirmwareError, FirmwareEstimator
-    from target_sim.firmware.node_engine import FirmwareNode
-
-    artifact = load_artifact(electrical)
-    elf = firmware_elf("hammerstein")
-    sentence = (f"the firmware engine runs loss-map models only; model {artifact.model_id:08x} ({electrical}) has "
-                "an electrical loss model: use --engine python")
-    for build in (lambda: make_node(artifact, engine="firmware", firmware=elf), lambda: FirmwareNode(artifact, elf),
-                  lambda: FirmwareEstimator(artifact, elf)):
-        with pytest.raises(FirmwareError) as info:
-            build()
-        assert str(info.value) == sentence
-    assert make_node(artifact).engine == "python"          # the Python engine runs it
-    done = subprocess.run([sys.executable, "-m", "target_sim", "--model", str(electrical), "--engine", "firmware",
-                           "--firmware", str(elf), "-i", "udp_multicast"], cwd=ROOT, env=subprocess_env(),
-                          capture_output=True, text=True, timeout=60)
-    assert done.returncode == 1 and done.stdout == ""
-    assert done.stderr.strip() == f"target_sim: error: {sentence}"
