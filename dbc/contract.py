@@ -180,6 +180,7 @@ class Realization(IntEnum):
     ORIGINAL = 1
     BALANCED = 2
     MODAL = 3
+    DELTA = 4
 
     @property
     def label(self) -> str:

@@ -45,7 +45,8 @@ from target_sim.model import COOLANT_REFERENCE_C, LossTables
 HEADER_NAME = "fw_model.h"
 SOURCE_NAME = "fw_model.c"
 KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
-REALIZATIONS = ("physical", "original", "balanced", "modal")   # they differ only in the matrices A, B, C, C_inv
+# shift-form realizations differ only in the matrices A, B, C, C_inv; delta has its own step (_STEP_DELTA_C)
+REALIZATIONS = ("physical", "original", "balanced", "modal", "delta")
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 LINEAR_BLOCK = {"A": (4, 4), "B": (4, 8), "C": (4, 4), "C_inv": (4, 4)}
 MAX_GRID_POINTS = 256                   # per axis: a table beyond that is no motor map (and no MCU's flash)
@@ -522,7 +523,7 @@ _HEADER = """\
  * image so a flashed firmware can be matched with its artifact. */
 extern const uint32_t fw_model_id;
 
-/* Start from temperatures y0: y = y0, x = C_inv y0 (pv-lptn: x = y0); the accumulator is cleared. */
+/* Start from temperatures y0: y = y0, x = C_inv y0 (delta: C_inv (y0 - r); pv-lptn: x = y0); the accumulator is cleared. */
 void fw_reset(const float y0[4]);
 
 /* Continue from a checkpointed state vector x, bit for bit: y = C x (pv-lptn: y = x); accumulator cleared. */
@@ -553,6 +554,44 @@ float fw_exp(float x);
 #endif /* FW_MODEL_H */
 """
 
+_STEP_DELTA_C = """\
+/* Float32Estimator.step, delta realization: u = [P_y, P_w, P_t, P_m, th_cv - r, th_av - r, th_a1 - r, th_a2 - r];
+ * increment = (A x) + (B u) row by row; x <- x + DT increment; y = (C x) + r */
+void fw_step(const float inputs[4], float y[4])
+{{
+    float u[8];
+    float increment[4];
+    int i;
+    node_losses(inputs[0], inputs[1], u);
+{nonlinearity}    temperature_sources(inputs[1], inputs[2], inputs[3], &u[4]);
+    for (i = 4; i < 8; i++) u[i] = u[i] - LB_REF;
+    for (i = 0; i < 4; i++) increment[i] = dot(LB_A[i], x_state, 4) + dot(LB_B[i], u, 8);
+    for (i = 0; i < 4; i++) x_state[i] = x_state[i] + DT * increment[i];
+    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4) + LB_REF;
+    for (i = 0; i < 4; i++) y[i] = y_est[i];
+}}
+
+/* Float32Estimator.reset, delta realization: y = y0, x = C_inv (y0 - r) */
+void fw_reset(const float y0[4])
+{{
+    float deviation[4];
+    int i;
+    for (i = 0; i < 4; i++) y_est[i] = y0[i];
+    for (i = 0; i < 4; i++) deviation[i] = y_est[i] - LB_REF;
+    for (i = 0; i < 4; i++) x_state[i] = dot(LB_C_INV[i], deviation, 4);
+    fw_clear();
+}}
+
+/* Float32Estimator.restore, delta realization: x bit for bit, y = (C x) + r */
+void fw_restore(const float x[4])
+{{
+    int i;
+    for (i = 0; i < 4; i++) x_state[i] = x[i];
+    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4) + LB_REF;
+    fw_clear();
+}}
+"""
+
 
 def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
     """(C name, literal, comment) of every scalar the step may use; only the used ones are emitted."""
@@ -576,6 +615,9 @@ def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
     else:
         out += [(name.upper(), _artifact_literals(artifact, "losses", name, shape=())[()], f"losses.{name}")
                 for name in ELECTRICAL_COEFFICIENTS]
+    if artifact.kind != "pv-lptn" and artifact.realization == "delta":
+        out.append(("LB_REF", _artifact_literals(artifact, "linear_block", "reference_C", shape=())[()],
+                    "linear_block.reference_C: the delta states' reference temperature"))
     out += [("COOLANT_REF", c_float(np.float32(COOLANT_REFERENCE_C)), "coolant temperature of R_cy0 (eq. 16)"),
             ("DT", c_float(np.float32(artifact.dt)), "timing.dt_s: the model step (s)")]
     return out
@@ -615,7 +657,8 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
         step = _STEP_PV_C
         code += [_PV_C]
     else:
-        step = _STEP_LINEAR_C.format(nonlinearity="    input_nonlinearity(u);\n" if kind == "hammerstein" else "")
+        template = _STEP_DELTA_C if artifact.realization == "delta" else _STEP_LINEAR_C
+        step = template.format(nonlinearity="    input_nonlinearity(u);\n" if kind == "hammerstein" else "")
         code += [_SOURCES_C]
     # fw_step takes the row's width of inputs and hands node_losses what the loss model needs
     step = step.replace("void fw_step(const float inputs[4], float y[4])",

@@ -23,6 +23,8 @@ def _artifact(kind: str, realization: str, dt: float):
     from target_sim.artifact import verify
 
     spec = dataclasses.replace(model_spec(kind, realization), dt=dt)
+    if realization == "delta":
+        spec = dataclasses.replace(spec, reference_C=60.0)   # the deviation form's path, not just r = 0
     return verify(build_artifact(spec))
 
 

@@ -12,8 +12,8 @@ from target_sim.firmware import Firmware
 from target_sim.fmath import exp_f32
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 
-KIND_REALIZATIONS = [("lti-lptn", r) for r in ("physical", "original", "balanced", "modal")]
-KIND_REALIZATIONS += [("hammerstein", r) for r in ("physical", "original", "balanced", "modal")]
+KIND_REALIZATIONS = [("lti-lptn", r) for r in ("physical", "original", "balanced", "modal", "delta")]
+KIND_REALIZATIONS += [("hammerstein", r) for r in ("physical", "original", "balanced", "modal", "delta")]
 KIND_REALIZATIONS += [("pv-lptn", "physical")]
 
 
@@ -172,7 +172,8 @@ def test_packaged_artifacts_bit_for_bit_with_cycles_and_stack(kind, drive, initi
     assert 0 < session.fw.stack_used() < build.memory["stack_bytes"] // 2
 
 
-@pytest.mark.parametrize(("kind", "realization"), [("hammerstein", "balanced"), ("lti-lptn", "modal"),
+@pytest.mark.parametrize(("kind", "realization"), [("hammerstein", "balanced"), ("hammerstein", "delta"),
+                                                   ("lti-lptn", "modal"),
                                                    ("pv-lptn", "physical"), ("electrical", "hammerstein")])
 def test_reset_restore_and_checkpoint_continue_bit_for_bit(firmware_of, electrical_of, drive, electrical_drive,
                                                            initial, kind, realization):
