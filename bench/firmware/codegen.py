@@ -523,7 +523,8 @@ _HEADER = """\
  * image so a flashed firmware can be matched with its artifact. */
 extern const uint32_t fw_model_id;
 
-/* Start from temperatures y0: y = y0, x = C_inv y0 (delta: C_inv (y0 - r); pv-lptn: x = y0); the accumulator is cleared. */
+/* Start from temperatures y0: y = y0, x = C_inv y0 (delta: C_inv (y0 - r); pv-lptn: x = y0); clears the
+ * accumulator. */
 void fw_reset(const float y0[4]);
 
 /* Continue from a checkpointed state vector x, bit for bit: y = C x (pv-lptn: y = x); accumulator cleared. */
