@@ -9,12 +9,26 @@ import tempfile
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 
+NAME_MAX = 255       # bytes in one file name (Linux, macOS): a temporary name must fit where the output's does
+RANDOM_PART = 8      # what mkstemp/mkdtemp add between prefix and suffix
+MAX_TEMP_SUFFIX = 16  # a longer "suffix" is no format's: the temporary name goes without it
+
+
+def temporary_prefix(name: str, reserve: int) -> str:
+    """`.NAME.`, NAME shortened (by characters, counted in bytes) so that the prefix and `reserve` more bytes (the
+    random part, a suffix) fit in NAME_MAX: an output with a legal long name gets a legal temporary name."""
+    while name and len(os.fsencode(f".{name}.")) + reserve > NAME_MAX:
+        name = name[:-1]
+    return f".{name}."
+
 
 def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
     """Write through a temporary file in the same directory, then rename: never a half-written output."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
+    suffix = path.suffix if len(os.fsencode(path.suffix)) <= MAX_TEMP_SUFFIX else ""   # writers pick formats by it
+    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path.name, RANDOM_PART + len(os.fsencode(suffix))),
+                               suffix=suffix, dir=path.parent)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -63,7 +77,7 @@ def write_directory_atomically(path: Path, contents: Mapping[str, bytes], *,
         raise FileExistsError(f"{path} holds {', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''}, "
                               "which this command did not write")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(path.name, RANDOM_PART), dir=path.parent))
     umask = os.umask(0)
     os.umask(umask)
     old: Path | None = None
@@ -74,7 +88,7 @@ def write_directory_atomically(path: Path, contents: Mapping[str, bytes], *,
             os.chmod(target, 0o666 & ~umask)   # mkdtemp makes 0700 and files follow the umask
         os.chmod(tmp, 0o777 & ~umask)
         if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            old = Path(tempfile.mkdtemp(prefix=temporary_prefix(path.name, RANDOM_PART + 4) + "old.", dir=path.parent))
             os.replace(path, old / path.name)
             try:
                 os.replace(tmp, path)

@@ -68,6 +68,24 @@ def bus_from_args(args) -> BusConfig:
     return config
 
 
+NAME_MAX = 255   # bytes in one file name (Linux, macOS)
+
+
+def check_log_names(log_path: Path, faults: FaultSpec | None) -> None:
+    """UsageError, before anything runs, when a file written beside the log would need a name longer than NAME_MAX:
+    with faults, the summary `<log>.faults.json`, written through a temporary `.<log>.faults.json.XXXXXXXX`."""
+    if faults is None or not faults.active:
+        return
+    from host.faults import sidecar_path
+
+    sidecar = sidecar_path(log_path).name
+    length = len(os.fsencode(sidecar)) + 10
+    if length > NAME_MAX:
+        raise UsageError(f"--log {log_path}: the fault summary beside it, {sidecar}, would need a file name of "
+                         f"{length} bytes (its temporary name), more than the {NAME_MAX} a name may have; shorten the "
+                         f"log's name by {length - NAME_MAX} characters")
+
+
 def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
     from bench.model.default import default_artifact_path
 

@@ -16,8 +16,9 @@ hand-started nodes meet; the orchestrators (`bench run`, `bench compare`, `bench
 to the run and hand the concrete options to every process they start, so parallel runs never hear each other.
 
 udp_multicast delivers every frame to its own sender too (multicast loopback), so each node drops frames with
-its own ids (`OwnFrameFilter`); with SocketCAN a node does not hear itself. Only the standard library and
-python-can are used here: both nodes stand on this module.
+its own ids (`OwnFrameFilter`); with SocketCAN a node does not hear itself. A host's bus is wrapped in
+`SenderGuard`, which tells its own frames from another host's and stops the host when one appears. Only the standard
+library and python-can are used here: both nodes stand on this module.
 """
 
 from __future__ import annotations
@@ -252,3 +253,79 @@ def first_heard(bus: can.BusABC, ids, listen_s: float = IN_USE_LISTEN_S, *, pref
         if prefer is None or msg.arbitration_id == prefer:
             return msg
     return heard
+
+
+class OtherSender(Exception):
+    """Another node of this node's kind sends on the channel; the message names the channel and the frame."""
+
+
+# A copy of a sent frame not back after this long is taken as lost (udp_multicast drops some in bursts); the
+# record of frames sent is pruned of those only when it grows past GUARD_PRUNE_AT entries.
+GUARD_ECHO_HORIZON_S = 10.0
+GUARD_PRUNE_AT = 4096
+
+
+class SenderGuard:
+    """A node's bus that refuses to share its channel with another node of its kind.
+
+    Wraps a python-can bus (`send`, `recv`, `shutdown` and every other attribute pass through). A received
+    standard frame with one of `own_ids` that this node did not send makes `recv` raise `OtherSender`: two hosts
+    on one channel would both drive the target. Where the bus hands a node its own frames back (udp_multicast
+    always; any interface opened with `receive_own_messages`), every frame sent with one of `own_ids` is counted
+    by (id, bytes) until its copy comes back, so only a frame nobody here sent counts as another node's; a fault
+    layer above this one (duplicates, corruption, delays) is seen as what it really transmits. Elsewhere (SocketCAN,
+    real interfaces) a node never hears itself, so any such frame is another node's."""
+
+    def __init__(self, bus: can.BusABC, config: BusConfig, own_ids, role: str = "host") -> None:
+        self.inner = bus
+        self.own_ids = frozenset(own_ids)
+        self.role = role
+        self.channel = config.describe()
+        self.echoes = config.interface == UDP_INTERFACE or bool(config.kwargs.get("receive_own_messages"))
+        self._pending: dict[tuple[int, bytes], list] = {}   # (id, data) -> [copies still to come, last sent]
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.echoes and not msg.is_extended_id and msg.arbitration_id in self.own_ids:
+            key = (msg.arbitration_id, bytes(msg.data))
+            entry = self._pending.get(key)
+            if entry is None:
+                if len(self._pending) >= GUARD_PRUNE_AT:
+                    self._prune()
+                self._pending[key] = [1, time.monotonic()]
+            else:
+                entry[0] += 1
+                entry[1] = time.monotonic()
+        self.inner.send(msg, timeout)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        msg = self.inner.recv(timeout)
+        if (msg is not None and not msg.is_extended_id and msg.arbitration_id in self.own_ids
+                and not msg.is_error_frame and not self._own_copy(msg)):
+            raise OtherSender(f"another {self.role} is sending on {self.channel} (frame id 0x{msg.arbitration_id:03x}, "
+                              f"not sent by this {self.role}); stop it or pick another channel")
+        return msg
+
+    def _own_copy(self, msg: can.Message) -> bool:
+        if not self.echoes:
+            return False
+        key = (msg.arbitration_id, bytes(msg.data))
+        entry = self._pending.get(key)
+        if entry is None:
+            return False
+        entry[0] -= 1
+        if entry[0] == 0:
+            del self._pending[key]
+        return True
+
+    def _prune(self) -> None:
+        oldest = time.monotonic() - GUARD_ECHO_HORIZON_S
+        for key in [key for key, (_, sent) in self._pending.items() if sent < oldest]:
+            del self._pending[key]
+
+    def shutdown(self) -> None:
+        self.inner.shutdown()
+
+    def __getattr__(self, name):  # channel_info, state, ... of the wrapped bus
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)

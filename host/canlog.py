@@ -18,6 +18,7 @@ from pathlib import Path
 import can
 
 LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".mf4")
+NAME_MAX = 255   # bytes in one file name (Linux, macOS): the temporary name must fit where the log's does
 DEFAULT_LOG_SUFFIX = ".blf"
 
 
@@ -49,7 +50,7 @@ class FrameLog:
     def __init__(self, path: str | Path):
         self.path = check_log_path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp_path = self.path.with_name(f".{self.path.stem}.{os.getpid()}.partial{self.path.suffix}")
+        self.tmp_path = self.path.with_name(partial_name(self.path))
         try:
             self._writer = can.Logger(str(self.tmp_path))
         except (OSError, ValueError, ImportError) as exc:
@@ -72,11 +73,10 @@ class FrameLog:
         self.closed = True
         try:
             self._writer.stop()
-        finally:
             if commit and self.tmp_path.exists():
                 os.replace(self.tmp_path, self.path)
-            else:
-                self.tmp_path.unlink(missing_ok=True)
+        finally:   # not committed (a failure, an interruption, a path that is a directory): no temporary file left
+            self.tmp_path.unlink(missing_ok=True)
         return self.path if commit else None
 
     def __enter__(self) -> FrameLog:
@@ -84,6 +84,14 @@ class FrameLog:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         self.close(commit=exc_type is None)
+
+
+def partial_name(path: Path) -> str:
+    """`.STEM.<pid>.partial.SUFFIX`, STEM shortened (counted in bytes) to keep it within NAME_MAX."""
+    stem, tail = path.stem, f".{os.getpid()}.partial{path.suffix}"
+    while stem and len(os.fsencode(f".{stem}{tail}")) > NAME_MAX:
+        stem = stem[:-1]
+    return f".{stem}{tail}"
 
 
 READ_FIX = "pass a complete log written by 'bench run' or the host"

@@ -3,16 +3,19 @@
     python -m target_sim --model MODEL.json [--engine python|firmware] [--firmware ELF]
                          [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...]
                          [--can-config FILE] [--stats FILE] [--events FILE] [--faults K=P,...] [--fault-seed N]
-                         [--quiet]
+                         [--parent-pid PID] [--quiet]
 
 Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1) and, with `--engine firmware`, the
 model's firmware ELF (`bench firmware build`): the whole node (bench/firmware/node.c and the model) runs in the
 emulated Cortex-M4F and this process only moves frames between the bus and its mailbox (`target_sim.engines`). An
-ELF for another core, or of another model than the artifact's (its `fw_model_id`), and a model with an electrical
-loss model (the firmware runs loss-map models only) are refused in one sentence, exit 1 (`--firmware` implies the
+ELF for another core, or of another model than the artifact's (its `fw_model_id`), is refused in one sentence, exit 1 (`--firmware` implies the
 firmware engine; `--engine firmware` needs it). Then it opens the bus (`auto`:
 socketcan vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms)
-and serves until SIGTERM or SIGINT, then shuts the bus down and exits 0. `--stats FILE` writes the node's counters
+and serves until SIGTERM, SIGINT or SIGHUP, then shuts the bus down and exits 0. `--parent-pid PID` (what `bench`
+passes to the targets it starts) ties it to that process, its parent: it stops the same way when PID dies (Linux:
+the parent-death signal, prctl PR_SET_PDEATHSIG; elsewhere too: it checks its parent id in its loop), so a bench
+killed without stopping it leaves no target sending heartbeats behind. A target started by hand has no
+`--parent-pid` and runs until it is stopped. `--stats FILE` writes the node's counters
 (JSON) at exit. `--events FILE` appends one JSON line per rejected frame or sequence error (the node's detection
 journal), plus a "start" line with the process id and a "stop" line with the counters; each line is one
 write(2) to a file opened O_APPEND, so what was written survives a SIGKILL and a restarted target appends to the
@@ -23,6 +26,8 @@ and journals each injection in the same file. See `target_sim.node` for the prot
 from __future__ import annotations
 
 import argparse
+import ctypes
+import ctypes.util
 import json
 import logging
 import os
@@ -62,15 +67,29 @@ def build_parser() -> argparse.ArgumentParser:
                         help="inject faults into the temperature replies, e.g. reply_drop=0.01,reply_corrupt=0.001 "
                              "(each injection is journaled in --events)")
     parser.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the reply faults")
+    parser.add_argument("--parent-pid", type=int, default=None, metavar="PID",
+                        help="stop when this process, the parent that started the target (bench does), dies")
     parser.add_argument("--quiet", action="store_true", help="no start/stop lines on stderr")
     add_bus_arguments(parser)
     return parser
 
 
+NAME_MAX = 255            # bytes in one file name (Linux, macOS); the temporary name must fit too
+PR_SET_PDEATHSIG = 1      # <linux/prctl.h>
+PARENT_CHECK_S = 0.25     # how often the loop checks that the parent still lives
+
+
+def _temporary_prefix(name: str, reserve: int) -> str:
+    """`.NAME.`, NAME shortened so that the prefix and `reserve` more bytes fit in NAME_MAX."""
+    while name and len(os.fsencode(f".{name}.")) + reserve > NAME_MAX:
+        name = name[:-1]
+    return f".{name}."
+
+
 def _write_stats(path: str, stats: dict) -> None:
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(target.name, 8), dir=target.parent)
     with os.fdopen(fd, "w") as handle:
         json.dump(stats, handle, indent=1)
     os.replace(tmp, target)
@@ -100,11 +119,27 @@ class EventJournal:
         os.close(self.fd)
 
 
+def _tie_to_parent(parent: int) -> bool:
+    """Stop (SIGTERM) when the parent `parent` dies: the kernel's parent-death signal where there is one (Linux);
+    the serve loop also checks the parent id. False when `parent` is not (or no longer) this process's parent."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass   # the loop's check still stops it
+    return os.getppid() == parent   # after prctl: a parent that died before it was armed is seen here
+
+
 def main(argv: list[str] | None = None) -> int:
     # python-can repeats a half-constructed bus's failure from __del__ ("not properly shut down") after our sentence.
     logging.getLogger("can").addHandler(logging.NullHandler())
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.parent_pid is not None and not _tie_to_parent(args.parent_pid):   # first: a dying bench stops it now
+        print(f"target_sim: error: process {args.parent_pid} (--parent-pid) is not the parent of this target (it has "
+              "exited?); the target does not start", file=sys.stderr)
+        return 1
     try:
         contract()  # the DBC, read before anything else: a broken one is one sentence here
     except DbcError as exc:
@@ -163,12 +198,23 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, request_stop)
     signal.signal(signal.SIGINT, request_stop)
+    signal.signal(signal.SIGHUP, request_stop)
+    parent = {"next_check": 0.0, "gone": False}
+
+    def should_stop() -> bool:
+        if stop["requested"]:
+            return True
+        if args.parent_pid is not None and (now := time.monotonic()) >= parent["next_check"]:
+            parent["next_check"] = now + PARENT_CHECK_S
+            parent["gone"] = os.getppid() != args.parent_pid
+        return parent["gone"]
+
     if not args.quiet:
         engine_note = f"firmware node {node.name}" if engine == "firmware" else "python engine"
         log_error(f"model {artifact.model_id:08x} ({artifact.kind}, {artifact.realization}, dt {artifact.dt:g} s, "
                   f"{node.cost.cycles} est. C28x cycles, {engine_note}) on {config.describe()}; serving")
     try:
-        serve(node, bus, lambda: stop["requested"], on_error=log_error,
+        serve(node, bus, should_stop, on_error=log_error,
               reply_faults=ReplyFaults(reply_rates, args.fault_seed, journal) if reply_rates else None)
     finally:
         bus.shutdown()
@@ -179,7 +225,8 @@ def main(argv: list[str] | None = None) -> int:
             journal.close()
     if not args.quiet:
         s = node.stats()
-        log_error(f"stopped: {s['rows_used']} rows, {s['model_steps']} model steps, frame errors {s['errors']}")
+        why = f" (its parent, process {args.parent_pid}, is gone)" if parent["gone"] else ""
+        log_error(f"stopped{why}: {s['rows_used']} rows, {s['model_steps']} model steps, frame errors {s['errors']}")
     return 0
 
 

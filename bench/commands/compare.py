@@ -61,7 +61,7 @@ def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
     from bench.model.artifact_eval import artifact_loss_model, artifact_parameters
     from bench.model.builder import ModelSpec, build_artifact
     from bench.model.default import default_artifact_path
-    from bench.model.evaluate import hammerstein_models
+    from bench.model.evaluate import hammerstein_models, reference_of
     from bench.model.pipeline import load_campaign
 
     packaged = {kind: default_artifact_path(kind) for kind in KINDS}
@@ -71,12 +71,14 @@ def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
     params = artifact_parameters(reference)
     maps, motor = artifact_loss_model(reference)
     note = {"derived_from": reference.sha256, "note": f"re-discretized at {dt:g} s for bench compare"}
+    deployed = {"realization": reference.realization, "reference_C": reference_of(reference)}
     specs = {
-        "lti-lptn": ModelSpec("lti-lptn", params, dt, "zoh", "balanced", maps, motor, provenance=note),
+        "lti-lptn": ModelSpec("lti-lptn", params, dt, "zoh", loss_maps=maps, motor=motor, provenance=note, **deployed),
         "pv-lptn": ModelSpec("pv-lptn", params, dt, "euler", "physical", maps, motor, provenance=note),
     }
     block, sigmoid = hammerstein_models(reference, load_campaign(None), [dt])[dt]
-    specs["hammerstein"] = ModelSpec("hammerstein", params, dt, "zoh", "balanced", maps, motor, sigmoid=sigmoid,
+    specs["hammerstein"] = ModelSpec("hammerstein", params, dt, "zoh", loss_maps=maps, motor=motor, sigmoid=sigmoid,
+                                     **deployed,
                                      linear_block=block, provenance={**note, "note": note["note"] + ", refitted"})
     paths = []
     for kind, spec in specs.items():

@@ -45,8 +45,8 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--plots", type=Path, default=None,
                    help="directory for the figures: one per data file, or with a directory the Figs. 6/7 analogues "
                         "(original vs balanced realization in float32)")
-    p.add_argument("--plot-realizations", type=choice_list(REALIZATIONS), default=["original", "balanced"],
-                   help="realizations to plot (default original,balanced)")
+    p.add_argument("--plot-realizations", type=choice_list(REALIZATIONS), default=["original", "balanced", "delta"],
+                   help="realizations to plot (default original,balanced,delta)")
     add_output_flags(p)
     p.set_defaults(func=run)
 

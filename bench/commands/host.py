@@ -9,7 +9,9 @@ report what came back.
                [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
 
 The target (`python -m target_sim`, or a real ECU) must run on the same bus; its heartbeat must carry the model
-id of --model (default: the packaged artifact). Exit status 0 when every row was answered and nothing was lost,
+id of --model (default: the packaged artifact). A host frame this host did not send (another host on the channel,
+e.g. a `bench run` started there while this one waited for its heartbeat) stops it in one sentence naming the
+channel. Exit status 0 when every row was answered and nothing was lost,
 1 when the run had missing replies, sequence gaps or heartbeat loss (unless --tolerate-gaps), 2 for bad
 arguments; every error is one sentence on stderr. The `host` package is the node itself (session, replay,
 faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as `bench run`) and hands
@@ -30,7 +32,7 @@ from pathlib import Path
 
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, data_options, print_json
 from bench.errors import BenchError, UsageError
-from bench.runner import drive_for, load_data, load_model, positive_float, positive_int
+from bench.runner import check_log_names, drive_for, load_data, load_model, positive_float, positive_int
 from dbc.database import host_frame_ids
 from dbc.transport import (
     BusUnavailable,
@@ -109,6 +111,7 @@ def run_host(args: argparse.Namespace) -> int:
     except LogError as exc:
         raise BenchError(str(exc)) from None
     check_writable(log_path, "--log")   # before the run: a directory there would fail it only at the end
+    check_log_names(log_path, faults)
     bus = None
     try:
         bus = config.open()

@@ -16,7 +16,7 @@ from bench.commands.common import add_data_arguments, add_output_flags, check_wr
 from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.hammerstein_fit import FIT_PATHS
-from bench.thermal.realizations import REALIZATIONS
+from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
 
 KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
 DEFAULT_DT_S = 0.5
@@ -49,8 +49,9 @@ def add_subparser(subparsers) -> None:
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
     p.add_argument("--kind", choices=KINDS, default="hammerstein", help="model kind of --out")
-    p.add_argument("--realization", choices=REALIZATIONS, default="balanced",
-                   help="realization deployed in the artifact (default balanced)")
+    p.add_argument("--realization", choices=REALIZATIONS, default=DEPLOYED_REALIZATION,
+                   help=f"realization deployed in the artifact (default {DEPLOYED_REALIZATION}: the delta operator "
+                        "about the middle of the training temperatures, the most accurate in float32)")
     p.add_argument("--fit-path", choices=tuple(FIT_PATHS), default="statespace",
                    help="polynomial (the paper's, companion coordinates) or statespace (balanced coordinates)")
     p.add_argument("--all-kinds", action="store_true",

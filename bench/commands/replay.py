@@ -24,6 +24,7 @@ every row as recorded; its rejection counters are not compared (the recorded one
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections import Counter
 from dataclasses import replace
@@ -35,6 +36,7 @@ from bench.analysis.logdecode import BusRecord, decode_log
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
 from bench.runner import (
+    NAME_MAX,
     ProgressBar,
     bus_from_args,
     firmware_for_engine,
@@ -74,6 +76,14 @@ def add_subparser(subparsers) -> None:
     add_output_flags(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
+
+
+def default_replay_name(path: Path) -> str:
+    """`<stem>.replay.blf`, the stem shortened (counted in bytes) so that the name stays a legal one."""
+    stem = path.stem
+    while stem and len(os.fsencode(f"{stem}.replay.blf")) > NAME_MAX:
+        stem = stem[:-1]
+    return f"{stem}.replay.blf"
 
 
 def log_model_id(messages) -> int | None:
@@ -139,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
     if recorded_id is not None and recorded_id != artifact.model_id:
         raise BenchError(f"log {path} was recorded with model {recorded_id:08x}, but {model_path} is "
                          f"{artifact.model_id:08x}; pass the log's artifact with --model")
-    new_log = args.new_log or Path("out/replay") / f"{path.stem}.replay.blf"
+    new_log = args.new_log or Path("out/replay") / default_replay_name(path)
     try:
         check_log_path(new_log)
     except LogError as exc:

@@ -15,7 +15,9 @@ DriveInputs and DriveTemps, and data without them is refused in one sentence bef
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
 ±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). The JSON summary names the bus
 it used ("bus": interface, channel, and the port of udp_multicast), `auto` resolved. A target already sending on
-the channel is refused before the run starts its own.
+the channel is refused before the run starts its own, and so is a host; a host frame this run did not send stops
+it at any time (`dbc.transport.SenderGuard`). A --log that cannot be written (a directory) is refused before the
+run. SIGINT, SIGTERM and SIGHUP stop the target, discard the partial log and exit 128 + the signal.
 
 Fault injection (`host.faults`): e.g. `--faults drop=0.01,corrupt=0.001,kill=1 --fault-seed 7`. Bus faults
 (drop, delay, duplicate, reorder, corrupt, stale_counter, wrong_length, unknown_id, out_of_range) hit the host's
@@ -50,6 +52,7 @@ from bench.errors import BenchError, UsageError
 from bench.runner import (
     ProgressBar,
     bus_from_args,
+    check_log_names,
     drive_for,
     firmware_for_engine,
     load_data,
@@ -134,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
     except LogError as exc:
         raise BenchError(str(exc)) from None
     check_writable(log_path, "--log")   # before the run: a directory there would fail it only at the end
+    check_log_names(log_path, faults)
     if not args.no_report:  # before the run: a report that cannot be written must not cost a run and leave a log
         check_writable(Path(args.report), "--report", directory=True)
     bus = bus_from_args(args)

@@ -61,7 +61,14 @@ def spec_at(artifact: ModelArtifact, kind: str, dt: float, realization: str, blo
     maps, motor = artifact_loss_model(artifact)
     return ModelSpec(kind, artifact_parameters(artifact), dt, "zoh", realization, maps, motor,
                      data_sample_period_s=artifact.data_sample_period, sigmoid=sigmoid, linear_block=block,
-                     provenance={"derived_from": artifact.sha256})
+                     provenance={"derived_from": artifact.sha256}, reference_C=reference_of(artifact))
+
+
+def reference_of(artifact: ModelArtifact) -> float:
+    """The delta realization's reference temperature of the artifact (0 for another realization)."""
+    if artifact.kind == "pv-lptn" or artifact.realization != "delta":
+        return 0.0
+    return float(artifact.array("linear_block", "reference_C", dtype=np.float64))
 
 
 def in_memory(spec: ModelSpec) -> ModelArtifact:

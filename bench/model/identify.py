@@ -19,7 +19,7 @@ from bench.motor.description import MotorDescription, ThermalPrior, default_moto
 from bench.motor.losses import EstimatorMotor, LossModel
 from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.parameters import TABLE1, LptnParameters
-from bench.thermal.realizations import Realization
+from bench.thermal.realizations import DEPLOYED_REALIZATION, Realization
 
 IDENTIFICATION_COOLANTS = (20, 60)
 VALIDATION_COOLANT = 40
@@ -40,7 +40,7 @@ class Identification:
     timings_s: dict = field(default_factory=dict)
     reference_C: float = 0.0            # of a delta realization (delta_reference)
 
-    def spec(self, kind: str, realization: str = "balanced", metrics: dict | None = None) -> ModelSpec:
+    def spec(self, kind: str, realization: str = DEPLOYED_REALIZATION, metrics: dict | None = None) -> ModelSpec:
         common = {"params": self.lptn.params, "dt": self.dt, "loss_maps": self.loss_model, "motor": self.motor,
                   "data_sample_period_s": self.data_sample_period_s, "reference_C": self.reference_C,
                   "provenance": self.provenance, "metrics": metrics or {}}
@@ -52,7 +52,7 @@ class Identification:
             return ModelSpec("pv-lptn", discretization="euler", realization="physical", **common)
         return ModelSpec("lti-lptn", discretization=self.discretization, realization=realization, **common)
 
-    def content(self, kind: str, realization: str = "balanced", metrics: dict | None = None) -> dict:
+    def content(self, kind: str, realization: str = DEPLOYED_REALIZATION, metrics: dict | None = None) -> dict:
         return artifact_content(self.spec(kind, realization, metrics))
 
 

@@ -15,6 +15,7 @@ from bench.model.identify import (
     Identification,
     identify,
 )
+from bench.thermal.realizations import DEPLOYED_REALIZATION
 from target_sim.artifact import seal, verify
 
 
@@ -46,7 +47,8 @@ def identify_from_directory(data_dir: Path | None, progress: Callable | None = N
     return result, datasets
 
 
-def validation_metrics(result: Identification, validation: Sequence[Dataset], realization: str = "balanced") -> dict:
+def validation_metrics(result: Identification, validation: Sequence[Dataset],
+                       realization: str = DEPLOYED_REALIZATION) -> dict:
     """Accuracy at the identification Δt on the validation files together, float64 and float32 (the target's
     code), per model kind: {float64: {winding, pm}, float32: {...}, max_abs_f32_minus_f64_C}."""
     metrics = {}

@@ -859,3 +859,28 @@ def test_plain_interpreters_agree_with_the_fork_server(cli, material, scratch):
         assert_one_sentence(result, prefix=case.prefix)
         same = [(r.rc, re.sub(r"port \d+", "port N", r.stderr)) for r in (result, forked)]
         assert same[0] == same[1], f"{result}\n--- forked ---\n{forked}"
+
+
+# ---------------------------------------------------------------- another CSV dialect given to `bench run`
+
+DIALECTS = {  # name -> (separator, decimal mark, what the sentence says the file looks like, the mapping keys)
+    "semicolon": (";", ".", "semicolon-separated with '.' decimals", '"separator": ";"'),
+    "decimal-comma": (";", ",", "semicolon-separated with decimal commas", '"separator": ";", "decimal": ","'),
+    "tab": ("\t", ".", "tab-separated with '.' decimals", '"separator": "\\t"'),
+}
+
+
+@pytest.mark.parametrize("dialect", list(DIALECTS))
+def test_run_names_the_separator_of_another_csv_dialect(cli, material, scratch, dialect):
+    separator, decimal, looks, keys = DIALECTS[dialect]
+    path = material.bad / f"dialect_{dialect}.csv"
+    lines = [line.replace(",", separator).replace(".", decimal) for line in _csv_lines(material)]
+    path.write_text("\n".join(lines) + "\n")
+    out = scratch / "out"
+    result = cli("bench", "run", "--data", path, "--model", material.art, "--rows", 50, "--log", out / "x.blf",
+                 "--report", out / "rep", "--quiet", cwd=scratch)
+    line = assert_one_sentence(result, (path.name, f"the file looks {looks}",
+                                        "save it comma-separated with '.' decimals", f"pass --mapping with {keys}"),
+                               rc=1)
+    assert "column 'time_s' is missing" not in line
+    assert tree(out) is None

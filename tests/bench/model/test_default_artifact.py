@@ -28,6 +28,10 @@ def test_hammerstein_halves_the_lti_winding_error_without_worsening_pm(evaluatio
 def test_deployed_float32_execution_matches_float64_within_half_the_can_resolution(evaluations):
     ham = evaluations["hammerstein"]
     assert ham.max_abs_f32_minus_f64 < 0.005
+    # issue 16's bound for the deployed (delta) realization, all four nodes over the whole run: measured 2.8e-5 °C
+    # (the Hammerstein model) and 3.1e-5 °C (the LTI LPTN); the balanced realization gave 3.3e-3 and 2.2e-3
+    for kind in ("hammerstein", "lti-lptn"):
+        assert evaluations[kind].max_abs_f32_minus_f64 <= 1e-4, kind
     assert rmse(ham.float32[:, 1], ham.run.ref_winding) == pytest.approx(
         ham.metrics["float32"]["winding"]["rmse"])
 
@@ -46,7 +50,7 @@ def test_regenerating_the_default_artifacts_gives_the_same_content(default_data_
     metrics = validation_metrics(result, [datasets[40]])
     for kind in ("hammerstein", "lti-lptn", "pv-lptn"):
         shipped = json.loads(default_artifact_path(kind).read_text())
-        realization = "physical" if kind == "pv-lptn" else "balanced"
+        realization = "physical" if kind == "pv-lptn" else "delta"
         content = result.content(kind, realization, metrics)
         assert seal(content) == shipped, kind   # every coefficient and figure, and so the same sha256
     assert np.isfinite(result.lptn.cost)

@@ -16,7 +16,7 @@ def test_identify_writes_loadable_artifacts_of_all_kinds(default_data_dir, tmp_p
     assert all(b <= a for a, b in zip(summary["pso_history"], summary["pso_history"][1:], strict=False))
     kinds = {load_artifact(p).kind for p in summary["artifacts"].values()}
     assert kinds == {"hammerstein", "lti-lptn", "pv-lptn"}
-    assert load_artifact(out).realization == "balanced"
+    assert load_artifact(out).realization == "delta"
     assert summary["validation"]["hammerstein"]["max_abs_f32_minus_f64_C"] < 0.005
     assert set(summary["validation"]["lti-lptn"]) == {"float64", "float32", "max_abs_f32_minus_f64_C"}
 
