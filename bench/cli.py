@@ -12,8 +12,8 @@ from bench.errors import BenchError, UsageError
 from dbc.database import DbcError
 
 # Subcommand modules under bench.commands, in the order `bench --help` lists them.
-SUBCOMMANDS = ("motor", "numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "compare", "host",
-               "firmware")
+SUBCOMMANDS = ("motor", "numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "export", "compare",
+               "campaign", "host", "firmware")
 
 
 class OneLineParser(argparse.ArgumentParser):

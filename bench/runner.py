@@ -41,6 +41,7 @@ from dbc.transport import (
     OtherSender,
     SenderGuard,
     config_from_args,
+    logger_command,
     resolve,
 )
 from host.canlog import LogError
@@ -56,8 +57,9 @@ TARGET_STOP_TIMEOUT_S = 5.0
 
 
 def bus_from_args(args) -> BusConfig:
-    """The bus the command-line options describe, `auto` resolved with a run-unique udp_multicast port (and the
-    CAN contract read first: a broken DBC is one sentence before anything starts)."""
+    """The bus the command-line options describe, `auto` resolved: udp_multicast on the bench's own group gets a
+    run-unique port, on a channel the user chose python-can's default port unless one is given (`resolve`); the
+    CAN contract is read first: a broken DBC is one sentence before anything starts."""
     contract()
     try:
         config = resolve(config_from_args(args), session_unique=True)
@@ -66,6 +68,12 @@ def bus_from_args(args) -> BusConfig:
     if config.interface == "virtual":  # python-can's virtual bus lives inside one process; the target is another
         raise UsageError("the 'virtual' interface does not cross processes; use udp_multicast, socketcan or auto")
     return config
+
+
+def announce_logger(bus: BusConfig, quiet: bool, prefix: str = "bench: ") -> None:
+    """On stderr (unless `quiet`), the line that records this bus with python-can's logger, ready to paste."""
+    if not quiet:
+        print(f"{prefix}to record this bus with python-can: {logger_command(bus)}", file=sys.stderr, flush=True)
 
 
 NAME_MAX = 255   # bytes in one file name (Linux, macOS)

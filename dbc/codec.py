@@ -95,25 +95,25 @@ def _raw_value(layout: MessageLayout, s: SignalLayout, value: SignalValue | str)
     """The bits signal `s` carries for `value` (FrameError("out_of_range") for what the DBC does not allow)."""
     if isinstance(value, str):
         if value not in s.choices:
-            raise FrameError("out_of_range", f"signal {s.name} of message {layout.name} has no value named "
+            raise FrameError("out_of_range", f"signal {s.dbc_name} of message {layout.name} has no value named "
                              f"{value!r}" + (f"; use one of {', '.join(s.choices)}." if s.choices
                                              else "; give a number."))
         value = s.choices[value]
     # numpy scalars (np.float32 is no float) become Python numbers, as cantools takes them
     number: SignalValue = int(value) if isinstance(value, numbers.Integral) else float(value)
     if not s.low <= number <= s.high:  # also refuses NaN
-        raise FrameError("out_of_range", f"signal {s.name} of message {layout.name} cannot carry "
+        raise FrameError("out_of_range", f"signal {s.dbc_name} of message {layout.name} cannot carry "
                          f"{_format_value(float(number), s.unit)}, its range is {_format_range(s)}.")
     if s.ieee is not None:  # the bits of the IEEE value, as cantools packs a SIG_VALTYPE_ signal
         return struct.unpack(s.ieee[1], struct.pack(s.ieee[0], number))[0]
     raw = round((number - s.offset) / s.scale) if s.inline else s.conversion.numeric_scaled_to_raw(number)
     if s.signed:
         if not -(1 << (s.length - 1)) <= raw < (1 << (s.length - 1)):
-            raise FrameError("out_of_range", f"message {layout.name} cannot be encoded: {s.name} raw value {raw} "
+            raise FrameError("out_of_range", f"message {layout.name} cannot be encoded: {s.dbc_name} raw value {raw} "
                              f"does not fit {s.length} signed bits.")
         return raw & s.mask
     if not 0 <= raw <= s.mask:
-        raise FrameError("out_of_range", f"message {layout.name} cannot be encoded: {s.name} raw value {raw} does "
+        raise FrameError("out_of_range", f"message {layout.name} cannot be encoded: {s.dbc_name} raw value {raw} does "
                          f"not fit {s.length} bits.")
     return raw
 
@@ -224,8 +224,8 @@ def _check_frame(msg: can.Message, accepted: frozenset[int] | None) -> tuple[Mes
             value = conversion.raw_to_scaled(raw, False)
         if not low <= value <= high:
             s = layout.signal(name)
-            raise FrameError("out_of_range", f"{layout.label} carries {name} = {_format_value(float(value), s.unit)}"
-                             f", outside its range {_format_range(s)}.")
+            raise FrameError("out_of_range", f"{layout.label} carries {s.dbc_name} = "
+                             f"{_format_value(float(value), s.unit)}, outside its range {_format_range(s)}.")
         values[name] = value
     return layout, values, payload[1] & 0x0F
 

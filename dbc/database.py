@@ -1,5 +1,10 @@
 """``thermal_bench.dbc`` read once, on first use, into what the codec and the nodes need per message.
 
+Signal names are unique across the DBC (1.5.0): a signal that several messages carry is named `<Message>_<Role>`
+there (`Control_Step`, `StateCheckpoint_StateValue`, as `<Message>_CRC` and `<Message>_Counter`). The code knows it
+by its role (`Step`, `StateValue`): `SignalLayout.name` is the DBC name without the message's prefix, and
+`SignalLayout.dbc_name` the name in the file, for tools that look signals up in it (cantools, the C generator).
+
 Nothing here runs at import: the first call that needs the file loads it (cantools, strict) and checks that it
 is the bench's contract; a missing or broken file is one `DbcError` sentence at that call, which the command
 line reports like any other bad input.
@@ -32,7 +37,8 @@ class DbcError(Exception):
 class SignalLayout:
     """One application signal (not CRC, not counter) as the codec packs it."""
 
-    name: str
+    name: str                   # the role the code knows it by: the DBC name without a "<Message>_" prefix
+    dbc_name: str               # the name in the DBC, unique across its messages
     start: int
     length: int
     signed: bool
@@ -146,12 +152,19 @@ def _contract_problem(database: Database) -> str | None:
     return None
 
 
-def _signal_layout(s) -> SignalLayout:
+def role_name(message: str, signal: str) -> str:
+    """The name the code knows DBC signal `signal` of `message` by: `Control_Step` -> `Step`."""
+    prefix = f"{message}_"
+    return signal[len(prefix):] if signal.startswith(prefix) else signal
+
+
+def _signal_layout(message: str, s) -> SignalLayout:
     minimum = -math.inf if s.minimum is None else float(s.minimum)
     maximum = math.inf if s.maximum is None else float(s.maximum)
     tolerance = abs(s.conversion.scale) * 1e-6
     return SignalLayout(
-        name=s.name, start=s.start, length=s.length, signed=s.is_signed, mask=(1 << s.length) - 1,
+        name=role_name(message, s.name), dbc_name=s.name, start=s.start, length=s.length, signed=s.is_signed,
+        mask=(1 << s.length) - 1,
         conversion=s.conversion,
         minimum=minimum, maximum=maximum, tolerance=tolerance, low=minimum - tolerance, high=maximum + tolerance,
         unit=s.unit or "",
@@ -169,7 +182,7 @@ def contract() -> Contract:
     for message in database.messages:
         attributes = message.dbc.attributes
         cycle = attributes.get("GenMsgCycleTime")
-        signals = tuple(_signal_layout(s) for s in message.signals
+        signals = tuple(_signal_layout(message.name, s) for s in message.signals
                         if s.name not in (f"{message.name}_CRC", f"{message.name}_Counter"))
         layouts.append(MessageLayout(
             name=message.name, frame_id=message.frame_id, sender=message.senders[0],

@@ -13,7 +13,10 @@ the kernel loops it back to the sockets of this machine and never puts it on a n
 ff15:: default and the IPv4 groups would go out on eth0 with every frame). Only where IPv6 is off does `auto`
 fall back to the IPv4 group 239.74.163.2 (TTL 1: the local link). A node started by hand uses port 43113, so two
 hand-started nodes meet; the orchestrators (`bench run`, `bench compare`, `bench replay`) choose a port unique
-to the run and hand the concrete options to every process they start, so parallel runs never hear each other.
+to the run when the group is their own (no channel chosen) and hand the concrete options to every process they
+start, so parallel runs never hear each other. A channel the user chose (`-c`, `CAN_CHANNEL`, a config file) is
+python-can's world: it gets python-can's default port 43113 unless a port is given, so `python -m can.logger -i
+udp_multicast -c CHANNEL` hears the run (`logger_command` spells the line that does).
 
 udp_multicast delivers every frame to its own sender too (multicast loopback), so each node drops frames with
 its own ids (`OwnFrameFilter`); with SocketCAN a node does not hear itself. A host's bus is wrapped in
@@ -24,6 +27,7 @@ library and python-can are used here: both nodes stand on this module.
 from __future__ import annotations
 
 import argparse
+import shlex
 import socket
 import time
 from dataclasses import dataclass, field, replace
@@ -187,7 +191,11 @@ def free_udp_port() -> int:
 
 
 def resolve(config: BusConfig, *, session_unique: bool = False) -> BusConfig:
-    """Replace `auto` by a concrete interface; give udp_multicast a run-unique port if `session_unique`."""
+    """Replace `auto` by a concrete interface and fill in udp_multicast's group and port.
+
+    The port, unless given: unique to the run if `session_unique` and no channel was chosen (the group is then the
+    bench's own, so only the bench's processes meet there); else python-can's default 43113, which python-can's
+    tools use too (a channel the user chose, a node started by hand)."""
     if config.interface == AUTO:
         channel = config.channel
         if (channel is None or channel == AUTO_SOCKETCAN_CHANNEL) and socketcan_usable():
@@ -197,13 +205,31 @@ def resolve(config: BusConfig, *, session_unique: bool = False) -> BusConfig:
         config = replace(config, interface=UDP_INTERFACE, channel=channel)
     if config.interface == UDP_INTERFACE:
         kwargs = dict(config.kwargs)
-        if session_unique and "port" not in kwargs:
-            kwargs["port"] = free_udp_port()
-        else:
-            kwargs.setdefault("port", UDP_DEFAULT_PORT)
+        if "port" not in kwargs:
+            kwargs["port"] = free_udp_port() if session_unique and config.channel is None else UDP_DEFAULT_PORT
         channel = config.channel or (UDP_LOCAL_GROUP if ipv6_multicast_usable() else UDP_IPV4_GROUP)
         config = replace(config, channel=channel, kwargs=kwargs)
     return config
+
+
+LOGGER_FILE = "bench-copy.blf"
+
+
+def logger_command(config: BusConfig, file: str = LOGGER_FILE) -> str:
+    """The shell line with which python-can's logger records the frames of bus `config` (resolved) into `file`:
+    `python -m can.logger -i INTERFACE [-c CHANNEL] [-b BITRATE] -f FILE [--bus-kwargs K=V ...]`, python-can's
+    default port left out; `-f` before `--bus-kwargs`, whose values would otherwise swallow it."""
+    argv = ["python", "-m", "can.logger", "-i", config.interface]
+    if config.channel is not None:
+        argv += ["-c", str(config.channel)]
+    if config.bitrate is not None:
+        argv += ["-b", str(config.bitrate)]
+    argv += ["-f", str(file)]
+    kwargs = {k: v for k, v in config.kwargs.items()
+              if not (config.interface == UDP_INTERFACE and k == "port" and v == UDP_DEFAULT_PORT)}
+    if kwargs:
+        argv += ["--bus-kwargs", *(f"{k}={v}" for k, v in kwargs.items())]
+    return shlex.join(argv)
 
 
 def ipv6_multicast_usable() -> bool:

@@ -74,6 +74,17 @@ def encode_row(codec: FrameCodec, row: int, values: Sequence[float]) -> list[can
     return [codec.encode(message, values) for message, values in signals.items()]
 
 
+class _RowValues:
+    """values[n]: row n of the drive matrix as Python floats, made when it is encoded (a list of lists of the whole
+    run would cost about 200 bytes a row)."""
+
+    def __init__(self, drive: np.ndarray) -> None:
+        self.drive = drive
+
+    def __getitem__(self, row: int) -> list[float]:
+        return self.drive[row].tolist()
+
+
 @dataclass
 class ReplayStats:
     mode: str
@@ -110,7 +121,7 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
                  abort_after: int = DEFAULT_ABORT_AFTER, progress: Progress | None = None) -> ReplayStats:
     rows = len(drive)
     book = session.book = RowBook(rows)
-    values = drive.tolist()
+    values = _RowValues(drive)
     codec = session.codec
     perf, perf_ns = time.perf_counter, time.perf_counter_ns
     consecutive = 0
@@ -168,7 +179,7 @@ def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: fl
                  hooks: RowHooks | None = None) -> ReplayStats:
     rows = len(drive)
     book = session.book = RowBook(rows)
-    values = drive.tolist()
+    values = _RowValues(drive)
     codec = session.codec
     perf, perf_ns = time.perf_counter, time.perf_counter_ns
     interval = sample_period_s / speed

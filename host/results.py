@@ -29,6 +29,17 @@ def gap_count(answered: np.ndarray) -> int:
     return int(np.count_nonzero(starts))
 
 
+def clamped_problem(faults_seen: list[str]) -> str | None:
+    """The sentence for a target that clamped temperatures it could not carry (Status fault bits SATURATED,
+    NONFINITE), or None; a run that did is not clean (`bench analyze` says the same of its log)."""
+    bits = [bit for bit in ("SATURATED", "NONFINITE") if bit in faults_seen]
+    if not bits:
+        return None
+    what = "left the DBC range -50..600 °C" + (" or was not finite" if "NONFINITE" in bits else "")
+    return (f"the target clamped temperatures ({' and '.join(bits)}): the model's estimate {what}, so the CAN "
+            "values there are not the model's")
+
+
 @dataclass
 class HostResult:
     mode: str
@@ -77,6 +88,9 @@ class HostResult:
             out.append(f"the run was aborted: {self.aborted}")
         if self.rows_sent < self.rows:
             out.append(f"only {self.rows_sent} of {self.rows} rows were sent")
+        clamped = clamped_problem(self.target_faults_seen)
+        if clamped:
+            out.append(clamped)
         realtime_faults = self.faults is not None and self.faults.get("mode") == "realtime"
         if self.missing and not realtime_faults:  # in real time a faulted row stays unanswered: see fault_problems
             out.append(f"{self.missing} of {self.rows_sent} rows got no reply ({self.sequence_gaps} gaps in the "
@@ -111,11 +125,11 @@ def build_result(session: HostSession, stats: ReplayStats, *, rows: int, speed: 
     rtt = (book.replied_ns[:sent] - book.sent_ns[:sent])[answered]
     mon = session.monitor
     timing = session.timing
-    measured = [v for _, v in timing["measured_us"]]
-    cycles = [v for _, v in timing["cycles"]]
-    exec_us = [v for _, v in timing["exec_us"]]
-    load = [v for _, v in timing["cpu_load"]]
-    m4_cycles = [v for _, v in timing["m4_cycles"]]
+    measured = timing["measured_us"].values()
+    cycles = timing["cycles"].values()
+    exec_us = timing["exec_us"].values()
+    load = timing["cpu_load"].values()
+    m4_cycles = timing["m4_cycles"].values()
     return HostResult(
         mode=stats.mode, speed=speed, rows=rows, rows_sent=sent, replies=int(np.count_nonzero(answered)),
         missing=int(sent - np.count_nonzero(answered)), late_replies=session.late_replies,
@@ -129,9 +143,10 @@ def build_result(session: HostSession, stats: ReplayStats, *, rows: int, speed: 
         if stats.wall_time_s > 0 else 0.0,
         round_trip_us=percentiles(rtt, 1e-3),
         send_jitter_us=percentiles(stats.send_jitter_s, 1e6) if stats.send_jitter_s is not None else None,
-        step_time_us=percentiles(measured), est_cycles=int(max(cycles)) if cycles else None,
-        est_exec_us=float(max(exec_us)) if exec_us else None, cpu_load_percent=float(max(load)) if load else None,
-        m4_cycles=percentiles(m4_cycles) if m4_cycles else None, engine="firmware" if m4_cycles else "python",
+        step_time_us=percentiles(measured), est_cycles=int(cycles.max()) if cycles.size else None,
+        est_exec_us=float(exec_us.max()) if exec_us.size else None,
+        cpu_load_percent=float(load.max()) if load.size else None,
+        m4_cycles=percentiles(m4_cycles) if m4_cycles.size else None, engine="firmware" if m4_cycles.size else "python",
         log_path=log_path, aborted=stats.aborted, log_frames=log_frames, faults=faults,
         arrays={"temps": book.temps[:sent], "answered": answered, "round_trip_ns": book.replied_ns[:sent]
                 - book.sent_ns[:sent], **({"send_jitter_s": stats.send_jitter_s}

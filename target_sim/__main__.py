@@ -8,8 +8,8 @@
 Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1) and, with `--engine firmware`, the
 model's firmware ELF (`bench firmware build`): the whole node (bench/firmware/node.c and the model) runs in the
 emulated Cortex-M4F and this process only moves frames between the bus and its mailbox (`target_sim.engines`). An
-ELF for another core, or of another model than the artifact's (its `fw_model_id`), is refused in one sentence, exit 1 (`--firmware` implies the
-firmware engine; `--engine firmware` needs it). Then it opens the bus (`auto`:
+ELF for another core, or of another model than the artifact's (its `fw_model_id`), is refused in one sentence,
+exit 1 (`--firmware` implies the firmware engine; `--engine firmware` needs it). Then it opens the bus (`auto`:
 socketcan vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms)
 and serves until SIGTERM, SIGINT or SIGHUP, then shuts the bus down and exits 0. `--parent-pid PID` (what `bench`
 passes to the targets it starts) ties it to that process, its parent: it stops the same way when PID dies (Linux:

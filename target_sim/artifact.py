@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from target_sim.network import COOLANT_REFERENCE_C, network_matrices
+
 SCHEMA = "pmsm-thermal-bench.model-artifact"
 SCHEMA_VERSION = 2
 # Version 1 had loss maps only (no losses.model); it is read as "maps".
@@ -226,7 +228,72 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
         if not np.all(steps > 0) or not np.allclose(steps, steps[0], rtol=1e-6):
             raise ArtifactError(f"artifact field losses.{axis} is not an increasing, evenly spaced grid; "
                                 "rebuild it with 'bench identify'")
+    _check_stability(artifact)
     return artifact
+
+
+# The operating box over which a pv-lptn's forward-Euler step must be stable: speed over the DBC's MotorSpeed range
+# (rpm), coolant from -40 °C to 100 °C (a water-glycol circuit's working range, above the datasets' 20-60 °C). Each
+# conductance of the network is monotonic in one of the two, and the eigenvalues of C^-1 G grow with every
+# conductance, so the corners bound every point inside. Not up to the DBC's 150 °C: eq. 16's R_cy falls linearly
+# with the coolant and reaches zero at 40 - 1/alpha_cy (151 °C for Table 1, about 120 °C at the IPM example's
+# bound), where no Euler step is stable; a run that drives a model there saturates and is not clean.
+PV_SPEED_CORNERS_RPM = (-1000.0, 15000.0)
+PV_COOLANT_CORNERS_C = (-40.0, 100.0)
+
+
+def _check_stability(artifact: ModelArtifact) -> None:
+    """Refuse a model whose step grows without bound (ArtifactError naming the pole).
+
+    LTI LPTN and Hammerstein: the linear block's transition matrix (A; for the delta realization I + Δt·A) must have
+    every pole inside the unit circle in float64, the model the artifact describes. The float32 rounding of a stable
+    block may still be unstable (the `original` realization at Δt 0.5 s, the paper's Fig. 6): that loads, so the
+    bench can show it, and any run of it that saturates is not clean. PV LPTN (no A): the forward-Euler step
+    I + Δt·A(speed, coolant) at the corners of PV_SPEED_CORNERS_RPM x PV_COOLANT_CORNERS_C, from the float32
+    parameters the target runs."""
+    if artifact.kind == "pv-lptn":
+        _check_pv_stability(artifact)
+        return
+    a = artifact.array("linear_block", "A", dtype=np.float64)
+    transition = np.eye(len(a)) + artifact.dt * a if artifact.realization == "delta" else a
+    poles = np.linalg.eigvals(transition)
+    worst = poles[int(np.argmax(np.abs(poles)))]
+    if not abs(worst) < 1.0:
+        step = " (the delta realization's step I + Δt·A)" if artifact.realization == "delta" else ""
+        raise ArtifactError(f"artifact linear_block.A{step} is unstable: pole z = {_pole(worst)} (|z| = "
+                            f"{abs(worst):.6g} ≥ 1), so every model step multiplies that mode by at least that "
+                            "much and the estimate grows without bound; rebuild it with 'bench identify'")
+
+
+def _check_pv_stability(artifact: ModelArtifact) -> None:
+    p = {name: float(artifact.array("lptn", "parameters", name)) for name in LPTN_PARAMETERS}
+    speed_max = float(artifact.array("lptn", "speed_max_rpm"))
+    for speed in PV_SPEED_CORNERS_RPM:
+        for coolant in PV_COOLANT_CORNERS_C:
+            ratio = speed / speed_max
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                r_tm, r_wm, r_ma = (p[f"R_{k}0"] * np.exp(-ratio / p[f"b_{k}"]) + p[f"a_{k}"]
+                                    for k in ("tm", "wm", "ma"))
+                r_cy = p["R_cy0"] * (1.0 + p["alpha_cy"] * (coolant - COOLANT_REFERENCE_C))
+                a, _ = network_matrices(p, r_tm, r_wm, r_ma, r_cy, np.float64)
+                transition = np.eye(4) + artifact.dt * a
+            poles = np.linalg.eigvals(transition) if np.all(np.isfinite(transition)) else np.array([np.inf])
+            worst = poles[int(np.argmax(np.abs(poles)))]
+            if not abs(worst) < 1.0:
+                raise ArtifactError(f"artifact pv-lptn: the forward-Euler step of {artifact.dt:g} s is unstable at "
+                                    f"speed {speed:g} rpm and coolant {coolant:g} °C (pole z = {_pole(worst)}, "
+                                    f"|z| = {abs(worst):.6g} ≥ 1), so the estimate grows without bound there; "
+                                    "rebuild it with 'bench identify' (a shorter Δt or another kind)")
+
+
+def _pole(z: complex) -> str:
+    """A pole for a message: 1.0005, or 0.99+0.05j."""
+    z = complex(z)
+    if not np.isfinite(z.real) or not np.isfinite(z.imag):
+        return "inf"
+    if abs(z.imag) <= 1e-12 * max(1.0, abs(z.real)):
+        return f"{z.real:.6g}"
+    return f"{z.real:.6g}{z.imag:+.6g}j"
 
 
 def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:

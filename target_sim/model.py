@@ -29,10 +29,10 @@ import numpy as np
 
 from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
 from target_sim.fmath import exp_f32, matvec
+from target_sim.network import COOLANT_REFERENCE_C, network_matrices
 
 F32 = np.float32
 ONE = F32(1.0)
-COOLANT_REFERENCE_C = 40.0   # the coolant temperature R_cy0 is given at (eq. 16)
 
 
 class LossTables:
@@ -215,29 +215,13 @@ class Float32Estimator:
         ], dtype=f)
 
     def pv_network(self, speed, coolant) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous A (4x4) and B (4x6) of the parameter-varying LPTN, built in float32 (C: pv_network).
-
-        g[i, j] is the conductance between nodes i and j of (yoke, winding, tooth, magnet, coolant, ambient);
-        A[i, j] = g[i, j]/C_i off the diagonal, A[i, i] = -(row sum of g[i])/C_i with the row summed left to
-        right over all six columns, B = [diag(1/C) | g[:, 4:]/C_i]."""
+        """Continuous A (4x4) and B (4x6) of the parameter-varying LPTN at this speed and coolant temperature, built
+        in float32 (C: pv_network; the construction: `target_sim.network.network_matrices`)."""
         p, f, one = self.p, self.f, self.one
         n_ratio = f(speed) / self.speed_max
         r_tm, r_wm, r_ma = self.conv_r0 * self._convection(n_ratio) + self.conv_a     # eq. 15
         r_cy = p["R_cy0"] * (one + p["alpha_cy"] * (f(coolant) - f(COOLANT_REFERENCE_C)))  # eq. 16
-        g = np.zeros((4, 6), dtype=f)
-        for i, j, res in ((0, 1, p["R_yw"]), (0, 2, p["R_yt"]), (1, 2, p["R_wt"]), (1, 3, r_wm), (2, 3, r_tm)):
-            g[i, j] = g[j, i] = one / res
-        g[3, 5], g[0, 4] = one / r_ma, one / r_cy
-        inv_c = one / np.array([p["C_y"], p["C_w"], p["C_t"], p["C_m"]], dtype=f)
-        a = g[:, :4] * inv_c[:, None]
-        row_sum = g[:, 0]
-        for j in range(1, 6):
-            row_sum = row_sum + g[:, j]
-        a[np.diag_indices(4)] = -row_sum * inv_c
-        b = np.zeros((4, 6), dtype=f)
-        b[np.diag_indices(4)] = inv_c
-        b[:, 4:] = g[:, 4:] * inv_c[:, None]
-        return a, b
+        return network_matrices(p, r_tm, r_wm, r_ma, r_cy, f)
 
     def step(self, torque, speed, coolant, ambient, i_d=0.0, i_q=0.0) -> np.ndarray:
         """One model step with the interval-mean inputs (the d/q currents only for an electrical loss model);

@@ -6,8 +6,8 @@ temperatures as decoded from the ResetTemps frames, so CAN quantization is the s
   quantization of the temperature signals, ±0.005 °C);
 * offline float64: the interval means in float64 through the artifact's float64 coefficients: the numba kernel
   `bench.thermal.estimator.run_batch` for the LTI LPTN and the Hammerstein model with loss maps, the float64 twin of
-  the target's estimator for the parameter-varying LPTN (which has no batch kernel) and for a model with an
-  electrical loss model.
+  the target's estimator for the parameter-varying LPTN (which has no batch kernel), for a model with an
+  electrical loss model and for the delta realization (x <- x + Δ·(A x + B ũ) about a reference temperature).
 A model with an electrical loss model needs the d/q currents: the references then run on the six values of each
 row, the currents decoded from the logged DriveCurrents frames (a log without them cannot be compared with such a
 model); a loss-map model uses the first four (it ignores DriveCurrents).
@@ -131,10 +131,14 @@ def float64_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np
     means = interval_means(drive, artifact.data_sample_period, artifact.dt)
     if len(means) == 0:
         return np.zeros((0, 4))
-    if artifact.kind == "pv-lptn" or artifact.loss_model != "maps":   # no batch kernel: the estimator in float64
+    # no batch kernel for these (the kernel steps x <- A x + B u): the target's estimator in float64
+    if artifact.kind == "pv-lptn" or artifact.loss_model != "maps" or artifact.realization == "delta":
         model = Float32Estimator(artifact, dtype=np.float64)
         model.reset(np.asarray(initial, dtype=np.float64))
-        return np.array([model.step(*row) for row in means], dtype=np.float64).reshape(-1, 4)
+        out = np.empty((len(means), 4))
+        for k, row in enumerate(means):
+            out[k] = model.step(*row)
+        return out
 
     def f64(*keys):
         return artifact.array(*keys, dtype=np.float64)
@@ -184,31 +188,42 @@ def _crc15(bits: np.ndarray) -> np.ndarray:
     """CAN CRC-15 (polynomial 0x4599) of each row of a (frames, n) bit matrix."""
     crc = np.zeros(bits.shape[0], dtype=np.int64)
     for i in range(bits.shape[1]):
-        feedback = bits[:, i] ^ ((crc >> 14) & 1)
+        feedback = bits[:, i].astype(np.int64) ^ ((crc >> 14) & 1)
         crc = (crc << 1) & 0x7FFF
         crc ^= np.where(feedback == 1, 0x4599, 0)
     return crc
 
 
+FRAME_BITS_CHUNK = 16384   # frames per block: the bit matrices of a block take about 1.6 MB, whatever the log's size
+
+
 def frame_bits(ids: np.ndarray, data: np.ndarray) -> np.ndarray:
-    """Exact bits on the wire of classic 11-bit data frames with 8 data bytes, stuff bits and 3-bit IFS included."""
+    """Exact bits on the wire of classic 11-bit data frames with 8 data bytes, stuff bits and 3-bit IFS included
+    (computed in blocks of FRAME_BITS_CHUNK frames, one byte per bit)."""
     n = len(ids)
-    if n == 0:
-        return np.zeros(0, dtype=np.int64)
-    id_bits = (ids[:, None] >> np.arange(10, -1, -1)) & 1
-    dlc_bits = np.tile(np.array([1, 0, 0, 0]), (n, 1))      # DLC = 8
+    out = np.zeros(n, dtype=np.int64)
+    for start in range(0, n, FRAME_BITS_CHUNK):
+        stop = start + FRAME_BITS_CHUNK
+        out[start:stop] = _frame_bits(np.asarray(ids[start:stop], dtype=np.int64), data[start:stop])
+    return out
+
+
+def _frame_bits(ids: np.ndarray, data: np.ndarray) -> np.ndarray:
+    n = len(ids)
+    id_bits = ((ids[:, None] >> np.arange(10, -1, -1)) & 1).astype(np.uint8)
+    dlc_bits = np.tile(np.array([1, 0, 0, 0], dtype=np.uint8), (n, 1))      # DLC = 8
     data_bits = np.unpackbits(data.astype(np.uint8), axis=1)  # MSB first per byte, bytes in order
-    head = np.column_stack([np.zeros(n, dtype=np.int64), id_bits, np.zeros((n, 3), dtype=np.int64), dlc_bits,
-                            data_bits]).astype(np.int64)  # SOF, ID, RTR, IDE, r0, DLC, data
+    head = np.column_stack([np.zeros(n, dtype=np.uint8), id_bits, np.zeros((n, 3), dtype=np.uint8), dlc_bits,
+                            data_bits])  # SOF, ID, RTR, IDE, r0, DLC, data
     crc = _crc15(head)
-    crc_bits = (crc[:, None] >> np.arange(14, -1, -1)) & 1
+    crc_bits = ((crc[:, None] >> np.arange(14, -1, -1)) & 1).astype(np.uint8)
     stuffed = np.column_stack([head, crc_bits])              # the bit-stuffed region: SOF .. CRC
     # count stuff bits: after 5 equal bits a complementary one is inserted (and counts toward the next run)
     stuff = np.zeros(n, dtype=np.int64)
-    last = stuffed[:, 0].copy()
+    last = stuffed[:, 0].astype(np.int64)
     run = np.ones(n, dtype=np.int64)
     for i in range(1, stuffed.shape[1]):
-        bit = stuffed[:, i]
+        bit = stuffed[:, i].astype(np.int64)
         same = bit == last
         run = np.where(same, run + 1, 1)
         last = bit
@@ -314,7 +329,11 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     else:
         final_ref, agreement = restarted_agreement(artifact, record, clean)
     refs.can_reference = final_ref[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
-    f32_err = refs.f32 - refs.f64
+    with np.errstate(invalid="ignore", over="ignore"):
+        f32_err = refs.f32 - refs.f64
+    nulls: dict[str, str] = {}      # metric -> why it is null (JSON and the report hold no inf or NaN)
+    non_finite = {"float32": int(np.count_nonzero(~np.isfinite(refs.f32))),
+                  "float64": int(np.count_nonzero(~np.isfinite(refs.f64)))}
     rmse = {}
     rmse_vs = {}
     for i, name in enumerate(TEMPERATURES):
@@ -357,7 +376,10 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         "max_abs_can_minus_clean_C": _deviation(record, clean),
         "segments": len(record.segments),
         "saturated_values": saturated,
-        "max_abs_float32_minus_float64_C": {name: _max_abs(f32_err[:, i]) for i, name in enumerate(TEMPERATURES)},
+        "max_abs_float32_minus_float64_C": {
+            name: _max_abs_finite(f32_err[:, i], f"max_abs_float32_minus_float64_C.{name}", nulls)
+            for i, name in enumerate(TEMPERATURES)},
+        "non_finite_values": non_finite,
         "rmse_C": rmse,
         "rmse_reference": rmse_vs,
         "model_rmse_vs_measured_C": model_rmse,
@@ -391,14 +413,51 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
                       "losses": int(np.count_nonzero(status_gaps > HEARTBEAT_TIMEOUT_S))},
         "target_rx_errors": record.rx_errors,
         "invalid_frames_in_log": record.invalid,
+        # the target's frames the host's checks reject, by message: none of their values is used
+        "rejected_target_frames": record.rejected,
+        # frames that pass those checks but are not of this session (a replayed or forged frame), by reason
+        "foreign_frames": record.foreign,
+        "contested_rows": int(np.count_nonzero(record.contested)),
         "target_faults_seen": _fault_names(record.faults_seen),
         "frames_in_log": record.frames,
+        "log_complete": record.complete,
+        "log_stopped": record.stopped,
+        "log_unclosed": record.unclosed,
+        "last_row": record.rows - 1,
         "log": str(record.path),
     }
     metrics["faults"] = fault_metrics(record)
     metrics["bus_load"] = bus_load(record, record.frame_data, artifact.data_sample_period, bitrate)
     metrics["notes"] = notes(metrics)
+    metrics = finite_metrics(metrics, nulls)
     return metrics, refs
+
+
+def _max_abs_finite(a: np.ndarray, where: str, nulls: dict[str, str]) -> float | None:
+    """max |a|, or None with the reason in `nulls` when some of `a` is not finite (a model that overflowed)."""
+    bad = int(np.count_nonzero(~np.isfinite(a)))
+    if bad:
+        nulls[where] = f"{bad} of its {a.size} values are not finite (the model overflowed)"
+        return None
+    return _max_abs(a)
+
+
+def finite_metrics(value, nulls: dict[str, str], where: str = ""):
+    """`value` with every float that is not finite replaced by None, the reason recorded in `nulls` under its
+    dotted path; at the top level the result carries "null_values": nulls. JSON cannot hold inf or NaN, and a
+    report must not print them."""
+    if isinstance(value, float | np.floating) and not np.isfinite(value):
+        nulls.setdefault(where, f"{float(value)!r}: not a finite number (the values overflowed)")
+        return None
+    if isinstance(value, dict):
+        out = {k: finite_metrics(v, nulls, f"{where}.{k}" if where else str(k)) for k, v in value.items()
+               if not (where == "" and k == "null_values")}
+        if where == "":
+            out["null_values"] = dict(nulls)
+        return out
+    if isinstance(value, list | tuple):
+        return [finite_metrics(v, nulls, f"{where}[{i}]") for i, v in enumerate(value)]
+    return value
 
 
 def _deviation(record: BusRecord, clean: np.ndarray) -> dict[str, float | None]:
@@ -483,9 +542,9 @@ def notes(metrics: dict) -> list[str]:
     if worst > DIVERGENCE_NOTE_C:
         out.append(f"the float32 model departs from float64 by up to {worst:.4g} °C: the "
                    f"{metrics['model']['realization']} realization does not survive single precision")
-    if metrics["saturated_values"]:
-        out.append(f"{metrics['saturated_values']} float32 values lay outside the DBC range (-50..600 °C) and "
-                   "went out clamped (SATURATED); they are left out of the CAN - float32 comparison")
+    elif (metrics.get("non_finite_values") or {}).get("float32"):
+        out.append(f"the float32 model overflows: the {metrics['model']['realization']} realization does not "
+                   "survive single precision")
     return out
 
 
@@ -516,4 +575,45 @@ def problems(metrics: dict) -> list[str]:
     bad = {k: v for k, v in metrics["target_rx_errors"].items() if v}
     if bad and not injected:
         out.append(f"the target rejected or could not sequence frames: {bad}")
+    return out + integrity_problems(metrics, injected=bool(injected))
+
+
+def integrity_problems(metrics: dict, *, injected: bool = False) -> list[str]:
+    """What makes a log's numbers untrustworthy whatever the faults: an incomplete log, values the target could not
+    carry (clamped, not finite), frames that are not of this session, and (without injected faults, which explain
+    them) frames of the target that the host's checks reject."""
+    from host.results import clamped_problem
+
+    out = []
+    if not metrics.get("log_complete", True):
+        why = ("its .blf was never closed by its writer" if metrics.get("log_unclosed") else
+               "it ends without the host's Control STOP")
+        out.append(f"the log is incomplete ({why}: a run that was killed, or a partial file); its last row is "
+                   f"{metrics.get('last_row')} and what came after it is missing")
+    saturated, non_finite = metrics.get("saturated_values", 0), metrics.get("non_finite_values") or {}
+    if saturated:
+        out.append(f"{saturated} float32 values of the model lay outside the DBC range (-50..600 °C) or were not "
+                   "finite, so the target clamped them (SATURATED): the CAN temperatures there are not the model's")
+    if non_finite.get("float32") or non_finite.get("float64"):
+        out.append(f"the model's estimate is not finite at {non_finite.get('float32', 0)} float32 and "
+                   f"{non_finite.get('float64', 0)} float64 values (it overflowed): those figures are null")
+    clamped = clamped_problem(metrics.get("target_faults_seen") or [])
+    if clamped:
+        out.append(clamped)
+    foreign = metrics.get("foreign_frames") or {}
+    if foreign:
+        out.append(f"{sum(foreign.values())} frames in the log pass the host's checks but are not of this session "
+                   f"({_counts(foreign)}); none of them is used")
+    if metrics.get("contested_rows"):
+        out.append(f"{metrics['contested_rows']} rows got a second reply with other temperatures (a replayed or "
+                   "forged frame): their temperatures are not reported")
+    rejected = metrics.get("rejected_target_frames") or {}
+    if rejected and not injected:
+        out.append(f"the host's checks reject {sum(rejected.values())} frames of the target in the log "
+                   f"({_counts(metrics.get('invalid_frames_in_log') or {})}; {_counts(rejected)}): none of their "
+                   "values is used")
     return out
+
+
+def _counts(counts: dict[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in counts.items())

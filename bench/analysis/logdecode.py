@@ -21,22 +21,41 @@ row is that of the last segment that answered it (`temps`, `replied_s`, `owner`)
 Marks: BenchEvent frames (injected faults, target lost, re-initialization, retransmission) are collected in
 `marks`; a TARGET-LOST mark and the REINIT mark after it make a `gap` (rows restart..lost were answered again by
 the new segment).
+
+The host's checks: every frame the target sends goes through the host's own `dbc.FrameValidator("HOST")` in log
+order (id, length, CRC, range, and the alive counter per id, forgotten at each TARGET-LOST mark as the host does),
+so a frame the host rejected is never used, whatever it carries; its kind is counted in `invalid` and its message
+in `rejected`. Frames that pass those checks and still do not belong to this session are *foreign*, counted by
+reason in `foreign` and never used: a Status of another model id than the session's first, a reply or timing
+frame for a row the host had not sent in its segment, and a second reply for a row that carries other
+temperatures than the first. So is a reply frame that repeats the alive counter of the one before it for the same
+row with other temperatures (rejected by the counter check, but one of the two is not the target's: a replayed
+frame that took the genuine one's counter). Such a row is *contested*: neither reply is reported. The host's own
+frames (DriveInputs, DriveTemps, ...) are checked for id, length, CRC and range.
+
+Complete: a run's log ends with the host's Control STOP; one without it after the last session's START (a killed
+run, a partial file) is `complete = False`, and so is a .blf whose header was never finalized by its writer.
+
+Memory: frames and rows are kept in columns (numpy arrays that grow by doubling, `array` for per-frame fields), not
+as objects per frame or per row: about 20 bytes a frame and 270 a row in the record.
 """
 
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from dbc.codec import decode_any
+from dbc.codec import FrameValidator, decode_any
 from dbc.contract import (
     CURRENT_MESSAGE,
     CURRENT_SIGNALS,
     DRIVE_SIGNALS,
     FIRMWARE_TIMING_MESSAGE,
+    REPLY_BIT,
     REPLY_COMPLETE,
     REPLY_SIGNALS,
     RESET_SIGNALS,
@@ -48,11 +67,16 @@ from dbc.contract import (
     TargetState,
     join_temperatures,
     nearest_row,
-    place_temperatures,
     rx_error_counts,
     target_info,
 )
+from dbc.database import contract, frame_id, target_frame_ids
 from host.canlog import LogError, read_log
+
+# why a frame that passed the host's checks is not used (BusRecord.foreign)
+FOREIGN_MODEL = "Status of another model id"
+FOREIGN_ROW = "reply or timing for a row not sent"
+FOREIGN_CONTESTED = "second reply with other temperatures"
 
 
 @dataclass
@@ -66,6 +90,7 @@ class Segment:
     reply_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     reply_temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     reply_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    contested_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 @dataclass
@@ -83,25 +108,30 @@ class Mark:
 class BusRecord:
     path: Path
     frames: int = 0
-    invalid: dict[str, int] = field(default_factory=dict)
+    invalid: dict[str, int] = field(default_factory=dict)      # frames that failed the checks, by kind
+    rejected: dict[str, int] = field(default_factory=dict)     # the target's frames the host's checks reject
+    foreign: dict[str, int] = field(default_factory=dict)      # frames that passed them but are not of this session
     initial: np.ndarray | None = None            # [yoke, winding, tooth, magnet] of the session's first RESET
     drive: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))   # (rows, 4), or 6 with the d/q currents
     sent_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     replied_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     owner: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # segment of the final reply
+    contested: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # rows whose replies disagree
     timing: dict[str, np.ndarray] = field(default_factory=dict)   # row, measured_us, overruns, cycles, ...
     status_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    states: list[str] = field(default_factory=list)
+    final_state: str | None = None
     faults_seen: int = 0
     model_id: int | None = None
     rx_errors: dict[str, int] = field(default_factory=dict)
     target_info: dict[str, object] = field(default_factory=dict)
     frame_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    frame_dlc: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    frame_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    frame_dlc: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint8))
+    frame_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint32))
     frame_data: np.ndarray = field(default_factory=lambda: np.zeros((0, 8), dtype=np.uint8))
     sessions: int = 0
+    stopped: bool = False         # the host's Control STOP came after the last START
+    unclosed: bool = False        # a .blf whose writer never finalized its header (the process was killed)
     segments: list[Segment] = field(default_factory=list)
     marks: list[Mark] = field(default_factory=list)
 
@@ -112,6 +142,11 @@ class BusRecord:
     @property
     def answered(self) -> np.ndarray:
         return np.isfinite(self.temps).all(axis=1)
+
+    @property
+    def complete(self) -> bool:
+        """The log holds a whole run: its host sent STOP, and its writer closed the file."""
+        return self.stopped and not self.unclosed
 
     @property
     def gaps(self) -> list[dict]:
@@ -131,40 +166,60 @@ class BusRecord:
         return out
 
 
-@dataclass
-class _Reply:
-    """What came back for one row so far: temperatures in the state order, the reply bits, the last frame's time."""
+class _Grow:
+    """A numpy array that grows along its first axis by doubling; new entries hold `fill`."""
 
-    temps: list[float] = field(default_factory=lambda: [math.nan] * STATE_SIZE)
-    got: int = 0
-    t: float = math.nan
+    def __init__(self, shape: tuple[int, ...] = (), dtype=np.float64, fill=np.nan, capacity: int = 1024):
+        self.fill = fill
+        self.data = np.full((capacity, *shape), fill, dtype=dtype)
 
-    @property
-    def complete(self) -> bool:
-        return self.got == REPLY_COMPLETE
+    def ensure(self, index: int) -> np.ndarray:
+        """The array, long enough to hold `index`."""
+        if index >= len(self.data):
+            grown = np.full((max(2 * len(self.data), index + 1), *self.data.shape[1:]), self.fill,
+                            dtype=self.data.dtype)
+            grown[: len(self.data)] = self.data
+            self.data = grown
+        return self.data
 
 
 class _SegmentBuilder:
+    """One segment's replies, by row - start_row, in columns."""
+
     def __init__(self, start_row: int, initial, recovery: bool, state=None):
         self.start_row = start_row
         self.initial = initial
         self.state = state
         self.recovery = recovery
         self.host_row = start_row - 1          # the last row sent in this segment
-        self.replies: dict[int, _Reply] = {}
-        self.pair_s: dict[int, float] = {}     # row -> send time of the pair that was answered
+        self.temps = _Grow((STATE_SIZE,))
+        self.got = _Grow((), np.uint8, 0)
+        self.t = _Grow()
+        self.pair_s = _Grow()                  # send time of the pair that was answered (else the last one sent)
+        self.contested = _Grow((), bool, False)
+        self.size = 0                          # entries in use
 
     @property
     def reference_row(self) -> int:
         """The row a Step of this segment is read near: the last row sent (or its first row)."""
         return max(self.host_row, self.start_row)
 
+    def index(self, row: int) -> int:
+        i = row - self.start_row
+        for column in (self.temps, self.got, self.t, self.pair_s, self.contested):
+            column.ensure(i)
+        self.size = max(self.size, i + 1)
+        return i
+
     def build(self) -> Segment:
-        rows = sorted(r for r, reply in self.replies.items() if reply.complete)
-        temps = np.array([self.replies[r].temps for r in rows], dtype=float).reshape(-1, STATE_SIZE)
+        n = self.size
+        got, contested = self.got.data[:n], self.contested.data[:n]
+        complete = np.flatnonzero((got == REPLY_COMPLETE) & ~contested)
         return Segment(self.start_row, self.initial, self.recovery, self.state,
-                       reply_rows=np.array(rows, dtype=np.int64), reply_temps=temps,
-                       reply_s=np.array([self.replies[r].t for r in rows], dtype=float))
+                       reply_rows=(complete + self.start_row).astype(np.int64),
+                       reply_temps=self.temps.data[complete].astype(float),
+                       reply_s=self.t.data[complete].copy(),
+                       contested_rows=(np.flatnonzero(contested) + self.start_row).astype(np.int64))
 
 
 _TIMING_SIGNALS = {"Timing1": ("row_t1", (("measured_us", "StepTimeMeasured"), ("overruns", "Overruns"))),
@@ -172,6 +227,9 @@ _TIMING_SIGNALS = {"Timing1": ("row_t1", (("measured_us", "StepTimeMeasured"), (
                    "Timing3": ("row_t3", (("cpu_load", "CpuLoad"),)),
                    # the firmware engine's measured Cortex-M4F cycles (absent with the Python engine)
                    FIRMWARE_TIMING_MESSAGE: ("row_t4", (("m4_cycles", "M4Cycles"), ("m4_exec_us", "M4ExecTime")))}
+# BLF file header (python-can's FILE_HEADER_STRUCT): "LOGG", then at byte 16 the file size its writer records
+# when it closes the file (until then: the header's own size, 144)
+_BLF_SIZE_OFFSET = 16
 
 
 class _LogDecoder:
@@ -180,14 +238,21 @@ class _LogDecoder:
     def __init__(self, path: Path) -> None:
         self.record = BusRecord(path)
         self.invalid: dict[str, int] = {}
-        self.drive: dict[int, list[float]] = {}
+        self.rejected: dict[str, int] = {}
+        self.foreign: dict[str, int] = {}
+        self.validator = FrameValidator("HOST")      # the host's checks of what the target sends
+        self.last_counter: dict[int, int] = {}      # per id, the counter the validator compares the next one with
+        self.last_reply_row: dict[int, int] = {}    # per reply id, the row of the last reply frame used
+        self.reply_ids = {name: frame_id(name) for name in REPLY_SIGNALS}
+        self.target_ids = target_frame_ids()
+        self.by_id = contract().by_id
         self.segments: list[_SegmentBuilder] = []
         self.marks: list[Mark] = []
         self.base_step = 0                 # Step of the fresh session's START: row 0
         self.pending_inputs: tuple[dict, float] | None = None   # a DriveInputs waiting for its DriveTemps
         self.pending_pair: tuple[int, int, dict] | None = None   # (Step, row, DriveTemps) of the last pair: its
         # DriveCurrents comes next
-        self.currents: dict[int, list[float]] = {}         # row -> [i_d, i_q] of its DriveCurrents
+        self._new_rows()
         self.reset_frames: dict[str, dict] = {}
         self.restore_frames: dict[int, dict] = {}
         self.pending_initial: np.ndarray | None = None
@@ -196,11 +261,11 @@ class _LogDecoder:
         self.transitions = 0               # the target's transitions into RUNNING
         self.epoch_base = 0                # transitions before the fresh session
         self.last_state: int | None = None
-        self.timing: dict[str, list] = self._empty_timing()
-        self.status_s: list[float] = []
-        self.frame_s: list[float] = []
-        self.frame_dlc: list[int] = []
-        self.frame_ids: list[int] = []
+        self.timing: dict[str, array] = self._empty_timing()
+        self.status_s = array("d")
+        self.frame_s = array("d")
+        self.frame_dlc = array("B")
+        self.frame_ids = array("I")
         self.frame_bytes = bytearray()
         self.handlers = {"DriveInputs": self.drive_inputs, "DriveTemps": self.drive_temps,
                          CURRENT_MESSAGE: self.drive_currents,
@@ -211,9 +276,16 @@ class _LogDecoder:
                          "BenchEvent": self.bench_event, "Status": self.status, "RxErrors": self.rx_errors,
                          "TargetInfo": self.target_info}
 
+    def _new_rows(self) -> None:
+        """Forget the rows sent so far (a fresh session)."""
+        self.drive = _Grow((len(DRIVE_SIGNALS),))
+        self.currents = _Grow((len(CURRENT_SIGNALS),))      # row -> [i_d, i_q] of its DriveCurrents
+        self.rows = 0                                        # 1 + the last row with a pair
+
     @staticmethod
-    def _empty_timing() -> dict[str, list]:
-        return {key: [] for row_key, signals in _TIMING_SIGNALS.values() for key in (row_key, *(k for k, _ in signals))}
+    def _empty_timing() -> dict[str, array]:
+        return {key: array("d") for row_key, signals in _TIMING_SIGNALS.values()
+                for key in (row_key, *(k for k, _ in signals))}
 
     def _row(self, segment: _SegmentBuilder, step) -> int:
         return nearest_row(int(step) - self.base_step, segment.reference_row)
@@ -223,18 +295,36 @@ class _LogDecoder:
         index = self.transitions - self.epoch_base - 1
         return self.segments[index] if 0 <= index < len(self.segments) else None
 
+    def _count(self, counts: dict[str, int], key: str) -> None:
+        counts[key] = counts.get(key, 0) + 1
+
     # ------------------------------------------------------------------ frames
     def feed(self, msg) -> None:
         self.record.frames += 1
+        fid = msg.arbitration_id
         self.frame_s.append(msg.timestamp)
-        self.frame_dlc.append(msg.dlc)
-        self.frame_ids.append(msg.arbitration_id)
+        self.frame_dlc.append(min(msg.dlc, 255))
+        self.frame_ids.append(fid)
         self.frame_bytes += bytes(msg.data[:8]).ljust(8, b"\0")
+        from_target = fid in self.target_ids and not msg.is_extended_id
         try:
-            frame = decode_any(msg)
+            if from_target:
+                frame = self.validator.validate(msg)     # what the host accepted of the target's frames
+            else:
+                frame = decode_any(msg)                  # the host's own frames (and unknown ids)
         except FrameError as exc:
-            self.invalid[exc.kind] = self.invalid.get(exc.kind, 0) + 1
+            self._count(self.invalid, exc.kind)
+            if from_target:
+                name = self.by_id[fid].name
+                self._count(self.rejected, name)
+                if exc.kind == "counter":                # id, length, CRC and ranges passed
+                    counter, previous = msg.data[1] & 0x0F, self.last_counter.get(fid)
+                    self.last_counter[fid] = counter
+                    if counter == previous and name in REPLY_SIGNALS:
+                        self._contest(name, decode_any(msg).signals, self.last_reply_row.get(fid))
             return
+        if from_target:
+            self.last_counter[fid] = frame.counter
         handler = self.handlers.get(frame.name)
         if handler is not None:
             handler(frame.name, frame.signals, msg.timestamp)
@@ -254,13 +344,16 @@ class _LogDecoder:
         row = self._row(segment, s["Step"])
         if row < 0:
             return
-        self.drive[row] = [inputs["MotorTorque"], inputs["MotorSpeed"], s["CoolantTemp"], s["AmbientTemp"]]
-        self.currents.pop(row, None)        # a row sent again: its currents come again after this pair
+        drive = self.drive.ensure(row)
+        drive[row] = (inputs["MotorTorque"], inputs["MotorSpeed"], s["CoolantTemp"], s["AmbientTemp"])
+        self.currents.ensure(row)[row] = np.nan     # a row sent again: its currents come again after this pair
+        self.rows = max(self.rows, row + 1)
         self.pending_pair = (int(s["Step"]), row, s)
         segment.host_row = row
-        reply = segment.replies.get(row)
-        if reply is None or not reply.complete:
-            segment.pair_s[row] = inputs_t
+        if row >= segment.start_row:
+            i = segment.index(row)
+            if segment.got.data[i] != REPLY_COMPLETE:
+                segment.pair_s.data[i] = inputs_t
 
     def drive_currents(self, name: str, s: dict, t: float) -> None:
         """The d/q currents of the pair right before them (same Step): the row's last two values, as the target
@@ -269,24 +362,61 @@ class _LogDecoder:
         carry the same values and change nothing."""
         pair = self.pending_pair
         if pair is not None and pair[0] == int(s["Step"]):
-            self.currents[pair[1]] = [s["CurrentD"], s["CurrentQ"]]
+            self.currents.ensure(pair[1])[pair[1]] = (s["CurrentD"], s["CurrentQ"])
         else:
             self.pending_pair = None
 
-    def temperatures(self, name: str, s: dict, t: float) -> None:
+    def _reply_row(self, name: str, s: dict) -> tuple[_SegmentBuilder, int] | None:
+        """The target's segment and the row a reply or timing frame names; None (counted foreign) when the host had
+        not sent that row in the segment."""
         segment = self.target_segment()
         if segment is None:
+            return None
+        row = self._row(segment, s["Step"])
+        if not segment.start_row <= row <= segment.host_row:
+            self._count(self.foreign, FOREIGN_ROW)
+            return None
+        return segment, row
+
+    def _contest(self, name: str, s: dict, only_row: int | None = None) -> bool:
+        """Whether this reply frame carries other temperatures than the segment already has for its row (then the
+        row is contested and the frame counted foreign); with `only_row`, only for that row."""
+        segment = self.target_segment()
+        if segment is None:
+            return False
+        row = self._row(segment, s["Step"])
+        if only_row is not None and row != only_row:
+            return False
+        i = row - segment.start_row
+        if not 0 <= i < segment.size or not segment.got.data[i] & REPLY_BIT[name]:
+            return False
+        temps = segment.temps.data[i]
+        if all(temps[index] == s[signal] for signal, index in REPLY_SIGNALS[name]):
+            return False
+        segment.contested.data[i] = True
+        self._count(self.foreign, FOREIGN_CONTESTED)
+        return True
+
+    def temperatures(self, name: str, s: dict, t: float) -> None:
+        found = self._reply_row(name, s)
+        if found is None or self._contest(name, s):
             return
-        reply = segment.replies.setdefault(self._row(segment, s["Step"]), _Reply())
-        reply.got |= place_temperatures(name, s, reply.temps)
-        reply.t = t if math.isnan(reply.t) else max(reply.t, t)
+        segment, row = found
+        self.last_reply_row[self.reply_ids[name]] = row
+        i = segment.index(row)
+        temps = segment.temps.data[i]
+        for signal, index in REPLY_SIGNALS[name]:
+            temps[index] = s[signal]
+        segment.got.data[i] |= REPLY_BIT[name]
+        previous = segment.t.data[i]
+        segment.t.data[i] = t if math.isnan(previous) else max(previous, t)
 
     def timing_frame(self, name: str, s: dict, t: float) -> None:
-        segment = self.target_segment()
-        if segment is None:
+        found = self._reply_row(name, s)
+        if found is None:
             return
         row_key, signals = _TIMING_SIGNALS[name]
-        self.timing[row_key].append(self._row(segment, s["Step"]))
+        self.timing[row_key].append(found[1])
         for key, signal in signals:
             self.timing[key].append(s[signal])
 
@@ -311,10 +441,13 @@ class _LogDecoder:
             self.restore_frames = {}
         elif command == Command.START:
             self.start(int(s["Step"]))
+        elif command == Command.STOP:
+            self.record.stopped = True
 
     def start(self, step: int) -> None:
         """A START: a new segment after a REINIT mark, else a fresh session (the last session of a log wins)."""
         self.record.sessions += 1
+        self.record.stopped = False
         if self.reinit_announced and self.segments:
             start = self._row(self.segments[-1], step)
             self.segments.append(_SegmentBuilder(start, self.pending_initial, True, self.pending_state))
@@ -322,8 +455,7 @@ class _LogDecoder:
             self.base_step = step
             self.record.initial = self.pending_initial
             self.segments = [_SegmentBuilder(0, self.pending_initial, False)]
-            self.drive = {}
-            self.currents = {}
+            self._new_rows()
             self.marks = []
             self.timing = self._empty_timing()
             # the session's first transition into RUNNING starts segment 0 (one already RUNNING: its own)
@@ -339,16 +471,24 @@ class _LogDecoder:
                                None if kind == FaultKind.NONE else kind.name.lower(), int(s["FrameId"]) or None, t))
         if event == BenchEvent.REINIT:
             self.reinit_announced = True
+        elif event == BenchEvent.TARGET_LOST:
+            self.validator.reset_counters()      # so does the host: a restarted target starts its counters at 0
+            self.last_counter.clear()
 
     def status(self, name: str, s: dict, t: float) -> None:
+        model_id = int(s["ModelId"])
+        if self.record.model_id is None:
+            self.record.model_id = model_id      # the host checked the first heartbeat's model id
+        elif model_id != self.record.model_id:
+            self._count(self.foreign, FOREIGN_MODEL)
+            return
         self.status_s.append(t)
         state = int(s["State"])
         if state == TargetState.RUNNING and self.last_state != TargetState.RUNNING:
             self.transitions += 1
         self.last_state = state
-        self.record.states.append(TargetState(state).name)
+        self.record.final_state = TargetState(state).name
         self.record.faults_seen |= int(s["FaultBits"])
-        self.record.model_id = int(s["ModelId"])
 
     def rx_errors(self, name: str, s: dict, t: float) -> None:
         self.record.rx_errors = rx_error_counts(s)
@@ -364,23 +504,25 @@ class _LogDecoder:
             raise LogError(f"log {path} holds no frames")
         if record.sessions == 0:
             raise LogError(f"log {path} holds no session (no Control START); is it a log of this bench?")
-        rows = max(self.drive) + 1 if self.drive else 0
-        record.invalid = self.invalid
-        width = len(DRIVE_SIGNALS) + (len(CURRENT_SIGNALS) if self.currents else 0)
-        record.drive = np.full((rows, width), np.nan)
-        for row, values in self.drive.items():
-            record.drive[row, :len(values)] = values
-            if width > len(values) and row in self.currents:
-                record.drive[row, len(values):] = self.currents[row]
+        rows = self.rows
+        record.invalid, record.rejected, record.foreign = self.invalid, self.rejected, self.foreign
+        drive = self.drive.ensure(rows)[:rows]
+        currents = self.currents.ensure(rows)[:rows]
+        with_currents = bool(np.isfinite(currents).any())
+        record.drive = np.concatenate([drive, currents], axis=1) if with_currents else drive.copy()
+        self.drive = self.currents = None
         record.segments = [segment.build() for segment in self.segments]
         self._final_replies(rows)
-        record.timing = {k: np.array(v, dtype=float) for k, v in self.timing.items()}
-        record.status_s = np.array(self.status_s, dtype=float)
-        record.frame_s = np.array(self.frame_s, dtype=float)
-        record.frame_dlc = np.array(self.frame_dlc, dtype=np.int64)
-        record.frame_ids = np.array(self.frame_ids, dtype=np.int64)
-        record.frame_data = np.frombuffer(bytes(self.frame_bytes), dtype=np.uint8).reshape(-1, 8)
+        # the columns become arrays over the same memory (no copy: the decoder is done with them)
+        record.timing = {k: np.frombuffer(v, dtype=np.float64) for k, v in self.timing.items()}
+        record.status_s = np.frombuffer(self.status_s, dtype=np.float64)
+        record.frame_s = np.frombuffer(self.frame_s, dtype=np.float64)
+        record.frame_dlc = np.frombuffer(self.frame_dlc, dtype=np.uint8)
+        record.frame_ids = np.frombuffer(self.frame_ids, dtype=np.uint32)
+        record.frame_data = np.frombuffer(self.frame_bytes, dtype=np.uint8).reshape(-1, 8)
         record.marks = self.marks
+        record.unclosed = _blf_unclosed(path)
+        self.segments, self.handlers = [], {}     # the builders' columns go now (the handlers hold the decoder)
         return record
 
     def _final_replies(self, rows: int) -> None:
@@ -390,20 +532,39 @@ class _LogDecoder:
         record.replied_s = np.full(rows, np.nan)
         record.sent_s = np.full(rows, np.nan)
         record.owner = np.full(rows, -1, dtype=np.int64)
+        record.contested = np.zeros(rows, dtype=bool)
         for index, (builder, segment) in enumerate(zip(self.segments, record.segments, strict=True)):
             keep = segment.reply_rows < rows
             replied = segment.reply_rows[keep]
             record.temps[replied] = segment.reply_temps[keep]
             record.replied_s[replied] = segment.reply_s[keep]
             record.owner[replied] = index
-            for row in replied.tolist():
-                record.sent_s[row] = builder.pair_s.get(row, math.nan)
+            record.sent_s[replied] = builder.pair_s.data[replied - builder.start_row]
+            contested = segment.contested_rows[segment.contested_rows < rows]
+            record.contested[contested] = True
         unanswered = np.isnan(record.sent_s)
         if unanswered.any():  # rows never answered: when they were (last) sent
             for builder in self.segments:
-                for row, t in builder.pair_s.items():
-                    if row < rows and unanswered[row]:
-                        record.sent_s[row] = t
+                n = min(builder.size, max(rows - builder.start_row, 0))
+                at = np.arange(builder.start_row, builder.start_row + n)
+                sent = builder.pair_s.data[:n]
+                use = unanswered[at] & np.isfinite(sent)
+                record.sent_s[at[use]] = sent[use]
+
+
+def _blf_unclosed(path: Path) -> bool:
+    """A .blf whose header does not record the file's size: its writer never closed it (a killed process)."""
+    if path.suffix.lower() != ".blf":
+        return False
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(_BLF_SIZE_OFFSET + 8)
+        size = path.stat().st_size
+    except OSError:
+        return False
+    if head[:4] != b"LOGG" or len(head) < _BLF_SIZE_OFFSET + 8:
+        return False
+    return int.from_bytes(head[_BLF_SIZE_OFFSET:], "little") < size
 
 
 def decode_log(path: str | Path) -> BusRecord:

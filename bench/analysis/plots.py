@@ -1,7 +1,15 @@
-"""The report's PNG figures (matplotlib, Agg backend, imported only when a report is written)."""
+"""The report's PNG figures (matplotlib, Agg backend, imported only when a report is written).
+
+Each function draws into `out`: a path (written through a temporary name and renamed) or a binary file object
+(the report renders its figures into memory and writes its directory at once, `bench.analysis.report`). Values
+that are not finite (a model that overflowed) are left out of the curves, never drawn as inf. A series longer than
+2·PLOT_BUCKETS points (the default run has 14 548 model steps) is drawn as its envelope: the minimum and the maximum
+of each of PLOT_BUCKETS equal slices, so every excursion stays visible at the figure's resolution and a long run
+costs a figure no more memory than a short one."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +30,43 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: Path) -> None:
+def _save(fig, out) -> None:
+    if hasattr(out, "write"):
+        fig.savefig(out, format="png", dpi=110)
+        return
+    path = Path(out)
     tmp = path.with_name(f".{path.stem}.partial.png")
     fig.savefig(tmp, dpi=110)
     tmp.replace(path)
+
+
+PLOT_BUCKETS = 2_000     # the figures are 1210 pixels wide: 4000 points draw every excursion
+
+
+def _envelope(t: np.ndarray, y: np.ndarray, buckets: int = PLOT_BUCKETS) -> tuple[np.ndarray, np.ndarray]:
+    """(t, y) as is when short, else the minimum and maximum of y in each of `buckets` slices, both at the slice's
+    mid time (NaN where a slice has no finite value)."""
+    y = np.asarray(y, dtype=float)
+    n = len(y)
+    if n <= 2 * buckets:
+        return t, y
+    size = -(-n // buckets)
+    padded = np.full(size * buckets, np.nan)
+    padded[:n] = y
+    padded = padded.reshape(buckets, size)
+    tt = np.full(size * buckets, np.nan)
+    tt[:n] = t
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)     # an all-NaN slice: NaN, drawn as a gap
+        low, high = np.nanmin(padded, axis=1), np.nanmax(padded, axis=1)
+        mid = np.nanmean(tt.reshape(buckets, size), axis=1)
+    return np.repeat(mid, 2), np.column_stack([low, high]).ravel()
+
+
+def _finite(values) -> np.ndarray:
+    """The values as floats, NaN where they are not finite (matplotlib leaves NaN out of a curve)."""
+    values = np.asarray(values, dtype=float)
+    return np.where(np.isfinite(values), values, np.nan)
 
 
 def _gap_spans_h(record: BusRecord, refs: References) -> list[tuple[float, float]]:
@@ -54,18 +95,20 @@ def temperatures(path: Path, record: BusRecord, refs: References, title: str) ->
     t_h = refs.step_time_s / 3600.0
     spans = _gap_spans_h(record, refs)
     can = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+    f64, f32 = _finite(refs.f64), _finite(refs.f32)
     for ax, i in zip(axes, ORDER, strict=True):
         name = TEMPERATURES[i]
         measured = {"winding": refs.measured_winding, "magnet": refs.measured_pm}.get(name)
         if measured is not None:
-            ax.plot(t_h, measured, color="0.55", lw=1.6, label="measured (reference)")
-        ax.plot(t_h, refs.f64[:, i], color="tab:blue", lw=1.0, label="offline float64")
-        ax.plot(t_h, refs.f32[:, i], color="tab:orange", lw=1.0, ls="--", label="offline float32")
-        ax.plot(t_h, can[:, i], color="tab:red", lw=0, marker=".", ms=1.2, label="CAN (target, float32)")
+            ax.plot(*_envelope(t_h, measured), color="0.55", lw=1.6, label="measured (reference)")
+        ax.plot(*_envelope(t_h, f64[:, i]), color="tab:blue", lw=1.0, label="offline float64")
+        ax.plot(*_envelope(t_h, f32[:, i]), color="tab:orange", lw=1.0, ls="--", label="offline float32")
+        ax.plot(*_envelope(t_h, can[:, i]), color="tab:red", lw=0, marker=".", ms=1.2, label="CAN (target, float32)")
         _shade_gaps(ax, spans, ax is axes[0])
         ax.set_ylabel(f"{LABELS[name]} (°C)")
         ax.grid(alpha=0.3)
-        finite = np.concatenate([refs.f64[:, i], can[:, i][np.isfinite(can[:, i])]])
+        finite = np.concatenate([f64[:, i], f32[:, i], can[:, i]])
+        finite = finite[np.isfinite(finite)]
         if finite.size and (np.ptp(finite) > 1e3):
             ax.set_yscale("symlog", linthresh=100)
     axes[0].legend(loc="best", fontsize=8, markerscale=6)
@@ -81,24 +124,26 @@ def float32_error(path: Path, record: BusRecord, refs: References) -> None:
     plt = _pyplot()
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
     t_h = refs.step_time_s / 3600.0
-    err = refs.f32 - refs.f64
+    with np.errstate(invalid="ignore", over="ignore"):
+        err = _finite(refs.f32 - refs.f64)
     for i in ORDER:
-        top.plot(t_h, err[:, i], lw=0.8, label=LABELS[TEMPERATURES[i]])
+        top.plot(*_envelope(t_h, err[:, i]), lw=0.8, label=LABELS[TEMPERATURES[i]])
     top.set_ylabel("float32 − float64 (°C)")
-    if err.size and np.nanmax(np.abs(err)) > 10:
+    if np.isfinite(err).any() and np.nanmax(np.abs(err)) > 10:
         top.set_yscale("symlog", linthresh=0.01)
     top.grid(alpha=0.3)
     top.legend(fontsize=8)
     can = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
     reference = refs.can_reference if refs.can_reference is not None else refs.f32
-    diff = can - reference
+    with np.errstate(invalid="ignore", over="ignore"):
+        diff = _finite(can - reference)
     for i in ORDER:
-        bottom.plot(t_h, diff[:, i], lw=0, marker=".", ms=1, label=LABELS[TEMPERATURES[i]])
+        bottom.plot(*_envelope(t_h, diff[:, i]), lw=0, marker=".", ms=1, label=LABELS[TEMPERATURES[i]])
     _shade_gaps(bottom, _gap_spans_h(record, refs), False)
     bottom.axhline(0.005, color="k", lw=0.6, ls=":")
     bottom.axhline(-0.005, color="k", lw=0.6, ls=":")
     bottom.set_ylabel("CAN − float32 (°C)")
-    if diff.size and np.nanmax(np.abs(diff)) > 0.05:
+    if np.isfinite(diff).any() and np.nanmax(np.abs(diff)) > 0.05:
         bottom.set_yscale("symlog", linthresh=0.01)
     bottom.set_xlabel("time (h)")
     bottom.grid(alpha=0.3)
@@ -112,6 +157,7 @@ def step_time_histogram(path: Path, measured_us: np.ndarray, est_us: float | Non
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     values = np.asarray(measured_us, dtype=float)
+    values = values[np.isfinite(values)]
     if values.size:
         high = np.percentile(values, 99.9)
         ax.hist(np.clip(values, 0, high), bins=80, color="tab:blue", alpha=0.8,

@@ -2,21 +2,48 @@
 
 `analyze_log` is what `bench run` (after its run) and `bench analyze LOG` (on any log of ours) both call, so the
 two reports are the same for the same log.
+
+The report directory is written at once: the figures are rendered into memory, then report.md, metrics.json and
+the PNGs go into a temporary directory beside it that is renamed into place (`bench.fileio.
+write_directory_atomically`). A full disk or a Ctrl-C leaves the earlier report as it was, never a new figure
+beside an old report.md; the sentence names the file that could not be written. A directory holding anything
+else than an earlier report is not replaced (one sentence).
 """
 
 from __future__ import annotations
 
+import gc
+import io
 import json
+from collections.abc import Iterator
 from pathlib import Path
 
 from bench.analysis import plots
 from bench.analysis.canmetrics import TEMPERATURES, compute, problems
 from bench.analysis.logdecode import BusRecord, decode_log
-from bench.fileio import write_text_atomically
+from bench.errors import BenchError
+from bench.fileio import foreign_entries, write_directory_atomically
 from target_sim.artifact import ModelArtifact
 
 FIGURES = {"temperatures": "temperatures.png", "float32_error": "float32_error.png",
            "step_time": "step_time.png", "bus_load": "bus_load.png"}
+REPORT_FILES = ("report.md", "metrics.json", *FIGURES.values())
+# what a report directory may hold to be replaced: a report's files, and the temporary figure files an earlier
+# version left when it was killed while drawing
+REPLACEABLE = frozenset(REPORT_FILES) | {f".{Path(name).stem}.partial.png" for name in FIGURES.values()}
+
+
+def check_report_dir(report_dir: Path, option: str = "--report") -> None:
+    """BenchError (one sentence) when `report_dir` holds anything but an earlier report: it would not be replaced."""
+    try:
+        foreign = foreign_entries(Path(report_dir), REPLACEABLE)
+    except OSError as exc:
+        raise BenchError(f"cannot read {option} {report_dir} ({exc.strerror or exc}); choose another {option}"
+                         ) from None
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+        raise BenchError(f"{option} {report_dir} holds {shown}, which is not a report this bench wrote; choose an "
+                         f"empty or new directory for {option}")
 
 
 def analyze_log(log_path: str | Path, artifact: ModelArtifact, dataset=None, *, report_dir: str | Path | None = None,
@@ -47,6 +74,23 @@ def _m4_rows(m: dict) -> list[str]:
             f"| flash / RAM, C28x estimate | {est} |"]
 
 
+def _complete(m: dict) -> str:
+    if m.get("log_complete", True):
+        return "yes"
+    return "no: the .blf was never closed" if m.get("log_unclosed") else "no: no Control STOP after the last START"
+
+
+def _listed(counts) -> str:
+    return ", ".join(f"{k} {v}" for k, v in counts.items()) if counts else "none"
+
+
+def _unused(m: dict, message: str) -> str:
+    """' (n <message> frames failed the host's checks and are not used)' when some did: the values shown come only
+    from the frames that passed them."""
+    n = (m.get("rejected_target_frames") or {}).get(message)
+    return f" (from the {message} frames that pass the host's checks; {n} failed them and are not used)" if n else ""
+
+
 def _fmt(value, digits: int = 3) -> str:
     if value is None:
         return "–"
@@ -55,24 +99,56 @@ def _fmt(value, digits: int = 3) -> str:
     return str(value)
 
 
+class _Written(dict):
+    """The report's files; remembers which one is being written (for the sentence when that fails)."""
+
+    current: str | None = None
+
+    def items(self) -> Iterator[tuple[str, bytes]]:  # type: ignore[override]
+        for name, payload in super().items():
+            self.current = name
+            yield name, payload
+        self.current = None
+
+
+def _png(draw, *args) -> bytes:
+    out = io.BytesIO()
+    draw(out, *args)
+    gc.collect()      # a closed figure is a web of cycles: free it before the next one is drawn
+    return out.getvalue()
+
+
 def write_report(report_dir: Path, metrics: dict, found: list[str], record: BusRecord, refs, dataset,
                  run_info: dict) -> Path:
-    report_dir.mkdir(parents=True, exist_ok=True)
+    """The report directory (report.md, metrics.json, the figures), written at once; BenchError (one sentence naming
+    the file) when it cannot be, and then nothing of it was written."""
+    report_dir = Path(report_dir)
+    check_report_dir(report_dir)
     model = metrics["model"]
     title = f"{model['kind']} ({model['realization']}, Δt = {model['dt_s']:g} s), model {model['id']}"
-    plots.temperatures(report_dir / FIGURES["temperatures"], record, refs, title)
-    plots.float32_error(report_dir / FIGURES["float32_error"], record, refs)
-    plots.step_time_histogram(report_dir / FIGURES["step_time"], record.timing.get("measured_us", []),
-                              metrics.get("est_exec_time_us"), (metrics.get("m4_exec_time_us") or {}).get("p50"))
-    plots.bus_load(report_dir / FIGURES["bus_load"], metrics["bus_load"])
-    text = render_markdown(metrics, found, dataset, run_info)
-    path = report_dir / "report.md"
-    write_text_atomically(path, text)
-    metrics_path = report_dir / "metrics.json"
+    files = _Written()
+    files[FIGURES["temperatures"]] = _png(plots.temperatures, record, refs, title)
+    files[FIGURES["float32_error"]] = _png(plots.float32_error, record, refs)
+    files[FIGURES["step_time"]] = _png(plots.step_time_histogram, record.timing.get("measured_us", []),
+                                       metrics.get("est_exec_time_us"),
+                                       (metrics.get("m4_exec_time_us") or {}).get("p50"))
+    files[FIGURES["bus_load"]] = _png(plots.bus_load, metrics["bus_load"])
     body = {k: v for k, v in metrics.items() if k != "bus_load"}
     body["bus_load"] = {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}
-    write_text_atomically(metrics_path, json.dumps(body, indent=1, allow_nan=False, default=str) + "\n")
-    return path
+    files["metrics.json"] = (json.dumps(body, indent=1, allow_nan=False, default=str) + "\n").encode("utf-8")
+    files["report.md"] = render_markdown(metrics, found, dataset, run_info).encode("utf-8")
+    try:
+        write_directory_atomically(report_dir, files, replaceable=REPLACEABLE)
+    except OSError as exc:
+        reason = exc.strerror or str(exc) or exc.__class__.__name__
+        if files.current is not None:
+            where = f"while writing {report_dir / files.current}"
+        else:
+            where = f"while putting the directory in place ({exc.filename})" if exc.filename else \
+                "while putting the directory in place"
+        raise BenchError(f"cannot write the report {report_dir} ({reason} {where}); nothing of it was written and "
+                         "an earlier report there is unchanged; free some space or choose another --report") from None
+    return report_dir / "report.md"
 
 
 def fault_section(faults: dict) -> list[str]:
@@ -174,10 +250,21 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
               f"(mean frame {_fmt(load.get('bits_per_frame_mean'), 1)} bits incl. stuffing) |",
               f"| heartbeat | {m['heartbeat']['frames']} Status frames, longest gap "
               f"{_fmt(m['heartbeat']['max_gap_s'], 3)} s, {m['heartbeat']['losses']} losses |",
-              f"| target receive errors | {m['target_rx_errors'] or '–'} |",
-              f"| invalid frames in the log | {m['invalid_frames_in_log'] or 'none'} |",
-              f"| target faults seen | {', '.join(m['target_faults_seen']) or 'none'} |",
+              f"| target receive errors | {m['target_rx_errors'] or '–'}{_unused(m, 'RxErrors')} |",
+              f"| invalid frames in the log (rejected by the host's checks: id, length, CRC, range, alive counter) | "
+              f"{_listed(m['invalid_frames_in_log'])} |",
+              f"| ... of them the target's, by message (none of their values is used) | "
+              f"{_listed(m.get('rejected_target_frames'))} |",
+              f"| frames that pass those checks but are not of this session (not used) | "
+              f"{_listed(m.get('foreign_frames'))} |",
+              f"| rows with two different replies (not reported) | {m.get('contested_rows', 0)} |",
+              f"| target faults seen | {', '.join(m['target_faults_seen']) or 'none'}{_unused(m, 'Status')} |",
+              f"| log complete (the host's STOP, the file closed) | {_complete(m)} |",
               ""]
+    if m.get("null_values"):
+        lines += ["Values shown as – because they are not finite numbers (JSON holds them as null):", ""]
+        lines += [f"- `{where}`: {why}" for where, why in m["null_values"].items()]
+        lines.append("")
     if faults:
         lines += fault_section(faults)
     lines += ["## Figures", "",

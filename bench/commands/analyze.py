@@ -11,7 +11,13 @@ run on them, and --data must have them too.
 
 Exit status as `bench run`'s: 1 when the log is not clean, and a log with injected faults (BenchEvent marks; the
 `<log>.faults.json` sidecar beside it says whether each was detected) is not, unless --tolerate-faults; a fault
-the sidecar lists as undetected fails even then.
+the sidecar lists as undetected fails even then. Not clean either, whatever the faults: a log that is incomplete
+(no Control STOP after the last START, or a .blf never closed: a killed run), values the target clamped or that
+were not finite, frames of the target the host's checks reject (unless injected faults explain them) and frames
+that pass them but are not of this session (replayed or forged: counted, shown, never used).
+
+The report directory is written at once (a temporary directory renamed into place); one that holds anything but
+an earlier report is refused before the log is read.
 """
 
 from __future__ import annotations
@@ -92,11 +98,16 @@ def data_mismatch(dataset, drive: np.ndarray) -> str | None:
 def run(args: argparse.Namespace) -> int:
     from bench.analysis.canmetrics import compute, fault_note, problems
     from bench.analysis.logdecode import decode_log
-    from bench.analysis.report import write_report
+    from bench.analysis.report import check_report_dir, write_report
 
     artifact, model_path = load_model(args.model)
     report_dir = args.report or args.log.with_name(f"{args.log.stem}-report")
     check_writable(report_dir, "--report", directory=True)
+    check_report_dir(report_dir)
+    dataset = None
+    if args.data:  # read before the log: the loader's transient peak then does not add to the decoded log
+        mapping, period = data_options(args)
+        dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
     try:
         record = decode_log(args.log)
     except LogError as exc:
@@ -107,9 +118,7 @@ def run(args: argparse.Namespace) -> int:
     if record.initial is None:
         raise BenchError(f"log {args.log} has no complete RESET (ResetTemps1, ResetTemps2, Control RESET); "
                          "it cannot be compared with the model")
-    if args.data:
-        mapping, period = data_options(args)
-        dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
+    if dataset is not None:
         mismatch = data_mismatch(dataset, record.drive)
         if mismatch:
             raise BenchError(f"--data {args.data} {mismatch}, so it is not the dataset log {args.log} was recorded "

@@ -32,7 +32,15 @@ from pathlib import Path
 
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, data_options, print_json
 from bench.errors import BenchError, UsageError
-from bench.runner import check_log_names, drive_for, load_data, load_model, positive_float, positive_int
+from bench.runner import (
+    announce_logger,
+    check_log_names,
+    drive_for,
+    load_data,
+    load_model,
+    positive_float,
+    positive_int,
+)
 from dbc.database import host_frame_ids
 from dbc.transport import (
     BusUnavailable,
@@ -122,6 +130,7 @@ def run_host(args: argparse.Namespace) -> int:
         if not (args.quiet or args.json):
             print(f"bench: host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
                   + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
+        announce_logger(config, args.quiet, "bench: host: ")
         started = time.time()
         result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
                              mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,

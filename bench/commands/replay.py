@@ -38,6 +38,7 @@ from bench.errors import BenchError
 from bench.runner import (
     NAME_MAX,
     ProgressBar,
+    announce_logger,
     bus_from_args,
     firmware_for_engine,
     load_model,
@@ -164,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench: replaying {recorded.rows} rows of {path} "
               f"({'as fast as possible' if args.as_fast_as_possible else f'recorded timing x{args.speed:g}'}) "
               f"over {bus.describe()}", file=sys.stderr)
+    announce_logger(bus, args.quiet)
     bar = ProgressBar(count_rows(frames), "replay", quiet)
     try:
         outcome = replay_with_target(None if args.no_start_target else model_path, artifact, bus, messages,

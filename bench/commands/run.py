@@ -14,7 +14,10 @@ with an electrical loss model needs the d/q currents: the host then sends each r
 DriveInputs and DriveTemps, and data without them is refused in one sentence before anything starts.
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
 ±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). The JSON summary names the bus
-it used ("bus": interface, channel, and the port of udp_multicast), `auto` resolved. A target already sending on
+it used ("bus": interface, channel, and the port of udp_multicast), `auto` resolved; at the start (with --json
+too, not with --quiet) stderr has the `python -m can.logger ...` line that records the run's bus. udp_multicast
+on a channel you chose (-c, CAN_CHANNEL, a config file) uses python-can's port 43113 unless --bus-kwargs port=N;
+with no channel chosen the bench's own group and a port unique to the run. A target already sending on
 the channel is refused before the run starts its own, and so is a host; a host frame this run did not send stops
 it at any time (`dbc.transport.SenderGuard`). A --log that cannot be written (a directory) is refused before the
 run. SIGINT, SIGTERM and SIGHUP stop the target, discard the partial log and exit 128 + the signal.
@@ -51,6 +54,7 @@ from bench.commands.common import (
 from bench.errors import BenchError, UsageError
 from bench.runner import (
     ProgressBar,
+    announce_logger,
     bus_from_args,
     check_log_names,
     drive_for,
@@ -150,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
         injecting = f", injecting {faults.describe()}" if faults else ""
         print(f"bench: {artifact.kind} model {artifact.model_id:08x} ({args.engine} engine) on {len(drive)} rows of "
               f"{dataset.path} ({args.mode}) over {bus.describe()}{injecting}", file=sys.stderr)
+    announce_logger(bus, args.quiet)   # with --json too: a script's user attaches a logger the same way
     bar = ProgressBar(len(drive), args.mode, quiet)
     started = time.perf_counter()
     try:

@@ -263,7 +263,7 @@ static void send_temperatures(uint16_t step)
         if (frame != NULL) {
             thermal_bench_temperatures1_init(&m);
             m.temperatures1_counter = tx_counter[NODE_TX_TEMPERATURES1];
-            m.step = step;
+            m.temperatures1_step = step;
             NODE_FILL_TEMPERATURES1(m, raw);
             (void)thermal_bench_temperatures1_pack(frame->data, &m, 8u);
             tx_finish(frame, THERMAL_BENCH_TEMPERATURES1_FRAME_ID, NODE_TX_TEMPERATURES1,
@@ -276,7 +276,7 @@ static void send_temperatures(uint16_t step)
         if (frame != NULL) {
             thermal_bench_temperatures2_init(&m);
             m.temperatures2_counter = tx_counter[NODE_TX_TEMPERATURES2];
-            m.step = step;
+            m.temperatures2_step = step;
             NODE_FILL_TEMPERATURES2(m, raw);
             (void)thermal_bench_temperatures2_pack(frame->data, &m, 8u);
             tx_finish(frame, THERMAL_BENCH_TEMPERATURES2_FRAME_ID, NODE_TX_TEMPERATURES2,
@@ -295,7 +295,7 @@ static void send_timing(uint16_t step, uint32_t cycles)
         struct thermal_bench_timing1_t m;
         thermal_bench_timing1_init(&m);
         m.timing1_counter = tx_counter[NODE_TX_TIMING1];
-        m.step = step;
+        m.timing1_step = step;
         m.step_time_measured = clamp_u32(tenths_us, NODE_STEP_TIME_MEASURED_MAX);
         m.overruns = saturate8(node_counters.overruns);   /* after all of the row's steps */
         (void)thermal_bench_timing1_pack(frame->data, &m, 8u);
@@ -305,7 +305,7 @@ static void send_timing(uint16_t step, uint32_t cycles)
         struct thermal_bench_timing2_t m;
         thermal_bench_timing2_init(&m);
         m.timing2_counter = tx_counter[NODE_TX_TIMING2];
-        m.step = step;
+        m.timing2_step = step;
         m.est_cycles = NODE_EST_CYCLES_RAW;
         m.est_exec_time = NODE_EST_EXEC_TIME_RAW;
         (void)thermal_bench_timing2_pack(frame->data, &m, 8u);
@@ -315,7 +315,7 @@ static void send_timing(uint16_t step, uint32_t cycles)
         struct thermal_bench_timing3_t m;
         thermal_bench_timing3_init(&m);
         m.timing3_counter = tx_counter[NODE_TX_TIMING3];
-        m.step = step;
+        m.timing3_step = step;
         m.cpu_load = NODE_CPU_LOAD_RAW;
         (void)thermal_bench_timing3_pack(frame->data, &m, 8u);
         tx_finish(frame, THERMAL_BENCH_TIMING3_FRAME_ID, NODE_TX_TIMING3, NODE_DATA_ID_TIMING3);
@@ -324,7 +324,7 @@ static void send_timing(uint16_t step, uint32_t cycles)
         struct thermal_bench_timing4_t m;
         thermal_bench_timing4_init(&m);
         m.timing4_counter = tx_counter[NODE_TX_TIMING4];
-        m.step = step;
+        m.timing4_step = step;
         m.m4_cycles = clamp_u32(cycles, NODE_M4_CYCLES_MAX);
         m.m4_exec_time = (uint16_t)clamp_u32(tenths_us, NODE_M4_EXEC_TIME_MAX);
         (void)thermal_bench_timing4_pack(frame->data, &m, 8u);
@@ -347,9 +347,9 @@ static void send_checkpoint(uint16_t step)
         if (frame == NULL) return;
         thermal_bench_state_checkpoint_init(&m);
         m.state_checkpoint_counter = tx_counter[NODE_TX_STATE_CHECKPOINT];
-        m.step = step;
-        m.state_index = (uint8_t)i;
-        m.state_value = x[i];
+        m.state_checkpoint_step = step;
+        m.state_checkpoint_state_index = (uint8_t)i;
+        m.state_checkpoint_state_value = x[i];
         (void)thermal_bench_state_checkpoint_pack(frame->data, &m, 8u);
         tx_finish(frame, THERMAL_BENCH_STATE_CHECKPOINT_FRAME_ID, NODE_TX_STATE_CHECKPOINT,
                   NODE_DATA_ID_STATE_CHECKPOINT);
@@ -624,9 +624,9 @@ static void row_frame_done(unsigned int index, uint16_t step)
 /* One frame of a data row: MESSAGE (DRIVE_INPUTS, ...) with its signals in `m` (fw_node_config.h's macros). */
 #define ROW_FRAME(MESSAGE, m)                                                                                         \
     do {                                                                                                              \
-        if (row_frame(NODE_ROW_INDEX_##MESSAGE, (m).step)) {                                                          \
+        if (row_frame(NODE_ROW_INDEX_##MESSAGE, NODE_STEP_##MESSAGE(m))) {                                             \
             NODE_DECODE_##MESSAGE(pending.sample, m);                                                                 \
-            row_frame_done(NODE_ROW_INDEX_##MESSAGE, (m).step);                                                       \
+            row_frame_done(NODE_ROW_INDEX_##MESSAGE, NODE_STEP_##MESSAGE(m));                                          \
         }                                                                                                             \
     } while (0)
 
@@ -647,21 +647,23 @@ static void dispatch(int index, const union rx_signals *m)
 #endif
     case RX_RESET1:
         reset_frames[0].have = 1u;
-        reset_frames[0].step = m->reset1.step;
+        reset_frames[0].step = m->reset1.reset_temps1_step;
         NODE_RESET1_RAW(reset_frames[0].raw, m->reset1);
         break;
     case RX_RESET2:
         reset_frames[1].have = 1u;
-        reset_frames[1].step = m->reset2.step;
+        reset_frames[1].step = m->reset2.reset_temps2_step;
         NODE_RESET2_RAW(reset_frames[1].raw, m->reset2);
         break;
-    case RX_RESTORE:
-        restore_frames[m->restore.state_index].have = 1u;           /* 0..3: checked by the range check */
-        restore_frames[m->restore.state_index].step = m->restore.step;
-        restore_frames[m->restore.state_index].value = m->restore.state_value;
+    case RX_RESTORE: {
+        const uint8_t i = m->restore.restore_state_state_index;          /* 0..3: checked by the range check */
+        restore_frames[i].have = 1u;
+        restore_frames[i].step = m->restore.restore_state_step;
+        restore_frames[i].value = m->restore.restore_state_state_value;
         break;
+    }
     case RX_CONTROL:
-        control(m->control.command, m->control.step);
+        control(m->control.command, m->control.control_step);
         break;
     default:            /* BenchEvent, and DriveCurrents for a loss-map model: validated, otherwise ignored */
         break;
@@ -674,41 +676,43 @@ static int out_of_range_signal(int index, const union rx_signals *m)
 {
     switch (index) {
     case RX_CONTROL:
-        if (!thermal_bench_control_step_is_in_range(m->control.step)) return 2;
+        if (!thermal_bench_control_control_step_is_in_range(m->control.control_step)) return 2;
         if (!thermal_bench_control_command_is_in_range(m->control.command)) return 3;
         return -1;
     case RX_RESET1:
-        if (!thermal_bench_reset_temps1_step_is_in_range(m->reset1.step)) return 2;
+        if (!thermal_bench_reset_temps1_reset_temps1_step_is_in_range(m->reset1.reset_temps1_step)) return 2;
         if (!thermal_bench_reset_temps1_winding_temp_init_is_in_range(m->reset1.winding_temp_init)) return 3;
         if (!thermal_bench_reset_temps1_magnet_temp_init_is_in_range(m->reset1.magnet_temp_init)) return 4;
         return -1;
     case RX_RESET2:
-        if (!thermal_bench_reset_temps2_step_is_in_range(m->reset2.step)) return 2;
+        if (!thermal_bench_reset_temps2_reset_temps2_step_is_in_range(m->reset2.reset_temps2_step)) return 2;
         if (!thermal_bench_reset_temps2_yoke_temp_init_is_in_range(m->reset2.yoke_temp_init)) return 3;
         if (!thermal_bench_reset_temps2_tooth_temp_init_is_in_range(m->reset2.tooth_temp_init)) return 4;
         return -1;
     case RX_RESTORE:
-        if (!thermal_bench_restore_state_step_is_in_range(m->restore.step)) return 2;
-        if (!thermal_bench_restore_state_state_index_is_in_range(m->restore.state_index)) return 3;
-        if (!thermal_bench_restore_state_state_value_is_in_range(m->restore.state_value)) return 4;
+        if (!thermal_bench_restore_state_restore_state_step_is_in_range(m->restore.restore_state_step)) return 2;
+        if (!thermal_bench_restore_state_restore_state_state_index_is_in_range(
+                m->restore.restore_state_state_index)) return 3;
+        if (!thermal_bench_restore_state_restore_state_state_value_is_in_range(
+                m->restore.restore_state_state_value)) return 4;
         return -1;
     case RX_DRIVE_INPUTS:
-        if (!thermal_bench_drive_inputs_step_is_in_range(m->inputs.step)) return 2;
+        if (!thermal_bench_drive_inputs_drive_inputs_step_is_in_range(m->inputs.drive_inputs_step)) return 2;
         if (!thermal_bench_drive_inputs_motor_torque_is_in_range(m->inputs.motor_torque)) return 3;
         if (!thermal_bench_drive_inputs_motor_speed_is_in_range(m->inputs.motor_speed)) return 4;
         return -1;
     case RX_DRIVE_TEMPS:
-        if (!thermal_bench_drive_temps_step_is_in_range(m->temps.step)) return 2;
+        if (!thermal_bench_drive_temps_drive_temps_step_is_in_range(m->temps.drive_temps_step)) return 2;
         if (!thermal_bench_drive_temps_coolant_temp_is_in_range(m->temps.coolant_temp)) return 3;
         if (!thermal_bench_drive_temps_ambient_temp_is_in_range(m->temps.ambient_temp)) return 4;
         return -1;
     case RX_DRIVE_CURRENTS:
-        if (!thermal_bench_drive_currents_step_is_in_range(m->currents.step)) return 2;
+        if (!thermal_bench_drive_currents_drive_currents_step_is_in_range(m->currents.drive_currents_step)) return 2;
         if (!thermal_bench_drive_currents_current_d_is_in_range(m->currents.current_d)) return 3;
         if (!thermal_bench_drive_currents_current_q_is_in_range(m->currents.current_q)) return 4;
         return -1;
     default:
-        if (!thermal_bench_bench_event_step_is_in_range(m->event.step)) return 2;
+        if (!thermal_bench_bench_event_bench_event_step_is_in_range(m->event.bench_event_step)) return 2;
         if (!thermal_bench_bench_event_event_is_in_range(m->event.event)) return 3;
         if (!thermal_bench_bench_event_fault_kind_is_in_range(m->event.fault_kind)) return 4;
         if (!thermal_bench_bench_event_frame_id_is_in_range(m->event.frame_id)) return 5;

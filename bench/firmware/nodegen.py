@@ -74,6 +74,12 @@ def _snake_upper(name: str) -> str:
     return camel_to_snake_case(name).upper()
 
 
+def _field(message: str, signal: str) -> str:
+    """The member of cantools' generated struct of `message` that holds signal `signal` (the role the code knows
+    it by, e.g. Step): named after the signal's DBC name (Control_Step -> control_step)."""
+    return camel_to_snake_case(layout_named(message).signal(signal).dbc_name)
+
+
 def packers() -> dict[str, str]:
     """thermal_bench.h/.c from the DBC by cantools, without the generation date (the same DBC, the same bytes)."""
     header, source, _, _ = generate(contract().database, DATABASE_NAME, PACKERS[0], PACKERS[1], "fuzzer.c",
@@ -149,7 +155,7 @@ def _row_macros(artifact: ModelArtifact) -> list[str]:
     """The data row of `artifact`'s model (TargetNode's row_messages and row_signals): its width and messages, each
     message's index in the row (NODE_ROW_INDEX_<MESSAGE>, only for the row's messages), and per message the decode
     of its values into their places of the row's sample (NODE_DECODE_<MESSAGE>(sample, m), one float32 division per
-    signal)."""
+    signal) and its Step (NODE_STEP_<MESSAGE>(m))."""
     width = len(artifact.drive_signals)
     messages = row_messages(width)
     if messages != ROW_MESSAGES[:len(messages)]:
@@ -159,23 +165,24 @@ def _row_macros(artifact: ModelArtifact) -> list[str]:
     out += [f"#define NODE_ROW_INDEX_{_snake_upper(message)} {index}u" for index, message in enumerate(messages)]
     places = list(enumerate(row_signals(width)))
     for message in messages:
-        fills = "; ".join(f"(sample)[{index}] = {_decode(message, signal, f'(m).{camel_to_snake_case(signal)}')}"
+        fills = "; ".join(f"(sample)[{index}] = {_decode(message, signal, f'(m).{_field(message, signal)}')}"
                           for index, (owner, signal) in places if owner == message)
         out.append(f"#define NODE_DECODE_{_snake_upper(message)}(sample, m) do {{ {fills}; }} while (0)")
+        out.append(f"#define NODE_STEP_{_snake_upper(message)}(m) ((m).{_field(message, 'Step')})")
     return out
 
 
 def _signal_macros() -> list[str]:
     out = []
-    fills = "; ".join(f"(m).{camel_to_snake_case(signal)} = (uint8_t)((e)[{RX_ERROR_KINDS.index(kind)}] > 255u ? "
+    fills = "; ".join(f"(m).{_field('RxErrors', signal)} = (uint8_t)((e)[{RX_ERROR_KINDS.index(kind)}] > 255u ? "
                       f"255u : (e)[{RX_ERROR_KINDS.index(kind)}])" for kind, signal in RX_ERROR_SIGNALS.items())
     out.append(f"#define NODE_FILL_RX_ERRORS(m, e) do {{ {fills}; }} while (0)")
     for message, pairs in REPLY_SIGNALS.items():
-        fills = "; ".join(f"(m).{camel_to_snake_case(signal)} = (uint16_t)(raw)[{index}]" for signal, index in pairs)
+        fills = "; ".join(f"(m).{_field(message, signal)} = (uint16_t)(raw)[{index}]" for signal, index in pairs)
         out.append(f"#define NODE_FILL_{_snake_upper(message)}(m, raw) do {{ {fills}; }} while (0)")
     messages = list(RESET_SIGNALS)
     for number, message in enumerate(messages, start=1):
-        fills = "; ".join(f"(raw)[{slot}] = (m).{camel_to_snake_case(signal)}"
+        fills = "; ".join(f"(raw)[{slot}] = (m).{_field(message, signal)}"
                           for slot, (signal, _) in enumerate(RESET_SIGNALS[message]))
         out.append(f"#define NODE_RESET{number}_RAW(raw, m) do {{ {fills}; }} while (0)")
     fills = "; ".join(f"(y)[{index}] = {_decode(message, signal, f'(r{number})[{slot}]')}"

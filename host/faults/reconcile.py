@@ -125,6 +125,25 @@ def read_journal(path: str | Path, since: float | None = None) -> Journal:
     return journal
 
 
+def chained_rows(injections: Iterable[Injection]) -> list[int]:
+    """In real time, the row each fault costs besides its own: the one whose frame of the faulted id next carries
+    the counter jump, which the receiver refuses. For a drive frame that is the next row; for a reply, the next row
+    the target answered: rows whose drive frames a fault kept from the target get no reply, so the jump waits for
+    the first row after them."""
+    injections = list(injections)
+    drive = [i for i in injections if i.kind in CHAINED and i.kind not in REPLY_KINDS]
+    unanswered = {i.row for i in drive} | {i.row + 1 for i in drive}
+    rows = []
+    for injection in injections:
+        if injection.kind not in CHAINED:
+            continue
+        row = injection.row + 1
+        while injection.kind in REPLY_KINDS and row in unanswered:
+            row += 1
+        rows.append(row)
+    return rows
+
+
 def _key(kind: str, frame_id, data) -> tuple:
     return kind, int(frame_id) if frame_id is not None else None, data
 
@@ -179,10 +198,10 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
     detected = Counter(i.kind for i in injections if i.detected)
     unknown = journal is None and any(k in TARGET_DETECTED for k in injected)
     # a reply injection knows its Step (not the row), so deadline misses are explained by Step; in real
-    # time a lost or refused frame also costs the next row (the next frame of its id is refused for the jump)
+    # time a lost or refused frame also costs the row whose frame of its id carries the counter jump
     explained = Counter(step_of(i.row) for i in injections) + Counter(step_of(r.lost_row) for r in run.recoveries)
     if run.mode == "realtime":
-        explained += Counter(step_of(i.row + 1) for i in injections if i.kind in CHAINED)
+        explained += Counter(step_of(row) for row in chained_rows(injections))
     unexplained_misses = []
     for row in run.deadline_misses:
         if explained[step_of(row)] > 0:

@@ -11,21 +11,30 @@ import pytest
 from cantools.autosar.end_to_end import apply_profile2_crc, compute_profile2_crc
 
 from dbc import FrameCodec, FrameError, FrameValidator, decode_any, load_database, profile2_crc, signal_ranges
-from dbc.database import e2e_data_id
+from dbc.database import contract, e2e_data_id, role_name
 
 MESSAGES = [m for m in load_database().messages]
 
 
+def dbc_names(message, signals: dict) -> dict:
+    """The codec's signal names (roles: Step) as the DBC spells them (Control_Step): unique across messages."""
+    layout = contract().by_name[message.name]
+    return {layout.signal(name).dbc_name: value for name, value in signals.items()}
+
+
 def cantools_encode(message, signals: dict, counter: int) -> bytes:
-    """What cantools makes of the frame: its strict encoder, then its profile-2 CRC."""
-    data = {**signals, f"{message.name}_CRC": 0, f"{message.name}_Counter": counter}
+    """What cantools makes of the frame (signals named as the codec names them): its strict encoder, then its
+    profile-2 CRC."""
+    data = {**dbc_names(message, signals), f"{message.name}_CRC": 0, f"{message.name}_Counter": counter}
     payload = message.encode(data, scaling=True, padding=False, strict=True)
     return bytes(apply_profile2_crc(payload, e2e_data_id(message.frame_id)))
 
 
 def cantools_decode(message, payload: bytes) -> dict:
+    """cantools' decoded values, by the codec's names."""
     decoded = message.decode(payload, decode_choices=False, scaling=True)
-    return {k: v for k, v in decoded.items() if k not in (f"{message.name}_CRC", f"{message.name}_Counter")}
+    return {role_name(message.name, k): v for k, v in decoded.items()
+            if k not in (f"{message.name}_CRC", f"{message.name}_Counter")}
 
 
 def test_crc_table_matches_cantools():
@@ -39,7 +48,7 @@ def test_crc_table_matches_cantools():
 def _random_signals(rng, message):
     out = {}
     for name, (low, high) in signal_ranges(message.name).items():
-        scale = message.get_signal_by_name(name).scale
+        scale = contract().by_name[message.name].signal(name).scale
         pick = rng.random()
         if pick < 0.1:
             value = low

@@ -42,7 +42,7 @@ def test_cantools_decode_reads_candump_lines():
     assert len(out) == 2
     assert out[0] == (
         f"{lines[0]} :: DriveInputs(DriveInputs_CRC: {drive.data[0]}, DriveInputs_Counter: 0, "
-        "Step: 4321 step, MotorTorque: -123.4 Nm, MotorSpeed: 1500.0 rpm)"
+        "DriveInputs_Step: 4321 step, MotorTorque: -123.4 Nm, MotorSpeed: 1500.0 rpm)"
     )
     assert out[1] == (
         f"{lines[1]} :: Status(Status_CRC: {status.data[0]}, Status_Counter: 0, State: RUNNING, FaultBits: 5, "

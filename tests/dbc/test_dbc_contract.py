@@ -8,6 +8,7 @@ import pytest
 
 import dbc
 from dbc import DBC_PATH, load_database
+from dbc.database import contract, role_name
 
 DB = load_database()
 MESSAGES = DB.messages
@@ -140,7 +141,7 @@ def test_every_signal_has_unit_comment_and_range():
             assert signal.comment and len(signal.comment) > 10, label
             assert signal.minimum is not None and signal.maximum is not None, label
             assert signal.minimum < signal.maximum, label
-            if signal.name in UNITLESS:
+            if signal.name in UNITLESS or role_name(message.name, signal.name) in UNITLESS:
                 assert not signal.unit, label
             else:
                 assert signal.unit, label
@@ -181,7 +182,9 @@ def test_fault_bits_are_documented():
 
 
 def signal(message_name, signal_name):
-    return DB.get_message_by_name(message_name).get_signal_by_name(signal_name)
+    """Signal `signal_name` of a message, by the name the code knows it by (Step for Control_Step)."""
+    message = DB.get_message_by_name(message_name)
+    return next(s for s in message.signals if role_name(message_name, s.name) == signal_name)
 
 
 def test_layout_meets_the_resolution_and_range_requirements():
@@ -236,7 +239,7 @@ def test_version_1_3_adds_timing4_beside_the_c28x_estimate_and_says_so():
     assert dbc.dbc_version_info()[:2] >= (1, 3)
     timing4 = DB.get_message_by_name(dbc.contract.FIRMWARE_TIMING_MESSAGE)
     assert timing4.frame_id == 0x225 and timing4.senders == ["TARGET"] and 0x200 <= timing4.frame_id <= 0x2FF
-    assert [s.name for s in app_signals(timing4)] == ["Step", "M4Cycles", "M4ExecTime"]
+    assert [role_name(timing4.name, s.name) for s in app_signals(timing4)] == ["Step", "M4Cycles", "M4ExecTime"]
     cycles, exec_time = signal("Timing4", "M4Cycles"), signal("Timing4", "M4ExecTime")
     est_cycles, est_time = signal("Timing2", "EstCycles"), signal("Timing2", "EstExecTime")
     assert (cycles.length, cycles.scale, cycles.maximum, cycles.unit) == (est_cycles.length, 1, est_cycles.maximum,
@@ -257,10 +260,10 @@ def test_version_1_4_adds_drive_currents_for_electrical_loss_models_and_says_so(
     """1.4.0: the d/q stator currents of a data row in a host message of their own, laid out like every host frame
     (CRC8, counter, Step, two 16-bit signals from bit 28), at the drive data's cycle; the history in the DBC's
     comment; the contract's row layout (`dbc.contract.row_signals`) names them after the four drive values."""
-    assert dbc.dbc_version_info()[:2] == (1, 4)
+    assert dbc.dbc_version_info()[:2] >= (1, 4)
     currents = DB.get_message_by_name("DriveCurrents")
     assert currents.frame_id == 0x112 and currents.senders == ["HOST"] and currents.frame_id in dbc.host_frame_ids()
-    assert [s.name for s in app_signals(currents)] == ["Step", "CurrentD", "CurrentQ"]
+    assert [role_name(currents.name, s.name) for s in app_signals(currents)] == ["Step", "CurrentD", "CurrentQ"]
     for name, start in (("CurrentD", 28), ("CurrentQ", 44)):
         s = signal("DriveCurrents", name)
         assert (s.start, s.length, s.is_signed, s.scale, s.offset, s.minimum, s.maximum, s.unit) == \
@@ -270,7 +273,7 @@ def test_version_1_4_adds_drive_currents_for_electrical_loss_models_and_says_so(
     assert currents.cycle_time == DB.get_message_by_name("DriveInputs").cycle_time == 200
     assert "electrical loss model" in currents.comment and "ignores it" in currents.comment
     network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
-    assert "History: 1.4.0 adds DriveCurrents" in network and "1.3.0 added Timing4" in network
+    assert "1.4.0 added DriveCurrents" in network and "1.3.0 added Timing4" in network
     contract = dbc.contract
     assert contract.CURRENT_SIGNALS == (("DriveCurrents", "CurrentD"), ("DriveCurrents", "CurrentQ"))
     assert contract.row_signals(4) == contract.DRIVE_SIGNALS
@@ -279,3 +282,21 @@ def test_version_1_4_adds_drive_currents_for_electrical_loss_models_and_says_so(
     assert contract.row_messages(6) == ("DriveInputs", "DriveTemps", "DriveCurrents")
     with pytest.raises(ValueError, match="4 or 6 values, not 5"):
         contract.row_signals(5)
+
+
+def test_version_1_5_names_every_signal_once_and_says_so():
+    """1.5.0: no two messages share a signal name (canmatrix's ARXML export and asammdf look signals up by name
+    alone); a shared role is `<Message>_<Role>` as the E2E signals are; the frames are 1.4.0's bit for bit, and the
+    codec still calls the role by its short name (Step), the database layer keeping both."""
+    assert dbc.dbc_version_info()[:2] == (1, 5)
+    names = [s.name for m in MESSAGES for s in m.signals]
+    assert len(names) == len(set(names)), sorted({n for n in names if names.count(n) > 1})
+    carriers = [m.name for m in MESSAGES if any(s.name == f"{m.name}_Step" for s in m.signals)]
+    assert len(carriers) == 15 and "Status" not in carriers
+    for name in ("RestoreState", "StateCheckpoint"):
+        layout = contract().by_name[name]
+        assert [(s.name, s.dbc_name) for s in layout.signals] == [
+            ("Step", f"{name}_Step"), ("StateIndex", f"{name}_StateIndex"), ("StateValue", f"{name}_StateValue")]
+        assert [(s.start, s.length) for s in layout.signals] == [(12, 16), (28, 4), (32, 32)]
+    network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
+    assert "History: 1.5.0 names every signal uniquely" in network and "1.4.0 added DriveCurrents" in network

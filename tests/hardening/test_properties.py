@@ -136,7 +136,8 @@ def _cantools_signals(msg: can.Message) -> dict:
     """cantools' decoding of a frame the codec accepted: the same values and types."""
     message = load_database().get_message_by_frame_id(msg.arbitration_id)
     decoded = message.decode(bytes(msg.data), decode_choices=False, scaling=True)
-    return {k: v for k, v in decoded.items() if k not in (f"{message.name}_CRC", f"{message.name}_Counter")}
+    return {dbc.database.role_name(message.name, k): v for k, v in decoded.items()
+            if k not in (f"{message.name}_CRC", f"{message.name}_Counter")}
 
 
 @PROPERTY
@@ -165,14 +166,14 @@ def test_codecs_refuse_with_frame_error_and_keep_the_counter(case, counter):
         return
     assert codec._next_counter[frame_id(name)] == (counter + 1) % 16
     decoded = FrameValidator(None).validate(msg)
-    message = load_database().get_message_by_name(name)
+    message, layout = load_database().get_message_by_name(name), dbc.database.layout_named(name)
     for signal, value in values.items():
         if isinstance(value, str):
             continue
-        scale = abs(message.get_signal_by_name(signal).scale)
+        scale = abs(layout.signal(signal).scale)
         assert abs(float(decoded.signals[signal]) - float(value)) <= scale / 2 + 1e-9 * abs(float(value))
     # cantools encodes the same bytes (its strict encoder, its E2E profile-2 CRC)
-    data = {**values, f"{name}_CRC": 0, f"{name}_Counter": counter}
+    data = {**{layout.signal(k).dbc_name: v for k, v in values.items()}, f"{name}_CRC": 0, f"{name}_Counter": counter}
     payload = message.encode(data, scaling=True, padding=False, strict=True)
     assert bytes(msg.data) == bytes(end_to_end.apply_profile2_crc(payload, msg.arbitration_id & 0xFF))
 

@@ -61,7 +61,7 @@ def _cantools_bounds(source: str, message: str, signal: str) -> tuple[float | No
 @pytest.mark.parametrize("message,signal", RECEIVED, ids=[f"{m}.{s.name}" for m, s in RECEIVED])
 def test_the_generated_range_checks_accept_what_the_python_validator_accepts(message, signal):
     source = packers()["thermal_bench.c"]
-    low, high = _cantools_bounds(source, message, signal.name)
+    low, high = _cantools_bounds(source, message, signal.dbc_name)
     if signal.ieee is not None:      # a float signal: compared as float
         assert (low, high) == (signal.minimum, signal.maximum)
         return

@@ -1,0 +1,127 @@
+"""python-can's tools attach to a run: the udp_multicast port rule (a channel the user chose gets python-can's default
+port; the bench's own group a port unique to the run) and the `python -m can.logger` line a run prints."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+
+import can
+import can.util
+import pytest
+
+from dbc import transport
+from dbc.transport import (
+    AUTO,
+    UDP_DEFAULT_PORT,
+    BusConfig,
+    add_bus_arguments,
+    config_from_args,
+    free_udp_port,
+    logger_command,
+    resolve,
+)
+
+from helpers import ROOT, run_cli, subprocess_env
+
+GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:7465"   # a group of this test's own (interface-local scope)
+
+
+def parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_bus_arguments(parser)
+    return parser.parse_args(list(argv))
+
+
+@pytest.fixture(autouse=True)
+def clean_env(monkeypatch):
+    for name in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(can.util, "CONFIG_FILES", [])
+
+
+def test_python_can_users_settings_get_python_cans_default_port(monkeypatch):
+    """Only CAN_INTERFACE/CAN_CHANNEL set, as for `python -m can.logger`: the run's port is 43113, where the
+    logger listens (it was a random one, so the logger recorded nothing)."""
+    monkeypatch.setenv("CAN_INTERFACE", "udp_multicast")
+    monkeypatch.setenv("CAN_CHANNEL", GROUP)
+    from bench.runner import bus_from_args
+
+    bus = bus_from_args(parse())
+    assert (bus.interface, bus.channel, bus.kwargs) == ("udp_multicast", GROUP, {"port": UDP_DEFAULT_PORT})
+
+
+@pytest.mark.parametrize(("argv", "port"), [
+    (("-i", "udp_multicast", "-c", GROUP), UDP_DEFAULT_PORT),            # channel chosen by flags
+    (("-c", GROUP), UDP_DEFAULT_PORT),                                     # auto with a chosen group
+    (("-i", "udp_multicast", "-c", GROUP, "--bus-kwargs", "port=45111"), 45111),   # a port given wins
+    (("-i", "auto", "--bus-kwargs", "port=45112"), 45112),
+])
+def test_a_chosen_channel_keeps_python_cans_port_unless_one_is_given(monkeypatch, argv, port):
+    monkeypatch.setattr(transport, "socketcan_usable", lambda channel="vcan0": False)
+    bus = resolve(config_from_args(parse(*argv)), session_unique=True)
+    assert bus.interface == "udp_multicast" and bus.kwargs["port"] == port
+
+
+def test_a_channel_from_a_config_file_keeps_python_cans_port(tmp_path):
+    conf = tmp_path / "can.ini"
+    conf.write_text(f"[default]\ninterface = udp_multicast\nchannel = {GROUP}\n")
+    bus = resolve(config_from_args(parse("--can-config", str(conf))), session_unique=True)
+    assert (bus.channel, bus.kwargs["port"]) == (GROUP, UDP_DEFAULT_PORT)
+
+
+def test_the_benchs_own_group_still_gets_a_port_unique_to_the_run(monkeypatch):
+    monkeypatch.setattr(transport, "socketcan_usable", lambda channel="vcan0": False)
+    ports = {resolve(config_from_args(parse()), session_unique=True).kwargs["port"] for _ in range(3)}
+    ports |= {resolve(BusConfig("udp_multicast"), session_unique=True).kwargs["port"]}
+    assert UDP_DEFAULT_PORT not in ports and len(ports) == 4
+    assert resolve(BusConfig(AUTO)).kwargs["port"] == UDP_DEFAULT_PORT   # a node started by hand
+
+
+def test_the_logger_line_is_python_cans_own_options():
+    assert logger_command(BusConfig("udp_multicast", GROUP, kwargs={"port": 43113})) == (
+        f"python -m can.logger -i udp_multicast -c {GROUP} -f bench-copy.blf")
+    assert logger_command(BusConfig("udp_multicast", GROUP, kwargs={"port": 50123}), "x y.log") == (
+        f"python -m can.logger -i udp_multicast -c {GROUP} -f 'x y.log' --bus-kwargs port=50123")
+    assert logger_command(BusConfig("socketcan", "vcan0", bitrate=500000)) == (
+        "python -m can.logger -i socketcan -c vcan0 -b 500000 -f bench-copy.blf")
+
+
+def _frames(path) -> Counter:
+    return Counter((m.arbitration_id, bytes(m.data)) for m in can.LogReader(str(path)))
+
+
+def test_the_printed_logger_line_records_the_run(small_dataset, tmp_path):
+    """With --json the line is on stderr at the start; pasted (with another file name) into a second process,
+    python-can's logger records every frame of the run."""
+    port = free_udp_port()
+    bus = ("-i", "udp_multicast", "-c", GROUP, "--bus-kwargs", f"port={port}")
+    expected = logger_command(BusConfig("udp_multicast", GROUP, kwargs={"port": port}), str(tmp_path / "copy.log"))
+    argv = expected.split()
+    assert argv[:3] == ["python", "-m", "can.logger"]
+    logger = subprocess.Popen([sys.executable, *argv[1:]], cwd=ROOT, env=subprocess_env(can_settings=False),
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 30
+        while not (tmp_path / "copy.log").exists() and time.monotonic() < deadline and logger.poll() is None:
+            time.sleep(0.05)
+        time.sleep(0.3)
+        run = run_cli("-m", "bench", "run", "--data", str(small_dataset), "--rows", "200", "--no-report", "--json",
+                      "--log", str(tmp_path / "run.log"), *bus, can_settings=False)
+        time.sleep(0.3)
+    finally:
+        if logger.poll() is None:
+            os.kill(logger.pid, signal.SIGINT)
+        logger.wait(20)
+    assert run.returncode == 0, run.stderr
+    printed = [line for line in run.stderr.splitlines() if "can.logger" in line]
+    assert printed == [f"bench: to record this bus with python-can: python -m can.logger -i udp_multicast -c {GROUP} "
+                       f"-f bench-copy.blf --bus-kwargs port={port}"], run.stderr
+    recorded, copied = _frames(tmp_path / "run.log"), _frames(tmp_path / "copy.log")
+    assert sum(recorded.values()) > 200 * 4
+    assert recorded - copied == Counter(), "frames of the run the logger did not record"
