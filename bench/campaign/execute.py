@@ -1,0 +1,382 @@
+"""A campaign's runs on Dask workers: each run is `python -m bench run ... --json` in a subprocess of a worker,
+with its own bus port, log and report under OUT/runs/<run-id>/.
+
+Results: "done" (the bench ran and printed its JSON summary; exit 0, or 1 for a verdict that is not clean, which
+is a result), "failed" (any other exit: a crash, a bad option), "timeout" (stopped after the campaign's timeout),
+"lost-worker" (the Dask worker running it died). A run that is not done is submitted once more; each outcome is
+one row of the table, written when it arrives. dask and distributed are imported only in `run_campaign` (and on
+the workers), so no other command pays for them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import hashlib
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.campaign.spec import Campaign, Run
+from bench.campaign.store import DONE, Store, flatten, option_columns
+from bench.errors import BenchError
+
+MAX_ATTEMPTS = 2                  # a run that crashed, timed out or lost its worker is retried once
+STOP_GRACE_S = 20.0               # after SIGTERM, how long a run may take to stop its target and clean up
+CONNECT_TIMEOUT_S = 10.0
+
+
+def now() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+# ---------------------------------------------------------------- on the worker
+
+_RUNNING: dict[str, set[subprocess.Popen]] = {}   # campaign token -> its runs' processes in this worker
+_RUNNING_LOCK = threading.Lock()
+
+
+def _error_sentence(stderr: str, code: int) -> str:
+    """What the run said went wrong (its `bench: error:` line), else how it ended."""
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    for line in reversed(lines):
+        if line.startswith("bench: "):
+            return line.removeprefix("bench: ").removeprefix("error: ")
+    if code < 0:
+        return f"killed by {signal.Signals(-code).name}"
+    if lines:
+        return f"exited with status {code}: {lines[-1][:300]}"
+    return f"exited with status {code} and printed nothing"
+
+
+def _sha256(path: str | None) -> str | None:
+    if not path or not Path(path).is_file():
+        return None
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def _child_env() -> dict[str, str]:
+    # without the user's python-can settings: a CAN_CHANNEL would put every run on one channel (and port)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("CAN_")}
+    env.update(MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
+    return env
+
+
+def execute_run(task: dict[str, Any]) -> dict[str, Any]:
+    """Run one `bench run` (task: run_id, argv, run_dir, timeout_s, token) in a subprocess; its outcome as a dict.
+    Runs on a Dask worker; never raises for what the run did."""
+    from bench.fileio import write_text_atomically
+
+    run_dir = Path(task["run_dir"])
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "summary.json").unlink(missing_ok=True)     # an earlier attempt's: not this one's result
+    started, clock = now(), time.perf_counter()
+    argv = [sys.executable, "-m", "bench.campaign.child", str(os.getpid()), "run", *task["argv"]]
+    proc = subprocess.Popen(argv, cwd=run_dir, env=_child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    with _RUNNING_LOCK:
+        _RUNNING.setdefault(task["token"], set()).add(proc)
+    timed_out = False
+    try:
+        try:
+            out, err = proc.communicate(timeout=task["timeout_s"])
+        except subprocess.TimeoutExpired:
+            timed_out = True
+            proc.terminate()            # bench run stops its target and deletes its temporary files on SIGTERM
+            try:
+                out, err = proc.communicate(timeout=STOP_GRACE_S)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                out, err = proc.communicate()
+    finally:
+        with _RUNNING_LOCK:
+            running = _RUNNING.get(task["token"], set())
+            running.discard(proc)
+            if not running:
+                _RUNNING.pop(task["token"], None)
+    wall = time.perf_counter() - clock
+    summary = None
+    if proc.returncode in (0, 1) and not timed_out:
+        with contextlib.suppress(ValueError):
+            parsed = json.loads(out)
+            summary = parsed if isinstance(parsed, dict) and "clean" in parsed else None
+    if summary is not None:
+        status, error = DONE, None
+        verdict = "not clean" if proc.returncode else ("clean" if summary.get("clean") else "tolerated")
+    elif timed_out:
+        status, verdict = "timeout", None
+        error = f"the run took longer than {task['timeout_s']:g} s and was stopped"
+    else:
+        status, verdict = "failed", None
+        error = _error_sentence(err, proc.returncode)
+    if summary is not None:
+        write_text_atomically(run_dir / "summary.json", out)
+    write_text_atomically(run_dir / "stderr.txt", err)
+    return {"run_id": task["run_id"], "status": status, "verdict": verdict, "exit_code": proc.returncode,
+            "error": error, "summary": summary, "wall_s": round(wall, 3), "started_at": started,
+            "finished_at": now(), "worker": _worker_name(),
+            "log_sha256": _sha256(summary.get("log")) if summary else None}
+
+
+def stop_runs(token: str) -> int:
+    """SIGTERM every run of campaign `token` this worker is running (an interrupted campaign); how many."""
+    with _RUNNING_LOCK:
+        procs = list(_RUNNING.get(token, ()))
+    for proc in procs:
+        with contextlib.suppress(OSError):
+            proc.terminate()
+    return len(procs)
+
+
+# ---------------------------------------------------------------- on the driver
+
+
+def prepare_datasets(runs: list[Run], out_dir: Path, quiet: bool) -> dict[str, Path]:
+    """run id -> the data file it replays; the generated datasets a run names by set point are made here, once,
+    before any run starts (runs generating them side by side would write the same files): the default seed's in
+    out/data as `bench run` does, another seed's in OUT/data/seed-<N>."""
+    from bench.drive.generate import DEFAULT_SEED, ensure_default_datasets
+
+    made: dict[int | None, dict[int, Path]] = {}
+    paths = {}
+    for run in runs:
+        data = run.options["data"]
+        if isinstance(data, str):
+            paths[run.run_id] = run.path_of("data")
+            continue
+        seed = run.options["seed"]
+        if seed not in made:
+            where = (Path("out/data") if seed in (None, DEFAULT_SEED) else out_dir / "data" / f"seed-{seed}").resolve()
+            if not quiet:
+                print(f"bench: checking the generated datasets in {where} (made once if missing)", file=sys.stderr)
+            made[seed] = ensure_default_datasets(where, seed)
+        paths[run.run_id] = made[seed][data].resolve()
+    return paths
+
+
+@dataclass
+class Outcome:
+    """What `run_campaign` did: counts for the summary line and --json."""
+
+    runs: int
+    skipped: int
+    ran: int = 0
+    retried: int = 0
+    statuses: dict[str, int] = field(default_factory=dict)
+    verdicts: dict[str, int] = field(default_factory=dict)
+    workers: int = 0
+    cluster: str = ""
+    wall_s: float = 0.0
+
+
+def check_reachable(address: str) -> str:
+    """The scheduler's address with its scheme; BenchError (one sentence) when nothing listens there."""
+    full = address if "://" in address else f"tcp://{address}"
+    scheme, _, rest = full.partition("://")
+    if scheme != "tcp":
+        return full
+    host, sep, port = rest.rpartition(":")
+    if not sep or not port.isdigit() or not host:
+        raise BenchError(f"--cluster {address!r} is not a scheduler address; give tcp://HOST:PORT, e.g. "
+                         "tcp://127.0.0.1:8786")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        raise BenchError(f"cannot reach a Dask scheduler at {full} ({exc.strerror or exc}); start one "
+                         "(`dask scheduler`, then `dask worker ADDRESS`) or check the address") from None
+    return full
+
+
+@contextlib.contextmanager
+def dask_client(workers: int, address: str | None) -> Iterator[tuple[Any, str]]:
+    """A distributed Client: on the scheduler at `address`, or on an embedded LocalCluster of `workers` worker
+    processes (one thread each: a run is a subprocess, the worker only waits for it). Yields (client, label)."""
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "critical")   # the workers inherit it: no log chatter
+    import dask
+    from distributed import Client, LocalCluster
+
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    if address is not None:
+        full = check_reachable(address)
+        try:
+            client = Client(full, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError) as exc:
+            raise BenchError(f"cannot connect to a Dask scheduler at {full} ({exc}); check the address") from None
+        try:
+            client.wait_for_workers(1, timeout=60)
+        except TimeoutError:
+            client.close()
+            raise BenchError(f"the Dask scheduler at {full} has no worker after 60 s; start one with "
+                             f"`dask worker {full}`") from None
+        try:
+            yield client, f"the scheduler at {full}"
+        finally:
+            client.close()
+        return
+    # a worker that dies running a run fails that run at once (KilledWorker); the campaign retries it itself
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0,
+                          "distributed.worker.preload": ["bench.campaign.worker_setup"]}):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               memory_limit=0, host="127.0.0.1", silence_logs=logging.CRITICAL)
+        try:
+            client = Client(cluster)
+            try:
+                yield client, f"a local cluster of {workers} worker process(es)"
+            finally:
+                client.close()
+        finally:
+            cluster.close()
+
+
+def _lost_outcome(run_id: str, exc: BaseException) -> dict[str, Any]:
+    return {"run_id": run_id, "status": "lost-worker", "verdict": None, "exit_code": None,
+            "error": f"the Dask worker running it died ({type(exc).__name__})", "summary": None, "wall_s": None,
+            "started_at": None, "finished_at": now(), "worker": None, "log_sha256": None}
+
+
+def _failed_outcome(run_id: str, exc: BaseException) -> dict[str, Any]:
+    return {"run_id": run_id, "status": "failed", "verdict": None, "exit_code": None,
+            "error": f"the task failed on its worker: {type(exc).__name__}: {exc}"[:500], "summary": None,
+            "wall_s": None, "started_at": None, "finished_at": now(), "worker": None, "log_sha256": None}
+
+
+def table_row(run: Run, outcome: dict[str, Any], attempts: int,
+              run_dir: Path) -> tuple[dict[str, Any], list[tuple[str, int, int | None]]]:
+    """The run's row and fault rows for the store."""
+    flat, kinds = flatten(outcome.get("summary"))
+    row = {"run_id": run.run_id, "position": run.index, "axes": json.dumps(run.axes),
+           "options": json.dumps(run.options, sort_keys=True), **option_columns(run.options), **flat,
+           "status": outcome["status"], "verdict": outcome["verdict"], "exit_code": outcome["exit_code"],
+           "error": outcome["error"], "attempts": attempts, "wall_s": outcome["wall_s"],
+           "worker": outcome["worker"], "log_sha256": outcome["log_sha256"], "run_dir": str(run_dir),
+           "started_at": outcome["started_at"], "finished_at": outcome["finished_at"]}
+    return row, kinds
+
+
+def pending_runs(campaign: Campaign, store: Store, resume: bool) -> list[Run]:
+    """The runs to do: all of them, or with `resume` those the table does not hold as done (a failed, timed-out or
+    lost run is done again)."""
+    done = store.done() if resume else set()
+    return [run for run in campaign.runs if run.run_id not in done]
+
+
+def _stop_everywhere(client, token: str, wait_s: float = 5.0) -> None:
+    """Ask every worker to stop this campaign's runs, waiting at most `wait_s` (a dead worker is not waited for)."""
+    def ask() -> None:
+        with contextlib.suppress(Exception):
+            client.run(stop_runs, token, on_error="ignore")
+
+    thread = threading.Thread(target=ask, daemon=True)
+    thread.start()
+    thread.join(wait_s)
+
+
+def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: int, address: str | None,
+                 resume: bool, timeout_s: float | None, quiet: bool,
+                 on_event: Callable[[str], None] | None = None) -> Outcome:
+    """Run what the table does not hold as done (everything without `resume`), recording each outcome."""
+    started = time.perf_counter()
+    todo = pending_runs(campaign, store, resume)
+    outcome = Outcome(runs=len(campaign.runs), skipped=len(campaign.runs) - len(todo))
+    if not todo:
+        return outcome
+    data = prepare_datasets(todo, out_dir, quiet)
+    timeout = timeout_s if timeout_s is not None else campaign.timeout_s
+    token = uuid.uuid4().hex
+    runs_dir = (out_dir / "runs").resolve()
+    tasks = {run.run_id: {"run_id": run.run_id, "argv": run.argv(runs_dir / run.run_id, data[run.run_id]),
+                          "run_dir": str(runs_dir / run.run_id), "timeout_s": timeout, "token": token}
+             for run in todo}
+    by_id = {run.run_id: run for run in todo}
+    previous = {run.run_id: (store.row(run.run_id) or {}).get("attempts") or 0 for run in todo}
+
+    with dask_client(workers, address) as (client, label):
+        from distributed import KilledWorker, as_completed
+
+        outcome.cluster = label
+        outcome.workers = len(client.nthreads())
+        if not quiet:
+            print(f"bench: campaign {campaign.name}: {len(todo)} run(s) to do"
+                  + (f", {outcome.skipped} done already" if outcome.skipped else "")
+                  + f", on {label}; table {store.path}", file=sys.stderr)
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), unit="run", desc=campaign.name, file=sys.stderr, leave=False,
+                   disable=quiet or not sys.stderr.isatty())     # as `bench run`'s bar: a terminal's, not a log's
+        submitted: dict[str, tuple[str, int]] = {}    # task key -> (run id, attempt)
+        waiting = deque((run_id, 1) for run_id in tasks)
+        pending = as_completed()
+
+        def fill() -> None:
+            # no more runs in flight than worker threads: a run waits here, not in a worker's queue, so a worker
+            # that dies loses only the run it was running
+            threads = sum(client.nthreads().values())
+            while waiting and len(submitted) < max(threads, 1):
+                run_id, attempt = waiting.popleft()
+                key = f"bench-run-{run_id}-{token[:8]}-{attempt}"
+                pending.add(client.submit(execute_run, tasks[run_id], key=key, pure=False, retries=0))
+                submitted[key] = (run_id, attempt)
+
+        try:
+            fill()
+            for future in pending:
+                run_id, attempt = submitted.pop(future.key)
+                try:
+                    result = future.result()
+                except KilledWorker as exc:
+                    result = _lost_outcome(run_id, exc)
+                except Exception as exc:  # noqa: BLE001 - a task that errored: its worker, or its environment
+                    lost = type(exc).__name__ in ("CommClosedError", "FutureCancelledError", "CancelledError")
+                    result = _lost_outcome(run_id, exc) if lost else _failed_outcome(run_id, exc)
+                run = by_id[run_id]
+                row, kinds = table_row(run, result, previous[run_id] + attempt, runs_dir / run_id)
+                store.record(row, kinds)
+                outcome.ran += attempt == 1
+                if result["status"] != DONE and attempt < MAX_ATTEMPTS:
+                    outcome.retried += 1
+                    if on_event:
+                        on_event(f"run {run_id} {result['status']} ({result['error']}); retrying it once")
+                    waiting.appendleft((run_id, attempt + 1))
+                    fill()
+                    continue
+                outcome.statuses[result["status"]] = outcome.statuses.get(result["status"], 0) + 1
+                verdict = result["verdict"] or result["status"]
+                outcome.verdicts[verdict] = outcome.verdicts.get(verdict, 0) + 1
+                bar.set_postfix_str(", ".join(f"{k} {v}" for k, v in sorted(outcome.verdicts.items())), refresh=False)
+                bar.update(1)
+                fill()
+        except BaseException:
+            # interrupted: stop the runs still going on every worker (a remote worker would finish them), then the
+            # cluster closes; the table holds the runs that ended, each row whole
+            _stop_everywhere(client, token)
+            raise
+        finally:
+            bar.close()
+    outcome.wall_s = time.perf_counter() - started
+    return outcome

@@ -1,0 +1,393 @@
+"""A campaign spec (TOML): the axes to sweep and the options every run shares, expanded into runs.
+
+    [campaign]
+    name = "smoke"                  # optional: a title for the report (default: the file's stem)
+    description = "..."             # optional
+    timeout = 600                   # optional: seconds a run may take before it is stopped (default 1800)
+
+    [fixed]                         # options of every run
+    rows = 300
+    tolerate_faults = true
+
+    [axes]                          # every combination of these values is one run (cartesian product)
+    model = ["hammerstein", "lti-lptn", "pv-lptn"]
+    fault_seed = [1, 2]
+    faults = ["drop=0.01,corrupt=0.001"]
+
+Options (the `bench run` options of the same name, `-` or `_`): `model` (a packaged kind, hammerstein, lti-lptn or
+pv-lptn, or an artifact path), `engine` (python, firmware), `data` (20, 40 or 60: the generated dataset of that
+coolant set point; or a CSV path), `mapping` (path), `sample_period` (seconds or "auto"), `seed` (of the generated
+datasets), `mode` (lockstep, realtime), `speed`, `rows` (a number or "all"), `reply_timeout`, `faults` (as
+`--faults`: "drop=0.01,kill=1", or a table {drop = 0.01, kill = 1}; "" for none), `fault_seed`, `tolerate_faults`,
+`tolerate_gaps`, `report` (false: no per-run report). Paths are relative to the spec file.
+
+Every problem is one sentence naming the file and the key (`BenchError`), found before anything is written.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import re
+import tomllib
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.errors import BenchError, UsageError
+
+MODEL_KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
+COOLANT_SETPOINTS = (20, 40, 60)
+DEFAULT_TIMEOUT_S = 1800.0
+SECTIONS = ("campaign", "fixed", "axes")
+CAMPAIGN_KEYS = ("name", "description", "timeout")
+
+
+class SpecError(BenchError):
+    """A campaign spec that cannot be used: one sentence naming the file and the key."""
+
+
+# ---------------------------------------------------------------- option values
+
+
+def _number(value: Any, positive: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError("must be a number")
+    if positive and value <= 0:
+        raise ValueError("must be a positive number")
+    return float(value)
+
+
+def _whole(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError("must be a whole number")
+    return value
+
+
+def _flag(value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError("must be true or false")
+    return value
+
+
+def _choice(*choices: str) -> Callable[[Any], str]:
+    def check(value: Any) -> str:
+        if value not in choices:
+            raise ValueError(f"must be one of {', '.join(choices)}")
+        return value
+    return check
+
+
+def _model(value: Any) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise ValueError(f"must be a model kind ({', '.join(MODEL_KINDS)}) or the path of a model artifact")
+    if value in MODEL_KINDS or "/" in value or value.endswith(".json"):
+        return value
+    raise ValueError(f"unknown model kind {value!r}; use {', '.join(MODEL_KINDS)} or the path of a model "
+                     "artifact (a .json file)")
+
+
+def _data(value: Any) -> int | str:
+    if isinstance(value, int) and not isinstance(value, bool):
+        if value not in COOLANT_SETPOINTS:
+            raise ValueError(f"{value} is not a coolant set point of the generated datasets "
+                             f"({', '.join(map(str, COOLANT_SETPOINTS))}); give one of them or a CSV path")
+        return value
+    if isinstance(value, str) and value.strip():
+        return value
+    raise ValueError("must be a coolant set point of the generated datasets (20, 40, 60) or a CSV path")
+
+
+def _path(value: Any) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise ValueError("must be a file path")
+    return value
+
+
+def _rows(value: Any) -> int | None:
+    if value == "all":
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise ValueError('must be a positive whole number of rows or "all"')
+    return value
+
+
+def _sample_period(value: Any) -> float | str:
+    return "auto" if value == "auto" else _number(value)
+
+
+def _faults(value: Any) -> str:
+    """The fault spec as `--faults` takes it ('' for none); a TOML table becomes 'kind=value,...'."""
+    if value is False or value in ("", "none"):
+        return ""
+    if isinstance(value, dict):
+        parts = []
+        for kind, number in value.items():
+            if isinstance(number, bool) or not isinstance(number, int | float):
+                raise ValueError(f"{kind} = {number!r} must be a number (a probability, or a count for kill/freeze)")
+            parts.append(f"{kind}={number!r}")
+        value = ",".join(parts)
+    if not isinstance(value, str):
+        raise ValueError('must be a fault spec such as "drop=0.01,kill=1", a table {drop = 0.01}, or "" for none')
+    from host.faults.spec import FaultSpecError, parse_faults
+
+    try:
+        parse_faults([value])
+    except FaultSpecError as exc:
+        raise ValueError(str(exc)) from None
+    return ",".join(p.strip() for p in value.split(",") if p.strip())
+
+
+@dataclass(frozen=True)
+class Option:
+    check: Callable[[Any], Any]
+    default: Any
+    flag: str | None           # the `bench run` option (None: handled by `Run.argv`)
+
+
+OPTIONS: dict[str, Option] = {
+    "model": Option(_model, "hammerstein", None),
+    "engine": Option(_choice("python", "firmware"), "python", "--engine"),
+    "data": Option(_data, 40, None),
+    "mapping": Option(_path, None, None),
+    "sample_period": Option(_sample_period, "auto", "--sample-period"),
+    "seed": Option(_whole, None, None),
+    "mode": Option(_choice("lockstep", "realtime"), "lockstep", "--mode"),
+    "speed": Option(_number, 1.0, "--speed"),
+    "rows": Option(_rows, None, "--rows"),
+    "reply_timeout": Option(_number, 0.05, "--reply-timeout"),
+    "faults": Option(_faults, "", None),
+    "fault_seed": Option(_whole, 0, "--fault-seed"),
+    "tolerate_faults": Option(_flag, False, "--tolerate-faults"),
+    "tolerate_gaps": Option(_flag, False, "--tolerate-gaps"),
+    "report": Option(_flag, True, None),
+}
+
+
+def option_name(key: str) -> str:
+    return key.strip().replace("-", "_")
+
+
+# ---------------------------------------------------------------- runs and campaigns
+
+
+@dataclass(frozen=True)
+class Run:
+    """One combination: its id, the axis values that make it, and every option (defaults filled in)."""
+
+    run_id: str
+    index: int
+    axes: dict[str, Any]
+    options: dict[str, Any]
+    base_dir: Path             # relative paths in the spec are relative to this
+
+    def path_of(self, key: str) -> Path | None:
+        value = self.options.get(key)
+        if not isinstance(value, str):
+            return None
+        path = Path(value).expanduser()
+        return (path if path.is_absolute() else self.base_dir / path).resolve()
+
+    def model_path(self) -> Path:
+        value = self.options["model"]
+        if value in MODEL_KINDS:
+            from bench.model.default import default_artifact_path
+
+            return default_artifact_path(value).resolve()
+        return self.path_of("model")
+
+    def argv(self, run_dir: Path, data: Path) -> list[str]:
+        """`bench run` arguments (after `run`): absolute paths, its log and report in `run_dir`, JSON on stdout, on
+        udp_multicast with no channel, so the run gets a port of its own."""
+        o = self.options
+        args = ["--model", str(self.model_path()), "--data", str(data)]
+        if o["mapping"] is not None:
+            args += ["--mapping", str(self.path_of("mapping"))]
+        for key, opt in OPTIONS.items():
+            value = o[key]
+            if opt.flag is None or value is None or value is False:
+                continue
+            args += [opt.flag] if value is True else [opt.flag, repr(value) if isinstance(value, float) else str(value)]
+        if o["faults"]:
+            args += ["--faults", o["faults"]]
+        args += ["--log", str(run_dir / "bench.blf")]
+        args += ["--no-report"] if not o["report"] else ["--report", str(run_dir / "report")]
+        return [*args, "--json", "--quiet", "-i", "udp_multicast"]
+
+    def label(self) -> str:
+        return ", ".join(f"{k}={v}" for k, v in self.axes.items()) or "(the only run)"
+
+
+@dataclass(frozen=True)
+class Campaign:
+    path: Path
+    text: str
+    name: str
+    description: str
+    timeout_s: float
+    axes: dict[str, list[Any]]
+    fixed: dict[str, Any]
+    runs: list[Run] = field(repr=False)
+
+
+def run_id(axes: dict[str, Any], options: dict[str, Any]) -> str:
+    """A slug of the axis values and a hash of every option: the same run has the same id in any spec, so
+    `--resume` recognizes it; a changed option (fixed or not) makes another run."""
+    digest = hashlib.sha256(json.dumps(options, sort_keys=True).encode()).hexdigest()[:10]
+    parts = []
+    for name, value in axes.items():
+        if isinstance(value, str):
+            text = Path(value).stem if "/" in value or value.endswith(".json") else value
+        else:   # a number or a flag means little without its axis' name
+            text = f"{name}{value}"
+        parts.append(re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-.") or "x")
+    slug = "_".join(parts)[:48].strip("_-.")
+    return f"{slug}-{digest}" if slug else digest
+
+
+def _check(where: str, key: str, value: Any) -> Any:
+    name = option_name(key)
+    if name not in OPTIONS:
+        raise SpecError(f"{where} names an unknown option {key!r}; use {', '.join(OPTIONS)}")
+    try:
+        return OPTIONS[name].check(value)
+    except ValueError as exc:
+        raise SpecError(f"{where} {key}: {exc}") from None
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """'KEY=VALUE' of --set: VALUE read as a TOML value (300, true, ["a", "b"]), else as a string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise UsageError(f"--set {text!r} must be KEY=VALUE, e.g. --set rows=2000")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()
+    return option_name(key), parsed
+
+
+def parse_spec(text: str, path: Path, overrides: Iterable[str] = ()) -> Campaign:
+    """The campaign of a spec's text (`path` names it in messages and anchors relative paths); `overrides`
+    ('KEY=VALUE', --set) replace fixed options, or an axis (a list) or fix it (a single value)."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path} is not valid TOML ({exc}); fix the spec") from None
+    unknown = [k for k in doc if k not in SECTIONS]
+    if unknown:
+        raise SpecError(f"{path} has an unknown section or key {unknown[0]!r}; a spec has the tables "
+                        f"{', '.join(f'[{s}]' for s in SECTIONS)}")
+    for section in SECTIONS:
+        if not isinstance(doc.get(section, {}), dict):
+            raise SpecError(f"{path}: {section} must be a table, [{section}]")
+    head = doc.get("campaign", {})
+    bad = [k for k in head if k not in CAMPAIGN_KEYS]
+    if bad:
+        raise SpecError(f"{path}: [campaign] has an unknown key {bad[0]!r}; use {', '.join(CAMPAIGN_KEYS)} (run "
+                        "options go into [fixed] or [axes])")
+    name = head.get("name", path.stem)
+    description = head.get("description", "")
+    if not isinstance(name, str) or not isinstance(description, str):
+        raise SpecError(f"{path}: [campaign] name and description must be strings")
+    try:
+        timeout_s = _number(head.get("timeout", DEFAULT_TIMEOUT_S))
+    except ValueError as exc:
+        raise SpecError(f"{path}: [campaign] timeout: {exc} of seconds") from None
+
+    fixed = {option_name(k): _check(f"{path}: [fixed]", k, v) for k, v in doc.get("fixed", {}).items()}
+    axes: dict[str, list[Any]] = {}
+    for key, values in doc.get("axes", {}).items():
+        axes[option_name(key)] = _axis_values(f"{path}: [axes]", key, values)
+    for key, value in (parse_override(o) for o in overrides):
+        if isinstance(value, list):
+            fixed.pop(key, None)
+            axes[key] = _axis_values("--set", key, value)
+        else:
+            axes.pop(key, None)
+            fixed[key] = _check("--set", key, value)
+    both = sorted(set(fixed) & set(axes))
+    if both:
+        raise SpecError(f"{path}: {both[0]} is both in [fixed] and in [axes]; keep it in one of them")
+    campaign = Campaign(path, text, name, description, timeout_s, axes, fixed, _expand(axes, fixed, path.parent))
+    _check_runs(campaign)
+    return campaign
+
+
+def _axis_values(where: str, key: str, values: Any) -> list[Any]:
+    if not isinstance(values, list) or not values:
+        raise SpecError(f"{where} {key}: must be a non-empty list of values, e.g. {key} = [1, 2]")
+    checked = [_check(where, key, v) for v in values]
+    seen = set()
+    for value in checked:
+        if json.dumps(value) in seen:
+            raise SpecError(f"{where} {key}: lists {value!r} twice; give each value once")
+        seen.add(json.dumps(value))
+    return checked
+
+
+def _expand(axes: dict[str, list[Any]], fixed: dict[str, Any], base_dir: Path) -> list[Run]:
+    runs = []
+    for index, values in enumerate(itertools.product(*axes.values())):
+        chosen = dict(zip(axes, values, strict=True))
+        options = {k: opt.default for k, opt in OPTIONS.items()} | fixed | chosen
+        runs.append(Run(run_id(chosen, options), index, chosen, options, base_dir.resolve()))
+    return runs
+
+
+def _check_runs(campaign: Campaign) -> None:
+    """What only a whole combination, or the files it names, can show: missing files, artifacts that do not load,
+    kill/freeze in real time, the firmware engine on a model it cannot run."""
+    where = campaign.path
+    checked: dict[Path, str | None] = {}
+    for run in campaign.runs:
+        o = run.options
+        for key in ("data", "mapping"):
+            p = run.path_of(key)
+            if p is not None and not p.is_file():
+                raise SpecError(f"{where}: {key} {o[key]!r} is not a file ({p}); fix the path (relative paths are "
+                                "relative to the spec)")
+        model = run.model_path()
+        if model not in checked:
+            checked[model] = _model_problem(model, o["model"])
+        if checked[model] is not None:
+            raise SpecError(f"{where}: model {o['model']!r}: {checked[model]}")
+        if o["engine"] == "firmware":
+            from target_sim.artifact import load_artifact
+            from target_sim.firmware.node_protocol import firmware_refusal
+
+            refusal = firmware_refusal(load_artifact(model))
+            if refusal is not None:
+                raise SpecError(f"{where}: run {run.label()}: {refusal}")
+        if o["faults"] and o["mode"] != "lockstep" and re.search(r"(^|,)\s*(kill|freeze)", o["faults"]):
+            raise SpecError(f"{where}: run {run.label()} has kill or freeze faults in {o['mode']} mode; they need "
+                            "lockstep (a lost target's rows cannot be sent again on a real-time clock)")
+
+
+def _model_problem(path: Path, value: str) -> str | None:
+    if not path.is_file():
+        return f"{path} is not a file; give a model kind ({', '.join(MODEL_KINDS)}) or an artifact's path"
+    from target_sim.artifact import ArtifactError, load_artifact
+
+    try:
+        load_artifact(path)
+    except ArtifactError as exc:
+        return str(exc)
+    return None
+
+
+def load_spec(path: Path, overrides: Iterable[str] = ()) -> Campaign:
+    """The campaign of the spec file `path` (SpecError, one sentence, for a missing or bad one)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError(f"the campaign spec {path} does not exist; give the path of a TOML spec, e.g. "
+                        "examples/campaigns/smoke.toml") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError(f"the campaign spec {path} cannot be read ({exc})") from None
+    return parse_spec(text, path, overrides)

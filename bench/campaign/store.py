@@ -1,0 +1,192 @@
+"""The campaign's table: OUT/campaign.sqlite, one row per run (its options, its JSON summary flattened and whole,
+status, attempts, log and its sha256) and one row per run and fault kind (injected, detected).
+
+A run's rows are written in one transaction when the run ends, so an interrupted campaign leaves a table whose
+every row is whole; only the driver writes (the workers return their results to it).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from bench.errors import BenchError
+
+TABLE_NAME = "campaign.sqlite"
+SCHEMA_VERSION = 1
+DONE = "done"                         # the bench ran and gave its verdict, whatever it is
+STATUSES = (DONE, "failed", "timeout", "lost-worker")
+
+# (column, SQL type); the options first (every run option, so a query needs no JSON), then the results.
+OPTION_COLUMNS = (("model", "TEXT"), ("engine", "TEXT"), ("data", "TEXT"), ("mapping", "TEXT"),
+                  ("sample_period", "TEXT"), ("seed", "INTEGER"), ("mode", "TEXT"), ("speed", "REAL"),
+                  ("rows", "INTEGER"), ("reply_timeout", "REAL"), ("faults", "TEXT"), ("fault_seed", "INTEGER"),
+                  ("tolerate_faults", "INTEGER"), ("tolerate_gaps", "INTEGER"), ("report", "INTEGER"))
+RESULT_COLUMNS = (
+    ("status", "TEXT"), ("verdict", "TEXT"), ("clean", "INTEGER"), ("exit_code", "INTEGER"), ("error", "TEXT"),
+    ("problems", "TEXT"), ("attempts", "INTEGER"),
+    ("model_kind", "TEXT"), ("model_id", "TEXT"), ("engine_used", "TEXT"),
+    ("rmse_winding_C", "REAL"), ("rmse_pm_C", "REAL"), ("max_can_minus_float32_C", "REAL"),
+    ("faults_injected", "INTEGER"), ("faults_detected", "INTEGER"), ("faults_undetected", "INTEGER"),
+    ("retransmitted_rows", "INTEGER"), ("gaps", "INTEGER"),
+    ("est_c28x_cycles", "INTEGER"), ("m4_cycles_p50", "INTEGER"), ("m4_cycles_max", "INTEGER"),
+    ("step_time_us_p50", "REAL"), ("throughput_rows_per_s", "REAL"),
+    ("rows_sent", "INTEGER"), ("replies", "INTEGER"), ("missing", "INTEGER"),
+    ("wall_s", "REAL"), ("bench_elapsed_s", "REAL"), ("bus_port", "INTEGER"), ("worker", "TEXT"),
+    ("log_path", "TEXT"), ("log_sha256", "TEXT"), ("report_path", "TEXT"), ("run_dir", "TEXT"),
+    ("started_at", "TEXT"), ("finished_at", "TEXT"), ("summary", "TEXT"))
+COLUMNS = (("run_id", "TEXT PRIMARY KEY"), ("position", "INTEGER"), ("axes", "TEXT"), ("options", "TEXT"),
+           *OPTION_COLUMNS, *RESULT_COLUMNS)
+
+
+class StoreError(BenchError):
+    """A table that is not a campaign's, or cannot be read or written."""
+
+
+def _get(d: Any, *keys: str) -> Any:
+    for key in keys:
+        if not isinstance(d, dict):
+            return None
+        d = d.get(key)
+    return d
+
+
+def _max(values: Iterable[Any]) -> float | None:
+    numbers = [v for v in values if isinstance(v, int | float)]
+    return max(numbers) if numbers else None
+
+
+def flatten(summary: dict | None) -> tuple[dict[str, Any], list[tuple[str, int, int | None]]]:
+    """The columns a `bench run --json` summary gives, and its (fault kind, injected, detected) rows."""
+    if not summary:
+        return {}, []
+    faults = summary.get("faults") or {}
+    injected, detected = faults.get("injected") or {}, faults.get("detected") or {}
+    m4 = summary.get("m4_cycles") or {}
+    row = {
+        "clean": bool(summary.get("clean")),
+        "problems": json.dumps(summary.get("problems") or []),
+        "model_kind": _get(summary, "metrics", "model", "kind"),
+        "model_id": _get(summary, "metrics", "model", "id"),
+        "engine_used": summary.get("engine"),
+        "rmse_winding_C": _get(summary, "rmse_C", "winding"),
+        "rmse_pm_C": _get(summary, "rmse_C", "magnet"),
+        "max_can_minus_float32_C": _max((summary.get("max_abs_can_minus_float32_C") or {}).values()),
+        "faults_injected": faults.get("injected_total") if faults else 0,
+        "faults_detected": faults.get("detected_total") if faults else 0,
+        "faults_undetected": faults.get("undetected") if faults else 0,
+        "retransmitted_rows": faults.get("retransmitted_rows") if faults else 0,
+        "gaps": len(faults.get("gaps") or []) if faults else 0,
+        "est_c28x_cycles": summary.get("est_cycles"),
+        "m4_cycles_p50": m4.get("p50"),
+        "m4_cycles_max": m4.get("max"),
+        "step_time_us_p50": _get(summary, "step_time_us", "p50"),
+        "throughput_rows_per_s": summary.get("throughput_steps_per_s"),
+        "rows_sent": summary.get("steps_sent"),
+        "replies": summary.get("replies"),
+        "missing": summary.get("missing"),
+        "bench_elapsed_s": summary.get("elapsed_s"),
+        "bus_port": _get(summary, "bus", "port"),
+        "log_path": summary.get("log"),
+        "report_path": summary.get("report"),
+        "summary": json.dumps(summary, sort_keys=True),
+    }
+    kinds = [(kind, int(n), detected.get(kind)) for kind, n in injected.items()]
+    return row, kinds
+
+
+class Store:
+    """The table of one campaign directory."""
+
+    def __init__(self, path: Path, *, create: bool = False):
+        self.path = Path(path)
+        if not create and not self.path.is_file():
+            raise StoreError(f"{self.path} does not exist; give the output directory of a campaign (bench campaign "
+                             "run --out DIR)")
+        existed = self.path.exists()
+        if create:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._db = sqlite3.connect(self.path, timeout=30)
+            self._db.row_factory = sqlite3.Row
+            if not existed:      # a new table; an existing file is only checked, never altered to fit
+                with self._db:
+                    self._db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
+                    self._db.execute(f"CREATE TABLE runs ({', '.join(f'{c} {t}' for c, t in COLUMNS)})")
+                    self._db.execute("CREATE TABLE faults (run_id TEXT, kind TEXT, injected INTEGER, "
+                                     "detected INTEGER, PRIMARY KEY (run_id, kind))")
+                    self._db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+            tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            if not {"meta", "runs", "faults"} <= tables:
+                self._db.close()
+                raise StoreError(f"{self.path} is not a campaign table (it lacks the tables meta, runs and faults); "
+                                 "give a campaign's directory")
+            version = self.meta().get("schema_version")
+            present = {r["name"] for r in self._db.execute("PRAGMA table_info(runs)")}
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path} is not a campaign table ({exc}); give a campaign's directory") from None
+        if version != str(SCHEMA_VERSION):
+            self._db.close()
+            raise StoreError(f"{self.path} has table schema {version}, this bench reads {SCHEMA_VERSION}; run the "
+                             "campaign again into another --out")
+        missing = [c for c, _ in COLUMNS if c not in present]
+        if missing:
+            self._db.close()
+            raise StoreError(f"{self.path} is not a campaign table (its runs table lacks {missing[0]})")
+
+    def close(self) -> None:
+        self._db.close()
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def meta(self) -> dict[str, str]:
+        return {r["key"]: r["value"] for r in self._db.execute("SELECT key, value FROM meta")}
+
+    def set_meta(self, values: dict[str, str]) -> None:
+        with self._db:
+            self._db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", list(values.items()))
+
+    def rows(self) -> list[dict[str, Any]]:
+        """Every run's row, in the spec's order."""
+        return [dict(r) for r in self._db.execute("SELECT * FROM runs ORDER BY position, run_id")]
+
+    def faults(self) -> list[dict[str, Any]]:
+        return [dict(r) for r in self._db.execute("SELECT * FROM faults ORDER BY run_id, kind")]
+
+    def row(self, run_id: str) -> dict[str, Any] | None:
+        found = self._db.execute("SELECT * FROM runs WHERE run_id = ?", (run_id,)).fetchone()
+        return dict(found) if found is not None else None
+
+    def done(self) -> set[str]:
+        """The ids of the runs that are done (the bench gave its verdict): what --resume skips."""
+        return {r[0] for r in self._db.execute("SELECT run_id FROM runs WHERE status = ?", (DONE,))}
+
+    def record(self, row: dict[str, Any], fault_rows: Iterable[tuple[str, int, int | None]] = ()) -> None:
+        """Replace the run's row and its fault rows, in one transaction."""
+        names = [c for c, _ in COLUMNS]
+        unknown = set(row) - set(names)
+        if unknown:
+            raise ValueError(f"not columns of the runs table: {sorted(unknown)}")
+        values = [row.get(c) for c in names]
+        with self._db:
+            self._db.execute(f"INSERT OR REPLACE INTO runs ({', '.join(names)}) VALUES "
+                             f"({', '.join('?' for _ in names)})", values)
+            self._db.execute("DELETE FROM faults WHERE run_id = ?", (row["run_id"],))
+            self._db.executemany("INSERT INTO faults VALUES (?, ?, ?, ?)",
+                                 [(row["run_id"], kind, n, d) for kind, n, d in fault_rows])
+
+
+def option_columns(options: dict[str, Any]) -> dict[str, Any]:
+    """A run's options as columns (booleans as 0/1, the data set point as text like a path)."""
+    out = {}
+    for column, _ in OPTION_COLUMNS:
+        value = options.get(column)
+        out[column] = int(value) if isinstance(value, bool) else (str(value) if column == "data" else value)
+    return out

@@ -1,0 +1,145 @@
+"""The campaign table (a run's JSON summary flattened, rows replaced whole, what --resume skips) and the report
+rebuilt from the table alone."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+
+import pytest
+
+from bench.campaign.execute import pending_runs, table_row
+from bench.campaign.report import verdict_matrix
+from bench.campaign.spec import parse_spec
+from bench.campaign.store import TABLE_NAME, Store, StoreError, flatten
+from bench.cli import main
+
+SPEC = """
+[fixed]
+rows = 300
+[axes]
+model = ["hammerstein", "lti-lptn"]
+fault_seed = [1, 2, 3]
+"""
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def summary(clean: bool = True, winding: float = 0.5, pm: float = 0.25, faults: dict | None = None) -> dict:
+    """The fields of a `bench run --json` summary the table reads (a real one has many more)."""
+    injected = faults or {}
+    return {
+        "engine": "firmware", "steps_sent": 300, "replies": 300, "missing": 0, "clean": clean,
+        "max_abs_can_minus_float32_C": {"yoke": 0.001, "winding": 0.0049, "tooth": 0.002, "magnet": 0.003},
+        "rmse_C": {"yoke": 1.0, "winding": winding, "tooth": 2.0, "magnet": pm},
+        "step_time_us": {"p50": 101.5, "p99": 180.0, "max": 331.0}, "est_cycles": 1989,
+        "m4_cycles": {"p50": 1403, "max": 1410}, "throughput_steps_per_s": 1083.0, "log": "/x/bench.blf",
+        "report": None, "bus": {"interface": "udp_multicast", "channel": "ff11::1", "port": 40000},
+        "problems": [] if clean else ["3 of 300 rows got no reply"], "elapsed_s": 8.5,
+        "metrics": {"model": {"id": "5db6a7f2", "kind": "hammerstein"}},
+        "faults": {"injected": injected, "detected": dict(injected), "injected_total": sum(injected.values()),
+                   "detected_total": sum(injected.values()), "undetected": 0, "retransmitted_rows": 4,
+                   "gaps": [{"rows": [1, 2]}]} if faults else None,
+    }
+
+
+def outcome(s: dict | None, status: str = "done", verdict: str | None = "clean", code: int | None = 0,
+            error: str | None = None) -> dict:
+    return {"status": status, "verdict": verdict, "exit_code": code, "error": error, "summary": s, "wall_s": 9.5,
+            "started_at": "2026-01-01T00:00:00+00:00", "finished_at": "2026-01-01T00:00:10+00:00",
+            "worker": "tcp://127.0.0.1:1", "log_sha256": "ab" * 32}
+
+
+def test_a_summary_is_flattened():
+    row, kinds = flatten(summary(faults={"drop": 7, "kill": 1}))
+    assert row["rmse_winding_C"] == 0.5 and row["rmse_pm_C"] == 0.25
+    assert row["max_can_minus_float32_C"] == 0.0049
+    assert (row["est_c28x_cycles"], row["m4_cycles_p50"], row["m4_cycles_max"]) == (1989, 1403, 1410)
+    assert (row["faults_injected"], row["faults_detected"], row["faults_undetected"]) == (8, 8, 0)
+    assert (row["retransmitted_rows"], row["gaps"], row["bus_port"]) == (4, 1, 40000)
+    assert row["throughput_rows_per_s"] == 1083.0 and row["model_kind"] == "hammerstein"
+    assert sorted(kinds) == [("drop", 7, 7), ("kill", 1, 1)]
+    assert json.loads(row["summary"])["est_cycles"] == 1989
+    clean, none = flatten(summary())
+    assert clean["faults_injected"] == 0 and none == []
+    assert flatten(None) == ({}, [])
+
+
+@pytest.fixture
+def table(tmp_path):
+    """A campaign directory whose table holds 5 of the spec's 6 runs: clean, not clean, failed, timed out, lost."""
+    campaign = parse_spec(SPEC, tmp_path / "spec.toml")
+    runs = campaign.runs
+    with Store(tmp_path / TABLE_NAME, create=True) as store:
+        store.set_meta({"name": "unit", "axes": json.dumps(campaign.axes)})
+        results = [outcome(summary(faults={"drop": 3})), outcome(summary(False, 0.8, 0.4), verdict="not clean",
+                                                                 code=1),
+                   outcome(None, "failed", None, 1, "model x cannot be loaded"),
+                   outcome(None, "timeout", None, -15, "the run took longer than 5 s and was stopped"),
+                   outcome(None, "lost-worker", None, None, "the Dask worker running it died (KilledWorker)")]
+        for run, result in zip(runs, results, strict=False):
+            store.record(*table_row(run, result, 1, tmp_path / "runs" / run.run_id))
+    return tmp_path, campaign
+
+
+def test_rows_are_replaced_whole_and_resume_skips_only_done_runs(table):
+    out, campaign = table
+    runs = campaign.runs
+    with Store(out / TABLE_NAME) as store:
+        assert store.done() == {runs[0].run_id, runs[1].run_id}     # a verdict that is not clean is done too
+        assert [r.run_id for r in pending_runs(campaign, store, resume=True)] == [r.run_id for r in runs[2:]]
+        assert len(pending_runs(campaign, store, resume=False)) == 6
+        assert store.faults() == [{"run_id": runs[0].run_id, "kind": "drop", "injected": 3, "detected": 3}]
+        store.record(*table_row(runs[0], outcome(summary()), 2, out / "runs" / runs[0].run_id))
+        assert store.faults() == []                                # the run's fault rows went with its old row
+        row = store.row(runs[0].run_id)
+        assert (row["attempts"], row["verdict"], row["model"], row["fault_seed"], row["rows"]) == \
+            (2, "clean", "hammerstein", 1, 300)
+        assert json.loads(row["axes"]) == {"model": "hammerstein", "fault_seed": 1}
+        assert len(store.rows()) == 5
+
+
+def test_the_report_is_rebuilt_from_the_table_alone(table, capsys):
+    out, campaign = table
+    labels, columns, cells = verdict_matrix(Store(out / TABLE_NAME).rows())
+    assert labels == ["model=hammerstein", "model=lti-lptn"]
+    assert columns == ["fault_seed=1", "fault_seed=2", "fault_seed=3"]
+    assert cells == [["clean", "not clean", "failed"], ["timeout", "lost-worker", "not run"]]
+    (out / "spec.toml").unlink(missing_ok=True)                     # nothing but the table is needed
+    assert main(["campaign", "report", str(out)]) == 0
+    assert "5 run(s)" in capsys.readouterr().out
+    report = out / "report"
+    assert sorted(p.name for p in report.iterdir()) == ["axis-fault_seed.png", "axis-model.png", "report.md",
+                                                       "verdicts.png"]
+    assert all(p.read_bytes().startswith(PNG) for p in report.glob("*.png"))
+    md = (report / "report.md").read_text()
+    assert "| model=hammerstein | clean | not clean | failed |" in md
+    assert "| model=lti-lptn | timeout | lost-worker | not run |" in md
+    assert "model x cannot be loaded" in md and "3 of 300 rows got no reply" in md
+    assert "drop 3/3" in md
+    # a row changed in the table changes the rebuilt report; an earlier report is replaced
+    with Store(out / TABLE_NAME) as store:
+        run = campaign.runs[2]
+        store.record(*table_row(run, outcome(summary()), 2, out / "runs" / run.run_id))
+    assert main(["campaign", "report", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["runs"] == 5
+    assert "| model=hammerstein | clean | not clean | clean |" in (report / "report.md").read_text()
+
+
+def test_a_report_directory_with_foreign_files_and_a_foreign_table_are_refused(table, tmp_path_factory, capsys):
+    out, _ = table
+    (out / "report").mkdir()
+    (out / "report" / "mine.txt").write_text("keep")
+    assert main(["campaign", "report", str(out)]) == 1
+    assert "mine.txt, which the campaign report did not write" in capsys.readouterr().err
+    assert sorted(p.name for p in (out / "report").iterdir()) == ["mine.txt"]
+    other = tmp_path_factory.mktemp("other")
+    (other / TABLE_NAME).write_text("not sqlite at all")
+    assert main(["campaign", "report", str(other)]) == 1
+    assert "is not a campaign table" in capsys.readouterr().err
+    foreign = tmp_path_factory.mktemp("foreign")
+    sqlite3.connect(foreign / TABLE_NAME).execute("CREATE TABLE runs (x TEXT)").connection.commit()
+    for create in (False, True):
+        with pytest.raises(StoreError, match="not a campaign table"):
+            Store(foreign / TABLE_NAME, create=create)
+    tables = sqlite3.connect(foreign / TABLE_NAME).execute("SELECT name FROM sqlite_master").fetchall()
+    assert tables == [("runs",)]                                     # checked, never altered
