@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import psutil
+import pytest
 
 from bench.campaign.execute import execute_run
 
@@ -54,6 +55,7 @@ def faults_of(out: Path, run_id: str) -> dict[str, tuple[int, int]]:
                                                  (run_id,))}
 
 
+@pytest.mark.cluster
 def test_a_campaign_agrees_with_its_runs_and_retries_a_lost_worker_and_a_crash(tmp_path, small_dataset):
     broken = tmp_path / "broken.csv"
     broken.write_text("time_s,torque_Nm\n0,1\n0.2,2\n")       # no speed, no temperatures: `bench run` refuses it
@@ -125,6 +127,7 @@ model = ["hammerstein", "pv-lptn"]
     assert bench_runs_of(out) == []
 
 
+@pytest.mark.cluster
 def test_an_interrupted_campaign_resumes_with_only_the_missing_runs(tmp_path, small_dataset):
     spec = tmp_path / "spec.toml"
     spec.write_text(f"""
