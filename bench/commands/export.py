@@ -30,6 +30,7 @@ from dbc.codec import decode_any
 from dbc.contract import nearest_row
 from dbc.database import frame_id, host_frame_ids
 from host.canlog import FrameLog, LogError, check_log_path, read_log
+from target_sim.model import InputAccumulator
 
 # messages whose Step is the data row they belong to (the target's replies carry the row they answer)
 ROW_MESSAGES = ("DriveInputs", "DriveTemps", "DriveCurrents", "Temperatures1", "Temperatures2", "Timing1", "Timing2",
@@ -101,11 +102,6 @@ def model_dt(messages: list[can.Message]) -> float | None:
     return None
 
 
-def ends_interval(row: int, period_us: int, dt_us: int) -> bool:
-    """Row `row` completes a model step's interval (the target's rule, `target_sim.model.InputAccumulator`)."""
-    return (row + 1) * period_us // dt_us != row * period_us // dt_us
-
-
 def infer_sample_period(step_rows: list[int], dt: float) -> float | None:
     """The data sample period that makes exactly the rows `step_rows` (after which the target stepped its model,
     Δt `dt`) the ends of their model steps' intervals: the estimate Δt × steps / rows, rounded to the fewest
@@ -114,14 +110,13 @@ def infer_sample_period(step_rows: list[int], dt: float) -> float | None:
     if len(rows) < 2 or dt <= 0:
         return None
     estimate = dt * (len(rows) - 1) / (rows[-1] - rows[0])
-    dt_us = round(dt * 1e6)
     slack = max(2, len(rows) // 100)
     for digits in range(1, MAX_DIGITS + 1):
         candidate = float(f"{estimate:.{digits}g}")
-        period_us = round(candidate * 1e6)
-        if period_us <= 0 or not all(ends_interval(n, period_us, dt_us) for n in rows):
+        rule = InputAccumulator(candidate, dt)         # the target's rule of when a model step is due
+        if rule.sample_us <= 0 or not all(rule.ends_interval(n) for n in rows):
             continue
-        predicted = sum(1 for n in range(rows[0], rows[-1] + 1) if ends_interval(n, period_us, dt_us))
+        predicted = sum(1 for n in range(rows[0], rows[-1] + 1) if rule.ends_interval(n))
         if len(rows) <= predicted <= len(rows) + slack:
             return candidate
     return None

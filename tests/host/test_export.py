@@ -11,10 +11,11 @@ import time
 import can
 import pytest
 
-from bench.commands.export import drive_times, ends_interval, infer_sample_period
+from bench.commands.export import drive_times, infer_sample_period
 from dbc import decode_any
 from dbc.database import frame_id, host_frame_ids, target_frame_ids
 from dbc.transport import BusConfig
+from target_sim.model import InputAccumulator
 
 from helpers import ROOT, private_udp_bus, run_cli, subprocess_env
 
@@ -116,7 +117,8 @@ def test_the_host_only_export_replays_with_can_player_and_every_row_is_answered(
 
 
 def _interval_ends(rows: int, period: float, dt: float) -> list[int]:
-    return [n for n in range(rows) if ends_interval(n, round(period * 1e6), round(dt * 1e6))]
+    rule = InputAccumulator(period, dt)
+    return [n for n in range(rows) if rule.ends_interval(n)]
 
 
 @pytest.mark.parametrize(("period", "dt"), [(0.2, 0.5), (0.1, 0.5), (0.5, 0.5), (0.2, 1.0), (0.25, 4.0),
