@@ -253,6 +253,10 @@ class FrameValidator:
         )
         self._last_counter: dict[int, int] = {}
 
+    def last_counter(self, fid: int) -> int | None:
+        """The alive counter the next frame of `fid` is checked against (the last one received), or None."""
+        return self._last_counter.get(fid)
+
     def reset_counters(self) -> None:
         """Forget every message's last counter: the next frame of each message is accepted with any counter."""
         self._last_counter.clear()

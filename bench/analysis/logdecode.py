@@ -241,7 +241,6 @@ class _LogDecoder:
         self.rejected: dict[str, int] = {}
         self.foreign: dict[str, int] = {}
         self.validator = FrameValidator("HOST")      # the host's checks of what the target sends
-        self.last_counter: dict[int, int] = {}      # per id, the counter the validator compares the next one with
         self.last_reply_row: dict[int, int] = {}    # per reply id, the row of the last reply frame used
         self.reply_ids = {name: frame_id(name) for name in REPLY_SIGNALS}
         self.target_ids = target_frame_ids()
@@ -307,6 +306,7 @@ class _LogDecoder:
         self.frame_ids.append(fid)
         self.frame_bytes += bytes(msg.data[:8]).ljust(8, b"\0")
         from_target = fid in self.target_ids and not msg.is_extended_id
+        previous = self.validator.last_counter(fid) if from_target else None
         try:
             if from_target:
                 frame = self.validator.validate(msg)     # what the host accepted of the target's frames
@@ -317,14 +317,10 @@ class _LogDecoder:
             if from_target:
                 name = self.by_id[fid].name
                 self._count(self.rejected, name)
-                if exc.kind == "counter":                # id, length, CRC and ranges passed
-                    counter, previous = msg.data[1] & 0x0F, self.last_counter.get(fid)
-                    self.last_counter[fid] = counter
-                    if counter == previous and name in REPLY_SIGNALS:
-                        self._contest(name, decode_any(msg).signals, self.last_reply_row.get(fid))
+                # id, length, CRC and ranges passed, and the frame repeats the counter of the one before it
+                if exc.kind == "counter" and msg.data[1] & 0x0F == previous and name in REPLY_SIGNALS:
+                    self._contest(name, decode_any(msg).signals, self.last_reply_row.get(fid))
             return
-        if from_target:
-            self.last_counter[fid] = frame.counter
         handler = self.handlers.get(frame.name)
         if handler is not None:
             handler(frame.name, frame.signals, msg.timestamp)
@@ -473,7 +469,6 @@ class _LogDecoder:
             self.reinit_announced = True
         elif event == BenchEvent.TARGET_LOST:
             self.validator.reset_counters()      # so does the host: a restarted target starts its counters at 0
-            self.last_counter.clear()
 
     def status(self, name: str, s: dict, t: float) -> None:
         model_id = int(s["ModelId"])
