@@ -73,12 +73,6 @@ class TimingSeries:
     def values(self) -> np.ndarray:
         return np.frombuffer(self._values, dtype=np.float64).copy()
 
-    def __len__(self) -> int:
-        return len(self._values)
-
-    def __iter__(self):
-        return zip(self.rows, self._values, strict=True)
-
 
 @dataclass
 class RowBook:

@@ -603,17 +603,18 @@ def integrity_problems(metrics: dict, *, injected: bool = False) -> list[str]:
     foreign = metrics.get("foreign_frames") or {}
     if foreign:
         out.append(f"{sum(foreign.values())} frames in the log pass the host's checks but are not of this session "
-                   f"({_counts(foreign)}); none of them is used")
+                   f"({counts_text(foreign)}); none of them is used")
     if metrics.get("contested_rows"):
         out.append(f"{metrics['contested_rows']} rows got a second reply with other temperatures (a replayed or "
                    "forged frame): their temperatures are not reported")
     rejected = metrics.get("rejected_target_frames") or {}
     if rejected and not injected:
         out.append(f"the host's checks reject {sum(rejected.values())} frames of the target in the log "
-                   f"({_counts(metrics.get('invalid_frames_in_log') or {})}; {_counts(rejected)}): none of their "
-                   "values is used")
+                   f"({counts_text(metrics.get('invalid_frames_in_log') or {})}; {counts_text(rejected)}): none of "
+                   "their values is used")
     return out
 
 
-def _counts(counts: dict[str, int]) -> str:
+def counts_text(counts: dict[str, int]) -> str:
+    """'kind n, kind n' of a dict of counts."""
     return ", ".join(f"{k} {v}" for k, v in counts.items())

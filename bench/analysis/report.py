@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from bench.analysis import plots
-from bench.analysis.canmetrics import TEMPERATURES, compute, problems
+from bench.analysis.canmetrics import TEMPERATURES, compute, counts_text, problems
 from bench.analysis.logdecode import BusRecord, decode_log
 from bench.errors import BenchError
 from bench.fileio import foreign_entries, write_directory_atomically
@@ -81,7 +81,7 @@ def _complete(m: dict) -> str:
 
 
 def _listed(counts) -> str:
-    return ", ".join(f"{k} {v}" for k, v in counts.items()) if counts else "none"
+    return counts_text(counts) if counts else "none"
 
 
 def _unused(m: dict, message: str) -> str:
