@@ -51,6 +51,7 @@ from host.results import HostResult
 from host.run import replay_log, run_dataset
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
+from target_sim.losses import CURRENT_SIGNALS
 from target_sim.node import target_on_channel
 
 TARGET_STOP_TIMEOUT_S = 5.0
@@ -149,11 +150,11 @@ def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, se
 def check_drive_data(dataset, artifact: ModelArtifact) -> None:
     """BenchError (one sentence) when the model needs the d/q currents (an electrical loss model) and the data has
     none: refused before anything starts (the target would otherwise never see a complete row)."""
-    if artifact.loss_model == "electrical" and not dataset.has_currents:
+    if set(artifact.drive_signals) & set(CURRENT_SIGNALS) and not dataset.has_currents:
         where = f" ({artifact.path})" if artifact.path is not None else ""
-        raise BenchError(f"model {artifact.model_id:08x}{where} has an electrical loss model, which needs the d/q "
-                         f"currents, and {dataset.path} has none (columns i_d_A, i_q_A); map them with --mapping or "
-                         "use a model with loss maps")
+        raise BenchError(f"model {artifact.model_id:08x}{where} has an {artifact.loss_model} loss model, which "
+                         f"needs the d/q currents, and {dataset.path} has none (columns i_d_A, i_q_A); map them with "
+                         "--mapping or use a model with loss maps")
 
 
 def drive_for(dataset, artifact: ModelArtifact):
@@ -162,7 +163,7 @@ def drive_for(dataset, artifact: ModelArtifact):
     from bench.model.runs import drive_matrix
 
     check_drive_data(dataset, artifact)
-    return drive_matrix(dataset, with_currents=artifact.loss_model == "electrical")
+    return drive_matrix(dataset, artifact.drive_signals)
 
 
 class TargetProcess:

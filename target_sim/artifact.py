@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from target_sim.losses import DEFAULT as DEFAULT_LOSS_MODEL
+from target_sim.losses import LOSS_KINDS, row_signals
 from target_sim.network import COOLANT_REFERENCE_C, network_matrices
 
 SCHEMA = "pmsm-thermal-bench.model-artifact"
@@ -28,16 +30,7 @@ REALIZATIONS = ("physical", "original", "balanced", "modal", "delta")
 # The delta realization's linear block is x <- x + Δ·(A x + B ũ), y = C x + r, with ũ the inputs whose four
 # temperature sources are taken relative to r = linear_block.reference_C (the states are deviations from r).
 OUTPUTS = ("yoke", "winding", "tooth", "magnet")
-LOSS_TABLES = ("p_dc0", "p_ac0", "p_stator", "p_magnet", "current")
-# losses.model: "maps" (tables over torque × speed) or "electrical" (from the d/q currents and the speed)
-LOSS_MODELS = ("maps", "electrical")
-ELECTRICAL_COEFFICIENTS = ("pole_pairs", "stator_resistance_ohm", "ac_factor", "ac_reference_Hz",
-                           "iron_hysteresis_W", "iron_eddy_W", "iron_reference_Hz", "iron_current_factor",
-                           "magnet_W", "magnet_reference_Hz", "magnet_no_load_share")
-# What the target accumulates per data row, in this order: the drive inputs, and the d/q currents when the loss
-# model needs them (DBC DriveInputs, DriveTemps and DriveCurrents).
-DRIVE_SIGNALS = ("torque_Nm", "speed_rpm", "coolant_C", "ambient_C")
-CURRENT_SIGNALS = ("i_d_A", "i_q_A")
+# losses.model names a loss model of `target_sim.losses` ("maps", "electrical", ...), which owns its fields
 LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
                    "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
 
@@ -139,7 +132,7 @@ class ModelArtifact:
     @property
     def drive_signals(self) -> tuple[str, ...]:
         """The per-row values the model needs, in accumulation order (4, or 6 with the d/q currents)."""
-        return DRIVE_SIGNALS + (CURRENT_SIGNALS if self.loss_model == "electrical" else ())
+        return row_signals(LOSS_KINDS[self.loss_model].inputs)
 
     def array(self, *keys: str, dtype=np.float32) -> np.ndarray:
         node = self.content
@@ -200,9 +193,9 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
         raise ArtifactError(f"artifact realization {_shown(content['realization'])} is not one of "
                             f"{', '.join(REALIZATIONS)}; rebuild it with 'bench identify'")
     losses = _require(content, "losses", dict)
-    model = losses.get("model", "maps")
-    if model not in LOSS_MODELS or (version == 1 and "model" in losses):
-        raise ArtifactError(f"artifact losses.model {_shown(model)} is not one of {', '.join(LOSS_MODELS)}; "
+    model = losses.get("model", DEFAULT_LOSS_MODEL)
+    if not isinstance(model, str) or model not in LOSS_KINDS or (version == 1 and "model" in losses):
+        raise ArtifactError(f"artifact losses.model {_shown(model)} is not one of {', '.join(LOSS_KINDS.names())}; "
                             "rebuild it with 'bench identify'")
     timing = _require(content, "timing", dict)
     low, high = TIMING_RANGE_S
@@ -223,11 +216,9 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
         if not np.all(np.isfinite(values)):
             raise ArtifactError(f"artifact field {where} holds a value that is not finite in float32; "
                                 "rebuild it with 'bench identify'")
-    for axis in ("torque_axis_Nm", "speed_axis_rpm") if model == "maps" else ():
-        steps = np.diff(artifact.array("losses", axis, dtype=np.float64))
-        if not np.all(steps > 0) or not np.allclose(steps, steps[0], rtol=1e-6):
-            raise ArtifactError(f"artifact field losses.{axis} is not an increasing, evenly spaced grid; "
-                                "rebuild it with 'bench identify'")
+    problem = LOSS_KINDS[model].problem(artifact)
+    if problem:
+        raise ArtifactError(f"{problem}; rebuild it with 'bench identify'")
     _check_stability(artifact)
     return artifact
 
@@ -303,14 +294,9 @@ def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
         ("linear_block", "A"): (n_states, n_states), ("linear_block", "B"): (n_states, n_inputs),
         ("linear_block", "C"): (n_outputs, n_states), ("linear_block", "C_inv"): (n_states, n_outputs),
     }
-    grid = []
-    for axis in ("torque_axis_Nm", "speed_axis_rpm"):
-        entry = content.get("losses", {}).get(axis) if isinstance(content.get("losses"), dict) else None
-        shape = entry.get("shape") if isinstance(entry, dict) else None
-        size = shape[0] if isinstance(shape, list) and len(shape) == 1 and type(shape[0]) is int else 0
-        shapes[("losses", axis)] = (max(size, 2),)  # at least two points per axis
-        grid.append(max(size, 2))
-    shapes.update({("losses", "tables", name): tuple(grid) for name in LOSS_TABLES})
+    losses = content["losses"]
+    kind = LOSS_KINDS[loss_model_of(content)]
+    shapes.update({("losses", *keys): shape for keys, shape in kind.shapes(losses).items()})
     shapes.update({("input_nonlinearity", k): (4,) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")})
     return shapes
 
@@ -322,11 +308,7 @@ def _array_fields(content: dict) -> list[tuple[str, ...]]:
     fields += [("lptn", "parameters", name) for name in LPTN_PARAMETERS]
     fields += [("lptn", "speed_max_rpm")]
     fields += [("losses", k) for k in ("current_max_A", "alpha_cu_per_K", "copper_reference_C")]
-    if loss_model_of(content) == "maps":
-        fields += [("losses", k) for k in ("torque_axis_Nm", "speed_axis_rpm")]
-        fields += [("losses", "tables", name) for name in LOSS_TABLES]
-    else:
-        fields += [("losses", k) for k in ELECTRICAL_COEFFICIENTS]
+    fields += [("losses", *keys) for keys in LOSS_KINDS[loss_model_of(content)].fields(content["losses"])]
     if content["model_kind"] == "hammerstein":
         fields += [("input_nonlinearity", k) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")]
     for keys in fields:
@@ -341,7 +323,7 @@ def _array_fields(content: dict) -> list[tuple[str, ...]]:
 def loss_model_of(content: dict) -> str:
     """The artifact's loss model; version 1 artifacts (no losses.model) have loss maps."""
     losses = content.get("losses")
-    return losses.get("model", "maps") if isinstance(losses, dict) else "maps"
+    return losses.get("model", DEFAULT_LOSS_MODEL) if isinstance(losses, dict) else DEFAULT_LOSS_MODEL
 
 
 def load_artifact(path: str | Path) -> ModelArtifact:

@@ -39,7 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
+from target_sim.losses import LOSS_KINDS
 
 CPU_HZ = 90e6
 OPERATIONS = ("multiply", "add", "divide", "exp", "table", "load_store", "call")
@@ -104,23 +105,9 @@ def matvec(matrix: np.ndarray) -> Counter:
     return _ops(multiply=nnz, add=adds, load_store=2 * nnz + m.shape[0])
 
 
-def loss_lookup_ops() -> Counter:
-    """Bilinear look-up of the five loss tables at (torque, speed)."""
-    tables = len(LOSS_TABLES)
-    per_axis = _ops(table=1, add=2, multiply=1)  # (v - start) * (1/step), fraction = pos - i
-    interpolate = _ops(multiply=3 * tables, add=6 * tables, load_store=4 * tables + tables)
-    return per_axis + per_axis + interpolate + _ops(call=1)
-
-
-def electrical_losses_ops() -> Counter:
-    """[p_dc0, p_ac0, p_stator, p_magnet, I] from the d/q currents and the speed (`ElectricalLosses.lookup`)."""
-    frequency = _ops(multiply=1, divide=1, add=1)     # f = (pp·|n|)/60, |n| as a compare
-    current = _ops(multiply=2, add=1, divide=2)       # I² = i_d² + i_q², I = √I² (a divide's cost), I/I_max
-    copper = _ops(multiply=2 + 3, divide=1)           # p_dc0 = (1.5·R)·I²; p_ac0 = p_dc0·(k_ac·(f/f_ac)²)
-    iron = _ops(multiply=6, add=2, divide=1)          # (P_h·f_fe + P_e·f_fe²)·(1 + c_I·ratio²)
-    magnet = _ops(multiply=5, add=2, divide=1)        # (P_m·f_m²)·(c0 + (1 - c0)·ratio)²
-    reads = _ops(load_store=len(ELECTRICAL_COEFFICIENTS) + 2 + 3 + 5)   # coefficients, I_max, inputs, results
-    return frequency + current + copper + iron + magnet + reads + _ops(call=1)
+def loss_model_ops(artifact: ModelArtifact) -> Counter:
+    """One evaluation of the artifact's loss model (its kind's own count, `target_sim.losses`)."""
+    return LOSS_KINDS[artifact.loss_model].ops(_ops)
 
 
 def node_losses_ops() -> Counter:
@@ -162,11 +149,10 @@ def pv_network_ops() -> Counter:
 
 def step_cost(artifact: ModelArtifact) -> StepCost:
     """Operation counts of one step of this artifact's model on the C28x."""
-    electrical = artifact.loss_model == "electrical"
     blocks: dict[str, Counter] = {
-        # step entry, read the 4 interval-mean inputs (6 with the currents), write 4 outputs
-        "call": _ops(call=1, load_store=8 + (2 if electrical else 0)),
-        "losses": (electrical_losses_ops() if electrical else loss_lookup_ops()) + node_losses_ops(),
+        # step entry, read the interval-mean inputs (4, or 6 with the currents), write 4 outputs
+        "call": _ops(call=1, load_store=len(artifact.drive_signals) + 4),
+        "losses": loss_model_ops(artifact) + node_losses_ops(),
     }
     if artifact.kind == "hammerstein":
         blocks["sigmoid"] = sigmoid_ops()
@@ -186,11 +172,7 @@ def step_cost(artifact: ModelArtifact) -> StepCost:
 def coefficient_count(artifact: ModelArtifact) -> int:
     """float32 constants the step reads: look-up tables and axes (or the electrical loss model's coefficients),
     LPTN parameters, linear block, sigmoid."""
-    if artifact.loss_model == "electrical":
-        count = len(ELECTRICAL_COEFFICIENTS)
-    else:
-        count = sum(artifact.array("losses", "tables", name).size for name in LOSS_TABLES)
-        count += artifact.array("losses", "torque_axis_Nm").size + artifact.array("losses", "speed_axis_rpm").size
+    count = LOSS_KINDS[artifact.loss_model].coefficient_count(artifact)
     count += 3 + len(LPTN_PARAMETERS) + 1             # current_max, alpha_cu, copper reference; speed_max
     if artifact.kind == "pv-lptn":
         count += 4                                     # 1/C_i

@@ -1,7 +1,8 @@
 """The estimator as the target runs it: every operation in float32, from the artifact's float32 coefficients.
 
 One model step (period Δt from the artifact) does, in order:
-1. losses at the reference temperature from the look-up tables (bilinear in torque and speed, clamped);
+1. losses at the reference temperature from the artifact's loss model (`target_sim.losses`: look-up tables
+   bilinear in torque and speed, clamped, or the electrical formulas over the d/q currents and the speed);
 2. the copper temperature correction of eqs. 3-5 and the stator split of eqs. 6-8, using the PREVIOUS estimate;
 3. for `hammerstein`, the per-input sigmoid nonlinearity S(u) = gain·σ(weight·u + bias) + linear·u + offset
    on the normalized losses u = P/scale (eqs. 28-30; MATLAB's sigmoidnet also has the linear term and offset);
@@ -27,82 +28,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
 from target_sim.fmath import exp_f32, matvec
+from target_sim.losses import LOSS_KINDS
 from target_sim.network import COOLANT_REFERENCE_C, network_matrices
 
 F32 = np.float32
 ONE = F32(1.0)
-
-
-class LossTables:
-    """The artifact's loss look-up tables over the (torque, speed) grid, interpolated in float32 (C: loss_lookup)."""
-
-    def __init__(self, artifact: ModelArtifact, dtype=F32):
-        self.f = f = np.dtype(dtype).type
-        self.torque_axis = artifact.array("losses", "torque_axis_Nm", dtype=f)
-        self.speed_axis = artifact.array("losses", "speed_axis_rpm", dtype=f)
-        self.tables = np.stack([artifact.array("losses", "tables", name, dtype=f) for name in LOSS_TABLES])
-        self.torque_step = f(self.torque_axis[1] - self.torque_axis[0])
-        self.speed_step = f(self.speed_axis[1] - self.speed_axis[0])
-
-    def _cell(self, value, start, step, size):
-        """Index of the grid cell holding value, and the fraction inside it (clamped to the grid; NaN -> 0)."""
-        f = self.f
-        pos = (f(value) - start) / step
-        if not pos >= 0:                # C: if (!(pos >= 0.0f)) pos = 0.0f;
-            pos = f(0.0)
-        last = f(size - 1)
-        if pos > last:                  # C: if (pos > last) pos = last;
-            pos = last
-        i = int(pos)                    # C: (int)pos, truncation (pos >= 0)
-        if i > size - 2:
-            i = size - 2
-        return i, f(pos - f(i))
-
-    def lookup(self, torque, speed) -> np.ndarray:
-        """[p_dc0, p_ac0, p_stator, p_magnet, current] at one operating point (bilinear, per table:
-        low = t00 + fj·(t01 - t00), high = t10 + fj·(t11 - t10), value = low + fi·(high - low))."""
-        i, fi = self._cell(torque, self.torque_axis[0], self.torque_step, self.torque_axis.size)
-        j, fj = self._cell(speed, self.speed_axis[0], self.speed_step, self.speed_axis.size)
-        t = self.tables[:, i:i + 2, j:j + 2]
-        low = t[:, 0, 0] + fj * (t[:, 0, 1] - t[:, 0, 0])
-        high = t[:, 1, 0] + fj * (t[:, 1, 1] - t[:, 1, 0])
-        return low + fi * (high - low)
-
-
-class ElectricalLosses:
-    """Losses from the d/q currents and the speed (artifact losses.model "electrical"), in float32 (C:
-    electrical_losses). Same formulas as bench.motor.losses.ElectricalLosses:
-    f = pp·|n|/60, I² = i_d² + i_q², p_dc0 = (1.5·R)·I², p_ac0 = p_dc0·(k_ac·(f/f_ac)²),
-    p_stator = (P_h·(f/f_fe) + P_e·(f/f_fe)²)·(1 + c_I·(I/I_max)²),
-    p_magnet = (P_m·(f/f_m)²)·(c0 + (1 - c0)·I/I_max)²."""
-
-    def __init__(self, artifact: ModelArtifact, dtype=F32):
-        self.f = f = np.dtype(dtype).type
-        self.c = {name: artifact.array("losses", name, dtype=f)[()] for name in ELECTRICAL_COEFFICIENTS}
-        self.current_max = artifact.array("losses", "current_max_A", dtype=f)[()]
-        self.sqrt = np.sqrt
-
-    def lookup(self, speed, i_d, i_q) -> np.ndarray:
-        """[p_dc0, p_ac0, p_stator, p_magnet, current] at one operating point."""
-        c, f = self.c, self.f
-        one = f(1.0)
-        speed, i_d, i_q = f(speed), f(i_d), f(i_q)
-        freq = (c["pole_pairs"] * abs(speed)) / f(60.0)
-        i2 = i_d * i_d + i_q * i_q
-        current = self.sqrt(i2)
-        ratio = current / self.current_max
-        p_dc0 = (f(1.5) * c["stator_resistance_ohm"]) * i2
-        f_ac = freq / c["ac_reference_Hz"]
-        p_ac0 = p_dc0 * (c["ac_factor"] * (f_ac * f_ac))
-        f_fe = freq / c["iron_reference_Hz"]
-        p_stator = (c["iron_hysteresis_W"] * f_fe + c["iron_eddy_W"] * (f_fe * f_fe)) * (
-            one + c["iron_current_factor"] * (ratio * ratio))
-        f_m = freq / c["magnet_reference_Hz"]
-        m = c["magnet_no_load_share"] + (one - c["magnet_no_load_share"]) * ratio
-        p_magnet = (c["magnet_W"] * (f_m * f_m)) * (m * m)
-        return np.array([p_dc0, p_ac0, p_stator, p_magnet, current], dtype=f)
 
 
 class Float32Estimator:
@@ -123,8 +55,8 @@ class Float32Estimator:
         self.artifact = artifact
         self.kind = artifact.kind
         self.dt = f(artifact.dt)
-        self.electrical = artifact.loss_model == "electrical"
-        self.luts = ElectricalLosses(artifact, f) if self.electrical else LossTables(artifact, f)
+        self.loss_kind = LOSS_KINDS[artifact.loss_model]
+        self.luts = self.loss_kind.evaluator(artifact, f)   # target_sim.losses: the kind's own float32 code
         self.p = p = {name: arr("lptn", "parameters", name)[()] for name in LPTN_PARAMETERS}
         self.speed_max = arr("lptn", "speed_max_rpm")[()]
         self.current_max = arr("losses", "current_max_A")[()]
@@ -172,8 +104,10 @@ class Float32Estimator:
         return self.corrected_losses(self.loss_lookup(torque, speed, i_d, i_q), speed)
 
     def loss_lookup(self, torque, speed, i_d=0.0, i_q=0.0) -> np.ndarray:
-        """[p_dc0, p_ac0, p_stator, p_magnet, current] of the loss model at the operating point."""
-        return self.luts.lookup(speed, i_d, i_q) if self.electrical else self.luts.lookup(torque, speed)
+        """[p_dc0, p_ac0, p_stator, p_magnet, current] of the loss model at the operating point (it reads the
+        values its kind names, in their order)."""
+        point = {"torque_Nm": torque, "speed_rpm": speed, "i_d_A": i_d, "i_q_A": i_q}
+        return self.luts.lookup(*(point[name] for name in self.loss_kind.inputs))
 
     def corrected_losses(self, lookup: np.ndarray, speed) -> np.ndarray:
         """[P_y, P_w, P_t, P_m]: the copper temperature correction at the previous winding estimate (eqs. 3-5) and

@@ -142,7 +142,8 @@ def electrical_artifact_text(base: str | Path | None = None) -> str:
     artifact (or the artifact file `base`) with its loss maps replaced by ELECTRICAL_TEST_COEFFICIENTS, resealed."""
     import json
 
-    from target_sim.artifact import ELECTRICAL_COEFFICIENTS, dumps, encode_array
+    from target_sim.artifact import dumps, encode_array
+    from target_sim.losses.electrical import COEFFICIENTS as ELECTRICAL_COEFFICIENTS
 
     path = Path(base) if base is not None else ROOT / "bench" / "data" / "default_model.json"
     content = json.loads(path.read_text(encoding="utf-8"))

@@ -267,11 +267,11 @@ def intended_drive(record: BusRecord, dataset=None) -> tuple[np.ndarray, int]:
     if not lost.any():
         return drive, 0
     if dataset is not None:
-        from bench.model.runs import DRIVE_COLUMNS, drive_matrix
+        from bench.model.runs import CURRENT_COLUMNS, DRIVE_COLUMNS, drive_matrix
 
         currents = drive.shape[1] > len(DRIVE_COLUMNS)    # the rows carry the d/q currents: so must the data
         if dataset.has_currents or not currents:
-            values = drive_matrix(dataset, with_currents=currents)
+            values = drive_matrix(dataset, DRIVE_COLUMNS + (CURRENT_COLUMNS if currents else ()))
             rows = np.flatnonzero(lost[:len(values)])
             drive[rows] = values[rows]
     for row in np.flatnonzero(~np.isfinite(drive).all(axis=1)):

@@ -205,8 +205,7 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
     info = [("log", f"`{m['log']}` ({m['frames_in_log']} frames)"),
             ("data", f"`{dataset.path}`" if dataset is not None else "– (no measured reference given)"),
             ("model step Δt", f"{model['dt_s']:g} s"),
-            ("loss model", "electrical: from the d/q currents of each row's DriveCurrents and the speed"
-             if model.get("loss_model") == "electrical" else "loss maps over torque and speed"),
+            ("loss model", _loss_model_words(model.get("loss_model"))),
             ("mode", run_info.get("mode", "–")),
             ("bus", run_info.get("bus", "–")),
             ("target engine", run_info.get("engine") or ("firmware (emulated Cortex-M4F)" if m.get("engine") ==
@@ -284,3 +283,10 @@ def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) ->
               "Cortex-M4F cycles (firmware engine) are counted per executed basic block in the emulated core from "
               "the Cortex-M4 TRM timings (`target_sim/firmware/cycles.py`), and its flash and RAM are the ELF's.", ""]
     return "\n".join(lines)
+
+
+def _loss_model_words(name: str | None) -> str:
+    """The run's loss model as its kind describes itself (`bench.motor.losskinds`)."""
+    from bench.motor.losskinds import LAB_LOSS_KINDS
+
+    return f"{name}: {LAB_LOSS_KINDS[name].summary}" if name in LAB_LOSS_KINDS else str(name)

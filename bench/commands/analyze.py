@@ -79,12 +79,12 @@ def matching_dataset(drive: np.ndarray, artifact):
 def data_mismatch(dataset, drive: np.ndarray) -> str | None:
     """Why `dataset` is not the one the log's drive frames came from (None if it is, within the CAN resolution;
     a log whose rows carry the d/q currents needs a dataset with them, and they must match too)."""
-    from bench.model.runs import DRIVE_COLUMNS, drive_matrix
+    from bench.model.runs import CURRENT_COLUMNS, DRIVE_COLUMNS, drive_matrix
 
     currents = drive.shape[1] > len(DRIVE_COLUMNS)
     if currents and not dataset.has_currents:
         return "has no d/q current columns (i_d_A, i_q_A), the log's rows carry them"
-    values = drive_matrix(dataset, with_currents=currents)
+    values = drive_matrix(dataset, DRIVE_COLUMNS + (CURRENT_COLUMNS if currents else ()))
     if len(values) < len(drive):
         return f"has {len(values)} rows, the log {len(drive)}"
     with np.errstate(invalid="ignore"):   # a row whose frames never came intact (NaN) differs from nothing

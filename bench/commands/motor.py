@@ -32,6 +32,7 @@ def run_template(args: argparse.Namespace) -> int:
 
 def run_check(args: argparse.Namespace) -> int:
     from bench.motor.description import load_motor
+    from bench.motor.losskinds import LAB_LOSS_KINDS
 
     motor = load_motor(args.file)
     summary = {**motor.provenance(), "description": motor.description,
@@ -40,14 +41,7 @@ def run_check(args: argparse.Namespace) -> int:
                "thermal_prior": None if motor.prior is None else {"source": motor.prior.source,
                                                                   "bounds": list(motor.prior.bounds)},
                "virtual_plant": motor.virtual_plant is not None}
-    if motor.loss_kind == "maps":
-        maps = motor.loss_model
-        summary["loss_maps_grid"] = {"torque_Nm": [float(maps.torque_Nm[0]), float(maps.torque_Nm[-1]),
-                                                   len(maps.torque_Nm)],
-                                     "speed_rpm": [float(maps.speed_rpm[0]), float(maps.speed_rpm[-1]),
-                                                   len(maps.speed_rpm)]}
-    else:
-        summary["loss_coefficients"] = motor.loss_model.coefficients()
+    summary.update(LAB_LOSS_KINDS[motor.loss_kind].describe(motor.loss_model))
     if args.json:
         print_json(summary)
     else:

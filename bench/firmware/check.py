@@ -71,8 +71,8 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
     if drive.ndim != 2 or drive.shape[1] != width:
         where = f" ({artifact.path})" if artifact.path is not None else ""
         given = drive.shape[1] if drive.ndim == 2 else 0
-        hint = ("; its electrical loss model needs the d/q currents (data columns i_d_A, i_q_A)"
-                if artifact.loss_model == "electrical" else "")
+        hint = (f"; its {artifact.loss_model} loss model needs the d/q currents (data columns i_d_A, i_q_A)"
+                if "i_d_A" in artifact.drive_signals else "")
         raise BenchError(f"model {artifact.model_id:08x}{where} runs on {width} drive values per row "
                          f"({', '.join(artifact.drive_signals)}), the data gives {given}{hint}")
     rule = InputAccumulator(artifact.data_sample_period, artifact.dt, width)

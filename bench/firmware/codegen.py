@@ -8,8 +8,8 @@ mirrors, and both spell every sum and product in the same order with the same pa
 |-------------------------|---------------------------------------------|----------------------------------------|
 | fw_exp                  | fmath.exp_f32                               | our float32 exp (no libm)              |
 | dot                     | fmath.matvec (one row)                      | left-to-right sum of products          |
-| grid_cell, loss_lookup  | model.LossTables._cell, .lookup             | bilinear loss tables (losses "maps")   |
-| electrical_losses       | model.ElectricalLosses.lookup               | losses from i_d, i_q, speed            |
+| grid_cell, loss_lookup  | losses.maps.LossTables._cell, .lookup       | bilinear loss tables (losses "maps")   |
+| electrical_losses       | losses.electrical.ElectricalEvaluator       | losses from i_d, i_q, speed            |
 | node_losses             | Float32Estimator.node_losses                | eqs. 3-8                               |
 | input_nonlinearity      | Float32Estimator.input_nonlinearity         | sigmoid, eqs. 28-30 (hammerstein)      |
 | temperature_sources     | Float32Estimator.temperature_sources        | eqs. 9-18 (lti-lptn, hammerstein)      |
@@ -37,10 +37,11 @@ import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
 from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
-from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_MODELS, LOSS_TABLES, MODEL_KINDS, OUTPUTS, ModelArtifact
-from target_sim.firmware.node_protocol import firmware_refusal
+from target_sim.artifact import MODEL_KINDS, OUTPUTS, ModelArtifact
+from target_sim.firmware.node_protocol import firmware_loss_models, firmware_refusal
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
-from target_sim.model import COOLANT_REFERENCE_C, LossTables
+from target_sim.losses import C_NAMES, LOSS_KINDS, LossKind
+from target_sim.model import COOLANT_REFERENCE_C
 
 HEADER_NAME = "fw_model.h"
 SOURCE_NAME = "fw_model.c"
@@ -49,11 +50,8 @@ KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
 REALIZATIONS = ("physical", "original", "balanced", "modal", "delta")
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 LINEAR_BLOCK = {"A": (4, 4), "B": (4, 8), "C": (4, 4), "C_inv": (4, 4)}
-MAX_GRID_POINTS = 256                   # per axis: a table beyond that is no motor map (and no MCU's flash)
-GENERATED_LOSS_MODELS = ("maps", "electrical")
 
 assert set(KINDS) == set(MODEL_KINDS)   # a new kind in the artifact schema needs a generator here first
-assert set(GENERATED_LOSS_MODELS) == set(LOSS_MODELS)   # and so does a new loss model
 
 
 @dataclass(frozen=True)
@@ -133,25 +131,15 @@ def check_expressible(artifact: ModelArtifact) -> None:
         raise FirmwareGenerationError(f"realization {realization!r} cannot be generated as firmware (the generator "
                                       f"knows {', '.join(REALIZATIONS)}); rebuild the artifact with "
                                       "'bench identify --realization'")
-    if artifact.loss_model not in GENERATED_LOSS_MODELS:
+    if artifact.loss_model not in firmware_loss_models():
         raise FirmwareGenerationError(f"loss model {artifact.loss_model!r} cannot be generated as firmware (the "
-                                      f"generator knows {', '.join(GENERATED_LOSS_MODELS)})")
-    if artifact.loss_model == "electrical":
-        for name in ("current_max_A", *ELECTRICAL_COEFFICIENTS):
-            _artifact_literals(artifact, "losses", name, shape=())
-        return
-    sizes = []
-    for axis in ("torque_axis_Nm", "speed_axis_rpm"):
-        values = artifact.array("losses", axis)
-        if values.ndim != 1 or not 2 <= values.size <= MAX_GRID_POINTS:
-            raise FirmwareGenerationError(f"artifact field losses.{axis} has shape {list(values.shape)}; the "
-                                          f"firmware generator needs 2 to {MAX_GRID_POINTS} grid points")
-        sizes.append(values.size)
-    for name in LOSS_TABLES:
-        shape = artifact.array("losses", "tables", name).shape
-        if shape != tuple(sizes):
-            raise FirmwareGenerationError(f"artifact field losses.tables.{name} has shape {list(shape)}, the "
-                                          f"firmware generator needs {sizes} (the grid's)")
+                                      f"generator knows {', '.join(firmware_loss_models())})")
+    problem = LOSS_KINDS[artifact.loss_model].c_problem(artifact)
+    if problem:
+        raise FirmwareGenerationError(problem)
+    for _, source, _ in LOSS_KINDS[artifact.loss_model].c_scalars(artifact):
+        if isinstance(source, tuple):
+            _scalar_literal(artifact, source)
 
 
 # ------------------------------------------------------------------------------------------------ the C text
@@ -187,77 +175,6 @@ static float dot(const float *m, const float *v, int n)
 }
 """
 
-_MAPS_C = """\
-/* LossTables._cell: the grid cell holding value and the fraction inside it, clamped to the grid (NaN -> 0) */
-static int grid_cell(float value, float start, float step, int size, float *fraction)
-{
-    const float last = (float)(size - 1);
-    float pos = (value - start) / step;
-    int i;
-    if (!(pos >= 0.0f)) pos = 0.0f;
-    if (pos > last) pos = last;
-    i = (int)pos;
-    if (i > size - 2) i = size - 2;
-    *fraction = pos - (float)i;
-    return i;
-}
-
-/* LossTables.lookup: [p_dc0, p_ac0, p_stator, p_magnet, current] at (torque, speed), bilinear per table */
-static void loss_lookup(float torque, float speed, float out[LOSS_TABLE_COUNT])
-{
-    float fi, fj;
-    const int i = grid_cell(torque, TORQUE_START, TORQUE_STEP, TORQUE_POINTS, &fi);
-    const int j = grid_cell(speed, SPEED_START, SPEED_STEP, SPEED_POINTS, &fj);
-    int k;
-    for (k = 0; k < LOSS_TABLE_COUNT; k++) {
-        const float t00 = LOSS_TABLES[k][i][j], t01 = LOSS_TABLES[k][i][j + 1];
-        const float t10 = LOSS_TABLES[k][i + 1][j], t11 = LOSS_TABLES[k][i + 1][j + 1];
-        const float low = t00 + fj * (t01 - t00);
-        const float high = t10 + fj * (t11 - t10);
-        out[k] = low + fi * (high - low);
-    }
-}
-"""
-
-_ELECTRICAL_C = """\
-/* sqrt and |x| in float32: the FPU's VSQRT.F32 (correctly rounded, as np.sqrt on float32) and VABS.F32. GCC and
- * clang lower the builtins to the instructions (with -fno-math-errno: no libm call, no errno); another compiler
- * gets C99's sqrtf and fabsf, which Annex F (IEC 60559) requires to be exact too. */
-#if defined(__GNUC__)
-#define FW_SQRTF(x) __builtin_sqrtf(x)
-#define FW_FABSF(x) __builtin_fabsf(x)
-#else
-#include <math.h>
-#define FW_SQRTF(x) sqrtf(x)
-#define FW_FABSF(x) fabsf(x)
-#endif
-
-/* ElectricalLosses.lookup: [p_dc0, p_ac0, p_stator, p_magnet, current] from the speed and the d/q currents:
- * f = pp |n| / 60, I^2 = i_d^2 + i_q^2, I = sqrt(I^2), p_dc0 = (1.5 R) I^2, p_ac0 = p_dc0 (k_ac (f/f_ac)^2),
- * p_stator = (P_h (f/f_fe) + P_e (f/f_fe)^2) (1 + c_I (I/I_max)^2),
- * p_magnet = (P_m (f/f_m)^2) (c0 + (1 - c0) I/I_max)^2; every sum and product in this order, as in Python */
-static void electrical_losses(float speed, float i_d, float i_q, float out[LOSS_TABLE_COUNT])
-{
-    const float freq = (POLE_PAIRS * FW_FABSF(speed)) / 60.0f;
-    const float i2 = i_d * i_d + i_q * i_q;
-    const float current = FW_SQRTF(i2);
-    const float ratio = current / CURRENT_MAX;
-    const float p_dc0 = (1.5f * STATOR_RESISTANCE_OHM) * i2;
-    const float f_ac = freq / AC_REFERENCE_HZ;
-    const float p_ac0 = p_dc0 * (AC_FACTOR * (f_ac * f_ac));
-    const float f_fe = freq / IRON_REFERENCE_HZ;
-    const float p_stator = (IRON_HYSTERESIS_W * f_fe + IRON_EDDY_W * (f_fe * f_fe)) * (
-        1.0f + IRON_CURRENT_FACTOR * (ratio * ratio));
-    const float f_m = freq / MAGNET_REFERENCE_HZ;
-    const float m = MAGNET_NO_LOAD_SHARE + (1.0f - MAGNET_NO_LOAD_SHARE) * ratio;
-    out[0] = p_dc0;
-    out[1] = p_ac0;
-    out[2] = p_stator;
-    out[3] = (MAGNET_W * (f_m * f_m)) * (m * m);
-    out[4] = current;
-}
-"""
-
 _NODE_LOSSES_C = """\
 /* Float32Estimator.node_losses: [P_y, P_w, P_t, P_m] in W from the {source} and the previous winding estimate:
  * copper temperature factor (eqs. 3-5), stator split k_s (eqs. 6-8) */
@@ -278,23 +195,35 @@ static void node_losses({parameters}, float losses[4])
 }}
 """
 
-# per loss model: the node_losses template's words, the lookup before it, and fw_step's call of node_losses
-_LOSS_MODEL_C = {
-    "maps": {"source": "tables", "parameters": "float torque, float speed",
-             "lookup": "loss_lookup(torque, speed, table);", "code": _MAPS_C,
-             "call": "node_losses(inputs[0], inputs[1], u);"},
-    "electrical": {"source": "electrical loss model", "parameters": "float speed, float i_d, float i_q",
-                   "lookup": "electrical_losses(speed, i_d, i_q, table);", "code": _ELECTRICAL_C,
-                   "call": "node_losses(inputs[1], inputs[4], inputs[5], u);"},
-}
+# the templates' call of node_losses (a loss-map row's torque and speed), replaced by the kind's own
+_STEP_CALL = "node_losses(inputs[0], inputs[1], u);"
+_ROW_DOC = ("torque", "speed", "coolant", "ambient")
 
 
-def _common_c(loss_model: str) -> str:
-    """dot, the loss model's lookup and node_losses (for loss maps the text the generator always wrote)."""
-    words = _LOSS_MODEL_C[loss_model]
-    node_losses = _NODE_LOSSES_C.format(source=words["source"], parameters=words["parameters"],
-                                        lookup=words["lookup"])
-    return "\n".join([_DOT_C, words["code"], node_losses])
+def _scalar_literal(artifact: ModelArtifact, source: tuple) -> str:
+    """The literal of a scalar artifact field, or of one element of a vector field (keys ending in an index)."""
+    if source and isinstance(source[-1], int):
+        return _artifact_literals(artifact, *source[:-1])[source[-1]]
+    return _artifact_literals(artifact, *source, shape=())[()]
+
+
+def _loss_parameters(kind: LossKind) -> list[str]:
+    """The row values node_losses takes: what the loss model reads, and the speed (eqs. 6-8), in row order."""
+    read = set(kind.inputs) | {"speed_rpm"}
+    return [name for name in C_NAMES if name in read]
+
+
+def _common_c(kind: LossKind) -> str:
+    """dot, the loss model's own C and node_losses."""
+    node_losses = _NODE_LOSSES_C.format(
+        source=kind.c_words, parameters=", ".join(f"float {C_NAMES[n]}" for n in _loss_parameters(kind)),
+        lookup=f"{kind.c_function}({', '.join(C_NAMES[n] for n in kind.inputs)}, table);")
+    return "\n".join([_DOT_C, kind.c_code, node_losses])
+
+
+def _node_losses_call(kind: LossKind, row: tuple[str, ...]) -> str:
+    """fw_step's call of node_losses with the row's values it takes."""
+    return f"node_losses({', '.join(f'inputs[{row.index(n)}]' for n in _loss_parameters(kind))}, u);"
 
 
 _SIGMOID_C = """\
@@ -605,17 +534,9 @@ def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
                          ("ALPHA_CU", ("losses", "alpha_cu_per_K")),
                          ("COPPER_REF", ("losses", "copper_reference_C"))):
         out.append((c_name, _artifact_literals(artifact, *keys, shape=())[()], ".".join(keys)))
-    if artifact.loss_model == "maps":
-        tables = LossTables(artifact)       # the reference's own derived constants (grid steps), in float32
-        torque = _artifact_literals(artifact, "losses", "torque_axis_Nm")
-        speed = _artifact_literals(artifact, "losses", "speed_axis_rpm")
-        out += [("TORQUE_START", torque[0], "losses.torque_axis_Nm[0]"),
-                ("TORQUE_STEP", c_float(tables.torque_step), "torque_axis_Nm[1] - torque_axis_Nm[0] in float32"),
-                ("SPEED_START", speed[0], "losses.speed_axis_rpm[0]"),
-                ("SPEED_STEP", c_float(tables.speed_step), "speed_axis_rpm[1] - speed_axis_rpm[0] in float32")]
-    else:
-        out += [(name.upper(), _artifact_literals(artifact, "losses", name, shape=())[()], f"losses.{name}")
-                for name in ELECTRICAL_COEFFICIENTS]
+    for name, source, comment in LOSS_KINDS[artifact.loss_model].c_scalars(artifact):
+        literal = _scalar_literal(artifact, source) if isinstance(source, tuple) else c_float(source)
+        out.append((name, literal, comment))
     if artifact.kind != "pv-lptn" and artifact.realization == "delta":
         out.append(("LB_REF", _artifact_literals(artifact, "linear_block", "reference_C", shape=())[()],
                     "linear_block.reference_C: the delta states' reference temperature"))
@@ -636,12 +557,13 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     dt_literal = c_float(np.float32(artifact.dt))
     sample_literal = c_float(np.float32(artifact.data_sample_period))
     loss_model = artifact.loss_model
-    width = len(artifact.drive_signals)     # 4 drive values, 6 with the d/q currents
-    inputs = "torque, speed, coolant, ambient" + (", i_d, i_q" if loss_model == "electrical" else "")
-    inputs_doc = "torque Nm, speed rpm, coolant deg C,\n * ambient deg C" + (
-        ", i_d A, i_q A" if loss_model == "electrical" else "")
-    loss_doc = ("losses from loss maps over torque and speed" if loss_model == "maps" else
-                "losses from the d/q currents and the speed; the torque is not used")
+    loss_kind = LOSS_KINDS[loss_model]
+    row = artifact.drive_signals
+    width = len(row)     # 4 drive values, 6 with the d/q currents
+    currents = width > len(_ROW_DOC)
+    inputs = "torque, speed, coolant, ambient" + (", i_d, i_q" if currents else "")
+    inputs_doc = "torque Nm, speed rpm, coolant deg C,\n * ambient deg C" + (", i_d A, i_q A" if currents else "")
+    loss_doc = loss_kind.summary
     header = _HEADER.format(header=HEADER_NAME, kind=kind, realization=artifact.realization, dt=f"{artifact.dt:g}",
                             sha256=artifact.sha256, dt_literal=dt_literal, sample_literal=sample_literal,
                             model_id=model_id, max_ulp=EXP_MAX_ULP, loss_model=loss_model, width=width,
@@ -651,7 +573,7 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     horner = [f"    p = EXP_{EXP_POLYNOMIAL[0]};"]
     horner += [f"    p = p * r + EXP_{name};" for name in EXP_POLYNOMIAL[1:]]
     code = [_EXP_C.format(horner="\n".join(horner), bias=EXP_EXPONENT_BIAS, max_ulp=EXP_MAX_ULP),
-            _common_c(loss_model)]
+            _common_c(loss_kind)]
     if kind == "hammerstein":
         code.append(_SIGMOID_C)
     if kind == "pv-lptn":
@@ -664,7 +586,7 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     # fw_step takes the row's width of inputs and hands node_losses what the loss model needs
     step = step.replace("void fw_step(const float inputs[4], float y[4])",
                         f"void fw_step(const float inputs[{width}], float y[4])")
-    code.append(step.replace(_LOSS_MODEL_C["maps"]["call"], _LOSS_MODEL_C[loss_model]["call"]))
+    code.append(step.replace(_STEP_CALL, _node_losses_call(loss_kind, row)))
     code.append(_API_C.format(width=width))
     code_text = "\n".join(code)
     used = set(re.findall(r"\b[A-Z][A-Z0-9_]*\b", code_text))
@@ -686,15 +608,11 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     scalars = [f"static const float {name} = {literal}; /* {comment} = {_value_comment(literal)} */"
                for name, literal, comment in _scalar_constants(artifact) if name in used]
     parts.append("\n".join(scalars) + "\n")
-    if loss_model == "maps":
-        grid = artifact.array("losses", "tables", LOSS_TABLES[0]).shape
-        parts.append(f"#define TORQUE_POINTS {grid[0]}\n#define SPEED_POINTS {grid[1]}\n"
-                     f"#define LOSS_TABLE_COUNT {len(LOSS_TABLES)}\n")
-        tables = np.stack([_artifact_literals(artifact, "losses", "tables", name, shape=grid)
-                           for name in LOSS_TABLES])
-        parts.append(_c_array("LOSS_TABLES", tables, f"losses.tables [{', '.join(LOSS_TABLES)}][torque][speed]"))
-    else:
-        parts.append(f"#define LOSS_TABLE_COUNT {len(LOSS_TABLES)} /* [{', '.join(LOSS_TABLES)}] */\n")
+    defines, arrays = loss_kind.c_declarations(artifact)
+    parts.append("".join(f"{line}\n" for line in defines))
+    for array in arrays:
+        stacked = np.stack([_artifact_literals(artifact, *keys) for keys in array.fields])
+        parts.append(_c_array(array.name, stacked if len(array.fields) > 1 else stacked[0], array.comment))
     if kind == "hammerstein":
         for key in SIGMOID_KEYS:
             c_name = "SIG_" + key.split("_")[0].upper()

@@ -7,14 +7,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.drive.dataset import Dataset
-from bench.drive.motor import LossMaps
 from bench.model.identify import winding_pm_metrics
 from bench.model.runs import ModelRun, drive_matrix, model_run
-from bench.motor.losses import ElectricalLosses, LossModel, MotorConstants
+from bench.motor.losses import LossModel, MotorConstants
+from bench.motor.losskinds import LAB_LOSS_KINDS
 from bench.thermal.estimator import loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
 from bench.thermal.parameters import LptnParameters
-from target_sim.artifact import ELECTRICAL_COEFFICIENTS, LOSS_TABLES, LPTN_PARAMETERS, ModelArtifact
+from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
 from target_sim.model import Float32Estimator, run_offline
 
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
@@ -26,7 +26,7 @@ def artifact_parameters(artifact: ModelArtifact) -> LptnParameters:
 
 
 def artifact_loss_model(artifact: ModelArtifact) -> tuple[LossModel, MotorConstants]:
-    """The artifact's loss model (LossMaps or ElectricalLosses) and motor constants, from its float64 values."""
+    """The artifact's loss model (its kind's float64 model) and motor constants, from its float64 values."""
     def f64(*keys):
         return artifact.array(*keys, dtype=np.float64)
 
@@ -34,13 +34,7 @@ def artifact_loss_model(artifact: ModelArtifact) -> tuple[LossModel, MotorConsta
                            max_speed_rpm=float(f64("lptn", "speed_max_rpm")),
                            alpha_cu_per_K=float(f64("losses", "alpha_cu_per_K")),
                            reference_C=float(f64("losses", "copper_reference_C")))
-    if artifact.loss_model == "electrical":
-        model = ElectricalLosses(**{n: float(f64("losses", n)) for n in ELECTRICAL_COEFFICIENTS},
-                                 current_max_A=motor.i_max_A)
-        return model, motor
-    maps = LossMaps(f64("losses", "torque_axis_Nm"), f64("losses", "speed_axis_rpm"),
-                    {n: f64("losses", "tables", n) for n in LOSS_TABLES})
-    return maps, motor
+    return LAB_LOSS_KINDS[artifact.loss_model].from_artifact(artifact, motor.i_max_A), motor
 
 
 def shift_form(artifact: ModelArtifact) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -91,7 +85,7 @@ class ArtifactEvaluation:
 
 def artifact_drive(artifact: ModelArtifact, dataset: Dataset) -> np.ndarray:
     """The dataset's rows as the target receives them for this artifact (with the currents if it needs them)."""
-    return drive_matrix(dataset, with_currents=artifact.loss_model == "electrical")
+    return drive_matrix(dataset, artifact.drive_signals)
 
 
 def evaluate_artifact(artifact: ModelArtifact, dataset: Dataset) -> ArtifactEvaluation:

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from bench.motor.losses import EstimatorMotor, LossModel
+from bench.motor.losskinds import LAB_LOSS_KINDS
 from bench.thermal.discretize import discretize
 from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import LptnParameters
@@ -121,12 +122,7 @@ def losses_section(loss_model: LossModel, motor: EstimatorMotor) -> dict[str, An
     """The artifact's `losses`: the loss model (tables or electrical coefficients) and the copper constants."""
     enc = schema.encode_array
     section: dict[str, Any] = {"model": loss_model.kind}
-    if loss_model.kind == "maps":
-        section.update({"torque_axis_Nm": enc(loss_model.torque_Nm), "speed_axis_rpm": enc(loss_model.speed_rpm),
-                        "tables": {name: enc(loss_model.tables[name]) for name in schema.LOSS_TABLES}})
-    else:
-        coefficients = loss_model.coefficients()
-        section.update({name: enc(coefficients[name]) for name in schema.ELECTRICAL_COEFFICIENTS})
+    section.update(LAB_LOSS_KINDS[loss_model.kind].artifact_section(loss_model, enc))
     section.update({"current_max_A": enc(motor.i_max_A), "alpha_cu_per_K": enc(motor.alpha_cu_per_K),
                     "copper_reference_C": enc(motor.reference_C)})
     return section

@@ -11,9 +11,10 @@ from bench.errors import BenchError
 from bench.motor.losses import EstimatorMotor, LossModel
 from bench.thermal.estimator import StepInputs
 from bench.thermal.excitation import interval_means
+from target_sim.losses import CURRENT_SIGNALS, DRIVE_SIGNALS, row_signals
 
-DRIVE_COLUMNS = ("torque_Nm", "speed_rpm", "coolant_C", "ambient_C")
-CURRENT_COLUMNS = ("i_d_A", "i_q_A")
+DRIVE_COLUMNS = DRIVE_SIGNALS
+CURRENT_COLUMNS = CURRENT_SIGNALS
 
 
 @dataclass(frozen=True)
@@ -29,12 +30,12 @@ class ModelRun:
     initial: np.ndarray         # y0 = [yoke, winding, tooth, magnet] at t = 0
 
 
-def drive_matrix(dataset, with_currents: bool = False) -> np.ndarray:
-    """(rows, 4) [torque, speed, coolant, ambient], what the host sends over CAN; (rows, 6) with [i_d, i_q]."""
-    columns = DRIVE_COLUMNS + (CURRENT_COLUMNS if with_currents else ())
-    if with_currents and not dataset.has_currents:
-        raise BenchError(f"{dataset.path} has no d/q current columns (i_d_A, i_q_A), which this motor's electrical "
-                         "loss model needs; map them with --mapping or use a motor with loss maps")
+def drive_matrix(dataset, columns: tuple[str, ...] = DRIVE_COLUMNS) -> np.ndarray:
+    """(rows, 4) [torque, speed, coolant, ambient], what the host sends over CAN; (rows, 6) with [i_d, i_q] when
+    `columns` (a model's `drive_signals`, `row_signals` of a loss model's inputs) has them."""
+    if set(columns) & set(CURRENT_COLUMNS) and not dataset.has_currents:
+        raise BenchError(f"{dataset.path} has no d/q current columns (i_d_A, i_q_A), which this motor's loss model "
+                         "needs; map them with --mapping or use a motor with loss maps")
     return np.column_stack([dataset.column(c) for c in columns])
 
 
@@ -58,7 +59,7 @@ def step_inputs(drive: np.ndarray, loss_model: LossModel, motor: EstimatorMotor,
 
 
 def model_run(dataset, loss_model: LossModel, motor: EstimatorMotor, dt: float, name: str | None = None) -> ModelRun:
-    drive = drive_matrix(dataset, with_currents=loss_model.kind == "electrical")
+    drive = drive_matrix(dataset, row_signals(loss_model.inputs))
     inputs = step_inputs(drive, loss_model, motor, dt, dataset.sample_period_s)
     t_steps = float(dataset.time_s[0]) + (np.arange(len(inputs.speed_ratio)) + 1) * dt   # a file may start at t > 0
     return ModelRun(

@@ -47,17 +47,13 @@ from pathlib import Path
 from typing import Any
 
 from bench.motor.errors import MotorFileError
-from bench.motor.losses import ElectricalLosses, LossMaps, MotorConstants
+from bench.motor.losses import LossModel, MotorConstants
+from bench.motor.losskinds import COMMON_KEYS, LAB_LOSS_KINDS
 from bench.thermal.parameters import PARAMETER_SETS, LptnParameters
+from target_sim.losses import CURRENT_SIGNALS
 
 SCHEMA = "pmsm-thermal-bench.motor"
 SCHEMA_VERSION = 1
-LOSS_KINDS = ("maps", "electrical")
-ELECTRICAL_KEYS = ("stator_resistance_ohm", "ac_factor", "ac_reference_Hz", "iron_hysteresis_W", "iron_eddy_W",
-                   "iron_reference_Hz", "iron_current_factor", "magnet_W", "magnet_reference_Hz",
-                   "magnet_no_load_share")
-# keys that must be > 0 (the others >= 0; the share also <= 1)
-POSITIVE_ELECTRICAL = ("stator_resistance_ohm", "ac_reference_Hz", "iron_reference_Hz", "magnet_reference_Hz")
 LIMIT_KEYS = ("torque_Nm", "speed_rpm", "current_A")
 DEFAULT_BOUNDS = (0.6, 1.6)
 TOP_KEYS = ("schema", "schema_version", "name", "description", "pole_pairs", "limits", "losses", "thermal_prior",
@@ -86,7 +82,7 @@ class MotorDescription:
     description: str
     pole_pairs: int
     limits: Limits
-    loss_model: LossMaps | ElectricalLosses
+    loss_model: LossModel              # the float64 model of a kind of bench.motor.losskinds
     copper_reference_C: float
     copper_alpha_per_K: float
     prior: ThermalPrior | None
@@ -97,11 +93,11 @@ class MotorDescription:
 
     @property
     def loss_kind(self) -> str:
-        return "maps" if isinstance(self.loss_model, LossMaps) else "electrical"
+        return self.loss_model.kind
 
     @property
     def needs_currents(self) -> bool:
-        return self.loss_kind == "electrical"
+        return bool(set(self.loss_model.inputs) & set(CURRENT_SIGNALS))
 
     def constants(self) -> MotorConstants:
         """What the estimator needs of the motor besides its loss model."""
@@ -184,25 +180,15 @@ def motor_from_dict(content: dict, path: Path | None = None, sha256: str | None 
     limits = Limits(*(check.number(limits_table, f"limits.{k}", positive=True) for k in LIMIT_KEYS))
     losses = check.table(content, "losses")
     kind = losses.get("kind")
-    if kind not in LOSS_KINDS:
-        raise MotorFileError(f"{where}: losses.kind must be one of {', '.join(LOSS_KINDS)}, not {kind!r}")
-    common = ("kind", "copper_reference_C", "copper_alpha_per_K")
+    if not isinstance(kind, str) or kind not in LAB_LOSS_KINDS:
+        raise MotorFileError(f"{where}: losses.kind must be one of {', '.join(LAB_LOSS_KINDS.names())}, "
+                             f"not {kind!r}")
     reference = check.number(losses, "losses.copper_reference_C", low=-50.0, high=250.0)
     alpha = check.number(losses, "losses.copper_alpha_per_K", low=0.0, high=0.02)
-    maps_sha = None
-    if kind == "maps":
-        check.only(losses, "losses", (*common, "file"))
-        from bench.motor.mapsfile import read_loss_maps
-
-        maps_path = Path(check.text(losses, "losses.file"))
-        if not maps_path.is_absolute() and path is not None:
-            maps_path = path.parent / maps_path
-        loss_model, maps_sha = read_loss_maps(maps_path, where)
-    else:
-        check.only(losses, "losses", (*common, *ELECTRICAL_KEYS))
-        values = {k: check.number(losses, f"losses.{k}", positive=k in POSITIVE_ELECTRICAL, low=0.0,
-                                  high=1.0 if k == "magnet_no_load_share" else None) for k in ELECTRICAL_KEYS}
-        loss_model = ElectricalLosses(pole_pairs=float(pole_pairs), current_max_A=limits.current_A, **values)
+    loss_kind = LAB_LOSS_KINDS[kind]
+    check.only(losses, "losses", (*COMMON_KEYS, *loss_kind.keys))
+    loss_model, maps_sha = loss_kind.from_motor_file(check, losses, motor_path=path, pole_pairs=pole_pairs,
+                                                     current_max_A=limits.current_A)
     prior = _prior(content.get("thermal_prior"), where)
     plant = content.get("virtual_plant")
     if plant is not None and not isinstance(plant, dict):

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.motor.errors import MotorFileError
-from bench.motor.losses import MAP_TABLES, LossMaps
+from bench.motor.losskinds.maps import MAP_TABLES, LossMaps
 
 # file column -> LossMaps table
 FILE_COLUMNS = {"copper_dc_W": "p_dc0", "copper_ac_W": "p_ac0", "iron_W": "p_stator", "magnet_W": "p_magnet",

@@ -17,20 +17,22 @@ from dataclasses import dataclass
 from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RX_ERROR_KINDS, TargetState, row_messages
 from dbc.database import contract
 from target_sim.artifact import ModelArtifact
+from target_sim.losses import LOSS_KINDS
 
-# The loss models the firmware's generated C has (bench.firmware.codegen): loss maps over torque and speed, whose
-# node takes a data row as DriveInputs + DriveTemps and validates and ignores DriveCurrents, and the electrical loss
-# model, whose node takes DriveInputs + DriveTemps + DriveCurrents. An artifact's schema has no other.
-FIRMWARE_LOSS_MODELS = ("maps", "electrical")
+
+def firmware_loss_models() -> tuple[str, ...]:
+    """The loss models the firmware's generated C has (each kind of `target_sim.losses` with its C fragment). A
+    model whose loss model reads no current takes a data row as DriveInputs + DriveTemps and validates and ignores
+    DriveCurrents; one that reads the currents takes DriveInputs + DriveTemps + DriveCurrents."""
+    return tuple(name for name, kind in LOSS_KINDS.items() if kind.firmware)
 
 
 def firmware_refusal(artifact: ModelArtifact) -> str | None:
-    """Why the firmware engine cannot run `artifact` (one sentence), or None when it can (every loss model the
-    artifact schema knows today: the check stays for a loss model added to the schema before the generator)."""
-    if artifact.loss_model in FIRMWARE_LOSS_MODELS:
+    """Why the firmware engine cannot run `artifact` (one sentence), or None when it can."""
+    if LOSS_KINDS[artifact.loss_model].firmware:
         return None
     name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
-    return (f"the firmware engine runs the loss models {', '.join(FIRMWARE_LOSS_MODELS)}; {name} has an "
+    return (f"the firmware engine runs the loss models {', '.join(firmware_loss_models())}; {name} has an "
             f"{artifact.loss_model} loss model: use --engine python")
 
 

@@ -70,7 +70,7 @@ def test_generated_c_is_float_only_and_compiles_warning_free(firmware_of, kind, 
 def test_an_electrical_loss_model_is_generated_float_only_without_tables_or_libm(electrical_of, kind):
     """The electrical loss model's C: its coefficients as the artifact's f32_hex, no loss tables, six inputs per
     row in the API, sqrt and |x| by the builtins (VSQRT.F32, VABS.F32 with -fno-math-errno), nothing to link."""
-    from target_sim.artifact import ELECTRICAL_COEFFICIENTS
+    from target_sim.losses.electrical import COEFFICIENTS as ELECTRICAL_COEFFICIENTS
 
     artifact, build = electrical_of(kind, "physical" if kind == "pv-lptn" else "balanced", 0.5)
     source, header = build.sources[codegen.SOURCE_NAME], build.sources[codegen.HEADER_NAME]
