@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from target_sim.kinds import MODEL_KINDS, REALIZATIONS, is_delta
 from target_sim.losses import DEFAULT as DEFAULT_LOSS_MODEL
 from target_sim.losses import LOSS_KINDS, row_signals
 from target_sim.network import COOLANT_REFERENCE_C, network_matrices
@@ -25,8 +26,6 @@ SCHEMA = "pmsm-thermal-bench.model-artifact"
 SCHEMA_VERSION = 2
 # Version 1 had loss maps only (no losses.model); it is read as "maps".
 READABLE_VERSIONS = (1, 2)
-MODEL_KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
-REALIZATIONS = ("physical", "original", "balanced", "modal", "delta")
 # The delta realization's linear block is x <- x + Δ·(A x + B ũ), y = C x + r, with ũ the inputs whose four
 # temperature sources are taken relative to r = linear_block.reference_C (the states are deviations from r).
 OUTPUTS = ("yoke", "winding", "tooth", "magnet")
@@ -187,11 +186,11 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
                             "rebuild it with 'bench identify'")
     kind = _require(content, "model_kind", str)
     if kind not in MODEL_KINDS:
-        raise ArtifactError(f"artifact model kind {_shown(kind)} is not one of {', '.join(MODEL_KINDS)}; "
+        raise ArtifactError(f"artifact model kind {_shown(kind)} is not one of {', '.join(MODEL_KINDS.names())}; "
                             "rebuild it with 'bench identify'")
     if _require(content, "realization", str) not in REALIZATIONS:
         raise ArtifactError(f"artifact realization {_shown(content['realization'])} is not one of "
-                            f"{', '.join(REALIZATIONS)}; rebuild it with 'bench identify'")
+                            f"{', '.join(REALIZATIONS.names())}; rebuild it with 'bench identify'")
     losses = _require(content, "losses", dict)
     model = losses.get("model", DEFAULT_LOSS_MODEL)
     if not isinstance(model, str) or model not in LOSS_KINDS or (version == 1 and "model" in losses):
@@ -242,15 +241,16 @@ def _check_stability(artifact: ModelArtifact) -> None:
     bench can show it, and any run of it that saturates is not clean. PV LPTN (no A): the forward-Euler step
     I + Δt·A(speed, coolant) at the corners of PV_SPEED_CORNERS_RPM x PV_COOLANT_CORNERS_C, from the float32
     parameters the target runs."""
-    if artifact.kind == "pv-lptn":
+    if not MODEL_KINDS[artifact.kind].linear_block:
         _check_pv_stability(artifact)
         return
     a = artifact.array("linear_block", "A", dtype=np.float64)
-    transition = np.eye(len(a)) + artifact.dt * a if artifact.realization == "delta" else a
+    delta = is_delta(artifact.kind, artifact.realization)
+    transition = np.eye(len(a)) + artifact.dt * a if delta else a
     poles = np.linalg.eigvals(transition)
     worst = poles[int(np.argmax(np.abs(poles)))]
     if not abs(worst) < 1.0:
-        step = " (the delta realization's step I + Δt·A)" if artifact.realization == "delta" else ""
+        step = " (the delta realization's step I + Δt·A)" if delta else ""
         raise ArtifactError(f"artifact linear_block.A{step} is unstable: pole z = {_pole(worst)} (|z| = "
                             f"{abs(worst):.6g} ≥ 1), so every model step multiplies that mode by at least that "
                             "much and the estimate grows without bound; rebuild it with 'bench identify'")
@@ -302,14 +302,15 @@ def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
 
 
 def _array_fields(content: dict) -> list[tuple[str, ...]]:
-    fields = [("linear_block", m) for m in ("A", "B", "C", "C_inv")] if content["model_kind"] != "pv-lptn" else []
-    if content["model_kind"] != "pv-lptn" and content.get("realization") == "delta":
+    kind = MODEL_KINDS[content["model_kind"]]
+    fields = [("linear_block", m) for m in ("A", "B", "C", "C_inv")] if kind.linear_block else []
+    if is_delta(kind.name, content["realization"]):
         fields.append(("linear_block", "reference_C"))
     fields += [("lptn", "parameters", name) for name in LPTN_PARAMETERS]
     fields += [("lptn", "speed_max_rpm")]
     fields += [("losses", k) for k in ("current_max_A", "alpha_cu_per_K", "copper_reference_C")]
     fields += [("losses", *keys) for keys in LOSS_KINDS[loss_model_of(content)].fields(content["losses"])]
-    if content["model_kind"] == "hammerstein":
+    if kind.input_nonlinearity:
         fields += [("input_nonlinearity", k) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")]
     for keys in fields:
         node = content

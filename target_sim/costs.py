@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
+from target_sim.kinds import MODEL_KINDS
 from target_sim.losses import LOSS_KINDS
 
 CPU_HZ = 90e6
@@ -154,9 +155,9 @@ def step_cost(artifact: ModelArtifact) -> StepCost:
         "call": _ops(call=1, load_store=len(artifact.drive_signals) + 4),
         "losses": loss_model_ops(artifact) + node_losses_ops(),
     }
-    if artifact.kind == "hammerstein":
+    if MODEL_KINDS[artifact.kind].input_nonlinearity:
         blocks["sigmoid"] = sigmoid_ops()
-    if artifact.kind == "pv-lptn":
+    if not MODEL_KINDS[artifact.kind].linear_block:
         blocks["linear"] = pv_network_ops()
     else:
         blocks["sources"] = temperature_sources_ops()
@@ -174,11 +175,11 @@ def coefficient_count(artifact: ModelArtifact) -> int:
     LPTN parameters, linear block, sigmoid."""
     count = LOSS_KINDS[artifact.loss_model].coefficient_count(artifact)
     count += 3 + len(LPTN_PARAMETERS) + 1             # current_max, alpha_cu, copper reference; speed_max
-    if artifact.kind == "pv-lptn":
+    if not MODEL_KINDS[artifact.kind].linear_block:
         count += 4                                     # 1/C_i
     else:
         count += sum(int(np.count_nonzero(artifact.array("linear_block", m))) for m in ("A", "B", "C", "C_inv"))
-    if artifact.kind == "hammerstein":
+    if MODEL_KINDS[artifact.kind].input_nonlinearity:
         count += 6 * 4
     return count
 
@@ -190,7 +191,7 @@ def memory_estimate(artifact: ModelArtifact, cost: StepCost | None = None) -> Me
     states = 4 + 4                                     # x and the previous estimate y
     accumulator = len(artifact.drive_signals) + 1     # interval sums (4, or 6 with the currents) and count
     work = 5 + 4 + 8 + 4                               # table outputs, node losses, input vector u, outputs
-    if artifact.kind == "pv-lptn":
+    if not MODEL_KINDS[artifact.kind].linear_block:
         work += 4 * 4 + 4 * 6 + 4 * 6                  # A, B and the conductances rebuilt every step
     return MemoryEstimate(coefficient_bytes=FLOAT_BYTES * coefficient_count(artifact),
                           code_bytes=CODE_BYTES_PER_OPERATION * counted + LIBRARY_CODE_BYTES,

@@ -30,6 +30,7 @@ import numpy as np
 
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
 from target_sim.fmath import exp_f32, matvec
+from target_sim.kinds import MODEL_KINDS, is_delta
 from target_sim.losses import LOSS_KINDS
 from target_sim.network import COOLANT_REFERENCE_C, network_matrices
 
@@ -67,12 +68,13 @@ class Float32Estimator:
         self.conv_r0 = np.array([p["R_tm0"], p["R_wm0"], p["R_ma0"]], dtype=f)
         self.conv_a = np.array([p["a_tm"], p["a_wm"], p["a_ma"]], dtype=f)
         # the delta realization: x <- x + Δ·(A x + B ũ) with the states and temperature sources relative to r
-        self.delta = self.kind != "pv-lptn" and artifact.realization == "delta"
+        self.model_kind = model_kind = MODEL_KINDS[artifact.kind]
+        self.delta = is_delta(artifact.kind, artifact.realization)
         self.reference = arr("linear_block", "reference_C")[()] if self.delta else f(0.0)
-        if self.kind != "pv-lptn":
+        if model_kind.linear_block:
             self.a, self.b = arr("linear_block", "A"), arr("linear_block", "B")
             self.c, self.c_inv = arr("linear_block", "C"), arr("linear_block", "C_inv")
-        if self.kind == "hammerstein":
+        if model_kind.input_nonlinearity:
             self.sigmoid = {k: arr("input_nonlinearity", k)
                             for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")}
         self.x = np.zeros(4, dtype=f)
@@ -82,7 +84,7 @@ class Float32Estimator:
         """Start from physical temperatures [yoke, winding, tooth, magnet] (°C): x0 = C^-1 y0, delta: C^-1 (y0 - r)
         (C: fw_reset)."""
         self.y = np.asarray(temperatures, dtype=self.f).copy()
-        if self.kind == "pv-lptn":
+        if not self.model_kind.linear_block:
             self.x = self.y.copy()
         else:
             self.x = matvec(self.c_inv, self.y - self.reference if self.delta else self.y)
@@ -91,7 +93,7 @@ class Float32Estimator:
         """Continue from a checkpointed state vector x (the realization's coordinates), bit for bit: y = C x (+ r)
         is what `step` left after the model step the checkpoint was taken at (C: fw_restore)."""
         self.x = np.asarray(state, dtype=self.f).copy()
-        self.y = self.x.copy() if self.kind == "pv-lptn" else self.output()
+        self.y = self.output() if self.model_kind.linear_block else self.x.copy()
 
     def output(self) -> np.ndarray:
         """y = C x, delta: (C x) + r."""
@@ -164,9 +166,9 @@ class Float32Estimator:
         LTI/Hammerstein: x <- (A x) + (B u) row by row, y = C x; delta realization: x <- x + Δ·((A x) + (B ũ)),
         ũ with the sources minus r, y = (C x) + r; PV LPTN: x <- x + Δt·((A x) + (B u))."""
         losses = self.node_losses(torque, speed, i_d, i_q)
-        if self.kind == "hammerstein":
+        if self.model_kind.input_nonlinearity:
             losses = self.input_nonlinearity(losses)
-        if self.kind == "pv-lptn":
+        if not self.model_kind.linear_block:
             a, b = self.pv_network(speed, coolant)
             u = np.concatenate([losses, np.array([coolant, ambient], dtype=self.f)])
             self.x = self.x + self.dt * (matvec(a, self.x) + matvec(b, u))

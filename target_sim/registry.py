@@ -46,8 +46,9 @@ class Registry(Generic[T]):
             importlib.import_module(f"{self._package}.{name}")
 
     def names(self) -> tuple[str, ...]:
+        """The kinds' names: `first` in its order, then the others as registered."""
         self._load()
-        return tuple(self._kinds)
+        return tuple(sorted(self._kinds, key=lambda n: self._first.index(n) if n in self._first else len(self._first)))
 
     def __contains__(self, name: object) -> bool:
         self._load()
@@ -61,8 +62,7 @@ class Registry(Generic[T]):
         try:
             return self._kinds[name]
         except (KeyError, TypeError):
-            raise UnknownKind(f"{self.what} {name!r} is not one of {', '.join(self._kinds)}") from None
+            raise UnknownKind(f"{self.what} {name!r} is not one of {', '.join(self.names())}") from None
 
     def items(self) -> list[tuple[str, T]]:
-        self._load()
-        return list(self._kinds.items())
+        return [(name, self._kinds[name]) for name in self.names()]

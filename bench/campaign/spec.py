@@ -38,8 +38,9 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import BenchError, UsageError
+from target_sim.kinds import MODEL_KINDS as model_kind_table
 
-MODEL_KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
+MODEL_KINDS = model_kind_table.names()
 COOLANT_SETPOINTS = (20, 40, 60)
 DEFAULT_TIMEOUT_S = 1800.0
 SECTIONS = ("campaign", "fixed", "axes")

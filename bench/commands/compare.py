@@ -31,8 +31,9 @@ from bench.fileio import write_text_atomically
 from bench.runner import ProgressBar, bus_from_args, load_data, load_model, positive_float, positive_int
 from dbc.transport import add_bus_arguments
 from target_sim.artifact import ModelArtifact, dumps
+from target_sim.kinds import MODEL_KINDS
 
-KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
+KINDS = MODEL_KINDS.names()
 
 
 def add_subparser(subparsers) -> None:

@@ -17,8 +17,9 @@ from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.hammerstein_fit import FIT_PATHS
 from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
+from target_sim.kinds import MODEL_KINDS
 
-KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
+KINDS = MODEL_KINDS.names()
 DEFAULT_DT_S = 0.5
 # every model step must hold at least one data sample (the target averages the samples of each step)
 PERIOD_TOLERANCE = 1e-6

@@ -37,21 +37,19 @@ import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
 from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
-from target_sim.artifact import MODEL_KINDS, OUTPUTS, ModelArtifact
+from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import firmware_loss_models, firmware_refusal
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
+from target_sim.kinds import MODEL_KINDS, REALIZATIONS, is_delta
 from target_sim.losses import C_NAMES, LOSS_KINDS, LossKind
 from target_sim.model import COOLANT_REFERENCE_C
 
 HEADER_NAME = "fw_model.h"
 SOURCE_NAME = "fw_model.c"
-KINDS = ("lti-lptn", "pv-lptn", "hammerstein")
 # shift-form realizations differ only in the matrices A, B, C, C_inv; delta has its own step (_STEP_DELTA_C)
-REALIZATIONS = ("physical", "original", "balanced", "modal", "delta")
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 LINEAR_BLOCK = {"A": (4, 4), "B": (4, 8), "C": (4, 4), "C_inv": (4, 4)}
 
-assert set(KINDS) == set(MODEL_KINDS)   # a new kind in the artifact schema needs a generator here first
 
 
 @dataclass(frozen=True)
@@ -124,12 +122,12 @@ def check_expressible(artifact: ModelArtifact) -> None:
     if refusal:
         raise FirmwareGenerationError(refusal)
     kind, realization = artifact.content.get("model_kind"), artifact.content.get("realization")
-    if kind not in KINDS:
+    if kind not in MODEL_KINDS:
         raise FirmwareGenerationError(f"model kind {kind!r} cannot be generated as firmware (the generator knows "
-                                      f"{', '.join(KINDS)}); use an artifact of one of those kinds")
+                                      f"{', '.join(MODEL_KINDS.names())}); use an artifact of one of those kinds")
     if realization not in REALIZATIONS:
         raise FirmwareGenerationError(f"realization {realization!r} cannot be generated as firmware (the generator "
-                                      f"knows {', '.join(REALIZATIONS)}); rebuild the artifact with "
+                                      f"knows {', '.join(REALIZATIONS.names())}); rebuild the artifact with "
                                       "'bench identify --realization'")
     if artifact.loss_model not in firmware_loss_models():
         raise FirmwareGenerationError(f"loss model {artifact.loss_model!r} cannot be generated as firmware (the "
@@ -537,7 +535,7 @@ def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
     for name, source, comment in LOSS_KINDS[artifact.loss_model].c_scalars(artifact):
         literal = _scalar_literal(artifact, source) if isinstance(source, tuple) else c_float(source)
         out.append((name, literal, comment))
-    if artifact.kind != "pv-lptn" and artifact.realization == "delta":
+    if is_delta(artifact.kind, artifact.realization):
         out.append(("LB_REF", _artifact_literals(artifact, "linear_block", "reference_C", shape=())[()],
                     "linear_block.reference_C: the delta states' reference temperature"))
     out += [("COOLANT_REF", c_float(np.float32(COOLANT_REFERENCE_C)), "coolant temperature of R_cy0 (eq. 16)"),
@@ -574,14 +572,15 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     horner += [f"    p = p * r + EXP_{name};" for name in EXP_POLYNOMIAL[1:]]
     code = [_EXP_C.format(horner="\n".join(horner), bias=EXP_EXPONENT_BIAS, max_ulp=EXP_MAX_ULP),
             _common_c(loss_kind)]
-    if kind == "hammerstein":
+    if MODEL_KINDS[kind].input_nonlinearity:
         code.append(_SIGMOID_C)
-    if kind == "pv-lptn":
+    if not MODEL_KINDS[kind].linear_block:
         step = _STEP_PV_C
         code += [_PV_C]
     else:
-        template = _STEP_DELTA_C if artifact.realization == "delta" else _STEP_LINEAR_C
-        step = template.format(nonlinearity="    input_nonlinearity(u);\n" if kind == "hammerstein" else "")
+        template = _STEP_DELTA_C if is_delta(kind, artifact.realization) else _STEP_LINEAR_C
+        step = template.format(nonlinearity="    input_nonlinearity(u);\n" if MODEL_KINDS[kind].input_nonlinearity
+                               else "")
         code += [_SOURCES_C]
     # fw_step takes the row's width of inputs and hands node_losses what the loss model needs
     step = step.replace("void fw_step(const float inputs[4], float y[4])",
@@ -613,12 +612,12 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     for array in arrays:
         stacked = np.stack([_artifact_literals(artifact, *keys) for keys in array.fields])
         parts.append(_c_array(array.name, stacked if len(array.fields) > 1 else stacked[0], array.comment))
-    if kind == "hammerstein":
+    if MODEL_KINDS[kind].input_nonlinearity:
         for key in SIGMOID_KEYS:
             c_name = "SIG_" + key.split("_")[0].upper()
             parts.append(_c_array(c_name, _artifact_literals(artifact, "input_nonlinearity", key, shape=(4,)),
                                   f"input_nonlinearity.{key} [P_y, P_w, P_t, P_m]"))
-    if kind != "pv-lptn":
+    if MODEL_KINDS[kind].linear_block:
         for key, shape in LINEAR_BLOCK.items():
             parts.append(_c_array(f"LB_{key.upper()}", _artifact_literals(artifact, "linear_block", key, shape=shape),
                                   f"linear_block.{key} ({artifact.realization} realization)"))

@@ -25,8 +25,9 @@ from bench.firmware import toolchain
 from bench.firmware.codegen import generate
 from bench.firmware.literals import FirmwareGenerationError
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
+from target_sim.kinds import MODEL_KINDS
 
-PACKAGED_KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
+PACKAGED_KINDS = MODEL_KINDS.names()   # one packaged artifact per kind
 
 
 def packaged_elf_path(kind: str) -> Path:

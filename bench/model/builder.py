@@ -16,6 +16,7 @@ from bench.thermal.parameters import LptnParameters
 from bench.thermal.portable import inv
 from bench.thermal.realizations import Realization, condition_number, physical, realize
 from target_sim import artifact as schema
+from target_sim.kinds import MODEL_KINDS
 
 
 @dataclass(frozen=True)
@@ -79,7 +80,7 @@ def physical_block(spec: ModelSpec) -> Realization:
 
 def artifact_content(spec: ModelSpec) -> dict[str, Any]:
     """The unsealed artifact dictionary for `spec`."""
-    if spec.kind not in schema.MODEL_KINDS:
+    if spec.kind not in MODEL_KINDS:
         raise ValueError(f"unknown model kind {spec.kind!r}")
     enc = schema.encode_array
     content: dict[str, Any] = {

@@ -16,7 +16,7 @@ from bench.motor.description import (
     parse_bounds,
 )
 from bench.motor.losses import ElectricalLosses
-from bench.motor.mapsfile import loss_maps_csv
+from bench.motor.losskinds.maps import loss_maps_csv
 from bench.motor.template import template
 from bench.thermal.parameters import TABLE1
 
