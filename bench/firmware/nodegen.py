@@ -11,6 +11,13 @@ bench/firmware/node.c (hand-written) is the node; what it must not spell out its
   and where each drive value goes: DriveInputs and DriveTemps, and DriveCurrents for an electrical loss model), the
   decode rule of every drive, current and reset signal, the temperature encoding, Timing2/3's C28x estimate as raw
   values, the interval rule, the journal's reason codes (`target_sim.firmware.node_protocol`).
+* the receive side, in fw_node_config.h too: the messages the DBC gives receiver TARGET as X-macro lists
+  (NODE_RX_LIST(X): X(NAME, name, frame id) per message; NODE_ROW_LIST, NODE_RESET_LIST), which node.c expands
+  into its index enum, id tables, union, unpack and range switches; each message's Step
+  (NODE_STEP_<MESSAGE>(m)) and its range check (NODE_OUT_OF_RANGE_<MESSAGE>(m): the DBC index of the first
+  signal outside its range, or -1), whose limits are the raw values the Python validator accepts
+  (`dbc.database`'s minimum/maximum and tolerance), so a new host->target message needs no edit of node.c's
+  receive code.
 
 Decoding in float32 without double: the Python codec decodes raw * scale + offset in double and the node rounds
 that to float32. For the DBC's scalings (scale = 1/n, offset = k/n for integers n, k) that float32 value is
@@ -51,7 +58,15 @@ from dbc.contract import (
     row_messages,
     row_signals,
 )
-from dbc.database import contract, heartbeat_period_s, layout_named, signal_ranges, temperature_range
+from dbc.database import (
+    MessageLayout,
+    SignalLayout,
+    contract,
+    heartbeat_period_s,
+    layout_named,
+    signal_ranges,
+    temperature_range,
+)
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
 from target_sim.firmware.node_protocol import (
@@ -155,7 +170,8 @@ def _row_macros(artifact: ModelArtifact) -> list[str]:
     """The data row of `artifact`'s model (TargetNode's row_messages and row_signals): its width and messages, each
     message's index in the row (NODE_ROW_INDEX_<MESSAGE>, only for the row's messages), and per message the decode
     of its values into their places of the row's sample (NODE_DECODE_<MESSAGE>(sample, m), one float32 division per
-    signal) and its Step (NODE_STEP_<MESSAGE>(m))."""
+    signal), and the row's messages as an X-macro list (NODE_ROW_LIST(X): X(NAME, name) per message, in row
+    order)."""
     width = len(artifact.drive_signals)
     messages = row_messages(width)
     if messages != ROW_MESSAGES[:len(messages)]:
@@ -168,7 +184,11 @@ def _row_macros(artifact: ModelArtifact) -> list[str]:
         fills = "; ".join(f"(sample)[{index}] = {_decode(message, signal, f'(m).{_field(message, signal)}')}"
                           for index, (owner, signal) in places if owner == message)
         out.append(f"#define NODE_DECODE_{_snake_upper(message)}(sample, m) do {{ {fills}; }} while (0)")
-        out.append(f"#define NODE_STEP_{_snake_upper(message)}(m) ((m).{_field(message, 'Step')})")
+    received_names = {layout.name for layout in received()}
+    if not set(messages) <= received_names:
+        raise FirmwareGenerationError("a message of the data row is not one the DBC gives receiver TARGET")
+    out.append("#define NODE_ROW_LIST(X) " + " ".join(f"X({_snake_upper(m)}, {camel_to_snake_case(m)})"
+                                                       for m in messages))
     return out
 
 
@@ -180,15 +200,112 @@ def _signal_macros() -> list[str]:
     for message, pairs in REPLY_SIGNALS.items():
         fills = "; ".join(f"(m).{_field(message, signal)} = (uint16_t)(raw)[{index}]" for signal, index in pairs)
         out.append(f"#define NODE_FILL_{_snake_upper(message)}(m, raw) do {{ {fills}; }} while (0)")
+    # RESET's messages (X(NAME, name, slot) per message), the raw values each carries, and their decode into y
     messages = list(RESET_SIGNALS)
-    for number, message in enumerate(messages, start=1):
+    out.append(f"#define NODE_RESET_MESSAGES {len(messages)}u")
+    out.append(f"#define NODE_RESET_WIDTH {max(len(pairs) for pairs in RESET_SIGNALS.values())}u")
+    out.append("#define NODE_RESET_LIST(X) " + " ".join(f"X({_snake_upper(m)}, {camel_to_snake_case(m)}, {slot}u)"
+                                                         for slot, m in enumerate(messages)))
+    for message in messages:
         fills = "; ".join(f"(raw)[{slot}] = (m).{_field(message, signal)}"
                           for slot, (signal, _) in enumerate(RESET_SIGNALS[message]))
-        out.append(f"#define NODE_RESET{number}_RAW(raw, m) do {{ {fills}; }} while (0)")
-    fills = "; ".join(f"(y)[{index}] = {_decode(message, signal, f'(r{number})[{slot}]')}"
-                      for number, message in enumerate(messages, start=1)
+        out.append(f"#define NODE_RESET_RAW_{_snake_upper(message)}(raw, m) do {{ {fills}; }} while (0)")
+    fills = "; ".join(f"(y)[{index}] = {_decode(message, signal, f'(frames)[{number}].raw[{slot}]')}"
+                      for number, message in enumerate(messages)
                       for slot, (signal, index) in enumerate(RESET_SIGNALS[message]))
-    out.append(f"#define NODE_RESET_TEMPERATURES(y, r1, r2) do {{ {fills}; }} while (0)")
+    out.append(f"#define NODE_RESET_TEMPERATURES(y, frames) do {{ {fills}; }} while (0)")
+    return out
+
+
+def received() -> tuple[MessageLayout, ...]:
+    """The messages the node receives: those the DBC gives receiver TARGET, by frame id (the node's index)."""
+    return tuple(sorted((m for m in contract().by_id.values() if NODE in m.message.receivers),
+                        key=lambda m: m.frame_id))
+
+
+def raw_limits(signal: SignalLayout) -> tuple[int | None, int | None]:
+    """The lowest and highest raw value of integer `signal` the Python validator accepts (minimum - tolerance <=
+    raw_to_scaled(raw) <= maximum + tolerance), None where that is the raw type's own limit (no check needed)."""
+    if signal.scale <= 0:
+        raise FirmwareGenerationError(f"signal {signal.dbc_name} has scale {signal.scale:g}: the firmware node "
+                                      "checks the ranges of increasing conversions only")
+    first, last = (-(1 << (signal.length - 1)), (1 << (signal.length - 1)) - 1) if signal.signed \
+        else (0, (1 << signal.length) - 1)
+
+    def accepts(raw: int) -> bool:
+        return signal.low <= signal.conversion.raw_to_scaled(raw, False) <= signal.high
+
+    def guess(value: float) -> int:      # near the limit; the loops below settle it exactly
+        return first if value < -1e300 else last if value > 1e300 else \
+            min(max(round((value - signal.offset) / signal.scale), first), last)
+
+    low, high = guess(signal.low), guess(signal.high)
+    while low > first and accepts(low - 1):
+        low -= 1
+    while low <= last and not accepts(low):
+        low += 1
+    while high < last and accepts(high + 1):
+        high += 1
+    while high >= first and not accepts(high):
+        high -= 1
+    if low > high:
+        raise FirmwareGenerationError(f"signal {signal.dbc_name} accepts no raw value")
+    return (None if low == first else low), (None if high == last else high)
+
+
+def float_limits(signal: SignalLayout) -> tuple[float, float]:
+    """The lowest and highest float32 of IEEE float `signal` the Python validator accepts (NaN never)."""
+    low = np.float32(signal.low)
+    if float(low) < signal.low:
+        low = np.nextafter(low, np.float32(np.inf))
+    high = np.float32(signal.high)
+    if float(high) > signal.high:
+        high = np.nextafter(high, np.float32(-np.inf))
+    return float(low), float(high)
+
+
+def _int_literal(value: int, signed: bool) -> str:
+    return str(value) if signed else f"{value}u"
+
+
+def range_checks(message: str) -> list[tuple[int, str]]:
+    """(index of the signal in the DBC message, parenthesized C condition on (m) that holds when it is in range)
+    for every signal of received `message` that can be out of range, in DBC order."""
+    layout = layout_named(message)
+    order = [s.name for s in layout.message.signals]
+    checks = []
+    for signal in layout.signals:
+        value = f"(m).{camel_to_snake_case(signal.dbc_name)}"
+        if signal.ieee is not None:
+            if signal.length != 32:
+                raise FirmwareGenerationError(f"signal {signal.dbc_name} is a {signal.length}-bit float: the "
+                                              "firmware node has float32 only")
+            low, high = float_limits(signal)
+            conditions = [f"{value} >= {c_float(low)}", f"{value} <= {c_float(high)}"]   # NaN fails both
+        else:
+            low_raw, high_raw = raw_limits(signal)
+            conditions = [f"{value} {op} {_int_literal(limit, signal.signed)}"
+                          for op, limit in ((">=", low_raw), ("<=", high_raw)) if limit is not None]
+        if conditions:
+            joined = " && ".join(f"({c})" for c in conditions)
+            checks.append((order.index(signal.dbc_name), joined if len(conditions) == 1 else f"({joined})"))
+    return checks
+
+
+def _receive_macros() -> list[str]:
+    """The receive side: NODE_RX_LIST(X) (X(NAME, name, frame id) per received message, by frame id), and per
+    message its Step (NODE_STEP_<NAME>(m)) and its range check (NODE_OUT_OF_RANGE_<NAME>(m): the DBC index of the
+    first signal outside its range, or -1)."""
+    messages = received()
+    out = ["#define NODE_RX_LIST(X) " + " ".join(f"X({_snake_upper(m.name)}, {camel_to_snake_case(m.name)}, "
+                                                 f"0x{m.frame_id:03X}u)" for m in messages)]
+    for layout in messages:
+        if "Step" not in layout.signal_names:
+            raise FirmwareGenerationError(f"message {layout.name} is received by TARGET and has no Step signal")
+        out.append(f"#define NODE_STEP_{_snake_upper(layout.name)}(m) ((m).{_field(layout.name, 'Step')})")
+    for layout in messages:
+        test = "".join(f"!{condition} ? {index} : " for index, condition in range_checks(layout.name))
+        out.append(f"#define NODE_OUT_OF_RANGE_{_snake_upper(layout.name)}(m) ({test}-1)")
     return out
 
 
@@ -246,6 +363,7 @@ def node_config(artifact: ModelArtifact) -> str:
               f"#define NODE_STATE_VALUE_MAX {c_float(state_high)}"]
     lines += _temperature_encoding()
     lines += _signal_macros()
+    lines += _receive_macros()
     lines += _row_macros(artifact)
     lines += ["", "#endif /* FW_NODE_CONFIG_H */", ""]
     return "\n".join(lines)
