@@ -295,15 +295,14 @@ def range_checks(message: str) -> list[tuple[int, str]]:
 
 def _receive_macros() -> list[str]:
     """The receive side: NODE_RX_LIST(X) (X(NAME, name, frame id) per received message, by frame id), and per
-    message its Step (NODE_STEP_<NAME>(m)) and its range check (NODE_OUT_OF_RANGE_<NAME>(m): the DBC index of the
-    first signal outside its range, or -1)."""
+    message its Step (NODE_STEP_<NAME>(m), where it has one) and its range check (NODE_OUT_OF_RANGE_<NAME>(m):
+    the DBC index of the first signal outside its range, or -1)."""
     messages = received()
     out = ["#define NODE_RX_LIST(X) " + " ".join(f"X({_snake_upper(m.name)}, {camel_to_snake_case(m.name)}, "
                                                  f"0x{m.frame_id:03X}u)" for m in messages)]
-    for layout in messages:
-        if "Step" not in layout.signal_names:
-            raise FirmwareGenerationError(f"message {layout.name} is received by TARGET and has no Step signal")
-        out.append(f"#define NODE_STEP_{_snake_upper(layout.name)}(m) ((m).{_field(layout.name, 'Step')})")
+    for layout in messages:      # node.c reads the Step of the messages it has rules for; none is needed of others
+        if "Step" in layout.signal_names:
+            out.append(f"#define NODE_STEP_{_snake_upper(layout.name)}(m) ((m).{_field(layout.name, 'Step')})")
     for layout in messages:
         test = "".join(f"!{condition} ? {index} : " for index, condition in range_checks(layout.name))
         out.append(f"#define NODE_OUT_OF_RANGE_{_snake_upper(layout.name)}(m) ({test}-1)")
