@@ -30,16 +30,14 @@ struct node_counters node_counters;
 #define DWT_CTRL (*(volatile uint32_t *)0xE0001000u)
 #define DWT_CYCCNT (*(volatile uint32_t *)0xE0001004u)
 
-/* The messages the node receives (HOST -> TARGET), in one table: index, id and E2E data id. */
-enum rx_message { RX_CONTROL, RX_RESET1, RX_RESET2, RX_RESTORE, RX_DRIVE_INPUTS, RX_DRIVE_TEMPS, RX_DRIVE_CURRENTS,
-                  RX_BENCH_EVENT, RX_COUNT };
-static const uint32_t rx_ids[RX_COUNT] = {
-    THERMAL_BENCH_CONTROL_FRAME_ID, THERMAL_BENCH_RESET_TEMPS1_FRAME_ID, THERMAL_BENCH_RESET_TEMPS2_FRAME_ID,
-    THERMAL_BENCH_RESTORE_STATE_FRAME_ID, THERMAL_BENCH_DRIVE_INPUTS_FRAME_ID, THERMAL_BENCH_DRIVE_TEMPS_FRAME_ID,
-    THERMAL_BENCH_DRIVE_CURRENTS_FRAME_ID, THERMAL_BENCH_BENCH_EVENT_FRAME_ID};
-static const uint8_t rx_data_ids[RX_COUNT] = {
-    NODE_DATA_ID_CONTROL, NODE_DATA_ID_RESET_TEMPS1, NODE_DATA_ID_RESET_TEMPS2, NODE_DATA_ID_RESTORE_STATE,
-    NODE_DATA_ID_DRIVE_INPUTS, NODE_DATA_ID_DRIVE_TEMPS, NODE_DATA_ID_DRIVE_CURRENTS, NODE_DATA_ID_BENCH_EVENT};
+/* The messages the node receives, one index each: NODE_RX_LIST of fw_node_config.h (X(NAME, name, frame id) for
+ * every message the DBC gives receiver TARGET, by frame id), with their frame and E2E data ids. */
+#define RX_INDEX(NAME, name, id) RX_##NAME,
+enum rx_message { NODE_RX_LIST(RX_INDEX) RX_COUNT };
+#define RX_ID(NAME, name, id) id,
+static const uint32_t rx_ids[RX_COUNT] = {NODE_RX_LIST(RX_ID)};
+#define RX_DATA_ID(NAME, name, id) NODE_DATA_ID_##NAME,
+static const uint8_t rx_data_ids[RX_COUNT] = {NODE_RX_LIST(RX_DATA_ID)};
 
 /* ---- the node's state (TargetNode's attributes) ---- */
 static uint8_t state;
@@ -49,11 +47,11 @@ static uint8_t counter_last[RX_COUNT];
 static uint8_t tx_counter[NODE_TX_MESSAGES];      /* FrameCodec._next_counter, by NODE_TX_* index */
 static const struct node_frame *rx_frame;         /* the frame being handled, for the journal */
 
-static struct {                                   /* ResetTemps1/2 by message: _reset_frames */
+static struct {                                   /* RESET's messages (NODE_RESET_LIST): _reset_frames */
     uint8_t have;
     uint16_t step;
-    uint16_t raw[2];
-} reset_frames[2];
+    uint16_t raw[NODE_RESET_WIDTH];
+} reset_frames[NODE_RESET_MESSAGES];
 static struct {                                   /* RestoreState by element: _restore_frames */
     uint8_t have;
     uint16_t step;
@@ -506,14 +504,17 @@ static void control(uint8_t command, uint16_t step)
 {
     if (command == NODE_COMMAND_RESET) {
         float y0[NODE_STATE_SIZE];
-        const int complete = reset_frames[0].have && reset_frames[1].have && reset_frames[0].step == step
-                             && reset_frames[1].step == step;
-        reset_frames[0].have = reset_frames[1].have = 0u;
+        unsigned int i;
+        int complete = 1;
+        for (i = 0; i < NODE_RESET_MESSAGES; i++) {         /* each message's last frame, of this Step */
+            if (!reset_frames[i].have || reset_frames[i].step != step) complete = 0;
+            reset_frames[i].have = 0u;
+        }
         if (!complete) {
             incomplete(NODE_WHY_RESET_INCOMPLETE, step);
             return;
         }
-        NODE_RESET_TEMPERATURES(y0, reset_frames[0].raw, reset_frames[1].raw);
+        NODE_RESET_TEMPERATURES(y0, reset_frames);
         fw_reset(y0);
         ready();
     } else if (command == NODE_COMMAND_RESTORE) {
@@ -556,28 +557,18 @@ static void reject(uint8_t kind, uint8_t code, int32_t a, int32_t b)
 }
 
 /* A received frame, unpacked once by the generated unpack function of its message (`validate`). */
+#define RX_MEMBER(NAME, name, id) struct thermal_bench_##name##_t name;
 union rx_signals {
-    struct thermal_bench_control_t control;
-    struct thermal_bench_reset_temps1_t reset1;
-    struct thermal_bench_reset_temps2_t reset2;
-    struct thermal_bench_restore_state_t restore;
-    struct thermal_bench_drive_inputs_t inputs;
-    struct thermal_bench_drive_temps_t temps;
-    struct thermal_bench_drive_currents_t currents;
-    struct thermal_bench_bench_event_t event;
+    NODE_RX_LIST(RX_MEMBER)
 };
 
+#define RX_UNPACK(NAME, name, id)                                                                                     \
+    case RX_##NAME: (void)thermal_bench_##name##_unpack(&m->name, data, 8u); break;
 static void unpack(int index, const uint8_t *data, union rx_signals *m)
 {
     switch (index) {
-    case RX_CONTROL: (void)thermal_bench_control_unpack(&m->control, data, 8u); break;
-    case RX_RESET1: (void)thermal_bench_reset_temps1_unpack(&m->reset1, data, 8u); break;
-    case RX_RESET2: (void)thermal_bench_reset_temps2_unpack(&m->reset2, data, 8u); break;
-    case RX_RESTORE: (void)thermal_bench_restore_state_unpack(&m->restore, data, 8u); break;
-    case RX_DRIVE_INPUTS: (void)thermal_bench_drive_inputs_unpack(&m->inputs, data, 8u); break;
-    case RX_DRIVE_TEMPS: (void)thermal_bench_drive_temps_unpack(&m->temps, data, 8u); break;
-    case RX_DRIVE_CURRENTS: (void)thermal_bench_drive_currents_unpack(&m->currents, data, 8u); break;
-    default: (void)thermal_bench_bench_event_unpack(&m->event, data, 8u); break;
+    NODE_RX_LIST(RX_UNPACK)
+    default: break;
     }
 }
 
@@ -630,40 +621,30 @@ static void row_frame_done(unsigned int index, uint16_t step)
         }                                                                                                             \
     } while (0)
 
+/* RESET's `slot`-th message (NODE_RESET_LIST): its last frame kept until the RESET. */
+#define RESET_FRAME(NAME, name, slot)                                                                                 \
+    case RX_##NAME:                                                                                                   \
+        reset_frames[slot].have = 1u;                                                                                 \
+        reset_frames[slot].step = NODE_STEP_##NAME(m->name);                                                          \
+        NODE_RESET_RAW_##NAME(reset_frames[slot].raw, m->name);                                                       \
+        break;
+#define ROW_CASE(NAME, name) case RX_##NAME: ROW_FRAME(NAME, m->name); break;
+
 /* The application part of a valid frame (TargetNode._dispatch). */
 static void dispatch(int index, const union rx_signals *m)
 {
     switch (index) {
-    case RX_DRIVE_INPUTS:
-        ROW_FRAME(DRIVE_INPUTS, m->inputs);
-        break;
-    case RX_DRIVE_TEMPS:
-        ROW_FRAME(DRIVE_TEMPS, m->temps);
-        break;
-#ifdef NODE_ROW_INDEX_DRIVE_CURRENTS
-    case RX_DRIVE_CURRENTS:                                 /* an electrical loss model's row: the d/q currents */
-        ROW_FRAME(DRIVE_CURRENTS, m->currents);
-        break;
-#endif
-    case RX_RESET1:
-        reset_frames[0].have = 1u;
-        reset_frames[0].step = m->reset1.reset_temps1_step;
-        NODE_RESET1_RAW(reset_frames[0].raw, m->reset1);
-        break;
-    case RX_RESET2:
-        reset_frames[1].have = 1u;
-        reset_frames[1].step = m->reset2.reset_temps2_step;
-        NODE_RESET2_RAW(reset_frames[1].raw, m->reset2);
-        break;
-    case RX_RESTORE: {
-        const uint8_t i = m->restore.restore_state_state_index;          /* 0..3: checked by the range check */
+    NODE_ROW_LIST(ROW_CASE)                                 /* the model's data row (an electrical one: currents) */
+    NODE_RESET_LIST(RESET_FRAME)
+    case RX_RESTORE_STATE: {
+        const uint8_t i = m->restore_state.restore_state_state_index;    /* 0..3: checked by the range check */
         restore_frames[i].have = 1u;
-        restore_frames[i].step = m->restore.restore_state_step;
-        restore_frames[i].value = m->restore.restore_state_state_value;
+        restore_frames[i].step = NODE_STEP_RESTORE_STATE(m->restore_state);
+        restore_frames[i].value = m->restore_state.restore_state_state_value;
         break;
     }
     case RX_CONTROL:
-        control(m->control.command, m->control.control_step);
+        control(m->control.command, NODE_STEP_CONTROL(m->control));
         break;
     default:            /* BenchEvent, and DriveCurrents for a loss-map model: validated, otherwise ignored */
         break;
@@ -671,52 +652,13 @@ static void dispatch(int index, const union rx_signals *m)
 }
 
 /* The first signal of a frame outside its DBC range, as its index in the message (DBC order), or -1
- * (FrameValidator's range check, through the generated *_is_in_range). */
+ * (FrameValidator's range check: NODE_OUT_OF_RANGE_<NAME>, limits from the DBC's ranges). */
+#define RX_RANGE(NAME, name, id) case RX_##NAME: return NODE_OUT_OF_RANGE_##NAME(m->name);
 static int out_of_range_signal(int index, const union rx_signals *m)
 {
     switch (index) {
-    case RX_CONTROL:
-        if (!thermal_bench_control_control_step_is_in_range(m->control.control_step)) return 2;
-        if (!thermal_bench_control_command_is_in_range(m->control.command)) return 3;
-        return -1;
-    case RX_RESET1:
-        if (!thermal_bench_reset_temps1_reset_temps1_step_is_in_range(m->reset1.reset_temps1_step)) return 2;
-        if (!thermal_bench_reset_temps1_winding_temp_init_is_in_range(m->reset1.winding_temp_init)) return 3;
-        if (!thermal_bench_reset_temps1_magnet_temp_init_is_in_range(m->reset1.magnet_temp_init)) return 4;
-        return -1;
-    case RX_RESET2:
-        if (!thermal_bench_reset_temps2_reset_temps2_step_is_in_range(m->reset2.reset_temps2_step)) return 2;
-        if (!thermal_bench_reset_temps2_yoke_temp_init_is_in_range(m->reset2.yoke_temp_init)) return 3;
-        if (!thermal_bench_reset_temps2_tooth_temp_init_is_in_range(m->reset2.tooth_temp_init)) return 4;
-        return -1;
-    case RX_RESTORE:
-        if (!thermal_bench_restore_state_restore_state_step_is_in_range(m->restore.restore_state_step)) return 2;
-        if (!thermal_bench_restore_state_restore_state_state_index_is_in_range(
-                m->restore.restore_state_state_index)) return 3;
-        if (!thermal_bench_restore_state_restore_state_state_value_is_in_range(
-                m->restore.restore_state_state_value)) return 4;
-        return -1;
-    case RX_DRIVE_INPUTS:
-        if (!thermal_bench_drive_inputs_drive_inputs_step_is_in_range(m->inputs.drive_inputs_step)) return 2;
-        if (!thermal_bench_drive_inputs_motor_torque_is_in_range(m->inputs.motor_torque)) return 3;
-        if (!thermal_bench_drive_inputs_motor_speed_is_in_range(m->inputs.motor_speed)) return 4;
-        return -1;
-    case RX_DRIVE_TEMPS:
-        if (!thermal_bench_drive_temps_drive_temps_step_is_in_range(m->temps.drive_temps_step)) return 2;
-        if (!thermal_bench_drive_temps_coolant_temp_is_in_range(m->temps.coolant_temp)) return 3;
-        if (!thermal_bench_drive_temps_ambient_temp_is_in_range(m->temps.ambient_temp)) return 4;
-        return -1;
-    case RX_DRIVE_CURRENTS:
-        if (!thermal_bench_drive_currents_drive_currents_step_is_in_range(m->currents.drive_currents_step)) return 2;
-        if (!thermal_bench_drive_currents_current_d_is_in_range(m->currents.current_d)) return 3;
-        if (!thermal_bench_drive_currents_current_q_is_in_range(m->currents.current_q)) return 4;
-        return -1;
-    default:
-        if (!thermal_bench_bench_event_bench_event_step_is_in_range(m->event.bench_event_step)) return 2;
-        if (!thermal_bench_bench_event_event_is_in_range(m->event.event)) return 3;
-        if (!thermal_bench_bench_event_fault_kind_is_in_range(m->event.fault_kind)) return 4;
-        if (!thermal_bench_bench_event_frame_id_is_in_range(m->event.frame_id)) return 5;
-        return -1;
+    NODE_RX_LIST(RX_RANGE)
+    default: return -1;
     }
 }
 

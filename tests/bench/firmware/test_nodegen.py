@@ -103,3 +103,103 @@ def test_the_row_of_each_loss_model_is_generated_from_the_contract():
             places = [int(place) for place in re.findall(r"\(sample\)\[(\d)\]", decode)]
             assert places == [place for place, (owner, _) in enumerate(signals) if owner == message]
     assert "NODE_ROW_INDEX_DRIVE_CURRENTS" not in maps and "NODE_DECODE_DRIVE_CURRENTS" not in maps
+
+
+# ------------------------------------------------------------------------------------------------ receive side
+def _config() -> str:
+    from bench.firmware.nodegen import node_config
+    from target_sim.artifact import load_artifact
+
+    from helpers import ROOT
+
+    return node_config(load_artifact(ROOT / "bench" / "data" / "default_model.json"))
+
+
+def _target_received() -> list:
+    """The messages the DBC (as cantools reads it) gives receiver TARGET, by frame id."""
+    return sorted((m for m in contract().database.messages if "TARGET" in m.receivers), key=lambda m: m.frame_id)
+
+
+def test_the_generated_receive_list_is_every_message_the_dbc_gives_receiver_target():
+    from cantools.database.can.c_source import camel_to_snake_case
+
+    config = _config()
+    listed = re.search(r"#define NODE_RX_LIST\(X\) (.*)", config).group(1)
+    entries = re.findall(r"X\((\w+), (\w+), 0x([0-9A-F]{3})u\)", listed)
+    assert len(entries) == listed.count("X(")
+    expected = [(camel_to_snake_case(m.name).upper(), camel_to_snake_case(m.name), m.frame_id)
+                for m in _target_received()]
+    assert [(name, snake, int(fid, 16)) for name, snake, fid in entries] == expected
+    assert {m.frame_id for m in _target_received()} == contract().frame_ids("HOST")     # the host sends them all
+    for name, snake, _ in entries:
+        assert re.search(rf"#define NODE_STEP_{name}\(m\) \(\(m\)\.{snake}_step\)", config)
+        assert f"#define NODE_OUT_OF_RANGE_{name}(m) (" in config
+
+
+def _generated_checks(config: str, message: str) -> dict[str, tuple[int, float | None, float | None]]:
+    """NODE_OUT_OF_RANGE_<message>'s checks: {field: (returned index, lower limit, upper limit)}, in macro order."""
+    from cantools.database.can.c_source import camel_to_snake_case
+
+    body = re.search(rf"#define NODE_OUT_OF_RANGE_{camel_to_snake_case(message).upper()}\(m\) \((.*)\)$", config,
+                     re.M).group(1)
+    checks = {}
+    for condition, index in re.findall(r"!(\(.*?\)\)?) \? (\d+) : ", body):
+        field = set(re.findall(r"\(m\)\.(\w+)", condition))
+        assert len(field) == 1, condition
+        low = re.search(r">= (-?[\w.+]+?)u?\)", condition)
+        high = re.search(r"<= (-?[\w.+]+?)u?\)", condition)
+        checks[field.pop()] = (int(index), *(None if m is None else float.fromhex(m.group(1).rstrip("f"))
+                                             if "0x" in m.group(1) else float(m.group(1)) for m in (low, high)))
+    assert body.endswith("-1")
+    return checks
+
+
+@pytest.mark.parametrize("message", [m.name for m in _target_received()])
+def test_the_generated_range_limits_are_what_the_python_validator_accepts(message):
+    """Every signal of a received message: its generated raw (or float32) limits accept exactly the raw values the
+    Python validator accepts, checked in DBC order, returning the signal's index in the DBC message; a signal whose
+    every raw value is in range has no check."""
+    from cantools.database.can.c_source import camel_to_snake_case
+
+    checks = _generated_checks(_config(), message)
+    layout = layout_named(message)
+    order = [s.name for s in layout.message.signals]
+    indexes = [index for index, _, _ in checks.values()]
+    assert indexes == sorted(indexes)
+    for signal in layout.signals:
+        field = camel_to_snake_case(signal.dbc_name)
+        if signal.ieee is not None:
+            index, low, high = checks[field]
+            assert (low, high) == (signal.minimum, signal.maximum)       # exact in float32: no value between
+            assert np.float32(low) == low and np.float32(high) == high
+            assert index == order.index(signal.dbc_name)
+            continue
+        bits = signal.length
+        raw = np.arange(-(1 << (bits - 1)), 1 << (bits - 1)) if signal.signed else np.arange(0, 1 << bits)
+        python = np.array([signal.low <= signal.conversion.raw_to_scaled(int(r), False) <= signal.high for r in raw])
+        if python.all():
+            assert field not in checks
+            continue
+        index, low, high = checks[field]
+        assert index == order.index(signal.dbc_name)
+        generated = np.ones(raw.size, bool)
+        if low is not None:
+            generated &= raw >= low
+        if high is not None:
+            generated &= raw <= high
+        assert np.array_equal(python, generated)
+
+
+def test_node_c_spells_out_no_received_message_nor_frame_id_of_the_dbc():
+    """node.c keeps the rules; which messages it receives, their ids, unpacking and ranges come from the DBC through
+    fw_node_config.h. So no frame id of the DBC as a number, and no cantools name of a received message."""
+    from cantools.database.can.c_source import camel_to_snake_case
+
+    from helpers import ROOT
+
+    source = (ROOT / "bench" / "firmware" / "node.c").read_text(encoding="utf-8")
+    numbers = {int(token, 16) for token in re.findall(r"\b0[xX]([0-9a-fA-F]+)[uUlL]*\b", source)}
+    assert not numbers & set(contract().by_id), "a frame id of the DBC is spelled out in node.c"
+    for m in _target_received():
+        snake = camel_to_snake_case(m.name)
+        assert f"THERMAL_BENCH_{snake.upper()}_" not in source and f"thermal_bench_{snake}_" not in source, m.name
