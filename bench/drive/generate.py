@@ -9,11 +9,18 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.drive.dataset import dataset_filename, dataset_sha256, default_dataset_dir, sidecar_path, write_dataset
+from bench.drive.dataset import (
+    SAMPLE_PERIOD_S,
+    dataset_filename,
+    dataset_sha256,
+    default_dataset_dir,
+    sidecar_path,
+    write_dataset,
+)
 from bench.drive.plant import PLANT_STEP_S, TRUE_EFFECTS, TrueEffects, simulate
-from bench.drive.sensors import SAMPLE_PERIOD_S, measure
+from bench.drive.sensors import measure
 from bench.drive.sequence import TestSequence
-from bench.drive.stand import STAND, StandSpec, environment
+from bench.drive.stand import STAND, StandSpec, environment, sequence_losses
 from bench.thermal.parameters import TABLE1_REFINED, LptnParameters
 
 PARAMETER_SET = "table1-refined"
@@ -52,7 +59,7 @@ def generate(setpoint_C: float, seed: int = DEFAULT_SEED, sequence: TestSequence
              stand: StandSpec = STAND, plant_step_s: float = PLANT_STEP_S) -> Generated:
     sequence = sequence or TestSequence()
     env_ss, sensor_ss = seed_sequence(seed, setpoint_C).spawn(2)
-    env = environment(sequence, setpoint_C, np.random.default_rng(env_ss), stand)
+    env = environment(sequence.duration_s, setpoint_C, sequence_losses(sequence), np.random.default_rng(env_ss), stand)
     t = sample_times(sequence.duration_s)
     run = simulate(sequence, env.coolant, env.ambient, float(t[-1]), [setpoint_C] * 4, plant_step_s,
                    params, effects)  # machine soaked at the set point

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SAMPLE_PERIOD_S = 0.2
-PM_OFFSET_K = 5.0
+# the PM reference's offset and the sample period (bench.drive.dataset.SAMPLE_PERIOD_S) belong to the file format
+from bench.drive.dataset import PM_OFFSET_K
 
 
 @dataclass(frozen=True)

@@ -39,13 +39,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bench.motor.check import Checker, is_number
 from bench.motor.errors import MotorFileError
 from bench.motor.losses import LossModel, MotorConstants
 from bench.motor.losskinds import COMMON_KEYS, LAB_LOSS_KINDS
@@ -156,28 +156,23 @@ def _parse(path: Path, raw: bytes) -> dict:
 
 def motor_from_dict(content: dict, path: Path | None = None, sha256: str | None = None) -> MotorDescription:
     where = f"motor file {path}" if path else "motor description"
-    check = _Checker(where)
+    check = Checker(where)
     unknown = [k for k in content if k not in TOP_KEYS]
     if unknown:
         raise MotorFileError(f"{where}: unknown key {unknown[0]!r}; the keys are {', '.join(TOP_KEYS)}")
     if "schema" in content and content["schema"] != SCHEMA:
         raise MotorFileError(f"{where}: schema {content['schema']!r} is not {SCHEMA!r}; is this a motor file?")
-    version = content.get("schema_version", SCHEMA_VERSION)
-    if type(version) is not int or version != SCHEMA_VERSION:
-        raise MotorFileError(f"{where}: schema_version {version!r} is not supported (this bench reads "
-                             f"{SCHEMA_VERSION})")
+    check.version(content, SCHEMA_VERSION)
     name = check.text(content, "name")
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}", name):
         raise MotorFileError(f"{where}: name {name!r} must be 1-64 letters, digits, '.', '-' or '_'")
     description = content.get("description", "")
     if not isinstance(description, str):
         raise MotorFileError(f"{where}: description must be text")
-    pole_pairs = content.get("pole_pairs")
-    if type(pole_pairs) is not int or not 1 <= pole_pairs <= 100:
-        raise MotorFileError(f"{where}: pole_pairs must be a whole number from 1 to 100, not {pole_pairs!r}")
+    pole_pairs = check.whole(content, "pole_pairs", low=1, high=100)
     limits_table = check.table(content, "limits")
     check.only(limits_table, "limits", LIMIT_KEYS)
-    limits = Limits(*(check.number(limits_table, f"limits.{k}", positive=True) for k in LIMIT_KEYS))
+    limits = Limits(*(check.number(limits_table, k, "limits.", positive=True) for k in LIMIT_KEYS))
     losses = check.table(content, "losses")
     kind = losses.get("kind")
     if not isinstance(kind, str) or kind not in LAB_LOSS_KINDS:
@@ -217,7 +212,7 @@ def _prior(table: Any, where: str) -> ThermalPrior | None:
         return None
     if not isinstance(table, dict):
         raise MotorFileError(f"{where}: thermal_prior must be a table with 'parameters' and optionally 'bounds'")
-    check = _Checker(where)
+    check = Checker(where)
     check.only(table, "thermal_prior", ("parameters", "bounds"))
     bounds = parse_bounds(table.get("bounds", list(DEFAULT_BOUNDS)), f"{where}: thermal_prior.bounds")
     return ThermalPrior(*prior_parameters(table.get("parameters"), f"{where}: thermal_prior.parameters"), bounds)
@@ -242,7 +237,7 @@ def prior_parameters(value: Any, where: str) -> tuple[LptnParameters, str]:
     numbers = {}
     for n in names:
         v = value[n]
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        if not is_number(v):
             raise MotorFileError(f"{where}.{n} must be a finite number, not {v!r}")
         numbers[n] = float(v)
     for n in names:
@@ -261,53 +256,11 @@ def parse_bounds(value: Any, where: str) -> tuple[float, float]:
             value = [float(v) for v in value.split(",")]
         except ValueError:
             value = None
-    ok = (isinstance(value, list | tuple) and len(value) == 2
-          and all(not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v) for v in value))
+    ok = isinstance(value, list | tuple) and len(value) == 2 and all(is_number(v) for v in value)
     if not ok or not 0 < value[0] < 1 < value[1] <= 100:
         raise MotorFileError(f"{where} must be two factors LOW,HIGH with 0 < LOW < 1 < HIGH <= 100 "
                              f"(e.g. 0.6,1.6), not {value!r}")
     return float(value[0]), float(value[1])
-
-
-class _Checker:
-    """Typed look-ups that fail with one sentence naming the file and the key."""
-
-    def __init__(self, where: str):
-        self.where = where
-
-    def table(self, content: dict, key: str) -> dict:
-        value = content.get(key)
-        if not isinstance(value, dict):
-            raise MotorFileError(f"{self.where}: [{key}] is missing or not a table; see 'bench motor template'")
-        return value
-
-    def text(self, content: dict, key: str) -> str:
-        value = content.get(key.split(".")[-1])
-        if not isinstance(value, str) or not value.strip():
-            raise MotorFileError(f"{self.where}: {key} is missing or not text; see 'bench motor template'")
-        return value
-
-    def number(self, content: dict, key: str, *, positive: bool = False, low: float | None = None,
-               high: float | None = None) -> float:
-        value = content.get(key.split(".")[-1])
-        if value is None:
-            raise MotorFileError(f"{self.where}: {key} is missing; see 'bench motor template'")
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise MotorFileError(f"{self.where}: {key} must be a finite number, not {value!r}")
-        value = float(value)
-        if positive and value <= 0:
-            raise MotorFileError(f"{self.where}: {key} must be positive, not {value:g}")
-        if (low is not None and value < low) or (high is not None and value > high):
-            span = f"from {low:g} to {high:g}" if high is not None else f"at least {low:g}"
-            raise MotorFileError(f"{self.where}: {key} = {value:g} must be {span}")
-        return value
-
-    def only(self, table: dict, name: str, keys: tuple[str, ...]) -> None:
-        unknown = [k for k in table if k not in keys]
-        if unknown:
-            raise MotorFileError(f"{self.where}: {name}.{unknown[0]} is not a known key here (known: "
-                                 f"{', '.join(keys)})")
-
 
 
 def default_motor_path() -> Path:

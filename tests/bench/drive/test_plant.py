@@ -16,7 +16,7 @@ from bench.drive.plant import (
     steady_state,
 )
 from bench.drive.sequence import ConstantDrive, TestSequence
-from bench.drive.stand import environment
+from bench.drive.stand import environment, sequence_losses
 from bench.thermal.discretize import discretize
 from bench.thermal.losses import node_losses
 from bench.thermal.lptn import pv_matrices
@@ -79,7 +79,7 @@ def test_energy_balance_at_steady_state():
 
 @pytest.fixture(scope="module")
 def stand40():
-    return environment(SEQ, 40.0, np.random.default_rng(3))
+    return environment(SEQ.duration_s, 40.0, sequence_losses(SEQ), np.random.default_rng(3))
 
 
 def test_step_size_does_not_matter(stand40):

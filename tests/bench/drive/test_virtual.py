@@ -199,6 +199,11 @@ def _mutate(content: dict, path: str, value) -> dict:
     ("virtual_plant.profiles.0.phases.1.speed_scale", 1.9, "limits.speed_rpm"),
     ("virtual_plant.profiles.0.role", "test", "profiles[0].role"),
     ("virtual_plant.profiles.0.phases.0.kind", "sprint", "kind"),
+    ("virtual_plant.columns.0.signal", ["torque"], "columns[0].signal"),     # unhashable: once a TypeError
+    ("virtual_plant.columns.1.unit", {"V": 1}, "columns[1].unit"),
+    ("virtual_plant.profiles.0.phases.1.cycle", ["ftp75"], "phases[1].cycle"),
+    ("virtual_plant.seed", -1, "seed must be a non-negative whole number"),
+    ("virtual_plant.stand.coolant_heat_lag_s", 0.0, "stand.coolant_heat_lag_s must be positive"),
 ])
 def test_a_bad_virtual_plant_is_one_sentence(path, value, words):
     if path.startswith("virtual_plant.profiles.0.phases.0.torque_Nm"):

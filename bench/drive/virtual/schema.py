@@ -1,0 +1,311 @@
+"""Reading and checking a motor file's `virtual_plant` table into a VirtualPlant.
+
+Schema of `virtual_plant` (version 1; every key required unless marked optional):
+
+    schema_version = 1                      # optional
+    seed = 20260                            # the default noise seed of 'bench data --motor'
+    sample_period_s = 1.0                   # the files' sample period
+    plant_step_s = 0.1                      # integration step; a whole fraction of the sample period
+    [thermal]                               # the TRUE 22 LPTN parameters of the plant (the parameter-varying
+                                            #   network of paper Fig. 4, speed ratio n / limits.speed_rpm)
+    [machine]                               # steady-state dq model of an interior-PM machine
+    power_W, flux_linkage_Vs (ψ at copper_reference_C), L_d_H < L_q_H (saliency: i_d < 0 adds reluctance
+    torque), voltage_limit_V (largest |u_dq|, amplitude-invariant), remanence_per_K (ψ(ϑ_m) = ψ·(1 + α(ϑ_m -
+    ϑ_ref))); the machine must reach the whole envelope min(limits.torque_Nm, power_W/ω) within limits.current_A
+    with the magnet at ϑ_ref and 100 K hotter
+    [true_losses]                           # what the real machine does beyond the file's [losses] model
+    resistance_factor, ac_factor, ac_magnet_W, copper_load_error, iron_factor, iron_per_K, magnet_factor,
+    magnet_load_error, magnet_resistivity_per_K
+    [vehicle]                               # bench.drive.vehicle.VehicleSpec's fields (cycles -> torque, speed)
+    [stand]                                 # coolant conditioning and test-cell air (bench.drive.stand.StandSpec)
+    [[columns]]                             # the output columns, in file order
+    name, signal (torque, speed, i_d, i_q, u_d, u_q, coolant, ambient, winding, yoke, tooth, magnet),
+    unit (any unit bench.drive.dataset's loader converts for that quantity), resolution, noise (1 σ, in the
+    column's unit), gradient (optional, winding only: the sensor reads ϑ_w + gradient·(ϑ_w - ϑ_y))
+    [[profiles]]                            # the measurement runs
+    name, role ("train" or "validate": a suggestion), coolant_C (set point at the start; the machine starts
+    soaked at it), phases: a list of
+      {"kind": "cycle", "cycle": "ftp75"|"wltc3b", "from_s", "to_s" (optional: a segment that starts and
+       ends at standstill), "speed_scale" (optional, default 1)}
+      {"kind": "constant", "torque_Nm", "speed_rpm", "duration_s", "ramp_s" (optional, 20)}
+      {"kind": "steps", "points": [[torque_Nm, speed_rpm, hold_s], ...], "ramp_s" (optional, 5),
+       "repeat" (optional, 1)}: linear ramps between the points, from and back to standstill
+      {"kind": "rest", "duration_s"}: standstill
+    and on any phase "coolant_C" (optional): the coolant set point from that phase on.
+
+Every problem with the table is one VirtualPlantError sentence naming the file and the key.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+
+from bench.drive.cycles import CHECKS as CYCLE_CHECKS
+from bench.drive.cycles import KMH_PER_MPS, load_trace
+from bench.drive.dataset import BY_NAME, UNITS
+from bench.drive.stand import STAND_KEYS, StandSpec
+from bench.drive.vehicle import VehicleSpec, motor_speed_rpm
+from bench.drive.virtual.machine import Machine, TrueLosses
+from bench.drive.virtual.profiles import PHASE_KINDS, ROLES, Phase, Profile
+from bench.drive.virtual.simulation import SIGNALS, OutputColumn, VirtualPlant, VirtualPlantError, motor_where
+from bench.motor.check import Checker, is_number
+from bench.motor.description import MotorDescription, prior_parameters
+from bench.motor.errors import MotorFileError
+from bench.motor.losses import ElectricalLosses
+
+SCHEMA_VERSION = 1
+TOP_KEYS = ("schema_version", "seed", "sample_period_s", "plant_step_s", "thermal", "machine", "true_losses",
+            "vehicle", "stand", "columns", "profiles")
+# what the bench needs to identify an electrical-loss motor from the files
+REQUIRED_SIGNALS = ("torque", "speed", "i_d", "i_q", "coolant", "ambient", "winding", "magnet")
+
+
+def virtual_plant(motor: MotorDescription) -> VirtualPlant:
+    """The motor's virtual_plant, checked; VirtualPlantError (one sentence) on the first problem."""
+    where = motor_where(motor)
+    table = motor.virtual_plant
+    if table is None:
+        raise VirtualPlantError(f"{where} describes no virtual plant; bench data only generates data for virtual "
+                                "motors (without --motor it writes the built-in motor's datasets)")
+    if not isinstance(motor.loss_model, ElectricalLosses):
+        raise VirtualPlantError(f"{where}: a virtual plant needs losses.kind = \"electrical\" (its data carry the "
+                                "d/q currents the losses are computed from)")
+    c = Checker(where, VirtualPlantError, prefix="virtual_plant.", hint="see examples/motor-ipm/motor.json",
+                terse=True)
+    c.only(table, "", TOP_KEYS)
+    c.version(table, SCHEMA_VERSION)
+    seed = c.whole(table, "seed", low=0)
+    period = c.number(table, "sample_period_s", low=0.01, high=60.0)
+    step = c.number(table, "plant_step_s", low=0.001, high=10.0)
+    stride = period / step
+    if abs(stride - round(stride)) > 1e-9 * stride:
+        c.fail("sample_period_s", f"({period:g} s) must be a whole number of plant_step_s ({step:g} s)")
+    try:
+        params, _ = prior_parameters(c.table(table, "thermal"), f"{where}: virtual_plant.thermal")
+    except VirtualPlantError:
+        raise
+    except MotorFileError as exc:
+        raise VirtualPlantError(str(exc)) from None
+    machine = Machine(**_numbers(c, table, "machine", _names(Machine), signed=("remanence_per_K",)))
+    if machine.L_q_H <= machine.L_d_H:
+        c.fail("machine.L_q_H", "must exceed L_d_H (an interior-PM machine: i_d < 0 adds reluctance torque)")
+    if not -0.01 <= machine.remanence_per_K <= 0.0:
+        c.fail("machine.remanence_per_K", f"= {machine.remanence_per_K:g} must be from -0.01 to 0 (NdFeB: about "
+               "-0.0012)")
+    true_losses = TrueLosses(**_numbers(c, table, "true_losses", _names(TrueLosses),
+                                        signed=("iron_per_K", "copper_load_error", "magnet_load_error"),
+                                        positive=("resistance_factor", "iron_factor", "magnet_factor")))
+    vehicle = _vehicle(c, table)
+    stand = StandSpec(**_numbers(c, table, "stand", STAND_KEYS, signed=("ambient_C", "ambient_per_coolant_K"),
+                                 positive=("coolant_lag_s", "coolant_heat_lag_s", "coolant_wander_s",
+                                           "ambient_wander_s")))
+    columns = _columns(c, table)
+    plant = VirtualPlant(motor, seed, period, step, params, machine, true_losses, vehicle, stand, columns, ())
+    profiles = _profiles(c, table, plant)
+    plant = VirtualPlant(motor, seed, period, step, params, machine, true_losses, vehicle, stand, columns,
+                         profiles)
+    _check_envelope(plant)
+    return plant
+
+
+
+def _names(cls) -> tuple[str, ...]:
+    return tuple(f.name for f in fields(cls))
+
+
+def _numbers(c: Checker, table: dict, key: str, names: tuple[str, ...], signed=(), positive=None) -> dict[str, float]:
+    """The numbers names of table[key]: >= 0 (> 0 if in positive, all if positive is None; any sign if signed)."""
+    sub = c.table(table, key)
+    c.only(sub, key, names)
+    positive = names if positive is None else positive
+    out = {}
+    for name in names:
+        if name in signed:
+            out[name] = c.number(sub, name, f"{key}.")
+        else:
+            out[name] = c.number(sub, name, f"{key}.", positive=name in positive, low=0.0)
+    return out
+
+
+def _vehicle(c: Checker, table: dict) -> VehicleSpec:
+    sub = c.table(table, "vehicle")
+    names = _names(VehicleSpec)
+    c.only(sub, "vehicle", names)
+    values = {}
+    for name in names:
+        if name == "regen_fade_kmh":
+            fade = sub.get(name)
+            ok = isinstance(fade, list) and len(fade) == 2 and all(is_number(v) for v in fade)
+            if not ok or not 0 <= fade[0] < fade[1]:
+                c.fail("vehicle.regen_fade_kmh", f"must be two speeds [low, high] in km/h with 0 <= low < high, "
+                       f"not {fade!r}")
+            values[name] = (float(fade[0]), float(fade[1]))
+        else:
+            values[name] = c.number(sub, name, "vehicle.", positive=name not in ("f0_N", "f1_N_per_mps",
+                                                                                 "f2_N_per_mps2"), low=0.0)
+    if values["gear_efficiency"] > 1 or values["rotating_mass_factor"] < 1:
+        c.fail("vehicle", "needs gear_efficiency <= 1 and rotating_mass_factor >= 1")
+    return VehicleSpec(**values)
+
+
+def _columns(c: Checker, table: dict) -> tuple[OutputColumn, ...]:
+    items = table.get("columns")
+    if not isinstance(items, list) or not items:
+        c.fail("columns", "must be a list of output columns ({name, signal, unit, resolution, noise})")
+    out, names = [], set()
+    keys = _names(OutputColumn)
+    for i, item in enumerate(items):
+        key = f"columns[{i}]"
+        if not isinstance(item, dict):
+            c.fail(key, "must be a table {name, signal, unit, resolution, noise}")
+        c.only(item, key, keys)
+        name = item.get("name")
+        if not isinstance(name, str) or not name or any(ch in name for ch in ',"\r\n') or name != name.strip():
+            c.fail(f"{key}.name", f"must be a column name without commas, quotes or surrounding blanks, not {name!r}")
+        if name in names:
+            c.fail(f"{key}.name", f"{name!r} appears twice")
+        names.add(name)
+        signal = item.get("signal")
+        if not isinstance(signal, str) or signal not in SIGNALS:   # a list here: a sentence, not a TypeError
+            c.fail(f"{key}.signal", f"{signal!r} is not one of {', '.join(SIGNALS)}")
+        quantity = BY_NAME[SIGNALS[signal]].quantity
+        unit = item.get("unit")
+        if not isinstance(unit, str) or unit not in UNITS[quantity]:
+            c.fail(f"{key}.unit", f"{unit!r} is not a {quantity} unit ({', '.join(UNITS[quantity])})")
+        resolution = c.number(item, "resolution", f"{key}.", positive=True, high=100.0)
+        noise = c.number(item, "noise", f"{key}.", low=0.0, high=1000.0)
+        gradient = c.number(item, "gradient", f"{key}.", low=-1.0, high=1.0, default=0.0)
+        if gradient and signal != "winding":
+            c.fail(f"{key}.gradient", "applies to winding sensors only")
+        out.append(OutputColumn(name, signal, unit, resolution, noise, gradient))
+    present = {col.signal for col in out}
+    missing = [s for s in REQUIRED_SIGNALS if s not in present]
+    if missing:
+        c.fail("columns", f"lack a column with signal {missing[0]!r}; the bench needs {', '.join(REQUIRED_SIGNALS)}")
+    return tuple(out)
+
+
+def _profiles(c: Checker, table: dict, plant: VirtualPlant) -> tuple[Profile, ...]:
+    items = table.get("profiles")
+    if not isinstance(items, list) or not items:
+        c.fail("profiles", "must be a list of profiles ({name, role, coolant_C, phases})")
+    out, names = [], set()
+    for i, item in enumerate(items):
+        key = f"profiles[{i}]"
+        if not isinstance(item, dict):
+            c.fail(key, "must be a table {name, role, coolant_C, phases}")
+        c.only(item, key, ("name", "role", "coolant_C", "phases"))
+        name = item.get("name")
+        if not isinstance(name, str) or not name or not all(ch.isalnum() or ch in "._-" for ch in name):
+            c.fail(f"{key}.name", f"must be letters, digits, '.', '-' or '_' (it names the file), not {name!r}")
+        if name in names:
+            c.fail(f"{key}.name", f"{name!r} appears twice")
+        names.add(name)
+        role = item.get("role")
+        if role not in ROLES:
+            c.fail(f"{key}.role", f"must be one of {', '.join(ROLES)}, not {role!r}")
+        coolant = c.number(item, "coolant_C", f"{key}.", low=-30.0, high=120.0)
+        phases = item.get("phases")
+        if not isinstance(phases, list) or not phases:
+            c.fail(f"{key}.phases", "must be a non-empty list of phases")
+        parsed = tuple(_phase(c, f"{key}.phases[{j}]", ph, plant) for j, ph in enumerate(phases))
+        profile = Profile(i + 1, name, role, coolant, parsed)
+        rows = profile.duration_s / plant.sample_period_s
+        if abs(rows - round(rows)) > 1e-9 * max(rows, 1.0):
+            c.fail(key, f"lasts {profile.duration_s:g} s, not a whole number of sample periods "
+                        f"({plant.sample_period_s:g} s)")
+        out.append(profile)
+    return tuple(out)
+
+
+def _phase(c: Checker, key: str, item, plant: VirtualPlant) -> Phase:
+    if not isinstance(item, dict):
+        c.fail(key, "must be a table with a kind (cycle, constant, steps, rest)")
+    kind = item.get("kind")
+    if kind not in PHASE_KINDS:
+        c.fail(f"{key}.kind", f"must be one of {', '.join(PHASE_KINDS)}, not {kind!r}")
+    limits = plant.motor.limits
+    coolant = None
+    if "coolant_C" in item:
+        coolant = c.number(item, "coolant_C", f"{key}.", low=-30.0, high=120.0)
+    spec = {"kind": kind, **({"coolant_C": coolant} if coolant is not None else {})}
+    if kind == "cycle":
+        c.only(item, key, ("kind", "cycle", "from_s", "to_s", "speed_scale", "coolant_C"))
+        cycle = item.get("cycle")
+        if not isinstance(cycle, str) or cycle not in CYCLE_CHECKS:
+            c.fail(f"{key}.cycle", f"must be one of {', '.join(CYCLE_CHECKS)}, not {cycle!r}")
+        trace = load_trace(cycle)
+        start = c.number(item, "from_s", f"{key}.", low=0.0, high=trace.duration_s, default=0.0)
+        end = c.number(item, "to_s", f"{key}.", low=0.0, high=trace.duration_s, default=trace.duration_s)
+        scale = c.number(item, "speed_scale", f"{key}.", low=0.5, high=2.0, default=1.0)
+        if start != int(start) or end != int(end) or end <= start:
+            c.fail(key, f"needs whole seconds from_s < to_s, not {start:g}..{end:g}")
+        for at in (start, end):
+            if trace.speed_kmh[int(at)] != 0:
+                c.fail(key, f"must start and end at standstill; {cycle} runs at {trace.speed_kmh[int(at)]:g} km/h "
+                            f"at {at:g} s")
+        top = float(motor_speed_rpm(plant.vehicle, trace.speed_kmh.max() / KMH_PER_MPS * scale))
+        if top > limits.speed_rpm:
+            c.fail(key, f"reaches {top:.0f} rpm, above limits.speed_rpm ({limits.speed_rpm:g}); lower "
+                        "speed_scale or the gear ratio")
+        spec.update(cycle=cycle, from_s=start, to_s=end, speed_scale=scale)
+        return Phase("cycle", end - start, coolant, spec, cycle=cycle, from_s=start, speed_scale=scale)
+    if kind == "rest":
+        c.only(item, key, ("kind", "duration_s", "coolant_C"))
+        duration = c.number(item, "duration_s", f"{key}.", positive=True, high=1e6)
+        spec.update(duration_s=duration)
+        return Phase("rest", duration, coolant, spec, points=((0.0, 0.0, duration),))
+    if kind == "constant":
+        c.only(item, key, ("kind", "torque_Nm", "speed_rpm", "duration_s", "ramp_s", "coolant_C"))
+        duration = c.number(item, "duration_s", f"{key}.", positive=True, high=1e6)
+        ramp = c.number(item, "ramp_s", f"{key}.", low=0.0, high=600.0, default=20.0)
+        if 2 * ramp >= duration:
+            c.fail(f"{key}.duration_s", f"({duration:g} s) must be longer than its two ramps ({ramp:g} s each)")
+        point = _point(c, key, item.get("torque_Nm"), item.get("speed_rpm"), plant)
+        spec.update(torque_Nm=point[0], speed_rpm=point[1], duration_s=duration, ramp_s=ramp)
+        return Phase("constant", duration, coolant, spec, ramp_s=ramp,
+                     points=((point[0], point[1], duration - 2 * ramp),))
+    c.only(item, key, ("kind", "points", "ramp_s", "repeat", "coolant_C"))
+    ramp = c.number(item, "ramp_s", f"{key}.", low=0.0, high=600.0, default=5.0)
+    repeat = c.whole(item, "repeat", f"{key}.", low=1, high=1000, default=1)
+    raw = item.get("points")
+    if not isinstance(raw, list) or not raw:
+        c.fail(f"{key}.points", "must be a list of [torque_Nm, speed_rpm, hold_s] points")
+    points = []
+    for j, pt in enumerate(raw):
+        if not isinstance(pt, list) or len(pt) != 3:
+            c.fail(f"{key}.points[{j}]", f"must be [torque_Nm, speed_rpm, hold_s], not {pt!r}")
+        torque, speed = _point(c, f"{key}.points[{j}]", pt[0], pt[1], plant)
+        hold = c.number({"hold_s": pt[2]}, "hold_s", f"{key}.points[{j}].", low=0.0, high=1e5)
+        points.append((torque, speed, hold))
+    points = tuple(points) * repeat
+    duration = sum(p[2] for p in points) + ramp * (len(points) + 1)
+    spec.update(points=[list(p) for p in points[: len(raw)]], ramp_s=ramp, repeat=repeat)
+    return Phase("steps", duration, coolant, spec, ramp_s=ramp, points=points)
+
+
+def _point(c: Checker, key: str, torque, speed, plant: VirtualPlant) -> tuple[float, float]:
+    torque = c.number({"torque_Nm": torque}, "torque_Nm", f"{key}.")
+    speed = c.number({"speed_rpm": speed}, "speed_rpm", f"{key}.", low=0.0, high=plant.motor.limits.speed_rpm)
+    limit = float(plant.dq.torque_limit(speed))
+    if abs(torque) > limit + 1e-9:
+        c.fail(key, f"asks {torque:g} Nm at {speed:g} rpm, outside the motor's envelope (at most {limit:.1f} Nm "
+                    "there: min(limits.torque_Nm, machine.power_W / ω))")
+    return torque, speed
+
+
+def _check_envelope(plant: VirtualPlant) -> None:
+    """The machine must reach the whole torque envelope, with the magnet at ϑ_ref and 100 K hotter."""
+    speed = np.linspace(0.0, plant.motor.limits.speed_rpm, 281)
+    torque = plant.dq.torque_limit(speed)
+    plant.operating_point(torque, speed)
+
+
+def load_virtual_plant(path: str | Path) -> VirtualPlant:
+    """Load a motor file and its virtual plant."""
+    from bench.motor.description import load_motor
+
+    return virtual_plant(load_motor(path))
