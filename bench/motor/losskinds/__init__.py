@@ -10,23 +10,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar
 
+from bench.motor.check import Checker
 from target_sim.registry import Registry
 
 # keys of the motor file's [losses] table every kind has
 COMMON_KEYS = ("kind", "copper_reference_C", "copper_alpha_per_K")
-
-
-class Checker(Protocol):
-    """Typed look-ups in a motor file that fail with one sentence naming the file and the key."""
-
-    where: str
-
-    def text(self, content: dict, key: str) -> str: ...
-
-    def number(self, content: dict, key: str, *, positive: bool = False, low: float | None = None,
-               high: float | None = None) -> float: ...
 
 
 class LabLossKind:
