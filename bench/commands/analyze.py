@@ -38,7 +38,7 @@ from bench.commands.common import (
     verdict,
 )
 from bench.errors import BenchError
-from bench.runner import load_data, load_model
+from bench.run_inputs import load_data, load_model
 from host.canlog import LogError
 
 # half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C, and the

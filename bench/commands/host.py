@@ -30,17 +30,17 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.common import add_data_arguments, add_output_flags, check_writable, data_options, print_json
-from bench.errors import BenchError, UsageError
-from bench.runner import (
-    announce_logger,
+from bench.commands.args import announce_logger, positive_float, positive_int
+from bench.commands.common import (
+    add_data_arguments,
+    add_output_flags,
     check_log_names,
-    drive_for,
-    load_data,
-    load_model,
-    positive_float,
-    positive_int,
+    check_writable,
+    data_options,
+    print_json,
 )
+from bench.errors import BenchError, UsageError
+from bench.run_inputs import drive_for, load_data, load_model
 from dbc.database import host_frame_ids
 from dbc.transport import (
     BusUnavailable,

@@ -86,7 +86,7 @@ def run_budget(args: argparse.Namespace) -> int:
     from bench.model.budget import error_budget
     from bench.model.default import default_artifact_path
     from bench.model.runs import initial_temperatures
-    from bench.runner import load_data, load_model
+    from bench.run_inputs import load_data, load_model
     from target_sim.artifact import ArtifactError
 
     try:

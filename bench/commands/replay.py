@@ -33,18 +33,12 @@ from pathlib import Path
 import numpy as np
 
 from bench.analysis.logdecode import BusRecord, decode_log
-from bench.commands.common import add_output_flags, check_writable, print_json
+from bench.commands.args import announce_logger, bus_from_args, positive_float
+from bench.commands.common import NAME_MAX, add_output_flags, check_writable, print_json
 from bench.errors import BenchError
-from bench.runner import (
-    NAME_MAX,
-    ProgressBar,
-    announce_logger,
-    bus_from_args,
-    firmware_for_engine,
-    load_model,
-    positive_float,
-    replay_with_target,
-)
+from bench.progress import ProgressBar
+from bench.run_inputs import firmware_for_engine, load_model
+from bench.runner import replay_with_target
 from dbc import FrameError, frame_id
 from dbc.codec import decode_any
 from dbc.transport import add_bus_arguments

@@ -41,10 +41,12 @@ import sys
 import time
 from pathlib import Path
 
+from bench.commands.args import announce_logger, bus_from_args, positive_float, positive_int
 from bench.commands.common import (
     add_data_arguments,
     add_engine_argument,
     add_output_flags,
+    check_log_names,
     check_writable,
     data_options,
     print_json,
@@ -52,19 +54,9 @@ from bench.commands.common import (
     verdict,
 )
 from bench.errors import BenchError, UsageError
-from bench.runner import (
-    ProgressBar,
-    announce_logger,
-    bus_from_args,
-    check_log_names,
-    drive_for,
-    firmware_for_engine,
-    load_data,
-    load_model,
-    positive_float,
-    positive_int,
-    run_with_target,
-)
+from bench.progress import ProgressBar
+from bench.run_inputs import drive_for, firmware_for_engine, load_data, load_model
+from bench.runner import run_with_target
 from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 from host.canlog import LogError, check_log_path
 from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
