@@ -15,21 +15,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from bench.errors import BenchError
-from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
+from target_sim.artifact import ModelArtifact, load_artifact
 
 if TYPE_CHECKING:
     from bench.drive.dataset import ColumnMapping, Dataset
 
 
 def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
-    """The artifact at `path` (default: the packaged one) and its path."""
+    """The artifact at `path` (default: the packaged one) and its path (ArtifactError, one sentence, if unusable)."""
     from bench.model.default import default_artifact_path
 
     model_path = Path(path) if path else default_artifact_path()
-    try:
-        return load_artifact(model_path), model_path
-    except ArtifactError as exc:
-        raise BenchError(str(exc)) from None
+    return load_artifact(model_path), model_path
 
 
 def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True) -> Path | None:

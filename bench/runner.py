@@ -25,13 +25,12 @@ from pathlib import Path
 import can
 import numpy as np
 
-from bench.errors import BenchError, UsageError
+from bench.errors import BenchError
 from bench.target_process import TargetProcess
 from dbc.database import host_frame_ids
-from dbc.transport import IN_USE_LISTEN_S, BusConfig, BusUnavailable, OtherSender, SenderGuard
-from host.canlog import LogError
-from host.faults import FaultSpec, FaultSpecError
-from host.replay import DataRangeError, Progress
+from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard
+from host.faults import FaultSpec
+from host.replay import Progress
 from host.results import HostResult
 from host.run import replay_log, run_dataset
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
@@ -49,22 +48,20 @@ class RunOutcome:
 
 def _open(bus: BusConfig) -> SenderGuard:
     """The host's bus, guarded against another host on the channel (`dbc.transport.SenderGuard`)."""
-    try:
-        return SenderGuard(bus.open(), bus, host_frame_ids(), "host")
-    except BusUnavailable as exc:
-        raise BenchError(str(exc)) from None
+    return SenderGuard(bus.open(), bus, host_frame_ids(), "host")
 
 
-def _host_errors(fn: Callable[[], HostResult], target: TargetProcess) -> HostResult:
+def _host_session(fn: Callable[[], HostResult], target: TargetProcess | None) -> HostResult:
+    """`fn()`, the host's side of the run. A session that could not go on because the target process died ends
+    with the process's own sentence (exit status, last line), which says more than the host's; every other error
+    of the host (its log, data, faults, another host on the channel) reaches the CLI as it is."""
     try:
         return fn()
-    except SessionError as exc:
-        reason = target.exit_reason()
-        raise BenchError(reason or str(exc)) from None
-    except (LogError, DataRangeError, OtherSender) as exc:
-        raise BenchError(str(exc)) from None
-    except FaultSpecError as exc:
-        raise UsageError(str(exc)) from None
+    except SessionError:
+        reason = target.exit_reason() if target is not None else None
+        if reason is None:
+            raise
+        raise BenchError(reason) from None
 
 
 def refuse_foreign_target(host_bus: can.BusABC, bus: BusConfig, artifact: ModelArtifact | None,
@@ -83,15 +80,6 @@ def refuse_foreign_target(host_bus: can.BusABC, bus: BusConfig, artifact: ModelA
     else:
         what = f"sending heartbeats (it runs model {model_id:08x}, the same as this run's)"
     raise BenchError(f"{channel} on {bus.interface} already has a target {what}; stop it or pick another channel")
-
-
-def _refuse_others(host_bus: SenderGuard, bus: BusConfig, artifact: ModelArtifact | None) -> None:
-    """BenchError (one sentence) if a target, or another host, already sends on the channel (the guard hears a
-    host's frames while the runner listens for a target's)."""
-    try:
-        refuse_foreign_target(host_bus, bus, artifact)
-    except OtherSender as exc:
-        raise BenchError(str(exc)) from None
 
 
 # A target process started here reports its death through `alive`, so waiting long for its first heartbeat only
@@ -116,10 +104,10 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     target_stats = None
     host_bus = _open(bus)
     try:
-        _refuse_others(host_bus, bus, artifact)
+        refuse_foreign_target(host_bus, bus, artifact)   # (the guard raises OtherSender if it hears another host)
         with TargetProcess(model_path, bus, events_path=events, firmware=firmware, stats_path=stats_path,
                            extra_argv=faults.reply_argv() if injecting else None) as target:
-            result = _host_errors(lambda: run_dataset(
+            result = _host_session(lambda: run_dataset(
                 host_bus, drive, initial, model_id=artifact.model_id, mode=mode, speed=speed,
                 sample_period_s=sample_period_s, log_path=log_path, reply_timeout_s=reply_timeout_s,
                 alive=target.exit_reason, connect_timeout_s=OWN_TARGET_CONNECT_TIMEOUT_S, progress=progress,
@@ -166,19 +154,14 @@ def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, 
     target = None
     try:
         if model_path is not None:  # a target of our own: none may be on the channel already
-            _refuse_others(host_bus, bus, artifact)
+            refuse_foreign_target(host_bus, bus, artifact)
             target = TargetProcess(model_path, bus, firmware=firmware).start()
         alive = target.exit_reason if target is not None else None
-        try:
-            result = replay_log(host_bus, messages, model_id=artifact.model_id if artifact else None, timed=timed,
-                                speed=speed, log_path=log_path, reply_timeout_s=reply_timeout_s, alive=alive,
-                                connect_timeout_s=OWN_TARGET_CONNECT_TIMEOUT_S if target else DEFAULT_CONNECT_TIMEOUT_S,
-                                progress=progress)
-        except SessionError as exc:
-            reason = target.exit_reason() if target is not None else None
-            raise BenchError(reason or str(exc)) from None
-        except (LogError, OtherSender) as exc:
-            raise BenchError(str(exc)) from None
+        result = _host_session(lambda: replay_log(
+            host_bus, messages, model_id=artifact.model_id if artifact else None, timed=timed, speed=speed,
+            log_path=log_path, reply_timeout_s=reply_timeout_s, alive=alive,
+            connect_timeout_s=OWN_TARGET_CONNECT_TIMEOUT_S if target else DEFAULT_CONNECT_TIMEOUT_S,
+            progress=progress), target)
         status = target.stop() if target is not None else None
         stderr = target.stderr_text() if target is not None else ""
     finally:

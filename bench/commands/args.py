@@ -9,9 +9,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bench.errors import BenchError, UsageError
+from bench.errors import UsageError
 from dbc.database import contract
-from dbc.transport import BusConfig, BusUnavailable, config_from_args, logger_command, resolve
+from dbc.transport import BusConfig, config_from_args, logger_command, resolve
 
 
 def positive_float(text: str) -> float:
@@ -41,10 +41,7 @@ def bus_from_args(args: argparse.Namespace) -> BusConfig:
     run-unique port, on a channel the user chose python-can's default port unless one is given (`resolve`); the
     CAN contract is read first: a broken DBC is one sentence before anything starts."""
     contract()
-    try:
-        config = resolve(config_from_args(args), session_unique=True)
-    except BusUnavailable as exc:
-        raise BenchError(str(exc)) from None
+    config = resolve(config_from_args(args), session_unique=True)
     if config.interface == "virtual":  # python-can's virtual bus lives inside one process; the target is another
         raise UsageError("the 'virtual' interface does not cross processes; use udp_multicast, socketcan or auto")
     return config

@@ -95,13 +95,10 @@ ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check}
 
 def _load(model: Path | None):
     from bench.model.default import default_artifact_path
-    from target_sim.artifact import ArtifactError, load_artifact
+    from target_sim.artifact import load_artifact
 
     path = model or default_artifact_path()
-    try:
-        return path, load_artifact(path)
-    except ArtifactError as exc:
-        raise BenchError(str(exc)) from None
+    return path, load_artifact(path)
 
 
 def _check_out(out: Path, replaceable: tuple[str, ...]) -> None:
