@@ -54,7 +54,7 @@ def _open(bus: BusConfig) -> SenderGuard:
 def _host_session(fn: Callable[[], HostResult], target: TargetProcess | None) -> HostResult:
     """`fn()`, the host's side of the run. A session that could not go on because the target process died ends
     with the process's own sentence (exit status, last line), which says more than the host's; every other error
-    of the host (its log, data, faults, another host on the channel) reaches the CLI as it is."""
+    (the host's log, data or faults, another host heard by the guard) reaches the CLI as it is."""
     try:
         return fn()
     except SessionError:
