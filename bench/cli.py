@@ -9,11 +9,20 @@ import signal
 import sys
 
 from bench.errors import BenchError, UsageError
-from dbc.database import DbcError
+from dbc.errors import CanLinkError
+from host.errors import HostError
+from host.faults.spec import FaultSpecError
+from target_sim.errors import TargetError
 
 # Subcommand modules under bench.commands, in the order `bench --help` lists them.
 SUBCOMMANDS = ("motor", "numerics", "data", "identify", "evaluate", "run", "replay", "analyze", "export", "compare",
                "campaign", "host", "firmware")
+
+
+# The errors of the layers below bench, caught here once: each is one sentence for the user (exit status 1). A bad
+# fault option (--fault/--faults) is a bad command-line argument, as a UsageError: exit status 2.
+LAYER_ERRORS = (CanLinkError, TargetError, HostError)
+LAYER_USAGE_ERRORS = (FaultSpecError,)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -108,9 +117,9 @@ def _main(argv: list[str] | None) -> int:
     except BenchError as exc:
         print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_status
-    except DbcError as exc:  # the CAN contract, read on first use by whichever command needs it
+    except LAYER_ERRORS as exc:  # e.g. the CAN contract, read on first use by whichever command needs it
         print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
-        return 1
+        return 2 if isinstance(exc, LAYER_USAGE_ERRORS) else 1
     except OSError as exc:  # a file or directory the command could not use (last resort: name it, no traceback)
         if isinstance(exc, BrokenPipeError):
             sys.stderr.close()

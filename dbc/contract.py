@@ -15,6 +15,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Literal, get_args
 
+from dbc.errors import CanLinkError
+
 DBC_PATH: Path = Path(__file__).with_name("thermal_bench.dbc")
 NODES: tuple[str, str] = ("HOST", "TARGET")
 FRAME_LENGTH = 8                 # classic CAN, every message DLC 8
@@ -119,7 +121,7 @@ def join_temperatures(frames: Mapping[str, Mapping[str, float]],
     return out
 
 
-class FrameError(ValueError):
+class FrameError(CanLinkError, ValueError):
     """A frame that may not be sent or was rejected on receipt; ``kind`` is one of FRAME_ERROR_KINDS."""
 
     def __init__(self, kind: FrameErrorKind, message: str) -> None:

@@ -25,11 +25,12 @@ from cantools.database.can import Database
 from cantools.database.can import Message as DbcMessage
 
 from dbc.contract import DBC_PATH, HEARTBEAT_MESSAGE, NODES, REPLY_SIGNALS, FrameError
+from dbc.errors import CanLinkError
 
 _FLOAT_FORMATS = {32: ("<f", "<I"), 64: ("<d", "<Q")}
 
 
-class DbcError(Exception):
+class DbcError(CanLinkError):
     """The DBC file is missing or not the bench's contract; one sentence with what to do."""
 
 

@@ -36,6 +36,8 @@ from typing import Any
 import can
 from can.util import cast_from_string, load_environment_config, load_file_config
 
+from dbc.errors import CanLinkError
+
 AUTO = "auto"
 AUTO_SOCKETCAN_CHANNEL = "vcan0"
 UDP_INTERFACE = "udp_multicast"
@@ -45,7 +47,7 @@ UDP_DEFAULT_PORT = 43113             # python-can's default port
 NOMINAL_BITRATE = 500_000            # the vehicle bus the report's bus load refers to
 
 
-class BusUnavailable(Exception):
+class BusUnavailable(CanLinkError):
     """The configured bus cannot be opened; the message names it and what to do."""
 
 
@@ -281,7 +283,7 @@ def first_heard(bus: can.BusABC, ids, listen_s: float = IN_USE_LISTEN_S, *, pref
     return heard
 
 
-class OtherSender(Exception):
+class OtherSender(CanLinkError):
     """Another node of this node's kind sends on the channel; the message names the channel and the frame."""
 
 

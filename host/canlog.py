@@ -17,12 +17,14 @@ from pathlib import Path
 
 import can
 
+from host.errors import HostError
+
 LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".mf4")
 NAME_MAX = 255   # bytes in one file name (Linux, macOS): the temporary name must fit where the log's does
 DEFAULT_LOG_SUFFIX = ".blf"
 
 
-class LogError(Exception):
+class LogError(HostError):
     """A log that cannot be written or read; the message says which and why."""
 
 

@@ -32,6 +32,7 @@ import numpy as np
 from dbc.codec import FrameCodec
 from dbc.contract import CURRENT_MESSAGE, DRIVE_SIGNALS, FaultBit, TargetState, row_messages, row_signals, step_of
 from dbc.database import frame_id, host_frame_ids, signal_ranges
+from host.errors import HostError
 from host.session import HostSession, RowBook, SessionError
 
 Progress = Callable[[int, int], None]
@@ -39,7 +40,7 @@ DEFAULT_ABORT_AFTER = 25
 SPIN_S = float(os.environ.get("HOST_SPIN_S", "0.0003"))  # lockstep: busy-poll for the reply before blocking
 
 
-class DataRangeError(ValueError):
+class DataRangeError(HostError, ValueError):
     """A data value the DBC cannot carry."""
 
 

@@ -49,13 +49,14 @@ from dbc.contract import (
 from dbc.database import host_frame_ids
 from dbc.transport import OwnFrameFilter
 from host.canlog import FrameLog
+from host.errors import HostError
 
 DEFAULT_REPLY_TIMEOUT_S = 0.05
 DEFAULT_CONNECT_TIMEOUT_S = 15.0
 MAX_REJECTIONS_KEPT = 100_000   # refused frames recorded one by one (counted beyond)
 
 
-class SessionError(Exception):
+class SessionError(HostError):
     """The session cannot go on (wrong model, silent target, refused reset); one sentence."""
 
 

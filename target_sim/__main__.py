@@ -39,8 +39,9 @@ from pathlib import Path
 
 from dbc.database import DbcError, contract
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
-from target_sim.artifact import ArtifactError, load_artifact
+from target_sim.artifact import load_artifact
 from target_sim.engines import ENGINES, make_node
+from target_sim.errors import TargetError
 from target_sim.faults import ReplyFaults, parse_reply_faults
 from target_sim.node import log_error, serve, target_on_channel
 
@@ -95,7 +96,7 @@ def _write_stats(path: str, stats: dict) -> None:
     os.replace(tmp, target)
 
 
-class JournalError(Exception):
+class JournalError(TargetError):
     """The --events file cannot be written; one sentence."""
 
 
@@ -156,11 +157,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--engine firmware needs the model's firmware: --firmware ELF (see 'bench firmware build')")
     if engine == "python" and args.firmware:
         parser.error("--firmware is the firmware engine's ELF; drop it or use --engine firmware")
-    firmware_errors: tuple[type[Exception], ...] = ()
-    if engine == "firmware":   # the emulator (unicorn) loads only for this engine
-        from target_sim.firmware import FirmwareError
-
-        firmware_errors = (FirmwareError,)
     journal = None
     try:
         config = resolve(config_from_args(args))
@@ -170,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
         artifact = load_artifact(args.model)
         node = make_node(artifact, engine=engine, firmware=args.firmware)   # the ELF checked before the bus opens
         bus = config.open()
-    except (ArtifactError, BusUnavailable, *firmware_errors) as exc:
+    except (TargetError, BusUnavailable) as exc:   # the artifact, the firmware image, the bus
         print(f"target_sim: error: {exc}", file=sys.stderr)
         return 1
     other = target_on_channel(bus)

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from target_sim.errors import TargetError
 from target_sim.kinds import MODEL_KINDS, REALIZATIONS, is_delta
 from target_sim.losses import DEFAULT as DEFAULT_LOSS_MODEL
 from target_sim.losses import LOSS_KINDS, row_signals
@@ -34,7 +35,7 @@ LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", 
                    "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
 
 
-class ArtifactError(Exception):
+class ArtifactError(TargetError):
     """The artifact cannot be used; the message says why and what to do."""
 
 

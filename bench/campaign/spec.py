@@ -133,12 +133,9 @@ def _faults(value: Any) -> str:
         value = ",".join(parts)
     if not isinstance(value, str):
         raise ValueError('must be a fault spec such as "drop=0.01,kill=1", a table {drop = 0.01}, or "" for none')
-    from host.faults.spec import FaultSpecError, parse_faults
+    from host.faults.spec import parse_faults
 
-    try:
-        parse_faults([value])
-    except FaultSpecError as exc:
-        raise ValueError(str(exc)) from None
+    parse_faults([value])   # FaultSpecError is a ValueError: `_check` names the option
     return ",".join(p.strip() for p in value.split(",") if p.strip())
 
 

@@ -38,8 +38,7 @@ from bench.commands.common import (
     verdict,
 )
 from bench.errors import BenchError
-from bench.runner import load_data, load_model
-from host.canlog import LogError
+from bench.run_inputs import load_data, load_model
 
 # half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C, and the
 # d/q currents of DriveCurrents 0.1 A
@@ -108,10 +107,7 @@ def run(args: argparse.Namespace) -> int:
     if args.data:  # read before the log: the loader's transient peak then does not add to the decoded log
         mapping, period = data_options(args)
         dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
-    try:
-        record = decode_log(args.log)
-    except LogError as exc:
-        raise BenchError(str(exc)) from None
+    record = decode_log(args.log)
     if record.model_id is not None and record.model_id != artifact.model_id:
         raise BenchError(f"log {args.log} was made with model {record.model_id:08x}, but {model_path} is "
                          f"{artifact.model_id:08x}; pass the log's artifact with --model")

@@ -31,9 +31,9 @@ import sys
 from pathlib import Path
 
 from bench.campaign import spec as spec_module  # stdlib only: the spec format for --help
+from bench.commands.args import positive_float, positive_int
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
-from bench.runner import positive_float, positive_int
 
 DEFAULT_OUT = Path("out/campaigns")
 

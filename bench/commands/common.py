@@ -10,8 +10,12 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bench.errors import BenchError, UsageError
+
+if TYPE_CHECKING:
+    from host.faults import FaultSpec
 
 
 def float_list(text: str) -> list[float]:
@@ -83,6 +87,24 @@ def check_writable(path: Path, option: str, *, directory: bool = False) -> Path:
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise BenchError(f"cannot write {path}: the directory {ancestor} is not writable; choose another {option}")
     return path
+
+
+NAME_MAX = 255   # bytes in one file name (Linux, macOS)
+
+
+def check_log_names(log_path: Path, faults: FaultSpec | None) -> None:
+    """UsageError, before anything runs, when a file written beside the log would need a name longer than NAME_MAX:
+    with faults, the summary `<log>.faults.json`, written through a temporary `.<log>.faults.json.XXXXXXXX`."""
+    if faults is None or not faults.active:
+        return
+    from host.faults import sidecar_path
+
+    sidecar = sidecar_path(log_path).name
+    length = len(os.fsencode(sidecar)) + 10
+    if length > NAME_MAX:
+        raise UsageError(f"--log {log_path}: the fault summary beside it, {sidecar}, would need a file name of "
+                         f"{length} bytes (its temporary name), more than the {NAME_MAX} a name may have; shorten the "
+                         f"log's name by {length - NAME_MAX} characters")
 
 
 @dataclass(frozen=True)
@@ -165,8 +187,6 @@ def print_summary(s: dict) -> None:
 
 
 # ---------------------------------------------------------------- a user's data: --mapping and --sample-period
-
-from typing import TYPE_CHECKING  # noqa: E402 (appended section)
 
 if TYPE_CHECKING:  # the CLI imports every subcommand at start: the loader only when a command runs
     from bench.drive.dataset import ColumnMapping

@@ -25,10 +25,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from bench.commands.args import bus_from_args, positive_float, positive_int
 from bench.commands.common import add_engine_argument, add_output_flags, check_writable, fmt, print_json
 from bench.errors import UsageError
 from bench.fileio import write_text_atomically
-from bench.runner import ProgressBar, bus_from_args, load_data, load_model, positive_float, positive_int
+from bench.progress import ProgressBar
+from bench.run_inputs import load_data, load_model
 from dbc.transport import add_bus_arguments
 from target_sim.artifact import ModelArtifact, dumps
 from target_sim.kinds import MODEL_KINDS
@@ -98,7 +100,8 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
     from bench.analysis.report import analyze_log
     from bench.model.artifact_eval import artifact_drive
     from bench.model.runs import initial_temperatures
-    from bench.runner import firmware_for_engine, run_with_target
+    from bench.run_inputs import firmware_for_engine
+    from bench.runner import run_with_target
 
     # every ELF first (built where not packaged): a missing compiler stops the comparison before any run
     loaded = [load_model(path) for path in model_paths]

@@ -75,12 +75,9 @@ def _names_a_directory(data: list[str]) -> bool:
 
 
 def _load(path: Path):
-    from target_sim.artifact import ArtifactError, load_artifact
+    from target_sim.artifact import load_artifact
 
-    try:
-        return load_artifact(path)
-    except ArtifactError as exc:
-        raise BenchError(str(exc)) from None
+    return load_artifact(path)
 
 
 def run_on_files(args: argparse.Namespace, artifacts: list, paths: list[Path]) -> int:

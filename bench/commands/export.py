@@ -29,7 +29,7 @@ from dbc import FrameError
 from dbc.codec import decode_any
 from dbc.contract import nearest_row
 from dbc.database import frame_id, host_frame_ids
-from host.canlog import FrameLog, LogError, check_log_path, read_log
+from host.canlog import FrameLog, check_log_path, read_log
 from target_sim.model import InputAccumulator
 
 # messages whose Step is the data row they belong to (the target's replies carry the row they answer)
@@ -153,18 +153,12 @@ def _period(args, messages: list[can.Message], rows: list[int | None], timing1: 
 def run(args: argparse.Namespace) -> int:
     if args.sample_period is not None and not args.drive_time:
         raise UsageError("--sample-period sets the period of --drive-time; pass --drive-time too, or drop it")
-    try:
-        path = check_log_path(args.log, for_reading=True)
-        out = check_log_path(args.out)
-    except LogError as exc:
-        raise BenchError(str(exc)) from None
+    path = check_log_path(args.log, for_reading=True)
+    out = check_log_path(args.out)
     check_writable(out, "--out")
     if out.exists() and out.resolve() == path.resolve():
         raise UsageError(f"--out {out} is the log being exported; name another file")
-    try:
-        messages = list(read_log(path))
-    except LogError as exc:
-        raise BenchError(str(exc)) from None
+    messages = list(read_log(path))
     period = source = None
     times = None
     if args.drive_time:
@@ -177,15 +171,12 @@ def run(args: argparse.Namespace) -> int:
             if not args.host_only or (_is_standard(m) and m.arbitration_id in host_ids)]
     if not keep:
         raise BenchError(f"log {path} has no host frames to export; is it a log of this bench?")
-    try:
-        with FrameLog(out) as log:
-            for i in keep:
-                msg = messages[i]
-                if times is not None:
-                    msg.timestamp = times[i]
-                log.write(msg)
-    except LogError as exc:
-        raise BenchError(str(exc)) from None
+    with FrameLog(out) as log:
+        for i in keep:
+            msg = messages[i]
+            if times is not None:
+                msg.timestamp = times[i]
+            log.write(msg)
     first, last = messages[keep[0]].timestamp, messages[keep[-1]].timestamp
     summary = {"log": str(path), "out": str(out), "frames_read": len(messages), "frames_written": len(keep),
                "host_only": args.host_only, "drive_time": args.drive_time, "sample_period_s": period,

@@ -20,6 +20,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from bench.commands.args import positive_int
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 
@@ -79,17 +80,11 @@ def _add_check(actions) -> None:
                    help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
     p.add_argument("--firmware", type=Path, default=None, metavar="ELF",
                    help="the model's firmware ELF (default: the packaged one, or built with the compiler)")
-    p.add_argument("--rows", type=_positive_int, default=None, help="only the first N data rows")
+    p.add_argument("--rows", type=positive_int, default=None, help="only the first N data rows")
     p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
     add_data_arguments(p)
     add_output_flags(p)
     p.set_defaults(func=run_check)
-
-
-def _positive_int(text: str) -> int:
-    from bench.runner import positive_int
-
-    return positive_int(text)
 
 
 ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check}
@@ -100,13 +95,10 @@ ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check}
 
 def _load(model: Path | None):
     from bench.model.default import default_artifact_path
-    from target_sim.artifact import ArtifactError, load_artifact
+    from target_sim.artifact import load_artifact
 
     path = model or default_artifact_path()
-    try:
-        return path, load_artifact(path)
-    except ArtifactError as exc:
-        raise BenchError(str(exc)) from None
+    return path, load_artifact(path)
 
 
 def _check_out(out: Path, replaceable: tuple[str, ...]) -> None:
@@ -200,7 +192,7 @@ def run_check(args: argparse.Namespace) -> int:
     from bench.firmware.check import check_firmware
     from bench.firmware.images import firmware_for
     from bench.model.runs import initial_temperatures
-    from bench.runner import drive_for, load_data
+    from bench.run_inputs import drive_for, load_data
 
     path, artifact = _load(args.model)
     mapping, period = data_options(args)

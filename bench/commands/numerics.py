@@ -86,13 +86,9 @@ def run_budget(args: argparse.Namespace) -> int:
     from bench.model.budget import error_budget
     from bench.model.default import default_artifact_path
     from bench.model.runs import initial_temperatures
-    from bench.runner import load_data, load_model
-    from target_sim.artifact import ArtifactError
+    from bench.run_inputs import load_data, load_model
 
-    try:
-        artifact, model_path = load_model(args.model or default_artifact_path())
-    except ArtifactError as exc:
-        raise BenchError(str(exc)) from None
+    artifact, model_path = load_model(args.model or default_artifact_path())
     if artifact.kind == "pv-lptn":
         raise BenchError(f"{model_path} is a pv-lptn model; the error budget covers the LTI LPTN and Hammerstein "
                          "kinds (a fixed linear block)")

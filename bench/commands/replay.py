@@ -33,22 +33,16 @@ from pathlib import Path
 import numpy as np
 
 from bench.analysis.logdecode import BusRecord, decode_log
-from bench.commands.common import add_output_flags, check_writable, print_json
+from bench.commands.args import announce_logger, bus_from_args, positive_float
+from bench.commands.common import NAME_MAX, add_output_flags, check_writable, print_json
 from bench.errors import BenchError
-from bench.runner import (
-    NAME_MAX,
-    ProgressBar,
-    announce_logger,
-    bus_from_args,
-    firmware_for_engine,
-    load_model,
-    positive_float,
-    replay_with_target,
-)
+from bench.progress import ProgressBar
+from bench.run_inputs import firmware_for_engine, load_model
+from bench.runner import replay_with_target
 from dbc import FrameError, frame_id
 from dbc.codec import decode_any
 from dbc.transport import add_bus_arguments
-from host.canlog import LogError, check_log_path, read_log
+from host.canlog import check_log_path, read_log
 from host.replay import count_rows, host_frames
 from target_sim.engines import ENGINES
 
@@ -98,13 +92,6 @@ def log_model_id(messages) -> int | None:
     return None
 
 
-def decoded(path: Path) -> BusRecord:
-    try:
-        return decode_log(path)
-    except LogError as exc:
-        raise BenchError(str(exc)) from None
-
-
 def process_faults(record: BusRecord) -> dict[str, int]:
     """The kills and freezes marked in a log (with its target-lost marks: a target lost for another reason)."""
     kinds = Counter(m.fault for m in record.marks if m.fault in PROCESS_FAULTS)
@@ -134,15 +121,12 @@ def compare_replies(recorded: np.ndarray, recorded_ok: np.ndarray, new: np.ndarr
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        path = check_log_path(args.log, for_reading=True)
-        messages = list(read_log(path))
-    except LogError as exc:
-        raise BenchError(str(exc)) from None
+    path = check_log_path(args.log, for_reading=True)
+    messages = list(read_log(path))
     frames = host_frames(messages)
     if count_rows(frames) == 0:
         raise BenchError(f"log {path} has no DriveInputs frames to replay; is it a log of this bench?")
-    recorded = decoded(path)
+    recorded = decode_log(path)
     restarted = process_faults(recorded)
     faults = injected_faults(recorded)
     recorded_id = log_model_id(messages)
@@ -151,10 +135,7 @@ def run(args: argparse.Namespace) -> int:
         raise BenchError(f"log {path} was recorded with model {recorded_id:08x}, but {model_path} is "
                          f"{artifact.model_id:08x}; pass the log's artifact with --model")
     new_log = args.new_log or Path("out/replay") / default_replay_name(path)
-    try:
-        check_log_path(new_log)
-    except LogError as exc:
-        raise BenchError(str(exc)) from None
+    check_log_path(new_log)
     check_writable(new_log, "--log")
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
@@ -174,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     result = outcome.result
-    replayed = decoded(Path(result.log_path))
+    replayed = decode_log(Path(result.log_path))
     comparison = compare_replies(recorded.temps, recorded.answered, replayed.temps, replayed.answered)
     # the target must reject what it rejected then; a target that ran before (--no-start-target) counted before,
     # and the recorded counters of a log whose target restarted are only those of its last process

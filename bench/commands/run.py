@@ -41,10 +41,12 @@ import sys
 import time
 from pathlib import Path
 
+from bench.commands.args import announce_logger, bus_from_args, positive_float, positive_int
 from bench.commands.common import (
     add_data_arguments,
     add_engine_argument,
     add_output_flags,
+    check_log_names,
     check_writable,
     data_options,
     print_json,
@@ -52,22 +54,12 @@ from bench.commands.common import (
     verdict,
 )
 from bench.errors import BenchError, UsageError
-from bench.runner import (
-    ProgressBar,
-    announce_logger,
-    bus_from_args,
-    check_log_names,
-    drive_for,
-    firmware_for_engine,
-    load_data,
-    load_model,
-    positive_float,
-    positive_int,
-    run_with_target,
-)
+from bench.progress import ProgressBar
+from bench.run_inputs import drive_for, firmware_for_engine, load_data, load_model
+from bench.runner import run_with_target
 from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 from host.canlog import LogError, check_log_path
-from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
+from host.faults import add_fault_arguments, fault_note, spec_from_args
 
 DEFAULT_LOG = Path("out/run/bench.blf")
 DEFAULT_REPORT = Path("out/run/report")
@@ -106,11 +98,9 @@ def add_run_arguments(p) -> None:
 
 
 def fault_spec(args: argparse.Namespace):
-    """The fault options as a FaultSpec (None without faults); UsageError for a bad one."""
-    try:
-        spec = spec_from_args(args)
-    except FaultSpecError as exc:
-        raise UsageError(str(exc)) from None
+    """The fault options as a FaultSpec (None without faults); FaultSpecError or UsageError (exit status 2) for a
+    bad one."""
+    spec = spec_from_args(args)
     if spec is not None and spec.process_faults and getattr(args, "mode", "lockstep") != "lockstep":
         raise UsageError("kill and freeze faults need lockstep mode (a lost target's rows cannot be sent again on a "
                          "real-time clock); drop them or --mode realtime")
@@ -136,10 +126,7 @@ def run(args: argparse.Namespace) -> int:
     faults = fault_spec(args)
     artifact, model_path = load_model(args.model)
     dataset, drive = load_run_data(args, artifact)     # before anything starts: data the model cannot run on
-    try:
-        log_path = check_log_path(args.log)
-    except LogError as exc:
-        raise BenchError(str(exc)) from None
+    log_path = check_log_path(args.log)
     check_writable(log_path, "--log")   # before the run: a directory there would fail it only at the end
     check_log_names(log_path, faults)
     if not args.no_report:  # before the run: a report that cannot be written must not cost a run and leave a log

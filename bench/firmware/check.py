@@ -19,7 +19,7 @@ import numpy as np
 from bench.errors import BenchError
 from dbc.contract import M4_CLOCK_HZ
 from target_sim.artifact import ModelArtifact
-from target_sim.firmware import FirmwareError, FirmwareEstimator, FirmwareFault
+from target_sim.firmware import FirmwareEstimator, FirmwareFault
 from target_sim.model import F32, Float32Estimator, InputAccumulator
 
 
@@ -60,12 +60,10 @@ def _run_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np.nd
 
 
 def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.ndarray, initial) -> dict:
-    """The JSON report of `bench firmware check` (BenchError, one sentence, for a bad ELF or an emulator fault)."""
+    """The JSON report of `bench firmware check` (FirmwareError for a bad ELF, BenchError for an emulator fault; one
+    sentence each)."""
     label = elf if isinstance(elf, bytes) else str(elf)
-    try:
-        model = FirmwareEstimator(artifact, elf)
-    except FirmwareError as exc:
-        raise BenchError(str(exc)) from None
+    model = FirmwareEstimator(artifact, elf)
     drive = np.asarray(drive, dtype=F32)
     width = len(artifact.drive_signals)
     if drive.ndim != 2 or drive.shape[1] != width:

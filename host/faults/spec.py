@@ -33,6 +33,7 @@ from types import MappingProxyType
 
 from dbc.contract import FaultKind
 from dbc.mutations import FRAME_FAULT_KINDS, REPLY_FAULT_KINDS
+from host.errors import HostError
 
 REPLY_KINDS: tuple[str, ...] = REPLY_FAULT_KINDS
 
@@ -54,7 +55,7 @@ assert set(MARKED_KINDS) == set(BUS_KINDS) | set(PROCESS_KINDS)
 assert set(KINDS) == TARGET_DETECTED | HOST_DETECTED
 
 
-class FaultSpecError(ValueError):
+class FaultSpecError(HostError, ValueError):
     """A fault option that cannot be used; one sentence naming it and the fix."""
 
 

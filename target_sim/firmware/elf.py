@@ -19,6 +19,8 @@ from elftools.elf.constants import SH_FLAGS
 from elftools.elf.descriptions import describe_e_machine
 from elftools.elf.elffile import ELFFile
 
+from target_sim.errors import TargetError
+
 EF_ARM_EABIMASK = 0xFF000000
 EF_ARM_EABI_VER5 = 0x05000000
 EF_ARM_ABI_FLOAT_SOFT = 0x200
@@ -36,7 +38,7 @@ STACK_SIZE_SYMBOLS = ("_stack_size", "__stack_size", "_Min_Stack_Size", "__STACK
 STACK_TOP_SYMBOLS = ("_estack", "__stack_top", "_stack_top", "__StackTop", "__stack", "_stack_end")
 
 
-class FirmwareError(Exception):
+class FirmwareError(TargetError):
     """A firmware image the emulated Cortex-M4F cannot load: the message is one sentence naming the file."""
 
 

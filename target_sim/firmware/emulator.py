@@ -68,6 +68,7 @@ from unicorn import (
 )
 from unicorn import arm_const as arm
 
+from target_sim.errors import TargetError
 from target_sim.firmware.cycles import CycleModel, new_disassembler
 from target_sim.firmware.elf import (
     STACK_TOP_SYMBOLS,
@@ -111,7 +112,7 @@ _EXCEPTIONS = {1: "undefined instruction", 2: "supervisor call (SVC)", 3: "prefe
                23: "division by zero"}
 
 
-class FirmwareFault(Exception):
+class FirmwareFault(TargetError):
     """A firmware function that faulted or did not return; the message is one sentence."""
 
     def __init__(self, message: str, *, function: str, pc: int, kind: str):

@@ -50,7 +50,7 @@ def test_python_can_users_settings_get_python_cans_default_port(monkeypatch):
     logger listens (it was a random one, so the logger recorded nothing)."""
     monkeypatch.setenv("CAN_INTERFACE", "udp_multicast")
     monkeypatch.setenv("CAN_CHANNEL", GROUP)
-    from bench.runner import bus_from_args
+    from bench.commands.args import bus_from_args
 
     bus = bus_from_args(parse())
     assert (bus.interface, bus.channel, bus.kwargs) == ("udp_multicast", GROUP, {"port": UDP_DEFAULT_PORT})

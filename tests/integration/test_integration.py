@@ -15,7 +15,7 @@ import pytest
 
 from bench.analysis.logdecode import decode_log
 from bench.model.default import default_artifact_path
-from bench.runner import TargetProcess
+from bench.target_process import TargetProcess
 from dbc.transport import BusConfig, free_udp_port
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline

@@ -1,0 +1,92 @@
+"""What a run needs before anything starts: the model artifact, the drive data checked against it (sample period,
+d/q currents), the rows the host sends, and the firmware image for the firmware engine.
+
+The default dataset (the 40 °C validation run) is generated in out/data when missing; the firmware image of an
+artifact that ships none is built once into a cache directory.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bench.errors import BenchError
+from target_sim.artifact import ModelArtifact, load_artifact
+from target_sim.losses import CURRENT_SIGNALS
+
+if TYPE_CHECKING:
+    from bench.drive.dataset import ColumnMapping, Dataset
+
+
+def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
+    """The artifact at `path` (default: the packaged one) and its path (ArtifactError, one sentence, if unusable)."""
+    from bench.model.default import default_artifact_path
+
+    model_path = Path(path) if path else default_artifact_path()
+    return load_artifact(model_path), model_path
+
+
+def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True) -> Path | None:
+    """The ELF the target runs with `engine` "firmware" (None for "python"): the packaged one of a packaged
+    artifact, else built once into `cache_dir` (BenchError, one sentence, without the compiler, or for a model the
+    firmware cannot run)."""
+    if engine != "firmware":
+        return None
+    from target_sim.firmware.node_protocol import firmware_refusal
+
+    refusal = firmware_refusal(artifact)
+    if refusal is not None:
+        raise BenchError(refusal)
+    from bench.firmware.images import firmware_for
+
+    return firmware_for(artifact, cache_dir, quiet=quiet)
+
+
+def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, seed: int | None = None,
+              quiet: bool = True, *, mapping: ColumnMapping | None = None,
+              sample_period_s: float | None = None) -> Dataset:
+    """The dataset (default: the generated 40 °C validation run, made in out/data if missing).
+
+    A user's own file is read through `mapping` (a `bench.drive.dataset.ColumnMapping`, from --mapping) at
+    `sample_period_s` (--sample-period; None: the mapping's, else the artifact's). The data's sample period must be
+    the one the artifact's model runs on (BenchError, one sentence, if not)."""
+    from bench.drive.dataset import load_dataset
+    from bench.drive.generate import ensure_default_datasets
+
+    if path is None:
+        if not quiet and not Path("out/data/cycle_coolant40.csv").is_file():
+            print("bench: generating the default datasets in out/data (once)", file=sys.stderr)
+        path = ensure_default_datasets(Path("out/data"), seed)[40]
+    given = sample_period_s if sample_period_s is not None else getattr(mapping, "sample_period_s", None)
+    period = given if given is not None else (artifact.data_sample_period if artifact is not None else None)
+    dataset = load_dataset(Path(path), mapping, sample_period_s=period)
+    if artifact is not None and not math.isclose(dataset.sample_period_s, artifact.data_sample_period,
+                                                  rel_tol=1e-6):
+        where = f" ({artifact.path})" if artifact.path is not None else ""
+        raise BenchError(f"{dataset.path} is sampled every {dataset.sample_period_s:g} s, but model "
+                         f"{artifact.model_id:08x}{where} runs on data sampled every {artifact.data_sample_period:g} "
+                         f"s; resample the data or use a model identified on data at {dataset.sample_period_s:g} s")
+    return dataset
+
+
+def check_drive_data(dataset: Dataset, artifact: ModelArtifact) -> None:
+    """BenchError (one sentence) when the model needs the d/q currents (an electrical loss model) and the data has
+    none: refused before anything starts (the target would otherwise never see a complete row)."""
+    if set(artifact.drive_signals) & set(CURRENT_SIGNALS) and not dataset.has_currents:
+        where = f" ({artifact.path})" if artifact.path is not None else ""
+        raise BenchError(f"model {artifact.model_id:08x}{where} has an {artifact.loss_model} loss model, which needs "
+                         f"the d/q currents, and {dataset.path} has none (columns i_d_A, i_q_A); map them with --mapping or "
+                         "use a model with loss maps")
+
+
+def drive_for(dataset: Dataset, artifact: ModelArtifact) -> np.ndarray:
+    """What the host sends per row: (rows, 4) [torque, speed, coolant, ambient], and [i_d, i_q] after them (rows,
+    6) when the model has an electrical loss model (after `check_drive_data`)."""
+    from bench.model.runs import drive_matrix
+
+    check_drive_data(dataset, artifact)
+    return drive_matrix(dataset, artifact.drive_signals)
