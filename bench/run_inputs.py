@@ -79,8 +79,8 @@ def check_drive_data(dataset: Dataset, artifact: ModelArtifact) -> None:
     if set(artifact.drive_signals) & set(CURRENT_SIGNALS) and not dataset.has_currents:
         where = f" ({artifact.path})" if artifact.path is not None else ""
         raise BenchError(f"model {artifact.model_id:08x}{where} has an {artifact.loss_model} loss model, which needs "
-                         f"the d/q currents, and {dataset.path} has none (columns i_d_A, i_q_A); map them with --mapping or "
-                         "use a model with loss maps")
+                         f"the d/q currents, and {dataset.path} has none (columns i_d_A, i_q_A); map them with "
+                         "--mapping or use a model with loss maps")
 
 
 def drive_for(dataset: Dataset, artifact: ModelArtifact) -> np.ndarray:
