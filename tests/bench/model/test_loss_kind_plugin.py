@@ -159,22 +159,25 @@ def test_a_kind_defined_in_a_test_runs_from_identification_to_the_emulated_firmw
     assert motor.loss_kind == NAME and not motor.needs_currents
     train = [load_dataset(default_data_dir / f"cycle_coolant{c}.csv") for c in (20, 60)]
     ident = identify(train, motor=motor, swarm_size=8, pso_iterations=2, lm_iterations=2, seed=1)
-    artifact = verify(seal(ident.content("hammerstein")))
-    assert artifact.loss_model == NAME and artifact.drive_signals == ("torque_Nm", "speed_rpm", "coolant_C",
-                                                                      "ambient_C")
-    # the lab reads its own section back as it wrote it
-    model, _ = artifact_loss_model(artifact)
-    assert model == QuadraticLosses(**{k: motor_file(NAME)["losses"][k] for k in KEYS})
-    assert step_cost(artifact).blocks["losses"]["multiply"] > 8
-
     validation = load_dataset(default_data_dir / "cycle_coolant40.csv")
-    drive = drive_matrix(validation, artifact.drive_signals)[:1500].astype(np.float32)
     initial = initial_temperatures(validation)
-    _, outputs = run_offline(artifact, drive, initial)
-    assert outputs.shape == (600, 4) and np.all(np.isfinite(outputs))
-    assert np.ptp(outputs[:, 1]) > 1.0            # the winding heats up: the losses reached the network
+    for kind in ("lti-lptn", "hammerstein"):
+        artifact = verify(seal(ident.content(kind)))
+        assert artifact.loss_model == NAME and artifact.drive_signals == ("torque_Nm", "speed_rpm", "coolant_C",
+                                                                          "ambient_C")
+        # the lab reads its own section back as it wrote it
+        model, _ = artifact_loss_model(artifact)
+        assert model == QuadraticLosses(**{k: motor_file(NAME)["losses"][k] for k in KEYS})
+        assert step_cost(artifact).blocks["losses"]["multiply"] > 8
 
-    generated = generate(artifact)
-    assert "quadratic_losses(torque, speed, table);" in generated.source and "LOSS_TABLES" not in generated.source
-    report = check_firmware(artifact, build_firmware(generated).elf, drive, initial)
-    assert report["steps"] == 600 and report["mismatches"] == 0
+        # 300 s of the FTP-75 after the preheat: torque and speed change every row
+        drive = drive_matrix(validation, artifact.drive_signals)[9000:10500].astype(np.float32)
+        assert np.unique(drive[:, :2], axis=0).shape[0] > 500
+        _, outputs = run_offline(artifact, drive, initial)
+        assert outputs.shape == (600, 4) and np.all(np.isfinite(outputs))
+        assert np.ptp(outputs[:, 1]) > 1.0            # the winding heats up: the losses reached the network
+
+        generated = generate(artifact)
+        assert "quadratic_losses(torque, speed, table);" in generated.source and "LOSS_TABLES" not in generated.source
+        report = check_firmware(artifact, build_firmware(generated).elf, drive, initial)
+        assert report["steps"] == 600 and report["mismatches"] == 0
