@@ -164,3 +164,59 @@ def with_currents(columns: dict[str, np.ndarray], seed: int = 7) -> dict[str, np
     i_d = np.round(np.clip(-0.04 * np.abs(speed) - 0.2 * np.abs(i_q) + rng.normal(0, 2.0, torque.size), -2900, 0),
                    1)
     return {**columns, "i_d_A": i_d, "i_q_A": i_q}
+
+
+def example_results(**changes):
+    """A `RunResults` with plausible figures (every field set), for tests of what reads them."""
+    from dataclasses import replace
+
+    from bench.analysis.results import (
+        Accuracy,
+        Agreement,
+        BusLoad,
+        CycleFigures,
+        Heartbeat,
+        Integrity,
+        MeasuredRmse,
+        Memory,
+        ModelInfo,
+        NodeLabels,
+        NodeValues,
+        NonFinite,
+        Percentiles,
+        Replies,
+        RunResults,
+        Throughput,
+        Timing,
+    )
+
+    results = RunResults(
+        model=ModelInfo("5db6a7f2", "hammerstein", "balanced", 1.0, "maps", "5db6a7f2"),
+        counts=Replies(300, 300, 0, 0, 60),
+        agreement=Agreement(NodeValues(0.001, 0.0049, 0.002, 0.003), True, 300, "offline float32", 0,
+                            NodeValues(0.0, 0.0, 0.0, 0.0), 1, 0),
+        accuracy=Accuracy(NodeValues(1e-5, 2e-5, 3e-5, 4e-5), NonFinite(0, 0), NodeValues(1.0, 0.5, 2.0, 0.25),
+                          NodeLabels("float64 model", "measured", "float64 model", "measured"),
+                          {"float64": MeasuredRmse(0.4, 0.2), "float32": MeasuredRmse(0.4, 0.2)}),
+        timing=Timing(Percentiles(101.5, 180.0, 331.0), 0, 1989, 22.1, 2.2, "firmware", CycleFigures(1403, 1410),
+                      CycleFigures(15.6, 15.7), 90.0),
+        memory=Memory(4096, 1024, "firmware ELF", 5000, 1200),
+        throughput=Throughput(Percentiles(400.0, 900.0, 1200.0), 0.3, 1083.0, 216.0),
+        integrity=Integrity(Heartbeat(3, 0.1, 0), {"crc": 0}, {}, {}, {}, 0, [], 1500, True, True, False, 299,
+                            "/x/bench.blf"),
+        faults=None,
+        bus_load=BusLoad(500000, 130.5, 1.2, 1.0, [0.0, 1.0], [10.0, 12.5], 12.5),
+        notes=[], null_values={})
+    return replace(results, **changes)
+
+
+def example_summary(clean: bool = True, **changes):
+    """A `RunSummary` of `example_results()`, as `bench run --json` gives it."""
+    from dataclasses import replace
+
+    from bench.analysis.results import BusInfo, RunSummary
+
+    summary = RunSummary(engine="firmware", firmware=None, bus=BusInfo("udp_multicast", "ff11::1", 40000),
+                         problems=[] if clean else ["3 of 300 rows got no reply"], clean=clean, faults=None,
+                         host={"mode": "lockstep", "rows": 300}, metrics=example_results(), elapsed_s=8.5)
+    return replace(summary, **changes)

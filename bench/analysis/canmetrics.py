@@ -1,4 +1,5 @@
-"""From a decoded bus log to the bench's numbers: references, agreement, accuracy, timing, bus load.
+"""From a decoded bus log to the bench's numbers (`bench.analysis.results.RunResults`): references, agreement,
+accuracy, timing. The bus load is `bench.analysis.busload`'s, the pass/fail rules `bench.analysis.verdict`'s.
 
 References, both fed with the drive values *as decoded from the frames the host sent* and the initial
 temperatures as decoded from the ResetTemps frames, so CAN quantization is the same for all:
@@ -22,7 +23,7 @@ reference within ±0.005 °C" holds across restarts and checks the restore itsel
 float32 state bit for bit, so the restarted reference is the clean run's exactly (the tests compare them); the
 float32 − float64 and RMSE figures describe the model on the clean run.
 The faults marked in the log (BenchEvent) and, when the `<log>.faults.json` sidecar is there, their detection,
-go into `metrics["faults"]`.
+go into `RunResults.faults`.
 """
 
 from __future__ import annotations
@@ -31,13 +32,36 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from bench.analysis.busload import bus_load
 from bench.analysis.logdecode import BusRecord
+from bench.analysis.results import (
+    Accuracy,
+    Agreement,
+    CycleFigures,
+    FaultGap,
+    FaultResults,
+    Heartbeat,
+    Integrity,
+    MeasuredRmse,
+    Memory,
+    ModelInfo,
+    NodeLabels,
+    NodeValues,
+    NonFinite,
+    Percentiles,
+    Replies,
+    RunResults,
+    Throughput,
+    Timing,
+    finite_results,
+)
+from bench.analysis.verdict import QUANTIZATION_C, notes
 from bench.drive.motor import MAP_TABLES, LossMaps
 from bench.thermal.estimator import SIGMOID_ROWS, StepInputs, identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
 from bench.thermal.parameters import LptnParameters
 from dbc.contract import HEARTBEAT_TIMEOUT_S, M4_CLOCK_HZ, TEMPERATURE_NODES
-from dbc.database import frame_id, temperature_range
+from dbc.database import temperature_range
 from dbc.transport import NOMINAL_BITRATE
 from host.results import gap_count, percentiles
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
@@ -45,7 +69,6 @@ from target_sim.costs import memory_estimate
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 
 TEMPERATURES = TEMPERATURE_NODES
-QUANTIZATION_C = 0.005          # half the 0.01 °C resolution of the temperature signals
 AGREEMENT_TOLERANCE_C = QUANTIZATION_C + 1e-9
 
 
@@ -183,81 +206,6 @@ def _max_abs(a: np.ndarray) -> float | None:
     return float(np.max(np.abs(a))) if a.size else None
 
 
-# ------------------------------------------------------------------------------------------------ bus load
-def _crc15(bits: np.ndarray) -> np.ndarray:
-    """CAN CRC-15 (polynomial 0x4599) of each row of a (frames, n) bit matrix."""
-    crc = np.zeros(bits.shape[0], dtype=np.int64)
-    for i in range(bits.shape[1]):
-        feedback = bits[:, i].astype(np.int64) ^ ((crc >> 14) & 1)
-        crc = (crc << 1) & 0x7FFF
-        crc ^= np.where(feedback == 1, 0x4599, 0)
-    return crc
-
-
-FRAME_BITS_CHUNK = 16384   # frames per block: the bit matrices of a block take about 1.6 MB, whatever the log's size
-
-
-def frame_bits(ids: np.ndarray, data: np.ndarray) -> np.ndarray:
-    """Exact bits on the wire of classic 11-bit data frames with 8 data bytes, stuff bits and 3-bit IFS included
-    (computed in blocks of FRAME_BITS_CHUNK frames, one byte per bit)."""
-    n = len(ids)
-    out = np.zeros(n, dtype=np.int64)
-    for start in range(0, n, FRAME_BITS_CHUNK):
-        stop = start + FRAME_BITS_CHUNK
-        out[start:stop] = _frame_bits(np.asarray(ids[start:stop], dtype=np.int64), data[start:stop])
-    return out
-
-
-def _frame_bits(ids: np.ndarray, data: np.ndarray) -> np.ndarray:
-    n = len(ids)
-    id_bits = ((ids[:, None] >> np.arange(10, -1, -1)) & 1).astype(np.uint8)
-    dlc_bits = np.tile(np.array([1, 0, 0, 0], dtype=np.uint8), (n, 1))      # DLC = 8
-    data_bits = np.unpackbits(data.astype(np.uint8), axis=1)  # MSB first per byte, bytes in order
-    head = np.column_stack([np.zeros(n, dtype=np.uint8), id_bits, np.zeros((n, 3), dtype=np.uint8), dlc_bits,
-                            data_bits])  # SOF, ID, RTR, IDE, r0, DLC, data
-    crc = _crc15(head)
-    crc_bits = ((crc[:, None] >> np.arange(14, -1, -1)) & 1).astype(np.uint8)
-    stuffed = np.column_stack([head, crc_bits])              # the bit-stuffed region: SOF .. CRC
-    # count stuff bits: after 5 equal bits a complementary one is inserted (and counts toward the next run)
-    stuff = np.zeros(n, dtype=np.int64)
-    last = stuffed[:, 0].astype(np.int64)
-    run = np.ones(n, dtype=np.int64)
-    for i in range(1, stuffed.shape[1]):
-        bit = stuffed[:, i].astype(np.int64)
-        same = bit == last
-        run = np.where(same, run + 1, 1)
-        last = bit
-        insert = run == 5
-        stuff += insert
-        # the stuff bit is the complement of `last`: a new run of length 1 with the opposite value
-        last = np.where(insert, 1 - last, last)
-        run = np.where(insert, 1, run)
-    fixed_tail = 1 + 2 + 7 + 3                                # CRC delimiter, ACK slot+delimiter, EOF, IFS
-    return stuffed.shape[1] + stuff + fixed_tail
-
-
-def bus_load(record: BusRecord, data: np.ndarray, sample_period_s: float, bitrate: int = NOMINAL_BITRATE,
-             window_s: float = 1.0) -> dict:
-    """Bus load at `bitrate`: of the schedule at the data rate, and of this log over its own time."""
-    bits = frame_bits(record.frame_ids, data) if len(data) else np.zeros(0, dtype=np.int64)
-    out: dict = {"bitrate": bitrate, "bits_per_frame_mean": float(bits.mean()) if bits.size else None}
-    if not bits.size or record.rows == 0:
-        return {**out, "data_rate_percent": None, "window_s": window_s, "window_start_s": [],
-                "window_percent": []}
-    heartbeat_ids = {frame_id("Status"), frame_id("RxErrors")}
-    is_heartbeat = np.isin(record.frame_ids, list(heartbeat_ids))
-    per_row_bits = bits[~is_heartbeat].sum() / record.rows
-    heartbeat_bits_per_s = float(bits[is_heartbeat].mean()) * len(heartbeat_ids) * 10 if is_heartbeat.any() else 0.0
-    out["data_rate_percent"] = float((per_row_bits / sample_period_s + heartbeat_bits_per_s) / bitrate * 100.0)
-    t = record.frame_s - record.frame_s[0]
-    edges = np.arange(0.0, max(t[-1], window_s) + window_s, window_s)
-    sums, _ = np.histogram(t, bins=edges, weights=bits)
-    out.update({"window_s": window_s, "window_start_s": edges[:-1].tolist(),
-                "window_percent": (sums / (bitrate * window_s) * 100.0).tolist(),
-                "replay_peak_percent": float(sums.max() / (bitrate * window_s) * 100.0)})
-    return out
-
-
 # ------------------------------------------------------------------------------------------------ metrics
 def intended_drive(record: BusRecord, dataset=None) -> tuple[np.ndarray, int]:
     """The drive values the host meant to send, and how many rows never reached the bus intact (faults in real
@@ -308,8 +256,8 @@ def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarr
 
 
 def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
-            bitrate: int = NOMINAL_BITRATE) -> tuple[dict, References]:
-    """The report's metric table (JSON-ready) and the reference trajectories.
+            bitrate: int = NOMINAL_BITRATE) -> tuple[RunResults, References]:
+    """The report's metric table (`RunResults`) and the reference trajectories.
 
     A log whose rows did not all reach the target (faults in real time) is checked against the target's twin,
     and the clean references run on the drive values the host meant to send."""
@@ -332,8 +280,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     with np.errstate(invalid="ignore", over="ignore"):
         f32_err = refs.f32 - refs.f64
     nulls: dict[str, str] = {}      # metric -> why it is null (JSON and the report hold no inf or NaN)
-    non_finite = {"float32": int(np.count_nonzero(~np.isfinite(refs.f32))),
-                  "float64": int(np.count_nonzero(~np.isfinite(refs.f64)))}
+    non_finite = NonFinite(float32=int(np.count_nonzero(~np.isfinite(refs.f32))),
+                           float64=int(np.count_nonzero(~np.isfinite(refs.f64))))
     rmse = {}
     rmse_vs = {}
     for i, name in enumerate(TEMPERATURES):
@@ -347,8 +295,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     model_rmse = {}
     if refs.measured_winding is not None:
         for label, traj in (("float64", refs.f64), ("float32", refs.f32)):
-            model_rmse[label] = {"winding": _rmse(traj[:, 1], refs.measured_winding),
-                                 "magnet": _rmse(traj[:, 3], refs.measured_pm)}
+            model_rmse[label] = MeasuredRmse(winding=_rmse(traj[:, 1], refs.measured_winding),
+                                             magnet=_rmse(traj[:, 3], refs.measured_pm))
     rtt_us = (record.replied_s - record.sent_s)[answered] * 1e6
     span = (np.nanmax(record.replied_s) - record.sent_s[0]) if answered.any() else float("nan")
     status_gaps = np.diff(record.status_s) if len(record.status_s) > 1 else np.zeros(0)
@@ -356,81 +304,64 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     info = record.target_info
     firmware = timing.get("m4_cycles") is not None and timing["m4_cycles"].size > 0
     estimate = memory_estimate(artifact)
-    dt = artifact.dt
-    max_agree = {name: (None if np.isnan(agreement["max_abs"][i]) else float(agreement["max_abs"][i]))
-                 for i, name in enumerate(TEMPERATURES)}
-    metrics = {
-        "model": {"id": f"{artifact.model_id:08x}", "kind": artifact.kind, "realization": artifact.realization,
-                  "dt_s": dt, "loss_model": artifact.loss_model,
-                  "log_model_id": f"{record.model_id:08x}" if record.model_id is not None else None},
-        "steps_sent": record.rows,
-        "replies": int(np.count_nonzero(answered)),
-        "missing": int(record.rows - np.count_nonzero(answered)),
-        "sequence_gaps": gap_count(answered),
-        "model_steps": int(len(refs.step_rows)),
-        "max_abs_can_minus_float32_C": max_agree,
-        "can_agrees_with_float32": all(v is None or v <= AGREEMENT_TOLERANCE_C for v in max_agree.values()),
-        "replies_compared": agreement["compared"],
-        "can_reference": "target twin" if lost_rows else "offline float32",
-        "rows_lost_on_the_bus": lost_rows,
-        "max_abs_can_minus_clean_C": _deviation(record, clean),
-        "segments": len(record.segments),
-        "saturated_values": saturated,
-        "max_abs_float32_minus_float64_C": {
-            name: _max_abs_finite(f32_err[:, i], f"max_abs_float32_minus_float64_C.{name}", nulls)
-            for i, name in enumerate(TEMPERATURES)},
-        "non_finite_values": non_finite,
-        "rmse_C": rmse,
-        "rmse_reference": rmse_vs,
-        "model_rmse_vs_measured_C": model_rmse,
-        "step_time_us": percentiles(timing.get("measured_us", [])),
-        "overruns": int(timing["overruns"].max()) if timing.get("overruns") is not None and
-        timing["overruns"].size else 0,
-        "est_cycles": int(timing["cycles"].max()) if timing.get("cycles") is not None and timing["cycles"].size
-        else None,
-        "est_exec_time_us": float(timing["exec_us"].max()) if timing.get("exec_us") is not None and
-        timing["exec_us"].size else None,
-        "cpu_load_percent": float(timing["cpu_load"].max()) if timing.get("cpu_load") is not None and
-        timing["cpu_load"].size else None,
-        # the firmware engine's measured Cortex-M4F figures (Timing4), beside the C28x estimate above
-        "engine": "firmware" if firmware else "python",
-        "m4_cycles": cycle_figures(timing.get("m4_cycles")),
-        "m4_exec_time_us": cycle_figures(timing.get("m4_exec_us"), as_int=False),
-        "m4_clock_mhz": M4_CLOCK_HZ / 1e6,
+    max_agree = NodeValues(*(None if np.isnan(agreement["max_abs"][i]) else float(agreement["max_abs"][i])
+                             for i in range(len(TEMPERATURES))))
+    results = RunResults(
+        model=ModelInfo(id=f"{artifact.model_id:08x}", kind=artifact.kind, realization=artifact.realization,
+                        dt_s=artifact.dt, loss_model=artifact.loss_model,
+                        log_model_id=f"{record.model_id:08x}" if record.model_id is not None else None),
+        counts=Replies(steps_sent=record.rows, replies=int(np.count_nonzero(answered)),
+                       missing=int(record.rows - np.count_nonzero(answered)), sequence_gaps=gap_count(answered),
+                       model_steps=int(len(refs.step_rows))),
+        agreement=Agreement(
+            max_abs_can_minus_float32_C=max_agree,
+            can_agrees_with_float32=all(v is None or v <= AGREEMENT_TOLERANCE_C for v in max_agree.values()),
+            replies_compared=agreement["compared"], can_reference="target twin" if lost_rows else "offline float32",
+            rows_lost_on_the_bus=lost_rows, max_abs_can_minus_clean_C=_deviation(record, clean),
+            segments=len(record.segments), saturated_values=saturated),
+        accuracy=Accuracy(
+            max_abs_float32_minus_float64_C=NodeValues(*(
+                _max_abs_finite(f32_err[:, i], f"max_abs_float32_minus_float64_C.{name}", nulls)
+                for i, name in enumerate(TEMPERATURES))),
+            non_finite_values=non_finite, rmse_C=NodeValues(**rmse), rmse_reference=NodeLabels(**rmse_vs),
+            model_rmse_vs_measured_C=model_rmse),
+        timing=Timing(
+            step_time_us=Percentiles(**percentiles(timing.get("measured_us", []))),
+            overruns=int(_top(timing.get("overruns")) or 0), est_cycles=_top(timing.get("cycles"), int),
+            est_exec_time_us=_top(timing.get("exec_us")), cpu_load_percent=_top(timing.get("cpu_load")),
+            # the firmware engine's measured Cortex-M4F figures (Timing4), beside the C28x estimate above
+            engine="firmware" if firmware else "python", m4_cycles=cycle_figures(timing.get("m4_cycles")),
+            m4_exec_time_us=cycle_figures(timing.get("m4_exec_us"), as_int=False), m4_clock_mhz=M4_CLOCK_HZ / 1e6),
         # TargetInfo's flash and RAM: the ELF's measured figures with the firmware engine, else the C28x estimate
-        "flash_bytes": info.get("flash_bytes"),
-        "ram_bytes": info.get("ram_bytes"),
-        "memory_source": "firmware ELF" if firmware else "C28x estimate",
-        "est_flash_bytes": estimate.flash_bytes,
-        "est_ram_bytes": estimate.ram_bytes,
-        "round_trip_us": percentiles(rtt_us),
-        "wall_time_s": float(span) if np.isfinite(span) else None,
-        "throughput_steps_per_s": float(record.rows / span) if np.isfinite(span) and span > 0 else None,
-        "throughput_model_steps_per_s": float(len(refs.step_rows) / span) if np.isfinite(span) and span > 0
-        else None,
-        "heartbeat": {"frames": int(len(record.status_s)),
-                      "max_gap_s": float(status_gaps.max()) if status_gaps.size else None,
-                      "losses": int(np.count_nonzero(status_gaps > HEARTBEAT_TIMEOUT_S))},
-        "target_rx_errors": record.rx_errors,
-        "invalid_frames_in_log": record.invalid,
-        # the target's frames the host's checks reject, by message: none of their values is used
-        "rejected_target_frames": record.rejected,
-        # frames that pass those checks but are not of this session (a replayed or forged frame), by reason
-        "foreign_frames": record.foreign,
-        "contested_rows": int(np.count_nonzero(record.contested)),
-        "target_faults_seen": _fault_names(record.faults_seen),
-        "frames_in_log": record.frames,
-        "log_complete": record.complete,
-        "log_stopped": record.stopped,
-        "log_unclosed": record.unclosed,
-        "last_row": record.rows - 1,
-        "log": str(record.path),
-    }
-    metrics["faults"] = fault_metrics(record)
-    metrics["bus_load"] = bus_load(record, record.frame_data, artifact.data_sample_period, bitrate)
-    metrics["notes"] = notes(metrics)
-    metrics = finite_metrics(metrics, nulls)
-    return metrics, refs
+        memory=Memory(flash_bytes=info.get("flash_bytes"), ram_bytes=info.get("ram_bytes"),
+                      memory_source="firmware ELF" if firmware else "C28x estimate",
+                      est_flash_bytes=estimate.flash_bytes, est_ram_bytes=estimate.ram_bytes),
+        throughput=Throughput(
+            round_trip_us=Percentiles(**percentiles(rtt_us)), wall_time_s=float(span) if np.isfinite(span) else None,
+            throughput_steps_per_s=float(record.rows / span) if np.isfinite(span) and span > 0 else None,
+            throughput_model_steps_per_s=float(len(refs.step_rows) / span) if np.isfinite(span) and span > 0
+            else None),
+        integrity=Integrity(
+            heartbeat=Heartbeat(frames=int(len(record.status_s)),
+                                max_gap_s=float(status_gaps.max()) if status_gaps.size else None,
+                                losses=int(np.count_nonzero(status_gaps > HEARTBEAT_TIMEOUT_S))),
+            target_rx_errors=record.rx_errors, invalid_frames_in_log=record.invalid,
+            # the target's frames the host's checks reject, by message: none of their values is used
+            rejected_target_frames=record.rejected,
+            # frames that pass those checks but are not of this session (a replayed or forged frame), by reason
+            foreign_frames=record.foreign, contested_rows=int(np.count_nonzero(record.contested)),
+            target_faults_seen=_fault_names(record.faults_seen), frames_in_log=record.frames,
+            log_complete=record.complete, log_stopped=record.stopped, log_unclosed=record.unclosed,
+            last_row=record.rows - 1, log=str(record.path)),
+        faults=fault_metrics(record),
+        bus_load=bus_load(record, record.frame_data, artifact.data_sample_period, bitrate))
+    results.notes = notes(results)
+    return finite_results(results, nulls), refs
+
+
+def _top(values, kind=float):
+    """The largest of a per-step timing series, None when there is none."""
+    return kind(values.max()) if values is not None and values.size else None
 
 
 def _max_abs_finite(a: np.ndarray, where: str, nulls: dict[str, str]) -> float | None:
@@ -442,32 +373,14 @@ def _max_abs_finite(a: np.ndarray, where: str, nulls: dict[str, str]) -> float |
     return _max_abs(a)
 
 
-def finite_metrics(value, nulls: dict[str, str], where: str = ""):
-    """`value` with every float that is not finite replaced by None, the reason recorded in `nulls` under its
-    dotted path; at the top level the result carries "null_values": nulls. JSON cannot hold inf or NaN, and a
-    report must not print them."""
-    if isinstance(value, float | np.floating) and not np.isfinite(value):
-        nulls.setdefault(where, f"{float(value)!r}: not a finite number (the values overflowed)")
-        return None
-    if isinstance(value, dict):
-        out = {k: finite_metrics(v, nulls, f"{where}.{k}" if where else str(k)) for k, v in value.items()
-               if not (where == "" and k == "null_values")}
-        if where == "":
-            out["null_values"] = dict(nulls)
-        return out
-    if isinstance(value, list | tuple):
-        return [finite_metrics(v, nulls, f"{where}[{i}]") for i, v in enumerate(value)]
-    return value
-
-
-def _deviation(record: BusRecord, clean: np.ndarray) -> dict[str, float | None]:
+def _deviation(record: BusRecord, clean: np.ndarray) -> NodeValues:
     """Per temperature, the largest |CAN - the clean run's float32 estimate| over the answered rows: zero unless
     faults changed what the model saw (rows lost in real time)."""
     diff = np.abs(record.temps - clean)
-    return {name: _max_abs(diff[:, i]) for i, name in enumerate(TEMPERATURES)}
+    return NodeValues(*(_max_abs(diff[:, i]) for i in range(len(TEMPERATURES))))
 
 
-def fault_metrics(record: BusRecord) -> dict | None:
+def fault_metrics(record: BusRecord) -> FaultResults | None:
     """Faults marked in the log (BenchEvent), gaps and restarts, and detection from the sidecar; None if none.
 
     The target's reply faults are not marked in the log (the host learns of them only by detecting them): their
@@ -488,34 +401,27 @@ def fault_metrics(record: BusRecord) -> dict | None:
     gaps = []
     for gap in record.gaps:
         duration = (gap["reinit_s"] - gap["lost_s"]) if gap["reinit_s"] is not None else None
-        gaps.append({"rows": gap["rows"], "lost_row": gap["lost_row"], "restart_row": gap["restart_row"],
-                     "duration_s": None if duration is None else round(duration, 3),
-                     "start_s": gap["lost_s"] - (record.frame_s[0] if record.frames else 0.0)})
-    return {
-        "injected": {k: marked.get(k, 0) for k in kinds},
-        "injected_total": sum(marked.values()),
-        "detected": None if sidecar is None else {k: sidecar.get("detected", {}).get(k) for k in kinds},
-        "undetected": None if sidecar is None else sidecar.get("undetected"),
-        "detection": {k: DETECTION[k] for k in kinds},
-        "sidecar_injected_total": None if sidecar is None else sidecar.get("injected_total"),
-        "retransmitted_rows": sum(1 for m in record.marks if m.event == "retransmit"),
-        "gaps": gaps,
-        "reinitializations": sum(1 for s in record.segments if s.recovery),
-        "unexplained_deadline_misses": None if sidecar is None else sidecar.get("unexplained_deadline_misses"),
-        "unexplained_deadline_miss_rows": [] if sidecar is None else sidecar.get("unexplained_deadline_miss_rows", []),
-        "seed": None if sidecar is None else sidecar.get("seed"),
-        "mode": None if sidecar is None else sidecar.get("mode", "lockstep"),
+        gaps.append(FaultGap(rows=list(gap["rows"]), lost_row=gap["lost_row"], restart_row=gap["restart_row"],
+                             duration_s=None if duration is None else round(duration, 3),
+                             start_s=gap["lost_s"] - (record.frame_s[0] if record.frames else 0.0)))
+    side = sidecar or {}
+    return FaultResults(
+        injected={k: marked.get(k, 0) for k in kinds},
+        injected_total=sum(marked.values()),
+        detected=None if sidecar is None else {k: side.get("detected", {}).get(k) for k in kinds},
+        undetected=side.get("undetected"),
+        detection={k: DETECTION[k] for k in kinds},
+        sidecar_injected_total=side.get("injected_total"),
+        retransmitted_rows=sum(1 for m in record.marks if m.event == "retransmit"),
+        gaps=gaps,
+        reinitializations=sum(1 for s in record.segments if s.recovery),
+        unexplained_deadline_misses=side.get("unexplained_deadline_misses"),
+        unexplained_deadline_miss_rows=side.get("unexplained_deadline_miss_rows", []),
+        seed=side.get("seed"),
+        mode=None if sidecar is None else side.get("mode", "lockstep"),
         # what the run's own fault summary does not explain (undetected faults, late replies, refused frames, ...)
-        "sidecar_problems": None if sidecar is None else fault_problems(sidecar),
-        "sidecar": None if sidecar is None else str(record.path.with_name(record.path.name + ".faults.json")),
-    }
-
-
-def fault_note(metrics: dict) -> str | None:
-    """'N faults are marked in the log ...': what makes a faulted log non-zero without --tolerate-faults."""
-    from host.faults import fault_note as note
-
-    return note(metrics.get("faults"), what="injected fault(s) are marked in the log")
+        sidecar_problems=None if sidecar is None else fault_problems(sidecar),
+        sidecar=None if sidecar is None else str(record.path.with_name(record.path.name + ".faults.json")))
 
 
 def _fault_names(bits: int) -> list[str]:
@@ -523,98 +429,10 @@ def _fault_names(bits: int) -> list[str]:
     return [bit.name for bit in FaultBit if bit & bits]
 
 
-DIVERGENCE_NOTE_C = 1.0
-
-
-def cycle_figures(values, *, as_int: bool = True) -> dict[str, float | None] | None:
+def cycle_figures(values, *, as_int: bool = True) -> CycleFigures | None:
     """{p50, max} of per-step figures (Timing4), None when there are none (the Python engine sends none)."""
     if values is None or len(values) == 0:
         return None
     arr = np.asarray(values, dtype=float)
     p50, top = float(np.percentile(arr, 50)), float(arr.max())
-    return {"p50": int(round(p50)), "max": int(top)} if as_int else {"p50": round(p50, 1), "max": top}
-
-
-def notes(metrics: dict) -> list[str]:
-    """Facts about the model (not faults of the run) the report must not hide."""
-    out = []
-    worst = max((v for v in metrics["max_abs_float32_minus_float64_C"].values() if v is not None), default=0.0)
-    if worst > DIVERGENCE_NOTE_C:
-        out.append(f"the float32 model departs from float64 by up to {worst:.4g} °C: the "
-                   f"{metrics['model']['realization']} realization does not survive single precision")
-    elif (metrics.get("non_finite_values") or {}).get("float32"):
-        out.append(f"the float32 model overflows: the {metrics['model']['realization']} realization does not "
-                   "survive single precision")
-    return out
-
-
-def problems(metrics: dict) -> list[str]:
-    """Reasons the run is not clean, one sentence each.
-
-    Of a log with injected faults (BenchEvent marks), what the faults explain is not listed: the target's
-    rejections, and as many heartbeat losses as kills and freezes; an undetected fault is (see `fault_note` for
-    the sentence that faults were injected at all)."""
-    out = []
-    faults = metrics.get("faults") or {}
-    injected = faults.get("injected_total", 0)
-    process = sum((faults.get("injected") or {}).get(k, 0) for k in ("kill", "freeze"))
-    # in real time a faulted row stays unanswered: the sidecar judges those (unexplained deadline misses)
-    explained = faults.get("mode") == "realtime" and faults.get("unexplained_deadline_misses") == 0
-    if metrics["missing"] and not explained:
-        out.append(f"{metrics['missing']} of {metrics['steps_sent']} steps got no reply "
-                   f"({metrics['sequence_gaps']} gaps)")
-    if metrics["heartbeat"]["losses"] > process:
-        extra = " more than the injected kills and freezes explain" if process else ""
-        out.append(f"the target's heartbeat was lost {metrics['heartbeat']['losses'] - process} time(s){extra}")
-    if faults.get("sidecar_problems"):  # the same sentences the run gave (`host.faults.fault_problems`)
-        out += faults["sidecar_problems"]
-    if not metrics["can_agrees_with_float32"]:
-        worst = max(v for v in metrics["max_abs_can_minus_float32_C"].values() if v is not None)
-        out.append(f"CAN temperatures differ from the offline float32 reference by up to {worst:.4f} °C "
-                   f"(more than the {QUANTIZATION_C} °C quantization)")
-    bad = {k: v for k, v in metrics["target_rx_errors"].items() if v}
-    if bad and not injected:
-        out.append(f"the target rejected or could not sequence frames: {bad}")
-    return out + integrity_problems(metrics, injected=bool(injected))
-
-
-def integrity_problems(metrics: dict, *, injected: bool = False) -> list[str]:
-    """What makes a log's numbers untrustworthy whatever the faults: an incomplete log, values the target could not
-    carry (clamped, not finite), frames that are not of this session, and (without injected faults, which explain
-    them) frames of the target that the host's checks reject."""
-    from host.results import clamped_problem
-
-    out = []
-    if not metrics.get("log_complete", True):
-        why = ("its .blf was never closed by its writer" if metrics.get("log_unclosed") else
-               "it ends without the host's Control STOP")
-        out.append(f"the log is incomplete ({why}: a run that was killed, or a partial file); its last row is "
-                   f"{metrics.get('last_row')} and what came after it is missing")
-    saturated, non_finite = metrics.get("saturated_values", 0), metrics.get("non_finite_values") or {}
-    if saturated:
-        out.append(f"{saturated} float32 values of the model lay outside the DBC range (-50..600 °C) or were not "
-                   "finite, so the target clamped them (SATURATED): the CAN temperatures there are not the model's")
-    if non_finite.get("float32") or non_finite.get("float64"):
-        out.append(f"the model's estimate is not finite at {non_finite.get('float32', 0)} float32 and "
-                   f"{non_finite.get('float64', 0)} float64 values (it overflowed): those figures are null")
-    clamped = clamped_problem(metrics.get("target_faults_seen") or [])
-    if clamped:
-        out.append(clamped)
-    foreign = metrics.get("foreign_frames") or {}
-    if foreign:
-        out.append(f"{sum(foreign.values())} frames in the log pass the host's checks but are not of this session "
-                   f"({counts_text(foreign)}); none of them is used")
-    if metrics.get("contested_rows"):
-        out.append(f"{metrics['contested_rows']} rows got a second reply with other temperatures (a replayed or "
-                   "forged frame): their temperatures are not reported")
-    rejected = metrics.get("rejected_target_frames") or {}
-    if rejected and not injected:
-        out.append(f"the host's checks reject {sum(rejected.values())} frames of the target in the log "
-                   f"({counts_text(metrics.get('invalid_frames_in_log') or {})}; {counts_text(rejected)}): none of "
-                   "their values is used")
-    return out
-
-
-def counts_text(counts: dict[str, int]) -> str:
-    """'kind n, kind n' of a dict of counts."""
-    return ", ".join(f"{k} {v}" for k, v in counts.items())
+    return CycleFigures(int(round(p50)), int(top)) if as_int else CycleFigures(round(p50, 1), top)

@@ -16,6 +16,7 @@ import numpy as np
 
 from bench.analysis.canmetrics import TEMPERATURES, References
 from bench.analysis.logdecode import BusRecord
+from bench.analysis.results import BusLoad
 
 LABELS = {"yoke": "stator yoke", "winding": "stator winding", "tooth": "stator tooth", "magnet": "permanent magnet"}
 ORDER = (1, 3, 0, 2)  # winding, magnet, yoke, tooth
@@ -176,20 +177,20 @@ def step_time_histogram(path: Path, measured_us: np.ndarray, est_us: float | Non
     plt.close(fig)
 
 
-def bus_load(path: Path, load: dict) -> None:
+def bus_load(path: Path, load: BusLoad) -> None:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    start = np.asarray(load.get("window_start_s", []), dtype=float)
-    percent = np.asarray(load.get("window_percent", []), dtype=float)
+    start = np.asarray(load.window_start_s, dtype=float)
+    percent = np.asarray(load.window_percent, dtype=float)
     if start.size:
         ax.step(start, percent, where="post", color="tab:blue",
-                label=f"this replay, per {load['window_s']:g} s of log time")
-    if load.get("data_rate_percent") is not None:
-        ax.axhline(load["data_rate_percent"], color="tab:red",
-                   label=f"at the data rate (5 Hz): {load['data_rate_percent']:.2f} %")
+                label=f"this replay, per {load.window_s:g} s of log time")
+    if load.data_rate_percent is not None:
+        ax.axhline(load.data_rate_percent, color="tab:red",
+                   label=f"at the data rate (5 Hz): {load.data_rate_percent:.2f} %")
     ax.axhline(100.0, color="k", lw=0.6, ls=":")
     ax.set_xlabel("log time (s)")
-    ax.set_ylabel(f"bus load at {load['bitrate'] / 1000:g} kbit/s (%)")
+    ax.set_ylabel(f"bus load at {load.bitrate / 1000:g} kbit/s (%)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -19,8 +19,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from bench.analysis import plots
-from bench.analysis.canmetrics import TEMPERATURES, compute, counts_text, problems
+from bench.analysis.canmetrics import TEMPERATURES, compute
 from bench.analysis.logdecode import BusRecord, decode_log
+from bench.analysis.results import FaultResults, RunResults
+from bench.analysis.verdict import counts_text, problems
 from bench.errors import BenchError
 from bench.fileio import foreign_entries, write_directory_atomically
 from target_sim.artifact import ModelArtifact
@@ -48,46 +50,46 @@ def check_report_dir(report_dir: Path, option: str = "--report") -> None:
 
 def analyze_log(log_path: str | Path, artifact: ModelArtifact, dataset=None, *, report_dir: str | Path | None = None,
                 bitrate: int | None = None, run_info: dict | None = None,
-                extra_problems: list[str] | None = None) -> tuple[dict, list[str]]:
+                extra_problems: list[str] | None = None) -> tuple[RunResults, list[str]]:
     """Decode the log, compute the metrics against the references, write the report if `report_dir`.
 
     `extra_problems` (what the live run saw, e.g. the host's) are listed in the report too."""
     record = decode_log(log_path)
-    metrics, refs = compute(record, artifact, dataset, **({"bitrate": bitrate} if bitrate else {}))
-    found = list(dict.fromkeys((extra_problems or []) + problems(metrics)))
+    results, refs = compute(record, artifact, dataset, **({"bitrate": bitrate} if bitrate else {}))
+    found = list(dict.fromkeys((extra_problems or []) + problems(results)))
     if report_dir is not None:
-        report_path = write_report(Path(report_dir), metrics, found, record, refs, dataset, run_info or {})
-        metrics["report"] = str(report_path)
-    return metrics, found
+        report_path = write_report(Path(report_dir), results, found, record, refs, dataset, run_info or {})
+        results.report = str(report_path)
+    return results, found
 
 
-def _m4_rows(m: dict) -> list[str]:
+def _m4_rows(m: RunResults) -> list[str]:
     """The measured Cortex-M4F cycles (firmware engine) and the flash/RAM rows: measured beside the estimate."""
-    est = f"{_fmt(m.get('est_flash_bytes'))} B / {_fmt(m.get('est_ram_bytes'))} B"
-    if m.get("engine") != "firmware":
+    est = f"{_fmt(m.memory.est_flash_bytes)} B / {_fmt(m.memory.est_ram_bytes)} B"
+    if m.timing.engine != "firmware":
         return ["| measured Cortex-M4F cycles | – (the Python engine; `--engine firmware` measures them) |",
                 f"| flash / RAM, C28x estimate | {est} |"]
-    cycles, exec_us = m["m4_cycles"] or {}, m["m4_exec_time_us"] or {}
-    return [f"| measured Cortex-M4F cycles p50 / max (emulated firmware) / time at {m['m4_clock_mhz']:g} MHz | "
-            f"{_fmt(cycles.get('p50'))} / {_fmt(cycles.get('max'))} / {_fmt(exec_us.get('p50'), 1)} µs |",
-            f"| flash / RAM, Cortex-M4F ELF (measured) | {_fmt(m['flash_bytes'])} B / {_fmt(m['ram_bytes'])} B |",
+    cycles, exec_us, memory = m.timing.m4_cycles, m.timing.m4_exec_time_us, m.memory
+    return [f"| measured Cortex-M4F cycles p50 / max (emulated firmware) / time at {m.timing.m4_clock_mhz:g} MHz | "
+            f"{_fmt(cycles and cycles.p50)} / {_fmt(cycles and cycles.max)} / {_fmt(exec_us and exec_us.p50, 1)} µs |",
+            f"| flash / RAM, Cortex-M4F ELF (measured) | {_fmt(memory.flash_bytes)} B / {_fmt(memory.ram_bytes)} B |",
             f"| flash / RAM, C28x estimate | {est} |"]
 
 
-def _complete(m: dict) -> str:
-    if m.get("log_complete", True):
+def _complete(m: RunResults) -> str:
+    if m.integrity.log_complete:
         return "yes"
-    return "no: the .blf was never closed" if m.get("log_unclosed") else "no: no Control STOP after the last START"
+    return "no: the .blf was never closed" if m.integrity.log_unclosed else "no: no Control STOP after the last START"
 
 
 def _listed(counts) -> str:
     return counts_text(counts) if counts else "none"
 
 
-def _unused(m: dict, message: str) -> str:
+def _unused(m: RunResults, message: str) -> str:
     """' (n <message> frames failed the host's checks and are not used)' when some did: the values shown come only
     from the frames that passed them."""
-    n = (m.get("rejected_target_frames") or {}).get(message)
+    n = m.integrity.rejected_target_frames.get(message)
     return f" (from the {message} frames that pass the host's checks; {n} failed them and are not used)" if n else ""
 
 
@@ -118,23 +120,22 @@ def _png(draw, *args) -> bytes:
     return out.getvalue()
 
 
-def write_report(report_dir: Path, metrics: dict, found: list[str], record: BusRecord, refs, dataset,
+def write_report(report_dir: Path, metrics: RunResults, found: list[str], record: BusRecord, refs, dataset,
                  run_info: dict) -> Path:
     """The report directory (report.md, metrics.json, the figures), written at once; BenchError (one sentence naming
     the file) when it cannot be, and then nothing of it was written."""
     report_dir = Path(report_dir)
     check_report_dir(report_dir)
-    model = metrics["model"]
-    title = f"{model['kind']} ({model['realization']}, Δt = {model['dt_s']:g} s), model {model['id']}"
+    model = metrics.model
+    title = f"{model.kind} ({model.realization}, Δt = {model.dt_s:g} s), model {model.id}"
     files = _Written()
     files[FIGURES["temperatures"]] = _png(plots.temperatures, record, refs, title)
     files[FIGURES["float32_error"]] = _png(plots.float32_error, record, refs)
     files[FIGURES["step_time"]] = _png(plots.step_time_histogram, record.timing.get("measured_us", []),
-                                       metrics.get("est_exec_time_us"),
-                                       (metrics.get("m4_exec_time_us") or {}).get("p50"))
-    files[FIGURES["bus_load"]] = _png(plots.bus_load, metrics["bus_load"])
-    body = {k: v for k, v in metrics.items() if k != "bus_load"}
-    body["bus_load"] = {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}
+                                       metrics.timing.est_exec_time_us,
+                                       metrics.timing.m4_exec_time_us and metrics.timing.m4_exec_time_us.p50)
+    files[FIGURES["bus_load"]] = _png(plots.bus_load, metrics.bus_load)
+    body = metrics.to_json(windows=False)
     files["metrics.json"] = (json.dumps(body, indent=1, allow_nan=False, default=str) + "\n").encode("utf-8")
     files["report.md"] = render_markdown(metrics, found, dataset, run_info).encode("utf-8")
     try:
@@ -151,28 +152,28 @@ def write_report(report_dir: Path, metrics: dict, found: list[str], record: BusR
     return report_dir / "report.md"
 
 
-def fault_section(faults: dict) -> list[str]:
+def fault_section(faults: FaultResults) -> list[str]:
     """Injected versus detected per kind, the marked gaps, retransmissions."""
     lines = ["## Injected faults", "",
              "Every injected fault is marked in the log by a BenchEvent frame (id 0x1FF); detection comes from the "
-             f"sidecar {('`' + Path(faults['sidecar']).name + '`') if faults['sidecar'] else '(missing)'}.", "",
+             f"sidecar {('`' + Path(faults.sidecar).name + '`') if faults.sidecar else '(missing)'}.", "",
              "| kind | injected | detected | detected by |", "|---|---|---|---|"]
-    detected = faults["detected"] or {}
-    for kind, count in faults["injected"].items():
-        lines.append(f"| {kind} | {count} | {_fmt(detected.get(kind))} | {faults['detection'][kind]} |")
-    lines += ["", f"Rows sent again after their reply deadline: {faults['retransmitted_rows']}; re-initializations "
-              f"of a lost target: {faults['reinitializations']}.", ""]
-    if faults.get("mode") == "realtime":
+    detected = faults.detected or {}
+    for kind, count in faults.injected.items():
+        lines.append(f"| {kind} | {count} | {_fmt(detected.get(kind))} | {faults.detection[kind]} |")
+    lines += ["", f"Rows sent again after their reply deadline: {faults.retransmitted_rows}; re-initializations "
+              f"of a lost target: {faults.reinitializations}.", ""]
+    if faults.mode == "realtime":
         lines += ["Real time: nothing is sent again, so a faulted row stays lost (and the row after it, whose frame "
                   "shows the alive-counter jump, too); the target leaves the lost rows out of its interval means. "
                   "The CAN values are checked against the target's twin (its own code fed the logged frames), and "
                   "their departure from the clean run is what the faults cost the estimate.", ""]
-    if faults["gaps"]:
+    if faults.gaps:
         lines += ["| marked gap: rows | target lost at row | re-initialized at row | lasted (s) |", "|---|---|---|---|"]
-        for gap in faults["gaps"]:
-            first, last = gap["rows"]
-            lines.append(f"| {first}–{last} | {gap['lost_row']} | {_fmt(gap['restart_row'])} | "
-                         f"{_fmt(gap['duration_s'], 2)} |")
+        for gap in faults.gaps:
+            first, last = gap.rows
+            lines.append(f"| {first}–{last} | {gap.lost_row} | {_fmt(gap.restart_row)} | "
+                         f"{_fmt(gap.duration_s, 2)} |")
         lines += ["", "In a gap the target was lost (killed, frozen or restarted); the host restored it from its "
                   "last StateCheckpoint (the float32 state vector after the gap's first row minus one, echoed back "
                   "bit for bit in RestoreState) and replayed the gap's rows again, so every row has a reply and "
@@ -181,88 +182,91 @@ def fault_section(faults: dict) -> list[str]:
     return lines
 
 
-def render_markdown(metrics: dict, found: list[str], dataset, run_info: dict) -> str:
+def _row(label: str, values, digits: int) -> str:
+    return f"| {label} | " + " | ".join(_fmt(values.get(t), digits) for t in TEMPERATURES) + " |"
+
+
+def render_markdown(metrics: RunResults, found: list[str], dataset, run_info: dict) -> str:
     m = metrics
-    model = m["model"]
-    lines = [f"# Bench report: {model['kind']} ({model['realization']}), model {model['id']}", ""]
-    faults = m.get("faults")
+    model = m.model
+    lines = [f"# Bench report: {model.kind} ({model.realization}), model {model.id}", ""]
+    faults = m.faults
     if found:
         verdict = "NOT clean"
-    elif faults and faults["injected_total"]:
+    elif faults and faults.injected_total:
         verdict = (f"faults injected and survived: every step answered, CAN = offline float32 (restarted as the "
-                   f"target was) within ±0.005 °C, {faults['injected_total']} injected fault(s)"
-                   + (", all detected" if faults["undetected"] == 0 else ""))
+                   f"target was) within ±0.005 °C, {faults.injected_total} injected fault(s)"
+                   + (", all detected" if faults.undetected == 0 else ""))
     else:
         verdict = "clean: every step answered, CAN = offline float32 within ±0.005 °C"
     lines += [f"**Result: {verdict}.**", ""]
     for problem in found:
         lines.append(f"- {problem}")
-    for note in m.get("notes", []):
+    for note in m.notes:
         lines.append(f"- **Note:** {note}")
-    if found or m.get("notes"):
+    if found or m.notes:
         lines.append("")
     lines += ["| | |", "|---|---|"]
-    info = [("log", f"`{m['log']}` ({m['frames_in_log']} frames)"),
+    log, timing, agreement, accuracy = m.integrity, m.timing, m.agreement, m.accuracy
+    info = [("log", f"`{log.log}` ({log.frames_in_log} frames)"),
             ("data", f"`{dataset.path}`" if dataset is not None else "– (no measured reference given)"),
-            ("model step Δt", f"{model['dt_s']:g} s"),
-            ("loss model", _loss_model_words(model.get("loss_model"))),
+            ("model step Δt", f"{model.dt_s:g} s"),
+            ("loss model", _loss_model_words(model.loss_model)),
             ("mode", run_info.get("mode", "–")),
             ("bus", run_info.get("bus", "–")),
-            ("target engine", run_info.get("engine") or ("firmware (emulated Cortex-M4F)" if m.get("engine") ==
+            ("target engine", run_info.get("engine") or ("firmware (emulated Cortex-M4F)" if timing.engine ==
                                                           "firmware" else "python (float32 model)"))]
     if run_info.get("node_cycles"):      # the firmware node's own statistics (the target's --stats)
         info.append(("firmware node Cortex-M4F cycles, model steps excluded (p50 / max)", run_info["node_cycles"]))
     lines += [f"| {k} | {v} |" for k, v in info]
     lines += ["", "## Metrics", "", "| metric | " + " | ".join(TEMPERATURES) + " |", "|---|---|---|---|---|"]
-    reference = "target twin" if m.get("can_reference") == "target twin" else "offline float32"
-    lines.append(f"| max \\|CAN − {reference}\\| (°C) | "
-                 + " | ".join(_fmt(m["max_abs_can_minus_float32_C"][t], 4) for t in TEMPERATURES) + " |")
-    if m.get("rows_lost_on_the_bus"):  # faults in real time: what the lost rows cost the estimate
-        lines.append("| max \\|CAN − clean run\\| (°C) | "
-                     + " | ".join(_fmt(m["max_abs_can_minus_clean_C"][t], 4) for t in TEMPERATURES) + " |")
-    lines.append("| max \\|float32 − float64\\| (°C) | "
-                 + " | ".join(_fmt(m["max_abs_float32_minus_float64_C"][t], 4) for t in TEMPERATURES) + " |")
-    lines.append("| RMSE of the CAN values (°C) | "
-                 + " | ".join(_fmt(m["rmse_C"][t], 3) for t in TEMPERATURES) + " |")
-    lines.append("| ... against | " + " | ".join(m["rmse_reference"][t] for t in TEMPERATURES) + " |")
-    for label, values in m.get("model_rmse_vs_measured_C", {}).items():
-        lines.append(f"| RMSE offline {label} vs measured (°C) | – | {_fmt(values['winding'])} | – | "
-                     f"{_fmt(values['magnet'])} |")
-    st, rtt = m["step_time_us"], m["round_trip_us"]
-    load = m["bus_load"]
+    reference = "target twin" if agreement.can_reference == "target twin" else "offline float32"
+    lines.append(_row(f"max \\|CAN − {reference}\\| (°C)", agreement.max_abs_can_minus_float32_C, 4))
+    if agreement.rows_lost_on_the_bus:  # faults in real time: what the lost rows cost the estimate
+        lines.append(_row("max \\|CAN − clean run\\| (°C)", agreement.max_abs_can_minus_clean_C, 4))
+    lines.append(_row("max \\|float32 − float64\\| (°C)", accuracy.max_abs_float32_minus_float64_C, 4))
+    lines.append(_row("RMSE of the CAN values (°C)", accuracy.rmse_C, 3))
+    lines.append("| ... against | " + " | ".join(accuracy.rmse_reference.get(t) for t in TEMPERATURES) + " |")
+    for label, values in accuracy.model_rmse_vs_measured_C.items():
+        lines.append(f"| RMSE offline {label} vs measured (°C) | – | {_fmt(values.winding)} | – | "
+                     f"{_fmt(values.magnet)} |")
+    st, rtt, counts = timing.step_time_us, m.throughput.round_trip_us, m.counts
+    load, heartbeat, throughput = m.bus_load, log.heartbeat, m.throughput
     lines += ["", "| | |", "|---|---|",
-              f"| steps sent / answered / missing / gaps | {m['steps_sent']} / {m['replies']} / {m['missing']} / "
-              f"{m['sequence_gaps']} |",
-              f"| model steps | {m['model_steps']} (values outside the DBC range, clamped: {m['saturated_values']}) |",
-              f"| measured step time p50 / p99 / max (µs, target process) | {_fmt(st['p50'], 1)} / "
-              f"{_fmt(st['p99'], 1)} / {_fmt(st['max'], 1)} |",
-              f"| estimated C28x cycles / time at 90 MHz / CPU load | {_fmt(m['est_cycles'])} / "
-              f"{_fmt(m['est_exec_time_us'], 1)} µs / {_fmt(m['cpu_load_percent'], 4)} % |",
+              f"| steps sent / answered / missing / gaps | {counts.steps_sent} / {counts.replies} / "
+              f"{counts.missing} / {counts.sequence_gaps} |",
+              f"| model steps | {counts.model_steps} (values outside the DBC range, clamped: "
+              f"{agreement.saturated_values}) |",
+              f"| measured step time p50 / p99 / max (µs, target process) | {_fmt(st.p50, 1)} / "
+              f"{_fmt(st.p99, 1)} / {_fmt(st.max, 1)} |",
+              f"| estimated C28x cycles / time at 90 MHz / CPU load | {_fmt(timing.est_cycles)} / "
+              f"{_fmt(timing.est_exec_time_us, 1)} µs / {_fmt(timing.cpu_load_percent, 4)} % |",
               *_m4_rows(m),
-              f"| overruns (step time > Δt) | {m['overruns']} |",
-              f"| round trip p50 / p99 / max (µs) | {_fmt(rtt['p50'], 0)} / {_fmt(rtt['p99'], 0)} / "
-              f"{_fmt(rtt['max'], 0)} |",
-              f"| throughput | {_fmt(m['throughput_steps_per_s'], 0)} steps/s "
-              f"({_fmt(m['throughput_model_steps_per_s'], 0)} model steps/s) over {_fmt(m['wall_time_s'], 2)} s |",
-              f"| bus load at {load['bitrate'] / 1000:g} kbit/s | {_fmt(load.get('data_rate_percent'), 2)} % at the "
-              f"data rate; this replay peaked at {_fmt(load.get('replay_peak_percent'), 0)} % "
-              f"(mean frame {_fmt(load.get('bits_per_frame_mean'), 1)} bits incl. stuffing) |",
-              f"| heartbeat | {m['heartbeat']['frames']} Status frames, longest gap "
-              f"{_fmt(m['heartbeat']['max_gap_s'], 3)} s, {m['heartbeat']['losses']} losses |",
-              f"| target receive errors | {m['target_rx_errors'] or '–'}{_unused(m, 'RxErrors')} |",
+              f"| overruns (step time > Δt) | {timing.overruns} |",
+              f"| round trip p50 / p99 / max (µs) | {_fmt(rtt.p50, 0)} / {_fmt(rtt.p99, 0)} / "
+              f"{_fmt(rtt.max, 0)} |",
+              f"| throughput | {_fmt(throughput.throughput_steps_per_s, 0)} steps/s "
+              f"({_fmt(throughput.throughput_model_steps_per_s, 0)} model steps/s) over "
+              f"{_fmt(throughput.wall_time_s, 2)} s |",
+              f"| bus load at {load.bitrate / 1000:g} kbit/s | {_fmt(load.data_rate_percent, 2)} % at the "
+              f"data rate; this replay peaked at {_fmt(load.replay_peak_percent, 0)} % "
+              f"(mean frame {_fmt(load.bits_per_frame_mean, 1)} bits incl. stuffing) |",
+              f"| heartbeat | {heartbeat.frames} Status frames, longest gap "
+              f"{_fmt(heartbeat.max_gap_s, 3)} s, {heartbeat.losses} losses |",
+              f"| target receive errors | {log.target_rx_errors or '–'}{_unused(m, 'RxErrors')} |",
               f"| invalid frames in the log (rejected by the host's checks: id, length, CRC, range, alive counter) | "
-              f"{_listed(m['invalid_frames_in_log'])} |",
+              f"{_listed(log.invalid_frames_in_log)} |",
               f"| ... of them the target's, by message (none of their values is used) | "
-              f"{_listed(m.get('rejected_target_frames'))} |",
+              f"{_listed(log.rejected_target_frames)} |",
               f"| frames that pass those checks but are not of this session (not used) | "
-              f"{_listed(m.get('foreign_frames'))} |",
-              f"| rows with two different replies (not reported) | {m.get('contested_rows', 0)} |",
-              f"| target faults seen | {', '.join(m['target_faults_seen']) or 'none'}{_unused(m, 'Status')} |",
+              f"{_listed(log.foreign_frames)} |",
+              f"| rows with two different replies (not reported) | {log.contested_rows} |",
+              f"| target faults seen | {', '.join(log.target_faults_seen) or 'none'}{_unused(m, 'Status')} |",
               f"| log complete (the host's STOP, the file closed) | {_complete(m)} |",
               ""]
-    if m.get("null_values"):
+    if m.null_values:
         lines += ["Values shown as – because they are not finite numbers (JSON holds them as null):", ""]
-        lines += [f"- `{where}`: {why}" for where, why in m["null_values"].items()]
+        lines += [f"- `{where}`: {why}" for where, why in m.null_values.items()]
         lines.append("")
     if faults:
         lines += fault_section(faults)

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bench.analysis.results import ResultsError, RunSummary
 from bench.campaign.spec import Campaign, Run
 from bench.campaign.store import DONE, Store, flatten, option_columns
 from bench.errors import BenchError
@@ -120,11 +121,16 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
             if not running:
                 _RUNNING.pop(task["token"], None)
     wall = time.perf_counter() - clock
-    summary = None
+    summary, unreadable = None, None
     if proc.returncode in (0, 1) and not timed_out:
         with contextlib.suppress(ValueError):
             parsed = json.loads(out)
             summary = parsed if isinstance(parsed, dict) and "clean" in parsed else None
+        if summary is not None:
+            try:   # the table reads it as a RunSummary: a summary of another schema is no result
+                RunSummary.from_json(summary)
+            except ResultsError as exc:
+                summary, unreadable = None, str(exc)
     if summary is not None:
         status, error = DONE, None
         verdict = "not clean" if proc.returncode else ("clean" if summary.get("clean") else "tolerated")
@@ -133,7 +139,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
         error = f"the run took longer than {task['timeout_s']:g} s and was stopped"
     else:
         status, verdict = "failed", None
-        error = _error_sentence(err, proc.returncode)
+        error = unreadable or _error_sentence(err, proc.returncode)
     if summary is not None:
         write_text_atomically(run_dir / "summary.json", out)
     write_text_atomically(run_dir / "stderr.txt", err)

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from bench.campaign.store import DONE, Store, StoreError
+from bench.campaign.store import DONE, Store, StoreError, summary_of
 from bench.fileio import foreign_entries, write_directory_atomically
 
 REPORT_DIR = "report"
@@ -228,7 +228,8 @@ def render(rows: list[dict[str, Any]], meta: dict[str, str], fault_rows: list[di
     if trouble:
         md += ["## Problems", ""]
         for r in trouble:
-            said = r["error"] or "; ".join(json.loads(r["problems"] or "[]")) or "–"
+            summary = summary_of(r)     # the run's own RunSummary: its problems as `bench run` gave them
+            said = r["error"] or "; ".join(summary.problems if summary else json.loads(r["problems"] or "[]")) or "–"
             md.append(f"* `{r['run_id']}` ({cell(r)}): {said}")
         md.append("")
     files["report.md"] = "\n".join(md).encode("utf-8")

@@ -13,6 +13,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from bench.analysis.results import RunSummary
 from bench.errors import BenchError
 
 TABLE_NAME = "campaign.sqlite"
@@ -46,56 +47,49 @@ class StoreError(BenchError):
     """A table that is not a campaign's, or cannot be read or written."""
 
 
-def _get(d: Any, *keys: str) -> Any:
-    for key in keys:
-        if not isinstance(d, dict):
-            return None
-        d = d.get(key)
-    return d
-
-
-def _max(values: Iterable[Any]) -> float | None:
-    numbers = [v for v in values if isinstance(v, int | float)]
-    return max(numbers) if numbers else None
-
-
-def flatten(summary: dict | None) -> tuple[dict[str, Any], list[tuple[str, int, int | None]]]:
-    """The columns a `bench run --json` summary gives, and its (fault kind, injected, detected) rows."""
+def flatten(summary: RunSummary | dict | None) -> tuple[dict[str, Any], list[tuple[str, int, int | None]]]:
+    """The columns a `bench run --json` summary gives (a `RunSummary`, or its JSON), and its (fault kind,
+    injected, detected) rows. ResultsError (one sentence) for JSON of another schema version."""
     if not summary:
         return {}, []
-    faults = summary.get("faults") or {}
-    injected, detected = faults.get("injected") or {}, faults.get("detected") or {}
-    m4 = summary.get("m4_cycles") or {}
+    s = summary if isinstance(summary, RunSummary) else RunSummary.from_json(summary)
+    m = s.metrics
+    faults, m4 = s.faults, m.timing.m4_cycles
     row = {
-        "clean": bool(summary.get("clean")),
-        "problems": json.dumps(summary.get("problems") or []),
-        "model_kind": _get(summary, "metrics", "model", "kind"),
-        "model_id": _get(summary, "metrics", "model", "id"),
-        "engine_used": summary.get("engine"),
-        "rmse_winding_C": _get(summary, "rmse_C", "winding"),
-        "rmse_pm_C": _get(summary, "rmse_C", "magnet"),
-        "max_can_minus_float32_C": _max((summary.get("max_abs_can_minus_float32_C") or {}).values()),
-        "faults_injected": faults.get("injected_total") if faults else 0,
-        "faults_detected": faults.get("detected_total") if faults else 0,
-        "faults_undetected": faults.get("undetected") if faults else 0,
-        "retransmitted_rows": faults.get("retransmitted_rows") if faults else 0,
-        "gaps": len(faults.get("gaps") or []) if faults else 0,
-        "est_c28x_cycles": summary.get("est_cycles"),
-        "m4_cycles_p50": m4.get("p50"),
-        "m4_cycles_max": m4.get("max"),
-        "step_time_us_p50": _get(summary, "step_time_us", "p50"),
-        "throughput_rows_per_s": summary.get("throughput_steps_per_s"),
-        "rows_sent": summary.get("steps_sent"),
-        "replies": summary.get("replies"),
-        "missing": summary.get("missing"),
-        "bench_elapsed_s": summary.get("elapsed_s"),
-        "bus_port": _get(summary, "bus", "port"),
-        "log_path": summary.get("log"),
-        "report_path": summary.get("report"),
-        "summary": json.dumps(summary, sort_keys=True),
+        "clean": bool(s.clean),
+        "problems": json.dumps(s.problems),
+        "model_kind": m.model.kind,
+        "model_id": m.model.id,
+        "engine_used": s.engine,
+        "rmse_winding_C": m.accuracy.rmse_C.winding,
+        "rmse_pm_C": m.accuracy.rmse_C.magnet,
+        "max_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C.worst(),
+        "faults_injected": faults.injected_total if faults else 0,
+        "faults_detected": faults.detected_total if faults else 0,
+        "faults_undetected": faults.undetected if faults else 0,
+        "retransmitted_rows": faults.retransmitted_rows if faults else 0,
+        "gaps": len(faults.gaps) if faults else 0,
+        "est_c28x_cycles": m.timing.est_cycles,
+        "m4_cycles_p50": m4.p50 if m4 else None,
+        "m4_cycles_max": m4.max if m4 else None,
+        "step_time_us_p50": m.timing.step_time_us.p50,
+        "throughput_rows_per_s": m.throughput.throughput_steps_per_s,
+        "rows_sent": m.counts.steps_sent,
+        "replies": m.counts.replies,
+        "missing": m.counts.missing,
+        "bench_elapsed_s": round(s.elapsed_s, 2),
+        "bus_port": s.bus.port,
+        "log_path": m.integrity.log,
+        "report_path": m.report,
+        "summary": json.dumps(s.to_json(), sort_keys=True),
     }
-    kinds = [(kind, int(n), detected.get(kind)) for kind, n in injected.items()]
+    kinds = [(kind, int(n), faults.detected.get(kind)) for kind, n in faults.injected.items()] if faults else []
     return row, kinds
+
+
+def summary_of(row: dict[str, Any]) -> RunSummary | None:
+    """The run's `RunSummary` from its table row (None: the run gave none)."""
+    return RunSummary.from_json(json.loads(row["summary"])) if row.get("summary") else None
 
 
 class Store:

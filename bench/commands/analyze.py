@@ -35,7 +35,6 @@ from bench.commands.common import (
     data_options,
     print_json,
     print_summary,
-    verdict,
 )
 from bench.errors import BenchError
 from bench.run_inputs import load_data, load_model
@@ -95,9 +94,11 @@ def data_mismatch(dataset, drive: np.ndarray) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.analysis.canmetrics import compute, fault_note, problems
+    from bench.analysis.canmetrics import compute
     from bench.analysis.logdecode import decode_log
     from bench.analysis.report import check_report_dir, write_report
+    from bench.analysis.results import LogSummary
+    from bench.analysis.verdict import fault_note, problems, verdict
 
     artifact, model_path = load_model(args.model)
     report_dir = args.report or args.log.with_name(f"{args.log.stem}-report")
@@ -122,27 +123,20 @@ def run(args: argparse.Namespace) -> int:
     else:
         dataset = matching_dataset(record.drive, artifact)
     try:
-        metrics, refs = compute(record, artifact, dataset)
+        results, refs = compute(record, artifact, dataset)
     except ValueError as exc:     # e.g. an electrical loss model and a log without the d/q currents
         raise BenchError(f"log {args.log} cannot be compared with {model_path}: {exc}") from None
-    in_log = problems(metrics)
-    metrics["report"] = str(write_report(report_dir, metrics, in_log, record, refs, dataset,
-                                         {"mode": "analyzed from the log"}))  # the report `bench run` writes
-    outcome = verdict(in_log, fault_note(metrics), faulted=metrics["faults"] is not None,
+    in_log = problems(results)
+    results.report = str(write_report(report_dir, results, in_log, record, refs, dataset,
+                                      {"mode": "analyzed from the log"}))  # the report `bench run` writes
+    outcome = verdict(in_log, fault_note(results), faulted=results.faults is not None,
                       tolerate_faults=args.tolerate_faults)
     found = outcome.problems
-    injected = bool(metrics["faults"] and metrics["faults"]["injected_total"])
+    injected = bool(results.faults and results.faults.injected_total)
     if args.json:
-        out = {k: v for k, v in metrics.items() if k != "bus_load"}
-        out["bus_load"] = {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}
-        print_json({**out, "problems": found, "clean": not found and not injected})
+        print_json(LogSummary(results, found, not found and not injected).to_json())
     else:
-        print_summary({"metrics": metrics, "steps_sent": metrics["steps_sent"], "replies": metrics["replies"],
-                       "missing": metrics["missing"], "max_abs_can_minus_float32_C":
-                       metrics["max_abs_can_minus_float32_C"], "rmse_C": metrics["rmse_C"],
-                       "step_time_us": metrics["step_time_us"], "throughput_steps_per_s":
-                       metrics["throughput_steps_per_s"], "log": metrics["log"], "report": metrics["report"],
-                       "problems": found, "clean": not found and not injected})
+        print_summary(results, found)
         if dataset is None and not args.quiet:
             print("bench: no dataset matched the log: RMSE is against the float64 model only (pass --data)",
                   file=sys.stderr)

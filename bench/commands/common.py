@@ -1,5 +1,5 @@
-"""Argument types and output helpers shared by the subcommands, and the rule and summary of a run or a log that
-`bench run` and `bench analyze` share."""
+"""Argument types and output helpers shared by the subcommands, and the summary lines of a run or a log that
+`bench run` and `bench analyze` share (the pass/fail rule is `bench.analysis.verdict`'s)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ import math
 import os
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -107,80 +106,55 @@ def check_log_names(log_path: Path, faults: FaultSpec | None) -> None:
                          f"log's name by {length - NAME_MAX} characters")
 
 
-@dataclass(frozen=True)
-class Verdict:
-    """Whether a run, or the log of one, passes: the problems to report and the exit status."""
-
-    problems: list[str]
-    status: int
-
-    def exit_status(self, subject: str, as_json: bool) -> int:
-        """The status, after one sentence on stderr when it fails (with --json the problems are in the JSON)."""
-        if self.status and not as_json:
-            print(f"bench: error: {subject} is not clean: " + "; ".join(self.problems), file=sys.stderr)
-        return self.status
-
-
-def verdict(problems: list[str], fault_note: str | None, *, faulted: bool, tolerate_faults: bool,
-            tolerate_gaps: bool = False) -> Verdict:
-    """The rule of `bench run` and `bench analyze`: every problem fails (status 1); injected faults are one
-    (`fault_note`, the sentence that says so) unless tolerated; --tolerate-gaps forgives only a run without faults,
-    so an undetected fault, or anything the faults do not explain, always fails."""
-    found = list(dict.fromkeys(problems))
-    if fault_note and not tolerate_faults:
-        found.append(fault_note)
-    return Verdict(found, 1 if found and (faulted or not tolerate_gaps) else 0)
-
-
 def fmt(value, digits: int = 3) -> str:
     """A number for a summary line, '–' for none."""
     return "–" if value is None else f"{value:.{digits}f}"
 
 
-def print_summary(s: dict) -> None:
-    """The lines `bench run` and `bench analyze` print without --json (`s`: the run's JSON summary)."""
-    m = s["metrics"]
+def print_summary(m: RunResults, problems: list[str], faults: HostFaults | FaultResults | None = None) -> None:
+    """The lines `bench run` and `bench analyze` print without --json (`faults`: the run's, else the log's)."""
     temps = ("winding", "magnet", "yoke", "tooth")
-    print(f"model {m['model']['id']} {m['model']['kind']} ({m['model']['realization']}, dt {m['model']['dt_s']:g} s)")
-    print(f"steps sent {s['steps_sent']}, answered {s['replies']}, missing {s['missing']}, "
-          f"model steps {m['model_steps']}")
-    print(f"max |CAN - {m.get('can_reference', 'offline float32')}| (°C): "
-          + ", ".join(f"{t} {fmt(s['max_abs_can_minus_float32_C'][t], 4)}" for t in temps))
-    if m.get("rows_lost_on_the_bus"):
-        print(f"{m['rows_lost_on_the_bus']} rows never reached the target intact; max |CAN - clean run| (°C): "
-              + ", ".join(f"{t} {fmt(m['max_abs_can_minus_clean_C'][t], 4)}" for t in temps))
+    model, agreement, accuracy, timing = m.model, m.agreement, m.accuracy, m.timing
+    print(f"model {model.id} {model.kind} ({model.realization}, dt {model.dt_s:g} s)")
+    print(f"steps sent {m.counts.steps_sent}, answered {m.counts.replies}, missing {m.counts.missing}, "
+          f"model steps {m.counts.model_steps}")
+    print(f"max |CAN - {agreement.can_reference}| (°C): "
+          + ", ".join(f"{t} {fmt(agreement.max_abs_can_minus_float32_C.get(t), 4)}" for t in temps))
+    if agreement.rows_lost_on_the_bus:
+        print(f"{agreement.rows_lost_on_the_bus} rows never reached the target intact; max |CAN - clean run| (°C): "
+              + ", ".join(f"{t} {fmt(agreement.max_abs_can_minus_clean_C.get(t), 4)}" for t in temps))
     print("max |float32 - float64| (°C): " + ", ".join(
-        f"{t} {fmt(m['max_abs_float32_minus_float64_C'][t], 4)}" for t in temps))
-    print("RMSE (°C): " + ", ".join(f"{t} {fmt(s['rmse_C'][t])} (vs {m['rmse_reference'][t]})" for t in temps))
-    st, rtt = s["step_time_us"], m["round_trip_us"]
-    print(f"step time on the target process p50/p99/max: {fmt(st['p50'], 1)}/{fmt(st['p99'], 1)}/"
-          f"{fmt(st['max'], 1)} µs;"
-          f" estimated C28x: {m['est_cycles']} cycles = {fmt(m['est_exec_time_us'], 1)} µs at 90 MHz "
-          f"({fmt(m['cpu_load_percent'], 4)} % CPU), flash {m.get('est_flash_bytes', m['flash_bytes'])} B, "
-          f"RAM {m.get('est_ram_bytes', m['ram_bytes'])} B")
-    if m.get("engine") == "firmware":
-        cycles, exec_us = m["m4_cycles"] or {}, m["m4_exec_time_us"] or {}
-        print(f"firmware engine, measured Cortex-M4F (emulated): {cycles.get('p50')} cycles p50, "
-              f"{cycles.get('max')} max = {fmt(exec_us.get('p50'), 1)} µs at {m['m4_clock_mhz']:g} MHz; "
-              f"ELF flash {m['flash_bytes']} B, RAM {m['ram_bytes']} B")
-    print(f"throughput {fmt(s['throughput_steps_per_s'], 0)} steps/s, round trip p50/p99 "
-          f"{fmt(rtt['p50'], 0)}/{fmt(rtt['p99'], 0)} µs, bus load at the data rate "
-          f"{fmt(m['bus_load']['data_rate_percent'], 2)} %")
-    faults = s.get("faults") or m.get("faults")
+        f"{t} {fmt(accuracy.max_abs_float32_minus_float64_C.get(t), 4)}" for t in temps))
+    print("RMSE (°C): " + ", ".join(f"{t} {fmt(accuracy.rmse_C.get(t))} (vs {accuracy.rmse_reference.get(t)})"
+                                    for t in temps))
+    st, rtt = timing.step_time_us, m.throughput.round_trip_us
+    print(f"step time on the target process p50/p99/max: {fmt(st.p50, 1)}/{fmt(st.p99, 1)}/{fmt(st.max, 1)} µs;"
+          f" estimated C28x: {timing.est_cycles} cycles = {fmt(timing.est_exec_time_us, 1)} µs at 90 MHz "
+          f"({fmt(timing.cpu_load_percent, 4)} % CPU), flash {m.memory.est_flash_bytes} B, "
+          f"RAM {m.memory.est_ram_bytes} B")
+    if timing.engine == "firmware":
+        cycles, exec_us = timing.m4_cycles, timing.m4_exec_time_us
+        print(f"firmware engine, measured Cortex-M4F (emulated): {cycles and cycles.p50} cycles p50, "
+              f"{cycles and cycles.max} max = {fmt(exec_us and exec_us.p50, 1)} µs at {timing.m4_clock_mhz:g} MHz; "
+              f"ELF flash {m.memory.flash_bytes} B, RAM {m.memory.ram_bytes} B")
+    print(f"throughput {fmt(m.throughput.throughput_steps_per_s, 0)} steps/s, round trip p50/p99 "
+          f"{fmt(rtt.p50, 0)}/{fmt(rtt.p99, 0)} µs, bus load at the data rate "
+          f"{fmt(m.bus_load.data_rate_percent, 2)} %")
+    faults = faults or m.faults
     if faults:
-        detected = faults["detected"] or {}
+        detected = faults.detected or {}
         print("faults injected/detected: " + ", ".join(
-            f"{k} {n}/{'?' if detected.get(k) is None else detected[k]}" for k, n in faults["injected"].items())
-            + f"; {faults['retransmitted_rows']} rows retransmitted, {len(faults['gaps'])} gap(s)"
-            + "".join(f" rows {g['rows'][0]}-{g['rows'][1]}" for g in faults["gaps"][:5]))
-    print(f"log {s['log']}" + (f", report {s['report']}" if s.get("report") else ""))
-    for note in m.get("notes", []):
+            f"{k} {n}/{'?' if detected.get(k) is None else detected[k]}" for k, n in faults.injected.items())
+            + f"; {faults.retransmitted_rows} rows retransmitted, {len(faults.gaps)} gap(s)"
+            + "".join(f" rows {g.rows[0]}-{g.rows[1]}" for g in faults.gaps[:5]))
+    print(f"log {m.integrity.log}" + (f", report {m.report}" if m.report else ""))
+    for note in m.notes:
         print(f"note: {note}")
-    if s["problems"]:
-        print("NOT clean: " + "; ".join(s["problems"]))
-    elif faults and faults.get("injected_total"):
-        print(f"{faults['injected_total']} faults injected, "
-              + ("all detected" if faults.get("undetected") == 0 else "detection not verified")
+    if problems:
+        print("NOT clean: " + "; ".join(problems))
+    elif faults and faults.injected_total:
+        print(f"{faults.injected_total} faults injected, "
+              + ("all detected" if faults.undetected == 0 else "detection not verified")
               + ", nothing else went wrong")
     else:
         print("clean")
@@ -189,6 +163,7 @@ def print_summary(s: dict) -> None:
 # ---------------------------------------------------------------- a user's data: --mapping and --sample-period
 
 if TYPE_CHECKING:  # the CLI imports every subcommand at start: the loader only when a command runs
+    from bench.analysis.results import FaultResults, HostFaults, RunResults
     from bench.drive.dataset import ColumnMapping
 
 

@@ -25,6 +25,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from bench.analysis.results import RunResults
 from bench.commands.args import bus_from_args, positive_float, positive_int
 from bench.commands.common import add_engine_argument, add_output_flags, check_writable, fmt, print_json
 from bench.errors import UsageError
@@ -118,34 +119,35 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
                                       firmware=firmware)
         finally:
             bar.close()
-        metrics, found = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate)
+        results, found = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate)
         # the host and the log analysis may both see one problem (a clamped value): report it once
-        table.append(table_row(artifact, model_path, metrics, list(dict.fromkeys(outcome.result.problems() + found))))
+        table.append(table_row(artifact, model_path, results, list(dict.fromkeys(outcome.result.problems() + found))))
     return table
 
 
-def table_row(artifact: ModelArtifact, path: Path, m: dict, found: list[str]) -> dict:
+def table_row(artifact: ModelArtifact, path: Path, m: RunResults, found: list[str]) -> dict:
+    timing, memory, accuracy = m.timing, m.memory, m.accuracy
+    firmware = timing.engine == "firmware"
     return {
         "model": str(path), "kind": artifact.kind, "realization": artifact.realization, "dt_s": artifact.dt,
-        "model_id": f"{artifact.model_id:08x}", "steps": m["steps_sent"], "model_steps": m["model_steps"],
-        "missing": m["missing"],
-        "measured_step_us_p50": m["step_time_us"]["p50"], "measured_step_us_p99": m["step_time_us"]["p99"],
-        "est_cycles": m["est_cycles"], "est_exec_us_90MHz": m["est_exec_time_us"],
-        "m4_cycles_p50": (m["m4_cycles"] or {}).get("p50"), "m4_cycles_max": (m["m4_cycles"] or {}).get("max"),
-        "m4_exec_us_90MHz": (m["m4_exec_time_us"] or {}).get("p50"),
-        "cpu_load_percent": m["cpu_load_percent"], "engine": m["engine"],
-        "est_flash_bytes": m["est_flash_bytes"], "est_ram_bytes": m["est_ram_bytes"],
-        "m4_flash_bytes": m["flash_bytes"] if m["engine"] == "firmware" else None,
-        "m4_ram_bytes": m["ram_bytes"] if m["engine"] == "firmware" else None,
+        "model_id": f"{artifact.model_id:08x}", "steps": m.counts.steps_sent, "model_steps": m.counts.model_steps,
+        "missing": m.counts.missing,
+        "measured_step_us_p50": timing.step_time_us.p50, "measured_step_us_p99": timing.step_time_us.p99,
+        "est_cycles": timing.est_cycles, "est_exec_us_90MHz": timing.est_exec_time_us,
+        "m4_cycles_p50": timing.m4_cycles and timing.m4_cycles.p50,
+        "m4_cycles_max": timing.m4_cycles and timing.m4_cycles.max,
+        "m4_exec_us_90MHz": timing.m4_exec_time_us and timing.m4_exec_time_us.p50,
+        "cpu_load_percent": timing.cpu_load_percent, "engine": timing.engine,
+        "est_flash_bytes": memory.est_flash_bytes, "est_ram_bytes": memory.est_ram_bytes,
+        "m4_flash_bytes": memory.flash_bytes if firmware else None,
+        "m4_ram_bytes": memory.ram_bytes if firmware else None,
         # what TargetInfo carried: the ELF's figures with the firmware engine, else the estimate
-        "flash_bytes": m["flash_bytes"], "ram_bytes": m["ram_bytes"],
-        "rmse_winding_C": m["rmse_C"]["winding"], "rmse_magnet_C": m["rmse_C"]["magnet"],
-        "rmse_reference": m["rmse_reference"]["winding"],
-        "max_abs_can_minus_float32_C": max((v for v in m["max_abs_can_minus_float32_C"].values() if v is not None),
-                                           default=None),
-        "max_abs_float32_minus_float64_C": max(
-            (v for v in m["max_abs_float32_minus_float64_C"].values() if v is not None), default=None),
-        "throughput_steps_per_s": m["throughput_steps_per_s"], "problems": found, "notes": m.get("notes", []),
+        "flash_bytes": memory.flash_bytes, "ram_bytes": memory.ram_bytes,
+        "rmse_winding_C": accuracy.rmse_C.winding, "rmse_magnet_C": accuracy.rmse_C.magnet,
+        "rmse_reference": accuracy.rmse_reference.winding,
+        "max_abs_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C.worst(),
+        "max_abs_float32_minus_float64_C": accuracy.max_abs_float32_minus_float64_C.worst(),
+        "throughput_steps_per_s": m.throughput.throughput_steps_per_s, "problems": found, "notes": m.notes,
     }
 
 

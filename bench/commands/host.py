@@ -130,19 +130,20 @@ def run_host(args: argparse.Namespace) -> int:
     finally:
         if bus is not None:
             bus.shutdown()
-    problems = result.problems()
-    note = fault_note(result.faults)
-    if note and not args.tolerate_faults:
-        problems.append(note)
+    from bench.analysis.results import SCHEMA_KEY, SCHEMA_VERSION
+    from bench.analysis.verdict import verdict
+
+    outcome = verdict(result.problems(), fault_note(result.faults), faulted=result.faults is not None,
+                      tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
+    problems = outcome.problems
     if args.json:
         injected = bool(result.faults and result.faults["injected_total"])
-        print_json({**result.to_dict(), "problems": problems, "clean": not problems and not injected})
+        print_json({SCHEMA_KEY: SCHEMA_VERSION, **result.to_dict(), "problems": problems,
+                    "clean": not problems and not injected})
     else:
         print(f"{result.rows_sent} rows sent, {result.replies} answered, {result.missing} missing, "
               f"{result.rows_per_s:.0f} rows/s, round trip p50 {result.round_trip_us['p50'] or 0:.0f} µs; "
               f"log {result.log_path}")
         for problem in problems:
             print(f"bench: host: {problem}", file=sys.stderr)
-    if problems and (result.faults is not None or not args.tolerate_gaps):  # --tolerate-gaps: not for faults
-        return 1
-    return 0
+    return outcome.status   # --tolerate-gaps: not for faults (the shared rule)

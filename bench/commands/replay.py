@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.analysis.logdecode import BusRecord, decode_log
+from bench.analysis.results import Percentiles, Rejections, ReplayResults, ReplyComparison
 from bench.commands.args import announce_logger, bus_from_args, positive_float
 from bench.commands.common import NAME_MAX, add_output_flags, check_writable, print_json
 from bench.errors import BenchError
@@ -106,18 +107,19 @@ def injected_faults(record: BusRecord) -> dict[str, int]:
     return dict(Counter(m.fault for m in record.marks if m.event == "fault" and m.fault))
 
 
-def compare_replies(recorded: np.ndarray, recorded_ok: np.ndarray, new: np.ndarray, new_ok: np.ndarray) -> dict:
+def compare_replies(recorded: np.ndarray, recorded_ok: np.ndarray, new: np.ndarray,
+                    new_ok: np.ndarray) -> ReplyComparison:
     rows = min(len(recorded), len(new))
     both = recorded_ok[:rows] & new_ok[:rows]
     same = np.all(recorded[:rows] == new[:rows], axis=1) & both
     diff = np.abs(recorded[:rows] - new[:rows])[both]
-    return {"rows_recorded": int(len(recorded)), "rows_replayed": int(len(new)),
-            "recorded_answered": int(np.count_nonzero(recorded_ok)),
-            "replayed_answered": int(np.count_nonzero(new_ok)),
-            "compared": int(np.count_nonzero(both)), "identical": int(np.count_nonzero(same)),
-            "different": int(np.count_nonzero(both & ~same)),
-            "missing_in_replay": int(np.count_nonzero(recorded_ok[:rows] & ~new_ok[:rows])),
-            "max_abs_difference_C": float(diff.max()) if diff.size else 0.0}
+    return ReplyComparison(rows_recorded=int(len(recorded)), rows_replayed=int(len(new)),
+                           recorded_answered=int(np.count_nonzero(recorded_ok)),
+                           replayed_answered=int(np.count_nonzero(new_ok)),
+                           compared=int(np.count_nonzero(both)), identical=int(np.count_nonzero(same)),
+                           different=int(np.count_nonzero(both & ~same)),
+                           missing_in_replay=int(np.count_nonzero(recorded_ok[:rows] & ~new_ok[:rows])),
+                           max_abs_difference_C=float(diff.max()) if diff.size else 0.0)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -161,27 +163,27 @@ def run(args: argparse.Namespace) -> int:
     # and the recorded counters of a log whose target restarted are only those of its last process
     compare_rejections = bool(faults) and not args.no_start_target and not restarted
     same_rejections = not compare_rejections or replayed.rx_errors == recorded.rx_errors
-    reproduced = (comparison["different"] == 0 and comparison["missing_in_replay"] == 0
-                  and comparison["compared"] == comparison["recorded_answered"] and same_rejections)
+    reproduced = (comparison.different == 0 and comparison.missing_in_replay == 0
+                  and comparison.compared == comparison.recorded_answered and same_rejections)
     # of a faulted log, the passes the faults left unanswered and the target's rejections are expected
     problems = (replace(result, missing=0, target_rx_errors={}) if faults else result).problems()
     if not same_rejections:
         problems.append(f"the target's rejections {replayed.rx_errors} differ from the recorded "
                         f"{recorded.rx_errors}")
-    summary = {"log": str(path), "replay_log": result.log_path, "reproduced": reproduced, **comparison,
-               "engine": None if args.no_start_target else engine, "m4_cycles": result.m4_cycles,
-               "faults_in_log": faults or None,
-               "rejections_compared": compare_rejections,
-               "target_rejections": {"recorded": recorded.rx_errors, "replayed": replayed.rx_errors},
-               "mode": result.mode, "speed": result.speed, "wall_time_s": result.wall_time_s,
-               "rows_per_s": result.rows_per_s, "round_trip_us": result.round_trip_us, "problems": problems}
+    summary = ReplayResults(
+        log=str(path), replay_log=result.log_path, reproduced=reproduced, comparison=comparison,
+        engine=None if args.no_start_target else engine, m4_cycles=result.m4_cycles, faults_in_log=faults or None,
+        rejections_compared=compare_rejections,
+        target_rejections=Rejections(recorded=recorded.rx_errors, replayed=replayed.rx_errors),
+        mode=result.mode, speed=result.speed, wall_time_s=result.wall_time_s, rows_per_s=result.rows_per_s,
+        round_trip_us=Percentiles(**result.round_trip_us), problems=problems)
     if args.json:
-        print_json(summary)
+        print_json(summary.to_json())
     else:
-        print(f"replayed {comparison['rows_replayed']} rows in {result.wall_time_s:.2f} s: "
-              f"{comparison['identical']} of {comparison['recorded_answered']} recorded replies identical, "
-              f"{comparison['different']} different (max {comparison['max_abs_difference_C']:.4f} °C), "
-              f"{comparison['missing_in_replay']} missing")
+        print(f"replayed {comparison.rows_replayed} rows in {result.wall_time_s:.2f} s: "
+              f"{comparison.identical} of {comparison.recorded_answered} recorded replies identical, "
+              f"{comparison.different} different (max {comparison.max_abs_difference_C:.4f} °C), "
+              f"{comparison.missing_in_replay} missing")
         if faults:
             print(f"faults in the log: {', '.join(f'{k} {n}' for k, n in faults.items())}; target rejections "
                   f"recorded {recorded.rx_errors}, replayed {replayed.rx_errors}")

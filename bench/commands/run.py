@@ -41,6 +41,7 @@ import sys
 import time
 from pathlib import Path
 
+from bench.analysis.results import BusInfo, HostFaults, NodeCycles, RunResults, RunSummary
 from bench.commands.args import announce_logger, bus_from_args, positive_float, positive_int
 from bench.commands.common import (
     add_data_arguments,
@@ -51,7 +52,6 @@ from bench.commands.common import (
     data_options,
     print_json,
     print_summary,
-    verdict,
 )
 from bench.errors import BenchError, UsageError
 from bench.progress import ProgressBar
@@ -153,97 +153,60 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     host = outcome.result
     from bench.analysis.report import analyze_log
+    from bench.analysis.verdict import verdict
 
     node_cycles = _node_cycles(outcome.target_stats)
     run_info = {"mode": f"{args.mode}" + (f" x{args.speed:g}" if args.mode == "realtime" else ""),
                 "bus": bus.describe(), "engine": _engine_label(args.engine, firmware),
-                "node_cycles": _node_cycles_text(node_cycles)}
+                "node_cycles": node_cycles.text() if node_cycles else None}
     try:
-        metrics, found = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
+        results, found = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
                                      args.report, bitrate=bus.nominal_bitrate, run_info=run_info,
                                      extra_problems=host.problems())
     except (LogError, ValueError) as exc:
         raise BenchError(f"the log {log_path} cannot be analyzed ({exc})") from None
     outcome = verdict(host.problems() + found, fault_note(host.faults), faulted=host.faults is not None,
                       tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
-    summary = json_summary(metrics, host, outcome.problems, time.perf_counter() - started, bus, args.engine,
-                           firmware)
-    summary["node_cycles"] = node_cycles
+    summary = run_summary(results, host, outcome.problems, time.perf_counter() - started, bus, args.engine,
+                          firmware, node_cycles)
     if args.json:
-        print_json(summary)
+        print_json(summary.to_json())
     else:
-        print_summary(summary)
+        print_summary(results, summary.problems, summary.faults)
     return outcome.exit_status("the run", args.json)
 
 
-def bus_summary(bus: BusConfig) -> dict:
+def bus_summary(bus: BusConfig) -> BusInfo:
     """The bus a run used, `auto` resolved (a script needs it to reach the same bus, e.g. its udp port)."""
-    out = {"interface": bus.interface, "channel": bus.channel}
-    if bus.interface == UDP_INTERFACE and "port" in bus.kwargs:
-        out["port"] = bus.kwargs["port"]
-    return out
+    port = bus.kwargs.get("port") if bus.interface == UDP_INTERFACE else None
+    return BusInfo(bus.interface, bus.channel, port)
 
 
-def _node_cycles(stats: dict | None) -> dict | None:
+def _node_cycles(stats: dict | None) -> NodeCycles | None:
     """The firmware node's cycles per received frame and per reply frame (model steps excluded), from its stats."""
     if not stats or stats.get("engine") != "firmware":
         return None
-    return {"per_received_frame": stats.get("frame_cycles"), "per_reply_frame": stats.get("reply_cycles"),
-            "stack_used_bytes": stats.get("stack_used_bytes"), "tx_dropped": stats.get("tx_dropped")}
-
-
-def _node_cycles_text(node_cycles: dict | None) -> str | None:
-    if node_cycles is None:
-        return None
-    frame, reply = node_cycles["per_received_frame"] or {}, node_cycles["per_reply_frame"] or {}
-    return (f"{frame.get('p50')} / {frame.get('max')} per received frame, {reply.get('p50')} / {reply.get('max')} "
-            f"per reply frame; stack used {node_cycles['stack_used_bytes']} B")
+    return NodeCycles(per_received_frame=stats.get("frame_cycles"), per_reply_frame=stats.get("reply_cycles"),
+                      stack_used_bytes=stats.get("stack_used_bytes"), tx_dropped=stats.get("tx_dropped"))
 
 
 def _engine_label(engine: str, firmware: Path | None) -> str:
     return f"firmware ({firmware.name}, emulated Cortex-M4F)" if firmware is not None else f"{engine} (float32 model)"
 
 
-def json_summary(metrics: dict, host, found: list[str], elapsed_s: float, bus: BusConfig, engine: str | None = None,
-                 firmware: Path | None = None) -> dict:
-    """What `--json` prints: the brief's numbers first, then the rest of the metrics (`engine`: the target's, by
-    default what the log shows: Timing4 frames come from the firmware engine)."""
-    return {
-        "engine": engine or metrics.get("engine"),
-        "firmware": str(firmware) if firmware is not None else None,
-        "steps_sent": metrics["steps_sent"],
-        "replies": metrics["replies"],
-        "missing": metrics["missing"],
-        "max_abs_can_minus_float32_C": metrics["max_abs_can_minus_float32_C"],
-        "rmse_C": metrics["rmse_C"],
-        "step_time_us": metrics["step_time_us"],
-        "est_cycles": metrics["est_cycles"],
-        "m4_cycles": metrics["m4_cycles"],
-        "flash_bytes": metrics["flash_bytes"],
-        "ram_bytes": metrics["ram_bytes"],
-        "memory_source": metrics["memory_source"],
-        "throughput_steps_per_s": metrics["throughput_steps_per_s"],
-        "log": metrics["log"],
-        "report": metrics.get("report"),
-        "bus": bus_summary(bus),
-        "problems": found,
-        "notes": metrics.get("notes", []),
-        "clean": not found and not (host.faults and host.faults["injected_total"]),
-        "faults": _fault_summary(host.faults, metrics.get("faults")),
-        "host": {k: v for k, v in host.to_dict().items() if k not in ("log_path", "faults")},
-        "metrics": {k: v for k, v in metrics.items() if k != "bus_load"}
-        | {"bus_load": {k: v for k, v in metrics["bus_load"].items() if not k.startswith("window_")}},
-        "elapsed_s": round(elapsed_s, 2),
-    }
-
-
-def _fault_summary(host_faults: dict | None, log_faults: dict | None) -> dict | None:
-    """The run's fault figures: the host's reconciliation, plus what the log's marks show."""
-    if host_faults is None:
-        return None
-    out = {k: v for k, v in host_faults.items() if k != "undetected_faults"}
-    out["undetected_faults"] = host_faults.get("undetected_faults", [])
-    if log_faults is not None:
-        out["marked_in_log"] = log_faults["injected"]
-        out["gaps_in_log"] = log_faults["gaps"]
-    return out
+def run_summary(results: RunResults, host, found: list[str], elapsed_s: float, bus: BusConfig,
+                engine: str | None = None, firmware: Path | None = None,
+                node_cycles: NodeCycles | None = None) -> RunSummary:
+    """What `--json` prints (`engine`: the target's, by default what the log shows: Timing4 frames come from the
+    firmware engine)."""
+    return RunSummary(
+        engine=engine or results.timing.engine,
+        firmware=str(firmware) if firmware is not None else None,
+        bus=bus_summary(bus),
+        problems=found,
+        clean=not found and not (host.faults and host.faults["injected_total"]),
+        faults=HostFaults.of_run(host.faults, results.faults),
+        host={k: v for k, v in host.to_dict().items() if k not in ("log_path", "faults")},
+        metrics=results,
+        elapsed_s=elapsed_s,
+        node_cycles=node_cycles)

@@ -73,7 +73,8 @@ def main() -> int:
         outcome = run_with_target(model_path, artifact, bus, drive, initial, sample_period_s=dataset.sample_period_s,
                                   log_path=log, reply_timeout_s=args.reply_timeout, faults=faults)
         record = decode_log(log)
-        metrics, _ = compute(record, artifact, dataset)
+        results, _ = compute(record, artifact, dataset)
+        metrics = results.to_json()
         read_back = sum(1 for _ in read_log(log))
         return outcome.result, record, metrics, read_back, time.perf_counter() - started
 

@@ -42,5 +42,6 @@ def bench_run(dataset_path: Path, log: Path, bus: BusConfig, faults=None, *, row
                               initial_temperatures(dataset), sample_period_s=dataset.sample_period_s, log_path=log,
                               faults=faults, firmware=firmware, **options)
     record = decode_log(log)
-    metrics, _ = compute(record, artifact, dataset)
+    results, _ = compute(record, artifact, dataset)
+    metrics = results.to_json()
     return outcome.result, metrics, record

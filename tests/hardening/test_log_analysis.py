@@ -12,14 +12,16 @@ import shutil
 import signal
 import subprocess
 import sys
+from dataclasses import replace
 
 import can
 import numpy as np
 import pytest
 
-from bench.analysis.canmetrics import compute, problems
+from bench.analysis.canmetrics import compute
 from bench.analysis.logdecode import decode_log
 from bench.analysis.report import render_markdown, write_report
+from bench.analysis.verdict import problems
 from bench.errors import BenchError
 from dbc import Command, FrameCodec, FrameValidator
 from dbc.codec import apply_crc, decode_any
@@ -133,12 +135,13 @@ def test_replayed_replies_of_another_run_never_reach_a_reported_temperature(lti,
     assert record.invalid["counter"] >= 2 * len(late)
     assert record.rejected["Temperatures1"] >= len(late) and record.rejected["Temperatures2"] >= len(late)
     assert record.foreign == {"second reply with other temperatures": 2 * len(aligned)}
-    metrics, _ = compute(record, lti)
+    results, _ = compute(record, lti)
+    metrics = results.to_json()
     assert metrics["contested_rows"] == len(aligned) and metrics["can_agrees_with_float32"]
-    found = problems(metrics)
+    found = problems(results)
     assert any(p.startswith(f"{len(aligned)} rows got a second reply with other temperatures") for p in found)
     assert any(p.startswith("the host's checks reject ") for p in found)
-    text = render_markdown(metrics, found, None, {})
+    text = render_markdown(results, found, None, {})
     assert "| invalid frames in the log (rejected by the host's checks" in text
     assert "counter " in text.split("| invalid frames in the log")[1].splitlines()[0]
     assert "Result: NOT clean" in text
@@ -179,8 +182,8 @@ def test_forged_frames_with_valid_crc_are_not_used_and_are_shown(lti, tmp_path):
     assert record.rejected["Status"] > 0 and record.rejected["RxErrors"] > 0
     reported = record.answered
     np.testing.assert_array_equal(record.temps[reported], genuine_temps(lti, values)[reported])
-    metrics, _ = compute(record, lti)
-    text = render_markdown(metrics, problems(metrics), None, {})
+    results, _ = compute(record, lti)
+    text = render_markdown(results, problems(results), None, {})
     receive = next(line for line in text.splitlines() if line.startswith("| target receive errors"))
     assert f"{record.rejected['RxErrors']} failed them and are not used" in receive
     seen = next(line for line in text.splitlines() if line.startswith("| target faults seen"))
@@ -192,8 +195,9 @@ def test_a_clean_session_has_nothing_rejected_or_foreign(lti, tmp_path):
     record = decode_log(write(tmp_path / "clean.blf", session(lti, values)))
     assert (record.invalid, record.rejected, record.foreign, record.complete) == ({}, {}, {}, True)
     np.testing.assert_array_equal(record.temps, genuine_temps(lti, values))
-    metrics, _ = compute(record, lti)
-    assert problems(metrics) == [] and metrics["null_values"] == {}
+    results, _ = compute(record, lti)
+    metrics = results.to_json()
+    assert problems(results) == [] and metrics["null_values"] == {}
 
 
 # ---------------------------------------------------------------------------------------------- item 8
@@ -210,9 +214,10 @@ def test_a_partial_blf_of_a_killed_run_is_incomplete(lti, tmp_path):
     record = decode_log(partial)
     assert record.rows > 100 and record.answered.all()        # every row in the file was answered
     assert (record.stopped, record.unclosed, record.complete) == (False, True, False)
-    metrics, _ = compute(record, lti)
+    results, _ = compute(record, lti)
+    metrics = results.to_json()
     assert metrics["log_complete"] is False
-    assert problems(metrics)[0] == (f"the log is incomplete (its .blf was never closed by its writer: a run that was "
+    assert problems(results)[0] == (f"the log is incomplete (its .blf was never closed by its writer: a run that was "
                                     f"killed, or a partial file); its last row is {record.rows - 1} and what came "
                                     "after it is missing")
 
@@ -220,9 +225,9 @@ def test_a_partial_blf_of_a_killed_run_is_incomplete(lti, tmp_path):
 def test_a_log_without_stop_is_incomplete(lti, tmp_path):
     record = decode_log(write(tmp_path / "nostop.asc", session(lti, drive(60, 6), stop=False)))
     assert (record.stopped, record.unclosed, record.complete) == (False, False, False)
-    metrics, _ = compute(record, lti)
+    results, _ = compute(record, lti)
     assert any(p.startswith("the log is incomplete (it ends without the host's Control STOP") for p in
-               problems(metrics))
+               problems(results))
 
 
 # ---------------------------------------------------------------------------------------------- item 5
@@ -230,10 +235,10 @@ def test_a_log_without_stop_is_incomplete(lti, tmp_path):
 def analyzed(lti, tmp_path):
     """(record, metrics, refs, problems) of a clean 200-row session, and an earlier report in tmp/report."""
     record = decode_log(write(tmp_path / "run.blf", session(lti, drive(200, 8))))
-    metrics, refs = compute(record, lti)
+    results, refs = compute(record, lti)
     report = tmp_path / "report"
-    write_report(report, metrics, problems(metrics), record, refs, None, {})
-    return record, metrics, refs, report
+    write_report(report, results, problems(results), record, refs, None, {})
+    return record, results, refs, report
 
 
 def snapshot(directory) -> tuple[list[str], dict[str, bytes]]:
@@ -245,7 +250,7 @@ def snapshot(directory) -> tuple[list[str], dict[str, bytes]]:
 def test_ctrl_c_while_the_report_is_written_leaves_the_earlier_report(analyzed, monkeypatch):
     import matplotlib.figure
 
-    record, metrics, refs, report = analyzed
+    record, results, refs, report = analyzed
     before = snapshot(report)
     saved = matplotlib.figure.Figure.savefig
     calls = []
@@ -258,14 +263,15 @@ def test_ctrl_c_while_the_report_is_written_leaves_the_earlier_report(analyzed, 
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        write_report(report, {**metrics, "model": {**metrics["model"], "id": "0badf00d"}}, [], record, refs, None, {})
+        write_report(report, replace(results, model=replace(results.model, id="0badf00d")), [], record, refs,
+                     None, {})
     assert snapshot(report) == before                     # no new figure beside the old report.md, no temporary
 
 
 def test_a_full_disk_while_the_report_is_written_names_the_file_and_changes_nothing(analyzed, lti, tmp_path):
     """`bench analyze` with a file-size limit (EFBIG, as a full disk's ENOSPC): one sentence naming the figure it
     could not write, exit 1, the earlier report as it was and no temporary left beside it."""
-    record, metrics, refs, report = analyzed
+    record, results, refs, report = analyzed
     artifact = tmp_path / "lti.json"
     artifact.write_text(json.dumps(lti.content), encoding="utf-8")
     before = snapshot(report)
@@ -286,12 +292,12 @@ def test_a_full_disk_while_the_report_is_written_names_the_file_and_changes_noth
 
 
 def test_a_report_directory_with_other_files_is_refused_before_anything(analyzed, tmp_path):
-    record, metrics, refs, _ = analyzed
+    record, results, refs, _ = analyzed
     busy = tmp_path / "busy"
     busy.mkdir()
     (busy / "notes.txt").write_text("mine\n")
     with pytest.raises(BenchError) as info:
-        write_report(busy, metrics, [], record, refs, None, {})
+        write_report(busy, results, [], record, refs, None, {})
     assert str(info.value) == (f"--report {busy} holds notes.txt, which is not a report this bench wrote; choose an "
                                "empty or new directory for --report")
     assert sorted(os.listdir(busy)) == ["notes.txt"]

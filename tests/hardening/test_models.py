@@ -144,14 +144,16 @@ def session_log(path, artifact, rows: int, seed: int = 3):
 def test_a_run_whose_values_saturated_is_not_clean(tmp_path):
     """The `original` realization diverges in float32 within 1000 rows: the target clamps (SATURATED), and the
     analysis says the run is not clean (before, a note and a clean verdict)."""
-    from bench.analysis.canmetrics import compute, problems
+    from bench.analysis.canmetrics import compute
     from bench.analysis.logdecode import decode_log
+    from bench.analysis.verdict import problems
 
     original = verify(json.loads(artifact_text("lti-lptn", "original")))
     record = decode_log(session_log(tmp_path / "original.blf", original, 1000))
-    metrics, _ = compute(record, original)
+    results, _ = compute(record, original)
+    metrics = results.to_json()
     assert metrics["saturated_values"] > 0 and "SATURATED" in metrics["target_faults_seen"]
-    found = problems(metrics)
+    found = problems(results)
     assert f"{metrics['saturated_values']} float32 values of the model lay outside the DBC range (-50..600 °C) or " \
            "were not finite, so the target clamped them (SATURATED): the CAN temperatures there are not the " \
            "model's" in found
@@ -177,9 +179,10 @@ def test_the_host_result_of_a_run_that_clamped_is_not_clean():
 def test_the_report_and_its_json_never_hold_inf_or_nan(tmp_path):
     """A × 2 (built past the loader, which now refuses it): the float32 model overflows; metrics.json is strict
     JSON with null and a reason for every value that is not finite, report.md prints none, the run is not clean."""
-    from bench.analysis.canmetrics import compute, problems
+    from bench.analysis.canmetrics import compute
     from bench.analysis.logdecode import decode_log
     from bench.analysis.report import write_report
+    from bench.analysis.verdict import problems
     from target_sim.artifact import ModelArtifact
 
     def double(c):
@@ -187,9 +190,10 @@ def test_the_report_and_its_json_never_hold_inf_or_nan(tmp_path):
 
     unstable = ModelArtifact(resealed(artifact_text("lti-lptn"), double), None)
     record = decode_log(session_log(tmp_path / "doubled.blf", unstable, 600))
-    metrics, refs = compute(record, unstable)
-    found = problems(metrics)
-    write_report(tmp_path / "report", metrics, found, record, refs, None, {})
+    results, refs = compute(record, unstable)
+    metrics = results.to_json()
+    found = problems(results)
+    write_report(tmp_path / "report", results, found, record, refs, None, {})
     text = (tmp_path / "report" / "report.md").read_text(encoding="utf-8")
 
     def strict(token):

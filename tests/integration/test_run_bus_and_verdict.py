@@ -9,7 +9,7 @@ import time
 import can
 import pytest
 
-from bench.commands.common import verdict
+from bench.analysis.verdict import verdict
 from bench.errors import BenchError
 from bench.runner import refuse_foreign_target
 from dbc import FrameCodec, dbc_version_info

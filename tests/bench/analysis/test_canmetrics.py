@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.analysis.canmetrics import float64_reference, frame_bits
+from bench.analysis.busload import frame_bits
+from bench.analysis.canmetrics import float64_reference
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
 

@@ -76,7 +76,8 @@ def test_a_log_with_currents_decodes_to_six_columns_and_the_references_use_them(
     record = decode_log(tmp_path / "run.asc")
     np.testing.assert_allclose(record.drive, values, atol=1e-9)
     assert record.answered.all()
-    metrics, refs = compute(record, electrical)
+    results, refs = compute(record, electrical)
+    metrics = results.to_json()
     assert metrics["can_agrees_with_float32"] and metrics["model"]["loss_model"] == "electrical"
     assert all(v <= 0.005 + 1e-9 for v in metrics["max_abs_can_minus_float32_C"].values())
     assert metrics["rows_lost_on_the_bus"] == 0 and metrics["model_steps"] == 16
@@ -93,7 +94,8 @@ def test_a_drive_currents_of_another_step_loses_the_row_as_at_the_target(electri
     expected[11, 4:] = np.nan           # the row's currents came after a DriveCurrents of another Step
     np.testing.assert_allclose(record.drive, expected, atol=1e-9)
     assert not record.answered[11] and np.count_nonzero(record.answered) == 39
-    metrics, _ = compute(record, electrical)
+    results, _ = compute(record, electrical)
+    metrics = results.to_json()
     assert (metrics["rows_lost_on_the_bus"], metrics["can_reference"]) == (1, "target twin")
     assert metrics["can_agrees_with_float32"] and all(v == 0 for v in metrics["max_abs_can_minus_float32_C"].values())
 
@@ -104,7 +106,8 @@ def test_a_loss_map_model_uses_the_first_four_columns(artifacts, tmp_path):
     write_session(tmp_path / "maps.asc", lti, values)
     record = decode_log(tmp_path / "maps.asc")
     assert record.drive.shape == (30, 6)
-    metrics, refs = compute(record, lti)
+    results, refs = compute(record, lti)
+    metrics = results.to_json()
     assert metrics["can_agrees_with_float32"] and metrics["replies"] == 30
     _, expected = run_offline(lti, values[:, :4], record.initial)
     np.testing.assert_array_equal(refs.f32, expected.astype(np.float64))

@@ -5,14 +5,18 @@ from __future__ import annotations
 
 import json
 import sqlite3
+from dataclasses import replace
 
 import pytest
 
+from bench.analysis.results import HostFaults
 from bench.campaign.execute import pending_runs, table_row
 from bench.campaign.report import verdict_matrix
 from bench.campaign.spec import parse_spec
 from bench.campaign.store import TABLE_NAME, Store, StoreError, flatten
 from bench.cli import main
+
+from helpers import example_results, example_summary
 
 SPEC = """
 [fixed]
@@ -25,21 +29,15 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 
 def summary(clean: bool = True, winding: float = 0.5, pm: float = 0.25, faults: dict | None = None) -> dict:
-    """The fields of a `bench run --json` summary the table reads (a real one has many more)."""
+    """A `bench run --json` summary (`RunSummary.to_json`) with these RMSEs and injected faults."""
+    results = example_results()
+    results.accuracy.rmse_C = replace(results.accuracy.rmse_C, winding=winding, magnet=pm)
     injected = faults or {}
-    return {
-        "engine": "firmware", "steps_sent": 300, "replies": 300, "missing": 0, "clean": clean,
-        "max_abs_can_minus_float32_C": {"yoke": 0.001, "winding": 0.0049, "tooth": 0.002, "magnet": 0.003},
-        "rmse_C": {"yoke": 1.0, "winding": winding, "tooth": 2.0, "magnet": pm},
-        "step_time_us": {"p50": 101.5, "p99": 180.0, "max": 331.0}, "est_cycles": 1989,
-        "m4_cycles": {"p50": 1403, "max": 1410}, "throughput_steps_per_s": 1083.0, "log": "/x/bench.blf",
-        "report": None, "bus": {"interface": "udp_multicast", "channel": "ff11::1", "port": 40000},
-        "problems": [] if clean else ["3 of 300 rows got no reply"], "elapsed_s": 8.5,
-        "metrics": {"model": {"id": "5db6a7f2", "kind": "hammerstein"}},
-        "faults": {"injected": injected, "detected": dict(injected), "injected_total": sum(injected.values()),
-                   "detected_total": sum(injected.values()), "undetected": 0, "retransmitted_rows": 4,
-                   "gaps": [{"rows": [1, 2]}]} if faults else None,
-    }
+    host_faults = HostFaults.of_run(
+        {"injected": injected, "detected": dict(injected), "injected_total": sum(injected.values()),
+         "detected_total": sum(injected.values()), "undetected": 0, "retransmitted_rows": 4,
+         "gaps": [{"rows": [1, 2]}]}, None) if faults else None
+    return example_summary(clean, metrics=results, faults=host_faults).to_json()
 
 
 def outcome(s: dict | None, status: str = "done", verdict: str | None = "clean", code: int | None = 0,

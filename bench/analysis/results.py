@@ -1,0 +1,538 @@
+"""A run's results as typed objects, and their JSON.
+
+`RunResults` is what `canmetrics.compute` makes of a bus log (the report's metric table, `metrics.json`);
+`RunSummary` is what `bench run --json` prints (and the campaign stores): the run's verdict, bus, host figures and
+its RunResults; `LogSummary` is `bench analyze --json`; `ReplayResults` is `bench replay --json`.
+
+The JSON keeps the flat shape the bench always printed: a group marked `flat` (e.g. `Agreement`) puts its keys at
+its parent's level, so grouping the fields in Python changed no key. Every top-level JSON carries
+`schema_version`; `from_json` refuses another version in one sentence (`ResultsError`).
+"""
+
+from __future__ import annotations
+
+import types
+import typing
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
+from typing import Any, TypeVar
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+SCHEMA_KEY = "schema_version"
+
+FLAT = {"flat": True}             # a group: its keys sit at its parent's level of the JSON
+REST = {"rest": True}             # a dict of the keys no other field declares (another package's open record)
+OMIT_NONE = {"omit_none": True}   # a key the JSON had only when there was a value
+
+T = TypeVar("T")
+
+
+class ResultsError(ValueError):
+    """Results JSON this bench cannot read (another schema version, a missing key)."""
+
+
+# ------------------------------------------------------------------------------------------------ JSON machinery
+def _dump(value: Any) -> Any:
+    if is_dataclass(value) and not isinstance(value, type):
+        out: dict[str, Any] = {}
+        for f in fields(value):
+            item = getattr(value, f.name)
+            if f.metadata.get("flat") or f.metadata.get("rest"):
+                out.update(_dump(item))
+            elif not (item is None and f.metadata.get("omit_none")):
+                out[f.name] = _dump(item)
+        return out
+    if isinstance(value, dict):
+        return {str(k): _dump(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_dump(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _load(tp: Any, data: Any, where: str) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        if data is None:
+            return None
+        options = [a for a in typing.get_args(tp) if a is not type(None)]
+        classes = [a for a in options if is_dataclass(a)]
+        return _load(classes[0], data, where) if classes else data
+    if is_dataclass(tp):
+        if not isinstance(data, dict):
+            raise ResultsError(f"the results' {where or 'top level'} is not a JSON object")
+        return _load_fields(tp, data, where)[0]
+    if origin is dict:
+        value_type = typing.get_args(tp)[1]
+        return {k: _load(value_type, v, f"{where}.{k}") for k, v in data.items()}
+    if origin is list:
+        item_type = typing.get_args(tp)[0]
+        return [_load(item_type, v, f"{where}[{i}]") for i, v in enumerate(data)]
+    return data
+
+
+def _load_fields(cls: type[T], data: dict, where: str) -> tuple[T, set[str]]:
+    """An instance of dataclass `cls` from `data`, and the keys of `data` it used."""
+    hints = typing.get_type_hints(cls)
+    kwargs: dict[str, Any] = {}
+    used: set[str] = set()
+    rest = None
+    for f in fields(cls):  # type: ignore[arg-type]
+        if f.metadata.get("rest"):
+            rest = f.name
+        elif f.metadata.get("flat"):
+            kwargs[f.name], keys = _load_fields(hints[f.name], data, where)
+            used |= keys
+        elif f.name in data:
+            kwargs[f.name] = _load(hints[f.name], data[f.name], f"{where}.{f.name}" if where else f.name)
+            used.add(f.name)
+        elif f.default is MISSING and f.default_factory is MISSING:
+            raise ResultsError(f"the results lack {f'{where}.' if where else ''}{f.name}, which this bench needs; "
+                               "they were not written by `bench run` or `bench analyze`")
+    if rest is not None:
+        kwargs[rest] = {k: v for k, v in data.items() if k not in used}
+    return cls(**kwargs), used
+
+
+def finite_json(value: Any, nulls: dict[str, str], where: str = "") -> Any:
+    """`value` (JSON) with every float that is not finite replaced by None, the reason recorded in `nulls` under its
+    dotted path. JSON cannot hold inf or NaN, and a report must not print them."""
+    if isinstance(value, float | np.floating) and not np.isfinite(value):
+        nulls.setdefault(where, f"{float(value)!r}: not a finite number (the values overflowed)")
+        return None
+    if isinstance(value, dict):
+        return {k: finite_json(v, nulls, f"{where}.{k}" if where else str(k)) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite_json(v, nulls, f"{where}[{i}]") for i, v in enumerate(value)]
+    return value
+
+
+def check_schema(data: Any, what: str = "results") -> None:
+    """ResultsError (one sentence) unless `data` is a JSON object of this bench's results schema."""
+    if not isinstance(data, dict):
+        raise ResultsError(f"the {what} are not a JSON object")
+    version = data.get(SCHEMA_KEY)
+    if version != SCHEMA_VERSION:
+        found = "no schema_version" if version is None else f"schema_version {version!r}"
+        raise ResultsError(f"the {what} have {found}, this bench reads schema_version {SCHEMA_VERSION}; "
+                           "make them again with this bench")
+
+
+class _Json:
+    """to_json/from_json of a top-level result (with its schema version)."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {SCHEMA_KEY: SCHEMA_VERSION, **_dump(self)}
+
+    @classmethod
+    def from_json(cls: type[T], data: Any) -> T:
+        check_schema(data)
+        return _load_fields(cls, data, "")[0]
+
+
+# ------------------------------------------------------------------------------------------------ parts
+@dataclass
+class NodeValues:
+    """One figure per temperature node (None: none, or not finite)."""
+
+    yoke: float | None = None
+    winding: float | None = None
+    tooth: float | None = None
+    magnet: float | None = None
+
+    def values(self) -> list[float | None]:
+        return [self.yoke, self.winding, self.tooth, self.magnet]
+
+    def worst(self) -> float | None:
+        """The largest of the figures there are."""
+        return max((v for v in self.values() if v is not None), default=None)
+
+    def get(self, node: str) -> float | None:
+        return getattr(self, node)
+
+
+@dataclass
+class NodeLabels:
+    """What each node's RMSE is taken against ("measured" or "float64 model")."""
+
+    yoke: str
+    winding: str
+    tooth: str
+    magnet: str
+
+    def get(self, node: str) -> str:
+        return getattr(self, node)
+
+
+@dataclass
+class Percentiles:
+    p50: float | None
+    p99: float | None
+    max: float | None
+
+
+@dataclass
+class CycleFigures:
+    """{p50, max} of per-step figures (Timing4)."""
+
+    p50: int | float | None
+    max: int | float | None
+
+
+@dataclass
+class ModelInfo:
+    id: str
+    kind: str
+    realization: str
+    dt_s: float
+    loss_model: str
+    log_model_id: str | None
+
+
+@dataclass
+class Replies:
+    steps_sent: int
+    replies: int
+    missing: int
+    sequence_gaps: int
+    model_steps: int
+
+
+@dataclass
+class Agreement:
+    """CAN values against the float32 reference (restarted as the target was, or the target's twin)."""
+
+    max_abs_can_minus_float32_C: NodeValues
+    can_agrees_with_float32: bool
+    replies_compared: int
+    can_reference: str
+    rows_lost_on_the_bus: int
+    max_abs_can_minus_clean_C: NodeValues
+    segments: int
+    saturated_values: int
+
+
+@dataclass
+class NonFinite:
+    float32: int
+    float64: int
+
+
+@dataclass
+class MeasuredRmse:
+    winding: float | None
+    magnet: float | None
+
+
+@dataclass
+class Accuracy:
+    """The model: float32 against float64, RMSE of the CAN values per node."""
+
+    max_abs_float32_minus_float64_C: NodeValues
+    non_finite_values: NonFinite
+    rmse_C: NodeValues
+    rmse_reference: NodeLabels
+    model_rmse_vs_measured_C: dict[str, MeasuredRmse]
+
+
+@dataclass
+class Timing:
+    step_time_us: Percentiles
+    overruns: int
+    est_cycles: int | None
+    est_exec_time_us: float | None
+    cpu_load_percent: float | None
+    engine: str
+    m4_cycles: CycleFigures | None
+    m4_exec_time_us: CycleFigures | None
+    m4_clock_mhz: float
+
+
+@dataclass
+class Memory:
+    flash_bytes: int | None
+    ram_bytes: int | None
+    memory_source: str
+    est_flash_bytes: int
+    est_ram_bytes: int
+
+
+@dataclass
+class Throughput:
+    round_trip_us: Percentiles
+    wall_time_s: float | None
+    throughput_steps_per_s: float | None
+    throughput_model_steps_per_s: float | None
+
+
+@dataclass
+class Heartbeat:
+    frames: int
+    max_gap_s: float | None
+    losses: int
+
+
+@dataclass
+class Integrity:
+    """The bus and the log: heartbeat, rejected and foreign frames, completeness."""
+
+    heartbeat: Heartbeat
+    target_rx_errors: dict[str, int]
+    invalid_frames_in_log: dict[str, int]
+    rejected_target_frames: dict[str, int]
+    foreign_frames: dict[str, int]
+    contested_rows: int
+    target_faults_seen: list[str]
+    frames_in_log: int
+    log_complete: bool
+    log_stopped: bool
+    log_unclosed: bool
+    last_row: int
+    log: str
+
+
+@dataclass
+class FaultGap:
+    """A gap marked in the log: the target lost and re-initialized."""
+
+    rows: list[int]
+    lost_row: int | None
+    restart_row: int | None
+    duration_s: float | None
+    start_s: float | None
+
+
+@dataclass
+class FaultResults:
+    """The faults marked in a log (BenchEvent) and their detection from the `<log>.faults.json` sidecar."""
+
+    injected: dict[str, int]
+    injected_total: int
+    detected: dict[str, int | None] | None
+    undetected: int | None
+    detection: dict[str, str]
+    sidecar_injected_total: int | None
+    retransmitted_rows: int
+    gaps: list[FaultGap]
+    reinitializations: int
+    unexplained_deadline_misses: int | None
+    unexplained_deadline_miss_rows: list[int]
+    seed: int | None
+    mode: str | None
+    sidecar_problems: list[str] | None
+    sidecar: str | None
+
+    def as_note_input(self) -> dict[str, Any]:
+        """The dict `host.faults.fault_note` reads (host knows no bench types)."""
+        return _dump(self)
+
+
+@dataclass
+class BusLoad:
+    bitrate: int
+    bits_per_frame_mean: float | None
+    data_rate_percent: float | None
+    window_s: float | None = None
+    window_start_s: list[float] = field(default_factory=list)
+    window_percent: list[float] = field(default_factory=list)
+    replay_peak_percent: float | None = field(default=None, metadata=OMIT_NONE)
+
+
+def _without_windows(data: dict[str, Any]) -> dict[str, Any]:
+    """The bus load without its per-window series (the JSON summaries leave them to the figure)."""
+    return {k: v for k, v in data.items() if not k.startswith("window_")}
+
+
+# ------------------------------------------------------------------------------------------------ results
+@dataclass
+class RunResults(_Json):
+    """What the bench measured on a bus log (`canmetrics.compute`): the metric table of the report."""
+
+    model: ModelInfo
+    counts: Replies = field(metadata=FLAT)
+    agreement: Agreement = field(metadata=FLAT)
+    accuracy: Accuracy = field(metadata=FLAT)
+    timing: Timing = field(metadata=FLAT)
+    memory: Memory = field(metadata=FLAT)
+    throughput: Throughput = field(metadata=FLAT)
+    integrity: Integrity = field(metadata=FLAT)
+    faults: FaultResults | None
+    bus_load: BusLoad
+    notes: list[str] = field(default_factory=list)
+    null_values: dict[str, str] = field(default_factory=dict)
+    report: str | None = field(default=None, metadata=OMIT_NONE)   # report.md, once written
+
+    def to_json(self, *, windows: bool = True) -> dict[str, Any]:
+        """The JSON object; without `windows` the bus load leaves out its per-window series."""
+        data = super().to_json()
+        if not windows:
+            data["bus_load"] = _without_windows(data["bus_load"])
+        return data
+
+
+def finite_results(results: RunResults, nulls: dict[str, str]) -> RunResults:
+    """`results` with every value that is not finite null, and `null_values` saying why (`nulls`, which holds the
+    reasons found while computing, by the JSON path of the value)."""
+    data = results.to_json()
+    data.pop("null_values", None)
+    data = finite_json(data, nulls)
+    data["null_values"] = dict(nulls)
+    return RunResults.from_json(data)
+
+
+@dataclass
+class BusInfo:
+    """The bus a run used, `auto` resolved (a script needs it to reach the same bus, e.g. its udp port)."""
+
+    interface: str
+    channel: Any
+    port: int | None = field(default=None, metadata=OMIT_NONE)
+
+
+@dataclass
+class NodeCycles:
+    """The firmware node's cycles per received and per reply frame (model steps excluded), from its stats."""
+
+    per_received_frame: dict[str, Any] | None
+    per_reply_frame: dict[str, Any] | None
+    stack_used_bytes: int | None
+    tx_dropped: int | None
+
+    def text(self) -> str:
+        frame, reply = self.per_received_frame or {}, self.per_reply_frame or {}
+        return (f"{frame.get('p50')} / {frame.get('max')} per received frame, {reply.get('p50')} / "
+                f"{reply.get('max')} per reply frame; stack used {self.stack_used_bytes} B")
+
+
+@dataclass
+class HostGap:
+    """A gap the host recovered from (`host.faults` reconciliation)."""
+
+    rows: list[int]
+    lost_row: int | None = None
+    restart_row: int | None = None
+    reason: str | None = None
+    silent_s: float | None = None
+    duration_s: float | None = None
+
+
+@dataclass
+class HostFaults:
+    """The run's fault figures: the host's reconciliation (`host.faults.reconcile`, whose other keys are kept in
+    `other` as the host wrote them), plus what the log's marks show."""
+
+    injected: dict[str, int]
+    detected: dict[str, int | None]
+    injected_total: int
+    detected_total: int
+    undetected: int | None
+    retransmitted_rows: int
+    gaps: list[HostGap]
+    other: dict[str, Any] = field(default_factory=dict, metadata=REST)
+    undetected_faults: list[dict[str, Any]] = field(default_factory=list)
+    marked_in_log: dict[str, int] | None = field(default=None, metadata=OMIT_NONE)
+    gaps_in_log: list[FaultGap] | None = field(default=None, metadata=OMIT_NONE)
+
+    @classmethod
+    def of_run(cls, host_faults: dict | None, log_faults: FaultResults | None) -> HostFaults | None:
+        """The host's reconciliation (None: no faults), with the log's marks when the log has some."""
+        if host_faults is None:
+            return None
+        out = _load_fields(cls, {**host_faults, "undetected_faults": host_faults.get("undetected_faults", [])},
+                           "faults")[0]
+        if log_faults is not None:
+            out.marked_in_log, out.gaps_in_log = dict(log_faults.injected), list(log_faults.gaps)
+        return out
+
+
+@dataclass
+class RunSummary(_Json):
+    """What `bench run --json` prints: the brief's numbers first (copies of `metrics`' own, kept at the top for a
+    script), then the verdict, the bus, the host's figures and the metrics."""
+
+    engine: str | None
+    firmware: str | None
+    bus: BusInfo
+    problems: list[str]
+    clean: bool
+    faults: HostFaults | None
+    host: dict[str, Any]          # `host.results.HostResult.to_dict()` (the host package's record), less the above
+    metrics: RunResults
+    elapsed_s: float
+    node_cycles: NodeCycles | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        m = self.metrics
+        head = {
+            "engine": self.engine, "firmware": self.firmware,
+            "steps_sent": m.counts.steps_sent, "replies": m.counts.replies, "missing": m.counts.missing,
+            "max_abs_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C, "rmse_C": m.accuracy.rmse_C,
+            "step_time_us": m.timing.step_time_us, "est_cycles": m.timing.est_cycles,
+            "m4_cycles": m.timing.m4_cycles, "flash_bytes": m.memory.flash_bytes, "ram_bytes": m.memory.ram_bytes,
+            "memory_source": m.memory.memory_source, "throughput_steps_per_s": m.throughput.throughput_steps_per_s,
+            "log": m.integrity.log, "report": m.report, "bus": self.bus, "problems": self.problems,
+            "notes": m.notes, "clean": self.clean, "faults": self.faults, "host": self.host}
+        return {SCHEMA_KEY: SCHEMA_VERSION, **_dump(head), "metrics": m.to_json(windows=False),
+                "elapsed_s": round(self.elapsed_s, 2), "node_cycles": _dump(self.node_cycles)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> RunSummary:
+        check_schema(data, "run summary")
+        check_schema(data.get("metrics"), "run summary's metrics")
+        return _load_fields(cls, data, "")[0]
+
+
+@dataclass
+class LogSummary(_Json):
+    """What `bench analyze --json` prints: the log's metrics with the verdict."""
+
+    metrics: RunResults = field(metadata=FLAT)
+    problems: list[str] = field(default_factory=list)
+    clean: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        return {**self.metrics.to_json(windows=False), "problems": self.problems, "clean": self.clean}
+
+
+@dataclass
+class ReplyComparison:
+    """A replay's final reply per data row against the recorded one."""
+
+    rows_recorded: int
+    rows_replayed: int
+    recorded_answered: int
+    replayed_answered: int
+    compared: int
+    identical: int
+    different: int
+    missing_in_replay: int
+    max_abs_difference_C: float
+
+
+@dataclass
+class Rejections:
+    recorded: dict[str, int]
+    replayed: dict[str, int]
+
+
+@dataclass
+class ReplayResults(_Json):
+    """What `bench replay --json` prints."""
+
+    log: str
+    replay_log: str | None
+    reproduced: bool
+    comparison: ReplyComparison = field(metadata=FLAT)
+    engine: str | None
+    m4_cycles: dict[str, float | None] | None
+    faults_in_log: dict[str, int] | None
+    rejections_compared: bool
+    target_rejections: Rejections
+    mode: str
+    speed: float | None
+    wall_time_s: float
+    rows_per_s: float
+    round_trip_us: Percentiles
+    problems: list[str]

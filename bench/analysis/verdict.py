@@ -1,0 +1,130 @@
+"""The pass/fail rules of a run or a log: its problems (one sentence each), the notes about the model a report must
+not hide, and the `Verdict` (problems and exit status) that `bench run`, `bench analyze` and `bench host` share."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+from bench.analysis.results import RunResults
+
+QUANTIZATION_C = 0.005          # half the 0.01 °C resolution of the temperature signals
+DIVERGENCE_NOTE_C = 1.0
+
+
+def counts_text(counts: dict[str, int]) -> str:
+    """'kind n, kind n' of a dict of counts."""
+    return ", ".join(f"{k} {v}" for k, v in counts.items())
+
+
+def fault_note(results: RunResults) -> str | None:
+    """'N faults are marked in the log ...': what makes a faulted log non-zero without --tolerate-faults."""
+    from host.faults import fault_note as note
+
+    faults = results.faults.as_note_input() if results.faults is not None else None
+    return note(faults, what="injected fault(s) are marked in the log")
+
+
+def notes(results: RunResults) -> list[str]:
+    """Facts about the model (not faults of the run) the report must not hide."""
+    out = []
+    worst = results.accuracy.max_abs_float32_minus_float64_C.worst() or 0.0
+    realization = results.model.realization
+    if worst > DIVERGENCE_NOTE_C:
+        out.append(f"the float32 model departs from float64 by up to {worst:.4g} °C: the "
+                   f"{realization} realization does not survive single precision")
+    elif results.accuracy.non_finite_values.float32:
+        out.append(f"the float32 model overflows: the {realization} realization does not survive single precision")
+    return out
+
+
+def problems(results: RunResults) -> list[str]:
+    """Reasons the run is not clean, one sentence each.
+
+    Of a log with injected faults (BenchEvent marks), what the faults explain is not listed: the target's
+    rejections, and as many heartbeat losses as kills and freezes; an undetected fault is (see `fault_note` for
+    the sentence that faults were injected at all)."""
+    out = []
+    faults = results.faults
+    injected = faults.injected_total if faults else 0
+    process = sum(faults.injected.get(k, 0) for k in ("kill", "freeze")) if faults else 0
+    # in real time a faulted row stays unanswered: the sidecar judges those (unexplained deadline misses)
+    explained = faults is not None and faults.mode == "realtime" and faults.unexplained_deadline_misses == 0
+    counts, heartbeat = results.counts, results.integrity.heartbeat
+    if counts.missing and not explained:
+        out.append(f"{counts.missing} of {counts.steps_sent} steps got no reply ({counts.sequence_gaps} gaps)")
+    if heartbeat.losses > process:
+        extra = " more than the injected kills and freezes explain" if process else ""
+        out.append(f"the target's heartbeat was lost {heartbeat.losses - process} time(s){extra}")
+    if faults and faults.sidecar_problems:  # the same sentences the run gave (`host.faults.fault_problems`)
+        out += faults.sidecar_problems
+    agreement = results.agreement
+    if not agreement.can_agrees_with_float32:
+        worst = agreement.max_abs_can_minus_float32_C.worst()
+        out.append(f"CAN temperatures differ from the offline float32 reference by up to {worst:.4f} °C "
+                   f"(more than the {QUANTIZATION_C} °C quantization)")
+    bad = {k: v for k, v in results.integrity.target_rx_errors.items() if v}
+    if bad and not injected:
+        out.append(f"the target rejected or could not sequence frames: {bad}")
+    return out + integrity_problems(results, injected=bool(injected))
+
+
+def integrity_problems(results: RunResults, *, injected: bool = False) -> list[str]:
+    """What makes a log's numbers untrustworthy whatever the faults: an incomplete log, values the target could not
+    carry (clamped, not finite), frames that are not of this session, and (without injected faults, which explain
+    them) frames of the target that the host's checks reject."""
+    from host.results import clamped_problem
+
+    log = results.integrity
+    out = []
+    if not log.log_complete:
+        why = ("its .blf was never closed by its writer" if log.log_unclosed else
+               "it ends without the host's Control STOP")
+        out.append(f"the log is incomplete ({why}: a run that was killed, or a partial file); its last row is "
+                   f"{log.last_row} and what came after it is missing")
+    saturated, non_finite = results.agreement.saturated_values, results.accuracy.non_finite_values
+    if saturated:
+        out.append(f"{saturated} float32 values of the model lay outside the DBC range (-50..600 °C) or were not "
+                   "finite, so the target clamped them (SATURATED): the CAN temperatures there are not the model's")
+    if non_finite.float32 or non_finite.float64:
+        out.append(f"the model's estimate is not finite at {non_finite.float32} float32 and "
+                   f"{non_finite.float64} float64 values (it overflowed): those figures are null")
+    clamped = clamped_problem(log.target_faults_seen)
+    if clamped:
+        out.append(clamped)
+    if log.foreign_frames:
+        out.append(f"{sum(log.foreign_frames.values())} frames in the log pass the host's checks but are not of "
+                   f"this session ({counts_text(log.foreign_frames)}); none of them is used")
+    if log.contested_rows:
+        out.append(f"{log.contested_rows} rows got a second reply with other temperatures (a replayed or "
+                   "forged frame): their temperatures are not reported")
+    if log.rejected_target_frames and not injected:
+        out.append(f"the host's checks reject {sum(log.rejected_target_frames.values())} frames of the target in the "
+                   f"log ({counts_text(log.invalid_frames_in_log)}; {counts_text(log.rejected_target_frames)}): "
+                   "none of their values is used")
+    return out
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Whether a run, or the log of one, passes: the problems to report and the exit status."""
+
+    problems: list[str]
+    status: int
+
+    def exit_status(self, subject: str, as_json: bool) -> int:
+        """The status, after one sentence on stderr when it fails (with --json the problems are in the JSON)."""
+        if self.status and not as_json:
+            print(f"bench: error: {subject} is not clean: " + "; ".join(self.problems), file=sys.stderr)
+        return self.status
+
+
+def verdict(problems: list[str], fault_note: str | None, *, faulted: bool, tolerate_faults: bool,
+            tolerate_gaps: bool = False) -> Verdict:
+    """The rule of `bench run`, `bench analyze` and `bench host`: every problem fails (status 1); injected faults
+    are one (`fault_note`, the sentence that says so) unless tolerated; --tolerate-gaps forgives only a run without
+    faults, so an undetected fault, or anything the faults do not explain, always fails."""
+    found = list(dict.fromkeys(problems))
+    if fault_note and not tolerate_faults:
+        found.append(fault_note)
+    return Verdict(found, 1 if found and (faulted or not tolerate_gaps) else 0)
