@@ -24,6 +24,8 @@ COUNTER_MODULO = 16              # 4-bit alive counter in the low nibble of byte
 STEP_MODULO = 1 << 16            # `Step` is 16 bits: the data row number modulo 65536
 HEARTBEAT_MESSAGE = "Status"     # its GenMsgCycleTime in the DBC is the heartbeat period
 HEARTBEAT_TIMEOUT_S = 0.5        # five heartbeat periods without a Status: the target is lost
+# the bench's drive data rate (5 Hz): one data row per period, the DBC's GenMsgCycleTime of the row messages
+DRIVE_SAMPLE_PERIOD_S = 0.2
 
 FrameErrorKind = Literal["unknown_id", "wrong_length", "crc", "counter", "out_of_range"]
 FRAME_ERROR_KINDS: tuple[FrameErrorKind, ...] = get_args(FrameErrorKind)

@@ -57,9 +57,10 @@ import numpy as np
 
 from bench.errors import BenchError
 from bench.fileio import write_bytes_atomically
+from dbc.contract import DRIVE_SAMPLE_PERIOD_S
 
 SCHEMA_VERSION = 1
-SAMPLE_PERIOD_S = 0.2
+SAMPLE_PERIOD_S = DRIVE_SAMPLE_PERIOD_S   # the data rate the host replays rows at
 PM_OFFSET_K = 5.0
 # Relative tolerance on each time step; generated files are exact, logged data may jitter a little.
 TIME_TOLERANCE = 1e-3

@@ -15,6 +15,7 @@ from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import LptnParameters
 from bench.thermal.portable import inv
 from bench.thermal.realizations import Realization, condition_number, physical, realize
+from dbc.contract import DRIVE_SAMPLE_PERIOD_S
 from target_sim import artifact as schema
 from target_sim.kinds import MODEL_KINDS
 
@@ -55,7 +56,7 @@ class ModelSpec:
     realization: str
     loss_maps: LossModel               # LossMaps or ElectricalLosses (bench.motor.losses)
     motor: EstimatorMotor              # I_max, n_max and the copper coefficients (a MotorSpec is one)
-    data_sample_period_s: float = 0.2
+    data_sample_period_s: float = DRIVE_SAMPLE_PERIOD_S
     sigmoid: SigmoidInputs | None = None
     linear_block: Realization | None = None   # the fitted block in physical coordinates (default: the LPTN)
     reference_C: float = 0.0           # delta realization: the temperature its states are deviations from

@@ -20,6 +20,7 @@ from bench.motor.losses import EstimatorMotor, LossModel
 from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.parameters import TABLE1, LptnParameters
 from bench.thermal.realizations import DEPLOYED_REALIZATION, Realization
+from dbc.contract import DRIVE_SAMPLE_PERIOD_S
 
 IDENTIFICATION_COOLANTS = (20, 60)
 VALIDATION_COOLANT = 40
@@ -36,7 +37,7 @@ class Identification:
     loss_model: LossModel
     motor: EstimatorMotor
     provenance: dict
-    data_sample_period_s: float = 0.2
+    data_sample_period_s: float = DRIVE_SAMPLE_PERIOD_S
     timings_s: dict = field(default_factory=dict)
     reference_C: float = 0.0            # of a delta realization (delta_reference)
 

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from dbc.contract import DRIVE_SAMPLE_PERIOD_S
+
 SEQUENCE_S = 7274.0
-SAMPLE_PERIOD_S = 0.2
+SAMPLE_PERIOD_S = DRIVE_SAMPLE_PERIOD_S
 
 
 def synthetic_lti_inputs(duration_s: float = SEQUENCE_S, sample_period_s: float = SAMPLE_PERIOD_S,

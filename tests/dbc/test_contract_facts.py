@@ -70,3 +70,11 @@ def test_importing_the_layers_reads_no_dbc():
             "print(contract.cache_info().currsize)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "0"
+
+
+def test_the_drive_sample_period_is_the_row_messages_cycle_time():
+    from dbc.contract import DRIVE_SAMPLE_PERIOD_S, row_messages
+    from dbc.database import contract
+
+    for message in row_messages(6):
+        assert contract().by_name[message].cycle_time_ms / 1000.0 == DRIVE_SAMPLE_PERIOD_S
