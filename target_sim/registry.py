@@ -12,11 +12,14 @@ import pkgutil
 from collections.abc import Iterator
 from typing import Generic, TypeVar
 
+from target_sim.errors import TargetError
+
 T = TypeVar("T")
 
 
-class UnknownKind(LookupError):
-    """A name no kind of the table has; the message is one sentence naming the known ones."""
+class UnknownKind(TargetError, ValueError, LookupError):
+    """A name no kind of the table has; the message is one sentence naming the known ones (a ValueError, as a bad
+    value given to a function, and a LookupError, as a missing key)."""
 
 
 class Registry(Generic[T]):

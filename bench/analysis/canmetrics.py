@@ -56,16 +56,15 @@ from bench.analysis.results import (
     finite_results,
 )
 from bench.analysis.verdict import QUANTIZATION_C, notes
-from bench.drive.motor import MAP_TABLES, LossMaps
-from bench.thermal.estimator import SIGMOID_ROWS, StepInputs, identity_sigmoid, loop_parameters, run_batch
+from bench.thermal.estimator import SIGMOID_ROWS, identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
-from bench.thermal.parameters import LptnParameters
 from dbc.contract import HEARTBEAT_TIMEOUT_S, M4_CLOCK_HZ, TEMPERATURE_NODES
 from dbc.database import temperature_range
 from dbc.transport import NOMINAL_BITRATE
 from host.results import gap_count, percentiles
-from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
+from target_sim.artifact import ModelArtifact
 from target_sim.costs import memory_estimate
+from target_sim.kinds import MODEL_KINDS
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 
 TEMPERATURES = TEMPERATURE_NODES
@@ -154,33 +153,27 @@ def float64_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np
     means = interval_means(drive, artifact.data_sample_period, artifact.dt)
     if len(means) == 0:
         return np.zeros((0, 4))
-    # no batch kernel for these (the kernel steps x <- A x + B u): the target's estimator in float64
-    if artifact.kind == "pv-lptn" or artifact.loss_model != "maps" or artifact.realization == "delta":
+    # the parameter-varying network is rebuilt every step (no batch kernel): the target's estimator in float64
+    if not MODEL_KINDS[artifact.kind].linear_block:
         model = Float32Estimator(artifact, dtype=np.float64)
         model.reset(np.asarray(initial, dtype=np.float64))
         out = np.empty((len(means), 4))
         for k, row in enumerate(means):
             out[k] = model.step(*row)
         return out
+    from bench.model.artifact_eval import artifact_loss_model, artifact_parameters, shift_form
+    from bench.model.runs import step_inputs
 
-    def f64(*keys):
-        return artifact.array(*keys, dtype=np.float64)
-
-    maps = LossMaps(f64("losses", "torque_axis_Nm"), f64("losses", "speed_axis_rpm"),
-                    {name: f64("losses", "tables", name) for name in MAP_TABLES})
-    table = maps.evaluate(means[:, 0], means[:, 1])
-    inputs = StepInputs(table_losses=np.column_stack([table[name] for name in MAP_TABLES]),
-                        speed_ratio=means[:, 1] / float(f64("lptn", "speed_max_rpm")),
-                        coolant=means[:, 2], ambient=means[:, 3],
-                        current_max=float(f64("losses", "current_max_A")))
-    params = LptnParameters(**{name: float(f64("lptn", "parameters", name)) for name in LPTN_PARAMETERS})
-    if artifact.kind == "hammerstein":
-        sig = np.stack([f64("input_nonlinearity", row) for row in SIGMOID_ROWS])
+    loss_model, motor = artifact_loss_model(artifact)   # its kind's float64 model (bench.motor.losskinds)
+    inputs = step_inputs(np.asarray(drive, dtype=np.float64), loss_model, motor, artifact.dt,
+                         artifact.data_sample_period)
+    if MODEL_KINDS[artifact.kind].input_nonlinearity:
+        sig = np.stack([artifact.array("input_nonlinearity", row, dtype=np.float64) for row in SIGMOID_ROWS])
     else:
         sig = identity_sigmoid(np.ones(4))
-    a, b, c = (f64("linear_block", m) for m in ("A", "B", "C"))
-    _, traj = run_batch(a[None], b[None], c[None], loop_parameters(params)[None], sig[None], inputs,
-                        np.asarray(initial, dtype=np.float64), keep_trajectories=True)
+    a, b, c = shift_form(artifact)
+    _, traj = run_batch(a[None], b[None], c[None], loop_parameters(artifact_parameters(artifact))[None], sig[None],
+                        inputs, np.asarray(initial, dtype=np.float64), keep_trajectories=True)
     return traj[0]
 
 

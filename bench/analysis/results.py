@@ -18,6 +18,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from bench.errors import BenchError
+
 SCHEMA_VERSION = 1
 SCHEMA_KEY = "schema_version"
 
@@ -28,7 +30,7 @@ OMIT_NONE = {"omit_none": True}   # a key the JSON had only when there was a val
 T = TypeVar("T")
 
 
-class ResultsError(ValueError):
+class ResultsError(BenchError, ValueError):
     """Results JSON this bench cannot read (another schema version, a missing key)."""
 
 

@@ -24,6 +24,7 @@ from bench.commands.common import (
 )
 from bench.errors import BenchError, UsageError
 from bench.thermal.realizations import REALIZATIONS
+from target_sim.kinds import MODEL_KINDS
 
 DEFAULT_DTS = [0.5, 1.0, 2.0, 4.0]
 BUILT_IN_MOTOR = "virtual-200kw"
@@ -158,7 +159,7 @@ def run_table5(args: argparse.Namespace, artifact, model_path: Path, data_dir: P
     from bench.model.evaluate import hammerstein_models, realization_comparison, table5
     from bench.model.pipeline import load_campaign
 
-    if artifact.kind != "hammerstein":
+    if not MODEL_KINDS[artifact.kind].input_nonlinearity:
         raise BenchError(f"{model_path} is a {artifact.kind} artifact; the comparison needs a hammerstein one "
                          "(pass one with --model)")
     motor = artifact.content.get("provenance", {}).get("motor", {}).get("name")

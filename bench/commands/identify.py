@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     metrics = validation_metrics(result, validate, args.realization)
     written = {}
     for kind, path in outputs.items():
-        realization = args.realization if kind != "pv-lptn" else "physical"
+        realization = args.realization if MODEL_KINDS[kind].realizations else "physical"
         write_text_atomically(path, _artifact_text(result.content(kind, realization, metrics)))
         written[kind] = str(path)
     warnings = [_bound_warning(hit) for hit in result.lptn.on_bounds]

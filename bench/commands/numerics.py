@@ -13,6 +13,7 @@ from bench.thermal.excitation import SAMPLE_PERIOD_S, interval_means, synthetic_
 from bench.thermal.parameters import PARAMETER_SETS, parameter_set
 from bench.thermal.precision import PrecisionRow, numerics_report, precision_table
 from bench.thermal.realizations import REALIZATIONS
+from target_sim.kinds import MODEL_KINDS
 
 
 def add_subparser(subparsers) -> None:
@@ -89,7 +90,7 @@ def run_budget(args: argparse.Namespace) -> int:
     from bench.run_inputs import load_data, load_model
 
     artifact, model_path = load_model(args.model or default_artifact_path())
-    if artifact.kind == "pv-lptn":
+    if not MODEL_KINDS[artifact.kind].linear_block:
         raise BenchError(f"{model_path} is a pv-lptn model; the error budget covers the LTI LPTN and Hammerstein "
                          "kinds (a fixed linear block)")
     mapping, period = data_options(args)

@@ -15,6 +15,7 @@ from bench.thermal.estimator import loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
 from bench.thermal.parameters import LptnParameters
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
+from target_sim.kinds import MODEL_KINDS, is_delta
 from target_sim.model import Float32Estimator, run_offline
 
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
@@ -43,7 +44,7 @@ def shift_form(artifact: ModelArtifact) -> tuple[np.ndarray, np.ndarray, np.ndar
     equilibrium of the network, so the deviation form and the absolute form are the same model)."""
     f64 = np.float64
     a, b, c = (artifact.array("linear_block", m, dtype=f64) for m in ("A", "B", "C"))
-    if artifact.realization == "delta":
+    if is_delta(artifact.kind, artifact.realization):
         a, b = np.eye(a.shape[0]) + artifact.dt * a, artifact.dt * b
     return a, b, c
 
@@ -54,14 +55,14 @@ def float64_estimate(artifact: ModelArtifact, dataset: Dataset, run: ModelRun) -
     The LTI and Hammerstein kinds go through the compiled batch kernel (an independent implementation of
     the target's step); the PV LPTN through the target's own code in float64.
     """
-    if artifact.kind == "pv-lptn":
+    if not MODEL_KINDS[artifact.kind].linear_block:
         model = Float32Estimator(artifact, dtype=np.float64)
         model.reset(run.initial)
         means = interval_means(artifact_drive(artifact, dataset), artifact.data_sample_period, artifact.dt)
         return np.array([model.step(*row) for row in means])
     f64 = np.float64
     a, b, c = shift_form(artifact)
-    if artifact.kind == "hammerstein":
+    if MODEL_KINDS[artifact.kind].input_nonlinearity:
         sig = np.vstack([artifact.array("input_nonlinearity", k, dtype=f64) for k in SIGMOID_KEYS])
     else:
         sig = np.vstack([np.ones(4), np.ones(4), np.zeros(4), np.zeros(4), np.ones(4), np.zeros(4)])

@@ -30,6 +30,7 @@ import numpy as np
 
 from bench.thermal.excitation import interval_means
 from target_sim.artifact import ModelArtifact
+from target_sim.kinds import MODEL_KINDS
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 
 PARTS = ("inputs", "lookup", "corrections", "sigmoid", "sources", "coefficients", "update", "state", "output")
@@ -67,7 +68,7 @@ class MixedPrecisionEstimator:
         unknown = set(float32_parts) - set(PARTS)
         if unknown:
             raise ValueError(f"unknown parts {sorted(unknown)}; the parts are {', '.join(PARTS)}")
-        if artifact.kind == "pv-lptn":
+        if not MODEL_KINDS[artifact.kind].linear_block:
             raise ValueError("the error budget covers the LTI LPTN and Hammerstein kinds (the PV LPTN has no fixed "
                              "linear block)")
         self.parts = frozenset(float32_parts)
@@ -75,7 +76,7 @@ class MixedPrecisionEstimator:
         source = self.models[F32 if "coefficients" in self.parts else F64]
         self.a, self.b, self.c, self.c_inv = (np.asarray(m, dtype=F64) for m in
                                               (source.a, source.b, source.c, source.c_inv))
-        self.hammerstein = artifact.kind == "hammerstein"
+        self.hammerstein = MODEL_KINDS[artifact.kind].input_nonlinearity
         self.delta = source.delta
         self.reference = float(source.reference)
         self.dt = float(self.models[F32 if "update" in self.parts else F64].dt)
@@ -149,7 +150,7 @@ def error_budget(artifact: ModelArtifact, drive: np.ndarray, initial,
     reference = run_mixed(artifact, drive, initial, ())
     rows = []
     for part in (*PARTS, "all"):
-        if part == "sigmoid" and artifact.kind != "hammerstein":
+        if part == "sigmoid" and not MODEL_KINDS[artifact.kind].input_nonlinearity:
             continue
         if progress:
             progress(part)

@@ -89,7 +89,7 @@ def artifact_content(spec: ModelSpec) -> dict[str, Any]:
         "schema_version": schema.SCHEMA_VERSION,
         "model_kind": spec.kind,
         "discretization": spec.discretization,
-        "realization": spec.realization if spec.kind != "pv-lptn" else "physical",
+        "realization": spec.realization if MODEL_KINDS[spec.kind].realizations else "physical",
         "outputs": list(schema.OUTPUTS),
         "timing": {"dt_s": float(spec.dt), "data_sample_period_s": float(spec.data_sample_period_s),
                    "input_rule": "float32 mean of the data samples in [k*dt, (k+1)*dt); the step runs on the "
@@ -103,14 +103,14 @@ def artifact_content(spec: ModelSpec) -> dict[str, Any]:
         "provenance": {"generator": f"pmsm-thermal-bench {package_version()}", **spec.provenance},
         "metrics": spec.metrics,
     }
-    if spec.kind != "pv-lptn":
+    if MODEL_KINDS[spec.kind].linear_block:
         block = realize(physical_block(spec), spec.realization, spec.dt)
         content["linear_block"] = {"A": enc(block.a), "B": enc(block.b), "C": enc(block.c),
                                    "C_inv": enc(inv(block.c)),  # portable: the same bits on every CPU
                                    "condition_number": condition_number(block.a), "form": block.form}
         if block.form == "delta":
             content["linear_block"]["reference_C"] = enc(spec.reference_C)
-    if spec.kind == "hammerstein":
+    if MODEL_KINDS[spec.kind].input_nonlinearity:
         if spec.sigmoid is None:
             raise ValueError("a hammerstein artifact needs its sigmoid parameters")
         s = spec.sigmoid

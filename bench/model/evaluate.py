@@ -26,6 +26,7 @@ from bench.model.identify import IDENTIFICATION_COOLANTS, VALIDATION_COOLANT, pr
 from bench.thermal import portable
 from bench.thermal.realizations import Realization
 from target_sim.artifact import ModelArtifact, seal, verify
+from target_sim.kinds import is_delta
 
 METRIC_MODELS = ("lti-lptn", "hammerstein")
 
@@ -66,7 +67,7 @@ def spec_at(artifact: ModelArtifact, kind: str, dt: float, realization: str, blo
 
 def reference_of(artifact: ModelArtifact) -> float:
     """The delta realization's reference temperature of the artifact (0 for another realization)."""
-    if artifact.kind == "pv-lptn" or artifact.realization != "delta":
+    if not is_delta(artifact.kind, artifact.realization):
         return 0.0
     return float(artifact.array("linear_block", "reference_C", dtype=np.float64))
 

@@ -21,6 +21,7 @@ from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.parameters import TABLE1, LptnParameters
 from bench.thermal.realizations import DEPLOYED_REALIZATION, Realization
 from dbc.contract import DRIVE_SAMPLE_PERIOD_S
+from target_sim.kinds import MODEL_KINDS
 
 IDENTIFICATION_COOLANTS = (20, 60)
 VALIDATION_COOLANT = 40
@@ -45,13 +46,13 @@ class Identification:
         common = {"params": self.lptn.params, "dt": self.dt, "loss_maps": self.loss_model, "motor": self.motor,
                   "data_sample_period_s": self.data_sample_period_s, "reference_C": self.reference_C,
                   "provenance": self.provenance, "metrics": metrics or {}}
-        if kind == "hammerstein":
-            return ModelSpec("hammerstein", discretization=self.discretization, realization=realization,
+        if MODEL_KINDS[kind].input_nonlinearity:     # the fitted block behind the fitted sigmoid
+            return ModelSpec(kind, discretization=self.discretization, realization=realization,
                              sigmoid=self.hammerstein.model.sigmoid, linear_block=self.hammerstein.model.block,
                              **common)
-        if kind == "pv-lptn":
-            return ModelSpec("pv-lptn", discretization="euler", realization="physical", **common)
-        return ModelSpec("lti-lptn", discretization=self.discretization, realization=realization, **common)
+        if not MODEL_KINDS[kind].linear_block:       # the network itself, stepped by forward Euler
+            return ModelSpec(kind, discretization="euler", realization="physical", **common)
+        return ModelSpec(kind, discretization=self.discretization, realization=realization, **common)
 
     def content(self, kind: str, realization: str = DEPLOYED_REALIZATION, metrics: dict | None = None) -> dict:
         return artifact_content(self.spec(kind, realization, metrics))

@@ -161,7 +161,7 @@ def delta(sys: Realization, dt: float) -> Realization:
 
 def realize(sys: Realization, name: str, dt: float | None = None) -> Realization:
     """One of REALIZATIONS from the physical realization `sys` (`delta` needs the step Δ)."""
-    if name == "delta":
+    if REALIZATION_KINDS[name].delta:
         if dt is None:
             raise ValueError("the delta realization needs the model step dt")
         return delta(sys, dt)
