@@ -57,6 +57,9 @@ DRIVE_SIGNALS: tuple[tuple[str, str], ...] = (("DriveInputs", "MotorTorque"), ("
 # loss model needs them (the artifact's drive_signals), one with loss maps ignores them
 CURRENT_SIGNALS: tuple[tuple[str, str], ...] = (("DriveCurrents", "CurrentD"), ("DriveCurrents", "CurrentQ"))
 CURRENT_MESSAGE = "DriveCurrents"
+# messages whose Step names the row of a command or an event (the DBC's comments say which); in every other message
+# that carries a Step, it is the data row the frame belongs to (a row's own frames, the replies, timing, checkpoints)
+EVENT_STEP_MESSAGES: tuple[str, ...] = ("Control", "ResetTemps1", "ResetTemps2", "RestoreState", "BenchEvent")
 
 
 def row_signals(width: int) -> tuple[tuple[str, str], ...]:

@@ -24,7 +24,7 @@ import cantools
 from cantools.database.can import Database
 from cantools.database.can import Message as DbcMessage
 
-from dbc.contract import DBC_PATH, HEARTBEAT_MESSAGE, NODES, REPLY_SIGNALS, FrameError
+from dbc.contract import DBC_PATH, EVENT_STEP_MESSAGES, HEARTBEAT_MESSAGE, NODES, REPLY_SIGNALS, FrameError
 from dbc.errors import CanLinkError
 
 _FLOAT_FORMATS = {32: ("<f", "<I"), 64: ("<d", "<Q")}
@@ -247,6 +247,13 @@ def temperature_range() -> tuple[float, float]:
     to it and the analysis leaves values beyond it out of the comparisons."""
     message, signals = next(iter(REPLY_SIGNALS.items()))
     return signal_ranges(message)[signals[0][0]]
+
+
+def row_step_messages() -> tuple[str, ...]:
+    """The messages whose Step is the data row they belong to: every message with a Step but the command and event
+    messages (`dbc.contract.EVENT_STEP_MESSAGES`), in frame-id order."""
+    return tuple(m.name for _, m in sorted(contract().by_id.items())
+                 if "Step" in m.signal_names and m.name not in EVENT_STEP_MESSAGES)
 
 
 def heartbeat_period_s() -> float:

@@ -28,13 +28,10 @@ from bench.errors import BenchError, UsageError
 from dbc import FrameError
 from dbc.codec import decode_any
 from dbc.contract import nearest_row
-from dbc.database import frame_id, host_frame_ids
+from dbc.database import frame_id, host_frame_ids, row_step_messages
 from host.canlog import FrameLog, check_log_path, read_log
 from target_sim.model import InputAccumulator
 
-# messages whose Step is the data row they belong to (the target's replies carry the row they answer)
-ROW_MESSAGES = ("DriveInputs", "DriveTemps", "DriveCurrents", "Temperatures1", "Temperatures2", "Timing1", "Timing2",
-                "Timing3", "Timing4", "StateCheckpoint")
 MAX_DIGITS = 6   # significant digits of an inferred sample period
 
 
@@ -62,7 +59,7 @@ def _is_standard(msg: can.Message) -> bool:
 
 def _row_steps(messages: list[can.Message]) -> list[int | None]:
     """Per frame, the Step of the data row it belongs to (None: no row, or a frame that fails validation)."""
-    ids = {frame_id(name) for name in ROW_MESSAGES}
+    ids = {frame_id(name) for name in row_step_messages()}   # the target's replies carry the row they answer
     steps: list[int | None] = []
     for msg in messages:
         step = None

@@ -78,3 +78,10 @@ def test_the_drive_sample_period_is_the_row_messages_cycle_time():
 
     for message in row_messages(6):
         assert contract().by_name[message].cycle_time_ms / 1000.0 == DRIVE_SAMPLE_PERIOD_S
+
+
+def test_the_messages_whose_step_is_their_data_row():
+    from dbc.database import row_step_messages
+
+    assert row_step_messages() == ("DriveInputs", "DriveTemps", "DriveCurrents", "Temperatures1", "Temperatures2",
+                                   "Timing1", "Timing2", "Timing3", "Timing4", "StateCheckpoint")
