@@ -42,8 +42,9 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   the conformance suite (tests/target_sim/test_conformance.py) holds the two to the same bytes.
 * Transmitted temperatures outside the DBC range are clamped (SATURATED; NaN or Inf also set NONFINITE), so a
   diverging float32 model (e.g. the `original` realization) is still answered.
-* BenchEvent frames (a bench host's marks of injected faults and gaps) are validated like every frame and
-  otherwise ignored.
+* Any other frame the DBC sends to the target (BenchEvent, a bench host's marks of injected faults and gaps;
+  DriveCurrents for a model that reads no current; a message added to the DBC that no rule acts on yet) is
+  validated like every frame and otherwise ignored.
 * Detection journal: with a `journal` callable the node reports every rejected frame and every sequence error
   as one record {"kind": one of RX_ERROR_KINDS, "id", "dlc", "data" (hex), "detail"} naming the frame it judged,
   so a fault-injecting bench can tell which injected frame was caught and why (`host.faults.reconcile`);
@@ -292,7 +293,7 @@ class TargetNode:
             return []
         if name == "Control":
             return self._control(Command(int(signals["Command"])), int(signals["Step"]))
-        return []  # a frame of the contract the target does not act on (BenchEvent; DriveCurrents with loss maps)
+        return []  # a frame of the contract no rule acts on (BenchEvent, unread DriveCurrents, ...): validated only
 
     def _row_frame(self, name: str, index: int, signals: dict) -> list[can.Message]:
         """One frame of a data row, the `index`-th of the row's messages: the row is used when its last one comes

@@ -646,7 +646,7 @@ static void dispatch(int index, const union rx_signals *m)
     case RX_CONTROL:
         control(m->control.command, NODE_STEP_CONTROL(m->control));
         break;
-    default:            /* BenchEvent, and DriveCurrents for a loss-map model: validated, otherwise ignored */
+    default:            /* a frame no rule acts on (BenchEvent, unread DriveCurrents, ...): validated only */
         break;
     }
 }
