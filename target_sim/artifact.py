@@ -18,10 +18,9 @@ from typing import Any
 import numpy as np
 
 from target_sim.errors import TargetError
-from target_sim.kinds import MODEL_KINDS, REALIZATIONS, is_delta
+from target_sim.kinds import MODEL_KINDS, REALIZATIONS
 from target_sim.losses import DEFAULT as DEFAULT_LOSS_MODEL
 from target_sim.losses import LOSS_KINDS, row_signals
-from target_sim.network import COOLANT_REFERENCE_C, network_matrices
 
 SCHEMA = "pmsm-thermal-bench.model-artifact"
 SCHEMA_VERSION = 2
@@ -219,100 +218,31 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
     problem = LOSS_KINDS[model].problem(artifact)
     if problem:
         raise ArtifactError(f"{problem}; rebuild it with 'bench identify'")
-    _check_stability(artifact)
+    unstable = MODEL_KINDS[kind].instability(artifact)   # a step that grows without bound (the sentence has its fix)
+    if unstable:
+        raise ArtifactError(unstable)
     return artifact
-
-
-# The operating box over which a pv-lptn's forward-Euler step must be stable: speed over the DBC's MotorSpeed range
-# (rpm), coolant from -40 °C to 100 °C (a water-glycol circuit's working range, above the datasets' 20-60 °C). Each
-# conductance of the network is monotonic in one of the two, and the eigenvalues of C^-1 G grow with every
-# conductance, so the corners bound every point inside. Not up to the DBC's 150 °C: eq. 16's R_cy falls linearly
-# with the coolant and reaches zero at 40 - 1/alpha_cy (151 °C for Table 1, about 120 °C at the IPM example's
-# bound), where no Euler step is stable; a run that drives a model there saturates and is not clean.
-PV_SPEED_CORNERS_RPM = (-1000.0, 15000.0)
-PV_COOLANT_CORNERS_C = (-40.0, 100.0)
-
-
-def _check_stability(artifact: ModelArtifact) -> None:
-    """Refuse a model whose step grows without bound (ArtifactError naming the pole).
-
-    LTI LPTN and Hammerstein: the linear block's transition matrix (A; for the delta realization I + Δt·A) must have
-    every pole inside the unit circle in float64, the model the artifact describes. The float32 rounding of a stable
-    block may still be unstable (the `original` realization at Δt 0.5 s, the paper's Fig. 6): that loads, so the
-    bench can show it, and any run of it that saturates is not clean. PV LPTN (no A): the forward-Euler step
-    I + Δt·A(speed, coolant) at the corners of PV_SPEED_CORNERS_RPM x PV_COOLANT_CORNERS_C, from the float32
-    parameters the target runs."""
-    if not MODEL_KINDS[artifact.kind].linear_block:
-        _check_pv_stability(artifact)
-        return
-    a = artifact.array("linear_block", "A", dtype=np.float64)
-    delta = is_delta(artifact.kind, artifact.realization)
-    transition = np.eye(len(a)) + artifact.dt * a if delta else a
-    poles = np.linalg.eigvals(transition)
-    worst = poles[int(np.argmax(np.abs(poles)))]
-    if not abs(worst) < 1.0:
-        step = " (the delta realization's step I + Δt·A)" if delta else ""
-        raise ArtifactError(f"artifact linear_block.A{step} is unstable: pole z = {_pole(worst)} (|z| = "
-                            f"{abs(worst):.6g} ≥ 1), so every model step multiplies that mode by at least that "
-                            "much and the estimate grows without bound; rebuild it with 'bench identify'")
-
-
-def _check_pv_stability(artifact: ModelArtifact) -> None:
-    p = {name: float(artifact.array("lptn", "parameters", name)) for name in LPTN_PARAMETERS}
-    speed_max = float(artifact.array("lptn", "speed_max_rpm"))
-    for speed in PV_SPEED_CORNERS_RPM:
-        for coolant in PV_COOLANT_CORNERS_C:
-            ratio = speed / speed_max
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                r_tm, r_wm, r_ma = (p[f"R_{k}0"] * np.exp(-ratio / p[f"b_{k}"]) + p[f"a_{k}"]
-                                    for k in ("tm", "wm", "ma"))
-                r_cy = p["R_cy0"] * (1.0 + p["alpha_cy"] * (coolant - COOLANT_REFERENCE_C))
-                a, _ = network_matrices(p, r_tm, r_wm, r_ma, r_cy, np.float64)
-                transition = np.eye(4) + artifact.dt * a
-            poles = np.linalg.eigvals(transition) if np.all(np.isfinite(transition)) else np.array([np.inf])
-            worst = poles[int(np.argmax(np.abs(poles)))]
-            if not abs(worst) < 1.0:
-                raise ArtifactError(f"artifact pv-lptn: the forward-Euler step of {artifact.dt:g} s is unstable at "
-                                    f"speed {speed:g} rpm and coolant {coolant:g} °C (pole z = {_pole(worst)}, "
-                                    f"|z| = {abs(worst):.6g} ≥ 1), so the estimate grows without bound there; "
-                                    "rebuild it with 'bench identify' (a shorter Δt or another kind)")
-
-
-def _pole(z: complex) -> str:
-    """A pole for a message: 1.0005, or 0.99+0.05j."""
-    z = complex(z)
-    if not np.isfinite(z.real) or not np.isfinite(z.imag):
-        return "inf"
-    if abs(z.imag) <= 1e-12 * max(1.0, abs(z.real)):
-        return f"{z.real:.6g}"
-    return f"{z.real:.6g}{z.imag:+.6g}j"
 
 
 def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
     """The shape the target's code needs for each non-scalar array field (scalars are ())."""
-    n_states, n_outputs, n_inputs = 4, len(OUTPUTS), 8
-    shapes: dict[tuple[str, ...], tuple[int, ...]] = {
-        ("linear_block", "A"): (n_states, n_states), ("linear_block", "B"): (n_states, n_inputs),
-        ("linear_block", "C"): (n_outputs, n_states), ("linear_block", "C_inv"): (n_states, n_outputs),
-    }
-    losses = content["losses"]
     kind = LOSS_KINDS[loss_model_of(content)]
-    shapes.update({("losses", *keys): shape for keys, shape in kind.shapes(losses).items()})
-    shapes.update({("input_nonlinearity", k): (4,) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")})
+    shapes = {("losses", *keys): shape for keys, shape in kind.shapes(content["losses"]).items()}
+    shapes.update(MODEL_KINDS[content["model_kind"]].shapes(content))
     return shapes
 
 
+# the sections in the order their fields are checked (a model kind's own sections after these)
+SECTIONS = ("linear_block", "lptn", "losses", "input_nonlinearity")
+
+
 def _array_fields(content: dict) -> list[tuple[str, ...]]:
-    kind = MODEL_KINDS[content["model_kind"]]
-    fields = [("linear_block", m) for m in ("A", "B", "C", "C_inv")] if kind.linear_block else []
-    if is_delta(kind.name, content["realization"]):
-        fields.append(("linear_block", "reference_C"))
+    fields = MODEL_KINDS[content["model_kind"]].fields(content)
     fields += [("lptn", "parameters", name) for name in LPTN_PARAMETERS]
     fields += [("lptn", "speed_max_rpm")]
     fields += [("losses", k) for k in ("current_max_A", "alpha_cu_per_K", "copper_reference_C")]
     fields += [("losses", *keys) for keys in LOSS_KINDS[loss_model_of(content)].fields(content["losses"])]
-    if kind.input_nonlinearity:
-        fields += [("input_nonlinearity", k) for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")]
+    fields.sort(key=lambda keys: SECTIONS.index(keys[0]) if keys[0] in SECTIONS else len(SECTIONS))
     for keys in fields:
         node = content
         for key in keys:

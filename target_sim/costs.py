@@ -2,7 +2,8 @@
 
 The target process measures its own wall time per step, but a Python process says little about the C28x, so
 the timing frames also carry an estimate: the operation count of one step (per model kind and realization,
-counted from the code in `target_sim.model`) times a per-operation cycle cost.
+counted from the code in `target_sim.model` and the kind's own module, `target_sim.modelkinds`) times a
+per-operation cycle cost.
 
 Per-operation cost table (CPU cycles, `CYCLES`), single-precision code compiled for FPU32, no TMU (the F28069M
 has none):
@@ -18,9 +19,9 @@ has none):
 | load/store  | 1      | MOV32 between memory and an FPU register (coefficients, states, inputs, results)       |
 | call        | 40     | function entry/exit and loop set-up, counted once per step and per block               |
 
-Counting rules: a matrix-vector product counts one multiply, one add and two loads per *nonzero* float32
-coefficient (structure a code generator exploits: modal A is diagonal, physical C is the identity), minus one add
-per row; every scalar of the formulas in `target_sim.model` counts as written; the loss look-up is two axis
+Counting rules: a matrix-vector product counts one multiply, one add and two loads per *nonzero* float32 coefficient
+(structure a code generator exploits: modal A is diagonal, physical C is the identity), minus one add per row; every
+scalar of the formulas in `target_sim.model` and the kinds' modules counts as written; the loss look-up is two axis
 searches plus 3 multiplies and 6 adds per table (bilinear); an electrical loss model (losses from the d/q currents
 and the speed) counts its formulas as written, a square root as a divide (EISQRTF32 estimate + two Newton-Raphson
 steps, as fastRTS's sqrtf), and reads two more interval means (i_d, i_q). The estimate is a model of the compiled
@@ -90,7 +91,8 @@ class MemoryEstimate:
         return self.state_bytes + self.work_bytes + STACK_BYTES
 
 
-def _ops(**counts: int) -> Counter:
+def op_counts(**counts: int) -> Counter:
+    """A Counter of operations (`op_counts(multiply=2, add=1)`); an unknown operation is a ValueError."""
     unknown = set(counts) - set(OPERATIONS)
     if unknown:
         raise ValueError(f"unknown operations {sorted(unknown)}")
@@ -103,66 +105,30 @@ def matvec(matrix: np.ndarray) -> Counter:
     nonzero_per_row = np.count_nonzero(m, axis=1)
     nnz = int(nonzero_per_row.sum())
     adds = int(np.maximum(nonzero_per_row - 1, 0).sum())
-    return _ops(multiply=nnz, add=adds, load_store=2 * nnz + m.shape[0])
+    return op_counts(multiply=nnz, add=adds, load_store=2 * nnz + m.shape[0])
 
 
 def loss_model_ops(artifact: ModelArtifact) -> Counter:
     """One evaluation of the artifact's loss model (its kind's own count, `target_sim.losses`)."""
-    return LOSS_KINDS[artifact.loss_model].ops(_ops)
+    return LOSS_KINDS[artifact.loss_model].ops(op_counts)
 
 
 def node_losses_ops() -> Counter:
     """Eqs. 3-8 after the look-up: copper temperature factor, ac/dc split, stator split k_s."""
-    copper = _ops(multiply=2, add=3, divide=1)        # factor = 1 + a(y_w - ref); p_w = dc·f + ac/f
-    ratios = _ops(divide=2)                           # I/I_max, n/n_max
-    split = _ops(multiply=4 + 2, add=3 + 1)           # k_s polynomial; k_s·P_s and (1 - k_s)·P_s
-    return copper + ratios + split + _ops(load_store=8 + 4)
-
-
-def sigmoid_ops() -> Counter:
-    """S(u) = gain·σ(w·u + b) + lin·u + off on u = P/scale, times scale, for the four loss inputs."""
-    per_input = _ops(divide=2, multiply=3, add=4, exp=1, load_store=7)
-    return Counter({k: 4 * v for k, v in per_input.items()}) + _ops(call=1)
-
-
-def temperature_sources_ops() -> Counter:
-    """Eqs. 9-18: three speed-dependent conductance ratios, the coolant factor and four sources."""
-    ratio = _ops(divide=1)
-    conductances = Counter({k: 3 * v for k, v in _ops(divide=2, multiply=1, add=1, exp=1).items()})
-    coolant = _ops(multiply=1, add=1)
-    sources = _ops(multiply=2, add=6, divide=2) + _ops(multiply=2, add=4, divide=2)
-    return ratio + conductances + coolant + sources + _ops(load_store=12 + 4)
-
-
-def pv_network_ops() -> Counter:
-    """The parameter-varying LPTN rebuilt every step (1/C precomputed) and one forward-Euler step."""
-    resistances = Counter({k: 3 * v for k, v in _ops(divide=2, multiply=1, add=1, exp=1).items()})
-    coolant = _ops(multiply=2, add=2)
-    conductances = _ops(divide=7)                     # 1/R of the seven branches
-    a_off = _ops(multiply=10)                         # g_ij / C_i
-    a_diag = _ops(add=2 + 3 + 2 + 2, multiply=4)      # row sums of the conductances, times 1/C_i
-    b = _ops(multiply=2)                              # coolant and ambient columns
-    build = resistances + coolant + conductances + a_off + a_diag + b + _ops(load_store=20 + 30)
-    # Euler: x += dt·(A x + B u); A has 14 nonzeros, B 6
-    euler = _ops(multiply=14 + 6 + 4, add=10 + 2 + 4 + 4, load_store=2 * 20 + 8)
-    return build + euler + _ops(call=1)
+    copper = op_counts(multiply=2, add=3, divide=1)   # factor = 1 + a(y_w - ref); p_w = dc·f + ac/f
+    ratios = op_counts(divide=2)                      # I/I_max, n/n_max
+    split = op_counts(multiply=4 + 2, add=3 + 1)      # k_s polynomial; k_s·P_s and (1 - k_s)·P_s
+    return copper + ratios + split + op_counts(load_store=8 + 4)
 
 
 def step_cost(artifact: ModelArtifact) -> StepCost:
     """Operation counts of one step of this artifact's model on the C28x."""
     blocks: dict[str, Counter] = {
         # step entry, read the interval-mean inputs (4, or 6 with the currents), write 4 outputs
-        "call": _ops(call=1, load_store=len(artifact.drive_signals) + 4),
+        "call": op_counts(call=1, load_store=len(artifact.drive_signals) + 4),
         "losses": loss_model_ops(artifact) + node_losses_ops(),
     }
-    if MODEL_KINDS[artifact.kind].input_nonlinearity:
-        blocks["sigmoid"] = sigmoid_ops()
-    if not MODEL_KINDS[artifact.kind].linear_block:
-        blocks["linear"] = pv_network_ops()
-    else:
-        blocks["sources"] = temperature_sources_ops()
-        a, b, c = (artifact.array("linear_block", m) for m in ("A", "B", "C"))
-        blocks["linear"] = matvec(a) + matvec(b) + _ops(add=a.shape[0]) + matvec(c) + _ops(call=1)
+    blocks.update(MODEL_KINDS[artifact.kind].ops(artifact))   # its own blocks (target_sim.modelkinds)
     total: Counter = Counter()
     for ops in blocks.values():
         total += ops
@@ -172,16 +138,10 @@ def step_cost(artifact: ModelArtifact) -> StepCost:
 
 def coefficient_count(artifact: ModelArtifact) -> int:
     """float32 constants the step reads: look-up tables and axes (or the electrical loss model's coefficients),
-    LPTN parameters, linear block, sigmoid."""
+    LPTN parameters, and the kind's own (linear block, sigmoid, 1/C_i)."""
     count = LOSS_KINDS[artifact.loss_model].coefficient_count(artifact)
     count += 3 + len(LPTN_PARAMETERS) + 1             # current_max, alpha_cu, copper reference; speed_max
-    if not MODEL_KINDS[artifact.kind].linear_block:
-        count += 4                                     # 1/C_i
-    else:
-        count += sum(int(np.count_nonzero(artifact.array("linear_block", m))) for m in ("A", "B", "C", "C_inv"))
-    if MODEL_KINDS[artifact.kind].input_nonlinearity:
-        count += 6 * 4
-    return count
+    return count + MODEL_KINDS[artifact.kind].coefficient_count(artifact)
 
 
 def memory_estimate(artifact: ModelArtifact, cost: StepCost | None = None) -> MemoryEstimate:
@@ -191,8 +151,7 @@ def memory_estimate(artifact: ModelArtifact, cost: StepCost | None = None) -> Me
     states = 4 + 4                                     # x and the previous estimate y
     accumulator = len(artifact.drive_signals) + 1     # interval sums (4, or 6 with the currents) and count
     work = 5 + 4 + 8 + 4                               # table outputs, node losses, input vector u, outputs
-    if not MODEL_KINDS[artifact.kind].linear_block:
-        work += 4 * 4 + 4 * 6 + 4 * 6                  # A, B and the conductances rebuilt every step
+    work += MODEL_KINDS[artifact.kind].work_floats(artifact)
     return MemoryEstimate(coefficient_bytes=FLOAT_BYTES * coefficient_count(artifact),
                           code_bytes=CODE_BYTES_PER_OPERATION * counted + LIBRARY_CODE_BYTES,
                           state_bytes=FLOAT_BYTES * (states + accumulator), work_bytes=FLOAT_BYTES * work)

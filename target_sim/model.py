@@ -4,11 +4,12 @@ One model step (period Δt from the artifact) does, in order:
 1. losses at the reference temperature from the artifact's loss model (`target_sim.losses`: look-up tables
    bilinear in torque and speed, clamped, or the electrical formulas over the d/q currents and the speed);
 2. the copper temperature correction of eqs. 3-5 and the stator split of eqs. 6-8, using the PREVIOUS estimate;
-3. for `hammerstein`, the per-input sigmoid nonlinearity S(u) = gain·σ(weight·u + bias) + linear·u + offset
-   on the normalized losses u = P/scale (eqs. 28-30; MATLAB's sigmoidnet also has the linear term and offset);
-4. the temperature sources of eqs. 9-18 from the PREVIOUS estimate, the speed and the coolant temperature;
-5. the linear block x <- A x + B u, y = C x (`lti-lptn`, `hammerstein`), or for `pv-lptn` the parameter-varying
-   network rebuilt from the speed and coolant and stepped by forward Euler (eq. 51), as the paper ran it.
+3. the model kind's part (`target_sim.modelkinds`, one module per kind): for `hammerstein` the per-input sigmoid
+   nonlinearity S(u) = gain·σ(weight·u + bias) + linear·u + offset on the normalized losses u = P/scale
+   (eqs. 28-30), then for `lti-lptn` and `hammerstein` the temperature sources of eqs. 9-18 from the PREVIOUS
+   estimate, the speed and the coolant temperature, and the linear block x <- A x + B u, y = C x; for `pv-lptn`
+   the parameter-varying network rebuilt from the speed and coolant and stepped by forward Euler (eq. 51), as
+   the paper ran it.
 
 Drive samples arrive at the data rate (5 Hz) and model steps run every Δt: the inputs of model step k are the
 float32 mean of the samples whose times n·T_s fall in [kΔt, (k+1)Δt), and the step runs as soon as the last
@@ -18,8 +19,9 @@ The firmware engine runs the same computation as generated C (`bench firmware ex
 must agree bit for bit, so every operation here has a fixed order and a float32 rounding the C repeats: products
 and sums written out left to right with explicit parentheses (the comments name the C function that mirrors each
 method), matrix-vector products by `fmath.matvec` (no BLAS), exp by `fmath.exp_f32` (no np.exp), clamps written
-as comparisons that send NaN the same way in both. Where this file changes an operation, fw_model.c must change
-with it (bench/firmware/codegen.py), and tests/bench/firmware checks that they still agree.
+as comparisons that send NaN the same way in both. Where this file or a kind's module changes an operation,
+fw_model.c must change with it (bench/firmware/codegen.py, the kind's C fragment), and tests/bench/firmware checks
+that they still agree.
 """
 
 from __future__ import annotations
@@ -29,10 +31,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
-from target_sim.fmath import exp_f32, matvec
-from target_sim.kinds import MODEL_KINDS, is_delta
+from target_sim.fmath import exp_f32
+from target_sim.kinds import MODEL_KINDS
 from target_sim.losses import LOSS_KINDS
-from target_sim.network import COOLANT_REFERENCE_C, network_matrices
 
 F32 = np.float32
 ONE = F32(1.0)
@@ -40,6 +41,10 @@ ONE = F32(1.0)
 
 class Float32Estimator:
     """The target's model: load once, `reset` with initial temperatures, then `step` every Δt.
+
+    The front of the step (the loss model, eqs. 3-8) is here; the rest is the model kind's part
+    (`target_sim.modelkinds`: the linear block with its sources, the sigmoid, the PV network), whose attributes
+    and methods read as the estimator's own (`a`, `temperature_sources`, `input_nonlinearity`, ...).
 
     `dtype` is float32 on the target; float64 gives the same code in double precision from the artifact's
     float64 coefficients (the double-precision reference of the parameter-varying LPTN), with np.exp for exp.
@@ -67,38 +72,36 @@ class Float32Estimator:
         self.conv_b = np.array([p["b_tm"], p["b_wm"], p["b_ma"]], dtype=f)
         self.conv_r0 = np.array([p["R_tm0"], p["R_wm0"], p["R_ma0"]], dtype=f)
         self.conv_a = np.array([p["a_tm"], p["a_wm"], p["a_ma"]], dtype=f)
-        # the delta realization: x <- x + Δ·(A x + B ũ) with the states and temperature sources relative to r
-        self.model_kind = model_kind = MODEL_KINDS[artifact.kind]
-        self.delta = is_delta(artifact.kind, artifact.realization)
-        self.reference = arr("linear_block", "reference_C")[()] if self.delta else f(0.0)
-        if model_kind.linear_block:
-            self.a, self.b = arr("linear_block", "A"), arr("linear_block", "B")
-            self.c, self.c_inv = arr("linear_block", "C"), arr("linear_block", "C_inv")
-        if model_kind.input_nonlinearity:
-            self.sigmoid = {k: arr("input_nonlinearity", k)
-                            for k in ("scale_W", "weight", "bias", "gain", "linear", "offset")}
+        self.model_kind = MODEL_KINDS[artifact.kind]
+        self.part = self.model_kind.part(artifact, self)
         self.x = np.zeros(4, dtype=f)
         self.y = np.zeros(4, dtype=f)
 
+    def __getattr__(self, name: str):
+        # only for names the estimator lacks: the kind's part has them (A of a linear block, its sources)
+        part = self.__dict__.get("part")
+        if part is None or name.startswith("__"):
+            raise AttributeError(name)
+        try:
+            return getattr(part, name)
+        except AttributeError:
+            raise AttributeError(f"{type(self).__name__} of a {self.kind} model has no attribute {name!r}") from None
+
     def reset(self, temperatures: Sequence[float]) -> None:
-        """Start from physical temperatures [yoke, winding, tooth, magnet] (°C): x0 = C^-1 y0, delta: C^-1 (y0 - r)
-        (C: fw_reset)."""
+        """Start from physical temperatures [yoke, winding, tooth, magnet] (°C); the kind says the state
+        (x0 = C^-1 y0, delta: C^-1 (y0 - r), pv-lptn: y0; C: fw_reset)."""
         self.y = np.asarray(temperatures, dtype=self.f).copy()
-        if not self.model_kind.linear_block:
-            self.x = self.y.copy()
-        else:
-            self.x = matvec(self.c_inv, self.y - self.reference if self.delta else self.y)
+        self.x = self.part.reset(self.y)
 
     def restore(self, state: Sequence[float]) -> None:
         """Continue from a checkpointed state vector x (the realization's coordinates), bit for bit: y = C x (+ r)
         is what `step` left after the model step the checkpoint was taken at (C: fw_restore)."""
         self.x = np.asarray(state, dtype=self.f).copy()
-        self.y = self.output() if self.model_kind.linear_block else self.x.copy()
+        self.y = self.part.output(self.x)
 
     def output(self) -> np.ndarray:
-        """y = C x, delta: (C x) + r."""
-        y = matvec(self.c, self.x)
-        return y + self.reference if self.delta else y
+        """The temperatures of the state: y = C x, delta: (C x) + r, pv-lptn: x."""
+        return self.part.output(self.x)
 
     def node_losses(self, torque, speed, i_d=0.0, i_q=0.0) -> np.ndarray:
         """[P_y, P_w, P_t, P_m] in W from the loss model and the previous winding estimate (eqs. 3-8; C:
@@ -122,66 +125,18 @@ class Float32Estimator:
         k_s = ((p["k_0"] + p["k_1"] * i_ratio) + p["k_2"] * n_ratio) + (p["k_3"] * i_ratio) * n_ratio   # eqs. 6-8
         return np.array([k_s * p_stator, p_w, (one - k_s) * p_stator, p_magnet], dtype=f)
 
-    def input_nonlinearity(self, losses: np.ndarray) -> np.ndarray:
-        """S(u)·scale per loss input, u = P/scale, S(u) = (gain/(1 + exp(-(w·u + b))) + lin·u) + off
-        (eqs. 28-30; C: input_nonlinearity)."""
-        s = self.sigmoid
-        u = losses / s["scale_W"]
-        z = s["weight"] * u + s["bias"]
-        out = (s["gain"] / (self.one + self.exp(-z)) + s["linear"] * u) + s["offset"]
-        return out * s["scale_W"]
-
-    def _convection(self, n_ratio) -> np.ndarray:
-        """[e_tm, e_wm, e_ma] = exp(-n_ratio / b) of eq. 15 (C: the three fw_exp calls, in this order)."""
+    def convection(self, n_ratio) -> np.ndarray:
+        """[e_tm, e_wm, e_ma] = exp(-n_ratio / b) of eq. 15, for the kinds' sources and networks (C: the three
+        fw_exp calls, in this order)."""
         return self.exp(-n_ratio / self.conv_b)
-
-    def temperature_sources(self, speed, coolant, ambient) -> np.ndarray:
-        """[ϑ_cv, ϑ_av, ϑ_a1, ϑ_a2] of eqs. 9-18 from the previous estimate (C: temperature_sources)."""
-        p, y, f, one = self.p, self.y, self.f, self.one
-        n_ratio = f(speed) / self.speed_max
-        coolant, ambient = f(coolant), f(ambient)
-        g_tm, g_wm, g_ma = (self.conv_r0 * self._convection(n_ratio)) / self.conv_a    # R_xx1 / a_xx
-        g_cy = p["alpha_cy"] * (coolant - f(COOLANT_REFERENCE_C))  # R_cy01 / R_cy0 (eq. 16)
-        th_y, th_w, th_t, th_m = y
-        return np.array([
-            coolant + (g_cy * (th_y - coolant)) / (one + g_cy),
-            ambient + (g_ma * (th_m - ambient)) / (one + g_ma),
-            (th_m + g_tm * th_t) / (one + g_tm),
-            (th_w + g_wm * th_m) / (one + g_wm),
-        ], dtype=f)
-
-    def pv_network(self, speed, coolant) -> tuple[np.ndarray, np.ndarray]:
-        """Continuous A (4x4) and B (4x6) of the parameter-varying LPTN at this speed and coolant temperature, built
-        in float32 (C: pv_network; the construction: `target_sim.network.network_matrices`)."""
-        p, f, one = self.p, self.f, self.one
-        n_ratio = f(speed) / self.speed_max
-        r_tm, r_wm, r_ma = self.conv_r0 * self._convection(n_ratio) + self.conv_a     # eq. 15
-        r_cy = p["R_cy0"] * (one + p["alpha_cy"] * (f(coolant) - f(COOLANT_REFERENCE_C)))  # eq. 16
-        return network_matrices(p, r_tm, r_wm, r_ma, r_cy, f)
 
     def step(self, torque, speed, coolant, ambient, i_d=0.0, i_q=0.0) -> np.ndarray:
         """One model step with the interval-mean inputs (the d/q currents only for an electrical loss model);
-        returns [yoke, winding, tooth, magnet] in °C (C: fw_step).
-
-        LTI/Hammerstein: x <- (A x) + (B u) row by row, y = C x; delta realization: x <- x + Δ·((A x) + (B ũ)),
-        ũ with the sources minus r, y = (C x) + r; PV LPTN: x <- x + Δt·((A x) + (B u))."""
+        returns [yoke, winding, tooth, magnet] in °C (C: fw_step): the node losses, then the kind's step and
+        output."""
         losses = self.node_losses(torque, speed, i_d, i_q)
-        if self.model_kind.input_nonlinearity:
-            losses = self.input_nonlinearity(losses)
-        if not self.model_kind.linear_block:
-            a, b = self.pv_network(speed, coolant)
-            u = np.concatenate([losses, np.array([coolant, ambient], dtype=self.f)])
-            self.x = self.x + self.dt * (matvec(a, self.x) + matvec(b, u))
-            self.y = self.x.copy()
-        elif self.delta:
-            sources = self.temperature_sources(speed, coolant, ambient) - self.reference
-            increment = matvec(self.a, self.x) + matvec(self.b, np.concatenate([losses, sources]))
-            self.x = self.x + self.dt * increment
-            self.y = self.output()
-        else:
-            u = np.concatenate([losses, self.temperature_sources(speed, coolant, ambient)])
-            self.x = matvec(self.a, self.x) + matvec(self.b, u)
-            self.y = self.output()
+        self.x = self.part.step(self.x, losses, speed, coolant, ambient)
+        self.y = self.part.output(self.x)
         return self.y.copy()
 
 

@@ -1,8 +1,9 @@
 """A table of kinds of one thing (loss models, model kinds, realizations), each found by its name.
 
 As python-can's interface table: the rest of the tree looks a kind up here instead of comparing strings. A table
-over a package loads every module of the package on first use (each module registers its kind on import); an
-unknown name is one sentence naming the known ones.
+over a package loads every module of the package on first use (each module registers its kind on import; a kind's
+module is its name with "_" for "-": `lti_lptn` for "lti-lptn"); an unknown name is one sentence naming the known
+ones.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ class Registry(Generic[T]):
     def __init__(self, what: str, package: str | None = None, first: tuple[str, ...] = ()):
         self.what = what
         self._package = package
-        self._first = first          # modules loaded first, in this order (the order messages list the kinds in)
+        self._first = first          # kinds loaded first, in this order (the order messages list the kinds in)
         self._kinds: dict[str, T] = {}
         self._loaded = package is None
 
@@ -44,8 +45,9 @@ class Registry(Generic[T]):
             return
         self._loaded = True
         package = importlib.import_module(self._package)
+        first = [name.replace("-", "_") for name in self._first]   # a module name cannot hold "-"
         found = sorted(m.name for m in pkgutil.iter_modules(package.__path__) if not m.name.startswith("_"))
-        for name in [*self._first, *(n for n in found if n not in self._first)]:
+        for name in [*first, *(n for n in found if n not in first)]:
             importlib.import_module(f"{self._package}.{name}")
 
     def names(self) -> tuple[str, ...]:

@@ -2,7 +2,9 @@
 
 The C is the Python float32 reference (`target_sim.model`) written out again, operation for operation, so that
 the compiled firmware's outputs equal the reference's bit for bit. Each C function names the Python method it
-mirrors, and both spell every sum and product in the same order with the same parentheses:
+mirrors, and both spell every sum and product in the same order with the same parentheses. The loss model's
+fragment comes from its kind (`target_sim.losses`), and the model kind's functions, step, constants and arrays
+from the kind's module (`target_sim.modelkinds`); this module writes the rest around them:
 
 | C (fw_model.c)          | Python (target_sim)                         | what                                   |
 |-------------------------|---------------------------------------------|----------------------------------------|
@@ -11,10 +13,10 @@ mirrors, and both spell every sum and product in the same order with the same pa
 | grid_cell, loss_lookup  | losses.maps.LossTables._cell, .lookup       | bilinear loss tables (losses "maps")   |
 | electrical_losses       | losses.electrical.ElectricalEvaluator       | losses from i_d, i_q, speed            |
 | node_losses             | Float32Estimator.node_losses                | eqs. 3-8                               |
-| input_nonlinearity      | Float32Estimator.input_nonlinearity         | sigmoid, eqs. 28-30 (hammerstein)      |
-| temperature_sources     | Float32Estimator.temperature_sources        | eqs. 9-18 (lti-lptn, hammerstein)      |
-| pv_network              | Float32Estimator.pv_network                 | parameter-varying network (pv-lptn)    |
-| fw_step, fw_reset, ...  | Float32Estimator.step, .reset, .restore     | the state update                       |
+| input_nonlinearity      | modelkinds.hammerstein.HammersteinPart      | sigmoid, eqs. 28-30 (hammerstein)      |
+| temperature_sources     | modelkinds.lti_lptn.LinearBlockPart         | eqs. 9-18 (lti-lptn, hammerstein)      |
+| pv_network              | modelkinds.pv_lptn.PvNetworkPart            | parameter-varying network (pv-lptn)    |
+| fw_step, fw_reset, ...  | Float32Estimator.step, .reset, .restore     | the state update (the kind's part)     |
 | fw_accumulate, fw_mean  | model.InputAccumulator                      | interval means                         |
 
 Every coefficient is a `static const float` written as a C hex-float literal of the artifact's `f32_hex`
@@ -40,16 +42,12 @@ from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
 from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import firmware_loss_models, firmware_refusal
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
-from target_sim.kinds import MODEL_KINDS, REALIZATIONS, is_delta
+from target_sim.kinds import MODEL_KINDS, REALIZATIONS
 from target_sim.losses import C_NAMES, LOSS_KINDS, LossKind
-from target_sim.model import COOLANT_REFERENCE_C
+from target_sim.network import COOLANT_REFERENCE_C
 
 HEADER_NAME = "fw_model.h"
 SOURCE_NAME = "fw_model.c"
-# shift-form realizations differ only in the matrices A, B, C, C_inv; delta has its own step (_STEP_DELTA_C)
-SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
-LINEAR_BLOCK = {"A": (4, 4), "B": (4, 8), "C": (4, 4), "C_inv": (4, 4)}
-
 
 
 @dataclass(frozen=True)
@@ -224,151 +222,6 @@ def _node_losses_call(kind: LossKind, row: tuple[str, ...]) -> str:
     return f"node_losses({', '.join(f'inputs[{row.index(n)}]' for n in _loss_parameters(kind))}, u);"
 
 
-_SIGMOID_C = """\
-/* Float32Estimator.input_nonlinearity (eqs. 28-30): per loss input, u = P/scale,
- * S(u) = (gain / (1 + exp(-(w u + b))) + lin u) + off, times scale */
-static void input_nonlinearity(float losses[4])
-{
-    int k;
-    for (k = 0; k < 4; k++) {
-        const float u = losses[k] / SIG_SCALE[k];
-        const float z = SIG_WEIGHT[k] * u + SIG_BIAS[k];
-        const float out = (SIG_GAIN[k] / (1.0f + fw_exp(-z)) + SIG_LINEAR[k] * u) + SIG_OFFSET[k];
-        losses[k] = out * SIG_SCALE[k];
-    }
-}
-"""
-
-_SOURCES_C = """\
-/* Float32Estimator.temperature_sources: [th_cv, th_av, th_a1, th_a2] of eqs. 9-18 from the previous estimate;
- * g_xx = R_xx1 / a_xx with R_xx1 = R_xx0 exp(-n/n_max / b_xx) (eq. 15), g_cy = R_cy01 / R_cy0 (eq. 16) */
-static void temperature_sources(float speed, float coolant, float ambient, float src[4])
-{
-    const float n_ratio = speed / SPEED_MAX;
-    const float g_tm = (R_TM0 * fw_exp(-n_ratio / B_TM)) / A_TM;
-    const float g_wm = (R_WM0 * fw_exp(-n_ratio / B_WM)) / A_WM;
-    const float g_ma = (R_MA0 * fw_exp(-n_ratio / B_MA)) / A_MA;
-    const float g_cy = ALPHA_CY * (coolant - COOLANT_REF);
-    src[0] = coolant + (g_cy * (y_est[0] - coolant)) / (1.0f + g_cy);
-    src[1] = ambient + (g_ma * (y_est[3] - ambient)) / (1.0f + g_ma);
-    src[2] = (y_est[3] + g_tm * y_est[2]) / (1.0f + g_tm);
-    src[3] = (y_est[1] + g_wm * y_est[3]) / (1.0f + g_wm);
-}
-"""
-
-_PV_C = """\
-/* Float32Estimator.pv_network: continuous A (4x4) and B (4x6) of the parameter-varying LPTN. g[i][j] is the
- * conductance between nodes i, j of (yoke, winding, tooth, magnet, coolant, ambient); A[i][j] = g[i][j] / C_i off
- * the diagonal, A[i][i] = -(row sum of g[i], left to right over all six) / C_i, B = [diag(1/C) | g[:, 4:] / C_i] */
-static void pv_network(float speed, float coolant, float a[4][4], float b[4][6])
-{
-    const float n_ratio = speed / SPEED_MAX;
-    const float r_tm = R_TM0 * fw_exp(-n_ratio / B_TM) + A_TM;                      /* eq. 15 */
-    const float r_wm = R_WM0 * fw_exp(-n_ratio / B_WM) + A_WM;
-    const float r_ma = R_MA0 * fw_exp(-n_ratio / B_MA) + A_MA;
-    const float r_cy = R_CY0 * (1.0f + ALPHA_CY * (coolant - COOLANT_REF));         /* eq. 16 */
-    float g[4][6];
-    float inv_c[4];
-    int i, j;
-    for (i = 0; i < 4; i++)
-        for (j = 0; j < 6; j++) g[i][j] = 0.0f;
-    g[0][1] = g[1][0] = 1.0f / R_YW;
-    g[0][2] = g[2][0] = 1.0f / R_YT;
-    g[1][2] = g[2][1] = 1.0f / R_WT;
-    g[1][3] = g[3][1] = 1.0f / r_wm;
-    g[2][3] = g[3][2] = 1.0f / r_tm;
-    g[3][5] = 1.0f / r_ma;
-    g[0][4] = 1.0f / r_cy;
-    inv_c[0] = 1.0f / C_Y;
-    inv_c[1] = 1.0f / C_W;
-    inv_c[2] = 1.0f / C_T;
-    inv_c[3] = 1.0f / C_M;
-    for (i = 0; i < 4; i++) {
-        float row_sum = g[i][0];
-        for (j = 1; j < 6; j++) row_sum = row_sum + g[i][j];
-        for (j = 0; j < 4; j++) a[i][j] = g[i][j] * inv_c[i];
-        a[i][i] = -row_sum * inv_c[i];
-        for (j = 0; j < 4; j++) b[i][j] = 0.0f;
-        b[i][i] = inv_c[i];
-        b[i][4] = g[i][4] * inv_c[i];
-        b[i][5] = g[i][5] * inv_c[i];
-    }
-}
-"""
-
-_STEP_LINEAR_C = """\
-/* Float32Estimator.step (lti-lptn, hammerstein): u = [P_y, P_w, P_t, P_m, th_cv, th_av, th_a1, th_a2];
- * x <- (A x) + (B u) row by row; y = C x */
-void fw_step(const float inputs[4], float y[4])
-{{
-    float u[8];
-    float x_next[4];
-    int i;
-    node_losses(inputs[0], inputs[1], u);
-{nonlinearity}    temperature_sources(inputs[1], inputs[2], inputs[3], &u[4]);
-    for (i = 0; i < 4; i++) x_next[i] = dot(LB_A[i], x_state, 4) + dot(LB_B[i], u, 8);
-    for (i = 0; i < 4; i++) x_state[i] = x_next[i];
-    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4);
-    for (i = 0; i < 4; i++) y[i] = y_est[i];
-}}
-
-/* Float32Estimator.reset: y = y0, x = C_inv y0 */
-void fw_reset(const float y0[4])
-{{
-    int i;
-    for (i = 0; i < 4; i++) y_est[i] = y0[i];
-    for (i = 0; i < 4; i++) x_state[i] = dot(LB_C_INV[i], y_est, 4);
-    fw_clear();
-}}
-
-/* Float32Estimator.restore: x bit for bit, y = C x */
-void fw_restore(const float x[4])
-{{
-    int i;
-    for (i = 0; i < 4; i++) x_state[i] = x[i];
-    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4);
-    fw_clear();
-}}
-"""
-
-_STEP_PV_C = """\
-/* Float32Estimator.step (pv-lptn): u = [P_y, P_w, P_t, P_m, coolant, ambient];
- * forward Euler (eq. 51): x <- x + dt ((A x) + (B u)); y = x */
-void fw_step(const float inputs[4], float y[4])
-{
-    float a[4][4], b[4][6];
-    float u[6];
-    float x_next[4];
-    int i;
-    node_losses(inputs[0], inputs[1], u);
-    pv_network(inputs[1], inputs[2], a, b);
-    u[4] = inputs[2];
-    u[5] = inputs[3];
-    for (i = 0; i < 4; i++) x_next[i] = x_state[i] + DT * (dot(a[i], x_state, 4) + dot(b[i], u, 6));
-    for (i = 0; i < 4; i++) x_state[i] = x_next[i];
-    for (i = 0; i < 4; i++) y_est[i] = x_state[i];
-    for (i = 0; i < 4; i++) y[i] = y_est[i];
-}
-
-/* Float32Estimator.reset: the pv-lptn's state is the temperatures themselves, x = y = y0 */
-void fw_reset(const float y0[4])
-{
-    int i;
-    for (i = 0; i < 4; i++) y_est[i] = y0[i];
-    for (i = 0; i < 4; i++) x_state[i] = y_est[i];
-    fw_clear();
-}
-
-/* Float32Estimator.restore: x bit for bit, y = x */
-void fw_restore(const float x[4])
-{
-    int i;
-    for (i = 0; i < 4; i++) x_state[i] = x[i];
-    for (i = 0; i < 4; i++) y_est[i] = x_state[i];
-    fw_clear();
-}
-"""
-
 _API_C = """\
 void fw_state(float x[4])
 {{
@@ -482,45 +335,6 @@ float fw_exp(float x);
 #endif /* FW_MODEL_H */
 """
 
-_STEP_DELTA_C = """\
-/* Float32Estimator.step, delta realization: u = [P_y, P_w, P_t, P_m, th_cv - r, th_av - r, th_a1 - r, th_a2 - r];
- * increment = (A x) + (B u) row by row; x <- x + DT increment; y = (C x) + r */
-void fw_step(const float inputs[4], float y[4])
-{{
-    float u[8];
-    float increment[4];
-    int i;
-    node_losses(inputs[0], inputs[1], u);
-{nonlinearity}    temperature_sources(inputs[1], inputs[2], inputs[3], &u[4]);
-    for (i = 4; i < 8; i++) u[i] = u[i] - LB_REF;
-    for (i = 0; i < 4; i++) increment[i] = dot(LB_A[i], x_state, 4) + dot(LB_B[i], u, 8);
-    for (i = 0; i < 4; i++) x_state[i] = x_state[i] + DT * increment[i];
-    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4) + LB_REF;
-    for (i = 0; i < 4; i++) y[i] = y_est[i];
-}}
-
-/* Float32Estimator.reset, delta realization: y = y0, x = C_inv (y0 - r) */
-void fw_reset(const float y0[4])
-{{
-    float deviation[4];
-    int i;
-    for (i = 0; i < 4; i++) y_est[i] = y0[i];
-    for (i = 0; i < 4; i++) deviation[i] = y_est[i] - LB_REF;
-    for (i = 0; i < 4; i++) x_state[i] = dot(LB_C_INV[i], deviation, 4);
-    fw_clear();
-}}
-
-/* Float32Estimator.restore, delta realization: x bit for bit, y = (C x) + r */
-void fw_restore(const float x[4])
-{{
-    int i;
-    for (i = 0; i < 4; i++) x_state[i] = x[i];
-    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4) + LB_REF;
-    fw_clear();
-}}
-"""
-
-
 def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
     """(C name, literal, comment) of every scalar the step may use; only the used ones are emitted."""
     out: list[tuple[str, str, str]] = []
@@ -532,12 +346,10 @@ def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
                          ("ALPHA_CU", ("losses", "alpha_cu_per_K")),
                          ("COPPER_REF", ("losses", "copper_reference_C"))):
         out.append((c_name, _artifact_literals(artifact, *keys, shape=())[()], ".".join(keys)))
-    for name, source, comment in LOSS_KINDS[artifact.loss_model].c_scalars(artifact):
+    kinds = (LOSS_KINDS[artifact.loss_model], MODEL_KINDS[artifact.kind])   # the loss model's, then the kind's
+    for name, source, comment in (scalar for kind in kinds for scalar in kind.c_scalars(artifact)):
         literal = _scalar_literal(artifact, source) if isinstance(source, tuple) else c_float(source)
         out.append((name, literal, comment))
-    if is_delta(artifact.kind, artifact.realization):
-        out.append(("LB_REF", _artifact_literals(artifact, "linear_block", "reference_C", shape=())[()],
-                    "linear_block.reference_C: the delta states' reference temperature"))
     out += [("COOLANT_REF", c_float(np.float32(COOLANT_REFERENCE_C)), "coolant temperature of R_cy0 (eq. 16)"),
             ("DT", c_float(np.float32(artifact.dt)), "timing.dt_s: the model step (s)")]
     return out
@@ -556,6 +368,7 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     sample_literal = c_float(np.float32(artifact.data_sample_period))
     loss_model = artifact.loss_model
     loss_kind = LOSS_KINDS[loss_model]
+    model_kind = MODEL_KINDS[kind]
     row = artifact.drive_signals
     width = len(row)     # 4 drive values, 6 with the d/q currents
     currents = width > len(_ROW_DOC)
@@ -572,16 +385,8 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     horner += [f"    p = p * r + EXP_{name};" for name in EXP_POLYNOMIAL[1:]]
     code = [_EXP_C.format(horner="\n".join(horner), bias=EXP_EXPONENT_BIAS, max_ulp=EXP_MAX_ULP),
             _common_c(loss_kind)]
-    if MODEL_KINDS[kind].input_nonlinearity:
-        code.append(_SIGMOID_C)
-    if not MODEL_KINDS[kind].linear_block:
-        step = _STEP_PV_C
-        code += [_PV_C]
-    else:
-        template = _STEP_DELTA_C if is_delta(kind, artifact.realization) else _STEP_LINEAR_C
-        step = template.format(nonlinearity="    input_nonlinearity(u);\n" if MODEL_KINDS[kind].input_nonlinearity
-                               else "")
-        code += [_SOURCES_C]
+    code += model_kind.c_functions(artifact)     # the kind's own (sigmoid, sources, network)
+    step = model_kind.c_step(artifact)
     # fw_step takes the row's width of inputs and hands node_losses what the loss model needs
     step = step.replace("void fw_step(const float inputs[4], float y[4])",
                         f"void fw_step(const float inputs[{width}], float y[4])")
@@ -609,18 +414,9 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     parts.append("\n".join(scalars) + "\n")
     defines, arrays = loss_kind.c_declarations(artifact)
     parts.append("".join(f"{line}\n" for line in defines))
-    for array in arrays:
-        stacked = np.stack([_artifact_literals(artifact, *keys) for keys in array.fields])
+    for array in arrays + model_kind.c_arrays(artifact):   # the loss model's, then the kind's
+        stacked = np.stack([_artifact_literals(artifact, *keys, shape=array.shape) for keys in array.fields])
         parts.append(_c_array(array.name, stacked if len(array.fields) > 1 else stacked[0], array.comment))
-    if MODEL_KINDS[kind].input_nonlinearity:
-        for key in SIGMOID_KEYS:
-            c_name = "SIG_" + key.split("_")[0].upper()
-            parts.append(_c_array(c_name, _artifact_literals(artifact, "input_nonlinearity", key, shape=(4,)),
-                                  f"input_nonlinearity.{key} [P_y, P_w, P_t, P_m]"))
-    if MODEL_KINDS[kind].linear_block:
-        for key, shape in LINEAR_BLOCK.items():
-            parts.append(_c_array(f"LB_{key.upper()}", _artifact_literals(artifact, "linear_block", key, shape=shape),
-                                  f"linear_block.{key} ({artifact.realization} realization)"))
     parts.append("/* ---- state (.bss): x, the latest outputs y, the interval sum and count ---- */\n"
                  "static float x_state[4];\n"
                  f"static float y_est[4]; /* [{', '.join(OUTPUTS)}] */\n"

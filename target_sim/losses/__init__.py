@@ -58,6 +58,7 @@ class CArray:
     name: str
     fields: tuple[tuple[str, ...], ...]   # artifact keys of each stacked part (one part: an array of its shape)
     comment: str
+    shape: tuple[int, ...] | None = None  # the shape of each part the generator needs (None: any verified one)
 
 
 class LossKind:

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from target_sim.artifact import load_artifact
-from target_sim.costs import CPU_HZ, CYCLES, OPERATIONS, matvec, memory_estimate, sigmoid_ops, step_cost
+from target_sim.costs import CPU_HZ, CYCLES, OPERATIONS, matvec, memory_estimate, step_cost
+from target_sim.modelkinds.hammerstein import sigmoid_ops
 
 
 def test_matvec_counts_nonzero_coefficients():
