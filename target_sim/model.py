@@ -77,16 +77,6 @@ class Float32Estimator:
         self.x = np.zeros(4, dtype=f)
         self.y = np.zeros(4, dtype=f)
 
-    def __getattr__(self, name: str):
-        # only for names the estimator lacks: the kind's part has them (A of a linear block, its sources)
-        part = self.__dict__.get("part")
-        if part is None or name.startswith("__"):
-            raise AttributeError(name)
-        try:
-            return getattr(part, name)
-        except AttributeError:
-            raise AttributeError(f"{type(self).__name__} of a {self.kind} model has no attribute {name!r}") from None
-
     def reset(self, temperatures: Sequence[float]) -> None:
         """Start from physical temperatures [yoke, winding, tooth, magnet] (°C); the kind says the state
         (x0 = C^-1 y0, delta: C^-1 (y0 - r), pv-lptn: y0; C: fw_reset)."""

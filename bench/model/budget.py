@@ -73,7 +73,7 @@ class MixedPrecisionEstimator:
                              "linear block)")
         self.parts = frozenset(float32_parts)
         self.models = {F32: Float32Estimator(artifact, F32), F64: Float32Estimator(artifact, F64)}
-        source = self.models[F32 if "coefficients" in self.parts else F64]
+        source = self.models[F32 if "coefficients" in self.parts else F64].part   # the kind's linear block
         self.a, self.b, self.c, self.c_inv = (np.asarray(m, dtype=F64) for m in
                                               (source.a, source.b, source.c, source.c_inv))
         self.hammerstein = MODEL_KINDS[artifact.kind].input_nonlinearity
@@ -100,8 +100,8 @@ class MixedPrecisionEstimator:
         losses = np.asarray(model.corrected_losses(lookup.astype(model.f), speed), dtype=F64)
         if self.hammerstein:
             model = self._model("sigmoid")
-            losses = np.asarray(model.input_nonlinearity(losses.astype(model.f)), dtype=F64)
-        sources = np.asarray(self._model("sources").temperature_sources(speed, coolant, ambient), dtype=F64)
+            losses = np.asarray(model.part.input_nonlinearity(losses.astype(model.f)), dtype=F64)
+        sources = np.asarray(self._model("sources").part.temperature_sources(speed, coolant, ambient), dtype=F64)
         update = "update" in self.parts
         keep = rounded if update else np.asarray
         product = matvec_rounded if update else matvec64
