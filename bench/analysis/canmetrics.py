@@ -64,7 +64,7 @@ from dbc.transport import NOMINAL_BITRATE
 from host.results import gap_count, percentiles
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import memory_estimate
-from target_sim.kinds import MODEL_KINDS
+from target_sim.kinds import MODEL_KINDS, is_delta
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 
 TEMPERATURES = TEMPERATURE_NODES
@@ -153,15 +153,16 @@ def float64_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np
     means = interval_means(drive, artifact.data_sample_period, artifact.dt)
     if len(means) == 0:
         return np.zeros((0, 4))
-    # the parameter-varying network is rebuilt every step (no batch kernel): the target's estimator in float64
-    if not MODEL_KINDS[artifact.kind].linear_block:
+    # no batch kernel for a network rebuilt every step, nor for the delta step (the kernel steps x <- A x + B u;
+    # it would also compile, about 35 MB, for a run whose default model is delta): the target's estimator in float64
+    if not MODEL_KINDS[artifact.kind].linear_block or is_delta(artifact.kind, artifact.realization):
         model = Float32Estimator(artifact, dtype=np.float64)
         model.reset(np.asarray(initial, dtype=np.float64))
         out = np.empty((len(means), 4))
         for k, row in enumerate(means):
             out[k] = model.step(*row)
         return out
-    from bench.model.artifact_eval import artifact_loss_model, artifact_parameters, shift_form
+    from bench.model.artifact_values import artifact_loss_model, artifact_parameters, shift_form
     from bench.model.runs import step_inputs
 
     loss_model, motor = artifact_loss_model(artifact)   # its kind's float64 model (bench.motor.losskinds)

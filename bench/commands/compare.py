@@ -65,7 +65,7 @@ def build_default_artifacts(dt: float, out_dir: Path) -> list[Path]:
     """
     import numpy as np
 
-    from bench.model.artifact_eval import artifact_loss_model, artifact_parameters
+    from bench.model.artifact_values import artifact_loss_model, artifact_parameters
     from bench.model.builder import ModelSpec, build_artifact
     from bench.model.default import default_artifact_path
     from bench.model.evaluate import hammerstein_models, reference_of

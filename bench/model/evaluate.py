@@ -13,13 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.drive.dataset import Dataset
-from bench.model.artifact_eval import (
-    ArtifactEvaluation,
-    artifact_loss_model,
-    artifact_parameters,
-    evaluate_artifact,
-    shift_form,
-)
+from bench.model.artifact_eval import ArtifactEvaluation, evaluate_artifact
+from bench.model.artifact_values import artifact_loss_model, artifact_parameters, shift_form
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.hammerstein_fit import fit_hammerstein
 from bench.model.identify import IDENTIFICATION_COOLANTS, VALIDATION_COOLANT, prepare_runs

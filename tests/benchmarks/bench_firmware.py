@@ -64,7 +64,7 @@ def matrix_artifacts():
     """(label, artifact) over kinds x realizations x Δt from the packaged Hammerstein artifact's identification."""
     import numpy as np
 
-    from bench.model.artifact_eval import artifact_loss_model, artifact_parameters
+    from bench.model.artifact_values import artifact_loss_model, artifact_parameters
     from bench.model.builder import ModelSpec, SigmoidInputs, build_artifact
 
     reference = load_artifact(default_artifact_path())

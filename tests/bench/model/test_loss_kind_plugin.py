@@ -147,7 +147,7 @@ def test_a_kind_defined_in_a_test_runs_from_identification_to_the_emulated_firmw
     from bench.firmware.check import check_firmware
     from bench.firmware.codegen import generate
     from bench.firmware.toolchain import build_firmware
-    from bench.model.artifact_eval import artifact_loss_model
+    from bench.model.artifact_values import artifact_loss_model
     from bench.model.identify import identify
     from bench.model.runs import drive_matrix, initial_temperatures
     from bench.motor.description import motor_from_dict
