@@ -113,10 +113,12 @@ def test_run_stops_its_target_and_removes_the_partial_log(material, scratch, sig
 
 
 def test_replay_stops_its_target_and_removes_the_partial_log(material, scratch):
-    """`bench replay` with the recorded timing slowed down 20 times (the 50-row log lasts seconds)."""
+    """`bench replay` with the recorded timing slowed down 500 times: the 50-row lockstep log spans tens of ms, so
+    at 0.02 a replay could end (and its log be complete) before the signal on a loaded machine; at 0.002 it lasts
+    far longer than the wait for the signal."""
     port = _port()
     out = scratch / "out"
-    process = _start(["bench", "replay", material.log, "--model", material.art, "--speed", "0.02", "--log",
+    process = _start(["bench", "replay", material.log, "--model", material.art, "--speed", "0.002", "--log",
                       out / "r.blf", "--quiet"], scratch, port)
     rc, _, stderr, left = _signal_when_running(process, port, signal.SIGTERM, settle_s=1.0)
     assert rc == 143, stderr
