@@ -1,0 +1,71 @@
+"""Check the generated documentation pages against their sources: `python docs/check_generated.py [HTML_DIR]`.
+
+The protocol page must list every message of `dbc/thermal_bench.dbc` (name, id, and a section of its own with every
+signal), the artifact page every loss model, model kind and realization of the registries and the schema version.
+With HTML_DIR (the output of `sphinx -b html docs HTML_DIR`), the built pages are checked too. Exit 1 with one
+line per problem.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+sys.path.insert(0, str(DOCS.parent))
+sys.path.insert(0, str(DOCS / "_ext"))
+
+import bench_docs  # noqa: E402
+
+
+def problems(html_dir: Path | None = None) -> list[str]:
+    from dbc.database import load_database
+    from target_sim.artifact import SCHEMA_VERSION
+    from target_sim.kinds import REALIZATIONS
+    from target_sim.losses import LOSS_KINDS
+    from target_sim.modelkinds import MODEL_KINDS
+
+    found = []
+    protocol = bench_docs.render_protocol()
+    database = load_database()
+    for message in database.messages:
+        if f"`0x{message.frame_id:03X}`" not in protocol or f"\n### {message.name}\n" not in protocol:
+            found.append(f"protocol page: message {message.name} (0x{message.frame_id:03X}) is missing")
+        for signal in message.signals:
+            if f"| `{signal.name}` |" not in protocol:
+                found.append(f"protocol page: signal {message.name}.{signal.name} is missing")
+    schema = bench_docs.render_artifact_schema()
+    if f"`schema_version`: {SCHEMA_VERSION} " not in schema:
+        found.append(f"artifact page: schema version {SCHEMA_VERSION} is missing")
+    for family, names in (("loss model", LOSS_KINDS.names()), ("model kind", MODEL_KINDS.names()),
+                          ("realization", REALIZATIONS.names())):
+        for name in names:
+            if f"`{name}`" not in schema:
+                found.append(f"artifact page: {family} {name} is missing")
+    if html_dir is not None:
+        page = html_dir / "reference" / "protocol.html"
+        html = page.read_text(encoding="utf-8") if page.exists() else ""
+        for message in database.messages:
+            if f'id="msg-{message.name.lower()}"' not in html:
+                found.append(f"{page}: no section for message {message.name}")
+        cli = html_dir / "reference" / "cli.html"
+        text = cli.read_text(encoding="utf-8") if cli.exists() else ""
+        from bench.cli import SUBCOMMANDS
+        for name in SUBCOMMANDS:
+            if f"bench {name}" not in text:
+                found.append(f"{cli}: subcommand {name} is missing")
+    return found
+
+
+def main() -> int:
+    html_dir = Path(sys.argv[1]) if len(sys.argv) > 1 else None
+    found = problems(html_dir)
+    for line in found:
+        print(line)
+    if not found:
+        print("generated pages: every DBC message and signal, every kind, every subcommand present")
+    return 1 if found else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
