@@ -16,6 +16,7 @@ ROOT = DOCS.parent
 sys.path.insert(0, str(ROOT))            # the packages, as an installed checkout would see them
 sys.path.insert(0, str(DOCS / "_ext"))
 os.environ.setdefault("MPLBACKEND", "Agg")  # importing the analysis modules must not need a display
+os.environ.setdefault("NUMEXPR_MAX_THREADS", str(os.cpu_count() or 1))  # no log line from numexpr's import
 
 project = "pmsm-thermal-bench"
 author = "pmsm-thermal-bench contributors"

@@ -50,9 +50,11 @@ def render_protocol() -> str:
     lines = [
         "<!-- generated from dbc/thermal_bench.dbc by docs/_ext/bench_docs.py; do not edit -->",
         "",
-        f"## The contract: `{DBC_PATH.name}` version {c.version}",
+        "(protocol-contract)=",
+        "## The contract",
         "",
-        f"{len(c.by_name)} messages. The DBC's own description, the E2E scheme included:",
+        f"`{DBC_PATH.name}` version {c.version}, {len(c.by_name)} messages, generated from the file when these pages "
+        "were built. The DBC's own description, the E2E scheme included:",
         "",
         f"> {_text(_dbc_general_comment(DBC_PATH))}",
         "",
