@@ -97,6 +97,9 @@ def run_host(args: argparse.Namespace) -> int:
     if config.interface == "virtual":  # python-can's virtual bus lives in one process: no target could answer
         raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
                          "use udp_multicast, socketcan or auto")
+    log_path = check_log_path(args.log)   # the arguments' refusals before any work
+    check_writable(log_path, "--log")   # a directory there would fail the run only at its end
+    check_log_names(log_path, faults)
     artifact, _ = load_model(args.model)
     mapping, period = data_options(args)
     dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
@@ -105,9 +108,6 @@ def run_host(args: argparse.Namespace) -> int:
         drive = drive[: args.rows]
     from bench.model.runs import initial_temperatures
 
-    log_path = check_log_path(args.log)
-    check_writable(log_path, "--log")   # before the run: a directory there would fail it only at the end
-    check_log_names(log_path, faults)
     bus = None
     try:
         bus = config.open()
