@@ -5,7 +5,7 @@ report what came back.
                [--speed X] [--rows N] [--log FILE]
                [--reply-timeout S] [--connect-timeout S] [--tolerate-gaps] [--json] [--quiet]
                [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
-               [--target-events FILE]
+               [--target-events FILE] [--wait-for-listener SECONDS]
                [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
 
 The target (`python -m target_sim`, or a real ECU) must run on the same bus; its heartbeat must carry the model
@@ -30,7 +30,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.args import announce_logger, positive_float, positive_int
+from bench.commands.args import add_listener_argument, announce_logger, positive_float, positive_int
 from bench.commands.common import (
     add_data_arguments,
     add_output_flags,
@@ -76,6 +76,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--target-events", type=Path, default=None, metavar="FILE",
                    help="the target's detection journal (its --events file), to check that faults were detected")
     add_output_flags(p)
+    add_listener_argument(p)
     add_bus_arguments(p)
     p.set_defaults(func=run_host)
 
@@ -118,7 +119,7 @@ def run_host(args: argparse.Namespace) -> int:
         if not (args.quiet or args.json):
             print(f"bench: host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
                   + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
-        announce_logger(config, args.quiet, "bench: host: ")
+        announce_logger(config, args.quiet, "bench: host: ", wait_s=args.wait_for_listener)
         started = time.time()
         result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
                              mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,

@@ -4,6 +4,7 @@
               [--mode lockstep|realtime] [--speed X] [--rows N] [--log FILE]
               [--report DIR | --no-report] [--reply-timeout S] [--tolerate-gaps] [--seed N] [--json] [--quiet]
               [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
+              [--wait-for-listener SECONDS]
               [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
 
 Defaults: the generated 40 °C validation run (out/data, made if missing), the packaged model artifact, lockstep,
@@ -13,11 +14,16 @@ at --sample-period (default auto: the mapping's, else the model's); its sample p
 with an electrical loss model needs the d/q currents: the host then sends each row's DriveCurrents after its
 DriveInputs and DriveTemps, and data without them is refused in one sentence before anything starts.
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
-±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). The JSON summary names the bus
+±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). In the JSON summary (--json)
+"clean" (true/false) comes with "verdict": "clean", or "not clean: " and the reasons ("; "-separated problems, or
+the faults injected), and "rmse_C" with "rmse_reference": per node what its RMSE is against ("measured": the
+data's temperature, "float64 model": the offline model, for nodes the data does not measure). It names the bus
 it used ("bus": interface, channel, and the port of udp_multicast), `auto` resolved; at the start (with --json
 too, not with --quiet) stderr has the `python -m can.logger ...` line that records the run's bus. udp_multicast
 on a channel you chose (-c, CAN_CHANNEL, a config file) uses python-can's port 43113 unless --bus-kwargs port=N;
-with no channel chosen the bench's own group and a port unique to the run. A target already sending on
+with no channel chosen the bench's own group and a port unique to the run, which exists only once the run has
+started: `--wait-for-listener SECONDS` prints the logger line first and waits before the target starts, so a
+logger started from it records the whole run. A target already sending on
 the channel is refused before the run starts its own, and so is a host; a host frame this run did not send stops
 it at any time (`dbc.transport.SenderGuard`). A --log that cannot be written (a directory) is refused before the
 run. SIGINT, SIGTERM and SIGHUP stop the target, discard the partial log and exit 128 + the signal.
@@ -42,7 +48,13 @@ import time
 from pathlib import Path
 
 from bench.analysis.results import BusInfo, HostFaults, NodeCycles, RunResults, RunSummary
-from bench.commands.args import announce_logger, bus_from_args, positive_float, positive_int
+from bench.commands.args import (
+    add_listener_argument,
+    announce_logger,
+    bus_from_args,
+    positive_float,
+    positive_int,
+)
 from bench.commands.common import (
     add_data_arguments,
     add_engine_argument,
@@ -75,6 +87,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--no-report", action="store_true", help="skip the report (metrics are still computed)")
     add_fault_arguments(p)
     add_output_flags(p)
+    add_listener_argument(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -142,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
         injecting = f", injecting {faults.describe()}" if faults else ""
         print(f"bench: {artifact.kind} model {artifact.model_id:08x} ({args.engine} engine) on {len(drive)} rows of "
               f"{dataset.path} ({args.mode}) over {bus.describe()}{injecting}", file=sys.stderr)
-    announce_logger(bus, args.quiet)   # with --json too: a script's user attaches a logger the same way
+    # with --json too: a script's user attaches a logger the same way (--wait-for-listener: before the target starts)
+    announce_logger(bus, args.quiet, wait_s=args.wait_for_listener)
     bar = ProgressBar(len(drive), args.mode, quiet)
     started = time.perf_counter()
     try:

@@ -896,6 +896,8 @@ def test_run_names_the_separator_of_another_csv_dialect(cli, material, scratch, 
     (("firmware", "buld"), ("did you mean 'build'?", "(see 'bench firmware --help')")),
     (("firmware", "build", "--nosuch"), ("(see 'bench firmware build --help')",)),
     (("--nosuch",), ("unrecognized arguments: --nosuch", "(see 'bench --help')")),
+    (("run", "--wait-for-listener", "0"), ("'0' must be a positive number",)),
+    (("host", "--data", "d.csv", "--wait-for-listener", "x"), ("'x' is not a number",)),
 ])
 def test_a_bad_argument_is_one_sentence_with_one_prefix(cli, scratch, argv, fragments):
     """One `bench: error: ` (it was doubled: 'bench: error: bench: argument ...'), a close subcommand or choice
