@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import logging
+import re
 import signal
 import sys
 
@@ -25,15 +27,99 @@ LAYER_ERRORS = (CanLinkError, TargetError, HostError)
 LAYER_USAGE_ERRORS = (FaultSpecError,)
 
 
+DESCRIPTION = """\
+A CAN hardware-in-the-loop bench for traction-motor (PMSM) temperature estimators: it identifies thermal models
+from drive data, runs them in float32 on a simulated C2000 target (a Python node, or C firmware in an emulated
+Cortex-M4F) on a real CAN bus, replays the FTP-75/WLTC3 drive cycles to it as CAN frames, logs every frame and
+reports accuracy, agreement with the offline reference, timing and bus load.
+
+The main job is `bench run`: start the target, replay a dataset over CAN, log, analyze, report (exit status 0
+only when the run is clean). The other subcommands make its inputs (data, identify, firmware) or work on its
+logs (analyze, replay, export)."""
+
+EPILOG = """\
+examples:
+  bench run                                    the default run: generated data, packaged model, out/run/
+  bench run --engine firmware --json           the same on the emulated Cortex-M4F, the summary as JSON
+  bench analyze out/run/bench.blf --no-report  decode a run's log again and print its figures
+  bench export out/run/bench.blf --out run.asc --host-only
+                                               the host's frames as a Vector ASC log, for python -m can.player
+
+'bench SUBCOMMAND --help' describes each subcommand."""
+
+# argparse's "invalid choice" sentence, in the forms of Python 3.11 to 3.13 (choices quoted or not)
+INVALID_CHOICE = re.compile(r"invalid choice: (?P<q>['\"]?)(?P<value>.*?)(?P=q) \(choose from (?P<choices>.*)\)$")
+UNKNOWN_PROG = "_bench_unknown_prog"   # namespace attribute: the (sub)command that left unknown arguments
+
+
+def _suggestion(message: str) -> str:
+    """"; did you mean 'run'?" for a mistyped choice (difflib), else ''."""
+    match = INVALID_CHOICE.search(message)
+    if not match:
+        return ""
+    choices = [c.strip().strip("'\"") for c in match["choices"].split(",")]
+    close = difflib.get_close_matches(match["value"], choices, n=1)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 class OneLineParser(argparse.ArgumentParser):
-    """argparse that reports a bad argument in one sentence (exit status 2) instead of a usage dump."""
+    """argparse that reports a bad argument in one sentence (exit status 2) instead of a usage dump, pointing to the
+    help of the (sub)command the argument was given to. The CLI prints the `bench: error: ` prefix: the message
+    carries no prog of its own."""
 
     def error(self, message: str) -> None:  # noqa: D401 - argparse API
-        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+        raise UsageError(f"{message}{_suggestion(message)} (see '{self.prog} --help')")
+
+    def parse_known_args(self, args=None, namespace=None):
+        # argparse hands a subcommand's unknown arguments up to the top parser, which would name its own help:
+        # the innermost parser that had some records its prog, for parse_args to name
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras and not hasattr(namespace, UNKNOWN_PROG):
+            setattr(namespace, UNKNOWN_PROG, self.prog)
+        return namespace, extras
+
+    def parse_args(self, args=None, namespace=None):
+        namespace, extras = self.parse_known_args(args, namespace)
+        prog = vars(namespace).pop(UNKNOWN_PROG, self.prog)
+        if extras:
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)} (see '{prog} --help')")
+        return namespace
+
+
+DISTRIBUTION = "pmsm-thermal-bench"
+
+
+def version_text() -> str:
+    """'bench 0.1.0 (pmsm-thermal-bench; DBC thermal_bench.dbc 1.5.0, model artifact schema 2)'."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from dbc.database import contract
+    from target_sim.artifact import SCHEMA_VERSION
+
+    try:
+        package = version(DISTRIBUTION)
+    except PackageNotFoundError:   # a source tree that was never installed
+        package = "(not installed)"
+    return (f"bench {package} ({DISTRIBUTION}; DBC thermal_bench.dbc {contract().version}, "
+            f"model artifact schema {SCHEMA_VERSION})")
+
+
+class VersionAction(argparse.Action):
+    """`--version`: computed when asked (the DBC is not parsed for every command)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):  # noqa: A002
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(version_text())
+        parser.exit()
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineParser(prog="bench", description=__doc__)
+    parser = OneLineParser(prog="bench", description=DESCRIPTION, epilog=EPILOG,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action=VersionAction,
+                        help="print the version, and the versions of the DBC and the model artifact schema it speaks")
     subparsers = parser.add_subparsers(title="subcommands", dest="command", parser_class=OneLineParser)
     for name in SUBCOMMANDS:
         try:

@@ -4,6 +4,11 @@
 `python -m cantools decode`), `.csv` (python-can's CSV) and `.mf4` (ASAM MDF 4, only where asammdf imports).
 `FrameLog` writes through a temporary name beside the target and renames it on success, so a failed run leaves
 no half file; timestamps are made non-decreasing (a frame never goes back in time in the log).
+
+The .asc and .mf4 headers state when the recording started, and MF4's frame times count from it. python-can's
+writers put the time of writing there (an export made later had MF4 times of -120 s, or -1.8e9 s in drive time,
+and an ASC dated the export): `FrameLog` gives them the recording's start, its first frame's time or the
+`start_time` it is given (0.0: times that count from 0, e.g. drive time).
 """
 
 from __future__ import annotations
@@ -13,9 +18,11 @@ import importlib.util
 import os
 import sys
 from collections.abc import Iterator
+from datetime import UTC, datetime
 from pathlib import Path
 
 import can
+from can.io.mf4 import MF4Writer
 
 from host.errors import HostError
 
@@ -46,25 +53,76 @@ def check_log_path(path: str | Path, *, for_reading: bool = False) -> Path:
     return path
 
 
-class FrameLog:
-    """Writes every frame given to `write` to `path`, atomically (temporary name, renamed by `close`)."""
+STARTED_SUFFIXES = (".asc", ".mf4")   # formats whose header holds the recording's start time
 
-    def __init__(self, path: str | Path):
+
+class _StartedASCWriter(can.ASCWriter):
+    """python-can's ASC writer, the header's `date` and `Begin Triggerblock` at `start` (python-can dates the file
+    when it is written) and frame times counted from it."""
+
+    def __init__(self, file: str, start: float, **kwargs) -> None:
+        self._start = datetime.fromtimestamp(start)   # local time, as python-can writes and reads it
+        super().__init__(file, **kwargs)   # writes "date ..." through _format_header_datetime
+        self.file.write(f"Begin Triggerblock {self._format_header_datetime(self._start)}\n")
+        self.header_written = True
+        self.started = self.last_timestamp = start
+
+    def _format_header_datetime(self, dt: datetime) -> str:  # noqa: ARG002 - the recording's, not the writing's
+        return super()._format_header_datetime(self._start)
+
+
+class _StartedMF4Writer(MF4Writer):
+    """python-can's MF4 writer, the measurement's start time `start` (python-can takes the time of writing, and
+    counts every frame time from it)."""
+
+    def __init__(self, file: str, start: float, **kwargs) -> None:
+        super().__init__(file, **kwargs)
+        self._mdf.header.start_time = datetime.fromtimestamp(start, UTC)
+        self._start_time = self.last_timestamp = start
+
+
+class FrameLog:
+    """Writes every frame given to `write` to `path`, atomically (temporary name, renamed by `close`).
+
+    `start_time` (seconds since the epoch) is the recording's start an .asc or .mf4 header states and MF4's frame
+    times count from; None: the first frame's time (0.0: times from 0, as drive time is)."""
+
+    def __init__(self, path: str | Path, start_time: float | None = None):
         self.path = check_log_path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.tmp_path = self.path.with_name(partial_name(self.path))
-        try:
-            self._writer = can.Logger(str(self.tmp_path))
-        except (OSError, ValueError, ImportError) as exc:
-            raise LogError(f"cannot write the log {self.path} ({exc})") from None
+        self.start_time = start_time
+        self._writer: can.io.generic.MessageWriter | None = None
+        if self.path.suffix.lower() in STARTED_SUFFIXES:
+            try:   # the writer waits for the first frame's time; whether the file can be written is known now
+                self.tmp_path.touch()
+            except OSError as exc:
+                raise LogError(f"cannot write the log {self.path} ({exc})") from None
+        else:
+            self._writer = self._open(None)
         self._last = float("-inf")
         self.count = 0
         self.closed = False
+
+    def _open(self, first: float | None):
+        """python-can's writer for the suffix; .asc and .mf4 started at `start_time`, else at `first` (else now)."""
+        suffix = self.path.suffix.lower()
+        try:
+            if suffix not in STARTED_SUFFIXES:
+                return can.Logger(str(self.tmp_path))
+            start = self.start_time if self.start_time is not None else first
+            start = datetime.now().timestamp() if start is None else start
+            writer = _StartedASCWriter if suffix == ".asc" else _StartedMF4Writer
+            return writer(str(self.tmp_path), start)
+        except (OSError, ValueError, ImportError, NotImplementedError) as exc:
+            raise LogError(f"cannot write the log {self.path} ({exc})") from None
 
     def write(self, msg: can.Message) -> None:
         if msg.timestamp < self._last:
             msg.timestamp = self._last
         self._last = msg.timestamp
+        if self._writer is None:
+            self._writer = self._open(msg.timestamp)
         self._writer.on_message_received(msg)
         self.count += 1
 
@@ -74,7 +132,10 @@ class FrameLog:
             return self.path if commit else None
         self.closed = True
         try:
-            self._writer.stop()
+            if self._writer is None and commit:   # no frame: still a valid (empty) log
+                self._writer = self._open(None)
+            if self._writer is not None:
+                self._writer.stop()
             if commit and self.tmp_path.exists():
                 os.replace(self.tmp_path, self.path)
         finally:   # not committed (a failure, an interruption, a path that is a directory): no temporary file left

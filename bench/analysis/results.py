@@ -4,6 +4,11 @@
 `RunSummary` is what `bench run --json` prints (and the campaign stores): the run's verdict, bus, host figures and
 its RunResults; `LogSummary` is `bench analyze --json`; `ReplayResults` is `bench replay --json`.
 
+`bench run --json` and `bench analyze --json` carry, beside `clean` (true or false), `verdict`: "clean", or
+"not clean: " and the reasons (the problems, "; "-separated, or the faults injected; `verdict_text`), and beside
+each node's `rmse_C` the `rmse_reference` it is taken against ("measured": the dataset's temperature, "float64
+model": the offline float64 model where the data has no measurement of that node).
+
 The JSON keeps the flat shape the bench always printed: a group marked `flat` (e.g. `Agreement`) puts its keys at
 its parent's level, so grouping the fields in Python changed no key. Every top-level JSON carries
 `schema_version`; `from_json` refuses another version in one sentence (`ResultsError`).
@@ -449,6 +454,18 @@ class HostFaults:
         return out
 
 
+def verdict_text(clean: bool, problems: list[str], injected: int = 0, undetected: int | None = 0) -> str:
+    """The one-line verdict of the JSON: "clean", else "not clean: " and why (the problems, or with none the
+    injected faults, which keep a run from being clean even when each was detected and tolerated)."""
+    if clean:
+        return "clean"
+    reasons = list(problems)
+    if not reasons and injected:
+        detected = "all detected" if undetected == 0 else "detection not verified"
+        reasons = [f"{injected} fault{'' if injected == 1 else 's'} injected, {detected}, nothing else went wrong"]
+    return "not clean: " + ("; ".join(reasons) or "no reason recorded")
+
+
 @dataclass
 class RunSummary(_Json):
     """What `bench run --json` prints: the brief's numbers first (copies of `metrics`' own, kept at the top for a
@@ -471,13 +488,21 @@ class RunSummary(_Json):
             "engine": self.engine, "firmware": self.firmware,
             "steps_sent": m.counts.steps_sent, "replies": m.counts.replies, "missing": m.counts.missing,
             "max_abs_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C, "rmse_C": m.accuracy.rmse_C,
+            "rmse_reference": m.accuracy.rmse_reference,   # what each node's RMSE is against
             "step_time_us": m.timing.step_time_us, "est_cycles": m.timing.est_cycles,
             "m4_cycles": m.timing.m4_cycles, "flash_bytes": m.memory.flash_bytes, "ram_bytes": m.memory.ram_bytes,
             "memory_source": m.memory.memory_source, "throughput_steps_per_s": m.throughput.throughput_steps_per_s,
             "log": m.integrity.log, "report": m.report, "bus": self.bus, "problems": self.problems,
-            "notes": m.notes, "clean": self.clean, "faults": self.faults, "host": self.host}
+            "notes": m.notes, "clean": self.clean, "verdict": self.verdict, "faults": self.faults,
+            "host": self.host}
         return {SCHEMA_KEY: SCHEMA_VERSION, **_dump(head), "metrics": m.to_json(windows=False),
                 "elapsed_s": round(self.elapsed_s, 2), "node_cycles": _dump(self.node_cycles)}
+
+    @property
+    def verdict(self) -> str:
+        faults = self.faults
+        return verdict_text(self.clean, self.problems, faults.injected_total if faults else 0,
+                            faults.undetected if faults else 0)
 
     @classmethod
     def from_json(cls, data: Any) -> RunSummary:
@@ -495,7 +520,11 @@ class LogSummary(_Json):
     clean: bool = False
 
     def to_json(self) -> dict[str, Any]:
-        return {**self.metrics.to_json(windows=False), "problems": self.problems, "clean": self.clean}
+        faults = self.metrics.faults
+        verdict = verdict_text(self.clean, self.problems, faults.injected_total if faults else 0,
+                               faults.undetected if faults else 0)
+        return {**self.metrics.to_json(windows=False), "problems": self.problems, "clean": self.clean,
+                "verdict": verdict}
 
 
 @dataclass

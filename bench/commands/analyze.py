@@ -1,7 +1,7 @@
 """`bench analyze LOG`: decode a bus log of this bench offline into the same report as `bench run`.
 
-    bench analyze LOG [--model FILE] [--data FILE [--mapping FILE] [--sample-period S|auto]] [--report DIR]
-                      [--tolerate-faults] [--json] [--quiet]
+    bench analyze LOG [--model FILE] [--data FILE [--mapping FILE] [--sample-period S|auto]]
+                      [--report DIR | --no-report] [--tolerate-faults] [--json] [--quiet]
 
 The model defaults to the packaged artifact and must carry the log's model id (Status.ModelId). The measured
 reference comes from --data, or else from a dataset in out/data whose rows match the drive values in the log
@@ -36,7 +36,7 @@ from bench.commands.common import (
     print_json,
     print_summary,
 )
-from bench.errors import BenchError
+from bench.errors import BenchError, UsageError
 from bench.run_inputs import load_data, load_model
 
 # half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C, and the
@@ -53,6 +53,8 @@ def add_subparser(subparsers) -> None:
     add_data_arguments(p)
     p.add_argument("--report", type=Path, default=None,
                    help="report directory (default: <log dir>/<log name>-report)")
+    p.add_argument("--no-report", action="store_true",
+                   help="skip the report (metrics and verdict are still computed), as 'bench run --no-report'")
     p.add_argument("--tolerate-faults", action="store_true",
                    help="exit 0 for a log with injected faults if every one was detected and nothing else went wrong")
     add_output_flags(p)
@@ -100,10 +102,13 @@ def run(args: argparse.Namespace) -> int:
     from bench.analysis.results import LogSummary
     from bench.analysis.verdict import fault_note, problems, verdict
 
+    if args.no_report and args.report is not None:
+        raise UsageError("--no-report skips the report that --report names; pass one of them")
+    report_dir = None if args.no_report else args.report or args.log.with_name(f"{args.log.stem}-report")
+    if report_dir is not None:   # before the log is read: a report that cannot be written must not cost that
+        check_writable(report_dir, "--report", directory=True)
+        check_report_dir(report_dir)
     artifact, model_path = load_model(args.model)
-    report_dir = args.report or args.log.with_name(f"{args.log.stem}-report")
-    check_writable(report_dir, "--report", directory=True)
-    check_report_dir(report_dir)
     dataset = None
     if args.data:  # read before the log: the loader's transient peak then does not add to the decoded log
         mapping, period = data_options(args)
@@ -127,8 +132,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:     # e.g. an electrical loss model and a log without the d/q currents
         raise BenchError(f"log {args.log} cannot be compared with {model_path}: {exc}") from None
     in_log = problems(results)
-    results.report = str(write_report(report_dir, results, in_log, record, refs, dataset,
-                                      {"mode": "analyzed from the log"}))  # the report `bench run` writes
+    if report_dir is not None:
+        results.report = str(write_report(report_dir, results, in_log, record, refs, dataset,
+                                          {"mode": "analyzed from the log"}))  # the report `bench run` writes
     outcome = verdict(in_log, fault_note(results), faulted=results.faults is not None,
                       tolerate_faults=args.tolerate_faults)
     found = outcome.problems

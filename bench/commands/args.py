@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
 from bench.errors import UsageError
 from dbc.database import contract
@@ -47,7 +48,22 @@ def bus_from_args(args: argparse.Namespace) -> BusConfig:
     return config
 
 
-def announce_logger(bus: BusConfig, quiet: bool, prefix: str = "bench: ") -> None:
-    """On stderr (unless `quiet`), the line that records this bus with python-can's logger, ready to paste."""
-    if not quiet:
+def add_listener_argument(parser: argparse.ArgumentParser) -> None:
+    """--wait-for-listener SECONDS: the logger line first, then a pause before anything is sent on the bus."""
+    parser.add_argument("--wait-for-listener", type=positive_float, default=None, metavar="SECONDS",
+                        help="print the 'python -m can.logger ...' line first (with --quiet too), then wait SECONDS "
+                             "before anything is sent on the bus (a target is started, the host sends): the run's udp "
+                             "port exists only for this run, so a logger started from that line during the wait "
+                             "records all of it (or fix the bus beforehand: -c GROUP --bus-kwargs port=N)")
+
+
+def announce_logger(bus: BusConfig, quiet: bool, prefix: str = "bench: ", wait_s: float | None = None) -> None:
+    """On stderr (unless `quiet`), the line that records this bus with python-can's logger, ready to paste; with
+    `wait_s` (--wait-for-listener) always, then the wait: nothing is on the bus yet, a listener started now misses
+    nothing."""
+    if not quiet or wait_s:
         print(f"{prefix}to record this bus with python-can: {logger_command(bus)}", file=sys.stderr, flush=True)
+    if wait_s:
+        print(f"{prefix}waiting {wait_s:g} s for a listener (e.g. the logger line above) before anything is sent "
+              "on the bus", file=sys.stderr, flush=True)
+        time.sleep(wait_s)

@@ -80,7 +80,7 @@ def _out_and_set(p: argparse.ArgumentParser, out_help: str) -> None:
 
 
 def _no_action(_args: argparse.Namespace) -> int:
-    raise UsageError("bench campaign: name an action, one of run, plan, report (see 'bench campaign --help')")
+    raise UsageError("'bench campaign' needs an action, one of run, plan, report (see 'bench campaign --help')")
 
 
 def _out_dir(args: argparse.Namespace) -> Path:

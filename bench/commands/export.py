@@ -14,6 +14,10 @@ frame that fails its CRC) keeps its place with the time of the row before it (be
 row's). Timestamps never go back (a row sent again, a target restored to an earlier row, keeps the latest time).
 The sample period is --sample-period, or read from the log: the model step Δt of TargetInfo and the rows after
 which the target stepped its model (Timing1), which only one sample period explains.
+
+The start time an .asc or .mf4 header states is the recording's (its first frame's time; with --host-only too),
+and MF4 frame times count from it; with --drive-time the start is 0 (1970-01-01 00:00 UTC), so the frame times
+are the drive times.
 """
 
 from __future__ import annotations
@@ -168,7 +172,8 @@ def run(args: argparse.Namespace) -> int:
             if not args.host_only or (_is_standard(m) and m.arbitration_id in host_ids)]
     if not keep:
         raise BenchError(f"log {path} has no host frames to export; is it a log of this bench?")
-    with FrameLog(out) as log:
+    # the recording's start in the .asc/.mf4 header (not the export's time); drive time counts from 0
+    with FrameLog(out, start_time=0.0 if times is not None else messages[0].timestamp) as log:
         for i in keep:
             msg = messages[i]
             if times is not None:

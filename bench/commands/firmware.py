@@ -37,7 +37,7 @@ def add_subparser(subparsers) -> None:
 
 
 def _no_action(_args: argparse.Namespace) -> int:
-    raise UsageError(f"bench firmware: name an action, one of {', '.join(ACTIONS)} "
+    raise UsageError(f"'bench firmware' needs an action, one of {', '.join(ACTIONS)} "
                      "(see 'bench firmware --help')")
 
 

@@ -5,7 +5,7 @@ report what came back.
                [--speed X] [--rows N] [--log FILE]
                [--reply-timeout S] [--connect-timeout S] [--tolerate-gaps] [--json] [--quiet]
                [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
-               [--target-events FILE]
+               [--target-events FILE] [--wait-for-listener SECONDS]
                [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
 
 The target (`python -m target_sim`, or a real ECU) must run on the same bus; its heartbeat must carry the model
@@ -30,7 +30,7 @@ import sys
 import time
 from pathlib import Path
 
-from bench.commands.args import announce_logger, positive_float, positive_int
+from bench.commands.args import add_listener_argument, announce_logger, positive_float, positive_int
 from bench.commands.common import (
     add_data_arguments,
     add_output_flags,
@@ -76,6 +76,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--target-events", type=Path, default=None, metavar="FILE",
                    help="the target's detection journal (its --events file), to check that faults were detected")
     add_output_flags(p)
+    add_listener_argument(p)
     add_bus_arguments(p)
     p.set_defaults(func=run_host)
 
@@ -97,6 +98,9 @@ def run_host(args: argparse.Namespace) -> int:
     if config.interface == "virtual":  # python-can's virtual bus lives in one process: no target could answer
         raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
                          "use udp_multicast, socketcan or auto")
+    log_path = check_log_path(args.log)   # the arguments' refusals before any work
+    check_writable(log_path, "--log")   # a directory there would fail the run only at its end
+    check_log_names(log_path, faults)
     artifact, _ = load_model(args.model)
     mapping, period = data_options(args)
     dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
@@ -105,9 +109,6 @@ def run_host(args: argparse.Namespace) -> int:
         drive = drive[: args.rows]
     from bench.model.runs import initial_temperatures
 
-    log_path = check_log_path(args.log)
-    check_writable(log_path, "--log")   # before the run: a directory there would fail it only at the end
-    check_log_names(log_path, faults)
     bus = None
     try:
         bus = config.open()
@@ -118,7 +119,7 @@ def run_host(args: argparse.Namespace) -> int:
         if not (args.quiet or args.json):
             print(f"bench: host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
                   + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
-        announce_logger(config, args.quiet, "bench: host: ")
+        announce_logger(config, args.quiet, "bench: host: ", wait_s=args.wait_for_listener)
         started = time.time()
         result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
                              mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,

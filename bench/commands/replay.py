@@ -2,7 +2,7 @@
 
     bench replay LOG [--speed X | --as-fast-as-possible] [--model FILE] [--no-start-target] [--log FILE]
                      [--engine python|firmware] [--reply-timeout S] [--json] [--quiet]
-                     [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
+                     [--wait-for-listener SECONDS] [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
 
 The host frames (ResetTemps, Control, DriveInputs, DriveTemps) go out byte for byte, counters and CRCs as recorded,
 with the recorded timing (`can.MessageSync`, scaled by --speed) or as fast as possible in lockstep (each row waits
@@ -34,7 +34,7 @@ import numpy as np
 
 from bench.analysis.logdecode import BusRecord, decode_log
 from bench.analysis.results import Percentiles, Rejections, ReplayResults, ReplyComparison
-from bench.commands.args import announce_logger, bus_from_args, positive_float
+from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, positive_float
 from bench.commands.common import NAME_MAX, add_output_flags, check_writable, print_json
 from bench.errors import BenchError
 from bench.progress import ProgressBar
@@ -70,6 +70,7 @@ def add_subparser(subparsers) -> None:
                    help="what the started target runs: the Python model or the firmware in the emulated core "
                         "(default: what the log's target ran)")
     add_output_flags(p)
+    add_listener_argument(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
 
@@ -148,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench: replaying {recorded.rows} rows of {path} "
               f"({'as fast as possible' if args.as_fast_as_possible else f'recorded timing x{args.speed:g}'}) "
               f"over {bus.describe()}", file=sys.stderr)
-    announce_logger(bus, args.quiet)
+    announce_logger(bus, args.quiet, wait_s=args.wait_for_listener)
     bar = ProgressBar(count_rows(frames), "replay", quiet)
     try:
         outcome = replay_with_target(None if args.no_start_target else model_path, artifact, bus, messages,

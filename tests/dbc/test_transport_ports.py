@@ -4,10 +4,13 @@ port; the bench's own group a port unique to the run) and the `python -m can.log
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections import Counter
 
@@ -125,3 +128,64 @@ def test_the_printed_logger_line_records_the_run(small_dataset, tmp_path):
     recorded, copied = _frames(tmp_path / "run.log"), _frames(tmp_path / "copy.log")
     assert sum(recorded.values()) > 200 * 4
     assert recorded - copied == Counter(), "frames of the run the logger did not record"
+
+
+LISTENER_WAIT_S = 20   # generous: python-can's logger imports and opens the bus in 1-3 s, many more under load
+
+
+def test_a_logger_started_during_the_wait_for_listener_records_the_whole_run(small_dataset, tmp_path):
+    """The logger line names the run's own udp port, which exists only once `bench run` has started: with
+    --wait-for-listener the line comes first (with --quiet too) and the run waits before its target starts, so a
+    logger started from the line during the wait records every frame of the run."""
+    env = subprocess_env(can_settings=False)
+    run = subprocess.Popen([sys.executable, "-m", "bench", "run", "--data", str(small_dataset), "--rows", "200",
+                            "--no-report", "--json", "--quiet", "--log", str(tmp_path / "run.log"),
+                            "--wait-for-listener", str(LISTENER_WAIT_S)],
+                           cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stderr: list[str] = []
+    announced = threading.Event()
+
+    def drain() -> None:
+        for line in run.stderr:
+            stderr.append(line)
+            if "python -m can.logger" in line:
+                announced.set()
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    logger = None
+    copy = tmp_path / "copy.log"
+    try:
+        assert announced.wait(60), f"no logger line within 60 s of the start: {''.join(stderr)}"
+        started_wait = time.monotonic()
+        line = next(s for s in stderr if "python -m can.logger" in s)
+        argv = shlex.split(line.split("to record this bus with python-can: ", 1)[1])
+        argv[argv.index("-f") + 1] = str(copy)
+        logger = subprocess.Popen([sys.executable, *argv[1:]], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.PIPE)
+        while not copy.exists() and logger.poll() is None and time.monotonic() - started_wait < LISTENER_WAIT_S:
+            time.sleep(0.05)   # the logger creates its file once its bus is open
+        ready_after = time.monotonic() - started_wait
+        assert copy.exists(), f"python-can's logger did not open the bus during the {LISTENER_WAIT_S} s wait"
+        out, _ = run.communicate(timeout=240)
+        reader.join(10)
+        time.sleep(0.5)   # the last frames reach the logger
+    finally:
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+        if logger is not None and logger.poll() is None:
+            os.kill(logger.pid, signal.SIGINT)
+            try:
+                logger.wait(60)   # under load python-can's logger took more than 20 s to stop after SIGINT
+            except subprocess.TimeoutExpired:
+                logger.kill()
+                logger.wait()
+                pytest.fail("python-can's logger did not exit within 60 s of SIGINT (its file may be incomplete)")
+    assert run.returncode == 0, "".join(stderr)
+    assert any(f"waiting {LISTENER_WAIT_S} s for a listener" in line for line in stderr), "".join(stderr)
+    assert json.loads(out)["verdict"] == "clean"
+    recorded, copied = _frames(tmp_path / "run.log"), _frames(copy)
+    assert sum(recorded.values()) > 200 * 4
+    assert recorded - copied == Counter(), (f"frames of the run the logger (ready {ready_after:.1f} s into the "
+                                            f"{LISTENER_WAIT_S} s wait) did not record")

@@ -884,3 +884,62 @@ def test_run_names_the_separator_of_another_csv_dialect(cli, material, scratch, 
                                rc=1)
     assert "column 'time_s' is missing" not in line
     assert tree(out) is None
+
+
+# ---------------------------------------------------------------- the command line itself: help, version, usage
+
+
+@pytest.mark.parametrize(("argv", "fragments"), [
+    (("rnu",), ("invalid choice: 'rnu'", "did you mean 'run'?", "(see 'bench --help')")),
+    (("run", "--nosuch"), ("unrecognized arguments: --nosuch", "(see 'bench run --help')")),
+    (("run", "--mode", "lokstep"), ("did you mean 'lockstep'?", "(see 'bench run --help')")),
+    (("firmware", "buld"), ("did you mean 'build'?", "(see 'bench firmware --help')")),
+    (("firmware", "build", "--nosuch"), ("(see 'bench firmware build --help')",)),
+    (("--nosuch",), ("unrecognized arguments: --nosuch", "(see 'bench --help')")),
+    (("run", "--wait-for-listener", "0"), ("'0' must be a positive number",)),
+    (("host", "--data", "d.csv", "--wait-for-listener", "x"), ("'x' is not a number",)),
+])
+def test_a_bad_argument_is_one_sentence_with_one_prefix(cli, scratch, argv, fragments):
+    """One `bench: error: ` (it was doubled: 'bench: error: bench: argument ...'), a close subcommand or choice
+    suggested, and the help of the (sub)command the argument was given to."""
+    result = cli("bench", *argv, cwd=scratch)
+    line = assert_one_sentence(result, fragments, rc=2)
+    assert not line.startswith("bench: error: bench"), line
+    assert not any(scratch.iterdir()), "a usage error did work"
+
+
+def test_version_names_the_package_and_the_contracts(cli, scratch):
+    from importlib.metadata import version
+
+    from dbc.database import contract
+    from target_sim.artifact import SCHEMA_VERSION
+
+    result = cli("bench", "--version", cwd=scratch)
+    assert result.rc == 0 and not result.stderr, str(result)
+    assert result.stdout.strip() == (f"bench {version('pmsm-thermal-bench')} (pmsm-thermal-bench; DBC "
+                                     f"thermal_bench.dbc {contract().version}, model artifact schema "
+                                     f"{SCHEMA_VERSION})"), str(result)
+
+
+def test_help_describes_the_tool_with_examples(cli, scratch):
+    result = cli("bench", "--help", cwd=scratch)
+    assert result.rc == 0, str(result)
+    assert "hardware-in-the-loop bench" in result.stdout and "The main job is `bench run`" in result.stdout
+    assert "one module per subcommand" not in result.stdout   # the code's description, not the tool's
+    examples = result.stdout.split("examples:")[1]
+    assert examples.count("\n  bench ") >= 3, result.stdout
+
+
+@pytest.mark.parametrize(("option", "name", "make", "fragment"), [
+    ("--log", "logs", lambda d: d.mkdir(), "has an unsupported format (no suffix)"),
+    ("--log", "logs.blf", lambda d: d.mkdir(), "name a file for --log"),
+    ("--report", "report", lambda d: d.write_text("a file\n"), "choose a directory for --report"),
+])
+def test_run_refuses_its_outputs_before_generating_data(cli, scratch, option, name, make, fragment):
+    """In a fresh directory `bench run` makes the default datasets first (out/data): an output path the arguments
+    already refuse must be refused before that (it was refused after a minute of data generation)."""
+    place = scratch / name
+    make(place)
+    result = cli("bench", "run", option, place, "--quiet", cwd=scratch, timeout=30)
+    assert_one_sentence(result, (str(place), fragment), rc=1)
+    assert not (scratch / "out").exists(), "data were generated before the refusal"

@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 import time
+from datetime import datetime
 
 import can
 import pytest
@@ -15,6 +16,7 @@ from bench.commands.export import drive_times, infer_sample_period
 from dbc import decode_any
 from dbc.database import frame_id, host_frame_ids, target_frame_ids
 from dbc.transport import BusConfig
+from host.canlog import mf4_available
 from target_sim.model import InputAccumulator
 
 from helpers import ROOT, private_udp_bus, run_cli, subprocess_env
@@ -160,3 +162,76 @@ def test_bad_input_is_one_sentence(run_log, tmp_path):
     proc = export(host_only, "--out", tmp_path / "d.blf", "--drive-time")
     assert proc.returncode == 1 and "pass --sample-period S with --drive-time" in proc.stderr, proc.stderr
     assert not (tmp_path / "d.blf").exists() and not (tmp_path / "x.txt").exists()
+
+
+def _mf4_times(path) -> tuple[float, list[float], list[int]]:
+    """What asammdf reads from an .mf4 export: the measurement's start (s since the epoch), and each data frame's
+    time (relative to it) and id."""
+    from asammdf import MDF
+
+    mdf = MDF(str(path))
+    try:
+        ids = mdf.get("CAN_DataFrame.ID")
+        return mdf.header.start_time.timestamp(), ids.timestamps.tolist(), [int(v) for v in ids.samples]
+    finally:
+        mdf.close()
+
+
+@pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
+@pytest.mark.parametrize("host_only", [False, True])
+def test_the_mf4_export_starts_when_the_recording_started(run_log, tmp_path, host_only):
+    """asammdf's times were relative to the time of the export (-120 s for a log made two minutes before): the
+    measurement now starts at the recording's first frame and each frame is at its recorded offset from it."""
+    out = tmp_path / "run.mf4"
+    proc = export(run_log, "--out", out, *(("--host-only",) if host_only else ()))
+    assert proc.returncode == 0, proc.stderr
+    recorded = frames(run_log)
+    start, stamps, ids = _mf4_times(out)
+    kept = [m for m in recorded if not host_only or m.arbitration_id in host_frame_ids()]
+    assert start == pytest.approx(recorded[0].timestamp, abs=1e-6)
+    assert ids == [m.arbitration_id for m in kept]
+    assert stamps == pytest.approx([m.timestamp - recorded[0].timestamp for m in kept], abs=1e-5)
+    assert stamps[0] >= 0 and (host_only or stamps[0] == 0)
+    back = frames(out)   # python-can's reader: the recorded times again
+    assert [m.timestamp for m in back] == pytest.approx([m.timestamp for m in kept], abs=1e-5)
+
+
+@pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
+def test_the_mf4_export_in_drive_time_counts_from_zero(run_log, tmp_path):
+    """With --drive-time asammdf's times were -1.8e9 s (drive time minus the export's wall clock): the start is
+    now the epoch and each frame's time its drive time, the first row's 0."""
+    out, plain = tmp_path / "drive.mf4", tmp_path / "drive.log"
+    assert export(run_log, "--out", out, "--drive-time").returncode == 0
+    assert export(run_log, "--out", plain, "--drive-time").returncode == 0
+    start, stamps, _ = _mf4_times(out)
+    assert start == 0.0
+    expected = [m.timestamp for m in frames(plain)]   # the drive times the candump export writes as they are
+    assert stamps[0] == 0.0 and stamps[-1] == pytest.approx((ROWS - 1) * PERIOD, abs=1e-6)
+    assert stamps == pytest.approx(expected, abs=1e-6)
+
+
+def _asc_date(path) -> str:
+    with open(path) as fh:
+        line = fh.readline()
+    assert line.startswith("date "), line
+    return line[len("date "):].strip()
+
+
+def _asc_format(stamp: float) -> str:
+    """A time as python-can's ASC writer formats a header date (local time, milliseconds unpadded)."""
+    dt = datetime.fromtimestamp(stamp)
+    return dt.strftime(f"%a %b %d %H:%M:%S.{dt.microsecond // 1000} %Y")
+
+
+def test_the_asc_export_is_dated_when_the_recording_started(run_log, tmp_path):
+    """The ASC header's date was the time of the export: it is the recording's first frame's (and the epoch in
+    drive time, whose frame times count from 0)."""
+    out, drive = tmp_path / "run.asc", tmp_path / "drive.asc"
+    assert export(run_log, "--out", out, "--host-only").returncode == 0
+    assert export(run_log, "--out", drive, "--drive-time").returncode == 0
+    first = frames(run_log)[0].timestamp
+    assert _asc_date(out) == _asc_format(first)
+    assert f"Begin Triggerblock {_asc_format(first)}" in out.read_text()
+    assert _asc_date(drive) == _asc_format(0.0)
+    stamps = [m.timestamp for m in frames(drive)]
+    assert stamps[0] == 0.0 and stamps[-1] == pytest.approx((ROWS - 1) * PERIOD, abs=1e-6)

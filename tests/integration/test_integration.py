@@ -83,6 +83,9 @@ def test_bench_run_answers_every_step_and_matches_float32(bench_run):
     assert max(s["max_abs_can_minus_float32_C"].values()) <= 0.005 + 1e-9
     assert s["metrics"]["model_steps"] == 160
     assert s["rmse_C"]["winding"] is not None and s["metrics"]["rmse_reference"]["winding"] == "measured"
+    # beside the RMSEs what each is against, beside `clean` the verdict in words
+    assert s["rmse_reference"] == s["metrics"]["rmse_reference"] and s["rmse_reference"]["yoke"] == "float64 model"
+    assert s["verdict"] == "clean"
     assert s["est_cycles"] > 0 and s["step_time_us"]["p50"] > 0 and s["throughput_steps_per_s"] > 50
     assert s["log"] == str(log)
     assert can_vs_float32(log, default_artifact_path()) <= 0.005 + 1e-9
@@ -118,6 +121,13 @@ def test_bench_analyze_gives_the_run_s_numbers(bench_run, small_dataset, tmp_pat
                 "est_cycles", "max_abs_float32_minus_float64_C"):
         assert a[key] == run[key], key
     assert (tmp_path / "rep" / "report.md").is_file()
+    assert a["verdict"] == "clean"
+    # --no-report as `bench run --no-report`: the figures, no report written
+    bare = run_cli("-m", "bench", "analyze", str(log), "--data", str(small_dataset), "--no-report", "--json")
+    assert bare.returncode == 0, bare.stderr
+    b = json.loads(bare.stdout)
+    assert b["rmse_C"] == a["rmse_C"] and b["verdict"] == "clean" and "report" not in b
+    assert not log.with_name(f"{log.stem}-report").exists()
 
 
 def test_every_kind_and_the_original_realization(artifacts, small_dataset, tmp_path):

@@ -99,3 +99,27 @@ def test_run_json_report_and_campaign_store_read_the_same_object():
     # `bench analyze --json` is the same metrics, flat, with the verdict
     analyzed = LogSummary(summary.metrics, [], True).to_json()
     assert LogSummary.from_json(analyzed).metrics == stored.metrics
+
+
+def test_the_run_json_says_what_each_rmse_is_against_and_its_verdict_in_words():
+    data = example_summary().to_json()
+    reference = example_results().accuracy.rmse_reference
+    assert data["rmse_reference"] == {n: reference.get(n) for n in ("yoke", "winding", "tooth", "magnet")}
+    assert list(data).index("rmse_reference") == list(data).index("rmse_C") + 1
+    assert (data["clean"], data["verdict"]) == (True, "clean")
+    failed = example_summary(clean=False, problems=["3 of 300 rows got no reply", "the heartbeat was lost"])
+    assert failed.to_json()["verdict"] == "not clean: 3 of 300 rows got no reply; the heartbeat was lost"
+    # faults injected, each detected and tolerated: no problem, and still not clean
+    host = HostFaults.of_run({"injected": {"drop": 3}, "detected": {"drop": 3}, "injected_total": 3,
+                              "detected_total": 3, "undetected": 0, "retransmitted_rows": 1, "gaps": []}, None)
+    tolerated = example_summary(clean=False, problems=[], faults=host)
+    assert tolerated.to_json()["verdict"] == "not clean: 3 faults injected, all detected, nothing else went wrong"
+    assert RunSummary.from_json(json.loads(json.dumps(failed.to_json()))).verdict == failed.verdict
+
+
+def test_the_analyze_json_has_the_verdict_in_words():
+    assert LogSummary(example_results(), [], True).to_json()["verdict"] == "clean"
+    assert LogSummary(faulted(), ["the log is incomplete"], False).to_json()["verdict"] == \
+        "not clean: the log is incomplete"
+    assert LogSummary(faulted(), [], False).to_json()["verdict"] == \
+        "not clean: 1 fault injected, all detected, nothing else went wrong"

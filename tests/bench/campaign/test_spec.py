@@ -132,7 +132,7 @@ def test_bad_arguments_are_one_sentence(tmp_path, capsys):
          "cannot reach a Dask scheduler at tcp://127.0.0.1:1"),
         (["run", str(spec), "--set", "rows"], 2, "must be KEY=VALUE"),
         (["report", str(tmp_path)], 1, "campaign.sqlite does not exist"),
-        ([], 2, "name an action"),
+        ([], 2, "needs an action"),
     ]
     for argv, status, expected in cases:
         assert main(["campaign", *argv]) == status, argv
