@@ -64,7 +64,7 @@ def _suggestion(message: str) -> str:
 
 class OneLineParser(argparse.ArgumentParser):
     """argparse that reports a bad argument in one sentence (exit status 2) instead of a usage dump, pointing to the
-    help of the (sub)command the argument was given to. The CLI prints the `bench: error: ` prefix: the message
+    help of the (sub)command the argument was given to. The CLI prints the `bench: error:` prefix: the message
     carries no prog of its own."""
 
     def error(self, message: str) -> None:  # noqa: D401 - argparse API
