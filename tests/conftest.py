@@ -37,6 +37,17 @@ def udp_bus():
 
 
 @pytest.fixture(scope="session")
+def default_data_root(tmp_path_factory) -> Path:
+    """Where the session's default datasets (`ensure_default_datasets`, ~5 s to generate) go: one directory for the
+    whole run, so the drive and model suites and every pytest-xdist worker share one generation
+    (`ensure_default_datasets` locks the directory while it generates; the others wait and reuse the files). Under
+    xdist it is beside the workers' own temporary directories, in the run's; alone, in this session's."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return tmp_path_factory.getbasetemp().parent / "default-data"
+    return tmp_path_factory.mktemp("default-data")
+
+
+@pytest.fixture(scope="session")
 def small_dataset(tmp_path_factory) -> Path:
     return write_synthetic_dataset(tmp_path_factory.mktemp("data") / "small.csv", synthetic_columns(600),
                                    "synthetic test data")

@@ -4,6 +4,9 @@ coolant set point, written as dataset files (`bench.drive.dataset`'s format) wit
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,12 +84,38 @@ def ensure_default_datasets(out_dir: Path | None = None, seed: int | None = None
     out_dir = Path(out_dir) if out_dir is not None else default_dataset_dir()
     seed = DEFAULT_SEED if seed is None else seed
     paths = {}
-    for setpoint in COOLANT_SETPOINTS_C:
-        path = out_dir / dataset_filename(setpoint)
-        if not _is_current(path, seed, GENERATOR_VERSION):
-            generate_and_write(path, setpoint, seed)
-        paths[int(setpoint)] = path
+    with _directory_lock(out_dir):
+        for setpoint in COOLANT_SETPOINTS_C:
+            path = out_dir / dataset_filename(setpoint)
+            if not _is_current(path, seed, GENERATOR_VERSION):
+                generate_and_write(path, setpoint, seed)
+            paths[int(setpoint)] = path
     return paths
+
+
+@contextmanager
+def _directory_lock(directory: Path) -> Iterator[None]:
+    """Holds an exclusive lock on `directory` itself (flock on its descriptor, no lock file left in it), created if
+    missing: processes that fill one directory at once (parallel test workers, two commands) generate each file once,
+    the others wait and then find it current. Without flock (Windows) or where the directory cannot be made or
+    opened, no lock: every file is written atomically anyway, so a race costs only generating twice, and the
+    writes report the directory's problem as before."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)   # releases the lock
 
 
 def _is_current(path: Path, seed: int, version: str) -> bool:

@@ -107,20 +107,37 @@ def test_the_printed_logger_line_records_the_run(small_dataset, tmp_path):
     expected = logger_command(BusConfig("udp_multicast", GROUP, kwargs={"port": port}), str(tmp_path / "copy.log"))
     argv = expected.split()
     assert argv[:3] == ["python", "-m", "can.logger"]
-    logger = subprocess.Popen([sys.executable, *argv[1:]], cwd=ROOT, env=subprocess_env(can_settings=False),
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # The logger's stderr goes to a file, not a pipe nobody reads while it runs (a full pipe would block it).
+    logger_err = tmp_path / "logger.stderr"
+    with logger_err.open("wb") as err:
+        logger = subprocess.Popen([sys.executable, *argv[1:]], cwd=ROOT, env=subprocess_env(can_settings=False),
+                                  stdout=subprocess.DEVNULL, stderr=err)
     try:
-        deadline = time.monotonic() + 30
+        # Ready: python-can's logger creates its file after it has joined the group (start-up, imports: 1-2 s
+        # alone, much longer on a machine running other tests in parallel), so wait for the file, generously.
+        deadline = time.monotonic() + 120
         while not (tmp_path / "copy.log").exists() and time.monotonic() < deadline and logger.poll() is None:
             time.sleep(0.05)
+        assert logger.poll() is None and (tmp_path / "copy.log").exists(), (
+            f"python-can's logger did not start within 120 s: {logger_err.read_text(errors='replace')}")
         time.sleep(0.3)
         run = run_cli("-m", "bench", "run", "--data", str(small_dataset), "--rows", "200", "--no-report", "--json",
                       "--log", str(tmp_path / "run.log"), *bus, can_settings=False)
-        time.sleep(0.3)
+        # The run's last frames are in the logger's socket; give a loaded machine time to take them off it
+        # before the SIGINT ends its loop.
+        time.sleep(2)
     finally:
         if logger.poll() is None:
             os.kill(logger.pid, signal.SIGINT)
-        logger.wait(20)
+        try:
+            # SIGINT ends the logger's receive loop; it then shuts the bus down and flushes and closes copy.log.
+            # Normally well under a second; up to 60 s allowed on a machine busy with other tests.
+            logger.wait(60)
+        except subprocess.TimeoutExpired:
+            logger.kill()
+            logger.wait()
+            pytest.fail(f"python-can's logger did not exit within 60 s of SIGINT: "
+                        f"{logger_err.read_text(errors='replace')}")
     assert run.returncode == 0, run.stderr
     printed = [line for line in run.stderr.splitlines() if "can.logger" in line]
     assert printed == [f"bench: to record this bus with python-can: python -m can.logger -i udp_multicast -c {GROUP} "

@@ -672,7 +672,7 @@ def _start_target(model: Path, port: int, workdir: Path) -> subprocess.Popen:
 def _stop(process: subprocess.Popen) -> None:
     process.send_signal(signal.SIGTERM)
     try:
-        process.wait(10)
+        process.wait(60)   # its exit after SIGTERM: generous on a busy machine
     except subprocess.TimeoutExpired:
         process.kill()
         process.wait()

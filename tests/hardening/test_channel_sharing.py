@@ -161,7 +161,7 @@ def test_run_and_replay_refuse_a_channel_where_a_host_sends(cli, material, scrat
                      f"port={port}", cwd=scratch, timeout=60)
     finally:
         foreign.terminate()
-        foreign.wait(10)
+        foreign.wait(60)   # its exit after SIGTERM: generous on a busy machine
         left = _targets(port)
         for pid in left:
             os.kill(pid, signal.SIGKILL)

@@ -92,7 +92,7 @@ def test_target_sim_with_the_firmware_engine_serves_a_host(tmp_path, small_datas
                        str(tmp_path / "h.blf"), "--json", *udp_bus.to_argv())
     finally:
         target.send_signal(signal.SIGTERM)
-        _, target_err = target.communicate(timeout=10)
+        _, target_err = target.communicate(timeout=60)   # its exit after SIGTERM: generous on a busy machine
     assert host.returncode == 0, host.stderr
     result = json.loads(host.stdout)
     assert result["replies"] == 200 and result["engine"] == "firmware" and result["m4_cycles"]["max"] == STEP_CYCLES

@@ -77,6 +77,7 @@ def test_a_reply_without_a_heartbeat_is_a_target_too(virtual_pair):
         refuse_foreign_target(host, bus, _Artifact())
 
 
+@pytest.mark.timing
 def test_a_quiet_channel_costs_the_listening_time_only(virtual_pair):
     host, other = virtual_pair
     other.send(FrameCodec("HOST").encode("Control", {"Command": 0, "Step": 0}))  # another host: not a target

@@ -291,6 +291,7 @@ def test_without_the_block_hook_results_are_the_same_and_counts_are_none(elf, fw
 # --- faults --------------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize(("function", "args", "kind", "text"), [
     ("read_bad_pointer", (), "memory", "read of unmapped address 0x40000000"),
     ("write_flash", (), "memory", "write to read-only address 0x08000010"),

@@ -9,8 +9,8 @@ from bench.drive.generate import DEFAULT_SEED, ensure_default_datasets
 
 
 @pytest.fixture(scope="session")
-def dataset_paths(tmp_path_factory):
-    return ensure_default_datasets(tmp_path_factory.mktemp("data"), DEFAULT_SEED)
+def dataset_paths(default_data_root):
+    return ensure_default_datasets(default_data_root, DEFAULT_SEED)
 
 
 @pytest.fixture(scope="session")

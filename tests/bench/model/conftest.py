@@ -5,10 +5,9 @@ from bench.drive.generate import ensure_default_datasets
 
 
 @pytest.fixture(scope="session")
-def default_data_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("data")
-    ensure_default_datasets(out)
-    return out
+def default_data_dir(default_data_root):
+    ensure_default_datasets(default_data_root)
+    return default_data_root
 
 
 @pytest.fixture(scope="session")

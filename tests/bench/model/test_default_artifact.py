@@ -43,6 +43,8 @@ def test_deployed_float32_execution_matches_float64_within_half_the_can_resoluti
 # stops at its evaluation budget and amplifies last-bit differences) and max |f32 - f64| by 3.5e-5 °C; with both
 # in place the same configurations gave identical artifacts. tests/bench/model/test_portable_numerics.py checks
 # the fit's stages under a forced other kernel in a subprocess.
+# 90 s (the full identification of every kind): `-m slow`, which .ci/run runs after the default run.
+@pytest.mark.slow
 def test_regenerating_the_default_artifacts_gives_the_same_content(default_data_dir, tmp_path):
     from bench.model.pipeline import validation_metrics
 
