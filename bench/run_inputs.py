@@ -16,7 +16,7 @@ import numpy as np
 
 from bench.errors import BenchError
 from target_sim.artifact import ModelArtifact, load_artifact
-from target_sim.losses import CURRENT_SIGNALS
+from target_sim.losses import reads_currents
 
 if TYPE_CHECKING:
     from bench.drive.dataset import ColumnMapping, Dataset
@@ -76,7 +76,7 @@ def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, se
 def check_drive_data(dataset: Dataset, artifact: ModelArtifact) -> None:
     """BenchError (one sentence) when the model needs the d/q currents (an electrical loss model) and the data has
     none: refused before anything starts (the target would otherwise never see a complete row)."""
-    if set(artifact.drive_signals) & set(CURRENT_SIGNALS) and not dataset.has_currents:
+    if reads_currents(artifact.drive_signals) and not dataset.has_currents:
         where = f" ({artifact.path})" if artifact.path is not None else ""
         raise BenchError(f"model {artifact.model_id:08x}{where} has an {artifact.loss_model} loss model, which needs "
                          f"the d/q currents, and {dataset.path} has none (columns i_d_A, i_q_A); map them with "

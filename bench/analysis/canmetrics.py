@@ -65,6 +65,7 @@ from host.results import gap_count, percentiles
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import memory_estimate
 from target_sim.kinds import MODEL_KINDS, is_delta
+from target_sim.losses import reads_currents, row_of_width
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 
 TEMPERATURES = TEMPERATURE_NODES
@@ -209,11 +210,11 @@ def intended_drive(record: BusRecord, dataset=None) -> tuple[np.ndarray, int]:
     if not lost.any():
         return drive, 0
     if dataset is not None:
-        from bench.model.runs import CURRENT_COLUMNS, DRIVE_COLUMNS, drive_matrix
+        from bench.model.runs import drive_matrix
 
-        currents = drive.shape[1] > len(DRIVE_COLUMNS)    # the rows carry the d/q currents: so must the data
-        if dataset.has_currents or not currents:
-            values = drive_matrix(dataset, DRIVE_COLUMNS + (CURRENT_COLUMNS if currents else ()))
+        columns = row_of_width(drive.shape[1])    # the rows carry the d/q currents: so must the data
+        if dataset.has_currents or not reads_currents(columns):
+            values = drive_matrix(dataset, columns)
             rows = np.flatnonzero(lost[:len(values)])
             drive[rows] = values[rows]
     for row in np.flatnonzero(~np.isfinite(drive).all(axis=1)):

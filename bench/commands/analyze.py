@@ -79,12 +79,13 @@ def matching_dataset(drive: np.ndarray, artifact):
 def data_mismatch(dataset, drive: np.ndarray) -> str | None:
     """Why `dataset` is not the one the log's drive frames came from (None if it is, within the CAN resolution;
     a log whose rows carry the d/q currents needs a dataset with them, and they must match too)."""
-    from bench.model.runs import CURRENT_COLUMNS, DRIVE_COLUMNS, drive_matrix
+    from bench.model.runs import drive_matrix
+    from target_sim.losses import reads_currents, row_of_width
 
-    currents = drive.shape[1] > len(DRIVE_COLUMNS)
-    if currents and not dataset.has_currents:
+    columns = row_of_width(drive.shape[1])
+    if reads_currents(columns) and not dataset.has_currents:
         return "has no d/q current columns (i_d_A, i_q_A), the log's rows carry them"
-    values = drive_matrix(dataset, DRIVE_COLUMNS + (CURRENT_COLUMNS if currents else ()))
+    values = drive_matrix(dataset, columns)
     if len(values) < len(drive):
         return f"has {len(values)} rows, the log {len(drive)}"
     with np.errstate(invalid="ignore"):   # a row whose frames never came intact (NaN) differs from nothing

@@ -20,6 +20,7 @@ from bench.errors import BenchError
 from dbc.contract import M4_CLOCK_HZ
 from target_sim.artifact import ModelArtifact
 from target_sim.firmware import FirmwareEstimator, FirmwareFault
+from target_sim.losses import reads_currents
 from target_sim.model import F32, Float32Estimator, InputAccumulator
 
 
@@ -70,7 +71,7 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
         where = f" ({artifact.path})" if artifact.path is not None else ""
         given = drive.shape[1] if drive.ndim == 2 else 0
         hint = (f"; its {artifact.loss_model} loss model needs the d/q currents (data columns i_d_A, i_q_A)"
-                if "i_d_A" in artifact.drive_signals else "")
+                if reads_currents(artifact.drive_signals) else "")
         raise BenchError(f"model {artifact.model_id:08x}{where} runs on {width} drive values per row "
                          f"({', '.join(artifact.drive_signals)}), the data gives {given}{hint}")
     rule = InputAccumulator(artifact.data_sample_period, artifact.dt, width)

@@ -43,7 +43,7 @@ from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import firmware_loss_models, firmware_refusal
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
 from target_sim.kinds import MODEL_KINDS, REALIZATIONS
-from target_sim.losses import C_NAMES, LOSS_KINDS, LossKind
+from target_sim.losses import C_NAMES, LOSS_KINDS, LossKind, reads_currents
 from target_sim.network import COOLANT_REFERENCE_C
 
 HEADER_NAME = "fw_model.h"
@@ -193,7 +193,6 @@ static void node_losses({parameters}, float losses[4])
 
 # the templates' call of node_losses (a loss-map row's torque and speed), replaced by the kind's own
 _STEP_CALL = "node_losses(inputs[0], inputs[1], u);"
-_ROW_DOC = ("torque", "speed", "coolant", "ambient")
 
 
 def _scalar_literal(artifact: ModelArtifact, source: tuple) -> str:
@@ -371,7 +370,7 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     model_kind = MODEL_KINDS[kind]
     row = artifact.drive_signals
     width = len(row)     # 4 drive values, 6 with the d/q currents
-    currents = width > len(_ROW_DOC)
+    currents = reads_currents(row)
     inputs = "torque, speed, coolant, ambient" + (", i_d, i_q" if currents else "")
     inputs_doc = "torque Nm, speed rpm, coolant deg C,\n * ambient deg C" + (", i_d A, i_q A" if currents else "")
     loss_doc = loss_kind.summary

@@ -11,10 +11,7 @@ from bench.errors import BenchError
 from bench.motor.losses import EstimatorMotor, LossModel
 from bench.thermal.estimator import StepInputs
 from bench.thermal.excitation import interval_means
-from target_sim.losses import CURRENT_SIGNALS, DRIVE_SIGNALS, row_signals
-
-DRIVE_COLUMNS = DRIVE_SIGNALS
-CURRENT_COLUMNS = CURRENT_SIGNALS
+from target_sim.losses import DRIVE_SIGNALS, reads_currents, row_of_width, row_signals
 
 
 @dataclass(frozen=True)
@@ -30,10 +27,10 @@ class ModelRun:
     initial: np.ndarray         # y0 = [yoke, winding, tooth, magnet] at t = 0
 
 
-def drive_matrix(dataset, columns: tuple[str, ...] = DRIVE_COLUMNS) -> np.ndarray:
+def drive_matrix(dataset, columns: tuple[str, ...] = DRIVE_SIGNALS) -> np.ndarray:
     """(rows, 4) [torque, speed, coolant, ambient], what the host sends over CAN; (rows, 6) with [i_d, i_q] when
     `columns` (a model's `drive_signals`, `row_signals` of a loss model's inputs) has them."""
-    if set(columns) & set(CURRENT_COLUMNS) and not dataset.has_currents:
+    if reads_currents(columns) and not dataset.has_currents:
         raise BenchError(f"{dataset.path} has no d/q current columns (i_d_A, i_q_A), which this motor's loss model "
                          "needs; map them with --mapping or use a motor with loss maps")
     return np.column_stack([dataset.column(c) for c in columns])
@@ -49,8 +46,7 @@ def step_inputs(drive: np.ndarray, loss_model: LossModel, motor: EstimatorMotor,
                 sample_period_s: float) -> StepInputs:
     """Interval means of the drive columns (4, or 6 with the currents) and the losses at them."""
     means = interval_means(drive, sample_period_s, dt)
-    names = DRIVE_COLUMNS + CURRENT_COLUMNS[: means.shape[1] - len(DRIVE_COLUMNS)]
-    table = loss_model.evaluate_columns(dict(zip(names, means.T, strict=True)))
+    table = loss_model.evaluate_columns(dict(zip(row_of_width(means.shape[1]), means.T, strict=True)))
     return StepInputs(
         table_losses=np.column_stack([table[name] for name in MAP_TABLES]),
         speed_ratio=means[:, 1] / motor.max_speed_rpm,

@@ -50,7 +50,7 @@ from bench.motor.errors import MotorFileError
 from bench.motor.losses import LossModel, MotorConstants
 from bench.motor.losskinds import COMMON_KEYS, LAB_LOSS_KINDS
 from bench.thermal.parameters import PARAMETER_SETS, LptnParameters
-from target_sim.losses import CURRENT_SIGNALS
+from target_sim.losses import reads_currents
 
 SCHEMA = "pmsm-thermal-bench.motor"
 SCHEMA_VERSION = 1
@@ -97,7 +97,7 @@ class MotorDescription:
 
     @property
     def needs_currents(self) -> bool:
-        return bool(set(self.loss_model.inputs) & set(CURRENT_SIGNALS))
+        return reads_currents(self.loss_model.inputs)
 
     def constants(self) -> MotorConstants:
         """What the estimator needs of the motor besides its loss model."""

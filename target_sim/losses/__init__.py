@@ -36,12 +36,25 @@ C_NAMES = {"torque_Nm": "torque", "speed_rpm": "speed", "i_d_A": "i_d", "i_q_A":
 DEFAULT = "maps"   # an artifact of schema version 1 has no losses.model: loss maps were all there was
 
 
+def reads_currents(names) -> bool:
+    """`names` (a loss model's inputs, a data row's values) include a d/q current: the row carries DriveCurrents."""
+    return bool(set(names) & set(CURRENT_SIGNALS))
+
+
 def row_signals(inputs: tuple[str, ...]) -> tuple[str, ...]:
     """The values of a data row for a loss model reading `inputs`: 4, or 6 when it reads a current."""
     unknown = [name for name in inputs if name not in C_NAMES]
     if unknown:
         raise ValueError(f"a loss model reads only {', '.join(C_NAMES)}, not {unknown[0]}")
-    return DRIVE_SIGNALS + (CURRENT_SIGNALS if set(inputs) & set(CURRENT_SIGNALS) else ())
+    return DRIVE_SIGNALS + (CURRENT_SIGNALS if reads_currents(inputs) else ())
+
+
+def row_of_width(width: int) -> tuple[str, ...]:
+    """The values of a data row of `width` values (4, or 6 with the currents), as `dbc.contract.row_signals`."""
+    if width not in (len(DRIVE_SIGNALS), len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS)):
+        raise ValueError(f"a data row has {len(DRIVE_SIGNALS)} or {len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS)} "
+                         f"values, not {width}")
+    return (DRIVE_SIGNALS + CURRENT_SIGNALS)[:width]
 
 
 class Evaluator(Protocol):
