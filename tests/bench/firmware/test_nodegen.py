@@ -58,6 +58,23 @@ def _cantools_bounds(source: str, message: str, signal: str) -> tuple[float | No
     return tuple(float(m.group(1).rstrip("uf")) if m else None for m in (low, high))
 
 
+def _python_accepts(signal) -> tuple[np.ndarray, np.ndarray]:
+    """Every raw value of an integer signal, and whether the Python validator accepts each (its scaled range)."""
+    bits = signal.length
+    raw = np.arange(-(1 << (bits - 1)), 1 << (bits - 1)) if signal.signed else np.arange(0, 1 << bits)
+    return raw, np.array([signal.low <= signal.conversion.raw_to_scaled(int(r), False) <= signal.high for r in raw])
+
+
+def _generated_accepts(raw: np.ndarray, low, high) -> np.ndarray:
+    """Whether a generated check with raw limits `low`, `high` (None: no limit on that side) accepts each raw value."""
+    accepted = np.ones(raw.size, bool)
+    if low is not None:
+        accepted &= raw >= low
+    if high is not None:
+        accepted &= raw <= high
+    return accepted
+
+
 @pytest.mark.parametrize("message,signal", RECEIVED, ids=[f"{m}.{s.name}" for m, s in RECEIVED])
 def test_the_generated_range_checks_accept_what_the_python_validator_accepts(message, signal):
     source = packers()["thermal_bench.c"]
@@ -65,15 +82,8 @@ def test_the_generated_range_checks_accept_what_the_python_validator_accepts(mes
     if signal.ieee is not None:      # a float signal: compared as float
         assert (low, high) == (signal.minimum, signal.maximum)
         return
-    bits = signal.length
-    raw = np.arange(-(1 << (bits - 1)), 1 << (bits - 1)) if signal.signed else np.arange(0, 1 << bits)
-    python = np.array([signal.low <= signal.conversion.raw_to_scaled(int(r), False) <= signal.high for r in raw])
-    generated = np.ones(raw.size, bool)
-    if low is not None:
-        generated &= raw >= low
-    if high is not None:
-        generated &= raw <= high
-    assert np.array_equal(python, generated)
+    raw, python = _python_accepts(signal)
+    assert np.array_equal(python, _generated_accepts(raw, low, high))
 
 
 def test_the_row_of_each_loss_model_is_generated_from_the_contract():
@@ -174,20 +184,13 @@ def test_the_generated_range_limits_are_what_the_python_validator_accepts(messag
             assert np.float32(low) == low and np.float32(high) == high
             assert index == order.index(signal.dbc_name)
             continue
-        bits = signal.length
-        raw = np.arange(-(1 << (bits - 1)), 1 << (bits - 1)) if signal.signed else np.arange(0, 1 << bits)
-        python = np.array([signal.low <= signal.conversion.raw_to_scaled(int(r), False) <= signal.high for r in raw])
+        raw, python = _python_accepts(signal)
         if python.all():
             assert field not in checks
             continue
         index, low, high = checks[field]
         assert index == order.index(signal.dbc_name)
-        generated = np.ones(raw.size, bool)
-        if low is not None:
-            generated &= raw >= low
-        if high is not None:
-            generated &= raw <= high
-        assert np.array_equal(python, generated)
+        assert np.array_equal(python, _generated_accepts(raw, low, high))
 
 
 def test_node_c_spells_out_no_received_message_nor_frame_id_of_the_dbc():
