@@ -10,6 +10,7 @@ import re
 import signal
 import sys
 
+from bench import DISTRIBUTION, package_version
 from bench.errors import BenchError, UsageError
 from dbc.errors import CanLinkError
 from host.errors import HostError
@@ -86,22 +87,13 @@ class OneLineParser(argparse.ArgumentParser):
         return namespace
 
 
-DISTRIBUTION = "pmsm-thermal-bench"
-
-
 def version_text() -> str:
     """'bench 0.1.0 (pmsm-thermal-bench; DBC thermal_bench.dbc 1.5.0, model artifact schema 2)'."""
-    from importlib.metadata import PackageNotFoundError, version
-
     from dbc.database import contract
     from target_sim.artifact import SCHEMA_VERSION
 
-    try:
-        package = version(DISTRIBUTION)
-    except PackageNotFoundError:   # a source tree that was never installed
-        package = "(not installed)"
-    return (f"bench {package} ({DISTRIBUTION}; DBC thermal_bench.dbc {contract().version}, "
-            f"model artifact schema {SCHEMA_VERSION})")
+    return (f"bench {package_version('(not installed)')} ({DISTRIBUTION}; DBC thermal_bench.dbc "
+            f"{contract().version}, model artifact schema {SCHEMA_VERSION})")
 
 
 class VersionAction(argparse.Action):

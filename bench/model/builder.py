@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 import numpy as np
 
+from bench import DISTRIBUTION, package_version
 from bench.motor.losses import EstimatorMotor, LossModel
 from bench.motor.losskinds import LAB_LOSS_KINDS
 from bench.thermal.discretize import discretize
@@ -64,13 +64,6 @@ class ModelSpec:
     metrics: dict[str, Any] = field(default_factory=dict)
 
 
-def package_version() -> str:
-    try:
-        return version("pmsm-thermal-bench")
-    except PackageNotFoundError:
-        return "0+unknown"
-
-
 def physical_block(spec: ModelSpec) -> Realization:
     if spec.linear_block is not None:
         return spec.linear_block
@@ -100,7 +93,7 @@ def artifact_content(spec: ModelSpec) -> dict[str, Any]:
         "initial_state": {"rule": "x0 = C_inv @ y0 with y0 = [yoke, winding, tooth, magnet] from the RESET frames; "
                                   "the host sends the first measured coolant temperature for yoke and tooth and the "
                                   "first measured winding and PM temperatures"},
-        "provenance": {"generator": f"pmsm-thermal-bench {package_version()}", **spec.provenance},
+        "provenance": {"generator": f"{DISTRIBUTION} {package_version()}", **spec.provenance},
         "metrics": spec.metrics,
     }
     if MODEL_KINDS[spec.kind].linear_block:
