@@ -8,7 +8,8 @@ sitting, with both wall times.
 --rows N overrides the spec's rows (e.g. --rows 2000 to try the soak small); --set overrides any option as in
 `bench campaign run --set`. Both sides run the same `bench run` arguments (the campaign's own, from the spec), each
 run in a directory of its own; the serial side pays one `bench run` start-up per run as the campaign does, and the
-campaign's figure includes starting and stopping its local cluster.
+campaign's figure includes starting and stopping its local cluster. Writes its record (`tests/benchmarks/record.py`)
+as `campaign-<spec>[-rows<N>].json`, one per spec and size.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+
+from record import Record, add_record_arguments  # noqa: E402
 
 from bench.campaign.execute import prepare_datasets  # noqa: E402
 from bench.campaign.spec import load_spec  # noqa: E402
@@ -61,6 +64,12 @@ def serial_side(spec: Path, out: Path, sets: list[str]) -> tuple[float, list[tup
     return time.perf_counter() - started, results
 
 
+def _shown(path: Path) -> str:
+    """A path as the record shows it: relative to the repository when inside it."""
+    resolved = path.resolve()
+    return str(resolved.relative_to(ROOT)) if resolved.is_relative_to(ROOT) else str(path)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--spec", type=Path, default=ROOT / "examples" / "campaigns" / "soak.toml")
@@ -69,9 +78,14 @@ def main() -> int:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override an option")
     parser.add_argument("--serial-first", action="store_true", help="run the serial loop before the campaign")
     parser.add_argument("--keep", type=Path, default=None, help="keep both sides' outputs in this directory")
+    add_record_arguments(parser)
     args = parser.parse_args()
     sets = list(args.set) + ([f"rows={args.rows}"] if args.rows else [])
     campaign = load_spec(args.spec, sets)
+    variant = args.spec.stem + (f"-rows{args.rows}" if args.rows else "") + ("-custom" if args.set else "")
+    record = Record("campaign", args, variant=variant, parameters={
+        "spec": _shown(args.spec),
+        "runs": len(campaign.runs), "rows": args.rows, "overrides": sets, "workers": args.workers})
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}; spec {args.spec} "
           f"({len(campaign.runs)} runs, overrides {sets or 'none'}); {args.workers} workers")
     with tempfile.TemporaryDirectory() as tmp:
@@ -84,6 +98,8 @@ def main() -> int:
                 sides[side] = wall
                 print(f"campaign: {wall:.1f} s wall on {args.workers} workers ({summary['cluster']}); "
                       f"{summary['counts']}, {summary['retried']} retried; table {summary['table']}")
+                record.figures["campaign"] = {"wall_s": round(wall, 1), "counts": summary["counts"],
+                                              "retried": summary["retried"]}
             else:
                 wall, results = serial_side(args.spec, base / "serial", sets)
                 sides[side] = wall
@@ -93,9 +109,14 @@ def main() -> int:
                 per_run = sorted(t for _, _, t in results)
                 print(f"serial: {wall:.1f} s wall, {len(results)} runs one after the other "
                       f"(median {per_run[len(per_run) // 2]:.1f} s per run); exit codes {codes}")
+                record.figures["serial"] = {"wall_s": round(wall, 1),
+                                            "median_run_s": round(per_run[len(per_run) // 2], 1),
+                                            "exit_codes": {str(k): v for k, v in codes.items()}}
     print(f"speed-up {sides['serial'] / sides['campaign']:.2f}x ({sides['serial']:.1f} s serial, "
           f"{sides['campaign']:.1f} s campaign on {args.workers} workers); load average now "
           f"{os.getloadavg()[0]:.2f}")
+    record.figures["speed_up"] = round(sides["serial"] / sides["campaign"], 2)
+    record.write()
     return 0
 
 

@@ -14,6 +14,8 @@ lockstep throughput of the two engines.
 3. Lockstep throughput of `bench run` with `--engine firmware` and `--engine python` on the full default run, in
    the same sitting, alternating (R runs each, default 2; log written, no report), rows/s as the host measures
    the replay. Goal: >= 3 000 rows/s with the firmware engine.
+Beside each firmware figure, the C28x estimate the target reports (`target_sim.costs`). Writes its record
+(`tests/benchmarks/record.py`).
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from record import Record, add_record_arguments  # noqa: E402
+
 from bench.drive.dataset import load_dataset  # noqa: E402
 from bench.drive.generate import ensure_default_datasets  # noqa: E402
 from bench.firmware.check import check_firmware  # noqa: E402
@@ -36,6 +40,7 @@ from bench.firmware.images import PACKAGED_KINDS, firmware_for, packaged_elf_pat
 from bench.model.default import default_artifact_path  # noqa: E402
 from bench.model.runs import drive_matrix, initial_temperatures  # noqa: E402
 from target_sim.artifact import load_artifact, verify  # noqa: E402
+from target_sim.costs import memory_estimate, step_cost  # noqa: E402
 
 REALIZATIONS = ("balanced", "modal", "physical")
 DTS = (0.5, 1.0, 2.0, 4.0)
@@ -51,13 +56,27 @@ HEADER = (f"{'artifact':34} {'steps':>6} {'mism':>5} {'cyc50':>6} {'cycmax':>6} 
           f"{'RAM':>5} {'stack':>5} {'steps/s':>9}")
 
 
-def packaged_checks(drive, initial) -> None:
+def _figures(artifact, result: dict, **extra) -> dict:
+    """One firmware check as the record keeps it, with the C28x estimate beside it."""
+    cost = step_cost(artifact)
+    memory = memory_estimate(artifact, cost)
+    keep = ("steps", "mismatches", "cycles", "exec_us_at_90MHz", "flash_bytes", "ram_bytes", "stack_used_bytes",
+            "emulated_steps_per_s")
+    return {"kind": artifact.kind, "realization": artifact.realization, "dt_s": artifact.dt,
+            **{k: result[k] for k in keep}, **extra,
+            "c28x_estimate": {"cycles": cost.cycles, "flash_bytes": memory.flash_bytes, "ram_bytes": memory.ram_bytes}}
+
+
+def packaged_checks(drive, initial) -> list[dict]:
     print("\n1. bench firmware check, packaged artifacts, full 40 °C run")
     print(HEADER)
+    out = []
     for kind in PACKAGED_KINDS:
         artifact = load_artifact(default_artifact_path(kind))
         result = check_firmware(artifact, packaged_elf_path(kind), drive, initial)
         print(_row(f"{kind} ({artifact.realization}, {artifact.dt:g} s)", result))
+        out.append(_figures(artifact, result))
+    return out
 
 
 def matrix_artifacts():
@@ -80,9 +99,10 @@ def matrix_artifacts():
                 yield f"{kind} {realization} {dt:g} s", verify(build_artifact(spec))
 
 
-def matrix_checks(drive, initial) -> None:
+def matrix_checks(drive, initial) -> list[dict]:
     print("\n2. bench firmware check, realization x Δt (packaged identification), full 40 °C run")
     print(HEADER)
+    out = []
     with tempfile.TemporaryDirectory(prefix="bench-fw-matrix-") as cache:
         for label, artifact in matrix_artifacts():
             started = time.perf_counter()
@@ -90,9 +110,11 @@ def matrix_checks(drive, initial) -> None:
             built = time.perf_counter() - started
             result = check_firmware(artifact, elf, drive, initial)
             print(_row(label, result) + f"   (built in {built:.1f} s)")
+            out.append(_figures(artifact, result, build_s=round(built, 2)))
+    return out
 
 
-def lockstep(dataset, rows: int | None, repeats: int) -> None:
+def lockstep(dataset, rows: int | None, repeats: int) -> dict:
     from bench.runner import run_with_target
     from dbc.transport import BusConfig, resolve
 
@@ -121,6 +143,8 @@ def lockstep(dataset, rows: int | None, repeats: int) -> None:
     for engine, values in rates.items():
         print(f"  {engine:8} median {statistics.median(values):.0f} rows/s (runs: "
               f"{', '.join(f'{v:.0f}' for v in values)})")
+    return {"rows": len(drive), "rows_per_s": {engine: [round(v) for v in values] for engine, values in rates.items()},
+            "median_rows_per_s": {engine: round(statistics.median(v)) for engine, v in rates.items()}}
 
 
 def main() -> int:
@@ -130,16 +154,21 @@ def main() -> int:
     parser.add_argument("--skip-matrix", action="store_true")
     parser.add_argument("--skip-lockstep", action="store_true")
     parser.add_argument("--data", type=Path, default=ROOT / "out" / "data")
+    add_record_arguments(parser)
     args = parser.parse_args()
+    record = Record("firmware", args, parameters={"rows": args.rows, "repeats": args.repeats,
+                                                  "matrix": not args.skip_matrix, "lockstep": not args.skip_lockstep})
     dataset = load_dataset(ensure_default_datasets(args.data)[40])
     drive, initial = drive_matrix(dataset), initial_temperatures(dataset)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}; {len(drive)} rows of "
           f"{dataset.path}")
-    packaged_checks(drive, initial)
+    record.parameters["data_rows"] = len(drive)
+    record.figures["packaged"] = packaged_checks(drive, initial)
     if not args.skip_matrix:
-        matrix_checks(drive, initial)
+        record.figures["matrix"] = matrix_checks(drive, initial)
     if not args.skip_lockstep:
-        lockstep(dataset, args.rows, args.repeats)
+        record.figures["lockstep"] = lockstep(dataset, args.rows, args.repeats)
+    record.write()
     return 0
 
 

@@ -12,6 +12,7 @@
 3. Lockstep throughput of `bench run --engine firmware` and `--engine python` over a real cross-process bus,
    alternating (R runs each), rows/s as the host measures; the firmware node's cycles per received frame and per
    reply from its statistics. Goal: >= 2 000 rows/s with the firmware node.
+Writes its record (`tests/benchmarks/record.py`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+
+from record import Record, add_record_arguments  # noqa: E402
 
 from bench.drive.dataset import load_dataset  # noqa: E402
 from bench.drive.generate import ensure_default_datasets  # noqa: E402
@@ -106,7 +109,10 @@ def main() -> int:
     parser.add_argument("--rows", type=int, default=None)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--skip-lockstep", action="store_true")
+    add_record_arguments(parser)
     args = parser.parse_args()
+    record = Record("firmware_node", args, parameters={"rows": args.rows, "repeats": args.repeats,
+                                                       "lockstep": not args.skip_lockstep})
     data = ensure_default_datasets(ROOT / "out" / "data")[40]
     dataset = load_dataset(data)
     drive = dataset.drive_inputs()
@@ -129,6 +135,15 @@ def main() -> int:
           f"stack used {fw['stack_used_bytes']} B; tx dropped {fw['tx_dropped']}")
     if result["first"]:
         print("  first difference:", result["first"])
+    record.parameters["session_rows"] = rows
+    record.figures["identity"] = {
+        "frames_in": result["frames_in"], "frames_compared": result["frames_compared"],
+        "mismatching_calls": result["mismatching_calls"], "model_steps": fw["model_steps"],
+        "startup_equal_but_target_info": result["startup_equal_but_target_info"],
+        "m4_cycles": fw["m4_cycles"], "frame_cycles": fw["frame_cycles"], "reply_cycles": fw["reply_cycles"],
+        "flash_bytes": fw["flash_bytes"], "ram_bytes": fw["ram_bytes"], "stack_used_bytes": fw["stack_used_bytes"],
+        "tx_dropped": fw["tx_dropped"]}
+    record.figures["faults"] = []
 
     print("\n2. byte identity under frame faults (each kind at 1 % of the drive frames), in-process")
     for seed in (1, 2, 3):
@@ -136,8 +151,13 @@ def main() -> int:
         errors_p, errors_f = result["python"]["errors"], result["firmware"]["errors"]
         print(f"  seed {seed}: {result['frames_in']} frames, {result['frames_compared']} replies compared, "
               f"{result['mismatching_calls']} differing; rx errors equal {errors_p == errors_f}: {errors_f}")
+        record.figures["faults"].append({"seed": seed, "rate": 0.01, "frames_in": result["frames_in"],
+                                         "frames_compared": result["frames_compared"],
+                                         "mismatching_calls": result["mismatching_calls"],
+                                         "rx_errors_equal": errors_p == errors_f})
 
     if args.skip_lockstep:
+        record.write()
         return 0
     print("\n3. lockstep throughput over the bus, alternating")
     figures: dict[str, list[float]] = {"firmware": [], "python": []}
@@ -151,6 +171,10 @@ def main() -> int:
     for engine, values in figures.items():
         print(f"  {engine:8s} median {statistics.median(values):.0f} rows/s (runs: "
               f"{', '.join(f'{v:.0f}' for v in values)})")
+    record.figures["lockstep"] = {
+        "rows_per_s": {engine: [round(v) for v in values] for engine, values in figures.items()},
+        "median_rows_per_s": {engine: round(statistics.median(v)) for engine, v in figures.items()}}
+    record.write()
     return 0
 
 

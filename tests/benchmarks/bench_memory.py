@@ -16,7 +16,7 @@ run is slower under tracemalloc), each divided by the rows. The baseline is take
 the data are loaded, and for the analysis after a warm-up that loads what costs the same at any length (the
 compiled float64 kernel, matplotlib's renderer and fonts: about 85 MB, 2.3 kB a row of the default run), so the
 figures are what the rows cost. The last lines give the marginal cost, (peak at 10x - peak at 1x) / (rows at
-10x - rows at 1x), which no fixed cost enters.
+10x - rows at 1x), which no fixed cost enters. Writes its record (`tests/benchmarks/record.py`).
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+
+from record import Record, add_record_arguments  # noqa: E402
 
 
 def _status_kb(field: str) -> int:
@@ -195,6 +197,7 @@ def main() -> None:
     parser.add_argument("--data", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--log", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--report", type=Path, help=argparse.SUPPRESS)
+    add_record_arguments(parser)
     args = parser.parse_args()
     if args.child == "host":
         print(json.dumps(child_host(args.data, args.log, args.trace)))
@@ -203,6 +206,7 @@ def main() -> None:
         print(json.dumps(child_analyze(args.data, args.log, args.report, args.trace)))
         return
     os.chdir(ROOT)
+    record = Record("memory", args, parameters={"scales": args.scales, "tracemalloc": not args.no_tracemalloc})
     work = args.work or Path(tempfile.mkdtemp(prefix="bench-memory-"))
     work.mkdir(parents=True, exist_ok=True)
     print(f"work directory {work}", flush=True)
@@ -221,15 +225,19 @@ def main() -> None:
             print(f"x{scale} bench analyze ({what}): {json.dumps(analyzed)}", flush=True)
             results.setdefault(("host run", what), []).append(host)
             results.setdefault(("bench analyze", what), []).append(analyzed)
+    record.figures["measurements"] = []
     for (step, what), runs in results.items():
         key = "tracemalloc_peak_MB" if what == "tracemalloc" else "rss_growth_MB"
-        per_row = ", ".join(f"x{round(r['rows'] / runs[0]['rows'])} {r[key] * 2**20 / r['rows']:.0f} B"
-                            for r in runs)
-        line = f"{step}, {what}: per row {per_row}"
+        per_row = {f"x{round(r['rows'] / runs[0]['rows'])}": round(r[key] * 2**20 / r["rows"]) for r in runs}
+        line = f"{step}, {what}: per row " + ", ".join(f"{scale} {value} B" for scale, value in per_row.items())
+        marginal = None
         if len(runs) > 1 and runs[-1]["rows"] > runs[0]["rows"]:
-            marginal = (runs[-1][key] - runs[0][key]) * 2**20 / (runs[-1]["rows"] - runs[0]["rows"])
-            line += f"; marginal {marginal:.0f} B per row"
+            marginal = round((runs[-1][key] - runs[0][key]) * 2**20 / (runs[-1]["rows"] - runs[0]["rows"]))
+            line += f"; marginal {marginal} B per row"
         print(line, flush=True)
+        record.figures["measurements"].append({"step": step, "measure": what, "runs": runs,
+                                               "bytes_per_row": per_row, "marginal_bytes_per_row": marginal})
+    record.write()
 
 
 if __name__ == "__main__":

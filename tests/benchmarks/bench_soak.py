@@ -11,7 +11,8 @@ fault seed S + run number; `--reply-drop`/`--reply-corrupt` add the target's rep
 same rows comes first, as the reference. Goals: every run completes with every row answered, zero undetected
 faults, zero lost log frames (every frame the host logged reads back from the log file), CAN = offline float32
 restarted as the target was within ±0.005 °C, and the clean run's temperatures outside the marked gaps within
-0.005 °C (the restore is exact, so in fact equal, inside the gaps too).
+0.005 °C (the restore is exact, so in fact equal, inside the gaps too). Writes its record
+(`tests/benchmarks/record.py`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+
+from record import Record, add_record_arguments  # noqa: E402
 
 from bench.analysis.canmetrics import compute  # noqa: E402
 from bench.analysis.logdecode import decode_log  # noqa: E402
@@ -55,7 +58,10 @@ def main() -> int:
     parser.add_argument("--reply-timeout", type=float, default=0.05)
     parser.add_argument("--data", type=Path, default=None, help="dataset (default: the 40 °C run in out/data)")
     add_bus_arguments(parser)
+    add_record_arguments(parser)
     args = parser.parse_args()
+    record = Record("soak", args, parameters={k: getattr(args, k) for k in (
+        "runs", "rows", "drop", "corrupt", "kills", "reply_drop", "reply_corrupt", "seed", "reply_timeout")})
     bus = resolve(config_from_args(args), session_unique=True)
     model_path = default_artifact_path()
     artifact = load_artifact(model_path)
@@ -72,16 +78,16 @@ def main() -> int:
         started = time.perf_counter()
         outcome = run_with_target(model_path, artifact, bus, drive, initial, sample_period_s=dataset.sample_period_s,
                                   log_path=log, reply_timeout_s=args.reply_timeout, faults=faults)
-        record = decode_log(log)
-        results, _ = compute(record, artifact, dataset)
+        decoded = decode_log(log)
+        results, _ = compute(decoded, artifact, dataset)
         metrics = results.to_json()
         read_back = sum(1 for _ in read_log(log))
-        return outcome.result, record, metrics, read_back, time.perf_counter() - started
+        return outcome.result, decoded, metrics, read_back, time.perf_counter() - started
 
     totals: Counter = Counter()
     detected_totals: Counter = Counter()
     with tempfile.TemporaryDirectory() as tmp:
-        clean, clean_record, clean_metrics, clean_back, clean_s = one_run(Path(tmp) / "clean.blf")
+        clean, clean_decoded, clean_metrics, clean_back, clean_s = one_run(Path(tmp) / "clean.blf")
         print(f"clean: {clean.rows_sent} rows, {clean.replies} answered, replay {clean.wall_time_s:.1f} s "
               f"({clean.rows_per_s:.0f} rows/s), {clean_s:.1f} s with start/stop/analysis, max |CAN - float32| "
               f"{max(clean_metrics['max_abs_can_minus_float32_C'].values()):.4f} °C")
@@ -90,12 +96,13 @@ def main() -> int:
         worst_ref = worst_clean_outside = worst_clean_all = 0.0
         lost_frames = undetected = unexplained = 0
         walls = []
+        per_run = []
         for run in range(args.runs):
             spec = parse_faults([f"drop={args.drop}", f"corrupt={args.corrupt}", f"kill={args.kills}",
                                  f"reply_drop={args.reply_drop}", f"reply_corrupt={args.reply_corrupt}"],
                                 seed=args.seed + run)
             log = Path(tmp) / f"soak{run}.blf"
-            result, record, metrics, read_back, wall = one_run(log, spec)
+            result, decoded, metrics, read_back, wall = one_run(log, spec)
             f = result.faults
             walls.append(wall)
             totals.update(f["injected"])
@@ -108,7 +115,7 @@ def main() -> int:
             unexplained += f["unexplained_deadline_misses"] + f["unexplained_heartbeat_losses"]
             ref = max(v for v in metrics["max_abs_can_minus_float32_C"].values() if v is not None)
             worst_ref = max(worst_ref, ref)
-            diff = np.abs(record.temps - clean_record.temps)
+            diff = np.abs(decoded.temps - clean_decoded.temps)
             outside = np.ones(len(diff), dtype=bool)
             for gap in f["gaps"]:
                 outside[gap["rows"][0]:gap["rows"][1] + 1] = False
@@ -116,6 +123,12 @@ def main() -> int:
             all_max = float(np.nanmax(diff))
             worst_clean_outside = max(worst_clean_outside, outside_max)
             worst_clean_all = max(worst_clean_all, all_max)
+            per_run.append({"rows": result.rows_sent, "answered": result.replies, "injected": f["injected"],
+                            "detected": f["detected"], "retransmitted_rows": f["retransmitted_rows"],
+                            "gaps_s": [round(g["duration_s"], 2) for g in f["gaps"]], "log_frames": result.log_frames,
+                            "lost_log_frames": lost, "max_abs_can_minus_restarted_float32_C": ref,
+                            "max_abs_can_minus_clean_outside_gaps_C": outside_max,
+                            "max_abs_can_minus_clean_C": all_max, "wall_s": round(wall, 1)})
             gaps = ", ".join(f"rows {g['rows'][0]}-{g['rows'][1]} ({g['duration_s']:.2f} s)" for g in f["gaps"])
             print(f"run {run}: {result.rows_sent} rows, {result.replies} answered, "
                   + ", ".join(f"{k} {f['injected'][k]}/{f['detected'][k]}" for k in f["injected"])
@@ -135,6 +148,15 @@ def main() -> int:
     ok = (completed == answered_all == args.runs and undetected == 0 and lost_frames == 0
           and worst_ref <= 0.005 + 1e-9 and worst_clean_outside <= 0.005 + 1e-9)
     print("soak goals met" if ok else "soak goals NOT met")
+    record.parameters["data_rows"] = len(drive)
+    record.figures.update(
+        runs=per_run, soak_s=round(soak_s), completed=completed, answered_all=answered_all,
+        injected={k: totals[k] for k in KINDS if totals[k]},
+        detected={k: detected_totals[k] for k in KINDS if totals[k]},
+        undetected=undetected, lost_log_frames=lost_frames, unexplained=unexplained,
+        max_abs_can_minus_restarted_float32_C=worst_ref, max_abs_can_minus_clean_outside_gaps_C=worst_clean_outside,
+        max_abs_can_minus_clean_C=worst_clean_all, goals_met=bool(ok))
+    record.write()
     return 0 if ok else 1
 
 
