@@ -1,9 +1,10 @@
-"""Check the generated documentation pages against their sources: `python docs/check_generated.py [HTML_DIR]`.
+"""Check the generated documentation pages against their sources: `python docs/check_generated.py [--write] [HTML_DIR]`.
 
 The protocol page must list every message of `dbc/thermal_bench.dbc` (name, id, and a section of its own with every
 signal), the artifact page every loss model, model kind and realization of the registries and the schema version.
-With HTML_DIR (the output of `sphinx -b html docs HTML_DIR`), the built pages are checked too. Exit 1 with one
-line per problem.
+Every benchmark script must have its record in `docs/results/`, and the README's headline table must be the one
+the records give (`--write` rewrites it). With HTML_DIR (the output of `sphinx -b html docs HTML_DIR`), the built
+pages are checked too. Exit 1 with one line per problem.
 """
 
 from __future__ import annotations
@@ -16,6 +17,10 @@ sys.path.insert(0, str(DOCS.parent))
 sys.path.insert(0, str(DOCS / "_ext"))
 
 import bench_docs  # noqa: E402
+import results_page  # noqa: E402
+
+README = DOCS.parent / "README.md"
+BENCHMARKS = DOCS.parent / "tests" / "benchmarks"
 
 
 def problems(html_dir: Path | None = None) -> list[str]:
@@ -42,6 +47,7 @@ def problems(html_dir: Path | None = None) -> list[str]:
         for name in names:
             if f"`{name}`" not in schema:
                 found.append(f"artifact page: {family} {name} is missing")
+    found += results_problems()
     if html_dir is not None:
         page = html_dir / "reference" / "protocol.html"
         html = page.read_text(encoding="utf-8") if page.exists() else ""
@@ -57,13 +63,44 @@ def problems(html_dir: Path | None = None) -> list[str]:
     return found
 
 
+def results_problems() -> list[str]:
+    """A benchmark script without a record, a record of no script, or a README table the records do not give."""
+    found = []
+    records = results_page.load_records()
+    scripts = {path.stem.removeprefix("bench_") for path in BENCHMARKS.glob("bench_*.py")}
+    for name in sorted(scripts - set(records)):
+        found.append(f"docs/results: no record of tests/benchmarks/bench_{name}.py (run it)")
+    for name in sorted(set(records) - scripts):
+        found.append(f"docs/results: records of {name}, which no script in tests/benchmarks writes")
+    for name in sorted(scripts - set(results_page.BENCHMARKS)):
+        found.append(f"docs/_ext/results_page.py: no section for tests/benchmarks/bench_{name}.py")
+    try:
+        expected = results_page.splice_readme(README.read_text(encoding="utf-8"), results_page.render_headline(records))
+    except ValueError as exc:
+        return found + [str(exc)]
+    if expected != README.read_text(encoding="utf-8"):
+        found.append("README.md: the headline table is not the one docs/results gives "
+                     "(python docs/check_generated.py --write)")
+    return found
+
+
+def write_readme() -> None:
+    text = results_page.splice_readme(README.read_text(encoding="utf-8"), results_page.render_headline())
+    README.write_text(text, encoding="utf-8")
+
+
 def main() -> int:
-    html_dir = Path(sys.argv[1]) if len(sys.argv) > 1 else None
+    args = sys.argv[1:]
+    if "--write" in args:
+        args.remove("--write")
+        write_readme()
+    html_dir = Path(args[0]) if args else None
     found = problems(html_dir)
     for line in found:
         print(line)
     if not found:
-        print("generated pages: every DBC message and signal, every kind, every subcommand present")
+        print("generated pages: every DBC message and signal, every kind, every subcommand, every benchmark's record "
+              "present; the README's headline table up to date")
     return 1 if found else 0
 
 

@@ -7,6 +7,8 @@
 * `_generated/artifact-schema.md` from `target_sim.artifact` (SCHEMA, SCHEMA_VERSION, READABLE_VERSIONS, the common
   fields) and the registries `target_sim.losses.LOSS_KINDS`, `target_sim.modelkinds.MODEL_KINDS` and
   `target_sim.kinds.REALIZATIONS` (each kind's own fields and shapes, as the loader asks them).
+* `_generated/results.md`, `table5.md` and `ipm-accuracy.md` from the benchmark records in `docs/results/`
+  (`results_page`).
 
 The pages are written only when their text changes, so an unchanged contract does not rebuild them. `render_*` are
 plain functions, so a check (`docs/check_generated.py`) can call them without Sphinx.
@@ -186,7 +188,15 @@ def render_artifact_schema() -> str:
     return "\n".join(lines) + "\n"
 
 
-PAGES = {"protocol.md": render_protocol, "artifact-schema.md": render_artifact_schema}
+def _results_pages() -> dict:
+    """The measured pages (`results_page`, from the benchmark records in `docs/results/`)."""
+    import results_page
+
+    return {"results.md": results_page.render_results, "table5.md": results_page.render_table5,
+            "ipm-accuracy.md": results_page.render_ipm}
+
+
+PAGES = {"protocol.md": render_protocol, "artifact-schema.md": render_artifact_schema, **_results_pages()}
 
 
 def write_pages(directory: Path = GENERATED) -> list[Path]:

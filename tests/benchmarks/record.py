@@ -96,12 +96,13 @@ class Record:
         self._started = time.perf_counter()
         self._date = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
         self._load_start = os.getloadavg()[0]
+        self._code = code()            # the code as it was when the measurement started
 
     def to_json(self) -> dict[str, Any]:
         return {"record_schema": RECORD_SCHEMA, "benchmark": self.benchmark, "variant": self.variant,
                 "date": self._date.isoformat().replace("+00:00", "Z"),
                 "command": " ".join(["python", str(Path(sys.argv[0]).resolve().relative_to(ROOT))] + sys.argv[1:]),
-                "machine": machine(), "code": code(),
+                "machine": machine(), "code": self._code,
                 "load_average": {"start": round(self._load_start, 2), "end": round(os.getloadavg()[0], 2)},
                 "wall_s": round(time.perf_counter() - self._started, 1),
                 "parameters": self.parameters, "figures": self.figures}

@@ -1,0 +1,419 @@
+"""The results page, the README's headline table and the measured tables of the method and own-motor pages, built
+from the benchmark records in `docs/results/*.json` (written by `tests/benchmarks/*.py` through
+`tests/benchmarks/record.py`), so no measured figure is typed by hand.
+
+One renderer per benchmark (`SECTIONS`), each a plain function of its records; a benchmark without a record gets a
+line saying how to measure it. Every section opens with its provenance: when, on what machine, under what load, on
+which code, with which command.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+DOCS = Path(__file__).resolve().parents[1]
+RESULTS = DOCS / "results"
+Record = dict[str, Any]
+
+README_BEGIN = "<!-- headline results: generated from docs/results by docs/check_generated.py --write; do not edit -->"
+README_END = "<!-- end of headline results -->"
+
+
+# ---------------------------------------------------------------------------------------------- reading
+def load_records(directory: Path = RESULTS) -> dict[str, list[Record]]:
+    """The records by benchmark name, each list ordered by variant."""
+    found: dict[str, list[Record]] = {}
+    for path in sorted(directory.glob("*.json")):
+        record = json.loads(path.read_text(encoding="utf-8"))
+        record["_file"] = path.name
+        found.setdefault(record["benchmark"], []).append(record)
+    return found
+
+
+def _one(records: dict[str, list[Record]], name: str) -> Record | None:
+    return records.get(name, [None])[0]
+
+
+# ---------------------------------------------------------------------------------------------- formatting
+def _n(value: float | None, digits: int = 0) -> str:
+    """A number as the pages write it: thousands apart by a space, `–` for none."""
+    if value is None:
+        return "–"
+    return f"{value:,.{digits}f}".replace(",", " ")
+
+
+def _e(value: float | None) -> str:
+    return "–" if value is None else f"{value:.1e}"
+
+
+def _date(record: Record) -> str:
+    return record["date"][:10]
+
+
+def provenance(record: Record) -> str:
+    """One paragraph: the command, when, on what, under what load, on which code."""
+    m, code, load = record["machine"], record["code"], record["load_average"]
+    commit = f" at `{code['commit']}`" + (" with local changes" if code.get("dirty") else "") if code.get("commit") \
+        else ""
+    return (f"*Measured {record['date'].replace('T', ' ').replace('Z', ' UTC')} by `{record['command']}` "
+            f"({_n(record['wall_s'], 0)} s) on {m['cpu']}, {m['cpus']} CPUs, {m['memory_GB']} GB, {m['os']}, "
+            f"Python {m['python']}, numpy {m['numpy']}; load average {load['start']} at the start, {load['end']} at "
+            f"the end; code {code['version']}{commit}.*")
+
+
+def _span(values: list[float], digits: int, unit: str) -> str:
+    low, high = _n(min(values), digits), _n(max(values), digits)
+    return f"{low} {unit}" if low == high else f"{low}–{high} {unit}"
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _missing(script: str) -> list[str]:
+    return [f"Not measured yet: `python tests/benchmarks/{script}` writes the record this section is built from.", ""]
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
+            *("| " + " | ".join(row) + " |" for row in rows), ""]
+
+
+# ---------------------------------------------------------------------------------------------- sections
+def section_accuracy(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "accuracy")
+    lines = ["## Accuracy", ""]
+    if record is None:
+        return lines + _missing("bench_accuracy.py")
+    lines += [provenance(record), "", "The built-in motor's Table 5 analogue:", "", *table5(record), ""]
+    if "ipm" in record["figures"]:
+        lines += ["The IPM example ([your own motor](tutorials/own-motor.md)):", "", *ipm_table(record)]
+    return lines
+
+
+def _rmse(model: dict | None, node: str) -> str:
+    return _n(model["nodes"][node]["rmse_C"], 3) if model else "–"
+
+
+def _winding_pm(model: dict) -> str:
+    return f"{_rmse(model, 'winding')} / {_rmse(model, 'pm')} °C"
+
+
+def table5(record: Record) -> list[str]:
+    """The Table 5 analogue: RMSE of winding and PM per Δt, LTI LPTN and Hammerstein, float32 as deployed."""
+    builtin = record["figures"]["builtin"]
+    by_dt: dict[float, dict[str, Any]] = {}
+    for row in builtin["table5"]:
+        by_dt.setdefault(row["dt_s"], {})[row["kind"]] = row
+    rows = []
+    for dt, kinds in sorted(by_dt.items()):
+        lti, ham = kinds.get("lti-lptn"), kinds.get("hammerstein")
+        rows.append([f"{dt:g}", _rmse(lti, "winding"), _rmse(ham, "winding"), _rmse(lti, "pm"), _rmse(ham, "pm"),
+                     _e(max(r["max_abs_f32_minus_f64_C"] for r in kinds.values()))])
+    balanced = builtin["balanced_max_abs_f32_minus_f64_C"]
+    return [*_table(["Δt (s)", "winding RMSE LTI LPTN", "winding RMSE Hammerstein", "PM RMSE LTI LPTN",
+                     "PM RMSE Hammerstein", "max \\|float32 − float64\\|"], rows),
+            f"(°C, float32 of the deployed realization on the 40 °C validation run ({builtin['validation']}); "
+            f"the balanced realization's largest \\|float32 − float64\\| at Δt 0.5 s: "
+            + ", ".join(f"{kind} {_e(v)}" for kind, v in balanced.items())
+            + f". `bench evaluate` took {_n(builtin['evaluate_s'], 1)} s; measured {_date(record)}.)"]
+
+
+def ipm_table(record: Record) -> list[str]:
+    """The IPM example on its held-out profiles: each kind and the baselines, per node, pooled, float32."""
+    ipm = record["figures"]["ipm"]
+    nodes = ("winding", "pm", "yoke", "tooth")
+    header = ["estimator"] + [f"{node} {what}" for node in nodes for what in ("RMSE", "max")]
+    rows = []
+    for model in ipm["models"]:
+        rows.append([f"{model['kind']} (Δt {model['dt_s']:g} s)"]
+                    + [_n(model["nodes"].get(node, {}).get(key), 3 if key == "rmse_C" else 2)
+                       for node in nodes for key in ("rmse_C", "max_abs_C")])
+    baselines = ipm["models"][0]["baselines"] if ipm["models"] else {}
+    names = {"copper_lowpass": "baseline: copper-loss low-pass (fitted on the training files)",
+             "coolant": "baseline: coolant temperature"}
+    for name, by_node in baselines.items():
+        rows.append([names.get(name, f"baseline: {name}")]
+                    + [_n(by_node.get(node, {}).get(key), 3 if key == "rmse_C" else 2)
+                       for node in nodes for key in ("rmse_C", "max_abs_C")])
+    bounds = ipm["parameters_on_bounds"]
+    named = ", ".join(str(p.get("name", p)) if isinstance(p, dict) else str(p) for p in bounds)
+    return [*_table(header, rows),
+            f"(°C, the held-out profiles {' and '.join(ipm['held_out'])} pooled, float32 as the target runs it; "
+            f"`bench data` {_n(ipm['data_s'], 1)} s, `bench identify --all-kinds` {_n(ipm['identify_s'], 1)} s, "
+            f"`bench evaluate` {_n(ipm['evaluate_s'], 1)} s; {len(bounds)} LPTN parameters ended on a bound"
+            + (f": {named}" if named else "") + f"; measured {_date(record)}.)"]
+
+
+def section_identify(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "identify")
+    lines = ["## Identification", ""]
+    if record is None:
+        return lines + _missing("bench_identify.py")
+    f = record["figures"]
+    rows = [["PSO, swarm 220, 100 iterations", _n(f["pso_s"], 1), f"{_n(f['pso_model_runs'])} model runs, cost "
+             f"{f['pso_cost']:.4f}"]]
+    rows += [[f"LM Hammerstein, {path}", _n(lm["seconds"], 1),
+              f"RMS {lm['rms_initial_C']:.4f} → {lm['rms_final_C']:.4f} °C"] for path, lm in f["lm"].items()]
+    rows.append(["compiled kernel, first call", _n(f["kernel_first_call_s"], 2), "numba compiles or loads its cache"])
+    return lines + [provenance(record), "", *_table(["step", "seconds", "result"], rows),
+                    f"Peak resident memory {_n(f['peak_rss_MB'])} MB.", ""]
+
+
+def section_firmware(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "firmware")
+    lines = ["## Firmware", ""]
+    if record is None:
+        return lines + _missing("bench_firmware.py")
+    f = record["figures"]
+    rows = [[f"{r['kind']} ({r['realization']}, {r['dt_s']:g} s)", f"{r['cycles']['p50']} / {r['cycles']['max']}",
+             _n(r["exec_us_at_90MHz"]["p50"], 1), _n(r["flash_bytes"]), _n(r["ram_bytes"]), _n(r["stack_used_bytes"]),
+             _n(r["emulated_steps_per_s"]), f"{r['mismatches']} of {_n(r['steps'])}",
+             f"{_n(r['c28x_estimate']['cycles'])}, {_n(r['c28x_estimate']['flash_bytes'])}, "
+             f"{_n(r['c28x_estimate']['ram_bytes'])}"] for r in f["packaged"]]
+    lines += [provenance(record), "",
+              f"`bench firmware check` of the packaged artifacts' shipped ELFs over the 40 °C run "
+              f"({_n(record['parameters'].get('data_rows'))} rows); cycles of `fw_step` as the emulator counts them, "
+              "flash and RAM of the whole ELF (model and CAN node), mismatches against the Python float32 reference:",
+              "", *_table(["kind (realization, Δt)", "Cortex-M4F cycles p50 / max", "µs at 90 MHz", "flash (B)",
+                           "RAM (B)", "model stack (B)", "emulated steps/s", "mismatches",
+                           "C28x estimate: cycles, flash, RAM (B)"], rows)]
+    if f.get("matrix"):
+        matrix = [[r["kind"], r["realization"], f"{r['dt_s']:g}", f"{r['cycles']['p50']}", f"{r['mismatches']}",
+                   _n(r["build_s"], 1)] for r in f["matrix"]]
+        lines += ["Every realization at Δt 0.5, 1, 2, 4 s from the packaged identification (the Hammerstein block "
+                  "not refitted), each compiled and checked:", "",
+                  *_table(["kind", "realization", "Δt (s)", "cycles", "mismatches", "build (s)"], matrix)]
+    if f.get("lockstep"):
+        lines += _lockstep_line(f["lockstep"], "the default run over the bus, log written, engines alternating")
+    return lines
+
+
+def _lockstep_line(lockstep: dict, what: str) -> list[str]:
+    runs = "; ".join(f"{engine} {_n(lockstep['median_rows_per_s'][engine])} rows/s median (runs "
+                     f"{', '.join(_n(v) for v in values)})" for engine, values in lockstep["rows_per_s"].items())
+    return [f"Lockstep throughput, {what}: {runs}.", ""]
+
+
+def section_firmware_node(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "firmware_node")
+    lines = ["## The CAN node in firmware", ""]
+    if record is None:
+        return lines + _missing("bench_firmware_node.py")
+    f = record["figures"]
+    i = f["identity"]
+    lines += [provenance(record), "",
+              f"A whole session ({_n(record['parameters']['session_rows'])} rows, {_n(i['frames_in'])} host frames) "
+              f"into the Python node and the firmware node: {_n(i['frames_compared'])} reply frames compared, "
+              f"{i['mismatching_calls']} differing; {_n(i['model_steps'])} model steps.", "",
+              *_table(["cycles (Cortex-M4F)", "p50", "max"],
+                      [["model step (DWT_CYCCNT)", _n(i["m4_cycles"]["p50"]), _n(i["m4_cycles"]["max"])],
+                       ["handling a received frame, model step excluded", _n(i["frame_cycles"]["p50"]),
+                        _n(i["frame_cycles"]["max"])],
+                       ["building a reply frame", _n(i["reply_cycles"]["p50"]), _n(i["reply_cycles"]["max"])]]),
+              f"Flash {_n(i['flash_bytes'])} B, RAM {_n(i['ram_bytes'])} B, stack used {_n(i['stack_used_bytes'])} B, "
+              f"transmit queue drops {i['tx_dropped']}.", "",
+              "Under frame faults (each kind of `dbc.mutations` at the rate given, on the drive frames):", "",
+              *_table(["seed", "rate", "frames in", "replies compared", "differing", "RxErrors counts equal"],
+                      [[str(r["seed"]), f"{r['rate']:g}", _n(r["frames_in"]), _n(r["frames_compared"]),
+                        str(r["mismatching_calls"]), "yes" if r["rx_errors_equal"] else "no"] for r in f["faults"]])]
+    if f.get("lockstep"):
+        lines += _lockstep_line(f["lockstep"], "`bench run` with each engine, alternating")
+    return lines
+
+
+def section_can(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "can")
+    lines = ["## Bus throughput", ""]
+    if record is None:
+        return lines + _missing("bench_can.py")
+    f = record["figures"]
+    lock = f["lockstep"]
+    rows = [[f"{r['coolant_C']:g} °C", _n(r["rows"]), _n(r["wall_s"], 2), _n(r["rows_per_s"]),
+             f"{_n(r['round_trip_us']['p50'])} / {_n(r['round_trip_us']['p99'])}", str(r["missing"])]
+            for r in lock["runs"]]
+    lines += [provenance(record), "", f"Bus: {record['parameters'].get('bus')}.", "",
+              "Lockstep, the three-run campaign, each run with its own target process, log written:", "",
+              *_table(["run", "rows", "replay (s)", "rows/s", "round trip p50 / p99 (µs)", "missing"], rows),
+              f"In all {_n(lock['rows'])} rows, replayed in {_n(lock['replay_s'], 1)} s ({_n(lock['rows_per_s'])} "
+              f"rows/s), {_n(lock['with_start_stop_s'], 1)} s with the target processes' start and stop.", ""]
+    if f.get("realtime"):
+        lines += ["Realtime (send time against plan):", "",
+                  *_table(["speed", "rows", "seconds", "send jitter p50 / p99 / max (µs)", "round trip p50 / p99 (µs)",
+                           "missing"],
+                          [[f"×{r['speed']:g}", _n(r["rows"]), _n(r["wall_s"], 1),
+                            " / ".join(_n(r["send_jitter_us"][k], 1) for k in ("p50", "p99", "max")),
+                            f"{_n(r['round_trip_us']['p50'])} / {_n(r['round_trip_us']['p99'])}", str(r["missing"])]
+                           for r in f["realtime"]])]
+    if f.get("default_run"):
+        lines += ["`bench run` as the quick start runs it (datasets already made, log and report written):", "",
+                  *_table(["run", "exit", "wall (s)", "rows/s", "max \\|CAN − float32\\| (°C)", "verdict"],
+                          [[str(n + 1), str(r["exit"]), _n(r["wall_s"], 1), _n(r["rows_per_s"]),
+                            _n(_worst(r.get("max_abs_can_minus_float32_C")), 4), str(r["verdict"])]
+                           for n, r in enumerate(f["default_run"])])]
+    return lines
+
+
+def _worst(per_node: dict | None) -> float | None:
+    values = [v for v in (per_node or {}).values() if v is not None]
+    return max(values) if values else None
+
+
+def section_memory(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "memory")
+    lines = ["## Memory", ""]
+    if record is None:
+        return lines + _missing("bench_memory.py")
+    rows = []
+    for m in record["figures"]["measurements"]:
+        per_row = ", ".join(f"{scale}: {_n(v)}" for scale, v in m["bytes_per_row"].items())
+        rows.append([m["step"], m["measure"], per_row, _n(m["marginal_bytes_per_row"]),
+                     ", ".join(_n(r["rows"]) for r in m["runs"])])
+    return lines + [provenance(record), "",
+                    "Peak growth per data row over a baseline with the modules, model and data loaded, each step in a "
+                    "fresh process (scale k: the 40 °C run k times over); the marginal cost is the difference of the "
+                    "peaks over the difference of the rows, which no fixed cost enters:", "",
+                    *_table(["step", "measure", "bytes per row", "marginal bytes per row", "rows"], rows)]
+
+
+def section_soak(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "soak")
+    lines = ["## Soak", ""]
+    if record is None:
+        return lines + _missing("bench_soak.py")
+    p, f = record["parameters"], record["figures"]
+    faults = ", ".join(f"{kind} {_n(f['injected'][kind])}/{_n(f['detected'].get(kind, 0))}" for kind in f["injected"])
+    gaps = [g for run in f["runs"] for g in run["gaps_s"]]
+    return lines + [provenance(record), "",
+                    f"{_count(p['runs'], 'run')} of {_n(p['data_rows'])} rows, each with drop {p['drop']:g} and "
+                    f"corruption {p['corrupt']:g} per drive frame and {p['kills']} target kill: completed "
+                    f"{f['completed']}/{p['runs']}, every row answered in {f['answered_all']}/{p['runs']}; "
+                    f"injected/detected {faults}; "
+                    f"undetected {f['undetected']}; lost log frames {f['lost_log_frames']}; gaps "
+                    + (_span(gaps, 2, "s") if gaps else "none")
+                    + f"; max \\|CAN − restarted float32\\| {_n(f['max_abs_can_minus_restarted_float32_C'], 4)} °C, "
+                    f"max \\|CAN − clean run\\| {_n(f['max_abs_can_minus_clean_C'], 4)} °C over all rows; "
+                    f"{_n(f['soak_s'])} s in all; goals {'met' if f['goals_met'] else 'NOT met'}.", ""]
+
+
+def section_campaigns(records: dict[str, list[Record]]) -> list[str]:
+    lines = ["## Campaigns", ""]
+    campaigns = records.get("campaign", [])
+    if not campaigns:
+        return lines + _missing("bench_campaign.py")
+    rows = []
+    for r in campaigns:
+        p, f = r["parameters"], r["figures"]
+        counts = ", ".join(f"{n} {k}" for k, n in f["campaign"]["counts"].items())
+        rows.append([f"`{Path(p['spec']).name}`" + (f", rows {p['rows']}" if p.get("rows") else ""), str(p["runs"]),
+                     f"{_n(f['campaign']['wall_s'], 1)} s on {p['workers']} workers", _n(f["serial"]["wall_s"], 1)
+                     + " s", f"{f['speed_up']:.2f}×", counts, _date(r)])
+    lines += ["The runs of a spec through `bench campaign run` on local Dask workers against the same `bench run` "
+              "invocations one after the other, in one sitting:", "",
+              *_table(["spec", "runs", "campaign", "serial loop", "speed-up", "campaign outcome", "measured"], rows)]
+    for r in campaigns:
+        lines += [provenance(r), ""]
+    return lines
+
+
+def section_data(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "data")
+    lines = ["## Datasets", ""]
+    if record is None:
+        return lines + _missing("bench_data.py")
+    f = record["figures"]
+    rows = [[f"{c} °C", _n(d["seconds"], 2), f"`{d['sha256'][:16]}…`"] for c, d in f["datasets"].items()]
+    return lines + [provenance(record), "", *_table(["coolant", "seconds", "sha256"], rows),
+                    f"All three in {_n(f['total_s'], 2)} s (goal: under {f['goal_s']} s).", ""]
+
+
+SECTIONS: tuple[Callable[[dict[str, list[Record]]], list[str]], ...] = (
+    section_accuracy, section_firmware, section_firmware_node, section_can, section_memory, section_soak,
+    section_campaigns, section_identify, section_data)
+BENCHMARKS = ("accuracy", "firmware", "firmware_node", "can", "memory", "soak", "campaign", "identify", "data")
+
+
+def render_results(records: dict[str, list[Record]] | None = None) -> str:
+    records = load_records() if records is None else records
+    lines = ["<!-- generated from docs/results/*.json by docs/_ext/results_page.py; do not edit -->", ""]
+    for section in SECTIONS:
+        lines += section(records)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def render_table5(records: dict[str, list[Record]] | None = None) -> str:
+    record = _one(load_records() if records is None else records, "accuracy")
+    return "\n".join(table5(record) if record else _missing("bench_accuracy.py")) + "\n"
+
+
+def render_ipm(records: dict[str, list[Record]] | None = None) -> str:
+    record = _one(load_records() if records is None else records, "accuracy")
+    if record is None or "ipm" not in record["figures"]:
+        return "\n".join(_missing("bench_accuracy.py")) + "\n"
+    return "\n".join(ipm_table(record)) + "\n"
+
+
+# ---------------------------------------------------------------------------------------------- the README
+def render_headline(records: dict[str, list[Record]] | None = None) -> str:
+    """The README's table of headline results (links relative to the repository root)."""
+    records = load_records() if records is None else records
+    rows = []
+    accuracy, firmware, can, soak = (_one(records, n) for n in ("accuracy", "firmware", "can", "soak"))
+    if accuracy:
+        t5 = {(r["kind"], r["dt_s"]): r for r in accuracy["figures"]["builtin"]["table5"]}
+        ham, lti = t5.get(("hammerstein", 0.5)), t5.get(("lti-lptn", 0.5))
+        if ham and lti:
+            rows.append(["accuracy, 40 °C validation run, Δt 0.5 s (winding / PM RMSE)",
+                         f"Hammerstein {_winding_pm(ham)}, LTI LPTN {_winding_pm(lti)}",
+                         "[accuracy](docs/results.md#accuracy)"])
+            balanced = accuracy["figures"]["builtin"]["balanced_max_abs_f32_minus_f64_C"].get("hammerstein")
+            rows.append(["float32 against float64, whole run (deployed realization)",
+                         f"{_e(ham['max_abs_f32_minus_f64_C'])} °C (balanced realization: {_e(balanced)} °C)",
+                         "[method](docs/method.md#numerical-conditioning-tables-24)"])
+    if can and can["figures"].get("default_run"):
+        runs = can["figures"]["default_run"]
+        worst = max((_worst(r.get("max_abs_can_minus_float32_C")) or 0.0) for r in runs)
+        rows.append(["CAN temperatures against the offline float32 reference (default run)",
+                     f"max {_n(worst, 4)} °C, {sum(r.get('missing') or 0 for r in runs)} rows missing, verdict "
+                     + ", ".join(sorted({str(r['verdict']) for r in runs})), "[bus](docs/results.md#bus-throughput)"])
+        rows.append(["`bench run`, the default run, lockstep",
+                     " and ".join(f"{_n(r['rows_per_s'])} rows/s ({_n(r['wall_s'], 1)} s)" for r in runs),
+                     "[bus](docs/results.md#bus-throughput)"])
+    if firmware:
+        ham = next((r for r in firmware["figures"]["packaged"] if r["kind"] == "hammerstein"), None)
+        if ham:
+            rows.append(["Hammerstein step as Cortex-M4F firmware",
+                         f"{_n(ham['cycles']['p50'])} cycles ({_n(ham['exec_us_at_90MHz']['p50'], 1)} µs at 90 MHz), "
+                         f"{ham['mismatches']} mismatches with Python; flash {_n(ham['flash_bytes'])} B, RAM "
+                         f"{_n(ham['ram_bytes'])} B", "[firmware](docs/results.md#firmware)"])
+    if soak:
+        f, p = soak["figures"], soak["parameters"]
+        rows.append([f"{_count(p['runs'], 'run')} with {p['drop'] * 100:g} % drop, {p['corrupt'] * 100:g} % "
+                     f"corruption, {p['kills']} target kill each",
+                     f"{f['undetected']} faults undetected, max \\|CAN − clean run\\| "
+                     f"{_n(f['max_abs_can_minus_clean_C'], 4)} °C", "[soak](docs/results.md#soak)"])
+    if accuracy and "ipm" in accuracy["figures"]:
+        ham = next((m for m in accuracy["figures"]["ipm"]["models"] if m["kind"] == "hammerstein"), None)
+        if ham:
+            rows.append(["your own motor: 60 kW IPM example, held-out profiles (winding / PM RMSE)",
+                         f"Hammerstein {_winding_pm(ham)}", "[your own motor](docs/tutorials/own-motor.md)"])
+    dates = sorted(_date(r) for rs in records.values() for r in rs)
+    machines = sorted({f"{r['machine']['cpu']}, {r['machine']['cpus']} CPUs" for rs in records.values() for r in rs})
+    when = dates[0] if dates and dates[0] == dates[-1] else f"{dates[0]} to {dates[-1]}" if dates else ""
+    loads = [v for rs in records.values() for r in rs for v in r["load_average"].values()]
+    intro = (f"Measured {when} on {'; '.join(machines)}, a machine shared with other jobs (load average up to "
+             f"{max(loads):.1f}), by the scripts in `tests/benchmarks/`; the [results page](docs/results.md) holds "
+             "each one's conditions and the full tables.") if dates else \
+        "Not measured yet: run the scripts in `tests/benchmarks/`."
+    return "\n".join([README_BEGIN, "", intro, "", *_table(["what", "result", "details"], rows), README_END]) + "\n"
+
+
+def splice_readme(readme: str, headline: str) -> str:
+    """The README with its headline block replaced by `headline` (ValueError when the markers are missing)."""
+    start, end = readme.find(README_BEGIN), readme.find(README_END)
+    if start < 0 or end < start:
+        raise ValueError("README.md has no headline-results markers")
+    return readme[:start] + headline + readme[end + len(README_END) + 1:]

@@ -1,0 +1,73 @@
+"""The results page and the README's headline table are built from the benchmark records, never typed by hand."""
+
+from __future__ import annotations
+
+import copy
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "docs" / "_ext"))
+
+import results_page  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def data_record(tmp_path_factory) -> dict:
+    """A real record: `bench_data.py` (the quickest benchmark) run as a user runs it, writing to a temporary file."""
+    out = tmp_path_factory.mktemp("records") / "data.json"
+    done = subprocess.run([sys.executable, "tests/benchmarks/bench_data.py", "--json", str(out)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    return json.loads(out.read_text(encoding="utf-8"))
+
+
+def test_a_benchmark_writes_its_record_with_date_machine_code_and_load(data_record):
+    assert data_record["benchmark"] == "data"
+    assert data_record["date"].endswith("Z") and data_record["command"].startswith("python tests/benchmarks/")
+    assert data_record["machine"]["cpus"] >= 1 and data_record["machine"]["python"].startswith("3.")
+    assert set(data_record["load_average"]) == {"start", "end"}
+    assert data_record["code"]["version"]
+    assert set(data_record["figures"]["datasets"]) == {"20", "40", "60"}
+
+
+def test_the_page_shows_the_records_figures_and_changes_with_them(data_record):
+    page = results_page.render_results({"data": [data_record]})
+    assert f"All three in {data_record['figures']['total_s']:.2f} s" in page
+    assert data_record["machine"]["cpu"] in page and data_record["date"][:10] in page
+    changed = copy.deepcopy(data_record)
+    changed["figures"]["total_s"] = 123.45
+    assert "All three in 123.45 s" in results_page.render_results({"data": [changed]})
+
+
+def test_a_benchmark_without_a_record_says_how_to_measure_it():
+    page = results_page.render_results({})
+    for script in ("bench_accuracy.py", "bench_firmware.py", "bench_can.py", "bench_soak.py", "bench_memory.py"):
+        assert f"Not measured yet: `python tests/benchmarks/{script}`" in page
+
+
+def test_every_benchmark_script_has_a_section():
+    scripts = {p.stem.removeprefix("bench_") for p in (ROOT / "tests" / "benchmarks").glob("bench_*.py")}
+    assert scripts == set(results_page.BENCHMARKS)
+    assert len(results_page.SECTIONS) == len(results_page.BENCHMARKS)
+
+
+def test_the_committed_records_render_and_the_readme_table_is_theirs():
+    records = results_page.load_records()
+    assert records, "docs/results holds no record"
+    results_page.render_results(records)
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert results_page.splice_readme(readme, results_page.render_headline(records)) == readme, (
+        "README.md's headline table is stale: python docs/check_generated.py --write")
+
+
+def test_splicing_replaces_only_the_marked_block():
+    readme = f"# t\n\nbefore\n{results_page.README_BEGIN}\nold\n{results_page.README_END}\nafter\n"
+    out = results_page.splice_readme(readme, f"{results_page.README_BEGIN}\nnew\n{results_page.README_END}\n")
+    assert out == f"# t\n\nbefore\n{results_page.README_BEGIN}\nnew\n{results_page.README_END}\nafter\n"
+    with pytest.raises(ValueError):
+        results_page.splice_readme("# no markers\n", "x")
