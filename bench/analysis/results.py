@@ -61,6 +61,11 @@ def _dump(value: Any) -> Any:
     return value
 
 
+def as_json(value: Any) -> Any:
+    """A part of the results (a dataclass, or anything holding some) as its JSON value."""
+    return _dump(value)
+
+
 def _load(tp: Any, data: Any, where: str) -> Any:
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
