@@ -10,6 +10,8 @@ values are the clean ones or absent, and the rows left out are counted by reason
 
 from __future__ import annotations
 
+import json
+
 import can
 import numpy as np
 import pytest
@@ -23,7 +25,7 @@ from dbc.codec import apply_crc, decode_any
 from dbc.contract import REPLY_SIGNALS
 from target_sim.artifact import load_artifact
 
-from helpers import after_row, replies_by_row, session_drive, session_frames, write_frames
+from helpers import after_row, replies_by_row, run_cli, session_drive, session_frames, write_frames
 
 ROWS = 240
 TRIALS = 12          # per kind of tampering
@@ -189,3 +191,24 @@ def test_the_replayed_rows_log_counts_its_excluded_rows_and_keeps_the_clean_rmse
     assert rows.text().startswith(f"figures over {rows.kept} of {ROWS} rows")
     assert rows.text().endswith(f"{len(late) + len(aligned)} rows excluded: contested {len(aligned)}, "
                                 f"replayed {len(late)}")
+
+
+def test_bench_replay_leaves_the_flagged_rows_of_a_log_out_and_says_so(artifacts, lti, clean, tmp_path, udp_bus):
+    """`bench replay` of a log with five forged replies: the comparison is over the rows kept, the five are counted
+    by reason, and the log is not reproduced (exit 1, one sentence)."""
+    values, frames, *_ = clean
+    frames = [copy(f) for f in frames]
+    rows = [30, 60, 90, 120, 150]
+    for row in rows:
+        i = indices(frames, row)[0]
+        frames[i] = forged(frames[i], 0.5)
+    log = write_frames(tmp_path / "forged.blf", frames)
+    done = run_cli("-m", "bench", "replay", str(log), "--model", str(artifacts["lti"]), "--as-fast-as-possible",
+                   "--log", str(tmp_path / "again.blf"), "--json", *udp_bus.to_argv())
+    assert done.returncode == 1, done.stderr
+    result = json.loads(done.stdout)
+    assert result["recorded_excluded"] == {"off_reference": len(rows)} and result["replayed_excluded"] == {}
+    assert (result["compared"], result["identical"], result["different"]) == (ROWS - len(rows),) * 2 + (0,)
+    assert result["max_abs_difference_C"] == 0.0 and not result["reproduced"]
+    assert (f"the recorded log has {len(rows)} rows a check flagged as not the target's own answer (off_reference "
+            f"{len(rows)}): they are left out of the comparison, and the log is not reproduced") in result["problems"]
