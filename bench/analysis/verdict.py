@@ -11,7 +11,6 @@ from dbc.database import temperature_range
 
 QUANTIZATION_C = 0.005          # half the 0.01 °C resolution of the temperature signals
 DIVERGENCE_NOTE_C = 1.0
-ROUNDING_RELATIVE = 1e-4        # float32 following float64 this closely (relative) is rounding, not divergence
 
 
 def counts_text(counts: dict[str, int]) -> str:
@@ -29,25 +28,27 @@ def fault_note(results: RunResults) -> str | None:
 
 def notes(results: RunResults) -> list[str]:
     """Facts about the model (not faults of the run) the report must not hide. Single precision is blamed only when
-    float64 stays finite and inside the DBC range where float32 does not (or departs from it by more than rounding
-    explains); a model whose float64 values overflow or leave the range as well is said to do so."""
+    float64 stays finite and inside the DBC range where float32 does not; a model whose float64 values overflow or
+    leave the range as well is said to do so, with what float32 did beside it."""
     accuracy = results.accuracy
     worst = accuracy.max_abs_float32_minus_float64_C.worst() or 0.0
     realization = results.model.realization
     non_finite, outside = accuracy.non_finite_values, accuracy.float64_outside_dbc_range
-    low, high = temperature_range()
     if non_finite.float64:
         return [f"the model overflows in float64 as well as in float32 ({non_finite.float64} float64 and "
                 f"{non_finite.float32} float32 values are not finite): its estimate leaves every range whatever the "
                 "precision, so single precision is not the cause"]
-    if non_finite.float32:
-        return [f"the float32 model overflows ({non_finite.float32} values are not finite) where float64 stays finite: "
-                f"the {realization} realization does not survive single precision"]
-    relative = accuracy.max_rel_float32_minus_float64
-    if worst > DIVERGENCE_NOTE_C and outside and relative is not None and relative <= ROUNDING_RELATIVE:
+    if outside and (non_finite.float32 or worst > DIVERGENCE_NOTE_C):
+        low, high = temperature_range()
+        relative = accuracy.max_rel_float32_minus_float64
+        float32 = (f"float32 overflows at {non_finite.float32} values, where float64 passes float32's range"
+                   if non_finite.float32 else
+                   f"float32 departs from it by up to {worst:.4g} °C, a relative {relative:.1g} of such values")
         return [f"the model's estimate leaves the DBC range ({low:g}..{high:g} °C) in float64 as well ({outside} "
-                f"values): float32 follows float64 within a relative {relative:.1g}, so its departure of up to "
-                f"{worst:.4g} °C is the rounding of such large values, not single precision failing"]
+                f"float64 values): {float32}, so single precision is not the cause"]
+    if non_finite.float32:
+        return [f"the float32 model overflows ({non_finite.float32} values are not finite) where float64 stays finite "
+                f"and in range: the {realization} realization does not survive single precision"]
     if worst > DIVERGENCE_NOTE_C:
         return [f"the float32 model departs from float64 by up to {worst:.4g} °C: the "
                 f"{realization} realization does not survive single precision"]
