@@ -1,5 +1,6 @@
 """What the test directories share: the repository root, synthetic drive data, small model artifacts, a private
-udp_multicast bus, and a runner for the command-line entry points in a child process.
+udp_multicast bus, a runner for the command-line entry points in a child process, and the frames of a lockstep
+session with an in-process target (to tamper with, as the log-analysis tests do).
 
 The tests run with `--import-mode=importlib`, which puts nothing on sys.path; tests/conftest.py loads this file
 as the module `helpers` (see there why not through sys.path), so any test module or conftest can
@@ -12,8 +13,12 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import can
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -175,6 +180,7 @@ def example_results(**changes):
         Agreement,
         BusLoad,
         CycleFigures,
+        FigureRows,
         Heartbeat,
         Integrity,
         MeasuredRmse,
@@ -206,7 +212,7 @@ def example_results(**changes):
                             "/x/bench.blf"),
         faults=None,
         bus_load=BusLoad(500000, 130.5, 1.2, 1.0, [0.0, 1.0], [10.0, 12.5], 12.5),
-        notes=[], null_values={})
+        figure_rows=FigureRows(300, 300, 0, {}), notes=[], null_values={})
     return replace(results, **changes)
 
 
@@ -220,3 +226,98 @@ def example_summary(clean: bool = True, **changes):
                          problems=[] if clean else ["3 of 300 rows got no reply"], clean=clean, faults=None,
                          host={"mode": "lockstep", "rows": 300}, metrics=example_results(), elapsed_s=8.5)
     return replace(summary, **changes)
+
+
+# ---------------------------------------------------------------- logs of a lockstep session (in-process target)
+
+
+SESSION_INITIAL = [40.0, 45.0, 41.0, 50.0]   # yoke, winding, tooth, magnet of session_frames' RESET
+
+
+def session_drive(n: int, seed: int) -> np.ndarray:
+    """`n` random drive rows (torque, speed, coolant 40 °C, ambient 25 °C)."""
+    rng = np.random.default_rng(seed)
+    return np.column_stack([np.round(rng.uniform(0, 500, n), 1), np.round(rng.uniform(500, 8000, n)),
+                            np.full(n, 40.0), np.full(n, 25.0)])
+
+
+def session_frames(artifact, values: np.ndarray, *, stop: bool = True) -> list[can.Message]:
+    """Every frame of a lockstep session as the host logs it (a Python target node answering in-process): the
+    target's heartbeat before and during it, RESET and START, the rows, STOP (with `stop`)."""
+    from dbc import Command, FrameCodec
+    from host.replay import encode_row
+    from target_sim.node import TargetNode
+
+    node, host = TargetNode(artifact, clock_ns=lambda: 0), FrameCodec("HOST")
+    frames = list(node.startup_frames())
+
+    def send(messages):
+        for message in messages:
+            frames.append(message)
+            frames.extend(node.handle(message))
+
+    yoke, winding, tooth, magnet = SESSION_INITIAL
+    send([host.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
+          host.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
+          host.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
+          host.encode("Control", {"Command": int(Command.START), "Step": 0})])
+    for row, value in enumerate(values):
+        send(encode_row(host, row, value))
+        if row % 25 == 0:
+            frames.extend(node.heartbeat_frames())
+    if stop:
+        send([host.encode("Control", {"Command": int(Command.STOP), "Step": 0})])
+        frames.extend(node.heartbeat_frames())
+    return frames
+
+
+def write_frames(path, frames: list[can.Message]):
+    """`frames` written to the log `path` (format by suffix), 0.1 ms apart."""
+    from host.canlog import FrameLog
+
+    log = FrameLog(path)
+    for i, frame in enumerate(frames):
+        frame.timestamp = 1000.0 + i * 1e-4
+        log.write(frame)
+    log.close()
+    return path
+
+
+def genuine_temps(artifact, values: np.ndarray) -> np.ndarray:
+    """Each row's reply of a clean session, decoded from its frames."""
+    from dbc.codec import decode_any
+    from dbc.database import frame_id
+
+    out = np.full((len(values), 4), np.nan)
+    for frame in session_frames(artifact, values):
+        if frame.arbitration_id in (frame_id("Temperatures1"), frame_id("Temperatures2")):
+            decoded = decode_any(frame)
+            for signal, index in {"Temperatures1": (("WindingTemp", 1), ("MagnetTemp", 3)),
+                                  "Temperatures2": (("YokeTemp", 0), ("ToothTemp", 2))}[decoded.name]:
+                out[int(decoded.signals["Step"]), index] = decoded.signals[signal]
+    return out
+
+
+def replies_by_row(frames: list[can.Message]) -> dict[int, list[can.Message]]:
+    """The target's reply frames (Temperatures1, Temperatures2) of each row, by the Step they carry."""
+    from dbc.codec import decode_any
+    from dbc.database import frame_id
+
+    ids = (frame_id("Temperatures1"), frame_id("Temperatures2"))
+    out: dict[int, list[can.Message]] = {}
+    for frame in frames:
+        if frame.arbitration_id in ids:
+            out.setdefault(int(decode_any(frame).signals["Step"]), []).append(frame)
+    return out
+
+
+def after_row(frames: list[can.Message], row: int, which: str = "reply") -> int:
+    """Index in `frames` right after row `row`'s DriveTemps (which="drive") or its Temperatures2 ("reply")."""
+    from dbc.codec import decode_any
+    from dbc.database import frame_id
+
+    fid, wanted = (frame_id("DriveTemps"), row) if which == "drive" else (frame_id("Temperatures2"), row)
+    for i, frame in enumerate(frames):
+        if frame.arbitration_id == fid and int(decode_any(frame).signals["Step"]) == wanted:
+            return i + 1
+    raise AssertionError(f"row {row} not found")

@@ -24,6 +24,13 @@ float32 state bit for bit, so the restarted reference is the clean run's exactly
 float32 − float64 and RMSE figures describe the model on the clean run.
 The faults marked in the log (BenchEvent) and, when the `<log>.faults.json` sidecar is there, their detection,
 go into `RunResults.faults`.
+
+Every figure of the CAN values (RMSE, max |CAN − clean run|, the round trip, the plots through `References.can`)
+is over the rows `bench.analysis.rowfilter.kept_rows` keeps: a row a check flagged as not the target's own answer
+(contested, replayed, off the float32 reference) is left out and counted in `RunResults.figure_rows`.
+
+A model whose values overflow (float32, float64 or both) is judged, not warned about: the reference runs and the
+figures ignore numpy's overflow warnings, and the nulls say which values were not finite.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ from bench.analysis.results import (
     CycleFigures,
     FaultGap,
     FaultResults,
+    FigureRows,
     Heartbeat,
     Integrity,
     MeasuredRmse,
@@ -55,6 +63,7 @@ from bench.analysis.results import (
     Timing,
     finite_results,
 )
+from bench.analysis.rowfilter import RowSelection, kept_rows
 from bench.analysis.verdict import QUANTIZATION_C, notes
 from bench.thermal.estimator import SIGMOID_ROWS, identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
@@ -81,6 +90,9 @@ class References:
     measured_winding: np.ndarray | None
     measured_pm: np.ndarray | None
     can_reference: np.ndarray | None = None   # (steps, 4) float32 restarted as the target was (= f32 if never)
+    can: np.ndarray | None = None             # (steps, 4) the CAN values of the kept rows (NaN: not kept)
+    kept: np.ndarray | None = None            # (rows,) the rows every figure is over (`rowfilter.kept_rows`)
+    figure_rows: FigureRows | None = None     # how many, and those left out by reason
 
 
 def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int, initial, stop_row: int, *,
@@ -193,7 +205,8 @@ def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None
 
 def _rmse(a: np.ndarray, b: np.ndarray) -> float | None:
     ok = np.isfinite(a) & np.isfinite(b)
-    return float(np.sqrt(np.mean((a[ok] - b[ok]) ** 2))) if ok.any() else None
+    with np.errstate(over="ignore"):     # values that left every range: inf, made null with its reason
+        return float(np.sqrt(np.mean((a[ok] - b[ok]) ** 2))) if ok.any() else None
 
 
 def _max_abs(a: np.ndarray) -> float | None:
@@ -260,20 +273,30 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         raise ValueError("the log has no complete RESET (ResetTemps1, ResetTemps2, Control RESET)")
     record = drive_for_model(record, artifact)
     drive, lost_rows = intended_drive(record, dataset)
-    refs = references(artifact, drive, record.initial, dataset)
+    with np.errstate(over="ignore", invalid="ignore"):   # a model that overflows: judged below, not warned about
+        refs = references(artifact, drive, record.initial, dataset)
+        clean = _clean_estimates(refs, record.rows, record.initial)   # the clean run's estimate after each row
+        if lost_rows:
+            final_ref, agreement = twin_agreement(artifact, record)
+        else:
+            final_ref, agreement = restarted_agreement(artifact, record, clean)
+    selection = kept_rows(record, final_ref, tolerance=AGREEMENT_TOLERANCE_C)   # the rows every figure is over
+    kept = selection.kept
     answered = record.answered
-    can_at_steps = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+    at_steps = refs.step_rows if len(refs.step_rows) else np.zeros(0, dtype=np.int64)
+    can_at_steps = selection.values(record.temps[at_steps], at_steps)
+    refs.can, refs.kept, refs.figure_rows = can_at_steps, kept, selection.counts
     low, high = temperature_range()
     in_range = (refs.f32 >= low) & (refs.f32 <= high)
     saturated = int(np.count_nonzero(~in_range))
-    clean = _clean_estimates(refs, record.rows, record.initial)   # the clean run's estimate after each row
-    if lost_rows:
-        final_ref, agreement = twin_agreement(artifact, record)
-    else:
-        final_ref, agreement = restarted_agreement(artifact, record, clean)
-    refs.can_reference = final_ref[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+    refs.can_reference = final_ref[at_steps]
     with np.errstate(invalid="ignore", over="ignore"):
         f32_err = refs.f32 - refs.f64
+        f64_finite = np.isfinite(refs.f64)
+        outside = int(np.count_nonzero(f64_finite & ((refs.f64 < low) | (refs.f64 > high))))
+        relative = np.abs(f32_err) / np.maximum(1.0, np.abs(refs.f64))
+    both_finite = f64_finite & np.isfinite(refs.f32)
+    max_rel = float(relative[both_finite].max()) if both_finite.any() else None
     nulls: dict[str, str] = {}      # metric -> why it is null (JSON and the report hold no inf or NaN)
     non_finite = NonFinite(float32=int(np.count_nonzero(~np.isfinite(refs.f32))),
                            float64=int(np.count_nonzero(~np.isfinite(refs.f64))))
@@ -292,7 +315,7 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         for label, traj in (("float64", refs.f64), ("float32", refs.f32)):
             model_rmse[label] = MeasuredRmse(winding=_rmse(traj[:, 1], refs.measured_winding),
                                              magnet=_rmse(traj[:, 3], refs.measured_pm))
-    rtt_us = (record.replied_s - record.sent_s)[answered] * 1e6
+    rtt_us = (record.replied_s - record.sent_s)[kept] * 1e6
     span = (np.nanmax(record.replied_s) - record.sent_s[0]) if answered.any() else float("nan")
     status_gaps = np.diff(record.status_s) if len(record.status_s) > 1 else np.zeros(0)
     timing = record.timing
@@ -312,14 +335,15 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
             max_abs_can_minus_float32_C=max_agree,
             can_agrees_with_float32=all(v is None or v <= AGREEMENT_TOLERANCE_C for v in max_agree.values()),
             replies_compared=agreement["compared"], can_reference="target twin" if lost_rows else "offline float32",
-            rows_lost_on_the_bus=lost_rows, max_abs_can_minus_clean_C=_deviation(record, clean),
+            rows_lost_on_the_bus=lost_rows, max_abs_can_minus_clean_C=_deviation(record, clean, selection),
             segments=len(record.segments), saturated_values=saturated),
         accuracy=Accuracy(
             max_abs_float32_minus_float64_C=NodeValues(*(
                 _max_abs_finite(f32_err[:, i], f"max_abs_float32_minus_float64_C.{name}", nulls)
                 for i, name in enumerate(TEMPERATURES))),
             non_finite_values=non_finite, rmse_C=NodeValues(**rmse), rmse_reference=NodeLabels(**rmse_vs),
-            model_rmse_vs_measured_C=model_rmse),
+            model_rmse_vs_measured_C=model_rmse, float64_outside_dbc_range=outside,
+            max_rel_float32_minus_float64=max_rel),
         timing=Timing(
             step_time_us=Percentiles(**percentiles(timing.get("measured_us", []))),
             overruns=int(_top(timing.get("overruns")) or 0), est_cycles=_top(timing.get("cycles"), int),
@@ -349,7 +373,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
             log_complete=record.complete, log_stopped=record.stopped, log_unclosed=record.unclosed,
             last_row=record.rows - 1, log=str(record.path)),
         faults=fault_metrics(record),
-        bus_load=bus_load(record, record.frame_data, artifact.data_sample_period, bitrate))
+        bus_load=bus_load(record, record.frame_data, artifact.data_sample_period, bitrate),
+        figure_rows=selection.counts)
     results.notes = notes(results)
     return finite_results(results, nulls), refs
 
@@ -368,10 +393,11 @@ def _max_abs_finite(a: np.ndarray, where: str, nulls: dict[str, str]) -> float |
     return _max_abs(a)
 
 
-def _deviation(record: BusRecord, clean: np.ndarray) -> NodeValues:
-    """Per temperature, the largest |CAN - the clean run's float32 estimate| over the answered rows: zero unless
+def _deviation(record: BusRecord, clean: np.ndarray, selection: RowSelection) -> NodeValues:
+    """Per temperature, the largest |CAN - the clean run's float32 estimate| over the kept rows: zero unless
     faults changed what the model saw (rows lost in real time)."""
-    diff = np.abs(record.temps - clean)
+    with np.errstate(invalid="ignore", over="ignore"):
+        diff = np.abs(selection.values(record.temps) - clean)
     return NodeValues(*(_max_abs(diff[:, i]) for i in range(len(TEMPERATURES))))
 
 

@@ -30,8 +30,12 @@ reason in `foreign` and never used: a Status of another model id than the sessio
 frame for a row the host had not sent in its segment, and a second reply for a row that carries other
 temperatures than the first. So is a reply frame that repeats the alive counter of the one before it for the same
 row with other temperatures (rejected by the counter check, but one of the two is not the target's: a replayed
-frame that took the genuine one's counter). Such a row is *contested*: neither reply is reported. The host's own
-frames (DriveInputs, DriveTemps, ...) are checked for id, length, CRC and range.
+frame that took the genuine one's counter). Such a row is *contested*: neither reply is reported. A reply frame
+the counter check rejected (a replayed frame: its alive counter is out of sequence) that names a row its segment
+answered, with other temperatures than that answer, makes the row *replayed* (`BusRecord.replayed`): the host used
+the frame in sequence, but the row had two answers. Contested and replayed rows are flagged as not the target's
+own answer; `bench.analysis.rowfilter` keeps them out of every figure. The host's own frames (DriveInputs,
+DriveTemps, ...) are checked for id, length, CRC and range.
 
 Complete: a run's log ends with the host's Control STOP; one without it after the last session's START (a killed
 run, a partial file) is `complete = False`, and so is a .blf whose header was never finalized by its writer.
@@ -118,6 +122,7 @@ class BusRecord:
     replied_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     owner: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # segment of the final reply
     contested: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # rows whose replies disagree
+    replayed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))   # a rejected reply disagrees
     timing: dict[str, np.ndarray] = field(default_factory=dict)   # row, measured_us, overruns, cycles, ...
     status_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     final_state: str | None = None
@@ -242,6 +247,8 @@ class _LogDecoder:
         self.foreign: dict[str, int] = {}
         self.validator = FrameValidator("HOST")      # the host's checks of what the target sends
         self.last_reply_row: dict[int, int] = {}    # per reply id, the row of the last reply frame used
+        # reply frames the counter check rejected: (segment index, row, message, signals), judged at the end
+        self.out_of_sequence: list[tuple[int, int, str, dict]] = []
         self.reply_ids = {name: frame_id(name) for name in REPLY_SIGNALS}
         self.target_ids = target_frame_ids()
         self.by_id = contract().by_id
@@ -318,8 +325,11 @@ class _LogDecoder:
                 name = self.by_id[fid].name
                 self._count(self.rejected, name)
                 # id, length, CRC and ranges passed, and the frame repeats the counter of the one before it
-                if exc.kind == "counter" and msg.data[1] & 0x0F == previous and name in REPLY_SIGNALS:
-                    self._contest(name, decode_any(msg).signals, self.last_reply_row.get(fid))
+                if exc.kind == "counter" and name in REPLY_SIGNALS:
+                    signals = decode_any(msg).signals
+                    if msg.data[1] & 0x0F == previous:
+                        self._contest(name, signals, self.last_reply_row.get(fid))
+                    self._keep_out_of_sequence(name, signals)
             return
         handler = self.handlers.get(frame.name)
         if handler is not None:
@@ -392,6 +402,16 @@ class _LogDecoder:
         segment.contested.data[i] = True
         self._count(self.foreign, FOREIGN_CONTESTED)
         return True
+
+    def _keep_out_of_sequence(self, name: str, s: dict) -> None:
+        """Remember a reply frame the counter check rejected, with the segment and row it names (a row its segment
+        had sent), to compare with that row's answer once the log is read."""
+        segment = self.target_segment()
+        if segment is None:
+            return
+        row = self._row(segment, s["Step"])
+        if segment.start_row <= row <= segment.host_row:
+            self.out_of_sequence.append((self.segments.index(segment), row, name, s))
 
     def temperatures(self, name: str, s: dict, t: float) -> None:
         found = self._reply_row(name, s)
@@ -517,7 +537,8 @@ class _LogDecoder:
         record.frame_data = np.frombuffer(self.frame_bytes, dtype=np.uint8).reshape(-1, 8)
         record.marks = self.marks
         record.unclosed = _blf_unclosed(path)
-        self.segments, self.handlers = [], {}     # the builders' columns go now (the handlers hold the decoder)
+        # the builders' columns go now (the handlers hold the decoder)
+        self.segments, self.handlers, self.out_of_sequence = [], {}, []
         return record
 
     def _final_replies(self, rows: int) -> None:
@@ -537,6 +558,7 @@ class _LogDecoder:
             record.sent_s[replied] = builder.pair_s.data[replied - builder.start_row]
             contested = segment.contested_rows[segment.contested_rows < rows]
             record.contested[contested] = True
+        record.replayed = self._replayed_rows(rows)
         unanswered = np.isnan(record.sent_s)
         if unanswered.any():  # rows never answered: when they were (last) sent
             for builder in self.segments:
@@ -545,6 +567,21 @@ class _LogDecoder:
                 sent = builder.pair_s.data[:n]
                 use = unanswered[at] & np.isfinite(sent)
                 record.sent_s[at[use]] = sent[use]
+
+
+    def _replayed_rows(self, rows: int) -> np.ndarray:
+        """Rows whose final answer came from a segment that also saw, in a frame its counter check rejected, other
+        temperatures for the row: two answers, one of them not the target's (a copy of the same frame, a dropped
+        frame's successor or a retransmission carry the same values and flag nothing)."""
+        replayed = np.zeros(rows, dtype=bool)
+        owner = self.record.owner
+        for index, row, name, s in self.out_of_sequence:
+            if row >= rows or owner[row] != index:
+                continue
+            answer = self.record.temps[row]
+            if any(answer[i] != s[signal] for signal, i in REPLY_SIGNALS[name]):
+                replayed[row] = True
+        return replayed
 
 
 def _blf_unclosed(path: Path) -> bool:

@@ -5,7 +5,11 @@ Each function draws into `out`: a path (written through a temporary name and ren
 that are not finite (a model that overflowed) are left out of the curves, never drawn as inf. A series longer than
 2·PLOT_BUCKETS points (the default run has 14 548 model steps) is drawn as its envelope: the minimum and the maximum
 of each of PLOT_BUCKETS equal slices, so every excursion stays visible at the figure's resolution and a long run
-costs a figure no more memory than a short one."""
+costs a figure no more memory than a short one.
+
+The CAN values drawn are those of the rows every figure is over (`References.can`, `bench.analysis.rowfilter`): a
+row a check flagged as not the target's own answer is not drawn, and the figure says how many were left out. A
+model whose values left every range is drawn without numpy's overflow warnings (the report's nulls say why)."""
 
 from __future__ import annotations
 
@@ -64,6 +68,19 @@ def _envelope(t: np.ndarray, y: np.ndarray, buckets: int = PLOT_BUCKETS) -> tupl
     return np.repeat(mid, 2), np.column_stack([low, high]).ravel()
 
 
+def _can(record: BusRecord, refs: References) -> np.ndarray:
+    """(steps, 4) the CAN values drawn: the kept rows' (NaN elsewhere)."""
+    if refs.can is not None:
+        return refs.can
+    return record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+
+
+def _excluded_label(refs: References) -> str:
+    """'; N flagged rows not drawn' when the row rule left rows out."""
+    rows = refs.figure_rows
+    return f"; {rows.excluded_total} flagged rows not drawn" if rows is not None and rows.excluded_total else ""
+
+
 def _finite(values) -> np.ndarray:
     """The values as floats, NaN where they are not finite (matplotlib leaves NaN out of a curve)."""
     values = np.asarray(values, dtype=float)
@@ -95,7 +112,7 @@ def temperatures(path: Path, record: BusRecord, refs: References, title: str) ->
     fig, axes = plt.subplots(4, 1, figsize=(11, 12), sharex=True)
     t_h = refs.step_time_s / 3600.0
     spans = _gap_spans_h(record, refs)
-    can = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+    can = _can(record, refs)
     f64, f32 = _finite(refs.f64), _finite(refs.f32)
     for ax, i in zip(axes, ORDER, strict=True):
         name = TEMPERATURES[i]
@@ -104,7 +121,8 @@ def temperatures(path: Path, record: BusRecord, refs: References, title: str) ->
             ax.plot(*_envelope(t_h, measured), color="0.55", lw=1.6, label="measured (reference)")
         ax.plot(*_envelope(t_h, f64[:, i]), color="tab:blue", lw=1.0, label="offline float64")
         ax.plot(*_envelope(t_h, f32[:, i]), color="tab:orange", lw=1.0, ls="--", label="offline float32")
-        ax.plot(*_envelope(t_h, can[:, i]), color="tab:red", lw=0, marker=".", ms=1.2, label="CAN (target, float32)")
+        ax.plot(*_envelope(t_h, can[:, i]), color="tab:red", lw=0, marker=".", ms=1.2,
+                label=f"CAN (target, float32{_excluded_label(refs)})")
         _shade_gaps(ax, spans, ax is axes[0])
         ax.set_ylabel(f"{LABELS[name]} (°C)")
         ax.grid(alpha=0.3)
@@ -134,7 +152,7 @@ def float32_error(path: Path, record: BusRecord, refs: References) -> None:
         top.set_yscale("symlog", linthresh=0.01)
     top.grid(alpha=0.3)
     top.legend(fontsize=8)
-    can = record.temps[refs.step_rows] if len(refs.step_rows) else np.zeros((0, 4))
+    can = _can(record, refs)
     reference = refs.can_reference if refs.can_reference is not None else refs.f32
     with np.errstate(invalid="ignore", over="ignore"):
         diff = _finite(can - reference)
@@ -144,6 +162,7 @@ def float32_error(path: Path, record: BusRecord, refs: References) -> None:
     bottom.axhline(0.005, color="k", lw=0.6, ls=":")
     bottom.axhline(-0.005, color="k", lw=0.6, ls=":")
     bottom.set_ylabel("CAN − float32 (°C)")
+    bottom.set_title(f"CAN − float32 of the kept rows{_excluded_label(refs)}", fontsize=9)
     if np.isfinite(diff).any() and np.nanmax(np.abs(diff)) > 0.05:
         bottom.set_yscale("symlog", linthresh=0.01)
     bottom.set_xlabel("time (h)")

@@ -18,6 +18,8 @@ import json
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
+
 from bench.analysis import plots
 from bench.analysis.canmetrics import TEMPERATURES, compute
 from bench.analysis.logdecode import BusRecord, decode_log
@@ -115,7 +117,8 @@ class _Written(dict):
 
 def _png(draw, *args) -> bytes:
     out = io.BytesIO()
-    draw(out, *args)
+    with np.errstate(over="ignore", invalid="ignore"):    # a model that left every range: drawn, not warned about
+        draw(out, *args)
     gc.collect()      # a closed figure is a web of cycles: free it before the next one is drawn
     return out.getvalue()
 
@@ -226,6 +229,7 @@ def render_markdown(metrics: RunResults, found: list[str], dataset, run_info: di
         lines.append(_row("max \\|CAN − clean run\\| (°C)", agreement.max_abs_can_minus_clean_C, 4))
     lines.append(_row("max \\|float32 − float64\\| (°C)", accuracy.max_abs_float32_minus_float64_C, 4))
     lines.append(_row("RMSE of the CAN values (°C)", accuracy.rmse_C, 3))
+    lines.append(f"| ... over | {m.figure_rows.text('the RMSE and every figure')} | | | |")
     lines.append("| ... against | " + " | ".join(accuracy.rmse_reference.get(t) for t in TEMPERATURES) + " |")
     for label, values in accuracy.model_rmse_vs_measured_C.items():
         lines.append(f"| RMSE offline {label} vs measured (°C) | – | {_fmt(values.winding)} | – | "
@@ -261,6 +265,8 @@ def render_markdown(metrics: RunResults, found: list[str], dataset, run_info: di
               f"| frames that pass those checks but are not of this session (not used) | "
               f"{_listed(log.foreign_frames)} |",
               f"| rows with two different replies (not reported) | {log.contested_rows} |",
+              f"| rows left out of every figure (a check flagged their answer) | "
+              f"{_listed(m.figure_rows.excluded)} |",
               f"| target faults seen | {', '.join(log.target_faults_seen) or 'none'}{_unused(m, 'Status')} |",
               f"| log complete (the host's STOP, the file closed) | {_complete(m)} |",
               ""]

@@ -7,7 +7,9 @@ its RunResults; `LogSummary` is `bench analyze --json`; `ReplayResults` is `benc
 `bench run --json` and `bench analyze --json` carry, beside `clean` (true or false), `verdict`: "clean", or
 "not clean: " and the reasons (the problems, "; "-separated, or the faults injected; `verdict_text`), and beside
 each node's `rmse_C` the `rmse_reference` it is taken against ("measured": the dataset's temperature, "float64
-model": the offline float64 model where the data has no measurement of that node).
+model": the offline float64 model where the data has no measurement of that node), and `figure_rows`: the rows every
+figure is over (`kept` of `rows`, `without_reply`) and those left out because a check flagged them as not the
+target's own answer, counted by reason (`excluded`: contested, replayed, off_reference; `bench.analysis.rowfilter`).
 
 The JSON keeps the flat shape the bench always printed: a group marked `flat` (e.g. `Agreement`) puts its keys at
 its parent's level, so grouping the fields in Python changed no key. Every top-level JSON carries
@@ -25,7 +27,7 @@ import numpy as np
 
 from bench.errors import BenchError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2                # 2: figure_rows, the float64 range of the model (issue 23)
 SCHEMA_KEY = "schema_version"
 
 FLAT = {"flat": True}             # a group: its keys sit at its parent's level of the JSON
@@ -57,6 +59,11 @@ def _dump(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+def as_json(value: Any) -> Any:
+    """A part of the results (a dataclass, or anything holding some) as its JSON value."""
+    return _dump(value)
 
 
 def _load(tp: Any, data: Any, where: str) -> Any:
@@ -221,6 +228,37 @@ class Agreement:
     saturated_values: int
 
 
+REASON_WORDS = {"contested": "contested", "replayed": "replayed",
+                "off_reference": "off the float32 reference"}
+
+
+@dataclass
+class FigureRows:
+    """The rows every figure is over (`bench.analysis.rowfilter.kept_rows`): `kept` of `rows`, the rows without a
+    reply, and the rows a check flagged as not the target's own answer, by reason."""
+
+    rows: int
+    kept: int
+    without_reply: int
+    excluded: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def excluded_total(self) -> int:
+        return sum(self.excluded.values())
+
+    def text(self, what: str = "figures") -> str:
+        """'figures over 1990 of 2000 rows; 10 rows excluded: replayed'."""
+        head = f"{what} over {self.kept} of {self.rows} rows"
+        if self.without_reply:
+            head += f" ({self.without_reply} without a reply)"
+        total = self.excluded_total
+        if not total:
+            return head
+        words = [REASON_WORDS.get(k, k) + ("" if len(self.excluded) == 1 else f" {n}")
+                 for k, n in self.excluded.items()]
+        return f"{head}; {total} row{'' if total == 1 else 's'} excluded: {', '.join(words)}"
+
+
 @dataclass
 class NonFinite:
     float32: int
@@ -242,6 +280,9 @@ class Accuracy:
     rmse_C: NodeValues
     rmse_reference: NodeLabels
     model_rmse_vs_measured_C: dict[str, MeasuredRmse]
+    # the float64 model's own range: values outside the DBC's, and the largest |float32 − float64| / max(1, |float64|)
+    float64_outside_dbc_range: int = 0
+    max_rel_float32_minus_float64: float | None = None
 
 
 @dataclass
@@ -367,6 +408,7 @@ class RunResults(_Json):
     integrity: Integrity = field(metadata=FLAT)
     faults: FaultResults | None
     bus_load: BusLoad
+    figure_rows: FigureRows
     notes: list[str] = field(default_factory=list)
     null_values: dict[str, str] = field(default_factory=dict)
     report: str | None = field(default=None, metadata=OMIT_NONE)   # report.md, once written
@@ -489,6 +531,7 @@ class RunSummary(_Json):
             "steps_sent": m.counts.steps_sent, "replies": m.counts.replies, "missing": m.counts.missing,
             "max_abs_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C, "rmse_C": m.accuracy.rmse_C,
             "rmse_reference": m.accuracy.rmse_reference,   # what each node's RMSE is against
+            "figure_rows": m.figure_rows,                  # the rows it is over, those a check left out
             "step_time_us": m.timing.step_time_us, "est_cycles": m.timing.est_cycles,
             "m4_cycles": m.timing.m4_cycles, "flash_bytes": m.memory.flash_bytes, "ram_bytes": m.memory.ram_bytes,
             "memory_source": m.memory.memory_source, "throughput_steps_per_s": m.throughput.throughput_steps_per_s,
@@ -540,6 +583,9 @@ class ReplyComparison:
     different: int
     missing_in_replay: int
     max_abs_difference_C: float
+    # rows a check flagged as not the target's own answer (`bench.analysis.rowfilter`), left out of the comparison
+    recorded_excluded: dict[str, int] = field(default_factory=dict)
+    replayed_excluded: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass

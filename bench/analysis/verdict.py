@@ -7,6 +7,7 @@ import sys
 from dataclasses import dataclass
 
 from bench.analysis.results import RunResults
+from dbc.database import temperature_range
 
 QUANTIZATION_C = 0.005          # half the 0.01 °C resolution of the temperature signals
 DIVERGENCE_NOTE_C = 1.0
@@ -26,16 +27,32 @@ def fault_note(results: RunResults) -> str | None:
 
 
 def notes(results: RunResults) -> list[str]:
-    """Facts about the model (not faults of the run) the report must not hide."""
-    out = []
-    worst = results.accuracy.max_abs_float32_minus_float64_C.worst() or 0.0
+    """Facts about the model (not faults of the run) the report must not hide. Single precision is blamed only when
+    float64 stays finite and inside the DBC range where float32 does not; a model whose float64 values overflow or
+    leave the range as well is said to do so, with what float32 did beside it."""
+    accuracy = results.accuracy
+    worst = accuracy.max_abs_float32_minus_float64_C.worst() or 0.0
     realization = results.model.realization
+    non_finite, outside = accuracy.non_finite_values, accuracy.float64_outside_dbc_range
+    if non_finite.float64:
+        return [f"the model overflows in float64 as well as in float32 ({non_finite.float64} float64 and "
+                f"{non_finite.float32} float32 values are not finite): its estimate leaves every range whatever the "
+                "precision, so single precision is not the cause"]
+    if outside and (non_finite.float32 or worst > DIVERGENCE_NOTE_C):
+        low, high = temperature_range()
+        relative = accuracy.max_rel_float32_minus_float64
+        float32 = (f"float32 overflows at {non_finite.float32} values, where float64 passes float32's range"
+                   if non_finite.float32 else
+                   f"float32 departs from it by up to {worst:.4g} °C, a relative {relative:.1g} of such values")
+        return [f"the model's estimate leaves the DBC range ({low:g}..{high:g} °C) in float64 as well ({outside} "
+                f"float64 values): {float32}, so single precision is not the cause"]
+    if non_finite.float32:
+        return [f"the float32 model overflows ({non_finite.float32} values are not finite) where float64 stays finite "
+                f"and in range: the {realization} realization does not survive single precision"]
     if worst > DIVERGENCE_NOTE_C:
-        out.append(f"the float32 model departs from float64 by up to {worst:.4g} °C: the "
-                   f"{realization} realization does not survive single precision")
-    elif results.accuracy.non_finite_values.float32:
-        out.append(f"the float32 model overflows: the {realization} realization does not survive single precision")
-    return out
+        return [f"the float32 model departs from float64 by up to {worst:.4g} °C: the "
+                f"{realization} realization does not survive single precision"]
+    return []
 
 
 def problems(results: RunResults) -> list[str]:
@@ -61,8 +78,10 @@ def problems(results: RunResults) -> list[str]:
     agreement = results.agreement
     if not agreement.can_agrees_with_float32:
         worst = agreement.max_abs_can_minus_float32_C.worst()
+        off = results.figure_rows.excluded.get("off_reference", 0)
+        left_out = f" at {off} rows, which are left out of every figure" if off else ""
         out.append(f"CAN temperatures differ from the offline float32 reference by up to {worst:.4f} °C "
-                   f"(more than the {QUANTIZATION_C} °C quantization)")
+                   f"(more than the {QUANTIZATION_C} °C quantization){left_out}")
     bad = {k: v for k, v in results.integrity.target_rx_errors.items() if v}
     if bad and not injected:
         out.append(f"the target rejected or could not sequence frames: {bad}")
@@ -98,6 +117,10 @@ def integrity_problems(results: RunResults, *, injected: bool = False) -> list[s
     if log.contested_rows:
         out.append(f"{log.contested_rows} rows got a second reply with other temperatures (a replayed or "
                    "forged frame): their temperatures are not reported")
+    replayed = results.figure_rows.excluded.get("replayed", 0)
+    if replayed:
+        out.append(f"{replayed} rows got, in a frame the host's counter check rejected, other temperatures than the "
+                   "answer used (a replayed frame): they are left out of every figure")
     if log.rejected_target_frames and not injected:
         out.append(f"the host's checks reject {sum(log.rejected_target_frames.values())} frames of the target in the "
                    f"log ({counts_text(log.invalid_frames_in_log)}; {counts_text(log.rejected_target_frames)}): "

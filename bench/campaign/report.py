@@ -44,6 +44,17 @@ def axes_of(rows: list[dict[str, Any]]) -> dict[str, list[Any]]:
     return axes
 
 
+def _excluded(row: dict) -> str:
+    """'10 of 2000 (replayed 10)': the rows a check flagged, which no figure of the run holds; '–' without a verdict."""
+    if row.get("rows_kept") is None:
+        return "–"
+    excluded = json.loads(row["rows_excluded_by_reason"] or "{}")
+    total = row["rows_excluded"] or 0
+    if not total:
+        return "0"
+    return f"{total} ({', '.join(f'{k} {n}' for k, n in excluded.items())})"
+
+
 def _fmt(value: Any, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
@@ -218,11 +229,12 @@ def render(rows: list[dict[str, Any]], meta: dict[str, str], fault_rows: list[di
     for r in rows:
         lines.append([f"`{r['run_id']}`", ", ".join(f"{k}={v}" for k, v in json.loads(r["axes"] or "{}").items()),
                       r["status"], r["verdict"] or "–", str(r["attempts"]), _fmt(r["rmse_winding_C"]),
-                      _fmt(r["rmse_pm_C"]), _fmt(r["max_can_minus_float32_C"], 4),
+                      _fmt(r["rmse_pm_C"]), _excluded(r), _fmt(r["max_can_minus_float32_C"], 4),
                       ", ".join(faults.get(r["run_id"], [])) or "–", _fmt(r["est_c28x_cycles"]),
                       _fmt(r["m4_cycles_p50"]), _fmt(r["throughput_rows_per_s"], 0), _fmt(r["wall_s"], 1)])
     md += _table(["run", "axes", "status", "verdict", "attempts", "RMSE winding (°C)", "RMSE PM (°C)",
-                  "max \\|CAN − float32\\| (°C)", "faults injected/detected", "C28x cycles", "M4F cycles p50",
+                  "rows left out of the figures", "max \\|CAN − float32\\| (°C)", "faults injected/detected",
+                  "C28x cycles", "M4F cycles p50",
                   "rows/s", "wall s"], lines) + [""]
     trouble = [r for r in rows if cell(r) not in ("clean", "tolerated")]
     if trouble:

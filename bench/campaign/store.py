@@ -1,6 +1,9 @@
 """The campaign's table: OUT/campaign.sqlite, one row per run (its options, its JSON summary flattened and whole,
 status, attempts, log and its sha256) and one row per run and fault kind (injected, detected).
 
+The figures come from the run's summary, so they are over the rows the bench's rule keeps
+(`bench.analysis.rowfilter`); `rows_kept`, `rows_excluded` and `rows_excluded_by_reason` stand beside them.
+
 A run's rows are written in one transaction when the run ends, so an interrupted campaign leaves a table whose
 every row is whole; only the driver writes (the workers return their results to it).
 """
@@ -17,7 +20,7 @@ from bench.analysis.results import RunSummary
 from bench.errors import BenchError
 
 TABLE_NAME = "campaign.sqlite"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2      # 2: rows_kept, rows_excluded, rows_excluded_by_reason (issue 23)
 DONE = "done"                         # the bench ran and gave its verdict, whatever it is
 STATUSES = (DONE, "failed", "timeout", "lost-worker")
 
@@ -31,6 +34,8 @@ RESULT_COLUMNS = (
     ("problems", "TEXT"), ("attempts", "INTEGER"),
     ("model_kind", "TEXT"), ("model_id", "TEXT"), ("engine_used", "TEXT"),
     ("rmse_winding_C", "REAL"), ("rmse_pm_C", "REAL"), ("max_can_minus_float32_C", "REAL"),
+    # the rows the figures are over, and those a check flagged as not the target's own answer (by reason, JSON)
+    ("rows_kept", "INTEGER"), ("rows_excluded", "INTEGER"), ("rows_excluded_by_reason", "TEXT"),
     ("faults_injected", "INTEGER"), ("faults_detected", "INTEGER"), ("faults_undetected", "INTEGER"),
     ("retransmitted_rows", "INTEGER"), ("gaps", "INTEGER"),
     ("est_c28x_cycles", "INTEGER"), ("m4_cycles_p50", "INTEGER"), ("m4_cycles_max", "INTEGER"),
@@ -64,6 +69,9 @@ def flatten(summary: RunSummary | dict | None) -> tuple[dict[str, Any], list[tup
         "rmse_winding_C": m.accuracy.rmse_C.winding,
         "rmse_pm_C": m.accuracy.rmse_C.magnet,
         "max_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C.worst(),
+        "rows_kept": m.figure_rows.kept,
+        "rows_excluded": m.figure_rows.excluded_total,
+        "rows_excluded_by_reason": json.dumps(m.figure_rows.excluded, sort_keys=True),
         "faults_injected": faults.injected_total if faults else 0,
         "faults_detected": faults.detected_total if faults else 0,
         "faults_undetected": faults.undetected if faults else 0,

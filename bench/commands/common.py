@@ -127,6 +127,7 @@ def print_summary(m: RunResults, problems: list[str], faults: HostFaults | Fault
         f"{t} {fmt(accuracy.max_abs_float32_minus_float64_C.get(t), 4)}" for t in temps))
     print("RMSE (°C): " + ", ".join(f"{t} {fmt(accuracy.rmse_C.get(t))} (vs {accuracy.rmse_reference.get(t)})"
                                     for t in temps))
+    print(m.figure_rows.text("RMSE and every figure"))
     st, rtt = timing.step_time_us, m.throughput.round_trip_us
     print(f"step time on the target process p50/p99/max: {fmt(st.p50, 1)}/{fmt(st.p99, 1)}/{fmt(st.max, 1)} µs;"
           f" estimated C28x: {timing.est_cycles} cycles = {fmt(timing.est_exec_time_us, 1)} µs at 90 MHz "

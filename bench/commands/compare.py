@@ -9,7 +9,8 @@ Each artifact runs on its own target process in lockstep over the dataset (defau
 built into <out>/firmware-cache with the compiler). Columns: measured step time on the target process, estimated
 C28x cycles and µs at 90 MHz beside the measured Cortex-M4F cycles (p50, max) and µs at 90 MHz, CPU utilization
 at Δt (C28x estimate), flash and RAM of the Cortex-M4F ELF beside the C28x estimates, RMSE of the CAN winding and
-PM temperatures against the measurement, and the agreement with the offline float32 model. With --engine python
+PM temperatures against the measurement (over the rows the bench's rule keeps; the JSON's "rows_excluded" counts
+those a check flagged, by reason), and the agreement with the offline float32 model. With --engine python
 the measured Cortex-M4F columns stay empty.
 Without --models the three packaged identified artifacts are compared (LTI LPTN ZOH balanced, PV LPTN Euler,
 Hammerstein balanced); at another --dt they are re-discretized from the identified parameters and the
@@ -145,6 +146,9 @@ def table_row(artifact: ModelArtifact, path: Path, m: RunResults, found: list[st
         "flash_bytes": memory.flash_bytes, "ram_bytes": memory.ram_bytes,
         "rmse_winding_C": accuracy.rmse_C.winding, "rmse_magnet_C": accuracy.rmse_C.magnet,
         "rmse_reference": accuracy.rmse_reference.winding,
+        # the rows those figures are over, and those a check flagged as not the target's own answer (by reason)
+        "rows_kept": m.figure_rows.kept, "rows_excluded": m.figure_rows.excluded,
+        "figure_rows": m.figure_rows.text(),
         "max_abs_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C.worst(),
         "max_abs_float32_minus_float64_C": accuracy.max_abs_float32_minus_float64_C.worst(),
         "throughput_steps_per_s": m.throughput.throughput_steps_per_s, "problems": found, "notes": m.notes,
@@ -172,6 +176,9 @@ def print_table(table: list[dict]) -> None:
           "M4 µs (at 90 MHz), M4 flash, M4 RAM: "
           "measured on the Cortex-M4F firmware in the emulated core and its ELF (firmware engine); RMSE against "
           + (table[0]["rmse_reference"] if table else "measured") + " (°C).")
+    for r in table:
+        if r["rows_excluded"]:
+            print(f"{r['kind']} ({r['realization']}): {r['figure_rows']}")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -12,8 +12,13 @@ The target (`python -m target_sim`, or a real ECU) must run on the same bus; its
 id of --model (default: the packaged artifact). A host frame this host did not send (another host on the channel,
 e.g. a `bench run` started there while this one waited for its heartbeat) stops it in one sentence naming the
 channel. Exit status 0 when every row was answered and nothing was lost,
-1 when the run had missing replies, sequence gaps or heartbeat loss (unless --tolerate-gaps), 2 for bad
-arguments; every error is one sentence on stderr. The `host` package is the node itself (session, replay,
+1 when the run had missing replies, sequence gaps or heartbeat loss (unless --tolerate-gaps), or when the replies
+differ from the offline float32 reference, 2 for bad arguments; every error is one sentence on stderr. The log is
+analyzed as `bench run` analyzes its own (`bench.analysis.report.analyze_log`, no report): every reply is compared
+with the model's offline float32 reference, so a target that computes something else (another loss table under
+the same model id, say) is never clean, and the JSON carries the same figures as `bench run --json` ("rmse_C",
+"max_abs_can_minus_float32_C", "figure_rows": the rows they are over and those a check left out, "metrics").
+The `host` package is the node itself (session, replay,
 faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as `bench run`) and hands
 the host its drive rows, with the d/q currents (DriveCurrents) when the model has an electrical loss model.
 
@@ -37,6 +42,7 @@ from bench.commands.common import (
     check_log_names,
     check_writable,
     data_options,
+    fmt,
     print_json,
 )
 from bench.errors import BenchError, UsageError
@@ -131,20 +137,45 @@ def run_host(args: argparse.Namespace) -> int:
     finally:
         if bus is not None:
             bus.shutdown()
-    from bench.analysis.results import SCHEMA_KEY, SCHEMA_VERSION
+    from bench.analysis.results import SCHEMA_KEY, SCHEMA_VERSION, as_json, verdict_text
     from bench.analysis.verdict import verdict
 
-    outcome = verdict(result.problems(), fault_note(result.faults), faulted=result.faults is not None,
+    metrics, found = _analyze(log_path, artifact, dataset, config.nominal_bitrate, result.problems())
+    outcome = verdict(result.problems() + found, fault_note(result.faults), faulted=result.faults is not None,
                       tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
     problems = outcome.problems
+    injected = result.faults["injected_total"] if result.faults else 0
     if args.json:
-        injected = bool(result.faults and result.faults["injected_total"])
-        print_json({SCHEMA_KEY: SCHEMA_VERSION, **result.to_dict(), "problems": problems,
-                    "clean": not problems and not injected})
+        clean = not problems and not injected
+        figures = {} if metrics is None else {
+            "max_abs_can_minus_float32_C": as_json(metrics.agreement.max_abs_can_minus_float32_C),
+            "rmse_C": as_json(metrics.accuracy.rmse_C), "rmse_reference": as_json(metrics.accuracy.rmse_reference),
+            "figure_rows": as_json(metrics.figure_rows), "notes": metrics.notes,
+            "metrics": metrics.to_json(windows=False)}
+        print_json({SCHEMA_KEY: SCHEMA_VERSION, **result.to_dict(), **figures, "problems": problems, "clean": clean,
+                    "verdict": verdict_text(clean, problems, injected,
+                                            result.faults.get("undetected") if result.faults else 0)})
     else:
         print(f"{result.rows_sent} rows sent, {result.replies} answered, {result.missing} missing, "
               f"{result.rows_per_s:.0f} rows/s, round trip p50 {result.round_trip_us['p50'] or 0:.0f} µs; "
               f"log {result.log_path}")
+        if metrics is not None:
+            agreement = metrics.agreement.max_abs_can_minus_float32_C
+            print(f"max |CAN - {metrics.agreement.can_reference}| (°C): "
+                  + ", ".join(f"{t} {fmt(agreement.get(t), 4)}" for t in ("winding", "magnet", "yoke", "tooth"))
+                  + f"; {metrics.figure_rows.text('RMSE and every figure')}")
         for problem in problems:
             print(f"bench: host: {problem}", file=sys.stderr)
     return outcome.status   # --tolerate-gaps: not for faults (the shared rule)
+
+
+def _analyze(log_path: Path, artifact, dataset, bitrate: int, host_problems: list[str]):
+    """The log's metrics against the offline references (as `bench run` makes them) and its problems; (None, a
+    sentence) when the log holds nothing to compare (a run that ended before its first row)."""
+    from bench.analysis.report import analyze_log
+    from host.canlog import LogError
+
+    try:
+        return analyze_log(log_path, artifact, dataset, bitrate=bitrate, extra_problems=host_problems)
+    except (LogError, ValueError) as exc:
+        return None, [f"the log {log_path} cannot be compared with the offline float32 reference ({exc})"]

@@ -11,7 +11,11 @@ log's model id; --model names another) unless --no-start-target, which talks to 
 given bus; the started target runs the engine the log's target ran (a log with Timing4 frames: the firmware engine)
 unless --engine says otherwise. The new session is logged (default out/replay/<log name>.replay.blf). Exit 0 when
 every recorded reply came back identical: both logs are decoded (`bench.analysis.logdecode`) and each data row's
-final reply is compared, so a row the recorded run sent twice counts once.
+final reply is compared, so a row the recorded run sent twice counts once. The comparison is over the rows the
+bench's one rule keeps (`bench.analysis.rowfilter`, with the log's offline float32 reference as `bench analyze`
+makes it): a recorded row a check flagged as not the target's own answer (contested, replayed, off the reference)
+is left out and counted ("recorded_excluded", by reason), and such a log is not reproduced (exit 1), for those
+rows were never the target's to reproduce; a replayed row flagged the same way counts in "replayed_excluded".
 
 A log of a run with bus faults (`bench run --faults drop=...`) replays as it was made: its faulty frames go out
 again byte for byte (those on the unknown_id fault's ids too), the target rejects the same frames, and the replay
@@ -34,6 +38,8 @@ import numpy as np
 
 from bench.analysis.logdecode import BusRecord, decode_log
 from bench.analysis.results import Percentiles, Rejections, ReplayResults, ReplyComparison
+from bench.analysis.rowfilter import RowSelection, kept_rows
+from bench.analysis.verdict import counts_text
 from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, positive_float
 from bench.commands.common import NAME_MAX, add_output_flags, check_writable, print_json
 from bench.errors import BenchError
@@ -108,19 +114,37 @@ def injected_faults(record: BusRecord) -> dict[str, int]:
     return dict(Counter(m.fault for m in record.marks if m.event == "fault" and m.fault))
 
 
-def compare_replies(recorded: np.ndarray, recorded_ok: np.ndarray, new: np.ndarray,
-                    new_ok: np.ndarray) -> ReplyComparison:
-    rows = min(len(recorded), len(new))
-    both = recorded_ok[:rows] & new_ok[:rows]
-    same = np.all(recorded[:rows] == new[:rows], axis=1) & both
-    diff = np.abs(recorded[:rows] - new[:rows])[both]
-    return ReplyComparison(rows_recorded=int(len(recorded)), rows_replayed=int(len(new)),
-                           recorded_answered=int(np.count_nonzero(recorded_ok)),
-                           replayed_answered=int(np.count_nonzero(new_ok)),
+def compare_replies(recorded: BusRecord, recorded_rows: RowSelection, new: BusRecord,
+                    new_rows: RowSelection) -> ReplyComparison:
+    """Each row's final reply of the replay against the recorded one, over the rows the rule keeps in both (a row
+    the replay answered but a check flagged is neither compared nor missing: it counts in replayed_excluded)."""
+    rows = min(recorded.rows, new.rows)
+    recorded_ok, new_ok = recorded_rows.kept[:rows], new_rows.kept[:rows]
+    both = recorded_ok & new_ok
+    same = np.all(recorded.temps[:rows] == new.temps[:rows], axis=1) & both
+    diff = np.abs(recorded.temps[:rows] - new.temps[:rows])[both]
+    return ReplyComparison(rows_recorded=recorded.rows, rows_replayed=new.rows,
+                           recorded_answered=int(np.count_nonzero(recorded.answered)),
+                           replayed_answered=int(np.count_nonzero(new.answered)),
                            compared=int(np.count_nonzero(both)), identical=int(np.count_nonzero(same)),
                            different=int(np.count_nonzero(both & ~same)),
-                           missing_in_replay=int(np.count_nonzero(recorded_ok[:rows] & ~new_ok[:rows])),
-                           max_abs_difference_C=float(diff.max()) if diff.size else 0.0)
+                           missing_in_replay=int(np.count_nonzero(recorded_ok & ~new.answered[:rows])),
+                           max_abs_difference_C=float(diff.max()) if diff.size else 0.0,
+                           recorded_excluded=dict(recorded_rows.counts.excluded),
+                           replayed_excluded=dict(new_rows.counts.excluded))
+
+
+def figure_rows(record: BusRecord, artifact) -> RowSelection:
+    """The rows of a log the rule keeps, judged against the log's offline float32 reference as `bench analyze`
+    judges them (`canmetrics.compute`); a log that cannot be compared with the model (no complete RESET, no
+    currents for an electrical loss model) by the log's own checks only."""
+    from bench.analysis.canmetrics import AGREEMENT_TOLERANCE_C, compute
+
+    try:
+        _, refs = compute(record, artifact)
+    except ValueError:
+        return kept_rows(record, tolerance=AGREEMENT_TOLERANCE_C)
+    return RowSelection(refs.kept, refs.figure_rows)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -159,18 +183,24 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     result = outcome.result
     replayed = decode_log(Path(result.log_path))
-    comparison = compare_replies(recorded.temps, recorded.answered, replayed.temps, replayed.answered)
+    recorded_rows = figure_rows(recorded, artifact)
+    comparison = compare_replies(recorded, recorded_rows, replayed, figure_rows(replayed, artifact))
+    excluded = recorded_rows.counts.excluded_total
     # the target must reject what it rejected then; a target that ran before (--no-start-target) counted before,
     # and the recorded counters of a log whose target restarted are only those of its last process
     compare_rejections = bool(faults) and not args.no_start_target and not restarted
     same_rejections = not compare_rejections or replayed.rx_errors == recorded.rx_errors
-    reproduced = (comparison.different == 0 and comparison.missing_in_replay == 0
-                  and comparison.compared == comparison.recorded_answered and same_rejections)
+    reproduced = (comparison.different == 0 and comparison.missing_in_replay == 0 and not excluded
+                  and comparison.compared == recorded_rows.counts.kept and same_rejections)
     # of a faulted log, the passes the faults left unanswered and the target's rejections are expected
     problems = (replace(result, missing=0, target_rx_errors={}) if faults else result).problems()
     if not same_rejections:
         problems.append(f"the target's rejections {replayed.rx_errors} differ from the recorded "
                         f"{recorded.rx_errors}")
+    if excluded:
+        problems.append(f"the recorded log has {excluded} rows a check flagged as not the target's own answer "
+                        f"({counts_text(recorded_rows.counts.excluded)}): they are left out of the comparison, and "
+                        "the log is not reproduced")
     summary = ReplayResults(
         log=str(path), replay_log=result.log_path, reproduced=reproduced, comparison=comparison,
         engine=None if args.no_start_target else engine, m4_cycles=result.m4_cycles, faults_in_log=faults or None,
@@ -184,7 +214,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"replayed {comparison.rows_replayed} rows in {result.wall_time_s:.2f} s: "
               f"{comparison.identical} of {comparison.recorded_answered} recorded replies identical, "
               f"{comparison.different} different (max {comparison.max_abs_difference_C:.4f} °C), "
-              f"{comparison.missing_in_replay} missing")
+              f"{comparison.missing_in_replay} missing; "
+              f"{recorded_rows.counts.text('compared')}")
         if faults:
             print(f"faults in the log: {', '.join(f'{k} {n}' for k, n in faults.items())}; target rejections "
                   f"recorded {recorded.rx_errors}, replayed {replayed.rx_errors}")

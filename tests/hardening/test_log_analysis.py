@@ -23,95 +23,23 @@ from bench.analysis.logdecode import decode_log
 from bench.analysis.report import render_markdown, write_report
 from bench.analysis.verdict import problems
 from bench.errors import BenchError
-from dbc import Command, FrameCodec, FrameValidator
-from dbc.codec import apply_crc, decode_any
+from dbc import FrameValidator
+from dbc.codec import apply_crc
 from dbc.contract import FrameError
 from dbc.database import frame_id
-from host.canlog import FrameLog
-from host.replay import encode_row
 from target_sim.artifact import load_artifact
-from target_sim.node import TargetNode
 
-from helpers import ROOT, subprocess_env
+from helpers import ROOT, after_row, genuine_temps, replies_by_row, subprocess_env
+from helpers import session_drive as drive
+from helpers import session_frames as session
+from helpers import write_frames as write
 
-INITIAL = [40.0, 45.0, 41.0, 50.0]
 ROWS = 400
 
 
 @pytest.fixture(scope="module")
 def lti(artifacts):
     return load_artifact(artifacts["lti"])
-
-
-def drive(n: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return np.column_stack([np.round(rng.uniform(0, 500, n), 1), np.round(rng.uniform(500, 8000, n)),
-                            np.full(n, 40.0), np.full(n, 25.0)])
-
-
-def session(artifact, values: np.ndarray, *, stop: bool = True) -> list[can.Message]:
-    """Every frame of a lockstep session as the host logs it (a Python target node answering in-process): the
-    target's heartbeat before and during it, RESET and START, the rows, STOP (with `stop`)."""
-    node, host = TargetNode(artifact, clock_ns=lambda: 0), FrameCodec("HOST")
-    frames = list(node.startup_frames())
-
-    def send(messages):
-        for message in messages:
-            frames.append(message)
-            frames.extend(node.handle(message))
-
-    yoke, winding, tooth, magnet = INITIAL
-    send([host.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-          host.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-          host.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-          host.encode("Control", {"Command": int(Command.START), "Step": 0})])
-    for row, value in enumerate(values):
-        send(encode_row(host, row, value))
-        if row % 25 == 0:
-            frames.extend(node.heartbeat_frames())
-    if stop:
-        send([host.encode("Control", {"Command": int(Command.STOP), "Step": 0})])
-        frames.extend(node.heartbeat_frames())
-    return frames
-
-
-def write(path, frames: list[can.Message]):
-    log = FrameLog(path)
-    for i, frame in enumerate(frames):
-        frame.timestamp = 1000.0 + i * 1e-4
-        log.write(frame)
-    log.close()
-    return path
-
-
-def genuine_temps(artifact, values: np.ndarray) -> np.ndarray:
-    """Each row's reply of a clean session, decoded from its frames."""
-    out = np.full((len(values), 4), np.nan)
-    for frame in session(artifact, values):
-        if frame.arbitration_id in (frame_id("Temperatures1"), frame_id("Temperatures2")):
-            decoded = decode_any(frame)
-            for signal, index in {"Temperatures1": (("WindingTemp", 1), ("MagnetTemp", 3)),
-                                  "Temperatures2": (("YokeTemp", 0), ("ToothTemp", 2))}[decoded.name]:
-                out[int(decoded.signals["Step"]), index] = decoded.signals[signal]
-    return out
-
-
-def replies_by_row(frames: list[can.Message]) -> dict[int, list[can.Message]]:
-    ids = (frame_id("Temperatures1"), frame_id("Temperatures2"))
-    out: dict[int, list[can.Message]] = {}
-    for frame in frames:
-        if frame.arbitration_id in ids:
-            out.setdefault(int(decode_any(frame).signals["Step"]), []).append(frame)
-    return out
-
-
-def after_row(frames: list[can.Message], row: int, which: str = "reply") -> int:
-    """Index in `frames` right after row `row`'s DriveTemps (which="drive") or its Temperatures2 ("reply")."""
-    fid, wanted = (frame_id("DriveTemps"), row) if which == "drive" else (frame_id("Temperatures2"), row)
-    for i, frame in enumerate(frames):
-        if frame.arbitration_id == fid and int(decode_any(frame).signals["Step"]) == wanted:
-            return i + 1
-    raise AssertionError(f"row {row} not found")
 
 
 # ---------------------------------------------------------------------------------------------- item 3

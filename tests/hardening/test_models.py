@@ -226,3 +226,61 @@ def test_the_delta_realization_is_judged_by_its_step():
         verify(resealed(artifact_text("hammerstein", "delta"), move))
     assert str(info.value).startswith("artifact linear_block.A (the delta realization's step I + Δt·A) is unstable: "
                                       "pole z = 1.0005 (|z| = 1.0005")
+
+
+def scaled_losses(scale: float):
+    """An lti-lptn artifact whose input matrix B is `scale` times the identified one: stable (A untouched), but its
+    estimate leaves the DBC range, and with a large enough scale float32's and then float64's range."""
+    def edit(c):
+        block = c["linear_block"]["B"]
+        c["linear_block"]["B"] = encode_array(np.array(block["f64"]).reshape(block["shape"]) * scale)
+
+    return verify(resealed(artifact_text("lti-lptn"), edit))
+
+
+def quiet_session_log(path, artifact, rows: int):
+    import warnings
+
+    with warnings.catch_warnings():      # the in-process target overflows as the model does: not what is tested
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return session_log(path, artifact, rows)
+
+
+def test_a_model_that_overflows_in_float64_too_is_judged_without_warnings_or_blaming_single_precision(tmp_path):
+    """Issue 23, item 4: B × 1e6 overflows in float64 as well; `bench analyze` (with its report, whose figures draw
+    such values) prints no RuntimeWarning, and its note says float64 overflows too instead of blaming float32."""
+    from helpers import run_cli
+
+    artifact = scaled_losses(1e6)
+    model = tmp_path / "big.json"
+    model.write_text(dumps(artifact.content), encoding="utf-8")
+    log = quiet_session_log(tmp_path / "big.blf", artifact, 300)
+    done = run_cli("-m", "bench", "analyze", str(log), "--model", str(model), "--report", str(tmp_path / "report"))
+    assert done.returncode == 1 and "Warning" not in done.stderr and "Traceback" not in done.stderr, done.stderr
+    note = next(line for line in done.stdout.splitlines() if line.startswith("note: "))
+    assert note.startswith("note: the model overflows in float64 as well as in float32 (")
+    assert note.endswith("its estimate leaves every range whatever the precision, so single precision is not the "
+                         "cause")
+    assert done.stderr.splitlines()[-1].startswith("bench: error: the log ") and \
+        "the target clamped them (SATURATED)" in done.stderr      # the verdict itself stands
+
+
+@pytest.mark.parametrize("scale, float32", [(300, "float32 departs from it by up to "),
+                                            (3000, "float32 overflows at ")])
+def test_a_model_whose_float64_leaves_the_dbc_range_does_not_blame_single_precision(scale, float32, tmp_path):
+    """B × 300: float64 finite but far outside -50..600 °C, float32 a relative 1e-4 from it; B × 3000: float32
+    overflows where float64 passes float32's range. Neither is single precision's fault, and no warning is raised."""
+    import warnings
+
+    from bench.analysis.canmetrics import compute
+    from bench.analysis.logdecode import decode_log
+
+    artifact = scaled_losses(scale)
+    record = decode_log(quiet_session_log(tmp_path / "big.blf", artifact, 300))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        results, _ = compute(record, artifact)
+    assert results.accuracy.non_finite_values.float64 == 0 and results.accuracy.float64_outside_dbc_range > 0
+    [note] = results.notes
+    assert note.startswith("the model's estimate leaves the DBC range (-50..600 °C) in float64 as well (")
+    assert float32 in note and note.endswith("so single precision is not the cause")

@@ -125,3 +125,47 @@ def test_a_firmware_fault_ends_the_run_in_one_sentence_naming_it(tmp_path, small
         "undefined instruction" in result.aborted
     assert outcome.target_status == 0       # it kept serving until it was stopped
     assert result.problems()[0].startswith("the run was aborted: the target reported an internal fault")
+
+
+def test_bench_host_against_a_firmware_that_computes_something_else_is_not_clean(tmp_path, small_dataset, udp_bus):
+    """Issue 23, item 2: the packaged firmware with its loss table scaled by 1.5 (its model id intact, so the host's
+    heartbeat check passes) served to `bench host`: the replies are compared with the offline float32 reference as
+    `bench run` compares them, so the run is not clean, and the rows off the reference reach no figure."""
+    from elftools.elf.elffile import ELFFile
+
+    elf = packaged_elf_path("hammerstein")
+    with elf.open("rb") as handle:
+        symbol = ELFFile(handle).get_section_by_name(".symtab").get_symbol_by_name("LOSS_TABLES")[0]
+    image = elf.read_bytes()
+    with elf.open("rb") as handle:
+        sections = list(ELFFile(handle).iter_sections())
+        section = next(s for s in sections if s["sh_addr"] <= symbol["st_value"] < s["sh_addr"] + s["sh_size"]
+                       and s["sh_type"] != "SHT_NOBITS")
+        at = section["sh_offset"] + symbol["st_value"] - section["sh_addr"]
+    values = np.frombuffer(image[at:at + symbol["st_size"]], dtype="<f4")
+    altered = tmp_path / "altered.elf"
+    altered.write_bytes(patched_elf(elf, "LOSS_TABLES", (values * 1.5).astype("<f4").tobytes()))
+    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
+                               "--engine", "firmware", "--firmware", str(altered), *udp_bus.to_argv()], cwd=ROOT,
+                              env=subprocess_env(), stderr=subprocess.PIPE, text=True)
+    try:
+        host = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", "200", "--log",
+                       str(tmp_path / "h.blf"), "--json", *udp_bus.to_argv())
+        text = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", "60", "--log",
+                       str(tmp_path / "t.blf"), "--quiet", *udp_bus.to_argv())
+    finally:
+        target.send_signal(signal.SIGTERM)
+        target.communicate(timeout=60)   # its exit after SIGTERM: generous on a busy machine
+    assert host.returncode == 1, host.stderr
+    result = json.loads(host.stdout)
+    assert (result["replies"], result["missing"], result["clean"]) == (200, 0, False)
+    assert max(result["max_abs_can_minus_float32_C"].values()) > 0.1
+    rows = result["figure_rows"]
+    off = rows["excluded"]["off_reference"]
+    assert off > 100 and rows["kept"] + off == 200 and rows["without_reply"] == 0
+    assert result["verdict"].startswith("not clean: CAN temperatures differ from the offline float32 reference by up "
+                                        "to ")
+    assert result["verdict"].endswith(f"at {off} rows, which are left out of every figure")
+    assert result["metrics"]["figure_rows"] == rows
+    assert text.returncode == 1
+    assert "bench: host: CAN temperatures differ from the offline float32 reference by up to " in text.stderr

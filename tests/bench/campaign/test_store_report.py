@@ -62,6 +62,17 @@ def test_a_summary_is_flattened():
     assert flatten(None) == ({}, [])
 
 
+def test_the_rows_left_out_of_the_figures_stand_beside_them():
+    """Issue 23: the table holds the run's figures, which are over the kept rows, and the excluded rows by reason."""
+    from bench.analysis.results import FigureRows
+
+    results = replace(example_results(), figure_rows=FigureRows(2000, 1990, 0, {"replayed": 10}))
+    row, _ = flatten(example_summary(False, metrics=results).to_json())
+    assert (row["rows_kept"], row["rows_excluded"]) == (1990, 10)
+    assert json.loads(row["rows_excluded_by_reason"]) == {"replayed": 10}
+    assert json.loads(row["summary"])["figure_rows"]["excluded"] == {"replayed": 10}
+
+
 @pytest.fixture
 def table(tmp_path):
     """A campaign directory whose table holds 5 of the spec's 6 runs: clean, not clean, failed, timed out, lost."""
