@@ -16,6 +16,7 @@ from __future__ import annotations
 import gc
 import importlib.util
 import os
+import re
 import sys
 from collections.abc import Iterator
 from datetime import UTC, datetime
@@ -149,12 +150,32 @@ class FrameLog:
         self.close(commit=exc_type is None)
 
 
-def partial_name(path: Path) -> str:
-    """`.STEM.<pid>.partial.SUFFIX`, STEM shortened (counted in bytes) to keep it within NAME_MAX."""
-    stem, tail = path.stem, f".{os.getpid()}.partial{path.suffix}"
+def partial_name(path: Path, pid: int | None = None) -> str:
+    """`.STEM.<pid>.partial.SUFFIX` (pid: this process's by default), STEM shortened (counted in bytes) to keep it
+    within NAME_MAX."""
+    stem, tail = path.stem, f".{os.getpid() if pid is None else pid}.partial{path.suffix}"
     while stem and len(os.fsencode(f".{stem}{tail}")) > NAME_MAX:
         stem = stem[:-1]
     return f".{stem}{tail}"
+
+
+PARTIAL_PID = re.compile(r"\.(?P<pid>[0-9]+)\.partial\.[^.]*$")
+
+
+def partials_of(path: Path) -> dict[int, Path]:
+    """The temporary files of log `path` beside it, by the id of the process that was writing each (a process
+    that died without cleaning up, SIGKILL, leaves one)."""
+    path = Path(path)
+    found = {}
+    try:
+        entries = list(path.parent.iterdir())
+    except OSError:   # no directory yet: nothing left there
+        return {}
+    for entry in entries:
+        match = PARTIAL_PID.search(entry.name)
+        if match and entry.name == partial_name(path, int(match["pid"])):
+            found[int(match["pid"])] = entry
+    return found
 
 
 READ_FIX = "pass a complete log written by 'bench run' or the host"
