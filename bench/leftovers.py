@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -87,3 +88,10 @@ def clear_leftovers(log_path: Path | None) -> list[str]:
         notes.append(f"removed {path}, the temporary directory of a bench that ended without removing it")
     return notes
 
+
+
+def clear_and_say(log_path: Path | None, quiet: bool) -> None:
+    """`clear_leftovers`, each removal said on stderr (`bench: removed ...`) unless `quiet`."""
+    for note in clear_leftovers(log_path):
+        if not quiet:
+            print(f"bench: {note}", file=sys.stderr)

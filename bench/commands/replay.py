@@ -37,6 +37,7 @@ from bench.analysis.results import Percentiles, Rejections, ReplayResults, Reply
 from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, positive_float
 from bench.commands.common import NAME_MAX, add_output_flags, check_writable, print_json
 from bench.errors import BenchError
+from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
 from bench.run_inputs import firmware_for_engine, load_model
 from bench.runner import replay_with_target
@@ -149,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench: replaying {recorded.rows} rows of {path} "
               f"({'as fast as possible' if args.as_fast_as_possible else f'recorded timing x{args.speed:g}'}) "
               f"over {bus.describe()}", file=sys.stderr)
+    clear_and_say(new_log, quiet)   # what a killed replay left beside this log and in the temporary directory
     announce_logger(bus, args.quiet, wait_s=args.wait_for_listener)
     bar = ProgressBar(count_rows(frames), "replay", quiet)
     try:

@@ -66,6 +66,7 @@ from bench.commands.common import (
     print_summary,
 )
 from bench.errors import BenchError, UsageError
+from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
 from bench.run_inputs import drive_for, firmware_for_engine, load_data, load_model
 from bench.runner import run_with_target
@@ -156,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench: {artifact.kind} model {artifact.model_id:08x} ({args.engine} engine) on {len(drive)} rows of "
               f"{dataset.path} ({args.mode}) over {bus.describe()}{injecting}", file=sys.stderr)
     # with --json too: a script's user attaches a logger the same way (--wait-for-listener: before the target starts)
+    clear_and_say(log_path, quiet)   # what a killed run left beside this log and in the temporary directory
     announce_logger(bus, args.quiet, wait_s=args.wait_for_listener)
     bar = ProgressBar(len(drive), args.mode, quiet)
     started = time.perf_counter()
