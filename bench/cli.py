@@ -16,7 +16,7 @@ from collections.abc import Callable
 from bench import DISTRIBUTION, package_version
 from bench.errors import BenchError, UsageError
 from dbc.errors import CanLinkError
-from host.errors import HostError
+from host.errors import HostError, io_advice
 from host.faults.spec import FaultSpecError
 from target_sim.errors import TargetError
 
@@ -133,10 +133,11 @@ def one_line(message: str) -> str:
 
 
 def _os_error_sentence(exc: OSError) -> str:
-    """An OSError nobody caught closer to its cause, as one sentence naming the file and what to do."""
-    where = exc.filename if exc.filename is not None else "a file"
+    """An OSError nobody caught closer to its cause, as one sentence naming the file and what to do (the writers
+    name their files themselves: `bench.fileio.OutputError`, `host.canlog.LogError`)."""
+    where = exc.filename if exc.filename is not None else "a file the command used"
     reason = exc.strerror or exc.__class__.__name__
-    return f"{where}: {reason}; check that the path exists, is of the right kind and is writable, or choose another"
+    return f"{where}: {reason}; {io_advice(exc.errno)}"
 
 
 class Terminated(BaseException):

@@ -25,7 +25,7 @@ from pathlib import Path
 import can
 from can.io.mf4 import MF4Writer
 
-from host.errors import HostError
+from host.errors import HostError, write_failure
 
 LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".mf4")
 NAME_MAX = 255   # bytes in one file name (Linux, macOS): the temporary name must fit where the log's does
@@ -98,7 +98,7 @@ class FrameLog:
             try:   # the writer waits for the first frame's time; whether the file can be written is known now
                 self.tmp_path.touch()
             except OSError as exc:
-                raise LogError(f"cannot write the log {self.path} ({exc})") from None
+                raise LogError(write_failure(self.path, "the log", exc)) from None
         else:
             self._writer = self._open(None)
         self._last = float("-inf")
@@ -124,7 +124,10 @@ class FrameLog:
         self._last = msg.timestamp
         if self._writer is None:
             self._writer = self._open(msg.timestamp)
-        self._writer.on_message_received(msg)
+        try:
+            self._writer.on_message_received(msg)
+        except OSError as exc:   # a full disk, a removed directory: name the log, not "a file"
+            raise LogError(write_failure(self.path, "the log", exc)) from None
         self.count += 1
 
     def close(self, commit: bool = True) -> Path | None:
@@ -136,12 +139,23 @@ class FrameLog:
             if self._writer is None and commit:   # no frame: still a valid (empty) log
                 self._writer = self._open(None)
             if self._writer is not None:
-                self._writer.stop()
+                self._stop_writer(commit)
             if commit and self.tmp_path.exists():
                 os.replace(self.tmp_path, self.path)
+        except OSError as exc:
+            raise LogError(write_failure(self.path, "the log", exc)) from None
         finally:   # not committed (a failure, an interruption, a path that is a directory): no temporary file left
             self.tmp_path.unlink(missing_ok=True)
         return self.path if commit else None
+
+    def _stop_writer(self, commit: bool) -> None:
+        """Flush and close the writer; a log that is being discarded may fail to flush (the disk that stopped it
+        is still full): the error that discarded it is the one to report."""
+        try:
+            self._writer.stop()
+        except OSError:
+            if commit:
+                raise
 
     def __enter__(self) -> FrameLog:
         return self

@@ -117,7 +117,7 @@ def fault_spec(args: argparse.Namespace):
     spec = spec_from_args(args)
     if spec is not None and spec.process_faults and getattr(args, "mode", "lockstep") != "lockstep":
         raise UsageError("kill and freeze faults need lockstep mode (a lost target's rows cannot be sent again on a "
-                         "real-time clock); drop them or --mode realtime")
+                         "real-time clock); drop them from --faults/--fault or use --mode lockstep")
     return spec
 
 
@@ -143,7 +143,10 @@ def run(args: argparse.Namespace) -> int:
     check_writable(log_path, "--log")   # a directory there would fail the run only at its end
     check_log_names(log_path, faults)
     if not args.no_report:  # a report that cannot be written must not cost a run and leave a log
+        from bench.analysis.report import check_report_dir
+
         check_writable(Path(args.report), "--report", directory=True)
+        check_report_dir(Path(args.report))   # a directory of other files would be refused only after the run
     artifact, model_path = load_model(args.model)
     dataset, drive = load_run_data(args, artifact)     # before anything starts: data the model cannot run on
     bus = bus_from_args(args)
