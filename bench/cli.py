@@ -192,10 +192,15 @@ def _catch_termination() -> tuple[dict, Callable]:
     return previous, hook
 
 
+RESEND_DELAY_S = 0.02   # the hook and the finalizer that called it return first
+
+
 def _resend(signum: int) -> None:
     """Send `signum` to this process from another thread: its handler then runs in the main thread at the next
     bytecode, outside the finalizer that swallowed it (raised here, it would be swallowed again)."""
-    threading.Thread(target=os.kill, args=(os.getpid(), signum), daemon=True).start()
+    resend = threading.Timer(RESEND_DELAY_S, os.kill, (os.getpid(), signum))
+    resend.daemon = True
+    resend.start()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -62,7 +62,7 @@ def _host_session(fn: Callable[[], HostResult], target: TargetProcess | None) ->
         reason = target.exit_reason() if target is not None else None
         if reason is None:
             raise
-        if target.killed_by_other() is not None:   # when, in the host's words (e.g. the row it went silent at)
+        if target.killed_by_other() is not None and str(exc) != reason:   # when, in the host's words (the row)
             reason = f"{reason}; the host: {exc}"
         raise BenchError(reason) from None
 
