@@ -26,7 +26,9 @@ started: `--wait-for-listener SECONDS` prints the logger line first and waits be
 logger started from it records the whole run. A target already sending on
 the channel is refused before the run starts its own, and so is a host; a host frame this run did not send stops
 it at any time (`dbc.transport.SenderGuard`). A --log that cannot be written (a directory) is refused before the
-run. SIGINT, SIGTERM and SIGHUP stop the target, discard the partial log and exit 128 + the signal.
+run, and so is a --report directory holding other files. SIGINT, SIGTERM and SIGHUP stop the target, discard the
+partial log and exit 128 + the signal (one inherited as ignored, as under nohup, stays ignored); what a killed run
+left (a partial log of this --log, temporary directories) is removed by the next run once its process is gone.
 
 Fault injection (`host.faults`): e.g. `--faults drop=0.01,corrupt=0.001,kill=1 --fault-seed 7`. Bus faults
 (drop, delay, duplicate, reorder, corrupt, stale_counter, wrong_length, unknown_id, out_of_range) hit the host's
