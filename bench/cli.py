@@ -6,14 +6,17 @@ import argparse
 import difflib
 import importlib
 import logging
+import os
 import re
 import signal
 import sys
+import threading
+from collections.abc import Callable
 
 from bench import DISTRIBUTION, package_version
 from bench.errors import BenchError, UsageError
 from dbc.errors import CanLinkError
-from host.errors import HostError
+from host.errors import HostError, io_advice
 from host.faults.spec import FaultSpecError
 from target_sim.errors import TargetError
 
@@ -130,10 +133,11 @@ def one_line(message: str) -> str:
 
 
 def _os_error_sentence(exc: OSError) -> str:
-    """An OSError nobody caught closer to its cause, as one sentence naming the file and what to do."""
-    where = exc.filename if exc.filename is not None else "a file"
+    """An OSError nobody caught closer to its cause, as one sentence naming the file and what to do (the writers
+    name their files themselves: `bench.fileio.OutputError`, `host.canlog.LogError`)."""
+    where = exc.filename if exc.filename is not None else "a file the command used"
     reason = exc.strerror or exc.__class__.__name__
-    return f"{where}: {reason}; check that the path exists, is of the right kind and is writable, or choose another"
+    return f"{where}: {reason}; {io_advice(exc.errno)}"
 
 
 class Terminated(BaseException):
@@ -149,9 +153,14 @@ TERMINATING = (signal.SIGTERM, signal.SIGHUP)
 STOP_NOTE = "no half-written file is left and any target process it started was stopped"
 
 
-def _catch_termination() -> dict:
+def _catch_termination() -> tuple[dict, Callable]:
     """Turn SIGTERM and SIGHUP into `Terminated` (once: a second signal does not cut the cleanup short); returns
-    the handlers to put back."""
+    the handlers and the unraisable hook to put back.
+
+    A signal that the process inherited as ignored stays ignored (`nohup bench run` must survive the hangup). A
+    signal arrives between any two bytecodes, also inside a finalizer or a weakref callback (matplotlib's, the
+    garbage collector's), where Python prints "Exception ignored in ..." and goes on: such a swallowed
+    `Terminated` (or `KeyboardInterrupt`) is delivered again, so the command still stops."""
     raised = []
 
     def terminate(signum, frame) -> None:  # noqa: ARG001 - signal API
@@ -162,14 +171,40 @@ def _catch_termination() -> dict:
     previous = {}
     for signum in TERMINATING:
         try:
+            if signal.getsignal(signum) == signal.SIG_IGN:
+                continue
             previous[signum] = signal.signal(signum, terminate)
         except ValueError:   # not the main thread (a test calling main()): leave the signals alone
             break
-    return previous
+    hook = sys.unraisablehook
+
+    def deliver_again(unraisable) -> None:
+        exc = unraisable.exc_value
+        if isinstance(exc, Terminated) and exc.signum in previous:
+            raised.clear()
+            _resend(exc.signum)
+        elif isinstance(exc, KeyboardInterrupt):
+            _resend(signal.SIGINT)
+        else:
+            hook(unraisable)
+
+    sys.unraisablehook = deliver_again
+    return previous, hook
+
+
+RESEND_DELAY_S = 0.02   # the hook and the finalizer that called it return first
+
+
+def _resend(signum: int) -> None:
+    """Send `signum` to this process from another thread: its handler then runs in the main thread at the next
+    bytecode, outside the finalizer that swallowed it (raised here, it would be swallowed again)."""
+    resend = threading.Timer(RESEND_DELAY_S, os.kill, (os.getpid(), signum))
+    resend.daemon = True
+    resend.start()
 
 
 def main(argv: list[str] | None = None) -> int:
-    previous = _catch_termination()
+    previous, hook = _catch_termination()
     try:
         try:
             return _main(argv)
@@ -177,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"bench: terminated ({signal.Signals(exc.signum).name}); {STOP_NOTE}", file=sys.stderr)
             return 128 + exc.signum
     finally:
+        sys.unraisablehook = hook
         for signum, handler in previous.items():
             signal.signal(signum, handler)
 

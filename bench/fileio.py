@@ -9,6 +9,9 @@ import tempfile
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 
+from bench.errors import BenchError
+from host.errors import write_failure
+
 NAME_MAX = 255       # bytes in one file name (Linux, macOS): a temporary name must fit where the output's does
 RANDOM_PART = 8      # what mkstemp/mkdtemp add between prefix and suffix
 MAX_TEMP_SUFFIX = 16  # a longer "suffix" is no format's: the temporary name goes without it
@@ -22,9 +25,30 @@ def temporary_prefix(name: str, reserve: int) -> str:
     return f".{name}."
 
 
-def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
-    """Write through a temporary file in the same directory, then rename: never a half-written output."""
-    path = Path(path)
+class OutputError(BenchError, OSError):
+    """An output that could not be written (a full disk, a directory that went away): one sentence naming the file,
+    what it is and what to do. Still an OSError, for the callers that add their own context."""
+
+    def __init__(self, path: Path, what: str, exc: OSError):
+        OSError.__init__(self, exc.errno, exc.strerror, str(path))
+        self.sentence = write_failure(path, what, exc)
+
+    def __str__(self) -> str:
+        return self.sentence
+
+
+def write_atomically(path: Path, write: Callable[[Path], None], what: str = "the file") -> None:
+    """Write through a temporary file in the same directory, then rename: never a half-written output. An OSError
+    becomes an OutputError naming `path` (`what` it is: "the model artifact", ...)."""
+    try:
+        _write_atomically(Path(path), write)
+    except OutputError:
+        raise
+    except OSError as exc:
+        raise OutputError(Path(path), what, exc) from None
+
+
+def _write_atomically(path: Path, write: Callable[[Path], None]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix if len(os.fsencode(path.suffix)) <= MAX_TEMP_SUFFIX else ""   # writers pick formats by it
     fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path.name, RANDOM_PART + len(os.fsencode(suffix))),
@@ -41,14 +65,14 @@ def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
         raise
 
 
-def write_bytes_atomically(path: Path, payload: bytes) -> None:
+def write_bytes_atomically(path: Path, payload: bytes, what: str = "the file") -> None:
     """`path` holds exactly `payload`, or is as it was before."""
-    write_atomically(path, lambda tmp: tmp.write_bytes(payload))
+    write_atomically(path, lambda tmp: tmp.write_bytes(payload), what)
 
 
-def write_text_atomically(path: Path, text: str) -> None:
+def write_text_atomically(path: Path, text: str, what: str = "the file") -> None:
     """`path` holds exactly `text` (UTF-8), or is as it was before."""
-    write_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    write_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"), what)
 
 
 def foreign_entries(path: Path, replaceable: Collection[str]) -> list[str]:
@@ -84,7 +108,10 @@ def write_directory_atomically(path: Path, contents: Mapping[str, bytes], *,
     try:
         for name, payload in contents.items():
             target = tmp / name
-            target.write_bytes(payload)
+            try:
+                target.write_bytes(payload)
+            except OSError as exc:   # named as the file it was to become (the temporary name means nothing)
+                raise OutputError(path / name, "the file", exc) from None
             os.chmod(target, 0o666 & ~umask)   # mkdtemp makes 0700 and files follow the umask
         os.chmod(tmp, 0o777 & ~umask)
         if path.exists():

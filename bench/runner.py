@@ -17,7 +17,7 @@ injected faults.
 from __future__ import annotations
 
 import json
-import tempfile
+import signal
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +26,7 @@ import can
 import numpy as np
 
 from bench.errors import BenchError
+from bench.leftovers import scratch_dir
 from bench.target_process import TargetProcess
 from dbc.database import host_frame_ids
 from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard
@@ -57,10 +58,12 @@ def _host_session(fn: Callable[[], HostResult], target: TargetProcess | None) ->
     (the host's log, data or faults, another host heard by the guard) reaches the CLI as it is."""
     try:
         return fn()
-    except SessionError:
+    except SessionError as exc:
         reason = target.exit_reason() if target is not None else None
         if reason is None:
             raise
+        if target.killed_by_other() is not None and str(exc) != reason:   # when, in the host's words (the row)
+            reason = f"{reason}; the host: {exc}"
         raise BenchError(reason) from None
 
 
@@ -98,7 +101,7 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     freeze and restart it; the result carries the fault summary (`result.faults`). With `firmware` (an ELF,
     `firmware_for_engine`) the target runs the firmware engine."""
     injecting = faults is not None and faults.active
-    target_files = tempfile.TemporaryDirectory(prefix="bench-target-")   # its stats; its journal when injecting
+    target_files = scratch_dir("target")   # its stats; its journal when injecting
     events = Path(target_files.name) / "target-events.jsonl" if injecting else None
     stats_path = Path(target_files.name) / "target-stats.json"
     target_stats = None
@@ -113,6 +116,7 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
                 alive=target.exit_reason, connect_timeout_s=OWN_TARGET_CONNECT_TIMEOUT_S, progress=progress,
                 faults=faults if injecting else None,
                 control=target.control() if injecting else None, target_events=events), target)
+            killed = target.killed_by_other()   # before stop(): it ended while the host still ran
             status = target.stop()
             stderr = target.stderr_text()
             _name_the_fault(result, stderr)
@@ -120,10 +124,23 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     finally:
         host_bus.shutdown()
         target_files.cleanup()
+    if killed is not None:
+        raise BenchError(killed_sentence(killed, result))
     if status not in (0, None):
         raise BenchError(f"the target process ended with status {status} after the run: "
                          f"{stderr.strip().splitlines()[-1] if stderr.strip() else '(no output)'}")
     return RunOutcome(result, status, stderr, target_stats)
+
+
+def killed_sentence(killed: signal.Signals, result: HostResult) -> str:
+    """A target another process killed while the host ran: by which signal, at which row (the first one it left
+    unanswered for good), and what became of the run's log."""
+    answered = np.asarray(result.arrays.get("answered", ()), dtype=bool)
+    row = int(np.flatnonzero(answered)[-1]) + 1 if answered.any() else 0
+    log = f"; its log {result.log_path} holds the run up to there" if result.log_path else ""
+    return (f"the target process was killed by signal {killed.value} ({killed.name}) during the run, at row {row} of "
+            f"{result.rows}, by another process or the system (the bench did not stop it){log}; the run is not "
+            "complete, run it again")
 
 
 def _read_stats(path: Path) -> dict | None:

@@ -44,6 +44,7 @@ class TargetProcess:
         self._stderr = tempfile.TemporaryFile(mode="w+b")
         self._thaw: threading.Timer | None = None
         self._frozen = False
+        self._signalled = False    # the bench itself sent the current process a stopping signal (stop, kill)
         self._lock = threading.Lock()
 
     @property
@@ -63,6 +64,7 @@ class TargetProcess:
         """SIGKILL the target and reap it (a frozen one too)."""
         self._cancel_thaw()
         if self.process is not None and self.process.poll() is None:
+            self._signalled = True
             self.process.kill()
             self.process.wait()
         self._frozen = False
@@ -106,6 +108,7 @@ class TargetProcess:
     def start(self) -> TargetProcess:
         env = dict(os.environ)
         env.setdefault("PYTHONUNBUFFERED", "1")
+        self._signalled = False
         try:
             self.process = subprocess.Popen(self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                             stderr=self._stderr, env=env)
@@ -122,10 +125,24 @@ class TargetProcess:
         lines = [line.strip() for line in self.stderr_text().splitlines() if line.strip()]
         return lines[-1] if lines else "(no output)"
 
+    def killed_by_other(self) -> signal.Signals | None:
+        """The signal that ended the target when another process (or the system: the OOM killer) sent it, not
+        this bench; else None (running, exited by itself, or stopped by the bench)."""
+        code = None if self.process is None else self.process.poll()
+        if code is None or code >= 0 or self._signalled:
+            return None
+        try:
+            return signal.Signals(-code)
+        except ValueError:
+            return None
+
     def exit_reason(self) -> str | None:
         """None while the process runs; else one sentence with its status and last stderr line."""
         if self.process is None or self.process.poll() is None:
             return None
+        killer = self.killed_by_other()
+        if killer is not None:
+            return f"the target process was killed by signal {killer.value} ({killer.name}), not by the bench"
         return (f"the target process exited with status {self.process.returncode}: "
                 f"{self.last_stderr_line().removeprefix('target_sim: error: ').removeprefix('target_sim: ')}")
 
@@ -137,6 +154,7 @@ class TargetProcess:
         if self._frozen:
             self.thaw()  # a stopped process would not act on SIGTERM
         if self.process.poll() is None:
+            self._signalled = True
             self.process.send_signal(signal.SIGTERM)
             try:
                 self.process.wait(timeout)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import gc
 import importlib.util
 import os
+import re
 import sys
 from collections.abc import Iterator
 from datetime import UTC, datetime
@@ -24,7 +25,7 @@ from pathlib import Path
 import can
 from can.io.mf4 import MF4Writer
 
-from host.errors import HostError
+from host.errors import HostError, write_failure
 
 LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".mf4")
 NAME_MAX = 255   # bytes in one file name (Linux, macOS): the temporary name must fit where the log's does
@@ -97,7 +98,7 @@ class FrameLog:
             try:   # the writer waits for the first frame's time; whether the file can be written is known now
                 self.tmp_path.touch()
             except OSError as exc:
-                raise LogError(f"cannot write the log {self.path} ({exc})") from None
+                raise LogError(write_failure(self.path, "the log", exc)) from None
         else:
             self._writer = self._open(None)
         self._last = float("-inf")
@@ -123,7 +124,10 @@ class FrameLog:
         self._last = msg.timestamp
         if self._writer is None:
             self._writer = self._open(msg.timestamp)
-        self._writer.on_message_received(msg)
+        try:
+            self._writer.on_message_received(msg)
+        except OSError as exc:   # a full disk, a removed directory: name the log, not "a file"
+            raise LogError(write_failure(self.path, "the log", exc)) from None
         self.count += 1
 
     def close(self, commit: bool = True) -> Path | None:
@@ -135,12 +139,23 @@ class FrameLog:
             if self._writer is None and commit:   # no frame: still a valid (empty) log
                 self._writer = self._open(None)
             if self._writer is not None:
-                self._writer.stop()
+                self._stop_writer(commit)
             if commit and self.tmp_path.exists():
                 os.replace(self.tmp_path, self.path)
+        except OSError as exc:
+            raise LogError(write_failure(self.path, "the log", exc)) from None
         finally:   # not committed (a failure, an interruption, a path that is a directory): no temporary file left
             self.tmp_path.unlink(missing_ok=True)
         return self.path if commit else None
+
+    def _stop_writer(self, commit: bool) -> None:
+        """Flush and close the writer; a log that is being discarded may fail to flush (the disk that stopped it
+        is still full): the error that discarded it is the one to report."""
+        try:
+            self._writer.stop()
+        except OSError:
+            if commit:
+                raise
 
     def __enter__(self) -> FrameLog:
         return self
@@ -149,12 +164,32 @@ class FrameLog:
         self.close(commit=exc_type is None)
 
 
-def partial_name(path: Path) -> str:
-    """`.STEM.<pid>.partial.SUFFIX`, STEM shortened (counted in bytes) to keep it within NAME_MAX."""
-    stem, tail = path.stem, f".{os.getpid()}.partial{path.suffix}"
+def partial_name(path: Path, pid: int | None = None) -> str:
+    """`.STEM.<pid>.partial.SUFFIX` (pid: this process's by default), STEM shortened (counted in bytes) to keep it
+    within NAME_MAX."""
+    stem, tail = path.stem, f".{os.getpid() if pid is None else pid}.partial{path.suffix}"
     while stem and len(os.fsencode(f".{stem}{tail}")) > NAME_MAX:
         stem = stem[:-1]
     return f".{stem}{tail}"
+
+
+PARTIAL_PID = re.compile(r"\.(?P<pid>[0-9]+)\.partial\.[^.]*$")
+
+
+def partials_of(path: Path) -> dict[int, Path]:
+    """The temporary files of log `path` beside it, by the id of the process that was writing each (a process
+    that died without cleaning up, SIGKILL, leaves one)."""
+    path = Path(path)
+    found = {}
+    try:
+        entries = list(path.parent.iterdir())
+    except OSError:   # no directory yet: nothing left there
+        return {}
+    for entry in entries:
+        match = PARTIAL_PID.search(entry.name)
+        if match and entry.name == partial_name(path, int(match["pid"])):
+            found[int(match["pid"])] = entry
+    return found
 
 
 READ_FIX = "pass a complete log written by 'bench run' or the host"

@@ -33,7 +33,7 @@ from dbc.codec import FrameCodec
 from dbc.contract import CURRENT_MESSAGE, DRIVE_SIGNALS, FaultBit, TargetState, row_messages, row_signals, step_of
 from dbc.database import frame_id, host_frame_ids, signal_ranges
 from host.errors import HostError
-from host.session import HostSession, RowBook, SessionError
+from host.session import HOST_PAUSE_S, HostSession, RowBook, SessionError
 
 Progress = Callable[[int, int], None]
 DEFAULT_ABORT_AFTER = 25
@@ -104,17 +104,26 @@ def wait_for_reply(session: HostSession, book: RowBook, row: int, timeout: float
     answered = book.is_answered
     deadline = perf() + timeout
     spin_until = perf() + SPIN_S
+    fresh = True
     while not answered(row) and perf() < spin_until:
         session.receive(0.0)
     while not answered(row):
         remaining = deadline - perf()
         if remaining <= 0:
+            if fresh and -remaining > HOST_PAUSE_S:   # the host was paused: what came meanwhile, a fresh timeout
+                fresh = False
+                session.host_paused(-remaining)
+                deadline = perf() + timeout
+                continue
             break
         session.receive(remaining)
     return answered(row)
 
 
 def _silent(session: HostSession) -> bool:
+    """No heartbeat for longer than the timeout, counting what already waits in the socket (a host that was not
+    reading for a while finds the target's heartbeats there)."""
+    session.drain()
     return session.monitor.silent_for() > session.monitor.heartbeat_timeout_s
 
 
@@ -190,6 +199,7 @@ def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: fl
     frames = encode_row(codec, 0, values[0]) if rows else []
     start = perf() + 0.05
     sent = 0
+    previous = start - interval   # when the previous row went out
     for n in range(rows):
         deadline = start + n * interval
         while (remaining := deadline - perf()) > margin:
@@ -197,6 +207,9 @@ def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: fl
         while perf() < deadline:
             pass
         actual = perf()
+        if (away := actual - max(deadline, previous + interval)) > HOST_PAUSE_S:
+            start += away   # the host was paused: on at the data rate from here, not in a burst of late rows
+        previous = actual
         session.last_sent_row = n
         book.sent_ns[n] = perf_ns()
         if hooks is not None:

@@ -53,6 +53,9 @@ from host.errors import HostError
 
 DEFAULT_REPLY_TIMEOUT_S = 0.05
 DEFAULT_CONNECT_TIMEOUT_S = 15.0
+# A wait that ended this much later than asked for: the host's own clock jumped, the host was not running (SIGSTOP
+# and SIGCONT, a suspended machine, a starved scheduler), and the target's silence meanwhile is not the target's.
+HOST_PAUSE_S = 0.25
 MAX_REJECTIONS_KEPT = 100_000   # refused frames recorded one by one (counted beyond)
 
 
@@ -108,6 +111,7 @@ class Monitor:
 
     heartbeat_timeout_s: float
     last_status_s: float | None = None
+    excused_at_s: float | None = None   # the host was not running until then: silence counts from there
     max_gap_s: float = 0.0
     heartbeat_losses: int = 0
     state: TargetState | None = None
@@ -130,9 +134,16 @@ class Monitor:
         self.model_id = int(signals["ModelId"])
 
     def silent_for(self, now_s: float | None = None) -> float:
-        """Seconds since the last Status frame was received (wall clock, like the frames' timestamps)."""
+        """Seconds since the last Status frame was received (wall clock, like the frames' timestamps), or since
+        the host resumed after a pause (`excuse`), whichever is later."""
         now_s = time.time() if now_s is None else now_s
-        return 0.0 if self.last_status_s is None else now_s - self.last_status_s
+        if self.last_status_s is None:
+            return 0.0
+        return now_s - max(self.last_status_s, self.excused_at_s or self.last_status_s)
+
+    def excuse(self, now_s: float | None = None) -> None:
+        """The host itself was not running (paused): the target gets a fresh heartbeat timeout from now."""
+        self.excused_at_s = time.time() if now_s is None else now_s
 
 
 class HostSession:
@@ -152,6 +163,9 @@ class HostSession:
         self.book: RowBook | None = None
         self.last_sent_row = -1
         self.late_replies = 0
+        self.host_pauses: list[tuple[int, float]] = []   # (row, seconds) the host itself was not running
+        self._on_bus_at = time.perf_counter()   # when the host last sent or received: a jump is a paused host
+        self._paused_s = 0.0                    # a pause seen in a receive, not caught up with yet
         # per model step, as (row, value) pairs: measured µs, overruns, est. C28x cycles, est. µs, CPU load %, and
         # (firmware engine only) the Cortex-M4F cycles counted in the emulated core and their µs at 90 MHz
         self.timing: dict[str, TimingSeries] = {
@@ -168,7 +182,18 @@ class HostSession:
             bus.on_transmit = self._pending_log.append
 
     # ------------------------------------------------------------------ sending
+    def _catch_up(self) -> None:
+        """Before a frame is stamped and sent: a host that has not been on the bus for longer than it can be
+        without being stopped (its clock jumped) first reads what the target sent meanwhile, so the log keeps the
+        bus's order and the target's heartbeats count (a frame stamped after the pause must not precede them)."""
+        now = time.perf_counter()
+        away = max(now - self._on_bus_at, self._paused_s)
+        if away > HOST_PAUSE_S:
+            self.host_paused(away)
+        self._on_bus_at = now
+
     def send(self, frames: Sequence[can.Message]) -> None:
+        self._catch_up()
         for frame in frames:
             frame.timestamp = time.time()
             frame.is_rx = False
@@ -184,6 +209,7 @@ class HostSession:
         """Put a BenchEvent mark on the bus (past any fault layer) and into the log."""
         frame = self.codec.encode("BenchEvent", {"Step": step_of(row), "Event": int(event),
                                                  "FaultKind": int(kind), "FrameId": int(frame_id or 0)})
+        self._catch_up()
         frame.timestamp = time.time()
         frame.is_rx = False
         direct = getattr(self.bus, "send_direct", None)
@@ -193,6 +219,19 @@ class HostSession:
             raise SessionError(f"sending on the CAN bus failed ({exc}); is the bus still up?") from None
         if self.log is not None and (direct is None or self._log_sends):
             self._pending_log.append(frame)
+
+    def host_paused(self, seconds: float) -> None:
+        """The host was not running for `seconds` (its clock jumped): read what waited in the socket meanwhile
+        and give the target a fresh heartbeat timeout."""
+        self.host_pauses.append((self.last_sent_row, seconds))
+        self._paused_s = 0.0
+        self.drain()
+        self.monitor.excuse()
+
+    def drain(self) -> None:
+        """Read every frame already waiting (without blocking)."""
+        while self.receive(0.0) is not None:
+            pass
 
     def flush_log(self) -> None:
         if self.log is not None:
@@ -208,7 +247,11 @@ class HostSession:
         """One frame from the target (validated and dispatched), or None when `timeout` passes without one."""
         deadline = time.perf_counter() + timeout
         while True:
-            msg = self.bus.recv(max(0.0, deadline - time.perf_counter()))
+            asked, before = max(0.0, deadline - time.perf_counter()), time.perf_counter()
+            msg = self.bus.recv(asked)
+            self._on_bus_at = time.perf_counter()
+            if self._on_bus_at - before - asked > HOST_PAUSE_S:   # stopped while waiting: catch up before sending
+                self._paused_s = max(self._paused_s, self._on_bus_at - before - asked)
             if msg is None:
                 return None
             if self.own.is_own(msg):

@@ -192,9 +192,10 @@ def main(argv: list[str] | None = None) -> int:
     def request_stop(signum, frame) -> None:  # noqa: ARG001 - signal API
         stop["requested"] = True
 
-    signal.signal(signal.SIGTERM, request_stop)
-    signal.signal(signal.SIGINT, request_stop)
-    signal.signal(signal.SIGHUP, request_stop)
+    signal.signal(signal.SIGTERM, request_stop)   # how the bench stops it, always heard
+    for signum in (signal.SIGINT, signal.SIGHUP):   # one inherited as ignored (nohup, a background job) stays so
+        if signal.getsignal(signum) != signal.SIG_IGN:
+            signal.signal(signum, request_stop)
     parent = {"next_check": 0.0, "gone": False}
 
     def should_stop() -> bool:

@@ -100,6 +100,7 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
                    quiet: bool = True, engine: str = "firmware") -> list[dict]:
     """Run each artifact through the bench; one table row per artifact (plug identified artifacts in here)."""
     from bench.analysis.report import analyze_log
+    from bench.leftovers import clear_and_say
     from bench.model.artifact_eval import artifact_drive
     from bench.model.runs import initial_temperatures
     from bench.run_inputs import firmware_for_engine
@@ -113,6 +114,7 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
     for (artifact, model_path), firmware in zip(loaded, elves, strict=True):
         drive = artifact_drive(artifact, dataset)[:rows] if rows else artifact_drive(artifact, dataset)
         log_path = out_dir / f"{model_path.stem}.blf"
+        clear_and_say(log_path, quiet)
         bar = ProgressBar(len(drive), artifact.kind, quiet)
         try:
             outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset),

@@ -186,11 +186,10 @@ def run_build(args: argparse.Namespace) -> int:
 
 
 def run_check(args: argparse.Namespace) -> int:
-    import tempfile
-
     from bench.commands.common import data_options
     from bench.firmware.check import check_firmware
     from bench.firmware.images import firmware_for
+    from bench.leftovers import scratch_dir
     from bench.model.runs import initial_temperatures
     from bench.run_inputs import drive_for, load_data
 
@@ -201,7 +200,7 @@ def run_check(args: argparse.Namespace) -> int:
     drive = drive_for(dataset, artifact)   # with the d/q currents for an electrical loss model
     if args.rows is not None:
         drive = drive[: args.rows]
-    with tempfile.TemporaryDirectory(prefix="bench-firmware-check-") as cache:
+    with scratch_dir("firmware-check") as cache:
         elf = args.firmware or firmware_for(artifact, Path(cache), quiet=args.quiet or args.json)
         result = check_firmware(artifact, elf, drive, initial_temperatures(dataset))
     report = {**_identity(path, artifact), "data": str(dataset.path), "firmware": str(elf), **result}

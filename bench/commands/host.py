@@ -46,6 +46,7 @@ from bench.commands.common import (
     print_json,
 )
 from bench.errors import BenchError, UsageError
+from bench.leftovers import clear_and_say
 from bench.run_inputs import drive_for, load_data, load_model
 from dbc.database import host_frame_ids
 from dbc.transport import (
@@ -115,6 +116,7 @@ def run_host(args: argparse.Namespace) -> int:
         drive = drive[: args.rows]
     from bench.model.runs import initial_temperatures
 
+    clear_and_say(log_path, args.quiet or args.json)   # what a killed host left beside this log
     bus = None
     try:
         bus = config.open()

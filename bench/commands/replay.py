@@ -42,7 +42,8 @@ from bench.analysis.rowfilter import RowSelection, kept_rows
 from bench.analysis.verdict import counts_text
 from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, positive_float
 from bench.commands.common import NAME_MAX, add_output_flags, check_writable, print_json
-from bench.errors import BenchError
+from bench.errors import BenchError, UsageError
+from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
 from bench.run_inputs import firmware_for_engine, load_model
 from bench.runner import replay_with_target
@@ -149,6 +150,11 @@ def figure_rows(record: BusRecord, artifact) -> RowSelection:
 
 def run(args: argparse.Namespace) -> int:
     path = check_log_path(args.log, for_reading=True)
+    new_log = args.new_log or Path("out/replay") / default_replay_name(path)
+    check_log_path(new_log)   # the arguments' refusals before the log is read
+    check_writable(new_log, "--log")
+    if new_log.exists() and new_log.resolve() == path.resolve():
+        raise UsageError(f"--log {new_log} is the log being replayed; name another file for the new log")
     messages = list(read_log(path))
     frames = host_frames(messages)
     if count_rows(frames) == 0:
@@ -161,9 +167,6 @@ def run(args: argparse.Namespace) -> int:
     if recorded_id is not None and recorded_id != artifact.model_id:
         raise BenchError(f"log {path} was recorded with model {recorded_id:08x}, but {model_path} is "
                          f"{artifact.model_id:08x}; pass the log's artifact with --model")
-    new_log = args.new_log or Path("out/replay") / default_replay_name(path)
-    check_log_path(new_log)
-    check_writable(new_log, "--log")
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
     engine = args.engine or ("firmware" if len(recorded.timing.get("m4_cycles", ())) else "python")
@@ -173,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench: replaying {recorded.rows} rows of {path} "
               f"({'as fast as possible' if args.as_fast_as_possible else f'recorded timing x{args.speed:g}'}) "
               f"over {bus.describe()}", file=sys.stderr)
+    clear_and_say(new_log, quiet)   # what a killed replay left beside this log and in the temporary directory
     announce_logger(bus, args.quiet, wait_s=args.wait_for_listener)
     bar = ProgressBar(count_rows(frames), "replay", quiet)
     try:

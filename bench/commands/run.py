@@ -26,7 +26,9 @@ started: `--wait-for-listener SECONDS` prints the logger line first and waits be
 logger started from it records the whole run. A target already sending on
 the channel is refused before the run starts its own, and so is a host; a host frame this run did not send stops
 it at any time (`dbc.transport.SenderGuard`). A --log that cannot be written (a directory) is refused before the
-run. SIGINT, SIGTERM and SIGHUP stop the target, discard the partial log and exit 128 + the signal.
+run, and so is a --report directory holding other files. SIGINT, SIGTERM and SIGHUP stop the target, discard the
+partial log and exit 128 + the signal (one inherited as ignored, as under nohup, stays ignored); what a killed run
+left (a partial log of this --log, temporary directories) is removed by the next run once its process is gone.
 
 Fault injection (`host.faults`): e.g. `--faults drop=0.01,corrupt=0.001,kill=1 --fault-seed 7`. Bus faults
 (drop, delay, duplicate, reorder, corrupt, stale_counter, wrong_length, unknown_id, out_of_range) hit the host's
@@ -66,6 +68,7 @@ from bench.commands.common import (
     print_summary,
 )
 from bench.errors import BenchError, UsageError
+from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
 from bench.run_inputs import drive_for, firmware_for_engine, load_data, load_model
 from bench.runner import run_with_target
@@ -116,7 +119,7 @@ def fault_spec(args: argparse.Namespace):
     spec = spec_from_args(args)
     if spec is not None and spec.process_faults and getattr(args, "mode", "lockstep") != "lockstep":
         raise UsageError("kill and freeze faults need lockstep mode (a lost target's rows cannot be sent again on a "
-                         "real-time clock); drop them or --mode realtime")
+                         "real-time clock); drop them from --faults/--fault or use --mode lockstep")
     return spec
 
 
@@ -142,7 +145,10 @@ def run(args: argparse.Namespace) -> int:
     check_writable(log_path, "--log")   # a directory there would fail the run only at its end
     check_log_names(log_path, faults)
     if not args.no_report:  # a report that cannot be written must not cost a run and leave a log
+        from bench.analysis.report import check_report_dir
+
         check_writable(Path(args.report), "--report", directory=True)
+        check_report_dir(Path(args.report))   # a directory of other files would be refused only after the run
     artifact, model_path = load_model(args.model)
     dataset, drive = load_run_data(args, artifact)     # before anything starts: data the model cannot run on
     bus = bus_from_args(args)
@@ -156,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench: {artifact.kind} model {artifact.model_id:08x} ({args.engine} engine) on {len(drive)} rows of "
               f"{dataset.path} ({args.mode}) over {bus.describe()}{injecting}", file=sys.stderr)
     # with --json too: a script's user attaches a logger the same way (--wait-for-listener: before the target starts)
+    clear_and_say(log_path, quiet)   # what a killed run left beside this log and in the temporary directory
     announce_logger(bus, args.quiet, wait_s=args.wait_for_listener)
     bar = ProgressBar(len(drive), args.mode, quiet)
     started = time.perf_counter()

@@ -34,6 +34,7 @@ from pathlib import Path
 
 from bench.errors import BenchError
 from bench.firmware.codegen import HEADER_NAME, SOURCE_NAME, GeneratedSource
+from bench.leftovers import scratch_dir
 from target_sim.firmware import FirmwareError, memory_from_elf
 
 COMPILER: list[str] = [sys.executable, "-m", "ziglang"]    # tests point this elsewhere to simulate a missing one
@@ -131,7 +132,7 @@ def build_firmware(generated: GeneratedSource) -> BuildResult:
     """Compile and link `generated` with the start-up code and linker script; ToolchainError if that fails."""
     version = toolchain_version()
     sources = firmware_sources(generated)
-    with tempfile.TemporaryDirectory(prefix="bench-firmware-") as tmp:
+    with scratch_dir("firmware") as tmp:   # named by this process: a later bench removes it if we are killed
         work = Path(tmp)
         for name, text in sources.items():
             (work / name).write_text(text, encoding="utf-8")

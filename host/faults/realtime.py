@@ -34,7 +34,7 @@ def check_realtime_faults(plan: FaultPlan, sample_period_s: float, speed: float,
     """FaultSpecError (one sentence) when these faults cannot run on this real-time clock."""
     if plan.process_rows:
         raise FaultSpecError("kill and freeze faults need lockstep mode (a lost target's rows cannot be sent again "
-                             "on a real-time clock); drop them or --mode realtime")
+                             "on a real-time clock); drop them from the faults or use --mode lockstep")
     interval = sample_period_s / speed
     if interval < INTERVAL_PER_REPLY_TIMEOUT * reply_timeout_s:
         raise FaultSpecError(f"faults in real time need a sample interval of at least {INTERVAL_PER_REPLY_TIMEOUT:g} "

@@ -45,6 +45,7 @@ from pathlib import Path
 
 from dbc.contract import RX_ERROR_KINDS, step_of
 from dbc.mutations import FRAME_FAULT_KINDS, REPLY_PREFIX
+from host.errors import HostError, write_failure
 
 from .bus import Injection
 from .lockstep import FaultRun
@@ -303,15 +304,20 @@ def write_sidecar(log_path: str | Path, summary: dict, injections: Iterable) -> 
     """`<log>.faults.json`: the summary and every injection, written atomically next to the log."""
     path = sidecar_path(log_path)
     body = {"log": Path(log_path).name, **summary, "injections": [i.to_dict() for i in injections]}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    except OSError as exc:
+        raise HostError(write_failure(path, "the fault summary", exc)) from None
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
             json.dump(body, handle, indent=1, allow_nan=False)
             handle.write("\n")
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise HostError(write_failure(path, "the fault summary", exc)) from None
         raise
     return path
 

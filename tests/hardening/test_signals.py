@@ -8,10 +8,12 @@ own), on a udp_multicast port of its own, so the target it starts can be found b
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -139,13 +141,21 @@ def test_compare_stops_its_target_and_removes_the_partial_log(material, scratch,
     assert _leftovers(out) == []
 
 
-def test_target_stops_by_itself_when_its_bench_is_killed(material, scratch):
+def _scratch_dirs(pid: int) -> list[Path]:
+    """The scratch directories (`bench.leftovers.scratch_dir`) of process `pid` in the temporary directory."""
+    return sorted(Path(tempfile.gettempdir()).glob(f"bench-*-{pid}-*"))
+
+
+def test_target_stops_by_itself_when_its_bench_is_killed_and_the_next_run_clears_what_it_left(material, scratch):
     """SIGKILL cannot be handled: the target notices that its parent is gone (parent-death signal, parent-pid
-    check) and stops, so the channel is free for the next run."""
+    check) and stops, so the channel is free for the next run. The killed bench leaves its partial log and its
+    target's scratch directory; the next run on the same log removes both (their process no longer runs) and
+    says so."""
     port = _port()
     out = scratch / "out"
     process = _start(["bench", "run", "--data", material.data, "--model", material.art, "--mode", "realtime",
                       "--log", out / "x.blf", "--no-report", "--quiet"], scratch, port)
+    killed = process.pid
     try:
         assert _wait_for(lambda: _targets(port), 60), "no target started"
         targets = _targets(port)
@@ -159,6 +169,42 @@ def test_target_stops_by_itself_when_its_bench_is_killed(material, scratch):
             os.kill(pid, signal.SIGKILL)
         process.stdout.close()
         process.stderr.close()
+    partial = out / f".x.{killed}.partial.blf"
+    assert _leftovers(out) == [partial.name]
+    assert len(_scratch_dirs(killed)) == 1
+    again = subprocess.run([sys.executable, "-m", "bench", "run", "--data", material.data, "--model", material.art,
+                            "--rows", "5", "--log", out / "x.blf", "--no-report", "-i", "udp_multicast",
+                            "--bus-kwargs", f"port={_port()}"], cwd=scratch, env=child_env(), capture_output=True,
+                           text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    assert _leftovers(out) == ["x.blf"]
+    assert _scratch_dirs(killed) == []
+    assert (f"bench: removed {partial}, the partial log of a bench that ended without finishing it (process "
+            f"{killed} no longer runs)") in again.stderr.splitlines(), again.stderr
+
+
+def test_target_killed_by_another_process_is_named_with_its_signal_and_row(material, scratch):
+    """SIGKILL of the target from outside, in the middle of a real-time run: one sentence with the signal and the
+    row, not "ended with status -9 after the run"."""
+    port = _port()
+    out = scratch / "out"
+    process = _start(["bench", "run", "--data", material.data, "--model", material.art, "--mode", "realtime",
+                      "--log", out / "x.blf", "--no-report", "--quiet"], scratch, port)
+    try:
+        assert _wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
+        time.sleep(5.0)   # its start and the handshake, then rows going out at 5 a second for 12 s
+        for pid in _targets(port):
+            os.kill(pid, signal.SIGKILL)
+        stdout, stderr = process.communicate(timeout=120)   # the host notices the silence, stops, reports
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 1, stderr
+    lines = stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        "bench: error: the target process was killed by signal 9 (SIGKILL) during the run, at row "), stderr
+    assert "by another process or the system (the bench did not stop it)" in lines[0]
 
 
 def test_a_target_started_by_hand_outlives_the_shell_that_started_it(material, scratch):
@@ -186,3 +232,219 @@ def test_target_refuses_a_parent_pid_that_is_not_its_parent(cli, material, scrat
     assert result.rc == 1, str(result)
     assert result.lines == ["target_sim: error: process 1 (--parent-pid) is not the parent of this target (it has "
                             "exited?); the target does not start"], str(result)
+
+
+# ---------------------------------------------------------------- every long-running subcommand, every stopping signal
+# A command stopped by SIGINT, SIGTERM or SIGHUP says so in one sentence and exits 128 + the signal, whatever it was
+# doing (computing, drawing, writing); its outputs are either as they were or absent, never half-written.
+
+def _start_plain(args: list, cwd: Path, **popen) -> subprocess.Popen:
+    """`python -m ARGS` without bus options (commands that start no target)."""
+    return subprocess.Popen([sys.executable, "-m", *map(str, args)], cwd=cwd, env=child_env(),
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **popen)
+
+
+def _signal_after(process: subprocess.Popen, seconds: float, signum: int) -> tuple[int, str, str]:
+    """Send `signum` after `seconds` (the command must still run then); its exit status, stdout, stderr."""
+    try:
+        time.sleep(seconds)
+        assert process.poll() is None, f"the command ended before the signal: {process.communicate()}"
+        process.send_signal(signum)
+        stdout, stderr = process.communicate(timeout=60)   # its exit after the signal: generous on a busy machine
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    return process.returncode, stdout, stderr
+
+
+def _assert_stopped(rc: int, stderr: str, signum: int) -> None:
+    name = "interrupted" if signum == signal.SIGINT else "terminated"
+    # After a KeyboardInterrupt that ran through code executed by PyRun_* (some libraries do), CPython 3.11 ends
+    # the process by SIGINT itself once main() has returned 130: a shell sees 130 either way.
+    assert rc == 128 + signum or (signum == signal.SIGINT and rc == -signal.SIGINT), stderr
+    assert stderr.splitlines()[-1:] == [f"bench: {name} ({signal.Signals(signum).name}); {NOTE}"], stderr
+    assert "Traceback" not in stderr and "Exception ignored" not in stderr, stderr
+
+
+def test_run_stops_on_sigint_like_on_sigterm(material, scratch):
+    port = _port()
+    out = scratch / "out"
+    process = _start(["bench", "run", "--data", material.data, "--model", material.art, "--mode", "realtime",
+                      "--log", out / "x.blf", "--report", out / "rep", "--quiet"], scratch, port)
+    rc, stdout, stderr, left = _signal_when_running(process, port, signal.SIGINT)
+    _assert_stopped(rc, stderr, signal.SIGINT)
+    assert left == []
+    assert _leftovers(out) == []
+
+
+def _ignore_sighup() -> None:
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)   # what nohup does before it executes the command
+
+
+def test_nohup_run_survives_the_hangup_and_so_does_its_target(material, scratch):
+    """`nohup bench run`: SIGHUP, ignored when the bench started, stays ignored, by the bench and by its target (the
+    hangup goes to the whole process group); the run completes and writes its log."""
+    port = _port()
+    out = scratch / "out"
+    argv = [sys.executable, "-m", "bench", "run", "--data", material.data, "--model", material.art, "--mode",
+            "realtime", "--rows", "20", "--log", out / "x.blf", "--no-report", "--quiet", "-i", "udp_multicast",
+            "--bus-kwargs", f"port={port}"]
+    process = subprocess.Popen(list(map(str, argv)), cwd=scratch, env=child_env(), stdin=subprocess.DEVNULL,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                               preexec_fn=_ignore_sighup)
+    try:
+        assert _wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
+        time.sleep(1.0)
+        assert process.poll() is None, process.communicate()
+        os.killpg(process.pid, signal.SIGHUP)   # the terminal's hangup: the bench and its target
+        stdout, stderr = process.communicate(timeout=60)   # the rest of the 4 s run
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        for pid in _targets(port):
+            os.kill(pid, signal.SIGKILL)
+    assert process.returncode == 0, stderr
+    assert stderr == ""
+    assert (out / "x.blf").is_file() and _leftovers(out) == ["x.blf"]
+
+
+def _drawing(pid: int) -> bool:
+    """True once process `pid` has loaded matplotlib's font renderer: `bench analyze` imports matplotlib only
+    when it draws the report's figures."""
+    try:
+        return "ft2font" in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_analyze_stopped_while_drawing_its_report_leaves_no_report(material, scratch, signum):
+    """The signal lands while the figures are drawn (matplotlib loaded, about 1.5 s before the report is written),
+    where a SIGTERM raised inside a garbage-collector callback used to be swallowed ("Exception ignored in:
+    <function WeakSet...>") and the command went on to exit 0 with its report."""
+    out = scratch / "out"
+    process = _start_plain(["bench", "analyze", material.log, "--model", material.art, "--report", out / "rep",
+                            "--quiet"], scratch)
+    assert _wait_for(lambda: _drawing(process.pid) or process.poll() is not None, 120), "it never drew"
+    rc, stdout, stderr = _signal_after(process, 0.3, signum)
+    _assert_stopped(rc, stderr, signum)
+    assert stdout == ""
+    assert _leftovers(out) == [] and not (out / "rep").exists()
+
+
+def test_a_termination_swallowed_by_a_finalizer_is_delivered_again(scratch):
+    """SIGTERM handled inside a weakref finalizer: Python reports the exception as unraisable and goes on; the
+    bench sends the signal again, so the command still stops with its sentence and 143 (not 0 after its work)."""
+    code = ("import os, signal, sys, time, weakref\n"
+            "import bench.cli as cli\n"
+            "class Thing: pass\n"
+            "def work(argv):\n"
+            "    thing = Thing()\n"
+            "    weakref.finalize(thing, lambda: (os.kill(os.getpid(), signal.SIGTERM), time.sleep(0.2)))\n"
+            "    del thing\n"
+            "    time.sleep(10)\n"
+            "    print('the work went on')\n"
+            "    return 0\n"
+            "cli._main = work\n"
+            "sys.exit(cli.main([]))\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=child_env(), capture_output=True, text=True,
+                          timeout=60)
+    _assert_stopped(done.returncode, done.stderr, signal.SIGTERM)
+    assert done.stdout == ""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_host_stops_on_a_signal_and_leaves_no_log(material, scratch, signum):
+    """`bench host` against a target started by hand, in real time: stopped mid-run it writes no log, and the
+    target it did not start runs on."""
+    port = _port()
+    out = scratch / "out"
+    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(material.art), "-i",
+                               "udp_multicast", "--bus-kwargs", f"port={port}", "--quiet"], cwd=scratch,
+                              env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        process = _start(["bench", "host", "--data", material.data, "--model", material.art, "--mode", "realtime",
+                          "--log", out / "h.blf", "--quiet"], scratch, port)
+        rc, stdout, stderr = _signal_after(process, 5.0, signum)   # its imports, the handshake, rows going out
+        assert target.poll() is None, "the target started by hand was stopped"
+    finally:
+        target.terminate()
+        target.wait(60)
+    _assert_stopped(rc, stderr, signum)
+    assert _leftovers(out) == []
+
+
+def test_replay_stops_on_sigint(material, scratch):
+    port = _port()
+    out = scratch / "out"
+    process = _start(["bench", "replay", material.log, "--model", material.art, "--speed", "0.002", "--log",
+                      out / "r.blf", "--quiet"], scratch, port)
+    rc, _, stderr, left = _signal_when_running(process, port, signal.SIGINT, settle_s=1.0)
+    _assert_stopped(rc, stderr, signal.SIGINT)
+    assert left == []
+    assert _leftovers(out) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=["SIGTERM", "SIGINT", "SIGHUP"])
+def test_data_stopped_while_generating_writes_no_dataset(scratch, signum):
+    out = scratch / "data"
+    process = _start_plain(["bench", "data", "--out", out, "--quiet"], scratch)
+    rc, _, stderr = _signal_after(process, 4.0, signum)
+    _assert_stopped(rc, stderr, signum)
+    assert _leftovers(out) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_identify_stopped_while_fitting_writes_no_artifact(material, scratch, signum):
+    out = scratch / "models"
+    process = _start_plain(["bench", "identify", "--train", material.campaign / "cycle_coolant20.csv",
+                            "--validate", material.campaign / "cycle_coolant40.csv", "--out", out / "m.json",
+                            "--all-kinds", "--quiet"], scratch)   # about 30 s of fitting
+    rc, _, stderr = _signal_after(process, 4.0, signum)
+    _assert_stopped(rc, stderr, signum)
+    assert _leftovers(out) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_evaluate_stopped_while_computing_writes_no_plot(scratch, signum):
+    out = scratch / "plots"
+    process = _start_plain(["bench", "evaluate", "--plots", out, "--quiet"], scratch)
+    rc, _, stderr = _signal_after(process, 4.0, signum)
+    _assert_stopped(rc, stderr, signum)
+    assert _leftovers(out) == []
+
+
+@pytest.mark.timing
+def test_a_paused_host_is_not_taken_for_a_silent_target(material, scratch, long_data):
+    """SIGSTOP of `bench run` for 2 s in the middle of a lockstep run, then SIGCONT: the target kept running and
+    answering, its heartbeats waited in the socket; the host's clock jumped, so it reads them, gives the target a
+    fresh timeout and the run ends clean (it used to abort: "the target went silent", or count a heartbeat loss)."""
+    port = _port()
+    out = scratch / "out"
+    process = _start(["bench", "run", "--data", long_data, "--model", material.art, "--rows", "8000", "--log",
+                      out / "x.blf", "--no-report", "--json"], scratch, port)
+    try:
+        assert _wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
+        time.sleep(2.5)   # the handshake, then rows going out (8000 rows: several seconds)
+        assert process.poll() is None, process.communicate()
+        os.kill(process.pid, signal.SIGSTOP)
+        time.sleep(2.0)
+        os.kill(process.pid, signal.SIGCONT)
+        stdout, stderr = process.communicate(timeout=300)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        for pid in _targets(port):
+            os.kill(pid, signal.SIGKILL)
+    assert process.returncode == 0, stderr
+    summary = json.loads(stdout)
+    assert summary["clean"] is True, summary["verdict"]
+    assert summary["host"]["missing"] == 0 and summary["host"]["heartbeat_losses"] == 0
