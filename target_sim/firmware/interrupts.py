@@ -55,6 +55,7 @@ from target_sim.firmware.emulator import FLASH, HALT, Firmware, FirmwareFault
 ISR_RETURN = HALT + 0x40          # the handler's LR: emulation of the handler stops here (EXC_RETURN's stand-in)
 FRAME_WORDS, FP_FRAME_WORDS = 8, 18   # basic frame; S0-S15, FPSCR and a reserved word more with FP context
 FIRST_IRQ = 16                    # exception number of IRQ 0
+MAX_CHAIN_PERIODS = 100          # tail-chained handlers in a row before the period is called too short
 IDLE_LOOKBACK = 2                 # periods before a job whose releases are emulated
 _MAX_ISR_INSTRUCTIONS = 1_000_000
 
@@ -312,6 +313,10 @@ class InterruptedFirmware(Firmware):
             stacked = stacked or lazy
             done = start + handler_cycles + (costs.lazy_fp if lazy else 0)
             if line.next_release <= done:                 # pending at the return: tail-chain into it
+                if done - taken > MAX_CHAIN_PERIODS * line.period:
+                    raise FirmwareFault(f"the interrupt handler {self.handler_name} in {self.name} runs longer than "
+                                        f"its period of {line.period} cycles: the background never runs again",
+                                        function=self.handler_name, pc=self.handler, kind="endless loop")
                 line.events.append(IsrEvent(release, taken, start, done, handler_cycles, lazy, chained, preempted))
                 taken, start, chained = done, done + costs.tail_chain, True
                 continue
