@@ -305,6 +305,7 @@ class InterruptedFirmware(Firmware):
         the cycle the interrupted code resumes (or the core idles again)."""
         line, costs = self._timeline, self._timeline.costs
         start, chained, stacked = taken + costs.entry, False, False
+        first = taken
         while True:
             release = line.next_release
             line.next_release += line.period
@@ -313,7 +314,7 @@ class InterruptedFirmware(Firmware):
             stacked = stacked or lazy
             done = start + handler_cycles + (costs.lazy_fp if lazy else 0)
             if line.next_release <= done:                 # pending at the return: tail-chain into it
-                if done - taken > MAX_CHAIN_PERIODS * line.period:
+                if done - first > MAX_CHAIN_PERIODS * line.period:
                     raise FirmwareFault(f"the interrupt handler {self.handler_name} in {self.name} runs longer than "
                                         f"its period of {line.period} cycles: the background never runs again",
                                         function=self.handler_name, pc=self.handler, kind="endless loop")
