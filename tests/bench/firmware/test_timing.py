@@ -137,3 +137,22 @@ def test_a_loop_without_a_stated_bound_is_named(timing_image):
     looser = loop_bounds(3)
     assert looser["node_on_frame"][0] == LoopBound(3, looser["node_on_frame"][0].reason)
     assert wcet(image, "node_on_frame", looser).cycles > wcet(image, "node_on_frame").cycles
+
+
+def test_bench_firmware_timing_reports_the_figures_and_refuses_a_rate_the_core_cannot_carry(tmp_path, small_dataset):
+    import json
+
+    from helpers import run_cli
+
+    proc = run_cli("-m", "bench", "firmware", "timing", "--data", str(small_dataset), "--rows", "40",
+                   "--isr-rate", "20000", "--out", str(tmp_path), "--json", timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["wcet_holds"] and report["bit_exact"]
+    assert all(report["measured_max_cycles"][name] <= bound for name, bound in report["wcet_cycles"].items())
+    assert set(report["response_time_us"]) == {"p50", "p99", "max"} and report["response_time_us"]["max"] > 0
+    assert {"p50", "max"} <= set(report["isr_latency_cycles"]) and set(report["cpu_load"]) == {"90MHz", "168MHz"}
+    proc = run_cli("-m", "bench", "firmware", "timing", "--data", str(small_dataset), "--isr-rate", "1000000",
+                   "--out", str(tmp_path))
+    assert proc.returncode != 0 and "leaves the background no time" in proc.stderr
+    assert "Traceback" not in proc.stderr
