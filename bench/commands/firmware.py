@@ -6,6 +6,9 @@
     bench firmware check  [--model A] [--data F] [--firmware ELF] [--rows N] [--json]
                           the whole validation run through the emulated firmware and through the Python float32
                           reference, every output compared bit for bit; cycles, flash, RAM; exit 1 on a mismatch
+    bench firmware timing [--model A] [--isr-rate HZ] [--rows N] [--json]
+                          the node and model beside a field-oriented current loop interrupt: response time,
+                          interrupt latency and jitter, CPU load by task, WCET bounds vs measured maxima
 
 The generated C equals the Python float32 reference bit for bit (bench/firmware/codegen.py); `build` needs the
 ziglang package (a dependency), and so does `check` of an artifact other than the packaged ones (which
@@ -87,7 +90,32 @@ def _add_check(actions) -> None:
     p.set_defaults(func=run_check)
 
 
-ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check}
+def _add_timing(actions) -> None:
+    p = actions.add_parser("timing", help="the estimator beside a field-oriented current loop interrupt: response "
+                                          "time, interrupt latency, CPU load, WCET bounds",
+                           description="Build the node and the model with a field-oriented current loop in a "
+                                       "periodic interrupt (bench/firmware/foc_isr.c), run a drive's frames through "
+                                       "it in the emulated Cortex-M4F with the interrupt preempting (at 90 and "
+                                       "168 MHz) and report the model step's response time, the interrupt's "
+                                       "latency and jitter, the CPU load by task, and static WCET bounds of "
+                                       "fw_step, node_on_frame and the handler beside the measured maxima; exit 1 "
+                                       "if a measured maximum exceeds its bound or an output differs from the "
+                                       "run without the interrupt.")
+    p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged hammerstein one)")
+    p.add_argument("--isr-rate", type=positive_int, default=10_000, metavar="HZ",
+                   help="the current loop's interrupt rate in Hz (default 10000; inverters run 5000-20000)")
+    p.add_argument("--data", type=Path, default=None,
+                   help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
+    p.add_argument("--rows", type=positive_int, default=200, help="data rows to run (default 200)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT / "cache",
+                   help=f"cache directory for the built timing image (default {DEFAULT_OUT / 'cache'})")
+    add_data_arguments(p)
+    add_output_flags(p)
+    p.set_defaults(func=run_timing)
+
+
+ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check, "timing": _add_timing}
 
 
 # ------------------------------------------------------------------------------------------------ helpers
@@ -221,3 +249,54 @@ def run_check(args: argparse.Namespace) -> int:
               "firmware from this artifact ('bench firmware build') or report the generator bug", file=sys.stderr)
         return 1
     return 0
+
+
+def run_timing(args: argparse.Namespace) -> int:
+    from bench.commands.common import data_options
+    from bench.firmware.images import firmware_for
+    from bench.firmware.timing import CLOCKS_MHZ, static_bounds, timing_report
+    from bench.model.runs import initial_temperatures
+    from bench.run_inputs import drive_for, load_data
+    from target_sim.firmware import read_elf
+
+    path, artifact = _load(args.model)
+    check_writable(args.out, "--out", directory=True)
+    elf = firmware_for(artifact, args.out, quiet=args.quiet or args.json, isr=True)
+    image = read_elf(elf)
+    handler = static_bounds(image)["foc_isr"] + 60     # + entry, return and lazy FP stacking (< 60 cycles)
+    slowest = min(CLOCKS_MHZ) * 1e6
+    if args.isr_rate * handler >= slowest / 2:
+        raise UsageError(f"--isr-rate {args.isr_rate} leaves the background no time: the current loop's bound of "
+                         f"{handler} cycles with its exception overhead allows at most "
+                         f"{int(slowest / 2 / handler)} Hz at {min(CLOCKS_MHZ)} MHz (half the core)")
+    mapping, period = data_options(args)
+    dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json, mapping=mapping,
+                        sample_period_s=period)
+    drive = drive_for(dataset, artifact)[: args.rows]
+    report = {**_identity(path, artifact), "data": str(dataset.path), "rows": int(len(drive)), "firmware": str(elf),
+              **timing_report(artifact, image, drive, initial_temperatures(dataset), isr_rate_hz=args.isr_rate)}
+    if args.json:
+        print_json(report)
+    else:
+        _print_timing(report)
+    failed = [] if report["bit_exact"] else ["the model's outputs differ from the run without the interrupt"]
+    failed += [f"{name} measured {report['measured_max_cycles'][name]} cycles, above its static bound "
+               f"{bound}" for name, bound in report["wcet_cycles"].items()
+               if report["measured_max_cycles"][name] > bound]
+    for sentence in failed:
+        print(f"bench: error: {sentence}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def _print_timing(report: dict) -> None:
+    print(f"{report['kind']} ({report['realization']}), {report['rows']} rows with the current loop at "
+          f"{report['isr_rate_hz']:g} Hz, {report['firmware']}")
+    for name, bound in report["wcet_cycles"].items():
+        print(f"  {name}: WCET bound {bound} cycles, measured max {report['measured_max_cycles'][name]}")
+    for clock, run in report["runs"].items():
+        response, latency, load = run["response_time_us"], run["isr_latency_cycles"], run["cpu_load"]
+        print(f"  {clock}: model step response p50 {response['p50']} / p99 {response['p99']} / max "
+              f"{response['max']} µs; interrupt latency p50 {latency['p50']} / max {latency['max']} cycles "
+              f"(idle {run['isr_latency_idle_cycles']['max']}, jitter {latency['jitter']}); CPU load: current loop "
+              f"{100 * load['current_loop_isr']:.2f} %, model step {100 * load['model_step']:.4f} %, frame handling "
+              f"{100 * load['frame_handling']:.4f} %; outputs bit for bit: {run['bit_exact']}")

@@ -62,29 +62,31 @@ def _cache_key(artifact: ModelArtifact, sources: dict[str, str]) -> str:
     return digest.hexdigest()[:16]
 
 
-def firmware_for(artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True) -> Path:
-    """The ELF of `artifact`'s model: the shipped one, else `cache_dir`/<kind>-<key>.elf, built if not there yet.
+def firmware_for(artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True, isr: bool = False) -> Path:
+    """The ELF of `artifact`'s model: the shipped one, else `cache_dir`/<kind>-<key>.elf, built if not there yet;
+    with `isr` the timing image with the current loop's interrupt (never shipped: always built, then cached).
 
     BenchError (one sentence) when the generator cannot express the artifact or the compiler is missing or fails."""
-    shipped = packaged_elf(artifact)
+    shipped = None if isr else packaged_elf(artifact)
     if shipped is not None:
         return shipped
     try:
         generated = generate(artifact)
     except FirmwareGenerationError as exc:
         raise BenchError(f"the firmware engine cannot run this artifact: {exc}") from None
-    sources = toolchain.firmware_sources(generated)
+    sources = toolchain.firmware_sources(generated, isr=isr)
     try:
         version = toolchain.toolchain_version()
     except toolchain.ToolchainError as exc:
         raise BenchError(f"the artifact's firmware is not packaged and must be built, but {exc}") from None
-    path = cache_dir / f"{artifact.kind}-{_cache_key(artifact, {**sources, 'toolchain': version})}.elf"
+    label = f"{artifact.kind}-isr" if isr else artifact.kind
+    path = cache_dir / f"{label}-{_cache_key(artifact, {**sources, 'toolchain': version})}.elf"
     if path.is_file():
         return path
     if not quiet:
         print(f"bench: compiling the {artifact.kind} model's firmware into {path} (once)", file=sys.stderr)
     try:
-        result = toolchain.build_firmware(generated)
+        result = toolchain.build_firmware(generated, isr=isr)
     except toolchain.ToolchainError as exc:
         raise BenchError(f"the artifact's firmware is not packaged and must be built, but {exc}") from None
     try:

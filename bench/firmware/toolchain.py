@@ -46,6 +46,7 @@ LINKER_SCRIPT_NAME = "firmware.ld"
 NODE_NAMES = ("node.c", "node.h")        # the CAN node, hand-written (bench/firmware/node.c)
 SHIM_NAME = "string.h"                   # declares the two memory functions node.c defines (there is no libc)
 SUPPORT_FILES = (STARTUP_NAME, *NODE_NAMES, SHIM_NAME, LINKER_SCRIPT_NAME)
+ISR_NAMES = ("foc_isr.c", "foc_isr.h")   # the motor-control interrupt, linked only into a timing image (isr=True)
 ELF_NAME = "firmware.elf"
 MAP_NAME = "firmware.map"
 
@@ -123,21 +124,28 @@ def compile_flags(work: Path) -> list[str]:
     return [*TARGET_FLAGS, *CODE_FLAGS, *WARNING_FLAGS, "-I.", f"-ffile-prefix-map={work}=."]
 
 
-def firmware_sources(generated: GeneratedSource) -> dict[str, str]:
-    """Every file a build compiles or links: the generated model and node files and the shipped support files."""
-    return {**generated.files, **{name: support_file(name) for name in SUPPORT_FILES}}
+def firmware_sources(generated: GeneratedSource, *, isr: bool = False) -> dict[str, str]:
+    """Every file a build compiles or links: the generated model and node files and the shipped support files
+    (with `isr`, the motor-control interrupt's too)."""
+    names = (*SUPPORT_FILES, *ISR_NAMES) if isr else SUPPORT_FILES
+    return {**generated.files, **{name: support_file(name) for name in names}}
 
 
-def build_firmware(generated: GeneratedSource) -> BuildResult:
-    """Compile and link `generated` with the start-up code and linker script; ToolchainError if that fails."""
+def build_firmware(generated: GeneratedSource, *, isr: bool = False) -> BuildResult:
+    """Compile and link `generated` with the start-up code and linker script; ToolchainError if that fails.
+
+    `isr` links the field-oriented current loop's interrupt (foc_isr.c) into the image as well, for
+    `bench firmware timing`; without it the image is the engine's, byte for byte as before."""
     version = toolchain_version()
-    sources = firmware_sources(generated)
+    sources = firmware_sources(generated, isr=isr)
     with scratch_dir("firmware") as tmp:   # named by this process: a later bench removes it if we are killed
         work = Path(tmp)
         for name, text in sources.items():
             (work / name).write_text(text, encoding="utf-8")
         objects = []
-        for source in (STARTUP_NAME, SOURCE_NAME, NODE_NAMES[0]):       # node.c includes the packers' .c
+        compiled = (STARTUP_NAME, SOURCE_NAME, NODE_NAMES[0], *ISR_NAMES[:1]) if isr else (
+            STARTUP_NAME, SOURCE_NAME, NODE_NAMES[0])                    # node.c includes the packers' .c
+        for source in compiled:
             obj = Path(source).with_suffix(".o").name
             done = _run(["cc", *compile_flags(work), "-c", source, "-o", obj], work, f"compiling {source}")
             if done.returncode != 0:
@@ -160,5 +168,5 @@ def build_firmware(generated: GeneratedSource) -> BuildResult:
     return BuildResult(elf=elf, map_text=map_text, sources=sources, memory=memory, toolchain=version)
 
 
-__all__ = ["BuildResult", "COMPILER", "ELF_NAME", "HEADER_NAME", "MAP_NAME", "SOURCE_NAME", "ToolchainError",
-           "build_firmware", "firmware_sources", "support_file", "toolchain_version"]
+__all__ = ["BuildResult", "COMPILER", "ELF_NAME", "HEADER_NAME", "ISR_NAMES", "MAP_NAME", "SOURCE_NAME",
+           "ToolchainError", "build_firmware", "firmware_sources", "support_file", "toolchain_version"]

@@ -221,6 +221,10 @@ class CycleModel:
             cost = self.blocks[(address, size)] = self._compute(address, size)
         return cost
 
+    def instructions_of(self, address: int, size: int) -> list[InstructionCost]:
+        """The decoded instructions of the block of `size` bytes at `address`, in order."""
+        return self._decoded(address, size)
+
     def _decoded(self, address: int, size: int) -> list[InstructionCost]:
         end = address + size
         decoded: list[InstructionCost] = []

@@ -82,7 +82,8 @@ class FirmwareNode:
     engine = "firmware"
 
     def __init__(self, artifact: ModelArtifact, elf: str | os.PathLike | bytes | ElfImage, *,
-                 clock_s: Callable[[], float] = time.monotonic, journal: Callable[[dict], None] | None = None):
+                 clock_s: Callable[[], float] = time.monotonic, journal: Callable[[dict], None] | None = None,
+                 core: Callable[[ElfImage], Firmware] = Firmware):
         refusal = firmware_refusal(artifact)   # before the ELF is read: a loss model the firmware has not
         if refusal is not None:
             raise FirmwareError(refusal)
@@ -91,7 +92,7 @@ class FirmwareNode:
         self.journal = journal
         self.clock_s = clock_s
         self.name = image.name
-        self.fw = fw = Firmware(image)
+        self.fw = fw = core(image)      # `core`: e.g. an interrupted core (bench firmware timing)
         missing = [name for name in (*ENTRY_POINTS, *BUFFERS) if name not in fw.symbols]
         if missing:
             raise FirmwareError(f"{image.name} has no {', '.join(missing)}: it is not a node firmware of "

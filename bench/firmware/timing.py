@@ -1,0 +1,233 @@
+"""`bench firmware timing`: the estimator beside the motor control on the emulated core.
+
+The image is the node and the model with the field-oriented current loop's interrupt (bench/firmware/foc_isr.c,
+`build_firmware(isr=True)`), run in `InterruptedFirmware`: the interrupt every clock/rate cycles, the node in the
+background handling a drive's frames as the bus delivers them (RESET, START, then each row's frames; a row every
+`data_sample_period`, its frames 250 µs apart, each frame's arrival phase against the PWM drawn uniformly from a
+seeded generator: the bus and the PWM timer are not synchronised). Before each interrupt the ADC's DMA leaves new
+samples (`foc_adc`: a rotating current vector with noise, the angle advancing at a 200 Hz electrical frequency)
+and the references step now and then so the PI controllers saturate and the anti-windup acts.
+
+Measured: the response time of every frame that ran a model step (its arrival -> node_on_frame returned with the
+temperatures queued) and of the other frames; each interrupt's latency (release -> the handler's first
+instruction), how much of it the background caused (the instruction in progress at the release) and the lazy FP
+stacking the background's FP context costs it; the CPU load of each task; the model's outputs bit for bit against
+the same node without the interrupt. The static bounds (`target_sim.firmware.wcet`) of fw_step, node_on_frame
+(rows in order) and the handler are set beside the measured maxima.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.errors import BenchError
+from dbc import Command
+from dbc.codec import FrameCodec
+from dbc.contract import RESET_SIGNALS, split_temperatures
+from host.replay import encode_row
+from target_sim.artifact import ModelArtifact
+from target_sim.firmware.elf import ElfImage
+from target_sim.firmware.emulator import Firmware
+from target_sim.firmware.interrupts import InterruptedFirmware
+from target_sim.firmware.node_engine import FirmwareNode
+from target_sim.firmware.wcet import WcetError, loop_bounds, wcet
+
+FOC_IRQ = 18                      # foc_isr.c: the ADC end-of-conversion interrupt
+HANDLER = "foc_isr"
+FRAME_SPACING_S = 250e-6          # between the frames of one row (a 500 kbit/s bus with other traffic)
+ELECTRICAL_HZ = 200.0
+CLOCKS_MHZ = (90, 168)
+
+
+def _percentiles(values: list[int] | np.ndarray, scale: float = 1.0) -> dict:
+    if len(values) == 0:
+        return {"p50": None, "p99": None, "max": None}
+    data = np.asarray(values, dtype=float) * scale
+    return {"p50": round(float(np.percentile(data, 50)), 3), "p99": round(float(np.percentile(data, 99)), 3),
+            "max": round(float(data.max()), 3)}
+
+
+class _Adc:
+    """The DMA's samples before each interrupt: a current vector of 150 A rotating with the angle, plus noise."""
+
+    def __init__(self, fw: Firmware, clock_hz: float, seed: int):
+        self.fw, self.clock_hz = fw, clock_hz
+        self.address = fw.address("foc_adc")
+        self.reference = fw.address("foc_reference")
+        self.rng = np.random.default_rng(seed)
+        self.count = 0
+
+    def __call__(self, release: int) -> None:
+        angle = (release / self.clock_hz * ELECTRICAL_HZ) % 1.0
+        theta = 2.0 * np.pi * angle
+        noise = self.rng.normal(0.0, 40.0, 2)
+        i_a = 150.0 * np.cos(theta) / 0.1220703125 + 2048.0 + noise[0]
+        i_b = 150.0 * np.cos(theta - 2.0 * np.pi / 3.0) / 0.1220703125 + 2048.0 + noise[1]
+        raw = np.clip(np.round([i_a, i_b]), 0, 4095).astype("<u2")
+        self.fw.write_bytes(self.address, raw.tobytes() + int(angle * 65536).to_bytes(2, "little") + bytes(2))
+        self.count += 1
+        if self.count % 97 == 0:        # a torque step now and then: the PI saturates, the anti-windup acts
+            i_q = float(self.rng.choice([0.0, 120.0, 400.0, -300.0]))
+            self.fw.write_f32(self.reference, [-40.0 if i_q else 0.0, i_q])
+
+
+def _frames(artifact: ModelArtifact, drive: np.ndarray, initial) -> list[list]:
+    """The host's frames: [RESET's frames, START], then one list per row."""
+    codec = FrameCodec("HOST")
+    reset = [codec.encode(name, {"Step": 0, **signals}) for name, signals in
+             split_temperatures([round(float(v), 2) for v in initial], RESET_SIGNALS).items()]
+    reset.append(codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}))
+    start = [codec.encode("Control", {"Command": int(Command.START), "Step": 0})]
+    return [reset, start, *(encode_row(codec, row, [float(v) for v in values]) for row, values in enumerate(drive))]
+
+
+def _reference_outputs(artifact: ModelArtifact, image: ElfImage, frames: list[list]) -> list[bytes]:
+    node = FirmwareNode(artifact, image)
+    return [bytes(reply.data) for group in frames for frame in group for reply in node.handle(frame)
+            if reply.arbitration_id in _TEMPERATURE_IDS]
+
+
+_TEMPERATURE_IDS: set[int] = set()
+
+
+def _temperature_ids() -> set[int]:
+    from dbc.contract import REPLY_MESSAGES
+    from dbc.database import frame_id
+
+    return {frame_id(name) for name in REPLY_MESSAGES}
+
+
+def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float = 10_000.0,
+            clock_mhz: float = 90.0, seed: int = 0) -> dict:
+    """Run the drive through the node with the interrupt; the figures of the module docstring (cycles, µs)."""
+    _TEMPERATURE_IDS.update(_temperature_ids())
+    clock_hz = clock_mhz * 1e6
+    period = int(round(clock_hz / isr_rate_hz))
+    fw_box: list[InterruptedFirmware] = []
+
+    def core(elf: ElfImage) -> InterruptedFirmware:
+        fw_box.append(InterruptedFirmware(elf, irq=FOC_IRQ, period_cycles=period))
+        return fw_box[-1]
+
+    node = FirmwareNode(artifact, image, core=core)
+    fw = fw_box[0]
+    if fw.handler_name != HANDLER:
+        raise BenchError(f"{image.name}'s IRQ {FOC_IRQ} is {fw.handler_name}, not the current loop {HANDLER}")
+    fw.call("foc_init", float(isr_rate_hz))
+    fw.before_handler = _Adc(fw, clock_hz, seed)
+    rng = np.random.default_rng(seed)
+    frames = _frames(artifact, drive, initial)
+    row_cycles = artifact.data_sample_period * clock_hz
+    fw.start_interrupts(at=fw.now + int(rng.integers(period)))
+    origin = fw.now + period
+    step_jobs, other_jobs, outputs = [], [], []
+    steps_seen = 0
+    for index, group in enumerate(frames):
+        base = origin + index * row_cycles
+        for position, frame in enumerate(group):
+            release = int(base + position * FRAME_SPACING_S * clock_hz + rng.integers(period))
+            fw.release_at(release)
+            replies = node.handle(frame)
+            job = fw.jobs[-1]
+            steps = sum(node.m4_cycles.values())
+            (step_jobs if steps > steps_seen else other_jobs).append(job)
+            steps_seen = steps
+            outputs += [bytes(reply.data) for reply in replies if reply.arbitration_id in _TEMPERATURE_IDS]
+    bit_exact = outputs == _reference_outputs(artifact, image, frames)
+    span_s = (fw.now - origin) / clock_hz
+    return _figures(fw, node, step_jobs, other_jobs, period, clock_hz, span_s, bit_exact)
+
+
+def _step_cycles(fw: InterruptedFirmware) -> tuple[list[int], list[int]]:
+    """(own cycles, timeline cycles) of each model step from the node's pair of DWT_CYCCNT reads around fw_step."""
+    reads = fw.dwt_reads
+    own = [after[1] - before[1] for before, after in zip(reads[0::2], reads[1::2], strict=False)]
+    wall = [after[0] - before[0] for before, after in zip(reads[0::2], reads[1::2], strict=False)]
+    return own, wall
+
+
+def _figures(fw: InterruptedFirmware, node: FirmwareNode, step_jobs, other_jobs, period: int, clock_hz: float,
+             span_s: float, bit_exact: bool) -> dict:
+    events = fw.isr_events
+    latency = [event.latency for event in events]
+    busy = [event.busy for event in events]
+    preempting = [event for event in events if event.preempted is not None]
+    idle = [event for event in events if event.preempted is None]
+    own_step, wall_step = _step_cycles(fw)
+    us = 1e6 / clock_hz
+    step_total = sum(own_step)
+    frame_total = sum(job.cycles for job in (*step_jobs, *other_jobs)) - step_total
+    isr_load = float(np.mean(busy)) / period if busy else 0.0
+    loads = {"current_loop_isr": round(isr_load, 5), "model_step": round(step_total / clock_hz / span_s, 7),
+             "frame_handling": round(frame_total / clock_hz / span_s, 7)}
+    loads["idle"] = round(1.0 - sum(loads.values()), 5)
+    return {
+        "clock_mhz": clock_hz / 1e6, "isr_period_cycles": period, "bit_exact": bit_exact,
+        "frames": len(step_jobs) + len(other_jobs), "model_steps": len(step_jobs),
+        "response_time_us": _percentiles([job.response for job in step_jobs], us),
+        "response_time_cycles": _percentiles([job.response for job in step_jobs]),
+        "frame_response_time_us": _percentiles([job.response for job in other_jobs], us),
+        "preemptions_per_step": _percentiles([job.preemptions for job in step_jobs]),
+        "measured_max_cycles": {"fw_step_with_dwt_reads": max(own_step, default=None),
+                                "node_on_frame": max((job.cycles for job in (*step_jobs, *other_jobs)),
+                                                     default=None),
+                                HANDLER: max((event.handler_cycles for event in events), default=None)},
+        "step_cycles_with_preemption": _percentiles(wall_step),
+        "isr_latency_cycles": {**_percentiles(latency), "min": min(latency, default=None),
+                               "jitter": (max(latency) - min(latency)) if latency else None},
+        "isr_latency_idle_cycles": _percentiles([event.latency for event in idle]),
+        "isr_latency_preempting_cycles": _percentiles([event.latency for event in preempting]),
+        "isr_wait_caused_by_background_cycles": _percentiles([event.wait for event in preempting]),
+        "isr_handler_cycles": _percentiles([event.handler_cycles for event in events]),
+        "isr_busy_cycles": _percentiles(busy),
+        "isr_lazy_fp_stacking": {"events": sum(event.lazy_fp for event in events), "of": len(events),
+                                 "cycles_each": fw._timeline.costs.lazy_fp + fw._timeline.costs.fp_exit},
+        "isr_tail_chained": sum(event.tail_chained for event in events),
+        "isr_events": len(events), "isr_releases_skipped_idle": fw.skipped_releases,
+        "masking_instructions": fw._masking,
+        "cpu_load": loads,
+        "stack_used_bytes": fw.stack_used(),
+    }
+
+
+def static_bounds(image: ElfImage, *, lost_rows: int = 0) -> dict:
+    """WCET bounds of fw_step, node_on_frame (at most `lost_rows` lost rows per frame) and the handler."""
+    bounds = loop_bounds(lost_rows)
+    out: dict = {}
+    for function in ("fw_step", "node_on_frame", HANDLER):
+        try:
+            out[function] = wcet(image, function, bounds).cycles
+        except WcetError as exc:
+            raise BenchError(f"no static bound of {function}: {exc}") from None
+    return out
+
+
+def direct_step_max(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial) -> int:
+    """The most cycles of fw_step called alone (entry to return, as the bound counts) over the drive's steps
+    (`bench firmware check`'s run: the node's DWT reads around the call add a few cycles of their own)."""
+    from bench.firmware.check import check_firmware
+
+    result = check_firmware(artifact, image, drive, initial)     # FirmwareEstimator takes the parsed image
+    return int(result["cycles"]["max"])
+
+
+def timing_report(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *,
+                  isr_rate_hz: float = 10_000.0, seed: int = 0) -> dict:
+    """`bench firmware timing`'s JSON: the bounds, then the run at each clock of `CLOCKS_MHZ`."""
+    bounds = static_bounds(image)
+    runs = {f"{mhz}MHz": measure(artifact, image, drive, initial, isr_rate_hz=isr_rate_hz, clock_mhz=mhz,
+                                 seed=seed) for mhz in CLOCKS_MHZ}
+    main = runs[f"{CLOCKS_MHZ[0]}MHz"]
+    measured = {"fw_step": direct_step_max(artifact, image, drive, initial),
+                **{name: max(run["measured_max_cycles"][name] or 0 for run in runs.values())
+                   for name in bounds if name != "fw_step"}}
+    return {
+        "isr_rate_hz": isr_rate_hz, "clock_mhz": CLOCKS_MHZ[0],
+        "wcet_cycles": bounds, "measured_max_cycles": measured,
+        "wcet_holds": all(measured[name] <= bounds[name] for name in bounds),
+        "wcet_assumptions": "rows in order (0 lost rows per frame); loop bounds of target_sim.firmware.wcet",
+        "response_time_us": main["response_time_us"], "isr_latency_cycles": main["isr_latency_cycles"],
+        "cpu_load": {name: run["cpu_load"] for name, run in runs.items()},
+        "bit_exact": all(run["bit_exact"] for run in runs.values()),
+        "runs": runs,
+    }

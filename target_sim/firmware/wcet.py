@@ -1,0 +1,427 @@
+"""A static bound of the worst-case execution time of a firmware function, from the ELF alone.
+
+    bound = wcet(image, "fw_step")                       # cycles on every path, with the stated loop bounds
+    bound.cycles, bound.loops, bound.calls
+
+The control-flow graph of each function is rebuilt from the disassembly (capstone, recursive descent from the
+function's symbol): conditional branches and compare-and-branch have two successors, TBB/TBH jump tables are read
+from the bytes after the instruction (the table ends where the first target begins, as the compiler lays them
+out), BL/BLX to a symbol is a call (the callee's bound is added: the call graph must be acyclic, the firmware has
+no recursion), a branch out of the function is a tail call, BX LR / POP {..., PC} / LDR PC return. An indirect
+jump or call that is not a jump table cannot be bounded: `WcetError` names it.
+
+Each instruction costs what the emulator counts for it (`target_sim.firmware.cycles`, the same table and
+`instruction_cost`): its cycles with a conditional branch not taken, plus `taken_extra` on the edge where the
+branch is taken. The bound is the longest path from the entry to a return with every loop collapsed, innermost
+first, into one node that costs `bound x (longest iteration) + (longest way out)`, where an iteration is a path
+from the loop's header back to it and `bound` is the most times the loop's back edges are taken per entry.
+
+Loop bounds are stated, never guessed: `loop_bounds()` gives them by function and by the loop's place in it (its
+header's order by address), with the reason taken from the C; a loop without a stated bound is an error naming
+its function and address. Conditional instructions inside an IT block count as executed, as in the emulator, so
+the bound covers the emulator's count of every path (the tests check the measured maximum never exceeds it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from capstone import arm_const
+
+from dbc.contract import STATE_SIZE
+from target_sim.errors import TargetError
+from target_sim.firmware.cycles import InstructionCost, instruction_cost, new_disassembler
+from target_sim.firmware.elf import ElfImage, Symbol
+from target_sim.firmware.node_protocol import TX_CAPACITY
+
+RETURN_MNEMONICS = frozenset({"bx", "pop", "ldm", "ldr", "mov"})   # ... when they write the PC
+
+
+class WcetError(TargetError):
+    """The function cannot be bounded (an indirect jump, a loop without a stated bound, recursion); one sentence."""
+
+
+@dataclass(frozen=True)
+class LoopBound:
+    """The most times a loop's back edges are taken per entry into it, and why (from the C)."""
+
+    iterations: int
+    reason: str
+
+
+@dataclass(frozen=True)
+class Loop:
+    function: str
+    header: int
+    order: int                     # place of the header among the function's loops, by address
+    bound: LoopBound
+    iteration_cycles: int          # longest path header -> back to the header
+
+
+@dataclass
+class Bound:
+    """The WCET bound of a function: cycles, and what it rests on (its loops, its callees' bounds)."""
+
+    function: str
+    cycles: int
+    loops: list[Loop] = field(default_factory=list)
+    calls: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"function": self.function, "cycles": self.cycles, "calls": dict(self.calls),
+                "loops": [{"function": loop.function, "header": f"{loop.header:#010x}", "order": loop.order,
+                           "bound": loop.bound.iterations, "reason": loop.bound.reason,
+                           "iteration_cycles": loop.iteration_cycles} for loop in self.loops]}
+
+
+@dataclass(frozen=True)
+class _Node:
+    """A basic block: its instructions' cycles (branch not taken) and its successors with the edge's extra cost."""
+
+    start: int
+    cycles: int
+    calls: tuple[str, ...]
+    successors: tuple[tuple[int, int], ...]      # (address, extra cycles on that edge)
+    returns: int | None                          # extra cycles when it returns (None: it does not)
+
+
+class _Image:
+    """The instructions of an ELF image: one capstone pass over each code range of the mapping symbols ($t), which
+    keeps the conditions of IT blocks (an instruction decoded alone loses them) and never decodes data."""
+
+    def __init__(self, image: ElfImage):
+        self.image = image
+        self.functions = {symbol.address: name for name, symbol in image.symbols.items()
+                          if symbol.kind == "STT_FUNC"}
+        disassembler = new_disassembler()
+        self._decoded: dict[int, tuple[InstructionCost, object]] = {}
+        for start, end in image.thumb_ranges:
+            offset, code = 0, self.read(start, end - start) if end > start else b""
+            while offset < len(code):
+                last = offset
+                for insn in disassembler.disasm(code[offset:], start + offset):
+                    self._decoded[insn.address] = (instruction_cost(insn), insn)
+                    offset = insn.address + insn.size - start
+                if offset == last:
+                    offset += 2
+
+    def read(self, address: int, size: int) -> bytes:
+        for segment in self.image.segments:
+            if segment.vaddr <= address and address + size <= segment.vaddr + len(segment.data):
+                offset = address - segment.vaddr
+                return segment.data[offset:offset + size]
+        raise WcetError(f"{self.image.name} has no code at {address:#010x}")
+
+    def instruction(self, address: int) -> tuple[InstructionCost, object]:
+        known = self._decoded.get(address)
+        if known is None:
+            raise WcetError(f"{self.image.name} has no instruction at {address:#010x} (a jump into data?)")
+        return known
+
+
+def _target(insn) -> int | None:
+    """The immediate branch target of a branch instruction, else None."""
+    for op in insn.operands:
+        if op.type == arm_const.ARM_OP_IMM:
+            return op.imm
+    return None
+
+
+def _table_targets(code: _Image, insn, halfwords: bool) -> list[int]:
+    """Targets of a TBB/TBH jump table: entries after the instruction until the lowest target seen (a table of odd
+    length is padded to a halfword: that entry points into the table and is dropped)."""
+    base = insn.address + 4
+    step = 2 if halfwords else 1
+    targets: list[int] = []
+    at = base
+    while not targets or at < min(targets):
+        raw = code.read(at, step)
+        targets.append(base + 2 * int.from_bytes(raw, "little"))
+        at += step
+        if len(targets) > 4096:
+            raise WcetError(f"the jump table at {insn.address:#010x} has no end")
+    return [target for target in targets if target >= at]     # a padding entry points into the table itself
+
+
+def _function_graph(code: _Image, name: str, symbol: Symbol) -> dict[int, _Node]:
+    """The basic blocks of one function by recursive descent from its entry."""
+    start, end = symbol.address, symbol.address + symbol.size
+    successors: dict[int, list[tuple[int, int]]] = {}
+    leaders = {start}
+    order: list[int] = []
+    seen: set[int] = set()
+    work = [start]
+    while work:
+        address = work.pop()
+        if address in seen:
+            continue
+        seen.add(address)
+        order.append(address)
+        cost, insn = code.instruction(address)
+        following = address + cost.size
+        outs: list[tuple[int, int]] = []
+        mnemonic = cost.mnemonic
+        if mnemonic in ("tbb", "tbh"):
+            for target in _table_targets(code, insn, mnemonic == "tbh"):
+                outs.append((target, 0))
+                leaders.add(target)
+        elif mnemonic in ("bl", "blx"):
+            target = _target(insn)
+            if target is None or target not in code.functions:
+                raise WcetError(f"{name} makes an indirect call at {address:#010x} ({cost.text}): its callee "
+                                "cannot be bounded statically")
+            outs.append((following, 0))
+        elif cost.writes_pc:
+            target = _target(insn) if mnemonic in ("b", "cbz", "cbnz") else None
+            if mnemonic in ("b", "cbz", "cbnz") and target is None:
+                raise WcetError(f"{name} jumps indirectly at {address:#010x} ({cost.text})")
+            if target is not None:
+                extra = cost.taken_extra
+                inside = start <= target < end
+                outs.append((target if inside else -target, extra))     # out of the function: a tail call
+                if inside:
+                    leaders.add(target)
+            elif mnemonic not in RETURN_MNEMONICS:
+                raise WcetError(f"{name} jumps indirectly at {address:#010x} ({cost.text})")
+            else:
+                outs.append((-1, cost.taken_extra))        # a return
+            if cost.conditional_branch:
+                outs.append((following, 0))
+            leaders.add(following)
+        else:
+            outs.append((following, 0))
+        successors[address] = outs
+        for target, _ in outs:
+            if target >= 0 and target not in seen:
+                work.append(target)
+    return _blocks(code, name, sorted(seen), leaders, successors)
+
+
+def _blocks(code: _Image, name: str, addresses: list[int], leaders: set[int],
+            successors: dict[int, list[tuple[int, int]]]) -> dict[int, _Node]:
+    nodes: dict[int, _Node] = {}
+    index = 0
+    while index < len(addresses):
+        first = addresses[index]
+        cycles, calls = 0, []
+        while True:
+            address = addresses[index]
+            cost, insn = code.instruction(address)
+            cycles += cost.cycles
+            if cost.mnemonic in ("bl", "blx"):
+                calls.append(code.functions[_target(insn)])
+            outs = successors[address]
+            index += 1
+            following = address + cost.size
+            ends = (len(outs) != 1 or outs[0][0] != following or index == len(addresses)
+                    or addresses[index] != following or following in leaders)
+            if ends:
+                break
+        block_outs, returns = [], None
+        for target, extra in outs:
+            if target == -1:
+                returns = extra
+            elif target < 0:              # a tail call: the callee's bound, then its return is ours
+                calls.append(code.functions.get(-target) or f"{-target:#x}")
+                returns = extra
+            else:
+                block_outs.append((target, extra))
+        nodes[first] = _Node(first, cycles, tuple(calls), tuple(block_outs), returns)
+    return nodes
+
+
+def _loops(nodes: Mapping[int, _Node], entry: int) -> dict[int, set[int]]:
+    """Natural loops: header -> its body (the blocks that reach a back edge's source without the header)."""
+    back: dict[int, list[int]] = {}
+    state: dict[int, int] = {}           # 1 on the DFS stack, 2 done
+    stack = [(entry, iter(nodes[entry].successors))]
+    state[entry] = 1
+    while stack:
+        node, successors = stack[-1]
+        advanced = False
+        for target, _ in successors:
+            if state.get(target) == 1:
+                back.setdefault(target, []).append(node)
+            elif target not in state:
+                state[target] = 1
+                stack.append((target, iter(nodes[target].successors)))
+                advanced = True
+                break
+        if not advanced:
+            state[node] = 2
+            stack.pop()
+    predecessors: dict[int, list[int]] = {}
+    for node in nodes.values():
+        for target, _ in node.successors:
+            predecessors.setdefault(target, []).append(node.start)
+    loops: dict[int, set[int]] = {}
+    for header, sources in back.items():
+        body = {header}
+        work = [source for source in sources if source != header]
+        body.update(work)
+        while work:
+            for previous in predecessors.get(work.pop(), ()):
+                if previous not in body:
+                    body.add(previous)
+                    work.append(previous)
+        loops[header] = body
+    return loops
+
+
+class _Analysis:
+    def __init__(self, image: ElfImage, bounds: Mapping[str, Mapping[int, LoopBound]]):
+        self.code = _Image(image)
+        self.image = image
+        self.bounds = bounds
+        self.results: dict[str, Bound] = {}
+        self.active: list[str] = []
+
+    def function(self, name: str) -> Bound:
+        done = self.results.get(name)
+        if done is not None:
+            return done
+        if name in self.active:
+            raise WcetError(f"{name} is recursive ({' -> '.join([*self.active, name])}): no static bound")
+        symbol = self.image.symbols.get(name)
+        if symbol is None or symbol.kind != "STT_FUNC":
+            raise WcetError(f"{self.image.name} has no function {name!r}")
+        self.active.append(name)
+        try:
+            nodes = _function_graph(self.code, name, symbol)
+            bound = Bound(name, 0)
+            costs = {start: node.cycles + sum(self._callee(callee, bound) for callee in node.calls)
+                     for start, node in nodes.items()}
+            bound.cycles = self._longest(name, nodes, costs, symbol.address, bound)
+        finally:
+            self.active.pop()
+        self.results[name] = bound
+        return bound
+
+    def _callee(self, callee: str, bound: Bound) -> int:
+        inner = self.function(callee)
+        bound.calls[callee] = inner.cycles
+        bound.loops.extend(loop for loop in inner.loops if loop not in bound.loops)
+        return inner.cycles
+
+    def _longest(self, name: str, nodes: dict[int, _Node], costs: dict[int, int], entry: int, bound: Bound) -> int:
+        """Longest entry -> return path, loops collapsed innermost first."""
+        loops = _loops(nodes, entry)
+        headers = sorted(loops)
+        stated = self.bounds.get(name, {})
+        # each block's representative: the header of the outermost collapsed loop holding it
+        owner = {start: start for start in nodes}
+        succ = {start: list(node.successors) for start, node in nodes.items()}
+        rets = {start: node.returns for start, node in nodes.items()}
+        weight = dict(costs)
+        for header in sorted(headers, key=lambda h: len(loops[h])):    # innermost (smallest) first
+            order = headers.index(header)
+            limit = stated.get(order)
+            if limit is None:
+                raise WcetError(f"{name} has a loop at {header:#010x} (loop {order} of the function) without a "
+                                "stated bound (target_sim.firmware.wcet.loop_bounds)")
+            body = {owner[block] for block in loops[header]}
+            iteration = self._path(header, body, succ, weight, to_header=True)
+            way_out = self._path(header, body, succ, weight, to_header=False, rets=rets)
+            bound.loops.append(Loop(name, header, order, limit, iteration))
+            weight[header] = limit.iterations * iteration + way_out
+            exits = [(target, 0) for member in body for target, _ in succ[member] if target not in body]
+            returns = [rets[member] for member in body if rets[member] is not None]
+            for member in body:
+                if member != header:
+                    del succ[member], weight[member], rets[member]
+            succ[header] = sorted(set(exits))
+            rets[header] = 0 if returns else None
+            for start in owner:
+                if owner[start] in body:
+                    owner[start] = header
+            for start in succ:
+                succ[start] = [(owner.get(target, target), extra) for target, extra in succ[start]]
+        return self._dag_longest(entry, succ, weight, rets, name)
+
+    @staticmethod
+    def _path(header: int, body: set[int], succ, weight, *, to_header: bool, rets=None) -> int:
+        """Longest path from the header through the (acyclic once its back edges are cut) body: back to the header
+        (an iteration, the header's own cost included) or out of the loop (the last partial iteration)."""
+        best: dict[int, int] = {}
+
+        def visit(block: int) -> int:
+            if block in best:
+                return best[block]
+            result = -1
+            for target, extra in succ[block]:
+                if target == header:
+                    if to_header:
+                        result = max(result, extra)
+                elif target in body:
+                    tail = visit(target)
+                    if tail >= 0:
+                        result = max(result, extra + tail)
+                elif not to_header:
+                    result = max(result, extra)
+            if not to_header and rets is not None and rets[block] is not None:
+                result = max(result, rets[block])
+            best[block] = result if result < 0 else result + weight[block]
+            return best[block]
+
+        value = visit(header)
+        return max(value, 0)
+
+    @staticmethod
+    def _dag_longest(entry: int, succ, weight, rets, name: str) -> int:
+        best: dict[int, int] = {}
+        visiting: set[int] = set()
+
+        def visit(block: int) -> int:
+            if block in best:
+                return best[block]
+            if block in visiting:
+                raise WcetError(f"{name} has an irreducible loop at {block:#010x}: no static bound")
+            visiting.add(block)
+            result = -1
+            for target, extra in succ[block]:
+                tail = visit(target)
+                if tail >= 0:
+                    result = max(result, extra + tail)
+            if rets[block] is not None:
+                result = max(result, rets[block])
+            visiting.discard(block)
+            best[block] = -1 if result < 0 else result + weight[block]
+            return best[block]
+
+        value = visit(entry)
+        if value < 0:
+            raise WcetError(f"{name} never returns")
+        return value
+
+
+def wcet(image: ElfImage, function: str, bounds: Mapping[str, Mapping[int, LoopBound]] | None = None) -> Bound:
+    """The WCET bound of `function` in cycles (callees included), with `bounds` (default: `loop_bounds()`)."""
+    return _Analysis(image, loop_bounds() if bounds is None else bounds).function(function)
+
+
+TIMED_STEPS = TX_CAPACITY // 4      # node.c: the model steps of one row whose 4 timing frames each are queued
+
+
+def loop_bounds(lost_rows: int = 0) -> dict[str, dict[int, LoopBound]]:
+    """The loops of the firmware (bench/firmware/node.c and the generated model, clang -O2), by function and by
+    the loop's place in it, with the most iterations each can run; `lost_rows`: the most rows a received data
+    frame may skip (its Step that far ahead of the next expected row). The node steps the model once for each lost
+    row that ends an interval, so no bound holds for every frame the bus can carry (a frame 32 767 rows ahead runs
+    that many loop iterations): the bound of node_on_frame is stated per number of lost rows, 0 for a drive whose
+    rows arrive in order."""
+    if lost_rows < 0:
+        raise ValueError(f"lost_rows must be 0 or more, not {lost_rows}")
+    steps = min(lost_rows + 1, TIMED_STEPS)
+    return {
+        "fw_step": {0: LoopBound(STATE_SIZE, "input_nonlinearity: for k < 4, one sigmoid per loss input "
+                                             "(a Hammerstein model; the linear kinds' fw_step has no loop)")},
+        "node_on_frame": {
+            0: LoopBound(lost_rows, f"handle_row: for lost = expected .. row - 1 (RowAccumulator.skip): at most "
+                                    f"{lost_rows} lost row(s) per frame, the stated assumption"),
+            1: LoopBound(steps, "handle_row: send_timing for i < steps && i < TIMED_STEPS: one model step per lost "
+                                "row ending an interval and one for the row itself, at most TIMED_STEPS (10)"),
+            2: LoopBound(STATE_SIZE, "send_checkpoint: one StateCheckpoint frame per state element (4)"),
+        },
+        "send_temperatures": {0: LoopBound(STATE_SIZE, "for i < NODE_STATE_SIZE: clamp each of the 4 outputs")},
+    }

@@ -1,0 +1,158 @@
+"""The estimator beside the motor control: the current loop's interrupt preempting the emulated core leaves the
+model's outputs and cycle counts as without it, is timed by the Cortex-M4 exception model, and the static WCET
+bounds hold over what the core measured (fw_step, node_on_frame, the handler) for every packaged kind."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from target_sim.firmware import Firmware, read_elf
+from target_sim.firmware.interrupts import ExceptionCosts, InterruptedFirmware
+from target_sim.firmware.wcet import LoopBound, WcetError, loop_bounds, wcet
+
+KINDS = ("hammerstein", "lti-lptn", "pv-lptn")
+IRQ = 18
+
+
+@pytest.fixture(scope="module")
+def timing_image():
+    """kind -> (packaged artifact, ElfImage with the current loop), built once per module."""
+    from bench.firmware.codegen import generate
+    from bench.firmware.toolchain import build_firmware
+    from bench.model.default import default_artifact_path
+    from target_sim.artifact import load_artifact
+
+    built = {}
+
+    def get(kind):
+        if kind not in built:
+            artifact = load_artifact(default_artifact_path(kind))
+            built[kind] = (artifact, read_elf(build_firmware(generate(artifact), isr=True).elf))
+        return built[kind]
+
+    return get
+
+
+def _drive(rows: int = 60) -> np.ndarray:
+    rng = np.random.default_rng(3)
+    return np.column_stack([rng.uniform(-250, 250, rows), rng.uniform(0, 6000, rows), np.full(rows, 65.0),
+                            np.full(rows, 25.0)])
+
+
+def _steps(fw: Firmware, interrupted: bool, count: int = 12) -> tuple[np.ndarray, list[int]]:
+    inputs, outputs, state = fw.alloc_f32(4), fw.alloc_f32(4), fw.alloc_f32([60.0] * 4)
+    fw.call("fw_reset", state)
+    values, cycles = [], []
+    for k in range(count):
+        if interrupted:
+            fw.release_at(fw.now + 517 * k)
+        fw.write_f32(inputs, [20.0 * k - 100.0, 400.0 * k, 60.0, 25.0])
+        fw.call("fw_step", inputs, outputs)
+        values.append(fw.read_f32(outputs, 4))
+        cycles.append(fw.last.cycles)
+    return np.array(values), cycles
+
+
+def test_the_shipped_images_have_no_interrupt_and_the_timing_image_links_it(timing_image):
+    from bench.firmware.images import packaged_elf_path
+
+    artifact, image = timing_image("hammerstein")
+    assert "foc_isr" in image.symbols and "foc_isr" not in read_elf(packaged_elf_path("hammerstein")).symbols
+    with pytest.raises(Exception, match="no handler for exception 34"):
+        InterruptedFirmware.load(packaged_elf_path("hammerstein"), irq=IRQ, period_cycles=9000)
+
+
+@pytest.mark.parametrize("period", [700, 2000, 9000])
+def test_preemption_leaves_the_model_bit_for_bit_and_its_cycles_unchanged(timing_image, period):
+    _, image = timing_image("hammerstein")
+    plain = Firmware(image)
+    fw = InterruptedFirmware(image, irq=IRQ, period_cycles=period)
+    fw.call("foc_init", 10000.0)
+    fw.start_interrupts(at=fw.now + 5)
+    expected, plain_cycles = _steps(plain, False)
+    got, cycles = _steps(fw, True)
+    assert np.array_equal(expected.view(np.uint32), got.view(np.uint32))
+    assert cycles == plain_cycles
+    jobs = [job for job in fw.jobs if job.function == "fw_step"]
+    assert sum(job.preemptions for job in jobs) > 0
+    events = fw.isr_events
+    assert int(fw.read_i32(fw.address("foc_ticks"), 1)[0]) == len(events)
+    for job in jobs:     # the response is the job's own cycles plus what every interrupt inside it took
+        inside = [e for e in events if job.start <= e.taken < job.end and e.preempted == "fw_step"]
+        assert job.response == (job.start - job.release) + job.cycles + sum(e.busy for e in inside)
+        assert len(inside) == job.preemptions
+
+
+def test_the_exception_model_costs(timing_image):
+    _, image = timing_image("lti-lptn")
+    costs = ExceptionCosts()
+    fw = InterruptedFirmware(image, irq=IRQ, period_cycles=9000)
+    fw.start_interrupts(at=0)                  # no FP instruction yet in thread mode: no FP context
+    fw.idle_until(3 * 9000 + 1)
+    first = fw.isr_events[0]
+    assert (first.latency, first.wait, first.lazy_fp) == (costs.entry, 0, False)
+    assert first.busy == costs.entry + first.handler_cycles + costs.exit
+    fw.call("foc_init", 10000.0)               # floating point in thread mode: FPCA set from here on
+    fw.idle_until(fw.now + 2 * 9000)
+    later = fw.isr_events[-1]
+    assert later.lazy_fp and later.busy == (costs.entry + later.handler_cycles + costs.lazy_fp + costs.exit
+                                            + costs.fp_exit)
+    assert all(event.latency - costs.entry <= 14 for event in fw.isr_events)   # VDIV, the longest instruction
+
+
+def test_a_period_shorter_than_the_handler_is_a_fault_not_a_hang(timing_image):
+    from target_sim.firmware import FirmwareFault
+
+    _, image = timing_image("pv-lptn")
+    fw = InterruptedFirmware(image, irq=IRQ, period_cycles=100)
+    fw.start_interrupts(at=0)
+    with pytest.raises(FirmwareFault, match="runs longer than its period"):
+        fw.idle_until(10_000)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_wcet_bound_holds_over_the_measured_maximum(timing_image, kind):
+    from bench.firmware.timing import direct_step_max, measure, static_bounds
+
+    artifact, image = timing_image(kind)
+    bounds = static_bounds(image)
+    run = measure(artifact, image, _drive(), [60.0] * 4, isr_rate_hz=20_000)
+    assert run["bit_exact"] and run["model_steps"] > 0
+    for name in ("node_on_frame", "foc_isr"):
+        assert 0 < run["measured_max_cycles"][name] <= bounds[name], name
+    assert direct_step_max(artifact, image, _drive(), [60.0] * 4) <= bounds["fw_step"]
+    _, cycles = _steps(Firmware(image), False, 30)
+    assert max(cycles) <= bounds["fw_step"]
+    assert run["isr_latency_cycles"]["max"] >= run["isr_latency_idle_cycles"]["max"] == ExceptionCosts().entry
+    assert 0 < run["cpu_load"]["current_loop_isr"] < 0.1 and run["cpu_load"]["idle"] > 0.9
+
+
+def test_a_loop_without_a_stated_bound_is_named(timing_image):
+    _, image = timing_image("hammerstein")
+    with pytest.raises(WcetError, match=r"fw_step has a loop at 0x[0-9a-f]+ \(loop 0 of the function\)"):
+        wcet(image, "fw_step", {})
+    with pytest.raises(ValueError):
+        loop_bounds(-1)
+    looser = loop_bounds(3)
+    assert looser["node_on_frame"][0] == LoopBound(3, looser["node_on_frame"][0].reason)
+    assert wcet(image, "node_on_frame", looser).cycles > wcet(image, "node_on_frame").cycles
+
+
+def test_bench_firmware_timing_reports_the_figures_and_refuses_a_rate_the_core_cannot_carry(tmp_path, small_dataset):
+    import json
+
+    from helpers import run_cli
+
+    proc = run_cli("-m", "bench", "firmware", "timing", "--data", str(small_dataset), "--rows", "40",
+                   "--isr-rate", "20000", "--out", str(tmp_path), "--json", timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["wcet_holds"] and report["bit_exact"]
+    assert all(report["measured_max_cycles"][name] <= bound for name, bound in report["wcet_cycles"].items())
+    assert set(report["response_time_us"]) == {"p50", "p99", "max"} and report["response_time_us"]["max"] > 0
+    assert {"p50", "max"} <= set(report["isr_latency_cycles"]) and set(report["cpu_load"]) == {"90MHz", "168MHz"}
+    proc = run_cli("-m", "bench", "firmware", "timing", "--data", str(small_dataset), "--isr-rate", "1000000",
+                   "--out", str(tmp_path))
+    assert proc.returncode != 0 and "leaves the background no time" in proc.stderr
+    assert "Traceback" not in proc.stderr
