@@ -178,8 +178,10 @@ def print_observer_table(model: dict) -> None:
     for f in obs["files"]:
         for node, m in f["nodes"].items():
             label = f"{node} (measured)" if node == f["measured_node"] else node
+            worse = m["observer"]["rmse"] > m["open_loop"]["rmse"] and node != f["measured_node"]
             print(f"{Path(f['file']).name[:24]:24} {label:14} {m['open_loop']['rmse']:14.4f} "
-                  f"{m['open_loop']['max_abs']:7.3f} {m['observer']['rmse']:14.4f} {m['observer']['max_abs']:7.3f}")
+                  f"{m['open_loop']['max_abs']:7.3f} {m['observer']['rmse']:14.4f} {m['observer']['max_abs']:7.3f}"
+                  + ("  observer WORSE than open loop" if worse else ""))
         for r in f["recovery"]:
             print(f"{'':24} magnet started {r['offset_K']:+g} K off: within 2 K after {_seconds(r['open_loop_s'])} "
                   f"open loop, {_seconds(r['observer_s'])} with the observer")
