@@ -171,7 +171,7 @@ def observer_report(artifact, datasets, say) -> dict:
 def print_observer_table(model: dict) -> None:
     obs = model["observer"]
     print(f"observer of {model['model']}: {obs['form']} form, measuring the {obs['node']} node with "
-          f"{obs['column']} (float32; the measured node's error is not an estimate's)")
+          f"{obs['column']} (float32; the measured node is pulled to its sensor, so its error is no estimate's)")
     head = f"{'file':24} {'node':14} {'open loop RMSE':>14} {'max|e|':>7} {'observer RMSE':>14} {'max|e|':>7}"
     print(head)
     print("-" * len(head))
