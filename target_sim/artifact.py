@@ -23,9 +23,16 @@ from target_sim.losses import DEFAULT as DEFAULT_LOSS_MODEL
 from target_sim.losses import LOSS_KINDS, row_signals
 
 SCHEMA = "pmsm-thermal-bench.model-artifact"
-SCHEMA_VERSION = 2
-# Version 1 had loss maps only (no losses.model); it is read as "maps".
-READABLE_VERSIONS = (1, 2)
+SCHEMA_VERSION = 3
+# Version 1 had loss maps only (no losses.model); it is read as "maps". Version 3 is version 2 plus the optional
+# `observer` section; an artifact without one is written as version 2 (what every earlier target reads).
+READABLE_VERSIONS = (1, 2, 3)
+OBSERVER_VERSION = 3
+# The observer section (`target_sim.observer`): its arrays and shapes ((): a scalar), in the realization's
+# coordinates; `node` names the measured output, `form` the covariance form the target deploys.
+OBSERVER_ARRAYS = {"Q": (4, 4), "q_nodes_C2": (4,), "R": (), "P0": (4, 4), "offset_C": (), "K_ss": (4,),
+                   "P_ss": (4, 4)}
+OBSERVER_FORM_NAMES = ("conventional", "joseph", "ud", "steady")   # target_sim.observer.OBSERVER_FORMS
 # The delta realization's linear block is x <- x + Δ·(A x + B ũ), y = C x + r, with ũ the inputs whose four
 # temperature sources are taken relative to r = linear_block.reference_C (the states are deviations from r).
 OUTPUTS = ("yoke", "winding", "tooth", "magnet")
@@ -215,6 +222,8 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
         if not np.all(np.isfinite(values)):
             raise ArtifactError(f"artifact field {where} holds a value that is not finite in float32; "
                                 "rebuild it with 'bench identify'")
+    if "observer" in content:
+        _check_observer(artifact, version)
     problem = LOSS_KINDS[model].problem(artifact)
     if problem:
         raise ArtifactError(f"{problem}; rebuild it with 'bench identify'")
@@ -224,16 +233,59 @@ def verify(content: Any, path: Path | None = None) -> ModelArtifact:
     return artifact
 
 
+def schema_version_of(content: dict) -> int:
+    """The version an artifact is written as: the lowest that describes its content (an observer needs 3)."""
+    return OBSERVER_VERSION if "observer" in content else 2
+
+
+def _check_observer(artifact: ModelArtifact, version: int) -> None:
+    """The observer section: a version 3 artifact of a kind with a linear block, a measured output, a known form,
+    R > 0, Q symmetric positive semidefinite, P0 and P_ss symmetric positive definite (in float64, the
+    filter the artifact describes)."""
+    section = artifact.content["observer"]
+    fix = "rebuild it with 'bench observer'"
+    if version < OBSERVER_VERSION:
+        raise ArtifactError(f"artifact schema version {version} has no observer section (version "
+                            f"{OBSERVER_VERSION} has); {fix}")
+    if not isinstance(section, dict):
+        raise ArtifactError(f"artifact field 'observer' has the wrong type; {fix}")
+    if not MODEL_KINDS[artifact.kind].linear_block:
+        raise ArtifactError(f"artifact of kind {artifact.kind} carries an observer, which needs a linear block; {fix}")
+    if section.get("node") not in OUTPUTS:
+        raise ArtifactError(f"artifact observer.node {_shown(section.get('node'))} is not one of "
+                            f"{', '.join(OUTPUTS)}; {fix}")
+    if section.get("form") not in OBSERVER_FORM_NAMES:
+        raise ArtifactError(f"artifact observer.form {_shown(section.get('form'))} is not one of "
+                            f"{', '.join(OBSERVER_FORM_NAMES)}; {fix}")
+    if not np.all(artifact.array("observer", "q_nodes_C2", dtype=np.float64) >= 0):
+        raise ArtifactError(f"artifact observer.q_nodes_C2 holds a negative variance; {fix}")
+    for key in ("R", "Q", "P0", "P_ss"):
+        value = artifact.array("observer", key, dtype=np.float64)
+        if key == "R":
+            if not value > 0:
+                raise ArtifactError(f"artifact observer.R is {float(value):g}, a measurement variance must be "
+                                    f"positive; {fix}")
+            continue
+        scale = max(float(np.max(np.abs(value))), np.finfo(float).tiny)
+        if not np.allclose(value, value.T, rtol=0, atol=1e-9 * scale):
+            raise ArtifactError(f"artifact observer.{key} is not symmetric; {fix}")
+        low = float(np.min(np.linalg.eigvalsh((value + value.T) / 2)))
+        if low < (-1e-9 * scale if key == "Q" else 1e-300) or (key != "Q" and low <= 0):
+            kind = "positive semidefinite" if key == "Q" else "positive definite"
+            raise ArtifactError(f"artifact observer.{key} is not {kind} (smallest eigenvalue {low:.3g}); {fix}")
+
+
 def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
     """The shape the target's code needs for each non-scalar array field (scalars are ())."""
     kind = LOSS_KINDS[loss_model_of(content)]
     shapes = {("losses", *keys): shape for keys, shape in kind.shapes(content["losses"]).items()}
     shapes.update(MODEL_KINDS[content["model_kind"]].shapes(content))
+    shapes.update({("observer", key): shape for key, shape in OBSERVER_ARRAYS.items() if shape})
     return shapes
 
 
 # the sections in the order their fields are checked (a model kind's own sections after these)
-SECTIONS = ("linear_block", "lptn", "losses", "input_nonlinearity")
+SECTIONS = ("linear_block", "lptn", "losses", "input_nonlinearity", "observer")
 
 
 def _array_fields(content: dict) -> list[tuple[str, ...]]:
@@ -242,6 +294,8 @@ def _array_fields(content: dict) -> list[tuple[str, ...]]:
     fields += [("lptn", "speed_max_rpm")]
     fields += [("losses", k) for k in ("current_max_A", "alpha_cu_per_K", "copper_reference_C")]
     fields += [("losses", *keys) for keys in LOSS_KINDS[loss_model_of(content)].fields(content["losses"])]
+    if isinstance(content.get("observer"), dict):
+        fields += [("observer", key) for key in OBSERVER_ARRAYS]
     fields.sort(key=lambda keys: SECTIONS.index(keys[0]) if keys[0] in SECTIONS else len(SECTIONS))
     for keys in fields:
         node = content

@@ -97,3 +97,23 @@ def matvec(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     for j in range(1, products.shape[1]):
         acc = acc + products[:, j]      # left to right
     return acc
+
+
+def dot(a: np.ndarray, b: np.ndarray):
+    """a·b with a fixed order: ((a_0·b_0 + a_1·b_1) + a_2·b_2) + ..., each operation rounded to the dtype (the C's
+    `dot`)."""
+    products = a * b
+    acc = products[0]
+    for j in range(1, products.shape[0]):
+        acc = acc + products[j]
+    return acc
+
+
+def matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A B with a fixed order: entry (i, j) = ((a_i0·b_0j + a_i1·b_1j) + a_i2·b_2j) + ..., each operation rounded
+    to the arrays' dtype, zeros included (no BLAS; the C's `fw_matmul` repeats it)."""
+    products = a[:, :, None] * b[None, :, :]     # every a_ik·b_kj, rounded
+    acc = products[:, 0, :]
+    for k in range(1, products.shape[1]):
+        acc = acc + products[:, k, :]            # left to right over k
+    return acc

@@ -85,6 +85,7 @@ def run_on_files(args: argparse.Namespace, artifacts: list, paths: list[Path]) -
     from bench.commands.common import data_options
     from bench.drive.files import expand_data_paths, load_datasets
     from bench.model.fileeval import evaluate_files
+    from target_sim.observer import has_observer
 
     if args.dt != DEFAULT_DTS or args.realization is not None:
         raise UsageError("--dt and --realization belong to the Table 5 analogue (a dataset directory); on data "
@@ -111,6 +112,8 @@ def run_on_files(args: argparse.Namespace, artifacts: list, paths: list[Path]) -
         models.append({"model": str(path), "sha256": artifact.sha256, "kind": artifact.kind,
                        "loss_model": artifact.loss_model, "dt": artifact.dt,
                        "motor": artifact.content.get("provenance", {}).get("motor", {}).get("name"), **report})
+        if has_observer(artifact):
+            models[-1]["observer"] = observer_report(artifact, datasets, say)
     report = {"models": models}
     if args.plots:
         from bench.analysis.file_plots import file_figure
@@ -146,8 +149,48 @@ def print_file_table(report: dict) -> None:
                     _row(name, f"baseline: {baseline}", node, "float64", per_node[node])
     worst = max(m["pooled"]["max_abs_f32_minus_f64_C"] for m in report["models"])
     print(f"largest |float32 - float64|: {worst:.4g} °C")
+    for m in report["models"]:
+        if "observer" in m:
+            print_observer_table(m)
     for path in report.get("plots", []):
         print(f"wrote {path}")
+
+
+def observer_report(artifact, datasets, say) -> dict:
+    """Open loop vs observer per node and the recovery from a wrong initial magnet temperature, on every file that
+    has the observer's measurement column."""
+    from bench.model.observer_eval import evaluate_observer
+
+    section = artifact.content["observer"]
+    usable = [d for d in datasets if d.has(section["column"])]
+    return {"node": section["node"], "column": section["column"], "form": section["form"],
+            "skipped": [str(d.path) for d in datasets if not d.has(section["column"])],
+            "files": [evaluate_observer(artifact, d, say=say).as_dict() for d in usable]}
+
+
+def print_observer_table(model: dict) -> None:
+    obs = model["observer"]
+    print(f"observer of {model['model']}: {obs['form']} form, measuring the {obs['node']} node with "
+          f"{obs['column']} (float32; the measured node is pulled to its sensor, so its error is no estimate's)")
+    head = f"{'file':24} {'node':14} {'open loop RMSE':>14} {'max|e|':>7} {'observer RMSE':>14} {'max|e|':>7}"
+    print(head)
+    print("-" * len(head))
+    for f in obs["files"]:
+        for node, m in f["nodes"].items():
+            label = f"{node} (measured)" if node == f["measured_node"] else node
+            worse = m["observer"]["rmse"] > m["open_loop"]["rmse"] and node != f["measured_node"]
+            print(f"{Path(f['file']).name[:24]:24} {label:14} {m['open_loop']['rmse']:14.4f} "
+                  f"{m['open_loop']['max_abs']:7.3f} {m['observer']['rmse']:14.4f} {m['observer']['max_abs']:7.3f}"
+                  + ("  observer WORSE than open loop" if worse else ""))
+        for r in f["recovery"]:
+            print(f"{'':24} magnet started {r['offset_K']:+g} K off: within 2 K after {_seconds(r['open_loop_s'])} "
+                  f"open loop, {_seconds(r['observer_s'])} with the observer")
+    for path in obs["skipped"]:
+        print(f"{path}: no column {obs['column']!r}, the observer was not evaluated")
+
+
+def _seconds(value: float) -> str:
+    return "never" if value == float("inf") else f"{value:.0f} s"
 
 
 def _row(name: str, estimator: str, node: str, prec: str, m: dict) -> None:

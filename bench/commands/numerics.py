@@ -28,19 +28,29 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--seed", type=int, default=7, help="seed of the synthetic 7274 s excitation")
     p.add_argument("--budget", action="store_true",
                    help="the float32 error budget of --model on --data: float32 in one part of the step at a time")
-    p.add_argument("--model", type=Path, default=None, help="--budget: model artifact (default: the packaged one)")
+    p.add_argument("--observer", action="store_true",
+                   help="the float32 covariance forms of --model's observer over a whole run of --data: smallest "
+                        "eigenvalue of P, its symmetry error and |float32 - float64| of the estimate per form")
+    p.add_argument("--model", type=Path, default=None,
+                   help="--budget, --observer: model artifact (default: the packaged one; --observer needs one "
+                        "with an observer, see 'bench observer')")
     p.add_argument("--data", type=Path, default=None,
-                   help="--budget: dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
+                   help="--budget, --observer: dataset CSV (default: the 40 °C validation run in out/data, "
+                        "generated if missing)")
     add_data_arguments(p)
     add_output_flags(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.budget and args.observer:
+        raise UsageError("--budget and --observer are two reports; ask for one at a time")
     if args.budget:
         return run_budget(args)
+    if args.observer:
+        return run_observer(args)
     if args.model is not None or args.data is not None or args.mapping is not None:
-        raise UsageError("--model, --data and --mapping belong to --budget")
+        raise UsageError("--model, --data and --mapping belong to --budget or --observer")
     try:
         params = parameter_set(args.params)
     except KeyError as exc:
@@ -112,4 +122,41 @@ def run_budget(args: argparse.Namespace) -> int:
             label = {"all": "all parts", "target": "the target"}.get(r.part, r.part)
             print(f"{label:13} " + " ".join(f"{r.max_abs_C[n]:10.2e}" for n in ("yoke", "winding", "tooth", "magnet")))
         print(f"all parts vs the target's own float32 code: {info['all_vs_target_max_abs_C']:.2e} °C")
+    return 0
+
+
+def run_observer(args: argparse.Namespace) -> int:
+    import sys
+
+    from bench.commands.common import data_options
+    from bench.model.default import default_artifact_path
+    from bench.model.observer_eval import form_comparison
+    from bench.run_inputs import load_data, load_model
+    from target_sim.observer import has_observer
+
+    artifact, model_path = load_model(args.model or default_artifact_path())
+    if not has_observer(artifact):
+        raise BenchError(f"{model_path} has no observer; add one with 'bench observer --model {model_path}' and "
+                         "pass the artifact it writes with --model")
+    mapping, period = data_options(args)
+    dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
+    say = None if (args.quiet or args.json) else (lambda msg: print(msg, file=sys.stderr))
+    started = time.perf_counter()
+    rows = form_comparison(artifact, dataset, say=say)
+    deployed = artifact.content["observer"]["form"]
+    report = {"model": str(model_path), "sha256": artifact.sha256, "kind": artifact.kind,
+              "realization": artifact.realization, "dt": artifact.dt, "data": str(dataset.path),
+              "measured_node": artifact.content["observer"]["node"], "deployed_form": deployed,
+              "rows": [r.as_dict() for r in rows], "seconds": round(time.perf_counter() - started, 2)}
+    if args.json:
+        print_json(report)
+        return 0
+    print(f"observer of {model_path} ({artifact.kind}, {artifact.realization}, Δt {artifact.dt:g} s) on "
+          f"{dataset.path.name}, measuring the {report['measured_node']} node; float32 over the whole run, P in the "
+          "state coordinates")
+    print(f"{'form':13} {'min eig P':>11} {'max |P-Pᵀ|/|P|':>16} {'max|f32-f64| °C':>16} {'worst node':>10}")
+    for r in rows:
+        mark = " (deployed)" if r.form == deployed else ""
+        print(f"{r.form:13} {r.min_eigenvalue:11.3e} {r.max_symmetry_error:16.3e} {r.max_abs_f32_minus_f64_C:16.3e} "
+              f"{r.worst_node:>10}{mark}")
     return 0

@@ -18,10 +18,12 @@ Schema (one header line, comma-separated, one row per sample, no blank lines in 
 | i_d_A, i_q_A (optional) | A | 0.1 | -3000 .. 3000 |
 | u_d_V, u_q_V (optional) | V | 0.1 | -2000 .. 2000 |
 | yoke_C, tooth_C (optional) | °C | 0.1 | -40 .. 250 |
+| ntc_C (optional) | °C | 0.1 | -40 .. 250 |
 
 The optional columns are read when present: the d/q currents feed a motor whose loss model is "electrical"
-(bench.motor), the voltages are kept for the user's own use, and measured yoke and tooth temperatures are
-evaluated like winding and PM.
+(bench.motor), the voltages are kept for the user's own use, measured yoke and tooth temperatures are
+evaluated like winding and PM, and a stator NTC (ntc_C) is a sensor an observer may correct the model with
+(`bench observer --measure ntc_C`).
 
 pm_C is the PM reference, rotor_surface_C + 5 °C (paper section II-A). A user's file may carry either of the two;
 the loader then derives the other with the same 5 °C offset and records that in `Dataset.metadata["derived"]`.
@@ -96,6 +98,9 @@ OPTIONAL_SCHEMA: tuple[Column, ...] = (
     Column("u_q_V", "V", "voltage", 0.1, -2000.0, 2000.0, "q-axis stator voltage", "%.1f"),
     Column("yoke_C", "°C", "temperature", 0.1, -40.0, 250.0, "stator yoke temperature", "%.1f"),
     Column("tooth_C", "°C", "temperature", 0.1, -40.0, 250.0, "stator tooth temperature", "%.1f"),
+    Column("ntc_C", "°C", "temperature", 0.1, -40.0, 250.0,
+           "stator NTC temperature (a production sensor: end winding, with lag and offset; an observer's measurement)",
+           "%.1f"),
 )
 OPTIONAL_COLUMNS = tuple(c.name for c in OPTIONAL_SCHEMA)
 # the measured temperatures a model's output can be compared with, by model output index
@@ -254,6 +259,7 @@ class Dataset:
     u_q_V: np.ndarray | None = None
     yoke_C: np.ndarray | None = None
     tooth_C: np.ndarray | None = None
+    ntc_C: np.ndarray | None = None
 
     def has(self, name: str) -> bool:
         """Whether the file had (or the loader derived) this column; the required ones always."""

@@ -51,6 +51,50 @@ def identity_sigmoid(scale_w) -> np.ndarray:
 # No fastmath (it would let LLVM reorder sums and fuse multiply-adds by CPU), and exp from portable (glibc's
 # has an FMA variant): the kernel's results are the same bits on every x86-64 CPU and at any thread count.
 @numba.njit(cache=True, fastmath=False)
+def model_step(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, k, x, x_new, y, u,
+               gains, use_sigmoid):
+    """Model step k in place: x <- A x + B u with u from the losses and the sources at the previous estimate y,
+    then y = C x; `gains` receives (g_tm, g_wm, g_ma, g_cy) of the step (an observer's source Jacobian)."""
+    # losses at the previous winding estimate (eqs. 3-8)
+    factor = 1.0 + alpha_cu * (y[1] - copper_ref)
+    i_ratio = lut[k, 4] / i_max
+    k_s = theta[0] + theta[1] * i_ratio + theta[2] * ratio[k] + theta[3] * i_ratio * ratio[k]
+    u[0] = k_s * lut[k, 2]
+    u[1] = lut[k, 0] * factor + lut[k, 1] / factor
+    u[2] = (1.0 - k_s) * lut[k, 2]
+    u[3] = lut[k, 3]
+    if use_sigmoid:  # sigmoid input nonlinearity on normalized losses (eqs. 28-30)
+        for i in range(4):
+            v = u[i] / sig[0, i]
+            s = sig[3, i] / (1.0 + portable.exp(-(sig[1, i] * v + sig[2, i]))) + sig[4, i] * v + sig[5, i]
+            u[i] = s * sig[0, i]
+    # temperature sources from the previous estimate (eqs. 9-18)
+    g_wm = theta[4] * portable.exp(-ratio[k] / theta[5]) / theta[6]
+    g_tm = theta[7] * portable.exp(-ratio[k] / theta[8]) / theta[9]
+    g_ma = theta[10] * portable.exp(-ratio[k] / theta[11]) / theta[12]
+    g_cy = theta[13] * (coolant[k] - 40.0)
+    gains[0], gains[1], gains[2], gains[3] = g_tm, g_wm, g_ma, g_cy
+    u[4] = coolant[k] + g_cy * (y[0] - coolant[k]) / (1.0 + g_cy)
+    u[5] = ambient[k] + g_ma * (y[3] - ambient[k]) / (1.0 + g_ma)
+    u[6] = (y[3] + g_tm * y[2]) / (1.0 + g_tm)
+    u[7] = (y[1] + g_wm * y[3]) / (1.0 + g_wm)
+    for i in range(4):  # x <- A x + B u, y = C x, without allocating
+        acc = 0.0
+        for j in range(4):
+            acc += a[i, j] * x[j]
+        for j in range(8):
+            acc += b[i, j] * u[j]
+        x_new[i] = acc
+    for i in range(4):
+        x[i] = x_new[i]
+    for i in range(4):
+        acc = 0.0
+        for j in range(4):
+            acc += c[i, j] * x[j]
+        y[i] = acc
+
+
+@numba.njit(cache=True, fastmath=False)
 def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w,
                ref_m, traj, keep, use_sigmoid):
     n_steps = ratio.shape[0]
@@ -58,49 +102,15 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
     x_new = np.zeros(4)
     y = y0.copy()
     u = np.empty(8)
+    gains = np.empty(4)
     for i in range(4):
         for j in range(4):
             x[i] += c_inv[i, j] * y0[j]
     sse_w = 0.0
     sse_m = 0.0
-    k0, k1, k2, k3 = theta[0], theta[1], theta[2], theta[3]
     for k in range(n_steps):
-        # losses at the previous winding estimate (eqs. 3-8)
-        factor = 1.0 + alpha_cu * (y[1] - copper_ref)
-        i_ratio = lut[k, 4] / i_max
-        k_s = k0 + k1 * i_ratio + k2 * ratio[k] + k3 * i_ratio * ratio[k]
-        u[0] = k_s * lut[k, 2]
-        u[1] = lut[k, 0] * factor + lut[k, 1] / factor
-        u[2] = (1.0 - k_s) * lut[k, 2]
-        u[3] = lut[k, 3]
-        if use_sigmoid:  # sigmoid input nonlinearity on normalized losses (eqs. 28-30)
-            for i in range(4):
-                v = u[i] / sig[0, i]
-                s = sig[3, i] / (1.0 + portable.exp(-(sig[1, i] * v + sig[2, i]))) + sig[4, i] * v + sig[5, i]
-                u[i] = s * sig[0, i]
-        # temperature sources from the previous estimate (eqs. 9-18)
-        g_wm = theta[4] * portable.exp(-ratio[k] / theta[5]) / theta[6]
-        g_tm = theta[7] * portable.exp(-ratio[k] / theta[8]) / theta[9]
-        g_ma = theta[10] * portable.exp(-ratio[k] / theta[11]) / theta[12]
-        g_cy = theta[13] * (coolant[k] - 40.0)
-        u[4] = coolant[k] + g_cy * (y[0] - coolant[k]) / (1.0 + g_cy)
-        u[5] = ambient[k] + g_ma * (y[3] - ambient[k]) / (1.0 + g_ma)
-        u[6] = (y[3] + g_tm * y[2]) / (1.0 + g_tm)
-        u[7] = (y[1] + g_wm * y[3]) / (1.0 + g_wm)
-        for i in range(4):  # x <- A x + B u, y = C x, without allocating
-            acc = 0.0
-            for j in range(4):
-                acc += a[i, j] * x[j]
-            for j in range(8):
-                acc += b[i, j] * u[j]
-            x_new[i] = acc
-        for i in range(4):
-            x[i] = x_new[i]
-        for i in range(4):
-            acc = 0.0
-            for j in range(4):
-                acc += c[i, j] * x[j]
-            y[i] = acc
+        model_step(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, k, x, x_new, y,
+                   u, gains, use_sigmoid)
         if keep:
             for i in range(4):
                 traj[k, i] = y[i]

@@ -180,6 +180,21 @@ def render_artifact_schema() -> str:
                 shape = shapes.get(keys)
                 lines.append(f"| {_keys(keys)} | {'scalar' if not shape else list(shape)} |")
             lines.append("")
+    from target_sim.observer import OBSERVER_FORMS
+
+    lines += ["", f"### Observer (optional; `observer`, version {artifact.OBSERVER_VERSION})", "",
+              f"An artifact of a kind with a linear block may carry a Kalman observer (`target_sim.observer`); it is "
+              f"then written as version {artifact.OBSERVER_VERSION}, and one without an observer as version 2. "
+              f"`observer.node` names the measured output ({', '.join(f'`{o}`' for o in artifact.OUTPUTS)}), "
+              "`observer.column` the dataset column of the sensor, `observer.lag_s` its time constant (recorded), "
+              "`observer.form` the covariance form the target deploys. The loader checks R > 0, Q symmetric positive "
+              "semidefinite, P0 and P_ss symmetric positive definite and the per-node process noise non-negative.",
+              "", "| field | shape |", "|---|---|"]
+    for key, shape in artifact.OBSERVER_ARRAYS.items():
+        lines.append(f"| {_keys(('observer', key))} | {'scalar' if not shape else list(shape)} |")
+    lines += ["", "| form | summary |", "|---|---|"]
+    for name, form in OBSERVER_FORMS.items():
+        lines.append(f"| `{name}` | {_cell(form.summary)} |")
     lines += ["", "### Realizations (`realization`, `target_sim.kinds.REALIZATIONS`)", "",
               "| realization | form | summary |", "|---|---|---|"]
     for name, realization in REALIZATIONS.items():

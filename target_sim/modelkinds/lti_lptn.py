@@ -35,6 +35,7 @@ class LinearBlockPart:
         self.reference = arr("linear_block", "reference_C")[()] if self.delta else est.f(0.0)
         self.a, self.b = arr("linear_block", "A"), arr("linear_block", "B")
         self.c, self.c_inv = arr("linear_block", "C"), arr("linear_block", "C_inv")
+        self.gains = self.source_gains(0.0, COOLANT_REFERENCE_C)   # until the first step
 
     def reset(self, y: np.ndarray) -> np.ndarray:
         """x0 = C^-1 y0, delta: C^-1 (y0 - r) (C: fw_reset)."""
@@ -45,14 +46,38 @@ class LinearBlockPart:
         y = matvec(self.c, x)
         return y + self.reference if self.delta else y
 
-    def temperature_sources(self, speed, coolant, ambient) -> np.ndarray:
-        """[ϑ_cv, ϑ_av, ϑ_a1, ϑ_a2] of eqs. 9-18 from the estimator's previous estimate (C: temperature_sources)."""
+    def source_gains(self, speed, coolant) -> tuple:
+        """(g_tm, g_wm, g_ma, g_cy): R_xx1 / a_xx of eq. 15 at the speed and R_cy01 / R_cy0 of eq. 16 at the
+        coolant temperature, what the sources weigh the previous estimate with."""
         est = self.est
-        p, y, f, one = est.p, est.y, est.f, est.one
+        f = est.f
         n_ratio = f(speed) / est.speed_max
-        coolant, ambient = f(coolant), f(ambient)
         g_tm, g_wm, g_ma = (est.conv_r0 * est.convection(n_ratio)) / est.conv_a    # R_xx1 / a_xx
-        g_cy = p["alpha_cy"] * (coolant - f(COOLANT_REFERENCE_C))  # R_cy01 / R_cy0 (eq. 16)
+        g_cy = est.p["alpha_cy"] * (f(coolant) - f(COOLANT_REFERENCE_C))  # R_cy01 / R_cy0 (eq. 16)
+        return g_tm, g_wm, g_ma, g_cy
+
+    def source_jacobian(self) -> np.ndarray:
+        """d[ϑ_cv, ϑ_av, ϑ_a1, ϑ_a2]/d[yoke, winding, tooth, magnet] at the last step's gains: the sources are
+        linear in the previous estimate, so the block's one-step map is x <- (A + B_s G C) x + ... exactly (B_s:
+        B's source columns). An observer propagates its covariance with that map (C: source_jacobian)."""
+        g_tm, g_wm, g_ma, g_cy = self.gains
+        one, zero = self.est.one, self.est.f(0.0)
+        jac = np.full((4, 4), zero, dtype=self.est.f)
+        jac[0, 0] = g_cy / (one + g_cy)
+        jac[1, 3] = g_ma / (one + g_ma)
+        jac[2, 2] = g_tm / (one + g_tm)
+        jac[2, 3] = one / (one + g_tm)
+        jac[3, 1] = one / (one + g_wm)
+        jac[3, 3] = g_wm / (one + g_wm)
+        return jac
+
+    def temperature_sources(self, speed, coolant, ambient) -> np.ndarray:
+        """[ϑ_cv, ϑ_av, ϑ_a1, ϑ_a2] of eqs. 9-18 from the estimator's previous estimate (C: temperature_sources);
+        keeps the gains for `source_jacobian`."""
+        est = self.est
+        y, f, one = est.y, est.f, est.one
+        coolant, ambient = f(coolant), f(ambient)
+        self.gains = g_tm, g_wm, g_ma, g_cy = self.source_gains(speed, coolant)
         th_y, th_w, th_t, th_m = y
         return np.array([
             coolant + (g_cy * (th_y - coolant)) / (one + g_cy),

@@ -171,7 +171,7 @@ def bad_artifact(material, variant: str) -> Path:
         assert edited != text
         path.write_text(edited)
     elif variant == "schema":
-        path.write_text(json.dumps({**content, "schema_version": 3}))
+        path.write_text(json.dumps({**content, "schema_version": 4}))
     elif variant == "shape":  # hand-edited and resealed: the checksum is right, the matrix is not
         content["linear_block"]["A"] = encode_array(np.eye(3))
         path.write_text(dumps(content))
@@ -194,7 +194,7 @@ ARTIFACT_CASES = {
     "truncated": ("is not valid JSON", REBUILD),
     "garbage": ("is not UTF-8 JSON text", REBUILD),
     "edited": ("checksum does not match", REBUILD),
-    "schema": ("schema version 3 is not supported", REBUILD),
+    "schema": ("schema version 4 is not supported", REBUILD),
     "shape": ("linear_block.A has shape [3, 3]", REBUILD),
     "nested": ("absurd numbers or nesting", REBUILD),
     "bignum": ("absurd numbers or nesting", REBUILD),

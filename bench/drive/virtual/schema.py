@@ -19,9 +19,12 @@ Schema of `virtual_plant` (version 1; every key required unless marked optional)
     [vehicle]                               # bench.drive.vehicle.VehicleSpec's fields (cycles -> torque, speed)
     [stand]                                 # coolant conditioning and test-cell air (bench.drive.stand.StandSpec)
     [[columns]]                             # the output columns, in file order
-    name, signal (torque, speed, i_d, i_q, u_d, u_q, coolant, ambient, winding, yoke, tooth, magnet),
+    name, signal (torque, speed, i_d, i_q, u_d, u_q, coolant, ambient, winding, yoke, tooth, magnet, ntc),
     unit (any unit bench.drive.dataset's loader converts for that quantity), resolution, noise (1 σ, in the
-    column's unit), gradient (optional, winding only: the sensor reads ϑ_w + gradient·(ϑ_w - ϑ_y))
+    column's unit), gradient (optional, winding and ntc only: the sensor reads ϑ_w + gradient·(ϑ_w - ϑ_y)),
+    lag_s (optional, temperatures: a first-order sensor lag), offset (optional, temperatures: added to the reading,
+    in the column's unit); signal "ntc" is a stator NTC on the end winding (the winding node, through gradient,
+    lag_s and offset), written to the dataset column ntc_C
     [[profiles]]                            # the measurement runs
     name, role ("train" or "validate": a suggestion), coolant_C (set point at the start; the machine starts
     soaked at it), phases: a list of
@@ -178,9 +181,13 @@ def _columns(c: Checker, table: dict) -> tuple[OutputColumn, ...]:
         resolution = c.number(item, "resolution", f"{key}.", positive=True, high=100.0)
         noise = c.number(item, "noise", f"{key}.", low=0.0, high=1000.0)
         gradient = c.number(item, "gradient", f"{key}.", low=-1.0, high=1.0, default=0.0)
-        if gradient and signal != "winding":
-            c.fail(f"{key}.gradient", "applies to winding sensors only")
-        out.append(OutputColumn(name, signal, unit, resolution, noise, gradient))
+        if gradient and signal not in ("winding", "ntc"):
+            c.fail(f"{key}.gradient", "applies to winding and NTC sensors only")
+        lag = c.number(item, "lag_s", f"{key}.", low=0.0, high=3600.0, default=0.0)
+        offset = c.number(item, "offset", f"{key}.", low=-50.0, high=50.0, default=0.0)
+        if (lag or offset) and quantity != "temperature":
+            c.fail(f"{key}.{'lag_s' if lag else 'offset'}", "applies to temperature sensors only")
+        out.append(OutputColumn(name, signal, unit, resolution, noise, gradient, lag, offset))
     present = {col.signal for col in out}
     missing = [s for s in REQUIRED_SIGNALS if s not in present]
     if missing:

@@ -21,7 +21,8 @@ The physics (`VirtualPlant.simulate`):
 - stand: the coolant inlet follows its set point through a first-order lag (coolant_lag_s), rises by
   coolant_gain_K_per_kW times the lagged nominal losses and wanders (AR(1)); the test-cell air likewise.
 - initial state: every node at the profile's first coolant set point (the machine soaked).
-- sensors: each column is the true signal at the sample time, converted to its unit, plus Gaussian noise
+- sensors: each column is the true signal at the sample time (a stator NTC: the winding node moved toward the yoke
+  by its gradient, through a first-order lag of lag_s, plus its offset), converted to its unit, plus Gaussian noise
   (none on speed at standstill), rounded to its resolution. One numpy Generator per profile and purpose, from
   SeedSequence([seed, profile number]), so a seed reproduces every byte.
 """
@@ -50,7 +51,9 @@ from bench.thermal.parameters import LptnParameters
 # output signal -> the schema column whose quantity (and so unit list) it has
 SIGNALS = {"torque": "torque_Nm", "speed": "speed_rpm", "i_d": "i_d_A", "i_q": "i_q_A", "u_d": "u_d_V",
            "u_q": "u_q_V", "coolant": "coolant_C", "ambient": "ambient_C", "winding": "winding_C",
-           "yoke": "yoke_C", "tooth": "tooth_C", "magnet": "pm_C"}
+           "yoke": "yoke_C", "tooth": "tooth_C", "magnet": "pm_C", "ntc": "ntc_C"}
+# the node a sensor signal sees (the stator NTC sits on the end winding: the winding node, with a gradient)
+SENSED_NODE = {"ntc": "winding"}
 FLUX_PROBE_K = 100.0   # currents are computed at ϑ_ref and ϑ_ref + this, and interpolated linearly in ϑ_m
 
 
@@ -71,6 +74,8 @@ class OutputColumn:
     resolution: float
     noise: float
     gradient: float = 0.0
+    lag_s: float = 0.0      # first-order sensor lag (temperature sensors)
+    offset: float = 0.0     # added to the reading, in the column's unit (temperature sensors)
 
     @property
     def decimals(self) -> int:
@@ -264,10 +269,12 @@ class VirtualPlant:
         """One noise block per column, in file order; noise and rounding in the column's unit."""
         out = {}
         for col in self.columns:
-            x = np.asarray(truth[col.signal], dtype=float)
+            x = np.asarray(truth[SENSED_NODE.get(col.signal, col.signal)], dtype=float)
             if col.gradient:
                 x = x + col.gradient * (x - truth["yoke"])
-            x = col.from_internal(x)
+            if col.lag_s:
+                x = first_order_lag(x, self.sample_period_s, col.lag_s)
+            x = col.from_internal(x) + col.offset
             noise = rng.standard_normal(x.shape) * col.noise
             if col.signal == "speed":
                 noise = np.where(truth["speed"] != 0, noise, 0.0)
@@ -281,6 +288,16 @@ class VirtualPlant:
         out.write(",".join(names) + "\n")
         np.savetxt(out, np.column_stack([measured[n] for n in names]), fmt=fmt, delimiter=",", newline="\n")
         return out.getvalue().encode("ascii")
+
+
+def first_order_lag(x: np.ndarray, period_s: float, tau_s: float) -> np.ndarray:
+    """A sensor with time constant tau_s sampled every period_s, starting settled at x[0]: y_k = y_(k-1) +
+    (1 - exp(-T/τ))·(x_k - y_(k-1)) (exact for an input held over each sample period)."""
+    from scipy.signal import lfilter
+
+    a = math.exp(-period_s / tau_s)
+    y, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]])
+    return y
 
 
 @dataclass(frozen=True, eq=False)

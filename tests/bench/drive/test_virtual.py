@@ -243,3 +243,29 @@ def test_bench_data_with_a_motor(tmp_path, capsys):
     assert "has no profile 'long'" in capsys.readouterr().err
     assert main(["data", "--motor", str(path), "--coolant", "20", "--out", str(out)]) == 2
     assert main(["data", "--profiles", "short", "--out", str(out)]) == 2
+
+
+def test_the_stator_ntc_sees_the_end_winding_late_and_offset(short_run):
+    """stator_ntc: the winding node 12 % toward the yoke, a 25 s lag, +0.8 K: while the winding heats up the NTC
+    reads below it by about rate × lag, and in the mean it is offset from the gradient-moved winding by +0.8 K."""
+    truth, ntc = short_run.truth, short_run.measured["stator_ntc"]
+    end_winding = truth["winding"] - 0.12 * (truth["winding"] - truth["yoke"])
+    rate = np.gradient(end_winding, short_run.time_s)
+    heating = rate > 0.02                                     # K/s, the first minutes at 100 Nm
+    lagged = ntc[heating] - 0.8 - end_winding[heating]
+    assert np.mean(lagged) == pytest.approx(-25.0 * np.mean(rate[heating]), rel=0.25)
+    # an exact 25 s first-order lag of the end winding, +0.8 K, leaves only the 0.2 K noise and 0.1 K rounding
+    a = np.exp(-1.0 / 25.0)
+    model = np.empty_like(end_winding)
+    model[0] = end_winding[0]
+    for k in range(1, len(model)):
+        model[k] = a * model[k - 1] + (1 - a) * end_winding[k]
+    residual = ntc - (model + 0.8)
+    assert abs(np.mean(residual)) < 0.02 and np.std(residual) == pytest.approx(np.hypot(0.2, 0.1 / 12 ** 0.5), rel=0.1)
+
+
+def test_lag_and_offset_belong_to_temperature_sensors():
+    content = short_dict()
+    content["virtual_plant"]["columns"][0]["lag_s"] = 5      # u_q: a voltage
+    with pytest.raises(VirtualPlantError, match=r"columns\[0\].lag_s applies to temperature sensors only"):
+        virtual_plant(motor_from_dict(content))

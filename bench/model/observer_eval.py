@@ -1,0 +1,135 @@
+"""The observer on data: open loop vs observer per node, the recovery from a wrong initial magnet temperature, and
+the float32 comparison of the covariance forms (`bench evaluate`, `bench numerics --observer`).
+
+Every float32 figure comes from the target's own code (`target_sim.model.run_offline`, `target_sim.observer`);
+the float64 reference is `bench.thermal.kalman` through `bench.model.observer.reference_run`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.drive.dataset import Dataset
+from bench.model.artifact_eval import artifact_drive
+from bench.model.fileeval import OUTPUT_INDEX, measured_nodes
+from bench.model.metrics import error_metrics
+from bench.model.observer import measurement_of, reference_run
+from bench.model.runs import initial_temperatures
+from target_sim.artifact import OUTPUTS, ModelArtifact
+from target_sim.model import run_offline
+from target_sim.observer import OBSERVER_FORMS, run_observer_offline
+
+RECOVERY_OFFSETS_K = (30.0, -30.0)
+RECOVERY_BAND_K = 2.0
+MAGNET = OUTPUTS.index("magnet")
+
+
+@dataclass(frozen=True)
+class FormRow:
+    """One covariance form over a whole run in float32 against the float64 filter."""
+
+    form: str
+    min_eigenvalue: float          # smallest eigenvalue of (P + Pᵀ)/2 over the run (state coordinates)
+    max_symmetry_error: float      # max over the run of max|P - Pᵀ| / max|P|
+    max_abs_f32_minus_f64_C: float
+    worst_node: str
+    finite: bool
+
+    def as_dict(self) -> dict:
+        return {"form": self.form, "min_eigenvalue": self.min_eigenvalue,
+                "max_symmetry_error": self.max_symmetry_error, "max_abs_f32_minus_f64_C": self.max_abs_f32_minus_f64_C,
+                "worst_node": self.worst_node, "finite": self.finite}
+
+
+def form_comparison(artifact: ModelArtifact, dataset: Dataset, forms: Sequence[str] | None = None,
+                    say: Callable[[str], None] | None = None) -> list[FormRow]:
+    """Each form of the artifact's observer over the whole file in float32, against the float64 filter (the
+    steady-state gain, another filter, against the same code in float64: `target_sim.observer` with dtype
+    float64, which follows the float64 filter within 1e-4 °C where both run the same filter)."""
+    data, reference = reference_run(artifact, dataset)
+    drive = artifact_drive(artifact, dataset)
+    z = dataset.column(measurement_of(artifact).column)
+    rows = []
+    for form in forms or OBSERVER_FORMS.names():
+        if say:
+            say(f"observer: the {form} form in float32")
+        if OBSERVER_FORMS[form].propagates:
+            y64 = reference.estimates[0]
+        else:
+            y64 = run_observer_offline(artifact, drive, z, data.run.initial, form, dtype=np.float64).outputs
+        with np.errstate(all="ignore"):
+            run = run_observer_offline(artifact, drive, z, data.run.initial, form, keep_covariance=True)
+            p = run.covariances
+            scale = np.maximum(np.max(np.abs(p), axis=(1, 2)), np.finfo(float).tiny)
+            asym = float(np.max(np.max(np.abs(p - np.transpose(p, (0, 2, 1))), axis=(1, 2)) / scale))
+            finite = bool(np.all(np.isfinite(p)) and np.all(np.isfinite(run.outputs)))
+            low = float(np.min(np.linalg.eigvalsh(0.5 * (p + np.transpose(p, (0, 2, 1)))))) if finite else float("nan")
+            diff = np.abs(run.outputs.astype(np.float64) - y64[: len(run.outputs)])
+        worst = int(np.argmax(np.nanmax(diff, axis=0))) if finite else 0
+        rows.append(FormRow(form, low, asym, float(np.max(diff)) if finite else float("inf"), OUTPUTS[worst], finite))
+    return rows
+
+
+def recovery_time_s(error: np.ndarray, step_time_s: np.ndarray, band: float = RECOVERY_BAND_K) -> float:
+    """Time from the start until |error| stays within the band (0 if it always is; inf if it never settles)."""
+    outside = np.nonzero(~(np.abs(error) <= band))[0]
+    if not len(outside):
+        return 0.0
+    if outside[-1] == len(error) - 1:
+        return float("inf")
+    return float(step_time_s[outside[-1] + 1] - (step_time_s[0] - (step_time_s[1] - step_time_s[0])))
+
+
+@dataclass(frozen=True)
+class ObserverFileResult:
+    name: str
+    measured_node: str
+    nodes: dict            # node -> {"open_loop": metrics, "observer": metrics}
+    recovery: list         # [{offset_K, open_loop_s, observer_s}]
+    max_abs_f32_minus_f64_C: float
+
+    def as_dict(self) -> dict:
+        return {"file": self.name, "measured_node": self.measured_node, "nodes": self.nodes,
+                "recovery": self.recovery, "max_abs_f32_minus_f64_C": self.max_abs_f32_minus_f64_C}
+
+
+def evaluate_observer(artifact: ModelArtifact, dataset: Dataset, offsets: Sequence[float] = RECOVERY_OFFSETS_K,
+                      say: Callable[[str], None] | None = None) -> ObserverFileResult:
+    """Open loop and observer (its deployed form), both float32, per measured node; then each initial magnet
+    offset: the time until the magnet error stays within `RECOVERY_BAND_K`."""
+    data, reference = reference_run(artifact, dataset)
+    run = data.run
+    drive = artifact_drive(artifact, dataset)
+    z = dataset.column(measurement_of(artifact).column)
+    references = {n: np.interp(run.step_time_s, dataset.time_s, dataset.column(c))
+                  for n, c in (("winding", "winding_C"), ("pm", "pm_C"), ("yoke", "yoke_C"), ("tooth", "tooth_C"))
+                  if n in measured_nodes(dataset)}
+    initial = initial_temperatures(dataset)
+
+    def both(start):
+        _, open_loop = run_offline(artifact, drive, start)
+        observed = run_observer_offline(artifact, drive, z, start).outputs
+        return open_loop.astype(np.float64), observed.astype(np.float64)
+
+    if say:
+        say(f"observer: {dataset.name}, open loop and observer")
+    open_loop, observed = both(initial)
+    nodes = {node: {"open_loop": error_metrics(open_loop[:, OUTPUT_INDEX[node]], ref),
+                    "observer": error_metrics(observed[:, OUTPUT_INDEX[node]], ref)}
+             for node, ref in references.items()}
+    recovery = []
+    for offset in offsets:
+        if say:
+            say(f"observer: {dataset.name}, magnet started {offset:+g} K off")
+        start = initial.copy()
+        start[MAGNET] += offset
+        shifted_open, shifted_obs = both(start)
+        recovery.append({"offset_K": float(offset),
+                         "open_loop_s": recovery_time_s(shifted_open[:, MAGNET] - references["pm"], run.step_time_s),
+                         "observer_s": recovery_time_s(shifted_obs[:, MAGNET] - references["pm"], run.step_time_s)})
+    diff = float(np.max(np.abs(observed - reference.estimates[0][: len(observed)])))
+    node = artifact.content["observer"]["node"]
+    return ObserverFileResult(dataset.name, "pm" if node == "magnet" else node, nodes, recovery, diff)

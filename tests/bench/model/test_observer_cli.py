@@ -1,0 +1,55 @@
+"""`bench observer`, `bench numerics --observer` and `bench evaluate` with an observer, end to end on a small file:
+the artifact written is version 3 with the deployed form, the numerics rows name every form, the evaluation says
+which node is measured and gives the recovery times; a model without an observer is one sentence."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from bench.cli import main
+from target_sim.artifact import load_artifact
+from target_sim.observer import OBSERVER_FORMS
+
+
+@pytest.fixture(scope="module")
+def observer_artifact(tmp_path_factory, small_dataset):
+    out = tmp_path_factory.mktemp("observer") / "observer.json"
+    assert main(["observer", "--train", str(small_dataset), "--criterion", "likelihood", "--evaluations", "8",
+                 "--form", "joseph", "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_bench_observer_writes_a_version_3_artifact(observer_artifact):
+    artifact = load_artifact(observer_artifact)
+    section = artifact.content["observer"]
+    assert artifact.content["schema_version"] == 3 and section["form"] == "joseph" and section["node"] == "winding"
+    assert section["tuning"]["evaluations"] <= 9 and section["tuning"]["R_C2"] > 0
+
+
+def test_numerics_observer_reports_every_form(observer_artifact, small_dataset, capsys):
+    assert main(["numerics", "--observer", "--model", str(observer_artifact), "--data", str(small_dataset),
+                 "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [r["form"] for r in report["rows"]] == list(OBSERVER_FORMS.names())
+    assert report["deployed_form"] == "joseph" and all(r["finite"] for r in report["rows"])
+    ud = next(r for r in report["rows"] if r["form"] == "ud")
+    assert ud["max_symmetry_error"] == 0.0 and ud["min_eigenvalue"] > 0
+
+
+def test_evaluate_names_the_measured_node_and_the_recovery(observer_artifact, small_dataset, capsys):
+    assert main(["evaluate", "--model", str(observer_artifact), "--data", str(small_dataset), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "winding (measured)" in out and "magnet started +30 K off: within 2 K after" in out
+    assert main(["evaluate", "--model", str(observer_artifact), "--data", str(small_dataset), "--json"]) == 0
+    observer = json.loads(capsys.readouterr().out)["models"][0]["observer"]
+    file = observer["files"][0]
+    assert file["measured_node"] == "winding" and set(file["nodes"]) == {"winding", "pm"}
+    assert [r["offset_K"] for r in file["recovery"]] == [30.0, -30.0]
+
+
+def test_numerics_observer_without_an_observer_is_one_sentence(small_dataset, capsys):
+    assert main(["numerics", "--observer", "--data", str(small_dataset)]) == 1
+    err = capsys.readouterr().err
+    assert "has no observer; add one with 'bench observer" in err and err.count("\n") == 1
