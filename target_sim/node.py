@@ -436,6 +436,8 @@ def target_on_channel(bus: can.BusABC, listen_s: float = IN_USE_LISTEN_S) -> tup
     heard = first_heard(bus, target_frame_ids(), listen_s, prefer=status_id)  # a heartbeat names the model
     if heard is None:
         return None
+    if heard.arbitration_id != status_id:   # a target is there: wait one heartbeat period for it to name its model
+        heard = first_heard(bus, {status_id}, heartbeat_period_s_of_dbc() + listen_s) or heard
     try:
         model_id = int(decode_any(heard).signals["ModelId"]) if heard.arbitration_id == status_id else None
     except FrameError:
