@@ -422,7 +422,8 @@ def observer_ipm_table(record: Record) -> list[str]:
             f"(°C, float32, `{runs[0]['form']}` form, `--measure {sensor['column']} --offset {sensor['offset_C']:g} "
             f"--lag {sensor['lag_s']:g}`; \"never\": not within 2 K by the end of the profile. The observer's magnet "
             f"RMSE is worse than the open loop's in {worse} of {sum(len(r['files']) for r in runs)} cases; winding "
-            f"RMSE per profile open loop {open_winding}, {winding}. `bench identify` {_n(ipm['identify_s'], 1)} s, "
+            f"RMSE (profiles {', '.join(names)}): open loop {open_winding}; {winding}. "
+            f"`bench identify` {_n(ipm['identify_s'], 1)} s, "
             + ", ".join(f"`bench observer --criterion {r['criterion']}` {_n(r['observer_s'], 1)} s" for r in runs)
             + f"; measured {_date(record)}.)"]
 
@@ -439,8 +440,10 @@ def observer_forms_table(record: Record) -> list[str]:
     rows = []
     for r in numerics["rows"]:
         label = names.get(r["form"], r["form"]) + (" (deployed)" if r["form"] == numerics["deployed_form"] else "")
-        rows.append([label, f"{r['min_eigenvalue']:.4g}" if r["finite"] else "not finite", _e(r["max_symmetry_error"])
-                     if r["max_symmetry_error"] else "0", _e(r["max_abs_f32_minus_f64_C"])])
+        p = " (P_ss)" if r["form"] == "steady" else ""      # the steady gain keeps no covariance of its own
+        symmetry = _e(r["max_symmetry_error"]) if r["max_symmetry_error"] else "0"
+        rows.append([label, f"{r['min_eigenvalue']:.4g}{p}" if r["finite"] else "not finite", symmetry,
+                     _e(r["max_abs_f32_minus_f64_C"])])
     by = {r["form"]: r for r in numerics["rows"]}
     deployed = by.get(numerics["deployed_form"])
     ratios = [_closer(by[f]["max_abs_f32_minus_f64_C"] / deployed["max_abs_f32_minus_f64_C"], names[f])
