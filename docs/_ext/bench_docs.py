@@ -7,8 +7,8 @@
 * `_generated/artifact-schema.md` from `target_sim.artifact` (SCHEMA, SCHEMA_VERSION, READABLE_VERSIONS, the common
   fields) and the registries `target_sim.losses.LOSS_KINDS`, `target_sim.modelkinds.MODEL_KINDS` and
   `target_sim.kinds.REALIZATIONS` (each kind's own fields and shapes, as the loader asks them).
-* `_generated/results.md`, `table5.md` and `ipm-accuracy.md` from the benchmark records in `docs/results/`
-  (`results_page`).
+* `_generated/results.md`, `table5.md`, `ipm-accuracy.md` and the observer's `observer.md`, `observer-ipm.md` and
+  `observer-forms.md` from the benchmark records in `docs/results/` (`results_page`).
 
 The pages are written only when their text changes, so an unchanged contract does not rebuild them. `render_*` are
 plain functions, so a check (`docs/check_generated.py`) can call them without Sphinx.
@@ -208,7 +208,9 @@ def _results_pages() -> dict:
     import results_page
 
     return {"results.md": results_page.render_results, "table5.md": results_page.render_table5,
-            "ipm-accuracy.md": results_page.render_ipm}
+            "ipm-accuracy.md": results_page.render_ipm, "observer.md": results_page.render_observer,
+            "observer-ipm.md": results_page.render_observer_ipm,
+            "observer-forms.md": results_page.render_observer_forms}
 
 
 PAGES = {"protocol.md": render_protocol, "artifact-schema.md": render_artifact_schema, **_results_pages()}

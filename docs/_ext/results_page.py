@@ -330,10 +330,140 @@ def section_data(records: dict[str, list[Record]]) -> list[str]:
                     f"All three in {_n(f['total_s'], 2)} s (goal: under {f['goal_s']} s).", ""]
 
 
+def section_observer(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "observer")
+    lines = ["## Observer", ""]
+    if record is None:
+        return lines + _missing("bench_observer.py")
+    lines += [provenance(record), "", "The built-in motor, the winding thermocouple as the measurement "
+              "([method](method.md#closed-loop-the-observer-first-part)):", "", *observer_builtin_table(record),
+              "", "Covariance forms of the likelihood-tuned filter:", "", *observer_forms_table(record), ""]
+    if "ipm" in record["figures"]:
+        lines += ["The IPM example with its stator NTC:", "", *observer_ipm_table(record), ""]
+    return lines
+
+
+def _seconds(value: float | None) -> str:
+    """A recovery time as the pages write it: `never` when the magnet was not within the band by the end."""
+    return "never" if value is None else f"{_n(value)} s"
+
+
+def _rmse_max(metrics: dict) -> str:
+    return f"{_n(metrics['rmse_C'], 3)} / {_n(metrics['max_abs_C'], 2)}"
+
+
+def _recovery(file: dict, offset: float, which: str) -> str:
+    return next((_seconds(r[which]) for r in file["recovery"] if r["offset_K"] == offset), "–")
+
+
+def _sentence(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
+def _tuning(run: dict) -> str:
+    """A tuning criterion and what it found: Q per node (°C² per step) and R (°C²)."""
+    t = run["tuning"]
+    q = ", ".join(f"{node} {v:.2g}" for node, v in t["q_C2_per_step"].items())
+    default = " (default)" if run["criterion"] == "magnet" else ""
+    return f"`{run['criterion']}`{default}: q {q}; R {t['R_C2']:.2g}"
+
+
+def observer_builtin_table(record: Record) -> list[str]:
+    """Open loop against each tuning on the built-in motor's validation run: winding (the measured node), magnet,
+    and the time until a magnet started ±30 K off stays within 2 K."""
+    builtin = record["figures"]["builtin"]
+    runs = builtin["runs"]
+    first = runs[0]["files"][0]
+
+    def cells(f: dict, which: str) -> list[str]:
+        return [_rmse_max(f["nodes"]["winding"][which]), _rmse_max(f["nodes"]["pm"][which]),
+                _recovery(f, 30.0, f"{which}_s"), _recovery(f, -30.0, f"{which}_s")]
+
+    rows = [["open loop", *cells(first, "open_loop")]]
+    rows += [[_tuning(run), *cells(run["files"][0], "observer")] for run in runs]
+    by = {r["criterion"]: r["files"][0]["nodes"]["pm"] for r in runs}
+    notes = []
+    if "magnet" in by:
+        shift = abs(by["magnet"]["observer"]["rmse_C"] - by["magnet"]["open_loop"]["rmse_C"])
+        notes.append(f"the magnet-tuned observer's magnet RMSE is {_n(shift, 3)} °C from the open loop's")
+    if "likelihood" in by:
+        worst, open_worst = by["likelihood"]["observer"]["max_abs_C"], by["likelihood"]["open_loop"]["max_abs_C"]
+        notes.append(f"the likelihood-tuned one's magnet is off by up to {_n(worst, 1)} °C ({_n(worst / open_worst, 0)}"
+                     "× the open loop's largest error)")
+    timing = ", ".join(f"`{r['criterion']}` {_n(r['observer_s'], 1)} s" for r in runs)
+    return [*_table(["tuning", "winding RMSE / max (measured)", "magnet RMSE / max", "magnet +30 K: within 2 K after",
+                     "magnet −30 K"], rows),
+            f"(°C, float32, {first['measured_node']} measured by `{runs[0]['column']}`, `{runs[0]['form']}` form, on "
+            f"{builtin['validation']}; Q and R as tuned on the 20 and 60 °C runs. " + _sentence("; ".join(notes))
+            + f". `bench observer` took {timing}; measured {_date(record)}.)"]
+
+
+def observer_ipm_table(record: Record) -> list[str]:
+    """Open loop against each tuning on the IPM example's held-out profiles, the stator NTC as the measurement."""
+    ipm = record["figures"]["ipm"]
+    runs = ipm["runs"]
+    files = runs[0]["files"]
+    names = [Path(f["file"]).stem.removeprefix("profile_") for f in files]
+
+    def cells(per_file: list[dict], which: str) -> list[str]:
+        return ([_rmse_max(f["nodes"]["pm"][which]) for f in per_file]
+                + [" / ".join(_recovery(f, offset, f"{which}_s") for f in per_file) for offset in (30.0, -30.0)])
+
+    rows = [["open loop", *cells(files, "open_loop")]]
+    rows += [[_tuning(run), *cells(run["files"], "observer")] for run in runs]
+    worse = sum(f["nodes"]["pm"]["observer"]["rmse_C"] > f["nodes"]["pm"]["open_loop"]["rmse_C"]
+                for run in runs for f in run["files"])
+    winding = "; ".join(f"`{run['criterion']}` " + ", ".join(_n(f["nodes"]["winding"]["observer"]["rmse_C"], 2)
+                                                            for f in run["files"]) for run in runs)
+    open_winding = ", ".join(_n(f["nodes"]["winding"]["open_loop"]["rmse_C"], 2) for f in files)
+    sensor = ipm["sensor"]
+    return [*_table(["tuning", *(f"magnet RMSE / max, profile {n}" for n in names),
+                     f"+30 K within 2 K ({' / '.join(names)})", f"−30 K ({' / '.join(names)})"], rows),
+            f"(°C, float32, `{runs[0]['form']}` form, `--measure {sensor['column']} --offset {sensor['offset_C']:g} "
+            f"--lag {sensor['lag_s']:g}`; \"never\": not within 2 K by the end of the profile. The observer's magnet "
+            f"RMSE is worse than the open loop's in {worse} of {sum(len(r['files']) for r in runs)} cases; winding "
+            f"RMSE (profiles {', '.join(names)}): open loop {open_winding}; {winding}. "
+            f"`bench identify` {_n(ipm['identify_s'], 1)} s, "
+            + ", ".join(f"`bench observer --criterion {r['criterion']}` {_n(r['observer_s'], 1)} s" for r in runs)
+            + f"; measured {_date(record)}.)"]
+
+
+def _closer(ratio: float, form: str) -> str:
+    return f"{ratio:.0f}× closer than {form}" if ratio >= 1 else f"{1 / ratio:.0f}× further than {form}"
+
+
+def observer_forms_table(record: Record) -> list[str]:
+    """`bench numerics --observer`: each covariance form over the whole validation run in float32."""
+    numerics = record["figures"]["builtin"]["numerics"]
+    names = {"conventional": "conventional", "joseph": "Joseph", "ud": "UD (Bierman–Thornton)",
+             "steady": "steady-state gain"}
+    rows = []
+    for r in numerics["rows"]:
+        label = names.get(r["form"], r["form"]) + (" (deployed)" if r["form"] == numerics["deployed_form"] else "")
+        p = " (P_ss)" if r["form"] == "steady" else ""      # the steady gain keeps no covariance of its own
+        symmetry = _e(r["max_symmetry_error"]) if r["max_symmetry_error"] else "0"
+        rows.append([label, f"{r['min_eigenvalue']:.4g}{p}" if r["finite"] else "not finite", symmetry,
+                     _e(r["max_abs_f32_minus_f64_C"])])
+    by = {r["form"]: r for r in numerics["rows"]}
+    deployed = by.get(numerics["deployed_form"])
+    ratios = [_closer(by[f]["max_abs_f32_minus_f64_C"] / deployed["max_abs_f32_minus_f64_C"], names[f])
+              for f in ("conventional", "joseph") if f in by and deployed and f != deployed["form"]
+              and deployed["max_abs_f32_minus_f64_C"] > 0]
+    definite = all(r["finite"] and r["min_eigenvalue"] > 0 for r in numerics["rows"])
+    header = ["form", "smallest eigenvalue of P", "max \\|P − Pᵀ\\| / \\|P\\|", "max \\|f32 − f64\\| (°C)"]
+    return [*_table(header, rows),
+            f"(`{numerics['criterion']}`-tuned filter on {numerics['data']}, {numerics['realization']} realization, "
+            f"Δt {numerics['dt_s']:g} s; P in the state coordinates. "
+            + ("Every form kept P positive definite" if definite else "A form LOST definiteness")
+            + (f"; the deployed form follows the float64 filter {' and '.join(ratios)}" if ratios else "")
+            + f". {_n(numerics['seconds'], 1)} s; measured {_date(record)}.)"]
+
+
 SECTIONS: tuple[Callable[[dict[str, list[Record]]], list[str]], ...] = (
     section_accuracy, section_firmware, section_firmware_node, section_can, section_memory, section_soak,
-    section_campaigns, section_identify, section_data)
-BENCHMARKS = ("accuracy", "firmware", "firmware_node", "can", "memory", "soak", "campaign", "identify", "data")
+    section_campaigns, section_identify, section_data, section_observer)
+BENCHMARKS = ("accuracy", "firmware", "firmware_node", "can", "memory", "soak", "campaign", "identify", "data",
+              "observer")
 
 
 def render_results(records: dict[str, list[Record]] | None = None) -> str:
@@ -354,6 +484,22 @@ def render_ipm(records: dict[str, list[Record]] | None = None) -> str:
     if record is None or "ipm" not in record["figures"]:
         return "\n".join(_missing("bench_accuracy.py")) + "\n"
     return "\n".join(ipm_table(record)) + "\n"
+
+
+def _observer_fragment(table: Callable[[Record], list[str]], part: str | None = None) -> Callable[..., str]:
+    """A renderer of one observer table for the method page (the line saying how to measure it without a record)."""
+    def render(records: dict[str, list[Record]] | None = None) -> str:
+        record = _one(load_records() if records is None else records, "observer")
+        if record is None or (part and part not in record["figures"]):
+            return "\n".join(_missing("bench_observer.py")) + "\n"
+        return "\n".join(table(record)) + "\n"
+    render.__doc__ = table.__doc__
+    return render
+
+
+render_observer = _observer_fragment(observer_builtin_table)
+render_observer_ipm = _observer_fragment(observer_ipm_table, "ipm")
+render_observer_forms = _observer_fragment(observer_forms_table)
 
 
 # ---------------------------------------------------------------------------------------------- the README

@@ -71,3 +71,21 @@ def test_splicing_replaces_only_the_marked_block():
     assert out == f"# t\n\nbefore\n{results_page.README_BEGIN}\nnew\n{results_page.README_END}\nafter\n"
     with pytest.raises(ValueError):
         results_page.splice_readme("# no markers\n", "x")
+
+
+def test_the_observer_tables_come_from_the_record_and_change_with_it():
+    record = results_page.load_records()["observer"][0]
+    builtin = results_page.render_observer({"observer": [record]})
+    pm = record["figures"]["builtin"]["runs"][0]["files"][0]["nodes"]["pm"]["open_loop"]
+    assert "| open loop | " in builtin and f"{pm['rmse_C']:.3f} / {pm['max_abs_C']:.2f}" in builtin
+    changed = copy.deepcopy(record)
+    changed["figures"]["builtin"]["runs"][0]["files"][0]["nodes"]["pm"]["open_loop"]["rmse_C"] = 98.765
+    assert "98.765 / " in results_page.render_observer({"observer": [changed]})
+    forms = results_page.render_observer_forms({"observer": [record]})
+    for row in record["figures"]["builtin"]["numerics"]["rows"]:
+        assert results_page._e(row["max_abs_f32_minus_f64_C"]) in forms, row["form"]
+    assert "| open loop | " in results_page.render_observer_ipm({"observer": [record]})
+    del changed["figures"]["ipm"]
+    missing = "Not measured yet: `python tests/benchmarks/bench_observer.py`"
+    assert missing in results_page.render_observer_ipm({"observer": [changed]})
+    assert missing in results_page.render_observer({})

@@ -1,0 +1,158 @@
+"""Observer benchmark (prints figures; not a test): open loop against the Kalman observer, run as a user runs it.
+
+    python tests/benchmarks/bench_observer.py [--skip-ipm] [--work DIR]
+
+1. The built-in motor, packaged Hammerstein artifact, the winding thermocouple `winding_C` as the measurement:
+   `bench observer --criterion C --out M` for each tuning criterion (tuned on the 20 and 60 °C runs), then
+   `bench evaluate --model M --data out/data/cycle_coolant40.csv` (open loop and observer per node, float32, and
+   the time until a magnet started ±30 K off stays within 2 K), and `bench numerics --observer --model M` of the
+   likelihood-tuned filter (each covariance form over the whole 40 °C run in float32).
+2. The 60 kW IPM example (`docs/tutorials/own-motor.md`): `bench data --motor`, `bench identify` (the Hammerstein
+   model on profiles 1-8), then the observer measuring its stator NTC (`--measure ntc_C` with the offset and lag
+   of the motor file's `stator_ntc` sensor) tuned on profiles 1-8 with each criterion and evaluated on the
+   held-out profiles 9 and 10.
+
+Every figure comes from the commands' own `--json`; each command is timed. Writes its record
+(`tests/benchmarks/record.py`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+from bench_accuracy import HELD_OUT, IPM, bench  # noqa: E402
+from record import Record, add_record_arguments  # noqa: E402
+
+CRITERIA = ("magnet", "likelihood")
+BUILTIN_VALIDATION = "out/data/cycle_coolant40.csv"
+NUMERICS_CRITERION = "likelihood"      # the filter whose covariance forms the method page compares
+NTC_SENSOR = "stator_ntc"
+
+
+def _metrics(m: dict) -> dict:
+    return {"rmse_C": m["rmse"], "max_abs_C": m["max_abs"]}
+
+
+def observer_figures(evaluated: dict) -> dict:
+    """Per file of `bench evaluate`'s observer report: open loop and observer per node, the recovery times (None:
+    never within the band by the end of the file) and the observer's |float32 - float64|."""
+    (model,) = evaluated["models"]
+    obs = model["observer"]
+    return {"node": obs["node"], "column": obs["column"], "form": obs["form"],
+            "files": [{"file": Path(f["file"]).name, "measured_node": f["measured_node"],
+                       "nodes": {node: {"open_loop": _metrics(m["open_loop"]), "observer": _metrics(m["observer"])}
+                                 for node, m in f["nodes"].items()},
+                       "recovery": f["recovery"], "max_abs_f32_minus_f64_C": f["max_abs_f32_minus_f64_C"]}
+                      for f in obs["files"]]}
+
+
+def tuning_figures(tuned: dict) -> dict:
+    """What `bench observer` tuned: Q per node, R, the criterion's value and how many filter runs it took."""
+    return {"q_C2_per_step": tuned["q_C2_per_step"], "R_C2": tuned["R_C2"],
+            "criterion_value": tuned["criterion_value"], "evaluations": tuned["evaluations"],
+            "measurement": tuned["measurement"], "form": tuned["form"]}
+
+
+def tune_and_evaluate(work: Path, criterion: str, observer_args: list[str], evaluate_args: list[str],
+                      label: str) -> dict:
+    model = work / f"observer-{criterion}.json"
+    tuned, tune_s = bench("observer", *observer_args, "--criterion", criterion, "--out", str(model))
+    evaluated, evaluate_s = bench("evaluate", "--model", str(model), *evaluate_args)
+    figures = observer_figures(evaluated)
+    for f in figures["files"]:
+        pm = f["nodes"]["pm"]
+        times = ", ".join(f"{r['offset_K']:+g} K {_seconds(r['open_loop_s'])} -> {_seconds(r['observer_s'])}"
+                          for r in f["recovery"])
+        print(f"{label} {criterion:10} {f['file']}: magnet RMSE open loop {pm['open_loop']['rmse_C']:.3f}, observer "
+              f"{pm['observer']['rmse_C']:.3f} °C; within 2 K: {times}")
+    print(f"{label} {criterion:10}: bench observer {tune_s:.1f} s, bench evaluate {evaluate_s:.1f} s")
+    return {"criterion": criterion, "tuning": tuning_figures(tuned), "observer_s": round(tune_s, 1),
+            "evaluate_s": round(evaluate_s, 1), "model": model, **figures}
+
+
+def _seconds(value: float | None) -> str:
+    return "never" if value is None else f"{value:.0f} s"
+
+
+def _public(run: dict) -> dict:
+    return {k: v for k, v in run.items() if k != "model"}
+
+
+def builtin_motor(work: Path) -> dict:
+    runs = [tune_and_evaluate(work, c, [], ["--data", BUILTIN_VALIDATION], "built-in") for c in CRITERIA]
+    model = next(r["model"] for r in runs if r["criterion"] == NUMERICS_CRITERION)
+    forms, numerics_s = bench("numerics", "--observer", "--model", str(model))
+    for row in forms["rows"]:
+        print(f"built-in {row['form']:13}: min eig P {row['min_eigenvalue']:.4g}, max |P-Pᵀ|/|P| "
+              f"{row['max_symmetry_error']:.1e}, max |f32 - f64| {row['max_abs_f32_minus_f64_C']:.1e} °C")
+    return {"validation": Path(BUILTIN_VALIDATION).name, "runs": [_public(r) for r in runs],
+            "numerics": {"criterion": NUMERICS_CRITERION, "data": Path(forms["data"]).name,
+                         "realization": forms["realization"], "dt_s": forms["dt"],
+                         "deployed_form": forms["deployed_form"], "rows": forms["rows"],
+                         "seconds": round(numerics_s, 1)}}
+
+
+def ntc_sensor() -> dict:
+    """The IPM example's stator NTC as its motor file describes it (offset, lag)."""
+    motor = json.loads((IPM / "motor.json").read_text(encoding="utf-8"))
+    found = _named(motor, NTC_SENSOR)
+    if not found:
+        sys.exit(f"{IPM / 'motor.json'} has no sensor {NTC_SENSOR!r}")
+    return found[0]
+
+
+def _named(node, name: str) -> list[dict]:
+    """Every dict named `name` anywhere in the motor file (the sensors, wherever the file nests them)."""
+    if isinstance(node, dict):
+        return ([node] if node.get("name") == name else []) + [s for v in node.values() for s in _named(v, name)]
+    if isinstance(node, list):
+        return [s for v in node for s in _named(v, name)]
+    return []
+
+
+def ipm_example(work: Path) -> dict:
+    motor, mapping = str(IPM / "motor.json"), str(IPM / "mapping.json")
+    data = work / "ipm"
+    _, data_s = bench("data", "--motor", motor, "--out", str(data), "--quiet")
+    train = str(data / "profile_0[1-8].csv")
+    held_out = [str(data / f) for f in HELD_OUT]
+    _, identify_s = bench("identify", "--motor", motor, "--mapping", mapping, "--train", train,
+                          "--validate", *held_out, "--out", str(data / "model.json"))
+    sensor = ntc_sensor()
+    observer_args = ["--model", str(data / "model.json"), "--train", train, "--mapping", mapping,
+                     "--measure", "ntc_C", "--offset", f"{sensor['offset']:g}", "--lag", f"{sensor['lag_s']:g}"]
+    runs = [tune_and_evaluate(data, c, observer_args, ["--mapping", mapping, "--data", *held_out], "IPM")
+            for c in CRITERIA]
+    print(f"IPM example: bench data {data_s:.1f} s, bench identify {identify_s:.1f} s")
+    return {"held_out": list(HELD_OUT), "sensor": {"column": "ntc_C", "offset_C": sensor["offset"],
+                                                   "lag_s": sensor["lag_s"], "gradient": sensor.get("gradient")},
+            "data_s": round(data_s, 1), "identify_s": round(identify_s, 1), "runs": [_public(r) for r in runs]}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--skip-ipm", action="store_true", help="only the built-in motor")
+    parser.add_argument("--work", type=Path, default=None, help="keep the artifacts and the IPM example's files here")
+    add_record_arguments(parser)
+    args = parser.parse_args()
+    record = Record("observer", args, parameters={"ipm": not args.skip_ipm, "criteria": list(CRITERIA)})
+    print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
+    with tempfile.TemporaryDirectory(prefix="bench-observer-") as tmp:
+        work = (args.work or Path(tmp)).resolve()
+        work.mkdir(parents=True, exist_ok=True)
+        record.figures["builtin"] = builtin_motor(work)
+        if not args.skip_ipm:
+            record.figures["ipm"] = ipm_example(work)
+    record.write()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
