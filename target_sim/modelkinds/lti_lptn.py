@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from target_sim import costs
-from target_sim.fmath import matvec
+from target_sim.fmath import lanes, matvec
 from target_sim.kinds import REALIZATIONS, is_delta
 from target_sim.modelkinds import CArray, ModelKind, pole_text, register
 from target_sim.network import COOLANT_REFERENCE_C
@@ -51,7 +51,7 @@ class LinearBlockPart:
         p, y, f, one = est.p, est.y, est.f, est.one
         n_ratio = f(speed) / est.speed_max
         coolant, ambient = f(coolant), f(ambient)
-        g_tm, g_wm, g_ma = (est.conv_r0 * est.convection(n_ratio)) / est.conv_a    # R_xx1 / a_xx
+        g_tm, g_wm, g_ma = (lanes(est.conv_r0, n_ratio) * est.convection(n_ratio)) / lanes(est.conv_a, n_ratio)
         g_cy = p["alpha_cy"] * (coolant - f(COOLANT_REFERENCE_C))  # R_cy01 / R_cy0 (eq. 16)
         th_y, th_w, th_t, th_m = y
         return np.array([
