@@ -52,7 +52,8 @@ def spec(tmp_path) -> Path:
 
 
 def study(out: Path, spec: Path, data: Path, *extra: str, check: bool = True) -> dict:
-    result = run_cli("-m", "bench", "robustness", "--data", str(data), "--spec", str(spec), "--out", str(out), "--json", *extra)
+    result = run_cli("-m", "bench", "robustness", "--data", str(data), "--spec", str(spec), "--out", str(out),
+                     "--json", *extra)
     if check:
         assert result.returncode == 0, result.stderr
     return json.loads(result.stdout)
@@ -88,7 +89,8 @@ def test_a_bad_spec_is_one_sentence_and_nothing_is_written(tmp_path, small_datas
                        ("[study]\nseeds = 0\n", "seeds must be a whole number from 1")]:
         bad.write_text(text)
         out = tmp_path / "out"
-        result = run_cli("-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(bad), "--out", str(out))
+        result = run_cli("-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(bad),
+                         "--out", str(out))
         assert result.returncode == 2, result.stderr
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and said in lines[0] and "Traceback" not in result.stderr
