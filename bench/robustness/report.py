@@ -166,10 +166,8 @@ def build_report(out: Path) -> dict:
 
 def write_report(out: Path) -> Path:
     """OUT/report from OUT's table; returns the report.md path."""
-    from bench.commands.common import finite_or_none
-
     report = build_report(out)
-    files = {"robustness.json": (json.dumps(finite_or_none(report), indent=1, allow_nan=False) + "\n").encode(),
+    files = {"robustness.json": (json.dumps(report, indent=1, allow_nan=False) + "\n").encode(),
              "report.md": markdown(report["study"], report["studies"]).encode()}
     for study in report["studies"]:
         for node in study["nodes"]:
