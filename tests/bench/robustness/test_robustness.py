@@ -35,7 +35,7 @@ subjects = ["coolant"]
 [perturbations.dropout]
 subjects = ["speed"]
 [perturbations.parameter]
-subjects = ["C_w", "R_wm", "P_dc"]
+subjects = ["C_w", "P_dc"]
 [perturbations.initial]
 subjects = ["magnet"]
 [filters]
@@ -44,16 +44,26 @@ time_constants = [1.0]
 """
 
 
-@pytest.fixture
-def spec(tmp_path) -> Path:
-    path = tmp_path / "small.toml"
+ROWS = "400"
+
+
+@pytest.fixture(scope="module")
+def spec(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("spec") / "small.toml"
     path.write_text(SPEC)
     return path
 
 
+@pytest.fixture(scope="module")
+def serial_run(tmp_path_factory, spec, small_dataset) -> tuple[Path, dict]:
+    """The small study run straight through in a plain loop: the table the others must equal."""
+    out = tmp_path_factory.mktemp("serial") / "out"
+    return out, study(out, spec, small_dataset, "--serial")
+
+
 def study(out: Path, spec: Path, data: Path, *extra: str, check: bool = True) -> dict:
     result = run_cli("-m", "bench", "robustness", "--data", str(data), "--spec", str(spec), "--out", str(out),
-                     "--json", *extra)
+                     "--rows", ROWS, "--json", *extra)
     if check:
         assert result.returncode == 0, result.stderr
     return json.loads(result.stdout)
@@ -81,20 +91,36 @@ def test_lanes_run_the_targets_code_bit_for_bit(kind, small_dataset):
         assert np.array_equal(got[index], expected)
 
 
-def test_a_bad_spec_is_one_sentence_and_nothing_is_written(tmp_path, small_dataset):
+BAD_SPECS = [("[perturbations.noise]\ntorque = [-1.0]\n", "torque: -1 must not be negative"),
+             ("[perturbations.nosie]\n", "[perturbations.nosie] is not a perturbation kind"),
+             ("[perturbations.parameter]\nC_w = [-120]\n", "C_w: -120 must be above -100 %"),
+             ("[perturbations.bias]\nvoltage = [1.0]\n", "unknown key 'voltage'"),
+             ("[study]\nseeds = 0\n", "seeds must be a whole number from 1"),
+             ("[filters]\ntime_constants = [0]\n", "time_constants must be positive seconds"),
+             ("[study\n", "is not valid TOML")]
+
+
+@pytest.mark.parametrize(("text", "said"), BAD_SPECS)
+def test_a_bad_spec_is_one_sentence(text, said):
+    from bench.robustness.kinds import PERTURBATIONS
+    from bench.robustness.spec import SpecError, parse_spec
+
+    artifact = load_artifact(default_artifact_path())
+    with pytest.raises(SpecError) as raised:
+        parse_spec(text, Path("bad.toml"), {n: k.subjects(artifact) for n, k in PERTURBATIONS.items()})
+    message = str(raised.value)
+    assert said in message and message.startswith("bad.toml") and "\n" not in message
+
+
+def test_a_bad_spec_exits_2_with_nothing_written(tmp_path, small_dataset):
     bad = tmp_path / "bad.toml"
-    for text, said in [("[perturbations.noise]\ntorque = [-1.0]\n", "torque: -1 must not be negative"),
-                       ("[perturbations.nosie]\n", "[perturbations.nosie] is not a perturbation kind"),
-                       ("[perturbations.parameter]\nC_w = [-120]\n", "must be above -100 %"),
-                       ("[study]\nseeds = 0\n", "seeds must be a whole number from 1")]:
-        bad.write_text(text)
-        out = tmp_path / "out"
-        result = run_cli("-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(bad),
-                         "--out", str(out))
-        assert result.returncode == 2, result.stderr
-        lines = result.stderr.strip().splitlines()
-        assert len(lines) == 1 and said in lines[0] and "Traceback" not in result.stderr
-        assert not out.exists()
+    bad.write_text(BAD_SPECS[0][0])
+    out = tmp_path / "out"
+    result = run_cli("-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(bad), "--out", str(out))
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and BAD_SPECS[0][1] in lines[0] and "Traceback" not in result.stderr
+    assert not out.exists()
 
 
 def test_a_diverging_model_is_reported_as_diverged(tmp_path, small_dataset):
@@ -115,11 +141,11 @@ def test_a_diverging_model_is_reported_as_diverged(tmp_path, small_dataset):
     assert "**bias coolant** (diverged at 120 K)" in md and "diverged (1/1)" in md
 
 
-def test_the_local_cluster_and_a_serial_loop_give_the_same_table(tmp_path, spec, small_dataset):
+def test_the_local_cluster_and_a_serial_loop_give_the_same_table(tmp_path, spec, small_dataset, serial_run):
+    serial_out, serial = serial_run
     local = study(tmp_path / "local", spec, small_dataset, "--workers", "2")
-    serial = study(tmp_path / "serial", spec, small_dataset, "--serial")
     assert local["cases"] == serial["cases"] == local["ran"] and local["workers"] == 2
-    assert tables(tmp_path / "local") == tables(tmp_path / "serial")
+    assert tables(tmp_path / "local") == tables(serial_out)
     (table,) = tables(tmp_path / "local")
     kinds = {c["kind"] for c in table["cases"]}
     assert kinds == {"noise", "bias", "dropout", "parameter", "initial", "jitter"}
@@ -140,10 +166,10 @@ def _rows(out: Path) -> int:
         return 0
 
 
-def test_an_interrupted_study_resumed_gives_the_same_table(tmp_path, spec, small_dataset):
+def test_an_interrupted_study_resumed_gives_the_same_table(tmp_path, spec, small_dataset, serial_run):
     out = tmp_path / "out"
     argv = [sys.executable, "-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(spec),
-            "--out", str(out), "--serial"]
+            "--out", str(out), "--rows", ROWS, "--serial"]
     proc = subprocess.Popen(argv, cwd=ROOT, env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     deadline = time.monotonic() + 120
@@ -157,8 +183,8 @@ def test_an_interrupted_study_resumed_gives_the_same_table(tmp_path, spec, small
     assert done_before >= 3
     resumed = study(out, spec, small_dataset, "--serial", "--resume")
     assert resumed["skipped"] == done_before and resumed["ran"] == resumed["cases"] - done_before
-    straight = study(tmp_path / "straight", spec, small_dataset, "--serial")
+    straight_out, straight = serial_run
     assert straight["cases"] == resumed["cases"]
-    assert tables(out) == tables(tmp_path / "straight")
+    assert tables(out) == tables(straight_out)
     again = run_cli("-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(spec), "--out", str(out))
     assert again.returncode == 1 and "already holds a robustness study" in again.stderr
