@@ -146,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
             "models": [str(p) for p, _ in models], "data": [str(Path(d.path).resolve()) for d in datasets],
             "sample_periods": {str(Path(d.path).resolve()): d.sample_period_s for d in datasets}}
     with CaseStore(out / TABLE_NAME, create=True) as store:
-        store.set_meta({"study": json.dumps(info), "spec_text": spec.text})
+        store.set_meta({"study": json.dumps(info), "spec_text": spec.text,
+                        "case_ids": json.dumps([c.case_id for c in cases])})   # the report's cases, in order
         outcome = run_study(cases, store, workers=args.workers or os.cpu_count() or 1, address=args.cluster,
                             resume=args.resume, serial=args.serial, quiet=quiet, on_event=note)
         rows = {r["case_id"]: r for r in store.rows()}

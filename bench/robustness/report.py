@@ -38,33 +38,46 @@ def _png(fig) -> bytes:
     return buffer.getvalue()
 
 
+def _largest(values: list[float]) -> float | None:
+    return max(values, key=abs) if values else None
+
+
 def tornado(study: dict, node: str, top: int = 15) -> bytes:
-    """Per perturbation (kind and subject), a bar from its smallest to its largest mean Δ RMSE over its magnitudes
-    (the signed kinds' -x and +x), longest first; a diverged perturbation is a red bar marked 'diverged'."""
-    spans: dict[str, list[float]] = {}
+    """Per perturbation (kind and subject), its mean Δ RMSE at its largest magnitude of each sign (a signed kind's
+    -x and +x side by side), longest first; a diverged perturbation is a red band marked 'diverged'."""
+    sides: dict[str, tuple[list[float], list[float]]] = {}
     diverged = set()
     for e in study["cases"]:
         label = f"{e['kind']} {e['subject']}"
         if e.get("diverged"):
             diverged.add(label)
         elif "nodes" in e and node in e["nodes"]:
-            spans.setdefault(label, [0.0]).append(e["nodes"][node]["d_rmse_C"]["mean"])
-    order = sorted(spans, key=lambda k: max(spans[k]) - min(spans[k]), reverse=True)[:top]
-    labels = sorted(diverged)[:top] + order[: max(0, top - len(diverged))]
-    fig = _figure(7.5, 0.35 * len(labels) + 1.4)
+            low, high = sides.setdefault(label, ([], []))
+            (low if e["magnitude"] < 0 else high).append(e["nodes"][node]["d_rmse_C"]["mean"])
+    reach = {k: max(abs(v) for v in lo + hi) for k, (lo, hi) in sides.items()}
+    order = sorted(sides, key=lambda k: reach[k], reverse=True)
+    labels = (sorted(diverged) + order)[:top]
+    fig = _figure(7.5, 0.35 * len(labels) + 1.6)
     ax = fig.add_subplot()
-    width = max([max(abs(v) for v in spans[k]) for k in order] or [1.0])
+    width = max([reach[k] for k in order[:top]] or [1.0])
+    shown = set()
     for y, label in enumerate(reversed(labels)):
         if label in diverged:
             ax.barh(y, 2 * width, left=-width, color="#e53935", alpha=0.3)
             ax.text(0, y, "diverged", ha="center", va="center", fontsize=8)
             continue
-        low, high = min(spans[label]), max(spans[label])
-        ax.barh(y, high - low, left=low, color="#1e88e5" if high > 0 else "#43a047")
+        low, high = sides[label]
+        for value, offset, colour, name in ((_largest(low), -0.2, "#43a047", "negative magnitude"),
+                                            (_largest(high), 0.2, "#1e88e5", "positive magnitude")):
+            if value is not None:
+                ax.barh(y + offset, value, height=0.4, color=colour, label=None if name in shown else name)
+                shown.add(name)
     ax.set_yticks(range(len(labels)), list(reversed(labels)), fontsize=8)
     ax.axvline(0, color="black", lw=0.8)
-    ax.set_xlabel(f"Δ RMSE of the {node} estimate vs the clean run, °C")
+    ax.set_xlabel(f"Δ RMSE of the {node} estimate vs the clean run, °C (largest magnitude of each sign)")
     ax.set_title(f"{study['name']}: {node}", fontsize=10)
+    if shown:
+        ax.legend(fontsize=7, loc="lower right")
     return _png(fig)
 
 
@@ -160,6 +173,9 @@ def build_report(out: Path) -> dict:
         meta = store.meta()
         rows = store.rows()
     info = json.loads(meta.get("study", "{}"))
+    if "case_ids" in meta:      # the last invocation's cases (a table resumed with another spec holds others too)
+        wanted = set(json.loads(meta["case_ids"]))
+        rows = [r for r in rows if r["case_id"] in wanted]
     studies = sensitivity(rows, info.get("sample_periods"))
     return {"study": info, "studies": studies}
 
