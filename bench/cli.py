@@ -22,7 +22,7 @@ from target_sim.errors import TargetError
 
 # Subcommand modules under bench.commands, in the order `bench --help` lists them.
 SUBCOMMANDS = ("motor", "numerics", "data", "identify", "observer", "evaluate", "run", "replay", "analyze", "export",
-               "compare", "campaign", "host", "firmware")
+               "compare", "campaign", "robustness", "host", "firmware")
 
 
 # The errors of the layers below bench, caught here once: each is one sentence for the user (exit status 1). A bad

@@ -91,8 +91,14 @@ def exp_f32(x):
 
 def matvec(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
     """M v with a fixed order: row i = ((m_i0·v_0 + m_i1·v_1) + m_i2·v_2) + ..., each operation rounded to the
-    arrays' dtype (float32 on the target), zeros included. The C's `dot` does the same sums."""
-    products = matrix * vector          # every m_ij·v_j, rounded
+    arrays' dtype (float32 on the target), zeros included. The C's `dot` does the same sums.
+
+    Lanes: a vector (n, L...) is L independent vectors (trajectories run side by side, `bench.robustness`), and a
+    matrix (m, n, L...) one matrix per lane; every lane gets exactly the operations of the one-vector case."""
+    lanes = vector.ndim - 1
+    if lanes and matrix.ndim == 2:
+        matrix = matrix.reshape(matrix.shape + (1,) * lanes)
+    products = matrix * vector[None]    # every m_ij·v_j, rounded
     acc = products[:, 0]
     for j in range(1, products.shape[1]):
         acc = acc + products[:, j]      # left to right
@@ -117,3 +123,10 @@ def matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     for k in range(1, products.shape[1]):
         acc = acc + products[:, k, :]            # left to right over k
     return acc
+
+
+def lanes(values: np.ndarray, like) -> np.ndarray:
+    """`values` (k,) shaped to broadcast against a lane value `like` (a scalar: unchanged; (L...): (k, L...)), so
+    per-node constants meet per-node quantities of trajectories run side by side (see `matvec`)."""
+    extra = np.ndim(like)
+    return values.reshape(values.shape + (1,) * extra) if extra else values

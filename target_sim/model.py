@@ -31,7 +31,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from target_sim.artifact import LPTN_PARAMETERS, ModelArtifact
-from target_sim.fmath import exp_f32
+from target_sim.fmath import exp_f32, lanes
 from target_sim.kinds import MODEL_KINDS
 from target_sim.losses import LOSS_KINDS
 
@@ -41,6 +41,9 @@ ONE = F32(1.0)
 
 class Float32Estimator:
     """The target's model: load once, `reset` with initial temperatures, then `step` every Δt.
+
+    Lanes: `reset` with (4, L) temperatures and `step` with (L,) inputs run L trajectories side by side (the
+    robustness study's seeds), every lane bit for bit the one-trajectory run (`target_sim.fmath.matvec`).
 
     The front of the step (the loss model, eqs. 3-8) is here; the rest is the model kind's part
     (`target_sim.modelkinds`: the linear block with its sources, the sigmoid, the PV network), whose attributes
@@ -117,8 +120,8 @@ class Float32Estimator:
 
     def convection(self, n_ratio) -> np.ndarray:
         """[e_tm, e_wm, e_ma] = exp(-n_ratio / b) of eq. 15, for the kinds' sources and networks (C: the three
-        fw_exp calls, in this order)."""
-        return self.exp(-n_ratio / self.conv_b)
+        fw_exp calls, in this order); lanes of trajectories give (3, L...)."""
+        return self.exp(-n_ratio / lanes(self.conv_b, n_ratio))
 
     def step(self, torque, speed, coolant, ambient, i_d=0.0, i_q=0.0) -> np.ndarray:
         """One model step with the interval-mean inputs (the d/q currents only for an electrical loss model);

@@ -303,6 +303,45 @@ def _stop_everywhere(client, token: str, wait_s: float = 5.0) -> None:
     thread.join(wait_s)
 
 
+def run_tasks(client, function: Callable[[dict[str, Any]], dict[str, Any]], tasks: dict[str, dict[str, Any]], *,
+              key: Callable[[str, int], str], record: Callable[[str, dict[str, Any], int], bool],
+              lost: Callable[[str, BaseException], dict[str, Any]],
+              failed: Callable[[str, BaseException], dict[str, Any]]) -> None:
+    """`function(task)` for every task on the client's workers, each outcome handed to `record(task id, outcome,
+    attempt)` as it arrives (the driver writes it to its table); `record` returning True submits the task again
+    (a retry, attempt + 1, before the tasks still waiting). A task whose worker died gives `lost(id, exc)`, a task
+    that raised `failed(id, exc)`. No more tasks in flight than worker threads: a task waits here, not in a
+    worker's queue, so a worker that dies loses only what it was running. `bench campaign` and `bench
+    robustness` share it."""
+    from distributed import KilledWorker, as_completed
+
+    submitted: dict[str, tuple[str, int]] = {}    # task key -> (task id, attempt)
+    waiting = deque((task_id, 1) for task_id in tasks)
+    pending = as_completed()
+
+    def fill() -> None:
+        threads = sum(client.nthreads().values())
+        while waiting and len(submitted) < max(threads, 1):
+            task_id, attempt = waiting.popleft()
+            name = key(task_id, attempt)
+            pending.add(client.submit(function, tasks[task_id], key=name, pure=False, retries=0))
+            submitted[name] = (task_id, attempt)
+
+    fill()
+    for future in pending:
+        task_id, attempt = submitted.pop(future.key)
+        try:
+            result = future.result()
+        except KilledWorker as exc:
+            result = lost(task_id, exc)
+        except Exception as exc:  # noqa: BLE001 - a task that errored: its worker, or its environment
+            gone = type(exc).__name__ in ("CommClosedError", "FutureCancelledError", "CancelledError")
+            result = lost(task_id, exc) if gone else failed(task_id, exc)
+        if record(task_id, result, attempt):
+            waiting.appendleft((task_id, attempt + 1))
+        fill()
+
+
 def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: int, address: str | None,
                  resume: bool, timeout_s: float | None, quiet: bool,
                  on_event: Callable[[str], None] | None = None) -> Outcome:
@@ -323,8 +362,6 @@ def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: in
     previous = {run.run_id: (store.row(run.run_id) or {}).get("attempts") or 0 for run in todo}
 
     with dask_client(workers, address) as (client, label):
-        from distributed import KilledWorker, as_completed
-
         outcome.cluster = label
         outcome.workers = len(client.nthreads())
         if not quiet:
@@ -335,48 +372,27 @@ def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: in
 
         bar = tqdm(total=len(todo), unit="run", desc=campaign.name, file=sys.stderr, leave=False,
                    disable=quiet or not sys.stderr.isatty())     # as `bench run`'s bar: a terminal's, not a log's
-        submitted: dict[str, tuple[str, int]] = {}    # task key -> (run id, attempt)
-        waiting = deque((run_id, 1) for run_id in tasks)
-        pending = as_completed()
 
-        def fill() -> None:
-            # no more runs in flight than worker threads: a run waits here, not in a worker's queue, so a worker
-            # that dies loses only the run it was running
-            threads = sum(client.nthreads().values())
-            while waiting and len(submitted) < max(threads, 1):
-                run_id, attempt = waiting.popleft()
-                key = f"bench-run-{run_id}-{token[:8]}-{attempt}"
-                pending.add(client.submit(execute_run, tasks[run_id], key=key, pure=False, retries=0))
-                submitted[key] = (run_id, attempt)
+        def record(run_id: str, result: dict[str, Any], attempt: int) -> bool:
+            run = by_id[run_id]
+            row, kinds = table_row(run, result, previous[run_id] + attempt, runs_dir / run_id)
+            store.record(row, kinds)
+            outcome.ran += attempt == 1
+            if result["status"] != DONE and attempt < MAX_ATTEMPTS:
+                outcome.retried += 1
+                if on_event:
+                    on_event(f"run {run_id} {result['status']} ({result['error']}); retrying it once")
+                return True
+            outcome.statuses[result["status"]] = outcome.statuses.get(result["status"], 0) + 1
+            verdict = result["verdict"] or result["status"]
+            outcome.verdicts[verdict] = outcome.verdicts.get(verdict, 0) + 1
+            bar.set_postfix_str(", ".join(f"{k} {v}" for k, v in sorted(outcome.verdicts.items())), refresh=False)
+            bar.update(1)
+            return False
 
         try:
-            fill()
-            for future in pending:
-                run_id, attempt = submitted.pop(future.key)
-                try:
-                    result = future.result()
-                except KilledWorker as exc:
-                    result = _lost_outcome(run_id, exc)
-                except Exception as exc:  # noqa: BLE001 - a task that errored: its worker, or its environment
-                    lost = type(exc).__name__ in ("CommClosedError", "FutureCancelledError", "CancelledError")
-                    result = _lost_outcome(run_id, exc) if lost else _failed_outcome(run_id, exc)
-                run = by_id[run_id]
-                row, kinds = table_row(run, result, previous[run_id] + attempt, runs_dir / run_id)
-                store.record(row, kinds)
-                outcome.ran += attempt == 1
-                if result["status"] != DONE and attempt < MAX_ATTEMPTS:
-                    outcome.retried += 1
-                    if on_event:
-                        on_event(f"run {run_id} {result['status']} ({result['error']}); retrying it once")
-                    waiting.appendleft((run_id, attempt + 1))
-                    fill()
-                    continue
-                outcome.statuses[result["status"]] = outcome.statuses.get(result["status"], 0) + 1
-                verdict = result["verdict"] or result["status"]
-                outcome.verdicts[verdict] = outcome.verdicts.get(verdict, 0) + 1
-                bar.set_postfix_str(", ".join(f"{k} {v}" for k, v in sorted(outcome.verdicts.items())), refresh=False)
-                bar.update(1)
-                fill()
+            run_tasks(client, execute_run, tasks, key=lambda run_id, attempt: f"bench-run-{run_id}-{token[:8]}-"
+                      f"{attempt}", record=record, lost=_lost_outcome, failed=_failed_outcome)
         except BaseException:
             # interrupted: stop the runs still going on every worker (a remote worker would finish them), then the
             # cluster closes; the table holds the runs that ended, each row whole

@@ -100,14 +100,24 @@ def summary_of(row: dict[str, Any]) -> RunSummary | None:
     return RunSummary.from_json(json.loads(row["summary"])) if row.get("summary") else None
 
 
-class Store:
-    """The table of one campaign directory."""
+class SqliteTable:
+    """A results table in one SQLite file: a meta table (key, value) and the subclass's tables (`TABLES`: name ->
+    columns), created when new and only checked when it exists (never altered to fit). `WHAT` names it in
+    messages ("campaign"), `MAIN` is the table whose columns are checked, `HINT` how to make one. `bench campaign`
+    (runs) and `bench robustness` (cases) each have one."""
+
+    WHAT: str = "campaign"
+    HINT: str = "give the output directory of a campaign (bench campaign run --out DIR)"
+    VERSION: int = SCHEMA_VERSION
+    MAIN: str = "runs"
+    TABLES: dict[str, str] = {}     # table -> "column type, ..." as CREATE TABLE takes it
+    MAIN_COLUMNS: tuple[tuple[str, str], ...] = ()
 
     def __init__(self, path: Path, *, create: bool = False):
         self.path = Path(path)
+        what = self.WHAT
         if not create and not self.path.is_file():
-            raise StoreError(f"{self.path} does not exist; give the output directory of a campaign (bench campaign "
-                             "run --out DIR)")
+            raise StoreError(f"{self.path} does not exist; {self.HINT}")
         existed = self.path.exists()
         if create:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -117,32 +127,32 @@ class Store:
             if not existed:      # a new table; an existing file is only checked, never altered to fit
                 with self._db:
                     self._db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
-                    self._db.execute(f"CREATE TABLE runs ({', '.join(f'{c} {t}' for c, t in COLUMNS)})")
-                    self._db.execute("CREATE TABLE faults (run_id TEXT, kind TEXT, injected INTEGER, "
-                                     "detected INTEGER, PRIMARY KEY (run_id, kind))")
-                    self._db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+                    for name, columns in self.TABLES.items():
+                        self._db.execute(f"CREATE TABLE {name} ({columns})")
+                    self._db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(self.VERSION),))
             tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
-            if not {"meta", "runs", "faults"} <= tables:
+            if not {"meta", *self.TABLES} <= tables:
                 self._db.close()
-                raise StoreError(f"{self.path} is not a campaign table (it lacks the tables meta, runs and faults); "
-                                 "give a campaign's directory")
+                names = ", ".join(["meta", *self.TABLES][:-1]) + f" and {[*self.TABLES][-1]}"
+                raise StoreError(f"{self.path} is not a {what} table (it lacks the tables {names}); give a "
+                                 f"{what}'s directory")
             version = self.meta().get("schema_version")
-            present = {r["name"] for r in self._db.execute("PRAGMA table_info(runs)")}
+            present = {r["name"] for r in self._db.execute(f"PRAGMA table_info({self.MAIN})")}
         except sqlite3.DatabaseError as exc:
-            raise StoreError(f"{self.path} is not a campaign table ({exc}); give a campaign's directory") from None
-        if version != str(SCHEMA_VERSION):
+            raise StoreError(f"{self.path} is not a {what} table ({exc}); give a {what}'s directory") from None
+        if version != str(self.VERSION):
             self._db.close()
-            raise StoreError(f"{self.path} has table schema {version}, this bench reads {SCHEMA_VERSION}; run the "
-                             "campaign again into another --out")
-        missing = [c for c, _ in COLUMNS if c not in present]
+            raise StoreError(f"{self.path} has table schema {version}, this bench reads {self.VERSION}; run the "
+                             f"{what} again into another --out")
+        missing = [c for c, _ in self.MAIN_COLUMNS if c not in present]
         if missing:
             self._db.close()
-            raise StoreError(f"{self.path} is not a campaign table (its runs table lacks {missing[0]})")
+            raise StoreError(f"{self.path} is not a {what} table (its {self.MAIN} table lacks {missing[0]})")
 
     def close(self) -> None:
         self._db.close()
 
-    def __enter__(self) -> Store:
+    def __enter__(self):
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -154,6 +164,14 @@ class Store:
     def set_meta(self, values: dict[str, str]) -> None:
         with self._db:
             self._db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", list(values.items()))
+
+
+class Store(SqliteTable):
+    """The table of one campaign directory."""
+
+    TABLES = {"runs": ", ".join(f"{c} {t}" for c, t in COLUMNS),
+              "faults": "run_id TEXT, kind TEXT, injected INTEGER, detected INTEGER, PRIMARY KEY (run_id, kind)"}
+    MAIN_COLUMNS = COLUMNS
 
     def rows(self) -> list[dict[str, Any]]:
         """Every run's row, in the spec's order."""

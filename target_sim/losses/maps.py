@@ -41,9 +41,28 @@ class LossTables:
             i = size - 2
         return i, f(pos - f(i))
 
+    def _cells(self, values, start, step, size):
+        """`_cell` for lanes of trajectories (an array of values): the same operations, lane by lane."""
+        f = self.f
+        pos = (np.asarray(values, dtype=f) - start) / step
+        pos = np.where(pos >= 0, pos, f(0.0))          # NaN -> 0, as `not pos >= 0`
+        last = f(size - 1)
+        pos = np.where(pos > last, last, pos)
+        i = np.minimum(pos.astype(np.int64), size - 2)  # truncation (pos >= 0)
+        return i, (pos - i.astype(f)).astype(f)
+
     def lookup(self, torque, speed) -> np.ndarray:
         """[p_dc0, p_ac0, p_stator, p_magnet, current] at one operating point (bilinear, per table:
-        low = t00 + fj·(t01 - t00), high = t10 + fj·(t11 - t10), value = low + fi·(high - low))."""
+        low = t00 + fj·(t01 - t00), high = t10 + fj·(t11 - t10), value = low + fi·(high - low)); for lanes of
+        trajectories (arrays of torque and speed) (5, L...)."""
+        if np.ndim(torque) or np.ndim(speed):
+            i, fi = self._cells(torque, self.torque_axis[0], self.torque_step, self.torque_axis.size)
+            j, fj = self._cells(speed, self.speed_axis[0], self.speed_step, self.speed_axis.size)
+            t = self.tables
+            t00, t01, t10, t11 = t[:, i, j], t[:, i, j + 1], t[:, i + 1, j], t[:, i + 1, j + 1]
+            low = t00 + fj * (t01 - t00)
+            high = t10 + fj * (t11 - t10)
+            return low + fi * (high - low)
         i, fi = self._cell(torque, self.torque_axis[0], self.torque_step, self.torque_axis.size)
         j, fj = self._cell(speed, self.speed_axis[0], self.speed_step, self.speed_axis.size)
         t = self.tables[:, i:i + 2, j:j + 2]

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from target_sim import costs
+from target_sim.fmath import lanes
 from target_sim.modelkinds import CArray, register
 from target_sim.modelkinds.lti_lptn import LinearBlockPart, LtiLptnKind
 
@@ -29,7 +30,8 @@ class HammersteinPart(LinearBlockPart):
     def input_nonlinearity(self, losses: np.ndarray) -> np.ndarray:
         """S(u)·scale per loss input, u = P/scale, S(u) = (gain/(1 + exp(-(w·u + b))) + lin·u) + off
         (eqs. 28-30; C: input_nonlinearity)."""
-        s, est = self.sigmoid, self.est
+        est = self.est
+        s = {k: lanes(v, losses[0]) for k, v in self.sigmoid.items()}   # lanes of trajectories: (4, L)
         u = losses / s["scale_W"]
         z = s["weight"] * u + s["bias"]
         out = (s["gain"] / (est.one + est.exp(-z)) + s["linear"] * u) + s["offset"]

@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from target_sim import costs
-from target_sim.fmath import matvec
+from target_sim.fmath import lanes, matvec
 from target_sim.kinds import REALIZATIONS, is_delta
 from target_sim.modelkinds import CArray, ModelKind, pole_text, register
 from target_sim.network import COOLANT_REFERENCE_C
@@ -52,7 +52,7 @@ class LinearBlockPart:
         est = self.est
         f = est.f
         n_ratio = f(speed) / est.speed_max
-        g_tm, g_wm, g_ma = (est.conv_r0 * est.convection(n_ratio)) / est.conv_a    # R_xx1 / a_xx
+        g_tm, g_wm, g_ma = (lanes(est.conv_r0, n_ratio) * est.convection(n_ratio)) / lanes(est.conv_a, n_ratio)
         g_cy = est.p["alpha_cy"] * (f(coolant) - f(COOLANT_REFERENCE_C))  # R_cy01 / R_cy0 (eq. 16)
         return g_tm, g_wm, g_ma, g_cy
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from target_sim import costs
 from target_sim.artifact import LPTN_PARAMETERS
-from target_sim.fmath import matvec
+from target_sim.fmath import lanes, matvec
 from target_sim.modelkinds import ModelKind, pole_text, register
 from target_sim.network import COOLANT_REFERENCE_C, network_matrices
 
@@ -44,7 +44,7 @@ class PvNetworkPart:
         est = self.est
         p, f, one = est.p, est.f, est.one
         n_ratio = f(speed) / est.speed_max
-        r_tm, r_wm, r_ma = est.conv_r0 * est.convection(n_ratio) + est.conv_a     # eq. 15
+        r_tm, r_wm, r_ma = lanes(est.conv_r0, n_ratio) * est.convection(n_ratio) + lanes(est.conv_a, n_ratio)  # 15
         r_cy = p["R_cy0"] * (one + p["alpha_cy"] * (f(coolant) - f(COOLANT_REFERENCE_C)))  # eq. 16
         return network_matrices(p, r_tm, r_wm, r_ma, r_cy, f)
 

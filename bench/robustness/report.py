@@ -1,0 +1,197 @@
+"""The study's outputs, from its table alone: OUT/report/ with robustness.json (everything), report.md (the
+sensitivity table per node, the three perturbations that move each node most, the worst case, the filtering
+trade-off), tornado-<study>-<node>.png and filtering-<study>.png. Rendered in memory and written at once
+(`bench.fileio.write_directory_atomically`): an earlier report is replaced whole or left as it was."""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+from bench.fileio import write_directory_atomically
+from bench.robustness.store import TABLE_NAME, CaseStore
+from bench.robustness.table import sensitivity
+
+REPORT_DIR = "report"
+OUR_FILES = re.compile(r"(report\.md|robustness\.json|(tornado|filtering)-[A-Za-z0-9_.-]+\.png)")
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
+
+
+def _figure(width: float, height: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _png(fig) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=100, metadata={"Software": None})
+    return buffer.getvalue()
+
+
+def _largest(values: list[float]) -> float | None:
+    return max(values, key=abs) if values else None
+
+
+def tornado(study: dict, node: str, top: int = 15) -> bytes:
+    """Per perturbation (kind and subject), its mean Δ RMSE at its largest magnitude of each sign (a signed kind's
+    -x and +x side by side), longest first; a diverged perturbation is a red band marked 'diverged'."""
+    sides: dict[str, tuple[list[float], list[float]]] = {}
+    diverged = set()
+    for e in study["cases"]:
+        label = f"{e['kind']} {e['subject']}"
+        if e.get("diverged"):
+            diverged.add(label)
+        elif "nodes" in e and node in e["nodes"]:
+            low, high = sides.setdefault(label, ([], []))
+            (low if e["magnitude"] < 0 else high).append(e["nodes"][node]["d_rmse_C"]["mean"])
+    reach = {k: max(abs(v) for v in lo + hi) for k, (lo, hi) in sides.items()}
+    order = sorted(sides, key=lambda k: reach[k], reverse=True)
+    labels = (sorted(diverged) + order)[:top]
+    fig = _figure(7.5, 0.35 * len(labels) + 1.6)
+    ax = fig.add_subplot()
+    width = max([reach[k] for k in order[:top]] or [1.0])
+    shown = set()
+    for y, label in enumerate(reversed(labels)):
+        if label in diverged:
+            ax.barh(y, 2 * width, left=-width, color="#e53935", alpha=0.3)
+            ax.text(0, y, "diverged", ha="center", va="center", fontsize=8)
+            continue
+        low, high = sides[label]
+        for value, offset, colour, name in ((_largest(low), -0.2, "#43a047", "negative magnitude"),
+                                            (_largest(high), 0.2, "#1e88e5", "positive magnitude")):
+            if value is not None:
+                ax.barh(y + offset, value, height=0.4, color=colour, label=None if name in shown else name)
+                shown.add(name)
+    ax.set_yticks(range(len(labels)), list(reversed(labels)), fontsize=8)
+    ax.axvline(0, color="black", lw=0.8)
+    ax.set_xlabel(f"Δ RMSE of the {node} estimate vs the clean run, °C (largest magnitude of each sign)")
+    ax.set_title(f"{study['name']}: {node}", fontsize=10)
+    if shown:
+        ax.legend(fontsize=7, loc="lower right")
+    return _png(fig)
+
+
+def filtering_figure(study: dict, node: str) -> bytes:
+    """Error removed (Δ RMSE of the noisy input minus the filtered one) against the delay the filter adds."""
+    fig = _figure(7, 4.5)
+    ax = fig.add_subplot()
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for item in study["filtering"]:
+        groups.setdefault((item["filter"], item["input"]), []).append(item)
+    for (kind, channel), items in groups.items():
+        items = sorted(items, key=lambda i: i["delay_s"])
+        ax.plot([i["delay_s"] for i in items], [i["nodes"][node]["removed_C"] for i in items],
+                "o-" if kind == "lowpass" else "s--", label=f"{kind} on {channel} (σ {items[0]['sigma']:g} "
+                                                             f"{items[0]['unit']})")
+    ax.axhline(0, color="black", lw=0.8)
+    ax.set_xlabel("delay added, s")
+    ax.set_ylabel(f"{node} error removed, °C (Δ RMSE)")
+    ax.set_title(f"{study['name']}: filtering noisy inputs", fontsize=10)
+    if groups:
+        ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}" if abs(value) < 1e-3 and value else f"{value:.{digits}f}"
+    return str(value)
+
+
+def _moved(entry: dict) -> str:
+    return "diverged" if entry["diverged"] else f"{entry['d_rmse_C']:+.3f} °C"
+
+
+def markdown(meta: dict, studies: list[dict]) -> str:
+    lines = [f"# Robustness: {meta.get('name', 'study')}", ""]
+    if meta.get("description"):
+        lines += [meta["description"], ""]
+    lines += [f"Seeds per random case: {meta.get('seeds')}; table `{TABLE_NAME}`. Δ values are the perturbed run "
+              "minus the clean run of the same model on the same data (the target's float32 code); ± is the "
+              "standard deviation over the Monte Carlo seeds. *diverged*: the estimate left the numbers.", ""]
+    for study in studies:
+        lines += [f"## {study['name']}", "", f"model `{study['model']}` (sha256 {study['model_sha256'][:12]}), "
+                  f"data `{study['data']}`", ""]
+        if study["clean"]:
+            lines += ["Clean run: " + ", ".join(f"{n} RMSE {study['clean'][n]['rmse']:.3f} °C, max |e| "
+                                                f"{study['clean'][n]['max_abs']:.3f} °C" for n in study["nodes"]), ""]
+        for node in study["nodes"]:
+            top = study["ranking"][node][:3]
+            lines += [f"### {node}", "", "The three perturbations that move it most: " + "; ".join(
+                f"**{r['perturbation']}** ({_moved(r)} at {r['magnitude']:g} {r['unit']})" for r in top) + ".", "",
+                      f"![tornado](tornado-{_slug(study['name'])}-{node}.png)", "",
+                      "| perturbation | magnitude | Δ RMSE °C | ± | Δ max °C | ± | Δ RMSE per unit |",
+                      "|---|---|---|---|---|---|---|"]
+            for e in study["cases"]:
+                head = f"| {e['kind']} {e['subject']} | {e['magnitude']:g} {e['unit']} |"
+                if e.get("diverged"):
+                    lines.append(f"{head} diverged ({e['diverged_lanes']}/{e['lanes']}) | | | | |")
+                elif "nodes" in e and node in e["nodes"]:
+                    f = e["nodes"][node]
+                    lines.append(f"{head} {f['d_rmse_C']['mean']:+.4f} | {f['d_rmse_C']['std']:.4f} | "
+                                 f"{f['d_max_C']['mean']:+.3f} | {f['d_max_C']['std']:.3f} | "
+                                 f"{_fmt(f['d_rmse_per_unit'])} |")
+                else:
+                    lines.append(f"{head} {e['status']}: {e.get('error', '')} | | | | |")
+            lines.append("")
+        worst = {n: w for n, w in study["worst"].items() if w}
+        if worst:
+            lines += ["Worst case found: " + "; ".join(
+                f"{n}: {w['perturbation']} at {w['magnitude']:g} {w['unit']} "
+                f"({_moved(w)})" for n, w in worst.items()), ""]
+        if study["filtering"]:
+            lines += ["### Filtering the noisy inputs", "", f"![filtering](filtering-{_slug(study['name'])}.png)", "",
+                      "| filter | input (σ) | τ s | delay s | " + " | ".join(
+                          f"{n} removed °C | {n} clean cost °C" for n in study["nodes"]) + " |",
+                      "|---|---|---|---|" + "---|---|" * len(study["nodes"])]
+            for item in study["filtering"]:
+                lines.append(f"| {item['filter']} | {item['input']} ({item['sigma']:g} {item['unit']}) | "
+                             f"{item['tau_s']:g} | {item['delay_s']:.2f} | " + " | ".join(
+                                 f"{item['nodes'][n]['removed_C']:+.4f} | "
+                                 f"{_fmt(item['clean_cost_C'].get(n))}" for n in study["nodes"]) + " |")
+            lines.append("")
+        if study["incomplete"]:
+            lines += [f"Not done: {len(study['incomplete'])} case(s) (failed or lost); resume the study.", ""]
+    return "\n".join(lines) + "\n"
+
+
+def build_report(out: Path) -> dict:
+    """{meta, studies} of the study in `out`, from its table alone."""
+    with CaseStore(out / TABLE_NAME) as store:
+        meta = store.meta()
+        rows = store.rows()
+    info = json.loads(meta.get("study", "{}"))
+    if "case_ids" in meta:      # the last invocation's cases (a table resumed with another spec holds others too)
+        wanted = set(json.loads(meta["case_ids"]))
+        rows = [r for r in rows if r["case_id"] in wanted]
+    studies = sensitivity(rows, info.get("sample_periods"))
+    return {"study": info, "studies": studies}
+
+
+def write_report(out: Path) -> Path:
+    """OUT/report from OUT's table; returns the report.md path."""
+    report = build_report(out)
+    files = {"robustness.json": (json.dumps(report, indent=1, allow_nan=False) + "\n").encode(),
+             "report.md": markdown(report["study"], report["studies"]).encode()}
+    for study in report["studies"]:
+        for node in study["nodes"]:
+            files[f"tornado-{_slug(study['name'])}-{node}.png"] = tornado(study, node)
+        if study["filtering"] and study["nodes"]:
+            files[f"filtering-{_slug(study['name'])}.png"] = filtering_figure(study, "pm" if "pm" in study["nodes"]
+                                                                               else study["nodes"][0])
+    target = out / REPORT_DIR
+    earlier = [e.name for e in target.iterdir() if OUR_FILES.fullmatch(e.name)] if target.is_dir() else []
+    write_directory_atomically(target, files, replaceable=earlier)
+    return out / REPORT_DIR / "report.md"

@@ -1,0 +1,93 @@
+"""A study's cases on Dask (the campaign's client and task loop: the embedded LocalCluster, or a scheduler with
+--cluster; a case whose worker died or that failed is retried once), each outcome written to the table as it
+arrives; or, for a comparison, the same cases in a plain loop in this process."""
+
+from __future__ import annotations
+
+import sys
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from bench.campaign.execute import MAX_ATTEMPTS, dask_client, now, run_tasks
+from bench.campaign.store import DONE
+from bench.robustness.cases import Case
+from bench.robustness.evaluate import evaluate_case
+from bench.robustness.store import CaseStore
+
+
+@dataclass
+class StudyOutcome:
+    cases: int
+    skipped: int
+    ran: int = 0
+    retried: int = 0
+    failed: int = 0
+    workers: int = 0
+    cluster: str = ""
+    wall_s: float = 0.0
+
+
+def _lost(case_id: str, exc: BaseException) -> dict[str, Any]:
+    return {"case_id": case_id, "status": "lost-worker", "result": None, "worker": None, "wall_s": None,
+            "error": f"the Dask worker running it died ({type(exc).__name__})", "started_at": None,
+            "finished_at": now()}
+
+
+def _failed(case_id: str, exc: BaseException) -> dict[str, Any]:
+    return {"case_id": case_id, "status": "failed", "result": None, "worker": None, "wall_s": None,
+            "error": f"the task failed on its worker: {type(exc).__name__}: {exc}"[:500], "started_at": None,
+            "finished_at": now()}
+
+
+def run_study(cases: list[Case], store: CaseStore, *, workers: int, address: str | None, resume: bool,
+              serial: bool = False, quiet: bool = True, on_event: Callable[[str], None] | None = None) -> StudyOutcome:
+    """Run the cases the table does not hold as done (all of them without `resume`), recording each outcome."""
+    started = time.perf_counter()
+    done = store.done() if resume else set()
+    todo = [c for c in cases if c.case_id not in done]
+    outcome = StudyOutcome(cases=len(cases), skipped=len(cases) - len(todo))
+    by_id = {c.case_id: c for c in todo}
+    previous = {c.case_id: (store.row(c.case_id) or {}).get("attempts") or 0 for c in todo}
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(todo), unit="case", desc="robustness", file=sys.stderr, leave=False,
+               disable=quiet or not sys.stderr.isatty())
+
+    def record(case_id: str, result: dict[str, Any], attempt: int) -> bool:
+        store.record(by_id[case_id], result, previous[case_id] + attempt)
+        outcome.ran += attempt == 1
+        if result["status"] != DONE and attempt < MAX_ATTEMPTS:
+            outcome.retried += 1
+            if on_event:
+                on_event(f"case {case_id} {result['status']} ({result['error']}); retrying it once")
+            return True
+        outcome.failed += result["status"] != DONE
+        bar.update(1)
+        return False
+
+    try:
+        if not todo:
+            return outcome
+        if serial:
+            outcome.cluster, outcome.workers = "a serial loop in this process", 1
+            for case in todo:
+                attempt = 1
+                while record(case.case_id, evaluate_case(case.task()), attempt):
+                    attempt += 1
+            return outcome
+        tasks = {c.case_id: c.task() for c in todo}
+        token = uuid.uuid4().hex[:8]
+        with dask_client(workers, address) as (client, label):
+            outcome.cluster, outcome.workers = label, len(client.nthreads())
+            if on_event:
+                on_event(f"{len(todo)} case(s) to do" + (f", {outcome.skipped} done already" if outcome.skipped
+                                                         else "") + f", on {label}; table {store.path}")
+            run_tasks(client, evaluate_case, tasks, key=lambda cid, attempt: f"robustness-{cid}-{token}-{attempt}",
+                      record=record, lost=_lost, failed=_failed)
+        return outcome
+    finally:
+        bar.close()
+        outcome.wall_s = time.perf_counter() - started
