@@ -659,13 +659,15 @@ def _start_target(model: Path, port: int, workdir: Path) -> subprocess.Popen:
                                 "--bus-kwargs", f"port={port}"], cwd=workdir, stdin=subprocess.DEVNULL,
                                stdout=subprocess.DEVNULL, stderr=stderr, env={**os.environ, "MPLBACKEND": "Agg"})
     started = time.monotonic()
-    while time.monotonic() < started + 30 and process.poll() is None:
+    serving = False
+    while not serving and time.monotonic() < started + 60 and process.poll() is None:   # generous: a busy machine
         stderr.seek(0)
-        if b"serving" in stderr.read() or time.monotonic() > started + 5:  # its start line, or time enough
-            break
+        serving = b"serving" in stderr.read()   # its start line, printed as its bus opens
         time.sleep(0.05)
     stderr.seek(0)
-    assert process.poll() is None, f"the foreign target did not start: {stderr.read().decode(errors='replace')}"
+    assert process.poll() is None and serving, (
+        f"the foreign target did not say 'serving' within 60 s: {stderr.read().decode(errors='replace')}")
+    time.sleep(0.5)   # its first heartbeats on the bus before the command under test listens for them
     return process
 
 
