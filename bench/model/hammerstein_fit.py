@@ -35,6 +35,10 @@ PM_WEIGHT = 2.0
 # 60 °C one by their loss level (copper losses rise with temperature) and then interpolates badly at 40 °C.
 RIDGE = np.concatenate([np.full(4, 0.01), np.full(4, 0.01), np.full(4, 0.002), np.full(4, 0.002),
                         np.full(4, 0.002), np.full(16, 0.02)])
+# `cv`: the ridge's overall strength (a factor on RIDGE) chosen by leave-one-file-out cross-validation among these;
+# `fixed`: the factor 1 (the packaged model's path). Larger factors keep the model nearer the LTI network.
+REGULARIZATIONS = ("fixed", "cv")
+RIDGE_FACTORS = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
 
 
 @dataclass(frozen=True)
@@ -55,6 +59,7 @@ class HammersteinFit:
     iterations: int
     evaluations: int
     status: str
+    vector: np.ndarray | None = None     # the fitted sigmoid and B-change parameters
 
 
 def loss_scales(runs: Sequence[ModelRun], params: LptnParameters) -> np.ndarray:
@@ -116,13 +121,15 @@ class _Problem:
 
 def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[ModelRun], *,
                     path: str = "statespace", iterations: int = 100,
-                    on_iteration: Callable[[int, float], None] | None = None) -> HammersteinFit:
-    """Fit sigmoid inputs and B's loss columns with the poles of `base` (physical, discrete) held fixed."""
+                    on_iteration: Callable[[int, float], None] | None = None, ridge_factor: float = 1.0,
+                    start: np.ndarray | None = None) -> HammersteinFit:
+    """Fit sigmoid inputs and B's loss columns with the poles of `base` (physical, discrete) held fixed; the ridge
+    pulls toward the LTI network with `ridge_factor` × RIDGE, the fit starts from `start` (default: there)."""
     if path not in FIT_PATHS:
         raise ValueError(f"unknown fit path {path!r}; choose one of {', '.join(FIT_PATHS)}")
     coordinates = FIT_PATHS[path]
     problem = _Problem(base, coordinates, params, runs, loss_scales(runs, params))
-    v0 = np.concatenate([initial_sigmoid_vector(), np.zeros(16)])
+    v0 = lti_vector()
     calls = {"n": 0}
 
     def fun(v):
@@ -140,7 +147,7 @@ def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[Mo
         return ((r[1:] - r[0]) / steps[:, None]).T
 
     n_data = problem.residuals(v0[None]).shape[1]
-    ridge = np.sqrt(n_data) * RIDGE
+    ridge = np.sqrt(n_data) * RIDGE * ridge_factor
 
     def fun_ridge(v):
         return np.concatenate([fun(v), ridge * (v - v0)])
@@ -149,8 +156,70 @@ def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[Mo
         return np.vstack([jac(v), np.diag(ridge)])
 
     r0 = fun(v0)
-    result = least_squares(fun_ridge, v0, jac=jac_ridge, method="lm", max_nfev=iterations, x_scale="jac")
+    result = least_squares(fun_ridge, v0 if start is None else start, jac=jac_ridge, method="lm",
+                           max_nfev=iterations, x_scale="jac")
     final = result.fun[:n_data]
     return HammersteinFit(problem.physical_model(result.x), path, coordinates,
                           float(np.sqrt(np.mean(r0 ** 2))), float(np.sqrt(np.mean(final ** 2))),
-                          int(result.njev or 0), int(result.nfev), result.message)
+                          int(result.njev or 0), int(result.nfev), result.message, result.x)
+
+
+def lti_vector() -> np.ndarray:
+    """The fit's parameters of the LTI network itself: identity sigmoids and B unchanged."""
+    return np.concatenate([initial_sigmoid_vector(), np.zeros(16)])
+
+
+def _exact_rms(parts: Sequence[np.ndarray]) -> float:
+    import math
+
+    return math.sqrt(math.fsum(math.fsum(p * p) for p in parts) / sum(p.size for p in parts))
+
+
+def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence[ModelRun], *,
+                       path: str = "statespace", iterations: int = 100,
+                       on_iteration: Callable[[int, float], None] | None = None) -> tuple[HammersteinFit, dict]:
+    """The Hammerstein fit with its ridge strength chosen by leave-one-file-out cross-validation.
+
+    Each candidate factor of RIDGE_FACTORS is scored by leaving out each training file in turn: the model fitted
+    to the others (one Gauss-Newton step from the fit on all files, with that file's rows and the factor's ridge:
+    the usual approximate leave-one-out refit, one Jacobian for all folds) is simulated on the left-out file, and
+    its RMS error there (winding and PM, weighted as in the fit) pooled over the folds. The LTI network is scored
+    on the same files (it saw them in the swarm, so the comparison favours it). The fit is redone on all files
+    with the best factor; `recommended` says which model did better on the left-out files.
+    """
+    fit = fit_hammerstein(base, params, runs, path=path, iterations=iterations, on_iteration=on_iteration)
+    if len(runs) < 2:
+        return fit, {"method": "fixed (cross-validation needs two training files or more)", "factor": 1.0}
+    problem = _Problem(base, FIT_PATHS[path], params, runs, loss_scales(runs, params))
+    v0, v1 = lti_vector(), fit.vector
+    steps = 1e-6 * np.maximum(1.0, np.abs(v1))
+    runs_r = []   # per run: (residuals at v1, Jacobian at v1, residuals of the LTI network)
+    for k in range(len(runs)):
+        one = _Problem(base, FIT_PATHS[path], params, [runs[k]], problem.scale_w)
+        r = one.residuals(np.vstack([v1, v1 + np.diag(steps), v0]))
+        r = np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)
+        runs_r.append((r[0], ((r[1:-1] - r[0]) / steps[:, None]).T, r[-1], one))
+    grams = [portable.matmul(j.T, j) for _, j, _, _ in runs_r]
+    grads = [portable.matmul(j.T, r[:, None])[:, 0] for r, j, _, _ in runs_r]
+    scores = {}
+    for factor in RIDGE_FACTORS:
+        held = []
+        for f in range(len(runs)):
+            others = [k for k in range(len(runs)) if k != f]
+            n_data = sum(runs_r[k][0].size for k in others)
+            rho2 = (np.sqrt(n_data) * RIDGE * factor) ** 2
+            lhs = sum(grams[k] for k in others) + np.diag(rho2)
+            rhs = -(sum(grads[k] for k in others) + rho2 * (v1 - v0))
+            v = v1 + portable.solve(lhs, rhs)
+            held.append(np.nan_to_num(runs_r[f][3].residuals(v[None])[0], nan=1e6, posinf=1e6, neginf=-1e6))
+        scores[factor] = _exact_rms(held)
+    lti = _exact_rms([r[2] for r in runs_r])
+    best = min(RIDGE_FACTORS, key=lambda f: (scores[f], f))
+    if best != 1.0:
+        fit = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 3, 1),
+                              on_iteration=on_iteration, ridge_factor=best, start=v1)   # a short walk from v1
+    recommended = "hammerstein" if scores[best] < lti else "lti-lptn"
+    return fit, {"method": "leave-one-file-out cross-validation", "factor": best,
+                 "cv_rms_C": {f"{f:g}": scores[f] for f in RIDGE_FACTORS}, "selected_rms_C": scores[best],
+                 "lti_rms_C": lti,
+                 "recommended": recommended}
