@@ -38,7 +38,8 @@ RIDGE = np.concatenate([np.full(4, 0.01), np.full(4, 0.01), np.full(4, 0.002), n
 # `cv`: the ridge's overall strength (a factor on RIDGE) chosen by leave-one-file-out cross-validation among these;
 # `fixed`: the factor 1 (the packaged model's path). Larger factors keep the model nearer the LTI network.
 REGULARIZATIONS = ("fixed", "cv")
-RIDGE_FACTORS = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
+CV_FACTORS = (100.0, 10.0, 1.0)    # strongest first: each fold's next fit starts from the more regular one
+CV_EVALUATIONS = 10                # LM function evaluations per fold fit (warm-started along the factors)
 
 
 @dataclass(frozen=True)
@@ -122,13 +123,13 @@ class _Problem:
 def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[ModelRun], *,
                     path: str = "statespace", iterations: int = 100,
                     on_iteration: Callable[[int, float], None] | None = None, ridge_factor: float = 1.0,
-                    start: np.ndarray | None = None) -> HammersteinFit:
+                    start: np.ndarray | None = None, scale_w: np.ndarray | None = None) -> HammersteinFit:
     """Fit sigmoid inputs and B's loss columns with the poles of `base` (physical, discrete) held fixed; the ridge
     pulls toward the LTI network with `ridge_factor` × RIDGE, the fit starts from `start` (default: there)."""
     if path not in FIT_PATHS:
         raise ValueError(f"unknown fit path {path!r}; choose one of {', '.join(FIT_PATHS)}")
     coordinates = FIT_PATHS[path]
-    problem = _Problem(base, coordinates, params, runs, loss_scales(runs, params))
+    problem = _Problem(base, coordinates, params, runs, loss_scales(runs, params) if scale_w is None else scale_w)
     v0 = lti_vector()
     calls = {"n": 0}
 
@@ -180,46 +181,45 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
                        on_iteration: Callable[[int, float], None] | None = None) -> tuple[HammersteinFit, dict]:
     """The Hammerstein fit with its ridge strength chosen by leave-one-file-out cross-validation.
 
-    Each candidate factor of RIDGE_FACTORS is scored by leaving out each training file in turn: the model fitted
-    to the others (one Gauss-Newton step from the fit on all files, with that file's rows and the factor's ridge:
-    the usual approximate leave-one-out refit, one Jacobian for all folds) is simulated on the left-out file, and
-    its RMS error there (winding and PM, weighted as in the fit) pooled over the folds. The LTI network is scored
-    on the same files (it saw them in the swarm, so the comparison favours it). The fit is redone on all files
-    with the best factor; `recommended` says which model did better on the left-out files.
+    For each training file in turn, the model is fitted to the other files with each factor of CV_FACTORS
+    (strongest first, each fit starting from the previous, more regular one, CV_EVALUATIONS LM evaluations each)
+    and simulated on the left-out file; a factor's score is the RMS error on the left-out files (winding and PM,
+    weighted as in the fit), pooled over the folds. The LTI network is scored on the same files (it saw them in the
+    swarm, so the comparison favours it). The final fit uses all files and the best factor, starting from the mean
+    of that factor's fold fits; `recommended` says which model did better on the left-out files.
     """
-    fit = fit_hammerstein(base, params, runs, path=path, iterations=iterations, on_iteration=on_iteration)
     if len(runs) < 2:
+        fit = fit_hammerstein(base, params, runs, path=path, iterations=iterations, on_iteration=on_iteration)
         return fit, {"method": "fixed (cross-validation needs two training files or more)", "factor": 1.0}
-    problem = _Problem(base, FIT_PATHS[path], params, runs, loss_scales(runs, params))
-    v0, v1 = lti_vector(), fit.vector
-    steps = 1e-6 * np.maximum(1.0, np.abs(v1))
-    runs_r = []   # per run: (residuals at v1, Jacobian at v1, residuals of the LTI network)
-    for k in range(len(runs)):
-        one = _Problem(base, FIT_PATHS[path], params, [runs[k]], problem.scale_w)
-        r = one.residuals(np.vstack([v1, v1 + np.diag(steps), v0]))
-        r = np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)
-        runs_r.append((r[0], ((r[1:-1] - r[0]) / steps[:, None]).T, r[-1], one))
-    grams = [portable.matmul(j.T, j) for _, j, _, _ in runs_r]
-    grads = [portable.matmul(j.T, r[:, None])[:, 0] for r, j, _, _ in runs_r]
-    scores = {}
-    for factor in RIDGE_FACTORS:
-        held = []
-        for f in range(len(runs)):
-            others = [k for k in range(len(runs)) if k != f]
-            n_data = sum(runs_r[k][0].size for k in others)
-            rho2 = (np.sqrt(n_data) * RIDGE * factor) ** 2
-            lhs = sum(grams[k] for k in others) + np.diag(rho2)
-            rhs = -(sum(grads[k] for k in others) + rho2 * (v1 - v0))
-            v = v1 + portable.solve(lhs, rhs)
-            held.append(np.nan_to_num(runs_r[f][3].residuals(v[None])[0], nan=1e6, posinf=1e6, neginf=-1e6))
-        scores[factor] = _exact_rms(held)
-    lti = _exact_rms([r[2] for r in runs_r])
-    best = min(RIDGE_FACTORS, key=lambda f: (scores[f], f))
-    if best != 1.0:
-        fit = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 3, 1),
-                              on_iteration=on_iteration, ridge_factor=best, start=v1)   # a short walk from v1
-    recommended = "hammerstein" if scores[best] < lti else "lti-lptn"
+    scale_w = loss_scales(runs, params)
+    v0 = lti_vector()
+    held = {factor: [] for factor in CV_FACTORS}
+    folds = {factor: [] for factor in CV_FACTORS}
+    lti = []
+    for f, left_out in enumerate(runs):
+        others = [r for k, r in enumerate(runs) if k != f]
+        check = _Problem(base, FIT_PATHS[path], params, [left_out], scale_w)
+        start = None
+        for factor in CV_FACTORS:
+            fold = fit_hammerstein(base, params, others, path=path, iterations=CV_EVALUATIONS, ridge_factor=factor,
+                                   start=start, scale_w=scale_w)
+            start = fold.vector
+            folds[factor].append(fold.vector)
+            held[factor].append(_finite(check.residuals(fold.vector[None])[0]))
+        lti.append(_finite(check.residuals(v0[None])[0]))
+        if on_iteration is not None:
+            on_iteration(f + 1, _exact_rms(held[CV_FACTORS[-1]]))
+    scores = {factor: _exact_rms(parts) for factor, parts in held.items()}
+    lti_rms = _exact_rms(lti)
+    best = min(CV_FACTORS, key=lambda factor: (scores[factor], -factor))   # a tie goes to the stronger ridge
+    start = np.mean(np.array(folds[best]), axis=0)
+    fit = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 3, 1),
+                          on_iteration=on_iteration, ridge_factor=best, start=start, scale_w=scale_w)
     return fit, {"method": "leave-one-file-out cross-validation", "factor": best,
-                 "cv_rms_C": {f"{f:g}": scores[f] for f in RIDGE_FACTORS}, "selected_rms_C": scores[best],
-                 "lti_rms_C": lti,
-                 "recommended": recommended}
+                 "cv_rms_C": {f"{f:g}": scores[f] for f in CV_FACTORS}, "selected_rms_C": scores[best],
+                 "lti_rms_C": lti_rms, "recommended": "hammerstein" if scores[best] < lti_rms else "lti-lptn",
+                 "fold_evaluations": CV_EVALUATIONS}
+
+
+def _finite(r: np.ndarray) -> np.ndarray:
+    return np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)
