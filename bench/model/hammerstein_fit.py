@@ -166,8 +166,13 @@ def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[Mo
 
 
 def lti_vector() -> np.ndarray:
-    """The fit's parameters of the LTI network itself: identity sigmoids and B unchanged."""
+    """Where the fit starts and what its ridge pulls toward: near-identity sigmoids and B unchanged."""
     return np.concatenate([initial_sigmoid_vector(), np.zeros(16)])
+
+
+def exact_lti_vector() -> np.ndarray:
+    """The LTI network itself: S(u) = u (no sigmoid term) and B unchanged."""
+    return np.concatenate([np.ones(4), np.zeros(4), np.zeros(4), np.ones(4), np.zeros(4), np.zeros(16)])
 
 
 def _exact_rms(parts: Sequence[np.ndarray]) -> float:
@@ -192,7 +197,7 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
         fit = fit_hammerstein(base, params, runs, path=path, iterations=iterations, on_iteration=on_iteration)
         return fit, {"method": "fixed (cross-validation needs two training files or more)", "factor": 1.0}
     scale_w = loss_scales(runs, params)
-    v0 = lti_vector()
+    v_lti = exact_lti_vector()
     held = {factor: [] for factor in CV_FACTORS}
     folds = {factor: [] for factor in CV_FACTORS}
     lti = []
@@ -206,7 +211,7 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
             start = fold.vector
             folds[factor].append(fold.vector)
             held[factor].append(_finite(check.residuals(fold.vector[None])[0]))
-        lti.append(_finite(check.residuals(v0[None])[0]))
+        lti.append(_finite(check.residuals(v_lti[None])[0]))
         if on_iteration is not None:
             on_iteration(f + 1, _exact_rms(held[CV_FACTORS[-1]]))
     scores = {factor: _exact_rms(parts) for factor, parts in held.items()}

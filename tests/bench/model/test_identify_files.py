@@ -79,7 +79,15 @@ def test_identify_on_files_records_the_motor_and_the_split(identified, motor_fil
     assert [f["file"] for f in prov["split"]["train"]] == ["profile_01.csv", "profile_02.csv"]
     assert [f["file"] for f in prov["split"]["validate"]] == ["profile_03.csv"]
     assert all(len(f["sha256"]) == 64 and f["rows"] == ROWS for f in prov["split"]["train"])
-    assert prov["pso"]["prior"] == "table1" and prov["pso"]["bounds"] == [0.5, 2.0]
+    assert prov["pso"]["prior"] == "auto" and prov["pso"]["bounds"] == [0.1, 10.0]
+    auto = prov["pso"]["auto_prior"]
+    assert set(auto["responses"]) == {"winding", "pm"} and auto["responses"]["winding"]["gain_stator_K_per_W"] > 0
+    # the files route polishes, gives error bars and cross-validates the Hammerstein ridge by default
+    assert prov["polish"]["starts"] >= 1 and prov["polish"]["cost"] <= prov["polish"]["swarm_cost"]
+    names = prov["uncertainty"]["names"]
+    assert set(prov["uncertainty"]["parameters"]) == set(names) and len(prov["uncertainty"]["correlation"]) == 22
+    assert prov["lm"]["regularization"]["method"] == "leave-one-file-out cross-validation"
+    assert summary["uncertainty"] == prov["uncertainty"] and summary["polish"] == prov["polish"]
     assert set(prov["baselines"]["copper_lowpass"]) == {"winding", "pm"}
     assert summary["split"] == prov["split"]
     # every parameter the swarm left on a bound is named, in JSON and as a warning
