@@ -12,6 +12,7 @@ The temperature sources and copper losses use the model's own previous estimate,
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -176,8 +177,6 @@ def exact_lti_vector() -> np.ndarray:
 
 
 def _exact_rms(parts: Sequence[np.ndarray]) -> float:
-    import math
-
     return math.sqrt(math.fsum(math.fsum(p * p) for p in parts) / sum(p.size for p in parts))
 
 
@@ -217,7 +216,7 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
     scores = {factor: _exact_rms(parts) for factor, parts in held.items()}
     lti_rms = _exact_rms(lti)
     best = min(CV_FACTORS, key=lambda factor: (scores[factor], -factor))   # a tie goes to the stronger ridge
-    start = np.mean(np.array(folds[best]), axis=0)
+    start = np.array([math.fsum(column) / len(runs) for column in np.array(folds[best]).T])   # exact sums
     fit = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 3, 1),
                           on_iteration=on_iteration, ridge_factor=best, start=start, scale_w=scale_w)
     return fit, {"method": "leave-one-file-out cross-validation", "factor": best,

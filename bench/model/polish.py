@@ -148,7 +148,7 @@ def distinct_starts(candidates: np.ndarray, lower: np.ndarray, upper: np.ndarray
     chosen = []
     span = upper - lower
     for c in candidates:
-        if all(math.sqrt(float(np.mean(((c - o) / span) ** 2))) > DISTINCT for o in chosen):
+        if all(math.sqrt(math.fsum(((c - o) / span) ** 2) / len(span)) > DISTINCT for o in chosen):
             chosen.append(c)
         if len(chosen) == count:
             break
@@ -167,6 +167,16 @@ def _single_threaded(task):
     return run
 
 
+def _threadsafe_kernels() -> bool:
+    """numba's OpenMP and TBB layers take parallel kernels from several threads; its fallback, workqueue, aborts."""
+    import numba
+
+    try:
+        return numba.threading_layer() != "workqueue"
+    except ValueError:       # no parallel kernel has run yet in this process
+        return numba.config.THREADING_LAYER in ("omp", "tbb")
+
+
 def available_cores() -> int:
     try:
         return len(os.sched_getaffinity(0))
@@ -180,7 +190,7 @@ def polish(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: 
     problem = Residuals(runs, dt, nodes, scaled)
     chosen = distinct_starts(candidates, lower, upper, starts)
     start_costs = [float(c) for c in batch_cost(from_search(np.array(chosen), scaled), runs, dt, np.ones(4), nodes)]
-    workers = min(len(chosen), available_cores())
+    workers = min(len(chosen), available_cores()) if _threadsafe_kernels() else 1
     if workers > 1:   # threads: the simulation kernel releases the GIL (forking under OpenMP is unsafe)
         with ThreadPoolExecutor(workers) as pool:
             results = list(pool.map(_single_threaded(lambda s: polish_one(problem, s, lower, upper)), chosen))
