@@ -15,7 +15,8 @@ from pathlib import Path
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
-from bench.model.hammerstein_fit import FIT_PATHS
+from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS
+from bench.model.polish import POLISH_STARTS
 from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
 from target_sim.kinds import MODEL_KINDS
 
@@ -39,13 +40,20 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
                    help="validation data files or globs (held out: used only for the reported figures)")
     add_data_arguments(p)
-    prior = p.add_mutually_exclusive_group()
-    prior.add_argument("--bounds", default=None, metavar="LOW,HIGH",
-                       help="search capacitances and resistances within LOW..HIGH × the prior (default: the motor's "
-                            "thermal_prior bounds, 0.6,1.6 without one)")
-    prior.add_argument("--prior", type=Path, default=None,
-                       help="prior file (.json/.toml: 'parameters' = a set name or all 22 values, optional 'bounds'); "
-                            "default: the motor's thermal_prior, else Table 1")
+    p.add_argument("--bounds", default=None, metavar="LOW,HIGH",
+                   help="search capacitances and resistances within LOW..HIGH × the prior (default: the prior's "
+                        "bounds: 0.1,10 for auto, else the thermal_prior's, 0.6,1.6 without one)")
+    p.add_argument("--prior", default=None, metavar="auto|FILE",
+                   help="'auto' (a starting network read from the training data: each measured node's gain and "
+                        "time constant) or a prior file (.json/.toml: 'parameters' = a set name or all 22 values, "
+                        "optional 'bounds'); default: the motor's thermal_prior, else Table 1")
+    p.add_argument("--polish", type=int, default=None, metavar="STARTS",
+                   help="local Levenberg-Marquardt polish of the swarm's result from its STARTS best distinct "
+                        "particles, one process per core, and the parameters' standard errors (default 4 with "
+                        "--train files, 0 for the built-in campaign: the packaged model's path)")
+    p.add_argument("--regularization", choices=REGULARIZATIONS, default=None,
+                   help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
+                        "with --train files) or fixed (default for the built-in campaign)")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -68,14 +76,19 @@ def add_subparser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.model.identify import identify
     from bench.model.pipeline import validation_metrics
-    from bench.motor.description import default_motor, load_motor, load_prior, parse_bounds
+    from bench.motor.description import AUTO_PRIOR, automatic_prior, default_motor, load_motor, load_prior, parse_bounds
 
     if args.dt is not None and not 0 < args.dt < math.inf:
         raise UsageError("--dt must be a positive number of seconds")
     if args.swarm < 2 or args.iterations < 1 or args.lm_iterations < 1:
         raise UsageError("--swarm must be at least 2 and the iteration counts at least 1")
+    if args.polish is not None and args.polish < 0:
+        raise UsageError("--polish must be 0 (no polish) or a number of starts")
     motor = load_motor(args.motor) if args.motor else default_motor()
-    prior = load_prior(args.prior) if args.prior else None
+    if args.prior == AUTO_PRIOR:
+        prior = automatic_prior()
+    else:
+        prior = load_prior(args.prior) if args.prior else None
     width = parse_bounds(args.bounds, "--bounds") if args.bounds else None
     kinds = KINDS if args.all_kinds else (args.kind,)
     outputs = {kind: args.out if kind == args.kind else args.out.with_name(f"{args.out.stem}-{kind}.json")
@@ -83,11 +96,16 @@ def run(args: argparse.Namespace) -> int:
     for path in outputs.values():  # before the identification, not after it
         check_writable(path, "--out")
     train, validate = _split(args, motor)
+    # the built-in campaign keeps the packaged model's path unless asked otherwise (its artifact is reproduced)
+    files = args.train is not None
+    polish = args.polish if args.polish is not None else (POLISH_STARTS if files else 0)
+    regularization = args.regularization or ("cv" if files else "fixed")
     dt = _model_step(args.dt, train + validate)
     progress = None if (args.quiet or args.json) else _progress_bar()
     result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
                       lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
-                      prior=prior, width=width, progress=progress)
+                      prior=prior, width=width, polish_starts=polish, regularization=regularization,
+                      progress=progress)
     metrics = validation_metrics(result, validate, args.realization)
     written = {}
     for kind, path in outputs.items():
@@ -95,6 +113,16 @@ def run(args: argparse.Namespace) -> int:
         write_text_atomically(path, _artifact_text(result.content(kind, realization, metrics)))
         written[kind] = str(path)
     warnings = [_bound_warning(hit) for hit in result.lptn.on_bounds]
+    prov = result.provenance
+    uncertainty = prov.get("uncertainty")
+    if uncertainty and uncertainty["unidentifiable"]:
+        warnings.append(f"the training data cannot identify {', '.join(uncertainty['unidentifiable'])} (standard "
+                        "error above a factor of 2, or half the search range); their values are the prior's guess "
+                        "moved by the fit")
+    selection = prov["lm"].get("regularization")
+    deploy = _deployment(selection, metrics)
+    if deploy:
+        warnings.append(deploy)
     summary = {"artifacts": written, "motor": motor.name, "loss_model": motor.loss_kind, "dt": dt,
                "data_sample_period_s": result.data_sample_period_s, "split": result.provenance["split"],
                "fit_path": args.fit_path, "realization": args.realization,
@@ -104,7 +132,8 @@ def run(args: argparse.Namespace) -> int:
                "lm": {"rms_initial": result.hammerstein.cost_initial, "rms_final": result.hammerstein.cost_final,
                       "evaluations": result.hammerstein.evaluations},
                "baselines": result.provenance["baselines"], "timings_s": result.timings_s, "validation": metrics,
-               "warnings": warnings}
+               "nodes": list(result.lptn.nodes), "polish": prov.get("polish"), "uncertainty": uncertainty,
+               "auto_prior": prov["pso"].get("auto_prior"), "regularization": selection, "warnings": warnings}
     if not args.quiet:
         for warning in warnings:
             print(f"bench: warning: {warning}", file=sys.stderr)
@@ -166,6 +195,24 @@ def _model_step(dt: float | None, datasets) -> float:
     return dt
 
 
+def _deployment(selection: dict | None, metrics: dict) -> str | None:
+    """A sentence when the Hammerstein model did worse than the LTI network it refines (left-out training files
+    in the cross-validation, or the validation files), None otherwise."""
+    where = []
+    if selection and selection.get("recommended") == "lti-lptn":
+        where.append(f"on left-out training files (RMS {selection['selected_rms_C']:.3f} vs "
+                     f"{selection['lti_rms_C']:.3f} °C)")
+    ham, lti = metrics.get("hammerstein"), metrics.get("lti-lptn")
+    if ham and lti:
+        worse = [n for n in ("winding", "pm") if ham["float32"][n]["rmse"] > lti["float32"][n]["rmse"]]
+        if worse:
+            where.append(f"on the validation files ({', '.join(worse)} RMSE)")
+    if not where:
+        return None
+    return ("the Hammerstein model is worse than the LTI LPTN it refines " + " and ".join(where)
+            + "; deploy the lti-lptn artifact (--kind lti-lptn or --all-kinds)")
+
+
 def _bound_warning(hit: dict) -> str:
     return (f"LPTN parameter {hit['name']} = {hit['value']:.6g} ended on its {hit['bound']} bound "
             f"({hit['limit']:.6g}); the prior or the bounds may be off (widen --bounds or give a --prior)")
@@ -175,6 +222,21 @@ def _artifact_text(content: dict) -> str:
     from target_sim.artifact import dumps
 
     return dumps(content)
+
+
+def _print_uncertainty(u: dict) -> None:
+    print("LPTN parameters, standard error (relative for the log-scaled ones):")
+    for name, p in u["parameters"].items():
+        se = "unidentifiable" if p["se"] is None else (
+            f"± {100 * p['relative_se']:.1f} %" if p["relative_se"] is not None else f"± {p['se']:.3g}")
+        print(f"  {name:9} {p['value']:12.5g}  {se}")
+    names, corr = u["names"], u["correlation"]
+    strong = [f"{names[i]}/{names[j]} {corr[i][j]:+.2f}" for i in range(len(names)) for j in range(i + 1, len(names))
+              if abs(corr[i][j]) >= 0.95]
+    if strong:
+        print(f"  strongly correlated (|r| >= 0.95): {', '.join(strong)}")
+    if u["unidentifiable"]:
+        print(f"  not identifiable from these data: {', '.join(u['unidentifiable'])}")
 
 
 def _progress_bar():
@@ -199,6 +261,17 @@ def _print_summary(s: dict) -> None:
           f"{len(s['split']['train'])} file(s), validated on {len(s['split']['validate'])}")
     print(f"PSO {s['timings_s']['pso']:.1f} s (cost {s['pso_cost']:.4f}), "
           f"LM {s['timings_s']['lm']:.1f} s (RMS {s['lm']['rms_initial']:.3f} -> {s['lm']['rms_final']:.3f} °C)")
+    if s.get("polish"):
+        p = s["polish"]
+        print(f"polish {s['timings_s']['polish']:.1f} s from {p['starts']} start(s): cost {p['swarm_cost']:.4f} -> "
+              f"{p['cost']:.4f} (start {p['kept'] + 1} kept); nodes fitted: {', '.join(s['nodes'])}")
+    if s.get("uncertainty"):
+        _print_uncertainty(s["uncertainty"])
+    if s.get("regularization") and "cv_rms_C" in s["regularization"]:
+        r = s["regularization"]
+        print(f"Hammerstein ridge factor {r['factor']:g} by leave-one-file-out cross-validation (RMS on left-out "
+              f"files {r['selected_rms_C']:.3f} °C, LTI LPTN {r['lti_rms_C']:.3f} °C): deploy "
+              f"{r['recommended']}")
     print("validation (held-out files together), RMSE / max |error| °C:")
     for model, m in s["validation"].items():
         for prec in ("float64", "float32"):

@@ -9,11 +9,22 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.model.auto_prior import auto_prior
 from bench.model.baselines import fit_baselines
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
-from bench.model.hammerstein_fit import HammersteinFit, fit_hammerstein
-from bench.model.lptn_fit import DEFAULT_WIDTH, LptnFit, identify_lptn
+from bench.model.hammerstein_fit import REGULARIZATIONS, HammersteinFit, fit_hammerstein, fit_hammerstein_cv
+from bench.model.lptn_fit import (
+    DEFAULT_WIDTH,
+    FITTED_ALWAYS,
+    NODE_WEIGHTS,
+    LptnFit,
+    identify_lptn,
+    log_scaled,
+    measured_nodes,
+    to_search,
+)
 from bench.model.metrics import error_metrics
+from bench.model.polish import polish_lptn, uncertainty
 from bench.model.runs import ModelRun, model_run
 from bench.motor.description import MotorDescription, ThermalPrior, default_motor
 from bench.motor.losses import EstimatorMotor, LossModel
@@ -66,29 +77,52 @@ def prepare_runs(datasets, loss_model: LossModel, motor: EstimatorMotor, dt: flo
 def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_size: int = 220,
              pso_iterations: int = 100, lm_iterations: int = 100, seed: int = 0, fit_path: str = "statespace",
              motor: MotorDescription | None = None, prior: ThermalPrior | None = None,
-             width: tuple[float, float] | None = None, validation=(),
+             width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
+             regularization: str = "fixed",
              progress: Callable[[str, int, float], None] | None = None) -> Identification:
-    """Identify the LPTN (PSO) and the Hammerstein model (LM) on the training datasets of `motor` (default: the
-    built-in virtual motor). The prior and bounds: `prior`, else the motor's thermal_prior, else Table 1 at
-    0.6-1.6; `width` overrides the prior's bounds. `validation` datasets are only recorded in the provenance."""
+    """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
+    `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
+    the built-in virtual motor). The prior and bounds: `prior`, else the motor's thermal_prior, else Table 1 at
+    0.6-1.6; an `auto` prior is read from the training data (bench.model.auto_prior); `width` overrides the
+    prior's bounds. `validation` datasets are only recorded in the provenance. The defaults (no polish, fixed
+    ridge) are the packaged model's path."""
     if discretization != "zoh":
         raise ValueError("identification discretizes by zero-order hold, as the paper's Hammerstein fit did")
+    if regularization not in REGULARIZATIONS:
+        raise ValueError(f"unknown regularization {regularization!r}; choose one of {', '.join(REGULARIZATIONS)}")
     motor = motor or default_motor()
     prior = prior or motor.prior
-    start = prior.parameters if prior else TABLE1
     width = width or (prior.bounds if prior else DEFAULT_WIDTH)
     constants = motor.constants()
     runs = prepare_runs(datasets, motor.loss_model, constants, dt)
     timings = {}
     started = time.perf_counter()
+    derived = None
+    if prior is not None and prior.automatic:
+        derived = auto_prior(runs, measured_nodes(runs), motor.limits.torque_Nm)
+        start = derived.parameters
+    else:
+        start = prior.parameters if prior else TABLE1
     lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
                          width=width, on_iteration=(lambda i, c: progress("pso", i, c)) if progress else None)
     timings["pso"] = time.perf_counter() - started
+    polished, errors = None, None
+    if polish_starts > 0:
+        started = time.perf_counter()
+        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts)
+        errors = uncertainty(runs, dt, lptn.nodes, log_scaled(lptn.bounds), to_search(
+            np.array(lptn.params.as_vector()), log_scaled(lptn.bounds)), lptn.bounds)
+        timings["polish"] = time.perf_counter() - started
     started = time.perf_counter()
     base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", motor.loss_model,
                                     constants))
-    ham = fit_hammerstein(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
-                          on_iteration=(lambda i, c: progress("lm", i, c)) if progress else None)
+    on_lm = (lambda i, c: progress("lm", i, c)) if progress else None
+    if regularization == "cv":
+        ham, selection = fit_hammerstein_cv(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
+                                            on_iteration=on_lm)
+    else:
+        ham, selection = fit_hammerstein(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
+                                         on_iteration=on_lm), None
     timings["lm"] = time.perf_counter() - started
     provenance = {
         "motor": motor.provenance(),
@@ -101,6 +135,23 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         "baselines": fit_baselines(runs),
         "versions": _versions(),
     }
+    # what the new options add (absent on the packaged model's path, so its artifact keeps its bytes)
+    if lptn.nodes != FITTED_ALWAYS:
+        provenance["pso"]["nodes"] = {node: NODE_WEIGHTS[node] for node in lptn.nodes}
+        provenance["pso"]["cost"] = ("weighted sum of log MSE over the measured nodes: Gaussian maximum "
+                                     "likelihood with unknown variances")
+    if derived is not None:
+        provenance["pso"]["auto_prior"] = {"parameters": derived.parameters.as_dict(),
+                                           "responses": {n: r.as_dict() for n, r in derived.responses.items()},
+                                           "fallbacks": list(derived.fallbacks)}
+    if polished is not None:
+        provenance["polish"] = {"starts": len(polished.start_costs), "method": "Levenberg-Marquardt (MINPACK) in "
+                                "log-parameter space, variances re-estimated each round", "start_costs":
+                                polished.start_costs, "final_costs": polished.final_costs, "kept": polished.kept,
+                                "cost": polished.cost, "swarm_cost": polished.swarm_cost}
+        provenance["uncertainty"] = errors
+    if selection is not None:
+        provenance["lm"]["regularization"] = selection
     period = datasets[0].sample_period_s
     return Identification(dt, discretization, lptn, ham, motor.loss_model, constants, provenance, period, timings,
                           delta_reference(datasets))

@@ -1,8 +1,9 @@
 """Identification of the 22 LPTN parameters by particle swarm (paper section II-D).
 
 Cost: the maximum-likelihood criterion for independent Gaussian output errors with unknown variances,
-J = Σ_outputs log(MSE_output), over the winding and PM temperatures of all identification runs (20 and 60 °C)
-together; it is scale-free, so winding and PM weigh by their relative fit, not by their size in °C.
+J = Σ_nodes w_node · log(MSE_node), over every node the training runs measure (winding and PM always, the stator
+yoke and tooth when every training file has them; NODE_WEIGHTS) of all identification runs together; it is
+scale-free, so the nodes weigh by their relative fit, not by their size in °C.
 Each candidate is simulated exactly as the estimator runs (closed loop, sources from its previous estimate).
 The search is done in log coordinates for the positive parameters, so a factor of two up or down is one step.
 """
@@ -80,6 +81,20 @@ def search_bounds(bounds: dict[str, tuple[float, float]] = BOUNDS) -> tuple[np.n
     return to_search(lower, scaled), to_search(upper, scaled)
 
 
+# The nodes in the order of run_batch's error sums, and their weights in the cost. Winding and PM, the outputs a
+# model is deployed for, weigh 1 (plain maximum likelihood). Yoke and tooth weigh 1/2 each: both sit in the stator
+# iron and move together, so together they count as one more measured node; they pin the network's inner states
+# (a fit to winding and PM alone leaves them 6-8 °C off) without outvoting the two deployed outputs.
+NODES = ("winding", "pm", "yoke", "tooth")
+NODE_WEIGHTS = {"winding": 1.0, "pm": 1.0, "yoke": 0.5, "tooth": 0.5}
+FITTED_ALWAYS = ("winding", "pm")
+
+
+def measured_nodes(runs: Sequence[ModelRun]) -> tuple[str, ...]:
+    """The nodes every run measures: winding and PM, plus yoke and tooth when all files have them."""
+    return FITTED_ALWAYS + tuple(n for n in NODES[2:] if all(r.reference(n) is not None for r in runs))
+
+
 # A parameter within this share of its search range from a bound has ended on it.
 ON_BOUND_SHARE = 1e-3
 
@@ -110,26 +125,30 @@ def discrete_blocks(vectors: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndar
     return phi[:, :4, :4], phi[:, :4, 4:]
 
 
-def likelihood_cost(sse: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Σ log(MSE) over winding and PM; sse (P, 2) summed over runs, counts (2,) samples per output."""
+def likelihood_cost(sse: np.ndarray, counts: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Σ w·log(MSE) over the fitted nodes; sse (P, nodes) summed over runs, counts (nodes,) samples per node."""
+    weights = np.ones(sse.shape[1]) if weights is None else np.asarray(weights, float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.sum(portable.log_array(sse / counts), axis=1)
+        return np.sum(weights * portable.log_array(sse / counts), axis=1)
 
 
-def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w: np.ndarray) -> np.ndarray:
-    """The cost of each parameter vector (P, 22) over all runs."""
+def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w: np.ndarray,
+               nodes: tuple[str, ...] = FITTED_ALWAYS) -> np.ndarray:
+    """The cost of each parameter vector (P, 22) over all runs and the given measured nodes."""
     a_d, b_d = discrete_blocks(vectors, dt)
     n = len(vectors)
     c = np.broadcast_to(np.eye(4), (n, 4, 4))
     names = LptnParameters.names()
     theta = np.asarray(vectors, float)[:, [names.index(n) for n in LOOP_PARAMETERS]]
     sig = np.broadcast_to(identity_sigmoid(scale_w), (n, 6, 4))
-    sse = np.zeros((n, 2))
+    columns = [NODES.index(node) for node in nodes]
+    sse = np.zeros((n, len(nodes)))
     for run in runs:
-        part, _ = run_batch(a_d, b_d, c, theta, sig, run.inputs, run.initial, run.ref_winding, run.ref_pm)
-        sse += part
-    counts = np.full(2, float(sum(len(r.ref_winding) for r in runs)))
-    return likelihood_cost(sse, counts)
+        part, _ = run_batch(a_d, b_d, c, theta, sig, run.inputs, run.initial, run.ref_winding, run.ref_pm,
+                            ref_y=run.ref_yoke, ref_t=run.ref_tooth)
+        sse += part[:, columns]
+    counts = np.full(len(nodes), float(sum(len(r.ref_winding) for r in runs)))
+    return likelihood_cost(sse, counts, [NODE_WEIGHTS[node] for node in nodes])
 
 
 @dataclass(frozen=True)
@@ -143,6 +162,8 @@ class LptnFit:
     iterations: int
     bounds: dict[str, tuple[float, float]]
     on_bounds: list[dict]          # the parameters that ended on a bound (parameters_on_bounds)
+    nodes: tuple[str, ...] = FITTED_ALWAYS    # the measured nodes in the cost
+    candidates: np.ndarray | None = None      # the swarm's personal bests (search coordinates), best first
 
 
 def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220, iterations: int = 100,
@@ -157,9 +178,11 @@ def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220,
     lower, upper = search_bounds(bounds)
     initial = to_search(np.clip(start.as_vector(), [b[0] for b in bounds.values()], [b[1] for b in bounds.values()]),
                         scaled)
-    result = particle_swarm(lambda pos: batch_cost(from_search(pos, scaled), runs, dt, scale_w), lower, upper,
-                            swarm_size=swarm_size, iterations=iterations, seed=seed,
+    nodes = measured_nodes(runs)
+    result = particle_swarm(lambda pos: batch_cost(from_search(pos, scaled), runs, dt, scale_w, nodes), lower,
+                            upper, swarm_size=swarm_size, iterations=iterations, seed=seed,
                             initial=initial, on_iteration=on_iteration)
     params = LptnParameters.from_vector(from_search(result.best, scaled))
+    order = np.argsort(result.personal_costs, kind="stable")
     return LptnFit(params, result.best_cost, result.history.tolist(), result.evaluations, seed, swarm_size,
-                   iterations, bounds, parameters_on_bounds(params, bounds))
+                   iterations, bounds, parameters_on_bounds(params, bounds), nodes, result.personal_bests[order])

@@ -25,6 +25,12 @@ class ModelRun:
     ref_winding: np.ndarray     # measured winding temperature at step_time_s (linear interpolation)
     ref_pm: np.ndarray
     initial: np.ndarray         # y0 = [yoke, winding, tooth, magnet] at t = 0
+    ref_yoke: np.ndarray | None = None    # measured yoke and tooth temperatures, when the data have them
+    ref_tooth: np.ndarray | None = None
+
+    def reference(self, node: str) -> np.ndarray | None:
+        """The measured temperature of a node (winding, pm, yoke, tooth) at the step times, None if not measured."""
+        return {"winding": self.ref_winding, "pm": self.ref_pm, "yoke": self.ref_yoke, "tooth": self.ref_tooth}[node]
 
 
 def drive_matrix(dataset, columns: tuple[str, ...] = DRIVE_SIGNALS) -> np.ndarray:
@@ -62,4 +68,10 @@ def model_run(dataset, loss_model: LossModel, motor: EstimatorMotor, dt: float, 
         name=name or str(getattr(dataset, "path", "run")), dt=dt, inputs=inputs, step_time_s=t_steps,
         ref_winding=np.interp(t_steps, dataset.time_s, dataset.winding_C),
         ref_pm=np.interp(t_steps, dataset.time_s, dataset.pm_C),
-        initial=initial_temperatures(dataset))
+        initial=initial_temperatures(dataset),
+        ref_yoke=_measured(dataset, "yoke_C", t_steps), ref_tooth=_measured(dataset, "tooth_C", t_steps))
+
+
+def _measured(dataset, column: str, t_steps: np.ndarray) -> np.ndarray | None:
+    values = getattr(dataset, column, None)
+    return None if values is None else np.interp(t_steps, dataset.time_s, values)

@@ -71,9 +71,22 @@ class Limits:
 class ThermalPrior:
     """Centre of the LPTN search and the factors around it for capacitances and resistances."""
 
-    parameters: LptnParameters
-    source: str                     # "table1", "table1-refined" or "file"
+    parameters: LptnParameters | None   # None for "auto": derived from the training data at identification
+    source: str                     # "table1", "table1-refined", "file" or "auto"
     bounds: tuple[float, float] = DEFAULT_BOUNDS
+
+    @property
+    def automatic(self) -> bool:
+        return self.source == AUTO_PRIOR
+
+
+AUTO_PRIOR = "auto"
+AUTO_BOUNDS = (0.1, 10.0)     # bench.model.auto_prior.AUTO_BOUNDS: a data-derived prior is right within a few ×
+
+
+def automatic_prior(bounds: tuple[float, float] | None = None) -> ThermalPrior:
+    """`auto`: the starting network comes from the training data (bench.model.auto_prior)."""
+    return ThermalPrior(None, AUTO_PRIOR, bounds or AUTO_BOUNDS)
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,20 +227,23 @@ def _prior(table: Any, where: str) -> ThermalPrior | None:
         raise MotorFileError(f"{where}: thermal_prior must be a table with 'parameters' and optionally 'bounds'")
     check = Checker(where)
     check.only(table, "thermal_prior", ("parameters", "bounds"))
-    bounds = parse_bounds(table.get("bounds", list(DEFAULT_BOUNDS)), f"{where}: thermal_prior.bounds")
+    default = AUTO_BOUNDS if table.get("parameters") == AUTO_PRIOR else DEFAULT_BOUNDS
+    bounds = parse_bounds(table.get("bounds", list(default)), f"{where}: thermal_prior.bounds")
     return ThermalPrior(*prior_parameters(table.get("parameters"), f"{where}: thermal_prior.parameters"), bounds)
 
 
-def prior_parameters(value: Any, where: str) -> tuple[LptnParameters, str]:
-    """A named parameter set or a table of all 22 parameters -> (parameters, source)."""
+def prior_parameters(value: Any, where: str) -> tuple[LptnParameters | None, str]:
+    """A named parameter set, "auto" or a table of all 22 parameters -> (parameters, source)."""
+    if value == AUTO_PRIOR:
+        return None, AUTO_PRIOR
     if isinstance(value, str):
         if value not in PARAMETER_SETS:
-            raise MotorFileError(f"{where} {value!r} is not a parameter set ({', '.join(PARAMETER_SETS)}); give "
-                                 "one of those or a table of all 22 parameters")
+            raise MotorFileError(f"{where} {value!r} is not a parameter set ({', '.join(PARAMETER_SETS)}) or "
+                                 f"{AUTO_PRIOR!r}; give one of those or a table of all 22 parameters")
         return PARAMETER_SETS[value], value
     if not isinstance(value, dict):
-        raise MotorFileError(f"{where} must name a parameter set ({', '.join(PARAMETER_SETS)}) or be a table of "
-                             "the 22 LPTN parameters")
+        raise MotorFileError(f"{where} must name a parameter set ({', '.join(PARAMETER_SETS)}), be {AUTO_PRIOR!r} "
+                             "or be a table of the 22 LPTN parameters")
     names = LptnParameters.names()
     missing = [n for n in names if n not in value]
     extra = [k for k in value if k not in names]

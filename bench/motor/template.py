@@ -41,8 +41,11 @@ magnet_reference_Hz = 933.0
 magnet_no_load_share = 0.4
 
 [thermal_prior]                      # optional: where the particle swarm starts and how far it may go
-parameters = "table1"                # a parameter set (table1, table1-refined) or a table of the 22 values
-bounds = [0.5, 2.0]                  # capacitances and resistances within 0.5..2 × the prior
+parameters = "auto"                  # auto: read from the training data (each measured node's gain and time
+                                     # constant); or a parameter set (table1, table1-refined) or a table of the
+                                     # 22 values, your network if you have one
+bounds = [0.1, 10.0]                 # capacitances and resistances within 0.1..10 × the prior (0.6..1.6 suits
+                                     # a fitted network of this motor)
 '''
 
 

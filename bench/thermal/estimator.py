@@ -96,7 +96,7 @@ def model_step(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_c
 
 @numba.njit(cache=True, fastmath=False)
 def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w,
-               ref_m, traj, keep, use_sigmoid):
+               ref_m, ref_y, ref_t, traj, keep, use_sigmoid):
     n_steps = ratio.shape[0]
     x = np.zeros(4)
     x_new = np.zeros(4)
@@ -108,6 +108,8 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
             x[i] += c_inv[i, j] * y0[j]
     sse_w = 0.0
     sse_m = 0.0
+    sse_y = 0.0
+    sse_t = 0.0
     for k in range(n_steps):
         model_step(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, k, x, x_new, y,
                    u, gains, use_sigmoid)
@@ -118,22 +120,29 @@ def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, 
         dm = y[3] - ref_m[k]
         sse_w += dw * dw
         sse_m += dm * dm
-    return sse_w, sse_m
+        d_y = y[0] - ref_y[k]    # yoke and tooth: summed separately, so winding and PM keep their bits
+        d_t = y[2] - ref_t[k]
+        sse_y += d_y * d_y
+        sse_t += d_t * d_t
+    return sse_w, sse_m, sse_y, sse_t
 
 
-@numba.njit(parallel=True, cache=True)
+# nogil: the local polish runs its starts in threads, one per core (bench.model.polish)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w, ref_m,
-           traj, keep, sse, use_sigmoid):
+           ref_y, ref_t, traj, keep, sse, use_sigmoid):
     for p in numba.prange(a.shape[0]):
-        sse[p, 0], sse[p, 1] = _one_model(a[p], b[p], c[p], c_inv[p], theta[p], sig[p], lut, ratio, coolant,
-                                          ambient, i_max, alpha_cu, copper_ref, y0, ref_w, ref_m, traj[p], keep,
-                                          use_sigmoid)
+        sse[p, 0], sse[p, 1], sse[p, 2], sse[p, 3] = _one_model(
+            a[p], b[p], c[p], c_inv[p], theta[p], sig[p], lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref,
+            y0, ref_w, ref_m, ref_y, ref_t, traj[p], keep, use_sigmoid)
 
 
-def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=None, keep_trajectories=False):
+def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=None, keep_trajectories=False,
+              ref_y=None, ref_t=None):
     """Run P models over one run. Shapes: a (P,4,4), b (P,4,8), c (P,4,4), theta (P,14), sig (P,6,4).
 
-    Returns (sse (P, 2) for winding and PM against the references, trajectories (P, steps, 4) or None).
+    Returns (sse (P, 4) for winding, PM, yoke and tooth against the references (a missing reference counts as
+    zeros), trajectories (P, steps, 4) or None).
     """
     a, b, c = (np.ascontiguousarray(m, dtype=np.float64) for m in (a, b, c))
     n_models, n_steps = a.shape[0], inputs.speed_ratio.shape[0]
@@ -141,13 +150,15 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
     zeros = np.zeros(n_steps)
     ref_w = zeros if ref_w is None else np.ascontiguousarray(ref_w, dtype=np.float64)
     ref_m = zeros if ref_m is None else np.ascontiguousarray(ref_m, dtype=np.float64)
+    ref_y = zeros if ref_y is None else np.ascontiguousarray(ref_y, dtype=np.float64)
+    ref_t = zeros if ref_t is None else np.ascontiguousarray(ref_t, dtype=np.float64)
     traj = np.zeros((n_models, n_steps if keep_trajectories else 1, 4))
-    sse = np.zeros((n_models, 2))
+    sse = np.zeros((n_models, 4))
     sig = np.ascontiguousarray(sig, dtype=np.float64)
     use_sigmoid = not np.allclose(sig, identity_sigmoid(sig[:, 0, :]), rtol=0, atol=0)
     _batch(a, b, c, c_inv, np.ascontiguousarray(theta, dtype=np.float64), sig,
            np.ascontiguousarray(inputs.table_losses), np.ascontiguousarray(inputs.speed_ratio),
            np.ascontiguousarray(inputs.coolant), np.ascontiguousarray(inputs.ambient), float(inputs.current_max),
            float(inputs.alpha_cu), float(inputs.copper_reference),
-           np.asarray(y0, dtype=np.float64), ref_w, ref_m, traj, keep_trajectories, sse, use_sigmoid)
+           np.asarray(y0, dtype=np.float64), ref_w, ref_m, ref_y, ref_t, traj, keep_trajectories, sse, use_sigmoid)
     return sse, (traj if keep_trajectories else None)

@@ -21,6 +21,8 @@ class SwarmResult:
     best_cost: float
     history: np.ndarray           # best cost after each iteration
     evaluations: int
+    personal_bests: np.ndarray    # (swarm, dims) each particle's best position, for a local polish to start from
+    personal_costs: np.ndarray    # (swarm,) their costs
 
 
 def particle_swarm(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, upper: np.ndarray, *,
@@ -54,7 +56,8 @@ def particle_swarm(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, 
         history.append(float(best_cost[g]))
         if on_iteration is not None:
             on_iteration(it, history[-1])
-    return SwarmResult(best_pos[g].copy(), float(best_cost[g]), np.array(history), swarm_size * (iterations + 1))
+    return SwarmResult(best_pos[g].copy(), float(best_cost[g]), np.array(history), swarm_size * (iterations + 1),
+                       best_pos, best_cost)
 
 
 def _finite(costs) -> np.ndarray:

@@ -79,13 +79,28 @@ def test_identify_on_files_records_the_motor_and_the_split(identified, motor_fil
     assert [f["file"] for f in prov["split"]["train"]] == ["profile_01.csv", "profile_02.csv"]
     assert [f["file"] for f in prov["split"]["validate"]] == ["profile_03.csv"]
     assert all(len(f["sha256"]) == 64 and f["rows"] == ROWS for f in prov["split"]["train"])
-    assert prov["pso"]["prior"] == "table1" and prov["pso"]["bounds"] == [0.5, 2.0]
+    assert prov["pso"]["prior"] == "auto" and prov["pso"]["bounds"] == [0.1, 10.0]
+    auto = prov["pso"]["auto_prior"]
+    assert set(auto["responses"]) == {"winding", "pm"} and auto["responses"]["winding"]["gain_stator_K_per_W"] > 0
+    # the files route polishes, gives error bars and cross-validates the Hammerstein ridge by default
+    assert prov["polish"]["starts"] >= 1 and prov["polish"]["cost"] <= prov["polish"]["swarm_cost"]
+    names = prov["uncertainty"]["names"]
+    assert set(prov["uncertainty"]["parameters"]) == set(names) and len(prov["uncertainty"]["correlation"]) == 22
+    assert prov["lm"]["regularization"]["method"] == "leave-one-file-out cross-validation"
+    assert summary["uncertainty"] == prov["uncertainty"] and summary["polish"] == prov["polish"]
     assert set(prov["baselines"]["copper_lowpass"]) == {"winding", "pm"}
     assert summary["split"] == prov["split"]
-    # every parameter the swarm left on a bound is named, in JSON and as a warning
-    assert len(summary["warnings"]) == len(summary["parameters_on_bounds"])
-    for hit, warning in zip(summary["parameters_on_bounds"], summary["warnings"], strict=True):
+    # every parameter the fit left on a bound is named, in JSON and as a warning; then the parameters the data
+    # cannot identify, and which model to deploy when the Hammerstein model did worse
+    hits = summary["parameters_on_bounds"]
+    for hit, warning in zip(hits, summary["warnings"][:len(hits)], strict=True):
         assert hit["name"] in warning and hit["bound"] in warning
+    rest = summary["warnings"][len(hits):]
+    unidentified = prov["uncertainty"]["unidentifiable"]
+    assert bool(unidentified) == any("cannot identify" in w for w in rest)
+    assert all(name in rest[0] for name in unidentified)
+    worse = prov["lm"]["regularization"]["recommended"] == "lti-lptn"
+    assert worse <= any("deploy the lti-lptn artifact" in w for w in rest)
     for metrics in summary["validation"].values():
         assert {"rmse", "max_abs", "mse", "nrmse"} <= set(metrics["float32"]["winding"])
 

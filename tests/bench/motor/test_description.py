@@ -42,7 +42,8 @@ def test_the_template_is_a_valid_motor_in_both_formats(tmp_path, fmt):
     motor = load_motor(path)
     assert motor.name == "my-ipm-60kw" and motor.pole_pairs == 4 and motor.needs_currents
     assert motor.loss_model.current_max_A == 400.0
-    assert motor.prior.bounds == (0.5, 2.0)
+    # a new user has no fitted network: the template starts from the training data, in a wide box
+    assert motor.prior.automatic and motor.prior.parameters is None and motor.prior.bounds == (0.1, 10.0)
 
 
 def test_electrical_losses_follow_the_documented_formulas():

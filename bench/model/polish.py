@@ -1,0 +1,265 @@
+"""Local polish after the swarm: Levenberg-Marquardt on the swarm's likelihood, in log-parameter space.
+
+Why: a particle swarm finds the right basin but stops short of its bottom (its last steps are random), and with a
+wide search box that gap is large. The polish starts from the swarm's best distinct particles (multi-start), each
+start in its own process on the available cores, and keeps the lowest training cost (ties: the earlier start).
+
+The cost is the swarm's J = Σ w_n log MSE_n (lptn_fit.NODE_WEIGHTS). A sum of logs is not a sum of squares, so
+each round fixes the variances at their current values, σ_n² = MSE_n, and minimizes Σ w_n ‖r_n‖²/(N σ_n²) by LM
+(MINPACK, scipy's method "lm"); the next round re-estimates σ_n. At a fixed point the gradient of J is zero (the
+concentrated-likelihood iteration). The search box is kept by a smooth map u -> x = lo + (hi − lo)(1 + u/√(1+u²))/2
+made of +, −, ×, / and √ only. MINPACK uses no BLAS and the simulations run on bench.thermal.portable, so the
+result is the same bits on every x86-64 CPU and at any number of threads.
+
+Standard errors (`uncertainty`): at the optimum, the Jacobian of the residuals scaled by 1/σ_n, each node's rows
+shrunk by √(N_eff/N) with N_eff = N(1 − ρ)/(1 + ρ) for the residuals' lag-1 autocorrelation ρ (model errors are
+slow, so the samples are far from independent and the plain Fisher information would be far too optimistic).
+Covariance = (JᵀJ)⁻¹ by the eigen-decomposition of JᵀJ (portable SVD); directions with eigenvalues below
+1e-12 × the largest carry no information. Standard errors of the log-scaled parameters are relative (of ln x).
+A parameter is named unidentifiable when its standard error exceeds ln 2 (log-scaled: the data cannot tell it
+within a factor of two) or half its search range (the others), or when it lies in an uninformative direction.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from bench.model.lptn_fit import (
+    NODE_WEIGHTS,
+    LptnFit,
+    batch_cost,
+    discrete_blocks,
+    from_search,
+    log_scaled,
+    parameters_on_bounds,
+    search_bounds,
+)
+from bench.model.runs import ModelRun
+from bench.thermal import portable
+from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
+from bench.thermal.parameters import LptnParameters
+
+POLISH_STARTS = 4          # default number of starts (the swarm's best distinct particles)
+ROUNDS = 3                 # variance re-estimations
+ROUND_EVALUATIONS = 40     # LM function evaluations per round
+DISTINCT = 1e-3            # starts closer than this (share of the box, RMS over dimensions) are one start
+STEP = 1e-6                # forward-difference step in u (and in x for the standard errors)
+UNIDENTIFIED_LOG_SE = math.log(2.0)
+UNIDENTIFIED_EIGEN = 1e-12
+OUTPUT_INDEX = {"winding": 1, "pm": 3, "yoke": 0, "tooth": 2}
+
+
+@dataclass(frozen=True)
+class Polish:
+    coords: np.ndarray          # the kept optimum, search coordinates
+    cost: float                 # its likelihood cost (the swarm's)
+    start_costs: list[float]    # the swarm's cost at each start
+    final_costs: list[float]    # each start's polished cost
+    kept: int                   # index of the kept start
+    evaluations: int
+    swarm_cost: float = math.nan    # the swarm's best cost, for the record
+
+
+class Residuals:
+    """The fitted nodes' errors of a batch of parameter vectors, over every run."""
+
+    def __init__(self, runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...]):
+        self.runs, self.dt, self.nodes, self.scaled = runs, dt, nodes, scaled
+        self.count = float(sum(len(r.ref_winding) for r in runs))
+
+    def errors(self, coords: np.ndarray) -> np.ndarray:
+        """(P, nodes, samples) model − measurement for search coordinates (P, 22)."""
+        vectors = from_search(coords, self.scaled)
+        a_d, b_d = discrete_blocks(vectors, self.dt)
+        n = len(vectors)
+        names = LptnParameters.names()
+        theta = vectors[:, [names.index(p) for p in LOOP_PARAMETERS]]
+        c = np.broadcast_to(np.eye(4), (n, 4, 4))
+        sig = np.broadcast_to(identity_sigmoid(np.ones(4)), (n, 6, 4))
+        parts = []
+        for run in self.runs:
+            _, traj = run_batch(a_d, b_d, c, theta, sig, run.inputs, run.initial, keep_trajectories=True)
+            parts.append(np.stack([traj[:, :, OUTPUT_INDEX[node]] - run.reference(node) for node in self.nodes],
+                                  axis=1))
+        return np.nan_to_num(np.concatenate(parts, axis=2), nan=1e6, posinf=1e6, neginf=-1e6)
+
+    def mse(self, errors: np.ndarray) -> np.ndarray:
+        """(nodes,) mean squared error of one model's errors (nodes, samples), exactly summed."""
+        return np.array([math.fsum(e * e) / self.count for e in errors])
+
+    def cost(self, errors: np.ndarray) -> float:
+        """The swarm's likelihood cost of one model's errors (nodes, samples)."""
+        mse = self.mse(errors)
+        return math.fsum(NODE_WEIGHTS[node] * float(portable.log_array(np.array([m]))[0])
+                         for node, m in zip(self.nodes, mse, strict=True))
+
+
+def _to_box(u: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    return lower + (upper - lower) * (1.0 + u / np.sqrt(1.0 + u * u)) * 0.5
+
+
+def _from_box(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    s = np.clip(2.0 * (x - lower) / (upper - lower) - 1.0, -1.0 + 1e-9, 1.0 - 1e-9)
+    return s / np.sqrt(1.0 - s * s)
+
+
+def polish_one(problem: Residuals, start: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray,
+                                                                                                      float, int]:
+    """(coords, cost, evaluations) of one LM polish from `start` (search coordinates)."""
+    u = _from_box(start, lower, upper)
+    weights = np.array([NODE_WEIGHTS[node] for node in problem.nodes])
+    evaluations = 0
+    best_x, best_cost = start, problem.cost(problem.errors(start[None])[0])
+    for _ in range(ROUNDS):
+        scale = np.sqrt(weights / (problem.count * problem.mse(problem.errors(_to_box(u, lower, upper)[None])[0])))
+
+        def fun(v, scale=scale):
+            return (problem.errors(_to_box(v, lower, upper)[None])[0] * scale[:, None]).ravel()
+
+        def jac(v, scale=scale):
+            steps = STEP * np.maximum(1.0, np.abs(v))
+            batch = np.vstack([v, v + np.diag(steps)])
+            r = problem.errors(_to_box(batch, lower, upper)) * scale[None, :, None]
+            r = r.reshape(len(batch), -1)
+            return ((r[1:] - r[0]) / steps[:, None]).T
+
+        result = least_squares(fun, u, jac=jac, method="lm", max_nfev=ROUND_EVALUATIONS, x_scale="jac")
+        evaluations += int(result.nfev) + int(result.njev or 0) * (len(u) + 1)
+        x = _to_box(result.x, lower, upper)
+        cost = problem.cost(problem.errors(x[None])[0])
+        if not cost < best_cost:
+            break
+        improvement = best_cost - cost
+        best_x, best_cost, u = x, cost, result.x
+        if improvement < 1e-6:
+            break
+    return best_x, best_cost, evaluations
+
+
+def distinct_starts(candidates: np.ndarray, lower: np.ndarray, upper: np.ndarray, count: int) -> list[np.ndarray]:
+    """The first `count` candidates (best first) that are not within DISTINCT of an earlier chosen one."""
+    chosen = []
+    span = upper - lower
+    for c in candidates:
+        if all(math.sqrt(math.fsum(((c - o) / span) ** 2) / len(span)) > DISTINCT for o in chosen):
+            chosen.append(c)
+        if len(chosen) == count:
+            break
+    return chosen
+
+
+def _single_threaded(task):
+    """Run task in this thread with numba's kernels on one thread (numba's thread count is per calling thread):
+    the parallelism is across starts, one per core."""
+    import numba
+
+    def run(*args):
+        numba.set_num_threads(1)
+        return task(*args)
+
+    return run
+
+
+def _threadsafe_kernels() -> bool:
+    """numba's OpenMP and TBB layers take parallel kernels from several threads; its fallback, workqueue, aborts."""
+    import numba
+
+    try:
+        return numba.threading_layer() != "workqueue"
+    except ValueError:       # no parallel kernel has run yet in this process
+        return numba.config.THREADING_LAYER in ("omp", "tbb")
+
+
+def available_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:     # not Linux
+        return os.cpu_count() or 1
+
+
+def polish(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...],
+           candidates: np.ndarray, lower: np.ndarray, upper: np.ndarray, starts: int = POLISH_STARTS) -> Polish:
+    """Polish from the best `starts` distinct candidates (search coordinates, best first); keep the lowest cost."""
+    problem = Residuals(runs, dt, nodes, scaled)
+    chosen = distinct_starts(candidates, lower, upper, starts)
+    start_costs = [float(c) for c in batch_cost(from_search(np.array(chosen), scaled), runs, dt, np.ones(4), nodes)]
+    workers = min(len(chosen), available_cores()) if _threadsafe_kernels() else 1
+    if workers > 1:   # threads: the simulation kernel releases the GIL (forking under OpenMP is unsafe)
+        with ThreadPoolExecutor(workers) as pool:
+            results = list(pool.map(_single_threaded(lambda s: polish_one(problem, s, lower, upper)), chosen))
+    else:
+        results = [polish_one(problem, s, lower, upper) for s in chosen]
+    # each start's cost as the swarm computes it (the kernel's sums), so the comparison with the swarm is exact
+    finals = [float(c) for c in batch_cost(from_search(np.array([r[0] for r in results]), scaled), runs, dt,
+                                           np.ones(4), nodes)]
+    kept = min(range(len(results)), key=lambda i: (finals[i], i))
+    return Polish(results[kept][0], finals[kept], start_costs, finals, kept, sum(r[2] for r in results))
+
+
+def polish_lptn(fit: LptnFit, runs: Sequence[ModelRun], dt: float, starts: int = POLISH_STARTS
+                ) -> tuple[LptnFit, Polish]:
+    """The swarm's fit polished from its `starts` best distinct particles; the swarm's own best if none improves."""
+    scaled = log_scaled(fit.bounds)
+    lower, upper = search_bounds(fit.bounds)
+    result = polish(runs, dt, fit.nodes, scaled, fit.candidates, lower, upper, starts)
+    result = replace(result, swarm_cost=fit.cost)
+    if not result.cost < fit.cost:
+        return fit, result
+    params = LptnParameters.from_vector(from_search(result.coords, scaled))
+    return replace(fit, params=params, cost=result.cost, on_bounds=parameters_on_bounds(params, fit.bounds)), result
+
+
+def _lag1(e: np.ndarray) -> float:
+    den = math.fsum(e * e)
+    return math.fsum(e[1:] * e[:-1]) / den if den > 0 else 0.0
+
+
+def uncertainty(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...],
+                coords: np.ndarray, bounds: dict[str, tuple[float, float]]) -> dict:
+    """Standard errors, correlation matrix and the unidentifiable parameters at `coords` (module docstring)."""
+    problem = Residuals(runs, dt, nodes, scaled)
+    names = LptnParameters.names()
+    steps = STEP * np.maximum(1.0, np.abs(coords))
+    errors = problem.errors(np.vstack([coords, coords + np.diag(steps)]))
+    mse = problem.mse(errors[0])
+    rho = [max(0.0, _lag1(e)) for e in errors[0]]
+    shrink = np.sqrt([(1 - r) / (1 + r) for r in rho])
+    scale = shrink / np.sqrt(mse)
+    jac = (((errors[1:] - errors[0]) * scale[None, :, None]).reshape(len(names), -1) / steps[:, None]).T
+    info = portable.matmul(jac.T, jac)
+    _, eig, vt = portable.svd(info)           # symmetric positive semi-definite: eigenvalues = singular values
+    useful = eig > UNIDENTIFIED_EIGEN * eig[0]
+    cov = portable.matmul(vt[useful].T * (1.0 / eig[useful]), vt[useful])
+    blind = np.zeros(len(names), bool)
+    for k in np.flatnonzero(~useful):
+        blind |= np.abs(vt[k]) > 0.3
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    se[blind] = math.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = cov / np.outer(se, se)
+    corr = np.where(np.isfinite(corr), corr, 0.0)
+    np.fill_diagonal(corr, 1.0)
+    values = from_search(coords, scaled)
+    table, unidentified = {}, []
+    for i, name in enumerate(names):
+        log = name in scaled
+        limit = UNIDENTIFIED_LOG_SE if log else 0.5 * (bounds[name][1] - bounds[name][0])
+        entry = {"value": float(values[i]), "se": float(abs(values[i]) * se[i]) if log else float(se[i]),
+                 "relative_se": float(se[i]) if log else None}
+        table[name] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in entry.items()}
+        if not se[i] <= limit:
+            unidentified.append(name)
+    return {"parameters": table, "correlation": [[round(float(c), 6) for c in row] for row in corr],
+            "names": names, "unidentifiable": unidentified, "nodes": list(nodes),
+            "residual_lag1_autocorrelation": {n: float(r) for n, r in zip(nodes, rho, strict=True)},
+            "method": "Fisher information of the node errors scaled by 1/σ and by √(N_eff/N) for their lag-1 "
+                      "autocorrelation, at the polished optimum; log-scaled parameters' relative_se is that of ln x"}
+
+
