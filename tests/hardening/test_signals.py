@@ -421,6 +421,38 @@ def test_evaluate_stopped_while_computing_writes_no_plot(scratch, signum):
     assert _leftovers(out) == []
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_observer_stopped_while_tuning_writes_no_artifact(material, scratch, signum):
+    out = scratch / "models"
+    process = _start_plain(["bench", "observer", "--train", material.campaign / "cycle_coolant20.csv",
+                            "--out", out / "obs.json", "--quiet"], scratch)   # about a minute of tuning
+    rc, _, stderr = _signal_after(process, 4.0, signum)
+    _assert_stopped(rc, stderr, signum)
+    assert _leftovers(out) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_robustness_stopped_mid_study_writes_no_report(material, scratch, signum):
+    """The study's store stays (it is what --resume reads); its results and report are not written."""
+    out = scratch / "study"
+    process = _start_plain(["bench", "robustness", "--data", material.campaign / "cycle_coolant40.csv",
+                            "--serial", "--out", out, "--quiet"], scratch)   # minutes of cases
+    rc, _, stderr = _signal_after(process, 4.0, signum)
+    _assert_stopped(rc, stderr, signum)
+    assert not [name for name in _leftovers(out) if name.endswith((".md", ".json", ".png"))], _leftovers(out)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_firmware_timing_stopped_while_emulating_says_so(material, scratch, signum):
+    process = _start_plain(["bench", "firmware", "timing", "--data", material.campaign / "cycle_coolant40.csv",
+                            "--out", scratch / "cache", "--quiet"], scratch)   # builds, then emulates every row
+    rc, _, stderr = _signal_after(process, 4.0, signum)
+    _assert_stopped(rc, stderr, signum)
+
+
 @pytest.mark.timing
 def test_a_paused_host_is_not_taken_for_a_silent_target(material, scratch, long_data):
     """SIGSTOP of `bench run` for 2 s in the middle of a lockstep run, then SIGCONT: the target kept running and
