@@ -150,6 +150,7 @@ def test_the_printed_logger_line_records_the_run(small_dataset, tmp_path):
 LISTENER_WAIT_S = 20   # generous: python-can's logger imports and opens the bus in 1-3 s, many more under load
 
 
+@pytest.mark.slow
 def test_a_logger_started_during_the_wait_for_listener_records_the_whole_run(small_dataset, tmp_path):
     """The logger line names the run's own udp port, which exists only once `bench run` has started: with
     --wait-for-listener the line comes first (with --quiet too) and the run waits before its target starts, so a

@@ -81,6 +81,7 @@ def _analyze(log, tmp_path, *extra: str) -> subprocess.CompletedProcess:
     return run_cli("-m", "bench", "analyze", str(log), "--report", str(tmp_path / "rep"), *extra)
 
 
+@pytest.mark.slow
 def test_analyze_of_a_faulted_log_exits_1_unless_tolerated(faulted_run, tmp_path):
     """As `bench run`: the injected faults marked in the log are a problem unless --tolerate-faults."""
     _, log, _ = faulted_run

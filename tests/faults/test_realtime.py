@@ -33,6 +33,7 @@ def faulted(tmp_path_factory, fault_dataset):
                      speed=SPEED, reply_timeout_s=REPLY_TIMEOUT_S)
 
 
+@pytest.mark.slow
 def test_every_realtime_fault_is_detected_and_no_faulted_value_is_reported(faulted):
     result, metrics, record = faulted
     faults = result.faults

@@ -41,6 +41,7 @@ def _sent(log) -> list[tuple[int, bytes]]:
             if m.arbitration_id in host_frame_ids() | injected_ids()]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("timing", ["--as-fast-as-possible", "recorded"])
 def test_a_bus_fault_log_replays_faithfully(bus_fault_log, tmp_path, timing):
     new_log = tmp_path / "replay.blf"

@@ -146,6 +146,7 @@ def _scratch_dirs(pid: int) -> list[Path]:
     return sorted(Path(tempfile.gettempdir()).glob(f"bench-*-{pid}-*"))
 
 
+@pytest.mark.slow
 def test_target_stops_by_itself_when_its_bench_is_killed_and_the_next_run_clears_what_it_left(material, scratch):
     """SIGKILL cannot be handled: the target notices that its parent is gone (parent-death signal, parent-pid
     check) and stops, so the channel is free for the next run. The killed bench leaves its partial log and its
@@ -183,6 +184,7 @@ def test_target_stops_by_itself_when_its_bench_is_killed_and_the_next_run_clears
             f"{killed} no longer runs)") in again.stderr.splitlines(), again.stderr
 
 
+@pytest.mark.slow
 def test_target_killed_by_another_process_is_named_with_its_signal_and_row(material, scratch):
     """SIGKILL of the target from outside, in the middle of a real-time run: one sentence with the signal and the
     row, not "ended with status -9 after the run"."""
@@ -283,6 +285,7 @@ def _ignore_sighup() -> None:
     signal.signal(signal.SIGHUP, signal.SIG_IGN)   # what nohup does before it executes the command
 
 
+@pytest.mark.slow
 def test_nohup_run_survives_the_hangup_and_so_does_its_target(material, scratch):
     """`nohup bench run`: SIGHUP, ignored when the bench started, stays ignored, by the bench and by its target (the
     hangup goes to the whole process group); the run completes and writes its log."""

@@ -142,6 +142,7 @@ def test_drive_times_keep_order_and_the_previous_rows_time():
     assert drive_times([None, 5, 6], 0.2) == pytest.approx([1.0, 1.0, 1.2])
 
 
+@pytest.mark.slow
 def test_bad_input_is_one_sentence(run_log, tmp_path):
     cases = [
         ((run_log, "--out", tmp_path / "x.txt"), 1, "unsupported format .txt"),

@@ -130,6 +130,7 @@ def test_bench_analyze_gives_the_run_s_numbers(bench_run, small_dataset, tmp_pat
     assert not log.with_name(f"{log.stem}-report").exists()
 
 
+@pytest.mark.slow
 def test_every_kind_and_the_original_realization(artifacts, small_dataset, tmp_path):
     models = ",".join(str(artifacts[k]) for k in ("lti", "pv", "hammerstein", "original"))
     proc = run_cli("-m", "bench", "compare", "--data", str(small_dataset), "--rows", "600", "--models", models,
@@ -173,6 +174,7 @@ def test_realtime_mode_at_speed_100(small_dataset, tmp_path):
     assert s["host"]["wall_time_s"] == pytest.approx(250 * 0.002, rel=0.5)
 
 
+@pytest.mark.slow
 def test_user_errors_are_one_sentence(tmp_path, small_dataset, artifacts):
     bad = tmp_path / "bad.json"
     bad.write_text(artifacts["lti"].read_text().replace('"zoh"', '"tustin"'))

@@ -139,6 +139,7 @@ def test_a_loop_without_a_stated_bound_is_named(timing_image):
     assert wcet(image, "node_on_frame", looser).cycles > wcet(image, "node_on_frame").cycles
 
 
+@pytest.mark.slow
 def test_bench_firmware_timing_reports_the_figures_and_refuses_a_rate_the_core_cannot_carry(tmp_path, small_dataset):
     import json
 

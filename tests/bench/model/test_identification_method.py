@@ -98,6 +98,7 @@ def swarm(runs):
     return identify_lptn(runs, DT, swarm_size=12, iterations=3, seed=1, start=start, width=(0.3, 3.0))
 
 
+@pytest.mark.slow
 def test_the_polish_lowers_the_cost_the_same_on_any_number_of_threads(runs, swarm, monkeypatch):
     scaled = log_scaled(swarm.bounds)
     lower, upper = search_bounds(swarm.bounds)

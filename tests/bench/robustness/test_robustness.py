@@ -141,6 +141,7 @@ def test_a_diverging_model_is_reported_as_diverged(tmp_path, small_dataset):
     assert "**bias coolant** (diverged at 120 K)" in md and "diverged (1/1)" in md
 
 
+@pytest.mark.slow
 def test_the_local_cluster_and_a_serial_loop_give_the_same_table(tmp_path, spec, small_dataset, serial_run):
     serial_out, serial = serial_run
     local = study(tmp_path / "local", spec, small_dataset, "--workers", "2")
@@ -166,6 +167,7 @@ def _rows(out: Path) -> int:
         return 0
 
 
+@pytest.mark.slow
 def test_an_interrupted_study_resumed_gives_the_same_table(tmp_path, spec, small_dataset, serial_run):
     out = tmp_path / "out"
     argv = [sys.executable, "-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(spec),
