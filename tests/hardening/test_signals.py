@@ -456,6 +456,24 @@ def test_firmware_timing_stopped_while_emulating_says_so(material, scratch, sign
     _assert_stopped(rc, stderr, signum)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_firmware_check_stopped_while_emulating_says_so(scratch, long_data, signum):
+    process = _start_plain(["bench", "firmware", "check", "--data", long_data, "--quiet"],
+                           scratch)   # 30 000 rows in the emulated core: several seconds
+    rc, _, stderr = _signal_after(process, 2.5, signum)
+    _assert_stopped(rc, stderr, signum)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_numerics_budget_stopped_while_computing_says_so(scratch, long_data, signum):
+    process = _start_plain(["bench", "numerics", "--budget", "--data", long_data, "--quiet"],
+                           scratch)   # eleven runs of 30 000 rows, one part of the step in float32 at a time
+    rc, _, stderr = _signal_after(process, 4.0, signum)
+    _assert_stopped(rc, stderr, signum)
+
+
 @pytest.mark.timing
 def test_a_paused_host_is_not_taken_for_a_silent_target(material, scratch, long_data):
     """SIGSTOP of `bench run` for 2 s in the middle of a lockstep run, then SIGCONT: the target kept running and
