@@ -1,5 +1,6 @@
 import importlib.util
 import os
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -90,3 +91,14 @@ def firmware_elf(tmp_path_factory, artifacts) -> Callable[[str | Path], Path]:
         return built[path]
 
     return get
+
+
+def pytest_configure(config) -> None:
+    """Run the suite with a terminal's signal dispositions. A suite started in the background (`cmd &`, nohup, some
+    CI runners) inherits SIGINT and SIGHUP ignored, every command it starts inherits that, and the bench keeps an
+    inherited ignore on purpose (`nohup bench run` must survive the hangup): the signal tests, which model a command
+    started from a terminal, would then see their SIGINT and SIGHUP ignored. The nohup test sets its own ignore."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN:
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
