@@ -515,7 +515,7 @@ def test_a_paused_host_is_not_taken_for_a_silent_target(material, scratch, long_
             process.wait()
         for pid in _targets(port):
             os.kill(pid, signal.SIGKILL)
-    assert process.returncode == 0, stderr
+    assert process.returncode == 0, stderr + stdout[-3000:]
     summary = json.loads(stdout)
     assert summary["clean"] is True, summary["verdict"]
     assert summary["host"]["missing"] == 0 and summary["host"]["heartbeat_losses"] == 0
