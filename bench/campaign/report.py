@@ -7,7 +7,6 @@ report is replaced whole or left as it was.
 
 from __future__ import annotations
 
-import io
 import itertools
 import json
 import math
@@ -17,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.campaign.store import DONE, Store, StoreError, summary_of
+from bench.figures import agg_figure, png_bytes
 from bench.fileio import foreign_entries, write_directory_atomically
 
 REPORT_DIR = "report"
@@ -73,21 +73,6 @@ def _max(values: Sequence[Any]) -> float | None:
     return max(numbers) if numbers else None
 
 
-def _figure(width: float, height: float):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _png(fig) -> bytes:
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=100, metadata={"Software": None})
-    return buffer.getvalue()
-
-
 def verdict_matrix(rows: list[dict[str, Any]]) -> tuple[list[str], list[str], list[list[str]]]:
     """(row labels, column labels, cells): the last axis across, every combination of the others down."""
     axes = axes_of(rows)
@@ -111,7 +96,7 @@ def verdict_matrix(rows: list[dict[str, Any]]) -> tuple[list[str], list[str], li
 def _verdict_figure(labels: list[str], columns: list[str], cells: list[list[str]]) -> bytes:
     from matplotlib.colors import to_rgb
 
-    fig = _figure(min(2.0 + 1.3 * len(columns), 16), min(1.2 + 0.45 * len(labels), 30))
+    fig = agg_figure(min(2.0 + 1.3 * len(columns), 16), min(1.2 + 0.45 * len(labels), 30))
     ax = fig.add_subplot()
     ax.imshow([[to_rgb(COLOURS.get(c, "#bdbdbd")) for c in line] for line in cells], aspect="auto")
     for i, line in enumerate(cells):
@@ -120,12 +105,12 @@ def _verdict_figure(labels: list[str], columns: list[str], cells: list[list[str]
     ax.set_xticks(range(len(columns)), columns, rotation=30, ha="right", fontsize=8)
     ax.set_yticks(range(len(labels)), labels, fontsize=8)
     ax.set_title("verdict of each run")
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _axis_figure(name: str, values: list[Any], rows: list[dict[str, Any]]) -> bytes:
     """Winding/PM RMSE, max |CAN − float32|, cycles and throughput of the done runs at each value of one axis."""
-    fig = _figure(10, 7)
+    fig = agg_figure(10, 7)
     panels = fig.subplots(2, 2)
     series = (
         (panels[0][0], "RMSE (°C)", (("rmse_winding_C", "winding", "o"), ("rmse_pm_C", "PM", "s"))),
@@ -157,7 +142,7 @@ def _axis_figure(name: str, values: list[Any], rows: list[dict[str, Any]]) -> by
             ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
     fig.suptitle(f"by {name} ({len(done)} done run(s))")
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _table(header: list[str], lines: list[list[str]]) -> list[str]:

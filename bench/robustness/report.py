@@ -5,12 +5,12 @@ trade-off), tornado-<study>-<node>.png and filtering-<study>.png. Rendered in me
 
 from __future__ import annotations
 
-import io
 import json
 import re
 from pathlib import Path
 from typing import Any
 
+from bench.figures import agg_figure, png_bytes
 from bench.fileio import write_directory_atomically
 from bench.robustness.store import TABLE_NAME, CaseStore
 from bench.robustness.table import sensitivity
@@ -21,21 +21,6 @@ OUR_FILES = re.compile(r"(report\.md|robustness\.json|(tornado|filtering)-[A-Za-
 
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9.]+", "-", text).strip("-")
-
-
-def _figure(width: float, height: float):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _png(fig) -> bytes:
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=100, metadata={"Software": None})
-    return buffer.getvalue()
 
 
 def _largest(values: list[float]) -> float | None:
@@ -57,7 +42,7 @@ def tornado(study: dict, node: str, top: int = 15) -> bytes:
     reach = {k: max(abs(v) for v in lo + hi) for k, (lo, hi) in sides.items()}
     order = sorted(sides, key=lambda k: reach[k], reverse=True)
     labels = (sorted(diverged) + order)[:top]
-    fig = _figure(7.5, 0.35 * len(labels) + 1.6)
+    fig = agg_figure(7.5, 0.35 * len(labels) + 1.6)
     ax = fig.add_subplot()
     width = max([reach[k] for k in order[:top]] or [1.0])
     shown = set()
@@ -78,12 +63,12 @@ def tornado(study: dict, node: str, top: int = 15) -> bytes:
     ax.set_title(f"{study['name']}: {node}", fontsize=10)
     if shown:
         ax.legend(fontsize=7, loc="lower right")
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def filtering_figure(study: dict, node: str) -> bytes:
     """Error removed (Δ RMSE of the noisy input minus the filtered one) against the delay the filter adds."""
-    fig = _figure(7, 4.5)
+    fig = agg_figure(7, 4.5)
     ax = fig.add_subplot()
     groups: dict[tuple[str, str], list[dict]] = {}
     for item in study["filtering"]:
@@ -99,7 +84,7 @@ def filtering_figure(study: dict, node: str) -> bytes:
     ax.set_title(f"{study['name']}: filtering noisy inputs", fontsize=10)
     if groups:
         ax.legend(fontsize=7)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
