@@ -459,17 +459,18 @@ def observer_forms_table(record: Record) -> list[str]:
             + f". {_n(numerics['seconds'], 1)} s; measured {_date(record)}.)"]
 
 
-SECTIONS: tuple[Callable[[dict[str, list[Record]]], list[str]], ...] = (
-    section_accuracy, section_firmware, section_firmware_node, section_can, section_memory, section_soak,
-    section_campaigns, section_identify, section_data, section_observer)
-BENCHMARKS = ("accuracy", "firmware", "firmware_node", "can", "memory", "soak", "campaign", "identify", "data",
-              "observer")
+# Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
+SECTIONS: dict[str, Callable[[dict[str, list[Record]]], list[str]]] = {
+    "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
+    "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
+    "identify": section_identify, "data": section_data, "observer": section_observer}
+BENCHMARKS = tuple(SECTIONS)
 
 
 def render_results(records: dict[str, list[Record]] | None = None) -> str:
     records = load_records() if records is None else records
     lines = ["<!-- generated from docs/results/*.json by docs/_ext/results_page.py; do not edit -->", ""]
-    for section in SECTIONS:
+    for section in SECTIONS.values():
         lines += section(records)
     return "\n".join(lines).rstrip() + "\n"
 
