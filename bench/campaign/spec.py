@@ -268,21 +268,29 @@ def parse_override(text: str) -> tuple[str, Any]:
     return option_name(key), parsed
 
 
+def spec_tables(text: str, where: str, sections: Iterable[str], error: type[Exception]) -> dict[str, Any]:
+    """A TOML spec's document, checked to hold only the tables `sections` (each a table where present); anything
+    else is one sentence naming `where`, raised as `error`. The campaign's and the robustness study's specs share it."""
+    sections = tuple(sections)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{where} is not valid TOML ({exc}); fix the spec") from None
+    unknown = [k for k in doc if k not in sections]
+    if unknown:
+        raise error(f"{where} has an unknown section or key {unknown[0]!r}; a spec has the tables "
+                    f"{', '.join(f'[{s}]' for s in sections)}")
+    for section in sections:
+        if not isinstance(doc.get(section, {}), dict):
+            raise error(f"{where}: {section} must be a table, [{section}]")
+    return doc
+
+
 def parse_spec(text: str, path: Path, overrides: Iterable[str] = ()) -> Campaign:
     """The campaign of a spec's text (`path` names it in messages and anchors relative paths); `overrides`
     ('KEY=VALUE', --set) replace fixed options, or an axis (a list) or fix it (a single value)."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{path} is not valid TOML ({exc}); fix the spec") from None
-    unknown = [k for k in doc if k not in SECTIONS]
-    if unknown:
-        raise SpecError(f"{path} has an unknown section or key {unknown[0]!r}; a spec has the tables "
-                        f"{', '.join(f'[{s}]' for s in SECTIONS)}")
-    for section in SECTIONS:
-        if not isinstance(doc.get(section, {}), dict):
-            raise SpecError(f"{path}: {section} must be a table, [{section}]")
+    doc = spec_tables(text, str(path), SECTIONS, SpecError)
     head = doc.get("campaign", {})
     bad = [k for k in head if k not in CAMPAIGN_KEYS]
     if bad:

@@ -26,11 +26,11 @@ is run or written.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bench.campaign.spec import spec_tables
 from bench.errors import UsageError
 from bench.robustness.filters import FILTERS
 from bench.robustness.kinds import PERTURBATIONS
@@ -114,17 +114,7 @@ def parse_spec(text: str, path: Path | None, subjects: dict[str, tuple[str, ...]
     """The spec of `text`; `subjects` names each kind's subjects across the study's models (a key of a subject no
     model has is a mistake)."""
     where = str(path) if path is not None else "the spec"
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{where} is not valid TOML ({exc}); fix the spec") from None
-    unknown = [k for k in doc if k not in SECTIONS]
-    if unknown:
-        raise SpecError(f"{where} has an unknown section or key {unknown[0]!r}; a spec has the tables "
-                        f"{', '.join(f'[{s}]' for s in SECTIONS)}")
-    for section in SECTIONS:
-        if not isinstance(doc.get(section, {}), dict):
-            raise SpecError(f"{where}: {section} must be a table, [{section}]")
+    doc = spec_tables(text, where, SECTIONS, SpecError)
     study = doc.get("study", {})
     bad = [k for k in study if k not in STUDY_KEYS]
     if bad:
