@@ -112,6 +112,7 @@ class Monitor:
     heartbeat_timeout_s: float
     last_status_s: float | None = None
     excused_at_s: float | None = None   # the host was not running until then: silence counts from there
+    host_paused_s: list[list[float]] = field(default_factory=list)   # wall-clock [start, end] the host was not running
     max_gap_s: float = 0.0
     heartbeat_losses: int = 0
     state: TargetState | None = None
@@ -123,7 +124,9 @@ class Monitor:
 
     def status(self, signals: dict, now_s: float) -> None:
         if self.last_status_s is not None:
-            gap = now_s - self.last_status_s
+            # the time the host was not running is not the target's silence: a frame that waited in the socket
+            # may carry the time it was read (not when it came), so the gap spans the pause
+            gap = now_s - self.last_status_s - self._paused_within(self.last_status_s, now_s)
             self.max_gap_s = max(self.max_gap_s, gap)
             if gap > self.heartbeat_timeout_s:
                 self.heartbeat_losses += 1
@@ -144,6 +147,20 @@ class Monitor:
     def excuse(self, now_s: float | None = None) -> None:
         """The host itself was not running (paused): the target gets a fresh heartbeat timeout from now."""
         self.excused_at_s = time.time() if now_s is None else now_s
+
+    def host_was_paused(self, seconds: float, now_s: float | None = None) -> None:
+        """The host was not running for the `seconds` up to now (overlapping windows merge)."""
+        end = time.time() if now_s is None else now_s
+        start = end - seconds
+        if self.host_paused_s and start <= self.host_paused_s[-1][1]:
+            last = self.host_paused_s[-1]
+            last[0], last[1] = min(last[0], start), max(last[1], end)
+        else:
+            self.host_paused_s.append([start, end])
+
+    def _paused_within(self, start: float, end: float) -> float:
+        """Seconds of [start, end] during which the host was not running."""
+        return sum(max(0.0, min(e, end) - max(s, start)) for s, e in self.host_paused_s)
 
 
 class HostSession:
@@ -187,10 +204,10 @@ class HostSession:
         without being stopped (its clock jumped) first reads what the target sent meanwhile, so the log keeps the
         bus's order and the target's heartbeats count (a frame stamped after the pause must not precede them)."""
         now = time.perf_counter()
-        away = max(now - self._on_bus_at, self._paused_s)
-        if away > HOST_PAUSE_S:
-            self.host_paused(away)
+        self._note_late(now - self._on_bus_at)
         self._on_bus_at = now
+        if self._paused_s > HOST_PAUSE_S:
+            self.host_paused(self._paused_s)
 
     def send(self, frames: Sequence[can.Message]) -> None:
         self._catch_up()
@@ -224,9 +241,16 @@ class HostSession:
         """The host was not running for `seconds` (its clock jumped): read what waited in the socket meanwhile
         and give the target a fresh heartbeat timeout."""
         self.host_pauses.append((self.last_sent_row, seconds))
+        self.monitor.host_was_paused(seconds)   # merges with the window a receive may have noted already
         self._paused_s = 0.0
         self.drain()
         self.monitor.excuse()
+
+    def _note_late(self, late_s: float) -> None:
+        """The host was not running for `late_s` (if longer than a scheduler's hiccup)."""
+        if late_s > HOST_PAUSE_S:
+            self.monitor.host_was_paused(late_s)
+            self._paused_s = max(self._paused_s, late_s)
 
     def drain(self) -> None:
         """Read every frame already waiting (without blocking)."""
@@ -248,10 +272,12 @@ class HostSession:
         deadline = time.perf_counter() + timeout
         while True:
             asked, before = max(0.0, deadline - time.perf_counter()), time.perf_counter()
+            # stopped since it was last on the bus (e.g. between a send and this receive), or while waiting: the
+            # window is noted now, before the frames that waited are counted; catch up before sending
+            self._note_late(before - self._on_bus_at)
             msg = self.bus.recv(asked)
             self._on_bus_at = time.perf_counter()
-            if self._on_bus_at - before - asked > HOST_PAUSE_S:   # stopped while waiting: catch up before sending
-                self._paused_s = max(self._paused_s, self._on_bus_at - before - asked)
+            self._note_late(self._on_bus_at - before - asked)
             if msg is None:
                 return None
             if self.own.is_own(msg):
