@@ -303,16 +303,21 @@ def _stop_everywhere(client, token: str, wait_s: float = 5.0) -> None:
     thread.join(wait_s)
 
 
+def retried(result: dict[str, Any], attempt: int) -> bool:
+    """Whether a task with this outcome is run once more: it did not end done and had only one attempt."""
+    return result["status"] != DONE and attempt < MAX_ATTEMPTS
+
+
 def run_tasks(client, function: Callable[[dict[str, Any]], dict[str, Any]], tasks: dict[str, dict[str, Any]], *,
-              key: Callable[[str, int], str], record: Callable[[str, dict[str, Any], int], bool],
+              key: Callable[[str, int], str], record: Callable[[str, dict[str, Any], int, bool], None],
               lost: Callable[[str, BaseException], dict[str, Any]],
               failed: Callable[[str, BaseException], dict[str, Any]]) -> None:
     """`function(task)` for every task on the client's workers, each outcome handed to `record(task id, outcome,
-    attempt)` as it arrives (the driver writes it to its table); `record` returning True submits the task again
-    (a retry, attempt + 1, before the tasks still waiting). A task whose worker died gives `lost(id, exc)`, a task
-    that raised `failed(id, exc)`. No more tasks in flight than worker threads: a task waits here, not in a
-    worker's queue, so a worker that dies loses only what it was running. `bench campaign` and `bench
-    robustness` share it."""
+    attempt, final)` as it arrives (the driver writes it to its table); an outcome that is not done is not final
+    the first time: the task is submitted again (attempt 2, before the tasks still waiting). A task whose worker
+    died gives `lost(id, exc)`, a task that raised `failed(id, exc)`. No more tasks in flight than worker threads:
+    a task waits here, not in a worker's queue, so a worker that dies loses only what it was running. `bench
+    campaign` and `bench robustness` share it (and `run_tasks_serially`, the same policy in a plain loop)."""
     from distributed import KilledWorker, as_completed
 
     submitted: dict[str, tuple[str, int]] = {}    # task key -> (task id, attempt)
@@ -337,9 +342,25 @@ def run_tasks(client, function: Callable[[dict[str, Any]], dict[str, Any]], task
         except Exception as exc:  # noqa: BLE001 - a task that errored: its worker, or its environment
             gone = type(exc).__name__ in ("CommClosedError", "FutureCancelledError", "CancelledError")
             result = lost(task_id, exc) if gone else failed(task_id, exc)
-        if record(task_id, result, attempt):
+        again = retried(result, attempt)
+        record(task_id, result, attempt, not again)
+        if again:
             waiting.appendleft((task_id, attempt + 1))
         fill()
+
+
+def run_tasks_serially(function: Callable[[dict[str, Any]], dict[str, Any]], tasks: dict[str, dict[str, Any]], *,
+                       record: Callable[[str, dict[str, Any], int, bool], None]) -> None:
+    """`run_tasks` in a plain loop in this process (a comparison's baseline): the same retry, the same records."""
+    for task_id, task in tasks.items():
+        attempt = 1
+        while True:
+            result = function(task)
+            again = retried(result, attempt)
+            record(task_id, result, attempt, not again)
+            if not again:
+                break
+            attempt += 1
 
 
 def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: int, address: str | None,
@@ -373,22 +394,21 @@ def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: in
         bar = tqdm(total=len(todo), unit="run", desc=campaign.name, file=sys.stderr, leave=False,
                    disable=quiet or not sys.stderr.isatty())     # as `bench run`'s bar: a terminal's, not a log's
 
-        def record(run_id: str, result: dict[str, Any], attempt: int) -> bool:
+        def record(run_id: str, result: dict[str, Any], attempt: int, final: bool) -> None:
             run = by_id[run_id]
             row, kinds = table_row(run, result, previous[run_id] + attempt, runs_dir / run_id)
             store.record(row, kinds)
             outcome.ran += attempt == 1
-            if result["status"] != DONE and attempt < MAX_ATTEMPTS:
+            if not final:
                 outcome.retried += 1
                 if on_event:
                     on_event(f"run {run_id} {result['status']} ({result['error']}); retrying it once")
-                return True
+                return
             outcome.statuses[result["status"]] = outcome.statuses.get(result["status"], 0) + 1
             verdict = result["verdict"] or result["status"]
             outcome.verdicts[verdict] = outcome.verdicts.get(verdict, 0) + 1
             bar.set_postfix_str(", ".join(f"{k} {v}" for k, v in sorted(outcome.verdicts.items())), refresh=False)
             bar.update(1)
-            return False
 
         try:
             run_tasks(client, execute_run, tasks, key=lambda run_id, attempt: f"bench-run-{run_id}-{token[:8]}-"

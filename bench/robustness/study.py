@@ -11,7 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from bench.campaign.execute import MAX_ATTEMPTS, dask_client, now, run_tasks
+from bench.campaign.execute import dask_client, now, run_tasks, run_tasks_serially
 from bench.campaign.store import DONE
 from bench.robustness.cases import Case
 from bench.robustness.evaluate import evaluate_case
@@ -56,29 +56,25 @@ def run_study(cases: list[Case], store: CaseStore, *, workers: int, address: str
     bar = tqdm(total=len(todo), unit="case", desc="robustness", file=sys.stderr, leave=False,
                disable=quiet or not sys.stderr.isatty())
 
-    def record(case_id: str, result: dict[str, Any], attempt: int) -> bool:
+    def record(case_id: str, result: dict[str, Any], attempt: int, final: bool) -> None:
         store.record(by_id[case_id], result, previous[case_id] + attempt)
         outcome.ran += attempt == 1
-        if result["status"] != DONE and attempt < MAX_ATTEMPTS:
+        if not final:
             outcome.retried += 1
             if on_event:
                 on_event(f"case {case_id} {result['status']} ({result['error']}); retrying it once")
-            return True
+            return
         outcome.failed += result["status"] != DONE
         bar.update(1)
-        return False
 
     try:
         if not todo:
             return outcome
+        tasks = {c.case_id: c.task() for c in todo}
         if serial:
             outcome.cluster, outcome.workers = "a serial loop in this process", 1
-            for case in todo:
-                attempt = 1
-                while record(case.case_id, evaluate_case(case.task()), attempt):
-                    attempt += 1
+            run_tasks_serially(evaluate_case, tasks, record=record)
             return outcome
-        tasks = {c.case_id: c.task() for c in todo}
         token = uuid.uuid4().hex[:8]
         with dask_client(workers, address) as (client, label):
             outcome.cluster, outcome.workers = label, len(client.nthreads())
