@@ -428,6 +428,57 @@ def observer_ipm_table(record: Record) -> list[str]:
             + f"; measured {_date(record)}.)"]
 
 
+def _moved(entry: dict) -> str:
+    if entry["diverged"]:
+        return "diverged"
+    spread = f" ± {entry['spread_C']:.3f}" if entry.get("spread_C") else ""    # none: a deterministic case
+    return f"{entry['d_rmse_C']:+.3f}{spread} °C"
+
+
+def _top_rows(studies: list[dict], node: str) -> list[list[str]]:
+    """One row per study: its clean RMSE of `node` and the perturbations that move `node` most."""
+    rows = []
+    for study in studies:
+        top = study["top"].get(node) or []
+        clean = (study["clean_rmse_C"] or {}).get(node)
+        rows.append([study["name"], _n(clean, 3), *(f"{r['perturbation']} at {r['magnitude']:g} {r['unit']}: "
+                                                    f"{_moved(r)}" for r in top), *[""] * (3 - len(top))])
+    return rows
+
+
+def section_robustness(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "robustness")
+    lines = ["## Robustness", ""]
+    if record is None:
+        return lines + _missing("bench_robustness.py")
+    p, f = record["parameters"], record["figures"]
+    builtin = f["builtin"]
+    scope = (f"the first {_n(p['rows'])} rows of each file" if p.get("rows") else "whole files") + (
+        f", {p['seeds']} seeds per random case" if p.get("seeds") else ", the default seeds")
+    header = ["model on data", "clean RMSE °C", "1st", "2nd", "3rd"]
+    lines += [provenance(record), "",
+              f"`bench robustness` with its default spec ({scope}): the three perturbations that move the magnet "
+              "estimate most (Δ RMSE against the clean run at the magnitude that moves it most, ± the Monte Carlo "
+              "spread; the target's float32 code):", "",
+              *_table(header, _top_rows(builtin["studies"] + f.get("ipm", {}).get("studies", []), "pm"))]
+    two = builtin["workers_2"]
+    timing = (f"The built-in study ({builtin['cases']} cases, {builtin['diverged']} diverged) took "
+              f"{_n(two['study_wall_s'], 1)} s on 2 workers (peak memory of the process tree {_n(two['peak_tree_MiB'])}"
+              " MiB)")
+    if "serial" in builtin:
+        serial = builtin["serial"]
+        timing += (f" against {_n(serial['study_wall_s'], 1)} s in a serial loop ({_n(serial['peak_tree_MiB'])} MiB) "
+                   f"in the same sitting: {builtin['speedup']:.2f}×; the two tables "
+                   + ("agree case for case" if builtin["tables_agree"] else "DIFFER"))
+    lines += [timing + ".", ""]
+    if "ipm" in f:
+        ipm = f["ipm"]
+        lines += [f"The IPM example's Hammerstein model (identified on profiles 1–8 in {_n(ipm['identify_s'], 1)} s) "
+                  f"on the held-out {', '.join(ipm['held_out'])}: {ipm['cases']} cases in {_n(ipm['wall_s'], 1)} s on "
+                  f"2 workers, {ipm['diverged']} diverged.", ""]
+    return lines
+
+
 def _closer(ratio: float, form: str) -> str:
     return f"{ratio:.0f}× closer than {form}" if ratio >= 1 else f"{1 / ratio:.0f}× further than {form}"
 
@@ -463,7 +514,8 @@ def observer_forms_table(record: Record) -> list[str]:
 SECTIONS: dict[str, Callable[[dict[str, list[Record]]], list[str]]] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
-    "identify": section_identify, "data": section_data, "observer": section_observer}
+    "identify": section_identify, "data": section_data, "observer": section_observer,
+    "robustness": section_robustness}
 BENCHMARKS = tuple(SECTIONS)
 
 
