@@ -1,0 +1,69 @@
+"""The acceptance options of `bench run`, `bench host`, `bench analyze` and `bench replay`: --criteria FILE,
+--baseline FILE and --junit-xml FILE, read and checked before any work (`prepare`), and the end of such a
+command (`finish`): the JUnit XML written, the failed criteria named in one sentence, the exit status."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from bench.acceptance.criteria import Gate, load_gate
+from bench.acceptance.junit import CleanCase, write_junit
+from bench.analysis.results import Acceptance
+
+
+def add_acceptance_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("acceptance (a CI's pass/fail rule, beside 'clean')")
+    group.add_argument("--criteria", type=Path, default=None, metavar="FILE",
+                       help="TOML file of named acceptance criteria ([criteria.NAME] tables: kind rmse, max_error, "
+                            "cycles, deadline_misses, missing_replies, heartbeat_losses, bus_load or regression, "
+                            "and a limit); each check's figure, limit and verdict go into the JSON and the report; "
+                            "exit status 1 when any fails, 2 for a bad file (before any work)")
+    group.add_argument("--baseline", type=Path, default=None, metavar="FILE",
+                       help="a stored summary (the --json of bench run, host or analyze, or a report's "
+                            "metrics.json) for the regression criterion; without one in --criteria it adds "
+                            "\"no node's RMSE more than 5 %% worse\"")
+    group.add_argument("--junit-xml", type=Path, default=None, metavar="FILE",
+                       help="write a JUnit XML report: one testcase for 'clean' and one per criterion, figure and "
+                            "limit in properties and the failure message, the log and report attached")
+
+
+@dataclass(frozen=True)
+class Acceptor:
+    """What --criteria, --baseline and --junit-xml asked for, checked before any work."""
+
+    gate: Gate | None
+    junit_xml: Path | None
+
+    def judge(self, results, why_none: str = "the run has no figures") -> Acceptance | None:
+        return self.gate.judge(results, why_none) if self.gate is not None else None
+
+
+def prepare(args: argparse.Namespace) -> Acceptor:
+    """The criteria and baseline read, the JUnit path checked: a bad one is one sentence, before any work."""
+    from bench.commands.common import check_writable
+
+    junit = getattr(args, "junit_xml", None)
+    if junit is not None:
+        check_writable(junit, "--junit-xml")
+    return Acceptor(load_gate(getattr(args, "criteria", None), getattr(args, "baseline", None)), junit)
+
+
+def finish(acceptor: Acceptor, acceptance: Acceptance | None, *, command: str, subject: str, status: int,
+           clean: CleanCase, elapsed_s: float, properties: dict[str, object], attachments: list[str],
+           quiet: bool = False) -> int:
+    """The command's exit status once the criteria are judged (1 when any fails: the sentence names each failed
+    one on stderr, with --json too), after the JUnit XML is written when asked for."""
+    if acceptor.junit_xml is not None:
+        write_junit(acceptor.junit_xml, command, clean, acceptance, elapsed_s=elapsed_s, properties=properties,
+                    attachments=attachments)
+    if acceptance is None:
+        return status
+    if not acceptance.passed:
+        print(f"bench: error: {acceptance.sentence(subject)}", file=sys.stderr)
+        return max(status, 1)
+    if not quiet:
+        print(f"bench: {acceptance.sentence(subject)}", file=sys.stderr)
+    return status
