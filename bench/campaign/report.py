@@ -183,9 +183,9 @@ def render(rows: list[dict[str, Any]], meta: dict[str, str], fault_rows: list[di
         md += ["![verdicts](verdicts.png)", ""]
     md += _table(["", *columns], [[label, *line] for label, line in zip(labels, cells, strict=True)]) + [""]
     md += ["clean: the bench's verdict is clean; tolerated: it exited 0 with injected faults (all detected) or "
-           "tolerated gaps; not clean: it exited 1 with its problems listed below; criteria failed: clean, but it failed "
-           "acceptance criteria of its `criteria` file; failed, timeout, lost-worker: the "
-           "run ended without a verdict (after one retry).", ""]
+           "tolerated gaps; not clean: it exited 1 with its problems listed below; criteria failed: clean, but it "
+           "failed acceptance criteria of its `criteria` file; failed, timeout, lost-worker: the run ended without a "
+           "verdict (after one retry).", ""]
 
     md += ["## By axis", ""]
     for axis, values in axes.items():
