@@ -341,7 +341,7 @@ def figures(result: BenchRun) -> dict[str, Any]:
     from bench.acceptance.kinds.cycles import step_cycles
 
     m = result.metrics
-    out: dict[str, Any] = {"target": result.summary.engine, "exit_status": result.exit_status,
+    out: dict[str, Any] = {"engine": result.summary.engine, "exit_status": result.exit_status,
                            "clean": result.clean, "verdict": result.verdict, "rows": m.counts.steps_sent,
                            "missing": m.counts.missing, "heartbeat_losses": m.integrity.heartbeat.losses,
                            "bus_load_percent": m.bus_load.data_rate_percent}

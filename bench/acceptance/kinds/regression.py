@@ -21,6 +21,7 @@ from bench.acceptance.kinds.cycles import step_cycles
 from bench.analysis.results import CheckResult, RunResults
 
 FIGURES = ("rmse", "max_error", "cycles")
+WORDS = {"rmse": "RMSE", "max_error": "max error", "cycles": "cycles per model step"}
 
 
 def _change(new: float, old: float, floor: float) -> float:
@@ -36,7 +37,7 @@ def _node_values(results: RunResults, figure: str):
 def judge(criterion: Criterion, subject: Subject) -> CheckResult:
     results, base = subject.results, subject.baseline
     figure, floor = criterion.params["figure"], criterion.params["floor"]
-    what = f"{figure.replace('_', ' ')} change from the baseline"
+    what = f"{WORDS[figure]}, change from the baseline"
     source = f"baseline {subject.baseline_path}"
     if base is None:
         return judged(criterion, "%", what, None, why_none="no baseline was given", source=source)
@@ -58,16 +59,16 @@ def judge(criterion: Criterion, subject: Subject) -> CheckResult:
         new, old = _node_values(results, figure), _node_values(base, figure)
         ref, old_ref = results.accuracy.rmse_reference.get(node), base.accuracy.rmse_reference.get(node)
         if new is None or old is None or new.get(node) is None or old.get(node) is None:
-            return judged(criterion, "%", f"{what} of {node}", None, source=source,
-                          why_none=f"the {figure} of {node} is missing in the run or in the baseline")
+            return judged(criterion, "%", f"{WORDS[figure]} of {node}, change from the baseline", None,
+                          source=source, why_none=f"the {figure} of {node} is missing in the run or in the baseline")
         if ref != old_ref:
-            return judged(criterion, "%", f"{what} of {node}", None, source=source,
+            return judged(criterion, "%", f"{WORDS[figure]} of {node}, change from the baseline", None, source=source,
                           why_none=f"this run's {node} figure is against {ref}, the baseline's against {old_ref}")
         changes[node] = _change(new.get(node), old.get(node), floor)
     node = max(changes, key=lambda k: changes[k])
     new_value, old_value = _node_values(results, figure).get(node), _node_values(base, figure).get(node)
-    return judged(criterion, "%", f"{what} of {node} ({fmt_pair(new_value, old_value, '°C')}, the worst node)",
-                  changes[node], source=source)
+    return judged(criterion, "%", f"{WORDS[figure]} of {node}, change from the baseline "
+                  f"({fmt_pair(new_value, old_value, '°C')}, the worst node)", changes[node], source=source)
 
 
 def fmt_pair(new: float, old: float, unit: str) -> str:
