@@ -108,24 +108,26 @@ def load_criteria(path: Path) -> CriteriaSet:
     return parse_criteria(text, path)
 
 
-def load_baseline(path: Path) -> RunResults:
+def load_baseline(path: Path, named_in: Path | None = None) -> RunResults:
     """The figures of a stored summary: the --json of bench run (its "metrics"), bench host or bench analyze, or a
-    report's metrics.json (CriteriaError, one sentence, for anything else)."""
+    report's metrics.json (CriteriaError, one sentence, for anything else; `named_in`: the criteria file that
+    names it, said in the sentence)."""
     path = Path(path)
+    where = f"the baseline {path}" + (f" (named in the criteria file {named_in})" if named_in else "")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise CriteriaError(f"the baseline {path} does not exist; store a run's summary first, e.g. "
+        raise CriteriaError(f"{where} does not exist; store a run's summary first, e.g. "
                             "'bench run --json > baseline.json'") from None
     except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise CriteriaError(f"the baseline {path} is not a readable JSON file ({exc}); store a run's summary, "
+        raise CriteriaError(f"{where} is not a readable JSON file ({exc}); store a run's summary, "
                             "e.g. 'bench run --json > baseline.json'") from None
     if isinstance(data, dict) and isinstance(data.get("metrics"), dict):
         data = data["metrics"]
     try:
         return RunResults.from_json(data)
     except (ResultsError, TypeError) as exc:
-        raise CriteriaError(f"the baseline {path} is not a summary this bench can compare with ({exc})") from None
+        raise CriteriaError(f"{where} is not a summary this bench can compare with ({exc})") from None
 
 
 @dataclass(frozen=True)
@@ -166,4 +168,5 @@ def load_gate(criteria: Path | None, baseline: Path | None) -> Gate | None:
                             "in the file")
     if baseline is not None and not regressions:
         found = CriteriaSet(found.path, (*found.criteria, DEFAULT_REGRESSION), found.baseline)
-    return Gate(found, load_baseline(baseline) if baseline is not None else None, baseline)
+    named_in = found.path if baseline == found.baseline else None
+    return Gate(found, load_baseline(baseline, named_in) if baseline is not None else None, baseline)
