@@ -380,22 +380,18 @@ def pytest_addoption(parser) -> None:
                     help="keep each test's logs, reports and JUnit XML under DIR (default: pytest's tmp_path)")
 
 
+_CONFIG = pytest.StashKey[BenchConfig]()
+
+
 def pytest_configure(config) -> None:
     config.addinivalue_line("markers", f"{MARKER}(*targets): run only against these bench targets: "
                                        "python, firmware (a target the bench starts), external (an attached one)")
-    config.stash[_CONFIG] = None
-
-
-_CONFIG = pytest.StashKey[BenchConfig | None]()
+    config.stash[_CONFIG] = config_of(config.option)   # a bad profile or option: a usage error, before collection
 
 
 def bench_config(config) -> BenchConfig:
-    """The session's BenchConfig, read once (a bad profile: pytest.UsageError)."""
-    found = config.stash.get(_CONFIG, None)
-    if found is None:
-        found = config_of(config.option)
-        config.stash[_CONFIG] = found
-    return found
+    """The session's BenchConfig (read in pytest_configure)."""
+    return config.stash[_CONFIG]
 
 
 def pytest_collection_modifyitems(config, items) -> None:

@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_cli
 
 from bench.model.default import default_artifact_path
 from target_sim.artifact import encode_array, seal
+
+from helpers import run_cli
 
 junitparser = pytest.importorskip("junitparser")
 
