@@ -2,7 +2,8 @@
 results, so one test file runs unchanged against the Python target, the emulated firmware, or a target on a bus.
 
 On when the package is installed (the `pytest11` entry point `bench`), off with `-p no:bench`; from a source tree,
-`-p bench.pytest_plugin`. Where the target is:
+`-p no:bench -p bench.pytest_plugin` (the `no:bench` keeps an installed entry point from registering it twice).
+Where the target is:
 
     pytest                                       a target the bench starts, the Python engine (default)
     pytest --bench-engine firmware               ... the firmware engine in the emulated Cortex-M4F

@@ -1,6 +1,8 @@
 """The pytest plugin (`bench.pytest_plugin`): the thermal_bench fixture runs the bench and returns typed results,
 the bench_engines marker selects targets, the figures reach pytest's JUnit XML, the pytest11 entry point turns it on
-and `-p no:bench` off. Each session is a pytest subprocess in a directory of its own."""
+and `-p no:bench` off. Each session is a pytest subprocess in a directory of its own, with the plugin loaded as
+`-p no:bench -p bench.pytest_plugin` (the module, whether or not the package's entry point is installed: both at
+once would register it twice)."""
 
 import sys
 import tomllib
@@ -42,8 +44,8 @@ def pytest_session(tmp_path: Path, *args: str, plugin: bool = True, extra_path: 
     env = subprocess_env(can_settings=False)
     if extra_path is not None:
         env["PYTHONPATH"] = f"{extra_path}:{env.get('PYTHONPATH', '')}"
-    argv = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *(["-p", "bench.pytest_plugin"] if plugin
-                                                                        else []), *args]
+    argv = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *(["-p", "no:bench", "-p", "bench.pytest_plugin"]
+                                                                        if plugin else []), *args]
     return subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=SESSION_TIMEOUT_S)
 
 
@@ -108,7 +110,8 @@ def test_the_entry_point_turns_it_on_and_no_bench_off(tmp_path):
 def test_the_projects_own_tests_collect_with_the_plugin_on(tmp_path):
     import subprocess
 
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-p", "bench.pytest_plugin", "--collect-only", "-q",
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:bench", "-p", "bench.pytest_plugin",
+                           "--collect-only", "-q",
                            "-n", "0", "-p", "no:cacheprovider", "tests/bench/acceptance", "tests/dbc"], cwd=ROOT,
                           env=subprocess_env(), capture_output=True, text=True, timeout=SESSION_TIMEOUT_S)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
