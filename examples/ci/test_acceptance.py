@@ -5,8 +5,8 @@
     pytest examples/ci --bench-interface udp_multicast --bench-channel 239.74.163.2
                                                          the target already on that bus (a real ECU)
 
-(from a source tree, without the package installed: add `-p no:bench -p bench.pytest_plugin`). The bench's figures land in
-pytest's JUnit XML (`--junitxml`) as properties of each test.
+(from a source tree, without the package installed: add `-p no:bench -p bench.pytest_plugin`). The bench's figures
+land in pytest's JUnit XML (`--junitxml`, with `-o junit_family=xunit1`) as properties of each test.
 """
 
 from pathlib import Path
