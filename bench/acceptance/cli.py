@@ -12,6 +12,7 @@ from pathlib import Path
 from bench.acceptance.criteria import Gate, load_gate
 from bench.acceptance.junit import CleanCase, write_junit
 from bench.analysis.results import Acceptance
+from bench.fileio import check_writable
 
 
 def add_acceptance_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,8 +44,6 @@ class Acceptor:
 
 def prepare(args: argparse.Namespace) -> Acceptor:
     """The criteria and baseline read, the JUnit path checked: a bad one is one sentence, before any work."""
-    from bench.commands.common import check_writable
-
     junit = getattr(args, "junit_xml", None)
     if junit is not None:
         check_writable(junit, "--junit-xml")

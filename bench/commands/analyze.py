@@ -31,8 +31,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
 from bench.acceptance.junit import CleanCase
 from bench.commands.common import (
@@ -44,11 +42,7 @@ from bench.commands.common import (
     print_summary,
 )
 from bench.errors import BenchError, UsageError
-from bench.run_inputs import load_data, load_model
-
-# half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C, and the
-# d/q currents of DriveCurrents 0.1 A
-DRIVE_HALF_RESOLUTION = np.array([0.05, 0.25, 0.05, 0.05, 0.05, 0.05]) + 1e-9
+from bench.run_inputs import data_mismatch, load_data, load_model, matching_dataset
 
 
 def add_subparser(subparsers) -> None:
@@ -67,41 +61,6 @@ def add_subparser(subparsers) -> None:
     add_output_flags(p)
     add_acceptance_arguments(p)
     p.set_defaults(func=run)
-
-
-def matching_dataset(drive: np.ndarray, artifact):
-    """A dataset in out/data whose first rows carry the log's drive values (within the CAN resolution)."""
-    from bench.drive.dataset import DatasetError, default_dataset_dir
-
-    directory = default_dataset_dir()
-    for csv in sorted(directory.glob("*.csv")) if directory.is_dir() else []:
-        try:
-            dataset = load_data(csv, artifact)
-        except DatasetError:
-            continue
-        if data_mismatch(dataset, drive) is None:
-            return dataset
-    return None
-
-
-def data_mismatch(dataset, drive: np.ndarray) -> str | None:
-    """Why `dataset` is not the one the log's drive frames came from (None if it is, within the CAN resolution;
-    a log whose rows carry the d/q currents needs a dataset with them, and they must match too)."""
-    from bench.model.runs import drive_matrix
-    from target_sim.losses import reads_currents, row_of_width
-
-    columns = row_of_width(drive.shape[1])
-    if reads_currents(columns) and not dataset.has_currents:
-        return "has no d/q current columns (i_d_A, i_q_A), the log's rows carry them"
-    values = drive_matrix(dataset, columns)
-    if len(values) < len(drive):
-        return f"has {len(values)} rows, the log {len(drive)}"
-    with np.errstate(invalid="ignore"):   # a row whose frames never came intact (NaN) differs from nothing
-        off = np.any(np.abs(values[: len(drive)] - drive) > DRIVE_HALF_RESOLUTION[: drive.shape[1]], axis=1)
-    if off.any():
-        row = int(np.argmax(off))
-        return f"differs from the log's drive values at data row {row + 1}"
-    return None
 
 
 def run(args: argparse.Namespace) -> int:

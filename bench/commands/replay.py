@@ -162,7 +162,7 @@ def replay_figures(record: BusRecord, artifact) -> tuple[RunResults | None, str]
     """The figures of the replay's log as `bench analyze` makes them (against a dataset in out/data whose rows
     match, else the float64 model), for the acceptance criteria; (None, why) when it cannot be compared."""
     from bench.analysis.canmetrics import compute
-    from bench.commands.analyze import matching_dataset
+    from bench.run_inputs import matching_dataset
 
     try:
         return compute(record, artifact, matching_dataset(record.drive, artifact))[0], ""
