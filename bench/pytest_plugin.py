@@ -50,6 +50,8 @@ from typing import Any
 
 import pytest
 
+from bench.errors import BenchError
+
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
 PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", "bitrate", "bus_kwargs"),
@@ -58,8 +60,8 @@ DEFAULT_TIMEOUT_S = 900.0
 USAGE_STATUS = 2
 
 
-class BenchRunError(Exception):
-    """The bench refused a run or could not make it (its one sentence, the exit status)."""
+class BenchRunError(BenchError):
+    """The bench refused a run or could not make it (its one sentence, the bench's exit status)."""
 
     def __init__(self, sentence: str, status: int | None):
         super().__init__(sentence)

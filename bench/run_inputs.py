@@ -3,8 +3,7 @@ d/q currents), the rows the host sends, and the firmware image for the firmware 
 
 `matching_dataset` finds the dataset in out/data a log was recorded from (its measured reference, for `bench
 analyze` and the figures of `bench replay`). The default dataset (the 40 °C validation run) is generated in out/data
-when missing; the firmware image of an
-artifact that ships none is built once into a cache directory.
+when missing; the firmware image of an artifact that ships none is built once into a cache directory.
 """
 
 from __future__ import annotations
