@@ -66,3 +66,25 @@ def finish(acceptor: Acceptor, acceptance: Acceptance | None, *, command: str, s
     if not quiet:
         print(f"bench: {acceptance.sentence(subject)}", file=sys.stderr)
     return status
+
+
+def junit_after_error(args: argparse.Namespace | None, sentence: str, elapsed_s: float) -> None:
+    """After a command with --junit-xml ended on an error (exit status 1, not a bad argument): the JUnit XML with
+    that sentence as the error of each testcase. Nothing when it cannot be written (the error is said already)."""
+    path = getattr(args, "junit_xml", None)
+    if path is None:
+        return
+    from bench.acceptance.criteria import CriteriaError, load_gate
+    from bench.acceptance.junit import write_junit_error
+    from bench.errors import BenchError
+
+    try:
+        gate = load_gate(getattr(args, "criteria", None), getattr(args, "baseline", None))
+    except CriteriaError:
+        gate = None
+    names = [c.name for c in gate.criteria.criteria] if gate is not None else []
+    try:
+        check_writable(path, "--junit-xml")
+        write_junit_error(path, f"bench {args.command}", sentence, names, elapsed_s=elapsed_s)
+    except (BenchError, OSError):
+        pass

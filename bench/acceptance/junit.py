@@ -93,3 +93,22 @@ def write_junit(path: Path, command: str, clean: CleanCase, acceptance: Acceptan
     payload = junit_document(command, clean, acceptance, elapsed_s=elapsed_s, properties=properties,
                              attachments=[a for a in attachments if a])
     write_bytes_atomically(Path(path), payload, "the JUnit XML")
+
+
+def write_junit_error(path: Path, command: str, sentence: str, criteria: list[str], *, elapsed_s: float) -> None:
+    """The JUnit XML of a command that ended before its verdict (the target died, the log could not be written):
+    "clean" and each criterion an <error> with the command's sentence, so the CI page still says what happened."""
+    counts = {"tests": str(1 + len(criteria)), "failures": "0", "errors": str(1 + len(criteria)), "skipped": "0",
+              "time": f"{elapsed_s:.3f}"}
+    root = ET.Element("testsuites", name="bench", **counts)
+    suite = ET.SubElement(root, "testsuite", name=command, **counts,
+                          timestamp=datetime.now(UTC).replace(microsecond=0).isoformat(),
+                          hostname=socket.gethostname())
+    classname = command.replace(" ", ".")
+    for name, cls, message in [("clean", classname, sentence),
+                               *((c, f"{classname}.criteria", f"not judged: {sentence}") for c in criteria)]:
+        case = ET.SubElement(suite, "testcase", classname=cls, name=name, time="0")
+        ET.SubElement(case, "error", message=message, type="CommandError").text = message
+    ET.indent(root)
+    write_bytes_atomically(Path(path), ET.tostring(root, encoding="utf-8", xml_declaration=True) + b"\n",
+                           "the JUnit XML")

@@ -148,3 +148,16 @@ def test_a_junit_path_that_is_a_directory_is_refused_before_the_run(tmp_path):
                    str(tmp_path / "x.blf"), timeout=60)
     assert proc.returncode != 0 and "--junit-xml" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.blf").exists()
+
+
+def test_a_command_that_ends_on_an_error_still_writes_its_junit_xml(tmp_path):
+    junit = tmp_path / "junit.xml"
+    proc = run_cli("-m", "bench", "analyze", str(tmp_path / "missing.blf"), "--no-report", "--criteria",
+                   str(EXAMPLE), "--junit-xml", str(junit), timeout=60)
+    assert proc.returncode == 1
+    sentence = proc.stderr.strip().removeprefix("bench: error: ")
+    suite, by_name = cases(junit)
+    assert (suite.tests, suite.errors, suite.failures) == (10, 10, 0)
+    (error,) = by_name["clean"].result
+    assert isinstance(error, junitparser.Error) and error.message == sentence
+    assert by_name["pm_rmse"].result[0].message == f"not judged: {sentence}"
