@@ -55,8 +55,12 @@ from bench.errors import BenchError
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
 PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", "bitrate", "bus_kwargs"),
-                "run": ("data", "model", "rows", "mode", "criteria", "baseline", "reply_timeout", "timeout")}
+                "run": ("data", "model", "rows", "mode", "criteria", "baseline", "reply_timeout", "connect_timeout",
+                        "timeout")}
 DEFAULT_TIMEOUT_S = 900.0
+# an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
+# default (15 s) is for a target known to run
+ATTACHED_CONNECT_TIMEOUT_S = 120.0
 USAGE_STATUS = 2
 
 
@@ -286,7 +290,9 @@ class ThermalBench:
             argv += ["--faults", spec]
         if tolerate_faults:
             argv.append("--tolerate-faults")
-        if not attach:
+        if attach:
+            argv += ["--connect-timeout", str(self.config.defaults.get("connect_timeout", ATTACHED_CONNECT_TIMEOUT_S))]
+        else:
             argv += ["--engine", self.config.engine]
             argv += ["--report", str(run_dir / "report")] if report else ["--no-report"]
         argv += ["--log", str(run_dir / "bench.blf"), "--junit-xml", str(run_dir / "junit.xml"), "--json",

@@ -4,6 +4,7 @@
 # too, so its steps stay true. It writes into $BENCH_CI_OUT (default out/ci), which the recipes upload:
 #   bench.blf, report/ (report.md and figures), bench-junit.xml, summary.json    the bench run and its criteria
 #   pytest-<target>.xml, runs-<target>/                                         the pytest suite per target
+#   external-target.log                                                         the external target's output
 # Settings (environment):
 #   BENCH_CI_INTERFACE  udp_multicast (default) or socketcan (with BENCH_CI_CHANNEL=vcan0 where the runner can
 #                       `modprobe vcan`)
@@ -43,9 +44,14 @@ for target in $TARGETS; do
             ext_bus=(-i "$INTERFACE" -c "$group")
         fi
         model=$(python -c "from bench.model.default import default_artifact_path; print(default_artifact_path())")
-        python -m target_sim --model "$model" --quiet "${ext_bus[@]}" &
+        python -m target_sim --model "$model" "${ext_bus[@]}" 2> "$OUT/external-target.log" &
         target_pid=$!
         trap 'kill "$target_pid" 2>/dev/null || true' EXIT
+        for _ in $(seq 120); do   # until it serves (a loaded runner takes seconds to start Python)
+            if grep -q serving "$OUT/external-target.log"; then break; fi
+            if ! kill -0 "$target_pid" 2>/dev/null; then cat "$OUT/external-target.log" >&2; exit 1; fi
+            sleep 1
+        done
         options=(--bench-interface "${ext_bus[1]}" --bench-channel "${ext_bus[3]}")
         if [ "$INTERFACE" = udp_multicast ]; then options+=(--bench-bus-kwargs "port=$EXTERNAL_PORT"); fi
     elif [ "$INTERFACE" != udp_multicast ]; then
