@@ -18,7 +18,7 @@ CI = ROOT / "examples" / "ci"
 SCRIPT_RUN = "bash examples/ci/acceptance.sh"
 # what the script writes into $BENCH_CI_OUT, as the recipes name it
 UPLOADED = {"out/ci/bench.blf", "out/ci/report/", "out/ci/summary.json", "out/ci/bench-junit.xml",
-            "out/ci/pytest-*.xml", "out/ci/runs-*/"}
+            "out/ci/pytest-*.xml", "out/ci/runs-*/", "out/ci/external-target.log"}
 SCRIPT_TIMEOUT_S = 1200   # the bench run and the suite three times (~2.5 min alone on 2 cores)
 
 
