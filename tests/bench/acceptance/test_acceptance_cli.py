@@ -117,6 +117,7 @@ def test_a_worse_model_is_caught_by_the_regression_gate(passing_run, tmp_path):
     assert "bench: error: the run fails 1 of its 1 acceptance criteria: regression: RMSE of " in run.stderr
 
 
+@pytest.mark.slow
 def test_the_replay_judges_its_own_log(passing_run, tmp_path):
     out, _ = passing_run
     junit = tmp_path / "junit.xml"
