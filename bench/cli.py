@@ -11,6 +11,7 @@ import re
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable
 
 from bench import DISTRIBUTION, package_version
@@ -217,10 +218,23 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signum, handler)
 
 
+def _failed(args: argparse.Namespace | None, sentence: str, status: int, started: float) -> int:
+    """The one sentence of an error on stderr, and its exit status; a command that ended on it (not a bad argument,
+    status 2) still writes its --junit-xml, with the sentence as the error (`bench.acceptance.cli`)."""
+    print(f"bench: error: {sentence}", file=sys.stderr)
+    if status == 1 and getattr(args, "junit_xml", None) is not None:
+        from bench.acceptance.cli import junit_after_error
+
+        junit_after_error(args, sentence, time.perf_counter() - started)
+    return status
+
+
 def _main(argv: list[str] | None) -> int:
     # python-can reports a bus that failed half-way through its constructor once more from __del__ ("... was not
     # properly shut down"), after the one-sentence error: its warnings are not for the bench's users.
     logging.getLogger("can").addHandler(logging.NullHandler())
+    args = None
+    started = time.perf_counter()
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
@@ -229,17 +243,14 @@ def _main(argv: list[str] | None) -> int:
             return 2
         return int(args.func(args) or 0)
     except BenchError as exc:
-        print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
-        return exc.exit_status
+        return _failed(args, one_line(str(exc)), exc.exit_status, started)
     except LAYER_ERRORS as exc:  # e.g. the CAN contract, read on first use by whichever command needs it
-        print(f"bench: error: {one_line(str(exc))}", file=sys.stderr)
-        return 2 if isinstance(exc, LAYER_USAGE_ERRORS) else 1
+        return _failed(args, one_line(str(exc)), 2 if isinstance(exc, LAYER_USAGE_ERRORS) else 1, started)
     except OSError as exc:  # a file or directory the command could not use (last resort: name it, no traceback)
         if isinstance(exc, BrokenPipeError):
             sys.stderr.close()
             return 0
-        print(f"bench: error: {_os_error_sentence(exc)}", file=sys.stderr)
-        return 1
+        return _failed(args, _os_error_sentence(exc), 1, started)
     except KeyboardInterrupt:
         print(f"bench: interrupted (SIGINT); {STOP_NOTE}", file=sys.stderr)
         return 128 + signal.SIGINT

@@ -130,3 +130,22 @@ def write_directory_atomically(path: Path, contents: Mapping[str, bytes], *,
     finally:
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
+
+
+def check_writable(path: Path, option: str, *, directory: bool = False) -> Path:
+    """Refuse an output path before any work is done, creating nothing: `path` (a file, or with `directory` a
+    directory) must be creatable or replaceable, i.e. not of the other kind, and its nearest existing ancestor a
+    writable directory. BenchError names the path, the option and what to do."""
+    path = Path(path)
+    if directory and path.exists() and not path.is_dir():
+        raise BenchError(f"{option} {path} is a file, not a directory; choose a directory for {option}")
+    if not directory and path.is_dir():
+        raise BenchError(f"{option} {path} is a directory; name a file for {option}")
+    ancestor = (path if directory else path.parent).absolute()
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise BenchError(f"cannot write {path}: {ancestor} is a file, not a directory; choose another {option}")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise BenchError(f"cannot write {path}: the directory {ancestor} is not writable; choose another {option}")
+    return path

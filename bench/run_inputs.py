@@ -1,8 +1,9 @@
 """What a run needs before anything starts: the model artifact, the drive data checked against it (sample period,
 d/q currents), the rows the host sends, and the firmware image for the firmware engine.
 
-The default dataset (the 40 °C validation run) is generated in out/data when missing; the firmware image of an
-artifact that ships none is built once into a cache directory.
+`matching_dataset` finds the dataset in out/data a log was recorded from (its measured reference, for `bench
+analyze` and the figures of `bench replay`). The default dataset (the 40 °C validation run) is generated in out/data
+when missing; the firmware image of an artifact that ships none is built once into a cache directory.
 """
 
 from __future__ import annotations
@@ -90,3 +91,43 @@ def drive_for(dataset: Dataset, artifact: ModelArtifact) -> np.ndarray:
 
     check_drive_data(dataset, artifact)
     return drive_matrix(dataset, artifact.drive_signals)
+
+
+# half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C, and the
+# d/q currents of DriveCurrents 0.1 A
+DRIVE_HALF_RESOLUTION = np.array([0.05, 0.25, 0.05, 0.05, 0.05, 0.05]) + 1e-9
+
+
+def matching_dataset(drive: np.ndarray, artifact):
+    """A dataset in out/data whose first rows carry the log's drive values (within the CAN resolution)."""
+    from bench.drive.dataset import DatasetError, default_dataset_dir
+
+    directory = default_dataset_dir()
+    for csv in sorted(directory.glob("*.csv")) if directory.is_dir() else []:
+        try:
+            dataset = load_data(csv, artifact)
+        except DatasetError:
+            continue
+        if data_mismatch(dataset, drive) is None:
+            return dataset
+    return None
+
+
+def data_mismatch(dataset, drive: np.ndarray) -> str | None:
+    """Why `dataset` is not the one the log's drive frames came from (None if it is, within the CAN resolution;
+    a log whose rows carry the d/q currents needs a dataset with them, and they must match too)."""
+    from bench.model.runs import drive_matrix
+    from target_sim.losses import reads_currents, row_of_width
+
+    columns = row_of_width(drive.shape[1])
+    if reads_currents(columns) and not dataset.has_currents:
+        return "has no d/q current columns (i_d_A, i_q_A), the log's rows carry them"
+    values = drive_matrix(dataset, columns)
+    if len(values) < len(drive):
+        return f"has {len(values)} rows, the log {len(drive)}"
+    with np.errstate(invalid="ignore"):   # a row whose frames never came intact (NaN) differs from nothing
+        off = np.any(np.abs(values[: len(drive)] - drive) > DRIVE_HALF_RESOLUTION[: drive.shape[1]], axis=1)
+    if off.any():
+        row = int(np.argmax(off))
+        return f"differs from the log's drive values at data row {row + 1}"
+    return None

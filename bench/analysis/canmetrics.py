@@ -209,6 +209,13 @@ def _rmse(a: np.ndarray, b: np.ndarray) -> float | None:
         return float(np.sqrt(np.mean((a[ok] - b[ok]) ** 2))) if ok.any() else None
 
 
+def _max_error(a: np.ndarray, b: np.ndarray) -> float | None:
+    """max |a − b| over the samples where both are finite (None: none are)."""
+    ok = np.isfinite(a) & np.isfinite(b)
+    with np.errstate(over="ignore"):
+        return float(np.max(np.abs(a[ok] - b[ok]))) if ok.any() else None
+
+
 def _max_abs(a: np.ndarray) -> float | None:
     a = a[np.isfinite(a)]
     return float(np.max(np.abs(a))) if a.size else None
@@ -300,15 +307,17 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     nulls: dict[str, str] = {}      # metric -> why it is null (JSON and the report hold no inf or NaN)
     non_finite = NonFinite(float32=int(np.count_nonzero(~np.isfinite(refs.f32))),
                            float64=int(np.count_nonzero(~np.isfinite(refs.f64))))
-    rmse = {}
-    rmse_vs = {}
+    rmse, rmse_vs, max_error = {}, {}, {}
+    rmse_f64 = {name: _rmse(can_at_steps[:, i], refs.f64[:, i]) for i, name in enumerate(TEMPERATURES)}
+    max_error_f64 = {name: _max_error(can_at_steps[:, i], refs.f64[:, i]) for i, name in enumerate(TEMPERATURES)}
     for i, name in enumerate(TEMPERATURES):
         measured = {"winding": refs.measured_winding, "magnet": refs.measured_pm}.get(name)
         if measured is not None:
             rmse[name] = _rmse(can_at_steps[:, i], measured)
+            max_error[name] = _max_error(can_at_steps[:, i], measured)
             rmse_vs[name] = "measured"
         else:
-            rmse[name] = _rmse(can_at_steps[:, i], refs.f64[:, i])
+            rmse[name], max_error[name] = rmse_f64[name], max_error_f64[name]
             rmse_vs[name] = "float64 model"
     model_rmse = {}
     if refs.measured_winding is not None:
@@ -343,7 +352,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
                 for i, name in enumerate(TEMPERATURES))),
             non_finite_values=non_finite, rmse_C=NodeValues(**rmse), rmse_reference=NodeLabels(**rmse_vs),
             model_rmse_vs_measured_C=model_rmse, float64_outside_dbc_range=outside,
-            max_rel_float32_minus_float64=max_rel),
+            max_rel_float32_minus_float64=max_rel, max_abs_error_C=NodeValues(**max_error),
+            rmse_vs_float64_C=NodeValues(**rmse_f64), max_abs_error_vs_float64_C=NodeValues(**max_error_f64)),
         timing=Timing(
             step_time_us=Percentiles(**percentiles(timing.get("measured_us", []))),
             overruns=int(_top(timing.get("overruns")) or 0), est_cycles=_top(timing.get("cycles"), int),

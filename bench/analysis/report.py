@@ -23,7 +23,7 @@ import numpy as np
 from bench.analysis import plots
 from bench.analysis.canmetrics import TEMPERATURES, compute
 from bench.analysis.logdecode import BusRecord, decode_log
-from bench.analysis.results import FaultResults, RunResults
+from bench.analysis.results import Acceptance, FaultResults, RunResults
 from bench.analysis.verdict import counts_text, problems
 from bench.errors import BenchError
 from bench.fileio import foreign_entries, write_directory_atomically
@@ -52,12 +52,15 @@ def check_report_dir(report_dir: Path, option: str = "--report") -> None:
 
 def analyze_log(log_path: str | Path, artifact: ModelArtifact, dataset=None, *, report_dir: str | Path | None = None,
                 bitrate: int | None = None, run_info: dict | None = None,
-                extra_problems: list[str] | None = None) -> tuple[RunResults, list[str]]:
+                extra_problems: list[str] | None = None, gate=None) -> tuple[RunResults, list[str]]:
     """Decode the log, compute the metrics against the references, write the report if `report_dir`.
 
-    `extra_problems` (what the live run saw, e.g. the host's) are listed in the report too."""
+    `extra_problems` (what the live run saw, e.g. the host's) are listed in the report too; `gate` (a
+    `bench.acceptance.criteria.Gate`) judges the acceptance criteria, which go into the results and the report."""
     record = decode_log(log_path)
     results, refs = compute(record, artifact, dataset, **({"bitrate": bitrate} if bitrate else {}))
+    if gate is not None:
+        results.acceptance = gate.judge(results)
     found = list(dict.fromkeys((extra_problems or []) + problems(results)))
     if report_dir is not None:
         report_path = write_report(Path(report_dir), results, found, record, refs, dataset, run_info or {})
@@ -209,6 +212,8 @@ def render_markdown(metrics: RunResults, found: list[str], dataset, run_info: di
         lines.append(f"- **Note:** {note}")
     if found or m.notes:
         lines.append("")
+    if m.acceptance is not None:
+        lines += acceptance_section(m.acceptance)
     lines += ["| | |", "|---|---|"]
     log, timing, agreement, accuracy = m.integrity, m.timing, m.agreement, m.accuracy
     info = [("log", f"`{log.log}` ({log.frames_in_log} frames)"),
@@ -293,6 +298,22 @@ def render_markdown(metrics: RunResults, found: list[str], dataset, run_info: di
               "Cortex-M4F cycles (firmware engine) are counted per executed basic block in the emulated core from "
               "the Cortex-M4 TRM timings (`target_sim/firmware/cycles.py`), and its flash and RAM are the ELF's.", ""]
     return "\n".join(lines)
+
+
+def acceptance_section(acceptance: Acceptance) -> list[str]:
+    """The acceptance criteria (--criteria, --baseline): each check's figure, limit and verdict."""
+    head = "met" if acceptance.passed else f"{len(acceptance.failed)} of {len(acceptance.checks)} failed"
+    source = f" (`{acceptance.criteria}`" + (f", baseline `{acceptance.baseline}`" if acceptance.baseline else "") + ")"
+    lines = [f"## Acceptance criteria: {head}", "", f"Criteria{source if acceptance.criteria else ''}:"
+             + ("" if acceptance.criteria else f" the default regression gate against `{acceptance.baseline}`"), "",
+             "| criterion | figure | limit | verdict |", "|---|---|---|---|"]
+    for c in acceptance.checks:
+        figure = "–" if c.figure is None else f"{c.figure:.4g} {c.unit}".rstrip()
+        note = f" ({c.source})" if c.source else ""
+        lines.append(f"| {c.name}: {c.what}{note} | {figure} | {c.limit:g} {c.unit} | "
+                     f"{'pass' if c.passed else '**FAIL**'} |")
+    failed = [f"- {c.message}" for c in acceptance.failed]
+    return lines + [""] + (failed + [""] if failed else [])
 
 
 def _loss_model_words(name: str | None) -> str:

@@ -43,6 +43,8 @@ class ResultsError(BenchError, ValueError):
 
 # ------------------------------------------------------------------------------------------------ JSON machinery
 def _dump(value: Any) -> Any:
+    if is_dataclass(value) and not isinstance(value, type) and hasattr(value, "json_value"):
+        return value.json_value()    # a part with derived keys of its own (`Acceptance`)
     if is_dataclass(value) and not isinstance(value, type):
         out: dict[str, Any] = {}
         for f in fields(value):
@@ -283,6 +285,11 @@ class Accuracy:
     # the float64 model's own range: values outside the DBC's, and the largest |float32 − float64| / max(1, |float64|)
     float64_outside_dbc_range: int = 0
     max_rel_float32_minus_float64: float | None = None
+    # max |CAN − reference| per node against what its RMSE is against (`rmse_reference`), and both figures against
+    # the float64 model for every node (the acceptance criteria's "against"; None in results of an older bench)
+    max_abs_error_C: NodeValues | None = None
+    rmse_vs_float64_C: NodeValues | None = None
+    max_abs_error_vs_float64_C: NodeValues | None = None
 
 
 @dataclass
@@ -393,6 +400,58 @@ def _without_windows(data: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in data.items() if not k.startswith("window_")}
 
 
+@dataclass
+class CheckResult:
+    """One acceptance criterion judged (`bench.acceptance`): its figure against its limit (the figure must not
+    exceed it), and the verdict. `figure` None: the figure could not be had (no measurement, no baseline node), which
+    fails the check; `source` says where a figure came from when that matters (cycles: counted or estimated)."""
+
+    name: str
+    kind: str
+    what: str
+    figure: float | None
+    limit: float
+    unit: str
+    passed: bool
+    message: str
+    source: str | None = field(default=None, metadata=OMIT_NONE)
+
+    @property
+    def verdict(self) -> str:
+        return "pass" if self.passed else "fail"
+
+
+@dataclass
+class Acceptance:
+    """The acceptance criteria of a run or a log (`--criteria FILE`, `--baseline FILE`) and how each fared."""
+
+    criteria: str | None
+    baseline: str | None
+    checks: list[CheckResult]
+
+    @property
+    def failed(self) -> list[CheckResult]:
+        return [c for c in self.checks if not c.passed]
+
+    @property
+    def passed(self) -> bool:
+        return not self.failed
+
+    def sentence(self, subject: str = "the run") -> str:
+        """'the run meets its 7 acceptance criteria', or which failed and by what figure."""
+        failed, n = self.failed, len(self.checks)
+        if not failed:
+            return f"{subject} meets its {n} acceptance criteri{'on' if n == 1 else 'a'}"
+        return (f"{subject} fails {len(failed)} of its {n} acceptance criteria: "
+                + "; ".join(c.message for c in failed))
+
+    def json_value(self) -> dict[str, Any]:
+        """Its JSON (`_dump` uses it): with the verdicts, the names that failed and the sentence."""
+        return {"criteria": self.criteria, "baseline": self.baseline, "passed": self.passed,
+                "failed": [c.name for c in self.failed], "verdict": self.sentence(),
+                "checks": [{**_dump(c), "verdict": c.verdict} for c in self.checks]}
+
+
 # ------------------------------------------------------------------------------------------------ results
 @dataclass
 class RunResults(_Json):
@@ -412,6 +471,7 @@ class RunResults(_Json):
     notes: list[str] = field(default_factory=list)
     null_values: dict[str, str] = field(default_factory=dict)
     report: str | None = field(default=None, metadata=OMIT_NONE)   # report.md, once written
+    acceptance: Acceptance | None = field(default=None, metadata=OMIT_NONE)   # with --criteria/--baseline
 
     def to_json(self, *, windows: bool = True) -> dict[str, Any]:
         """The JSON object; without `windows` the bus load leaves out its per-window series."""
@@ -536,8 +596,9 @@ class RunSummary(_Json):
             "m4_cycles": m.timing.m4_cycles, "flash_bytes": m.memory.flash_bytes, "ram_bytes": m.memory.ram_bytes,
             "memory_source": m.memory.memory_source, "throughput_steps_per_s": m.throughput.throughput_steps_per_s,
             "log": m.integrity.log, "report": m.report, "bus": self.bus, "problems": self.problems,
-            "notes": m.notes, "clean": self.clean, "verdict": self.verdict, "faults": self.faults,
-            "host": self.host}
+            "notes": m.notes, "clean": self.clean, "verdict": self.verdict,
+            **({"acceptance": m.acceptance} if m.acceptance is not None else {}),
+            "faults": self.faults, "host": self.host}
         return {SCHEMA_KEY: SCHEMA_VERSION, **_dump(head), "metrics": m.to_json(windows=False),
                 "elapsed_s": round(self.elapsed_s, 2), "node_cycles": _dump(self.node_cycles)}
 
@@ -613,3 +674,4 @@ class ReplayResults(_Json):
     rows_per_s: float
     round_trip_us: Percentiles
     problems: list[str]
+    acceptance: Acceptance | None = field(default=None, metadata=OMIT_NONE)   # of the replay's log (--criteria)

@@ -134,6 +134,8 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     if summary is not None:
         status, error = DONE, None
         verdict = "not clean" if proc.returncode else ("clean" if summary.get("clean") else "tolerated")
+        if proc.returncode and summary.get("clean") and not (summary.get("acceptance") or {}).get("passed", True):
+            verdict = "criteria failed"   # a clean run that fails its acceptance criteria (--criteria)
     elif timed_out:
         status, verdict = "timeout", None
         error = f"the run took longer than {task['timeout_s']:g} s and was stopped"

@@ -21,7 +21,8 @@ from bench.fileio import foreign_entries, write_directory_atomically
 
 REPORT_DIR = "report"
 # cell label -> colour of the verdict matrix
-COLOURS = {"clean": "#4caf50", "tolerated": "#a5d6a7", "not clean": "#ff9800", "failed": "#e53935",
+COLOURS = {"clean": "#4caf50", "tolerated": "#a5d6a7", "not clean": "#ff9800", "criteria failed": "#fdd835",
+           "failed": "#e53935",
            "timeout": "#8e24aa", "lost-worker": "#6d4c41", "not run": "#e0e0e0"}
 OUR_FILES = re.compile(r"(report\.md|verdicts\.png|axis-[A-Za-z0-9_.-]+\.png)")
 
@@ -182,8 +183,9 @@ def render(rows: list[dict[str, Any]], meta: dict[str, str], fault_rows: list[di
         md += ["![verdicts](verdicts.png)", ""]
     md += _table(["", *columns], [[label, *line] for label, line in zip(labels, cells, strict=True)]) + [""]
     md += ["clean: the bench's verdict is clean; tolerated: it exited 0 with injected faults (all detected) or "
-           "tolerated gaps; not clean: it exited 1 with its problems listed below; failed, timeout, lost-worker: the "
-           "run ended without a verdict (after one retry).", ""]
+           "tolerated gaps; not clean: it exited 1 with its problems listed below; criteria failed: clean, but it "
+           "failed acceptance criteria of its `criteria` file; failed, timeout, lost-worker: the run ended without a "
+           "verdict (after one retry).", ""]
 
     md += ["## By axis", ""]
     for axis, values in axes.items():

@@ -19,7 +19,9 @@ pv-lptn, or an artifact path), `engine` (python, firmware), `data` (20, 40 or 60
 coolant set point; or a CSV path), `mapping` (path), `sample_period` (seconds or "auto"), `seed` (of the generated
 datasets), `mode` (lockstep, realtime), `speed`, `rows` (a number or "all"), `reply_timeout`, `faults` (as
 `--faults`: "drop=0.01,kill=1", or a table {drop = 0.01, kill = 1}; "" for none), `fault_seed`, `tolerate_faults`,
-`tolerate_gaps`, `report` (false: no per-run report). Paths are relative to the spec file.
+`tolerate_gaps`, `report` (false: no per-run report), `criteria` (a criteria TOML file, `bench run --criteria`: each
+run judged by it, its JUnit XML beside its log as junit.xml) and `baseline` (a stored summary, `--baseline`). Paths
+are relative to the spec file.
 
 Every problem is one sentence naming the file and the key (`BenchError`), found before anything is written.
 """
@@ -162,6 +164,8 @@ OPTIONS: dict[str, Option] = {
     "tolerate_faults": Option(_flag, False, "--tolerate-faults"),
     "tolerate_gaps": Option(_flag, False, "--tolerate-gaps"),
     "report": Option(_flag, True, None),
+    "criteria": Option(_path, None, None),
+    "baseline": Option(_path, None, None),
 }
 
 
@@ -211,6 +215,11 @@ class Run:
             args += [opt.flag] if value is True else [opt.flag, repr(value) if isinstance(value, float) else str(value)]
         if o["faults"]:
             args += ["--faults", o["faults"]]
+        for key in ("criteria", "baseline"):   # acceptance criteria (bench.acceptance), the run's JUnit XML
+            if o[key] is not None:
+                args += [f"--{key}", str(self.path_of(key))]
+        if o["criteria"] is not None or o["baseline"] is not None:
+            args += ["--junit-xml", str(run_dir / "junit.xml")]
         args += ["--log", str(run_dir / "bench.blf")]
         args += ["--no-report"] if not o["report"] else ["--report", str(run_dir / "report")]
         return [*args, "--json", "--quiet", "-i", "udp_multicast"]
@@ -350,8 +359,18 @@ def _check_runs(campaign: Campaign) -> None:
     kill/freeze in real time, the firmware engine on a model it cannot run."""
     where = campaign.path
     checked: dict[Path, str | None] = {}
+    gates: set[tuple[Path | None, Path | None]] = set()
     for run in campaign.runs:
         o = run.options
+        gate = (run.path_of("criteria"), run.path_of("baseline"))
+        if gate != (None, None) and gate not in gates:   # a bad criteria file: refused before any run
+            from bench.acceptance.criteria import CriteriaError, load_gate
+
+            try:
+                load_gate(*gate)
+            except CriteriaError as exc:
+                raise SpecError(f"{where}: run {run.label()}: {exc}") from None
+            gates.add(gate)
         for key in ("data", "mapping"):
             p = run.path_of(key)
             if p is not None and not p.is_file():

@@ -2,6 +2,7 @@
 
     bench analyze LOG [--model FILE] [--data FILE [--mapping FILE] [--sample-period S|auto]]
                       [--report DIR | --no-report] [--tolerate-faults] [--json] [--quiet]
+                      [--criteria FILE] [--baseline FILE] [--junit-xml FILE]
 
 The model defaults to the packaged artifact and must carry the log's model id (Status.ModelId). The measured
 reference comes from --data, or else from a dataset in out/data whose rows match the drive values in the log
@@ -16,6 +17,9 @@ the sidecar lists as undetected fails even then. Not clean either, whatever the 
 were not finite, frames of the target the host's checks reject (unless injected faults explain them) and frames
 that pass them but are not of this session (replayed or forged: counted, shown, never used).
 
+Acceptance criteria (--criteria, --baseline, --junit-xml) as `bench run`'s, judged on the log's figures: each
+check's figure, limit and verdict in the JSON ("acceptance") and the report, exit status 1 when any fails.
+
 The report directory is written at once (a temporary directory renamed into place); one that holds anything but
 an earlier report is refused before the log is read.
 """
@@ -24,10 +28,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
-import numpy as np
-
+from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
+from bench.acceptance.junit import CleanCase
 from bench.commands.common import (
     add_data_arguments,
     add_output_flags,
@@ -37,11 +42,7 @@ from bench.commands.common import (
     print_summary,
 )
 from bench.errors import BenchError, UsageError
-from bench.run_inputs import load_data, load_model
-
-# half the resolution of each drive signal on the bus: torque 0.1 Nm, speed 0.5 rpm, temperatures 0.1 °C, and the
-# d/q currents of DriveCurrents 0.1 A
-DRIVE_HALF_RESOLUTION = np.array([0.05, 0.25, 0.05, 0.05, 0.05, 0.05]) + 1e-9
+from bench.run_inputs import data_mismatch, load_data, load_model, matching_dataset
 
 
 def add_subparser(subparsers) -> None:
@@ -58,42 +59,8 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--tolerate-faults", action="store_true",
                    help="exit 0 for a log with injected faults if every one was detected and nothing else went wrong")
     add_output_flags(p)
+    add_acceptance_arguments(p)
     p.set_defaults(func=run)
-
-
-def matching_dataset(drive: np.ndarray, artifact):
-    """A dataset in out/data whose first rows carry the log's drive values (within the CAN resolution)."""
-    from bench.drive.dataset import DatasetError, default_dataset_dir
-
-    directory = default_dataset_dir()
-    for csv in sorted(directory.glob("*.csv")) if directory.is_dir() else []:
-        try:
-            dataset = load_data(csv, artifact)
-        except DatasetError:
-            continue
-        if data_mismatch(dataset, drive) is None:
-            return dataset
-    return None
-
-
-def data_mismatch(dataset, drive: np.ndarray) -> str | None:
-    """Why `dataset` is not the one the log's drive frames came from (None if it is, within the CAN resolution;
-    a log whose rows carry the d/q currents needs a dataset with them, and they must match too)."""
-    from bench.model.runs import drive_matrix
-    from target_sim.losses import reads_currents, row_of_width
-
-    columns = row_of_width(drive.shape[1])
-    if reads_currents(columns) and not dataset.has_currents:
-        return "has no d/q current columns (i_d_A, i_q_A), the log's rows carry them"
-    values = drive_matrix(dataset, columns)
-    if len(values) < len(drive):
-        return f"has {len(values)} rows, the log {len(drive)}"
-    with np.errstate(invalid="ignore"):   # a row whose frames never came intact (NaN) differs from nothing
-        off = np.any(np.abs(values[: len(drive)] - drive) > DRIVE_HALF_RESOLUTION[: drive.shape[1]], axis=1)
-    if off.any():
-        row = int(np.argmax(off))
-        return f"differs from the log's drive values at data row {row + 1}"
-    return None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -103,9 +70,11 @@ def run(args: argparse.Namespace) -> int:
     from bench.analysis.results import LogSummary
     from bench.analysis.verdict import fault_note, problems, verdict
 
+    started = time.perf_counter()
     if args.no_report and args.report is not None:
         raise UsageError("--no-report skips the report that --report names; pass one of them")
     report_dir = None if args.no_report else args.report or args.log.with_name(f"{args.log.stem}-report")
+    acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before the log is read
     if report_dir is not None:   # before the log is read: a report that cannot be written must not cost that
         check_writable(report_dir, "--report", directory=True)
         check_report_dir(report_dir)
@@ -133,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:     # e.g. an electrical loss model and a log without the d/q currents
         raise BenchError(f"log {args.log} cannot be compared with {model_path}: {exc}") from None
     in_log = problems(results)
+    results.acceptance = acceptor.judge(results)
     if report_dir is not None:
         results.report = str(write_report(report_dir, results, in_log, record, refs, dataset,
                                           {"mode": "analyzed from the log"}))  # the report `bench run` writes
@@ -147,4 +117,11 @@ def run(args: argparse.Namespace) -> int:
         if dataset is None and not args.quiet:
             print("bench: no dataset matched the log: RMSE is against the float64 model only (pass --data)",
                   file=sys.stderr)
-    return outcome.exit_status(f"the log {args.log}", args.json)
+    status = outcome.exit_status(f"the log {args.log}", args.json)
+    summary = LogSummary(results, found, not found and not injected)
+    return finish(acceptor, results.acceptance, command="bench analyze", subject=f"the log {args.log}",
+                  status=status, clean=CleanCase(status == 0, summary.to_json()["verdict"], tuple(found)),
+                  elapsed_s=time.perf_counter() - started, quiet=args.quiet or args.json,
+                  properties={"model": results.model.id, "engine": results.timing.engine,
+                              "log": results.integrity.log, "report": results.report},
+                  attachments=[results.integrity.log, results.report])

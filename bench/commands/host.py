@@ -6,6 +6,7 @@ report what came back.
                [--reply-timeout S] [--connect-timeout S] [--tolerate-gaps] [--json] [--quiet]
                [--fault KIND=VALUE ...] [--faults K=V,K=V] [--fault-seed N] [--tolerate-faults]
                [--target-events FILE] [--wait-for-listener SECONDS]
+               [--criteria FILE] [--baseline FILE] [--junit-xml FILE]
                [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...] [--can-config FILE]
 
 The target (`python -m target_sim`, or a real ECU) must run on the same bus; its heartbeat must carry the model
@@ -22,6 +23,10 @@ The `host` package is the node itself (session, replay,
 faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as `bench run`) and hands
 the host its drive rows, with the d/q currents (DriveCurrents) when the model has an electrical loss model.
 
+Acceptance criteria (--criteria, --baseline, --junit-xml) as `bench run`'s, judged on the log's figures: each
+check's figure, limit and verdict in the JSON ("acceptance"), exit status 1 when any fails. With a target of your
+own (a real ECU) "cycles" are the C28x estimate unless it sends the firmware engine's Timing4 frames.
+
 Bus faults (`host.faults`; lockstep) are injected as by `bench run`; kill and freeze need `bench run`, which
 owns the target process. To check detection, start the target with `--events FILE` and pass the same file as
 `--target-events`; the summary goes into the JSON result ("faults") and next to the log (`<log>.faults.json`).
@@ -35,6 +40,8 @@ import sys
 import time
 from pathlib import Path
 
+from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
+from bench.acceptance.junit import CleanCase
 from bench.commands.args import add_listener_argument, announce_logger, positive_float, positive_int
 from bench.commands.common import (
     add_data_arguments,
@@ -83,6 +90,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--target-events", type=Path, default=None, metavar="FILE",
                    help="the target's detection journal (its --events file), to check that faults were detected")
     add_output_flags(p)
+    add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
     p.set_defaults(func=run_host)
@@ -101,6 +109,7 @@ def _faults(args: argparse.Namespace):
 
 def run_host(args: argparse.Namespace) -> int:
     faults = _faults(args)
+    acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work
     config = resolve(config_from_args(args))
     if config.interface == "virtual":  # python-can's virtual bus lives in one process: no target could answer
         raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
@@ -143,20 +152,23 @@ def run_host(args: argparse.Namespace) -> int:
     from bench.analysis.verdict import verdict
 
     metrics, found = _analyze(log_path, artifact, dataset, config.nominal_bitrate, result.problems())
+    acceptance = acceptor.judge(metrics, why_none="; ".join(found) or "the log has no figures")
+    if metrics is not None:
+        metrics.acceptance = acceptance
     outcome = verdict(result.problems() + found, fault_note(result.faults), faulted=result.faults is not None,
                       tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
     problems = outcome.problems
     injected = result.faults["injected_total"] if result.faults else 0
+    clean = not problems and not injected
+    sentence = verdict_text(clean, problems, injected, result.faults.get("undetected") if result.faults else 0)
     if args.json:
-        clean = not problems and not injected
         figures = {} if metrics is None else {
             "max_abs_can_minus_float32_C": as_json(metrics.agreement.max_abs_can_minus_float32_C),
             "rmse_C": as_json(metrics.accuracy.rmse_C), "rmse_reference": as_json(metrics.accuracy.rmse_reference),
             "figure_rows": as_json(metrics.figure_rows), "notes": metrics.notes,
             "metrics": metrics.to_json(windows=False)}
         print_json({SCHEMA_KEY: SCHEMA_VERSION, **result.to_dict(), **figures, "problems": problems, "clean": clean,
-                    "verdict": verdict_text(clean, problems, injected,
-                                            result.faults.get("undetected") if result.faults else 0)})
+                    "verdict": sentence, **({"acceptance": as_json(acceptance)} if acceptance is not None else {})})
     else:
         print(f"{result.rows_sent} rows sent, {result.replies} answered, {result.missing} missing, "
               f"{result.rows_per_s:.0f} rows/s, round trip p50 {result.round_trip_us['p50'] or 0:.0f} µs; "
@@ -168,7 +180,14 @@ def run_host(args: argparse.Namespace) -> int:
                   + f"; {metrics.figure_rows.text('RMSE and every figure')}")
         for problem in problems:
             print(f"bench: host: {problem}", file=sys.stderr)
-    return outcome.status   # --tolerate-gaps: not for faults (the shared rule)
+    report = metrics.report if metrics is not None else None
+    return finish(acceptor, acceptance, command="bench host", subject="the host's run",
+                  status=outcome.status,   # --tolerate-gaps: not for faults (the shared rule)
+                  clean=CleanCase(outcome.status == 0, sentence, tuple(problems)),
+                  elapsed_s=time.time() - started, quiet=args.quiet or args.json,
+                  properties={"model": f"{artifact.model_id:08x}", "engine": result.engine, "bus": config.describe(),
+                              "log": result.log_path, "report": report},
+                  attachments=[result.log_path])
 
 
 def _analyze(log_path: Path, artifact, dataset, bitrate: int, host_problems: list[str]):

@@ -3,6 +3,7 @@
     bench replay LOG [--speed X | --as-fast-as-possible] [--model FILE] [--no-start-target] [--log FILE]
                      [--engine python|firmware] [--reply-timeout S] [--json] [--quiet]
                      [--wait-for-listener SECONDS] [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
+                     [--criteria FILE] [--baseline FILE] [--junit-xml FILE]
 
 The host frames (ResetTemps, Control, DriveInputs, DriveTemps) go out byte for byte, counters and CRCs as recorded,
 with the recorded timing (`can.MessageSync`, scaled by --speed) or as fast as possible in lockstep (each row waits
@@ -17,6 +18,11 @@ makes it): a recorded row a check flagged as not the target's own answer (contes
 is left out and counted ("recorded_excluded", by reason), and such a log is not reproduced (exit 1), for those
 rows were never the target's to reproduce; a replayed row flagged the same way counts in "replayed_excluded".
 
+Acceptance criteria (--criteria, --baseline, --junit-xml) as `bench run`'s, judged on the figures of the new
+session's log (against the measurement of a dataset in out/data whose rows match, else the float64 model): each
+check's figure, limit and verdict in the JSON ("acceptance"), exit status 1 when any fails; the JUnit testcase
+"clean" is "reproduced".
+
 A log of a run with bus faults (`bench run --faults drop=...`) replays as it was made: its faulty frames go out
 again byte for byte (those on the unknown_id fault's ids too), the target rejects the same frames, and the replay
 is reproduced only if its rejection counters (RxErrors) also equal the recorded ones. A log with process faults
@@ -30,14 +36,17 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
+from bench.acceptance.junit import CleanCase
 from bench.analysis.logdecode import BusRecord, decode_log
-from bench.analysis.results import Percentiles, Rejections, ReplayResults, ReplyComparison
+from bench.analysis.results import Percentiles, Rejections, ReplayResults, ReplyComparison, RunResults
 from bench.analysis.rowfilter import RowSelection, kept_rows
 from bench.analysis.verdict import counts_text
 from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, positive_float
@@ -77,6 +86,7 @@ def add_subparser(subparsers) -> None:
                    help="what the started target runs: the Python model or the firmware in the emulated core "
                         "(default: what the log's target ran)")
     add_output_flags(p)
+    add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
     p.set_defaults(func=run)
@@ -148,7 +158,21 @@ def figure_rows(record: BusRecord, artifact) -> RowSelection:
     return RowSelection(refs.kept, refs.figure_rows)
 
 
+def replay_figures(record: BusRecord, artifact) -> tuple[RunResults | None, str]:
+    """The figures of the replay's log as `bench analyze` makes them (against a dataset in out/data whose rows
+    match, else the float64 model), for the acceptance criteria; (None, why) when it cannot be compared."""
+    from bench.analysis.canmetrics import compute
+    from bench.run_inputs import matching_dataset
+
+    try:
+        return compute(record, artifact, matching_dataset(record.drive, artifact))[0], ""
+    except ValueError as exc:
+        return None, f"the replay's log cannot be compared with the model ({exc})"
+
+
 def run(args: argparse.Namespace) -> int:
+    started = time.perf_counter()
+    acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work
     path = check_log_path(args.log, for_reading=True)
     new_log = args.new_log or Path("out/replay") / default_replay_name(path)
     check_log_path(new_log)   # the arguments' refusals before the log is read
@@ -205,13 +229,17 @@ def run(args: argparse.Namespace) -> int:
         problems.append(f"the recorded log has {excluded} rows a check flagged as not the target's own answer "
                         f"({counts_text(recorded_rows.counts.excluded)}): they are left out of the comparison, and "
                         "the log is not reproduced")
+    acceptance = None
+    if acceptor.gate is not None:
+        figures, why = replay_figures(replayed, artifact)
+        acceptance = acceptor.judge(figures, why)
     summary = ReplayResults(
         log=str(path), replay_log=result.log_path, reproduced=reproduced, comparison=comparison,
         engine=None if args.no_start_target else engine, m4_cycles=result.m4_cycles, faults_in_log=faults or None,
         rejections_compared=compare_rejections,
         target_rejections=Rejections(recorded=recorded.rx_errors, replayed=replayed.rx_errors),
         mode=result.mode, speed=result.speed, wall_time_s=result.wall_time_s, rows_per_s=result.rows_per_s,
-        round_trip_us=Percentiles(**result.round_trip_us), problems=problems)
+        round_trip_us=Percentiles(**result.round_trip_us), problems=problems, acceptance=acceptance)
     if args.json:
         print_json(summary.to_json())
     else:
@@ -225,4 +253,12 @@ def run(args: argparse.Namespace) -> int:
                   f"recorded {recorded.rx_errors}, replayed {replayed.rx_errors}")
         print(f"new log {result.log_path}")
         print("reproduced" if reproduced else "NOT reproduced" + "".join(f"; {p}" for p in problems))
-    return 0 if reproduced else 1
+    status = 0 if reproduced else 1
+    sentence = "reproduced" if reproduced else "not reproduced: " + ("; ".join(problems) or
+                                                                     f"{comparison.different} rows differ")
+    return finish(acceptor, acceptance, command="bench replay", subject="the replay", status=status,
+                  clean=CleanCase(reproduced, sentence, tuple(problems)),
+                  elapsed_s=time.perf_counter() - started, quiet=quiet,
+                  properties={"model": f"{artifact.model_id:08x}", "engine": summary.engine, "bus": bus.describe(),
+                              "recorded_log": str(path), "log": result.log_path},
+                  attachments=[str(path), result.log_path])

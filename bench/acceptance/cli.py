@@ -1,0 +1,90 @@
+"""The acceptance options of `bench run`, `bench host`, `bench analyze` and `bench replay`: --criteria FILE,
+--baseline FILE and --junit-xml FILE, read and checked before any work (`prepare`), and the end of such a
+command (`finish`): the JUnit XML written, the failed criteria named in one sentence, the exit status."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from bench.acceptance.criteria import Gate, load_gate
+from bench.acceptance.junit import CleanCase, write_junit
+from bench.analysis.results import Acceptance
+from bench.fileio import check_writable
+
+
+def add_acceptance_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("acceptance (a CI's pass/fail rule, beside 'clean')")
+    group.add_argument("--criteria", type=Path, default=None, metavar="FILE",
+                       help="TOML file of named acceptance criteria ([criteria.NAME] tables: kind rmse, max_error, "
+                            "cycles, deadline_misses, missing_replies, heartbeat_losses, bus_load or regression, "
+                            "and a limit); each check's figure, limit and verdict go into the JSON and the report; "
+                            "exit status 1 when any fails, 2 for a bad file (before any work)")
+    group.add_argument("--baseline", type=Path, default=None, metavar="FILE",
+                       help="a stored summary (the --json of bench run, host or analyze, or a report's "
+                            "metrics.json) for the regression criterion; without one in --criteria it adds "
+                            "\"no node's RMSE more than 5 %% worse\"")
+    group.add_argument("--junit-xml", type=Path, default=None, metavar="FILE",
+                       help="write a JUnit XML report: one testcase for 'clean' and one per criterion, figure and "
+                            "limit in properties and the failure message, the log and report attached")
+
+
+@dataclass(frozen=True)
+class Acceptor:
+    """What --criteria, --baseline and --junit-xml asked for, checked before any work."""
+
+    gate: Gate | None
+    junit_xml: Path | None
+
+    def judge(self, results, why_none: str = "the run has no figures") -> Acceptance | None:
+        return self.gate.judge(results, why_none) if self.gate is not None else None
+
+
+def prepare(args: argparse.Namespace) -> Acceptor:
+    """The criteria and baseline read, the JUnit path checked: a bad one is one sentence, before any work."""
+    junit = getattr(args, "junit_xml", None)
+    if junit is not None:
+        check_writable(junit, "--junit-xml")
+    return Acceptor(load_gate(getattr(args, "criteria", None), getattr(args, "baseline", None)), junit)
+
+
+def finish(acceptor: Acceptor, acceptance: Acceptance | None, *, command: str, subject: str, status: int,
+           clean: CleanCase, elapsed_s: float, properties: dict[str, object], attachments: list[str],
+           quiet: bool = False) -> int:
+    """The command's exit status once the criteria are judged (1 when any fails: the sentence names each failed
+    one on stderr, with --json too), after the JUnit XML is written when asked for."""
+    if acceptor.junit_xml is not None:
+        write_junit(acceptor.junit_xml, command, clean, acceptance, elapsed_s=elapsed_s, properties=properties,
+                    attachments=attachments)
+    if acceptance is None:
+        return status
+    if not acceptance.passed:
+        print(f"bench: error: {acceptance.sentence(subject)}", file=sys.stderr)
+        return max(status, 1)
+    if not quiet:
+        print(f"bench: {acceptance.sentence(subject)}", file=sys.stderr)
+    return status
+
+
+def junit_after_error(args: argparse.Namespace | None, sentence: str, elapsed_s: float) -> None:
+    """After a command with --junit-xml ended on an error (exit status 1, not a bad argument): the JUnit XML with
+    that sentence as the error of each testcase. Nothing when it cannot be written (the error is said already)."""
+    path = getattr(args, "junit_xml", None)
+    if path is None:
+        return
+    from bench.acceptance.criteria import CriteriaError, load_gate
+    from bench.acceptance.junit import write_junit_error
+    from bench.errors import BenchError
+
+    try:
+        gate = load_gate(getattr(args, "criteria", None), getattr(args, "baseline", None))
+    except CriteriaError:
+        gate = None
+    names = [c.name for c in gate.criteria.criteria] if gate is not None else []
+    try:
+        check_writable(path, "--junit-xml")
+        write_junit_error(path, f"bench {args.command}", sentence, names, elapsed_s=elapsed_s)
+    except (BenchError, OSError):
+        pass

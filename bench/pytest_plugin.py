@@ -1,0 +1,451 @@
+"""The bench as a pytest plugin: a `thermal_bench` fixture that runs the bench against a target and returns the typed
+results, so one test file runs unchanged against the Python target, the emulated firmware, or a target on a bus.
+
+On when the package is installed (the `pytest11` entry point `bench`), off with `-p no:bench`; from a source tree,
+`-p no:bench -p bench.pytest_plugin` (the `no:bench` keeps an installed entry point from registering it twice).
+Where the target is:
+
+    pytest                                       a target the bench starts, the Python engine (default)
+    pytest --bench-engine firmware               ... the firmware engine in the emulated Cortex-M4F
+    pytest --bench-interface udp_multicast --bench-channel 239.74.163.2 [--bench-bitrate N]
+           [--bench-bus-kwargs port=43113]       a target already on that bus (a real ECU, or any node posing
+                                                 as one): the bench is its host (`bench host`)
+    pytest --bench-profile bench.toml            the same, from a TOML file (see `load_profile`)
+
+    def test_magnet(thermal_bench):
+        result = thermal_bench.run(rows=600, criteria="criteria.toml")
+        assert result.clean, result.verdict
+        assert result.metrics.accuracy.rmse_C.magnet < 3.0
+
+`thermal_bench.run(data=…, model=…, rows=…, faults=…)` runs `python -m bench run` (a started target) or
+`python -m bench host` (an attached one) with --json in a subprocess and returns a `BenchRun`: the exit status and
+the `RunSummary` (`bench.analysis.results`), with the acceptance criteria when `criteria` or `baseline` is given.
+A run the bench refuses (exit status 2, or a target that could not be reached) raises `BenchRunError` with the
+bench's one sentence. The run's figures go into pytest's JUnit XML as properties of the test (`record_property`:
+`bench_clean`, `bench_rmse_C_magnet`, `bench_cycles`, one `bench_criterion_NAME` per criterion, ...) with
+`-o junit_family=xunit1`; under pytest's default xunit2, whose schema has no properties in a testcase, as properties
+of the suite named `NODEID::bench_...`.
+
+Marker: `@pytest.mark.bench_engines("python", "firmware", "external")` runs a test only against those targets
+("external": an attached one); others skip it. Runs against an attached target take turns across pytest-xdist
+workers (a file lock per bus): the target answers one host at a time.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from bench.errors import BenchError
+
+TARGETS = ("python", "firmware", "external")
+MARKER = "bench_engines"
+PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", "bitrate", "bus_kwargs"),
+                "run": ("data", "model", "rows", "mode", "criteria", "baseline", "reply_timeout", "connect_timeout",
+                        "timeout")}
+DEFAULT_TIMEOUT_S = 900.0
+# an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
+# default (15 s) is for a target known to run
+ATTACHED_CONNECT_TIMEOUT_S = 120.0
+USAGE_STATUS = 2
+
+
+class BenchRunError(BenchError):
+    """The bench refused a run or could not make it (its one sentence, the bench's exit status)."""
+
+    def __init__(self, sentence: str, status: int | None):
+        super().__init__(sentence)
+        self.status = status
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """Where the target is and what every run defaults to: the command line's --bench-* options over a profile."""
+
+    engine: str = "python"
+    attach: bool = False
+    interface: str | None = None
+    channel: str | None = None
+    bitrate: int | None = None
+    bus_kwargs: dict[str, Any] = field(default_factory=dict)
+    defaults: dict[str, Any] = field(default_factory=dict)   # run options of the profile's [run]
+    out_dir: Path | None = None
+
+    @property
+    def target(self) -> str:
+        """'python' or 'firmware' (a target the bench starts), 'external' (one already on the bus)."""
+        return "external" if self.attach else self.engine
+
+    def bus_argv(self) -> list[str]:
+        argv = []
+        if self.interface is not None:
+            argv += ["-i", self.interface]
+        if self.channel is not None:
+            argv += ["-c", str(self.channel)]
+        if self.bitrate is not None:
+            argv += ["-b", str(self.bitrate)]
+        if self.bus_kwargs:
+            argv += ["--bus-kwargs", *(f"{k}={v}" for k, v in self.bus_kwargs.items())]
+        return argv
+
+    def describe(self) -> str:
+        if not self.attach:
+            return f"a {self.engine} target the bench starts" + (f" on {self.interface}" if self.interface else "")
+        return f"the target on {' '.join(self.bus_argv())}"
+
+
+def load_profile(path: Path) -> dict[str, Any]:
+    """A TOML profile: where the target is and the runs' defaults (pytest.UsageError, one sentence, if bad).
+
+        [target]
+        engine = "firmware"          # python or firmware: a target the bench starts
+        attach = true                # or: the target already on [bus] (default: true when [bus] is given)
+        [bus]
+        interface = "udp_multicast"
+        channel = "239.74.163.2"
+        bitrate = 500000
+        bus_kwargs = { port = 43113 }
+        [run]                        # defaults of thermal_bench.run (paths relative to the profile)
+        rows = 1500
+        criteria = "criteria.toml"
+    """
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise pytest.UsageError(f"--bench-profile {path} does not exist") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise pytest.UsageError(f"--bench-profile {path} is not a readable TOML file ({exc})") from None
+    out: dict[str, Any] = {}
+    for section, table in doc.items():
+        if section not in PROFILE_KEYS or not isinstance(table, dict):
+            raise pytest.UsageError(f"--bench-profile {path}: unknown section {section!r}; a profile has the "
+                                    f"tables {', '.join(f'[{s}]' for s in PROFILE_KEYS)}")
+        unknown = [k for k in table if k not in PROFILE_KEYS[section]]
+        if unknown:
+            raise pytest.UsageError(f"--bench-profile {path}: [{section}] has an unknown key {unknown[0]!r}; use "
+                                    f"{', '.join(PROFILE_KEYS[section])}")
+        out[section] = dict(table)
+    for key in ("data", "model", "criteria", "baseline"):   # relative to the profile
+        value = out.get("run", {}).get(key)
+        if isinstance(value, str) and not Path(value).is_absolute():
+            out["run"][key] = str(path.parent / value)
+    return out
+
+
+def _bus_kwargs(items: list[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise pytest.UsageError(f"--bench-bus-kwargs {item!r} must be KEY=VALUE, e.g. port=43113")
+        out[key] = value
+    return out
+
+
+def config_of(options) -> BenchConfig:
+    """The BenchConfig of pytest's options (`config.option`): the command line over the profile."""
+    profile = load_profile(Path(options.bench_profile)) if options.bench_profile else {}
+    target, bus, run = profile.get("target", {}), profile.get("bus", {}), profile.get("run", {})
+    interface = options.bench_interface or bus.get("interface")
+    engine = options.bench_engine or target.get("engine") or "python"
+    if engine not in ("python", "firmware"):
+        raise pytest.UsageError(f"the bench engine {engine!r} is neither python nor firmware")
+    # a bus given and no engine asked for: the target is already there (attach); an engine too: start one on it
+    attach = bool(target.get("attach", interface is not None and not (options.bench_engine or target.get("engine"))))
+    if attach and interface is None:
+        raise pytest.UsageError("attaching to a target needs its bus: --bench-interface (or [bus] interface in "
+                                "--bench-profile)")
+    bitrate = options.bench_bitrate or bus.get("bitrate")
+    kwargs = {**bus.get("bus_kwargs", {}), **_bus_kwargs(options.bench_bus_kwargs or [])}
+    return BenchConfig(engine=engine, attach=attach, interface=interface,
+                       channel=options.bench_channel or bus.get("channel"),
+                       bitrate=int(bitrate) if bitrate else None, bus_kwargs=kwargs, defaults=run,
+                       out_dir=Path(options.bench_out) if options.bench_out else None)
+
+
+# ---------------------------------------------------------------- the runs
+
+
+@dataclass
+class BenchRun:
+    """One run of the bench: how it was made, its exit status and its typed summary."""
+
+    argv: list[str]
+    exit_status: int
+    summary: Any            # bench.analysis.results.RunSummary
+    stderr: str
+    junit_xml: Path | None = None
+
+    @property
+    def metrics(self):
+        return self.summary.metrics
+
+    @property
+    def clean(self) -> bool:
+        return self.summary.clean
+
+    @property
+    def verdict(self) -> str:
+        return self.summary.verdict
+
+    @property
+    def acceptance(self):
+        return self.summary.metrics.acceptance
+
+    @property
+    def passed(self) -> bool:
+        """The bench's exit status was 0: clean (or tolerated) and every acceptance criterion met."""
+        return self.exit_status == 0
+
+
+def summary_of_host(data: dict[str, Any], config: BenchConfig):
+    """`bench host --json` as a RunSummary (the shape `bench run --json` has), so a test reads both alike."""
+    from bench.analysis.results import BusInfo, HostFaults, RunResults, RunSummary
+
+    if "metrics" not in data:
+        raise BenchRunError("the host's log could not be compared with the model: " + "; ".join(data["problems"]),
+                            1)
+    metrics = RunResults.from_json(data["metrics"])
+    host = {k: v for k, v in data.items() if k not in ("metrics", "problems", "clean", "verdict", "acceptance",
+                                                        "faults", "log_path")}
+    port = config.bus_kwargs.get("port")
+    return RunSummary(engine=data.get("engine"), firmware=None,
+                      bus=BusInfo(config.interface or "", config.channel, int(port) if port else None),
+                      problems=list(data["problems"]), clean=bool(data["clean"]),
+                      faults=HostFaults.of_run(data.get("faults"), metrics.faults), host=host, metrics=metrics,
+                      elapsed_s=float(data.get("wall_time_s") or 0.0))
+
+
+@contextmanager
+def _bus_turn(config: BenchConfig) -> Iterator[None]:
+    """One run at a time on an attached target's bus, across processes (pytest-xdist workers)."""
+    if not config.attach:
+        yield
+        return
+    key = hashlib.sha256(" ".join(config.bus_argv()).encode()).hexdigest()[:16]
+    with open(Path(tempfile.gettempdir()) / f"thermal-bench-{key}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _one_sentence(stderr: str, status: int) -> str:
+    lines = [line for line in stderr.splitlines() if line.startswith("bench") and "error" in line]
+    last = lines[-1] if lines else (stderr.strip().splitlines() or [f"exit status {status}"])[-1]
+    return last.removeprefix("bench: error: ")
+
+
+class ThermalBench:
+    """The `thermal_bench` fixture: `run` the bench against the session's target, figures recorded for pytest."""
+
+    def __init__(self, config: BenchConfig, out_dir: Path, record_property=None):
+        self.config = config
+        self.out_dir = Path(out_dir)
+        self._record = record_property
+        self.runs: list[BenchRun] = []
+
+    @property
+    def target(self) -> str:
+        return self.config.target
+
+    def _option(self, name: str, value: Any) -> Any:
+        return self.config.defaults.get(name) if value is None else value
+
+    def argv(self, *, data=None, model=None, rows=None, faults=None, mode=None, criteria=None, baseline=None,
+             tolerate_faults: bool = False, report: bool = False, run_dir: Path) -> list[str]:
+        """The `python -m bench ...` command line of one run."""
+        attach = self.config.attach
+        argv = [sys.executable, "-m", "bench", "host" if attach else "run"]
+        data = self._option("data", data)
+        if data is None and attach:   # `bench host` needs its data named; `bench run` generates the default
+            from bench.drive.generate import ensure_default_datasets
+
+            data = ensure_default_datasets(Path("out/data"))[40]
+        for flag, value in (("--data", data), ("--model", self._option("model", model)),
+                            ("--rows", self._option("rows", rows)), ("--mode", self._option("mode", mode)),
+                            ("--criteria", self._option("criteria", criteria)),
+                            ("--baseline", self._option("baseline", baseline)),
+                            ("--reply-timeout", self.config.defaults.get("reply_timeout"))):
+            if value is not None:
+                argv += [flag, str(value)]
+        if faults:
+            spec = faults if isinstance(faults, str) else ",".join(f"{k}={v!r}" for k, v in faults.items())
+            argv += ["--faults", spec]
+        if tolerate_faults:
+            argv.append("--tolerate-faults")
+        if attach:
+            argv += ["--connect-timeout", str(self.config.defaults.get("connect_timeout", ATTACHED_CONNECT_TIMEOUT_S))]
+        else:
+            argv += ["--engine", self.config.engine]
+            argv += ["--report", str(run_dir / "report")] if report else ["--no-report"]
+        argv += ["--log", str(run_dir / "bench.blf"), "--junit-xml", str(run_dir / "junit.xml"), "--json",
+                 "--quiet", *self.config.bus_argv()]
+        if not attach and self.config.interface is None:
+            argv += ["-i", "udp_multicast"]   # a run-unique port: parallel tests never meet
+        return argv
+
+    def run(self, data: str | Path | None = None, model: str | Path | None = None, rows: int | None = None,
+            faults: str | dict[str, float] | None = None, *, mode: str | None = None,
+            criteria: str | Path | None = None, baseline: str | Path | None = None, tolerate_faults: bool = False,
+            report: bool = False, timeout: float | None = None) -> BenchRun:
+        """Run the bench once (`bench run` on a started target, `bench host` on an attached one) and return its
+        typed results; BenchRunError (the bench's sentence) for a run it refused or could not make."""
+        run_dir = self.out_dir / f"run{len(self.runs) + 1}"
+        run_dir.mkdir(parents=True, exist_ok=True)
+        argv = self.argv(data=data, model=model, rows=rows, faults=faults, mode=mode, criteria=criteria,
+                         baseline=baseline, tolerate_faults=tolerate_faults, report=report, run_dir=run_dir)
+        limit = timeout or float(self.config.defaults.get("timeout", DEFAULT_TIMEOUT_S))
+        with _bus_turn(self.config):
+            try:
+                proc = subprocess.run(argv, capture_output=True, text=True, timeout=limit,
+                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
+            except subprocess.TimeoutExpired:
+                raise BenchRunError(f"the bench did not finish within {limit:g} s ({' '.join(argv[2:4])} on "
+                                    f"{self.config.describe()})", None) from None
+        result = self._result(argv, proc, run_dir)
+        self.runs.append(result)
+        self._record_figures(result)
+        return result
+
+    def _result(self, argv: list[str], proc: subprocess.CompletedProcess, run_dir: Path) -> BenchRun:
+        if proc.returncode not in (0, 1):
+            raise BenchRunError(_one_sentence(proc.stderr, proc.returncode), proc.returncode)
+        try:
+            data = json.loads(proc.stdout)
+        except ValueError:
+            raise BenchRunError(_one_sentence(proc.stderr, proc.returncode), proc.returncode) from None
+        from bench.analysis.results import RunSummary
+
+        summary = summary_of_host(data, self.config) if self.config.attach else RunSummary.from_json(data)
+        junit = run_dir / "junit.xml"
+        return BenchRun(argv, proc.returncode, summary, proc.stderr, junit if junit.is_file() else None)
+
+    def _record_figures(self, result: BenchRun) -> None:
+        if self._record is None:
+            return
+        prefix = "bench" if len(self.runs) == 1 else f"bench_run{len(self.runs)}"
+        for name, value in figures(result).items():
+            self._record(f"{prefix}_{name}", value)
+
+
+def figures(result: BenchRun) -> dict[str, Any]:
+    """The run's figures as flat name -> value pairs (pytest's JUnit properties)."""
+    from bench.acceptance.kinds.cycles import step_cycles
+
+    m = result.metrics
+    out: dict[str, Any] = {"engine": result.summary.engine, "exit_status": result.exit_status,
+                           "clean": result.clean, "verdict": result.verdict, "rows": m.counts.steps_sent,
+                           "missing": m.counts.missing, "heartbeat_losses": m.integrity.heartbeat.losses,
+                           "bus_load_percent": m.bus_load.data_rate_percent}
+    for node in ("yoke", "winding", "tooth", "magnet"):
+        out[f"rmse_C_{node}"] = m.accuracy.rmse_C.get(node)
+        out[f"rmse_reference_{node}"] = m.accuracy.rmse_reference.get(node)
+        out[f"max_abs_can_minus_float32_C_{node}"] = m.agreement.max_abs_can_minus_float32_C.get(node)
+    cycles, source = step_cycles(m)
+    out["cycles"], out["cycles_source"] = cycles, source
+    out["log"] = m.integrity.log
+    if m.report:
+        out["report"] = m.report
+    if result.junit_xml is not None:
+        out["junit_xml"] = str(result.junit_xml)
+    for check in (result.acceptance.checks if result.acceptance else []):
+        out[f"criterion_{check.name}"] = check.message
+    return out
+
+
+# ---------------------------------------------------------------- pytest hooks
+
+
+def pytest_addoption(parser) -> None:
+    group = parser.getgroup("thermal-bench", "the thermal bench (the thermal_bench fixture)")
+    group.addoption("--bench-engine", choices=("python", "firmware"), default=None,
+                    help="the engine of the target the bench starts (default python)")
+    group.addoption("--bench-interface", default=None,
+                    help="attach to the target already on this python-can interface (e.g. udp_multicast, socketcan)")
+    group.addoption("--bench-channel", default=None, help="its channel (e.g. vcan0, a multicast group)")
+    group.addoption("--bench-bitrate", type=int, default=None, help="its bit rate")
+    group.addoption("--bench-bus-kwargs", action="append", default=[], metavar="KEY=VALUE",
+                    help="more can.Bus keyword arguments, e.g. port=43113 (repeatable)")
+    group.addoption("--bench-profile", default=None, metavar="FILE",
+                    help="TOML profile: [target], [bus], [run] (see bench.pytest_plugin.load_profile)")
+    group.addoption("--bench-out", default=None, metavar="DIR",
+                    help="keep each test's logs, reports and JUnit XML under DIR (default: pytest's tmp_path)")
+
+
+_CONFIG = pytest.StashKey[BenchConfig]()
+
+
+def pytest_configure(config) -> None:
+    config.addinivalue_line("markers", f"{MARKER}(*targets): run only against these bench targets: "
+                                       "python, firmware (a target the bench starts), external (an attached one)")
+    config.stash[_CONFIG] = config_of(config.option)   # a bad profile or option: a usage error, before collection
+
+
+def bench_config(config) -> BenchConfig:
+    """The session's BenchConfig (read in pytest_configure)."""
+    return config.stash[_CONFIG]
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    marked = [item for item in items if item.get_closest_marker(MARKER) is not None]
+    if not marked:
+        return
+    target = bench_config(config).target
+    for item in marked:
+        wanted = item.get_closest_marker(MARKER).args
+        bad = [t for t in wanted if t not in TARGETS]
+        if bad:
+            raise pytest.UsageError(f"{item.nodeid}: @pytest.mark.{MARKER} names {bad[0]!r}; use "
+                                    f"{', '.join(TARGETS)}")
+        if target not in wanted:
+            item.add_marker(pytest.mark.skip(reason=f"for the {', '.join(wanted)} target(s); this session's is "
+                                                    f"{target}"))
+
+
+def pytest_report_header(config) -> str | None:
+    if not any(getattr(config.option, name, None) for name in ("bench_engine", "bench_interface", "bench_profile")):
+        return None
+    return f"thermal bench: {bench_config(config).describe()}"
+
+
+def _recorder(request):
+    """How a figure reaches pytest's JUnit XML: a property of the test (junit_family xunit1 or legacy), or under
+    xunit2, whose schema has no properties in a testcase, a property of the suite named after the test."""
+    if request.config.getini("junit_family") != "xunit2":
+        return request.getfixturevalue("record_property")
+    suite = request.getfixturevalue("record_testsuite_property")
+    return lambda name, value: suite(f"{request.node.nodeid}::{name}", value)
+
+
+@pytest.fixture
+def thermal_bench(request, tmp_path) -> Iterator[ThermalBench]:
+    """The bench against this session's target (--bench-engine, --bench-interface ..., --bench-profile)."""
+    config = bench_config(request.config)
+    record_property = _recorder(request)
+    out = tmp_path
+    if config.out_dir is not None:
+        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in request.node.nodeid)
+        out = config.out_dir / safe
+        out.mkdir(parents=True, exist_ok=True)
+    bench = ThermalBench(config, out, record_property)
+    record_property("bench_target", config.describe())
+    started = time.perf_counter()
+    yield bench
+    record_property("bench_seconds", round(time.perf_counter() - started, 2))

@@ -1,0 +1,118 @@
+"""The pytest plugin (`bench.pytest_plugin`): the thermal_bench fixture runs the bench and returns typed results,
+the bench_engines marker selects targets, the figures reach pytest's JUnit XML, the pytest11 entry point turns it on
+and `-p no:bench` off. Each session is a pytest subprocess in a directory of its own, with the plugin loaded as
+`-p no:bench -p bench.pytest_plugin` (the module, whether or not the package's entry point is installed: both at
+once would register it twice)."""
+
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from helpers import subprocess_env
+
+junitparser = pytest.importorskip("junitparser")
+
+ROOT = Path(__file__).resolve().parents[3]
+SESSION_TIMEOUT_S = 300   # one bench run of 200 rows inside (~5 s alone)
+
+SUITE = '''
+import pytest
+
+def test_run(thermal_bench):
+    result = thermal_bench.run(rows=200)
+    assert type(result.summary).__name__ == "RunSummary"
+    assert result.clean, result.verdict
+    assert result.metrics.counts.replies == 200 and result.passed
+
+@pytest.mark.bench_engines("firmware")
+def test_firmware_only(thermal_bench):
+    raise AssertionError("the python target must skip this test")
+
+def test_refused(thermal_bench):
+    from bench.pytest_plugin import BenchRunError
+    with pytest.raises(BenchRunError, match="does not exist") as caught:
+        thermal_bench.run(rows=10, criteria="nowhere.toml")
+    assert caught.value.status == 2
+'''
+
+
+def pytest_session(tmp_path: Path, *args: str, plugin: bool = True, extra_path: Path | None = None):
+    import subprocess
+
+    env = subprocess_env(can_settings=False)
+    if extra_path is not None:
+        env["PYTHONPATH"] = f"{extra_path}:{env.get('PYTHONPATH', '')}"
+    argv = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *(["-p", "no:bench", "-p", "bench.pytest_plugin"]
+                                                                        if plugin else []), *args]
+    return subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=SESSION_TIMEOUT_S)
+
+
+def test_the_fixture_runs_the_bench_and_records_its_figures(tmp_path, small_dataset):
+    (tmp_path / "test_suite.py").write_text(SUITE)
+    (tmp_path / "profile.toml").write_text(f'[target]\nengine = "python"\n[run]\ndata = "{small_dataset}"\n')
+    proc = pytest_session(tmp_path, "-q", "-o", "junit_family=xunit1", "--junitxml", "j.xml",
+                          "--bench-profile", "profile.toml", "test_suite.py")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
+    assert "2 passed, 1 skipped" in proc.stdout
+    (suite,) = list(junitparser.JUnitXml.fromfile(str(tmp_path / "j.xml")))
+    cases = {case.name: case for case in suite}
+    found = cases["test_run"].child(junitparser.Properties)
+    figures = {p.name: p.value for p in found}
+    assert figures["bench_clean"] == "True" and figures["bench_rows"] == "200" and figures["bench_engine"] == "python"
+    assert float(figures["bench_rmse_C_magnet"]) >= 0 and figures["bench_cycles_source"].startswith("estimated")
+    assert Path(figures["bench_log"]).name == "bench.blf" and Path(figures["bench_junit_xml"]).is_file()
+    (skipped,) = cases["test_firmware_only"].result
+    assert "this session's is python" in skipped.message
+
+
+def test_under_xunit2_the_figures_are_suite_properties(tmp_path):
+    (tmp_path / "test_x.py").write_text("def test_target(thermal_bench):\n    assert thermal_bench.target == "
+                                        "'external'\n")
+    proc = pytest_session(tmp_path, "--junitxml", "j.xml", "--bench-interface", "udp_multicast",
+                          "--bench-channel", "ff11::7", "--bench-bus-kwargs", "port=43999", "test_x.py")
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    (suite,) = list(junitparser.JUnitXml.fromfile(str(tmp_path / "j.xml")))
+    names = {p.name: p.value for p in suite.properties()}
+    assert names["test_x.py::test_target::bench_target"] == ("the target on -i udp_multicast -c ff11::7 "
+                                                              "--bus-kwargs port=43999")
+    assert "thermal bench: the target on -i udp_multicast" in proc.stdout   # the report header
+
+
+@pytest.mark.parametrize("profile, words", [
+    ("[bus]\nspeed = 1\n", "[bus] has an unknown key 'speed'; use interface, channel, bitrate, bus_kwargs"),
+    ("[target]\nattach = true\n", "attaching to a target needs its bus: --bench-interface"),
+    ("[x\n", "is not a readable TOML file"),
+])
+def test_a_bad_profile_is_one_usage_error(tmp_path, profile, words):
+    (tmp_path / "p.toml").write_text(profile)
+    (tmp_path / "test_x.py").write_text("def test_x(thermal_bench):\n    pass\n")
+    proc = pytest_session(tmp_path, "-q", "--bench-profile", "p.toml", "test_x.py")
+    assert proc.returncode == 4, proc.stdout + proc.stderr
+    assert words in proc.stderr
+
+
+def test_the_entry_point_turns_it_on_and_no_bench_off(tmp_path):
+    """The pyproject's pytest11 entry point, as an installed package declares it (a dist-info on the path)."""
+    points = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]["pytest11"]
+    assert points == {"bench": "bench.pytest_plugin"}
+    dist = tmp_path / "site" / "thermal_bench_probe-1.0.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: thermal-bench-probe\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text("".join(f"[pytest11]\n{k} = {v}\n" for k, v in points.items()))
+    on = pytest_session(tmp_path, "--help", plugin=False, extra_path=tmp_path / "site")
+    off = pytest_session(tmp_path, "--help", "-p", "no:bench", plugin=False, extra_path=tmp_path / "site")
+    assert on.returncode == 0 and "--bench-engine" in on.stdout and "--bench-profile" in on.stdout
+    assert off.returncode == 0 and "--bench-engine" not in off.stdout
+
+
+def test_the_projects_own_tests_collect_with_the_plugin_on(tmp_path):
+    import subprocess
+
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:bench", "-p", "bench.pytest_plugin",
+                           "--collect-only", "-q",
+                           "-n", "0", "-p", "no:cacheprovider", "tests/bench/acceptance", "tests/dbc"], cwd=ROOT,
+                          env=subprocess_env(), capture_output=True, text=True, timeout=SESSION_TIMEOUT_S)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert " tests collected" in proc.stdout.splitlines()[-1]
