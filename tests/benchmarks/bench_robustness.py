@@ -135,7 +135,8 @@ def ipm_study(work: Path, common: list[str]) -> dict:
     bench("data", "--motor", motor, "--out", str(data), "--quiet")
     model = data / "model.json"
     _, identify_s = bench("identify", "--motor", motor, "--mapping", mapping, "--train",
-                          str(data / "profile_0[1-8].csv"), "--out", str(model))
+                          str(data / "profile_0[1-8].csv"), "--validate", *(str(data / f) for f in HELD_OUT),
+                          "--out", str(model))
     summary, seconds, peak = study(work / "ipm-study", *common, "--model", str(model), "--mapping", mapping,
                                    "--data", *(str(data / f) for f in HELD_OUT), "--workers", "2")
     report = json.loads(Path(summary["json"]).read_text(encoding="utf-8"))
