@@ -269,7 +269,7 @@ class Float32Observer:
         self.bias_column = part.b[:, BIAS_INPUT] * (est.dt if part.delta else f(1.0))
         self.sees_c = [matvec(part.c.T, m.sees) for m in self.measurements]    # sees·C
         self.rows = []
-        for m, lag, sc in zip(self.measurements, self.lag_index, self.sees_c, strict=True):
+        for lag, sc in zip(self.lag_index, self.sees_c, strict=True):
             h = np.zeros(n, dtype=f)
             if lag >= 0:
                 h[lag] = f(1.0)

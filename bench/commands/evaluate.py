@@ -24,6 +24,7 @@ from bench.commands.common import (
 )
 from bench.errors import BenchError, UsageError
 from bench.thermal.realizations import REALIZATIONS
+from target_sim.artifact import OUTPUTS
 from target_sim.kinds import MODEL_KINDS
 
 DEFAULT_DTS = [0.5, 1.0, 2.0, 4.0]
@@ -159,26 +160,35 @@ def print_file_table(report: dict) -> None:
 def observer_report(artifact, datasets, say) -> dict:
     """Open loop vs observer per node and the recovery from a wrong initial magnet temperature, on every file that
     has the observer's measurement column."""
+    from bench.model.observer import lab_measurements, measurement_columns
     from bench.model.observer_eval import evaluate_observer
 
     section = artifact.content["observer"]
-    usable = [d for d in datasets if d.has(section["column"])]
+    columns = measurement_columns(artifact)
+    usable = [d for d in datasets if all(d.has(c) for c in columns)]
     return {"node": section["node"], "column": section["column"], "form": section["form"],
-            "skipped": [str(d.path) for d in datasets if not d.has(section["column"])],
+            "columns": columns, "measurements": [m.describe() for m in lab_measurements(artifact)],
+            "states": section.get("states", list(OUTPUTS)),
+            "skipped": [str(d.path) for d in datasets if not all(d.has(c) for c in columns)],
             "files": [evaluate_observer(artifact, d, say=say).as_dict() for d in usable]}
 
 
 def print_observer_table(model: dict) -> None:
     obs = model["observer"]
-    print(f"observer of {model['model']}: {obs['form']} form, measuring the {obs['node']} node with "
-          f"{obs['column']} (float32; the measured node is pulled to its sensor, so its error is no estimate's)")
+    said = "; ".join(f"the {m['node']} node with {m.get('column') or ', '.join(m['columns'])} ({m['kind']})"
+                     for m in obs.get("measurements", [{"node": obs["node"], "column": obs["column"],
+                                                        "kind": "lagged-sensor"}]))
+    print(f"observer of {model['model']}: {obs['form']} form, states {', '.join(obs.get('states', OUTPUTS))}; "
+          f"measuring {said} (float32; a measured node is pulled to its measurement, so its error is no "
+          "estimate's)")
     head = f"{'file':24} {'node':14} {'open loop RMSE':>14} {'max|e|':>7} {'observer RMSE':>14} {'max|e|':>7}"
     print(head)
     print("-" * len(head))
     for f in obs["files"]:
         for node, m in f["nodes"].items():
-            label = f"{node} (measured)" if node == f["measured_node"] else node
-            worse = m["observer"]["rmse"] > m["open_loop"]["rmse"] and node != f["measured_node"]
+            measured = node in f.get("measured_nodes", [f["measured_node"]])
+            label = f"{node} (measured)" if measured else node
+            worse = m["observer"]["rmse"] > m["open_loop"]["rmse"] and not measured
             print(f"{Path(f['file']).name[:24]:24} {label:14} {m['open_loop']['rmse']:14.4f} "
                   f"{m['open_loop']['max_abs']:7.3f} {m['observer']['rmse']:14.4f} {m['observer']['max_abs']:7.3f}"
                   + ("  observer WORSE than open loop" if worse else ""))
@@ -186,7 +196,8 @@ def print_observer_table(model: dict) -> None:
             print(f"{'':24} magnet started {r['offset_K']:+g} K off: within 2 K after {_seconds(r['open_loop_s'])} "
                   f"open loop, {_seconds(r['observer_s'])} with the observer")
     for path in obs["skipped"]:
-        print(f"{path}: no column {obs['column']!r}, the observer was not evaluated")
+        print(f"{path}: lacks a column of {', '.join(obs.get('columns', [obs['column']]))}, the observer was not "
+              "evaluated")
 
 
 def _seconds(value: float) -> str:

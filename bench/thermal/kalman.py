@@ -76,7 +76,11 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
         for m in range(sees.shape[0]):   # each lag follows what its sensor sees
             lag = lag_index[m]
             if lag >= 0:
-                full[lag] = (1.0 - lag_pole[m]) * (sees_c[m] @ full[:4])
+                for j in range(n):
+                    acc = 0.0
+                    for i in range(4):
+                        acc += sees_c[m, i] * full[i, j]
+                    full[lag, j] = (1.0 - lag_pole[m]) * acc
                 full[lag, lag] += lag_pole[m]
                 xa[lag] = lag_pole[m] * xa[lag] + (1.0 - lag_pole[m]) * (sees[m] @ y)
         xa[:4] = x

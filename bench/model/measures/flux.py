@@ -1,7 +1,7 @@
 """The flux-linkage magnet temperature: calibration on training files and its readings per model step.
 
 Calibration (`calibrate_flux`): on every model step of the training files at or above the speed threshold, least
-squares of u_q/ω_e = ψ_0 + ψ_0 α_B (ϑ_m - ϑ_0) - L_d i_d + R_s0 (1 + α_cu (ϑ_w - ϑ_cu)) i_q/ω_e against the measured
+squares of u_q/ω_e = ψ_0 + ψ_0 α_B (ϑ_m - ϑ_0) + L_d i_d + R_s0 (1 + α_cu (ϑ_w - ϑ_cu)) i_q/ω_e against the measured
 magnet (pm_C) and winding (winding_C): linear in (ψ_0, ψ_0 α_B, L_d, R_s0). L_d and R_s0 are kept only where the
 data determine them (relative standard error below `IDENTIFIABLE`); otherwise L_d is fixed (0 or the given value)
 and R_s0 to the artifact's stator resistance. The residual, in kelvin of magnet temperature, is the calibration's
@@ -111,15 +111,19 @@ def calibrate_flux(datasets: Sequence, dt: float, pole_pairs: float, alpha_cu: f
     speed, u_q, i_d, i_q, magnet, winding = (v[keep] for v in (speed, u_q, i_d, i_q, magnet, winding))
     omega = pole_pairs * RAD_S_PER_RPM * speed
     y = u_q / omega
-    columns = {"psi_0": np.ones_like(y), "slope": magnet - theta_0, "L_d": -i_d,
+    columns = {"psi_0": np.ones_like(y), "slope": magnet - theta_0, "L_d": i_d,
                "R_s0": i_q * (1.0 + alpha_cu * (winding - copper_reference)) / omega}
     fixed = {}
     while True:
         names = [n for n in columns if n not in fixed]
         target = y - sum(columns[n] * v for n, v in fixed.items())
-        beta, se, resid = _fit(target, np.column_stack([columns[n] for n in names]))
+        x = np.column_stack([columns[n] for n in names])
+        beta, se, resid = _fit(target, x)
         loose = [n for n in ("L_d", "R_s0") if n in names and not se[names.index(n)] < IDENTIFIABLE * abs(
             beta[names.index(n)])]
+        scaled = x / np.maximum(np.abs(x).max(axis=0), np.finfo(float).tiny)
+        if np.linalg.matrix_rank(scaled, tol=1e-9) < len(names):     # collinear: no standard error says so
+            loose = [n for n in ("L_d", "R_s0") if n in names][:1] or loose
         if not loose:
             break
         fixed[loose[0]] = l_d_fixed if loose[0] == "L_d" else (r_s_prior if r_s_prior is not None else 0.0)
