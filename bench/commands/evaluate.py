@@ -114,7 +114,7 @@ def run_on_files(args: argparse.Namespace, artifacts: list, paths: list[Path]) -
                        "loss_model": artifact.loss_model, "dt": artifact.dt,
                        "motor": artifact.content.get("provenance", {}).get("motor", {}).get("name"), **report})
         if has_observer(artifact):
-            models[-1]["observer"] = observer_report(artifact, datasets, say)
+            models[-1]["observer"] = observer_report(artifact, datasets, say, args.plots)
     report = {"models": models}
     if args.plots:
         from bench.analysis.file_plots import file_figure
@@ -157,11 +157,10 @@ def print_file_table(report: dict) -> None:
         print(f"wrote {path}")
 
 
-def observer_report(artifact, datasets, say) -> dict:
+def observer_report(artifact, datasets, say, plots: Path | None = None) -> dict:
     """Open loop vs observer per node and the recovery from a wrong initial magnet temperature, on every file that
-    has the observer's measurement column."""
+    has the observer's measurement columns; with `plots`, each file's estimate with its ±2σ band."""
     from bench.model.observer import lab_measurements, measurement_columns
-    from bench.model.observer_eval import evaluate_observer
 
     section = artifact.content["observer"]
     columns = measurement_columns(artifact)
@@ -170,7 +169,20 @@ def observer_report(artifact, datasets, say) -> dict:
             "columns": columns, "measurements": [m.describe() for m in lab_measurements(artifact)],
             "states": section.get("states", list(OUTPUTS)),
             "skipped": [str(d.path) for d in datasets if not all(d.has(c) for c in columns)],
-            "files": [evaluate_observer(artifact, d, say=say).as_dict() for d in usable]}
+            **_observer_files(artifact, usable, say, plots)}
+
+
+def _observer_files(artifact, datasets, say, plots: Path | None) -> dict:
+    from bench.model.observer_eval import evaluate_observer
+    from bench.model.observer_plots import observer_figure
+
+    files, figures = [], []
+    for d in datasets:
+        result = evaluate_observer(artifact, d, say=say)
+        files.append(result.as_dict())
+        if plots is not None:
+            figures.append(str(observer_figure(result, plots / f"{d.name}-observer.png")))
+    return {"files": files, "plots": figures}
 
 
 def print_observer_table(model: dict) -> None:
@@ -195,6 +207,8 @@ def print_observer_table(model: dict) -> None:
         for r in f["recovery"]:
             print(f"{'':24} magnet started {r['offset_K']:+g} K off: within 2 K after {_seconds(r['open_loop_s'])} "
                   f"open loop, {_seconds(r['observer_s'])} with the observer")
+    for path in obs.get("plots", []):
+        print(f"wrote {path}")
     for path in obs["skipped"]:
         print(f"{path}: lacks a column of {', '.join(obs.get('columns', [obs['column']]))}, the observer was not "
               "evaluated")

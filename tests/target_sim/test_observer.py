@@ -264,3 +264,20 @@ def test_a_lagged_sensor_recovers_a_wrong_magnet_start_faster_than_the_open_loop
         observed_s = recovery_time_s(estimate[:, 3] - truth[:, 3], data.run.step_time_s)
         open_s = recovery_time_s(open_loop[0][:, 3] - truth[:, 3], data.run.step_time_s)
         assert open_s == float("inf") and observed_s < 400.0, (offset, observed_s)
+
+
+def test_a_version_1_observer_section_still_runs_as_before(observed):
+    """An artifact written before the measurement list (observer section without `version`) reads its one sensor
+    as an unlagged measurement of its node: the same float32 run as the version 2 section that says so."""
+    artifact, dataset = observed
+    content = json.loads(json.dumps(artifact.content))
+    for key in ("version", "measurements", "states", "bias"):
+        content["observer"].pop(key, None)
+    content["observer"]["K_ss"] = {k: v for k, v in content["observer"]["K_ss"].items()}
+    content["observer"]["K_ss"]["shape"] = [4]
+    legacy = verify(seal(content))
+    drive, z = artifact_drive(artifact, dataset), dataset.column("winding_C")
+    for form in ("ud", "steady"):
+        old = run_observer_offline(legacy, drive, z, [40.0, 40.0, 40.0, 45.0], form)
+        new = run_observer_offline(artifact, drive, z, [40.0, 40.0, 40.0, 45.0], form)
+        assert np.array_equal(old.outputs, new.outputs), form
