@@ -446,6 +446,8 @@ def observer_ipm_table(record: Record) -> list[str]:
 
 
 def _closer(ratio: float, form: str) -> str:
+    if 0.5 <= ratio <= 2.0:
+        return f"about as closely as {form} ({ratio:.2f}×)"
     return f"{ratio:.0f}× closer than {form}" if ratio >= 1 else f"{1 / ratio:.0f}× further than {form}"
 
 
