@@ -258,11 +258,9 @@ def _check_observer(artifact: ModelArtifact, version: int) -> None:
         raise ArtifactError(f"artifact observer.form {_shown(section.get('form'))} is not one of "
                             f"{', '.join(OBSERVER_FORM_NAMES)}; {fix}")
     if int(section.get("version", 1)) >= 2:
-        from target_sim.observer import ObserverError, state_count
-
         try:
-            n = state_count(section)
-        except (ObserverError, KeyError, TypeError, ValueError, ArtifactError) as exc:
+            n = observer_state_count(section)
+        except (KeyError, TypeError, ValueError, ArtifactError) as exc:
             raise ArtifactError(f"artifact observer.measurements is not readable ({exc}); {fix}") from None
         if n != len(section["states"]):
             raise ArtifactError(f"artifact observer.states names {len(section['states'])} states, its measurements "
@@ -294,6 +292,19 @@ def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
         shapes.update({("observer", key): shape for key, shape in observer_shapes(content["observer"]).items()
                        if shape})
     return shapes
+
+
+def observer_state_count(section: dict) -> int:
+    """The filter's states: 4 model states, one lag state per measurement with a lag (its `arrays.lag_pole` > 0),
+    one bias state if `bias` is set (version 1: 4)."""
+    if int(section.get("version", 1)) < 2:
+        return len(OUTPUTS)
+    lags = 0
+    for i, entry in enumerate(section["measurements"]):
+        pole = entry["arrays"].get("lag_pole")
+        if pole is not None and decode_array(pole, f"observer.measurements[{i}].arrays.lag_pole", np.float64) > 0:
+            lags += 1
+    return len(OUTPUTS) + lags + (1 if section.get("bias") else 0)
 
 
 def observer_shapes(section: dict) -> dict[str, tuple[int, ...]]:

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from target_sim.artifact import OUTPUTS, ModelArtifact, encode_array
+from target_sim.artifact import OUTPUTS, ModelArtifact, encode_array, observer_state_count
 from target_sim.errors import TargetError
 from target_sim.fmath import dot, matmul, matvec
 from target_sim.kinds import MODEL_KINDS
@@ -227,10 +227,7 @@ def load_measurements(section: dict, f=F32) -> list:
 
 def state_count(section: dict) -> int:
     """4 model states, one lag state per lagged measurement, one bias state if the section has one."""
-    if section_version(section) < 2:
-        return len(OUTPUTS)
-    lags = sum(1 for m in load_measurements(section, np.float64) if m.lag_pole > 0)
-    return len(OUTPUTS) + lags + (1 if section.get("bias") else 0)
+    return observer_state_count(section)
 
 
 class Float32Observer:
