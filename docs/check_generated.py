@@ -28,6 +28,7 @@ def problems(html_dir: Path | None = None) -> list[str]:
     from target_sim.artifact import SCHEMA_VERSION
     from target_sim.kinds import REALIZATIONS
     from target_sim.losses import LOSS_KINDS
+    from target_sim.measurements import MEASUREMENT_KINDS
     from target_sim.modelkinds import MODEL_KINDS
 
     found = []
@@ -43,7 +44,7 @@ def problems(html_dir: Path | None = None) -> list[str]:
     if f"`schema_version`: {SCHEMA_VERSION} " not in schema:
         found.append(f"artifact page: schema version {SCHEMA_VERSION} is missing")
     for family, names in (("loss model", LOSS_KINDS.names()), ("model kind", MODEL_KINDS.names()),
-                          ("realization", REALIZATIONS.names())):
+                          ("realization", REALIZATIONS.names()), ("measurement kind", MEASUREMENT_KINDS.names())):
         for name in names:
             if f"`{name}`" not in schema:
                 found.append(f"artifact page: {family} {name} is missing")

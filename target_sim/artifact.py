@@ -257,6 +257,14 @@ def _check_observer(artifact: ModelArtifact, version: int) -> None:
     if section.get("form") not in OBSERVER_FORM_NAMES:
         raise ArtifactError(f"artifact observer.form {_shown(section.get('form'))} is not one of "
                             f"{', '.join(OBSERVER_FORM_NAMES)}; {fix}")
+    if int(section.get("version", 1)) >= 2:
+        try:
+            n = observer_state_count(section)
+        except (KeyError, TypeError, ValueError, ArtifactError) as exc:
+            raise ArtifactError(f"artifact observer.measurements is not readable ({exc}); {fix}") from None
+        if n != len(section["states"]):
+            raise ArtifactError(f"artifact observer.states names {len(section['states'])} states, its measurements "
+                                f"and bias make {n}; {fix}")
     if not np.all(artifact.array("observer", "q_nodes_C2", dtype=np.float64) >= 0):
         raise ArtifactError(f"artifact observer.q_nodes_C2 holds a negative variance; {fix}")
     for key in ("R", "Q", "P0", "P_ss"):
@@ -280,8 +288,36 @@ def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
     kind = LOSS_KINDS[loss_model_of(content)]
     shapes = {("losses", *keys): shape for keys, shape in kind.shapes(content["losses"]).items()}
     shapes.update(MODEL_KINDS[content["model_kind"]].shapes(content))
-    shapes.update({("observer", key): shape for key, shape in OBSERVER_ARRAYS.items() if shape})
+    if isinstance(content.get("observer"), dict):
+        shapes.update({("observer", key): shape for key, shape in observer_shapes(content["observer"]).items()
+                       if shape})
     return shapes
+
+
+def observer_state_count(section: dict) -> int:
+    """The filter's states: 4 model states, one lag state per measurement with a lag (its `arrays.lag_pole` > 0),
+    one bias state if `bias` is set (version 1: 4)."""
+    if int(section.get("version", 1)) < 2:
+        return len(OUTPUTS)
+    lags = 0
+    for i, entry in enumerate(section["measurements"]):
+        pole = entry["arrays"].get("lag_pole")
+        if pole is not None and decode_array(pole, f"observer.measurements[{i}].arrays.lag_pole", np.float64) > 0:
+            lags += 1
+    return len(OUTPUTS) + lags + (1 if section.get("bias") else 0)
+
+
+def observer_shapes(section: dict) -> dict[str, tuple[int, ...]]:
+    """The observer arrays' shapes: version 1 as `OBSERVER_ARRAYS`; version 2 with n = len(states) (the model's
+    4, a lag state per lagged measurement, the bias) and K_ss one row per measurement."""
+    if int(section.get("version", 1)) < 2:
+        return OBSERVER_ARRAYS
+    states, measurements = section.get("states"), section.get("measurements")
+    if not (isinstance(states, list) and len(states) >= 4 and isinstance(measurements, list) and measurements):
+        raise ArtifactError("artifact observer version 2 needs a list of states (at least 4) and of measurements; "
+                            "rebuild it with 'bench observer'")
+    n, m = len(states), len(measurements)
+    return {"Q": (n, n), "q_nodes_C2": (n,), "R": (), "P0": (n, n), "offset_C": (), "K_ss": (m, n), "P_ss": (n, n)}
 
 
 # the sections in the order their fields are checked (a model kind's own sections after these)

@@ -29,10 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from target_sim.artifact import OUTPUTS, ModelArtifact
+from target_sim.artifact import OUTPUTS, ModelArtifact, encode_array, observer_state_count
 from target_sim.errors import TargetError
 from target_sim.fmath import dot, matmul, matvec
 from target_sim.kinds import MODEL_KINDS
+from target_sim.measurements import MEASUREMENT_KINDS
 from target_sim.model import F32, Float32Estimator, InputAccumulator
 from target_sim.registry import Registry
 
@@ -56,7 +57,7 @@ class Conventional:
         s = dot(h, ph) + r
         return ph / s, ph
 
-    def update(self, h: np.ndarray, r) -> np.ndarray:
+    def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
         k, _ = self._gain(h, r)
         hp = matvec(self.p.T, h)               # h P⁻ (a row; equal to (P⁻hᵀ)ᵀ only while P⁻ is symmetric)
         self.p = self.p - k[:, None] * hp[None, :]
@@ -69,7 +70,7 @@ class Conventional:
 class Joseph(Conventional):
     """P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ."""
 
-    def update(self, h: np.ndarray, r) -> np.ndarray:
+    def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
         k, _ = self._gain(h, r)
         f = self.f
         i_kh = np.eye(len(k), dtype=f) - k[:, None] * h[None, :]
@@ -123,7 +124,7 @@ class BiermanThornton:
                 w[i] = w[i] - u[i, j] * w[j]
         self.u, self.d = u, d
 
-    def update(self, h: np.ndarray, r) -> np.ndarray:
+    def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
         """Bierman's scalar update (Grewal and Andrews' arrangement); returns the gain."""
         f, n = self.f, len(self.d)
         one = f(1.0)
@@ -160,8 +161,8 @@ class SteadyState:
     def predict(self, transition: np.ndarray) -> None:
         pass
 
-    def update(self, h: np.ndarray, r) -> np.ndarray:
-        return self.gain
+    def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
+        return self.gain[index]
 
     def covariance(self) -> np.ndarray:
         return self.p
@@ -192,11 +193,49 @@ def has_observer(artifact: ModelArtifact) -> bool:
     return isinstance(artifact.content.get("observer"), dict)
 
 
+# the section's minor version: 1 (absent) one unlagged sensor of one node; 2 a list of measurements of
+# `target_sim.measurements` kinds, lag states and an optional winding heat bias state
+SECTION_VERSION = 2
+BIAS_KINDS = ("winding-heat",)      # the bias state: watts into the winding node the loss model misses
+BIAS_INPUT = 1                      # its column of B (the winding loss)
+
+
+def section_version(section: dict) -> int:
+    return int(section.get("version", 1))
+
+
+def measurement_entries(section: dict) -> list[dict]:
+    """The section's measurements as version 2 entries (a version 1 section: its one sensor, without lag)."""
+    if section_version(section) >= 2:
+        return list(section["measurements"])
+    sees = np.zeros(len(OUTPUTS))
+    sees[OUTPUTS.index(section["node"])] = 1.0
+    return [{"kind": "lagged-sensor", "name": section["column"], "columns": [section["column"]],
+             "node": section["node"],
+             "arrays": {"sees": encode_array(sees), "lag_pole": encode_array(0.0), "offset_C": section["offset_C"],
+                        "R": section["R"]}}]
+
+
+def load_measurements(section: dict, f=F32) -> list:
+    """The target measurements of the section, in order (`target_sim.measurements`)."""
+    out = []
+    for i, entry in enumerate(measurement_entries(section)):
+        kind = MEASUREMENT_KINDS[entry["kind"]]
+        out.append(kind.load(entry, f"observer.measurements[{i}]", f))
+    return out
+
+
+def state_count(section: dict) -> int:
+    """4 model states, one lag state per lagged measurement, one bias state if the section has one."""
+    return observer_state_count(section)
+
+
 class Float32Observer:
     """The estimator of `artifact` with its observer (`form`: the artifact's deployed one unless given).
 
-    `step(..., z)` runs the model step, propagates the covariance and, when z is a number, corrects with it;
-    returns [yoke, winding, tooth, magnet]. `sigma()` is each node's 1-σ (from C P Cᵀ)."""
+    `step(..., z)` runs the model step, propagates the covariance and corrects with every measurement that has a
+    valid reading this step; z holds the raw channels of the measurements in order (a number when there is one
+    channel; NaN: none); returns [yoke, winding, tooth, magnet]. `sigma()` is each node's 1-σ (from C P Cᵀ)."""
 
     def __init__(self, artifact: ModelArtifact, form: str | None = None, dtype=F32):
         if not MODEL_KINDS[artifact.kind].linear_block:
@@ -211,13 +250,36 @@ class Float32Observer:
         def arr(key):
             return artifact.array("observer", key, dtype=f)
 
+        self.measurements = load_measurements(section, f)
         self.node = OUTPUTS.index(section["node"])
-        self.h = est.part.c[self.node].copy()
-        self.q, self.r, self.p0 = arr("Q"), arr("R")[()], arr("P0")
+        self.q, self.p0 = arr("Q"), arr("P0")
+        self.n = n = self.q.shape[0]
         self.q_nodes = arr("q_nodes_C2")
-        self.offset = arr("offset_C")[()]
-        self.gain_steady, self.p_steady = arr("K_ss"), arr("P_ss")
-        self.identity = np.eye(4, dtype=f)
+        self.gain_steady, self.p_steady = arr("K_ss").reshape(-1, n), arr("P_ss")
+        part = est.part
+        # the augmented layout: lag states after the model's, then the bias
+        self.lag_index, nxt = [], len(OUTPUTS)
+        for m in self.measurements:
+            self.lag_index.append(nxt if m.lag_pole > 0 else -1)
+            nxt += 1 if m.lag_pole > 0 else 0
+        self.bias_index = nxt if section.get("bias") else -1
+        self.bias_column = part.b[:, BIAS_INPUT] * (est.dt if part.delta else f(1.0))
+        self.sees_c = [matvec(part.c.T, m.sees) for m in self.measurements]    # sees·C
+        self.rows = []
+        for lag, sc in zip(self.lag_index, self.sees_c, strict=True):
+            h = np.zeros(n, dtype=f)
+            if lag >= 0:
+                h[lag] = f(1.0)
+            else:
+                h[: len(OUTPUTS)] = sc
+            self.rows.append(h)
+        self.h = self.rows[0]
+        self.offset = getattr(self.measurements[0], "offset", f(0.0))
+        self.r = getattr(self.measurements[0], "r", f(np.nan))
+        self.identity = np.eye(len(OUTPUTS), dtype=f)
+        self.widths = [m.width for m in self.measurements]
+        self.extra = np.zeros(n - len(OUTPUTS), dtype=f)
+        self.innovations = np.full(len(self.measurements), np.nan, dtype=f)
         self.innovation = f(np.nan)
         self.cov = self._covariance()
 
@@ -225,79 +287,139 @@ class Float32Observer:
         if self.form == "steady":
             return SteadyState(self.gain_steady, self.p_steady)
         if self.form == "ud":
-            return BiermanThornton(self.p0, self.est.part.c_inv, self.q_nodes, self.f)
+            g = np.eye(self.n, dtype=self.f)
+            g[: len(OUTPUTS), : len(OUTPUTS)] = self.est.part.c_inv
+            return BiermanThornton(self.p0, g, self.q_nodes, self.f)
         return _COVARIANCES[self.form](self.p0, self.q, self.f)
 
     def reset(self, temperatures: Sequence[float]) -> None:
+        """The model at `temperatures`; each lag state at the temperature its sensor sees, the bias 0."""
         self.est.reset(temperatures)
+        self.extra = np.zeros(self.n - len(OUTPUTS), dtype=self.f)
+        for m, lag in zip(self.measurements, self.lag_index, strict=True):
+            if lag >= 0:
+                self.extra[lag - len(OUTPUTS)] = dot(m.sees, self.est.y)
         self.cov = self._covariance()
+        self.innovations = np.full(len(self.measurements), np.nan, dtype=self.f)
         self.innovation = self.f(np.nan)
 
     def transition(self) -> np.ndarray:
-        """F of the step just taken: A + (B_s G) C, delta: I + Δ·(A + (B_s G) C) (C: fw_transition)."""
-        part = self.est.part
+        """F of the step just taken, augmented (C: fw_transition): the block's A + (B_s G) C (delta:
+        I + Δ·(A + (B_s G) C)), the bias's column of B, and each lag row (1 - a)·(sees·C)·F[:4] + a e_lag."""
+        part, f, k = self.est.part, self.f, len(OUTPUTS)
         a_eff = part.a + matmul(matmul(part.b[:, 4:], part.source_jacobian()), part.c)
-        return self.identity + self.est.dt * a_eff if part.delta else a_eff
+        block = self.identity + self.est.dt * a_eff if part.delta else a_eff
+        if self.n == k:
+            return block
+        full = np.zeros((self.n, self.n), dtype=f)
+        full[:k, :k] = block
+        if self.bias_index >= 0:
+            full[:k, self.bias_index] = self.bias_column
+            full[self.bias_index, self.bias_index] = f(1.0)
+        for m, lag, sc in zip(self.measurements, self.lag_index, self.sees_c, strict=True):
+            if lag >= 0:
+                full[lag] = (f(1.0) - m.lag_pole) * matvec(full[:k].T, sc)
+                full[lag, lag] = full[lag, lag] + m.lag_pole
+        return full
+
+    def _propagate_extra(self) -> None:
+        """The bias heats the winding; each lag state follows what its sensor sees (after the model step)."""
+        est, k = self.est, len(OUTPUTS)
+        if self.bias_index >= 0:
+            est.x = est.x + self.bias_column * self.extra[self.bias_index - k]
+            est.y = est.part.output(est.x)
+        for m, lag in zip(self.measurements, self.lag_index, strict=True):
+            if lag >= 0:
+                i = lag - k
+                self.extra[i] = m.lag_pole * self.extra[i] + (self.f(1.0) - m.lag_pole) * dot(m.sees, est.y)
+
+    def _raw(self, z) -> list[np.ndarray]:
+        raw = np.atleast_1d(np.asarray(z, dtype=self.f))
+        if len(raw) == 1 and sum(self.widths) > 1:
+            raw = np.full(sum(self.widths), raw[0], dtype=self.f)   # a lone NaN: no measurement at all
+        parts, at = [], 0
+        for w in self.widths:
+            parts.append(raw[at: at + w])
+            at += w
+        return parts
 
     def step(self, torque, speed, coolant, ambient, i_d=0.0, i_q=0.0, z=float("nan")) -> np.ndarray:
-        est = self.est
+        est, f, k = self.est, self.f, len(OUTPUTS)
         est.step(torque, speed, coolant, ambient, i_d, i_q)
-        self.cov.predict(self.transition())
-        z = self.f(z)
-        self.innovation = self.f(np.nan)
-        if np.isfinite(z):
-            self.innovation = nu = (z - self.offset) - est.y[self.node]
-            gain = self.cov.update(self.h, self.r)
-            est.x = est.x + gain * nu
+        transition = self.transition()
+        self._propagate_extra()
+        self.cov.predict(transition)
+        self.innovations = np.full(len(self.measurements), np.nan, dtype=f)
+        for index, (m, raw) in enumerate(zip(self.measurements, self._raw(z), strict=True)):
+            reading = m.reading(raw, f(speed), est.y)
+            if reading is None:
+                continue
+            value, r = reading
+            lag = self.lag_index[index]
+            predicted = self.extra[lag - k] if lag >= 0 else dot(m.sees, est.y)
+            self.innovations[index] = nu = value - predicted
+            gain = self.cov.update(self.rows[index], r, index)
+            est.x = est.x + gain[:k] * nu
+            if self.n > k:
+                self.extra = self.extra + gain[k:] * nu
             est.y = est.part.output(est.x)
+        self.innovation = self.innovations[0]
         return est.y.copy()
 
     def covariance(self) -> np.ndarray:
         return self.cov.covariance()
 
     def sigma(self) -> np.ndarray:
-        """Each node's 1-σ (°C), from C P Cᵀ in float64."""
+        """Each node's 1-σ (°C), from C P Cᵀ in float64 (the model states' block of P)."""
         c = self.est.part.c.astype(np.float64)
-        p = np.asarray(self.covariance(), dtype=np.float64)
+        p = np.asarray(self.covariance(), dtype=np.float64)[: len(OUTPUTS), : len(OUTPUTS)]
         return np.sqrt(np.maximum(np.diag(c @ p @ c.T), 0.0))
 
 
 @dataclass(frozen=True)
 class ObserverRun:
-    """A whole run of the float32 observer: per model step the estimate, the innovation (NaN without a
-    measurement) and, on request, the covariance in the state coordinates."""
+    """A whole run of the float32 observer: per model step the estimate, each node's 1-σ, the first
+    measurement's innovation (NaN without a reading), every measurement's and, on request, the covariance in the
+    state coordinates."""
 
     rows: np.ndarray
     outputs: np.ndarray
     innovations: np.ndarray
     covariances: np.ndarray | None
+    sigmas: np.ndarray | None = None
+    all_innovations: np.ndarray | None = None
 
 
 def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement: np.ndarray,
                          initial: Sequence[float], form: str | None = None, keep_covariance: bool = False,
                          dtype=F32) -> ObserverRun:
-    """The float32 observer over a whole dataset: `drive` as `target_sim.model.run_offline` takes it, `measurement`
-    one value per row (NaN: none), accumulated with the drive into the step's float32 interval mean."""
+    """The float32 observer over a whole dataset: `drive` as `target_sim.model.run_offline` takes it,
+    `measurement` the measurements' raw channels per row ((rows,) for one channel; NaN: none), accumulated with the
+    drive into the step's float32 interval mean."""
     obs = Float32Observer(artifact, form, dtype)
     obs.reset(initial)
     drive = np.asarray(drive, dtype=np.float64)
-    width = len(artifact.drive_signals)
-    if drive.ndim != 2 or drive.shape[1] != width or len(measurement) != len(drive):
-        raise ValueError(f"the observer needs {width} drive columns and one measurement per row, not "
-                         f"{drive.shape} and {len(measurement)}")
-    rows = np.column_stack([drive, np.asarray(measurement, dtype=np.float64)])
-    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width + 1)
-    steps, outputs, innovations, covariances = [], [], [], []
+    measurement = np.asarray(measurement, dtype=np.float64)
+    width, channels = len(artifact.drive_signals), sum(obs.widths)
+    if measurement.ndim == 1:
+        measurement = measurement[:, None]
+    if drive.ndim != 2 or drive.shape[1] != width or measurement.shape != (len(drive), channels):
+        raise ValueError(f"the observer needs {width} drive columns and {channels} measurement channel(s) per row, "
+                         f"not {drive.shape} and {measurement.shape}")
+    rows = np.column_stack([drive, measurement])
+    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width + channels)
+    steps, outputs, innovations, covariances, sigmas = [], [], [], [], []
     for row, sample in enumerate(rows):
         means = acc.add(row, sample)
         if means is None:
             continue
-        inputs, z = means[:width], means[width]
-        outputs.append(obs.step(*inputs, z=z))
-        innovations.append(obs.innovation)
+        outputs.append(obs.step(*means[:width], z=means[width:]))
+        innovations.append(obs.innovations.copy())
+        sigmas.append(obs.sigma())
         if keep_covariance:
             covariances.append(np.array(obs.covariance(), dtype=np.float64))
         steps.append(row)
-    return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4),
-                       np.array(innovations, dtype=np.float64),
-                       np.array(covariances) if keep_covariance else None)
+    every = np.array(innovations, dtype=np.float64).reshape(-1, len(obs.measurements))
+    return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4), every[:, 0],
+                       np.array(covariances) if keep_covariance else None,
+                       np.array(sigmas).reshape(-1, 4), every)

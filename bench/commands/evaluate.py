@@ -24,6 +24,7 @@ from bench.commands.common import (
 )
 from bench.errors import BenchError, UsageError
 from bench.thermal.realizations import REALIZATIONS
+from target_sim.artifact import OUTPUTS
 from target_sim.kinds import MODEL_KINDS
 
 DEFAULT_DTS = [0.5, 1.0, 2.0, 4.0]
@@ -113,7 +114,7 @@ def run_on_files(args: argparse.Namespace, artifacts: list, paths: list[Path]) -
                        "loss_model": artifact.loss_model, "dt": artifact.dt,
                        "motor": artifact.content.get("provenance", {}).get("motor", {}).get("name"), **report})
         if has_observer(artifact):
-            models[-1]["observer"] = observer_report(artifact, datasets, say)
+            models[-1]["observer"] = observer_report(artifact, datasets, say, args.plots)
     report = {"models": models}
     if args.plots:
         from bench.analysis.file_plots import file_figure
@@ -156,37 +157,61 @@ def print_file_table(report: dict) -> None:
         print(f"wrote {path}")
 
 
-def observer_report(artifact, datasets, say) -> dict:
+def observer_report(artifact, datasets, say, plots: Path | None = None) -> dict:
     """Open loop vs observer per node and the recovery from a wrong initial magnet temperature, on every file that
-    has the observer's measurement column."""
-    from bench.model.observer_eval import evaluate_observer
+    has the observer's measurement columns; with `plots`, each file's estimate with its ±2σ band."""
+    from bench.model.observer import lab_measurements, measurement_columns
 
     section = artifact.content["observer"]
-    usable = [d for d in datasets if d.has(section["column"])]
+    columns = measurement_columns(artifact)
+    usable = [d for d in datasets if all(d.has(c) for c in columns)]
     return {"node": section["node"], "column": section["column"], "form": section["form"],
-            "skipped": [str(d.path) for d in datasets if not d.has(section["column"])],
-            "files": [evaluate_observer(artifact, d, say=say).as_dict() for d in usable]}
+            "columns": columns, "measurements": [m.describe() for m in lab_measurements(artifact)],
+            "states": section.get("states", list(OUTPUTS)),
+            "skipped": [str(d.path) for d in datasets if not all(d.has(c) for c in columns)],
+            **_observer_files(artifact, usable, say, plots)}
+
+
+def _observer_files(artifact, datasets, say, plots: Path | None) -> dict:
+    from bench.model.observer_eval import evaluate_observer
+    from bench.model.observer_plots import observer_figure
+
+    files, figures = [], []
+    for d in datasets:
+        result = evaluate_observer(artifact, d, say=say)
+        files.append(result.as_dict())
+        if plots is not None:
+            figures.append(str(observer_figure(result, plots / f"{d.name}-observer.png")))
+    return {"files": files, "plots": figures}
 
 
 def print_observer_table(model: dict) -> None:
     obs = model["observer"]
-    print(f"observer of {model['model']}: {obs['form']} form, measuring the {obs['node']} node with "
-          f"{obs['column']} (float32; the measured node is pulled to its sensor, so its error is no estimate's)")
+    said = "; ".join(f"the {m['node']} node with {m.get('column') or ', '.join(m['columns'])} ({m['kind']})"
+                     for m in obs.get("measurements", [{"node": obs["node"], "column": obs["column"],
+                                                        "kind": "lagged-sensor"}]))
+    print(f"observer of {model['model']}: {obs['form']} form, states {', '.join(obs.get('states', OUTPUTS))}; "
+          f"measuring {said} (float32; a measured node is pulled to its measurement, so its error is no "
+          "estimate's)")
     head = f"{'file':24} {'node':14} {'open loop RMSE':>14} {'max|e|':>7} {'observer RMSE':>14} {'max|e|':>7}"
     print(head)
     print("-" * len(head))
     for f in obs["files"]:
         for node, m in f["nodes"].items():
-            label = f"{node} (measured)" if node == f["measured_node"] else node
-            worse = m["observer"]["rmse"] > m["open_loop"]["rmse"] and node != f["measured_node"]
+            measured = node in f.get("measured_nodes", [f["measured_node"]])
+            label = f"{node} (measured)" if measured else node
+            worse = m["observer"]["rmse"] > m["open_loop"]["rmse"] and not measured
             print(f"{Path(f['file']).name[:24]:24} {label:14} {m['open_loop']['rmse']:14.4f} "
                   f"{m['open_loop']['max_abs']:7.3f} {m['observer']['rmse']:14.4f} {m['observer']['max_abs']:7.3f}"
                   + ("  observer WORSE than open loop" if worse else ""))
         for r in f["recovery"]:
             print(f"{'':24} magnet started {r['offset_K']:+g} K off: within 2 K after {_seconds(r['open_loop_s'])} "
                   f"open loop, {_seconds(r['observer_s'])} with the observer")
+    for path in obs.get("plots", []):
+        print(f"wrote {path}")
     for path in obs["skipped"]:
-        print(f"{path}: no column {obs['column']!r}, the observer was not evaluated")
+        print(f"{path}: lacks a column of {', '.join(obs.get('columns', [obs['column']]))}, the observer was not "
+              "evaluated")
 
 
 def _seconds(value: float) -> str:

@@ -7,6 +7,13 @@ file started with the magnet as measured, 30 K too warm and too cold; `likelihoo
 magnet reference a second measurement while tuning), and written into a copy of --model as its `observer` section
 (artifact schema version 3; the target runs it in float32, `target_sim.observer`). Without --train, the built-in
 motor's training runs (20 and 60 °C in out/data, generated if missing) are used.
+
+A sensor may lag (--lag τ: the filter then carries the lag's state, so a slow NTC is compared with what it can
+have seen), read a mix of nodes (--gradient g: node + g·(node - yoke), an end-winding NTC between the hot spot and
+the yoke) and have a known offset (--offset). --bias adds a winding heat-bias state (W the loss model misses).
+--flux adds the flux-linkage magnet temperature from u_d, u_q, i_d, i_q and speed: ψ_0 and α_B (and L_d and
+R_s where the data determine them) are calibrated on the training files against the measured magnet, valid at or
+above --flux-min-speed; the calibration's residual is reported. --measure none with --flux: the flux linkage only.
 """
 
 from __future__ import annotations
@@ -37,8 +44,18 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--node", choices=OUTPUTS, default="winding", help="the model node the sensor sees (default "
                    "winding)")
     p.add_argument("--offset", type=float, default=0.0, help="the sensor's offset in K, subtracted from each reading")
-    p.add_argument("--lag", type=float, default=0.0, help="the sensor's time constant in s (recorded; this version "
-                   "of the filter ignores it)")
+    p.add_argument("--lag", type=float, default=0.0, help="the sensor's time constant in s (a lag state of the "
+                   "filter; default 0: none)")
+    p.add_argument("--gradient", type=float, default=0.0,
+                   help="the sensor reads node + GRADIENT·(node - yoke) (default 0)")
+    p.add_argument("--bias", action="store_true", help="add a winding heat-bias state (W the loss model misses)")
+    p.add_argument("--flux", action="store_true",
+                   help="add the flux-linkage magnet temperature (columns u_d_V, u_q_V, i_d_A, i_q_A), calibrated on "
+                        "the training files")
+    p.add_argument("--flux-min-speed", type=float, default=1500.0, metavar="RPM",
+                   help="the flux linkage is valid at or above this speed (default 1500 rpm)")
+    p.add_argument("--pole-pairs", type=float, default=None,
+                   help="pole pairs for --flux (default: the artifact's electrical loss model's, else 1)")
     p.add_argument("--criterion", choices=TUNING_CRITERIA, default="magnet", help="tuning criterion (default magnet)")
     p.add_argument("--form", choices=OBSERVER_FORMS.names(), default=DEPLOYED_FORM,
                    help=f"covariance form the target deploys (default {DEPLOYED_FORM}, see 'bench numerics "
@@ -54,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
     from bench.drive.files import expand_data_paths, load_datasets
     from bench.model.default import default_artifact_path
     from bench.model.identify import IDENTIFICATION_COOLANTS
-    from bench.model.observer import Measurement, observer_section, tune_observer, with_observer
+    from bench.model.measures.sensor import Sensor
+    from bench.model.observer import flux_measurement, observer_section, tune_observer, with_observer
     from bench.model.pipeline import load_campaign
     from target_sim.artifact import dumps, load_artifact
 
@@ -79,21 +97,34 @@ def run(args: argparse.Namespace) -> int:
         def progress(calls: int, cost: float) -> None:
             if calls % 50 == 0:
                 say(f"tuning: {calls} filter runs, {args.criterion} criterion {cost:.6g}")
-    measurement = Measurement(args.node, args.measure, args.offset, args.lag)
-    fit = tune_observer(artifact, datasets, measurement, args.criterion, args.evaluations, progress)
+    measurements = [] if args.measure == "none" else [Sensor(args.node, args.measure, args.offset, args.lag,
+                                                             args.gradient)]
+    if args.flux:
+        measurements.append(flux_measurement(artifact, datasets, args.flux_min_speed, args.pole_pairs))
+    if not measurements:
+        raise UsageError("--measure none needs --flux: the observer needs a measurement")
+    fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations, progress, args.bias)
     content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form))
     write_text_atomically(args.out, dumps(content))
     report = {"model": str(model_path), "out": str(args.out), "sha256": content["sha256"],
-              "measurement": {"node": args.node, "column": args.measure, "offset_C": args.offset, "lag_s": args.lag},
-              "form": args.form, **content["observer"]["tuning"]}
+              "measurement": measurements[0].describe(), "form": args.form, "bias": args.bias,
+              **content["observer"]["tuning"]}
     if args.json:
         print_json(report)
     else:
         tuning = content["observer"]["tuning"]
-        q = ", ".join(f"{n} {v:.3g}" for n, v in tuning["q_C2_per_step"].items())
-        print(f"observer of {model_path} ({artifact.kind}) on {len(datasets)} training file(s), measuring the "
-              f"{args.node} node with {args.measure}; {args.criterion} criterion {fit.cost:.6g} after "
-              f"{fit.evaluations} filter runs")
-        print(f"Q per step (°C²): {q}; R {fit.r_C2:.3g} °C²; deployed form {args.form}")
+        q = ", ".join(f"{n} {v:.3g}" for n, v in tuning["q_per_step"].items())
+        said = "; ".join(f"the {m.node} node with {', '.join(m.columns)} ({m.kind})" for m in measurements)
+        print(f"observer of {model_path} ({artifact.kind}) on {len(datasets)} training file(s), measuring {said}; "
+              f"{args.criterion} criterion {fit.cost:.6g} after {fit.evaluations} filter runs")
+        for m in measurements:
+            if m.kind == "flux-linkage":
+                cal = m.calibration
+                print(f"flux linkage: psi_0 {m.psi_0_Vs:.5g} Vs, alpha_B {m.alpha_B_per_K:.4g} /K, "
+                      f"L_d {m.L_d_H:.4g} H, "
+                      f"R_s {m.R_s_ohm:.4g} ohm (fitted {', '.join(cal['fitted'])}) on {cal['steps']} steps at or "
+                      f"above {m.speed_min_rpm:g} rpm; residual RMS {cal['residual_rms_K']:.2f} K, max "
+                      f"{cal['residual_max_K']:.1f} K")
+        print(f"Q per step: {q}; R scale {', '.join(f'{v:.3g}' for v in fit.r_scale)}; deployed form {args.form}")
         print(f"wrote {args.out} (sha256 {content['sha256'][:12]})")
     return 0

@@ -17,6 +17,14 @@ magnet 23 K off; hence the magnet criterion. The initial covariance says how
 little is known at start: P0 = C⁻¹ diag(σ0²) C⁻ᵀ with σ0 = `INITIAL_SIGMA_C` (a magnet whose temperature at key-on
 nobody measured). The steady-state gain K_ss and covariance P_ss are the Riccati solution at the training runs'
 median speed and mean coolant temperature.
+
+Measurements (section version 2) are a list of `target_sim.measurements` kinds, their lab side in
+`bench.model.measures`: a lagged sensor (an NTC: its lag τ becomes a state of the filter, its offset is known from
+the motor file and subtracted, its gradient says what it sees) and the flux-linkage magnet temperature
+(calibrated on the training files). `bias=True` adds a winding heat-bias state (W into the winding the loss model
+misses, a random walk): a sensor's persistent disagreement with the winding model then heats or cools the
+winding instead of pushing the magnet. Each measurement's R is a tuned scale of its per-step variance (1 for a
+sensor, the flux linkage's calibrated R_floor + R_speed (n_min/n)²).
 """
 
 from __future__ import annotations
@@ -29,12 +37,29 @@ import numpy as np
 from bench.drive.dataset import Dataset
 from bench.errors import BenchError
 from bench.model.artifact_values import artifact_loss_model, artifact_parameters, shift_form
+from bench.model.measures.flux import FluxLinkage
+from bench.model.measures.sensor import Sensor
 from bench.model.runs import ModelRun, model_run
 from bench.thermal import portable
 from bench.thermal.estimator import identity_sigmoid, loop_parameters
-from bench.thermal.excitation import interval_means
-from bench.thermal.kalman import FilterRuns, run_filters, source_jacobian, steady_state
-from target_sim.artifact import OUTPUTS, ModelArtifact, encode_array, schema_version_of, seal, verify
+from bench.thermal.kalman import (
+    FilterRuns,
+    Readings,
+    augmented_transition,
+    measurement_rows,
+    run_filters,
+    source_jacobian,
+    steady_state,
+)
+from target_sim.artifact import (
+    OUTPUTS,
+    ModelArtifact,
+    decode_array,
+    encode_array,
+    schema_version_of,
+    seal,
+    verify,
+)
 from target_sim.kinds import MODEL_KINDS
 from target_sim.network import COOLANT_REFERENCE_C
 
@@ -49,30 +74,22 @@ START_R_C2 = 0.1        # ... and here for the measurement
 LOG10_BOUNDS = (-12.0, 3.0)
 
 
-@dataclass(frozen=True)
-class Measurement:
-    """A temperature sensor of one model node: which output it sees, its dataset column, its offset (subtracted
-    from the reading) and its lag (described; the filter ignores it in this version)."""
-
-    node: str = "winding"
-    column: str = "winding_C"
-    offset_C: float = 0.0
-    lag_s: float = 0.0
-
-    @property
-    def index(self) -> int:
-        return OUTPUTS.index(self.node)
-
+# a temperature sensor column (the lab side of the lagged-sensor kind); the name the earlier interface used
+Measurement = Sensor
 
 # the lab's reference of the magnet in the training files, used while tuning only
-TUNING_REFERENCE = Measurement("magnet", "pm_C")
+TUNING_REFERENCE = Sensor("magnet", "pm_C")
+# the bias state's initial 1-σ (W into the winding) and the lag states' (K, beyond what their sensor sees)
+BIAS_SIGMA_W = 50.0
+LAG_SIGMA_C = 0.5
+START_Q_BIAS = 10.0
 
 
 @dataclass(frozen=True)
 class ObserverFit:
-    measurement: Measurement
-    q_C2: np.ndarray            # (4,) process noise per node, °C² per step
-    r_C2: float
+    measurements: tuple
+    q_C2: np.ndarray            # (n,) process noise per state: nodes °C², lag states °C², bias W², per step
+    r_scale: np.ndarray         # (m,) each measurement's variance scale (a sensor's: its variance in °C²)
     r_reference_C2: float | None   # the magnet reference's variance while tuning (None: not used)
     criterion: str
     cost: float                 # the criterion's value at the optimum
@@ -80,6 +97,15 @@ class ObserverFit:
     updates: int
     evaluations: int
     files: list[str] = field(default_factory=list)
+    bias: bool = False
+
+    @property
+    def measurement(self):
+        return self.measurements[0]
+
+    @property
+    def r_C2(self) -> float:
+        return float(self.r_scale[0])
 
 
 @dataclass(frozen=True)
@@ -112,34 +138,58 @@ class FilterModel:
 
 @dataclass(frozen=True)
 class FilterData:
-    """One file prepared for the filter: the model run and the measurements per model step (interval means),
-    (steps, measurements)."""
+    """One file prepared for the filter: the model run and the readings per model step."""
 
     run: ModelRun
-    z: np.ndarray
-    measurements: tuple[Measurement, ...]
+    readings: Readings
+    measurements: tuple
 
 
-def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequence[Measurement]) -> FilterData:
+def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequence, bias: bool = False) -> FilterData:
     for m in measurements:
-        if not dataset.has(m.column):
-            raise BenchError(f"{dataset.path} has no column {m.column!r}, the observer's measurement; map it with "
-                             "--mapping or choose another with --measure")
+        for column in m.columns:
+            if not dataset.has(column):
+                raise BenchError(f"{dataset.path} has no column {column!r}, the observer's measurement; map it with "
+                                 "--mapping or choose another with --measure")
     loss_model, motor = artifact_loss_model(artifact)
     run = model_run(dataset, loss_model, motor, artifact.dt, name=dataset.name)
-    columns = np.column_stack([dataset.column(m.column) for m in measurements])
-    z = interval_means(columns, dataset.sample_period_s, artifact.dt)
-    return FilterData(run, z[: len(run.step_time_s)], tuple(measurements))
+    steps = len(run.step_time_s)
+    parts = [m.readings(dataset, artifact.dt, steps) for m in measurements]
+    z0, z1, rel = (np.column_stack([p[i] for p in parts]) for i in range(3))
+    readings = Readings(z0, z1, rel, np.array([m.sees for m in measurements]),
+                        np.array([m.lag_pole(artifact.dt) for m in measurements]), bias)
+    return FilterData(run, readings, tuple(measurements))
 
 
 def _run(model: FilterModel, data: FilterData, q, r, p0, keep=False) -> FilterRuns:
     return run_filters(model.a, model.b, model.c, model.theta, model.sigmoid, data.run.inputs, data.run.initial,
-                       data.z, [m.index for m in data.measurements], [m.offset_C for m in data.measurements], q, r,
-                       p0, keep)
+                       data.readings, q, r, p0, keep)
 
 
-def initial_covariance(model: FilterModel) -> np.ndarray:
-    return model.to_state([INITIAL_SIGMA_C[n] ** 2 for n in OUTPUTS])
+def initial_covariance(model: FilterModel, readings: Readings | None = None) -> np.ndarray:
+    """P0: the nodes' `INITIAL_SIGMA_C` in the state coordinates; a lag state as its sensor's view of them plus
+    `LAG_SIGMA_C`; the bias `BIAS_SIGMA_W`."""
+    p = model.to_state([INITIAL_SIGMA_C[n] ** 2 for n in OUTPUTS])
+    if readings is None or readings.states == 4:
+        return p
+    n = readings.states
+    t = np.zeros((n, 4))
+    t[:4] = np.eye(4)
+    extra = np.zeros(n)
+    for m, lag in enumerate(readings.lag_index):
+        if lag >= 0:
+            t[lag] = readings.sees[m] @ model.c
+            extra[lag] = LAG_SIGMA_C ** 2
+    if readings.bias:
+        extra[n - 1] = BIAS_SIGMA_W ** 2
+    return t @ p @ t.T + np.diag(extra)
+
+
+def process_noise(model: FilterModel, q: np.ndarray) -> np.ndarray:
+    """Q: the nodes' diagonal in the state coordinates (C⁻¹ diag(q) C⁻ᵀ), the extra states' own diagonal."""
+    out = np.diag(np.asarray(q, dtype=float))
+    out[:4, :4] = model.to_state(q[:4])
+    return out
 
 
 TUNING_CRITERIA = ("magnet", "likelihood")
@@ -147,31 +197,36 @@ TUNING_CRITERIA = ("magnet", "likelihood")
 TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
 
-def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurement: Measurement,
-                  criterion: str = "magnet", max_evaluations: int = 800,
-                  progress: Callable[[int, float], None] | None = None) -> ObserverFit:
-    """q and R on the training files by Nelder-Mead over their log10 values, minimizing either
+def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurements, criterion: str = "magnet",
+                  max_evaluations: int = 800, progress: Callable[[int, float], None] | None = None,
+                  bias: bool = False) -> ObserverFit:
+    """q (per state) and each measurement's R on the training files by Nelder-Mead over their log10 values,
+    minimizing either
     - "magnet": the sum of log magnet MSE over every training file started with the magnet as measured and
-      `TUNING_START_OFFSETS_K` off (the deployed filter, the sensor only; the reference only scores it), or
-    - "likelihood": the innovations' negative log-likelihood, with the magnet reference as a second measurement
-      where every training file has it (its variance a nuisance parameter)."""
+      `TUNING_START_OFFSETS_K` off (the deployed filter; the reference only scores it), or
+    - "likelihood": the innovations' negative log-likelihood, with the magnet reference as one more measurement
+      where every training file has it and no measurement already reads the magnet (its variance a nuisance)."""
     from scipy.optimize import minimize
 
     if criterion not in TUNING_CRITERIA:
         raise BenchError(f"tuning criterion {criterion!r} is not one of {', '.join(TUNING_CRITERIA)}")
+    measurements = tuple(measurements) if isinstance(measurements, (list, tuple)) else (measurements,)
     model = FilterModel.of(artifact)
-    p0 = initial_covariance(model)
-    deployed = [filter_data(artifact, d, (measurement,)) for d in datasets]
+    deployed = [filter_data(artifact, d, measurements, bias) for d in datasets]
+    layout = deployed[0].readings
+    p0 = initial_covariance(model, layout)
+    n, m_count = layout.states, len(measurements)
+    use_reference = False
     if criterion == "likelihood":
-        use_reference = measurement.node != TUNING_REFERENCE.node and all(d.has(TUNING_REFERENCE.column)
-                                                                         for d in datasets)
-        measurements = (measurement, TUNING_REFERENCE) if use_reference else (measurement,)
-        data = [filter_data(artifact, d, measurements) for d in datasets]
+        use_reference = all(m.node != TUNING_REFERENCE.node for m in measurements) and all(
+            d.has(TUNING_REFERENCE.column) for d in datasets)
+        tuning = (*measurements, TUNING_REFERENCE) if use_reference else measurements
+        data = [filter_data(artifact, d, tuning, bias) for d in datasets]
+        p0_tuning = initial_covariance(model, data[0].readings)
 
         def score(q, r):
-            return sum(float(_run(model, d, q, [r], p0).nll[0]) for d in data)
+            return sum(float(_run(model, d, q, [r], p0_tuning).nll[0]) for d in data)
     else:
-        use_reference, measurements = False, (measurement,)
         magnet = OUTPUTS.index("magnet")
 
         def score(q, r):
@@ -180,7 +235,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
                 for offset in TUNING_START_OFFSETS_K:
                     start = d.run.initial.copy()
                     start[magnet] += offset
-                    shifted = FilterData(replace(d.run, initial=start), d.z, d.measurements)
+                    shifted = FilterData(replace(d.run, initial=start), d.readings, d.measurements)
                     estimate = _run(model, shifted, q, [r], p0, keep=True).estimates[0][:, magnet]
                     total += float(np.log(np.mean((estimate - d.run.ref_pm) ** 2)))
             return total
@@ -190,23 +245,26 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
 
     def cost(v):
         v = np.clip(v, low, high)
-        total = score(model.to_state(10.0 ** v[:4])[None], 10.0 ** v[4:])
+        total = score(process_noise(model, 10.0 ** v[:n])[None], 10.0 ** v[n:])
         calls[0] += 1
         if progress:
             progress(calls[0], total)
         return total if np.isfinite(total) else 1e300
 
-    start = np.log10([START_Q_C2] * 4 + [START_R_C2] * len(measurements))
+    start_q = [START_Q_C2] * 4 + [START_Q_C2] * (n - 4 - int(bias)) + [START_Q_BIAS] * int(bias)
+    start_r = [START_R_C2 if m.kind == "lagged-sensor" else 1.0 for m in measurements] + [START_R_C2] * int(
+        use_reference)
+    start = np.log10(start_q + start_r)
     size = len(start)
     result = minimize(cost, start, method="Nelder-Mead",
                       options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-3,
                                "initial_simplex": start + np.vstack([np.zeros(size), np.eye(size)])})
     best = np.clip(result.x, low, high)
-    q, r = 10.0 ** best[:4], float(10.0 ** best[4])
-    runs = [_run(model, d, model.to_state(q)[None], [[r]], p0) for d in deployed]
-    return ObserverFit(measurement, q, r, float(10.0 ** best[5]) if use_reference else None, criterion,
+    q, r = 10.0 ** best[:n], 10.0 ** best[n: n + m_count]
+    runs = [_run(model, d, process_noise(model, q)[None], [r], p0) for d in deployed]
+    return ObserverFit(measurements, q, r, float(10.0 ** best[n + m_count]) if use_reference else None, criterion,
                        float(cost(best)), sum(float(x.nll[0]) for x in runs), sum(int(x.updates[0]) for x in runs),
-                       calls[0], [str(d.path) for d in datasets])
+                       calls[0], [str(d.path) for d in datasets], bias)
 
 
 def nominal_transition(artifact: ModelArtifact, model: FilterModel, datasets: Sequence[Dataset]) -> tuple:
@@ -224,32 +282,59 @@ def nominal_transition(artifact: ModelArtifact, model: FilterModel, datasets: Se
     return f, {"speed_ratio": ratio, "coolant_C": coolant}
 
 
+def state_names(fit: ObserverFit) -> list[str]:
+    lags = [f"lag of {m.name}" for m in fit.measurements if m.lag_pole(1.0) > 0]
+    return [*OUTPUTS, *lags, *(["winding heat bias (W)"] if fit.bias else [])]
+
+
 def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequence[Dataset],
                      form: str = DEPLOYED_FORM) -> dict:
-    """The artifact's `observer` section for a tuned fit."""
+    """The artifact's `observer` section (version 2) for a tuned fit; node, column, offset_C, R and lag_s of the
+    first measurement as a version 1 reader expects them."""
     model = FilterModel.of(artifact)
-    q = model.to_state(fit.q_C2)
+    layout = filter_data(artifact, datasets[0], fit.measurements, fit.bias).readings
+    q = process_noise(model, fit.q_C2)
     f, nominal = nominal_transition(artifact, model, datasets)
-    gain, p_steady = steady_state(f, model.c[fit.measurement.index], q, fit.r_C2)
-    m, enc = fit.measurement, encode_array
+    full = augmented_transition(f, model.b, model.c, layout)
+    r_nominal = [float(s) * _rel(artifact, datasets[0], m)
+                 for m, s in zip(fit.measurements, fit.r_scale, strict=True)]
+    gain, p_steady = steady_state(full, measurement_rows(model.c, layout), q, r_nominal)
+    first, enc = fit.measurement, encode_array
+    dt = artifact.dt
+    names = state_names(fit)
     return {
-        "kind": "kalman-linear-block", "node": m.node, "column": m.column, "lag_s": float(m.lag_s),
-        "form": form,
-        "rule": "after each model step: F = A + B_s G C (delta: I + dt (A + B_s G C)), G the sources' Jacobian; "
-                "P- = F P F' + Q; with a measurement z: nu = (z - offset_C) - y[node], h = C[node], "
+        "kind": "kalman-linear-block", "version": 2, "node": first.node, "column": first.columns[0],
+        "lag_s": float(getattr(first, "lag_s", 0.0)), "form": form,
+        "measurements": [m.entry(dt, float(s)) for m, s in zip(fit.measurements, fit.r_scale, strict=True)],
+        "states": names, "bias": "winding-heat" if fit.bias else None,
+        "rule": "after each model step: the bias heats the winding (x += b_w beta), each lag state follows what its "
+                "sensor sees (s = a s + (1 - a) sees.y); F = A + B_s G C (delta: I + dt (A + B_s G C)), augmented; "
+                "P- = F P F' + Q; per measurement with a valid reading z (variance R): nu = z - (s or sees.y), "
                 "K = P- h' / (h P- h' + R), x += K nu, y = C x (+ r)",
-        "Q": enc(q), "q_nodes_C2": enc(fit.q_C2), "R": enc(fit.r_C2), "P0": enc(initial_covariance(model)),
-        "offset_C": enc(m.offset_C),
+        "Q": enc(q), "q_nodes_C2": enc(fit.q_C2), "R": enc(fit.r_C2), "P0": enc(initial_covariance(model, layout)),
+        "offset_C": enc(float(getattr(first, "offset_C", 0.0))),
         "K_ss": enc(gain), "P_ss": enc(p_steady),
         "tuning": {"method": f"{fit.criterion} criterion (float64 filter, Nelder-Mead on log10 q and R)",
-                   "criterion_value": fit.cost,
-                   "q_C2_per_step": dict(zip(OUTPUTS, (float(v) for v in fit.q_C2), strict=True)),
-                   "R_C2": fit.r_C2, "negative_log_likelihood": fit.nll, "updates": fit.updates,
+                   "criterion_value": fit.cost, "states": names,
+                   "q_C2_per_step": dict(zip(OUTPUTS, (float(v) for v in fit.q_C2), strict=False)),
+                   "q_per_step": dict(zip(names, (float(v) for v in fit.q_C2), strict=True)),
+                   "R_C2": fit.r_C2, "R_scale": [float(v) for v in fit.r_scale],
+                   "measurements": [m.describe() for m in fit.measurements],
+                   "negative_log_likelihood": fit.nll, "updates": fit.updates,
                    "reference_while_tuning": None if fit.r_reference_C2 is None else
                    {"column": TUNING_REFERENCE.column, "R_C2": fit.r_reference_C2},
                    "evaluations": fit.evaluations, "files": [str(p) for p in fit.files],
                    "initial_sigma_C": INITIAL_SIGMA_C, "steady_state_at": nominal},
     }
+
+
+def _rel(artifact: ModelArtifact, dataset: Dataset, measurement) -> float:
+    """The measurement's median per-step variance factor on a file (1 for a sensor)."""
+    loss_model, motor = artifact_loss_model(artifact)
+    steps = len(model_run(dataset, loss_model, motor, artifact.dt).step_time_s)
+    z0, _, rel = measurement.readings(dataset, artifact.dt, steps)
+    valid = np.isfinite(z0)
+    return float(np.median(rel[valid])) if valid.any() else 1.0
 
 
 def with_observer(artifact: ModelArtifact, section: dict) -> dict:
@@ -262,17 +347,69 @@ def with_observer(artifact: ModelArtifact, section: dict) -> dict:
     return sealed
 
 
+def lab_measurements(artifact: ModelArtifact) -> tuple:
+    """The lab side of the artifact's measurements (with their tuned variances folded in: R scale 1)."""
+    from target_sim.observer import measurement_entries
+
+    out = []
+    for entry in measurement_entries(artifact.content["observer"]):
+        values = {k: float(decode_array(v, k, np.float64)) for k, v in entry["arrays"].items() if k != "sees"}
+        if entry["kind"] == "flux-linkage":
+            names = ("psi_0_Vs", "alpha_B_per_K", "theta_0_C", "L_d_H", "R_s_ohm", "alpha_cu_per_K",
+                     "copper_reference_C", "pole_pairs", "speed_min_rpm", "R_floor_C2", "R_speed_C2")
+            out.append(FluxLinkage(*(values[k] for k in names), calibration=entry.get("calibration", {})))
+        else:
+            lag_pole = values["lag_pole"]
+            lag_s = artifact.dt / -np.log(lag_pole) if lag_pole > 0 else 0.0
+            out.append(Sensor(entry["node"], entry["columns"][0], values["offset_C"], float(lag_s),
+                              float(entry.get("gradient", 0.0))))
+    return tuple(out)
+
+
+def r_scales(artifact: ModelArtifact) -> list[float]:
+    """Each measurement's variance scale as stored (a sensor's R; 1 for the flux linkage, its R in its arrays)."""
+    from target_sim.observer import measurement_entries
+
+    return [float(decode_array(e["arrays"]["R"], "R", np.float64)) if e["kind"] == "lagged-sensor" else 1.0
+            for e in measurement_entries(artifact.content["observer"])]
+
+
 def reference_run(artifact: ModelArtifact, dataset: Dataset) -> tuple[FilterData, FilterRuns]:
     """The float64 reference of the artifact's observer on one file (estimate and 1-σ per step)."""
     model = FilterModel.of(artifact)
-    data = filter_data(artifact, dataset, (measurement_of(artifact),))
-    q = artifact.array("observer", "Q", dtype=np.float64)
-    r = float(artifact.array("observer", "R", dtype=np.float64))
-    p0 = artifact.array("observer", "P0", dtype=np.float64)
-    return data, _run(model, data, q[None], [[r]], p0, keep=True)
-
-
-def measurement_of(artifact: ModelArtifact) -> Measurement:
     section = artifact.content["observer"]
-    return Measurement(section["node"], section["column"],
-                       float(artifact.array("observer", "offset_C", dtype=np.float64)), float(section["lag_s"]))
+    data = filter_data(artifact, dataset, lab_measurements(artifact), bool(section.get("bias")))
+    q = artifact.array("observer", "Q", dtype=np.float64)
+    p0 = artifact.array("observer", "P0", dtype=np.float64)
+    return data, _run(model, data, q[None], [r_scales(artifact)], p0, keep=True)
+
+
+def measurement_of(artifact: ModelArtifact):
+    """The first measurement (lab side)."""
+    return lab_measurements(artifact)[0]
+
+
+def measurement_columns(artifact: ModelArtifact) -> list[str]:
+    """The raw columns of every measurement, in the order the observer takes them per row."""
+    return [c for m in lab_measurements(artifact) for c in m.columns]
+
+
+def measured_nodes_of(artifact: ModelArtifact) -> list[str]:
+    """The nodes the observer's measurements read (their errors are not estimates)."""
+    return sorted({m.node for m in lab_measurements(artifact)}, key=OUTPUTS.index)
+
+
+def flux_measurement(artifact: ModelArtifact, datasets: Sequence[Dataset], speed_min_rpm: float,
+                     pole_pairs: float | None = None) -> FluxLinkage:
+    """The flux-linkage measurement calibrated on `datasets` (`bench.model.measures.flux.calibrate_flux`), with
+    the artifact's copper coefficient and, for an electrical loss model, its pole pairs and stator resistance."""
+    from bench.model.measures.flux import calibrate_flux, speed_threshold_ok
+
+    losses = artifact.content["losses"]
+
+    def value(key):
+        return float(artifact.array("losses", key, dtype=np.float64)) if key in losses else None
+
+    pairs = pole_pairs if pole_pairs is not None else (value("pole_pairs") or 1.0)
+    return calibrate_flux(datasets, artifact.dt, pairs, value("alpha_cu_per_K"), value("copper_reference_C"),
+                          value("stator_resistance_ohm"), speed_threshold_ok(speed_min_rpm))

@@ -8,7 +8,7 @@ the float64 reference is `bench.thermal.kalman` through `bench.model.observer.re
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -16,7 +16,7 @@ from bench.drive.dataset import Dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.fileeval import OUTPUT_INDEX, measured_nodes
 from bench.model.metrics import error_metrics
-from bench.model.observer import measurement_of, reference_run
+from bench.model.observer import measured_nodes_of, measurement_columns, reference_run
 from bench.model.runs import initial_temperatures
 from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.model import run_offline
@@ -51,7 +51,7 @@ def form_comparison(artifact: ModelArtifact, dataset: Dataset, forms: Sequence[s
     float64, which follows the float64 filter within 1e-4 °C where both run the same filter)."""
     data, reference = reference_run(artifact, dataset)
     drive = artifact_drive(artifact, dataset)
-    z = dataset.column(measurement_of(artifact).column)
+    z = measurement_matrix(artifact, dataset)
     rows = []
     for form in forms or OBSERVER_FORMS.names():
         if say:
@@ -73,6 +73,11 @@ def form_comparison(artifact: ModelArtifact, dataset: Dataset, forms: Sequence[s
     return rows
 
 
+def measurement_matrix(artifact: ModelArtifact, dataset: Dataset) -> np.ndarray:
+    """The raw channels of the observer's measurements per row, (rows, channels)."""
+    return np.column_stack([dataset.column(c) for c in measurement_columns(artifact)])
+
+
 def recovery_time_s(error: np.ndarray, step_time_s: np.ndarray, band: float = RECOVERY_BAND_K) -> float:
     """Time from the start until |error| stays within the band (0 if it always is; inf if it never settles)."""
     outside = np.nonzero(~(np.abs(error) <= band))[0]
@@ -90,10 +95,13 @@ class ObserverFileResult:
     nodes: dict            # node -> {"open_loop": metrics, "observer": metrics}
     recovery: list         # [{offset_K, open_loop_s, observer_s}]
     max_abs_f32_minus_f64_C: float
+    measured_nodes: list = field(default_factory=list)   # every node a measurement reads ("pm": the magnet)
+    trace: dict | None = None      # per step: time, reference, open loop, observer and its 1-σ (plots)
 
     def as_dict(self) -> dict:
-        return {"file": self.name, "measured_node": self.measured_node, "nodes": self.nodes,
-                "recovery": self.recovery, "max_abs_f32_minus_f64_C": self.max_abs_f32_minus_f64_C}
+        return {"file": self.name, "measured_node": self.measured_node, "measured_nodes": self.measured_nodes,
+                "nodes": self.nodes, "recovery": self.recovery,
+                "max_abs_f32_minus_f64_C": self.max_abs_f32_minus_f64_C}
 
 
 def evaluate_observer(artifact: ModelArtifact, dataset: Dataset, offsets: Sequence[float] = RECOVERY_OFFSETS_K,
@@ -103,20 +111,23 @@ def evaluate_observer(artifact: ModelArtifact, dataset: Dataset, offsets: Sequen
     data, reference = reference_run(artifact, dataset)
     run = data.run
     drive = artifact_drive(artifact, dataset)
-    z = dataset.column(measurement_of(artifact).column)
+    z = measurement_matrix(artifact, dataset)
     references = {n: np.interp(run.step_time_s, dataset.time_s, dataset.column(c))
                   for n, c in (("winding", "winding_C"), ("pm", "pm_C"), ("yoke", "yoke_C"), ("tooth", "tooth_C"))
                   if n in measured_nodes(dataset)}
     initial = initial_temperatures(dataset)
 
-    def both(start):
+    def both(start, keep=None):
         _, open_loop = run_offline(artifact, drive, start)
-        observed = run_observer_offline(artifact, drive, z, start).outputs
-        return open_loop.astype(np.float64), observed.astype(np.float64)
+        run_obs = run_observer_offline(artifact, drive, z, start)
+        if keep is not None:
+            keep["sigma"] = run_obs.sigmas
+        return open_loop.astype(np.float64), run_obs.outputs.astype(np.float64)
 
     if say:
         say(f"observer: {dataset.name}, open loop and observer")
-    open_loop, observed = both(initial)
+    kept: dict = {}
+    open_loop, observed = both(initial, kept)
     nodes = {node: {"open_loop": error_metrics(open_loop[:, OUTPUT_INDEX[node]], ref),
                     "observer": error_metrics(observed[:, OUTPUT_INDEX[node]], ref)}
              for node, ref in references.items()}
@@ -131,5 +142,7 @@ def evaluate_observer(artifact: ModelArtifact, dataset: Dataset, offsets: Sequen
                          "open_loop_s": recovery_time_s(shifted_open[:, MAGNET] - references["pm"], run.step_time_s),
                          "observer_s": recovery_time_s(shifted_obs[:, MAGNET] - references["pm"], run.step_time_s)})
     diff = float(np.max(np.abs(observed - reference.estimates[0][: len(observed)])))
-    node = artifact.content["observer"]["node"]
-    return ObserverFileResult(dataset.name, "pm" if node == "magnet" else node, nodes, recovery, diff)
+    measured = ["pm" if n == "magnet" else n for n in measured_nodes_of(artifact)]
+    trace = {"time_s": run.step_time_s, "references": references, "open_loop": open_loop, "observer": observed,
+             "sigma": kept["sigma"]}
+    return ObserverFileResult(dataset.name, measured[0], nodes, recovery, diff, measured, trace)

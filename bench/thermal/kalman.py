@@ -36,52 +36,81 @@ def _source_jacobian(gains, jac):
 
 
 @numba.njit(cache=True, fastmath=False)
-def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z, nodes,
-                offsets, q, r, p0, traj, sigma, keep, use_sigmoid):
+def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1,
+                rel, sees, lag_pole, lag_index, bias_index, q, r, p0, traj, sigma, keep, use_sigmoid):
     n_steps = ratio.shape[0]
+    n = q.shape[0]
     x = np.zeros(4)
     x_new = np.zeros(4)
     y = y0.copy()
     u = np.empty(8)
     gains = np.empty(4)
     jac = np.zeros((4, 4))
+    xa = np.zeros(n)
     for i in range(4):
         for j in range(4):
             x[i] += c_inv[i, j] * y0[j]
+    for m in range(sees.shape[0]):
+        if lag_index[m] >= 0:
+            xa[lag_index[m]] = sees[m] @ y0
     p = p0.copy()
     b_s = b[:, 4:].copy()
-    eye = np.eye(4)
+    bias_column = b[:, 1].copy()
+    sees_c = sees @ c
+    eye = np.eye(n)
+    full = np.zeros((n, n))
     nll = 0.0
     updates = 0
     for k in range(n_steps):
         model_step(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, k, x, x_new, y,
                    u, gains, use_sigmoid)
         _source_jacobian(gains, jac)
-        f = a + b_s @ jac @ c
-        p = f @ p @ f.T + q
-        for m in range(nodes.shape[0]):   # sequential scalar updates (R is diagonal)
-            if not np.isfinite(z[k, m]):
+        full[:, :] = 0.0
+        full[:4, :4] = a + b_s @ jac @ c
+        if bias_index >= 0:   # the bias heats the winding
+            full[:4, bias_index] = bias_column
+            full[bias_index, bias_index] = 1.0
+            for i in range(4):
+                x[i] += bias_column[i] * xa[bias_index]
+            y[:] = c @ x
+        for m in range(sees.shape[0]):   # each lag follows what its sensor sees
+            lag = lag_index[m]
+            if lag >= 0:
+                for j in range(n):
+                    acc = 0.0
+                    for i in range(4):
+                        acc += sees_c[m, i] * full[i, j]
+                    full[lag, j] = (1.0 - lag_pole[m]) * acc
+                full[lag, lag] += lag_pole[m]
+                xa[lag] = lag_pole[m] * xa[lag] + (1.0 - lag_pole[m]) * (sees[m] @ y)
+        xa[:4] = x
+        p = full @ p @ full.T + q
+        for m in range(sees.shape[0]):   # sequential scalar updates (R is diagonal)
+            if not np.isfinite(z0[k, m]):
                 continue
-            node = nodes[m]
-            h = c[node].copy()
+            h = np.zeros(n)
+            lag = lag_index[m]
+            if lag >= 0:
+                h[lag] = 1.0
+                predicted = xa[lag]
+            else:
+                h[:4] = sees_c[m]
+                predicted = sees[m] @ y
+            r_k = r[m] * rel[k, m]
             ph = p @ h
-            s = h @ ph + r[m]
-            nu = (z[k, m] - offsets[m]) - y[node]
+            s = h @ ph + r_k
+            nu = (z0[k, m] + z1[k, m] * y[1]) - predicted
             gain = ph / s
-            for i in range(4):
-                x[i] += gain[i] * nu
+            xa += gain * nu
             i_kh = eye - np.outer(gain, h)
-            p = i_kh @ p @ i_kh.T + r[m] * np.outer(gain, gain)
+            p = i_kh @ p @ i_kh.T + r_k * np.outer(gain, gain)
             p = 0.5 * (p + p.T)
-            for i in range(4):
-                acc = 0.0
-                for j in range(4):
-                    acc += c[i, j] * x[j]
-                y[i] = acc
+            x[:] = xa[:4]
+            y[:] = c @ x
             nll += LOG_2PI + np.log(s) + nu * nu / s
             updates += 1
         if keep:
-            cp = c @ p @ c.T
+            cp = c @ p[:4, :4] @ c.T
             for i in range(4):
                 traj[k, i] = y[i]
                 sigma[k, i] = np.sqrt(max(cp[i, i], 0.0))
@@ -89,12 +118,12 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
 
 
 @numba.njit(parallel=True, cache=True)
-def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z, nodes,
-           offsets, q, r, p0, traj, sigma, keep, use_sigmoid, nll, updates):
+def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1, rel,
+           sees, lag_pole, lag_index, bias_index, q, r, p0, traj, sigma, keep, use_sigmoid, nll, updates):
     for m in numba.prange(q.shape[0]):
         nll[m], updates[m] = _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu,
-                                         copper_ref, y0, z, nodes, offsets, q[m], r[m], p0, traj[m], sigma[m], keep,
-                                         use_sigmoid)
+                                         copper_ref, y0, z0, z1, rel, sees, lag_pole, lag_index, bias_index, q[m],
+                                         r[m], p0, traj[m], sigma[m], keep, use_sigmoid)
 
 
 @dataclass(frozen=True)
@@ -108,28 +137,62 @@ class FilterRuns:
     sigmas: np.ndarray | None     # (M, steps, 4)
 
 
-def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, z, nodes, offsets, q, r, p0,
+@dataclass(frozen=True)
+class Readings:
+    """The measurements per model step as the filter takes them: reading_k = z0 + z1·ŷ_winding (the flux
+    linkage's resistance at the winding estimate; 0 for a sensor), NaN z0: none; variance R·rel_k; each reads
+    sees·y, through its lag state when lag_pole > 0 (the lag states follow the model's, in order, then the bias)."""
+
+    z0: np.ndarray           # (steps, m)
+    z1: np.ndarray           # (steps, m)
+    rel: np.ndarray          # (steps, m)
+    sees: np.ndarray         # (m, 4)
+    lag_pole: np.ndarray     # (m,)
+    bias: bool = False
+
+    @property
+    def lag_index(self) -> np.ndarray:
+        index, nxt = [], 4
+        for a in self.lag_pole:
+            index.append(nxt if a > 0 else -1)
+            nxt += 1 if a > 0 else 0
+        return np.array(index, dtype=np.int64)
+
+    @property
+    def states(self) -> int:
+        return 4 + int(np.sum(self.lag_pole > 0)) + int(self.bias)
+
+    @property
+    def bias_index(self) -> int:
+        return self.states - 1 if self.bias else -1
+
+
+def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, readings: Readings, q, r, p0,
                 keep: bool = False) -> FilterRuns:
-    """Run M filters (Q: (M, 4, 4), R: (M, measurements)) of one model (A, B, C in shift form) over one run; z holds
-    the measurements per model step, (steps, measurements) (NaN: none), of the output nodes `nodes`; each reading
-    less its offset is compared with its node."""
+    """Run M filters (Q: (M, n, n), R: (M, measurements)) of one model (A, B, C in shift form) over one run."""
     a, b, c = (np.ascontiguousarray(m, dtype=np.float64) for m in (a, b, c))
     q = np.ascontiguousarray(q, dtype=np.float64)
-    z = np.ascontiguousarray(np.asarray(z, dtype=np.float64).reshape(len(inputs.speed_ratio), -1))
-    r = np.ascontiguousarray(np.asarray(r, dtype=np.float64).reshape(q.shape[0], z.shape[1]))
-    n_models, n_steps = q.shape[0], inputs.speed_ratio.shape[0]
+    steps = inputs.speed_ratio.shape[0]
+
+    def per_step(v):
+        return np.ascontiguousarray(np.asarray(v, dtype=np.float64).reshape(steps, -1))
+
+    z0, z1, rel = per_step(readings.z0), per_step(readings.z1), per_step(readings.rel)
+    r = np.ascontiguousarray(np.asarray(r, dtype=np.float64).reshape(q.shape[0], z0.shape[1]))
+    n_models = q.shape[0]
     sig = np.ascontiguousarray(sig, dtype=np.float64)
     use_sigmoid = not np.allclose(sig, identity_sigmoid(sig[0, :]), rtol=0, atol=0)
-    traj = np.zeros((n_models, n_steps if keep else 1, 4))
+    traj = np.zeros((n_models, steps if keep else 1, 4))
     sigma = np.zeros_like(traj)
     nll = np.zeros(n_models)
     updates = np.zeros(n_models, dtype=np.int64)
     _batch(a, b, c, portable.inv(c), np.ascontiguousarray(theta, dtype=np.float64), sig,
            np.ascontiguousarray(inputs.table_losses), np.ascontiguousarray(inputs.speed_ratio),
            np.ascontiguousarray(inputs.coolant), np.ascontiguousarray(inputs.ambient), float(inputs.current_max),
-           float(inputs.alpha_cu), float(inputs.copper_reference), np.asarray(y0, dtype=np.float64), z,
-           np.asarray(nodes, dtype=np.int64).reshape(-1), np.asarray(offsets, dtype=np.float64).reshape(-1), q, r,
-           np.ascontiguousarray(p0, dtype=np.float64), traj, sigma, keep, use_sigmoid, nll, updates)
+           float(inputs.alpha_cu), float(inputs.copper_reference), np.asarray(y0, dtype=np.float64), z0, z1, rel,
+           np.ascontiguousarray(readings.sees, dtype=np.float64).reshape(-1, 4),
+           np.asarray(readings.lag_pole, dtype=np.float64).reshape(-1), readings.lag_index, readings.bias_index,
+           q, r, np.ascontiguousarray(p0, dtype=np.float64), traj, sigma, keep, use_sigmoid, nll, updates)
     return FilterRuns(nll, updates, traj if keep else None, sigma if keep else None)
 
 
@@ -140,15 +203,47 @@ def source_jacobian(gains) -> np.ndarray:
     return jac
 
 
-def steady_state(f: np.ndarray, h: np.ndarray, q: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
-    """(K_ss, P_ss posterior) of the filter with constant F, h, Q, R: the discrete Riccati equation's solution
-    P⁻ (scipy), K = P⁻hᵀ/(h P⁻ hᵀ + R), P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ."""
+def augmented_transition(block: np.ndarray, b: np.ndarray, c: np.ndarray, readings: Readings) -> np.ndarray:
+    """The augmented F (shift form) for the model block's F, as the filter forms it each step."""
+    n, full = readings.states, np.zeros((readings.states, readings.states))
+    full[:4, :4] = block
+    if readings.bias:
+        full[:4, n - 1] = b[:, 1]
+        full[n - 1, n - 1] = 1.0
+    for m, lag in enumerate(readings.lag_index):
+        if lag >= 0:
+            a = readings.lag_pole[m]
+            full[lag] = (1.0 - a) * (readings.sees[m] @ c @ full[:4])
+            full[lag, lag] += a
+    return full
+
+
+def measurement_rows(c: np.ndarray, readings: Readings) -> np.ndarray:
+    """h of each measurement on the augmented state (m, n)."""
+    rows = np.zeros((len(readings.lag_pole), readings.states))
+    for m, lag in enumerate(readings.lag_index):
+        if lag >= 0:
+            rows[m, lag] = 1.0
+        else:
+            rows[m, :4] = readings.sees[m] @ c
+    return rows
+
+
+def steady_state(f: np.ndarray, h: np.ndarray, q: np.ndarray, r) -> tuple[np.ndarray, np.ndarray]:
+    """(K_ss (m, n), P_ss posterior) of the filter with constant F, H (m, n), Q and R (m,): the discrete Riccati
+    equation's solution P⁻ (scipy), then the sequential scalar gains the target applies in order,
+    K_i = P_i hᵢᵀ/(hᵢ P_i hᵢᵀ + R_i), P_{i+1} = (I - K_i hᵢ) P_i (I - K_i hᵢ)ᵀ + R_i K_i K_iᵀ."""
     from scipy.linalg import solve_discrete_are
 
-    h = np.asarray(h, dtype=float).reshape(1, -1)
-    prior = solve_discrete_are(f.T, h.T, q, np.array([[r]]))
-    prior = 0.5 * (prior + prior.T)
-    gain = (prior @ h.T / (h @ prior @ h.T + r)).ravel()
-    i_kh = np.eye(len(gain)) - np.outer(gain, h)
-    post = i_kh @ prior @ i_kh.T + r * np.outer(gain, gain)
-    return gain, 0.5 * (post + post.T)
+    h = np.atleast_2d(np.asarray(h, dtype=float))
+    r = np.atleast_1d(np.asarray(r, dtype=float))
+    prior = solve_discrete_are(f.T, h.T, q, np.diag(r))
+    p = 0.5 * (prior + prior.T)
+    gains = []
+    for row, var in zip(h, r, strict=True):
+        gain = p @ row / (row @ p @ row + var)
+        i_kh = np.eye(len(gain)) - np.outer(gain, row)
+        p = i_kh @ p @ i_kh.T + var * np.outer(gain, gain)
+        p = 0.5 * (p + p.T)
+        gains.append(gain)
+    return np.array(gains), p

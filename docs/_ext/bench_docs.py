@@ -195,6 +195,18 @@ def render_artifact_schema() -> str:
     lines += ["", "| form | summary |", "|---|---|"]
     for name, form in OBSERVER_FORMS.items():
         lines.append(f"| `{name}` | {_cell(form.summary)} |")
+    from target_sim.measurements import MEASUREMENT_KINDS
+
+    lines += ["", "Observer section version 2 (`observer.version`: 2; without it, version 1 above: one unlagged "
+              "sensor) "
+              "lists its measurements in order in `observer.measurements` (each `kind`, `columns`, `node` and its "
+              "encoded `arrays`), names the filter's states in `observer.states` (the 4 model states, one lag state "
+              "per lagged measurement, then the bias) and sets `observer.bias` (`winding-heat` or null); Q, P0 and "
+              "P_ss are then n × n with n = len(states), `q_nodes_C2` has n entries and K_ss one row per "
+              "measurement. `node`, `column`, `offset_C`, `R` and `lag_s` describe the first measurement.", "",
+              "| measurement kind | summary |", "|---|---|"]
+    for name, kind in MEASUREMENT_KINDS.items():
+        lines.append(f"| `{name}` | {_cell(kind.summary)} |")
     lines += ["", "### Realizations (`realization`, `target_sim.kinds.REALIZATIONS`)", "",
               "| realization | form | summary |", "|---|---|---|"]
     for name, realization in REALIZATIONS.items():

@@ -3,14 +3,15 @@
     python tests/benchmarks/bench_observer.py [--skip-ipm] [--work DIR]
 
 1. The built-in motor, packaged Hammerstein artifact, the winding thermocouple `winding_C` as the measurement:
-   `bench observer --criterion C --out M` for each tuning criterion (tuned on the 20 and 60 °C runs), then
-   `bench evaluate --model M --data out/data/cycle_coolant40.csv` (open loop and observer per node, float32, and
-   the time until a magnet started ±30 K off stays within 2 K), and `bench numerics --observer --model M` of the
-   likelihood-tuned filter (each covariance form over the whole 40 °C run in float32).
+   `bench observer --criterion magnet --out M` (tuned on the 20 and 60 °C runs), then `bench evaluate --model M
+   --data out/data/cycle_coolant40.csv` (open loop and observer per node, float32, and the time until a magnet
+   started ±30 K off stays within 2 K). (The built-in motor's files have no voltage columns: no flux linkage.)
 2. The 60 kW IPM example (`docs/tutorials/own-motor.md`): `bench data --motor`, `bench identify` (the Hammerstein
-   model on profiles 1-8), then the observer measuring its stator NTC (`--measure ntc_C` with the offset and lag
-   of the motor file's `stator_ntc` sensor) tuned on profiles 1-8 with each criterion and evaluated on the
-   held-out profiles 9 and 10.
+   model on profiles 1-8), then three observers tuned on profiles 1-8 (magnet criterion) and evaluated on the
+   held-out profiles 9 and 10: (a) the stator NTC (`--measure ntc_C` with the offset, lag and gradient of the
+   motor file's `stator_ntc` sensor: a lag state), (b) the flux linkage (`--measure none --flux`, ψ_0 and α_B
+   calibrated on profiles 1-8), (c) both; and `bench numerics --observer` of (c) on profile 9 (each covariance
+   form over the whole profile in float32, 5 states).
 
 Every figure comes from the commands' own `--json`; each command is timed. Writes its record
 (`tests/benchmarks/record.py`).
@@ -30,9 +31,10 @@ ROOT = Path(__file__).resolve().parents[2]
 from bench_accuracy import HELD_OUT, IPM, bench  # noqa: E402
 from record import Record, add_record_arguments  # noqa: E402
 
-CRITERIA = ("magnet", "likelihood")
+CRITERIA = ("magnet",)
 BUILTIN_VALIDATION = "out/data/cycle_coolant40.csv"
-NUMERICS_CRITERION = "likelihood"      # the filter whose covariance forms the method page compares
+EVALUATIONS = "150"      # Nelder-Mead converges within about 100-150 filter runs on these files
+NUMERICS_CASE = "ntc+flux"     # the IPM filter whose covariance forms the method page compares
 NTC_SENSOR = "stator_ntc"
 
 
@@ -45,8 +47,10 @@ def observer_figures(evaluated: dict) -> dict:
     never within the band by the end of the file) and the observer's |float32 - float64|."""
     (model,) = evaluated["models"]
     obs = model["observer"]
-    return {"node": obs["node"], "column": obs["column"], "form": obs["form"],
+    return {"node": obs["node"], "column": obs["column"], "form": obs["form"], "states": obs.get("states"),
+            "measurements": obs.get("measurements"),
             "files": [{"file": Path(f["file"]).name, "measured_node": f["measured_node"],
+                       "measured_nodes": f.get("measured_nodes", [f["measured_node"]]),
                        "nodes": {node: {"open_loop": _metrics(m["open_loop"]), "observer": _metrics(m["observer"])}
                                  for node, m in f["nodes"].items()},
                        "recovery": f["recovery"], "max_abs_f32_minus_f64_C": f["max_abs_f32_minus_f64_C"]}
@@ -55,25 +59,27 @@ def observer_figures(evaluated: dict) -> dict:
 
 def tuning_figures(tuned: dict) -> dict:
     """What `bench observer` tuned: Q per node, R, the criterion's value and how many filter runs it took."""
-    return {"q_C2_per_step": tuned["q_C2_per_step"], "R_C2": tuned["R_C2"],
-            "criterion_value": tuned["criterion_value"], "evaluations": tuned["evaluations"],
-            "measurement": tuned["measurement"], "form": tuned["form"]}
+    return {"q_C2_per_step": tuned["q_C2_per_step"], "q_per_step": tuned["q_per_step"], "R_C2": tuned["R_C2"],
+            "R_scale": tuned["R_scale"], "criterion_value": tuned["criterion_value"],
+            "evaluations": tuned["evaluations"], "measurement": tuned["measurement"],
+            "measurements": tuned["measurements"], "form": tuned["form"]}
 
 
 def tune_and_evaluate(work: Path, criterion: str, observer_args: list[str], evaluate_args: list[str],
-                      label: str) -> dict:
-    model = work / f"observer-{criterion}.json"
-    tuned, tune_s = bench("observer", *observer_args, "--criterion", criterion, "--out", str(model))
+                      label: str, case: str = "") -> dict:
+    model = work / f"observer-{criterion}{'-' + case.replace('+', '-') if case else ''}.json"
+    tuned, tune_s = bench("observer", *observer_args, "--criterion", criterion, "--evaluations", EVALUATIONS,
+                          "--out", str(model))
     evaluated, evaluate_s = bench("evaluate", "--model", str(model), *evaluate_args)
     figures = observer_figures(evaluated)
     for f in figures["files"]:
         pm = f["nodes"]["pm"]
         times = ", ".join(f"{r['offset_K']:+g} K {_seconds(r['open_loop_s'])} -> {_seconds(r['observer_s'])}"
                           for r in f["recovery"])
-        print(f"{label} {criterion:10} {f['file']}: magnet RMSE open loop {pm['open_loop']['rmse_C']:.3f}, observer "
-              f"{pm['observer']['rmse_C']:.3f} °C; within 2 K: {times}")
+        print(f"{label} {case or criterion:10} {f['file']}: magnet RMSE open loop {pm['open_loop']['rmse_C']:.3f}, "
+              f"observer {pm['observer']['rmse_C']:.3f} °C; within 2 K: {times}")
     print(f"{label} {criterion:10}: bench observer {tune_s:.1f} s, bench evaluate {evaluate_s:.1f} s")
-    return {"criterion": criterion, "tuning": tuning_figures(tuned), "observer_s": round(tune_s, 1),
+    return {"criterion": criterion, "case": case, "tuning": tuning_figures(tuned), "observer_s": round(tune_s, 1),
             "evaluate_s": round(evaluate_s, 1), "model": model, **figures}
 
 
@@ -87,16 +93,18 @@ def _public(run: dict) -> dict:
 
 def builtin_motor(work: Path) -> dict:
     runs = [tune_and_evaluate(work, c, [], ["--data", BUILTIN_VALIDATION], "built-in") for c in CRITERIA]
-    model = next(r["model"] for r in runs if r["criterion"] == NUMERICS_CRITERION)
-    forms, numerics_s = bench("numerics", "--observer", "--model", str(model))
+    return {"validation": Path(BUILTIN_VALIDATION).name, "runs": [_public(r) for r in runs]}
+
+
+def numerics(model: Path, data: str) -> dict:
+    forms, numerics_s = bench("numerics", "--observer", "--model", str(model), "--data", data, "--mapping",
+                              str(IPM / "mapping.json"))
     for row in forms["rows"]:
-        print(f"built-in {row['form']:13}: min eig P {row['min_eigenvalue']:.4g}, max |P-Pᵀ|/|P| "
+        print(f"IPM {row['form']:13}: min eig P {row['min_eigenvalue']:.4g}, max |P-Pᵀ|/|P| "
               f"{row['max_symmetry_error']:.1e}, max |f32 - f64| {row['max_abs_f32_minus_f64_C']:.1e} °C")
-    return {"validation": Path(BUILTIN_VALIDATION).name, "runs": [_public(r) for r in runs],
-            "numerics": {"criterion": NUMERICS_CRITERION, "data": Path(forms["data"]).name,
-                         "realization": forms["realization"], "dt_s": forms["dt"],
-                         "deployed_form": forms["deployed_form"], "rows": forms["rows"],
-                         "seconds": round(numerics_s, 1)}}
+    return {"case": NUMERICS_CASE, "criterion": "magnet", "data": Path(forms["data"]).name,
+            "realization": forms["realization"], "dt_s": forms["dt"], "deployed_form": forms["deployed_form"],
+            "rows": forms["rows"], "seconds": round(numerics_s, 1)}
 
 
 def ntc_sensor() -> dict:
@@ -117,6 +125,13 @@ def _named(node, name: str) -> list[dict]:
     return []
 
 
+def ipm_cases(sensor: dict) -> dict[str, list[str]]:
+    """The IPM example's measurements: (a) the NTC, (b) the flux linkage, (c) both."""
+    ntc = ["--measure", "ntc_C", "--offset", f"{sensor['offset']:g}", "--lag", f"{sensor['lag_s']:g}",
+           "--gradient", f"{sensor.get('gradient', 0.0):g}"]
+    return {"ntc": ntc, "flux": ["--measure", "none", "--flux"], "ntc+flux": [*ntc, "--flux"]}
+
+
 def ipm_example(work: Path) -> dict:
     motor, mapping = str(IPM / "motor.json"), str(IPM / "mapping.json")
     data = work / "ipm"
@@ -126,14 +141,15 @@ def ipm_example(work: Path) -> dict:
     _, identify_s = bench("identify", "--motor", motor, "--mapping", mapping, "--train", train,
                           "--validate", *held_out, "--out", str(data / "model.json"))
     sensor = ntc_sensor()
-    observer_args = ["--model", str(data / "model.json"), "--train", train, "--mapping", mapping,
-                     "--measure", "ntc_C", "--offset", f"{sensor['offset']:g}", "--lag", f"{sensor['lag_s']:g}"]
-    runs = [tune_and_evaluate(data, c, observer_args, ["--mapping", mapping, "--data", *held_out], "IPM")
-            for c in CRITERIA]
+    common = ["--model", str(data / "model.json"), "--train", train, "--mapping", mapping]
+    runs = [tune_and_evaluate(data, "magnet", [*common, *args], ["--mapping", mapping, "--data", *held_out], "IPM",
+                              case) for case, args in ipm_cases(sensor).items()]
     print(f"IPM example: bench data {data_s:.1f} s, bench identify {identify_s:.1f} s")
+    model = next(r["model"] for r in runs if r["case"] == NUMERICS_CASE)
     return {"held_out": list(HELD_OUT), "sensor": {"column": "ntc_C", "offset_C": sensor["offset"],
                                                    "lag_s": sensor["lag_s"], "gradient": sensor.get("gradient")},
-            "data_s": round(data_s, 1), "identify_s": round(identify_s, 1), "runs": [_public(r) for r in runs]}
+            "data_s": round(data_s, 1), "identify_s": round(identify_s, 1), "runs": [_public(r) for r in runs],
+            "numerics": numerics(model, held_out[0])}
 
 
 def main() -> int:

@@ -53,3 +53,19 @@ def test_numerics_observer_without_an_observer_is_one_sentence(small_dataset, ca
     assert main(["numerics", "--observer", "--data", str(small_dataset)]) == 1
     err = capsys.readouterr().err
     assert "has no observer; add one with 'bench observer" in err and err.count("\n") == 1
+
+
+def test_evaluate_plots_the_estimate_with_its_band(observer_artifact, small_dataset, tmp_path, capsys):
+    assert main(["evaluate", "--model", str(observer_artifact), "--data", str(small_dataset), "--plots",
+                 str(tmp_path), "--json"]) == 0
+    observer = json.loads(capsys.readouterr().out)["models"][0]["observer"]
+    (figure,) = observer["plots"]
+    assert figure.endswith("small-observer.png") and (tmp_path / "small-observer.png").stat().st_size > 10_000
+
+
+def test_flux_without_voltage_columns_is_one_sentence(small_dataset, tmp_path, capsys):
+    out = tmp_path / "flux.json"
+    assert main(["observer", "--train", str(small_dataset), "--measure", "none", "--flux", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "has no column 'u_d_V', which the flux-linkage calibration needs" in err and err.count("\n") == 1
+    assert not out.exists()

@@ -1,0 +1,151 @@
+"""The flux-linkage magnet temperature: calibration on training files and its readings per model step.
+
+Calibration (`calibrate_flux`): on every model step of the training files at or above the speed threshold, least
+squares of u_q/ω_e = ψ_0 + ψ_0 α_B (ϑ_m - ϑ_0) + L_d i_d + R_s0 (1 + α_cu (ϑ_w - ϑ_cu)) i_q/ω_e against the measured
+magnet (pm_C) and winding (winding_C): linear in (ψ_0, ψ_0 α_B, L_d, R_s0). L_d and R_s0 are kept only where the
+data determine them (relative standard error below `IDENTIFIABLE`); otherwise L_d is fixed (0 or the given value)
+and R_s0 to the artifact's stator resistance. The residual, in kelvin of magnet temperature, is the calibration's
+figure; its square is fitted as R_floor + R_speed·(n_min/n)² (the noise grows as the speed falls).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bench.errors import BenchError
+from bench.model.measures import step_means
+from target_sim.artifact import encode_array
+from target_sim.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
+
+IDENTIFIABLE = 0.25          # largest relative standard error of L_d or R_s0 that the calibration keeps
+DEFAULT_SPEED_MIN_RPM = 1500.0
+
+
+@dataclass(frozen=True)
+class FluxLinkage:
+    psi_0_Vs: float
+    alpha_B_per_K: float
+    theta_0_C: float
+    L_d_H: float
+    R_s_ohm: float
+    alpha_cu_per_K: float
+    copper_reference_C: float
+    pole_pairs: float
+    speed_min_rpm: float
+    R_floor_C2: float
+    R_speed_C2: float
+    calibration: dict = field(default_factory=dict)
+    kind: str = "flux-linkage"
+    node: str = "magnet"
+    name: str = "flux"
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return COLUMNS
+
+    @property
+    def sees(self) -> np.ndarray:
+        return np.array([0.0, 0.0, 0.0, 1.0])
+
+    def lag_pole(self, dt: float) -> float:
+        return 0.0
+
+    def readings(self, dataset, dt: float, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        means = step_means(dataset, ("speed_rpm", *COLUMNS), dt, steps)
+        speed, _, u_q, i_d, i_q = means.T
+        valid = np.abs(speed) >= self.speed_min_rpm
+        omega = np.where(valid, self.pole_pairs * RAD_S_PER_RPM * speed, np.nan)
+        slope = self.psi_0_Vs * self.alpha_B_per_K
+        r0 = self.R_s_ohm * (1.0 - self.alpha_cu_per_K * self.copper_reference_C)
+        z0 = self.theta_0_C + ((u_q - r0 * i_q) / omega - self.L_d_H * i_d - self.psi_0_Vs) / slope
+        z1 = -self.R_s_ohm * self.alpha_cu_per_K * i_q / (omega * slope)
+        ratio = self.speed_min_rpm / np.where(valid, speed, np.inf)
+        rel = self.R_floor_C2 + self.R_speed_C2 * ratio * ratio
+        return np.where(valid, z0, np.nan), np.where(valid, z1, 0.0), np.where(valid, rel, 1.0)
+
+    def entry(self, dt: float, r_scale: float) -> dict:
+        values = {"psi_0_Vs": self.psi_0_Vs, "alpha_B_per_K": self.alpha_B_per_K, "theta_0_C": self.theta_0_C,
+                  "L_d_H": self.L_d_H, "R_s_ohm": self.R_s_ohm, "alpha_cu_per_K": self.alpha_cu_per_K,
+                  "copper_reference_C": self.copper_reference_C, "pole_pairs": self.pole_pairs,
+                  "speed_min_rpm": self.speed_min_rpm, "R_floor_C2": r_scale * self.R_floor_C2,
+                  "R_speed_C2": r_scale * self.R_speed_C2}
+        return {"kind": self.kind, "name": self.name, "columns": list(self.columns), "node": self.node,
+                "arrays": {k: encode_array(v) for k, v in values.items()}, "calibration": self.calibration}
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "node": self.node, "columns": list(self.columns), "psi_0_Vs": self.psi_0_Vs,
+                "alpha_B_per_K": self.alpha_B_per_K, "L_d_H": self.L_d_H, "R_s_ohm": self.R_s_ohm,
+                "speed_min_rpm": self.speed_min_rpm, **self.calibration}
+
+
+def _fit(y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least squares: (coefficients, their standard errors, residual)."""
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    resid = y - x @ beta
+    dof = max(len(y) - x.shape[1], 1)
+    cov = np.linalg.pinv(x.T @ x) * float(resid @ resid) / dof
+    return beta, np.sqrt(np.maximum(np.diag(cov), 0.0)), resid
+
+
+def calibrate_flux(datasets: Sequence, dt: float, pole_pairs: float, alpha_cu: float, copper_reference: float,
+                   r_s_prior: float | None, speed_min_rpm: float = DEFAULT_SPEED_MIN_RPM, theta_0: float = 20.0,
+                   l_d_fixed: float = 0.0) -> FluxLinkage:
+    """ψ_0, α_B (and L_d, R_s0 where the data allow) on the training files' steps at or above speed_min_rpm."""
+    rows = []
+    for d in datasets:
+        missing = [c for c in (*COLUMNS, "pm_C", "winding_C") if not d.has(c)]
+        if missing:
+            raise BenchError(f"{d.path} has no column {missing[0]!r}, which the flux-linkage calibration needs; map "
+                             "it with --mapping")
+        steps = len(step_means(d, ("speed_rpm",), dt, 10 ** 9))
+        rows.append(step_means(d, ("speed_rpm", "u_q_V", "i_d_A", "i_q_A", "pm_C", "winding_C"), dt, steps))
+    speed, u_q, i_d, i_q, magnet, winding = np.concatenate(rows).T
+    keep = (np.abs(speed) >= speed_min_rpm) & np.all(np.isfinite(np.concatenate(rows)), axis=1)
+    if keep.sum() < 20:
+        raise BenchError(f"the training files have {int(keep.sum())} model steps at or above {speed_min_rpm:g} rpm; "
+                         "the flux-linkage calibration needs at least 20 (lower --flux-min-speed)")
+    speed, u_q, i_d, i_q, magnet, winding = (v[keep] for v in (speed, u_q, i_d, i_q, magnet, winding))
+    omega = pole_pairs * RAD_S_PER_RPM * speed
+    y = u_q / omega
+    columns = {"psi_0": np.ones_like(y), "slope": magnet - theta_0, "L_d": i_d,
+               "R_s0": i_q * (1.0 + alpha_cu * (winding - copper_reference)) / omega}
+    fixed = {}
+    while True:
+        names = [n for n in columns if n not in fixed]
+        target = y - sum(columns[n] * v for n, v in fixed.items())
+        x = np.column_stack([columns[n] for n in names])
+        beta, se, resid = _fit(target, x)
+        loose = [n for n in ("L_d", "R_s0") if n in names and not se[names.index(n)] < IDENTIFIABLE * abs(
+            beta[names.index(n)])]
+        scaled = x / np.maximum(np.abs(x).max(axis=0), np.finfo(float).tiny)
+        if np.linalg.matrix_rank(scaled, tol=1e-9) < len(names):     # collinear: no standard error says so
+            loose = [n for n in ("L_d", "R_s0") if n in names][:1] or loose
+        if not loose:
+            break
+        fixed[loose[0]] = l_d_fixed if loose[0] == "L_d" else (r_s_prior if r_s_prior is not None else 0.0)
+    value = dict(zip(names, beta, strict=True)) | fixed
+    psi_0, slope = float(value["psi_0"]), float(value["slope"])
+    if not (psi_0 > 0 and slope != 0):
+        raise BenchError(f"the flux-linkage calibration found ψ_0 = {psi_0:.4g} Vs and dψ/dϑ = {slope:.3g} Vs/K; the "
+                         "voltage columns do not carry the magnet's temperature")
+    resid_k = resid / slope
+    ratio2 = (speed_min_rpm / speed) ** 2
+    coef, *_ = np.linalg.lstsq(np.column_stack([np.ones_like(ratio2), ratio2]), resid_k ** 2, rcond=None)
+    floor, per_speed = (max(float(v), 1e-6) for v in coef)
+    calibration = {"steps": int(keep.sum()), "files": len(datasets), "fitted": names,
+                   "fixed": {k: float(v) for k, v in fixed.items()},
+                   "standard_error": {n: float(s) for n, s in zip(names, se, strict=True)},
+                   "residual_rms_K": float(np.sqrt(np.mean(resid_k ** 2))),
+                   "residual_max_K": float(np.max(np.abs(resid_k)))}
+    return FluxLinkage(psi_0, slope / psi_0, theta_0, float(value["L_d"]), float(value["R_s0"]), alpha_cu,
+                       copper_reference, float(pole_pairs), speed_min_rpm, floor, per_speed, calibration)
+
+
+def speed_threshold_ok(value: float) -> float:
+    if not (math.isfinite(value) and value > 0):
+        raise BenchError("--flux-min-speed must be a positive number of rpm")
+    return value

@@ -1,0 +1,59 @@
+"""A temperature sensor column (a stator NTC): node + gradient·(node - yoke), first-order lag τ, offset, noise.
+
+Its readings are the column less its offset; its variance is the tuned R. With τ > 0 the observer carries the
+lag's state (a = exp(-Δ/τ)), so a lagging sensor no longer reads as a model error of its node.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.model.measures import step_means
+from target_sim.artifact import OUTPUTS, encode_array
+from target_sim.measurements.lagged_sensor import sees
+
+
+@dataclass(frozen=True)
+class Sensor:
+    node: str = "winding"
+    column: str = "winding_C"
+    offset_C: float = 0.0
+    lag_s: float = 0.0
+    gradient: float = 0.0
+    kind: str = "lagged-sensor"
+
+    @property
+    def name(self) -> str:
+        return self.column
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return (self.column,)
+
+    @property
+    def index(self) -> int:
+        return OUTPUTS.index(self.node)
+
+    @property
+    def sees(self) -> np.ndarray:
+        return sees(self.node, self.gradient)
+
+    def lag_pole(self, dt: float) -> float:
+        return math.exp(-dt / self.lag_s) if self.lag_s > 0 else 0.0
+
+    def readings(self, dataset, dt: float, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        z = step_means(dataset, self.columns, dt, steps)[:, 0] - self.offset_C
+        return z, np.zeros_like(z), np.ones_like(z)
+
+    def entry(self, dt: float, r_scale: float) -> dict:
+        return {"kind": self.kind, "name": self.name, "columns": list(self.columns), "node": self.node,
+                "gradient": self.gradient, "lag_s": self.lag_s, "offset": self.offset_C,
+                "arrays": {"sees": encode_array(self.sees), "lag_pole": encode_array(self.lag_pole(dt)),
+                           "offset_C": encode_array(self.offset_C), "R": encode_array(r_scale)}}
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "node": self.node, "column": self.column, "offset_C": self.offset_C,
+                "lag_s": self.lag_s, "gradient": self.gradient}

@@ -1,0 +1,117 @@
+"""The observer's measurement kinds (target_sim.measurements) and the flux-linkage calibration
+(bench.model.measures.flux): each kind's float32 reading, and the calibration recovering ψ_0, α_B, L_d and R_s from
+synthetic voltages."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.errors import BenchError
+from bench.model.measures.flux import FluxLinkage, calibrate_flux
+from bench.model.measures.sensor import Sensor
+from target_sim.measurements import MEASUREMENT_KINDS
+from target_sim.measurements.flux_linkage import RAD_S_PER_RPM
+
+F32 = np.float32
+PSI_0, ALPHA_B, L_D, L_Q, R_S, ALPHA_CU, POLES = 0.065, -0.0011, 1.5e-4, 3.5e-4, 0.0158, 0.0039, 4
+
+
+def test_the_kinds_are_registered_by_name():
+    assert MEASUREMENT_KINDS.names() == ("lagged-sensor", "flux-linkage")
+
+
+def _target(lab, dt=1.0, r=0.5):
+    entry = lab.entry(dt, r)
+    return MEASUREMENT_KINDS[entry["kind"]].load(entry, "observer.measurements[0]", F32)
+
+
+def test_a_lagged_sensor_reads_its_node_mix_less_its_offset():
+    ntc = _target(Sensor("winding", "ntc_C", offset_C=0.8, lag_s=25.0, gradient=-0.12))
+    assert ntc.width == 1 and ntc.lag_pole == pytest.approx(math.exp(-1 / 25), rel=1e-6)
+    assert np.allclose(ntc.sees, [0.12, 0.88, 0.0, 0.0])
+    z, r = ntc.reading(np.array([80.8], dtype=F32), F32(3000), np.zeros(4, dtype=F32))
+    assert z == pytest.approx(80.0, abs=1e-5) and r == pytest.approx(0.5)
+    assert ntc.reading(np.array([np.nan], dtype=F32), F32(3000), np.zeros(4, dtype=F32)) is None
+    assert _target(Sensor()).lag_pole == 0
+
+
+def _flux(speed_min=1500.0) -> FluxLinkage:
+    return FluxLinkage(PSI_0, ALPHA_B, 20.0, L_D, R_S, ALPHA_CU, 20.0, POLES, speed_min, 0.5, 4.0)
+
+
+def _voltages(speed_rpm, i_d, i_q, magnet, winding):
+    omega = POLES * RAD_S_PER_RPM * speed_rpm
+    r = R_S * (1 + ALPHA_CU * (winding - 20.0))
+    psi = PSI_0 * (1 + ALPHA_B * (magnet - 20.0))
+    return r * i_d - omega * L_Q * i_q, r * i_q + omega * (psi + L_D * i_d)
+
+
+def test_the_flux_linkage_inverts_the_voltage_equation_above_its_speed():
+    flux = _target(_flux(), r=1.0)
+    y = np.array([60.0, 95.0, 70.0, 0.0], dtype=F32)          # winding estimate 95 °C
+    for speed in (1500.0, 4000.0, 9000.0):
+        u_d, u_q = _voltages(speed, -120.0, 250.0, 85.0, 95.0)
+        z, r = flux.reading(np.array([u_d, u_q, -120.0, 250.0], dtype=F32), F32(speed), y)
+        assert z == pytest.approx(85.0, abs=0.05)       # float32 rounding of u_q/ω: hundredths of a kelvin
+        assert r == pytest.approx(0.5 + 4.0 * (1500.0 / speed) ** 2, rel=1e-5)
+    assert flux.reading(np.array([0.0, 5.0, 0.0, 10.0], dtype=F32), F32(1000.0), y) is None
+    assert flux.reading(np.array([0.0, np.nan, 0.0, 10.0], dtype=F32), F32(3000.0), y) is None
+
+
+class _Data:
+    """What the calibration reads of a dataset: columns per name, the sample period, a path."""
+
+    def __init__(self, columns: dict, period: float = 1.0):
+        self.columns, self.sample_period_s, self.path = columns, period, Path("synthetic.csv")
+
+    def has(self, name):
+        return name in self.columns
+
+    def column(self, name):
+        return self.columns[name]
+
+
+def _synthetic(rows=3000, seed=3, noise_v=0.3):
+    rng = np.random.default_rng(seed)
+    speed = np.clip(4000 + np.cumsum(rng.normal(0, 80, rows)), 200, 12000)
+    i_d = -np.abs(np.cumsum(rng.normal(0, 4, rows))) - 20
+    i_q = 150 + 100 * np.sin(np.arange(rows) / 97.0)
+    magnet = 40 + 60 * (1 - np.exp(-np.arange(rows) / 900.0))
+    winding = 45 + 70 * (1 - np.exp(-np.arange(rows) / 400.0))
+    u_d, u_q = _voltages(speed, i_d, i_q, magnet, winding)
+    return _Data({"speed_rpm": speed, "u_d_V": u_d + rng.normal(0, noise_v, rows), "u_q_V": u_q + rng.normal(
+        0, noise_v, rows), "i_d_A": i_d, "i_q_A": i_q, "pm_C": magnet, "winding_C": winding})
+
+
+def test_the_calibration_recovers_psi_0_alpha_b_and_l_d():
+    fit = calibrate_flux([_synthetic()], 1.0, POLES, ALPHA_CU, 20.0, 0.015)
+    assert fit.psi_0_Vs == pytest.approx(PSI_0, rel=2e-3)
+    assert fit.alpha_B_per_K == pytest.approx(ALPHA_B, rel=0.02)
+    assert fit.L_d_H == pytest.approx(L_D, rel=0.05) and fit.R_s_ohm == pytest.approx(R_S, rel=0.1)
+    assert fit.calibration["fitted"] == ["psi_0", "slope", "L_d", "R_s0"]
+    # the residual is the voltage noise seen through ω ψ_0 α_B: about 0.3 V / (ω·7e-5 Vs/K), a few K at 4000 rpm
+    assert 0.3 < fit.calibration["residual_rms_K"] < 5.0 and fit.R_speed_C2 > 0
+
+
+def test_a_constant_d_current_leaves_l_d_to_the_given_value():
+    data = _synthetic()
+    data.columns["i_d_A"] = np.full_like(data.columns["i_d_A"], -50.0)
+    u_d, u_q = _voltages(data.columns["speed_rpm"], -50.0, data.columns["i_q_A"], data.columns["pm_C"],
+                         data.columns["winding_C"])
+    data.columns["u_q_V"] = u_q
+    fit = calibrate_flux([data], 1.0, POLES, ALPHA_CU, 20.0, 0.015, l_d_fixed=0.0)
+    assert "L_d" not in fit.calibration["fitted"] and fit.L_d_H == 0.0
+    # ψ_0 then absorbs L_d·i_d; the temperature slope is still the magnet's
+    assert fit.alpha_B_per_K * fit.psi_0_Vs == pytest.approx(ALPHA_B * PSI_0, rel=0.02)
+
+
+def test_too_few_fast_steps_is_one_sentence():
+    data = _synthetic()
+    data.columns["speed_rpm"] = np.full(3000, 500.0)
+    with pytest.raises(BenchError, match="at or above 1500 rpm") as info:
+        calibrate_flux([data], 1.0, POLES, ALPHA_CU, 20.0, 0.015)
+    assert "\n" not in str(info.value)
