@@ -160,7 +160,8 @@ class InterruptedFirmware(Firmware):
         self.dwt_reads: list[tuple[int, int]] = []   # (timeline, the call's own cycles) at each DWT_CYCCNT read
         self.fp_context = False               # CONTROL.FPCA of the background (thread mode)
         self._block_costs: dict[tuple[int, int], tuple[tuple[int, ...], int]] = {}
-        self._in_isr = self._isr_fp = False
+        self._in_isr = self._isr_fp = self._isr_lazy = False
+        self._isr_start = 0
         self._release: int | None = None
         self._block = _Block()
         self._call_start = self._inserted = self._preemptions = 0
@@ -207,6 +208,11 @@ class InterruptedFirmware(Firmware):
                 line.next_release += skip * line.period
             self._idle_until(cycle)
         self._release = cycle
+
+    @property
+    def job_release(self) -> int:
+        """When the next `call` is released (`release_at`'s cycle, else now)."""
+        return self.now if self._release is None else max(self._release, self.now)
 
     def idle_until(self, cycle: int) -> None:
         """The core idles (WFI) until `cycle`, taking every release before it."""
@@ -309,7 +315,7 @@ class InterruptedFirmware(Firmware):
         while True:
             release = line.next_release
             line.next_release += line.period
-            handler_cycles, used_fp = self._run_handler(fp_context, release)
+            handler_cycles, used_fp = self._run_handler(fp_context, release, start, stacked)
             lazy = fp_context and used_fp and not stacked
             stacked = stacked or lazy
             done = start + handler_cycles + (costs.lazy_fp if lazy else 0)
@@ -325,9 +331,11 @@ class InterruptedFirmware(Firmware):
             line.events.append(IsrEvent(release, taken, start, end, handler_cycles, lazy, chained, preempted))
             return end
 
-    def _run_handler(self, fp_context: bool, release: int) -> tuple[int, bool]:
-        """Run the handler once (a nested emulation when a call is running); (its cycles, whether it used the
-        FPU). The background's registers are saved and restored whole; its accounting is put back."""
+    def _run_handler(self, fp_context: bool, release: int, start: int = 0, stacked: bool = False
+                     ) -> tuple[int, bool]:
+        """Run the handler once (a nested emulation when a call is running) from its first instruction at `start`
+        on the timeline; (its cycles, whether it used the FPU). The background's registers are saved and restored
+        whole; its accounting is put back. `stacked`: the FP context is already stacked (a tail-chained run)."""
         uc = self._uc
         saved = (self._cycles, self._instructions, self._extra, self._fall, self._fault)
         context = uc.context_save()
@@ -345,6 +353,7 @@ class InterruptedFirmware(Firmware):
         self._cycles = self._instructions = self._extra = 0
         self._fall = self.handler
         self._in_isr, self._isr_fp, self._fault = True, False, None
+        self._isr_start, self._isr_lazy = start, fp_context and not stacked
         fault: FirmwareFault | None = None
         try:
             uc.emu_start(self.handler | 1, ISR_RETURN, count=_MAX_ISR_INSTRUCTIONS)
@@ -372,18 +381,26 @@ class InterruptedFirmware(Firmware):
 
     # ------------------------------------------------------------------ DWT_CYCCNT: the timeline
     def _timeline_now(self) -> int:
+        if self._in_isr:          # the handler's first instruction, its cycles so far, the lazy FP stacking once due
+            return self._isr_start + self._cycles + (self._timeline.costs.lazy_fp
+                                                     if self._isr_lazy and self._isr_fp else 0)
         return self._call_start + self._inserted + self._cycles if self._in_call else self.now
+
+    def cyccnt_at(self, cycle: int) -> int:
+        """What DWT_CYCCNT reads at `cycle` of the timeline (e.g. a CAN controller's time stamp of a reception)."""
+        return (cycle - self._cyccnt_base) & 0xFFFF_FFFF
 
     def _on_dwt_read(self, _uc, offset: int, _size: int, _user: object) -> int:
         """DWT_CYCCNT counts the timeline (interrupts and all), as on the silicon."""
         if offset != 4:
             return 0
         now = self._timeline_now()
-        self.dwt_reads.append((now, self._cycles))
+        if not self._in_isr:       # the background's reads (the node's around fw_step)
+            self.dwt_reads.append((now, self._cycles))
         return (now - self._cyccnt_base) & 0xFFFF_FFFF
 
     def _on_dwt_write(self, _uc, offset: int, _size: int, value: int, _user: object) -> None:
-        if offset == 4:
+        if offset == 4 and not self._in_isr:
             self._cyccnt_base = (self._timeline_now() - value) & 0xFFFF_FFFF
 
     # ------------------------------------------------------------------ the image
