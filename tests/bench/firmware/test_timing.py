@@ -101,6 +101,50 @@ def test_the_exception_model_costs(timing_image):
     assert all(event.latency - costs.entry <= 14 for event in fw.isr_events)   # VDIV, the longest instruction
 
 
+def _documented_costs() -> dict[str, tuple[int, int]]:
+    """The table of docs/tutorials/firmware.md: cost -> (ARM's figure, what the emulator charges)."""
+    import re
+
+    from helpers import ROOT
+
+    text = (ROOT / "docs" / "tutorials" / "firmware.md").read_text(encoding="utf-8")
+    rows = re.findall(r"^\| `(\w+)`: [^|]+\| (\d+) cycles[^|]*\| (\d+) \|$", text, flags=re.MULTILINE)
+    return {name: (int(arm), int(charged)) for name, arm, charged in rows}
+
+
+def test_the_charged_exception_costs_are_arms_documented_figures():
+    """Cortex-M4 TRM (as ARM's knowledge article 103489845 quotes it): entry 12, exit 10, each plus 17 with the
+    FP context; tail-chaining 6; AN298: 17 words of lazily stacked FP context, 18 reserved."""
+    from dataclasses import asdict
+
+    from target_sim.firmware.interrupts import FP_FRAME_WORDS, FRAME_WORDS
+
+    documented = _documented_costs()
+    assert set(documented) == set(asdict(ExceptionCosts()))
+    assert {name: arm for name, (arm, _) in documented.items()} == \
+        {"entry": 12, "exit": 10, "tail_chain": 6, "lazy_fp": 17, "fp_exit": 17}
+    assert asdict(ExceptionCosts()) == {name: charged for name, (_, charged) in documented.items()}
+    assert all(arm == charged for arm, charged in documented.values())
+    assert (FRAME_WORDS, FP_FRAME_WORDS) == (8, 17 + 1)     # R0-R3, R12, LR, PC, xPSR; S0-S15, FPSCR, reserved
+
+
+def test_tail_chaining_costs_six_cycles_between_handlers(timing_image):
+    """A release pending when the handler returns: the next handler starts 6 cycles after, no unstacking."""
+    _, image = timing_image("lti-lptn")
+    probe = InterruptedFirmware(image, irq=IRQ, period_cycles=9000)
+    probe.start_interrupts(at=0)
+    probe.idle_until(1)
+    handler = probe.isr_events[0].handler_cycles
+    period = handler + 11      # release 2 (h + 11) before the first return (12 + h), release 3 after the second
+    fw = InterruptedFirmware(image, irq=IRQ, period_cycles=period)
+    fw.start_interrupts(at=0)
+    fw.idle_until(1)
+    first, second = fw.isr_events[:2]
+    assert not first.tail_chained and second.tail_chained
+    assert second.start - first.end == ExceptionCosts().tail_chain == 6
+    assert first.end == first.start + first.handler_cycles            # no exit charged between the two
+
+
 def test_a_period_shorter_than_the_handler_is_a_fault_not_a_hang(timing_image):
     from target_sim.firmware import FirmwareFault
 
