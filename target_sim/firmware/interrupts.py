@@ -55,6 +55,8 @@ from target_sim.firmware.emulator import FLASH, HALT, Firmware, FirmwareFault
 ISR_RETURN = HALT + 0x40          # the handler's LR: emulation of the handler stops here (EXC_RETURN's stand-in)
 FRAME_WORDS, FP_FRAME_WORDS = 8, 18   # basic frame; S0-S15, FPSCR and a reserved word more with FP context
 FIRST_IRQ = 16                    # exception number of IRQ 0
+XPSR_THUMB = 1 << 24
+XPSR_IT = 0x0600_FC00             # ITSTATE: xPSR[26:25] and [15:10] (the If-Then block in progress)
 MAX_CHAIN_PERIODS = 100          # tail-chained handlers in a row before the period is called too short
 IDLE_LOOKBACK = 2                 # periods before a job whose releases are emulated
 _MAX_ISR_INSTRUCTIONS = 1_000_000
@@ -343,10 +345,13 @@ class InterruptedFirmware(Firmware):
         if not self._in_call:
             sp = self._stack_top
         frame = [uc.reg_read(register) for register in _STACKED]
+        xpsr = uc.reg_read(arm.UC_ARM_REG_XPSR)
         words = FRAME_WORDS + (FP_FRAME_WORDS if fp_context else 0)
         frame_sp = (sp - 4 * words) & ~7
-        uc.mem_write(frame_sp, struct.pack("<8I", *frame, 0x0100_0000) + bytes(4 * (words - FRAME_WORDS)))
+        uc.mem_write(frame_sp, struct.pack("<8I", *frame, xpsr | XPSR_THUMB) + bytes(4 * (words - FRAME_WORDS)))
         uc.reg_write(arm.UC_ARM_REG_SP, frame_sp)
+        if xpsr & XPSR_IT:       # taken inside an IT block: the frame keeps ITSTATE, the handler starts without it
+            uc.reg_write(arm.UC_ARM_REG_XPSR, xpsr & ~XPSR_IT)
         uc.reg_write(arm.UC_ARM_REG_LR, ISR_RETURN | 1)
         if self.before_handler is not None:      # what the peripherals left for the handler (e.g. a DMA)
             self.before_handler(release)

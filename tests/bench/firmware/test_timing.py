@@ -145,6 +145,27 @@ def test_tail_chaining_costs_six_cycles_between_handlers(timing_image):
     assert first.end == first.start + first.handler_cycles            # no exit charged between the two
 
 
+def test_an_interrupt_taken_inside_an_it_block_runs_the_handler_unconditionally(timing_image):
+    """Unicorn may start a block inside a Thumb If-Then block, so a release can be taken with ITSTATE set: the
+    exception frame keeps it and the handler starts without it (it once ran the handler's first instruction, its
+    push, as the IT block's next conditional one: skipped, the return then popped a stack address as the PC)."""
+    from unicorn import arm_const as arm
+
+    from target_sim.firmware.interrupts import XPSR_IT
+
+    _, image = timing_image("hammerstein")
+    fw = InterruptedFirmware(image, irq=IRQ, period_cycles=9000)
+    fw.call("foc_init", 10000.0)
+    fw.start_interrupts(at=fw.now)
+    xpsr = fw.uc.reg_read(arm.UC_ARM_REG_XPSR)
+    fw.uc.reg_write(arm.UC_ARM_REG_XPSR, xpsr | 0x0000_2000 | 0x0400_0000)   # an IT block in progress (NE, ...)
+    it_state = fw.uc.reg_read(arm.UC_ARM_REG_XPSR) & XPSR_IT
+    assert it_state, "unicorn did not take the ITSTATE write"
+    fw.idle_until(fw.now + 3 * 9000)
+    assert int(fw.read_i32(fw.address("foc_ticks"), 1)[0]) == len(fw.isr_events) == 3
+    assert fw.uc.reg_read(arm.UC_ARM_REG_XPSR) & XPSR_IT == it_state       # restored for the interrupted code
+
+
 def test_a_period_shorter_than_the_handler_is_a_fault_not_a_hang(timing_image):
     from target_sim.firmware import FirmwareFault
 
