@@ -13,7 +13,8 @@ release the clock passes preempts it: the block hook sees the release at the fir
 after it, saves the whole register context (uc_context_save), writes the exception frame to the stack, runs the
 handler to its return in a nested emulation, restores the context and lets the interrupted block run: the
 background resumes exactly (its registers, flags and FP registers are the context's; the tests check its outputs
-bit for bit and its cycle count against runs without interrupts).
+bit for bit and its cycle count against runs without interrupts). The frame keeps the interrupted xPSR, the
+If-Then state included (Unicorn may start a block inside an IT block), and the handler starts without it.
 
 Granularity: the handler runs at the block boundary, but its timing is that of the silicon, which takes an
 interrupt at the next instruction boundary: the release is placed in the block it fell in by that block's
@@ -26,9 +27,11 @@ is taken before the job completes, as on the silicon. Multi-cycle instructions (
 VDIV/VSQRT 14, SDIV 12) complete before the interrupt is taken (the core may abandon and restart some of them:
 this is the conservative reading). PRIMASK (CPSID I) and BASEPRI masking are honoured at block boundaries.
 
-The exception model (`ExceptionCosts`, Cortex-M4 with zero wait states; J. Yiu, The Definitive Guide to the ARM
-Cortex-M3 and Cortex-M4 Processors, 3rd ed., ch. 8; ARM AN298 "Cortex-M4(F) Lazy Stacking and Context
-Switching"): entry 12 cycles (8-word frame stacked, vector fetched) to the handler's first instruction; return 10;
+The exception model (`ExceptionCosts`, Cortex-M4 with zero wait states: the Cortex-M4 TRM's figures as ARM's
+knowledge article 103489845 quotes them, entry 12 and exit 10 cycles, each plus 17 with the FP context; J. Yiu, The
+Definitive Guide to the ARM Cortex-M3 and Cortex-M4 Processors, 3rd ed., ch. 8; ARM AN298 "Cortex-M4(F) Lazy
+Stacking and Context Switching"; docs/tutorials/firmware.md has the table a test pins them to): entry 12 cycles
+(8-word frame stacked, vector fetched) to the handler's first instruction; return 10;
 tail-chaining 6 instead of return + entry when the next release is pending at the handler's return; FP context:
 when CONTROL.FPCA is set at the preemption (the background has executed a floating-point instruction since reset:
 without an RTOS nothing clears it) the frame reserves S0-S15 and FPSCR (lazy stacking, LSPEN set as after reset),

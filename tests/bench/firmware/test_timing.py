@@ -193,6 +193,30 @@ def test_the_wcet_bound_holds_over_the_measured_maximum(timing_image, kind):
     assert 0 < run["cpu_load"]["current_loop_isr"] < 0.1 and run["cpu_load"]["idle"] > 0.9
 
 
+@pytest.mark.parametrize(("kind", "realization"), [
+    ("hammerstein", "balanced"),
+    pytest.param("lti-lptn", "physical", marks=pytest.mark.slow),
+    pytest.param("pv-lptn", "physical", marks=pytest.mark.slow)])
+def test_the_wcet_bound_holds_for_an_electrical_loss_model(electrical_of, electrical_drive, initial, kind,
+                                                             realization):
+    """An electrical loss model's firmware (losses from the d/q currents: straight-line code, no loop of its own,
+    so `loop_bounds` needs no entry for it) is bounded like the maps: fw_step, node_on_frame and the handler,
+    each bound over the measured maximum, the outputs bit for bit beside the interrupt."""
+    from bench.firmware.codegen import generate
+    from bench.firmware.timing import direct_step_max, measure, static_bounds
+    from bench.firmware.toolchain import build_firmware
+
+    artifact, _ = electrical_of(kind, realization, 0.5)
+    image = read_elf(build_firmware(generate(artifact), isr=True).elf)
+    bounds = static_bounds(image)
+    drive = electrical_drive[:80]
+    run = measure(artifact, image, drive, initial, isr_rate_hz=20_000)
+    assert run["bit_exact"] and run["model_steps"] > 10
+    for name in ("node_on_frame", "foc_isr"):
+        assert 0 < run["measured_max_cycles"][name] <= bounds[name], name
+    assert 0 < direct_step_max(artifact, image, drive, initial) <= bounds["fw_step"]
+
+
 def test_a_loop_without_a_stated_bound_is_named(timing_image):
     _, image = timing_image("hammerstein")
     with pytest.raises(WcetError, match=r"fw_step has a loop at 0x[0-9a-f]+ \(loop 0 of the function\)"):
