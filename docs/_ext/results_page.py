@@ -238,7 +238,11 @@ def section_firmware_timing(records: dict[str, list[Record]]) -> list[str]:
                          f"{', '.join(_n(v) for v in values)}{'' if lock['clean'][name] else ', NOT clean'})"
                          for name, values in lock["rows_per_s"].items())
         lines += [f"Lockstep `bench run --engine firmware [--isr-rate HZ]`, {_n(lock['rows'])} rows, variants "
-                  f"alternating: {runs}.", ""]
+                  f"alternating (load average {_n(record['load_average']['start'], 1)} at the start): {runs}.", ""]
+    if f.get("node_throughput"):
+        node = f["node_throughput"]
+        lines += [f"The firmware node alone (no bus), {_n(node['rows'])} rows: " + "; ".join(
+            f"{name} {_n(value)} rows per CPU second" for name, value in node["rows_per_cpu_s"].items()) + ".", ""]
     return lines
 
 

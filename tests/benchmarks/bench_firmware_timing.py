@@ -14,7 +14,8 @@ lockstep throughput of `bench run --engine firmware` without and with the interr
    and 168 MHz; the outputs bit for bit against the node without the interrupt.
 2. Lockstep `bench run --engine firmware` on the first M rows (default 3000) of the default run: the shipped image
    without the interrupt, the timing image at 10 and at 20 kHz, alternating (R runs each, default 2), rows/s as the
-   host measures the replay, every run clean (CAN values bit-equal to the float32 reference).
+   host measures the replay, every run clean (CAN values bit-equal to the float32 reference); and the firmware
+   node alone (no bus) over the same rows, rows per CPU second, which a shared machine's load does not change.
 Writes its record (`tests/benchmarks/record.py`).
 """
 
@@ -81,6 +82,36 @@ def kind_figures(kind: str, drive, initial) -> dict:
     return out
 
 
+def node_throughput(dataset, rows: int) -> dict:
+    """Rows per CPU second of the firmware node alone (FirmwareNode.handle, no bus), without and with the interrupt:
+    the emulation's own cost, CPU time so the machine's load does not enter (a shared machine's wall clock does)."""
+    import time
+
+    from bench.firmware.timing import _frames
+    from target_sim.firmware.node_engine import FirmwareNode
+
+    artifact = load_artifact(default_artifact_path())
+    drive = drive_matrix(dataset)[:rows]
+    frames = _frames(artifact, drive, initial_temperatures(dataset))
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="bench-fw-node-") as tmp:
+        timing_elf = firmware_for(artifact, Path(tmp), isr=True)
+        for rate in (0, *RATES_HZ):
+            clock = [0.0]
+            node = FirmwareNode(artifact, timing_elf if rate else packaged_elf_path("hammerstein"), isr_rate_hz=rate,
+                                clock_s=lambda clock=clock: clock[0])
+            started = time.process_time()
+            for index, group in enumerate(frames):
+                for position, frame in enumerate(group):
+                    clock[0] = 0.2 * index + 250e-6 * position + 7e-6 * (index % 13)
+                    node.handle(frame)
+            cpu = time.process_time() - started
+            out["no interrupt" if not rate else f"{rate} Hz"] = round(len(drive) / cpu)
+            print(f"  node alone, {'no interrupt' if not rate else f'{rate} Hz'}: {len(drive) / cpu:.0f} rows per "
+                  "CPU second")
+    return {"rows": len(drive), "rows_per_cpu_s": out}
+
+
 def lockstep(dataset, rows: int, repeats: int) -> dict:
     from bench.runner import run_with_target
     from dbc.transport import BusConfig, resolve
@@ -128,6 +159,7 @@ def main() -> int:
     drive, initial = drive_matrix(dataset)[: args.rows], initial_temperatures(dataset)
     record.figures["kinds"] = [kind_figures(kind, drive, initial) for kind in PACKAGED_KINDS]
     if not args.skip_lockstep:
+        record.figures["node_throughput"] = node_throughput(dataset, args.lockstep_rows)
         record.figures["lockstep"] = lockstep(dataset, args.lockstep_rows, args.repeats)
     record.write()
     return 0
