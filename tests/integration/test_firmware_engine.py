@@ -136,7 +136,7 @@ def test_bench_host_against_a_firmware_that_computes_something_else_is_not_clean
 
     elf = packaged_elf_path("hammerstein")
     with elf.open("rb") as handle:
-        symbol = ELFFile(handle).get_section_by_name(".symtab").get_symbol_by_name("LOSS_TABLES_ROWS")[0]   # each distinct row once
+        symbol = ELFFile(handle).get_section_by_name(".symtab").get_symbol_by_name("LOSS_TABLES_ROWS")[0]
     image = elf.read_bytes()
     with elf.open("rb") as handle:
         sections = list(ELFFile(handle).iter_sections())
