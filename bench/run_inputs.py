@@ -31,10 +31,11 @@ def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
     return load_artifact(model_path), model_path
 
 
-def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True) -> Path | None:
+def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True,
+                        isr: bool = False) -> Path | None:
     """The ELF the target runs with `engine` "firmware" (None for "python"): the packaged one of a packaged
     artifact, else built once into `cache_dir` (BenchError, one sentence, without the compiler, or for a model the
-    firmware cannot run)."""
+    firmware cannot run); with `isr` the timing image with the motor-control interrupt (always built, cached)."""
     if engine != "firmware":
         return None
     from target_sim.firmware.node_protocol import firmware_refusal
@@ -44,7 +45,7 @@ def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *
         raise BenchError(refusal)
     from bench.firmware.images import firmware_for
 
-    return firmware_for(artifact, cache_dir, quiet=quiet)
+    return firmware_for(artifact, cache_dir, quiet=quiet, isr=isr)
 
 
 def load_data(path: str | Path | None, artifact: ModelArtifact | None = None, seed: int | None = None,

@@ -94,12 +94,12 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
                     *, mode: str = "lockstep", speed: float = 1.0, sample_period_s: float = 0.2,
                     log_path: str | Path | None = None, reply_timeout_s: float = 0.05,
                     progress: Progress | None = None, faults: FaultSpec | None = None,
-                    firmware: Path | None = None) -> RunOutcome:
+                    firmware: Path | None = None, isr_rate_hz: int = 0) -> RunOutcome:
     """Start the target on `bus`, replay `drive` from this process, stop the target.
 
     With `faults` (active), the target writes its detection journal to a temporary file and the host may kill,
     freeze and restart it; the result carries the fault summary (`result.faults`). With `firmware` (an ELF,
-    `firmware_for_engine`) the target runs the firmware engine."""
+    `firmware_for_engine`) the target runs the firmware engine, with `isr_rate_hz` its motor-control interrupt."""
     injecting = faults is not None and faults.active
     target_files = scratch_dir("target")   # its stats; its journal when injecting
     events = Path(target_files.name) / "target-events.jsonl" if injecting else None
@@ -109,7 +109,7 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     try:
         refuse_foreign_target(host_bus, bus, artifact)   # (the guard raises OtherSender if it hears another host)
         with TargetProcess(model_path, bus, events_path=events, firmware=firmware, stats_path=stats_path,
-                           extra_argv=faults.reply_argv() if injecting else None) as target:
+                           isr_rate_hz=isr_rate_hz, extra_argv=faults.reply_argv() if injecting else None) as target:
             result = _host_session(lambda: run_dataset(
                 host_bus, drive, initial, model_id=artifact.model_id, mode=mode, speed=speed,
                 sample_period_s=sample_period_s, log_path=log_path, reply_timeout_s=reply_timeout_s,

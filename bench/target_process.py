@@ -30,8 +30,9 @@ class TargetProcess:
 
     def __init__(self, model_path: str | Path, bus: BusConfig, *, stats_path: str | Path | None = None,
                  events_path: str | Path | None = None, extra_argv: list[str] | None = None,
-                 firmware: str | Path | None = None):
+                 firmware: str | Path | None = None, isr_rate_hz: int = 0):
         self.model_path = Path(model_path)
+        self.isr_rate_hz = isr_rate_hz   # the firmware's motor-control interrupt (a timing image's), 0: none
         self.bus = bus
         self.firmware = firmware      # the model's ELF: the target runs the firmware engine (else the Python one)
         self.stats_path = stats_path
@@ -53,6 +54,8 @@ class TargetProcess:
                 "--parent-pid", str(os.getpid())]   # it stops by itself if this process dies without stopping it
         if self.firmware is not None:
             argv += ["--engine", "firmware", "--firmware", str(self.firmware)]
+        if self.isr_rate_hz:
+            argv += ["--isr-rate", str(self.isr_rate_hz)]
         if self.stats_path is not None:
             argv += ["--stats", str(self.stats_path)]
         if self.events_path is not None:

@@ -81,6 +81,9 @@ def row_messages(width: int) -> tuple[str, ...]:
 # Sent only by a target that runs the compiled firmware; Timing2 carries the C28x estimate beside it.
 FIRMWARE_TIMING_MESSAGE = "Timing4"
 M4_CLOCK_HZ = 90_000_000
+# The firmware target with the motor-control interrupt beside the estimator (bench run --engine firmware
+# --isr-rate): the model step's response time (reception -> result) and the interrupt's CPU load, after Timing4.
+RESPONSE_TIMING_MESSAGE = "Timing5"
 CHECKPOINT_EVERY_STEPS = 20   # model steps between two StateCheckpoints (10 s at Δt 0.5 s): the most a restored
                               # target has to re-run, at 4 frames per checkpoint
 

@@ -1,6 +1,6 @@
 """`python -m target_sim`: the simulated C2000 target process.
 
-    python -m target_sim --model MODEL.json [--engine python|firmware] [--firmware ELF]
+    python -m target_sim --model MODEL.json [--engine python|firmware] [--firmware ELF] [--isr-rate HZ]
                          [-i INTERFACE] [-c CHANNEL] [-b BITRATE] [--bus-kwargs K=V ...]
                          [--can-config FILE] [--stats FILE] [--events FILE] [--faults K=P,...] [--fault-seed N]
                          [--parent-pid PID] [--quiet]
@@ -61,6 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "for a Cortex-M4F (--firmware ELF) in the emulated core, with measured cycles (Timing4)")
     parser.add_argument("--firmware", default=None, metavar="ELF",
                         help="the model's firmware ELF ('bench firmware build'), for --engine firmware")
+    parser.add_argument("--isr-rate", type=float, default=0.0, metavar="HZ",
+                        help="with --engine firmware and a timing image (bench/firmware/foc_isr.c linked in): the "
+                             "field-oriented current loop's interrupt preempts the node at this rate, and each model "
+                             "step's response time goes out in Timing5 (default 0: no interrupt)")
     parser.add_argument("--stats", default=None, help="write the node's counters to this JSON file at exit")
     parser.add_argument("--events", default=None,
                         help="append the detection journal (one JSON line per rejected frame) to this file")
@@ -157,6 +161,14 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--engine firmware needs the model's firmware: --firmware ELF (see 'bench firmware build')")
     if engine == "python" and args.firmware:
         parser.error("--firmware is the firmware engine's ELF; drop it or use --engine firmware")
+    if args.isr_rate and engine != "firmware":
+        parser.error("--isr-rate runs the motor-control interrupt in the firmware engine; add --engine firmware "
+                     "--firmware ELF or drop it")
+    from target_sim.firmware.motor_control import isr_rate_problem
+
+    problem = isr_rate_problem(args.isr_rate)
+    if problem:
+        parser.error(problem)
     journal = None
     try:
         config = resolve(config_from_args(args))
@@ -164,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("the 'virtual' interface does not cross processes, so no host could reach the target; "
                          "use udp_multicast, socketcan or auto")
         artifact = load_artifact(args.model)
-        node = make_node(artifact, engine=engine, firmware=args.firmware)   # the ELF checked before the bus opens
+        node = make_node(artifact, engine=engine, firmware=args.firmware,   # the ELF checked before the bus opens
+                         isr_rate_hz=args.isr_rate)
         bus = config.open()
     except (TargetError, BusUnavailable) as exc:   # the artifact, the firmware image, the bus
         print(f"target_sim: error: {exc}", file=sys.stderr)

@@ -29,12 +29,16 @@ ENGINES = ("python", "firmware")
 
 
 def make_node(artifact: ModelArtifact, *, engine: str = "python", firmware: str | os.PathLike | bytes | None = None,
-              journal: Callable[[dict], None] | None = None) -> TargetNode | FirmwareNode:
+              journal: Callable[[dict], None] | None = None, isr_rate_hz: float = 0.0) -> TargetNode | FirmwareNode:
     """The node of `engine`; the firmware engine needs the model's node ELF (FirmwareError, one sentence, for an
-    ELF of another core, another model, or without the node, and for a model the firmware cannot run)."""
+    ELF of another core, another model, or without the node, and for a model the firmware cannot run). With
+    `isr_rate_hz` the firmware node runs the current loop's interrupt of a timing image at that rate
+    (`FirmwareNode`; ValueError for the Python engine, which has no interrupt)."""
     if engine not in ENGINES:
         raise ValueError(f"engine {engine!r} is not one of {', '.join(ENGINES)}")
     if engine == "python":
+        if isr_rate_hz:
+            raise ValueError("the motor-control interrupt (isr_rate_hz) runs in the firmware engine only")
         return TargetNode(artifact, journal=journal)
     from target_sim.firmware.elf import FirmwareError
     from target_sim.firmware.node_protocol import firmware_refusal
@@ -46,4 +50,4 @@ def make_node(artifact: ModelArtifact, *, engine: str = "python", firmware: str 
         raise ValueError("the firmware engine needs the model's firmware ELF ('bench firmware build')")
     from target_sim.firmware.node_engine import FirmwareNode  # unicorn loads only for this engine
 
-    return FirmwareNode(artifact, firmware, journal=journal)
+    return FirmwareNode(artifact, firmware, journal=journal, isr_rate_hz=isr_rate_hz)

@@ -360,7 +360,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
             est_exec_time_us=_top(timing.get("exec_us")), cpu_load_percent=_top(timing.get("cpu_load")),
             # the firmware engine's measured Cortex-M4F figures (Timing4), beside the C28x estimate above
             engine="firmware" if firmware else "python", m4_cycles=cycle_figures(timing.get("m4_cycles")),
-            m4_exec_time_us=cycle_figures(timing.get("m4_exec_us"), as_int=False), m4_clock_mhz=M4_CLOCK_HZ / 1e6),
+            m4_exec_time_us=cycle_figures(timing.get("m4_exec_us"), as_int=False), m4_clock_mhz=M4_CLOCK_HZ / 1e6,
+            response_time_us=_response_time(timing.get("response_us")), isr_load_percent=_mean(timing.get("isr_load"))),
         # TargetInfo's flash and RAM: the ELF's measured figures with the firmware engine, else the C28x estimate
         memory=Memory(flash_bytes=info.get("flash_bytes"), ram_bytes=info.get("ram_bytes"),
                       memory_source="firmware ELF" if firmware else "C28x estimate",
@@ -387,6 +388,15 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         figure_rows=selection.counts)
     results.notes = notes(results)
     return finite_results(results, nulls), refs
+
+
+def _response_time(values) -> Percentiles | None:
+    """p50/p99/max of the model steps' response times (Timing5), None without them."""
+    return Percentiles(**percentiles(values)) if values is not None and len(values) else None
+
+
+def _mean(values) -> float | None:
+    return round(float(np.mean(values)), 3) if values is not None and len(values) else None
 
 
 def _top(values, kind=float):

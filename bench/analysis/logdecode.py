@@ -63,6 +63,7 @@ from dbc.contract import (
     REPLY_COMPLETE,
     REPLY_SIGNALS,
     RESET_SIGNALS,
+    RESPONSE_TIMING_MESSAGE,
     STATE_SIZE,
     BenchEvent,
     Command,
@@ -231,7 +232,9 @@ _TIMING_SIGNALS = {"Timing1": ("row_t1", (("measured_us", "StepTimeMeasured"), (
                    "Timing2": ("row_t2", (("cycles", "EstCycles"), ("exec_us", "EstExecTime"))),
                    "Timing3": ("row_t3", (("cpu_load", "CpuLoad"),)),
                    # the firmware engine's measured Cortex-M4F cycles (absent with the Python engine)
-                   FIRMWARE_TIMING_MESSAGE: ("row_t4", (("m4_cycles", "M4Cycles"), ("m4_exec_us", "M4ExecTime")))}
+                   FIRMWARE_TIMING_MESSAGE: ("row_t4", (("m4_cycles", "M4Cycles"), ("m4_exec_us", "M4ExecTime"))),
+                   # the firmware's response time and its interrupt's load (only with the motor-control interrupt)
+                   RESPONSE_TIMING_MESSAGE: ("row_t5", (("response_us", "ResponseTime"), ("isr_load", "IsrLoad")))}
 # BLF file header (python-can's FILE_HEADER_STRUCT): "LOGG", then at byte 16 the file size its writer records
 # when it closes the file (until then: the header's own size, 144)
 _BLF_SIZE_OFFSET = 16

@@ -78,7 +78,17 @@ def _m4_rows(m: RunResults) -> list[str]:
     return [f"| measured Cortex-M4F cycles p50 / max (emulated firmware) / time at {m.timing.m4_clock_mhz:g} MHz | "
             f"{_fmt(cycles and cycles.p50)} / {_fmt(cycles and cycles.max)} / {_fmt(exec_us and exec_us.p50, 1)} µs |",
             f"| flash / RAM, Cortex-M4F ELF (measured) | {_fmt(memory.flash_bytes)} B / {_fmt(memory.ram_bytes)} B |",
-            f"| flash / RAM, C28x estimate | {est} |"]
+            f"| flash / RAM, C28x estimate | {est} |", *_response_rows(m)]
+
+
+def _response_rows(m: RunResults) -> list[str]:
+    """The model step's response time and the interrupt's CPU load (firmware with the current loop's interrupt)."""
+    response = m.timing.response_time_us
+    if response is None:
+        return []
+    return [f"| model step response time p50 / p99 / max, beside the current loop's interrupt | "
+            f"{_fmt(response.p50, 1)} / {_fmt(response.p99, 1)} / {_fmt(response.max, 1)} µs |",
+            f"| current loop interrupt CPU load (measured by the firmware) | {_fmt(m.timing.isr_load_percent, 2)} % |"]
 
 
 def _complete(m: RunResults) -> str:

@@ -303,6 +303,10 @@ class Timing:
     m4_cycles: CycleFigures | None
     m4_exec_time_us: CycleFigures | None
     m4_clock_mhz: float
+    # the firmware with the motor-control interrupt (Timing5): each model step's response time (reception ->
+    # result, at m4_clock_mhz) and the interrupt's CPU load (the mean of the per-step figures); absent without it
+    response_time_us: Percentiles | None = field(default=None, metadata=OMIT_NONE)
+    isr_load_percent: float | None = field(default=None, metadata=OMIT_NONE)
 
 
 @dataclass

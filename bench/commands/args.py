@@ -37,6 +37,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """An argparse type: a whole number, 0 or more."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise UsageError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise UsageError(f"{text!r} must be a whole number, 0 or more")
+    return value
+
+
 def bus_from_args(args: argparse.Namespace) -> BusConfig:
     """The bus the command-line options describe, `auto` resolved: udp_multicast on the bench's own group gets a
     run-unique port, on a channel the user chose python-can's default port unless one is given (`resolve`); the

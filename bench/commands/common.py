@@ -120,6 +120,11 @@ def print_summary(m: RunResults, problems: list[str], faults: HostFaults | Fault
         print(f"firmware engine, measured Cortex-M4F (emulated): {cycles and cycles.p50} cycles p50, "
               f"{cycles and cycles.max} max = {fmt(exec_us and exec_us.p50, 1)} µs at {timing.m4_clock_mhz:g} MHz; "
               f"ELF flash {m.memory.flash_bytes} B, RAM {m.memory.ram_bytes} B")
+        if timing.response_time_us is not None:
+            response = timing.response_time_us
+            print(f"beside the current loop's interrupt: model step response time p50/p99/max {fmt(response.p50, 1)}/"
+                  f"{fmt(response.p99, 1)}/{fmt(response.max, 1)} µs, interrupt CPU load "
+                  f"{fmt(timing.isr_load_percent, 2)} %")
     print(f"throughput {fmt(m.throughput.throughput_steps_per_s, 0)} steps/s, round trip p50/p99 "
           f"{fmt(rtt.p50, 0)}/{fmt(rtt.p99, 0)} µs, bus load at the data rate "
           f"{fmt(m.bus_load.data_rate_percent, 2)} %")

@@ -186,7 +186,7 @@ def run_export(args: argparse.Namespace) -> int:
 
 def run_build(args: argparse.Namespace) -> int:
     from bench.firmware.codegen import generate
-    from bench.firmware.toolchain import ELF_NAME, MAP_NAME, build_firmware
+    from bench.firmware.toolchain import ELF_NAME, MAP_NAME, SOURCE_NAME, build_firmware
 
     path, artifact = _load(args.model)
     names = _output_names()
@@ -200,7 +200,8 @@ def run_build(args: argparse.Namespace) -> int:
     report = {**_identity(path, artifact), "out": str(args.out), "elf": str(args.out / ELF_NAME),
               "map": str(args.out / MAP_NAME), "elf_sha256": result.elf_sha256, "toolchain": result.toolchain,
               "flash_bytes": memory["flash_bytes"], "ram_bytes": memory["ram_bytes"],
-              "stack_bytes": memory["stack_bytes"], "sections": memory["sections"]}
+              "stack_bytes": memory["stack_bytes"], "sections": memory["sections"],
+              "model_flash": result.model_flash}
     if args.json:
         print_json(report)
     else:
@@ -210,6 +211,9 @@ def run_build(args: argparse.Namespace) -> int:
             print(f"  {name:12} {size:7d} bytes")
         print(f"flash {memory['flash_bytes']} bytes (of 256 kB), RAM {memory['ram_bytes']} bytes (of 64 kB, "
               f"{memory['stack_bytes']} of them stack)")
+        model = result.model_flash
+        print(f"the model's own flash ({SOURCE_NAME.replace('.c', '.o')}): {model['bytes']} bytes (code "
+              f"{model['code']}, constants {model['constants']})")
     return 0
 
 

@@ -110,6 +110,29 @@ def _c_array(name: str, literals: np.ndarray, comment: str, per_line: int = 4) -
     return f"/* {comment} */\nstatic const float {name}{dims} = {body(literals, '')};\n"
 
 
+def _c_shared_rows(name: str, literals: np.ndarray, comment: str) -> str:
+    """An array whose repeated rows (last axis) are stored once, with an index of each row's place, when that is
+    smaller than the whole array; `NAME_ROW(k, r)` is row r of part k either way (the same literals: the same
+    float32 values, read by the same loads)."""
+    if literals.ndim != 3:
+        raise FirmwareGenerationError(f"{name} is stacked tables of rows (3 axes), not {literals.ndim} axes")
+    distinct: dict[tuple[str, ...], int] = {}
+    index = np.array([[distinct.setdefault(tuple(row), len(distinct)) for row in part] for part in literals])
+    index_type, index_bytes = ("uint8_t", 1) if len(distinct) <= 0x100 else ("uint16_t", 2)
+    columns = literals.shape[-1]
+    shared_bytes = 4 * columns * len(distinct) + index_bytes * index.size
+    if shared_bytes >= 4 * literals.size:            # nothing repeats enough: the whole array
+        return _c_array(name, literals, comment) + f"#define {name}_ROW(k, r) ({name}[k][r])\n"
+    rows = np.array([list(row) for row in distinct], dtype=object)
+    index_lines = ",\n".join("    {" + ", ".join(f"{int(v)}u" for v in part) + "}" for part in index)
+    return (_c_array(f"{name}_ROWS", rows, f"{comment}: its {len(distinct)} distinct rows of {index.size} "
+                     f"({4 * literals.size - shared_bytes} bytes less than the whole array)")
+            + f"/* the row of {name}_ROWS that is row r of part k */\n"
+            + f"static const {index_type} {name}_ROW_INDEX[{index.shape[0]}][{index.shape[1]}] = {{\n"
+            + index_lines + "\n};\n"
+            + f"#define {name}_ROW(k, r) ({name}_ROWS[{name}_ROW_INDEX[k][r]])\n")
+
+
 # ------------------------------------------------------------------------------------------------ checks
 
 
@@ -415,7 +438,9 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     parts.append("".join(f"{line}\n" for line in defines))
     for array in arrays + model_kind.c_arrays(artifact):   # the loss model's, then the kind's
         stacked = np.stack([_artifact_literals(artifact, *keys, shape=array.shape) for keys in array.fields])
-        parts.append(_c_array(array.name, stacked if len(array.fields) > 1 else stacked[0], array.comment))
+        literals = stacked if len(array.fields) > 1 else stacked[0]
+        parts.append(_c_shared_rows(array.name, literals, array.comment) if array.shared_rows
+                     else _c_array(array.name, literals, array.comment))
     parts.append("/* ---- state (.bss): x, the latest outputs y, the interval sum and count ---- */\n"
                  "static float x_state[4];\n"
                  f"static float y_est[4]; /* [{', '.join(OUTPUTS)}] */\n"

@@ -25,6 +25,10 @@
 #include "foc_isr.h"
 
 #define FOC_IRQ 18                      /* ADC1/2/3 global interrupt of an STM32F4 */
+#define DWT_CYCCNT (*(volatile uint32_t *)0xE0001004u)   /* the cycle counter the node enables */
+/* The Cortex-M4's exception entry (stacking, vector fetch) and return (unstacking) with zero wait states, which
+ * the handler's own DWT reads cannot see (ARM Cortex-M4 TRM r0p1, 3.3.1 and 5.5.1; docs/firmware.md). */
+#define FOC_EXCEPTION_CYCLES (12u + 10u)
 #define SQRT3_INV 0.57735026919f        /* 1 / sqrt 3 */
 #define TWO_PI 6.28318530718f
 #define ADC_MID 2048.0f                 /* the current sensors' zero, in 12-bit counts */
@@ -44,6 +48,8 @@ volatile struct foc_adc foc_adc = {2048u, 2048u, 0u, 0u, 400.0f};
 volatile struct foc_reference foc_reference = {0.0f, 0.0f};
 volatile struct foc_pwm foc_pwm;
 volatile uint32_t foc_ticks;
+volatile uint32_t foc_busy_cycles;
+volatile float foc_rate_hz;
 static struct foc_pi pi_d, pi_q;
 
 void foc_init(float rate_hz)
@@ -55,6 +61,8 @@ void foc_init(float rate_hz)
     pi_d.kaw = pi_q.kaw = ki_ts / kp;
     pi_d.integral = pi_q.integral = 0.0f;
     foc_ticks = 0u;
+    foc_busy_cycles = 0u;
+    foc_rate_hz = rate_hz;
 }
 
 /* sin and cos of a 16-bit fraction of a turn: the quadrant from the top two bits, then polynomials on
@@ -102,6 +110,7 @@ static float duty(float phase_voltage, float dc_inverse)
 
 void foc_isr(void)
 {
+    const uint32_t entered = DWT_CYCCNT;
     const float i_a = ((float)foc_adc.phase_a - ADC_MID) * AMPS_PER_COUNT;
     const float i_b = ((float)foc_adc.phase_b - ADC_MID) * AMPS_PER_COUNT;
     const float v_dc = foc_adc.v_dc;
@@ -135,6 +144,7 @@ void foc_isr(void)
     foc_pwm.duty[1] = duty(v_b + offset, inverse);
     foc_pwm.duty[2] = duty(v_c + offset, inverse);
     foc_ticks++;
+    foc_busy_cycles += DWT_CYCCNT - entered + FOC_EXCEPTION_CYCLES;   /* the CPU load the node reports */
 }
 
 /* The IRQ vectors after the 16 system vectors of startup.c: foc_isr at FOC_IRQ, nothing else enabled. */

@@ -24,6 +24,8 @@ extern volatile struct foc_adc foc_adc;
 extern volatile struct foc_reference foc_reference;
 extern volatile struct foc_pwm foc_pwm;
 extern volatile uint32_t foc_ticks;   /* interrupts handled since foc_init */
+extern volatile uint32_t foc_busy_cycles;   /* the handler's cycles (DWT) plus exception entry and return, summed */
+extern volatile float foc_rate_hz;          /* the interrupt's rate (foc_init's) */
 
 void foc_init(float rate_hz);    /* discrete PI gains for this control rate; integrators cleared */
 void foc_isr(void);              /* the interrupt handler */

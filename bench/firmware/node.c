@@ -30,6 +30,25 @@ struct node_counters node_counters;
 #define DWT_CTRL (*(volatile uint32_t *)0xE0001000u)
 #define DWT_CYCCNT (*(volatile uint32_t *)0xE0001004u)
 
+#ifdef NODE_WITH_ISR
+/* The timing image (bench run --engine firmware --isr-rate, bench firmware timing): the motor-control interrupt
+ * (foc_isr.c) preempts the node; each model step's response time and the interrupt's CPU load go out in Timing5.
+ * node_rx_stamp is the CAN controller's time stamp of the frame in node_rx (the DWT cycle count at its reception,
+ * as an FDCAN's RX time stamp gives it): a step's response time runs from the reception of the frame that
+ * completed its interval to the DWT count after fw_step returned (the interrupts in between included). */
+#include "foc_isr.h"
+#define TIMING_FRAMES 5u
+volatile uint32_t node_rx_stamp;
+static uint32_t step_ended;                       /* DWT_CYCCNT after the last fw_step */
+static uint32_t ticks_since, busy_since;          /* IsrLoad's window: foc_ticks and foc_busy_cycles then */
+static struct {
+    uint32_t response;                            /* DWT cycles, reception -> result */
+    uint32_t load;                                /* IsrLoad's raw value (0.01 %) */
+} response_of[NODE_TX_CAPACITY / TIMING_FRAMES];
+#else
+#define TIMING_FRAMES 4u
+#endif
+
 /* The messages the node receives, one index each: NODE_RX_LIST of fw_node_config.h (X(NAME, name, frame id) for
  * every message the DBC gives receiver TARGET, by frame id), with their frame and E2E data ids. */
 #define RX_INDEX(NAME, name, id) RX_##NAME,
@@ -328,6 +347,25 @@ static void send_timing(uint16_t step, uint32_t cycles)
         (void)thermal_bench_timing4_pack(frame->data, &m, 8u);
         tx_finish(frame, THERMAL_BENCH_TIMING4_FRAME_ID, NODE_TX_TIMING4, NODE_DATA_ID_TIMING4);
     }
+#ifdef NODE_WITH_ISR
+}
+
+/* Timing5: the step's response time (0.1 us at NODE_CLOCK_HZ) and the interrupt's CPU load. */
+static void send_response(uint16_t step, uint32_t response, uint32_t load)
+{
+    struct node_frame *frame;
+    if ((frame = tx_slot()) != NULL) {
+        struct thermal_bench_timing5_t m;
+        thermal_bench_timing5_init(&m);
+        m.timing5_counter = tx_counter[NODE_TX_TIMING5];
+        m.timing5_step = step;
+        m.response_time = clamp_u32((response + NODE_CYCLES_PER_TENTH_US / 2u) / NODE_CYCLES_PER_TENTH_US,
+                                    NODE_RESPONSE_TIME_MAX);
+        m.isr_load = (uint16_t)clamp_u32(load, NODE_ISR_LOAD_MAX);
+        (void)thermal_bench_timing5_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_TIMING5_FRAME_ID, NODE_TX_TIMING5, NODE_DATA_ID_TIMING5);
+    }
+#endif
 }
 
 /* TargetNode._checkpoint_frames: x after this row's model step; none if an element is outside the DBC range. */
@@ -417,7 +455,12 @@ static uint32_t model_step(const float inputs[NODE_ROW_WIDTH])
     uint32_t started, cycles;
     started = DWT_CYCCNT;
     fw_step(inputs, estimate);
+#ifdef NODE_WITH_ISR
+    step_ended = DWT_CYCCNT;                                /* the same one read after the step */
+    cycles = step_ended - started;
+#else
     cycles = DWT_CYCCNT - started;
+#endif
     node_counters.model_steps++;
     if (cycles > NODE_DT_CYCLES) {
         node_counters.overruns++;
@@ -428,8 +471,25 @@ static uint32_t model_step(const float inputs[NODE_ROW_WIDTH])
     return cycles;
 }
 
-/* The model steps of one row whose timing frames (4 each) can be queued; a step beyond runs untimed on the bus. */
-#define TIMED_STEPS (NODE_TX_CAPACITY / 4u)
+/* The model steps of one row whose timing frames (TIMING_FRAMES each) can be queued; a step beyond runs untimed on
+ * the bus. */
+#define TIMED_STEPS (NODE_TX_CAPACITY / TIMING_FRAMES)
+
+#ifdef NODE_WITH_ISR
+/* The step just run: its response time, and the interrupt's CPU load over the interrupts since the previous step:
+ * their mean cycles over the period (C / T; float32: no 64-bit division without a libc). */
+static void time_response(uint32_t index)
+{
+    const uint32_t busy = foc_busy_cycles, ticks = foc_ticks;
+    response_of[index].response = step_ended - node_rx_stamp;
+    response_of[index].load = ticks != ticks_since
+        ? (uint32_t)((float)(busy - busy_since) / (float)(ticks - ticks_since) * foc_rate_hz
+                     * (10000.0f / (float)NODE_CLOCK_HZ) + 0.5f)
+        : 0u;
+    ticks_since = ticks;
+    busy_since = busy;
+}
+#endif
 
 /* One model step of a row; its cycles kept for the row's timing frames while they fit, else those are counted as
  * dropped. */
@@ -438,8 +498,11 @@ static void step_on(const float inputs[NODE_ROW_WIDTH], uint32_t cycles_of[TIMED
     const uint32_t cycles = model_step(inputs);
     if (*steps < TIMED_STEPS) {
         cycles_of[*steps] = cycles;
+#ifdef NODE_WITH_ISR
+        time_response(*steps);
+#endif
     } else {
-        node_out.tx_dropped += 4u;                          /* its timing frames could not be queued anyway */
+        node_out.tx_dropped += TIMING_FRAMES;               /* its timing frames could not be queued anyway */
     }
     (*steps)++;
 }
@@ -493,7 +556,12 @@ static void handle_row(uint16_t step, const float sample[NODE_ROW_WIDTH])
     have_reply_row = 1u;
     {
         uint32_t i;
-        for (i = 0u; i < steps && i < TIMED_STEPS; i++) send_timing(step, cycles_of[i]);
+        for (i = 0u; i < steps && i < TIMED_STEPS; i++) {
+            send_timing(step, cycles_of[i]);
+#ifdef NODE_WITH_ISR
+            send_response(step, response_of[i].response, response_of[i].load);
+#endif
+        }
     }
     if (steps && node_counters.model_steps % NODE_CHECKPOINT_EVERY == 0u) send_checkpoint(step);
 }
@@ -750,6 +818,10 @@ void node_init(uint32_t now_ms)
     DEMCR |= 1u << 24;                                      /* TRCENA: the DWT on */
     DWT_CYCCNT = 0u;
     DWT_CTRL |= 1u;                                         /* CYCCNTENA */
+#ifdef NODE_WITH_ISR
+    ticks_since = foc_ticks;
+    busy_since = foc_busy_cycles;
+#endif
     memset(&node_out, 0, sizeof node_out);
     memset(&node_counters, 0, sizeof node_counters);
     memset(counter_known, 0, sizeof counter_known);

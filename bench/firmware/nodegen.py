@@ -47,6 +47,7 @@ from dbc.contract import (
     M4_CLOCK_HZ,
     REPLY_SIGNALS,
     RESET_SIGNALS,
+    RESPONSE_TIMING_MESSAGE,
     RX_ERROR_KINDS,
     RX_ERROR_SIGNALS,
     STATE_SIZE,
@@ -357,7 +358,9 @@ def node_config(artifact: ModelArtifact) -> str:
         "FLASH_BYTES_MAX": _raw_max("TargetInfo", "FlashBytes"), "RAM_BYTES_MAX": _raw_max("TargetInfo", "RamBytes"),
         "STEP_TIME_MEASURED_MAX": _raw_max("Timing1", "StepTimeMeasured"),
         "M4_CYCLES_MAX": _raw_max(FIRMWARE_TIMING_MESSAGE, "M4Cycles"),
-        "M4_EXEC_TIME_MAX": _raw_max(FIRMWARE_TIMING_MESSAGE, "M4ExecTime")})
+        "M4_EXEC_TIME_MAX": _raw_max(FIRMWARE_TIMING_MESSAGE, "M4ExecTime"),
+        "RESPONSE_TIME_MAX": _raw_max(RESPONSE_TIMING_MESSAGE, "ResponseTime"),
+        "ISR_LOAD_MAX": _raw_max(RESPONSE_TIMING_MESSAGE, "IsrLoad")})
     state_low, state_high = signal_ranges("StateCheckpoint")["StateValue"]
     lines += [f"#define NODE_STATE_VALUE_MIN {c_float(state_low)}",
               f"#define NODE_STATE_VALUE_MAX {c_float(state_high)}"]

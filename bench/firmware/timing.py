@@ -26,16 +26,13 @@ from dbc.codec import FrameCodec
 from dbc.contract import RESET_SIGNALS, split_temperatures
 from host.replay import encode_row
 from target_sim.artifact import ModelArtifact
-from target_sim.firmware.elf import ElfImage
-from target_sim.firmware.emulator import Firmware
+from target_sim.firmware.elf import ElfImage, FirmwareError
 from target_sim.firmware.interrupts import InterruptedFirmware
+from target_sim.firmware.motor_control import HANDLER, motor_control_core, start_motor_control
 from target_sim.firmware.node_engine import FirmwareNode
 from target_sim.firmware.wcet import WcetError, loop_bounds, wcet
 
-FOC_IRQ = 18                      # foc_isr.c: the ADC end-of-conversion interrupt
-HANDLER = "foc_isr"
 FRAME_SPACING_S = 250e-6          # between the frames of one row (a 500 kbit/s bus with other traffic)
-ELECTRICAL_HZ = 200.0
 CLOCKS_MHZ = (90, 168)
 
 
@@ -45,30 +42,6 @@ def _percentiles(values: list[int] | np.ndarray, scale: float = 1.0) -> dict:
     data = np.asarray(values, dtype=float) * scale
     return {"p50": round(float(np.percentile(data, 50)), 3), "p99": round(float(np.percentile(data, 99)), 3),
             "max": round(float(data.max()), 3)}
-
-
-class _Adc:
-    """The DMA's samples before each interrupt: a current vector of 150 A rotating with the angle, plus noise."""
-
-    def __init__(self, fw: Firmware, clock_hz: float, seed: int):
-        self.fw, self.clock_hz = fw, clock_hz
-        self.address = fw.address("foc_adc")
-        self.reference = fw.address("foc_reference")
-        self.rng = np.random.default_rng(seed)
-        self.count = 0
-
-    def __call__(self, release: int) -> None:
-        angle = (release / self.clock_hz * ELECTRICAL_HZ) % 1.0
-        theta = 2.0 * np.pi * angle
-        noise = self.rng.normal(0.0, 40.0, 2)
-        i_a = 150.0 * np.cos(theta) / 0.1220703125 + 2048.0 + noise[0]
-        i_b = 150.0 * np.cos(theta - 2.0 * np.pi / 3.0) / 0.1220703125 + 2048.0 + noise[1]
-        raw = np.clip(np.round([i_a, i_b]), 0, 4095).astype("<u2")
-        self.fw.write_bytes(self.address, raw.tobytes() + int(angle * 65536).to_bytes(2, "little") + bytes(2))
-        self.count += 1
-        if self.count % 97 == 0:        # a torque step now and then: the PI saturates, the anti-windup acts
-            i_q = float(self.rng.choice([0.0, 120.0, 400.0, -300.0]))
-            self.fw.write_f32(self.reference, [-40.0 if i_q else 0.0, i_q])
 
 
 def _frames(artifact: ModelArtifact, drive: np.ndarray, initial) -> list[list]:
@@ -102,23 +75,21 @@ def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial
     """Run the drive through the node with the interrupt; the figures of the module docstring (cycles, µs)."""
     _TEMPERATURE_IDS.update(_temperature_ids())
     clock_hz = clock_mhz * 1e6
-    period = int(round(clock_hz / isr_rate_hz))
     fw_box: list[InterruptedFirmware] = []
 
     def core(elf: ElfImage) -> InterruptedFirmware:
-        fw_box.append(InterruptedFirmware(elf, irq=FOC_IRQ, period_cycles=period))
+        fw_box.append(motor_control_core(elf, rate_hz=isr_rate_hz, clock_hz=clock_hz))
         return fw_box[-1]
 
-    node = FirmwareNode(artifact, image, core=core)
+    try:
+        node = FirmwareNode(artifact, image, core=core)
+    except FirmwareError as exc:
+        raise BenchError(str(exc)) from None
     fw = fw_box[0]
-    if fw.handler_name != HANDLER:
-        raise BenchError(f"{image.name}'s IRQ {FOC_IRQ} is {fw.handler_name}, not the current loop {HANDLER}")
-    fw.call("foc_init", float(isr_rate_hz))
-    fw.before_handler = _Adc(fw, clock_hz, seed)
-    rng = np.random.default_rng(seed)
+    period = fw.period
+    rng = start_motor_control(fw, rate_hz=isr_rate_hz, clock_hz=clock_hz, seed=seed)
     frames = _frames(artifact, drive, initial)
     row_cycles = artifact.data_sample_period * clock_hz
-    fw.start_interrupts(at=fw.now + int(rng.integers(period)))
     origin = fw.now + period
     step_jobs, other_jobs, outputs = [], [], []
     steps_seen = 0

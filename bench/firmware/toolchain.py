@@ -25,6 +25,7 @@ Flags, and why:
 from __future__ import annotations
 
 import hashlib
+import re
 import subprocess
 import sys
 import tempfile
@@ -78,12 +79,32 @@ class BuildResult:
         return hashlib.sha256(self.elf).hexdigest()
 
     @property
+    def model_flash(self) -> dict[str, int]:
+        """The model's own flash (fw_model.o in the map): `object_flash`."""
+        return object_flash(self.map_text, Path(SOURCE_NAME).with_suffix(".o").name)
+
+    @property
     def files(self) -> dict[str, bytes]:
         """Every output file of `bench firmware build`, by name."""
         out = {name: text.encode("utf-8") for name, text in self.sources.items()}
         out[ELF_NAME] = self.elf
         out[MAP_NAME] = self.map_text.encode("utf-8")
         return out
+
+
+# one input section of the linker map: address, load address, size, alignment, "object:(section.name)"
+_MAP_SECTION = re.compile(r"^\s*[0-9a-f]+\s+[0-9a-f]+\s+([0-9a-f]+)\s+\d+\s+(\S+?):\((\.[a-z]+)")
+
+
+def object_flash(map_text: str, obj: str) -> dict[str, int]:
+    """Flash bytes of one object of the link, from lld's map: {"code": .text, "constants": .rodata, "bytes": the
+    sum} (its .bss and .data RAM are not flash; .data would be both and the model has none)."""
+    sizes = {".text": 0, ".rodata": 0}
+    for line in map_text.splitlines():
+        match = _MAP_SECTION.match(line)
+        if match and match.group(2) == obj and match.group(3) in sizes:
+            sizes[match.group(3)] += int(match.group(1), 16)
+    return {"code": sizes[".text"], "constants": sizes[".rodata"], "bytes": sizes[".text"] + sizes[".rodata"]}
 
 
 def support_file(name: str) -> str:
@@ -119,9 +140,13 @@ def toolchain_version(cwd: Path | None = None) -> str:
     return f"zig {done.stdout.strip()}"
 
 
-def compile_flags(work: Path) -> list[str]:
+ISR_DEFINE = "-DNODE_WITH_ISR"            # the node of a timing image sends Timing5 (node.c)
+
+
+def compile_flags(work: Path, *, isr: bool = False) -> list[str]:
     # the build directory's path never reaches the objects (there is no debug info, but be sure)
-    return [*TARGET_FLAGS, *CODE_FLAGS, *WARNING_FLAGS, "-I.", f"-ffile-prefix-map={work}=."]
+    return [*TARGET_FLAGS, *CODE_FLAGS, *WARNING_FLAGS, *((ISR_DEFINE,) if isr else ()), "-I.",
+            f"-ffile-prefix-map={work}=."]
 
 
 def firmware_sources(generated: GeneratedSource, *, isr: bool = False) -> dict[str, str]:
@@ -147,7 +172,8 @@ def build_firmware(generated: GeneratedSource, *, isr: bool = False) -> BuildRes
             STARTUP_NAME, SOURCE_NAME, NODE_NAMES[0])                    # node.c includes the packers' .c
         for source in compiled:
             obj = Path(source).with_suffix(".o").name
-            done = _run(["cc", *compile_flags(work), "-c", source, "-o", obj], work, f"compiling {source}")
+            done = _run(["cc", *compile_flags(work, isr=isr), "-c", source, "-o", obj], work,
+                        f"compiling {source}")
             if done.returncode != 0:
                 raise ToolchainError(f"compiling {source} for the Cortex-M4F failed: "
                                      f"{_first_line(done.stderr + done.stdout)}")

@@ -192,6 +192,60 @@ def section_firmware(records: dict[str, list[Record]]) -> list[str]:
     return lines
 
 
+def section_firmware_timing(records: dict[str, list[Record]]) -> list[str]:
+    record = _one(records, "firmware_timing")
+    lines = ["## Beside the motor control", ""]
+    if record is None:
+        return lines + _missing("bench_firmware_timing.py")
+    f, params = record["figures"], record["parameters"]
+    flash = [[k["kind"], _n(k["model_flash"]["code"]), _n(k["model_flash"]["constants"]),
+              _n(k["model_flash"]["bytes"])] for k in f["kinds"]]
+    bounds, timing, loads = [], [], []
+    for k in f["kinds"]:
+        first = k["rates"][str(params["rates_hz"][0])]
+        bounds.append([k["kind"], *(f"{_n(first['wcet_cycles'][name])} / {_n(first['measured_max_cycles'][name])}"
+                                    for name in ("fw_step", "node_on_frame", "foc_isr")),
+                       "yes" if all(r["wcet_holds"] for r in k["rates"].values()) else "NO"])
+        for rate, r in k["rates"].items():
+            for clock, run in r["runs"].items():
+                resp, idle, busy = run["response_time_us"], run["isr_latency_idle_cycles"], \
+                    run["isr_latency_preempting_cycles"]
+                timing.append([k["kind"], f"{int(rate) // 1000} kHz", clock,
+                               f"{_n(resp['p50'], 1)} / {_n(resp['p99'], 1)} / {_n(resp['max'], 1)}",
+                               f"{_n(idle['max'])}", f"{_n(busy['p50'])} / {_n(busy['max'])}",
+                               "yes" if run["bit_exact"] else "NO"])
+                load = run["cpu_load"]
+                loads.append([k["kind"], f"{int(rate) // 1000} kHz", clock, _n(100 * load["current_loop_isr"], 2),
+                              _n(100 * load["model_step"], 4), _n(100 * load["frame_handling"], 4),
+                              _n(100 * load["idle"], 2)])
+    lines += [provenance(record), "",
+              f"The model's own flash (`fw_model.o` in the linker map; the paper's figure "
+              f"{_n(params['paper_model_flash_bytes'])} B), each distinct loss-table row stored once:", "",
+              *_table(["kind", "code (B)", "constants (B)", "total (B)"], flash),
+              "Static WCET bound / measured maximum (cycles; node_on_frame with rows in order):", "",
+              *_table(["kind", "fw_step", "node_on_frame", "foc_isr (handler)", "bound holds"], bounds),
+              f"The node and the model beside the field-oriented current loop's interrupt ({_n(params['rows'])} rows "
+              "of the 40 °C run): the model step's response time (the arrival of the row that ends an interval to "
+              "its temperatures queued), the interrupt's latency when it finds the core idle (the estimator not "
+              "running) and when it preempts the node, the outputs bit for bit against the node without it:", "",
+              *_table(["kind", "interrupt", "clock", "response p50 / p99 / max (µs)", "latency idle, max (cycles)",
+                       "latency preempting p50 / max (cycles)", "bit exact"], timing),
+              "CPU load by task (%):", "",
+              *_table(["kind", "interrupt", "clock", "current loop", "model step", "frame handling", "idle"], loads)]
+    if f.get("lockstep"):
+        lock = f["lockstep"]
+        runs = "; ".join(f"{name} {_n(lock['median_rows_per_s'][name])} rows/s median (runs "
+                         f"{', '.join(_n(v) for v in values)}{'' if lock['clean'][name] else ', NOT clean'})"
+                         for name, values in lock["rows_per_s"].items())
+        lines += [f"Lockstep `bench run --engine firmware [--isr-rate HZ]`, {_n(lock['rows'])} rows, variants "
+                  f"alternating (load average {_n(record['load_average']['start'], 1)} at the start): {runs}.", ""]
+    if f.get("node_throughput"):
+        node = f["node_throughput"]
+        lines += [f"The firmware node alone (no bus), {_n(node['rows'])} rows: " + "; ".join(
+            f"{name} {_n(value)} rows per CPU second" for name, value in node["rows_per_cpu_s"].items()) + ".", ""]
+    return lines
+
+
 def _lockstep_line(lockstep: dict, what: str) -> list[str]:
     runs = "; ".join(f"{engine} {_n(lockstep['median_rows_per_s'][engine])} rows/s median (runs "
                      f"{', '.join(_n(v) for v in values)})" for engine, values in lockstep["rows_per_s"].items())
@@ -534,6 +588,7 @@ def observer_forms_table(record: Record) -> list[str]:
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
 SECTIONS: dict[str, Callable[[dict[str, list[Record]]], list[str]]] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
+    "firmware_timing": section_firmware_timing,
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "observer": section_observer,
     "robustness": section_robustness}

@@ -523,6 +523,10 @@ class Firmware:
             self._hook_error = error
             self._uc.emu_stop()
 
+    def cyccnt(self) -> int:
+        """What DWT_CYCCNT reads between calls: the cycles of every call so far."""
+        return (self.total_cycles - self._cyccnt_base) & 0xFFFF_FFFF
+
     def _on_dwt_read(self, _uc: Uc, offset: int, _size: int, _user: object) -> int:
         """DWT_CYCCNT: the cycles counted so far (whole blocks: a block's cost is added when it is entered, so a
         difference of two reads is exact to within the instructions after the second read in its block)."""

@@ -13,7 +13,8 @@ release the clock passes preempts it: the block hook sees the release at the fir
 after it, saves the whole register context (uc_context_save), writes the exception frame to the stack, runs the
 handler to its return in a nested emulation, restores the context and lets the interrupted block run: the
 background resumes exactly (its registers, flags and FP registers are the context's; the tests check its outputs
-bit for bit and its cycle count against runs without interrupts).
+bit for bit and its cycle count against runs without interrupts). The frame keeps the interrupted xPSR, the
+If-Then state included (Unicorn may start a block inside an IT block), and the handler starts without it.
 
 Granularity: the handler runs at the block boundary, but its timing is that of the silicon, which takes an
 interrupt at the next instruction boundary: the release is placed in the block it fell in by that block's
@@ -26,9 +27,11 @@ is taken before the job completes, as on the silicon. Multi-cycle instructions (
 VDIV/VSQRT 14, SDIV 12) complete before the interrupt is taken (the core may abandon and restart some of them:
 this is the conservative reading). PRIMASK (CPSID I) and BASEPRI masking are honoured at block boundaries.
 
-The exception model (`ExceptionCosts`, Cortex-M4 with zero wait states; J. Yiu, The Definitive Guide to the ARM
-Cortex-M3 and Cortex-M4 Processors, 3rd ed., ch. 8; ARM AN298 "Cortex-M4(F) Lazy Stacking and Context
-Switching"): entry 12 cycles (8-word frame stacked, vector fetched) to the handler's first instruction; return 10;
+The exception model (`ExceptionCosts`, Cortex-M4 with zero wait states: the Cortex-M4 TRM's figures as ARM's
+knowledge article 103489845 quotes them, entry 12 and exit 10 cycles, each plus 17 with the FP context; J. Yiu, The
+Definitive Guide to the ARM Cortex-M3 and Cortex-M4 Processors, 3rd ed., ch. 8; ARM AN298 "Cortex-M4(F) Lazy
+Stacking and Context Switching"; docs/tutorials/firmware.md has the table a test pins them to): entry 12 cycles
+(8-word frame stacked, vector fetched) to the handler's first instruction; return 10;
 tail-chaining 6 instead of return + entry when the next release is pending at the handler's return; FP context:
 when CONTROL.FPCA is set at the preemption (the background has executed a floating-point instruction since reset:
 without an RTOS nothing clears it) the frame reserves S0-S15 and FPSCR (lazy stacking, LSPEN set as after reset),
@@ -55,6 +58,8 @@ from target_sim.firmware.emulator import FLASH, HALT, Firmware, FirmwareFault
 ISR_RETURN = HALT + 0x40          # the handler's LR: emulation of the handler stops here (EXC_RETURN's stand-in)
 FRAME_WORDS, FP_FRAME_WORDS = 8, 18   # basic frame; S0-S15, FPSCR and a reserved word more with FP context
 FIRST_IRQ = 16                    # exception number of IRQ 0
+XPSR_THUMB = 1 << 24
+XPSR_IT = 0x0600_FC00             # ITSTATE: xPSR[26:25] and [15:10] (the If-Then block in progress)
 MAX_CHAIN_PERIODS = 100          # tail-chained handlers in a row before the period is called too short
 IDLE_LOOKBACK = 2                 # periods before a job whose releases are emulated
 _MAX_ISR_INSTRUCTIONS = 1_000_000
@@ -160,7 +165,8 @@ class InterruptedFirmware(Firmware):
         self.dwt_reads: list[tuple[int, int]] = []   # (timeline, the call's own cycles) at each DWT_CYCCNT read
         self.fp_context = False               # CONTROL.FPCA of the background (thread mode)
         self._block_costs: dict[tuple[int, int], tuple[tuple[int, ...], int]] = {}
-        self._in_isr = self._isr_fp = False
+        self._in_isr = self._isr_fp = self._isr_lazy = False
+        self._isr_start = 0
         self._release: int | None = None
         self._block = _Block()
         self._call_start = self._inserted = self._preemptions = 0
@@ -207,6 +213,11 @@ class InterruptedFirmware(Firmware):
                 line.next_release += skip * line.period
             self._idle_until(cycle)
         self._release = cycle
+
+    @property
+    def job_release(self) -> int:
+        """When the next `call` is released (`release_at`'s cycle, else now)."""
+        return self.now if self._release is None else max(self._release, self.now)
 
     def idle_until(self, cycle: int) -> None:
         """The core idles (WFI) until `cycle`, taking every release before it."""
@@ -309,7 +320,7 @@ class InterruptedFirmware(Firmware):
         while True:
             release = line.next_release
             line.next_release += line.period
-            handler_cycles, used_fp = self._run_handler(fp_context, release)
+            handler_cycles, used_fp = self._run_handler(fp_context, release, start, stacked)
             lazy = fp_context and used_fp and not stacked
             stacked = stacked or lazy
             done = start + handler_cycles + (costs.lazy_fp if lazy else 0)
@@ -325,9 +336,11 @@ class InterruptedFirmware(Firmware):
             line.events.append(IsrEvent(release, taken, start, end, handler_cycles, lazy, chained, preempted))
             return end
 
-    def _run_handler(self, fp_context: bool, release: int) -> tuple[int, bool]:
-        """Run the handler once (a nested emulation when a call is running); (its cycles, whether it used the
-        FPU). The background's registers are saved and restored whole; its accounting is put back."""
+    def _run_handler(self, fp_context: bool, release: int, start: int = 0, stacked: bool = False
+                     ) -> tuple[int, bool]:
+        """Run the handler once (a nested emulation when a call is running) from its first instruction at `start`
+        on the timeline; (its cycles, whether it used the FPU). The background's registers are saved and restored
+        whole; its accounting is put back. `stacked`: the FP context is already stacked (a tail-chained run)."""
         uc = self._uc
         saved = (self._cycles, self._instructions, self._extra, self._fall, self._fault)
         context = uc.context_save()
@@ -335,16 +348,20 @@ class InterruptedFirmware(Firmware):
         if not self._in_call:
             sp = self._stack_top
         frame = [uc.reg_read(register) for register in _STACKED]
+        xpsr = uc.reg_read(arm.UC_ARM_REG_XPSR)
         words = FRAME_WORDS + (FP_FRAME_WORDS if fp_context else 0)
         frame_sp = (sp - 4 * words) & ~7
-        uc.mem_write(frame_sp, struct.pack("<8I", *frame, 0x0100_0000) + bytes(4 * (words - FRAME_WORDS)))
+        uc.mem_write(frame_sp, struct.pack("<8I", *frame, xpsr | XPSR_THUMB) + bytes(4 * (words - FRAME_WORDS)))
         uc.reg_write(arm.UC_ARM_REG_SP, frame_sp)
+        if xpsr & XPSR_IT:       # taken inside an IT block: the frame keeps ITSTATE, the handler starts without it
+            uc.reg_write(arm.UC_ARM_REG_XPSR, xpsr & ~XPSR_IT)
         uc.reg_write(arm.UC_ARM_REG_LR, ISR_RETURN | 1)
         if self.before_handler is not None:      # what the peripherals left for the handler (e.g. a DMA)
             self.before_handler(release)
         self._cycles = self._instructions = self._extra = 0
         self._fall = self.handler
         self._in_isr, self._isr_fp, self._fault = True, False, None
+        self._isr_start, self._isr_lazy = start, fp_context and not stacked
         fault: FirmwareFault | None = None
         try:
             uc.emu_start(self.handler | 1, ISR_RETURN, count=_MAX_ISR_INSTRUCTIONS)
@@ -372,18 +389,26 @@ class InterruptedFirmware(Firmware):
 
     # ------------------------------------------------------------------ DWT_CYCCNT: the timeline
     def _timeline_now(self) -> int:
+        if self._in_isr:          # the handler's first instruction, its cycles so far, the lazy FP stacking once due
+            return self._isr_start + self._cycles + (self._timeline.costs.lazy_fp
+                                                     if self._isr_lazy and self._isr_fp else 0)
         return self._call_start + self._inserted + self._cycles if self._in_call else self.now
+
+    def cyccnt_at(self, cycle: int) -> int:
+        """What DWT_CYCCNT reads at `cycle` of the timeline (e.g. a CAN controller's time stamp of a reception)."""
+        return (cycle - self._cyccnt_base) & 0xFFFF_FFFF
 
     def _on_dwt_read(self, _uc, offset: int, _size: int, _user: object) -> int:
         """DWT_CYCCNT counts the timeline (interrupts and all), as on the silicon."""
         if offset != 4:
             return 0
         now = self._timeline_now()
-        self.dwt_reads.append((now, self._cycles))
+        if not self._in_isr:       # the background's reads (the node's around fw_step)
+            self.dwt_reads.append((now, self._cycles))
         return (now - self._cyccnt_base) & 0xFFFF_FFFF
 
     def _on_dwt_write(self, _uc, offset: int, _size: int, value: int, _user: object) -> None:
-        if offset == 4:
+        if offset == 4 and not self._in_isr:
             self._cyccnt_base = (self._timeline_now() - value) & 0xFFFF_FFFF
 
     # ------------------------------------------------------------------ the image

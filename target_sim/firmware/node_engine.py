@@ -15,6 +15,13 @@ node's INTERNAL fault: the shell calls `node_internal_fault`, which sets the fau
 queues a Status, so the heartbeat reports it and a RESET recovers. If even that call faults, the shell resets the
 core as a watchdog would (RAM re-initialized, `node_init`) and reports the fault from the fresh node.
 
+With `isr_rate_hz` (a timing image: the node and the model with the field-oriented current loop's interrupt,
+`target_sim.firmware.motor_control`) the core is an `InterruptedFirmware`: the interrupt preempts every call at
+that rate, each call is a job released when the shell's clock (`clock_s`, the bus's time) says the frame arrived,
+on the core's timeline at M4_CLOCK_HZ (the idle time between frames skipped, `IDLE_LOOKBACK`), and the shell
+writes that release as the CAN controller's time stamp (`node_rx_stamp`, DWT cycles) from which the node times
+each step's response (Timing5). The bytes of every other frame are those of the run without the interrupt.
+
 Measured per call: the cycles of `node_on_frame` (the emulator's count) minus those of the model steps in it (the
 firmware's DWT reads): frame handling per received frame, and per reply frame for calls that queued replies.
 """
@@ -25,17 +32,20 @@ import os
 import time
 from collections import Counter
 from collections.abc import Callable
+from functools import partial
 from types import SimpleNamespace
 
 import can
 import numpy as np
 
-from dbc.contract import FIRMWARE_TIMING_MESSAGE, RX_ERROR_KINDS, FaultBit, TargetState
+from dbc.contract import FIRMWARE_TIMING_MESSAGE, M4_CLOCK_HZ, RX_ERROR_KINDS, FaultBit, TargetState
 from dbc.database import frame_id, layout_named
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
 from target_sim.firmware.elf import ElfImage, FirmwareError, memory_from_elf, read_elf
 from target_sim.firmware.emulator import Firmware, FirmwareFault
+from target_sim.firmware.interrupts import InterruptedFirmware
+from target_sim.firmware.motor_control import interrupt_figures, motor_control_core, start_motor_control
 from target_sim.firmware.node_protocol import (
     COUNTERS,
     COUNTERS_SIZE,
@@ -83,7 +93,7 @@ class FirmwareNode:
 
     def __init__(self, artifact: ModelArtifact, elf: str | os.PathLike | bytes | ElfImage, *,
                  clock_s: Callable[[], float] = time.monotonic, journal: Callable[[dict], None] | None = None,
-                 core: Callable[[ElfImage], Firmware] = Firmware):
+                 core: Callable[[ElfImage], Firmware] = Firmware, isr_rate_hz: float = 0.0, isr_seed: int = 0):
         refusal = firmware_refusal(artifact)   # before the ELF is read: a loss model the firmware has not
         if refusal is not None:
             raise FirmwareError(refusal)
@@ -92,6 +102,9 @@ class FirmwareNode:
         self.journal = journal
         self.clock_s = clock_s
         self.name = image.name
+        if isr_rate_hz:
+            core = partial(motor_control_core, rate_hz=isr_rate_hz)
+        self.isr_rate_hz = isr_rate_hz
         self.fw = fw = core(image)      # `core`: e.g. an interrupted core (bench firmware timing)
         missing = [name for name in (*ENTRY_POINTS, *BUFFERS) if name not in fw.symbols]
         if missing:
@@ -123,12 +136,26 @@ class FirmwareNode:
         self._next_beat_ms = 0
         self._t0 = clock_s()
         self._startup = self._run("node_init", 0)
+        self._stamp = fw.symbols["node_rx_stamp"].address if "node_rx_stamp" in fw.symbols else None
+        if isr_rate_hz:                 # interrupts on after the node's start, as a main() enables them
+            start_motor_control(fw, rate_hz=isr_rate_hz, seed=isr_seed)
+            self._origin = fw.now       # the core's timeline at the shell's clock _t0 + the node's start
+
+    def _release(self) -> None:
+        """The next call is released when the shell's clock says (see the module docstring)."""
+        if self.isr_rate_hz:
+            self.fw.release_at(self._origin + int((self.clock_s() - self._t0) * M4_CLOCK_HZ))
 
     # ------------------------------------------------------------------ calls into the firmware
     def _run(self, function: str, *args: int) -> list[can.Message]:
         """Call an entry point; its queued frames as messages (journal records handed on)."""
         fw = self.fw
         try:
+            if function != "node_init":
+                self._release()
+            if self._stamp is not None:          # the reception's time stamp: the release, or now
+                stamp = fw.cyccnt_at(fw.job_release) if isinstance(fw, InterruptedFirmware) else fw.cyccnt()
+                fw.write_bytes(self._stamp, stamp.to_bytes(4, "little"))
             fw.call(function, *args)
         except FirmwareFault as fault:
             return self._core_faulted(fault)
@@ -189,6 +216,7 @@ class FirmwareNode:
 
     # ------------------------------------------------------------------ TargetNode's interface
     fault_message = ""
+    _stamp: int | None = None
     _msg: can.Message | None = None
     _scratch: int | None = None
 
@@ -282,4 +310,5 @@ class FirmwareNode:
                 "reply_cycles": cycle_figures(self.reply_cycles), "tx_dropped": header[5],
                 "events_dropped": header[6], "flash_bytes": self.memory_figures["flash_bytes"],
                 "ram_bytes": self.memory_figures["ram_bytes"], "memory": "measured from the firmware ELF",
-                "stack_used_bytes": self.fw.stack_used()}
+                "stack_used_bytes": self.fw.stack_used(),
+                **({"isr": interrupt_figures(self.fw)} if isinstance(self.fw, InterruptedFirmware) else {})}

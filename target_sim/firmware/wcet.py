@@ -401,6 +401,7 @@ def wcet(image: ElfImage, function: str, bounds: Mapping[str, Mapping[int, LoopB
 
 
 TIMED_STEPS = TX_CAPACITY // 4      # node.c: the model steps of one row whose 4 timing frames each are queued
+                                    # (a timing image sends 5, Timing5 too: 8 steps, within this bound)
 
 
 def loop_bounds(lost_rows: int = 0) -> dict[str, dict[int, LoopBound]]:
@@ -409,7 +410,8 @@ def loop_bounds(lost_rows: int = 0) -> dict[str, dict[int, LoopBound]]:
     frame may skip (its Step that far ahead of the next expected row). The node steps the model once for each lost
     row that ends an interval, so no bound holds for every frame the bus can carry (a frame 32 767 rows ahead runs
     that many loop iterations): the bound of node_on_frame is stated per number of lost rows, 0 for a drive whose
-    rows arrive in order."""
+    rows arrive in order. An electrical loss model adds no loop (its losses are straight-line code, the sqrt one
+    VSQRT), nor does the loss maps' shared-row look-up (the five tables' loop is unrolled by clang)."""
     if lost_rows < 0:
         raise ValueError(f"lost_rows must be 0 or more, not {lost_rows}")
     steps = min(lost_rows + 1, TIMED_STEPS)

@@ -72,6 +72,10 @@ class CArray:
     fields: tuple[tuple[str, ...], ...]   # artifact keys of each stacked part (one part: an array of its shape)
     comment: str
     shape: tuple[int, ...] | None = None  # the shape of each part the generator needs (None: any verified one)
+    # rows (the last axis) that repeat are stored once: NAME_ROWS[distinct rows][columns] and the uint8/uint16 index
+    # NAME_ROW_INDEX[part][row], when that takes less flash than NAME itself (the loss maps are symmetric in torque:
+    # half their rows repeat); either way the C reads row r of part k as NAME_ROW(k, r), the same float32 values
+    shared_rows: bool = False
 
 
 class LossKind:

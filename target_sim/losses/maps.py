@@ -86,7 +86,8 @@ static int grid_cell(float value, float start, float step, int size, float *frac
     return i;
 }
 
-/* LossTables.lookup: [p_dc0, p_ac0, p_stator, p_magnet, current] at (torque, speed), bilinear per table */
+/* LossTables.lookup: [p_dc0, p_ac0, p_stator, p_magnet, current] at (torque, speed), bilinear per table
+ * (LOSS_TABLES_ROW(k, i): row i of table k, each distinct row stored once when rows repeat) */
 static void loss_lookup(float torque, float speed, float out[LOSS_TABLE_COUNT])
 {
     float fi, fj;
@@ -94,8 +95,9 @@ static void loss_lookup(float torque, float speed, float out[LOSS_TABLE_COUNT])
     const int j = grid_cell(speed, SPEED_START, SPEED_STEP, SPEED_POINTS, &fj);
     int k;
     for (k = 0; k < LOSS_TABLE_COUNT; k++) {
-        const float t00 = LOSS_TABLES[k][i][j], t01 = LOSS_TABLES[k][i][j + 1];
-        const float t10 = LOSS_TABLES[k][i + 1][j], t11 = LOSS_TABLES[k][i + 1][j + 1];
+        const float *below = LOSS_TABLES_ROW(k, i), *above = LOSS_TABLES_ROW(k, i + 1);
+        const float t00 = below[j], t01 = below[j + 1];
+        const float t10 = above[j], t11 = above[j + 1];
         const float low = t00 + fj * (t01 - t00);
         const float high = t10 + fj * (t11 - t10);
         out[k] = low + fi * (high - low);
@@ -149,7 +151,7 @@ class MapsKind(LossKind):
         defines = [f"#define TORQUE_POINTS {grid[0]}", f"#define SPEED_POINTS {grid[1]}",
                    f"#define LOSS_TABLE_COUNT {len(LOSS_OUTPUTS)}"]
         tables = CArray("LOSS_TABLES", tuple(("losses", "tables", name) for name in LOSS_OUTPUTS),
-                        f"losses.tables [{', '.join(LOSS_OUTPUTS)}][torque][speed]")
+                        f"losses.tables [{', '.join(LOSS_OUTPUTS)}][torque][speed]", shared_rows=True)
         return defines, [tables]
 
     def c_problem(self, artifact) -> str | None:

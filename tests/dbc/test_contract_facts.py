@@ -84,4 +84,5 @@ def test_the_messages_whose_step_is_their_data_row():
     from dbc.database import row_step_messages
 
     assert row_step_messages() == ("DriveInputs", "DriveTemps", "DriveCurrents", "Temperatures1", "Temperatures2",
-                                   "Timing1", "Timing2", "Timing3", "Timing4", "StateCheckpoint")
+                                   "Timing1", "Timing2", "Timing3", "Timing4", "Timing5",
+                                   "StateCheckpoint")

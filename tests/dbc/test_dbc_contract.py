@@ -45,7 +45,7 @@ def app_signals(message):
 
 def test_loads_with_strict_checks_and_is_ascii():
     database = cantools.database.load_file(DBC_PATH, strict=True)
-    assert len(database.messages) == 18
+    assert len(database.messages) == 19
     DBC_PATH.read_bytes().decode("ascii")  # cantools reads DBC files as cp1252: keep them plain ASCII
 
 
@@ -108,6 +108,7 @@ def test_every_message_has_comment_cycle_time_and_e2e_data_id():
         ("Timing2", 200),
         ("Timing3", 200),
         ("Timing4", 200),
+        ("Timing5", 200),
         ("Status", 100),
         ("RxErrors", 100),
         ("TargetInfo", 0),
@@ -288,15 +289,31 @@ def test_version_1_5_names_every_signal_once_and_says_so():
     """1.5.0: no two messages share a signal name (canmatrix's ARXML export and asammdf look signals up by name
     alone); a shared role is `<Message>_<Role>` as the E2E signals are; the frames are 1.4.0's bit for bit, and the
     codec still calls the role by its short name (Step), the database layer keeping both."""
-    assert dbc.dbc_version_info()[:2] == (1, 5)
+    assert dbc.dbc_version_info()[:2] >= (1, 5)
     names = [s.name for m in MESSAGES for s in m.signals]
     assert len(names) == len(set(names)), sorted({n for n in names if names.count(n) > 1})
     carriers = [m.name for m in MESSAGES if any(s.name == f"{m.name}_Step" for s in m.signals)]
-    assert len(carriers) == 15 and "Status" not in carriers
+    assert len(carriers) == 16 and "Status" not in carriers     # 15 in 1.5.0, Timing5 since 1.6.0
     for name in ("RestoreState", "StateCheckpoint"):
         layout = contract().by_name[name]
         assert [(s.name, s.dbc_name) for s in layout.signals] == [
             ("Step", f"{name}_Step"), ("StateIndex", f"{name}_StateIndex"), ("StateValue", f"{name}_StateValue")]
         assert [(s.start, s.length) for s in layout.signals] == [(12, 16), (28, 4), (32, 32)]
     network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
-    assert "History: 1.5.0 names every signal uniquely" in network and "1.4.0 added DriveCurrents" in network
+    assert "1.5.0 names every signal uniquely" in network and "1.4.0 added DriveCurrents" in network
+
+
+def test_version_1_6_adds_timing5_the_response_time_beside_the_interrupt_and_says_so():
+    """1.6.0: the firmware target with the motor-control interrupt sends the model step's response time (reception
+    -> result, 0.1 µs at 90 MHz like Timing4's time) and the interrupt's CPU load per step, after Timing4."""
+    assert dbc.dbc_version_info()[:2] >= (1, 6)
+    timing5 = DB.get_message_by_name(dbc.contract.RESPONSE_TIMING_MESSAGE)
+    assert timing5.frame_id == 0x226 and timing5.senders == ["TARGET"]
+    assert [role_name(timing5.name, s.name) for s in app_signals(timing5)] == ["Step", "ResponseTime", "IsrLoad"]
+    response, load = signal("Timing5", "ResponseTime"), signal("Timing5", "IsrLoad")
+    assert (response.scale, response.unit, response.minimum) == (signal("Timing4", "M4ExecTime").scale, "us", 0)
+    assert response.maximum > 100_000 and "at 90 MHz" in response.comment
+    assert (load.scale, load.minimum, load.maximum, load.unit) == (0.01, 0, 100, "%")
+    assert timing5.dbc.attributes["E2EDataID"].value == 0x26 and timing5.cycle_time == 200
+    network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
+    assert "1.6.0 added Timing5" in network and "1.5.0 names every signal uniquely" in network

@@ -101,6 +101,71 @@ def test_the_exception_model_costs(timing_image):
     assert all(event.latency - costs.entry <= 14 for event in fw.isr_events)   # VDIV, the longest instruction
 
 
+def _documented_costs() -> dict[str, tuple[int, int]]:
+    """The table of docs/tutorials/firmware.md: cost -> (ARM's figure, what the emulator charges)."""
+    import re
+
+    from helpers import ROOT
+
+    text = (ROOT / "docs" / "tutorials" / "firmware.md").read_text(encoding="utf-8")
+    rows = re.findall(r"^\| `(\w+)`: [^|]+\| (\d+) cycles[^|]*\| (\d+) \|$", text, flags=re.MULTILINE)
+    return {name: (int(arm), int(charged)) for name, arm, charged in rows}
+
+
+def test_the_charged_exception_costs_are_arms_documented_figures():
+    """Cortex-M4 TRM (as ARM's knowledge article 103489845 quotes it): entry 12, exit 10, each plus 17 with the
+    FP context; tail-chaining 6; AN298: 17 words of lazily stacked FP context, 18 reserved."""
+    from dataclasses import asdict
+
+    from target_sim.firmware.interrupts import FP_FRAME_WORDS, FRAME_WORDS
+
+    documented = _documented_costs()
+    assert set(documented) == set(asdict(ExceptionCosts()))
+    assert {name: arm for name, (arm, _) in documented.items()} == \
+        {"entry": 12, "exit": 10, "tail_chain": 6, "lazy_fp": 17, "fp_exit": 17}
+    assert asdict(ExceptionCosts()) == {name: charged for name, (_, charged) in documented.items()}
+    assert all(arm == charged for arm, charged in documented.values())
+    assert (FRAME_WORDS, FP_FRAME_WORDS) == (8, 17 + 1)     # R0-R3, R12, LR, PC, xPSR; S0-S15, FPSCR, reserved
+
+
+def test_tail_chaining_costs_six_cycles_between_handlers(timing_image):
+    """A release pending when the handler returns: the next handler starts 6 cycles after, no unstacking."""
+    _, image = timing_image("lti-lptn")
+    probe = InterruptedFirmware(image, irq=IRQ, period_cycles=9000)
+    probe.start_interrupts(at=0)
+    probe.idle_until(1)
+    handler = probe.isr_events[0].handler_cycles
+    period = handler + 11      # release 2 (h + 11) before the first return (12 + h), release 3 after the second
+    fw = InterruptedFirmware(image, irq=IRQ, period_cycles=period)
+    fw.start_interrupts(at=0)
+    fw.idle_until(1)
+    first, second = fw.isr_events[:2]
+    assert not first.tail_chained and second.tail_chained
+    assert second.start - first.end == ExceptionCosts().tail_chain == 6
+    assert first.end == first.start + first.handler_cycles            # no exit charged between the two
+
+
+def test_an_interrupt_taken_inside_an_it_block_runs_the_handler_unconditionally(timing_image):
+    """Unicorn may start a block inside a Thumb If-Then block, so a release can be taken with ITSTATE set: the
+    exception frame keeps it and the handler starts without it (it once ran the handler's first instruction, its
+    push, as the IT block's next conditional one: skipped, the return then popped a stack address as the PC)."""
+    from unicorn import arm_const as arm
+
+    from target_sim.firmware.interrupts import XPSR_IT
+
+    _, image = timing_image("hammerstein")
+    fw = InterruptedFirmware(image, irq=IRQ, period_cycles=9000)
+    fw.call("foc_init", 10000.0)
+    fw.start_interrupts(at=fw.now)
+    xpsr = fw.uc.reg_read(arm.UC_ARM_REG_XPSR)
+    fw.uc.reg_write(arm.UC_ARM_REG_XPSR, xpsr | 0x0000_2000 | 0x0400_0000)   # an IT block in progress (NE, ...)
+    it_state = fw.uc.reg_read(arm.UC_ARM_REG_XPSR) & XPSR_IT
+    assert it_state, "unicorn did not take the ITSTATE write"
+    fw.idle_until(fw.now + 3 * 9000)
+    assert int(fw.read_i32(fw.address("foc_ticks"), 1)[0]) == len(fw.isr_events) == 3
+    assert fw.uc.reg_read(arm.UC_ARM_REG_XPSR) & XPSR_IT == it_state       # restored for the interrupted code
+
+
 def test_a_period_shorter_than_the_handler_is_a_fault_not_a_hang(timing_image):
     from target_sim.firmware import FirmwareFault
 
@@ -126,6 +191,30 @@ def test_the_wcet_bound_holds_over_the_measured_maximum(timing_image, kind):
     assert max(cycles) <= bounds["fw_step"]
     assert run["isr_latency_cycles"]["max"] >= run["isr_latency_idle_cycles"]["max"] == ExceptionCosts().entry
     assert 0 < run["cpu_load"]["current_loop_isr"] < 0.1 and run["cpu_load"]["idle"] > 0.9
+
+
+@pytest.mark.parametrize(("kind", "realization"), [
+    ("hammerstein", "balanced"),
+    pytest.param("lti-lptn", "physical", marks=pytest.mark.slow),
+    pytest.param("pv-lptn", "physical", marks=pytest.mark.slow)])
+def test_the_wcet_bound_holds_for_an_electrical_loss_model(electrical_of, electrical_drive, initial, kind,
+                                                             realization):
+    """An electrical loss model's firmware (losses from the d/q currents: straight-line code, no loop of its own,
+    so `loop_bounds` needs no entry for it) is bounded like the maps: fw_step, node_on_frame and the handler,
+    each bound over the measured maximum, the outputs bit for bit beside the interrupt."""
+    from bench.firmware.codegen import generate
+    from bench.firmware.timing import direct_step_max, measure, static_bounds
+    from bench.firmware.toolchain import build_firmware
+
+    artifact, _ = electrical_of(kind, realization, 0.5)
+    image = read_elf(build_firmware(generate(artifact), isr=True).elf)
+    bounds = static_bounds(image)
+    drive = electrical_drive[:80]
+    run = measure(artifact, image, drive, initial, isr_rate_hz=20_000)
+    assert run["bit_exact"] and run["model_steps"] > 10
+    for name in ("node_on_frame", "foc_isr"):
+        assert 0 < run["measured_max_cycles"][name] <= bounds[name], name
+    assert 0 < direct_step_max(artifact, image, drive, initial) <= bounds["fw_step"]
 
 
 def test_a_loop_without_a_stated_bound_is_named(timing_image):
