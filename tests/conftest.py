@@ -69,26 +69,21 @@ def artifacts(tmp_path_factory) -> dict[str, Path]:
 
 
 @pytest.fixture(scope="session")
-def firmware_elf(tmp_path_factory, artifacts) -> Callable[[str | Path], Path]:
-    """firmware_elf(name of `artifacts` or an artifact path) -> its firmware ELF, built once per session (the
-    packaged artifacts' shipped ELF without building); skips the test when the compiler (ziglang) is missing."""
-    built: dict[Path, Path] = {}
+def firmware_elf(tmp_path_factory, artifacts) -> Callable[..., Path]:
+    """firmware_elf(name of `artifacts` or an artifact path, isr=False) -> its firmware ELF, built once per session
+    (the packaged artifacts' shipped ELF without building; with `isr` the timing image with the current loop's
+    interrupt, always built); skips the test when the compiler (ziglang) is missing."""
+    built: dict[tuple[Path, bool], Path] = {}
     out = tmp_path_factory.mktemp("firmware")
 
-    def get(which: str | Path) -> Path:
-        from bench.firmware.images import packaged_elf
+    def get(which: str | Path, isr: bool = False) -> Path:
+        from bench.firmware.images import firmware_for
         from target_sim.artifact import load_artifact
 
         path = Path(artifacts[which]) if isinstance(which, str) and which in artifacts else Path(which)
-        if path not in built:
-            artifact = load_artifact(path)
-            shipped = packaged_elf(artifact)
-            if shipped is None:
-                from bench.firmware.images import firmware_for
-
-                shipped = firmware_for(artifact, out)
-            built[path] = shipped
-        return built[path]
+        if (path, isr) not in built:
+            built[path, isr] = firmware_for(load_artifact(path), out, isr=isr)
+        return built[path, isr]
 
     return get
 

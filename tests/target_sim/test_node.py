@@ -86,14 +86,21 @@ def temps_of(replies) -> dict[str, dict]:
     return {f.name: f.signals for f in replies if f.name.startswith("Temperatures")}
 
 
-@pytest.fixture(params=ENGINES)
+ISR_RATE_HZ = 10_000     # the conformance suite again with the current loop's interrupt preempting the node
+TARGETS = [*ENGINES, pytest.param("firmware+isr", marks=pytest.mark.slow)]
+
+
+@pytest.fixture(params=TARGETS)
 def make(request, artifacts, firmware_elf):
-    """make(name of `artifacts` or an artifact path, journal=None) -> a node of the engine under test."""
+    """make(name of `artifacts` or an artifact path, journal=None) -> a node of the engine under test (the
+    firmware one also beside the motor-control interrupt at ISR_RATE_HZ: the same frames, the same answers)."""
+    engine, _, isr = request.param.partition("+")
 
     def new(which, journal=None):
         path = artifacts[which] if which in artifacts else which
-        firmware = firmware_elf(path) if request.param == "firmware" else None
-        return make_node(load_artifact(path), engine=request.param, firmware=firmware, journal=journal)
+        firmware = firmware_elf(path, isr=bool(isr)) if engine == "firmware" else None
+        return make_node(load_artifact(path), engine=engine, firmware=firmware, journal=journal,
+                         isr_rate_hz=ISR_RATE_HZ if isr else 0.0)
 
     return new
 
@@ -158,8 +165,9 @@ def test_session_replies_equal_the_offline_float32_reference(make, lti):
         assert np.max(np.abs(np.array(got) - expected[i])) <= 0.005 + 1e-9
         checkpoint = ["StateCheckpoint"] * 4 if (i + 1) % CHECKPOINT_EVERY_STEPS == 0 else []
         timing4 = ["Timing4"] if node.engine == "firmware" else []     # the firmware's measured M4 cycles
+        timing5 = ["Timing5"] if getattr(node, "isr_rate_hz", 0) else []  # response time beside the interrupt
         assert [f.name for f in answers[row]] == ["Temperatures1", "Temperatures2", "Timing1", "Timing2", "Timing3",
-                                                  *timing4, *checkpoint]
+                                                  *timing4, *timing5, *checkpoint]
     # rows before the first model step carry the reset temperatures
     first = temps_of(answers[0])
     assert first["Temperatures1"]["WindingTemp"] == pytest.approx(45.0)
