@@ -196,11 +196,12 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
                        on_iteration: Callable[[int, float], None] | None = None) -> tuple[HammersteinFit, dict]:
     """The Hammerstein fit with its ridge strength chosen by leave-one-file-out cross-validation.
 
-    For each factor of CV_FACTORS (strongest first, each fit starting from the previous, more regular one) the
-    model is fitted to all training files (`iterations` // 3 LM evaluations). Each file's left-out model is then
-    one Gauss-Newton step from that fit on the other files' residuals and the fold's ridge (`loo_vectors`: the
-    Jacobian at the fit is computed once and split by file, so a fold costs a 36 × 36 solve, not a refit), and is
-    simulated on the left-out file. A factor's score is the RMS error on the left-out files of the deployed
+    For each factor of CV_FACTORS (strongest first, each fit starting from the previous, more regular one) the model
+    is fitted to all training files (`iterations` // 3 LM evaluations). Each file's left-out model is then LOO_STEPS
+    damped Gauss-Newton steps from that fit on the other files' residuals and the fold's ridge (`loo_vectors`: the
+    Jacobian at the fit is computed once and split by file, so a fold costs 36 × 36 solves, not a refit), and is
+    simulated on the left-out file. Those steps start from a fit that has seen the file, so the scores lean toward
+    the weaker ridge (docs/method.md). A factor's score is the RMS error on the left-out files of the deployed
     outputs (winding and PM, PM weighted as in the fit), pooled over the folds. The LTI network is scored on the
     same files (it saw them in the swarm, so the comparison favours it). The fit of the best factor is kept;
     `recommended` says which model did better on the left-out files.
