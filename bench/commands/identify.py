@@ -233,8 +233,8 @@ def _bound_warning(hits: list[dict], prior: str, bounds: list[float]) -> str:
         reasons.append(f"this motor's best network lies outside {bounds[0]:g}-{bounds[1]:g} × the {prior} prior "
                        f"for {', '.join(boxed)}, so the fit is bent to the box ({advice})")
     if fixed:
-        reasons.append(f"{', '.join(fixed)} sit on fixed physical limits, where the network bends to absorb what "
-                       "the nominal losses miss")
+        verb = "sits on a fixed physical limit" if len(fixed) == 1 else "sit on fixed physical limits"
+        reasons.append(f"{', '.join(fixed)} {verb}, where the network bends to absorb what the nominal losses miss")
     return f"{count} ended on a bound of the search ({named}): {'; '.join(reasons)}"
 
 
