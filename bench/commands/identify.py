@@ -112,11 +112,17 @@ def run(args: argparse.Namespace) -> int:
         realization = args.realization if MODEL_KINDS[kind].realizations else "physical"
         write_text_atomically(path, _artifact_text(result.content(kind, realization, metrics)))
         written[kind] = str(path)
-    warnings = [_bound_warning(hit) for hit in result.lptn.on_bounds]
     prov = result.provenance
+    warnings = [_bound_warning(result.lptn.on_bounds, prov["pso"]["prior"], prov["pso"]["bounds"])] \
+        if result.lptn.on_bounds else []
+    frozen = (prov.get("polish") or {}).get("frozen")
+    if frozen:
+        warnings.append(f"{', '.join(frozen)} {'was' if len(frozen) == 1 else 'were'} frozen at the prior's value: "
+                        "the data cannot identify them and the fit had left them on a bound")
     uncertainty = prov.get("uncertainty")
-    if uncertainty and uncertainty["unidentifiable"]:
-        warnings.append(f"the training data cannot identify {', '.join(uncertainty['unidentifiable'])} (standard "
+    blind = [n for n in (uncertainty or {}).get("unidentifiable", []) if n not in (frozen or [])]
+    if blind:
+        warnings.append(f"the training data cannot identify {', '.join(blind)} (standard "
                         "error above a factor of 2, or half the search range); their values are the prior's guess "
                         "moved by the fit")
     selection = prov["lm"].get("regularization")
@@ -213,9 +219,23 @@ def _deployment(selection: dict | None, metrics: dict) -> str | None:
             + "; deploy the lti-lptn artifact (--kind lti-lptn or --all-kinds)")
 
 
-def _bound_warning(hit: dict) -> str:
-    return (f"LPTN parameter {hit['name']} = {hit['value']:.6g} ended on its {hit['bound']} bound "
-            f"({hit['limit']:.6g}); the prior or the bounds may be off (widen --bounds or give a --prior)")
+def _bound_warning(hits: list[dict], prior: str, bounds: list[float]) -> str:
+    """One sentence for every LPTN parameter that ended on a bound: which, and what to change."""
+    from bench.model.lptn_fit import FIXED_BOUNDS
+
+    named = ", ".join(f"{h['name']} = {h['value']:.4g} ({h['bound']} bound {h['limit']:.4g})" for h in hits)
+    count = f"{len(hits)} of 22 LPTN parameters" if len(hits) > 1 else "LPTN parameter"
+    boxed = [h["name"] for h in hits if h["name"] not in FIXED_BOUNDS]
+    fixed = [h["name"] for h in hits if h["name"] in FIXED_BOUNDS]
+    reasons = []
+    if boxed:
+        advice = "widen --bounds" if prior == "auto" else "widen --bounds or use --prior auto"
+        reasons.append(f"this motor's best network lies outside {bounds[0]:g}-{bounds[1]:g} × the {prior} prior "
+                       f"for {', '.join(boxed)}, so the fit is bent to the box ({advice})")
+    if fixed:
+        verb = "sits on a fixed physical limit" if len(fixed) == 1 else "sit on fixed physical limits"
+        reasons.append(f"{', '.join(fixed)} {verb}, where the network bends to absorb what the nominal losses miss")
+    return f"{count} ended on a bound of the search ({named}): {'; '.join(reasons)}"
 
 
 def _artifact_text(content: dict) -> str:
@@ -265,6 +285,9 @@ def _print_summary(s: dict) -> None:
         p = s["polish"]
         print(f"polish {s['timings_s']['polish']:.1f} s from {p['starts']} start(s): cost {p['swarm_cost']:.4f} -> "
               f"{p['cost']:.4f} (start {p['kept'] + 1} kept); nodes fitted: {', '.join(s['nodes'])}")
+        if p.get("prior"):
+            print(f"  maximum a posteriori: weak prior around the {s['prior']} network, weight 1/N_eff = "
+                  f"1/{p['prior']['n_eff']:.0f}; frozen at the prior: {', '.join(p['frozen']) or 'none'}")
     if s.get("uncertainty"):
         _print_uncertainty(s["uncertainty"])
     if s.get("regularization") and "cv_rms_C" in s["regularization"]:

@@ -109,7 +109,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     polished, errors = None, None
     if polish_starts > 0:
         started = time.perf_counter()
-        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts)
+        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start)
         errors = uncertainty(runs, dt, lptn.nodes, log_scaled(lptn.bounds), to_search(
             np.array(lptn.params.as_vector()), log_scaled(lptn.bounds)), lptn.bounds)
         timings["polish"] = time.perf_counter() - started
@@ -148,7 +148,9 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         provenance["polish"] = {"starts": len(polished.start_costs), "method": "Levenberg-Marquardt (MINPACK) in "
                                 "log-parameter space, variances re-estimated each round", "start_costs":
                                 polished.start_costs, "final_costs": polished.final_costs, "kept": polished.kept,
-                                "cost": polished.cost, "swarm_cost": polished.swarm_cost}
+                                "cost": polished.cost, "swarm_cost": polished.swarm_cost,
+                                "prior": polished.prior.record() if polished.prior else None,
+                                "frozen": list(polished.frozen)}
         provenance["uncertainty"] = errors
     if selection is not None:
         provenance["lm"]["regularization"] = selection

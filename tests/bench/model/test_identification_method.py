@@ -157,3 +157,62 @@ def test_a_worse_hammerstein_model_says_which_to_deploy():
     sentence = _deployment({"recommended": "lti-lptn", "selected_rms_C": 3.0, "lti_rms_C": 2.0},
                            {"hammerstein": worse, "lti-lptn": m})
     assert "left-out training files" in sentence and "winding RMSE" in sentence and "deploy the lti-lptn" in sentence
+
+
+def _fit_at(params: LptnParameters, runs, bounds):
+    """A swarm's result sitting at `params`."""
+    from bench.model.lptn_fit import LptnFit, parameters_on_bounds
+
+    scaled = log_scaled(bounds)
+    coords = to_search(np.array(params.as_vector()), scaled)
+    nodes = measured_nodes(runs)
+    cost = float(batch_cost(np.array([params.as_vector()]), runs, DT, np.ones(4), nodes)[0])
+    return LptnFit(params, cost, [], 0, 0, 1, 0, bounds, parameters_on_bounds(params, bounds), nodes, coords[None])
+
+
+def test_the_prior_takes_what_the_data_cannot_see_off_the_walls():
+    from bench.model.polish import polish_lptn
+
+    # no speed in the data: b_wm does nothing; a fit that left it on its upper wall
+    runs = [_run(seed, with_speed=False) for seed in range(2)]
+    bounds = parameter_bounds(TRUTH, (0.3, 3.0))
+    fit = _fit_at(TRUTH.with_values(b_wm=bounds["b_wm"][1]), runs, bounds)
+    assert [h["name"] for h in fit.on_bounds] == ["b_wm"]
+    polished, result = polish_lptn(fit, runs, DT, starts=1, prior=TRUTH)
+    assert not polished.on_bounds
+    # maximum a posteriori: back at the prior's value (pulled there, or frozen there and named)
+    assert polished.params.b_wm == pytest.approx(TRUTH.b_wm, rel=0.05) or result.frozen == ("b_wm",)
+    assert result.prior.weight == pytest.approx(1.0 / result.prior.n_eff) and 1 < result.prior.n_eff < 2 * STEPS
+    # without a prior (plain likelihood) nothing moves it: the polish keeps the swarm's wall value
+    plain, record = polish_lptn(fit, runs, DT, starts=1)
+    assert record.prior is None and record.frozen == () and plain.params.b_wm >= TRUTH.b_wm * 2.9
+
+
+def test_a_frozen_parameter_keeps_its_value_and_the_penalty_is_its_rows():
+    from bench.model.polish import PriorPenalty, Residuals, polish_one
+
+    runs = [_run(0)]
+    bounds = parameter_bounds(TRUTH, (0.3, 3.0))
+    scaled = log_scaled(bounds)
+    lower, upper = search_bounds(bounds)
+    start = to_search(np.array(TRUTH.with_values(R_cy0=0.015, C_w=2000.0).as_vector()), scaled)
+    centre = to_search(np.array(TRUTH.as_vector()), scaled)
+    penalty = PriorPenalty(centre, (upper - lower) / 4, 1e-3, 1e3)
+    assert math.fsum(penalty.rows(start) ** 2) == pytest.approx(penalty.cost(start), rel=1e-12)
+    free = np.ones(22, bool)
+    free[LptnParameters.names().index("R_cy0")] = False
+    coords, cost, _ = polish_one(Residuals(runs, DT, measured_nodes(runs), scaled), start, lower, upper, penalty,
+                                 free)
+    assert coords[~free].tobytes() == start[~free].tobytes()
+    assert not np.array_equal(coords[free], start[free]) and math.isfinite(cost)
+
+
+def test_parameters_on_bounds_are_one_sentence_with_advice():
+    from bench.commands.identify import _bound_warning
+
+    hits = [{"name": "R_yw", "value": 0.04, "bound": "upper", "limit": 0.04},
+            {"name": "C_m", "value": 180.0, "bound": "lower", "limit": 180.0}]
+    sentence = _bound_warning(hits, "table1", [0.5, 2.0])
+    assert sentence.count(". ") == 0 and "2 of 22" in sentence and "R_yw = 0.04 (upper" in sentence
+    assert "C_m = 180 (lower" in sentence and "--prior auto" in sentence and "0.5-2" in sentence
+    assert "--prior auto" not in _bound_warning(hits[:1], "auto", [0.1, 10.0])
