@@ -76,7 +76,7 @@ class FaultyBus:
         self._hold_until = 0.0
         self._witness: dict[int, Injection] = {}
         self._foreign_ids: set[int] = set()
-        # index of each faultable drive frame in its row (0: DriveInputs, 1: DriveTemps, 2: DriveCurrents)
+        # index of each faultable frame in its row (0: DriveInputs, 1: DriveTemps, 2: DriveCurrents, 3: Measurements)
         self._drive_index = {frame_id(name): i for i, name in enumerate(FAULTED_HOST_MESSAGES)}
 
     # ------------------------------------------------------------------ row context (from the lockstep loop)
