@@ -41,7 +41,7 @@ import numpy as np
 
 from bench.analysis.busload import bus_load
 from bench.analysis.logdecode import BusRecord
-from bench.analysis.observer_metrics import observer_results
+from bench.analysis.observer_metrics import observer_results, sigma_at
 from bench.analysis.results import (
     Accuracy,
     Agreement,
@@ -97,6 +97,7 @@ class References:
     kept: np.ndarray | None = None            # (rows,) the rows every figure is over (`rowfilter.kept_rows`)
     figure_rows: FigureRows | None = None     # how many, and those left out by reason
     open_loop: np.ndarray | None = None       # (steps, 4) the open loop's float32 run beside an observer's
+    sigma: np.ndarray | None = None           # (steps, 4) an observer's 1-sigma per node, from the target's frames
 
 
 def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int, initial, stop_row: int, *,
@@ -329,6 +330,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     at_steps = refs.step_rows if len(refs.step_rows) else np.zeros(0, dtype=np.int64)
     can_at_steps = selection.values(record.temps[at_steps], at_steps)
     refs.can, refs.kept, refs.figure_rows = can_at_steps, kept, selection.counts
+    if measured is not None:
+        refs.sigma = sigma_at(record, at_steps)
     low, high = temperature_range()
     in_range = (refs.f32 >= low) & (refs.f32 <= high)
     saturated = int(np.count_nonzero(~in_range))
