@@ -70,6 +70,7 @@ from bench.thermal.estimator import SIGMOID_ROWS, identity_sigmoid, loop_paramet
 from bench.thermal.excitation import interval_means
 from dbc.contract import HEARTBEAT_TIMEOUT_S, M4_CLOCK_HZ, MEASUREMENT_MESSAGE, MEASUREMENT_SLOTS, TEMPERATURE_NODES
 from dbc.database import frame_id, temperature_range
+from dbc.mutations import FRAME_FAULT_KINDS
 from dbc.transport import NOMINAL_BITRATE
 from host.results import gap_count, percentiles
 from target_sim.artifact import ModelArtifact
@@ -283,9 +284,11 @@ def drive_for_model(record: BusRecord, artifact: ModelArtifact) -> BusRecord:
 
 
 def measurement_faults(record: BusRecord) -> int:
-    """The faults the log marks on Measurements frames."""
+    """The frame faults the log marks on Measurements frames (a delayed row's mark names its first frame, which is
+    its Measurements: the row still arrives whole)."""
     fid = frame_id(MEASUREMENT_MESSAGE)
-    return sum(1 for mark in record.marks if mark.event == "fault" and mark.frame_id == fid)
+    return sum(1 for mark in record.marks
+               if mark.event == "fault" and mark.frame_id == fid and mark.fault in FRAME_FAULT_KINDS)
 
 
 def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarray, dict]:
