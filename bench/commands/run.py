@@ -12,7 +12,10 @@ log out/run/bench.blf (format by suffix: .blf .asc .log .csv .mf4), report out/r
 A user's own data file is read through --mapping (column names, units, derived columns, time column, separator)
 at --sample-period (default auto: the mapping's, else the model's); its sample period must be the model's. A model
 with an electrical loss model needs the d/q currents: the host then sends each row's DriveCurrents after its
-DriveInputs and DriveTemps, and data without them is refused in one sentence before anything starts.
+DriveInputs and DriveTemps, and data without them is refused in one sentence before anything starts. A model with an
+observer (`bench observer`) needs its measured column: the host sends each row's Measurements frame before its
+DriveInputs, the target corrects its estimate with it and reports each node's 1-sigma (the report draws a ±2σ band);
+the firmware engine refuses such a model before any work (its C has no observer yet).
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
 ±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). In the JSON summary (--json)
 "clean" (true/false) comes with "verdict": "clean", or "not clean: " and the reasons ("; "-separated problems, or
