@@ -27,13 +27,21 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   timing frames; after every CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames
   (x after that step). The last used row sent again (a host retransmitting a row whose reply it did not get) is
   answered again with the same temperatures and steps nothing (`repeats`).
+* A model with an observer (the artifact's `observer` section, `target_sim.observer_node`): the Measurements frame
+  of a row (sent before its DriveInputs) is kept; when the row completes, the value of the observer's slot in the
+  kept frame of that Step, if its status is VALID, is one more value of the row, averaged over the interval with
+  the drive values (none: NaN, and the model step of an interval with such a row predicts only). Every model step
+  is then answered, after its Timing frames, with Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations.
+  RESET resets the covariance to P0, RESTORE too (x bit for bit, P0). A model without an observer validates
+  Measurements frames and ignores them.
 * Sequence errors (counted, SEQUENCE fault bit, nothing reaches the model): a drive frame outside RUNNING, a
   DriveTemps without its DriveInputs (a DriveCurrents without its DriveTemps), a row whose frames have different
   Steps, a DriveInputs whose row never completed, a row that goes back (or repeats one before the last: not
   answered), START outside READY. A row ahead of the expected one (rows lost on the bus) is one sequence error;
   the lost rows are left out of their intervals' means, a model step whose interval ended among them runs on the
-  rows of it that did arrive (or holds the previous step's inputs if none did), so the model keeps time, and then
-  the row is used.
+  rows of it that did arrive (or holds the previous step's inputs if none did, but not an observer's measurement),
+  so the model keeps time, and then the row is used. A Measurements frame of another Step than the row it precedes
+  is a sequence error too (the row is used, without a measurement).
 * Rejected frames (unknown id, wrong length, CRC, signal out of range, alive-counter jump: `dbc.FrameValidator`)
   are counted per kind and set RX_ERROR; they change nothing else. Nothing a frame carries can crash the node:
   an unexpected exception sets INTERNAL and the state FAULT (a RESET recovers).
