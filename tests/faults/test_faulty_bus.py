@@ -248,3 +248,27 @@ def test_without_the_journal_target_side_detection_is_unknown_and_a_problem():
     assert "journal is not available" in fault_problems(summary)[0]
     assert "detection unchecked" in fault_note(summary)
     assert set(summary["injected"]) <= set(KINDS)
+
+
+def test_a_stale_counter_is_not_put_on_a_measurements_frame_whose_previous_one_was_lost():
+    """Its stale counter would be the one the target expects after the lost frame (an undetectable fault): that
+    Measurements frame goes out intact, and the target's journal names every stale counter injected."""
+    from host.replay import encode_row
+
+    rows = 12
+    spec = parse_faults(["stale_counter=1"], seed=2)
+    inner = ListBus()
+    bus = FaultyBus(inner, FaultPlan(spec, rows, measurements=True), delay_s=0.0)
+    codec = FrameCodec("HOST")
+    for row in range(rows):
+        bus.begin_row(row, 0, eligible=row > 0)
+        for frame in encode_row(codec, row, [10.0, 1000.0, 40.0, 25.0], [60.0, float("nan")]):
+            bus.send(frame)
+        bus.end_row()
+    measured = [i.row for i in bus.injections if i.frame_id == frame_id("Measurements")]
+    assert measured == [1, 3, 5, 7, 9]       # every other row: never after a faulted one, never the last row
+    node = TargetNode(load_artifact(default_artifact_path()), journal=(records := []).append)
+    for frame in inner.sent:
+        node.handle(frame)
+    stale = [r for r in records if r["id"] == frame_id("Measurements") and "repeats alive counter" in r["detail"]]
+    assert len(stale) == len(measured)
