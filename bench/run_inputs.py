@@ -1,5 +1,6 @@
 """What a run needs before anything starts: the model artifact, the drive data checked against it (sample period,
-d/q currents), the rows the host sends, and the firmware image for the firmware engine.
+d/q currents, the observer's measurement column), the rows (and measurements) the host sends, and the firmware image
+for the firmware engine.
 
 `matching_dataset` finds the dataset in out/data a log was recorded from (its measured reference, for `bench
 analyze` and the figures of `bench replay`). The default dataset (the 40 °C validation run) is generated in out/data
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bench.errors import BenchError
+from bench.errors import BenchError, UsageError
 from target_sim.artifact import ModelArtifact, load_artifact
 from target_sim.losses import reads_currents
 
@@ -31,6 +32,18 @@ def load_model(path: str | Path | None) -> tuple[ModelArtifact, Path]:
     return load_artifact(model_path), model_path
 
 
+def refuse_engine(engine: str, artifact: ModelArtifact) -> None:
+    """BenchError (one sentence) when `engine` cannot run `artifact` (the firmware engine: a loss model or an observer
+    its generated C lacks); a command calls it before any work."""
+    if engine != "firmware":
+        return
+    from target_sim.firmware.node_protocol import firmware_refusal
+
+    refusal = firmware_refusal(artifact)
+    if refusal is not None:
+        raise BenchError(refusal)
+
+
 def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True,
                         isr: bool = False) -> Path | None:
     """The ELF the target runs with `engine` "firmware" (None for "python"): the packaged one of a packaged
@@ -38,11 +51,7 @@ def firmware_for_engine(engine: str, artifact: ModelArtifact, cache_dir: Path, *
     firmware cannot run); with `isr` the timing image with the motor-control interrupt (always built, cached)."""
     if engine != "firmware":
         return None
-    from target_sim.firmware.node_protocol import firmware_refusal
-
-    refusal = firmware_refusal(artifact)
-    if refusal is not None:
-        raise BenchError(refusal)
+    refuse_engine(engine, artifact)
     from bench.firmware.images import firmware_for
 
     return firmware_for(artifact, cache_dir, quiet=quiet, isr=isr)
@@ -83,6 +92,52 @@ def check_drive_data(dataset: Dataset, artifact: ModelArtifact) -> None:
         raise BenchError(f"model {artifact.model_id:08x}{where} has an {artifact.loss_model} loss model, which needs "
                          f"the d/q currents, and {dataset.path} has none (columns i_d_A, i_q_A); map them with "
                          "--mapping or use a model with loss maps")
+
+
+def check_measurement_data(dataset: Dataset, artifact: ModelArtifact) -> None:
+    """BenchError (one sentence) when the model's observer measures a column the data does not have: refused before
+    anything starts (the filter would otherwise run open loop without saying so)."""
+    column = measured_column(artifact)
+    if column is not None and not dataset.has(column):
+        where = f" ({artifact.path})" if artifact.path is not None else ""
+        raise BenchError(f"model {artifact.model_id:08x}{where} has an observer that measures column {column}, and "
+                         f"{dataset.path} has none; map it with --mapping or use a model without an observer")
+
+
+def measured_column(artifact: ModelArtifact) -> str | None:
+    """The dataset column the artifact's observer reads over CAN, None without an observer."""
+    from target_sim.observer_node import measured_column as column
+
+    refuse_over_can(artifact)
+    return column(artifact)
+
+
+def refuse_over_can(artifact: ModelArtifact) -> None:
+    """UsageError (one sentence, exit 2) for an observer the CAN frames cannot carry (the flux linkage from raw
+    channels, more than one measurement: `target_sim.observer_node.can_refusal`); a command calls it before any
+    work."""
+    from target_sim.observer_node import can_refusal
+
+    refusal = can_refusal(artifact)
+    if refusal is not None:
+        raise UsageError(refusal)
+
+
+def measurements_for(dataset: Dataset, artifact: ModelArtifact) -> np.ndarray | None:
+    """What the host sends per row in Measurements: (rows, one column per `dbc.contract.MEASUREMENT_SLOTS`), the
+    observer's column in its slot and NaN (absent) elsewhere; None for a model without an observer (no Measurements
+    frames, the bus as before)."""
+    from dbc.contract import MEASUREMENT_SLOTS
+    from target_sim.observer_node import observer_slot
+
+    refuse_over_can(artifact)
+    slot = observer_slot(artifact)
+    if slot is None:
+        return None
+    check_measurement_data(dataset, artifact)
+    out = np.full((len(dataset.time_s), len(MEASUREMENT_SLOTS)), np.nan)
+    out[:, MEASUREMENT_SLOTS.index(slot)] = dataset.column(measured_column(artifact))
+    return out
 
 
 def drive_for(dataset: Dataset, artifact: ModelArtifact) -> np.ndarray:

@@ -94,12 +94,15 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
                     *, mode: str = "lockstep", speed: float = 1.0, sample_period_s: float = 0.2,
                     log_path: str | Path | None = None, reply_timeout_s: float = 0.05,
                     progress: Progress | None = None, faults: FaultSpec | None = None,
-                    firmware: Path | None = None, isr_rate_hz: int = 0) -> RunOutcome:
+                    firmware: Path | None = None, isr_rate_hz: int = 0,
+                    measurements: np.ndarray | None = None) -> RunOutcome:
     """Start the target on `bus`, replay `drive` from this process, stop the target.
 
     With `faults` (active), the target writes its detection journal to a temporary file and the host may kill,
     freeze and restart it; the result carries the fault summary (`result.faults`). With `firmware` (an ELF,
-    `firmware_for_engine`) the target runs the firmware engine, with `isr_rate_hz` its motor-control interrupt."""
+    `firmware_for_engine`) the target runs the firmware engine, with `isr_rate_hz` its motor-control interrupt;
+    `measurements` (a model with an observer, `bench.run_inputs.measurements_for`) go out in each row's Measurements
+    frame."""
     injecting = faults is not None and faults.active
     target_files = scratch_dir("target")   # its stats; its journal when injecting
     events = Path(target_files.name) / "target-events.jsonl" if injecting else None
@@ -115,7 +118,8 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
                 sample_period_s=sample_period_s, log_path=log_path, reply_timeout_s=reply_timeout_s,
                 alive=target.exit_reason, connect_timeout_s=OWN_TARGET_CONNECT_TIMEOUT_S, progress=progress,
                 faults=faults if injecting else None,
-                control=target.control() if injecting else None, target_events=events), target)
+                control=target.control() if injecting else None, target_events=events,
+                measurements=measurements), target)
             killed = target.killed_by_other()   # before stop(): it ended while the host still ran
             status = target.stop()
             stderr = target.stderr_text()

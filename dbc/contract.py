@@ -57,6 +57,22 @@ DRIVE_SIGNALS: tuple[tuple[str, str], ...] = (("DriveInputs", "MotorTorque"), ("
 # loss model needs them (the artifact's drive_signals), one with loss maps ignores them
 CURRENT_SIGNALS: tuple[tuple[str, str], ...] = (("DriveCurrents", "CurrentD"), ("DriveCurrents", "CurrentQ"))
 CURRENT_MESSAGE = "DriveCurrents"
+# The observer's frames (DBC 1.6.0). The host sends a row's Measurements right before its DriveInputs: one slot per
+# kind of measurement, a value and its status; the host's measurement matrix has one column per slot, in this order
+# (NaN: absent). A target with an observer answers every model step with each node's 1-sigma (Uncertainty1/2, in the
+# temperature order as the replies) and the innovation of each slot its update used (Innovations).
+MEASUREMENT_MESSAGE = "Measurements"
+MEASUREMENT_SLOTS: tuple[str, ...] = ("sensor", "flux")
+# slot -> (value signal, status signal) of Measurements, (innovation signal, used flag) of Innovations
+MEASUREMENT_SIGNALS: Mapping[str, tuple[str, str]] = MappingProxyType({
+    "sensor": ("SensorTemp", "SensorStatus"), "flux": ("FluxMagnetTemp", "FluxMagnetStatus")})
+INNOVATION_MESSAGE = "Innovations"
+INNOVATION_SIGNALS: Mapping[str, tuple[str, str]] = MappingProxyType({
+    "sensor": ("SensorInnovation", "SensorUsed"), "flux": ("FluxMagnetInnovation", "FluxMagnetUsed")})
+SIGMA_SIGNALS: Mapping[str, tuple[tuple[str, int], ...]] = MappingProxyType({
+    "Uncertainty1": (("WindingSigma", 1), ("MagnetSigma", 3)),
+    "Uncertainty2": (("YokeSigma", 0), ("ToothSigma", 2))})
+OBSERVER_MESSAGES: tuple[str, ...] = (*SIGMA_SIGNALS, INNOVATION_MESSAGE)   # per model step, in this order
 # messages whose Step names the row of a command or an event (the DBC's comments say which); in every other message
 # that carries a Step, it is the data row the frame belongs to (a row's own frames, the replies, timing, checkpoints)
 EVENT_STEP_MESSAGES: tuple[str, ...] = ("Control", "ResetTemps1", "ResetTemps2", "RestoreState", "BenchEvent")
@@ -129,6 +145,12 @@ def join_temperatures(frames: Mapping[str, Mapping[str, float]],
     return out
 
 
+def measurement_values(signals: Mapping[str, float]) -> list[float]:
+    """A Measurements frame's values in MEASUREMENT_SLOTS order, NaN for a slot whose status is not VALID."""
+    return [float(signals[value]) if int(signals[status]) == MeasurementStatus.VALID else float("nan")
+            for value, status in MEASUREMENT_SIGNALS.values()]
+
+
 class FrameError(CanLinkError, ValueError):
     """A frame that may not be sent or was rejected on receipt; ``kind`` is one of FRAME_ERROR_KINDS."""
 
@@ -195,6 +217,14 @@ class Realization(IntEnum):
     @property
     def label(self) -> str:
         return self.name.lower()
+
+
+class MeasurementStatus(IntEnum):
+    """``Measurements.SensorStatus`` / ``FluxMagnetStatus`` (VAL_ table of the DBC): only a VALID value is used."""
+
+    ABSENT = 0    # no reading in this row
+    VALID = 1
+    INVALID = 2   # a reading its source flags as unusable (e.g. the flux linkage below its speed)
 
 
 class BenchEvent(IntEnum):

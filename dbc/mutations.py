@@ -11,7 +11,8 @@ counter c (`mutate`):
 * stale_counter: F carries counter c-1 (the previous frame's) with a valid CRC: a sender that did not count.
 * wrong_length: F goes out with its first 0..7 bytes only (DLC 0..7).
 * unknown_id: F goes out on an id no DBC message has (its id with bit 3 flipped).
-* out_of_range: the 16-bit signal at bit 28 (MotorTorque, CoolantTemp, CurrentD, WindingTemp, YokeTemp) carries
+* out_of_range: the 16-bit signal at bit 28 (MotorTorque, CoolantTemp, CurrentD, SensorTemp, WindingTemp, YokeTemp)
+  carries
   its largest raw value (3276.7 Nm, 3276.7 degC, 3276.7 A, 605.35 degC: beyond the DBC range) with a valid CRC and
   counter.
 """
@@ -24,7 +25,7 @@ from functools import cache
 import can
 
 from dbc.codec import apply_crc, profile2_crc
-from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, REPLY_MESSAGES, row_messages
+from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, MEASUREMENT_MESSAGE, REPLY_MESSAGES, row_messages
 from dbc.database import contract, frame_id
 
 FRAME_FAULT_KINDS: tuple[str, ...] = ("drop", "duplicate", "corrupt", "stale_counter", "wrong_length", "unknown_id",
@@ -32,8 +33,9 @@ FRAME_FAULT_KINDS: tuple[str, ...] = ("drop", "duplicate", "corrupt", "stale_cou
 REPLY_PREFIX = "reply_"       # a frame fault the target injects into its replies: "reply_drop", ...
 REPLY_FAULT_KINDS: tuple[str, ...] = tuple(REPLY_PREFIX + kind for kind in FRAME_FAULT_KINDS)
 # the host's frames its fault layer may alter: those of a data row, in their order (DriveInputs, DriveTemps, and
-# DriveCurrents, which goes out only when the drive data has the currents)
-FAULTED_HOST_MESSAGES = row_messages(len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS))
+# DriveCurrents, which goes out only when the drive data has the currents), then Measurements (sent before the
+# row's DriveInputs, only for a model with an observer)
+FAULTED_HOST_MESSAGES = (*row_messages(len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS)), MEASUREMENT_MESSAGE)
 UNKNOWN_ID_FLIP = 0x008
 OUT_OF_RANGE_START = 28
 _MASK = (1 << 64) - 1

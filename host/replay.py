@@ -20,17 +20,31 @@ DriveCurrents, wait for that row's replies).
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cache
 from typing import Protocol
 
 import can
 import numpy as np
 
 from dbc.codec import FrameCodec
-from dbc.contract import CURRENT_MESSAGE, DRIVE_SIGNALS, FaultBit, TargetState, row_messages, row_signals, step_of
+from dbc.contract import (
+    CURRENT_MESSAGE,
+    DRIVE_SIGNALS,
+    MEASUREMENT_MESSAGE,
+    MEASUREMENT_SIGNALS,
+    MEASUREMENT_SLOTS,
+    FaultBit,
+    MeasurementStatus,
+    TargetState,
+    row_messages,
+    row_signals,
+    step_of,
+)
 from dbc.database import frame_id, host_frame_ids, signal_ranges
 from host.errors import HostError
 from host.session import HOST_PAUSE_S, HostSession, RowBook, SessionError
@@ -65,25 +79,65 @@ def check_drive_range(drive: np.ndarray) -> None:
                                  f"{message}.{signal} can carry ({low:g} to {high:g}); fix or clip the data")
 
 
-def encode_row(codec: FrameCodec, row: int, values: Sequence[float]) -> list[can.Message]:
+def check_measurements(measurements: np.ndarray | None, rows: int) -> None:
+    """The measurement matrix: one row per data row, one column per `dbc.contract.MEASUREMENT_SLOTS` (NaN: absent;
+    a value the DBC cannot carry goes out flagged INVALID)."""
+    if measurements is None:
+        return
+    if measurements.ndim != 2 or measurements.shape != (rows, len(MEASUREMENT_SLOTS)):
+        raise DataRangeError(f"the measurements have shape {measurements.shape}, not ({rows}, "
+                             f"{len(MEASUREMENT_SLOTS)}): one column per slot ({', '.join(MEASUREMENT_SLOTS)})")
+
+
+@cache
+def _measurement_limits() -> dict[str, tuple[float, float]]:
+    return signal_ranges(MEASUREMENT_MESSAGE)
+
+
+def measurement_signals(step: int, values: Sequence[float]) -> dict[str, float | int]:
+    """The Measurements frame of a row: per slot its value and status, VALID for a value the DBC carries, ABSENT for
+    NaN, INVALID for anything else (the value field then holds the signal's minimum)."""
+    limits = _measurement_limits()
+    signals: dict[str, float | int] = {"Step": step}
+    for value, (value_signal, status_signal) in zip(values, MEASUREMENT_SIGNALS.values(), strict=True):
+        low, high = limits[value_signal]
+        if math.isnan(value):
+            status = MeasurementStatus.ABSENT
+        elif low <= value <= high:
+            status = MeasurementStatus.VALID
+        else:
+            status = MeasurementStatus.INVALID
+        signals[value_signal] = value if status == MeasurementStatus.VALID else low
+        signals[status_signal] = int(status)
+    return signals
+
+
+def encode_row(codec: FrameCodec, row: int, values: Sequence[float],
+               measurement: Sequence[float] | None = None) -> list[can.Message]:
     """The frames of data row `row` (values in DRIVE_SIGNALS order: torque, speed, coolant, ambient; then i_d, i_q
-    for DriveCurrents when there are 6), in the order of `dbc.contract.row_messages`."""
+    for DriveCurrents when there are 6), in the order of `dbc.contract.row_messages`; with `measurement` (one value
+    per measurement slot) the row's Measurements frame goes first."""
     step = step_of(row)
     signals: dict[str, dict[str, float]] = {}
     for (message, signal), value in zip(row_signals(len(values)), values, strict=True):
         signals.setdefault(message, {"Step": step})[signal] = value
-    return [codec.encode(message, values) for message, values in signals.items()]
+    frames = [codec.encode(message, values) for message, values in signals.items()]
+    if measurement is not None:
+        frames.insert(0, codec.encode(MEASUREMENT_MESSAGE, measurement_signals(step, measurement)))
+    return frames
 
 
-class _RowValues:
-    """values[n]: row n of the drive matrix as Python floats, made when it is encoded (a list of lists of the whole
-    run would cost about 200 bytes a row)."""
+class RowValues:
+    """`frames(codec, n)`: the frames of row n of the drive matrix (and of the measurement matrix, if any), its values
+    made Python floats when it is encoded (a list of lists of the whole run would cost about 200 bytes a row)."""
 
-    def __init__(self, drive: np.ndarray) -> None:
+    def __init__(self, drive: np.ndarray, measurements: np.ndarray | None = None) -> None:
         self.drive = drive
+        self.measurements = measurements
 
-    def __getitem__(self, row: int) -> list[float]:
-        return self.drive[row].tolist()
+    def frames(self, codec: FrameCodec, row: int) -> list[can.Message]:
+        measured = self.measurements
+        return encode_row(codec, row, self.drive[row].tolist(), None if measured is None else measured[row].tolist())
 
 
 @dataclass
@@ -128,15 +182,16 @@ def _silent(session: HostSession) -> bool:
 
 
 def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: float,
-                 abort_after: int = DEFAULT_ABORT_AFTER, progress: Progress | None = None) -> ReplayStats:
+                 abort_after: int = DEFAULT_ABORT_AFTER, progress: Progress | None = None,
+                 measurements: np.ndarray | None = None) -> ReplayStats:
     rows = len(drive)
     book = session.book = RowBook(rows)
-    values = _RowValues(drive)
+    values = RowValues(drive, measurements)
     codec = session.codec
     perf, perf_ns = time.perf_counter, time.perf_counter_ns
     consecutive = 0
     aborted = None
-    next_frames = encode_row(codec, 0, values[0]) if rows else []
+    next_frames = values.frames(codec, 0) if rows else []
     started = perf()
     sent = 0
     for n in range(rows):
@@ -147,7 +202,7 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
         sent += 1
         session.flush_log()
         if n + 1 < rows:
-            next_frames = encode_row(codec, n + 1, values[n + 1])
+            next_frames = values.frames(codec, n + 1)
         if not wait_for_reply(session, book, n, reply_timeout_s):
             consecutive += 1
             if _silent(session):
@@ -186,17 +241,17 @@ class RowHooks(Protocol):
 
 def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: float, speed: float = 1.0,
                  reply_timeout_s: float, progress: Progress | None = None,
-                 hooks: RowHooks | None = None) -> ReplayStats:
+                 hooks: RowHooks | None = None, measurements: np.ndarray | None = None) -> ReplayStats:
     rows = len(drive)
     book = session.book = RowBook(rows)
-    values = _RowValues(drive)
+    values = RowValues(drive, measurements)
     codec = session.codec
     perf, perf_ns = time.perf_counter, time.perf_counter_ns
     interval = sample_period_s / speed
     margin = min(0.001, interval / 4)
     jitter = np.zeros(rows)
     aborted = None
-    frames = encode_row(codec, 0, values[0]) if rows else []
+    frames = values.frames(codec, 0) if rows else []
     start = perf() + 0.05
     sent = 0
     previous = start - interval   # when the previous row went out
@@ -221,7 +276,7 @@ def run_realtime(session: HostSession, drive: np.ndarray, *, sample_period_s: fl
         sent += 1
         session.flush_log()
         if n + 1 < rows:
-            frames = encode_row(codec, n + 1, values[n + 1])
+            frames = values.frames(codec, n + 1)
         if (n & 63) == 0:
             if _silent(session):
                 aborted = (f"the target went silent (no heartbeat for more than "

@@ -39,6 +39,7 @@ from host.replay import (
     DEFAULT_ABORT_AFTER,
     Progress,
     check_drive_range,
+    check_measurements,
     host_frames,
     replay_frames,
     run_lockstep,
@@ -67,9 +68,11 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
                 abort_after: int = DEFAULT_ABORT_AFTER, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
                 alive: Callable[[], str | None] | None = None, progress: Progress | None = None,
                 faults: FaultSpec | None = None, control: ProcessControl | None = None,
-                target_events: str | Path | None = None, events_since: float | None = None) -> HostResult:
+                target_events: str | Path | None = None, events_since: float | None = None,
+                measurements: np.ndarray | None = None) -> HostResult:
     """Replay `drive` (rows, 4: torque, speed, coolant, ambient; or rows, 6 with i_d, i_q, which then go out in
-    DriveCurrents) to the target on `bus`.
+    DriveCurrents) to the target on `bus`; with `measurements` (rows, one column per `dbc.contract.
+    MEASUREMENT_SLOTS`, NaN: absent) each row's Measurements frame goes out before its DriveInputs.
 
     `faults` (active) injects faults (kill/freeze: lockstep only, with `control`); `target_events` is the target's
     detection journal, read from `events_since` on.
@@ -78,9 +81,13 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
         raise ValueError(f"mode {mode!r} is not one of {', '.join(MODES)}")
     drive = np.asarray(drive, dtype=float)
     check_drive_range(drive)
+    if measurements is not None:
+        measurements = np.asarray(measurements, dtype=float)
+        check_measurements(measurements, len(drive))
     faulty = plan = None
     if faults is not None and faults.active:
-        plan = FaultPlan(faults, len(drive), frames_per_row=len(row_messages(drive.shape[1])))
+        plan = FaultPlan(faults, len(drive), frames_per_row=len(row_messages(drive.shape[1])),
+                         measurements=measurements is not None)
         if mode == "realtime":
             check_realtime_faults(plan, sample_period_s, speed, reply_timeout_s)
         if plan.process_rows and control is None:
@@ -98,18 +105,19 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
         if faulty is not None and plan is not None and mode == "realtime":
             stats, fault_run = run_realtime_with_faults(
                 session, drive, faulty=faulty, plan=plan, sample_period_s=sample_period_s, speed=speed,
-                reply_timeout_s=reply_timeout_s, progress=progress)
+                reply_timeout_s=reply_timeout_s, progress=progress, measurements=measurements)
         elif faulty is not None and plan is not None:
             stats, fault_run = run_lockstep_with_faults(
                 session, drive, initial, faulty=faulty, plan=plan, control=control, reply_timeout_s=reply_timeout_s,
-                connect_timeout_s=connect_timeout_s, abort_after=abort_after, progress=progress)
+                connect_timeout_s=connect_timeout_s, abort_after=abort_after, progress=progress,
+                measurements=measurements)
         elif mode == "lockstep":
             stats = run_lockstep(session, drive, reply_timeout_s=reply_timeout_s, abort_after=abort_after,
-                                 progress=progress)
+                                 progress=progress, measurements=measurements)
         else:
             stats = run_realtime(session, drive, sample_period_s=sample_period_s, speed=speed,
                                  reply_timeout_s=max(reply_timeout_s, 2 * sample_period_s / speed),
-                                 progress=progress)
+                                 progress=progress, measurements=measurements)
         session.stop()
         if fault_run is not None:  # the target's final counters: a RxErrors sent after it stopped
             session.wait_for(lambda f: f.name == "RxErrors", 0.3)

@@ -9,7 +9,9 @@ Loads and verifies the artifact (a bad one: one sentence on stderr, exit 1) and,
 model's firmware ELF (`bench firmware build`): the whole node (bench/firmware/node.c and the model) runs in the
 emulated Cortex-M4F and this process only moves frames between the bus and its mailbox (`target_sim.engines`). An
 ELF for another core, or of another model than the artifact's (its `fw_model_id`), is refused in one sentence,
-exit 1 (`--firmware` implies the firmware engine; `--engine firmware` needs it). Then it opens the bus (`auto`:
+exit 1 (`--firmware` implies the firmware engine; `--engine firmware` needs it). A model whose observer the CAN
+frames cannot carry (the flux linkage from its raw channels, more than one measurement) is refused in one sentence,
+exit 2. Then it opens the bus (`auto`:
 socketcan vcan0 if usable, else udp_multicast), announces itself (TargetInfo, then Status/RxErrors every 100 ms)
 and serves until SIGTERM, SIGINT or SIGHUP, then shuts the bus down and exits 0. `--parent-pid PID` (what `bench`
 passes to the targets it starts) ties it to that process, its parent: it stops the same way when PID dies (Linux:
@@ -44,6 +46,7 @@ from target_sim.engines import ENGINES, make_node
 from target_sim.errors import TargetError
 from target_sim.faults import ReplyFaults, parse_reply_faults
 from target_sim.node import log_error, serve, target_on_channel
+from target_sim.observer_node import can_refusal
 
 
 class _Parser(argparse.ArgumentParser):
@@ -176,6 +179,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("the 'virtual' interface does not cross processes, so no host could reach the target; "
                          "use udp_multicast, socketcan or auto")
         artifact = load_artifact(args.model)
+        refusal = can_refusal(artifact)
+        if refusal is not None:   # an observer whose readings no frame carries: refused, not run wrongly
+            print(f"target_sim: error: {refusal}", file=sys.stderr)
+            return 2
         node = make_node(artifact, engine=engine, firmware=args.firmware,   # the ELF checked before the bus opens
                          isr_rate_hz=args.isr_rate)
         bus = config.open()

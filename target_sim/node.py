@@ -27,13 +27,21 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   timing frames; after every CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames
   (x after that step). The last used row sent again (a host retransmitting a row whose reply it did not get) is
   answered again with the same temperatures and steps nothing (`repeats`).
+* A model with an observer (the artifact's `observer` section, `target_sim.observer_node`): the Measurements frame
+  of a row (sent before its DriveInputs) is kept; when the row completes, the value of the observer's slot in the
+  kept frame of that Step, if its status is VALID, is one more value of the row, averaged over the interval with
+  the drive values (none: NaN, and the model step of an interval with such a row predicts only). Every model step
+  is then answered, after its Timing frames, with Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations.
+  RESET resets the covariance to P0, RESTORE too (x bit for bit, P0). A model without an observer validates
+  Measurements frames and ignores them.
 * Sequence errors (counted, SEQUENCE fault bit, nothing reaches the model): a drive frame outside RUNNING, a
   DriveTemps without its DriveInputs (a DriveCurrents without its DriveTemps), a row whose frames have different
   Steps, a DriveInputs whose row never completed, a row that goes back (or repeats one before the last: not
   answered), START outside READY. A row ahead of the expected one (rows lost on the bus) is one sequence error;
   the lost rows are left out of their intervals' means, a model step whose interval ended among them runs on the
-  rows of it that did arrive (or holds the previous step's inputs if none did), so the model keeps time, and then
-  the row is used.
+  rows of it that did arrive (or holds the previous step's inputs if none did, but not an observer's measurement),
+  so the model keeps time, and then the row is used. A Measurements frame of another Step than the row it precedes
+  is a sequence error too (the row is used, without a measurement).
 * Rejected frames (unknown id, wrong length, CRC, signal out of range, alive-counter jump: `dbc.FrameValidator`)
   are counted per kind and set RX_ERROR; they change nothing else. Nothing a frame carries can crash the node:
   an unexpected exception sets INTERNAL and the state FAULT (a RESET recovers).
@@ -67,6 +75,9 @@ import numpy as np
 from dbc.codec import FrameCodec, FrameValidator, decode_any
 from dbc.contract import (
     CHECKPOINT_EVERY_STEPS,
+    INNOVATION_MESSAGE,
+    MEASUREMENT_MESSAGE,
+    OBSERVER_MESSAGES,
     REPLY_SIGNALS,
     RESET_SIGNALS,
     RX_ERROR_KINDS,
@@ -80,6 +91,7 @@ from dbc.contract import (
     Realization,
     TargetState,
     join_temperatures,
+    measurement_values,
     row_messages,
     row_signals,
     split_temperatures,
@@ -91,6 +103,8 @@ from target_sim.artifact import ModelArtifact
 from target_sim.costs import memory_estimate, step_cost
 from target_sim.faults import ReplyFaults
 from target_sim.model import Float32Estimator, InputAccumulator
+from target_sim.observer import has_observer
+from target_sim.observer_node import NodeObserver, observer_signals
 
 SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll before blocking (0 disables)
 
@@ -103,9 +117,10 @@ class RowAccumulator(InputAccumulator):
     """The interval-mean rule (`InputAccumulator`), plus what to do with rows lost on the bus (see the module
     docstring)."""
 
-    def __init__(self, sample_period_s: float, dt_s: float, width: int = 4):
+    def __init__(self, sample_period_s: float, dt_s: float, width: int = 4, measured: bool = False):
         super().__init__(sample_period_s, dt_s, width)
         self.last_inputs: np.ndarray | None = None
+        self.measured = measured   # the last value is an observer's measurement: never held over a step
 
     def add(self, row: int, sample) -> np.ndarray | None:
         """Add row `row`; the inputs of its model step if this row completes the interval."""
@@ -125,6 +140,8 @@ class RowAccumulator(InputAccumulator):
                 self.last_inputs = mean
             elif self.last_inputs is not None:
                 mean = self.last_inputs.copy()  # none did: hold the previous step's inputs
+                if self.measured:
+                    mean[-1] = np.float32(np.nan)   # but not its measurement: that step predicts only
             else:
                 continue  # nothing ever arrived: no inputs to step on
             inputs.append(mean)
@@ -145,7 +162,10 @@ class TargetNode:
         self.artifact = artifact
         self.journal = journal
         self._msg: can.Message | None = None
-        self.model = Float32Estimator(artifact)
+        # with an observer section the model steps through the filter (`target_sim.observer_node`); x, y and the
+        # checkpoints are its estimator's
+        self.observer = NodeObserver(artifact) if has_observer(artifact) else None
+        self.model = self.observer.model if self.observer is not None else Float32Estimator(artifact)
         self.cost = step_cost(artifact)
         self.memory = memory_estimate(artifact, self.cost)
         self.dt_ns = int(round(artifact.dt * 1e9))
@@ -157,7 +177,10 @@ class TargetNode:
         self.errors = dict.fromkeys(RX_ERROR_KINDS, 0)
         self.last_error = ""
         width = len(artifact.drive_signals)    # 4 drive values, 6 with the d/q currents
-        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt, width)
+        # an observer's measurement is one more value of the row, averaged over the interval with the drive values
+        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt,
+                                          width + (self.observer is not None), measured=self.observer is not None)
+        self._measurement: tuple[int, list[float]] | None = None   # (Step, values) of the last Measurements frame
         self.row_messages = row_messages(width)    # DriveInputs, DriveTemps (, DriveCurrents): a row, in order
         self._row_index = {name: index for index, name in enumerate(self.row_messages)}
         self._row_signals = row_signals(width)
@@ -181,6 +204,8 @@ class TargetNode:
         self._timing2 = {"EstCycles": _clamp(self.cost.cycles, timing2["EstCycles"]),
                          "EstExecTime": _clamp(round(self.cost.exec_time_us, 1), timing2["EstExecTime"])}
         self._timing3 = {"CpuLoad": _clamp(round(self.cost.cpu_load_percent(artifact.dt), 4), timing3["CpuLoad"])}
+        self._sigma_limits = signal_ranges("Uncertainty1")["WindingSigma"]
+        self._innovation_limits = signal_ranges(INNOVATION_MESSAGE)["SensorInnovation"]
 
     # ------------------------------------------------------------------ frames the node sends
     def _encode(self, name: str, signals: dict) -> list[can.Message]:
@@ -235,6 +260,13 @@ class TargetNode:
                                          "Overruns": min(self.overruns, 255)})
                 + self._encode("Timing2", {"Step": step, **self._timing2})
                 + self._encode("Timing3", {"Step": step, **self._timing3}))
+
+    def _observer_frames(self, step: int) -> list[can.Message]:
+        """Uncertainty1, Uncertainty2 and Innovations after a model step of the observer."""
+        observer = self.observer
+        signals = observer_signals(observer.sigma(), observer.innovation(), observer.slot, self._sigma_limits,
+                                   self._innovation_limits)
+        return [frame for name in OBSERVER_MESSAGES for frame in self._encode(name, {"Step": step, **signals[name]})]
 
     # ------------------------------------------------------------------ receiving
     def _set_state(self, state: TargetState) -> list[can.Message]:
@@ -293,6 +325,9 @@ class TargetNode:
             return []
         if name == "Control":
             return self._control(Command(int(signals["Command"])), int(signals["Step"]))
+        if name == MEASUREMENT_MESSAGE and self.observer is not None:
+            self._measurement = (int(signals["Step"]), measurement_values(signals))
+            return []
         return []  # a frame of the contract no rule acts on (BenchEvent, unread DriveCurrents, ...): validated only
 
     def _row_frame(self, name: str, index: int, signals: dict) -> list[can.Message]:
@@ -321,14 +356,28 @@ class TargetNode:
         self._pending = []
         frames = {message: frame for message, frame in zip(row, (*pending, signals), strict=True)}
         sample = tuple(frames[message][signal] for message, signal in self._row_signals)
+        if self.observer is not None:
+            sample += (self._measured(int(signals["Step"])),)
         return self._row(int(signals["Step"]), sample)
+
+    def _measured(self, step: int) -> float:
+        """The observer's measurement for the row of `step` (NaN: none, predict only): the value of its slot in the
+        Measurements frame of that Step that came before the row. A Measurements frame of another Step is a sequence
+        error; a row without one (lost, refused, not sent) has none."""
+        pending, self._measurement = self._measurement, None
+        if pending is None:
+            return float("nan")
+        if pending[0] != step:
+            self._sequence_error(f"{MEASUREMENT_MESSAGE} of step {pending[0]} before the row of step {step}")
+            return float("nan")
+        return pending[1][self.observer.slot_index]
 
     def _control(self, command: Command, step: int) -> list[can.Message]:
         if command == Command.RESET:
             frames, self._reset_frames = self._reset_frames, {}
             if len(frames) != len(RESET_SIGNALS) or any(f["Step"] != step for f in frames.values()):
                 return self._incomplete(f"RESET of step {step} without {' and '.join(RESET_SIGNALS)} of that step")
-            self.model.reset(join_temperatures(frames, RESET_SIGNALS))
+            (self.observer or self.model).reset(join_temperatures(frames, RESET_SIGNALS))
             return self._ready()
         if command == Command.RESTORE:
             elements, self._restore_frames = self._restore_frames, {}
@@ -337,7 +386,7 @@ class TargetNode:
             if len(state) != STATE_SIZE:
                 return self._incomplete(f"RESTORE of step {step} without the {STATE_SIZE} RestoreState elements "
                                         "of that step")
-            self.model.restore(state)
+            (self.observer or self.model).restore(state)
             return self._ready()
         if command == Command.START:
             if self.state != TargetState.READY:
@@ -347,6 +396,7 @@ class TargetNode:
         if command == Command.STOP:
             self.validator.reset_counters()
             self._pending = []
+            self._measurement = None
             return self._set_state(TargetState.STOPPED)
         return []
 
@@ -361,6 +411,7 @@ class TargetNode:
         self.estimate = self.model.y.copy()
         self.accumulator.reset()
         self._pending = []
+        self._measurement = None
         self.next_row = None
         self.last_reply_row = None
         self.rows_used = self.model_steps = self.overruns = 0
@@ -400,11 +451,15 @@ class TargetNode:
         if mean is not None:
             inputs.append(mean)
         timing = []
-        model = self.model
+        observer = self.observer
+        step_model = self.model.step if observer is None else (lambda *values: observer.step(values))
+        observed = []
         for step_inputs in inputs:
             started = self.clock_ns()
-            self.estimate = model.step(*step_inputs)
+            self.estimate = step_model(*step_inputs)
             elapsed = self.clock_ns() - started
+            if observer is not None:
+                observed.append(self._observer_frames(step))
             self.model_steps += 1
             if elapsed > self.dt_ns:
                 self.overruns += 1
@@ -412,8 +467,10 @@ class TargetNode:
             timing.append(elapsed)
         out += self._temperature_frames(step)
         self.last_reply_row = row
-        for elapsed in timing:
+        for index, elapsed in enumerate(timing):
             out += self._timing_frames(step, elapsed)
+            if observed:
+                out += observed[index]
         if timing and self.model_steps % CHECKPOINT_EVERY_STEPS == 0:
             out += self._checkpoint_frames(step)
         return out

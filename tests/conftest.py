@@ -97,3 +97,15 @@ def pytest_configure(config) -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if signal.getsignal(signal.SIGHUP) == signal.SIG_IGN:
         signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
+@pytest.fixture(scope="session")
+def observer_artifact(tmp_path_factory, small_dataset) -> Path:
+    """The packaged hammerstein model with an observer of its winding node (winding_C), written by `bench observer`
+    on the small synthetic dataset with a two-run tuning (its Q and R are the search's start: what matters here is
+    the protocol, not the tuning)."""
+    from bench.cli import main
+
+    out = tmp_path_factory.mktemp("observer") / "observer.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--out", str(out), "--quiet"]) == 0
+    return out

@@ -241,9 +241,11 @@ def session_drive(n: int, seed: int) -> np.ndarray:
                             np.full(n, 40.0), np.full(n, 25.0)])
 
 
-def session_frames(artifact, values: np.ndarray, *, stop: bool = True) -> list[can.Message]:
+def session_frames(artifact, values: np.ndarray, *, stop: bool = True,
+                   measurements: np.ndarray | None = None) -> list[can.Message]:
     """Every frame of a lockstep session as the host logs it (a Python target node answering in-process): the
-    target's heartbeat before and during it, RESET and START, the rows, STOP (with `stop`)."""
+    target's heartbeat before and during it, RESET and START, the rows (each after its Measurements frame with
+    `measurements`, one row per data row), STOP (with `stop`)."""
     from dbc import Command, FrameCodec
     from host.replay import encode_row
     from target_sim.node import TargetNode
@@ -262,7 +264,7 @@ def session_frames(artifact, values: np.ndarray, *, stop: bool = True) -> list[c
           host.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
           host.encode("Control", {"Command": int(Command.START), "Step": 0})])
     for row, value in enumerate(values):
-        send(encode_row(host, row, value))
+        send(encode_row(host, row, value, None if measurements is None else measurements[row].tolist()))
         if row % 25 == 0:
             frames.extend(node.heartbeat_frames())
     if stop:

@@ -41,6 +41,7 @@ import numpy as np
 
 from bench.analysis.busload import bus_load
 from bench.analysis.logdecode import BusRecord
+from bench.analysis.observer_metrics import observer_results, sigma_at
 from bench.analysis.results import (
     Accuracy,
     Agreement,
@@ -67,8 +68,9 @@ from bench.analysis.rowfilter import RowSelection, kept_rows
 from bench.analysis.verdict import QUANTIZATION_C, notes
 from bench.thermal.estimator import SIGMOID_ROWS, identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
-from dbc.contract import HEARTBEAT_TIMEOUT_S, M4_CLOCK_HZ, TEMPERATURE_NODES
-from dbc.database import temperature_range
+from dbc.contract import HEARTBEAT_TIMEOUT_S, M4_CLOCK_HZ, MEASUREMENT_MESSAGE, MEASUREMENT_SLOTS, TEMPERATURE_NODES
+from dbc.database import frame_id, temperature_range
+from dbc.mutations import FRAME_FAULT_KINDS
 from dbc.transport import NOMINAL_BITRATE
 from host.results import gap_count, percentiles
 from target_sim.artifact import ModelArtifact
@@ -76,6 +78,8 @@ from target_sim.costs import memory_estimate
 from target_sim.kinds import MODEL_KINDS, is_delta
 from target_sim.losses import reads_currents, row_of_width
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
+from target_sim.observer import has_observer, run_observer_offline
+from target_sim.observer_node import NodeObserver, observer_slot
 
 TEMPERATURES = TEMPERATURE_NODES
 AGREEMENT_TOLERANCE_C = QUANTIZATION_C + 1e-9
@@ -93,26 +97,35 @@ class References:
     can: np.ndarray | None = None             # (steps, 4) the CAN values of the kept rows (NaN: not kept)
     kept: np.ndarray | None = None            # (rows,) the rows every figure is over (`rowfilter.kept_rows`)
     figure_rows: FigureRows | None = None     # how many, and those left out by reason
+    open_loop: np.ndarray | None = None       # (steps, 4) the open loop's float32 run beside an observer's
+    sigma: np.ndarray | None = None           # (steps, 4) an observer's 1-sigma per node, from the target's frames
 
 
 def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int, initial, stop_row: int, *,
-                      state=None) -> np.ndarray:
+                      state=None, measured: np.ndarray | None = None) -> np.ndarray:
     """(stop_row - start_row, 4): the estimate the target replies with after each row, for a target reset to
     `initial` (or restored to the state vector `state`) at `start_row` (the target's own float32 code and
-    interval-mean rule, accumulator empty)."""
-    model = Float32Estimator(artifact)
+    interval-mean rule, accumulator empty). A model with an observer steps through it (`target_sim.observer_node`:
+    a restore starts its covariance afresh, as the target's does) on `measured`, its measurement per row (NaN:
+    none)."""
+    observer = NodeObserver(artifact) if has_observer(artifact) else None
+    model = observer or Float32Estimator(artifact)
     if state is not None:
         model.restore(state)
     else:
         model.reset(initial)
-    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, len(artifact.drive_signals))
-    estimate = model.y.copy()
+    step = model.step if observer is None else (lambda *values: observer.step(values))
+    samples = np.asarray(drive[start_row:stop_row], dtype=np.float64)
+    if observer is not None:
+        column = np.full(len(drive), np.nan) if measured is None else np.asarray(measured, dtype=np.float64)
+        samples = np.column_stack([samples, column[start_row:stop_row]])
+    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, samples.shape[1])
+    estimate = (observer.model if observer is not None else model).y.copy()
     out = np.empty((max(stop_row - start_row, 0), 4), dtype=np.float32)
-    samples = np.asarray(drive[start_row:stop_row], dtype=np.float32)
-    for i, sample in enumerate(samples):
+    for i, sample in enumerate(samples.astype(np.float32)):
         inputs = acc.add(start_row + i, sample)
         if inputs is not None:
-            estimate = model.step(*inputs)
+            estimate = step(*inputs)
         out[i] = estimate
     return out.astype(np.float64)
 
@@ -143,7 +156,7 @@ def restarted_agreement(artifact: ModelArtifact, record: BusRecord, clean: np.nd
             ref = clean[:stop]
         else:
             ref = segment_estimates(artifact, record.drive, segment.start_row, segment.initial, stop,
-                                    state=segment.state)
+                                    state=segment.state, measured=observed_column(record, artifact))
         offset = segment.start_row
         keep = (segment.reply_rows >= offset) & (segment.reply_rows < rows)
         at = segment.reply_rows[keep]
@@ -191,16 +204,38 @@ def float64_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np
     return traj[0]
 
 
-def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None) -> References:
-    step_rows, f32 = run_offline(artifact, drive, initial)
-    f64 = float64_reference(artifact, drive, initial)
+def observed_column(record: BusRecord, artifact: ModelArtifact) -> np.ndarray | None:
+    """The measurement the artifact's observer read in each row of the log (NaN: none), None without an observer."""
+    slot = observer_slot(artifact)
+    if slot is None:
+        return None
+    if record.measurements.shape[0] != record.rows:
+        return np.full(record.rows, np.nan)
+    return record.measurements[:, MEASUREMENT_SLOTS.index(slot)]
+
+
+def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None,
+               measured: np.ndarray | None = None) -> References:
+    """The offline float32 and float64 references; for a model with an observer the observer's (the target's own
+    code in float32, and in float64) on `measured`, with the open loop's float32 run beside (`open_loop`)."""
+    open_loop = None
+    if has_observer(artifact):
+        z = np.full(len(drive), np.nan) if measured is None else measured
+        run = run_observer_offline(artifact, drive, z, initial)
+        step_rows, f32 = run.rows, run.outputs
+        f64 = run_observer_offline(artifact, drive, z, initial, dtype=np.float64).outputs.astype(np.float64)
+        open_loop = run_offline(artifact, drive, initial)[1].astype(np.float64)
+    else:
+        step_rows, f32 = run_offline(artifact, drive, initial)
+        f64 = float64_reference(artifact, drive, initial)
     steps = min(len(step_rows), len(f64))
     step_time = (np.arange(steps) + 1) * artifact.dt
     winding = pm = None
     if dataset is not None:
         winding = np.interp(step_time, dataset.time_s, dataset.winding_C)
         pm = np.interp(step_time, dataset.time_s, dataset.pm_C)
-    return References(step_rows[:steps], step_time, f32[:steps].astype(np.float64), f64[:steps], winding, pm)
+    return References(step_rows[:steps], step_time, f32[:steps].astype(np.float64), f64[:steps], winding, pm,
+                      open_loop=None if open_loop is None else open_loop[:steps])
 
 
 def _rmse(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -255,6 +290,14 @@ def drive_for_model(record: BusRecord, artifact: ModelArtifact) -> BusRecord:
     return replace(record, drive=record.drive[:, :width])
 
 
+def measurement_faults(record: BusRecord) -> int:
+    """The frame faults the log marks on Measurements frames (a delayed row's mark names its first frame, which is
+    its Measurements: the row still arrives whole)."""
+    fid = frame_id(MEASUREMENT_MESSAGE)
+    return sum(1 for mark in record.marks
+               if mark.event == "fault" and mark.frame_id == fid and mark.fault in FRAME_FAULT_KINDS)
+
+
 def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarray, dict]:
     """Every final reply against the target's twin fed the logged frames (`bench.analysis.twin`)."""
     from bench.analysis.twin import twin_estimates
@@ -280,10 +323,14 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         raise ValueError("the log has no complete RESET (ResetTemps1, ResetTemps2, Control RESET)")
     record = drive_for_model(record, artifact)
     drive, lost_rows = intended_drive(record, dataset)
+    measured = observed_column(record, artifact)
     with np.errstate(over="ignore", invalid="ignore"):   # a model that overflows: judged below, not warned about
-        refs = references(artifact, drive, record.initial, dataset)
+        refs = references(artifact, drive, record.initial, dataset, measured)
         clean = _clean_estimates(refs, record.rows, record.initial)   # the clean run's estimate after each row
-        if lost_rows:
+        # a faulted Measurements frame may have been refused by the target's alive-counter check, which the log's
+        # host frames do not undergo: only the twin knows which measurements the filter got
+        use_twin = bool(lost_rows or (measured is not None and measurement_faults(record)))
+        if use_twin:
             final_ref, agreement = twin_agreement(artifact, record)
         else:
             final_ref, agreement = restarted_agreement(artifact, record, clean)
@@ -293,6 +340,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     at_steps = refs.step_rows if len(refs.step_rows) else np.zeros(0, dtype=np.int64)
     can_at_steps = selection.values(record.temps[at_steps], at_steps)
     refs.can, refs.kept, refs.figure_rows = can_at_steps, kept, selection.counts
+    if measured is not None:
+        refs.sigma = sigma_at(record, at_steps)
     low, high = temperature_range()
     in_range = (refs.f32 >= low) & (refs.f32 <= high)
     saturated = int(np.count_nonzero(~in_range))
@@ -343,7 +392,7 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         agreement=Agreement(
             max_abs_can_minus_float32_C=max_agree,
             can_agrees_with_float32=all(v is None or v <= AGREEMENT_TOLERANCE_C for v in max_agree.values()),
-            replies_compared=agreement["compared"], can_reference="target twin" if lost_rows else "offline float32",
+            replies_compared=agreement["compared"], can_reference="target twin" if use_twin else "offline float32",
             rows_lost_on_the_bus=lost_rows, max_abs_can_minus_clean_C=_deviation(record, clean, selection),
             segments=len(record.segments), saturated_values=saturated),
         accuracy=Accuracy(
@@ -385,7 +434,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
             last_row=record.rows - 1, log=str(record.path)),
         faults=fault_metrics(record),
         bus_load=bus_load(record, record.frame_data, artifact.data_sample_period, bitrate),
-        figure_rows=selection.counts)
+        figure_rows=selection.counts,
+        observer=observer_results(record, artifact, refs))
     results.notes = notes(results)
     return finite_results(results, nulls), refs
 

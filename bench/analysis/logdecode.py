@@ -5,7 +5,10 @@ forgotten: the last session of a log wins); its START Step is data row 0, and a 
 row nearest to the last row sent (mod 65536), so a row sent again (a retransmission) is the same row. A data row
 is a DriveInputs followed by the DriveTemps of the same Step, and in a log whose host sent the d/q currents (DBC
 1.4.0) the DriveCurrents of that Step right after them: such a log's drive matrix has six columns (torque, speed,
-coolant, ambient, i_d, i_q; NaN where a row's DriveCurrents never came intact), else four. The initial temperatures
+coolant, ambient, i_d, i_q; NaN where a row's DriveCurrents never came intact), else four. A row's measurements
+(DBC 1.6.0, a model with an observer) are the VALID values of the Measurements frame of its Step that came right
+before its pair, as the target pairs them (`measurements`, NaN: none); the observer's per-step frames (each node's
+1-sigma, the innovations) are collected like the timing frames (`observer`). The initial temperatures
 are those of the
 ResetTemps frames the session's RESET used. Frames that fail the DBC checks (unknown id, length, CRC, range)
 are counted and skipped; the drive values of a row come from its frames that pass them.
@@ -59,6 +62,9 @@ from dbc.contract import (
     CURRENT_SIGNALS,
     DRIVE_SIGNALS,
     FIRMWARE_TIMING_MESSAGE,
+    INNOVATION_MESSAGE,
+    MEASUREMENT_MESSAGE,
+    MEASUREMENT_SLOTS,
     REPLY_BIT,
     REPLY_COMPLETE,
     REPLY_SIGNALS,
@@ -71,6 +77,7 @@ from dbc.contract import (
     FrameError,
     TargetState,
     join_temperatures,
+    measurement_values,
     nearest_row,
     rx_error_counts,
     target_info,
@@ -118,6 +125,10 @@ class BusRecord:
     foreign: dict[str, int] = field(default_factory=dict)      # frames that passed them but are not of this session
     initial: np.ndarray | None = None            # [yoke, winding, tooth, magnet] of the session's first RESET
     drive: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))   # (rows, 4), or 6 with the d/q currents
+    # (rows, one per measurement slot): the VALID values of the Measurements frame that came before each row's pair
+    # (NaN: none), and how many Measurements frames passed the checks (0: the host sent none)
+    measurements: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    measurement_frames: int = 0
     sent_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     replied_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -125,6 +136,8 @@ class BusRecord:
     contested: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # rows whose replies disagree
     replayed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))   # a rejected reply disagrees
     timing: dict[str, np.ndarray] = field(default_factory=dict)   # row, measured_us, overruns, cycles, ...
+    # per model step of an observer (Uncertainty1/2, Innovations): row_u1, winding_sigma, ..., row_inn, sensor_used
+    observer: dict[str, np.ndarray] = field(default_factory=dict)
     status_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     final_state: str | None = None
     faults_seen: int = 0
@@ -235,6 +248,14 @@ _TIMING_SIGNALS = {"Timing1": ("row_t1", (("measured_us", "StepTimeMeasured"), (
                    FIRMWARE_TIMING_MESSAGE: ("row_t4", (("m4_cycles", "M4Cycles"), ("m4_exec_us", "M4ExecTime"))),
                    # the firmware's response time and its interrupt's load (only with the motor-control interrupt)
                    RESPONSE_TIMING_MESSAGE: ("row_t5", (("response_us", "ResponseTime"), ("isr_load", "IsrLoad")))}
+# the observer's frames per model step (a target whose model has an observer), collected like the timing frames
+_OBSERVER_SIGNALS = {"Uncertainty1": ("row_u1", (("winding_sigma", "WindingSigma"), ("magnet_sigma", "MagnetSigma"))),
+                     "Uncertainty2": ("row_u2", (("yoke_sigma", "YokeSigma"), ("tooth_sigma", "ToothSigma"))),
+                     INNOVATION_MESSAGE: ("row_inn", (("sensor_innovation", "SensorInnovation"),
+                                                      ("sensor_used", "SensorUsed"),
+                                                      ("flux_innovation", "FluxMagnetInnovation"),
+                                                      ("flux_used", "FluxMagnetUsed")))}
+_STEP_SERIES = {**_TIMING_SIGNALS, **_OBSERVER_SIGNALS}
 # BLF file header (python-can's FILE_HEADER_STRUCT): "LOGG", then at byte 16 the file size its writer records
 # when it closes the file (until then: the header's own size, 144)
 _BLF_SIZE_OFFSET = 16
@@ -261,6 +282,8 @@ class _LogDecoder:
         self.pending_inputs: tuple[dict, float] | None = None   # a DriveInputs waiting for its DriveTemps
         self.pending_pair: tuple[int, int, dict] | None = None   # (Step, row, DriveTemps) of the last pair: its
         # DriveCurrents comes next
+        self.pending_measurement: tuple[int, list[float]] | None = None   # the last Measurements: (Step, values)
+        self.measurement_frames = 0
         self._new_rows()
         self.reset_frames: dict[str, dict] = {}
         self.restore_frames: dict[int, dict] = {}
@@ -277,9 +300,9 @@ class _LogDecoder:
         self.frame_ids = array("I")
         self.frame_bytes = bytearray()
         self.handlers = {"DriveInputs": self.drive_inputs, "DriveTemps": self.drive_temps,
-                         CURRENT_MESSAGE: self.drive_currents,
+                         CURRENT_MESSAGE: self.drive_currents, MEASUREMENT_MESSAGE: self.measurement,
                          **dict.fromkeys(REPLY_SIGNALS, self.temperatures),
-                         **dict.fromkeys(_TIMING_SIGNALS, self.timing_frame),
+                         **dict.fromkeys(_STEP_SERIES, self.timing_frame),
                          **dict.fromkeys(RESET_SIGNALS, self.reset_temps),
                          "RestoreState": self.restore_state, "Control": self.control,
                          "BenchEvent": self.bench_event, "Status": self.status, "RxErrors": self.rx_errors,
@@ -289,11 +312,12 @@ class _LogDecoder:
         """Forget the rows sent so far (a fresh session)."""
         self.drive = _Grow((len(DRIVE_SIGNALS),))
         self.currents = _Grow((len(CURRENT_SIGNALS),))      # row -> [i_d, i_q] of its DriveCurrents
+        self.measured = _Grow((len(MEASUREMENT_SLOTS),))    # row -> its Measurements' VALID values
         self.rows = 0                                        # 1 + the last row with a pair
 
     @staticmethod
     def _empty_timing() -> dict[str, array]:
-        return {key: array("d") for row_key, signals in _TIMING_SIGNALS.values()
+        return {key: array("d") for row_key, signals in _STEP_SERIES.values()
                 for key in (row_key, *(k for k, _ in signals))}
 
     def _row(self, segment: _SegmentBuilder, step) -> int:
@@ -356,6 +380,10 @@ class _LogDecoder:
         drive = self.drive.ensure(row)
         drive[row] = (inputs["MotorTorque"], inputs["MotorSpeed"], s["CoolantTemp"], s["AmbientTemp"])
         self.currents.ensure(row)[row] = np.nan     # a row sent again: its currents come again after this pair
+        # the Measurements of this Step sent before the pair, as the target pairs them (none: NaN, predict only)
+        measured, self.pending_measurement = self.pending_measurement, None
+        self.measured.ensure(row)[row] = measured[1] if measured is not None and measured[0] == int(s["Step"]) \
+            else np.nan
         self.rows = max(self.rows, row + 1)
         self.pending_pair = (int(s["Step"]), row, s)
         segment.host_row = row
@@ -374,6 +402,11 @@ class _LogDecoder:
             self.currents.ensure(pair[1])[pair[1]] = (s["CurrentD"], s["CurrentQ"])
         else:
             self.pending_pair = None
+
+    def measurement(self, name: str, s: dict, t: float) -> None:
+        """A row's measurements, kept until the pair of their Step (the row they go with) comes."""
+        self.measurement_frames += 1
+        self.pending_measurement = (int(s["Step"]), measurement_values(s))
 
     def _reply_row(self, name: str, s: dict) -> tuple[_SegmentBuilder, int] | None:
         """The target's segment and the row a reply or timing frame names; None (counted foreign) when the host had
@@ -434,7 +467,7 @@ class _LogDecoder:
         found = self._reply_row(name, s)
         if found is None:
             return
-        row_key, signals = _TIMING_SIGNALS[name]
+        row_key, signals = _STEP_SERIES[name]
         self.timing[row_key].append(found[1])
         for key, signal in signals:
             self.timing[key].append(s[signal])
@@ -528,11 +561,17 @@ class _LogDecoder:
         currents = self.currents.ensure(rows)[:rows]
         with_currents = bool(np.isfinite(currents).any())
         record.drive = np.concatenate([drive, currents], axis=1) if with_currents else drive.copy()
-        self.drive = self.currents = None
+        record.measurements = self.measured.ensure(rows)[:rows].copy()
+        record.measurement_frames = self.measurement_frames
+        self.drive = self.currents = self.measured = None
         record.segments = [segment.build() for segment in self.segments]
         self._final_replies(rows)
         # the columns become arrays over the same memory (no copy: the decoder is done with them)
-        record.timing = {k: np.frombuffer(v, dtype=np.float64) for k, v in self.timing.items()}
+        series = {k: np.frombuffer(v, dtype=np.float64) for k, v in self.timing.items()}
+        observer_keys = {key for row_key, signals in _OBSERVER_SIGNALS.values()
+                         for key in (row_key, *(k for k, _ in signals))}
+        record.timing = {k: v for k, v in series.items() if k not in observer_keys}
+        record.observer = {k: v for k, v in series.items() if k in observer_keys}
         record.status_s = np.frombuffer(self.status_s, dtype=np.float64)
         record.frame_s = np.frombuffer(self.frame_s, dtype=np.float64)
         record.frame_dlc = np.frombuffer(self.frame_dlc, dtype=np.uint8)

@@ -68,6 +68,26 @@ def _envelope(t: np.ndarray, y: np.ndarray, buckets: int = PLOT_BUCKETS) -> tupl
     return np.repeat(mid, 2), np.column_stack([low, high]).ravel()
 
 
+def _band(t: np.ndarray, low: np.ndarray, high: np.ndarray,
+          buckets: int = PLOT_BUCKETS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, low, high) as is when short, else per slice the smallest low and the largest high at the slice's mid time
+    (a band drawn over a long run keeps every excursion, like `_envelope`)."""
+    n = len(t)
+    if n <= 2 * buckets:
+        return t, low, high
+    size = -(-n // buckets)
+
+    def sliced(values, fill):
+        padded = np.full(size * buckets, fill)
+        padded[:n] = values
+        return padded.reshape(buckets, size)
+
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return (np.nanmean(sliced(t, np.nan), axis=1), np.nanmin(sliced(low, np.nan), axis=1),
+                np.nanmax(sliced(high, np.nan), axis=1))
+
+
 def _can(record: BusRecord, refs: References) -> np.ndarray:
     """(steps, 4) the CAN values drawn: the kept rows' (NaN elsewhere)."""
     if refs.can is not None:
@@ -119,6 +139,13 @@ def temperatures(path: Path, record: BusRecord, refs: References, title: str) ->
         measured = {"winding": refs.measured_winding, "magnet": refs.measured_pm}.get(name)
         if measured is not None:
             ax.plot(*_envelope(t_h, measured), color="0.55", lw=1.6, label="measured (reference)")
+        if refs.sigma is not None:   # an observer: its ±2σ about the CAN estimate, and the open loop beside it
+            low, high = can[:, i] - 2 * refs.sigma[:, i], can[:, i] + 2 * refs.sigma[:, i]
+            ax.fill_between(*_band(t_h, _finite(low), _finite(high)), color="tab:red", alpha=0.15, lw=0,
+                            label="observer ±2σ (the target's Uncertainty frames)")
+        if refs.open_loop is not None:
+            ax.plot(*_envelope(t_h, _finite(refs.open_loop[:, i])), color="tab:green", lw=1.0,
+                    label="offline float32, open loop")
         ax.plot(*_envelope(t_h, f64[:, i]), color="tab:blue", lw=1.0, label="offline float64")
         ax.plot(*_envelope(t_h, f32[:, i]), color="tab:orange", lw=1.0, ls="--", label="offline float32")
         ax.plot(*_envelope(t_h, can[:, i]), color="tab:red", lw=0, marker=".", ms=1.2,

@@ -198,6 +198,23 @@ def fault_section(faults: FaultResults) -> list[str]:
     return lines
 
 
+def observer_section(obs) -> list[str]:
+    """Open loop and observer side by side per node, the measured node named, the target's 1-sigma and innovations."""
+    lines = ["## Observer", "",
+             f"The model runs a Kalman observer on its linear block, measuring the **{obs.measured_node}** node (the "
+             f"Measurements frame's {obs.slot} slot): its error there is not an estimate's, the filter is pulled "
+             f"towards that measurement. {obs.rows_measured} rows carried a valid measurement; "
+             f"{obs.model_steps_updated} of {obs.model_steps} model steps used one (the others predicted only).", "",
+             "| | " + " | ".join(TEMPERATURES) + " |", "|---|---|---|---|---|",
+             _row("RMSE open loop, offline float32 (°C)", obs.open_loop_rmse_C, 3),
+             _row("RMSE observer, offline float32 (°C)", obs.observer_rmse_C, 3),
+             _row("1-σ after the last step, target (°C)", obs.sigma_final_C, 3),
+             _row("largest 1-σ, target (°C)", obs.sigma_max_C, 3), "",
+             f"RMS of the innovations the target reported: {_fmt(obs.innovation_rms_C)} °C. The RMSEs are against "
+             "the measured temperatures (– where the data has none).", ""]
+    return lines
+
+
 def _row(label: str, values, digits: int) -> str:
     return f"| {label} | " + " | ".join(_fmt(values.get(t), digits) for t in TEMPERATURES) + " |"
 
@@ -291,6 +308,8 @@ def render_markdown(metrics: RunResults, found: list[str], dataset, run_info: di
         lines.append("")
     if faults:
         lines += fault_section(faults)
+    if m.observer is not None:
+        lines += observer_section(m.observer)
     lines += ["## Figures", "",
               "Temperatures: CAN values (the target's float32 estimate as transmitted), the measured reference "
               "(winding and PM), and the offline float64 and float32 models on the same decoded inputs.", "",

@@ -456,6 +456,25 @@ class Acceptance:
                 "checks": [{**_dump(c), "verdict": c.verdict} for c in self.checks]}
 
 
+@dataclass
+class ObserverResults:
+    """The observer of a model with one (`target_sim.observer`): the node its measurement sees (its error there is
+    not an estimate's: the filter is pulled towards that measurement), how often a model step used a measurement, the
+    target's 1-sigma per node and its innovations (Uncertainty1/2, Innovations), and per node the open loop's and the
+    observer's RMSE, both offline float32, against the same reference (`rmse_reference`)."""
+
+    measured_node: str
+    slot: str                       # the Measurements slot it reads (sensor, flux)
+    rows_measured: int              # rows whose Measurements carried a VALID value in that slot
+    model_steps: int                # model steps the target reported (Innovations frames)
+    model_steps_updated: int        # of which its update used a measurement
+    sigma_final_C: NodeValues       # each node's 1-sigma after the last reported step
+    sigma_max_C: NodeValues
+    innovation_rms_C: float | None
+    open_loop_rmse_C: NodeValues
+    observer_rmse_C: NodeValues
+
+
 # ------------------------------------------------------------------------------------------------ results
 @dataclass
 class RunResults(_Json):
@@ -472,6 +491,7 @@ class RunResults(_Json):
     faults: FaultResults | None
     bus_load: BusLoad
     figure_rows: FigureRows
+    observer: ObserverResults | None = field(default=None, metadata=OMIT_NONE)   # a model with an observer
     notes: list[str] = field(default_factory=list)
     null_values: dict[str, str] = field(default_factory=dict)
     report: str | None = field(default=None, metadata=OMIT_NONE)   # report.md, once written

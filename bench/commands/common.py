@@ -128,6 +128,13 @@ def print_summary(m: RunResults, problems: list[str], faults: HostFaults | Fault
     print(f"throughput {fmt(m.throughput.throughput_steps_per_s, 0)} steps/s, round trip p50/p99 "
           f"{fmt(rtt.p50, 0)}/{fmt(rtt.p99, 0)} µs, bus load at the data rate "
           f"{fmt(m.bus_load.data_rate_percent, 2)} %")
+    if m.observer is not None:   # open loop and observer side by side; the measured node's error is not an estimate's
+        obs = m.observer
+        print(f"observer measuring the {obs.measured_node} node ({obs.slot} slot): {obs.model_steps_updated} of "
+              f"{obs.model_steps} model steps updated; RMSE open loop / observer (°C): " + ", ".join(
+                  f"{t} {fmt(obs.open_loop_rmse_C.get(t))}/{fmt(obs.observer_rmse_C.get(t))}" for t in temps
+                  if obs.open_loop_rmse_C.get(t) is not None)
+              + "; final 1-sigma (°C): " + ", ".join(f"{t} {fmt(obs.sigma_final_C.get(t))}" for t in temps))
     faults = faults or m.faults
     if faults:
         detected = faults.detected or {}

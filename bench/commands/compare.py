@@ -32,7 +32,7 @@ from bench.commands.common import add_engine_argument, add_output_flags, check_w
 from bench.errors import UsageError
 from bench.fileio import write_text_atomically
 from bench.progress import ProgressBar
-from bench.run_inputs import load_data, load_model
+from bench.run_inputs import load_data, load_model, refuse_over_can
 from dbc.transport import add_bus_arguments
 from target_sim.artifact import ModelArtifact, dumps
 from target_sim.kinds import MODEL_KINDS
@@ -103,7 +103,7 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
     from bench.leftovers import clear_and_say
     from bench.model.artifact_eval import artifact_drive
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import firmware_for_engine
+    from bench.run_inputs import firmware_for_engine, measurements_for
     from bench.runner import run_with_target
 
     # every ELF first (built where not packaged): a missing compiler stops the comparison before any run
@@ -113,13 +113,16 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
     table = []
     for (artifact, model_path), firmware in zip(loaded, elves, strict=True):
         drive = artifact_drive(artifact, dataset)[:rows] if rows else artifact_drive(artifact, dataset)
+        measurements = measurements_for(dataset, artifact)   # an observer's measurement, sent in Measurements
+        if measurements is not None:
+            measurements = measurements[: len(drive)]
         log_path = out_dir / f"{model_path.stem}.blf"
         clear_and_say(log_path, quiet)
         bar = ProgressBar(len(drive), artifact.kind, quiet)
         try:
             outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset),
                                       sample_period_s=dataset.sample_period_s, log_path=log_path, progress=bar,
-                                      firmware=firmware)
+                                      firmware=firmware, measurements=measurements)
         finally:
             bar.close()
         results, found = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate)
@@ -194,6 +197,8 @@ def run(args: argparse.Namespace) -> int:
         paths = build_default_artifacts(args.dt, args.out)
     # every artifact is checked before the first run, so a bad one leaves no logs of the others behind
     artifacts = [load_model(path)[0] for path in paths]
+    for artifact in artifacts:   # an observer whose readings no frame carries
+        refuse_over_can(artifact)
     dataset = load_data(args.data, artifacts[0], args.seed, quiet=quiet)
     bus = bus_from_args(args)
     table = compare_models(paths, dataset, bus, rows=args.rows, out_dir=args.out, quiet=quiet, engine=args.engine)

@@ -54,7 +54,7 @@ from bench.commands.common import (
 )
 from bench.errors import BenchError, UsageError
 from bench.leftovers import clear_and_say
-from bench.run_inputs import drive_for, load_data, load_model
+from bench.run_inputs import drive_for, load_data, load_model, measurements_for, refuse_over_can
 from dbc.database import host_frame_ids
 from dbc.transport import (
     SenderGuard,
@@ -118,11 +118,14 @@ def run_host(args: argparse.Namespace) -> int:
     check_writable(log_path, "--log")   # a directory there would fail the run only at its end
     check_log_names(log_path, faults)
     artifact, _ = load_model(args.model)
+    refuse_over_can(artifact)   # an observer whose readings no frame carries: before any work
     mapping, period = data_options(args)
     dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
     drive = drive_for(dataset, artifact)     # with the currents for an electrical loss model; refused without
+    measurements = measurements_for(dataset, artifact)   # a model with an observer: its measurement, else None
     if args.rows is not None:
         drive = drive[: args.rows]
+        measurements = None if measurements is None else measurements[: args.rows]
     from bench.model.runs import initial_temperatures
 
     clear_and_say(log_path, args.quiet or args.json)   # what a killed host left beside this log
@@ -142,7 +145,7 @@ def run_host(args: argparse.Namespace) -> int:
                              mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,
                              log_path=log_path, reply_timeout_s=args.reply_timeout,
                              connect_timeout_s=args.connect_timeout, faults=faults,
-                             target_events=args.target_events, events_since=started)
+                             target_events=args.target_events, events_since=started, measurements=measurements)
     except FaultSpecError as exc:   # kept for its exit status: a plan the host refuses here (faults in real time at
         raise BenchError(str(exc)) from None   # too short a sample interval) exits 1, a bad --fault option 2
     finally:

@@ -12,7 +12,12 @@ log out/run/bench.blf (format by suffix: .blf .asc .log .csv .mf4), report out/r
 A user's own data file is read through --mapping (column names, units, derived columns, time column, separator)
 at --sample-period (default auto: the mapping's, else the model's); its sample period must be the model's. A model
 with an electrical loss model needs the d/q currents: the host then sends each row's DriveCurrents after its
-DriveInputs and DriveTemps, and data without them is refused in one sentence before anything starts.
+DriveInputs and DriveTemps, and data without them is refused in one sentence before anything starts. A model with an
+observer (`bench observer`) needs its measured column: the host sends each row's Measurements frame before its
+DriveInputs, the target corrects its estimate with it and reports each node's 1-sigma (the report draws a ±2σ band);
+the firmware engine refuses such a model before any work (its C has no observer yet), and so does every engine an
+observer whose readings the frame cannot carry (the flux linkage from its raw channels, more than one measurement;
+exit 2).
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
 ±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). In the JSON summary (--json)
 "clean" (true/false) comes with "verdict": "clean", or "not clean: " and the reasons ("; "-separated problems, or
@@ -82,7 +87,15 @@ from bench.commands.common import (
 from bench.errors import BenchError, UsageError
 from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
-from bench.run_inputs import drive_for, firmware_for_engine, load_data, load_model
+from bench.run_inputs import (
+    drive_for,
+    firmware_for_engine,
+    load_data,
+    load_model,
+    measurements_for,
+    refuse_engine,
+    refuse_over_can,
+)
 from bench.runner import run_with_target
 from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 from host.canlog import LogError, check_log_path
@@ -142,18 +155,21 @@ def fault_spec(args: argparse.Namespace):
 
 
 def load_run_data(args: argparse.Namespace, artifact):
-    """The run's dataset (--data through --mapping at --sample-period) and the drive rows the host sends: 4 values
-    per row, 6 with the d/q currents for an electrical loss model (BenchError, one sentence, when the data lacks
-    them or its sample period is not the model's)."""
+    """The run's dataset (--data through --mapping at --sample-period), the drive rows the host sends (4 values per
+    row, 6 with the d/q currents for an electrical loss model) and, for a model with an observer, the measurements
+    (`bench.run_inputs.measurements_for`; else None): BenchError, one sentence, when the data lacks what the model
+    needs or its sample period is not the model's."""
     if args.data is None and getattr(args, "mapping", None) is not None:
         raise UsageError("--mapping says how to read your own data file: pass it with --data FILE")
     mapping, period = data_options(args)
     dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json, mapping=mapping,
                         sample_period_s=period)
     drive = drive_for(dataset, artifact)
+    measurements = measurements_for(dataset, artifact)
     if args.rows is not None:
         drive = drive[: args.rows]
-    return dataset, drive
+        measurements = None if measurements is None else measurements[: args.rows]
+    return dataset, drive, measurements
 
 
 def run(args: argparse.Namespace) -> int:
@@ -170,7 +186,9 @@ def run(args: argparse.Namespace) -> int:
         check_writable(Path(args.report), "--report", directory=True)
         check_report_dir(Path(args.report))   # a directory of other files would be refused only after the run
     artifact, model_path = load_model(args.model)
-    dataset, drive = load_run_data(args, artifact)     # before anything starts: data the model cannot run on
+    refuse_engine(args.engine, artifact)               # before any work: a model this engine cannot run
+    refuse_over_can(artifact)                          # an observer whose readings no frame carries
+    dataset, drive, measurements = load_run_data(args, artifact)   # before anything starts: data it cannot run on
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
     # the firmware engine's ELF: packaged, or built once beside the log (before the run: no compiler, no run)
@@ -191,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
         outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset), mode=args.mode,
                                   speed=args.speed, sample_period_s=dataset.sample_period_s, log_path=log_path,
                                   reply_timeout_s=args.reply_timeout, progress=bar, faults=faults,
-                                  firmware=firmware, isr_rate_hz=args.isr_rate)
+                                  firmware=firmware, isr_rate_hz=args.isr_rate, measurements=measurements)
     finally:
         bar.close()
     host = outcome.result

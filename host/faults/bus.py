@@ -15,6 +15,12 @@ at its raw maximum 0x7FFF). The row kinds are the host's own:
 * delay (per row): the row's frames, and every frame queued behind them, are held for `delay_s` (first-in first-
   out, as a congested gateway would), released by `recv`/`send` calls once due.
 
+A stale_counter the plan puts on a Measurements frame whose previous one the receiver never got intact (lost or
+refused: any kind but duplicate) is not injected: its stale counter would be the very one the receiver expects
+next, so nothing could detect it. (A row whose Measurements frame is lost is still answered, the filter predicts
+only, so the next row's frame follows it directly; a lost drive frame's row is retransmitted in lockstep, never
+faulted, before the next row. In real time two drive frames of one id in consecutive rows can meet the same way.)
+
 The frames the host injects on foreign ids come back to it on udp_multicast (multicast loopback): `recv` drops
 them, as the session drops its own ids.
 """
@@ -31,7 +37,7 @@ import can
 from dbc.database import frame_id
 from dbc.mutations import FAULTED_HOST_MESSAGES, mutate
 
-from .plan import FaultPlan, RowFaults
+from .plan import MEASUREMENT_INDEX, FaultPlan, RowFaults
 
 
 @dataclass
@@ -75,8 +81,11 @@ class FaultyBus:
         self._held: collections.deque[can.Message] = collections.deque()
         self._hold_until = 0.0
         self._witness: dict[int, Injection] = {}
+        # ids whose last frame a fault kept from the receiver (all kinds but duplicate): it still expects the counter
+        # before that frame's, so a stale counter on the next frame would be the one it expects, undetectable
+        self._behind: set[int] = set()
         self._foreign_ids: set[int] = set()
-        # index of each faultable drive frame in its row (0: DriveInputs, 1: DriveTemps, 2: DriveCurrents)
+        # index of each faultable frame in its row (0: DriveInputs, 1: DriveTemps, 2: DriveCurrents, 3: Measurements)
         self._drive_index = {frame_id(name): i for i, name in enumerate(FAULTED_HOST_MESSAGES)}
 
     # ------------------------------------------------------------------ row context (from the lockstep loop)
@@ -114,6 +123,7 @@ class FaultyBus:
         faults = self._faults
         index = self._drive_index.get(msg.arbitration_id) if not msg.is_extended_id else None
         if faults is None or index is None:
+            self._behind.discard(msg.arbitration_id)
             self._out(msg)
             return
         if faults.row_kind == "delay":
@@ -136,7 +146,11 @@ class FaultyBus:
             self._out(msg)
             return
         kind = faults.frame_kinds[index] if index < len(faults.frame_kinds) else None
-        if kind is None or msg.arbitration_id in self._witness:  # a drop's witness goes out intact: it shows the loss
+        fid = msg.arbitration_id
+        if kind == "stale_counter" and fid in self._behind and index == MEASUREMENT_INDEX:
+            kind = None   # it would carry the very counter the receiver expects after the frame it lost
+        if kind is None or fid in self._witness:  # a drop's witness goes out intact: it shows the loss
+            self._behind.discard(fid)
             self._out(msg)
         else:
             self._inject(kind, msg, index, faults)
@@ -182,6 +196,8 @@ class FaultyBus:
         fid = msg.arbitration_id
         injection = self.record(kind, sent[-1] if sent else None, frame_id=fid)
         injection.counter = msg.data[1] & 0x0F
+        if kind != "duplicate":
+            self._behind.add(fid)
         if kind == "drop":
             self._witness[fid] = injection
         elif kind == "unknown_id":

@@ -1,7 +1,8 @@
 """Lockstep replay that survives faults: retransmission of unanswered rows and re-initialization of a target that
 was lost, with BenchEvent marks in the log.
 
-Per data row n (as `host.replay.run_lockstep`): send DriveInputs + DriveTemps (+ DriveCurrents), wait for
+Per data row n (as `host.replay.run_lockstep`): send (Measurements +) DriveInputs + DriveTemps (+ DriveCurrents),
+wait for
 Temperatures1 + 2 up to the reply timeout. When the deadline passes (the row's *deadline miss*, recorded):
 
 1. Retransmit: mark RETRANSMIT, send row n twice more with fresh alive counters (and again every RETRY_FACTOR
@@ -38,7 +39,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from dbc.contract import BenchEvent, FaultKind, TargetState, step_of
-from host.replay import Progress, ReplayStats, encode_row, wait_for_reply
+from host.replay import Progress, ReplayStats, RowValues, wait_for_reply
 from host.session import HostSession, RowBook, SessionError
 
 from .bus import FaultyBus, Injection
@@ -105,9 +106,10 @@ class FaultLockstep:
 
     def __init__(self, session: HostSession, drive: np.ndarray, initial, *, faulty: FaultyBus, plan: FaultPlan,
                  control: ProcessControl | None, reply_timeout_s: float, connect_timeout_s: float,
-                 abort_after: int, progress: Progress | None = None) -> None:
+                 abort_after: int, progress: Progress | None = None,
+                 measurements: np.ndarray | None = None) -> None:
         self.session = session
-        self.values = drive.tolist()
+        self.values = RowValues(drive, measurements)
         self.rows = len(drive)
         self.book = session.book = RowBook(self.rows)
         self.initial = [float(v) for v in initial]
@@ -179,7 +181,7 @@ class FaultLockstep:
         self.session.last_sent_row = n
         self.book.sent_ns[n] = time.perf_counter_ns()
         self.faulty.begin_row(n, pass_, eligible=eligible)
-        self.session.send(encode_row(self.session.codec, n, self.values[n]))
+        self.session.send(self.values.frames(self.session.codec, n))
         self.faulty.end_row()
         mark_new_injections(self.session, self.faulty, n)
         self.session.flush_log()
@@ -203,8 +205,8 @@ class FaultLockstep:
         while perf() < deadline:
             session.marker(BenchEvent.RETRANSMIT, n)
             self.faulty.begin_row(n, pass_, retransmission=True)
-            row = encode_row(session.codec, n, self.values[n])
-            session.send(row + encode_row(session.codec, n, self.values[n]))
+            row = self.values.frames(session.codec, n)
+            session.send(row + self.values.frames(session.codec, n))
             self.faulty.end_row()
             session.flush_log()
             again_at = min(deadline, perf() + RETRY_FACTOR * self.reply_timeout_s)
@@ -247,8 +249,10 @@ class FaultLockstep:
 def run_lockstep_with_faults(session: HostSession, drive: np.ndarray, initial, *, faulty: FaultyBus,
                              plan: FaultPlan, control: ProcessControl | None, reply_timeout_s: float,
                              connect_timeout_s: float, abort_after: int,
-                             progress: Progress | None = None) -> tuple[ReplayStats, FaultRun]:
-    """Replay `drive` in lockstep through the fault layer `faulty` (see `FaultLockstep`)."""
+                             progress: Progress | None = None,
+                             measurements: np.ndarray | None = None) -> tuple[ReplayStats, FaultRun]:
+    """Replay `drive` (with `measurements`, if any) in lockstep through the fault layer `faulty` (see
+    `FaultLockstep`)."""
     return FaultLockstep(session, drive, initial, faulty=faulty, plan=plan, control=control,
                          reply_timeout_s=reply_timeout_s, connect_timeout_s=connect_timeout_s,
-                         abort_after=abort_after, progress=progress).run()
+                         abort_after=abort_after, progress=progress, measurements=measurements).run()

@@ -12,7 +12,9 @@ then could not show as a counter jump. A row that gets a process fault gets no b
 Per eligible row: first `reorder` or `delay` with their per-row rates (at most one); otherwise, per drive frame,
 at most one of the per-frame kinds with their per-frame rates (DriveInputs, DriveTemps, and DriveCurrents when the
 rows carry the currents: a third draw that leaves the first two, and so the faults of a run without currents,
-unchanged).
+unchanged; and the Measurements frame of a model with an observer: a fourth draw, which leaves the others unchanged
+too). The last row's Measurements frame is never faulted: its row is answered (the filter predicts only), nothing
+is sent after it, so a lost one would have no next frame of its id to show the alive-counter jump.
 """
 
 from __future__ import annotations
@@ -20,9 +22,11 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass
 
-from dbc.mutations import pick, unit
+from dbc.contract import MEASUREMENT_MESSAGE
+from dbc.mutations import FAULTED_HOST_MESSAGES, pick, unit
 from host.faults.spec import FRAME_KINDS, PROCESS_KINDS, ROW_KINDS, FaultSpec, FaultSpecError
 
+MEASUREMENT_INDEX = FAULTED_HOST_MESSAGES.index(MEASUREMENT_MESSAGE)   # its place in RowFaults.frame_kinds
 PROCESS_MIN_SPACING = 5        # rows between two process faults
 PROCESS_WINDOW = (0.1, 0.9)    # process faults fall in this part of the run
 
@@ -35,7 +39,7 @@ class RowFaults:
     pass_: int
     seed: int
     row_kind: str | None
-    frame_kinds: tuple[str | None, ...]   # DriveInputs, DriveTemps (, DriveCurrents)
+    frame_kinds: tuple[str | None, ...]   # DriveInputs, DriveTemps (, DriveCurrents (, Measurements))
 
     def draw(self, slot: int) -> float:
         """A further uniform number for this row and pass (bit positions, lengths, ...)."""
@@ -49,10 +53,11 @@ class RowFaults:
 class FaultPlan:
     """The faults of one run over `rows` data rows."""
 
-    def __init__(self, spec: FaultSpec, rows: int, frames_per_row: int = 2):
+    def __init__(self, spec: FaultSpec, rows: int, frames_per_row: int = 2, measurements: bool = False):
         self.spec = spec
         self.rows = rows
         self.frames_per_row = frames_per_row   # the drive frames of a row: 2, or 3 with DriveCurrents
+        self.measurements = measurements       # the rows carry a Measurements frame (index MEASUREMENT_INDEX)
         self._frame = [(k, spec.rates.get(k, 0.0)) for k in FRAME_KINDS if spec.rates.get(k, 0.0) > 0]
         self._row = [(k, spec.rates.get(k, 0.0)) for k in ROW_KINDS if spec.rates.get(k, 0.0) > 0]
         self.process_rows = self._process_rows()
@@ -88,6 +93,10 @@ class FaultPlan:
         if not self._frame:
             return None
         kinds = tuple(pick(unit(seed, row, pass_, 1 + index), self._frame) for index in range(self.frames_per_row))
+        if self.measurements:
+            kinds += (None,) * (MEASUREMENT_INDEX - len(kinds))
+            last = row == self.rows - 1
+            kinds += (None if last else pick(unit(seed, row, pass_, 1 + MEASUREMENT_INDEX), self._frame),)
         if all(kind is None for kind in kinds):
             return None
         return RowFaults(row, pass_, seed, None, kinds)

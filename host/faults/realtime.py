@@ -59,12 +59,13 @@ class _FaultHooks:
 
 def run_realtime_with_faults(session: HostSession, drive: np.ndarray, *, faulty: FaultyBus, plan: FaultPlan,
                              sample_period_s: float, speed: float, reply_timeout_s: float,
-                             progress: Progress | None = None) -> tuple[ReplayStats, FaultRun]:
+                             progress: Progress | None = None,
+                             measurements: np.ndarray | None = None) -> tuple[ReplayStats, FaultRun]:
     check_realtime_faults(plan, sample_period_s, speed, reply_timeout_s)
     run = FaultRun(plan.spec, injections=faulty.injections, started_at=time.time(), mode="realtime")
     stats = run_realtime(session, drive, sample_period_s=sample_period_s, speed=speed,
                          reply_timeout_s=max(reply_timeout_s, 2 * sample_period_s / speed), progress=progress,
-                         hooks=_FaultHooks(session, faulty))
+                         hooks=_FaultHooks(session, faulty), measurements=measurements)
     faulty.flush_held()
     session.flush_log()
     book = session.book

@@ -4,8 +4,8 @@
     --faults drop=0.01,corrupt=0.001,kill=1                     (the same, compact)
     --fault-seed N                                              (default 0: the same faults on every run)
 
-Bus faults hit the host's data-row frames (DriveInputs, DriveTemps, and DriveCurrents when the rows carry the d/q
-currents) on their way to the target; control frames
+Bus faults hit the host's data-row frames (DriveInputs, DriveTemps, DriveCurrents when the rows carry the d/q
+currents, and Measurements for a model with an observer) on their way to the target; control frames
 (ResetTemps, Control) and the bench's own BenchEvent marks are never faulted. Their values are probabilities:
 
 * per drive frame: `drop`, `duplicate`, `corrupt`, `stale_counter`, `wrong_length`, `unknown_id`,

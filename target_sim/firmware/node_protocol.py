@@ -18,6 +18,7 @@ from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RX_ERROR_KINDS, TargetS
 from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
+from target_sim.observer import has_observer
 
 
 def firmware_loss_models() -> tuple[str, ...]:
@@ -28,10 +29,15 @@ def firmware_loss_models() -> tuple[str, ...]:
 
 
 def firmware_refusal(artifact: ModelArtifact) -> str | None:
-    """Why the firmware engine cannot run `artifact` (one sentence), or None when it can."""
+    """Why the firmware engine cannot run `artifact` (one sentence), or None when it can: a loss model its generated
+    C lacks, or an observer (the generated C runs the model open loop; it must not run an observer's artifact open
+    loop without saying so)."""
+    name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
+    if has_observer(artifact):
+        return (f"the firmware engine does not run an observer yet (its generated C is open loop), and {name} has "
+                "one: use --engine python")
     if LOSS_KINDS[artifact.loss_model].firmware:
         return None
-    name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
     return (f"the firmware engine runs the loss models {', '.join(firmware_loss_models())}; {name} has an "
             f"{artifact.loss_model} loss model: use --engine python")
 

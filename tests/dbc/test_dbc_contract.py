@@ -28,6 +28,10 @@ UNITLESS = E2E_SIGNALS | {
     "FrameId",
     "StateIndex",
     "StateValue",
+    "SensorStatus",
+    "FluxMagnetStatus",
+    "SensorUsed",
+    "FluxMagnetUsed",
 }
 ENUMS = {
     "Command": dbc.Command,
@@ -36,6 +40,8 @@ ENUMS = {
     "Realization": dbc.Realization,
     "Event": dbc.BenchEvent,
     "FaultKind": dbc.FaultKind,
+    "SensorStatus": dbc.contract.MeasurementStatus,
+    "FluxMagnetStatus": dbc.contract.MeasurementStatus,
 }
 
 
@@ -45,7 +51,7 @@ def app_signals(message):
 
 def test_loads_with_strict_checks_and_is_ascii():
     database = cantools.database.load_file(DBC_PATH, strict=True)
-    assert len(database.messages) == 19
+    assert len(database.messages) == 23
     DBC_PATH.read_bytes().decode("ascii")  # cantools reads DBC files as cp1252: keep them plain ASCII
 
 
@@ -293,7 +299,7 @@ def test_version_1_5_names_every_signal_once_and_says_so():
     names = [s.name for m in MESSAGES for s in m.signals]
     assert len(names) == len(set(names)), sorted({n for n in names if names.count(n) > 1})
     carriers = [m.name for m in MESSAGES if any(s.name == f"{m.name}_Step" for s in m.signals)]
-    assert len(carriers) == 16 and "Status" not in carriers     # 15 in 1.5.0, Timing5 since 1.6.0
+    assert len(carriers) == 20 and "Status" not in carriers   # 15 in 1.5.0; 1.6.0: Timing5, 4 observer frames
     for name in ("RestoreState", "StateCheckpoint"):
         layout = contract().by_name[name]
         assert [(s.name, s.dbc_name) for s in layout.signals] == [
@@ -317,3 +323,16 @@ def test_version_1_6_adds_timing5_the_response_time_beside_the_interrupt_and_say
     assert timing5.dbc.attributes["E2EDataID"].value == 0x26 and timing5.cycle_time == 200
     network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
     assert "1.6.0 added Timing5" in network and "1.5.0 names every signal uniquely" in network
+
+
+def test_version_1_6_also_adds_the_observer_frames_and_one_history_names_both():
+    """1.6.0 is one release: Timing5 and the observer's frames (Measurements from the host; Uncertainty1/2 and
+    Innovations from the target) in the same version, its history naming both."""
+    ids = {name: DB.get_message_by_name(name).frame_id
+           for name in ("Measurements", "Uncertainty1", "Uncertainty2", "Innovations", "Timing5")}
+    assert ids == {"Measurements": 0x113, "Uncertainty1": 0x240, "Uncertainty2": 0x241, "Innovations": 0x242,
+                   "Timing5": 0x226}
+    network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
+    history = network.split("History: ", 1)[1].split("; 1.5.0", 1)[0]
+    assert history.startswith("1.6.0 added Timing5") and "Measurements" in history and "Innovations" in history
+    assert network.count("1.6.0") == 1

@@ -101,6 +101,26 @@ def test_process_faults_fall_in_the_middle_of_the_run_and_apart():
 # ---------------------------------------------------------------- what each kind does
 
 
+def test_the_measurements_frame_is_a_fourth_draw_that_leaves_the_others_and_spares_the_last_row():
+    """A model with an observer adds its rows' Measurements frame to the faultable ones (index 3): the drive frames
+    get the faults they get without it; the last row's Measurements frame is never faulted (nothing after it would
+    show its loss)."""
+    spec = parse_faults(["drop=0.05,corrupt=0.05"], seed=4)
+    rows = 5000
+    plain, measured = FaultPlan(spec, rows), FaultPlan(spec, rows, measurements=True)
+    with_currents = FaultPlan(spec, rows, frames_per_row=3, measurements=True)
+    hits = 0
+    for row in range(rows):
+        a, b, c = plain.row_faults(row, 0), measured.row_faults(row, 0), with_currents.row_faults(row, 0)
+        kinds = b.frame_kinds if b is not None else (None,) * 4
+        assert (a.frame_kinds if a is not None else (None, None)) == kinds[:2]
+        assert kinds[2] is None and (c.frame_kinds[3] if c is not None else None) == kinds[3]
+        hits += kinds[3] is not None
+    assert hits == pytest.approx(0.1 * rows, rel=0.15)
+    assert all(measured.row_faults(rows - 1, p) is None or measured.row_faults(rows - 1, p).frame_kinds[3] is None
+               for p in range(50))
+
+
 def test_every_corruption_the_injector_makes_is_caught_by_the_crc():
     """1 to 3 flipped bits of 64: CRC8H2F's Hamming distance 4 catches every pattern (all 43 744 checked)."""
     msg = FrameCodec("HOST").encode("DriveInputs", {"Step": 1234, "MotorTorque": 345.6, "MotorSpeed": 3000})
@@ -228,3 +248,27 @@ def test_without_the_journal_target_side_detection_is_unknown_and_a_problem():
     assert "journal is not available" in fault_problems(summary)[0]
     assert "detection unchecked" in fault_note(summary)
     assert set(summary["injected"]) <= set(KINDS)
+
+
+def test_a_stale_counter_is_not_put_on_a_measurements_frame_whose_previous_one_was_lost():
+    """Its stale counter would be the one the target expects after the lost frame (an undetectable fault): that
+    Measurements frame goes out intact, and the target's journal names every stale counter injected."""
+    from host.replay import encode_row
+
+    rows = 12
+    spec = parse_faults(["stale_counter=1"], seed=2)
+    inner = ListBus()
+    bus = FaultyBus(inner, FaultPlan(spec, rows, measurements=True), delay_s=0.0)
+    codec = FrameCodec("HOST")
+    for row in range(rows):
+        bus.begin_row(row, 0, eligible=row > 0)
+        for frame in encode_row(codec, row, [10.0, 1000.0, 40.0, 25.0], [60.0, float("nan")]):
+            bus.send(frame)
+        bus.end_row()
+    measured = [i.row for i in bus.injections if i.frame_id == frame_id("Measurements")]
+    assert measured == [1, 3, 5, 7, 9]       # every other row: never after a faulted one, never the last row
+    node = TargetNode(load_artifact(default_artifact_path()), journal=(records := []).append)
+    for frame in inner.sent:
+        node.handle(frame)
+    stale = [r for r in records if r["id"] == frame_id("Measurements") and "repeats alive counter" in r["detail"]]
+    assert len(stale) == len(measured)

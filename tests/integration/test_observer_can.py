@@ -1,0 +1,210 @@
+"""A model with an observer over CAN, end to end (DBC 1.6.0): `bench run --model <observer artifact>` sends each
+row's Measurements frame, the Python target updates its filter with it and answers every model step with each
+node's 1-sigma and the innovation; the run is clean (CAN = the offline float32 observer on the decoded
+measurements); a dropped or corrupted Measurements frame is detected like any other and the filter then predicts
+only (CAN = the target's twin); `bench replay` and `bench analyze` of the log; data without the measured column and
+the firmware engine (whose C has no observer yet) are refused in one sentence before any work, and so is an observer
+whose readings the frames cannot carry (the flux linkage from its raw channels, two measurements): exit 2."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bench.analysis.logdecode import decode_log
+from bench.cli import main
+from target_sim.artifact import load_artifact
+from target_sim.model import run_offline
+from target_sim.observer import run_observer_offline
+
+from helpers import run_cli, synthetic_columns, write_synthetic_dataset
+
+ROWS = 300
+
+
+@pytest.fixture(scope="module")
+def validation_run(default_data_root):
+    """The built-in motor's 40 °C run, whose winding column the packaged model explains (the observer's sensor)."""
+    from bench.drive.generate import ensure_default_datasets
+
+    return ensure_default_datasets(default_data_root)[40]
+
+
+@pytest.fixture(scope="module")
+def run(observer_artifact, validation_run, tmp_path_factory):
+    out = tmp_path_factory.mktemp("observer-run")
+    log, report = out / "run.blf", out / "report"
+    proc = run_cli("-m", "bench", "run", "--model", str(observer_artifact), "--data", str(validation_run), "--rows",
+                   str(ROWS), "--log", str(log), "--report", str(report), "--reply-timeout", "0.5", "--json",
+                   timeout=300)
+    return proc, log, report
+
+
+def test_bench_run_with_an_observer_is_clean_over_can(run, observer_artifact):
+    proc, log, report = run
+    assert proc.returncode == 0, proc.stderr
+    s = json.loads(proc.stdout)
+    assert (s["steps_sent"], s["replies"], s["missing"], s["problems"], s["clean"]) == (ROWS, ROWS, 0, [], True)
+    metrics = s["metrics"]
+    assert metrics["can_reference"] == "offline float32"
+    assert all(0 <= v <= 0.005 + 1e-9 for v in s["max_abs_can_minus_float32_C"].values())
+    observer = metrics["observer"]
+    assert (observer["measured_node"], observer["slot"], observer["rows_measured"]) == ("winding", "sensor", ROWS)
+    assert observer["model_steps"] == observer["model_steps_updated"] == metrics["model_steps"] == 120
+    assert observer["sigma_final_C"]["magnet"] > observer["sigma_final_C"]["winding"] > 0
+    text = (report / "report.md").read_text(encoding="utf-8")
+    assert "## Observer" in text and "measuring the **winding** node" in text
+    # the log: a Measurements frame before every row's pair; the target answered with the observer, not open loop
+    record = decode_log(log)
+    assert record.measurement_frames == ROWS and np.isfinite(record.measurements[:, 0]).all()
+    assert np.isnan(record.measurements[:, 1]).all()
+    artifact = load_artifact(observer_artifact)
+    run_ = run_observer_offline(artifact, record.drive, record.measurements[:, 0], record.initial)
+    assert np.max(np.abs(record.temps[run_.rows] - run_.outputs)) <= 0.005 + 1e-9
+    _, open_loop = run_offline(artifact, record.drive, record.initial)
+    assert np.max(np.abs(record.temps[run_.rows] - open_loop)) > 0.05
+    assert len(record.observer["row_u1"]) == len(record.observer["row_inn"]) == 120
+
+
+@pytest.mark.slow
+def test_replay_and_analyze_of_an_observer_log(run, observer_artifact, validation_run, tmp_path):
+    _, log, _ = run
+    replay = run_cli("-m", "bench", "replay", str(log), "--model", str(observer_artifact), "--as-fast-as-possible",
+                     "--log", str(tmp_path / "replay.blf"), "--json", timeout=300)
+    assert replay.returncode == 0, replay.stderr
+    r = json.loads(replay.stdout)
+    assert (r["reproduced"], r["identical"], r["different"]) == (True, ROWS, 0)
+    analyzed = run_cli("-m", "bench", "analyze", str(log), "--model", str(observer_artifact), "--data",
+                       str(validation_run), "--report", str(tmp_path / "report"), "--json", timeout=300)
+    assert analyzed.returncode == 0, analyzed.stderr
+    a = json.loads(analyzed.stdout)
+    assert (a["steps_sent"], a["replies"], a["clean"]) == (ROWS, ROWS, True)
+
+
+@pytest.mark.parametrize("kind", ["drop", pytest.param("corrupt", marks=pytest.mark.slow)])
+def test_a_faulted_measurement_frame_is_detected_and_the_filter_predicts_only(kind, observer_artifact,
+                                                                             validation_run, udp_bus, tmp_path):
+    from bench.analysis.canmetrics import compute
+    from bench.drive.dataset import load_dataset
+    from bench.model.runs import drive_matrix, initial_temperatures
+    from bench.run_inputs import measurements_for
+    from bench.runner import run_with_target
+    from host.faults import parse_faults
+
+    dataset, artifact = load_dataset(validation_run), load_artifact(observer_artifact)
+    log = tmp_path / f"{kind}.blf"
+    outcome = run_with_target(observer_artifact, artifact, udp_bus, drive_matrix(dataset)[:ROWS],
+                              initial_temperatures(dataset), sample_period_s=dataset.sample_period_s, log_path=log,
+                              reply_timeout_s=0.5, faults=parse_faults([f"{kind}=0.03"], seed=3),
+                              measurements=measurements_for(dataset, artifact)[:ROWS])
+    faults = outcome.result.faults
+    assert faults["undetected"] == 0 and faults["detected"][kind] == faults["injected"][kind] >= 3, faults
+    record = decode_log(log)
+    hit = {m.row for m in record.marks if m.event == "fault" and m.frame_id == 0x113}
+    assert hit, "no Measurements frame was faulted"
+    results, _ = compute(record, artifact, dataset)
+    metrics = results.to_json()
+    assert metrics["missing"] == 0 and metrics["can_reference"] == "target twin"
+    assert metrics["can_agrees_with_float32"], metrics["max_abs_can_minus_float32_C"]
+    # the steps that lost their measurement predicted only: fewer updates than steps, and not the clean estimate
+    assert metrics["observer"]["model_steps_updated"] < metrics["observer"]["model_steps"]
+    assert max(metrics["max_abs_can_minus_clean_C"].values()) > 0
+
+
+def _refused(capsys, argv: list[str]) -> str:
+    """`bench ARGV` in this process: exit 1 with one sentence on stderr and nothing on stdout; that sentence."""
+    assert main(argv) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.startswith("bench: error: ") and err.count("\n") == 1
+    return err
+
+
+def test_the_firmware_engine_refuses_an_observer_before_any_work(observer_artifact, tmp_path, capsys):
+    log, report = tmp_path / "run.blf", tmp_path / "report"
+    model = load_artifact(observer_artifact)
+    # no --data: the default dataset would be generated by the run; the refusal comes first
+    err = _refused(capsys, ["run", "--model", str(observer_artifact), "--engine", "firmware", "--log", str(log),
+                            "--report", str(report)])
+    assert f"the firmware engine does not run an observer yet (its generated C is open loop), and model " \
+           f"{model.model_id:08x} ({observer_artifact}) has one: use --engine python" in err
+    assert list(tmp_path.iterdir()) == []
+    from target_sim.engines import make_node
+    from target_sim.firmware.elf import FirmwareError
+
+    with pytest.raises(FirmwareError, match="does not run an observer"):
+        make_node(model, engine="firmware", firmware=b"")
+
+
+def test_data_without_the_measured_column_is_refused_before_anything_starts(observer_artifact, tmp_path, capsys):
+    """An observer of a stator NTC (ntc_C, an optional column) on data without one."""
+    from bench.model.observer import with_observer
+    from target_sim.artifact import dumps
+
+    artifact = load_artifact(observer_artifact)
+    section = artifact.content["observer"]
+    sensor = {**section["measurements"][0], "name": "ntc_C", "columns": ["ntc_C"]}
+    ntc = tmp_path / "ntc-observer.json"
+    ntc.write_text(dumps(with_observer(artifact, {**section, "column": "ntc_C", "measurements": [sensor]})),
+                   encoding="utf-8")
+    data = write_synthetic_dataset(tmp_path / "no-ntc.csv", synthetic_columns(50, seed=2), "no NTC")
+    log = tmp_path / "run.blf"
+    model = load_artifact(ntc)
+    err = _refused(capsys, ["run", "--model", str(ntc), "--data", str(data), "--log", str(log), "--no-report"])
+    assert f"model {model.model_id:08x} ({ntc}) has an observer that measures column ntc_C, and {data} has none" \
+        in err
+    assert not log.exists()
+
+
+def _uncarried(artifact, tmp_path, what: str):
+    """The observer artifact with a section version 2 the Measurements frame cannot carry: `flux` one flux-linkage
+    measurement (four raw channels), `two` the lagged sensor twice; (its path, its model)."""
+    from bench.model.observer import with_observer
+    from target_sim.artifact import dumps, encode_array
+    from target_sim.measurements.flux_linkage import COLUMNS, PARAMETERS
+
+    section = artifact.content["observer"]
+    sensor = section["measurements"][0]
+    if what == "flux":
+        arrays = {k: encode_array(v) for k, v in zip(PARAMETERS, (0.1, -1e-3, 60.0, 1e-4, 0.02, 3.9e-3, 20.0, 4.0,
+                                                                   1500.0, 1.0, 1.0), strict=True)}
+        measurements = [{"kind": "flux-linkage", "name": "flux", "columns": list(COLUMNS), "node": "magnet",
+                         "arrays": {**arrays, "sees": sensor["arrays"]["sees"]}}]
+        k_ss = section["K_ss"]
+    else:
+        measurements = [sensor, {**sensor, "name": "second"}]
+        gain = artifact.array("observer", "K_ss", dtype=np.float64).reshape(1, -1)
+        k_ss = encode_array(np.vstack([gain, gain]))
+    path = tmp_path / f"{what}-observer.json"
+    path.write_text(dumps(with_observer(artifact, {**section, "measurements": measurements, "K_ss": k_ss})),
+                    encoding="utf-8")
+    return path, load_artifact(path)
+
+
+@pytest.mark.parametrize("what", ["flux", "two"])
+def test_an_observer_the_frames_cannot_carry_is_refused_before_any_work(what, observer_artifact, small_dataset,
+                                                                         tmp_path, capsys):
+    """Over CAN the host sends one temperature per slot: a version 2 observer of exactly one lagged sensor runs (the
+    clean run above), one that reads the flux linkage from u_d, u_q, i_d, i_q or has two measurements is refused by
+    `bench run`, `bench host` and the target in one sentence, exit 2, with nothing written, not run wrongly."""
+    from target_sim.observer_node import can_refusal
+
+    artifact = load_artifact(observer_artifact)
+    assert artifact.content["observer"]["version"] == 2 and can_refusal(artifact) is None
+    path, model = _uncarried(artifact, tmp_path, what)
+    what_it_has = ("a flux-linkage measurement of 4 raw channels" if what == "flux" else "2 measurements")
+    sentence = (f"model {model.model_id:08x} ({path}) has an observer with {what_it_has}, and the Measurements "
+                "frame carries one temperature per slot")
+    assert can_refusal(model).startswith(sentence)
+    out = tmp_path / "out"
+    for argv in (["run", "--model", str(path), "--data", str(small_dataset), "--log", str(out / "run.blf"),
+                  "--report", str(out / "report")],
+                 ["host", "--model", str(path), "--data", str(small_dataset), "--log", str(out / "host.blf")]):
+        assert main(argv) == 2, argv
+        stdout, err = capsys.readouterr()
+        assert stdout == "" and err.startswith("bench: error: " + sentence) and err.count("\n") == 1, err
+    assert not out.exists()
+    target = run_cli("-m", "target_sim", "--model", str(path), "--quiet", timeout=60)
+    assert target.returncode == 2 and target.stdout == "", target.stderr
+    assert target.stderr.startswith("target_sim: error: " + sentence) and target.stderr.count("\n") == 1
