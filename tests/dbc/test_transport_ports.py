@@ -99,6 +99,7 @@ def _frames(path) -> Counter:
     return Counter((m.arbitration_id, bytes(m.data)) for m in can.LogReader(str(path)))
 
 
+@pytest.mark.slow
 def test_the_printed_logger_line_records_the_run(small_dataset, tmp_path):
     """With --json the line is on stderr at the start; pasted (with another file name) into a second process,
     python-can's logger records every frame of the run."""

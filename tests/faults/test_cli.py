@@ -114,6 +114,7 @@ def test_analyze_fails_when_the_sidecar_says_a_fault_went_undetected(faulted_run
     assert any("1 injected fault(s) went undetected" in p for p in s["problems"]), s["problems"]
 
 
+@pytest.mark.slow
 def test_replay_of_a_log_with_process_faults_reproduces_every_reply(faulted_run, tmp_path):
     """The recorded target was killed and restored from its checkpoint; the replay's target is not killed but
     gets the same RestoreState/RESTORE, and a restore is exact: every row's final reply comes back identical."""

@@ -246,6 +246,7 @@ def quiet_session_log(path, artifact, rows: int):
         return session_log(path, artifact, rows)
 
 
+@pytest.mark.slow
 def test_a_model_that_overflows_in_float64_too_is_judged_without_warnings_or_blaming_single_precision(tmp_path):
     """Issue 23, item 4: B × 1e6 overflows in float64 as well; `bench analyze` (with its report, whose figures draw
     such values) prints no RuntimeWarning, and its note says float64 overflows too instead of blaming float32."""

@@ -374,7 +374,8 @@ def test_a_termination_swallowed_by_a_finalizer_is_delivered_again(scratch):
     assert done.stdout == ""
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)],
+                         ids=["SIGTERM", "SIGINT"])
 def test_host_stops_on_a_signal_and_leaves_no_log(material, scratch, signum):
     """`bench host` against a target started by hand, in real time: stopped mid-run it writes no log, and the
     target it did not start runs on."""

@@ -77,6 +77,7 @@ def test_bench_run_of_an_electrical_model_on_mapped_data_is_clean(run, files):
     assert np.max(np.abs(record.temps[rows] - without)) > 0.1
 
 
+@pytest.mark.slow
 def test_replay_and_analyze_of_an_electrical_log(run, files, tmp_path):
     _, log, _ = run
     replay = run_cli("-m", "bench", "replay", str(log), "--model", str(files["model"]), "--as-fast-as-possible",

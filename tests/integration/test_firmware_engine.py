@@ -67,6 +67,7 @@ def test_bench_run_with_the_firmware_engine_answers_as_the_python_engine(runs):
     assert "measured Cortex-M4F cycles | – (the Python engine" in (runs["python"][2] / "report.md").read_text()
 
 
+@pytest.mark.slow
 def test_replay_and_analyze_of_a_firmware_log(runs, tmp_path, small_dataset):
     summary, log, _ = runs["firmware"]
     replay = run_cli("-m", "bench", "replay", str(log), "--as-fast-as-possible", "--log", str(tmp_path / "r.blf"),
@@ -128,6 +129,7 @@ def test_a_firmware_fault_ends_the_run_in_one_sentence_naming_it(tmp_path, small
     assert result.problems()[0].startswith("the run was aborted: the target reported an internal fault")
 
 
+@pytest.mark.slow
 def test_bench_host_against_a_firmware_that_computes_something_else_is_not_clean(tmp_path, small_dataset, udp_bus):
     """Issue 23, item 2: the packaged firmware with its loss table scaled by 1.5 (its model id intact, so the host's
     heartbeat check passes) served to `bench host`: the replies are compared with the offline float32 reference as

@@ -110,6 +110,7 @@ def test_bench_replay_reproduces_the_replies_exactly(bench_run, tmp_path, udp_bu
     assert decode_log(new_log).rows == 400
 
 
+@pytest.mark.slow
 def test_bench_analyze_gives_the_run_s_numbers(bench_run, small_dataset, tmp_path):
     proc, log, _ = bench_run
     run = json.loads(proc.stdout)["metrics"]

@@ -101,6 +101,7 @@ def test_a_pm_limit_below_its_error_fails_and_names_the_criterion(passing_run, t
     assert by_name["clean"].is_passed and props(by_name["pm_rmse"])["verdict"] == "fail"
 
 
+@pytest.mark.slow
 def test_a_worse_model_is_caught_by_the_regression_gate(passing_run, tmp_path):
     out, proc = passing_run
     baseline = tmp_path / "baseline.json"

@@ -46,6 +46,7 @@ def test_both_recipes_run_the_script_and_upload_what_it_writes():
     assert any("modprobe vcan" in line for line in gitlab["acceptance:vcan"]["before_script"])
 
 
+@pytest.mark.slow
 def test_the_script_runs_the_bench_with_the_criteria(tmp_path):
     out = tmp_path / "out" / "ci"
     proc = run_script(out, targets="", rows=300)

@@ -49,6 +49,7 @@ def pytest_session(tmp_path: Path, *args: str, plugin: bool = True, extra_path: 
     return subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=SESSION_TIMEOUT_S)
 
 
+@pytest.mark.slow
 def test_the_fixture_runs_the_bench_and_records_its_figures(tmp_path, small_dataset):
     (tmp_path / "test_suite.py").write_text(SUITE)
     (tmp_path / "profile.toml").write_text(f'[target]\nengine = "python"\n[run]\ndata = "{small_dataset}"\n')

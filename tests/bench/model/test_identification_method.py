@@ -170,6 +170,7 @@ def _fit_at(params: LptnParameters, runs, bounds):
     return LptnFit(params, cost, [], 0, 0, 1, 0, bounds, parameters_on_bounds(params, bounds), nodes, coords[None])
 
 
+@pytest.mark.slow
 def test_the_prior_takes_what_the_data_cannot_see_off_the_walls():
     from bench.model.polish import polish_lptn
 
