@@ -108,6 +108,7 @@ def test_the_entry_point_turns_it_on_and_no_bench_off(tmp_path):
     assert off.returncode == 0 and "--bench-engine" not in off.stdout
 
 
+@pytest.mark.slow
 def test_the_projects_own_tests_collect_with_the_plugin_on(tmp_path):
     import subprocess
 

@@ -2,10 +2,13 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from bench.cli import main
 from target_sim.artifact import load_artifact
 
 
+@pytest.mark.slow
 def test_identify_writes_loadable_artifacts_of_all_kinds(default_data_dir, tmp_path, capsys):
     out = tmp_path / "m.json"
     assert main(["identify", "--data", str(default_data_dir), "--swarm", "12", "--iterations", "3",
@@ -21,6 +24,7 @@ def test_identify_writes_loadable_artifacts_of_all_kinds(default_data_dir, tmp_p
     assert set(summary["validation"]["lti-lptn"]) == {"float64", "float32", "max_abs_f32_minus_f64_C"}
 
 
+@pytest.mark.slow
 def test_identify_can_deploy_the_original_realization_through_the_polynomial_path(default_data_dir, tmp_path,
                                                                                   capsys):
     out = tmp_path / "orig.json"
@@ -32,6 +36,7 @@ def test_identify_can_deploy_the_original_realization_through_the_polynomial_pat
     assert art.content["linear_block"]["condition_number"] > 30
 
 
+@pytest.mark.slow
 def test_evaluate_json_at_the_artifact_step(default_data_dir, capsys):
     assert main(["evaluate", "--data", str(default_data_dir), "--dt", "0.5", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
@@ -43,6 +48,7 @@ def test_evaluate_json_at_the_artifact_step(default_data_dir, capsys):
         assert abs(m["rmse"] ** 2 - m["mse"]) < 1e-9
 
 
+@pytest.mark.slow
 def test_identify_with_a_missing_dataset_says_how_to_make_it(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "bench", "identify", "--data", str(tmp_path)],
                           capture_output=True, text=True)

@@ -141,6 +141,7 @@ def test_an_unknown_kind_is_one_sentence(tmp_path):
         motor_from_dict(motor_file(NAME))
 
 
+@pytest.mark.slow
 def test_a_kind_defined_in_a_test_runs_from_identification_to_the_emulated_firmware_bit_for_bit(
         quadratic_kind, default_data_dir):
     from bench.drive.dataset import load_dataset
