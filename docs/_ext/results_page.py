@@ -4,11 +4,13 @@ from the benchmark records in `docs/results/*.json` (written by `tests/benchmark
 
 One renderer per benchmark (`SECTIONS`), each a plain function of its records; a benchmark without a record gets a
 line saying how to measure it. Every section opens with its provenance: when, on what machine, under what load, on
-which code, with which command.
+which code, with which command. A benchmark with one record writes only its body; `single_record` gives it that
+opening.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -73,8 +75,10 @@ def _count(n: int, noun: str) -> str:
     return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
-def _missing(script: str) -> list[str]:
-    return [f"Not measured yet: `python tests/benchmarks/{script}` writes the record this section is built from.", ""]
+def _missing(name: str) -> list[str]:
+    """The line standing for benchmark `name`'s record while there is none: the script that writes it."""
+    return [f"Not measured yet: `python tests/benchmarks/bench_{name}.py` writes the record this section is built "
+            "from.", ""]
 
 
 def _table(header: list[str], rows: list[list[str]]) -> list[str]:
@@ -83,12 +87,27 @@ def _table(header: list[str], rows: list[list[str]]) -> list[str]:
 
 
 # ---------------------------------------------------------------------------------------------- sections
-def section_accuracy(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "accuracy")
-    lines = ["## Accuracy", ""]
-    if record is None:
-        return lines + _missing("bench_accuracy.py")
-    lines += [provenance(record), "", "The built-in motor's Table 5 analogue:", "", *table5(record), ""]
+Section = Callable[[dict[str, list[Record]]], list[str]]
+
+
+def single_record(name: str, title: str) -> Callable[[Callable[[Record], list[str]]], Section]:
+    """A section built from benchmark `name`'s one record: the decorated body gives the lines after the heading and the
+    provenance; without a record the section is its heading and the line saying how to measure it."""
+    def decorate(body: Callable[[Record], list[str]]) -> Section:
+        @functools.wraps(body)
+        def section(records: dict[str, list[Record]]) -> list[str]:
+            record = _one(records, name)
+            lines = [f"## {title}", ""]
+            if record is None:
+                return lines + _missing(name)
+            return lines + [provenance(record), "", *body(record)]
+        return section
+    return decorate
+
+
+@single_record("accuracy", "Accuracy")
+def section_accuracy(record: Record) -> list[str]:
+    lines = ["The built-in motor's Table 5 analogue:", "", *table5(record), ""]
     if "ipm" in record["figures"]:
         lines += ["The IPM example ([your own motor](tutorials/own-motor.md)):", "", *ipm_table(record)]
     return lines
@@ -148,39 +167,32 @@ def ipm_table(record: Record) -> list[str]:
             + (f": {named}" if named else "") + f"; measured {_date(record)}.)"]
 
 
-def section_identify(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "identify")
-    lines = ["## Identification", ""]
-    if record is None:
-        return lines + _missing("bench_identify.py")
+@single_record("identify", "Identification")
+def section_identify(record: Record) -> list[str]:
     f = record["figures"]
     rows = [["PSO, swarm 220, 100 iterations", _n(f["pso_s"], 1), f"{_n(f['pso_model_runs'])} model runs, cost "
              f"{f['pso_cost']:.4f}"]]
     rows += [[f"LM Hammerstein, {path}", _n(lm["seconds"], 1),
               f"RMS {lm['rms_initial_C']:.4f} → {lm['rms_final_C']:.4f} °C"] for path, lm in f["lm"].items()]
     rows.append(["compiled kernel, first call", _n(f["kernel_first_call_s"], 2), "numba compiles or loads its cache"])
-    return lines + [provenance(record), "", *_table(["step", "seconds", "result"], rows),
-                    f"Peak resident memory {_n(f['peak_rss_MB'])} MB.", ""]
+    return [*_table(["step", "seconds", "result"], rows),
+            f"Peak resident memory {_n(f['peak_rss_MB'])} MB.", ""]
 
 
-def section_firmware(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "firmware")
-    lines = ["## Firmware", ""]
-    if record is None:
-        return lines + _missing("bench_firmware.py")
+@single_record("firmware", "Firmware")
+def section_firmware(record: Record) -> list[str]:
     f = record["figures"]
     rows = [[f"{r['kind']} ({r['realization']}, {r['dt_s']:g} s)", f"{r['cycles']['p50']} / {r['cycles']['max']}",
              _n(r["exec_us_at_90MHz"]["p50"], 1), _n(r["flash_bytes"]), _n(r["ram_bytes"]), _n(r["stack_used_bytes"]),
              _n(r["emulated_steps_per_s"]), f"{r['mismatches']} of {_n(r['steps'])}",
              f"{_n(r['c28x_estimate']['cycles'])}, {_n(r['c28x_estimate']['flash_bytes'])}, "
              f"{_n(r['c28x_estimate']['ram_bytes'])}"] for r in f["packaged"]]
-    lines += [provenance(record), "",
-              f"`bench firmware check` of the packaged artifacts' shipped ELFs over the 40 °C run "
-              f"({_n(record['parameters'].get('data_rows'))} rows); cycles of `fw_step` as the emulator counts them, "
-              "flash and RAM of the whole ELF (model and CAN node), mismatches against the Python float32 reference:",
-              "", *_table(["kind (realization, Δt)", "Cortex-M4F cycles p50 / max", "µs at 90 MHz", "flash (B)",
-                           "RAM (B)", "model stack (B)", "emulated steps/s", "mismatches",
-                           "C28x estimate: cycles, flash, RAM (B)"], rows)]
+    lines = [f"`bench firmware check` of the packaged artifacts' shipped ELFs over the 40 °C run "
+             f"({_n(record['parameters'].get('data_rows'))} rows); cycles of `fw_step` as the emulator counts them, "
+             "flash and RAM of the whole ELF (model and CAN node), mismatches against the Python float32 reference:",
+             "", *_table(["kind (realization, Δt)", "Cortex-M4F cycles p50 / max", "µs at 90 MHz", "flash (B)",
+                          "RAM (B)", "model stack (B)", "emulated steps/s", "mismatches",
+                          "C28x estimate: cycles, flash, RAM (B)"], rows)]
     if f.get("matrix"):
         matrix = [[r["kind"], r["realization"], f"{r['dt_s']:g}", f"{r['cycles']['p50']}", f"{r['mismatches']}",
                    _n(r["build_s"], 1)] for r in f["matrix"]]
@@ -192,11 +204,8 @@ def section_firmware(records: dict[str, list[Record]]) -> list[str]:
     return lines
 
 
-def section_firmware_timing(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "firmware_timing")
-    lines = ["## Beside the motor control", ""]
-    if record is None:
-        return lines + _missing("bench_firmware_timing.py")
+@single_record("firmware_timing", "Beside the motor control")
+def section_firmware_timing(record: Record) -> list[str]:
     f, params = record["figures"], record["parameters"]
     flash = [[k["kind"], _n(k["model_flash"]["code"]), _n(k["model_flash"]["constants"]),
               _n(k["model_flash"]["bytes"])] for k in f["kinds"]]
@@ -218,20 +227,19 @@ def section_firmware_timing(records: dict[str, list[Record]]) -> list[str]:
                 loads.append([k["kind"], f"{int(rate) // 1000} kHz", clock, _n(100 * load["current_loop_isr"], 2),
                               _n(100 * load["model_step"], 4), _n(100 * load["frame_handling"], 4),
                               _n(100 * load["idle"], 2)])
-    lines += [provenance(record), "",
-              f"The model's own flash (`fw_model.o` in the linker map; the paper's figure "
-              f"{_n(params['paper_model_flash_bytes'])} B), each distinct loss-table row stored once:", "",
-              *_table(["kind", "code (B)", "constants (B)", "total (B)"], flash),
-              "Static WCET bound / measured maximum (cycles; node_on_frame with rows in order):", "",
-              *_table(["kind", "fw_step", "node_on_frame", "foc_isr (handler)", "bound holds"], bounds),
-              f"The node and the model beside the field-oriented current loop's interrupt ({_n(params['rows'])} rows "
-              "of the 40 °C run): the model step's response time (the arrival of the row that ends an interval to "
-              "its temperatures queued), the interrupt's latency when it finds the core idle (the estimator not "
-              "running) and when it preempts the node, the outputs bit for bit against the node without it:", "",
-              *_table(["kind", "interrupt", "clock", "response p50 / p99 / max (µs)", "latency idle, max (cycles)",
-                       "latency preempting p50 / max (cycles)", "bit exact"], timing),
-              "CPU load by task (%):", "",
-              *_table(["kind", "interrupt", "clock", "current loop", "model step", "frame handling", "idle"], loads)]
+    lines = [f"The model's own flash (`fw_model.o` in the linker map; the paper's figure "
+             f"{_n(params['paper_model_flash_bytes'])} B), each distinct loss-table row stored once:", "",
+             *_table(["kind", "code (B)", "constants (B)", "total (B)"], flash),
+             "Static WCET bound / measured maximum (cycles; node_on_frame with rows in order):", "",
+             *_table(["kind", "fw_step", "node_on_frame", "foc_isr (handler)", "bound holds"], bounds),
+             f"The node and the model beside the field-oriented current loop's interrupt ({_n(params['rows'])} rows "
+             "of the 40 °C run): the model step's response time (the arrival of the row that ends an interval to "
+             "its temperatures queued), the interrupt's latency when it finds the core idle (the estimator not "
+             "running) and when it preempts the node, the outputs bit for bit against the node without it:", "",
+             *_table(["kind", "interrupt", "clock", "response p50 / p99 / max (µs)", "latency idle, max (cycles)",
+                      "latency preempting p50 / max (cycles)", "bit exact"], timing),
+             "CPU load by task (%):", "",
+             *_table(["kind", "interrupt", "clock", "current loop", "model step", "frame handling", "idle"], loads)]
     if f.get("lockstep"):
         lock = f["lockstep"]
         runs = "; ".join(f"{name} {_n(lock['median_rows_per_s'][name])} rows/s median (runs "
@@ -252,48 +260,41 @@ def _lockstep_line(lockstep: dict, what: str) -> list[str]:
     return [f"Lockstep throughput, {what}: {runs}.", ""]
 
 
-def section_firmware_node(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "firmware_node")
-    lines = ["## The CAN node in firmware", ""]
-    if record is None:
-        return lines + _missing("bench_firmware_node.py")
+@single_record("firmware_node", "The CAN node in firmware")
+def section_firmware_node(record: Record) -> list[str]:
     f = record["figures"]
     i = f["identity"]
-    lines += [provenance(record), "",
-              f"A whole session ({_n(record['parameters']['session_rows'])} rows, {_n(i['frames_in'])} host frames) "
-              f"into the Python node and the firmware node: {_n(i['frames_compared'])} reply frames compared, "
-              f"{i['mismatching_calls']} differing; {_n(i['model_steps'])} model steps.", "",
-              *_table(["cycles (Cortex-M4F)", "p50", "max"],
-                      [["model step (DWT_CYCCNT)", _n(i["m4_cycles"]["p50"]), _n(i["m4_cycles"]["max"])],
-                       ["handling a received frame, model step excluded", _n(i["frame_cycles"]["p50"]),
-                        _n(i["frame_cycles"]["max"])],
-                       ["building a reply frame", _n(i["reply_cycles"]["p50"]), _n(i["reply_cycles"]["max"])]]),
-              f"Flash {_n(i['flash_bytes'])} B, RAM {_n(i['ram_bytes'])} B, stack used {_n(i['stack_used_bytes'])} B, "
-              f"transmit queue drops {i['tx_dropped']}.", "",
-              "Under frame faults (each kind of `dbc.mutations` at the rate given, on the drive frames):", "",
-              *_table(["seed", "rate", "frames in", "replies compared", "differing", "RxErrors counts equal"],
-                      [[str(r["seed"]), f"{r['rate']:g}", _n(r["frames_in"]), _n(r["frames_compared"]),
-                        str(r["mismatching_calls"]), "yes" if r["rx_errors_equal"] else "no"] for r in f["faults"]])]
+    lines = [f"A whole session ({_n(record['parameters']['session_rows'])} rows, {_n(i['frames_in'])} host frames) "
+             f"into the Python node and the firmware node: {_n(i['frames_compared'])} reply frames compared, "
+             f"{i['mismatching_calls']} differing; {_n(i['model_steps'])} model steps.", "",
+             *_table(["cycles (Cortex-M4F)", "p50", "max"],
+                     [["model step (DWT_CYCCNT)", _n(i["m4_cycles"]["p50"]), _n(i["m4_cycles"]["max"])],
+                      ["handling a received frame, model step excluded", _n(i["frame_cycles"]["p50"]),
+                       _n(i["frame_cycles"]["max"])],
+                      ["building a reply frame", _n(i["reply_cycles"]["p50"]), _n(i["reply_cycles"]["max"])]]),
+             f"Flash {_n(i['flash_bytes'])} B, RAM {_n(i['ram_bytes'])} B, stack used {_n(i['stack_used_bytes'])} B, "
+             f"transmit queue drops {i['tx_dropped']}.", "",
+             "Under frame faults (each kind of `dbc.mutations` at the rate given, on the drive frames):", "",
+             *_table(["seed", "rate", "frames in", "replies compared", "differing", "RxErrors counts equal"],
+                     [[str(r["seed"]), f"{r['rate']:g}", _n(r["frames_in"]), _n(r["frames_compared"]),
+                       str(r["mismatching_calls"]), "yes" if r["rx_errors_equal"] else "no"] for r in f["faults"]])]
     if f.get("lockstep"):
         lines += _lockstep_line(f["lockstep"], "`bench run` with each engine, alternating")
     return lines
 
 
-def section_can(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "can")
-    lines = ["## Bus throughput", ""]
-    if record is None:
-        return lines + _missing("bench_can.py")
+@single_record("can", "Bus throughput")
+def section_can(record: Record) -> list[str]:
     f = record["figures"]
     lock = f["lockstep"]
     rows = [[f"{r['coolant_C']:g} °C", _n(r["rows"]), _n(r["wall_s"], 2), _n(r["rows_per_s"]),
              f"{_n(r['round_trip_us']['p50'])} / {_n(r['round_trip_us']['p99'])}", str(r["missing"])]
             for r in lock["runs"]]
-    lines += [provenance(record), "", f"Bus: {record['parameters'].get('bus')}.", "",
-              "Lockstep, the three-run campaign, each run with its own target process, log written:", "",
-              *_table(["run", "rows", "replay (s)", "rows/s", "round trip p50 / p99 (µs)", "missing"], rows),
-              f"In all {_n(lock['rows'])} rows, replayed in {_n(lock['replay_s'], 1)} s ({_n(lock['rows_per_s'])} "
-              f"rows/s), {_n(lock['with_start_stop_s'], 1)} s with the target processes' start and stop.", ""]
+    lines = [f"Bus: {record['parameters'].get('bus')}.", "",
+             "Lockstep, the three-run campaign, each run with its own target process, log written:", "",
+             *_table(["run", "rows", "replay (s)", "rows/s", "round trip p50 / p99 (µs)", "missing"], rows),
+             f"In all {_n(lock['rows'])} rows, replayed in {_n(lock['replay_s'], 1)} s ({_n(lock['rows_per_s'])} "
+             f"rows/s), {_n(lock['with_start_stop_s'], 1)} s with the target processes' start and stop.", ""]
     if f.get("realtime"):
         lines += ["Realtime (send time against plan):", "",
                   *_table(["speed", "rows", "seconds", "send jitter p50 / p99 / max (µs)", "round trip p50 / p99 (µs)",
@@ -316,48 +317,40 @@ def _worst(per_node: dict | None) -> float | None:
     return max(values) if values else None
 
 
-def section_memory(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "memory")
-    lines = ["## Memory", ""]
-    if record is None:
-        return lines + _missing("bench_memory.py")
+@single_record("memory", "Memory")
+def section_memory(record: Record) -> list[str]:
     rows = []
     for m in record["figures"]["measurements"]:
         per_row = ", ".join(f"{scale}: {_n(v)}" for scale, v in m["bytes_per_row"].items())
         rows.append([m["step"], m["measure"], per_row, _n(m["marginal_bytes_per_row"]),
                      ", ".join(_n(r["rows"]) for r in m["runs"])])
-    return lines + [provenance(record), "",
-                    "Peak growth per data row over a baseline with the modules, model and data loaded, each step in a "
-                    "fresh process (scale k: the 40 °C run k times over); the marginal cost is the difference of the "
-                    "peaks over the difference of the rows, which no fixed cost enters:", "",
-                    *_table(["step", "measure", "bytes per row", "marginal bytes per row", "rows"], rows)]
+    return ["Peak growth per data row over a baseline with the modules, model and data loaded, each step in a "
+            "fresh process (scale k: the 40 °C run k times over); the marginal cost is the difference of the "
+            "peaks over the difference of the rows, which no fixed cost enters:", "",
+            *_table(["step", "measure", "bytes per row", "marginal bytes per row", "rows"], rows)]
 
 
-def section_soak(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "soak")
-    lines = ["## Soak", ""]
-    if record is None:
-        return lines + _missing("bench_soak.py")
+@single_record("soak", "Soak")
+def section_soak(record: Record) -> list[str]:
     p, f = record["parameters"], record["figures"]
     faults = ", ".join(f"{kind} {_n(f['injected'][kind])}/{_n(f['detected'].get(kind, 0))}" for kind in f["injected"])
     gaps = [g for run in f["runs"] for g in run["gaps_s"]]
-    return lines + [provenance(record), "",
-                    f"{_count(p['runs'], 'run')} of {_n(p['data_rows'])} rows, each with drop {p['drop']:g} and "
-                    f"corruption {p['corrupt']:g} per drive frame and {p['kills']} target kill: completed "
-                    f"{f['completed']}/{p['runs']}, every row answered in {f['answered_all']}/{p['runs']}; "
-                    f"injected/detected {faults}; "
-                    f"undetected {f['undetected']}; lost log frames {f['lost_log_frames']}; gaps "
-                    + (_span(gaps, 2, "s") if gaps else "none")
-                    + f"; max \\|CAN − restarted float32\\| {_n(f['max_abs_can_minus_restarted_float32_C'], 4)} °C, "
-                    f"max \\|CAN − clean run\\| {_n(f['max_abs_can_minus_clean_C'], 4)} °C over all rows; "
-                    f"{_n(f['soak_s'])} s in all; goals {'met' if f['goals_met'] else 'NOT met'}.", ""]
+    return [f"{_count(p['runs'], 'run')} of {_n(p['data_rows'])} rows, each with drop {p['drop']:g} and "
+            f"corruption {p['corrupt']:g} per drive frame and {p['kills']} target kill: completed "
+            f"{f['completed']}/{p['runs']}, every row answered in {f['answered_all']}/{p['runs']}; "
+            f"injected/detected {faults}; "
+            f"undetected {f['undetected']}; lost log frames {f['lost_log_frames']}; gaps "
+            + (_span(gaps, 2, "s") if gaps else "none")
+            + f"; max \\|CAN − restarted float32\\| {_n(f['max_abs_can_minus_restarted_float32_C'], 4)} °C, "
+            f"max \\|CAN − clean run\\| {_n(f['max_abs_can_minus_clean_C'], 4)} °C over all rows; "
+            f"{_n(f['soak_s'])} s in all; goals {'met' if f['goals_met'] else 'NOT met'}.", ""]
 
 
 def section_campaigns(records: dict[str, list[Record]]) -> list[str]:
     lines = ["## Campaigns", ""]
     campaigns = records.get("campaign", [])
     if not campaigns:
-        return lines + _missing("bench_campaign.py")
+        return lines + _missing("campaign")
     rows = []
     for r in campaigns:
         p, f = r["parameters"], r["figures"]
@@ -373,25 +366,19 @@ def section_campaigns(records: dict[str, list[Record]]) -> list[str]:
     return lines
 
 
-def section_data(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "data")
-    lines = ["## Datasets", ""]
-    if record is None:
-        return lines + _missing("bench_data.py")
+@single_record("data", "Datasets")
+def section_data(record: Record) -> list[str]:
     f = record["figures"]
     rows = [[f"{c} °C", _n(d["seconds"], 2), f"`{d['sha256'][:16]}…`"] for c, d in f["datasets"].items()]
-    return lines + [provenance(record), "", *_table(["coolant", "seconds", "sha256"], rows),
-                    f"All three in {_n(f['total_s'], 2)} s (goal: under {f['goal_s']} s).", ""]
+    return [*_table(["coolant", "seconds", "sha256"], rows),
+            f"All three in {_n(f['total_s'], 2)} s (goal: under {f['goal_s']} s).", ""]
 
 
-def section_observer(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "observer")
-    lines = ["## Observer", ""]
-    if record is None:
-        return lines + _missing("bench_observer.py")
-    lines += [provenance(record), "", "The built-in motor, the winding thermocouple as the measurement "
-              "([method](method.md#closed-loop-the-observer-first-part)):", "", *observer_builtin_table(record),
-              ""]
+@single_record("observer", "Observer")
+def section_observer(record: Record) -> list[str]:
+    lines = ["The built-in motor, the winding thermocouple as the measurement "
+             "([method](method.md#closed-loop-the-observer-first-part)):", "", *observer_builtin_table(record),
+             ""]
     if "ipm" in record["figures"]:
         lines += ["The IPM example, held-out profiles:", "", *observer_ipm_table(record), ""]
     lines += ["Covariance forms in float32:", "", *observer_forms_table(record), ""]
@@ -517,21 +504,17 @@ def _top_rows(studies: list[dict], node: str) -> list[list[str]]:
     return rows
 
 
-def section_robustness(records: dict[str, list[Record]]) -> list[str]:
-    record = _one(records, "robustness")
-    lines = ["## Robustness", ""]
-    if record is None:
-        return lines + _missing("bench_robustness.py")
+@single_record("robustness", "Robustness")
+def section_robustness(record: Record) -> list[str]:
     p, f = record["parameters"], record["figures"]
     builtin = f["builtin"]
     scope = (f"the first {_n(p['rows'])} rows of each file" if p.get("rows") else "whole files") + (
         f", {p['seeds']} seeds per random case" if p.get("seeds") else ", the default seeds")
     header = ["model on data", "clean RMSE °C", "1st", "2nd", "3rd"]
-    lines += [provenance(record), "",
-              f"`bench robustness` with its default spec ({scope}): the three perturbations that move the magnet "
-              "estimate most (Δ RMSE against the clean run at the magnitude that moves it most, ± the Monte Carlo "
-              "spread; the target's float32 code):", "",
-              *_table(header, _top_rows(builtin["studies"] + f.get("ipm", {}).get("studies", []), "pm"))]
+    lines = [f"`bench robustness` with its default spec ({scope}): the three perturbations that move the magnet "
+             "estimate most (Δ RMSE against the clean run at the magnitude that moves it most, ± the Monte Carlo "
+             "spread; the target's float32 code):", "",
+             *_table(header, _top_rows(builtin["studies"] + f.get("ipm", {}).get("studies", []), "pm"))]
     two = builtin["workers_2"]
     timing = (f"The built-in study ({builtin['cases']} cases, {builtin['diverged']} diverged) took "
               f"{_n(two['study_wall_s'], 1)} s on 2 workers (peak memory of the process tree {_n(two['peak_tree_MiB'])}"
@@ -586,7 +569,7 @@ def observer_forms_table(record: Record) -> list[str]:
 
 
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
-SECTIONS: dict[str, Callable[[dict[str, list[Record]]], list[str]]] = {
+SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
     "firmware_timing": section_firmware_timing,
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
@@ -605,13 +588,13 @@ def render_results(records: dict[str, list[Record]] | None = None) -> str:
 
 def render_table5(records: dict[str, list[Record]] | None = None) -> str:
     record = _one(load_records() if records is None else records, "accuracy")
-    return "\n".join(table5(record) if record else _missing("bench_accuracy.py")) + "\n"
+    return "\n".join(table5(record) if record else _missing("accuracy")) + "\n"
 
 
 def render_ipm(records: dict[str, list[Record]] | None = None) -> str:
     record = _one(load_records() if records is None else records, "accuracy")
     if record is None or "ipm" not in record["figures"]:
-        return "\n".join(_missing("bench_accuracy.py")) + "\n"
+        return "\n".join(_missing("accuracy")) + "\n"
     return "\n".join(ipm_table(record)) + "\n"
 
 
@@ -620,7 +603,7 @@ def _observer_fragment(table: Callable[[Record], list[str]], part: str | None = 
     def render(records: dict[str, list[Record]] | None = None) -> str:
         record = _one(load_records() if records is None else records, "observer")
         if record is None or (part and part not in record["figures"]):
-            return "\n".join(_missing("bench_observer.py")) + "\n"
+            return "\n".join(_missing("observer")) + "\n"
         return "\n".join(table(record)) + "\n"
     render.__doc__ = table.__doc__
     return render
