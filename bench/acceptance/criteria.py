@@ -17,7 +17,6 @@ one: "no node's RMSE more than 5 % worse".
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,8 +25,9 @@ from bench.acceptance.kinds import KINDS, Criterion, Subject
 from bench.acceptance.kinds.base import NODES, number
 from bench.analysis.results import Acceptance, CheckResult, ResultsError, RunResults
 from bench.errors import UsageError
+from bench.tomlspec import spec_tables
 
-TOP_KEYS = ("criteria", "baseline")
+UNKNOWN_KEY = 'has an unknown key {key!r}; it holds [criteria.NAME] tables and an optional baseline = "FILE"'
 DEFAULT_REGRESSION = Criterion("regression", "regression", 5.0, {"figure": "rmse", "nodes": NODES, "floor": 0.01})
 
 
@@ -76,14 +76,9 @@ def parse_criterion(name: str, table: Any, where: str) -> Criterion:
 def parse_criteria(text: str, path: Path) -> CriteriaSet:
     """The criteria of a file's text (`path` names it and anchors a relative baseline)."""
     where = str(path)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise CriteriaError(f"the criteria file {where} is not valid TOML ({exc}); fix it") from None
-    unknown = [k for k in doc if k not in TOP_KEYS]
-    if unknown:
-        raise CriteriaError(f"the criteria file {where} has an unknown key {unknown[0]!r}; it holds "
-                            "[criteria.NAME] tables and an optional baseline = \"FILE\"")
+    # [criteria.NAME] tables and the baseline path, both checked below with sentences of their own
+    doc = spec_tables(text, f"the criteria file {where}", (), CriteriaError, keys=("criteria", "baseline"),
+                      fix="fix it", unknown=UNKNOWN_KEY)
     tables = doc.get("criteria")
     if not isinstance(tables, dict) or not tables:
         raise CriteriaError(f"the criteria file {where} has no criteria; add [criteria.NAME] tables with a kind "

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import BenchError, UsageError
+from bench.tomlspec import spec_tables
 from target_sim.kinds import MODEL_KINDS as model_kind_table
 
 MODEL_KINDS = model_kind_table.names()
@@ -275,24 +276,6 @@ def parse_override(text: str) -> tuple[str, Any]:
     except tomllib.TOMLDecodeError:
         parsed = value.strip()
     return option_name(key), parsed
-
-
-def spec_tables(text: str, where: str, sections: Iterable[str], error: type[Exception]) -> dict[str, Any]:
-    """A TOML spec's document, checked to hold only the tables `sections` (each a table where present); anything
-    else is one sentence naming `where`, raised as `error`. The campaign's and the robustness study's specs share it."""
-    sections = tuple(sections)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise error(f"{where} is not valid TOML ({exc}); fix the spec") from None
-    unknown = [k for k in doc if k not in sections]
-    if unknown:
-        raise error(f"{where} has an unknown section or key {unknown[0]!r}; a spec has the tables "
-                    f"{', '.join(f'[{s}]' for s in sections)}")
-    for section in sections:
-        if not isinstance(doc.get(section, {}), dict):
-            raise error(f"{where}: {section} must be a table, [{section}]")
-    return doc
 
 
 def parse_spec(text: str, path: Path, overrides: Iterable[str] = ()) -> Campaign:
