@@ -95,17 +95,20 @@ def model_step(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_c
 
 
 @numba.njit(cache=True, fastmath=False)
-def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w,
-               ref_m, ref_y, ref_t, traj, keep, use_sigmoid):
-    n_steps = ratio.shape[0]
+def step_buffers(c_inv, y0):
+    """The buffers `model_step` works in, for a run from the estimate y0: (x = C⁻¹ y0, x_new, y = y0, u, gains)."""
     x = np.zeros(4)
-    x_new = np.zeros(4)
-    y = y0.copy()
-    u = np.empty(8)
-    gains = np.empty(4)
     for i in range(4):
         for j in range(4):
             x[i] += c_inv[i, j] * y0[j]
+    return x, np.zeros(4), y0.copy(), np.empty(8), np.empty(4)
+
+
+@numba.njit(cache=True, fastmath=False)
+def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w,
+               ref_m, ref_y, ref_t, traj, keep, use_sigmoid):
+    n_steps = ratio.shape[0]
+    x, x_new, y, u, gains = step_buffers(c_inv, y0)
     sse_w = 0.0
     sse_m = 0.0
     sse_y = 0.0

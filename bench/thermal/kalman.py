@@ -18,7 +18,7 @@ import numba
 import numpy as np
 
 from bench.thermal import portable
-from bench.thermal.estimator import StepInputs, identity_sigmoid, model_step
+from bench.thermal.estimator import StepInputs, identity_sigmoid, model_step, step_buffers
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -40,16 +40,9 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
                 rel, sees, lag_pole, lag_index, bias_index, q, r, p0, traj, sigma, keep, use_sigmoid):
     n_steps = ratio.shape[0]
     n = q.shape[0]
-    x = np.zeros(4)
-    x_new = np.zeros(4)
-    y = y0.copy()
-    u = np.empty(8)
-    gains = np.empty(4)
+    x, x_new, y, u, gains = step_buffers(c_inv, y0)
     jac = np.zeros((4, 4))
     xa = np.zeros(n)
-    for i in range(4):
-        for j in range(4):
-            x[i] += c_inv[i, j] * y0[j]
     for m in range(sees.shape[0]):
         if lag_index[m] >= 0:
             xa[lag_index[m]] = sees[m] @ y0
