@@ -205,7 +205,7 @@ def _deployment(selection: dict | None, metrics: dict) -> str | None:
     """A sentence when the Hammerstein model did worse than the LTI network it refines (left-out training files
     in the cross-validation, or the validation files), None otherwise."""
     where = []
-    if selection and selection.get("recommended") == "lti-lptn":
+    if selection and "recommended" in selection and not MODEL_KINDS[selection["recommended"]].input_nonlinearity:
         where.append(f"on left-out training files (RMS {selection['selected_rms_C']:.3f} vs "
                      f"{selection['lti_rms_C']:.3f} °C)")
     ham, lti = metrics.get("hammerstein"), metrics.get("lti-lptn")
