@@ -1,13 +1,15 @@
 """A TOML file of named tables, read and checked for what may stand at its top before anything else looks at it.
 
-The campaign spec, the robustness study's spec and the acceptance criteria file share this opening; each then reads
-its own tables. A problem is one sentence naming the file, raised as the caller's error class.
+The campaign spec, the robustness study's spec and the acceptance criteria file share this opening (`spec_tables`;
+the first and the last also `read_spec`); each then reads its own tables. A problem is one sentence naming the file,
+raised as the caller's error class.
 """
 
 from __future__ import annotations
 
 import tomllib
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 SPEC_UNKNOWN = "has an unknown section or key {key!r}; a spec has the tables {tables}"
@@ -32,3 +34,14 @@ def spec_tables(text: str, where: str, sections: Iterable[str], error: type[Exce
         if not isinstance(doc.get(section, {}), dict):
             raise error(f"{where}: {section} must be a table, [{section}]")
     return doc
+
+
+def read_spec(path: Path, what: str, advice: str, error: type[Exception]) -> str:
+    """The text of the file `path`, `what` ("the campaign spec") in the sentence, raised as `error`, when it is
+    missing (with `advice`: what to give instead) or cannot be read."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{what} {path} does not exist; {advice}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{what} {path} cannot be read ({exc})") from None

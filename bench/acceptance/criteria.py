@@ -25,7 +25,7 @@ from bench.acceptance.kinds import KINDS, Criterion, Subject
 from bench.acceptance.kinds.base import NODES, number
 from bench.analysis.results import Acceptance, CheckResult, ResultsError, RunResults
 from bench.errors import UsageError
-from bench.tomlspec import spec_tables
+from bench.tomlspec import read_spec, spec_tables
 
 UNKNOWN_KEY = 'has an unknown key {key!r}; it holds [criteria.NAME] tables and an optional baseline = "FILE"'
 DEFAULT_REGRESSION = Criterion("regression", "regression", 5.0, {"figure": "rmse", "nodes": NODES, "floor": 0.01})
@@ -93,13 +93,8 @@ def parse_criteria(text: str, path: Path) -> CriteriaSet:
 def load_criteria(path: Path) -> CriteriaSet:
     """The criteria file at `path` (CriteriaError, one sentence, if it is missing or bad)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CriteriaError(f"the criteria file {path} does not exist; give the path of a TOML file of "
-                            "[criteria.NAME] tables, e.g. examples/ci/criteria.toml") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CriteriaError(f"the criteria file {path} cannot be read ({exc})") from None
+    text = read_spec(path, "the criteria file", "give the path of a TOML file of [criteria.NAME] tables, e.g. "
+                     "examples/ci/criteria.toml", CriteriaError)
     return parse_criteria(text, path)
 
 

@@ -60,18 +60,24 @@ def _criterion_case(suite: ET.Element, classname: str, check: CheckResult, attac
     return case
 
 
+def _suite(command: str, tests: int, failures: int, errors: int, elapsed_s: float) -> tuple[ET.Element, ET.Element]:
+    """The document's root <testsuites> and its one <testsuite> named `command`, both with the counts."""
+    counts = {"tests": str(tests), "failures": str(failures), "errors": str(errors), "skipped": "0",
+              "time": f"{elapsed_s:.3f}"}
+    root = ET.Element("testsuites", name="bench", **counts)
+    suite = ET.SubElement(root, "testsuite", name=command, **counts,
+                          timestamp=datetime.now(UTC).replace(microsecond=0).isoformat(),
+                          hostname=socket.gethostname())
+    return root, suite
+
+
 def junit_document(command: str, clean: CleanCase, acceptance: Acceptance | None, *, elapsed_s: float,
                    properties: dict[str, object], attachments: list[str]) -> bytes:
     """The JUnit XML (UTF-8 bytes) of one command: `command` names the suite ("bench run")."""
     checks = acceptance.checks if acceptance is not None else []
     failures = (0 if clean.passed else 1) + sum(1 for c in checks if not c.passed)
     tests = 1 + len(checks)
-    counts = {"tests": str(tests), "failures": str(failures), "errors": "0", "skipped": "0",
-              "time": f"{elapsed_s:.3f}"}
-    root = ET.Element("testsuites", name="bench", **counts)
-    suite = ET.SubElement(root, "testsuite", name=command, **counts,
-                          timestamp=datetime.now(UTC).replace(microsecond=0).isoformat(),
-                          hostname=socket.gethostname())
+    root, suite = _suite(command, tests, failures, 0, elapsed_s)
     _properties(suite, {**properties, **({"criteria": acceptance.criteria, "baseline": acceptance.baseline}
                                           if acceptance is not None else {})})
     classname = command.replace(" ", ".")
@@ -98,12 +104,7 @@ def write_junit(path: Path, command: str, clean: CleanCase, acceptance: Acceptan
 def write_junit_error(path: Path, command: str, sentence: str, criteria: list[str], *, elapsed_s: float) -> None:
     """The JUnit XML of a command that ended before its verdict (the target died, the log could not be written):
     "clean" and each criterion an <error> with the command's sentence, so the CI page still says what happened."""
-    counts = {"tests": str(1 + len(criteria)), "failures": "0", "errors": str(1 + len(criteria)), "skipped": "0",
-              "time": f"{elapsed_s:.3f}"}
-    root = ET.Element("testsuites", name="bench", **counts)
-    suite = ET.SubElement(root, "testsuite", name=command, **counts,
-                          timestamp=datetime.now(UTC).replace(microsecond=0).isoformat(),
-                          hostname=socket.gethostname())
+    root, suite = _suite(command, 1 + len(criteria), 0, 1 + len(criteria), elapsed_s)
     classname = command.replace(" ", ".")
     for name, cls, message in [("clean", classname, sentence),
                                *((c, f"{classname}.criteria", f"not judged: {sentence}") for c in criteria)]:

@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import BenchError, UsageError
-from bench.tomlspec import spec_tables
+from bench.tomlspec import read_spec, spec_tables
 from target_sim.kinds import MODEL_KINDS as model_kind_table
 
 MODEL_KINDS = model_kind_table.names()
@@ -391,11 +391,6 @@ def _model_problem(path: Path, value: str) -> str | None:
 def load_spec(path: Path, overrides: Iterable[str] = ()) -> Campaign:
     """The campaign of the spec file `path` (SpecError, one sentence, for a missing or bad one)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SpecError(f"the campaign spec {path} does not exist; give the path of a TOML spec, e.g. "
-                        "examples/campaigns/smoke.toml") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SpecError(f"the campaign spec {path} cannot be read ({exc})") from None
+    text = read_spec(path, "the campaign spec", "give the path of a TOML spec, e.g. examples/campaigns/smoke.toml",
+                     SpecError)
     return parse_spec(text, path, overrides)
