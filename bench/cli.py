@@ -14,7 +14,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from bench import DISTRIBUTION, package_version
+from bench import DISTRIBUTION, package_version, stop
 from bench.errors import BenchError, UsageError
 from dbc.errors import CanLinkError
 from host.errors import HostError, io_advice
@@ -165,6 +165,7 @@ def _catch_termination() -> tuple[dict, Callable]:
     raised = []
 
     def terminate(signum, frame) -> None:  # noqa: ARG001 - signal API
+        stop.request()   # worker threads see it too (bench.stop): the main thread's way out waits for them
         if not raised:
             raised.append(signum)
             raise Terminated(signum)
@@ -216,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.unraisablehook = hook
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+        stop.clear()
 
 
 def _failed(args: argparse.Namespace | None, sentence: str, status: int, started: float) -> int:
