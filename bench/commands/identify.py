@@ -101,11 +101,15 @@ def run(args: argparse.Namespace) -> int:
     polish = args.polish if args.polish is not None else (POLISH_STARTS if files else 0)
     regularization = args.regularization or ("cv" if files else "fixed")
     dt = _model_step(args.dt, train + validate)
-    progress = None if (args.quiet or args.json) else _progress_bar()
-    result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
-                      lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
-                      prior=prior, width=width, polish_starts=polish, regularization=regularization,
-                      progress=progress)
+    progress = None if (args.quiet or args.json) else _ProgressBars()
+    try:
+        result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
+                          lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
+                          prior=prior, width=width, polish_starts=polish, regularization=regularization,
+                          progress=progress)
+    finally:
+        if progress is not None:
+            progress.close()
     metrics = validation_metrics(result, validate, args.realization)
     written = {}
     for kind, path in outputs.items():
@@ -259,21 +263,29 @@ def _print_uncertainty(u: dict) -> None:
         print(f"  not identifiable from these data: {', '.join(u['unidentifiable'])}")
 
 
-def _progress_bar():
-    from tqdm import tqdm
+STAGES = {"pso": "PSO LPTN", "polish": "LM polish", "lm": "LM Hammerstein"}   # identify()'s progress stages
 
-    bars = {}
 
-    def update(stage: str, iteration: int, cost: float) -> None:
-        if stage not in bars:
-            for bar in bars.values():
-                bar.close()
-            bars[stage] = tqdm(desc="PSO LPTN" if stage == "pso" else "LM Hammerstein", unit="it", file=sys.stderr,
-                               leave=True)
-        bars[stage].update(1)
-        bars[stage].set_postfix(cost=f"{cost:.4g}")
+class _ProgressBars:
+    """One tqdm bar on stderr per stage of identify(); `close` ends the open one, also when the command is stopped,
+    so its last refresh comes before the command's closing sentence, not after it."""
 
-    return update
+    def __init__(self) -> None:
+        self.bars = {}
+
+    def __call__(self, stage: str, iteration: int, cost: float) -> None:
+        from tqdm import tqdm
+
+        if stage not in self.bars:
+            self.close()
+            self.bars[stage] = tqdm(desc=STAGES[stage], unit="it", file=sys.stderr, leave=True)
+        if iteration > 0:    # 0 opens the stage
+            self.bars[stage].update(1)
+        self.bars[stage].set_postfix(cost=f"{cost:.4g}")
+
+    def close(self) -> None:
+        for bar in self.bars.values():
+            bar.close()
 
 
 def _print_summary(s: dict) -> None:
