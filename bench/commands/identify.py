@@ -304,9 +304,10 @@ def _print_summary(s: dict) -> None:
         _print_uncertainty(s["uncertainty"])
     if s.get("regularization") and "cv_rms_C" in s["regularization"]:
         r = s["regularization"]
+        scores = ", ".join(f"{f} {v:.3f}" for f, v in r["cv_rms_C"].items())
         print(f"Hammerstein ridge factor {r['factor']:g} by leave-one-file-out cross-validation (RMS on left-out "
-              f"files {r['selected_rms_C']:.3f} °C, LTI LPTN {r['lti_rms_C']:.3f} °C): deploy "
-              f"{r['recommended']}")
+              f"files per factor {scores} °C, the strongest within one standard error, {r['cv_limit_rms_C']:.3f} "
+              f"°C; LTI LPTN {r['lti_rms_C']:.3f} °C): deploy {r['recommended']}")
     print("validation (held-out files together), RMSE / max |error| °C:")
     for model, m in s["validation"].items():
         for prec in ("float64", "float32"):
