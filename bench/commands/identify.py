@@ -117,19 +117,9 @@ def run(args: argparse.Namespace) -> int:
         write_text_atomically(path, _artifact_text(result.content(kind, realization, metrics)))
         written[kind] = str(path)
     prov = result.provenance
-    warnings = [_bound_warning(result.lptn.on_bounds, prov["pso"]["prior"], prov["pso"]["bounds"])] \
-        if result.lptn.on_bounds else []
-    frozen = (prov.get("polish") or {}).get("frozen")
-    if frozen:
-        warnings.append(f"{', '.join(frozen)} {'was' if len(frozen) == 1 else 'were'} frozen at the prior's value: "
-                        "the data cannot identify them and the fit had left them on a bound")
     uncertainty = prov.get("uncertainty")
-    blind = [n for n in (uncertainty or {}).get("unidentifiable", []) if n not in (frozen or [])]
-    if blind:
-        warnings.append(f"the training data cannot identify {', '.join(blind)} (standard "
-                        "error above a factor of 2, or half the search range); their values are the prior's guess "
-                        "moved by the fit")
     selection = prov["lm"].get("regularization")
+    warnings = _warnings(result.lptn.on_bounds, prov)
     deploy = _deployment(selection, metrics)
     if deploy:
         warnings.append(deploy)
@@ -203,6 +193,32 @@ def _model_step(dt: float | None, datasets) -> float:
         raise UsageError(f"--dt {dt:g} s is shorter than the data's {period:g} s sample period, so some model steps "
                          f"would get no sample; choose at least {period:g} s")
     return dt
+
+
+def _warnings(on_bounds: list[dict], prov: dict) -> list[str]:
+    """The LPTN fit's warnings: the parameters on a bound, those frozen at the prior, those the data cannot identify.
+    A parameter on a bound of the box around the prior (not a fixed physical limit) means the prior cannot hold this
+    motor's network: then the fit is bent to the box, the frozen and unidentifiable parameters follow from that,
+    and the one sentence with its advice (widen --bounds, --prior auto) is all the warning (--json and the summary
+    keep the rest)."""
+    from bench.model.lptn_fit import FIXED_BOUNDS
+
+    if not on_bounds:
+        warnings = []
+    else:
+        warnings = [_bound_warning(on_bounds, prov["pso"]["prior"], prov["pso"]["bounds"])]
+        if any(h["name"] not in FIXED_BOUNDS for h in on_bounds):
+            return warnings
+    frozen = (prov.get("polish") or {}).get("frozen")
+    if frozen:
+        warnings.append(f"{', '.join(frozen)} {'was' if len(frozen) == 1 else 'were'} frozen at the prior's value: "
+                        "the data cannot identify them and the fit had left them on a bound")
+    blind = [n for n in (prov.get("uncertainty") or {}).get("unidentifiable", []) if n not in (frozen or [])]
+    if blind:
+        warnings.append(f"the training data cannot identify {', '.join(blind)} (standard "
+                        "error above a factor of 2, or half the search range); their values are the prior's guess "
+                        "moved by the fit")
+    return warnings
 
 
 def _deployment(selection: dict | None, metrics: dict) -> str | None:

@@ -233,3 +233,20 @@ def test_parameters_on_bounds_are_one_sentence_with_advice():
     assert sentence.count(". ") == 0 and "2 of 22" in sentence and "R_yw = 0.04 (upper" in sentence
     assert "C_m = 180 (lower" in sentence and "--prior auto" in sentence and "0.5-2" in sentence
     assert "--prior auto" not in _bound_warning(hits[:1], "auto", [0.1, 10.0])
+
+
+def test_a_prior_that_cannot_hold_the_motor_gives_one_warning():
+    """A parameter on the box around the prior: one sentence with its advice, not also the frozen and unidentifiable
+    parameters that follow from the bent fit; on a fixed physical limit only, those follow as before."""
+    from bench.commands.identify import _warnings
+
+    prov = {"pso": {"prior": "table1", "bounds": [0.5, 2.0]}, "polish": {"frozen": ["R_yw", "b_ma"]},
+            "uncertainty": {"unidentifiable": ["C_y", "R_yw", "k_1"]}}
+    boxed = [{"name": "R_cy0", "value": 0.008, "bound": "upper", "limit": 0.008}]
+    (only,) = _warnings(boxed, prov)
+    assert "0.5-2 × the table1 prior for R_cy0" in only and "widen --bounds or use --prior auto" in only
+    fixed = [{"name": "k_0", "value": 0.95, "bound": "upper", "limit": 0.95}]
+    bound, frozen, blind = _warnings(fixed, prov)
+    assert "fixed physical limit" in bound and frozen.startswith("R_yw, b_ma were frozen")
+    assert blind.startswith("the training data cannot identify C_y, k_1 ")
+    assert len(_warnings([], prov)) == 2
