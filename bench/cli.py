@@ -14,7 +14,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from bench import DISTRIBUTION, package_version
+from bench import DISTRIBUTION, package_version, stop
 from bench.errors import BenchError, UsageError
 from dbc.errors import CanLinkError
 from host.errors import HostError, io_advice
@@ -156,7 +156,8 @@ STOP_NOTE = "no half-written file is left and any target process it started was 
 
 def _catch_termination() -> tuple[dict, Callable]:
     """Turn SIGTERM and SIGHUP into `Terminated` (once: a second signal does not cut the cleanup short); returns
-    the handlers and the unraisable hook to put back.
+    the handlers and the unraisable hook to put back. These and SIGINT also set `bench.stop`'s flag, which worker
+    threads check (the identification's polish).
 
     A signal that the process inherited as ignored stays ignored (`nohup bench run` must survive the hangup). A
     signal arrives between any two bytecodes, also inside a finalizer or a weakref callback (matplotlib's, the
@@ -165,9 +166,14 @@ def _catch_termination() -> tuple[dict, Callable]:
     raised = []
 
     def terminate(signum, frame) -> None:  # noqa: ARG001 - signal API
+        stop.request()   # worker threads see it too (bench.stop): the main thread's way out waits for them
         if not raised:
             raised.append(signum)
             raise Terminated(signum)
+
+    def interrupt(signum, frame) -> None:
+        stop.request()
+        signal.default_int_handler(signum, frame)   # KeyboardInterrupt, as without this handler
 
     previous = {}
     for signum in TERMINATING:
@@ -177,6 +183,8 @@ def _catch_termination() -> tuple[dict, Callable]:
             previous[signum] = signal.signal(signum, terminate)
         except ValueError:   # not the main thread (a test calling main()): leave the signals alone
             break
+    if previous and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, interrupt)
     hook = sys.unraisablehook
 
     def deliver_again(unraisable) -> None:
@@ -216,6 +224,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.unraisablehook = hook
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+        stop.clear()
 
 
 def _failed(args: argparse.Namespace | None, sentence: str, status: int, started: float) -> int:

@@ -101,11 +101,15 @@ def run(args: argparse.Namespace) -> int:
     polish = args.polish if args.polish is not None else (POLISH_STARTS if files else 0)
     regularization = args.regularization or ("cv" if files else "fixed")
     dt = _model_step(args.dt, train + validate)
-    progress = None if (args.quiet or args.json) else _progress_bar()
-    result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
-                      lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
-                      prior=prior, width=width, polish_starts=polish, regularization=regularization,
-                      progress=progress)
+    progress = None if (args.quiet or args.json) else _ProgressBars()
+    try:
+        result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
+                          lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
+                          prior=prior, width=width, polish_starts=polish, regularization=regularization,
+                          progress=progress)
+    finally:
+        if progress is not None:
+            progress.close()
     metrics = validation_metrics(result, validate, args.realization)
     written = {}
     for kind, path in outputs.items():
@@ -113,19 +117,9 @@ def run(args: argparse.Namespace) -> int:
         write_text_atomically(path, _artifact_text(result.content(kind, realization, metrics)))
         written[kind] = str(path)
     prov = result.provenance
-    warnings = [_bound_warning(result.lptn.on_bounds, prov["pso"]["prior"], prov["pso"]["bounds"])] \
-        if result.lptn.on_bounds else []
-    frozen = (prov.get("polish") or {}).get("frozen")
-    if frozen:
-        warnings.append(f"{', '.join(frozen)} {'was' if len(frozen) == 1 else 'were'} frozen at the prior's value: "
-                        "the data cannot identify them and the fit had left them on a bound")
     uncertainty = prov.get("uncertainty")
-    blind = [n for n in (uncertainty or {}).get("unidentifiable", []) if n not in (frozen or [])]
-    if blind:
-        warnings.append(f"the training data cannot identify {', '.join(blind)} (standard "
-                        "error above a factor of 2, or half the search range); their values are the prior's guess "
-                        "moved by the fit")
     selection = prov["lm"].get("regularization")
+    warnings = _warnings(result.lptn.on_bounds, prov)
     deploy = _deployment(selection, metrics)
     if deploy:
         warnings.append(deploy)
@@ -201,6 +195,32 @@ def _model_step(dt: float | None, datasets) -> float:
     return dt
 
 
+def _warnings(on_bounds: list[dict], prov: dict) -> list[str]:
+    """The LPTN fit's warnings: the parameters on a bound, those frozen at the prior, those the data cannot identify.
+    A parameter on a bound of the box around the prior (not a fixed physical limit) means the prior cannot hold this
+    motor's network: then the fit is bent to the box, the frozen and unidentifiable parameters follow from that,
+    and the one sentence with its advice (widen --bounds, --prior auto) is all the warning (--json and the summary
+    keep the rest)."""
+    from bench.model.lptn_fit import FIXED_BOUNDS
+
+    if not on_bounds:
+        warnings = []
+    else:
+        warnings = [_bound_warning(on_bounds, prov["pso"]["prior"], prov["pso"]["bounds"])]
+        if any(h["name"] not in FIXED_BOUNDS for h in on_bounds):
+            return warnings
+    frozen = (prov.get("polish") or {}).get("frozen")
+    if frozen:
+        warnings.append(f"{', '.join(frozen)} {'was' if len(frozen) == 1 else 'were'} frozen at the prior's value: "
+                        "the data cannot identify them and the fit had left them on a bound")
+    blind = [n for n in (prov.get("uncertainty") or {}).get("unidentifiable", []) if n not in (frozen or [])]
+    if blind:
+        warnings.append(f"the training data cannot identify {', '.join(blind)} (standard "
+                        "error above a factor of 2, or half the search range); their values are the prior's guess "
+                        "moved by the fit")
+    return warnings
+
+
 def _deployment(selection: dict | None, metrics: dict) -> str | None:
     """A sentence when the Hammerstein model did worse than the LTI network it refines (left-out training files
     in the cross-validation, or the validation files), None otherwise."""
@@ -259,21 +279,29 @@ def _print_uncertainty(u: dict) -> None:
         print(f"  not identifiable from these data: {', '.join(u['unidentifiable'])}")
 
 
-def _progress_bar():
-    from tqdm import tqdm
+STAGES = {"pso": "PSO LPTN", "polish": "LM polish", "lm": "LM Hammerstein"}   # identify()'s progress stages
 
-    bars = {}
 
-    def update(stage: str, iteration: int, cost: float) -> None:
-        if stage not in bars:
-            for bar in bars.values():
-                bar.close()
-            bars[stage] = tqdm(desc="PSO LPTN" if stage == "pso" else "LM Hammerstein", unit="it", file=sys.stderr,
-                               leave=True)
-        bars[stage].update(1)
-        bars[stage].set_postfix(cost=f"{cost:.4g}")
+class _ProgressBars:
+    """One tqdm bar on stderr per stage of identify(); `close` ends the open one, also when the command is stopped,
+    so its last refresh comes before the command's closing sentence, not after it."""
 
-    return update
+    def __init__(self) -> None:
+        self.bars = {}
+
+    def __call__(self, stage: str, iteration: int, cost: float) -> None:
+        from tqdm import tqdm
+
+        if stage not in self.bars:
+            self.close()
+            self.bars[stage] = tqdm(desc=STAGES[stage], unit="it", file=sys.stderr, leave=True)
+        if iteration > 0:    # 0 opens the stage
+            self.bars[stage].update(1)
+        self.bars[stage].set_postfix(cost=f"{cost:.4g}")
+
+    def close(self) -> None:
+        for bar in self.bars.values():
+            bar.close()
 
 
 def _print_summary(s: dict) -> None:
@@ -292,9 +320,10 @@ def _print_summary(s: dict) -> None:
         _print_uncertainty(s["uncertainty"])
     if s.get("regularization") and "cv_rms_C" in s["regularization"]:
         r = s["regularization"]
+        scores = ", ".join(f"{f} {v:.3f}" for f, v in r["cv_rms_C"].items())
         print(f"Hammerstein ridge factor {r['factor']:g} by leave-one-file-out cross-validation (RMS on left-out "
-              f"files {r['selected_rms_C']:.3f} °C, LTI LPTN {r['lti_rms_C']:.3f} °C): deploy "
-              f"{r['recommended']}")
+              f"files per factor {scores} °C, the strongest within one standard error, {r['cv_limit_rms_C']:.3f} "
+              f"°C; LTI LPTN {r['lti_rms_C']:.3f} °C): deploy {r['recommended']}")
     print("validation (held-out files together), RMSE / max |error| °C:")
     for model, m in s["validation"].items():
         for prec in ("float64", "float32"):

@@ -200,11 +200,13 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
     is fitted to all training files (`iterations` // 3 LM evaluations). Each file's left-out model is then LOO_STEPS
     damped Gauss-Newton steps from that fit on the other files' residuals and the fold's ridge (`loo_vectors`: the
     Jacobian at the fit is computed once and split by file, so a fold costs 36 × 36 solves, not a refit), and is
-    simulated on the left-out file. Those steps start from a fit that has seen the file, so the scores lean toward
-    the weaker ridge (docs/method.md). A factor's score is the RMS error on the left-out files of the deployed
-    outputs (winding and PM, PM weighted as in the fit), pooled over the folds. The LTI network is scored on the
-    same files (it saw them in the swarm, so the comparison favours it). The fit of the best factor is kept;
-    `recommended` says which model did better on the left-out files.
+    simulated on the left-out file. A factor's score is the RMS error on the left-out files of the deployed
+    outputs (winding and PM, PM weighted as in the fit), pooled over the folds. Those steps start from a fit that
+    has seen the file, so the scores are optimistic, the more so the weaker the ridge (docs/method.md has them
+    against exact refits); the choice therefore follows the one-standard-error rule (`one_se_choice`): the
+    strongest ridge whose score is within one standard error of the best. The LTI network is scored on the same
+    files (it saw them in the swarm, so the comparison favours it). The chosen factor's fit is kept; `recommended`
+    says which model did better on the left-out files.
     """
     if len(runs) < 2:
         fit = fit_hammerstein(base, params, runs, path=path, iterations=iterations, on_iteration=on_iteration)
@@ -214,23 +216,42 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
     problem = _Problem(base, FIT_PATHS[path], params, runs, scale_w, nodes)
     checks = [_Problem(base, FIT_PATHS[path], params, [run], scale_w, nodes) for run in runs]
     lti = [_deployed(check, _finite(check.residuals(exact_lti_vector()[None])[0])) for check in checks]
-    fits, scores, start = {}, {}, None
+    fits, held, start = {}, {}, None
     for k, factor in enumerate(CV_FACTORS):
         fits[factor] = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 3, 1),
                                        ridge_factor=factor, start=start, scale_w=scale_w, nodes=nodes)
         start = fits[factor].vector
-        held = [_deployed(check, _finite(check.residuals(v[None])[0]))
-                for check, v in zip(checks, loo_vectors(problem, checks, start, factor), strict=True)]
-        scores[factor] = _exact_rms(held)
+        held[factor] = [_deployed(check, _finite(check.residuals(v[None])[0]))
+                        for check, v in zip(checks, loo_vectors(problem, checks, start, factor), strict=True)]
         if on_iteration is not None:
-            on_iteration(k + 1, scores[factor])
+            on_iteration(k + 1, _exact_rms(held[factor]))
+    scores = {factor: _exact_rms(parts) for factor, parts in held.items()}
     lti_rms = _exact_rms(lti)
-    best = min(CV_FACTORS, key=lambda factor: (scores[factor], -factor))   # a tie goes to the stronger ridge
+    best, limit = one_se_choice(held)
     return fits[best], {"method": "leave-one-file-out cross-validation (damped Gauss-Newton steps per fold from "
-                        "the fit to all files, loo_vectors)", "factor": best,
+                        "the fit to all files, loo_vectors), the strongest ridge within one standard error of "
+                        "the best score", "factor": best,
                         "cv_rms_C": {f"{f:g}": scores[f] for f in CV_FACTORS},
-                        "selected_rms_C": scores[best], "lti_rms_C": lti_rms,
+                        "cv_limit_rms_C": limit, "selected_rms_C": scores[best], "lti_rms_C": lti_rms,
                         "recommended": "hammerstein" if scores[best] < lti_rms else "lti-lptn"}
+
+
+def one_se_choice(held: dict[float, Sequence[np.ndarray]]) -> tuple[float, float]:
+    """(factor, limit in °C): the strongest ridge factor whose pooled left-out MSE is within one standard error of
+    the lowest one, and the RMS that limit stands for. The standard error is the spread of the folds' MSEs about
+    the pooled MSE (each fold weighted by its samples), as for a weighted mean of K folds: with 8 files a weak
+    ridge must beat a strong one by more than the files' scatter to be chosen (Hastie et al., The Elements of
+    Statistical Learning, 7.10)."""
+    mse = {f: _exact_rms(parts) ** 2 for f, parts in held.items()}
+    best = min(mse, key=lambda f: (mse[f], -f))   # a tie goes to the stronger ridge
+    parts = held[best]
+    sizes = np.array([p.size for p in parts], float)
+    weights = sizes / math.fsum(sizes)
+    folds = np.array([math.fsum(p * p) / p.size for p in parts])
+    k = len(parts)
+    se = math.sqrt(math.fsum((weights * (folds - mse[best])) ** 2) * k / (k - 1))
+    limit = mse[best] + se
+    return max(f for f in mse if mse[f] <= limit), math.sqrt(limit)
 
 
 def loo_vectors(problem: _Problem, checks: Sequence[_Problem], v: np.ndarray, factor: float

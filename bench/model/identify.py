@@ -109,7 +109,11 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     polished, errors = None, None
     if polish_starts > 0:
         started = time.perf_counter()
+        if progress:
+            progress("polish", 0, lptn.cost)
         lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start)
+        if progress:
+            progress("polish", 1, lptn.cost)
         errors = uncertainty(runs, dt, lptn.nodes, log_scaled(lptn.bounds), to_search(
             np.array(lptn.params.as_vector()), log_scaled(lptn.bounds)), lptn.bounds)
         timings["polish"] = time.perf_counter() - started

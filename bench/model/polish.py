@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import least_squares
 
+from bench import stop
 from bench.model.lptn_fit import (
     NODE_WEIGHTS,
     LptnFit,
@@ -185,6 +186,7 @@ def polish_one(problem: Residuals, start: np.ndarray, lower: np.ndarray, upper: 
         scale = np.sqrt(weights / (problem.count * problem.mse(problem.errors(box(u[None]))[0])))
 
         def rows(batch, scale=scale):
+            stop.check()    # a worker thread: the signal handler cannot reach it (bench.stop)
             x = box(batch)
             r = (problem.errors(x) * scale[None, :, None]).reshape(len(batch), -1)
             return r if penalty is None else np.hstack([r, penalty.rows(x)])

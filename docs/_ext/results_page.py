@@ -110,7 +110,30 @@ def section_accuracy(record: Record) -> list[str]:
     lines = ["The built-in motor's Table 5 analogue:", "", *table5(record), ""]
     if "ipm" in record["figures"]:
         lines += ["The IPM example ([your own motor](tutorials/own-motor.md)):", "", *ipm_table(record)]
+    if "ipm_priors" in record["figures"]:
+        lines += ["", "The IPM example identified from three priors (held-out profiles, pooled, float32):", "",
+                  *ipm_priors_table(record)]
     return lines
+
+
+def ipm_priors_table(record: Record) -> list[str]:
+    """Issue 24's table: per prior, winding and PM RMSE / max of both kinds, parameters on a bound, the ridge."""
+    def figure(model: dict | None, node: str) -> str:
+        if not model:
+            return "–"
+        return f"{_n(model[node]['rmse_C'], 2)} / {_n(model[node]['max_abs_C'], 1)}"
+
+    rows = []
+    for row in record["figures"]["ipm_priors"]:
+        lti, ham = row["models"].get("lti-lptn"), row["models"].get("hammerstein")
+        rows.append([row["prior"], figure(lti, "winding"), figure(lti, "pm"), figure(ham, "winding"),
+                     figure(ham, "pm"), ", ".join(row["on_bounds"]) or "none", str(len(row["frozen"])),
+                     "–" if row["ridge_factor"] is None else f"{row['ridge_factor']:g}",
+                     f"{_n(row['identify_s'], 1)} ({_n(row['identify_cpu_s'], 1)} CPU)"])
+    return [*_table(["prior", "LTI winding", "LTI PM", "Hammerstein winding", "Hammerstein PM", "on a bound",
+                     "frozen", "ridge factor", "`bench identify` s"], rows),
+            f"(°C, RMSE / max \\|error\\|; `table1 0.5-2` is what `bench motor template` gives; the ridge "
+            f"factor is the Hammerstein step's, chosen by cross-validation; measured {_date(record)}.)"]
 
 
 def _rmse(model: dict | None, node: str) -> str:

@@ -9,6 +9,10 @@
 2. Your own motor: the three commands of the IPM example (`docs/tutorials/own-motor.md`): `bench data`,
    `bench identify --all-kinds`, `bench evaluate` of both kinds on the two held-out profiles, each timed, with
    the pooled float32 RMSE and max error per node, the baselines, and the parameters that ended on a bound.
+3. The same identification from three priors (issue 24's table): the example's own, `table1` (another motor's)
+   at bounds 0.5-2 (what `bench motor template` gives a new user) and `--prior auto`; per prior the held-out
+   RMSE and max of winding and PM for both kinds, the parameters on a bound and frozen, the Hammerstein ridge
+   the cross-validation chose, and the wall and CPU time of `bench identify` with its split.
 
 Every figure comes from the commands' own `--json`. Writes its record (`tests/benchmarks/record.py`).
 """
@@ -18,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -30,6 +35,11 @@ from record import Record, add_record_arguments  # noqa: E402
 
 IPM = ROOT / "examples" / "motor-ipm"
 HELD_OUT = ("profile_09.csv", "profile_10.csv")
+
+
+def children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def bench(*argv: str) -> tuple[dict, float]:
@@ -65,16 +75,42 @@ def builtin_motor() -> dict:
             "table5": rows, "balanced_max_abs_f32_minus_f64_C": balanced_rows}
 
 
-def ipm_example(work: Path) -> dict:
-    motor, mapping = str(IPM / "motor.json"), str(IPM / "mapping.json")
+TABLE1_PRIOR = '{"parameters": "table1", "bounds": [0.5, 2]}\n'   # bench motor template's thermal_prior
+PRIORS = ("own", "table1 0.5-2", "auto")
+
+
+def ipm_data(work: Path) -> tuple[Path, float]:
+    """The IPM example's ten profiles (`bench data`) and the seconds it took."""
     data = work / "ipm"
-    _, data_s = bench("data", "--motor", motor, "--out", str(data), "--quiet")
-    identified, identify_s = bench(
-        "identify", "--motor", motor, "--mapping", mapping, "--train", str(data / "profile_0[1-8].csv"),
-        "--validate", *(str(data / f) for f in HELD_OUT), "--out", str(data / "model.json"), "--all-kinds")
-    evaluated, evaluate_s = bench(
-        "evaluate", "--model", str(data / "model.json"), "--model", str(data / "model-lti-lptn.json"),
-        "--mapping", mapping, "--data", *(str(data / f) for f in HELD_OUT))
+    _, data_s = bench("data", "--motor", str(IPM / "motor.json"), "--out", str(data), "--quiet")
+    return data, data_s
+
+
+def identify_ipm(work: Path, data: Path, prior: str) -> dict:
+    """`bench identify --all-kinds` of the IPM example from `prior` (PRIORS): its JSON, wall and CPU time, artifact."""
+    option = {"own": (), "auto": ("--prior", "auto")}.get(prior)
+    if option is None:
+        (work / "table1.json").write_text(TABLE1_PRIOR, encoding="utf-8")
+        option = ("--prior", str(work / "table1.json"))
+    out = work / prior.split()[0] / "model.json"
+    cpu = children_cpu_s()
+    identified, seconds = bench(
+        "identify", "--motor", str(IPM / "motor.json"), "--mapping", str(IPM / "mapping.json"), "--train",
+        str(data / "profile_0[1-8].csv"), "--validate", *(str(data / f) for f in HELD_OUT), "--out", str(out),
+        "--all-kinds", *option)
+    return {"json": identified, "seconds": seconds, "cpu_s": children_cpu_s() - cpu, "out": out,
+            "load_average": os.getloadavg()[0]}
+
+
+def evaluate_ipm(data: Path, out: Path) -> tuple[dict, float]:
+    return bench("evaluate", "--model", str(out), "--model", str(out.with_name("model-lti-lptn.json")),
+                 "--mapping", str(IPM / "mapping.json"), "--data", *(str(data / f) for f in HELD_OUT))
+
+
+def ipm_example(data: Path, data_s: float, own: dict) -> dict:
+    """The tutorial's commands with the example's own prior: per kind and node, and the baselines."""
+    identified, identify_s = own["json"], own["seconds"]
+    evaluated, evaluate_s = evaluate_ipm(data, own["out"])
     models = []
     for m in evaluated["models"]:
         pooled = m["pooled"]
@@ -94,18 +130,47 @@ def ipm_example(work: Path) -> dict:
             "parameters_on_bounds": on_bounds, "models": models}
 
 
+def prior_row(data: Path, prior: str, run: dict) -> dict:
+    """One row of the priors table: held-out figures of both kinds, bounds, frozen, ridge, time."""
+    identified = run["json"]
+    evaluated, _ = evaluate_ipm(data, run["out"])
+    models = {m["kind"]: _node_figures(m["pooled"]["nodes"]) for m in evaluated["models"]}
+    selection = identified.get("regularization") or {}
+    row = {"prior": prior, "identify_s": round(run["seconds"], 1), "identify_cpu_s": round(run["cpu_s"], 1),
+           "timings_s": {k: round(v, 1) for k, v in identified["timings_s"].items()},
+           "load_average": round(run["load_average"], 2),
+           "on_bounds": [h["name"] for h in identified.get("parameters_on_bounds") or []],
+           "frozen": list((identified.get("polish") or {}).get("frozen") or []),
+           "ridge_factor": selection.get("factor"), "cv_rms_C": selection.get("cv_rms_C"),
+           "cv_limit_rms_C": selection.get("cv_limit_rms_C"), "models": models}
+    print(f"IPM example, prior {prior}: identify {run['seconds']:.1f} s ({run['cpu_s']:.1f} CPU-s, "
+          f"{row['timings_s']}), ridge {row['ridge_factor']}, on a bound {row['on_bounds']}, frozen {row['frozen']}; "
+          + "; ".join(f"{kind} winding {m['winding']['rmse_C']:.3f}/{m['winding']['max_abs_C']:.2f}, PM "
+                      f"{m['pm']['rmse_C']:.3f}/{m['pm']['max_abs_C']:.2f}" for kind, m in models.items()),
+          flush=True)
+    return row
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--skip-ipm", action="store_true", help="only the built-in motor")
     parser.add_argument("--work", type=Path, default=None, help="keep the IPM example's files here")
+    parser.add_argument("--skip-priors", action="store_true", help="not the IPM example from three priors")
     add_record_arguments(parser)
     args = parser.parse_args()
-    record = Record("accuracy", args, parameters={"ipm": not args.skip_ipm})
+    record = Record("accuracy", args, parameters={"ipm": not args.skip_ipm,
+                                                  "priors": not (args.skip_ipm or args.skip_priors)})
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
     record.figures["builtin"] = builtin_motor()
     if not args.skip_ipm:
         with tempfile.TemporaryDirectory(prefix="bench-accuracy-") as tmp:
-            record.figures["ipm"] = ipm_example(args.work or Path(tmp))
+            work = args.work or Path(tmp)
+            data, data_s = ipm_data(work)
+            runs = {prior: identify_ipm(work, data, prior) for prior in (PRIORS if not args.skip_priors else
+                                                                         PRIORS[:1])}
+            record.figures["ipm"] = ipm_example(data, data_s, runs["own"])
+            if not args.skip_priors:
+                record.figures["ipm_priors"] = [prior_row(data, prior, run) for prior, run in runs.items()]
     record.write()
     return 0
 

@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -430,6 +431,64 @@ def test_identify_stopped_while_fitting_writes_no_artifact(material, scratch, lo
                             "--all-kinds", "--quiet"], scratch)   # a swarm over 30 000 rows: many seconds
     rc, _, stderr = _signal_after(process, 1.0, signum)
     _assert_stopped(rc, stderr, signum)
+    assert _leftovers(out) == []
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process `pid` so far (all its threads), from /proc/PID/stat."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _read_into(stream, chunks: list[str]) -> threading.Thread:
+    """Read `stream` in a thread as it comes (tqdm writes carriage returns, not lines)."""
+    def read() -> None:
+        for chunk in iter(lambda: stream.read(64), ""):
+            chunks.append(chunk)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    return reader
+
+
+@pytest.mark.slow
+def test_identify_stops_within_seconds_of_sigterm_while_polishing(scratch, long_data):
+    """The polish runs one LM fit per core in worker threads, which a signal handler (main thread only) cannot
+    reach: they check bench.stop's flag per model evaluation. Measured in CPU time after the signal, which a busy
+    machine does not stretch: the polishes running to their end cost ~9 CPU-s (4.8 s of wall time on an idle
+    2-core machine, over 12 s under load), one evaluation and the way out well under a second."""
+    files = [long_data]
+    for seed in (4, 5, 6):
+        columns = synthetic_columns(30_000, seed=seed, torque_sd=20.0, speed_sd=100.0, coolant_amplitude=1.5,
+                                    coolant_period=30.0, ambient_period=45.0)
+        files.append(write_synthetic_dataset(scratch / "train" / f"s{seed}.csv", columns, "signal tests"))
+    out = scratch / "models"
+    process = _start_plain(["bench", "identify", "--train", *files[1:], "--validate", long_data, "--out",
+                            out / "m.json", "--all-kinds", "--swarm", "8", "--iterations", "2", "--polish", "4"],
+                           scratch)
+    chunks: list[str] = []
+    reader = _read_into(process.stderr, chunks)
+    try:
+        # the swarm of 8 takes a second; the polish of 4 starts over 3 × 30 000 rows about 25 s (idle machine)
+        assert _wait_for(lambda: "LM polish" in "".join(chunks) or process.poll() is not None, 300), (
+            "the polish did not start within 300 s")
+        time.sleep(3.0)     # both worker threads in the middle of a fit
+        assert process.poll() is None, f"the command ended before the signal: {''.join(chunks)}"
+        cpu_before, sent = _cpu_seconds(process.pid), time.monotonic()
+        process.send_signal(signal.SIGTERM)
+        _, status, usage = os.wait4(process.pid, 0)   # not Popen.wait: the child's CPU time comes with it
+        waited = time.monotonic() - sent
+        process.returncode = os.waitstatus_to_exitcode(status)
+        reader.join(30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    stderr = "".join(chunks)
+    cpu_after = usage.ru_utime + usage.ru_stime - cpu_before
+    _assert_stopped(process.returncode, stderr.replace("\r", "\n"), signal.SIGTERM)
+    assert cpu_after < 3.0, f"{cpu_after:.2f} CPU-s ({waited:.2f} s) after SIGTERM: the polish ran on"
+    assert waited < 60, f"the command took {waited:.1f} s to stop after SIGTERM"
     assert _leftovers(out) == []
 
 

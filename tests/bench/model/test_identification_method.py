@@ -148,6 +148,22 @@ def test_the_hammerstein_ridge_is_chosen_by_leaving_out_each_file(runs):
     assert fit.vector is not None and np.isfinite(fit.cost_final)
 
 
+def test_the_ridge_choice_takes_the_strongest_factor_within_one_standard_error():
+    from bench.model.hammerstein_fit import one_se_choice
+
+    rng = np.random.default_rng(5)
+    folds = [rng.normal(size=400) * s for s in (0.6, 0.9, 1.2, 1.5)]    # fold MSEs ≈ 0.36 … 2.25: SE ≈ 0.4
+    strong = [f * 1.1 for f in folds]      # MSE 21 % above the weak ridge's: within one standard error
+    factor, limit = one_se_choice({100.0: strong, 1.0: folds})
+    weak_mse = math.fsum(math.fsum(f * f) for f in folds) / 1600
+    assert factor == 100.0 and limit ** 2 > weak_mse * 1.21
+    far = [f * 2.0 for f in folds]         # MSE 4 × the weak ridge's: beyond it, the weak ridge is chosen
+    assert one_se_choice({100.0: far, 1.0: folds})[0] == 1.0
+    # equal scatter in every fold (no spread): only the lowest score is within its limit
+    same = [np.full(400, 1.0) for _ in range(4)]
+    assert one_se_choice({100.0: [p * 1.01 for p in same], 1.0: same}) == (1.0, 1.0)
+
+
 def test_a_worse_hammerstein_model_says_which_to_deploy():
     from bench.commands.identify import _deployment
 
@@ -217,3 +233,20 @@ def test_parameters_on_bounds_are_one_sentence_with_advice():
     assert sentence.count(". ") == 0 and "2 of 22" in sentence and "R_yw = 0.04 (upper" in sentence
     assert "C_m = 180 (lower" in sentence and "--prior auto" in sentence and "0.5-2" in sentence
     assert "--prior auto" not in _bound_warning(hits[:1], "auto", [0.1, 10.0])
+
+
+def test_a_prior_that_cannot_hold_the_motor_gives_one_warning():
+    """A parameter on the box around the prior: one sentence with its advice, not also the frozen and unidentifiable
+    parameters that follow from the bent fit; on a fixed physical limit only, those follow as before."""
+    from bench.commands.identify import _warnings
+
+    prov = {"pso": {"prior": "table1", "bounds": [0.5, 2.0]}, "polish": {"frozen": ["R_yw", "b_ma"]},
+            "uncertainty": {"unidentifiable": ["C_y", "R_yw", "k_1"]}}
+    boxed = [{"name": "R_cy0", "value": 0.008, "bound": "upper", "limit": 0.008}]
+    (only,) = _warnings(boxed, prov)
+    assert "0.5-2 × the table1 prior for R_cy0" in only and "widen --bounds or use --prior auto" in only
+    fixed = [{"name": "k_0", "value": 0.95, "bound": "upper", "limit": 0.95}]
+    bound, frozen, blind = _warnings(fixed, prov)
+    assert "fixed physical limit" in bound and frozen.startswith("R_yw, b_ma were frozen")
+    assert blind.startswith("the training data cannot identify C_y, k_1 ")
+    assert len(_warnings([], prov)) == 2

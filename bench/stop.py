@@ -1,0 +1,39 @@
+"""A stop asked for by a signal, seen by worker threads.
+
+Python runs a signal handler in the main thread only, and only between bytecodes. The main thread of a command
+that waits on a thread pool (the identification's polish, one Levenberg-Marquardt fit per core) gets its
+`Terminated` at once, but leaving the pool waits for the workers' running tasks, which are long numeric loops
+(tens of seconds under load). `bench.cli`'s handler sets this flag first; such loops call `check()` between their
+model evaluations, so a worker leaves within one evaluation.
+"""
+
+from __future__ import annotations
+
+import threading
+
+_requested = threading.Event()
+
+
+class StopRequested(BaseException):
+    """Raised in a worker thread after a signal: a BaseException, as KeyboardInterrupt, so no `except Exception`
+    on the way out (scipy's, a retry loop's) takes it for a numerical failure."""
+
+
+def request() -> None:
+    """Ask every loop that checks to stop (called from the signal handler)."""
+    _requested.set()
+
+
+def clear() -> None:
+    """Forget a request (the CLI's `main` returns; a test calls it again in the same process)."""
+    _requested.clear()
+
+
+def requested() -> bool:
+    return _requested.is_set()
+
+
+def check() -> None:
+    """Raise StopRequested if a stop was asked for."""
+    if _requested.is_set():
+        raise StopRequested
