@@ -195,6 +195,10 @@ def process_noise(model: FilterModel, q: np.ndarray) -> np.ndarray:
 TUNING_CRITERIA = ("magnet", "nodes", "likelihood")
 # what each criterion scores (log MSE against the lab's reference, summed): "nodes" adds the winding to the magnet
 SCORED_NODES = {"magnet": ("magnet",), "nodes": ("magnet", "winding")}
+# "nodes": the filter must not make the magnet worse than the open loop on any training file started as measured;
+# each unit of log MSE it does costs this much (the winding is then corrected only as far as the magnet allows)
+MAGNET_GUARD_WEIGHT = 200.0
+CAUTIOUS_DECADES = 4.0
 # the magnet criterion starts every training file with the magnet as measured and this much too warm and too cold
 TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
@@ -206,8 +210,9 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     minimizing either
     - "magnet": the sum of log magnet MSE over every training file started with the magnet as measured and
       `TUNING_START_OFFSETS_K` off (the deployed filter; the reference only scores it),
-    - "nodes": the same with the winding's log MSE added (so a sensor that corrects the winding is tuned to correct
-      the winding, not to push the magnet where the training files' magnet happens to want it), or
+    - "nodes": the same with the winding's log MSE added, and a steep penalty (`MAGNET_GUARD_WEIGHT`) on each file
+      whose magnet, started as measured, the filter makes worse than the open loop: a winding sensor then corrects
+      the winding only as far as that leaves the magnet (which it cannot see) no worse, or
     - "likelihood": the innovations' negative log-likelihood, with the magnet reference as one more measurement
       where every training file has it and no measurement already reads the magnet (its variance a nuisance)."""
     from scipy.optimize import minimize
@@ -233,17 +238,24 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     else:
         magnet = OUTPUTS.index("magnet")
         scored = [(OUTPUTS.index(node), "pm" if node == "magnet" else node) for node in SCORED_NODES[criterion]]
+        guarded = criterion == "nodes"
+        # the open loop's magnet log MSE per file from the measured start (the filter with no gain at all)
+        open_loop = [_log_mse(_run(model, d, process_noise(model, np.zeros(n))[None], [np.full(m_count, 1e30)], p0,
+                                   keep=True).estimates[0][:, magnet], d.run.ref_pm) for d in deployed] \
+            if guarded else []
 
         def score(q, r):
             total = 0.0
-            for d in deployed:
+            for index, d in enumerate(deployed):
                 for offset in TUNING_START_OFFSETS_K:
                     start = d.run.initial.copy()
                     start[magnet] += offset
                     shifted = FilterData(replace(d.run, initial=start), d.readings, d.measurements)
                     estimates = _run(model, shifted, q, [r], p0, keep=True).estimates[0]
-                    total += sum(float(np.log(np.mean((estimates[:, i] - d.run.reference(ref)) ** 2)))
-                                 for i, ref in scored)
+                    errors = {i: _log_mse(estimates[:, i], d.run.reference(ref)) for i, ref in scored}
+                    total += sum(errors.values())
+                    if guarded and offset == 0.0:   # a magnet worse than the open loop's: a steep penalty
+                        total += MAGNET_GUARD_WEIGHT * max(0.0, errors[magnet] - open_loop[index])
             return total
 
     calls = [0]
@@ -261,6 +273,8 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     start_r = [START_R_C2 if m.kind == "lagged-sensor" else 1.0 for m in measurements] + [START_R_C2] * int(
         use_reference)
     start = np.log10(start_q + start_r)
+    if criterion == "nodes":   # the search is local: begin where the guard is, of the default and a cautious start
+        start = min(_starts(start, n), key=cost)
     size = len(start)
     result = minimize(cost, start, method="Nelder-Mead",
                       options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-3,
@@ -271,6 +285,19 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     return ObserverFit(measurements, q, r, float(10.0 ** best[n + m_count]) if use_reference else None, criterion,
                        float(cost(best)), sum(float(x.nll[0]) for x in runs), sum(int(x.updates[0]) for x in runs),
                        calls[0], [str(d.path) for d in datasets], bias)
+
+
+def _starts(start: np.ndarray, n: int) -> list[np.ndarray]:
+    """Starting points of the search: the default, and one that trusts the measurements little (q / 10⁴, R · 10⁴:
+    near the open loop, where a measurement that cannot help the magnet should end)."""
+    cautious = start.copy()
+    cautious[:n] -= CAUTIOUS_DECADES
+    cautious[n:] += CAUTIOUS_DECADES
+    return [start, np.clip(cautious, *LOG10_BOUNDS)]
+
+
+def _log_mse(estimate: np.ndarray, reference: np.ndarray) -> float:
+    return float(np.log(np.mean((estimate - reference) ** 2)))
 
 
 def nominal_transition(artifact: ModelArtifact, model: FilterModel, datasets: Sequence[Dataset]) -> tuple:

@@ -150,7 +150,8 @@ def test_a_lost_or_bad_measurement_frame_is_counted_and_the_filter_predicts_only
 
     def frames(host, row):
         if row == hit and fault == "other_step":   # a valid frame, in sequence, naming another row
-            wrong = host.encode("Measurements", measurement_signals(row + 5, measurements[row].tolist())["Measurements"])
+            signals = measurement_signals(row + 5, measurements[row].tolist())["Measurements"]
+            wrong = host.encode("Measurements", signals)
             return [wrong, *encode_row(host, row, drive[row].tolist())]
         out = encode_row(host, row, drive[row].tolist(), measurements[row].tolist())
         if row != hit:
