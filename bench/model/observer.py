@@ -199,6 +199,8 @@ SCORED_NODES = {"magnet": ("magnet",), "nodes": ("magnet", "winding")}
 # each unit of log MSE it does costs this much (the winding is then corrected only as far as the magnet allows)
 MAGNET_GUARD_WEIGHT = 200.0
 CAUTIOUS_DECADES = 4.0
+# "nodes" lets R grow further than LOG10_BOUNDS (a measurement barely used: the open loop within reach of the search)
+NODES_R_MAX_LOG10 = 6.0
 # the magnet criterion starts every training file with the magnet as measured and this much too warm and too cold
 TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
@@ -261,8 +263,10 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     calls = [0]
     low, high = LOG10_BOUNDS
 
+    r_high = NODES_R_MAX_LOG10 if criterion == "nodes" else high
+
     def cost(v):
-        v = np.clip(v, low, high)
+        v = np.concatenate([np.clip(v[:n], low, high), np.clip(v[n:], low, r_high)])
         total = score(process_noise(model, 10.0 ** v[:n])[None], 10.0 ** v[n:])
         calls[0] += 1
         if progress:
@@ -279,7 +283,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     result = minimize(cost, start, method="Nelder-Mead",
                       options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-3,
                                "initial_simplex": start + np.vstack([np.zeros(size), np.eye(size)])})
-    best = np.clip(result.x, low, high)
+    best = np.concatenate([np.clip(result.x[:n], low, high), np.clip(result.x[n:], low, r_high)])
     q, r = 10.0 ** best[:n], 10.0 ** best[n: n + m_count]
     runs = [_run(model, d, process_noise(model, q)[None], [r], p0) for d in deployed]
     return ObserverFit(measurements, q, r, float(10.0 ** best[n + m_count]) if use_reference else None, criterion,
@@ -288,12 +292,14 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
 
 
 def _starts(start: np.ndarray, n: int) -> list[np.ndarray]:
-    """Starting points of the search: the default, and one that trusts the measurements little (q / 10⁴, R · 10⁴:
-    near the open loop, where a measurement that cannot help the magnet should end)."""
+    """Starting points of the search: the default, and one that trusts the measurements little (q / 10⁴, R · 10⁴,
+    up to `NODES_R_MAX_LOG10`: near the open loop, where a measurement that cannot help the magnet should end)."""
     cautious = start.copy()
     cautious[:n] -= CAUTIOUS_DECADES
     cautious[n:] += CAUTIOUS_DECADES
-    return [start, np.clip(cautious, *LOG10_BOUNDS)]
+    cautious[:n] = np.clip(cautious[:n], *LOG10_BOUNDS)
+    cautious[n:] = np.clip(cautious[n:], LOG10_BOUNDS[0], NODES_R_MAX_LOG10)
+    return [start, cautious]
 
 
 def _log_mse(estimate: np.ndarray, reference: np.ndarray) -> float:
