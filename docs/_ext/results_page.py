@@ -453,7 +453,7 @@ def observer_builtin_table(record: Record) -> list[str]:
             + f". `bench observer` took {timing}; measured {_date(record)}.)"]
 
 
-DEFAULT_CRITERION = "nodes"   # `bench observer --criterion`'s default
+DEFAULT_CRITERION = "magnet"   # `bench observer --criterion`'s default
 IPM_CASES = {"ntc": "(a) stator NTC", "flux": "(b) flux linkage", "ntc+flux": "(c) NTC + flux linkage"}
 
 
