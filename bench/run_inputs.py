@@ -97,25 +97,25 @@ def check_drive_data(dataset: Dataset, artifact: ModelArtifact) -> None:
 def check_measurement_data(dataset: Dataset, artifact: ModelArtifact) -> None:
     """BenchError (one sentence) when the model's observer measures a column the data does not have: refused before
     anything starts (the filter would otherwise run open loop without saying so)."""
-    column = measured_column(artifact)
-    if column is not None and not dataset.has(column):
-        where = f" ({artifact.path})" if artifact.path is not None else ""
-        raise BenchError(f"model {artifact.model_id:08x}{where} has an observer that measures column {column}, and "
-                         f"{dataset.path} has none; map it with --mapping or use a model without an observer")
+    for column in measured_columns(artifact).values():
+        if not dataset.has(column):
+            where = f" ({artifact.path})" if artifact.path is not None else ""
+            raise BenchError(f"model {artifact.model_id:08x}{where} has an observer that measures column {column}, "
+                             f"and {dataset.path} has none; map it with --mapping or use a model without an observer")
 
 
-def measured_column(artifact: ModelArtifact) -> str | None:
-    """The dataset column the artifact's observer reads over CAN, None without an observer."""
-    from target_sim.observer_node import measured_column as column
+def measured_columns(artifact: ModelArtifact) -> dict[str, str]:
+    """{host measurement channel: dataset column} the artifact's observer reads over CAN ({} without an observer)."""
+    from target_sim.observer_node import measured_columns as columns
 
     refuse_over_can(artifact)
-    return column(artifact)
+    return columns(artifact)
 
 
 def refuse_over_can(artifact: ModelArtifact) -> None:
-    """UsageError (one sentence, exit 2) for an observer the CAN frames cannot carry (the flux linkage from raw
-    channels, more than one measurement: `target_sim.observer_node.can_refusal`); a command calls it before any
-    work."""
+    """UsageError (one sentence, exit 2) for an observer the CAN frames cannot carry (two measurements in one slot,
+    the flux linkage of a model whose rows carry no currents: `target_sim.observer_node.can_refusal`); a command
+    calls it before any work."""
     from target_sim.observer_node import can_refusal
 
     refusal = can_refusal(artifact)
@@ -124,19 +124,20 @@ def refuse_over_can(artifact: ModelArtifact) -> None:
 
 
 def measurements_for(dataset: Dataset, artifact: ModelArtifact) -> np.ndarray | None:
-    """What the host sends per row in Measurements: (rows, one column per `dbc.contract.MEASUREMENT_SLOTS`), the
-    observer's column in its slot and NaN (absent) elsewhere; None for a model without an observer (no Measurements
-    frames, the bus as before)."""
-    from dbc.contract import MEASUREMENT_SLOTS
-    from target_sim.observer_node import observer_slot
+    """What the host sends per row in its measurement frames: (rows, `target_sim.observer_node.measurement_width`
+    columns of `dbc.contract.MEASUREMENT_CHANNELS`), each channel the observer reads from its dataset column and NaN
+    (absent) elsewhere; None for a model without an observer (no measurement frames, the bus as before)."""
+    from dbc.contract import CHANNEL_NAMES
+    from target_sim.observer import has_observer
+    from target_sim.observer_node import measurement_width
 
-    refuse_over_can(artifact)
-    slot = observer_slot(artifact)
-    if slot is None:
+    columns = measured_columns(artifact)
+    if not has_observer(artifact):
         return None
     check_measurement_data(dataset, artifact)
-    out = np.full((len(dataset.time_s), len(MEASUREMENT_SLOTS)), np.nan)
-    out[:, MEASUREMENT_SLOTS.index(slot)] = dataset.column(measured_column(artifact))
+    out = np.full((len(dataset.time_s), measurement_width(artifact)), np.nan)
+    for channel, column in columns.items():
+        out[:, CHANNEL_NAMES.index(channel)] = dataset.column(column)
     return out
 
 

@@ -58,14 +58,32 @@ DRIVE_SIGNALS: tuple[tuple[str, str], ...] = (("DriveInputs", "MotorTorque"), ("
 CURRENT_SIGNALS: tuple[tuple[str, str], ...] = (("DriveCurrents", "CurrentD"), ("DriveCurrents", "CurrentQ"))
 CURRENT_MESSAGE = "DriveCurrents"
 # The observer's frames (DBC 1.6.0). The host sends a row's Measurements right before its DriveInputs: one slot per
-# kind of measurement, a value and its status; the host's measurement matrix has one column per slot, in this order
-# (NaN: absent). A target with an observer answers every model step with each node's 1-sigma (Uncertainty1/2, in the
-# temperature order as the replies) and the innovation of each slot its update used (Innovations).
+# kind of measurement, a value and its status. A target with an observer answers every model step with each node's
+# 1-sigma (Uncertainty1/2, in the temperature order as the replies) and the innovation of each slot its update used
+# (Innovations).
 MEASUREMENT_MESSAGE = "Measurements"
 MEASUREMENT_SLOTS: tuple[str, ...] = ("sensor", "flux")
+# DBC 1.7.0: the row's d/q stator voltages (DriveVoltages, one status for both), sent after its Measurements and
+# before its DriveInputs, for a target whose observer computes the flux linkage itself (with the row's DriveCurrents
+# and MotorSpeed, and its own winding estimate).
+VOLTAGE_MESSAGE = "DriveVoltages"
+MEASUREMENT_MESSAGES: tuple[str, ...] = (MEASUREMENT_MESSAGE, VOLTAGE_MESSAGE)   # sent in this order
+# The host's measurement channels: what it sends per row beside the drive values for an observer, channel ->
+# (message, value signal, status signal). Its measurement matrix has one column per channel in this order (NaN:
+# absent): the first two (the Measurements slots), or all four when the observer reads the voltages
+# (`measurement_messages`).
+MEASUREMENT_CHANNELS: Mapping[str, tuple[str, str, str]] = MappingProxyType({
+    "sensor": (MEASUREMENT_MESSAGE, "SensorTemp", "SensorStatus"),
+    "flux": (MEASUREMENT_MESSAGE, "FluxMagnetTemp", "FluxMagnetStatus"),
+    "u_d": (VOLTAGE_MESSAGE, "VoltageD", "VoltageStatus"),
+    "u_q": (VOLTAGE_MESSAGE, "VoltageQ", "VoltageStatus")})
+CHANNEL_NAMES: tuple[str, ...] = tuple(MEASUREMENT_CHANNELS)
+# the row's own values an observer reads as raw channels (the flux linkage's speed and currents): name -> index in a
+# row of 6 values (DRIVE_SIGNALS + CURRENT_SIGNALS)
+ROW_CHANNELS: Mapping[str, int] = MappingProxyType({"speed": 1, "i_d": 4, "i_q": 5})
 # slot -> (value signal, status signal) of Measurements, (innovation signal, used flag) of Innovations
 MEASUREMENT_SIGNALS: Mapping[str, tuple[str, str]] = MappingProxyType({
-    "sensor": ("SensorTemp", "SensorStatus"), "flux": ("FluxMagnetTemp", "FluxMagnetStatus")})
+    slot: MEASUREMENT_CHANNELS[slot][1:] for slot in MEASUREMENT_SLOTS})
 INNOVATION_MESSAGE = "Innovations"
 INNOVATION_SIGNALS: Mapping[str, tuple[str, str]] = MappingProxyType({
     "sensor": ("SensorInnovation", "SensorUsed"), "flux": ("FluxMagnetInnovation", "FluxMagnetUsed")})
@@ -100,6 +118,12 @@ M4_CLOCK_HZ = 90_000_000
 # The firmware target with the motor-control interrupt beside the estimator (bench run --engine firmware
 # --isr-rate): the model step's response time (reception -> result) and the interrupt's CPU load, after Timing4.
 RESPONSE_TIMING_MESSAGE = "Timing5"
+# DBC 1.7.0: a target with an observer sends its filter's checkpoint (extra states, covariance; the order is the
+# filter's, `target_sim.observer.Float32Observer.checkpoint`) right after a StateCheckpoint, one element per frame
+# named by its Index and the Step mod CHECKPOINT_STEP_LOW_MODULO; a host echoes it in RestoreObserver before RESTORE.
+OBSERVER_CHECKPOINT_MESSAGE = "ObserverCheckpoint"
+RESTORE_OBSERVER_MESSAGE = "RestoreObserver"
+CHECKPOINT_STEP_LOW_MODULO = 1 << 12
 CHECKPOINT_EVERY_STEPS = 20   # model steps between two StateCheckpoints (10 s at Δt 0.5 s): the most a restored
                               # target has to re-run, at 4 frames per checkpoint
 
@@ -145,10 +169,19 @@ def join_temperatures(frames: Mapping[str, Mapping[str, float]],
     return out
 
 
-def measurement_values(signals: Mapping[str, float]) -> list[float]:
-    """A Measurements frame's values in MEASUREMENT_SLOTS order, NaN for a slot whose status is not VALID."""
-    return [float(signals[value]) if int(signals[status]) == MeasurementStatus.VALID else float("nan")
-            for value, status in MEASUREMENT_SIGNALS.values()]
+def measurement_messages(width: int) -> tuple[str, ...]:
+    """The measurement frames of a row whose measurement matrix has `width` columns, in the order they are sent
+    (right before the row's DriveInputs): Measurements, then DriveVoltages when the matrix has the voltages."""
+    channels = CHANNEL_NAMES[:width]
+    if width not in (len(MEASUREMENT_SLOTS), len(CHANNEL_NAMES)):
+        raise ValueError(f"a measurement row has {len(MEASUREMENT_SLOTS)} or {len(CHANNEL_NAMES)} values, not {width}")
+    return tuple(dict.fromkeys(MEASUREMENT_CHANNELS[c][0] for c in channels))
+
+
+def channel_values(message: str, signals: Mapping[str, float]) -> dict[str, float]:
+    """A measurement frame's values by channel, NaN for a channel whose status is not VALID."""
+    return {channel: float(signals[value]) if int(signals[status]) == MeasurementStatus.VALID else float("nan")
+            for channel, (name, value, status) in MEASUREMENT_CHANNELS.items() if name == message}
 
 
 class FrameError(CanLinkError, ValueError):
@@ -220,7 +253,8 @@ class Realization(IntEnum):
 
 
 class MeasurementStatus(IntEnum):
-    """``Measurements.SensorStatus`` / ``FluxMagnetStatus`` (VAL_ table of the DBC): only a VALID value is used."""
+    """``Measurements.SensorStatus`` / ``FluxMagnetStatus``, ``DriveVoltages.VoltageStatus`` (VAL_ tables of the
+    DBC): only a VALID value is used."""
 
     ABSENT = 0    # no reading in this row
     VALID = 1

@@ -25,7 +25,7 @@ from functools import cache
 import can
 
 from dbc.codec import apply_crc, profile2_crc
-from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, MEASUREMENT_MESSAGE, REPLY_MESSAGES, row_messages
+from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, MEASUREMENT_MESSAGES, REPLY_MESSAGES, row_messages
 from dbc.database import contract, frame_id
 
 FRAME_FAULT_KINDS: tuple[str, ...] = ("drop", "duplicate", "corrupt", "stale_counter", "wrong_length", "unknown_id",
@@ -33,9 +33,10 @@ FRAME_FAULT_KINDS: tuple[str, ...] = ("drop", "duplicate", "corrupt", "stale_cou
 REPLY_PREFIX = "reply_"       # a frame fault the target injects into its replies: "reply_drop", ...
 REPLY_FAULT_KINDS: tuple[str, ...] = tuple(REPLY_PREFIX + kind for kind in FRAME_FAULT_KINDS)
 # the host's frames its fault layer may alter: those of a data row, in their order (DriveInputs, DriveTemps, and
-# DriveCurrents, which goes out only when the drive data has the currents), then Measurements (sent before the
-# row's DriveInputs, only for a model with an observer)
-FAULTED_HOST_MESSAGES = (*row_messages(len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS)), MEASUREMENT_MESSAGE)
+# DriveCurrents, which goes out only when the drive data has the currents), then the measurement frames
+# (Measurements, and DriveVoltages for an observer that computes the flux linkage; sent before the row's
+# DriveInputs, only for a model with an observer)
+FAULTED_HOST_MESSAGES = (*row_messages(len(DRIVE_SIGNALS) + len(CURRENT_SIGNALS)), *MEASUREMENT_MESSAGES)
 UNKNOWN_ID_FLIP = 0x008
 OUT_OF_RANGE_START = 28
 _MASK = (1 << 64) - 1

@@ -33,14 +33,15 @@ import numpy as np
 
 from dbc.codec import FrameCodec
 from dbc.contract import (
+    CHANNEL_NAMES,
     CURRENT_MESSAGE,
     DRIVE_SIGNALS,
-    MEASUREMENT_MESSAGE,
-    MEASUREMENT_SIGNALS,
+    MEASUREMENT_CHANNELS,
     MEASUREMENT_SLOTS,
     FaultBit,
     MeasurementStatus,
     TargetState,
+    measurement_messages,
     row_messages,
     row_signals,
     step_of,
@@ -80,50 +81,60 @@ def check_drive_range(drive: np.ndarray) -> None:
 
 
 def check_measurements(measurements: np.ndarray | None, rows: int) -> None:
-    """The measurement matrix: one row per data row, one column per `dbc.contract.MEASUREMENT_SLOTS` (NaN: absent;
-    a value the DBC cannot carry goes out flagged INVALID)."""
+    """The measurement matrix: one row per data row, one column per `dbc.contract.MEASUREMENT_CHANNELS` — the two
+    Measurements slots, or all four with the d/q voltages of DriveVoltages (NaN: absent; a value the DBC cannot
+    carry goes out flagged INVALID)."""
     if measurements is None:
         return
-    if measurements.ndim != 2 or measurements.shape != (rows, len(MEASUREMENT_SLOTS)):
-        raise DataRangeError(f"the measurements have shape {measurements.shape}, not ({rows}, "
-                             f"{len(MEASUREMENT_SLOTS)}): one column per slot ({', '.join(MEASUREMENT_SLOTS)})")
+    widths = (len(MEASUREMENT_SLOTS), len(CHANNEL_NAMES))
+    if measurements.ndim != 2 or measurements.shape[0] != rows or measurements.shape[1] not in widths:
+        raise DataRangeError(f"the measurements have shape {measurements.shape}, not ({rows}, {widths[0]}) or "
+                             f"({rows}, {widths[1]}): one column per channel ({', '.join(CHANNEL_NAMES)})")
 
 
 @cache
-def _measurement_limits() -> dict[str, tuple[float, float]]:
-    return signal_ranges(MEASUREMENT_MESSAGE)
+def _channel_limits(message: str) -> dict[str, tuple[float, float]]:
+    return signal_ranges(message)
 
 
-def measurement_signals(step: int, values: Sequence[float]) -> dict[str, float | int]:
-    """The Measurements frame of a row: per slot its value and status, VALID for a value the DBC carries, ABSENT for
-    NaN, INVALID for anything else (the value field then holds the signal's minimum)."""
-    limits = _measurement_limits()
-    signals: dict[str, float | int] = {"Step": step}
-    for value, (value_signal, status_signal) in zip(values, MEASUREMENT_SIGNALS.values(), strict=True):
-        low, high = limits[value_signal]
-        if math.isnan(value):
-            status = MeasurementStatus.ABSENT
-        elif low <= value <= high:
-            status = MeasurementStatus.VALID
-        else:
-            status = MeasurementStatus.INVALID
-        signals[value_signal] = value if status == MeasurementStatus.VALID else low
-        signals[status_signal] = int(status)
-    return signals
+def _status(value: float, limits: tuple[float, float]) -> MeasurementStatus:
+    if math.isnan(value):
+        return MeasurementStatus.ABSENT
+    return MeasurementStatus.VALID if limits[0] <= value <= limits[1] else MeasurementStatus.INVALID
+
+
+def measurement_signals(step: int, values: Sequence[float]) -> dict[str, dict[str, float | int]]:
+    """The measurement frames of a row, {message: signals} (`dbc.contract.measurement_messages` of len(values)):
+    per status signal VALID when every value under it is one the DBC carries, else ABSENT when one is NaN, else
+    INVALID; a value that does not go out VALID is sent as its signal's minimum."""
+    out: dict[str, dict[str, float | int]] = {}
+    for channel, value in zip(CHANNEL_NAMES, values, strict=False):
+        message, value_signal, status_signal = MEASUREMENT_CHANNELS[channel]
+        signals = out.setdefault(message, {"Step": step})
+        status = _status(value, _channel_limits(message)[value_signal])
+        signals[status_signal] = min(int(status), int(signals.get(status_signal, status)),
+                                     key=lambda s: (s != MeasurementStatus.ABSENT, s == MeasurementStatus.VALID))
+        signals[value_signal] = value
+    for channel in CHANNEL_NAMES[:len(values)]:      # a status that is not VALID: every value under it unused
+        message, value_signal, status_signal = MEASUREMENT_CHANNELS[channel]
+        if out[message][status_signal] != MeasurementStatus.VALID:
+            out[message][value_signal] = _channel_limits(message)[value_signal][0]
+    return out
 
 
 def encode_row(codec: FrameCodec, row: int, values: Sequence[float],
                measurement: Sequence[float] | None = None) -> list[can.Message]:
     """The frames of data row `row` (values in DRIVE_SIGNALS order: torque, speed, coolant, ambient; then i_d, i_q
     for DriveCurrents when there are 6), in the order of `dbc.contract.row_messages`; with `measurement` (one value
-    per measurement slot) the row's Measurements frame goes first."""
+    per measurement channel) the row's measurement frames go first (Measurements, then DriveVoltages)."""
     step = step_of(row)
     signals: dict[str, dict[str, float]] = {}
     for (message, signal), value in zip(row_signals(len(values)), values, strict=True):
         signals.setdefault(message, {"Step": step})[signal] = value
     frames = [codec.encode(message, values) for message, values in signals.items()]
     if measurement is not None:
-        frames.insert(0, codec.encode(MEASUREMENT_MESSAGE, measurement_signals(step, measurement)))
+        measured = measurement_signals(step, measurement)
+        frames[:0] = [codec.encode(message, measured[message]) for message in measurement_messages(len(measurement))]
     return frames
 
 

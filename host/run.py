@@ -16,7 +16,7 @@ import can
 import numpy as np
 
 from dbc.codec import decode_any
-from dbc.contract import FrameError, row_messages
+from dbc.contract import FrameError, measurement_messages, row_messages
 from dbc.database import frame_id, host_frame_ids
 from dbc.mutations import FAULTED_HOST_MESSAGES, foreign_ids
 from dbc.transport import OwnFrameFilter
@@ -72,7 +72,8 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
                 measurements: np.ndarray | None = None) -> HostResult:
     """Replay `drive` (rows, 4: torque, speed, coolant, ambient; or rows, 6 with i_d, i_q, which then go out in
     DriveCurrents) to the target on `bus`; with `measurements` (rows, one column per `dbc.contract.
-    MEASUREMENT_SLOTS`, NaN: absent) each row's Measurements frame goes out before its DriveInputs.
+    MEASUREMENT_CHANNELS`: 2, or 4 with the d/q voltages; NaN: absent) each row's Measurements (and DriveVoltages)
+    frame goes out before its DriveInputs.
 
     `faults` (active) injects faults (kill/freeze: lockstep only, with `control`); `target_events` is the target's
     detection journal, read from `events_since` on.
@@ -87,7 +88,7 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
     faulty = plan = None
     if faults is not None and faults.active:
         plan = FaultPlan(faults, len(drive), frames_per_row=len(row_messages(drive.shape[1])),
-                         measurements=measurements is not None)
+                         measurements=0 if measurements is None else len(measurement_messages(measurements.shape[1])))
         if mode == "realtime":
             check_realtime_faults(plan, sample_period_s, speed, reply_timeout_s)
         if plan.process_rows and control is None:

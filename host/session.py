@@ -26,12 +26,15 @@ import numpy as np
 
 from dbc.codec import DecodedFrame, FrameCodec, FrameValidator
 from dbc.contract import (
+    CHECKPOINT_STEP_LOW_MODULO,
     FIRMWARE_TIMING_MESSAGE,
     FRAME_ERROR_KINDS,
     HEARTBEAT_TIMEOUT_S,
+    OBSERVER_CHECKPOINT_MESSAGE,
     REPLY_COMPLETE,
     REPLY_SIGNALS,
     RESET_SIGNALS,
+    RESTORE_OBSERVER_MESSAGE,
     STATE_SIZE,
     BenchEvent,
     Command,
@@ -192,6 +195,8 @@ class HostSession:
         # the target's state checkpoints: elements per Step until all four are in, then the complete ones by row
         self._checkpoint_parts: dict[int, dict[int, float]] = {}
         self.checkpoints: dict[int, list[float]] = {}
+        # an observer's checkpoints (DBC 1.7.0): row -> {Index: value}, echoed as they came (the target judges them)
+        self.observer_checkpoints: dict[int, dict[int, float]] = {}
         self._pending_log: list[can.Message] = []
         # a fault layer logs what it really transmits; a plain bus sends what it is given
         self._log_sends = not getattr(bus, "reports_transmissions", False)
@@ -323,6 +328,8 @@ class HostSession:
             self.timing["m4_exec_us"].append((row, float(s["M4ExecTime"])))
         elif name == "StateCheckpoint":
             self._checkpoint(int(s["Step"]), int(s["StateIndex"]), float(s["StateValue"]))
+        elif name == OBSERVER_CHECKPOINT_MESSAGE:
+            self._observer_checkpoint(int(s["StepLow"]), int(s["Index"]), float(s["Value"]))
         elif name == "RxErrors":
             self.monitor.rx_errors = rx_error_counts(s)
         elif name == "TargetInfo":
@@ -339,6 +346,14 @@ class HostSession:
             self.checkpoints[self._row_of(step)] = [parts[i] for i in range(STATE_SIZE)]
         if len(self._checkpoint_parts) > 4:  # elements of checkpoints that never completed (a lost frame)
             self._checkpoint_parts.pop(next(iter(self._checkpoint_parts)))
+
+    def _observer_checkpoint(self, step_low: int, index: int, value: float) -> None:
+        """Collect one element of an observer's checkpoint under the latest row whose Step it names."""
+        last = self.last_sent_row
+        row = last - ((last - step_low) % CHECKPOINT_STEP_LOW_MODULO)
+        self.observer_checkpoints.setdefault(row, {})[index] = value
+        if len(self.observer_checkpoints) > 8:   # keep the newest few
+            self.observer_checkpoints.pop(min(self.observer_checkpoints))
 
     def last_checkpoint(self, before_row: int) -> tuple[int, list[float]] | None:
         """(row, state) of the newest complete checkpoint taken after a row before `before_row`, or None."""
@@ -406,11 +421,17 @@ class HostSession:
                            f"{self.monitor.state.name if self.monitor.state is not None else 'unknown'}, faults "
                            f"{faults!r}); check that no other host is on this bus")
 
-    def restore(self, state: Sequence[float], step: int, tries: int = 3) -> None:
-        """Echo a checkpointed state vector in RestoreState frames and RESTORE at `step`; wait for READY."""
+    def restore(self, state: Sequence[float], step: int, tries: int = 3,
+                observer: dict[int, float] | None = None) -> None:
+        """Echo a checkpointed state vector in RestoreState frames (and an observer's checkpoint of the same row in
+        RestoreObserver frames) and RESTORE at `step`; wait for READY."""
+        low = step % CHECKPOINT_STEP_LOW_MODULO
         for _ in range(tries):
             self.send([self.codec.encode("RestoreState", {"Step": step, "StateIndex": index, "StateValue": value})
-                       for index, value in enumerate(state)] + [self.control(Command.RESTORE, step)])
+                       for index, value in enumerate(state)]
+                      + [self.codec.encode(RESTORE_OBSERVER_MESSAGE, {"Index": index, "StepLow": low, "Value": value})
+                         for index, value in sorted((observer or {}).items())]
+                      + [self.control(Command.RESTORE, step)])
             self.flush_log()
             if self._await_state(TargetState.READY, 0.5):
                 return

@@ -27,13 +27,17 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   timing frames; after every CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames
   (x after that step). The last used row sent again (a host retransmitting a row whose reply it did not get) is
   answered again with the same temperatures and steps nothing (`repeats`).
-* A model with an observer (the artifact's `observer` section, `target_sim.observer_node`): the Measurements frame
-  of a row (sent before its DriveInputs) is kept; when the row completes, the value of the observer's slot in the
-  kept frame of that Step, if its status is VALID, is one more value of the row, averaged over the interval with
-  the drive values (none: NaN, and the model step of an interval with such a row predicts only). Every model step
-  is then answered, after its Timing frames, with Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations.
-  RESET resets the covariance to P0, RESTORE too (x bit for bit, P0). A model without an observer validates
-  Measurements frames and ignores them.
+* A model with an observer (the artifact's `observer` section, `target_sim.observer_node`): the measurement frames
+  of a row (Measurements, and DriveVoltages when its observer computes the flux linkage; sent before its
+  DriveInputs) are kept; when the row completes, the observer's raw channels — the VALID values of its channels in
+  the kept frames of that Step, and the row's own currents for the flux linkage — are more values of the row,
+  averaged over the interval with the drive values (none: NaN, and the model step of an interval with such a row
+  makes no update with that measurement; with none valid it predicts only). Every model step is then answered,
+  after its Timing frames, with Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations (each used
+  measurement's innovation in its slot). RESET resets the covariance to P0. RESTORE sets x bit for bit, and the
+  filter's extra states and covariance from the RestoreObserver frames of that Step when all came (bit for bit),
+  else the covariance P0. After each StateCheckpoint the node sends its ObserverCheckpoint. A model without an
+  observer validates the observer's frames and ignores them.
 * Sequence errors (counted, SEQUENCE fault bit, nothing reaches the model): a drive frame outside RUNNING, a
   DriveTemps without its DriveInputs (a DriveCurrents without its DriveTemps), a row whose frames have different
   Steps, a DriveInputs whose row never completed, a row that goes back (or repeats one before the last: not
@@ -74,12 +78,15 @@ import numpy as np
 
 from dbc.codec import FrameCodec, FrameValidator, decode_any
 from dbc.contract import (
+    CHANNEL_NAMES,
     CHECKPOINT_EVERY_STEPS,
+    CHECKPOINT_STEP_LOW_MODULO,
     INNOVATION_MESSAGE,
-    MEASUREMENT_MESSAGE,
+    OBSERVER_CHECKPOINT_MESSAGE,
     OBSERVER_MESSAGES,
     REPLY_SIGNALS,
     RESET_SIGNALS,
+    RESTORE_OBSERVER_MESSAGE,
     RX_ERROR_KINDS,
     RX_ERROR_SIGNALS,
     STATE_SIZE,
@@ -90,8 +97,8 @@ from dbc.contract import (
     ModelKind,
     Realization,
     TargetState,
+    channel_values,
     join_temperatures,
-    measurement_values,
     row_messages,
     row_signals,
     split_temperatures,
@@ -117,10 +124,10 @@ class RowAccumulator(InputAccumulator):
     """The interval-mean rule (`InputAccumulator`), plus what to do with rows lost on the bus (see the module
     docstring)."""
 
-    def __init__(self, sample_period_s: float, dt_s: float, width: int = 4, measured: bool = False):
+    def __init__(self, sample_period_s: float, dt_s: float, width: int = 4, measured: int = 0):
         super().__init__(sample_period_s, dt_s, width)
         self.last_inputs: np.ndarray | None = None
-        self.measured = measured   # the last value is an observer's measurement: never held over a step
+        self.measured = measured   # the last values are an observer's raw channels: never held over a step
 
     def add(self, row: int, sample) -> np.ndarray | None:
         """Add row `row`; the inputs of its model step if this row completes the interval."""
@@ -141,7 +148,7 @@ class RowAccumulator(InputAccumulator):
             elif self.last_inputs is not None:
                 mean = self.last_inputs.copy()  # none did: hold the previous step's inputs
                 if self.measured:
-                    mean[-1] = np.float32(np.nan)   # but not its measurement: that step predicts only
+                    mean[-self.measured:] = np.float32(np.nan)   # but not its measurements: it predicts only
             else:
                 continue  # nothing ever arrived: no inputs to step on
             inputs.append(mean)
@@ -177,10 +184,13 @@ class TargetNode:
         self.errors = dict.fromkeys(RX_ERROR_KINDS, 0)
         self.last_error = ""
         width = len(artifact.drive_signals)    # 4 drive values, 6 with the d/q currents
-        # an observer's measurement is one more value of the row, averaged over the interval with the drive values
-        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt,
-                                          width + (self.observer is not None), measured=self.observer is not None)
-        self._measurement: tuple[int, list[float]] | None = None   # (Step, values) of the last Measurements frame
+        # an observer's raw channels are more values of the row, averaged over the interval with the drive values
+        channels = self.observer.channels if self.observer is not None else 0
+        self.accumulator = RowAccumulator(artifact.data_sample_period, artifact.dt, width + channels,
+                                          measured=channels)
+        # message -> (Step, {channel: value}) of the last measurement frame of each kind the observer reads
+        self._measurement: dict[str, tuple[int, dict[str, float]]] = {}
+        self._observer_restore: dict[int, dict] = {}    # RestoreObserver elements by Index
         self.row_messages = row_messages(width)    # DriveInputs, DriveTemps (, DriveCurrents): a row, in order
         self._row_index = {name: index for index, name in enumerate(self.row_messages)}
         self._row_signals = row_signals(width)
@@ -264,7 +274,7 @@ class TargetNode:
     def _observer_frames(self, step: int) -> list[can.Message]:
         """Uncertainty1, Uncertainty2 and Innovations after a model step of the observer."""
         observer = self.observer
-        signals = observer_signals(observer.sigma(), observer.innovation(), observer.slot, self._sigma_limits,
+        signals = observer_signals(observer.sigma(), observer.innovations(), self._sigma_limits,
                                    self._innovation_limits)
         return [frame for name in OBSERVER_MESSAGES for frame in self._encode(name, {"Step": step, **signals[name]})]
 
@@ -325,8 +335,11 @@ class TargetNode:
             return []
         if name == "Control":
             return self._control(Command(int(signals["Command"])), int(signals["Step"]))
-        if name == MEASUREMENT_MESSAGE and self.observer is not None:
-            self._measurement = (int(signals["Step"]), measurement_values(signals))
+        if self.observer is not None and name in self.observer.messages:
+            self._measurement[name] = (int(signals["Step"]), channel_values(name, signals))
+            return []
+        if name == RESTORE_OBSERVER_MESSAGE:
+            self._observer_restore[int(signals["Index"])] = signals
             return []
         return []  # a frame of the contract no rule acts on (BenchEvent, unread DriveCurrents, ...): validated only
 
@@ -357,20 +370,22 @@ class TargetNode:
         frames = {message: frame for message, frame in zip(row, (*pending, signals), strict=True)}
         sample = tuple(frames[message][signal] for message, signal in self._row_signals)
         if self.observer is not None:
-            sample += (self._measured(int(signals["Step"])),)
+            sample += self.observer.raw(sample, self._measured(int(signals["Step"])))
         return self._row(int(signals["Step"]), sample)
 
-    def _measured(self, step: int) -> float:
-        """The observer's measurement for the row of `step` (NaN: none, predict only): the value of its slot in the
-        Measurements frame of that Step that came before the row. A Measurements frame of another Step is a sequence
-        error; a row without one (lost, refused, not sent) has none."""
-        pending, self._measurement = self._measurement, None
-        if pending is None:
-            return float("nan")
-        if pending[0] != step:
-            self._sequence_error(f"{MEASUREMENT_MESSAGE} of step {pending[0]} before the row of step {step}")
-            return float("nan")
-        return pending[1][self.observer.slot_index]
+    def _measured(self, step: int) -> list[float]:
+        """The host's measurement channels for the row of `step` (NaN: none): the VALID values of the measurement
+        frames of that Step that came before the row. A measurement frame of another Step is a sequence error; a
+        row without one (lost, refused, not sent) has none of its channels."""
+        pending, self._measurement = self._measurement, {}
+        out = [float("nan")] * len(CHANNEL_NAMES)
+        for message, (at, values) in pending.items():
+            if at != step:
+                self._sequence_error(f"{message} of step {at} before the row of step {step}")
+                continue
+            for channel, value in values.items():
+                out[CHANNEL_NAMES.index(channel)] = value
+        return out
 
     def _control(self, command: Command, step: int) -> list[can.Message]:
         if command == Command.RESET:
@@ -386,7 +401,10 @@ class TargetNode:
             if len(state) != STATE_SIZE:
                 return self._incomplete(f"RESTORE of step {step} without the {STATE_SIZE} RestoreState elements "
                                         "of that step")
-            (self.observer or self.model).restore(state)
+            if self.observer is not None:
+                self.observer.restore(state, self._restored_checkpoint(step))
+            else:
+                self.model.restore(state)
             return self._ready()
         if command == Command.START:
             if self.state != TargetState.READY:
@@ -396,9 +414,16 @@ class TargetNode:
         if command == Command.STOP:
             self.validator.reset_counters()
             self._pending = []
-            self._measurement = None
+            self._measurement = {}
             return self._set_state(TargetState.STOPPED)
         return []
+
+    def _restored_checkpoint(self, step: int) -> dict[int, float]:
+        """The RestoreObserver elements {Index: value} of the RESTORE's Step (the observer uses them only when every
+        element came; else its covariance starts again at P0)."""
+        elements, self._observer_restore = self._observer_restore, {}
+        low = step % CHECKPOINT_STEP_LOW_MODULO
+        return {i: f["Value"] for i, f in elements.items() if f["StepLow"] == low}
 
     def _incomplete(self, why: str) -> list[can.Message]:
         """A RESET or RESTORE without its data: nothing of the model changes, the node waits in IDLE."""
@@ -411,7 +436,7 @@ class TargetNode:
         self.estimate = self.model.y.copy()
         self.accumulator.reset()
         self._pending = []
-        self._measurement = None
+        self._measurement = {}
         self.next_row = None
         self.last_reply_row = None
         self.rows_used = self.model_steps = self.overruns = 0
@@ -425,8 +450,23 @@ class TargetNode:
         state = self.model.x.tolist()
         if len(state) != STATE_SIZE or not all(self._state_limits[0] <= v <= self._state_limits[1] for v in state):
             return []
-        return [frame for index, value in enumerate(state)
-                for frame in self._encode("StateCheckpoint", {"Step": step, "StateIndex": index, "StateValue": value})]
+        frames = [frame for index, value in enumerate(state)
+                  for frame in self._encode("StateCheckpoint", {"Step": step, "StateIndex": index,
+                                                                "StateValue": value})]
+        return frames + self._observer_checkpoint_frames(step)
+
+    def _observer_checkpoint_frames(self, step: int) -> list[can.Message]:
+        """The observer's checkpoint after the StateCheckpoint of the same row, one frame per element; none
+        without an observer or when an element cannot be carried (a restore then starts P at P0)."""
+        if self.observer is None:
+            return []
+        values = self.observer.checkpoint().tolist()
+        if not all(self._state_limits[0] <= v <= self._state_limits[1] for v in values):
+            return []
+        low = step % CHECKPOINT_STEP_LOW_MODULO
+        return [frame for index, value in enumerate(values)
+                for frame in self._encode(OBSERVER_CHECKPOINT_MESSAGE, {"Index": index, "StepLow": low,
+                                                                        "Value": value})]
 
     def _row(self, step: int, sample) -> list[can.Message]:
         if self.state != TargetState.RUNNING or self.next_row is None:

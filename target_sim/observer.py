@@ -303,6 +303,48 @@ class Float32Observer:
         self.innovations = np.full(len(self.measurements), np.nan, dtype=self.f)
         self.innovation = self.f(np.nan)
 
+    def reset_lags(self) -> None:
+        """Each lag state at the temperature its sensor sees of the current estimate, the bias 0 (a restore
+        without the filter's checkpoint)."""
+        self.extra = np.zeros(self.n - len(OUTPUTS), dtype=self.f)
+        for m, lag in zip(self.measurements, self.lag_index, strict=True):
+            if lag >= 0:
+                self.extra[lag - len(OUTPUTS)] = dot(m.sees, self.est.y)
+
+    def checkpoint(self) -> np.ndarray:
+        """The filter's state beyond the model's x, float32 bit for bit, in the order of the ObserverCheckpoint
+        frames (DBC 1.7.0): the extra states (lags in measurement order, then the bias), then the covariance in the
+        deployed form: UD d_0..d_{n-1} then U above the diagonal row by row; conventional and Joseph P row by row;
+        the steady-state gain nothing."""
+        parts = [self.extra]
+        cov = self.cov
+        if isinstance(cov, BiermanThornton):
+            parts += [cov.d, cov.u[np.triu_indices(self.n, 1)]]
+        elif isinstance(cov, Conventional):
+            parts.append(cov.p.reshape(-1))
+        return np.concatenate(parts).astype(self.f)
+
+    def checkpoint_size(self) -> int:
+        return len(self.checkpoint())
+
+    def restore_checkpoint(self, values: Sequence[float]) -> None:
+        """The extra states and covariance from `checkpoint()`'s values (ValueError when the count differs)."""
+        values = np.asarray(values, dtype=self.f)
+        if len(values) != self.checkpoint_size():
+            raise ValueError(f"an observer checkpoint of this filter has {self.checkpoint_size()} elements, "
+                             f"not {len(values)}")
+        k = self.n - len(OUTPUTS)
+        self.extra = values[:k].copy()
+        rest = values[k:]
+        cov = self.cov
+        if isinstance(cov, BiermanThornton):
+            cov.d = rest[: self.n].copy()
+            u = np.eye(self.n, dtype=self.f)
+            u[np.triu_indices(self.n, 1)] = rest[self.n:]
+            cov.u = u
+        elif isinstance(cov, Conventional):
+            cov.p = rest.reshape(self.n, self.n).copy()
+
     def transition(self) -> np.ndarray:
         """F of the step just taken, augmented (C: fw_transition): the block's A + (B_s G) C (delta:
         I + Δ·(A + (B_s G) C)), the bias's column of B, and each lag row (1 - a)·(sees·C)·F[:4] + a e_lag."""

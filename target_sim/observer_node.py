@@ -1,71 +1,157 @@
-"""The observer as the CAN node runs it: which Measurements slot feeds it, one model step with the row's measurement,
-and what the node reports after the step (each node's 1-sigma, the innovation).
+"""The observer as the CAN node runs it: where each of its raw channels comes from in a row's frames, one model step
+with the row's measurements, what the node reports after the step (each node's 1-sigma, each measurement's
+innovation) and its checkpoint.
 
 The filter itself is `target_sim.observer.Float32Observer`, called through its per-step interface (the interval
-mean of a measurement, NaN: predict only). The node's rules around it:
+means of its raw channels; NaN in a measurement's channels: no update with it). The node's rules around it:
 
-* what CAN carries: the host sends one temperature per slot, so the node runs an observer whose measurements are
-  exactly one with one raw channel (a lagged sensor, section version 1 or 2; the value is its z). An observer that
-  reads the flux linkage from its raw channels (u_d, u_q, i_d, i_q) or more than one measurement has no frame to
-  carry its readings: `can_refusal` says so in one sentence, and the bench and the target refuse it before any work
-  rather than run it wrongly;
-* slot: the artifact's observer reads one slot of the Measurements frame (`dbc.contract.MEASUREMENT_SLOTS`): the
-  section's `source` when it names one, else `flux` for a filter that measures the magnet (only the flux linkage
-  sees the magnet in a running machine) and `sensor` for any other node (a winding sensor, a stator NTC);
+* what CAN carries (`dbc.contract.MEASUREMENT_CHANNELS`, `ROW_CHANNELS`): a lagged sensor's one channel is a slot of
+  the Measurements frame; the flux linkage's u_d, u_q travel in DriveVoltages (DBC 1.7.0) and its i_d, i_q are the
+  row's own DriveCurrents, so the target computes the flux magnet temperature itself with its own winding estimate
+  (R_s(ϑ̂_w)), as an inverter would. An observer whose model does not take the currents in its rows (loss maps), or
+  whose two measurements would share one slot, has no frames to carry its readings: `can_refusal` says so in one
+  sentence, and the bench and the target refuse it before any work rather than run it wrongly;
+* slot: each measurement answers in one slot of Innovations (`dbc.contract.MEASUREMENT_SLOTS`): the flux linkage in
+  `flux`; a lagged sensor in its section's `source` (version 1) when it names one, else `flux` when it sees the
+  magnet only (a magnet temperature from elsewhere) and `sensor` for any other node (a winding sensor, a stator NTC);
 * reset: the model's RESET and a fresh covariance P0;
-* restore: a StateCheckpoint carries the state vector x only, so a restored target continues from that x bit for bit
-  with the covariance of a fresh start, P0 (it knows as little as at key-on); the offline reference restarts the same
-  way (`bench.analysis.canmetrics.segment_estimates`).
+* restore: a StateCheckpoint carries the state vector x, an ObserverCheckpoint (DBC 1.7.0) the filter's extra states
+  and covariance (`Float32Observer.checkpoint`); with both the restored filter continues bit for bit, with x alone it
+  starts its covariance again at P0 (it knows as little as at key-on); the offline reference restarts the same way
+  (`bench.analysis.canmetrics.segment_estimates`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from dbc.contract import INNOVATION_MESSAGE, INNOVATION_SIGNALS, MEASUREMENT_SLOTS, SIGMA_SIGNALS
+from dbc.contract import (
+    CHANNEL_NAMES,
+    INNOVATION_MESSAGE,
+    INNOVATION_SIGNALS,
+    MEASUREMENT_CHANNELS,
+    MEASUREMENT_SLOTS,
+    ROW_CHANNELS,
+    SIGMA_SIGNALS,
+    measurement_messages,
+)
 from target_sim.artifact import ModelArtifact
-from target_sim.observer import Float32Observer, ObserverError, has_observer, measurement_entries
+from target_sim.losses import reads_currents
+from target_sim.observer import Float32Observer, ObserverError, has_observer, load_measurements, measurement_entries
+
+SENSOR_KIND = "lagged-sensor"
 
 
-def can_refusal(artifact: ModelArtifact) -> str | None:
-    """Why the artifact's observer cannot run over CAN (one sentence), None when it can or has no observer: the
-    Measurements frame carries one temperature per slot, so exactly one measurement of one raw channel."""
-    if not has_observer(artifact):
-        return None
-    entries = measurement_entries(artifact.content["observer"])
-    name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
-    if len(entries) == 1 and len(entries[0]["columns"]) == 1:
-        return None
-    what = (f"{len(entries)} measurements" if len(entries) != 1
-            else f"a {entries[0]['kind']} measurement of {len(entries[0]['columns'])} raw channels")
-    return (f"{name} has an observer with {what}, and the Measurements frame carries one temperature per slot "
-            "(one lagged sensor): use an observer with one temperature sensor, or run it offline with 'bench "
-            "evaluate'")
-
-
-def measured_column(artifact: ModelArtifact) -> str | None:
-    """The dataset column the artifact's observer reads over CAN, None without an observer (ObserverError when CAN
-    cannot carry it, `can_refusal`)."""
-    if not has_observer(artifact):
-        return None
-    refusal = can_refusal(artifact)
-    if refusal is not None:
-        raise ObserverError(refusal)
-    return measurement_entries(artifact.content["observer"])[0]["columns"][0]
-
-
-def observer_slot(artifact: ModelArtifact) -> str | None:
-    """The Measurements slot the artifact's observer reads, None without an observer (ObserverError when CAN cannot
-    carry it, `can_refusal`)."""
-    if measured_column(artifact) is None:
-        return None
-    section = artifact.content["observer"]
+def _slot(entry: dict, section: dict) -> str:
+    """The Innovations slot of one measurement entry (see the module docstring)."""
+    if entry["kind"] != SENSOR_KIND:
+        return "flux"
     source = section.get("source")
     if source in MEASUREMENT_SLOTS:
         return source
-    return "flux" if section.get("node") == "magnet" else "sensor"
+    node = entry.get("node", section.get("node"))
+    gradient = float(entry.get("gradient", 0.0) or 0.0)
+    return "flux" if node == "magnet" and gradient == 0.0 else "sensor"
+
+
+def measurement_slots(artifact: ModelArtifact) -> list[str]:
+    """Each measurement's Innovations slot, in the observer's order ([] without an observer)."""
+    if not has_observer(artifact):
+        return []
+    section = artifact.content["observer"]
+    return [_slot(entry, section) for entry in measurement_entries(section)]
+
+
+def _entry_channels(entry: dict, slot: str, measurement) -> tuple[str, ...]:
+    """The CAN channels of one measurement's raw channels: a sensor's slot, or the kind's own (the flux linkage)."""
+    return (slot,) if entry["kind"] == SENSOR_KIND else tuple(measurement.can_channels)
+
+
+def can_refusal(artifact: ModelArtifact) -> str | None:
+    """Why the artifact's observer cannot run over CAN (one sentence), None when it can or has no observer."""
+    if not has_observer(artifact):
+        return None
+    section = artifact.content["observer"]
+    entries = measurement_entries(section)
+    slots = measurement_slots(artifact)
+    name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
+    shared = [slot for slot in MEASUREMENT_SLOTS if slots.count(slot) > 1]
+    if shared:
+        return (f"{name} has an observer whose measurements {', '.join(e['name'] for e in entries)} would all "
+                f"answer in the {shared[0]} slot, and the Measurements and Innovations frames carry one temperature "
+                "per slot; keep one measurement per slot, or run it offline with 'bench evaluate'")
+    row_read = {c for e, m, s in zip(entries, load_measurements(section), slots, strict=True)
+                for c in _entry_channels(e, s, m) if c in ROW_CHANNELS and ROW_CHANNELS[c] >= 4}
+    if row_read and not reads_currents(artifact.drive_signals):
+        return (f"{name} has an observer that measures the flux linkage from the d/q currents, and its "
+                f"{artifact.loss_model} loss model does not take the currents in its rows (no DriveCurrents frames); "
+                "use a model with an electrical loss model, or run it offline with 'bench evaluate'")
+    return None
+
+
+def _check(artifact: ModelArtifact) -> None:
+    refusal = can_refusal(artifact)
+    if refusal is not None:
+        raise ObserverError(refusal)
+
+
+def measured_columns(artifact: ModelArtifact) -> dict[str, str]:
+    """{host channel: dataset column} the host sends for the artifact's observer ({} without one; ObserverError
+    when CAN cannot carry it, `can_refusal`); the row's own channels (currents) are not among them."""
+    if not has_observer(artifact):
+        return {}
+    _check(artifact)
+    section = artifact.content["observer"]
+    out: dict[str, str] = {}
+    for entry, measurement, slot in zip(measurement_entries(section), load_measurements(section),
+                                        measurement_slots(artifact), strict=True):
+        for channel, column in zip(_entry_channels(entry, slot, measurement), entry["columns"], strict=True):
+            if channel in MEASUREMENT_CHANNELS:
+                out[channel] = column
+    return out
+
+
+def measurement_width(artifact: ModelArtifact) -> int:
+    """Columns of the host's measurement matrix for the artifact (0 without an observer): the Measurements slots,
+    and the voltages too when its observer reads them (`dbc.contract.measurement_messages`)."""
+    channels = measured_columns(artifact)
+    if not has_observer(artifact):
+        return 0
+    return max(len(MEASUREMENT_SLOTS), *(CHANNEL_NAMES.index(c) + 1 for c in channels)) if channels \
+        else len(MEASUREMENT_SLOTS)
+
+
+def raw_sources(artifact: ModelArtifact) -> list[tuple[str, int]]:
+    """Where each raw channel of the observer comes from, in the filter's order: ("channel", index into the host's
+    measurement matrix) or ("row", index into the row's values)."""
+    _check(artifact)
+    section = artifact.content["observer"]
+    out = []
+    for entry, measurement, slot in zip(measurement_entries(section), load_measurements(section),
+                                        measurement_slots(artifact), strict=True):
+        for channel in _entry_channels(entry, slot, measurement):
+            out.append(("channel", CHANNEL_NAMES.index(channel)) if channel in MEASUREMENT_CHANNELS
+                       else ("row", ROW_CHANNELS[channel]))
+    return out
+
+
+def channel_widths(artifact: ModelArtifact) -> list[int]:
+    """How many raw channels each measurement of the observer takes, in order."""
+    return [m.width for m in load_measurements(artifact.content["observer"])]
+
+
+def raw_channels(sources: Sequence[tuple[str, int]], rows: np.ndarray, measured: np.ndarray | None) -> np.ndarray:
+    """(n, channels) the observer's raw channels per row from the row values (n, width) and the host's measurement
+    matrix (n, columns) (None or a missing column: NaN)."""
+    out = np.full((len(rows), len(sources)), np.nan)
+    for i, (where, index) in enumerate(sources):
+        if where == "row":
+            out[:, i] = rows[:, index]
+        elif measured is not None and index < measured.shape[1]:
+            out[:, i] = measured[:, index]
+    return out
 
 
 class NodeObserver:
@@ -74,45 +160,62 @@ class NodeObserver:
     def __init__(self, artifact: ModelArtifact):
         self.filter = Float32Observer(artifact)
         self.model = self.filter.est          # the estimator the filter corrects: x, y, checkpoints
-        self.slot = observer_slot(artifact)
-        self.slot_index = MEASUREMENT_SLOTS.index(self.slot)
-        self.width = len(artifact.drive_signals)   # the drive values before the measurement in a row
+        self.slots = measurement_slots(artifact)
+        self.sources = raw_sources(artifact)
+        self.width = len(artifact.drive_signals)   # the drive values before the measurements in a row
+        self.messages = measurement_messages(measurement_width(artifact))   # the measurement frames it reads
+        self.channels = len(self.sources)
+
+    def raw(self, row_values: Sequence[float], measured: Sequence[float]) -> tuple[float, ...]:
+        """The raw channels of one row: from its values and its measurement channels (NaN: none)."""
+        return tuple(float(row_values[i]) if where == "row" else float(measured[i]) for where, i in self.sources)
 
     def reset(self, temperatures: Sequence[float]) -> None:
         self.filter.reset(temperatures)
 
-    def restore(self, state: Sequence[float]) -> None:
-        """x bit for bit from a checkpoint, the covariance P0 of a fresh start."""
+    def restore(self, state: Sequence[float], elements: Mapping[int, float] | None = None) -> None:
+        """x bit for bit from a checkpoint; the filter's extra states and covariance from its ObserverCheckpoint
+        elements {Index: value} when every one came (bit for bit), else the covariance P0 of a fresh start and the
+        lag states at what their sensors see of x."""
         self.filter.reset(np.zeros(len(state)))
         self.model.restore(state)
+        size = self.filter.checkpoint_size()
+        if elements is not None and all(i in elements for i in range(size)):
+            self.filter.restore_checkpoint([elements[i] for i in range(size)])
+        else:
+            self.filter.reset_lags()
+
+    def checkpoint(self) -> np.ndarray:
+        return self.filter.checkpoint()
 
     def step(self, inputs: Sequence) -> np.ndarray:
-        """One model step on a row's interval mean: the drive values, then the measurement (NaN: predict only)."""
+        """One model step on a row's interval mean: the drive values, then the raw channels (NaN: no update)."""
         width = self.width
-        return self.filter.step(*inputs[:width], z=inputs[width])
+        return self.filter.step(*inputs[:width], z=np.asarray(inputs[width:], dtype=self.filter.f))
 
     def sigma(self) -> np.ndarray:
         """Each node's 1-sigma after the last step, in the temperature order (yoke, winding, tooth, magnet)."""
         return self.filter.sigma()
 
-    def innovation(self) -> float:
-        """The last step's innovation, NaN when it predicted only."""
-        return float(self.filter.innovation)
+    def innovations(self) -> dict[str, float]:
+        """{slot: innovation} of the last step, NaN where a measurement was not used."""
+        return {slot: float(value) for slot, value in zip(self.slots, self.filter.innovations, strict=True)}
 
 
-def observer_signals(sigma: Sequence[float], innovation: float, slot: str,
+def observer_signals(sigma: Sequence[float], innovations: dict[str, float],
                      sigma_limits: tuple[float, float], innovation_limits: tuple[float, float]) -> dict[str, dict]:
     """{message: {signal: value}} of Uncertainty1, Uncertainty2 and Innovations (without Step), values clamped to
     what the DBC carries (a non-finite sigma as its largest value)."""
     out: dict[str, dict] = {}
     for message, signals in SIGMA_SIGNALS.items():
         out[message] = {signal: _clamp(float(sigma[index]), sigma_limits) for signal, index in signals}
-    innovations = {}
+    values = {}
     for name, (value_signal, used_signal) in INNOVATION_SIGNALS.items():
-        used = name == slot and np.isfinite(innovation)
-        innovations[value_signal] = _clamp(innovation, innovation_limits) if used else 0.0
-        innovations[used_signal] = int(used)
-    out[INNOVATION_MESSAGE] = innovations
+        innovation = innovations.get(name, float("nan"))
+        used = bool(np.isfinite(innovation))
+        values[value_signal] = _clamp(innovation, innovation_limits) if used else 0.0
+        values[used_signal] = int(used)
+    out[INNOVATION_MESSAGE] = values
     return out
 
 

@@ -109,3 +109,23 @@ def observer_artifact(tmp_path_factory, small_dataset) -> Path:
     out = tmp_path_factory.mktemp("observer") / "observer.json"
     assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--out", str(out), "--quiet"]) == 0
     return out
+
+
+@pytest.fixture(scope="session")
+def flux_observer_artifact(tmp_path_factory) -> tuple[Path, Path]:
+    """(artifact, dataset): a model with an electrical loss model and an observer of two measurements, a stator NTC
+    (25 s lag, +0.8 K offset) and the flux linkage from u_d, u_q, i_d, i_q and speed, written by `bench observer`
+    with a two-run tuning on a synthetic dataset whose voltages follow the steady-state voltage equations of its
+    magnet and winding temperatures (what matters here is the protocol, not the tuning)."""
+    from bench.cli import main
+
+    from helpers import electrical_artifact_text, flux_columns
+
+    out = tmp_path_factory.mktemp("flux-observer")
+    model = out / "electrical.json"
+    model.write_text(electrical_artifact_text(), encoding="utf-8")
+    data = write_synthetic_dataset(out / "flux.csv", flux_columns(600), "synthetic data with voltages and an NTC")
+    artifact = out / "observer-ntc-flux.json"
+    assert main(["observer", "--model", str(model), "--train", str(data), "--measure", "ntc_C", "--offset", "0.8",
+                 "--lag", "25", "--flux", "--evaluations", "2", "--out", str(artifact), "--quiet"]) == 0
+    return artifact, data

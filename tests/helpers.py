@@ -323,3 +323,29 @@ def after_row(frames: list[can.Message], row: int, which: str = "reply") -> int:
         if frame.arbitration_id == fid and int(decode_any(frame).signals["Step"]) == wanted:
             return i + 1
     raise AssertionError(f"row {row} not found")
+
+
+# the synthetic machine of `flux_columns`: ψ_0 (Vs) at 20 °C, α_B (1/K), L_d, L_q (H), R_s (Ω) at 20 °C, α_cu
+FLUX_MACHINE = {"psi_0": 0.02, "alpha_B": -0.0011, "L_d": 2e-5, "L_q": 4e-5, "R_s": 0.008, "alpha_cu": 0.0039}
+
+
+def flux_columns(rows: int, seed: int = 5) -> dict[str, np.ndarray]:
+    """`synthetic_columns` at 1000-7000 rpm with d/q currents, the d/q voltages of the steady-state voltage
+    equations at its magnet and winding temperatures (FLUX_MACHINE, the electrical test artifact's 10 pole pairs,
+    0.1 V steps) and a stator NTC column (the winding through a 25 s lag, read 0.8 K high)."""
+    columns = with_currents(synthetic_columns(rows, seed, speed_sd=60.0, speed_offset=1000.0, torque_max=300.0))
+    columns["speed_rpm"] = np.clip(columns["speed_rpm"], 0.0, 7000.0)
+    m = FLUX_MACHINE
+    omega = ELECTRICAL_TEST_COEFFICIENTS["pole_pairs"] * 2 * np.pi / 60 * columns["speed_rpm"]
+    r_s = m["R_s"] * (1 + m["alpha_cu"] * (columns["winding_C"] - 20.0))
+    psi = m["psi_0"] * (1 + m["alpha_B"] * (columns["pm_C"] - 20.0))
+    i_d, i_q = columns["i_d_A"], columns["i_q_A"]
+    columns["u_d_V"] = np.round(r_s * i_d - omega * m["L_q"] * i_q, 1)
+    columns["u_q_V"] = np.round(r_s * i_q + omega * (psi + m["L_d"] * i_d), 1)
+    lag = np.exp(-0.2 / 25.0)
+    ntc = np.empty(rows)
+    ntc[0] = columns["winding_C"][0]
+    for k in range(1, rows):
+        ntc[k] = lag * ntc[k - 1] + (1 - lag) * columns["winding_C"][k]
+    columns["ntc_C"] = np.round(ntc + 0.8, 1)
+    return columns

@@ -68,7 +68,7 @@ from bench.analysis.rowfilter import RowSelection, kept_rows
 from bench.analysis.verdict import QUANTIZATION_C, notes
 from bench.thermal.estimator import SIGMOID_ROWS, identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.excitation import interval_means
-from dbc.contract import HEARTBEAT_TIMEOUT_S, M4_CLOCK_HZ, MEASUREMENT_MESSAGE, MEASUREMENT_SLOTS, TEMPERATURE_NODES
+from dbc.contract import HEARTBEAT_TIMEOUT_S, M4_CLOCK_HZ, MEASUREMENT_MESSAGES, TEMPERATURE_NODES
 from dbc.database import frame_id, temperature_range
 from dbc.mutations import FRAME_FAULT_KINDS
 from dbc.transport import NOMINAL_BITRATE
@@ -79,7 +79,7 @@ from target_sim.kinds import MODEL_KINDS, is_delta
 from target_sim.losses import reads_currents, row_of_width
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 from target_sim.observer import has_observer, run_observer_offline
-from target_sim.observer_node import NodeObserver, observer_slot
+from target_sim.observer_node import NodeObserver, raw_channels, raw_sources
 
 TEMPERATURES = TEMPERATURE_NODES
 AGREEMENT_TOLERANCE_C = QUANTIZATION_C + 1e-9
@@ -102,23 +102,28 @@ class References:
 
 
 def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int, initial, stop_row: int, *,
-                      state=None, measured: np.ndarray | None = None) -> np.ndarray:
+                      state=None, measured: np.ndarray | None = None, checkpoint: dict | None = None) -> np.ndarray:
     """(stop_row - start_row, 4): the estimate the target replies with after each row, for a target reset to
     `initial` (or restored to the state vector `state`) at `start_row` (the target's own float32 code and
     interval-mean rule, accumulator empty). A model with an observer steps through it (`target_sim.observer_node`:
-    a restore starts its covariance afresh, as the target's does) on `measured`, its measurement per row (NaN:
+    a restore continues the filter from its echoed `checkpoint` {Index: value} when complete, else starts its
+    covariance afresh, as the target's does) on `measured`, its raw channels per row (`observed_channels`; NaN:
     none)."""
     observer = NodeObserver(artifact) if has_observer(artifact) else None
     model = observer or Float32Estimator(artifact)
     if state is not None:
-        model.restore(state)
+        if observer is not None:
+            observer.restore(state, checkpoint)
+        else:
+            model.restore(state)
     else:
         model.reset(initial)
     step = model.step if observer is None else (lambda *values: observer.step(values))
     samples = np.asarray(drive[start_row:stop_row], dtype=np.float64)
     if observer is not None:
-        column = np.full(len(drive), np.nan) if measured is None else np.asarray(measured, dtype=np.float64)
-        samples = np.column_stack([samples, column[start_row:stop_row]])
+        channels = np.full((len(drive), observer.channels), np.nan) if measured is None \
+            else np.asarray(measured, dtype=np.float64).reshape(len(drive), -1)
+        samples = np.column_stack([samples, channels[start_row:stop_row]])
     acc = InputAccumulator(artifact.data_sample_period, artifact.dt, samples.shape[1])
     estimate = (observer.model if observer is not None else model).y.copy()
     out = np.empty((max(stop_row - start_row, 0), 4), dtype=np.float32)
@@ -156,7 +161,8 @@ def restarted_agreement(artifact: ModelArtifact, record: BusRecord, clean: np.nd
             ref = clean[:stop]
         else:
             ref = segment_estimates(artifact, record.drive, segment.start_row, segment.initial, stop,
-                                    state=segment.state, measured=observed_column(record, artifact))
+                                    state=segment.state, measured=observed_channels(record, artifact),
+                                    checkpoint=segment.observer_checkpoint)
         offset = segment.start_row
         keep = (segment.reply_rows >= offset) & (segment.reply_rows < rows)
         at = segment.reply_rows[keep]
@@ -204,14 +210,15 @@ def float64_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np
     return traj[0]
 
 
-def observed_column(record: BusRecord, artifact: ModelArtifact) -> np.ndarray | None:
-    """The measurement the artifact's observer read in each row of the log (NaN: none), None without an observer."""
-    slot = observer_slot(artifact)
-    if slot is None:
+def observed_channels(record: BusRecord, artifact: ModelArtifact, drive: np.ndarray | None = None) -> np.ndarray | None:
+    """(rows, channels) the raw channels the artifact's observer read in each row of the log (its measurement
+    channels, and the row's own currents for the flux linkage, from `drive` or the logged rows; NaN: none), None
+    without an observer."""
+    if not has_observer(artifact):
         return None
-    if record.measurements.shape[0] != record.rows:
-        return np.full(record.rows, np.nan)
-    return record.measurements[:, MEASUREMENT_SLOTS.index(slot)]
+    rows = np.asarray(record.drive if drive is None else drive, dtype=np.float64)
+    measured = record.measurements if record.measurements.shape[0] == record.rows else None
+    return raw_channels(raw_sources(artifact), rows, measured)
 
 
 def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None,
@@ -220,7 +227,7 @@ def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None
     code in float32, and in float64) on `measured`, with the open loop's float32 run beside (`open_loop`)."""
     open_loop = None
     if has_observer(artifact):
-        z = np.full(len(drive), np.nan) if measured is None else measured
+        z = np.full((len(drive), len(raw_sources(artifact))), np.nan) if measured is None else measured
         run = run_observer_offline(artifact, drive, z, initial)
         step_rows, f32 = run.rows, run.outputs
         f64 = run_observer_offline(artifact, drive, z, initial, dtype=np.float64).outputs.astype(np.float64)
@@ -291,11 +298,11 @@ def drive_for_model(record: BusRecord, artifact: ModelArtifact) -> BusRecord:
 
 
 def measurement_faults(record: BusRecord) -> int:
-    """The frame faults the log marks on Measurements frames (a delayed row's mark names its first frame, which is
-    its Measurements: the row still arrives whole)."""
-    fid = frame_id(MEASUREMENT_MESSAGE)
+    """The frame faults the log marks on measurement frames (Measurements, DriveVoltages; a delayed row's mark
+    names its first frame, which is its Measurements: the row still arrives whole)."""
+    ids = {frame_id(name) for name in MEASUREMENT_MESSAGES}
     return sum(1 for mark in record.marks
-               if mark.event == "fault" and mark.frame_id == fid and mark.fault in FRAME_FAULT_KINDS)
+               if mark.event == "fault" and mark.frame_id in ids and mark.fault in FRAME_FAULT_KINDS)
 
 
 def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarray, dict]:
@@ -323,7 +330,7 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         raise ValueError("the log has no complete RESET (ResetTemps1, ResetTemps2, Control RESET)")
     record = drive_for_model(record, artifact)
     drive, lost_rows = intended_drive(record, dataset)
-    measured = observed_column(record, artifact)
+    measured = observed_channels(record, artifact, drive)
     with np.errstate(over="ignore", invalid="ignore"):   # a model that overflows: judged below, not warned about
         refs = references(artifact, drive, record.initial, dataset, measured)
         clean = _clean_estimates(refs, record.rows, record.initial)   # the clean run's estimate after each row

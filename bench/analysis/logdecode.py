@@ -6,8 +6,9 @@ row nearest to the last row sent (mod 65536), so a row sent again (a retransmiss
 is a DriveInputs followed by the DriveTemps of the same Step, and in a log whose host sent the d/q currents (DBC
 1.4.0) the DriveCurrents of that Step right after them: such a log's drive matrix has six columns (torque, speed,
 coolant, ambient, i_d, i_q; NaN where a row's DriveCurrents never came intact), else four. A row's measurements
-(DBC 1.6.0, a model with an observer) are the VALID values of the Measurements frame of its Step that came right
-before its pair, as the target pairs them (`measurements`, NaN: none); the observer's per-step frames (each node's
+(DBC 1.6.0, a model with an observer) are the VALID values of the Measurements frame (and, DBC 1.7.0, the
+DriveVoltages frame) of its Step that came right before its pair, as the target pairs them (`measurements`, one
+column per `dbc.contract.MEASUREMENT_CHANNELS`, NaN: none); the observer's per-step frames (each node's
 1-sigma, the innovations) are collected like the timing frames (`observer`). The initial temperatures
 are those of the
 ResetTemps frames the session's RESET used. Frames that fail the DBC checks (unknown id, length, CRC, range)
@@ -15,7 +16,8 @@ are counted and skipped; the drive values of a row come from its frames that pas
 
 Segments: a Control START announced by a BenchEvent REINIT (the host re-initialized a lost target) starts a new
 segment of the same session at its Step's row, from the state vector of its RESTORE (an echoed StateCheckpoint,
-float32 bit for bit) or from the temperatures of its RESET. Replies belong to the
+float32 bit for bit, with the observer's echoed ObserverCheckpoint when its RestoreObserver frames came) or from
+the temperatures of its RESET. Replies belong to the
 segment the target was running when it sent them: the target's k-th transition into RUNNING (Status frames)
 starts segment k; so the late replies of a target that was frozen are told apart from the new segment's
 replies, even when they arrive after the host's RESET. Each segment keeps its own replies; the final reply of a
@@ -58,26 +60,28 @@ import numpy as np
 
 from dbc.codec import FrameValidator, decode_any
 from dbc.contract import (
+    CHANNEL_NAMES,
+    CHECKPOINT_STEP_LOW_MODULO,
     CURRENT_MESSAGE,
     CURRENT_SIGNALS,
     DRIVE_SIGNALS,
     FIRMWARE_TIMING_MESSAGE,
     INNOVATION_MESSAGE,
-    MEASUREMENT_MESSAGE,
-    MEASUREMENT_SLOTS,
+    MEASUREMENT_MESSAGES,
     REPLY_BIT,
     REPLY_COMPLETE,
     REPLY_SIGNALS,
     RESET_SIGNALS,
     RESPONSE_TIMING_MESSAGE,
+    RESTORE_OBSERVER_MESSAGE,
     STATE_SIZE,
     BenchEvent,
     Command,
     FaultKind,
     FrameError,
     TargetState,
+    channel_values,
     join_temperatures,
-    measurement_values,
     nearest_row,
     rx_error_counts,
     target_info,
@@ -99,6 +103,7 @@ class Segment:
     initial: np.ndarray | None              # [yoke, winding, tooth, magnet] of a RESET
     recovery: bool = False                  # started by a re-initialization (REINIT)
     state: np.ndarray | None = None         # float32 state vector of a RESTORE (then `initial` is None)
+    observer_checkpoint: dict | None = None  # a RESTORE's RestoreObserver elements {Index: value} (DBC 1.7.0)
     reply_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     reply_temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     reply_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -125,9 +130,10 @@ class BusRecord:
     foreign: dict[str, int] = field(default_factory=dict)      # frames that passed them but are not of this session
     initial: np.ndarray | None = None            # [yoke, winding, tooth, magnet] of the session's first RESET
     drive: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))   # (rows, 4), or 6 with the d/q currents
-    # (rows, one per measurement slot): the VALID values of the Measurements frame that came before each row's pair
-    # (NaN: none), and how many Measurements frames passed the checks (0: the host sent none)
-    measurements: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    # (rows, one per measurement channel, `dbc.contract.MEASUREMENT_CHANNELS`): the VALID values of the measurement
+    # frames (Measurements, DriveVoltages) that came before each row's pair (NaN: none), and how many such frames
+    # passed the checks (0: the host sent none)
+    measurements: np.ndarray = field(default_factory=lambda: np.zeros((0, len(CHANNEL_NAMES))))
     measurement_frames: int = 0
     sent_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
@@ -205,10 +211,11 @@ class _Grow:
 class _SegmentBuilder:
     """One segment's replies, by row - start_row, in columns."""
 
-    def __init__(self, start_row: int, initial, recovery: bool, state=None):
+    def __init__(self, start_row: int, initial, recovery: bool, state=None, observer_checkpoint=None):
         self.start_row = start_row
         self.initial = initial
         self.state = state
+        self.observer_checkpoint = observer_checkpoint
         self.recovery = recovery
         self.host_row = start_row - 1          # the last row sent in this segment
         self.temps = _Grow((STATE_SIZE,))
@@ -234,7 +241,7 @@ class _SegmentBuilder:
         n = self.size
         got, contested = self.got.data[:n], self.contested.data[:n]
         complete = np.flatnonzero((got == REPLY_COMPLETE) & ~contested)
-        return Segment(self.start_row, self.initial, self.recovery, self.state,
+        return Segment(self.start_row, self.initial, self.recovery, self.state, self.observer_checkpoint,
                        reply_rows=(complete + self.start_row).astype(np.int64),
                        reply_temps=self.temps.data[complete].astype(float),
                        reply_s=self.t.data[complete].copy(),
@@ -282,11 +289,14 @@ class _LogDecoder:
         self.pending_inputs: tuple[dict, float] | None = None   # a DriveInputs waiting for its DriveTemps
         self.pending_pair: tuple[int, int, dict] | None = None   # (Step, row, DriveTemps) of the last pair: its
         # DriveCurrents comes next
-        self.pending_measurement: tuple[int, list[float]] | None = None   # the last Measurements: (Step, values)
+        # the last frame of each measurement message: message -> (Step, {channel: value})
+        self.pending_measurement: dict[str, tuple[int, dict[str, float]]] = {}
         self.measurement_frames = 0
         self._new_rows()
         self.reset_frames: dict[str, dict] = {}
         self.restore_frames: dict[int, dict] = {}
+        self.restore_observer_frames: dict[int, dict] = {}
+        self.pending_observer: dict[int, float] | None = None
         self.pending_initial: np.ndarray | None = None
         self.pending_state: np.ndarray | None = None
         self.reinit_announced = False
@@ -300,7 +310,9 @@ class _LogDecoder:
         self.frame_ids = array("I")
         self.frame_bytes = bytearray()
         self.handlers = {"DriveInputs": self.drive_inputs, "DriveTemps": self.drive_temps,
-                         CURRENT_MESSAGE: self.drive_currents, MEASUREMENT_MESSAGE: self.measurement,
+                         CURRENT_MESSAGE: self.drive_currents,
+                         **dict.fromkeys(MEASUREMENT_MESSAGES, self.measurement),
+                         RESTORE_OBSERVER_MESSAGE: self.restore_observer,
                          **dict.fromkeys(REPLY_SIGNALS, self.temperatures),
                          **dict.fromkeys(_STEP_SERIES, self.timing_frame),
                          **dict.fromkeys(RESET_SIGNALS, self.reset_temps),
@@ -312,7 +324,7 @@ class _LogDecoder:
         """Forget the rows sent so far (a fresh session)."""
         self.drive = _Grow((len(DRIVE_SIGNALS),))
         self.currents = _Grow((len(CURRENT_SIGNALS),))      # row -> [i_d, i_q] of its DriveCurrents
-        self.measured = _Grow((len(MEASUREMENT_SLOTS),))    # row -> its Measurements' VALID values
+        self.measured = _Grow((len(CHANNEL_NAMES),))    # row -> its measurement frames' VALID values
         self.rows = 0                                        # 1 + the last row with a pair
 
     @staticmethod
@@ -381,9 +393,13 @@ class _LogDecoder:
         drive[row] = (inputs["MotorTorque"], inputs["MotorSpeed"], s["CoolantTemp"], s["AmbientTemp"])
         self.currents.ensure(row)[row] = np.nan     # a row sent again: its currents come again after this pair
         # the Measurements of this Step sent before the pair, as the target pairs them (none: NaN, predict only)
-        measured, self.pending_measurement = self.pending_measurement, None
-        self.measured.ensure(row)[row] = measured[1] if measured is not None and measured[0] == int(s["Step"]) \
-            else np.nan
+        measured, self.pending_measurement = self.pending_measurement, {}
+        values = self.measured.ensure(row)[row]
+        values[:] = np.nan
+        for at, channels in measured.values():
+            if at == int(s["Step"]):
+                for channel, value in channels.items():
+                    values[CHANNEL_NAMES.index(channel)] = value
         self.rows = max(self.rows, row + 1)
         self.pending_pair = (int(s["Step"]), row, s)
         segment.host_row = row
@@ -406,7 +422,7 @@ class _LogDecoder:
     def measurement(self, name: str, s: dict, t: float) -> None:
         """A row's measurements, kept until the pair of their Step (the row they go with) comes."""
         self.measurement_frames += 1
-        self.pending_measurement = (int(s["Step"]), measurement_values(s))
+        self.pending_measurement[name] = (int(s["Step"]), channel_values(name, s))
 
     def _reply_row(self, name: str, s: dict) -> tuple[_SegmentBuilder, int] | None:
         """The target's segment and the row a reply or timing frame names; None (counted foreign) when the host had
@@ -478,19 +494,26 @@ class _LogDecoder:
     def restore_state(self, name: str, s: dict, t: float) -> None:
         self.restore_frames[int(s["StateIndex"])] = s
 
+    def restore_observer(self, name: str, s: dict, t: float) -> None:
+        self.restore_observer_frames[int(s["Index"])] = s
+
     def control(self, name: str, s: dict, t: float) -> None:
         command = int(s["Command"])
         if command == Command.RESET:
             frames = self.reset_frames
             if len(frames) == len(RESET_SIGNALS) and all(f["Step"] == s["Step"] for f in frames.values()):
                 self.pending_initial = np.array(join_temperatures(frames, RESET_SIGNALS), dtype=float)
-                self.pending_state = None
+                self.pending_state = self.pending_observer = None
         elif command == Command.RESTORE:
             elements = [self.restore_frames[i]["StateValue"] for i in range(STATE_SIZE)
                         if i in self.restore_frames and self.restore_frames[i]["Step"] == s["Step"]]
             if len(elements) == STATE_SIZE:
                 self.pending_state, self.pending_initial = np.array(elements, dtype=np.float32), None
+                low = int(s["Step"]) % CHECKPOINT_STEP_LOW_MODULO
+                self.pending_observer = {i: f["Value"] for i, f in self.restore_observer_frames.items()
+                                         if f["StepLow"] == low}
             self.restore_frames = {}
+            self.restore_observer_frames = {}
         elif command == Command.START:
             self.start(int(s["Step"]))
         elif command == Command.STOP:
@@ -502,7 +525,8 @@ class _LogDecoder:
         self.record.stopped = False
         if self.reinit_announced and self.segments:
             start = self._row(self.segments[-1], step)
-            self.segments.append(_SegmentBuilder(start, self.pending_initial, True, self.pending_state))
+            self.segments.append(_SegmentBuilder(start, self.pending_initial, True, self.pending_state,
+                                                 self.pending_observer))
         else:
             self.base_step = step
             self.record.initial = self.pending_initial

@@ -212,6 +212,12 @@ def observer_section(obs) -> list[str]:
              _row("largest 1-σ, target (°C)", obs.sigma_max_C, 3), "",
              f"RMS of the innovations the target reported: {_fmt(obs.innovation_rms_C)} °C. The RMSEs are against "
              "the measured temperatures (– where the data has none).", ""]
+    if len(obs.measurements) > 1:     # several measurements per row: each one's share
+        lines += ["| measurement (slot) | node it sees | rows with a valid reading | model steps that used it | "
+                  "innovation RMS (°C) |", "|---|---|---|---|---|"]
+        lines += [f"| {slot} | {m.measured_node} | {m.rows_measured} | {m.model_steps_updated} | "
+                  f"{_fmt(m.innovation_rms_C)} |" for slot, m in obs.measurements.items()]
+        lines.append("")
     return lines
 
 

@@ -457,6 +457,16 @@ class Acceptance:
 
 
 @dataclass
+class SlotFigures:
+    """One measurement of an observer over CAN, by its Innovations slot."""
+
+    measured_node: str              # the node its reading sees (the flux linkage: the magnet)
+    rows_measured: int              # rows whose measurement frames carried its channels VALID
+    model_steps_updated: int        # model steps whose update used it (its Used flag)
+    innovation_rms_C: float | None
+
+
+@dataclass
 class ObserverResults:
     """The observer of a model with one (`target_sim.observer`): the node its measurement sees (its error there is
     not an estimate's: the filter is pulled towards that measurement), how often a model step used a measurement, the
@@ -473,6 +483,9 @@ class ObserverResults:
     innovation_rms_C: float | None
     open_loop_rmse_C: NodeValues
     observer_rmse_C: NodeValues
+    # per measurement (DBC 1.7.0: several per row), by slot; the fields above are the first one's (rows_measured
+    # and model_steps_updated: any measurement's)
+    measurements: dict[str, SlotFigures] = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------------------------------ results

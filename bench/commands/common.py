@@ -135,6 +135,10 @@ def print_summary(m: RunResults, problems: list[str], faults: HostFaults | Fault
                   f"{t} {fmt(obs.open_loop_rmse_C.get(t))}/{fmt(obs.observer_rmse_C.get(t))}" for t in temps
                   if obs.open_loop_rmse_C.get(t) is not None)
               + "; final 1-sigma (°C): " + ", ".join(f"{t} {fmt(obs.sigma_final_C.get(t))}" for t in temps))
+        if len(obs.measurements) > 1:
+            print("observer measurements: " + ", ".join(
+                f"{slot} ({m.measured_node}) used in {m.model_steps_updated} steps"
+                for slot, m in obs.measurements.items()))
     faults = faults or m.faults
     if faults:
         detected = faults.detected or {}

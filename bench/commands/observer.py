@@ -3,8 +3,11 @@
 The observer corrects the model's state with a temperature sensor of one node (default: the winding column
 winding_C, the winding node; a stator NTC column with --measure ntc_C). Its process noise Q (per node) and
 measurement noise R are tuned on the training files (`--criterion magnet`: the magnet's log MSE over every training
-file started with the magnet as measured, 30 K too warm and too cold; `likelihood`: the innovations' likelihood, the
-magnet reference a second measurement while tuning), and written into a copy of --model as its `observer` section
+file started with the magnet as measured, 30 K too warm and too cold; `nodes`: the same plus the winding's log MSE,
+with a steep penalty wherever the filter leaves the magnet worse than the open loop, so a winding sensor (an NTC)
+corrects the winding only as far as the magnet it cannot see stays no worse; `likelihood`: the innovations'
+likelihood, the magnet reference a second measurement while tuning), and written into a copy of --model as its
+`observer` section
 (artifact schema version 3; the target runs it in float32, `target_sim.observer`). Without --train, the built-in
 motor's training runs (20 and 60 °C in out/data, generated if missing) are used.
 

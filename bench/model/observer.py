@@ -192,7 +192,15 @@ def process_noise(model: FilterModel, q: np.ndarray) -> np.ndarray:
     return out
 
 
-TUNING_CRITERIA = ("magnet", "likelihood")
+TUNING_CRITERIA = ("magnet", "nodes", "likelihood")
+# what each criterion scores (log MSE against the lab's reference, summed): "nodes" adds the winding to the magnet
+SCORED_NODES = {"magnet": ("magnet",), "nodes": ("magnet", "winding")}
+# "nodes": the filter must not make the magnet worse than the open loop on any training file started as measured;
+# each unit of log MSE it does costs this much (the winding is then corrected only as far as the magnet allows)
+MAGNET_GUARD_WEIGHT = 200.0
+CAUTIOUS_DECADES = 4.0
+# "nodes" lets R grow further than LOG10_BOUNDS (a measurement barely used: the open loop within reach of the search)
+NODES_R_MAX_LOG10 = 6.0
 # the magnet criterion starts every training file with the magnet as measured and this much too warm and too cold
 TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
@@ -203,7 +211,10 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     """q (per state) and each measurement's R on the training files by Nelder-Mead over their log10 values,
     minimizing either
     - "magnet": the sum of log magnet MSE over every training file started with the magnet as measured and
-      `TUNING_START_OFFSETS_K` off (the deployed filter; the reference only scores it), or
+      `TUNING_START_OFFSETS_K` off (the deployed filter; the reference only scores it),
+    - "nodes": the same with the winding's log MSE added, and a steep penalty (`MAGNET_GUARD_WEIGHT`) on each file
+      whose magnet, started as measured, the filter makes worse than the open loop: a winding sensor then corrects
+      the winding only as far as that leaves the magnet (which it cannot see) no worse, or
     - "likelihood": the innovations' negative log-likelihood, with the magnet reference as one more measurement
       where every training file has it and no measurement already reads the magnet (its variance a nuisance)."""
     from scipy.optimize import minimize
@@ -228,23 +239,34 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
             return sum(float(_run(model, d, q, [r], p0_tuning).nll[0]) for d in data)
     else:
         magnet = OUTPUTS.index("magnet")
+        scored = [(OUTPUTS.index(node), "pm" if node == "magnet" else node) for node in SCORED_NODES[criterion]]
+        guarded = criterion == "nodes"
+        # the open loop's magnet log MSE per file from the measured start (the filter with no gain at all)
+        open_loop = [_log_mse(_run(model, d, process_noise(model, np.zeros(n))[None], [np.full(m_count, 1e30)], p0,
+                                   keep=True).estimates[0][:, magnet], d.run.ref_pm) for d in deployed] \
+            if guarded else []
 
         def score(q, r):
             total = 0.0
-            for d in deployed:
+            for index, d in enumerate(deployed):
                 for offset in TUNING_START_OFFSETS_K:
                     start = d.run.initial.copy()
                     start[magnet] += offset
                     shifted = FilterData(replace(d.run, initial=start), d.readings, d.measurements)
-                    estimate = _run(model, shifted, q, [r], p0, keep=True).estimates[0][:, magnet]
-                    total += float(np.log(np.mean((estimate - d.run.ref_pm) ** 2)))
+                    estimates = _run(model, shifted, q, [r], p0, keep=True).estimates[0]
+                    errors = {i: _log_mse(estimates[:, i], d.run.reference(ref)) for i, ref in scored}
+                    total += sum(errors.values())
+                    if guarded and offset == 0.0:   # a magnet worse than the open loop's: a steep penalty
+                        total += MAGNET_GUARD_WEIGHT * max(0.0, errors[magnet] - open_loop[index])
             return total
 
     calls = [0]
     low, high = LOG10_BOUNDS
 
+    r_high = NODES_R_MAX_LOG10 if criterion == "nodes" else high
+
     def cost(v):
-        v = np.clip(v, low, high)
+        v = np.concatenate([np.clip(v[:n], low, high), np.clip(v[n:], low, r_high)])
         total = score(process_noise(model, 10.0 ** v[:n])[None], 10.0 ** v[n:])
         calls[0] += 1
         if progress:
@@ -255,16 +277,33 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     start_r = [START_R_C2 if m.kind == "lagged-sensor" else 1.0 for m in measurements] + [START_R_C2] * int(
         use_reference)
     start = np.log10(start_q + start_r)
+    if criterion == "nodes":   # the search is local: begin where the guard is, of the default and a cautious start
+        start = min(_starts(start, n), key=cost)
     size = len(start)
     result = minimize(cost, start, method="Nelder-Mead",
                       options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-3,
                                "initial_simplex": start + np.vstack([np.zeros(size), np.eye(size)])})
-    best = np.clip(result.x, low, high)
+    best = np.concatenate([np.clip(result.x[:n], low, high), np.clip(result.x[n:], low, r_high)])
     q, r = 10.0 ** best[:n], 10.0 ** best[n: n + m_count]
     runs = [_run(model, d, process_noise(model, q)[None], [r], p0) for d in deployed]
     return ObserverFit(measurements, q, r, float(10.0 ** best[n + m_count]) if use_reference else None, criterion,
                        float(cost(best)), sum(float(x.nll[0]) for x in runs), sum(int(x.updates[0]) for x in runs),
                        calls[0], [str(d.path) for d in datasets], bias)
+
+
+def _starts(start: np.ndarray, n: int) -> list[np.ndarray]:
+    """Starting points of the search: the default, and one that trusts the measurements little (q / 10⁴, R · 10⁴,
+    up to `NODES_R_MAX_LOG10`: near the open loop, where a measurement that cannot help the magnet should end)."""
+    cautious = start.copy()
+    cautious[:n] -= CAUTIOUS_DECADES
+    cautious[n:] += CAUTIOUS_DECADES
+    cautious[:n] = np.clip(cautious[:n], *LOG10_BOUNDS)
+    cautious[n:] = np.clip(cautious[n:], LOG10_BOUNDS[0], NODES_R_MAX_LOG10)
+    return [start, cautious]
+
+
+def _log_mse(estimate: np.ndarray, reference: np.ndarray) -> float:
+    return float(np.log(np.mean((estimate - reference) ** 2)))
 
 
 def nominal_transition(artifact: ModelArtifact, model: FilterModel, datasets: Sequence[Dataset]) -> tuple:

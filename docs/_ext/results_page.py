@@ -429,7 +429,7 @@ def _tuning(run: dict) -> str:
     """A tuning criterion and what it found: Q per node (°C² per step) and R (°C²)."""
     t = run["tuning"]
     q = ", ".join(f"{node} {v:.2g}" for node, v in t["q_C2_per_step"].items())
-    default = " (default)" if run["criterion"] == "magnet" else ""
+    default = " (default)" if run["criterion"] == DEFAULT_CRITERION else ""
     return f"`{run['criterion']}`{default}: q {q}; R {t['R_C2']:.2g}"
 
 
@@ -463,6 +463,7 @@ def observer_builtin_table(record: Record) -> list[str]:
             + f". `bench observer` took {timing}; measured {_date(record)}.)"]
 
 
+DEFAULT_CRITERION = "magnet"   # `bench observer --criterion`'s default
 IPM_CASES = {"ntc": "(a) stator NTC", "flux": "(b) flux linkage", "ntc+flux": "(c) NTC + flux linkage"}
 
 
@@ -479,12 +480,15 @@ def observer_ipm_table(record: Record) -> list[str]:
                 + [" / ".join(_recovery(f, offset, f"{which}_s") for f in per_file) for offset in (30.0, -30.0)])
 
     rows = [["open loop", *cells(files, "open_loop")]]
-    rows += [[IPM_CASES.get(run.get("case"), run.get("case") or _tuning(run)), *cells(run["files"], "observer")]
+    criteria = list(dict.fromkeys(run["criterion"] for run in runs))
+    rows += [[IPM_CASES.get(run.get("case"), run.get("case") or _tuning(run))
+              + (f", `{run['criterion']}`" if len(criteria) > 1 else ""), *cells(run["files"], "observer")]
              for run in runs]
     worse = [f"{run.get('case')} profile {Path(f['file']).stem.removeprefix('profile_')}" for run in runs
              for f in run["files"] if f["nodes"]["pm"]["observer"]["rmse_C"] > f["nodes"]["pm"]["open_loop"]["rmse_C"]]
-    winding = "; ".join(f"{run.get('case')} " + ", ".join(_n(f["nodes"]["winding"]["observer"]["rmse_C"], 2)
-                                                         for f in run["files"]) for run in runs)
+    winding = "; ".join(f"{run.get('case')}{' ' + run['criterion'] if len(criteria) > 1 else ''} "
+                        + ", ".join(_n(f["nodes"]["winding"]["observer"]["rmse_C"], 2) for f in run["files"])
+                        for run in runs)
     open_winding = ", ".join(_n(f["nodes"]["winding"]["open_loop"]["rmse_C"], 2) for f in files)
     sensor = ipm["sensor"]
     flux = next((m for run in runs for m in run["tuning"].get("measurements", [])
@@ -498,14 +502,16 @@ def observer_ipm_table(record: Record) -> list[str]:
                        f"{_n(flux['residual_max_K'], 1)} K per 1 s step.")
     return [*_table(["measurement", *(f"magnet RMSE / max, profile {n}" for n in names),
                      f"+30 K within 2 K ({' / '.join(names)})", f"−30 K ({' / '.join(names)})"], rows),
-            f"(°C, float32, `{runs[0]['form']}` form, tuned with the magnet criterion; NTC: `--measure "
+            f"(°C, float32, `{runs[0]['form']}` form, tuned with the {' and '.join(f'`{c}`' for c in criteria)} "
+            f"criterion{'s' if len(criteria) > 1 else ''}; NTC: `--measure "
             f"{sensor['column']} --offset {sensor['offset_C']:g} --lag {sensor['lag_s']:g} --gradient "
             f"{sensor['gradient']:g}` (a lag state); \"never\": not within 2 K by the end of the profile. The "
             f"observer's magnet RMSE is worse than the open loop's in {len(worse)} of "
             f"{sum(len(r['files']) for r in runs)} cases{' (' + ', '.join(worse) + ')' if worse else ''}; winding "
             f"RMSE (profiles {', '.join(names)}): open loop {open_winding}; {winding}.{calibration} "
             f"`bench identify` {_n(ipm['identify_s'], 1)} s, `bench observer` "
-            + ", ".join(f"{r.get('case')} {_n(r['observer_s'], 1)} s" for r in runs)
+            + ", ".join(f"{r.get('case')}{' ' + r['criterion'] if len(criteria) > 1 else ''} "
+                        f"{_n(r['observer_s'], 1)} s" for r in runs)
             + f"; measured {_date(record)}.)"]
 
 

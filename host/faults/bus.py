@@ -85,7 +85,8 @@ class FaultyBus:
         # before that frame's, so a stale counter on the next frame would be the one it expects, undetectable
         self._behind: set[int] = set()
         self._foreign_ids: set[int] = set()
-        # index of each faultable frame in its row (0: DriveInputs, 1: DriveTemps, 2: DriveCurrents, 3: Measurements)
+        # index of each faultable frame in its row (0: DriveInputs, 1: DriveTemps, 2: DriveCurrents, 3: Measurements,
+        # 4: DriveVoltages)
         self._drive_index = {frame_id(name): i for i, name in enumerate(FAULTED_HOST_MESSAGES)}
 
     # ------------------------------------------------------------------ row context (from the lockstep loop)
@@ -147,7 +148,7 @@ class FaultyBus:
             return
         kind = faults.frame_kinds[index] if index < len(faults.frame_kinds) else None
         fid = msg.arbitration_id
-        if kind == "stale_counter" and fid in self._behind and index == MEASUREMENT_INDEX:
+        if kind == "stale_counter" and fid in self._behind and index >= MEASUREMENT_INDEX:
             kind = None   # it would carry the very counter the receiver expects after the frame it lost
         if kind is None or fid in self._witness:  # a drop's witness goes out intact: it shows the loss
             self._behind.discard(fid)

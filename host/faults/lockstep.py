@@ -236,7 +236,8 @@ class FaultLockstep:
         if checkpoint is None:
             session.reset(self.initial, step=0)
         else:
-            session.restore(checkpoint[1], step=step_of(s))
+            session.restore(checkpoint[1], step=step_of(s),
+                            observer=session.observer_checkpoints.get(checkpoint[0]))
         session.start(step=step_of(s))
         self.book.got[s:n + 1] = 0
         self.book.temps[s:n + 1] = np.nan

@@ -26,7 +26,8 @@ from dbc.contract import MEASUREMENT_MESSAGE
 from dbc.mutations import FAULTED_HOST_MESSAGES, pick, unit
 from host.faults.spec import FRAME_KINDS, PROCESS_KINDS, ROW_KINDS, FaultSpec, FaultSpecError
 
-MEASUREMENT_INDEX = FAULTED_HOST_MESSAGES.index(MEASUREMENT_MESSAGE)   # its place in RowFaults.frame_kinds
+# the place of the first measurement frame (Measurements; DriveVoltages after it) in RowFaults.frame_kinds
+MEASUREMENT_INDEX = FAULTED_HOST_MESSAGES.index(MEASUREMENT_MESSAGE)
 PROCESS_MIN_SPACING = 5        # rows between two process faults
 PROCESS_WINDOW = (0.1, 0.9)    # process faults fall in this part of the run
 
@@ -39,7 +40,7 @@ class RowFaults:
     pass_: int
     seed: int
     row_kind: str | None
-    frame_kinds: tuple[str | None, ...]   # DriveInputs, DriveTemps (, DriveCurrents (, Measurements))
+    frame_kinds: tuple[str | None, ...]   # DriveInputs, DriveTemps (, DriveCurrents (, Measurements, DriveVoltages))
 
     def draw(self, slot: int) -> float:
         """A further uniform number for this row and pass (bit positions, lengths, ...)."""
@@ -53,11 +54,12 @@ class RowFaults:
 class FaultPlan:
     """The faults of one run over `rows` data rows."""
 
-    def __init__(self, spec: FaultSpec, rows: int, frames_per_row: int = 2, measurements: bool = False):
+    def __init__(self, spec: FaultSpec, rows: int, frames_per_row: int = 2, measurements: int = 0):
         self.spec = spec
         self.rows = rows
         self.frames_per_row = frames_per_row   # the drive frames of a row: 2, or 3 with DriveCurrents
-        self.measurements = measurements       # the rows carry a Measurements frame (index MEASUREMENT_INDEX)
+        # measurement frames per row (1: Measurements, 2: and DriveVoltages; from index MEASUREMENT_INDEX on)
+        self.measurements = int(measurements)
         self._frame = [(k, spec.rates.get(k, 0.0)) for k in FRAME_KINDS if spec.rates.get(k, 0.0) > 0]
         self._row = [(k, spec.rates.get(k, 0.0)) for k in ROW_KINDS if spec.rates.get(k, 0.0) > 0]
         self.process_rows = self._process_rows()
@@ -96,7 +98,8 @@ class FaultPlan:
         if self.measurements:
             kinds += (None,) * (MEASUREMENT_INDEX - len(kinds))
             last = row == self.rows - 1
-            kinds += (None if last else pick(unit(seed, row, pass_, 1 + MEASUREMENT_INDEX), self._frame),)
+            kinds += tuple(None if last else pick(unit(seed, row, pass_, 1 + index), self._frame)
+                           for index in range(MEASUREMENT_INDEX, MEASUREMENT_INDEX + self.measurements))
         if all(kind is None for kind in kinds):
             return None
         return RowFaults(row, pass_, seed, None, kinds)

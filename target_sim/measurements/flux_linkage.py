@@ -17,8 +17,10 @@ import numpy as np
 from target_sim.artifact import OUTPUTS, decode_array
 from target_sim.measurements import MEASUREMENT_KINDS, MeasurementKind
 
-# raw channels in the order the host sends them
+# raw channels in the order the filter reads them: the dataset's columns, and over CAN the host's measurement
+# channels and the row's own values (`dbc.contract.MEASUREMENT_CHANNELS`, `ROW_CHANNELS`: DriveVoltages, DriveCurrents)
 COLUMNS = ("u_d_V", "u_q_V", "i_d_A", "i_q_A")
+CAN_CHANNELS = ("u_d", "u_q", "i_d", "i_q")
 PARAMETERS = ("psi_0_Vs", "alpha_B_per_K", "theta_0_C", "L_d_H", "R_s_ohm", "alpha_cu_per_K", "copper_reference_C",
               "pole_pairs", "speed_min_rpm", "R_floor_C2", "R_speed_C2")
 RAD_S_PER_RPM = 2.0 * math.pi / 60.0
@@ -32,6 +34,7 @@ class FluxLinkage:
             setattr(self, key, decode_array(arrays[key], f"{where}.arrays.{key}", f)[()])
         self.name = str(entry.get("name", "flux"))
         self.columns = COLUMNS
+        self.can_channels = CAN_CHANNELS
         self.sees = np.zeros(len(OUTPUTS), dtype=f)
         self.sees[OUTPUTS.index("magnet")] = f(1.0)
         self.lag_pole = f(0.0)

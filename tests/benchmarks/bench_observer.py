@@ -1,13 +1,14 @@
 """Observer benchmark (prints figures; not a test): open loop against the Kalman observer, run as a user runs it.
 
-    python tests/benchmarks/bench_observer.py [--skip-ipm] [--work DIR]
+    python tests/benchmarks/bench_observer.py [--skip-ipm] [--work DIR] [--criterion NAME ...]
 
 1. The built-in motor, packaged Hammerstein artifact, the winding thermocouple `winding_C` as the measurement:
-   `bench observer --criterion magnet --out M` (tuned on the 20 and 60 °C runs), then `bench evaluate --model M
+   `bench observer --criterion C --out M` (tuned on the 20 and 60 °C runs; C each of --criterion, default `nodes`:
+   the winding and magnet, the magnet no worse than the open loop), then `bench evaluate --model M
    --data out/data/cycle_coolant40.csv` (open loop and observer per node, float32, and the time until a magnet
    started ±30 K off stays within 2 K). (The built-in motor's files have no voltage columns: no flux linkage.)
 2. The 60 kW IPM example (`docs/tutorials/own-motor.md`): `bench data --motor`, `bench identify` (the Hammerstein
-   model on profiles 1-8), then three observers tuned on profiles 1-8 (magnet criterion) and evaluated on the
+   model on profiles 1-8), then three observers tuned on profiles 1-8 (each criterion) and evaluated on the
    held-out profiles 9 and 10: (a) the stator NTC (`--measure ntc_C` with the offset, lag and gradient of the
    motor file's `stator_ntc` sensor: a lag state), (b) the flux linkage (`--measure none --flux`, ψ_0 and α_B
    calibrated on profiles 1-8), (c) both; and `bench numerics --observer` of (c) on profile 9 (each covariance
@@ -31,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[2]
 from bench_accuracy import HELD_OUT, IPM, bench  # noqa: E402
 from record import Record, add_record_arguments  # noqa: E402
 
-CRITERIA = ("magnet",)
+CRITERIA = ("nodes",)      # the default of --criterion
 BUILTIN_VALIDATION = "out/data/cycle_coolant40.csv"
 EVALUATIONS = "150"      # Nelder-Mead converges within about 100-150 filter runs on these files
 NUMERICS_CASE = "ntc+flux"     # the IPM filter whose covariance forms the method page compares
@@ -91,18 +92,18 @@ def _public(run: dict) -> dict:
     return {k: v for k, v in run.items() if k != "model"}
 
 
-def builtin_motor(work: Path) -> dict:
-    runs = [tune_and_evaluate(work, c, [], ["--data", BUILTIN_VALIDATION], "built-in") for c in CRITERIA]
+def builtin_motor(work: Path, criteria: tuple[str, ...]) -> dict:
+    runs = [tune_and_evaluate(work, c, [], ["--data", BUILTIN_VALIDATION], "built-in") for c in criteria]
     return {"validation": Path(BUILTIN_VALIDATION).name, "runs": [_public(r) for r in runs]}
 
 
-def numerics(model: Path, data: str) -> dict:
+def numerics(model: Path, data: str, criterion: str) -> dict:
     forms, numerics_s = bench("numerics", "--observer", "--model", str(model), "--data", data, "--mapping",
                               str(IPM / "mapping.json"))
     for row in forms["rows"]:
         print(f"IPM {row['form']:13}: min eig P {row['min_eigenvalue']:.4g}, max |P-Pᵀ|/|P| "
               f"{row['max_symmetry_error']:.1e}, max |f32 - f64| {row['max_abs_f32_minus_f64_C']:.1e} °C")
-    return {"case": NUMERICS_CASE, "criterion": "magnet", "data": Path(forms["data"]).name,
+    return {"case": NUMERICS_CASE, "criterion": criterion, "data": Path(forms["data"]).name,
             "realization": forms["realization"], "dt_s": forms["dt"], "deployed_form": forms["deployed_form"],
             "rows": forms["rows"], "seconds": round(numerics_s, 1)}
 
@@ -132,7 +133,7 @@ def ipm_cases(sensor: dict) -> dict[str, list[str]]:
     return {"ntc": ntc, "flux": ["--measure", "none", "--flux"], "ntc+flux": [*ntc, "--flux"]}
 
 
-def ipm_example(work: Path) -> dict:
+def ipm_example(work: Path, criteria: tuple[str, ...]) -> dict:
     motor, mapping = str(IPM / "motor.json"), str(IPM / "mapping.json")
     data = work / "ipm"
     _, data_s = bench("data", "--motor", motor, "--out", str(data), "--quiet")
@@ -142,30 +143,33 @@ def ipm_example(work: Path) -> dict:
                           "--validate", *held_out, "--out", str(data / "model.json"))
     sensor = ntc_sensor()
     common = ["--model", str(data / "model.json"), "--train", train, "--mapping", mapping]
-    runs = [tune_and_evaluate(data, "magnet", [*common, *args], ["--mapping", mapping, "--data", *held_out], "IPM",
-                              case) for case, args in ipm_cases(sensor).items()]
+    runs = [tune_and_evaluate(data, criterion, [*common, *args], ["--mapping", mapping, "--data", *held_out], "IPM",
+                              case) for criterion in criteria for case, args in ipm_cases(sensor).items()]
     print(f"IPM example: bench data {data_s:.1f} s, bench identify {identify_s:.1f} s")
-    model = next(r["model"] for r in runs if r["case"] == NUMERICS_CASE)
+    model = next(r["model"] for r in runs if r["case"] == NUMERICS_CASE and r["criterion"] == criteria[0])
     return {"held_out": list(HELD_OUT), "sensor": {"column": "ntc_C", "offset_C": sensor["offset"],
                                                    "lag_s": sensor["lag_s"], "gradient": sensor.get("gradient")},
             "data_s": round(data_s, 1), "identify_s": round(identify_s, 1), "runs": [_public(r) for r in runs],
-            "numerics": numerics(model, held_out[0])}
+            "numerics": numerics(model, held_out[0], criteria[0])}
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--skip-ipm", action="store_true", help="only the built-in motor")
     parser.add_argument("--work", type=Path, default=None, help="keep the artifacts and the IPM example's files here")
+    parser.add_argument("--criterion", nargs="+", default=list(CRITERIA),
+                        help=f"tuning criteria to run (default {' '.join(CRITERIA)})")
     add_record_arguments(parser)
     args = parser.parse_args()
-    record = Record("observer", args, parameters={"ipm": not args.skip_ipm, "criteria": list(CRITERIA)})
+    criteria = tuple(args.criterion)
+    record = Record("observer", args, parameters={"ipm": not args.skip_ipm, "criteria": list(criteria)})
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory(prefix="bench-observer-") as tmp:
         work = (args.work or Path(tmp)).resolve()
         work.mkdir(parents=True, exist_ok=True)
-        record.figures["builtin"] = builtin_motor(work)
+        record.figures["builtin"] = builtin_motor(work, criteria)
         if not args.skip_ipm:
-            record.figures["ipm"] = ipm_example(work)
+            record.figures["ipm"] = ipm_example(work, criteria)
     record.write()
     return 0
 

@@ -83,6 +83,7 @@ def test_the_drive_sample_period_is_the_row_messages_cycle_time():
 def test_the_messages_whose_step_is_their_data_row():
     from dbc.database import row_step_messages
 
-    assert row_step_messages() == ("DriveInputs", "DriveTemps", "DriveCurrents", "Measurements", "Temperatures1",
+    assert row_step_messages() == ("DriveInputs", "DriveTemps", "DriveCurrents", "Measurements", "DriveVoltages",
+                                   "Temperatures1",
                                    "Temperatures2", "Timing1", "Timing2", "Timing3", "Timing4", "Timing5",
                                    "StateCheckpoint", "Uncertainty1", "Uncertainty2", "Innovations")

@@ -237,7 +237,7 @@ def test_unknown_ids_extended_remote_error_fd_and_own_frames():
     target = FrameValidator("TARGET")
     cases = {
         "unlisted": can.Message(arbitration_id=0x7FF, is_extended_id=False, data=msg.data),
-        "unused": can.Message(arbitration_id=0x114, is_extended_id=False, data=msg.data),
+        "unused": can.Message(arbitration_id=0x115, is_extended_id=False, data=msg.data),
         "extended": can.Message(arbitration_id=msg.arbitration_id, is_extended_id=True, data=msg.data),
         "remote": can.Message(arbitration_id=msg.arbitration_id, is_extended_id=False, is_remote_frame=True, dlc=8),
         "error": can.Message(arbitration_id=0, is_error_frame=True, data=msg.data),

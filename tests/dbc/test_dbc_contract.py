@@ -32,6 +32,9 @@ UNITLESS = E2E_SIGNALS | {
     "FluxMagnetStatus",
     "SensorUsed",
     "FluxMagnetUsed",
+    "VoltageStatus",
+    "Index",
+    "Value",
 }
 ENUMS = {
     "Command": dbc.Command,
@@ -42,6 +45,7 @@ ENUMS = {
     "FaultKind": dbc.FaultKind,
     "SensorStatus": dbc.contract.MeasurementStatus,
     "FluxMagnetStatus": dbc.contract.MeasurementStatus,
+    "VoltageStatus": dbc.contract.MeasurementStatus,
 }
 
 
@@ -51,7 +55,7 @@ def app_signals(message):
 
 def test_loads_with_strict_checks_and_is_ascii():
     database = cantools.database.load_file(DBC_PATH, strict=True)
-    assert len(database.messages) == 23
+    assert len(database.messages) == 26
     DBC_PATH.read_bytes().decode("ascii")  # cantools reads DBC files as cp1252: keep them plain ASCII
 
 
@@ -299,7 +303,8 @@ def test_version_1_5_names_every_signal_once_and_says_so():
     names = [s.name for m in MESSAGES for s in m.signals]
     assert len(names) == len(set(names)), sorted({n for n in names if names.count(n) > 1})
     carriers = [m.name for m in MESSAGES if any(s.name == f"{m.name}_Step" for s in m.signals)]
-    assert len(carriers) == 20 and "Status" not in carriers   # 15 in 1.5.0; 1.6.0: Timing5, 4 observer frames
+    assert len(carriers) == 21 and "Status" not in carriers   # 15 in 1.5.0; 1.6.0: Timing5, 4 observer frames;
+    # 1.7.0: DriveVoltages (the observer checkpoint's frames name their row by StepLow)
     for name in ("RestoreState", "StateCheckpoint"):
         layout = contract().by_name[name]
         assert [(s.name, s.dbc_name) for s in layout.signals] == [
@@ -333,6 +338,28 @@ def test_version_1_6_also_adds_the_observer_frames_and_one_history_names_both():
     assert ids == {"Measurements": 0x113, "Uncertainty1": 0x240, "Uncertainty2": 0x241, "Innovations": 0x242,
                    "Timing5": 0x226}
     network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
-    history = network.split("History: ", 1)[1].split("; 1.5.0", 1)[0]
-    assert history.startswith("1.6.0 added Timing5") and "Measurements" in history and "Innovations" in history
-    assert network.count("1.6.0") == 1
+    history = network.split("; 1.6.0 added Timing5", 1)[1].split("; 1.5.0", 1)[0]
+    assert "Measurements" in history and "Innovations" in history
+    assert network.count("1.6.0") == 2     # its own entry, and 1.7.0's "the frames of 1.6.0 unchanged"
+
+
+def test_version_1_7_adds_the_voltages_and_the_observer_checkpoint_and_says_so():
+    """1.7.0: DriveVoltages (host: the d/q voltages of a row with one status, for a target that computes the flux
+    linkage itself) and the observer's checkpoint (ObserverCheckpoint from the target, RestoreObserver from the
+    host: an 8-bit element index, the Step mod 4096 and an IEEE float value), new frames only."""
+    assert dbc.dbc_version_info()[:2] >= (1, 7)
+    voltages = contract().by_name["DriveVoltages"]
+    assert (voltages.frame_id, voltages.sender, voltages.data_id, voltages.cycle_time_ms) == (0x114, "HOST", 0x14, 200)
+    assert [(s.name, s.start, s.length) for s in voltages.signals] == [
+        ("Step", 12, 16), ("VoltageD", 28, 16), ("VoltageQ", 44, 16), ("VoltageStatus", 60, 2)]
+    assert signal("DriveVoltages", "VoltageD").scale == 0.01 and signal("DriveVoltages", "VoltageQ").unit == "V"
+    for name, fid, sender, data_id in (("ObserverCheckpoint", 0x234, "TARGET", 0x34),
+                                       ("RestoreObserver", 0x104, "HOST", 0x04)):
+        layout = contract().by_name[name]
+        assert (layout.frame_id, layout.sender, layout.data_id) == (fid, sender, data_id)
+        assert [(s.name, s.start, s.length) for s in layout.signals] == [
+            ("Index", 12, 8), ("StepLow", 20, 12), ("Value", 32, 32)]
+        assert 1 << 12 == dbc.contract.CHECKPOINT_STEP_LOW_MODULO
+    network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
+    history = network.split("History: ", 1)[1]
+    assert history.startswith("1.7.0 added DriveVoltages") and "ObserverCheckpoint" in history.split("; 1.6.0")[0]

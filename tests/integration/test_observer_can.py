@@ -186,17 +186,19 @@ def _uncarried(artifact, tmp_path, what: str):
 @pytest.mark.parametrize("what", ["flux", "two"])
 def test_an_observer_the_frames_cannot_carry_is_refused_before_any_work(what, observer_artifact, small_dataset,
                                                                          tmp_path, capsys):
-    """Over CAN the host sends one temperature per slot: a version 2 observer of exactly one lagged sensor runs (the
-    clean run above), one that reads the flux linkage from u_d, u_q, i_d, i_q or has two measurements is refused by
-    `bench run`, `bench host` and the target in one sentence, exit 2, with nothing written, not run wrongly."""
+    """Over CAN each measurement answers in its own Innovations slot, and the target computes the flux linkage from
+    the row's voltages (DriveVoltages) and currents (DriveCurrents): a flux linkage on a loss-map model (its rows
+    carry no currents) or two sensors in one slot is refused by `bench run`, `bench host` and the target in one
+    sentence, exit 2, with nothing written, not run wrongly."""
     from target_sim.observer_node import can_refusal
 
     artifact = load_artifact(observer_artifact)
     assert artifact.content["observer"]["version"] == 2 and can_refusal(artifact) is None
     path, model = _uncarried(artifact, tmp_path, what)
-    what_it_has = ("a flux-linkage measurement of 4 raw channels" if what == "flux" else "2 measurements")
-    sentence = (f"model {model.model_id:08x} ({path}) has an observer with {what_it_has}, and the Measurements "
-                "frame carries one temperature per slot")
+    sentence = (f"model {model.model_id:08x} ({path}) has an observer that measures the flux linkage from the d/q "
+                "currents, and its" if what == "flux" else
+                f"model {model.model_id:08x} ({path}) has an observer whose measurements "
+                f"{model.content['observer']['measurements'][0]['name']}, second would all answer in the sensor slot")
     assert can_refusal(model).startswith(sentence)
     out = tmp_path / "out"
     for argv in (["run", "--model", str(path), "--data", str(small_dataset), "--log", str(out / "run.blf"),

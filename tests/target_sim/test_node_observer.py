@@ -26,7 +26,7 @@ from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
 from target_sim.node import TargetNode
 from target_sim.observer import run_observer_offline
-from target_sim.observer_node import observer_slot
+from target_sim.observer_node import measurement_slots
 
 from helpers import SESSION_INITIAL, session_drive, session_frames
 
@@ -72,27 +72,28 @@ def the_targets_measurement(values: np.ndarray) -> np.ndarray:
     """A column as the target decodes it from Measurements (0.01 °C steps; NaN where absent)."""
     out = []
     for value in values:
-        frame = FrameCodec("HOST").encode("Measurements", measurement_signals(0, [value, math.nan]))
+        frame = FrameCodec("HOST").encode("Measurements", measurement_signals(0, [value, math.nan])["Measurements"])
         out.append(np.nan if math.isnan(value) else decode_any(frame).signals["SensorTemp"])
     return np.array(out)
 
 
 def test_the_observer_reads_the_sensor_slot(observed):
-    assert observer_slot(observed) == "sensor" and MEASUREMENT_SLOTS == ("sensor", "flux")
+    assert measurement_slots(observed) == ["sensor"] and MEASUREMENT_SLOTS == ("sensor", "flux")
 
 
 def test_measurement_frames_carry_a_status_per_slot():
-    signals = measurement_signals(7, [45.678, math.nan])
+    (signals,) = measurement_signals(7, [45.678, math.nan]).values()
     assert signals == {"Step": 7, "SensorTemp": 45.678, "SensorStatus": MeasurementStatus.VALID,
                        "FluxMagnetTemp": -50.0, "FluxMagnetStatus": MeasurementStatus.ABSENT}
-    assert measurement_signals(7, [700.0, -60.0])["SensorStatus"] == MeasurementStatus.INVALID
+    assert measurement_signals(7, [700.0, -60.0])["Measurements"]["SensorStatus"] == MeasurementStatus.INVALID
     frame = FrameCodec("HOST").encode("Measurements", signals)
     assert frame.arbitration_id == 0x113 and frame.dlc == 8
     d = decode_any(frame)
     assert d.signals["SensorTemp"] == pytest.approx(45.68) and d.signals["SensorStatus"] == 1
-    from dbc.contract import measurement_values
+    from dbc.contract import channel_values
 
-    assert measurement_values(d.signals)[0] == pytest.approx(45.68) and math.isnan(measurement_values(d.signals)[1])
+    values = channel_values("Measurements", d.signals)
+    assert values["sensor"] == pytest.approx(45.68) and math.isnan(values["flux"]) and set(values) == {"sensor", "flux"}
     # a row's frames: Measurements first, then DriveInputs and DriveTemps of the same Step
     names = [decode_any(f).name for f in encode_row(FrameCodec("HOST"), 3, [1.0, 100.0, 40.0, 25.0], [40.0, 60.0])]
     assert names == ["Measurements", "DriveInputs", "DriveTemps"]
@@ -149,7 +150,8 @@ def test_a_lost_or_bad_measurement_frame_is_counted_and_the_filter_predicts_only
 
     def frames(host, row):
         if row == hit and fault == "other_step":   # a valid frame, in sequence, naming another row
-            wrong = host.encode("Measurements", measurement_signals(row + 5, measurements[row].tolist()))
+            signals = measurement_signals(row + 5, measurements[row].tolist())["Measurements"]
+            wrong = host.encode("Measurements", signals)
             return [wrong, *encode_row(host, row, drive[row].tolist())]
         out = encode_row(host, row, drive[row].tolist(), measurements[row].tolist())
         if row != hit:
