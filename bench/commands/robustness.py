@@ -105,6 +105,7 @@ def _inputs(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from bench.robustness.cases import StudyInput, model_cases
+    from bench.robustness.channels import observer_description
     from bench.robustness.kinds import PERTURBATIONS
     from bench.robustness.report import write_report
     from bench.robustness.spec import load_spec
@@ -144,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
     info = {"name": spec.name, "description": spec.description, "seeds": spec.seeds, "seed": spec.seed,
             "spec": str(args.spec) if args.spec else None, "rows": args.rows,
             "models": [str(p) for p, _ in models], "data": [str(Path(d.path).resolve()) for d in datasets],
-            "sample_periods": {str(Path(d.path).resolve()): d.sample_period_s for d in datasets}}
+            "sample_periods": {str(Path(d.path).resolve()): d.sample_period_s for d in datasets},
+            "observers": {str(p): observer_description(a) for p, a in models if observer_description(a)}}
     with CaseStore(out / TABLE_NAME, create=True) as store:
         store.set_meta({"study": json.dumps(info), "spec_text": spec.text,
                         "case_ids": json.dumps([c.case_id for c in cases])})   # the report's cases, in order
