@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.robustness.channels import lane_columns, measurement_columns
 from target_sim.artifact import ModelArtifact
 from target_sim.model import Float32Estimator
 from target_sim.observer import Float32Observer
@@ -98,10 +99,13 @@ def run_lanes(artifact: ModelArtifact, lanes: list[LaneSteps], initial: np.ndarr
 
 def run_observer_lanes(artifact: ModelArtifact, lanes: list[LaneSteps], initial: np.ndarray) -> list[np.ndarray]:
     """Each lane's (steps, 4) float32 estimates of the artifact's observer (its deployed form): the interval means
-    hold the drive columns, then the measurement columns (NaN: no reading that step, predict only), as
-    `target_sim.observer.run_observer_offline` accumulates them. The observer keeps one covariance per trajectory,
-    so the lanes run one after the other."""
+    hold the lane columns (`channels.lane_columns`: the drive's, then the measurement columns it lacks); the
+    measurements' raw channels are picked from them in the observer's order (NaN: no reading that step, predict
+    only), as `target_sim.observer.run_observer_offline` accumulates them. The observer keeps one covariance per
+    trajectory, so the lanes run one after the other."""
     width = len(artifact.drive_signals)
+    columns = lane_columns(artifact)
+    raw = np.array([columns.index(c) for c in measurement_columns(artifact)], dtype=np.int64)
     out = []
     with np.errstate(over="ignore", invalid="ignore"):   # a diverging lane is a result, not a warning
         for index, lane in enumerate(lanes):
@@ -109,6 +113,6 @@ def run_observer_lanes(artifact: ModelArtifact, lanes: list[LaneSteps], initial:
             observer.reset(np.asarray(initial, dtype=np.float64)[:, index])
             estimates = np.empty((len(lane.means), 4), dtype=F32)
             for k, means in enumerate(lane.means):
-                estimates[k] = observer.step(*means[:width], z=means[width:])
+                estimates[k] = observer.step(*means[:width], z=means[raw])
             out.append(estimates)
     return out
