@@ -12,7 +12,10 @@ when it ends; a case whose worker died is retried once; --resume skips the cases
 end OUT/report/ holds robustness.json, report.md (the sensitivity table per node: Δ RMSE and Δ max |error| vs the
 clean run with the Monte Carlo spread, the three perturbations that move each node most, the worst case, the
 filtering trade-off), a tornado plot per node and the filtering plot. Default data: the built-in motor's 40 °C
-validation run; default model: the packaged hammerstein artifact.
+validation run; default model: the packaged hammerstein artifact. A model with an observer (`bench observer`)
+runs open loop and observer side by side on the same perturbed inputs, its measurement channels (ntc_C,
+winding_C, u_d_V, u_q_V) perturbed like any input (a dropped sample: no reading); see
+examples/robustness/observer.toml.
 
 Exit status 0 when every case is done (a diverged model is a result); 1 when a case failed; 2 for a bad argument
 or a bad spec; SIGINT/SIGTERM leave every row written whole (resume with --resume).

@@ -123,3 +123,19 @@ def test_a_study_with_an_observer_reports_both_side_by_side(tmp_path, observer_a
     assert "### winding (measured by the observer)" in md and "With the observer:" in md
     assert "open loop: Δ RMSE °C" in md and "observer: Δ RMSE °C" in md
     assert "lagged-sensor (winding_C) of the winding" in md
+
+
+@pytest.mark.parametrize("points", [-5.0, 5.0])
+def test_the_split_moves_by_points_of_the_iron_loss(points):
+    from bench.model.artifact_values import artifact_parameters
+    from bench.model.default import default_artifact_path
+    from bench.robustness.models import perturbed_model
+
+    artifact = load_artifact(default_artifact_path())
+    old = artifact_parameters(artifact)
+    new = artifact_parameters(perturbed_model(artifact, "k_split", points))
+    assert new.k_0 == pytest.approx(old.k_0 + points / 100.0, abs=1e-12)
+    assert (new.k_1, new.k_2, new.k_3) == (old.k_1, old.k_2, old.k_3)
+    assert PERTURBATIONS["parameter"].unit(artifact, "k_split") == "points"
+    assert PERTURBATIONS["parameter"].defaults(artifact, "k_split") == (-5.0, 5.0)
+    assert PERTURBATIONS["parameter"].defaults(artifact, "C_w") == (-10.0, 10.0)
