@@ -12,7 +12,10 @@ when it ends; a case whose worker died is retried once; --resume skips the cases
 end OUT/report/ holds robustness.json, report.md (the sensitivity table per node: Δ RMSE and Δ max |error| vs the
 clean run with the Monte Carlo spread, the three perturbations that move each node most, the worst case, the
 filtering trade-off), a tornado plot per node and the filtering plot. Default data: the built-in motor's 40 °C
-validation run; default model: the packaged hammerstein artifact.
+validation run; default model: the packaged hammerstein artifact. A model with an observer (`bench observer`)
+runs open loop and observer side by side on the same perturbed inputs, its measurement channels (ntc_C,
+winding_C, u_d_V, u_q_V) perturbed like any input (a dropped sample: no reading); see
+examples/robustness/observer.toml.
 
 Exit status 0 when every case is done (a diverged model is a result); 1 when a case failed; 2 for a bad argument
 or a bad spec; SIGINT/SIGTERM leave every row written whole (resume with --resume).
@@ -105,6 +108,7 @@ def _inputs(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from bench.robustness.cases import StudyInput, model_cases
+    from bench.robustness.channels import observer_description
     from bench.robustness.kinds import PERTURBATIONS
     from bench.robustness.report import write_report
     from bench.robustness.spec import load_spec
@@ -144,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
     info = {"name": spec.name, "description": spec.description, "seeds": spec.seeds, "seed": spec.seed,
             "spec": str(args.spec) if args.spec else None, "rows": args.rows,
             "models": [str(p) for p, _ in models], "data": [str(Path(d.path).resolve()) for d in datasets],
-            "sample_periods": {str(Path(d.path).resolve()): d.sample_period_s for d in datasets}}
+            "sample_periods": {str(Path(d.path).resolve()): d.sample_period_s for d in datasets},
+            "observers": {str(p): observer_description(a) for p, a in models if observer_description(a)}}
     with CaseStore(out / TABLE_NAME, create=True) as store:
         store.set_meta({"study": json.dumps(info), "spec_text": spec.text,
                         "case_ids": json.dumps([c.case_id for c in cases])})   # the report's cases, in order

@@ -2,6 +2,8 @@
 parameter case) run on all of them at once in the target's float32 code (`bench.robustness.lanes`), and each lane's
 RMSE and max |error| per measured node against the data's reference. A lane whose estimate leaves the numbers
 (not finite, or beyond ±1000 °C) diverged: it gives no figure, the case says how many lanes diverged and why.
+With an observer artifact the same lanes (its measurement columns perturbed like any input) also run through the
+target's float32 observer: open loop and observer side by side in one case.
 """
 
 from __future__ import annotations
@@ -22,10 +24,12 @@ from bench.model.fileeval import OUTPUT_INDEX, measured_nodes
 from bench.model.metrics import max_abs_error, rmse
 from bench.model.runs import drive_matrix, initial_temperatures
 from bench.robustness.cases import CLEAN, FILTER_PREFIX
+from bench.robustness.channels import channel_index, observer_columns
 from bench.robustness.filters import apply_filter
 from bench.robustness.kinds import PERTURBATIONS, Lane
-from bench.robustness.lanes import jittered_steps, nominal_steps, run_lanes
+from bench.robustness.lanes import jittered_steps, nominal_steps, run_lanes, run_observer_lanes
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
+from target_sim.observer import has_observer
 
 DIVERGED_ABOVE_C = 1000.0     # a temperature estimate beyond ±1000 °C has left every motor's range: diverged
 
@@ -83,7 +87,9 @@ def lane_metrics(estimate: np.ndarray, end_s: np.ndarray, dataset, nodes: list[s
 
 
 def build_lanes(task: dict[str, Any], artifact: ModelArtifact, dataset) -> list[Lane]:
-    drive = drive_matrix(dataset, artifact.drive_signals).astype(np.float64)
+    """The case's lanes: the drive columns, then the observer's measurement columns (`channels.lane_columns`)."""
+    extra = [dataset.column(c) for c in observer_columns(artifact)]
+    drive = np.column_stack([drive_matrix(dataset, artifact.drive_signals), *extra]).astype(np.float64)
     base = Lane(drive, initial_temperatures(dataset), dataset.sample_period_s, artifact.dt)
     kind, subject, magnitude = task["kind"], task["subject"], task["magnitude"]
     if kind == CLEAN:
@@ -93,8 +99,6 @@ def build_lanes(task: dict[str, Any], artifact: ModelArtifact, dataset) -> list[
         lanes = [noise.apply(base, artifact, subject, magnitude, lane_rng(task["seed"], "noise", subject,
                                                                           magnitude, i))
                  for i in range(task["lanes"])] + [base]
-        from bench.robustness.channels import channel_index
-
         index = channel_index(artifact, subject)
         return [lane.with_column(index, apply_filter(kind.removeprefix(FILTER_PREFIX), lane.drive[:, index],
                                                      task["tau_s"], lane.sample_period_s).astype(np.float64))
@@ -105,29 +109,39 @@ def build_lanes(task: dict[str, Any], artifact: ModelArtifact, dataset) -> list[
             for i in range(task["lanes"])]
 
 
+def lane_set(estimates: list[np.ndarray], steps, dataset, nodes: list[str]) -> dict[str, Any]:
+    """{outcome: ok | diverged, reason, lanes} of one estimator's lanes (the open loop's or the observer's)."""
+    metrics = [lane_metrics(y, s.end_s, dataset, nodes) for y, s in zip(estimates, steps, strict=True)]
+    diverged = sum(m is None for m in metrics)
+    reason = f"the estimate left ±{DIVERGED_ABOVE_C:g} °C or became NaN in {diverged} of {len(metrics)} lane(s)"
+    return {"outcome": "diverged" if diverged else "ok", "reason": reason if diverged else None, "lanes": metrics}
+
+
 def run_case(task: dict[str, Any]) -> dict[str, Any]:
-    """{outcome: ok | diverged, reason, lanes: [per-lane {node: {rmse, max_abs}} or None]} of one case."""
+    """{outcome: ok | diverged, reason, lanes: [per-lane {node: {rmse, max_abs}} or None], nodes} of the open loop;
+    with an observer artifact also `observer`: the same of the observer on the same lanes."""
     source = task["source"]
     artifact = study_artifact(source["model_path"], source["model_sha256"])
     dataset = study_dataset(source["data_path"], source["data_sha256"], source["mapping"],
                             source["sample_period_s"], source["rows"])
     nodes = [n for n in OUTPUT_INDEX if n in measured_nodes(dataset)]
+    observed = has_observer(artifact)
     kind = task["kind"]
     if kind in PERTURBATIONS:
         try:
             artifact = PERTURBATIONS[kind].model(artifact, task["subject"], task["magnitude"])
         except ArtifactError as exc:       # the perturbed model is refused: it would not run on the target
-            return {"outcome": "diverged", "reason": f"the perturbed model is refused: {exc}",
-                    "lanes": [None] * task["lanes"], "nodes": nodes}
+            refused = {"outcome": "diverged", "reason": f"the perturbed model is refused: {exc}",
+                       "lanes": [None] * task["lanes"]}
+            return {**refused, "nodes": nodes, **({"observer": refused} if observed else {})}
     lanes = build_lanes(task, artifact, dataset)
     steps = [nominal_steps(lane.drive, lane.sample_period_s, lane.dt) if lane.boundaries_s is None else
              jittered_steps(lane.drive, lane.sample_period_s, lane.boundaries_s) for lane in lanes]
-    estimates = run_lanes(artifact, steps, np.stack([lane.initial for lane in lanes], axis=1))
-    metrics = [lane_metrics(y, s.end_s, dataset, nodes) for y, s in zip(estimates, steps, strict=True)]
-    diverged = sum(m is None for m in metrics)
-    reason = f"the estimate left ±{DIVERGED_ABOVE_C:g} °C or became NaN in {diverged} of {len(metrics)} lane(s)"
-    return {"outcome": "diverged" if diverged else "ok", "reason": reason if diverged else None,
-            "lanes": metrics, "nodes": nodes}
+    initial = np.stack([lane.initial for lane in lanes], axis=1)
+    result = {**lane_set(run_lanes(artifact, steps, initial), steps, dataset, nodes), "nodes": nodes}
+    if observed:
+        result["observer"] = lane_set(run_observer_lanes(artifact, steps, initial), steps, dataset, nodes)
+    return result
 
 
 def now() -> str:

@@ -6,6 +6,8 @@ target: the float32 mean of the samples of each model step's interval, summed le
 `target_sim.model.InputAccumulator` does (`interval_means`), the step running on the interval's last sample.
 Δt jitter moves the interval boundaries of a lane (`step_boundaries`): the model still believes every step is Δt
 long, the samples it averages and the time its output refers to are those of the jittered clock.
+With an observer artifact a lane's rows also carry the measurement columns; `run_observer_lanes` runs the target's
+float32 observer (`target_sim.observer.Float32Observer`) on the same interval means, lane by lane.
 """
 
 from __future__ import annotations
@@ -14,8 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.robustness.channels import lane_columns, measurement_columns
 from target_sim.artifact import ModelArtifact
 from target_sim.model import Float32Estimator
+from target_sim.observer import Float32Observer
 
 F32 = np.float32
 
@@ -81,13 +85,34 @@ def run_lanes(artifact: ModelArtifact, lanes: list[LaneSteps], initial: np.ndarr
     model = Float32Estimator(artifact)
     model.reset(np.asarray(initial, dtype=np.float64))
     longest = max(len(lane.means) for lane in lanes)
-    width = lanes[0].means.shape[1]
+    width = len(artifact.drive_signals)          # a lane's measurement columns are the observer's, not the model's
     inputs = np.empty((longest, width, len(lanes)), dtype=F32)
     for index, lane in enumerate(lanes):
-        inputs[: len(lane.means), :, index] = lane.means
-        inputs[len(lane.means):, :, index] = lane.means[-1] if len(lane.means) else 0
+        inputs[: len(lane.means), :, index] = lane.means[:, :width]
+        inputs[len(lane.means):, :, index] = lane.means[-1, :width] if len(lane.means) else 0
     out = np.empty((longest, 4, len(lanes)), dtype=F32)
     with np.errstate(over="ignore", invalid="ignore"):   # a diverging lane is a result, not a warning
         for k in range(longest):
             out[k] = model.step(*inputs[k])
     return [out[: len(lane.means), :, index] for index, lane in enumerate(lanes)]
+
+
+def run_observer_lanes(artifact: ModelArtifact, lanes: list[LaneSteps], initial: np.ndarray) -> list[np.ndarray]:
+    """Each lane's (steps, 4) float32 estimates of the artifact's observer (its deployed form): the interval means
+    hold the lane columns (`channels.lane_columns`: the drive's, then the measurement columns it lacks); the
+    measurements' raw channels are picked from them in the observer's order (NaN: no reading that step, predict
+    only), as `target_sim.observer.run_observer_offline` accumulates them. The observer keeps one covariance per
+    trajectory, so the lanes run one after the other."""
+    width = len(artifact.drive_signals)
+    columns = lane_columns(artifact)
+    raw = np.array([columns.index(c) for c in measurement_columns(artifact)], dtype=np.int64)
+    out = []
+    with np.errstate(over="ignore", invalid="ignore"):   # a diverging lane is a result, not a warning
+        for index, lane in enumerate(lanes):
+            observer = Float32Observer(artifact)
+            observer.reset(np.asarray(initial, dtype=np.float64)[:, index])
+            estimates = np.empty((len(lane.means), 4), dtype=F32)
+            for k, means in enumerate(lane.means):
+                estimates[k] = observer.step(*means[:width], z=means[raw])
+            out.append(estimates)
+    return out

@@ -1,5 +1,6 @@
 """A model artifact with its parameters off: the LPTN's thermal resistances and capacitances (each group), the
-stator loss split, and the loss model's coefficients, rebuilt into an artifact the target loads (sealed and
+stator loss split (moved by percentage points of the iron loss between yoke and tooth), and the loss model's
+coefficients, rebuilt into an artifact the target loads (sealed and
 verified, so an unstable result is refused as the target would refuse it).
 
 The parameter-varying LPTN runs from its `lptn` parameters: they are changed and nothing else. A linear block
@@ -34,8 +35,11 @@ PARAMETER_GROUPS: dict[str, tuple[str, ...]] = {
     "C_y": ("C_y",), "C_w": ("C_w",), "C_t": ("C_t",), "C_m": ("C_m",),
     "R_yw": ("R_yw",), "R_yt": ("R_yt",), "R_wt": ("R_wt",),
     "R_cy": ("R_cy0",), "R_wm": ("R_wm0", "a_wm"), "R_tm": ("R_tm0", "a_tm"), "R_ma": ("R_ma0", "a_ma"),
-    "k_split": ("k_0", "k_1", "k_2", "k_3"),
 }
+# the stator iron loss split between yoke and tooth (eqs. 6-8): moved in percentage points, not scaled (a share
+# near 1 scaled by 1.1 would put more than the whole loss into the yoke and a negative loss into the tooth)
+SPLIT = "k_split"
+SPLIT_UNIT = "points"
 # the loss model's coefficient groups, by loss model: the artifact keys under `losses` each group scales
 LOSS_GROUPS: dict[str, dict[str, tuple[tuple[str, ...], ...]]] = {
     "maps": {"P_dc": (("tables", "p_dc0"),), "P_ac": (("tables", "p_ac0"),),
@@ -47,7 +51,7 @@ BLOCK_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0",
 
 
 def parameter_subjects(artifact: ModelArtifact) -> tuple[str, ...]:
-    return (*PARAMETER_GROUPS, *LOSS_GROUPS.get(artifact.loss_model, {}))
+    return (*PARAMETER_GROUPS, SPLIT, *LOSS_GROUPS.get(artifact.loss_model, {}))
 
 
 def continuous(a_d: np.ndarray, b_d: np.ndarray, dt: float, method: str) -> tuple[np.ndarray, np.ndarray]:
@@ -86,11 +90,17 @@ def with_parameters(artifact: ModelArtifact, factors: Mapping[str, float]) -> Mo
     """The artifact with LPTN parameters multiplied by `factors` (name -> factor); ArtifactError when the result
     is refused (unstable)."""
     old = artifact_parameters(artifact)
-    new = old.with_values(**{name: getattr(old, name) * factor for name, factor in factors.items()})
+    return with_values(artifact, {name: getattr(old, name) * factor for name, factor in factors.items()})
+
+
+def with_values(artifact: ModelArtifact, values: Mapping[str, float]) -> ModelArtifact:
+    """The artifact with LPTN parameters set to `values` (name -> value), its linear block carried along."""
+    old = artifact_parameters(artifact)
+    new = old.with_values(**values)
     content = copy.deepcopy({k: v for k, v in artifact.content.items() if k != "sha256"})
-    for name in factors:
+    for name in values:
         content["lptn"]["parameters"][name] = encode_array(getattr(new, name))
-    if MODEL_KINDS[artifact.kind].linear_block and any(name in BLOCK_PARAMETERS for name in factors):
+    if MODEL_KINDS[artifact.kind].linear_block and any(name in BLOCK_PARAMETERS for name in values):
         content["linear_block"] = scaled_block(artifact, old, new)
     return verify(seal(content))
 
@@ -106,9 +116,18 @@ def with_losses(artifact: ModelArtifact, keys: tuple[tuple[str, ...], ...], fact
     return verify(seal(content))
 
 
-def perturbed_model(artifact: ModelArtifact, subject: str, percent: float) -> ModelArtifact:
-    """The artifact with parameter group `subject` off by `percent` %."""
-    factor = 1.0 + percent / 100.0
+def shifted_split(artifact: ModelArtifact, points: float) -> ModelArtifact:
+    """The artifact with `points` percentage points of the stator iron loss moved from the tooth to the yoke at
+    every operating point (k_0 + points/100; k_1..k_3, the share's dependence on current and speed, kept)."""
+    return with_values(artifact, {"k_0": artifact_parameters(artifact).k_0 + points / 100.0})
+
+
+def perturbed_model(artifact: ModelArtifact, subject: str, magnitude: float) -> ModelArtifact:
+    """The artifact with parameter group `subject` off by `magnitude` % (the stator loss split: moved by
+    `magnitude` percentage points, `shifted_split`)."""
+    if subject == SPLIT:
+        return shifted_split(artifact, magnitude)
+    factor = 1.0 + magnitude / 100.0
     if subject in PARAMETER_GROUPS:
         return with_parameters(artifact, {name: factor for name in PARAMETER_GROUPS[subject]})
     return with_losses(artifact, LOSS_GROUPS[artifact.loss_model][subject], factor)

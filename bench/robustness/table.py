@@ -1,7 +1,11 @@
 """The sensitivity table from the study's table alone: per model, data file and node, each case's Δ RMSE and
 Δ max |error| against the clean run (mean and spread over the Monte Carlo lanes, and per unit of the magnitude),
 the ranking of the perturbations by how far they move each node, the worst case, and the filtering trade-off.
-Rows in the spec's order: the same table from a resumed study as from one run straight through."""
+Rows in the spec's order: the same table from a resumed study as from one run straight through.
+
+With an observer artifact each case holds two sets of lanes, the open loop's and the observer's on the same
+perturbed inputs: each gets its own entries, ranking, worst case and filtering trade-off (`ESTIMATORS`), the
+study's `observer` part beside the open loop's."""
 
 from __future__ import annotations
 
@@ -23,15 +27,26 @@ def _spread(values: list[float]) -> dict[str, float]:
             "min": float(v.min()), "max": float(v.max())}
 
 
-def case_entry(row: dict[str, Any], clean: dict | None) -> dict[str, Any]:
-    """One case's row of the sensitivity table."""
+OPEN_LOOP, OBSERVER = "open_loop", "observer"
+ESTIMATORS = (OPEN_LOOP, OBSERVER)
+
+
+def estimator_result(result: dict, estimator: str) -> dict | None:
+    """The outcome, reason and lanes of one estimator in a case's result (None: the case has no observer)."""
+    if estimator == OPEN_LOOP:
+        return result
+    return {**result[OBSERVER], "nodes": result["nodes"]} if OBSERVER in result else None
+
+
+def case_entry(row: dict[str, Any], clean: dict | None, estimator: str = OPEN_LOOP) -> dict[str, Any]:
+    """One case's row of the sensitivity table, for the open loop or the observer."""
     entry = {"case_id": row["case_id"], "kind": row["kind"], "subject": row["subject"],
              "magnitude": row["magnitude"], "unit": row["unit"], "lanes": row["lanes"], "status": row["status"]}
     if row["tau_s"] is not None:
         entry["tau_s"] = row["tau_s"]
     if row["status"] != DONE:
         return {**entry, "error": row["error"]}
-    result = json.loads(row["result"])
+    result = estimator_result(json.loads(row["result"]), estimator)
     if result["outcome"] == "diverged":
         diverged = sum(m is None for m in result["lanes"])
         return {**entry, "diverged": True, "diverged_lanes": diverged, "reason": result["reason"]}
@@ -93,45 +108,56 @@ def filtering(entries: list[dict], noise: list[dict], sample_period_s: float) ->
     return out
 
 
-def _clean_lane_costs(rows: list[dict], clean: dict) -> dict[str, dict[str, float]]:
+def _clean_lane_costs(rows: list[dict], clean: dict, estimator: str) -> dict[str, dict[str, float]]:
     """A filter case's last lane is the clean input filtered: its Δ RMSE is what the filter's delay costs."""
     costs = {}
     for row in rows:
         if row["status"] == DONE and row["kind"].startswith(FILTER_PREFIX):
-            result = json.loads(row["result"])
+            result = estimator_result(json.loads(row["result"]), estimator)
             last = result["lanes"][-1]
             if last is not None:
                 costs[row["case_id"]] = {n: last[n]["rmse"] - clean[n]["rmse"] for n in result["nodes"]}
     return costs
 
 
-def sensitivity(rows: list[dict[str, Any]], sample_period_s: dict[str, float] | None = None) -> list[dict]:
-    """Per (model, data file): the clean figures, every case's entry, the ranking and worst case per node, the
-    filtering trade-off. `rows`: the store's rows, in the spec's order."""
+def analysis(group: list[dict], estimator: str, period: float) -> dict | None:
+    """One estimator's part of a (model, data file) study: clean figures, entries, ranking, worst case per node,
+    filtering trade-off; None when the cases have no such estimator (an observer on a model without one)."""
+    clean_row = next((r for r in group if r["kind"] == CLEAN and r["status"] == DONE), None)
+    clean_result = estimator_result(json.loads(clean_row["result"]), estimator) if clean_row else None
+    if clean_row and clean_result is None:
+        return None
+    clean = clean_result["lanes"][0] if clean_result and clean_result["outcome"] == "ok" else None
+    entries = [case_entry(r, clean, estimator) for r in group if r["kind"] != CLEAN]
+    filters = [e for e in entries if e["kind"].startswith(FILTER_PREFIX)]
+    perturbations = [e for e in entries if not e["kind"].startswith(FILTER_PREFIX)]
+    nodes = clean_result["nodes"] if clean_result else []
+    trade = filtering(filters, [e for e in perturbations if e["kind"] == "noise"], period)
+    costs = _clean_lane_costs(group, clean, estimator) if clean else {}
+    for item in trade:
+        item["clean_cost_C"] = costs.get(item["case_id"], {})
+    rank = {node: ranking(perturbations, node) for node in nodes}
+    return {"clean": clean, "nodes": nodes, "cases": perturbations, "ranking": rank,
+            "worst": {node: (rank[node][0] if rank[node] else None) for node in nodes}, "filtering": trade,
+            "incomplete": [e["case_id"] for e in entries if e["status"] != DONE]}
+
+
+def sensitivity(rows: list[dict[str, Any]], sample_period_s: dict[str, float] | None = None,
+                observers: dict[str, dict] | None = None) -> list[dict]:
+    """Per (model, data file): the open loop's analysis and, for a model with an observer, the observer's under
+    `observer` (with what it measures, `observers[model]`). `rows`: the store's rows, in the spec's order."""
     groups: dict[tuple[str, str], list[dict]] = {}
     for row in rows:
         groups.setdefault((row["model"], row["data"]), []).append(row)
     studies = []
     for (model, data), group in groups.items():
-        clean_row = next((r for r in group if r["kind"] == CLEAN and r["status"] == DONE), None)
-        clean_result = json.loads(clean_row["result"]) if clean_row else None
-        clean = clean_result["lanes"][0] if clean_result and clean_result["outcome"] == "ok" else None
-        entries = [case_entry(r, clean) for r in group if r["kind"] != CLEAN]
-        filters = [e for e in entries if e["kind"].startswith(FILTER_PREFIX)]
-        perturbations = [e for e in entries if not e["kind"].startswith(FILTER_PREFIX)]
-        nodes = clean_result["nodes"] if clean_result else []
         period = (sample_period_s or {}).get(data, 0.2)
-        trade = filtering(filters, [e for e in perturbations if e["kind"] == "noise"], period)
-        costs = _clean_lane_costs(group, clean) if clean else {}
-        for item in trade:
-            item["clean_cost_C"] = costs.get(item["case_id"], {})
-        rank = {node: ranking(perturbations, node) for node in nodes}
-        studies.append({"model": model, "model_sha256": group[0]["model_sha256"], "data": data,
-                        "name": f"{Path(model).stem} on {Path(data).stem}",
-                        "clean": clean, "nodes": nodes, "cases": perturbations, "ranking": rank,
-                        "worst": {node: (rank[node][0] if rank[node] else None) for node in nodes},
-                        "filtering": trade,
-                        "incomplete": [e["case_id"] for e in entries if e["status"] != DONE]})
+        study = {"model": model, "model_sha256": group[0]["model_sha256"], "data": data,
+                 "name": f"{Path(model).stem} on {Path(data).stem}", **analysis(group, OPEN_LOOP, period)}
+        observed = analysis(group, OBSERVER, period)
+        if observed is not None:
+            study[OBSERVER] = {**(observers or {}).get(model, {}), **observed}
+        studies.append(study)
     return studies
 
 

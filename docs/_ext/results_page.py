@@ -559,7 +559,29 @@ def section_robustness(record: Record) -> list[str]:
         lines += [f"The IPM example's Hammerstein model (identified on profiles 1–8 in {_n(ipm['identify_s'], 1)} s) "
                   f"on the held-out {', '.join(ipm['held_out'])}: {ipm['cases']} cases in {_n(ipm['wall_s'], 1)} s on "
                   f"2 workers, {ipm['diverged']} diverged.", ""]
+    if "ipm_observer" in f:
+        lines += _observer_side_by_side(f["ipm_observer"])
     return lines
+
+
+def _observer_side_by_side(ipm: dict) -> list[str]:
+    """The IPM example's observer study: per observer, the magnet's clean RMSE and its three largest movers, open
+    loop and observer."""
+    lines = [f"Open loop and observer side by side (`{ipm['spec']}`, {ipm['seeds']} seeds per random case, the "
+             "observer's measurement channels perturbed like any input, a dropped reading meaning no reading): the "
+             f"IPM example's Hammerstein model with each observer `bench observer` tunes, on the held-out "
+             f"{', '.join(ipm['data'])}; {ipm['cases']} cases in {_n(ipm['wall_s'], 1)} s on 2 workers, "
+             f"{ipm['diverged']} diverged. The three perturbations that move the magnet estimate most:", ""]
+    rows = []
+    for study in ipm["observers"]:
+        measured = ", ".join(f"{m['kind']} ({', '.join(m['columns'])}) of the {m['node']}"
+                             for m in study["measurements"])
+        for part, label in (("open_loop", "open loop"), ("observer", "observer")):
+            top = study["top"][part]
+            rows.append([f"{measured}, on {study['data']}", label, _n(study["clean_rmse_C"][part], 3),
+                         *(f"{r['perturbation']} at {r['magnitude']:g} {r['unit']}: {_moved(r)}" for r in top),
+                         *[""] * (3 - len(top))])
+    return lines + _table(["observer measures", "estimate", "clean RMSE °C", "1st", "2nd", "3rd"], rows)
 
 
 def _closer(ratio: float, form: str) -> str:
