@@ -223,18 +223,22 @@ def run_check(args: argparse.Namespace) -> int:
     from bench.firmware.images import firmware_for
     from bench.leftovers import scratch_dir
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import drive_for, load_data
+    from bench.run_inputs import check_measurement_data, drive_for, load_data, measured_column
 
     path, artifact = _load(args.model)
     mapping, period = data_options(args)
     dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json, mapping=mapping,
                         sample_period_s=period)
     drive = drive_for(dataset, artifact)   # with the d/q currents for an electrical loss model
+    check_measurement_data(dataset, artifact)
+    column = measured_column(artifact)    # an observer's measurement, as the host sends it per row
+    measurement = dataset.column(column) if column is not None else None
     if args.rows is not None:
         drive = drive[: args.rows]
+        measurement = measurement[: args.rows] if measurement is not None else None
     with scratch_dir("firmware-check") as cache:
         elf = args.firmware or firmware_for(artifact, Path(cache), quiet=args.quiet or args.json)
-        result = check_firmware(artifact, elf, drive, initial_temperatures(dataset))
+        result = check_firmware(artifact, elf, drive, initial_temperatures(dataset), measurement)
     report = {**_identity(path, artifact), "data": str(dataset.path), "firmware": str(elf), **result}
     if args.json:
         print_json(report)
@@ -242,6 +246,9 @@ def run_check(args: argparse.Namespace) -> int:
         cycles = result["cycles"]
         print(f"{artifact.kind} ({artifact.realization}, dt {artifact.dt:g} s), {result['rows']} rows of "
               f"{dataset.path}: {result['steps']} model steps through {elf}")
+        if result["observer"]:
+            print(f"observer ({column}): {result['updates']} of {result['steps']} steps updated with a measurement; "
+                  "outputs, each node's 1-sigma and the innovation compared")
         print(f"mismatches {result['mismatches']} (firmware vs Python float32 reference, bit for bit); Cortex-M4 "
               f"cycles per step p50 {cycles['p50']}, max {cycles['max']} ({result['exec_us_at_90MHz']['p50']} µs "
               f"at 90 MHz); flash {result['flash_bytes']} B, RAM {result['ram_bytes']} B (stack used "
