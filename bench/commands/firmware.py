@@ -125,8 +125,12 @@ def _load(model: Path | None):
     from bench.model.default import default_artifact_path
     from target_sim.artifact import load_artifact
 
+    from bench.run_inputs import refuse_over_can
+
     path = model or default_artifact_path()
-    return path, load_artifact(path)
+    artifact = load_artifact(path)
+    refuse_over_can(artifact)      # an observer whose readings no frame carries (the flux linkage): exit 2, no work
+    return path, artifact
 
 
 def _check_out(out: Path, replaceable: tuple[str, ...]) -> None:

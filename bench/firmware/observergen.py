@@ -193,8 +193,8 @@ static void obs_propagate_extra(void)
  * first */
 static void obs_predict(const float f[OBS_N][OBS_N])
 {
-    float w[OBS_N][2 * OBS_N], weights[2 * OBS_N], c[2 * OBS_N];
-    float u[OBS_N][OBS_N], d[OBS_N];
+    static float w[OBS_N][2 * OBS_N], u[OBS_N][OBS_N];    /* .bss, not the node's 1 kB stack */
+    float weights[2 * OBS_N], c[2 * OBS_N], d[OBS_N];
     float acc;
     int i, j, k;
     for (i = 0; i < OBS_N; i++) {
@@ -261,7 +261,8 @@ static int obs_finite(float value)
  * reading: innovation = (z - offset) - (the lag state, or sees y), x <- x + K innovation, y = C x */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
 {
-    float f[OBS_N][OBS_N], gain[OBS_N];
+    static float f[OBS_N][OBS_N];                           /* .bss, not the node's stack */
+    float gain[OBS_N];
     const float z = u[FW_INPUTS];
     int i;
     fw_step(u, y);
