@@ -123,9 +123,8 @@ ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check, "tim
 
 def _load(model: Path | None):
     from bench.model.default import default_artifact_path
-    from target_sim.artifact import load_artifact
-
     from bench.run_inputs import refuse_over_can
+    from target_sim.artifact import load_artifact
 
     path = model or default_artifact_path()
     artifact = load_artifact(path)

@@ -124,7 +124,8 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
         {"p50": None, "max": None}
     updates = int(np.count_nonzero(np.isfinite(reference[:, 8]))) if model.observer else None
     return {
-        "kind": artifact.kind, "observer": model.observer, "updates": updates, "realization": artifact.realization, "dt": artifact.dt,
+        "kind": artifact.kind, "observer": model.observer, "updates": updates, "realization": artifact.realization,
+        "dt": artifact.dt,
         "rows": int(len(drive)), "steps": int(len(firmware)),
         "mismatches": int(differ.size), "first_mismatch": first,
         "cycles": figures,

@@ -39,7 +39,13 @@ import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
 from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
-from bench.firmware.observergen import OBSERVER_DEFINES, keep_gains, observer_code, observer_declarations, observer_header
+from bench.firmware.observergen import (
+    OBSERVER_DEFINES,
+    keep_gains,
+    observer_code,
+    observer_declarations,
+    observer_header,
+)
 from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import firmware_loss_models, firmware_refusal
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
@@ -408,7 +414,8 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     if observer:
         header = (header.replace(f"void fw_accumulate(const float sample[{width}]);",
                                  "void fw_accumulate(const float sample[FW_SAMPLE_WIDTH]);")
-                  .replace(f"unsigned int fw_mean(float u[{width}]);", "unsigned int fw_mean(float u[FW_SAMPLE_WIDTH]);")
+                  .replace(f"unsigned int fw_mean(float u[{width}]);",
+                           "unsigned int fw_mean(float u[FW_SAMPLE_WIDTH]);")
                   .replace("#endif /* FW_MODEL_H */", observer_header() + "\n#endif /* FW_MODEL_H */"))
         header = re.sub(r"(#define FW_INPUTS [^\n]*\n)", lambda m: m.group(1) + OBSERVER_DEFINES, header)
 

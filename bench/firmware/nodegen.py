@@ -41,25 +41,25 @@ from bench.firmware.literals import FirmwareGenerationError, c_float
 from dbc.codec import crc8h2f_table
 from dbc.contract import (
     CHECKPOINT_EVERY_STEPS,
-    INNOVATION_MESSAGE,
-    INNOVATION_SIGNALS,
-    MEASUREMENT_MESSAGE,
-    MEASUREMENT_SIGNALS,
-    SIGMA_SIGNALS,
-    MeasurementStatus,
     COUNTER_MODULO,
     DBC_PATH,
     FIRMWARE_TIMING_MESSAGE,
+    INNOVATION_MESSAGE,
+    INNOVATION_SIGNALS,
     M4_CLOCK_HZ,
+    MEASUREMENT_MESSAGE,
+    MEASUREMENT_SIGNALS,
     REPLY_SIGNALS,
     RESET_SIGNALS,
     RESPONSE_TIMING_MESSAGE,
     RX_ERROR_KINDS,
     RX_ERROR_SIGNALS,
+    SIGMA_SIGNALS,
     STATE_SIZE,
     STEP_MODULO,
     Command,
     FaultBit,
+    MeasurementStatus,
     ModelKind,
     Realization,
     TargetState,
@@ -77,7 +77,6 @@ from dbc.database import (
 )
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
-from target_sim.observer_node import observer_slot
 from target_sim.firmware.node_protocol import (
     EVENT_CAPACITY,
     KIND_CODES,
@@ -86,6 +85,7 @@ from target_sim.firmware.node_protocol import (
     WHY_CODES,
     firmware_refusal,
 )
+from target_sim.observer_node import observer_slot
 
 DATABASE_NAME = "thermal_bench"
 PACKERS = (f"{DATABASE_NAME}.h", f"{DATABASE_NAME}.c")
@@ -339,8 +339,9 @@ def _observer_macros(artifact: ModelArtifact) -> list[str]:
     if slot is None:
         return []
     value, status = MEASUREMENT_SIGNALS[slot]
+    member = f"(m).{_field(MEASUREMENT_MESSAGE, value)}"
     out = ["#define NODE_OBSERVER 1",
-           f"#define NODE_MEASUREMENT_VALUE(m) {_decode(MEASUREMENT_MESSAGE, value, f'(m).{_field(MEASUREMENT_MESSAGE, value)}')}",
+           f"#define NODE_MEASUREMENT_VALUE(m) {_decode(MEASUREMENT_MESSAGE, value, member)}",
            f"#define NODE_MEASUREMENT_VALID(m) ((m).{_field(MEASUREMENT_MESSAGE, status)} == "
            f"{int(MeasurementStatus.VALID)}u)"]
     encodings = {tuple(_clamped_encoding("NODE_SIGMA", message, signal)) for message, pairs in SIGMA_SIGNALS.items()

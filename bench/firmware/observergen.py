@@ -4,15 +4,15 @@ and so its ELF, is what it was).
 
 The C repeats `target_sim.observer.Float32Observer` with `BiermanThornton` operation for operation:
 
-| C (fw_model.c)          | Python (target_sim.observer)                     | what                                     |
-|-------------------------|--------------------------------------------------|------------------------------------------|
-| obs_transition          | Float32Observer.transition, LinearBlockPart.source_jacobian | F of the step, augmented      |
-| obs_propagate_extra     | Float32Observer._propagate_extra                 | bias into x, the lag state               |
-| obs_predict             | BiermanThornton.predict                          | Thornton's MWGS over [F U, G]            |
-| obs_update              | BiermanThornton.update                           | Bierman's scalar update, the gain        |
-| fw_obs_step             | Float32Observer.step                             | model step, predict, update              |
-| fw_obs_reset, _restore  | Float32Observer.reset, NodeObserver.restore      | x0, lag state, U0 D0                     |
-| fw_obs_report           | Float32Observer.sigma, .innovation               | each node's 1-σ, the innovation          |
+| C (fw_model.c)         | Python (target_sim.observer)                  | what                                  |
+|------------------------|-----------------------------------------------|---------------------------------------|
+| obs_transition         | Float32Observer.transition (source_jacobian)  | F of the step, augmented              |
+| obs_propagate_extra    | Float32Observer._propagate_extra              | bias into x, the lag state            |
+| obs_predict            | BiermanThornton.predict                       | Thornton's MWGS over [F U, G]         |
+| obs_update             | BiermanThornton.update                        | Bierman's scalar update, the gain     |
+| fw_obs_step            | Float32Observer.step                          | model step, predict, update           |
+| fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
+| fw_obs_report          | Float32Observer.sigma, .innovation            | each node's 1-σ, the innovation       |
 
 What the reference computes once at load (P0's factors U0 and d0 by `ud_factor`, G = [C⁻¹ 0; 0 I], sees·C, the
 bias column of B, the measurement row h, 1 - a of the lag) is computed by that very code here and written as
@@ -32,7 +32,7 @@ from target_sim.kinds import REALIZATIONS
 from target_sim.observer import Float32Observer, ud_factor
 
 # the line temperature_sources gets in an observer's C: the gains the transition's Jacobian takes
-KEEP_GAINS_C = "    obs_gains[0] = g_tm;\n    obs_gains[1] = g_wm;\n    obs_gains[2] = g_ma;\n    obs_gains[3] = g_cy;\n"
+KEEP_GAINS_C = "".join(f"    obs_gains[{i}] = {gain};\n" for i, gain in enumerate(("g_tm", "g_wm", "g_ma", "g_cy")))
 SOURCES_END = "    src[3] = (y_est[1] + g_wm * y_est[3]) / (1.0f + g_wm);\n"
 
 
