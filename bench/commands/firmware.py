@@ -76,8 +76,11 @@ def _add_check(actions) -> None:
                                        "generated if missing) through the model firmware in the emulated "
                                        "Cortex-M4F and through the Python float32 reference, as the target does "
                                        "(interval means, then a model step), and compare every output bit for "
-                                       "bit. Reports the counted Cortex-M4 cycles per step (p50, max), the ELF's "
-                                       "flash and RAM and the emulated steps per second; exit 1 on any mismatch.")
+                                       "bit. A model with an observer ('bench observer') steps through its filter "
+                                       "with the data's measured column, and each node's 1-sigma and the "
+                                       "innovation are compared too. Reports the counted Cortex-M4 cycles per step "
+                                       "(p50, max), the ELF's flash and RAM and the emulated steps per second; exit "
+                                       "1 on any mismatch.")
     p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged hammerstein one)")
     p.add_argument("--data", type=Path, default=None,
                    help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
