@@ -39,6 +39,8 @@ def refuse_engine(engine: str, artifact: ModelArtifact) -> None:
         return
     from target_sim.firmware.node_protocol import firmware_refusal
 
+    refuse_over_can(artifact)      # an observer no frame carries (the flux linkage): exit 2, as on the python engine
+
     refusal = firmware_refusal(artifact)
     if refusal is not None:
         raise BenchError(refusal)

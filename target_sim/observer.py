@@ -66,6 +66,10 @@ class Conventional:
     def covariance(self) -> np.ndarray:
         return self.p
 
+    def variance(self, row: np.ndarray):
+        """row·(P row) in a fixed order: the variance of a linear combination of the states."""
+        return dot(row, matvec(self.p, row))
+
 
 class Joseph(Conventional):
     """P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ."""
@@ -146,6 +150,12 @@ class BiermanThornton:
         self.u, self.d = u, d
         return b * gamma
 
+    def variance(self, row: np.ndarray):
+        """row·(U D Uᵀ row) without forming P: v = Uᵀ row, then ((d_0 v_0) v_0 + (d_1 v_1) v_1) + ... (C:
+        fw_obs_sigma)."""
+        v = matvec(self.u.T, row)
+        return dot(self.d * v, v)
+
     def covariance(self) -> np.ndarray:
         """U diag(d) Uᵀ in float64 (for reports; the filter itself never forms it)."""
         u = self.u.astype(np.float64)
@@ -166,6 +176,9 @@ class SteadyState:
 
     def covariance(self) -> np.ndarray:
         return self.p
+
+    def variance(self, row: np.ndarray):
+        return dot(row, matvec(self.p, row))
 
 
 @dataclass(frozen=True)
@@ -412,10 +425,18 @@ class Float32Observer:
         return self.cov.covariance()
 
     def sigma(self) -> np.ndarray:
-        """Each node's 1-σ (°C), from C P Cᵀ in float64 (the model states' block of P)."""
-        c = self.est.part.c.astype(np.float64)
-        p = np.asarray(self.covariance(), dtype=np.float64)[: len(OUTPUTS), : len(OUTPUTS)]
-        return np.sqrt(np.maximum(np.diag(c @ p @ c.T), 0.0))
+        """Each node's 1-σ (°C): sqrt of diag(C P Cᵀ) over the model states' block of P, in the filter's precision
+        with a fixed order (C: fw_obs_sigma): c the node's row of C padded with zeros to the augmented states; the
+        UD form takes v = Uᵀ c and σ² = ((d_0 v_0) v_0 + (d_1 v_1) v_1) + ... (P itself is never formed), the
+        others σ² = c·(P c); a negative σ² (a covariance that lost definiteness) is 0."""
+        f, c = self.f, self.est.part.c
+        out = np.zeros(len(OUTPUTS), dtype=f)
+        for i in range(len(OUTPUTS)):
+            row = np.zeros(self.n, dtype=f)
+            row[: len(OUTPUTS)] = c[i]
+            variance = self.cov.variance(row)
+            out[i] = np.sqrt(variance) if variance > 0 else f(0.0)
+        return out
 
 
 @dataclass(frozen=True)

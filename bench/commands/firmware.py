@@ -76,8 +76,11 @@ def _add_check(actions) -> None:
                                        "generated if missing) through the model firmware in the emulated "
                                        "Cortex-M4F and through the Python float32 reference, as the target does "
                                        "(interval means, then a model step), and compare every output bit for "
-                                       "bit. Reports the counted Cortex-M4 cycles per step (p50, max), the ELF's "
-                                       "flash and RAM and the emulated steps per second; exit 1 on any mismatch.")
+                                       "bit. A model with an observer ('bench observer') steps through its filter "
+                                       "with the data's measured column, and each node's 1-sigma and the "
+                                       "innovation are compared too. Reports the counted Cortex-M4 cycles per step "
+                                       "(p50, max), the ELF's flash and RAM and the emulated steps per second; exit "
+                                       "1 on any mismatch.")
     p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged hammerstein one)")
     p.add_argument("--data", type=Path, default=None,
                    help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
@@ -123,10 +126,13 @@ ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check, "tim
 
 def _load(model: Path | None):
     from bench.model.default import default_artifact_path
+    from bench.run_inputs import refuse_over_can
     from target_sim.artifact import load_artifact
 
     path = model or default_artifact_path()
-    return path, load_artifact(path)
+    artifact = load_artifact(path)
+    refuse_over_can(artifact)      # an observer whose readings no frame carries (the flux linkage): exit 2, no work
+    return path, artifact
 
 
 def _check_out(out: Path, replaceable: tuple[str, ...]) -> None:
@@ -223,18 +229,22 @@ def run_check(args: argparse.Namespace) -> int:
     from bench.firmware.images import firmware_for
     from bench.leftovers import scratch_dir
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import drive_for, load_data
+    from bench.run_inputs import check_measurement_data, drive_for, load_data, measured_column
 
     path, artifact = _load(args.model)
     mapping, period = data_options(args)
     dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json, mapping=mapping,
                         sample_period_s=period)
     drive = drive_for(dataset, artifact)   # with the d/q currents for an electrical loss model
+    check_measurement_data(dataset, artifact)
+    column = measured_column(artifact)    # an observer's measurement, as the host sends it per row
+    measurement = dataset.column(column) if column is not None else None
     if args.rows is not None:
         drive = drive[: args.rows]
+        measurement = measurement[: args.rows] if measurement is not None else None
     with scratch_dir("firmware-check") as cache:
         elf = args.firmware or firmware_for(artifact, Path(cache), quiet=args.quiet or args.json)
-        result = check_firmware(artifact, elf, drive, initial_temperatures(dataset))
+        result = check_firmware(artifact, elf, drive, initial_temperatures(dataset), measurement)
     report = {**_identity(path, artifact), "data": str(dataset.path), "firmware": str(elf), **result}
     if args.json:
         print_json(report)
@@ -242,6 +252,9 @@ def run_check(args: argparse.Namespace) -> int:
         cycles = result["cycles"]
         print(f"{artifact.kind} ({artifact.realization}, dt {artifact.dt:g} s), {result['rows']} rows of "
               f"{dataset.path}: {result['steps']} model steps through {elf}")
+        if result["observer"]:
+            print(f"observer ({column}): {result['updates']} of {result['steps']} steps updated with a measurement; "
+                  "outputs, each node's 1-sigma and the innovation compared")
         print(f"mismatches {result['mismatches']} (firmware vs Python float32 reference, bit for bit); Cortex-M4 "
               f"cycles per step p50 {cycles['p50']}, max {cycles['max']} ({result['exec_us_at_90MHz']['p50']} µs "
               f"at 90 MHz); flash {result['flash_bytes']} B, RAM {result['ram_bytes']} B (stack used "

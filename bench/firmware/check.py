@@ -22,47 +22,70 @@ from target_sim.artifact import ModelArtifact
 from target_sim.firmware import FirmwareEstimator, FirmwareFault
 from target_sim.losses import reads_currents
 from target_sim.model import F32, Float32Estimator, InputAccumulator
+from target_sim.observer import Float32Observer, has_observer
 
 
 def _bits(values: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(values, dtype=np.float32).view(np.uint32)
 
 
-def _run_firmware(model: FirmwareEstimator, drive: np.ndarray, initial, rule: InputAccumulator
+def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: InputAccumulator
                   ) -> tuple[list[int], np.ndarray, list[int], float]:
-    """(rows with a step, outputs, cycles per step, seconds) of the emulated firmware."""
-    rows, outputs, cycles = [], [], []
+    """(rows with a step, results per step, cycles per step, seconds) of the emulated firmware: a result is the four
+    outputs, and for an observer's model each node's 1-sigma and the innovation after them."""
+    rows, results, cycles = [], [], []
+    width = model.width
     model.reset(initial)
     started = time.perf_counter()
-    for row, sample in enumerate(drive):
+    for row, sample in enumerate(samples):
         model.accumulate(sample)
         if not rule.ends_interval(row):
             continue
         inputs = model.mean()
         if inputs is None:    # cannot happen: the row itself was accumulated
             raise BenchError(f"the firmware's fw_mean found no samples at row {row}")
-        outputs.append(model.step(*inputs))
+        if model.observer:
+            y = model.step(*inputs[:width], z=inputs[width])
+            sigma, innovation = model.report()
+            results.append([*y, *sigma, innovation])
+        else:
+            results.append(model.step(*inputs))
         cycles.append(model.last_cycles)
         rows.append(row)
     seconds = time.perf_counter() - started
-    return rows, np.array(outputs, dtype=F32).reshape(-1, 4), cycles, seconds
+    return rows, np.array(results, dtype=F32).reshape(len(results), -1), cycles, seconds
 
 
-def _run_reference(artifact: ModelArtifact, drive: np.ndarray, initial) -> np.ndarray:
-    model = Float32Estimator(artifact)
+def _run_reference(artifact: ModelArtifact, samples: np.ndarray, initial) -> np.ndarray:
+    """The Python float32 reference's results per step (as `_run_firmware`'s)."""
+    width = len(artifact.drive_signals)
+    observer = has_observer(artifact)
+    model = Float32Observer(artifact) if observer else Float32Estimator(artifact)
     model.reset(initial)
-    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, len(artifact.drive_signals))
-    outputs = []
-    for row, sample in enumerate(drive):
+    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, samples.shape[1])
+    results = []
+    for row, sample in enumerate(samples):
         inputs = acc.add(row, sample)
-        if inputs is not None:
-            outputs.append(model.step(*inputs))
-    return np.array(outputs, dtype=F32).reshape(-1, 4)
+        if inputs is None:
+            continue
+        if observer:
+            y = model.step(*inputs[:width], z=inputs[width])
+            results.append([*y, *model.sigma(), model.innovation])
+        else:
+            results.append(model.step(*inputs))
+    return np.array(results, dtype=F32).reshape(len(results), -1)
 
 
-def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.ndarray, initial) -> dict:
+def _same(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per step: every value the same 32 bits (a NaN innovation, no update, on both sides counts as the same)."""
+    return ((_bits(a) == _bits(b)) | (np.isnan(a) & np.isnan(b))).all(axis=1)
+
+
+def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.ndarray, initial,
+                   measurement: np.ndarray | None = None) -> dict:
     """The JSON report of `bench firmware check` (FirmwareError for a bad ELF, BenchError for an emulator fault; one
-    sentence each)."""
+    sentence each). An observer's model also takes its measurement column (NaN: no reading in that row), and each
+    step's 1-sigma and innovation are compared too."""
     label = elf if isinstance(elf, bytes) else str(elf)
     model = FirmwareEstimator(artifact, elf)
     drive = np.asarray(drive, dtype=F32)
@@ -74,15 +97,21 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
                 if reads_currents(artifact.drive_signals) else "")
         raise BenchError(f"model {artifact.model_id:08x}{where} runs on {width} drive values per row "
                          f"({', '.join(artifact.drive_signals)}), the data gives {given}{hint}")
-    rule = InputAccumulator(artifact.data_sample_period, artifact.dt, width)
+    samples = drive
+    if model.observer:
+        if measurement is None or len(measurement) != len(drive):
+            raise BenchError(f"model {artifact.model_id:08x} has an observer: the check needs its measurement "
+                             "column beside the drive")
+        samples = np.column_stack([drive, np.asarray(measurement, dtype=F32)])
+    rule = InputAccumulator(artifact.data_sample_period, artifact.dt, samples.shape[1])
     try:
-        rows, firmware, cycles, seconds = _run_firmware(model, drive, initial, rule)
+        rows, firmware, cycles, seconds = _run_firmware(model, samples, initial, rule)
     except FirmwareFault as exc:
         raise BenchError(f"the firmware {label} faulted in the emulated core: {exc}") from None
-    reference = _run_reference(artifact, drive, initial)
+    reference = _run_reference(artifact, samples, initial)
     if reference.shape != firmware.shape:     # both follow one row rule: a bug if not
         raise BenchError(f"the firmware ran {len(firmware)} model steps, the reference {len(reference)}")
-    differ = np.flatnonzero((_bits(firmware) != _bits(reference)).any(axis=1))
+    differ = np.flatnonzero(~_same(firmware, reference))
     first = None
     if differ.size:
         k = int(differ[0])
@@ -93,8 +122,10 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
     counted = np.asarray(cycles, dtype=float)
     figures = {"p50": int(round(float(np.percentile(counted, 50)))), "max": int(counted.max())} if cycles else \
         {"p50": None, "max": None}
+    updates = int(np.count_nonzero(np.isfinite(reference[:, 8]))) if model.observer else None
     return {
-        "kind": artifact.kind, "realization": artifact.realization, "dt": artifact.dt,
+        "kind": artifact.kind, "observer": model.observer, "updates": updates, "realization": artifact.realization,
+        "dt": artifact.dt,
         "rows": int(len(drive)), "steps": int(len(firmware)),
         "mismatches": int(differ.size), "first_mismatch": first,
         "cycles": figures,

@@ -39,12 +39,20 @@ import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
 from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
+from bench.firmware.observergen import (
+    OBSERVER_DEFINES,
+    keep_gains,
+    observer_code,
+    observer_declarations,
+    observer_header,
+)
 from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import firmware_loss_models, firmware_refusal
 from target_sim.fmath import EXP_CONSTANTS, EXP_EXPONENT_BIAS, EXP_MAX_ULP, EXP_POLYNOMIAL
 from target_sim.kinds import MODEL_KINDS, REALIZATIONS
 from target_sim.losses import C_NAMES, LOSS_KINDS, LossKind, reads_currents
 from target_sim.network import COOLANT_REFERENCE_C
+from target_sim.observer import has_observer
 
 HEADER_NAME = "fw_model.h"
 SOURCE_NAME = "fw_model.c"
@@ -391,6 +399,7 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     loss_model = artifact.loss_model
     loss_kind = LOSS_KINDS[loss_model]
     model_kind = MODEL_KINDS[kind]
+    observer = has_observer(artifact)     # the observer's C only for an observer's artifact (open loop: as before)
     row = artifact.drive_signals
     width = len(row)     # 4 drive values, 6 with the d/q currents
     currents = reads_currents(row)
@@ -402,18 +411,31 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
                             model_id=model_id, max_ulp=EXP_MAX_ULP, loss_model=loss_model, width=width,
                             inputs=inputs, inputs_doc=inputs_doc, loss_doc=loss_doc)
 
+    if observer:
+        header = (header.replace(f"void fw_accumulate(const float sample[{width}]);",
+                                 "void fw_accumulate(const float sample[FW_SAMPLE_WIDTH]);")
+                  .replace(f"unsigned int fw_mean(float u[{width}]);",
+                           "unsigned int fw_mean(float u[FW_SAMPLE_WIDTH]);")
+                  .replace("#endif /* FW_MODEL_H */", observer_header() + "\n#endif /* FW_MODEL_H */"))
+        header = re.sub(r"(#define FW_INPUTS [^\n]*\n)", lambda m: m.group(1) + OBSERVER_DEFINES, header)
+
     # the code first: only the constants it names are emitted (an unused static const is a warning)
     horner = [f"    p = EXP_{EXP_POLYNOMIAL[0]};"]
     horner += [f"    p = p * r + EXP_{name};" for name in EXP_POLYNOMIAL[1:]]
     code = [_EXP_C.format(horner="\n".join(horner), bias=EXP_EXPONENT_BIAS, max_ulp=EXP_MAX_ULP),
             _common_c(loss_kind)]
-    code += model_kind.c_functions(artifact)     # the kind's own (sigmoid, sources, network)
+    functions = model_kind.c_functions(artifact)     # the kind's own (sigmoid, sources, network)
+    code += [keep_gains(text) if observer and "temperature_sources(" in text else text for text in functions]
     step = model_kind.c_step(artifact)
     # fw_step takes the row's width of inputs and hands node_losses what the loss model needs
     step = step.replace("void fw_step(const float inputs[4], float y[4])",
                         f"void fw_step(const float inputs[{width}], float y[4])")
     code.append(step.replace(_STEP_CALL, _node_losses_call(loss_kind, row)))
-    code.append(_API_C.format(width=width))
+    # a sample (and a step's interval mean) of an observer's model carries its measurement after the drive values
+    sample_width = width + 1 if observer else width
+    code.append(_API_C.format(width=sample_width))
+    if observer:
+        code.append(observer_code(artifact))
     code_text = "\n".join(code)
     used = set(re.findall(r"\b[A-Z][A-Z0-9_]*\b", code_text))
 
@@ -444,8 +466,10 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     parts.append("/* ---- state (.bss): x, the latest outputs y, the interval sum and count ---- */\n"
                  "static float x_state[4];\n"
                  f"static float y_est[4]; /* [{', '.join(OUTPUTS)}] */\n"
-                 f"static float acc_sum[{width}];\n"
+                 f"static float acc_sum[{sample_width}];\n"
                  "static unsigned int acc_count;\n")
+    if observer:
+        parts.append(observer_declarations(artifact))
     parts.append(code_text)
     node = {CONFIG_NAME: node_config(artifact), **packers()}
     return GeneratedSource(header=header, source="\n".join(parts), node=node)

@@ -21,6 +21,26 @@
  * are generated from one artifact and must agree (a negative array size stops the build otherwise). */
 typedef char node_row_is_the_model_input[(NODE_ROW_WIDTH == FW_INPUTS) ? 1 : -1];
 
+#ifdef FW_OBSERVER
+/* A model with an observer (fw_model.h's fw_obs_*, TargetNode with a NodeObserver): the row's sample carries the
+ * observer's measurement after the drive values (the VALID value of its slot in the Measurements frame of the
+ * row's Step, else NaN: that step predicts only), the model steps through the filter, and every model step is
+ * answered after its timing frames with Uncertainty1, Uncertainty2 and Innovations. */
+typedef char node_observer_is_the_model_observer[(NODE_OBSERVER == FW_OBSERVER) ? 1 : -1];
+#define NODE_SAMPLE_WIDTH (NODE_ROW_WIDTH + 1u)
+#define OBSERVER_FRAMES 3u
+#define MODEL_STEP fw_obs_step
+#define MODEL_RESET fw_obs_reset
+#define MODEL_RESTORE fw_obs_restore
+#define NO_READING __builtin_nanf("")
+#else
+#define NODE_SAMPLE_WIDTH NODE_ROW_WIDTH
+#define OBSERVER_FRAMES 0u
+#define MODEL_STEP fw_step
+#define MODEL_RESET fw_reset
+#define MODEL_RESTORE fw_restore
+#endif
+
 struct node_frame node_rx;
 struct node_output node_out;
 struct node_counters node_counters;
@@ -79,15 +99,23 @@ static struct {                                   /* RestoreState by element: _r
 static struct {                                   /* _pending: the row being received */
     uint8_t count;                                /* its frames so far, in row order (NODE_ROW_INDEX_*) */
     uint16_t step;                                /* the Step of its first frame */
-    float sample[NODE_ROW_WIDTH];                 /* their values, decoded into their places of the row */
+    float sample[NODE_SAMPLE_WIDTH];              /* their values, decoded into their places of the row */
 } pending;
+#ifdef FW_OBSERVER
+static struct {                                   /* TargetNode._measurement: the last Measurements frame */
+    uint8_t have;
+    uint16_t step;
+    float value;                                  /* its slot's VALID value, else NaN */
+} measurement;
+static float report_of[NODE_TX_CAPACITY / (4u + OBSERVER_FRAMES)][5];   /* per timed step: sigma, innovation */
+#endif
 
 static uint8_t running_rows;                      /* next_row is not None */
 static uint32_t next_row;
 static uint8_t have_reply_row;                    /* last_reply_row is not None */
 static uint16_t last_reply_step;
 static uint8_t have_last_inputs;                  /* RowAccumulator.last_inputs */
-static float last_inputs[NODE_ROW_WIDTH];
+static float last_inputs[NODE_SAMPLE_WIDTH];
 static float estimate[NODE_STATE_SIZE];
 static uint32_t next_beat_ms;
 
@@ -220,10 +248,10 @@ static void send_target_info(void)
     tx_finish(frame, THERMAL_BENCH_TARGET_INFO_FRAME_ID, NODE_TX_TARGET_INFO, NODE_DATA_ID_TARGET_INFO);
 }
 
-uint32_t node_temperature_raw(float value)
+/* value = sign * M * 2^E exactly (M < 2^24); raw = round_half_even(value * inv + offset_raw), inv = 1/scale and
+ * offset_raw = -offset/scale integers: exact in 64-bit integers for the DBC range (|E| <= 40 there). */
+static uint32_t exact_raw(float value, int64_t inv, int64_t offset_raw)
 {
-    /* value = sign * M * 2^E exactly (M < 2^24); raw = round_half_even(value * INV + OFFSET), INV = 1/scale and
-     * OFFSET = -offset/scale integers: exact in 64-bit integers for the DBC range (|E| <= 40 there). */
     union {
         float f;
         uint32_t u;
@@ -234,18 +262,23 @@ uint32_t node_temperature_raw(float value)
     bits.f = value;
     exponent = (bits.u >> 23) & 0xFFu;
     mantissa = bits.u & 0x7FFFFFu;
-    if (exponent < 127u - NODE_TEMP_TINY_EXPONENT) return NODE_TEMP_OFFSET_RAW;  /* |v| * INV < 1/64: no effect */
+    if (exponent < 127u - NODE_TEMP_TINY_EXPONENT) return (uint32_t)offset_raw;  /* |v| * inv < 1/64: no effect */
     mantissa |= 0x800000u;
     shift = 150 - (int32_t)exponent;                                           /* value = M * 2^-shift */
-    numerator = (int64_t)mantissa * NODE_TEMP_INV_SCALE;
+    numerator = (int64_t)mantissa * inv;
     if (bits.u & 0x80000000u) numerator = -numerator;
-    if (shift <= 0) return (uint32_t)(numerator * ((int64_t)1 << -shift) + NODE_TEMP_OFFSET_RAW);
-    numerator += (int64_t)NODE_TEMP_OFFSET_RAW << shift;                       /* >= 0 in the DBC range */
+    if (shift <= 0) return (uint32_t)(numerator * ((int64_t)1 << -shift) + offset_raw);
+    numerator += offset_raw << shift;                    /* the floor below rounds a negative one the same way */
     quotient = numerator >> shift;
     remainder = numerator - (quotient << shift);
     half = (int64_t)1 << (shift - 1);
     if (remainder > half || (remainder == half && (quotient & 1))) quotient++;
     return (uint32_t)quotient;
+}
+
+uint32_t node_temperature_raw(float value)
+{
+    return exact_raw(value, NODE_TEMP_INV_SCALE, NODE_TEMP_OFFSET_RAW);
 }
 
 static int is_finite(float value)
@@ -392,6 +425,76 @@ static void send_checkpoint(uint16_t step)
     }
 }
 
+#ifdef FW_OBSERVER
+/* observer_node._clamp, then the codec's exact rounding: NaN as the largest value, -inf (and below) as the least */
+static int32_t clamped_raw(float value, float low, float high, int64_t inv, int64_t offset_raw, int32_t raw_low,
+                           int32_t raw_high)
+{
+    if (!(value >= low)) return value != value ? raw_high : raw_low;
+    if (!(value <= high)) return raw_high;
+    return (int32_t)exact_raw(value, inv, offset_raw);
+}
+
+/* TargetNode._observer_frames: Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations after a model step
+ * (report: fw_obs_report's sigma[4], innovation; NaN: no update, the slot's Used 0 and its innovation 0). */
+static void send_observer(uint16_t step, const float report[5])
+{
+    uint32_t raw[NODE_STATE_SIZE];
+    struct node_frame *frame;
+    unsigned int i;
+    for (i = 0; i < NODE_STATE_SIZE; i++) {
+        raw[i] = (uint32_t)clamped_raw(report[i], NODE_SIGMA_MIN, NODE_SIGMA_MAX, NODE_SIGMA_INV_SCALE,
+                                       NODE_SIGMA_OFFSET_RAW, NODE_SIGMA_RAW_MIN, NODE_SIGMA_RAW_MAX);
+    }
+    if ((frame = tx_slot()) != NULL) {
+        struct thermal_bench_uncertainty1_t m;
+        thermal_bench_uncertainty1_init(&m);
+        m.uncertainty1_counter = tx_counter[NODE_TX_UNCERTAINTY1];
+        m.uncertainty1_step = step;
+        NODE_FILL_UNCERTAINTY1(m, raw);
+        (void)thermal_bench_uncertainty1_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_UNCERTAINTY1_FRAME_ID, NODE_TX_UNCERTAINTY1, NODE_DATA_ID_UNCERTAINTY1);
+    }
+    if ((frame = tx_slot()) != NULL) {
+        struct thermal_bench_uncertainty2_t m;
+        thermal_bench_uncertainty2_init(&m);
+        m.uncertainty2_counter = tx_counter[NODE_TX_UNCERTAINTY2];
+        m.uncertainty2_step = step;
+        NODE_FILL_UNCERTAINTY2(m, raw);
+        (void)thermal_bench_uncertainty2_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_UNCERTAINTY2_FRAME_ID, NODE_TX_UNCERTAINTY2, NODE_DATA_ID_UNCERTAINTY2);
+    }
+    if ((frame = tx_slot()) != NULL) {
+        struct thermal_bench_innovations_t m;
+        const int used = is_finite(report[4]);
+        const int32_t value = used ? clamped_raw(report[4], NODE_INNOVATION_MIN, NODE_INNOVATION_MAX,
+                                                 NODE_INNOVATION_INV_SCALE, NODE_INNOVATION_OFFSET_RAW,
+                                                 NODE_INNOVATION_RAW_MIN, NODE_INNOVATION_RAW_MAX) : 0;
+        thermal_bench_innovations_init(&m);
+        m.innovations_counter = tx_counter[NODE_TX_INNOVATIONS];
+        m.innovations_step = step;
+        NODE_FILL_INNOVATIONS(m, value, used);
+        (void)thermal_bench_innovations_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_INNOVATIONS_FRAME_ID, NODE_TX_INNOVATIONS, NODE_DATA_ID_INNOVATIONS);
+    }
+}
+
+/* TargetNode._measured: the observer's measurement for the row of `step` (NaN: none, predict only); a Measurements
+ * frame of another Step is a sequence error. */
+static void sequence_error(uint8_t code, int32_t a, int32_t b);
+static float measured(uint16_t step)
+{
+    const uint8_t have = measurement.have;
+    measurement.have = 0u;
+    if (!have) return NO_READING;
+    if (measurement.step != step) {
+        sequence_error(NODE_WHY_MEASUREMENT_STEP, measurement.step, step);
+        return NO_READING;
+    }
+    return measurement.value;
+}
+#endif
+
 /* ------------------------------------------------------------------------------------------------ state */
 /* TargetNode._set_state: an extra Status at every change. */
 static void set_state(uint8_t next)
@@ -430,6 +533,9 @@ static void ready(void)
     fw_output(estimate);
     rows_reset();
     pending.count = 0u;
+#ifdef FW_OBSERVER
+    measurement.have = 0u;
+#endif
     running_rows = 0u;
     have_reply_row = 0u;
     node_counters.rows_used = node_counters.model_steps = node_counters.overruns = 0u;
@@ -450,11 +556,11 @@ static int ends_interval(uint32_t row)
 
 /* ------------------------------------------------------------------------------------------------ rows */
 /* One model step on `inputs` (TargetNode._row's loop body); returns its DWT cycles. */
-static uint32_t model_step(const float inputs[NODE_ROW_WIDTH])
+static uint32_t model_step(const float inputs[NODE_SAMPLE_WIDTH])
 {
     uint32_t started, cycles;
     started = DWT_CYCCNT;
-    fw_step(inputs, estimate);
+    MODEL_STEP(inputs, estimate);
 #ifdef NODE_WITH_ISR
     step_ended = DWT_CYCCNT;                                /* the same one read after the step */
     cycles = step_ended - started;
@@ -473,7 +579,7 @@ static uint32_t model_step(const float inputs[NODE_ROW_WIDTH])
 
 /* The model steps of one row whose timing frames (TIMING_FRAMES each) can be queued; a step beyond runs untimed on
  * the bus. */
-#define TIMED_STEPS (NODE_TX_CAPACITY / TIMING_FRAMES)
+#define TIMED_STEPS (NODE_TX_CAPACITY / (TIMING_FRAMES + OBSERVER_FRAMES))
 
 #ifdef NODE_WITH_ISR
 /* The step just run: its response time, and the interrupt's CPU load over the interrupts since the previous step:
@@ -493,28 +599,31 @@ static void time_response(uint32_t index)
 
 /* One model step of a row; its cycles kept for the row's timing frames while they fit, else those are counted as
  * dropped. */
-static void step_on(const float inputs[NODE_ROW_WIDTH], uint32_t cycles_of[TIMED_STEPS], uint32_t *steps)
+static void step_on(const float inputs[NODE_SAMPLE_WIDTH], uint32_t cycles_of[TIMED_STEPS], uint32_t *steps)
 {
     const uint32_t cycles = model_step(inputs);
     if (*steps < TIMED_STEPS) {
         cycles_of[*steps] = cycles;
+#ifdef FW_OBSERVER
+        fw_obs_report(report_of[*steps]);
+#endif
 #ifdef NODE_WITH_ISR
         time_response(*steps);
 #endif
     } else {
-        node_out.tx_dropped += TIMING_FRAMES;               /* its timing frames could not be queued anyway */
+        node_out.tx_dropped += TIMING_FRAMES + OBSERVER_FRAMES;    /* its frames could not be queued anyway */
     }
     (*steps)++;
 }
 
 /* RowAccumulator.skip's means and the steps on them, one by one (no list: bounded RAM), then the row's own. */
-static void handle_row(uint16_t step, const float sample[NODE_ROW_WIDTH])
+static void handle_row(uint16_t step, const float sample[NODE_SAMPLE_WIDTH])
 {
     const uint32_t expected = next_row;
     const uint16_t ahead = (uint16_t)(step - (uint16_t)expected);       /* mod 2^16 */
     uint32_t row, lost, cycles_of[TIMED_STEPS];
     uint32_t steps = 0u;
-    float mean[NODE_ROW_WIDTH];
+    float mean[NODE_SAMPLE_WIDTH];
     if (state != NODE_STATE_RUNNING || !running_rows) {
         sequence_error(NODE_WHY_ROW_STATE, step, state);
         return;
@@ -538,6 +647,9 @@ static void handle_row(uint16_t step, const float sample[NODE_ROW_WIDTH])
             have_last_inputs = 1u;
         } else if (have_last_inputs) {
             memcpy(mean, last_inputs, sizeof mean);         /* none did: hold the previous step's inputs */
+#ifdef FW_OBSERVER
+            mean[NODE_ROW_WIDTH] = NO_READING;              /* but not its measurement: that step predicts only */
+#endif
         } else {
             continue;                                       /* nothing ever arrived: no inputs to step on */
         }
@@ -561,6 +673,9 @@ static void handle_row(uint16_t step, const float sample[NODE_ROW_WIDTH])
 #ifdef NODE_WITH_ISR
             send_response(step, response_of[i].response, response_of[i].load);
 #endif
+#ifdef FW_OBSERVER
+            send_observer(step, report_of[i]);
+#endif
         }
     }
     if (steps && node_counters.model_steps % NODE_CHECKPOINT_EVERY == 0u) send_checkpoint(step);
@@ -583,7 +698,7 @@ static void control(uint8_t command, uint16_t step)
             return;
         }
         NODE_RESET_TEMPERATURES(y0, reset_frames);
-        fw_reset(y0);
+        MODEL_RESET(y0);
         ready();
     } else if (command == NODE_COMMAND_RESTORE) {
         float x[NODE_STATE_SIZE];
@@ -598,7 +713,7 @@ static void control(uint8_t command, uint16_t step)
             incomplete(NODE_WHY_RESTORE_INCOMPLETE, step);
             return;
         }
-        fw_restore(x);
+        MODEL_RESTORE(x);
         ready();
     } else if (command == NODE_COMMAND_START) {
         if (state != NODE_STATE_READY) {
@@ -612,6 +727,9 @@ static void control(uint8_t command, uint16_t step)
         int i;
         for (i = 0; i < RX_COUNT; i++) counter_known[i] = 0u;     /* FrameValidator.reset_counters */
         pending.count = 0u;
+#ifdef FW_OBSERVER
+        measurement.have = 0u;
+#endif
         set_state(NODE_STATE_STOPPED);
     }
 }
@@ -677,6 +795,9 @@ static void row_frame_done(unsigned int index, uint16_t step)
         return;
     }
     pending.count = 0u;
+#ifdef FW_OBSERVER
+    pending.sample[NODE_ROW_WIDTH] = measured(step);       /* TargetNode._row_frame: the row's measurement */
+#endif
     handle_row(step, pending.sample);
 }
 
@@ -714,6 +835,14 @@ static void dispatch(int index, const union rx_signals *m)
     case RX_CONTROL:
         control(m->control.command, NODE_STEP_CONTROL(m->control));
         break;
+#ifdef FW_OBSERVER
+    case RX_MEASUREMENTS:                                   /* kept for the row of its Step */
+        measurement.have = 1u;
+        measurement.step = NODE_STEP_MEASUREMENTS(m->measurements);
+        measurement.value = NODE_MEASUREMENT_VALID(m->measurements) ? NODE_MEASUREMENT_VALUE(m->measurements)
+                                                                    : NO_READING;
+        break;
+#endif
     default:            /* a frame no rule acts on (BenchEvent, unread DriveCurrents, ...): validated only */
         break;
     }
@@ -829,6 +958,9 @@ void node_init(uint32_t now_ms)
     memset(reset_frames, 0, sizeof reset_frames);
     memset(restore_frames, 0, sizeof restore_frames);
     memset(&pending, 0, sizeof pending);
+#ifdef FW_OBSERVER
+    memset(&measurement, 0, sizeof measurement);
+#endif
     memset(estimate, 0, sizeof estimate);
     running_rows = have_reply_row = have_last_inputs = 0u;
     next_row = 0u;

@@ -44,16 +44,22 @@ from dbc.contract import (
     COUNTER_MODULO,
     DBC_PATH,
     FIRMWARE_TIMING_MESSAGE,
+    INNOVATION_MESSAGE,
+    INNOVATION_SIGNALS,
     M4_CLOCK_HZ,
+    MEASUREMENT_MESSAGE,
+    MEASUREMENT_SIGNALS,
     REPLY_SIGNALS,
     RESET_SIGNALS,
     RESPONSE_TIMING_MESSAGE,
     RX_ERROR_KINDS,
     RX_ERROR_SIGNALS,
+    SIGMA_SIGNALS,
     STATE_SIZE,
     STEP_MODULO,
     Command,
     FaultBit,
+    MeasurementStatus,
     ModelKind,
     Realization,
     TargetState,
@@ -79,6 +85,7 @@ from target_sim.firmware.node_protocol import (
     WHY_CODES,
     firmware_refusal,
 )
+from target_sim.observer_node import observer_slot
 
 DATABASE_NAME = "thermal_bench"
 PACKERS = (f"{DATABASE_NAME}.h", f"{DATABASE_NAME}.c")
@@ -310,6 +317,49 @@ def _receive_macros() -> list[str]:
     return out
 
 
+def _clamped_encoding(prefix: str, message: str, signal: str) -> list[str]:
+    """How the node encodes a float32 value of `signal` as the Python node does (`observer_node._clamp`, then the
+    codec's exact rounding): the float32 limits that clamp exactly as the double ones, the raw values of the limits,
+    and the exact encoder's scale (1/n) and offset."""
+    layout = layout_named(message).signal(signal)
+    n, k = _divisor(message, signal)
+    low, high = signal_ranges(message)[signal]
+    f_low, f_high = float_limits(layout)
+    return [f"#define {prefix}_MIN {c_float(f_low)}", f"#define {prefix}_MAX {c_float(f_high)}",
+            f"#define {prefix}_RAW_MIN ({_raw(message, signal, low)})",
+            f"#define {prefix}_RAW_MAX ({_raw(message, signal, high)})",
+            f"#define {prefix}_INV_SCALE {n}", f"#define {prefix}_OFFSET_RAW ({-k})"]
+
+
+def _observer_macros(artifact: ModelArtifact) -> list[str]:
+    """An observer's model (fw_model.h's FW_OBSERVER): the Measurements slot it reads (its value decoded to float32,
+    its status VALID), and the Uncertainty1/2 and Innovations replies: each sigma's and the innovation's encoding,
+    and where each goes (NODE_FILL_<MESSAGE>(m, raw), the innovation of its slot with its Used flag)."""
+    slot = observer_slot(artifact)
+    if slot is None:
+        return []
+    value, status = MEASUREMENT_SIGNALS[slot]
+    member = f"(m).{_field(MEASUREMENT_MESSAGE, value)}"
+    out = ["#define NODE_OBSERVER 1",
+           f"#define NODE_MEASUREMENT_VALUE(m) {_decode(MEASUREMENT_MESSAGE, value, member)}",
+           f"#define NODE_MEASUREMENT_VALID(m) ((m).{_field(MEASUREMENT_MESSAGE, status)} == "
+           f"{int(MeasurementStatus.VALID)}u)"]
+    encodings = {tuple(_clamped_encoding("NODE_SIGMA", message, signal)) for message, pairs in SIGMA_SIGNALS.items()
+                 for signal, _ in pairs}
+    if len(encodings) != 1:
+        raise FirmwareGenerationError("the 1-sigma signals do not share one scaling; the node encodes one")
+    out += list(next(iter(encodings)))
+    for message, pairs in SIGMA_SIGNALS.items():
+        fills = "; ".join(f"(m).{_field(message, signal)} = (uint16_t)(raw)[{index}]" for signal, index in pairs)
+        out.append(f"#define NODE_FILL_{_snake_upper(message)}(m, raw) do {{ {fills}; }} while (0)")
+    innovation, used = INNOVATION_SIGNALS[slot]
+    out += _clamped_encoding("NODE_INNOVATION", INNOVATION_MESSAGE, innovation)
+    out.append(f"#define NODE_FILL_{_snake_upper(INNOVATION_MESSAGE)}(m, raw, used) do {{ "
+               f"(m).{_field(INNOVATION_MESSAGE, innovation)} = (int16_t)(int32_t)(raw); "
+               f"(m).{_field(INNOVATION_MESSAGE, used)} = (uint8_t)(used); }} while (0)")
+    return out
+
+
 def node_config(artifact: ModelArtifact) -> str:
     """fw_node_config.h for `artifact`'s model (FirmwareGenerationError, one sentence, for a model the node cannot
     run)."""
@@ -368,5 +418,6 @@ def node_config(artifact: ModelArtifact) -> str:
     lines += _signal_macros()
     lines += _receive_macros()
     lines += _row_macros(artifact)
+    lines += _observer_macros(artifact)
     lines += ["", "#endif /* FW_NODE_CONFIG_H */", ""]
     return "\n".join(lines)

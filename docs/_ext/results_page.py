@@ -283,6 +283,29 @@ def _lockstep_line(lockstep: dict, what: str) -> list[str]:
     return [f"Lockstep throughput, {what}: {runs}.", ""]
 
 
+@single_record("firmware_observer", "The observer in the firmware")
+def section_firmware_observer(record: Record) -> list[str]:
+    params = record["parameters"]
+    rows = []
+    for case in record["figures"]["cases"]:
+        plain, closed, added = case["open_loop"], case["observer"], case["added"]
+        rows.append([case["case"], _n(case["states"]), f"{plain['cycles']['p50']} / {plain['cycles']['max']}",
+                     f"{closed['cycles']['p50']} / {closed['cycles']['max']}", _n(added["cycles_p50"]),
+                     f"{closed['mismatches']} of {_n(closed['steps'])} ({_n(closed['updates'])} updated)",
+                     f"+{_n(added['model_code_bytes'])} / +{_n(added['model_constants_bytes'])}",
+                     f"{_n(closed['flash_bytes'])} (+{_n(added['flash_bytes'])})",
+                     f"{_n(closed['ram_bytes'])} (+{_n(added['ram_bytes'])})"])
+    return ["`bench firmware check` of the Hammerstein model open loop (`fw_step`) and with its observer "
+            "(`fw_obs_step`: the model step, the Bierman-Thornton prediction and update), "
+            f"{_n(params['rows'])} rows; mismatches against the Python float32 observer (outputs, each "
+            "node's 1-sigma and the innovation, bit for bit); what the observer adds to the model's own "
+            "flash (`fw_model.o`) and to the image (issue 25's goal: predict + update within "
+            f"{_n(params['goal_cycles'])} cycles):", "",
+            *_table(["observer", "filter states", "open loop cycles p50 / max",
+                     "observer cycles p50 / max", "added cycles", "mismatches",
+                     "fw_model.o code / constants (B)", "flash (B)", "RAM (B)"], rows)]
+
+
 @single_record("firmware_node", "The CAN node in firmware")
 def section_firmware_node(record: Record) -> list[str]:
     f = record["figures"]
@@ -622,7 +645,7 @@ def observer_forms_table(record: Record) -> list[str]:
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
 SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
-    "firmware_timing": section_firmware_timing,
+    "firmware_timing": section_firmware_timing, "firmware_observer": section_firmware_observer,
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "observer": section_observer,
     "robustness": section_robustness}

@@ -26,10 +26,12 @@ from target_sim.artifact import ModelArtifact
 from target_sim.firmware.elf import ElfImage, FirmwareError, memory_from_elf, read_elf
 from target_sim.firmware.emulator import Firmware
 from target_sim.firmware.node_protocol import firmware_refusal
+from target_sim.observer import has_observer
 
 MODEL_ID_SYMBOL = "fw_model_id"
 ENTRY_POINTS = ("fw_reset", "fw_restore", "fw_state", "fw_output", "fw_step", "fw_accumulate", "fw_mean",
                 "fw_clear")
+OBSERVER_ENTRY_POINTS = ("fw_obs_reset", "fw_obs_restore", "fw_obs_step", "fw_obs_report")
 F32 = np.float32
 
 
@@ -47,7 +49,10 @@ class FirmwareEstimator:
         self.fw = fw = Firmware(image, count_cycles=count_cycles)
         self.name = image.name
         self.memory = memory_from_elf(image)
-        missing = [name for name in (MODEL_ID_SYMBOL, *ENTRY_POINTS) if name not in fw.symbols]
+        # an observer's model (fw_obs_*): a sample and a step's inputs carry the measurement after the drive values
+        self.observer = has_observer(artifact)
+        needed = (MODEL_ID_SYMBOL, *ENTRY_POINTS, *(OBSERVER_ENTRY_POINTS if self.observer else ()))
+        missing = [name for name in needed if name not in fw.symbols]
         if missing:
             raise FirmwareError(f"{image.name} has no {', '.join(missing)}: it is not a model firmware of "
                                 "'bench firmware build'")
@@ -56,9 +61,12 @@ class FirmwareEstimator:
             raise FirmwareError(f"{image.name} is the firmware of model {model_id:08x}, not of the artifact's model "
                                 f"{artifact.model_id:08x}; build it from this artifact with 'bench firmware build'")
         self.width = width = len(artifact.drive_signals)    # values per sample and step: 4, or 6 with the currents
+        self.sample_width = sample_width = width + self.observer
         # the caller's buffers, allocated once in the scratch area (no firmware RAM)
-        self._inputs, self._sample, self._mean = (fw.alloc_f32(width) for _ in range(3))
+        self._inputs, self._sample, self._mean = (fw.alloc_f32(sample_width) for _ in range(3))
         self._outputs, self._state = (fw.alloc_f32(4) for _ in range(2))
+        self._report = fw.alloc_f32(5)
+        self._prefix = "fw_obs_" if self.observer else "fw_"
         self.last_cycles: int | None = None
         self.y = np.zeros(4, dtype=F32)
 
@@ -66,27 +74,36 @@ class FirmwareEstimator:
     def reset(self, temperatures: Sequence[float]) -> None:
         """x0 = C^-1 y0 (fw_reset, which also clears the interval sum)."""
         self.fw.write_f32(self._inputs, temperatures)
-        self.fw.call("fw_reset", self._inputs)
+        self.fw.call(self._prefix + "reset", self._inputs)
         self.y = self._read("fw_output")
 
     def restore(self, state: Sequence[float]) -> None:
         """x bit for bit, y = C x (fw_restore, which also clears the interval sum)."""
         self.fw.write_f32(self._inputs, state)
-        self.fw.call("fw_restore", self._inputs)
+        self.fw.call(self._prefix + "restore", self._inputs)
         self.y = self._read("fw_output")
 
-    def step(self, *inputs: float) -> np.ndarray:
+    def step(self, *inputs: float, z: float | None = None) -> np.ndarray:
         """One model step (fw_step) on [torque, speed, coolant, ambient] (and [i_d, i_q] for an electrical loss
-        model); the counted Cortex-M4 cycles of the call are then in `last_cycles`."""
+        model); an observer's model steps through its filter (fw_obs_step) with the measurement z (NaN: predict
+        only). The counted Cortex-M4 cycles of the call are then in `last_cycles`."""
         if len(inputs) != self.width:
             raise ValueError(f"the {self.artifact.loss_model} loss model's step takes {self.width} inputs "
                              f"({', '.join(self.artifact.drive_signals)}), not {len(inputs)}")
+        if self.observer:
+            inputs = (*inputs, np.nan if z is None else z)
         fw = self.fw
         fw.write_f32(self._inputs, inputs)
-        fw.call("fw_step", self._inputs, self._outputs)
+        fw.call(self._prefix + "step", self._inputs, self._outputs)
         self.last_cycles = fw.last.cycles
         self.y = fw.read_f32(self._outputs, 4)
         return self.y.copy()
+
+    def report(self) -> tuple[np.ndarray, np.float32]:
+        """An observer's each node's 1-sigma and innovation after the last step (fw_obs_report)."""
+        self.fw.call("fw_obs_report", self._report)
+        out = self.fw.read_f32(self._report, 5)
+        return out[:4].copy(), out[4]
 
     @property
     def x(self) -> np.ndarray:
@@ -100,8 +117,8 @@ class FirmwareEstimator:
     # ------------------------------------------------------------------ the interval sum (InputAccumulator's)
     def accumulate(self, sample: Sequence[float]) -> None:
         """sum <- sum + sample in float32 (fw_accumulate)."""
-        if len(sample) != self.width:
-            raise ValueError(f"a sample of the {self.artifact.loss_model} loss model has {self.width} values, "
+        if len(sample) != self.sample_width:
+            raise ValueError(f"a sample of the {self.artifact.loss_model} loss model has {self.sample_width} values, "
                              f"not {len(sample)}")
         self.fw.write_f32(self._sample, sample)
         self.fw.call("fw_accumulate", self._sample)
@@ -110,7 +127,7 @@ class FirmwareEstimator:
         """The float32 mean of the accumulated samples, then cleared (fw_mean); None when there were none."""
         if not self.fw.call("fw_mean", self._mean, returns=int):
             return None
-        return self.fw.read_f32(self._mean, self.width)
+        return self.fw.read_f32(self._mean, self.sample_width)
 
     def clear(self) -> None:
         self.fw.call("fw_clear")

@@ -19,6 +19,7 @@ from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
 from target_sim.observer import has_observer
+from target_sim.observer_node import can_refusal
 
 
 def firmware_loss_models() -> tuple[str, ...]:
@@ -28,14 +29,24 @@ def firmware_loss_models() -> tuple[str, ...]:
     return tuple(name for name, kind in LOSS_KINDS.items() if kind.firmware)
 
 
+FIRMWARE_OBSERVER_FORM = "ud"      # the covariance form the generated C has (Bierman-Thornton, the deployed one)
+
+
 def firmware_refusal(artifact: ModelArtifact) -> str | None:
     """Why the firmware engine cannot run `artifact` (one sentence), or None when it can: a loss model its generated
-    C lacks, or an observer (the generated C runs the model open loop; it must not run an observer's artifact open
-    loop without saying so)."""
+    C lacks, or an observer it cannot run: one the CAN frames cannot carry (the Python node's sentence,
+    `target_sim.observer_node.can_refusal`: the flux linkage from its raw channels, several measurements) or one
+    whose covariance form is not the UD form its generated C has."""
     name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
     if has_observer(artifact):
-        return (f"the firmware engine does not run an observer yet (its generated C is open loop), and {name} has "
-                "one: use --engine python")
+        refusal = can_refusal(artifact)
+        if refusal is not None:
+            return refusal
+        form = artifact.content["observer"].get("form")
+        if form != FIRMWARE_OBSERVER_FORM:
+            return (f"the firmware engine runs an observer in the {FIRMWARE_OBSERVER_FORM} form (Bierman-Thornton), "
+                    f"and {name} deploys the {form} form: rebuild it with 'bench observer --form "
+                    f"{FIRMWARE_OBSERVER_FORM}' or use --engine python")
     if LOSS_KINDS[artifact.loss_model].firmware:
         return None
     return (f"the firmware engine runs the loss models {', '.join(firmware_loss_models())}; {name} has an "
@@ -71,6 +82,7 @@ WHY: dict[str, str] = {
     "RESET_INCOMPLETE": "RESET of step {a} without ResetTemps1 and ResetTemps2 of that step",
     "RESTORE_INCOMPLETE": "RESTORE of step {a} without the 4 RestoreState elements of that step",
     "CORE_FAULT": "the emulated core faulted",
+    "MEASUREMENT_STEP": "Measurements of step {a} before the row of step {b}",   # an observer's, TargetNode._measured
 }
 WHY_CODES: dict[str, int] = {name: index + 1 for index, name in enumerate(WHY)}
 _WHY_NAMES = {code: name for name, code in WHY_CODES.items()}

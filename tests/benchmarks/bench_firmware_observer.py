@@ -1,0 +1,120 @@
+"""Observer firmware benchmark (prints figures; not a test): the observer's generated C (Bierman-Thornton UD, the
+fw_obs_* functions beside the model, bench/firmware/observergen.py) against the open loop, in the emulated
+Cortex-M4F, run as a user runs it.
+
+    python tests/benchmarks/bench_firmware_observer.py [--skip-ipm] [--work DIR] [--rows N]
+
+Two observers of the Hammerstein model:
+1. the built-in motor's winding sensor (`bench observer`, trained on the 20 and 60 °C runs; checked on the 40 °C run);
+2. the 60 kW IPM example's stator NTC (`bench data --motor`, `bench identify` on profiles 1-8, `bench observer
+   --measure ntc_C` with the motor file's offset, lag and gradient: a lag state; checked on the held-out profile 9).
+For each, `bench firmware build` and `bench firmware check` of the open-loop artifact and of the observer's: the
+Cortex-M4 cycles per model step (open loop: fw_step; observer: fw_obs_step, the model step, the covariance's
+prediction and the update), bit for bit against the Python float32 reference (outputs, each node's 1-sigma and the
+innovation), the model's own flash (`fw_model.o`: code and constants) and the image's flash and RAM. The tuning
+takes two filter runs (`--evaluations 2`): its Q and R change no cycle count. Writes its record
+(docs/results/firmware_observer.json; see tests/benchmarks/record.py) for the results page.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_accuracy import HELD_OUT, IPM, bench  # noqa: E402
+from bench_observer import BUILTIN_VALIDATION, ntc_sensor  # noqa: E402
+from record import Record, add_record_arguments  # noqa: E402
+
+GOAL_CYCLES = 3000        # issue 25: predict + update (the whole observer step) of the Hammerstein model
+ROWS = 4000
+
+
+def firmware_figures(model: Path, out: Path, data: list[str], rows: int) -> dict:
+    """`bench firmware build` and `check` of one artifact: cycles, bit-exactness, flash and RAM."""
+    built, build_s = bench("firmware", "build", "--model", str(model), "--out", str(out))
+    checked, check_s = bench("firmware", "check", "--model", str(model), "--firmware", built["elf"], "--rows",
+                             str(rows), *data)
+    return {"cycles": checked["cycles"], "exec_us_at_90MHz": checked["exec_us_at_90MHz"],
+            "mismatches": checked["mismatches"], "steps": checked["steps"], "updates": checked.get("updates"),
+            "model_flash": built["model_flash"], "flash_bytes": built["flash_bytes"], "ram_bytes": built["ram_bytes"],
+            "stack_used_bytes": checked["stack_used_bytes"], "build_s": round(build_s, 1),
+            "check_s": round(check_s, 1)}
+
+
+def compare(name: str, open_loop: Path, observer: Path, work: Path, data: list[str], rows: int) -> dict:
+    """Open loop and observer of one case, and what the observer adds."""
+    from target_sim.artifact import load_artifact
+    from target_sim.observer import state_count
+
+    section = load_artifact(observer).content["observer"]
+    plain = firmware_figures(open_loop, work / f"fw-{name}-open-loop", data, rows)
+    closed = firmware_figures(observer, work / f"fw-{name}-observer", data, rows)
+    added = {"cycles_p50": closed["cycles"]["p50"] - plain["cycles"]["p50"],
+             "model_flash_bytes": closed["model_flash"]["bytes"] - plain["model_flash"]["bytes"],
+             "model_code_bytes": closed["model_flash"]["code"] - plain["model_flash"]["code"],
+             "model_constants_bytes": closed["model_flash"]["constants"] - plain["model_flash"]["constants"],
+             "flash_bytes": closed["flash_bytes"] - plain["flash_bytes"],
+             "ram_bytes": closed["ram_bytes"] - plain["ram_bytes"]}
+    print(f"{name}: {state_count(section)} filter states; cycles per step open loop {plain['cycles']['p50']}, "
+          f"observer {closed['cycles']['p50']} (max {closed['cycles']['max']}; goal {GOAL_CYCLES}); "
+          f"mismatches {closed['mismatches']} of {closed['steps']} steps ({closed['updates']} updated); "
+          f"fw_model.o +{added['model_flash_bytes']} B (code +{added['model_code_bytes']}, constants "
+          f"+{added['model_constants_bytes']}), RAM +{added['ram_bytes']} B")
+    return {"case": name, "states": state_count(section), "measurement": section["measurements"][0]["name"],
+            "open_loop": plain, "observer": closed, "added": added,
+            "goal_met": closed["cycles"]["max"] <= GOAL_CYCLES}
+
+
+def builtin_motor(work: Path, rows: int) -> dict:
+    from bench.model.default import default_artifact_path
+
+    model = work / "builtin-observer.json"
+    bench("observer", "--evaluations", "2", "--out", str(model))
+    return compare("built-in winding sensor", default_artifact_path("hammerstein"), model, work,
+                   ["--data", BUILTIN_VALIDATION], rows)
+
+
+def ipm_example(work: Path, rows: int) -> dict:
+    motor, mapping = str(IPM / "motor.json"), str(IPM / "mapping.json")
+    data = work / "ipm"
+    train = str(data / "profile_0[1-8].csv")
+    held_out = [str(data / f) for f in HELD_OUT]
+    if not (data / "model.json").is_file():      # a --work directory keeps them from an earlier run
+        bench("data", "--motor", motor, "--out", str(data), "--quiet")
+        bench("identify", "--motor", motor, "--mapping", mapping, "--train", train, "--validate", *held_out,
+              "--out", str(data / "model.json"))
+    sensor = ntc_sensor()
+    model = work / "ipm-ntc-observer.json"
+    bench("observer", "--model", str(data / "model.json"), "--train", train, "--mapping", mapping, "--measure",
+          "ntc_C", "--offset", f"{sensor['offset']:g}", "--lag", f"{sensor['lag_s']:g}", "--gradient",
+          f"{sensor.get('gradient', 0.0):g}", "--evaluations", "2", "--out", str(model))
+    return compare("IPM example stator NTC", data / "model.json", model, work,
+                   ["--mapping", mapping, "--data", held_out[0]], rows)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--skip-ipm", action="store_true", help="only the built-in motor")
+    parser.add_argument("--work", type=Path, default=None, help="keep the artifacts, ELFs and IPM files here")
+    parser.add_argument("--rows", type=int, default=ROWS, help=f"rows of each check (default {ROWS})")
+    add_record_arguments(parser)
+    args = parser.parse_args()
+    record = Record("firmware_observer", args, parameters={"rows": args.rows, "goal_cycles": GOAL_CYCLES,
+                                                          "held_out": HELD_OUT[0]})
+    with tempfile.TemporaryDirectory() as tmp:
+        work = (args.work or Path(tmp)).resolve()
+        work.mkdir(parents=True, exist_ok=True)
+        cases = [builtin_motor(work, args.rows)]
+        if not args.skip_ipm:
+            cases.append(ipm_example(work, args.rows))
+    record.figures["cases"] = cases
+    record.write()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
