@@ -229,7 +229,7 @@ def run_check(args: argparse.Namespace) -> int:
     from bench.firmware.images import firmware_for
     from bench.leftovers import scratch_dir
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import check_measurement_data, drive_for, load_data, measured_column
+    from bench.run_inputs import check_measurement_data, drive_for, load_data, measured_columns
 
     path, artifact = _load(args.model)
     mapping, period = data_options(args)
@@ -237,8 +237,9 @@ def run_check(args: argparse.Namespace) -> int:
                         sample_period_s=period)
     drive = drive_for(dataset, artifact)   # with the d/q currents for an electrical loss model
     check_measurement_data(dataset, artifact)
-    column = measured_column(artifact)    # an observer's measurement, as the host sends it per row
-    measurement = dataset.column(column) if column is not None else None
+    # an observer's one measurement, as the host sends it per row (firmware_refusal refuses more than one)
+    columns = list(measured_columns(artifact).values())
+    measurement = dataset.column(columns[0]) if columns else None
     if args.rows is not None:
         drive = drive[: args.rows]
         measurement = measurement[: args.rows] if measurement is not None else None

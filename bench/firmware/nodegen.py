@@ -85,7 +85,7 @@ from target_sim.firmware.node_protocol import (
     WHY_CODES,
     firmware_refusal,
 )
-from target_sim.observer_node import observer_slot
+from target_sim.observer_node import measurement_slots
 
 DATABASE_NAME = "thermal_bench"
 PACKERS = (f"{DATABASE_NAME}.h", f"{DATABASE_NAME}.c")
@@ -335,9 +335,10 @@ def _observer_macros(artifact: ModelArtifact) -> list[str]:
     """An observer's model (fw_model.h's FW_OBSERVER): the Measurements slot it reads (its value decoded to float32,
     its status VALID), and the Uncertainty1/2 and Innovations replies: each sigma's and the innovation's encoding,
     and where each goes (NODE_FILL_<MESSAGE>(m, raw), the innovation of its slot with its Used flag)."""
-    slot = observer_slot(artifact)
-    if slot is None:
+    slots = measurement_slots(artifact)     # one lagged sensor (node_protocol.firmware_refusal refuses the rest)
+    if not slots:
         return []
+    slot = slots[0]
     value, status = MEASUREMENT_SIGNALS[slot]
     member = f"(m).{_field(MEASUREMENT_MESSAGE, value)}"
     out = ["#define NODE_OBSERVER 1",

@@ -67,7 +67,8 @@ def observer_header() -> str:
 /* The model at y0 (fw_reset), the lag state at what its sensor sees, the covariance P0 (its factors U0, d0). */
 void fw_obs_reset(const float y0[4]);
 
-/* x bit for bit (fw_restore), the lag state 0 and the covariance P0: a checkpoint carries x only. */
+/* x bit for bit (fw_restore), the lag state at what its sensor sees, the covariance P0 (the firmware does not
+   checkpoint the filter: it sends no ObserverCheckpoint and ignores RestoreObserver). */
 void fw_obs_restore(const float x[4]);
 
 /* One model step (fw_step on u's drive values), the covariance's prediction and, when u's measurement is finite,
@@ -303,12 +304,16 @@ void fw_obs_reset(const float y0[4])
     obs_innovation = __builtin_nanf("");
 }
 
-/* NodeObserver.restore: a fresh filter at zero temperatures, then x bit for bit */
+/* NodeObserver.restore without the filter's checkpoint: a fresh filter at zero temperatures, x bit for bit, then
+   the lag state at what its sensor sees of y = C x (Float32Observer.reset_lags) */
 void fw_obs_restore(const float x[4])
 {
     static const float zero[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     fw_obs_reset(zero);
     fw_restore(x);
+#if OBS_LAG >= 0
+    obs_extra[OBS_LAG] = dot(OBS_SEES, y_est, 4);
+#endif
 }
 
 /* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) and .innovation */

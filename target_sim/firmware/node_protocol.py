@@ -18,8 +18,8 @@ from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RX_ERROR_KINDS, TargetS
 from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
-from target_sim.observer import has_observer
-from target_sim.observer_node import can_refusal
+from target_sim.observer import has_observer, measurement_entries
+from target_sim.observer_node import SENSOR_KIND, can_refusal
 
 
 def firmware_loss_models() -> tuple[str, ...]:
@@ -42,6 +42,11 @@ def firmware_refusal(artifact: ModelArtifact) -> str | None:
         refusal = can_refusal(artifact)
         if refusal is not None:
             return refusal
+        entries = measurement_entries(artifact.content["observer"])
+        if len(entries) != 1 or entries[0]["kind"] != SENSOR_KIND:
+            return (f"the firmware engine runs an observer with one lagged temperature sensor, and {name} measures "
+                    f"{', '.join(e['name'] + ' (' + e['kind'] + ')' for e in entries)}: use --engine python, "
+                    "whose node runs the flux linkage and several measurements")
         form = artifact.content["observer"].get("form")
         if form != FIRMWARE_OBSERVER_FORM:
             return (f"the firmware engine runs an observer in the {FIRMWARE_OBSERVER_FORM} form (Bierman-Thornton), "
