@@ -126,12 +126,12 @@ ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check, "tim
 
 def _load(model: Path | None):
     from bench.model.default import default_artifact_path
-    from bench.run_inputs import refuse_over_can
+    from bench.run_inputs import refuse_engine
     from target_sim.artifact import load_artifact
 
     path = model or default_artifact_path()
     artifact = load_artifact(path)
-    refuse_over_can(artifact)      # an observer whose readings no frame carries (the flux linkage): exit 2, no work
+    refuse_engine("firmware", artifact)   # what the generated C lacks, in bench run --engine firmware's sentence
     return path, artifact
 
 
@@ -238,8 +238,8 @@ def run_check(args: argparse.Namespace) -> int:
     drive = drive_for(dataset, artifact)   # with the d/q currents for an electrical loss model
     check_measurement_data(dataset, artifact)
     # an observer's one measurement, as the host sends it per row (firmware_refusal refuses more than one)
-    columns = list(measured_columns(artifact).values())
-    measurement = dataset.column(columns[0]) if columns else None
+    column = next(iter(measured_columns(artifact).values()), None)
+    measurement = dataset.column(column) if column is not None else None
     if args.rows is not None:
         drive = drive[: args.rows]
         measurement = measurement[: args.rows] if measurement is not None else None

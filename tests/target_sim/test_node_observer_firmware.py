@@ -209,3 +209,28 @@ def test_open_loop_artifacts_get_none_of_the_observer_code(artifacts):
         source = generate(load_artifact(artifacts[name]))
         assert "fw_obs_" not in source.source + source.header and "obs_gains" not in source.source
         assert "FW_OBSERVER" not in source.header
+
+
+def test_an_observer_the_can_node_runs_but_the_firmware_lacks_is_refused_in_its_own_sentence(flux_observer_artifact,
+                                                                                             capsys):
+    """The Python node runs the NTC and the flux linkage together over CAN (DBC 1.7.0); the generated C has one
+    lagged sensor, so the firmware says so, before any work."""
+    from target_sim.observer_node import can_refusal
+
+    path, dataset = flux_observer_artifact
+    model = load_artifact(path)
+    assert can_refusal(model) is None
+    sentence = firmware_refusal(model)
+    assert sentence is not None and "one lagged temperature sensor" in sentence and "(flux-linkage)" in sentence
+    for argv in (["firmware", "check", "--model", str(path), "--data", str(dataset), "--rows", "50"],
+                 ["run", "--model", str(path), "--engine", "firmware", "--data", str(dataset), "--no-report"]):
+        assert main(argv) == 1, argv
+        stdout, err = capsys.readouterr()
+        assert stdout == "" and err == f"bench: error: {sentence}\n", err
+
+
+def test_bench_firmware_check_names_the_observers_measurement(observer_artifact, small_dataset, capsys):
+    assert main(["firmware", "check", "--model", str(observer_artifact), "--data", str(small_dataset), "--rows", "200",
+                 "--quiet"]) == 0
+    stdout = capsys.readouterr().out
+    assert "observer (winding_C):" in stdout and "mismatches 0 " in stdout, stdout
