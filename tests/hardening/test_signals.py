@@ -99,7 +99,8 @@ def long_data(tmp_path_factory) -> Path:
     return write_synthetic_dataset(tmp_path_factory.mktemp("long") / "long.csv", columns, "signal tests")
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+@pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(signal.SIGHUP, marks=pytest.mark.slow)],
+                         ids=["SIGTERM", "SIGHUP"])
 def test_run_stops_its_target_and_removes_the_partial_log(material, scratch, signum):
     """`bench run` in real time (60 rows at 5 Hz: 12 s), signalled in the middle of the run."""
     port = _port()
@@ -339,7 +340,8 @@ def _drawing(pid: int) -> bool:
         return False
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)],
+                         ids=["SIGTERM", "SIGINT"])
 def test_analyze_stopped_while_drawing_its_report_leaves_no_report(material, scratch, signum):
     """The signal lands while the figures are drawn (matplotlib loaded, about 1.5 s before the report is written),
     where a SIGTERM raised inside a garbage-collector callback used to be swallowed ("Exception ignored in:
@@ -398,6 +400,7 @@ def test_host_stops_on_a_signal_and_leaves_no_log(material, scratch, signum):
     assert _leftovers(out) == []
 
 
+@pytest.mark.slow        # SIGINT's handling is the run's (test_run_stops_on_sigint_like_on_sigterm)
 def test_replay_stops_on_sigint(material, scratch):
     port = _port()
     out = scratch / "out"

@@ -113,6 +113,7 @@ def test_data_without_currents_is_refused_before_anything_starts(files, tmp_path
     assert not log.exists() and not report.exists() and list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow        # the electrical C fragment's bit-exactness is bench firmware check's (tests/bench/firmware)
 def test_bench_run_of_an_electrical_model_with_the_firmware_engine_answers_as_the_python_engine(run, files,
                                                                                                  tmp_path):
     """`bench run --engine firmware`: the artifact's firmware built once into the log's firmware cache, the emulated

@@ -182,6 +182,7 @@ def _task(tmp_path: Path, dataset: Path, timeout_s: float, *extra: str) -> dict:
     return {"run_id": "r", "argv": argv, "run_dir": str(run_dir), "timeout_s": timeout_s, "token": "t"}
 
 
+@pytest.mark.slow        # 10 s of a real-time run
 def test_a_run_that_takes_too_long_is_stopped_and_recorded_as_a_timeout(tmp_path, small_dataset):
     started = time.monotonic()
     # 600 rows at 5 Hz take 120 s; the 10 s limit leaves a loaded machine time to import the CLI and install its
