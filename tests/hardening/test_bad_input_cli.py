@@ -835,6 +835,7 @@ def test_broken_dbc_target_sim_is_one_sentence(cli, material, scratch):
 # ---------------------------------------------------------------- the fork server is the real thing
 
 
+@pytest.mark.slow        # a cross-check of the fork server the whole file runs through
 def test_plain_interpreters_agree_with_the_fork_server(cli, material, scratch):
     """A few cases once more as `sys.executable -m ...`, in parallel: the same exit status and the same line.
     They are the ones where interpreter exit matters (finalizers of half-built buses and readers)."""

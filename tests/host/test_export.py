@@ -59,6 +59,7 @@ def test_host_only_keeps_exactly_the_hosts_frames(run_log, tmp_path, suffix):
     assert not list(tmp_path.glob(".*"))   # written under a temporary name and renamed
 
 
+@pytest.mark.slow        # the drive-time stamps are also checked by the dated .asc export
 def test_drive_time_spans_the_rows_at_the_sample_period(run_log, tmp_path):
     """The packaged model's TargetInfo (Δt 0.5 s) and its Timing1 rows give 0.2 s: the last row, ROWS - 1, is at
     59.8 s (the run itself took a fraction of a second)."""
@@ -197,6 +198,7 @@ def test_the_mf4_export_starts_when_the_recording_started(run_log, tmp_path, hos
     assert [m.timestamp for m in back] == pytest.approx([m.timestamp for m in kept], abs=1e-5)
 
 
+@pytest.mark.slow        # the mf4 export itself is tested in the default run
 @pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
 def test_the_mf4_export_in_drive_time_counts_from_zero(run_log, tmp_path):
     """With --drive-time asammdf's times were -1.8e9 s (drive time minus the export's wall clock): the start is

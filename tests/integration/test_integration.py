@@ -163,6 +163,7 @@ def test_every_kind_and_the_original_realization(artifacts, small_dataset, tmp_p
     assert "bench: error: not clean: original.json (lti-lptn, original): " in proc.stderr and "SATURATED" in proc.stderr
 
 
+@pytest.mark.slow        # real-time pacing is also the host tests'
 def test_realtime_mode_at_speed_100(small_dataset, tmp_path):
     proc = run_cli("-m", "bench", "run", "--data", str(small_dataset), "--rows", "250", "--mode", "realtime",
                    "--speed", "100", "--log", str(tmp_path / "rt.csv"), "--no-report", "--json")
