@@ -349,3 +349,13 @@ def flux_columns(rows: int, seed: int = 5) -> dict[str, np.ndarray]:
         ntc[k] = lag * ntc[k - 1] + (1 - lag) * columns["winding_C"][k]
     columns["ntc_C"] = np.round(ntc + 0.8, 1)
     return columns
+
+
+def refused_in_one_sentence(capsys, argv: list[str]) -> str:
+    """`bench ARGV` in this process: exit 1 with one sentence on stderr and nothing on stdout; that sentence."""
+    from bench.cli import main
+
+    assert main(argv) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.startswith("bench: error: ") and err.count("\n") == 1
+    return err

@@ -13,11 +13,17 @@ import numpy as np
 import pytest
 
 from bench.analysis.logdecode import decode_log
-from bench.cli import main
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
 
-from helpers import electrical_artifact_text, run_cli, synthetic_columns, with_currents, write_synthetic_dataset
+from helpers import (
+    electrical_artifact_text,
+    refused_in_one_sentence,
+    run_cli,
+    synthetic_columns,
+    with_currents,
+    write_synthetic_dataset,
+)
 
 ROWS = 300
 # the user's file: their own column names, speed in krpm
@@ -95,19 +101,11 @@ def test_replay_and_analyze_of_an_electrical_log(run, files, tmp_path):
     assert all(v <= 0.005 + 1e-9 for v in a["max_abs_can_minus_float32_C"].values())
 
 
-def _refused(capsys, argv: list[str]) -> str:
-    """`bench ARGV` in this process: exit 1 with one sentence on stderr and nothing on stdout; that sentence."""
-    assert main(argv) == 1
-    out, err = capsys.readouterr()
-    assert out == "" and err.startswith("bench: error: ") and err.count("\n") == 1
-    return err
-
-
 def test_data_without_currents_is_refused_before_anything_starts(files, tmp_path, capsys):
     log, report = tmp_path / "run.blf", tmp_path / "report"
     model = load_artifact(files["model"])
-    err = _refused(capsys, ["run", "--model", str(files["model"]), "--data", str(files["plain"]), "--rows", "30",
-                            "--log", str(log), "--report", str(report)])
+    err = refused_in_one_sentence(capsys, ["run", "--model", str(files["model"]), "--data", str(files["plain"]),
+                                           "--rows", "30", "--log", str(log), "--report", str(report)])
     assert f"model {model.model_id:08x} ({files['model']}) has an electrical loss model, which needs the d/q " \
            f"currents, and {files['plain']} has none (columns i_d_A, i_q_A)" in err
     assert not log.exists() and not report.exists() and list(tmp_path.iterdir()) == []
@@ -140,8 +138,8 @@ def test_data_at_another_sample_period_is_refused(files, tmp_path, capsys):
     slow = tmp_path / "slow.json"    # the same file, read at 1 s per row (its time column says otherwise)
     slow.write_text(json.dumps({"columns": {k: v for k, v in OWN_NAMES.items() if k not in ("t", v)},
                                 "units": {"speed_rpm": "krpm"}, "time": {"column": None, "sample_period_s": 1.0}}))
-    err = _refused(capsys, ["run", "--model", str(files["model"]), "--data", str(files["own"]), "--mapping", str(slow),
-                            "--log", str(tmp_path / "a.blf"), "--no-report"])
+    err = refused_in_one_sentence(capsys, ["run", "--model", str(files["model"]), "--data", str(files["own"]),
+                                           "--mapping", str(slow), "--log", str(tmp_path / "a.blf"), "--no-report"])
     assert f"is sampled every 1 s, but model {model.model_id:08x} ({files['model']}) runs on data sampled every " \
            "0.2 s" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.json"]

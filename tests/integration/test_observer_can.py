@@ -19,7 +19,7 @@ from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
 from target_sim.observer import run_observer_offline
 
-from helpers import run_cli, synthetic_columns, write_synthetic_dataset
+from helpers import refused_in_one_sentence, run_cli, synthetic_columns, write_synthetic_dataset
 
 ROWS = 300
 
@@ -114,14 +114,6 @@ def test_a_faulted_measurement_frame_is_detected_and_the_filter_predicts_only(ki
     assert max(metrics["max_abs_can_minus_clean_C"].values()) > 0
 
 
-def _refused(capsys, argv: list[str]) -> str:
-    """`bench ARGV` in this process: exit 1 with one sentence on stderr and nothing on stdout; that sentence."""
-    assert main(argv) == 1
-    out, err = capsys.readouterr()
-    assert out == "" and err.startswith("bench: error: ") and err.count("\n") == 1
-    return err
-
-
 def test_bench_run_on_the_firmware_engine_with_an_observer_is_clean(observer_artifact, validation_run, tmp_path):
     """The observer in the generated C (fw_obs_*): clean over CAN, its replies the offline float32 observer's, every
     model step updated and answered with each node's 1-sigma, its cycles counted (predict + update)."""
@@ -152,7 +144,8 @@ def test_data_without_the_measured_column_is_refused_before_anything_starts(obse
     data = write_synthetic_dataset(tmp_path / "no-ntc.csv", synthetic_columns(50, seed=2), "no NTC")
     log = tmp_path / "run.blf"
     model = load_artifact(ntc)
-    err = _refused(capsys, ["run", "--model", str(ntc), "--data", str(data), "--log", str(log), "--no-report"])
+    err = refused_in_one_sentence(capsys, ["run", "--model", str(ntc), "--data", str(data), "--log", str(log),
+                                           "--no-report"])
     assert f"model {model.model_id:08x} ({ntc}) has an observer that measures column ntc_C, and {data} has none" \
         in err
     assert not log.exists()
