@@ -39,14 +39,18 @@ from dbc.contract import (
 )
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import reads_currents
+from target_sim.measurements import MEASUREMENT_KINDS
 from target_sim.observer import Float32Observer, ObserverError, has_observer, load_measurements, measurement_entries
 
-SENSOR_KIND = "lagged-sensor"
+
+def _reads_temperature(entry: dict) -> bool:
+    """Whether the entry's kind reads one temperature channel (a Measurements slot) rather than raw CAN channels."""
+    return MEASUREMENT_KINDS[entry["kind"]].temperature_channel
 
 
 def _slot(entry: dict, section: dict) -> str:
     """The Innovations slot of one measurement entry (see the module docstring)."""
-    if entry["kind"] != SENSOR_KIND:
+    if not _reads_temperature(entry):
         return "flux"
     source = section.get("source")
     if source in MEASUREMENT_SLOTS:
@@ -66,7 +70,7 @@ def measurement_slots(artifact: ModelArtifact) -> list[str]:
 
 def _entry_channels(entry: dict, slot: str, measurement) -> tuple[str, ...]:
     """The CAN channels of one measurement's raw channels: a sensor's slot, or the kind's own (the flux linkage)."""
-    return (slot,) if entry["kind"] == SENSOR_KIND else tuple(measurement.can_channels)
+    return (slot,) if _reads_temperature(entry) else tuple(measurement.can_channels)
 
 
 def can_refusal(artifact: ModelArtifact) -> str | None:

@@ -18,8 +18,9 @@ from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RX_ERROR_KINDS, TargetS
 from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
+from target_sim.measurements import MEASUREMENT_KINDS
 from target_sim.observer import has_observer, measurement_entries
-from target_sim.observer_node import SENSOR_KIND, can_refusal
+from target_sim.observer_node import can_refusal
 
 
 def firmware_loss_models() -> tuple[str, ...]:
@@ -43,7 +44,7 @@ def firmware_refusal(artifact: ModelArtifact) -> str | None:
         if refusal is not None:
             return refusal
         entries = measurement_entries(artifact.content["observer"])
-        if len(entries) != 1 or entries[0]["kind"] != SENSOR_KIND:
+        if len(entries) != 1 or not MEASUREMENT_KINDS[entries[0]["kind"]].temperature_channel:
             return (f"the firmware engine runs an observer with one lagged temperature sensor, and {name} measures "
                     f"{', '.join(e['name'] + ' (' + e['kind'] + ')' for e in entries)}: use --engine python, "
                     "whose node runs the flux linkage and several measurements")

@@ -35,11 +35,14 @@ class TargetMeasurement(Protocol):
 
 @dataclass(frozen=True)
 class MeasurementKind:
-    """One kind: `load(entry, where, f)` builds its target measurement from an `observer.measurements` entry."""
+    """One kind: `load(entry, where, f)` builds its target measurement from an `observer.measurements` entry;
+    `temperature_channel`: its one raw channel is a temperature reading (it travels in a Measurements slot), else
+    the kind names the CAN channels it computes its reading from (`can_channels`)."""
 
     name: str
     summary: str
     load: object
+    temperature_channel: bool = False
 
 
 MEASUREMENT_KINDS: Registry[MeasurementKind] = Registry("measurement kind", __name__,

@@ -48,4 +48,5 @@ def sees(node: str, gradient: float = 0.0) -> np.ndarray:
 
 
 MEASUREMENT_KINDS.register("lagged-sensor", MeasurementKind(
-    "lagged-sensor", "a temperature sensor: node + gradient·(node - yoke), first-order lag, offset", LaggedSensor))
+    "lagged-sensor", "a temperature sensor: node + gradient·(node - yoke), first-order lag, offset", LaggedSensor,
+    temperature_channel=True))
