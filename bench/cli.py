@@ -218,13 +218,42 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return _main(argv)
         except Terminated as exc:   # wherever it came, even while an error was being reported
-            print(f"bench: terminated ({signal.Signals(exc.signum).name}); {STOP_NOTE}", file=sys.stderr)
-            return 128 + exc.signum
+            return _terminated(exc)
+        except Exception as exc:
+            # A signal that lands inside a class body being created (a lazy import's dataclass) reaches us wrapped:
+            # Python 3.11 re-raises what `__set_name__` raised as the cause of a RuntimeError.
+            cause = _signal_behind(exc)
+            if isinstance(cause, Terminated):
+                return _terminated(cause)
+            if isinstance(cause, KeyboardInterrupt):
+                return _interrupted()
+            raise
     finally:
         sys.unraisablehook = hook
         for signum, handler in previous.items():
             signal.signal(signum, handler)
         stop.clear()
+
+
+def _terminated(exc: Terminated) -> int:
+    print(f"bench: terminated ({signal.Signals(exc.signum).name}); {STOP_NOTE}", file=sys.stderr)
+    return 128 + exc.signum
+
+
+def _interrupted() -> int:
+    print(f"bench: interrupted (SIGINT); {STOP_NOTE}", file=sys.stderr)
+    return 128 + signal.SIGINT
+
+
+def _signal_behind(exc: BaseException) -> BaseException | None:
+    """The `Terminated` or `KeyboardInterrupt` an exception was raised from or while handling, if any."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, (Terminated, KeyboardInterrupt)):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def _failed(args: argparse.Namespace | None, sentence: str, status: int, started: float) -> int:
@@ -261,8 +290,7 @@ def _main(argv: list[str] | None) -> int:
             return 0
         return _failed(args, _os_error_sentence(exc), 1, started)
     except KeyboardInterrupt:
-        print(f"bench: interrupted (SIGINT); {STOP_NOTE}", file=sys.stderr)
-        return 128 + signal.SIGINT
+        return _interrupted()
 
 
 if __name__ == "__main__":

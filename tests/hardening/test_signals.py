@@ -377,6 +377,29 @@ def test_a_termination_swallowed_by_a_finalizer_is_delivered_again(scratch):
     assert done.stdout == ""
 
 
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_signal_while_a_class_is_created_still_stops_in_one_sentence(scratch, signum):
+    """A signal that lands in `__set_name__` (a lazy import creating a dataclass) reaches the top level wrapped in
+    a RuntimeError by Python 3.11; the bench still stops with its sentence, not a traceback (CI saw this once)."""
+    code = ("import os, signal, sys, time\n"
+            "import bench.cli as cli\n"
+            "class Slow:\n"
+            "    def __set_name__(self, owner, name):\n"
+            f"        os.kill(os.getpid(), {int(signum)})\n"
+            "        time.sleep(10)\n"
+            "def work(argv):\n"
+            "    class Model:\n"
+            "        field = Slow()\n"
+            "    print('the work went on')\n"
+            "    return 0\n"
+            "cli._main = work\n"
+            "sys.exit(cli.main([]))\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=child_env(), capture_output=True, text=True,
+                          timeout=60)
+    _assert_stopped(done.returncode, done.stderr, signum)
+    assert "Traceback" not in done.stderr and done.stdout == ""
+
+
 @pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)],
                          ids=["SIGTERM", "SIGINT"])
 def test_host_stops_on_a_signal_and_leaves_no_log(material, scratch, signum):
