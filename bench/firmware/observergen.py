@@ -27,7 +27,8 @@ from __future__ import annotations
 import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
-from target_sim.artifact import OUTPUTS, ModelArtifact
+from bench.firmware.udgen import predict_c, update_c
+from target_sim.artifact import ModelArtifact
 from target_sim.kinds import REALIZATIONS
 from target_sim.observer import Float32Observer, ud_factor
 
@@ -88,11 +89,9 @@ OBSERVER_DEFINES = ("#define FW_OBSERVER 1 /* the model has an observer: fw_obs_
 def observer_declarations(artifact: ModelArtifact) -> str:
     """The observer's constants (computed by the reference's own float32 code) and state (.bss)."""
     obs = observer_filter(artifact)
-    f, n, k = obs.f, obs.n, len(OUTPUTS)
+    f, n = obs.f, obs.n
     measurement = obs.measurements[0]
     u0, d0 = ud_factor(obs.p0, f)
-    g = np.eye(n, dtype=f)
-    g[:k, :k] = obs.est.part.c_inv
     lag, bias = obs.lag_index[0], obs.bias_index
     lines = [f"#define OBS_N {n} /* the filter's states: the model's 4, then the lag state, then the bias */",
              f"#define OBS_LAG {lag} /* the lag state's index (-1: the sensor reads the model without lag) */",
@@ -101,17 +100,13 @@ def observer_declarations(artifact: ModelArtifact) -> str:
                "OBS_R": (measurement.r, "its variance R (deg C^2)"),
                "OBS_LAG_POLE": (measurement.lag_pole, "its lag a = exp(-dt/tau)"),
                "OBS_LAG_GAIN": (f(1.0) - measurement.lag_pole, "1 - a")}
-    used = {"OBS_SEES_C", "OBS_LAG_POLE", "OBS_LAG_GAIN"} if lag >= 0 else set()
+    used = {"OBS_LAG_POLE", "OBS_LAG_GAIN"} if lag >= 0 else set()
     used |= {"OBS_BIAS_COLUMN"} if bias >= 0 else set()
-    used |= {"OBS_OFFSET", "OBS_R", "OBS_U0", "OBS_D0", "OBS_G", "OBS_Q", "OBS_H", "OBS_SEES"}
+    used |= {"OBS_OFFSET", "OBS_R", "OBS_U0", "OBS_D0", "OBS_SEES"}
     lines += [f"static const float {name} = {c_float(value)}; /* {comment} */"
               for name, (value, comment) in scalars.items() if name in used]
     arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0"),
-              ("OBS_G", g, "G of Q = G diag(q) G^T: C_inv, then the identity"),
-              ("OBS_Q", obs.q_nodes, "q: the process noise per state"),
-              ("OBS_H", obs.rows[0], "h: the measurement's row"),
               ("OBS_SEES", measurement.sees, "what the sensor sees of [yoke, winding, tooth, magnet]"),
-              ("OBS_SEES_C", obs.sees_c[0], "sees C: the same of the states"),
               ("OBS_BIAS_COLUMN", obs.bias_column, "the bias's column of B (delta: times dt)")]
     text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment)
                                             for name, value, comment in arrays if name in used)
@@ -129,54 +124,6 @@ static void obs_output(void)
     for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4)OBS_PLUS_REF;
 }
 
-/* Float32Observer.transition: the block's A + (B_s J) C (delta: I + DT (A + (B_s J) C)), J the sources' Jacobian
- * at the step's gains (LinearBlockPart.source_jacobian); the bias's column; the lag row (1 - a) (sees C) F + a e */
-static void obs_transition(float f[OBS_N][OBS_N])
-{
-    const float g_tm = obs_gains[0], g_wm = obs_gains[1], g_ma = obs_gains[2], g_cy = obs_gains[3];
-    float jac[4][4], bj[4][4];
-    float acc;
-    int i, j, k;
-    for (i = 0; i < 4; i++) {
-        for (j = 0; j < 4; j++) jac[i][j] = 0.0f;
-    }
-    jac[0][0] = g_cy / (1.0f + g_cy);
-    jac[1][3] = g_ma / (1.0f + g_ma);
-    jac[2][2] = g_tm / (1.0f + g_tm);
-    jac[2][3] = 1.0f / (1.0f + g_tm);
-    jac[3][1] = 1.0f / (1.0f + g_wm);
-    jac[3][3] = g_wm / (1.0f + g_wm);
-    for (i = 0; i < 4; i++) {                               /* fmath.matmul(B_s, J) */
-        for (j = 0; j < 4; j++) {
-            acc = LB_B[i][4] * jac[0][j];
-            for (k = 1; k < 4; k++) acc = acc + LB_B[i][4 + k] * jac[k][j];
-            bj[i][j] = acc;
-        }
-    }
-    for (i = 0; i < OBS_N; i++) {
-        for (j = 0; j < OBS_N; j++) f[i][j] = 0.0f;
-    }
-    for (i = 0; i < 4; i++) {                               /* A + matmul(B_s J, C) */
-        for (j = 0; j < 4; j++) {
-            acc = bj[i][0] * LB_C[0][j];
-            for (k = 1; k < 4; k++) acc = acc + bj[i][k] * LB_C[k][j];
-            f[i][j] = OBS_BLOCK;
-        }
-    }
-#if OBS_BIAS >= 0
-    for (i = 0; i < 4; i++) f[i][OBS_BIAS] = OBS_BIAS_COLUMN[i];
-    f[OBS_BIAS][OBS_BIAS] = 1.0f;
-#endif
-#if OBS_LAG >= 0
-    for (j = 0; j < OBS_N; j++) {
-        acc = f[0][j] * OBS_SEES_C[0];
-        for (i = 1; i < 4; i++) acc = acc + f[i][j] * OBS_SEES_C[i];
-        f[OBS_LAG][j] = OBS_LAG_GAIN * acc;
-    }
-    f[OBS_LAG][OBS_LAG] = f[OBS_LAG][OBS_LAG] + OBS_LAG_POLE;
-#endif
-}
-
 /* Float32Observer._propagate_extra: the bias heats the winding, the lag state follows what its sensor sees */
 static void obs_propagate_extra(void)
 {
@@ -190,67 +137,7 @@ static void obs_propagate_extra(void)
 #endif
 }
 
-/* BiermanThornton.predict: modified weighted Gram-Schmidt of the rows of W = [F U, G], weights [d, q], last row
- * first */
-static void obs_predict(const float f[OBS_N][OBS_N])
-{
-    static float w[OBS_N][2 * OBS_N], u[OBS_N][OBS_N];    /* .bss, not the node's 1 kB stack */
-    float weights[2 * OBS_N], c[2 * OBS_N], d[OBS_N];
-    float acc;
-    int i, j, k;
-    for (i = 0; i < OBS_N; i++) {
-        for (j = 0; j < OBS_N; j++) {                       /* fmath.matmul(F, U) */
-            acc = f[i][0] * obs_u[0][j];
-            for (k = 1; k < OBS_N; k++) acc = acc + f[i][k] * obs_u[k][j];
-            w[i][j] = acc;
-            w[i][OBS_N + j] = OBS_G[i][j];
-            u[i][j] = i == j ? 1.0f : 0.0f;
-        }
-        weights[i] = obs_d[i];
-        weights[OBS_N + i] = OBS_Q[i];
-        d[i] = 0.0f;
-    }
-    for (j = OBS_N - 1; j >= 0; j--) {
-        for (k = 0; k < 2 * OBS_N; k++) c[k] = w[j][k] * weights[k];
-        d[j] = dot(w[j], c, 2 * OBS_N);
-        for (i = 0; i < j; i++) {
-            u[i][j] = dot(w[i], c, 2 * OBS_N) / d[j];
-            for (k = 0; k < 2 * OBS_N; k++) w[i][k] = w[i][k] - u[i][j] * w[j][k];
-        }
-    }
-    for (i = 0; i < OBS_N; i++) {
-        for (j = 0; j < OBS_N; j++) obs_u[i][j] = u[i][j];
-        obs_d[i] = d[i];
-    }
-}
-
-/* BiermanThornton.update: Bierman's scalar update of U, d with the row h and variance r; the gain into gain */
-static void obs_update(float r, float gain[OBS_N])
-{
-    float a[OBS_N], b[OBS_N];
-    float alpha = r, gamma, beta, lambda, held;
-    int i, j;
-    for (j = 0; j < OBS_N; j++) {                           /* U^T h */
-        a[j] = obs_u[0][j] * OBS_H[0];
-        for (i = 1; i < OBS_N; i++) a[j] = a[j] + obs_u[i][j] * OBS_H[i];
-        b[j] = obs_d[j] * a[j];
-    }
-    gamma = 1.0f / alpha;
-    for (j = 0; j < OBS_N; j++) {
-        beta = alpha;
-        alpha = alpha + a[j] * b[j];
-        lambda = -a[j] * gamma;
-        gamma = 1.0f / alpha;
-        obs_d[j] = (beta * gamma) * obs_d[j];
-        for (i = 0; i < j; i++) {
-            held = obs_u[i][j];
-            obs_u[i][j] = held + b[i] * lambda;
-            b[i] = b[i] + b[j] * held;
-        }
-    }
-    for (i = 0; i < OBS_N; i++) gain[i] = b[i] * gamma;
-}
-
+OBS_KERNELS
 static int obs_finite(float value)
 {
     fw_bits bits;
@@ -262,14 +149,12 @@ static int obs_finite(float value)
  * reading: innovation = (z - offset) - (the lag state, or sees y), x <- x + K innovation, y = C x */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
 {
-    static float f[OBS_N][OBS_N];                           /* .bss, not the node's stack */
     float gain[OBS_N];
     const float z = u[FW_INPUTS];
     int i;
     fw_step(u, y);
-    obs_transition(f);
     obs_propagate_extra();
-    obs_predict(f);
+    obs_predict();
     obs_innovation = __builtin_nanf("");
     if (obs_finite(z)) {
         const float value = z - OBS_OFFSET;
@@ -338,10 +223,10 @@ void fw_obs_report(float out[5])
 
 def observer_code(artifact: ModelArtifact) -> str:
     """The observer's functions (after the model's: they call fw_step, fw_reset, fw_restore and dot)."""
-    observer_filter(artifact)
+    obs = observer_filter(artifact)
     delta = REALIZATIONS[artifact.realization].delta
-    block = "(i == j ? 1.0f : 0.0f) + DT * (LB_A[i][j] + acc)" if delta else "LB_A[i][j] + acc"
-    return OBSERVER_C.replace("OBS_PLUS_REF", " + LB_REF" if delta else "").replace("OBS_BLOCK", block)
+    kernels = predict_c(obs) + "\n" + update_c(obs, "obs_update", obs.rows[0])
+    return OBSERVER_C.replace("OBS_PLUS_REF", " + LB_REF" if delta else "").replace("OBS_KERNELS", kernels)
 
 
 def keep_gains(sources_c: str) -> str:
