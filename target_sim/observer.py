@@ -13,8 +13,9 @@ The covariance is kept in one of four forms (`OBSERVER_FORMS`), equal in exact a
 - `conventional`: P⁻ = F P Fᵀ + Q, K = P⁻hᵀ/(h P⁻ hᵀ + R), P = P⁻ - K (h P⁻), no symmetrization;
 - `joseph`: the same prediction, P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ;
 - `ud`: P = U D Uᵀ (U unit upper triangular), Thornton's modified weighted Gram-Schmidt prediction over
-  [F U, C⁻¹] with diag(D, q) (Q = C⁻¹ diag(q) C⁻ᵀ, q the process noise per node), Bierman's scalar measurement
-  update; P0 factored once at start;
+  [F U, G] with diag(D, q_G) (Q = G diag(q_G) Gᵀ: Q's own UD factors), Bierman's scalar measurement update; P0
+  and Q factored once at start; every operation over the structure known when the filter is built
+  (`target_sim.ud_structure`: structural zeros skipped, U's ones not multiplied);
 - `steady`: the steady-state gain K_ss of the artifact (the lab solves the Riccati equation at a nominal operating
   point), no covariance at all: x <- x + K_ss ν, a few multiply-adds.
 
@@ -118,8 +119,8 @@ def ud_factor(m: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
 
 
 class BiermanThornton:
-    """P = U diag(d) Uᵀ: Thornton's prediction, Bierman's update. Q enters as G diag(q) Gᵀ with G = C⁻¹ and q the
-    process noise per node (Thornton's method takes any G), so Q itself is never factored.
+    """P = U diag(d) Uᵀ: Thornton's prediction, Bierman's update. Q enters as G diag(q) Gᵀ (Thornton's method
+    takes any G; `Float32Observer` gives Q's own UD factors, unit upper triangular).
 
     Both run over the structure known when the filter is built (`target_sim.ud_structure`): F's structural
     nonzeros (given with F), U's unit upper triangle, G's zeros, the columns of G whose q is 0 (dropped), h's
@@ -368,9 +369,10 @@ class Float32Observer:
         if self.form == "steady":
             return SteadyState(self.gain_steady, self.p_steady)
         if self.form == "ud":
-            g = np.eye(self.n, dtype=self.f)
-            g[: len(OUTPUTS), : len(OUTPUTS)] = self.est.part.c_inv
-            return BiermanThornton(self.p0, g, self.q_nodes, self.f)
+            # Q = G diag(q) Gᵀ with G unit upper triangular: Q's own UD factors, once at load. Any G will do for
+            # Thornton's method; this one has 10 nonzeros of 16 in the model's block, 4 of them exact ones.
+            g, q = ud_factor(self.q, self.f)
+            return BiermanThornton(self.p0, g, q, self.f)
         return _COVARIANCES[self.form](self.p0, self.q, self.f)
 
     def reset(self, temperatures: Sequence[float]) -> None:

@@ -195,7 +195,7 @@ def predict_c(obs: Float32Observer) -> str:
                 else:
                     w[i][col] = out.set(f"w{i}_{col}", f"{w[i][col].expr} - {step}")
     return ("/* Float32Observer.transition and BiermanThornton.predict, unrolled (bench.firmware.udgen) */\n"
-            "static void obs_predict(void)\n{\n" + out.text() + "\n}\n")
+            "__attribute__((noinline)) static void obs_predict(void)\n{\n" + out.text() + "\n}\n")
 
 
 def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
@@ -242,3 +242,4 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
     return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}], unrolled "
             "(bench.firmware.udgen) */\n"
             f"static void {name}(float r, float gain[OBS_N])\n{{\n" + out.text() + "\n}\n")
+
