@@ -27,8 +27,9 @@ from __future__ import annotations
 import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
-from bench.firmware.udgen import predict_c, update_c
+from bench.firmware.udgen import predict_c, steady_c, update_c
 from target_sim.artifact import ModelArtifact
+from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
 from target_sim.kinds import REALIZATIONS
 from target_sim.observer import Float32Observer, ud_factor
 
@@ -50,11 +51,11 @@ def _literal_array(name: str, values: np.ndarray, comment: str) -> str:
 
 def observer_filter(artifact: ModelArtifact) -> Float32Observer:
     """The reference filter the C is generated from (FirmwareGenerationError when it is not one measurement of one
-    raw channel in the UD form: the refusal has said so before)."""
+    raw channel in the UD or the steady-state-gain form: the refusal has said so before)."""
     obs = Float32Observer(artifact)
-    if obs.form != "ud" or len(obs.measurements) != 1 or obs.widths != [1]:
-        raise FirmwareGenerationError("the firmware generator has the UD form of an observer with one temperature "
-                                      "measurement only")
+    if obs.form not in FIRMWARE_OBSERVER_FORMS or len(obs.measurements) != 1 or obs.widths != [1]:
+        raise FirmwareGenerationError("the firmware generator has the UD and the steady-state-gain forms of an "
+                                      "observer with one temperature measurement only")
     return obs
 
 
@@ -93,7 +94,9 @@ def observer_declarations(artifact: ModelArtifact) -> str:
     measurement = obs.measurements[0]
     u0, d0 = ud_factor(obs.p0, f)
     lag, bias = obs.lag_index[0], obs.bias_index
+    steady = obs.form == "steady"
     lines = [f"#define OBS_N {n} /* the filter's states: the model's 4, then the lag state, then the bias */",
+             f"#define OBS_STEADY {int(steady)} /* 1: the steady-state gain K_ss (no covariance), 0: the UD form */",
              f"#define OBS_LAG {lag} /* the lag state's index (-1: the sensor reads the model without lag) */",
              f"#define OBS_BIAS {bias} /* the bias state's index (-1: none) */"]
     scalars = {"OBS_OFFSET": (measurement.offset, "the sensor's offset (deg C)"),
@@ -102,17 +105,20 @@ def observer_declarations(artifact: ModelArtifact) -> str:
                "OBS_LAG_GAIN": (f(1.0) - measurement.lag_pole, "1 - a")}
     used = {"OBS_LAG_POLE", "OBS_LAG_GAIN"} if lag >= 0 else set()
     used |= {"OBS_BIAS_COLUMN"} if bias >= 0 else set()
-    used |= {"OBS_OFFSET", "OBS_R", "OBS_U0", "OBS_D0", "OBS_SEES"}
+    used |= {"OBS_OFFSET", "OBS_R", "OBS_SEES"} | ({"OBS_GAIN", "OBS_SIGMA"} if steady else {"OBS_U0", "OBS_D0"})
     lines += [f"static const float {name} = {c_float(value)}; /* {comment} */"
               for name, (value, comment) in scalars.items() if name in used]
     arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0"),
+              ("OBS_GAIN", obs.gain_steady[0], "K_ss: the steady-state gain"),
+              ("OBS_SIGMA", obs.sigma(), "each node's 1-sigma of P_ss (Float32Observer.sigma: constant)"),
               ("OBS_SEES", measurement.sees, "what the sensor sees of [yoke, winding, tooth, magnet]"),
               ("OBS_BIAS_COLUMN", obs.bias_column, "the bias's column of B (delta: times dt)")]
     text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment)
                                             for name, value, comment in arrays if name in used)
-    return text + ("/* the observer's state: U, d of P = U diag(d) U^T, the extra states (lag, bias: by their index),\n"
-                   " * the last innovation, the sources' gains of the last step */\n"
-                   "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\nstatic float obs_extra[OBS_N];\n"
+    factors = "" if steady else "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\n"
+    return text + ("/* the observer's state: U, d of P = U diag(d) U^T (UD form), the extra states (lag, bias: by\n"
+                   " * their index), the last innovation, the sources' gains of the last step */\n"
+                   f"{factors}static float obs_extra[OBS_N];\n"
                    "static float obs_innovation;\nstatic float obs_gains[4];\n")
 
 
@@ -176,16 +182,21 @@ void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
 /* Float32Observer.reset */
 void fw_obs_reset(const float y0[4])
 {
-    int i, j;
+    int i;
+#if !OBS_STEADY
+    int j;
+#endif
     fw_reset(y0);
     for (i = 0; i < OBS_N; i++) obs_extra[i] = 0.0f;
 #if OBS_LAG >= 0
     obs_extra[OBS_LAG] = dot(OBS_SEES, y_est, 4);
 #endif
+#if !OBS_STEADY
     for (i = 0; i < OBS_N; i++) {
         for (j = 0; j < OBS_N; j++) obs_u[i][j] = OBS_U0[i][j];
         obs_d[i] = OBS_D0[i];
     }
+#endif
     obs_innovation = __builtin_nanf("");
 }
 
@@ -204,6 +215,10 @@ void fw_obs_restore(const float x[4])
 /* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) and .innovation */
 void fw_obs_report(float out[5])
 {
+#if OBS_STEADY
+    int node;
+    for (node = 0; node < 4; node++) out[node] = OBS_SIGMA[node];   /* P_ss: the same every step */
+#else
     float v[OBS_N];
     float s;
     int node, i, j;
@@ -216,6 +231,7 @@ void fw_obs_report(float out[5])
         for (j = 1; j < OBS_N; j++) s = s + (obs_d[j] * v[j]) * v[j];
         out[node] = s > 0.0f ? __builtin_sqrtf(s) : 0.0f;
     }
+#endif
     out[4] = obs_innovation;
 }
 """
@@ -225,7 +241,8 @@ def observer_code(artifact: ModelArtifact) -> str:
     """The observer's functions (after the model's: they call fw_step, fw_reset, fw_restore and dot)."""
     obs = observer_filter(artifact)
     delta = REALIZATIONS[artifact.realization].delta
-    kernels = predict_c(obs) + "\n" + update_c(obs, "obs_update", obs.rows[0])
+    kernels = (steady_c() if obs.form == "steady" else
+               predict_c(obs) + "\n" + update_c(obs, "obs_update", obs.rows[0]))
     return OBSERVER_C.replace("OBS_PLUS_REF", " + LB_REF" if delta else "").replace("OBS_KERNELS", kernels)
 
 

@@ -9,6 +9,7 @@ counters, no index arithmetic, no loads of zeros.
 
     obs_predict(void)              Float32Observer.transition + BiermanThornton.predict: F, F U, the MWGS
     obs_update(r, gain)            BiermanThornton.update for the measurement's row h
+    steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
 """
 
 from __future__ import annotations
@@ -243,3 +244,11 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
             "(bench.firmware.udgen) */\n"
             f"static void {name}(float r, float gain[OBS_N])\n{{\n" + out.text() + "\n}\n")
 
+
+
+def steady_c() -> str:
+    """The steady-state-gain form's kernels (SteadyState): no prediction, the update hands out K_ss."""
+    return ("/* SteadyState.predict: nothing (no covariance) */\nstatic void obs_predict(void)\n{\n}\n\n"
+            "/* SteadyState.update: the constant gain K_ss, whatever r */\n"
+            "static void obs_update(float r, float gain[OBS_N])\n{\n    int i;\n    (void)r;\n"
+            "    for (i = 0; i < OBS_N; i++) gain[i] = OBS_GAIN[i];\n}\n")
