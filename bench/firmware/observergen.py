@@ -1,25 +1,27 @@
 """The observer's generated C (fw_model.c's observer part): the float32 Kalman filter of `target_sim.observer`
-in its deployed UD form, for an artifact with an observer section; an open-loop artifact gets none of it (its C,
-and so its ELF, is what it was).
+in its deployed UD form (or its steady-state gain), for an artifact with an observer section; an open-loop artifact
+gets none of it (its C, and so its ELF, is what it was).
 
-The C repeats `target_sim.observer.Float32Observer` with `BiermanThornton` operation for operation:
+The C repeats `target_sim.observer.Float32Observer` with `BiermanThornton` (or `SteadyState`) operation for
+operation:
 
 | C (fw_model.c)         | Python (target_sim.observer)                  | what                                  |
 |------------------------|-----------------------------------------------|---------------------------------------|
-| obs_transition         | Float32Observer.transition (source_jacobian)  | F of the step, augmented              |
 | obs_propagate_extra    | Float32Observer._propagate_extra              | bias into x, the lag state            |
-| obs_predict            | BiermanThornton.predict                       | Thornton's MWGS over [F U, G]         |
-| obs_update             | BiermanThornton.update                        | Bierman's scalar update, the gain     |
+| obs_predict            | Float32Observer.transition,                   | F of the step, augmented; Thornton's  |
+|                        | BiermanThornton.predict                       | MWGS over [F U, G] (udgen.py)         |
+| obs_update             | BiermanThornton.update                        | Bierman's scalar update (udgen.py)    |
 | fw_obs_step            | Float32Observer.step                          | model step, predict, update           |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
 | fw_obs_report          | Float32Observer.sigma, .innovation            | each node's 1-σ, the innovation       |
 
-What the reference computes once at load (P0's factors U0 and d0 by `ud_factor`, G = [C⁻¹ 0; 0 I], sees·C, the
-bias column of B, the measurement row h, 1 - a of the lag) is computed by that very code here and written as
-exact literals: the same float32 values the reference starts from. The temperature sources keep their gains for
-the Jacobian (`obs_gains`, written by temperature_sources only in an observer's C). One measurement of one raw
-channel (a lagged sensor: what the Measurements frame carries); the firmware refuses any other observer before
-this runs (`target_sim.firmware.node_protocol.firmware_refusal`).
+What the reference computes once at load (P0's factors U0 and d0 by `ud_factor`, Q's factors G and q, the
+constants of F, the bias column of B, the measurement row h, 1 - a of the lag; the steady form's K_ss and its
+constant 1-σ) is computed by that very code here and written as exact literals: the same float32 values the
+reference starts from. The temperature sources keep their gains for the Jacobian (`obs_gains`, written by
+temperature_sources only in an observer's C). One measurement of one raw channel (a lagged sensor: what the
+Measurements frame carries); the firmware refuses any other observer before this runs
+(`target_sim.firmware.node_protocol.firmware_refusal`).
 """
 
 from __future__ import annotations
@@ -63,8 +65,8 @@ def observer_header() -> str:
     """fw_model.h's observer part."""
     return """
 /* The observer (the artifact's observer section: a float32 Kalman filter on the linear block, Bierman-Thornton UD
- * form, as target_sim.observer.Float32Observer): a sample and a step's inputs carry the measurement after the
- * drive values (NaN: no reading, the step predicts only), FW_SAMPLE_WIDTH values. */
+ * form or the steady-state gain, as target_sim.observer.Float32Observer): a sample and a step's inputs carry the
+ * measurement after the drive values (NaN: no reading, the step predicts only), FW_SAMPLE_WIDTH values. */
 
 /* The model at y0 (fw_reset), the lag state at what its sensor sees, the covariance P0 (its factors U0, d0). */
 void fw_obs_reset(const float y0[4]);
