@@ -13,8 +13,9 @@ The covariance is kept in one of four forms (`OBSERVER_FORMS`), equal in exact a
 - `conventional`: P⁻ = F P Fᵀ + Q, K = P⁻hᵀ/(h P⁻ hᵀ + R), P = P⁻ - K (h P⁻), no symmetrization;
 - `joseph`: the same prediction, P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ;
 - `ud`: P = U D Uᵀ (U unit upper triangular), Thornton's modified weighted Gram-Schmidt prediction over
-  [F U, C⁻¹] with diag(D, q) (Q = C⁻¹ diag(q) C⁻ᵀ, q the process noise per node), Bierman's scalar measurement
-  update; P0 factored once at start;
+  [F U, G] with diag(D, q_G) (Q = G diag(q_G) Gᵀ: Q's own UD factors), Bierman's scalar measurement update; P0
+  and Q factored once at start; every operation over the structure known when the filter is built
+  (`target_sim.ud_structure`: structural zeros skipped, U's ones not multiplied);
 - `steady`: the steady-state gain K_ss of the artifact (the lab solves the Riccati equation at a nominal operating
   point), no covariance at all: x <- x + K_ss ν, a few multiply-adds.
 
@@ -35,7 +36,20 @@ from target_sim.fmath import dot, matmul, matvec
 from target_sim.kinds import MODEL_KINDS
 from target_sim.measurements import MEASUREMENT_KINDS
 from target_sim.model import F32, Float32Estimator, InputAccumulator
+from target_sim.modelkinds.lti_lptn import SOURCE_JACOBIAN_NONZERO
 from target_sim.registry import Registry
+from target_sim.ud_structure import (
+    NEG_ZERO,
+    BiermanSchedule,
+    Pivot,
+    bierman_schedule,
+    gram_schmidt_schedule,
+    masked_dot,
+    masked_matmul,
+    pattern_product,
+    structural,
+    upper_unit,
+)
 
 
 class ObserverError(TargetError):
@@ -105,48 +119,102 @@ def ud_factor(m: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
 
 
 class BiermanThornton:
-    """P = U diag(d) Uᵀ: Thornton's prediction, Bierman's update. Q enters as G diag(q) Gᵀ with G = C⁻¹ and q the
-    process noise per node (Thornton's method takes any G), so Q itself is never factored."""
+    """P = U diag(d) Uᵀ: Thornton's prediction, Bierman's update. Q enters as G diag(q) Gᵀ (Thornton's method
+    takes any G; `Float32Observer` gives Q's own UD factors, unit upper triangular).
+
+    Both run over the structure known when the filter is built (`target_sim.ud_structure`): F's structural
+    nonzeros (given with F), U's unit upper triangle, G's zeros, the columns of G whose q is 0 (dropped), h's
+    zeros; each schedule is computed once per pattern. Skipped products are left out of their sums; the order of
+    the rest is fixed, so the C repeats it bit for bit."""
 
     def __init__(self, p0: np.ndarray, g: np.ndarray, q_nodes: np.ndarray, f):
         self.f = f
         self.u, self.d = ud_factor(p0, f)
-        self.g, self.q_nodes = g, q_nodes
+        n = len(self.d)
+        self.upper = upper_unit(n)
+        kept = np.flatnonzero(np.asarray(q_nodes) != 0)      # a column of weight 0 adds nothing to any product
+        g = np.asarray(g, dtype=f)[:, kept]
+        self.g_nonzero = g != 0
+        self.g = structural(g, self.g_nonzero)
+        self.q_kept = np.asarray(q_nodes, dtype=f)[kept]
+        self.g_columns = kept
+        self._pivots: dict[bytes, list] = {}
+        self._updates: dict[bytes, tuple[np.ndarray, BiermanSchedule]] = {}
 
-    def predict(self, transition: np.ndarray) -> None:
-        """Modified weighted Gram-Schmidt of the rows of W = [F U, G] with weights diag(d, q), last row first."""
+    def schedule(self, f_nonzero: np.ndarray) -> tuple[Pivot, ...]:
+        """The MWGS schedule of W = [F U, G] for F's structural nonzeros."""
+        w_nonzero = np.concatenate([pattern_product(f_nonzero, self.upper), self.g_nonzero], axis=1)
+        return gram_schmidt_schedule(w_nonzero)
+
+    def _pivot_indices(self, f_nonzero: np.ndarray) -> list:
+        key = f_nonzero.tobytes()
+        if key not in self._pivots:
+            self._pivots[key] = [(p.row, np.array(p.columns, dtype=np.intp),
+                                  [(r.row, np.array(r.shared, dtype=np.intp)) for r in p.rows])
+                                 for p in self.schedule(f_nonzero)]
+        return self._pivots[key]
+
+    def predict(self, transition: np.ndarray, f_nonzero: np.ndarray | None = None) -> None:
+        """Modified weighted Gram-Schmidt of the rows of W = [F U, G] with weights diag(d, q), last row first:
+        d_j = w_j·(w_j ∘ weights), u_ij = (w_i·(w_j ∘ weights))·(1/d_j) (one division per pivot),
+        w_i <- w_i - u_ij w_j. `f_nonzero`: F's structural nonzeros (None: all)."""
         f, n = self.f, len(self.d)
-        w = np.concatenate([matmul(transition, self.u), self.g], axis=1)
-        weights = np.concatenate([self.d, self.q_nodes])
+        zero, one = f(NEG_ZERO), f(1.0)
+        if f_nonzero is None:
+            f_nonzero = np.ones((n, n), dtype=bool)
+        fu, _ = masked_matmul(transition, self.u, f_nonzero, self.upper)
+        w = np.concatenate([fu, self.g], axis=1)
+        weights = np.concatenate([self.d, self.q_kept])
         u = np.eye(n, dtype=f)
         d = np.zeros(n, dtype=f)
-        for j in range(n - 1, -1, -1):
-            c = w[j] * weights
-            d[j] = dot(w[j], c)
-            for i in range(j):
-                u[i, j] = dot(w[i], c) / d[j]
-                w[i] = w[i] - u[i, j] * w[j]
+        for j, columns, rows in self._pivot_indices(f_nonzero):
+            w_j = w[j, columns]
+            c = w_j * weights[columns]
+            d[j] = masked_dot(w_j, c, zero)
+            if not rows:
+                continue
+            inverse = one / d[j]
+            for i, shared in rows:
+                u[i, j] = masked_dot(w[i, columns[shared]], c[shared], zero) * inverse
+                w[i, columns] = w[i, columns] - u[i, j] * w_j
         self.u, self.d = u, d
 
+    def bierman(self, h: np.ndarray) -> BiermanSchedule:
+        """The update's schedule for the row h (its zeros are structural)."""
+        return self._bierman_entry(h)[1]
+
+    def _bierman_entry(self, h: np.ndarray) -> tuple[np.ndarray, BiermanSchedule]:
+        nonzero = np.asarray(h) != 0
+        key = nonzero.tobytes()
+        if key not in self._updates:
+            self._updates[key] = (nonzero, bierman_schedule(nonzero))
+        return self._updates[key]
+
     def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
-        """Bierman's scalar update (Grewal and Andrews' arrangement); returns the gain."""
-        f, n = self.f, len(self.d)
+        """Bierman's scalar update (Grewal and Andrews' arrangement) over h's structure: a = Uᵀhᵀ, b = d ∘ a, then
+        each column j with a_j != 0 (a column with a_j = 0 changes nothing); returns the gain b·γ."""
+        f = self.f
         one = f(1.0)
+        nonzero, schedule = self._bierman_entry(h)
         u, d = self.u.copy(), self.d.copy()
-        a = matvec(u.T, h)                     # Uᵀ hᵀ
-        b = d * a
+        a, a_nonzero = masked_matmul(np.asarray(h, dtype=f)[None, :], u, nonzero[None, :], self.upper)
+        a, a_nonzero = a[0], a_nonzero[0]
+        b = structural(d * a, a_nonzero)
         alpha = f(r)
         gamma = one / alpha
-        for j in range(n):
+        for step in schedule.steps:
+            j = step.column
             beta = alpha
             alpha = alpha + a[j] * b[j]
             lam = -a[j] * gamma
             gamma = one / alpha
             d[j] = (beta * gamma) * d[j]
-            for i in range(j):
+            for i in step.updated:
                 held = u[i, j]
                 u[i, j] = held + b[i] * lam
                 b[i] = b[i] + b[j] * held
+            for i in step.filled:
+                b[i] = b[j] * u[i, j]          # b_i was a structural zero: -0 + b_j u_ij
         self.u, self.d = u, d
         return b * gamma
 
@@ -294,15 +362,17 @@ class Float32Observer:
         self.extra = np.zeros(n - len(OUTPUTS), dtype=f)
         self.innovations = np.full(len(self.measurements), np.nan, dtype=f)
         self.innovation = f(np.nan)
+        self._transition_structure()
         self.cov = self._covariance()
 
     def _covariance(self):
         if self.form == "steady":
             return SteadyState(self.gain_steady, self.p_steady)
         if self.form == "ud":
-            g = np.eye(self.n, dtype=self.f)
-            g[: len(OUTPUTS), : len(OUTPUTS)] = self.est.part.c_inv
-            return BiermanThornton(self.p0, g, self.q_nodes, self.f)
+            # Q = G diag(q) Gᵀ with G unit upper triangular: Q's own UD factors, once at load. Any G will do for
+            # Thornton's method; this one has 10 nonzeros of 16 in the model's block, 4 of them exact ones.
+            g, q = ud_factor(self.q, self.f)
+            return BiermanThornton(self.p0, g, q, self.f)
         return _COVARIANCES[self.form](self.p0, self.q, self.f)
 
     def reset(self, temperatures: Sequence[float]) -> None:
@@ -358,23 +428,53 @@ class Float32Observer:
         elif isinstance(cov, Conventional):
             cov.p = rest.reshape(self.n, self.n).copy()
 
+    def _transition_structure(self) -> None:
+        """The constants of F, hoisted (delta: I + Δ A and Δ C), and F's structural nonzeros: A's, those of
+        (B_s J) C from B_s, the Jacobian's pattern and C, the bias's column, each lag row's (sees·C) F[:4]."""
+        part, k, n = self.est.part, len(OUTPUTS), self.n
+        self.b_sources = part.b[:, 4:]
+        self.b_sources_nonzero = self.b_sources != 0
+        self.jacobian_nonzero = np.zeros((4, 4), dtype=bool)
+        for source, node in SOURCE_JACOBIAN_NONZERO:
+            self.jacobian_nonzero[source, node] = True
+        a_step = self.identity + self.est.dt * part.a if part.delta else part.a
+        self.c_step = self.est.dt * part.c if part.delta else part.c
+        self.c_step_nonzero = self.c_step != 0
+        self.bj_nonzero = pattern_product(self.b_sources_nonzero, self.jacobian_nonzero)
+        self.a_step = structural(a_step, a_step != 0)
+        nonzero = np.zeros((n, n), dtype=bool)
+        nonzero[:k, :k] = (a_step != 0) | pattern_product(self.bj_nonzero, self.c_step_nonzero)
+        if self.bias_index >= 0:
+            nonzero[:k, self.bias_index] = self.bias_column != 0
+            nonzero[self.bias_index, self.bias_index] = True
+        self.sees_c_nonzero = [sc != 0 for sc in self.sees_c]
+        for lag, sc_nonzero in zip(self.lag_index, self.sees_c_nonzero, strict=True):
+            if lag >= 0:
+                nonzero[lag] = pattern_product(sc_nonzero[None, :], nonzero[:k])[0]
+                nonzero[lag, lag] = True
+        self.f_nonzero = nonzero
+
     def transition(self) -> np.ndarray:
-        """F of the step just taken, augmented (C: fw_transition): the block's A + (B_s G) C (delta:
-        I + Δ·(A + (B_s G) C)), the bias's column of B, and each lag row (1 - a)·(sees·C)·F[:4] + a e_lag."""
+        """F of the step just taken, augmented (C: obs_predict), over its structural nonzeros (-0 elsewhere): the
+        block's (I + Δ A) + (B_s J)(Δ C) (shift form: A + (B_s J) C), J the sources' Jacobian at the step's gains;
+        the bias's column of B (Δ B); each lag row (1 - a)·((sees·C)·F[:4]) and a on its diagonal."""
         part, f, k = self.est.part, self.f, len(OUTPUTS)
-        a_eff = part.a + matmul(matmul(part.b[:, 4:], part.source_jacobian()), part.c)
-        block = self.identity + self.est.dt * a_eff if part.delta else a_eff
+        bj, _ = masked_matmul(self.b_sources, part.source_jacobian(), self.b_sources_nonzero, self.jacobian_nonzero)
+        x, _ = masked_matmul(bj, self.c_step, self.bj_nonzero, self.c_step_nonzero)
+        block = self.a_step + x                     # A's structural zeros are -0: the sum is x there
         if self.n == k:
             return block
-        full = np.zeros((self.n, self.n), dtype=f)
+        full = np.full((self.n, self.n), f(NEG_ZERO), dtype=f)
         full[:k, :k] = block
         if self.bias_index >= 0:
-            full[:k, self.bias_index] = self.bias_column
+            full[:k, self.bias_index] = structural(self.bias_column, self.bias_column != 0)
             full[self.bias_index, self.bias_index] = f(1.0)
-        for m, lag, sc in zip(self.measurements, self.lag_index, self.sees_c, strict=True):
+        for m, lag, sc, sc_nonzero in zip(self.measurements, self.lag_index, self.sees_c, self.sees_c_nonzero,
+                                          strict=True):
             if lag >= 0:
-                full[lag] = (f(1.0) - m.lag_pole) * matvec(full[:k].T, sc)
-                full[lag, lag] = full[lag, lag] + m.lag_pole
+                row, _ = masked_matmul(sc[None, :], full[:k], sc_nonzero[None, :], self.f_nonzero[:k])
+                full[lag] = (f(1.0) - m.lag_pole) * row[0]
+                full[lag, lag] = m.lag_pole
         return full
 
     def _propagate_extra(self) -> None:
@@ -403,7 +503,10 @@ class Float32Observer:
         est.step(torque, speed, coolant, ambient, i_d, i_q)
         transition = self.transition()
         self._propagate_extra()
-        self.cov.predict(transition)
+        if isinstance(self.cov, BiermanThornton):
+            self.cov.predict(transition, self.f_nonzero)
+        else:
+            self.cov.predict(transition)
         self.innovations = np.full(len(self.measurements), np.nan, dtype=f)
         for index, (m, raw) in enumerate(zip(self.measurements, self._raw(z), strict=True)):
             reading = m.reading(raw, f(speed), est.y)

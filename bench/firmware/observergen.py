@@ -1,25 +1,27 @@
 """The observer's generated C (fw_model.c's observer part): the float32 Kalman filter of `target_sim.observer`
-in its deployed UD form, for an artifact with an observer section; an open-loop artifact gets none of it (its C,
-and so its ELF, is what it was).
+in its deployed UD form (or its steady-state gain), for an artifact with an observer section; an open-loop artifact
+gets none of it (its C, and so its ELF, is what it was).
 
-The C repeats `target_sim.observer.Float32Observer` with `BiermanThornton` operation for operation:
+The C repeats `target_sim.observer.Float32Observer` with `BiermanThornton` (or `SteadyState`) operation for
+operation:
 
 | C (fw_model.c)         | Python (target_sim.observer)                  | what                                  |
 |------------------------|-----------------------------------------------|---------------------------------------|
-| obs_transition         | Float32Observer.transition (source_jacobian)  | F of the step, augmented              |
 | obs_propagate_extra    | Float32Observer._propagate_extra              | bias into x, the lag state            |
-| obs_predict            | BiermanThornton.predict                       | Thornton's MWGS over [F U, G]         |
-| obs_update             | BiermanThornton.update                        | Bierman's scalar update, the gain     |
+| obs_predict            | Float32Observer.transition,                   | F of the step, augmented; Thornton's  |
+|                        | BiermanThornton.predict                       | MWGS over [F U, G] (udgen.py)         |
+| obs_update             | BiermanThornton.update                        | Bierman's scalar update (udgen.py)    |
 | fw_obs_step            | Float32Observer.step                          | model step, predict, update           |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
 | fw_obs_report          | Float32Observer.sigma, .innovation            | each node's 1-σ, the innovation       |
 
-What the reference computes once at load (P0's factors U0 and d0 by `ud_factor`, G = [C⁻¹ 0; 0 I], sees·C, the
-bias column of B, the measurement row h, 1 - a of the lag) is computed by that very code here and written as
-exact literals: the same float32 values the reference starts from. The temperature sources keep their gains for
-the Jacobian (`obs_gains`, written by temperature_sources only in an observer's C). One measurement of one raw
-channel (a lagged sensor: what the Measurements frame carries); the firmware refuses any other observer before
-this runs (`target_sim.firmware.node_protocol.firmware_refusal`).
+What the reference computes once at load (P0's factors U0 and d0 by `ud_factor`, Q's factors G and q, the
+constants of F, the bias column of B, the measurement row h, 1 - a of the lag; the steady form's K_ss and its
+constant 1-σ) is computed by that very code here and written as exact literals: the same float32 values the
+reference starts from. The temperature sources keep their gains for the Jacobian (`obs_gains`, written by
+temperature_sources only in an observer's C). One measurement of one raw channel (a lagged sensor: what the
+Measurements frame carries); the firmware refuses any other observer before this runs
+(`target_sim.firmware.node_protocol.firmware_refusal`).
 """
 
 from __future__ import annotations
@@ -27,7 +29,9 @@ from __future__ import annotations
 import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
-from target_sim.artifact import OUTPUTS, ModelArtifact
+from bench.firmware.udgen import predict_c, steady_c, update_c
+from target_sim.artifact import ModelArtifact
+from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
 from target_sim.kinds import REALIZATIONS
 from target_sim.observer import Float32Observer, ud_factor
 
@@ -49,11 +53,11 @@ def _literal_array(name: str, values: np.ndarray, comment: str) -> str:
 
 def observer_filter(artifact: ModelArtifact) -> Float32Observer:
     """The reference filter the C is generated from (FirmwareGenerationError when it is not one measurement of one
-    raw channel in the UD form: the refusal has said so before)."""
+    raw channel in the UD or the steady-state-gain form: the refusal has said so before)."""
     obs = Float32Observer(artifact)
-    if obs.form != "ud" or len(obs.measurements) != 1 or obs.widths != [1]:
-        raise FirmwareGenerationError("the firmware generator has the UD form of an observer with one temperature "
-                                      "measurement only")
+    if obs.form not in FIRMWARE_OBSERVER_FORMS or len(obs.measurements) != 1 or obs.widths != [1]:
+        raise FirmwareGenerationError("the firmware generator has the UD and the steady-state-gain forms of an "
+                                      "observer with one temperature measurement only")
     return obs
 
 
@@ -61,8 +65,8 @@ def observer_header() -> str:
     """fw_model.h's observer part."""
     return """
 /* The observer (the artifact's observer section: a float32 Kalman filter on the linear block, Bierman-Thornton UD
- * form, as target_sim.observer.Float32Observer): a sample and a step's inputs carry the measurement after the
- * drive values (NaN: no reading, the step predicts only), FW_SAMPLE_WIDTH values. */
+ * form or the steady-state gain, as target_sim.observer.Float32Observer): a sample and a step's inputs carry the
+ * measurement after the drive values (NaN: no reading, the step predicts only), FW_SAMPLE_WIDTH values. */
 
 /* The model at y0 (fw_reset), the lag state at what its sensor sees, the covariance P0 (its factors U0, d0). */
 void fw_obs_reset(const float y0[4]);
@@ -88,36 +92,35 @@ OBSERVER_DEFINES = ("#define FW_OBSERVER 1 /* the model has an observer: fw_obs_
 def observer_declarations(artifact: ModelArtifact) -> str:
     """The observer's constants (computed by the reference's own float32 code) and state (.bss)."""
     obs = observer_filter(artifact)
-    f, n, k = obs.f, obs.n, len(OUTPUTS)
+    f, n = obs.f, obs.n
     measurement = obs.measurements[0]
     u0, d0 = ud_factor(obs.p0, f)
-    g = np.eye(n, dtype=f)
-    g[:k, :k] = obs.est.part.c_inv
     lag, bias = obs.lag_index[0], obs.bias_index
+    steady = obs.form == "steady"
     lines = [f"#define OBS_N {n} /* the filter's states: the model's 4, then the lag state, then the bias */",
+             f"#define OBS_STEADY {int(steady)} /* 1: the steady-state gain K_ss (no covariance), 0: the UD form */",
              f"#define OBS_LAG {lag} /* the lag state's index (-1: the sensor reads the model without lag) */",
              f"#define OBS_BIAS {bias} /* the bias state's index (-1: none) */"]
     scalars = {"OBS_OFFSET": (measurement.offset, "the sensor's offset (deg C)"),
                "OBS_R": (measurement.r, "its variance R (deg C^2)"),
                "OBS_LAG_POLE": (measurement.lag_pole, "its lag a = exp(-dt/tau)"),
                "OBS_LAG_GAIN": (f(1.0) - measurement.lag_pole, "1 - a")}
-    used = {"OBS_SEES_C", "OBS_LAG_POLE", "OBS_LAG_GAIN"} if lag >= 0 else set()
+    used = {"OBS_LAG_POLE", "OBS_LAG_GAIN"} if lag >= 0 else set()
     used |= {"OBS_BIAS_COLUMN"} if bias >= 0 else set()
-    used |= {"OBS_OFFSET", "OBS_R", "OBS_U0", "OBS_D0", "OBS_G", "OBS_Q", "OBS_H", "OBS_SEES"}
+    used |= {"OBS_OFFSET", "OBS_R", "OBS_SEES"} | ({"OBS_GAIN", "OBS_SIGMA"} if steady else {"OBS_U0", "OBS_D0"})
     lines += [f"static const float {name} = {c_float(value)}; /* {comment} */"
               for name, (value, comment) in scalars.items() if name in used]
     arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0"),
-              ("OBS_G", g, "G of Q = G diag(q) G^T: C_inv, then the identity"),
-              ("OBS_Q", obs.q_nodes, "q: the process noise per state"),
-              ("OBS_H", obs.rows[0], "h: the measurement's row"),
+              ("OBS_GAIN", obs.gain_steady[0], "K_ss: the steady-state gain"),
+              ("OBS_SIGMA", obs.sigma(), "each node's 1-sigma of P_ss (Float32Observer.sigma: constant)"),
               ("OBS_SEES", measurement.sees, "what the sensor sees of [yoke, winding, tooth, magnet]"),
-              ("OBS_SEES_C", obs.sees_c[0], "sees C: the same of the states"),
               ("OBS_BIAS_COLUMN", obs.bias_column, "the bias's column of B (delta: times dt)")]
     text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment)
                                             for name, value, comment in arrays if name in used)
-    return text + ("/* the observer's state: U, d of P = U diag(d) U^T, the extra states (lag, bias: by their index),\n"
-                   " * the last innovation, the sources' gains of the last step */\n"
-                   "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\nstatic float obs_extra[OBS_N];\n"
+    factors = "" if steady else "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\n"
+    return text + ("/* the observer's state: U, d of P = U diag(d) U^T (UD form), the extra states (lag, bias: by\n"
+                   " * their index), the last innovation, the sources' gains of the last step */\n"
+                   f"{factors}static float obs_extra[OBS_N];\n"
                    "static float obs_innovation;\nstatic float obs_gains[4];\n")
 
 
@@ -127,54 +130,6 @@ static void obs_output(void)
 {
     int i;
     for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4)OBS_PLUS_REF;
-}
-
-/* Float32Observer.transition: the block's A + (B_s J) C (delta: I + DT (A + (B_s J) C)), J the sources' Jacobian
- * at the step's gains (LinearBlockPart.source_jacobian); the bias's column; the lag row (1 - a) (sees C) F + a e */
-static void obs_transition(float f[OBS_N][OBS_N])
-{
-    const float g_tm = obs_gains[0], g_wm = obs_gains[1], g_ma = obs_gains[2], g_cy = obs_gains[3];
-    float jac[4][4], bj[4][4];
-    float acc;
-    int i, j, k;
-    for (i = 0; i < 4; i++) {
-        for (j = 0; j < 4; j++) jac[i][j] = 0.0f;
-    }
-    jac[0][0] = g_cy / (1.0f + g_cy);
-    jac[1][3] = g_ma / (1.0f + g_ma);
-    jac[2][2] = g_tm / (1.0f + g_tm);
-    jac[2][3] = 1.0f / (1.0f + g_tm);
-    jac[3][1] = 1.0f / (1.0f + g_wm);
-    jac[3][3] = g_wm / (1.0f + g_wm);
-    for (i = 0; i < 4; i++) {                               /* fmath.matmul(B_s, J) */
-        for (j = 0; j < 4; j++) {
-            acc = LB_B[i][4] * jac[0][j];
-            for (k = 1; k < 4; k++) acc = acc + LB_B[i][4 + k] * jac[k][j];
-            bj[i][j] = acc;
-        }
-    }
-    for (i = 0; i < OBS_N; i++) {
-        for (j = 0; j < OBS_N; j++) f[i][j] = 0.0f;
-    }
-    for (i = 0; i < 4; i++) {                               /* A + matmul(B_s J, C) */
-        for (j = 0; j < 4; j++) {
-            acc = bj[i][0] * LB_C[0][j];
-            for (k = 1; k < 4; k++) acc = acc + bj[i][k] * LB_C[k][j];
-            f[i][j] = OBS_BLOCK;
-        }
-    }
-#if OBS_BIAS >= 0
-    for (i = 0; i < 4; i++) f[i][OBS_BIAS] = OBS_BIAS_COLUMN[i];
-    f[OBS_BIAS][OBS_BIAS] = 1.0f;
-#endif
-#if OBS_LAG >= 0
-    for (j = 0; j < OBS_N; j++) {
-        acc = f[0][j] * OBS_SEES_C[0];
-        for (i = 1; i < 4; i++) acc = acc + f[i][j] * OBS_SEES_C[i];
-        f[OBS_LAG][j] = OBS_LAG_GAIN * acc;
-    }
-    f[OBS_LAG][OBS_LAG] = f[OBS_LAG][OBS_LAG] + OBS_LAG_POLE;
-#endif
 }
 
 /* Float32Observer._propagate_extra: the bias heats the winding, the lag state follows what its sensor sees */
@@ -190,67 +145,7 @@ static void obs_propagate_extra(void)
 #endif
 }
 
-/* BiermanThornton.predict: modified weighted Gram-Schmidt of the rows of W = [F U, G], weights [d, q], last row
- * first */
-static void obs_predict(const float f[OBS_N][OBS_N])
-{
-    static float w[OBS_N][2 * OBS_N], u[OBS_N][OBS_N];    /* .bss, not the node's 1 kB stack */
-    float weights[2 * OBS_N], c[2 * OBS_N], d[OBS_N];
-    float acc;
-    int i, j, k;
-    for (i = 0; i < OBS_N; i++) {
-        for (j = 0; j < OBS_N; j++) {                       /* fmath.matmul(F, U) */
-            acc = f[i][0] * obs_u[0][j];
-            for (k = 1; k < OBS_N; k++) acc = acc + f[i][k] * obs_u[k][j];
-            w[i][j] = acc;
-            w[i][OBS_N + j] = OBS_G[i][j];
-            u[i][j] = i == j ? 1.0f : 0.0f;
-        }
-        weights[i] = obs_d[i];
-        weights[OBS_N + i] = OBS_Q[i];
-        d[i] = 0.0f;
-    }
-    for (j = OBS_N - 1; j >= 0; j--) {
-        for (k = 0; k < 2 * OBS_N; k++) c[k] = w[j][k] * weights[k];
-        d[j] = dot(w[j], c, 2 * OBS_N);
-        for (i = 0; i < j; i++) {
-            u[i][j] = dot(w[i], c, 2 * OBS_N) / d[j];
-            for (k = 0; k < 2 * OBS_N; k++) w[i][k] = w[i][k] - u[i][j] * w[j][k];
-        }
-    }
-    for (i = 0; i < OBS_N; i++) {
-        for (j = 0; j < OBS_N; j++) obs_u[i][j] = u[i][j];
-        obs_d[i] = d[i];
-    }
-}
-
-/* BiermanThornton.update: Bierman's scalar update of U, d with the row h and variance r; the gain into gain */
-static void obs_update(float r, float gain[OBS_N])
-{
-    float a[OBS_N], b[OBS_N];
-    float alpha = r, gamma, beta, lambda, held;
-    int i, j;
-    for (j = 0; j < OBS_N; j++) {                           /* U^T h */
-        a[j] = obs_u[0][j] * OBS_H[0];
-        for (i = 1; i < OBS_N; i++) a[j] = a[j] + obs_u[i][j] * OBS_H[i];
-        b[j] = obs_d[j] * a[j];
-    }
-    gamma = 1.0f / alpha;
-    for (j = 0; j < OBS_N; j++) {
-        beta = alpha;
-        alpha = alpha + a[j] * b[j];
-        lambda = -a[j] * gamma;
-        gamma = 1.0f / alpha;
-        obs_d[j] = (beta * gamma) * obs_d[j];
-        for (i = 0; i < j; i++) {
-            held = obs_u[i][j];
-            obs_u[i][j] = held + b[i] * lambda;
-            b[i] = b[i] + b[j] * held;
-        }
-    }
-    for (i = 0; i < OBS_N; i++) gain[i] = b[i] * gamma;
-}
-
+OBS_KERNELS
 static int obs_finite(float value)
 {
     fw_bits bits;
@@ -262,14 +157,12 @@ static int obs_finite(float value)
  * reading: innovation = (z - offset) - (the lag state, or sees y), x <- x + K innovation, y = C x */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
 {
-    static float f[OBS_N][OBS_N];                           /* .bss, not the node's stack */
     float gain[OBS_N];
     const float z = u[FW_INPUTS];
     int i;
     fw_step(u, y);
-    obs_transition(f);
     obs_propagate_extra();
-    obs_predict(f);
+    obs_predict();
     obs_innovation = __builtin_nanf("");
     if (obs_finite(z)) {
         const float value = z - OBS_OFFSET;
@@ -291,16 +184,21 @@ void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
 /* Float32Observer.reset */
 void fw_obs_reset(const float y0[4])
 {
-    int i, j;
+    int i;
+#if !OBS_STEADY
+    int j;
+#endif
     fw_reset(y0);
     for (i = 0; i < OBS_N; i++) obs_extra[i] = 0.0f;
 #if OBS_LAG >= 0
     obs_extra[OBS_LAG] = dot(OBS_SEES, y_est, 4);
 #endif
+#if !OBS_STEADY
     for (i = 0; i < OBS_N; i++) {
         for (j = 0; j < OBS_N; j++) obs_u[i][j] = OBS_U0[i][j];
         obs_d[i] = OBS_D0[i];
     }
+#endif
     obs_innovation = __builtin_nanf("");
 }
 
@@ -319,6 +217,10 @@ void fw_obs_restore(const float x[4])
 /* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) and .innovation */
 void fw_obs_report(float out[5])
 {
+#if OBS_STEADY
+    int node;
+    for (node = 0; node < 4; node++) out[node] = OBS_SIGMA[node];   /* P_ss: the same every step */
+#else
     float v[OBS_N];
     float s;
     int node, i, j;
@@ -331,6 +233,7 @@ void fw_obs_report(float out[5])
         for (j = 1; j < OBS_N; j++) s = s + (obs_d[j] * v[j]) * v[j];
         out[node] = s > 0.0f ? __builtin_sqrtf(s) : 0.0f;
     }
+#endif
     out[4] = obs_innovation;
 }
 """
@@ -338,10 +241,11 @@ void fw_obs_report(float out[5])
 
 def observer_code(artifact: ModelArtifact) -> str:
     """The observer's functions (after the model's: they call fw_step, fw_reset, fw_restore and dot)."""
-    observer_filter(artifact)
+    obs = observer_filter(artifact)
     delta = REALIZATIONS[artifact.realization].delta
-    block = "(i == j ? 1.0f : 0.0f) + DT * (LB_A[i][j] + acc)" if delta else "LB_A[i][j] + acc"
-    return OBSERVER_C.replace("OBS_PLUS_REF", " + LB_REF" if delta else "").replace("OBS_BLOCK", block)
+    kernels = (steady_c() if obs.form == "steady" else
+               predict_c(obs) + "\n" + update_c(obs, "obs_update", obs.rows[0]))
+    return OBSERVER_C.replace("OBS_PLUS_REF", " + LB_REF" if delta else "").replace("OBS_KERNELS", kernels)
 
 
 def keep_gains(sources_c: str) -> str:

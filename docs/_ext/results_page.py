@@ -289,20 +289,23 @@ def section_firmware_observer(record: Record) -> list[str]:
     rows = []
     for case in record["figures"]["cases"]:
         plain, closed, added = case["open_loop"], case["observer"], case["added"]
+        steady = case.get("steady")
+        steady_text = (f"{steady['cycles']['p50']} ({steady['mismatches']} mismatches)" if steady else "not measured")
         rows.append([case["case"], _n(case["states"]), f"{plain['cycles']['p50']} / {plain['cycles']['max']}",
-                     f"{closed['cycles']['p50']} / {closed['cycles']['max']}", _n(added["cycles_p50"]),
+                     f"{closed['cycles']['p50']} / {closed['cycles']['max']}", _n(added["cycles_p50"]), steady_text,
                      f"{closed['mismatches']} of {_n(closed['steps'])} ({_n(closed['updates'])} updated)",
                      f"+{_n(added['model_code_bytes'])} / +{_n(added['model_constants_bytes'])}",
                      f"{_n(closed['flash_bytes'])} (+{_n(added['flash_bytes'])})",
                      f"{_n(closed['ram_bytes'])} (+{_n(added['ram_bytes'])})"])
     return ["`bench firmware check` of the Hammerstein model open loop (`fw_step`) and with its observer "
-            "(`fw_obs_step`: the model step, the Bierman-Thornton prediction and update), "
+            "(`fw_obs_step`: the model step, the Bierman-Thornton prediction and update; beside it the same "
+            "observer deploying its steady-state gain, R constant), "
             f"{_n(params['rows'])} rows; mismatches against the Python float32 observer (outputs, each "
             "node's 1-sigma and the innovation, bit for bit); what the observer adds to the model's own "
             "flash (`fw_model.o`) and to the image (issue 25's goal: predict + update within "
             f"{_n(params['goal_cycles'])} cycles):", "",
             *_table(["observer", "filter states", "open loop cycles p50 / max",
-                     "observer cycles p50 / max", "added cycles", "mismatches",
+                     "observer cycles p50 / max", "added cycles", "steady-state gain cycles p50", "mismatches",
                      "fw_model.o code / constants (B)", "flash (B)", "RAM (B)"], rows)]
 
 

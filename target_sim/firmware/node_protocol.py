@@ -30,14 +30,15 @@ def firmware_loss_models() -> tuple[str, ...]:
     return tuple(name for name, kind in LOSS_KINDS.items() if kind.firmware)
 
 
-FIRMWARE_OBSERVER_FORM = "ud"      # the covariance form the generated C has (Bierman-Thornton, the deployed one)
+# the covariance forms the generated C has: Bierman-Thornton (the deployed one) and the steady-state gain
+FIRMWARE_OBSERVER_FORMS = ("ud", "steady")
 
 
 def firmware_refusal(artifact: ModelArtifact) -> str | None:
     """Why the firmware engine cannot run `artifact` (one sentence), or None when it can: a loss model its generated
     C lacks, or an observer it cannot run: one the CAN frames cannot carry (the Python node's sentence,
     `target_sim.observer_node.can_refusal`: the flux linkage from its raw channels, several measurements) or one
-    whose covariance form is not the UD form its generated C has."""
+    whose covariance form is not one its generated C has (UD, steady-state gain)."""
     name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
     if has_observer(artifact):
         refusal = can_refusal(artifact)
@@ -49,10 +50,10 @@ def firmware_refusal(artifact: ModelArtifact) -> str | None:
                     f"{', '.join(e['name'] + ' (' + e['kind'] + ')' for e in entries)}: use --engine python, "
                     "whose node runs the flux linkage and several measurements")
         form = artifact.content["observer"].get("form")
-        if form != FIRMWARE_OBSERVER_FORM:
-            return (f"the firmware engine runs an observer in the {FIRMWARE_OBSERVER_FORM} form (Bierman-Thornton), "
-                    f"and {name} deploys the {form} form: rebuild it with 'bench observer --form "
-                    f"{FIRMWARE_OBSERVER_FORM}' or use --engine python")
+        if form not in FIRMWARE_OBSERVER_FORMS:
+            return (f"the firmware engine runs an observer in the ud form (Bierman-Thornton) or the steady form "
+                    f"(the steady-state gain), and {name} deploys the {form} form: rebuild it with 'bench observer "
+                    "--form ud' or use --engine python")
     if LOSS_KINDS[artifact.loss_model].firmware:
         return None
     return (f"the firmware engine runs the loss models {', '.join(firmware_loss_models())}; {name} has an "

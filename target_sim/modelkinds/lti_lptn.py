@@ -20,6 +20,8 @@ from target_sim.modelkinds import CArray, ModelKind, pole_text, register
 from target_sim.network import COOLANT_REFERENCE_C
 
 MATRICES = {"A": (4, 4), "B": (4, 8), "C": (4, 4), "C_inv": (4, 4)}
+# the elements of `LinearBlockPart.source_jacobian` that are not always zero: (source, node)
+SOURCE_JACOBIAN_NONZERO = ((0, 0), (1, 3), (2, 2), (2, 3), (3, 1), (3, 3))
 
 
 class LinearBlockPart:
@@ -59,16 +61,19 @@ class LinearBlockPart:
     def source_jacobian(self) -> np.ndarray:
         """d[ϑ_cv, ϑ_av, ϑ_a1, ϑ_a2]/d[yoke, winding, tooth, magnet] at the last step's gains: the sources are
         linear in the previous estimate, so the block's one-step map is x <- (A + B_s G C) x + ... exactly (B_s:
-        B's source columns). An observer propagates its covariance with that map (C: source_jacobian)."""
+        B's source columns). An observer propagates its covariance with that map. Each 1/(1 + g) is one division,
+        its two uses multiply by it (C: the observer's transition, bench.firmware.observergen); the elements
+        outside `SOURCE_JACOBIAN_NONZERO` are zero."""
         g_tm, g_wm, g_ma, g_cy = self.gains
         one, zero = self.est.one, self.est.f(0.0)
+        r_tm, r_wm, r_ma, r_cy = one / (one + g_tm), one / (one + g_wm), one / (one + g_ma), one / (one + g_cy)
         jac = np.full((4, 4), zero, dtype=self.est.f)
-        jac[0, 0] = g_cy / (one + g_cy)
-        jac[1, 3] = g_ma / (one + g_ma)
-        jac[2, 2] = g_tm / (one + g_tm)
-        jac[2, 3] = one / (one + g_tm)
-        jac[3, 1] = one / (one + g_wm)
-        jac[3, 3] = g_wm / (one + g_wm)
+        jac[0, 0] = g_cy * r_cy
+        jac[1, 3] = g_ma * r_ma
+        jac[2, 2] = g_tm * r_tm
+        jac[2, 3] = r_tm
+        jac[3, 1] = r_wm
+        jac[3, 3] = g_wm * r_wm
         return jac
 
     def temperature_sources(self, speed, coolant, ambient) -> np.ndarray:

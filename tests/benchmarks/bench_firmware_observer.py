@@ -1,6 +1,6 @@
 """Observer firmware benchmark (prints figures; not a test): the observer's generated C (Bierman-Thornton UD, the
-fw_obs_* functions beside the model, bench/firmware/observergen.py) against the open loop, in the emulated
-Cortex-M4F, run as a user runs it.
+fw_obs_* functions beside the model, bench/firmware/observergen.py and udgen.py) against the open loop and the same
+observer deploying its steady-state gain, in the emulated Cortex-M4F, run as a user runs it.
 
     python tests/benchmarks/bench_firmware_observer.py [--skip-ipm] [--work DIR] [--rows N]
 
@@ -45,14 +45,27 @@ def firmware_figures(model: Path, out: Path, data: list[str], rows: int) -> dict
             "check_s": round(check_s, 1)}
 
 
+def steady_variant(observer: Path) -> Path:
+    """The same observer (Q, R, K_ss) deploying the steady-state gain: observer-steady.json beside it."""
+    from bench.model.observer import with_observer
+    from target_sim.artifact import dumps, load_artifact
+
+    artifact = load_artifact(observer)
+    out = observer.with_name(observer.stem + "-steady.json")
+    out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "steady"})),
+                   encoding="utf-8")
+    return out
+
+
 def compare(name: str, open_loop: Path, observer: Path, work: Path, data: list[str], rows: int) -> dict:
-    """Open loop and observer of one case, and what the observer adds."""
+    """Open loop, observer (UD) and its steady-state-gain variant of one case, and what the observer adds."""
     from target_sim.artifact import load_artifact
     from target_sim.observer import state_count
 
     section = load_artifact(observer).content["observer"]
     plain = firmware_figures(open_loop, work / f"fw-{name}-open-loop", data, rows)
     closed = firmware_figures(observer, work / f"fw-{name}-observer", data, rows)
+    steady = firmware_figures(steady_variant(observer), work / f"fw-{name}-steady", data, rows)
     added = {"cycles_p50": closed["cycles"]["p50"] - plain["cycles"]["p50"],
              "model_flash_bytes": closed["model_flash"]["bytes"] - plain["model_flash"]["bytes"],
              "model_code_bytes": closed["model_flash"]["code"] - plain["model_flash"]["code"],
@@ -63,9 +76,10 @@ def compare(name: str, open_loop: Path, observer: Path, work: Path, data: list[s
           f"observer {closed['cycles']['p50']} (max {closed['cycles']['max']}; goal {GOAL_CYCLES}); "
           f"mismatches {closed['mismatches']} of {closed['steps']} steps ({closed['updates']} updated); "
           f"fw_model.o +{added['model_flash_bytes']} B (code +{added['model_code_bytes']}, constants "
-          f"+{added['model_constants_bytes']}), RAM +{added['ram_bytes']} B")
+          f"+{added['model_constants_bytes']}), RAM +{added['ram_bytes']} B; steady-state gain "
+          f"{steady['cycles']['p50']} cycles, mismatches {steady['mismatches']} of {steady['steps']}")
     return {"case": name, "states": state_count(section), "measurement": section["measurements"][0]["name"],
-            "open_loop": plain, "observer": closed, "added": added,
+            "open_loop": plain, "observer": closed, "steady": steady, "added": added,
             "goal_met": closed["cycles"]["max"] <= GOAL_CYCLES}
 
 

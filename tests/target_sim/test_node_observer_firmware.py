@@ -1,10 +1,10 @@
 """The observer in the generated C (bench/firmware/observergen.py, fw_obs_* in fw_model.c) against the Python float32
 reference: `bench firmware check` bit for bit over a run (outputs, each node's 1-sigma, the innovation) for a winding
-sensor without lag and for a lagged sensor with the winding heat-bias state; the firmware node answers the Python
-node's frames byte for byte, Uncertainty1/2 and Innovations included, through ABSENT and INVALID measurements, a
-lost, corrupted or misplaced Measurements frame, lost rows and a RESTORE; an observer the frames cannot carry (the
-flux linkage) or in another form than UD is refused in one sentence before any work; open-loop artifacts get none of
-the observer's C."""
+sensor without lag, for a lagged sensor with the winding heat-bias state and for the steady-state-gain form; the
+firmware node answers the Python node's frames byte for byte, Uncertainty1/2 and Innovations included, through ABSENT
+and INVALID measurements, a lost, corrupted or misplaced Measurements frame, lost rows and a RESTORE; an observer the
+frames cannot carry (the flux linkage) or in another form than UD or the steady-state gain is refused in one sentence
+before any work; open-loop artifacts get none of the observer's C."""
 
 from __future__ import annotations
 
@@ -45,6 +45,18 @@ def observer_path(request, observer_artifact, lagged_artifact):
     return observer_artifact if request.param == "sensor" else lagged_artifact
 
 
+@pytest.fixture(scope="module")
+def steady_artifact(lagged_artifact, tmp_path_factory):
+    """The lagged sensor + bias observer in the steady-state-gain form (the same K_ss the artifact stores)."""
+    from bench.model.observer import with_observer
+
+    artifact = load_artifact(lagged_artifact)
+    out = tmp_path_factory.mktemp("observer-steady") / "steady.json"
+    out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "steady"})),
+                   encoding="utf-8")
+    return out
+
+
 def sensor_column(artifact, drive: np.ndarray) -> np.ndarray:
     """A winding sensor 1.5 K warm of the open loop, with noise; NaN (ABSENT) every 7th row, one INVALID reading
     (beyond the DBC's range)."""
@@ -58,6 +70,17 @@ def sensor_column(artifact, drive: np.ndarray) -> np.ndarray:
 
 
 def test_bench_firmware_check_is_bit_exact_over_a_run(observer_path, firmware_elf):
+    _bit_exact_over_a_run(observer_path, firmware_elf)
+
+
+def test_the_steady_state_gain_form_is_bit_exact_and_cheaper(steady_artifact, lagged_artifact, firmware_elf):
+    """The steady-state gain in the generated C: no covariance, a constant 1-sigma, fewer cycles than the UD form."""
+    steady = _bit_exact_over_a_run(steady_artifact, firmware_elf)
+    ud = _bit_exact_over_a_run(lagged_artifact, firmware_elf)
+    assert steady["cycles"]["max"] < ud["cycles"]["max"]
+
+
+def _bit_exact_over_a_run(observer_path, firmware_elf) -> dict:
     from bench.firmware.check import check_firmware
 
     artifact = load_artifact(observer_path)
@@ -68,6 +91,7 @@ def test_bench_firmware_check_is_bit_exact_over_a_run(observer_path, firmware_el
     assert result["observer"] and result["mismatches"] == 0, result["first_mismatch"]
     assert 0 < result["updates"] < result["steps"]          # the steps whose interval lacks a reading predict only
     assert result["cycles"]["max"] > 0
+    return result
 
 
 def _session(node, drive, sensor, faults: dict[int, str], lost: set[int], restore_at: int | None = None):
@@ -198,8 +222,9 @@ def test_an_observer_in_another_form_is_refused_by_the_firmware(observer_artifac
                     encoding="utf-8")
     model = load_artifact(path)
     assert firmware_refusal(model) == (
-        f"the firmware engine runs an observer in the ud form (Bierman-Thornton), and model {model.model_id:08x} "
-        f"({path}) deploys the joseph form: rebuild it with 'bench observer --form ud' or use --engine python")
+        f"the firmware engine runs an observer in the ud form (Bierman-Thornton) or the steady form (the "
+        f"steady-state gain), and model {model.model_id:08x} ({path}) deploys the joseph form: rebuild it with "
+        "'bench observer --form ud' or use --engine python")
 
 
 def test_open_loop_artifacts_get_none_of_the_observer_code(artifacts):

@@ -1,0 +1,254 @@
+"""The UD filter's kernels as straight-line C: the transition F, Thornton's prediction and Bierman's update of
+`target_sim.observer` unrolled over the structure the filter has when it is built (`target_sim.ud_structure`).
+
+Every element that is always zero is left out (no variable, no product), a product by an exact one is not
+written, the constants (A, B, C, the Jacobian's pattern, G, q, h) are literals, and every kept sum has the
+reference's left-to-right order, so the C equals the Python reference bit for bit. -ffp-contract=off keeps
+products and sums apart (no fused multiply-add). The locals are the compiler's to keep in registers: no loop
+counters, no index arithmetic, no loads of zeros.
+
+    obs_predict(void)              Float32Observer.transition + BiermanThornton.predict: F, F U, the MWGS
+    obs_update(r, gain)            BiermanThornton.update for the measurement's row h
+    steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.firmware.literals import c_float
+from target_sim.artifact import OUTPUTS
+from target_sim.observer import Float32Observer
+
+# the Jacobian's elements as target_sim.modelkinds.lti_lptn.LinearBlockPart.source_jacobian computes them, from
+# r_x = 1 / (1 + g_x) (obs_gains: g_tm, g_wm, g_ma, g_cy, as temperature_sources keeps them)
+GAINS = ("g_tm", "g_wm", "g_ma", "g_cy")
+JACOBIAN_C = {(0, 0): "g_cy * r_cy", (1, 3): "g_ma * r_ma", (2, 2): "g_tm * r_tm", (2, 3): "r_tm",
+              (3, 1): "r_wm", (3, 3): "g_wm * r_wm"}
+
+
+@dataclass(frozen=True)
+class Value:
+    """A float32 value of the generated C: a local's name or a literal; `one`: exactly 1 (its products are not
+    written)."""
+
+    expr: str
+    one: bool = False
+
+
+ONE = Value(c_float(1.0), one=True)
+C_NEG_ZERO = c_float(-0.0)
+
+
+def literal(value) -> Value:
+    value = np.float32(value)
+    return ONE if value == 1.0 else Value(c_float(value))
+
+
+def product(a: Value, b: Value) -> str:
+    """a·b, or the other factor when one of them is exactly 1."""
+    if a.one:
+        return b.expr
+    if b.one:
+        return a.expr
+    return f"{a.expr} * {b.expr}"
+
+
+def total(terms: list[str]) -> str:
+    """The left-to-right sum of the kept products (C's + is left-associative); -0 when there is none (the
+    reference's structural zero)."""
+    return " + ".join(terms) if terms else C_NEG_ZERO
+
+
+class Lines:
+    """The function body: each local declared where it is first assigned; the loads (`load`) come first, only
+    those the body uses (an unused local is a warning, and -Werror)."""
+
+    def __init__(self):
+        self.lines: list[str] = []
+        self.loads: list[tuple[str, str]] = []
+        self.declared: set[str] = set()
+
+    def load(self, name: str, expr: str) -> Value:
+        self.declared.add(name)
+        self.loads.append((name, f"    const float {name} = {expr};"))
+        return Value(name)
+
+    def comment(self, text: str) -> None:
+        self.lines.append(f"    /* {text} */")
+
+    def set(self, name: str, expr: str) -> Value:
+        kind = "" if name in self.declared else "float "
+        self.declared.add(name)
+        self.lines.append(f"    {kind}{name} = {expr};")
+        return Value(name)
+
+    def raw(self, text: str) -> None:
+        self.lines.append(f"    {text}")
+
+    def text(self) -> str:
+        body = "\n".join(self.lines)
+        used = set(re.findall(r"\b\w+\b", body))
+        return "\n".join([line for name, line in self.loads if name in used] + [body])
+
+
+def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
+    """F's elements (None: a structural zero) as Float32Observer.transition computes them."""
+    n, k = obs.n, len(OUTPUTS)
+    out.comment("F: (I + dt A) + (B_s J)(dt C) (shift form: A + (B_s J) C), J the sources' Jacobian "
+                "(Float32Observer.transition)")
+    for index, gain in enumerate(GAINS):
+        out.load(gain, f"obs_gains[{index}]")
+    for gain in GAINS:
+        out.load(f"r_{gain[2:]}", f"{ONE.expr} / ({ONE.expr} + {gain})")
+    jac: dict[tuple[int, int], Value] = {}
+    for (s, node), expr in JACOBIAN_C.items():
+        if obs.jacobian_nonzero[s, node]:
+            jac[s, node] = out.set(f"jac{s}_{node}", expr)
+    bj: dict[tuple[int, int], Value] = {}
+    for i in range(k):
+        for j in range(k):
+            terms = [product(literal(obs.b_sources[i, s]), jac[s, j]) for s in range(k)
+                     if obs.b_sources_nonzero[i, s] and obs.jacobian_nonzero[s, j]]
+            if terms:
+                bj[i, j] = out.set(f"bj{i}_{j}", total(terms))
+    f: list[list[Value | None]] = [[None] * n for _ in range(n)]
+    for i in range(k):
+        for j in range(k):
+            terms = [product(bj[i, m], literal(obs.c_step[m, j])) for m in range(k)
+                     if (i, m) in bj and obs.c_step_nonzero[m, j]]
+            constant = obs.a_step[i, j]
+            if constant != 0:
+                terms = [literal(constant).expr, total(terms)] if terms else [literal(constant).expr]
+                if len(terms) == 1:
+                    f[i][j] = literal(constant)
+                    continue
+                f[i][j] = out.set(f"f{i}_{j}", f"{terms[0]} + ({terms[1]})")
+            elif terms:
+                f[i][j] = out.set(f"f{i}_{j}", total(terms))
+    if obs.bias_index >= 0:
+        for i in range(k):
+            if obs.bias_column[i] != 0:
+                f[i][obs.bias_index] = literal(obs.bias_column[i])
+        f[obs.bias_index][obs.bias_index] = ONE
+    for m, lag, sc in zip(obs.measurements, obs.lag_index, obs.sees_c, strict=True):
+        if lag < 0:
+            continue
+        gain = literal(np.float32(1.0) - m.lag_pole)
+        for j in range(n):
+            terms = [product(literal(sc[i]), f[i][j]) for i in range(k) if sc[i] != 0 and f[i][j] is not None]
+            if terms and j != lag:
+                f[lag][j] = out.set(f"f{lag}_{j}", product(gain, Value(f"({total(terms)})")))
+        f[lag][lag] = literal(m.lag_pole)
+    return f
+
+
+def _check_structure(obs: Float32Observer, f: list[list[Value | None]]) -> None:
+    """The C's zeros are the reference's (a generator bug otherwise)."""
+    mine = np.array([[value is not None for value in row] for row in f])
+    if not np.array_equal(mine, obs.f_nonzero):
+        raise AssertionError("the generated transition's structure differs from Float32Observer.f_nonzero")
+
+
+def predict_c(obs: Float32Observer) -> str:
+    """obs_predict: F, W = [F U, G] and Thornton's MWGS (BiermanThornton.predict), into obs_u and obs_d."""
+    cov, n = obs.cov, obs.n
+    out = Lines()
+    f = _transition(obs, out)
+    _check_structure(obs, f)
+    out.comment("the covariance's factors U (unit upper triangular) and d of the last step")
+    old_u = {(i, j): out.load(f"uo{i}_{j}", f"obs_u[{i}][{j}]") for j in range(n) for i in range(j)}
+    old_d = [out.load(f"do{i}", f"obs_d[{i}]") for i in range(n)]
+    out.comment("W = [F U, G]: (F U)_ij over k <= j (U_jj = 1), then G's kept columns")
+    w: list[list[Value | None]] = [[None] * (n + len(cov.g_columns)) for _ in range(n)]
+    for i in range(n):
+        for j in range(n):
+            terms = [f[i][m].expr if m == j else product(f[i][m], old_u[m, j])
+                     for m in range(j + 1) if f[i][m] is not None]
+            if terms:
+                w[i][j] = out.set(f"w{i}_{j}", total(terms))
+        for m in range(len(cov.g_columns)):
+            if cov.g_nonzero[i, m]:
+                w[i][n + m] = literal(cov.g[i, m])
+    weights = old_d + [literal(q) for q in cov.q_kept]
+    out.comment("modified weighted Gram-Schmidt, last row first: d_j = w_j (w_j o weights), "
+                "u_ij = (w_i (w_j o weights)) / d_j, w_i -= u_ij w_j")
+    for pivot in cov.schedule(obs.f_nonzero):
+        j, columns = pivot.row, pivot.columns
+        c = {col: out.set(f"c{j}_{col}", product(w[j][col], weights[col])) for col in columns}
+        d_j = out.set(f"d{j}", total([product(w[j][col], c[col]) for col in columns]))
+        out.raw(f"obs_d[{j}] = {d_j.expr};")
+        if not pivot.rows:
+            continue
+        inverse = out.set(f"inv{j}", f"{ONE.expr} / {d_j.expr}")
+        for row in pivot.rows:
+            i = row.row
+            dot = total([product(w[i][columns[p]], c[columns[p]]) for p in row.shared])
+            u_ij = out.set(f"u{i}_{j}", f"({dot}) * {inverse.expr}")
+            out.raw(f"obs_u[{i}][{j}] = {u_ij.expr};")
+            for col in columns:
+                step = product(u_ij, w[j][col])
+                if w[i][col] is None:
+                    w[i][col] = out.set(f"w{i}_{col}", f"-({step})")
+                else:
+                    w[i][col] = out.set(f"w{i}_{col}", f"{w[i][col].expr} - {step}")
+    return ("/* Float32Observer.transition and BiermanThornton.predict, unrolled (bench.firmware.udgen) */\n"
+            "__attribute__((noinline)) static void obs_predict(void)\n{\n" + out.text() + "\n}\n")
+
+
+def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
+    """`name`(r, gain): Bierman's update of obs_u, obs_d with the constant row h and variance r, the gain into
+    gain (BiermanThornton.update)."""
+    cov, n = obs.cov, obs.n
+    schedule = cov.bierman(h)
+    out = Lines()
+    h_values = [literal(v) for v in h]
+    reads = {(i, j) for j, terms in enumerate(schedule.terms) for i in terms if i < j}
+    reads |= {(i, s.column) for s in schedule.steps for i in (*s.updated, *s.filled)}
+    u = {(i, j): out.set(f"u{i}_{j}", f"obs_u[{i}][{j}]") for (i, j) in sorted(reads, key=lambda p: (p[1], p[0]))}
+    d = {s.column: out.set(f"d{s.column}", f"obs_d[{s.column}]") for s in schedule.steps}
+    out.comment("a = U^T h over h's nonzeros, b = d o a")
+    a: dict[int, Value] = {}
+    b: dict[int, Value] = {}
+    for j, terms in enumerate(schedule.terms):
+        if not terms:
+            continue
+        parts = [h_values[j].expr if i == j else product(h_values[i], u[i, j]) for i in terms]
+        a[j] = ONE if parts == [ONE.expr] else out.set(f"a{j}", total(parts))
+        b[j] = out.set(f"b{j}", product(d[j], a[j]))
+    updates = any(step.updated for step in schedule.steps)
+    out.raw("float alpha = r, beta;" + (" float lambda, held;" if updates else ""))
+    out.raw(f"float gamma = {ONE.expr} / alpha;")
+    for step in schedule.steps:
+        j = step.column
+        out.raw("beta = alpha;")
+        out.raw(f"alpha = alpha + {product(a[j], b[j])};")
+        if step.updated:
+            out.raw("lambda = -gamma;" if a[j].one else f"lambda = -{a[j].expr} * gamma;")
+        out.raw(f"gamma = {ONE.expr} / alpha;")
+        out.raw(f"{d[j].expr} = (beta * gamma) * {d[j].expr};")
+        out.raw(f"obs_d[{j}] = {d[j].expr};")
+        for i in step.updated:
+            out.raw(f"held = {u[i, j].expr};")
+            out.raw(f"{u[i, j].expr} = held + {b[i].expr} * lambda;")
+            out.raw(f"obs_u[{i}][{j}] = {u[i, j].expr};")
+            out.raw(f"{b[i].expr} = {b[i].expr} + {b[j].expr} * held;")
+        for i in step.filled:
+            b[i] = out.set(f"b{i}", f"{b[j].expr} * {u[i, j].expr}")
+    for i in range(n):
+        out.raw(f"gain[{i}] = {b[i].expr if i in b else C_NEG_ZERO} * gamma;")
+    return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}], unrolled "
+            "(bench.firmware.udgen) */\n"
+            f"static void {name}(float r, float gain[OBS_N])\n{{\n" + out.text() + "\n}\n")
+
+
+
+def steady_c() -> str:
+    """The steady-state-gain form's kernels (SteadyState): no prediction, the update hands out K_ss."""
+    return ("/* SteadyState.predict: nothing (no covariance) */\nstatic void obs_predict(void)\n{\n}\n\n"
+            "/* SteadyState.update: the constant gain K_ss, whatever r */\n"
+            "static void obs_update(float r, float gain[OBS_N])\n{\n    int i;\n    (void)r;\n"
+            "    for (i = 0; i < OBS_N; i++) gain[i] = OBS_GAIN[i];\n}\n")
