@@ -1,7 +1,7 @@
 """A TOML file of named tables, read and checked for what may stand at its top before anything else looks at it.
 
 The campaign spec, the robustness study's spec and the acceptance criteria file share this opening (`spec_tables`;
-the first and the last also `read_spec`); each then reads its own tables. A problem is one sentence naming the file,
+all three also `read_spec`); each then reads its own tables. A problem is one sentence naming the file,
 raised as the caller's error class.
 """
 

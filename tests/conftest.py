@@ -28,7 +28,17 @@ def _load_helpers():
 
 _load_helpers()
 
-from helpers import artifact_text, private_udp_bus, synthetic_columns, write_synthetic_dataset  # noqa: E402
+from helpers import (  # noqa: E402
+    KernelCompile,
+    artifact_text,
+    private_udp_bus,
+    start_kernel_compile,
+    synthetic_columns,
+    wait_for_kernels,
+    write_synthetic_dataset,
+)
+
+KERNELS = pytest.StashKey[KernelCompile]()
 
 
 @pytest.fixture
@@ -129,3 +139,29 @@ def flux_observer_artifact(tmp_path_factory) -> tuple[Path, Path]:
     assert main(["observer", "--model", str(model), "--train", str(data), "--measure", "ntc_C", "--offset", "0.8",
                  "--lag", "25", "--flux", "--evaluations", "2", "--out", str(artifact), "--quiet"]) == 0
     return artifact, data
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session) -> None:
+    """A run on pytest-xdist workers (`-n`): before they start, begin compiling the numba kernels once, in the
+    background (helpers.start_kernel_compile); a run in one process compiles them where it uses them."""
+    if session.config.pluginmanager.has_plugin("dsession"):
+        session.config.stash[KERNELS] = start_kernel_compile()
+
+
+def pytest_collection_finish(session) -> None:
+    """A worker, its tests collected, waits for the kernels before its first test (helpers.wait_for_kernels)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        wait_for_kernels()
+
+
+def pytest_terminal_summary(terminalreporter, config) -> None:
+    """A warm-up that failed says so (the workers compiled the kernels themselves: slower, nothing else)."""
+    if KERNELS in config.stash:
+        for sentence in config.stash[KERNELS].failures():
+            terminalreporter.write_line(sentence, yellow=True)
+
+
+def pytest_unconfigure(config) -> None:
+    if KERNELS in config.stash:
+        config.stash[KERNELS].close()

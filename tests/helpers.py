@@ -1,6 +1,7 @@
 """What the test directories share: the repository root, synthetic drive data, small model artifacts, a private
-udp_multicast bus, a runner for the command-line entry points in a child process, and the frames of a lockstep
-session with an in-process target (to tamper with, as the log-analysis tests do).
+udp_multicast bus, a runner for the command-line entry points in a child process, the frames of a lockstep
+session with an in-process target (to tamper with, as the log-analysis tests do), and the numba kernels compiled
+once for a run on pytest-xdist workers.
 
 The tests run with `--import-mode=importlib`, which puts nothing on sys.path; tests/conftest.py loads this file
 as the module `helpers` (see there why not through sys.path), so any test module or conftest can
@@ -9,9 +10,13 @@ as the module `helpers` (see there why not through sys.path), so any test module
 
 from __future__ import annotations
 
+import fcntl
 import os
 import subprocess
 import sys
+import tempfile
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -111,6 +116,88 @@ def private_udp_bus():
     from dbc.transport import BusConfig, resolve
 
     return resolve(BusConfig("udp_multicast"), session_unique=True)
+
+
+# ---------------------------------------------------------------- numba kernels, compiled once for the workers
+
+# the lock the workers wait on while the kernels compile (its path; set in the controller for the workers)
+KERNELS_LOCK_ENV = "BENCH_TESTS_KERNELS_LOCK"
+
+
+@dataclass
+class KernelCompile:
+    """The children compiling the kernels (one per module of `bench.thermal.kernels`) and their shared log."""
+
+    lock: Path
+    log: Path
+    children: list[subprocess.Popen]
+
+    def failures(self) -> list[str]:
+        """A sentence per child that exited with a failure (the workers then compiled the kernels themselves)."""
+        return [f"the numba kernel warm-up `python -m {' '.join(child.args[4:])}` exited {child.returncode} (see "
+                f"{self.log}); the workers compiled the kernels themselves" for child in self.children
+                if child.poll() not in (None, 0)]
+
+    def close(self) -> None:
+        """Stop the children still compiling (a short run; numba writes its cache files whole, so a stopped
+        compile leaves none half-written) and remove the lock, and the log unless a child failed."""
+        for child in self.children:
+            if child.poll() is None:
+                child.terminate()
+                child.wait()
+        self.lock.unlink(missing_ok=True)
+        if all(child.returncode in (0, -15) for child in self.children):
+            self.log.unlink(missing_ok=True)
+
+
+def start_kernel_compile() -> KernelCompile:
+    """Start compiling every numba kernel into numba's on-disk cache, one child process per module of
+    `bench.thermal.kernels`, and return at once. The children hold an exclusive lock on a new file (named in
+    `KERNELS_LOCK_ENV` from now on) until they exit, however they exit; `wait_for_kernels` waits for it.
+
+    Why: with a cold cache (a fresh clone) each pytest-xdist worker, and each `python -m bench` a test starts
+    before the cache is written, compiled the same kernels (about 45 CPU-s each). Compiled once here, while the
+    workers start and collect, the workers and their subprocesses load them (about 1 s)."""
+    from bench.thermal.kernels import KERNEL_MODULES
+
+    fd, name = tempfile.mkstemp(prefix="bench-kernels-", suffix=".lock")
+    lock, log = Path(name), Path(name).with_suffix(".log")
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    children = []
+    try:
+        with log.open("w") as out:
+            for module in KERNEL_MODULES:     # in parallel: the slowest module (kalman) takes half of the whole
+                children.append(subprocess.Popen([sys.executable, "-W", "ignore", "-m", "bench.thermal.kernels",
+                                                  module], cwd=ROOT, env=subprocess_env(), pass_fds=(fd,),
+                                                 stdin=subprocess.DEVNULL, stdout=out, stderr=out))
+    finally:
+        os.close(fd)     # the lock stays held while a child holds the file open
+    os.environ[KERNELS_LOCK_ENV] = str(lock)
+    return KernelCompile(lock, log, children)
+
+
+def wait_for_kernels(timeout: float = 600.0) -> bool:
+    """Wait until the kernels `start_kernel_compile` compiles are in the cache (True), or `timeout` s (False:
+    the caller compiles what it needs itself, as without the warm-up). Nothing to wait for: True."""
+    path = os.environ.get(KERNELS_LOCK_ENV)
+    try:
+        fd = os.open(path, os.O_RDONLY) if path else None
+    except OSError:
+        return True
+    if fd is None:
+        return True
+    deadline = time.monotonic() + timeout
+    try:
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                return True
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    return False
+                time.sleep(0.1)
+    finally:
+        os.close(fd)
 
 
 # ---------------------------------------------------------------- firmware

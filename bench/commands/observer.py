@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from bench.drive.files import expand_data_paths, load_datasets
     from bench.model.default import default_artifact_path
     from bench.model.identify import IDENTIFICATION_COOLANTS
-    from bench.model.measures.sensor import Sensor
+    from bench.model.measures.lagged_sensor import Sensor
     from bench.model.observer import flux_measurement, observer_section, tune_observer, with_observer
     from bench.model.pipeline import load_campaign
     from target_sim.artifact import dumps, load_artifact
@@ -120,14 +120,8 @@ def run(args: argparse.Namespace) -> int:
         said = "; ".join(f"the {m.node} node with {', '.join(m.columns)} ({m.kind})" for m in measurements)
         print(f"observer of {model_path} ({artifact.kind}) on {len(datasets)} training file(s), measuring {said}; "
               f"{args.criterion} criterion {fit.cost:.6g} after {fit.evaluations} filter runs")
-        for m in measurements:
-            if m.kind == "flux-linkage":
-                cal = m.calibration
-                print(f"flux linkage: psi_0 {m.psi_0_Vs:.5g} Vs, alpha_B {m.alpha_B_per_K:.4g} /K, "
-                      f"L_d {m.L_d_H:.4g} H, "
-                      f"R_s {m.R_s_ohm:.4g} ohm (fitted {', '.join(cal['fitted'])}) on {cal['steps']} steps at or "
-                      f"above {m.speed_min_rpm:g} rpm; residual RMS {cal['residual_rms_K']:.2f} K, max "
-                      f"{cal['residual_max_K']:.1f} K")
+        for text in filter(None, (m.calibration_text() for m in measurements)):
+            print(text)
         print(f"Q per step: {q}; R scale {', '.join(f'{v:.3g}' for v in fit.r_scale)}; deployed form {args.form}")
         print(f"wrote {args.out} (sha256 {content['sha256'][:12]})")
     return 0

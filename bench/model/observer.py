@@ -37,8 +37,9 @@ import numpy as np
 from bench.drive.dataset import Dataset
 from bench.errors import BenchError
 from bench.model.artifact_values import artifact_loss_model, artifact_parameters, shift_form
-from bench.model.measures.flux import FluxLinkage
-from bench.model.measures.sensor import Sensor
+from bench.model.measures import LAB_MEASUREMENT_KINDS, kind_of
+from bench.model.measures.flux_linkage import FluxLinkage
+from bench.model.measures.lagged_sensor import Sensor
 from bench.model.runs import ModelRun, model_run
 from bench.thermal import portable
 from bench.thermal.estimator import identity_sigmoid, loop_parameters
@@ -54,7 +55,6 @@ from bench.thermal.kalman import (
 from target_sim.artifact import (
     OUTPUTS,
     ModelArtifact,
-    decode_array,
     encode_array,
     schema_version_of,
     seal,
@@ -69,8 +69,7 @@ INITIAL_SIGMA_C = {"yoke": 5.0, "winding": 2.0, "tooth": 5.0, "magnet": 15.0}
 # the covariance form the target runs unless told otherwise (chosen from `bench numerics --observer`)
 DEPLOYED_FORM = "ud"
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
-START_Q_C2 = 1e-4       # the search starts here for every node (°C² per step) ...
-START_R_C2 = 0.1        # ... and here for the measurement
+START_Q_C2 = 1e-4       # the search starts here for every node (°C² per step), R where each kind says (start_r)
 LOG10_BOUNDS = (-12.0, 3.0)
 
 
@@ -274,8 +273,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
         return total if np.isfinite(total) else 1e300
 
     start_q = [START_Q_C2] * 4 + [START_Q_C2] * (n - 4 - int(bias)) + [START_Q_BIAS] * int(bias)
-    start_r = [START_R_C2 if m.kind == "lagged-sensor" else 1.0 for m in measurements] + [START_R_C2] * int(
-        use_reference)
+    start_r = [kind_of(m).start_r for m in measurements] + [kind_of(TUNING_REFERENCE).start_r] * int(use_reference)
     start = np.log10(start_q + start_r)
     if criterion == "nodes":   # the search is local: begin where the guard is, of the default and a cautious start
         start = min(_starts(start, n), key=cost)
@@ -390,27 +388,15 @@ def lab_measurements(artifact: ModelArtifact) -> tuple:
     """The lab side of the artifact's measurements (with their tuned variances folded in: R scale 1)."""
     from target_sim.observer import measurement_entries
 
-    out = []
-    for entry in measurement_entries(artifact.content["observer"]):
-        values = {k: float(decode_array(v, k, np.float64)) for k, v in entry["arrays"].items() if k != "sees"}
-        if entry["kind"] == "flux-linkage":
-            names = ("psi_0_Vs", "alpha_B_per_K", "theta_0_C", "L_d_H", "R_s_ohm", "alpha_cu_per_K",
-                     "copper_reference_C", "pole_pairs", "speed_min_rpm", "R_floor_C2", "R_speed_C2")
-            out.append(FluxLinkage(*(values[k] for k in names), calibration=entry.get("calibration", {})))
-        else:
-            lag_pole = values["lag_pole"]
-            lag_s = artifact.dt / -np.log(lag_pole) if lag_pole > 0 else 0.0
-            out.append(Sensor(entry["node"], entry["columns"][0], values["offset_C"], float(lag_s),
-                              float(entry.get("gradient", 0.0))))
-    return tuple(out)
+    return tuple(LAB_MEASUREMENT_KINDS[e["kind"]].from_entry(e, artifact.dt)
+                 for e in measurement_entries(artifact.content["observer"]))
 
 
 def r_scales(artifact: ModelArtifact) -> list[float]:
     """Each measurement's variance scale as stored (a sensor's R; 1 for the flux linkage, its R in its arrays)."""
     from target_sim.observer import measurement_entries
 
-    return [float(decode_array(e["arrays"]["R"], "R", np.float64)) if e["kind"] == "lagged-sensor" else 1.0
-            for e in measurement_entries(artifact.content["observer"])]
+    return [LAB_MEASUREMENT_KINDS[e["kind"]].stored_r(e) for e in measurement_entries(artifact.content["observer"])]
 
 
 def reference_run(artifact: ModelArtifact, dataset: Dataset) -> tuple[FilterData, FilterRuns]:
@@ -440,9 +426,9 @@ def measured_nodes_of(artifact: ModelArtifact) -> list[str]:
 
 def flux_measurement(artifact: ModelArtifact, datasets: Sequence[Dataset], speed_min_rpm: float,
                      pole_pairs: float | None = None) -> FluxLinkage:
-    """The flux-linkage measurement calibrated on `datasets` (`bench.model.measures.flux.calibrate_flux`), with
+    """The flux-linkage measurement calibrated on `datasets` (`bench.model.measures.flux_linkage.calibrate_flux`), with
     the artifact's copper coefficient and, for an electrical loss model, its pole pairs and stator resistance."""
-    from bench.model.measures.flux import calibrate_flux, speed_threshold_ok
+    from bench.model.measures.flux_linkage import calibrate_flux, speed_threshold_ok
 
     losses = artifact.content["losses"]
 

@@ -30,10 +30,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bench.campaign.spec import spec_tables
 from bench.errors import UsageError
 from bench.robustness.filters import FILTERS
 from bench.robustness.kinds import PERTURBATIONS
+from bench.tomlspec import read_spec, spec_tables
 
 SECTIONS = ("study", "perturbations", "filters")
 STUDY_KEYS = ("name", "description", "seeds", "seed", "kinds")
@@ -162,11 +162,6 @@ def load_spec(path: Path | None, subjects: dict[str, tuple[str, ...]]) -> Robust
     """The spec in `path` (None: every kind at its defaults); SpecError for a missing or bad one."""
     if path is None:
         return parse_spec("", None, subjects)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SpecError(f"the robustness spec {path} does not exist; give the path of a TOML spec, e.g. "
-                        "examples/robustness/default.toml") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SpecError(f"the robustness spec {path} cannot be read ({exc})") from None
+    text = read_spec(path, "the robustness spec",
+                     "give the path of a TOML spec, e.g. examples/robustness/default.toml", SpecError)
     return parse_spec(text, Path(path), subjects)

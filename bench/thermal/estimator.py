@@ -147,21 +147,16 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
     Returns (sse (P, 4) for winding, PM, yoke and tooth against the references (a missing reference counts as
     zeros), trajectories (P, steps, 4) or None).
     """
-    a, b, c = (np.ascontiguousarray(m, dtype=np.float64) for m in (a, b, c))
+    f64 = portable.kernel_array    # one compiled signature whatever the arrays' flags (read-only, strided)
+    a, b, c, theta, sig, y0 = (f64(m) for m in (a, b, c, theta, sig, y0))
     n_models, n_steps = a.shape[0], inputs.speed_ratio.shape[0]
     c_inv = portable.inv(c)
     zeros = np.zeros(n_steps)
-    ref_w = zeros if ref_w is None else np.ascontiguousarray(ref_w, dtype=np.float64)
-    ref_m = zeros if ref_m is None else np.ascontiguousarray(ref_m, dtype=np.float64)
-    ref_y = zeros if ref_y is None else np.ascontiguousarray(ref_y, dtype=np.float64)
-    ref_t = zeros if ref_t is None else np.ascontiguousarray(ref_t, dtype=np.float64)
+    ref_w, ref_m, ref_y, ref_t = (zeros if ref is None else f64(ref) for ref in (ref_w, ref_m, ref_y, ref_t))
     traj = np.zeros((n_models, n_steps if keep_trajectories else 1, 4))
     sse = np.zeros((n_models, 4))
-    sig = np.ascontiguousarray(sig, dtype=np.float64)
     use_sigmoid = not np.allclose(sig, identity_sigmoid(sig[:, 0, :]), rtol=0, atol=0)
-    _batch(a, b, c, c_inv, np.ascontiguousarray(theta, dtype=np.float64), sig,
-           np.ascontiguousarray(inputs.table_losses), np.ascontiguousarray(inputs.speed_ratio),
-           np.ascontiguousarray(inputs.coolant), np.ascontiguousarray(inputs.ambient), float(inputs.current_max),
-           float(inputs.alpha_cu), float(inputs.copper_reference),
-           np.asarray(y0, dtype=np.float64), ref_w, ref_m, ref_y, ref_t, traj, keep_trajectories, sse, use_sigmoid)
+    _batch(a, b, c, c_inv, theta, sig, f64(inputs.table_losses), f64(inputs.speed_ratio), f64(inputs.coolant),
+           f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu), float(inputs.copper_reference), y0,
+           ref_w, ref_m, ref_y, ref_t, traj, bool(keep_trajectories), sse, use_sigmoid)
     return sse, (traj if keep_trajectories else None)

@@ -163,29 +163,27 @@ class Readings:
 def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, readings: Readings, q, r, p0,
                 keep: bool = False) -> FilterRuns:
     """Run M filters (Q: (M, n, n), R: (M, measurements)) of one model (A, B, C in shift form) over one run."""
-    a, b, c = (np.ascontiguousarray(m, dtype=np.float64) for m in (a, b, c))
-    q = np.ascontiguousarray(q, dtype=np.float64)
+    f64 = portable.kernel_array    # one compiled signature whatever the arrays' flags (read-only, strided)
+    a, b, c, theta, sig, y0, q, p0 = (f64(m) for m in (a, b, c, theta, sig, y0, q, p0))
     steps = inputs.speed_ratio.shape[0]
 
     def per_step(v):
-        return np.ascontiguousarray(np.asarray(v, dtype=np.float64).reshape(steps, -1))
+        return f64(np.asarray(v, dtype=np.float64).reshape(steps, -1))
 
     z0, z1, rel = per_step(readings.z0), per_step(readings.z1), per_step(readings.rel)
-    r = np.ascontiguousarray(np.asarray(r, dtype=np.float64).reshape(q.shape[0], z0.shape[1]))
+    r = f64(np.asarray(r, dtype=np.float64).reshape(q.shape[0], z0.shape[1]))
     n_models = q.shape[0]
-    sig = np.ascontiguousarray(sig, dtype=np.float64)
     use_sigmoid = not np.allclose(sig, identity_sigmoid(sig[0, :]), rtol=0, atol=0)
     traj = np.zeros((n_models, steps if keep else 1, 4))
     sigma = np.zeros_like(traj)
     nll = np.zeros(n_models)
     updates = np.zeros(n_models, dtype=np.int64)
-    _batch(a, b, c, portable.inv(c), np.ascontiguousarray(theta, dtype=np.float64), sig,
-           np.ascontiguousarray(inputs.table_losses), np.ascontiguousarray(inputs.speed_ratio),
-           np.ascontiguousarray(inputs.coolant), np.ascontiguousarray(inputs.ambient), float(inputs.current_max),
-           float(inputs.alpha_cu), float(inputs.copper_reference), np.asarray(y0, dtype=np.float64), z0, z1, rel,
-           np.ascontiguousarray(readings.sees, dtype=np.float64).reshape(-1, 4),
-           np.asarray(readings.lag_pole, dtype=np.float64).reshape(-1), readings.lag_index, readings.bias_index,
-           q, r, np.ascontiguousarray(p0, dtype=np.float64), traj, sigma, keep, use_sigmoid, nll, updates)
+    lag_index = np.ascontiguousarray(readings.lag_index, dtype=np.int64)
+    _batch(a, b, c, portable.inv(c), theta, sig, f64(inputs.table_losses), f64(inputs.speed_ratio),
+           f64(inputs.coolant), f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu),
+           float(inputs.copper_reference), y0, z0, z1, rel, f64(np.reshape(readings.sees, (-1, 4))),
+           f64(np.reshape(readings.lag_pole, -1)), lag_index, int(readings.bias_index), q, r, p0, traj, sigma,
+           bool(keep), use_sigmoid, nll, updates)
     return FilterRuns(nll, updates, traj if keep else None, sigma if keep else None)
 
 

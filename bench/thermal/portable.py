@@ -128,13 +128,13 @@ def _log_flat(x: np.ndarray) -> np.ndarray:
 
 def exp_array(x) -> np.ndarray:
     """Element-wise exp of a float64 array (any shape)."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
+    x = kernel_array(x)
     return _exp_flat(x.ravel()).reshape(x.shape)
 
 
 def log_array(x) -> np.ndarray:
     """Element-wise natural logarithm of a float64 array (any shape)."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
+    x = kernel_array(x)
     return _log_flat(x.ravel()).reshape(x.shape)
 
 
@@ -304,28 +304,33 @@ def _svd(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return u, sv, vt
 
 
-def _f64(a) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=np.float64)
+def kernel_array(a) -> np.ndarray:
+    """`a` as every kernel here takes its arrays: float64, C-contiguous and writable. numba compiles a kernel for
+    each combination of argument types it meets, and a read-only array (an artifact's decoded matrix, a broadcast)
+    or a strided view is a type of its own: without this, one more compile of the kernel per combination, and one
+    that `bench.thermal.kernels` cannot foresee. The copy this may take is of a small matrix."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
 
 
 def matmul(*matrices) -> np.ndarray:
     """The product of 2-D matrices, left to right (like a @ b @ c)."""
-    out = _f64(matrices[0])
+    out = kernel_array(matrices[0])
     for m in matrices[1:]:
-        out = _matmul(out, _f64(m))
+        out = _matmul(out, kernel_array(m))
     return out
 
 
 def solve(a, b) -> np.ndarray:
     """x with a x = b; b a vector or a matrix."""
-    b = _f64(b)
-    x = _solve(_f64(a), b.reshape(b.shape[0], -1))
+    b = kernel_array(b)
+    x = _solve(kernel_array(a), b.reshape(b.shape[0], -1))
     return x.reshape(b.shape)
 
 
 def inv(a) -> np.ndarray:
     """Inverse of one matrix (n, n) or of a stack (..., n, n)."""
-    a = _f64(a)
+    a = kernel_array(a)
     if a.ndim == 2:
         return _solve(a, np.eye(a.shape[0]))
     return _inv_batch(a.reshape(-1, *a.shape[-2:])).reshape(a.shape)
@@ -333,28 +338,28 @@ def inv(a) -> np.ndarray:
 
 def expm(a) -> np.ndarray:
     """Matrix exponential of one matrix (n, n) or of a stack (..., n, n)."""
-    a = _f64(a)
+    a = kernel_array(a)
     if a.ndim == 2:
         return _expm(a)
     return _expm_batch(a.reshape(-1, *a.shape[-2:])).reshape(a.shape)
 
 
 def cholesky_lower(a) -> np.ndarray:
-    return _cholesky(_f64(a))
+    return _cholesky(kernel_array(a))
 
 
 def svd(a) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(U, s, V^T) of a square or tall matrix, singular values descending."""
-    return _svd(_f64(a))
+    return _svd(kernel_array(a))
 
 
 def singular_values(a) -> np.ndarray:
-    return _svd(_f64(a))[1]
+    return _svd(kernel_array(a))[1]
 
 
 def solve_discrete_lyapunov(a, q) -> np.ndarray:
     """X with A X A^T - X + Q = 0, by the Kronecker form (I - A⊗A) vec X = vec Q (scipy's 'direct' method)."""
-    a, q = _f64(a), _f64(q)
+    a, q = kernel_array(a), kernel_array(q)
     n = a.shape[0]
     lhs = np.eye(n * n) - np.kron(a, a)  # np.kron multiplies element by element: exact products, no BLAS
     return _solve(lhs, q.reshape(n * n, 1)).reshape(n, n)

@@ -1,6 +1,6 @@
 """The observer's measurement kinds (target_sim.measurements) and the flux-linkage calibration
-(bench.model.measures.flux): each kind's float32 reading, and the calibration recovering ψ_0, α_B, L_d and R_s from
-synthetic voltages."""
+(bench.model.measures.flux_linkage): each kind's float32 reading, and the calibration recovering ψ_0, α_B, L_d and
+R_s from synthetic voltages."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from bench.errors import BenchError
-from bench.model.measures.flux import FluxLinkage, calibrate_flux
-from bench.model.measures.sensor import Sensor
+from bench.model.measures import LAB_MEASUREMENT_KINDS, kind_of
+from bench.model.measures.flux_linkage import FluxLinkage, calibrate_flux
+from bench.model.measures.lagged_sensor import Sensor
 from target_sim.measurements import MEASUREMENT_KINDS
 from target_sim.measurements.flux_linkage import RAD_S_PER_RPM
 
@@ -22,6 +23,34 @@ PSI_0, ALPHA_B, L_D, L_Q, R_S, ALPHA_CU, POLES = 0.065, -0.0011, 1.5e-4, 3.5e-4,
 
 def test_the_kinds_are_registered_by_name():
     assert MEASUREMENT_KINDS.names() == ("lagged-sensor", "flux-linkage")
+    assert LAB_MEASUREMENT_KINDS.names() == MEASUREMENT_KINDS.names()     # the lab's side of each
+
+
+CALIBRATION = {"steps": 40, "fitted": ["psi_0", "slope"], "residual_rms_K": 0.5, "residual_max_K": 1.25}
+
+
+@pytest.mark.parametrize(("lab", "r", "stored"), [
+    (Sensor("winding", "ntc_C", offset_C=0.8, lag_s=25.0, gradient=-0.12), 0.37, 0.37),
+    (Sensor("magnet", "pm_C"), 2.5, 2.5),
+    (FluxLinkage(0.065, -0.0011, 20.0, 1.5e-4, 0.0158, 0.0039, 20.0, 4.0, 1500.0, 0.5, 4.0, CALIBRATION), 3.0, 1.0),
+])
+def test_the_lab_reads_back_the_entry_it_writes(lab, r, stored):
+    """An artifact's entry read back by its lab kind is the measurement with the tuned R folded in where the kind
+    folds it (the flux linkage's R_floor and R_speed) and stored apart otherwise (a sensor's R)."""
+    kind = kind_of(lab)
+    entry = lab.entry(0.5, r)
+    back = kind.from_entry(entry, 0.5)
+    assert kind.stored_r(entry) == stored and back.kind == lab.kind and back.columns == lab.columns
+    assert back.describe().keys() == lab.describe().keys()
+    if isinstance(lab, Sensor):
+        assert back == Sensor(lab.node, lab.column, lab.offset_C, pytest.approx(lab.lag_s, rel=1e-12), lab.gradient)
+        assert back.calibration_text() is None
+    else:
+        assert (back.R_floor_C2, back.R_speed_C2) == (r * lab.R_floor_C2, r * lab.R_speed_C2)
+        assert (back.psi_0_Vs, back.speed_min_rpm, back.calibration) == (lab.psi_0_Vs, 1500.0, CALIBRATION)
+        assert back.calibration_text() == ("flux linkage: psi_0 0.065 Vs, alpha_B -0.0011 /K, L_d 0.00015 H, R_s "
+                                           "0.0158 ohm (fitted psi_0, slope) on 40 steps at or above 1500 rpm; "
+                                           "residual RMS 0.50 K, max 1.2 K")
 
 
 def _target(lab, dt=1.0, r=0.5):

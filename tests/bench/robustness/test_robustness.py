@@ -112,6 +112,24 @@ def test_a_bad_spec_is_one_sentence(text, said):
     assert said in message and message.startswith("bad.toml") and "\n" not in message
 
 
+@pytest.mark.parametrize(("content", "said"), [
+    (None, "does not exist; give the path of a TOML spec, e.g. examples/robustness/default.toml"),
+    (b"[study]\nname = \"\xff\"\n", "cannot be read ("),
+])
+def test_a_missing_or_unreadable_spec_file_is_one_sentence(tmp_path, content, said):
+    from bench.robustness.kinds import PERTURBATIONS
+    from bench.robustness.spec import SpecError, load_spec
+
+    path = tmp_path / "spec.toml"
+    if content is not None:
+        path.write_bytes(content)
+    artifact = load_artifact(default_artifact_path())
+    with pytest.raises(SpecError) as raised:
+        load_spec(path, {n: k.subjects(artifact) for n, k in PERTURBATIONS.items()})
+    message = str(raised.value)
+    assert message.startswith(f"the robustness spec {path} ") and said in message and "\n" not in message
+
+
 def test_a_bad_spec_exits_2_with_nothing_written(tmp_path, small_dataset):
     bad = tmp_path / "bad.toml"
     bad.write_text(BAD_SPECS[0][0])

@@ -11,9 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.model.measures import step_means
-from target_sim.artifact import OUTPUTS, encode_array
+from bench.model.measures import LabMeasurementKind, register, step_means
+from target_sim.artifact import OUTPUTS, decode_array, encode_array
 from target_sim.measurements.lagged_sensor import sees
+
+START_R_C2 = 0.1    # where the tuning starts a sensor's variance (°C²)
 
 
 @dataclass(frozen=True)
@@ -57,3 +59,24 @@ class Sensor:
     def describe(self) -> dict:
         return {"kind": self.kind, "node": self.node, "column": self.column, "offset_C": self.offset_C,
                 "lag_s": self.lag_s, "gradient": self.gradient}
+
+    def calibration_text(self) -> str | None:
+        return None
+
+
+class LabLaggedSensorKind(LabMeasurementKind):
+    name = "lagged-sensor"
+    start_r = START_R_C2     # R is the sensor's variance itself
+
+    def from_entry(self, entry: dict, dt: float) -> Sensor:
+        lag_pole = float(decode_array(entry["arrays"]["lag_pole"], "lag_pole", np.float64))
+        lag_s = float(dt / -np.log(lag_pole)) if lag_pole > 0 else 0.0
+        return Sensor(entry["node"], entry["columns"][0],
+                      float(decode_array(entry["arrays"]["offset_C"], "offset_C", np.float64)), lag_s,
+                      float(entry.get("gradient", 0.0)))
+
+    def stored_r(self, entry: dict) -> float:
+        return float(decode_array(entry["arrays"]["R"], "R", np.float64))
+
+
+register(LabLaggedSensorKind())

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.errors import BenchError
-from bench.model.measures import step_means
-from target_sim.artifact import encode_array
+from bench.model.measures import LabMeasurementKind, register, step_means
+from target_sim.artifact import decode_array, encode_array
 from target_sim.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
 
 IDENTIFIABLE = 0.25          # largest relative standard error of L_d or R_s0 that the calibration keeps
@@ -80,6 +80,33 @@ class FluxLinkage:
         return {"kind": self.kind, "node": self.node, "columns": list(self.columns), "psi_0_Vs": self.psi_0_Vs,
                 "alpha_B_per_K": self.alpha_B_per_K, "L_d_H": self.L_d_H, "R_s_ohm": self.R_s_ohm,
                 "speed_min_rpm": self.speed_min_rpm, **self.calibration}
+
+    def calibration_text(self) -> str | None:
+        cal = self.calibration
+        return (f"flux linkage: psi_0 {self.psi_0_Vs:.5g} Vs, alpha_B {self.alpha_B_per_K:.4g} /K, "
+                f"L_d {self.L_d_H:.4g} H, R_s {self.R_s_ohm:.4g} ohm (fitted {', '.join(cal['fitted'])}) on "
+                f"{cal['steps']} steps at or above {self.speed_min_rpm:g} rpm; residual RMS "
+                f"{cal['residual_rms_K']:.2f} K, max {cal['residual_max_K']:.1f} K")
+
+
+# the entry's arrays in the order of FluxLinkage's fields
+ENTRY_ARRAYS = ("psi_0_Vs", "alpha_B_per_K", "theta_0_C", "L_d_H", "R_s_ohm", "alpha_cu_per_K", "copper_reference_C",
+                "pole_pairs", "speed_min_rpm", "R_floor_C2", "R_speed_C2")
+
+
+class LabFluxLinkageKind(LabMeasurementKind):
+    name = "flux-linkage"
+    start_r = 1.0     # R scales the calibrated R_floor + R_speed (n_min/n)²
+
+    def from_entry(self, entry: dict, dt: float) -> FluxLinkage:
+        values = (float(decode_array(entry["arrays"][k], k, np.float64)) for k in ENTRY_ARRAYS)
+        return FluxLinkage(*values, calibration=entry.get("calibration", {}))
+
+    def stored_r(self, entry: dict) -> float:
+        return 1.0     # entry() folds the tuned scale into R_floor and R_speed
+
+
+register(LabFluxLinkageKind())
 
 
 def _fit(y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
