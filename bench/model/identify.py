@@ -38,9 +38,9 @@ from target_sim.kinds import MODEL_KINDS
 IDENTIFICATION_COOLANTS = (20, 60)
 VALIDATION_COOLANT = 40
 # A swarm the polish follows stops once its best cost fell by less than 0.01 in 10 iterations (pso.Stall): 2200
-# simulations that gain less than a typical LM step of the polish (23 simulations) are better spent polishing. On
-# the IPM example the swarm then stops near iteration 70 of 100. Without a polish (the packaged model's path) the
-# swarm runs all its iterations.
+# simulations that gain less than a typical LM step of the polish (23 simulations) are better spent polishing.
+# On the IPM example the swarm then stops after 69 of its 100 iterations. Without a polish (the packaged model's
+# path) the swarm runs all its iterations.
 POLISHED_SWARM_STALL = Stall(window=10, tolerance=0.01)
 
 

@@ -165,7 +165,7 @@ class LptnFit:
     on_bounds: list[dict]          # the parameters that ended on a bound (parameters_on_bounds)
     nodes: tuple[str, ...] = FITTED_ALWAYS    # the measured nodes in the cost
     candidates: np.ndarray | None = None      # the swarm's personal bests (search coordinates), best first
-    stalled_at: int | None = None             # the iteration the swarm stopped at for a stall (pso.Stall)
+    stalled_at: int | None = None             # iterations run when the swarm stopped at a stall (pso.Stall)
 
 
 def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220, iterations: int = 100,

@@ -23,7 +23,7 @@ class SwarmResult:
     evaluations: int
     personal_bests: np.ndarray    # (swarm, dims) each particle's best position, for a local polish to start from
     personal_costs: np.ndarray    # (swarm,) their costs
-    stalled_at: int | None = None   # the iteration after which the swarm stopped for a stall (`Stall`), if it did
+    stalled_at: int | None = None   # the iterations run when the swarm stopped for a stall (`Stall`), if it did
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def particle_swarm(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, 
         if on_iteration is not None:
             on_iteration(it, history[-1])
         if stall is not None and stall.reached(history):
-            stalled_at = it
+            stalled_at = len(history)
             break
     return SwarmResult(best_pos[g].copy(), float(best_cost[g]), np.array(history), swarm_size * (len(history) + 1),
                        best_pos, best_cost, stalled_at)

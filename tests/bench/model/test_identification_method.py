@@ -20,6 +20,7 @@ from bench.model.lptn_fit import (
     search_bounds,
     to_search,
 )
+from bench.model.metrics import BLOWN_UP, finite_errors
 from bench.model.polish import polish, uncertainty
 from bench.model.runs import ModelRun
 from bench.thermal.estimator import StepInputs, identity_sigmoid, loop_parameters, run_batch
@@ -250,3 +251,10 @@ def test_a_prior_that_cannot_hold_the_motor_gives_one_warning():
     assert "fixed physical limit" in bound and frozen.startswith("R_yw, b_ma were frozen")
     assert blind.startswith("the training data cannot identify C_y, k_1 ")
     assert len(_warnings([], prov)) == 2
+
+
+def test_finite_errors_keep_a_finite_array_and_bound_a_diverged_one():
+    errors = np.array([[0.5, -1.0], [2.0, 3.0]])
+    assert finite_errors(errors) is errors
+    blown = finite_errors(np.array([np.nan, np.inf, -np.inf, 1.5]))
+    assert blown.tolist() == [BLOWN_UP, BLOWN_UP, -BLOWN_UP, 1.5]
