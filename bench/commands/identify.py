@@ -49,7 +49,7 @@ def add_subparser(subparsers) -> None:
                         "optional 'bounds'); default: the motor's thermal_prior, else Table 1")
     p.add_argument("--polish", type=int, default=None, metavar="STARTS",
                    help="local Levenberg-Marquardt polish of the swarm's result from its STARTS best distinct "
-                        "particles, one process per core, and the parameters' standard errors (default 4 with "
+                        "particles, in threads, one per core, and the parameters' standard errors (default 2 with "
                         "--train files, 0 for the built-in campaign: the packaged model's path)")
     p.add_argument("--regularization", choices=REGULARIZATIONS, default=None,
                    help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
@@ -129,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
                "prior": result.provenance["pso"]["prior"], "bounds": result.provenance["pso"]["bounds"],
                "lptn_parameters": result.lptn.params.as_dict(), "parameters_on_bounds": result.lptn.on_bounds,
                "pso_cost": result.lptn.cost, "pso_history": result.lptn.history,
+               "pso_stalled_at": result.lptn.stalled_at,
                "lm": {"rms_initial": result.hammerstein.cost_initial, "rms_final": result.hammerstein.cost_final,
                       "evaluations": result.hammerstein.evaluations},
                "baselines": result.provenance["baselines"], "timings_s": result.timings_s, "validation": metrics,
@@ -307,7 +308,8 @@ class _ProgressBars:
 def _print_summary(s: dict) -> None:
     print(f"motor {s['motor']} ({s['loss_model']} losses), Δt {s['dt']:g} s; trained on "
           f"{len(s['split']['train'])} file(s), validated on {len(s['split']['validate'])}")
-    print(f"PSO {s['timings_s']['pso']:.1f} s (cost {s['pso_cost']:.4f}), "
+    stalled = "" if s.get("pso_stalled_at") is None else f", stopped at a stall after {s['pso_stalled_at']} iterations"
+    print(f"PSO {s['timings_s']['pso']:.1f} s (cost {s['pso_cost']:.4f}{stalled}), "
           f"LM {s['timings_s']['lm']:.1f} s (RMS {s['lm']['rms_initial']:.3f} -> {s['lm']['rms_final']:.3f} °C)")
     if s.get("polish"):
         p = s["polish"]

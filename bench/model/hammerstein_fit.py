@@ -21,6 +21,7 @@ from scipy.optimize import least_squares
 
 from bench.model.builder import SigmoidInputs
 from bench.model.lptn_fit import NODE_WEIGHTS, measured_nodes
+from bench.model.metrics import finite_errors
 from bench.model.runs import ModelRun
 from bench.thermal import portable
 from bench.thermal.estimator import loop_parameters, run_batch
@@ -150,13 +151,13 @@ def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[Mo
         calls["n"] += 1
         if on_iteration is not None:
             on_iteration(calls["n"], float(np.sqrt(np.mean(r * r))))
-        return np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)
+        return finite_errors(r)
 
     def jac(v):
         # Forward differences, all perturbed models simulated in one parallel batch.
         steps = 1e-6 * np.maximum(1.0, np.abs(v))
         batch = np.vstack([v, v + np.diag(steps)])
-        r = np.nan_to_num(problem.residuals(batch), nan=1e6, posinf=1e6, neginf=-1e6)
+        r = finite_errors(problem.residuals(batch))
         return ((r[1:] - r[0]) / steps[:, None]).T
 
     n_data = problem.residuals(v0[None]).shape[1]
@@ -215,13 +216,13 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
     nodes = measured_nodes(runs)
     problem = _Problem(base, FIT_PATHS[path], params, runs, scale_w, nodes)
     checks = [_Problem(base, FIT_PATHS[path], params, [run], scale_w, nodes) for run in runs]
-    lti = [_deployed(check, _finite(check.residuals(exact_lti_vector()[None])[0])) for check in checks]
+    lti = [_deployed(check, finite_errors(check.residuals(exact_lti_vector()[None])[0])) for check in checks]
     fits, held, start = {}, {}, None
     for k, factor in enumerate(CV_FACTORS):
         fits[factor] = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 3, 1),
                                        ridge_factor=factor, start=start, scale_w=scale_w, nodes=nodes)
         start = fits[factor].vector
-        held[factor] = [_deployed(check, _finite(check.residuals(v[None])[0]))
+        held[factor] = [_deployed(check, finite_errors(check.residuals(v[None])[0]))
                         for check, v in zip(checks, loo_vectors(problem, checks, start, factor), strict=True)]
         if on_iteration is not None:
             on_iteration(k + 1, _exact_rms(held[factor]))
@@ -263,7 +264,7 @@ def loo_vectors(problem: _Problem, checks: Sequence[_Problem], v: np.ndarray, fa
     grows tenfold until it does. Ridge Λ_f = √N_f·RIDGE·factor as fit_hammerstein scales it for the N_f residuals
     of the other runs. Exact sums and the portable solver: the same bits on every CPU."""
     steps = 1e-6 * np.maximum(1.0, np.abs(v))
-    r = _finite(problem.residuals(np.vstack([v, v + np.diag(steps)])))
+    r = finite_errors(problem.residuals(np.vstack([v, v + np.diag(steps)])))
     jac = ((r[1:] - r[0]) / steps[:, None]).T
     sizes = [len(run.ref_winding) * (2 + len(problem.stator)) for run in problem.runs]
     edges = np.cumsum([0, *sizes])
@@ -281,7 +282,7 @@ def loo_vectors(problem: _Problem, checks: Sequence[_Problem], v: np.ndarray, fa
         damping = LOO_DAMPING * np.diag(gram)
 
         def parts(x, others=others):
-            return [_finite(checks[k].residuals(x[None])[0]) for k in others]
+            return [finite_errors(checks[k].residuals(x[None])[0]) for k in others]
 
         def cost(x, residuals, ridge2=ridge2):
             return math.fsum(math.fsum(p * p) for p in residuals) + math.fsum(ridge2 * (x - v0) ** 2)
@@ -311,6 +312,3 @@ def _deployed(check: _Problem, residuals: np.ndarray) -> np.ndarray:
     cross-validation scores (yoke and tooth only steer the fit)."""
     return residuals[:2 * len(check.runs[0].ref_winding)]
 
-
-def _finite(r: np.ndarray) -> np.ndarray:
-    return np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)

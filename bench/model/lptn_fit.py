@@ -20,6 +20,7 @@ from bench.thermal import portable
 from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
 from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import TABLE1, LptnParameters
+from bench.thermal.pso import Stall, particle_swarm
 
 # Capacitances, resistances and the convection exponents may move by a factor around the prior (Table 1 for the
 # built-in motor, a motor file's thermal_prior, or --prior): 0.6-1.6 by default, the prior a machine designer has
@@ -164,13 +165,14 @@ class LptnFit:
     on_bounds: list[dict]          # the parameters that ended on a bound (parameters_on_bounds)
     nodes: tuple[str, ...] = FITTED_ALWAYS    # the measured nodes in the cost
     candidates: np.ndarray | None = None      # the swarm's personal bests (search coordinates), best first
+    stalled_at: int | None = None             # iterations run when the swarm stopped at a stall (pso.Stall)
 
 
 def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220, iterations: int = 100,
                   seed: int = 0, start: LptnParameters = TABLE1, width: tuple[float, float] = DEFAULT_WIDTH,
-                  on_iteration: Callable[[int, float], None] | None = None) -> LptnFit:
-    """PSO over the 22 parameters within `width` × `start` (the prior, which is one of the initial particles)."""
-    from bench.thermal.pso import particle_swarm
+                  stall: Stall | None = None, on_iteration: Callable[[int, float], None] | None = None) -> LptnFit:
+    """PSO over the 22 parameters within `width` × `start` (the prior, which is one of the initial particles),
+    stopped early at a `stall` if one is given."""
 
     scale_w = np.ones(4)
     bounds = parameter_bounds(start, width)
@@ -181,8 +183,9 @@ def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220,
     nodes = measured_nodes(runs)
     result = particle_swarm(lambda pos: batch_cost(from_search(pos, scaled), runs, dt, scale_w, nodes), lower,
                             upper, swarm_size=swarm_size, iterations=iterations, seed=seed,
-                            initial=initial, on_iteration=on_iteration)
+                            initial=initial, stall=stall, on_iteration=on_iteration)
     params = LptnParameters.from_vector(from_search(result.best, scaled))
     order = np.argsort(result.personal_costs, kind="stable")
     return LptnFit(params, result.best_cost, result.history.tolist(), result.evaluations, seed, swarm_size,
-                   iterations, bounds, parameters_on_bounds(params, bounds), nodes, result.personal_bests[order])
+                   iterations, bounds, parameters_on_bounds(params, bounds), nodes, result.personal_bests[order],
+                   result.stalled_at)

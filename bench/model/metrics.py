@@ -32,3 +32,15 @@ def max_abs_error(estimate, reference) -> float:
 def error_metrics(estimate, reference) -> dict[str, float]:
     return {"mse": mse(estimate, reference), "rmse": rmse(estimate, reference), "nrmse": nrmse(estimate, reference),
             "max_abs": max_abs_error(estimate, reference)}
+
+
+BLOWN_UP = 1e6   # °C: the error a diverged simulation's non-finite samples count as in a fit
+
+
+def finite_errors(errors: np.ndarray) -> np.ndarray:
+    """`errors` with NaN and ±inf replaced by ±BLOWN_UP, so a fit sees a diverged candidate as merely bad. The
+    same array when all are finite (the usual case: np.nan_to_num would copy it and scan it three times)."""
+    errors = np.asarray(errors)
+    if np.isfinite(errors).all():
+        return errors
+    return np.nan_to_num(errors, nan=BLOWN_UP, posinf=BLOWN_UP, neginf=-BLOWN_UP)

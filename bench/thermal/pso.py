@@ -23,13 +23,35 @@ class SwarmResult:
     evaluations: int
     personal_bests: np.ndarray    # (swarm, dims) each particle's best position, for a local polish to start from
     personal_costs: np.ndarray    # (swarm,) their costs
+    stalled_at: int | None = None   # the iterations run when the swarm stopped for a stall (`Stall`), if it did
+
+
+@dataclass(frozen=True)
+class Stall:
+    """Stop the swarm once its best cost has fallen by less than `tolerance` over the last `window` iterations.
+
+    For a swarm that a local polish follows (bench.model.polish): the swarm's job is then the basin, not its
+    bottom; a swarm that gains less than the tolerance in `window` iterations (window × swarm simulations) gains
+    less than one LM step of the polish does for a few dozen. Checked after `window` iterations at the earliest;
+    deterministic, since it reads only the best-cost history."""
+
+    window: int
+    tolerance: float
+
+    def __post_init__(self):
+        if self.window < 1 or not self.tolerance >= 0:
+            raise ValueError("a stall needs a window of at least one iteration and a tolerance of zero or more")
+
+    def reached(self, history: list[float]) -> bool:
+        return len(history) > self.window and history[-1 - self.window] - history[-1] < self.tolerance
 
 
 def particle_swarm(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, upper: np.ndarray, *,
                    swarm_size: int = 220, iterations: int = 100, seed: int = 0,
-                   initial: np.ndarray | None = None,
+                   initial: np.ndarray | None = None, stall: Stall | None = None,
                    on_iteration: Callable[[int, float], None] | None = None) -> SwarmResult:
-    """Minimize `cost` inside the box [lower, upper]. `initial`, if given, is one of the starting particles."""
+    """Minimize `cost` inside the box [lower, upper]. `initial`, if given, is one of the starting particles; with a
+    `stall` the swarm stops before `iterations` once its best cost stalls."""
     rng = np.random.default_rng(seed)
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     span = upper - lower
@@ -41,6 +63,7 @@ def particle_swarm(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, 
     best_pos, best_cost = pos.copy(), costs.copy()
     g = int(np.argmin(best_cost))
     history = []
+    stalled_at = None
     for it in range(iterations):
         r1, r2 = rng.random(pos.shape), rng.random(pos.shape)
         vel = INERTIA * vel + ACCELERATION * r1 * (best_pos - pos) + ACCELERATION * r2 * (best_pos[g] - pos)
@@ -56,8 +79,11 @@ def particle_swarm(cost: Callable[[np.ndarray], np.ndarray], lower: np.ndarray, 
         history.append(float(best_cost[g]))
         if on_iteration is not None:
             on_iteration(it, history[-1])
-    return SwarmResult(best_pos[g].copy(), float(best_cost[g]), np.array(history), swarm_size * (iterations + 1),
-                       best_pos, best_cost)
+        if stall is not None and stall.reached(history):
+            stalled_at = len(history)
+            break
+    return SwarmResult(best_pos[g].copy(), float(best_cost[g]), np.array(history), swarm_size * (len(history) + 1),
+                       best_pos, best_cost, stalled_at)
 
 
 def _finite(costs) -> np.ndarray:

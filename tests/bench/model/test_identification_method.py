@@ -9,6 +9,7 @@ import pytest
 from bench.model import polish as polish_module
 from bench.model.auto_prior import auto_prior
 from bench.model.hammerstein_fit import CV_FACTORS, fit_hammerstein_cv
+from bench.model.identify import POLISHED_SWARM_STALL
 from bench.model.lptn_fit import (
     batch_cost,
     discrete_blocks,
@@ -20,10 +21,12 @@ from bench.model.lptn_fit import (
     search_bounds,
     to_search,
 )
+from bench.model.metrics import BLOWN_UP, finite_errors
 from bench.model.polish import polish, uncertainty
 from bench.model.runs import ModelRun
 from bench.thermal.estimator import StepInputs, identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.parameters import LptnParameters
+from bench.thermal.pso import Stall
 
 # the IPM example's true network (examples/motor-ipm/motor.json, virtual_plant.thermal): far from Table 1
 TRUTH = LptnParameters(C_y=2800.0, C_w=2400.0, C_t=1400.0, C_m=4800.0, R_yw=0.022, R_yt=0.02, R_wt=0.12,
@@ -250,3 +253,20 @@ def test_a_prior_that_cannot_hold_the_motor_gives_one_warning():
     assert "fixed physical limit" in bound and frozen.startswith("R_yw, b_ma were frozen")
     assert blind.startswith("the training data cannot identify C_y, k_1 ")
     assert len(_warnings([], prov)) == 2
+
+
+def test_finite_errors_keep_a_finite_array_and_bound_a_diverged_one():
+    errors = np.array([[0.5, -1.0], [2.0, 3.0]])
+    assert finite_errors(errors) is errors
+    blown = finite_errors(np.array([np.nan, np.inf, -np.inf, 1.5]))
+    assert blown.tolist() == [BLOWN_UP, BLOWN_UP, -BLOWN_UP, 1.5]
+
+
+def test_the_lptn_swarm_stops_at_its_stall_and_says_so(runs, swarm):
+    # a tolerance no swarm can beat: the stall is reached at its first chance, after window + 1 iterations
+    stalled = identify_lptn(runs, DT, swarm_size=12, iterations=6, seed=1, start=TRUTH, width=(0.3, 3.0),
+                            stall=Stall(window=2, tolerance=1e9))
+    assert stalled.stalled_at == 3 and len(stalled.history) == 3
+    assert swarm.stalled_at is None and len(swarm.history) == 3     # no stall given: every iteration
+    # the packaged model's path (no polish) gets no stall; a polished one gets identify's
+    assert POLISHED_SWARM_STALL.window >= 1 and POLISHED_SWARM_STALL.tolerance > 0

@@ -85,6 +85,7 @@ def test_identify_on_files_records_the_motor_and_the_split(identified, motor_fil
     assert set(auto["responses"]) == {"winding", "pm"} and auto["responses"]["winding"]["gain_stator_K_per_W"] > 0
     # the files route polishes, gives error bars and cross-validates the Hammerstein ridge by default
     assert prov["polish"]["starts"] >= 1 and prov["polish"]["cost"] <= prov["polish"]["swarm_cost"]
+    assert summary["pso_stalled_at"] is None and len(summary["pso_history"]) == 2     # 2 iterations: no stall yet
     names = prov["uncertainty"]["names"]
     assert set(prov["uncertainty"]["parameters"]) == set(names) and len(prov["uncertainty"]["correlation"]) == 22
     assert prov["lm"]["regularization"]["method"].startswith("leave-one-file-out cross-validation")
