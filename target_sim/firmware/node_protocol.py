@@ -18,8 +18,7 @@ from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RX_ERROR_KINDS, TargetS
 from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
-from target_sim.measurements import MEASUREMENT_KINDS
-from target_sim.observer import has_observer, measurement_entries
+from target_sim.observer import has_observer
 from target_sim.observer_node import can_refusal
 
 
@@ -36,18 +35,14 @@ FIRMWARE_OBSERVER_FORM = "ud"      # the covariance form the generated C has (Bi
 def firmware_refusal(artifact: ModelArtifact) -> str | None:
     """Why the firmware engine cannot run `artifact` (one sentence), or None when it can: a loss model its generated
     C lacks, or an observer it cannot run: one the CAN frames cannot carry (the Python node's sentence,
-    `target_sim.observer_node.can_refusal`: the flux linkage from its raw channels, several measurements) or one
-    whose covariance form is not the UD form its generated C has."""
+    `target_sim.observer_node.can_refusal`: the flux linkage on a loss-map model, two measurements in one slot) or
+    one whose covariance form is not the UD form its generated C has. Every measurement kind has its C (the flux
+    linkage, lagged sensors), several per row."""
     name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
     if has_observer(artifact):
         refusal = can_refusal(artifact)
         if refusal is not None:
             return refusal
-        entries = measurement_entries(artifact.content["observer"])
-        if len(entries) != 1 or not MEASUREMENT_KINDS[entries[0]["kind"]].temperature_channel:
-            return (f"the firmware engine runs an observer with one lagged temperature sensor, and {name} measures "
-                    f"{', '.join(e['name'] + ' (' + e['kind'] + ')' for e in entries)}: use --engine python, "
-                    "whose node runs the flux linkage and several measurements")
         form = artifact.content["observer"].get("form")
         if form != FIRMWARE_OBSERVER_FORM:
             return (f"the firmware engine runs an observer in the {FIRMWARE_OBSERVER_FORM} form (Bierman-Thornton), "
@@ -89,6 +84,7 @@ WHY: dict[str, str] = {
     "RESTORE_INCOMPLETE": "RESTORE of step {a} without the 4 RestoreState elements of that step",
     "CORE_FAULT": "the emulated core faulted",
     "MEASUREMENT_STEP": "Measurements of step {a} before the row of step {b}",   # an observer's, TargetNode._measured
+    "VOLTAGES_STEP": "DriveVoltages of step {a} before the row of step {b}",     # the same of its DriveVoltages
 }
 WHY_CODES: dict[str, int] = {name: index + 1 for index, name in enumerate(WHY)}
 _WHY_NAMES = {code: name for name, code in WHY_CODES.items()}
