@@ -1,14 +1,15 @@
 """The observer in the generated C (bench/firmware/observergen.py, fw_obs_* in fw_model.c) against the Python float32
-reference: `bench firmware check` bit for bit over a run (outputs, each node's 1-sigma, the innovation) for a winding
-sensor without lag and for a lagged sensor with the winding heat-bias state; the firmware node answers the Python
-node's frames byte for byte, Uncertainty1/2 and Innovations included, through ABSENT and INVALID measurements, a
-lost, corrupted or misplaced Measurements frame, lost rows and a RESTORE; an observer the frames cannot carry (the
-flux linkage) or in another form than UD is refused in one sentence before any work; open-loop artifacts get none of
-the observer's C."""
+reference: `bench firmware check` bit for bit over a run (outputs, each node's 1-sigma, each innovation, the periodic
+checkpoint) for a winding sensor without lag, a lagged sensor with the winding heat-bias state, and a stator NTC with
+the flux linkage (two measurements per row); the firmware node answers the Python node's frames byte for byte,
+Uncertainty1/2, Innovations and ObserverCheckpoint included, through ABSENT and INVALID measurements, a lost,
+corrupted or misplaced Measurements (and DriveVoltages) frame, lost rows and a RESTORE with and without the filter's
+checkpoint; an observer the frames cannot carry (the flux linkage on a loss-map model) or in another form than UD is
+refused in one sentence before any work; open-loop artifacts get none of the observer's C."""
 
 from __future__ import annotations
 
-import math
+import re
 
 import can
 import numpy as np
@@ -16,6 +17,7 @@ import pytest
 
 from bench.cli import main
 from dbc import Command, FrameCodec, decode_any
+from dbc.contract import INNOVATION_SIGNALS
 from dbc.database import frame_id
 from host.replay import encode_row
 from target_sim.artifact import dumps, load_artifact
@@ -23,6 +25,7 @@ from target_sim.firmware.node_engine import FirmwareNode
 from target_sim.firmware.node_protocol import firmware_refusal
 from target_sim.model import run_offline
 from target_sim.node import TargetNode
+from target_sim.observer_node import measurement_slots
 
 from .test_node_firmware import comparable
 from helpers import SESSION_INITIAL, session_drive
@@ -45,6 +48,42 @@ def observer_path(request, observer_artifact, lagged_artifact):
     return observer_artifact if request.param == "sensor" else lagged_artifact
 
 
+class Case:
+    """An observer artifact with its drive (rows, 4 or 6) and its host measurement matrix (rows, 2 or 4)."""
+
+    def __init__(self, path, drive: np.ndarray, measured: np.ndarray):
+        self.path, self.drive, self.measured = path, drive, measured
+        self.artifact = load_artifact(path)
+
+
+def _sensor_case(path) -> Case:
+    artifact = load_artifact(path)
+    drive = session_drive(ROWS, 3)
+    return Case(path, drive, np.column_stack([sensor_column(artifact, drive), np.full(len(drive), np.nan)]))
+
+
+def _flux_case(flux_observer_artifact) -> Case:
+    """The NTC + flux linkage observer on its dataset's first rows: NTC in Measurements, u_d/u_q in DriveVoltages
+    (ABSENT every 11th row), the currents in the row; one NTC reading INVALID."""
+    from bench.drive.dataset import load_dataset
+    from bench.run_inputs import drive_for, measurements_for
+
+    path, data = flux_observer_artifact
+    artifact = load_artifact(path)
+    dataset = load_dataset(data)
+    drive, measured = drive_for(dataset, artifact)[:ROWS], measurements_for(dataset, artifact)[:ROWS].copy()
+    measured[::11, 2:] = np.nan
+    measured[50, 0] = 900.0
+    return Case(path, drive, measured)
+
+
+@pytest.fixture(params=["sensor", "lagged", "ntc+flux"])
+def case(request, observer_artifact, lagged_artifact, flux_observer_artifact) -> Case:
+    if request.param == "ntc+flux":
+        return _flux_case(flux_observer_artifact)
+    return _sensor_case(observer_artifact if request.param == "sensor" else lagged_artifact)
+
+
 def sensor_column(artifact, drive: np.ndarray) -> np.ndarray:
     """A winding sensor 1.5 K warm of the open loop, with noise; NaN (ABSENT) every 7th row, one INVALID reading
     (beyond the DBC's range)."""
@@ -57,22 +96,26 @@ def sensor_column(artifact, drive: np.ndarray) -> np.ndarray:
     return sensor
 
 
-def test_bench_firmware_check_is_bit_exact_over_a_run(observer_path, firmware_elf):
+def test_bench_firmware_check_is_bit_exact_over_a_run(case, firmware_elf):
+    """Outputs, each node's 1-sigma, each innovation and the checkpoint every CHECKPOINT_EVERY_STEPS steps."""
     from bench.firmware.check import check_firmware
+    from target_sim.observer_node import raw_channels, raw_sources
 
-    artifact = load_artifact(observer_path)
-    drive = session_drive(ROWS, 3)
-    sensor = sensor_column(artifact, drive)
-    sensor[50] = np.nan                 # the check feeds the column as the target decodes it: INVALID is NaN
-    result = check_firmware(artifact, firmware_elf(observer_path), drive, SESSION_INITIAL, sensor)
+    measured = case.measured.copy()
+    measured[50, 0] = np.nan            # the check feeds the channels as the target decodes them: INVALID is NaN
+    raw = raw_channels(raw_sources(case.artifact), case.drive, measured)
+    result = check_firmware(case.artifact, firmware_elf(case.path), case.drive, SESSION_INITIAL, raw)
     assert result["observer"] and result["mismatches"] == 0, result["first_mismatch"]
-    assert 0 < result["updates"] < result["steps"]          # the steps whose interval lacks a reading predict only
+    for used in result["updates_per_measurement"]:           # each measurement's readings were used, not all
+        assert 0 < used < result["steps"], result["updates_per_measurement"]
     assert result["cycles"]["max"] > 0
 
 
-def _session(node, drive, sensor, faults: dict[int, str], lost: set[int], restore_at: int | None = None):
-    """RESET, START, every row (its Measurements first) with the given faults and lost rows, a RESTORE from the first
-    checkpoint at `restore_at`; every frame the node sent."""
+def _session(node, drive, measured, faults: dict[int, str], lost: set[int], restore_at: int | None = None,
+             with_filter: bool = False):
+    """RESET, START, every row (its measurement frames first) with the given faults and lost rows, a RESTORE from the
+    first checkpoint at `restore_at` (with the filter's ObserverCheckpoint echoed in RestoreObserver when
+    `with_filter`); every frame the node sent."""
     host = FrameCodec("HOST")
     out = list(node.startup_frames())
 
@@ -88,7 +131,7 @@ def _session(node, drive, sensor, faults: dict[int, str], lost: set[int], restor
     for row in range(len(drive)):
         if row in lost:
             continue
-        frames = encode_row(host, row, drive[row].tolist(), [float(sensor[row]), math.nan])
+        frames = encode_row(host, row, drive[row].tolist(), [float(v) for v in measured[row]])
         fault = faults.get(row)
         if fault == "drop":
             frames = frames[1:]
@@ -98,56 +141,69 @@ def _session(node, drive, sensor, faults: dict[int, str], lost: set[int], restor
             frames = [can.Message(arbitration_id=frames[0].arbitration_id, is_extended_id=False, data=bytes(data)),
                       *frames[1:]]
         elif fault == "other_step":
-            frames = [encode_row(host, row + 5, drive[row].tolist(), [float(sensor[row]), math.nan])[0], *frames[1:]]
+            measurement_frames = len(frames) - len(encode_row(host, row, drive[row].tolist()))
+            frames = [*encode_row(host, row + 5, drive[row].tolist(),
+                                  [float(v) for v in measured[row]])[:measurement_frames],
+                      *frames[measurement_frames:]]
+        elif fault == "drop_voltages":
+            frames = [frame for frame in frames if frame.arbitration_id != frame_id("DriveVoltages")]
         send(*frames)
         if row == restore_at:
-            state = _first_checkpoint(out)
+            state, filter_state = _first_checkpoint(out)
             start = row + 1 if (row + 1) % 5 == 0 else row + 5 - (row + 1) % 5    # the first row of an interval
             for index, value in enumerate(state):
                 send(host.encode("RestoreState", {"Step": start, "StateIndex": index, "StateValue": value}))
+            if with_filter:
+                assert filter_state, "the node sent no ObserverCheckpoint"
+                send(*(host.encode("RestoreObserver", {"Index": index, "StepLow": start % 4096, "Value": value})
+                       for index, value in enumerate(filter_state)))
             send(host.encode("Control", {"Command": int(Command.RESTORE), "Step": start}),
                  host.encode("Control", {"Command": int(Command.START), "Step": start}))
             lost |= set(range(row + 1, start))
     return out
 
 
-def _first_checkpoint(frames) -> list[float]:
+def _first_checkpoint(frames) -> tuple[list[float], list[float]]:
+    """x of the first StateCheckpoint and the ObserverCheckpoint elements of the same row ([] if none came)."""
     elements: dict[int, dict[int, float]] = {}
+    filters: dict[int, dict[int, float]] = {}
     for frame in frames:
         d = decode_any(frame)
         if d.name == "StateCheckpoint":
             elements.setdefault(int(d.signals["Step"]), {})[int(d.signals["StateIndex"])] = d.signals["StateValue"]
+        elif d.name == "ObserverCheckpoint":
+            filters.setdefault(int(d.signals["StepLow"]), {})[int(d.signals["Index"])] = d.signals["Value"]
     step = min(elements)
-    return [elements[step][i] for i in range(4)]
+    filter_state = filters.get(step % 4096, {})
+    return [elements[step][i] for i in range(4)], [filter_state[i] for i in range(len(filter_state))]
 
 
-def test_the_firmware_node_answers_the_python_node_byte_for_byte(observer_path, firmware_elf):
-    """ABSENT and INVALID readings, a lost, a corrupted and a misplaced Measurements frame, lost rows (a step held on
-    the previous inputs predicts only) and a RESTORE without the filter's checkpoint (x bit for bit, the covariance P0,
-    the lag state at what its sensor sees): the same frames out,
-    Uncertainty1/2 and Innovations included (timing frames and TargetInfo aside)."""
-    artifact = load_artifact(observer_path)
-    drive = session_drive(ROWS, 3)
-    sensor = sensor_column(artifact, drive)
-    faults = {40: "drop", 61: "corrupt", 83: "other_step"}
+@pytest.mark.parametrize("with_filter", [False, True], ids=["restore-P0", "restore-filter"])
+def test_the_firmware_node_answers_the_python_node_byte_for_byte(case, with_filter, firmware_elf):
+    """ABSENT and INVALID readings, a lost, a corrupted and a misplaced Measurements frame (and a lost DriveVoltages
+    frame), lost rows (a step held on the previous inputs predicts only) and a RESTORE without the filter's
+    checkpoint (x bit for bit, the covariance P0, the lag state at what its sensor sees) or with it (the filter
+    continues bit for bit): the same frames out, Uncertainty1/2, Innovations and ObserverCheckpoint included (timing
+    frames and TargetInfo aside)."""
+    artifact = case.artifact
+    faults = {40: "drop", 61: "corrupt", 83: "other_step", 120: "drop_voltages"}
     lost = {100, 101, 102, 103, 104, 105, 106}
     python_node = TargetNode(artifact, clock_ns=lambda: 0)
-    python = _session(python_node, drive, sensor, faults, set(lost), restore_at=150)
-    firmware_node = FirmwareNode(artifact, firmware_elf(observer_path))
-    firmware = _session(firmware_node, drive, sensor, faults, set(lost), restore_at=150)
+    python = _session(python_node, case.drive, case.measured, faults, set(lost), restore_at=150,
+                      with_filter=with_filter)
+    firmware_node = FirmwareNode(artifact, firmware_elf(case.path))
+    firmware = _session(firmware_node, case.drive, case.measured, faults, set(lost), restore_at=150,
+                        with_filter=with_filter)
     info = {frame_id("TargetInfo")}
-    # the firmware does not checkpoint the filter (no ObserverCheckpoint; its RESTORE is the Python node's without
-    # the filter's elements: P0, the lag state at what its sensor sees), so the Python node's are set aside
-    filter_checkpoint = {frame_id("ObserverCheckpoint")}
-    expected, got = comparable(python, info | filter_checkpoint), comparable(firmware, info)
-    assert any(frame.arbitration_id in filter_checkpoint for frame in python)
+    expected, got = comparable(python, info), comparable(firmware, info)
     assert len(got) == len(expected) and got == expected
     names = {decode_any(can.Message(arbitration_id=i, data=d, is_extended_id=False)).name for i, d in expected}
-    assert {"Uncertainty1", "Uncertainty2", "Innovations", "StateCheckpoint"} <= names
+    assert {"Uncertainty1", "Uncertainty2", "Innovations", "StateCheckpoint", "ObserverCheckpoint"} <= names
     innovations = [decode_any(can.Message(arbitration_id=i, data=d, is_extended_id=False)).signals
                    for i, d in expected if i == frame_id("Innovations")]
-    used = [s["SensorUsed"] for s in innovations]
-    assert 0 < sum(used) < len(used)                        # some steps predicted only, on both engines
+    for slot in measurement_slots(artifact):
+        used = [s[INNOVATION_SIGNALS[slot][1]] for s in innovations]
+        assert 0 < sum(used) < len(used), slot              # some steps did not use it, on both engines
     # the corrupted frame, the alive-counter jumps after the lost frame and rows, the misplaced one and the lost rows
     errors = {k: n for k, n in firmware_node.errors.items() if n}
     assert errors == {k: n for k, n in python_node.errors.items() if n}
@@ -211,22 +267,15 @@ def test_open_loop_artifacts_get_none_of_the_observer_code(artifacts):
         assert "FW_OBSERVER" not in source.header
 
 
-def test_an_observer_the_can_node_runs_but_the_firmware_lacks_is_refused_in_its_own_sentence(flux_observer_artifact,
-                                                                                             capsys):
-    """The Python node runs the NTC and the flux linkage together over CAN (DBC 1.7.0); the generated C has one
-    lagged sensor, so the firmware says so, before any work."""
-    from target_sim.observer_node import can_refusal
-
+def test_bench_firmware_check_runs_the_ntc_and_the_flux_linkage(flux_observer_artifact, capsys):
+    """The Python node's NTC + flux linkage observer (DBC 1.7.0) runs in the firmware too (the refusal of several
+    measurements and of the flux linkage is gone): the check names both and counts each one's updates."""
     path, dataset = flux_observer_artifact
-    model = load_artifact(path)
-    assert can_refusal(model) is None
-    sentence = firmware_refusal(model)
-    assert sentence is not None and "one lagged temperature sensor" in sentence and "(flux-linkage)" in sentence
-    for argv in (["firmware", "check", "--model", str(path), "--data", str(dataset), "--rows", "50"],
-                 ["run", "--model", str(path), "--engine", "firmware", "--data", str(dataset), "--no-report"]):
-        assert main(argv) == 1, argv
-        stdout, err = capsys.readouterr()
-        assert stdout == "" and err == f"bench: error: {sentence}\n", err
+    assert firmware_refusal(load_artifact(path)) is None
+    assert main(["firmware", "check", "--model", str(path), "--data", str(dataset), "--rows", "200", "--quiet"]) == 0
+    stdout = capsys.readouterr().out
+    assert "observer (ntc_C, flux): " in stdout and "mismatches 0 " in stdout, stdout
+    assert re.search(r"\(ntc_C \d+, flux \d+\)", stdout), stdout
 
 
 def test_bench_firmware_check_names_the_observers_measurement(observer_artifact, small_dataset, capsys):
