@@ -85,9 +85,9 @@ from target_sim.firmware.node_protocol import (
     EVENT_CAPACITY,
     KIND_CODES,
     ROW_MESSAGES,
-    TX_CAPACITY,
     WHY_CODES,
     firmware_refusal,
+    tx_capacity,
 )
 from target_sim.observer import Float32Observer
 from target_sim.observer_node import measurement_slots, measurement_width, raw_sources
@@ -428,7 +428,7 @@ def node_config(artifact: ModelArtifact) -> str:
     lines += _defines("NODE_COMMAND_", {cmd.name: int(cmd) for cmd in Command})
     lines += _defines("NODE_KIND_", {kind.upper(): code for kind, code in KIND_CODES.items()})
     lines += _defines("NODE_WHY_", WHY_CODES)
-    lines += _defines("NODE_", {"TX_CAPACITY": TX_CAPACITY, "EVENT_CAPACITY": EVENT_CAPACITY})
+    lines += _defines("NODE_", {"TX_CAPACITY": tx_capacity(artifact), "EVENT_CAPACITY": EVENT_CAPACITY})
     lines += _defines("NODE_DATA_ID_", {_snake_upper(m.name): m.data_id for m in c.by_id.values()})
     lines += _defines("NODE_TX_", {_snake_upper(m.name): index for index, m in enumerate(sent)})
     lines.append(f"#define NODE_TX_MESSAGES {len(sent)}u")

@@ -94,11 +94,28 @@ FRAME = struct.Struct("<II8s")                      # struct node_frame
 EVENT = struct.Struct("<BBBBI8sii")                 # struct node_event
 OUTPUT_HEADER = struct.Struct("<10I")               # struct node_output up to tx[]
 COUNTERS = struct.Struct("<11I")                    # struct node_counters up to last_error
-TX_CAPACITY = 40                                    # NODE_TX_CAPACITY of fw_node_config.h (nodegen)
+TX_CAPACITY = 40                                    # NODE_TX_CAPACITY of fw_node_config.h (nodegen), open loop
 EVENT_CAPACITY = 8                                  # NODE_EVENT_CAPACITY
 TX_OFFSET = OUTPUT_HEADER.size
 EVENTS_OFFSET = TX_OFFSET + TX_CAPACITY * FRAME.size
 OUTPUT_SIZE = EVENTS_OFFSET + EVENT_CAPACITY * EVENT.size      # sizeof(struct node_output)
+
+
+def tx_capacity(artifact: ModelArtifact) -> int:
+    """NODE_TX_CAPACITY of the artifact's node: TX_CAPACITY, and for an observer its checkpoint's elements more (its
+    ObserverCheckpoint frames follow a StateCheckpoint in the same call, after the row's replies; the Python node
+    queues them all)."""
+    if not has_observer(artifact):
+        return TX_CAPACITY
+    from target_sim.observer import Float32Observer
+
+    return TX_CAPACITY + Float32Observer(artifact).checkpoint_size()
+
+
+def output_layout(capacity: int) -> tuple[int, int]:
+    """(offset of events[], sizeof(struct node_output)) of a node whose tx[] holds `capacity` frames."""
+    events = TX_OFFSET + capacity * FRAME.size
+    return events, events + EVENT_CAPACITY * EVENT.size
 COUNTERS_SIZE = COUNTERS.size + EVENT.size                     # sizeof(struct node_counters)
 
 # node.h's flags on the id of a received frame
