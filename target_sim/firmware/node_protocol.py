@@ -14,7 +14,15 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RX_ERROR_KINDS, TargetState, row_messages
+from dbc.contract import (
+    CURRENT_SIGNALS,
+    DRIVE_SIGNALS,
+    MEASUREMENT_MESSAGE,
+    RX_ERROR_KINDS,
+    VOLTAGE_MESSAGE,
+    TargetState,
+    row_messages,
+)
 from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
@@ -83,8 +91,9 @@ WHY: dict[str, str] = {
     "RESET_INCOMPLETE": "RESET of step {a} without ResetTemps1 and ResetTemps2 of that step",
     "RESTORE_INCOMPLETE": "RESTORE of step {a} without the 4 RestoreState elements of that step",
     "CORE_FAULT": "the emulated core faulted",
-    "MEASUREMENT_STEP": "Measurements of step {a} before the row of step {b}",   # an observer's, TargetNode._measured
-    "VOLTAGES_STEP": "DriveVoltages of step {a} before the row of step {b}",     # the same of its DriveVoltages
+    # an observer's measurement frame of another Step than the row it precedes (TargetNode._measured), per message
+    "MEASUREMENT_STEP": MEASUREMENT_MESSAGE + " of step {a} before the row of step {b}",
+    "VOLTAGES_STEP": VOLTAGE_MESSAGE + " of step {a} before the row of step {b}",
 }
 WHY_CODES: dict[str, int] = {name: index + 1 for index, name in enumerate(WHY)}
 _WHY_NAMES = {code: name for name, code in WHY_CODES.items()}
