@@ -2,9 +2,9 @@
 row's Measurements frame, the Python target updates its filter with it and answers every model step with each
 node's 1-sigma and the innovation; the run is clean (CAN = the offline float32 observer on the decoded
 measurements); a dropped or corrupted Measurements frame is detected like any other and the filter then predicts
-only (CAN = the target's twin); `bench replay` and `bench analyze` of the log; data without the measured column and
-the firmware engine (whose C has no observer yet) are refused in one sentence before any work, and so is an observer
-whose readings the frames cannot carry (the flux linkage from its raw channels, two measurements): exit 2."""
+only (CAN = the target's twin); `bench replay` and `bench analyze` of the log; the firmware engine runs it clean too;
+data without the measured column is refused in one sentence before any work, and so is an observer whose readings
+the frames cannot carry: exit 2."""
 
 from __future__ import annotations
 
