@@ -130,6 +130,24 @@ def test_bench_run_on_the_firmware_engine_with_an_observer_is_clean(observer_art
     assert metrics["m4_cycles"]["max"] > 0
 
 
+def test_bench_run_on_the_firmware_engine_with_the_ntc_and_the_flux_linkage_is_clean(flux_observer_artifact,
+                                                                                     tmp_path):
+    """Two measurements per row in the generated C (DBC 1.7.0): the NTC in Measurements, the flux linkage from
+    DriveVoltages and the row's currents; clean over CAN, each slot used (the flux above its speed only)."""
+    path, data = flux_observer_artifact
+    proc = run_cli("-m", "bench", "run", "--model", str(path), "--data", str(data), "--rows", "200", "--engine",
+                   "firmware", "--log", str(tmp_path / "run.blf"), "--no-report", "--reply-timeout", "0.5", "--json",
+                   timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    s = json.loads(proc.stdout)
+    assert (s["missing"], s["clean"]) == (0, True), s["verdict"]
+    metrics = s["metrics"]
+    assert metrics["can_reference"] == "offline float32" and metrics["can_agrees_with_float32"]
+    used = {slot: m["model_steps_updated"] for slot, m in metrics["observer"]["measurements"].items()}
+    assert used["sensor"] == metrics["model_steps"] and 0 < used["flux"] < metrics["model_steps"], used
+    assert metrics["m4_cycles"]["max"] > 0
+
+
 def test_data_without_the_measured_column_is_refused_before_anything_starts(observer_artifact, tmp_path, capsys):
     """An observer of a stator NTC (ntc_C, an optional column) on data without one."""
     from bench.model.observer import with_observer
