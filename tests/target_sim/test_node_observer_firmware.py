@@ -285,3 +285,28 @@ def test_bench_firmware_check_names_the_observers_measurement(observer_artifact,
                  "--quiet"]) == 0
     stdout = capsys.readouterr().out
     assert "observer (winding_C):" in stdout and "mismatches 0 " in stdout, stdout
+
+
+@pytest.mark.slow
+def test_a_long_run_with_the_ntc_and_the_flux_linkage_is_bit_exact(flux_observer_artifact, firmware_elf, tmp_path):
+    """4000 rows (1600 model steps) of fresh synthetic data with voltages, a tenth of the rows' voltages and NTC
+    readings ABSENT at random: every output, 1-sigma, innovation and checkpoint bit for bit."""
+    from bench.drive.dataset import load_dataset
+    from bench.firmware.check import check_firmware
+    from bench.model.runs import initial_temperatures
+    from bench.run_inputs import drive_for, measurements_for
+    from target_sim.observer_node import raw_channels, raw_sources
+
+    from helpers import flux_columns, write_synthetic_dataset
+
+    path, _ = flux_observer_artifact
+    artifact = load_artifact(path)
+    dataset = load_dataset(write_synthetic_dataset(tmp_path / "long.csv", flux_columns(4000, seed=11), "long"))
+    drive, measured = drive_for(dataset, artifact), measurements_for(dataset, artifact)
+    rng = np.random.default_rng(4)
+    measured[rng.random(len(measured)) < 0.1, 2:] = np.nan
+    measured[rng.random(len(measured)) < 0.1, 0] = np.nan
+    raw = raw_channels(raw_sources(artifact), drive, measured)
+    result = check_firmware(artifact, firmware_elf(path), drive, initial_temperatures(dataset), raw)
+    assert result["steps"] == 1600 and result["mismatches"] == 0, result["first_mismatch"]
+    assert all(0 < n < result["steps"] for n in result["updates_per_measurement"]), result
