@@ -291,15 +291,16 @@ def section_firmware_observer(record: Record) -> list[str]:
         plain, closed, added = case["open_loop"], case["observer"], case["added"]
         rows.append([case["case"], _n(case["states"]), f"{plain['cycles']['p50']} / {plain['cycles']['max']}",
                      f"{closed['cycles']['p50']} / {closed['cycles']['max']}", _n(added["cycles_p50"]),
-                     f"{closed['mismatches']} of {_n(closed['steps'])} ({_updated(case)} updated)",
+                     f"{closed['mismatches']} of {_n(closed['steps'])} ({_updated(case)})",
                      f"+{_n(added['model_code_bytes'])} / +{_n(added['model_constants_bytes'])}",
                      f"{_n(closed['flash_bytes'])} (+{_n(added['flash_bytes'])})",
                      f"{_n(closed['ram_bytes'])} (+{_n(added['ram_bytes'])})"])
     return ["`bench firmware check` of the Hammerstein model open loop (`fw_step`) and with its observer "
             "(`fw_obs_step`: the model step, the Bierman-Thornton prediction and update), "
             f"{_n(params['rows'])} rows; mismatches against the Python float32 observer (outputs, each "
-            "node's 1-sigma and the innovation, bit for bit); what the observer adds to the model's own "
-            "flash (`fw_model.o`) and to the image (issue 25's goal: predict + update within "
+            "node's 1-sigma, each measurement's innovation and the checkpoint every 20 steps, bit for bit); "
+            "what the observer adds to the model's own flash (`fw_model.o`) and to the image (issue 25's goal: "
+            "predict + update within "
             f"{_n(params['goal_cycles'])} cycles):", "",
             *_table(["observer", "filter states", "open loop cycles p50 / max",
                      "observer cycles p50 / max", "added cycles", "mismatches",
@@ -313,8 +314,9 @@ def _updated(case: dict) -> str:
     each = closed.get("updates_per_measurement") or []
     names = case["measurement"].split(", ")
     if len(each) < 2:
-        return _n(closed["updates"])
-    return f"{_n(closed['updates'])}: " + ", ".join(f"{name} {_n(n)}" for name, n in zip(names, each, strict=False))
+        return f"{_n(closed['updates'])} updated"
+    return f"{_n(closed['updates'])} updated: " + ", ".join(f"{name} {_n(n)}"
+                                                             for name, n in zip(names, each, strict=False))
 
 
 def _firmware_observer_runs(runs: list[dict]) -> list[str]:
