@@ -17,9 +17,9 @@ import pytest
 
 from bench.cli import main
 from dbc import Command, FrameCodec, decode_any
-from dbc.contract import INNOVATION_SIGNALS
+from dbc.contract import INNOVATION_SIGNALS, measurement_messages
 from dbc.database import frame_id
-from host.replay import encode_row
+from host.replay import encode_row, measurement_signals
 from target_sim.artifact import dumps, load_artifact
 from target_sim.firmware.node_engine import FirmwareNode
 from target_sim.firmware.node_protocol import firmware_refusal
@@ -131,8 +131,14 @@ def _session(node, drive, measured, faults: dict[int, str], lost: set[int], rest
     for row in range(len(drive)):
         if row in lost:
             continue
-        frames = encode_row(host, row, drive[row].tolist(), [float(v) for v in measured[row]])
+        values = [float(v) for v in measured[row]]
         fault = faults.get(row)
+        if fault == "other_step":       # the row's measurement frames carry the Step of a row 5 ahead
+            misplaced = measurement_signals(row + 5, values)
+            frames = [*(host.encode(message, misplaced[message]) for message in measurement_messages(len(values))),
+                      *encode_row(host, row, drive[row].tolist())]
+        else:
+            frames = encode_row(host, row, drive[row].tolist(), values)
         if fault == "drop":
             frames = frames[1:]
         elif fault == "corrupt":
@@ -140,11 +146,6 @@ def _session(node, drive, measured, faults: dict[int, str], lost: set[int], rest
             data[4] ^= 0x10
             frames = [can.Message(arbitration_id=frames[0].arbitration_id, is_extended_id=False, data=bytes(data)),
                       *frames[1:]]
-        elif fault == "other_step":
-            measurement_frames = len(frames) - len(encode_row(host, row, drive[row].tolist()))
-            frames = [*encode_row(host, row + 5, drive[row].tolist(),
-                                  [float(v) for v in measured[row]])[:measurement_frames],
-                      *frames[measurement_frames:]]
         elif fault == "drop_voltages":
             frames = [frame for frame in frames if frame.arbitration_id != frame_id("DriveVoltages")]
         send(*frames)
@@ -206,10 +207,11 @@ def test_the_firmware_node_answers_the_python_node_byte_for_byte(case, with_filt
     for slot in measurement_slots(artifact):
         used = [s[INNOVATION_SIGNALS[slot][1]] for s in innovations]
         assert 0 < sum(used) < len(used), slot              # some steps did not use it, on both engines
-    # the corrupted frame, the alive-counter jumps after the lost frames and rows, the misplaced one and the two losses
+    # the corrupted frame, the alive-counter jumps after the lost frames and rows, the misplaced ones and the two losses
     errors = {k: n for k, n in firmware_node.errors.items() if n}
     assert errors == {k: n for k, n in python_node.errors.items() if n}
-    assert errors["crc"] == 1 and errors["sequence"] == 3 and errors["counter"] >= 2
+    misplaced = len(measurement_messages(case.measured.shape[1]))      # each misplaced frame is a sequence error
+    assert errors["crc"] == 1 and errors["sequence"] == 2 + misplaced and errors["counter"] >= 2
 
 
 def _flux(artifact_path, tmp_path):
