@@ -229,7 +229,8 @@ def run_check(args: argparse.Namespace) -> int:
     from bench.firmware.images import firmware_for
     from bench.leftovers import scratch_dir
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import check_measurement_data, drive_for, load_data, measured_columns
+    from bench.run_inputs import check_measurement_data, drive_for, load_data, measurements_for
+    from target_sim.observer_node import raw_channels, raw_sources
 
     path, artifact = _load(args.model)
     mapping, period = data_options(args)
@@ -237,9 +238,10 @@ def run_check(args: argparse.Namespace) -> int:
                         sample_period_s=period)
     drive = drive_for(dataset, artifact)   # with the d/q currents for an electrical loss model
     check_measurement_data(dataset, artifact)
-    # an observer's one measurement, as the host sends it per row (firmware_refusal refuses more than one)
-    column = next(iter(measured_columns(artifact).values()), None)
-    measurement = dataset.column(column) if column is not None else None
+    # an observer's raw channels per row, as the target gets them: the host's measurement channels and the row's own
+    # values (the flux linkage's currents)
+    host = measurements_for(dataset, artifact)
+    measurement = raw_channels(raw_sources(artifact), drive, host) if host is not None else None
     if args.rows is not None:
         drive = drive[: args.rows]
         measurement = measurement[: args.rows] if measurement is not None else None
@@ -254,8 +256,13 @@ def run_check(args: argparse.Namespace) -> int:
         print(f"{artifact.kind} ({artifact.realization}, dt {artifact.dt:g} s), {result['rows']} rows of "
               f"{dataset.path}: {result['steps']} model steps through {elf}")
         if result["observer"]:
-            print(f"observer ({column}): {result['updates']} of {result['steps']} steps updated with a measurement; "
-                  "outputs, each node's 1-sigma and the innovation compared")
+            from target_sim.observer import measurement_entries
+
+            names = [entry["name"] for entry in measurement_entries(artifact.content["observer"])]
+            used = ", ".join(f"{name} {n}" for name, n in zip(names, result["updates_per_measurement"], strict=True))
+            print(f"observer ({', '.join(names)}): {result['updates']} of {result['steps']} steps updated "
+                  f"with a measurement ({used}); outputs, each node's 1-sigma, each innovation and the checkpoint "
+                  "compared")
         print(f"mismatches {result['mismatches']} (firmware vs Python float32 reference, bit for bit); Cortex-M4 "
               f"cycles per step p50 {cycles['p50']}, max {cycles['max']} ({result['exec_us_at_90MHz']['p50']} µs "
               f"at 90 MHz); flash {result['flash_bytes']} B, RAM {result['ram_bytes']} B (stack used "

@@ -15,9 +15,10 @@ with an electrical loss model needs the d/q currents: the host then sends each r
 DriveInputs and DriveTemps, and data without them is refused in one sentence before anything starts. A model with an
 observer (`bench observer`) needs its measured column: the host sends each row's Measurements frame before its
 DriveInputs, the target corrects its estimate with it and reports each node's 1-sigma (the report draws a ±2σ band);
-the firmware engine runs it in its generated C (the `ud` form; another form is refused before any work), and every
-engine refuses an observer whose readings the frame cannot carry (the flux linkage from its raw channels, more than
-one measurement; exit 2).
+the firmware engine runs it in its generated C (the `ud` and `steady` forms, every measurement kind, the flux linkage
+from DriveVoltages and the row's currents; another form is refused before any work), and every engine refuses an
+observer whose readings the frames cannot carry (the flux linkage on a loss-map model, two measurements in one
+slot; exit 2).
 Exit status 0 only when every step was answered, CAN temperatures equal the offline float32 reference within
 ±0.005 °C, and no heartbeat was lost (`--tolerate-gaps` reports gaps but exits 0). In the JSON summary (--json)
 "clean" (true/false) comes with "verdict": "clean", or "not clean: " and the reasons ("; "-separated problems, or

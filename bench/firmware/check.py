@@ -4,9 +4,12 @@ every output compared bit for bit.
 Both sides run as the target does: the rows' samples are summed per model-step interval (fw_accumulate /
 `InputAccumulator.accumulate`), the interval mean taken at its last row (fw_mean / `mean`) and one model step run
 on it (fw_step / `Float32Estimator.step`). A mismatch is a model step whose four outputs are not the same 32 bits
-on both sides. The drive has the artifact's `drive_signals` as columns: 4, or 6 with the d/q currents for a model
-with an electrical loss model. The emulated run is timed on its own (emulated steps per second, block hook and all)
-and its counted Cortex-M4 cycles per step are summarized.
+on both sides. An observer's model also takes its measurements' raw channels after the drive values; each step
+compares each node's 1-sigma and each measurement's innovation too, and after every CHECKPOINT_EVERY_STEPS-th step
+the filter's checkpoint (what ObserverCheckpoint carries) element by element. The drive has the artifact's
+`drive_signals` as columns: 4, or 6 with the d/q currents for a model with an electrical loss model. The
+emulated run is timed on its own (emulated steps per second, block hook and all) and its counted Cortex-M4 cycles
+per step are summarized.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.errors import BenchError
-from dbc.contract import M4_CLOCK_HZ
+from dbc.contract import CHECKPOINT_EVERY_STEPS, M4_CLOCK_HZ
 from target_sim.artifact import ModelArtifact
 from target_sim.firmware import FirmwareEstimator, FirmwareFault
 from target_sim.losses import reads_currents
@@ -32,7 +35,8 @@ def _bits(values: np.ndarray) -> np.ndarray:
 def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: InputAccumulator
                   ) -> tuple[list[int], np.ndarray, list[int], float]:
     """(rows with a step, results per step, cycles per step, seconds) of the emulated firmware: a result is the four
-    outputs, and for an observer's model each node's 1-sigma and the innovation after them."""
+    outputs, and for an observer's model each node's 1-sigma and each measurement's innovation after them, and the
+    filter's checkpoint after every CHECKPOINT_EVERY_STEPS-th step (as the node sends it)."""
     rows, results, cycles = [], [], []
     width = model.width
     model.reset(initial)
@@ -45,15 +49,20 @@ def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: 
         if inputs is None:    # cannot happen: the row itself was accumulated
             raise BenchError(f"the firmware's fw_mean found no samples at row {row}")
         if model.observer:
-            y = model.step(*inputs[:width], z=inputs[width])
-            sigma, innovation = model.report()
-            results.append([*y, *sigma, innovation])
+            y = model.step(*inputs[:width], z=inputs[width:])
+            sigma, innovations = model.report()
+            results.append([*y, *sigma, *innovations, *_checkpoint_of(model, len(results) + 1, model.checkpoint_size)])
         else:
             results.append(model.step(*inputs))
         cycles.append(model.last_cycles)
         rows.append(row)
     seconds = time.perf_counter() - started
     return rows, np.array(results, dtype=F32).reshape(len(results), -1), cycles, seconds
+
+
+def _checkpoint_of(model, steps: int, size: int) -> np.ndarray:
+    """The filter's checkpoint after the `steps`-th step when the node would send one, else NaN in its place."""
+    return np.full(size, np.nan, dtype=F32) if steps % CHECKPOINT_EVERY_STEPS else model.checkpoint()
 
 
 def _run_reference(artifact: ModelArtifact, samples: np.ndarray, initial) -> np.ndarray:
@@ -69,8 +78,9 @@ def _run_reference(artifact: ModelArtifact, samples: np.ndarray, initial) -> np.
         if inputs is None:
             continue
         if observer:
-            y = model.step(*inputs[:width], z=inputs[width])
-            results.append([*y, *model.sigma(), model.innovation])
+            y = model.step(*inputs[:width], z=inputs[width:])
+            results.append([*y, *model.sigma(), *model.innovations,
+                            *_checkpoint_of(model, len(results) + 1, model.checkpoint_size())])
         else:
             results.append(model.step(*inputs))
     return np.array(results, dtype=F32).reshape(len(results), -1)
@@ -84,8 +94,9 @@ def _same(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.ndarray, initial,
                    measurement: np.ndarray | None = None) -> dict:
     """The JSON report of `bench firmware check` (FirmwareError for a bad ELF, BenchError for an emulator fault; one
-    sentence each). An observer's model also takes its measurement column (NaN: no reading in that row), and each
-    step's 1-sigma and innovation are compared too."""
+    sentence each). An observer's model also takes its measurements' raw channels per row (rows, channels) (NaN:
+    no reading in that row; `target_sim.observer_node.raw_channels`), and each step's 1-sigma, innovations and the
+    periodic checkpoint are compared too."""
     label = elf if isinstance(elf, bytes) else str(elf)
     model = FirmwareEstimator(artifact, elf)
     drive = np.asarray(drive, dtype=F32)
@@ -99,10 +110,11 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
                          f"({', '.join(artifact.drive_signals)}), the data gives {given}{hint}")
     samples = drive
     if model.observer:
-        if measurement is None or len(measurement) != len(drive):
-            raise BenchError(f"model {artifact.model_id:08x} has an observer: the check needs its measurement "
-                             "column beside the drive")
-        samples = np.column_stack([drive, np.asarray(measurement, dtype=F32)])
+        raw = None if measurement is None else np.asarray(measurement, dtype=F32).reshape(len(measurement), -1)
+        if raw is None or len(raw) != len(drive) or raw.shape[1] != model.channels:
+            raise BenchError(f"model {artifact.model_id:08x} has an observer: the check needs its measurements' "
+                             f"{model.channels} raw channel(s) per row beside the drive")
+        samples = np.column_stack([drive, raw])
     rule = InputAccumulator(artifact.data_sample_period, artifact.dt, samples.shape[1])
     try:
         rows, firmware, cycles, seconds = _run_firmware(model, samples, initial, rule)
@@ -122,9 +134,12 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
     counted = np.asarray(cycles, dtype=float)
     figures = {"p50": int(round(float(np.percentile(counted, 50)))), "max": int(counted.max())} if cycles else \
         {"p50": None, "max": None}
-    updates = int(np.count_nonzero(np.isfinite(reference[:, 8]))) if model.observer else None
+    used = np.isfinite(reference[:, 8: 8 + model.measurements]) if model.observer else None
+    updates = int(np.count_nonzero(used.any(axis=1))) if used is not None else None
+    per_measurement = [int(n) for n in used.sum(axis=0)] if used is not None else None
     return {
-        "kind": artifact.kind, "observer": model.observer, "updates": updates, "realization": artifact.realization,
+        "kind": artifact.kind, "observer": model.observer, "updates": updates,
+        "updates_per_measurement": per_measurement, "realization": artifact.realization,
         "dt": artifact.dt,
         "rows": int(len(drive)), "steps": int(len(firmware)),
         "mismatches": int(differ.size), "first_mismatch": first,

@@ -40,10 +40,11 @@ import numpy as np
 from bench.firmware.literals import FirmwareGenerationError, c_float
 from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
 from bench.firmware.observergen import (
-    OBSERVER_DEFINES,
     keep_gains,
+    observer_channels,
     observer_code,
     observer_declarations,
+    observer_defines,
     observer_header,
 )
 from target_sim.artifact import OUTPUTS, ModelArtifact
@@ -417,7 +418,7 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
                   .replace(f"unsigned int fw_mean(float u[{width}]);",
                            "unsigned int fw_mean(float u[FW_SAMPLE_WIDTH]);")
                   .replace("#endif /* FW_MODEL_H */", observer_header() + "\n#endif /* FW_MODEL_H */"))
-        header = re.sub(r"(#define FW_INPUTS [^\n]*\n)", lambda m: m.group(1) + OBSERVER_DEFINES, header)
+        header = re.sub(r"(#define FW_INPUTS [^\n]*\n)", lambda m: m.group(1) + observer_defines(artifact), header)
 
     # the code first: only the constants it names are emitted (an unused static const is a warning)
     horner = [f"    p = EXP_{EXP_POLYNOMIAL[0]};"]
@@ -431,8 +432,8 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     step = step.replace("void fw_step(const float inputs[4], float y[4])",
                         f"void fw_step(const float inputs[{width}], float y[4])")
     code.append(step.replace(_STEP_CALL, _node_losses_call(loss_kind, row)))
-    # a sample (and a step's interval mean) of an observer's model carries its measurement after the drive values
-    sample_width = width + 1 if observer else width
+    # a sample (and a step's interval mean) of an observer's model carries its raw channels after the drive values
+    sample_width = width + observer_channels(artifact) if observer else width
     code.append(_API_C.format(width=sample_width))
     if observer:
         code.append(observer_code(artifact))

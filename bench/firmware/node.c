@@ -23,12 +23,20 @@ typedef char node_row_is_the_model_input[(NODE_ROW_WIDTH == FW_INPUTS) ? 1 : -1]
 
 #ifdef FW_OBSERVER
 /* A model with an observer (fw_model.h's fw_obs_*, TargetNode with a NodeObserver): the row's sample carries the
- * observer's measurement after the drive values (the VALID value of its slot in the Measurements frame of the
- * row's Step, else NaN: that step predicts only), the model steps through the filter, and every model step is
- * answered after its timing frames with Uncertainty1, Uncertainty2 and Innovations. */
-typedef char node_observer_is_the_model_observer[(NODE_OBSERVER == FW_OBSERVER) ? 1 : -1];
-#define NODE_SAMPLE_WIDTH (NODE_ROW_WIDTH + 1u)
+ * observer's raw channels after the drive values (NODE_OBS_RAW: the VALID values of the measurement frames of the
+ * row's Step, NaN otherwise, and the row's own values the flux linkage reads), the model steps through the filter
+ * (a measurement without a reading is not used; none: the step predicts only), every model step is answered after
+ * its timing frames with Uncertainty1, Uncertainty2 and Innovations, and each StateCheckpoint is followed by the
+ * filter's ObserverCheckpoint; a RESTORE with every RestoreObserver element of its Step continues the filter from
+ * them, else starts its covariance at P0. */
+typedef char node_observer_is_the_model_observer[(NODE_OBSERVER == FW_OBSERVER && NODE_OBS_CHANNELS == FW_OBS_CHANNELS
+                                                  && NODE_OBS_MEASUREMENTS == FW_OBS_MEASUREMENTS
+                                                  && NODE_OBS_CHECKPOINT_SIZE == FW_OBS_CHECKPOINT_SIZE) ? 1 : -1];
+#define NODE_SAMPLE_WIDTH (NODE_ROW_WIDTH + NODE_OBS_CHANNELS)
 #define OBSERVER_FRAMES 3u
+#define REPORT_WIDTH (4u + NODE_OBS_MEASUREMENTS)
+/* the arrays of the checkpoint's elements: a steady-state gain without lag or bias has none (no zero-size array) */
+#define OBS_CHECKPOINT_SLOTS (NODE_OBS_CHECKPOINT_SIZE > 0u ? NODE_OBS_CHECKPOINT_SIZE : 1u)
 #define MODEL_STEP fw_obs_step
 #define MODEL_RESET fw_obs_reset
 #define MODEL_RESTORE fw_obs_restore
@@ -102,12 +110,19 @@ static struct {                                   /* _pending: the row being rec
     float sample[NODE_SAMPLE_WIDTH];              /* their values, decoded into their places of the row */
 } pending;
 #ifdef FW_OBSERVER
-static struct {                                   /* TargetNode._measurement: the last Measurements frame */
+static struct {                                   /* TargetNode._measurement: the last frame of each message */
     uint8_t have;
+    uint8_t order;                                /* when it came first since the last row (dict order) */
     uint16_t step;
-    float value;                                  /* its slot's VALID value, else NaN */
-} measurement;
-static float report_of[NODE_TX_CAPACITY / (4u + OBSERVER_FRAMES)][5];   /* per timed step: sigma, innovation */
+    float channels[NODE_HOST_CHANNELS];           /* its channels' VALID values, NaN otherwise and elsewhere */
+} measurement[NODE_MEASUREMENT_MESSAGES];
+static uint8_t measurement_arrivals;
+static struct {                                   /* TargetNode._observer_restore: RestoreObserver by Index */
+    uint8_t have;
+    uint16_t step_low;
+    float value;
+} restore_observer[OBS_CHECKPOINT_SLOTS];
+static float report_of[NODE_TX_CAPACITY / (4u + OBSERVER_FRAMES)][REPORT_WIDTH];   /* per timed step */
 #endif
 
 static uint8_t running_rows;                      /* next_row is not None */
@@ -401,6 +416,33 @@ static void send_response(uint16_t step, uint32_t response, uint32_t load)
 #endif
 }
 
+#ifdef FW_OBSERVER
+/* TargetNode._observer_checkpoint_frames: the filter's checkpoint (fw_obs_checkpoint), one element per frame with
+ * its Index and StepLow; none when an element is outside the DBC range (a restore then starts P at P0). */
+static void send_observer_checkpoint(uint16_t step)
+{
+    static float values[OBS_CHECKPOINT_SLOTS];              /* .bss, not the node's stack */
+    unsigned int i;
+    fw_obs_checkpoint(values);
+    for (i = 0; i < NODE_OBS_CHECKPOINT_SIZE; i++) {
+        if (!(values[i] >= NODE_STATE_VALUE_MIN && values[i] <= NODE_STATE_VALUE_MAX)) return;    /* NaN too */
+    }
+    for (i = 0; i < NODE_OBS_CHECKPOINT_SIZE; i++) {
+        struct thermal_bench_observer_checkpoint_t m;
+        struct node_frame *frame = tx_slot();
+        if (frame == NULL) return;
+        thermal_bench_observer_checkpoint_init(&m);
+        m.observer_checkpoint_counter = tx_counter[NODE_TX_OBSERVER_CHECKPOINT];
+        m.observer_checkpoint_index = (uint8_t)i;
+        m.observer_checkpoint_step_low = (uint16_t)(step % NODE_CHECKPOINT_STEP_LOW_MODULO);
+        m.observer_checkpoint_value = values[i];
+        (void)thermal_bench_observer_checkpoint_pack(frame->data, &m, 8u);
+        tx_finish(frame, THERMAL_BENCH_OBSERVER_CHECKPOINT_FRAME_ID, NODE_TX_OBSERVER_CHECKPOINT,
+                  NODE_DATA_ID_OBSERVER_CHECKPOINT);
+    }
+}
+#endif
+
 /* TargetNode._checkpoint_frames: x after this row's model step; none if an element is outside the DBC range. */
 static void send_checkpoint(uint16_t step)
 {
@@ -423,6 +465,9 @@ static void send_checkpoint(uint16_t step)
         tx_finish(frame, THERMAL_BENCH_STATE_CHECKPOINT_FRAME_ID, NODE_TX_STATE_CHECKPOINT,
                   NODE_DATA_ID_STATE_CHECKPOINT);
     }
+#ifdef FW_OBSERVER
+    send_observer_checkpoint(step);
+#endif
 }
 
 #ifdef FW_OBSERVER
@@ -435,9 +480,18 @@ static int32_t clamped_raw(float value, float low, float high, int64_t inv, int6
     return (int32_t)exact_raw(value, inv, offset_raw);
 }
 
+/* An innovation's raw value (NaN: not used, 0). */
+static int32_t innovation_raw(float value)
+{
+    return is_finite(value) ? clamped_raw(value, NODE_INNOVATION_MIN, NODE_INNOVATION_MAX, NODE_INNOVATION_INV_SCALE,
+                                          NODE_INNOVATION_OFFSET_RAW, NODE_INNOVATION_RAW_MIN, NODE_INNOVATION_RAW_MAX)
+                            : 0;
+}
+
 /* TargetNode._observer_frames: Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations after a model step
- * (report: fw_obs_report's sigma[4], innovation; NaN: no update, the slot's Used 0 and its innovation 0). */
-static void send_observer(uint16_t step, const float report[5])
+ * (report: fw_obs_report's sigma[4], then each measurement's innovation; NaN: not used, its slot's Used 0 and its
+ * innovation 0). */
+static void send_observer(uint16_t step, const float report[REPORT_WIDTH])
 {
     uint32_t raw[NODE_STATE_SIZE];
     struct node_frame *frame;
@@ -466,32 +520,78 @@ static void send_observer(uint16_t step, const float report[5])
     }
     if ((frame = tx_slot()) != NULL) {
         struct thermal_bench_innovations_t m;
-        const int used = is_finite(report[4]);
-        const int32_t value = used ? clamped_raw(report[4], NODE_INNOVATION_MIN, NODE_INNOVATION_MAX,
-                                                 NODE_INNOVATION_INV_SCALE, NODE_INNOVATION_OFFSET_RAW,
-                                                 NODE_INNOVATION_RAW_MIN, NODE_INNOVATION_RAW_MAX) : 0;
         thermal_bench_innovations_init(&m);
         m.innovations_counter = tx_counter[NODE_TX_INNOVATIONS];
         m.innovations_step = step;
-        NODE_FILL_INNOVATIONS(m, value, used);
+        NODE_FILL_INNOVATIONS(m, report);
         (void)thermal_bench_innovations_pack(frame->data, &m, 8u);
         tx_finish(frame, THERMAL_BENCH_INNOVATIONS_FRAME_ID, NODE_TX_INNOVATIONS, NODE_DATA_ID_INNOVATIONS);
     }
 }
 
-/* TargetNode._measured: the observer's measurement for the row of `step` (NaN: none, predict only); a Measurements
- * frame of another Step is a sequence error. */
-static void sequence_error(uint8_t code, int32_t a, int32_t b);
-static float measured(uint16_t step)
+/* The measurement frames kept for the next row: none. */
+static void measurements_forget(void)
 {
-    const uint8_t have = measurement.have;
-    measurement.have = 0u;
-    if (!have) return NO_READING;
-    if (measurement.step != step) {
-        sequence_error(NODE_WHY_MEASUREMENT_STEP, measurement.step, step);
-        return NO_READING;
+    unsigned int i;
+    for (i = 0; i < NODE_MEASUREMENT_MESSAGES; i++) measurement[i].have = 0u;
+    measurement_arrivals = 0u;
+}
+
+/* TargetNode._measured, then NodeObserver.raw: the observer's raw channels of the row of `step` into
+ * sample[NODE_ROW_WIDTH..] (NaN where no VALID value of that Step came); a measurement frame of another Step is a
+ * sequence error, in the order the frames first came. */
+static void sequence_error(uint8_t code, int32_t a, int32_t b);
+#define WHY_OF(NAME, name, slot, why) why,
+static const uint8_t measurement_why[NODE_MEASUREMENT_MESSAGES] = {NODE_MEASUREMENT_LIST(WHY_OF)};
+static void measured(uint16_t step, float sample[NODE_SAMPLE_WIDTH])
+{
+    float channels[NODE_HOST_CHANNELS];
+    unsigned int i, c, turn;
+    for (c = 0; c < NODE_HOST_CHANNELS; c++) channels[c] = NO_READING;
+    for (turn = 0; turn < measurement_arrivals; turn++) {
+        for (i = 0; i < NODE_MEASUREMENT_MESSAGES; i++) {
+            if (!measurement[i].have || measurement[i].order != turn) continue;
+            if (measurement[i].step != step) {
+                sequence_error(measurement_why[i], measurement[i].step, step);
+                continue;
+            }
+            for (c = 0; c < NODE_HOST_CHANNELS; c++) {     /* a message's own channels only: the others are NaN */
+                if (measurement[i].channels[c] == measurement[i].channels[c]) channels[c] = measurement[i].channels[c];
+            }
+        }
     }
-    return measurement.value;
+    measurements_forget();
+    NODE_OBS_RAW(sample, channels);
+}
+
+/* A measurement frame the observer reads: kept (its channels) for the row of its Step. */
+static void measurement_frame(unsigned int slot, uint16_t step, const float channels[NODE_HOST_CHANNELS])
+{
+    unsigned int c;
+    if (!measurement[slot].have) measurement[slot].order = measurement_arrivals++;
+    measurement[slot].have = 1u;
+    measurement[slot].step = step;
+    for (c = 0; c < NODE_HOST_CHANNELS; c++) measurement[slot].channels[c] = channels[c];
+}
+
+/* TargetNode._restored_checkpoint and NodeObserver.restore: the filter from every RestoreObserver element of the
+ * RESTORE's Step (StepLow), else P0; the elements are used up either way. */
+static void observer_restore(const float x[NODE_STATE_SIZE], uint16_t step)
+{
+    static float values[OBS_CHECKPOINT_SLOTS];
+    const uint16_t low = (uint16_t)(step % NODE_CHECKPOINT_STEP_LOW_MODULO);
+    unsigned int i;
+    int complete = 1;
+    for (i = 0; i < NODE_OBS_CHECKPOINT_SIZE; i++) {
+        if (!restore_observer[i].have || restore_observer[i].step_low != low) complete = 0;
+        values[i] = restore_observer[i].value;
+        restore_observer[i].have = 0u;
+    }
+    if (complete) {
+        fw_obs_restore_checkpoint(x, values);
+    } else {
+        fw_obs_restore(x);
+    }
 }
 #endif
 
@@ -534,7 +634,7 @@ static void ready(void)
     rows_reset();
     pending.count = 0u;
 #ifdef FW_OBSERVER
-    measurement.have = 0u;
+    measurements_forget();
 #endif
     running_rows = 0u;
     have_reply_row = 0u;
@@ -648,7 +748,10 @@ static void handle_row(uint16_t step, const float sample[NODE_SAMPLE_WIDTH])
         } else if (have_last_inputs) {
             memcpy(mean, last_inputs, sizeof mean);         /* none did: hold the previous step's inputs */
 #ifdef FW_OBSERVER
-            mean[NODE_ROW_WIDTH] = NO_READING;              /* but not its measurement: that step predicts only */
+            {                                               /* but not its measurements: that step predicts only */
+                unsigned int c;
+                for (c = NODE_ROW_WIDTH; c < NODE_SAMPLE_WIDTH; c++) mean[c] = NO_READING;
+            }
 #endif
         } else {
             continue;                                       /* nothing ever arrived: no inputs to step on */
@@ -713,7 +816,11 @@ static void control(uint8_t command, uint16_t step)
             incomplete(NODE_WHY_RESTORE_INCOMPLETE, step);
             return;
         }
+#ifdef FW_OBSERVER
+        observer_restore(x, step);
+#else
         MODEL_RESTORE(x);
+#endif
         ready();
     } else if (command == NODE_COMMAND_START) {
         if (state != NODE_STATE_READY) {
@@ -728,7 +835,7 @@ static void control(uint8_t command, uint16_t step)
         for (i = 0; i < RX_COUNT; i++) counter_known[i] = 0u;     /* FrameValidator.reset_counters */
         pending.count = 0u;
 #ifdef FW_OBSERVER
-        measurement.have = 0u;
+        measurements_forget();
 #endif
         set_state(NODE_STATE_STOPPED);
     }
@@ -796,7 +903,7 @@ static void row_frame_done(unsigned int index, uint16_t step)
     }
     pending.count = 0u;
 #ifdef FW_OBSERVER
-    pending.sample[NODE_ROW_WIDTH] = measured(step);       /* TargetNode._row_frame: the row's measurement */
+    measured(step, pending.sample);                         /* TargetNode._row_frame: the row's raw channels */
 #endif
     handle_row(step, pending.sample);
 }
@@ -818,6 +925,18 @@ static void row_frame_done(unsigned int index, uint16_t step)
         NODE_RESET_RAW_##NAME(reset_frames[slot].raw, m->name);                                                       \
         break;
 #define ROW_CASE(NAME, name) case RX_##NAME: ROW_FRAME(NAME, m->name); break;
+#ifdef FW_OBSERVER
+/* A measurement frame the observer reads (NODE_MEASUREMENT_LIST): its channels kept for the row of its Step. */
+#define MEASUREMENT_CASE(NAME, name, slot, why)                                                                       \
+    case RX_##NAME: {                                                                                                 \
+        float channels[NODE_HOST_CHANNELS];                                                                           \
+        unsigned int c;                                                                                               \
+        for (c = 0; c < NODE_HOST_CHANNELS; c++) channels[c] = NO_READING;                                            \
+        NODE_CHANNELS_##NAME(channels, m->name);                                                                      \
+        measurement_frame(slot, NODE_STEP_##NAME(m->name), channels);                                                 \
+        break;                                                                                                        \
+    }
+#endif
 
 /* The application part of a valid frame (TargetNode._dispatch). */
 static void dispatch(int index, const union rx_signals *m)
@@ -836,12 +955,16 @@ static void dispatch(int index, const union rx_signals *m)
         control(m->control.command, NODE_STEP_CONTROL(m->control));
         break;
 #ifdef FW_OBSERVER
-    case RX_MEASUREMENTS:                                   /* kept for the row of its Step */
-        measurement.have = 1u;
-        measurement.step = NODE_STEP_MEASUREMENTS(m->measurements);
-        measurement.value = NODE_MEASUREMENT_VALID(m->measurements) ? NODE_MEASUREMENT_VALUE(m->measurements)
-                                                                    : NO_READING;
+    NODE_MEASUREMENT_LIST(MEASUREMENT_CASE)                 /* kept for the row of its Step */
+    case RX_RESTORE_OBSERVER: {                             /* kept for the next RESTORE, by Index */
+        const uint8_t i = m->restore_observer.restore_observer_index;
+        if (i < NODE_OBS_CHECKPOINT_SIZE) {                 /* the others are no element of this filter */
+            restore_observer[i].have = 1u;
+            restore_observer[i].step_low = m->restore_observer.restore_observer_step_low;
+            restore_observer[i].value = m->restore_observer.restore_observer_value;
+        }
         break;
+    }
 #endif
     default:            /* a frame no rule acts on (BenchEvent, unread DriveCurrents, ...): validated only */
         break;
@@ -959,7 +1082,9 @@ void node_init(uint32_t now_ms)
     memset(restore_frames, 0, sizeof restore_frames);
     memset(&pending, 0, sizeof pending);
 #ifdef FW_OBSERVER
-    memset(&measurement, 0, sizeof measurement);
+    memset(measurement, 0, sizeof measurement);
+    measurement_arrivals = 0u;
+    memset(restore_observer, 0, sizeof restore_observer);
 #endif
     memset(estimate, 0, sizeof estimate);
     running_rows = have_reply_row = have_last_inputs = 0u;

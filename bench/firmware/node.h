@@ -23,11 +23,13 @@
  *   after each call: send node_out.tx[0 .. node_out.tx_count-1] in order; read node_out.events (the journal)
  * Every entry point starts by emptying node_out: what a call queued must be sent before the next call.
  *
- * Queues are bounded: NODE_TX_CAPACITY frames and NODE_EVENT_CAPACITY journal records per call. A frame or
- * record that does not fit is dropped and counted (node_out.tx_dropped, node_out.events_dropped: totals since
- * node_init); the temperature replies are queued first, so only timing and checkpoint frames of a row that
- * arrives after more than ~8 model steps of lost rows can be dropped (the Python reference node has no such
- * bound: the one place where the two may differ).
+ * Queues are bounded: NODE_TX_CAPACITY frames (40; a model with an observer: its checkpoint's elements more, since
+ * its ObserverCheckpoint follows a StateCheckpoint in the same call) and NODE_EVENT_CAPACITY journal records per
+ * call. A frame or record that does not fit is dropped and counted (node_out.tx_dropped, node_out.events_dropped:
+ * totals since node_init); the temperature replies are queued first, so only timing, observer and checkpoint frames
+ * of a row that arrives after several model steps of lost rows (~8 open loop, ~4 with an observer and its
+ * checkpoint) can be dropped (the Python reference node has no such bound: the one place where the two may
+ * differ).
  *
  * Frame ids: the 11-bit id, with NODE_ID_EXTENDED / NODE_ID_REMOTE / NODE_ID_ERROR / NODE_ID_FD or-ed in for such
  * frames (all rejected as unknown ids, as the contract says).

@@ -40,15 +40,17 @@ from cantools.database.can.c_source import camel_to_snake_case, generate
 from bench.firmware.literals import FirmwareGenerationError, c_float
 from dbc.codec import crc8h2f_table
 from dbc.contract import (
+    CHANNEL_NAMES,
     CHECKPOINT_EVERY_STEPS,
+    CHECKPOINT_STEP_LOW_MODULO,
     COUNTER_MODULO,
     DBC_PATH,
     FIRMWARE_TIMING_MESSAGE,
     INNOVATION_MESSAGE,
     INNOVATION_SIGNALS,
     M4_CLOCK_HZ,
+    MEASUREMENT_CHANNELS,
     MEASUREMENT_MESSAGE,
-    MEASUREMENT_SIGNALS,
     REPLY_SIGNALS,
     RESET_SIGNALS,
     RESPONSE_TIMING_MESSAGE,
@@ -57,12 +59,14 @@ from dbc.contract import (
     SIGMA_SIGNALS,
     STATE_SIZE,
     STEP_MODULO,
+    VOLTAGE_MESSAGE,
     Command,
     FaultBit,
     MeasurementStatus,
     ModelKind,
     Realization,
     TargetState,
+    measurement_messages,
     row_messages,
     row_signals,
 )
@@ -81,11 +85,12 @@ from target_sim.firmware.node_protocol import (
     EVENT_CAPACITY,
     KIND_CODES,
     ROW_MESSAGES,
-    TX_CAPACITY,
     WHY_CODES,
     firmware_refusal,
+    tx_capacity,
 )
-from target_sim.observer_node import measurement_slots
+from target_sim.observer import Float32Observer
+from target_sim.observer_node import measurement_slots, measurement_width, raw_sources
 
 DATABASE_NAME = "thermal_bench"
 PACKERS = (f"{DATABASE_NAME}.h", f"{DATABASE_NAME}.c")
@@ -331,20 +336,46 @@ def _clamped_encoding(prefix: str, message: str, signal: str) -> list[str]:
             f"#define {prefix}_INV_SCALE {n}", f"#define {prefix}_OFFSET_RAW ({-k})"]
 
 
+def _measurement_macros(artifact: ModelArtifact) -> list[str]:
+    """What the observer reads (TargetNode._measured, NodeObserver.raw): the measurement messages it keeps
+    (NODE_MEASUREMENT_LIST(X): X(NAME, name, slot, reason code of a frame of another Step), in the order they are
+    sent), each one's channels into the host's channels (NODE_CHANNELS_<NAME>(ch, m): the VALID values decoded to
+    float32, NaN otherwise; `dbc.contract.MEASUREMENT_CHANNELS`), and the observer's raw channels of a row's sample
+    from those and the row's own values (NODE_OBS_RAW(sample, ch), `observer_node.raw_sources`)."""
+    messages = measurement_messages(measurement_width(artifact))
+    why = {MEASUREMENT_MESSAGE: "MEASUREMENT_STEP", VOLTAGE_MESSAGE: "VOLTAGES_STEP"}
+    out = [f"#define NODE_HOST_CHANNELS {len(CHANNEL_NAMES)}u",
+           f"#define NODE_MEASUREMENT_MESSAGES {len(messages)}u",
+           "#define NODE_MEASUREMENT_LIST(X) " + " ".join(
+               f"X({_snake_upper(m)}, {camel_to_snake_case(m)}, {slot}u, NODE_WHY_{why[m]})"
+               for slot, m in enumerate(messages))]
+    for message in messages:
+        fills = "; ".join(
+            f"(ch)[{CHANNEL_NAMES.index(channel)}] = (m).{_field(message, status)} == {int(MeasurementStatus.VALID)}u "
+            f"? {_decode(message, value, f'(m).{_field(message, value)}')} : __builtin_nanf(\"\")"
+            for channel, (owner, value, status) in MEASUREMENT_CHANNELS.items() if owner == message)
+        out.append(f"#define NODE_CHANNELS_{_snake_upper(message)}(ch, m) do {{ {fills}; }} while (0)")
+    fills = "; ".join(f"(sample)[NODE_ROW_WIDTH + {i}u] = " + (f"(ch)[{index}]" if where == "channel"
+                                                                   else f"(sample)[{index}]")
+                      for i, (where, index) in enumerate(raw_sources(artifact)))
+    out.append(f"#define NODE_OBS_RAW(sample, ch) do {{ {fills}; }} while (0)")
+    return out
+
+
 def _observer_macros(artifact: ModelArtifact) -> list[str]:
-    """An observer's model (fw_model.h's FW_OBSERVER): the Measurements slot it reads (its value decoded to float32,
-    its status VALID), and the Uncertainty1/2 and Innovations replies: each sigma's and the innovation's encoding,
-    and where each goes (NODE_FILL_<MESSAGE>(m, raw), the innovation of its slot with its Used flag)."""
-    slots = measurement_slots(artifact)     # one lagged sensor (node_protocol.firmware_refusal refuses the rest)
+    """An observer's model (fw_model.h's FW_OBSERVER): what it reads (`_measurement_macros`), its checkpoint's size
+    and StepLow, and the Uncertainty1/2 and Innovations replies: each sigma's and the innovation's encoding, and
+    where each goes (NODE_FILL_<MESSAGE>(m, raw); NODE_FILL_INNOVATIONS(m, report): each slot's innovation from its
+    measurement's place in fw_obs_report's out[4..], with its Used flag; a slot no measurement answers in: 0, not
+    used)."""
+    slots = measurement_slots(artifact)
     if not slots:
         return []
-    slot = slots[0]
-    value, status = MEASUREMENT_SIGNALS[slot]
-    member = f"(m).{_field(MEASUREMENT_MESSAGE, value)}"
-    out = ["#define NODE_OBSERVER 1",
-           f"#define NODE_MEASUREMENT_VALUE(m) {_decode(MEASUREMENT_MESSAGE, value, member)}",
-           f"#define NODE_MEASUREMENT_VALID(m) ((m).{_field(MEASUREMENT_MESSAGE, status)} == "
-           f"{int(MeasurementStatus.VALID)}u)"]
+    out = ["#define NODE_OBSERVER 1", f"#define NODE_OBS_MEASUREMENTS {len(slots)}u",
+           f"#define NODE_OBS_CHANNELS {len(raw_sources(artifact))}u",
+           f"#define NODE_OBS_CHECKPOINT_SIZE {Float32Observer(artifact).checkpoint_size()}u",
+           f"#define NODE_CHECKPOINT_STEP_LOW_MODULO {CHECKPOINT_STEP_LOW_MODULO}u"]
+    out += _measurement_macros(artifact)
     encodings = {tuple(_clamped_encoding("NODE_SIGMA", message, signal)) for message, pairs in SIGMA_SIGNALS.items()
                  for signal, _ in pairs}
     if len(encodings) != 1:
@@ -353,11 +384,22 @@ def _observer_macros(artifact: ModelArtifact) -> list[str]:
     for message, pairs in SIGMA_SIGNALS.items():
         fills = "; ".join(f"(m).{_field(message, signal)} = (uint16_t)(raw)[{index}]" for signal, index in pairs)
         out.append(f"#define NODE_FILL_{_snake_upper(message)}(m, raw) do {{ {fills}; }} while (0)")
-    innovation, used = INNOVATION_SIGNALS[slot]
-    out += _clamped_encoding("NODE_INNOVATION", INNOVATION_MESSAGE, innovation)
-    out.append(f"#define NODE_FILL_{_snake_upper(INNOVATION_MESSAGE)}(m, raw, used) do {{ "
-               f"(m).{_field(INNOVATION_MESSAGE, innovation)} = (int16_t)(int32_t)(raw); "
-               f"(m).{_field(INNOVATION_MESSAGE, used)} = (uint8_t)(used); }} while (0)")
+    innovation_encodings = {tuple(_clamped_encoding("NODE_INNOVATION", INNOVATION_MESSAGE, innovation))
+                            for innovation, _ in INNOVATION_SIGNALS.values()}
+    if len(innovation_encodings) != 1:
+        raise FirmwareGenerationError("the innovation signals do not share one scaling; the node encodes one")
+    out += list(next(iter(innovation_encodings)))
+    fills = []
+    for slot, (innovation, used) in INNOVATION_SIGNALS.items():
+        value_field, used_field = _field(INNOVATION_MESSAGE, innovation), _field(INNOVATION_MESSAGE, used)
+        if slot in slots:
+            place = f"(report)[4u + {slots.index(slot)}u]"
+            fills.append(f"(m).{value_field} = (int16_t)innovation_raw({place}); "
+                         f"(m).{used_field} = (uint8_t)is_finite({place})")
+        else:
+            fills.append(f"(m).{value_field} = 0; (m).{used_field} = 0u")
+    out.append(f"#define NODE_FILL_{_snake_upper(INNOVATION_MESSAGE)}(m, report) do {{ {'; '.join(fills)}; }} "
+               "while (0)")
     return out
 
 
@@ -386,7 +428,7 @@ def node_config(artifact: ModelArtifact) -> str:
     lines += _defines("NODE_COMMAND_", {cmd.name: int(cmd) for cmd in Command})
     lines += _defines("NODE_KIND_", {kind.upper(): code for kind, code in KIND_CODES.items()})
     lines += _defines("NODE_WHY_", WHY_CODES)
-    lines += _defines("NODE_", {"TX_CAPACITY": TX_CAPACITY, "EVENT_CAPACITY": EVENT_CAPACITY})
+    lines += _defines("NODE_", {"TX_CAPACITY": tx_capacity(artifact), "EVENT_CAPACITY": EVENT_CAPACITY})
     lines += _defines("NODE_DATA_ID_", {_snake_upper(m.name): m.data_id for m in c.by_id.values()})
     lines += _defines("NODE_TX_", {_snake_upper(m.name): index for index, m in enumerate(sent)})
     lines.append(f"#define NODE_TX_MESSAGES {len(sent)}u")

@@ -7,21 +7,29 @@ operation:
 
 | C (fw_model.c)         | Python (target_sim.observer)                  | what                                  |
 |------------------------|-----------------------------------------------|---------------------------------------|
-| obs_propagate_extra    | Float32Observer._propagate_extra              | bias into x, the lag state            |
+| obs_propagate_extra    | Float32Observer._propagate_extra              | bias into x, the lag states           |
 | obs_predict            | Float32Observer.transition,                   | F of the step, augmented; Thornton's  |
 |                        | BiermanThornton.predict                       | MWGS over [F U, G] (udgen.py)         |
-| obs_update             | BiermanThornton.update                        | Bierman's scalar update (udgen.py)    |
+| obs_update_<k>         | BiermanThornton.update with the k-th row h    | Bierman's scalar update (udgen.py);   |
+|                        | (SteadyState.update)                          | the steady form: the k-th row of K_ss |
 | fw_obs_step            | Float32Observer.step                          | model step, predict, update           |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
-| fw_obs_report          | Float32Observer.sigma, .innovation            | each node's 1-σ, the innovation       |
+| fw_obs_report          | Float32Observer.sigma, .innovations           | each node's 1-σ, each innovation      |
+| obs_reading_<k>        | the k-th measurement's `reading` (its kind)   | its value and variance, or no reading |
+| fw_obs_checkpoint      | Float32Observer.checkpoint                    | extra states, d, U above the diagonal |
+|                        |                                               | (steady form: the extra states only)  |
+| fw_obs_restore_checkpoint | NodeObserver.restore with every element    | x, then the filter bit for bit        |
 
 What the reference computes once at load (P0's factors U0 and d0 by `ud_factor`, Q's factors G and q, the
-constants of F, the bias column of B, the measurement row h, 1 - a of the lag; the steady form's K_ss and its
-constant 1-σ) is computed by that very code here and written as exact literals: the same float32 values the
-reference starts from. The temperature sources keep their gains for the Jacobian (`obs_gains`, written by
-temperature_sources only in an observer's C). One measurement of one raw channel (a lagged sensor: what the
-Measurements frame carries); the firmware refuses any other observer before this runs
-(`target_sim.firmware.node_protocol.firmware_refusal`).
+constants of F, the bias column of B, each measurement's row h, 1 - a of each lag; the steady form's K_ss rows and
+its constant 1-σ) is computed by that very code here and written as exact literals: the same float32 values the
+reference starts from. The temperature sources keep their gains for
+the Jacobian (`obs_gains`, written by temperature_sources only in an observer's C). Every measurement of the
+section, in its order: a sample carries their raw channels after the drive values (FW_OBS_CHANNELS), each kind
+turns its channels into a reading with its own C (`c_reading` of its `target_sim.measurements` module, constants
+`c_scalars`), and the valid ones update one after the other, as the reference's loop does. The firmware refuses
+what it cannot run before this (`target_sim.firmware.node_protocol.firmware_refusal`: another form than UD and the
+steady-state gain).
 """
 
 from __future__ import annotations
@@ -52,13 +60,18 @@ def _literal_array(name: str, values: np.ndarray, comment: str) -> str:
 
 
 def observer_filter(artifact: ModelArtifact) -> Float32Observer:
-    """The reference filter the C is generated from (FirmwareGenerationError when it is not one measurement of one
-    raw channel in the UD or the steady-state-gain form: the refusal has said so before)."""
+    """The reference filter the C is generated from (FirmwareGenerationError when it is neither in the UD nor in the
+    steady-state-gain form: the refusal has said so before)."""
     obs = Float32Observer(artifact)
-    if obs.form not in FIRMWARE_OBSERVER_FORMS or len(obs.measurements) != 1 or obs.widths != [1]:
+    if obs.form not in FIRMWARE_OBSERVER_FORMS:
         raise FirmwareGenerationError("the firmware generator has the UD and the steady-state-gain forms of an "
-                                      "observer with one temperature measurement only")
+                                      "observer only")
     return obs
+
+
+def observer_channels(artifact: ModelArtifact) -> int:
+    """The raw channels of the observer's measurements a sample carries after the drive values."""
+    return sum(Float32Observer(artifact).widths)
 
 
 def observer_header() -> str:
@@ -66,62 +79,85 @@ def observer_header() -> str:
     return """
 /* The observer (the artifact's observer section: a float32 Kalman filter on the linear block, Bierman-Thornton UD
  * form or the steady-state gain, as target_sim.observer.Float32Observer): a sample and a step's inputs carry the
- * measurement after the drive values (NaN: no reading, the step predicts only), FW_SAMPLE_WIDTH values. */
+ * raw channels of its measurements after the drive values (FW_OBS_CHANNELS; NaN in a measurement's channels: no
+ * reading of it, a step without any predicts only), FW_SAMPLE_WIDTH values. */
 
-/* The model at y0 (fw_reset), the lag state at what its sensor sees, the covariance P0 (its factors U0, d0). */
+/* The model at y0 (fw_reset), each lag state at what its sensor sees, the covariance P0 (its factors U0, d0; the
+   steady form has none). */
 void fw_obs_reset(const float y0[4]);
 
-/* x bit for bit (fw_restore), the lag state at what its sensor sees, the covariance P0 (the firmware does not
-   checkpoint the filter: it sends no ObserverCheckpoint and ignores RestoreObserver). */
+/* x bit for bit (fw_restore), each lag state at what its sensor sees, the covariance P0: a restore without the
+   filter's checkpoint (not every RestoreObserver element came). */
 void fw_obs_restore(const float x[4]);
 
-/* One model step (fw_step on u's drive values), the covariance's prediction and, when u's measurement is finite,
- * the update; writes the corrected outputs to y. */
+/* x bit for bit, then the filter's extra states and covariance from its checkpoint (fw_obs_checkpoint's values,
+   echoed back in RestoreObserver): the filter continues bit for bit. */
+void fw_obs_restore_checkpoint(const float x[4], const float values[]);
+
+/* The filter's checkpoint (Float32Observer.checkpoint, the ObserverCheckpoint elements in order): the extra states
+   (lags, bias), then d, then U above its diagonal row by row (the steady form: the extra states only). */
+void fw_obs_checkpoint(float values[]);
+
+/* One model step (fw_step on u's drive values), the covariance's prediction and, for each measurement with a valid
+ * reading in u, in order, the update; writes the corrected outputs to y. */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4]);
 
-/* After a step: each node's 1-sigma [yoke, winding, tooth, magnet] (deg C) into out[0..3] and the innovation
- * (NaN: the step predicted only) into out[4]. */
-void fw_obs_report(float out[5]);
+/* After a step: each node's 1-sigma [yoke, winding, tooth, magnet] (deg C) into out[0..3] and each measurement's
+ * innovation (NaN: the step did not use it) into out[4..]. */
+void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS]);
 """
 
 
-OBSERVER_DEFINES = ("#define FW_OBSERVER 1 /* the model has an observer: fw_obs_* below */\n"
-                    "#define FW_SAMPLE_WIDTH (FW_INPUTS + 1) /* a sample: the drive values, then the measurement */\n")
+def observer_defines(artifact: ModelArtifact) -> str:
+    """fw_model.h's observer constants (after FW_INPUTS)."""
+    obs = observer_filter(artifact)
+    return ("#define FW_OBSERVER 1 /* the model has an observer: fw_obs_* below */\n"
+            f"#define FW_OBS_MEASUREMENTS {len(obs.measurements)} /* its measurements, in the section's order */\n"
+            f"#define FW_OBS_CHANNELS {sum(obs.widths)} /* their raw channels in a sample */\n"
+            f"#define FW_OBS_CHECKPOINT_SIZE {obs.checkpoint_size()} /* the ObserverCheckpoint elements */\n"
+            "#define FW_SAMPLE_WIDTH (FW_INPUTS + FW_OBS_CHANNELS) /* a sample: the drive values, then the raw "
+            "channels */\n")
+
+
+def _measurement_declarations(obs: Float32Observer, index: int) -> str:
+    """The constants of the index-th measurement (suffix _<index>): what it sees, its lag, its kind's, and in the
+    steady form its row of K_ss (its row h is in its update's code: udgen.update_c)."""
+    m, lag, f = obs.measurements[index], obs.lag_index[index], obs.f
+    k = f"_{index}"
+    lines = [f"#define OBS_LAG{k} {lag} /* {m.name}: its lag state's index (-1: it reads the model without lag) */"]
+    scalars = [(f"OBS_LAG_POLE{k}", m.lag_pole, "its lag a = exp(-dt/tau)"),
+               (f"OBS_LAG_GAIN{k}", f(1.0) - m.lag_pole, "1 - a")] if lag >= 0 else []
+    scalars += [(f"{name}{k}", value, comment) for name, value, comment in m.c_scalars()]
+    lines += [f"static const float {name} = {c_float(value)}; /* {comment} */" for name, value, comment in scalars]
+    arrays = [(f"OBS_SEES{k}", m.sees, "what it sees of [yoke, winding, tooth, magnet]")]
+    if obs.form == "steady":
+        arrays.append((f"OBS_GAIN{k}", obs.gain_steady[index], "its row of K_ss: the steady-state gain"))
+    return "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment) for name, value, comment in arrays)
 
 
 def observer_declarations(artifact: ModelArtifact) -> str:
     """The observer's constants (computed by the reference's own float32 code) and state (.bss)."""
     obs = observer_filter(artifact)
     f, n = obs.f, obs.n
-    measurement = obs.measurements[0]
-    u0, d0 = ud_factor(obs.p0, f)
-    lag, bias = obs.lag_index[0], obs.bias_index
-    steady = obs.form == "steady"
-    lines = [f"#define OBS_N {n} /* the filter's states: the model's 4, then the lag state, then the bias */",
+    bias, steady = obs.bias_index, obs.form == "steady"
+    lines = [f"#define OBS_N {n} /* the filter's states: the model's 4, then a lag state per lagged measurement, "
+             "then the bias */",
              f"#define OBS_STEADY {int(steady)} /* 1: the steady-state gain K_ss (no covariance), 0: the UD form */",
-             f"#define OBS_LAG {lag} /* the lag state's index (-1: the sensor reads the model without lag) */",
              f"#define OBS_BIAS {bias} /* the bias state's index (-1: none) */"]
-    scalars = {"OBS_OFFSET": (measurement.offset, "the sensor's offset (deg C)"),
-               "OBS_R": (measurement.r, "its variance R (deg C^2)"),
-               "OBS_LAG_POLE": (measurement.lag_pole, "its lag a = exp(-dt/tau)"),
-               "OBS_LAG_GAIN": (f(1.0) - measurement.lag_pole, "1 - a")}
-    used = {"OBS_LAG_POLE", "OBS_LAG_GAIN"} if lag >= 0 else set()
-    used |= {"OBS_BIAS_COLUMN"} if bias >= 0 else set()
-    used |= {"OBS_OFFSET", "OBS_R", "OBS_SEES"} | ({"OBS_GAIN", "OBS_SIGMA"} if steady else {"OBS_U0", "OBS_D0"})
-    lines += [f"static const float {name} = {c_float(value)}; /* {comment} */"
-              for name, (value, comment) in scalars.items() if name in used]
-    arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0"),
-              ("OBS_GAIN", obs.gain_steady[0], "K_ss: the steady-state gain"),
-              ("OBS_SIGMA", obs.sigma(), "each node's 1-sigma of P_ss (Float32Observer.sigma: constant)"),
-              ("OBS_SEES", measurement.sees, "what the sensor sees of [yoke, winding, tooth, magnet]"),
-              ("OBS_BIAS_COLUMN", obs.bias_column, "the bias's column of B (delta: times dt)")]
-    text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment)
-                                            for name, value, comment in arrays if name in used)
+    if steady:
+        arrays = [("OBS_SIGMA", obs.sigma(), "each node's 1-sigma of P_ss (Float32Observer.sigma: constant)")]
+    else:
+        u0, d0 = ud_factor(obs.p0, f)
+        arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0")]
+    if bias >= 0:
+        arrays.append(("OBS_BIAS_COLUMN", obs.bias_column, "the bias's column of B (delta: times dt)"))
+    text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment) for name, value, comment in arrays)
+    text += "".join(_measurement_declarations(obs, index) for index in range(len(obs.measurements)))
     factors = "" if steady else "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\n"
-    return text + ("/* the observer's state: U, d of P = U diag(d) U^T (UD form), the extra states (lag, bias: by\n"
-                   " * their index), the last innovation, the sources' gains of the last step */\n"
+    return text + ("/* the observer's state: U, d of P = U diag(d) U^T (UD form), the extra states (lags, bias: by\n"
+                   " * index), each measurement's last innovation, the sources' gains of the last step */\n"
                    f"{factors}static float obs_extra[OBS_N];\n"
-                   "static float obs_innovation;\nstatic float obs_gains[4];\n")
+                   "static float obs_innovation[FW_OBS_MEASUREMENTS];\nstatic float obs_gains[4];\n")
 
 
 OBSERVER_C = """\
@@ -132,7 +168,7 @@ static void obs_output(void)
     for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4)OBS_PLUS_REF;
 }
 
-/* Float32Observer._propagate_extra: the bias heats the winding, the lag state follows what its sensor sees */
+/* Float32Observer._propagate_extra: the bias heats the winding, each lag state follows what its sensor sees */
 static void obs_propagate_extra(void)
 {
 #if OBS_BIAS >= 0
@@ -140,10 +176,12 @@ static void obs_propagate_extra(void)
     for (i = 0; i < 4; i++) x_state[i] = x_state[i] + OBS_BIAS_COLUMN[i] * obs_extra[OBS_BIAS];
     obs_output();
 #endif
-#if OBS_LAG >= 0
-    obs_extra[OBS_LAG] = OBS_LAG_POLE * obs_extra[OBS_LAG] + OBS_LAG_GAIN * dot(OBS_SEES, y_est, 4);
-#endif
-}
+OBS_LAG_PROPAGATE}
+
+/* Each lag state at what its sensor sees of y (Float32Observer.reset_lags) */
+static void obs_reset_lags(void)
+{
+OBS_LAG_RESET}
 
 OBS_KERNELS
 static int obs_finite(float value)
@@ -153,32 +191,30 @@ static int obs_finite(float value)
     return ((bits.u >> 23) & 0xFFu) != 0xFFu;
 }
 
-/* Float32Observer.step: the model step, F, the extra states, the prediction, and the update with a finite
- * reading: innovation = (z - offset) - (the lag state, or sees y), x <- x + K innovation, y = C x */
+/* Float32Observer.step's correction with one measurement's reading and the gain its update gave:
+ * innovation = value - (its lag state, or sees y), x <- x + K innovation, y = C x */
+static void obs_correct(int index, const float sees[4], int lag, float value, const float gain[OBS_N])
+{
+    const float predicted = lag >= 0 ? obs_extra[lag] : dot(sees, y_est, 4);
+    const float nu = value - predicted;
+    int i;
+    obs_innovation[index] = nu;
+    for (i = 0; i < 4; i++) x_state[i] = x_state[i] + gain[i] * nu;
+    for (i = 4; i < OBS_N; i++) obs_extra[i] = obs_extra[i] + gain[i] * nu;
+    obs_output();
+}
+OBS_READINGS
+/* Float32Observer.step: the model step, F, the extra states, the prediction, and the update with each measurement
+ * that has a valid reading, in the section's order (each reads the estimate the previous one corrected) */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
 {
-    float gain[OBS_N];
-    const float z = u[FW_INPUTS];
+    float value, r, gain[OBS_N];
     int i;
     fw_step(u, y);
     obs_propagate_extra();
     obs_predict();
-    obs_innovation = __builtin_nanf("");
-    if (obs_finite(z)) {
-        const float value = z - OBS_OFFSET;
-#if OBS_LAG >= 0
-        const float predicted = obs_extra[OBS_LAG];
-#else
-        const float predicted = dot(OBS_SEES, y_est, 4);
-#endif
-        const float nu = value - predicted;
-        obs_innovation = nu;
-        obs_update(OBS_R, gain);
-        for (i = 0; i < 4; i++) x_state[i] = x_state[i] + gain[i] * nu;
-        for (i = 4; i < OBS_N; i++) obs_extra[i] = obs_extra[i] + gain[i] * nu;
-        obs_output();
-    }
-    for (i = 0; i < 4; i++) y[i] = y_est[i];
+    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_innovation[i] = __builtin_nanf("");
+OBS_UPDATES    for (i = 0; i < 4; i++) y[i] = y_est[i];
 }
 
 /* Float32Observer.reset */
@@ -190,40 +226,74 @@ void fw_obs_reset(const float y0[4])
 #endif
     fw_reset(y0);
     for (i = 0; i < OBS_N; i++) obs_extra[i] = 0.0f;
-#if OBS_LAG >= 0
-    obs_extra[OBS_LAG] = dot(OBS_SEES, y_est, 4);
-#endif
+    obs_reset_lags();
 #if !OBS_STEADY
     for (i = 0; i < OBS_N; i++) {
         for (j = 0; j < OBS_N; j++) obs_u[i][j] = OBS_U0[i][j];
         obs_d[i] = OBS_D0[i];
     }
 #endif
-    obs_innovation = __builtin_nanf("");
+    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_innovation[i] = __builtin_nanf("");
 }
 
 /* NodeObserver.restore without the filter's checkpoint: a fresh filter at zero temperatures, x bit for bit, then
-   the lag state at what its sensor sees of y = C x (Float32Observer.reset_lags) */
+   each lag state at what its sensor sees of y = C x (Float32Observer.reset_lags) */
 void fw_obs_restore(const float x[4])
 {
     static const float zero[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     fw_obs_reset(zero);
     fw_restore(x);
-#if OBS_LAG >= 0
-    obs_extra[OBS_LAG] = dot(OBS_SEES, y_est, 4);
+    obs_reset_lags();
+}
+
+/* Float32Observer.checkpoint: obs_extra[4..], then d and U above its diagonal row by row (UD form; the steady form
+   has no covariance: the extra states only) */
+void fw_obs_checkpoint(float values[])
+{
+    int i, at = 0;
+#if !OBS_STEADY
+    int j;
+#endif
+    for (i = 4; i < OBS_N; i++) values[at++] = obs_extra[i];
+#if !OBS_STEADY
+    for (i = 0; i < OBS_N; i++) values[at++] = obs_d[i];
+    for (i = 0; i < OBS_N; i++) {
+        for (j = i + 1; j < OBS_N; j++) values[at++] = obs_u[i][j];
+    }
 #endif
 }
 
-/* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) and .innovation */
-void fw_obs_report(float out[5])
+/* NodeObserver.restore with every element: a fresh filter at zero temperatures, x bit for bit, then
+   Float32Observer.restore_checkpoint (U unit upper triangular, zeros below; the steady form: the extra states) */
+void fw_obs_restore_checkpoint(const float x[4], const float values[])
 {
+    static const float zero[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    int i, at = 0;
+#if !OBS_STEADY
+    int j;
+#endif
+    fw_obs_reset(zero);
+    fw_restore(x);
+    for (i = 4; i < OBS_N; i++) obs_extra[i] = values[at++];
+#if !OBS_STEADY
+    for (i = 0; i < OBS_N; i++) obs_d[i] = values[at++];
+    for (i = 0; i < OBS_N; i++) {
+        for (j = 0; j < OBS_N; j++) obs_u[i][j] = i == j ? 1.0f : 0.0f;
+        for (j = i + 1; j < OBS_N; j++) obs_u[i][j] = values[at++];
+    }
+#endif
+}
+
+/* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) and .innovations */
+void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
+{
+    int node, i;
 #if OBS_STEADY
-    int node;
     for (node = 0; node < 4; node++) out[node] = OBS_SIGMA[node];   /* P_ss: the same every step */
 #else
     float v[OBS_N];
     float s;
-    int node, i, j;
+    int j;
     for (node = 0; node < 4; node++) {
         for (j = 0; j < OBS_N; j++) {                       /* c padded with zeros to the filter's states */
             v[j] = obs_u[0][j] * LB_C[node][0];
@@ -234,18 +304,52 @@ void fw_obs_report(float out[5])
         out[node] = s > 0.0f ? __builtin_sqrtf(s) : 0.0f;
     }
 #endif
-    out[4] = obs_innovation;
+    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) out[4 + i] = obs_innovation[i];
 }
 """
+
+# per lagged measurement k (its state OBS_LAG_k): its propagation, its reset
+_LAG_PROPAGATE = ("    obs_extra[OBS_LAG_K] = OBS_LAG_POLE_K * obs_extra[OBS_LAG_K] + OBS_LAG_GAIN_K * "
+                  "dot(OBS_SEES_K, y_est, 4);\n")
+_LAG_RESET = "    obs_extra[OBS_LAG_K] = dot(OBS_SEES_K, y_est, 4);\n"
+# per measurement k: its reading, its own update (the row h is its code's) and the correction
+_UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
+           "        obs_update_K(r, gain);\n"
+           "        obs_correct(INDEX, OBS_SEES_K, OBS_LAG_K, value, gain);\n    }\n")
+
+
+def _per_measurement(obs: Float32Observer) -> dict[str, str]:
+    """The generated parts of OBSERVER_C for the section's measurements (their lags, readings and updates)."""
+    propagate, reset, readings, updates, first = [], [], [], [], 0
+    for index, (m, lag) in enumerate(zip(obs.measurements, obs.lag_index, strict=True)):
+        suffix = f"_{index}"
+        if lag >= 0:
+            propagate.append(_LAG_PROPAGATE.replace("_K", suffix))
+            reset.append(_LAG_RESET.replace("_K", suffix))
+        readings.append("\n" + m.c_reading.replace("_K", suffix))
+        updates.append(_UPDATE.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index)))
+        first += m.width
+    return {"OBS_LAG_PROPAGATE": "".join(propagate), "OBS_LAG_RESET": "".join(reset),
+            "OBS_READINGS": "".join(readings), "OBS_UPDATES": "".join(updates)}
 
 
 def observer_code(artifact: ModelArtifact) -> str:
     """The observer's functions (after the model's: they call fw_step, fw_reset, fw_restore and dot)."""
     obs = observer_filter(artifact)
     delta = REALIZATIONS[artifact.realization].delta
-    kernels = (steady_c() if obs.form == "steady" else
-               predict_c(obs) + "\n" + update_c(obs, "obs_update", obs.rows[0]))
-    return OBSERVER_C.replace("OBS_PLUS_REF", " + LB_REF" if delta else "").replace("OBS_KERNELS", kernels)
+    code = OBSERVER_C.replace("OBS_KERNELS", _kernels(obs))
+    for name, text in _per_measurement(obs).items():
+        code = code.replace(name, text)
+    return code.replace("OBS_PLUS_REF", " + LB_REF" if delta else "")
+
+
+def _kernels(obs: Float32Observer) -> str:
+    """obs_predict and one obs_update_<k> per measurement (udgen.py): the UD form's unrolled over its structure, one
+    Bierman update per row h; the steady form's, no prediction and the k-th row of K_ss."""
+    count = len(obs.measurements)
+    if obs.form == "steady":
+        return steady_c([(f"obs_update_{k}", f"OBS_GAIN_{k}") for k in range(count)])
+    return predict_c(obs) + "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k]) for k in range(count))
 
 
 def keep_gains(sources_c: str) -> str:

@@ -8,7 +8,7 @@ products and sums apart (no fused multiply-add). The locals are the compiler's t
 counters, no index arithmetic, no loads of zeros.
 
     obs_predict(void)              Float32Observer.transition + BiermanThornton.predict: F, F U, the MWGS
-    obs_update(r, gain)            BiermanThornton.update for the measurement's row h
+    obs_update_<k>(r, gain)        BiermanThornton.update for the k-th measurement's row h
     steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
 """
 
@@ -245,10 +245,12 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
             f"static void {name}(float r, float gain[OBS_N])\n{{\n" + out.text() + "\n}\n")
 
 
-
-def steady_c() -> str:
-    """The steady-state-gain form's kernels (SteadyState): no prediction, the update hands out K_ss."""
-    return ("/* SteadyState.predict: nothing (no covariance) */\nstatic void obs_predict(void)\n{\n}\n\n"
-            "/* SteadyState.update: the constant gain K_ss, whatever r */\n"
-            "static void obs_update(float r, float gain[OBS_N])\n{\n    int i;\n    (void)r;\n"
-            "    for (i = 0; i < OBS_N; i++) gain[i] = OBS_GAIN[i];\n}\n")
+def steady_c(updates: list[tuple[str, str]]) -> str:
+    """The steady-state-gain form's kernels (SteadyState): no prediction; each (function, gain array) of `updates`
+    hands out its measurement's row of K_ss, whatever r."""
+    code = "/* SteadyState.predict: nothing (no covariance) */\nstatic void obs_predict(void)\n{\n}\n"
+    for name, gain in updates:
+        code += (f"\n/* SteadyState.update: the constant gain {gain} (K_ss's row), whatever r */\n"
+                 f"static void {name}(float r, float gain[OBS_N])\n{{\n    int i;\n    (void)r;\n"
+                 f"    for (i = 0; i < OBS_N; i++) gain[i] = {gain}[i];\n}}\n")
+    return code

@@ -293,20 +293,48 @@ def section_firmware_observer(record: Record) -> list[str]:
         steady_text = (f"{steady['cycles']['p50']} ({steady['mismatches']} mismatches)" if steady else "not measured")
         rows.append([case["case"], _n(case["states"]), f"{plain['cycles']['p50']} / {plain['cycles']['max']}",
                      f"{closed['cycles']['p50']} / {closed['cycles']['max']}", _n(added["cycles_p50"]), steady_text,
-                     f"{closed['mismatches']} of {_n(closed['steps'])} ({_n(closed['updates'])} updated)",
+                     f"{closed['mismatches']} of {_n(closed['steps'])} ({_updated(case)})",
                      f"+{_n(added['model_code_bytes'])} / +{_n(added['model_constants_bytes'])}",
                      f"{_n(closed['flash_bytes'])} (+{_n(added['flash_bytes'])})",
                      f"{_n(closed['ram_bytes'])} (+{_n(added['ram_bytes'])})"])
     return ["`bench firmware check` of the Hammerstein model open loop (`fw_step`) and with its observer "
             "(`fw_obs_step`: the model step, the Bierman-Thornton prediction and update; beside it the same "
-            "observer deploying its steady-state gain, R constant), "
+            "observer deploying its steady-state gain, K_ss at the nominal R), "
             f"{_n(params['rows'])} rows; mismatches against the Python float32 observer (outputs, each "
-            "node's 1-sigma and the innovation, bit for bit); what the observer adds to the model's own "
-            "flash (`fw_model.o`) and to the image (issue 25's goal: predict + update within "
+            "node's 1-sigma, each measurement's innovation and the checkpoint every 20 steps, bit for bit); "
+            "what the observer adds to the model's own flash (`fw_model.o`) and to the image (issue 25's goal: "
+            "predict + update within "
             f"{_n(params['goal_cycles'])} cycles):", "",
             *_table(["observer", "filter states", "open loop cycles p50 / max",
                      "observer cycles p50 / max", "added cycles", "steady-state gain cycles p50", "mismatches",
-                     "fw_model.o code / constants (B)", "flash (B)", "RAM (B)"], rows)]
+                     "fw_model.o code / constants (B)", "flash (B)", "RAM (B)"], rows),
+            *_firmware_observer_runs(record["figures"].get("can_runs") or [])]
+
+
+def _updated(case: dict) -> str:
+    """Steps updated, and per measurement when there are several."""
+    closed = case["observer"]
+    each = closed.get("updates_per_measurement") or []
+    names = case["measurement"].split(", ")
+    if len(each) < 2:
+        return f"{_n(closed['updates'])} updated"
+    return f"{_n(closed['updates'])} updated: " + ", ".join(f"{name} {_n(n)}"
+                                                             for name, n in zip(names, each, strict=False))
+
+
+def _firmware_observer_runs(runs: list[dict]) -> list[str]:
+    """`bench run --engine firmware` of the IPM example's flux-linkage observers."""
+    if not runs:
+        return []
+    rows = [[r["case"], _n(r["rows"]), str(r["exit"]), r["verdict"] or "", _n(r["max_abs_can_minus_float32_C"], 4),
+             f"{_n(r['steps_updated'])} of {_n(r['model_steps'])} ("
+             + ", ".join(f"{slot} {_n(n)}" for slot, n in r["steps_updated_per_slot"].items()) + ")",
+             f"{_n(r['m4_cycles']['p50'])} / {_n(r['m4_cycles']['max'])}", _n(r["load_average"], 1)]
+            for r in runs]
+    return ["", "`bench run --engine firmware` of the IPM example's observers that read the flux linkage (the "
+            "held-out profile over CAN, DriveVoltages with the NTC's Measurements):", "",
+            *_table(["observer", "rows", "exit", "verdict", "max \\|CAN − float32\\| (°C)",
+                     "steps updated (per slot)", "cycles p50 / max", "load average"], rows)]
 
 
 @single_record("firmware_node", "The CAN node in firmware")

@@ -26,12 +26,13 @@ from target_sim.artifact import ModelArtifact
 from target_sim.firmware.elf import ElfImage, FirmwareError, memory_from_elf, read_elf
 from target_sim.firmware.emulator import Firmware
 from target_sim.firmware.node_protocol import firmware_refusal
-from target_sim.observer import has_observer
+from target_sim.observer import Float32Observer, has_observer
 
 MODEL_ID_SYMBOL = "fw_model_id"
 ENTRY_POINTS = ("fw_reset", "fw_restore", "fw_state", "fw_output", "fw_step", "fw_accumulate", "fw_mean",
                 "fw_clear")
-OBSERVER_ENTRY_POINTS = ("fw_obs_reset", "fw_obs_restore", "fw_obs_step", "fw_obs_report")
+OBSERVER_ENTRY_POINTS = ("fw_obs_reset", "fw_obs_restore", "fw_obs_step", "fw_obs_report", "fw_obs_checkpoint",
+                         "fw_obs_restore_checkpoint")
 F32 = np.float32
 
 
@@ -49,8 +50,13 @@ class FirmwareEstimator:
         self.fw = fw = Firmware(image, count_cycles=count_cycles)
         self.name = image.name
         self.memory = memory_from_elf(image)
-        # an observer's model (fw_obs_*): a sample and a step's inputs carry the measurement after the drive values
+        # an observer's model (fw_obs_*): a sample and a step's inputs carry its measurements' raw channels after
+        # the drive values; it reports each node's 1-sigma and each measurement's innovation, and checkpoints
         self.observer = has_observer(artifact)
+        reference = Float32Observer(artifact) if self.observer else None
+        self.channels = sum(reference.widths) if reference is not None else 0
+        self.measurements = len(reference.measurements) if reference is not None else 0
+        self.checkpoint_size = reference.checkpoint_size() if reference is not None else 0
         needed = (MODEL_ID_SYMBOL, *ENTRY_POINTS, *(OBSERVER_ENTRY_POINTS if self.observer else ()))
         missing = [name for name in needed if name not in fw.symbols]
         if missing:
@@ -61,11 +67,12 @@ class FirmwareEstimator:
             raise FirmwareError(f"{image.name} is the firmware of model {model_id:08x}, not of the artifact's model "
                                 f"{artifact.model_id:08x}; build it from this artifact with 'bench firmware build'")
         self.width = width = len(artifact.drive_signals)    # values per sample and step: 4, or 6 with the currents
-        self.sample_width = sample_width = width + self.observer
+        self.sample_width = sample_width = width + self.channels
         # the caller's buffers, allocated once in the scratch area (no firmware RAM)
         self._inputs, self._sample, self._mean = (fw.alloc_f32(sample_width) for _ in range(3))
         self._outputs, self._state = (fw.alloc_f32(4) for _ in range(2))
-        self._report = fw.alloc_f32(5)
+        self._report = fw.alloc_f32(4 + self.measurements)
+        self._checkpoint = fw.alloc_f32(max(self.checkpoint_size, 1))
         self._prefix = "fw_obs_" if self.observer else "fw_"
         self.last_cycles: int | None = None
         self.y = np.zeros(4, dtype=F32)
@@ -83,15 +90,19 @@ class FirmwareEstimator:
         self.fw.call(self._prefix + "restore", self._inputs)
         self.y = self._read("fw_output")
 
-    def step(self, *inputs: float, z: float | None = None) -> np.ndarray:
+    def step(self, *inputs: float, z: float | Sequence[float] | None = None) -> np.ndarray:
         """One model step (fw_step) on [torque, speed, coolant, ambient] (and [i_d, i_q] for an electrical loss
-        model); an observer's model steps through its filter (fw_obs_step) with the measurement z (NaN: predict
-        only). The counted Cortex-M4 cycles of the call are then in `last_cycles`."""
+        model); an observer's model steps through its filter (fw_obs_step) with its measurements' raw channels z
+        (NaN: no reading; one number for one channel, None: none at all). The counted Cortex-M4 cycles of the call
+        are then in `last_cycles`."""
         if len(inputs) != self.width:
             raise ValueError(f"the {self.artifact.loss_model} loss model's step takes {self.width} inputs "
                              f"({', '.join(self.artifact.drive_signals)}), not {len(inputs)}")
         if self.observer:
-            inputs = (*inputs, np.nan if z is None else z)
+            raw = np.full(self.channels, np.nan) if z is None else np.atleast_1d(np.asarray(z, dtype=np.float64))
+            if len(raw) != self.channels:
+                raise ValueError(f"the observer's measurements take {self.channels} raw channels, not {len(raw)}")
+            inputs = (*inputs, *raw)
         fw = self.fw
         fw.write_f32(self._inputs, inputs)
         fw.call(self._prefix + "step", self._inputs, self._outputs)
@@ -99,11 +110,27 @@ class FirmwareEstimator:
         self.y = fw.read_f32(self._outputs, 4)
         return self.y.copy()
 
-    def report(self) -> tuple[np.ndarray, np.float32]:
-        """An observer's each node's 1-sigma and innovation after the last step (fw_obs_report)."""
+    def report(self) -> tuple[np.ndarray, np.ndarray]:
+        """An observer's each node's 1-sigma and each measurement's innovation (NaN: not used) after the last step
+        (fw_obs_report)."""
         self.fw.call("fw_obs_report", self._report)
-        out = self.fw.read_f32(self._report, 5)
-        return out[:4].copy(), out[4]
+        out = self.fw.read_f32(self._report, 4 + self.measurements)
+        return out[:4].copy(), out[4:].copy()
+
+    def checkpoint(self) -> np.ndarray:
+        """An observer's checkpoint (fw_obs_checkpoint): `Float32Observer.checkpoint`'s elements."""
+        self.fw.call("fw_obs_checkpoint", self._checkpoint)
+        return self.fw.read_f32(self._checkpoint, self.checkpoint_size)
+
+    def restore_checkpoint(self, state: Sequence[float], values: Sequence[float]) -> None:
+        """x bit for bit and the filter from its checkpoint (fw_obs_restore_checkpoint)."""
+        if len(values) != self.checkpoint_size:
+            raise ValueError(f"an observer checkpoint of this filter has {self.checkpoint_size} elements, "
+                             f"not {len(values)}")
+        self.fw.write_f32(self._inputs, state)
+        self.fw.write_f32(self._checkpoint, values)
+        self.fw.call("fw_obs_restore_checkpoint", self._inputs, self._checkpoint)
+        self.y = self._read("fw_output")
 
     @property
     def x(self) -> np.ndarray:

@@ -50,18 +50,18 @@ from target_sim.firmware.node_protocol import (
     COUNTERS,
     COUNTERS_SIZE,
     EVENT,
-    EVENTS_OFFSET,
     FRAME,
     ID_ERROR,
     ID_EXTENDED,
     ID_FD,
     ID_REMOTE,
     OUTPUT_HEADER,
-    OUTPUT_SIZE,
     TX_OFFSET,
     WHY_CODES,
     Event,
     firmware_refusal,
+    output_layout,
+    tx_capacity,
 )
 
 ENTRY_POINTS = ("node_init", "node_on_frame", "node_on_tick", "node_internal_fault")
@@ -110,7 +110,8 @@ class FirmwareNode:
         if missing:
             raise FirmwareError(f"{image.name} has no {', '.join(missing)}: it is not a node firmware of "
                                 "'bench firmware build'; rebuild it")
-        layout = {"node_out": OUTPUT_SIZE, "node_counters": COUNTERS_SIZE, "node_rx": FRAME.size}
+        self._events_offset, output_size = output_layout(tx_capacity(artifact))
+        layout = {"node_out": output_size, "node_counters": COUNTERS_SIZE, "node_rx": FRAME.size}
         wrong = [f"{name} is {fw.symbols[name].size} bytes, not {size}" for name, size in layout.items()
                  if fw.symbols[name].size != size]
         if wrong:
@@ -180,7 +181,7 @@ class FirmwareNode:
                 frames.append(can.Message(timestamp=now, arbitration_id=fid, is_extended_id=False, dlc=dlc,
                                           data=data[:dlc], check=False))
         if event_count and self.journal is not None and self._msg is not None:
-            raw = fw.read_bytes(self._out + EVENTS_OFFSET, event_count * EVENT.size)
+            raw = fw.read_bytes(self._out + self._events_offset, event_count * EVENT.size)
             msg = self._msg
             for index in range(event_count):
                 event = Event.unpack(raw[index * EVENT.size:(index + 1) * EVENT.size])

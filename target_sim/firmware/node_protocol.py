@@ -14,12 +14,19 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RX_ERROR_KINDS, TargetState, row_messages
+from dbc.contract import (
+    CURRENT_SIGNALS,
+    DRIVE_SIGNALS,
+    MEASUREMENT_MESSAGE,
+    RX_ERROR_KINDS,
+    VOLTAGE_MESSAGE,
+    TargetState,
+    row_messages,
+)
 from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
-from target_sim.measurements import MEASUREMENT_KINDS
-from target_sim.observer import has_observer, measurement_entries
+from target_sim.observer import has_observer
 from target_sim.observer_node import can_refusal
 
 
@@ -37,18 +44,14 @@ FIRMWARE_OBSERVER_FORMS = ("ud", "steady")
 def firmware_refusal(artifact: ModelArtifact) -> str | None:
     """Why the firmware engine cannot run `artifact` (one sentence), or None when it can: a loss model its generated
     C lacks, or an observer it cannot run: one the CAN frames cannot carry (the Python node's sentence,
-    `target_sim.observer_node.can_refusal`: the flux linkage from its raw channels, several measurements) or one
-    whose covariance form is not one its generated C has (UD, steady-state gain)."""
+    `target_sim.observer_node.can_refusal`: the flux linkage on a loss-map model, two measurements in one slot) or
+    one whose covariance form is not one its generated C has (UD, steady-state gain). Every measurement kind has its
+    C (the flux linkage, lagged sensors), several per row, in either form."""
     name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")
     if has_observer(artifact):
         refusal = can_refusal(artifact)
         if refusal is not None:
             return refusal
-        entries = measurement_entries(artifact.content["observer"])
-        if len(entries) != 1 or not MEASUREMENT_KINDS[entries[0]["kind"]].temperature_channel:
-            return (f"the firmware engine runs an observer with one lagged temperature sensor, and {name} measures "
-                    f"{', '.join(e['name'] + ' (' + e['kind'] + ')' for e in entries)}: use --engine python, "
-                    "whose node runs the flux linkage and several measurements")
         form = artifact.content["observer"].get("form")
         if form not in FIRMWARE_OBSERVER_FORMS:
             return (f"the firmware engine runs an observer in the ud form (Bierman-Thornton) or the steady form "
@@ -89,7 +92,9 @@ WHY: dict[str, str] = {
     "RESET_INCOMPLETE": "RESET of step {a} without ResetTemps1 and ResetTemps2 of that step",
     "RESTORE_INCOMPLETE": "RESTORE of step {a} without the 4 RestoreState elements of that step",
     "CORE_FAULT": "the emulated core faulted",
-    "MEASUREMENT_STEP": "Measurements of step {a} before the row of step {b}",   # an observer's, TargetNode._measured
+    # an observer's measurement frame of another Step than the row it precedes (TargetNode._measured), per message
+    "MEASUREMENT_STEP": MEASUREMENT_MESSAGE + " of step {a} before the row of step {b}",
+    "VOLTAGES_STEP": VOLTAGE_MESSAGE + " of step {a} before the row of step {b}",
 }
 WHY_CODES: dict[str, int] = {name: index + 1 for index, name in enumerate(WHY)}
 _WHY_NAMES = {code: name for name, code in WHY_CODES.items()}
@@ -99,11 +104,28 @@ FRAME = struct.Struct("<II8s")                      # struct node_frame
 EVENT = struct.Struct("<BBBBI8sii")                 # struct node_event
 OUTPUT_HEADER = struct.Struct("<10I")               # struct node_output up to tx[]
 COUNTERS = struct.Struct("<11I")                    # struct node_counters up to last_error
-TX_CAPACITY = 40                                    # NODE_TX_CAPACITY of fw_node_config.h (nodegen)
+TX_CAPACITY = 40                                    # NODE_TX_CAPACITY of fw_node_config.h (nodegen), open loop
 EVENT_CAPACITY = 8                                  # NODE_EVENT_CAPACITY
 TX_OFFSET = OUTPUT_HEADER.size
 EVENTS_OFFSET = TX_OFFSET + TX_CAPACITY * FRAME.size
 OUTPUT_SIZE = EVENTS_OFFSET + EVENT_CAPACITY * EVENT.size      # sizeof(struct node_output)
+
+
+def tx_capacity(artifact: ModelArtifact) -> int:
+    """NODE_TX_CAPACITY of the artifact's node: TX_CAPACITY, and for an observer its checkpoint's elements more (its
+    ObserverCheckpoint frames follow a StateCheckpoint in the same call, after the row's replies; the Python node
+    queues them all)."""
+    if not has_observer(artifact):
+        return TX_CAPACITY
+    from target_sim.observer import Float32Observer
+
+    return TX_CAPACITY + Float32Observer(artifact).checkpoint_size()
+
+
+def output_layout(capacity: int) -> tuple[int, int]:
+    """(offset of events[], sizeof(struct node_output)) of a node whose tx[] holds `capacity` frames."""
+    events = TX_OFFSET + capacity * FRAME.size
+    return events, events + EVENT_CAPACITY * EVENT.size
 COUNTERS_SIZE = COUNTERS.size + EVENT.size                     # sizeof(struct node_counters)
 
 # node.h's flags on the id of a received frame

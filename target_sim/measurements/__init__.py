@@ -7,7 +7,9 @@ the model at one model step, in float32 with a fixed order of operations (the C 
 - `lag_pole`: a first-order lag a = exp(-Δ/τ) of that temperature (the observer then carries the lag's state
   s <- a s + (1 - a) sees·y as an extra state and the reading is s); 0: no lag state;
 - `reading(raw, speed, y)`: (z, R) — the reading less its offset and its variance — or None when it is not valid
-  this step (below a speed, a NaN channel).
+  this step (below a speed, a NaN channel);
+- `c_reading`, `c_scalars()`: the same reading in the firmware's generated C (`bench.firmware.observergen`), and
+  the float32 constants it names.
 The artifact's observer section lists its measurements in order (`observer.measurements`, section version 2).
 """
 
@@ -31,6 +33,10 @@ class TargetMeasurement(Protocol):
     def width(self) -> int: ...
 
     def reading(self, raw: np.ndarray, speed, y: np.ndarray) -> tuple | None: ...
+
+    c_reading: str
+
+    def c_scalars(self) -> list[tuple[str, np.floating, str]]: ...
 
 
 @dataclass(frozen=True)

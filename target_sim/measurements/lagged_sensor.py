@@ -13,6 +13,19 @@ import numpy as np
 from target_sim.artifact import OUTPUTS, decode_array
 from target_sim.measurements import MEASUREMENT_KINDS, MeasurementKind
 
+# the generated C of `reading` (bench.firmware.observergen; _K is the measurement's index there)
+C_READING = """\
+/* LaggedSensor.reading: a finite reading less its offset, with the constant variance R */
+static int obs_reading_K(const float raw[1], float speed, float *value, float *r)
+{
+    (void)speed;
+    if (!obs_finite(raw[0])) return 0;
+    *value = raw[0] - OBS_OFFSET_K;
+    *r = OBS_R_K;
+    return 1;
+}
+"""
+
 
 class LaggedSensor:
     def __init__(self, entry: dict, where: str, f):
@@ -31,6 +44,12 @@ class LaggedSensor:
     @property
     def width(self) -> int:
         return 1
+
+    def c_scalars(self) -> list[tuple[str, np.floating, str]]:
+        """(C name, float32 value, comment) of the constants `C_READING` names (the generator suffixes them)."""
+        return [("OBS_OFFSET", self.offset, "its offset (deg C)"), ("OBS_R", self.r, "its variance R (deg C^2)")]
+
+    c_reading = C_READING
 
     def reading(self, raw: np.ndarray, speed, y: np.ndarray) -> tuple | None:
         z = raw[0]

@@ -4,29 +4,36 @@ observer deploying its steady-state gain, in the emulated Cortex-M4F, run as a u
 
     python tests/benchmarks/bench_firmware_observer.py [--skip-ipm] [--work DIR] [--rows N]
 
-Two observers of the Hammerstein model:
+Observers of the Hammerstein model:
 1. the built-in motor's winding sensor (`bench observer`, trained on the 20 and 60 °C runs; checked on the 40 °C run);
-2. the 60 kW IPM example's stator NTC (`bench data --motor`, `bench identify` on profiles 1-8, `bench observer
-   --measure ntc_C` with the motor file's offset, lag and gradient: a lag state; checked on the held-out profile 9).
+2. the 60 kW IPM example (`bench data --motor`, `bench identify` on profiles 1-8; checked on the held-out profile 9)
+   with (a) its stator NTC (`bench observer --measure ntc_C` with the motor file's offset, lag and gradient: a lag
+   state), (b) the flux linkage (`--measure none --flux`) and (c) both (two measurements per row).
 For each, `bench firmware build` and `bench firmware check` of the open-loop artifact and of the observer's: the
 Cortex-M4 cycles per model step (open loop: fw_step; observer: fw_obs_step, the model step, the covariance's
-prediction and the update), bit for bit against the Python float32 reference (outputs, each node's 1-sigma and the
-innovation), the model's own flash (`fw_model.o`: code and constants) and the image's flash and RAM. The tuning
-takes two filter runs (`--evaluations 2`): its Q and R change no cycle count. Writes its record
+prediction and the update), bit for bit against the Python float32 reference (outputs, each node's 1-sigma, each
+innovation and the periodic checkpoint), the model's own flash (`fw_model.o`: code and constants) and the image's
+flash and RAM. The tuning takes two filter runs (`--evaluations 2`): its Q and R change no cycle count. For (b) and
+(c), `bench run --engine firmware` over CAN too (exit status, verdict, max |CAN - float32|, the steps that used each
+measurement, the measured cycles per step; the load average beside). Writes its record
 (docs/results/firmware_observer.json; see tests/benchmarks/record.py) for the results page.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_accuracy import HELD_OUT, IPM, bench  # noqa: E402
-from bench_observer import BUILTIN_VALIDATION, ntc_sensor  # noqa: E402
+from bench_observer import BUILTIN_VALIDATION, ipm_cases, ntc_sensor  # noqa: E402
 from record import Record, add_record_arguments  # noqa: E402
 
 GOAL_CYCLES = 3000        # issue 25: predict + update (the whole observer step) of the Hammerstein model
@@ -40,6 +47,7 @@ def firmware_figures(model: Path, out: Path, data: list[str], rows: int) -> dict
                              str(rows), *data)
     return {"cycles": checked["cycles"], "exec_us_at_90MHz": checked["exec_us_at_90MHz"],
             "mismatches": checked["mismatches"], "steps": checked["steps"], "updates": checked.get("updates"),
+            "updates_per_measurement": checked.get("updates_per_measurement"),
             "model_flash": built["model_flash"], "flash_bytes": built["flash_bytes"], "ram_bytes": built["ram_bytes"],
             "stack_used_bytes": checked["stack_used_bytes"], "build_s": round(build_s, 1),
             "check_s": round(check_s, 1)}
@@ -78,7 +86,8 @@ def compare(name: str, open_loop: Path, observer: Path, work: Path, data: list[s
           f"fw_model.o +{added['model_flash_bytes']} B (code +{added['model_code_bytes']}, constants "
           f"+{added['model_constants_bytes']}), RAM +{added['ram_bytes']} B; steady-state gain "
           f"{steady['cycles']['p50']} cycles, mismatches {steady['mismatches']} of {steady['steps']}")
-    return {"case": name, "states": state_count(section), "measurement": section["measurements"][0]["name"],
+    return {"case": name, "states": state_count(section),
+            "measurement": ", ".join(m["name"] for m in section["measurements"]),
             "open_loop": plain, "observer": closed, "steady": steady, "added": added,
             "goal_met": closed["cycles"]["max"] <= GOAL_CYCLES}
 
@@ -92,7 +101,7 @@ def builtin_motor(work: Path, rows: int) -> dict:
                    ["--data", BUILTIN_VALIDATION], rows)
 
 
-def ipm_example(work: Path, rows: int) -> dict:
+def ipm_example(work: Path, rows: int) -> tuple[list[dict], list[dict]]:
     motor, mapping = str(IPM / "motor.json"), str(IPM / "mapping.json")
     data = work / "ipm"
     train = str(data / "profile_0[1-8].csv")
@@ -101,13 +110,43 @@ def ipm_example(work: Path, rows: int) -> dict:
         bench("data", "--motor", motor, "--out", str(data), "--quiet")
         bench("identify", "--motor", motor, "--mapping", mapping, "--train", train, "--validate", *held_out,
               "--out", str(data / "model.json"))
-    sensor = ntc_sensor()
-    model = work / "ipm-ntc-observer.json"
-    bench("observer", "--model", str(data / "model.json"), "--train", train, "--mapping", mapping, "--measure",
-          "ntc_C", "--offset", f"{sensor['offset']:g}", "--lag", f"{sensor['lag_s']:g}", "--gradient",
-          f"{sensor.get('gradient', 0.0):g}", "--evaluations", "2", "--out", str(model))
-    return compare("IPM example stator NTC", data / "model.json", model, work,
-                   ["--mapping", mapping, "--data", held_out[0]], rows)
+    cases, runs = [], []
+    for case, args in ipm_cases(ntc_sensor()).items():
+        model = work / f"ipm-{case}-observer.json"
+        bench("observer", "--model", str(data / "model.json"), "--train", train, "--mapping", mapping, *args,
+              "--evaluations", "2", "--out", str(model))
+        cases.append(compare(f"IPM example {case}", data / "model.json", model, work,
+                             ["--mapping", mapping, "--data", held_out[0]], rows))
+        if "flux" in case:
+            runs.append(can_run(case, model, work, ["--mapping", mapping, "--data", held_out[0]], rows))
+    return cases, runs
+
+
+def can_run(name: str, model: Path, work: Path, data: list[str], rows: int) -> dict:
+    """`bench run --engine firmware` of one observer over CAN: exit status, verdict, agreement, updates, cycles."""
+    load = os.getloadavg()[0]
+    started = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "bench", "run", "--model", str(model), *data, "--rows", str(rows),
+                           "--engine", "firmware", "--log", str(work / f"run-{name}.blf"), "--no-report", "--json"],
+                          capture_output=True, text=True, env=dict(os.environ, MPLBACKEND="Agg"))
+    seconds = time.perf_counter() - started
+    if not done.stdout.strip().startswith("{"):
+        sys.exit(f"bench run of {name} failed ({done.returncode}): {done.stderr.strip()[-600:]}")
+    summary = json.loads(done.stdout)
+    metrics = summary["metrics"]
+    observer = metrics.get("observer") or {}
+    used = {slot: m["model_steps_updated"] for slot, m in (observer.get("measurements") or {}).items()}
+    out = {"case": name, "exit": done.returncode, "verdict": summary.get("verdict"), "rows": rows,
+           "model_steps": metrics.get("model_steps"), "missing": summary.get("missing"),
+           "max_abs_can_minus_float32_C": max((metrics.get("max_abs_can_minus_float32_C") or {}).values(),
+                                              default=None),
+           "can_reference": metrics.get("can_reference"), "steps_updated": observer.get("model_steps_updated"),
+           "steps_updated_per_slot": used, "m4_cycles": metrics.get("m4_cycles"), "wall_s": round(seconds, 1),
+           "load_average": round(load, 2)}
+    print(f"bench run --engine firmware, IPM {name}, {rows} rows: exit {out['exit']}, {out['verdict']}; max |CAN - "
+          f"f32| {out['max_abs_can_minus_float32_C']} °C; {out['steps_updated']} of {out['model_steps']} steps "
+          f"updated ({used}); cycles {out['m4_cycles']}; {seconds:.0f} s at load {load:.1f}")
+    return out
 
 
 def main() -> int:
@@ -122,10 +161,12 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = (args.work or Path(tmp)).resolve()
         work.mkdir(parents=True, exist_ok=True)
-        cases = [builtin_motor(work, args.rows)]
+        cases, runs = [builtin_motor(work, args.rows)], []
         if not args.skip_ipm:
-            cases.append(ipm_example(work, args.rows))
+            ipm, runs = ipm_example(work, args.rows)
+            cases += ipm
     record.figures["cases"] = cases
+    record.figures["can_runs"] = runs
     record.write()
     return 0
 

@@ -2,9 +2,9 @@
 row's Measurements frame, the Python target updates its filter with it and answers every model step with each
 node's 1-sigma and the innovation; the run is clean (CAN = the offline float32 observer on the decoded
 measurements); a dropped or corrupted Measurements frame is detected like any other and the filter then predicts
-only (CAN = the target's twin); `bench replay` and `bench analyze` of the log; data without the measured column and
-the firmware engine (whose C has no observer yet) are refused in one sentence before any work, and so is an observer
-whose readings the frames cannot carry (the flux linkage from its raw channels, two measurements): exit 2."""
+only (CAN = the target's twin); `bench replay` and `bench analyze` of the log; the firmware engine runs it clean too;
+data without the measured column is refused in one sentence before any work, and so is an observer whose readings
+the frames cannot carry: exit 2."""
 
 from __future__ import annotations
 
@@ -127,6 +127,24 @@ def test_bench_run_on_the_firmware_engine_with_an_observer_is_clean(observer_art
     assert metrics["can_reference"] == "offline float32" and metrics["can_agrees_with_float32"]
     assert metrics["observer"]["model_steps_updated"] == metrics["model_steps"] == 120
     assert metrics["observer"]["sigma_final_C"]["magnet"] > metrics["observer"]["sigma_final_C"]["winding"] > 0
+    assert metrics["m4_cycles"]["max"] > 0
+
+
+def test_bench_run_on_the_firmware_engine_with_the_ntc_and_the_flux_linkage_is_clean(flux_observer_artifact,
+                                                                                     tmp_path):
+    """Two measurements per row in the generated C (DBC 1.7.0): the NTC in Measurements, the flux linkage from
+    DriveVoltages and the row's currents; clean over CAN, each slot used (the flux above its speed only)."""
+    path, data = flux_observer_artifact
+    proc = run_cli("-m", "bench", "run", "--model", str(path), "--data", str(data), "--rows", "200", "--engine",
+                   "firmware", "--log", str(tmp_path / "run.blf"), "--no-report", "--reply-timeout", "0.5", "--json",
+                   timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    s = json.loads(proc.stdout)
+    assert (s["missing"], s["clean"]) == (0, True), s["verdict"]
+    metrics = s["metrics"]
+    assert metrics["can_reference"] == "offline float32" and metrics["can_agrees_with_float32"]
+    used = {slot: m["model_steps_updated"] for slot, m in metrics["observer"]["measurements"].items()}
+    assert used["sensor"] == metrics["model_steps"] and 0 < used["flux"] < metrics["model_steps"], used
     assert metrics["m4_cycles"]["max"] > 0
 
 

@@ -1,7 +1,7 @@
-"""The firmware node's arithmetic equals the Python codec's: every drive, current and reset raw value decodes to
-the same float32, every temperature encodes to the same raw value (including the exact ties the codec rounds half
-to even), and the generated range checks accept exactly what the Python validator accepts; the data row of each
-loss model comes from the contract."""
+"""The firmware node's arithmetic equals the Python codec's: every drive, current, reset and measurement (the
+observer's Measurements and DriveVoltages values) raw value decodes to the same float32, every temperature encodes
+to the same raw value (including the exact ties the codec rounds half to even), and the generated range checks
+accept exactly what the Python validator accepts; the data row of each loss model comes from the contract."""
 
 from __future__ import annotations
 
@@ -12,14 +12,15 @@ import numpy as np
 import pytest
 
 from bench.firmware.nodegen import _divisor, packers
-from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, RESET_SIGNALS
+from dbc.contract import CURRENT_SIGNALS, DRIVE_SIGNALS, MEASUREMENT_CHANNELS, RESET_SIGNALS
 from dbc.database import contract, layout_named
 
 RECEIVED = [(m.name, s) for m in contract().by_id.values() if m.sender == "HOST" for s in m.signals]
 
 
 @pytest.mark.parametrize("message,signal", [*DRIVE_SIGNALS, *CURRENT_SIGNALS,
-                                            *[(m, s) for m, pairs in RESET_SIGNALS.items() for s, _ in pairs]])
+                                            *[(m, s) for m, pairs in RESET_SIGNALS.items() for s, _ in pairs],
+                                            *[(m, s) for m, s, _ in MEASUREMENT_CHANNELS.values()]])
 def test_every_raw_value_decodes_to_the_codecs_float32(message, signal):
     layout = layout_named(message).signal(signal)
     n, k = _divisor(message, signal)
