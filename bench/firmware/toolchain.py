@@ -131,13 +131,19 @@ def _run(args: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
     return done
 
 
+_VERSIONS: dict[tuple[str, ...], str] = {}   # asked once per process and compiler: it cannot change meanwhile
+
+
 def toolchain_version(cwd: Path | None = None) -> str:
     """'zig 0.17.1', or ToolchainError (one sentence) when `python -m ziglang` does not run."""
-    done = _run(["version"], cwd or Path(tempfile.gettempdir()), "asking the compiler for its version")
-    if done.returncode != 0 or not done.stdout.strip():
-        raise ToolchainError(f"the C cross-compiler (python {' '.join(COMPILER[1:])}) is not available "
-                             f"({_first_line(done.stderr + done.stdout)}); {INSTALL_HINT}")
-    return f"zig {done.stdout.strip()}"
+    key = tuple(COMPILER)
+    if key not in _VERSIONS:
+        done = _run(["version"], cwd or Path(tempfile.gettempdir()), "asking the compiler for its version")
+        if done.returncode != 0 or not done.stdout.strip():
+            raise ToolchainError(f"the C cross-compiler (python {' '.join(COMPILER[1:])}) is not available "
+                                 f"({_first_line(done.stderr + done.stdout)}); {INSTALL_HINT}")
+        _VERSIONS[key] = f"zig {done.stdout.strip()}"
+    return _VERSIONS[key]
 
 
 ISR_DEFINE = "-DNODE_WITH_ISR"            # the node of a timing image sends Timing5 (node.c)

@@ -187,6 +187,27 @@ def test_missing_toolchain_is_one_sentence_and_writes_nothing(tmp_path, capsys, 
     assert not out.exists()
 
 
+def test_the_compiler_is_asked_its_version_once_per_process_and_compiler(monkeypatch):
+    """Each build names its toolchain; asking `python -m ziglang version` again for every build of a process cost a
+    process start each (88 in one test run). A missing compiler is still asked, and still refused."""
+    asked = []
+    real = toolchain._run
+
+    def counting(args, cwd, what):
+        asked.append(tuple(toolchain.COMPILER))
+        return real(args, cwd, what)
+
+    monkeypatch.setattr(toolchain, "_run", counting)
+    monkeypatch.setattr(toolchain, "_VERSIONS", {})
+    first = toolchain.toolchain_version()
+    assert toolchain.toolchain_version() == first and first.startswith("zig ") and len(asked) == 1
+    monkeypatch.setattr(toolchain, "COMPILER", [sys.executable, "-m", "no_such_compiler_module_here"])
+    for _ in range(2):
+        with pytest.raises(toolchain.ToolchainError, match="not available"):
+            toolchain.toolchain_version()
+    assert len(asked) == 3
+
+
 def test_a_failing_compile_is_one_sentence(monkeypatch, artifacts):
     from target_sim.artifact import load_artifact
 
