@@ -356,23 +356,31 @@ def test_analyze_stopped_while_drawing_its_report_leaves_no_report(material, scr
     assert _leftovers(out) == [] and not (out / "rep").exists()
 
 
+def _main_replaced_by(work_source: str) -> subprocess.CompletedProcess:
+    """`bench.cli.main` in a child whose command is `work` (defined by `work_source`, with os, signal, sys and time
+    imported): how the top level handles a signal wherever the work is when it lands."""
+    code = ("import os, signal, sys, time\n"
+            "import bench.cli as cli\n"
+            f"{work_source}"
+            "cli._main = work\n"
+            "sys.exit(cli.main([]))\n")
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=child_env(), capture_output=True, text=True,
+                          timeout=60)
+
+
 def test_a_termination_swallowed_by_a_finalizer_is_delivered_again(scratch):
     """SIGTERM handled inside a weakref finalizer: Python reports the exception as unraisable and goes on; the
     bench sends the signal again, so the command still stops with its sentence and 143 (not 0 after its work)."""
-    code = ("import os, signal, sys, time, weakref\n"
-            "import bench.cli as cli\n"
-            "class Thing: pass\n"
-            "def work(argv):\n"
-            "    thing = Thing()\n"
-            "    weakref.finalize(thing, lambda: (os.kill(os.getpid(), signal.SIGTERM), time.sleep(0.2)))\n"
-            "    del thing\n"
-            "    time.sleep(10)\n"
-            "    print('the work went on')\n"
-            "    return 0\n"
-            "cli._main = work\n"
-            "sys.exit(cli.main([]))\n")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=child_env(), capture_output=True, text=True,
-                          timeout=60)
+    done = _main_replaced_by("import weakref\n"
+                             "class Thing: pass\n"
+                             "def work(argv):\n"
+                             "    thing = Thing()\n"
+                             "    weakref.finalize(thing, lambda: (os.kill(os.getpid(), signal.SIGTERM), "
+                             "time.sleep(0.2)))\n"
+                             "    del thing\n"
+                             "    time.sleep(10)\n"
+                             "    print('the work went on')\n"
+                             "    return 0\n")
     _assert_stopped(done.returncode, done.stderr, signal.SIGTERM)
     assert done.stdout == ""
 
@@ -381,21 +389,15 @@ def test_a_termination_swallowed_by_a_finalizer_is_delivered_again(scratch):
 def test_a_signal_while_a_class_is_created_still_stops_in_one_sentence(scratch, signum):
     """A signal that lands in `__set_name__` (a lazy import creating a dataclass) reaches the top level wrapped in
     a RuntimeError by Python 3.11; the bench still stops with its sentence, not a traceback (CI saw this once)."""
-    code = ("import os, signal, sys, time\n"
-            "import bench.cli as cli\n"
-            "class Slow:\n"
-            "    def __set_name__(self, owner, name):\n"
-            f"        os.kill(os.getpid(), {int(signum)})\n"
-            "        time.sleep(10)\n"
-            "def work(argv):\n"
-            "    class Model:\n"
-            "        field = Slow()\n"
-            "    print('the work went on')\n"
-            "    return 0\n"
-            "cli._main = work\n"
-            "sys.exit(cli.main([]))\n")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=child_env(), capture_output=True, text=True,
-                          timeout=60)
+    done = _main_replaced_by("class Slow:\n"
+                             "    def __set_name__(self, owner, name):\n"
+                             f"        os.kill(os.getpid(), {int(signum)})\n"
+                             "        time.sleep(10)\n"
+                             "def work(argv):\n"
+                             "    class Model:\n"
+                             "        field = Slow()\n"
+                             "    print('the work went on')\n"
+                             "    return 0\n")
     _assert_stopped(done.returncode, done.stderr, signum)
     assert "Traceback" not in done.stderr and done.stdout == ""
 
