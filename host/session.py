@@ -89,13 +89,40 @@ class RowBook:
     temps: np.ndarray = field(init=False)
     got: np.ndarray = field(init=False)        # the reply bits of the messages in (dbc.contract.REPLY_BIT)
     sent_ns: np.ndarray = field(init=False)
-    replied_ns: np.ndarray = field(init=False)
+    replied_ns: np.ndarray = field(init=False)         # when the row's reply was last complete
+    first_replied_ns: np.ndarray = field(init=False)   # when it was first complete
+    reply_frames: np.ndarray = field(init=False)       # per row, how many of each reply message came (up to 255)
 
     def __post_init__(self) -> None:
         self.temps = np.full((self.rows, STATE_SIZE), np.nan)
         self.got = np.zeros(self.rows, dtype=np.uint8)
         self.sent_ns = np.zeros(self.rows, dtype=np.int64)
         self.replied_ns = np.zeros(self.rows, dtype=np.int64)
+        self.first_replied_ns = np.zeros(self.rows, dtype=np.int64)
+        self.reply_frames = np.zeros((self.rows, REPLY_COMPLETE.bit_length()), dtype=np.uint8)
+
+    def book_reply(self, row: int, bit: int, now_ns: int) -> None:
+        """One reply message (its bit) of `row` came at `now_ns`."""
+        index = bit.bit_length() - 1
+        if index >= 0 and self.reply_frames[row, index] < 255:
+            self.reply_frames[row, index] += 1
+        before = self.got[row]
+        self.got[row] = before | bit
+        if self.got[row] == REPLY_COMPLETE:
+            self.replied_ns[row] = now_ns
+            if before != REPLY_COMPLETE:
+                self.first_replied_ns[row] = now_ns
+
+    def replies(self, row: int) -> int:
+        """How many complete replies `row` got (each reply message counted; a retransmitted row can get several)."""
+        return int(self.reply_frames[row].min())
+
+    def clear(self, start: int, stop: int) -> None:
+        """Forget what came for rows start..stop-1 (they are replayed from a restored target)."""
+        self.got[start:stop] = 0
+        self.temps[start:stop] = np.nan
+        self.first_replied_ns[start:stop] = 0
+        self.reply_frames[start:stop] = 0
 
     def answered(self) -> np.ndarray:
         return self.got == REPLY_COMPLETE
@@ -372,9 +399,7 @@ class HostSession:
         if row < 0 or row >= book.rows:
             self.late_replies += 1
             return
-        book.got[row] |= place_temperatures(name, s, book.temps[row])
-        if book.got[row] == REPLY_COMPLETE:
-            book.replied_ns[row] = time.perf_counter_ns()
+        book.book_reply(row, place_temperatures(name, s, book.temps[row]), time.perf_counter_ns())
 
     def wait_for(self, predicate: Callable[[DecodedFrame], bool], timeout: float) -> DecodedFrame | None:
         deadline = time.perf_counter() + timeout

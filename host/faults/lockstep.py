@@ -92,6 +92,24 @@ class FaultRun:
     started_at: float = 0.0
     frames_transmitted: int = 0
     mode: str = "lockstep"      # realtime: nothing is sent again, a fault also costs the next row
+    # lockstep: how often each row went out (first sends and retransmitted copies, since its segment began), the
+    # book its replies go to (read when the run is reconciled, after the last replies came), and how late a reply
+    # may be and still count as late rather than a stall (the heartbeat timeout)
+    sends: np.ndarray | None = None
+    book: RowBook | None = None
+    stall_limit_s: float | None = None
+
+    def late_replies(self) -> dict[int, float]:
+        """Rows that missed their deadline although the target answered every send of them, the first one
+        included (nothing was lost on the way; the reply came late), with the seconds until the first reply."""
+        if self.sends is None or self.book is None:
+            return {}
+        book, out = self.book, {}
+        for row in dict.fromkeys(self.deadline_misses):
+            sends = int(self.sends[row])
+            if sends and book.replies(row) >= sends and book.first_replied_ns[row]:
+                out[row] = (int(book.first_replied_ns[row]) - int(book.sent_ns[row])) / 1e9
+        return out
 
 
 def mark_new_injections(session: HostSession, faulty: FaultyBus, row: int) -> None:
@@ -122,7 +140,9 @@ class FaultLockstep:
         monitor = session.monitor
         self.freeze_s = FREEZE_FACTOR * monitor.heartbeat_timeout_s
         self.give_up_s = max(abort_after * reply_timeout_s, 2.5 * monitor.heartbeat_timeout_s)
-        self.fault_run = FaultRun(plan.spec, injections=faulty.injections, started_at=time.time())
+        self.fault_run = FaultRun(plan.spec, injections=faulty.injections, started_at=time.time(),
+                                  sends=np.zeros(self.rows, dtype=np.int32), book=self.book,
+                                  stall_limit_s=monitor.heartbeat_timeout_s)
         self.passes: dict[int, int] = {}   # how often each row has gone out as a first send (a pass of it)
 
     def run(self) -> tuple[ReplayStats, FaultRun]:
@@ -180,6 +200,7 @@ class FaultLockstep:
         """Row n's first send in this pass, through the fault layer (faulted where the plan says so)."""
         self.session.last_sent_row = n
         self.book.sent_ns[n] = time.perf_counter_ns()
+        self.fault_run.sends[n] += 1
         self.faulty.begin_row(n, pass_, eligible=eligible)
         self.session.send(self.values.frames(self.session.codec, n))
         self.faulty.end_row()
@@ -207,6 +228,7 @@ class FaultLockstep:
             self.faulty.begin_row(n, pass_, retransmission=True)
             row = self.values.frames(session.codec, n)
             session.send(row + self.values.frames(session.codec, n))
+            self.fault_run.sends[n] += 2
             self.faulty.end_row()
             session.flush_log()
             again_at = min(deadline, perf() + RETRY_FACTOR * self.reply_timeout_s)
@@ -239,8 +261,8 @@ class FaultLockstep:
             session.restore(checkpoint[1], step=step_of(s),
                             observer=session.observer_checkpoints.get(checkpoint[0]))
         session.start(step=step_of(s))
-        self.book.got[s:n + 1] = 0
-        self.book.temps[s:n + 1] = np.nan
+        self.book.clear(s, n + 1)
+        self.fault_run.sends[s:n + 1] = 0
         self.fault_run.recoveries.append(Recovery(
             n, s, reason, round(silent, 4), lost_at, time.time(), None if checkpoint is None else checkpoint[0],
             None if checkpoint is None else checkpoint[1], self.initial if checkpoint is None else None))
