@@ -96,6 +96,7 @@ def run_figures(summary: dict, log: Path | None) -> dict:
             "missing": summary.get("missing"), "problems": summary.get("problems") or [],
             "injected": faults.get("injected") or {}, "detected": faults.get("detected") or {},
             "deadline_misses": faults.get("deadline_misses"), "retransmitted_rows": faults.get("retransmitted_rows"),
+            "late_replies": faults.get("late_replies"), "late_reply_max_ms": faults.get("late_reply_max_ms"),
             "recoveries": len(faults.get("recoveries") or []),
             "unexplained_deadline_misses": faults.get("unexplained_deadline_misses"),
             "unexplained_miss_evidence": miss_evidence(log, misses) if misses and log is not None else []}
