@@ -519,7 +519,8 @@ def fault_metrics(record: BusRecord) -> FaultResults | None:
         mode=None if sidecar is None else side.get("mode", "lockstep"),
         # what the run's own fault summary does not explain (undetected faults, late replies, refused frames, ...)
         sidecar_problems=None if sidecar is None else fault_problems(sidecar),
-        sidecar=None if sidecar is None else str(record.path.with_name(record.path.name + ".faults.json")))
+        sidecar=None if sidecar is None else str(record.path.with_name(record.path.name + ".faults.json")),
+        late_replies=side.get("late_replies"))
 
 
 def _fault_names(bits: int) -> list[str]:

@@ -177,7 +177,9 @@ def fault_section(faults: FaultResults) -> list[str]:
     detected = faults.detected or {}
     for kind, count in faults.injected.items():
         lines.append(f"| {kind} | {count} | {_fmt(detected.get(kind))} | {faults.detection[kind]} |")
-    lines += ["", f"Rows sent again after their reply deadline: {faults.retransmitted_rows}; re-initializations "
+    late = (f" ({faults.late_replies} of them only late: answered at every send, within the heartbeat timeout)"
+            if faults.late_replies else "")
+    lines += ["", f"Rows sent again after their reply deadline: {faults.retransmitted_rows}{late}; re-initializations "
               f"of a lost target: {faults.reinitializations}.", ""]
     if faults.mode == "realtime":
         lines += ["Real time: nothing is sent again, so a faulted row stays lost (and the row after it, whose frame "

@@ -382,6 +382,7 @@ class FaultResults:
     mode: str | None
     sidecar_problems: list[str] | None
     sidecar: str | None
+    late_replies: int | None = None      # lockstep rows answered at every send, but after the deadline
 
     def as_note_input(self) -> dict[str, Any]:
         """The dict `host.faults.fault_note` reads (host knows no bench types)."""

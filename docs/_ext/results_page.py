@@ -673,13 +673,54 @@ def observer_forms_table(record: Record) -> list[str]:
             + f". {_n(numerics['seconds'], 1)} s; measured {_date(record)}.)"]
 
 
+@single_record("fault_sweep", "Fault sweep")
+def section_fault_sweep(record: Record) -> list[str]:
+    params, figures = record["parameters"], record["figures"]
+    artifact, summary = params["artifact"], figures["summary"]
+    engines = params["engines"]
+    by_kind: dict[str, dict[str, dict]] = {}
+    for run in figures["runs"]:
+        by_kind.setdefault(run["kind"], {})[run["engine"]] = run
+    rows = [[f"`{next(iter(runs.values()))['fault']}`", *(_sweep_cell(runs.get(e)) for e in engines)]
+            for kind, runs in by_kind.items()]
+    totals = "; ".join(f"{engine}: {s['exit_0']} of {s['runs']} runs exit 0, {_n(s['detected'])} of "
+                       f"{_n(s['injected'])} injected faults detected" for engine, s in summary["engines"].items())
+    failed = [f"{engine} {kind}: {why}" for engine, s in summary["engines"].items()
+              for kind, why in s["failed"].items()]
+    lines = [f"`bench run --faults KIND=V --fault-seed {params['seed']} --tolerate-faults` (lockstep, "
+             f"{_n(params['rows'])} rows of `{artifact['data']}`) for {len(params['kinds'])} fault kinds of the "
+             "registry (`host.faults.spec.KINDS`), each on its own, "
+             f"with {artifact['observer']} (measurements {', '.join(artifact['measurements'])}, form "
+             f"{artifact['form']}), whose rows carry Measurements and DriveVoltages and whose replies carry each "
+             f"node's 1-sigma and the innovations; {params['parallel']} runs at a time. Per run: exit status, "
+             "injected / detected, deadline misses (explained by a fault; late replies, answered at every send; "
+             "unexplained), wall time and the load average at its start and end.", "",
+             *_table(["fault", *engines], rows),
+             f"{totals}. **The sweep {'passes' if summary['passed'] else 'does not pass'}**"
+             + (": " + "; ".join(failed) if failed else "") + "."]
+    return lines
+
+
+def _sweep_cell(run: dict | None) -> str:
+    """exit, injected/detected, misses (late, unexplained), seconds and load of one run."""
+    if run is None:
+        return "–"
+    injected = sum((run.get("injected") or {}).values())
+    detected = sum(v or 0 for v in (run.get("detected") or {}).values())
+    late = f", {run['late_replies']} late (max {_n(run['late_reply_max_ms'])} ms)" if run.get("late_replies") else ""
+    load = run["load_average"]
+    return (f"exit {run['exit']}, {injected}/{detected}; misses {_n(run.get('deadline_misses'))}{late}, "
+            f"{_n(run.get('unexplained_deadline_misses'))} unexplained; {_n(run['wall_s'])} s, load "
+            f"{load['start']:.1f}–{load['end']:.1f}")
+
+
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
 SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
     "firmware_timing": section_firmware_timing, "firmware_observer": section_firmware_observer,
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "observer": section_observer,
-    "robustness": section_robustness}
+    "robustness": section_robustness, "fault_sweep": section_fault_sweep}
 BENCHMARKS = tuple(SECTIONS)
 
 

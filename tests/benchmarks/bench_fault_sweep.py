@@ -215,7 +215,8 @@ def describe(target: dict) -> dict:
 def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
-                        help=f"smoke run: {QUICK_ROWS} rows, one kind per family, the python engine")
+                        help=f"smoke run: {QUICK_ROWS} rows, one kind per family, the python engine; no record "
+                             "unless --json")
     parser.add_argument("--rows", type=int, default=None, help=f"rows per run (default {ROWS})")
     parser.add_argument("--engines", default=None, help=f"comma-separated (default {','.join(ENGINES)})")
     parser.add_argument("--kinds", default=None, help="comma-separated subset of the registry's kinds (default all)")
@@ -234,6 +235,8 @@ def parse_args() -> argparse.Namespace:
     if (args.model is None) != (args.data is None):
         parser.error("--model and --data go together")
     args.rows = args.rows or (QUICK_ROWS if args.quick else ROWS)
+    if args.quick and args.json is None:     # a smoke run does not replace the committed record
+        args.no_json = True
     return args
 
 
