@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -697,8 +698,17 @@ def section_fault_sweep(record: Record) -> list[str]:
              "unexplained), wall time and the load average at its start and end.", "",
              *_table(["fault", *engines], rows),
              f"{totals}. **The sweep {'passes' if summary['passed'] else 'does not pass'}**"
-             + (": " + "; ".join(failed) if failed else "") + "."]
+             + (": " + "; ".join(failed) if failed else "") + ".", "", _sweep_verdicts(figures["runs"])]
     return lines
+
+
+def _sweep_verdicts(runs: list[dict]) -> str:
+    """The runs' verdict sentences, alike ones (differing only in their counts) once with how many runs said them."""
+    said: dict[str, int] = {}
+    for run in runs:
+        sentence = re.sub(r"\d+", "N", run.get("verdict") or run.get("error") or "no verdict")
+        said[sentence] = said.get(sentence, 0) + 1
+    return "Verdicts: " + "; ".join(f"\"{sentence}\" ({_count(n, 'run')})" for sentence, n in said.items()) + "."
 
 
 def _sweep_cell(run: dict | None) -> str:

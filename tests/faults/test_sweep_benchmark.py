@@ -67,6 +67,7 @@ def test_the_results_section_shows_each_run_and_the_verdict():
     assert "## Fault sweep" in page
     assert "| `kill=0.02` | exit 0, 1/1; misses 3, 1 late (max 80 ms), 0 unexplained; 1 s, load 1.0–1.5 |" in page
     assert "**The sweep does not pass**: firmware kill: 1 row(s) missed" in page
+    assert 'Verdicts: "not clean" (4 runs).' in page
     assert "Not measured yet: `python tests/benchmarks/bench_fault_sweep.py`" in results_page.render_results({})
 
 
