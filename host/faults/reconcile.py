@@ -34,7 +34,7 @@ is unexplained: a problem of the run, as is any fault that went undetected. Exce
 missed row that the target answered once for every time the host sent it (the first send and each retransmitted
 copy), so its first send reached the target and nothing was lost, whose first reply came within the stall limit
 (the heartbeat timeout). On a loaded machine the host and the target are both kept off the CPU now and then, for
-50-200 ms at a load of 7-12 on two cores; such rows are counted (`late_replies`, `late_reply_max_ms`), not
+50-220 ms at a load of 7-12 on two cores; such rows are counted (`late_replies`, `late_reply_max_ms`), not
 problems. A frame lost without an injected fault (fewer replies than sends) and a stall (a first reply later than
 the heartbeat timeout) stay unexplained.
 """
