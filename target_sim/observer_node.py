@@ -11,8 +11,9 @@ means of its raw channels; NaN in a measurement's channels: no update with it). 
   (R_s(ϑ̂_w)), as an inverter would. An observer whose model does not take the currents in its rows (loss maps), or
   whose two measurements would share one slot, has no frames to carry its readings: `can_refusal` says so in one
   sentence, and the bench and the target refuse it before any work rather than run it wrongly;
-* slot: each measurement answers in one slot of Innovations (`dbc.contract.MEASUREMENT_SLOTS`): the flux linkage in
-  `flux`; a lagged sensor in its section's `source` (version 1) when it names one, else `flux` when it sees the
+* slot: each measurement answers in one slot of Innovations (`dbc.contract.MEASUREMENT_SLOTS`): a kind that computes
+  its reading from raw channels in the slot its kind names (the flux linkage in `flux`, the winding resistance in
+  `sensor`); a lagged sensor in its section's `source` (version 1) when it names one, else `flux` when it sees the
   magnet only (a magnet temperature from elsewhere) and `sensor` for any other node (a winding sensor, a stator NTC);
 * reset: the model's RESET and a fresh covariance P0;
 * restore: a StateCheckpoint carries the state vector x, an ObserverCheckpoint (DBC 1.7.0) the filter's extra states
@@ -51,7 +52,7 @@ def _reads_temperature(entry: dict) -> bool:
 def _slot(entry: dict, section: dict) -> str:
     """The Innovations slot of one measurement entry (see the module docstring)."""
     if not _reads_temperature(entry):
-        return "flux"
+        return MEASUREMENT_KINDS[entry["kind"]].slot
     source = section.get("source")
     if source in MEASUREMENT_SLOTS:
         return source
@@ -93,6 +94,12 @@ def can_refusal(artifact: ModelArtifact) -> str | None:
                 f"{artifact.loss_model} loss model does not take the currents in its rows (no DriveCurrents frames); "
                 "use a model with an electrical loss model, or run it offline with 'bench evaluate'")
     return None
+
+
+def _row_readers(entries: Sequence[dict]) -> str:
+    """The names of the measurements that read the row's currents ("the flux linkage"), for a refusal."""
+    return " and ".join(f"the {MEASUREMENT_KINDS[e['kind']].name.replace('-', ' ')}" for e in entries
+                        if not _reads_temperature(e))
 
 
 def _check(artifact: ModelArtifact) -> None:

@@ -1,4 +1,5 @@
-"""The observer's measurement kinds, one module per kind (`lagged_sensor`, `flux_linkage`), found by name.
+"""The observer's measurement kinds, one module per kind (`lagged_sensor`, `flux_linkage`, `winding_resistance`), found
+by name.
 
 A kind turns the raw channels a row carries for it (a temperature reading; u_d, u_q, i_d, i_q) into a reading of
 the model at one model step, in float32 with a fixed order of operations (the C version repeats it):
@@ -43,13 +44,16 @@ class TargetMeasurement(Protocol):
 class MeasurementKind:
     """One kind: `load(entry, where, f)` builds its target measurement from an `observer.measurements` entry;
     `temperature_channel`: its one raw channel is a temperature reading (it travels in a Measurements slot), else
-    the kind names the CAN channels it computes its reading from (`can_channels`)."""
+    the kind names the CAN channels it computes its reading from (`can_channels`) and `slot` is the Innovations slot
+    it answers in (`dbc.contract.MEASUREMENT_SLOTS`: the flux linkage's magnet in `flux`, a winding in `sensor`)."""
 
     name: str
     summary: str
     load: object
     temperature_channel: bool = False
+    slot: str | None = None
 
 
 MEASUREMENT_KINDS: Registry[MeasurementKind] = Registry("measurement kind", __name__,
-                                                        first=("lagged-sensor", "flux-linkage"))
+                                                        first=("lagged-sensor", "flux-linkage",
+                                                               "winding-resistance"))

@@ -96,4 +96,5 @@ class FluxLinkage:
 
 
 MEASUREMENT_KINDS.register("flux-linkage", MeasurementKind(
-    "flux-linkage", "magnet temperature from u_q, i_d, i_q, speed: ψ_PM(ϑ) = ψ_0 (1 + α_B (ϑ - ϑ_0))", FluxLinkage))
+    "flux-linkage", "magnet temperature from u_q, i_d, i_q, speed: ψ_PM(ϑ) = ψ_0 (1 + α_B (ϑ - ϑ_0))", FluxLinkage,
+    slot="flux"))
