@@ -44,14 +44,12 @@ class TargetMeasurement(Protocol):
 class MeasurementKind:
     """One kind: `load(entry, where, f)` builds its target measurement from an `observer.measurements` entry;
     `temperature_channel`: its one raw channel is a temperature reading (it travels in a Measurements slot), else
-    the kind names the CAN channels it computes its reading from (`can_channels`) and `slot` is the Innovations slot
-    it answers in (`dbc.contract.MEASUREMENT_SLOTS`: the flux linkage's magnet in `flux`, a winding in `sensor`)."""
+    the kind names the CAN channels it computes its reading from (`can_channels`)."""
 
     name: str
     summary: str
     load: object
     temperature_channel: bool = False
-    slot: str | None = None
 
 
 MEASUREMENT_KINDS: Registry[MeasurementKind] = Registry("measurement kind", __name__,

@@ -96,5 +96,4 @@ class FluxLinkage:
 
 
 MEASUREMENT_KINDS.register("flux-linkage", MeasurementKind(
-    "flux-linkage", "magnet temperature from u_q, i_d, i_q, speed: ψ_PM(ϑ) = ψ_0 (1 + α_B (ϑ - ϑ_0))", FluxLinkage,
-    slot="flux"))
+    "flux-linkage", "magnet temperature from u_q, i_d, i_q, speed: ψ_PM(ϑ) = ψ_0 (1 + α_B (ϑ - ϑ_0))", FluxLinkage))

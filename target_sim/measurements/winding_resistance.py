@@ -6,8 +6,8 @@ speed voltage, so it is valid only at or below speed_max_rpm (the error of ω_e 
 where |i_d| is at least current_min_A: a voltage error δu gives a temperature error δu/(i_d R_s0 α_cu), so its
 variance R = R_floor + R_current (i_min/i_d)² grows as |i_d| falls, both fitted to the calibration residual by the
 lab (`bench observer --resistance`). Its raw channels are the flux linkage's (u_d, u_q, i_d, i_q; u_q only travels
-with u_d in DriveVoltages and makes a step invalid when it is), and it answers in the `sensor` slot (a winding
-temperature).
+with u_d in DriveVoltages and makes a step invalid when it is), and it answers in the `sensor` slot, as any reading
+of the winding (`target_sim.observer_node`).
 """
 
 from __future__ import annotations
@@ -92,4 +92,4 @@ class WindingResistance:
 
 MEASUREMENT_KINDS.register("winding-resistance", MeasurementKind(
     "winding-resistance", "winding temperature from u_d, i_d, i_q, speed: R_s(ϑ) = R_s0 (1 + α_cu (ϑ - ϑ_cu))",
-    WindingResistance, slot="sensor"))
+    WindingResistance))

@@ -90,6 +90,58 @@ def step_means(dataset, columns, dt: float, steps: int) -> np.ndarray:
     return interval_means(raw, dataset.sample_period_s, dt)[:steps]
 
 
+class FromVoltages:
+    """What the measurements computed from the d/q voltages, currents and speed (the flux linkage, the winding
+    resistance) share: their columns, the one node they read (`node`), no lag, and their artifact entry (the kind's
+    arrays, the calibration); a frozen dataclass with `kind`, `name`, `node` and `calibration` mixes it in."""
+
+    kind: str
+    name: str
+    node: str
+    calibration: dict
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        from target_sim.measurements.flux_linkage import COLUMNS
+
+        return COLUMNS
+
+    @property
+    def sees(self) -> np.ndarray:
+        from target_sim.artifact import OUTPUTS
+
+        return np.eye(len(OUTPUTS))[OUTPUTS.index(self.node)]
+
+    def lag_pole(self, dt: float) -> float:
+        return 0.0
+
+    def voltage_entry(self, values: Mapping[str, float]) -> dict:
+        """The artifact entry with the kind's arrays `values`."""
+        from target_sim.artifact import encode_array
+
+        return {"kind": self.kind, "name": self.name, "columns": list(self.columns), "node": self.node,
+                "arrays": {k: encode_array(v) for k, v in values.items()}, "calibration": self.calibration}
+
+
+class FromVoltagesKind(LabMeasurementKind):
+    """The lab kind of a `FromVoltages` measurement: its entry's arrays (`arrays`, in the order of the measurement's
+    fields) read back into the measurement (`measurement`), the tuned variance scale folded into its calibrated
+    variance (so R starts at 1 and is stored as 1)."""
+
+    measurement: ClassVar[type]
+    arrays: ClassVar[tuple[str, ...]]
+    start_r = 1.0
+
+    def from_entry(self, entry: dict, dt: float):
+        from target_sim.artifact import decode_array
+
+        values = (float(decode_array(entry["arrays"][k], k, np.float64)) for k in self.arrays)
+        return self.measurement(*values, calibration=entry.get("calibration", {}))
+
+    def stored_r(self, entry: dict) -> float:
+        return 1.0     # the measurement's entry() folds the tuned scale into its variance's arrays
+
+
 def training_steps(datasets: Sequence, columns: Sequence[str], dt: float, what: str,
                    required: Sequence[str] = ()) -> np.ndarray:
     """The columns' step means over every training file, one row per model step, (steps, columns); a file without one

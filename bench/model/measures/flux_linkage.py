@@ -18,7 +18,8 @@ import numpy as np
 
 from bench.errors import BenchError
 from bench.model.measures import (
-    LabMeasurementKind,
+    FromVoltages,
+    FromVoltagesKind,
     identifiable_fit,
     loss_value,
     register,
@@ -27,7 +28,6 @@ from bench.model.measures import (
     training_steps,
     variance_fit,
 )
-from target_sim.artifact import decode_array, encode_array
 from target_sim.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
 
 IDENTIFIABLE = 0.25          # largest relative standard error of L_d or R_s0 that the calibration keeps
@@ -35,7 +35,7 @@ DEFAULT_SPEED_MIN_RPM = 1500.0
 
 
 @dataclass(frozen=True)
-class FluxLinkage:
+class FluxLinkage(FromVoltages):
     psi_0_Vs: float
     alpha_B_per_K: float
     theta_0_C: float
@@ -51,17 +51,6 @@ class FluxLinkage:
     kind: str = "flux-linkage"
     node: str = "magnet"
     name: str = "flux"
-
-    @property
-    def columns(self) -> tuple[str, ...]:
-        return COLUMNS
-
-    @property
-    def sees(self) -> np.ndarray:
-        return np.array([0.0, 0.0, 0.0, 1.0])
-
-    def lag_pole(self, dt: float) -> float:
-        return 0.0
 
     def readings(self, dataset, dt: float, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         means = step_means(dataset, ("speed_rpm", *COLUMNS), dt, steps)
@@ -82,8 +71,7 @@ class FluxLinkage:
                   "copper_reference_C": self.copper_reference_C, "pole_pairs": self.pole_pairs,
                   "speed_min_rpm": self.speed_min_rpm, "R_floor_C2": r_scale * self.R_floor_C2,
                   "R_speed_C2": r_scale * self.R_speed_C2}
-        return {"kind": self.kind, "name": self.name, "columns": list(self.columns), "node": self.node,
-                "arrays": {k: encode_array(v) for k, v in values.items()}, "calibration": self.calibration}
+        return self.voltage_entry(values)
 
     def describe(self) -> dict:
         return {"kind": self.kind, "node": self.node, "columns": list(self.columns), "psi_0_Vs": self.psi_0_Vs,
@@ -103,16 +91,10 @@ ENTRY_ARRAYS = ("psi_0_Vs", "alpha_B_per_K", "theta_0_C", "L_d_H", "R_s_ohm", "a
                 "pole_pairs", "speed_min_rpm", "R_floor_C2", "R_speed_C2")
 
 
-class LabFluxLinkageKind(LabMeasurementKind):
+class LabFluxLinkageKind(FromVoltagesKind):
     name = "flux-linkage"
-    start_r = 1.0     # R scales the calibrated R_floor + R_speed (n_min/n)²
-
-    def from_entry(self, entry: dict, dt: float) -> FluxLinkage:
-        values = (float(decode_array(entry["arrays"][k], k, np.float64)) for k in ENTRY_ARRAYS)
-        return FluxLinkage(*values, calibration=entry.get("calibration", {}))
-
-    def stored_r(self, entry: dict) -> float:
-        return 1.0     # entry() folds the tuned scale into R_floor and R_speed
+    measurement = FluxLinkage      # R scales the calibrated R_floor + R_speed (n_min/n)²
+    arrays = ENTRY_ARRAYS
 
     def add_arguments(self, parser) -> None:
         parser.add_argument("--flux", action="store_true",

@@ -19,7 +19,8 @@ import numpy as np
 
 from bench.errors import BenchError, UsageError
 from bench.model.measures import (
-    LabMeasurementKind,
+    FromVoltages,
+    FromVoltagesKind,
     identifiable_fit,
     loss_value,
     register,
@@ -29,7 +30,6 @@ from bench.model.measures import (
     variance_fit,
 )
 from bench.model.measures.flux_linkage import IDENTIFIABLE, pole_pairs_of
-from target_sim.artifact import decode_array, encode_array
 from target_sim.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
 from target_sim.measurements.winding_resistance import PARAMETERS
 
@@ -39,7 +39,7 @@ MIN_STEPS = 20                # fewest valid training steps the calibration take
 
 
 @dataclass(frozen=True)
-class WindingResistance:
+class WindingResistance(FromVoltages):
     R_s_ohm: float
     alpha_cu_per_K: float
     copper_reference_C: float
@@ -53,17 +53,6 @@ class WindingResistance:
     kind: str = "winding-resistance"
     node: str = "winding"
     name: str = "resistance"
-
-    @property
-    def columns(self) -> tuple[str, ...]:
-        return COLUMNS
-
-    @property
-    def sees(self) -> np.ndarray:
-        return np.array([0.0, 1.0, 0.0, 0.0])
-
-    def lag_pole(self, dt: float) -> float:
-        return 0.0
 
     def valid(self, speed: np.ndarray, i_d: np.ndarray) -> np.ndarray:
         """The steps the reading is valid on (NaN fails both comparisons)."""
@@ -83,8 +72,7 @@ class WindingResistance:
     def entry(self, dt: float, r_scale: float) -> dict:
         values = {k: getattr(self, k) for k in PARAMETERS} | {"R_floor_C2": r_scale * self.R_floor_C2,
                                                               "R_current_C2": r_scale * self.R_current_C2}
-        return {"kind": self.kind, "name": self.name, "columns": list(self.columns), "node": self.node,
-                "arrays": {k: encode_array(v) for k, v in values.items()}, "calibration": self.calibration}
+        return self.voltage_entry(values)
 
     def describe(self) -> dict:
         return {"kind": self.kind, "node": self.node, "columns": list(self.columns), "R_s_ohm": self.R_s_ohm,
@@ -99,16 +87,10 @@ class WindingResistance:
                 f"{cal['residual_max_K']:.1f} K")
 
 
-class LabWindingResistanceKind(LabMeasurementKind):
+class LabWindingResistanceKind(FromVoltagesKind):
     name = "winding-resistance"
-    start_r = 1.0     # R scales the calibrated R_floor + R_current (i_min/i_d)²
-
-    def from_entry(self, entry: dict, dt: float) -> WindingResistance:
-        values = (float(decode_array(entry["arrays"][k], k, np.float64)) for k in PARAMETERS)
-        return WindingResistance(*values, calibration=entry.get("calibration", {}))
-
-    def stored_r(self, entry: dict) -> float:
-        return 1.0     # entry() folds the tuned scale into R_floor and R_current
+    measurement = WindingResistance      # R scales the calibrated R_floor + R_current (i_min/i_d)²
+    arrays = PARAMETERS
 
     def add_arguments(self, parser) -> None:
         parser.add_argument("--resistance", action="store_true",
