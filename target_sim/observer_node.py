@@ -11,9 +11,11 @@ means of its raw channels; NaN in a measurement's channels: no update with it). 
   (R_s(ϑ̂_w)), as an inverter would. An observer whose model does not take the currents in its rows (loss maps), or
   whose two measurements would share one slot, has no frames to carry its readings: `can_refusal` says so in one
   sentence, and the bench and the target refuse it before any work rather than run it wrongly;
-* slot: each measurement answers in one slot of Innovations (`dbc.contract.MEASUREMENT_SLOTS`): the flux linkage in
-  `flux`; a lagged sensor in its section's `source` (version 1) when it names one, else `flux` when it sees the
-  magnet only (a magnet temperature from elsewhere) and `sensor` for any other node (a winding sensor, a stator NTC);
+* slot: each measurement answers in one slot of Innovations (`dbc.contract.MEASUREMENT_SLOTS`): a kind that computes
+  its reading from raw channels by the node it reads (the flux linkage's magnet in `flux`, the winding resistance's
+  winding in `sensor`); a lagged sensor in its section's `source` (version 1) when it names one, else `flux` when it
+  sees the magnet only (a magnet temperature from elsewhere) and `sensor` for any other node (a winding sensor, a
+  stator NTC);
 * reset: the model's RESET and a fresh covariance P0;
 * restore: a StateCheckpoint carries the state vector x, an ObserverCheckpoint (DBC 1.7.0) the filter's extra states
   and covariance (`Float32Observer.checkpoint`); with both the restored filter continues bit for bit, with x alone it
@@ -50,12 +52,12 @@ def _reads_temperature(entry: dict) -> bool:
 
 def _slot(entry: dict, section: dict) -> str:
     """The Innovations slot of one measurement entry (see the module docstring)."""
+    node = entry.get("node", section.get("node"))
     if not _reads_temperature(entry):
-        return "flux"
+        return "flux" if node == "magnet" else "sensor"
     source = section.get("source")
     if source in MEASUREMENT_SLOTS:
         return source
-    node = entry.get("node", section.get("node"))
     gradient = float(entry.get("gradient", 0.0) or 0.0)
     return "flux" if node == "magnet" and gradient == 0.0 else "sensor"
 
@@ -93,6 +95,12 @@ def can_refusal(artifact: ModelArtifact) -> str | None:
                 f"{artifact.loss_model} loss model does not take the currents in its rows (no DriveCurrents frames); "
                 "use a model with an electrical loss model, or run it offline with 'bench evaluate'")
     return None
+
+
+def _row_readers(entries: Sequence[dict]) -> str:
+    """The names of the measurements that read the row's currents ("the flux linkage"), for a refusal."""
+    return " and ".join(f"the {MEASUREMENT_KINDS[e['kind']].name.replace('-', ' ')}" for e in entries
+                        if not _reads_temperature(e))
 
 
 def _check(artifact: ModelArtifact) -> None:

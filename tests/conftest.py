@@ -141,6 +141,21 @@ def flux_observer_artifact(tmp_path_factory) -> tuple[Path, Path]:
     return artifact, data
 
 
+@pytest.fixture(scope="session")
+def resistance_observer_artifact(flux_observer_artifact, tmp_path_factory) -> tuple[Path, Path]:
+    """(artifact, dataset): the flux linkage and the winding temperature from the stator resistance (both from u_d,
+    u_q, i_d, i_q and speed; no sensor), written by `bench observer` on the flux observer's synthetic dataset with a
+    two-run tuning (the protocol matters here, not the tuning)."""
+    from bench.cli import main
+
+    data = flux_observer_artifact[1]
+    model = data.parent / "electrical.json"
+    artifact = tmp_path_factory.mktemp("resistance-observer") / "observer-flux-resistance.json"
+    assert main(["observer", "--model", str(model), "--train", str(data), "--measure", "none", "--flux",
+                 "--resistance", "--evaluations", "2", "--out", str(artifact), "--quiet"]) == 0
+    return artifact, data
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_sessionstart(session) -> None:
     """A run on pytest-xdist workers (`-n`): before they start, begin compiling the numba kernels once, in the

@@ -17,6 +17,10 @@ the yoke) and have a known offset (--offset). --bias adds a winding heat-bias st
 --flux adds the flux-linkage magnet temperature from u_d, u_q, i_d, i_q and speed: ψ_0 and α_B (and L_d and
 R_s where the data determine them) are calibrated on the training files against the measured magnet, valid at or
 above --flux-min-speed; the calibration's residual is reported. --measure none with --flux: the flux linkage only.
+--resistance adds the winding temperature from the stator resistance, R_s = (u_d + ω_e L_q i_q)/i_d at or below
+--resistance-max-speed where |i_d| is at least --resistance-min-current: R_s0 (and L_q where the data determine
+it) calibrated on the training files against the measured winding, the residual reported; too few such steps or an
+R_s0 the data do not determine is one sentence (exit 2).
 """
 
 from __future__ import annotations
@@ -31,8 +35,8 @@ from bench.fileio import write_text_atomically
 
 
 def add_subparser(subparsers) -> None:
+    from bench.model.measures import LAB_MEASUREMENT_KINDS
     from bench.model.observer import DEPLOYED_FORM, TUNING_CRITERIA
-    from target_sim.artifact import OUTPUTS
     from target_sim.observer import OBSERVER_FORMS
 
     p = subparsers.add_parser("observer", help="tune a Kalman observer (Q, R) on training files, add it to an artifact",
@@ -42,23 +46,12 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--train", nargs="+", default=None, metavar="FILE",
                    help="training data files or globs (default: the built-in motor's 20 and 60 °C runs)")
     add_data_arguments(p)
-    p.add_argument("--measure", default="winding_C", metavar="COLUMN",
-                   help="the sensor's dataset column (default winding_C)")
-    p.add_argument("--node", choices=OUTPUTS, default="winding", help="the model node the sensor sees (default "
-                   "winding)")
-    p.add_argument("--offset", type=float, default=0.0, help="the sensor's offset in K, subtracted from each reading")
-    p.add_argument("--lag", type=float, default=0.0, help="the sensor's time constant in s (a lag state of the "
-                   "filter; default 0: none)")
-    p.add_argument("--gradient", type=float, default=0.0,
-                   help="the sensor reads node + GRADIENT·(node - yoke) (default 0)")
+    for _, kind in LAB_MEASUREMENT_KINDS.items():     # each kind's own options (the sensor, --flux, --resistance)
+        kind.add_arguments(p)
     p.add_argument("--bias", action="store_true", help="add a winding heat-bias state (W the loss model misses)")
-    p.add_argument("--flux", action="store_true",
-                   help="add the flux-linkage magnet temperature (columns u_d_V, u_q_V, i_d_A, i_q_A), calibrated on "
-                        "the training files")
-    p.add_argument("--flux-min-speed", type=float, default=1500.0, metavar="RPM",
-                   help="the flux linkage is valid at or above this speed (default 1500 rpm)")
     p.add_argument("--pole-pairs", type=float, default=None,
-                   help="pole pairs for --flux (default: the artifact's electrical loss model's, else 1)")
+                   help="pole pairs for --flux and --resistance (default: the artifact's electrical loss model's, "
+                        "else 1)")
     p.add_argument("--criterion", choices=TUNING_CRITERIA, default="magnet", help="tuning criterion (default magnet)")
     p.add_argument("--form", choices=OBSERVER_FORMS.names(), default=DEPLOYED_FORM,
                    help=f"covariance form the target deploys (default {DEPLOYED_FORM}, see 'bench numerics "
@@ -74,15 +67,13 @@ def run(args: argparse.Namespace) -> int:
     from bench.drive.files import expand_data_paths, load_datasets
     from bench.model.default import default_artifact_path
     from bench.model.identify import IDENTIFICATION_COOLANTS
-    from bench.model.measures.lagged_sensor import Sensor
-    from bench.model.observer import flux_measurement, observer_section, tune_observer, with_observer
+    from bench.model.measures import LAB_MEASUREMENT_KINDS
+    from bench.model.observer import observer_section, tune_observer, with_observer
     from bench.model.pipeline import load_campaign
     from target_sim.artifact import dumps, load_artifact
 
     if args.evaluations < 1:
         raise UsageError("--evaluations must be at least 1")
-    if not 0 <= args.lag < 1e5:
-        raise UsageError("--lag must be a non-negative number of seconds")
     check_writable(args.out, "--out")
     model_path = args.model or default_artifact_path()
     artifact = load_artifact(model_path)
@@ -100,12 +91,11 @@ def run(args: argparse.Namespace) -> int:
         def progress(calls: int, cost: float) -> None:
             if calls % 50 == 0:
                 say(f"tuning: {calls} filter runs, {args.criterion} criterion {cost:.6g}")
-    measurements = [] if args.measure == "none" else [Sensor(args.node, args.measure, args.offset, args.lag,
-                                                             args.gradient)]
-    if args.flux:
-        measurements.append(flux_measurement(artifact, datasets, args.flux_min_speed, args.pole_pairs))
+    # in the kinds' order: the sensor, the flux linkage, the winding resistance
+    asked = (kind.from_arguments(args, artifact, datasets) for _, kind in LAB_MEASUREMENT_KINDS.items())
+    measurements = [m for m in asked if m is not None]
     if not measurements:
-        raise UsageError("--measure none needs --flux: the observer needs a measurement")
+        raise UsageError("--measure none needs --flux or --resistance: the observer needs a measurement")
     fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations, progress, args.bias)
     content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form))
     write_text_atomically(args.out, dumps(content))

@@ -38,7 +38,6 @@ from bench.drive.dataset import Dataset
 from bench.errors import BenchError
 from bench.model.artifact_values import artifact_loss_model, artifact_parameters, shift_form
 from bench.model.measures import LAB_MEASUREMENT_KINDS, kind_of
-from bench.model.measures.flux_linkage import FluxLinkage
 from bench.model.measures.lagged_sensor import Sensor
 from bench.model.runs import ModelRun, model_run
 from bench.thermal import portable
@@ -422,19 +421,3 @@ def measurement_columns(artifact: ModelArtifact) -> list[str]:
 def measured_nodes_of(artifact: ModelArtifact) -> list[str]:
     """The nodes the observer's measurements read (their errors are not estimates)."""
     return sorted({m.node for m in lab_measurements(artifact)}, key=OUTPUTS.index)
-
-
-def flux_measurement(artifact: ModelArtifact, datasets: Sequence[Dataset], speed_min_rpm: float,
-                     pole_pairs: float | None = None) -> FluxLinkage:
-    """The flux-linkage measurement calibrated on `datasets` (`bench.model.measures.flux_linkage.calibrate_flux`), with
-    the artifact's copper coefficient and, for an electrical loss model, its pole pairs and stator resistance."""
-    from bench.model.measures.flux_linkage import calibrate_flux, speed_threshold_ok
-
-    losses = artifact.content["losses"]
-
-    def value(key):
-        return float(artifact.array("losses", key, dtype=np.float64)) if key in losses else None
-
-    pairs = pole_pairs if pole_pairs is not None else (value("pole_pairs") or 1.0)
-    return calibrate_flux(datasets, artifact.dt, pairs, value("alpha_cu_per_K"), value("copper_reference_C"),
-                          value("stator_resistance_ohm"), speed_threshold_ok(speed_min_rpm))

@@ -519,7 +519,8 @@ def observer_builtin_table(record: Record) -> list[str]:
 
 
 DEFAULT_CRITERION = "magnet"   # `bench observer --criterion`'s default
-IPM_CASES = {"ntc": "(a) stator NTC", "flux": "(b) flux linkage", "ntc+flux": "(c) NTC + flux linkage"}
+IPM_CASES = {"ntc": "(a) stator NTC", "flux": "(b) flux linkage", "ntc+flux": "(c) NTC + flux linkage",
+             "res": "(d) winding resistance", "flux+res": "(e) flux linkage + winding resistance"}
 
 
 def observer_ipm_table(record: Record) -> list[str]:
@@ -555,6 +556,15 @@ def observer_ipm_table(record: Record) -> list[str]:
                        f"{flux['L_d_H'] * 1e6:.1f} µH, R_s {flux['R_s_ohm'] * 1e3:.2f} mΩ (fitted: "
                        f"{', '.join(flux['fitted'])}); residual RMS {_n(flux['residual_rms_K'], 2)} K, max "
                        f"{_n(flux['residual_max_K'], 1)} K per 1 s step.")
+    resistance = next((m for run in runs for m in run["tuning"].get("measurements", [])
+                       if m.get("kind") == "winding-resistance"), None)
+    if resistance:
+        calibration += (f" Winding resistance calibrated on profiles 1–8 at or below "
+                        f"{_n(resistance['speed_max_rpm'])} rpm with |i_d| ≥ {_n(resistance['current_min_A'])} A "
+                        f"({_n(resistance['steps'])} steps): R_s0 {resistance['R_s_ohm'] * 1e3:.2f} mΩ, L_q "
+                        f"{resistance['L_q_H'] * 1e6:.1f} µH (fitted: {', '.join(resistance['fitted'])}); residual "
+                        f"RMS {_n(resistance['residual_rms_K'], 2)} K, max {_n(resistance['residual_max_K'], 1)} K "
+                        "per 1 s step.")
     return [*_table(["measurement", *(f"magnet RMSE / max, profile {n}" for n in names),
                      f"+30 K within 2 K ({' / '.join(names)})", f"−30 K ({' / '.join(names)})"], rows),
             f"(°C, float32, `{runs[0]['form']}` form, tuned with the {' and '.join(f'`{c}`' for c in criteria)} "

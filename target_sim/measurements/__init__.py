@@ -1,4 +1,5 @@
-"""The observer's measurement kinds, one module per kind (`lagged_sensor`, `flux_linkage`), found by name.
+"""The observer's measurement kinds, one module per kind (`lagged_sensor`, `flux_linkage`, `winding_resistance`), found
+by name.
 
 A kind turns the raw channels a row carries for it (a temperature reading; u_d, u_q, i_d, i_q) into a reading of
 the model at one model step, in float32 with a fixed order of operations (the C version repeats it):
@@ -52,4 +53,5 @@ class MeasurementKind:
 
 
 MEASUREMENT_KINDS: Registry[MeasurementKind] = Registry("measurement kind", __name__,
-                                                        first=("lagged-sensor", "flux-linkage"))
+                                                        first=("lagged-sensor", "flux-linkage",
+                                                               "winding-resistance"))

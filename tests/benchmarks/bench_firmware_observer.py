@@ -8,13 +8,14 @@ Observers of the Hammerstein model:
 1. the built-in motor's winding sensor (`bench observer`, trained on the 20 and 60 °C runs; checked on the 40 °C run);
 2. the 60 kW IPM example (`bench data --motor`, `bench identify` on profiles 1-8; checked on the held-out profile 9)
    with (a) its stator NTC (`bench observer --measure ntc_C` with the motor file's offset, lag and gradient: a lag
-   state), (b) the flux linkage (`--measure none --flux`) and (c) both (two measurements per row).
+   state), (b) the flux linkage (`--measure none --flux`), (c) both (two measurements per row), (d) the winding
+   temperature from the stator resistance (`--measure none --resistance`) and (e) the flux linkage with it.
 For each, `bench firmware build` and `bench firmware check` of the open-loop artifact and of the observer's: the
 Cortex-M4 cycles per model step (open loop: fw_step; observer: fw_obs_step, the model step, the covariance's
 prediction and the update), bit for bit against the Python float32 reference (outputs, each node's 1-sigma, each
 innovation and the periodic checkpoint), the model's own flash (`fw_model.o`: code and constants) and the image's
-flash and RAM. The tuning takes two filter runs (`--evaluations 2`): its Q and R change no cycle count. For (b) and
-(c), `bench run --engine firmware` over CAN too (exit status, verdict, max |CAN - float32|, the steps that used each
+flash and RAM. The tuning takes two filter runs (`--evaluations 2`): its Q and R change no cycle count. For (b), (c)
+and (e), `bench run --engine firmware` over CAN too (exit status, verdict, max |CAN - float32|, the steps that used each
 measurement, the measured cycles per step; the load average beside). Writes its record
 (docs/results/firmware_observer.json; see tests/benchmarks/record.py) for the results page.
 """

@@ -8,11 +8,12 @@
    --data out/data/cycle_coolant40.csv` (open loop and observer per node, float32, and the time until a magnet
    started ±30 K off stays within 2 K). (The built-in motor's files have no voltage columns: no flux linkage.)
 2. The 60 kW IPM example (`docs/tutorials/own-motor.md`): `bench data --motor`, `bench identify` (the Hammerstein
-   model on profiles 1-8), then three observers tuned on profiles 1-8 (each criterion) and evaluated on the
+   model on profiles 1-8), then five observers tuned on profiles 1-8 (each criterion) and evaluated on the
    held-out profiles 9 and 10: (a) the stator NTC (`--measure ntc_C` with the offset, lag and gradient of the
    motor file's `stator_ntc` sensor: a lag state), (b) the flux linkage (`--measure none --flux`, ψ_0 and α_B
-   calibrated on profiles 1-8), (c) both; and `bench numerics --observer` of (c) on profile 9 (each covariance
-   form over the whole profile in float32, 5 states).
+   calibrated on profiles 1-8), (c) both, (d) the winding temperature from the stator resistance (`--measure none
+   --resistance`, R_s0 and L_q calibrated on profiles 1-8 at low speed), (e) the flux linkage with it; and `bench
+   numerics --observer` of (c) on profile 9 (each covariance form over the whole profile in float32, 5 states).
 
 Every figure comes from the commands' own `--json`; each command is timed. Writes its record
 (`tests/benchmarks/record.py`).
@@ -127,10 +128,12 @@ def _named(node, name: str) -> list[dict]:
 
 
 def ipm_cases(sensor: dict) -> dict[str, list[str]]:
-    """The IPM example's measurements: (a) the NTC, (b) the flux linkage, (c) both."""
+    """The IPM example's measurements: (a) the NTC, (b) the flux linkage, (c) both, (d) the winding resistance, (e)
+    the flux linkage with the winding resistance (the NTC and the resistance would share the sensor slot over CAN)."""
     ntc = ["--measure", "ntc_C", "--offset", f"{sensor['offset']:g}", "--lag", f"{sensor['lag_s']:g}",
            "--gradient", f"{sensor.get('gradient', 0.0):g}"]
-    return {"ntc": ntc, "flux": ["--measure", "none", "--flux"], "ntc+flux": [*ntc, "--flux"]}
+    return {"ntc": ntc, "flux": ["--measure", "none", "--flux"], "ntc+flux": [*ntc, "--flux"],
+            "res": ["--measure", "none", "--resistance"], "flux+res": ["--measure", "none", "--flux", "--resistance"]}
 
 
 def ipm_example(work: Path, criteria: tuple[str, ...]) -> dict:

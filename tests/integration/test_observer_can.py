@@ -2,7 +2,8 @@
 row's Measurements frame, the Python target updates its filter with it and answers every model step with each
 node's 1-sigma and the innovation; the run is clean (CAN = the offline float32 observer on the decoded
 measurements); a dropped or corrupted Measurements frame is detected like any other and the filter then predicts
-only (CAN = the target's twin); `bench replay` and `bench analyze` of the log; the firmware engine runs it clean too;
+only (CAN = the target's twin); `bench replay` and `bench analyze` of the log; the firmware engine runs it clean too,
+and both engines run the flux linkage with the winding resistance (two readings from the same voltages) clean;
 data without the measured column is refused in one sentence before any work, and so is an observer whose readings
 the frames cannot carry: exit 2."""
 
@@ -130,22 +131,41 @@ def test_bench_run_on_the_firmware_engine_with_an_observer_is_clean(observer_art
     assert metrics["m4_cycles"]["max"] > 0
 
 
-def test_bench_run_on_the_firmware_engine_with_the_ntc_and_the_flux_linkage_is_clean(flux_observer_artifact,
-                                                                                     tmp_path):
-    """Two measurements per row in the generated C (DBC 1.7.0): the NTC in Measurements, the flux linkage from
-    DriveVoltages and the row's currents; clean over CAN, each slot used (the flux above its speed only)."""
-    path, data = flux_observer_artifact
+def _clean_run(path, data, engine: str, tmp_path) -> dict:
+    """`bench run` of 200 rows of `data` with the observer `path` on `engine`: exit 0, no reply missing, clean, CAN
+    equal to the offline float32 observer; its metrics."""
     proc = run_cli("-m", "bench", "run", "--model", str(path), "--data", str(data), "--rows", "200", "--engine",
-                   "firmware", "--log", str(tmp_path / "run.blf"), "--no-report", "--reply-timeout", "0.5", "--json",
+                   engine, "--log", str(tmp_path / "run.blf"), "--no-report", "--reply-timeout", "0.5", "--json",
                    timeout=300)
     assert proc.returncode == 0, proc.stderr
     s = json.loads(proc.stdout)
     assert (s["missing"], s["clean"]) == (0, True), s["verdict"]
     metrics = s["metrics"]
     assert metrics["can_reference"] == "offline float32" and metrics["can_agrees_with_float32"]
+    return metrics
+
+
+def test_bench_run_on_the_firmware_engine_with_the_ntc_and_the_flux_linkage_is_clean(flux_observer_artifact,
+                                                                                     tmp_path):
+    """Two measurements per row in the generated C (DBC 1.7.0): the NTC in Measurements, the flux linkage from
+    DriveVoltages and the row's currents; clean over CAN, each slot used (the flux above its speed only)."""
+    metrics = _clean_run(*flux_observer_artifact, "firmware", tmp_path)
     used = {slot: m["model_steps_updated"] for slot, m in metrics["observer"]["measurements"].items()}
     assert used["sensor"] == metrics["model_steps"] and 0 < used["flux"] < metrics["model_steps"], used
     assert metrics["m4_cycles"]["max"] > 0
+
+
+@pytest.mark.parametrize("engine", ["python", "firmware"])
+def test_bench_run_with_the_flux_linkage_and_the_winding_resistance_is_clean(engine, resistance_observer_artifact,
+                                                                              tmp_path):
+    """Two measurements from the same DriveVoltages and the row's currents: the flux linkage answers in the flux
+    slot (above its speed), the winding resistance in the sensor slot (below its speed, with enough i_d); clean over
+    CAN on both engines, each slot used on some steps and not on others."""
+    metrics = _clean_run(*resistance_observer_artifact, engine, tmp_path)
+    observer = metrics["observer"]["measurements"]
+    used = {slot: m["model_steps_updated"] for slot, m in observer.items()}
+    assert 0 < used["sensor"] < metrics["model_steps"] and 0 < used["flux"] < metrics["model_steps"], used
+    assert observer["sensor"]["measured_node"] == "winding" and observer["flux"]["measured_node"] == "magnet"
 
 
 def test_data_without_the_measured_column_is_refused_before_anything_starts(observer_artifact, tmp_path, capsys):

@@ -1,6 +1,6 @@
-"""The observer's measurement kinds (target_sim.measurements) and the flux-linkage calibration
-(bench.model.measures.flux_linkage): each kind's float32 reading, and the calibration recovering ψ_0, α_B, L_d and
-R_s from synthetic voltages."""
+"""The observer's measurement kinds (target_sim.measurements) and their calibrations (bench.model.measures): each
+kind's float32 reading, the flux-linkage calibration recovering ψ_0, α_B, L_d and R_s, and the winding-resistance
+calibration recovering R_s0 and L_q from synthetic voltages."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from bench.errors import BenchError
 from bench.model.measures import LAB_MEASUREMENT_KINDS, kind_of
 from bench.model.measures.flux_linkage import FluxLinkage, calibrate_flux
 from bench.model.measures.lagged_sensor import Sensor
+from bench.model.measures.winding_resistance import WindingResistance, calibrate_resistance
 from target_sim.measurements import MEASUREMENT_KINDS
 from target_sim.measurements.flux_linkage import RAD_S_PER_RPM
 
@@ -22,7 +23,7 @@ PSI_0, ALPHA_B, L_D, L_Q, R_S, ALPHA_CU, POLES = 0.065, -0.0011, 1.5e-4, 3.5e-4,
 
 
 def test_the_kinds_are_registered_by_name():
-    assert MEASUREMENT_KINDS.names() == ("lagged-sensor", "flux-linkage")
+    assert MEASUREMENT_KINDS.names() == ("lagged-sensor", "flux-linkage", "winding-resistance")
     assert LAB_MEASUREMENT_KINDS.names() == MEASUREMENT_KINDS.names()     # the lab's side of each
 
 
@@ -33,6 +34,7 @@ CALIBRATION = {"steps": 40, "fitted": ["psi_0", "slope"], "residual_rms_K": 0.5,
     (Sensor("winding", "ntc_C", offset_C=0.8, lag_s=25.0, gradient=-0.12), 0.37, 0.37),
     (Sensor("magnet", "pm_C"), 2.5, 2.5),
     (FluxLinkage(0.065, -0.0011, 20.0, 1.5e-4, 0.0158, 0.0039, 20.0, 4.0, 1500.0, 0.5, 4.0, CALIBRATION), 3.0, 1.0),
+    (WindingResistance(0.0158, 0.0039, 20.0, 3.5e-4, 4.0, 2000.0, 50.0, 9.0, 900.0, CALIBRATION), 3.0, 1.0),
 ])
 def test_the_lab_reads_back_the_entry_it_writes(lab, r, stored):
     """An artifact's entry read back by its lab kind is the measurement with the tuned R folded in where the kind
@@ -45,6 +47,12 @@ def test_the_lab_reads_back_the_entry_it_writes(lab, r, stored):
     if isinstance(lab, Sensor):
         assert back == Sensor(lab.node, lab.column, lab.offset_C, pytest.approx(lab.lag_s, rel=1e-12), lab.gradient)
         assert back.calibration_text() is None
+    elif isinstance(lab, WindingResistance):
+        assert (back.R_floor_C2, back.R_current_C2) == (r * lab.R_floor_C2, r * lab.R_current_C2)
+        assert (back.R_s_ohm, back.L_q_H, back.current_min_A, back.calibration) == (0.0158, 3.5e-4, 50.0, CALIBRATION)
+        assert back.calibration_text() == ("winding resistance: R_s 0.0158 ohm, L_q 0.00035 H (fitted psi_0, slope) "
+                                           "on 40 steps at or below 2000 rpm with |i_d| >= 50 A; residual RMS 0.50 "
+                                           "K, max 1.2 K")
     else:
         assert (back.R_floor_C2, back.R_speed_C2) == (r * lab.R_floor_C2, r * lab.R_speed_C2)
         assert (back.psi_0_Vs, back.speed_min_rpm, back.calibration) == (lab.psi_0_Vs, 1500.0, CALIBRATION)
@@ -144,3 +152,84 @@ def test_too_few_fast_steps_is_one_sentence():
     with pytest.raises(BenchError, match="at or above 1500 rpm") as info:
         calibrate_flux([data], 1.0, POLES, ALPHA_CU, 20.0, 0.015)
     assert "\n" not in str(info.value)
+
+
+def _resistance(speed_max=2000.0, current_min=50.0) -> WindingResistance:
+    return WindingResistance(R_S, ALPHA_CU, 20.0, L_Q, POLES, speed_max, current_min, 4.0, 900.0)
+
+
+def test_the_winding_resistance_inverts_the_d_voltage_at_low_speed_and_enough_current():
+    """Steady-state voltages of a known winding temperature read back as it (float32), below the speed limit and
+    where |i_d| is large enough; the variance grows as (i_min/i_d)²."""
+    res = _target(_resistance(), r=1.0)
+    assert res.width == 4 and res.lag_pole == 0 and np.array_equal(res.sees, [0, 1, 0, 0])
+    y = np.zeros(4, dtype=F32)            # the reading does not use the estimate
+    for speed, i_d, winding in ((0.0, -200.0, 60.0), (800.0, -120.0, 95.0), (2000.0, 80.0, 140.0)):
+        u_d, u_q = _voltages(speed, i_d, 250.0, 85.0, winding)
+        z, r = res.reading(np.array([u_d, u_q, i_d, 250.0], dtype=F32), F32(speed), y)
+        # float32: u_d is a few volts of which the speed voltage cancels most: within a few hundredths of a kelvin
+        assert z == pytest.approx(winding, abs=0.1)
+        assert r == pytest.approx(4.0 + 900.0 * (50.0 / i_d) ** 2, rel=1e-5)
+    u_d, u_q = _voltages(3000.0, -120.0, 250.0, 85.0, 95.0)
+    assert res.reading(np.array([u_d, u_q, -120.0, 250.0], dtype=F32), F32(3000.0), y) is None     # too fast
+    assert res.reading(np.array([0.1, 1.0, -20.0, 10.0], dtype=F32), F32(500.0), y) is None         # |i_d| < 50 A
+    assert res.reading(np.array([0.1, np.nan, -120.0, 10.0], dtype=F32), F32(500.0), y) is None     # u_q invalid
+
+
+def test_the_lab_readings_equal_the_target_reading():
+    """The float64 readings per step the reference filter takes are the target's reading (to float32 rounding)."""
+    data = _synthetic(rows=400)
+    lab = _resistance(speed_max=6000.0)
+    z0, z1, rel = lab.readings(data, 1.0, 400)
+    target = _target(lab, r=1.0)
+    raw = np.column_stack([data.columns[c] for c in lab.columns]).astype(F32)
+    checked = 0
+    for k in range(400):
+        got = target.reading(raw[k], F32(data.columns["speed_rpm"][k]), np.zeros(4, dtype=F32))
+        assert (got is None) == np.isnan(z0[k])
+        if got is not None:
+            checked += 1
+            assert got[0] == pytest.approx(z0[k], abs=0.5) and got[1] == pytest.approx(rel[k], rel=1e-4)
+    assert checked > 20 and not z1.any()
+
+
+def _low_speed(rows=3000, seed=5, noise_v=0.05):
+    data = _synthetic(rows, seed, noise_v)
+    rng = np.random.default_rng(seed + 1)
+    data.columns["speed_rpm"] = np.clip(900 + np.cumsum(rng.normal(0, 40, rows)), 0, 1900)
+    data.columns["i_d_A"] = -60 - 150 * np.abs(np.sin(np.arange(rows) / 53.0))
+    u_d, u_q = _voltages(data.columns["speed_rpm"], data.columns["i_d_A"], data.columns["i_q_A"],
+                         data.columns["pm_C"], data.columns["winding_C"])
+    data.columns["u_d_V"], data.columns["u_q_V"] = u_d + rng.normal(0, noise_v, rows), u_q
+    return data
+
+
+def test_the_resistance_calibration_recovers_r_s0_and_l_q():
+    fit = calibrate_resistance([_low_speed()], 1.0, POLES, ALPHA_CU, 20.0)
+    assert fit.R_s_ohm == pytest.approx(R_S, rel=2e-3) and fit.L_q_H == pytest.approx(L_Q, rel=2e-3)
+    assert fit.calibration["fitted"] == ["R_s0", "L_q"] and fit.calibration["steps"] == 3000
+    # the residual is the voltage noise through i_d R_s0 α_cu: 0.05 V / (60..210 A · 6.2e-5 Ω/K), a few K
+    assert 1.0 < fit.calibration["residual_rms_K"] < 15.0 and fit.R_current_C2 > 0
+
+
+def test_a_resistance_without_speed_voltage_leaves_l_q_to_the_given_value():
+    data = _low_speed(noise_v=0.0)
+    data.columns["speed_rpm"] = np.zeros(3000)
+    data.columns["u_d_V"] = _voltages(0.0, data.columns["i_d_A"], 0.0, 0.0, data.columns["winding_C"])[0]
+    fit = calibrate_resistance([data], 1.0, POLES, ALPHA_CU, 20.0, l_q_fixed=2e-4)
+    assert "L_q" not in fit.calibration["fitted"] and fit.L_q_H == 2e-4
+    assert fit.R_s_ohm == pytest.approx(R_S, rel=1e-9)
+
+
+@pytest.mark.parametrize(("change", "said"), [
+    ({"speed_rpm": np.full(3000, 5000.0)}, "have 0 model steps at or below 2000 rpm with |i_d| of at least 50 A; the "
+                                           "winding-resistance calibration needs at least 20"),
+    ({"u_d_V": np.random.default_rng(0).normal(0, 1.0, 3000)}, "the voltage columns do not carry the winding's "
+                                                                 "resistance"),
+])
+def test_a_resistance_the_data_do_not_allow_is_one_sentence(change, said):
+    data = _low_speed()
+    data.columns.update(change)
+    with pytest.raises(BenchError) as info:
+        calibrate_resistance([data], 1.0, POLES, ALPHA_CU, 20.0)
+    assert said in str(info.value) and "\n" not in str(info.value)

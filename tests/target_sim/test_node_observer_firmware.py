@@ -2,7 +2,8 @@
 reference: `bench firmware check` bit for bit over a run (outputs, each node's 1-sigma, each innovation, the
 periodic checkpoint) for a winding sensor without lag, a lagged sensor with the winding heat-bias state, and a
 stator NTC with the flux linkage (two measurements per row), each also in the steady-state-gain form (its
-checkpoint: the extra states only, none without lag or bias); the firmware node answers the Python node's frames
+checkpoint: the extra states only, none without lag or bias), and the flux linkage with the winding temperature from
+the stator resistance (both from the same voltages and currents); the firmware node answers the Python node's frames
 byte for byte, Uncertainty1/2, Innovations and ObserverCheckpoint included, through ABSENT and INVALID measurements,
 a lost, corrupted or misplaced Measurements (and DriveVoltages) frame, lost rows and a RESTORE with and without the
 filter's checkpoint; an observer the frames cannot carry (the flux linkage on a loss-map model) or in another form
@@ -105,11 +106,14 @@ def steady_sensor_artifact(observer_artifact, tmp_path_factory):
     return _steady(observer_artifact, tmp_path_factory)
 
 
-@pytest.fixture(params=["sensor", "lagged", "ntc+flux", "steady", "sensor-steady", "ntc+flux-steady"])
+@pytest.fixture(params=["sensor", "lagged", "ntc+flux", "steady", "sensor-steady", "ntc+flux-steady",
+                        "flux+resistance"])
 def case(request, observer_artifact, lagged_artifact, flux_observer_artifact, steady_artifact,
-         steady_sensor_artifact, steady_flux_artifact) -> Case:
+         steady_sensor_artifact, steady_flux_artifact, resistance_observer_artifact) -> Case:
     if request.param == "ntc+flux":
         return _flux_case(flux_observer_artifact)
+    if request.param == "flux+resistance":        # both from DriveVoltages and the row's currents, no sensor
+        return _flux_case(resistance_observer_artifact)
     if request.param == "ntc+flux-steady":
         return _flux_case(steady_flux_artifact)
     paths = {"sensor": observer_artifact, "lagged": lagged_artifact, "steady": steady_artifact,
@@ -329,6 +333,18 @@ def test_bench_firmware_check_runs_the_ntc_and_the_flux_linkage(flux_observer_ar
     stdout = capsys.readouterr().out
     assert "observer (ntc_C, flux): " in stdout and "mismatches 0 " in stdout, stdout
     assert re.search(r"\(ntc_C \d+, flux \d+\)", stdout), stdout
+
+
+def test_bench_firmware_check_runs_the_winding_resistance(resistance_observer_artifact, capsys):
+    """The flux linkage and the winding resistance read the same raw channels; the generated C reads both bit for
+    bit, the resistance at low speed only and the flux linkage at high speed only."""
+    path, dataset = resistance_observer_artifact
+    assert firmware_refusal(load_artifact(path)) is None
+    assert main(["firmware", "check", "--model", str(path), "--data", str(dataset), "--rows", "200", "--quiet"]) == 0
+    stdout = capsys.readouterr().out
+    assert "observer (flux, resistance): " in stdout and "mismatches 0 " in stdout, stdout
+    used = re.search(r"\(flux (\d+), resistance (\d+)\)", stdout)
+    assert used and int(used[1]) > 0 and int(used[2]) > 0, stdout
 
 
 def test_bench_firmware_check_names_the_observers_measurement(observer_artifact, small_dataset, capsys):

@@ -17,8 +17,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.errors import BenchError
-from bench.model.measures import LabMeasurementKind, register, step_means
-from target_sim.artifact import decode_array, encode_array
+from bench.model.measures import (
+    FromVoltages,
+    FromVoltagesKind,
+    identifiable_fit,
+    loss_value,
+    register,
+    residual_figures,
+    step_means,
+    training_steps,
+    variance_fit,
+)
 from target_sim.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
 
 IDENTIFIABLE = 0.25          # largest relative standard error of L_d or R_s0 that the calibration keeps
@@ -26,7 +35,7 @@ DEFAULT_SPEED_MIN_RPM = 1500.0
 
 
 @dataclass(frozen=True)
-class FluxLinkage:
+class FluxLinkage(FromVoltages):
     psi_0_Vs: float
     alpha_B_per_K: float
     theta_0_C: float
@@ -42,17 +51,6 @@ class FluxLinkage:
     kind: str = "flux-linkage"
     node: str = "magnet"
     name: str = "flux"
-
-    @property
-    def columns(self) -> tuple[str, ...]:
-        return COLUMNS
-
-    @property
-    def sees(self) -> np.ndarray:
-        return np.array([0.0, 0.0, 0.0, 1.0])
-
-    def lag_pole(self, dt: float) -> float:
-        return 0.0
 
     def readings(self, dataset, dt: float, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         means = step_means(dataset, ("speed_rpm", *COLUMNS), dt, steps)
@@ -73,8 +71,7 @@ class FluxLinkage:
                   "copper_reference_C": self.copper_reference_C, "pole_pairs": self.pole_pairs,
                   "speed_min_rpm": self.speed_min_rpm, "R_floor_C2": r_scale * self.R_floor_C2,
                   "R_speed_C2": r_scale * self.R_speed_C2}
-        return {"kind": self.kind, "name": self.name, "columns": list(self.columns), "node": self.node,
-                "arrays": {k: encode_array(v) for k, v in values.items()}, "calibration": self.calibration}
+        return self.voltage_entry(values)
 
     def describe(self) -> dict:
         return {"kind": self.kind, "node": self.node, "columns": list(self.columns), "psi_0_Vs": self.psi_0_Vs,
@@ -94,44 +91,40 @@ ENTRY_ARRAYS = ("psi_0_Vs", "alpha_B_per_K", "theta_0_C", "L_d_H", "R_s_ohm", "a
                 "pole_pairs", "speed_min_rpm", "R_floor_C2", "R_speed_C2")
 
 
-class LabFluxLinkageKind(LabMeasurementKind):
+class LabFluxLinkageKind(FromVoltagesKind):
     name = "flux-linkage"
-    start_r = 1.0     # R scales the calibrated R_floor + R_speed (n_min/n)²
+    measurement = FluxLinkage      # R scales the calibrated R_floor + R_speed (n_min/n)²
+    arrays = ENTRY_ARRAYS
 
-    def from_entry(self, entry: dict, dt: float) -> FluxLinkage:
-        values = (float(decode_array(entry["arrays"][k], k, np.float64)) for k in ENTRY_ARRAYS)
-        return FluxLinkage(*values, calibration=entry.get("calibration", {}))
+    def add_arguments(self, parser) -> None:
+        parser.add_argument("--flux", action="store_true",
+                            help="add the flux-linkage magnet temperature (columns u_d_V, u_q_V, i_d_A, i_q_A), "
+                                 "calibrated on the training files")
+        parser.add_argument("--flux-min-speed", type=float, default=DEFAULT_SPEED_MIN_RPM, metavar="RPM",
+                            help=f"the flux linkage is valid at or above this speed (default {DEFAULT_SPEED_MIN_RPM:g} "
+                                 "rpm)")
 
-    def stored_r(self, entry: dict) -> float:
-        return 1.0     # entry() folds the tuned scale into R_floor and R_speed
+    def from_arguments(self, args, artifact, datasets: Sequence) -> FluxLinkage | None:
+        """The flux linkage calibrated on `datasets`, with the artifact's copper coefficient and, for an electrical
+        loss model, its pole pairs and stator resistance."""
+        if not args.flux:
+            return None
+        return calibrate_flux(datasets, artifact.dt, pole_pairs_of(artifact, args.pole_pairs),
+                              loss_value(artifact, "alpha_cu_per_K"), loss_value(artifact, "copper_reference_C"),
+                              loss_value(artifact, "stator_resistance_ohm"), speed_threshold_ok(args.flux_min_speed))
 
 
 register(LabFluxLinkageKind())
-
-
-def _fit(y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least squares: (coefficients, their standard errors, residual)."""
-    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
-    resid = y - x @ beta
-    dof = max(len(y) - x.shape[1], 1)
-    cov = np.linalg.pinv(x.T @ x) * float(resid @ resid) / dof
-    return beta, np.sqrt(np.maximum(np.diag(cov), 0.0)), resid
 
 
 def calibrate_flux(datasets: Sequence, dt: float, pole_pairs: float, alpha_cu: float, copper_reference: float,
                    r_s_prior: float | None, speed_min_rpm: float = DEFAULT_SPEED_MIN_RPM, theta_0: float = 20.0,
                    l_d_fixed: float = 0.0) -> FluxLinkage:
     """ψ_0, α_B (and L_d, R_s0 where the data allow) on the training files' steps at or above speed_min_rpm."""
-    rows = []
-    for d in datasets:
-        missing = [c for c in (*COLUMNS, "pm_C", "winding_C") if not d.has(c)]
-        if missing:
-            raise BenchError(f"{d.path} has no column {missing[0]!r}, which the flux-linkage calibration needs; map "
-                             "it with --mapping")
-        steps = len(step_means(d, ("speed_rpm",), dt, 10 ** 9))
-        rows.append(step_means(d, ("speed_rpm", "u_q_V", "i_d_A", "i_q_A", "pm_C", "winding_C"), dt, steps))
-    speed, u_q, i_d, i_q, magnet, winding = np.concatenate(rows).T
-    keep = (np.abs(speed) >= speed_min_rpm) & np.all(np.isfinite(np.concatenate(rows)), axis=1)
+    rows = training_steps(datasets, ("speed_rpm", "u_q_V", "i_d_A", "i_q_A", "pm_C", "winding_C"), dt,
+                          "the flux-linkage calibration", required=COLUMNS)
+    speed, u_q, i_d, i_q, magnet, winding = rows.T
+    keep = (np.abs(speed) >= speed_min_rpm) & np.all(np.isfinite(rows), axis=1)
     if keep.sum() < 20:
         raise BenchError(f"the training files have {int(keep.sum())} model steps at or above {speed_min_rpm:g} rpm; "
                          "the flux-linkage calibration needs at least 20 (lower --flux-min-speed)")
@@ -140,36 +133,26 @@ def calibrate_flux(datasets: Sequence, dt: float, pole_pairs: float, alpha_cu: f
     y = u_q / omega
     columns = {"psi_0": np.ones_like(y), "slope": magnet - theta_0, "L_d": i_d,
                "R_s0": i_q * (1.0 + alpha_cu * (winding - copper_reference)) / omega}
-    fixed = {}
-    while True:
-        names = [n for n in columns if n not in fixed]
-        target = y - sum(columns[n] * v for n, v in fixed.items())
-        x = np.column_stack([columns[n] for n in names])
-        beta, se, resid = _fit(target, x)
-        loose = [n for n in ("L_d", "R_s0") if n in names and not se[names.index(n)] < IDENTIFIABLE * abs(
-            beta[names.index(n)])]
-        scaled = x / np.maximum(np.abs(x).max(axis=0), np.finfo(float).tiny)
-        if np.linalg.matrix_rank(scaled, tol=1e-9) < len(names):     # collinear: no standard error says so
-            loose = [n for n in ("L_d", "R_s0") if n in names][:1] or loose
-        if not loose:
-            break
-        fixed[loose[0]] = l_d_fixed if loose[0] == "L_d" else (r_s_prior if r_s_prior is not None else 0.0)
-    value = dict(zip(names, beta, strict=True)) | fixed
+    value, names, se, resid, fixed = identifiable_fit(
+        y, columns, ("L_d", "R_s0"), IDENTIFIABLE,
+        lambda n: l_d_fixed if n == "L_d" else (r_s_prior if r_s_prior is not None else 0.0))
     psi_0, slope = float(value["psi_0"]), float(value["slope"])
     if not (psi_0 > 0 and slope != 0):
         raise BenchError(f"the flux-linkage calibration found ψ_0 = {psi_0:.4g} Vs and dψ/dϑ = {slope:.3g} Vs/K; the "
                          "voltage columns do not carry the magnet's temperature")
     resid_k = resid / slope
-    ratio2 = (speed_min_rpm / speed) ** 2
-    coef, *_ = np.linalg.lstsq(np.column_stack([np.ones_like(ratio2), ratio2]), resid_k ** 2, rcond=None)
-    floor, per_speed = (max(float(v), 1e-6) for v in coef)
+    floor, per_speed = variance_fit(resid_k, speed_min_rpm / speed)
     calibration = {"steps": int(keep.sum()), "files": len(datasets), "fitted": names,
                    "fixed": {k: float(v) for k, v in fixed.items()},
                    "standard_error": {n: float(s) for n, s in zip(names, se, strict=True)},
-                   "residual_rms_K": float(np.sqrt(np.mean(resid_k ** 2))),
-                   "residual_max_K": float(np.max(np.abs(resid_k)))}
+                   **residual_figures(resid_k)}
     return FluxLinkage(psi_0, slope / psi_0, theta_0, float(value["L_d"]), float(value["R_s0"]), alpha_cu,
                        copper_reference, float(pole_pairs), speed_min_rpm, floor, per_speed, calibration)
+
+
+def pole_pairs_of(artifact, given: float | None) -> float:
+    """The pole pairs given (--pole-pairs), else the artifact's electrical loss model's, else 1."""
+    return given if given is not None else (loss_value(artifact, "pole_pairs") or 1.0)
 
 
 def speed_threshold_ok(value: float) -> float:

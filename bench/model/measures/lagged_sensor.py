@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.errors import UsageError
 from bench.model.measures import LabMeasurementKind, register, step_means
 from target_sim.artifact import OUTPUTS, decode_array, encode_array
 from target_sim.measurements.lagged_sensor import sees
@@ -77,6 +78,25 @@ class LabLaggedSensorKind(LabMeasurementKind):
 
     def stored_r(self, entry: dict) -> float:
         return float(decode_array(entry["arrays"]["R"], "R", np.float64))
+
+    def add_arguments(self, parser) -> None:
+        parser.add_argument("--measure", default="winding_C", metavar="COLUMN",
+                            help="the sensor's dataset column (default winding_C; none: no sensor)")
+        parser.add_argument("--node", choices=OUTPUTS, default="winding", help="the model node the sensor sees "
+                            "(default winding)")
+        parser.add_argument("--offset", type=float, default=0.0,
+                            help="the sensor's offset in K, subtracted from each reading")
+        parser.add_argument("--lag", type=float, default=0.0, help="the sensor's time constant in s (a lag state "
+                            "of the filter; default 0: none)")
+        parser.add_argument("--gradient", type=float, default=0.0,
+                            help="the sensor reads node + GRADIENT·(node - yoke) (default 0)")
+
+    def from_arguments(self, args, artifact, datasets) -> Sensor | None:
+        if args.measure == "none":
+            return None
+        if not 0 <= args.lag < 1e5:
+            raise UsageError("--lag must be a non-negative number of seconds")
+        return Sensor(args.node, args.measure, args.offset, args.lag, args.gradient)
 
 
 register(LabLaggedSensorKind())

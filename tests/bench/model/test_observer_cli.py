@@ -69,3 +69,22 @@ def test_flux_without_voltage_columns_is_one_sentence(small_dataset, tmp_path, c
     err = capsys.readouterr().err
     assert "has no column 'u_d_V', which the flux-linkage calibration needs" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize(("options", "said"), [
+    (["--resistance-max-speed", "10"], "the training files have 0 model steps at or below 10 rpm with |i_d| of at "
+                                       "least 50 A; the winding-resistance calibration needs at least 20 (raise "
+                                       "--resistance-max-speed or lower --resistance-min-current)"),
+    (["--resistance-min-current", "0"], "--resistance-min-current must be a positive number"),
+])
+def test_a_resistance_the_data_do_not_allow_is_one_sentence_exit_2(options, said, resistance_observer_artifact,
+                                                                   tmp_path, capsys):
+    """Where the data do not allow the winding resistance (no step slow enough), or the option is not a current:
+    one sentence, exit 2, nothing written."""
+    data = resistance_observer_artifact[1]
+    out = tmp_path / "resistance.json"
+    assert main(["observer", "--model", str(data.parent / "electrical.json"), "--train", str(data), "--measure",
+                 "none", "--resistance", *options, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"bench: error: {said}\n"
+    assert not out.exists()
