@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
-from bench.firmware.udgen import predict_c, steady_c, update_c
+from bench.firmware.udgen import move_state_c, predict_c, steady_c, update_c
 from target_sim.artifact import ModelArtifact
 from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
 from target_sim.kinds import REALIZATIONS
@@ -191,30 +191,42 @@ static int obs_finite(float value)
     return ((bits.u >> 23) & 0xFFu) != 0xFFu;
 }
 
-/* Float32Observer.step's correction with one measurement's reading and the gain its update gave:
- * innovation = value - (its lag state, or sees y), x <- x + K innovation, y = C x */
-static void obs_correct(int index, const float sees[4], int lag, float value, const float gain[OBS_N])
+/* Float32Observer.step's correction with one measurement's reading and the gain its update gave (node
+ * coordinates): innovation = value - (its lag state, or sees y), y <- y + K innovation (the next measurement reads
+ * it), the step's correction summed, the extra states <- + K innovation */
+static void obs_correct(int index, const float sees[4], int lag, float value, const float gain[OBS_N],
+                        float correction[4])
 {
     const float predicted = lag >= 0 ? obs_extra[lag] : dot(sees, y_est, 4);
     const float nu = value - predicted;
+    float step;
     int i;
     obs_innovation[index] = nu;
-    for (i = 0; i < 4; i++) x_state[i] = x_state[i] + gain[i] * nu;
+    for (i = 0; i < 4; i++) {
+        step = gain[i] * nu;
+        y_est[i] = y_est[i] + step;
+        correction[i] = correction[i] + step;
+    }
     for (i = 4; i < OBS_N; i++) obs_extra[i] = obs_extra[i] + gain[i] * nu;
-    obs_output();
 }
-OBS_READINGS
+
+OBS_MOVE_STATEOBS_READINGS
 /* Float32Observer.step: the model step, F, the extra states, the prediction, and the update with each measurement
  * that has a valid reading, in the section's order (each reads the estimate the previous one corrected) */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
 {
     float value, r, gain[OBS_N];
-    int i;
+    float correction[4] = {-0.0f, -0.0f, -0.0f, -0.0f};
+    int i, corrected = 0;
     fw_step(u, y);
     obs_propagate_extra();
     obs_predict();
     for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_innovation[i] = __builtin_nanf("");
-OBS_UPDATES    for (i = 0; i < 4; i++) y[i] = y_est[i];
+OBS_UPDATES    if (corrected) {
+        obs_move_state(correction);
+        obs_output();
+    }
+    for (i = 0; i < 4; i++) y[i] = y_est[i];
 }
 
 /* Float32Observer.reset */
@@ -296,8 +308,8 @@ void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
     int j;
     for (node = 0; node < 4; node++) {
         for (j = 0; j < OBS_N; j++) {                       /* c padded with zeros to the filter's states */
-            v[j] = obs_u[0][j] * LB_C[node][0];
-            for (i = 1; i < OBS_N; i++) v[j] = v[j] + obs_u[i][j] * (i < 4 ? LB_C[node][i] : 0.0f);
+            v[j] = obs_u[0][j] * (node == 0 ? 1.0f : 0.0f);  /* c: the node's unit row (node coordinates) */
+            for (i = 1; i < OBS_N; i++) v[j] = v[j] + obs_u[i][j] * (i == node ? 1.0f : 0.0f);
         }
         s = (obs_d[0] * v[0]) * v[0];
         for (j = 1; j < OBS_N; j++) s = s + (obs_d[j] * v[j]) * v[j];
@@ -315,7 +327,8 @@ _LAG_RESET = "    obs_extra[OBS_LAG_K] = dot(OBS_SEES_K, y_est, 4);\n"
 # per measurement k: its reading, its own update (the row h is its code's) and the correction
 _UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
            "        obs_update_K(r, gain);\n"
-           "        obs_correct(INDEX, OBS_SEES_K, OBS_LAG_K, value, gain);\n    }\n")
+           "        obs_correct(INDEX, OBS_SEES_K, OBS_LAG_K, value, gain, correction);\n"
+           "        corrected = 1;\n    }\n")
 
 
 def _per_measurement(obs: Float32Observer) -> dict[str, str]:
@@ -337,7 +350,7 @@ def observer_code(artifact: ModelArtifact) -> str:
     """The observer's functions (after the model's: they call fw_step, fw_reset, fw_restore and dot)."""
     obs = observer_filter(artifact)
     delta = REALIZATIONS[artifact.realization].delta
-    code = OBSERVER_C.replace("OBS_KERNELS", _kernels(obs))
+    code = OBSERVER_C.replace("OBS_KERNELS", _kernels(obs)).replace("OBS_MOVE_STATE", move_state_c(obs))
     for name, text in _per_measurement(obs).items():
         code = code.replace(name, text)
     return code.replace("OBS_PLUS_REF", " + LB_REF" if delta else "")

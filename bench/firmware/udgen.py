@@ -98,8 +98,8 @@ class Lines:
 def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
     """F's elements (None: a structural zero) as Float32Observer.transition computes them."""
     n, k = obs.n, len(OUTPUTS)
-    out.comment("F: (I + dt A) + (B_s J)(dt C) (shift form: A + (B_s J) C), J the sources' Jacobian "
-                "(Float32Observer.transition)")
+    out.comment("F in node coordinates: C (I + dt A) C^-1 + (dt C B_s) J (shift form: C A C^-1 + (C B_s) J), J the "
+                "sources' Jacobian (Float32Observer.transition)")
     for index, gain in enumerate(GAINS):
         out.load(gain, f"obs_gains[{index}]")
     for gain in GAINS:
@@ -118,28 +118,24 @@ def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
     f: list[list[Value | None]] = [[None] * n for _ in range(n)]
     for i in range(k):
         for j in range(k):
-            terms = [product(bj[i, m], literal(obs.c_step[m, j])) for m in range(k)
-                     if (i, m) in bj and obs.c_step_nonzero[m, j]]
             constant = obs.a_step[i, j]
-            if constant != 0:
-                terms = [literal(constant).expr, total(terms)] if terms else [literal(constant).expr]
-                if len(terms) == 1:
-                    f[i][j] = literal(constant)
-                    continue
-                f[i][j] = out.set(f"f{i}_{j}", f"{terms[0]} + ({terms[1]})")
-            elif terms:
-                f[i][j] = out.set(f"f{i}_{j}", total(terms))
+            if constant != 0 and (i, j) in bj:
+                f[i][j] = out.set(f"f{i}_{j}", f"{literal(constant).expr} + ({bj[i, j].expr})")
+            elif constant != 0:
+                f[i][j] = literal(constant)
+            elif (i, j) in bj:
+                f[i][j] = bj[i, j]
     if obs.bias_index >= 0:
         for i in range(k):
-            if obs.bias_column[i] != 0:
-                f[i][obs.bias_index] = literal(obs.bias_column[i])
+            if obs.bias_node[i] != 0:
+                f[i][obs.bias_index] = literal(obs.bias_node[i])
         f[obs.bias_index][obs.bias_index] = ONE
-    for m, lag, sc in zip(obs.measurements, obs.lag_index, obs.sees_c, strict=True):
+    for m, lag in zip(obs.measurements, obs.lag_index, strict=True):
         if lag < 0:
             continue
         gain = literal(np.float32(1.0) - m.lag_pole)
         for j in range(n):
-            terms = [product(literal(sc[i]), f[i][j]) for i in range(k) if sc[i] != 0 and f[i][j] is not None]
+            terms = [product(literal(m.sees[i]), f[i][j]) for i in range(k) if m.sees[i] != 0 and f[i][j] is not None]
             if terms and j != lag:
                 f[lag][j] = out.set(f"f{lag}_{j}", product(gain, Value(f"({total(terms)})")))
         f[lag][lag] = literal(m.lag_pole)
@@ -254,3 +250,15 @@ def steady_c(updates: list[tuple[str, str]]) -> str:
                  f"static void {name}(float r, float gain[OBS_N])\n{{\n    int i;\n    (void)r;\n"
                  f"    for (i = 0; i < OBS_N; i++) gain[i] = {gain}[i];\n}}\n")
     return code
+
+
+def move_state_c(obs: Float32Observer) -> str:
+    """obs_move_state(correction): x <- x + C⁻¹ correction (Float32Observer.step: the step's node corrections moved
+    into the model's states once), C⁻¹'s elements as literals, every product kept (zeros too: `fmath.matvec`)."""
+    k = len(OUTPUTS)
+    lines = []
+    for i in range(k):
+        terms = [product(literal(obs.c_inv[i, j]), Value(f"correction[{j}]")) for j in range(k)]
+        lines.append(f"    x_state[{i}] = x_state[{i}] + ({total(terms)});")
+    return ("/* x <- x + C^-1 correction: the step's node corrections in the model's states (bench.firmware.udgen) */\n"
+            "static void obs_move_state(const float correction[4])\n{\n" + "\n".join(lines) + "\n}\n")
