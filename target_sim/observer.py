@@ -20,7 +20,11 @@ The covariance is kept in one of four forms (`OBSERVER_FORMS`), equal in exact a
   point), no covariance at all: x <- x + K_ss ν, a few multiply-adds.
 
 Every operation has a fixed order and a float32 rounding (`fmath.matmul`, `fmath.dot`, elementwise ufuncs), so a C
-version can repeat it bit for bit. Coordinates are the realization's: Q, P0 and P_ss are stored in them.
+version can repeat it bit for bit. The artifact stores Q, P0, K_ss and P_ss in the realization's coordinates; the
+filter runs in node coordinates (`target_sim.observer_coordinates`: the node temperatures y = C x and the extra
+states), where Q is diag(q_nodes), a measurement's row h is what its sensor sees and F needs no product by C. Its
+gain corrects the node temperatures (the next measurement of the step reads them), and after the step's last update
+x moves by C⁻¹ of the summed correction and y = C x again. `covariance()` is back in the state coordinates.
 """
 
 from __future__ import annotations
@@ -369,7 +373,6 @@ class Float32Observer:
         self.h = self.rows[0]
         self.offset = getattr(self.measurements[0], "offset", f(0.0))
         self.r = getattr(self.measurements[0], "r", f(np.nan))
-        self.identity = np.eye(len(OUTPUTS), dtype=f)
         self.widths = [m.width for m in self.measurements]
         self.extra = np.zeros(n - len(OUTPUTS), dtype=f)
         self.innovations = np.full(len(self.measurements), np.nan, dtype=f)

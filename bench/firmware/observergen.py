@@ -13,6 +13,8 @@ operation:
 | obs_update_<k>         | BiermanThornton.update with the k-th row h    | Bierman's scalar update (udgen.py);   |
 |                        | (SteadyState.update)                          | the steady form: the k-th row of K_ss |
 | fw_obs_step            | Float32Observer.step                          | model step, predict, update           |
+| obs_correct            | Float32Observer.step's correction             | y += K nu (node coordinates), summed  |
+| obs_move_state         | Float32Observer.step, after the last update   | x += C^-1 (summed correction), y = Cx |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
 | fw_obs_report          | Float32Observer.sigma, .innovations           | each node's 1-σ, each innovation      |
 | obs_reading_<k>        | the k-th measurement's `reading` (its kind)   | its value and variance, or no reading |

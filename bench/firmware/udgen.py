@@ -1,5 +1,5 @@
-"""The UD filter's kernels as straight-line C: the transition F, Thornton's prediction and Bierman's update of
-`target_sim.observer` unrolled over the structure the filter has when it is built (`target_sim.ud_structure`).
+"""The UD filter's kernels as straight-line C: the transition F (node coordinates), Thornton's prediction and
+Bierman's update of `target_sim.observer` unrolled over the structure the filter has when it is built (`target_sim.ud_structure`).
 
 Every element that is always zero is left out (no variable, no product), a product by an exact one is not
 written, the constants (A, B, C, the Jacobian's pattern, G, q, h) are literals, and every kept sum has the
@@ -9,6 +9,7 @@ counters, no index arithmetic, no loads of zeros.
 
     obs_predict(void)              Float32Observer.transition + BiermanThornton.predict: F, F U, the MWGS
     obs_update_<k>(r, gain)        BiermanThornton.update for the k-th measurement's row h
+    obs_move_state(correction)     Float32Observer.step's x <- x + C⁻¹ (the step's node correction)
     steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
 """
 

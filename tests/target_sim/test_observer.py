@@ -98,10 +98,11 @@ def test_every_float32_form_follows_the_float64_filter(observed):
             continue   # another gain: not the time-varying filter
         errors[form] = np.max(np.abs(run.outputs - reference.estimates[0]))
         covariances[form] = run.covariances[-1]
-    # measured on these 2 minutes (cond P ≈ 2.5e5): conventional 0.061 °C, Joseph 0.021, UD 0.0011; the same code
-    # in float64 follows the reference within 2e-5 °C (its inputs are float32 interval means)
-    assert errors["ud"] < 5e-3 and max(errors.values()) < 0.2
-    assert errors["ud"] == min(errors.values())
+    # measured on these 2 minutes with the covariance in the state coordinates (cond P ≈ 2.5e5): conventional
+    # 0.061 °C, Joseph 0.021, UD 0.0011; in the node coordinates the filter now runs in: conventional 4.9e-4, Joseph
+    # 1.6e-3, UD 9.5e-4 (no form is clearly ahead any more). The same code in float64 follows the reference within
+    # 2e-5 °C (its inputs are float32 interval means)
+    assert max(errors.values()) < 5e-3
     for form, p in covariances.items():
         assert np.allclose(p, covariances["ud"], rtol=0.05, atol=1e-3 * np.abs(p).max()), form
 
