@@ -532,7 +532,8 @@ class Float32Observer:
                 continue
             value, r = reading
             lag = self.lag_index[index]
-            predicted = self.extra[lag - k] if lag >= 0 else dot(m.sees, est.y)
+            predicted = self.extra[lag - k] if lag >= 0 else masked_dot(m.sees[self.sees_nonzero[index]],
+                                                                      est.y[self.sees_nonzero[index]], f(NEG_ZERO))
             self.innovations[index] = nu = value - predicted
             gain = self.cov.update(self.rows[index], r, index)      # in node coordinates
             step = gain[:k] * nu

@@ -9,7 +9,8 @@ products and sums apart (no fused multiply-add). The locals are the compiler's t
 counters, no index arithmetic, no loads of zeros.
 
     obs_predict(void)              Float32Observer.transition + BiermanThornton.predict: F, F U, the MWGS
-    obs_update_<k>(r, gain)        BiermanThornton.update for the k-th measurement's row h
+    obs_update_<k>(r, nu, corr.)   BiermanThornton.update for the k-th measurement's row h, then the correction
+    obs_output(void)               LinearBlockPart.output: y = C x (+ r)
     obs_move_state(correction)     Float32Observer.step's x <- x + C⁻¹ (the step's node correction)
     steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
 """
@@ -197,9 +198,24 @@ def predict_c(obs: Float32Observer) -> str:
             "__attribute__((noinline)) static void obs_predict(void)\n{\n" + out.text() + "\n}\n")
 
 
-def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
-    """`name`(r, gain): Bierman's update of obs_u, obs_d with the constant row h and variance r, the gain into
-    gain (BiermanThornton.update)."""
+def correction_c(n: int, gain: list[str], moves_y: bool) -> str:
+    """Float32Observer.step's correction with the gain's elements `gain` (C expressions) and the innovation nu:
+    each node's step (gain_i nu) onto y (when a later measurement of the step may read it: `moves_y`) and onto the
+    step's summed correction, each extra state + gain_i nu."""
+    k = len(OUTPUTS)
+    lines = []
+    for i in range(k):
+        lines.append(f"    step = ({gain[i]}) * nu;")
+        if moves_y:
+            lines.append(f"    y_est[{i}] = y_est[{i}] + step;")
+        lines.append(f"    correction[{i}] = correction[{i}] + step;")
+    lines += [f"    obs_extra[{i}] = obs_extra[{i}] + ({gain[i]}) * nu;" for i in range(k, n)]
+    return "\n".join(lines)
+
+
+def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = True) -> str:
+    """`name`(r, nu, correction): Bierman's update of obs_u, obs_d with the constant row h and variance r
+    (BiermanThornton.update), then the correction with its gain and the innovation nu (`correction_c`)."""
     cov, n = obs.cov, obs.n
     schedule = cov.bierman(h)
     out = Lines()
@@ -236,22 +252,36 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
             out.raw(f"{b[i].expr} = {b[i].expr} + {b[j].expr} * held;")
         for i in step.filled:
             b[i] = out.set(f"b{i}", f"{b[j].expr} * {u[i, j].expr}")
-    for i in range(n):
-        out.raw(f"gain[{i}] = {b[i].expr if i in b else C_NEG_ZERO} * gamma;")
-    return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}], unrolled "
-            "(bench.firmware.udgen) */\n"
-            f"static void {name}(float r, float gain[OBS_N])\n{{\n" + out.text() + "\n}\n")
+    out.raw("float step;")
+    out.lines.append(correction_c(n, [f"{b[i].expr if i in b else C_NEG_ZERO} * gamma" for i in range(n)], moves_y))
+    return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}] and the correction, "
+            "unrolled (bench.firmware.udgen) */\n"
+            f"static void {name}(float r, float nu, float correction[4])\n{{\n" + out.text() + "\n}\n")
 
 
-def steady_c(updates: list[tuple[str, str]]) -> str:
-    """The steady-state-gain form's kernels (SteadyState): no prediction; each (function, gain array) of `updates`
-    hands out its measurement's row of K_ss, whatever r."""
+def steady_c(n: int, updates: list[tuple[str, str, bool]]) -> str:
+    """The steady-state-gain form's kernels (SteadyState): no prediction; each (function, gain array, moves_y) of
+    `updates` corrects with its measurement's row of K_ss, whatever r (`correction_c`)."""
     code = "/* SteadyState.predict: nothing (no covariance) */\nstatic void obs_predict(void)\n{\n}\n"
-    for name, gain in updates:
-        code += (f"\n/* SteadyState.update: the constant gain {gain} (K_ss's row), whatever r */\n"
-                 f"static void {name}(float r, float gain[OBS_N])\n{{\n    int i;\n    (void)r;\n"
-                 f"    for (i = 0; i < OBS_N; i++) gain[i] = {gain}[i];\n}}\n")
+    for name, gain, moves_y in updates:
+        body = correction_c(n, [f"{gain}[{i}]" for i in range(n)], moves_y)
+        code += (f"\n/* SteadyState.update: the constant gain {gain} (K_ss's row), whatever r, and the correction */\n"
+                 f"static void {name}(float r, float nu, float correction[4])\n{{\n    float step;\n    (void)r;\n"
+                 f"{body}\n}}\n")
     return code
+
+
+def output_c(obs: Float32Observer) -> str:
+    """obs_output: y = C x (delta: (C x) + r), LinearBlockPart.output with C's elements as literals, every product
+    kept (zeros too: `fmath.matvec`)."""
+    part, k = obs.est.part, len(OUTPUTS)
+    lines = []
+    for i in range(k):
+        terms = total([product(literal(part.c[i, j]), Value(f"x_state[{j}]")) for j in range(k)])
+        lines.append(f"    y_est[{i}] = ({terms}) + {literal(part.reference).expr};" if part.delta
+                     else f"    y_est[{i}] = {terms};")
+    return ("/* y = C x (delta: (C x) + r): LinearBlockPart.output, unrolled (bench.firmware.udgen) */\n"
+            "static void obs_output(void)\n{\n" + "\n".join(lines) + "\n}\n")
 
 
 def move_state_c(obs: Float32Observer) -> str:
