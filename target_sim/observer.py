@@ -554,6 +554,11 @@ class Float32Observer:
         """The covariance in the state coordinates (float64: T⁻¹ P' T⁻ᵀ of the filter's node-coordinate P')."""
         return self.coordinates.state_covariance(self.cov.covariance())
 
+    def filter_covariance(self) -> np.ndarray:
+        """The filter's own covariance P' (node coordinates) in float64, as its form keeps it: its symmetry is the
+        form's, not that of a transform."""
+        return np.array(self.cov.covariance(), dtype=np.float64)
+
     def sigma(self) -> np.ndarray:
         """Each node's 1-σ (°C): sqrt of the node's diagonal element of P (node coordinates), in the filter's
         precision with a fixed order (C: fw_obs_report): c the node's unit row; the UD form takes v = Uᵀ c and
@@ -573,7 +578,7 @@ class Float32Observer:
 class ObserverRun:
     """A whole run of the float32 observer: per model step the estimate, each node's 1-σ, the first
     measurement's innovation (NaN without a reading), every measurement's and, on request, the covariance in the
-    state coordinates."""
+    state coordinates and the filter's own (node coordinates)."""
 
     rows: np.ndarray
     outputs: np.ndarray
@@ -581,6 +586,7 @@ class ObserverRun:
     covariances: np.ndarray | None
     sigmas: np.ndarray | None = None
     all_innovations: np.ndarray | None = None
+    filter_covariances: np.ndarray | None = None      # on request: the filter's own P' (node coordinates)
 
 
 def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement: np.ndarray,
@@ -601,7 +607,7 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
                          f"not {drive.shape} and {measurement.shape}")
     rows = np.column_stack([drive, measurement])
     acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width + channels)
-    steps, outputs, innovations, covariances, sigmas = [], [], [], [], []
+    steps, outputs, innovations, covariances, sigmas, own = [], [], [], [], [], []
     for row, sample in enumerate(rows):
         means = acc.add(row, sample)
         if means is None:
@@ -611,8 +617,9 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
         sigmas.append(obs.sigma())
         if keep_covariance:
             covariances.append(np.array(obs.covariance(), dtype=np.float64))
+            own.append(obs.filter_covariance())
         steps.append(row)
     every = np.array(innovations, dtype=np.float64).reshape(-1, len(obs.measurements))
     return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4), every[:, 0],
                        np.array(covariances) if keep_covariance else None,
-                       np.array(sigmas).reshape(-1, 4), every)
+                       np.array(sigmas).reshape(-1, 4), every, np.array(own) if keep_covariance else None)
