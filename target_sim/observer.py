@@ -410,8 +410,8 @@ class Float32Observer:
     def checkpoint(self) -> np.ndarray:
         """The filter's state beyond the model's x, float32 bit for bit, in the order of the ObserverCheckpoint
         frames (DBC 1.7.0): the extra states (lags in measurement order, then the bias), then the covariance in the
-        deployed form: UD d_0..d_{n-1} then U above the diagonal row by row; conventional and Joseph P row by row;
-        the steady-state gain nothing."""
+        deployed form, in the filter's node coordinates: UD d_0..d_{n-1} then U above the diagonal row by row;
+        conventional and Joseph P row by row; the steady-state gain nothing."""
         parts = [self.extra]
         cov = self.cov
         if isinstance(cov, BiermanThornton):
