@@ -20,7 +20,11 @@ The covariance is kept in one of four forms (`OBSERVER_FORMS`), equal in exact a
   point), no covariance at all: x <- x + K_ss ν, a few multiply-adds.
 
 Every operation has a fixed order and a float32 rounding (`fmath.matmul`, `fmath.dot`, elementwise ufuncs), so a C
-version can repeat it bit for bit. Coordinates are the realization's: Q, P0 and P_ss are stored in them.
+version can repeat it bit for bit. The artifact stores Q, P0, K_ss and P_ss in the realization's coordinates; the
+filter runs in node coordinates (`target_sim.observer_coordinates`: the node temperatures y = C x and the extra
+states), where Q is diag(q_nodes), a measurement's row h is what its sensor sees and F needs no product by C. Its
+gain corrects the node temperatures (the next measurement of the step reads them), and after the step's last update
+x moves by C⁻¹ of the summed correction and y = C x again. `covariance()` is back in the state coordinates.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from target_sim.kinds import MODEL_KINDS
 from target_sim.measurements import MEASUREMENT_KINDS
 from target_sim.model import F32, Float32Estimator, InputAccumulator
 from target_sim.modelkinds.lti_lptn import SOURCE_JACOBIAN_NONZERO
+from target_sim.observer_coordinates import NodeCoordinates
 from target_sim.registry import Registry
 from target_sim.ud_structure import (
     NEG_ZERO,
@@ -279,6 +284,7 @@ def has_observer(artifact: ModelArtifact) -> bool:
 SECTION_VERSION = 2
 BIAS_KINDS = ("winding-heat",)      # the bias state: watts into the winding node the loss model misses
 BIAS_INPUT = 1                      # its column of B (the winding loss)
+Q_NODES_TOLERANCE = 1e-6            # T Q Tᵀ against diag(q_nodes), relative: float64 rounding of the lab's transform
 
 
 def section_version(section: dict) -> int:
@@ -333,11 +339,21 @@ class Float32Observer:
 
         self.measurements = load_measurements(section, f)
         self.node = OUTPUTS.index(section["node"])
-        self.q, self.p0 = arr("Q"), arr("P0")
-        self.n = n = self.q.shape[0]
-        self.q_nodes = arr("q_nodes_C2")
-        self.gain_steady, self.p_steady = arr("K_ss").reshape(-1, n), arr("P_ss")
         part = est.part
+        self.n = n = artifact.array("observer", "Q").shape[0]
+        self.coordinates = NodeCoordinates(part.c, n)
+        to_nodes = self.coordinates.covariance
+        self.q_nodes = arr("q_nodes_C2")
+        self.q = np.diag(self.q_nodes).astype(f)        # Q in node coordinates
+        error = self.coordinates.process_noise_error(artifact.array("observer", "Q", dtype=np.float64),
+                                                     artifact.array("observer", "q_nodes_C2", dtype=np.float64))
+        if not error <= Q_NODES_TOLERANCE:
+            raise ObserverError(f"the observer's Q is not C⁻¹ diag(q_nodes_C2) C⁻ᵀ (off by {error:.3g} of the "
+                                "largest q); write the section with 'bench observer'")
+        self.p0 = to_nodes(artifact.array("observer", "P0", dtype=np.float64), f)
+        self.gain_steady = self.coordinates.vectors(artifact.array("observer", "K_ss", dtype=np.float64)
+                                                    .reshape(-1, n), f)
+        self.p_steady = to_nodes(artifact.array("observer", "P_ss", dtype=np.float64), f)
         # the augmented layout: lag states after the model's, then the bias
         self.lag_index, nxt = [], len(OUTPUTS)
         for m in self.measurements:
@@ -345,19 +361,18 @@ class Float32Observer:
             nxt += 1 if m.lag_pole > 0 else 0
         self.bias_index = nxt if section.get("bias") else -1
         self.bias_column = part.b[:, BIAS_INPUT] * (est.dt if part.delta else f(1.0))
-        self.sees_c = [matvec(part.c.T, m.sees) for m in self.measurements]    # sees·C
+        # the filter's rows h in node coordinates: a lag state, or what the sensor sees of the nodes
         self.rows = []
-        for lag, sc in zip(self.lag_index, self.sees_c, strict=True):
+        for lag, m in zip(self.lag_index, self.measurements, strict=True):
             h = np.zeros(n, dtype=f)
             if lag >= 0:
                 h[lag] = f(1.0)
             else:
-                h[: len(OUTPUTS)] = sc
+                h[: len(OUTPUTS)] = m.sees
             self.rows.append(h)
         self.h = self.rows[0]
         self.offset = getattr(self.measurements[0], "offset", f(0.0))
         self.r = getattr(self.measurements[0], "r", f(np.nan))
-        self.identity = np.eye(len(OUTPUTS), dtype=f)
         self.widths = [m.width for m in self.measurements]
         self.extra = np.zeros(n - len(OUTPUTS), dtype=f)
         self.innovations = np.full(len(self.measurements), np.nan, dtype=f)
@@ -369,10 +384,8 @@ class Float32Observer:
         if self.form == "steady":
             return SteadyState(self.gain_steady, self.p_steady)
         if self.form == "ud":
-            # Q = G diag(q) Gᵀ with G unit upper triangular: Q's own UD factors, once at load. Any G will do for
-            # Thornton's method; this one has 10 nonzeros of 16 in the model's block, 4 of them exact ones.
-            g, q = ud_factor(self.q, self.f)
-            return BiermanThornton(self.p0, g, q, self.f)
+            # Q = G diag(q) Gᵀ: in node coordinates Q is diagonal, so G = I (its structural zeros skipped)
+            return BiermanThornton(self.p0, np.eye(self.n, dtype=self.f), self.q_nodes, self.f)
         return _COVARIANCES[self.form](self.p0, self.q, self.f)
 
     def reset(self, temperatures: Sequence[float]) -> None:
@@ -397,8 +410,8 @@ class Float32Observer:
     def checkpoint(self) -> np.ndarray:
         """The filter's state beyond the model's x, float32 bit for bit, in the order of the ObserverCheckpoint
         frames (DBC 1.7.0): the extra states (lags in measurement order, then the bias), then the covariance in the
-        deployed form: UD d_0..d_{n-1} then U above the diagonal row by row; conventional and Joseph P row by row;
-        the steady-state gain nothing."""
+        deployed form, in the filter's node coordinates: UD d_0..d_{n-1} then U above the diagonal row by row;
+        conventional and Joseph P row by row; the steady-state gain nothing."""
         parts = [self.extra]
         cov = self.cov
         if isinstance(cov, BiermanThornton):
@@ -429,50 +442,53 @@ class Float32Observer:
             cov.p = rest.reshape(self.n, self.n).copy()
 
     def _transition_structure(self) -> None:
-        """The constants of F, hoisted (delta: I + Δ A and Δ C), and F's structural nonzeros: A's, those of
-        (B_s J) C from B_s, the Jacobian's pattern and C, the bias's column, each lag row's (sees·C) F[:4]."""
-        part, k, n = self.est.part, len(OUTPUTS), self.n
-        self.b_sources = part.b[:, 4:]
+        """The constants of F in node coordinates (`target_sim.observer_coordinates`), hoisted: C (I + Δ A) C⁻¹ and
+        Δ C B_s (shift form: C A C⁻¹ and C B_s), the bias's column C Δ B; and F's structural nonzeros: those of
+        the first, of (C B_s) J from the Jacobian's pattern, the bias's column, each lag row's sees·F[:4]."""
+        part, k, n, f = self.est.part, len(OUTPUTS), self.n, self.f
+        coords = self.coordinates
+        dt = float(self.est.dt)
+        a64 = part.a.astype(np.float64)
+        self.a_step = coords.similar(np.eye(k) + dt * a64 if part.delta else a64, f)
+        self.b_sources = coords.outputs_of(part.b[:, 4:].astype(np.float64) * (dt if part.delta else 1.0), f)
         self.b_sources_nonzero = self.b_sources != 0
         self.jacobian_nonzero = np.zeros((4, 4), dtype=bool)
         for source, node in SOURCE_JACOBIAN_NONZERO:
             self.jacobian_nonzero[source, node] = True
-        a_step = self.identity + self.est.dt * part.a if part.delta else part.a
-        self.c_step = self.est.dt * part.c if part.delta else part.c
-        self.c_step_nonzero = self.c_step != 0
         self.bj_nonzero = pattern_product(self.b_sources_nonzero, self.jacobian_nonzero)
-        self.a_step = structural(a_step, a_step != 0)
+        self.a_step = structural(self.a_step, self.a_step != 0)
+        self.bias_node = coords.outputs_of(self.bias_column.astype(np.float64)[:, None], f)[:, 0]
+        self.c_inv = coords.c_inv.astype(f)
         nonzero = np.zeros((n, n), dtype=bool)
-        nonzero[:k, :k] = (a_step != 0) | pattern_product(self.bj_nonzero, self.c_step_nonzero)
+        nonzero[:k, :k] = (self.a_step != 0) | self.bj_nonzero
         if self.bias_index >= 0:
-            nonzero[:k, self.bias_index] = self.bias_column != 0
+            nonzero[:k, self.bias_index] = self.bias_node != 0
             nonzero[self.bias_index, self.bias_index] = True
-        self.sees_c_nonzero = [sc != 0 for sc in self.sees_c]
-        for lag, sc_nonzero in zip(self.lag_index, self.sees_c_nonzero, strict=True):
+        self.sees_nonzero = [m.sees != 0 for m in self.measurements]
+        for lag, sees_nonzero in zip(self.lag_index, self.sees_nonzero, strict=True):
             if lag >= 0:
-                nonzero[lag] = pattern_product(sc_nonzero[None, :], nonzero[:k])[0]
+                nonzero[lag] = pattern_product(sees_nonzero[None, :], nonzero[:k])[0]
                 nonzero[lag, lag] = True
         self.f_nonzero = nonzero
 
     def transition(self) -> np.ndarray:
-        """F of the step just taken, augmented (C: obs_predict), over its structural nonzeros (-0 elsewhere): the
-        block's (I + Δ A) + (B_s J)(Δ C) (shift form: A + (B_s J) C), J the sources' Jacobian at the step's gains;
-        the bias's column of B (Δ B); each lag row (1 - a)·((sees·C)·F[:4]) and a on its diagonal."""
+        """F of the step just taken in node coordinates, augmented (C: obs_predict), over its structural nonzeros
+        (-0 elsewhere): the block's C (I + Δ A) C⁻¹ + (Δ C B_s) J (shift form: C A C⁻¹ + (C B_s) J), J the
+        sources' Jacobian at the step's gains; the bias's column C Δ B; each lag row (1 - a)·(sees·F[:4]) and a
+        on its diagonal."""
         part, f, k = self.est.part, self.f, len(OUTPUTS)
         bj, _ = masked_matmul(self.b_sources, part.source_jacobian(), self.b_sources_nonzero, self.jacobian_nonzero)
-        x, _ = masked_matmul(bj, self.c_step, self.bj_nonzero, self.c_step_nonzero)
-        block = self.a_step + x                     # A's structural zeros are -0: the sum is x there
+        block = self.a_step + bj                    # A's structural zeros are -0: the sum is bj there
         if self.n == k:
             return block
         full = np.full((self.n, self.n), f(NEG_ZERO), dtype=f)
         full[:k, :k] = block
         if self.bias_index >= 0:
-            full[:k, self.bias_index] = structural(self.bias_column, self.bias_column != 0)
+            full[:k, self.bias_index] = structural(self.bias_node, self.bias_node != 0)
             full[self.bias_index, self.bias_index] = f(1.0)
-        for m, lag, sc, sc_nonzero in zip(self.measurements, self.lag_index, self.sees_c, self.sees_c_nonzero,
-                                          strict=True):
+        for m, lag, sees_nonzero in zip(self.measurements, self.lag_index, self.sees_nonzero, strict=True):
             if lag >= 0:
-                row, _ = masked_matmul(sc[None, :], full[:k], sc_nonzero[None, :], self.f_nonzero[:k])
+                row, _ = masked_matmul(m.sees[None, :], full[:k], sees_nonzero[None, :], self.f_nonzero[:k])
                 full[lag] = (f(1.0) - m.lag_pole) * row[0]
                 full[lag, lag] = m.lag_pole
         return full
@@ -508,35 +524,51 @@ class Float32Observer:
         else:
             self.cov.predict(transition)
         self.innovations = np.full(len(self.measurements), np.nan, dtype=f)
+        correction = np.full(k, NEG_ZERO, dtype=f)     # the step's node corrections, summed (-0: none yet)
+        corrected = False
         for index, (m, raw) in enumerate(zip(self.measurements, self._raw(z), strict=True)):
             reading = m.reading(raw, f(speed), est.y)
             if reading is None:
                 continue
             value, r = reading
             lag = self.lag_index[index]
-            predicted = self.extra[lag - k] if lag >= 0 else dot(m.sees, est.y)
+            predicted = self.extra[lag - k] if lag >= 0 else masked_dot(m.sees[self.sees_nonzero[index]],
+                                                                      est.y[self.sees_nonzero[index]], f(NEG_ZERO))
             self.innovations[index] = nu = value - predicted
-            gain = self.cov.update(self.rows[index], r, index)
-            est.x = est.x + gain[:k] * nu
+            gain = self.cov.update(self.rows[index], r, index)      # in node coordinates
+            step = gain[:k] * nu
+            est.y = est.y + step                  # the next measurement reads the corrected nodes
+            correction = correction + step
+            corrected = True
             if self.n > k:
                 self.extra = self.extra + gain[k:] * nu
+        if corrected:
+            # x by C⁻¹ of the whole correction, once; y = C x again, as every step ends (a restore from x goes on
+            # bit for bit)
+            est.x = est.x + matvec(self.c_inv, correction)
             est.y = est.part.output(est.x)
         self.innovation = self.innovations[0]
         return est.y.copy()
 
     def covariance(self) -> np.ndarray:
-        return self.cov.covariance()
+        """The covariance in the state coordinates (float64: T⁻¹ P' T⁻ᵀ of the filter's node-coordinate P')."""
+        return self.coordinates.state_covariance(self.cov.covariance())
+
+    def filter_covariance(self) -> np.ndarray:
+        """The filter's own covariance P' (node coordinates) in float64, as its form keeps it: its symmetry is the
+        form's, not that of a transform."""
+        return np.array(self.cov.covariance(), dtype=np.float64)
 
     def sigma(self) -> np.ndarray:
-        """Each node's 1-σ (°C): sqrt of diag(C P Cᵀ) over the model states' block of P, in the filter's precision
-        with a fixed order (C: fw_obs_sigma): c the node's row of C padded with zeros to the augmented states; the
-        UD form takes v = Uᵀ c and σ² = ((d_0 v_0) v_0 + (d_1 v_1) v_1) + ... (P itself is never formed), the
-        others σ² = c·(P c); a negative σ² (a covariance that lost definiteness) is 0."""
-        f, c = self.f, self.est.part.c
+        """Each node's 1-σ (°C): sqrt of the node's diagonal element of P (node coordinates), in the filter's
+        precision with a fixed order (C: fw_obs_report): c the node's unit row; the UD form takes v = Uᵀ c and
+        σ² = ((d_0 v_0) v_0 + (d_1 v_1) v_1) + ... (P itself is never formed), the others σ² = c·(P c); a negative
+        σ² (a covariance that lost definiteness) is 0."""
+        f = self.f
         out = np.zeros(len(OUTPUTS), dtype=f)
         for i in range(len(OUTPUTS)):
             row = np.zeros(self.n, dtype=f)
-            row[: len(OUTPUTS)] = c[i]
+            row[i] = f(1.0)
             variance = self.cov.variance(row)
             out[i] = np.sqrt(variance) if variance > 0 else f(0.0)
         return out
@@ -546,7 +578,7 @@ class Float32Observer:
 class ObserverRun:
     """A whole run of the float32 observer: per model step the estimate, each node's 1-σ, the first
     measurement's innovation (NaN without a reading), every measurement's and, on request, the covariance in the
-    state coordinates."""
+    state coordinates and the filter's own (node coordinates)."""
 
     rows: np.ndarray
     outputs: np.ndarray
@@ -554,6 +586,7 @@ class ObserverRun:
     covariances: np.ndarray | None
     sigmas: np.ndarray | None = None
     all_innovations: np.ndarray | None = None
+    filter_covariances: np.ndarray | None = None      # on request: the filter's own P' (node coordinates)
 
 
 def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement: np.ndarray,
@@ -574,7 +607,7 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
                          f"not {drive.shape} and {measurement.shape}")
     rows = np.column_stack([drive, measurement])
     acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width + channels)
-    steps, outputs, innovations, covariances, sigmas = [], [], [], [], []
+    steps, outputs, innovations, covariances, sigmas, own = [], [], [], [], [], []
     for row, sample in enumerate(rows):
         means = acc.add(row, sample)
         if means is None:
@@ -584,8 +617,9 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
         sigmas.append(obs.sigma())
         if keep_covariance:
             covariances.append(np.array(obs.covariance(), dtype=np.float64))
+            own.append(obs.filter_covariance())
         steps.append(row)
     every = np.array(innovations, dtype=np.float64).reshape(-1, len(obs.measurements))
     return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4), every[:, 0],
                        np.array(covariances) if keep_covariance else None,
-                       np.array(sigmas).reshape(-1, 4), every)
+                       np.array(sigmas).reshape(-1, 4), every, np.array(own) if keep_covariance else None)

@@ -152,8 +152,8 @@ def run_observer(args: argparse.Namespace) -> int:
         print_json(report)
         return 0
     print(f"observer of {model_path} ({artifact.kind}, {artifact.realization}, Δt {artifact.dt:g} s) on "
-          f"{dataset.path.name}, measuring the {report['measured_node']} node; float32 over the whole run, P in the "
-          "state coordinates")
+          f"{dataset.path.name}, measuring the {report['measured_node']} node; float32 over the whole run, P's "
+          "eigenvalue in the state coordinates, its symmetry in the filter's own (node coordinates)")
     print(f"{'form':13} {'min eig P':>11} {'max |P-Pᵀ|/|P|':>16} {'max|f32-f64| °C':>16} {'worst node':>10}")
     for r in rows:
         mark = " (deployed)" if r.form == deployed else ""

@@ -416,6 +416,17 @@ static void send_response(uint16_t step, uint32_t response, uint32_t load)
 #endif
 }
 
+/* Every one of the n values inside the DBC's checkpoint range (NaN is not): a checkpoint is sent whole or not at
+ * all (TargetNode._checkpoint_frames, _observer_checkpoint_frames). */
+static int values_in_state_range(const float values[], unsigned int n)
+{
+    unsigned int i;
+    for (i = 0; i < n; i++) {
+        if (!(values[i] >= NODE_STATE_VALUE_MIN && values[i] <= NODE_STATE_VALUE_MAX)) return 0;     /* NaN too */
+    }
+    return 1;
+}
+
 #ifdef FW_OBSERVER
 /* TargetNode._observer_checkpoint_frames: the filter's checkpoint (fw_obs_checkpoint), one element per frame with
  * its Index and StepLow; none when an element is outside the DBC range (a restore then starts P at P0). */
@@ -424,9 +435,7 @@ static void send_observer_checkpoint(uint16_t step)
     static float values[OBS_CHECKPOINT_SLOTS];              /* .bss, not the node's stack */
     unsigned int i;
     fw_obs_checkpoint(values);
-    for (i = 0; i < NODE_OBS_CHECKPOINT_SIZE; i++) {
-        if (!(values[i] >= NODE_STATE_VALUE_MIN && values[i] <= NODE_STATE_VALUE_MAX)) return;    /* NaN too */
-    }
+    if (!values_in_state_range(values, NODE_OBS_CHECKPOINT_SIZE)) return;
     for (i = 0; i < NODE_OBS_CHECKPOINT_SIZE; i++) {
         struct thermal_bench_observer_checkpoint_t m;
         struct node_frame *frame = tx_slot();
@@ -449,9 +458,7 @@ static void send_checkpoint(uint16_t step)
     float x[NODE_STATE_SIZE];
     unsigned int i;
     fw_state(x);
-    for (i = 0; i < NODE_STATE_SIZE; i++) {
-        if (!(x[i] >= NODE_STATE_VALUE_MIN && x[i] <= NODE_STATE_VALUE_MAX)) return;     /* NaN too */
-    }
+    if (!values_in_state_range(x, NODE_STATE_SIZE)) return;
     for (i = 0; i < NODE_STATE_SIZE; i++) {
         struct thermal_bench_state_checkpoint_t m;
         struct node_frame *frame = tx_slot();

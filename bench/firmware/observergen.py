@@ -13,6 +13,9 @@ operation:
 | obs_update_<k>         | BiermanThornton.update with the k-th row h    | Bierman's scalar update (udgen.py);   |
 |                        | (SteadyState.update)                          | the steady form: the k-th row of K_ss |
 | fw_obs_step            | Float32Observer.step                          | model step, predict, update           |
+| obs_update_<k>, tail   | Float32Observer.step's correction             | y += K nu (node coordinates), summed  |
+| obs_output             | LinearBlockPart.output                        | y = C x (+ r), unrolled               |
+| obs_move_state         | Float32Observer.step, after the last update   | x += C^-1 (summed correction), y = Cx |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
 | fw_obs_report          | Float32Observer.sigma, .innovations           | each node's 1-σ, each innovation      |
 | obs_reading_<k>        | the k-th measurement's `reading` (its kind)   | its value and variance, or no reading |
@@ -37,10 +40,9 @@ from __future__ import annotations
 import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
-from bench.firmware.udgen import predict_c, steady_c, update_c
+from bench.firmware.udgen import Value, literal, move_state_c, output_c, predict_c, product, steady_c, total, update_c
 from target_sim.artifact import ModelArtifact
 from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
-from target_sim.kinds import REALIZATIONS
 from target_sim.observer import Float32Observer, ud_factor
 
 # the line temperature_sources gets in an observer's C: the gains the transition's Jacobian takes
@@ -129,7 +131,7 @@ def _measurement_declarations(obs: Float32Observer, index: int) -> str:
                (f"OBS_LAG_GAIN{k}", f(1.0) - m.lag_pole, "1 - a")] if lag >= 0 else []
     scalars += [(f"{name}{k}", value, comment) for name, value, comment in m.c_scalars()]
     lines += [f"static const float {name} = {c_float(value)}; /* {comment} */" for name, value, comment in scalars]
-    arrays = [(f"OBS_SEES{k}", m.sees, "what it sees of [yoke, winding, tooth, magnet]")]
+    arrays = [(f"OBS_SEES{k}", m.sees, "what it sees of [yoke, winding, tooth, magnet]")] if lag >= 0 else []
     if obs.form == "steady":
         arrays.append((f"OBS_GAIN{k}", obs.gain_steady[index], "its row of K_ss: the steady-state gain"))
     return "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment) for name, value, comment in arrays)
@@ -161,13 +163,7 @@ def observer_declarations(artifact: ModelArtifact) -> str:
 
 
 OBSERVER_C = """\
-/* y = C x (delta: (C x) + r): LinearBlockPart.output */
-static void obs_output(void)
-{
-    int i;
-    for (i = 0; i < 4; i++) y_est[i] = dot(LB_C[i], x_state, 4)OBS_PLUS_REF;
-}
-
+OBS_OUTPUT
 /* Float32Observer._propagate_extra: the bias heats the winding, each lag state follows what its sensor sees */
 static void obs_propagate_extra(void)
 {
@@ -191,30 +187,23 @@ static int obs_finite(float value)
     return ((bits.u >> 23) & 0xFFu) != 0xFFu;
 }
 
-/* Float32Observer.step's correction with one measurement's reading and the gain its update gave:
- * innovation = value - (its lag state, or sees y), x <- x + K innovation, y = C x */
-static void obs_correct(int index, const float sees[4], int lag, float value, const float gain[OBS_N])
-{
-    const float predicted = lag >= 0 ? obs_extra[lag] : dot(sees, y_est, 4);
-    const float nu = value - predicted;
-    int i;
-    obs_innovation[index] = nu;
-    for (i = 0; i < 4; i++) x_state[i] = x_state[i] + gain[i] * nu;
-    for (i = 4; i < OBS_N; i++) obs_extra[i] = obs_extra[i] + gain[i] * nu;
-    obs_output();
-}
-OBS_READINGS
+OBS_MOVE_STATEOBS_READINGS
 /* Float32Observer.step: the model step, F, the extra states, the prediction, and the update with each measurement
  * that has a valid reading, in the section's order (each reads the estimate the previous one corrected) */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
 {
-    float value, r, gain[OBS_N];
-    int i;
+    float value, r, nu;
+    float correction[4] = {-0.0f, -0.0f, -0.0f, -0.0f};
+    int i, corrected = 0;
     fw_step(u, y);
     obs_propagate_extra();
     obs_predict();
     for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_innovation[i] = __builtin_nanf("");
-OBS_UPDATES    for (i = 0; i < 4; i++) y[i] = y_est[i];
+OBS_UPDATES    if (corrected) {
+        obs_move_state(correction);
+        obs_output();
+    }
+    for (i = 0; i < 4; i++) y[i] = y_est[i];
 }
 
 /* Float32Observer.reset */
@@ -296,8 +285,8 @@ void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
     int j;
     for (node = 0; node < 4; node++) {
         for (j = 0; j < OBS_N; j++) {                       /* c padded with zeros to the filter's states */
-            v[j] = obs_u[0][j] * LB_C[node][0];
-            for (i = 1; i < OBS_N; i++) v[j] = v[j] + obs_u[i][j] * (i < 4 ? LB_C[node][i] : 0.0f);
+            v[j] = obs_u[0][j] * (node == 0 ? 1.0f : 0.0f);  /* c: the node's unit row (node coordinates) */
+            for (i = 1; i < OBS_N; i++) v[j] = v[j] + obs_u[i][j] * (i == node ? 1.0f : 0.0f);
         }
         s = (obs_d[0] * v[0]) * v[0];
         for (j = 1; j < OBS_N; j++) s = s + (obs_d[j] * v[j]) * v[j];
@@ -314,8 +303,10 @@ _LAG_PROPAGATE = ("    obs_extra[OBS_LAG_K] = OBS_LAG_POLE_K * obs_extra[OBS_LAG
 _LAG_RESET = "    obs_extra[OBS_LAG_K] = dot(OBS_SEES_K, y_est, 4);\n"
 # per measurement k: its reading, its own update (the row h is its code's) and the correction
 _UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
-           "        obs_update_K(r, gain);\n"
-           "        obs_correct(INDEX, OBS_SEES_K, OBS_LAG_K, value, gain);\n    }\n")
+           "        nu = value - (PREDICTED);\n"
+           "        obs_innovation[INDEX] = nu;\n"
+           "        obs_update_K(r, nu, correction);\n"
+           "        corrected = 1;\n    }\n")
 
 
 def _per_measurement(obs: Float32Observer) -> dict[str, str]:
@@ -327,7 +318,10 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
             propagate.append(_LAG_PROPAGATE.replace("_K", suffix))
             reset.append(_LAG_RESET.replace("_K", suffix))
         readings.append("\n" + m.c_reading.replace("_K", suffix))
-        updates.append(_UPDATE.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index)))
+        predicted = f"obs_extra[{lag}]" if lag >= 0 else total(
+            [product(literal(m.sees[i]), Value(f"y_est[{i}]")) for i in range(len(m.sees)) if m.sees[i] != 0])
+        updates.append(_UPDATE.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index))
+                       .replace("PREDICTED", predicted))
         first += m.width
     return {"OBS_LAG_PROPAGATE": "".join(propagate), "OBS_LAG_RESET": "".join(reset),
             "OBS_READINGS": "".join(readings), "OBS_UPDATES": "".join(updates)}
@@ -336,20 +330,22 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
 def observer_code(artifact: ModelArtifact) -> str:
     """The observer's functions (after the model's: they call fw_step, fw_reset, fw_restore and dot)."""
     obs = observer_filter(artifact)
-    delta = REALIZATIONS[artifact.realization].delta
-    code = OBSERVER_C.replace("OBS_KERNELS", _kernels(obs))
+    code = (OBSERVER_C.replace("OBS_KERNELS", _kernels(obs)).replace("OBS_MOVE_STATE", move_state_c(obs))
+            .replace("OBS_OUTPUT", output_c(obs)))
     for name, text in _per_measurement(obs).items():
         code = code.replace(name, text)
-    return code.replace("OBS_PLUS_REF", " + LB_REF" if delta else "")
+    return code
 
 
 def _kernels(obs: Float32Observer) -> str:
     """obs_predict and one obs_update_<k> per measurement (udgen.py): the UD form's unrolled over its structure, one
     Bierman update per row h; the steady form's, no prediction and the k-th row of K_ss."""
     count = len(obs.measurements)
+    moves_y = [k < count - 1 for k in range(count)]     # the last update's y is C x again at the step's end
     if obs.form == "steady":
-        return steady_c([(f"obs_update_{k}", f"OBS_GAIN_{k}") for k in range(count)])
-    return predict_c(obs) + "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k]) for k in range(count))
+        return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k]) for k in range(count)])
+    return predict_c(obs) + "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k], moves_y[k])
+                                    for k in range(count))
 
 
 def keep_gains(sources_c: str) -> str:

@@ -1,5 +1,6 @@
-"""The UD filter's kernels as straight-line C: the transition F, Thornton's prediction and Bierman's update of
-`target_sim.observer` unrolled over the structure the filter has when it is built (`target_sim.ud_structure`).
+"""The UD filter's kernels as straight-line C: the transition F (node coordinates), Thornton's prediction and
+Bierman's update of `target_sim.observer` unrolled over the structure the filter has when it is built
+(`target_sim.ud_structure`).
 
 Every element that is always zero is left out (no variable, no product), a product by an exact one is not
 written, the constants (A, B, C, the Jacobian's pattern, G, q, h) are literals, and every kept sum has the
@@ -8,7 +9,9 @@ products and sums apart (no fused multiply-add). The locals are the compiler's t
 counters, no index arithmetic, no loads of zeros.
 
     obs_predict(void)              Float32Observer.transition + BiermanThornton.predict: F, F U, the MWGS
-    obs_update_<k>(r, gain)        BiermanThornton.update for the k-th measurement's row h
+    obs_update_<k>(r, nu, corr.)   BiermanThornton.update for the k-th measurement's row h, then the correction
+    obs_output(void)               LinearBlockPart.output: y = C x (+ r)
+    obs_move_state(correction)     Float32Observer.step's x <- x + C⁻¹ (the step's node correction)
     steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
 """
 
@@ -98,8 +101,8 @@ class Lines:
 def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
     """F's elements (None: a structural zero) as Float32Observer.transition computes them."""
     n, k = obs.n, len(OUTPUTS)
-    out.comment("F: (I + dt A) + (B_s J)(dt C) (shift form: A + (B_s J) C), J the sources' Jacobian "
-                "(Float32Observer.transition)")
+    out.comment("F in node coordinates: C (I + dt A) C^-1 + (dt C B_s) J (shift form: C A C^-1 + (C B_s) J), J the "
+                "sources' Jacobian (Float32Observer.transition)")
     for index, gain in enumerate(GAINS):
         out.load(gain, f"obs_gains[{index}]")
     for gain in GAINS:
@@ -118,28 +121,24 @@ def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
     f: list[list[Value | None]] = [[None] * n for _ in range(n)]
     for i in range(k):
         for j in range(k):
-            terms = [product(bj[i, m], literal(obs.c_step[m, j])) for m in range(k)
-                     if (i, m) in bj and obs.c_step_nonzero[m, j]]
             constant = obs.a_step[i, j]
-            if constant != 0:
-                terms = [literal(constant).expr, total(terms)] if terms else [literal(constant).expr]
-                if len(terms) == 1:
-                    f[i][j] = literal(constant)
-                    continue
-                f[i][j] = out.set(f"f{i}_{j}", f"{terms[0]} + ({terms[1]})")
-            elif terms:
-                f[i][j] = out.set(f"f{i}_{j}", total(terms))
+            if constant != 0 and (i, j) in bj:
+                f[i][j] = out.set(f"f{i}_{j}", f"{literal(constant).expr} + ({bj[i, j].expr})")
+            elif constant != 0:
+                f[i][j] = literal(constant)
+            elif (i, j) in bj:
+                f[i][j] = bj[i, j]
     if obs.bias_index >= 0:
         for i in range(k):
-            if obs.bias_column[i] != 0:
-                f[i][obs.bias_index] = literal(obs.bias_column[i])
+            if obs.bias_node[i] != 0:
+                f[i][obs.bias_index] = literal(obs.bias_node[i])
         f[obs.bias_index][obs.bias_index] = ONE
-    for m, lag, sc in zip(obs.measurements, obs.lag_index, obs.sees_c, strict=True):
+    for m, lag in zip(obs.measurements, obs.lag_index, strict=True):
         if lag < 0:
             continue
         gain = literal(np.float32(1.0) - m.lag_pole)
         for j in range(n):
-            terms = [product(literal(sc[i]), f[i][j]) for i in range(k) if sc[i] != 0 and f[i][j] is not None]
+            terms = [product(literal(m.sees[i]), f[i][j]) for i in range(k) if m.sees[i] != 0 and f[i][j] is not None]
             if terms and j != lag:
                 f[lag][j] = out.set(f"f{lag}_{j}", product(gain, Value(f"({total(terms)})")))
         f[lag][lag] = literal(m.lag_pole)
@@ -199,9 +198,24 @@ def predict_c(obs: Float32Observer) -> str:
             "__attribute__((noinline)) static void obs_predict(void)\n{\n" + out.text() + "\n}\n")
 
 
-def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
-    """`name`(r, gain): Bierman's update of obs_u, obs_d with the constant row h and variance r, the gain into
-    gain (BiermanThornton.update)."""
+def correction_c(n: int, gain: list[str], moves_y: bool) -> str:
+    """Float32Observer.step's correction with the gain's elements `gain` (C expressions) and the innovation nu:
+    each node's step (gain_i nu) onto y (when a later measurement of the step may read it: `moves_y`) and onto the
+    step's summed correction, each extra state + gain_i nu."""
+    k = len(OUTPUTS)
+    lines = []
+    for i in range(k):
+        lines.append(f"    step = ({gain[i]}) * nu;")
+        if moves_y:
+            lines.append(f"    y_est[{i}] = y_est[{i}] + step;")
+        lines.append(f"    correction[{i}] = correction[{i}] + step;")
+    lines += [f"    obs_extra[{i}] = obs_extra[{i}] + ({gain[i]}) * nu;" for i in range(k, n)]
+    return "\n".join(lines)
+
+
+def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = True) -> str:
+    """`name`(r, nu, correction): Bierman's update of obs_u, obs_d with the constant row h and variance r
+    (BiermanThornton.update), then the correction with its gain and the innovation nu (`correction_c`)."""
     cov, n = obs.cov, obs.n
     schedule = cov.bierman(h)
     out = Lines()
@@ -238,19 +252,45 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
             out.raw(f"{b[i].expr} = {b[i].expr} + {b[j].expr} * held;")
         for i in step.filled:
             b[i] = out.set(f"b{i}", f"{b[j].expr} * {u[i, j].expr}")
-    for i in range(n):
-        out.raw(f"gain[{i}] = {b[i].expr if i in b else C_NEG_ZERO} * gamma;")
-    return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}], unrolled "
-            "(bench.firmware.udgen) */\n"
-            f"static void {name}(float r, float gain[OBS_N])\n{{\n" + out.text() + "\n}\n")
+    out.raw("float step;")
+    out.lines.append(correction_c(n, [f"{b[i].expr if i in b else C_NEG_ZERO} * gamma" for i in range(n)], moves_y))
+    return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}] and the correction, "
+            "unrolled (bench.firmware.udgen) */\n"
+            f"static void {name}(float r, float nu, float correction[4])\n{{\n" + out.text() + "\n}\n")
 
 
-def steady_c(updates: list[tuple[str, str]]) -> str:
-    """The steady-state-gain form's kernels (SteadyState): no prediction; each (function, gain array) of `updates`
-    hands out its measurement's row of K_ss, whatever r."""
+def steady_c(n: int, updates: list[tuple[str, str, bool]]) -> str:
+    """The steady-state-gain form's kernels (SteadyState): no prediction; each (function, gain array, moves_y) of
+    `updates` corrects with its measurement's row of K_ss, whatever r (`correction_c`)."""
     code = "/* SteadyState.predict: nothing (no covariance) */\nstatic void obs_predict(void)\n{\n}\n"
-    for name, gain in updates:
-        code += (f"\n/* SteadyState.update: the constant gain {gain} (K_ss's row), whatever r */\n"
-                 f"static void {name}(float r, float gain[OBS_N])\n{{\n    int i;\n    (void)r;\n"
-                 f"    for (i = 0; i < OBS_N; i++) gain[i] = {gain}[i];\n}}\n")
+    for name, gain, moves_y in updates:
+        body = correction_c(n, [f"{gain}[{i}]" for i in range(n)], moves_y)
+        code += (f"\n/* SteadyState.update: the constant gain {gain} (K_ss's row), whatever r, and the correction */\n"
+                 f"static void {name}(float r, float nu, float correction[4])\n{{\n    float step;\n    (void)r;\n"
+                 f"{body}\n}}\n")
     return code
+
+
+def output_c(obs: Float32Observer) -> str:
+    """obs_output: y = C x (delta: (C x) + r), LinearBlockPart.output with C's elements as literals, every product
+    kept (zeros too: `fmath.matvec`)."""
+    part, k = obs.est.part, len(OUTPUTS)
+    lines = []
+    for i in range(k):
+        terms = total([product(literal(part.c[i, j]), Value(f"x_state[{j}]")) for j in range(k)])
+        lines.append(f"    y_est[{i}] = ({terms}) + {literal(part.reference).expr};" if part.delta
+                     else f"    y_est[{i}] = {terms};")
+    return ("/* y = C x (delta: (C x) + r): LinearBlockPart.output, unrolled (bench.firmware.udgen) */\n"
+            "static void obs_output(void)\n{\n" + "\n".join(lines) + "\n}\n")
+
+
+def move_state_c(obs: Float32Observer) -> str:
+    """obs_move_state(correction): x <- x + C⁻¹ correction (Float32Observer.step: the step's node corrections moved
+    into the model's states once), C⁻¹'s elements as literals, every product kept (zeros too: `fmath.matvec`)."""
+    k = len(OUTPUTS)
+    lines = []
+    for i in range(k):
+        terms = [product(literal(obs.c_inv[i, j]), Value(f"correction[{j}]")) for j in range(k)]
+        lines.append(f"    x_state[{i}] = x_state[{i}] + ({total(terms)});")
+    return ("/* x <- x + C^-1 correction: the step's node corrections in the model's states (bench.firmware.udgen) */\n"
+            "static void obs_move_state(const float correction[4])\n{\n" + "\n".join(lines) + "\n}\n")

@@ -33,7 +33,7 @@ class FormRow:
 
     form: str
     min_eigenvalue: float          # smallest eigenvalue of (P + Pᵀ)/2 over the run (state coordinates)
-    max_symmetry_error: float      # max over the run of max|P - Pᵀ| / max|P|
+    max_symmetry_error: float      # max over the run of max|P - Pᵀ| / max|P| (the filter's own P: node coordinates)
     max_abs_f32_minus_f64_C: float
     worst_node: str
     finite: bool
@@ -62,9 +62,9 @@ def form_comparison(artifact: ModelArtifact, dataset: Dataset, forms: Sequence[s
             y64 = run_observer_offline(artifact, drive, z, data.run.initial, form, dtype=np.float64).outputs
         with np.errstate(all="ignore"):
             run = run_observer_offline(artifact, drive, z, data.run.initial, form, keep_covariance=True)
-            p = run.covariances
-            scale = np.maximum(np.max(np.abs(p), axis=(1, 2)), np.finfo(float).tiny)
-            asym = float(np.max(np.max(np.abs(p - np.transpose(p, (0, 2, 1))), axis=(1, 2)) / scale))
+            p, own = run.covariances, run.filter_covariances
+            scale = np.maximum(np.max(np.abs(own), axis=(1, 2)), np.finfo(float).tiny)
+            asym = float(np.max(np.max(np.abs(own - np.transpose(own, (0, 2, 1))), axis=(1, 2)) / scale))
             finite = bool(np.all(np.isfinite(p)) and np.all(np.isfinite(run.outputs)))
             low = float(np.min(np.linalg.eigvalsh(0.5 * (p + np.transpose(p, (0, 2, 1)))))) if finite else float("nan")
             diff = np.abs(run.outputs.astype(np.float64) - y64[: len(run.outputs)])

@@ -678,7 +678,8 @@ def observer_forms_table(record: Record) -> list[str]:
     return [*_table(header, rows),
             f"(`{numerics.get('case', numerics['criterion'])}` filter on {numerics['data']}, "
             f"{numerics['realization']} realization, "
-            f"Δt {numerics['dt_s']:g} s; P in the state coordinates. "
+            f"Δt {numerics['dt_s']:g} s; P's eigenvalue in the state coordinates, its symmetry in the filter's own "
+            "(node coordinates). "
             + ("Every form kept P positive definite" if definite else "A form LOST definiteness")
             + (f"; the deployed form follows the float64 filter {' and '.join(ratios)}" if ratios else "")
             + f". {_n(numerics['seconds'], 1)} s; measured {_date(record)}.)"]

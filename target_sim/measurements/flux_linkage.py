@@ -28,32 +28,34 @@ WINDING = OUTPUTS.index("winding")
 
 
 # the generated C of `reading`, operation for operation (bench.firmware.observergen; _K is the measurement's index
-# there, y_est the corrected estimate so far, raw its four channels u_d, u_q, i_d, i_q, speed the step's mean speed)
+# there, y_est the corrected estimate so far, raw its four channels u_d, u_q, i_d, i_q, speed the step's mean speed).
+# One division (1/n), the rest multiply-adds by constants folded at load (FluxLinkage.__init__).
 C_READING = """\
-/* FluxLinkage.reading: psi = (u_q - R_s(winding) i_q) / omega_e - L_d i_d, the magnet temperature of psi, and the
- * variance R_floor + R_speed (n_min / n)^2; no reading below the speed limit or with a NaN channel */
+/* FluxLinkage.reading: with w = 1/n, psi omega_per_rpm = (u_q - R_s(winding) i_q) w - L_d omega_per_rpm i_d,
+ * theta = theta_0 + (psi omega_per_rpm - psi_0 omega_per_rpm) / (psi_0 alpha_B omega_per_rpm), and the variance
+ * R_floor + R_speed (n_min w)^2; no reading below the speed limit or with a NaN channel */
 static int obs_reading_K(const float raw[4], float speed, float *value, float *r)
 {
-    float omega, r_s, psi, ratio;
+    float w, r_s, psi, ratio;
     if (!(obs_finite(raw[0]) && obs_finite(raw[1]) && obs_finite(raw[2]) && obs_finite(raw[3]))) return 0;
     if (!(__builtin_fabsf(speed) >= OBS_SPEED_MIN_K)) return 0;
-    omega = OBS_OMEGA_PER_RPM_K * speed;
-    r_s = OBS_R_S_K * (1.0f + OBS_ALPHA_CU_K * (y_est[1] - OBS_COPPER_REF_K));
-    psi = (raw[1] - r_s * raw[3]) / omega - OBS_L_D_K * raw[2];
-    *value = OBS_THETA_0_K + (psi / OBS_PSI_0_K - 1.0f) / OBS_ALPHA_B_K;
-    ratio = OBS_SPEED_MIN_K / speed;
+    w = 1.0f / speed;
+    r_s = OBS_R_S_AT_0_K + OBS_R_S_SLOPE_K * y_est[1];
+    psi = (raw[1] - r_s * raw[3]) * w - OBS_L_D_OMEGA_K * raw[2];
+    *value = OBS_THETA_0_K + OBS_DEGREES_PER_PSI_K * (psi - OBS_PSI_0_OMEGA_K);
+    ratio = OBS_SPEED_MIN_K * w;
     *r = OBS_R_FLOOR_K + OBS_R_SPEED_K * (ratio * ratio);
     return 1;
 }
 """
 # the C names of the constants C_READING uses: (name, attribute, comment)
 C_SCALARS = (("OBS_SPEED_MIN", "speed_min_rpm", "valid at or above this speed (rpm)"),
-             ("OBS_OMEGA_PER_RPM", "omega_per_rpm", "omega_e per rpm: 2 pi / 60 times the pole pairs"),
-             ("OBS_R_S", "R_s_ohm", "R_s at the copper reference (ohm)"),
-             ("OBS_ALPHA_CU", "alpha_cu_per_K", "copper's temperature coefficient (1/K)"),
-             ("OBS_COPPER_REF", "copper_reference_C", "the copper reference temperature (deg C)"),
-             ("OBS_L_D", "L_d_H", "L_d (H)"), ("OBS_THETA_0", "theta_0_C", "psi_0's temperature (deg C)"),
-             ("OBS_PSI_0", "psi_0_Vs", "psi_PM at theta_0 (Vs)"), ("OBS_ALPHA_B", "alpha_B_per_K", "alpha_B (1/K)"),
+             ("OBS_R_S_AT_0", "r_s_at_0", "R_s at 0 deg C: R_s0 (1 - alpha_cu theta_cu) (ohm)"),
+             ("OBS_R_S_SLOPE", "r_s_slope", "R_s's growth per K: R_s0 alpha_cu (ohm/K)"),
+             ("OBS_L_D_OMEGA", "l_d_omega", "L_d omega_e per rpm"),
+             ("OBS_PSI_0_OMEGA", "psi_0_omega", "psi_0 omega_e per rpm"),
+             ("OBS_DEGREES_PER_PSI", "degrees_per_psi", "1 / (psi_0 alpha_B omega_e per rpm)"),
+             ("OBS_THETA_0", "theta_0_C", "psi_0's temperature (deg C)"),
              ("OBS_R_FLOOR", "R_floor_C2", "R at and above the speed limit's ratio 0 (deg C^2)"),
              ("OBS_R_SPEED", "R_speed_C2", "R's growth with (n_min / n)^2 (deg C^2)"))
 
@@ -61,15 +63,23 @@ C_SCALARS = (("OBS_SPEED_MIN", "speed_min_rpm", "valid at or above this speed (r
 class FluxLinkage:
     def __init__(self, entry: dict, where: str, f):
         arrays = entry["arrays"]
+        exact = {}
         for key in PARAMETERS:
             setattr(self, key, decode_array(arrays[key], f"{where}.arrays.{key}", f)[()])
+            exact[key] = float(decode_array(arrays[key], f"{where}.arrays.{key}", np.float64)[()])
+        # the reading's constants, folded once in float64 and rounded once: one division per reading (1/n)
+        omega_per_rpm = RAD_S_PER_RPM * exact["pole_pairs"]
+        self.r_s_at_0 = f(exact["R_s_ohm"] * (1.0 - exact["alpha_cu_per_K"] * exact["copper_reference_C"]))
+        self.r_s_slope = f(exact["R_s_ohm"] * exact["alpha_cu_per_K"])
+        self.l_d_omega = f(exact["L_d_H"] * omega_per_rpm)
+        self.psi_0_omega = f(exact["psi_0_Vs"] * omega_per_rpm)
+        self.degrees_per_psi = f(1.0 / (exact["psi_0_Vs"] * exact["alpha_B_per_K"] * omega_per_rpm))
         self.name = str(entry.get("name", "flux"))
         self.columns = COLUMNS
         self.can_channels = CAN_CHANNELS
         self.sees = np.zeros(len(OUTPUTS), dtype=f)
         self.sees[OUTPUTS.index("magnet")] = f(1.0)
         self.lag_pole = f(0.0)
-        self.omega_per_rpm = f(RAD_S_PER_RPM) * self.pole_pairs
         self.one = f(1.0)
 
     @property
@@ -87,11 +97,11 @@ class FluxLinkage:
         if not np.all(np.isfinite(raw)) or not abs(speed) >= self.speed_min_rpm:
             return None
         _, u_q, i_d, i_q = raw
-        omega = self.omega_per_rpm * speed
-        r_s = self.R_s_ohm * (self.one + self.alpha_cu_per_K * (y[WINDING] - self.copper_reference_C))
-        psi = (u_q - r_s * i_q) / omega - self.L_d_H * i_d
-        z = self.theta_0_C + (psi / self.psi_0_Vs - self.one) / self.alpha_B_per_K
-        ratio = self.speed_min_rpm / speed
+        w = self.one / speed
+        r_s = self.r_s_at_0 + self.r_s_slope * y[WINDING]
+        psi = (u_q - r_s * i_q) * w - self.l_d_omega * i_d           # ψ_PM times ω_e per rpm
+        z = self.theta_0_C + self.degrees_per_psi * (psi - self.psi_0_omega)
+        ratio = self.speed_min_rpm * w
         return z, self.R_floor_C2 + self.R_speed_C2 * (ratio * ratio)
 
 

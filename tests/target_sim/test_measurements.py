@@ -99,6 +99,24 @@ def test_the_flux_linkage_inverts_the_voltage_equation_above_its_speed():
     assert flux.reading(np.array([0.0, np.nan, 0.0, 10.0], dtype=F32), F32(3000.0), y) is None
 
 
+def test_the_folded_flux_reading_is_the_voltage_equation_to_float32_rounding():
+    """The reading divides once (its constants folded at load); over random operating points it equals the
+    unfolded formula in float64 on the same float32 inputs within 5e-4 °C (measured: 1.5e-4)."""
+    flux = _target(_flux(), r=1.0)
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for _ in range(2000):
+        speed, i_d, i_q, winding = (F32(v) for v in (rng.uniform(1500, 12000), rng.uniform(-300, 0),
+                                                      rng.uniform(-300, 300), rng.uniform(20, 150)))
+        u_d, u_q = (F32(v) for v in _voltages(float(speed), float(i_d), float(i_q), rng.uniform(20, 150),
+                                              float(winding)))
+        z, _ = flux.reading(np.array([u_d, u_q, i_d, i_q], dtype=F32), speed, np.array([0, winding, 0, 0], dtype=F32))
+        r_s = R_S * (1 + ALPHA_CU * (float(winding) - 20.0))
+        psi = (float(u_q) - r_s * float(i_q)) / (POLES * RAD_S_PER_RPM * float(speed)) - L_D * float(i_d)
+        worst = max(worst, abs(float(z) - (20.0 + (psi / PSI_0 - 1) / ALPHA_B)))
+    assert worst < 5e-4
+
+
 class _Data:
     """What the calibration reads of a dataset: columns per name, the sample period, a path."""
 
