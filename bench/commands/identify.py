@@ -326,6 +326,13 @@ def _print_summary(s: dict) -> None:
         print(f"Hammerstein ridge factor {r['factor']:g} by leave-one-file-out cross-validation (RMS on left-out "
               f"files per factor {scores} °C, the strongest within one standard error, {r['cv_limit_rms_C']:.3f} "
               f"°C; LTI LPTN {r['lti_rms_C']:.3f} °C): deploy {r['recommended']}")
+        if "stator_weight" in r:
+            tried = ", ".join(f"{w['weight']:.3g} (winding+PM {w['cv_rms_C']:.3f}; "
+                              + ", ".join(f"{n} {v:.2f}" for n, v in w["stator_rms_C"].items()) + ")"
+                              for w in r["stator_weights"])
+            lti = ", ".join(f"{n} {v:.2f}" for n, v in r["lti_stator_rms_C"].items())
+            print(f"  stator weight {r['stator_weight']:.3g}: {r['stator_rule']}; left-out RMS °C per weight: "
+                  f"{tried}; LTI LPTN {lti}")
     print("validation (held-out files together), RMSE / max |error| °C:")
     for model, m in s["validation"].items():
         for prec in ("float64", "float32"):
