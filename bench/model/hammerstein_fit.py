@@ -22,6 +22,7 @@ from scipy.optimize import least_squares
 from bench.model.builder import SigmoidInputs
 from bench.model.lptn_fit import NODE_WEIGHTS, measured_nodes
 from bench.model.metrics import finite_errors
+from bench.model.polish import in_threads
 from bench.model.runs import ModelRun
 from bench.thermal import portable
 from bench.thermal.estimator import loop_parameters, run_batch
@@ -352,8 +353,8 @@ def loo_vectors(problem: _Problem, checks: Sequence[_Problem], v: np.ndarray, fa
     jacs = [np.ascontiguousarray(jac[a:b].T) for a, b in blocks]
     v0 = lti_vector()
     n = len(v)
-    out = []
-    for f in range(len(problem.runs)):
+
+    def fold(f: int) -> np.ndarray:
         others = [k for k in range(len(problem.runs)) if k != f]
         ridge2 = float(edges[-1] - sizes[f]) * (RIDGE * factor) ** 2
         gram = np.array([[math.fsum(grams[k][i, j] for k in others) for j in range(n)] for i in range(n)])
@@ -382,8 +383,9 @@ def loo_vectors(problem: _Problem, checks: Sequence[_Problem], v: np.ndarray, fa
                 mu *= 10.0
             else:
                 break
-        out.append(x)
-    return out
+        return x
+
+    return in_threads(fold, range(len(problem.runs)))    # the folds are independent: one thread per core
 
 
 def _deployed(check: _Problem, residuals: np.ndarray) -> np.ndarray:
