@@ -337,3 +337,16 @@ def test_the_stator_weight_falls_only_while_the_stator_stays_near_the_network():
     _, yoke = fit_hammerstein_cv(base, TRUTH, _misplaced_sensors(("yoke",)), iterations=30)
     assert yoke["stator_weight"] == STATOR_WEIGHT and [w["weight"] for w in yoke["stator_weights"]] == [STATOR_WEIGHT]
     assert yoke["stator_weights"][0]["stator_rms_C"]["tooth"] > 1.1 * yoke["lti_stator_rms_C"]["tooth"]
+
+
+def test_only_another_machines_named_prior_is_scaled_by_default():
+    from bench.commands.identify import _adapts
+    from bench.motor.description import ThermalPrior, automatic_prior
+
+    named = ThermalPrior(TRUTH, "table1", (0.5, 2.0))
+    own = ThermalPrior(TRUTH, "file", (0.5, 2.0))
+    assert _adapts(None, True, named) and _adapts(None, True, None)     # no prior at all is Table 1's
+    assert not _adapts(None, True, own)                  # 22 values: the motor's own network
+    assert not _adapts(None, False, named)               # the built-in campaign: the packaged model's path
+    assert not _adapts("yes", True, automatic_prior())   # auto is read from the data already
+    assert _adapts("yes", False, own) and not _adapts("no", True, named)
