@@ -54,6 +54,11 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--regularization", choices=REGULARIZATIONS, default=None,
                    help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
                         "with --train files) or fixed (default for the built-in campaign)")
+    p.add_argument("--adapt-prior", choices=("yes", "no"), default=None,
+                   help="scale a named prior (another machine's network, e.g. table1) to the training data before "
+                        "the search: common factors of the stator and rotor resistances and capacitances, the "
+                        "--bounds box then around the scaled prior (default yes with --train files and a named "
+                        "prior, no otherwise: a prior of 22 values is taken as the motor's own)")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -100,13 +105,14 @@ def run(args: argparse.Namespace) -> int:
     files = args.train is not None
     polish = args.polish if args.polish is not None else (POLISH_STARTS if files else 0)
     regularization = args.regularization or ("cv" if files else "fixed")
+    adapt = _adapts(args.adapt_prior, files, prior or motor.prior)
     dt = _model_step(args.dt, train + validate)
     progress = None if (args.quiet or args.json) else _ProgressBars()
     try:
         result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
                           lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
-                          progress=progress)
+                          adapt=adapt, progress=progress)
     finally:
         if progress is not None:
             progress.close()
@@ -134,7 +140,8 @@ def run(args: argparse.Namespace) -> int:
                       "evaluations": result.hammerstein.evaluations},
                "baselines": result.provenance["baselines"], "timings_s": result.timings_s, "validation": metrics,
                "nodes": list(result.lptn.nodes), "polish": prov.get("polish"), "uncertainty": uncertainty,
-               "auto_prior": prov["pso"].get("auto_prior"), "regularization": selection, "warnings": warnings}
+               "auto_prior": prov["pso"].get("auto_prior"), "adapted_prior": prov["pso"].get("adapted_prior"),
+               "regularization": selection, "warnings": warnings}
     if not args.quiet:
         for warning in warnings:
             print(f"bench: warning: {warning}", file=sys.stderr)
@@ -143,6 +150,19 @@ def run(args: argparse.Namespace) -> int:
     else:
         _print_summary(summary)
     return 0
+
+
+def _adapts(choice: str | None, files: bool, prior) -> bool:
+    """Whether the prior is scaled to the data first: as asked, else for a named parameter set (a network of
+    another machine) on the --train files path. Never on the built-in campaign's path by default, whose packaged
+    model starts from its own Table 1; never for `auto` (already read from the data)."""
+    from bench.thermal.parameters import PARAMETER_SETS
+
+    if prior is not None and prior.automatic:
+        return False
+    if choice is not None:
+        return choice == "yes"
+    return files and (prior is None or prior.source in PARAMETER_SETS)
 
 
 def _split(args: argparse.Namespace, motor) -> tuple[list, list]:
@@ -318,6 +338,10 @@ def _print_summary(s: dict) -> None:
         if p.get("prior"):
             print(f"  maximum a posteriori: weak prior around the {s['prior']} network, weight 1/N_eff = "
                   f"1/{p['prior']['n_eff']:.0f}; frozen at the prior: {', '.join(p['frozen']) or 'none'}")
+    if s.get("adapted_prior"):
+        a = s["adapted_prior"]
+        print(f"{s['prior']} prior scaled to the training data (cost {a['cost_prior']:.4f} -> {a['cost']:.4f}): "
+              + ", ".join(f"{g} × {v:.3g}" for g, v in a["scales"].items()))
     if s.get("uncertainty"):
         _print_uncertainty(s["uncertainty"])
     if s.get("regularization") and "cv_rms_C" in s["regularization"]:
@@ -326,6 +350,13 @@ def _print_summary(s: dict) -> None:
         print(f"Hammerstein ridge factor {r['factor']:g} by leave-one-file-out cross-validation (RMS on left-out "
               f"files per factor {scores} °C, the strongest within one standard error, {r['cv_limit_rms_C']:.3f} "
               f"°C; LTI LPTN {r['lti_rms_C']:.3f} °C): deploy {r['recommended']}")
+        if "stator_weight" in r:
+            tried = ", ".join(f"{w['weight']:.3g} (winding+PM {w['cv_rms_C']:.3f}; "
+                              + ", ".join(f"{n} {v:.2f}" for n, v in w["stator_rms_C"].items()) + ")"
+                              for w in r["stator_weights"])
+            lti = ", ".join(f"{n} {v:.2f}" for n, v in r["lti_stator_rms_C"].items())
+            print(f"  stator weight {r['stator_weight']:.3g}: {r['stator_rule']}; left-out RMS °C per weight: "
+                  f"{tried}; LTI LPTN {lti}")
     print("validation (held-out files together), RMSE / max |error| °C:")
     for model, m in s["validation"].items():
         for prec in ("float64", "float32"):

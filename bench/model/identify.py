@@ -25,6 +25,7 @@ from bench.model.lptn_fit import (
 )
 from bench.model.metrics import error_metrics
 from bench.model.polish import polish_lptn, uncertainty
+from bench.model.prior_scales import adapt_prior
 from bench.model.runs import ModelRun, model_run
 from bench.motor.description import MotorDescription, ThermalPrior, default_motor
 from bench.motor.losses import EstimatorMotor, LossModel
@@ -84,14 +85,15 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              pso_iterations: int = 100, lm_iterations: int = 100, seed: int = 0, fit_path: str = "statespace",
              motor: MotorDescription | None = None, prior: ThermalPrior | None = None,
              width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
-             regularization: str = "fixed",
+             regularization: str = "fixed", adapt: bool = False,
              progress: Callable[[str, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
     the built-in virtual motor). The prior and bounds: `prior`, else the motor's thermal_prior, else Table 1 at
-    0.6-1.6; an `auto` prior is read from the training data (bench.model.auto_prior); `width` overrides the
-    prior's bounds. `validation` datasets are only recorded in the provenance. The defaults (no polish, fixed
-    ridge) are the packaged model's path."""
+    0.6-1.6; an `auto` prior is read from the training data (bench.model.auto_prior); `adapt` scales a given
+    prior to the training data first (bench.model.prior_scales); `width` overrides the prior's bounds.
+    `validation` datasets are only recorded in the provenance. The defaults (no polish, fixed ridge, no
+    adaptation) are the packaged model's path."""
     if discretization != "zoh":
         raise ValueError("identification discretizes by zero-order hold, as the paper's Hammerstein fit did")
     if regularization not in REGULARIZATIONS:
@@ -109,6 +111,10 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         start = derived.parameters
     else:
         start = prior.parameters if prior else TABLE1
+    adapted = None
+    if adapt and derived is None:
+        adapted = adapt_prior(runs, dt, start)
+        start = adapted.parameters
     lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
                          width=width, stall=POLISHED_SWARM_STALL if polish_starts > 0 else None,
                          on_iteration=(lambda i, c: progress("pso", i, c)) if progress else None)
@@ -118,7 +124,9 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         started = time.perf_counter()
         if progress:
             progress("polish", 0, lptn.cost)
-        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start)
+        # a parameter is frozen at the prior only when the prior is this motor's own guess (its file's network,
+        # or read from its data): a foreign prior's single values are another machine's, scaled or not
+        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start, freeze=adapted is None)
         if progress:
             progress("polish", 1, lptn.cost)
         errors = uncertainty(runs, dt, lptn.nodes, log_scaled(lptn.bounds), to_search(
@@ -157,6 +165,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         provenance["pso"]["auto_prior"] = {"parameters": derived.parameters.as_dict(),
                                            "responses": {n: r.as_dict() for n, r in derived.responses.items()},
                                            "fallbacks": list(derived.fallbacks)}
+    if adapted is not None:
+        provenance["pso"]["adapted_prior"] = adapted.record()
     if polished is not None:
         provenance["polish"] = {"starts": len(polished.start_costs), "method": "Levenberg-Marquardt (MINPACK) in "
                                 "log-parameter space, variances re-estimated each round", "start_costs":

@@ -89,7 +89,10 @@ class Residuals:
 
     def errors(self, coords: np.ndarray) -> np.ndarray:
         """(P, nodes, samples) model − measurement for search coordinates (P, 22)."""
-        vectors = from_search(coords, self.scaled)
+        return self.vector_errors(from_search(coords, self.scaled))
+
+    def vector_errors(self, vectors: np.ndarray) -> np.ndarray:
+        """(P, nodes, samples) model − measurement for parameter vectors (P, 22)."""
         a_d, b_d = discrete_blocks(vectors, self.dt)
         n = len(vectors)
         names = LptnParameters.names()
@@ -257,6 +260,17 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
+def in_threads(task, items: Sequence) -> list:
+    """[task(item) for item in items], the items in threads, one per core, each with numba's kernels on one thread
+    (the simulation kernel releases the GIL; forking under OpenMP is unsafe); in order, so the result does not
+    depend on the number of cores."""
+    workers = min(len(items), available_cores()) if _threadsafe_kernels() else 1
+    if workers > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            return list(pool.map(_single_threaded(task), items))
+    return [task(item) for item in items]
+
+
 def polish(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...],
            candidates: np.ndarray, lower: np.ndarray, upper: np.ndarray, starts: int = POLISH_STARTS,
            centre: np.ndarray | None = None) -> Polish:
@@ -274,13 +288,7 @@ def polish(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: 
         return [float(c) + extra(x) for c, x in zip(data, points, strict=True)]
 
     start_costs = costs(chosen)
-    workers = min(len(chosen), available_cores()) if _threadsafe_kernels() else 1
-    task = lambda s: polish_one(problem, s, lower, upper, penalty)    # noqa: E731
-    if workers > 1:   # threads: the simulation kernel releases the GIL (forking under OpenMP is unsafe)
-        with ThreadPoolExecutor(workers) as pool:
-            results = list(pool.map(_single_threaded(task), chosen))
-    else:
-        results = [task(s) for s in chosen]
+    results = in_threads(lambda s: polish_one(problem, s, lower, upper, penalty), chosen)
     finals = costs([r[0] for r in results])
     kept = min(range(len(results)), key=lambda i: (finals[i], i))
     return Polish(results[kept][0], finals[kept], start_costs, finals, kept, sum(r[2] for r in results),
@@ -288,10 +296,11 @@ def polish(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: 
 
 
 def polish_lptn(fit: LptnFit, runs: Sequence[ModelRun], dt: float, starts: int = POLISH_STARTS,
-                prior: LptnParameters | None = None) -> tuple[LptnFit, Polish]:
+                prior: LptnParameters | None = None, freeze: bool = True) -> tuple[LptnFit, Polish]:
     """The swarm's fit polished from its `starts` best distinct particles; the swarm's own best if none improves.
-    With a `prior` network the polish is maximum a posteriori around it (PriorPenalty), and a parameter that then
-    still ends on a bound although the data cannot identify it is frozen at the prior (`freeze_unidentified`)."""
+    With a `prior` network the polish is maximum a posteriori around it (PriorPenalty), and (if `freeze`) a
+    parameter that then still ends on a bound although the data cannot identify it is frozen at the prior
+    (`freeze_unidentified`)."""
     scaled = log_scaled(fit.bounds)
     lower, upper = search_bounds(fit.bounds)
     centre = None if prior is None else to_search(np.array(prior.as_vector()), scaled)
@@ -303,7 +312,7 @@ def polish_lptn(fit: LptnFit, runs: Sequence[ModelRun], dt: float, starts: int =
         params = LptnParameters.from_vector(from_search(result.coords, scaled))
         data_cost = result.cost - (0.0 if result.prior is None else result.prior.cost(result.coords))
         fit = replace(fit, params=params, cost=data_cost, on_bounds=parameters_on_bounds(params, fit.bounds))
-    if result.prior is not None and fit.on_bounds:
+    if freeze and result.prior is not None and fit.on_bounds:
         fit, result = freeze_unidentified(fit, result, runs, dt, np.clip(centre, lower, upper))
     return fit, result
 

@@ -130,11 +130,15 @@ def ipm_priors_table(record: Record) -> list[str]:
         rows.append([row["prior"], figure(lti, "winding"), figure(lti, "pm"), figure(ham, "winding"),
                      figure(ham, "pm"), ", ".join(row["on_bounds"]) or "none", str(len(row["frozen"])),
                      "–" if row["ridge_factor"] is None else f"{row['ridge_factor']:g}",
+                     "–" if row.get("stator_weight") is None else _n(row["stator_weight"], 3),
+                     ", ".join(_n(v, 2) for v in row["prior_scales"].values()) if row.get("prior_scales") else "–",
                      f"{_n(row['identify_s'], 1)} ({_n(row['identify_cpu_s'], 1)} CPU)"])
     return [*_table(["prior", "LTI winding", "LTI PM", "Hammerstein winding", "Hammerstein PM", "on a bound",
-                     "frozen", "ridge factor", "`bench identify` s"], rows),
-            f"(°C, RMSE / max \\|error\\|; `table1 0.5-2` is what `bench motor template` gives; the ridge "
-            f"factor is the Hammerstein step's, chosen by cross-validation; measured {_date(record)}.)"]
+                     "frozen", "ridge factor", "stator weight", "prior scaled (R, C stator; R, C rotor)",
+                     "`bench identify` s"], rows),
+            f"(°C, RMSE / max \\|error\\|; `table1 0.5-2` is what `bench motor template` gives, scaled to the data "
+            f"first; the ridge factor and stator weight are the Hammerstein step's, chosen by cross-validation; "
+            f"measured {_date(record)}.)"]
 
 
 def _rmse(model: dict | None, node: str) -> str:

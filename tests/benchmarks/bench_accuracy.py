@@ -12,7 +12,8 @@
 3. The same identification from three priors (issue 24's table): the example's own, `table1` (another motor's)
    at bounds 0.5-2 (what `bench motor template` gives a new user) and `--prior auto`; per prior the held-out
    RMSE and max of winding and PM for both kinds, the parameters on a bound and frozen, the Hammerstein ridge
-   the cross-validation chose, and the wall and CPU time of `bench identify` with its split.
+   and stator weight the cross-validation chose, the named prior's scale factors, and the wall and CPU time of
+   `bench identify` with its split.
 
 Every figure comes from the commands' own `--json`. Writes its record (`tests/benchmarks/record.py`).
 """
@@ -142,7 +143,8 @@ def prior_row(data: Path, prior: str, run: dict) -> dict:
            "on_bounds": [h["name"] for h in identified.get("parameters_on_bounds") or []],
            "frozen": list((identified.get("polish") or {}).get("frozen") or []),
            "ridge_factor": selection.get("factor"), "cv_rms_C": selection.get("cv_rms_C"),
-           "cv_limit_rms_C": selection.get("cv_limit_rms_C"), "models": models}
+           "cv_limit_rms_C": selection.get("cv_limit_rms_C"), "stator_weight": selection.get("stator_weight"),
+           "prior_scales": (identified.get("adapted_prior") or {}).get("scales"), "models": models}
     print(f"IPM example, prior {prior}: identify {run['seconds']:.1f} s ({run['cpu_s']:.1f} CPU-s, "
           f"{row['timings_s']}), ridge {row['ridge_factor']}, on a bound {row['on_bounds']}, frozen {row['frozen']}; "
           + "; ".join(f"{kind} winding {m['winding']['rmse_C']:.3f}/{m['winding']['max_abs_C']:.2f}, PM "

@@ -270,3 +270,83 @@ def test_the_lptn_swarm_stops_at_its_stall_and_says_so(runs, swarm):
     assert swarm.stalled_at is None and len(swarm.history) == 3     # no stall given: every iteration
     # the packaged model's path (no polish) gets no stall; a polished one gets identify's
     assert POLISHED_SWARM_STALL.window >= 1 and POLISHED_SWARM_STALL.tolerance > 0
+
+
+def test_a_foreign_prior_is_scaled_back_to_the_motor_it_is_adapted_to(runs):
+    from bench.model.prior_scales import SCALE_GROUPS, adapt_prior
+
+    # another machine's network: this motor's shape, each group's size off by a known factor
+    off = {"stator_R": 0.4, "stator_C": 2.5, "rotor_R": 1.8, "rotor_C": 0.6}
+    foreign = TRUTH.with_values(**{name: getattr(TRUTH, name) * off[group]
+                                   for group, names in SCALE_GROUPS.items() for name in names})
+    adapted = adapt_prior(runs, DT, foreign)
+    for group, factor in off.items():
+        assert adapted.scales[group] == pytest.approx(1.0 / factor, rel=0.03), group
+    assert adapted.cost < adapted.cost_prior
+    assert adapted.parameters.C_w == pytest.approx(TRUTH.C_w, rel=0.03)
+    assert adapted.parameters.b_wm == TRUTH.b_wm     # the dimensionless parameters keep the prior's values
+    # the motor's own network: nothing to scale
+    own = adapt_prior(runs, DT, TRUTH)
+    assert all(s == pytest.approx(1.0, rel=0.01) for s in own.scales.values())
+
+
+def test_the_stator_weight_is_the_best_winding_and_pm_score_that_keeps_the_stator():
+    from bench.model.hammerstein_fit import stator_weight_choice
+
+    lti = {"yoke": 6.4, "tooth": 1.54}
+    candidates = {0.7: (1.30, {"yoke": 3.0, "tooth": 1.50}), 0.35: (1.15, {"yoke": 3.1, "tooth": 1.65}),
+                  0.18: (0.97, {"yoke": 3.8, "tooth": 2.80})}
+    assert stator_weight_choice(candidates, lti) == 0.35            # 1.65 within 10 % of 1.54, 2.80 not
+    assert stator_weight_choice(candidates, lti, margin=0.0) == 0.7
+    assert stator_weight_choice(candidates, {"yoke": 6.4, "tooth": 3.0}) == 0.18
+    assert stator_weight_choice(candidates, {"yoke": 1.0, "tooth": 1.0}) == 0.7     # none keeps it: the largest
+    tie = {0.7: (1.0, {"yoke": 1.0}), 0.35: (1.0, {"yoke": 1.0})}
+    assert stator_weight_choice(tie, {"yoke": 1.0}) == 0.7
+
+
+def _misplaced_sensors(nodes: tuple[str, ...], excess: float = 0.4) -> list[ModelRun]:
+    """Runs whose `nodes` sensors read `excess` more rise above the coolant than the network's nodes (a sensor
+    nearer the winding): a Hammerstein fit can follow them only by bending the loss inputs, at the winding's cost."""
+    runs = []
+    for seed in range(3):
+        r = _run(seed)
+        ref = {n: r.reference(n) + (excess * (r.reference(n) - r.inputs.coolant) if n in nodes else 0.0)
+               for n in ("yoke", "tooth")}
+        runs.append(ModelRun(r.name, r.dt, r.inputs, r.step_time_s, r.ref_winding, r.ref_pm, r.initial,
+                             ref["yoke"], ref["tooth"]))
+    return runs
+
+
+def test_the_stator_weight_falls_only_while_the_stator_stays_near_the_network():
+    from bench.model.builder import ModelSpec, physical_block
+    from bench.model.hammerstein_fit import STATOR_WEIGHT, STATOR_WEIGHTS
+    from bench.motor.description import default_motor
+
+    motor = default_motor()
+    base = physical_block(ModelSpec("lti-lptn", TRUTH, DT, "zoh", "physical", motor.loss_model, motor.constants()))
+    # both stator sensors misplaced: the LTI network misses them by 6-8 °C, so the fit may give them less weight
+    # while it stays far better there than the network, and the winding and PM gain from it
+    _, both = fit_hammerstein_cv(base, TRUTH, _misplaced_sensors(("yoke", "tooth")), iterations=30)
+    tried = {w["weight"]: w for w in both["stator_weights"]}
+    assert list(tried) == list(STATOR_WEIGHTS) and both["stator_weight"] == STATOR_WEIGHTS[-1]
+    assert tried[STATOR_WEIGHTS[-1]]["cv_rms_C"] < tried[STATOR_WEIGHT]["cv_rms_C"]
+    assert all(tried[both["stator_weight"]]["stator_rms_C"][n] <= 1.1 * both["lti_stator_rms_C"][n]
+               for n in ("yoke", "tooth"))
+    # only the yoke's misplaced: the network's tooth is right (0.1 °C noise), the fit's is already worse at √½,
+    # so the weight stays and the smaller ones are not fitted
+    _, yoke = fit_hammerstein_cv(base, TRUTH, _misplaced_sensors(("yoke",)), iterations=30)
+    assert yoke["stator_weight"] == STATOR_WEIGHT and [w["weight"] for w in yoke["stator_weights"]] == [STATOR_WEIGHT]
+    assert yoke["stator_weights"][0]["stator_rms_C"]["tooth"] > 1.1 * yoke["lti_stator_rms_C"]["tooth"]
+
+
+def test_only_another_machines_named_prior_is_scaled_by_default():
+    from bench.commands.identify import _adapts
+    from bench.motor.description import ThermalPrior, automatic_prior
+
+    named = ThermalPrior(TRUTH, "table1", (0.5, 2.0))
+    own = ThermalPrior(TRUTH, "file", (0.5, 2.0))
+    assert _adapts(None, True, named) and _adapts(None, True, None)     # no prior at all is Table 1's
+    assert not _adapts(None, True, own)                  # 22 values: the motor's own network
+    assert not _adapts(None, False, named)               # the built-in campaign: the packaged model's path
+    assert not _adapts("yes", True, automatic_prior())   # auto is read from the data already
+    assert _adapts("yes", False, own) and not _adapts("no", True, named)
