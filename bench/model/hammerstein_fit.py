@@ -40,10 +40,13 @@ STATOR_WEIGHT = math.sqrt(NODE_WEIGHTS["yoke"])
 # `cv` also chooses the stator weight among these (largest first; each halves the one before). Why: the swarm's
 # cost is scale-free (log MSE per node), this fit's is in °C², so a stator node that the LTI network misses by 6 °C
 # outweighs a winding it misses by 3 °C, and the refinement goes to the stator instead of the deployed outputs.
-# The rule (stator_weight_choice): the lowest left-out winding + PM score among the weights whose left-out yoke and
-# tooth RMSE each stay within STATOR_MARGIN of the LTI network's on the same files: the refinement may trade stator
-# accuracy for winding/PM accuracy, but never to a stator much worse than the network it refines. The margin is the
-# 10 % that issue 24 takes as "as good as". The ridge factor is chosen at the first weight and kept for the others.
+# The rule (stator_weight_choice): among the weights whose left-out yoke and tooth RMSE each stay within
+# STATOR_MARGIN of the LTI network's on the same files, the largest whose left-out winding + PM score is within one
+# standard error of the lowest (the ridge's one-standard-error rule, `one_se_choice`: the left-out scores are
+# optimistic, and a smaller weight is a weaker hold on the fit, so it must win by more than the files' scatter).
+# The refinement may then trade stator accuracy for winding/PM accuracy, but never to a stator much worse than the
+# network it refines. The margin is the 10 % that issue 24 takes as "as good as". The ridge factor is chosen at the
+# first weight and kept for the others.
 STATOR_WEIGHTS = (STATOR_WEIGHT, STATOR_WEIGHT / 2, STATOR_WEIGHT / 4)
 STATOR_MARGIN = 0.10
 # Ridge weights (°C of RMS error per unit of parameter change) for [weight, bias, gain, linear, offset] and the
@@ -259,7 +262,7 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
     if not problem.stator:
         chosen, score = fits[best], scores[best]
     else:
-        weights = {STATOR_WEIGHTS[0]: (fits[best], scores[best], _stator_rms(checks, held[best]))}
+        weights = {STATOR_WEIGHTS[0]: (fits[best], deployed[best], _stator_rms(checks, held[best]))}
         lti_stator = _stator_rms(checks, lti_residuals)
         fit = fits[best]
         for k, weight in enumerate(STATOR_WEIGHTS[1:]):
@@ -271,33 +274,36 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
                                   stator_weight=weight)
             parts = left_out(checks, loo_vectors(problem, checks, fit.vector, best))
             deployed_parts = [_deployed(c, r) for c, r in zip(checks, parts, strict=True)]
-            weights[weight] = (fit, _exact_rms(deployed_parts), _stator_rms(checks, parts))
+            weights[weight] = (fit, deployed_parts, _stator_rms(checks, parts))
             if on_iteration is not None:
-                on_iteration(len(CV_FACTORS) + k + 1, weights[weight][1])
-        weight = stator_weight_choice({w: (s, st) for w, (_, s, st) in weights.items()}, lti_stator)
-        chosen, score = weights[weight][0], weights[weight][1]
+                on_iteration(len(CV_FACTORS) + k + 1, _exact_rms(deployed_parts))
+        weight = stator_weight_choice({w: (d, st) for w, (_, d, st) in weights.items()}, lti_stator)
+        chosen, score = weights[weight][0], _exact_rms(weights[weight][1])
         selection.update({
             "stator_weight": weight, "stator_margin": STATOR_MARGIN, "lti_stator_rms_C": lti_stator,
-            "stator_weights": [{"weight": w, "cv_rms_C": s, "stator_rms_C": st} for w, (_, s, st) in weights.items()],
-            "stator_rule": f"the lowest left-out winding+PM score among the stator weights whose left-out yoke and "
-                           f"tooth RMSE stay within {100 * STATOR_MARGIN:g} % of the LTI network's (ridge factor "
-                           f"{best:g} for every weight)"})
+            "stator_weights": [{"weight": w, "cv_rms_C": _exact_rms(d), "stator_rms_C": st}
+                               for w, (_, d, st) in weights.items()],
+            "stator_rule": f"among the stator weights whose left-out yoke and tooth RMSE stay within "
+                           f"{100 * STATOR_MARGIN:g} % of the LTI network's, the largest whose left-out winding+PM "
+                           f"score is within one standard error of the lowest (ridge factor {best:g} for every "
+                           "weight)"})
     selection.update({"selected_rms_C": score, "lti_rms_C": lti_rms,
                       "recommended": "hammerstein" if score < lti_rms else "lti-lptn"})
     return chosen, selection
 
 
-def stator_weight_choice(candidates: dict[float, tuple[float, dict[str, float]]], lti: dict[str, float],
-                         margin: float = STATOR_MARGIN) -> float:
-    """The stator weight to keep: of the weights whose left-out RMSE of every stator node is within `margin` (a share)
-    of the LTI network's on the same files, the one with the lowest left-out winding + PM score (a tie goes to the
-    larger weight). `candidates` maps weight -> (score, {node: RMSE}). When none keeps the stator, the largest
-    weight (the one nearest the swarm's own weighting). Training data only: the files the fit was made on, each
-    scored by a model that was stepped away from it."""
-    eligible = [w for w, (_, stator) in candidates.items() if _keeps_stator(stator, lti, margin)]
+def stator_weight_choice(candidates: dict[float, tuple[Sequence[np.ndarray], dict[str, float]]],
+                         lti: dict[str, float], margin: float = STATOR_MARGIN) -> float:
+    """The stator weight to keep. `candidates` maps weight -> (its left-out winding + PM residuals per fold, its
+    left-out RMSE per stator node). Of the weights whose every stator node is within `margin` (a share) of the LTI
+    network's RMSE on the same files, the largest whose pooled score is within one standard error of the lowest
+    (`one_se_choice`, as for the ridge: a smaller weight must win by more than the files' scatter). When none keeps
+    the stator, the largest weight (the one nearest the swarm's own weighting). Training data only: the files the
+    fit was made on, each scored by a model that was stepped away from it."""
+    eligible = {w: parts for w, (parts, stator) in candidates.items() if _keeps_stator(stator, lti, margin)}
     if not eligible:
         return max(candidates)
-    return min(eligible, key=lambda w: (candidates[w][0], -w))
+    return one_se_choice(eligible)[0]
 
 
 def _keeps_stator(stator: dict[str, float], lti: dict[str, float], margin: float = STATOR_MARGIN) -> bool:

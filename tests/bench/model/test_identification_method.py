@@ -290,17 +290,27 @@ def test_a_foreign_prior_is_scaled_back_to_the_motor_it_is_adapted_to(runs):
     assert all(s == pytest.approx(1.0, rel=0.01) for s in own.scales.values())
 
 
-def test_the_stator_weight_is_the_best_winding_and_pm_score_that_keeps_the_stator():
+def _folds(*values: float) -> list[np.ndarray]:
+    """Left-out residuals of one fold per value, each fold's RMS that value."""
+    return [np.full(50, v) for v in values]
+
+
+def test_the_stator_weight_is_the_largest_within_one_standard_error_that_keeps_the_stator():
     from bench.model.hammerstein_fit import stator_weight_choice
 
     lti = {"yoke": 6.4, "tooth": 1.54}
-    candidates = {0.7: (1.30, {"yoke": 3.0, "tooth": 1.50}), 0.35: (1.15, {"yoke": 3.1, "tooth": 1.65}),
-                  0.18: (0.97, {"yoke": 3.8, "tooth": 2.80})}
-    assert stator_weight_choice(candidates, lti) == 0.35            # 1.65 within 10 % of 1.54, 2.80 not
-    assert stator_weight_choice(candidates, lti, margin=0.0) == 0.7
-    assert stator_weight_choice(candidates, {"yoke": 6.4, "tooth": 3.0}) == 0.18
-    assert stator_weight_choice(candidates, {"yoke": 1.0, "tooth": 1.0}) == 0.7     # none keeps it: the largest
-    tie = {0.7: (1.0, {"yoke": 1.0}), 0.35: (1.0, {"yoke": 1.0})}
+    # clearly better with every fold: the smaller weight wins; the tooth limits how small it may go
+    clear = {0.7: (_folds(1.30, 1.31, 1.29), {"yoke": 3.0, "tooth": 1.50}),
+             0.35: (_folds(1.15, 1.16, 1.14), {"yoke": 3.1, "tooth": 1.65}),
+             0.18: (_folds(0.97, 0.98, 0.96), {"yoke": 3.8, "tooth": 2.80})}
+    assert stator_weight_choice(clear, lti) == 0.35            # 1.65 within 10 % of 1.54, 2.80 not
+    assert stator_weight_choice(clear, lti, margin=0.0) == 0.7
+    assert stator_weight_choice(clear, {"yoke": 6.4, "tooth": 3.0}) == 0.18
+    assert stator_weight_choice(clear, {"yoke": 1.0, "tooth": 1.0}) == 0.7     # none keeps it: the largest
+    # lower on average but within the folds' scatter: the larger weight is kept
+    scattered = {0.7: (_folds(1.0, 1.6, 1.4), {"yoke": 1.0}), 0.35: (_folds(0.9, 1.7, 1.3), {"yoke": 1.0})}
+    assert stator_weight_choice(scattered, {"yoke": 1.0}) == 0.7
+    tie = {0.7: (_folds(1.0, 1.0), {"yoke": 1.0}), 0.35: (_folds(1.0, 1.0), {"yoke": 1.0})}
     assert stator_weight_choice(tie, {"yoke": 1.0}) == 0.7
 
 
