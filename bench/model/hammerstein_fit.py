@@ -269,7 +269,8 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
             if not _keeps_stator(weights[STATOR_WEIGHTS[k]][2], lti_stator):
                 break    # a smaller weight holds the stator less still: no use fitting it
             problem, checks = problems(weight)
-            fit = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 3, 1),
+            # a weight's fit starts from the one before (the same ridge, half the weight): half the evaluations
+            fit = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 6, 1),
                                   ridge_factor=best, start=fit.vector, scale_w=scale_w, nodes=nodes,
                                   stator_weight=weight)
             parts = left_out(checks, loo_vectors(problem, checks, fit.vector, best))
