@@ -336,7 +336,7 @@ def test_the_stator_weight_falls_only_while_the_stator_stays_near_the_network():
     base = physical_block(ModelSpec("lti-lptn", TRUTH, DT, "zoh", "physical", motor.loss_model, motor.constants()))
     # both stator sensors misplaced: the LTI network misses them by 6-8 °C, so the fit may give them less weight
     # while it stays far better there than the network, and the winding and PM gain from it
-    _, both = fit_hammerstein_cv(base, TRUTH, _misplaced_sensors(("yoke", "tooth")), iterations=30)
+    _, both = fit_hammerstein_cv(base, TRUTH, _misplaced_sensors(("yoke", "tooth")), iterations=60)
     tried = {w["weight"]: w for w in both["stator_weights"]}
     assert list(tried) == list(STATOR_WEIGHTS) and both["stator_weight"] == STATOR_WEIGHTS[-1]
     assert tried[STATOR_WEIGHTS[-1]]["cv_rms_C"] < tried[STATOR_WEIGHT]["cv_rms_C"]
