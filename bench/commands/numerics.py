@@ -130,6 +130,7 @@ def run_observer(args: argparse.Namespace) -> int:
 
     from bench.commands.common import data_options
     from bench.model.default import default_artifact_path
+    from bench.model.observer import measured_nodes_of
     from bench.model.observer_eval import form_comparison
     from bench.run_inputs import load_data, load_model
     from target_sim.observer import has_observer
@@ -146,13 +147,15 @@ def run_observer(args: argparse.Namespace) -> int:
     deployed = artifact.content["observer"]["form"]
     report = {"model": str(model_path), "sha256": artifact.sha256, "kind": artifact.kind,
               "realization": artifact.realization, "dt": artifact.dt, "data": str(dataset.path),
-              "measured_node": artifact.content["observer"]["node"], "deployed_form": deployed,
+              "measured_node": artifact.content["observer"]["node"], "measured_nodes": measured_nodes_of(artifact),
+              "deployed_form": deployed,
               "rows": [r.as_dict() for r in rows], "seconds": round(time.perf_counter() - started, 2)}
     if args.json:
         print_json(report)
         return 0
     print(f"observer of {model_path} ({artifact.kind}, {artifact.realization}, Δt {artifact.dt:g} s) on "
-          f"{dataset.path.name}, measuring the {report['measured_node']} node; float32 over the whole run, P's "
+          f"{dataset.path.name}, measuring the {' and '.join(report['measured_nodes'])} "
+          f"node{'s' if len(report['measured_nodes']) > 1 else ''}; float32 over the whole run, P's "
           "eigenvalue in the state coordinates, its symmetry in the filter's own (node coordinates)")
     print(f"{'form':13} {'min eig P':>11} {'max |P-Pᵀ|/|P|':>16} {'max|f32-f64| °C':>16} {'worst node':>10}")
     for r in rows:

@@ -10,20 +10,14 @@ noise over ω_e), both fitted to the calibration residual by the lab (`bench obs
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from target_sim.artifact import OUTPUTS, decode_array
+from target_sim.artifact import OUTPUTS
 from target_sim.measurements import MEASUREMENT_KINDS, MeasurementKind
+from target_sim.measurements._voltages import CAN_CHANNELS, COLUMNS, RAD_S_PER_RPM, VoltageReading  # noqa: F401 (re-exported)
 
-# raw channels in the order the filter reads them: the dataset's columns, and over CAN the host's measurement
-# channels and the row's own values (`dbc.contract.MEASUREMENT_CHANNELS`, `ROW_CHANNELS`: DriveVoltages, DriveCurrents)
-COLUMNS = ("u_d_V", "u_q_V", "i_d_A", "i_q_A")
-CAN_CHANNELS = ("u_d", "u_q", "i_d", "i_q")
 PARAMETERS = ("psi_0_Vs", "alpha_B_per_K", "theta_0_C", "L_d_H", "R_s_ohm", "alpha_cu_per_K", "copper_reference_C",
               "pole_pairs", "speed_min_rpm", "R_floor_C2", "R_speed_C2")
-RAD_S_PER_RPM = 2.0 * math.pi / 60.0
 WINDING = OUTPUTS.index("winding")
 
 
@@ -60,13 +54,14 @@ C_SCALARS = (("OBS_SPEED_MIN", "speed_min_rpm", "valid at or above this speed (r
              ("OBS_R_SPEED", "R_speed_C2", "R's growth with (n_min / n)^2 (deg C^2)"))
 
 
-class FluxLinkage:
-    def __init__(self, entry: dict, where: str, f):
-        arrays = entry["arrays"]
-        exact = {}
-        for key in PARAMETERS:
-            setattr(self, key, decode_array(arrays[key], f"{where}.arrays.{key}", f)[()])
-            exact[key] = float(decode_array(arrays[key], f"{where}.arrays.{key}", np.float64)[()])
+class FluxLinkage(VoltageReading):
+    PARAMETERS = PARAMETERS
+    C_READING = C_READING
+    C_SCALARS = C_SCALARS
+    NODE = "magnet"
+    DEFAULT_NAME = "flux"
+
+    def fold(self, exact: dict[str, float], f) -> None:
         # the reading's constants, folded once in float64 and rounded once: one division per reading (1/n)
         omega_per_rpm = RAD_S_PER_RPM * exact["pole_pairs"]
         self.r_s_at_0 = f(exact["R_s_ohm"] * (1.0 - exact["alpha_cu_per_K"] * exact["copper_reference_C"]))
@@ -74,23 +69,6 @@ class FluxLinkage:
         self.l_d_omega = f(exact["L_d_H"] * omega_per_rpm)
         self.psi_0_omega = f(exact["psi_0_Vs"] * omega_per_rpm)
         self.degrees_per_psi = f(1.0 / (exact["psi_0_Vs"] * exact["alpha_B_per_K"] * omega_per_rpm))
-        self.name = str(entry.get("name", "flux"))
-        self.columns = COLUMNS
-        self.can_channels = CAN_CHANNELS
-        self.sees = np.zeros(len(OUTPUTS), dtype=f)
-        self.sees[OUTPUTS.index("magnet")] = f(1.0)
-        self.lag_pole = f(0.0)
-        self.one = f(1.0)
-
-    @property
-    def width(self) -> int:
-        return len(COLUMNS)
-
-    def c_scalars(self) -> list[tuple[str, np.floating, str]]:
-        """(C name, float32 value, comment) of the constants `C_READING` names (the generator suffixes them)."""
-        return [(name, getattr(self, attribute), comment) for name, attribute, comment in C_SCALARS]
-
-    c_reading = C_READING
 
     def reading(self, raw: np.ndarray, speed, y: np.ndarray) -> tuple | None:
         """(ϑ_m, R) from the step's interval means (C: fw_flux_reading)."""

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from target_sim.artifact import OUTPUTS, decode_array
 from target_sim.measurements import MEASUREMENT_KINDS, MeasurementKind
-from target_sim.measurements.flux_linkage import CAN_CHANNELS, COLUMNS, RAD_S_PER_RPM
+from target_sim.measurements._voltages import RAD_S_PER_RPM, VoltageReading
 
 PARAMETERS = ("R_s_ohm", "alpha_cu_per_K", "copper_reference_C", "L_q_H", "pole_pairs", "speed_max_rpm",
               "current_min_A", "R_floor_C2", "R_current_C2")
@@ -52,29 +51,15 @@ C_SCALARS = (("OBS_SPEED_MAX", "speed_max_rpm", "valid at or below this speed (r
              ("OBS_R_CURRENT", "R_current_C2", "R's growth with (i_min / i_d)^2 (deg C^2)"))
 
 
-class WindingResistance:
-    def __init__(self, entry: dict, where: str, f):
-        arrays = entry["arrays"]
-        for key in PARAMETERS:
-            setattr(self, key, decode_array(arrays[key], f"{where}.arrays.{key}", f)[()])
-        self.name = str(entry.get("name", "resistance"))
-        self.columns = COLUMNS
-        self.can_channels = CAN_CHANNELS
-        self.sees = np.zeros(len(OUTPUTS), dtype=f)
-        self.sees[OUTPUTS.index("winding")] = f(1.0)
-        self.lag_pole = f(0.0)
+class WindingResistance(VoltageReading):
+    PARAMETERS = PARAMETERS
+    C_READING = C_READING
+    C_SCALARS = C_SCALARS
+    NODE = "winding"
+    DEFAULT_NAME = "resistance"
+
+    def fold(self, exact: dict[str, float], f) -> None:
         self.omega_per_rpm = f(RAD_S_PER_RPM) * self.pole_pairs
-        self.one = f(1.0)
-
-    @property
-    def width(self) -> int:
-        return len(COLUMNS)
-
-    def c_scalars(self) -> list[tuple[str, np.floating, str]]:
-        """(C name, float32 value, comment) of the constants `C_READING` names (the generator suffixes them)."""
-        return [(name, getattr(self, attribute), comment) for name, attribute, comment in C_SCALARS]
-
-    c_reading = C_READING
 
     def reading(self, raw: np.ndarray, speed, y: np.ndarray) -> tuple | None:
         """(ϑ_w, R) from the step's interval means (the estimate y is not used: R_s0 and L_q are calibrated)."""

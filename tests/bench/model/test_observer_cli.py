@@ -38,6 +38,15 @@ def test_numerics_observer_reports_every_form(observer_artifact, small_dataset, 
     assert ud["max_symmetry_error"] == 0.0 and ud["min_eigenvalue"] > 0
 
 
+def test_numerics_observer_names_every_node_its_measurements_read(resistance_observer_artifact, capsys):
+    artifact, data = resistance_observer_artifact
+    args = ["numerics", "--observer", "--model", str(artifact), "--data", str(data)]
+    assert main([*args, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["measured_nodes"] == ["winding", "magnet"]
+    assert main([*args, "--quiet"]) == 0
+    assert "measuring the winding and magnet nodes;" in capsys.readouterr().out
+
+
 def test_evaluate_names_the_measured_node_and_the_recovery(observer_artifact, small_dataset, capsys):
     assert main(["evaluate", "--model", str(observer_artifact), "--data", str(small_dataset), "--quiet"]) == 0
     out = capsys.readouterr().out
