@@ -155,7 +155,9 @@ def test_bench_run_on_the_firmware_engine_with_the_ntc_and_the_flux_linkage_is_c
     assert metrics["m4_cycles"]["max"] > 0
 
 
-@pytest.mark.parametrize("engine", ["python", "firmware"])
+# the firmware case in -m slow: the NTC + flux linkage run covers the observer firmware over CAN in the default run, and
+# test_node_observer_firmware the resistance's C bit for bit
+@pytest.mark.parametrize("engine", ["python", pytest.param("firmware", marks=pytest.mark.slow)])
 def test_bench_run_with_the_flux_linkage_and_the_winding_resistance_is_clean(engine, resistance_observer_artifact,
                                                                               tmp_path):
     """Two measurements from the same DriveVoltages and the row's currents: the flux linkage answers in the flux

@@ -327,6 +327,7 @@ def _misplaced_sensors(nodes: tuple[str, ...], excess: float = 0.4) -> list[Mode
     return runs
 
 
+@pytest.mark.slow     # 12 s: three CV fits; the rule itself is tested on constructed scores in the default run
 def test_the_stator_weight_falls_only_while_the_stator_stays_near_the_network():
     from bench.model.builder import ModelSpec, physical_block
     from bench.model.hammerstein_fit import STATOR_WEIGHT, STATOR_WEIGHTS
