@@ -55,10 +55,11 @@ def add_subparser(subparsers) -> None:
                    help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
                         "with --train files) or fixed (default for the built-in campaign)")
     p.add_argument("--adapt-prior", choices=("yes", "no"), default=None,
-                   help="scale a named prior (another machine's network, e.g. table1) to the training data before "
-                        "the search: common factors of the stator and rotor resistances and capacitances, the "
-                        "--bounds box then around the scaled prior (default yes with --train files and a named "
-                        "prior, no otherwise: a prior of 22 values is taken as the motor's own)")
+                   help="adapt a named prior (another machine's network, e.g. table1) to the training data before "
+                        "the search: common factors of the stator and rotor resistances and capacitances, then each "
+                        "resistance and capacitance on its own; the --bounds box then around the adapted prior "
+                        "(default yes with --train files and a named prior, no otherwise: a prior of 22 values is "
+                        "taken as the motor's own)")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -153,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _adapts(choice: str | None, files: bool, prior) -> bool:
-    """Whether the prior is scaled to the data first: as asked, else for a named parameter set (a network of
+    """Whether the prior is adapted to the data first: as asked, else for a named parameter set (a network of
     another machine) on the --train files path. Never on the built-in campaign's path by default, whose packaged
     model starts from its own Table 1; never for `auto` (already read from the data)."""
     from bench.thermal.parameters import PARAMETER_SETS
@@ -340,8 +341,13 @@ def _print_summary(s: dict) -> None:
                   f"1/{p['prior']['n_eff']:.0f}; frozen at the prior: {', '.join(p['frozen']) or 'none'}")
     if s.get("adapted_prior"):
         a = s["adapted_prior"]
-        print(f"{s['prior']} prior scaled to the training data (cost {a['cost_prior']:.4f} -> {a['cost']:.4f}): "
+        print(f"{s['prior']} prior adapted to the training data (cost {a['cost_prior']:.4f} -> scaled "
+              f"{a.get('cost_scaled', a['cost']):.4f} -> each path {a['cost']:.4f}): "
               + ", ".join(f"{g} × {v:.3g}" for g, v in a["scales"].items()))
+        moved = {n: f for n, f in (a.get("paths") or {}).items() if not 0.5 <= f <= 2.0}
+        if moved:
+            print("  paths moved by more than 2× from the scaled prior: "
+                  + ", ".join(f"{n} × {f:.3g}" for n, f in moved.items()))
     if s.get("uncertainty"):
         _print_uncertainty(s["uncertainty"])
     if s.get("regularization") and "cv_rms_C" in s["regularization"]:

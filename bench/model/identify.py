@@ -124,9 +124,9 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         started = time.perf_counter()
         if progress:
             progress("polish", 0, lptn.cost)
-        # a parameter is frozen at the prior only when the prior is this motor's own guess (its file's network,
-        # or read from its data): a foreign prior's single values are another machine's, scaled or not
-        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start, freeze=adapted is None)
+        # a parameter the data cannot place is frozen at the prior: the motor's own guess (its file's network, or
+        # read from its data), or a foreign prior adapted to the data path by path (bench.model.prior_scales)
+        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start)
         if progress:
             progress("polish", 1, lptn.cost)
         errors = uncertainty(runs, dt, lptn.nodes, log_scaled(lptn.bounds), to_search(

@@ -168,6 +168,16 @@ def _from_box(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray
     return s / np.sqrt(1.0 - s * s)
 
 
+def _origin_shift(u: np.ndarray) -> np.ndarray:
+    """A constant added to the LM variables when the start lies at the box's centre (u ≈ 0). Why: MINPACK bounds
+    its first step by 100·‖D u₀‖, so from u₀ ≈ 0 its first step is about 1e-14 long, it sees no reduction and
+    stops at once (the prior's adaptation starts a box centred on its start). Shifting the variables changes no
+    cost, only that first bound; starts off the centre (the swarm's particles) are left as they are."""
+    if math.sqrt(math.fsum(u * u)) >= 1.0:
+        return np.zeros_like(u)
+    return np.ones_like(u)
+
+
 def polish_one(problem: Residuals, start: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                penalty: PriorPenalty | None = None, free: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
     """(coords, cost, evaluations) of one LM polish from `start` (search coordinates); with a `penalty` the cost
@@ -179,12 +189,15 @@ def polish_one(problem: Residuals, start: np.ndarray, lower: np.ndarray, upper: 
         start = np.where(free, np.clip(start, lower + margin, upper - margin), start)
     lo, hi = lower[free], upper[free]
 
-    def box(v):     # (P, free) -> (P, 22)
+    u = _from_box(start[free], lo, hi)
+    shift = _origin_shift(u)
+
+    def box(v):     # (P, free) LM variables -> (P, 22)
         x = np.repeat(start[None], len(v), axis=0)
-        x[:, free] = _to_box(v, lo, hi)
+        x[:, free] = _to_box(v - shift, lo, hi)
         return x
 
-    u = _from_box(start[free], lo, hi)
+    u = u + shift
     weights = np.array([NODE_WEIGHTS[node] for node in problem.nodes])
     extra = (lambda x: 0.0) if penalty is None else penalty.cost
     evaluations = 0

@@ -290,6 +290,27 @@ def test_a_foreign_prior_is_scaled_back_to_the_motor_it_is_adapted_to(runs):
     assert all(s == pytest.approx(1.0, rel=0.01) for s in own.scales.values())
 
 
+def test_a_foreign_priors_single_paths_are_adapted_where_common_factors_cannot_reach(runs):
+    from bench.model.prior_scales import adapt_prior, scale_prior
+
+    # this motor's size, but two paths shaped as another machine's: the winding-tooth resistance 8 times too
+    # wide, the magnet-shaft path's speed part a tenth (Table 1 against the IPM example is off so, and more)
+    foreign = TRUTH.with_values(R_wt=TRUTH.R_wt * 8.0, a_ma=TRUTH.a_ma * 0.1)
+    scaled = scale_prior(runs, DT, foreign)
+    adapted = adapt_prior(runs, DT, foreign)
+    assert adapted.cost_scaled == pytest.approx(scaled.cost)
+    # the paths gain what common factors could not (this failed while the polish could not leave its box's centre:
+    # polish._origin_shift)
+    assert adapted.cost < 0.8 * scaled.cost
+    for name in ("R_wt", "a_ma"):                 # each comes back most of the way (log-distance at least halved)
+        before = abs(math.log(getattr(scaled.parameters, name) / getattr(TRUTH, name)))
+        after = abs(math.log(getattr(adapted.parameters, name) / getattr(TRUTH, name)))
+        assert after < 0.5 * before, (name, getattr(adapted.parameters, name))
+    assert set(adapted.paths) == {"C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm",
+                                  "R_tm0", "a_tm", "R_ma0", "a_ma"}
+    assert adapted.parameters.k_0 == TRUTH.k_0 and adapted.parameters.b_ma == TRUTH.b_ma    # dimensionless stay
+
+
 def _folds(*values: float) -> list[np.ndarray]:
     """Left-out residuals of one fold per value, each fold's RMS that value."""
     return [np.full(50, v) for v in values]
