@@ -132,13 +132,22 @@ def ipm_priors_table(record: Record) -> list[str]:
                      "–" if row["ridge_factor"] is None else f"{row['ridge_factor']:g}",
                      "–" if row.get("stator_weight") is None else _n(row["stator_weight"], 3),
                      ", ".join(_n(v, 2) for v in row["prior_scales"].values()) if row.get("prior_scales") else "–",
+                     _moved_paths(row.get("prior_paths")),
                      f"{_n(row['identify_s'], 1)} ({_n(row['identify_cpu_s'], 1)} CPU)"])
     return [*_table(["prior", "LTI winding", "LTI PM", "Hammerstein winding", "Hammerstein PM", "on a bound",
                      "frozen", "ridge factor", "stator weight", "prior scaled (R, C stator; R, C rotor)",
-                     "`bench identify` s"], rows),
-            f"(°C, RMSE / max \\|error\\|; `table1 0.5-2` is what `bench motor template` gives, scaled to the data "
-            f"first; the ridge factor and stator weight are the Hammerstein step's, chosen by cross-validation; "
-            f"measured {_date(record)}.)"]
+                     "paths moved > 2×", "`bench identify` s"], rows),
+            f"(°C, RMSE / max \\|error\\|; `table1 0.5-2` is what `bench motor template` gives, adapted to the data "
+            f"first: common factors, then each path; the ridge factor and stator weight are the Hammerstein step's, "
+            f"chosen by cross-validation; measured {_date(record)}.)"]
+
+
+def _moved_paths(paths: dict[str, float] | None) -> str:
+    """The adapted prior's paths that moved by more than 2× from the scaled prior, or – without adaptation."""
+    if not paths:
+        return "–"
+    moved = [f"{name} × {_n(factor, 2)}" for name, factor in paths.items() if not 0.5 <= factor <= 2.0]
+    return ", ".join(moved) or "none"
 
 
 def _rmse(model: dict | None, node: str) -> str:

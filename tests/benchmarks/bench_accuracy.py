@@ -144,7 +144,8 @@ def prior_row(data: Path, prior: str, run: dict) -> dict:
            "frozen": list((identified.get("polish") or {}).get("frozen") or []),
            "ridge_factor": selection.get("factor"), "cv_rms_C": selection.get("cv_rms_C"),
            "cv_limit_rms_C": selection.get("cv_limit_rms_C"), "stator_weight": selection.get("stator_weight"),
-           "prior_scales": (identified.get("adapted_prior") or {}).get("scales"), "models": models}
+           "prior_scales": (identified.get("adapted_prior") or {}).get("scales"),
+           "prior_paths": (identified.get("adapted_prior") or {}).get("paths"), "models": models}
     print(f"IPM example, prior {prior}: identify {run['seconds']:.1f} s ({run['cpu_s']:.1f} CPU-s, "
           f"{row['timings_s']}), ridge {row['ridge_factor']}, on a bound {row['on_bounds']}, frozen {row['frozen']}; "
           + "; ".join(f"{kind} winding {m['winding']['rmse_C']:.3f}/{m['winding']['max_abs_C']:.2f}, PM "
