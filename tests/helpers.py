@@ -284,7 +284,7 @@ def example_results(**changes):
     )
 
     results = RunResults(
-        model=ModelInfo("5db6a7f2", "hammerstein", "balanced", 1.0, "maps", "5db6a7f2"),
+        model=ModelInfo("b783e4e4", "hammerstein", "balanced", 1.0, "maps", "b783e4e4"),
         counts=Replies(300, 300, 0, 0, 60),
         agreement=Agreement(NodeValues(0.001, 0.0049, 0.002, 0.003), True, 300, "offline float32", 0,
                             NodeValues(0.0, 0.0, 0.0, 0.0), 1, 0),

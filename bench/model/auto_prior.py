@@ -90,17 +90,13 @@ def _lag(signal: np.ndarray, tau: float, dt: float) -> np.ndarray:
     return lfilter([1.0 - a], [1.0, -a], signal)
 
 
-def _dot(x: np.ndarray, y: np.ndarray) -> float:
-    return math.fsum(x * y)    # exactly rounded: the same sum on every CPU, unlike a BLAS dot
-
-
 def _nonnegative_fit(columns: list[np.ndarray], target: np.ndarray) -> tuple[np.ndarray, float]:
     """Least squares with non-negative coefficients for the first two columns (the gains), by trying the subsets;
     the last column (the initial-rise decay) is free. Returns (coefficients, sum of squared errors)."""
     n = len(columns)
-    gram = np.array([[_dot(a, b) for b in columns] for a in columns])
-    rhs = np.array([_dot(a, target) for a in columns])
-    total = _dot(target, target)
+    gram = np.array([[portable.dot(a, b) for b in columns] for a in columns])
+    rhs = np.array([portable.dot(a, target) for a in columns])
+    total = portable.dot(target, target)
     best = (np.zeros(n), total)
     free = [n - 1] if gram[-1, -1] > 0 else []   # no initial rise in any run: no decay column
     for keep in ((0, 1), (0,), (1,)):

@@ -11,11 +11,13 @@ them clearly has not learnt the machine.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from bench.model.runs import ModelRun
+from bench.thermal import portable
 
 TAU_GRID_S = np.geomspace(5.0, 20000.0, 121)
 NODES = ("winding", "pm")
@@ -30,7 +32,7 @@ def lowpass(signal: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
     """Exact first-order lag of a signal held over each step, starting from 0."""
     from scipy.signal import lfilter
 
-    a = np.exp(-dt / tau_s)
+    a = portable.exp(-dt / tau_s)
     return lfilter([1.0 - a], [1.0, -a], signal)
 
 
@@ -43,7 +45,7 @@ def _initial_rise(run: ModelRun, node: str) -> float:
 
 
 def _decay(run: ModelRun, tau: float) -> np.ndarray:
-    return np.exp(-(np.arange(len(run.inputs.coolant)) + 1) * run.dt / tau)
+    return portable.exp_array(-(np.arange(len(run.inputs.coolant)) + 1) * run.dt / tau)
 
 
 def fit_copper_lowpass(runs: Sequence[ModelRun], node: str) -> dict[str, float]:
@@ -52,10 +54,11 @@ def fit_copper_lowpass(runs: Sequence[ModelRun], node: str) -> dict[str, float]:
     for tau in TAU_GRID_S:
         rises = [_reference(r, node) - r.inputs.coolant - _initial_rise(r, node) * _decay(r, tau) for r in runs]
         filtered = [lowpass(copper_loss(r), tau, r.dt) for r in runs]
-        num = sum(float(f @ y) for f, y in zip(filtered, rises, strict=True))
-        den = sum(float(f @ f) for f in filtered)
+        # exact sums (portable.dot): a BLAS dot's last bit depends on the CPU's kernel, and the gain is recorded
+        num = math.fsum(portable.dot(f, y) for f, y in zip(filtered, rises, strict=True))
+        den = math.fsum(portable.dot(f, f) for f in filtered)
         gain = num / den if den > 0 else 0.0
-        sse = sum(float(np.sum((y - gain * f) ** 2)) for f, y in zip(filtered, rises, strict=True))
+        sse = math.fsum(portable.dot(y - gain * f, y - gain * f) for f, y in zip(filtered, rises, strict=True))
         if best is None or sse < best[0]:
             best = (sse, gain, float(tau))
     count = sum(len(r.inputs.coolant) for r in runs)

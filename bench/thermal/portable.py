@@ -126,6 +126,12 @@ def _log_flat(x: np.ndarray) -> np.ndarray:
     return out
 
 
+def dot(x: np.ndarray, y: np.ndarray) -> float:
+    """Σ x·y of two float64 vectors, exactly rounded: the same sum on every CPU, unlike a BLAS dot (whose kernel,
+    and so its summation order, depends on the CPU and OPENBLAS_CORETYPE)."""
+    return math.fsum(np.asarray(x, float) * np.asarray(y, float))
+
+
 def exp_array(x) -> np.ndarray:
     """Element-wise exp of a float64 array (any shape)."""
     x = kernel_array(x)
