@@ -203,6 +203,75 @@ def wait_for_kernels(timeout: float = 600.0) -> bool:
 # ---------------------------------------------------------------- firmware
 
 
+def run_shared_dir(tmp_path_factory, name: str) -> Path:
+    """A directory every pytest-xdist worker of this run shares (beside the workers' own temporary directories, in
+    the run's), or this session's own in a run in one process. Not created under xdist: its first user makes it."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return tmp_path_factory.getbasetemp().parent / name
+    return tmp_path_factory.mktemp(name)
+
+
+class FirmwareBuilds:
+    """`toolchain.build_firmware`, once per run for each distinct build: a build's ELF and map are kept in a
+    directory all the run's workers share, under the sha256 of everything the compiler and linker read (every
+    source file, the flags, the compiler command and its version). Why: the firmware tests of different modules
+    (on different workers) build the same C, and a build costs about 1 CPU-s of compiling (node.c most of it).
+
+    Two workers that build the same sources at once both build (the builds are deterministic: byte for byte the
+    same) and each writes under a temporary name, then renames, so a reader sees a whole ELF and map or none."""
+
+    def __init__(self, directory: Path):
+        self.directory = Path(directory)
+
+    def key(self, sources: dict[str, str], isr: bool) -> str:
+        import hashlib
+        import json
+
+        from bench.firmware import toolchain
+
+        what = {"sources": sources, "compile": toolchain.compile_flags(Path("."), isr=isr),
+                "link": list(toolchain.LINK_FLAGS), "compiler": list(toolchain.COMPILER),
+                "version": toolchain.toolchain_version()}
+        return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
+
+    def build(self, generated, *, isr: bool = False):
+        """The BuildResult of `build_firmware(generated, isr=isr)`: built now, or read back from this run's cache."""
+        from bench.firmware import toolchain
+        from target_sim.firmware import memory_from_elf
+
+        sources = toolchain.firmware_sources(generated, isr=isr)
+        elf, map_text = self._paths(sources, isr)
+        if elf.is_file() and map_text.is_file():
+            payload = elf.read_bytes()
+            return toolchain.BuildResult(elf=payload, map_text=map_text.read_text(encoding="utf-8"), sources=sources,
+                                         memory=memory_from_elf(payload), toolchain=toolchain.toolchain_version())
+        return self._build(generated, isr, elf, map_text)
+
+    def elf(self, generated, *, isr: bool = False) -> Path:
+        """The path of the ELF `build_firmware(generated, isr=isr)` gives, in this run's cache (built if not there)."""
+        from bench.firmware import toolchain
+
+        elf, map_text = self._paths(toolchain.firmware_sources(generated, isr=isr), isr)
+        if not (elf.is_file() and map_text.is_file()):
+            self._build(generated, isr, elf, map_text)
+        return elf
+
+    def _paths(self, sources: dict[str, str], isr: bool) -> tuple[Path, Path]:
+        key = self.key(sources, isr)
+        return self.directory / f"{key}.elf", self.directory / f"{key}.map"
+
+    @staticmethod
+    def _build(generated, isr: bool, elf: Path, map_text: Path):
+        from bench.fileio import write_bytes_atomically
+        from bench.firmware import toolchain
+
+        result = toolchain.build_firmware(generated, isr=isr)
+        # each written under a temporary name, then renamed; the map first: the ELF marks a whole entry
+        write_bytes_atomically(map_text, result.map_text.encode("utf-8"))
+        write_bytes_atomically(elf, result.elf)
+        return result
+
+
 def patched_elf(path: Path, symbol: str, data: bytes, offset: int = 0) -> bytes:
     """The ELF's bytes with `data` written over `symbol` (+ `offset`) in its file image: a firmware that loads
     like the original and computes or faults differently (e.g. b"\\xfe\\xde", a Thumb UDF, at a function's entry)."""
