@@ -32,6 +32,7 @@ from helpers import (  # noqa: E402
     FirmwareBuilds,
     KernelCompile,
     artifact_text,
+    close_fork_server,
     private_udp_bus,
     run_shared_dir,
     start_kernel_compile,
@@ -186,5 +187,6 @@ def pytest_terminal_summary(terminalreporter, config) -> None:
 
 
 def pytest_unconfigure(config) -> None:
+    close_fork_server()      # run_cli's (helpers.fork_server), in each process that used it
     if KERNELS in config.stash:
         config.stash[KERNELS].close()

@@ -15,6 +15,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,11 +105,124 @@ def subprocess_env(*, can_settings: bool = True, **extra: str) -> dict[str, str]
     return env
 
 
+# run_cli's `-m bench` and `-m target_sim` as plain subprocesses (`sys.executable -m ...`), not forked, when "1"
+SUBPROCESS_ENV = "BENCH_TESTS_SUBPROCESS"
+FORKED_MODULES = ("bench", "target_sim")
+
+
 def run_cli(*argv: str, cwd: Path | None = None, timeout: float = 180,
             can_settings: bool = True) -> subprocess.CompletedProcess:
-    """`python ARGV...` (e.g. "-m", "bench", "run", ...) in the repository root by default, output captured."""
-    return subprocess.run([sys.executable, *argv], cwd=cwd or ROOT, env=subprocess_env(can_settings=can_settings),
-                          capture_output=True, text=True, timeout=timeout)
+    """`python ARGV...` (e.g. "-m", "bench", "run", ...) in the repository root by default, output captured.
+
+    `-m bench` and `-m target_sim` are forked from this process's fork server (`fork_server`: the same command in
+    a fresh interpreter, without its 2.5 CPU-s of imports) unless BENCH_TESTS_SUBPROCESS=1; anything else, and
+    everything then, runs as `sys.executable ARGV...`. A timeout raises subprocess.TimeoutExpired either way."""
+    command = [sys.executable, *argv]
+    env = subprocess_env(can_settings=can_settings)
+    if argv[:1] == ("-m",) and argv[1:2] and argv[1] in FORKED_MODULES and os.environ.get(SUBPROCESS_ENV) != "1":
+        done = fork_server().run(argv[1], list(argv[2:]), cwd=cwd or ROOT, env=env, timeout=timeout)
+        if done.timed_out:
+            raise subprocess.TimeoutExpired(command, timeout, done.stdout, done.stderr)
+        return subprocess.CompletedProcess(command, done.rc, done.stdout, done.stderr)
+    return subprocess.run(command, cwd=cwd or ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+# ---------------------------------------------------------------- the fork server (tests/zygote.py)
+
+ZYGOTE = Path(__file__).with_name("zygote.py")
+
+
+@dataclass
+class Forked:
+    """What a forked command did: its exit status, its output, its wall time, and whether it was stopped at its
+    timeout (then killed with its process group)."""
+
+    rc: int
+    stdout: str
+    stderr: str
+    seconds: float
+    timed_out: bool
+
+
+class ForkServer:
+    """`python -m MODULE ARGS` as a child forked from a server that imported the CLIs' modules once
+    (tests/zygote.py, started with `env`): a fresh interpreter that never ran pytest, in its own session, with its
+    own cwd and environment; about 0.1 s of start-up where a new interpreter spends 2.5 CPU-s importing. One
+    command at a time (the server waits for each child); the server is restarted if it died."""
+
+    def __init__(self, workdir: Path, env: dict[str, str]):
+        self.workdir = Path(workdir)
+        self.env = env
+        self._lock = threading.Lock()
+        self._server: subprocess.Popen | None = None
+        self._count = 0
+
+    def _started(self) -> subprocess.Popen:
+        if self._server is None or self._server.poll() is not None:
+            with (self.workdir / "zygote.stderr").open("ab") as log:
+                self._server = subprocess.Popen([sys.executable, str(ZYGOTE)], cwd=ROOT, env=self.env,
+                                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True,
+                                                bufsize=1)
+        return self._server
+
+    def run(self, module: str, args: list[str], *, cwd: Path, env: dict[str, str], timeout: float) -> Forked:
+        """Run `python -m MODULE ARGS` in `cwd` with exactly the environment `env`; RuntimeError if the server
+        died (its stderr is in the work directory)."""
+        import json
+
+        with self._lock:
+            self._count += 1
+            stdout = self.workdir / f"run{self._count}.stdout"
+            stderr = self.workdir / f"run{self._count}.stderr"
+            server = self._started()
+            request = {"module": module, "args": [str(a) for a in args], "cwd": str(cwd), "timeout": timeout,
+                       "env": env, "stdout": str(stdout), "stderr": str(stderr)}
+            server.stdin.write(json.dumps(request) + "\n")
+            server.stdin.flush()
+            reply = server.stdout.readline()
+            if not reply:
+                raise RuntimeError(f"the fork server died; see {self.workdir / 'zygote.stderr'}")
+            reply = json.loads(reply)
+        done = Forked(reply["rc"], stdout.read_text(errors="replace"), stderr.read_text(errors="replace"),
+                      reply["seconds"], reply["timed_out"])
+        stdout.unlink(missing_ok=True)
+        stderr.unlink(missing_ok=True)
+        return done
+
+    def close(self) -> None:
+        """End the server (EOF on its stdin; killed after 10 s)."""
+        if self._server is not None:
+            self._server.stdin.close()
+            try:
+                self._server.wait(10)
+            except subprocess.TimeoutExpired:
+                self._server.kill()
+                self._server.wait()
+            self._server = None
+
+
+_FORK_SERVER: ForkServer | None = None
+
+
+def fork_server() -> ForkServer:
+    """This process's fork server for `run_cli`, started at its first use (tests/conftest.py closes it)."""
+    global _FORK_SERVER
+    if _FORK_SERVER is None:
+        _FORK_SERVER = ForkServer(Path(tempfile.mkdtemp(prefix="bench-tests-fork-")), subprocess_env())
+    return _FORK_SERVER
+
+
+def close_fork_server() -> None:
+    """End `fork_server`'s server and remove its work directory (kept when the server wrote to its stderr)."""
+    global _FORK_SERVER
+    if _FORK_SERVER is not None:
+        import shutil
+
+        _FORK_SERVER.close()
+        log = _FORK_SERVER.workdir / "zygote.stderr"
+        if not (log.is_file() and log.stat().st_size):
+            shutil.rmtree(_FORK_SERVER.workdir, ignore_errors=True)
+        _FORK_SERVER = None
 
 
 def private_udp_bus():
