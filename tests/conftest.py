@@ -29,9 +29,12 @@ def _load_helpers():
 _load_helpers()
 
 from helpers import (  # noqa: E402
+    FirmwareBuilds,
     KernelCompile,
     artifact_text,
+    close_fork_server,
     private_udp_bus,
+    run_shared_dir,
     start_kernel_compile,
     synthetic_columns,
     wait_for_kernels,
@@ -51,11 +54,8 @@ def udp_bus():
 def default_data_root(tmp_path_factory) -> Path:
     """Where the session's default datasets (`ensure_default_datasets`, ~5 s to generate) go: one directory for the
     whole run, so the drive and model suites and every pytest-xdist worker share one generation
-    (`ensure_default_datasets` locks the directory while it generates; the others wait and reuse the files). Under
-    xdist it is beside the workers' own temporary directories, in the run's; alone, in this session's."""
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        return tmp_path_factory.getbasetemp().parent / "default-data"
-    return tmp_path_factory.mktemp("default-data")
+    (`ensure_default_datasets` locks the directory while it generates; the others wait and reuse the files)."""
+    return run_shared_dir(tmp_path_factory, "default-data")
 
 
 @pytest.fixture(scope="session")
@@ -79,20 +79,29 @@ def artifacts(tmp_path_factory) -> dict[str, Path]:
 
 
 @pytest.fixture(scope="session")
-def firmware_elf(tmp_path_factory, artifacts) -> Callable[..., Path]:
-    """firmware_elf(name of `artifacts` or an artifact path, isr=False) -> its firmware ELF, built once per session
-    (the packaged artifacts' shipped ELF without building; with `isr` the timing image with the current loop's
-    interrupt, always built); skips the test when the compiler (ziglang) is missing."""
+def firmware_builds(tmp_path_factory) -> FirmwareBuilds:
+    """firmware_builds.build(generated, isr=False) -> the BuildResult of `toolchain.build_firmware`, built once per
+    run for each distinct set of sources and shared by every pytest-xdist worker (`helpers.FirmwareBuilds`)."""
+    return FirmwareBuilds(run_shared_dir(tmp_path_factory, "firmware-builds"))
+
+
+@pytest.fixture(scope="session")
+def firmware_elf(artifacts, firmware_builds) -> Callable[..., Path]:
+    """firmware_elf(name of `artifacts` or an artifact path, isr=False) -> its firmware ELF: the packaged artifacts'
+    shipped ELF without building (as `firmware_for`), any other (and with `isr` the timing image with the current
+    loop's interrupt, always built) built once per run, in `firmware_builds`' cache."""
     built: dict[tuple[Path, bool], Path] = {}
-    out = tmp_path_factory.mktemp("firmware")
 
     def get(which: str | Path, isr: bool = False) -> Path:
-        from bench.firmware.images import firmware_for
+        from bench.firmware.codegen import generate
+        from bench.firmware.images import packaged_elf
         from target_sim.artifact import load_artifact
 
         path = Path(artifacts[which]) if isinstance(which, str) and which in artifacts else Path(which)
         if (path, isr) not in built:
-            built[path, isr] = firmware_for(load_artifact(path), out, isr=isr)
+            artifact = load_artifact(path)
+            shipped = None if isr else packaged_elf(artifact)
+            built[path, isr] = shipped or firmware_builds.elf(generate(artifact), isr=isr)
         return built[path, isr]
 
     return get
@@ -178,5 +187,6 @@ def pytest_terminal_summary(terminalreporter, config) -> None:
 
 
 def pytest_unconfigure(config) -> None:
+    close_fork_server()      # run_cli's (helpers.fork_server), in each process that used it
     if KERNELS in config.stash:
         config.stash[KERNELS].close()

@@ -15,6 +15,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,11 +105,124 @@ def subprocess_env(*, can_settings: bool = True, **extra: str) -> dict[str, str]
     return env
 
 
+# run_cli's `-m bench` and `-m target_sim` as plain subprocesses (`sys.executable -m ...`), not forked, when "1"
+SUBPROCESS_ENV = "BENCH_TESTS_SUBPROCESS"
+FORKED_MODULES = ("bench", "target_sim")
+
+
 def run_cli(*argv: str, cwd: Path | None = None, timeout: float = 180,
             can_settings: bool = True) -> subprocess.CompletedProcess:
-    """`python ARGV...` (e.g. "-m", "bench", "run", ...) in the repository root by default, output captured."""
-    return subprocess.run([sys.executable, *argv], cwd=cwd or ROOT, env=subprocess_env(can_settings=can_settings),
-                          capture_output=True, text=True, timeout=timeout)
+    """`python ARGV...` (e.g. "-m", "bench", "run", ...) in the repository root by default, output captured.
+
+    `-m bench` and `-m target_sim` are forked from this process's fork server (`fork_server`: the same command in
+    a fresh interpreter, without its 2.5 CPU-s of imports) unless BENCH_TESTS_SUBPROCESS=1; anything else, and
+    everything then, runs as `sys.executable ARGV...`. A timeout raises subprocess.TimeoutExpired either way."""
+    command = [sys.executable, *argv]
+    env = subprocess_env(can_settings=can_settings)
+    if argv[:1] == ("-m",) and argv[1:2] and argv[1] in FORKED_MODULES and os.environ.get(SUBPROCESS_ENV) != "1":
+        done = fork_server().run(argv[1], list(argv[2:]), cwd=cwd or ROOT, env=env, timeout=timeout)
+        if done.timed_out:
+            raise subprocess.TimeoutExpired(command, timeout, done.stdout, done.stderr)
+        return subprocess.CompletedProcess(command, done.rc, done.stdout, done.stderr)
+    return subprocess.run(command, cwd=cwd or ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+# ---------------------------------------------------------------- the fork server (tests/zygote.py)
+
+ZYGOTE = Path(__file__).with_name("zygote.py")
+
+
+@dataclass
+class Forked:
+    """What a forked command did: its exit status, its output, its wall time, and whether it was stopped at its
+    timeout (then killed with its process group)."""
+
+    rc: int
+    stdout: str
+    stderr: str
+    seconds: float
+    timed_out: bool
+
+
+class ForkServer:
+    """`python -m MODULE ARGS` as a child forked from a server that imported the CLIs' modules once
+    (tests/zygote.py, started with `env`): a fresh interpreter that never ran pytest, in its own session, with its
+    own cwd and environment; about 0.1 s of start-up where a new interpreter spends 2.5 CPU-s importing. One
+    command at a time (the server waits for each child); the server is restarted if it died."""
+
+    def __init__(self, workdir: Path, env: dict[str, str]):
+        self.workdir = Path(workdir)
+        self.env = env
+        self._lock = threading.Lock()
+        self._server: subprocess.Popen | None = None
+        self._count = 0
+
+    def _started(self) -> subprocess.Popen:
+        if self._server is None or self._server.poll() is not None:
+            with (self.workdir / "zygote.stderr").open("ab") as log:
+                self._server = subprocess.Popen([sys.executable, str(ZYGOTE)], cwd=ROOT, env=self.env,
+                                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True,
+                                                bufsize=1)
+        return self._server
+
+    def run(self, module: str, args: list[str], *, cwd: Path, env: dict[str, str], timeout: float) -> Forked:
+        """Run `python -m MODULE ARGS` in `cwd` with exactly the environment `env`; RuntimeError if the server
+        died (its stderr is in the work directory)."""
+        import json
+
+        with self._lock:
+            self._count += 1
+            stdout = self.workdir / f"run{self._count}.stdout"
+            stderr = self.workdir / f"run{self._count}.stderr"
+            server = self._started()
+            request = {"module": module, "args": [str(a) for a in args], "cwd": str(cwd), "timeout": timeout,
+                       "env": env, "stdout": str(stdout), "stderr": str(stderr)}
+            server.stdin.write(json.dumps(request) + "\n")
+            server.stdin.flush()
+            reply = server.stdout.readline()
+            if not reply:
+                raise RuntimeError(f"the fork server died; see {self.workdir / 'zygote.stderr'}")
+            reply = json.loads(reply)
+        done = Forked(reply["rc"], stdout.read_text(errors="replace"), stderr.read_text(errors="replace"),
+                      reply["seconds"], reply["timed_out"])
+        stdout.unlink(missing_ok=True)
+        stderr.unlink(missing_ok=True)
+        return done
+
+    def close(self) -> None:
+        """End the server (EOF on its stdin; killed after 10 s)."""
+        if self._server is not None:
+            self._server.stdin.close()
+            try:
+                self._server.wait(10)
+            except subprocess.TimeoutExpired:
+                self._server.kill()
+                self._server.wait()
+            self._server = None
+
+
+_FORK_SERVER: ForkServer | None = None
+
+
+def fork_server() -> ForkServer:
+    """This process's fork server for `run_cli`, started at its first use (tests/conftest.py closes it)."""
+    global _FORK_SERVER
+    if _FORK_SERVER is None:
+        _FORK_SERVER = ForkServer(Path(tempfile.mkdtemp(prefix="bench-tests-fork-")), subprocess_env())
+    return _FORK_SERVER
+
+
+def close_fork_server() -> None:
+    """End `fork_server`'s server and remove its work directory (kept when the server wrote to its stderr)."""
+    global _FORK_SERVER
+    if _FORK_SERVER is not None:
+        import shutil
+
+        _FORK_SERVER.close()
+        log = _FORK_SERVER.workdir / "zygote.stderr"
+        if not (log.is_file() and log.stat().st_size):
+            shutil.rmtree(_FORK_SERVER.workdir, ignore_errors=True)
+        _FORK_SERVER = None
 
 
 def private_udp_bus():
@@ -201,6 +315,75 @@ def wait_for_kernels(timeout: float = 600.0) -> bool:
 
 
 # ---------------------------------------------------------------- firmware
+
+
+def run_shared_dir(tmp_path_factory, name: str) -> Path:
+    """A directory every pytest-xdist worker of this run shares (beside the workers' own temporary directories, in
+    the run's), or this session's own in a run in one process. Not created under xdist: its first user makes it."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        return tmp_path_factory.getbasetemp().parent / name
+    return tmp_path_factory.mktemp(name)
+
+
+class FirmwareBuilds:
+    """`toolchain.build_firmware`, once per run for each distinct build: a build's ELF and map are kept in a
+    directory all the run's workers share, under the sha256 of everything the compiler and linker read (every
+    source file, the flags, the compiler command and its version). Why: the firmware tests of different modules
+    (on different workers) build the same C, and a build costs about 1 CPU-s of compiling (node.c most of it).
+
+    Two workers that build the same sources at once both build (the builds are deterministic: byte for byte the
+    same) and each writes under a temporary name, then renames, so a reader sees a whole ELF and map or none."""
+
+    def __init__(self, directory: Path):
+        self.directory = Path(directory)
+
+    def key(self, sources: dict[str, str], isr: bool) -> str:
+        import hashlib
+        import json
+
+        from bench.firmware import toolchain
+
+        what = {"sources": sources, "compile": toolchain.compile_flags(Path("."), isr=isr),
+                "link": list(toolchain.LINK_FLAGS), "compiler": list(toolchain.COMPILER),
+                "version": toolchain.toolchain_version()}
+        return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
+
+    def build(self, generated, *, isr: bool = False):
+        """The BuildResult of `build_firmware(generated, isr=isr)`: built now, or read back from this run's cache."""
+        from bench.firmware import toolchain
+        from target_sim.firmware import memory_from_elf
+
+        sources = toolchain.firmware_sources(generated, isr=isr)
+        elf, map_text = self._paths(sources, isr)
+        if elf.is_file() and map_text.is_file():
+            payload = elf.read_bytes()
+            return toolchain.BuildResult(elf=payload, map_text=map_text.read_text(encoding="utf-8"), sources=sources,
+                                         memory=memory_from_elf(payload), toolchain=toolchain.toolchain_version())
+        return self._build(generated, isr, elf, map_text)
+
+    def elf(self, generated, *, isr: bool = False) -> Path:
+        """The path of the ELF `build_firmware(generated, isr=isr)` gives, in this run's cache (built if not there)."""
+        from bench.firmware import toolchain
+
+        elf, map_text = self._paths(toolchain.firmware_sources(generated, isr=isr), isr)
+        if not (elf.is_file() and map_text.is_file()):
+            self._build(generated, isr, elf, map_text)
+        return elf
+
+    def _paths(self, sources: dict[str, str], isr: bool) -> tuple[Path, Path]:
+        key = self.key(sources, isr)
+        return self.directory / f"{key}.elf", self.directory / f"{key}.map"
+
+    @staticmethod
+    def _build(generated, isr: bool, elf: Path, map_text: Path):
+        from bench.fileio import write_bytes_atomically
+        from bench.firmware import toolchain
+
+        result = toolchain.build_firmware(generated, isr=isr)
+        # each written under a temporary name, then renamed; the map first: the ELF marks a whole entry
+        write_bytes_atomically(map_text, result.map_text.encode("utf-8"))
+        write_bytes_atomically(elf, result.elf)
+        return result
 
 
 def patched_elf(path: Path, symbol: str, data: bytes, offset: int = 0) -> bytes:

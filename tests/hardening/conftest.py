@@ -2,28 +2,25 @@
 
 `cli` runs `python -m bench ...` / `python -m target_sim ...` in a child process and returns exit status,
 stdout and stderr. By default the child is forked from a server that has the CLIs' modules imported already
-(tests/hardening/zygote.py: a fresh interpreter, not pytest's), which makes a bad-input case cost ~0.1 s instead
-of ~2 s of imports; HARDENING_SUBPROCESS=1 runs every case as `sys.executable -m ...` instead, and cases that
+(tests/zygote.py, `helpers.ForkServer`: a fresh interpreter, not pytest's), which makes a bad-input case cost ~0.1 s
+instead of ~2 s of imports; HARDENING_SUBPROCESS=1 runs every case as `sys.executable -m ...` instead, and cases that
 need a fresh interpreter (a broken DBC is found while importing) always do.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, artifact_text, subprocess_env, synthetic_columns, write_synthetic_dataset
+from helpers import ForkServer, artifact_text, subprocess_env, synthetic_columns, write_synthetic_dataset
 
-ZYGOTE = Path(__file__).with_name("zygote.py")
 ALWAYS_SUBPROCESS = os.environ.get("HARDENING_SUBPROCESS") == "1"
 
 
@@ -50,20 +47,11 @@ class Result:
 
 
 class Cli:
-    """Runs `python -m MODULE ARGS` in a child process (forked from the zygote, or a plain subprocess)."""
+    """Runs `python -m MODULE ARGS` in a child process (forked from the fork server, or a plain subprocess)."""
 
     def __init__(self, workdir: Path):
         self.workdir = workdir
-        self._lock = threading.Lock()
-        self._server: subprocess.Popen | None = None
-        self._count = 0
-
-    def _zygote(self) -> subprocess.Popen:
-        if self._server is None or self._server.poll() is not None:
-            self._server = subprocess.Popen([sys.executable, str(ZYGOTE)], cwd=ROOT, env=child_env(),
-                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                            stderr=open(self.workdir / "zygote.stderr", "ab"), text=True, bufsize=1)
-        return self._server
+        self.server = ForkServer(workdir, child_env())
 
     def __call__(self, module: str, *args: str, cwd: Path | None = None, env: dict[str, str] | None = None,
                  timeout: float = 60, fresh: bool = False) -> Result:
@@ -71,23 +59,9 @@ class Cli:
         cwd = Path(cwd or self.workdir)
         if fresh or ALWAYS_SUBPROCESS:
             return self.subprocess(module, *args, cwd=cwd, env=env, timeout=timeout)
-        with self._lock:
-            self._count += 1
-            stdout = self.workdir / f"run{self._count}.stdout"
-            stderr = self.workdir / f"run{self._count}.stderr"
-            server = self._zygote()
-            environment = child_env(env)
-            request = {"module": module, "args": args, "cwd": str(cwd), "timeout": timeout, "env": environment,
-                       "stdout": str(stdout), "stderr": str(stderr)}
-            server.stdin.write(json.dumps(request) + "\n")
-            server.stdin.flush()
-            reply = server.stdout.readline()
-            if not reply:
-                raise RuntimeError(f"the fork server died; see {self.workdir / 'zygote.stderr'}")
-            reply = json.loads(reply)
-        result = Result(["python", "-m", module, *args], reply["rc"], stdout.read_text(errors="replace"),
-                        stderr.read_text(errors="replace"), reply["seconds"])
-        if reply["timed_out"]:
+        done = self.server.run(module, args, cwd=cwd, env=child_env(env), timeout=timeout)
+        result = Result(["python", "-m", module, *args], done.rc, done.stdout, done.stderr, done.seconds)
+        if done.timed_out:
             pytest.fail(f"timed out after {timeout} s\n{result}")
         return result
 
@@ -102,13 +76,7 @@ class Cli:
         return Result(["python", "-m", module, *map(str, args)], done.returncode, done.stdout, done.stderr)
 
     def close(self) -> None:
-        if self._server is not None:
-            self._server.stdin.close()
-            try:
-                self._server.wait(10)
-            except subprocess.TimeoutExpired:
-                self._server.kill()
-                self._server.wait()
+        self.server.close()
 
 
 @pytest.fixture(scope="session")

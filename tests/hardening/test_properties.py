@@ -252,16 +252,16 @@ def node_inputs(draw, host: FrameCodec):
 
 
 @pytest.fixture(scope="module")
-def node_elves(node_artifacts, tmp_path_factory):
-    """The firmware of each node artifact (built: they are not the packaged ones), or None without the compiler."""
+def node_elves(node_artifacts, firmware_builds):
+    """The firmware of each node artifact (built once per run: they are not the packaged ones), or None without the
+    compiler."""
     try:
         import ziglang  # noqa: F401
     except ImportError:
         return None
-    from bench.firmware.images import firmware_for
+    from bench.firmware.codegen import generate
 
-    out = tmp_path_factory.mktemp("node-firmware")
-    return {kind: firmware_for(artifact, out) for kind, artifact in node_artifacts.items()}
+    return {kind: firmware_builds.elf(generate(artifact)) for kind, artifact in node_artifacts.items()}
 
 
 @settings(PROPERTY, max_examples=120)

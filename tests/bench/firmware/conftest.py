@@ -35,10 +35,9 @@ def artifact_of() -> Callable:
 
 
 @pytest.fixture(scope="session")
-def firmware_of() -> Callable:
-    """firmware_of(kind, realization, dt) -> (artifact, BuildResult), built once per session."""
+def firmware_of(firmware_builds) -> Callable:
+    """firmware_of(kind, realization, dt) -> (artifact, BuildResult), built once per run (`firmware_builds`)."""
     from bench.firmware.codegen import generate
-    from bench.firmware.toolchain import build_firmware
 
     built: dict = {}
 
@@ -46,7 +45,7 @@ def firmware_of() -> Callable:
         key = (kind, realization, dt)
         if key not in built:
             artifact = _artifact(kind, realization, dt)
-            built[key] = (artifact, build_firmware(generate(artifact)))
+            built[key] = (artifact, firmware_builds.build(generate(artifact)))
         return built[key]
 
     return get
@@ -64,10 +63,10 @@ def _electrical(kind: str, realization: str, dt: float, directory):
 
 
 @pytest.fixture(scope="session")
-def electrical_of(tmp_path_factory) -> Callable:
-    """electrical_of(kind, realization, dt) -> (artifact with an electrical loss model, BuildResult), built once."""
+def electrical_of(tmp_path_factory, firmware_builds) -> Callable:
+    """electrical_of(kind, realization, dt) -> (artifact with an electrical loss model, BuildResult), built once per
+    run (`firmware_builds`)."""
     from bench.firmware.codegen import generate
-    from bench.firmware.toolchain import build_firmware
 
     directory = tmp_path_factory.mktemp("electrical")
     built: dict = {}
@@ -76,7 +75,7 @@ def electrical_of(tmp_path_factory) -> Callable:
         key = (kind, realization, dt)
         if key not in built:
             artifact = _electrical(kind, realization, dt, directory)
-            built[key] = (artifact, build_firmware(generate(artifact)))
+            built[key] = (artifact, firmware_builds.build(generate(artifact)))
         return built[key]
 
     return get

@@ -27,13 +27,13 @@ def check(capsys, *argv: str) -> tuple[int, str, str]:
 
 
 @pytest.mark.parametrize("kind", PACKAGED_KINDS)
-def test_the_packaged_elf_is_what_the_compiler_builds_byte_for_byte(kind):
+def test_the_packaged_elf_is_what_the_compiler_builds_byte_for_byte(kind, firmware_builds):
+    """The shipped ELF is what this run's compiler builds (a build of this run, shared by the firmware tests)."""
     from bench.firmware.codegen import generate
-    from bench.firmware.toolchain import build_firmware
 
     artifact = load_artifact(default_artifact_path(kind))
     assert packaged_elf(artifact) == packaged_elf_path(kind)
-    assert build_firmware(generate(artifact)).elf == packaged_elf_path(kind).read_bytes(), \
+    assert firmware_builds.build(generate(artifact)).elf == packaged_elf_path(kind).read_bytes(), \
         "regenerate the shipped ELFs: python -m bench.firmware.images"
 
 

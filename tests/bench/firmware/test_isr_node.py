@@ -24,16 +24,15 @@ TEMPERATURES = {frame_id("Temperatures1"), frame_id("Temperatures2")}
 
 
 @pytest.fixture(scope="module")
-def isr_image():
-    """(packaged hammerstein artifact, its timing image with the current loop), built once."""
+def isr_image(firmware_builds):
+    """(packaged hammerstein artifact, its timing image with the current loop), built once per run."""
     from bench.firmware.codegen import generate
-    from bench.firmware.toolchain import build_firmware
     from bench.model.default import default_artifact_path
     from target_sim.artifact import load_artifact
     from target_sim.firmware import read_elf
 
     artifact = load_artifact(default_artifact_path("hammerstein"))
-    return artifact, read_elf(build_firmware(generate(artifact), isr=True).elf)
+    return artifact, read_elf(firmware_builds.build(generate(artifact), isr=True).elf)
 
 
 def _run(artifact, image, rate: int, rows: int = 40):
@@ -115,15 +114,14 @@ def test_the_handler_reads_the_timeline_on_dwt(isr_image):
 
 @pytest.mark.parametrize("kind", ["hammerstein", pytest.param("lti-lptn", marks=pytest.mark.slow),
                                   pytest.param("pv-lptn", marks=pytest.mark.slow)])
-def test_model_flash_is_under_the_papers_figure_for_every_packaged_kind(kind):
+def test_model_flash_is_under_the_papers_figure_for_every_packaged_kind(kind, firmware_builds):
     """fw_model.o in the map: each distinct loss-table row once (the maps are symmetric in torque: 55 of 105
     rows are distinct) takes the Hammerstein model from 11 454 to 8 403 bytes."""
     from bench.firmware.codegen import generate
-    from bench.firmware.toolchain import build_firmware
     from bench.model.default import default_artifact_path
     from target_sim.artifact import load_artifact
 
-    build = build_firmware(generate(load_artifact(default_artifact_path(kind))))
+    build = firmware_builds.build(generate(load_artifact(default_artifact_path(kind))))
     flash = build.model_flash
     assert flash["bytes"] == flash["code"] + flash["constants"] < PAPER_MODEL_FLASH_BYTES, flash
     assert flash["constants"] < 5 * 21 * 16 * 4           # below the five whole 21 x 16 float32 tables

@@ -16,10 +16,9 @@ IRQ = 18
 
 
 @pytest.fixture(scope="module")
-def timing_image():
-    """kind -> (packaged artifact, ElfImage with the current loop), built once per module."""
+def timing_image(firmware_builds):
+    """kind -> (packaged artifact, ElfImage with the current loop), built once per run (`firmware_builds`)."""
     from bench.firmware.codegen import generate
-    from bench.firmware.toolchain import build_firmware
     from bench.model.default import default_artifact_path
     from target_sim.artifact import load_artifact
 
@@ -28,7 +27,7 @@ def timing_image():
     def get(kind):
         if kind not in built:
             artifact = load_artifact(default_artifact_path(kind))
-            built[kind] = (artifact, read_elf(build_firmware(generate(artifact), isr=True).elf))
+            built[kind] = (artifact, read_elf(firmware_builds.build(generate(artifact), isr=True).elf))
         return built[kind]
 
     return get
@@ -197,17 +196,16 @@ def test_the_wcet_bound_holds_over_the_measured_maximum(timing_image, kind):
     ("hammerstein", "balanced"),
     pytest.param("lti-lptn", "physical", marks=pytest.mark.slow),
     pytest.param("pv-lptn", "physical", marks=pytest.mark.slow)])
-def test_the_wcet_bound_holds_for_an_electrical_loss_model(electrical_of, electrical_drive, initial, kind,
-                                                             realization):
+def test_the_wcet_bound_holds_for_an_electrical_loss_model(electrical_of, electrical_drive, initial, firmware_builds,
+                                                             kind, realization):
     """An electrical loss model's firmware (losses from the d/q currents: straight-line code, no loop of its own,
     so `loop_bounds` needs no entry for it) is bounded like the maps: fw_step, node_on_frame and the handler,
     each bound over the measured maximum, the outputs bit for bit beside the interrupt."""
     from bench.firmware.codegen import generate
     from bench.firmware.timing import direct_step_max, measure, static_bounds
-    from bench.firmware.toolchain import build_firmware
 
     artifact, _ = electrical_of(kind, realization, 0.5)
-    image = read_elf(build_firmware(generate(artifact), isr=True).elf)
+    image = read_elf(firmware_builds.build(generate(artifact), isr=True).elf)
     bounds = static_bounds(image)
     drive = electrical_drive[:80]
     run = measure(artifact, image, drive, initial, isr_rate_hz=20_000)

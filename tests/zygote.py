@@ -1,8 +1,10 @@
-"""Fork server for the hardening tests: `python -m bench` / `python -m target_sim`, minus the import time.
+"""Fork server for the tests (`helpers.ForkServer`): `python -m bench` / `python -m target_sim`, minus the import
+time.
 
-Every `bench` process spends about 2 s importing (numpy, scipy, python-can with asammdf) before it looks at its
-arguments; the bad-input matrix has dozens of cases. This interpreter imports what those entry points import
-once, then forks one child per request that runs the entry point exactly as `python -m MODULE ARGS` does
+Every `bench` process spends about 2.5 CPU-s importing (numpy, scipy, python-can, which imports asammdf whenever
+it is installed: 1.1 CPU-s of it) before it looks at its arguments; the bad-input matrix has dozens of cases and
+the integration tests dozens of commands. This interpreter imports what those entry points import once, then
+forks one child per request that runs the entry point exactly as `python -m MODULE ARGS` does
 (`runpy.run_module(MODULE, run_name="__main__")`, fd 1 and 2 redirected to files, its own cwd, environment and
 session) and reports the exit status. The child is a fresh process of a fresh interpreter that never ran pytest,
 so no test state (logging handlers, warning filters, captured streams) leaks into what is asserted.
@@ -14,6 +16,7 @@ EOF ends the server.
 
 from __future__ import annotations
 
+import atexit
 import gc
 import json
 import os
@@ -66,6 +69,7 @@ def _child(request: dict) -> int:
         traceback.print_exc()
         code = 1
     gc.collect()  # finalizers that would run at interpreter exit write their complaints now
+    atexit._run_exitfuncs()  # and what the libraries registered for the exit (os._exit below skips it)
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
