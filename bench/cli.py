@@ -166,13 +166,13 @@ def _catch_termination() -> tuple[dict, Callable]:
     raised = []
 
     def terminate(signum, frame) -> None:  # noqa: ARG001 - signal API
-        stop.request()   # worker threads see it too (bench.stop): the main thread's way out waits for them
+        stop.request(signum)   # worker threads see it too (bench.stop): the main thread's way out waits for them
         if not raised:
             raised.append(signum)
             raise Terminated(signum)
 
     def interrupt(signum, frame) -> None:
-        stop.request()
+        stop.request(signum)
         signal.default_int_handler(signum, frame)   # KeyboardInterrupt, as without this handler
 
     previous = {}
@@ -219,6 +219,11 @@ def main(argv: list[str] | None = None) -> int:
             return _main(argv)
         except Terminated as exc:   # wherever it came, even while an error was being reported
             return _terminated(exc)
+        except stop.StopRequested:
+            # the signal's own exception was swallowed on the way (matplotlib's `except Exception` around an
+            # import took the RuntimeError that wrapped it) and only the flag survived: an output about to be
+            # committed, or a worker, saw it (bench.fileio)
+            return _stopped_by(stop.signal_number())
         except Exception as exc:
             # A signal that lands inside a class body being created (a lazy import's dataclass) reaches us wrapped:
             # Python 3.11 re-raises what `__set_name__` raised as the cause of a RuntimeError.
@@ -238,6 +243,10 @@ def main(argv: list[str] | None = None) -> int:
 def _terminated(exc: Terminated) -> int:
     print(f"bench: terminated ({signal.Signals(exc.signum).name}); {STOP_NOTE}", file=sys.stderr)
     return 128 + exc.signum
+
+
+def _stopped_by(signum: int | None) -> int:
+    return _interrupted() if signum == signal.SIGINT else _terminated(Terminated(signum or signal.SIGTERM))
 
 
 def _interrupted() -> int:

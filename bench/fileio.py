@@ -9,6 +9,7 @@ import tempfile
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 
+from bench import stop
 from bench.errors import BenchError
 from host.errors import write_failure
 
@@ -59,6 +60,7 @@ def _write_atomically(path: Path, write: Callable[[Path], None]) -> None:
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the output should look like any other file
     try:
         write(Path(tmp))
+        stop.check()     # a stop asked for never ends in a finished output, even if its signal was swallowed
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -114,6 +116,7 @@ def write_directory_atomically(path: Path, contents: Mapping[str, bytes], *,
                 raise OutputError(path / name, "the file", exc) from None
             os.chmod(target, 0o666 & ~umask)   # mkdtemp makes 0700 and files follow the umask
         os.chmod(tmp, 0o777 & ~umask)
+        stop.check()     # see _write_atomically
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=temporary_prefix(path.name, RANDOM_PART + 4) + "old.", dir=path.parent))
             os.replace(path, old / path.name)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import threading
 
 _requested = threading.Event()
+_signum: list[int] = []     # the signal that asked first
 
 
 class StopRequested(BaseException):
@@ -19,13 +20,21 @@ class StopRequested(BaseException):
     on the way out (scipy's, a retry loop's) takes it for a numerical failure."""
 
 
-def request() -> None:
-    """Ask every loop that checks to stop (called from the signal handler)."""
+def request(signum: int | None = None) -> None:
+    """Ask every loop that checks to stop (called from the signal handler with its signal)."""
+    if signum is not None and not _signum:
+        _signum.append(signum)
     _requested.set()
+
+
+def signal_number() -> int | None:
+    """The signal that asked for the stop first, if a signal did."""
+    return _signum[0] if _signum else None
 
 
 def clear() -> None:
     """Forget a request (the CLI's `main` returns; a test calls it again in the same process)."""
+    _signum.clear()
     _requested.clear()
 
 

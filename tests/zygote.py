@@ -26,6 +26,11 @@ import sys
 import time
 import traceback
 
+# Run as a script, this file's folder (tests/, which has a bench/ folder of tests) comes first on sys.path, and
+# that folder then shadows an editable install's `bench` as a namespace package (the editable finder is asked
+# after the path). `python -m bench` has no such entry: drop it.
+if sys.path and os.path.realpath(sys.path[0] or ".") == os.path.dirname(os.path.realpath(__file__)):
+    del sys.path[0]
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import bench.cli  # noqa: E402

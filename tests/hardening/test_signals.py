@@ -368,6 +368,27 @@ def _main_replaced_by(work_source: str) -> subprocess.CompletedProcess:
                           timeout=60)
 
 
+def test_a_termination_swallowed_for_good_still_leaves_no_output(scratch):
+    """SIGTERM whose exception a library swallows and never re-raises (matplotlib's `except Exception` around its
+    3-D import took the RuntimeError that Python 3.11 wraps a signal in inside `__set_name__`; the command then
+    went on to write its report and exit 0): the output about to be committed sees the stop, nothing is written,
+    and the command ends with its sentence and 143."""
+    out = scratch / "report.txt"
+    done = _main_replaced_by("from pathlib import Path\n"
+                             "from bench.fileio import write_text_atomically\n"
+                             "def work(argv):\n"
+                             "    try:\n"
+                             "        os.kill(os.getpid(), signal.SIGTERM)\n"
+                             "        time.sleep(5)\n"
+                             "    except BaseException:\n"
+                             "        pass\n"
+                             f"    write_text_atomically(Path({str(out)!r}), 'finished')\n"
+                             "    print('the work went on')\n"
+                             "    return 0\n")
+    _assert_stopped(done.returncode, done.stderr, signal.SIGTERM)
+    assert done.stdout == "" and not out.exists() and list(scratch.iterdir()) == []
+
+
 def test_a_termination_swallowed_by_a_finalizer_is_delivered_again(scratch):
     """SIGTERM handled inside a weakref finalizer: Python reports the exception as unraisable and goes on; the
     bench sends the signal again, so the command still stops with its sentence and 143 (not 0 after its work)."""
