@@ -53,6 +53,8 @@ SCALE_GROUPS = {
     "rotor_R": ("R_wm0", "a_wm", "R_tm0", "a_tm", "R_ma0", "a_ma"),
     "rotor_C": ("C_m",),
 }
+# adapt_paths: each its own factor (in the parameters' order)
+PATH_NAMES = tuple(n for n in LptnParameters.names() if any(n in group for group in SCALE_GROUPS.values()))
 SCALE_RANGE = (0.1, 10.0)     # each factor's search range
 GRID = 13                     # grid points per scale (one R and one C scale): factors 10^(-1 … 1 by 1/6)
 
@@ -130,8 +132,7 @@ def adapt_paths(runs: Sequence[ModelRun], dt: float, scaled_prior: AdaptedPrior)
     bounds = parameter_bounds(centre, SCALE_RANGE)
     scaled_names = log_scaled(bounds)
     lower, upper = search_bounds(bounds)
-    names = LptnParameters.names()
-    free = np.array([any(n in group for group in SCALE_GROUPS.values()) for n in names])
+    free = np.isin(LptnParameters.names(), PATH_NAMES)
     problem = Residuals(runs, dt, measured_nodes(runs), scaled_names)
     start = to_search(np.array(centre.as_vector()), scaled_names)
     penalty = prior_penalty(problem, start, start, lower, upper)
@@ -140,6 +141,5 @@ def adapt_paths(runs: Sequence[ModelRun], dt: float, scaled_prior: AdaptedPrior)
     cost = problem.cost(problem.errors(coords[None])[0])
     if not cost < scaled_prior.cost:
         return replace(scaled_prior, cost_scaled=scaled_prior.cost)
-    base = centre.as_dict()
-    paths = {n: v / base[n] for n, v in params.as_dict().items() if free[names.index(n)]}
+    paths = {n: getattr(params, n) / getattr(centre, n) for n in PATH_NAMES}
     return replace(scaled_prior, parameters=params, cost=cost, paths=paths, cost_scaled=scaled_prior.cost)
