@@ -1,4 +1,5 @@
-"""The FTP-75 and WLTC class 3b speed traces shipped in `bench/data` (provenance in PROVENANCE.md there).
+"""The drive-cycle speed traces shipped in `bench/data` (provenance in PROVENANCE.md there): FTP-75 and WLTC class 3b
+(the paper's test sequence), US06 (aggressive, high-speed) and HWFET (highway), for virtual test-bench profiles.
 
 Each trace is verified when it is loaded (points, duration, distance, top speed), so a damaged or replaced
 file fails loudly instead of silently changing every dataset.
@@ -33,6 +34,9 @@ class CycleCheck:
 CHECKS: dict[str, CycleCheck] = {
     "ftp75": CycleCheck(points=1875, duration_s=1874.0, distance_km=17.769, max_speed_kmh=91.25),
     "wltc3b": CycleCheck(points=1801, duration_s=1800.0, distance_km=23.266, max_speed_kmh=131.3),
+    # EPA: US06 8.01 mi in 600 s, top 80.3 mph; HWFET 10.26 mi in 765 s, top 59.9 mph
+    "us06": CycleCheck(points=601, duration_s=600.0, distance_km=12.888, max_speed_kmh=129.23),
+    "hwfet": CycleCheck(points=766, duration_s=765.0, distance_km=16.507, max_speed_kmh=96.40),
 }
 
 
@@ -97,7 +101,7 @@ def verify(trace: SpeedTrace) -> None:
 
 @cache
 def load_trace(name: str) -> SpeedTrace:
-    """The verified trace `ftp75` or `wltc3b` (read once per process)."""
+    """The verified trace of a name in CHECKS (read once per process)."""
     if name not in CHECKS:
         raise KeyError(f"unknown cycle {name!r}; choose one of {', '.join(CHECKS)}")
     trace = _read(name)

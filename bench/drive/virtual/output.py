@@ -50,7 +50,7 @@ def generate_profiles(plant: VirtualPlant, out_dir: Path, seed: int | None = Non
         "motor": {"name": plant.motor.name, "file": plant.motor.path.name if plant.motor.path else None,
                   "sha256": plant.motor.sha256},
         "sample_period_s": plant.sample_period_s, "time_column": None,
-        "initial_state": "all nodes at the profile's first coolant set point",
+        "initial_state": "all nodes at the profile's start_C, else at its first coolant set point",
         "columns": [{"name": c.name, "signal": c.signal, "unit": c.unit, "resolution": c.resolution,
                      "noise": c.noise} for c in plant.columns],
         "profiles": entries,
@@ -96,6 +96,7 @@ def _index_entry(plant: VirtualPlant, profile: Profile, run: VirtualRun, sha: st
     return {"name": profile.name, "file": profile.filename, "sha256": sha, "role": profile.role,
             "rows": len(run.time_s), "duration_s": profile.duration_s,
             "coolant_setpoint_C": profile.coolant_C, "coolant_setpoints_C": profile.setpoints_C,
+            **({"start_C": profile.start_C} if profile.start_C is not None else {}),
             "phases": phases,
             "true_max_rise_above_coolant_K": run.rise_K(),
             "true_range_C": {n: [round(float(run.truth[n].min()), 2), round(float(run.truth[n].max()), 2)]

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-ROLES = ("train", "validate")
-PHASE_KINDS = ("cycle", "constant", "steps", "rest")
+# train: identification; validate: choosing among settings; test: reported only, never looked at while choosing
+ROLES = ("train", "validate", "test")
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,11 @@ class Profile:
     role: str
     coolant_C: float
     phases: tuple[Phase, ...]
+    start_C: float | None = None       # every node soaked at this at t = 0 (None: at coolant_C); a cold/hot start
+
+    @property
+    def initial_C(self) -> float:
+        return self.coolant_C if self.start_C is None else self.start_C
 
     @property
     def duration_s(self) -> float:

@@ -26,13 +26,17 @@ Schema of `virtual_plant` (version 1; every key required unless marked optional)
     in the column's unit); signal "ntc" is a stator NTC on the end winding (the winding node, through gradient,
     lag_s and offset), written to the dataset column ntc_C
     [[profiles]]                            # the measurement runs
-    name, role ("train" or "validate": a suggestion), coolant_C (set point at the start; the machine starts
-    soaked at it), phases: a list of
-      {"kind": "cycle", "cycle": "ftp75"|"wltc3b", "from_s", "to_s" (optional: a segment that starts and
-       ends at standstill), "speed_scale" (optional, default 1)}
+    name, role ("train", "validate" or "test": a fixed split; test profiles are reported, never chosen on),
+    coolant_C (set point at the start), start_C (optional: every node soaked at this at the start, a cold or hot
+    start; default coolant_C), phases: a list of (bench.drive.virtual.phases reads them)
+      {"kind": "cycle", "cycle": "ftp75"|"wltc3b"|"us06"|"hwfet", "from_s", "to_s" (optional: a segment that
+       starts and ends at standstill), "speed_scale" (optional, default 1)}
       {"kind": "constant", "torque_Nm", "speed_rpm", "duration_s", "ramp_s" (optional, 20)}
       {"kind": "steps", "points": [[torque_Nm, speed_rpm, hold_s], ...], "ramp_s" (optional, 5),
        "repeat" (optional, 1)}: linear ramps between the points, from and back to standstill
+      {"kind": "random_steps", "seed", "count", "torque_Nm": [low, high], "speed_rpm": [low, high],
+       "hold_s": [low, high], "ramp_s" (optional, 10)}: count points drawn from seed (speed uniform, torque
+       uniform clipped to the envelope, hold log-uniform in whole 10 s), then as steps
       {"kind": "rest", "duration_s"}: standstill
     and on any phase "coolant_C" (optional): the coolant set point from that phase on.
 
@@ -46,13 +50,12 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.drive.cycles import CHECKS as CYCLE_CHECKS
-from bench.drive.cycles import KMH_PER_MPS, load_trace
 from bench.drive.dataset import BY_NAME, UNITS
 from bench.drive.stand import STAND_KEYS, StandSpec
-from bench.drive.vehicle import VehicleSpec, motor_speed_rpm
+from bench.drive.vehicle import VehicleSpec
 from bench.drive.virtual.machine import Machine, TrueLosses
-from bench.drive.virtual.profiles import PHASE_KINDS, ROLES, Phase, Profile
+from bench.drive.virtual.phases import read_phase
+from bench.drive.virtual.profiles import ROLES, Profile
 from bench.drive.virtual.simulation import SIGNALS, OutputColumn, VirtualPlant, VirtualPlantError, motor_where
 from bench.motor.check import Checker, is_number
 from bench.motor.description import MotorDescription, prior_parameters
@@ -204,7 +207,7 @@ def _profiles(c: Checker, table: dict, plant: VirtualPlant) -> tuple[Profile, ..
         key = f"profiles[{i}]"
         if not isinstance(item, dict):
             c.fail(key, "must be a table {name, role, coolant_C, phases}")
-        c.only(item, key, ("name", "role", "coolant_C", "phases"))
+        c.only(item, key, ("name", "role", "coolant_C", "start_C", "phases"))
         name = item.get("name")
         if not isinstance(name, str) or not name or not all(ch.isalnum() or ch in "._-" for ch in name):
             c.fail(f"{key}.name", f"must be letters, digits, '.', '-' or '_' (it names the file), not {name!r}")
@@ -215,93 +218,18 @@ def _profiles(c: Checker, table: dict, plant: VirtualPlant) -> tuple[Profile, ..
         if role not in ROLES:
             c.fail(f"{key}.role", f"must be one of {', '.join(ROLES)}, not {role!r}")
         coolant = c.number(item, "coolant_C", f"{key}.", low=-30.0, high=120.0)
+        start = c.number(item, "start_C", f"{key}.", low=-30.0, high=200.0, default=coolant)
         phases = item.get("phases")
         if not isinstance(phases, list) or not phases:
             c.fail(f"{key}.phases", "must be a non-empty list of phases")
-        parsed = tuple(_phase(c, f"{key}.phases[{j}]", ph, plant) for j, ph in enumerate(phases))
-        profile = Profile(i + 1, name, role, coolant, parsed)
+        parsed = tuple(read_phase(c, f"{key}.phases[{j}]", ph, plant) for j, ph in enumerate(phases))
+        profile = Profile(i + 1, name, role, coolant, parsed, start)
         rows = profile.duration_s / plant.sample_period_s
         if abs(rows - round(rows)) > 1e-9 * max(rows, 1.0):
             c.fail(key, f"lasts {profile.duration_s:g} s, not a whole number of sample periods "
                         f"({plant.sample_period_s:g} s)")
         out.append(profile)
     return tuple(out)
-
-
-def _phase(c: Checker, key: str, item, plant: VirtualPlant) -> Phase:
-    if not isinstance(item, dict):
-        c.fail(key, "must be a table with a kind (cycle, constant, steps, rest)")
-    kind = item.get("kind")
-    if kind not in PHASE_KINDS:
-        c.fail(f"{key}.kind", f"must be one of {', '.join(PHASE_KINDS)}, not {kind!r}")
-    limits = plant.motor.limits
-    coolant = None
-    if "coolant_C" in item:
-        coolant = c.number(item, "coolant_C", f"{key}.", low=-30.0, high=120.0)
-    spec = {"kind": kind, **({"coolant_C": coolant} if coolant is not None else {})}
-    if kind == "cycle":
-        c.only(item, key, ("kind", "cycle", "from_s", "to_s", "speed_scale", "coolant_C"))
-        cycle = item.get("cycle")
-        if not isinstance(cycle, str) or cycle not in CYCLE_CHECKS:
-            c.fail(f"{key}.cycle", f"must be one of {', '.join(CYCLE_CHECKS)}, not {cycle!r}")
-        trace = load_trace(cycle)
-        start = c.number(item, "from_s", f"{key}.", low=0.0, high=trace.duration_s, default=0.0)
-        end = c.number(item, "to_s", f"{key}.", low=0.0, high=trace.duration_s, default=trace.duration_s)
-        scale = c.number(item, "speed_scale", f"{key}.", low=0.5, high=2.0, default=1.0)
-        if start != int(start) or end != int(end) or end <= start:
-            c.fail(key, f"needs whole seconds from_s < to_s, not {start:g}..{end:g}")
-        for at in (start, end):
-            if trace.speed_kmh[int(at)] != 0:
-                c.fail(key, f"must start and end at standstill; {cycle} runs at {trace.speed_kmh[int(at)]:g} km/h "
-                            f"at {at:g} s")
-        top = float(motor_speed_rpm(plant.vehicle, trace.speed_kmh.max() / KMH_PER_MPS * scale))
-        if top > limits.speed_rpm:
-            c.fail(key, f"reaches {top:.0f} rpm, above limits.speed_rpm ({limits.speed_rpm:g}); lower "
-                        "speed_scale or the gear ratio")
-        spec.update(cycle=cycle, from_s=start, to_s=end, speed_scale=scale)
-        return Phase("cycle", end - start, coolant, spec, cycle=cycle, from_s=start, speed_scale=scale)
-    if kind == "rest":
-        c.only(item, key, ("kind", "duration_s", "coolant_C"))
-        duration = c.number(item, "duration_s", f"{key}.", positive=True, high=1e6)
-        spec.update(duration_s=duration)
-        return Phase("rest", duration, coolant, spec, points=((0.0, 0.0, duration),))
-    if kind == "constant":
-        c.only(item, key, ("kind", "torque_Nm", "speed_rpm", "duration_s", "ramp_s", "coolant_C"))
-        duration = c.number(item, "duration_s", f"{key}.", positive=True, high=1e6)
-        ramp = c.number(item, "ramp_s", f"{key}.", low=0.0, high=600.0, default=20.0)
-        if 2 * ramp >= duration:
-            c.fail(f"{key}.duration_s", f"({duration:g} s) must be longer than its two ramps ({ramp:g} s each)")
-        point = _point(c, key, item.get("torque_Nm"), item.get("speed_rpm"), plant)
-        spec.update(torque_Nm=point[0], speed_rpm=point[1], duration_s=duration, ramp_s=ramp)
-        return Phase("constant", duration, coolant, spec, ramp_s=ramp,
-                     points=((point[0], point[1], duration - 2 * ramp),))
-    c.only(item, key, ("kind", "points", "ramp_s", "repeat", "coolant_C"))
-    ramp = c.number(item, "ramp_s", f"{key}.", low=0.0, high=600.0, default=5.0)
-    repeat = c.whole(item, "repeat", f"{key}.", low=1, high=1000, default=1)
-    raw = item.get("points")
-    if not isinstance(raw, list) or not raw:
-        c.fail(f"{key}.points", "must be a list of [torque_Nm, speed_rpm, hold_s] points")
-    points = []
-    for j, pt in enumerate(raw):
-        if not isinstance(pt, list) or len(pt) != 3:
-            c.fail(f"{key}.points[{j}]", f"must be [torque_Nm, speed_rpm, hold_s], not {pt!r}")
-        torque, speed = _point(c, f"{key}.points[{j}]", pt[0], pt[1], plant)
-        hold = c.number({"hold_s": pt[2]}, "hold_s", f"{key}.points[{j}].", low=0.0, high=1e5)
-        points.append((torque, speed, hold))
-    points = tuple(points) * repeat
-    duration = sum(p[2] for p in points) + ramp * (len(points) + 1)
-    spec.update(points=[list(p) for p in points[: len(raw)]], ramp_s=ramp, repeat=repeat)
-    return Phase("steps", duration, coolant, spec, ramp_s=ramp, points=points)
-
-
-def _point(c: Checker, key: str, torque, speed, plant: VirtualPlant) -> tuple[float, float]:
-    torque = c.number({"torque_Nm": torque}, "torque_Nm", f"{key}.")
-    speed = c.number({"speed_rpm": speed}, "speed_rpm", f"{key}.", low=0.0, high=plant.motor.limits.speed_rpm)
-    limit = float(plant.dq.torque_limit(speed))
-    if abs(torque) > limit + 1e-9:
-        c.fail(key, f"asks {torque:g} Nm at {speed:g} rpm, outside the motor's envelope (at most {limit:.1f} Nm "
-                    "there: min(limits.torque_Nm, machine.power_W / ω))")
-    return torque, speed
 
 
 def _check_envelope(plant: VirtualPlant) -> None:

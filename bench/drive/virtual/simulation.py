@@ -20,7 +20,7 @@ The physics (`VirtualPlant.simulate`):
   torque, speed, coolant and ambient at each step's midpoint and the losses at its start.
 - stand: the coolant inlet follows its set point through a first-order lag (coolant_lag_s), rises by
   coolant_gain_K_per_kW times the lagged nominal losses and wanders (AR(1)); the test-cell air likewise.
-- initial state: every node at the profile's first coolant set point (the machine soaked).
+- initial state: every node at the profile's start_C, else its first coolant set point (the machine soaked).
 - sensors: each column is the true signal at the sample time (a stator NTC: the winding node moved toward the yoke
   by its gradient, through a first-order lag of lag_s, plus its offset), converted to its unit, plus Gaussian noise
   (none on speed at standstill), rounded to its resolution. One numpy Generator per profile and purpose, from
@@ -242,7 +242,7 @@ class VirtualPlant:
         a_d, b_loss, b_env = exact_steps(self.params, op["w"], cool, h)
         drift = (b_env @ np.stack([cool, amb], axis=-1)[..., None])[..., 0]
         inputs = tuple(op[k] for k in ("i_d0", "i_q0", "di_d", "di_q", "x_ac", "x_fe", "x_m", "w"))
-        run = integrate_exact(a_d, b_loss, drift, inputs, self.loss_function(), [profile.coolant_C] * 4, 0.0, h)
+        run = integrate_exact(a_d, b_loss, drift, inputs, self.loss_function(), [profile.initial_C] * 4, 0.0, h)
         stride = int(round(period / h))
         rows = int(round(profile.duration_s / period)) + 1
         t = np.arange(rows) * period

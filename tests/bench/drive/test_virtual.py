@@ -127,7 +127,7 @@ def test_written_files_load_through_the_mapping(short_plant, short_run, tmp_path
     (entry,) = index["profiles"]
     assert entry["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
     assert json.loads((tmp_path / "profiles.json").read_text()) == index
-    assert index["roles"] == {"train": ["short.csv"], "validate": []}
+    assert index["roles"] == {"train": ["short.csv"], "validate": [], "test": []}
     assert entry["coolant_setpoints_C"] == [40.0, 35.0]
     assert [p["kind"] for p in entry["phases"]] == ["constant", "cycle"]
     data = load_dataset(path, mapping(), sample_period_s=1.0)
@@ -197,7 +197,13 @@ def _mutate(content: dict, path: str, value) -> dict:
     ("virtual_plant.profiles.0.phases.0.torque_Nm", 150, "outside the motor's envelope"),
     ("virtual_plant.profiles.0.phases.1.from_s", 1100, "standstill"),
     ("virtual_plant.profiles.0.phases.1.speed_scale", 1.9, "limits.speed_rpm"),
-    ("virtual_plant.profiles.0.role", "test", "profiles[0].role"),
+    ("virtual_plant.profiles.0.role", "exam", "profiles[0].role"),
+    ("virtual_plant.profiles.0.start_C", 400, "profiles[0].start_C"),
+    ("virtual_plant.profiles.0.phases.0", {"kind": "random_steps", "seed": 1, "count": 3, "torque_Nm": [10, 5],
+                                           "speed_rpm": [0, 1000], "hold_s": [60, 600]},
+     "torque_Nm must be [low, high]"),
+    ("virtual_plant.profiles.0.phases.0", {"kind": "random_steps", "count": 3, "torque_Nm": [0, 5],
+                                           "speed_rpm": [0, 1000], "hold_s": [60, 600]}, "seed"),
     ("virtual_plant.profiles.0.phases.0.kind", "sprint", "kind"),
     ("virtual_plant.columns.0.signal", ["torque"], "columns[0].signal"),     # unhashable: once a TypeError
     ("virtual_plant.columns.1.unit", {"V": 1}, "columns[1].unit"),
@@ -269,3 +275,35 @@ def test_lag_and_offset_belong_to_temperature_sensors():
     content["virtual_plant"]["columns"][0]["lag_s"] = 5      # u_q: a voltage
     with pytest.raises(VirtualPlantError, match=r"columns\[0\].lag_s applies to temperature sensors only"):
         virtual_plant(motor_from_dict(content))
+
+
+def test_random_steps_are_fixed_by_their_own_seed_and_stay_in_the_envelope():
+    content = short_dict()
+    random = {"kind": "random_steps", "seed": 7, "count": 6, "torque_Nm": [-50, 200], "speed_rpm": [0, 14000],
+              "hold_s": [60, 1800]}
+    content["virtual_plant"]["profiles"][0]["phases"] = [random]
+    first = virtual_plant(motor_from_dict(content)).profiles[0].phases[0]
+    again = virtual_plant(motor_from_dict(copy.deepcopy(content))).profiles[0].phases[0]
+    assert first.points == again.points and len(first.points) == 6
+    content["virtual_plant"]["profiles"][0]["phases"][0]["seed"] = 8
+    other = virtual_plant(motor_from_dict(content)).profiles[0].phases[0]
+    assert other.points != first.points
+    plant = virtual_plant(motor_from_dict(short_dict()))
+    for torque, speed, hold in first.points:
+        assert 0 <= speed <= 14000 and 60 <= hold <= 1800 and hold % 10 == 0
+        assert -50 <= torque <= float(plant.dq.torque_limit(speed)) + 0.05
+    assert first.duration_s == sum(p[2] for p in first.points) + 10.0 * 7   # seven 10 s ramps
+
+
+def test_a_hot_start_and_the_new_cycles():
+    content = short_dict(coolant=30.0)
+    profile = content["virtual_plant"]["profiles"][0]
+    profile["start_C"] = 90.0
+    profile["phases"] = [{"kind": "cycle", "cycle": "us06"}, {"kind": "cycle", "cycle": "hwfet"},
+                         {"kind": "rest", "duration_s": 600}]
+    plant = virtual_plant(motor_from_dict(content))
+    run = plant.simulate(plant.profiles[0])
+    assert plant.profiles[0].duration_s == 600 + 765 + 600
+    assert run.truth["winding"][0] == pytest.approx(90.0) and run.truth["magnet"][0] == pytest.approx(90.0)
+    assert run.truth["speed"].max() > 9000          # US06 at 129 km/h: 9.5 × 129/3.6/0.31 rad/s ≈ 10 500 rpm
+    assert run.truth["magnet"][-1] < 80.0           # cooling toward the 30 °C coolant
