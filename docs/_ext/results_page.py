@@ -748,13 +748,57 @@ def _sweep_cell(run: dict | None) -> str:
             f"{load['start']:.1f}–{load['end']:.1f}")
 
 
+SUITE_NODES = (("winding", "winding"), ("pm", "magnet"), ("yoke", "yoke"), ("tooth", "tooth"))
+
+
+def _mse_max(figures: dict | None) -> str:
+    return "–" if not figures else f"{figures['mse_K2']:.2f} / {figures['max_K']:.2f}"
+
+
+@single_record("suite", "The motor suite")
+def section_suite(record: Record) -> list[str]:
+    """Every suite motor: identification from each prior on its test profiles (never chosen on), and the observer."""
+    goal = "goal: winding and magnet MSE ≤ 2.0 K² and max ≤ 4.7 K, Hammerstein, designer's and auto prior"
+    lines = ["Each motor of `examples/suite/` identified with `bench identify --all-kinds --bounds 0.1,10` on its "
+             "training profiles and evaluated on its test profiles (pooled, float32, MSE K² / max K; "
+             f"{goal}). \"Worse on validation\": the nodes where the Hammerstein model is worse than its LTI "
+             "network on the validation profiles.", ""]
+    rows = []
+    for motor in record["figures"]["motors"]:
+        for row in motor["priors"]:
+            for kind in ("hammerstein", "lti-lptn"):
+                test = row["test"].get(kind, {})
+                rows.append([motor["motor"], row["prior"], kind,
+                             *(_mse_max(test.get(node)) for node, _ in SUITE_NODES),
+                             ", ".join(row["hammerstein_worse_on_validation"]) or "–" if kind == "hammerstein" else "",
+                             _n(row["identify_s"]) if kind == "hammerstein" else ""])
+    lines += _table(["motor", "prior", "kind", *(name for _, name in SUITE_NODES), "worse on validation",
+                     "identify s"], rows)
+    observed = [m for m in record["figures"]["motors"] if m.get("observer")]
+    if observed:
+        lines += ["The observer on the designer's Hammerstein model with the motor's end-winding sensor (`ntc_C`), its "
+                  "lag, gradient and offset estimated by `bench observer` or taken from the motor file; test profiles, "
+                  "open loop → observer, MSE K²:", ""]
+        rows = []
+        for motor in observed:
+            for run in motor["observer"]:
+                pooled = run.get("pooled") or {}
+                cells = []
+                for node, _ in SUITE_NODES[:2]:
+                    fig = pooled.get(node) or {}
+                    cells.append("–" if not fig else f"{fig['open_loop_mse_K2']:.2f} → {fig['observer_mse_K2']:.2f}")
+                rows.append([motor["motor"], run["how"], *cells, _n(run["observer_s"])])
+        lines += _table(["motor", "sensor", "winding", "magnet", "observer s"], rows)
+    return lines
+
+
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
 SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
     "firmware_timing": section_firmware_timing, "firmware_observer": section_firmware_observer,
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "observer": section_observer,
-    "robustness": section_robustness, "fault_sweep": section_fault_sweep}
+    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite}
 BENCHMARKS = tuple(SECTIONS)
 
 
