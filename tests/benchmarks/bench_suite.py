@@ -21,6 +21,12 @@ here, never used to choose). Per motor:
    profiles, and beside it with the motor file's values; each evaluated on the test profiles (open loop against
    observer per node), timed.
 
+5. With --defaults: each default of `bench identify` beside its alternatives, on the VALIDATION profiles only
+   (`DEFAULTS`: one identification per alternative and motor, from the designer's prior, or table1 where the
+   default concerns a named prior), winding and magnet MSE of both kinds; and the observer's criteria and --bias
+   (tuned on the training profiles, evaluated on the validation profiles). The default should be at least as good
+   as its alternatives on most motors; the record says, per default, which won where.
+
 Goals (issue 37): on every motor, Hammerstein, designer's and auto prior, winding and magnet test MSE ≤ 2.0 K² and
 max ≤ 4.7 K; the observer better than the open loop on the winding and never worse on the magnet.
 Every figure comes from the commands' own `--json`. Writes its record (`tests/benchmarks/record.py`).
@@ -66,19 +72,19 @@ def files(data: Path, index: dict, role: str) -> list[str]:
     return [str(data / name) for name in index["roles"][role]]
 
 
-def identify(motor: Path, work: Path, data: Path, index: dict, prior: str) -> dict:
+def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra: tuple = (), tag: str = "") -> dict:
     option = {"designer": (), "auto": ("--prior", "auto")}.get(prior)
     if option is None:
         path = work / "table1-prior.json"
         path.write_text('{"parameters": "table1"}\n', encoding="utf-8")
         option = ("--prior", str(path))
-    out = work / motor.name / prior / "model.json"
+    out = work / motor.name / (f"{prior}-{tag}" if tag else prior) / "model.json"
     cpu = children_cpu_s()
     load = os.getloadavg()[0]
     identified, seconds = bench(
         "identify", "--motor", str(motor / "motor.json"), "--mapping", str(motor / "mapping.json"),
         "--train", *files(data, index, "train"), "--validate", *files(data, index, "validate"),
-        "--out", str(out), "--all-kinds", "--bounds", BOUNDS, *option)
+        "--out", str(out), "--all-kinds", "--bounds", BOUNDS, *option, *extra)
     return {"json": identified, "seconds": seconds, "cpu_s": children_cpu_s() - cpu, "out": out,
             "load_average": round(max(load, os.getloadavg()[0]), 2)}
 
@@ -132,17 +138,18 @@ def sensor_truth(motor: Path) -> dict:
     raise SystemExit(f"{motor / 'motor.json'} has no column with signal {SENSOR_SIGNAL!r}")
 
 
-def observer(motor: Path, data: Path, index: dict, model: Path, how: str, truth: dict) -> dict:
+def observer(motor: Path, data: Path, index: dict, model: Path, how: str, truth: dict | None, extra: tuple = (),
+             role: str = "test", tag: str = "") -> dict:
     """`bench observer` on the training profiles with the sensor estimated (how = "estimated") or as the motor file
-    says ("file"), then `bench evaluate` of it on the test profiles."""
+    says ("file"), then `bench evaluate` of it on the profiles of `role`."""
     sensor = (("--lag", "auto", "--gradient", "auto", "--offset", "auto") if how == "estimated" else
               ("--lag", str(truth["lag_s"]), "--gradient", str(truth["gradient"]), "--offset", str(truth["offset"])))
-    out = model.with_name(f"observer-{how}.json")
+    out = model.with_name(f"observer-{how}{'-' + tag if tag else ''}.json")
     tuned, seconds = bench("observer", "--model", str(model), "--mapping", str(motor / "mapping.json"),
                            "--train", *files(data, index, "train"), "--measure", SENSOR, *sensor,
-                           "--evaluations", OBSERVER_EVALUATIONS, "--out", str(out))
+                           "--evaluations", OBSERVER_EVALUATIONS, "--out", str(out), *extra)
     evaluated, _ = bench("evaluate", "--model", str(out), "--mapping", str(motor / "mapping.json"),
-                         "--data", *files(data, index, "test"))
+                         "--data", *files(data, index, role))
     per_file = evaluated["models"][0]["observer"]["files"]
     return {"how": how, "observer_s": round(seconds, 1), "tuning": tuned,
             "pooled": pooled_observer(per_file, index), "files": per_file}
@@ -164,11 +171,59 @@ def pooled_observer(per_file: list[dict], index: dict) -> dict:
     return out
 
 
+# default -> (prior it is compared on, the default's extra arguments, {alternative: its arguments})
+DEFAULTS = {
+    "adapt-prior": ("table1", (), {"no": ("--adapt-prior", "no")}),
+    "regularization": ("designer", (), {"fixed": ("--regularization", "fixed")}),
+    "polish": ("designer", (), {"0": ("--polish", "0")}),
+}
+OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
+                                              "likelihood": ("--criterion", "likelihood")}),
+                     "bias": ("off", {"on": ("--bias",)})}
+
+
+def validation_mse(identified: dict) -> dict:
+    """identify's own validation figures: per kind, winding and magnet float32 MSE (K²)."""
+    return {kind: {n: round(v["float32"][n]["rmse"] ** 2, 4) for n in ("winding", "pm")}
+            for kind, v in identified["validation"].items() if isinstance(v, dict) and "float32" in v}
+
+
+def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dict) -> dict:
+    """Each identify default against its alternatives on the validation profiles (the default's run reused)."""
+    out = {}
+    for name, (prior, _, alternatives) in DEFAULTS.items():
+        base = runs.get(prior) or identify(motor, work, data, index, prior)
+        runs[prior] = base
+        row = {"prior": prior, "default": validation_mse(base["json"]), "alternatives": {}}
+        for alt, extra in alternatives.items():
+            run = identify(motor, work, data, index, prior, extra, tag=f"{name}-{alt}")
+            row["alternatives"][alt] = validation_mse(run["json"])
+        out[name] = row
+        print(f"{motor.name} default {name}: {row}", flush=True)
+    return out
+
+
+def compare_observer_defaults(motor: Path, data: Path, index: dict, model: Path) -> dict:
+    """The observer's criterion and bias defaults against their alternatives, tuned on training, scored on
+    validation (sensor lag, gradient and offset estimated, as a user without the truth does)."""
+    out = {}
+    for name, (default, alternatives) in OBSERVER_DEFAULTS.items():
+        row = {"default": default, "scores": {}}
+        for alt, extra in {default: (), **alternatives}.items():
+            run = observer(motor, data, index, model, "estimated", None, extra, role="validate", tag=f"{name}-{alt}")
+            row["scores"][alt] = run["pooled"]
+        out[name] = row
+        print(f"{motor.name} observer default {name}: {row}", flush=True)
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--motors", nargs="+", default=None, help="suite motors by directory name (default all)")
     parser.add_argument("--priors", nargs="+", choices=PRIORS, default=list(PRIORS))
     parser.add_argument("--skip-observer", action="store_true")
+    parser.add_argument("--defaults", action="store_true",
+                        help="also compare each default with its alternatives on the validation profiles")
     parser.add_argument("--work", type=Path, default=None, help="keep the generated files and models here")
     add_record_arguments(parser)
     args = parser.parse_args()
@@ -176,7 +231,8 @@ def main() -> int:
     if not motors:
         parser.error(f"no suite motor named {args.motors} under {SUITE}")
     record = Record("suite", args, parameters={"motors": [m.name for m in motors], "priors": args.priors,
-                                               "bounds": BOUNDS, "observer": not args.skip_observer})
+                                               "bounds": BOUNDS, "observer": not args.skip_observer,
+                                               "defaults": args.defaults})
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     with tempfile.TemporaryDirectory(prefix="bench-suite-") as tmp:
         work = args.work or Path(tmp)
@@ -197,6 +253,10 @@ def one_motor(motor: Path, work: Path, args) -> dict:
         entry["sensor"] = truth
         entry["observer"] = [observer(motor, data, index, runs["designer"]["out"], how, truth)
                              for how in ("estimated", "file")]
+    if args.defaults:
+        entry["defaults"] = compare_defaults(motor, work, data, index, runs)
+        if not args.skip_observer:
+            entry["observer_defaults"] = compare_observer_defaults(motor, data, index, runs["designer"]["out"])
     return entry
 
 
