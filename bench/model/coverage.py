@@ -53,24 +53,28 @@ def speed_coverage(dataset, max_speed_rpm: float) -> SpeedCoverage | None:
 def coverage_warnings(train: Sequence, validate: Sequence, max_speed_rpm: float) -> list[str]:
     """One sentence per finding: the validation files (some or all) and the training files (all of them) that
     cannot check or determine the speed-dependent terms, and validation files far below the training files' load."""
-    limit = (f"{100 * SPEED_SHARE:.0f} % of the motor's {max_speed_rpm:.0f} rpm (or at standstill in "
-             f"{100 * STANDSTILL_FRACTION:.0f} % of their samples)")
     warnings = []
     slow = [c for c in (speed_coverage(d, max_speed_rpm) for d in validate) if c is not None]
     if slow and len(slow) == len(validate):
-        warnings.append(f"every validation file stays below {limit}: {', '.join(c.phrase() for c in slow)}; the "
-                        f"validation figures cannot check {SPEED_TERMS}")
+        warnings.append(f"every validation file stays below {_limit(max_speed_rpm, 'its')}: "
+                        f"{', '.join(c.phrase() for c in slow)}; the validation figures cannot check {SPEED_TERMS}")
     elif slow:
-        warnings.append(f"the validation file{'s' if len(slow) > 1 else ''} "
-                        f"{', '.join(c.phrase() for c in slow)} {'stay' if len(slow) > 1 else 'stays'} below "
-                        f"{limit}, so {'they' if len(slow) > 1 else 'it'} cannot check {SPEED_TERMS}; the other "
-                        "validation files can")
+        many = len(slow) > 1
+        warnings.append(f"the validation file{'s' if many else ''} {', '.join(c.phrase() for c in slow)} "
+                        f"{'stay' if many else 'stays'} below {_limit(max_speed_rpm, 'their' if many else 'its')}, "
+                        f"so {'they' if many else 'it'} cannot check {SPEED_TERMS}; the other validation files can")
     slow_train = [c for c in (speed_coverage(d, max_speed_rpm) for d in train) if c is not None]
     if train and len(slow_train) == len(train):
-        warnings.append(f"every training file stays below {limit}: {', '.join(c.phrase() for c in slow_train)}; "
-                        f"the fit cannot determine {SPEED_TERMS}, so their values will be the prior's")
+        warnings.append(f"every training file stays below {_limit(max_speed_rpm, 'its')}: "
+                        f"{', '.join(c.phrase() for c in slow_train)}; the fit cannot determine {SPEED_TERMS}, so "
+                        "their values will be the prior's")
     warnings.extend(_light_load(train, validate))
     return warnings
+
+
+def _limit(max_speed_rpm: float, own: str) -> str:
+    return (f"{100 * SPEED_SHARE:.0f} % of the motor's {max_speed_rpm:.0f} rpm (or at standstill in "
+            f"{100 * STANDSTILL_FRACTION:.0f} % of {own} samples)")
 
 
 def _light_load(train: Sequence, validate: Sequence) -> list[str]:

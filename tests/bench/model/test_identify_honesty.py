@@ -170,13 +170,13 @@ def test_a_standstill_validation_file_is_named_with_what_it_cannot_check(tmp_pat
     train = [_dataset(tmp_path / "train.csv")]
     still = _dataset(tmp_path / "still.csv", speed=_standstill)
     assert coverage_warnings(train, [still], TOP_RPM) == [
-        "every validation file stays below 20 % of the motor's 9000 rpm (or at standstill in 90 % of their "
+        "every validation file stays below 20 % of the motor's 9000 rpm (or at standstill in 90 % of its "
         "samples): still.csv (at most 31 rpm, at standstill in 100 % of its samples); the validation figures cannot "
         "check the speed-dependent convection (R_wm, R_tm, R_ma) or the speed-dependent iron and magnet losses"]
     moving = _dataset(tmp_path / "moving.csv")
     assert coverage_warnings(train, [still, moving], TOP_RPM) == [
         "the validation file still.csv (at most 31 rpm, at standstill in 100 % of its samples) stays below 20 % of "
-        "the motor's 9000 rpm (or at standstill in 90 % of their samples), so it cannot check the speed-dependent "
+        "the motor's 9000 rpm (or at standstill in 90 % of its samples), so it cannot check the speed-dependent "
         "convection (R_wm, R_tm, R_ma) or the speed-dependent iron and magnet losses; the other validation files "
         "can"]
 
@@ -187,7 +187,7 @@ def test_training_files_all_at_standstill_and_a_light_validation_load_are_named(
     warnings = coverage_warnings(train, [light], TOP_RPM)
     trained = float(np.abs(train[0].torque_Nm).max())
     assert warnings == [
-        "every training file stays below 20 % of the motor's 9000 rpm (or at standstill in 90 % of their samples): "
+        "every training file stays below 20 % of the motor's 9000 rpm (or at standstill in 90 % of its samples): "
         "t1.csv (at most 31 rpm, at standstill in 100 % of its samples); the fit cannot determine the "
         "speed-dependent convection (R_wm, R_tm, R_ma) or the speed-dependent iron and magnet losses, so their "
         "values will be the prior's",
