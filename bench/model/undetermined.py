@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from bench.model.polish import UNIDENTIFIED_LOG_SE, UNIDENTIFIED_RANGE_SHARE
 from bench.thermal.parameters import LptnParameters
 
 # |r| at or above which two parameters are one direction for the data: at 0.999 (equal standard errors) their sum
@@ -59,7 +60,9 @@ def undetermined(record: dict | None) -> dict | None:
     sides = {key: [n for n in side.parameters if n in flagged] for key, side in SIDES.items()}
     sides = {key: names for key, names in sides.items() if names}
     return {"parameters": parameters, "correlated_pairs": pairs, "sides": sides,
-            "sentence": _sentence(parameters, pairs, sides)}
+            "sentence": _sentence(parameters, pairs, sides),
+            "rule": {"relative_se_above": UNIDENTIFIED_LOG_SE, "or_se_above_share_of_range": UNIDENTIFIED_RANGE_SHARE,
+                     "correlation_at_least": COMBINATION_CORRELATION}}
 
 
 def _sentence(parameters: list[str], pairs: list[dict], sides: dict[str, list[str]]) -> str:

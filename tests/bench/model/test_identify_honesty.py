@@ -37,6 +37,8 @@ def test_the_undetermined_parameters_are_one_sentence_by_side_with_their_meaning
     gaps = undetermined(_record(MAGNET, [("R_ma0", "a_ma", -0.99996)]))
     assert gaps["parameters"] == MAGNET and gaps["sides"] == {"magnet": MAGNET}
     assert gaps["correlated_pairs"] == [{"parameters": ["R_ma0", "a_ma"], "r": -0.99996}]
+    assert gaps["rule"] == {"relative_se_above": pytest.approx(0.693147), "or_se_above_share_of_range": 0.5,
+                            "correlation_at_least": 0.999}
     assert gaps["sentence"] == (
         "the training data do not determine 5 of the 22 LPTN parameters: on the magnet side C_m, R_tm0, a_tm, "
         "R_ma0, a_ma, where the magnet estimate rests on the prior (add training profiles that heat the magnet "
