@@ -19,11 +19,12 @@ import numpy as np
 # eq. 15's exponentials and the iron losses run over the speed ratio n/n_max from 0 to 1, and a file below a fifth
 # of it checks them on a small corner of their range only (a judgment, not a fitted figure).
 SPEED_SHARE = 0.2
-# A sample below this share of the top speed is at standstill (the IPM motor's 31 rpm of 14 000 is 0.2 %) ...
+# A sample below this share of the top speed is at standstill (issue 37's measured standstill run: at most 31 rpm) ...
 STANDSTILL_SHARE = 0.01
 # ... and a file with at least this share of its samples there sees the speed-dependent terms only in brief bursts.
 STANDSTILL_FRACTION = 0.9
-# A validation file whose largest |torque| is below this share of the training files' checks only light load.
+# A validation file whose largest |torque| is below this share of the training files' checks only light load: the
+# copper losses, roughly ∝ torque², stay below a sixteenth of the training files' peak there.
 TORQUE_SHARE = 0.25
 
 SPEED_TERMS = "the speed-dependent convection (R_wm, R_tm, R_ma) or the speed-dependent iron and magnet losses"
