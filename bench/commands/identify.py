@@ -15,8 +15,10 @@ from pathlib import Path
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
+from bench.model.coverage import coverage_warnings
 from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS
 from bench.model.polish import POLISH_STARTS
+from bench.model.undetermined import undetermined
 from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
 from target_sim.kinds import MODEL_KINDS
 
@@ -108,6 +110,10 @@ def run(args: argparse.Namespace) -> int:
     regularization = args.regularization or ("cv" if files else "fixed")
     adapt = _adapts(args.adapt_prior, files, prior or motor.prior)
     dt = _model_step(args.dt, train + validate)
+    coverage = coverage_warnings(train, validate, motor.limits.speed_rpm)
+    if not args.quiet:    # before the fit: the user may stop it and choose other files
+        for warning in coverage:
+            print(f"bench: warning: {warning}", file=sys.stderr)
     progress = None if (args.quiet or args.json) else _ProgressBars()
     try:
         result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
@@ -125,9 +131,10 @@ def run(args: argparse.Namespace) -> int:
         written[kind] = str(path)
     prov = result.provenance
     uncertainty = prov.get("uncertainty")
+    gaps = undetermined(uncertainty)
     selection = prov["lm"].get("regularization")
-    warnings = _warnings(result.lptn.on_bounds, prov)
-    deploy = _deployment(selection, metrics)
+    warnings = _warnings(result.lptn.on_bounds, prov, gaps)
+    deploy = _deployment(selection, metrics, written)
     if deploy:
         warnings.append(deploy)
     summary = {"artifacts": written, "motor": motor.name, "loss_model": motor.loss_kind, "dt": dt,
@@ -141,9 +148,10 @@ def run(args: argparse.Namespace) -> int:
                       "evaluations": result.hammerstein.evaluations},
                "baselines": result.provenance["baselines"], "timings_s": result.timings_s, "validation": metrics,
                "nodes": list(result.lptn.nodes), "polish": prov.get("polish"), "uncertainty": uncertainty,
+               "undetermined": gaps,
                "auto_prior": prov["pso"].get("auto_prior"), "adapted_prior": prov["pso"].get("adapted_prior"),
-               "regularization": selection, "warnings": warnings}
-    if not args.quiet:
+               "regularization": selection, "warnings": coverage + warnings}
+    if not args.quiet:    # the coverage warnings were printed before the fit
         for warning in warnings:
             print(f"bench: warning: {warning}", file=sys.stderr)
     if args.json:
@@ -217,52 +225,79 @@ def _model_step(dt: float | None, datasets) -> float:
     return dt
 
 
-def _warnings(on_bounds: list[dict], prov: dict) -> list[str]:
-    """The LPTN fit's warnings: the parameters on a bound, those frozen at the prior, those the data cannot identify.
-    A parameter on a bound of the box around the prior (not a fixed physical limit) means the prior cannot hold this
-    motor's network: then the fit is bent to the box, the frozen and unidentifiable parameters follow from that,
-    and the one sentence with its advice (widen --bounds, --prior auto) is all the warning (--json and the summary
-    keep the rest)."""
+def _warnings(on_bounds: list[dict], prov: dict, gaps: dict | None) -> list[str]:
+    """The LPTN fit's warnings: the parameters on a bound, those frozen at the prior, those the data do not
+    determine. A parameter on a bound of the box around the prior (not a fixed physical limit) means the prior cannot
+    hold this motor's network: then the fit is bent to the box and the frozen parameters follow from that, so the
+    bound's sentence with its advice replaces theirs (--json and the summary keep them). What the data do not
+    determine (`gaps`, bench.model.undetermined) is said in any case: it is what the estimate rests on the prior for."""
     from bench.model.lptn_fit import FIXED_BOUNDS
 
-    if not on_bounds:
-        warnings = []
-    else:
-        warnings = [_bound_warning(on_bounds, prov["pso"]["prior"], prov["pso"]["bounds"])]
-        if any(h["name"] not in FIXED_BOUNDS for h in on_bounds):
-            return warnings
+    warnings = [_bound_warning(on_bounds, prov["pso"]["prior"], prov["pso"]["bounds"])] if on_bounds else []
     frozen = (prov.get("polish") or {}).get("frozen")
-    if frozen:
+    if frozen and all(h["name"] in FIXED_BOUNDS for h in on_bounds):
         warnings.append(f"{', '.join(frozen)} {'was' if len(frozen) == 1 else 'were'} frozen at the prior's value: "
                         "the data cannot identify them and the fit had left them on a bound")
-    blind = [n for n in (prov.get("uncertainty") or {}).get("unidentifiable", []) if n not in (frozen or [])]
-    if blind:
-        warnings.append(f"the training data cannot identify {', '.join(blind)} (standard "
-                        "error above a factor of 2, or half the search range); their values are the prior's guess "
-                        "moved by the fit")
+    if gaps:
+        warnings.append(gaps["sentence"])
     return warnings
 
 
-def _deployment(selection: dict | None, metrics: dict) -> str | None:
-    """A sentence when the Hammerstein model did worse than the LTI network it refines (left-out training files
-    in the cross-validation, or the validation files), None otherwise."""
-    where = []
-    if selection and "recommended" in selection and not MODEL_KINDS[selection["recommended"]].input_nonlinearity:
-        where.append(f"on left-out training files (RMS {selection['selected_rms_C']:.3f} vs "
-                     f"{selection['lti_rms_C']:.3f} °C)")
-    ham, lti = metrics.get("hammerstein"), metrics.get("lti-lptn")
-    if ham and lti:
-        worse = [n for n in ("winding", "pm") if ham["float32"][n]["rmse"] > lti["float32"][n]["rmse"]]
-        if worse:
-            where.append(f"on the validation files ({', '.join(worse)} RMSE)")
-    if not where:
+LTI = "lti-lptn"           # the network the Hammerstein model refines
+COMPARED_NODES = ("winding", "pm")
+
+
+def _deployment(selection: dict | None, metrics: dict, written: dict[str, str]) -> str | None:
+    """A sentence when the Hammerstein model did worse than the LTI network it refines on some evidence (the
+    left-out training files of the cross-validation, the validation files per node), None otherwise. Its advice
+    is true for the command as given: the lti-lptn file it wrote (`written`: kind -> path), else how to write one;
+    when the evidence disagrees it says so instead of choosing."""
+    for_lti, for_ham = _evidence(selection, metrics)
+    if not for_lti:
         return None
-    return ("the Hammerstein model is worse than the LTI LPTN it refines " + " and ".join(where)
-            + "; deploy the lti-lptn artifact (--kind lti-lptn or --all-kinds)")
+    if not for_ham:
+        return ("the Hammerstein model is worse than the LTI LPTN it refines " + " and ".join(for_lti) + "; "
+                + _lti_advice(written))
+    return ("the evidence disagrees on which model to deploy: the LTI LPTN is better " + " and ".join(for_lti)
+            + ", the Hammerstein model " + " and ".join(for_ham) + "; " + _comparison_advice(written))
+
+
+def _evidence(selection: dict | None, metrics: dict) -> tuple[list[str], list[str]]:
+    """(where the LTI network did better, where the Hammerstein model did), each a list of phrases."""
+    for_lti, for_ham = [], []
+    if selection and "recommended" in selection:
+        side = for_ham if MODEL_KINDS[selection["recommended"]].input_nonlinearity else for_lti
+        side.append(f"on left-out training files (RMS Hammerstein {selection['selected_rms_C']:.3f} vs LTI "
+                    f"{selection['lti_rms_C']:.3f} °C)")
+    ham, lti = metrics.get("hammerstein"), metrics.get(LTI)
+    if ham and lti:
+        rmse = {n: (ham["float32"][n]["rmse"], lti["float32"][n]["rmse"]) for n in COMPARED_NODES}
+        worse = [f"{n} {h:.3f} vs {t:.3f}" for n, (h, t) in rmse.items() if h > t]
+        better = [f"{n} {h:.3f} vs {t:.3f}" for n, (h, t) in rmse.items() if h < t]
+        if worse:
+            for_lti.append(f"on the validation files (RMSE Hammerstein vs LTI: {', '.join(worse)} °C)")
+        if better:
+            for_ham.append(f"on the validation files (RMSE Hammerstein vs LTI: {', '.join(better)} °C)")
+    return for_lti, for_ham
+
+
+def _lti_advice(written: dict[str, str]) -> str:
+    if LTI in written:
+        return f"deploy the lti-lptn artifact this command wrote, {written[LTI]}"
+    return "deploy the lti-lptn artifact (write it with --kind lti-lptn, or --all-kinds for all three kinds)"
+
+
+def _comparison_advice(written: dict[str, str]) -> str:
+    if LTI in written and "hammerstein" in written:
+        return (f"compare {written['hammerstein']} and {written[LTI]} with bench evaluate on profiles like those "
+                "the motor will run before choosing one")
+    return ("write both with --all-kinds and compare them with bench evaluate on profiles like those the motor "
+            "will run before choosing one")
 
 
 def _bound_warning(hits: list[dict], prior: str, bounds: list[float]) -> str:
-    """One sentence for every LPTN parameter that ended on a bound: which, and what to change."""
+    """One sentence for every LPTN parameter that ended on a bound: which, and what to change (only what the command
+    has not done already: no wider box when it is already the auto prior's, no --prior auto when it is auto)."""
     from bench.model.lptn_fit import FIXED_BOUNDS
 
     named = ", ".join(f"{h['name']} = {h['value']:.4g} ({h['bound']} bound {h['limit']:.4g})" for h in hits)
@@ -271,13 +306,28 @@ def _bound_warning(hits: list[dict], prior: str, bounds: list[float]) -> str:
     fixed = [h["name"] for h in hits if h["name"] in FIXED_BOUNDS]
     reasons = []
     if boxed:
-        advice = "widen --bounds" if prior == "auto" else "widen --bounds or use --prior auto"
         reasons.append(f"this motor's best network lies outside {bounds[0]:g}-{bounds[1]:g} × the {prior} prior "
-                       f"for {', '.join(boxed)}, so the fit is bent to the box ({advice})")
+                       f"for {', '.join(boxed)}, so the fit is bent to the box ({_box_advice(prior, bounds)})")
     if fixed:
         verb = "sits on a fixed physical limit" if len(fixed) == 1 else "sit on fixed physical limits"
         reasons.append(f"{', '.join(fixed)} {verb}, where the network bends to absorb what the nominal losses miss")
     return f"{count} ended on a bound of the search ({named}): {'; '.join(reasons)}"
+
+
+def _box_advice(prior: str, bounds: list[float]) -> str:
+    """What to change when the box around the prior holds the fit: a wider box unless it is already as wide as the
+    auto prior's (a path that needs more than that is bent by what the losses or the data miss, not by the box),
+    --prior auto unless it is the prior."""
+    from bench.motor.description import AUTO_BOUNDS, AUTO_PRIOR
+
+    wide = bounds[0] <= AUTO_BOUNDS[0] and bounds[1] >= AUTO_BOUNDS[1]
+    advice = [] if wide else ["widen --bounds"]
+    if prior != AUTO_PRIOR:
+        advice.append("use --prior auto")
+    if advice:
+        return " or ".join(advice)
+    return ("a box this wide around a prior read from these data already holds any network they support, so a "
+            "wider one would only bend the network further: check the motor file's losses and the data's units")
 
 
 def _artifact_text(content: dict) -> str:
@@ -286,7 +336,7 @@ def _artifact_text(content: dict) -> str:
     return dumps(content)
 
 
-def _print_uncertainty(u: dict) -> None:
+def _print_uncertainty(u: dict, gaps: dict | None) -> None:
     print("LPTN parameters, standard error (relative for the log-scaled ones):")
     for name, p in u["parameters"].items():
         se = "unidentifiable" if p["se"] is None else (
@@ -297,8 +347,8 @@ def _print_uncertainty(u: dict) -> None:
               if abs(corr[i][j]) >= 0.95]
     if strong:
         print(f"  strongly correlated (|r| >= 0.95): {', '.join(strong)}")
-    if u["unidentifiable"]:
-        print(f"  not identifiable from these data: {', '.join(u['unidentifiable'])}")
+    if gaps:
+        print(f"  {gaps['sentence']}")
 
 
 STAGES = {"pso": "PSO LPTN", "polish": "LM polish", "lm": "LM Hammerstein"}   # identify()'s progress stages
@@ -349,13 +399,13 @@ def _print_summary(s: dict) -> None:
             print("  paths moved by more than 2× from the scaled prior: "
                   + ", ".join(f"{n} × {f:.3g}" for n, f in moved.items()))
     if s.get("uncertainty"):
-        _print_uncertainty(s["uncertainty"])
+        _print_uncertainty(s["uncertainty"], s.get("undetermined"))
     if s.get("regularization") and "cv_rms_C" in s["regularization"]:
         r = s["regularization"]
         scores = ", ".join(f"{f} {v:.3f}" for f, v in r["cv_rms_C"].items())
         print(f"Hammerstein ridge factor {r['factor']:g} by leave-one-file-out cross-validation (RMS on left-out "
               f"files per factor {scores} °C, the strongest within one standard error, {r['cv_limit_rms_C']:.3f} "
-              f"°C; LTI LPTN {r['lti_rms_C']:.3f} °C): deploy {r['recommended']}")
+              f"°C; LTI LPTN {r['lti_rms_C']:.3f} °C): the left-out files favour {r['recommended']}")
         if "stator_weight" in r:
             tried = ", ".join(f"{w['weight']:.3g} (winding+PM {w['cv_rms_C']:.3f}; "
                               + ", ".join(f"{n} {v:.2f}" for n, v in w["stator_rms_C"].items()) + ")"

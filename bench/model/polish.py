@@ -58,6 +58,7 @@ ROUND_EVALUATIONS = 40     # LM function evaluations per round
 DISTINCT = 1e-3            # starts closer than this (share of the box, RMS over dimensions) are one start
 STEP = 1e-6                # forward-difference step in u (and in x for the standard errors)
 UNIDENTIFIED_LOG_SE = math.log(2.0)
+UNIDENTIFIED_RANGE_SHARE = 0.5     # of a linear parameter's search range (the module docstring)
 UNIDENTIFIED_EIGEN = 1e-12
 OUTPUT_INDEX = {"winding": 1, "pm": 3, "yoke": 0, "tooth": 2}
 # The weak prior of the polish (`PriorPenalty`): the search box is its ±2σ interval (σ a quarter of the box's width
@@ -395,7 +396,7 @@ def uncertainty(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], sca
     table, unidentified = {}, []
     for i, name in enumerate(names):
         log = name in scaled
-        limit = UNIDENTIFIED_LOG_SE if log else 0.5 * (bounds[name][1] - bounds[name][0])
+        limit = UNIDENTIFIED_LOG_SE if log else UNIDENTIFIED_RANGE_SHARE * (bounds[name][1] - bounds[name][0])
         entry = {"value": float(values[i]), "se": float(abs(values[i]) * se[i]) if log else float(se[i]),
                  "relative_se": float(se[i]) if log else None}
         table[name] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in entry.items()}

@@ -92,24 +92,26 @@ def test_identify_on_files_records_the_motor_and_the_split(identified, motor_fil
     assert summary["uncertainty"] == prov["uncertainty"] and summary["polish"] == prov["polish"]
     assert set(prov["baselines"]["copper_lowpass"]) == {"winding", "pm"}
     assert summary["split"] == prov["split"]
-    # every parameter the fit left on a bound is named, in JSON and as a warning; then the parameters the data
-    # cannot identify, and which model to deploy when the Hammerstein model did worse
+    # every parameter the fit left on a bound is named, in JSON and as a warning; then the frozen ones, the
+    # parameters the data do not determine, and which model to deploy when the Hammerstein model did worse
     hits = summary["parameters_on_bounds"]
     if hits:     # one sentence names them all
         assert all(f"{hit['name']} = " in summary["warnings"][0] for hit in hits)
         assert "bound of the search" in summary["warnings"][0]
     rest = summary["warnings"][1 if hits else 0:]
     frozen = prov["polish"]["frozen"]
-    unidentified = [n for n in prov["uncertainty"]["unidentifiable"] if n not in frozen]
-    if any(hit["name"] not in FIXED_BOUNDS for hit in hits):   # the prior cannot hold the motor: that sentence only
-        assert not any("frozen" in w or "cannot identify" in w for w in rest)
+    if any(hit["name"] not in FIXED_BOUNDS for hit in hits):   # the prior cannot hold the motor: no frozen sentence
+        assert not any("frozen" in w for w in rest)
     else:
         assert all(name in rest[0] for name in frozen) and set(frozen) <= set(names)
         rest = rest[1 if frozen else 0:]
-        assert bool(unidentified) == any("cannot identify" in w for w in rest)
-        assert all(name in rest[0] for name in unidentified)
+    gaps = summary["undetermined"]      # said in any case
+    assert set(prov["uncertainty"]["unidentifiable"]) <= set(gaps["parameters"] if gaps else [])
+    assert bool(gaps) == any(w.startswith("the training data do not determine") for w in rest)
+    if gaps:
+        assert rest[0] == gaps["sentence"] and all(name in rest[0] for name in gaps["parameters"])
     worse = prov["lm"]["regularization"]["recommended"] == "lti-lptn"
-    assert worse <= any("deploy the lti-lptn artifact" in w for w in rest)
+    assert worse <= any("deploy the lti-lptn artifact" in w or "the evidence disagrees" in w for w in rest)
     for metrics in summary["validation"].values():
         assert {"rmse", "max_abs", "mse", "nrmse"} <= set(metrics["float32"]["winding"])
 
@@ -184,3 +186,26 @@ def test_a_bad_mapping_or_motor_is_one_sentence_and_writes_nothing(motor_files, 
         err = capsys.readouterr().err
         assert expected in err and err.count("\n") == 1 and "Traceback" not in err, (extra, err)
     assert set(tmp_path.iterdir()) == {bad_mapping, bad_motor}   # no artifact, no temporary file
+
+
+def test_the_summary_names_what_the_data_cannot_determine_or_check(motor_files, tmp_path, capsys):
+    """End to end, a tiny fit: a standstill validation file is named before the fit, and the human summary (not
+    only --json) names the parameters the data do not determine, by side, as the warning does."""
+    columns = _profile(3)
+    columns["speed_krpm"] = np.where(np.arange(ROWS) % 50 == 0, 0.031, 0.0)    # at most 31 rpm
+    rows = zip(*columns.values(), strict=True)
+    lines = [",".join(columns)] + [",".join(repr(float(v)) for v in row) for row in rows]
+    (tmp_path / "standstill.csv").write_text("\n".join(lines) + "\n")
+    assert main(["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+                 "--train", str(motor_files / "profile_01.csv"), "--validate", str(tmp_path / "standstill.csv"),
+                 "--swarm", "4", "--iterations", "1", "--lm-iterations", "1", "--polish", "1",
+                 "--regularization", "fixed", "--out", str(tmp_path / "m.json")]) == 0
+    out, err = capsys.readouterr()
+    warnings = [line.removeprefix("bench: warning: ") for line in err.splitlines() if line.startswith("bench: warn")]
+    assert warnings[0].startswith("every validation file stays below 20 % of the motor's 14000 rpm")
+    assert "standstill.csv (at most 31 rpm, at standstill in 100 % of its samples)" in warnings[0]
+    assert warnings[0].endswith("cannot check the speed-dependent convection (R_wm, R_tm, R_ma) or the "
+                                "speed-dependent iron and magnet losses")
+    sentence = next(w for w in warnings if w.startswith("the training data do not determine"))
+    assert f"  {sentence}\n" in out       # the summary says it too, by default
+    assert "on the magnet side C_m, " in sentence and "where the magnet estimate rests on the prior" in sentence
