@@ -76,9 +76,9 @@ class Sensor:
         held = [n for n in ("lag", "gradient", "offset") if n not in cal["estimated"]]
         return (f"sensor {self.column}: lag {self.lag_s:.3g} s, gradient {self.gradient:.3g}, offset "
                 f"{self.offset_C:.3g} K (estimated {', '.join(cal['estimated'])}"
-                f"{'; given ' + ', '.join(held) if held else ''}) against {cal['reference']} on {cal['steps']} steps "
+                f"{'; held ' + ', '.join(held) if held else ''}) against {cal['reference']} on {cal['steps']} steps "
                 f"of {cal['files']} file(s); residual RMS {cal['residual_rms_K']:.2f} K, max "
-                f"{cal['residual_max_K']:.1f} K{''.join('; ' + n for n in cal['notes'])}")
+                f"{cal['residual_max_K']:.2f} K{''.join('; ' + n for n in cal['notes'])}")
 
 
 class LabLaggedSensorKind(LabMeasurementKind):
