@@ -72,6 +72,7 @@ START_Q_C2 = 1e-4       # the search starts here for every node (°C² per step)
 LOG10_BOUNDS = (-12.0, 3.0)
 # a tuned log10 q or R this close to its bound ended at the limit, not at an optimum inside (a warning)
 LIMIT_MARGIN_DECADES = 0.5
+NELDER_MEAD_CAPPED = (1, 2)     # scipy's Nelder-Mead status: stopped at its cap of evaluations (1) or iterations (2)
 
 
 # a temperature sensor column (the lab side of the lagged-sensor kind); the name the earlier interface used
@@ -292,7 +293,8 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     runs = [_run(model, d, process_noise(model, q)[None], [r], p0) for d in deployed]
     return ObserverFit(measurements, q, r, float(10.0 ** best[n + m_count]) if use_reference else None, criterion,
                        float(cost(best)), sum(float(x.nll[0]) for x in runs), sum(int(x.updates[0]) for x in runs),
-                       calls[0], [str(d.path) for d in datasets], bias, converged=result.status != 1)
+                       calls[0], [str(d.path) for d in datasets], bias,
+                       converged=result.status not in NELDER_MEAD_CAPPED)
 
 
 def _starts(start: np.ndarray, n: int) -> list[np.ndarray]:

@@ -74,7 +74,7 @@ class Sensor:
         if not cal:
             return None
         held = [n for n in ("lag", "gradient", "offset") if n not in cal["estimated"]]
-        return (f"sensor {self.column}: lag {self.lag_s:.3g} s, gradient {self.gradient:.3g}, offset "
+        return (f"sensor {self.column}: lag {self.lag_s:.4g} s, gradient {self.gradient:.4g}, offset "
                 f"{self.offset_C:.3g} K (estimated {', '.join(cal['estimated'])}"
                 f"{'; held ' + ', '.join(held) if held else ''}) against {cal['reference']} on {cal['steps']} steps "
                 f"of {cal['files']} file(s); residual RMS {cal['residual_rms_K']:.2f} K, max "
