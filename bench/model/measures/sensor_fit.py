@@ -78,13 +78,16 @@ def fit_sensor(datasets: Sequence, dt: float, column: str, node: str = "winding"
     given = dict(zip(ESTIMATED, (lag_s, gradient, offset_C), strict=True))
     notes, warnings = [], []
     has_yoke = node != "yoke" and all(d.has(YOKE) for d in datasets)
-    if not has_yoke:
+    if node == "yoke":      # node − yoke is 0: a gradient changes nothing
+        if gradient is None:
+            notes.append("the gradient is held at 0: the sensor sees the yoke itself")
+        gradient = 0.0
+    elif not has_yoke:
         if gradient not in (None, 0.0):
             raise UsageError(f"--gradient {gradient:g} needs the yoke reference {YOKE} in every training file to "
-                             f"estimate the sensor's other values; map it with --mapping or give them too")
+                             "estimate the sensor's other values; map it with --mapping or give them too")
         if gradient is None:
-            notes.append(f"the gradient is held at 0: the training files have no yoke reference {YOKE}"
-                         if node != "yoke" else "the gradient is held at 0: the sensor sees the yoke itself")
+            notes.append(f"the gradient is held at 0: not every training file has the yoke reference {YOKE}")
         gradient = 0.0
     files = [_file(d, dt, column, reference, has_yoke) for d in datasets]
     steps = sum(int(f.valid.sum()) for f in files)

@@ -114,7 +114,7 @@ def test_bench_observer_estimates_its_sensor_and_says_where_the_tuning_stopped(f
     sensor = report["measurement"]
     assert sensor["lag_s"] == pytest.approx(25.0, rel=0.02) and sensor["offset_C"] == pytest.approx(0.8, abs=0.05)
     assert sensor["gradient"] == 0.0 and sensor["calibration"]["notes"] == [
-        "the gradient is held at 0: the training files have no yoke reference yoke_C"]
+        "the gradient is held at 0: not every training file has the yoke reference yoke_C"]
     (warning,) = report["warnings"]
     assert warning.startswith("the tuning stopped after 4 filter runs, at its cap (--evaluations)")
     assert captured.err == f"bench: warning: {warning}\n"

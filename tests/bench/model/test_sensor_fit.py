@@ -80,7 +80,7 @@ def test_a_given_value_is_held_and_the_others_estimated():
 def test_no_yoke_reference_holds_the_gradient_at_0_and_says_so():
     fit = fit_sensor([_file(3000, 1, yoke=False, gradient=0.0)], 1.0, "ntc_C")
     assert fit.gradient == 0.0 and fit.estimated == ("lag", "offset")
-    assert fit.notes == ("the gradient is held at 0: the training files have no yoke reference yoke_C",)
+    assert fit.notes == ("the gradient is held at 0: not every training file has the yoke reference yoke_C",)
     assert fit.lag_s == pytest.approx(TAU_S, rel=0.005) and fit.offset_C == pytest.approx(OFFSET_K, abs=0.03)
 
 
