@@ -13,14 +13,25 @@ motor's training runs (20 and 60 °C in out/data, generated if missing) are used
 
 A sensor may lag (--lag τ: the filter then carries the lag's state, so a slow NTC is compared with what it can
 have seen), read a mix of nodes (--gradient g: node + g·(node - yoke), an end-winding NTC between the hot spot and
-the yoke) and have a known offset (--offset). --bias adds a winding heat-bias state (W the loss model misses).
+the yoke) and have an offset (--offset). Each of the three is a number, or auto: estimated from the training files,
+whose winding_C (the node's reference) and yoke_C columns the sensor is fitted to as lag_τ(w + g·(w - yoke)) +
+offset by least squares (τ by a bounded search, τ = 0 allowed; without yoke_C the gradient is held at 0), its
+residual reported: `--lag auto --gradient auto --offset auto` for a sensor nobody measured. --bias adds a winding
+heat-bias state (W the loss model misses).
 --flux adds the flux-linkage magnet temperature from u_d, u_q, i_d, i_q and speed: ψ_0 and α_B (and L_d and
 R_s where the data determine them) are calibrated on the training files against the measured magnet, valid at or
-above --flux-min-speed; the calibration's residual is reported. --measure none with --flux: the flux linkage only.
+above --flux-min-speed; the calibration's residual is reported, a large one is a warning, and one that makes the
+readings useless (or a fitted R_s far from the model's stator resistance) is refused (exit 2) unless --flux-force is
+given. --measure none with --flux: the flux linkage only.
 --resistance adds the winding temperature from the stator resistance, R_s = (u_d + ω_e L_q i_q)/i_d at or below
 --resistance-max-speed where |i_d| is at least --resistance-min-current: R_s0 (and L_q where the data determine
 it) calibrated on the training files against the measured winding, the residual reported; too few such steps or an
-R_s0 the data do not determine is one sentence (exit 2).
+R_s0 the data do not determine is one sentence (exit 2), and its residual and R_s0 are judged as the flux
+linkage's (--resistance-force).
+
+A tuning that ends at a limit of its search (a q or R within half a decade of its bound, e.g. R at its upper limit:
+the filter barely uses the measurement) or at the --evaluations cap before converging says so: one warning each
+(stderr, and `warnings` in --json).
 """
 
 from __future__ import annotations
@@ -68,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from bench.model.default import default_artifact_path
     from bench.model.identify import IDENTIFICATION_COOLANTS
     from bench.model.measures import LAB_MEASUREMENT_KINDS
-    from bench.model.observer import observer_section, tune_observer, with_observer
+    from bench.model.observer import observer_section, tune_observer, tuning_warnings, with_observer
     from bench.model.pipeline import load_campaign
     from target_sim.artifact import dumps, load_artifact
 
@@ -97,11 +108,15 @@ def run(args: argparse.Namespace) -> int:
     if not measurements:
         raise UsageError("--measure none needs --flux or --resistance: the observer needs a measurement")
     fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations, progress, args.bias)
+    warnings = [w for m in measurements for w in m.warnings] + tuning_warnings(fit)
     content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form))
     write_text_atomically(args.out, dumps(content))
     report = {"model": str(model_path), "out": str(args.out), "sha256": content["sha256"],
               "measurement": measurements[0].describe(), "form": args.form, "bias": args.bias,
-              **content["observer"]["tuning"]}
+              **content["observer"]["tuning"], "warnings": warnings}
+    if not args.quiet:
+        for warning in warnings:
+            print(f"bench: warning: {warning}", file=sys.stderr)
     if args.json:
         print_json(report)
     else:

@@ -70,6 +70,9 @@ DEPLOYED_FORM = "ud"
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 START_Q_C2 = 1e-4       # the search starts here for every node (°C² per step), R where each kind says (start_r)
 LOG10_BOUNDS = (-12.0, 3.0)
+# a tuned log10 q or R this close to its bound ended at the limit, not at an optimum inside (a warning)
+LIMIT_MARGIN_DECADES = 0.5
+NELDER_MEAD_CAPPED = (1, 2)     # scipy's Nelder-Mead status: stopped at its cap of evaluations (1) or iterations (2)
 
 
 # a temperature sensor column (the lab side of the lagged-sensor kind); the name the earlier interface used
@@ -96,6 +99,7 @@ class ObserverFit:
     evaluations: int
     files: list[str] = field(default_factory=list)
     bias: bool = False
+    converged: bool = True      # False: the search stopped at its cap of filter runs (--evaluations)
 
     @property
     def measurement(self):
@@ -199,6 +203,12 @@ MAGNET_GUARD_WEIGHT = 200.0
 CAUTIOUS_DECADES = 4.0
 # "nodes" lets R grow further than LOG10_BOUNDS (a measurement barely used: the open loop within reach of the search)
 NODES_R_MAX_LOG10 = 6.0
+
+
+def search_bounds(criterion: str) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The bounds of the tuning's search, log10 of (q, R), for a criterion."""
+    low, high = LOG10_BOUNDS
+    return (low, high), (low, NODES_R_MAX_LOG10 if criterion == "nodes" else high)
 # the magnet criterion starts every training file with the magnet as measured and this much too warm and too cold
 TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
@@ -259,12 +269,10 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
             return total
 
     calls = [0]
-    low, high = LOG10_BOUNDS
-
-    r_high = NODES_R_MAX_LOG10 if criterion == "nodes" else high
+    q_bounds, r_bounds = search_bounds(criterion)
 
     def cost(v):
-        v = np.concatenate([np.clip(v[:n], low, high), np.clip(v[n:], low, r_high)])
+        v = np.concatenate([np.clip(v[:n], *q_bounds), np.clip(v[n:], *r_bounds)])
         total = score(process_noise(model, 10.0 ** v[:n])[None], 10.0 ** v[n:])
         calls[0] += 1
         if progress:
@@ -280,12 +288,13 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     result = minimize(cost, start, method="Nelder-Mead",
                       options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-3,
                                "initial_simplex": start + np.vstack([np.zeros(size), np.eye(size)])})
-    best = np.concatenate([np.clip(result.x[:n], low, high), np.clip(result.x[n:], low, r_high)])
+    best = np.concatenate([np.clip(result.x[:n], *q_bounds), np.clip(result.x[n:], *r_bounds)])
     q, r = 10.0 ** best[:n], 10.0 ** best[n: n + m_count]
     runs = [_run(model, d, process_noise(model, q)[None], [r], p0) for d in deployed]
     return ObserverFit(measurements, q, r, float(10.0 ** best[n + m_count]) if use_reference else None, criterion,
                        float(cost(best)), sum(float(x.nll[0]) for x in runs), sum(int(x.updates[0]) for x in runs),
-                       calls[0], [str(d.path) for d in datasets], bias)
+                       calls[0], [str(d.path) for d in datasets], bias,
+                       converged=result.status not in NELDER_MEAD_CAPPED)
 
 
 def _starts(start: np.ndarray, n: int) -> list[np.ndarray]:
@@ -294,9 +303,56 @@ def _starts(start: np.ndarray, n: int) -> list[np.ndarray]:
     cautious = start.copy()
     cautious[:n] -= CAUTIOUS_DECADES
     cautious[n:] += CAUTIOUS_DECADES
-    cautious[:n] = np.clip(cautious[:n], *LOG10_BOUNDS)
-    cautious[n:] = np.clip(cautious[n:], LOG10_BOUNDS[0], NODES_R_MAX_LOG10)
+    q_bounds, r_bounds = search_bounds("nodes")
+    cautious[:n] = np.clip(cautious[:n], *q_bounds)
+    cautious[n:] = np.clip(cautious[n:], *r_bounds)
     return [start, cautious]
+
+
+def tuning_warnings(fit: ObserverFit) -> list[str]:
+    """One sentence per way the tuning ended at a limit of its search (`search_bounds`, within
+    `LIMIT_MARGIN_DECADES`) or of its filter runs: there the criterion found no optimum inside, and the observer is
+    what the limit makes it."""
+    (q_low, q_high), (r_low, r_high) = search_bounds(fit.criterion)
+    out = []
+    for m, r in zip(fit.measurements, np.log10(fit.r_scale), strict=True):
+        if r >= r_high - LIMIT_MARGIN_DECADES:
+            out.append(f"the tuning ended at R scale {10.0 ** r:.3g} for {m.name}, its upper limit: the filter barely "
+                       f"uses {m.name}, so the observer is close to the open-loop model; the {fit.criterion} "
+                       "criterion found no correction with it that helps")
+        elif r <= r_low + LIMIT_MARGIN_DECADES:
+            out.append(f"the tuning ended at R scale {10.0 ** r:.3g} for {m.name}, its lower limit: the filter takes "
+                       f"{m.name} as exact and passes its noise on to the estimate")
+    log_q = np.log10(fit.q_C2)
+    nodes = log_q[:len(OUTPUTS)]
+    for at, limit, bound, some, every in (
+            (nodes <= q_low + LIMIT_MARGIN_DECADES, "lower", q_low,
+             "the filter takes {} model as exact and corrects {} only through the model's coupling",
+             "the filter takes the model as exact and corrects no node, so the observer is the open-loop model"),
+            (nodes >= q_high - LIMIT_MARGIN_DECADES, "upper", q_high,
+             "the filter drops {} model and follows the measurements for {}",
+             "the filter drops the model and follows the measurements")):
+        hit = [n for n, h in zip(OUTPUTS, at, strict=True) if h]
+        if len(hit) == len(OUTPUTS):
+            which, meaning = "every node", every
+        elif hit:
+            which = f"the {_listed(hit)} node{'s' * (len(hit) > 1)}"
+            meaning = some.format(*(("its", "it") if len(hit) == 1 else ("their", "them")))
+        if hit:
+            out.append(f"the tuning ended at q {10.0 ** bound:.0e} °C² per step for {which}, its {limit} limit: "
+                       f"{meaning}")
+    if fit.bias and log_q[-1] <= q_low + LIMIT_MARGIN_DECADES:
+        out.append("the tuning ended at the lower limit of the winding heat bias's q: the bias never moves, so --bias "
+                   "adds nothing")
+    if not fit.converged:
+        out.append(f"the tuning stopped after {fit.evaluations} filter runs, at its cap (--evaluations), before the "
+                   "search converged: the observer may be far from the criterion's best; raise --evaluations")
+    return out
+
+
+def _listed(names: Sequence[str]) -> str:
+    """'a', 'a and b', 'a, b and c'."""
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
 
 
 def _log_mse(estimate: np.ndarray, reference: np.ndarray) -> float:

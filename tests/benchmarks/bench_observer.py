@@ -132,8 +132,11 @@ def ipm_cases(sensor: dict) -> dict[str, list[str]]:
     the flux linkage with the winding resistance (the NTC and the resistance would share the sensor slot over CAN)."""
     ntc = ["--measure", "ntc_C", "--offset", f"{sensor['offset']:g}", "--lag", f"{sensor['lag_s']:g}",
            "--gradient", f"{sensor.get('gradient', 0.0):g}"]
+    # the IPM's winding-resistance calibration leaves 65 K RMS (the tuning then switches it off): `bench observer`
+    # refuses it unless forced; the cases keep it to record what it does
+    resistance = ["--resistance", "--resistance-force"]
     return {"ntc": ntc, "flux": ["--measure", "none", "--flux"], "ntc+flux": [*ntc, "--flux"],
-            "res": ["--measure", "none", "--resistance"], "flux+res": ["--measure", "none", "--flux", "--resistance"]}
+            "res": ["--measure", "none", *resistance], "flux+res": ["--measure", "none", "--flux", *resistance]}
 
 
 def ipm_example(work: Path, criteria: tuple[str, ...]) -> dict:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.errors import BenchError
+from bench.errors import BenchError, UsageError
 from bench.model.measures import LAB_MEASUREMENT_KINDS, kind_of
 from bench.model.measures.flux_linkage import FluxLinkage, calibrate_flux
 from bench.model.measures.lagged_sensor import Sensor
@@ -251,3 +251,81 @@ def test_a_resistance_the_data_do_not_allow_is_one_sentence(change, said):
     with pytest.raises(BenchError) as info:
         calibrate_resistance([data], 1.0, POLES, ALPHA_CU, 20.0)
     assert said in str(info.value) and "\n" not in str(info.value)
+
+
+def _model_with_resistance(tmp_path, r_s: float):
+    """The electrical test artifact with stator resistance r_s (what a calibration's fitted R_s0 is checked against)."""
+    import json
+
+    from target_sim.artifact import dumps, encode_array, load_artifact
+
+    from helpers import electrical_artifact_text
+
+    content = json.loads(electrical_artifact_text())
+    content.pop("sha256")
+    content["losses"]["stator_resistance_ohm"] = encode_array(r_s)
+    path = tmp_path / "electrical.json"
+    path.write_text(dumps(content), encoding="utf-8")
+    return load_artifact(path)
+
+
+def _asked(kind: str, force: bool = False):
+    """`bench observer`'s options asking for the kind's calibration (pole pairs POLES)."""
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    LAB_MEASUREMENT_KINDS[kind].add_arguments(parser)
+    flag = {"flux-linkage": "--flux", "winding-resistance": "--resistance"}[kind]
+    force_flag = [f"{flag}-force"] if force else []
+    return argparse.Namespace(**vars(parser.parse_args([flag, *force_flag])), pole_pairs=float(POLES))
+
+
+CALIBRATED = {"flux-linkage": _synthetic, "winding-resistance": _low_speed}
+MODEL_DT = 0.5       # the electrical test artifact's step: the synthetic files sampled at it, one sample per step
+
+
+def _sampled_at_model_step(data: _Data) -> _Data:
+    data.sample_period_s = MODEL_DT
+    return data
+
+
+@pytest.mark.parametrize("kind", ["flux-linkage", "winding-resistance"])
+def test_a_fitted_resistance_far_from_the_models_is_refused_unless_forced(kind, tmp_path):
+    """The calibration fits R_s0 = 15.8 mOhm where the model says a quarter of it: one sentence, exit 2; with the
+    kind's force option the same sentence is a warning; against the model's own resistance, nothing."""
+    data = _sampled_at_model_step(CALIBRATED[kind]())
+    what, node = kind, {"flux-linkage": "magnet", "winding-resistance": "winding"}[kind]
+    with pytest.raises(UsageError) as info:
+        LAB_MEASUREMENT_KINDS[kind].from_arguments(_asked(kind), _model_with_resistance(tmp_path, R_S / 4), [data])
+    said = str(info.value)
+    assert said.startswith(f"the {what} calibration is useless: its fitted R_s 15.") and info.value.exit_status == 2
+    assert "times the model's 3.95 mOhm, so its readings would make the " + node + " estimate worse" in said
+    flag = {"flux-linkage": "--flux-force", "winding-resistance": "--resistance-force"}[kind]
+    assert said.endswith(f", or give {flag} to use it anyway") and "\n" not in said
+    forced = LAB_MEASUREMENT_KINDS[kind].from_arguments(_asked(kind, force=True),
+                                                        _model_with_resistance(tmp_path, R_S / 4), [data])
+    assert forced.warnings == (said.removesuffix(f", or give {flag} to use it anyway") + f"; used anyway ({flag})",)
+    ok = LAB_MEASUREMENT_KINDS[kind].from_arguments(_asked(kind), _model_with_resistance(tmp_path, R_S), [data])
+    assert ok.R_s_ohm == pytest.approx(R_S, rel=0.05)
+    assert ok.warnings == (() if kind == "flux-linkage" else (
+        "the winding-resistance calibration's residual is 6.4 K RMS (max 40 K), above 5 K: its readings may make "
+        "the winding estimate worse; compare the observer with and without it (bench evaluate)",))
+
+
+@pytest.mark.parametrize(("noise_v", "refused", "said"), [
+    (1.5, False, "the flux-linkage calibration's residual is 7.2 K RMS (max 33 K), above 5 K: its readings may make "
+                 "the magnet estimate worse; compare the observer with and without it (bench evaluate)"),
+    (5.0, True, "the flux-linkage calibration is useless: its residual is 24.3 K RMS (max 110 K), above the 15 K it "
+                "may have, so its readings would make the magnet estimate worse; check the voltage and current "
+                "columns and --pole-pairs, or raise --flux-min-speed, or give --flux-force to use it anyway"),
+])
+def test_a_flux_calibration_residual_is_warned_or_refused(noise_v, refused, said, tmp_path):
+    """Noisy voltages (1.5 V, 5 V): a residual above 5 K RMS is a warning, above 15 K a refusal (exit 2)."""
+    kind, model = LAB_MEASUREMENT_KINDS["flux-linkage"], _model_with_resistance(tmp_path, R_S)
+    data = [_sampled_at_model_step(_synthetic(noise_v=noise_v))]
+    if refused:
+        with pytest.raises(UsageError) as info:
+            kind.from_arguments(_asked("flux-linkage"), model, data)
+        assert str(info.value) == said
+    else:
+        assert kind.from_arguments(_asked("flux-linkage"), model, data).warnings == (said,)

@@ -10,7 +10,9 @@ tuned variance scale R (`entry`). Its kind (`LabMeasurementKind`) reads such an 
 tuning starts R. A kind that `bench observer` builds from its options adds them (`add_arguments`) and builds its
 measurement from them (`from_arguments`), so the command asks each kind instead of naming it. The calibrations share
 the helpers below: the training files' step means (`training_steps`), least squares that keep only what the data
-determine (`identifiable_fit`) and the variance's fit to the residual (`variance_fit`).
+determine (`identifiable_fit`), the variance's fit to the residual (`variance_fit`) and the verdict on a calibration
+(`judge_calibration`: a warning, or a refusal unless forced). `sensor_fit` is no kind: it estimates a lagged sensor's
+lag, gradient and offset (`--lag auto` ...).
 """
 
 from __future__ import annotations
@@ -42,6 +44,10 @@ class LabMeasurement(Protocol):
 
     def calibration_text(self) -> str | None:
         """What `bench observer` prints of the measurement's calibration on the training files (None: it has none)."""
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """What makes its calibration doubtful, one sentence each (`bench observer` warns)."""
 
 
 class LabMeasurementKind:
@@ -205,3 +211,44 @@ def residual_figures(resid_k: np.ndarray) -> dict:
 def loss_value(artifact, key: str) -> float | None:
     """A scalar of the artifact's loss model (pole pairs, copper coefficient, stator resistance), None if absent."""
     return float(artifact.array("losses", key, dtype=np.float64)) if key in artifact.content["losses"] else None
+
+
+# A calibration's residual (K RMS of its node's temperature) against the lab's reference. Above the first the readings
+# are noisier than the model's own error on the training files (a few K on the shipped motors): they may make the
+# estimate worse, a warning. Above the second they are useless: the filter would follow kelvins of calibration error,
+# a refusal unless forced.
+CALIBRATION_WARN_RMS_K = 5.0
+CALIBRATION_REFUSE_RMS_K = 15.0
+# A fitted stator resistance this many times the model's, or below its reciprocal, is no resistance: the fit took up
+# something else (an inverter voltage drop, a wrong unit or pole pair count), a refusal unless forced.
+RESISTANCE_RATIO_LIMIT = 3.0
+
+
+def judge_calibration(what: str, node: str, calibration: Mapping, r_s_fitted: float | None,
+                      r_s_model: float | None, advice: str, force_option: str, forced: bool) -> tuple[str, ...]:
+    """The warnings of a calibration (`residual_rms_K`, `residual_max_K`) whose fitted stator resistance r_s_fitted
+    (None: not fitted) the model's r_s_model (None: unknown) checks. A useless one (`CALIBRATION_REFUSE_RMS_K`,
+    `RESISTANCE_RATIO_LIMIT`) is one sentence (UsageError, exit 2) naming `advice` and `force_option`, or with
+    `forced` that sentence as a warning."""
+    from bench.errors import UsageError
+
+    rms, largest = float(calibration["residual_rms_K"]), float(calibration["residual_max_K"])
+    figure = f"{rms:.1f} K RMS (max {largest:.0f} K)"
+    problems = []
+    if not rms <= CALIBRATION_REFUSE_RMS_K:
+        problems.append(f"its residual is {figure}, above the {CALIBRATION_REFUSE_RMS_K:g} K it may have")
+    if r_s_fitted is not None and r_s_model is not None and r_s_model > 0:
+        ratio = r_s_fitted / r_s_model
+        if not 1.0 / RESISTANCE_RATIO_LIMIT <= ratio <= RESISTANCE_RATIO_LIMIT:
+            problems.append(f"its fitted R_s {r_s_fitted * 1e3:.3g} mOhm is {ratio:.2g} times the model's "
+                            f"{r_s_model * 1e3:.3g} mOhm")
+    if problems:
+        sentence = (f"the {what} calibration is useless: {' and '.join(problems)}, so its readings would make the "
+                    f"{node} estimate worse; {advice}")
+        if not forced:
+            raise UsageError(f"{sentence}, or give {force_option} to use it anyway")
+        return (f"{sentence}; used anyway ({force_option})",)
+    if rms > CALIBRATION_WARN_RMS_K:
+        return (f"the {what} calibration's residual is {figure}, above {CALIBRATION_WARN_RMS_K:g} K: its readings "
+                f"may make the {node} estimate worse; compare the observer with and without it (bench evaluate)",)
+    return ()

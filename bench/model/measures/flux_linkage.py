@@ -5,14 +5,15 @@ squares of u_q/ω_e = ψ_0 + ψ_0 α_B (ϑ_m - ϑ_0) + L_d i_d + R_s0 (1 + α_cu
 magnet (pm_C) and winding (winding_C): linear in (ψ_0, ψ_0 α_B, L_d, R_s0). L_d and R_s0 are kept only where the
 data determine them (relative standard error below `IDENTIFIABLE`); otherwise L_d is fixed (0 or the given value)
 and R_s0 to the artifact's stator resistance. The residual, in kelvin of magnet temperature, is the calibration's
-figure; its square is fitted as R_floor + R_speed·(n_min/n)² (the noise grows as the speed falls).
+figure; its square is fitted as R_floor + R_speed·(n_min/n)² (the noise grows as the speed falls). A residual or a
+fitted R_s0 that makes the readings useless is refused (`judge_calibration`) unless --flux-force is given.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from bench.model.measures import (
     FromVoltages,
     FromVoltagesKind,
     identifiable_fit,
+    judge_calibration,
     loss_value,
     register,
     residual_figures,
@@ -51,6 +53,7 @@ class FluxLinkage(FromVoltages):
     kind: str = "flux-linkage"
     node: str = "magnet"
     name: str = "flux"
+    warnings: tuple[str, ...] = field(default=(), compare=False)
 
     def readings(self, dataset, dt: float, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         means = step_means(dataset, ("speed_rpm", *COLUMNS), dt, steps)
@@ -103,15 +106,24 @@ class LabFluxLinkageKind(FromVoltagesKind):
         parser.add_argument("--flux-min-speed", type=float, default=DEFAULT_SPEED_MIN_RPM, metavar="RPM",
                             help=f"the flux linkage is valid at or above this speed (default {DEFAULT_SPEED_MIN_RPM:g} "
                                  "rpm)")
+        parser.add_argument("--flux-force", action="store_true",
+                            help="use a flux-linkage calibration even where its residual or fitted R_s says it is "
+                                 "useless (a warning instead of the refusal)")
 
     def from_arguments(self, args, artifact, datasets: Sequence) -> FluxLinkage | None:
         """The flux linkage calibrated on `datasets`, with the artifact's copper coefficient and, for an electrical
-        loss model, its pole pairs and stator resistance."""
+        loss model, its pole pairs and stator resistance; judged by its residual and fitted R_s."""
         if not args.flux:
             return None
-        return calibrate_flux(datasets, artifact.dt, pole_pairs_of(artifact, args.pole_pairs),
+        r_s_model = loss_value(artifact, "stator_resistance_ohm")
+        flux = calibrate_flux(datasets, artifact.dt, pole_pairs_of(artifact, args.pole_pairs),
                               loss_value(artifact, "alpha_cu_per_K"), loss_value(artifact, "copper_reference_C"),
-                              loss_value(artifact, "stator_resistance_ohm"), speed_threshold_ok(args.flux_min_speed))
+                              r_s_model, speed_threshold_ok(args.flux_min_speed))
+        fitted = flux.R_s_ohm if "R_s0" in flux.calibration["fitted"] else None
+        return replace(flux, warnings=judge_calibration(
+            "flux-linkage", "magnet", flux.calibration, fitted, r_s_model,
+            "check the voltage and current columns and --pole-pairs, or raise --flux-min-speed", "--flux-force",
+            args.flux_force))
 
 
 register(LabFluxLinkageKind())

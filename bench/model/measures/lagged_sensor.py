@@ -1,13 +1,16 @@
 """A temperature sensor column (a stator NTC): node + gradient·(node - yoke), first-order lag τ, offset, noise.
 
 Its readings are the column less its offset; its variance is the tuned R. With τ > 0 the observer carries the
-lag's state (a = exp(-Δ/τ)), so a lagging sensor no longer reads as a model error of its node.
+lag's state (a = exp(-Δ/τ)), so a lagging sensor no longer reads as a model error of its node. Each of τ, g and the
+offset is given, or `auto`: estimated from the training files' references of its node and the yoke
+(`bench.model.measures.sensor_fit`).
 """
 
 from __future__ import annotations
 
+import argparse
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -17,6 +20,7 @@ from target_sim.artifact import OUTPUTS, decode_array, encode_array
 from target_sim.measurements.lagged_sensor import sees
 
 START_R_C2 = 0.1    # where the tuning starts a sensor's variance (°C²)
+AUTO = "auto"       # the value of --lag, --gradient and --offset that asks for the estimate from the training files
 
 
 @dataclass(frozen=True)
@@ -27,6 +31,9 @@ class Sensor:
     lag_s: float = 0.0
     gradient: float = 0.0
     kind: str = "lagged-sensor"
+    # the estimate of its values from the training files (`sensor_fit.SensorFit.calibration`), empty when all given
+    calibration: dict = field(default_factory=dict, compare=False)
+    warnings: tuple[str, ...] = field(default=(), compare=False)
 
     @property
     def name(self) -> str:
@@ -59,10 +66,19 @@ class Sensor:
 
     def describe(self) -> dict:
         return {"kind": self.kind, "node": self.node, "column": self.column, "offset_C": self.offset_C,
-                "lag_s": self.lag_s, "gradient": self.gradient}
+                "lag_s": self.lag_s, "gradient": self.gradient,
+                **({"calibration": self.calibration} if self.calibration else {})}
 
     def calibration_text(self) -> str | None:
-        return None
+        cal = self.calibration
+        if not cal:
+            return None
+        held = [n for n in ("lag", "gradient", "offset") if n not in cal["estimated"]]
+        return (f"sensor {self.column}: lag {self.lag_s:.4g} s, gradient {self.gradient:.4g}, offset "
+                f"{self.offset_C:.3g} K (estimated {', '.join(cal['estimated'])}"
+                f"{'; held ' + ', '.join(held) if held else ''}) against {cal['reference']} on {cal['steps']} steps "
+                f"of {cal['files']} file(s); residual RMS {cal['residual_rms_K']:.2f} K, max "
+                f"{cal['residual_max_K']:.2f} K{''.join('; ' + n for n in cal['notes'])}")
 
 
 class LabLaggedSensorKind(LabMeasurementKind):
@@ -84,19 +100,43 @@ class LabLaggedSensorKind(LabMeasurementKind):
                             help="the sensor's dataset column (default winding_C; none: no sensor)")
         parser.add_argument("--node", choices=OUTPUTS, default="winding", help="the model node the sensor sees "
                             "(default winding)")
-        parser.add_argument("--offset", type=float, default=0.0,
-                            help="the sensor's offset in K, subtracted from each reading")
-        parser.add_argument("--lag", type=float, default=0.0, help="the sensor's time constant in s (a lag state "
-                            "of the filter; default 0: none)")
-        parser.add_argument("--gradient", type=float, default=0.0,
-                            help="the sensor reads node + GRADIENT·(node - yoke) (default 0)")
+        parser.add_argument("--offset", type=_number_or_auto, default=0.0, metavar="K|auto",
+                            help="the sensor's offset in K, subtracted from each reading (default 0; auto: estimated "
+                                 "from the training files)")
+        parser.add_argument("--lag", type=_number_or_auto, default=0.0, metavar="S|auto",
+                            help="the sensor's time constant in s (a lag state of the filter; default 0: none; auto: "
+                                 "estimated from the training files)")
+        parser.add_argument("--gradient", type=_number_or_auto, default=0.0, metavar="G|auto",
+                            help="the sensor reads node + G·(node - yoke) (default 0; auto: estimated from the "
+                                 "training files' node and yoke_C references)")
 
     def from_arguments(self, args, artifact, datasets) -> Sensor | None:
         if args.measure == "none":
             return None
-        if not 0 <= args.lag < 1e5:
-            raise UsageError("--lag must be a non-negative number of seconds")
-        return Sensor(args.node, args.measure, args.offset, args.lag, args.gradient)
+        if args.lag != AUTO and not 0 <= args.lag < 1e5:
+            raise UsageError("--lag must be a non-negative number of seconds or auto")
+        values = (args.lag, args.gradient, args.offset)
+        if AUTO not in values:
+            return Sensor(args.node, args.measure, args.offset, args.lag, args.gradient)
+        from bench.model.measures.sensor_fit import fit_sensor
+
+        lag, gradient, offset = (None if v == AUTO else v for v in values)
+        fit = fit_sensor(datasets, artifact.dt, args.measure, args.node, lag, gradient, offset)
+        return Sensor(args.node, args.measure, fit.offset_C, fit.lag_s, fit.gradient, calibration=fit.calibration(),
+                      warnings=fit.warnings)
+
+
+def _number_or_auto(text: str) -> float | str:
+    """A number, or `auto` (estimated from the training files)."""
+    if text.strip().lower() == AUTO:
+        return AUTO
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither a number nor auto") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
 
 
 register(LabLaggedSensorKind())

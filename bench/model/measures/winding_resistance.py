@@ -6,14 +6,16 @@ against the measured winding (winding_C): linear in (R_s0, L_q). L_q is kept onl
 (relative standard error below `IDENTIFIABLE`, as the flux linkage's L_d), else fixed (0 or the given value); an
 R_s0 the data do not determine, or too few valid steps, is one sentence ("where the data allow it"). The residual,
 in kelvin of winding temperature (δu/(i_d R_s0 α_cu)), is the calibration's figure; its square is fitted as
-R_floor + R_current·(i_min/i_d)² (the noise grows as |i_d| falls).
+R_floor + R_current·(i_min/i_d)² (the noise grows as |i_d| falls). A residual, or an R_s0 far from the model's
+stator resistance, that makes the readings useless is refused (`judge_calibration`) unless --resistance-force is
+given.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -22,6 +24,7 @@ from bench.model.measures import (
     FromVoltages,
     FromVoltagesKind,
     identifiable_fit,
+    judge_calibration,
     loss_value,
     register,
     residual_figures,
@@ -53,6 +56,7 @@ class WindingResistance(FromVoltages):
     kind: str = "winding-resistance"
     node: str = "winding"
     name: str = "resistance"
+    warnings: tuple[str, ...] = field(default=(), compare=False)
 
     def valid(self, speed: np.ndarray, i_d: np.ndarray) -> np.ndarray:
         """The steps the reading is valid on (NaN fails both comparisons)."""
@@ -102,6 +106,9 @@ class LabWindingResistanceKind(FromVoltagesKind):
         parser.add_argument("--resistance-min-current", type=float, default=DEFAULT_CURRENT_MIN_A, metavar="A",
                             help="... and where |i_d| is at least this current "
                                  f"(default {DEFAULT_CURRENT_MIN_A:g} A)")
+        parser.add_argument("--resistance-force", action="store_true",
+                            help="use a winding-resistance calibration even where its residual or R_s says it is "
+                                 "useless (a warning instead of the refusal)")
 
     def from_arguments(self, args, artifact, datasets: Sequence) -> WindingResistance | None:
         if not args.resistance:
@@ -110,9 +117,14 @@ class LabWindingResistanceKind(FromVoltagesKind):
                               ("--resistance-min-current", args.resistance_min_current)):
             if not (math.isfinite(value) and value > 0):
                 raise UsageError(f"{option} must be a positive number")
-        return calibrate_resistance(datasets, artifact.dt, pole_pairs_of(artifact, args.pole_pairs),
-                                    loss_value(artifact, "alpha_cu_per_K"), loss_value(artifact, "copper_reference_C"),
-                                    args.resistance_max_speed, args.resistance_min_current)
+        fit = calibrate_resistance(datasets, artifact.dt, pole_pairs_of(artifact, args.pole_pairs),
+                                   loss_value(artifact, "alpha_cu_per_K"), loss_value(artifact, "copper_reference_C"),
+                                   args.resistance_max_speed, args.resistance_min_current)
+        r_s_model = loss_value(artifact, "stator_resistance_ohm")
+        return replace(fit, warnings=judge_calibration(
+            "winding-resistance", "winding", fit.calibration, fit.R_s_ohm, r_s_model,
+            "check the voltage and current columns and --pole-pairs, or lower --resistance-max-speed or raise "
+            "--resistance-min-current", "--resistance-force", args.resistance_force))
 
 
 register(LabWindingResistanceKind())

@@ -97,3 +97,25 @@ def test_a_resistance_the_data_do_not_allow_is_one_sentence_exit_2(options, said
     err = capsys.readouterr().err
     assert err == f"bench: error: {said}\n"
     assert not out.exists()
+
+
+def test_bench_observer_estimates_its_sensor_and_says_where_the_tuning_stopped(flux_observer_artifact, tmp_path,
+                                                                                capsys):
+    """`--lag auto --gradient auto --offset auto` on the flux observer's synthetic file (its NTC: the winding through
+    a 25 s lag, read 0.8 K high, no yoke column): the estimate in --json, the gradient held at 0 and said, and a
+    tuning stopped by --evaluations said once on stderr and in `warnings`."""
+    data = flux_observer_artifact[1]
+    out = tmp_path / "auto.json"
+    assert main(["observer", "--model", str(data.parent / "electrical.json"), "--train", str(data), "--measure",
+                 "ntc_C", "--lag", "auto", "--gradient", "auto", "--offset", "auto", "--evaluations", "3", "--out",
+                 str(out), "--json"]) == 0
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    sensor = report["measurement"]
+    assert sensor["lag_s"] == pytest.approx(25.0, rel=0.02) and sensor["offset_C"] == pytest.approx(0.8, abs=0.05)
+    assert sensor["gradient"] == 0.0 and sensor["calibration"]["notes"] == [
+        "the gradient is held at 0: not every training file has the yoke reference yoke_C"]
+    (warning,) = report["warnings"]
+    assert warning.startswith("the tuning stopped after 4 filter runs, at its cap (--evaluations)")
+    assert captured.err == f"bench: warning: {warning}\n"
+    assert load_artifact(out).content["observer"]["measurements"][0]["lag_s"] == sensor["lag_s"]
