@@ -13,7 +13,10 @@ motor's training runs (20 and 60 °C in out/data, generated if missing) are used
 
 A sensor may lag (--lag τ: the filter then carries the lag's state, so a slow NTC is compared with what it can
 have seen), read a mix of nodes (--gradient g: node + g·(node - yoke), an end-winding NTC between the hot spot and
-the yoke) and have a known offset (--offset). --bias adds a winding heat-bias state (W the loss model misses).
+the yoke) and have a known offset (--offset). --bias adds a heat-bias state, a random walk of the watts the loss
+model misses: --bias winding (or --bias alone) into the winding node, --bias magnet into the magnet node (for a
+persistent magnet-side model error: a magnet loss or winding-magnet coupling the model has wrong); --bias none (the
+default): no bias state.
 --flux adds the flux-linkage magnet temperature from u_d, u_q, i_d, i_q and speed: ψ_0 and α_B (and L_d and
 R_s where the data determine them) are calibrated on the training files against the measured magnet, valid at or
 above --flux-min-speed; the calibration's residual is reported. --measure none with --flux: the flux linkage only.
@@ -37,7 +40,10 @@ from bench.fileio import write_text_atomically
 def add_subparser(subparsers) -> None:
     from bench.model.measures import LAB_MEASUREMENT_KINDS
     from bench.model.observer import DEPLOYED_FORM, TUNING_CRITERIA
+    from target_sim.artifact import BIAS_KINDS
     from target_sim.observer import OBSERVER_FORMS
+
+    bias_nodes = [kind.removesuffix("-heat") for kind in BIAS_KINDS]   # winding-heat: --bias winding
 
     p = subparsers.add_parser("observer", help="tune a Kalman observer (Q, R) on training files, add it to an artifact",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -48,7 +54,9 @@ def add_subparser(subparsers) -> None:
     add_data_arguments(p)
     for _, kind in LAB_MEASUREMENT_KINDS.items():     # each kind's own options (the sensor, --flux, --resistance)
         kind.add_arguments(p)
-    p.add_argument("--bias", action="store_true", help="add a winding heat-bias state (W the loss model misses)")
+    p.add_argument("--bias", nargs="?", const="winding", default="none", choices=["none", *bias_nodes],
+                   help="add a heat-bias state (W the loss model misses) into the winding (--bias alone: winding) "
+                        "or the magnet node (default none)")
     p.add_argument("--pole-pairs", type=float, default=None,
                    help="pole pairs for --flux and --resistance (default: the artifact's electrical loss model's, "
                         "else 1)")
@@ -96,11 +104,12 @@ def run(args: argparse.Namespace) -> int:
     measurements = [m for m in asked if m is not None]
     if not measurements:
         raise UsageError("--measure none needs --flux or --resistance: the observer needs a measurement")
-    fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations, progress, args.bias)
+    bias = None if args.bias == "none" else f"{args.bias}-heat"      # a kind of target_sim.artifact.BIAS_KINDS
+    fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations, progress, bias)
     content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form))
     write_text_atomically(args.out, dumps(content))
     report = {"model": str(model_path), "out": str(args.out), "sha256": content["sha256"],
-              "measurement": measurements[0].describe(), "form": args.form, "bias": args.bias,
+              "measurement": measurements[0].describe(), "form": args.form, "bias": fit.bias,
               **content["observer"]["tuning"]}
     if args.json:
         print_json(report)
