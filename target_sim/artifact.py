@@ -36,6 +36,10 @@ OBSERVER_FORM_NAMES = ("conventional", "joseph", "ud", "steady")   # target_sim.
 # The delta realization's linear block is x <- x + Δ·(A x + B ũ), y = C x + r, with ũ the inputs whose four
 # temperature sources are taken relative to r = linear_block.reference_C (the states are deviations from r).
 OUTPUTS = ("yoke", "winding", "tooth", "magnet")
+# The observer's bias kinds (its section's `bias`, null: none): a state of watts into one node the loss model
+# misses, a random walk, and the column of B it heats: its node's loss input (the inputs P_y, P_w, P_t, P_m are in
+# the order of OUTPUTS). The one table of them: the target, the firmware generator and the lab read it here.
+BIAS_KINDS = {"winding-heat": 1, "magnet-heat": 3}
 # losses.model names a loss model of `target_sim.losses` ("maps", "electrical", ...), which owns its fields
 LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
                    "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
@@ -262,6 +266,10 @@ def _check_observer(artifact: ModelArtifact, version: int) -> None:
             n = observer_state_count(section)
         except (KeyError, TypeError, ValueError, ArtifactError) as exc:
             raise ArtifactError(f"artifact observer.measurements is not readable ({exc}); {fix}") from None
+        bias = section.get("bias")
+        if bias is not None and (not isinstance(bias, str) or bias not in BIAS_KINDS):
+            raise ArtifactError(f"artifact observer.bias {_shown(bias)} is not one of {', '.join(BIAS_KINDS)} or "
+                                f"null; {fix}")
         if n != len(section["states"]):
             raise ArtifactError(f"artifact observer.states names {len(section['states'])} states, its measurements "
                                 f"and bias make {n}; {fix}")

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from target_sim.artifact import OUTPUTS, ModelArtifact, encode_array, observer_state_count
+from target_sim.artifact import BIAS_KINDS, OUTPUTS, ModelArtifact, encode_array, observer_state_count
 from target_sim.errors import TargetError
 from target_sim.fmath import dot, matmul, matvec
 from target_sim.kinds import MODEL_KINDS
@@ -280,10 +280,8 @@ def has_observer(artifact: ModelArtifact) -> bool:
 
 
 # the section's minor version: 1 (absent) one unlagged sensor of one node; 2 a list of measurements of
-# `target_sim.measurements` kinds, lag states and an optional winding heat bias state
+# `target_sim.measurements` kinds, lag states and an optional heat bias state (`BIAS_KINDS`: its node's loss input)
 SECTION_VERSION = 2
-BIAS_KINDS = ("winding-heat",)      # the bias state: watts into the winding node the loss model misses
-BIAS_INPUT = 1                      # its column of B (the winding loss)
 Q_NODES_TOLERANCE = 1e-6            # T Q Tᵀ against diag(q_nodes), relative: float64 rounding of the lab's transform
 
 
@@ -310,6 +308,12 @@ def load_measurements(section: dict, f=F32) -> list:
         kind = MEASUREMENT_KINDS[entry["kind"]]
         out.append(kind.load(entry, f"observer.measurements[{i}]", f))
     return out
+
+
+def bias_input(section: dict) -> int:
+    """The loss input whose column of B the section's bias heats (`BIAS_KINDS`; without a bias: the winding's, as
+    the filter has always computed it and never applies)."""
+    return BIAS_KINDS[section.get("bias") or "winding-heat"]
 
 
 def state_count(section: dict) -> int:
@@ -360,7 +364,8 @@ class Float32Observer:
             self.lag_index.append(nxt if m.lag_pole > 0 else -1)
             nxt += 1 if m.lag_pole > 0 else 0
         self.bias_index = nxt if section.get("bias") else -1
-        self.bias_column = part.b[:, BIAS_INPUT] * (est.dt if part.delta else f(1.0))
+        self.bias_input = bias_input(section)
+        self.bias_column = part.b[:, self.bias_input] * (est.dt if part.delta else f(1.0))
         # the filter's rows h in node coordinates: a lag state, or what the sensor sees of the nodes
         self.rows = []
         for lag, m in zip(self.lag_index, self.measurements, strict=True):
@@ -494,7 +499,8 @@ class Float32Observer:
         return full
 
     def _propagate_extra(self) -> None:
-        """The bias heats the winding; each lag state follows what its sensor sees (after the model step)."""
+        """The bias heats its node (B's column of the node's loss); each lag state follows what its sensor sees
+        (after the model step)."""
         est, k = self.est, len(OUTPUTS)
         if self.bias_index >= 0:
             est.x = est.x + self.bias_column * self.extra[self.bias_index - k]

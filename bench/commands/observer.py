@@ -16,8 +16,10 @@ have seen), read a mix of nodes (--gradient g: node + g·(node - yoke), an end-w
 the yoke) and have an offset (--offset). Each of the three is a number, or auto: estimated from the training files,
 whose winding_C (the node's reference) and yoke_C columns the sensor is fitted to as lag_τ(w + g·(w - yoke)) +
 offset by least squares (τ by a bounded search, τ = 0 allowed; without yoke_C the gradient is held at 0), its
-residual reported: `--lag auto --gradient auto --offset auto` for a sensor nobody measured. --bias adds a winding
-heat-bias state (W the loss model misses).
+residual reported: `--lag auto --gradient auto --offset auto` for a sensor nobody measured. --bias adds a heat-bias
+state, a random walk of the watts the loss model misses: --bias winding (or --bias alone) into the winding node,
+--bias magnet into the magnet node (for a persistent magnet-side model error: a magnet loss or winding-magnet
+coupling the model has wrong); --bias none (the default): no bias state.
 --flux adds the flux-linkage magnet temperature from u_d, u_q, i_d, i_q and speed: ψ_0 and α_B (and L_d and
 R_s where the data determine them) are calibrated on the training files against the measured magnet, valid at or
 above --flux-min-speed; the calibration's residual is reported, a large one is a warning, and one that makes the
@@ -48,7 +50,10 @@ from bench.fileio import write_text_atomically
 def add_subparser(subparsers) -> None:
     from bench.model.measures import LAB_MEASUREMENT_KINDS
     from bench.model.observer import DEPLOYED_FORM, TUNING_CRITERIA
+    from target_sim.artifact import BIAS_KINDS
     from target_sim.observer import OBSERVER_FORMS
+
+    bias_nodes = [kind.removesuffix("-heat") for kind in BIAS_KINDS]   # winding-heat: --bias winding
 
     p = subparsers.add_parser("observer", help="tune a Kalman observer (Q, R) on training files, add it to an artifact",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -59,7 +64,9 @@ def add_subparser(subparsers) -> None:
     add_data_arguments(p)
     for _, kind in LAB_MEASUREMENT_KINDS.items():     # each kind's own options (the sensor, --flux, --resistance)
         kind.add_arguments(p)
-    p.add_argument("--bias", action="store_true", help="add a winding heat-bias state (W the loss model misses)")
+    p.add_argument("--bias", nargs="?", const="winding", default="none", choices=["none", *bias_nodes],
+                   help="add a heat-bias state (W the loss model misses) into the winding (--bias alone: winding) "
+                        "or the magnet node (default none)")
     p.add_argument("--pole-pairs", type=float, default=None,
                    help="pole pairs for --flux and --resistance (default: the artifact's electrical loss model's, "
                         "else 1)")
@@ -107,12 +114,13 @@ def run(args: argparse.Namespace) -> int:
     measurements = [m for m in asked if m is not None]
     if not measurements:
         raise UsageError("--measure none needs --flux or --resistance: the observer needs a measurement")
-    fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations, progress, args.bias)
+    bias = None if args.bias == "none" else f"{args.bias}-heat"      # a kind of target_sim.artifact.BIAS_KINDS
+    fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations, progress, bias)
     warnings = [w for m in measurements for w in m.warnings] + tuning_warnings(fit)
     content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form))
     write_text_atomically(args.out, dumps(content))
     report = {"model": str(model_path), "out": str(args.out), "sha256": content["sha256"],
-              "measurement": measurements[0].describe(), "form": args.form, "bias": args.bias,
+              "measurement": measurements[0].describe(), "form": args.form, "bias": fit.bias,
               **content["observer"]["tuning"], "warnings": warnings}
     if not args.quiet:
         for warning in warnings:

@@ -152,7 +152,7 @@ def observer_declarations(artifact: ModelArtifact) -> str:
         u0, d0 = ud_factor(obs.p0, f)
         arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0")]
     if bias >= 0:
-        arrays.append(("OBS_BIAS_COLUMN", obs.bias_column, "the bias's column of B (delta: times dt)"))
+        arrays.append(("OBS_BIAS_COLUMN", obs.bias_column, "the bias's column of B: its node's loss (delta: times dt)"))
     text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment) for name, value, comment in arrays)
     text += "".join(_measurement_declarations(obs, index) for index in range(len(obs.measurements)))
     factors = "" if steady else "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\n"
@@ -164,7 +164,7 @@ def observer_declarations(artifact: ModelArtifact) -> str:
 
 OBSERVER_C = """\
 OBS_OUTPUT
-/* Float32Observer._propagate_extra: the bias heats the winding, each lag state follows what its sensor sees */
+/* Float32Observer._propagate_extra: the bias heats its node, each lag state follows what its sensor sees */
 static void obs_propagate_extra(void)
 {
 #if OBS_BIAS >= 0

@@ -21,10 +21,12 @@ median speed and mean coolant temperature.
 Measurements (section version 2) are a list of `target_sim.measurements` kinds, their lab side in
 `bench.model.measures`: a lagged sensor (an NTC: its lag τ becomes a state of the filter, its offset is known from
 the motor file and subtracted, its gradient says what it sees) and the flux-linkage magnet temperature
-(calibrated on the training files). `bias=True` adds a winding heat-bias state (W into the winding the loss model
-misses, a random walk): a sensor's persistent disagreement with the winding model then heats or cools the
-winding instead of pushing the magnet. Each measurement's R is a tuned scale of its per-step variance (1 for a
-sensor, the flux linkage's calibrated R_floor + R_speed (n_min/n)²).
+(calibrated on the training files). `bias` adds a heat-bias state of a kind of `target_sim.artifact.BIAS_KINDS`
+(W into one node the loss model misses, a random walk): "winding-heat" (True: the winding, as before), so a
+sensor's persistent disagreement with the winding model heats or cools the winding instead of pushing the magnet,
+or "magnet-heat", so a persistent magnet-side model error (a magnet loss or coupling error) can be absorbed. Each
+measurement's R is a tuned scale of its per-step variance (1 for a sensor, the flux linkage's calibrated R_floor +
+R_speed (n_min/n)²).
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from bench.thermal.kalman import (
     steady_state,
 )
 from target_sim.artifact import (
+    BIAS_KINDS,
     OUTPUTS,
     ModelArtifact,
     encode_array,
@@ -80,10 +83,23 @@ Measurement = Sensor
 
 # the lab's reference of the magnet in the training files, used while tuning only
 TUNING_REFERENCE = Sensor("magnet", "pm_C")
-# the bias state's initial 1-σ (W into the winding) and the lag states' (K, beyond what their sensor sees)
-BIAS_SIGMA_W = 50.0
+# the bias state's initial 1-σ per kind (W into its node) and the lag states' (K, beyond what their sensor sees);
+# the search's start of the bias's q (W² per step). The magnet's: of the order of a magnet loss (tens of W; 100s
+# of W at most), so P0 does not let the first innovations throw the magnet far (see the module's note on P0)
+BIAS_SIGMA_W = {"winding-heat": 50.0, "magnet-heat": 20.0}
 LAG_SIGMA_C = 0.5
-START_Q_BIAS = 10.0
+START_Q_BIAS = {"winding-heat": 10.0, "magnet-heat": 1.0}
+BIAS_NAMES = {"winding-heat": "winding heat bias (W)", "magnet-heat": "magnet heat bias (W)"}
+BIAS_NODES = {"winding-heat": "winding (x += b_w beta)", "magnet-heat": "magnet (x += b_m beta)"}   # the rule's
+
+
+def bias_kind(bias) -> str | None:
+    """The bias kind of a `bias` argument: a kind of `BIAS_KINDS`, True (the winding's, the one kind there was), or
+    None/False (no bias)."""
+    kind = "winding-heat" if bias is True else (bias or None)
+    if kind is not None and kind not in BIAS_KINDS:
+        raise BenchError(f"bias {kind!r} is not one of {', '.join(BIAS_KINDS)}")
+    return kind
 
 
 @dataclass(frozen=True)
@@ -98,7 +114,7 @@ class ObserverFit:
     updates: int
     evaluations: int
     files: list[str] = field(default_factory=list)
-    bias: bool = False
+    bias: str | None = None     # the heat-bias state's kind (`BIAS_KINDS`); True is read as "winding-heat"
     converged: bool = True      # False: the search stopped at its cap of filter runs (--evaluations)
 
     @property
@@ -147,7 +163,7 @@ class FilterData:
     measurements: tuple
 
 
-def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequence, bias: bool = False) -> FilterData:
+def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequence, bias=None) -> FilterData:
     for m in measurements:
         for column in m.columns:
             if not dataset.has(column):
@@ -159,7 +175,7 @@ def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequenc
     parts = [m.readings(dataset, artifact.dt, steps) for m in measurements]
     z0, z1, rel = (np.column_stack([p[i] for p in parts]) for i in range(3))
     readings = Readings(z0, z1, rel, np.array([m.sees for m in measurements]),
-                        np.array([m.lag_pole(artifact.dt) for m in measurements]), bias)
+                        np.array([m.lag_pole(artifact.dt) for m in measurements]), bias_kind(bias))
     return FilterData(run, readings, tuple(measurements))
 
 
@@ -170,7 +186,7 @@ def _run(model: FilterModel, data: FilterData, q, r, p0, keep=False) -> FilterRu
 
 def initial_covariance(model: FilterModel, readings: Readings | None = None) -> np.ndarray:
     """P0: the nodes' `INITIAL_SIGMA_C` in the state coordinates; a lag state as its sensor's view of them plus
-    `LAG_SIGMA_C`; the bias `BIAS_SIGMA_W`."""
+    `LAG_SIGMA_C`; the bias its kind's `BIAS_SIGMA_W`."""
     p = model.to_state([INITIAL_SIGMA_C[n] ** 2 for n in OUTPUTS])
     if readings is None or readings.states == 4:
         return p
@@ -183,7 +199,7 @@ def initial_covariance(model: FilterModel, readings: Readings | None = None) -> 
             t[lag] = readings.sees[m] @ model.c
             extra[lag] = LAG_SIGMA_C ** 2
     if readings.bias:
-        extra[n - 1] = BIAS_SIGMA_W ** 2
+        extra[n - 1] = BIAS_SIGMA_W[readings.bias] ** 2
     return t @ p @ t.T + np.diag(extra)
 
 
@@ -215,7 +231,7 @@ TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
 def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurements, criterion: str = "magnet",
                   max_evaluations: int = 800, progress: Callable[[int, float], None] | None = None,
-                  bias: bool = False) -> ObserverFit:
+                  bias=None) -> ObserverFit:
     """q (per state) and each measurement's R on the training files by Nelder-Mead over their log10 values,
     minimizing either
     - "magnet": the sum of log magnet MSE over every training file started with the magnet as measured and
@@ -230,6 +246,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     if criterion not in TUNING_CRITERIA:
         raise BenchError(f"tuning criterion {criterion!r} is not one of {', '.join(TUNING_CRITERIA)}")
     measurements = tuple(measurements) if isinstance(measurements, (list, tuple)) else (measurements,)
+    bias = bias_kind(bias)
     model = FilterModel.of(artifact)
     deployed = [filter_data(artifact, d, measurements, bias) for d in datasets]
     layout = deployed[0].readings
@@ -279,7 +296,8 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
             progress(calls[0], total)
         return total if np.isfinite(total) else 1e300
 
-    start_q = [START_Q_C2] * 4 + [START_Q_C2] * (n - 4 - int(bias)) + [START_Q_BIAS] * int(bias)
+    start_q = [START_Q_C2] * 4 + [START_Q_C2] * (n - 4 - int(bias is not None)) + (
+        [START_Q_BIAS[bias]] if bias else [])
     start_r = [kind_of(m).start_r for m in measurements] + [kind_of(TUNING_REFERENCE).start_r] * int(use_reference)
     start = np.log10(start_q + start_r)
     if criterion == "nodes":   # the search is local: begin where the guard is, of the default and a cautious start
@@ -376,7 +394,8 @@ def nominal_transition(artifact: ModelArtifact, model: FilterModel, datasets: Se
 
 def state_names(fit: ObserverFit) -> list[str]:
     lags = [f"lag of {m.name}" for m in fit.measurements if m.lag_pole(1.0) > 0]
-    return [*OUTPUTS, *lags, *(["winding heat bias (W)"] if fit.bias else [])]
+    bias = bias_kind(fit.bias)
+    return [*OUTPUTS, *lags, *([BIAS_NAMES[bias]] if bias else [])]
 
 
 def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequence[Dataset],
@@ -398,8 +417,9 @@ def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequen
         "kind": "kalman-linear-block", "version": 2, "node": first.node, "column": first.columns[0],
         "lag_s": float(getattr(first, "lag_s", 0.0)), "form": form,
         "measurements": [m.entry(dt, float(s)) for m, s in zip(fit.measurements, fit.r_scale, strict=True)],
-        "states": names, "bias": "winding-heat" if fit.bias else None,
-        "rule": "after each model step: the bias heats the winding (x += b_w beta), each lag state follows what its "
+        "states": names, "bias": bias_kind(fit.bias),
+        "rule": f"after each model step: the bias heats the {BIAS_NODES[bias_kind(fit.bias) or 'winding-heat']}, "
+                "each lag state follows what its "
                 "sensor sees (s = a s + (1 - a) sees.y); F = A + B_s G C (delta: I + dt (A + B_s G C)), augmented; "
                 "P- = F P F' + Q; per measurement with a valid reading z (variance R): nu = z - (s or sees.y), "
                 "K = P- h' / (h P- h' + R), x += K nu, y = C x (+ r)",
@@ -458,7 +478,7 @@ def reference_run(artifact: ModelArtifact, dataset: Dataset) -> tuple[FilterData
     """The float64 reference of the artifact's observer on one file (estimate and 1-σ per step)."""
     model = FilterModel.of(artifact)
     section = artifact.content["observer"]
-    data = filter_data(artifact, dataset, lab_measurements(artifact), bool(section.get("bias")))
+    data = filter_data(artifact, dataset, lab_measurements(artifact), section.get("bias"))
     q = artifact.array("observer", "Q", dtype=np.float64)
     p0 = artifact.array("observer", "P0", dtype=np.float64)
     return data, _run(model, data, q[None], [r_scales(artifact)], p0, keep=True)

@@ -19,6 +19,7 @@ import numpy as np
 
 from bench.thermal import portable
 from bench.thermal.estimator import StepInputs, identity_sigmoid, model_step, step_buffers
+from target_sim.artifact import BIAS_KINDS
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -37,7 +38,7 @@ def _source_jacobian(gains, jac):
 
 @numba.njit(cache=True, fastmath=False)
 def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1,
-                rel, sees, lag_pole, lag_index, bias_index, q, r, p0, traj, sigma, keep, use_sigmoid):
+                rel, sees, lag_pole, lag_index, bias_index, bias_input, q, r, p0, traj, sigma, keep, use_sigmoid):
     n_steps = ratio.shape[0]
     n = q.shape[0]
     x, x_new, y, u, gains = step_buffers(c_inv, y0)
@@ -48,7 +49,7 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
             xa[lag_index[m]] = sees[m] @ y0
     p = p0.copy()
     b_s = b[:, 4:].copy()
-    bias_column = b[:, 1].copy()
+    bias_column = b[:, bias_input].copy()
     sees_c = sees @ c
     eye = np.eye(n)
     full = np.zeros((n, n))
@@ -60,7 +61,7 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
         _source_jacobian(gains, jac)
         full[:, :] = 0.0
         full[:4, :4] = a + b_s @ jac @ c
-        if bias_index >= 0:   # the bias heats the winding
+        if bias_index >= 0:   # the bias heats its node (the column of its node's loss)
             full[:4, bias_index] = bias_column
             full[bias_index, bias_index] = 1.0
             for i in range(4):
@@ -112,11 +113,12 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
 
 @numba.njit(parallel=True, cache=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1, rel,
-           sees, lag_pole, lag_index, bias_index, q, r, p0, traj, sigma, keep, use_sigmoid, nll, updates):
+           sees, lag_pole, lag_index, bias_index, bias_input, q, r, p0, traj, sigma, keep, use_sigmoid, nll,
+           updates):
     for m in numba.prange(q.shape[0]):
         nll[m], updates[m] = _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu,
-                                         copper_ref, y0, z0, z1, rel, sees, lag_pole, lag_index, bias_index, q[m],
-                                         r[m], p0, traj[m], sigma[m], keep, use_sigmoid)
+                                         copper_ref, y0, z0, z1, rel, sees, lag_pole, lag_index, bias_index,
+                                         bias_input, q[m], r[m], p0, traj[m], sigma[m], keep, use_sigmoid)
 
 
 @dataclass(frozen=True)
@@ -134,14 +136,27 @@ class FilterRuns:
 class Readings:
     """The measurements per model step as the filter takes them: reading_k = z0 + z1·ŷ_winding (the flux
     linkage's resistance at the winding estimate; 0 for a sensor), NaN z0: none; variance R·rel_k; each reads
-    sees·y, through its lag state when lag_pole > 0 (the lag states follow the model's, in order, then the bias)."""
+    sees·y, through its lag state when lag_pole > 0 (the lag states follow the model's, in order, then the bias).
+    `bias`: the heat-bias state's kind (`target_sim.artifact.BIAS_KINDS`: watts into the node whose loss column of
+    B it heats) or None; True is read as "winding-heat" (the one kind there was)."""
 
     z0: np.ndarray           # (steps, m)
     z1: np.ndarray           # (steps, m)
     rel: np.ndarray          # (steps, m)
     sees: np.ndarray         # (m, 4)
     lag_pole: np.ndarray     # (m,)
-    bias: bool = False
+    bias: str | bool | None = None
+
+    def __post_init__(self):
+        kind = "winding-heat" if self.bias is True else (self.bias or None)
+        if kind is not None and kind not in BIAS_KINDS:
+            raise ValueError(f"bias {kind!r} is not one of {', '.join(BIAS_KINDS)}")
+        object.__setattr__(self, "bias", kind)
+
+    @property
+    def bias_input(self) -> int:
+        """The loss input whose column of B the bias heats (-1: no bias)."""
+        return BIAS_KINDS[self.bias] if self.bias else -1
 
     @property
     def lag_index(self) -> np.ndarray:
@@ -153,7 +168,7 @@ class Readings:
 
     @property
     def states(self) -> int:
-        return 4 + int(np.sum(self.lag_pole > 0)) + int(self.bias)
+        return 4 + int(np.sum(self.lag_pole > 0)) + int(self.bias is not None)
 
     @property
     def bias_index(self) -> int:
@@ -182,8 +197,8 @@ def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, readings: Readings,
     _batch(a, b, c, portable.inv(c), theta, sig, f64(inputs.table_losses), f64(inputs.speed_ratio),
            f64(inputs.coolant), f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu),
            float(inputs.copper_reference), y0, z0, z1, rel, f64(np.reshape(readings.sees, (-1, 4))),
-           f64(np.reshape(readings.lag_pole, -1)), lag_index, int(readings.bias_index), q, r, p0, traj, sigma,
-           bool(keep), use_sigmoid, nll, updates)
+           f64(np.reshape(readings.lag_pole, -1)), lag_index, int(readings.bias_index), max(readings.bias_input, 0),
+           q, r, p0, traj, sigma, bool(keep), use_sigmoid, nll, updates)
     return FilterRuns(nll, updates, traj if keep else None, sigma if keep else None)
 
 
@@ -199,7 +214,7 @@ def augmented_transition(block: np.ndarray, b: np.ndarray, c: np.ndarray, readin
     n, full = readings.states, np.zeros((readings.states, readings.states))
     full[:4, :4] = block
     if readings.bias:
-        full[:4, n - 1] = b[:, 1]
+        full[:4, n - 1] = b[:, readings.bias_input]
         full[n - 1, n - 1] = 1.0
     for m, lag in enumerate(readings.lag_index):
         if lag >= 0:

@@ -201,7 +201,11 @@ def render_artifact_schema() -> str:
               "sensor) "
               "lists its measurements in order in `observer.measurements` (each `kind`, `columns`, `node` and its "
               "encoded `arrays`), names the filter's states in `observer.states` (the 4 model states, one lag state "
-              "per lagged measurement, then the bias) and sets `observer.bias` (`winding-heat` or null); Q, P0 and "
+              "per lagged measurement, then the bias) and sets `observer.bias`: null (no bias state) or a heat bias, W "
+              "into one node the loss model misses, a random walk heating through that node's loss column of B: "
+              + ", ".join(f"`{kind}` (the {artifact.OUTPUTS[index]}: column {index}, P_{artifact.OUTPUTS[index][0]})"
+                          for kind, index in artifact.BIAS_KINDS.items())
+              + "; Q, P0 and "
               "P_ss are then n × n with n = len(states), `q_nodes_C2` has n entries and K_ss one row per "
               "measurement. `node`, `column`, `offset_C`, `R` and `lag_s` describe the first measurement.", "",
               "| measurement kind | summary |", "|---|---|"]

@@ -1,7 +1,8 @@
 """The observer in the generated C (bench/firmware/observergen.py, fw_obs_* in fw_model.c) against the Python float32
 reference: `bench firmware check` bit for bit over a run (outputs, each node's 1-sigma, each innovation, the
-periodic checkpoint) for a winding sensor without lag, a lagged sensor with the winding heat-bias state, and a
-stator NTC with the flux linkage (two measurements per row), each also in the steady-state-gain form (its
+periodic checkpoint) for a winding sensor without lag, a lagged sensor with the winding heat-bias state (and with
+the magnet heat-bias state: its column of B is data, the C the same), and a stator NTC with the flux linkage (two
+measurements per row), each also in the steady-state-gain form (its
 checkpoint: the extra states only, none without lag or bias), and the flux linkage with the winding temperature from
 the stator resistance (both from the same voltages and currents); the firmware node answers the Python node's frames
 byte for byte, Uncertainty1/2, Innovations and ObserverCheckpoint included, through ABSENT and INVALID measurements,
@@ -44,6 +45,16 @@ def lagged_artifact(small_dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("observer-lag") / "lagged.json"
     assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "--out",
                  str(out), "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def magnet_bias_artifact(small_dataset, tmp_path_factory):
+    """The lagged winding sensor (τ 60 s) with the magnet heat-bias state (`--bias magnet`): six filter states, the
+    bias heating the magnet through the magnet loss's column of B."""
+    out = tmp_path_factory.mktemp("observer-magnet-bias") / "magnet-bias.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "magnet",
+                 "--out", str(out), "--quiet"]) == 0
     return out
 
 
@@ -106,9 +117,9 @@ def steady_sensor_artifact(observer_artifact, tmp_path_factory):
     return _steady(observer_artifact, tmp_path_factory)
 
 
-@pytest.fixture(params=["sensor", "lagged", "ntc+flux", "steady", "sensor-steady", "ntc+flux-steady",
+@pytest.fixture(params=["sensor", "lagged", "magnet-bias", "ntc+flux", "steady", "sensor-steady", "ntc+flux-steady",
                         "flux+resistance"])
-def case(request, observer_artifact, lagged_artifact, flux_observer_artifact, steady_artifact,
+def case(request, observer_artifact, lagged_artifact, magnet_bias_artifact, flux_observer_artifact, steady_artifact,
          steady_sensor_artifact, steady_flux_artifact, resistance_observer_artifact) -> Case:
     if request.param == "ntc+flux":
         return _flux_case(flux_observer_artifact)
@@ -116,7 +127,8 @@ def case(request, observer_artifact, lagged_artifact, flux_observer_artifact, st
         return _flux_case(resistance_observer_artifact)
     if request.param == "ntc+flux-steady":
         return _flux_case(steady_flux_artifact)
-    paths = {"sensor": observer_artifact, "lagged": lagged_artifact, "steady": steady_artifact,
+    paths = {"sensor": observer_artifact, "lagged": lagged_artifact, "magnet-bias": magnet_bias_artifact,
+             "steady": steady_artifact,
              "sensor-steady": steady_sensor_artifact}
     return _sensor_case(paths[request.param])
 
