@@ -360,7 +360,8 @@ def tuning_warnings(fit: ObserverFit) -> list[str]:
             out.append(f"the tuning ended at q {10.0 ** bound:.0e} °C² per step for {which}, its {limit} limit: "
                        f"{meaning}")
     if fit.bias and log_q[-1] <= q_low + LIMIT_MARGIN_DECADES:
-        out.append("the tuning ended at the lower limit of the winding heat bias's q: the bias never moves, so --bias "
+        node = BIAS_NODES[bias_kind(fit.bias) or "winding-heat"].split()[0]
+        out.append(f"the tuning ended at the lower limit of the {node} heat bias's q: the bias never moves, so --bias "
                    "adds nothing")
     if not fit.converged:
         out.append(f"the tuning stopped after {fit.evaluations} filter runs, at its cap (--evaluations), before the "
