@@ -254,7 +254,7 @@ class VirtualPlant:
         op = self.operating_point(torque, speed)
         ref = self.motor.copper_reference_C
         at = self.thermal.signal_positions
-        dm = self.thermal.read(states, at["magnet"]) - ref
+        dm = self.thermal.read(states, at["flux"]) - ref
         i_d, i_q = op["i_d0"] + op["di_d"] * dm, op["i_q0"] + op["di_q"] * dm
         flux = 1.0 + self.machine.remanence_per_K * dm
         resistance = (self.nominal.stator_resistance_ohm * self.true_losses.resistance_factor

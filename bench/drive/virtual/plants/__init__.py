@@ -34,8 +34,8 @@ DEFAULT_KIND = "lptn4"
 # helper modules of this package that are not kinds
 HELPERS = ("correlations", "geometry", "materials", "network", "lump")
 # the positions the plant's electrical model reads: the copper temperature of the winding resistance and the
-# magnet temperature of the flux linkage
-ELECTRICAL_POSITIONS = ("copper", "magnet")
+# magnet temperature of the flux linkage (keys of signal_positions)
+ELECTRICAL_POSITIONS = ("copper", "flux")
 # the canonical temperature signals of the bench's dataset every kind maps to a position
 CANONICAL_SIGNALS = ("yoke", "winding", "tooth", "magnet")
 

@@ -35,7 +35,7 @@ class Lptn4Plant(ThermalPlant):
         self.params = params
         self.speed_max_rpm = speed_max_rpm
         self.positions = {name: mix([i]) for i, name in enumerate(NODES)}
-        self.signal_positions = {**{name: name for name in NODES}, "copper": "winding"}
+        self.signal_positions = {**{name: name for name in NODES}, "copper": "winding", "flux": "magnet"}
 
     def node_losses(self, components: LossComponents):
         """losses(i_d0, i_q0, di_d, di_q, x_ac, x_fe, x_m, w, ϑ_y, ϑ_w, ϑ_t, ϑ_m) -> (P_y, P_w, P_t, P_m)."""

@@ -1,0 +1,671 @@
+"""distributed: a thermal network built from the machine's geometry, materials and cooling (docs/plant.md).
+
+Nodes, per axial slice s of the active part (slices >= 4), counted from the A (drive) side:
+  winding slot bottom w_bot[s] and slot top w_top[s] (the half near the slot opening), tooth tip tip[s] and tooth
+  body body[s], yoke inner yoke_in[s] and yoke back yoke_back[s], housing housing[s] (the stator hub of an outer
+  rotor), coolant cell coolant[s] (water in the jacket, or air between the fins), rotor iron rotor[s] and magnet
+  segment magnet[s];
+and once: end windings ew_a, ew_b, end-space air air_a, air_b, end caps cap_a, cap_b, bearings brg_a, brg_b, shaft.
+A water-jacket inner-rotor machine with 4 slices has 10·4 + 9 = 49 nodes.
+
+Paths (conductance k·A/L, radial ln(r2/r1)/(2πkL), series of the half-layers between node centres):
+  radially coolant - housing - (contact gap) - yoke back - yoke inner - tooth body - tooth tip - air gap - rotor
+  (inner rotor: rotor - magnet, rotor - shaft); outer rotor: coolant - hub - yoke back - yoke inner - teeth - air
+  gap - magnets - rotor back iron - outside air;
+  slot: w_bot - w_top, w_bot - yoke inner (slot bottom), both - tooth body (slot sides), w_top - tooth tip (slot
+  opening), each through the equivalent slot conductivity (impregnated winding) plus the liner;
+  axially between slices in every layer (laminations with their low axial conductivity; copper along the
+  conductors; segments of the magnets glued), slot copper to the end windings;
+  end spaces: end windings, end caps, housing ends and rotor ends to the end-space air (h = k1(1 + k2·v^k3));
+  housing ends - end caps - bearings - shaft; rotor - shaft;
+  boundary: coolant cells carried downstream by ṁc_p from the inlet (A to B), housing and end caps to ambient.
+Losses: copper per node by its conductor length (dc ∝ 1 + αΔϑ, ac ∝ 1/(1 + αΔϑ) at the node's own temperature),
+the ac share concentrated at the slot opening and weaker in the end windings; iron split between teeth (tips
+carrying the harmonics) and yoke by flux density from the geometry; magnet loss over the segments, more at the
+ends; bearing friction T_f·ω on the bearings; windage (Couette, ∝ ω³ r⁴ L) in the air gap.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from bench.drive.virtual.plants import (
+    LossComponents,
+    PlantKind,
+    StepInputs,
+    ThermalPlant,
+    ThermalRun,
+    mix,
+    register,
+)
+from bench.drive.virtual.plants.correlations import (
+    air,
+    airgap_h,
+    end_space_h,
+    fin_efficiency,
+    flat_plate_nu,
+    gnielinski_nu,
+    rotating_cylinder_h,
+    slot_conductivity,
+    water,
+    windage_W,
+)
+from bench.drive.virtual.plants.geometry import Geometry, annulus, bar, disc, film, geometry, radial, series
+from bench.drive.virtual.plants.materials import AXIAL, materials
+from bench.drive.virtual.plants.network import AMBIENT, Conditions, Network, discretize
+from bench.motor.check import Checker
+from bench.motor.description import MotorDescription
+
+KEYS = ("kind", "rotor", "slices", "geometry", "materials", "cooling", "end_space", "losses")
+ROTORS = ("inner", "outer")
+COOLING_KINDS = ("water_jacket", "air")
+COOLING_KEYS = {
+    "water_jacket": {"flow_l_min": (None, 0.1, 500.0), "turns": (None, 1.0, 200.0),
+                     "channel_width_mm": (None, 1.0, 500.0), "channel_height_mm": (None, 1.0, 100.0),
+                     "ambient_h_W_m2K": (8.0, 0.0, 100.0)},
+    "air": {"air_speed_m_s": (None, 0.1, 60.0), "fins": (None, 4.0, 400.0), "fin_height_mm": (None, 1.0, 200.0),
+            "fin_thickness_mm": (None, 0.3, 20.0), "ambient_h_W_m2K": (8.0, 0.0, 100.0)},
+}
+END_SPACE = {"k1": (15.0, 1.0, 100.0), "k2": (0.4, 0.0, 5.0), "k3": (0.9, 0.1, 2.0)}    # Boglietti 2009, Staton
+LOSS_KEYS = {
+    "ac_top_share": (0.75, 0.0, 1.0),           # share of the slot's ac copper loss in the top (opening) half
+    "end_ac_factor": (0.3, 0.0, 2.0),           # ac loss per conductor length in the end windings / in the slot
+    "tip_loss_factor": (1.5, 0.5, 5.0),         # tooth-tip iron loss density / tooth body (slot harmonics)
+    "magnet_end_factor": (1.3, 1.0, 3.0),       # eddy loss of an end segment / a middle one (3-D end effects)
+    "bearing_friction_Nm": (0.05, 0.0, 10.0),   # friction torque per bearing
+    "windage_factor": (1.0, 0.0, 10.0),         # × the smooth-cylinder Couette windage (slots, IPM bridges)
+}
+MIN_SLICES, MAX_SLICES = 4, 20
+INTERNAL_AIR_C = 60.0        # air properties in the air gap and end spaces (they vary by a few % over 40-100 °C)
+GLUE_MM, GLUE_K = 0.1, 0.3   # magnet pockets and segment joints: a resin layer
+SHRINK_FIT_GAP_MM = 0.01     # rotor on the shaft, as an equivalent air gap
+SPEED_GRID_RPM = 250.0       # the exact steps are tabulated on this speed grid (bilinear in speed and inlet)
+COOLANT_GRID_K = 5.0
+SPEED_MARGIN = 1e-6
+LOSS_NAMES = ("yoke", "winding", "tooth", "magnet", "mechanical")
+FLUID_REFERENCE_C = 40.0     # the coolant's ṁc_p and heat capacity (its h follows the inlet temperature)
+# the canonical signals' positions: the end winding on the B side (farther from the inlet, where test benches put
+# the hot-spot thermocouple), the yoke back, the tooth tip and the magnets at mid-stack; the electrical model's
+# copper (resistance: the conductor-length mean) and flux (all magnet segments); the coolant outlet
+SIGNAL_POSITIONS = {"winding": "winding.end_b", "yoke": "yoke.back", "tooth": "tooth.tip", "magnet": "magnet.mid",
+                    "copper": "winding.mean", "flux": "magnet", "coolant_out": "coolant.out"}
+
+
+def _numbers(check: Checker, table: Any, key: str, spec: Mapping[str, tuple]) -> dict[str, float]:
+    if table is None:
+        table = {}
+    if not isinstance(table, dict):
+        check.fail(f"thermal.{key}", f"must be a table of {', '.join(spec)}")
+    check.only(table, f"thermal.{key}", spec)
+    return {name: check.number(table, name, f"thermal.{key}.", low=low, high=high, default=default)
+            for name, (default, low, high) in spec.items()}
+
+
+@dataclass(frozen=True)
+class Cooling:
+    kind: str
+    values: Mapping[str, float]
+
+
+class DistributedPlant(ThermalPlant):
+    kind = "distributed"
+    loss_names = LOSS_NAMES
+
+    def __init__(self, rotor: str, slices: int, geo: Geometry, mats: dict, cooling: Cooling,
+                 end_space: Mapping[str, float], placement: Mapping[str, float], pole_pairs: int):
+        self.rotor, self.slices, self.geo, self.mats, self.pole_pairs = rotor, slices, geo, mats, pole_pairs
+        self.cooling, self.end_space, self.placement = cooling, end_space, placement
+        self.net = Network()
+        self._build()
+        self.node_names = tuple(self.net.names)
+        self._positions()
+        self._losses()
+
+    # ------------------------------------------------------------------ radii
+    def _radii(self) -> dict[str, float]:
+        """Radii of every layer boundary; s = +1 when the stator lies outside the air gap (inner rotor)."""
+        g = self.geo
+        s = 1.0 if self.rotor == "inner" else -1.0
+        r_g = g.airgap_diameter / 2.0
+        r_back = g.stator_back_diameter / 2.0
+        yoke = s * (r_back - r_g) - g.slot_depth
+        return {"s": s, "gap": r_g, "tip": r_g + s * g.tooth_tip, "slot": r_g + s * g.slot_depth,
+                "yoke_mid": r_g + s * (g.slot_depth + yoke / 2.0), "back": r_back,
+                "housing": r_back + s * g.housing_thickness, "yoke": yoke}
+
+    def _check(self, check: Checker) -> None:
+        g, r = self.geo, self._radii()
+        if r["yoke"] <= 2.0 * g.tooth_tip or r["yoke"] <= 0:
+            side = "outside" if self.rotor == "inner" else "inside"
+            check.fail("thermal.geometry", f"leaves a yoke of {r['yoke'] * 1e3:.1f} mm between the slots and the "
+                       f"stator back; stator_back_diameter_mm must lie {side} the slots with room for a yoke")
+        if g.slot_depth <= 2.0 * g.tooth_tip:
+            check.fail("thermal.geometry.slot_depth_mm", "must exceed twice tooth_tip_mm (the tips and the copper)")
+        rotor_out = self._rotor_radii()
+        if min(rotor_out.values()) <= g.shaft_diameter / 2.0:
+            check.fail("thermal.geometry", "leaves no rotor iron around the shaft; check airgap_diameter_mm, "
+                       "magnet_thickness_mm, magnet_depth_mm and shaft_diameter_mm")
+        if g.bearing_outer_diameter <= g.shaft_diameter or g.bearing_outer_diameter / 2.0 >= abs(r["housing"]):
+            check.fail("thermal.geometry.bearing_outer_diameter_mm", "must lie between the shaft and the housing")
+        if self.rotor == "outer" and r["housing"] <= g.bearing_outer_diameter / 2.0:
+            check.fail("thermal.geometry.housing_thickness_mm", "leaves no room for the bearings in the hub")
+
+    def _rotor_radii(self) -> dict[str, float]:
+        g = self.geo
+        r_g = g.airgap_diameter / 2.0
+        if self.rotor == "inner":
+            r_r = r_g - g.airgap
+            m_out = r_r - g.magnet_depth
+            return {"surface": r_r, "magnet_out": m_out, "magnet_in": m_out - g.magnet_thickness}
+        r_r = r_g + g.airgap
+        return {"surface": r_r, "magnet_out": r_r + g.magnet_thickness,
+                "back": r_r + g.magnet_thickness + g.rotor_back_iron}
+
+    # ------------------------------------------------------------------ the network
+    def _build(self) -> None:
+        g, m, net, n = self.geo, self.mats, self.net, self.slices
+        r, rr = self._radii(), self._rotor_radii()
+        length = g.stack_length / n
+        ext = g.end_winding_overhang + g.end_space
+        fe, cu, al = m["lamination"], m["copper"], m["aluminium"]
+        k_fe, k_ax = fe["k_W_mK"], fe[AXIAL]
+        rc = {name: v["rho_kg_m3"] * v["c_J_kgK"] for name, v in m.items()}
+        ft, ftip, fm = g.tooth_width_ratio, g.tip_width_ratio, g.magnet_width_ratio
+        fill = g.slot_fill
+        k_eq = slot_conductivity(fill, cu["k_W_mK"], m["impregnation"]["k_W_mK"])
+        rc_slot = fill * rc["copper"] + (1.0 - fill) * rc["impregnation"]
+        k_liner = m["liner"]["k_W_mK"]
+        inner_air = air(INTERNAL_AIR_C)
+        es = self.end_space
+        # stator layers: (name, r_from, r_to, solid share, conductivity radial, axial, ρc)
+        r_mid_tip = (r["gap"] + r["tip"]) / 2.0
+        r_mid_body = (r["tip"] + r["slot"]) / 2.0
+        r_yoke_q1 = (r["slot"] + r["yoke_mid"]) / 2.0
+        r_yoke_q3 = (r["yoke_mid"] + r["back"]) / 2.0
+        r_house_mid = (r["back"] + r["housing"]) / 2.0
+        slot_area = (1.0 - ft) * annulus(r["tip"], r["slot"]) / g.slots
+        copper_depth = g.slot_depth - g.tooth_tip
+        slot_width = slot_area / copper_depth
+        self.slot_area = slot_area
+        cu_layer = fill * slot_area * g.slots / 2.0          # copper section of one slot half, all slots
+        rotor_surface = rr["surface"]
+        r_air_mean = (r["gap"] + rotor_surface) / 2.0
+
+        def v_peripheral(c: Conditions) -> float:
+            return c.omega * rotor_surface
+
+        def h_end(c: Conditions) -> float:
+            return end_space_h(v_peripheral(c), es["k1"], es["k2"], es["k3"])
+
+        h_gap_fn = self._memo(lambda c: airgap_h(c.omega, r_air_mean, g.airgap, inner_air))
+        h_end_fn = self._memo(h_end)
+        film_per_m, mcp, cool_cap = self._coolant(r)
+        h_amb = self.cooling.values["ambient_h_W_m2K"]
+
+        ids: dict[str, list[int]] = {k: [] for k in ("w_bot", "w_top", "tip", "body", "yoke_in", "yoke_back",
+                                                    "housing", "coolant", "rotor", "magnet")}
+        for s in range(n):
+            ids["w_bot"].append(net.node(f"w_bot[{s}]", rc_slot * slot_area * g.slots / 2.0 * length))
+            ids["w_top"].append(net.node(f"w_top[{s}]", rc_slot * slot_area * g.slots / 2.0 * length))
+            ids["tip"].append(net.node(f"tip[{s}]", rc["lamination"] * ftip * annulus(r["gap"], r["tip"]) * length))
+            ids["body"].append(net.node(f"body[{s}]", rc["lamination"] * ft * annulus(r["tip"], r["slot"]) * length))
+            ids["yoke_in"].append(net.node(f"yoke_in[{s}]", rc["lamination"] * annulus(r["slot"], r["yoke_mid"])
+                                           * length))
+            ids["yoke_back"].append(net.node(f"yoke_back[{s}]", rc["lamination"] * annulus(r["yoke_mid"], r["back"])
+                                             * length))
+            ids["housing"].append(net.node(f"housing[{s}]", rc["aluminium"] * annulus(r["back"], r["housing"])
+                                           * length))
+            ids["coolant"].append(net.node(f"coolant[{s}]", cool_cap * length))
+            if self.rotor == "inner":
+                rotor_cap = rc["lamination"] * (annulus(g.shaft_diameter / 2.0, rotor_surface)
+                                                - fm * annulus(rr["magnet_in"], rr["magnet_out"])) * length
+                magnet_vol = fm * annulus(rr["magnet_in"], rr["magnet_out"]) * length
+            else:
+                rotor_cap = rc["lamination"] * annulus(rr["magnet_out"], rr["back"]) * length
+                magnet_vol = fm * annulus(rotor_surface, rr["magnet_out"]) * length
+            ids["rotor"].append(net.node(f"rotor[{s}]", rotor_cap))
+            ids["magnet"].append(net.node(f"magnet[{s}]", rc["magnet"] * magnet_vol))
+        end_cu_cap = rc_slot * slot_area * g.slots * g.end_turn_length
+        ew = [net.node("ew_a", end_cu_cap), net.node("ew_b", end_cu_cap)]
+        end_air_vol = annulus(r["back"], rotor_surface) * ext
+        air_nodes = [net.node(side, inner_air.rho * inner_air.cp * end_air_vol) for side in ("air_a", "air_b")]
+        r_bearing = g.bearing_outer_diameter / 2.0
+        r_cap_out = max(r["housing"], r["back"]) if self.rotor == "inner" else r_house_mid
+        cap_area = annulus(r_bearing, r_cap_out)
+        caps = [net.node(side, rc["aluminium"] * cap_area * g.end_cap_thickness) for side in ("cap_a", "cap_b")]
+        bearing_cap = rc["shaft"] * annulus(g.shaft_diameter / 2.0, r_bearing) * g.bearing_width * 0.5
+        bearings = [net.node(side, bearing_cap) for side in ("brg_a", "brg_b")]
+        shaft_len = g.stack_length + 2.0 * (ext + g.end_cap_thickness)
+        shaft = net.node("shaft", rc["shaft"] * math.pi * (g.shaft_diameter / 2.0) ** 2 * shaft_len)
+        self.ids = {**ids, "ew": ew, "air": air_nodes, "cap": caps, "bearing": bearings, "shaft": [shaft]}
+
+        # ---- radial, per slice
+        half = lambda k, a, b, share=1.0: radial(k, length, a, b, share)   # noqa: E731
+        for s in range(n):
+            tip, body, yin, yb = ids["tip"][s], ids["body"][s], ids["yoke_in"][s], ids["yoke_back"][s]
+            wb, wt, hs, cl = ids["w_bot"][s], ids["w_top"][s], ids["housing"][s], ids["coolant"][s]
+            net.link(tip, body, series(half(k_fe, r_mid_tip, r["tip"], ftip), half(k_fe, r["tip"], r_mid_body, ft)))
+            net.link(body, yin, series(half(k_fe, r_mid_body, r["slot"], ft), half(k_fe, r["slot"], r_yoke_q1)))
+            net.link(yin, yb, series(half(k_fe, r_yoke_q1, r["yoke_mid"]), half(k_fe, r["yoke_mid"], r_yoke_q3)))
+            contact = (film(inner_air.k / g.contact_gap, 2.0 * math.pi * r["back"] * length)
+                       if g.contact_gap > 0 else math.inf)
+            net.link(yb, hs, series(half(k_fe, r_yoke_q3, r["back"]), contact,
+                                    half(al["k_W_mK"], r["back"], r_house_mid)))
+            net.link(hs, cl, self._scaled(film_per_m, length))
+            if self.cooling.kind == "water_jacket" and self.rotor == "inner" and h_amb > 0:
+                net.to_boundary(hs, AMBIENT, film(h_amb, 2.0 * math.pi * r["housing"] * length))
+            # slot: equivalent conductivity across the copper, then the liner
+            opening = slot_width * length * g.slots
+            sides = 2.0 * (copper_depth / 2.0) * length * g.slots
+            liner = lambda area: film(k_liner / g.slot_liner, area)   # noqa: E731
+            net.link(wb, wt, bar(k_eq, opening, copper_depth / 2.0))
+            net.link(wb, yin, series(bar(k_eq, opening, copper_depth / 4.0), liner(opening),
+                                     half(k_fe, r["slot"], r_yoke_q1)))
+            net.link(wt, tip, series(bar(k_eq, opening, copper_depth / 4.0), liner(opening),
+                                     half(k_fe, r_mid_tip, r["tip"], ftip)))
+            for w in (wb, wt):
+                net.link(w, body, series(bar(k_eq, sides, slot_width / 4.0), liner(sides)))
+            # air gap and rotor
+            self._rotor_links(s, length, rr, h_gap_fn, r_mid_tip, r)
+        # ---- axial, between slices
+        layers = {"tip": k_ax * ftip * annulus(r["gap"], r["tip"]), "body": k_ax * ft * annulus(r["tip"], r["slot"]),
+                  "yoke_in": k_ax * annulus(r["slot"], r["yoke_mid"]),
+                  "yoke_back": k_ax * annulus(r["yoke_mid"], r["back"]),
+                  "housing": al["k_W_mK"] * (annulus(r["back"], r["housing"]) - self._channel_section()),
+                  "w_bot": cu["k_W_mK"] * cu_layer, "w_top": cu["k_W_mK"] * cu_layer}
+        if self.rotor == "inner":
+            layers["rotor"] = k_ax * (annulus(g.shaft_diameter / 2.0, rotor_surface)
+                                      - fm * annulus(rr["magnet_in"], rr["magnet_out"]))
+            magnet_section = fm * annulus(rr["magnet_in"], rr["magnet_out"])
+        else:
+            layers["rotor"] = k_ax * annulus(rr["magnet_out"], rr["back"])
+            magnet_section = fm * annulus(rotor_surface, rr["magnet_out"])
+        for name, ka in layers.items():
+            for s in range(n - 1):
+                net.link(ids[name][s], ids[name][s + 1], ka / length)
+        k_m = m["magnet"]["k_W_mK"]
+        for s in range(n - 1):
+            net.link(ids["magnet"][s], ids["magnet"][s + 1],
+                     series(bar(k_m, magnet_section, length / 2.0), bar(GLUE_K, magnet_section, GLUE_MM * 1e-3),
+                            bar(k_m, magnet_section, length / 2.0)))
+        # ---- coolant: carried from the inlet at A to the outlet at B
+        upstream = None
+        for s in range(n):
+            net.advect(upstream, ids["coolant"][s], mcp)
+            upstream = ids["coolant"][s]
+        # ---- the ends: end windings, end spaces, end caps, bearings, shaft
+        r_slot_mid = (r["tip"] + r["slot"]) / 2.0
+        ew_area = 2.0 * (2.0 * math.pi * r_slot_mid * g.end_winding_overhang)        # inner and outer faces
+        for side, s in ((0, 0), (1, n - 1)):
+            for w in (ids["w_bot"][s], ids["w_top"][s]):   # to the end winding's MEAN temperature: heat arising
+                # uniformly along a half end turn (L/2) rises on average by a third of L/2·Q/(kA) above its root
+                net.link(w, ew[side], cu["k_W_mK"] * cu_layer / (length / 2.0 + g.end_turn_length / 6.0))
+            a = air_nodes[side]
+            net.link(ew[side], a, self._scaled(h_end_fn, ew_area))
+            net.link(caps[side], a, self._scaled(h_end_fn, cap_area))
+            net.link(ids["housing"][s], a, self._scaled(h_end_fn, 2.0 * math.pi * r["back"] * ext))
+            net.link(ids["rotor"][s], a, self._scaled(h_end_fn, annulus(g.shaft_diameter / 2.0, rotor_surface)))
+            net.link(ids["housing"][s], caps[side],
+                     series(bar(al["k_W_mK"], annulus(r["back"], r["housing"]), length / 2.0 + ext),
+                            disc(al["k_W_mK"], g.end_cap_thickness, math.sqrt(r_bearing * r_cap_out), r_cap_out)))
+            if h_amb > 0:
+                net.to_boundary(caps[side], AMBIENT, film(h_amb, math.pi * r_cap_out ** 2))
+            bearing_g = film(inner_air.k / g.bearing_gap, 2.0 * math.pi * r_bearing * g.bearing_width)
+            net.link(caps[side], bearings[side],
+                     series(disc(al["k_W_mK"], g.end_cap_thickness, r_bearing, math.sqrt(r_bearing * r_cap_out)),
+                            2.0 * bearing_g))
+            net.link(bearings[side], shaft,
+                     series(2.0 * bearing_g, bar(m["shaft"]["k_W_mK"], math.pi * (g.shaft_diameter / 2.0) ** 2,
+                                                 g.stack_length / 2.0 + ext + g.end_cap_thickness / 2.0)))
+        if self.rotor == "outer":      # the out-runner's rotor hangs on the shaft by its B-side end disc
+            net.link(ids["rotor"][n - 1], shaft, disc(al["k_W_mK"], g.end_cap_thickness, g.shaft_diameter / 2.0,
+                                                      rr["magnet_out"]))
+        self.windage = (rotor_surface, g.stack_length, g.airgap, inner_air)
+
+    def _rotor_links(self, s: int, length: float, rr: dict, h_gap_fn, r_mid_tip: float, r: dict) -> None:
+        """Air gap, magnet and rotor iron of slice s, and the rotor's way out (shaft, or the outside air)."""
+        g, m, net, ids = self.geo, self.mats, self.net, self.ids
+        tip, rotor, magnet = ids["tip"][s], ids["rotor"][s], ids["magnet"][s]
+        k_fe, k_m = m["lamination"]["k_W_mK"], m["magnet"]["k_W_mK"]
+        fm = g.magnet_width_ratio
+        gap_area = 2.0 * math.pi * rr["surface"] * length
+        tip_half = radial(k_fe, length, r_mid_tip, r["tip"], g.tip_width_ratio)
+        shaft_r = g.shaft_diameter / 2.0
+        if self.rotor == "inner" and g.magnet_depth > 0:       # interior magnets: the air gap meets rotor iron
+            net.link(tip, rotor, self._gap(h_gap_fn, gap_area, tip_half,
+                                           radial(k_fe, length, rr["magnet_out"], rr["surface"])))
+            faces = 2.0 * fm * 2.0 * math.pi * (rr["magnet_in"] + rr["magnet_out"]) / 2.0 * length
+            net.link(magnet, rotor, series(bar(k_m, faces, g.magnet_thickness / 2.0), _glue(faces)))
+        else:                                                  # surface magnets face the air gap
+            net.link(tip, magnet, self._gap(h_gap_fn, fm * gap_area, tip_half,
+                                            2.0 * radial(k_m, length, rr["surface"], rr["magnet_out"], fm)))
+            net.link(tip, rotor, self._gap(h_gap_fn, (1.0 - fm) * gap_area, tip_half))
+            face = fm * 2.0 * math.pi * rr["magnet_out"] * length
+            net.link(magnet, rotor, series(bar(k_m, face, g.magnet_thickness / 2.0), _glue(face)))
+        if self.rotor == "inner":
+            inner = rr["magnet_in"] if g.magnet_depth > 0 else rr["magnet_out"]
+            shrink = film(air(INTERNAL_AIR_C).k / (SHRINK_FIT_GAP_MM * 1e-3), 2.0 * math.pi * shaft_r * length)
+            net.link(rotor, ids["shaft"][0], series(radial(k_fe, length, shaft_r, inner), shrink))
+        else:                                                  # an out-runner's back iron in the outside air
+            h_amb = self.cooling.values["ambient_h_W_m2K"]
+            outside = 2.0 * math.pi * rr["back"] * length
+            outer_air = air(INTERNAL_AIR_C)
+            net.to_boundary(rotor, AMBIENT, self._memo(
+                lambda c: film(h_amb + rotating_cylinder_h(c.omega, rr["back"], outer_air), outside)))
+
+    # ------------------------------------------------------------------ cooling
+    def _coolant(self, r: dict):
+        """(housing-to-fluid conductance per metre of stack, W/(K m), a number or a function of the conditions;
+        the fluid's ṁc_p, W/K; its heat capacity per metre, J/(K m))."""
+        c, g = self.cooling.values, self.geo
+        if self.cooling.kind == "water_jacket":
+            # one helical channel wound from A to B: a (radial) × b (axial), `turns` turns over the stack, in the
+            # middle of the housing; the walls toward the stator (inner wall and both sides) take the heat
+            a, b, turns = c["channel_height_mm"] * 1e-3, c["channel_width_mm"] * 1e-3, c["turns"]
+            d_h = 2.0 * a * b / (a + b)
+            flow = c["flow_l_min"] / 60000.0
+            v = flow / (a * b)
+            path_per_m = turns * 2.0 * math.pi * (r["back"] + r["housing"]) / 2.0 / g.stack_length
+            wet = (b + 2.0 * a) * path_per_m
+
+            def per_m(cond: Conditions) -> float:
+                w = water(cond.coolant_C)
+                nu = gnielinski_nu(w.rho * v * d_h / w.mu, w.pr)
+                return nu * w.k / d_h * wet
+
+            ref = water(FLUID_REFERENCE_C)
+            return self._memo(per_m), ref.rho * flow * ref.cp, ref.rho * ref.cp * a * b * path_per_m
+        fins, height, thick = c["fins"], c["fin_height_mm"] * 1e-3, c["fin_thickness_mm"] * 1e-3
+        r_out = r["housing"]
+        pitch_gap = 2.0 * math.pi * r_out / fins - thick
+        flow_area = fins * height * pitch_gap
+        path = g.stack_length + 2.0 * (g.end_winding_overhang + g.end_space)
+        k_al = self.mats["aluminium"]["k_W_mK"]
+
+        def per_m_air(cond: Conditions) -> float:
+            f = air(cond.coolant_C)
+            h = flat_plate_nu(c["air_speed_m_s"] * path / f.nu, f.pr) * f.k / path
+            eta = fin_efficiency(h, k_al, thick, height)
+            return h * (fins * 2.0 * height * eta + 2.0 * math.pi * r_out - fins * thick)
+
+        ref = air(FLUID_REFERENCE_C)
+        return (self._memo(per_m_air), ref.rho * c["air_speed_m_s"] * flow_area * ref.cp,
+                ref.rho * ref.cp * flow_area)
+
+    def _channel_section(self) -> float:
+        """The housing's axial section the channel interrupts: the channel's radial band, where the turns cover it."""
+        c, r = self.cooling.values, self._radii()
+        if self.cooling.kind != "water_jacket":
+            return 0.0
+        r_ch, a = (r["back"] + r["housing"]) / 2.0, c["channel_height_mm"] * 1e-3
+        covered = min(1.0, c["turns"] * c["channel_width_mm"] * 1e-3 / self.geo.stack_length)
+        return covered * annulus(r_ch - a / 2.0, r_ch + a / 2.0)
+
+    # ------------------------------------------------------------------ positions and losses
+    def _positions(self) -> None:
+        ids, n = self.ids, self.slices
+        mid = [n // 2 - 1, n // 2] if n % 2 == 0 else [n // 2]
+        at = lambda name: [ids[name][s] for s in mid]        # noqa: E731
+        copper = ids["w_bot"] + ids["w_top"] + ids["ew"]
+        g = self.geo
+        slot_len = g.stack_length / n / 2.0
+        self.copper_nodes = copper
+        self.copper_length = np.array([slot_len] * (2 * n) + [g.end_turn_length] * 2)
+        self.positions = {
+            "winding.slot_bottom": mix(at("w_bot")), "winding.slot_top": mix(at("w_top")),
+            "winding.slot_mid": mix(at("w_bot") + at("w_top")),
+            "winding.end_a": mix([ids["ew"][0]]), "winding.end_b": mix([ids["ew"][1]]),
+            "winding.mean": mix(copper, self.copper_length),
+            "tooth.tip": mix(at("tip")), "tooth.body": mix(at("body")),
+            "yoke.inner": mix(at("yoke_in")), "yoke.back": mix(at("yoke_back")),
+            "housing": mix(at("housing")), "coolant.out": mix([ids["coolant"][-1]]),
+            "magnet": mix(ids["magnet"]), "magnet.mid": mix(at("magnet")),
+            "magnet.end_a": mix([ids["magnet"][0]]), "magnet.end_b": mix([ids["magnet"][-1]]),
+            "rotor": mix(at("rotor")), "shaft": mix(ids["shaft"]),
+            "bearing.a": mix([ids["bearing"][0]]), "bearing.b": mix([ids["bearing"][1]]),
+            "end_cap.a": mix([ids["cap"][0]]), "end_cap.b": mix([ids["cap"][1]]),
+            "end_space.a": mix([ids["air"][0]]), "end_space.b": mix([ids["air"][1]]),
+        }
+        self.signal_positions = dict(SIGNAL_POSITIONS)
+
+    def _losses(self) -> None:
+        """Where each loss component goes: fixed shares over the nodes (they sum to 1 per component)."""
+        g, p, ids, n = self.geo, self.placement, self.ids, self.slices
+        size = self.net.size
+        r = self._radii()
+        # copper: dc by conductor length; ac by length, more at the slot opening, less in the end windings
+        slot = g.stack_length / n
+        top = p["ac_top_share"]
+        self.dc_share = self.copper_length / self.copper_length.sum()
+        ac = np.array([slot * (1.0 - top)] * n + [slot * top] * n + [g.end_turn_length * p["end_ac_factor"]] * 2)
+        self.ac_share = ac / ac.sum()
+        # iron: loss density ∝ B²; B_tooth = B_gap / (tooth share), B_yoke = B_gap·π r_g / (2 p h_yoke)
+        v_tip = g.tip_width_ratio * annulus(r["gap"], r["tip"])
+        v_body = g.tooth_width_ratio * annulus(r["tip"], r["slot"])
+        v_yoke_in, v_yoke_back = annulus(r["slot"], r["yoke_mid"]), annulus(r["yoke_mid"], r["back"])
+        b_yoke = math.pi * r["gap"] / (2.0 * self.pole_pairs * r["yoke"])
+        weights = {"tip": v_tip * p["tip_loss_factor"] / g.tip_width_ratio ** 2,
+                   "body": v_body / g.tooth_width_ratio ** 2,
+                   "yoke_in": v_yoke_in * b_yoke ** 2, "yoke_back": v_yoke_back * b_yoke ** 2}
+        total = sum(weights.values())
+        self.iron = np.zeros(size)
+        for name, w in weights.items():
+            self.iron[ids[name]] = w / total / n
+        self.yoke_share = (weights["yoke_in"] + weights["yoke_back"]) / total
+        magnet = np.ones(n)
+        magnet[[0, -1]] = p["magnet_end_factor"]
+        self.magnet = np.zeros(size)
+        self.magnet[ids["magnet"]] = magnet / magnet.sum()
+        self.bearing = np.zeros(size)
+        self.bearing[ids["bearing"]] = 1.0          # each bearing its own friction
+        self.wind = np.zeros(size)                  # windage heats the air gap: half stator, half rotor
+        self.wind[ids["tip"]] = 0.5 / n
+        self.wind[ids["rotor"]] += 0.5 / n
+        iron_nodes = ids["tip"] + ids["body"] + ids["yoke_in"] + ids["yoke_back"]
+        caps = self.net.capacitances
+        self.iron_position = mix(iron_nodes, caps[iron_nodes])      # the iron temperature of the iron loss
+
+    def mechanical(self, speed_rpm) -> tuple[np.ndarray, np.ndarray]:
+        """(friction of ONE bearing, windage) in W at the speeds."""
+        omega = np.abs(np.asarray(speed_rpm, dtype=float)) * math.pi / 30.0
+        radius, length, gap, fluid = self.windage
+        wind = np.array([windage_W(w, radius, length, gap, fluid) for w in np.ravel(omega)]).reshape(omega.shape)
+        return self.placement["bearing_friction_Nm"] * omega, self.placement["windage_factor"] * wind
+
+    def placer(self, components: LossComponents):
+        """place(x, inputs, bearing_W, windage_W) -> (node losses P, loss groups): the loss components at the
+        nodes' temperatures x, where they arise."""
+        evaluate = components.evaluate
+        ref, alpha = components.copper_reference_C, components.copper_alpha_per_K
+        cu_idx = np.array(self.copper_nodes)
+        dc, ac = self.dc_share, self.ac_share
+        iron, magnet, bearing, wind = self.iron, self.magnet, self.bearing, self.wind
+        flux, fe = self.positions[SIGNAL_POSITIONS["flux"]], self.iron_position
+        m_idx, m_w = list(flux.nodes), np.array(flux.weights)
+        fe_idx, fe_w = list(fe.nodes), np.array(fe.weights)
+        yoke_share = self.yoke_share
+
+        def place(x, inputs, p_bearing: float, p_wind: float):
+            th_m = float(x[m_idx] @ m_w)
+            th_fe = float(x[fe_idx] @ fe_w)
+            p_dc0, p_ac0, load, p_s, p_m, _ = evaluate(*inputs, th_m, th_fe)
+            cu = 1.0 + alpha * (x[cu_idx] - ref)
+            p_cu = (p_dc0 * dc * cu + p_ac0 * ac / cu) * load
+            p = iron * p_s + magnet * p_m + bearing * p_bearing + wind * p_wind
+            p[cu_idx] += p_cu
+            groups = (yoke_share * p_s, float(p_cu.sum()), (1.0 - yoke_share) * p_s, p_m,
+                      2.0 * p_bearing + p_wind)
+            return p, groups
+
+        return place
+
+    # ------------------------------------------------------------------ integration
+    def matrices(self, speed_rpm: float, coolant_C: float) -> tuple[np.ndarray, np.ndarray]:
+        """G and E of the network at a speed and inlet temperature."""
+        return self.net.matrices(Conditions(float(speed_rpm), float(coolant_C)))
+
+    def step_table(self, speeds, coolants, h: float):
+        """The exact steps on a grid covering the speeds and inlet temperatures: (speed grid, inlet grid, table
+        (ns, nc, n, 2n + 2))."""
+        top = max(float(np.max(np.abs(speeds))), 1.0) * (1.0 + SPEED_MARGIN)
+        grid_s = np.linspace(0.0, top, max(2, math.ceil(top / SPEED_GRID_RPM) + 1))
+        lo, hi = float(np.min(coolants)), float(np.max(coolants))
+        hi = max(hi, lo + 1.0)
+        grid_c = np.linspace(lo, hi, max(2, math.ceil((hi - lo) / COOLANT_GRID_K) + 1))
+        caps, n = self.net.capacitances, self.net.size
+        table = np.empty((len(grid_s), len(grid_c), n, 2 * n + 2))
+        for i, sp in enumerate(grid_s):
+            for j, tc in enumerate(grid_c):
+                table[i, j] = discretize(*self.matrices(sp, tc), caps, h)
+        return grid_s, grid_c, table
+
+    def simulate(self, steps: StepInputs, components: LossComponents, start_C: float, stride: int) -> ThermalRun:
+        n, count, h = self.net.size, steps.steps, steps.step_s
+        speed = np.abs(np.asarray(steps.speed_rpm, dtype=float))
+        cool, amb = np.asarray(steps.coolant_C, dtype=float), np.asarray(steps.ambient_C, dtype=float)
+        grid_s, grid_c, table = self.step_table(speed, cool, h)
+        i_s, w_s = _cell(grid_s, speed)
+        i_c, w_c = _cell(grid_c, cool)
+        weights = np.stack([(1 - w_s) * (1 - w_c), (1 - w_s) * w_c, w_s * (1 - w_c), w_s * w_c], axis=-1)
+        weights = weights.reshape(count, 2, 2)
+        bearing, wind = self.mechanical(speed)
+        inputs = list(zip(*(np.asarray(steps.op[k], dtype=float).tolist() for k in LossComponents.INPUTS),
+                          strict=True))
+        place = self.placer(components)
+        x = np.full(n, float(start_C))
+        z = np.empty(2 * n + 2)
+        states, groups = [], []
+        i_s, i_c = i_s.tolist(), i_c.tolist()
+        bearing, wind, cool_l, amb_l = bearing.tolist(), wind.tolist(), cool.tolist(), amb.tolist()
+        for k in range(count):
+            p, group = place(x, inputs[k], bearing[k], wind[k])
+            if k % stride == 0:
+                states.append(x)
+                groups.append(group)
+            z[:n] = x
+            z[n:2 * n] = p
+            z[2 * n] = cool_l[k]
+            z[2 * n + 1] = amb_l[k]
+            i, j = i_s[k], i_c[k]
+            y = table[i:i + 2, j:j + 2] @ z
+            x = np.einsum("ab,abn->n", weights[k], y)
+        if count % stride == 0:
+            states.append(x)
+        return ThermalRun(np.array(states), np.array(groups))
+
+    # ------------------------------------------------------------------ steady state and heat flows
+    def steady(self, op: Mapping[str, float], speed_rpm: float, coolant_C: float, ambient_C: float,
+               components: LossComponents, iterations: int = 200) -> tuple[np.ndarray, np.ndarray]:
+        """Steady temperatures at a fixed operating point (the losses at their own temperatures, by fixed-point
+        iteration of G x = -(E u + P(x))) and the node losses there."""
+        g, e = self.matrices(speed_rpm, coolant_C)
+        u = np.array([coolant_C, ambient_C])
+        place = self.placer(components)
+        bearing, wind = (float(v) for v in self.mechanical(speed_rpm))
+        inputs = tuple(float(op[k]) for k in LossComponents.INPUTS)
+        x = np.full(self.net.size, float(coolant_C))
+        for _ in range(iterations):
+            p, _ = place(x, inputs, bearing, wind)
+            new = np.linalg.solve(g, -(e @ u + p))
+            if np.max(np.abs(new - x)) < 1e-10:
+                x = new
+                break
+            x = new
+        p, _ = place(x, inputs, bearing, wind)
+        return x, p
+
+    def heat_flows(self, x, speed_rpm: float, coolant_C: float, ambient_C: float) -> dict[str, float]:
+        """Heat leaving the network at state x (W): to the coolant (its enthalpy rise ṁc_p(T_out - T_in), plus any
+        direct link to the inlet) and to the ambient (the boundary links)."""
+        cond = Conditions(float(speed_rpm), float(coolant_C))
+        out = self.net.boundary_heat(np.asarray(x), (coolant_C, ambient_C), cond)
+        return {"coolant": self.net.enthalpy_rise(np.asarray(x), coolant_C) + out["coolant_film"],
+                "ambient": out["ambient"]}
+
+    def describe(self) -> dict[str, Any]:
+        return {"kind": self.kind, "rotor": self.rotor, "slices": self.slices, "nodes": self.net.size,
+                "cooling": self.cooling.kind}
+
+    # helpers for conductances that vary with the conditions -------------------------------------------
+    @staticmethod
+    def _memo(fn):
+        cache: dict[tuple[float, float], float] = {}
+
+        def value(c: Conditions) -> float:
+            key = (c.speed_rpm, c.coolant_C)
+            if key not in cache:
+                cache[key] = fn(c)
+            return cache[key]
+
+        return value
+
+    @staticmethod
+    def _scaled(h, area: float):
+        if callable(h):
+            return lambda c: h(c) * area
+        return h * area
+
+    @staticmethod
+    def _gap(h_fn, area: float, *solid: float):
+        return lambda c: series(film(h_fn(c), area), *solid)
+
+
+def _glue(area: float) -> float:
+    """A resin layer (magnet pockets, segment joints)."""
+    return film(GLUE_K / (GLUE_MM * 1e-3), area)
+
+
+def _cell(grid: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lower grid index and the linear weight of the upper one, per value (clamped to the grid)."""
+    i = np.clip(np.searchsorted(grid, values, side="right") - 1, 0, len(grid) - 2)
+    w = np.clip((values - grid[i]) / (grid[i + 1] - grid[i]), 0.0, 1.0)
+    return i, w
+
+
+class Distributed(PlantKind):
+    name = "distributed"
+    summary = "a network of dozens of nodes built from geometry, materials and cooling"
+
+    def from_table(self, check: Checker, table: Mapping[str, Any], motor: MotorDescription) -> ThermalPlant:
+        check.only(table, "thermal", KEYS)
+        rotor = table.get("rotor", "inner")
+        if rotor not in ROTORS:
+            check.fail("thermal.rotor", f"{rotor!r} is not one of {', '.join(ROTORS)}")
+        slices = check.whole(table, "slices", "thermal.", low=MIN_SLICES, high=MAX_SLICES, default=MIN_SLICES)
+        geo = geometry(check, table)
+        mats = materials(check, table)
+        cooling_table = table.get("cooling")
+        if not isinstance(cooling_table, dict):
+            check.fail("thermal.cooling", f"is missing or not a table {{kind = {' | '.join(COOLING_KINDS)}, ...}}")
+        kind = cooling_table.get("kind")
+        if kind not in COOLING_KINDS:
+            check.fail("thermal.cooling.kind", f"{kind!r} is not one of {', '.join(COOLING_KINDS)}")
+        if rotor == "outer" and kind != "water_jacket":
+            check.fail("thermal.cooling.kind", "must be water_jacket for an outer rotor (the stator is cooled from "
+                       "its hub)")
+        values = _numbers(check, {k: v for k, v in cooling_table.items() if k != "kind"}, "cooling",
+                          COOLING_KEYS[kind])
+        if kind == "air" and 2.0 * math.pi * (geo.stator_back_diameter / 2.0 + geo.housing_thickness) \
+                / values["fins"] <= values["fin_thickness_mm"] * 1e-3 * 1.2:
+            check.fail("thermal.cooling.fins", "leave no room between the fins; fewer or thinner fins")
+        if kind == "water_jacket":
+            if values["turns"] * values["channel_width_mm"] > geo.stack_length / 1e-3:
+                check.fail("thermal.cooling.turns", "× channel_width_mm exceeds the stack length")
+            if values["channel_height_mm"] * 1e-3 >= geo.housing_thickness * 0.8:
+                check.fail("thermal.cooling.channel_height_mm", "must leave walls in the housing (below 80 % of "
+                           "housing_thickness_mm)")
+        end_space = _numbers(check, table.get("end_space"), "end_space", END_SPACE)
+        placement = _numbers(check, table.get("losses"), "losses", LOSS_KEYS)
+        plant = DistributedPlant.__new__(DistributedPlant)
+        plant.rotor, plant.geo = rotor, geo
+        DistributedPlant._check(plant, check)
+        return DistributedPlant(rotor, slices, geo, mats, Cooling(kind, values), end_space, placement,
+                                motor.pole_pairs)
+
+
+register(Distributed())
