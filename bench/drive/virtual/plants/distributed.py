@@ -85,8 +85,7 @@ INTERNAL_AIR_C = 60.0        # air properties in the air gap and end spaces (the
 GLUE_MM, GLUE_K = 0.1, 0.3   # magnet pockets and segment joints: a resin layer
 SHRINK_FIT_GAP_MM = 0.01     # rotor on the shaft, as an equivalent air gap
 SPEED_GRID_RPM = 250.0       # the exact steps are tabulated on this speed grid (bilinear in speed and inlet)
-COOLANT_GRID_K = 5.0
-SPEED_MARGIN = 1e-6
+COOLANT_GRID_K = 5.0         # and this inlet temperature grid (water properties)
 LOSS_NAMES = ("yoke", "winding", "tooth", "magnet", "mechanical")
 FLUID_REFERENCE_C = 40.0     # the coolant's ṁc_p and heat capacity (its h follows the inlet temperature)
 # the canonical signals' positions: the end winding on the B side (farther from the inlet, where test benches put
@@ -121,6 +120,7 @@ class DistributedPlant(ThermalPlant):
         self.rotor, self.slices, self.geo, self.mats, self.pole_pairs = rotor, slices, geo, mats, pole_pairs
         self.cooling, self.end_space, self.placement = cooling, end_space, placement
         self.net = Network()
+        self._tables: dict[float, dict[tuple[int, int], np.ndarray]] = {}    # step -> grid corner -> exact step
         self._build()
         self.node_names = tuple(self.net.names)
         self._positions()
@@ -509,38 +509,38 @@ class DistributedPlant(ThermalPlant):
         """G and E of the network at a speed and inlet temperature."""
         return self.net.matrices(Conditions(float(speed_rpm), float(coolant_C)))
 
-    def step_table(self, speeds, coolants, h: float):
-        """The exact steps on a grid covering the speeds and inlet temperatures: (speed grid, inlet grid, table
-        (ns, nc, n, 2n + 2))."""
-        top = max(float(np.max(np.abs(speeds))), 1.0) * (1.0 + SPEED_MARGIN)
-        grid_s = np.linspace(0.0, top, max(2, math.ceil(top / SPEED_GRID_RPM) + 1))
-        lo, hi = float(np.min(coolants)), float(np.max(coolants))
-        hi = max(hi, lo + 1.0)
-        grid_c = np.linspace(lo, hi, max(2, math.ceil((hi - lo) / COOLANT_GRID_K) + 1))
-        caps, n = self.net.capacitances, self.net.size
-        table = np.empty((len(grid_s), len(grid_c), n, 2 * n + 2))
-        for i, sp in enumerate(grid_s):
-            for j, tc in enumerate(grid_c):
-                table[i, j] = discretize(*self.matrices(sp, tc), caps, h)
-        return grid_s, grid_c, table
+    def cells(self, speeds, coolants, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The exact steps at the grid corners around each (speed, inlet) point, bilinear in both: (table (k, n,
+        2n + 2) of the corners used, corner indices (N, 4), weights (N, 4)). The grid is fixed (multiples of
+        SPEED_GRID_RPM and COOLANT_GRID_K) and its corners are computed once per plant and step, when first
+        needed."""
+        speeds, coolants = np.abs(np.asarray(speeds, dtype=float)), np.asarray(coolants, dtype=float)
+        i_s = np.floor(speeds / SPEED_GRID_RPM).astype(int)
+        w_s = speeds / SPEED_GRID_RPM - i_s
+        i_c = np.floor(coolants / COOLANT_GRID_K).astype(int)
+        w_c = coolants / COOLANT_GRID_K - i_c
+        corners = np.stack([i_s, i_c, i_s, i_c + 1, i_s + 1, i_c, i_s + 1, i_c + 1], axis=-1).reshape(-1, 4, 2)
+        weights = np.stack([(1 - w_s) * (1 - w_c), (1 - w_s) * w_c, w_s * (1 - w_c), w_s * w_c], axis=-1)
+        keys, slots = np.unique(corners.reshape(-1, 2), axis=0, return_inverse=True)
+        cache = self._tables.setdefault(h, {})
+        caps = self.net.capacitances
+        for i, j in keys.tolist():
+            if (i, j) not in cache:
+                cache[i, j] = discretize(*self.matrices(i * SPEED_GRID_RPM, j * COOLANT_GRID_K), caps, h)
+        table = np.stack([cache[i, j] for i, j in keys.tolist()])
+        return table, slots.reshape(-1, 4), weights
 
     def simulate(self, steps: StepInputs, components: LossComponents, start_C: float, stride: int) -> ThermalRun:
-        n, count, h = self.net.size, steps.steps, steps.step_s
-        speed = np.abs(np.asarray(steps.speed_rpm, dtype=float))
+        n, count = self.net.size, steps.steps
         cool, amb = np.asarray(steps.coolant_C, dtype=float), np.asarray(steps.ambient_C, dtype=float)
-        grid_s, grid_c, table = self.step_table(speed, cool, h)
-        i_s, w_s = _cell(grid_s, speed)
-        i_c, w_c = _cell(grid_c, cool)
-        weights = np.stack([(1 - w_s) * (1 - w_c), (1 - w_s) * w_c, w_s * (1 - w_c), w_s * w_c], axis=-1)
-        weights = weights.reshape(count, 2, 2)
-        bearing, wind = self.mechanical(speed)
+        table, slots, weights = self.cells(steps.speed_rpm, cool, steps.step_s)
+        bearing, wind = self.mechanical(steps.speed_rpm)
         inputs = list(zip(*(np.asarray(steps.op[k], dtype=float).tolist() for k in LossComponents.INPUTS),
                           strict=True))
         place = self.placer(components)
         x = np.full(n, float(start_C))
         z = np.empty(2 * n + 2)
         states, groups = [], []
-        i_s, i_c = i_s.tolist(), i_c.tolist()
         bearing, wind, cool_l, amb_l = bearing.tolist(), wind.tolist(), cool.tolist(), amb.tolist()
         for k in range(count):
             p, group = place(x, inputs[k], bearing[k], wind[k])
@@ -551,9 +551,7 @@ class DistributedPlant(ThermalPlant):
             z[n:2 * n] = p
             z[2 * n] = cool_l[k]
             z[2 * n + 1] = amb_l[k]
-            i, j = i_s[k], i_c[k]
-            y = table[i:i + 2, j:j + 2] @ z
-            x = np.einsum("ab,abn->n", weights[k], y)
+            x = weights[k] @ (table[slots[k]] @ z)
         if count % stride == 0:
             states.append(x)
         return ThermalRun(np.array(states), np.array(groups))
@@ -618,13 +616,6 @@ class DistributedPlant(ThermalPlant):
 def _glue(area: float) -> float:
     """A resin layer (magnet pockets, segment joints)."""
     return film(GLUE_K / (GLUE_MM * 1e-3), area)
-
-
-def _cell(grid: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Lower grid index and the linear weight of the upper one, per value (clamped to the grid)."""
-    i = np.clip(np.searchsorted(grid, values, side="right") - 1, 0, len(grid) - 2)
-    w = np.clip((values - grid[i]) / (grid[i + 1] - grid[i]), 0.0, 1.0)
-    return i, w
 
 
 class Distributed(PlantKind):
