@@ -346,3 +346,37 @@ def test_a_bad_distributed_table_is_one_sentence(key, value, words):
         virtual_plant(motor_from_dict(content, Path("m.json")))
     message = str(err.value)
     assert words in message and message.startswith("motor file m.json: ") and "\n" not in message
+
+
+# ------------------------------------------------------------------ the designer's prior
+def test_the_lumped_prior_is_a_valid_lptn_close_to_the_plant_at_half_speed(plant):
+    """The 22 parameters pass the motor file's checks, the capacitances are the groups' sums, and at half the top
+    speed the four-node network's steady state is within 25 % of the plant's group means (rise above coolant)."""
+    from bench.drive.plant import steady_state
+    from bench.drive.virtual.plants.lump import ORDER, _injections, designer_prior, group_nodes
+    from bench.motor.description import prior_parameters
+
+    thermal = plant.thermal
+    prior = designer_prior(thermal, 14000.0)
+    params, _ = prior_parameters(prior.parameters.as_dict(), "lumped")
+    nodes = group_nodes(thermal)
+    caps = thermal.net.capacitances
+    assert params.C_w == pytest.approx(caps[nodes["winding"]].sum()) and params.k_0 == thermal.yoke_share
+    assert sum(len(v) for v in nodes.values()) == thermal.net.size - len(thermal.ids["coolant"]) - 2   # not fluids
+    losses = np.array([300.0, 1800.0, 250.0, 60.0])
+    g, e = thermal.matrices(7000.0, 40.0)
+    x = np.linalg.solve(g, -(e @ np.array([40.0, 40.0]) + _injections(thermal, nodes) @ losses))
+    means = np.array([x[nodes[k]] @ caps[nodes[k]] / caps[nodes[k]].sum() for k in ORDER])
+    lumped = steady_state(params, losses, 0.5, 40.0, 40.0)
+    np.testing.assert_allclose(lumped - 40.0, means - 40.0, rtol=0.25)
+    assert max(prior.fit_error.values()) < 50.0
+
+
+def test_bench_motor_lump(capsys):
+    from bench.cli import main
+
+    assert main(["motor", "lump", str(EXAMPLE / "motor.json"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["parameters"]) == set(json.loads(IPM.read_text())["thermal_prior"]["parameters"])
+    assert main(["motor", "lump", str(IPM)]) == 1
+    assert "bench motor lump lumps 'distributed' plants" in capsys.readouterr().err
