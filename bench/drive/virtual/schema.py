@@ -46,7 +46,8 @@ The `thermal` table by kind (bench.drive.virtual.plants; every number checked, d
     a_tm, b_tm, R_ma0, a_ma, b_ma, alpha_cy, k_0..k_3 of the parameter-varying network of paper Fig. 4 (speed
     ratio n / limits.speed_rpm), the same four-node model `bench identify` fits; positions yoke, winding, tooth,
     magnet.
-    kind = "distributed": a network built from geometry (docs/plant.md; bench.drive.virtual.plants.distributed):
+    kind = "distributed": a network built from geometry (docs/plant.md; bench.drive.virtual.plants.distributed;
+    required keys below have no default there):
       rotor = "inner" | "outer"; slices (axial slices of the active part, >= 4)
       [geometry] airgap_diameter_mm, stator_back_diameter_mm, stack_length_mm, slots, slot_depth_mm,
                  tooth_tip_mm, tooth_width_ratio, airgap_mm, magnet_thickness_mm, magnet_depth_mm,
@@ -55,10 +56,10 @@ The `thermal` table by kind (bench.drive.virtual.plants; every number checked, d
                  slot_liner_mm, contact_gap_mm, bearing_outer_diameter_mm, bearing_width_mm, bearing_gap_mm
       [materials] optional overrides {material: {k_W_mK, rho_kg_m3, c_J_kgK}} of copper, lamination (plus
                  k_axial_W_mK), aluminium, magnet, shaft, impregnation, liner
-      [cooling]  kind = "water_jacket": flow_l_min, channels, channel_width_mm, channel_height_mm, ambient_h_W_m2K
+      [cooling]  kind = "water_jacket": flow_l_min, turns, channel_width_mm, channel_height_mm, ambient_h_W_m2K
                  kind = "air": air_speed_m_s, fins, fin_height_mm, fin_thickness_mm, ambient_h_W_m2K
       [end_space] k1, k2, k3 (h = k1·(1 + k2·v^k3))          [losses] placement of the loss components
-    positions: winding.slot_bottom/slot_top/slot_mid/mean/end_a/end_b/hot, tooth.tip/body, yoke.inner/back,
+    positions: winding.slot_bottom/slot_top/slot_mid/mean/end_a/end_b, tooth.tip/body, yoke.inner/back,
     housing, coolant.out, magnet, magnet.mid/end_a/end_b, rotor, shaft, bearing.a/b, end_cap.a/b, end_space.a/b.
 
 Every problem with the table is one VirtualPlantError sentence naming the file and the key.
