@@ -126,45 +126,11 @@ class DistributedPlant(ThermalPlant):
         self._positions()
         self._losses()
 
-    # ------------------------------------------------------------------ radii
     def _radii(self) -> dict[str, float]:
-        """Radii of every layer boundary; s = +1 when the stator lies outside the air gap (inner rotor)."""
-        g = self.geo
-        s = 1.0 if self.rotor == "inner" else -1.0
-        r_g = g.airgap_diameter / 2.0
-        r_back = g.stator_back_diameter / 2.0
-        yoke = s * (r_back - r_g) - g.slot_depth
-        return {"s": s, "gap": r_g, "tip": r_g + s * g.tooth_tip, "slot": r_g + s * g.slot_depth,
-                "yoke_mid": r_g + s * (g.slot_depth + yoke / 2.0), "back": r_back,
-                "housing": r_back + s * g.housing_thickness, "yoke": yoke}
-
-    def _check(self, check: Checker) -> None:
-        g, r = self.geo, self._radii()
-        if r["yoke"] <= 2.0 * g.tooth_tip or r["yoke"] <= 0:
-            side = "outside" if self.rotor == "inner" else "inside"
-            check.fail("thermal.geometry", f"leaves a yoke of {r['yoke'] * 1e3:.1f} mm between the slots and the "
-                       f"stator back; stator_back_diameter_mm must lie {side} the slots with room for a yoke")
-        if g.slot_depth <= 2.0 * g.tooth_tip:
-            check.fail("thermal.geometry.slot_depth_mm", "must exceed twice tooth_tip_mm (the tips and the copper)")
-        rotor_out = self._rotor_radii()
-        if min(rotor_out.values()) <= g.shaft_diameter / 2.0:
-            check.fail("thermal.geometry", "leaves no rotor iron around the shaft; check airgap_diameter_mm, "
-                       "magnet_thickness_mm, magnet_depth_mm and shaft_diameter_mm")
-        if g.bearing_outer_diameter <= g.shaft_diameter or g.bearing_outer_diameter / 2.0 >= abs(r["housing"]):
-            check.fail("thermal.geometry.bearing_outer_diameter_mm", "must lie between the shaft and the housing")
-        if self.rotor == "outer" and r["housing"] <= g.bearing_outer_diameter / 2.0:
-            check.fail("thermal.geometry.housing_thickness_mm", "leaves no room for the bearings in the hub")
+        return stator_radii(self.rotor, self.geo)
 
     def _rotor_radii(self) -> dict[str, float]:
-        g = self.geo
-        r_g = g.airgap_diameter / 2.0
-        if self.rotor == "inner":
-            r_r = r_g - g.airgap
-            m_out = r_r - g.magnet_depth
-            return {"surface": r_r, "magnet_out": m_out, "magnet_in": m_out - g.magnet_thickness}
-        r_r = r_g + g.airgap
-        return {"surface": r_r, "magnet_out": r_r + g.magnet_thickness,
-                "back": r_r + g.magnet_thickness + g.rotor_back_iron}
+        return rotor_radii(self.rotor, self.geo)
 
     # ------------------------------------------------------------------ the network
     def _build(self) -> None:
@@ -618,6 +584,46 @@ def _glue(area: float) -> float:
     return film(GLUE_K / (GLUE_MM * 1e-3), area)
 
 
+def stator_radii(rotor: str, g: Geometry) -> dict[str, float]:
+    """Radii of every stator layer boundary; s = +1 when the stator lies outside the air gap (inner rotor)."""
+    s = 1.0 if rotor == "inner" else -1.0
+    r_g = g.airgap_diameter / 2.0
+    r_back = g.stator_back_diameter / 2.0
+    yoke = s * (r_back - r_g) - g.slot_depth
+    return {"s": s, "gap": r_g, "tip": r_g + s * g.tooth_tip, "slot": r_g + s * g.slot_depth,
+            "yoke_mid": r_g + s * (g.slot_depth + yoke / 2.0), "back": r_back,
+            "housing": r_back + s * g.housing_thickness, "yoke": yoke}
+
+
+def rotor_radii(rotor: str, g: Geometry) -> dict[str, float]:
+    """The rotor's radii: its surface and the magnets' (inner rotor), or the magnets' and the back iron's (outer)."""
+    r_g = g.airgap_diameter / 2.0
+    if rotor == "inner":
+        r_r = r_g - g.airgap
+        m_out = r_r - g.magnet_depth
+        return {"surface": r_r, "magnet_out": m_out, "magnet_in": m_out - g.magnet_thickness}
+    r_r = r_g + g.airgap
+    return {"surface": r_r, "magnet_out": r_r + g.magnet_thickness, "back": r_r + g.magnet_thickness
+            + g.rotor_back_iron}
+
+
+def check_geometry(check: Checker, rotor: str, g: Geometry) -> None:
+    """The radial build must hold together: a yoke behind the slots, rotor iron around the shaft, bearings inside."""
+    r = stator_radii(rotor, g)
+    if r["yoke"] <= 2.0 * g.tooth_tip:
+        side = "outside" if rotor == "inner" else "inside"
+        check.fail("thermal.geometry", f"leaves a yoke of {r['yoke'] * 1e3:.1f} mm between the slots and the "
+                   f"stator back; stator_back_diameter_mm must lie {side} the slots with room for a yoke")
+    if g.slot_depth <= 2.0 * g.tooth_tip:
+        check.fail("thermal.geometry.slot_depth_mm", "must exceed twice tooth_tip_mm (the tips and the copper)")
+    if min(rotor_radii(rotor, g).values()) <= g.shaft_diameter / 2.0:
+        check.fail("thermal.geometry", "leaves no rotor iron around the shaft; check airgap_diameter_mm, "
+                   "magnet_thickness_mm, magnet_depth_mm and shaft_diameter_mm")
+    if g.bearing_outer_diameter <= g.shaft_diameter or g.bearing_outer_diameter / 2.0 >= r["housing"]:
+        check.fail("thermal.geometry.bearing_outer_diameter_mm", "must lie between the shaft and the housing"
+                   + (" (the hub's bore)" if rotor == "outer" else ""))
+
+
 class Distributed(PlantKind):
     name = "distributed"
     summary = "a network of dozens of nodes built from geometry, materials and cooling"
@@ -652,9 +658,7 @@ class Distributed(PlantKind):
                            "housing_thickness_mm)")
         end_space = _numbers(check, table.get("end_space"), "end_space", END_SPACE)
         placement = _numbers(check, table.get("losses"), "losses", LOSS_KEYS)
-        plant = DistributedPlant.__new__(DistributedPlant)
-        plant.rotor, plant.geo = rotor, geo
-        DistributedPlant._check(plant, check)
+        check_geometry(check, rotor, geo)
         return DistributedPlant(rotor, slices, geo, mats, Cooling(kind, values), end_space, placement,
                                 motor.pole_pairs)
 
