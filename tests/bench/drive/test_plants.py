@@ -199,10 +199,10 @@ def test_losses_are_placed_where_they_arise(plant):
     assert thermal.dc_share.sum() == pytest.approx(1.0) and thermal.ac_share.sum() == pytest.approx(1.0)
     n = thermal.slices
     end_dc = thermal.dc_share[2 * n:]
-    assert end_dc == pytest.approx([110.0 / 340.0] * 2)                 # conductor length: 120 mm + 2 × 110 mm
+    assert end_dc == pytest.approx([95.0 / 310.0] * 2)                  # conductor length: 120 mm + 2 × 95 mm
     top, bottom, ends = thermal.ac_share[n:2 * n], thermal.ac_share[:n], thermal.ac_share[2 * n:]
     np.testing.assert_allclose(top, 3 * bottom, rtol=1e-12)             # ac_top_share 0.75: the slot opening
-    assert ends[0] == pytest.approx(0.3 * (top[0] + bottom[0]) * 110.0 / 30.0)     # end_ac_factor 0.3 per length
+    assert ends[0] == pytest.approx(0.3 * (top[0] + bottom[0]) * 95.0 / 30.0)      # end_ac_factor 0.3 per length
     magnet = thermal.magnet[thermal.ids["magnet"]]
     assert magnet.sum() == pytest.approx(1.0) and magnet[0] == pytest.approx(1.3 * magnet[1])
     assert thermal.iron.sum() == pytest.approx(1.0) and 0.3 < thermal.yoke_share < 0.7
@@ -266,7 +266,7 @@ def test_halving_the_step_and_an_ode_solver_agree():
 # ------------------------------------------------------------------ positions and sensor columns
 def test_the_example_heats_plausibly_and_the_columns_read_their_positions(plant, short_run):
     truth, measured = short_run.truth, short_run.measured
-    assert 60.0 < truth["winding"][-1] < 130.0 and 40.0 < truth["magnet"][-1] < 100.0
+    assert 60.0 < truth["winding"][-1] < 130.0 and 10.0 < truth["magnet"][-1] - 25.0 < 50.0   # 15 min, 25 °C
     end = -1
     assert truth["winding"][end] > truth["at:winding.slot_mid"][end] > truth["tooth"][end] > truth["yoke"][end]
     assert truth["yoke"][end] > truth["at:housing"][end] > truth["coolant_out"][end] > truth["coolant"][end]
