@@ -380,3 +380,21 @@ def test_bench_motor_lump(capsys):
     assert set(out["parameters"]) == set(json.loads(IPM.read_text())["thermal_prior"]["parameters"])
     assert main(["motor", "lump", str(IPM)]) == 1
     assert "bench motor lump lumps 'distributed' plants" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("variant", ["air", "outer"])
+def test_air_cooling_and_an_outer_rotor_run_a_profile(variant):
+    """15 min at 40 Nm, 3000 rpm: the winding is the hottest, the fluid warms on its way, and an out-runner's
+    magnets sit between the stator and its rotor back iron, which the outside air cools."""
+    profiles = short_profiles()
+    profiles[0]["phases"][0]["torque_Nm"] = 40
+    content = distributed_dict(variant, profiles)
+    content["virtual_plant"]["columns"].append({"name": "rotor", "signal": "temperature", "unit": "°C",
+                                                "resolution": 0.01, "noise": 0.0, "at": "rotor"})
+    plant = virtual_plant(motor_from_dict(content))
+    run = plant.simulate(plant.profiles[0])
+    truth = run.truth
+    assert np.all(np.isfinite(run.measured["housing"])) and truth["winding"][-1] > truth["tooth"][-1] > 30.0
+    assert truth["coolant_out"][-1] > truth["coolant"][-1] + 0.2
+    if variant == "outer":
+        assert truth["tooth"][-1] > truth["at:magnet"][-1] > truth["at:rotor"][-1] > truth["ambient"][-1]
