@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -134,164 +135,161 @@ class DistributedPlant(ThermalPlant):
 
     # ------------------------------------------------------------------ the network
     def _build(self) -> None:
-        g, m, net, n = self.geo, self.mats, self.net, self.slices
-        r, rr = self._radii(), self._rotor_radii()
-        length = g.stack_length / n
-        ext = g.end_winding_overhang + g.end_space
-        fe, cu, al = m["lamination"], m["copper"], m["aluminium"]
-        k_fe, k_ax = fe["k_W_mK"], fe[AXIAL]
-        rc = {name: v["rho_kg_m3"] * v["c_J_kgK"] for name, v in m.items()}
-        ft, ftip, fm = g.tooth_width_ratio, g.tip_width_ratio, g.magnet_width_ratio
-        fill = g.slot_fill
-        k_eq = slot_conductivity(fill, cu["k_W_mK"], m["impregnation"]["k_W_mK"])
-        rc_slot = fill * rc["copper"] + (1.0 - fill) * rc["impregnation"]
-        k_liner = m["liner"]["k_W_mK"]
-        inner_air = air(INTERNAL_AIR_C)
-        es = self.end_space
-        # stator layers: (name, r_from, r_to, solid share, conductivity radial, axial, ρc)
-        r_mid_tip = (r["gap"] + r["tip"]) / 2.0
-        r_mid_body = (r["tip"] + r["slot"]) / 2.0
-        r_yoke_q1 = (r["slot"] + r["yoke_mid"]) / 2.0
-        r_yoke_q3 = (r["yoke_mid"] + r["back"]) / 2.0
-        r_house_mid = (r["back"] + r["housing"]) / 2.0
-        slot_area = (1.0 - ft) * annulus(r["tip"], r["slot"]) / g.slots
-        copper_depth = g.slot_depth - g.tooth_tip
-        slot_width = slot_area / copper_depth
-        self.slot_area = slot_area
-        cu_layer = fill * slot_area * g.slots / 2.0          # copper section of one slot half, all slots
-        rotor_surface = rr["surface"]
-        r_air_mean = (r["gap"] + rotor_surface) / 2.0
-
-        def v_peripheral(c: Conditions) -> float:
-            return c.omega * rotor_surface
-
-        def h_end(c: Conditions) -> float:
-            return end_space_h(v_peripheral(c), es["k1"], es["k2"], es["k3"])
-
-        h_gap_fn = self._memo(lambda c: airgap_h(c.omega, r_air_mean, g.airgap, inner_air))
-        h_end_fn = self._memo(h_end)
-        film_per_m, mcp, cool_cap = self._coolant(r)
-        h_amb = self.cooling.values["ambient_h_W_m2K"]
-
-        ids: dict[str, list[int]] = {k: [] for k in ("w_bot", "w_top", "tip", "body", "yoke_in", "yoke_back",
-                                                    "housing", "coolant", "rotor", "magnet")}
-        for s in range(n):
-            ids["w_bot"].append(net.node(f"w_bot[{s}]", rc_slot * slot_area * g.slots / 2.0 * length))
-            ids["w_top"].append(net.node(f"w_top[{s}]", rc_slot * slot_area * g.slots / 2.0 * length))
-            ids["tip"].append(net.node(f"tip[{s}]", rc["lamination"] * ftip * annulus(r["gap"], r["tip"]) * length))
-            ids["body"].append(net.node(f"body[{s}]", rc["lamination"] * ft * annulus(r["tip"], r["slot"]) * length))
-            ids["yoke_in"].append(net.node(f"yoke_in[{s}]", rc["lamination"] * annulus(r["slot"], r["yoke_mid"])
-                                           * length))
-            ids["yoke_back"].append(net.node(f"yoke_back[{s}]", rc["lamination"] * annulus(r["yoke_mid"], r["back"])
-                                             * length))
-            ids["housing"].append(net.node(f"housing[{s}]", rc["aluminium"] * annulus(r["back"], r["housing"])
-                                           * length))
-            ids["coolant"].append(net.node(f"coolant[{s}]", cool_cap * length))
-            if self.rotor == "inner":
-                rotor_cap = rc["lamination"] * (annulus(g.shaft_diameter / 2.0, rotor_surface)
-                                                - fm * annulus(rr["magnet_in"], rr["magnet_out"])) * length
-                magnet_vol = fm * annulus(rr["magnet_in"], rr["magnet_out"]) * length
-            else:
-                rotor_cap = rc["lamination"] * annulus(rr["magnet_out"], rr["back"]) * length
-                magnet_vol = fm * annulus(rotor_surface, rr["magnet_out"]) * length
-            ids["rotor"].append(net.node(f"rotor[{s}]", rotor_cap))
-            ids["magnet"].append(net.node(f"magnet[{s}]", rc["magnet"] * magnet_vol))
-        end_cu_cap = rc_slot * slot_area * g.slots * g.end_turn_length
-        ew = [net.node("ew_a", end_cu_cap), net.node("ew_b", end_cu_cap)]
-        end_air_vol = annulus(r["back"], rotor_surface) * ext
-        air_nodes = [net.node(side, inner_air.rho * inner_air.cp * end_air_vol) for side in ("air_a", "air_b")]
-        r_bearing = g.bearing_outer_diameter / 2.0
-        r_cap_out = max(r["housing"], r["back"]) if self.rotor == "inner" else r_house_mid
-        cap_area = annulus(r_bearing, r_cap_out)
-        caps = [net.node(side, rc["aluminium"] * cap_area * g.end_cap_thickness) for side in ("cap_a", "cap_b")]
-        bearing_cap = rc["shaft"] * annulus(g.shaft_diameter / 2.0, r_bearing) * g.bearing_width * 0.5
-        bearings = [net.node(side, bearing_cap) for side in ("brg_a", "brg_b")]
-        shaft_len = g.stack_length + 2.0 * (ext + g.end_cap_thickness)
-        shaft = net.node("shaft", rc["shaft"] * math.pi * (g.shaft_diameter / 2.0) ** 2 * shaft_len)
-        self.ids = {**ids, "ew": ew, "air": air_nodes, "cap": caps, "bearing": bearings, "shaft": [shaft]}
-
-        # ---- radial, per slice
-        half = lambda k, a, b, share=1.0: radial(k, length, a, b, share)   # noqa: E731
-        for s in range(n):
-            tip, body, yin, yb = ids["tip"][s], ids["body"][s], ids["yoke_in"][s], ids["yoke_back"][s]
-            wb, wt, hs, cl = ids["w_bot"][s], ids["w_top"][s], ids["housing"][s], ids["coolant"][s]
-            net.link(tip, body, series(half(k_fe, r_mid_tip, r["tip"], ftip), half(k_fe, r["tip"], r_mid_body, ft)))
-            net.link(body, yin, series(half(k_fe, r_mid_body, r["slot"], ft), half(k_fe, r["slot"], r_yoke_q1)))
-            net.link(yin, yb, series(half(k_fe, r_yoke_q1, r["yoke_mid"]), half(k_fe, r["yoke_mid"], r_yoke_q3)))
-            contact = (film(inner_air.k / g.contact_gap, 2.0 * math.pi * r["back"] * length)
-                       if g.contact_gap > 0 else math.inf)
-            net.link(yb, hs, series(half(k_fe, r_yoke_q3, r["back"]), contact,
-                                    half(al["k_W_mK"], r["back"], r_house_mid)))
-            net.link(hs, cl, self._scaled(film_per_m, length))
-            if self.cooling.kind == "water_jacket" and self.rotor == "inner" and h_amb > 0:
-                net.to_boundary(hs, AMBIENT, film(h_amb, 2.0 * math.pi * r["housing"] * length))
-            # slot: equivalent conductivity across the copper, then the liner
-            opening = slot_width * length * g.slots
-            sides = 2.0 * (copper_depth / 2.0) * length * g.slots
-            liner = lambda area: film(k_liner / g.slot_liner, area)   # noqa: E731
-            net.link(wb, wt, bar(k_eq, opening, copper_depth / 2.0))
-            net.link(wb, yin, series(bar(k_eq, opening, copper_depth / 4.0), liner(opening),
-                                     half(k_fe, r["slot"], r_yoke_q1)))
-            net.link(wt, tip, series(bar(k_eq, opening, copper_depth / 4.0), liner(opening),
-                                     half(k_fe, r_mid_tip, r["tip"], ftip)))
-            for w in (wb, wt):
-                net.link(w, body, series(bar(k_eq, sides, slot_width / 4.0), liner(sides)))
-            # air gap and rotor
-            self._rotor_links(s, length, rr, h_gap_fn, r_mid_tip, r)
-        # ---- axial, between slices
-        layers = {"tip": k_ax * ftip * annulus(r["gap"], r["tip"]), "body": k_ax * ft * annulus(r["tip"], r["slot"]),
-                  "yoke_in": k_ax * annulus(r["slot"], r["yoke_mid"]),
-                  "yoke_back": k_ax * annulus(r["yoke_mid"], r["back"]),
-                  "housing": al["k_W_mK"] * (annulus(r["back"], r["housing"]) - self._channel_section()),
-                  "w_bot": cu["k_W_mK"] * cu_layer, "w_top": cu["k_W_mK"] * cu_layer}
-        if self.rotor == "inner":
-            layers["rotor"] = k_ax * (annulus(g.shaft_diameter / 2.0, rotor_surface)
-                                      - fm * annulus(rr["magnet_in"], rr["magnet_out"]))
-            magnet_section = fm * annulus(rr["magnet_in"], rr["magnet_out"])
-        else:
-            layers["rotor"] = k_ax * annulus(rr["magnet_out"], rr["back"])
-            magnet_section = fm * annulus(rotor_surface, rr["magnet_out"])
-        for name, ka in layers.items():
-            for s in range(n - 1):
-                net.link(ids[name][s], ids[name][s + 1], ka / length)
-        k_m = m["magnet"]["k_W_mK"]
-        for s in range(n - 1):
-            net.link(ids["magnet"][s], ids["magnet"][s + 1],
-                     series(bar(k_m, magnet_section, length / 2.0), bar(GLUE_K, magnet_section, GLUE_MM * 1e-3),
-                            bar(k_m, magnet_section, length / 2.0)))
-        # ---- coolant: carried from the inlet at A to the outlet at B
-        upstream = None
-        for s in range(n):
-            net.advect(upstream, ids["coolant"][s], mcp)
-            upstream = ids["coolant"][s]
-        # ---- the ends: end windings, end spaces, end caps, bearings, shaft
-        r_slot_mid = (r["tip"] + r["slot"]) / 2.0
-        ew_area = 2.0 * (2.0 * math.pi * r_slot_mid * g.end_winding_overhang)        # inner and outer faces
-        for side, s in ((0, 0), (1, n - 1)):
-            for w in (ids["w_bot"][s], ids["w_top"][s]):   # to the end winding's MEAN temperature: heat arising
-                # uniformly along a half end turn (L/2) rises on average by a third of L/2·Q/(kA) above its root
-                net.link(w, ew[side], cu["k_W_mK"] * cu_layer / (length / 2.0 + g.end_turn_length / 6.0))
-            a = air_nodes[side]
-            net.link(ew[side], a, self._scaled(h_end_fn, ew_area))
-            net.link(caps[side], a, self._scaled(h_end_fn, cap_area))
-            net.link(ids["housing"][s], a, self._scaled(h_end_fn, 2.0 * math.pi * r["back"] * ext))
-            net.link(ids["rotor"][s], a, self._scaled(h_end_fn, annulus(g.shaft_diameter / 2.0, rotor_surface)))
-            net.link(ids["housing"][s], caps[side],
-                     series(bar(al["k_W_mK"], annulus(r["back"], r["housing"]), length / 2.0 + ext),
-                            disc(al["k_W_mK"], g.end_cap_thickness, math.sqrt(r_bearing * r_cap_out), r_cap_out)))
-            if h_amb > 0:
-                net.to_boundary(caps[side], AMBIENT, film(h_amb, math.pi * r_cap_out ** 2))
-            bearing_g = film(inner_air.k / g.bearing_gap, 2.0 * math.pi * r_bearing * g.bearing_width)
-            net.link(caps[side], bearings[side],
-                     series(disc(al["k_W_mK"], g.end_cap_thickness, r_bearing, math.sqrt(r_bearing * r_cap_out)),
-                            2.0 * bearing_g))
-            net.link(bearings[side], shaft,
-                     series(2.0 * bearing_g, bar(m["shaft"]["k_W_mK"], math.pi * (g.shaft_diameter / 2.0) ** 2,
-                                                 g.stack_length / 2.0 + ext + g.end_cap_thickness / 2.0)))
+        d = self._dimensions()
+        self._nodes(d)
+        for s in range(self.slices):
+            self._stator_links(d, s)
+            self._rotor_links(s, d.length, d.rr, d.h_gap, d.r_mid_tip, d.r)
+        self._axial_links(d)
+        upstream = None                     # the coolant, carried from the inlet at A to the outlet at B
+        for cell in self.ids["coolant"]:
+            self.net.advect(upstream, cell, d.mcp)
+            upstream = cell
+        for side in (0, 1):
+            self._end_links(d, side)
         if self.rotor == "outer":      # the out-runner's rotor hangs on the shaft by its B-side end disc
-            net.link(ids["rotor"][n - 1], shaft, disc(al["k_W_mK"], g.end_cap_thickness, g.shaft_diameter / 2.0,
-                                                      rr["magnet_out"]))
-        self.windage = (rotor_surface, g.stack_length, g.airgap, inner_air)
+            self.net.link(self.ids["rotor"][-1], self.ids["shaft"][0],
+                          disc(d.k_al, self.geo.end_cap_thickness, self.geo.shaft_diameter / 2.0, d.rr["magnet_out"]))
+        self.windage = (d.rotor_surface, self.geo.stack_length, self.geo.airgap, d.inner_air)
+
+    def _dimensions(self) -> SimpleNamespace:
+        """What the parts of the network share: radii, lengths, sections, properties, varying coefficients."""
+        g, m = self.geo, self.mats
+        r, rr = self._radii(), self._rotor_radii()
+        fill = g.slot_fill
+        d = SimpleNamespace(r=r, rr=rr, length=g.stack_length / self.slices,
+                            ext=g.end_winding_overhang + g.end_space, inner_air=air(INTERNAL_AIR_C),
+                            k_fe=m["lamination"]["k_W_mK"], k_ax=m["lamination"][AXIAL],
+                            k_cu=m["copper"]["k_W_mK"], k_al=m["aluminium"]["k_W_mK"], k_m=m["magnet"]["k_W_mK"],
+                            rc={name: v["rho_kg_m3"] * v["c_J_kgK"] for name, v in m.items()},
+                            k_eq=slot_conductivity(fill, m["copper"]["k_W_mK"], m["impregnation"]["k_W_mK"]))
+        d.rc_slot = fill * d.rc["copper"] + (1.0 - fill) * d.rc["impregnation"]
+        d.r_mid_tip = (r["gap"] + r["tip"]) / 2.0
+        d.r_mid_body = (r["tip"] + r["slot"]) / 2.0
+        d.r_yoke_q1 = (r["slot"] + r["yoke_mid"]) / 2.0
+        d.r_yoke_q3 = (r["yoke_mid"] + r["back"]) / 2.0
+        d.r_house_mid = (r["back"] + r["housing"]) / 2.0
+        d.slot_area = (1.0 - g.tooth_width_ratio) * annulus(r["tip"], r["slot"]) / g.slots
+        d.copper_depth = g.slot_depth - g.tooth_tip
+        d.slot_width = d.slot_area / d.copper_depth
+        d.cu_layer = fill * d.slot_area * g.slots / 2.0          # copper section of one slot half, all slots
+        d.rotor_surface = rr["surface"]
+        shaft_r = g.shaft_diameter / 2.0
+        if self.rotor == "inner":
+            d.magnet_section = g.magnet_width_ratio * annulus(rr["magnet_in"], rr["magnet_out"])
+            d.rotor_section = annulus(shaft_r, rr["surface"]) - d.magnet_section
+        else:
+            d.magnet_section = g.magnet_width_ratio * annulus(rr["surface"], rr["magnet_out"])
+            d.rotor_section = annulus(rr["magnet_out"], rr["back"])
+        d.r_bearing = g.bearing_outer_diameter / 2.0
+        d.r_cap_out = r["housing"] if self.rotor == "inner" else d.r_house_mid
+        d.cap_area = annulus(d.r_bearing, d.r_cap_out)
+        r_air_mean = (r["gap"] + d.rotor_surface) / 2.0
+        es = self.end_space
+        d.h_gap = self._memo(lambda c: airgap_h(c.omega, r_air_mean, g.airgap, d.inner_air))
+        d.h_end = self._memo(lambda c: end_space_h(c.omega * d.rotor_surface, es["k1"], es["k2"], es["k3"]))
+        d.film_per_m, d.mcp, d.cool_cap = self._coolant(r)
+        d.h_amb = self.cooling.values["ambient_h_W_m2K"]
+        return d
+
+    def _nodes(self, d: SimpleNamespace) -> None:
+        g, net, r, rc, length = self.geo, self.net, d.r, d.rc, d.length
+        per_slice = {
+            "w_bot": d.rc_slot * d.slot_area * g.slots / 2.0, "w_top": d.rc_slot * d.slot_area * g.slots / 2.0,
+            "tip": rc["lamination"] * g.tip_width_ratio * annulus(r["gap"], r["tip"]),
+            "body": rc["lamination"] * g.tooth_width_ratio * annulus(r["tip"], r["slot"]),
+            "yoke_in": rc["lamination"] * annulus(r["slot"], r["yoke_mid"]),
+            "yoke_back": rc["lamination"] * annulus(r["yoke_mid"], r["back"]),
+            "housing": rc["aluminium"] * annulus(r["back"], r["housing"]), "coolant": d.cool_cap,
+            "rotor": rc["lamination"] * d.rotor_section, "magnet": rc["magnet"] * d.magnet_section}
+        ids: dict[str, list[int]] = {name: [] for name in per_slice}
+        for s in range(self.slices):
+            for name, cap_per_m in per_slice.items():
+                ids[name].append(net.node(f"{name}[{s}]", cap_per_m * length))
+        end_cu_cap = d.rc_slot * d.slot_area * g.slots * g.end_turn_length
+        ids["ew"] = [net.node(side, end_cu_cap) for side in ("ew_a", "ew_b")]
+        air_cap = d.inner_air.rho * d.inner_air.cp * annulus(r["back"], d.rotor_surface) * d.ext
+        ids["air"] = [net.node(side, air_cap) for side in ("air_a", "air_b")]
+        ids["cap"] = [net.node(side, rc["aluminium"] * d.cap_area * g.end_cap_thickness) for side in ("cap_a", "cap_b")]
+        bearing_cap = rc["shaft"] * annulus(g.shaft_diameter / 2.0, d.r_bearing) * g.bearing_width * 0.5
+        ids["bearing"] = [net.node(side, bearing_cap) for side in ("brg_a", "brg_b")]
+        shaft_len = g.stack_length + 2.0 * (d.ext + g.end_cap_thickness)
+        ids["shaft"] = [net.node("shaft", rc["shaft"] * math.pi * (g.shaft_diameter / 2.0) ** 2 * shaft_len)]
+        self.ids = ids
+
+    def _stator_links(self, d: SimpleNamespace, s: int) -> None:
+        """Radially through slice s: coolant - housing - contact gap - yoke - teeth, and the slot."""
+        g, net, ids, r, k_fe = self.geo, self.net, self.ids, d.r, d.k_fe
+        ft, ftip = g.tooth_width_ratio, g.tip_width_ratio
+
+        def half(k, a, b, share=1.0):
+            return radial(k, d.length, a, b, share)
+
+        def liner(area):
+            return film(self.mats["liner"]["k_W_mK"] / g.slot_liner, area)
+
+        tip, body, yin, yb = ids["tip"][s], ids["body"][s], ids["yoke_in"][s], ids["yoke_back"][s]
+        wb, wt, hs, cl = ids["w_bot"][s], ids["w_top"][s], ids["housing"][s], ids["coolant"][s]
+        net.link(tip, body, series(half(k_fe, d.r_mid_tip, r["tip"], ftip), half(k_fe, r["tip"], d.r_mid_body, ft)))
+        net.link(body, yin, series(half(k_fe, d.r_mid_body, r["slot"], ft), half(k_fe, r["slot"], d.r_yoke_q1)))
+        net.link(yin, yb, series(half(k_fe, d.r_yoke_q1, r["yoke_mid"]), half(k_fe, r["yoke_mid"], d.r_yoke_q3)))
+        contact = (film(d.inner_air.k / g.contact_gap, 2.0 * math.pi * r["back"] * d.length)
+                   if g.contact_gap > 0 else math.inf)
+        net.link(yb, hs, series(half(k_fe, d.r_yoke_q3, r["back"]), contact, half(d.k_al, r["back"], d.r_house_mid)))
+        net.link(hs, cl, self._scaled(d.film_per_m, d.length))
+        if self.cooling.kind == "water_jacket" and self.rotor == "inner" and d.h_amb > 0:
+            net.to_boundary(hs, AMBIENT, film(d.h_amb, 2.0 * math.pi * r["housing"] * d.length))
+        # the slot: equivalent conductivity across the copper, then the liner
+        opening = d.slot_width * d.length * g.slots
+        sides = 2.0 * (d.copper_depth / 2.0) * d.length * g.slots
+        net.link(wb, wt, bar(d.k_eq, opening, d.copper_depth / 2.0))
+        net.link(wb, yin, series(bar(d.k_eq, opening, d.copper_depth / 4.0), liner(opening),
+                                 half(k_fe, r["slot"], d.r_yoke_q1)))
+        net.link(wt, tip, series(bar(d.k_eq, opening, d.copper_depth / 4.0), liner(opening),
+                                 half(k_fe, d.r_mid_tip, r["tip"], ftip)))
+        for w in (wb, wt):
+            net.link(w, body, series(bar(d.k_eq, sides, d.slot_width / 4.0), liner(sides)))
+
+    def _axial_links(self, d: SimpleNamespace) -> None:
+        """Between the slices of every layer: laminations with their low axial conductivity, copper along the
+        conductors, the housing around the channel, glued magnet segments."""
+        g, r, k_ax = self.geo, d.r, d.k_ax
+        sections = {"tip": k_ax * g.tip_width_ratio * annulus(r["gap"], r["tip"]),
+                    "body": k_ax * g.tooth_width_ratio * annulus(r["tip"], r["slot"]),
+                    "yoke_in": k_ax * annulus(r["slot"], r["yoke_mid"]),
+                    "yoke_back": k_ax * annulus(r["yoke_mid"], r["back"]),
+                    "housing": d.k_al * (annulus(r["back"], r["housing"]) - self._channel_section()),
+                    "w_bot": d.k_cu * d.cu_layer, "w_top": d.k_cu * d.cu_layer, "rotor": k_ax * d.rotor_section}
+        half_segment = bar(d.k_m, d.magnet_section, d.length / 2.0)
+        joint = series(half_segment, _glue(d.magnet_section), half_segment)
+        for s in range(self.slices - 1):
+            for name, ka in sections.items():
+                self.net.link(self.ids[name][s], self.ids[name][s + 1], ka / d.length)
+            self.net.link(self.ids["magnet"][s], self.ids["magnet"][s + 1], joint)
+
+    def _end_links(self, d: SimpleNamespace, side: int) -> None:
+        """One end (0: A, 1: B): end winding, end-space air, end cap, bearing, shaft."""
+        g, net, ids, r = self.geo, self.net, self.ids, d.r
+        s = 0 if side == 0 else self.slices - 1
+        ew, space, cap, bearing = ids["ew"][side], ids["air"][side], ids["cap"][side], ids["bearing"][side]
+        for w in (ids["w_bot"][s], ids["w_top"][s]):   # to the end winding's MEAN temperature: heat arising
+            # uniformly along a half end turn (ℓ/2) rises on average by a third of (ℓ/2)·Q/(kA) above its root
+            net.link(w, ew, d.k_cu * d.cu_layer / (d.length / 2.0 + g.end_turn_length / 6.0))
+        ew_area = 2.0 * (2.0 * math.pi * d.r_mid_body * g.end_winding_overhang)        # inner and outer faces
+        rotor_face = d.rotor_section + d.magnet_section
+        for node, area in ((ew, ew_area), (cap, d.cap_area), (ids["housing"][s], 2.0 * math.pi * r["back"] * d.ext),
+                           (ids["rotor"][s], rotor_face)):
+            net.link(node, space, self._scaled(d.h_end, area))
+        r_cap_mid = math.sqrt(d.r_bearing * d.r_cap_out)
+        net.link(ids["housing"][s], cap, series(bar(d.k_al, annulus(r["back"], r["housing"]), d.length / 2.0 + d.ext),
+                                                disc(d.k_al, g.end_cap_thickness, r_cap_mid, d.r_cap_out)))
+        if d.h_amb > 0:
+            net.to_boundary(cap, AMBIENT, film(d.h_amb, math.pi * d.r_cap_out ** 2))
+        bearing_g = film(d.inner_air.k / g.bearing_gap, 2.0 * math.pi * d.r_bearing * g.bearing_width)
+        net.link(cap, bearing, series(disc(d.k_al, g.end_cap_thickness, d.r_bearing, r_cap_mid), 2.0 * bearing_g))
+        shaft_bar = bar(self.mats["shaft"]["k_W_mK"], math.pi * (g.shaft_diameter / 2.0) ** 2,
+                        g.stack_length / 2.0 + d.ext + g.end_cap_thickness / 2.0)
+        net.link(bearing, ids["shaft"][0], series(2.0 * bearing_g, shaft_bar))
 
     def _rotor_links(self, s: int, length: float, rr: dict, h_gap_fn, r_mid_tip: float, r: dict) -> None:
         """Air gap, magnet and rotor iron of slice s, and the rotor's way out (shaft, or the outside air)."""
