@@ -14,8 +14,9 @@ The physics (`VirtualPlant.simulate`):
   linkage squared, |ψ_s|²/ψ² (field weakening lowers it, load raises it: the nominal model's
   (1 + c_I (I/I_max)²) only approximates that) and × (1 + iron_per_K·(ϑ_iron - ϑ_ref)); magnet loss
   × magnet_factor with the no-load part following the magnet flux, × (1 + magnet_load_error·P_m/P_m,ref)
-  ÷ (1 + magnet_resistivity_per_K·(ϑ_m - ϑ_ref)). Copper dc/ac temperature dependence as eqs. 3-5, the
-  stator split k_s of eq. 8 with the TRUE k parameters.
+  ÷ (1 + magnet_resistivity_per_K·(ϑ_m - ϑ_ref)). Copper dc/ac temperature dependence as eqs. 3-5 at the copper's
+  own temperature; the kind places the components (lptn4: the stator split k_s of eq. 8 with the TRUE k
+  parameters; distributed: where they arise, plus bearing friction and windage).
 - thermal: the plant kind of virtual_plant.thermal (bench.drive.virtual.plants: lptn4, the parameter-varying LPTN
   integrated exactly, or distributed, a network built from geometry), with torque, speed, coolant and ambient at
   each step's midpoint and the losses at its start; the kind places the loss components on its nodes.
