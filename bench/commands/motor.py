@@ -1,5 +1,6 @@
 """`bench motor`: motor description files: `template` prints an example to start from, `check FILE` validates
-one and shows what the bench reads from it."""
+one and shows what the bench reads from it, `lump FILE` lumps a distributed virtual plant into the 22 parameters of
+the four-node LPTN (a designer's prior for `thermal_prior.parameters`)."""
 
 from __future__ import annotations
 
@@ -20,6 +21,12 @@ def add_subparser(subparsers) -> None:
     check.add_argument("file", type=Path, help="the motor's .json or .toml file")
     add_output_flags(check)
     check.set_defaults(func=run_check)
+    lump = actions.add_parser("lump", help="a distributed virtual plant lumped into the four-node LPTN's 22 "
+                              "parameters (a designer's prior)")
+    lump.add_argument("file", type=Path, help="the motor's .json or .toml file (virtual_plant.thermal.kind = "
+                      "\"distributed\")")
+    add_output_flags(lump)
+    lump.set_defaults(func=run_lump)
     p.set_defaults(func=lambda args: p.print_help() or 2)
 
 
@@ -53,4 +60,25 @@ def run_check(args: argparse.Namespace) -> int:
                  if motor.prior else "; thermal prior: Table 1 within 0.6..1.6")
               + ("; describes a virtual plant ('bench data --motor' can generate its data)"
                  if motor.virtual_plant else ""))
+    return 0
+
+
+def run_lump(args: argparse.Namespace) -> int:
+    from bench.drive.virtual import VirtualPlantError, load_virtual_plant
+    from bench.drive.virtual.plants.distributed import Distributed, DistributedPlant
+    from bench.drive.virtual.plants.lump import designer_prior
+
+    plant = load_virtual_plant(args.file)
+    if not isinstance(plant.thermal, DistributedPlant):
+        raise VirtualPlantError(f"motor file {args.file}: its virtual plant is {plant.thermal.kind!r}; bench motor "
+                                f"lump lumps {Distributed.name!r} plants (virtual_plant.thermal.kind)")
+    prior = designer_prior(plant.thermal, plant.motor.limits.speed_rpm).as_dict()
+    if args.json:
+        print_json(prior)
+    else:
+        params = prior["parameters"]
+        print(f"motor {plant.motor.name}: {plant.thermal.net.size} nodes lumped into yoke, winding, tooth, magnet "
+              "(steady-state fit of the group means; worst entry off by "
+              + ", ".join(f"{v:g} % at {k}" for k, v in prior["fit_error_percent"].items()) + ")")
+        print('"thermal_prior": {"parameters": {' + ", ".join(f'"{k}": {v:g}' for k, v in params.items()) + "}}")
     return 0

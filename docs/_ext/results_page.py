@@ -465,6 +465,14 @@ def section_data(record: Record) -> list[str]:
             f"All three in {_n(f['total_s'], 2)} s (goal: under {f['goal_s']} s).", ""]
 
 
+@single_record("plant_distributed", "Distributed virtual plant")
+def section_plant_distributed(record: Record) -> list[str]:
+    f, p = record["figures"], record["parameters"]
+    return [f"One {p['duration_s'] / 3600:.0f}-hour profile of examples/suite/ipm-60kw-distributed "
+            f"({f['steps']} exact steps of {p['step_s']:g} s, {f['corners']} tabulated grid corners) in "
+            f"{_n(f['seconds'], 2)} s (goal: under {f['goal_s']:g} s).", ""]
+
+
 @single_record("observer", "Observer")
 def section_observer(record: Record) -> list[str]:
     lines = ["The built-in motor, the winding thermocouple as the measurement "
@@ -797,7 +805,8 @@ SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
     "firmware_timing": section_firmware_timing, "firmware_observer": section_firmware_observer,
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
-    "identify": section_identify, "data": section_data, "observer": section_observer,
+    "identify": section_identify, "data": section_data, "plant_distributed": section_plant_distributed,
+    "observer": section_observer,
     "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite}
 BENCHMARKS = tuple(SECTIONS)
 

@@ -9,17 +9,19 @@ Modules, each building on the ones before it:
 - machine: the dq machine (Machine, TrueLosses, DqModel: torque -> currents -> voltages)
 - profiles: the measurement runs (Profile, Phase) and the torque and speed of their non-cycle phases
 - phases: reading a profile's phases from the motor file, one reader per phase kind
-- simulation: VirtualPlant (drive, stand, true losses, thermal truth, sensors) and VirtualRun; the physics
+- plants: the kinds of thermal plant (registry PLANT_KINDS: lptn4, distributed) and their interface
+- simulation: VirtualPlant (drive, stand, true losses, sensors; the kind's thermal truth) and VirtualRun
 - schema: the `virtual_plant` table's schema, read and checked into a VirtualPlant (virtual_plant())
 - output: the CSV files and their index, profiles.json (generate_profiles())
 """
 
+from bench.drive.virtual.errors import VirtualPlantError
 from bench.drive.virtual.machine import DqModel, Machine, TrueLosses
 from bench.drive.virtual.output import GENERATOR_VERSION, INDEX_NAME, generate_profiles
 from bench.drive.virtual.phases import PHASE_KINDS
 from bench.drive.virtual.profiles import ROLES, Phase, Profile
 from bench.drive.virtual.schema import SCHEMA_VERSION, load_virtual_plant, virtual_plant
-from bench.drive.virtual.simulation import SIGNALS, OutputColumn, VirtualPlant, VirtualPlantError, VirtualRun
+from bench.drive.virtual.simulation import SIGNALS, OutputColumn, VirtualPlant, VirtualRun
 
 __all__ = ["GENERATOR_VERSION", "INDEX_NAME", "PHASE_KINDS", "ROLES", "SCHEMA_VERSION", "SIGNALS", "DqModel",
            "Machine", "OutputColumn", "Phase", "Profile", "TrueLosses", "VirtualPlant", "VirtualPlantError",

@@ -52,7 +52,7 @@ def generate_profiles(plant: VirtualPlant, out_dir: Path, seed: int | None = Non
         "sample_period_s": plant.sample_period_s, "time_column": None,
         "initial_state": "all nodes at the profile's start_C, else at its first coolant set point",
         "columns": [{"name": c.name, "signal": c.signal, "unit": c.unit, "resolution": c.resolution,
-                     "noise": c.noise} for c in plant.columns],
+                     "noise": c.noise, **({"at": c.at} if c.at else {})} for c in plant.columns],
         "profiles": entries,
         "roles": {role: [e["file"] for e in entries if e["role"] == role] for role in ROLES},
     }

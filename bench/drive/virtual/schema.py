@@ -6,8 +6,8 @@ Schema of `virtual_plant` (version 1; every key required unless marked optional)
     seed = 20260                            # the default noise seed of 'bench data --motor'
     sample_period_s = 1.0                   # the files' sample period
     plant_step_s = 0.1                      # integration step; a whole fraction of the sample period
-    [thermal]                               # the TRUE 22 LPTN parameters of the plant (the parameter-varying
-                                            #   network of paper Fig. 4, speed ratio n / limits.speed_rpm)
+    [thermal]                               # the thermal truth: kind = "lptn4" (the default when kind is absent)
+                                            #   or "distributed" (see below)
     [machine]                               # steady-state dq model of an interior-PM machine
     power_W, flux_linkage_Vs (ψ at copper_reference_C), L_d_H < L_q_H (saliency: i_d < 0 adds reluctance
     torque), voltage_limit_V (largest |u_dq|, amplitude-invariant), remanence_per_K (ψ(ϑ_m) = ψ·(1 + α(ϑ_m -
@@ -19,12 +19,16 @@ Schema of `virtual_plant` (version 1; every key required unless marked optional)
     [vehicle]                               # bench.drive.vehicle.VehicleSpec's fields (cycles -> torque, speed)
     [stand]                                 # coolant conditioning and test-cell air (bench.drive.stand.StandSpec)
     [[columns]]                             # the output columns, in file order
-    name, signal (torque, speed, i_d, i_q, u_d, u_q, coolant, ambient, winding, yoke, tooth, magnet, ntc),
+    name, signal (torque, speed, i_d, i_q, u_d, u_q, coolant, ambient, winding, yoke, tooth, magnet, ntc,
+    temperature, coolant_out),
     unit (any unit bench.drive.dataset's loader converts for that quantity), resolution, noise (1 σ, in the
     column's unit), gradient (optional, winding and ntc only: the sensor reads ϑ_w + gradient·(ϑ_w - ϑ_y)),
     lag_s (optional, temperatures: a first-order sensor lag), offset (optional, temperatures: added to the reading,
     in the column's unit); signal "ntc" is a stator NTC on the end winding (the winding node, through gradient,
-    lag_s and offset), written to the dataset column ntc_C
+    lag_s and offset), written to the dataset column ntc_C; at (optional, the plant's temperature signals only: a
+    position of the thermal plant the sensor reads, e.g. "winding.end_a", "tooth.tip", "coolant.out"; default: the
+    kind's position of the signal); signal "temperature" is an extra thermocouple (needs at) and "coolant_out" the
+    coolant outlet (distributed plants): columns a mapping may leave unmapped (the loader ignores them)
     [[profiles]]                            # the measurement runs
     name, role ("train", "validate" or "test": a fixed split; test profiles are reported, never chosen on),
     coolant_C (set point at the start), start_C (optional: every node soaked at this at the start, a cold or hot
@@ -40,6 +44,28 @@ Schema of `virtual_plant` (version 1; every key required unless marked optional)
       {"kind": "rest", "duration_s"}: standstill
     and on any phase "coolant_C" (optional): the coolant set point from that phase on.
 
+The `thermal` table by kind (bench.drive.virtual.plants; every number checked, defaults in the kind's module):
+
+    kind = "lptn4": the 22 parameters C_y, C_w, C_t, C_m, R_yw, R_yt, R_wt, R_cy0, R_wm0, a_wm, b_wm, R_tm0,
+    a_tm, b_tm, R_ma0, a_ma, b_ma, alpha_cy, k_0..k_3 of the parameter-varying network of paper Fig. 4 (speed
+    ratio n / limits.speed_rpm), the same four-node model `bench identify` fits; positions yoke, winding, tooth,
+    magnet.
+    kind = "distributed": a network built from geometry (docs/plant.md; bench.drive.virtual.plants.distributed;
+    required keys below have no default there):
+      rotor = "inner" | "outer"; slices (axial slices of the active part, >= 4)
+      [geometry] airgap_diameter_mm, stator_back_diameter_mm, stack_length_mm, slots, slot_depth_mm,
+                 tooth_tip_mm, tooth_width_ratio, airgap_mm, magnet_thickness_mm, magnet_depth_mm,
+                 magnet_width_ratio, rotor_back_iron_mm (outer rotor), shaft_diameter_mm, housing_thickness_mm,
+                 end_turn_length_mm, end_winding_overhang_mm, end_space_mm, end_cap_thickness_mm, slot_fill,
+                 slot_liner_mm, contact_gap_mm, bearing_outer_diameter_mm, bearing_width_mm, bearing_gap_mm
+      [materials] optional overrides {material: {k_W_mK, rho_kg_m3, c_J_kgK}} of copper, lamination (plus
+                 k_axial_W_mK), aluminium, magnet, shaft, impregnation, liner
+      [cooling]  kind = "water_jacket": flow_l_min, turns, channel_width_mm, channel_height_mm, ambient_h_W_m2K
+                 kind = "air": air_speed_m_s, fins, fin_height_mm, fin_thickness_mm, ambient_h_W_m2K
+      [end_space] k1, k2, k3 (h = k1·(1 + k2·v^k3))          [losses] placement of the loss components
+    positions: winding.slot_bottom/slot_top/slot_mid/mean/end_a/end_b, tooth.tip/body, yoke.inner/back,
+    housing, coolant.out, magnet, magnet.mid/end_a/end_b, rotor, shaft, bearing.a/b, end_cap.a/b, end_space.a/b.
+
 Every problem with the table is one VirtualPlantError sentence naming the file and the key.
 """
 
@@ -53,13 +79,21 @@ import numpy as np
 from bench.drive.dataset import BY_NAME, UNITS
 from bench.drive.stand import STAND_KEYS, StandSpec
 from bench.drive.vehicle import VehicleSpec
+from bench.drive.virtual.errors import VirtualPlantError
 from bench.drive.virtual.machine import Machine, TrueLosses
 from bench.drive.virtual.phases import read_phase
+from bench.drive.virtual.plants import ThermalPlant, thermal_plant
 from bench.drive.virtual.profiles import ROLES, Profile
-from bench.drive.virtual.simulation import SIGNALS, OutputColumn, VirtualPlant, VirtualPlantError, motor_where
+from bench.drive.virtual.simulation import (
+    SENSED_NODE,
+    SIGNALS,
+    THERMAL_SIGNALS,
+    OutputColumn,
+    VirtualPlant,
+    motor_where,
+)
 from bench.motor.check import Checker, is_number
-from bench.motor.description import MotorDescription, prior_parameters
-from bench.motor.errors import MotorFileError
+from bench.motor.description import MotorDescription
 from bench.motor.losses import ElectricalLosses
 
 SCHEMA_VERSION = 1
@@ -89,12 +123,7 @@ def virtual_plant(motor: MotorDescription) -> VirtualPlant:
     stride = period / step
     if abs(stride - round(stride)) > 1e-9 * stride:
         c.fail("sample_period_s", f"({period:g} s) must be a whole number of plant_step_s ({step:g} s)")
-    try:
-        params, _ = prior_parameters(c.table(table, "thermal"), f"{where}: virtual_plant.thermal")
-    except VirtualPlantError:
-        raise
-    except MotorFileError as exc:
-        raise VirtualPlantError(str(exc)) from None
+    thermal = thermal_plant(c, table, motor)
     machine = Machine(**_numbers(c, table, "machine", _names(Machine), signed=("remanence_per_K",)))
     if machine.L_q_H <= machine.L_d_H:
         c.fail("machine.L_q_H", "must exceed L_d_H (an interior-PM machine: i_d < 0 adds reluctance torque)")
@@ -108,10 +137,10 @@ def virtual_plant(motor: MotorDescription) -> VirtualPlant:
     stand = StandSpec(**_numbers(c, table, "stand", STAND_KEYS, signed=("ambient_C", "ambient_per_coolant_K"),
                                  positive=("coolant_lag_s", "coolant_heat_lag_s", "coolant_wander_s",
                                            "ambient_wander_s")))
-    columns = _columns(c, table)
-    plant = VirtualPlant(motor, seed, period, step, params, machine, true_losses, vehicle, stand, columns, ())
+    columns = _columns(c, table, thermal)
+    plant = VirtualPlant(motor, seed, period, step, thermal, machine, true_losses, vehicle, stand, columns, ())
     profiles = _profiles(c, table, plant)
-    plant = VirtualPlant(motor, seed, period, step, params, machine, true_losses, vehicle, stand, columns,
+    plant = VirtualPlant(motor, seed, period, step, thermal, machine, true_losses, vehicle, stand, columns,
                          profiles)
     _check_envelope(plant)
     return plant
@@ -157,7 +186,7 @@ def _vehicle(c: Checker, table: dict) -> VehicleSpec:
     return VehicleSpec(**values)
 
 
-def _columns(c: Checker, table: dict) -> tuple[OutputColumn, ...]:
+def _columns(c: Checker, table: dict, thermal: ThermalPlant) -> tuple[OutputColumn, ...]:
     items = table.get("columns")
     if not isinstance(items, list) or not items:
         c.fail("columns", "must be a list of output columns ({name, signal, unit, resolution, noise})")
@@ -190,12 +219,30 @@ def _columns(c: Checker, table: dict) -> tuple[OutputColumn, ...]:
         offset = c.number(item, "offset", f"{key}.", low=-50.0, high=50.0, default=0.0)
         if (lag or offset) and quantity != "temperature":
             c.fail(f"{key}.{'lag_s' if lag else 'offset'}", "applies to temperature sensors only")
-        out.append(OutputColumn(name, signal, unit, resolution, noise, gradient, lag, offset))
+        at = _position(c, key, item, signal, thermal)
+        out.append(OutputColumn(name, signal, unit, resolution, noise, gradient, lag, offset, at))
     present = {col.signal for col in out}
     missing = [s for s in REQUIRED_SIGNALS if s not in present]
     if missing:
         c.fail("columns", f"lack a column with signal {missing[0]!r}; the bench needs {', '.join(REQUIRED_SIGNALS)}")
     return tuple(out)
+
+
+def _position(c: Checker, key: str, item: dict, signal: str, thermal: ThermalPlant) -> str | None:
+    """The column's `at`: a position of the plant, for temperature signals; None reads the signal's default."""
+    at = item.get("at")
+    sensed = SENSED_NODE.get(signal, signal)
+    if at is None:
+        if signal in THERMAL_SIGNALS and sensed not in thermal.signal_positions:
+            c.fail(f"{key}.at", f"is needed for signal {signal!r} (a {thermal.kind} plant has no default position "
+                   f"for it); positions: {', '.join(thermal.positions)}")
+        return None
+    if signal not in THERMAL_SIGNALS:
+        c.fail(f"{key}.at", f"applies to the plant's temperature signals only ({', '.join(THERMAL_SIGNALS)})")
+    if not isinstance(at, str) or at not in thermal.positions:
+        c.fail(f"{key}.at", f"{at!r} is not a position of the {thermal.kind} plant; positions: "
+               f"{', '.join(thermal.positions)}")
+    return at
 
 
 def _profiles(c: Checker, table: dict, plant: VirtualPlant) -> tuple[Profile, ...]:
@@ -218,7 +265,7 @@ def _profiles(c: Checker, table: dict, plant: VirtualPlant) -> tuple[Profile, ..
         if role not in ROLES:
             c.fail(f"{key}.role", f"must be one of {', '.join(ROLES)}, not {role!r}")
         coolant = c.number(item, "coolant_C", f"{key}.", low=-30.0, high=120.0)
-        start = c.number(item, "start_C", f"{key}.", low=-30.0, high=200.0, default=coolant)
+        start = c.number(item, "start_C", f"{key}.", low=-30.0, high=200.0) if "start_C" in item else None
         phases = item.get("phases")
         if not isinstance(phases, list) or not phases:
             c.fail(f"{key}.phases", "must be a non-empty list of phases")

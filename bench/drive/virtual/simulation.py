@@ -14,16 +14,19 @@ The physics (`VirtualPlant.simulate`):
   linkage squared, |ψ_s|²/ψ² (field weakening lowers it, load raises it: the nominal model's
   (1 + c_I (I/I_max)²) only approximates that) and × (1 + iron_per_K·(ϑ_iron - ϑ_ref)); magnet loss
   × magnet_factor with the no-load part following the magnet flux, × (1 + magnet_load_error·P_m/P_m,ref)
-  ÷ (1 + magnet_resistivity_per_K·(ϑ_m - ϑ_ref)). Copper dc/ac temperature dependence as eqs. 3-5, the
-  stator split k_s of eq. 8 with the TRUE k parameters.
-- thermal: the parameter-varying LPTN integrated exactly (bench.drive.plant.exact_steps/integrate_exact) with
-  torque, speed, coolant and ambient at each step's midpoint and the losses at its start.
+  ÷ (1 + magnet_resistivity_per_K·(ϑ_m - ϑ_ref)). Copper dc/ac temperature dependence as eqs. 3-5 at the copper's
+  own temperature; the kind places the components (lptn4: the stator split k_s of eq. 8 with the TRUE k
+  parameters; distributed: where they arise, plus bearing friction and windage).
+- thermal: the plant kind of virtual_plant.thermal (bench.drive.virtual.plants: lptn4, the parameter-varying LPTN
+  integrated exactly, or distributed, a network built from geometry), with torque, speed, coolant and ambient at
+  each step's midpoint and the losses at its start; the kind places the loss components on its nodes.
 - stand: the coolant inlet follows its set point through a first-order lag (coolant_lag_s), rises by
   coolant_gain_K_per_kW times the lagged nominal losses and wanders (AR(1)); the test-cell air likewise.
 - initial state: every node at the profile's start_C, else its first coolant set point (the machine soaked).
 - sensors: each column is the true signal at the sample time (a stator NTC: the winding node moved toward the yoke
   by its gradient, through a first-order lag of lag_s, plus its offset), converted to its unit, plus Gaussian noise
-  (none on speed at standstill), rounded to its resolution. One numpy Generator per profile and purpose, from
+  (none on speed at standstill), rounded to its resolution. A column's `at` names the plant position it reads
+  (default: the kind's position of its signal). One numpy Generator per profile and purpose, from
   SeedSequence([seed, profile number]), so a seed reproduces every byte.
 """
 
@@ -31,34 +34,34 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from bench.drive.cycles import KMH_PER_MPS, load_trace
 from bench.drive.dataset import BY_NAME, UNITS
-from bench.drive.plant import exact_steps, integrate_exact
 from bench.drive.stand import Environment, StandSpec, environment
 from bench.drive.vehicle import VehicleSpec, motor_speed_rpm, motor_torque_Nm
+from bench.drive.virtual.errors import VirtualPlantError
 from bench.drive.virtual.machine import DqModel, Machine, TrueLosses
+from bench.drive.virtual.plants import LossComponents, StepInputs, ThermalPlant
 from bench.drive.virtual.profiles import Phase, Profile
 from bench.motor.description import MotorDescription
-from bench.motor.errors import MotorFileError
 from bench.motor.losses import ElectricalLosses
-from bench.thermal.parameters import LptnParameters
 
 # output signal -> the schema column whose quantity (and so unit list) it has
 SIGNALS = {"torque": "torque_Nm", "speed": "speed_rpm", "i_d": "i_d_A", "i_q": "i_q_A", "u_d": "u_d_V",
            "u_q": "u_q_V", "coolant": "coolant_C", "ambient": "ambient_C", "winding": "winding_C",
-           "yoke": "yoke_C", "tooth": "tooth_C", "magnet": "pm_C", "ntc": "ntc_C"}
-# the node a sensor signal sees (the stator NTC sits on the end winding: the winding node, with a gradient)
+           "yoke": "yoke_C", "tooth": "tooth_C", "magnet": "pm_C", "ntc": "ntc_C",
+           "temperature": "coolant_C", "coolant_out": "coolant_C"}
+# the signal whose true value a sensor signal sees by default (the stator NTC sits on the end winding: the winding,
+# with a gradient); "temperature" (an extra thermocouple) has no default and needs `at`
 SENSED_NODE = {"ntc": "winding"}
+# a plant position's true value in VirtualRun.truth is under AT + its name (apart from the signals' own)
+AT = "at:"
+# signals a column reads from a plant position (the others are drive, stand and electrical signals)
+THERMAL_SIGNALS = ("winding", "yoke", "tooth", "magnet", "ntc", "temperature", "coolant_out")
 FLUX_PROBE_K = 100.0   # currents are computed at ϑ_ref and ϑ_ref + this, and interpolated linearly in ϑ_m
-
-
-class VirtualPlantError(MotorFileError):
-    """A motor file's virtual_plant table that bench data cannot simulate."""
 
 
 def motor_where(motor: MotorDescription) -> str:
@@ -76,6 +79,7 @@ class OutputColumn:
     gradient: float = 0.0
     lag_s: float = 0.0      # first-order sensor lag (temperature sensors)
     offset: float = 0.0     # added to the reading, in the column's unit (temperature sensors)
+    at: str | None = None   # the plant position read (temperature sensors; default: the signal's position)
 
     @property
     def decimals(self) -> int:
@@ -95,13 +99,18 @@ class VirtualPlant:
     seed: int
     sample_period_s: float
     plant_step_s: float
-    params: LptnParameters
+    thermal: ThermalPlant
     machine: Machine
     true_losses: TrueLosses
     vehicle: VehicleSpec
     stand: StandSpec
     columns: tuple[OutputColumn, ...]
     profiles: tuple[Profile, ...]
+
+    @property
+    def params(self):
+        """The true LPTN parameters of an lptn4 plant."""
+        return self.thermal.params
 
     @property
     def nominal(self) -> ElectricalLosses:
@@ -186,13 +195,10 @@ class VirtualPlant:
                 "x_fe": f / nom.iron_reference_Hz, "x_m": f / nom.magnet_reference_Hz,
                 "w": np.abs(np.asarray(speed_rpm, dtype=float)) / self.motor.limits.speed_rpm}
 
-    def loss_function(self) -> Callable:
-        """losses(i_d0, i_q0, di_d, di_q, x_ac, x_fe, x_m, w, ϑ_y, ϑ_w, ϑ_t, ϑ_m) -> (P_y, P_w, P_t, P_m).
-
-        Arithmetic operators only, so it runs on floats (the plant loop) and on arrays alike.
-        """
-        nom, tl, mach, p = self.nominal, self.true_losses, self.machine, self.params
-        ref, alpha = self.motor.copper_reference_C, self.motor.copper_alpha_per_K
+    def loss_components(self) -> LossComponents:
+        """The true losses as components (bench.drive.virtual.plants.LossComponents); the kind places them."""
+        nom, tl, mach = self.nominal, self.true_losses, self.machine
+        ref = self.motor.copper_reference_C
         i_max = self.motor.limits.current_A
         r15 = 1.5 * nom.stator_resistance_ohm * tl.resistance_factor
         k_ac, ac_pm = tl.ac_factor, tl.ac_magnet_W
@@ -201,30 +207,27 @@ class VirtualPlant:
         a_fe, psi0, l_d, l_q = tl.iron_per_K, mach.flux_linkage_Vs, mach.L_d_H, mach.L_q_H
         mag, c0 = nom.magnet_W * tl.magnet_factor, nom.magnet_no_load_share
         e_pm, a_pm = tl.magnet_load_error, tl.magnet_resistivity_per_K
-        k0, k1, k2, k3 = p.k_0, p.k_1, p.k_2, p.k_3
 
-        def losses(i_d0, i_q0, di_d, di_q, x_ac, x_fe, x_m, w, th_y, th_w, th_t, th_m):
+        def components(i_d0, i_q0, di_d, di_q, x_ac, x_fe, x_m, th_m, th_iron):
             dm = th_m - ref
             flux = 1.0 + rem * dm
             i_d = i_d0 + di_d * dm
             i_q = i_q0 + di_q * dm
             i2 = i_d * i_d + i_q * i_q
             r = i2 ** 0.5 / i_max
-            cu = 1.0 + alpha * (th_w - ref)
             p_dc0 = r15 * i2
             p_ac0 = x_ac * x_ac * (k_ac * p_dc0 + ac_pm * flux * flux)
-            p_w = (p_dc0 * cu + p_ac0 / cu) * (1.0 + e_cu * r * r)
+            load = 1.0 + e_cu * r * r
             psi_d = (psi0 * flux + l_d * i_d) / psi0
             psi_q = l_q * i_q / psi0
             p_s = (p_h * x_fe + p_e * x_fe * x_fe) * (psi_d * psi_d + psi_q * psi_q)
-            p_s = p_s * (1.0 + a_fe * (0.5 * (th_y + th_t) - ref))
-            k_s = k0 + k1 * r + k2 * w + k3 * r * w
+            p_s = p_s * (1.0 + a_fe * (th_iron - ref))
             m = c0 * flux + (1.0 - c0) * r
             p_m_map = mag * x_m * x_m * m * m
             p_m = p_m_map * (1.0 + e_pm * p_m_map / mag) / (1.0 + a_pm * dm)
-            return k_s * p_s, p_w, (1.0 - k_s) * p_s, p_m
+            return p_dc0, p_ac0, load, p_s, p_m, r
 
-        return losses
+        return LossComponents(components, ref, self.motor.copper_alpha_per_K)
 
     # ------------------------------------------------ one profile
     def simulate(self, profile: Profile, seed: int | None = None) -> VirtualRun:
@@ -237,39 +240,43 @@ class VirtualPlant:
         n = int(round(profile.duration_s / h))
         mid = (np.arange(n) + 0.5) * h
         torque, speed = self.drive(profile, mid)
-        op = self.operating_point(torque, speed)
-        cool, amb = coolant(mid), ambient(mid)
-        a_d, b_loss, b_env = exact_steps(self.params, op["w"], cool, h)
-        drift = (b_env @ np.stack([cool, amb], axis=-1)[..., None])[..., 0]
-        inputs = tuple(op[k] for k in ("i_d0", "i_q0", "di_d", "di_q", "x_ac", "x_fe", "x_m", "w"))
-        run = integrate_exact(a_d, b_loss, drift, inputs, self.loss_function(), [profile.initial_C] * 4, 0.0, h)
+        steps = StepInputs(self.operating_point(torque, speed), speed, coolant(mid), ambient(mid), h)
         stride = int(round(period / h))
         rows = int(round(profile.duration_s / period)) + 1
+        run = self.thermal.simulate(steps, self.loss_components(), profile.initial_C, stride)
         t = np.arange(rows) * period
-        states = run.states[::stride][:rows]
+        states = run.states[:rows]
         truth = self.truth_at(profile, t, states, coolant(t), ambient(t))
         measured = self.measure(truth, np.random.default_rng(sensor_ss))
-        return VirtualRun(profile, int(seed), t, truth, measured, run.losses[::stride])
+        return VirtualRun(profile, int(seed), t, truth, measured, run.losses)
 
     def truth_at(self, profile: Profile, t, states, coolant, ambient) -> dict[str, np.ndarray]:
         torque, speed = self.drive(profile, t)
         op = self.operating_point(torque, speed)
         ref = self.motor.copper_reference_C
-        dm = states[:, 3] - ref
+        at = self.thermal.signal_positions
+        dm = self.thermal.read(states, at["flux"]) - ref
         i_d, i_q = op["i_d0"] + op["di_d"] * dm, op["i_q0"] + op["di_q"] * dm
         flux = 1.0 + self.machine.remanence_per_K * dm
         resistance = (self.nominal.stator_resistance_ohm * self.true_losses.resistance_factor
-                      * (1.0 + self.motor.copper_alpha_per_K * (states[:, 1] - ref)))
+                      * (1.0 + self.motor.copper_alpha_per_K * (self.thermal.read(states, at["copper"]) - ref)))
         u_d, u_q = self.dq.voltages(i_d, i_q, speed, flux, resistance)
-        return {"torque": torque, "speed": speed, "i_d": i_d, "i_q": i_q, "u_d": u_d, "u_q": u_q,
-                "coolant": coolant, "ambient": ambient, "yoke": states[:, 0], "winding": states[:, 1],
-                "tooth": states[:, 2], "magnet": states[:, 3]}
+        truth = {"torque": torque, "speed": speed, "i_d": i_d, "i_q": i_q, "u_d": u_d, "u_q": u_q,
+                 "coolant": coolant, "ambient": ambient}
+        for signal in ("yoke", "winding", "tooth", "magnet"):
+            truth[signal] = self.thermal.read(states, at[signal])
+        if "coolant_out" in at:
+            truth["coolant_out"] = self.thermal.read(states, at["coolant_out"])
+        for position in {col.at for col in self.columns if col.at is not None}:
+            truth[AT + position] = self.thermal.read(states, position)
+        return truth
 
     def measure(self, truth: dict[str, np.ndarray], rng: np.random.Generator) -> dict[str, np.ndarray]:
         """One noise block per column, in file order; noise and rounding in the column's unit."""
         out = {}
         for col in self.columns:
-            x = np.asarray(truth[SENSED_NODE.get(col.signal, col.signal)], dtype=float)
+            x = np.asarray(truth[AT + col.at] if col.at else truth[SENSED_NODE.get(col.signal, col.signal)],
+                           dtype=float)
             if col.gradient:
                 x = x + col.gradient * (x - truth["yoke"])
             if col.lag_s:
@@ -307,7 +314,8 @@ class VirtualRun:
     time_s: np.ndarray
     truth: dict[str, np.ndarray]       # internal units (°C, rpm, Nm, A, V)
     measured: dict[str, np.ndarray]    # by output column name, in the columns' units
-    losses: np.ndarray                 # (rows - 1, 4) node losses of the step starting at each sample (W)
+    losses: np.ndarray                 # (rows - 1, k) the plant's loss groups (thermal.loss_names) of the step
+                                       # starting at each sample (W); lptn4: the four node losses
 
     def rise_K(self) -> dict[str, float]:
         cool = self.truth["coolant"]
