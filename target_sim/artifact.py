@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from dbc.contract import TEMPERATURE_NODES
 from target_sim.errors import TargetError
 from target_sim.kinds import MODEL_KINDS, REALIZATIONS
 from target_sim.losses import DEFAULT as DEFAULT_LOSS_MODEL
@@ -35,7 +36,7 @@ OBSERVER_ARRAYS = {"Q": (4, 4), "q_nodes_C2": (4,), "R": (), "P0": (4, 4), "offs
 OBSERVER_FORM_NAMES = ("conventional", "joseph", "ud", "steady")   # target_sim.observer.OBSERVER_FORMS
 # The delta realization's linear block is x <- x + Δ·(A x + B ũ), y = C x + r, with ũ the inputs whose four
 # temperature sources are taken relative to r = linear_block.reference_C (the states are deviations from r).
-OUTPUTS = ("yoke", "winding", "tooth", "magnet")
+OUTPUTS = TEMPERATURE_NODES   # the model's outputs: the temperatures in the state order (dbc.contract)
 # losses.model names a loss model of `target_sim.losses` ("maps", "electrical", ...), which owns its fields
 LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
                    "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
