@@ -38,12 +38,15 @@ def judge(tmp_path: Path, text: str, on: RunResults | None = None, baseline: Pat
     return gate_of(tmp_path, text, baseline).judge(on or results())
 
 
-def test_every_kind_has_a_module_and_the_example_file_uses_them():
-    assert set(KINDS) == {"rmse", "max_error", "cycles", "deadline_misses", "missing_replies", "heartbeat_losses",
-                          "bus_load", "regression"}
+SHIPPED = ("rmse", "max_error", "cycles", "deadline_misses", "missing_replies", "heartbeat_losses", "bus_load",
+           "regression")
+
+
+def test_the_shipped_kinds_are_kinds_and_the_example_file_uses_them():
+    assert set(SHIPPED) <= set(KINDS)        # a new module adds a kind, with no edit here
     found = load_criteria(EXAMPLE)
     assert len(found.criteria) == 9
-    assert {c.kind for c in found.criteria} == set(KINDS) - {"regression"}
+    assert {c.kind for c in found.criteria} == set(SHIPPED) - {"regression"}
 
 
 def test_every_module_of_the_kinds_package_is_a_kind_under_its_name():
@@ -63,7 +66,7 @@ def test_a_registered_kind_is_read_from_a_criteria_file_and_judged(tmp_path):
     try:
         acceptance = judge(tmp_path, "[criteria.few]\nkind = 'rows'\nmax = 1e9\n")
         assert [c.passed for c in acceptance.checks] == [True]
-        with pytest.raises(CriteriaError, match="use one of rmse, max_error, .*, regression, rows"):
+        with pytest.raises(CriteriaError, match="use one of rmse, max_error, .*, rows$"):
             judge(tmp_path, "[criteria.a]\nkind = 'speed'\nmax = 1\n")
     finally:
         KINDS.unregister("rows")

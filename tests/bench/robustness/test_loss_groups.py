@@ -47,10 +47,11 @@ def test_every_lab_loss_kind_declares_its_robustness_groups(name):
         assert keys and all(key and all(isinstance(part, str) for part in key) for key in keys), group
 
 
-def test_robustness_covers_every_loss_kind():
-    """The study reaches every kind's groups, and +10 % of a group scales its entries by 1.1 and no other entry."""
+def test_robustness_covers_the_shipped_loss_kinds():
+    """The study reaches each kind's groups, and +10 % of a group scales its entries by 1.1 and no other entry (a
+    new kind's own test does the same on its artifact: `tests/bench/model/test_loss_kind_plugin.py`)."""
     found = artifacts()
-    assert set(found) == set(LAB_LOSS_KINDS.names())
+    assert {"maps", "electrical"} == set(found) <= set(LAB_LOSS_KINDS.names())
     kind = PERTURBATIONS["parameter"]
     for name, artifact in found.items():
         groups = LAB_LOSS_KINDS[name].robustness_groups
