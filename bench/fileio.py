@@ -11,19 +11,9 @@ from pathlib import Path
 
 from bench import stop
 from bench.errors import BenchError
+from dbc import files
+from dbc.files import RANDOM_PART, temporary_prefix
 from host.errors import write_failure
-
-NAME_MAX = 255       # bytes in one file name (Linux, macOS): a temporary name must fit where the output's does
-RANDOM_PART = 8      # what mkstemp/mkdtemp add between prefix and suffix
-MAX_TEMP_SUFFIX = 16  # a longer "suffix" is no format's: the temporary name goes without it
-
-
-def temporary_prefix(name: str, reserve: int) -> str:
-    """`.NAME.`, NAME shortened (by characters, counted in bytes) so that the prefix and `reserve` more bytes (the
-    random part, a suffix) fit in NAME_MAX: an output with a legal long name gets a legal temporary name."""
-    while name and len(os.fsencode(f".{name}.")) + reserve > NAME_MAX:
-        name = name[:-1]
-    return f".{name}."
 
 
 class OutputError(BenchError, OSError):
@@ -41,30 +31,16 @@ class OutputError(BenchError, OSError):
 def write_atomically(path: Path, write: Callable[[Path], None], what: str = "the file") -> None:
     """Write through a temporary file in the same directory, then rename: never a half-written output. An OSError
     becomes an OutputError naming `path` (`what` it is: "the model artifact", ...)."""
+    def write_then_check(tmp: Path) -> None:
+        write(tmp)
+        stop.check()     # a stop asked for never ends in a finished output, even if its signal was swallowed
+
     try:
-        _write_atomically(Path(path), write)
+        files.write_atomically(path, write_then_check)
     except OutputError:
         raise
     except OSError as exc:
         raise OutputError(Path(path), what, exc) from None
-
-
-def _write_atomically(path: Path, write: Callable[[Path], None]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    suffix = path.suffix if len(os.fsencode(path.suffix)) <= MAX_TEMP_SUFFIX else ""   # writers pick formats by it
-    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path.name, RANDOM_PART + len(os.fsencode(suffix))),
-                               suffix=suffix, dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the output should look like any other file
-    try:
-        write(Path(tmp))
-        stop.check()     # a stop asked for never ends in a finished output, even if its signal was swallowed
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_bytes_atomically(path: Path, payload: bytes, what: str = "the file") -> None:
@@ -116,7 +92,7 @@ def write_directory_atomically(path: Path, contents: Mapping[str, bytes], *,
                 raise OutputError(path / name, "the file", exc) from None
             os.chmod(target, 0o666 & ~umask)   # mkdtemp makes 0700 and files follow the umask
         os.chmod(tmp, 0o777 & ~umask)
-        stop.check()     # see _write_atomically
+        stop.check()     # see write_atomically
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=temporary_prefix(path.name, RANDOM_PART + 4) + "old.", dir=path.parent))
             os.replace(path, old / path.name)

@@ -348,13 +348,14 @@ class ThermalBench:
 def figures(result: BenchRun) -> dict[str, Any]:
     """The run's figures as flat name -> value pairs (pytest's JUnit properties)."""
     from bench.acceptance.kinds.cycles import step_cycles
+    from dbc.contract import TEMPERATURE_NODES
 
     m = result.metrics
     out: dict[str, Any] = {"engine": result.summary.engine, "exit_status": result.exit_status,
                            "clean": result.clean, "verdict": result.verdict, "rows": m.counts.steps_sent,
                            "missing": m.counts.missing, "heartbeat_losses": m.integrity.heartbeat.losses,
                            "bus_load_percent": m.bus_load.data_rate_percent}
-    for node in ("yoke", "winding", "tooth", "magnet"):
+    for node in TEMPERATURE_NODES:
         out[f"rmse_C_{node}"] = m.accuracy.rmse_C.get(node)
         out[f"rmse_reference_{node}"] = m.accuracy.rmse_reference.get(node)
         out[f"max_abs_can_minus_float32_C_{node}"] = m.agreement.max_abs_can_minus_float32_C.get(node)

@@ -28,6 +28,7 @@ import numpy as np
 from bench.errors import BenchError
 from bench.leftovers import scratch_dir
 from bench.target_process import TargetProcess
+from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.database import host_frame_ids
 from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard
 from host.faults import FaultSpec
@@ -92,7 +93,7 @@ OWN_TARGET_CONNECT_TIMEOUT_S = 120.0
 
 def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, drive: np.ndarray, initial,
                     *, mode: str = "lockstep", speed: float = 1.0, sample_period_s: float = 0.2,
-                    log_path: str | Path | None = None, reply_timeout_s: float = 0.05,
+                    log_path: str | Path | None = None, reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S,
                     progress: Progress | None = None, faults: FaultSpec | None = None,
                     firmware: Path | None = None, isr_rate_hz: int = 0,
                     measurements: np.ndarray | None = None) -> RunOutcome:
@@ -167,7 +168,7 @@ def _name_the_fault(result: HostResult, stderr: str) -> None:
 
 def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, bus: BusConfig, messages, *,
                        timed: bool, speed: float = 1.0, log_path: str | Path | None = None,
-                       reply_timeout_s: float = 0.05, progress: Progress | None = None,
+                       reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S, progress: Progress | None = None,
                        firmware: Path | None = None) -> RunOutcome:
     """Re-send a log's host frames to a target started here (or, with model_path None, one already running),
     which runs the firmware engine on the ELF `firmware` if one is given."""

@@ -8,6 +8,7 @@ Importing this package reads no file: the DBC is loaded on first use (`dbc.datab
     codec       FrameCodec / FrameValidator / decode_any: E2E profile-2 CRC8 and alive counters, fast by design
     mutations   what each frame fault kind does to a frame (host and target fault layers)
     transport   BusConfig, python-can bus options, own-frame filter, channel-in-use listening
+    files       NAME_MAX and the atomic write, which every layer writes its files with (it imports nothing)
 """
 
 from dbc.codec import DecodedFrame, FrameCodec, FrameValidator, apply_crc, decode_any, profile2_crc

@@ -24,6 +24,9 @@ COUNTER_MODULO = 16              # 4-bit alive counter in the low nibble of byte
 STEP_MODULO = 1 << 16            # `Step` is 16 bits: the data row number modulo 65536
 HEARTBEAT_MESSAGE = "Status"     # its GenMsgCycleTime in the DBC is the heartbeat period
 HEARTBEAT_TIMEOUT_S = 0.5        # five heartbeat periods without a Status: the target is lost
+# how long a host waits for a row's replies by default (--reply-timeout): a round trip is about 0.1 ms, with rare
+# 4-10 ms outliers on udp_multicast, so tens of ms
+DEFAULT_REPLY_TIMEOUT_S = 0.05
 # the bench's drive data rate (5 Hz): one data row per period, the DBC's GenMsgCycleTime of the row messages
 DRIVE_SAMPLE_PERIOD_S = 0.2
 

@@ -25,10 +25,10 @@ from pathlib import Path
 import can
 from can.io.mf4 import MF4Writer
 
+from dbc.files import fitted_name
 from host.errors import HostError, write_failure
 
 LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".mf4")
-NAME_MAX = 255   # bytes in one file name (Linux, macOS): the temporary name must fit where the log's does
 DEFAULT_LOG_SUFFIX = ".blf"
 
 
@@ -166,11 +166,9 @@ class FrameLog:
 
 def partial_name(path: Path, pid: int | None = None) -> str:
     """`.STEM.<pid>.partial.SUFFIX` (pid: this process's by default), STEM shortened (counted in bytes) to keep it
-    within NAME_MAX."""
-    stem, tail = path.stem, f".{os.getpid() if pid is None else pid}.partial{path.suffix}"
-    while stem and len(os.fsencode(f".{stem}{tail}")) > NAME_MAX:
-        stem = stem[:-1]
-    return f".{stem}{tail}"
+    within NAME_MAX (`dbc.files`)."""
+    tail = f".{os.getpid() if pid is None else pid}.partial{path.suffix}"
+    return fitted_name(path.stem, lambda stem: f".{stem}{tail}")
 
 
 PARTIAL_PID = re.compile(r"\.(?P<pid>[0-9]+)\.partial\.[^.]*$")

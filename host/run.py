@@ -16,7 +16,7 @@ import can
 import numpy as np
 
 from dbc.codec import decode_any
-from dbc.contract import FrameError, measurement_messages, row_messages
+from dbc.contract import DEFAULT_REPLY_TIMEOUT_S, FrameError, measurement_messages, row_messages
 from dbc.database import frame_id, host_frame_ids
 from dbc.mutations import FAULTED_HOST_MESSAGES, foreign_ids
 from dbc.transport import OwnFrameFilter
@@ -46,7 +46,7 @@ from host.replay import (
     run_realtime,
 )
 from host.results import HostResult, build_result
-from host.session import DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_REPLY_TIMEOUT_S, HostSession
+from host.session import DEFAULT_CONNECT_TIMEOUT_S, HostSession
 
 MODES = ("lockstep", "realtime")
 

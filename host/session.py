@@ -54,7 +54,6 @@ from dbc.transport import OwnFrameFilter
 from host.canlog import FrameLog
 from host.errors import HostError
 
-DEFAULT_REPLY_TIMEOUT_S = 0.05
 DEFAULT_CONNECT_TIMEOUT_S = 15.0
 # A wait that ended this much later than asked for: the host's own clock jumped, the host was not running (SIGSTOP
 # and SIGCONT, a suspended machine, a starved scheduler), and the target's silence meanwhile is not the target's.

@@ -35,11 +35,11 @@ import logging
 import os
 import signal
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 from dbc.database import DbcError, contract
+from dbc.files import write_atomically
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 from target_sim.artifact import load_artifact
 from target_sim.engines import ENGINES, make_node
@@ -82,25 +82,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-NAME_MAX = 255            # bytes in one file name (Linux, macOS); the temporary name must fit too
 PR_SET_PDEATHSIG = 1      # <linux/prctl.h>
 PARENT_CHECK_S = 0.25     # how often the loop checks that the parent still lives
 
 
-def _temporary_prefix(name: str, reserve: int) -> str:
-    """`.NAME.`, NAME shortened so that the prefix and `reserve` more bytes fit in NAME_MAX."""
-    while name and len(os.fsencode(f".{name}.")) + reserve > NAME_MAX:
-        name = name[:-1]
-    return f".{name}."
-
-
 def _write_stats(path: str, stats: dict) -> None:
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=_temporary_prefix(target.name, 8), dir=target.parent)
-    with os.fdopen(fd, "w") as handle:
-        json.dump(stats, handle, indent=1)
-    os.replace(tmp, target)
+    text = json.dumps(stats, indent=1)
+    write_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 class JournalError(TargetError):

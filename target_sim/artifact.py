@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from dbc.contract import TEMPERATURE_NODES
 from target_sim.errors import TargetError
 from target_sim.kinds import MODEL_KINDS, REALIZATIONS
 from target_sim.losses import DEFAULT as DEFAULT_LOSS_MODEL
@@ -35,7 +36,7 @@ OBSERVER_ARRAYS = {"Q": (4, 4), "q_nodes_C2": (4,), "R": (), "P0": (4, 4), "offs
 OBSERVER_FORM_NAMES = ("conventional", "joseph", "ud", "steady")   # target_sim.observer.OBSERVER_FORMS
 # The delta realization's linear block is x <- x + Δ·(A x + B ũ), y = C x + r, with ũ the inputs whose four
 # temperature sources are taken relative to r = linear_block.reference_C (the states are deviations from r).
-OUTPUTS = ("yoke", "winding", "tooth", "magnet")
+OUTPUTS = TEMPERATURE_NODES   # the model's outputs: the temperatures in the state order (dbc.contract)
 # The observer's bias kinds (its section's `bias`, null: none): a state of watts into one node the loss model
 # misses, a random walk, and the column of B it heats: its node's loss input (the inputs P_y, P_w, P_t, P_m are in
 # the order of OUTPUTS). The one table of them: the target, the firmware generator and the lab read it here.

@@ -21,8 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bench.acceptance.kinds import KINDS, Criterion, Subject
-from bench.acceptance.kinds.base import NODES, number
+from bench.acceptance.kinds import KINDS, NODES, Criterion, Subject, number
 from bench.analysis.results import Acceptance, CheckResult, ResultsError, RunResults
 from bench.errors import UsageError
 from bench.tomlspec import read_spec, spec_tables
@@ -50,7 +49,7 @@ def parse_criterion(name: str, table: Any, where: str) -> Criterion:
     if not isinstance(table, dict):
         raise CriteriaError(f"{at} must be a table with a kind and a limit")
     kind_name = table.get("kind")
-    if kind_name not in KINDS:
+    if not isinstance(kind_name, str) or kind_name not in KINDS:
         raise CriteriaError(f"{at} kind {kind_name!r} is not a kind of criterion; use one of {', '.join(KINDS)}")
     kind = KINDS[kind_name]
     allowed = ("kind", kind.limit_key, *kind.options)

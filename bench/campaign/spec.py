@@ -41,6 +41,7 @@ from typing import Any
 
 from bench.errors import BenchError, UsageError
 from bench.tomlspec import read_spec, spec_tables
+from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from target_sim.kinds import MODEL_KINDS as model_kind_table
 
 MODEL_KINDS = model_kind_table.names()
@@ -159,7 +160,7 @@ OPTIONS: dict[str, Option] = {
     "mode": Option(_choice("lockstep", "realtime"), "lockstep", "--mode"),
     "speed": Option(_number, 1.0, "--speed"),
     "rows": Option(_rows, None, "--rows"),
-    "reply_timeout": Option(_number, 0.05, "--reply-timeout"),
+    "reply_timeout": Option(_number, DEFAULT_REPLY_TIMEOUT_S, "--reply-timeout"),
     "faults": Option(_faults, "", None),
     "fault_seed": Option(_whole, 0, "--fault-seed"),
     "tolerate_faults": Option(_flag, False, "--tolerate-faults"),

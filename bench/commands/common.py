@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 from bench.errors import UsageError
 from bench.fileio import check_writable  # noqa: F401 - the commands import it from here
+from dbc.files import NAME_MAX
 
 if TYPE_CHECKING:
     from host.faults import FaultSpec
@@ -70,7 +71,8 @@ def print_json(obj) -> None:
     sys.stdout.write("\n")
 
 
-NAME_MAX = 255   # bytes in one file name (Linux, macOS)
+# the order a summary line shows the nodes in: the hot spots a model is deployed for first
+SHOWN_NODES = ("winding", "magnet", "yoke", "tooth")
 
 
 def check_log_names(log_path: Path, faults: FaultSpec | None) -> None:
@@ -95,7 +97,7 @@ def fmt(value, digits: int = 3) -> str:
 
 def print_summary(m: RunResults, problems: list[str], faults: HostFaults | FaultResults | None = None) -> None:
     """The lines `bench run` and `bench analyze` print without --json (`faults`: the run's, else the log's)."""
-    temps = ("winding", "magnet", "yoke", "tooth")
+    temps = SHOWN_NODES
     model, agreement, accuracy, timing = m.model, m.agreement, m.accuracy, m.timing
     print(f"model {model.id} {model.kind} ({model.realization}, dt {model.dt_s:g} s)")
     print(f"steps sent {m.counts.steps_sent}, answered {m.counts.replies}, missing {m.counts.missing}, "

@@ -44,6 +44,7 @@ from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
 from bench.acceptance.junit import CleanCase
 from bench.commands.args import add_listener_argument, announce_logger, positive_float, positive_int
 from bench.commands.common import (
+    SHOWN_NODES,
     add_data_arguments,
     add_output_flags,
     check_log_names,
@@ -55,6 +56,7 @@ from bench.commands.common import (
 from bench.errors import BenchError, UsageError
 from bench.leftovers import clear_and_say
 from bench.run_inputs import drive_for, load_data, load_model, measurements_for, refuse_over_can
+from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.database import host_frame_ids
 from dbc.transport import (
     SenderGuard,
@@ -66,7 +68,7 @@ from dbc.transport import (
 from host.canlog import check_log_path
 from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
 from host.run import MODES, run_dataset
-from host.session import DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_REPLY_TIMEOUT_S, SessionError
+from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 
 
 def add_subparser(subparsers) -> None:
@@ -179,7 +181,7 @@ def run_host(args: argparse.Namespace) -> int:
         if metrics is not None:
             agreement = metrics.agreement.max_abs_can_minus_float32_C
             print(f"max |CAN - {metrics.agreement.can_reference}| (°C): "
-                  + ", ".join(f"{t} {fmt(agreement.get(t), 4)}" for t in ("winding", "magnet", "yoke", "tooth"))
+                  + ", ".join(f"{t} {fmt(agreement.get(t), 4)}" for t in SHOWN_NODES)
                   + f"; {metrics.figure_rows.text('RMSE and every figure')}")
         for problem in problems:
             print(f"bench: host: {problem}", file=sys.stderr)

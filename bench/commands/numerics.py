@@ -13,6 +13,7 @@ from bench.thermal.excitation import SAMPLE_PERIOD_S, interval_means, synthetic_
 from bench.thermal.parameters import PARAMETER_SETS, parameter_set
 from bench.thermal.precision import PrecisionRow, numerics_report, precision_table
 from bench.thermal.realizations import REALIZATIONS
+from dbc.contract import TEMPERATURE_NODES
 from target_sim.kinds import MODEL_KINDS
 
 
@@ -117,10 +118,10 @@ def run_budget(args: argparse.Namespace) -> int:
     else:
         print(f"float32 error budget of {model_path} ({artifact.kind}, {artifact.realization}, Δt {artifact.dt:g} s) "
               f"on {dataset.path.name}, {info['steps']} steps: largest |y - y_float64| (°C) with float32 in one part")
-        print(f"{'part':13} {'yoke':>10} {'winding':>10} {'tooth':>10} {'magnet':>10}")
+        print(f"{'part':13} " + " ".join(f"{n:>10}" for n in TEMPERATURE_NODES))
         for r in rows:
             label = {"all": "all parts", "target": "the target"}.get(r.part, r.part)
-            print(f"{label:13} " + " ".join(f"{r.max_abs_C[n]:10.2e}" for n in ("yoke", "winding", "tooth", "magnet")))
+            print(f"{label:13} " + " ".join(f"{r.max_abs_C[n]:10.2e}" for n in TEMPERATURE_NODES))
         print(f"all parts vs the target's own float32 code: {info['all_vs_target_max_abs_C']:.2e} °C")
     return 0
 

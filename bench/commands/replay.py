@@ -34,7 +34,6 @@ every row as recorded; its rejection counters are not compared (the recorded one
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from collections import Counter
@@ -50,7 +49,7 @@ from bench.analysis.results import Percentiles, Rejections, ReplayResults, Reply
 from bench.analysis.rowfilter import RowSelection, kept_rows
 from bench.analysis.verdict import counts_text
 from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, positive_float
-from bench.commands.common import NAME_MAX, add_output_flags, check_writable, print_json
+from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
@@ -58,6 +57,8 @@ from bench.run_inputs import firmware_for_engine, load_model
 from bench.runner import replay_with_target
 from dbc import FrameError, frame_id
 from dbc.codec import decode_any
+from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
+from dbc.files import fitted_name
 from dbc.transport import add_bus_arguments
 from host.canlog import check_log_path, read_log
 from host.replay import count_rows, host_frames
@@ -80,8 +81,8 @@ def add_subparser(subparsers) -> None:
                    help="do not start a target: use the one running on the given bus")
     p.add_argument("--log", dest="new_log", type=Path, default=None,
                    help="log of the new session (default out/replay/<name>.replay.blf)")
-    p.add_argument("--reply-timeout", type=positive_float, default=0.05,
-                   help="seconds to wait for a row's replies (default 0.05)")
+    p.add_argument("--reply-timeout", type=positive_float, default=DEFAULT_REPLY_TIMEOUT_S,
+                   help=f"seconds to wait for a row's replies (default {DEFAULT_REPLY_TIMEOUT_S:g})")
     p.add_argument("--engine", choices=ENGINES, default=None,
                    help="what the started target runs: the Python model or the firmware in the emulated core "
                         "(default: what the log's target ran)")
@@ -94,10 +95,7 @@ def add_subparser(subparsers) -> None:
 
 def default_replay_name(path: Path) -> str:
     """`<stem>.replay.blf`, the stem shortened (counted in bytes) so that the name stays a legal one."""
-    stem = path.stem
-    while stem and len(os.fsencode(f"{stem}.replay.blf")) > NAME_MAX:
-        stem = stem[:-1]
-    return f"{stem}.replay.blf"
+    return fitted_name(path.stem, lambda stem: f"{stem}.replay.blf")
 
 
 def log_model_id(messages) -> int | None:

@@ -98,6 +98,7 @@ from bench.run_inputs import (
     refuse_over_can,
 )
 from bench.runner import run_with_target
+from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 from host.canlog import LogError, check_log_path
 from host.faults import add_fault_arguments, fault_note, spec_from_args
@@ -130,8 +131,9 @@ def add_run_arguments(p) -> None:
                    help="lockstep: each step waits for its reply (default); realtime: at the data rate x --speed")
     p.add_argument("--speed", type=positive_float, default=1.0, help="realtime speed factor (default 1)")
     p.add_argument("--rows", type=positive_int, default=None, help="replay only the first N data rows")
-    p.add_argument("--reply-timeout", type=positive_float, default=0.05,
-                   help="seconds to wait for a step's reply before counting it missing (default 0.05)")
+    p.add_argument("--reply-timeout", type=positive_float, default=DEFAULT_REPLY_TIMEOUT_S,
+                   help=f"seconds to wait for a step's reply before counting it missing (default "
+                        f"{DEFAULT_REPLY_TIMEOUT_S:g})")
     p.add_argument("--tolerate-gaps", action="store_true",
                    help="exit 0 even with missing replies, sequence gaps or heartbeat loss (still reported); "
                         "not for runs with injected faults (see --tolerate-faults)")

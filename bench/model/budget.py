@@ -29,12 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.thermal.excitation import interval_means
+from target_sim.artifact import OUTPUTS as NODES
 from target_sim.artifact import ModelArtifact
 from target_sim.kinds import MODEL_KINDS
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 
 PARTS = ("inputs", "lookup", "corrections", "sigmoid", "sources", "coefficients", "update", "state", "output")
-NODES = ("yoke", "winding", "tooth", "magnet")
 F32, F64 = np.float32, np.float64
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.drive.dataset import MEASURED_NODES
 from bench.model.runs import ModelRun
 from bench.thermal import portable
 from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
@@ -86,7 +87,7 @@ def search_bounds(bounds: dict[str, tuple[float, float]] = BOUNDS) -> tuple[np.n
 # model is deployed for, weigh 1 (plain maximum likelihood). Yoke and tooth weigh 1/2 each: both sit in the stator
 # iron and move together, so together they count as one more measured node; they pin the network's inner states
 # (a fit to winding and PM alone leaves them 6-8 °C off) without outvoting the two deployed outputs.
-NODES = ("winding", "pm", "yoke", "tooth")
+NODES = tuple(MEASURED_NODES)   # winding, pm, yoke, tooth: the data's measured nodes
 NODE_WEIGHTS = {"winding": 1.0, "pm": 1.0, "yoke": 0.5, "tooth": 0.5}
 FITTED_ALWAYS = ("winding", "pm")
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.drive.dataset import Dataset
+from bench.drive.dataset import MEASURED_NODES, Dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.fileeval import OUTPUT_INDEX, measured_nodes
 from bench.model.metrics import error_metrics
@@ -113,7 +113,7 @@ def evaluate_observer(artifact: ModelArtifact, dataset: Dataset, offsets: Sequen
     drive = artifact_drive(artifact, dataset)
     z = measurement_matrix(artifact, dataset)
     references = {n: np.interp(run.step_time_s, dataset.time_s, dataset.column(c))
-                  for n, c in (("winding", "winding_C"), ("pm", "pm_C"), ("yoke", "yoke_C"), ("tooth", "tooth_C"))
+                  for n, c in MEASURED_NODES.items()
                   if n in measured_nodes(dataset)}
     initial = initial_temperatures(dataset)
 

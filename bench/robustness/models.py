@@ -8,8 +8,9 @@ The parameter-varying LPTN runs from its `lptn` parameters: they are changed and
 to continuous time in the nodes' coordinates, every entry scaled by the relative change the same parameter change
 makes to that entry of the LTI LPTN's matrices (a capacitance scales its node's row, a resistance the two
 conductance entries and the diagonals it adds to), discretized again as the artifact was (zoh, tustin) and
-realized as the artifact is. Loss maps are scaled table by table; an electrical loss model coefficient by
-coefficient.
+realized as the artifact is. The loss model's coefficients are scaled in the groups its kind declares
+(`robustness_groups` of `bench.motor.losskinds`: loss maps table by table, the electrical model coefficient by
+coefficient).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import scipy.linalg
 from bench.model.artifact_values import artifact_parameters
 from bench.model.builder import artifact_content
 from bench.model.evaluate import physical_from_artifact, sigmoid_from_artifact, spec_at
+from bench.motor.losskinds import LAB_LOSS_KINDS
 from bench.thermal.discretize import discretize
 from bench.thermal.lptn import lti_matrices
 from bench.thermal.parameters import LptnParameters
@@ -40,18 +42,17 @@ PARAMETER_GROUPS: dict[str, tuple[str, ...]] = {
 # near 1 scaled by 1.1 would put more than the whole loss into the yoke and a negative loss into the tooth)
 SPLIT = "k_split"
 SPLIT_UNIT = "points"
-# the loss model's coefficient groups, by loss model: the artifact keys under `losses` each group scales
-LOSS_GROUPS: dict[str, dict[str, tuple[tuple[str, ...], ...]]] = {
-    "maps": {"P_dc": (("tables", "p_dc0"),), "P_ac": (("tables", "p_ac0"),),
-             "P_stator": (("tables", "p_stator"),), "P_magnet": (("tables", "p_magnet"),)},
-    "electrical": {"R_s": (("stator_resistance_ohm",),), "ac_factor": (("ac_factor",),),
-                   "P_iron": (("iron_hysteresis_W",), ("iron_eddy_W",)), "P_magnet": (("magnet_W",),)},
-}
 BLOCK_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "a_wm", "a_tm", "a_ma")
 
 
+def loss_groups(artifact: ModelArtifact) -> Mapping[str, tuple[tuple[str, ...], ...]]:
+    """The loss model's coefficient groups: group name -> the keys under the artifact's `losses` it scales (each
+    loss kind declares its own: `bench.motor.losskinds`)."""
+    return LAB_LOSS_KINDS[artifact.loss_model].robustness_groups
+
+
 def parameter_subjects(artifact: ModelArtifact) -> tuple[str, ...]:
-    return (*PARAMETER_GROUPS, SPLIT, *LOSS_GROUPS.get(artifact.loss_model, {}))
+    return (*PARAMETER_GROUPS, SPLIT, *loss_groups(artifact))
 
 
 def continuous(a_d: np.ndarray, b_d: np.ndarray, dt: float, method: str) -> tuple[np.ndarray, np.ndarray]:
@@ -130,4 +131,4 @@ def perturbed_model(artifact: ModelArtifact, subject: str, magnitude: float) -> 
     factor = 1.0 + magnitude / 100.0
     if subject in PARAMETER_GROUPS:
         return with_parameters(artifact, {name: factor for name in PARAMETER_GROUPS[subject]})
-    return with_losses(artifact, LOSS_GROUPS[artifact.loss_model][subject], factor)
+    return with_losses(artifact, loss_groups(artifact)[subject], factor)

@@ -43,14 +43,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from dbc.contract import RX_ERROR_KINDS, step_of
+from dbc.files import write_atomically
 from dbc.mutations import FRAME_FAULT_KINDS, REPLY_PREFIX
 from host.errors import HostError, write_failure
 
@@ -318,21 +317,11 @@ def write_sidecar(log_path: str | Path, summary: dict, injections: Iterable) -> 
     """`<log>.faults.json`: the summary and every injection, written atomically next to the log."""
     path = sidecar_path(log_path)
     body = {"log": Path(log_path).name, **summary, "injections": [i.to_dict() for i in injections]}
+    text = json.dumps(body, indent=1, allow_nan=False) + "\n"
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+        write_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
     except OSError as exc:
         raise HostError(write_failure(path, "the fault summary", exc)) from None
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            json.dump(body, handle, indent=1, allow_nan=False)
-            handle.write("\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        Path(tmp).unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise HostError(write_failure(path, "the fault summary", exc)) from None
-        raise
     return path
 
 

@@ -8,7 +8,8 @@
 
 from __future__ import annotations
 
-from bench.acceptance.kinds.base import Criterion, Kind, Subject, choice, judged
+from bench.acceptance.kinds import register
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, choice, judged
 from bench.analysis.results import CheckResult
 
 
@@ -22,3 +23,5 @@ def judge(criterion: Criterion, subject: Subject) -> CheckResult:
 
 KIND = Kind("bus_load", "the bench's share of the bus, at the data rate or the replay's peak", "%", judge,
             options={"at": choice("data_rate", "replay_peak")}, defaults={"at": "data_rate"})
+
+register(KIND)

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from bench.acceptance.kinds.base import Criterion, Kind, Subject, choice, judged
+from bench.acceptance.kinds import register
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, choice, judged
 from bench.analysis.results import CheckResult, RunResults
 
 COUNTED = "counted on the firmware engine (emulated Cortex-M4F)"
@@ -47,3 +48,5 @@ def judge(criterion: Criterion, subject: Subject) -> CheckResult:
 KIND = Kind("cycles", "CPU cycles per model step (counted on the firmware engine, estimated otherwise)", "cycles",
             judge, options={"statistic": choice("max", "p50"), "counted": _flag},
             defaults={"statistic": "max", "counted": False})
+
+register(KIND)

@@ -8,7 +8,8 @@ longer than Δt), plus in a run with injected faults the rows that missed their 
 
 from __future__ import annotations
 
-from bench.acceptance.kinds.base import Criterion, Kind, Subject, judged
+from bench.acceptance.kinds import register
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, judged
 from bench.analysis.results import CheckResult
 
 
@@ -20,3 +21,5 @@ def judge(criterion: Criterion, subject: Subject) -> CheckResult:
 
 
 KIND = Kind("deadline_misses", "model steps that took longer than their period Δt", "", judge)
+
+register(KIND)

@@ -9,7 +9,8 @@
 
 from __future__ import annotations
 
-from bench.acceptance.kinds.base import Criterion, Kind, Subject, node_check, nodes
+from bench.acceptance.kinds import register
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, node_check, nodes
 from bench.acceptance.kinds.rmse import AGAINST
 from bench.analysis.results import CheckResult, NodeValues
 
@@ -22,3 +23,5 @@ def judge(criterion: Criterion, subject: Subject) -> CheckResult:
 
 KIND = Kind("max_error", "per-node largest |CAN − reference| against the measurement or the float64 model", "°C",
             judge, options={"nodes": nodes, "against": AGAINST}, defaults={"nodes": "all", "against": "reported"})
+
+register(KIND)

@@ -7,7 +7,8 @@
 
 from __future__ import annotations
 
-from bench.acceptance.kinds.base import Criterion, Kind, Subject, judged
+from bench.acceptance.kinds import register
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, judged
 from bench.analysis.results import CheckResult
 
 
@@ -17,3 +18,5 @@ def judge(criterion: Criterion, subject: Subject) -> CheckResult:
 
 
 KIND = Kind("missing_replies", "data rows the target never answered", "", judge)
+
+register(KIND)

@@ -16,7 +16,8 @@ The figures must be comparable: both over the same number of rows, each node's R
 
 from __future__ import annotations
 
-from bench.acceptance.kinds.base import Criterion, Kind, Subject, choice, judged, nodes, number
+from bench.acceptance.kinds import register
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, choice, judged, nodes, number
 from bench.acceptance.kinds.cycles import step_cycles
 from bench.analysis.results import CheckResult, RunResults
 
@@ -79,3 +80,5 @@ KIND = Kind("regression", "no figure more than a given % worse than in a stored 
             options={"figure": choice(*FIGURES), "nodes": nodes, "floor": number},
             defaults={"figure": "rmse", "nodes": "all", "floor": 0.01},
             limit_key="max_worse_percent")
+
+register(KIND)

@@ -1,6 +1,7 @@
 """Loss models as the lab knows them: one module per kind, under the name the target's twin has
 (`target_sim.losses`): the motor file's `[losses]` section (its keys, their checks), the float64 model the
-identification evaluates (`evaluate_columns`), and the artifact's `losses` section written from it and read back.
+identification evaluates (`evaluate_columns`), the artifact's `losses` section written from it and read back, and
+the coefficient groups a robustness study perturbs (`robustness_groups`, plain data `bench.robustness` reads).
 
 Every module of this package is a kind and registers itself on import; `LAB_LOSS_KINDS` loads them on first use.
 A test checks that this table and the target's name the same kinds.
@@ -25,6 +26,9 @@ class LabLossKind:
     name: ClassVar[str]
     keys: ClassVar[tuple[str, ...]]        # the motor file's [losses] keys besides COMMON_KEYS
     summary: ClassVar[str]                 # a few words for reports ("loss maps over torque and speed")
+    # its coefficient groups a robustness study perturbs (`bench robustness`, the `parameter` kind): group name ->
+    # the entries under the artifact's `losses` the group scales together, each a key path (("tables", "p_dc0"))
+    robustness_groups: ClassVar[Mapping[str, tuple[tuple[str, ...], ...]]]
 
     def from_motor_file(self, check: Checker, losses: Mapping[str, Any], *, motor_path: Path | None,
                         pole_pairs: int, current_max_A: float) -> tuple[Any, str | None]:

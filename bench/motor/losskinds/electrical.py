@@ -76,6 +76,8 @@ class LabElectricalKind(LabLossKind):
     name = target.ElectricalKind.name
     keys = KEYS
     summary = "losses from the d/q currents and the speed"
+    robustness_groups = {"R_s": (("stator_resistance_ohm",),), "ac_factor": (("ac_factor",),),
+                         "P_iron": (("iron_hysteresis_W",), ("iron_eddy_W",)), "P_magnet": (("magnet_W",),)}
 
     def from_motor_file(self, check: Checker, losses, *, motor_path: Path | None, pole_pairs: int,
                         current_max_A: float) -> tuple[ElectricalLosses, None]:

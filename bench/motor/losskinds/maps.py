@@ -158,6 +158,8 @@ def loss_maps_csv(maps: LossMaps) -> str:
 
 class LabMapsKind(LabLossKind):
     name = target.MapsKind.name
+    robustness_groups = {"P_dc": (("tables", "p_dc0"),), "P_ac": (("tables", "p_ac0"),),
+                         "P_stator": (("tables", "p_stator"),), "P_magnet": (("tables", "p_magnet"),)}
     keys = ("file",)
     summary = "loss maps over torque and speed"
 

@@ -2,13 +2,16 @@
 against its limit, and a regression gate compares with a stored summary."""
 
 import json
+import pkgutil
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
+import bench.acceptance.kinds
 from bench.acceptance.criteria import CriteriaError, load_criteria, load_gate, parse_criteria
-from bench.acceptance.kinds import KINDS
+from bench.acceptance.kinds import KINDS, Kind, register
+from bench.acceptance.kinds._base import judged
 from bench.analysis.results import Acceptance, CycleFigures, NodeLabels, NodeValues, RunResults, RunSummary
 
 from helpers import example_results, example_summary
@@ -35,12 +38,38 @@ def judge(tmp_path: Path, text: str, on: RunResults | None = None, baseline: Pat
     return gate_of(tmp_path, text, baseline).judge(on or results())
 
 
-def test_every_kind_has_a_module_and_the_example_file_uses_them():
-    assert set(KINDS) == {"rmse", "max_error", "cycles", "deadline_misses", "missing_replies", "heartbeat_losses",
-                          "bus_load", "regression"}
+SHIPPED = ("rmse", "max_error", "cycles", "deadline_misses", "missing_replies", "heartbeat_losses", "bus_load",
+           "regression")
+
+
+def test_the_shipped_kinds_are_kinds_and_the_example_file_uses_them():
+    assert set(SHIPPED) <= set(KINDS)        # a new module adds a kind, with no edit here
     found = load_criteria(EXAMPLE)
     assert len(found.criteria) == 9
-    assert {c.kind for c in found.criteria} == set(KINDS) - {"regression"}
+    assert {c.kind for c in found.criteria} == set(SHIPPED) - {"regression"}
+
+
+def test_every_module_of_the_kinds_package_is_a_kind_under_its_name():
+    """A criterion is a module of `bench/acceptance/kinds/` (named as its kind) that registers itself: no list."""
+    package = bench.acceptance.kinds
+    modules = {m.name for m in pkgutil.iter_modules(package.__path__) if not m.name.startswith("_")}
+    assert set(KINDS) == modules
+    assert KINDS.names()[:2] == ("rmse", "max_error")     # the order messages list them in
+
+
+def test_a_registered_kind_is_read_from_a_criteria_file_and_judged(tmp_path):
+    """What a new module does on import: `register(Kind(...))`; the file's kind, options and limit then work."""
+    def judge_rows(criterion, subject):
+        return judged(criterion, "", "data rows", float(subject.results.counts.steps_sent))
+
+    register(Kind("rows", "data rows sent", "", judge_rows))
+    try:
+        acceptance = judge(tmp_path, "[criteria.few]\nkind = 'rows'\nmax = 1e9\n")
+        assert [c.passed for c in acceptance.checks] == [True]
+        with pytest.raises(CriteriaError, match="use one of rmse, max_error, .*, rows$"):
+            judge(tmp_path, "[criteria.a]\nkind = 'speed'\nmax = 1\n")
+    finally:
+        KINDS.unregister("rows")
 
 
 @pytest.mark.parametrize("text, words", [
@@ -48,6 +77,7 @@ def test_every_kind_has_a_module_and_the_example_file_uses_them():
     ("", "has no criteria"),
     ("limits = 1\n[criteria.a]\nkind = 'rmse'\nmax = 1", "unknown key 'limits'"),
     ("[criteria.a]\nkind = 'speed'\nmax = 1", "kind 'speed' is not a kind of criterion; use one of rmse"),
+    ("[criteria.a]\nkind = ['rmse']\nmax = 1", "kind ['rmse'] is not a kind of criterion; use one of rmse"),
     ("[criteria.a]\nkind = 'rmse'", "[criteria.a] has no limit; give max = NUMBER"),
     ("[criteria.a]\nkind = 'rmse'\nmax = -1", "[criteria.a] max must be a number >= 0"),
     ("[criteria.a]\nkind = 'rmse'\nmax = 1\nnode = 'magnet'", "unknown key 'node'; a rmse criterion takes max, nodes"),

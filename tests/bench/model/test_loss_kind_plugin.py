@@ -99,6 +99,7 @@ class QuadraticLab(LabLossKind):
     name = NAME
     keys = KEYS
     summary = QuadraticTarget.summary
+    robustness_groups = {"qt_copper": (("qt_copper",),), "qt_iron_magnet": (("qt_iron",), ("qt_magnet",))}
 
     def from_motor_file(self, check, losses, *, motor_path, pole_pairs, current_max_A):
         return QuadraticLosses(**{k: check.number(losses, f"losses.{k}", positive=True) for k in KEYS}), None
@@ -139,6 +140,29 @@ def test_an_unknown_kind_is_one_sentence(tmp_path):
 
     with pytest.raises(MotorFileError, match="losses.kind must be one of maps, electrical, not 'quadratic-test'"):
         motor_from_dict(motor_file(NAME))
+
+
+def test_a_robustness_study_perturbs_a_kind_defined_in_a_test_by_its_own_groups(quadratic_kind):
+    """bench.robustness reads the kind's `robustness_groups`: no edit there for a new loss kind."""
+    import json
+
+    from bench.model.default import default_artifact_path
+    from bench.robustness.kinds import PERTURBATIONS
+    from target_sim.artifact import encode_array, seal, verify
+
+    content = json.loads(default_artifact_path().read_text(encoding="utf-8"))
+    coefficients = {k: v for k, v in motor_file(NAME)["losses"].items() if k in KEYS}
+    content["losses"] = {"model": NAME, "current_max_A": encode_array(600.0), "alpha_cu_per_K": encode_array(0.0039),
+                         "copper_reference_C": encode_array(20.0),
+                         **{k: encode_array(v) for k, v in coefficients.items()}}
+    artifact = verify(seal({k: v for k, v in content.items() if k != "sha256"}))
+    parameter = PERTURBATIONS["parameter"]
+    assert parameter.subjects(artifact)[-2:] == ("qt_copper", "qt_iron_magnet")
+    off = parameter.model(artifact, "qt_iron_magnet", 10.0)
+    changed = {k for k in KEYS if off.array("losses", k, dtype=np.float64) != artifact.array("losses", k,
+                                                                                              dtype=np.float64)}
+    assert changed == {"qt_iron", "qt_magnet"}
+    assert float(off.array("losses", "qt_iron", dtype=np.float64)) == pytest.approx(900.0 * 1.1)
 
 
 @pytest.mark.slow

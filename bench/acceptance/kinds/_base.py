@@ -9,8 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bench.analysis.results import CheckResult, NodeValues, RunResults
-
-NODES = ("yoke", "winding", "tooth", "magnet")
+from dbc.contract import TEMPERATURE_NODES as NODES
 
 
 @dataclass(frozen=True)

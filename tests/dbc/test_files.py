@@ -1,0 +1,73 @@
+"""`dbc.files`, the one atomic write every layer uses, and the small facts every layer shares, each defined once:
+the file name limit, the reply timeout's default, the temperature nodes' order."""
+
+from __future__ import annotations
+
+import ast
+import os
+import stat
+
+import pytest
+
+from dbc.files import NAME_MAX, fitted_name, write_atomically
+
+from helpers import ROOT
+
+LAYERS = ("dbc", "target_sim", "host", "bench")
+
+
+def test_a_write_is_whole_or_not_at_all(tmp_path):
+    path = tmp_path / "deep" / "out.json"
+    write_atomically(path, lambda tmp: tmp.write_text("first"))
+    assert path.read_text() == "first"
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask     # as any new file, not mkstemp's 0600
+
+    def fails(tmp):
+        tmp.write_text("half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        write_atomically(path, fails)
+    assert path.read_text() == "first" and sorted(p.name for p in path.parent.iterdir()) == ["out.json"]
+
+
+def test_a_long_legal_name_gets_a_legal_temporary_name_with_its_suffix(tmp_path):
+    path = tmp_path / ("é" * ((NAME_MAX - 5) // 2) + ".json")
+    seen = []
+    write_atomically(path, lambda tmp: (seen.append(tmp), tmp.write_text("{}")))
+    assert seen[0].suffix == ".json" and len(os.fsencode(seen[0].name)) <= NAME_MAX
+    assert fitted_name("x" * 300, lambda s: f"{s}.replay.blf") == "x" * (NAME_MAX - 11) + ".replay.blf"
+
+
+def _assignments(name: str) -> list[str]:
+    """Where a module of the four layers assigns `name` a literal value (not an import, not a rebinding)."""
+    found = []
+    for layer in LAYERS:
+        for path in sorted((ROOT / layer).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Assign | ast.AnnAssign) and isinstance(node.value, ast.Constant):
+                    targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                    if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+                        found.append(str(path.relative_to(ROOT)))
+    return found
+
+
+def _node_tuples() -> list[str]:
+    """Where a module of the four layers writes the four temperature nodes out as a tuple, in any order."""
+    found = []
+    for layer in LAYERS:
+        for path in sorted((ROOT / layer).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Tuple) and all(isinstance(e, ast.Constant) for e in node.elts):
+                    values = {e.value for e in node.elts}
+                    if values in ({"yoke", "winding", "tooth", "magnet"}, {"yoke", "winding", "tooth", "pm"}):
+                        found.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    return found
+
+
+def test_each_shared_fact_is_defined_once():
+    assert _assignments("NAME_MAX") == ["dbc/files.py"]
+    assert _assignments("DEFAULT_REPLY_TIMEOUT_S") == ["dbc/contract.py"]
+    assert sorted(p.split(":")[0] for p in _node_tuples()) == ["bench/commands/common.py", "dbc/contract.py"]
