@@ -234,11 +234,24 @@ def main() -> int:
                                                "bounds": BOUNDS, "observer": not args.skip_observer,
                                                "defaults": args.defaults})
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
+    record.figures.update(motors=[], complete=False)
     with tempfile.TemporaryDirectory(prefix="bench-suite-") as tmp:
         work = args.work or Path(tmp)
-        record.figures["motors"] = [one_motor(m, work, args) for m in motors]
+        for m in motors:   # the record after each motor: an interrupted suite keeps what it measured
+            record.figures["motors"].append(one_motor(m, work, args))
+            record.write()
+    record.figures["complete"] = True
     record.write()
     return 0
+
+
+def attempt(what: str, step):
+    """step(), or the sentence a failed command ended with (the suite goes on with the next step)."""
+    try:
+        return step()
+    except SystemExit as failed:
+        print(f"{what} failed: {failed}", flush=True)
+        return {"failed": str(failed)}
 
 
 def one_motor(motor: Path, work: Path, args) -> dict:
@@ -246,17 +259,25 @@ def one_motor(motor: Path, work: Path, args) -> dict:
     entry = {"motor": motor.name, "data_s": round(data_s, 1),
              "profiles": {role: list(names) for role, names in index["roles"].items()},
              "hours": round(sum(p["duration_s"] for p in index["profiles"]) / 3600.0, 1), "priors": []}
-    runs = {prior: identify(motor, work, data, index, prior) for prior in args.priors}
-    entry["priors"] = [prior_row(motor, data, index, prior, run) for prior, run in runs.items()]
+    tried = {prior: attempt(f"{motor.name} identify {prior}", lambda prior=prior: identify(
+        motor, work, data, index, prior)) for prior in args.priors}
+    runs = {prior: run for prior, run in tried.items() if "failed" not in run}
+    entry["priors"] = [{"prior": prior, **run} for prior, run in tried.items() if "failed" in run] + [
+        attempt(f"{motor.name} {prior}", lambda prior=prior, run=run: prior_row(motor, data, index, prior, run))
+        for prior, run in runs.items()]
     if not args.skip_observer and "designer" in runs:
         truth = sensor_truth(motor)
         entry["sensor"] = truth
-        entry["observer"] = [observer(motor, data, index, runs["designer"]["out"], how, truth)
+        entry["observer"] = [attempt(f"{motor.name} observer ({how})",
+                                     lambda how=how: observer(motor, data, index, runs["designer"]["out"], how, truth))
                              for how in ("estimated", "file")]
     if args.defaults:
-        entry["defaults"] = compare_defaults(motor, work, data, index, runs)
+        entry["defaults"] = attempt(f"{motor.name} defaults",
+                                    lambda: compare_defaults(motor, work, data, index, runs))
         if not args.skip_observer:
-            entry["observer_defaults"] = compare_observer_defaults(motor, data, index, runs["designer"]["out"])
+            entry["observer_defaults"] = attempt(
+                f"{motor.name} observer defaults",
+                lambda: compare_observer_defaults(motor, data, index, runs["designer"]["out"]))
     return entry
 
 

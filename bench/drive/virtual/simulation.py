@@ -48,6 +48,7 @@ from bench.drive.virtual.plants import LossComponents, StepInputs, ThermalPlant
 from bench.drive.virtual.profiles import Phase, Profile
 from bench.motor.description import MotorDescription
 from bench.motor.losses import ElectricalLosses
+from dbc.contract import TEMPERATURE_NODES
 
 # output signal -> the schema column whose quantity (and so unit list) it has
 SIGNALS = {"torque": "torque_Nm", "speed": "speed_rpm", "i_d": "i_d_A", "i_q": "i_q_A", "u_d": "u_d_V",
@@ -263,7 +264,7 @@ class VirtualPlant:
         u_d, u_q = self.dq.voltages(i_d, i_q, speed, flux, resistance)
         truth = {"torque": torque, "speed": speed, "i_d": i_d, "i_q": i_q, "u_d": u_d, "u_q": u_q,
                  "coolant": coolant, "ambient": ambient}
-        for signal in ("yoke", "winding", "tooth", "magnet"):
+        for signal in TEMPERATURE_NODES:
             truth[signal] = self.thermal.read(states, at[signal])
         if "coolant_out" in at:
             truth["coolant_out"] = self.thermal.read(states, at["coolant_out"])

@@ -28,6 +28,7 @@ import numpy as np
 
 from bench.motor.check import Checker
 from bench.motor.description import MotorDescription
+from dbc.contract import TEMPERATURE_NODES
 from target_sim.registry import Registry
 
 DEFAULT_KIND = "lptn4"
@@ -37,7 +38,7 @@ HELPERS = ("correlations", "geometry", "materials", "network", "lump")
 # magnet temperature of the flux linkage (keys of signal_positions)
 ELECTRICAL_POSITIONS = ("copper", "flux")
 # the canonical temperature signals of the bench's dataset every kind maps to a position
-CANONICAL_SIGNALS = ("yoke", "winding", "tooth", "magnet")
+CANONICAL_SIGNALS = TEMPERATURE_NODES
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,8 +22,9 @@ from bench.motor.check import Checker
 from bench.motor.description import MotorDescription, prior_parameters
 from bench.motor.errors import MotorFileError
 from bench.thermal.parameters import LptnParameters
+from dbc.contract import TEMPERATURE_NODES
 
-NODES = ("yoke", "winding", "tooth", "magnet")
+NODES = TEMPERATURE_NODES
 
 
 class Lptn4Plant(ThermalPlant):

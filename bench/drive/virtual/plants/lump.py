@@ -27,10 +27,11 @@ import numpy as np
 
 from bench.drive.virtual.plants.distributed import DistributedPlant
 from bench.thermal.parameters import COOLANT_REFERENCE_C, LptnParameters
+from dbc.contract import TEMPERATURE_NODES
 
 GROUPS = {"yoke": ("yoke_in", "yoke_back", "housing", "cap"), "winding": ("w_bot", "w_top", "ew"),
           "tooth": ("tip", "body"), "magnet": ("magnet", "rotor", "shaft", "bearing")}
-ORDER = ("yoke", "winding", "tooth", "magnet")
+ORDER = TEMPERATURE_NODES
 SPEED_RATIOS = (0.0, 0.5, 1.0)
 COOLANT_SPAN_K = 20.0
 RESISTANCE_CAP = 20.0        # a speed-dependent resistance at most this many times its value at half speed
