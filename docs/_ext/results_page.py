@@ -765,39 +765,75 @@ def _mse_max(figures: dict | None) -> str:
 
 @single_record("suite", "The motor suite")
 def section_suite(record: Record) -> list[str]:
-    """Every suite motor: identification from each prior on its test profiles (never chosen on), and the observer."""
+    """Every suite motor: identification from each prior on its test profiles (never chosen on), the observer, and
+    each default against its alternatives on the validation profiles."""
     goal = "goal: winding and magnet MSE ≤ 2.0 K² and max ≤ 4.7 K, Hammerstein, designer's and auto prior"
     lines = ["Each motor of `examples/suite/` identified with `bench identify --all-kinds --bounds 0.1,10` on its "
              "training profiles and evaluated on its test profiles (pooled, float32, MSE K² / max K; "
              f"{goal}). \"Worse on validation\": the nodes where the Hammerstein model is worse than its LTI "
              "network on the validation profiles.", ""]
-    rows = []
-    for motor in record["figures"]["motors"]:
-        for row in motor["priors"]:
-            for kind in ("hammerstein", "lti-lptn"):
-                test = row["test"].get(kind, {})
-                rows.append([motor["motor"], row["prior"], kind,
-                             *(_mse_max(test.get(node)) for node, _ in SUITE_NODES),
-                             ", ".join(row["hammerstein_worse_on_validation"]) or "–" if kind == "hammerstein" else "",
-                             _n(row["identify_s"]) if kind == "hammerstein" else ""])
+    if not record["figures"].get("complete", True):
+        lines += ["*This record is partial: the run stopped before every motor was measured.*", ""]
+    motors = record["figures"]["motors"]
     lines += _table(["motor", "prior", "kind", *(name for _, name in SUITE_NODES), "worse on validation",
-                     "identify s"], rows)
-    observed = [m for m in record["figures"]["motors"] if m.get("observer")]
+                     "identify s"], [r for m in motors for r in _suite_rows(m)])
+    observed = [m for m in motors if m.get("observer")]
     if observed:
         lines += ["The observer on the designer's Hammerstein model with the motor's end-winding sensor (`ntc_C`), its "
                   "lag, gradient and offset estimated by `bench observer` or taken from the motor file; test profiles, "
                   "open loop → observer, MSE K²:", ""]
-        rows = []
-        for motor in observed:
-            for run in motor["observer"]:
-                pooled = run.get("pooled") or {}
-                cells = []
-                for node, _ in SUITE_NODES[:2]:
-                    fig = pooled.get(node) or {}
-                    cells.append("–" if not fig else f"{fig['open_loop_mse_K2']:.2f} → {fig['observer_mse_K2']:.2f}")
-                rows.append([motor["motor"], run["how"], *cells, _n(run["observer_s"])])
-        lines += _table(["motor", "sensor", "winding", "magnet", "observer s"], rows)
+        lines += _table(["motor", "sensor", "winding", "magnet", "observer s"],
+                        [r for m in observed for r in _observer_rows(m)])
+    compared = [m for m in motors if isinstance(m.get("defaults"), dict) and "failed" not in m["defaults"]]
+    if compared:
+        lines += ["Each default of `bench identify` against its alternatives on the validation profiles (Hammerstein "
+                  "winding / magnet MSE K²; the default first):", ""]
+        lines += _table(["default", *(m["motor"] for m in compared)], _default_rows(compared))
     return lines
+
+
+def _suite_rows(motor: dict) -> list[list[str]]:
+    rows = []
+    for row in motor["priors"]:
+        if "failed" in row:
+            rows.append([motor["motor"], row["prior"], "failed", _sentence(row["failed"])[:80], "", "", "", "", ""])
+            continue
+        for kind in ("hammerstein", "lti-lptn"):
+            test = row["test"].get(kind, {})
+            ham = kind == "hammerstein"
+            rows.append([motor["motor"], row["prior"], kind, *(_mse_max(test.get(node)) for node, _ in SUITE_NODES),
+                         (", ".join(row["hammerstein_worse_on_validation"]) or "–") if ham else "",
+                         _n(row["identify_s"]) if ham else ""])
+    return rows
+
+
+def _observer_rows(motor: dict) -> list[list[str]]:
+    rows = []
+    for run in motor["observer"]:
+        if "failed" in run:
+            rows.append([motor["motor"], "failed", _sentence(run["failed"])[:80], "", ""])
+            continue
+        cells = []
+        for node, _ in SUITE_NODES[:2]:
+            fig = (run.get("pooled") or {}).get(node) or {}
+            cells.append("–" if not fig else f"{fig['open_loop_mse_K2']:.2f} → {fig['observer_mse_K2']:.2f}")
+        rows.append([motor["motor"], run["how"], *cells, _n(run["observer_s"])])
+    return rows
+
+
+def _default_rows(motors: list[dict]) -> list[list[str]]:
+    def cell(figures: dict | None) -> str:
+        ham = (figures or {}).get("hammerstein")
+        return "–" if not ham else f"{ham['winding']:.2f} / {ham['pm']:.2f}"
+
+    rows = []
+    for name in motors[0]["defaults"]:
+        first = motors[0]["defaults"][name]
+        rows.append([f"{name}: default", *(cell(m["defaults"].get(name, {}).get("default")) for m in motors)])
+        for alt in first["alternatives"]:
+            rows.append([f"{name}: {alt}",
+                         *(cell(m["defaults"].get(name, {}).get("alternatives", {}).get(alt)) for m in motors)])
+    return rows
 
 
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.

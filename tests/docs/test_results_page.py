@@ -90,3 +90,31 @@ def test_the_observer_tables_come_from_the_record_and_change_with_it():
     missing = "Not measured yet: `python tests/benchmarks/bench_observer.py`"
     assert missing in results_page.render_observer_ipm({"observer": [changed]})
     assert missing in results_page.render_observer({})
+
+
+def _suite_record(data_record: dict) -> dict:
+    """A suite record around data_record's provenance: one motor, one prior, one failed prior, the observer, a
+    default against its alternative."""
+    fig = {n: {"mse_K2": 1.25, "max_K": 3.5} for n in ("winding", "pm", "yoke", "tooth")}
+    row = {"prior": "designer", "identify_s": 140.0, "test": {"hammerstein": fig, "lti-lptn": fig},
+           "hammerstein_worse_on_validation": ["pm"]}
+    observer = {"how": "estimated", "observer_s": 12.0,
+                "pooled": {"winding": {"open_loop_mse_K2": 2.5, "observer_mse_K2": 0.4},
+                           "pm": {"open_loop_mse_K2": 1.0, "observer_mse_K2": 0.9}}}
+    defaults = {"regularization": {"prior": "designer", "default": {"hammerstein": {"winding": 0.5, "pm": 0.6}},
+                                   "alternatives": {"fixed": {"hammerstein": {"winding": 0.7, "pm": 0.8}}}}}
+    motor = {"motor": "air-30kw", "priors": [{"prior": "auto", "failed": "bench identify failed (1): boom"}, row],
+             "observer": [observer], "defaults": defaults}
+    return {**copy.deepcopy(data_record), "benchmark": "suite", "figures": {"motors": [motor], "complete": False}}
+
+
+def test_the_suite_section_shows_each_motor_prior_observer_and_default(data_record):
+    page = results_page.render_results({"suite": [_suite_record(data_record)]})
+    section = page[page.index("## The motor suite"):]
+    cells = " | ".join(["1.25 / 3.50"] * 4)
+    assert f"| air-30kw | designer | hammerstein | {cells} | pm | 140 |" in section
+    assert "| air-30kw | auto | failed | Bench identify failed (1): boom |" in section
+    assert "| air-30kw | estimated | 2.50 → 0.40 | 1.00 → 0.90 | 12 |" in section
+    assert "| regularization: default | 0.50 / 0.60 |" in section
+    assert "| regularization: fixed | 0.70 / 0.80 |" in section
+    assert "This record is partial" in section
