@@ -119,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
                           lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
+                          standard_errors=files,
                           adapt=adapt, progress=progress)
     finally:
         if progress is not None:

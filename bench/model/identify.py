@@ -81,19 +81,26 @@ def prepare_runs(datasets, loss_model: LossModel, motor: EstimatorMotor, dt: flo
     return [model_run(d, loss_model, motor, dt, name=str(d.path)) for d in datasets]
 
 
+def _standard_errors(lptn, runs, dt: float) -> dict:
+    """The LPTN parameters' standard errors at the fit's result (bench.model.polish.uncertainty)."""
+    return uncertainty(runs, dt, lptn.nodes, log_scaled(lptn.bounds), to_search(
+        np.array(lptn.params.as_vector()), log_scaled(lptn.bounds)), lptn.bounds)
+
+
 def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_size: int = 220,
              pso_iterations: int = 100, lm_iterations: int = 100, seed: int = 0, fit_path: str = "statespace",
              motor: MotorDescription | None = None, prior: ThermalPrior | None = None,
              width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
-             regularization: str = "fixed", adapt: bool = False,
+             regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
              progress: Callable[[str, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
     the built-in virtual motor). The prior and bounds: `prior`, else the motor's thermal_prior, else Table 1 at
     0.6-1.6; an `auto` prior is read from the training data (bench.model.auto_prior); `adapt` scales a given
     prior to the training data first (bench.model.prior_scales); `width` overrides the prior's bounds.
-    `validation` datasets are only recorded in the provenance. The defaults (no polish, fixed ridge, no
-    adaptation) are the packaged model's path."""
+    `validation` datasets are only recorded in the provenance. `standard_errors` computes the parameters' standard
+    errors (`uncertainty`) without a polish too, at the swarm's result (a polish always does). The defaults (no
+    polish, fixed ridge, no adaptation, no standard errors) are the packaged model's path."""
     if discretization != "zoh":
         raise ValueError("identification discretizes by zero-order hold, as the paper's Hammerstein fit did")
     if regularization not in REGULARIZATIONS:
@@ -129,9 +136,12 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start)
         if progress:
             progress("polish", 1, lptn.cost)
-        errors = uncertainty(runs, dt, lptn.nodes, log_scaled(lptn.bounds), to_search(
-            np.array(lptn.params.as_vector()), log_scaled(lptn.bounds)), lptn.bounds)
+        errors = _standard_errors(lptn, runs, dt)
         timings["polish"] = time.perf_counter() - started
+    elif standard_errors:
+        started = time.perf_counter()
+        errors = _standard_errors(lptn, runs, dt)
+        timings["standard_errors"] = time.perf_counter() - started
     started = time.perf_counter()
     base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", motor.loss_model,
                                     constants))
@@ -174,6 +184,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
                                 "cost": polished.cost, "swarm_cost": polished.swarm_cost,
                                 "prior": polished.prior.record() if polished.prior else None,
                                 "frozen": list(polished.frozen)}
+    if errors is not None:
         provenance["uncertainty"] = errors
     if selection is not None:
         provenance["lm"]["regularization"] = selection

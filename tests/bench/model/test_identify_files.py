@@ -209,3 +209,17 @@ def test_the_summary_names_what_the_data_cannot_determine_or_check(motor_files, 
     sentence = next(w for w in warnings if w.startswith("the training data do not determine"))
     assert f"  {sentence}\n" in out       # the summary says it too, by default
     assert "on the magnet side C_m, " in sentence and "where the magnet estimate rests on the prior" in sentence
+
+
+def test_without_a_polish_the_files_path_still_names_what_the_data_cannot_determine(motor_files, tmp_path, capsys):
+    """--polish 0 on --train files: the standard errors are taken at the swarm's result, so the summary and --json
+    still name the undetermined parameters (the built-in campaign's path computes none: its artifact keeps its
+    bytes)."""
+    assert main(["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+                 "--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_02.csv"),
+                 "--swarm", "4", "--iterations", "1", "--lm-iterations", "1", "--polish", "0",
+                 "--regularization", "fixed", "--out", str(tmp_path / "m.json"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["polish"] is None
+    assert summary["uncertainty"]["unidentifiable"] and summary["undetermined"]["parameters"]
+    assert "standard_errors" in summary["timings_s"]
