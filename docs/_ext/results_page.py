@@ -763,10 +763,24 @@ def _mse_max(figures: dict | None) -> str:
     return "–" if not figures else f"{figures['mse_K2']:.2f} / {figures['max_K']:.2f}"
 
 
-@single_record("suite", "The motor suite")
-def section_suite(record: Record) -> list[str]:
-    """Every suite motor: identification from each prior on its test profiles (never chosen on), the observer, and
-    each default against its alternatives on the validation profiles."""
+def section_suite(records: dict[str, list[Record]]) -> list[str]:
+    """The suite's records: the table of the defaults as they are (the record without a variant) and the defaults'
+    comparison (`bench_suite.py --defaults`, variant "defaults"), each with its provenance."""
+    found = {r.get("variant"): r for r in records.get("suite", [])}
+    lines = ["## The motor suite", ""]
+    if not found:
+        return lines + _missing("suite")
+    main = found.get(None) or next(iter(found.values()))
+    lines += [provenance(main), "", *suite_tables(main)]
+    compared = found.get("defaults")
+    if compared is not None:
+        lines += ["Each default against its alternatives (`python tests/benchmarks/bench_suite.py --defaults`):", "",
+                  provenance(compared), "", *suite_defaults(compared)]
+    return lines
+
+
+def suite_tables(record: Record) -> list[str]:
+    """Every suite motor: identification from each prior on its test profiles (never chosen on), and the observer."""
     goal = "goal: winding and magnet MSE ≤ 2.0 K² and max ≤ 4.7 K, Hammerstein, designer's and auto prior"
     lines = ["Each motor of `examples/suite/` identified with `bench identify --all-kinds --bounds 0.1,10` on its "
              "training profiles and evaluated on its test profiles (pooled, float32, MSE K² / max K; "
@@ -784,12 +798,42 @@ def section_suite(record: Record) -> list[str]:
                   "open loop → observer, MSE K²:", ""]
         lines += _table(["motor", "sensor", "winding", "magnet", "observer s"],
                         [r for m in observed for r in _observer_rows(m)])
-    compared = [m for m in motors if isinstance(m.get("defaults"), dict) and "failed" not in m["defaults"]]
-    if compared:
-        lines += ["Each default of `bench identify` against its alternatives on the validation profiles (Hammerstein "
-                  "winding / magnet MSE K²; the default first):", ""]
-        lines += _table(["default", *(m["motor"] for m in compared)], _default_rows(compared))
     return lines
+
+
+def suite_defaults(record: Record) -> list[str]:
+    """Each default of `bench identify` and `bench observer` against its alternatives on the validation profiles."""
+    motors = record["figures"]["motors"]
+    compared = [m for m in motors if isinstance(m.get("defaults"), dict) and "failed" not in m["defaults"]]
+    lines = []
+    if compared:
+        lines += ["`bench identify` (Hammerstein winding / magnet MSE K² on the validation profiles; the default as "
+                  "it was when measured first):", ""]
+        lines += _table(["setting", *(m["motor"] for m in compared)], _default_rows(compared))
+    observed = [m for m in motors if isinstance(m.get("observer_defaults"), dict)
+                and "failed" not in m["observer_defaults"]]
+    if observed:
+        lines += ["`bench observer` on the designer's Hammerstein model, the end-winding NTC estimated (winding / "
+                  "magnet MSE K² on the validation profiles, open loop first):", ""]
+        lines += _table(["setting", *(m["motor"] for m in observed)], _observer_default_rows(observed))
+    return lines
+
+
+def _observer_default_rows(motors: list[dict]) -> list[list[str]]:
+    def cell(scores: dict | None, side: str) -> str:
+        w, m = (scores or {}).get("winding"), (scores or {}).get("pm")
+        return "–" if not (w and m) else f"{w[side + '_mse_K2']:.2f} / {m[side + '_mse_K2']:.2f}"
+
+    first = motors[0]["observer_defaults"]
+    name, setting = next(iter(first.items()))
+    rows = [["open loop", *(cell(m["observer_defaults"][name]["scores"][setting["default"]], "open_loop")
+                            for m in motors)]]
+    for name, setting in first.items():
+        for alt in setting["scores"]:
+            mark = " (default)" if alt == setting["default"] else ""
+            rows.append([f"{name}: {alt}{mark}", *(cell(m["observer_defaults"].get(name, {}).get("scores", {})
+                                                        .get(alt), "observer") for m in motors)])
+    return rows
 
 
 def _suite_rows(motor: dict) -> list[list[str]]:

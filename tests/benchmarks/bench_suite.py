@@ -232,7 +232,8 @@ def main() -> int:
         parser.error(f"no suite motor named {args.motors} under {SUITE}")
     record = Record("suite", args, parameters={"motors": [m.name for m in motors], "priors": args.priors,
                                                "bounds": BOUNDS, "observer": not args.skip_observer,
-                                               "defaults": args.defaults})
+                                               "defaults": args.defaults},
+                    variant="defaults" if args.defaults else None)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     record.figures.update(motors=[], complete=False)
     with tempfile.TemporaryDirectory(prefix="bench-suite-") as tmp:

@@ -103,13 +103,21 @@ def _suite_record(data_record: dict) -> dict:
                            "pm": {"open_loop_mse_K2": 1.0, "observer_mse_K2": 0.9}}}
     defaults = {"regularization": {"prior": "designer", "default": {"hammerstein": {"winding": 0.5, "pm": 0.6}},
                                    "alternatives": {"fixed": {"hammerstein": {"winding": 0.7, "pm": 0.8}}}}}
+    scores = {"winding": {"open_loop_mse_K2": 9.0, "observer_mse_K2": 0.5},
+              "pm": {"open_loop_mse_K2": 4.0, "observer_mse_K2": 3.0}}
     motor = {"motor": "air-30kw", "priors": [{"prior": "auto", "failed": "bench identify failed (1): boom"}, row],
-             "observer": [observer], "defaults": defaults}
-    return {**copy.deepcopy(data_record), "benchmark": "suite", "figures": {"motors": [motor], "complete": False}}
+             "observer": [observer]}
+    main = {**copy.deepcopy(data_record), "benchmark": "suite", "variant": None,
+            "figures": {"motors": [motor], "complete": False}}
+    compared = {**motor, "defaults": defaults,
+                "observer_defaults": {"bias": {"default": "off", "scores": {"off": scores, "on": scores}}}}
+    variant = {**copy.deepcopy(data_record), "benchmark": "suite", "variant": "defaults",
+               "figures": {"motors": [compared], "complete": True}}
+    return [variant, main]
 
 
 def test_the_suite_section_shows_each_motor_prior_observer_and_default(data_record):
-    page = results_page.render_results({"suite": [_suite_record(data_record)]})
+    page = results_page.render_results({"suite": _suite_record(data_record)})
     section = page[page.index("## The motor suite"):]
     cells = " | ".join(["1.25 / 3.50"] * 4)
     assert f"| air-30kw | designer | hammerstein | {cells} | pm | 140 |" in section
@@ -118,3 +126,4 @@ def test_the_suite_section_shows_each_motor_prior_observer_and_default(data_reco
     assert "| regularization: default | 0.50 / 0.60 |" in section
     assert "| regularization: fixed | 0.70 / 0.80 |" in section
     assert "This record is partial" in section
+    assert "| open loop | 9.00 / 4.00 |" in section and "| bias: off (default) | 0.50 / 3.00 |" in section

@@ -64,7 +64,7 @@ def identified(motor_files, tmp_path_factory):
     buffer = io.StringIO()
     capture.setattr(sys, "stdout", buffer)
     try:
-        assert _identify(motor_files, out) == 0
+        assert _identify(motor_files, out, "--polish", "2") == 0    # the polish route, asked for
     finally:
         capture.undo()
     return out, json.loads(buffer.getvalue())
@@ -83,7 +83,7 @@ def test_identify_on_files_records_the_motor_and_the_split(identified, motor_fil
     assert prov["pso"]["prior"] == "auto" and prov["pso"]["bounds"] == [0.1, 10.0]
     auto = prov["pso"]["auto_prior"]
     assert set(auto["responses"]) == {"winding", "pm"} and auto["responses"]["winding"]["gain_stator_K_per_W"] > 0
-    # the files route polishes, gives error bars and cross-validates the Hammerstein ridge by default
+    # asked to, the files route polishes; it gives error bars and cross-validates the Hammerstein ridge by default
     assert prov["polish"]["starts"] >= 1 and prov["polish"]["cost"] <= prov["polish"]["swarm_cost"]
     assert summary["pso_stalled_at"] is None and len(summary["pso_history"]) == 2     # 2 iterations: no stall yet
     names = prov["uncertainty"]["names"]
