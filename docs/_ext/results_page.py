@@ -971,6 +971,18 @@ def render_headline(records: dict[str, list[Record]] | None = None) -> str:
         if ham:
             rows.append(["your own motor: 60 kW IPM example, held-out profiles (winding / PM RMSE)",
                          f"Hammerstein {_winding_pm(ham)}", "[your own motor](docs/tutorials/own-motor.md)"])
+    suite = next((r for r in records.get("suite", []) if r.get("variant") is None), None)
+    if suite:
+        cells = []
+        for motor in suite["figures"]["motors"]:
+            row = next((r for r in motor["priors"] if r.get("prior") == "designer" and "test" in r), None)
+            if row:
+                ham = row["test"]["hammerstein"]
+                cells.append(f"{motor['motor']} {ham['winding']['mse_K2']:.1f} / {ham['pm']['mse_K2']:.1f}")
+        if cells:
+            rows.append(["motors the model cannot be: the suite's test profiles, Hammerstein from the designer's "
+                         "prior (winding / magnet MSE K², goal ≤ 2.0)", ", ".join(cells),
+                         "[suite](docs/results.md#the-motor-suite)"])
     dates = sorted(_date(r) for rs in records.values() for r in rs)
     machines = sorted({f"{r['machine']['cpu']}, {r['machine']['cpus']} CPUs" for rs in records.values() for r in rs})
     when = dates[0] if dates and dates[0] == dates[-1] else f"{dates[0]} to {dates[-1]}" if dates else ""
