@@ -65,7 +65,8 @@ from target_sim.artifact import (
 from target_sim.kinds import MODEL_KINDS
 from target_sim.network import COOLANT_REFERENCE_C
 
-# 1-σ of the initial state (°C): yoke and tooth start at the coolant temperature, the winding as measured, the
+# 1-σ of the initial state (°C): yoke and tooth start as the initial-state rule puts them (bench.model.runs: as
+# measured, else at the coolant temperature), the winding as measured, the
 # magnet as the host guesses it (the key-on problem: nobody measured it after a short stop)
 INITIAL_SIGMA_C = {"yoke": 5.0, "winding": 2.0, "tooth": 5.0, "magnet": 15.0}
 # the covariance form the target runs unless told otherwise (chosen from `bench numerics --observer`)

@@ -43,9 +43,14 @@ def drive_matrix(dataset, columns: tuple[str, ...] = DRIVE_SIGNALS) -> np.ndarra
 
 
 def initial_temperatures(dataset) -> np.ndarray:
-    """The initial-state rule: yoke and tooth at the first coolant sample, winding and PM as first measured."""
+    """The initial-state rule: every node as first measured; yoke and tooth, where the file does not measure them,
+    at the first coolant sample (a machine soaked at its coolant). A file that measures them is a test bench's, and
+    a hot start there (soaked at 70 °C, coolant 30 °C) would otherwise begin 40 K off in both (the motor suite's
+    test profile p11). The built-in campaign measures neither: its runs start as before."""
     coolant = float(dataset.coolant_C[0])
-    return np.array([coolant, float(dataset.winding_C[0]), coolant, float(dataset.pm_C[0])])
+    yoke = float(dataset.yoke_C[0]) if dataset.has("yoke_C") else coolant
+    tooth = float(dataset.tooth_C[0]) if dataset.has("tooth_C") else coolant
+    return np.array([yoke, float(dataset.winding_C[0]), tooth, float(dataset.pm_C[0])])
 
 
 def step_inputs(drive: np.ndarray, loss_model: LossModel, motor: EstimatorMotor, dt: float,
