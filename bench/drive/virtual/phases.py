@@ -22,7 +22,7 @@ from bench.drive.cycles import CHECKS as CYCLE_CHECKS
 from bench.drive.cycles import KMH_PER_MPS, load_trace
 from bench.drive.vehicle import motor_speed_rpm
 from bench.drive.virtual.profiles import Phase
-from bench.motor.check import Checker
+from bench.motor.check import Checker, is_number
 
 COMMON = ("kind", "coolant_C")
 # random_steps: holds are drawn in whole multiples of this (the profile stays a whole number of samples)
@@ -134,8 +134,7 @@ def _steps_phase(spec: dict, coolant, ramp: float, points: tuple) -> Phase:
 
 
 def _range(c: Checker, key: str, value, low: float, high: float) -> tuple[float, float]:
-    ok = (isinstance(value, list) and len(value) == 2
-          and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value))
+    ok = isinstance(value, list) and len(value) == 2 and all(is_number(v) for v in value)
     if not ok or not low <= value[0] <= value[1] <= high:
         c.fail(key, f"must be [low, high] with {low:g} <= low <= high <= {high:g}, not {value!r}")
     return float(value[0]), float(value[1])
