@@ -73,10 +73,10 @@ def test_the_results_section_shows_each_run_and_the_verdict():
 
 @pytest.mark.slow
 def test_a_small_sweep_run_gives_its_figures_and_the_logs_evidence(flux_observer_artifact, tmp_path):
-    """One real `bench run` with the NTC + flux observer and a 1 ms deadline: its misses are late replies, and the
-    log shows each answered once per send."""
+    """One real `bench run` with the NTC + flux observer and a 0.2 ms deadline: its misses are late replies, and the
+    log shows each answered once per send. (1 ms was met by every row on an idle CI machine: 0 late replies.)"""
     artifact, data = flux_observer_artifact
-    args = argparse.Namespace(rows=60, rate=0.03, count=1, seed=3, reply_timeout=0.001)
+    args = argparse.Namespace(rows=60, rate=0.03, count=1, seed=3, reply_timeout=0.0002)
     run = sweep.run_one("python", "drop", {"model": artifact, "data": data}, tmp_path, args)
     assert run["exit"] == 0, run
     assert run["injected"]["drop"] == run["detected"]["drop"] > 0 and run["rows"] == 60
