@@ -175,7 +175,7 @@ def pooled_observer(per_file: list[dict], index: dict) -> dict:
 DEFAULTS = {
     "adapt-prior": ("table1", (), {"no": ("--adapt-prior", "no")}),
     "regularization": ("designer", (), {"fixed": ("--regularization", "fixed")}),
-    "polish": ("designer", (), {"0": ("--polish", "0")}),
+    "polish": ("designer", (), {"2": ("--polish", "2")}),   # the default is 0 since the suite's first comparison
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
