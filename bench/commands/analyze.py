@@ -64,7 +64,7 @@ def add_subparser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.analysis.canmetrics import compute
+    from bench.analysis.canmetrics import compute, data_identity
     from bench.analysis.logdecode import decode_log
     from bench.analysis.report import check_report_dir, write_report
     from bench.analysis.results import LogSummary
@@ -97,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
                              "from; pass that one, or leave --data out to compare with the model only")
     else:
         dataset = matching_dataset(record.drive, artifact)
+    acceptor.check_data(data_identity(dataset, record.rows), f"log {args.log}")   # before the figures are computed
     try:
         results, refs = compute(record, artifact, dataset)
     except ValueError as exc:     # e.g. an electrical loss model and a log without the d/q currents

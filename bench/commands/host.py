@@ -42,6 +42,7 @@ from pathlib import Path
 
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
 from bench.acceptance.junit import CleanCase
+from bench.analysis.results import DataIdentity
 from bench.commands.args import add_listener_argument, announce_logger, positive_float, positive_int
 from bench.commands.common import (
     SHOWN_NODES,
@@ -128,6 +129,7 @@ def run_host(args: argparse.Namespace) -> int:
     if args.rows is not None:
         drive = drive[: args.rows]
         measurements = None if measurements is None else measurements[: args.rows]
+    acceptor.check_data(DataIdentity(len(drive), dataset.rows_sha256(len(drive))), f"this run of {dataset.path}")
     from bench.model.runs import initial_temperatures
 
     clear_and_say(log_path, args.quiet or args.json)   # what a killed host left beside this log
