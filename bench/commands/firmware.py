@@ -283,7 +283,10 @@ def run_timing(args: argparse.Namespace) -> int:
     from bench.model.runs import initial_temperatures
     from bench.run_inputs import drive_for, load_data
     from target_sim.firmware import read_elf
+    from target_sim.firmware.motor_control import isr_rate_problem
 
+    if problem := isr_rate_problem(args.isr_rate):   # before the build: what the arguments alone refuse
+        raise UsageError(problem)
     path, artifact = _load(args.model)
     check_writable(args.out, "--out", directory=True)
     elf = firmware_for(artifact, args.out, quiet=args.quiet or args.json, isr=True)
