@@ -2,7 +2,9 @@
 
 Two ways to name the data: the built-in motor's campaign (`--data DIR` with cycle_coolant20/40/60.csv, trained
 on 20 and 60 °C, validated on 40 °C), or any motor's own files (`--motor FILE --train FILES… --validate FILES…`,
-each file its own run from its own initial state, globs allowed, read through `--mapping`).
+each file its own run from its own initial state, globs allowed, read through `--mapping`). With --train files
+the kind written to --out is the one the validation files favour (`--kind auto`, bench.model.deploy), the others
+beside it; the built-in campaign writes the Hammerstein model, as packaged.
 """
 
 from __future__ import annotations
@@ -48,7 +50,8 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--train", nargs="+", default=None, metavar="FILE",
                    help="training data files or globs (each file its own run)")
     p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
-                   help="validation data files or globs (held out: used only for the reported figures)")
+                   help="validation data files or globs (held out from the fit: the reported figures, and with "
+                        "--kind auto the choice of the deployed kind)")
     add_data_arguments(p)
     p.add_argument("--bounds", default=None, metavar="LOW,HIGH",
                    help="search capacitances and resistances within LOW..HIGH × the prior (default: the prior's "
