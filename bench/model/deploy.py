@@ -2,8 +2,8 @@
 
 The rule: the kind whose winding + magnet float32 MSE, pooled over all validation files (the sum of the two nodes'
 MSEs, as the target runs the model), is the smallest; a kind within `TIE_RELATIVE` of that smallest score ties with
-it, and a tie goes to the simpler kind (`CANDIDATES`, simplest first). The three candidates share one network fit,
-so choosing among them costs their validation runs only.
+it, and a tie goes to the simpler kind (`CANDIDATES`, simplest first, as the kinds' own flags say). The candidates
+share one network fit, so choosing among them costs their validation runs only.
 """
 
 from __future__ import annotations
@@ -11,11 +11,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from target_sim.kinds import MODEL_KINDS
+
 AUTO = "auto"
-# Simplest first: the LTI network and the parameter-varying one have the same 22 fitted parameters (the LTI one
-# is also time-invariant, a fixed linear step); the Hammerstein model adds the sigmoids and the refitted loss
-# columns on top of that network.
-CANDIDATES = ("lti-lptn", "pv-lptn", "hammerstein")
+
+
+def _simplicity(kind: str) -> tuple[bool, bool]:
+    """Fitted input nonlinearity last (the sigmoids and refitted loss columns on top of the network), then a
+    network rebuilt every step after a fixed linear step (the same 22 fitted parameters, time-varying)."""
+    return MODEL_KINDS[kind].input_nonlinearity, not MODEL_KINDS[kind].linear_block
+
+
+# every model kind, simplest first (lti-lptn, pv-lptn, hammerstein)
+CANDIDATES = tuple(sorted(MODEL_KINDS.names(), key=_simplicity))
 DEPLOYED_NODES = ("winding", "pm")      # the outputs a model is deployed for
 # Scores this close are one score: below what the float32 estimates can tell apart (float32 resolves 6e-8).
 TIE_RELATIVE = 1e-6
