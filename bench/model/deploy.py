@@ -25,7 +25,8 @@ def _simplicity(kind: str) -> tuple[bool, bool]:
 # every model kind, simplest first (lti-lptn, pv-lptn, hammerstein)
 CANDIDATES = tuple(sorted(MODEL_KINDS.names(), key=_simplicity))
 DEPLOYED_NODES = ("winding", "pm")      # the outputs a model is deployed for
-# Scores this close are one score: below what the float32 estimates can tell apart (float32 resolves 6e-8).
+# Scores this close are one score: a difference that small is the float32 estimates' rounding (6e-8 relative per
+# value), not evidence for the more complex kind (a chosen margin, not a measured one).
 TIE_RELATIVE = 1e-6
 RULE = ("the smallest winding + magnet float32 MSE pooled over the validation files; a kind within "
         f"{TIE_RELATIVE:g} (relative) of it ties, and a tie goes to the simpler kind ({', '.join(CANDIDATES)}, "
