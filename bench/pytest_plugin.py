@@ -51,6 +51,7 @@ from typing import Any
 import pytest
 
 from bench.errors import BenchError
+from dbc.files import same_file
 
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
@@ -159,6 +160,10 @@ def _bus_kwargs(items: list[str]) -> dict[str, Any]:
 
 def config_of(options) -> BenchConfig:
     """The BenchConfig of pytest's options (`config.option`): the command line over the profile."""
+    if options.bench_profile and options.bench_out and same_file(options.bench_profile, options.bench_out):
+        raise pytest.UsageError(f"--bench-out {options.bench_out} is the same file as --bench-profile "
+                                f"{options.bench_profile} (the profile would be overwritten); choose another "
+                                "--bench-out directory")
     profile = load_profile(Path(options.bench_profile)) if options.bench_profile else {}
     target, bus, run = profile.get("target", {}), profile.get("bus", {}), profile.get("run", {})
     interface = options.bench_interface or bus.get("interface")

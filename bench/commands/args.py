@@ -1,17 +1,23 @@
 """Argument types and bus options the subcommands share (as python-can's command-line tools share one module).
 
 argparse types raise `UsageError` (one sentence, exit status 2); `bus_from_args` turns the bus options
-(`dbc.transport.add_bus_arguments`) into the bus of a run.
+(`dbc.transport.add_bus_arguments`) into the bus of a run. Every subcommand declares which of its path options it
+reads and which it writes (`declare_files`); `check_files` refuses, before any work, an output that names an input
+or another output (`bench.cli` calls it for every command, and a test holds every path option to a declaration).
 """
 
 from __future__ import annotations
 
 import argparse
+import glob
 import sys
 import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 
 from bench.errors import UsageError
 from dbc.database import contract
+from dbc.files import same_file
 from dbc.transport import BusConfig, config_from_args, logger_command, resolve
 
 
@@ -78,3 +84,96 @@ def announce_logger(bus: BusConfig, quiet: bool, prefix: str = "bench: ", wait_s
         print(f"{prefix}waiting {wait_s:g} s for a listener (e.g. the logger line above) before anything is sent "
               "on the bus", file=sys.stderr, flush=True)
         time.sleep(wait_s)
+
+
+# ---------------------------------------------------------------- inputs and outputs of a command
+
+FILES_DEFAULT = "_bench_files"   # the parser default (namespace attribute) holding a command's FileRoles
+
+# Options that shared helpers add with one role in every command that has them: --mapping
+# (`common.add_data_arguments`), --criteria, --baseline and --junit-xml (`bench.acceptance.cli`), --can-config
+# (`dbc.transport.add_bus_arguments`).
+SHARED_INPUTS = ("--mapping", "--criteria", "--baseline", "--can-config")
+SHARED_OUTPUTS = ("--junit-xml",)
+
+
+@dataclass(frozen=True)
+class FileOption:
+    """A path option as the user writes it (`--log`, or `LOG` for a positional) and where argparse keeps it."""
+
+    name: str
+    dest: str
+
+    @classmethod
+    def of(cls, spec: str | tuple[str, str]) -> FileOption:
+        """'--junit-xml' -> dest junit_xml, 'LOG' -> log, ('--log', 'new_log') as given."""
+        if isinstance(spec, tuple):
+            return cls(*spec)
+        return cls(spec, spec.lstrip("-").replace("-", "_").lower())
+
+
+@dataclass(frozen=True)
+class FileRoles:
+    """The path options of one command: those it reads and those it writes (files or directories)."""
+
+    inputs: tuple[FileOption, ...] = ()
+    outputs: tuple[FileOption, ...] = ()
+
+    @property
+    def dests(self) -> set[str]:
+        return {o.dest for o in (*self.inputs, *self.outputs)}
+
+
+def declare_files(parser: argparse.ArgumentParser, *, inputs: Iterable[str | tuple[str, str]] = (),
+                  outputs: Iterable[str | tuple[str, str]] = ()) -> None:
+    """Declare which path options of `parser`'s command it reads (`inputs`) and writes (`outputs`): each as the user
+    writes it ('--data', 'LOG' for a positional), or (name, dest) when argparse keeps it under another name. The
+    shared options (--mapping, --criteria, --baseline, --can-config in, --junit-xml out) are declared with them."""
+    parser.set_defaults(**{FILES_DEFAULT: FileRoles(
+        tuple(FileOption.of(s) for s in (*inputs, *SHARED_INPUTS)),
+        tuple(FileOption.of(s) for s in (*outputs, *SHARED_OUTPUTS)))})
+
+
+def declared_files(args_or_parser) -> FileRoles | None:
+    """The FileRoles a parser (or the namespace it made) declares; None for a command that declares none."""
+    if isinstance(args_or_parser, argparse.ArgumentParser):
+        return args_or_parser.get_default(FILES_DEFAULT)
+    return getattr(args_or_parser, FILES_DEFAULT, None)
+
+
+def _paths(value) -> Iterator[str]:
+    """The paths an option's value names: a path, a list of them (nargs, append), a glob's matches."""
+    if value is None or isinstance(value, bool):
+        return
+    if isinstance(value, list | tuple):
+        for item in value:
+            yield from _paths(item)
+        return
+    text = str(value)
+    if not text:
+        return
+    matches = glob.glob(text, recursive=True) if any(c in text for c in "*?[") else []
+    yield from (matches or [text])
+
+
+def check_files(args: argparse.Namespace) -> None:
+    """UsageError (one sentence, exit status 2) when an output of the command names one of its inputs or another
+    of its outputs: the same path, a symlink to it or a hard link of it. Called before any work."""
+    roles = declared_files(args)
+    if roles is None:
+        return
+    seen: list[tuple[FileOption, str, bool]] = []   # (option, path, is an output), in the order checked
+    for is_output, options in ((False, roles.inputs), (True, roles.outputs)):
+        for option in options:
+            for path in _paths(getattr(args, option.dest, None)):
+                for other, other_path, other_output in seen:
+                    if (is_output or other_output) and other.dest != option.dest and same_file(path, other_path):
+                        raise UsageError(_collision(option, path, other, other_path, other_output))
+                seen.append((option, path, is_output))
+
+
+def _collision(output: FileOption, path: str, other: FileOption, other_path: str, other_output: bool) -> str:
+    what = "another output of this command" if other_output else "an input of this command, which it would overwrite"
+    how = "" if path == other_path else " under another name (a symlink, a hard link or a relative path)"
+    return (f"{output.name} {path} is the same file as {other.name} {other_path}{how} ({what}); choose another "
+            f"{output.name}")

@@ -48,7 +48,7 @@ from bench.analysis.logdecode import BusRecord, decode_log
 from bench.analysis.results import Percentiles, Rejections, ReplayResults, ReplyComparison, RunResults
 from bench.analysis.rowfilter import RowSelection, kept_rows
 from bench.analysis.verdict import counts_text
-from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, positive_float
+from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, declare_files, positive_float
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.leftovers import clear_and_say
@@ -90,6 +90,7 @@ def add_subparser(subparsers) -> None:
     add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
+    declare_files(p, inputs=('LOG', '--model'), outputs=(('--log', 'new_log'),))
     p.set_defaults(func=run)
 
 
