@@ -37,6 +37,7 @@ import fcntl
 import hashlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -52,6 +53,7 @@ import pytest
 
 from bench.errors import BenchError
 from dbc.files import same_file
+from dbc.lifeline import child_environment
 
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
@@ -59,6 +61,7 @@ PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", 
                 "run": ("data", "model", "rows", "mode", "criteria", "baseline", "reply_timeout", "connect_timeout",
                         "timeout")}
 DEFAULT_TIMEOUT_S = 900.0
+STOP_GRACE_S = 20.0   # a bench told to stop (SIGTERM) stops its target (5 s at most) and exits; then SIGKILL
 # an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
 # default (15 s) is for a target known to run
 ATTACHED_CONNECT_TIMEOUT_S = 120.0
@@ -251,6 +254,64 @@ def _bus_turn(config: BenchConfig) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
+def run_bench(argv: list[str], timeout_s: float, log: Path) -> subprocess.CompletedProcess:
+    """`argv` (a `python -m bench ...`) to its end, output captured. The bench dies with this process
+    (`dbc.lifeline`: it gets SIGTERM when pytest is terminated or killed, and stops its target and removes its
+    partial log itself). On a timeout or an interruption (Ctrl-C, pytest stopping) it is stopped like a user would
+    (`stop_bench`); subprocess.TimeoutExpired then carries in `output` the sentence of how it was stopped."""
+    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=child_environment({**os.environ, "PYTHONUNBUFFERED": "1"}),
+                            start_new_session=True)   # its own process group: a kill reaches its target too
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise subprocess.TimeoutExpired(argv, timeout_s, output=stop_bench(proc, log)) from None
+    except BaseException:
+        stop_bench(proc, log)
+        raise
+    return subprocess.CompletedProcess(argv, proc.returncode, stdout, stderr)
+
+
+def stop_bench(proc: subprocess.Popen, log: Path, grace_s: float = STOP_GRACE_S) -> str:
+    """Stop a running bench: SIGTERM (it stops its target and removes its partial output), after `grace_s` SIGKILL
+    of its whole process group; then remove what a killed bench leaves (its partial `log`, its scratch directory)
+    once nothing of the group runs. How it stopped, as a sentence."""
+    how = "it was stopped with SIGTERM"
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        proc.communicate(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        how = f"it did not stop within {grace_s:g} s of SIGTERM and was killed (SIGKILL)"
+        _kill_group(proc.pid)
+        proc.communicate()
+    _kill_group(proc.pid)   # anything of the group left behind (its target, after a SIGKILL of the bench)
+    _wait_group_gone(proc.pid, grace_s)
+    from bench.leftovers import remove_stale_partials, remove_stale_scratch
+
+    remove_stale_partials(log)
+    remove_stale_scratch()
+    return how
+
+
+def _kill_group(pgid: int) -> None:
+    try:
+        os.killpg(pgid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _wait_group_gone(pgid: int, timeout_s: float) -> None:
+    """Until no process of group `pgid` exists (a zombie not yet reaped by its adopter counts, so bounded)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(pgid, 0)
+        except (ProcessLookupError, PermissionError):
+            return
+        time.sleep(0.05)
+
+
 def _one_sentence(stderr: str, status: int) -> str:
     lines = [line for line in stderr.splitlines() if line.startswith("bench") and "error" in line]
     last = lines[-1] if lines else (stderr.strip().splitlines() or [f"exit status {status}"])[-1]
@@ -319,11 +380,10 @@ class ThermalBench:
         limit = timeout or float(self.config.defaults.get("timeout", DEFAULT_TIMEOUT_S))
         with _bus_turn(self.config):
             try:
-                proc = subprocess.run(argv, capture_output=True, text=True, timeout=limit,
-                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
-            except subprocess.TimeoutExpired:
+                proc = run_bench(argv, limit, run_dir / "bench.blf")
+            except subprocess.TimeoutExpired as exc:
                 raise BenchRunError(f"the bench did not finish within {limit:g} s ({' '.join(argv[2:4])} on "
-                                    f"{self.config.describe()})", None) from None
+                                    f"{self.config.describe()}); {exc.output}", None) from None
         result = self._result(argv, proc, run_dir)
         self.runs.append(result)
         self._record_figures(result)

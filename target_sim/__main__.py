@@ -28,8 +28,6 @@ and journals each injection in the same file. See `target_sim.node` for the prot
 from __future__ import annotations
 
 import argparse
-import ctypes
-import ctypes.util
 import json
 import logging
 import os
@@ -40,6 +38,7 @@ from pathlib import Path
 
 from dbc.database import DbcError, contract
 from dbc.files import write_atomically
+from dbc.lifeline import tie_to_parent
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 from target_sim.artifact import load_artifact
 from target_sim.engines import ENGINES, make_node
@@ -82,7 +81,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-PR_SET_PDEATHSIG = 1      # <linux/prctl.h>
 PARENT_CHECK_S = 0.25     # how often the loop checks that the parent still lives
 
 
@@ -116,15 +114,10 @@ class EventJournal:
 
 
 def _tie_to_parent(parent: int) -> bool:
-    """Stop (SIGTERM) when the parent `parent` dies: the kernel's parent-death signal where there is one (Linux);
-    the serve loop also checks the parent id. False when `parent` is not (or no longer) this process's parent."""
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
-            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-        except (OSError, AttributeError):
-            pass   # the loop's check still stops it
-    return os.getppid() == parent   # after prctl: a parent that died before it was armed is seen here
+    """Stop (SIGTERM) when the parent `parent` dies: the kernel's parent-death signal where there is one (Linux,
+    `dbc.lifeline`); the serve loop checks the parent id itself (no watcher thread). False when `parent` is not (or no
+    longer) this process's parent."""
+    return tie_to_parent(parent, signal.SIGTERM, watch=False)
 
 
 def main(argv: list[str] | None = None) -> int:
