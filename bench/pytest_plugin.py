@@ -21,7 +21,10 @@ Where the target is:
 `python -m bench host` (an attached one) with --json in a subprocess and returns a `BenchRun`: the exit status and
 the `RunSummary` (`bench.analysis.results`), with the acceptance criteria when `criteria` or `baseline` is given.
 A run the bench refuses (exit status 2, or a target that could not be reached) raises `BenchRunError` with the
-bench's one sentence. The run's figures go into pytest's JUnit XML as properties of the test (`record_property`:
+bench's one sentence. The bench dies with the process that runs the test (`dbc.lifeline`: it gets SIGTERM when
+pytest is terminated or killed, a CI job cancelled, and stops its target and removes its partial log); a run past its
+`timeout` is stopped with SIGTERM, with SIGKILL of its process group only after `STOP_GRACE_S`, and what it left is
+removed (`stop_bench`). The run's figures go into pytest's JUnit XML as properties of the test (`record_property`:
 `bench_clean`, `bench_rmse_C_magnet`, `bench_cycles`, one `bench_criterion_NAME` per criterion, ...) with
 `-o junit_family=xunit1`; under pytest's default xunit2, whose schema has no properties in a testcase, as properties
 of the suite named `NODEID::bench_...`.

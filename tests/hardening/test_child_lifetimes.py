@@ -145,6 +145,7 @@ def test_timeout(thermal_bench, tmp_path):
 """
 
 
+@pytest.mark.slow
 def test_the_plugin_stops_a_run_past_its_timeout_with_sigterm_and_cleans_up(tmp_path, minute_data):
     """`thermal_bench.run(timeout=15)` on a one-minute run: BenchRunError saying it was stopped with SIGTERM (not
     killed), nothing in the run's directory; waits up to 30 s after pytest's end for no process of the run and no
