@@ -37,7 +37,7 @@ import time
 from pathlib import Path
 
 from dbc.database import DbcError, contract
-from dbc.files import write_atomically
+from dbc.files import same_file, write_atomically
 from dbc.lifeline import tie_to_parent
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 from target_sim.artifact import load_artifact
@@ -120,11 +120,31 @@ def _tie_to_parent(parent: int) -> bool:
     return tie_to_parent(parent, signal.SIGTERM, watch=False)
 
 
+OUTPUTS = ("stats", "events")
+INPUTS = ("model", "firmware", "can_config")
+
+
+def _output_collision(args: argparse.Namespace) -> str | None:
+    """The sentence for an output (--stats, --events) that names an input or the other output (`dbc.files.same_file`:
+    symlinks and hard links too); None when every one is its own file."""
+    named = [(dest, getattr(args, dest, None)) for dest in (*INPUTS, *OUTPUTS)]
+    named = [(dest, path) for dest, path in named if path]
+    for i, (dest, path) in enumerate(named):
+        for other, other_path in named[:i]:
+            if dest in OUTPUTS and same_file(path, other_path):
+                option, other_option = (f"--{d.replace('_', '-')}" for d in (dest, other))
+                return f"{option} {path} is the same file as {other_option} {other_path}; choose another {option}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     # python-can repeats a half-constructed bus's failure from __del__ ("not properly shut down") after our sentence.
     logging.getLogger("can").addHandler(logging.NullHandler())
     parser = build_parser()
     args = parser.parse_args(argv)
+    collision = _output_collision(args)
+    if collision:
+        parser.error(collision)
     if args.parent_pid is not None and not _tie_to_parent(args.parent_pid):   # first: a dying bench stops it now
         print(f"target_sim: error: process {args.parent_pid} (--parent-pid) is not the parent of this target (it has "
               "exited?); the target does not start", file=sys.stderr)

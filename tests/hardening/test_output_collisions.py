@@ -198,3 +198,36 @@ def test_the_walk_finds_an_undeclared_path_option(monkeypatch):
 
     assert undeclared(recorded_parsers(monkeypatch, build)) == ["bench new --out: not declared",
                                                                 "bench new --table: not declared"]
+
+
+def test_the_plugin_refuses_an_out_directory_that_is_its_profile(tmp_path):
+    """--bench-out naming the --bench-profile file (here through a symlink): pytest's usage error, one sentence."""
+    from types import SimpleNamespace
+
+    from bench.pytest_plugin import config_of
+
+    profile = tmp_path / "bench.toml"
+    profile.write_text('[target]\nengine = "python"\n')
+    (tmp_path / "out").symlink_to(profile)
+    options = SimpleNamespace(bench_profile=str(profile), bench_out=str(tmp_path / "out"), bench_interface=None,
+                              bench_engine=None, bench_channel=None, bench_bitrate=None, bench_bus_kwargs=[])
+    with pytest.raises(pytest.UsageError, match=r"--bench-out .*out is the same file as --bench-profile .*bench\.toml"):
+        config_of(options)
+    assert profile.read_text() == '[target]\nengine = "python"\n'
+
+
+@pytest.mark.parametrize("output", ["--stats", "--events"])
+def test_the_target_refuses_counters_written_over_its_model(capsys, tmp_path, output):
+    """`python -m target_sim --stats`/`--events` naming the model (a hard link of it): exit status 2, one sentence,
+    before the bus is opened."""
+    from target_sim.__main__ import main as target_main
+
+    model = tmp_path / "model.json"
+    model.write_text("{}")
+    os.link(model, tmp_path / "link.json")
+    with pytest.raises(SystemExit) as exited:
+        target_main(["--model", str(model), output, str(tmp_path / "link.json")])
+    assert exited.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"{output} {tmp_path / 'link.json'} is the same file as --model {model}" in err
+    assert model.read_text() == "{}"
