@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import os
 import sys
 import time
 from collections.abc import Iterable, Iterator
@@ -142,7 +143,8 @@ def declared_files(args_or_parser) -> FileRoles | None:
 
 
 def _paths(value) -> Iterator[str]:
-    """The paths an option's value names: a path, a list of them (nargs, append), a glob's matches."""
+    """The paths an option's value names: a path, a list of them (nargs, append), a glob's matches (an existing
+    file is itself even if its name has glob characters, as `bench.drive.files.expand_data_paths` takes it)."""
     if value is None or isinstance(value, bool):
         return
     if isinstance(value, list | tuple):
@@ -152,7 +154,8 @@ def _paths(value) -> Iterator[str]:
     text = str(value)
     if not text:
         return
-    matches = glob.glob(text, recursive=True) if any(c in text for c in "*?[") else []
+    globbed = any(c in text for c in "*?[") and not os.path.lexists(text)
+    matches = glob.glob(text, recursive=True) if globbed else []
     yield from (matches or [text])
 
 
