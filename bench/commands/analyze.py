@@ -61,7 +61,8 @@ def add_subparser(subparsers) -> None:
                    help="exit 0 for a log with injected faults if every one was detected and nothing else went wrong")
     add_output_flags(p)
     add_acceptance_arguments(p)
-    declare_files(p, inputs=('LOG', '--model', '--data'), outputs=('--report',))
+    declare_files(p, inputs=('LOG', '--model', '--data'), outputs=('--report',), replaced=('--report',),
+                  off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
 
 

@@ -15,6 +15,7 @@ import sys
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 from bench.errors import UsageError
 from dbc.database import contract
@@ -119,6 +120,8 @@ class FileRoles:
 
     inputs: tuple[FileOption, ...] = ()
     outputs: tuple[FileOption, ...] = ()
+    replaced: tuple[FileOption, ...] = ()   # outputs that are directories written whole (a report)
+    off_with: tuple[tuple[str, str], ...] = ()   # (dest of an output, dest of the flag with which it is not written)
 
     @property
     def dests(self) -> set[str]:
@@ -126,13 +129,19 @@ class FileRoles:
 
 
 def declare_files(parser: argparse.ArgumentParser, *, inputs: Iterable[str | tuple[str, str]] = (),
-                  outputs: Iterable[str | tuple[str, str]] = ()) -> None:
+                  outputs: Iterable[str | tuple[str, str]] = (), replaced: Iterable[str] = (),
+                  off_with: dict[str, str] | None = None) -> None:
     """Declare which path options of `parser`'s command it reads (`inputs`) and writes (`outputs`): each as the user
-    writes it ('--data', 'LOG' for a positional), or (name, dest) when argparse keeps it under another name. The
-    shared options (--mapping, --criteria, --baseline, --can-config in, --junit-xml out) are declared with them."""
+    writes it ('--data', 'LOG' for a positional), or (name, dest) when argparse keeps it under another name;
+    `replaced`: those of the outputs that are directories the command writes whole (`bench.fileio.
+    write_directory_atomically`), so no other file of the command may be inside; `off_with`: an output the command
+    does not write when a flag is given ({'--report': '--no-report'}). The shared options (--mapping,
+    --criteria, --baseline, --can-config in, --junit-xml out) are declared with them."""
+    outputs = tuple(FileOption.of(s) for s in (*outputs, *SHARED_OUTPUTS))
     parser.set_defaults(**{FILES_DEFAULT: FileRoles(
-        tuple(FileOption.of(s) for s in (*inputs, *SHARED_INPUTS)),
-        tuple(FileOption.of(s) for s in (*outputs, *SHARED_OUTPUTS)))})
+        tuple(FileOption.of(s) for s in (*inputs, *SHARED_INPUTS)), outputs,
+        tuple(o for o in outputs if o.name in tuple(replaced)),
+        tuple((FileOption.of(out).dest, FileOption.of(flag).dest) for out, flag in (off_with or {}).items()))})
 
 
 def declared_files(args_or_parser) -> FileRoles | None:
@@ -166,13 +175,26 @@ def check_files(args: argparse.Namespace) -> None:
     if roles is None:
         return
     seen: list[tuple[FileOption, str, bool]] = []   # (option, path, is an output), in the order checked
+    off = {dest for dest, flag in roles.off_with if getattr(args, flag, False)}
     for is_output, options in ((False, roles.inputs), (True, roles.outputs)):
         for option in options:
-            for path in _paths(getattr(args, option.dest, None)):
+            for path in _paths(None if option.dest in off else getattr(args, option.dest, None)):
                 for other, other_path, other_output in seen:
                     if (is_output or other_output) and other.dest != option.dest and same_file(path, other_path):
                         raise UsageError(_collision(option, path, other, other_path, other_output))
                 seen.append((option, path, is_output))
+    for directory in roles.replaced:
+        for path in _paths(None if directory.dest in off else getattr(args, directory.dest, None)):
+            for option, inner, _ in seen:
+                if option.dest != directory.dest and _inside(inner, path):
+                    raise UsageError(f"{option.name} {inner} is inside {directory.name} {path}, a directory this "
+                                     f"command writes whole (nothing else may be there); choose another "
+                                     f"{directory.name}")
+
+
+def _inside(path: str, directory: str) -> bool:
+    """`path` is below `directory`, symlinks resolved."""
+    return Path(os.path.realpath(directory)) in Path(os.path.realpath(path)).parents
 
 
 def _collision(output: FileOption, path: str, other: FileOption, other_path: str, other_output: bool) -> str:

@@ -121,7 +121,8 @@ def add_subparser(subparsers) -> None:
     add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
-    declare_files(p, inputs=('--data', '--model'), outputs=('--log', '--report'))
+    declare_files(p, inputs=('--data', '--model'), outputs=('--log', '--report'), replaced=('--report',),
+                  off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
 
 

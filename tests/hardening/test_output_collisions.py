@@ -231,3 +231,16 @@ def test_the_target_refuses_counters_written_over_its_model(capsys, tmp_path, ou
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert f"{output} {tmp_path / 'link.json'} is the same file as --model {model}" in err
     assert model.read_text() == "{}"
+
+
+def test_a_log_inside_the_report_directory_is_refused_unless_no_report(capsys, tmp_path, data):
+    """The report directory is written whole: a --log (or the analyzed LOG) inside it is refused before the run;
+    with --no-report there is no report, and the same paths run."""
+    report = tmp_path / "R"
+    refused(capsys, ["run", "--rows", "5", "--quiet", "-i", "udp_multicast", "--data", data, "--log",
+                     report / "bench.blf", "--report", report],
+            f"--log {report / 'bench.blf'} is inside --report {report}", "choose another --report")
+    assert not report.exists()
+    refused(capsys, ["analyze", report / "bench.blf", "--report", report], f"LOG {report / 'bench.blf'} is inside")
+    assert main([str(a) for a in (*RUN, "--data", data, "--log", report / "bench.blf", "--report", report)]) == 0
+    assert sorted(p.name for p in report.iterdir()) == ["bench.blf"]
