@@ -75,13 +75,14 @@ def minute_data(tmp_path_factory) -> Path:
                                    synthetic_columns(300, seed=4), "child lifetime tests")
 
 
-def start_session(case: Path, test_body: str) -> subprocess.Popen:
-    """pytest on one test using `thermal_bench` (the plugin from this tree), its --basetemp and TMPDIR in `case`."""
+def start_session(case: Path, test_body: str, *options: str) -> subprocess.Popen:
+    """pytest on one test using `thermal_bench` (the plugin from this tree), its --basetemp and TMPDIR in `case`;
+    without pytest-xdist unless `options` ask for its workers."""
     (case / "tmp").mkdir(parents=True)
     (case / "test_inner.py").write_text(textwrap.dedent(test_body))
     env = subprocess_env(can_settings=False, TMPDIR=str(case / "tmp"), OPENBLAS_NUM_THREADS="1")
-    argv = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist", "-p", "no:bench",
-            "-p", "bench.pytest_plugin", "--basetemp", str(case / "basetemp"), "test_inner.py"]
+    argv = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *(options or ("-p", "no:xdist")),
+            "-p", "no:bench", "-p", "bench.pytest_plugin", "--basetemp", str(case / "basetemp"), "test_inner.py"]
     return subprocess.Popen(argv, cwd=case, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
 
@@ -97,8 +98,16 @@ def running_run(case: Path, session: subprocess.Popen) -> dict[int, str]:
     assert wait_for(started, START_TIMEOUT_S), "the run did not start logging"
     time.sleep(1.0)
     procs = processes_of(str(case), exclude=(session.pid,))
-    assert any(" bench run " in argv for argv in procs.values()), procs
+    benches = [pid for pid, argv in procs.items() if " bench run " in argv]
+    assert benches, procs
+    parent = parent_of(benches[0])
+    if parent != session.pid:   # a pytest-xdist worker between pytest and the bench
+        procs[parent] = "the pytest-xdist worker"
     return procs
+
+
+def parent_of(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
 
 
 def kill_all(case: Path) -> None:
@@ -112,13 +121,16 @@ def test_minute(thermal_bench):
 """
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
-def test_a_terminated_or_killed_pytest_leaves_no_bench_target_or_partial_log(tmp_path, minute_data, signum):
+@pytest.mark.parametrize("signum, options", [(signal.SIGTERM, ()), (signal.SIGKILL, ()),
+                                             (signal.SIGTERM, ("-n", "1"))],
+                         ids=["SIGTERM", "SIGKILL", "SIGTERM to the xdist controller"])
+def test_a_terminated_or_killed_pytest_leaves_no_bench_target_or_partial_log(tmp_path, minute_data, signum, options):
     """pytest signalled (a CI job cancelled) while `thermal_bench.run()` goes: waits up to 30 s for the bench and its
-    target to have ended, and for the partial log and the scratch directories to be gone (the bench gets SIGTERM
-    when pytest dies, and stops as on any SIGTERM)."""
+    target (and the pytest-xdist worker running the test) to have ended, and for the partial log and the scratch
+    directories to be gone (the bench gets SIGTERM when its pytest dies, and stops as on any SIGTERM; a worker
+    whose controller is gone is interrupted by execnet, and the plugin stops its run with SIGTERM)."""
     case = tmp_path / "case"
-    session = start_session(case, MINUTE_RUN.format(data=str(minute_data)))
+    session = start_session(case, MINUTE_RUN.format(data=str(minute_data)), *options)
     try:
         procs = running_run(case, session)
         os.kill(session.pid, signum)
