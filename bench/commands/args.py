@@ -180,8 +180,8 @@ def check_files(args: argparse.Namespace) -> None:
         for option in options:
             for path in _paths(None if option.dest in off else getattr(args, option.dest, None)):
                 for other, other_path, other_output in seen:
-                    if (is_output or other_output) and other.dest != option.dest and same_file(path, other_path):
-                        raise UsageError(_collision(option, path, other, other_path, other_output))
+                    if (is_output or other_output) and other.dest != option.dest:
+                        refuse_same(option.name, path, other.name, other_path, other_is_output=other_output)
                 seen.append((option, path, is_output))
     for directory in roles.replaced:
         for path in _paths(None if directory.dest in off else getattr(args, directory.dest, None)):
@@ -197,8 +197,15 @@ def _inside(path: str, directory: str) -> bool:
     return Path(os.path.realpath(directory)) in Path(os.path.realpath(path)).parents
 
 
-def _collision(output: FileOption, path: str, other: FileOption, other_path: str, other_output: bool) -> str:
-    what = "another output of this command" if other_output else "an input of this command, which it would overwrite"
-    how = "" if path == other_path else " under another name (a symlink, a hard link or a relative path)"
-    return (f"{output.name} {path} is the same file as {other.name} {other_path}{how} ({what}); choose another "
-            f"{output.name}")
+def refuse_same(output: str, path: str | Path, other: str, other_path: str | Path, *,
+                other_is_output: bool = False) -> None:
+    """UsageError when the output `output` (its option as the user writes it) at `path` is the file `other` names
+    (`dbc.files.same_file`). `check_files` asks it of every pair of a command's options; a command that derives an
+    output's path (a default beside an input) asks it itself."""
+    if not same_file(path, other_path):
+        return
+    what = ("another output of this command" if other_is_output else
+            "an input of this command, which it would overwrite")
+    how = "" if str(path) == str(other_path) else " under another name (a symlink, a hard link or a relative path)"
+    raise UsageError(f"{output} {path} is the same file as {other} {other_path}{how} ({what}); choose another "
+                     f"{output}")

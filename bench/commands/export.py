@@ -159,8 +159,6 @@ def run(args: argparse.Namespace) -> int:
     path = check_log_path(args.log, for_reading=True)
     out = check_log_path(args.out)
     check_writable(out, "--out")
-    if out.exists() and out.resolve() == path.resolve():
-        raise UsageError(f"--out {out} is the log being exported; name another file")
     messages = list(read_log(path))
     period = source = None
     times = None

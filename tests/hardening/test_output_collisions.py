@@ -244,3 +244,15 @@ def test_a_log_inside_the_report_directory_is_refused_unless_no_report(capsys, t
     refused(capsys, ["analyze", report / "bench.blf", "--report", report], f"LOG {report / 'bench.blf'} is inside")
     assert main([str(a) for a in (*RUN, "--data", data, "--log", report / "bench.blf", "--report", report)]) == 0
     assert sorted(p.name for p in report.iterdir()) == ["bench.blf"]
+
+
+def test_replays_default_log_that_is_the_replayed_log_is_refused(capsys, tmp_path, monkeypatch):
+    """`bench replay x.blf` writes out/replay/x.replay.blf by default: a hard link of x.blf there is refused too
+    (the default is no option `bench.cli` sees; the command asks the same check, `refuse_same`)."""
+    monkeypatch.chdir(tmp_path)
+    log = tmp_path / "x.blf"
+    log.write_bytes(b"not read: refused before")
+    (tmp_path / "out" / "replay").mkdir(parents=True)
+    os.link(log, tmp_path / "out" / "replay" / "x.replay.blf")
+    refused(capsys, ["replay", "x.blf"], "--log out/replay/x.replay.blf is the same file as LOG x.blf")
+    assert log.read_bytes() == b"not read: refused before"
