@@ -170,7 +170,8 @@ def _paths(value) -> Iterator[str]:
 
 def check_files(args: argparse.Namespace) -> None:
     """UsageError (one sentence, exit status 2) when an output of the command names one of its inputs or another
-    of its outputs: the same path, a symlink to it or a hard link of it. Called before any work."""
+    of its outputs (the same path, a symlink to it or a hard link of it), or when a file of the command is inside a
+    directory it writes whole (`replaced`). `bench.cli` calls it for every command, before any work."""
     roles = declared_files(args)
     if roles is None:
         return
