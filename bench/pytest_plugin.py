@@ -36,6 +36,7 @@ workers (a file lock per bus): the target answers one host at a time.
 
 from __future__ import annotations
 
+import difflib
 import fcntl
 import hashlib
 import json
@@ -57,6 +58,7 @@ import pytest
 from bench.errors import BenchError
 from dbc.files import same_file
 from dbc.lifeline import child_environment
+from dbc.transport import bus_interfaces
 
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
@@ -151,7 +153,37 @@ def load_profile(path: Path) -> dict[str, Any]:
         value = out.get("run", {}).get(key)
         if isinstance(value, str) and not Path(value).is_absolute():
             out["run"][key] = str(path.parent / value)
+    problem = run_defaults_problem(out.get("run", {}))
+    if problem:   # at start, naming the profile: not a failure of every test at run time
+        raise pytest.UsageError(f"--bench-profile {path}: [run] {problem}")
     return out
+
+
+# the [run] keys' kinds: a positive whole number, a positive number, one of a few words, a file that must exist
+RUN_WHOLE, RUN_SECONDS, RUN_FILES = ("rows",), ("reply_timeout", "connect_timeout", "timeout"), (
+    "data", "model", "criteria", "baseline")
+
+
+def run_defaults_problem(run: dict[str, Any]) -> str | None:
+    """Why a profile's [run] table cannot make a run (one clause naming the key), or None."""
+    from host.run import MODES
+
+    for key in RUN_WHOLE:
+        value = run.get(key)
+        if value is not None and (type(value) is not int or value < 1):
+            return f"{key} = {value!r} must be a whole number of at least 1"
+    for key in RUN_SECONDS:
+        value = run.get(key)
+        if value is not None and (type(value) not in (int, float) or not value > 0):
+            return f"{key} = {value!r} must be a number of seconds above 0"
+    mode = run.get("mode")
+    if mode is not None and mode not in MODES:
+        return f"mode = {mode!r} is not one of {', '.join(MODES)}"
+    for key in RUN_FILES:
+        value = run.get(key)
+        if value is not None and (not isinstance(value, str) or not Path(value).exists()):
+            return f"{key} = {value!r} does not exist (a path relative to the profile)"
+    return None
 
 
 def _bus_kwargs(items: list[str]) -> dict[str, Any]:
@@ -173,6 +205,11 @@ def config_of(options) -> BenchConfig:
     profile = load_profile(Path(options.bench_profile)) if options.bench_profile else {}
     target, bus, run = profile.get("target", {}), profile.get("bus", {}), profile.get("run", {})
     interface = options.bench_interface or bus.get("interface")
+    if interface is not None and interface not in bus_interfaces():
+        near = difflib.get_close_matches(str(interface), bus_interfaces(), n=1)
+        hint = f"did you mean {near[0]!r}? " if near else ""
+        raise pytest.UsageError(f"the bench interface {interface!r} (--bench-interface or [bus] interface) is not a "
+                                f"python-can interface; {hint}use one of {', '.join(bus_interfaces())}")
     engine = options.bench_engine or target.get("engine") or "python"
     if engine not in ("python", "firmware"):
         raise pytest.UsageError(f"the bench engine {engine!r} is neither python nor firmware")

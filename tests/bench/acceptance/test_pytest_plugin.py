@@ -85,6 +85,14 @@ def test_under_xunit2_the_figures_are_suite_properties(tmp_path):
     ("[bus]\nspeed = 1\n", "[bus] has an unknown key 'speed'; use interface, channel, bitrate, bus_kwargs"),
     ("[target]\nattach = true\n", "attaching to a target needs its bus: --bench-interface"),
     ("[x\n", "is not a readable TOML file"),
+    # these failed every test at run time, naming no profile
+    ("[run]\nrows = -5\n", "p.toml: [run] rows = -5 must be a whole number of at least 1"),
+    ("[run]\nmode = 'fast'\n", "p.toml: [run] mode = 'fast' is not one of lockstep, realtime"),
+    ("[run]\nreply_timeout = 0\n", "p.toml: [run] reply_timeout = 0 must be a number of seconds above 0"),
+    ("[run]\ndata = 'nowhere.csv'\n", "p.toml: [run] data = '"),
+    ("[bus]\ninterface = 'udp_multicst'\n", "the bench interface 'udp_multicst' (--bench-interface or [bus] "
+                                            "interface) is not a python-can interface; did you mean "
+                                            "'udp_multicast'?"),
 ])
 def test_a_bad_profile_is_one_usage_error(tmp_path, profile, words):
     (tmp_path / "p.toml").write_text(profile)
@@ -92,6 +100,14 @@ def test_a_bad_profile_is_one_usage_error(tmp_path, profile, words):
     proc = pytest_session(tmp_path, "-q", "--bench-profile", "p.toml", "test_x.py")
     assert proc.returncode == 4, proc.stdout + proc.stderr
     assert words in proc.stderr
+
+
+def test_an_unknown_interface_on_the_command_line_is_one_usage_error(tmp_path):
+    (tmp_path / "test_x.py").write_text("def test_x(thermal_bench):\n    pass\n")
+    proc = pytest_session(tmp_path, "-q", "--bench-interface", "nosuchiface", "test_x.py")
+    assert proc.returncode == 4, proc.stdout + proc.stderr
+    assert "the bench interface 'nosuchiface' (--bench-interface or [bus] interface) is not a python-can " \
+           "interface; use one of auto, " in proc.stderr
 
 
 def test_the_entry_point_turns_it_on_and_no_bench_off(tmp_path):
