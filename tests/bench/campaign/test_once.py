@@ -163,6 +163,8 @@ def test_a_worker_killed_while_it_runs_a_run_leaves_a_table_equal_to_its_files(t
     rows = rows_of(out)
     assert len(rows) == 6 and {r["status"] for r in rows.values()} == {"done"}
     assert_table_equals_files(out)
+    print(f"worker killed, repetition {repetition}: {len(rows)} rows = files; attempts "
+          f"{sorted(r['attempts'] for r in rows.values())}, discarded {summary['discarded']}")   # with -s: figures
 
 
 @pytest.mark.cluster
@@ -205,3 +207,5 @@ def test_with_every_worker_killed_the_driver_says_so_and_goes_on_when_one_joins(
         until(lambda: not bench_runs_under(out), 120, "every run ended")
     assert len(rows_of(out)) == 4
     assert_table_equals_files(out)
+    print(f"every worker killed, repetition {repetition}: 'no worker' said {at - killed_at:.1f} s after the kill; "
+          f"4 rows = files")                                                               # with -s: figures
