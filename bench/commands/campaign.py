@@ -7,15 +7,18 @@
 
 Every combination of the spec's axes (cartesian product) is one run: `python -m bench run ... --json` in a
 subprocess of a Dask worker, with its own target process, its own udp_multicast port, and its log, report, JSON
-summary and stderr in OUT/runs/<run-id>/ (the id: a slug of the axis values and a hash of every option, stable
-across invocations). Default: a local cluster of N worker processes (--workers, default the CPU count);
---cluster tcp://HOST:PORT uses a running scheduler (its workers need the bench installed and OUT and the data at
-the same paths). A run that crashes, times out (--timeout, default the spec's or 1800 s) or loses its worker is
-retried once; a verdict that is not clean is a result. One row per run goes into OUT/campaign.sqlite when it
-ends; --resume skips the runs the table holds as done. OUT/report/report.md (verdict matrix, figures per axis) is
-rebuilt at the end, and by `bench campaign report DIR` from the table alone. `plan` lists the runs without
-running them (with --out, and what the table there says of each). --set KEY=VALUE overrides a fixed option, or an
-axis (a list: --set 'model=["hammerstein"]'), e.g. --set rows=2000 to try a spec small.
+summary and stderr in OUT/runs/<run-id>.<attempt>/ (the id: a slug of the axis values and a hash of every
+option, stable across invocations; the attempt: random, one directory per execution, the table's run_dir).
+Default: a local cluster of N worker processes (--workers, default the CPU count); --cluster tcp://HOST:PORT uses
+a running scheduler (its workers need the bench installed and OUT and the data at the same paths; while it has no
+worker the campaign says so every 15 s, and gives up after 60 s). A run that crashes, times out (--timeout,
+default the spec's or 1800 s) or loses its worker is retried once; a verdict that is not clean is a result. One
+row per run goes into OUT/campaign.sqlite when it ends, once (a run the cluster executed twice is recorded once,
+the later attempt discarded); --resume skips the runs the table holds as done. OUT/report/report.md (verdict
+matrix, figures per axis) is rebuilt at the end, and by `bench campaign report DIR` from the table alone. `plan`
+lists the runs without running them (with --out, and what the table there says of each). --set KEY=VALUE
+overrides a fixed option, or an axis (a list: --set 'model=["hammerstein"]'), e.g. --set rows=2000 to try a spec
+small.
 
 Exit status 0 when every run is done and its `bench run` exited 0; 1 otherwise (the report lists why); 2 for a
 bad argument; SIGINT/SIGTERM stop the cluster and its runs, leave every row written whole, exit 130/143.
@@ -143,9 +146,9 @@ def run_command(args: argparse.Namespace) -> int:
         counts[label] = counts.get(label, 0) + 1
     passed = sum(1 for r in mine if r is not None and r["status"] == DONE and r["exit_code"] == 0)
     summary = {"campaign": campaign.name, "runs": outcome.runs, "ran": outcome.ran, "skipped": outcome.skipped,
-               "retried": outcome.retried, "counts": counts, "passed": passed, "cluster": outcome.cluster,
-               "workers": outcome.workers, "wall_s": round(outcome.wall_s, 2), "out": str(out),
-               "table": str(out / TABLE_NAME), "report": str(report),
+               "retried": outcome.retried, "discarded": outcome.discarded, "counts": counts, "passed": passed,
+               "cluster": outcome.cluster, "workers": outcome.workers, "wall_s": round(outcome.wall_s, 2),
+               "out": str(out), "table": str(out / TABLE_NAME), "report": str(report),
                "run_ids": [run.run_id for run in campaign.runs]}
     if args.json:
         print_json(summary)
@@ -154,6 +157,7 @@ def run_command(args: argparse.Namespace) -> int:
               + ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
               + (f"; {outcome.skipped} done before (--resume)" if outcome.skipped else "")
               + (f"; {outcome.retried} retried" if outcome.retried else "")
+              + (f"; {outcome.discarded} duplicate attempt(s) discarded" if outcome.discarded else "")
               + (f"; {outcome.wall_s:.1f} s on {outcome.cluster}" if outcome.cluster else ""))
         print(f"table {out / TABLE_NAME}, report {report}")
     if passed == outcome.runs:
