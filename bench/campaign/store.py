@@ -141,6 +141,13 @@ class SqliteTable:
                     for name, columns in self.TABLES.items():
                         self._db.execute(f"CREATE TABLE {name} ({columns})")
                     self._db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(self.VERSION),))
+            if existed:   # a damaged page reads as a traceback later, and a resume would write onto it first
+                damage = self._damage()
+                if damage:
+                    self._db.close()
+                    raise StoreError(f"{self.path} is damaged (SQLite finds: {damage}); its files are "
+                                     f"still there, but the {what} cannot be resumed or reported from it: run the "
+                                     f"{what} again into another --out")
             tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
             if not {"meta", *self.TABLES} <= tables:
                 self._db.close()
@@ -159,6 +166,17 @@ class SqliteTable:
         if missing:
             self._db.close()
             raise StoreError(f"{self.path} is not a {what} table (its {self.MAIN} table lacks {missing[0]})")
+
+    def _damage(self) -> str | None:
+        """What SQLite's quick check finds wrong with an existing file (None: nothing; a file that is no database
+        at all is left to the checks after it, which say so)."""
+        try:
+            found = [r[0] for r in self._db.execute("PRAGMA quick_check(3)")]
+        except sqlite3.DatabaseError as exc:
+            if "not a database" in str(exc):
+                return None
+            return str(exc)
+        return None if found == ["ok"] else "; ".join(found)
 
     def close(self) -> None:
         self._db.close()

@@ -106,6 +106,20 @@ def _check_out(out: Path, resume: bool) -> None:
         raise BenchError(f"{out} is not empty and holds no campaign table; choose another --out")
 
 
+def check_same_campaign(meta: dict[str, str], campaign, out: Path) -> None:
+    """BenchError (one sentence, before any run) when OUT's table holds another campaign than `campaign` (other
+    axes or fixed options, from another spec or other --set values): a resume would mix the two campaigns' runs in
+    one table and report, and replace the stored spec. A new table (no stored axes) is this campaign's."""
+    if "axes" not in meta:
+        return
+    stored = (json.loads(meta["axes"]), json.loads(meta.get("fixed", "{}")))
+    if stored != (json.loads(json.dumps(campaign.axes)), json.loads(json.dumps(campaign.fixed))):
+        raise BenchError(f"{out} holds the campaign {meta.get('name')!r} of {meta.get('spec_path')} (spec sha256 "
+                         f"{meta.get('spec_sha256', '')[:12]}…), whose axes or fixed options differ from "
+                         f"{campaign.path}'s; resume it with that spec and the same --set values, or choose "
+                         "another --out")
+
+
 def run_command(args: argparse.Namespace) -> int:
     from bench.campaign.execute import check_reachable, run_campaign
     from bench.campaign.report import write_report
@@ -122,6 +136,7 @@ def run_command(args: argparse.Namespace) -> int:
         check_reachable(args.cluster)        # an unreachable scheduler is one sentence, before anything is written
     quiet = args.quiet or args.json
     with Store(out / TABLE_NAME, create=True) as store:
+        check_same_campaign(store.meta(), campaign, out)   # --resume into another campaign's table: refused
         store.set_meta({"name": campaign.name, "description": campaign.description,
                         "spec_path": str(campaign.path.resolve()), "spec_text": campaign.text,
                         "spec_sha256": hashlib.sha256(campaign.text.encode()).hexdigest(),

@@ -167,3 +167,48 @@ def test_a_report_directory_with_foreign_files_and_a_foreign_table_are_refused(t
             Store(foreign / TABLE_NAME, create=create)
     tables = sqlite3.connect(foreign / TABLE_NAME).execute("SELECT name FROM sqlite_master").fetchall()
     assert tables == [("runs",)]                                     # checked, never altered
+
+
+def test_a_resume_with_another_spec_is_refused_before_any_run(table, capsys):
+    """A resume into a finished campaign with another spec mixed both specs' runs in one table and replaced the
+    stored spec; now one sentence, before any run, the table as it was."""
+    out, campaign = table
+    (out / "spec.toml").write_text(SPEC)
+    with Store(out / TABLE_NAME) as store:
+        store.set_meta({"axes": json.dumps(campaign.axes), "fixed": json.dumps(campaign.fixed),
+                        "spec_path": str(out / "spec.toml"), "spec_sha256": "ab" * 32})
+        before = store.meta(), store.rows()
+    other = out.parent / "other.toml"
+    other.write_text(SPEC.replace("[1, 2, 3]", "[4]"))
+    assert main(["campaign", "run", str(other), "--out", str(out), "--resume", "--quiet"]) == 1
+    said = capsys.readouterr().err.strip()
+    assert said == (f"bench: error: {out} holds the campaign 'unit' of {out / 'spec.toml'} (spec sha256 abababababab…), "
+                    f"whose axes or fixed options differ from {other}'s; resume it with that spec and the same --set "
+                    "values, or choose another --out")
+    assert main(["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--resume", "--quiet",
+                 "--set", "rows=200"]) == 1                         # the same spec with other values: another one
+    assert "whose axes or fixed options differ" in capsys.readouterr().err
+    with Store(out / TABLE_NAME) as store:
+        assert (store.meta(), store.rows()) == before
+
+
+def test_a_damaged_table_is_one_sentence_and_never_written(table, capsys):
+    """One page of campaign.sqlite overwritten with random bytes: --resume and `campaign report` ended in a
+    traceback, and the resume wrote to the damaged table first."""
+    import random
+
+    out, _ = table
+    (out / "spec.toml").write_text(SPEC)
+    path = out / TABLE_NAME
+    data = bytearray(path.read_bytes())
+    size = int.from_bytes(data[16:18], "big")                       # the page size, from the file's header
+    assert len(data) >= 3 * size
+    data[size:2 * size] = random.Random(5).randbytes(size)           # the second page
+    path.write_bytes(bytes(data))
+    for argv in (["campaign", "report", str(out)],
+                 ["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--resume", "--quiet"]):
+        assert main(argv) == 1
+        said = capsys.readouterr().err.strip()
+        assert said.startswith(f"bench: error: {path} is damaged (SQLite finds: ") and "\n" not in said
+        assert "run the campaign again into another --out" in said
+        assert path.read_bytes() == bytes(data)
