@@ -129,3 +129,25 @@ def test_a_recovery_never_reached_reads_as_english():
 
     assert _recovered(float("inf")) == "never within 2 K"     # it read "within 2 K after never open loop"
     assert _recovered(41.6) == "within 2 K after 42 s"
+
+
+def test_a_sensor_column_of_no_schema_names_the_column_to_map_it_onto(small_dataset, tmp_path, capsys):
+    """A real motor's end-winding thermocouple, `--measure endwind_1`: the loader reads only the schema's columns, so
+    the sentence says which one to map it onto (ntc_C) and how; exit 2 before any work."""
+    out = tmp_path / "obs.json"
+    assert main(["observer", "--train", str(small_dataset), "--measure", "endwind_1", "--out", str(out)]) == 2
+    assert capsys.readouterr().err == (
+        "bench: error: --measure endwind_1 is no dataset column (a file's other columns are not read): map your "
+        "sensor's column onto ntc_C with --mapping (a mapping file's [columns] endwind_1 = \"ntc_C\") and pass "
+        "--measure ntc_C\n")
+    assert not out.exists()
+
+
+def test_a_file_without_the_sensor_column_names_the_column_to_map_onto(small_dataset, tmp_path, capsys):
+    out = tmp_path / "obs.json"
+    assert main(["observer", "--train", str(small_dataset), "--measure", "ntc_C", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err == (f"bench: error: {small_dataset} has no column 'ntc_C', the observer's measurement; map the file's "
+                   "column of that sensor onto ntc_C with --mapping (a mapping file's [columns] YOUR_COLUMN = "
+                   "\"ntc_C\") or choose another with --measure\n")
+    assert not out.exists()
