@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable
 
 from bench import DISTRIBUTION, package_version, stop
+from bench.commands.args import check_files
 from bench.errors import BenchError, UsageError
 from dbc.errors import CanLinkError
 from host.errors import HostError, io_advice
@@ -394,6 +395,7 @@ def _main(argv: list[str] | None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 2
+        check_files(args)   # an output naming an input or another output: one sentence, before any work
         return int(args.func(args) or 0)
     except BenchError as exc:
         return _failed(args, one_line(str(exc)), exc.exit_status, started)

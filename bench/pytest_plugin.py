@@ -21,7 +21,10 @@ Where the target is:
 `python -m bench host` (an attached one) with --json in a subprocess and returns a `BenchRun`: the exit status and
 the `RunSummary` (`bench.analysis.results`), with the acceptance criteria when `criteria` or `baseline` is given.
 A run the bench refuses (exit status 2, or a target that could not be reached) raises `BenchRunError` with the
-bench's one sentence. The run's figures go into pytest's JUnit XML as properties of the test (`record_property`:
+bench's one sentence. The bench dies with the process that runs the test (`dbc.lifeline`: it gets SIGTERM when
+pytest is terminated or killed, a CI job cancelled, and stops its target and removes its partial log); a run past its
+`timeout` is stopped with SIGTERM, with SIGKILL of its process group only after `STOP_GRACE_S`, and what it left is
+removed (`stop_bench`). The run's figures go into pytest's JUnit XML as properties of the test (`record_property`:
 `bench_clean`, `bench_rmse_C_magnet`, `bench_cycles`, one `bench_criterion_NAME` per criterion, ...) with
 `-o junit_family=xunit1`; under pytest's default xunit2, whose schema has no properties in a testcase, as properties
 of the suite named `NODEID::bench_...`.
@@ -37,6 +40,7 @@ import fcntl
 import hashlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -51,6 +55,8 @@ from typing import Any
 import pytest
 
 from bench.errors import BenchError
+from dbc.files import same_file
+from dbc.lifeline import child_environment
 
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
@@ -58,6 +64,7 @@ PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", 
                 "run": ("data", "model", "rows", "mode", "criteria", "baseline", "reply_timeout", "connect_timeout",
                         "timeout")}
 DEFAULT_TIMEOUT_S = 900.0
+STOP_GRACE_S = 20.0   # a bench told to stop (SIGTERM) stops its target (5 s at most) and exits; then SIGKILL
 # an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
 # default (15 s) is for a target known to run
 ATTACHED_CONNECT_TIMEOUT_S = 120.0
@@ -159,6 +166,10 @@ def _bus_kwargs(items: list[str]) -> dict[str, Any]:
 
 def config_of(options) -> BenchConfig:
     """The BenchConfig of pytest's options (`config.option`): the command line over the profile."""
+    if options.bench_profile and options.bench_out and same_file(options.bench_profile, options.bench_out):
+        raise pytest.UsageError(f"--bench-out {options.bench_out} is the same file as --bench-profile "
+                                f"{options.bench_profile} (the profile would be overwritten); choose another "
+                                "--bench-out directory")
     profile = load_profile(Path(options.bench_profile)) if options.bench_profile else {}
     target, bus, run = profile.get("target", {}), profile.get("bus", {}), profile.get("run", {})
     interface = options.bench_interface or bus.get("interface")
@@ -246,6 +257,64 @@ def _bus_turn(config: BenchConfig) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
+def run_bench(argv: list[str], timeout_s: float, log: Path) -> subprocess.CompletedProcess:
+    """`argv` (a `python -m bench ...`) to its end, output captured. The bench dies with this process
+    (`dbc.lifeline`: it gets SIGTERM when pytest is terminated or killed, and stops its target and removes its
+    partial log itself). On a timeout or an interruption (Ctrl-C, pytest stopping) it is stopped like a user would
+    (`stop_bench`); subprocess.TimeoutExpired then carries in `output` the sentence of how it was stopped."""
+    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=child_environment({**os.environ, "PYTHONUNBUFFERED": "1"}),
+                            start_new_session=True)   # its own process group: a kill reaches its target too
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise subprocess.TimeoutExpired(argv, timeout_s, output=stop_bench(proc, log)) from None
+    except BaseException:
+        stop_bench(proc, log)
+        raise
+    return subprocess.CompletedProcess(argv, proc.returncode, stdout, stderr)
+
+
+def stop_bench(proc: subprocess.Popen, log: Path, grace_s: float = STOP_GRACE_S) -> str:
+    """Stop a running bench: SIGTERM (it stops its target and removes its partial output), after `grace_s` SIGKILL
+    of its whole process group; then remove what a killed bench leaves (its partial `log`, its scratch directory)
+    once nothing of the group runs. How it stopped, as a sentence."""
+    how = "it was stopped with SIGTERM"
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        proc.communicate(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        how = f"it did not stop within {grace_s:g} s of SIGTERM and was killed (SIGKILL)"
+        _kill_group(proc.pid)
+        proc.communicate()
+    _kill_group(proc.pid)   # anything of the group left behind (its target, after a SIGKILL of the bench)
+    _wait_group_gone(proc.pid, grace_s)
+    from bench.leftovers import remove_stale_partials, remove_stale_scratch
+
+    remove_stale_partials(log)
+    remove_stale_scratch()
+    return how
+
+
+def _kill_group(pgid: int) -> None:
+    try:
+        os.killpg(pgid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _wait_group_gone(pgid: int, timeout_s: float) -> None:
+    """Until no process of group `pgid` exists (a zombie not yet reaped by its adopter counts, so bounded)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(pgid, 0)
+        except (ProcessLookupError, PermissionError):
+            return
+        time.sleep(0.05)
+
+
 def _one_sentence(stderr: str, status: int) -> str:
     lines = [line for line in stderr.splitlines() if line.startswith("bench") and "error" in line]
     last = lines[-1] if lines else (stderr.strip().splitlines() or [f"exit status {status}"])[-1]
@@ -314,11 +383,10 @@ class ThermalBench:
         limit = timeout or float(self.config.defaults.get("timeout", DEFAULT_TIMEOUT_S))
         with _bus_turn(self.config):
             try:
-                proc = subprocess.run(argv, capture_output=True, text=True, timeout=limit,
-                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
-            except subprocess.TimeoutExpired:
+                proc = run_bench(argv, limit, run_dir / "bench.blf")
+            except subprocess.TimeoutExpired as exc:
                 raise BenchRunError(f"the bench did not finish within {limit:g} s ({' '.join(argv[2:4])} on "
-                                    f"{self.config.describe()})", None) from None
+                                    f"{self.config.describe()}); {exc.output}", None) from None
         result = self._result(argv, proc, run_dir)
         self.runs.append(result)
         self._record_figures(result)

@@ -215,7 +215,9 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
         if n + 1 < rows:
             next_frames = values.frames(codec, n + 1)
         if not wait_for_reply(session, book, n, reply_timeout_s):
-            consecutive += 1
+            # rows without any reply yet: a late reply is an answer (a deadline below the round trip is late on
+            # every row, and the target that answers them all has not stopped answering)
+            consecutive = unanswered_streak(book, n, abort_after)
             if _silent(session):
                 aborted = (f"the target went silent (no heartbeat for more than "
                            f"{session.monitor.heartbeat_timeout_s:g} s) at row {n}")
@@ -236,6 +238,14 @@ def run_lockstep(session: HostSession, drive: np.ndarray, *, reply_timeout_s: fl
     if progress is not None:
         progress(sent, rows)
     return ReplayStats("lockstep", sent, elapsed, aborted)
+
+
+def unanswered_streak(book: RowBook, row: int, limit: int) -> int:
+    """How many rows up to `row` in a row have no reply at all (late ones count as replies), at most `limit`."""
+    streak = 0
+    while streak < limit and row - streak >= 0 and not book.is_answered(row - streak):
+        streak += 1
+    return streak
 
 
 def _fault_names(bits: int) -> str:

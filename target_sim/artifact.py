@@ -29,6 +29,9 @@ SCHEMA_VERSION = 3
 # `observer` section; an artifact without one is written as version 2 (what every earlier target reads).
 READABLE_VERSIONS = (1, 2, 3)
 OBSERVER_VERSION = 3
+# the observer section's own version: 1 (absent) one unlagged sensor of one node; 2 a list of measurements of
+# `target_sim.measurements` kinds, lag states and an optional heat bias state (`BIAS_KINDS`: its node's loss input)
+OBSERVER_SECTION_VERSIONS = (1, 2)
 # The observer section (`target_sim.observer`): its arrays and shapes ((): a scalar), in the realization's
 # coordinates; `node` names the measured output, `form` the covariance form the target deploys.
 OBSERVER_ARRAYS = {"Q": (4, 4), "q_nodes_C2": (4,), "R": (), "P0": (4, 4), "offset_C": (), "K_ss": (4,),
@@ -262,7 +265,7 @@ def _check_observer(artifact: ModelArtifact, version: int) -> None:
     if section.get("form") not in OBSERVER_FORM_NAMES:
         raise ArtifactError(f"artifact observer.form {_shown(section.get('form'))} is not one of "
                             f"{', '.join(OBSERVER_FORM_NAMES)}; {fix}")
-    if int(section.get("version", 1)) >= 2:
+    if section_version(section) >= 2:
         try:
             n = observer_state_count(section)
         except (KeyError, TypeError, ValueError, ArtifactError) as exc:
@@ -303,10 +306,20 @@ def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
     return shapes
 
 
+def section_version(section: dict) -> int:
+    """The observer section's version (1 when absent); a version this target does not read is refused."""
+    version = section.get("version", 1)
+    if type(version) is not int or version not in OBSERVER_SECTION_VERSIONS:
+        raise ArtifactError(f"artifact observer.version {_shown(version)} is not supported (this target reads "
+                            f"observer sections of versions {OBSERVER_SECTION_VERSIONS[0]} to "
+                            f"{OBSERVER_SECTION_VERSIONS[-1]}); rebuild it with 'bench observer' or update the bench")
+    return version
+
+
 def observer_state_count(section: dict) -> int:
     """The filter's states: 4 model states, one lag state per measurement with a lag (its `arrays.lag_pole` > 0),
     one bias state if `bias` is set (version 1: 4)."""
-    if int(section.get("version", 1)) < 2:
+    if section_version(section) < 2:
         return len(OUTPUTS)
     lags = 0
     for i, entry in enumerate(section["measurements"]):
@@ -319,7 +332,7 @@ def observer_state_count(section: dict) -> int:
 def observer_shapes(section: dict) -> dict[str, tuple[int, ...]]:
     """The observer arrays' shapes: version 1 as `OBSERVER_ARRAYS`; version 2 with n = len(states) (the model's
     4, a lag state per lagged measurement, the bias) and K_ss one row per measurement."""
-    if int(section.get("version", 1)) < 2:
+    if section_version(section) < 2:
         return OBSERVER_ARRAYS
     states, measurements = section.get("states"), section.get("measurements")
     if not (isinstance(states, list) and len(states) >= 4 and isinstance(measurements, list) and measurements):

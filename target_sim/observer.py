@@ -34,7 +34,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from target_sim.artifact import BIAS_KINDS, OUTPUTS, ModelArtifact, encode_array, observer_state_count
+from target_sim.artifact import (
+    BIAS_KINDS,
+    OUTPUTS,
+    ModelArtifact,
+    encode_array,
+    observer_state_count,
+    section_version,
+)
 from target_sim.errors import TargetError
 from target_sim.fmath import dot, matmul, matvec
 from target_sim.kinds import MODEL_KINDS
@@ -279,14 +286,7 @@ def has_observer(artifact: ModelArtifact) -> bool:
     return isinstance(artifact.content.get("observer"), dict)
 
 
-# the section's minor version: 1 (absent) one unlagged sensor of one node; 2 a list of measurements of
-# `target_sim.measurements` kinds, lag states and an optional heat bias state (`BIAS_KINDS`: its node's loss input)
-SECTION_VERSION = 2
 Q_NODES_TOLERANCE = 1e-6            # T Q Tᵀ against diag(q_nodes), relative: float64 rounding of the lab's transform
-
-
-def section_version(section: dict) -> int:
-    return int(section.get("version", 1))
 
 
 def measurement_entries(section: dict) -> list[dict]:

@@ -41,6 +41,11 @@ class Acceptor:
     def judge(self, results, why_none: str = "the run has no figures") -> Acceptance | None:
         return self.gate.judge(results, why_none) if self.gate is not None else None
 
+    def check_data(self, identity, subject: str) -> None:
+        """A baseline of other data than `subject` replays: refused before any work (`Gate.check_data`)."""
+        if self.gate is not None:
+            self.gate.check_data(identity, subject)
+
 
 def prepare(args: argparse.Namespace) -> Acceptor:
     """The criteria and baseline read, the JUnit path checked: a bad one is one sentence, before any work."""

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.acceptance.kinds import KINDS, NODES, Criterion, Subject, number
-from bench.analysis.results import Acceptance, CheckResult, ResultsError, RunResults
+from bench.analysis.results import Acceptance, CheckResult, DataIdentity, ResultsError, RunResults
 from bench.errors import UsageError
 from bench.tomlspec import read_spec, spec_tables
 
@@ -127,10 +127,31 @@ class Gate:
     baseline: RunResults | None = None
     baseline_path: Path | None = None
 
+    def check_data(self, identity: DataIdentity | None, subject: str) -> None:
+        """CriteriaError (one sentence, before any work) when the baseline is a run on other data than `subject`
+        replays: its figures are no baseline for this run. A baseline (or subject) without a data identity, from
+        a bench before it was recorded or a log no dataset matched, is compared as it is."""
+        stored = self.baseline.data if self.baseline is not None else None
+        if stored is None or identity is None:
+            return
+        why = identity.differs_from(stored)
+        if why:
+            raise CriteriaError(f"the baseline {self.baseline_path} is a run on other data ({why}) than {subject}; "
+                                "store a baseline of this data, e.g. 'bench run ... --json > baseline.json'")
+
+    def _other_data(self, results: RunResults | None) -> str | None:
+        """Why the baseline's figures are of other data than `results`' (None when they are not known to be)."""
+        if results is None or results.data is None or self.baseline is None or self.baseline.data is None:
+            return None
+        why = results.data.differs_from(self.baseline.data)
+        return f"the baseline {self.baseline_path} is a run on other data: {why}" if why else None
+
     def judge(self, results: RunResults | None, why_none: str = "the run has no figures") -> Acceptance:
         """Each criterion on `results`; with no results every criterion fails, saying `why_none`."""
         subject = Subject(results, self.baseline, str(self.baseline_path) if self.baseline_path else None)
-        checks = [KINDS[c.kind].judge(c, subject) if results is not None else _unjudged(c, why_none)
+        other = self._other_data(results)
+        checks = [_unjudged(c, why_none) if results is None else
+                  _unjudged(c, other) if other and c.kind == "regression" else KINDS[c.kind].judge(c, subject)
                   for c in self.criteria.criteria]
         return Acceptance(criteria=str(self.criteria.path) if self.criteria.path else None,
                           baseline=subject.baseline_path, checks=checks)

@@ -46,6 +46,7 @@ from bench.analysis.results import (
     Accuracy,
     Agreement,
     CycleFigures,
+    DataIdentity,
     FaultGap,
     FaultResults,
     FigureRows,
@@ -442,9 +443,15 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         faults=fault_metrics(record),
         bus_load=bus_load(record, record.frame_data, artifact.data_sample_period, bitrate),
         figure_rows=selection.counts,
-        observer=observer_results(record, artifact, refs))
+        observer=observer_results(record, artifact, refs),
+        data=data_identity(dataset, record.rows))
     results.notes = notes(results)
     return finite_results(results, nulls), refs
+
+
+def data_identity(dataset, rows: int) -> DataIdentity | None:
+    """Which data the log replayed: the dataset's first `rows` rows (None without a dataset)."""
+    return None if dataset is None else DataIdentity(rows=int(rows), sha256=dataset.rows_sha256(rows))
 
 
 def _response_time(values) -> Percentiles | None:

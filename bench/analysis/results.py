@@ -208,6 +208,23 @@ class ModelInfo:
 
 
 @dataclass
+class DataIdentity:
+    """Which data a run replayed: its first `rows` rows, whose values hash to `sha256`
+    (`bench.drive.dataset.Dataset.rows_sha256`); a baseline of other data cannot be compared with."""
+
+    rows: int
+    sha256: str
+
+    def differs_from(self, other: DataIdentity) -> str | None:
+        """Why `other` is other data (None when it is the same)."""
+        if self.rows != other.rows:
+            return f"{other.rows} rows, not {self.rows}"
+        if self.sha256 != other.sha256:
+            return f"rows of sha256 {other.sha256[:12]}…, not {self.sha256[:12]}…"
+        return None
+
+
+@dataclass
 class Replies:
     steps_sent: int
     replies: int
@@ -506,6 +523,7 @@ class RunResults(_Json):
     bus_load: BusLoad
     figure_rows: FigureRows
     observer: ObserverResults | None = field(default=None, metadata=OMIT_NONE)   # a model with an observer
+    data: DataIdentity | None = field(default=None, metadata=OMIT_NONE)   # None: no dataset matched the log
     notes: list[str] = field(default_factory=list)
     null_values: dict[str, str] = field(default_factory=dict)
     report: str | None = field(default=None, metadata=OMIT_NONE)   # report.md, once written

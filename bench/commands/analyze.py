@@ -33,6 +33,7 @@ from pathlib import Path
 
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
 from bench.acceptance.junit import CleanCase
+from bench.commands.args import declare_files
 from bench.commands.common import (
     add_data_arguments,
     add_output_flags,
@@ -60,11 +61,13 @@ def add_subparser(subparsers) -> None:
                    help="exit 0 for a log with injected faults if every one was detected and nothing else went wrong")
     add_output_flags(p)
     add_acceptance_arguments(p)
+    declare_files(p, inputs=('LOG', '--model', '--data'), outputs=('--report',), replaced=('--report',),
+                  off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.analysis.canmetrics import compute
+    from bench.analysis.canmetrics import compute, data_identity
     from bench.analysis.logdecode import decode_log
     from bench.analysis.report import check_report_dir, write_report
     from bench.analysis.results import LogSummary
@@ -97,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
                              "from; pass that one, or leave --data out to compare with the model only")
     else:
         dataset = matching_dataset(record.drive, artifact)
+    acceptor.check_data(data_identity(dataset, record.rows), f"log {args.log}")   # before the figures are computed
     try:
         results, refs = compute(record, artifact, dataset)
     except ValueError as exc:     # e.g. an electrical loss model and a log without the d/q currents

@@ -31,7 +31,7 @@ import sys
 from pathlib import Path
 
 from bench.campaign import spec as spec_module  # stdlib only: the spec format for --help
-from bench.commands.args import positive_float, positive_int
+from bench.commands.args import declare_files, positive_float, positive_int
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 
@@ -57,17 +57,20 @@ def add_subparser(subparsers) -> None:
     _out_and_set(run, "output directory")
     run.add_argument("--resume", action="store_true", help="skip the runs OUT's table holds as done")
     add_output_flags(run)
+    declare_files(run, inputs=('SPEC',), outputs=('--out',))
     run.set_defaults(func=run_command)
 
     plan = actions.add_parser("plan", help="list the runs a spec makes, without running them")
     plan.add_argument("spec", type=Path, metavar="SPEC", help="campaign spec (TOML)")
     _out_and_set(plan, "a campaign's output directory: show what its table says of each run")
     add_output_flags(plan)
+    declare_files(plan, inputs=('SPEC', '--out'))
     plan.set_defaults(func=plan_command)
 
     report = actions.add_parser("report", help="rebuild DIR/report from DIR/campaign.sqlite alone")
     report.add_argument("dir", type=Path, metavar="DIR", help="a campaign's output directory")
     add_output_flags(report)
+    declare_files(report, inputs=('DIR',))
     report.set_defaults(func=report_command)
     p.set_defaults(func=_no_action)
 

@@ -14,6 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from bench.commands.args import declare_files
 from bench.commands.common import (
     add_data_arguments,
     add_output_flags,
@@ -50,6 +51,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--plot-realizations", type=choice_list(REALIZATIONS), default=["original", "balanced", "delta"],
                    help="realizations to plot (default original,balanced,delta)")
     add_output_flags(p)
+    declare_files(p, inputs=('--model', '--data'), outputs=('--plots',))
     p.set_defaults(func=run)
 
 

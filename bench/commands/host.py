@@ -42,7 +42,8 @@ from pathlib import Path
 
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
 from bench.acceptance.junit import CleanCase
-from bench.commands.args import add_listener_argument, announce_logger, positive_float, positive_int
+from bench.analysis.results import DataIdentity
+from bench.commands.args import add_listener_argument, announce_logger, declare_files, positive_float, positive_int
 from bench.commands.common import (
     SHOWN_NODES,
     add_data_arguments,
@@ -95,6 +96,7 @@ def add_subparser(subparsers) -> None:
     add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
+    declare_files(p, inputs=('--data', '--model', '--target-events'), outputs=('--log',))
     p.set_defaults(func=run_host)
 
 
@@ -128,6 +130,7 @@ def run_host(args: argparse.Namespace) -> int:
     if args.rows is not None:
         drive = drive[: args.rows]
         measurements = None if measurements is None else measurements[: args.rows]
+    acceptor.check_data(DataIdentity(len(drive), dataset.rows_sha256(len(drive))), f"this run of {dataset.path}")
     from bench.model.runs import initial_temperatures
 
     clear_and_say(log_path, args.quiet or args.json)   # what a killed host left beside this log

@@ -2,7 +2,9 @@
 
 Two ways to name the data: the built-in motor's campaign (`--data DIR` with cycle_coolant20/40/60.csv, trained
 on 20 and 60 °C, validated on 40 °C), or any motor's own files (`--motor FILE --train FILES… --validate FILES…`,
-each file its own run from its own initial state, globs allowed, read through `--mapping`).
+each file its own run from its own initial state, globs allowed, read through `--mapping`). With --train files
+the kind written to --out is the one the validation files favour (`--kind auto`, bench.model.deploy), the others
+beside it; the built-in campaign writes the Hammerstein model, as packaged.
 """
 
 from __future__ import annotations
@@ -12,10 +14,12 @@ import math
 import sys
 from pathlib import Path
 
+from bench.commands.args import declare_files
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.coverage import coverage_warnings
+from bench.model.deploy import AUTO, CANDIDATES
 from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS
 from bench.model.polish import POLISH_STARTS
 from bench.model.undetermined import undetermined
@@ -23,6 +27,8 @@ from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
 from target_sim.kinds import MODEL_KINDS
 
 KINDS = MODEL_KINDS.names()
+# the built-in campaign keeps the packaged model's kind; --train files deploy what their validation files favour
+BUILTIN_KIND = "hammerstein"
 DEFAULT_DT_S = 0.5
 # No polish by default: on the motor suite's validation profiles (examples/suite, tests/benchmarks/bench_suite.py
 # --defaults) the Hammerstein model from the swarm's full result beat the polished one (2 starts, MAP LM, freezing)
@@ -45,7 +51,8 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--train", nargs="+", default=None, metavar="FILE",
                    help="training data files or globs (each file its own run)")
     p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
-                   help="validation data files or globs (held out: used only for the reported figures)")
+                   help="validation data files or globs (held out from the fit: the reported figures, and with "
+                        "--kind auto the choice of the deployed kind)")
     add_data_arguments(p)
     p.add_argument("--bounds", default=None, metavar="LOW,HIGH",
                    help="search capacitances and resistances within LOW..HIGH × the prior (default: the prior's "
@@ -71,27 +78,34 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
-    p.add_argument("--kind", choices=KINDS, default="hammerstein", help="model kind of --out")
+    p.add_argument("--kind", choices=(*KINDS, AUTO), default=None,
+                   help=f"model kind of --out; {AUTO}: fit all three, write to --out the one with the smallest "
+                        "winding + magnet float32 MSE on the validation files (a tie goes to the simpler kind) and "
+                        f"the others beside it as --all-kinds does (default {AUTO} with --train files, "
+                        f"{BUILTIN_KIND} for the built-in campaign)")
     p.add_argument("--realization", choices=REALIZATIONS, default=DEPLOYED_REALIZATION,
                    help=f"realization deployed in the artifact (default {DEPLOYED_REALIZATION}: the delta operator "
                         "about the middle of the training temperatures, the most accurate in float32)")
     p.add_argument("--fit-path", choices=tuple(FIT_PATHS), default="statespace",
                    help="polynomial (the paper's, companion coordinates) or statespace (balanced coordinates)")
     p.add_argument("--all-kinds", action="store_true",
-                   help="also write the other two model kinds beside --out (<stem>-<kind>.json)")
+                   help="also write the other two model kinds beside --out (<stem>-<kind>.json; --kind auto does)")
     p.add_argument("--swarm", type=int, default=220, help="PSO swarm size (default 220)")
     p.add_argument("--iterations", type=int, default=100, help="PSO iterations (default 100)")
     p.add_argument("--lm-iterations", type=int, default=100, help="Levenberg-Marquardt iterations (default 100)")
     p.add_argument("--seed", type=int, default=0, help="PSO seed (default 0)")
     add_output_flags(p)
+    declare_files(p, inputs=('--motor', '--data', '--train', '--validate', '--prior'), outputs=('--out',))
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.model.deploy import choose_kind
     from bench.model.identify import identify
-    from bench.model.pipeline import validation_metrics
+    from bench.model.pipeline import COMPARED_KINDS, validation_metrics
     from bench.motor.description import AUTO_PRIOR, automatic_prior, default_motor, load_motor, load_prior, parse_bounds
 
+    kind = _kind(args)
     if args.dt is not None and not 0 < args.dt < math.inf:
         raise UsageError("--dt must be a positive number of seconds")
     if args.swarm < 2 or args.iterations < 1 or args.lm_iterations < 1:
@@ -104,10 +118,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         prior = load_prior(args.prior) if args.prior else None
     width = parse_bounds(args.bounds, "--bounds") if args.bounds else None
-    kinds = KINDS if args.all_kinds else (args.kind,)
-    outputs = {kind: args.out if kind == args.kind else args.out.with_name(f"{args.out.stem}-{kind}.json")
-               for kind in kinds}
-    for path in outputs.values():  # before the identification, not after it
+    auto = kind == AUTO
+    kinds = KINDS if args.all_kinds or auto else (kind,)
+    # --kind auto may put any kind at --out and any beside it
+    for path in {args.out, *(_beside(args.out, k) for k in kinds if auto or k != kind)}:  # before the fit
         check_writable(path, "--out")
     train, validate = _split(args, motor)
     # the built-in campaign keeps the packaged model's path unless asked otherwise (its artifact is reproduced)
@@ -130,21 +144,28 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if progress is not None:
             progress.close()
-    metrics = validation_metrics(result, validate, args.realization)
+    metrics = validation_metrics(result, validate, args.realization, CANDIDATES if auto else COMPARED_KINDS)
+    deployment = choose_kind(metrics) if auto else None
+    if deployment is not None:     # every artifact says which kind was deployed, and why
+        result.provenance["deployment"] = deployment.record()
+    deployed = deployment.kind if deployment else kind
     written = {}
-    for kind, path in outputs.items():
-        realization = args.realization if MODEL_KINDS[kind].realizations else "physical"
-        write_text_atomically(path, _artifact_text(result.content(kind, realization, metrics)))
-        written[kind] = str(path)
+    for each in kinds:
+        path = args.out if each == deployed else _beside(args.out, each)
+        realization = args.realization if MODEL_KINDS[each].realizations else "physical"
+        write_text_atomically(path, _artifact_text(result.content(each, realization, metrics)))
+        written[each] = str(path)
     prov = result.provenance
     uncertainty = prov.get("uncertainty")
     gaps = undetermined(uncertainty)
     selection = prov["lm"].get("regularization")
     warnings = _warnings(result.lptn.on_bounds, prov, gaps)
-    deploy = _deployment(selection, metrics, written)
+    deploy = _deployment(selection, metrics, written, deployed if auto else None)
     if deploy:
         warnings.append(deploy)
-    summary = {"artifacts": written, "motor": motor.name, "loss_model": motor.loss_kind, "dt": dt,
+    summary = {"artifacts": written, "deployed_kind": deployed,
+               "deployment": {**deployment.record(), "sentence": deployment.sentence(written[deployed])}
+               if deployment else None, "motor": motor.name, "loss_model": motor.loss_kind, "dt": dt,
                "data_sample_period_s": result.data_sample_period_s, "split": result.provenance["split"],
                "fit_path": args.fit_path, "realization": args.realization,
                "prior": result.provenance["pso"]["prior"], "bounds": result.provenance["pso"]["bounds"],
@@ -166,6 +187,21 @@ def run(args: argparse.Namespace) -> int:
     else:
         _print_summary(summary)
     return 0
+
+
+def _kind(args: argparse.Namespace) -> str:
+    """--kind, or its default for the data path; --kind auto chooses on validation files, so it needs them."""
+    if args.kind is None:
+        return AUTO if args.train is not None else BUILTIN_KIND
+    if args.kind == AUTO and args.train is not None and not args.validate:
+        raise UsageError(f"--kind {AUTO} chooses the deployed kind on held-out validation files: name them with "
+                         "--validate FILE…, or choose the kind with --kind")
+    return args.kind
+
+
+def _beside(out: Path, kind: str) -> Path:
+    """Where an artifact of `kind` that is not the deployed one goes: <stem>-<kind>.json beside --out."""
+    return out.with_name(f"{out.stem}-{kind}.json")
 
 
 def _adapts(choice: str | None, files: bool, prior) -> bool:
@@ -254,12 +290,16 @@ LTI = "lti-lptn"           # the network the Hammerstein model refines
 COMPARED_NODES = ("winding", "pm")
 
 
-def _deployment(selection: dict | None, metrics: dict, written: dict[str, str]) -> str | None:
+def _deployment(selection: dict | None, metrics: dict, written: dict[str, str],
+                chosen: str | None = None) -> str | None:
     """A sentence when the Hammerstein model did worse than the LTI network it refines on some evidence (the
     left-out training files of the cross-validation, the validation files per node), None otherwise. Its advice
     is true for the command as given: the lti-lptn file it wrote (`written`: kind -> path), else how to write one;
-    when the evidence disagrees it says so instead of choosing."""
+    when the evidence disagrees it says so instead of choosing. `chosen`: the kind --kind auto deployed, which
+    already followed the validation files (then only evidence against that choice is said)."""
     for_lti, for_ham = _evidence(selection, metrics)
+    if chosen is not None:
+        return _against_auto(for_lti, for_ham, chosen, written)
     if not for_lti:
         return None
     if not for_ham:
@@ -286,6 +326,20 @@ def _evidence(selection: dict | None, metrics: dict) -> tuple[list[str], list[st
         if better:
             for_ham.append(f"on the validation files (RMSE Hammerstein vs LTI: {', '.join(better)} °C)")
     return for_lti, for_ham
+
+
+def _against_auto(for_lti: list[str], for_ham: list[str], chosen: str, written: dict[str, str]) -> str | None:
+    """A sentence when some evidence favours the one of the Hammerstein model and its LTI network that --kind auto
+    did not deploy (none when it deployed the parameter-varying network, which is neither)."""
+    other = {"hammerstein": LTI, LTI: "hammerstein"}.get(chosen)
+    if other is None or not (for_lti if chosen == "hammerstein" else for_ham):
+        return None
+    pooled = "on the validation files' pooled winding + magnet MSE"
+    return ("the evidence disagrees on which model to deploy: the LTI LPTN is better "
+            + (" and ".join(for_lti) or pooled) + ", the Hammerstein model " + (" and ".join(for_ham) or pooled)
+            + f"; --kind auto deployed {chosen}, {written[chosen]}, by the validation files' pooled winding + "
+            f"magnet MSE and wrote {other} beside it, {written[other]}: compare the two with bench evaluate on "
+            "profiles like those the motor will run")
 
 
 def _lti_advice(written: dict[str, str]) -> str:
@@ -429,3 +483,5 @@ def _print_summary(s: dict) -> None:
         print(f"  {model:12} largest |float32 - float64|: {m['max_abs_f32_minus_f64_C']:.4g} °C")
     for kind, path in s["artifacts"].items():
         print(f"wrote {kind} artifact {path}")
+    if s["deployment"]:
+        print(s["deployment"]["sentence"])

@@ -29,7 +29,7 @@ import os
 import sys
 from pathlib import Path
 
-from bench.commands.args import positive_int
+from bench.commands.args import declare_files, positive_int
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 
@@ -62,6 +62,7 @@ def add_subparser(subparsers) -> None:
                    help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--resume", action="store_true", help="skip the cases OUT's table holds as done")
     add_output_flags(p)
+    declare_files(p, inputs=('--model', '--data', '--spec'), outputs=('--out',))
     p.set_defaults(func=run)
 
 

@@ -66,11 +66,12 @@ from pathlib import Path
 
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
 from bench.acceptance.junit import CleanCase
-from bench.analysis.results import BusInfo, HostFaults, NodeCycles, RunResults, RunSummary
+from bench.analysis.results import BusInfo, DataIdentity, HostFaults, NodeCycles, RunResults, RunSummary
 from bench.commands.args import (
     add_listener_argument,
     announce_logger,
     bus_from_args,
+    declare_files,
     non_negative_int,
     positive_float,
     positive_int,
@@ -120,6 +121,8 @@ def add_subparser(subparsers) -> None:
     add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
+    declare_files(p, inputs=('--data', '--model'), outputs=('--log', '--report'), replaced=('--report',),
+                  off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
 
 
@@ -192,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
     refuse_engine(args.engine, artifact)               # before any work: a model this engine cannot run
     refuse_over_can(artifact)                          # an observer whose readings no frame carries
     dataset, drive, measurements = load_run_data(args, artifact)   # before anything starts: data it cannot run on
+    acceptor.check_data(DataIdentity(len(drive), dataset.rows_sha256(len(drive))), f"this run of {dataset.path}")
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
     # the firmware engine's ELF: packaged, or built once beside the log (before the run: no compiler, no run)

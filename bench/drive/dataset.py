@@ -289,6 +289,18 @@ class Dataset:
         """(rows, 4): torque_Nm, speed_rpm, coolant_C, ambient_C, the estimator's measured inputs."""
         return np.column_stack([self.torque_Nm, self.speed_rpm, self.coolant_C, self.ambient_C])
 
+    def rows_sha256(self, rows: int | None = None) -> str:
+        """The identity of the first `rows` data rows (all by default): hex sha256 over each present column's name
+        and its float64 values as loaded, so the same data gives the same identity whatever the file's name,
+        separator, units or mapping (a summary carries it; a baseline of other data is refused)."""
+        digest = hashlib.sha256()
+        for name in BY_NAME:
+            values = getattr(self, name)
+            if values is not None:
+                digest.update(name.encode())
+                digest.update(np.ascontiguousarray(values[:rows], dtype="<f8").tobytes())
+        return digest.hexdigest()
+
 
 def dataset_sha256(path: Path) -> str:
     """Hex sha256 of a file's bytes."""

@@ -82,8 +82,13 @@ def firmware_for(artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True
     label = f"{artifact.kind}-isr" if isr else artifact.kind
     path = cache_dir / f"{label}-{_cache_key(artifact, {**sources, 'toolchain': version})}.elf"
     if path.is_file():
-        return path
-    if not quiet:
+        damage = cached_image_problem(path, isr)
+        if damage is None:
+            return path
+        # the key names the sources and the compiler, so another image there is damage (a truncated write of an
+        # older bench, a disk error, a user's edit): rebuilt in its place, and said
+        print(f"bench: the cached firmware {path} {damage}; building it again", file=sys.stderr)
+    elif not quiet:
         print(f"bench: compiling the {artifact.kind} model's firmware into {path} (once)", file=sys.stderr)
     try:
         result = toolchain.build_firmware(generated, isr=isr)
@@ -95,6 +100,23 @@ def firmware_for(artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True
         raise BenchError(f"cannot write the firmware cache {path} ({exc.strerror or exc}); choose another output "
                          "directory") from None
     return path
+
+
+# what every image needs, and the timing image's interrupt handler (`target_sim.firmware.motor_control.HANDLER`)
+IMAGE_FUNCTIONS = ("fw_step", "node_on_frame")
+
+
+def cached_image_problem(path: Path, isr: bool) -> str | None:
+    """Why the cached ELF at `path` cannot be used (one clause), or None."""
+    from target_sim.firmware import FirmwareError, read_elf
+    from target_sim.firmware.motor_control import HANDLER
+
+    try:
+        image = read_elf(path)
+    except FirmwareError as exc:
+        return f"is not a usable image ({exc})"
+    missing = [name for name in (*IMAGE_FUNCTIONS, *((HANDLER,) if isr else ())) if name not in image.symbols]
+    return f"lacks {', '.join(missing)}" if missing else None
 
 
 def write_packaged() -> list[Path]:

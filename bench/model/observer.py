@@ -55,6 +55,7 @@ from bench.thermal.kalman import (
 )
 from target_sim.artifact import (
     BIAS_KINDS,
+    OBSERVER_SECTION_VERSIONS,
     OUTPUTS,
     ModelArtifact,
     encode_array,
@@ -417,7 +418,8 @@ def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequen
     dt = artifact.dt
     names = state_names(fit)
     return {
-        "kind": "kalman-linear-block", "version": 2, "node": first.node, "column": first.columns[0],
+        "kind": "kalman-linear-block", "version": OBSERVER_SECTION_VERSIONS[-1], "node": first.node,
+        "column": first.columns[0],
         "lag_s": float(getattr(first, "lag_s", 0.0)), "form": form,
         "measurements": [m.entry(dt, float(s)) for m, s in zip(fit.measurements, fit.r_scale, strict=True)],
         "states": names, "bias": bias_kind(fit.bias),

@@ -47,12 +47,17 @@ def identify_from_directory(data_dir: Path | None, progress: Callable | None = N
     return result, datasets
 
 
+# the kinds identify compares by default: the Hammerstein model and the network it refines (the packaged artifacts
+# record these two, in this order)
+COMPARED_KINDS = ("lti-lptn", "hammerstein")
+
+
 def validation_metrics(result: Identification, validation: Sequence[Dataset],
-                       realization: str = DEPLOYED_REALIZATION) -> dict:
+                       realization: str = DEPLOYED_REALIZATION, kinds: Sequence[str] = COMPARED_KINDS) -> dict:
     """Accuracy at the identification Δt on the validation files together, float64 and float32 (the target's
-    code), per model kind: {float64: {winding, pm}, float32: {...}, max_abs_f32_minus_f64_C}."""
+    code), per model kind of `kinds`: {float64: {winding, pm}, float32: {...}, max_abs_f32_minus_f64_C}."""
     metrics = {}
-    for kind in ("lti-lptn", "hammerstein"):
+    for kind in kinds:
         artifact = verify(seal(result.content(kind, realization)))
         pooled = summarize([evaluate_file(artifact, d) for d in validation])
         metrics[kind] = {**{p: {n: pooled["nodes"][n][p] for n in ("winding", "pm")} for p in PRECISIONS},

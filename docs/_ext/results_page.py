@@ -785,7 +785,8 @@ def suite_tables(record: Record) -> list[str]:
     lines = ["Each motor of `examples/suite/` identified with `bench identify --all-kinds --bounds 0.1,10` on its "
              "training profiles and evaluated on its test profiles (pooled, float32, MSE K² / max K; "
              f"{goal}). \"Worse on validation\": the nodes where the Hammerstein model is worse than its LTI "
-             "network on the validation profiles.", ""]
+             "network on the validation profiles; \"(deployed)\": the kind `--kind auto` wrote to `--out`, the "
+             "smallest winding + magnet MSE on the validation profiles.", ""]
     if not record["figures"].get("complete", True):
         lines += ["*This record is partial: the run stopped before every motor was measured.*", ""]
     motors = record["figures"]["motors"]
@@ -842,10 +843,12 @@ def _suite_rows(motor: dict) -> list[list[str]]:
         if "failed" in row:
             rows.append([motor["motor"], row["prior"], "failed", _sentence(row["failed"])[:80], "", "", "", "", ""])
             continue
-        for kind in ("hammerstein", "lti-lptn"):
+        deployed = row.get("deployed_kind")     # records before --kind auto have none
+        for kind in dict.fromkeys(("hammerstein", "lti-lptn", deployed or "hammerstein")):
             test = row["test"].get(kind, {})
             ham = kind == "hammerstein"
-            rows.append([motor["motor"], row["prior"], kind, *(_mse_max(test.get(node)) for node, _ in SUITE_NODES),
+            name = f"{kind} (deployed)" if kind == deployed else kind
+            rows.append([motor["motor"], row["prior"], name, *(_mse_max(test.get(node)) for node, _ in SUITE_NODES),
                          (", ".join(row["hammerstein_worse_on_validation"]) or "–") if ham else "",
                          _n(row["identify_s"]) if ham else ""])
     return rows

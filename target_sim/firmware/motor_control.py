@@ -28,7 +28,7 @@ AMPS_PER_COUNT = 0.1220703125     # foc_isr.c's scaling of the 12-bit samples
 def isr_rate_problem(rate_hz: float) -> str | None:
     """Why `rate_hz` is no current-loop rate (one sentence), or None; 0 means no interrupt."""
     if not 0 <= rate_hz <= MAX_ISR_RATE_HZ:
-        return (f"--isr-rate {rate_hz:g} is not a current-loop rate: give 0 (no interrupt) or up to "
+        return (f"--isr-rate {rate_hz:.10g} is not a current-loop rate: give 0 (no interrupt) or up to "
                 f"{MAX_ISR_RATE_HZ} Hz (inverters run 5000-20000)")
     return None
 

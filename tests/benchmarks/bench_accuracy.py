@@ -103,15 +103,17 @@ def identify_ipm(work: Path, data: Path, prior: str) -> dict:
             "load_average": os.getloadavg()[0]}
 
 
-def evaluate_ipm(data: Path, out: Path) -> tuple[dict, float]:
-    return bench("evaluate", "--model", str(out), "--model", str(out.with_name("model-lti-lptn.json")),
+def evaluate_ipm(data: Path, identified: dict) -> tuple[dict, float]:
+    """Both kinds on the held-out profiles, wherever --kind auto put them (identify's `artifacts`)."""
+    artifacts = identified["artifacts"]
+    return bench("evaluate", "--model", artifacts["hammerstein"], "--model", artifacts["lti-lptn"],
                  "--mapping", str(IPM / "mapping.json"), "--data", *(str(data / f) for f in HELD_OUT))
 
 
 def ipm_example(data: Path, data_s: float, own: dict) -> dict:
     """The tutorial's commands with the example's own prior: per kind and node, and the baselines."""
     identified, identify_s = own["json"], own["seconds"]
-    evaluated, evaluate_s = evaluate_ipm(data, own["out"])
+    evaluated, evaluate_s = evaluate_ipm(data, identified)
     models = []
     for m in evaluated["models"]:
         pooled = m["pooled"]
@@ -128,13 +130,13 @@ def ipm_example(data: Path, data_s: float, own: dict) -> dict:
           f"{evaluate_s:.1f} s; {len(on_bounds)} parameters on a bound")
     return {"data_s": round(data_s, 1), "identify_s": round(identify_s, 1), "evaluate_s": round(evaluate_s, 1),
             "held_out": list(HELD_OUT), "prior": identified.get("prior"), "bounds": identified.get("bounds"),
-            "parameters_on_bounds": on_bounds, "models": models}
+            "parameters_on_bounds": on_bounds, "deployed_kind": identified.get("deployed_kind"), "models": models}
 
 
 def prior_row(data: Path, prior: str, run: dict) -> dict:
     """One row of the priors table: held-out figures of both kinds, bounds, frozen, ridge, time."""
     identified = run["json"]
-    evaluated, _ = evaluate_ipm(data, run["out"])
+    evaluated, _ = evaluate_ipm(data, identified)
     models = {m["kind"]: _node_figures(m["pooled"]["nodes"]) for m in evaluated["models"]}
     selection = identified.get("regularization") or {}
     row = {"prior": prior, "identify_s": round(run["seconds"], 1), "identify_cpu_s": round(run["cpu_s"], 1),

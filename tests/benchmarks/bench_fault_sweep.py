@@ -190,7 +190,7 @@ def ipm_observer(work: Path) -> dict:
     if not (data / "model.json").is_file():
         bench("data", "--motor", motor, "--out", str(data), "--quiet")
         bench("identify", "--motor", motor, "--mapping", mapping, "--train", train, "--validate", *held_out,
-              "--out", str(data / "model.json"))
+              "--out", str(data / "model.json"), "--kind", "hammerstein")
     model = work / "ipm-ntc+flux-observer.json"
     if not model.is_file():
         bench("observer", "--model", str(data / "model.json"), "--train", train, "--mapping", mapping,

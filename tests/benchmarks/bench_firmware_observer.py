@@ -110,7 +110,7 @@ def ipm_example(work: Path, rows: int) -> tuple[list[dict], list[dict]]:
     if not (data / "model.json").is_file():      # a --work directory keeps them from an earlier run
         bench("data", "--motor", motor, "--out", str(data), "--quiet")
         bench("identify", "--motor", motor, "--mapping", mapping, "--train", train, "--validate", *held_out,
-              "--out", str(data / "model.json"))
+              "--out", str(data / "model.json"), "--kind", "hammerstein")
     cases, runs = [], []
     for case, args in ipm_cases(ntc_sensor()).items():
         model = work / f"ipm-{case}-observer.json"

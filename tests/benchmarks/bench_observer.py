@@ -146,7 +146,7 @@ def ipm_example(work: Path, criteria: tuple[str, ...]) -> dict:
     train = str(data / "profile_0[1-8].csv")
     held_out = [str(data / f) for f in HELD_OUT]
     _, identify_s = bench("identify", "--motor", motor, "--mapping", mapping, "--train", train,
-                          "--validate", *held_out, "--out", str(data / "model.json"))
+                          "--validate", *held_out, "--out", str(data / "model.json"), "--kind", "hammerstein")
     sensor = ntc_sensor()
     common = ["--model", str(data / "model.json"), "--train", train, "--mapping", mapping]
     runs = [tune_and_evaluate(data, criterion, [*common, *args], ["--mapping", mapping, "--data", *held_out], "IPM",

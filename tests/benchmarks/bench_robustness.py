@@ -155,7 +155,8 @@ def ipm_inputs(work: Path, reuse: Path | None) -> tuple[Path, dict[str, Path], d
     bench("data", "--motor", motor, "--out", str(data), "--quiet")
     train = str(data / "profile_0[1-8].csv")
     _, identify_s = bench("identify", "--motor", motor, "--mapping", mapping, "--train", train, "--validate",
-                          *(str(data / f) for f in HELD_OUT), "--out", str(data / "model.json"))
+                          *(str(data / f) for f in HELD_OUT), "--out", str(data / "model.json"),
+                          "--kind", "hammerstein")
     observers, timings = {}, {"identify_s": round(identify_s, 1)}
     for case in ("ntc", "flux"):
         observers[case] = data / f"observer-{case}.json"

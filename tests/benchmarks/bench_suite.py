@@ -12,14 +12,16 @@ here, never used to choose). Per motor:
 1. `bench data --motor` (all profiles, timed).
 2. Per prior (`designer`: the motor file's own thermal_prior, a designer's honest estimate; `table1`: another
    motor's network; `auto`: read from the training data), `bench identify --all-kinds --bounds 0.1,10` on the
-   training profiles with the validation profiles as --validate; wall and CPU time.
-3. `bench evaluate` of the Hammerstein and the LTI artifact on the validation profiles (is the Hammerstein model
-   never worse than its LTI network there?) and on the test profiles: per node (winding, magnet, yoke, tooth)
-   pooled float32 MSE (K²) and max |error| (K).
-4. The observer on the designer's Hammerstein model with the motor's end-winding sensor (`ntc_C`, which does not
-   read the hot spot): `bench observer` with the sensor's lag, gradient and offset estimated from the training
-   profiles, and beside it with the motor file's values; each evaluated on the test profiles (open loop against
-   observer per node), timed.
+   training profiles with the validation profiles as --validate (the default `--kind auto`: the kind with the
+   smallest validation winding + magnet MSE is deployed at --out, the others beside it); wall and CPU time.
+3. `bench evaluate` of the Hammerstein and the LTI artifact (and the deployed one, when it is the PV LPTN) on the
+   validation profiles (is the Hammerstein model never worse than its LTI network there?) and on the test
+   profiles: per node (winding, magnet, yoke, tooth) pooled float32 MSE (K²) and max |error| (K); the row names
+   the deployed kind and its test figures (`deployed_kind`, `test_deployed`).
+4. The observer on the designer's Hammerstein model (whichever kind was deployed) with the motor's end-winding
+   sensor (`ntc_C`, which does not read the hot spot): `bench observer` with the sensor's lag, gradient and offset
+   estimated from the training profiles, and beside it with the motor file's values; each evaluated on the test
+   profiles (open loop against observer per node), timed.
 
 5. With --defaults: each default of `bench identify` beside its alternatives, on the VALIDATION profiles only
    (`DEFAULTS`: one identification per alternative and motor, from the designer's prior, or table1 where the
@@ -86,6 +88,7 @@ def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra
         "--train", *files(data, index, "train"), "--validate", *files(data, index, "validate"),
         "--out", str(out), "--all-kinds", "--bounds", BOUNDS, *option, *extra)
     return {"json": identified, "seconds": seconds, "cpu_s": children_cpu_s() - cpu, "out": out,
+            "artifacts": {kind: Path(path) for kind, path in identified["artifacts"].items()},
             "load_average": round(max(load, os.getloadavg()[0]), 2)}
 
 
@@ -105,27 +108,34 @@ def evaluate(motor: Path, models: list[Path], data_files: list[str]) -> dict:
 
 
 def prior_row(motor: Path, data: Path, index: dict, prior: str, run: dict) -> dict:
-    out = run["out"]
-    models = [out, out.with_name("model-lti-lptn.json")]
+    identified = run["json"]
+    deployed = identified["deployed_kind"]
+    kinds = dict.fromkeys(("hammerstein", "lti-lptn", deployed))     # the deployed one too when it is neither
+    models = [run["artifacts"][kind] for kind in kinds]
     validation = evaluate(motor, models, files(data, index, "validate"))
     test = evaluate(motor, models, files(data, index, "test"))
-    identified = run["json"]
     ham_val, lti_val = validation["hammerstein"], validation["lti-lptn"]
     row = {"prior": prior, "identify_s": round(run["seconds"], 1), "identify_cpu_s": round(run["cpu_s"], 1),
            "load_average": run["load_average"], "validation": validation, "test": test,
+           "deployed_kind": deployed, "test_deployed": test[deployed],
+           "deployment": identified.get("deployment"),
            "hammerstein_worse_on_validation": [n for n in ("winding", "pm")
                                                if ham_val[n]["mse_K2"] > lti_val[n]["mse_K2"]],
            "on_bounds": [h["name"] for h in identified.get("parameters_on_bounds") or []],
            "frozen": list((identified.get("polish") or {}).get("frozen") or []),
            "warnings": identified.get("warnings") or []}
-    ham = test["hammerstein"]
-    row["goal_met"] = all(ham[n]["mse_K2"] <= GOAL_MSE_K2 and ham[n]["max_K"] <= GOAL_MAX_K for n in ("winding", "pm"))
+    row["goal_met"] = goal_met(test["hammerstein"])
+    row["goal_met_deployed"] = goal_met(test[deployed])
     print(f"{motor.name} {prior}: identify {run['seconds']:.0f} s; test "
           + "; ".join(f"{kind} winding {m['winding']['mse_K2']:.2f} K²/{m['winding']['max_K']:.2f} K, magnet "
                       f"{m['pm']['mse_K2']:.2f}/{m['pm']['max_K']:.2f}" for kind, m in test.items())
-          + f"; Hammerstein worse than LTI on validation: {row['hammerstein_worse_on_validation'] or 'no'}",
-          flush=True)
+          + f"; Hammerstein worse than LTI on validation: {row['hammerstein_worse_on_validation'] or 'no'}"
+          + f"; deployed {deployed}", flush=True)
     return row
+
+
+def goal_met(figures: dict) -> bool:
+    return all(figures[n]["mse_K2"] <= GOAL_MSE_K2 and figures[n]["max_K"] <= GOAL_MAX_K for n in ("winding", "pm"))
 
 
 def sensor_truth(motor: Path) -> dict:
@@ -267,10 +277,11 @@ def one_motor(motor: Path, work: Path, args) -> dict:
         attempt(f"{motor.name} {prior}", lambda prior=prior, run=run: prior_row(motor, data, index, prior, run))
         for prior, run in runs.items()]
     if not args.skip_observer and "designer" in runs:
+        hammerstein = runs["designer"]["artifacts"]["hammerstein"]
         truth = sensor_truth(motor)
         entry["sensor"] = truth
         entry["observer"] = [attempt(f"{motor.name} observer ({how})",
-                                     lambda how=how: observer(motor, data, index, runs["designer"]["out"], how, truth))
+                                     lambda how=how: observer(motor, data, index, hammerstein, how, truth))
                              for how in ("estimated", "file")]
     if args.defaults:
         entry["defaults"] = attempt(f"{motor.name} defaults",
@@ -278,7 +289,7 @@ def one_motor(motor: Path, work: Path, args) -> dict:
         if not args.skip_observer:
             entry["observer_defaults"] = attempt(
                 f"{motor.name} observer defaults",
-                lambda: compare_observer_defaults(motor, data, index, runs["designer"]["out"]))
+                lambda: compare_observer_defaults(motor, data, index, runs["designer"]["artifacts"]["hammerstein"]))
     return entry
 
 

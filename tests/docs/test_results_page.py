@@ -105,8 +105,11 @@ def _suite_record(data_record: dict) -> dict:
                                    "alternatives": {"fixed": {"hammerstein": {"winding": 0.7, "pm": 0.8}}}}}
     scores = {"winding": {"open_loop_mse_K2": 9.0, "observer_mse_K2": 0.5},
               "pm": {"open_loop_mse_K2": 4.0, "observer_mse_K2": 3.0}}
-    motor = {"motor": "air-30kw", "priors": [{"prior": "auto", "failed": "bench identify failed (1): boom"}, row],
-             "observer": [observer]}
+    pv = {n: {"mse_K2": 0.75, "max_K": 2.5} for n in ("winding", "pm", "yoke", "tooth")}
+    deployed = {**row, "prior": "table1", "test": {**row["test"], "pv-lptn": pv}, "deployed_kind": "pv-lptn",
+                "hammerstein_worse_on_validation": ["winding", "pm"]}
+    motor = {"motor": "air-30kw", "priors": [{"prior": "auto", "failed": "bench identify failed (1): boom"}, row,
+                                             deployed], "observer": [observer]}
     main = {**copy.deepcopy(data_record), "benchmark": "suite", "variant": None,
             "figures": {"motors": [motor], "complete": False}}
     compared = {**motor, "defaults": defaults,
@@ -120,7 +123,11 @@ def test_the_suite_section_shows_each_motor_prior_observer_and_default(data_reco
     page = results_page.render_results({"suite": _suite_record(data_record)})
     section = page[page.index("## The motor suite"):]
     cells = " | ".join(["1.25 / 3.50"] * 4)
-    assert f"| air-30kw | designer | hammerstein | {cells} | pm | 140 |" in section
+    assert f"| air-30kw | designer | hammerstein | {cells} | pm | 140 |" in section    # a record before auto
+    assert f"| air-30kw | designer | lti-lptn | {cells} |  |  |" in section
+    # the kind --kind auto deployed is marked, and shown even when it is neither of the two compared
+    assert f"| air-30kw | table1 | hammerstein | {cells} | winding, pm | 140 |" in section
+    assert f"| air-30kw | table1 | pv-lptn (deployed) | {' | '.join(['0.75 / 2.50'] * 4)} |  |  |" in section
     assert "| air-30kw | auto | failed | Bench identify failed (1): boom |" in section
     assert "| air-30kw | estimated | 2.50 → 0.40 | 1.00 → 0.90 | 12 |" in section
     assert "| regularization: default | 0.50 / 0.60 |" in section

@@ -94,3 +94,19 @@ def test_a_faulted_run_whose_replies_only_come_late_exits_0(fault_dataset, tmp_p
     assert faults["injected"]["drop"] == faults["detected"]["drop"] > 0
     assert faults["late_replies"] > 0 and faults["unexplained_deadline_misses"] == 0
     assert faults["deadline_misses"] >= faults["late_replies"]
+
+
+def test_a_clean_run_is_aborted_only_by_rows_that_got_no_reply_at_all():
+    """Lockstep gives up after `abort_after` rows in a row without a reply. It counted deadline misses: with a
+    deadline below the bus's round trip (10 µs) every row was late, and a target that answered all of them was
+    reported as "stopped answering: 25 rows in a row without a reply" (run aborted at row 51 of 60). A late reply
+    is an answer; only rows with none count."""
+    from host.replay import unanswered_streak
+
+    book = RowBook(10)
+    for row in range(6):
+        answered(book, row, 1, first_after_ms=3.0)      # every one late, every one answered
+    assert unanswered_streak(book, 5, limit=25) == 0
+    assert unanswered_streak(book, 8, limit=25) == 3     # rows 6-8 not answered (yet)
+    assert unanswered_streak(book, 8, limit=2) == 2      # counted no further than the limit
+    assert unanswered_streak(RowBook(3), 2, limit=25) == 3

@@ -197,6 +197,10 @@ def _edited(artifact, change) -> dict:
     (lambda c: c["observer"].pop("P0"), "missing the field observer.P0"),
     (lambda c: c["observer"].update(bias="rotor-heat"),
      "observer.bias 'rotor-heat' is not one of winding-heat, magnet-heat or null"),
+    # a section of a version this target does not know was read as version 2 (99) or ended in a traceback ("two")
+    (lambda c: c["observer"].update(version=99), "observer.version 99 is not supported .* versions 1 to 2"),
+    (lambda c: c["observer"].update(version="two"), "observer.version 'two' is not supported"),
+    (lambda c: c["observer"].update(version=True), "observer.version True is not supported"),
 ])
 def test_a_bad_observer_section_is_refused_in_one_sentence(observed, change, sentence):
     artifact, _ = observed

@@ -4,17 +4,19 @@ model caught by the regression gate, and a bad criteria file refused before any 
 with a JUnit parser (junitparser)."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bench.acceptance.junit import PROJECT_DIR_VARIABLE
+from bench.analysis.results import DataIdentity
 from bench.drive.generate import ensure_default_datasets
 from bench.model.default import default_artifact_path
 from target_sim.artifact import encode_array, seal
 
-from helpers import run_cli
+from helpers import example_results, example_summary, run_cli, synthetic_columns, write_synthetic_dataset
 
 junitparser = pytest.importorskip("junitparser")
 
@@ -175,3 +177,20 @@ def test_a_command_that_ends_on_an_error_still_writes_its_junit_xml(tmp_path):
     (error,) = by_name["clean"].result
     assert isinstance(error, junitparser.Error) and error.message == sentence
     assert by_name["pm_rmse"].result[0].message == f"not judged: {sentence}"
+
+
+@pytest.mark.parametrize("command", ["run", "host"])
+def test_a_baseline_of_other_data_is_refused_before_any_work(tmp_path, command):
+    """The same rows of another dataset: before summaries carried the data's identity, the gate compared the two
+    and reported a false regression (44.78 %)."""
+    data = write_synthetic_dataset(tmp_path / "drive.csv", synthetic_columns(300, seed=4), "other data")
+    stored = replace(example_results(), data=DataIdentity(300, "0" * 64))
+    baseline = tmp_path / "baseline.json"
+    baseline.write_text(json.dumps(example_summary(metrics=stored).to_json()))
+    log = tmp_path / "run.blf"
+    proc = run_cli("-m", "bench", command, "--data", str(data), "--rows", "300", "--baseline", str(baseline),
+                   "--log", str(log), "-i", "udp_multicast", timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().startswith(f"bench: error: the baseline {baseline} is a run on other data (rows of "
+                                          "sha256 000000000000…, not ")
+    assert len(proc.stderr.strip().splitlines()) == 1 and not log.exists()

@@ -12,7 +12,15 @@ import bench.acceptance.kinds
 from bench.acceptance.criteria import CriteriaError, load_criteria, load_gate, parse_criteria
 from bench.acceptance.kinds import KINDS, Kind, register
 from bench.acceptance.kinds._base import judged
-from bench.analysis.results import Acceptance, CycleFigures, NodeLabels, NodeValues, RunResults, RunSummary
+from bench.analysis.results import (
+    Acceptance,
+    CycleFigures,
+    DataIdentity,
+    NodeLabels,
+    NodeValues,
+    RunResults,
+    RunSummary,
+)
 
 from helpers import example_results, example_summary
 
@@ -208,6 +216,27 @@ def test_regression_refuses_figures_that_do_not_compare(tmp_path):
     relabelled = results(rmse_reference=NodeLabels("float64 model", "float64 model", "float64 model", "measured"))
     check, = judge(tmp_path, text, relabelled, baseline).checks
     assert not check.passed and "against float64 model, the baseline's against measured" in check.message
+
+
+def test_a_baseline_of_other_data_is_refused_before_the_run_and_never_judged(tmp_path):
+    """Summaries carry the data's identity: a baseline of other rows (same count) gave a false "regression" of
+    44.78 % before; now the command refuses it before any work, and a regression against it is never judged."""
+    stored = replace(results(), data=DataIdentity(300, "a" * 64))
+    baseline = write_baseline(tmp_path, stored)
+    text = "[criteria.reg]\nkind = 'regression'\nmax_worse_percent = 5\n[criteria.pm]\nkind = 'rmse'\nmax = 3.0"
+    gate = gate_of(tmp_path, text, baseline)
+    assert gate.baseline.data == DataIdentity(300, "a" * 64)     # the identity survives the JSON round trip
+    gate.check_data(DataIdentity(300, "a" * 64), "this run")      # the same data: nothing to say
+    gate.check_data(None, "a log no dataset matched")             # nothing known: compared as before
+    with pytest.raises(CriteriaError, match=r"the baseline .*baseline.json is a run on other data \(rows of sha256 "
+                                            r"aaaaaaaaaaaa…, not bbbbbbbbbbbb…\) than this run; store a baseline"):
+        gate.check_data(DataIdentity(300, "b" * 64), "this run")
+    acceptance = gate.judge(replace(results(), data=DataIdentity(300, "b" * 64)))
+    regression, pm = acceptance.checks
+    assert not regression.passed and regression.figure is None and "is a run on other data" in regression.message
+    assert pm.passed                                              # the other criteria are judged as ever
+    older = write_baseline(tmp_path, results())                   # a summary of a bench before the identity
+    assert gate_of(tmp_path, text, older).judge(replace(results(), data=DataIdentity(300, "b" * 64))).passed
 
 
 def test_a_baseline_alone_adds_the_default_rmse_regression(tmp_path):

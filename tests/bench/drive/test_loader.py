@@ -197,3 +197,18 @@ def test_bad_mappings_in_code():
         ColumnMapping(decimal=",")
     with pytest.raises(DatasetError, match=r"key 'time.sample_period_s': -1 is not a positive number"):
         ColumnMapping(sample_period_s=-1)
+
+
+def test_the_rows_identity_is_of_the_values_not_of_the_file(tmp_path):
+    """A summary's data identity (`rows_sha256`): the same values in another file, separator and order of columns
+    give the same identity; one changed value or fewer rows give another."""
+    same = load_dataset(write(tmp_path, rows(), name="a.csv"))
+    order = [COLUMNS.index(c) for c in reversed(COLUMNS)]
+    reordered = write(tmp_path, [[r[i] for i in order] for r in rows()], ";".join(reversed(COLUMNS)), "b.csv")
+    reordered.write_text(reordered.read_text().replace(",", ";"))
+    again = load_dataset(reordered, ColumnMapping(separator=";"))
+    assert same.sha256 != again.sha256 and same.rows_sha256() == again.rows_sha256()
+    assert same.rows_sha256(12) == same.rows_sha256() != same.rows_sha256(11)
+    changed = rows()
+    changed[5][1] = "120.6"
+    assert load_dataset(write(tmp_path, changed, name="c.csv")).rows_sha256() != same.rows_sha256()

@@ -110,6 +110,23 @@ def test_check_of_an_electrical_model_on_data_with_currents(tmp_path):
                                "loss model needs the d/q currents (data columns i_d_A, i_q_A)")
 
 
+def test_a_damaged_cached_image_is_built_again_and_said(tmp_path, artifacts, capsys):
+    """A cached image that is text, or an ELF without the functions the engine calls, made every later run fail
+    naming a file the user never gave; it is rebuilt in its place, with one line saying so."""
+    from target_sim.firmware import read_elf
+
+    artifact = load_artifact(artifacts["lti"])
+    first = firmware_for(artifact, tmp_path)
+    good = first.read_bytes()
+    first.write_text("not an image\n")
+    assert firmware_for(artifact, tmp_path) == first and first.read_bytes() == good
+    said = capsys.readouterr().err
+    assert said.startswith(f"bench: the cached firmware {first} is not a usable image (") and said.count("\n") == 1
+    first.write_bytes(packaged_elf_path("hammerstein").read_bytes().replace(b"node_on_frame", b"node_on_fraMe"))
+    assert firmware_for(artifact, tmp_path) == first and "fw_step" in read_elf(first).symbols
+    assert "lacks node_on_frame; building it again" in capsys.readouterr().err
+
+
 def test_firmware_for_caches_a_build_under_a_key_of_its_sources(tmp_path, artifacts, monkeypatch):
     from bench.firmware import toolchain
 

@@ -240,7 +240,8 @@ def test_bench_firmware_timing_reports_the_figures_and_refuses_a_rate_the_core_c
     assert all(report["measured_max_cycles"][name] <= bound for name, bound in report["wcet_cycles"].items())
     assert set(report["response_time_us"]) == {"p50", "p99", "max"} and report["response_time_us"]["max"] > 0
     assert {"p50", "max"} <= set(report["isr_latency_cycles"]) and set(report["cpu_load"]) == {"90MHz", "168MHz"}
+    fresh = tmp_path / "fresh"
     proc = run_cli("-m", "bench", "firmware", "timing", "--data", str(small_dataset), "--isr-rate", "1000000",
-                   "--out", str(tmp_path))
-    assert proc.returncode != 0 and "leaves the background no time" in proc.stderr
-    assert "Traceback" not in proc.stderr
+                   "--out", str(fresh))
+    assert proc.returncode == 2 and "--isr-rate 1000000 is not a current-loop rate" in proc.stderr
+    assert "Traceback" not in proc.stderr and not fresh.exists()    # refused before the build, not after it

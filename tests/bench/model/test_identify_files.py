@@ -6,11 +6,14 @@ import numpy as np
 import pytest
 
 from bench.cli import main
+from bench.model.deploy import choose_kind
 from bench.model.lptn_fit import FIXED_BOUNDS
 from bench.motor.template import template
 from target_sim.artifact import load_artifact
 
 ROWS = 1500   # 25 min at 1 s
+# how bench.model.coverage's warnings begin
+COVERAGE_OPENINGS = ("the validation file", "every validation file", "every training file")
 
 
 def _profile(seed: int) -> dict[str, np.ndarray]:
@@ -64,7 +67,8 @@ def identified(motor_files, tmp_path_factory):
     buffer = io.StringIO()
     capture.setattr(sys, "stdout", buffer)
     try:
-        assert _identify(motor_files, out, "--polish", "2") == 0    # the polish route, asked for
+        # the polish route, asked for, with the Hammerstein model at --out whatever the validation file favours
+        assert _identify(motor_files, out, "--polish", "2", "--kind", "hammerstein") == 0
     finally:
         capture.undo()
     return out, json.loads(buffer.getvalue())
@@ -94,11 +98,15 @@ def test_identify_on_files_records_the_motor_and_the_split(identified, motor_fil
     assert summary["split"] == prov["split"]
     # every parameter the fit left on a bound is named, in JSON and as a warning; then the frozen ones, the
     # parameters the data do not determine, and which model to deploy when the Hammerstein model did worse
+    # (after the data's coverage warnings, said before the fit: profile_03 is hotter than the training files)
+    coverage = [w for w in summary["warnings"] if w.startswith(COVERAGE_OPENINGS)]
+    assert summary["warnings"][:len(coverage)] == coverage
+    fitted = summary["warnings"][len(coverage):]
     hits = summary["parameters_on_bounds"]
     if hits:     # one sentence names them all
-        assert all(f"{hit['name']} = " in summary["warnings"][0] for hit in hits)
-        assert "bound of the search" in summary["warnings"][0]
-    rest = summary["warnings"][1 if hits else 0:]
+        assert all(f"{hit['name']} = " in fitted[0] for hit in hits)
+        assert "bound of the search" in fitted[0]
+    rest = fitted[1 if hits else 0:]
     frozen = prov["polish"]["frozen"]
     if any(hit["name"] not in FIXED_BOUNDS for hit in hits):   # the prior cannot hold the motor: no frozen sentence
         assert not any("frozen" in w for w in rest)
@@ -223,3 +231,40 @@ def test_without_a_polish_the_files_path_still_names_what_the_data_cannot_determ
     assert summary["polish"] is None
     assert summary["uncertainty"]["unidentifiable"] and summary["undetermined"]["parameters"]
     assert "standard_errors" in summary["timings_s"]
+
+
+def test_kind_auto_deploys_the_kind_the_validation_file_favours(motor_files, tmp_path, capsys):
+    """The default with --train files: all three kinds from one fit, the one with the smallest validation winding +
+    magnet MSE at --out, the others beside it, the choice in --json and in every artifact's provenance."""
+    out = tmp_path / "m.json"
+    assert main(["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+                 "--train", str(motor_files / "profile_03.csv"), "--validate", str(motor_files / "profile_01.csv"),
+                 "--swarm", "4", "--iterations", "1", "--lm-iterations", "2", "--regularization", "fixed",
+                 "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert set(summary["validation"]) == {"lti-lptn", "pv-lptn", "hammerstein"}
+    chosen = choose_kind(summary["validation"])
+    deployed = summary["deployed_kind"]
+    assert deployed == chosen.kind == summary["deployment"]["deployed_kind"]
+    # this split's Hammerstein model is worse than its network (measured: 46.49 K² LTI, 46.55 pv, 48.20 Hammerstein)
+    assert deployed == "lti-lptn" and chosen.mse_K2["hammerstein"] > 1.02 * chosen.mse_K2["lti-lptn"]
+    assert summary["deployment"]["validation_mse_K2"] == pytest.approx(chosen.mse_K2)
+    assert summary["deployment"]["sentence"] == chosen.sentence(str(out))
+    assert summary["artifacts"] == {k: str(out if k == deployed else tmp_path / f"m-{k}.json")
+                                    for k in ("hammerstein", "lti-lptn", "pv-lptn")}
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["m.json", *(f"m-{k}.json" for k in
+                                                                              summary["artifacts"] if k != deployed)])
+    assert load_artifact(out).kind == deployed
+    for kind, path in summary["artifacts"].items():
+        art = load_artifact(path)
+        assert art.kind == kind and art.content["provenance"]["deployment"]["deployed_kind"] == deployed
+    assert not any("deploy the lti-lptn artifact" in w for w in summary["warnings"])
+
+
+def test_kind_auto_without_validation_files_is_refused_before_any_work(motor_files, tmp_path, capsys):
+    assert main(["identify", "--motor", str(tmp_path / "no-such-motor.toml"), "--train",
+                 str(motor_files / "profile_01.csv"), "--kind", "auto", "--out", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "--kind auto chooses the deployed kind on held-out validation files: name them with --validate" in err
+    assert not any(tmp_path.iterdir())
