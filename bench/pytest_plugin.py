@@ -427,6 +427,7 @@ class ThermalBench:
         result = self._result(argv, proc, run_dir)
         self.runs.append(result)
         self._record_figures(result)
+        _print_attachments(result)
         return result
 
     def _result(self, argv: list[str], proc: subprocess.CompletedProcess, run_dir: Path) -> BenchRun:
@@ -448,6 +449,17 @@ class ThermalBench:
         prefix = "bench" if len(self.runs) == 1 else f"bench_run{len(self.runs)}"
         for name, value in figures(result).items():
             self._record(f"{prefix}_{name}", value)
+
+
+def _print_attachments(result: BenchRun) -> None:
+    """The run's log, report and JUnit XML as `[[ATTACHMENT|path]]` lines on the test's output, relative to the
+    project directory: with `-o junit_logging=system-out` pytest's JUnit XML carries them, and GitLab and Jenkins
+    attach the files to the test."""
+    from bench.acceptance.junit import attachment_path
+
+    for path in (result.metrics.integrity.log, result.metrics.report, result.junit_xml):
+        if path:
+            print(f"[[ATTACHMENT|{attachment_path(path)}]]")
 
 
 def figures(result: BenchRun) -> dict[str, Any]:
