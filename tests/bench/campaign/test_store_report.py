@@ -183,8 +183,8 @@ def test_a_resume_with_another_spec_is_refused_before_any_run(table, capsys):
     assert main(["campaign", "run", str(other), "--out", str(out), "--resume", "--quiet"]) == 1
     said = capsys.readouterr().err.strip()
     assert said == (f"bench: error: {out} holds the campaign 'unit' of {out / 'spec.toml'} (spec sha256 "
-                    f"abababababab…), whose axes or fixed options differ from {other}'s; resume it with that spec and the same --set "
-                    "values, or choose another --out")
+                    f"abababababab…), whose axes or fixed options differ from {other}'s; resume it with that spec "
+                    "and the same --set values, or choose another --out")
     assert main(["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--resume", "--quiet",
                  "--set", "rows=200"]) == 1                         # the same spec with other values: another one
     assert "whose axes or fixed options differ" in capsys.readouterr().err
