@@ -19,6 +19,13 @@ The covariance is kept in one of four forms (`OBSERVER_FORMS`), equal in exact a
 - `steady`: the steady-state gain K_ss of the artifact (the lab solves the Riccati equation at a nominal operating
   point), no covariance at all: x <- x + K_ss ν, a few multiply-adds.
 
+Consider states (the section's `consider`, `target_sim.artifact.CONSIDER_KINDS`): a measurement that does not read
+the kind's node holds it (and the kind's bias state): the gain's held rows are -0, K = K_opt - δ, and each form
+keeps the covariance of that gain, P_opt + s δ δᵀ (s = h P⁻ hᵀ + R): `joseph` by its own formula (valid for any
+gain), `conventional` by adding s δ δᵀ over the held rows to its optimal update, `ud` by Agee and Turner's rank-one
+update (P_opt + γ v vᵀ, v = P⁻hᵀ on the held rows, γ = 1/s) after Bierman's, `steady` with the lab's consider
+steady state (the held rows of K_ss set to -0 here, exactly).
+
 Every operation has a fixed order and a float32 rounding (`fmath.matmul`, `fmath.dot`, elementwise ufuncs), so a C
 version can repeat it bit for bit. The artifact stores Q, P0, K_ss and P_ss in the realization's coordinates; the
 filter runs in node coordinates (`target_sim.observer_coordinates`: the node temperatures y = C x and the extra

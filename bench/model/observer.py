@@ -24,7 +24,11 @@ the motor file and subtracted, its gradient says what it sees) and the flux-link
 (calibrated on the training files). `bias` adds a heat-bias state of a kind of `target_sim.artifact.BIAS_KINDS`
 (W into one node the loss model misses, a random walk): "winding-heat" (True: the winding, as before), so a
 sensor's persistent disagreement with the winding model heats or cools the winding instead of pushing the magnet,
-or "magnet-heat", so a persistent magnet-side model error (a magnet loss or coupling error) can be absorbed. Each
+or "magnet-heat", so a persistent magnet-side model error (a magnet loss or coupling error) can be absorbed.
+`consider` ("magnet", `target_sim.artifact.CONSIDER_KINDS`) makes the magnet node and a magnet bias consider states
+(Schmidt-Kalman): a measurement that does not read the magnet never updates them, so a winding sensor cannot move
+the magnet through a winding-magnet covariance the model has wrong; the filter's covariance is that of the gain
+actually used, and K_ss, P_ss the consider filter's steady state (`bench.thermal.kalman.steady_state`). Each
 measurement's R is a tuned scale of its per-step variance (1 for a sensor, the flux linkage's calibrated R_floor +
 R_speed (n_min/n)²).
 """
