@@ -123,7 +123,7 @@ def consider_problem(consider: str | None, bias, measurements: Sequence) -> str 
     if bias_kind(bias) == held_bias and all(m.sees[OUTPUTS.index(node)] == 0 for m in measurements):
         return (f"--consider {consider} holds the {node} heat bias for every measurement (none reads the {node}), so "
                 f"the bias would never move and its variance would grow without bound; add a measurement of the "
-                f"{node} (--flux), or use another --bias")
+                f"{node} (--flux), or use --consider none or another --bias")
     return None
 
 
