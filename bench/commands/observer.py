@@ -24,7 +24,9 @@ coupling the model has wrong); --bias none (the default): no bias state.
 that does not read the magnet (an end-winding NTC) corrects the winding and the other nodes but never the magnet,
 whose estimate then moves only through the model's own coupling; the covariance is that of the gain actually used
 (its rows of the magnet zero), so the filter stays consistent. A measurement that reads the magnet (--flux) still
-updates it. --consider none: every state is updated.
+updates it. It is the default (on the suite's validation profiles the only setting that left the magnet no worse
+than the open loop on every motor); --consider none: every state is updated (--bias magnet with a winding sensor
+alone needs it: a held magnet bias would never move).
 --flux adds the flux-linkage magnet temperature from u_d, u_q, i_d, i_q and speed: ψ_0 and α_B (and L_d and
 R_s where the data determine them) are calibrated on the training files against the measured magnet, valid at or
 above --flux-min-speed; the calibration's residual is reported, a large one is a warning, and one that makes the

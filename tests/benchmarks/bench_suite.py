@@ -179,7 +179,9 @@ DEFAULTS = {
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
-                     "bias": ("off", {"on": ("--bias",), "magnet": ("--bias", "magnet")})}   # on: the winding's
+                     # on: the winding's; the magnet's with --consider none (a held magnet bias would never move)
+                     "bias": ("off", {"on": ("--bias",), "magnet": ("--bias", "magnet", "--consider", "none")}),
+                     "consider": ("magnet", {"none": ("--consider", "none")})}
 
 
 def validation_mse(identified: dict) -> dict:
