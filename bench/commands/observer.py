@@ -157,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
               f"{args.criterion} criterion {fit.cost:.6g} after {fit.evaluations} filter runs")
         for text in filter(None, (m.calibration_text() for m in measurements)):
             print(text)
-        print(f"Q per step: {q}; R scale {', '.join(f'{v:.3g}' for v in fit.r_scale)}; deployed form {args.form}")
+        print(f"Q per step: {q}; R scale {', '.join(f'{v:.3g}' for v in fit.r_scale)}; deployed form {args.form}; "
+              f"consider states: {fit.consider or 'none'}")
         print(f"wrote {args.out} (sha256 {content['sha256'][:12]})")
     return 0

@@ -194,16 +194,20 @@ def test_the_steady_state_is_the_consider_filters_fixed_point():
     assert np.min(np.linalg.eigvalsh(post - optimal)) > -1e-12
 
 
-def test_the_cli_option(tmp_path, small_dataset):
+def test_the_cli_option(tmp_path, small_dataset, capsys):
     from bench.cli import build_parser, main
 
     parse = build_parser().parse_args
     assert parse(["observer"]).consider == DEFAULT_CONSIDER
     assert parse(["observer", "--consider", "magnet"]).consider == "magnet"
     out = tmp_path / "consider.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--consider", "magnet", "--out",
-                 str(out), "--quiet"]) == 0
-    assert load_artifact(out).content["observer"]["consider"] == "magnet"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--consider", "none", "--out",
+                 str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["consider"] is None and "consider" not in load_artifact(out).content[
+        "observer"]
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--out", str(out)]) == 0
+    assert "consider states: magnet" in capsys.readouterr().out
+    assert load_artifact(out).content["observer"]["consider"] == DEFAULT_CONSIDER == "magnet"
 
 
 @pytest.mark.parametrize(("argv", "sentence"), [
