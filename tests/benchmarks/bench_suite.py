@@ -23,8 +23,9 @@ here, never used to choose). Per motor:
 
 5. With --defaults: each default of `bench identify` beside its alternatives, on the VALIDATION profiles only
    (`DEFAULTS`: one identification per alternative and motor, from the designer's prior, or table1 where the
-   default concerns a named prior), winding and magnet MSE of both kinds; and the observer's criteria and --bias
-   (off, winding, magnet; tuned on the training profiles, evaluated on the validation profiles). The default
+   default concerns a named prior), winding and magnet MSE of both kinds; and the observer's criteria, --bias
+   (off, winding, magnet) and --consider (magnet, none; tuned on the training profiles, evaluated on the
+   validation profiles). The default
    should be at least as good as its alternatives on most motors; the record says, per default, which won where.
 
 Goals (issue 37): on every motor, Hammerstein, designer's and auto prior, winding and magnet test MSE ≤ 2.0 K² and
