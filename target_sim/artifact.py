@@ -44,6 +44,12 @@ OUTPUTS = TEMPERATURE_NODES   # the model's outputs: the temperatures in the sta
 # misses, a random walk, and the column of B it heats: its node's loss input (the inputs P_y, P_w, P_t, P_m are in
 # the order of OUTPUTS). The one table of them: the target, the firmware generator and the lab read it here.
 BIAS_KINDS = {"winding-heat": 1, "magnet-heat": 3}
+# The observer's consider kinds (its section's `consider`; absent or null: none): states that a measurement which
+# does not read them never updates (Schmidt-Kalman "consider" states: their rows of the gain are zero, the covariance
+# is the one of that gain). A kind names its node of OUTPUTS and the bias kind that belongs to it (held too when the
+# section has that bias). A measurement "reads" the node when its `sees` weighs it (the flux linkage reads the magnet;
+# a winding NTC does not, so it cannot move the magnet through a coupling the model may have wrong).
+CONSIDER_KINDS = {"magnet": ("magnet", "magnet-heat")}
 # losses.model names a loss model of `target_sim.losses` ("maps", "electrical", ...), which owns its fields
 LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
                    "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
@@ -277,6 +283,10 @@ def _check_observer(artifact: ModelArtifact, version: int) -> None:
         if n != len(section["states"]):
             raise ArtifactError(f"artifact observer.states names {len(section['states'])} states, its measurements "
                                 f"and bias make {n}; {fix}")
+    consider = section.get("consider")
+    if consider is not None and (not isinstance(consider, str) or consider not in CONSIDER_KINDS):
+        raise ArtifactError(f"artifact observer.consider {_shown(consider)} is not one of "
+                            f"{', '.join(CONSIDER_KINDS)} or null; {fix}")
     if not np.all(artifact.array("observer", "q_nodes_C2", dtype=np.float64) >= 0):
         raise ArtifactError(f"artifact observer.q_nodes_C2 holds a negative variance; {fix}")
     for key in ("R", "Q", "P0", "P_ss"):
@@ -327,6 +337,24 @@ def observer_state_count(section: dict) -> int:
         if pole is not None and decode_array(pole, f"observer.measurements[{i}].arrays.lag_pole", np.float64) > 0:
             lags += 1
     return len(OUTPUTS) + lags + (1 if section.get("bias") else 0)
+
+
+def consider_held(consider: str | None, sees: np.ndarray, bias: str | None, states: int) -> np.ndarray:
+    """(measurements, states) booleans: the states each measurement's update leaves as they are (`CONSIDER_KINDS`):
+    for a measurement whose `sees` (a row of 4 node weights) does not weigh the kind's node, that node (its index in
+    OUTPUTS: the filter's node coordinates) and, when the section's bias is the kind's, the bias state (the last)."""
+    sees = np.atleast_2d(np.asarray(sees, dtype=np.float64))
+    held = np.zeros((len(sees), states), dtype=bool)
+    if consider is None:
+        return held
+    node_name, bias_name = CONSIDER_KINDS[consider]
+    node = OUTPUTS.index(node_name)
+    for m, row in enumerate(sees):
+        if row[node] == 0:
+            held[m, node] = True
+            if bias == bias_name:
+                held[m, states - 1] = True
+    return held
 
 
 def observer_shapes(section: dict) -> dict[str, tuple[int, ...]]:

@@ -19,6 +19,13 @@ The covariance is kept in one of four forms (`OBSERVER_FORMS`), equal in exact a
 - `steady`: the steady-state gain K_ss of the artifact (the lab solves the Riccati equation at a nominal operating
   point), no covariance at all: x <- x + K_ss ν, a few multiply-adds.
 
+Consider states (the section's `consider`, `target_sim.artifact.CONSIDER_KINDS`): a measurement that does not read
+the kind's node holds it (and the kind's bias state): the gain's held rows are -0, K = K_opt - δ, and each form
+keeps the covariance of that gain, P_opt + s δ δᵀ (s = h P⁻ hᵀ + R): `joseph` by its own formula (valid for any
+gain), `conventional` by adding s δ δᵀ over the held rows to its optimal update, `ud` by Agee and Turner's rank-one
+update (P_opt + γ v vᵀ, v = P⁻hᵀ on the held rows, γ = 1/s) after Bierman's, `steady` with the lab's consider
+steady state (the held rows of K_ss set to -0 here, exactly).
+
 Every operation has a fixed order and a float32 rounding (`fmath.matmul`, `fmath.dot`, elementwise ufuncs), so a C
 version can repeat it bit for bit. The artifact stores Q, P0, K_ss and P_ss in the realization's coordinates; the
 filter runs in node coordinates (`target_sim.observer_coordinates`: the node temperatures y = C x and the extra
@@ -38,6 +45,7 @@ from target_sim.artifact import (
     BIAS_KINDS,
     OUTPUTS,
     ModelArtifact,
+    consider_held,
     encode_array,
     observer_state_count,
     section_version,
@@ -54,11 +62,13 @@ from target_sim.ud_structure import (
     NEG_ZERO,
     BiermanSchedule,
     Pivot,
+    RankOneStep,
     bierman_schedule,
     gram_schmidt_schedule,
     masked_dot,
     masked_matmul,
     pattern_product,
+    rank_one_schedule,
     structural,
     upper_unit,
 )
@@ -78,15 +88,22 @@ class Conventional:
     def predict(self, transition: np.ndarray) -> None:
         self.p = matmul(matmul(transition, self.p), transition.T) + self.q
 
-    def _gain(self, h: np.ndarray, r) -> tuple[np.ndarray, np.ndarray]:
+    def _gain(self, h: np.ndarray, r) -> tuple[np.ndarray, np.ndarray, np.floating]:
         ph = matvec(self.p, h)                 # P⁻ hᵀ
         s = dot(h, ph) + r
-        return ph / s, ph
+        return ph / s, ph, s
 
-    def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
-        k, _ = self._gain(h, r)
+    def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
+        """The optimal update; with `held` (consider states) P += s δ δᵀ after it, δ the optimal gain's held rows
+        (the covariance of the gain with those rows zero), and that gain is returned."""
+        k, _, s = self._gain(h, r)
         hp = matvec(self.p.T, h)               # h P⁻ (a row; equal to (P⁻hᵀ)ᵀ only while P⁻ is symmetric)
         self.p = self.p - k[:, None] * hp[None, :]
+        if held is not None:
+            rows = np.flatnonzero(held)
+            delta = k[rows]
+            self.p[np.ix_(rows, rows)] = self.p[np.ix_(rows, rows)] + (s * delta)[:, None] * delta[None, :]
+            k = held_gain(k, held)
         return k
 
     def covariance(self) -> np.ndarray:
@@ -100,12 +117,20 @@ class Conventional:
 class Joseph(Conventional):
     """P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ."""
 
-    def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
-        k, _ = self._gain(h, r)
+    def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
+        """Joseph's form holds for any gain: with `held` (consider states) the optimal gain's held rows zero."""
+        k, _, _ = self._gain(h, r)
+        if held is not None:
+            k = held_gain(k, held)
         f = self.f
         i_kh = np.eye(len(k), dtype=f) - k[:, None] * h[None, :]
         self.p = matmul(matmul(i_kh, self.p), i_kh.T) + (r * k)[:, None] * k[None, :]
         return k
+
+
+def held_gain(gain: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """The gain with the rows of the held (consider) states a structural zero (-0: x + (-0)·ν is x)."""
+    return structural(gain, ~held)
 
 
 def ud_factor(m: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
@@ -202,9 +227,14 @@ class BiermanThornton:
             self._updates[key] = (nonzero, bierman_schedule(nonzero))
         return self._updates[key]
 
-    def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
+    def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
         """Bierman's scalar update (Grewal and Andrews' arrangement) over h's structure: a = Uᵀhᵀ, b = d ∘ a, then
-        each column j with a_j != 0 (a column with a_j = 0 changes nothing); returns the gain b·γ."""
+        each column j with a_j != 0 (a column with a_j = 0 changes nothing); returns the gain b·γ.
+
+        With `held` (consider states): Bierman's update is the optimal gain's; the gain with the held rows zero,
+        K = K_opt - δ, has the covariance P_opt + s δ δᵀ (s = h P⁻ hᵀ + R, the final α; δ = b_held/s), i.e.
+        P_opt + γ v vᵀ with v = b on the held rows: Agee and Turner's rank-one update of U and d, which keeps d
+        positive for a positive weight (`rank_one`)."""
         f = self.f
         one = f(1.0)
         nonzero, schedule = self._bierman_entry(h)
@@ -222,13 +252,49 @@ class BiermanThornton:
             gamma = one / alpha
             d[j] = (beta * gamma) * d[j]
             for i in step.updated:
-                held = u[i, j]
-                u[i, j] = held + b[i] * lam
-                b[i] = b[i] + b[j] * held
+                before = u[i, j]
+                u[i, j] = before + b[i] * lam
+                b[i] = b[i] + b[j] * before
             for i in step.filled:
                 b[i] = b[j] * u[i, j]          # b_i was a structural zero: -0 + b_j u_ij
+        gain = b * gamma
+        if held is not None:
+            v_nonzero = held & np.asarray(schedule.gain_nonzero)
+            self.rank_one(u, d, gamma, structural(b, v_nonzero), self._rank_one(v_nonzero))
+            gain = held_gain(gain, held)
         self.u, self.d = u, d
-        return b * gamma
+        return gain
+
+    def _rank_one(self, v_nonzero: np.ndarray) -> tuple[RankOneStep, ...]:
+        key = b"r" + v_nonzero.tobytes()
+        if key not in self._pivots:
+            self._pivots[key] = rank_one_schedule(v_nonzero)
+        return self._pivots[key]
+
+    def rank_one_steps(self, v_nonzero: np.ndarray) -> tuple[RankOneStep, ...]:
+        """The Agee-Turner schedule for v's structural nonzeros (the C generator's)."""
+        return self._rank_one(np.asarray(v_nonzero, dtype=bool))
+
+    def rank_one(self, u: np.ndarray, d: np.ndarray, c, v: np.ndarray, steps: tuple[RankOneStep, ...]) -> None:
+        """U diag(d) Uᵀ + c v vᵀ into u and d in place (c > 0; Agee and Turner, Bierman 1977 ch. V), over the
+        schedule, last column first: d̃_j = d_j + (c v_j) v_j, β = (c v_j)/d̃_j, c = (c d_j)/d̃_j, then for each
+        row i < j: v_i -= v_j u_ij, u_ij += β v_i (a d̃_j that is not positive: β = 0 and c as it was)."""
+        f = self.f
+        v = v.copy()
+        for step in steps:
+            j = step.column
+            cv = c * v[j]
+            dn = d[j] + cv * v[j]
+            positive = dn > f(0.0)
+            beta = cv / dn if positive else f(0.0)
+            c = (c * d[j]) / dn if positive else c
+            d[j] = dn
+            for i in step.updated:
+                v[i] = v[i] - v[j] * u[i, j]
+                u[i, j] = u[i, j] + beta * v[i]
+            for i in step.filled:
+                v[i] = -(v[j] * u[i, j])
+                u[i, j] = u[i, j] + beta * v[i]
 
     def variance(self, row: np.ndarray):
         """row·(U D Uᵀ row) without forming P: v = Uᵀ row, then ((d_0 v_0) v_0 + (d_1 v_1) v_1) + ... (C:
@@ -251,8 +317,8 @@ class SteadyState:
     def predict(self, transition: np.ndarray) -> None:
         pass
 
-    def update(self, h: np.ndarray, r, index: int = 0) -> np.ndarray:
-        return self.gain[index]
+    def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
+        return self.gain[index]           # the held rows are already zero (Float32Observer)
 
     def covariance(self) -> np.ndarray:
         return self.p
@@ -274,7 +340,8 @@ OBSERVER_FORMS: Registry[ObserverForm] = Registry("observer form")
 for _form in (
     ObserverForm("conventional", "P = P⁻ - K h P⁻ (no symmetrization)", True),
     ObserverForm("joseph", "P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ", True),
-    ObserverForm("ud", "P = U D Uᵀ: Thornton's prediction, Bierman's update", True),
+    ObserverForm("ud", "P = U D Uᵀ: Thornton's prediction, Bierman's update (Agee-Turner's for consider states)",
+                 True),
     ObserverForm("steady", "constant steady-state gain, no covariance", False),
 ):
     OBSERVER_FORMS.register(_form.name, _form)
@@ -358,6 +425,13 @@ class Float32Observer:
         self.gain_steady = self.coordinates.vectors(artifact.array("observer", "K_ss", dtype=np.float64)
                                                     .reshape(-1, n), f)
         self.p_steady = to_nodes(artifact.array("observer", "P_ss", dtype=np.float64), f)
+        # consider states: per measurement the states its update holds (node coordinates), None: none
+        held = consider_held(section.get("consider"), np.array([m.sees for m in self.measurements]),
+                             section.get("bias"), n)
+        self.held = [row if row.any() else None for row in held]
+        for index, row in enumerate(self.held):
+            if row is not None:      # the lab wrote them zero up to rounding; the target holds them exactly
+                self.gain_steady[index] = held_gain(self.gain_steady[index], row)
         # the augmented layout: lag states after the model's, then the bias
         self.lag_index, nxt = [], len(OUTPUTS)
         for m in self.measurements:
@@ -541,7 +615,7 @@ class Float32Observer:
             predicted = self.extra[lag - k] if lag >= 0 else masked_dot(m.sees[self.sees_nonzero[index]],
                                                                       est.y[self.sees_nonzero[index]], f(NEG_ZERO))
             self.innovations[index] = nu = value - predicted
-            gain = self.cov.update(self.rows[index], r, index)      # in node coordinates
+            gain = self.cov.update(self.rows[index], r, index, self.held[index])      # in node coordinates
             step = gain[:k] * nu
             est.y = est.y + step                  # the next measurement reads the corrected nodes
             correction = correction + step

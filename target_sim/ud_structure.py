@@ -118,6 +118,7 @@ class BiermanSchedule:
 
     terms: tuple[tuple[int, ...], ...]
     steps: tuple[BiermanStep, ...]
+    gain_nonzero: tuple[bool, ...] = ()     # b's structural nonzeros at the end (the gain's)
 
 
 def bierman_schedule(h_nonzero: np.ndarray) -> BiermanSchedule:
@@ -135,4 +136,31 @@ def bierman_schedule(h_nonzero: np.ndarray) -> BiermanSchedule:
         for i in filled:
             b_nonzero[i] = True
         steps.append(BiermanStep(j, updated, filled))
-    return BiermanSchedule(terms, tuple(steps))
+    return BiermanSchedule(terms, tuple(steps), tuple(b_nonzero))
+
+
+@dataclass(frozen=True)
+class RankOneStep:
+    """Column j of the Agee-Turner update (v_j structurally nonzero): the rows i < j whose v_i is nonzero (v_i -= v_j
+    u_ij) and those where v_i is still a structural zero (v_i = -(v_j u_ij)); u_ij changes in both."""
+
+    column: int
+    updated: tuple[int, ...]
+    filled: tuple[int, ...]
+
+
+def rank_one_schedule(v_nonzero: np.ndarray) -> tuple[RankOneStep, ...]:
+    """The columns of the Agee-Turner update U D Uᵀ + c v vᵀ (U unit upper triangular), last first, for a v whose
+    structural nonzeros are `v_nonzero`: a column with v_j = 0 changes nothing and is skipped; after a column every
+    row above it is nonzero (U's upper triangle is)."""
+    nonzero = [bool(v) for v in v_nonzero]
+    steps = []
+    for j in range(len(nonzero) - 1, -1, -1):
+        if not nonzero[j]:
+            continue
+        updated = tuple(i for i in range(j) if nonzero[i])
+        filled = tuple(i for i in range(j) if not nonzero[i])
+        for i in filled:
+            nonzero[i] = True
+        steps.append(RankOneStep(j, updated, filled))
+    return tuple(steps)

@@ -10,8 +10,10 @@ operation:
 | obs_propagate_extra    | Float32Observer._propagate_extra              | bias into x, the lag states           |
 | obs_predict            | Float32Observer.transition,                   | F of the step, augmented; Thornton's  |
 |                        | BiermanThornton.predict                       | MWGS over [F U, G] (udgen.py)         |
-| obs_update_<k>         | BiermanThornton.update with the k-th row h    | Bierman's scalar update (udgen.py);   |
-|                        | (SteadyState.update)                          | the steady form: the k-th row of K_ss |
+| obs_update_<k>         | BiermanThornton.update with the k-th row h    | Bierman's scalar update (udgen.py),   |
+|                        | (SteadyState.update)                          | then Agee-Turner's for consider       |
+|                        |                                               | states; the steady form: the k-th row |
+|                        |                                               | of K_ss (its held rows -0)            |
 | fw_obs_step            | Float32Observer.step                          | model step, predict, update           |
 | obs_update_<k>, tail   | Float32Observer.step's correction             | y += K nu (node coordinates), summed  |
 | obs_output             | LinearBlockPart.output                        | y = C x (+ r), unrolled               |
@@ -344,7 +346,7 @@ def _kernels(obs: Float32Observer) -> str:
     moves_y = [k < count - 1 for k in range(count)]     # the last update's y is C x again at the step's end
     if obs.form == "steady":
         return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k]) for k in range(count)])
-    return predict_c(obs) + "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k], moves_y[k])
+    return predict_c(obs) + "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k], moves_y[k], obs.held[k])
                                     for k in range(count))
 
 

@@ -213,17 +213,22 @@ def correction_c(n: int, gain: list[str], moves_y: bool) -> str:
     return "\n".join(lines)
 
 
-def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = True) -> str:
+def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = True,
+             held: np.ndarray | None = None) -> str:
     """`name`(r, nu, correction): Bierman's update of obs_u, obs_d with the constant row h and variance r
-    (BiermanThornton.update), then the correction with its gain and the innovation nu (`correction_c`)."""
+    (BiermanThornton.update), with `held` (consider states) Agee and Turner's rank-one update after it
+    (`rank_one_c`), then the correction with its gain (the held rows -0) and the innovation nu (`correction_c`)."""
     cov, n = obs.cov, obs.n
     schedule = cov.bierman(h)
+    v_nonzero = np.zeros(n, dtype=bool) if held is None else held & np.asarray(schedule.gain_nonzero)
+    rank_one = cov.rank_one_steps(v_nonzero) if v_nonzero.any() else ()
     out = Lines()
     h_values = [literal(v) for v in h]
     reads = {(i, j) for j, terms in enumerate(schedule.terms) for i in terms if i < j}
-    reads |= {(i, s.column) for s in schedule.steps for i in (*s.updated, *s.filled)}
+    reads |= {(i, s.column) for s in (*schedule.steps, *rank_one) for i in (*s.updated, *s.filled)}
     u = {(i, j): out.set(f"u{i}_{j}", f"obs_u[{i}][{j}]") for (i, j) in sorted(reads, key=lambda p: (p[1], p[0]))}
-    d = {s.column: out.set(f"d{s.column}", f"obs_d[{s.column}]") for s in schedule.steps}
+    columns = sorted({s.column for s in (*schedule.steps, *rank_one)})
+    d = {j: out.set(f"d{j}", f"obs_d[{j}]") for j in columns}
     out.comment("a = U^T h over h's nonzeros, b = d o a")
     a: dict[int, Value] = {}
     b: dict[int, Value] = {}
@@ -252,11 +257,43 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = Tru
             out.raw(f"{b[i].expr} = {b[i].expr} + {b[j].expr} * held;")
         for i in step.filled:
             b[i] = out.set(f"b{i}", f"{b[j].expr} * {u[i, j].expr}")
+    if rank_one:
+        rank_one_c(out, rank_one, np.flatnonzero(v_nonzero), b, u, d)
     out.raw("float step;")
-    out.lines.append(correction_c(n, [f"{b[i].expr if i in b else C_NEG_ZERO} * gamma" for i in range(n)], moves_y))
+    gain = [C_NEG_ZERO if held is not None and held[i] else f"{b[i].expr if i in b else C_NEG_ZERO} * gamma"
+            for i in range(n)]
+    out.lines.append(correction_c(n, gain, moves_y))
     return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}] and the correction, "
             "unrolled (bench.firmware.udgen) */\n"
             f"static void {name}(float r, float nu, float correction[4])\n{{\n" + out.text() + "\n}\n")
+
+
+def rank_one_c(out: Lines, steps, rows, b: dict, u: dict, d: dict) -> None:
+    """BiermanThornton.rank_one after Bierman's update: U D U^T + gamma v v^T, v = b on the held `rows` (the
+    locals v<i>), over its schedule `steps`, into obs_u and obs_d."""
+    out.comment("consider states: P += gamma v v^T, v = b on the held rows (Agee-Turner, BiermanThornton.rank_one)")
+    v = {int(i): out.set(f"v{i}", b[int(i)].expr) for i in rows}
+    out.raw("float ca = gamma, cv, dn;" + (" float beta_at;" if any(s.updated or s.filled for s in steps) else ""))
+    for index, step in enumerate(steps):
+        j = step.column
+        if j not in v:            # filled by an earlier column
+            raise AssertionError("the rank-one schedule's column has no v (a generator bug)")
+        out.raw(f"cv = ca * {v[j].expr};")
+        out.raw(f"dn = {d[j].expr} + cv * {v[j].expr};")
+        if step.updated or step.filled:
+            out.raw("beta_at = dn > 0.0f ? cv / dn : 0.0f;")
+        if index < len(steps) - 1:      # the last column's c is not read again
+            out.raw(f"ca = dn > 0.0f ? (ca * {d[j].expr}) / dn : ca;")
+        out.raw(f"{d[j].expr} = dn;")
+        out.raw(f"obs_d[{j}] = dn;")
+        for i in step.updated:
+            out.raw(f"{v[i].expr} = {v[i].expr} - {v[j].expr} * {u[i, j].expr};")
+            out.raw(f"{u[i, j].expr} = {u[i, j].expr} + beta_at * {v[i].expr};")
+            out.raw(f"obs_u[{i}][{j}] = {u[i, j].expr};")
+        for i in step.filled:
+            v[i] = out.set(f"v{i}", f"-({v[j].expr} * {u[i, j].expr})")
+            out.raw(f"{u[i, j].expr} = {u[i, j].expr} + beta_at * {v[i].expr};")
+            out.raw(f"obs_u[{i}][{j}] = {u[i, j].expr};")
 
 
 def steady_c(n: int, updates: list[tuple[str, str, bool]]) -> str:

@@ -24,7 +24,11 @@ the motor file and subtracted, its gradient says what it sees) and the flux-link
 (calibrated on the training files). `bias` adds a heat-bias state of a kind of `target_sim.artifact.BIAS_KINDS`
 (W into one node the loss model misses, a random walk): "winding-heat" (True: the winding, as before), so a
 sensor's persistent disagreement with the winding model heats or cools the winding instead of pushing the magnet,
-or "magnet-heat", so a persistent magnet-side model error (a magnet loss or coupling error) can be absorbed. Each
+or "magnet-heat", so a persistent magnet-side model error (a magnet loss or coupling error) can be absorbed.
+`consider` ("magnet", `target_sim.artifact.CONSIDER_KINDS`) makes the magnet node and a magnet bias consider states
+(Schmidt-Kalman): a measurement that does not read the magnet never updates them, so a winding sensor cannot move
+the magnet through a winding-magnet covariance the model has wrong; the filter's covariance is that of the gain
+actually used, and K_ss, P_ss the consider filter's steady state (`bench.thermal.kalman.steady_state`). Each
 measurement's R is a tuned scale of its per-step variance (1 for a sensor, the flux linkage's calibrated R_floor +
 R_speed (n_min/n)²).
 """
@@ -48,6 +52,7 @@ from bench.thermal.kalman import (
     FilterRuns,
     Readings,
     augmented_transition,
+    consider_projections,
     measurement_rows,
     run_filters,
     source_jacobian,
@@ -55,6 +60,7 @@ from bench.thermal.kalman import (
 )
 from target_sim.artifact import (
     BIAS_KINDS,
+    CONSIDER_KINDS,
     OBSERVER_SECTION_VERSIONS,
     OUTPUTS,
     ModelArtifact,
@@ -72,6 +78,13 @@ from target_sim.network import COOLANT_REFERENCE_C
 INITIAL_SIGMA_C = {"yoke": 5.0, "winding": 2.0, "tooth": 5.0, "magnet": 15.0}
 # the covariance form the target runs unless told otherwise (chosen from `bench numerics --observer`)
 DEPLOYED_FORM = "ud"
+# the consider kind `bench observer` builds unless told otherwise (--consider; "none": every state is updated).
+# Chosen on the suite's validation profiles (2026-11-28; designer's Hammerstein models, the end-winding NTC with lag,
+# gradient and offset estimated, magnet criterion, no bias, 150 filter runs; MSE K², open loop / --consider none /
+# magnet): winding air-30kw 13.06 / 8.67 / 3.68, ipm-60kw-distributed 3.24 / 0.30 / 1.11, outrunner-200kw
+# 12.55 / 8.08 / 10.95; magnet 3.31 / 4.87 / 2.70, 5.05 / 2.74 / 2.28, 7.74 / 7.09 / 7.64. Only "magnet" leaves
+# the magnet no worse than the open loop on every motor (none: worse on air-30kw) with the winding still better.
+DEFAULT_CONSIDER = "magnet"
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 START_Q_C2 = 1e-4       # the search starts here for every node (°C² per step), R where each kind says (start_r)
 LOG10_BOUNDS = (-12.0, 3.0)
@@ -104,6 +117,22 @@ def bias_kind(bias) -> str | None:
     return kind
 
 
+def consider_problem(consider: str | None, bias, measurements: Sequence) -> str | None:
+    """Why the consider kind cannot go with this bias and these measurements (None: it can): a bias that every
+    measurement holds is never corrected, a random walk whose variance grows without bound (and the steady-state
+    gain does not exist)."""
+    if consider is None:
+        return None
+    if consider not in CONSIDER_KINDS:
+        return f"consider {consider!r} is not one of {', '.join(CONSIDER_KINDS)}"
+    node, held_bias = CONSIDER_KINDS[consider]
+    if bias_kind(bias) == held_bias and all(m.sees[OUTPUTS.index(node)] == 0 for m in measurements):
+        return (f"--consider {consider} holds the {node} heat bias for every measurement (none reads the {node}), so "
+                f"the bias would never move and its variance would grow without bound; add a measurement of the "
+                f"{node} (--flux), or use --consider none or another --bias")
+    return None
+
+
 @dataclass(frozen=True)
 class ObserverFit:
     measurements: tuple
@@ -118,6 +147,7 @@ class ObserverFit:
     files: list[str] = field(default_factory=list)
     bias: str | None = None     # the heat-bias state's kind (`BIAS_KINDS`); True is read as "winding-heat"
     converged: bool = True      # False: the search stopped at its cap of filter runs (--evaluations)
+    consider: str | None = None  # the consider kind (`CONSIDER_KINDS`): states a measurement not reading them holds
 
     @property
     def measurement(self):
@@ -165,7 +195,8 @@ class FilterData:
     measurements: tuple
 
 
-def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequence, bias=None) -> FilterData:
+def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequence, bias=None,
+                consider: str | None = None) -> FilterData:
     for m in measurements:
         for column in m.columns:
             if not dataset.has(column):
@@ -178,7 +209,7 @@ def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequenc
     parts = [m.readings(dataset, artifact.dt, steps) for m in measurements]
     z0, z1, rel = (np.column_stack([p[i] for p in parts]) for i in range(3))
     readings = Readings(z0, z1, rel, np.array([m.sees for m in measurements]),
-                        np.array([m.lag_pole(artifact.dt) for m in measurements]), bias_kind(bias))
+                        np.array([m.lag_pole(artifact.dt) for m in measurements]), bias_kind(bias), consider)
     return FilterData(run, readings, tuple(measurements))
 
 
@@ -234,7 +265,7 @@ TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
 def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurements, criterion: str = "magnet",
                   max_evaluations: int = 800, progress: Callable[[int, float], None] | None = None,
-                  bias=None) -> ObserverFit:
+                  bias=None, consider: str | None = None) -> ObserverFit:
     """q (per state) and each measurement's R on the training files by Nelder-Mead over their log10 values,
     minimizing either
     - "magnet": the sum of log magnet MSE over every training file started with the magnet as measured and
@@ -251,7 +282,10 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     measurements = tuple(measurements) if isinstance(measurements, (list, tuple)) else (measurements,)
     bias = bias_kind(bias)
     model = FilterModel.of(artifact)
-    deployed = [filter_data(artifact, d, measurements, bias) for d in datasets]
+    problem = consider_problem(consider, bias, measurements)
+    if problem:
+        raise BenchError(problem)
+    deployed = [filter_data(artifact, d, measurements, bias, consider) for d in datasets]
     layout = deployed[0].readings
     p0 = initial_covariance(model, layout)
     n, m_count = layout.states, len(measurements)
@@ -260,7 +294,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
         use_reference = all(m.node != TUNING_REFERENCE.node for m in measurements) and all(
             d.has(TUNING_REFERENCE.column) for d in datasets)
         tuning = (*measurements, TUNING_REFERENCE) if use_reference else measurements
-        data = [filter_data(artifact, d, tuning, bias) for d in datasets]
+        data = [filter_data(artifact, d, tuning, bias, consider) for d in datasets]
         p0_tuning = initial_covariance(model, data[0].readings)
 
         def score(q, r):
@@ -315,7 +349,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     return ObserverFit(measurements, q, r, float(10.0 ** best[n + m_count]) if use_reference else None, criterion,
                        float(cost(best)), sum(float(x.nll[0]) for x in runs), sum(int(x.updates[0]) for x in runs),
                        calls[0], [str(d.path) for d in datasets], bias,
-                       converged=result.status not in NELDER_MEAD_CAPPED)
+                       converged=result.status not in NELDER_MEAD_CAPPED, consider=consider)
 
 
 def _starts(start: np.ndarray, n: int) -> list[np.ndarray]:
@@ -407,17 +441,22 @@ def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequen
     """The artifact's `observer` section (version 2) for a tuned fit; node, column, offset_C, R and lag_s of the
     first measurement as a version 1 reader expects them."""
     model = FilterModel.of(artifact)
-    layout = filter_data(artifact, datasets[0], fit.measurements, fit.bias).readings
+    layout = filter_data(artifact, datasets[0], fit.measurements, fit.bias, fit.consider).readings
     q = process_noise(model, fit.q_C2)
     f, nominal = nominal_transition(artifact, model, datasets)
     full = augmented_transition(f, model.b, model.c, layout)
     r_nominal = [float(s) * _rel(artifact, datasets[0], m)
                  for m, s in zip(fit.measurements, fit.r_scale, strict=True)]
-    gain, p_steady = steady_state(full, measurement_rows(model.c, layout), q, r_nominal)
+    held = layout.held
+    try:
+        gain, p_steady = steady_state(full, measurement_rows(model.c, layout), q, r_nominal,
+                                      consider_projections(model.c, held) if held.any() else None)
+    except ValueError as exc:
+        raise BenchError(f"the observer has no steady-state gain ({exc}); tune it without --consider") from None
     first, enc = fit.measurement, encode_array
     dt = artifact.dt
     names = state_names(fit)
-    return {
+    section = {
         "kind": "kalman-linear-block", "version": OBSERVER_SECTION_VERSIONS[-1], "node": first.node,
         "column": first.columns[0],
         "lag_s": float(getattr(first, "lag_s", 0.0)), "form": form,
@@ -443,6 +482,12 @@ def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequen
                    "evaluations": fit.evaluations, "files": [str(p) for p in fit.files],
                    "initial_sigma_C": INITIAL_SIGMA_C, "steady_state_at": nominal},
     }
+    if fit.consider is not None:   # only then: a section without consider states is written as it always was
+        section["consider"] = fit.consider
+        section["rule"] += (f"; consider states ({fit.consider}): a measurement that does not read the "
+                            f"{CONSIDER_KINDS[fit.consider][0]} has the gain's rows of its held states zero "
+                            "(node coordinates), P in Joseph's form of that gain")
+    return section
 
 
 def _rel(artifact: ModelArtifact, dataset: Dataset, measurement) -> float:
@@ -483,7 +528,7 @@ def reference_run(artifact: ModelArtifact, dataset: Dataset) -> tuple[FilterData
     """The float64 reference of the artifact's observer on one file (estimate and 1-σ per step)."""
     model = FilterModel.of(artifact)
     section = artifact.content["observer"]
-    data = filter_data(artifact, dataset, lab_measurements(artifact), section.get("bias"))
+    data = filter_data(artifact, dataset, lab_measurements(artifact), section.get("bias"), section.get("consider"))
     q = artifact.array("observer", "Q", dtype=np.float64)
     p0 = artifact.array("observer", "P0", dtype=np.float64)
     return data, _run(model, data, q[None], [r_scales(artifact)], p0, keep=True)

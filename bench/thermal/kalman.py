@@ -8,6 +8,8 @@ covariance stays symmetric positive definite and it can serve as the exact filte
 once in parallel; each returns the innovations' negative log-likelihood
     sum over updated steps of  log(2π S_k) + ν_k² / S_k,   S_k = h P⁻_k hᵀ + R,
 which is what maximum-likelihood tuning minimizes (Mehra 1970; the prediction-error form of the likelihood).
+Consider states (`Readings.consider`, Schmidt-Kalman): a measurement that does not read them has their rows of the
+gain (node coordinates) set to zero, and Joseph's form keeps the covariance that of the gain actually used.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 
 from bench.thermal import portable
 from bench.thermal.estimator import StepInputs, identity_sigmoid, model_step, step_buffers
-from target_sim.artifact import BIAS_KINDS
+from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS, consider_held
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -38,7 +40,7 @@ def _source_jacobian(gains, jac):
 
 @numba.njit(cache=True, fastmath=False)
 def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1,
-                rel, sees, lag_pole, lag_index, bias_index, bias_input, q, r, p0, traj, sigma, keep, use_sigmoid):
+                rel, sees, lag_pole, lag_index, bias_index, bias_input, held, q, r, p0, traj, sigma, keep, use_sigmoid):
     n_steps = ratio.shape[0]
     n = q.shape[0]
     x, x_new, y, u, gains = step_buffers(c_inv, y0)
@@ -51,6 +53,9 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
     b_s = b[:, 4:].copy()
     bias_column = b[:, bias_input].copy()
     sees_c = sees @ c
+    held_any = np.zeros(sees.shape[0], dtype=np.bool_)
+    for m in range(sees.shape[0]):
+        held_any[m] = np.any(held[m])
     eye = np.eye(n)
     full = np.zeros((n, n))
     nll = 0.0
@@ -95,6 +100,15 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
             s = h @ ph + r_k
             nu = (z0[k, m] + z1[k, m] * y[1]) - predicted
             gain = ph / s
+            if held_any[m]:   # consider states: the gain's rows of the held nodes (node coordinates) and states 0
+                gy = c @ gain[:4]
+                for i in range(4):
+                    if held[m, i]:
+                        gy[i] = 0.0
+                gain[:4] = c_inv @ gy
+                for j in range(4, n):
+                    if held[m, j]:
+                        gain[j] = 0.0
             xa += gain * nu
             i_kh = eye - np.outer(gain, h)
             p = i_kh @ p @ i_kh.T + r_k * np.outer(gain, gain)
@@ -114,12 +128,12 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
 
 @numba.njit(parallel=True, cache=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1, rel,
-           sees, lag_pole, lag_index, bias_index, bias_input, q, r, p0, traj, sigma, keep, use_sigmoid, nll,
+           sees, lag_pole, lag_index, bias_index, bias_input, held, q, r, p0, traj, sigma, keep, use_sigmoid, nll,
            updates):
     for m in numba.prange(q.shape[0]):
         nll[m], updates[m] = _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu,
                                          copper_ref, y0, z0, z1, rel, sees, lag_pole, lag_index, bias_index,
-                                         bias_input, q[m], r[m], p0, traj[m], sigma[m], keep, use_sigmoid)
+                                         bias_input, held, q[m], r[m], p0, traj[m], sigma[m], keep, use_sigmoid)
 
 
 @dataclass(frozen=True)
@@ -139,7 +153,8 @@ class Readings:
     linkage's resistance at the winding estimate; 0 for a sensor), NaN z0: none; variance R·rel_k; each reads
     sees·y, through its lag state when lag_pole > 0 (the lag states follow the model's, in order, then the bias).
     `bias`: the heat-bias state's kind (`target_sim.artifact.BIAS_KINDS`: watts into the node whose loss column of
-    B it heats) or None; True is read as "winding-heat" (the one kind there was)."""
+    B it heats) or None; True is read as "winding-heat" (the one kind there was). `consider`: a kind of
+    `target_sim.artifact.CONSIDER_KINDS` (states a measurement that does not read them never updates) or None."""
 
     z0: np.ndarray           # (steps, m)
     z1: np.ndarray           # (steps, m)
@@ -147,12 +162,20 @@ class Readings:
     sees: np.ndarray         # (m, 4)
     lag_pole: np.ndarray     # (m,)
     bias: str | bool | None = None
+    consider: str | None = None
 
     def __post_init__(self):
         kind = "winding-heat" if self.bias is True else (self.bias or None)
         if kind is not None and kind not in BIAS_KINDS:
             raise ValueError(f"bias {kind!r} is not one of {', '.join(BIAS_KINDS)}")
+        if self.consider is not None and self.consider not in CONSIDER_KINDS:
+            raise ValueError(f"consider {self.consider!r} is not one of {', '.join(CONSIDER_KINDS)}")
         object.__setattr__(self, "bias", kind)
+
+    @property
+    def held(self) -> np.ndarray:
+        """(m, n) booleans: the states (node coordinates) each measurement's update leaves as they are."""
+        return consider_held(self.consider, np.reshape(self.sees, (-1, 4)), self.bias, self.states)
 
     @property
     def bias_input(self) -> int:
@@ -199,7 +222,7 @@ def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, readings: Readings,
            f64(inputs.coolant), f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu),
            float(inputs.copper_reference), y0, z0, z1, rel, f64(np.reshape(readings.sees, (-1, 4))),
            f64(np.reshape(readings.lag_pole, -1)), lag_index, int(readings.bias_index), max(readings.bias_input, 0),
-           q, r, p0, traj, sigma, bool(keep), use_sigmoid, nll, updates)
+           np.ascontiguousarray(readings.held), q, r, p0, traj, sigma, bool(keep), use_sigmoid, nll, updates)
     return FilterRuns(nll, updates, traj if keep else None, sigma if keep else None)
 
 
@@ -236,21 +259,73 @@ def measurement_rows(c: np.ndarray, readings: Readings) -> np.ndarray:
     return rows
 
 
-def steady_state(f: np.ndarray, h: np.ndarray, q: np.ndarray, r) -> tuple[np.ndarray, np.ndarray]:
-    """(K_ss (m, n), P_ss posterior) of the filter with constant F, H (m, n), Q and R (m,): the discrete Riccati
-    equation's solution P⁻ (scipy), then the sequential scalar gains the target applies in order,
-    K_i = P_i hᵢᵀ/(hᵢ P_i hᵢᵀ + R_i), P_{i+1} = (I - K_i hᵢ) P_i (I - K_i hᵢ)ᵀ + R_i K_i K_iᵀ."""
-    from scipy.linalg import solve_discrete_are
+def consider_projections(c: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """(m, n, n): per measurement the map of a gain (state coordinates: x of the block, then the extra states) onto
+    the gain with the rows of its held states (node coordinates, `Readings.held`) zero: T⁻¹ diag(1 - held) T with
+    T = diag(C, I). A measurement that holds nothing gets the identity."""
+    held = np.atleast_2d(held)
+    n = held.shape[1]
+    t = np.eye(n)
+    t[:4, :4] = c
+    t_inv = np.eye(n)
+    t_inv[:4, :4] = portable.inv(c)
+    return np.array([t_inv @ np.diag(1.0 - row) @ t if row.any() else np.eye(n) for row in held])
 
-    h = np.atleast_2d(np.asarray(h, dtype=float))
-    r = np.atleast_1d(np.asarray(r, dtype=float))
-    prior = solve_discrete_are(f.T, h.T, q, np.diag(r))
-    p = 0.5 * (prior + prior.T)
-    gains = []
-    for row, var in zip(h, r, strict=True):
+
+# the consider filter's steady state: the Lyapunov iteration stops when P⁻ moves less than this (relative), or fails
+STEADY_TOLERANCE, STEADY_ITERATIONS = 1e-12, 500
+
+
+def _sequential(prior: np.ndarray, h: np.ndarray, r: np.ndarray, projections) -> tuple[list, np.ndarray]:
+    """The gains and posterior of the sequential scalar updates from `prior`, each gain mapped by its projection
+    (None: the optimal gains), Joseph's form (valid for any gain)."""
+    p, gains = prior, []
+    for i, (row, var) in enumerate(zip(h, r, strict=True)):
         gain = p @ row / (row @ p @ row + var)
+        if projections is not None:
+            gain = projections[i] @ gain
         i_kh = np.eye(len(gain)) - np.outer(gain, row)
         p = i_kh @ p @ i_kh.T + var * np.outer(gain, gain)
         p = 0.5 * (p + p.T)
         gains.append(gain)
+    return gains, p
+
+
+def steady_state(f: np.ndarray, h: np.ndarray, q: np.ndarray, r, projections: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(K_ss (m, n), P_ss posterior) of the filter with constant F, H (m, n), Q and R (m,): the discrete Riccati
+    equation's solution P⁻ (scipy), then the sequential scalar gains the target applies in order,
+    K_i = P_i hᵢᵀ/(hᵢ P_i hᵢᵀ + R_i), P_{i+1} = (I - K_i hᵢ) P_i (I - K_i hᵢ)ᵀ + R_i K_i K_iᵀ.
+
+    With `projections` (`consider_projections`: consider states) each K_i is the projected one, and the steady state
+    is the consider filter's: from the Riccati solution, P⁻ = F (A P⁻ Aᵀ + W) Fᵀ + Q is solved as a Lyapunov
+    equation for the gains of the last P⁻ (A = Π (I - K_i hᵢ), W their noise terms), the gains recomputed from it,
+    until P⁻ settles (a ValueError if it does not within `STEADY_ITERATIONS`)."""
+    from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
+
+    h = np.atleast_2d(np.asarray(h, dtype=float))
+    r = np.atleast_1d(np.asarray(r, dtype=float))
+    prior = solve_discrete_are(f.T, h.T, q, np.diag(r))
+    prior = 0.5 * (prior + prior.T)
+    if projections is not None:
+        n = len(prior)
+        for _ in range(STEADY_ITERATIONS):
+            gains, _ = _sequential(prior, h, r, projections)
+            a, w = np.eye(n), np.zeros((n, n))
+            for gain, row, var in zip(gains, h, r, strict=True):
+                i_kh = np.eye(n) - np.outer(gain, row)
+                a, w = i_kh @ a, i_kh @ w @ i_kh.T + var * np.outer(gain, gain)
+            closed = f @ a
+            if np.max(np.abs(np.linalg.eigvals(closed))) >= 1.0:
+                raise ValueError("the filter with the consider states held is unstable at the nominal operating "
+                                 "point: it has no steady state")
+            nxt = solve_discrete_lyapunov(closed, f @ w @ f.T + q)
+            nxt = 0.5 * (nxt + nxt.T)
+            moved = np.max(np.abs(nxt - prior)) / max(np.max(np.abs(nxt)), np.finfo(float).tiny)
+            prior = nxt
+            if moved <= STEADY_TOLERANCE:
+                break
+        else:
+            raise ValueError(f"the consider filter's steady state did not settle in {STEADY_ITERATIONS} iterations")
+    gains, p = _sequential(prior, h, r, projections)
     return np.array(gains), p

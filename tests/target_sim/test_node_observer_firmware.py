@@ -50,12 +50,39 @@ def lagged_artifact(small_dataset, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def magnet_bias_artifact(small_dataset, tmp_path_factory):
-    """The lagged winding sensor (τ 60 s) with the magnet heat-bias state (`--bias magnet`): six filter states, the
-    bias heating the magnet through the magnet loss's column of B."""
+    """The lagged winding sensor (τ 60 s) with the magnet heat-bias state (`--bias magnet`, the magnet no consider
+    state: a winding sensor would never move a held bias): six filter states, the bias heating the magnet through
+    the magnet loss's column of B."""
     out = tmp_path_factory.mktemp("observer-magnet-bias") / "magnet-bias.json"
     assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "magnet",
-                 "--out", str(out), "--quiet"]) == 0
+                 "--consider", "none", "--out", str(out), "--quiet"]) == 0
     return out
+
+
+@pytest.fixture(scope="module")
+def consider_artifact(small_dataset, tmp_path_factory):
+    """The lagged winding sensor (τ 60 s) with the winding heat-bias state and the magnet a consider state
+    (`--consider magnet`): the sensor's update holds the magnet node, a column Bierman's update for the lag state's
+    row does not touch, so Agee-Turner's update reads and writes its own part of U and d."""
+    out = tmp_path_factory.mktemp("observer-consider") / "consider.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "winding",
+                 "--consider", "magnet", "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def consider_sensor_artifact(small_dataset, tmp_path_factory):
+    """The winding sensor without lag or bias, the magnet a consider state: the held column is one of Bierman's."""
+    out = tmp_path_factory.mktemp("observer-consider-sensor") / "consider-sensor.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--consider", "magnet", "--out",
+                 str(out), "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def consider_steady_artifact(consider_artifact, tmp_path_factory):
+    """The consider observer in the steady-state-gain form (its K_ss's magnet row held at -0)."""
+    return _steady(consider_artifact, tmp_path_factory)
 
 
 class Case:
@@ -118,9 +145,10 @@ def steady_sensor_artifact(observer_artifact, tmp_path_factory):
 
 
 @pytest.fixture(params=["sensor", "lagged", "magnet-bias", "ntc+flux", "steady", "sensor-steady", "ntc+flux-steady",
-                        "flux+resistance"])
+                        "flux+resistance", "consider", "consider-sensor", "consider-steady"])
 def case(request, observer_artifact, lagged_artifact, magnet_bias_artifact, flux_observer_artifact, steady_artifact,
-         steady_sensor_artifact, steady_flux_artifact, resistance_observer_artifact) -> Case:
+         steady_sensor_artifact, steady_flux_artifact, resistance_observer_artifact, consider_artifact,
+         consider_sensor_artifact, consider_steady_artifact) -> Case:
     if request.param == "ntc+flux":
         return _flux_case(flux_observer_artifact)
     if request.param == "flux+resistance":        # both from DriveVoltages and the row's currents, no sensor
@@ -129,7 +157,8 @@ def case(request, observer_artifact, lagged_artifact, magnet_bias_artifact, flux
         return _flux_case(steady_flux_artifact)
     paths = {"sensor": observer_artifact, "lagged": lagged_artifact, "magnet-bias": magnet_bias_artifact,
              "steady": steady_artifact,
-             "sensor-steady": steady_sensor_artifact}
+             "sensor-steady": steady_sensor_artifact, "consider": consider_artifact,
+             "consider-sensor": consider_sensor_artifact, "consider-steady": consider_steady_artifact}
     return _sensor_case(paths[request.param])
 
 
