@@ -78,6 +78,40 @@ def test_identify_on_a_terminal_shows_total_percentage_and_eta(identify_argv):
     assert lm and re.search(r"\d+%\|.*\| \d/4 \[\d\d:\d\d<", lm[-1]), states   # 3 evaluations and the start's
 
 
+# a small study: one seed of torque noise on one model (two filters), on a local Dask cluster of two workers
+ROBUSTNESS_SPEC = """[study]
+name = "progress"
+seeds = 1
+kinds = ["noise"]
+[perturbations.noise]
+subjects = ["torque"]
+"""
+
+
+@pytest.fixture(scope="module")
+def robustness_argv(tmp_path_factory, identify_argv) -> list[str]:
+    root = tmp_path_factory.mktemp("robustness")
+    (root / "spec.toml").write_text(ROBUSTNESS_SPEC)
+    data = identify_argv[identify_argv.index("--train") + 1]
+    return [sys.executable, "-m", "bench", "robustness", "--data", data, "--spec", str(root / "spec.toml"),
+            "--rows", "300", "--workers", "2", "--out"]
+
+
+@pytest.mark.slow
+def test_robustness_says_its_first_sentence_on_a_line_of_its_own(robustness_argv, tmp_path):
+    rc, screen = _on_terminal([*robustness_argv, str(tmp_path / "tty")])
+    assert rc == 0, screen
+    sentence = screen.index("bench: ")
+    assert "robustness:" in screen[:sentence], screen     # the bar was shown first ...
+    assert re.search(r"\r *\r$", screen[:sentence]), repr(screen[:sentence + 80])   # ... and cleared for it
+    # a total, a percentage and an ETA (the bar, leave=False, is removed at the end)
+    assert re.search(r"robustness: +[1-9]\d*%\|.*\| [1-9]\d*/\d+ \[\d\d:\d\d<\d\d:\d\d", screen), screen
+    piped = subprocess.run([*robustness_argv, str(tmp_path / "pipe")], capture_output=True, text=True,
+                           timeout=TIMEOUT_S, env=subprocess_env(can_settings=False))
+    assert piped.returncode == 0, piped.stderr
+    assert "\r" not in piped.stderr and piped.stderr.startswith("bench: "), piped.stderr
+
+
 class _Terminal(io.StringIO):
     def isatty(self) -> bool:
         return True
