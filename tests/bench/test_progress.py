@@ -8,6 +8,7 @@ import re
 import subprocess
 import sys
 import threading
+import time
 
 import pytest
 
@@ -154,3 +155,14 @@ def test_stage_bars_show_each_stage_with_its_total(monkeypatch):
     states = [s for s in re.split(r"[\r\n]+", terminal.getvalue()) if s.strip()]
     assert any(s.startswith("PSO LPTN: 100%") and "4/4" in s for s in states), states
     assert states[-1].startswith("LM Hammerstein:  25%") and "1/4" in states[-1], states
+
+
+def test_the_replay_bar_counts_rows_of_its_total(monkeypatch):
+    terminal = _Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    bar = progress.ProgressBar(200, "lockstep", quiet=False)
+    for done in (1, 50, 200):
+        time.sleep(0.15)   # tqdm redraws at most every 0.1 s
+        bar(done, 200)
+    bar.close()
+    assert re.search(r"lockstep: 100%\|.*\| 200/200 \[", terminal.getvalue()), terminal.getvalue()
