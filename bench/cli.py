@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable
 
 from bench import DISTRIBUTION, package_version, stop
+from bench.commands.args import check_files
 from bench.errors import BenchError, UsageError
 from dbc.errors import CanLinkError
 from host.errors import HostError, io_advice
@@ -54,7 +55,8 @@ examples:
 
 # argparse's "invalid choice" sentence, in the forms of Python 3.11 to 3.13 (choices quoted or not)
 INVALID_CHOICE = re.compile(r"invalid choice: (?P<q>['\"]?)(?P<value>.*?)(?P=q) \(choose from (?P<choices>.*)\)$")
-UNKNOWN_PROG = "_bench_unknown_prog"   # namespace attribute: the (sub)command that left unknown arguments
+UNKNOWN_PARSER = "_bench_unknown_parser"   # namespace attribute: the (sub)command parser that left unknown
+# arguments
 
 
 def _suggestion(message: str) -> str:
@@ -67,27 +69,132 @@ def _suggestion(message: str) -> str:
     return f"; did you mean {close[0]!r}?" if close else ""
 
 
+def _is_option(token: str) -> bool:
+    """A command-line token that names an option (`--name`, `--name=value`, `-x`), not a value (`-5`, `-`)."""
+    if len(token) < 2 or not token.startswith("-"):
+        return False
+    try:
+        float(token)
+    except ValueError:
+        return True
+    return False
+
+
+# a second option is suggested beside the closest when its similarity (difflib's ratio) is this close to it:
+# `--seped` is as near `--seed` as `--speed`
+SUGGESTION_TIE = 0.1
+
+
+def close_options(name: str, known: list[str]) -> list[str]:
+    """The options of `known` closest to the option `name` (difflib, as for choices), compared without the dashes
+    every option shares (they would make `--bogus` close to `--out`): the closest, and any about as close."""
+    bare = {option.lstrip("-"): option for option in known}
+    word = name.lstrip("-")
+    close = difflib.get_close_matches(word, list(bare), n=3)
+    if not close:
+        return []
+    best = difflib.SequenceMatcher(None, word, close[0]).ratio()
+    return [bare[c] for c in close if difflib.SequenceMatcher(None, word, c).ratio() >= best - SUGGESTION_TIE]
+
+
+def misspelt_options(tokens: list[str], known: list[str]) -> list[tuple[str, list[str]]]:
+    """(option, the options it is close to) for each token that names no option of `known` but is close to one.
+    `--criteira=x` is compared by its name; an abbreviation argparse accepts is known."""
+    pairs = []
+    for token in tokens:
+        name = token.split("=", 1)[0]
+        if not _is_option(token) or name in known or any(k.startswith(name) for k in known if k.startswith("--")):
+            continue
+        close = close_options(name, known)
+        if close:
+            pairs.append((name, close))
+    return pairs
+
+
+def did_you_mean(pairs: list[tuple[str, list[str]]]) -> str:
+    """"; did you mean '--criteria'?", for several "; did you mean '--criteria' (for --criteira), ...?"."""
+    def meant(options: list[str]) -> str:
+        return " or ".join(repr(option) for option in options)
+
+    if not pairs:
+        return ""
+    if len(pairs) == 1:
+        return f"; did you mean {meant(pairs[0][1])}?"
+    return "; did you mean " + ", ".join(f"{meant(right)} (for {wrong})" for wrong, right in pairs) + "?"
+
+
+class _RecordingGroup:
+    """An argument group (or a mutually exclusive one) as argparse made it, recording the options added through it
+    in its parser's `option_names`; everything else is the group's own."""
+
+    def __init__(self, group, names: list[str]):
+        self._group, self._names = group, names
+
+    def add_argument(self, *args, **kwargs) -> argparse.Action:
+        return _recorded(self._group.add_argument(*args, **kwargs), self._names)
+
+    def add_mutually_exclusive_group(self, **kwargs) -> _RecordingGroup:
+        return _RecordingGroup(self._group.add_mutually_exclusive_group(**kwargs), self._names)
+
+    def __getattr__(self, name: str):
+        return getattr(self._group, name)
+
+
+def _recorded(action: argparse.Action, names: list[str]) -> argparse.Action:
+    if action.help is not argparse.SUPPRESS:   # a hidden option is never suggested
+        names.extend(action.option_strings)
+    return action
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse that reports a bad argument in one sentence (exit status 2) instead of a usage dump, pointing to the
-    help of the (sub)command the argument was given to. The CLI prints the `bench: error:` prefix: the message
-    carries no prog of its own."""
+    help of the (sub)command the argument was given to, with the option, choice or subcommand it probably meant
+    ("did you mean '--criteria'?"). The CLI prints the `bench: error:` prefix: the message carries no prog of its
+    own. Its options are recorded as they are added (`option_names`), through the public argparse calls only."""
+
+    def __init__(self, *args, **kwargs):
+        self.option_names: list[str] = []
+        self.given: list[str] = []
+        self.subcommands: argparse.Action | None = None
+        super().__init__(*args, **kwargs)
+
+    def add_argument(self, *args, **kwargs) -> argparse.Action:
+        return _recorded(super().add_argument(*args, **kwargs), self.option_names)
+
+    def add_argument_group(self, *args, **kwargs) -> _RecordingGroup:
+        return _RecordingGroup(super().add_argument_group(*args, **kwargs), self.option_names)
+
+    def add_mutually_exclusive_group(self, **kwargs) -> _RecordingGroup:
+        return _RecordingGroup(super().add_mutually_exclusive_group(**kwargs), self.option_names)
+
+    def add_subparsers(self, **kwargs):
+        self.subcommands = super().add_subparsers(**kwargs)   # its `choices`: name -> parser (the tests walk them)
+        return self.subcommands
 
     def error(self, message: str) -> None:  # noqa: D401 - argparse API
+        # a misspelt required option reads "the following arguments are required": the misspelling is the news
+        misspelt = misspelt_options(self.given, self.option_names)
+        if message.startswith("the following arguments are required") and misspelt:
+            message += f"; unrecognized arguments: {' '.join(wrong for wrong, _ in misspelt)}{did_you_mean(misspelt)}"
+            raise UsageError(f"{message} (see '{self.prog} --help')")
         raise UsageError(f"{message}{_suggestion(message)} (see '{self.prog} --help')")
 
     def parse_known_args(self, args=None, namespace=None):
-        # argparse hands a subcommand's unknown arguments up to the top parser, which would name its own help:
-        # the innermost parser that had some records its prog, for parse_args to name
+        # argparse hands a subcommand's unknown arguments up to the top parser, which would name its own help and
+        # options: the innermost parser that had some records itself, for parse_args to name
+        self.given = list(sys.argv[1:] if args is None else args)
         namespace, extras = super().parse_known_args(args, namespace)
-        if extras and not hasattr(namespace, UNKNOWN_PROG):
-            setattr(namespace, UNKNOWN_PROG, self.prog)
+        if extras and not hasattr(namespace, UNKNOWN_PARSER):
+            setattr(namespace, UNKNOWN_PARSER, self)
         return namespace, extras
 
     def parse_args(self, args=None, namespace=None):
         namespace, extras = self.parse_known_args(args, namespace)
-        prog = vars(namespace).pop(UNKNOWN_PROG, self.prog)
+        parser = vars(namespace).pop(UNKNOWN_PARSER, self)
         if extras:
-            raise UsageError(f"unrecognized arguments: {' '.join(extras)} (see '{prog} --help')")
+            misspelt = misspelt_options(extras, parser.option_names)
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)}{did_you_mean(misspelt)} "
+                             f"(see '{parser.prog} --help')")
         return namespace
 
 
@@ -288,6 +395,7 @@ def _main(argv: list[str] | None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 2
+        check_files(args)   # an output naming an input or another output: one sentence, before any work
         return int(args.func(args) or 0)
     except BenchError as exc:
         return _failed(args, one_line(str(exc)), exc.exit_status, started)

@@ -21,7 +21,10 @@ Where the target is:
 `python -m bench host` (an attached one) with --json in a subprocess and returns a `BenchRun`: the exit status and
 the `RunSummary` (`bench.analysis.results`), with the acceptance criteria when `criteria` or `baseline` is given.
 A run the bench refuses (exit status 2, or a target that could not be reached) raises `BenchRunError` with the
-bench's one sentence. The run's figures go into pytest's JUnit XML as properties of the test (`record_property`:
+bench's one sentence. The bench dies with the process that runs the test (`dbc.lifeline`: it gets SIGTERM when
+pytest is terminated or killed, a CI job cancelled, and stops its target and removes its partial log); a run past its
+`timeout` is stopped with SIGTERM, with SIGKILL of its process group only after `STOP_GRACE_S`, and what it left is
+removed (`stop_bench`). The run's figures go into pytest's JUnit XML as properties of the test (`record_property`:
 `bench_clean`, `bench_rmse_C_magnet`, `bench_cycles`, one `bench_criterion_NAME` per criterion, ...) with
 `-o junit_family=xunit1`; under pytest's default xunit2, whose schema has no properties in a testcase, as properties
 of the suite named `NODEID::bench_...`.
@@ -33,10 +36,12 @@ workers (a file lock per bus): the target answers one host at a time.
 
 from __future__ import annotations
 
+import difflib
 import fcntl
 import hashlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -51,6 +56,9 @@ from typing import Any
 import pytest
 
 from bench.errors import BenchError
+from dbc.files import same_file
+from dbc.lifeline import child_environment
+from dbc.transport import bus_interfaces
 
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
@@ -58,6 +66,7 @@ PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", 
                 "run": ("data", "model", "rows", "mode", "criteria", "baseline", "reply_timeout", "connect_timeout",
                         "timeout")}
 DEFAULT_TIMEOUT_S = 900.0
+STOP_GRACE_S = 20.0   # a bench told to stop (SIGTERM) stops its target (5 s at most) and exits; then SIGKILL
 # an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
 # default (15 s) is for a target known to run
 ATTACHED_CONNECT_TIMEOUT_S = 120.0
@@ -144,7 +153,37 @@ def load_profile(path: Path) -> dict[str, Any]:
         value = out.get("run", {}).get(key)
         if isinstance(value, str) and not Path(value).is_absolute():
             out["run"][key] = str(path.parent / value)
+    problem = run_defaults_problem(out.get("run", {}))
+    if problem:   # at start, naming the profile: not a failure of every test at run time
+        raise pytest.UsageError(f"--bench-profile {path}: [run] {problem}")
     return out
+
+
+# the [run] keys' kinds: a positive whole number, a positive number, one of a few words, a file that must exist
+RUN_WHOLE, RUN_SECONDS, RUN_FILES = ("rows",), ("reply_timeout", "connect_timeout", "timeout"), (
+    "data", "model", "criteria", "baseline")
+
+
+def run_defaults_problem(run: dict[str, Any]) -> str | None:
+    """Why a profile's [run] table cannot make a run (one clause naming the key), or None."""
+    from host.run import MODES
+
+    for key in RUN_WHOLE:
+        value = run.get(key)
+        if value is not None and (type(value) is not int or value < 1):
+            return f"{key} = {value!r} must be a whole number of at least 1"
+    for key in RUN_SECONDS:
+        value = run.get(key)
+        if value is not None and (type(value) not in (int, float) or not value > 0):
+            return f"{key} = {value!r} must be a number of seconds above 0"
+    mode = run.get("mode")
+    if mode is not None and mode not in MODES:
+        return f"mode = {mode!r} is not one of {', '.join(MODES)}"
+    for key in RUN_FILES:
+        value = run.get(key)
+        if value is not None and (not isinstance(value, str) or not Path(value).exists()):
+            return f"{key} = {value!r} does not exist (a path relative to the profile)"
+    return None
 
 
 def _bus_kwargs(items: list[str]) -> dict[str, Any]:
@@ -159,9 +198,18 @@ def _bus_kwargs(items: list[str]) -> dict[str, Any]:
 
 def config_of(options) -> BenchConfig:
     """The BenchConfig of pytest's options (`config.option`): the command line over the profile."""
+    if options.bench_profile and options.bench_out and same_file(options.bench_profile, options.bench_out):
+        raise pytest.UsageError(f"--bench-out {options.bench_out} is the same file as --bench-profile "
+                                f"{options.bench_profile} (the profile would be overwritten); choose another "
+                                "--bench-out directory")
     profile = load_profile(Path(options.bench_profile)) if options.bench_profile else {}
     target, bus, run = profile.get("target", {}), profile.get("bus", {}), profile.get("run", {})
     interface = options.bench_interface or bus.get("interface")
+    if interface is not None and interface not in bus_interfaces():
+        near = difflib.get_close_matches(str(interface), bus_interfaces(), n=1)
+        hint = f"did you mean {near[0]!r}? " if near else ""
+        raise pytest.UsageError(f"the bench interface {interface!r} (--bench-interface or [bus] interface) is not a "
+                                f"python-can interface; {hint}use one of {', '.join(bus_interfaces())}")
     engine = options.bench_engine or target.get("engine") or "python"
     if engine not in ("python", "firmware"):
         raise pytest.UsageError(f"the bench engine {engine!r} is neither python nor firmware")
@@ -246,6 +294,64 @@ def _bus_turn(config: BenchConfig) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
+def run_bench(argv: list[str], timeout_s: float, log: Path) -> subprocess.CompletedProcess:
+    """`argv` (a `python -m bench ...`) to its end, output captured. The bench dies with this process
+    (`dbc.lifeline`: it gets SIGTERM when pytest is terminated or killed, and stops its target and removes its
+    partial log itself). On a timeout or an interruption (Ctrl-C, pytest stopping) it is stopped like a user would
+    (`stop_bench`); subprocess.TimeoutExpired then carries in `output` the sentence of how it was stopped."""
+    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=child_environment({**os.environ, "PYTHONUNBUFFERED": "1"}),
+                            start_new_session=True)   # its own process group: a kill reaches its target too
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise subprocess.TimeoutExpired(argv, timeout_s, output=stop_bench(proc, log)) from None
+    except BaseException:
+        stop_bench(proc, log)
+        raise
+    return subprocess.CompletedProcess(argv, proc.returncode, stdout, stderr)
+
+
+def stop_bench(proc: subprocess.Popen, log: Path, grace_s: float = STOP_GRACE_S) -> str:
+    """Stop a running bench: SIGTERM (it stops its target and removes its partial output), after `grace_s` SIGKILL
+    of its whole process group; then remove what a killed bench leaves (its partial `log`, its scratch directory)
+    once nothing of the group runs. How it stopped, as a sentence."""
+    how = "it was stopped with SIGTERM"
+    if proc.poll() is None:
+        proc.terminate()
+    try:
+        proc.communicate(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        how = f"it did not stop within {grace_s:g} s of SIGTERM and was killed (SIGKILL)"
+        _kill_group(proc.pid)
+        proc.communicate()
+    _kill_group(proc.pid)   # anything of the group left behind (its target, after a SIGKILL of the bench)
+    _wait_group_gone(proc.pid, grace_s)
+    from bench.leftovers import remove_stale_partials, remove_stale_scratch
+
+    remove_stale_partials(log)
+    remove_stale_scratch()
+    return how
+
+
+def _kill_group(pgid: int) -> None:
+    try:
+        os.killpg(pgid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _wait_group_gone(pgid: int, timeout_s: float) -> None:
+    """Until no process of group `pgid` exists (a zombie not yet reaped by its adopter counts, so bounded)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(pgid, 0)
+        except (ProcessLookupError, PermissionError):
+            return
+        time.sleep(0.05)
+
+
 def _one_sentence(stderr: str, status: int) -> str:
     lines = [line for line in stderr.splitlines() if line.startswith("bench") and "error" in line]
     last = lines[-1] if lines else (stderr.strip().splitlines() or [f"exit status {status}"])[-1]
@@ -314,14 +420,14 @@ class ThermalBench:
         limit = timeout or float(self.config.defaults.get("timeout", DEFAULT_TIMEOUT_S))
         with _bus_turn(self.config):
             try:
-                proc = subprocess.run(argv, capture_output=True, text=True, timeout=limit,
-                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
-            except subprocess.TimeoutExpired:
+                proc = run_bench(argv, limit, run_dir / "bench.blf")
+            except subprocess.TimeoutExpired as exc:
                 raise BenchRunError(f"the bench did not finish within {limit:g} s ({' '.join(argv[2:4])} on "
-                                    f"{self.config.describe()})", None) from None
+                                    f"{self.config.describe()}); {exc.output}", None) from None
         result = self._result(argv, proc, run_dir)
         self.runs.append(result)
         self._record_figures(result)
+        _print_attachments(result)
         return result
 
     def _result(self, argv: list[str], proc: subprocess.CompletedProcess, run_dir: Path) -> BenchRun:
@@ -343,6 +449,17 @@ class ThermalBench:
         prefix = "bench" if len(self.runs) == 1 else f"bench_run{len(self.runs)}"
         for name, value in figures(result).items():
             self._record(f"{prefix}_{name}", value)
+
+
+def _print_attachments(result: BenchRun) -> None:
+    """The run's log, report and JUnit XML as `[[ATTACHMENT|path]]` lines on the test's output, relative to the
+    project directory: with `-o junit_logging=system-out` pytest's JUnit XML carries them, and GitLab and Jenkins
+    attach the files to the test."""
+    from bench.acceptance.junit import attachment_path
+
+    for path in (result.metrics.integrity.log, result.metrics.report, result.junit_xml):
+        if path:
+            print(f"[[ATTACHMENT|{attachment_path(path)}]]")
 
 
 def figures(result: BenchRun) -> dict[str, Any]:

@@ -51,3 +51,16 @@ def write_atomically(path: str | Path, write: Callable[[Path], None]) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """True when the paths `a` and `b` name one file: the same path once symlinks and `..` are resolved, or (both
+    existing) the same inode on the same device, as a hard link is. A path that does not exist yet matches only by
+    name: writing it cannot touch another file."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        sa, sb = os.stat(a), os.stat(b)
+    except (OSError, ValueError):
+        return False
+    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)

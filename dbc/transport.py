@@ -116,7 +116,7 @@ class _KeyValueAction(argparse.Action):
 def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
     """-i/-c/-b/--bus-kwargs/--can-config, as python-can's command-line tools spell them (plus `auto`)."""
     group = parser.add_argument_group("bus (python-can)")
-    group.add_argument("-i", "--interface", default=None, choices=[AUTO, *sorted(can.VALID_INTERFACES)],
+    group.add_argument("-i", "--interface", default=None, choices=bus_interfaces(),
                        metavar="INTERFACE",
                        help="python-can interface, e.g. socketcan, udp_multicast, virtual; 'auto' (default unless "
                             "CAN_INTERFACE or a python-can config file sets one): socketcan vcan0 if usable, else "
@@ -190,6 +190,11 @@ def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("", 0))
         return int(sock.getsockname()[1])
+
+
+def bus_interfaces() -> list[str]:
+    """The interfaces a bus may be given: `auto` and python-can's own."""
+    return [AUTO, *sorted(can.VALID_INTERFACES)]
 
 
 def resolve(config: BusConfig, *, session_unique: bool = False) -> BusConfig:

@@ -1,7 +1,8 @@
 """Check the generated documentation pages against their sources: `python docs/check_generated.py [--write] [HTML_DIR]`.
 
 The protocol page must list every message of `dbc/thermal_bench.dbc` (name, id, and a section of its own with every
-signal), the artifact page every loss model, model kind and realization of the registries and the schema version.
+signal), the artifact page every loss model, model kind and realization of the registries and the schema version,
+the command table of the CLI reference every subcommand.
 Every benchmark script must have its record in `docs/results/`, and the README's headline table must be the one
 the records give (`--write` rewrites it). With HTML_DIR (the output of `sphinx -b html docs HTML_DIR`), the built
 pages are checked too. Exit 1 with one line per problem.
@@ -9,6 +10,7 @@ pages are checked too. Exit 1 with one line per problem.
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -20,6 +22,7 @@ import bench_docs  # noqa: E402
 import results_page  # noqa: E402
 
 README = DOCS.parent / "README.md"
+CLI_PAGE = DOCS / "reference" / "cli.md"
 BENCHMARKS = DOCS.parent / "tests" / "benchmarks"
 
 
@@ -48,6 +51,7 @@ def problems(html_dir: Path | None = None) -> list[str]:
         for name in names:
             if f"`{name}`" not in schema:
                 found.append(f"artifact page: {family} {name} is missing")
+    found += cli_table_problems()
     found += results_problems()
     if html_dir is not None:
         page = html_dir / "reference" / "protocol.html"
@@ -61,6 +65,19 @@ def problems(html_dir: Path | None = None) -> list[str]:
         for name in SUBCOMMANDS:
             if f"bench {name}" not in text:
                 found.append(f"{cli}: subcommand {name} is missing")
+    return found
+
+
+def cli_table_problems(page: Path = CLI_PAGE) -> list[str]:
+    """The command table of the CLI reference (hand-written: what each command is for, with links) must have a row
+    `| `bench NAME ...` | for every subcommand of `bench.cli.SUBCOMMANDS`, and no row of a subcommand that is not."""
+    from bench.cli import SUBCOMMANDS
+
+    rows = re.findall(r"^\| `bench ([a-z][\w-]*)", page.read_text(encoding="utf-8"), flags=re.M)
+    shown = page.relative_to(DOCS.parent) if page.is_relative_to(DOCS.parent) else page
+    found = [f"{shown}: the command table has no row for bench {name}" for name in SUBCOMMANDS if name not in rows]
+    found += [f"{shown}: the command table has a row for bench {name}, which is no subcommand"
+              for name in sorted(set(rows) - set(SUBCOMMANDS))]
     return found
 
 

@@ -59,8 +59,10 @@ autodoc_preserve_defaults = True
 autodoc_inherit_docstrings = False   # the stdlib's docstrings (Enum's) are not ours to render
 autosummary_generate = False
 # Heavy optional imports stay lazy; autodoc imports our modules, which import nothing at import time that needs a bus,
-# a compiler or a display (the DBC is read on first use).
-autodoc_mock_imports: list[str] = []
+# a compiler or a display (the DBC is read on first use). pytest is a test dependency, not a docs one: the pytest
+# plugin (`bench.pytest_plugin`) is documented from a mock of it, so the `docs` extra alone builds these pages
+# (autodoc unwraps the mocked `@pytest.fixture` to document the function itself).
+autodoc_mock_imports: list[str] = ["pytest"]
 
 html_theme = "furo"
 html_title = f"pmsm-thermal-bench {release}"

@@ -28,8 +28,6 @@ and journals each injection in the same file. See `target_sim.node` for the prot
 from __future__ import annotations
 
 import argparse
-import ctypes
-import ctypes.util
 import json
 import logging
 import os
@@ -39,7 +37,8 @@ import time
 from pathlib import Path
 
 from dbc.database import DbcError, contract
-from dbc.files import write_atomically
+from dbc.files import same_file, write_atomically
+from dbc.lifeline import tie_to_parent
 from dbc.transport import BusUnavailable, add_bus_arguments, config_from_args, resolve
 from target_sim.artifact import load_artifact
 from target_sim.engines import ENGINES, make_node
@@ -82,7 +81,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-PR_SET_PDEATHSIG = 1      # <linux/prctl.h>
 PARENT_CHECK_S = 0.25     # how often the loop checks that the parent still lives
 
 
@@ -116,15 +114,27 @@ class EventJournal:
 
 
 def _tie_to_parent(parent: int) -> bool:
-    """Stop (SIGTERM) when the parent `parent` dies: the kernel's parent-death signal where there is one (Linux);
-    the serve loop also checks the parent id. False when `parent` is not (or no longer) this process's parent."""
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
-            libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-        except (OSError, AttributeError):
-            pass   # the loop's check still stops it
-    return os.getppid() == parent   # after prctl: a parent that died before it was armed is seen here
+    """Stop (SIGTERM) when the parent `parent` dies: the kernel's parent-death signal where there is one (Linux,
+    `dbc.lifeline`); the serve loop checks the parent id itself (no watcher thread). False when `parent` is not (or no
+    longer) this process's parent."""
+    return tie_to_parent(parent, signal.SIGTERM, watch=False)
+
+
+OUTPUTS = ("stats", "events")
+INPUTS = ("model", "firmware", "can_config")
+
+
+def _output_collision(args: argparse.Namespace) -> str | None:
+    """The sentence for an output (--stats, --events) that names an input or the other output (`dbc.files.same_file`:
+    symlinks and hard links too); None when every one is its own file."""
+    named = [(dest, getattr(args, dest, None)) for dest in (*INPUTS, *OUTPUTS)]
+    named = [(dest, path) for dest, path in named if path]
+    for i, (dest, path) in enumerate(named):
+        for other, other_path in named[:i]:
+            if dest in OUTPUTS and same_file(path, other_path):
+                option, other_option = (f"--{d.replace('_', '-')}" for d in (dest, other))
+                return f"{option} {path} is the same file as {other_option} {other_path}; choose another {option}"
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -132,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("can").addHandler(logging.NullHandler())
     parser = build_parser()
     args = parser.parse_args(argv)
+    collision = _output_collision(args)
+    if collision:
+        parser.error(collision)
     if args.parent_pid is not None and not _tie_to_parent(args.parent_pid):   # first: a dying bench stops it now
         print(f"target_sim: error: process {args.parent_pid} (--parent-pid) is not the parent of this target (it has "
               "exited?); the target does not start", file=sys.stderr)

@@ -629,3 +629,90 @@ def refused_in_one_sentence(capsys, argv: list[str]) -> str:
     out, err = capsys.readouterr()
     assert out == "" and err.startswith("bench: error: ") and err.count("\n") == 1
     return err
+
+
+# ---------------------------------------------------------------- campaigns on a Dask cluster
+
+
+def assert_table_equals_files(out: Path) -> None:
+    """Issue 39: a campaign directory's table equals its files. Every done row names its attempt's directory, whose
+    summary.json is the row's summary and whose log's sha256 is the row's log_sha256; every row's directory exists,
+    and OUT/runs holds no directory that no row names."""
+    import hashlib
+    import json
+    import sqlite3
+
+    with sqlite3.connect(out / "campaign.sqlite") as db:
+        db.row_factory = sqlite3.Row
+        rows = [dict(r) for r in db.execute("SELECT * FROM runs")]
+    named = set()
+    for row in rows:
+        if row["run_dir"] is None:
+            assert row["status"] == "lost-worker", row
+            continue
+        run_dir = Path(row["run_dir"])
+        named.add(run_dir)
+        assert run_dir.parent == (out / "runs").resolve() and run_dir.name.startswith(row["run_id"] + ".")
+        if row["status"] != "done":
+            assert run_dir.is_dir(), row
+            continue
+        assert json.loads((run_dir / "summary.json").read_text()) == json.loads(row["summary"]), row["run_id"]
+        log = Path(row["log_path"])
+        assert log.parent == run_dir, row["run_id"]
+        assert hashlib.sha256(log.read_bytes()).hexdigest() == row["log_sha256"], row["run_id"]
+    on_disk = set((out / "runs").resolve().iterdir()) if (out / "runs").exists() else set()
+    assert on_disk == named, f"directories no row names: {sorted(map(str, on_disk - named))}"
+
+
+class DaskCluster:
+    """A cluster started the way a user starts one: `dask scheduler` and `dask worker --no-nanny` processes on
+    localhost (stdout and stderr discarded), in `cwd`; a context manager that ends them all."""
+
+    def __init__(self, cwd: Path, workers: int):
+        import socket
+
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        self.address, self.port, self.cwd, self.n = f"tcp://127.0.0.1:{port}", port, cwd, workers
+        self.procs: list[subprocess.Popen] = []
+        self.workers: list[subprocess.Popen] = []
+
+    def _start(self, module: str, *args: str) -> subprocess.Popen:
+        proc = subprocess.Popen([sys.executable, "-m", module, *args], cwd=self.cwd,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self.procs.append(proc)
+        return proc
+
+    def start_worker(self) -> subprocess.Popen:
+        return self._start("distributed.cli.dask_worker", self.address, "--nthreads", "1", "--no-nanny",
+                           "--dashboard-address", ":0")
+
+    def wait_for_workers(self, n: int, timeout_s: float = 120) -> None:
+        """Until the scheduler has `n` workers (generous: a loaded machine starts a worker in seconds)."""
+        from distributed import Client
+
+        with Client(self.address, timeout=60) as client:
+            client.wait_for_workers(n, timeout=timeout_s)
+
+    def __enter__(self) -> DaskCluster:
+        try:
+            self._start("distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", str(self.port),
+                        "--dashboard-address", ":0")
+            self.workers = [self.start_worker() for _ in range(self.n)]
+            self.wait_for_workers(self.n)
+        except BaseException:
+            self.__exit__()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for proc in reversed(self.procs):
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(timeout=20)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()

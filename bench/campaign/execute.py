@@ -1,17 +1,19 @@
 """A campaign's runs on Dask workers: each run is `python -m bench run ... --json` in a subprocess of a worker,
-with its own bus port, log and report under OUT/runs/<run-id>/.
+with its own bus port, log and report under OUT/runs/<run-id>.<attempt-id>/ (a directory per execution: Dask may
+run a task twice, and the table names the attempt it recorded, `bench.campaign.once`).
 
 Results: "done" (the bench ran and printed its JSON summary; exit 0, or 1 for a verdict that is not clean, which
 is a result), "failed" (any other exit: a crash, a bad option), "timeout" (stopped after the campaign's timeout),
 "lost-worker" (the Dask worker running it died). A run that is not done is submitted once more; each outcome is
-one row of the table, written when it arrives. dask and distributed are imported only in `run_campaign` (and on
-the workers), so no other command pays for them.
+one row of the table, written when it arrives, and a done row is never replaced. dask and distributed are
+imported only in `run_campaign` (and on the workers), so no other command pays for them.
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime
+import functools
 import hashlib
 import json
 import logging
@@ -30,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.analysis.results import ResultsError, RunSummary
+from bench.campaign.once import WorkerWatch, discard, new_attempt_dir, say, sweep
 from bench.campaign.spec import Campaign, Run
 from bench.campaign.store import DONE, Store, flatten, option_columns
 from bench.errors import BenchError
@@ -38,6 +41,7 @@ from bench.progress import progress_bar
 MAX_ATTEMPTS = 2                  # a run that crashed, timed out or lost its worker is retried once
 STOP_GRACE_S = 20.0               # after SIGTERM, how long a run may take to stop its target and clean up
 CONNECT_TIMEOUT_S = 10.0
+POLL_S = 2.0                      # how often the driver, waiting for results, looks whether the cluster has workers
 
 
 def now() -> str:
@@ -90,15 +94,15 @@ def _child_env() -> dict[str, str]:
 
 
 def execute_run(task: dict[str, Any]) -> dict[str, Any]:
-    """Run one `bench run` (task: run_id, argv, run_dir, timeout_s, token) in a subprocess; its outcome as a dict.
-    Runs on a Dask worker; never raises for what the run did."""
+    """Run one `bench run` (task: run_id; argv, a function of the run's directory giving its arguments; runs_dir;
+    timeout_s; token) in a subprocess, in a new directory of this execution's own (RUNS_DIR/<run id>.<attempt id>,
+    named in the outcome's run_dir); its outcome as a dict. Runs on a Dask worker; never raises for what the run
+    did."""
     from bench.fileio import write_text_atomically
 
-    run_dir = Path(task["run_dir"])
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "summary.json").unlink(missing_ok=True)     # an earlier attempt's: not this one's result
+    run_dir = new_attempt_dir(Path(task["runs_dir"]), task["run_id"])
     started, clock = now(), time.perf_counter()
-    argv = [sys.executable, "-m", "bench.campaign.child", str(os.getpid()), "run", *task["argv"]]
+    argv = [sys.executable, "-m", "bench.campaign.child", str(os.getpid()), "run", *task["argv"](run_dir)]
     proc = subprocess.Popen(argv, cwd=run_dir, env=_child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     with _RUNNING_LOCK:
@@ -148,7 +152,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     write_text_atomically(run_dir / "stderr.txt", err)
     return {"run_id": task["run_id"], "status": status, "verdict": verdict, "exit_code": proc.returncode,
             "error": error, "summary": summary, "wall_s": round(wall, 3), "started_at": started,
-            "finished_at": now(), "worker": _worker_name(),
+            "finished_at": now(), "worker": _worker_name(), "run_dir": str(run_dir),
             "log_sha256": _sha256(summary.get("log")) if summary else None}
 
 
@@ -198,6 +202,7 @@ class Outcome:
     retried: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
     verdicts: dict[str, int] = field(default_factory=dict)
+    discarded: int = 0      # attempts of a run already recorded (a task Dask ran twice): deleted, never recorded
     workers: int = 0
     cluster: str = ""
     wall_s: float = 0.0
@@ -238,11 +243,10 @@ def dask_client(workers: int, address: str | None) -> Iterator[tuple[Any, str]]:
         except (OSError, TimeoutError) as exc:
             raise BenchError(f"cannot connect to a Dask scheduler at {full} ({exc}); check the address") from None
         try:
-            client.wait_for_workers(1, timeout=60)
-        except TimeoutError:
+            wait_for_a_worker(client, f"the scheduler at {full}", full)
+        except BaseException:
             client.close()
-            raise BenchError(f"the Dask scheduler at {full} has no worker after 60 s; start one with "
-                             f"`dask worker {full}`") from None
+            raise
         try:
             yield client, f"the scheduler at {full}"
         finally:
@@ -263,27 +267,40 @@ def dask_client(workers: int, address: str | None) -> Iterator[tuple[Any, str]]:
             cluster.close()
 
 
+def wait_for_a_worker(client, where: str, address: str) -> None:
+    """Return once the cluster has a worker, saying every NO_WORKER_NOTICE_S that it has none; NoWorkerError (one
+    sentence) after NO_WORKER_LIMIT_S."""
+    watch = WorkerWatch(where, address)
+    while True:
+        watch.check(len(client.nthreads()), 0)     # says so at once, then every NO_WORKER_NOTICE_S; raises at the limit
+        if not watch.waiting:
+            return
+        with contextlib.suppress(TimeoutError):
+            client.wait_for_workers(1, timeout=POLL_S)
+
+
 def _lost_outcome(run_id: str, exc: BaseException) -> dict[str, Any]:
     return {"run_id": run_id, "status": "lost-worker", "verdict": None, "exit_code": None,
             "error": f"the Dask worker running it died ({type(exc).__name__})", "summary": None, "wall_s": None,
-            "started_at": None, "finished_at": now(), "worker": None, "log_sha256": None}
+            "started_at": None, "finished_at": now(), "worker": None, "log_sha256": None, "run_dir": None}
 
 
 def _failed_outcome(run_id: str, exc: BaseException) -> dict[str, Any]:
     return {"run_id": run_id, "status": "failed", "verdict": None, "exit_code": None,
             "error": f"the task failed on its worker: {type(exc).__name__}: {exc}"[:500], "summary": None,
-            "wall_s": None, "started_at": None, "finished_at": now(), "worker": None, "log_sha256": None}
+            "wall_s": None, "started_at": None, "finished_at": now(), "worker": None, "log_sha256": None,
+            "run_dir": None}
 
 
-def table_row(run: Run, outcome: dict[str, Any], attempts: int,
-              run_dir: Path) -> tuple[dict[str, Any], list[tuple[str, int, int | None]]]:
-    """The run's row and fault rows for the store."""
+def table_row(run: Run, outcome: dict[str, Any],
+              attempts: int) -> tuple[dict[str, Any], list[tuple[str, int, int | None]]]:
+    """The run's row and fault rows for the store; its run_dir is the outcome's (the attempt's directory)."""
     flat, kinds = flatten(outcome.get("summary"))
     row = {"run_id": run.run_id, "position": run.index, "axes": json.dumps(run.axes),
            "options": json.dumps(run.options, sort_keys=True), **option_columns(run.options), **flat,
            "status": outcome["status"], "verdict": outcome["verdict"], "exit_code": outcome["exit_code"],
            "error": outcome["error"], "attempts": attempts, "wall_s": outcome["wall_s"],
-           "worker": outcome["worker"], "log_sha256": outcome["log_sha256"], "run_dir": str(run_dir),
+           "worker": outcome["worker"], "log_sha256": outcome["log_sha256"], "run_dir": outcome["run_dir"],
            "started_at": outcome["started_at"], "finished_at": outcome["finished_at"]}
     return row, kinds
 
@@ -312,56 +329,68 @@ def retried(result: dict[str, Any], attempt: int) -> bool:
 
 
 def run_tasks(client, function: Callable[[dict[str, Any]], dict[str, Any]], tasks: dict[str, dict[str, Any]], *,
-              key: Callable[[str, int], str], record: Callable[[str, dict[str, Any], int, bool], None],
+              key: Callable[[str, int], str], record: Callable[[str, dict[str, Any], int, bool], bool],
               lost: Callable[[str, BaseException], dict[str, Any]],
-              failed: Callable[[str, BaseException], dict[str, Any]]) -> None:
+              failed: Callable[[str, BaseException], dict[str, Any]], where: str, address: str) -> None:
     """`function(task)` for every task on the client's workers, each outcome handed to `record(task id, outcome,
-    attempt, final)` as it arrives (the driver writes it to its table); an outcome that is not done is not final
-    the first time: the task is submitted again (attempt 2, before the tasks still waiting). A task whose worker
-    died gives `lost(id, exc)`, a task that raised `failed(id, exc)`. No more tasks in flight than worker threads:
-    a task waits here, not in a worker's queue, so a worker that dies loses only what it was running. `bench
+    attempt, final)` as it arrives (the driver commits it to its table; False: the table holds the task as done
+    already and the outcome was discarded); an outcome that is not done is not final the first time: the task is
+    submitted again (attempt 2, before the tasks still waiting). A task whose worker died gives `lost(id, exc)`, a
+    task that raised `failed(id, exc)`. No more tasks in flight than worker threads: a task waits here, not in a
+    worker's queue, so a worker that dies loses only what it was running. A future is let go as soon as its result
+    is in, so the scheduler does not run a finished task again when the worker holding its result dies. While the
+    cluster (`where`, its scheduler at `address`) has no worker, the driver says so (`once.WorkerWatch`). `bench
     campaign` and `bench robustness` share it (and `run_tasks_serially`, the same policy in a plain loop)."""
-    from distributed import KilledWorker, as_completed
+    from distributed import KilledWorker, wait
 
+    in_flight: dict[str, Any] = {}                # task key -> its future
     submitted: dict[str, tuple[str, int]] = {}    # task key -> (task id, attempt)
     waiting = deque((task_id, 1) for task_id in tasks)
-    pending = as_completed()
+    watch = WorkerWatch(where, address)
 
     def fill() -> None:
         threads = sum(client.nthreads().values())
-        while waiting and len(submitted) < max(threads, 1):
+        watch.check(threads, len(waiting) + len(in_flight))
+        while waiting and len(in_flight) < max(threads, 1):
             task_id, attempt = waiting.popleft()
             name = key(task_id, attempt)
-            pending.add(client.submit(function, tasks[task_id], key=name, pure=False, retries=0))
+            in_flight[name] = client.submit(function, tasks[task_id], key=name, pure=False, retries=0)
             submitted[name] = (task_id, attempt)
 
     fill()
-    for future in pending:
-        task_id, attempt = submitted.pop(future.key)
+    while in_flight:
         try:
-            result = future.result()
-        except KilledWorker as exc:
-            result = lost(task_id, exc)
-        except Exception as exc:  # noqa: BLE001 - a task that errored: its worker, or its environment
-            gone = type(exc).__name__ in ("CommClosedError", "FutureCancelledError", "CancelledError")
-            result = lost(task_id, exc) if gone else failed(task_id, exc)
-        again = retried(result, attempt)
-        record(task_id, result, attempt, not again)
-        if again:
-            waiting.appendleft((task_id, attempt + 1))
+            finished = wait(list(in_flight.values()), timeout=POLL_S, return_when="FIRST_COMPLETED").done
+        except TimeoutError:
+            fill()        # nothing ended: does the cluster still have a worker?
+            continue
+        for future in finished:
+            name = future.key
+            del in_flight[name]
+            task_id, attempt = submitted.pop(name)
+            try:
+                result = future.result()
+            except KilledWorker as exc:
+                result = lost(task_id, exc)
+            except Exception as exc:  # noqa: BLE001 - a task that errored: its worker, or its environment
+                gone = type(exc).__name__ in ("CommClosedError", "FutureCancelledError", "CancelledError")
+                result = lost(task_id, exc) if gone else failed(task_id, exc)
+            future.release()      # the scheduler forgets the task: a lost copy of its result is not computed again
+            again = retried(result, attempt)
+            if record(task_id, result, attempt, not again) and again:
+                waiting.appendleft((task_id, attempt + 1))
         fill()
 
 
 def run_tasks_serially(function: Callable[[dict[str, Any]], dict[str, Any]], tasks: dict[str, dict[str, Any]], *,
-                       record: Callable[[str, dict[str, Any], int, bool], None]) -> None:
+                       record: Callable[[str, dict[str, Any], int, bool], bool]) -> None:
     """`run_tasks` in a plain loop in this process (a comparison's baseline): the same retry, the same records."""
     for task_id, task in tasks.items():
         attempt = 1
         while True:
             result = function(task)
             again = retried(result, attempt)
-            record(task_id, result, attempt, not again)
-            if not again:
+            if not record(task_id, result, attempt, not again) or not again:
                 break
             attempt += 1
 
@@ -369,7 +398,7 @@ def run_tasks_serially(function: Callable[[dict[str, Any]], dict[str, Any]], tas
 def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: int, address: str | None,
                  resume: bool, timeout_s: float | None, quiet: bool,
                  on_event: Callable[[str], None] | None = None) -> Outcome:
-    """Run what the table does not hold as done (everything without `resume`), recording each outcome."""
+    """Run what the table does not hold as done (everything without `resume`), committing each outcome."""
     started = time.perf_counter()
     todo = pending_runs(campaign, store, resume)
     outcome = Outcome(runs=len(campaign.runs), skipped=len(campaign.runs) - len(todo))
@@ -379,9 +408,7 @@ def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: in
     timeout = timeout_s if timeout_s is not None else campaign.timeout_s
     token = uuid.uuid4().hex
     runs_dir = (out_dir / "runs").resolve()
-    tasks = {run.run_id: {"run_id": run.run_id, "argv": run.argv(runs_dir / run.run_id, data[run.run_id]),
-                          "run_dir": str(runs_dir / run.run_id), "timeout_s": timeout, "token": token}
-             for run in todo}
+    tasks = {run.run_id: run_task(run, data[run.run_id], runs_dir, timeout, token) for run in todo}
     by_id = {run.run_id: run for run in todo}
     previous = {run.run_id: (store.row(run.run_id) or {}).get("attempts") or 0 for run in todo}
 
@@ -394,31 +421,55 @@ def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: in
                   + f", on {label}; table {store.path}", file=sys.stderr)
         bar = progress_bar(len(todo), campaign.name, "run", quiet)
 
-        def record(run_id: str, result: dict[str, Any], attempt: int, final: bool) -> None:
-            run = by_id[run_id]
-            row, kinds = table_row(run, result, previous[run_id] + attempt, runs_dir / run_id)
-            store.record(row, kinds)
+        def record(run_id: str, result: dict[str, Any], attempt: int, final: bool) -> bool:
+            if not commit_run(store, by_id[run_id], result, previous[run_id] + attempt):
+                outcome.discarded += 1
+                return False
             outcome.ran += attempt == 1
             if not final:
                 outcome.retried += 1
                 if on_event:
                     on_event(f"run {run_id} {result['status']} ({result['error']}); retrying it once")
-                return
+                return True
             outcome.statuses[result["status"]] = outcome.statuses.get(result["status"], 0) + 1
             verdict = result["verdict"] or result["status"]
             outcome.verdicts[verdict] = outcome.verdicts.get(verdict, 0) + 1
             bar.set_postfix_str(", ".join(f"{k} {v}" for k, v in sorted(outcome.verdicts.items())), refresh=False)
             bar.update(1)
+            return True
 
         try:
             run_tasks(client, execute_run, tasks, key=lambda run_id, attempt: f"bench-run-{run_id}-{token[:8]}-"
-                      f"{attempt}", record=record, lost=_lost_outcome, failed=_failed_outcome)
-        except BaseException:
-            # interrupted: stop the runs still going on every worker (a remote worker would finish them), then the
-            # cluster closes; the table holds the runs that ended, each row whole
-            _stop_everywhere(client, token)
-            raise
+                      f"{attempt}", record=record, lost=_lost_outcome, failed=_failed_outcome, where=label,
+                      address=client.scheduler.address)
         finally:
+            # ended or interrupted: stop what still runs on a worker (an interrupted campaign's runs; a copy of a
+            # task the scheduler started again), then delete the attempts no row names; the table holds the runs
+            # that ended, each row whole and naming its own files
+            _stop_everywhere(client, token)
             bar.close()
+            outcome.discarded += sweep(runs_dir, by_id, {r["run_dir"] for r in store.rows() if r["run_dir"]})
     outcome.wall_s = time.perf_counter() - started
     return outcome
+
+
+def run_task(run: Run, data: Path, runs_dir: Path, timeout_s: float, token: str) -> dict[str, Any]:
+    """The task `execute_run` gets for a run: its arguments are a function of the attempt's directory."""
+    return {"run_id": run.run_id, "argv": functools.partial(run.argv, data=data), "runs_dir": str(runs_dir),
+            "timeout_s": timeout_s, "token": token}
+
+
+def commit_run(store: Store, run: Run, result: dict[str, Any], attempts: int) -> bool:
+    """Commit one outcome of `run` (`SqliteTable.commit`): False when the table holds the run as done already, and
+    then this attempt's directory is deleted and the driver says so; a row it replaces (an attempt that failed,
+    timed out or lost its worker) takes its directory with it."""
+    row, kinds = table_row(run, result, attempts)
+    done = store.commit(row, kinds)
+    if not done.applied:
+        discard(result.get("run_dir"))
+        say(f"run {run.run_id}: another attempt was recorded first ({done.previous['run_dir']}); this one "
+            f"({result.get('run_dir') or 'no files'}, {result['status']}) is discarded")
+        return False
+    if done.previous is not None and done.previous["run_dir"] != row["run_dir"]:
+        discard(done.previous["run_dir"])
+    return True

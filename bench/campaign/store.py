@@ -5,7 +5,8 @@ The figures come from the run's summary, so they are over the rows the bench's r
 (`bench.analysis.rowfilter`); `rows_kept`, `rows_excluded` and `rows_excluded_by_reason` stand beside them.
 
 A run's rows are written in one transaction when the run ends, so an interrupted campaign leaves a table whose
-every row is whole; only the driver writes (the workers return their results to it).
+every row is whole; only the driver writes (the workers return their results to it), and a done row is never
+replaced: the first attempt committed wins (`SqliteTable.commit`, `bench.campaign.once`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import json
 import sqlite3
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -100,6 +102,14 @@ def summary_of(row: dict[str, Any]) -> RunSummary | None:
     return RunSummary.from_json(json.loads(row["summary"])) if row.get("summary") else None
 
 
+@dataclass(frozen=True)
+class Commit:
+    """What `SqliteTable.commit` did: `applied` (the row went in) and the row it found for the id (None: none)."""
+
+    applied: bool
+    previous: dict[str, Any] | None
+
+
 class SqliteTable:
     """A results table in one SQLite file: a meta table (key, value) and the subclass's tables (`TABLES`: name ->
     columns), created when new and only checked when it exists (never altered to fit). `WHAT` names it in
@@ -110,6 +120,7 @@ class SqliteTable:
     HINT: str = "give the output directory of a campaign (bench campaign run --out DIR)"
     VERSION: int = SCHEMA_VERSION
     MAIN: str = "runs"
+    KEY: str = "run_id"             # the main table's primary key
     TABLES: dict[str, str] = {}     # table -> "column type, ..." as CREATE TABLE takes it
     MAIN_COLUMNS: tuple[tuple[str, str], ...] = ()
 
@@ -130,6 +141,13 @@ class SqliteTable:
                     for name, columns in self.TABLES.items():
                         self._db.execute(f"CREATE TABLE {name} ({columns})")
                     self._db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(self.VERSION),))
+            if existed:   # a damaged page reads as a traceback later, and a resume would write onto it first
+                damage = self._damage()
+                if damage:
+                    self._db.close()
+                    raise StoreError(f"{self.path} is damaged (SQLite finds: {damage}); its files are "
+                                     f"still there, but the {what} cannot be resumed or reported from it: run the "
+                                     f"{what} again into another --out")
             tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
             if not {"meta", *self.TABLES} <= tables:
                 self._db.close()
@@ -149,6 +167,17 @@ class SqliteTable:
             self._db.close()
             raise StoreError(f"{self.path} is not a {what} table (its {self.MAIN} table lacks {missing[0]})")
 
+    def _damage(self) -> str | None:
+        """What SQLite's quick check finds wrong with an existing file (None: nothing; a file that is no database
+        at all is left to the checks after it, which say so)."""
+        try:
+            found = [r[0] for r in self._db.execute("PRAGMA quick_check(3)")]
+        except sqlite3.DatabaseError as exc:
+            if "not a database" in str(exc):
+                return None
+            return str(exc)
+        return None if found == ["ok"] else "; ".join(found)
+
     def close(self) -> None:
         self._db.close()
 
@@ -164,6 +193,39 @@ class SqliteTable:
     def set_meta(self, values: dict[str, str]) -> None:
         with self._db:
             self._db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)", list(values.items()))
+
+    def done(self) -> set[str]:
+        """The ids whose row is done: what --resume skips, and what `commit` never replaces."""
+        return {r[0] for r in self._db.execute(f"SELECT {self.KEY} FROM {self.MAIN} WHERE status = ?", (DONE,))}
+
+    def commit(self, row: dict[str, Any], children: Iterable[tuple] = ()) -> Commit:
+        """Write `row` (and its `children`, see `_write_children`) in one transaction, unless the table holds its
+        id as done already: the first done row wins, a later attempt's is not written (`applied` False). A row that
+        is not done (failed, timed out, lost) is replaced by the next attempt's."""
+        names = [c for c, _ in self.MAIN_COLUMNS]
+        unknown = set(row) - set(names)
+        if unknown:
+            raise ValueError(f"not columns of the {self.MAIN} table: {sorted(unknown)}")
+        self._db.execute("BEGIN IMMEDIATE")       # the check and the write as one: no other writer in between
+        try:
+            found = self._db.execute(f"SELECT * FROM {self.MAIN} WHERE {self.KEY} = ?", (row[self.KEY],)).fetchone()
+            previous = dict(found) if found is not None else None
+            if previous is not None and previous["status"] == DONE:
+                self._db.rollback()
+                return Commit(False, previous)
+            self._db.execute(f"INSERT OR REPLACE INTO {self.MAIN} ({', '.join(names)}) VALUES "
+                             f"({', '.join('?' for _ in names)})", [row.get(c) for c in names])
+            self._write_children(row[self.KEY], list(children))
+            self._db.commit()
+        except BaseException:
+            self._db.rollback()
+            raise
+        return Commit(True, previous)
+
+    def _write_children(self, key: str, children: list[tuple]) -> None:
+        """The rows of other tables that belong to the main row `key` (inside `commit`'s transaction)."""
+        if children:
+            raise ValueError(f"a {self.WHAT} row has no child rows")
 
 
 class Store(SqliteTable):
@@ -184,23 +246,11 @@ class Store(SqliteTable):
         found = self._db.execute("SELECT * FROM runs WHERE run_id = ?", (run_id,)).fetchone()
         return dict(found) if found is not None else None
 
-    def done(self) -> set[str]:
-        """The ids of the runs that are done (the bench gave its verdict): what --resume skips."""
-        return {r[0] for r in self._db.execute("SELECT run_id FROM runs WHERE status = ?", (DONE,))}
-
-    def record(self, row: dict[str, Any], fault_rows: Iterable[tuple[str, int, int | None]] = ()) -> None:
-        """Replace the run's row and its fault rows, in one transaction."""
-        names = [c for c, _ in COLUMNS]
-        unknown = set(row) - set(names)
-        if unknown:
-            raise ValueError(f"not columns of the runs table: {sorted(unknown)}")
-        values = [row.get(c) for c in names]
-        with self._db:
-            self._db.execute(f"INSERT OR REPLACE INTO runs ({', '.join(names)}) VALUES "
-                             f"({', '.join('?' for _ in names)})", values)
-            self._db.execute("DELETE FROM faults WHERE run_id = ?", (row["run_id"],))
-            self._db.executemany("INSERT INTO faults VALUES (?, ?, ?, ?)",
-                                 [(row["run_id"], kind, n, d) for kind, n, d in fault_rows])
+    def _write_children(self, key: str, children: list[tuple]) -> None:
+        """The run's fault rows (kind, injected, detected) replace those of its earlier attempt."""
+        self._db.execute("DELETE FROM faults WHERE run_id = ?", (key,))
+        self._db.executemany("INSERT INTO faults VALUES (?, ?, ?, ?)",
+                             [(key, kind, n, d) for kind, n, d in children])
 
 
 def option_columns(options: dict[str, Any]) -> dict[str, Any]:

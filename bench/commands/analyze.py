@@ -33,6 +33,7 @@ from pathlib import Path
 
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
 from bench.acceptance.junit import CleanCase
+from bench.commands.args import declare_files
 from bench.commands.common import (
     add_data_arguments,
     add_output_flags,
@@ -60,6 +61,8 @@ def add_subparser(subparsers) -> None:
                    help="exit 0 for a log with injected faults if every one was detected and nothing else went wrong")
     add_output_flags(p)
     add_acceptance_arguments(p)
+    declare_files(p, inputs=('LOG', '--model', '--data'), outputs=('--report',), replaced=('--report',),
+                  off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
 
 

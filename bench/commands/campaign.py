@@ -7,15 +7,18 @@
 
 Every combination of the spec's axes (cartesian product) is one run: `python -m bench run ... --json` in a
 subprocess of a Dask worker, with its own target process, its own udp_multicast port, and its log, report, JSON
-summary and stderr in OUT/runs/<run-id>/ (the id: a slug of the axis values and a hash of every option, stable
-across invocations). Default: a local cluster of N worker processes (--workers, default the CPU count);
---cluster tcp://HOST:PORT uses a running scheduler (its workers need the bench installed and OUT and the data at
-the same paths). A run that crashes, times out (--timeout, default the spec's or 1800 s) or loses its worker is
-retried once; a verdict that is not clean is a result. One row per run goes into OUT/campaign.sqlite when it
-ends; --resume skips the runs the table holds as done. OUT/report/report.md (verdict matrix, figures per axis) is
-rebuilt at the end, and by `bench campaign report DIR` from the table alone. `plan` lists the runs without
-running them (with --out, and what the table there says of each). --set KEY=VALUE overrides a fixed option, or an
-axis (a list: --set 'model=["hammerstein"]'), e.g. --set rows=2000 to try a spec small.
+summary and stderr in OUT/runs/<run-id>.<attempt>/ (the id: a slug of the axis values and a hash of every
+option, stable across invocations; the attempt: random, one directory per execution, the table's run_dir).
+Default: a local cluster of N worker processes (--workers, default the CPU count); --cluster tcp://HOST:PORT uses
+a running scheduler (its workers need the bench installed and OUT and the data at the same paths; while it has no
+worker the campaign says so every 15 s, and gives up after 60 s). A run that crashes, times out (--timeout,
+default the spec's or 1800 s) or loses its worker is retried once; a verdict that is not clean is a result. One
+row per run goes into OUT/campaign.sqlite when it ends, once (a run the cluster executed twice is recorded once,
+the later attempt discarded); --resume skips the runs the table holds as done. OUT/report/report.md (verdict
+matrix, figures per axis) is rebuilt at the end, and by `bench campaign report DIR` from the table alone. `plan`
+lists the runs without running them (with --out, and what the table there says of each). --set KEY=VALUE
+overrides a fixed option, or an axis (a list: --set 'model=["hammerstein"]'), e.g. --set rows=2000 to try a spec
+small.
 
 Exit status 0 when every run is done and its `bench run` exited 0; 1 otherwise (the report lists why); 2 for a
 bad argument; SIGINT/SIGTERM stop the cluster and its runs, leave every row written whole, exit 130/143.
@@ -31,7 +34,7 @@ import sys
 from pathlib import Path
 
 from bench.campaign import spec as spec_module  # stdlib only: the spec format for --help
-from bench.commands.args import positive_float, positive_int
+from bench.commands.args import declare_files, positive_float, positive_int
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.progress import say
@@ -58,17 +61,20 @@ def add_subparser(subparsers) -> None:
     _out_and_set(run, "output directory")
     run.add_argument("--resume", action="store_true", help="skip the runs OUT's table holds as done")
     add_output_flags(run)
+    declare_files(run, inputs=('SPEC',), outputs=('--out',))
     run.set_defaults(func=run_command)
 
     plan = actions.add_parser("plan", help="list the runs a spec makes, without running them")
     plan.add_argument("spec", type=Path, metavar="SPEC", help="campaign spec (TOML)")
     _out_and_set(plan, "a campaign's output directory: show what its table says of each run")
     add_output_flags(plan)
+    declare_files(plan, inputs=('SPEC', '--out'))
     plan.set_defaults(func=plan_command)
 
     report = actions.add_parser("report", help="rebuild DIR/report from DIR/campaign.sqlite alone")
     report.add_argument("dir", type=Path, metavar="DIR", help="a campaign's output directory")
     add_output_flags(report)
+    declare_files(report, inputs=('DIR',))
     report.set_defaults(func=report_command)
     p.set_defaults(func=_no_action)
 
@@ -101,6 +107,20 @@ def _check_out(out: Path, resume: bool) -> None:
         raise BenchError(f"{out} is not empty and holds no campaign table; choose another --out")
 
 
+def check_same_campaign(meta: dict[str, str], campaign, out: Path) -> None:
+    """BenchError (one sentence, before any run) when OUT's table holds another campaign than `campaign` (other
+    axes or fixed options, from another spec or other --set values): a resume would mix the two campaigns' runs in
+    one table and report, and replace the stored spec. A new table (no stored axes) is this campaign's."""
+    if "axes" not in meta:
+        return
+    stored = (json.loads(meta["axes"]), json.loads(meta.get("fixed", "{}")))
+    if stored != (json.loads(json.dumps(campaign.axes)), json.loads(json.dumps(campaign.fixed))):
+        raise BenchError(f"{out} holds the campaign {meta.get('name')!r} of {meta.get('spec_path')} (spec sha256 "
+                         f"{meta.get('spec_sha256', '')[:12]}…), whose axes or fixed options differ from "
+                         f"{campaign.path}'s; resume it with that spec and the same --set values, or choose "
+                         "another --out")
+
+
 def run_command(args: argparse.Namespace) -> int:
     from bench.campaign.execute import check_reachable, run_campaign
     from bench.campaign.report import write_report
@@ -117,6 +137,7 @@ def run_command(args: argparse.Namespace) -> int:
         check_reachable(args.cluster)        # an unreachable scheduler is one sentence, before anything is written
     quiet = args.quiet or args.json
     with Store(out / TABLE_NAME, create=True) as store:
+        check_same_campaign(store.meta(), campaign, out)   # --resume into another campaign's table: refused
         store.set_meta({"name": campaign.name, "description": campaign.description,
                         "spec_path": str(campaign.path.resolve()), "spec_text": campaign.text,
                         "spec_sha256": hashlib.sha256(campaign.text.encode()).hexdigest(),
@@ -139,9 +160,9 @@ def run_command(args: argparse.Namespace) -> int:
         counts[label] = counts.get(label, 0) + 1
     passed = sum(1 for r in mine if r is not None and r["status"] == DONE and r["exit_code"] == 0)
     summary = {"campaign": campaign.name, "runs": outcome.runs, "ran": outcome.ran, "skipped": outcome.skipped,
-               "retried": outcome.retried, "counts": counts, "passed": passed, "cluster": outcome.cluster,
-               "workers": outcome.workers, "wall_s": round(outcome.wall_s, 2), "out": str(out),
-               "table": str(out / TABLE_NAME), "report": str(report),
+               "retried": outcome.retried, "discarded": outcome.discarded, "counts": counts, "passed": passed,
+               "cluster": outcome.cluster, "workers": outcome.workers, "wall_s": round(outcome.wall_s, 2),
+               "out": str(out), "table": str(out / TABLE_NAME), "report": str(report),
                "run_ids": [run.run_id for run in campaign.runs]}
     if args.json:
         print_json(summary)
@@ -150,6 +171,7 @@ def run_command(args: argparse.Namespace) -> int:
               + ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
               + (f"; {outcome.skipped} done before (--resume)" if outcome.skipped else "")
               + (f"; {outcome.retried} retried" if outcome.retried else "")
+              + (f"; {outcome.discarded} duplicate attempt(s) discarded" if outcome.discarded else "")
               + (f"; {outcome.wall_s:.1f} s on {outcome.cluster}" if outcome.cluster else ""))
         print(f"table {out / TABLE_NAME}, report {report}")
     if passed == outcome.runs:

@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 from bench.analysis.results import RunResults
-from bench.commands.args import bus_from_args, positive_float, positive_int
+from bench.commands.args import bus_from_args, declare_files, positive_float, positive_int
 from bench.commands.common import add_engine_argument, add_output_flags, check_writable, fmt, print_json
 from bench.errors import UsageError
 from bench.fileio import write_text_atomically
@@ -54,6 +54,7 @@ def add_subparser(subparsers) -> None:
     add_engine_argument(p, default="firmware")
     add_output_flags(p)
     add_bus_arguments(p)
+    declare_files(p, inputs=('--data',), outputs=('--out',))
     p.set_defaults(func=run)
 
 

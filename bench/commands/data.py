@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+from bench.commands.args import declare_files
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 
@@ -66,6 +67,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--profiles", type=name_list, default=None,
                    help="with --motor: only these profiles, comma-separated names (default: all)")
     add_output_flags(p)
+    declare_files(p, inputs=('--motor',), outputs=('--out',))
     p.set_defaults(func=run)
 
 

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import can
 
+from bench.commands.args import declare_files
 from bench.commands.common import add_output_flags, check_writable, print_json, sample_period
 from bench.errors import BenchError, UsageError
 from dbc import FrameError
@@ -54,6 +55,7 @@ def add_subparser(subparsers) -> None:
                    help="the data's sample period in seconds for --drive-time (default auto: read from the log's "
                         "TargetInfo and Timing1 frames)")
     add_output_flags(p)
+    declare_files(p, inputs=('LOG',), outputs=('--out',))
     p.set_defaults(func=run)
 
 
@@ -157,8 +159,6 @@ def run(args: argparse.Namespace) -> int:
     path = check_log_path(args.log, for_reading=True)
     out = check_log_path(args.out)
     check_writable(out, "--out")
-    if out.exists() and out.resolve() == path.resolve():
-        raise UsageError(f"--out {out} is the log being exported; name another file")
     messages = list(read_log(path))
     period = source = None
     times = None

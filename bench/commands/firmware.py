@@ -23,7 +23,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.args import positive_int
+from bench.commands.args import declare_files, positive_int
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 
@@ -57,6 +57,7 @@ def _add_export(actions) -> None:
                                        "fw_model.c (coefficients, state, step), the same computation as the "
                                        "Python float32 reference, operation for operation.")
     _common(p, "directory for fw_model.h and fw_model.c")
+    declare_files(p, inputs=('--model',), outputs=('--out',))
     p.set_defaults(func=run_export)
 
 
@@ -66,6 +67,7 @@ def _add_build(actions) -> None:
                                        "code for a Cortex-M4F (256 kB flash, 64 kB RAM): firmware.elf and "
                                        "firmware.map, with the sources, in --out; flash and RAM from the ELF.")
     _common(p, "directory for firmware.elf, firmware.map and the sources")
+    declare_files(p, inputs=('--model',), outputs=('--out',))
     p.set_defaults(func=run_build)
 
 
@@ -90,6 +92,7 @@ def _add_check(actions) -> None:
     p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
     add_data_arguments(p)
     add_output_flags(p)
+    declare_files(p, inputs=('--model', '--data', '--firmware'))
     p.set_defaults(func=run_check)
 
 
@@ -115,6 +118,7 @@ def _add_timing(actions) -> None:
                    help=f"cache directory for the built timing image (default {DEFAULT_OUT / 'cache'})")
     add_data_arguments(p)
     add_output_flags(p)
+    declare_files(p, inputs=('--model', '--data'), outputs=('--out',))
     p.set_defaults(func=run_timing)
 
 

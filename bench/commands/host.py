@@ -43,7 +43,7 @@ from pathlib import Path
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
 from bench.acceptance.junit import CleanCase
 from bench.analysis.results import DataIdentity
-from bench.commands.args import add_listener_argument, announce_logger, positive_float, positive_int
+from bench.commands.args import add_listener_argument, announce_logger, declare_files, positive_float, positive_int
 from bench.commands.common import (
     SHOWN_NODES,
     add_data_arguments,
@@ -96,6 +96,7 @@ def add_subparser(subparsers) -> None:
     add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
+    declare_files(p, inputs=('--data', '--model', '--target-events'), outputs=('--log',))
     p.set_defaults(func=run_host)
 
 

@@ -14,6 +14,7 @@ import math
 import sys
 from pathlib import Path
 
+from bench.commands.args import declare_files
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
@@ -95,6 +96,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--lm-iterations", type=int, default=100, help="Levenberg-Marquardt iterations (default 100)")
     p.add_argument("--seed", type=int, default=0, help="PSO seed (default 0)")
     add_output_flags(p)
+    declare_files(p, inputs=('--motor', '--data', '--train', '--validate', '--prior'), outputs=('--out',))
     p.set_defaults(func=run)
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from bench.commands.args import declare_files
 from bench.commands.common import add_output_flags, print_json
 
 
@@ -16,16 +17,19 @@ def add_subparser(subparsers) -> None:
     actions = p.add_subparsers(title="actions", dest="action", parser_class=type(p))
     template = actions.add_parser("template", help="print an example motor description")
     template.add_argument("--format", choices=("toml", "json"), default="toml", help="file format (default toml)")
+    declare_files(template)
     template.set_defaults(func=run_template)
     check = actions.add_parser("check", help="validate a motor description and summarize it")
     check.add_argument("file", type=Path, help="the motor's .json or .toml file")
     add_output_flags(check)
+    declare_files(check, inputs=('FILE',))
     check.set_defaults(func=run_check)
     lump = actions.add_parser("lump", help="a distributed virtual plant lumped into the four-node LPTN's 22 "
                               "parameters (a designer's prior)")
     lump.add_argument("file", type=Path, help="the motor's .json or .toml file (virtual_plant.thermal.kind = "
                       "\"distributed\")")
     add_output_flags(lump)
+    declare_files(lump, inputs=('FILE',))
     lump.set_defaults(func=run_lump)
     p.set_defaults(func=lambda args: p.print_help() or 2)
 

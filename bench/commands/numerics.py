@@ -7,6 +7,7 @@ import argparse
 import time
 from pathlib import Path
 
+from bench.commands.args import declare_files
 from bench.commands.common import add_data_arguments, add_output_flags, choice_list, float_list, print_json
 from bench.errors import BenchError, UsageError
 from bench.thermal.excitation import SAMPLE_PERIOD_S, interval_means, synthetic_lti_inputs
@@ -40,6 +41,7 @@ def add_subparser(subparsers) -> None:
                         "generated if missing)")
     add_data_arguments(p)
     add_output_flags(p)
+    declare_files(p, inputs=('--model', '--data'))
     p.set_defaults(func=run)
 
 

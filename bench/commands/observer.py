@@ -42,6 +42,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from bench.commands.args import declare_files
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import UsageError
 from bench.fileio import write_text_atomically
@@ -78,6 +79,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--evaluations", type=int, default=800, help="largest number of filter runs while tuning")
     p.add_argument("--out", type=Path, default=Path("out/model/observer.json"), help="artifact to write")
     add_output_flags(p)
+    declare_files(p, inputs=('--model', '--train'), outputs=('--out',))
     p.set_defaults(func=run)
 
 

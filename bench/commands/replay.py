@@ -48,9 +48,16 @@ from bench.analysis.logdecode import BusRecord, decode_log
 from bench.analysis.results import Percentiles, Rejections, ReplayResults, ReplyComparison, RunResults
 from bench.analysis.rowfilter import RowSelection, kept_rows
 from bench.analysis.verdict import counts_text
-from bench.commands.args import add_listener_argument, announce_logger, bus_from_args, positive_float
+from bench.commands.args import (
+    add_listener_argument,
+    announce_logger,
+    bus_from_args,
+    declare_files,
+    positive_float,
+    refuse_same,
+)
 from bench.commands.common import add_output_flags, check_writable, print_json
-from bench.errors import BenchError, UsageError
+from bench.errors import BenchError
 from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
 from bench.run_inputs import firmware_for_engine, load_model
@@ -90,6 +97,7 @@ def add_subparser(subparsers) -> None:
     add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
+    declare_files(p, inputs=('LOG', '--model'), outputs=(('--log', 'new_log'),))
     p.set_defaults(func=run)
 
 
@@ -175,8 +183,8 @@ def run(args: argparse.Namespace) -> int:
     new_log = args.new_log or Path("out/replay") / default_replay_name(path)
     check_log_path(new_log)   # the arguments' refusals before the log is read
     check_writable(new_log, "--log")
-    if new_log.exists() and new_log.resolve() == path.resolve():
-        raise UsageError(f"--log {new_log} is the log being replayed; name another file for the new log")
+    if args.new_log is None:   # the default beside nothing the user named: `bench.cli` checked the options given
+        refuse_same("--log", new_log, "LOG", path)
     messages = list(read_log(path))
     frames = host_frames(messages)
     if count_rows(frames) == 0:

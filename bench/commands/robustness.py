@@ -29,7 +29,7 @@ import os
 import sys
 from pathlib import Path
 
-from bench.commands.args import positive_int
+from bench.commands.args import declare_files, positive_int
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.progress import say
@@ -63,6 +63,7 @@ def add_subparser(subparsers) -> None:
                    help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--resume", action="store_true", help="skip the cases OUT's table holds as done")
     add_output_flags(p)
+    declare_files(p, inputs=('--model', '--data', '--spec'), outputs=('--out',))
     p.set_defaults(func=run)
 
 
@@ -162,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
     not_done = [c.case_id for c, r in zip(cases, mine, strict=True) if r is None or r["status"] != "done"]
     diverged = sum(1 for r in mine if r is not None and r["outcome"] == "diverged")
     summary = {"study": spec.name, "cases": outcome.cases, "ran": outcome.ran, "skipped": outcome.skipped,
-               "retried": outcome.retried, "diverged": diverged, "not_done": len(not_done),
+               "retried": outcome.retried, "discarded": outcome.discarded, "diverged": diverged,
+               "not_done": len(not_done),
                "cluster": outcome.cluster, "workers": outcome.workers, "wall_s": round(outcome.wall_s, 2),
                "out": str(out), "table": str(out / TABLE_NAME), "report": str(report),
                "json": str(out / "report" / "robustness.json")}
@@ -172,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"robustness {spec.name}: {outcome.cases} case(s), {outcome.ran} run"
               + (f", {outcome.skipped} done before (--resume)" if outcome.skipped else "")
               + (f", {outcome.retried} retried" if outcome.retried else "")
+              + (f", {outcome.discarded} duplicate outcome(s) discarded" if outcome.discarded else "")
               + (f", {diverged} diverged" if diverged else "")
               + (f"; {outcome.wall_s:.1f} s on {outcome.cluster}" if outcome.cluster else ""))
         print(f"table {out / TABLE_NAME}, report {report}")

@@ -71,6 +71,7 @@ from bench.commands.args import (
     add_listener_argument,
     announce_logger,
     bus_from_args,
+    declare_files,
     non_negative_int,
     positive_float,
     positive_int,
@@ -120,6 +121,8 @@ def add_subparser(subparsers) -> None:
     add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
+    declare_files(p, inputs=('--data', '--model'), outputs=('--log', '--report'), replaced=('--report',),
+                  off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
 
 

@@ -16,7 +16,7 @@ A mapping file is JSON (`.json`) or TOML (`.toml`), the suffix says which. Every
 ```
 
 - `columns`: source column name -> schema column name (required or optional ones: time_s, torque_Nm, speed_rpm,
-  coolant_C, ambient_C, winding_C, rotor_surface_C, pm_C, i_d_A, i_q_A, u_d_V, u_q_V, yoke_C, tooth_C). Columns
+  coolant_C, ambient_C, winding_C, rotor_surface_C, pm_C, i_d_A, i_q_A, u_d_V, u_q_V, yoke_C, tooth_C, ntc_C). Columns
   already named as in the schema need no entry; columns that are neither mapped nor schema names are ignored
   (and listed in the dataset's metadata).
 - `units`: schema column name -> unit of the source values: time s, ms, min; torque Nm, N·m, kNm; speed rpm,

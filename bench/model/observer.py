@@ -169,8 +169,9 @@ def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequenc
     for m in measurements:
         for column in m.columns:
             if not dataset.has(column):
-                raise BenchError(f"{dataset.path} has no column {column!r}, the observer's measurement; map it with "
-                                 "--mapping or choose another with --measure")
+                raise BenchError(f"{dataset.path} has no column {column!r}, the observer's measurement; map the "
+                                 f"file's column of that sensor onto {column} with --mapping (a mapping file's "
+                                 f"[columns] YOUR_COLUMN = \"{column}\") or choose another with --measure")
     loss_model, motor = artifact_loss_model(artifact)
     run = model_run(dataset, loss_model, motor, artifact.dt, name=dataset.name)
     steps = len(run.step_time_s)

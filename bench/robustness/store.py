@@ -1,13 +1,14 @@
 """The study's table: OUT/robustness.sqlite, one row per case (what it is, its status, attempts and its result as
 JSON), written in one transaction when the case ends (the campaign's `SqliteTable`: an interrupted study leaves
-every row whole, `--resume` skips the cases done)."""
+every row whole, `--resume` skips the cases done, and a done row is never replaced: a case the cluster ran twice
+is recorded once, `bench.campaign.once`)."""
 
 from __future__ import annotations
 
 import json
 from typing import Any
 
-from bench.campaign.store import DONE, SqliteTable
+from bench.campaign.store import Commit, SqliteTable
 
 TABLE_NAME = "robustness.sqlite"
 COLUMNS = (("case_id", "TEXT PRIMARY KEY"), ("position", "INTEGER"), ("model", "TEXT"), ("model_sha256", "TEXT"),
@@ -22,6 +23,7 @@ class CaseStore(SqliteTable):
     HINT = "give the output directory of a study (bench robustness --out DIR)"
     VERSION = 1
     MAIN = "cases"
+    KEY = "case_id"
     TABLES = {"cases": ", ".join(f"{c} {t}" for c, t in COLUMNS)}
     MAIN_COLUMNS = COLUMNS
 
@@ -32,10 +34,8 @@ class CaseStore(SqliteTable):
         found = self._db.execute("SELECT * FROM cases WHERE case_id = ?", (case_id,)).fetchone()
         return dict(found) if found is not None else None
 
-    def done(self) -> set[str]:
-        return {r[0] for r in self._db.execute("SELECT case_id FROM cases WHERE status = ?", (DONE,))}
-
-    def record(self, case, outcome: dict[str, Any], attempts: int) -> None:
+    def record(self, case, outcome: dict[str, Any], attempts: int) -> Commit:
+        """The case's row from its outcome, committed (`SqliteTable.commit`: never over a done row)."""
         result = outcome.get("result")
         row = {"case_id": case.case_id, "position": case.index, "model": case.source.model_path,
                "model_sha256": case.source.model_sha256, "data": case.source.data_path,
@@ -46,7 +46,4 @@ class CaseStore(SqliteTable):
                "result": json.dumps(result, sort_keys=True) if result is not None else None,
                "worker": outcome.get("worker"), "wall_s": outcome.get("wall_s"),
                "started_at": outcome.get("started_at"), "finished_at": outcome.get("finished_at")}
-        names = [c for c, _ in COLUMNS]
-        with self._db:
-            self._db.execute(f"INSERT OR REPLACE INTO cases ({', '.join(names)}) VALUES "
-                             f"({', '.join('?' for _ in names)})", [row[c] for c in names])
+        return self.commit(row)

@@ -1,6 +1,7 @@
 """A study's cases on Dask (the campaign's client and task loop: the embedded LocalCluster, or a scheduler with
---cluster; a case whose worker died or that failed is retried once), each outcome written to the table as it
-arrives; or, for a comparison, the same cases in a plain loop in this process."""
+--cluster; a case whose worker died or that failed is retried once), each outcome committed to the table as it
+arrives, once (`bench.campaign.once`: a case the cluster ran twice is recorded once); or, for a comparison, the
+same cases in a plain loop in this process."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from bench.campaign.execute import dask_client, now, run_tasks, run_tasks_serially
+from bench.campaign.once import say
 from bench.campaign.store import DONE
 from bench.progress import progress_bar
 from bench.robustness.cases import Case
@@ -25,6 +27,7 @@ class StudyOutcome:
     ran: int = 0
     retried: int = 0
     failed: int = 0
+    discarded: int = 0      # outcomes of a case already recorded (a task Dask ran twice): never recorded
     workers: int = 0
     cluster: str = ""
     wall_s: float = 0.0
@@ -42,6 +45,15 @@ def _failed(case_id: str, exc: BaseException) -> dict[str, Any]:
             "finished_at": now()}
 
 
+def commit_case(store: CaseStore, case: Case, result: dict[str, Any], attempts: int) -> bool:
+    """Commit one outcome of `case` (`SqliteTable.commit`): False, and the driver says so, when the table holds the
+    case as done already (the first done outcome wins)."""
+    if store.record(case, result, attempts).applied:
+        return True
+    say(f"case {case.case_id}: another attempt was recorded first; this one ({result['status']}) is discarded")
+    return False
+
+
 def run_study(cases: list[Case], store: CaseStore, *, workers: int, address: str | None, resume: bool,
               serial: bool = False, quiet: bool = True, on_event: Callable[[str], None] | None = None) -> StudyOutcome:
     """Run the cases the table does not hold as done (all of them without `resume`), recording each outcome."""
@@ -53,16 +65,19 @@ def run_study(cases: list[Case], store: CaseStore, *, workers: int, address: str
     previous = {c.case_id: (store.row(c.case_id) or {}).get("attempts") or 0 for c in todo}
     bar = progress_bar(len(todo), "robustness", "case", quiet)
 
-    def record(case_id: str, result: dict[str, Any], attempt: int, final: bool) -> None:
-        store.record(by_id[case_id], result, previous[case_id] + attempt)
+    def record(case_id: str, result: dict[str, Any], attempt: int, final: bool) -> bool:
+        if not commit_case(store, by_id[case_id], result, previous[case_id] + attempt):
+            outcome.discarded += 1
+            return False
         outcome.ran += attempt == 1
         if not final:
             outcome.retried += 1
             if on_event:
                 on_event(f"case {case_id} {result['status']} ({result['error']}); retrying it once")
-            return
+            return True
         outcome.failed += result["status"] != DONE
         bar.update(1)
+        return True
 
     try:
         if not todo:
@@ -79,7 +94,7 @@ def run_study(cases: list[Case], store: CaseStore, *, workers: int, address: str
                 on_event(f"{len(todo)} case(s) to do" + (f", {outcome.skipped} done already" if outcome.skipped
                                                          else "") + f", on {label}; table {store.path}")
             run_tasks(client, evaluate_case, tasks, key=lambda cid, attempt: f"robustness-{cid}-{token}-{attempt}",
-                      record=record, lost=_lost, failed=_failed)
+                      record=record, lost=_lost, failed=_failed, where=label, address=client.scheduler.address)
         return outcome
     finally:
         bar.close()

@@ -104,7 +104,8 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
             nll += LOG_2PI + np.log(s) + nu * nu / s
             updates += 1
         if keep:
-            cp = c @ p[:4, :4] @ c.T
+            # the node block copied whole: numba's '@' copies a strided view anyway, and warns on stderr when it does
+            cp = c @ np.ascontiguousarray(p[:4, :4]) @ c.T
             for i in range(4):
                 traj[k, i] = y[i]
                 sigma[k, i] = np.sqrt(max(cp[i, i], 0.0))

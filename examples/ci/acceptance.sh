@@ -58,8 +58,10 @@ for target in $TARGETS; do
         options+=(--bench-interface "$INTERFACE" ${CHANNEL:+--bench-channel "$CHANNEL"})
     fi
     # shellcheck disable=SC2086  # PYTEST_ARGS is a list of words
+    # xunit1: the figures as properties of each test; system-out: its log and JUnit XML as [[ATTACHMENT|path]] lines
     python -m pytest "$HERE" $PYTEST_ARGS -p no:cacheprovider -n 0 -o junit_family=xunit1 \
-        --junitxml "$OUT/pytest-$target.xml" --bench-out "$OUT/runs-$target" "${options[@]}"
+        -o junit_logging=system-out --junitxml "$OUT/pytest-$target.xml" --bench-out "$OUT/runs-$target" \
+        "${options[@]}"
     if [ "$target" = external ]; then kill "$target_pid"; wait "$target_pid" 2>/dev/null || true; trap - EXIT; fi
 done
 echo "acceptance: the bench run and the suite against: ${TARGETS:-no target} passed; artifacts in $OUT"

@@ -104,8 +104,8 @@ def test_replay_refuses_to_overwrite_the_log_it_replays(cli, material, scratch):
     copy.write_bytes(material.log.read_bytes())
     result = cli("bench", "replay", copy, "--model", material.art, "--log", copy, cwd=scratch)
     assert result.rc == 2, str(result)
-    assert _one_line(result) == (f"bench: error: --log {copy} is the log being replayed; name another file for the "
-                                 "new log")
+    assert _one_line(result) == (f"bench: error: --log {copy} is the same file as LOG {copy} (an input of this "
+                                 "command, which it would overwrite); choose another --log")
     assert copy.read_bytes() == material.log.read_bytes()
 
 

@@ -149,7 +149,7 @@ def test_bad_input_is_one_sentence(run_log, tmp_path):
         ((run_log, "--out", tmp_path / "x.txt"), 1, "unsupported format .txt"),
         ((tmp_path / "none.blf", "--out", tmp_path / "y.blf"), 1, "does not exist"),
         ((run_log, "--out", tmp_path / "z.blf", "--sample-period", "0.2"), 2, "pass --drive-time too"),
-        ((run_log, "--out", run_log, "--host-only"), 2, "is the log being exported"),
+        ((run_log, "--out", run_log, "--host-only"), 2, "is the same file as LOG"),
         ((run_log, "--out", tmp_path / "dir.blf", "--host-only"), 1, "is a directory"),
     ]
     (tmp_path / "dir.blf").mkdir()

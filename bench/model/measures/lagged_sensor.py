@@ -14,10 +14,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench.drive.dataset import BY_NAME as DATASET_COLUMNS
 from bench.errors import UsageError
 from bench.model.measures import LabMeasurementKind, register, step_means
 from target_sim.artifact import OUTPUTS, decode_array, encode_array
 from target_sim.measurements.lagged_sensor import sees
+
+# the dataset schema's column of a stator sensor (an NTC, an end-winding thermocouple): where a user's own sensor
+# column is mapped to (`bench.drive.dataset`)
+SENSOR_COLUMN = "ntc_C"
 
 START_R_C2 = 0.1    # where the tuning starts a sensor's variance (°C²)
 AUTO = "auto"       # the value of --lag, --gradient and --offset that asks for the estimate from the training files
@@ -96,8 +101,9 @@ class LabLaggedSensorKind(LabMeasurementKind):
         return float(decode_array(entry["arrays"]["R"], "R", np.float64))
 
     def add_arguments(self, parser) -> None:
-        parser.add_argument("--measure", default="winding_C", metavar="COLUMN",
-                            help="the sensor's dataset column (default winding_C; none: no sensor)")
+        parser.add_argument("--measure", type=_sensor_column, default="winding_C", metavar="COLUMN",
+                            help=f"the sensor's dataset column (default winding_C; none: no sensor); a sensor of your "
+                                 f"own (an end-winding thermocouple) is mapped onto {SENSOR_COLUMN} with --mapping")
         parser.add_argument("--node", choices=OUTPUTS, default="winding", help="the model node the sensor sees "
                             "(default winding)")
         parser.add_argument("--offset", type=_number_or_auto, default=0.0, metavar="K|auto",
@@ -124,6 +130,15 @@ class LabLaggedSensorKind(LabMeasurementKind):
         fit = fit_sensor(datasets, artifact.dt, args.measure, args.node, lag, gradient, offset)
         return Sensor(args.node, args.measure, fit.offset_C, fit.lag_s, fit.gradient, calibration=fit.calibration(),
                       warnings=fit.warnings)
+
+
+def _sensor_column(text: str) -> str:
+    """--measure: a column of the dataset schema (the loader reads no other), or none."""
+    if text == "none" or text in DATASET_COLUMNS:
+        return text
+    raise UsageError(f"--measure {text} is no dataset column (a file's other columns are not read): map your sensor's "
+                     f"column onto {SENSOR_COLUMN} with --mapping (a mapping file's [columns] {text} = "
+                     f"\"{SENSOR_COLUMN}\") and pass --measure {SENSOR_COLUMN}")
 
 
 def _number_or_auto(text: str) -> float | str:

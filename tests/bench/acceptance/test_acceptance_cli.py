@@ -10,7 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.acceptance.junit import PROJECT_DIR_VARIABLE
 from bench.analysis.results import DataIdentity
+from bench.drive.generate import ensure_default_datasets
 from bench.model.default import default_artifact_path
 from target_sim.artifact import encode_array, seal
 
@@ -55,11 +57,18 @@ def props(case) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def passing_run(tmp_path_factory):
+def passing_run(tmp_path_factory, default_data_root):
+    """The default run in a directory of its own, as a CI job runs in its project's: the attachments are relative
+    to it. Its default data (and the dataset `analyze` and `replay` match a log with) is the session's."""
     out = tmp_path_factory.mktemp("accept")
-    proc = run_cli("-m", "bench", "run", "--rows", ROWS, "--criteria", str(EXAMPLE), "--junit-xml",
-                   str(out / "junit.xml"), "--log", str(out / "bench.blf"), "--report", str(out / "report"),
-                   "--json", "-i", "udp_multicast", timeout=RUN_TIMEOUT_S)
+    ensure_default_datasets(default_data_root)
+    (out / "out").mkdir()
+    (out / "out" / "data").symlink_to(default_data_root, target_is_directory=True)   # the commands' out/data
+    with pytest.MonkeyPatch.context() as env:
+        env.delenv(PROJECT_DIR_VARIABLE, raising=False)   # not in a GitLab job, even when the tests run in one
+        proc = run_cli("-m", "bench", "run", "--rows", ROWS, "--criteria", str(EXAMPLE), "--junit-xml", "junit.xml",
+                       "--log", "bench.blf", "--report", "report", "--json", "-i", "udp_multicast", cwd=out,
+                       timeout=RUN_TIMEOUT_S)
     return out, proc
 
 
@@ -79,17 +88,20 @@ def test_the_example_criteria_pass_on_the_packaged_model(passing_run):
     assert list(by_name)[0] == "clean" and set(by_name) - {"clean"} == {c["name"] for c in acceptance["checks"]}
     pm = props(by_name["pm_rmse"])
     assert pm["limit"] == "3" and float(pm["figure"]) == pytest.approx(summary["rmse_C"]["magnet"], rel=1e-5)
-    assert f"[[ATTACHMENT|{out / 'bench.blf'}]]" in by_name["clean"].system_out
-    assert f"[[ATTACHMENT|{out / 'report' / 'report.md'}]]" in by_name["pm_rmse"].system_out
+    # relative to the directory the command ran in: what GitLab ($CI_PROJECT_DIR) and Jenkins (the workspace) serve
+    assert "[[ATTACHMENT|bench.blf]]" in by_name["clean"].system_out
+    assert "[[ATTACHMENT|report/report.md]]" in by_name["pm_rmse"].system_out
+    assert by_name["clean"].classname == "bench.run" and by_name["clean"].time > 0
     suite_props = {p.name: p.value for p in suite.properties()}
-    assert suite_props["log"] == str(out / "bench.blf") and suite_props["criteria"] == str(EXAMPLE)
+    assert Path(suite_props["log"]).name == "bench.blf" and suite_props["criteria"] == str(EXAMPLE)
 
 
 def test_a_pm_limit_below_its_error_fails_and_names_the_criterion(passing_run, tmp_path):
     out, _ = passing_run
     junit = tmp_path / "junit.xml"
     proc = run_cli("-m", "bench", "analyze", str(out / "bench.blf"), "--no-report", "--criteria",
-                   str(failing_criteria(tmp_path / "fail.toml")), "--junit-xml", str(junit), timeout=RUN_TIMEOUT_S)
+                   str(failing_criteria(tmp_path / "fail.toml")), "--junit-xml", str(junit), cwd=out,
+                   timeout=RUN_TIMEOUT_S)
     assert proc.returncode == 1, proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith(f"bench: error: the log {out / 'bench.blf'} fails 1 of its 9 acceptance criteria: "
@@ -126,7 +138,7 @@ def test_the_replay_judges_its_own_log(passing_run, tmp_path):
     junit = tmp_path / "junit.xml"
     proc = run_cli("-m", "bench", "replay", str(out / "bench.blf"), "--as-fast-as-possible", "--log",
                    str(tmp_path / "r.blf"), "--criteria", str(EXAMPLE), "--junit-xml", str(junit), "--json",
-                   "-i", "udp_multicast", timeout=RUN_TIMEOUT_S)
+                   "-i", "udp_multicast", cwd=out, timeout=RUN_TIMEOUT_S)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads(proc.stdout)["acceptance"]["passed"]
     suite, by_name = cases(junit)

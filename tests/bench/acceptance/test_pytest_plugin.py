@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from bench.acceptance.junit import PROJECT_DIR_VARIABLE
+
 from helpers import subprocess_env
 
 junitparser = pytest.importorskip("junitparser")
@@ -42,6 +44,7 @@ def pytest_session(tmp_path: Path, *args: str, plugin: bool = True, extra_path: 
     import subprocess
 
     env = subprocess_env(can_settings=False)
+    env.pop(PROJECT_DIR_VARIABLE, None)   # attachments relative to the session's directory, also in a GitLab job
     if extra_path is not None:
         env["PYTHONPATH"] = f"{extra_path}:{env.get('PYTHONPATH', '')}"
     argv = [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *(["-p", "no:bench", "-p", "bench.pytest_plugin"]
@@ -53,8 +56,9 @@ def pytest_session(tmp_path: Path, *args: str, plugin: bool = True, extra_path: 
 def test_the_fixture_runs_the_bench_and_records_its_figures(tmp_path, small_dataset):
     (tmp_path / "test_suite.py").write_text(SUITE)
     (tmp_path / "profile.toml").write_text(f'[target]\nengine = "python"\n[run]\ndata = "{small_dataset}"\n')
-    proc = pytest_session(tmp_path, "-q", "-o", "junit_family=xunit1", "--junitxml", "j.xml",
-                          "--bench-profile", "profile.toml", "test_suite.py")
+    proc = pytest_session(tmp_path, "-q", "-o", "junit_family=xunit1", "-o", "junit_logging=system-out",
+                          "--junitxml", "j.xml", "--bench-out", "runs", "--bench-profile", "profile.toml",
+                          "test_suite.py")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
     assert "2 passed, 1 skipped" in proc.stdout
     (suite,) = list(junitparser.JUnitXml.fromfile(str(tmp_path / "j.xml")))
@@ -63,7 +67,11 @@ def test_the_fixture_runs_the_bench_and_records_its_figures(tmp_path, small_data
     figures = {p.name: p.value for p in found}
     assert figures["bench_clean"] == "True" and figures["bench_rows"] == "200" and figures["bench_engine"] == "python"
     assert float(figures["bench_rmse_C_magnet"]) >= 0 and figures["bench_cycles_source"].startswith("estimated")
-    assert Path(figures["bench_log"]).name == "bench.blf" and Path(figures["bench_junit_xml"]).is_file()
+    assert Path(figures["bench_log"]).name == "bench.blf" and (tmp_path / figures["bench_junit_xml"]).is_file()
+    # the run's files as attachments, relative to the session's directory (GitLab's project directory)
+    attached = [line for line in cases["test_run"].system_out.splitlines() if line.startswith("[[ATTACHMENT|")]
+    assert attached == ["[[ATTACHMENT|runs/test_suite.py__test_run/run1/bench.blf]]",
+                        "[[ATTACHMENT|runs/test_suite.py__test_run/run1/junit.xml]]"]
     (skipped,) = cases["test_firmware_only"].result
     assert "this session's is python" in skipped.message
 
@@ -85,6 +93,14 @@ def test_under_xunit2_the_figures_are_suite_properties(tmp_path):
     ("[bus]\nspeed = 1\n", "[bus] has an unknown key 'speed'; use interface, channel, bitrate, bus_kwargs"),
     ("[target]\nattach = true\n", "attaching to a target needs its bus: --bench-interface"),
     ("[x\n", "is not a readable TOML file"),
+    # these failed every test at run time, naming no profile
+    ("[run]\nrows = -5\n", "p.toml: [run] rows = -5 must be a whole number of at least 1"),
+    ("[run]\nmode = 'fast'\n", "p.toml: [run] mode = 'fast' is not one of lockstep, realtime"),
+    ("[run]\nreply_timeout = 0\n", "p.toml: [run] reply_timeout = 0 must be a number of seconds above 0"),
+    ("[run]\ndata = 'nowhere.csv'\n", "p.toml: [run] data = '"),
+    ("[bus]\ninterface = 'udp_multicst'\n", "the bench interface 'udp_multicst' (--bench-interface or [bus] "
+                                            "interface) is not a python-can interface; did you mean "
+                                            "'udp_multicast'?"),
 ])
 def test_a_bad_profile_is_one_usage_error(tmp_path, profile, words):
     (tmp_path / "p.toml").write_text(profile)
@@ -92,6 +108,14 @@ def test_a_bad_profile_is_one_usage_error(tmp_path, profile, words):
     proc = pytest_session(tmp_path, "-q", "--bench-profile", "p.toml", "test_x.py")
     assert proc.returncode == 4, proc.stdout + proc.stderr
     assert words in proc.stderr
+
+
+def test_an_unknown_interface_on_the_command_line_is_one_usage_error(tmp_path):
+    (tmp_path / "test_x.py").write_text("def test_x(thermal_bench):\n    pass\n")
+    proc = pytest_session(tmp_path, "-q", "--bench-interface", "nosuchiface", "test_x.py")
+    assert proc.returncode == 4, proc.stdout + proc.stderr
+    assert "the bench interface 'nosuchiface' (--bench-interface or [bus] interface) is not a python-can " \
+           "interface; use one of auto, " in proc.stderr
 
 
 def test_the_entry_point_turns_it_on_and_no_bench_off(tmp_path):

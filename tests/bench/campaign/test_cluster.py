@@ -21,7 +21,7 @@ import pytest
 
 from bench.campaign.execute import execute_run
 
-from helpers import ROOT, subprocess_env
+from helpers import ROOT, assert_table_equals_files, subprocess_env
 
 ROWS = 200
 
@@ -79,7 +79,7 @@ model = ["hammerstein", "pv-lptn"]
         found = bench_runs_of(out, str(small_dataset))
         if found:
             victim = found[0]
-            run_dir = Path(next(a for a in victim.cmdline() if a.endswith("bench.blf"))).parent
+            run_dir = Path(next(a for a in victim.cmdline() if a.endswith("bench.blf"))).parent   # <run id>.<attempt>
             worker = psutil.Process(victim.ppid())
             assert "spawn_main" in " ".join(worker.cmdline())          # a worker process of the local cluster
             worker.send_signal(signal.SIGKILL)
@@ -95,17 +95,19 @@ model = ["hammerstein", "pv-lptn"]
 
     rows = rows_of(out)
     assert len(rows) == 4
-    killed = rows[run_dir.name]
+    killed = rows[run_dir.name.rpartition(".")[0]]
     assert (killed["status"], killed["attempts"], killed["verdict"]) == ("done", 2, "tolerated")
     done = {k: r for k, r in rows.items() if r["status"] == "done"}
     failed = {k: r for k, r in rows.items() if r["status"] != "done"}
-    assert {r["attempts"] for k, r in done.items() if k != run_dir.name} == {1}
+    assert {r["attempts"] for k, r in done.items() if k != killed["run_id"]} == {1}
+    assert not run_dir.exists() and killed["run_dir"] != str(run_dir)     # the killed attempt's files are gone
+    assert_table_equals_files(out)
     for row in failed.values():
         assert (row["status"], row["attempts"], row["summary"]) == ("failed", 2, None)
         assert "broken.csv" in row["error"] and row["data"] == str(broken)
     ports = set()
     for run_id, row in done.items():
-        own = json.loads((out / "runs" / run_id / "summary.json").read_text())    # what `bench run` printed
+        own = json.loads((Path(row["run_dir"]) / "summary.json").read_text())    # what `bench run` printed
         assert json.loads(row["summary"]) == own
         assert row["rows_sent"] == own["steps_sent"] == ROWS and row["exit_code"] == 0 and row["clean"] == 0
         assert row["rmse_winding_C"] == own["rmse_C"]["winding"] and row["rmse_pm_C"] == own["rmse_C"]["magnet"]
@@ -116,7 +118,7 @@ model = ["hammerstein", "pv-lptn"]
         assert faults_of(out, run_id) == {k: (injected[k], detected[k]) for k in injected}
         assert row["faults_injected"] == sum(injected.values()) > 0 and row["faults_undetected"] == 0
         log = Path(row["log_path"])
-        assert log == out.resolve() / "runs" / run_id / "bench.blf"
+        assert log == Path(row["run_dir"]) / "bench.blf" and log.parent.parent == out.resolve() / "runs"
         assert row["log_sha256"] == hashlib.sha256(log.read_bytes()).hexdigest()
         assert row["worker"].startswith("tcp://127.0.0.1:") and row["wall_s"] > 0
         ports.add(row["bus_port"])
@@ -176,10 +178,11 @@ model = ["hammerstein", "lti-lptn", "pv-lptn"]
 
 
 def _task(tmp_path: Path, dataset: Path, timeout_s: float, *extra: str) -> dict:
-    run_dir = tmp_path / "run"
-    argv = ["--data", str(dataset), "--rows", "2000", "--no-report", "--log", str(run_dir / "bench.blf"), "--json",
-            "--quiet", "-i", "udp_multicast", *extra]
-    return {"run_id": "r", "argv": argv, "run_dir": str(run_dir), "timeout_s": timeout_s, "token": "t"}
+    def argv(run_dir: Path) -> list[str]:
+        return ["--data", str(dataset), "--rows", "2000", "--no-report", "--log", str(run_dir / "bench.blf"),
+                "--json", "--quiet", "-i", "udp_multicast", *extra]
+
+    return {"run_id": "r", "argv": argv, "runs_dir": str(tmp_path / "runs"), "timeout_s": timeout_s, "token": "t"}
 
 
 @pytest.mark.slow        # 10 s of a real-time run
@@ -191,8 +194,10 @@ def test_a_run_that_takes_too_long_is_stopped_and_recorded_as_a_timeout(tmp_path
     assert result["status"] == "timeout" and result["summary"] is None
     assert result["error"] == "the run took longer than 10 s and was stopped"
     assert time.monotonic() - started < 40
-    assert "terminated (SIGTERM)" in (tmp_path / "run" / "stderr.txt").read_text()   # it stopped its own way
-    assert not (tmp_path / "run" / "bench.blf").exists()
+    run_dir = Path(result["run_dir"])
+    assert run_dir.parent == tmp_path / "runs" and run_dir.name.startswith("r.")
+    assert "terminated (SIGTERM)" in (run_dir / "stderr.txt").read_text()   # it stopped its own way
+    assert not (run_dir / "bench.blf").exists()
 
 
 def test_a_run_that_refuses_its_arguments_is_failed_with_its_sentence(tmp_path, small_dataset):

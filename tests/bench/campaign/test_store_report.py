@@ -1,5 +1,5 @@
-"""The campaign table (a run's JSON summary flattened, rows replaced whole, what --resume skips) and the report
-rebuilt from the table alone."""
+"""The campaign table (a run's JSON summary flattened, rows replaced whole, a done row never replaced, what
+--resume skips) and the report rebuilt from the table alone."""
 
 from __future__ import annotations
 
@@ -41,10 +41,10 @@ def summary(clean: bool = True, winding: float = 0.5, pm: float = 0.25, faults: 
 
 
 def outcome(s: dict | None, status: str = "done", verdict: str | None = "clean", code: int | None = 0,
-            error: str | None = None) -> dict:
+            error: str | None = None, run_dir: str | None = None) -> dict:
     return {"status": status, "verdict": verdict, "exit_code": code, "error": error, "summary": s, "wall_s": 9.5,
             "started_at": "2026-01-01T00:00:00+00:00", "finished_at": "2026-01-01T00:00:10+00:00",
-            "worker": "tcp://127.0.0.1:1", "log_sha256": "ab" * 32}
+            "worker": "tcp://127.0.0.1:1", "log_sha256": "ab" * 32, "run_dir": run_dir}
 
 
 def test_a_summary_is_flattened():
@@ -86,11 +86,11 @@ def table(tmp_path):
                    outcome(None, "timeout", None, -15, "the run took longer than 5 s and was stopped"),
                    outcome(None, "lost-worker", None, None, "the Dask worker running it died (KilledWorker)")]
         for run, result in zip(runs, results, strict=False):
-            store.record(*table_row(run, result, 1, tmp_path / "runs" / run.run_id))
+            assert store.commit(*table_row(run, result, 1)).applied
     return tmp_path, campaign
 
 
-def test_rows_are_replaced_whole_and_resume_skips_only_done_runs(table):
+def test_rows_that_are_not_done_are_replaced_whole_and_resume_skips_only_done_runs(table):
     out, campaign = table
     runs = campaign.runs
     with Store(out / TABLE_NAME) as store:
@@ -98,13 +98,28 @@ def test_rows_are_replaced_whole_and_resume_skips_only_done_runs(table):
         assert [r.run_id for r in pending_runs(campaign, store, resume=True)] == [r.run_id for r in runs[2:]]
         assert len(pending_runs(campaign, store, resume=False)) == 6
         assert store.faults() == [{"run_id": runs[0].run_id, "kind": "drop", "injected": 3, "detected": 3}]
-        store.record(*table_row(runs[0], outcome(summary()), 2, out / "runs" / runs[0].run_id))
-        assert store.faults() == []                                # the run's fault rows went with its old row
-        row = store.row(runs[0].run_id)
-        assert (row["attempts"], row["verdict"], row["model"], row["fault_seed"], row["rows"]) == \
-            (2, "clean", "hammerstein", 1, 300)
-        assert json.loads(row["axes"]) == {"model": "hammerstein", "fault_seed": 1}
+        # the timed-out run (fault_seed 1 of lti-lptn) done at its second attempt: its row is replaced whole
+        assert runs[3].axes == {"model": "lti-lptn", "fault_seed": 1}
+        done = store.commit(*table_row(runs[3], outcome(summary(faults={"drop": 2})), 2))
+        assert done.applied and done.previous["status"] == "timeout"
+        row = store.row(runs[3].run_id)
+        assert (row["attempts"], row["status"], row["verdict"], row["model"], row["fault_seed"], row["rows"]) == \
+            (2, "done", "clean", "lti-lptn", 1, 300)
+        assert row["error"] is None and json.loads(row["axes"]) == {"model": "lti-lptn", "fault_seed": 1}
         assert len(store.rows()) == 5
+
+
+def test_a_done_row_is_never_replaced_the_first_commit_wins(table):
+    """Issue 39: Dask may run a task twice; the second outcome of a run already done is not written, whatever it
+    says (done with other figures, or failed), and the run's fault rows stay as the first attempt left them."""
+    out, campaign = table
+    run = campaign.runs[0]
+    with Store(out / TABLE_NAME) as store:
+        before, faults = store.row(run.run_id), store.faults()
+        for late in (outcome(summary(False, 9.0, 9.0), run_dir="/elsewhere"), outcome(None, "failed", None, 1, "x")):
+            refused = store.commit(*table_row(run, late, 2))
+            assert not refused.applied and refused.previous == before
+        assert store.row(run.run_id) == before and store.faults() == faults
 
 
 def test_the_report_is_rebuilt_from_the_table_alone(table, capsys):
@@ -128,7 +143,7 @@ def test_the_report_is_rebuilt_from_the_table_alone(table, capsys):
     # a row changed in the table changes the rebuilt report; an earlier report is replaced
     with Store(out / TABLE_NAME) as store:
         run = campaign.runs[2]
-        store.record(*table_row(run, outcome(summary()), 2, out / "runs" / run.run_id))
+        assert store.commit(*table_row(run, outcome(summary()), 2)).applied      # it had failed
     assert main(["campaign", "report", str(out), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["runs"] == 5
     assert "| model=hammerstein | clean | not clean | clean |" in (report / "report.md").read_text()
@@ -152,3 +167,48 @@ def test_a_report_directory_with_foreign_files_and_a_foreign_table_are_refused(t
             Store(foreign / TABLE_NAME, create=create)
     tables = sqlite3.connect(foreign / TABLE_NAME).execute("SELECT name FROM sqlite_master").fetchall()
     assert tables == [("runs",)]                                     # checked, never altered
+
+
+def test_a_resume_with_another_spec_is_refused_before_any_run(table, capsys):
+    """A resume into a finished campaign with another spec mixed both specs' runs in one table and replaced the
+    stored spec; now one sentence, before any run, the table as it was."""
+    out, campaign = table
+    (out / "spec.toml").write_text(SPEC)
+    with Store(out / TABLE_NAME) as store:
+        store.set_meta({"axes": json.dumps(campaign.axes), "fixed": json.dumps(campaign.fixed),
+                        "spec_path": str(out / "spec.toml"), "spec_sha256": "ab" * 32})
+        before = store.meta(), store.rows()
+    other = out.parent / "other.toml"
+    other.write_text(SPEC.replace("[1, 2, 3]", "[4]"))
+    assert main(["campaign", "run", str(other), "--out", str(out), "--resume", "--quiet"]) == 1
+    said = capsys.readouterr().err.strip()
+    assert said == (f"bench: error: {out} holds the campaign 'unit' of {out / 'spec.toml'} (spec sha256 "
+                    f"abababababab…), whose axes or fixed options differ from {other}'s; resume it with that spec "
+                    "and the same --set values, or choose another --out")
+    assert main(["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--resume", "--quiet",
+                 "--set", "rows=200"]) == 1                         # the same spec with other values: another one
+    assert "whose axes or fixed options differ" in capsys.readouterr().err
+    with Store(out / TABLE_NAME) as store:
+        assert (store.meta(), store.rows()) == before
+
+
+def test_a_damaged_table_is_one_sentence_and_never_written(table, capsys):
+    """One page of campaign.sqlite overwritten with random bytes: --resume and `campaign report` ended in a
+    traceback, and the resume wrote to the damaged table first."""
+    import random
+
+    out, _ = table
+    (out / "spec.toml").write_text(SPEC)
+    path = out / TABLE_NAME
+    data = bytearray(path.read_bytes())
+    size = int.from_bytes(data[16:18], "big")                       # the page size, from the file's header
+    assert len(data) >= 3 * size
+    data[size:2 * size] = random.Random(5).randbytes(size)           # the second page
+    path.write_bytes(bytes(data))
+    for argv in (["campaign", "report", str(out)],
+                 ["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--resume", "--quiet"]):
+        assert main(argv) == 1
+        said = capsys.readouterr().err.strip()
+        assert said.startswith(f"bench: error: {path} is damaged (SQLite finds: ") and "\n" not in said
+        assert "run the campaign again into another --out" in said
+        assert path.read_bytes() == bytes(data)

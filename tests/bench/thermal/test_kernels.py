@@ -10,6 +10,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from bench.thermal import kernels
 
@@ -126,3 +127,15 @@ def test_a_worker_waits_for_the_warm_up_lock_then_gives_up_after_its_timeout(tmp
     assert wait_for_kernels(timeout=0.3) is True                             # no warm-up: nothing to wait for
     monkeypatch.delenv(KERNELS_LOCK_ENV)
     assert wait_for_kernels(timeout=0.3) is True
+
+
+@pytest.mark.slow
+def test_no_kernel_warns_when_it_compiles(tmp_path):
+    """numba's compile-time warnings (NumbaPerformanceWarning: '@' on a strided view) are printed on a user's stderr
+    at a command's first run: every kernel compiles from an empty cache with none (about 40 CPU-s)."""
+    env = subprocess_env(NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
+    proc = subprocess.run([sys.executable, "-W", "default", "-m", "bench.thermal.kernels"], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=1800)
+    assert proc.returncode == 0, proc.stderr
+    assert "Warning" not in proc.stderr, proc.stderr
+    assert any((tmp_path / "numba-cache").rglob("*.nbi"))     # compiled into the empty cache, not loaded
