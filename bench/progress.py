@@ -1,26 +1,82 @@
-"""The progress bar of a long replay (`bench run`, `bench replay`, `bench compare`)."""
+"""Progress of the long commands (identify, observer, run, replay, compare, campaign, robustness), as pip and tqdm
+show it: one tqdm bar on stderr with a total, a percentage and an ETA, only for a person at a terminal.
+
+Into a pipe or a file (a CI log, `2> err`) a bar would be carriage-return states nobody reads, so there it is
+off and stderr holds only final lines. A sentence while a bar is shown goes through `say`, which clears the bar's
+line first and redraws the bar below the sentence."""
 
 from __future__ import annotations
 
+import os
+import shutil
 import sys
+
+from tqdm import tqdm
+
+
+def shows_bars(quiet: bool) -> bool:
+    """Whether bars are drawn: not with --quiet (or --json), and only when stderr is a terminal."""
+    return not quiet and sys.stderr.isatty()
+
+
+def progress_bar(total: int | None, description: str, unit: str, quiet: bool, *, leave: bool = False) -> tqdm:
+    """A tqdm bar on stderr counting `total` `unit`s (disabled, and silent, where `shows_bars` says no)."""
+    size = _fixed_size()
+    return tqdm(total=total, desc=description, unit=unit, file=sys.stderr, leave=leave,
+                disable=not shows_bars(quiet), ncols=size and size.columns, nrows=size and size.lines,
+                dynamic_ncols=size is None)
+
+
+def _fixed_size() -> os.terminal_size | None:
+    """None: the bar follows the terminal's size. A pseudo-terminal that reports no size (0 × 0: `script` started
+    from a pipe, some CI runners) would get no bar at all from tqdm, so it gets shutil's fallback size."""
+    try:
+        if os.get_terminal_size(sys.stderr.fileno()).columns > 0:
+            return None
+    except (AttributeError, OSError, ValueError):    # not a real file (a test's capture): no bar is drawn anyway
+        return None
+    return shutil.get_terminal_size()
+
+
+def say(text: str) -> None:
+    """Print a sentence on stderr without writing it onto a bar (tqdm.write clears and redraws any bar shown)."""
+    tqdm.write(text, file=sys.stderr)
 
 
 class ProgressBar:
-    """tqdm on stderr for a long replay; silent when `quiet`."""
+    """The bar of a replay (`bench run`, `bench replay`, `bench compare`): called with (rows done, rows)."""
 
     def __init__(self, total: int, description: str, quiet: bool) -> None:
-        self._bar = None
-        if not quiet and sys.stderr.isatty():
-            from tqdm import tqdm
-
-            self._bar = tqdm(total=total, desc=description, unit="row", file=sys.stderr, leave=False,
-                             mininterval=0.5, smoothing=0.1)
+        self._bar = progress_bar(total, description, "row", quiet)
 
     def __call__(self, done: int, total: int) -> None:
-        if self._bar is not None:
-            self._bar.n = done
-            self._bar.refresh()
+        if self._bar.total != total:
+            self._bar.total = total
+        self._bar.update(done - self._bar.n)   # update, not refresh: tqdm redraws at most every mininterval
+
+    def close(self) -> None:
+        self._bar.close()
+
+
+class StageBars:
+    """One bar per stage of a multi-stage search (called with stage label, steps done, steps at most, cost); the
+    previous stage's bar ends when the next begins, and `close` ends the open one, also when the command is
+    stopped, so its last redraw comes before the command's closing sentence, not after it."""
+
+    def __init__(self, quiet: bool, unit: str = "it") -> None:
+        self._quiet, self._unit = quiet, unit
+        self._label: str | None = None
+        self._bar: tqdm | None = None
+
+    def __call__(self, label: str, done: int, total: int, cost: float) -> None:
+        if label != self._label:
+            self.close()
+            self._label, self._bar = label, progress_bar(total, label, self._unit, self._quiet, leave=True)
+        bar = self._bar
+        bar.set_postfix(cost=f"{cost:.4g}", refresh=False)
+        bar.update(done - bar.n)
 
     def close(self) -> None:
         if self._bar is not None:
             self._bar.close()
+            self._bar = None

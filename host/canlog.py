@@ -8,13 +8,22 @@ no half file; timestamps are made non-decreasing (a frame never goes back in tim
 The .asc and .mf4 headers state when the recording started, and MF4's frame times count from it. python-can's
 writers put the time of writing there (an export made later had MF4 times of -120 s, or -1.8e9 s in drive time,
 and an ASC dated the export): `FrameLog` gives them the recording's start, its first frame's time or the
-`start_time` it is given (0.0: times that count from 0, e.g. drive time).
+`start_time` it is given (0.0: times that count from 0, e.g. drive time). How, per format:
+- .asc through python-can's public API: the writer gets a text stream of ours (its `file` argument takes one) that
+  states the start on the header's `date` line (the first line of Vector's ASC format, formatted with the writer's
+  public `FORMAT_DATE`), and the measurement starts at the first event the writer is given (its documented rule):
+  the first frame, or an event at the start when that comes before the first frame.
+- .mf4: python-can's MF4Writer has no public way to give the start (it takes the time of writing), so
+  `_StartedMF4Writer` sets the two private names it keeps it in, the upstream-shaped stand-in for a `start_time`
+  argument; it checks they exist and refuses (LogError) rather than write wrong times when a python-can release
+  renames them, and tests/host/test_canlog.py fails on such a release.
 """
 
 from __future__ import annotations
 
 import gc
 import importlib.util
+import io
 import os
 import re
 import sys
@@ -57,27 +66,78 @@ def check_log_path(path: str | Path, *, for_reading: bool = False) -> Path:
 STARTED_SUFFIXES = (".asc", ".mf4")   # formats whose header holds the recording's start time
 
 
-class _StartedASCWriter(can.ASCWriter):
-    """python-can's ASC writer, the header's `date` and `Begin Triggerblock` at `start` (python-can dates the file
-    when it is written) and frame times counted from it."""
+# the event that starts an .asc measurement before its first frame (an export of the host's frames only)
+ASC_START_EVENT = "Start of the recording"
 
-    def __init__(self, file: str, start: float, **kwargs) -> None:
-        self._start = datetime.fromtimestamp(start)   # local time, as python-can writes and reads it
-        super().__init__(file, **kwargs)   # writes "date ..." through _format_header_datetime
-        self.file.write(f"Begin Triggerblock {self._format_header_datetime(self._start)}\n")
-        self.header_written = True
-        self.started = self.last_timestamp = start
 
-    def _format_header_datetime(self, dt: datetime) -> str:  # noqa: ARG002 - the recording's, not the writing's
-        return super()._format_header_datetime(self._start)
+class _DatedASCFile(io.TextIOBase):
+    """The text file an ASCWriter writes into, with the header's first line, `date ...`, stating `date` (python-can
+    dates the file when it is written)."""
+
+    def __init__(self, path: str, date: str) -> None:
+        super().__init__()
+        self._file = open(path, "w", encoding="utf-8")   # noqa: SIM115 - closed by close(), which the writer calls
+        self._date_line = f"date {date}\n"
+        self._head: str | None = ""    # what came before the first line's end; None once that line is written
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        if self._head is not None:
+            self._head += text
+            if "\n" not in self._head:
+                return len(text)
+            first, rest = self._head.split("\n", 1)
+            self._head = None
+            self._file.write((self._date_line if first.startswith("date ") else first + "\n") + rest)
+            return len(text)
+        return self._file.write(text)
+
+    def tell(self) -> int:
+        return self._file.tell()
+
+    def flush(self) -> None:
+        self._file.flush()
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        try:
+            if self._head:     # a header that never ended its first line: as it came
+                self._file.write(self._head)
+            super().close()    # flushes first
+        finally:
+            self._file.close()
+
+
+def _asc_writer(path: str, start: float, first: float | None) -> can.ASCWriter:
+    """python-can's ASC writer, dated and started at `start` (seconds since the epoch), before frame `first`."""
+    when = datetime.fromtimestamp(start)   # local time, as python-can writes and reads ASC dates
+    date = when.strftime(can.ASCWriter.FORMAT_DATE.format(when.microsecond // 1000))
+    writer = can.ASCWriter(_DatedASCFile(path, date))
+    if first is None or start < first:    # else the first frame starts the measurement, at `start`
+        writer.log_event(ASC_START_EVENT, start)
+    return writer
+
+
+# python-can's MF4Writer keeps the measurement's start in these (its asammdf MDF, whose header states the start,
+# and the epoch time every frame time is counted from); _StartedMF4Writer checks they are there before it sets them
+MF4_START_NAMES = ("_mdf", "_start_time")
 
 
 class _StartedMF4Writer(MF4Writer):
-    """python-can's MF4 writer, the measurement's start time `start` (python-can takes the time of writing, and
-    counts every frame time from it)."""
+    """python-can's MF4 writer with the measurement's start time `start` (python-can takes the time of writing, and
+    counts every frame time from it): the stand-in for a `start_time` argument upstream."""
 
     def __init__(self, file: str, start: float, **kwargs) -> None:
         super().__init__(file, **kwargs)
+        missing = [name for name in MF4_START_NAMES if not hasattr(self, name)]
+        if missing or not hasattr(self._mdf, "header"):
+            self.file.close()
+            raise NotImplementedError(f"python-can {can.__version__}'s MF4Writer keeps its start time elsewhere "
+                                      f"(no {', '.join(missing) or '_mdf.header'}), so its frame times would be "
+                                      "wrong; write .blf instead")
         self._mdf.header.start_time = datetime.fromtimestamp(start, UTC)
         self._start_time = self.last_timestamp = start
 
@@ -113,8 +173,9 @@ class FrameLog:
                 return can.Logger(str(self.tmp_path))
             start = self.start_time if self.start_time is not None else first
             start = datetime.now().timestamp() if start is None else start
-            writer = _StartedASCWriter if suffix == ".asc" else _StartedMF4Writer
-            return writer(str(self.tmp_path), start)
+            if suffix == ".asc":
+                return _asc_writer(str(self.tmp_path), start, first)
+            return _StartedMF4Writer(str(self.tmp_path), start)
         except (OSError, ValueError, ImportError, NotImplementedError) as exc:
             raise LogError(f"cannot write the log {self.path} ({exc})") from None
 

@@ -36,6 +36,7 @@ from bench.campaign.once import WorkerWatch, discard, new_attempt_dir, say, swee
 from bench.campaign.spec import Campaign, Run
 from bench.campaign.store import DONE, Store, flatten, option_columns
 from bench.errors import BenchError
+from bench.progress import progress_bar
 
 MAX_ATTEMPTS = 2                  # a run that crashed, timed out or lost its worker is retried once
 STOP_GRACE_S = 20.0               # after SIGTERM, how long a run may take to stop its target and clean up
@@ -418,10 +419,7 @@ def run_campaign(campaign: Campaign, store: Store, out_dir: Path, *, workers: in
             print(f"bench: campaign {campaign.name}: {len(todo)} run(s) to do"
                   + (f", {outcome.skipped} done already" if outcome.skipped else "")
                   + f", on {label}; table {store.path}", file=sys.stderr)
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(todo), unit="run", desc=campaign.name, file=sys.stderr, leave=False,
-                   disable=quiet or not sys.stderr.isatty())     # as `bench run`'s bar: a terminal's, not a log's
+        bar = progress_bar(len(todo), campaign.name, "run", quiet)
 
         def record(run_id: str, result: dict[str, Any], attempt: int, final: bool) -> bool:
             if not commit_run(store, by_id[run_id], result, previous[run_id] + attempt):

@@ -37,6 +37,7 @@ from bench.campaign import spec as spec_module  # stdlib only: the spec format f
 from bench.commands.args import declare_files, positive_float, positive_int
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
+from bench.progress import say
 
 DEFAULT_OUT = Path("out/campaigns")
 
@@ -145,9 +146,7 @@ def run_command(args: argparse.Namespace) -> int:
 
         def note(text: str) -> None:
             if not quiet:
-                from tqdm import tqdm
-
-                tqdm.write(f"bench: {text}", file=sys.stderr)
+                say(f"bench: {text}")
 
         outcome = run_campaign(campaign, store, out, workers=args.workers or os.cpu_count() or 1,
                                address=args.cluster, resume=args.resume, timeout_s=args.timeout, quiet=quiet,

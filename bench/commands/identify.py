@@ -23,6 +23,7 @@ from bench.model.deploy import AUTO, CANDIDATES
 from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS
 from bench.model.polish import POLISH_STARTS
 from bench.model.undetermined import undetermined
+from bench.progress import StageBars, shows_bars
 from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
 from target_sim.kinds import MODEL_KINDS
 
@@ -134,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:    # before the fit: the user may stop it and choose other files
         for warning in coverage:
             print(f"bench: warning: {warning}", file=sys.stderr)
-    progress = None if (args.quiet or args.json) else _ProgressBars()
+    progress = _ProgressBars(quiet=False) if shows_bars(args.quiet or args.json) else None
     try:
         result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
                           lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
@@ -415,26 +416,11 @@ def _print_uncertainty(u: dict, gaps: dict | None) -> None:
 STAGES = {"pso": "PSO LPTN", "polish": "LM polish", "lm": "LM Hammerstein"}   # identify()'s progress stages
 
 
-class _ProgressBars:
-    """One tqdm bar on stderr per stage of identify(); `close` ends the open one, also when the command is stopped,
-    so its last refresh comes before the command's closing sentence, not after it."""
+class _ProgressBars(StageBars):
+    """A bar per stage of identify(), labelled as the summary names the stage."""
 
-    def __init__(self) -> None:
-        self.bars = {}
-
-    def __call__(self, stage: str, iteration: int, cost: float) -> None:
-        from tqdm import tqdm
-
-        if stage not in self.bars:
-            self.close()
-            self.bars[stage] = tqdm(desc=STAGES[stage], unit="it", file=sys.stderr, leave=True)
-        if iteration > 0:    # 0 opens the stage
-            self.bars[stage].update(1)
-        self.bars[stage].set_postfix(cost=f"{cost:.4g}")
-
-    def close(self) -> None:
-        for bar in self.bars.values():
-            bar.close()
+    def __call__(self, stage: str, done: int, total: int, cost: float) -> None:
+        super().__call__(STAGES[stage], done, total, cost)
 
 
 def _print_summary(s: dict) -> None:

@@ -53,6 +53,7 @@ from bench.commands.args import declare_files
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import UsageError
 from bench.fileio import write_text_atomically
+from bench.progress import StageBars
 
 
 def add_subparser(subparsers) -> None:
@@ -121,12 +122,8 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError("--mapping applies to --train files, not to the built-in motor's datasets")
         campaign = load_campaign(None)
         datasets = [campaign[c] for c in IDENTIFICATION_COOLANTS]
-    say = None if (args.quiet or args.json) else (lambda msg: print(msg, file=sys.stderr))
-    progress = None
-    if say:
-        def progress(calls: int, cost: float) -> None:
-            if calls % 50 == 0:
-                say(f"tuning: {calls} filter runs, {args.criterion} criterion {cost:.6g}")
+    # the filter runs of the search as a bar (a terminal's only): a total, an ETA, the criterion so far
+    progress = StageBars(args.quiet or args.json, unit="run")
     # in the kinds' order: the sensor, the flux linkage, the winding resistance
     asked = (kind.from_arguments(args, artifact, datasets) for _, kind in LAB_MEASUREMENT_KINDS.items())
     measurements = [m for m in asked if m is not None]
@@ -137,8 +134,11 @@ def run(args: argparse.Namespace) -> int:
     problem = consider_problem(consider, bias, measurements)
     if problem:
         raise UsageError(problem)
-    fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations, progress, bias,
-                        consider)
+    try:
+        fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations,
+                            lambda done, most, cost: progress("tuning", done, most, cost), bias, consider)
+    finally:
+        progress.close()
     warnings = [w for m in measurements for w in m.warnings] + tuning_warnings(fit)
     content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form))
     write_text_atomically(args.out, dumps(content))

@@ -32,6 +32,7 @@ from pathlib import Path
 from bench.commands.args import declare_files, positive_int
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
+from bench.progress import say
 
 DEFAULT_OUT = Path("out/robustness")
 
@@ -144,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
 
     def note(text: str) -> None:
         if not quiet:
-            print(f"bench: {text}", file=sys.stderr)
+            say(f"bench: {text}")     # not onto the bar's line
 
     info = {"name": spec.name, "description": spec.description, "seeds": spec.seeds, "seed": spec.seed,
             "spec": str(args.spec) if args.spec else None, "rows": args.rows,

@@ -208,6 +208,16 @@ def _exact_rms(parts: Sequence[np.ndarray]) -> float:
     return math.sqrt(math.fsum(math.fsum(p * p) for p in parts) / sum(p.size for p in parts))
 
 
+def cv_steps(runs: Sequence[ModelRun], iterations: int) -> int:
+    """The most `on_iteration` calls of `fit_hammerstein_cv` (a progress bar's total): one per ridge factor and
+    per smaller stator weight when the files measure yoke or tooth, or the plain fit's evaluations (`iterations`
+    and the start's) with fewer than two files."""
+    if len(runs) < 2:
+        return iterations + 1
+    stator = any(node in ("yoke", "tooth") for node in measured_nodes(runs))
+    return len(CV_FACTORS) + (len(STATOR_WEIGHTS) - 1 if stator else 0)
+
+
 def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence[ModelRun], *,
                        path: str = "statespace", iterations: int = 100,
                        on_iteration: Callable[[int, float], None] | None = None) -> tuple[HammersteinFit, dict]:

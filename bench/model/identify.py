@@ -12,7 +12,13 @@ import numpy as np
 from bench.model.auto_prior import auto_prior
 from bench.model.baselines import fit_baselines
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
-from bench.model.hammerstein_fit import REGULARIZATIONS, HammersteinFit, fit_hammerstein, fit_hammerstein_cv
+from bench.model.hammerstein_fit import (
+    REGULARIZATIONS,
+    HammersteinFit,
+    cv_steps,
+    fit_hammerstein,
+    fit_hammerstein_cv,
+)
 from bench.model.lptn_fit import (
     DEFAULT_WIDTH,
     FITTED_ALWAYS,
@@ -92,7 +98,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              motor: MotorDescription | None = None, prior: ThermalPrior | None = None,
              width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
              regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
-             progress: Callable[[str, int, float], None] | None = None) -> Identification:
+             progress: Callable[[str, int, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
     the built-in virtual motor). The prior and bounds: `prior`, else the motor's thermal_prior, else Table 1 at
@@ -100,7 +106,9 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     prior to the training data first (bench.model.prior_scales); `width` overrides the prior's bounds.
     `validation` datasets are only recorded in the provenance. `standard_errors` computes the parameters' standard
     errors (`uncertainty`) without a polish too, at the swarm's result (a polish always does). The defaults (no
-    polish, fixed ridge, no adaptation, no standard errors) are the packaged model's path."""
+    polish, fixed ridge, no adaptation, no standard errors) are the packaged model's path. `progress` is called
+    with (stage "pso", "polish" or "lm", steps done, steps at most, cost) as each stage goes; a stage may end
+    before its most (a stalled swarm, a converged fit)."""
     if discretization != "zoh":
         raise ValueError("identification discretizes by zero-order hold, as the paper's Hammerstein fit did")
     if regularization not in REGULARIZATIONS:
@@ -124,18 +132,18 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         start = adapted.parameters
     lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
                          width=width, stall=POLISHED_SWARM_STALL if polish_starts > 0 else None,
-                         on_iteration=(lambda i, c: progress("pso", i, c)) if progress else None)
+                         on_iteration=(lambda i, c: progress("pso", i + 1, pso_iterations, c)) if progress else None)
     timings["pso"] = time.perf_counter() - started
     polished, errors = None, None
     if polish_starts > 0:
         started = time.perf_counter()
         if progress:
-            progress("polish", 0, lptn.cost)
+            progress("polish", 0, 1, lptn.cost)
         # a parameter the data cannot place is frozen at the prior: the motor's own guess (its file's network, or
         # read from its data), or a foreign prior adapted to the data path by path (bench.model.prior_scales)
         lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start)
         if progress:
-            progress("polish", 1, lptn.cost)
+            progress("polish", 1, 1, lptn.cost)
         errors = _standard_errors(lptn, runs, dt)
         timings["polish"] = time.perf_counter() - started
     elif standard_errors:
@@ -145,7 +153,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     started = time.perf_counter()
     base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", motor.loss_model,
                                     constants))
-    on_lm = (lambda i, c: progress("lm", i, c)) if progress else None
+    lm_steps = cv_steps(runs, lm_iterations) if regularization == "cv" else lm_iterations + 1
+    on_lm = (lambda i, c: progress("lm", i, lm_steps, c)) if progress else None
     if regularization == "cv":
         ham, selection = fit_hammerstein_cv(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
                                             on_iteration=on_lm)

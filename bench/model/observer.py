@@ -264,7 +264,7 @@ TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
 
 def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurements, criterion: str = "magnet",
-                  max_evaluations: int = 800, progress: Callable[[int, float], None] | None = None,
+                  max_evaluations: int = 800, progress: Callable[[int, int, float], None] | None = None,
                   bias=None, consider: str | None = None) -> ObserverFit:
     """q (per state) and each measurement's R on the training files by Nelder-Mead over their log10 values,
     minimizing either
@@ -330,15 +330,18 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
         total = score(process_noise(model, 10.0 ** v[:n])[None], 10.0 ** v[n:])
         calls[0] += 1
         if progress:
-            progress(calls[0], total)
+            progress(calls[0], most, total)
         return total if np.isfinite(total) else 1e300
 
     start_q = [START_Q_C2] * 4 + [START_Q_C2] * (n - 4 - int(bias is not None)) + (
         [START_Q_BIAS[bias]] if bias else [])
     start_r = [kind_of(m).start_r for m in measurements] + [kind_of(TUNING_REFERENCE).start_r] * int(use_reference)
     start = np.log10(start_q + start_r)
-    if criterion == "nodes":   # the search is local: begin where the guard is, of the default and a cautious start
-        start = min(_starts(start, n), key=cost)
+    # the search is local: with "nodes", begin where the guard is, of the default and a cautious start
+    starts = _starts(start, n) if criterion == "nodes" else []
+    most = len(starts) + max_evaluations     # the cost's calls at most (a progress bar's total)
+    if starts:
+        start = min(starts, key=cost)
     size = len(start)
     result = minimize(cost, start, method="Nelder-Mead",
                       options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-3,

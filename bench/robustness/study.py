@@ -5,7 +5,6 @@ same cases in a plain loop in this process."""
 
 from __future__ import annotations
 
-import sys
 import time
 import uuid
 from collections.abc import Callable
@@ -15,6 +14,7 @@ from typing import Any
 from bench.campaign.execute import dask_client, now, run_tasks, run_tasks_serially
 from bench.campaign.once import say
 from bench.campaign.store import DONE
+from bench.progress import progress_bar
 from bench.robustness.cases import Case
 from bench.robustness.evaluate import evaluate_case
 from bench.robustness.store import CaseStore
@@ -63,10 +63,7 @@ def run_study(cases: list[Case], store: CaseStore, *, workers: int, address: str
     outcome = StudyOutcome(cases=len(cases), skipped=len(cases) - len(todo))
     by_id = {c.case_id: c for c in todo}
     previous = {c.case_id: (store.row(c.case_id) or {}).get("attempts") or 0 for c in todo}
-    from tqdm import tqdm
-
-    bar = tqdm(total=len(todo), unit="case", desc="robustness", file=sys.stderr, leave=False,
-               disable=quiet or not sys.stderr.isatty())
+    bar = progress_bar(len(todo), "robustness", "case", quiet)
 
     def record(case_id: str, result: dict[str, Any], attempt: int, final: bool) -> bool:
         if not commit_case(store, by_id[case_id], result, previous[case_id] + attempt):

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The acceptance job of a drive team's CI: GitHub Actions (github-actions.yml) and GitLab CI (gitlab-ci.yml) run
-# this script after installing the bench (pip install "pmsm-thermal-bench[test]"); tests/bench/acceptance runs it
-# too, so its steps stay true. It writes into $BENCH_CI_OUT (default out/ci), which the recipes upload:
+# this script after installing the bench from the checkout (python -m pip install ".[test]");
+# tests/bench/acceptance runs it too, and the recipes' commands in order, so their steps stay true. It writes into $BENCH_CI_OUT (default out/ci), which the recipes upload:
 #   bench.blf, report/ (report.md and figures), bench-junit.xml, summary.json    the bench run and its criteria
 #   pytest-<target>.xml, runs-<target>/                                         the pytest suite per target
 #   external-target.log                                                         the external target's output

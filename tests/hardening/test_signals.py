@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import os
+import pty
+import re
 import signal
 import subprocess
 import sys
@@ -489,11 +491,17 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _read_into(stream, chunks: list[str]) -> threading.Thread:
-    """Read `stream` in a thread as it comes (tqdm writes carriage returns, not lines)."""
+def _read_terminal(fd: int, chunks: list[bytes]) -> threading.Thread:
+    """Read the pseudo-terminal `fd` in a thread as it comes, until its last writer closes it (EIO)."""
     def read() -> None:
-        for chunk in iter(lambda: stream.read(64), ""):
-            chunks.append(chunk)
+        while True:
+            try:
+                data = os.read(fd, 4096)
+            except OSError:
+                return
+            if not data:
+                return
+            chunks.append(data)
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
@@ -512,17 +520,22 @@ def test_identify_stops_within_seconds_of_sigterm_while_polishing(scratch, long_
                                     coolant_period=30.0, ambient_period=45.0)
         files.append(write_synthetic_dataset(scratch / "train" / f"s{seed}.csv", columns, "signal tests"))
     out = scratch / "models"
-    process = _start_plain(["bench", "identify", "--train", *files[1:], "--validate", long_data, "--out",
-                            out / "m.json", "--all-kinds", "--swarm", "8", "--iterations", "2", "--polish", "4"],
-                           scratch)
-    chunks: list[str] = []
-    reader = _read_into(process.stderr, chunks)
+    # stderr on a pseudo-terminal: the stage bars (which say when the polish starts) are a terminal's only
+    terminal, slave = pty.openpty()
+    process = subprocess.Popen([sys.executable, "-m", "bench", "identify", "--train", *map(str, files[1:]),
+                                "--validate", str(long_data), "--out", str(out / "m.json"), "--all-kinds", "--swarm",
+                                "8", "--iterations", "2", "--polish", "4"], cwd=scratch, env=child_env(),
+                               stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=slave,
+                               start_new_session=True)
+    os.close(slave)
+    chunks: list[bytes] = []
+    reader = _read_terminal(terminal, chunks)
     try:
         # the swarm of 8 takes a second; the polish of 4 starts over 3 × 30 000 rows about 25 s (idle machine)
-        assert _wait_for(lambda: "LM polish" in "".join(chunks) or process.poll() is not None, 300), (
+        assert _wait_for(lambda: b"LM polish" in b"".join(chunks) or process.poll() is not None, 300), (
             "the polish did not start within 300 s")
         time.sleep(3.0)     # both worker threads in the middle of a fit
-        assert process.poll() is None, f"the command ended before the signal: {''.join(chunks)}"
+        assert process.poll() is None, f"the command ended before the signal: {b''.join(chunks)!r}"
         cpu_before, sent = _cpu_seconds(process.pid), time.monotonic()
         process.send_signal(signal.SIGTERM)
         _, status, usage = os.wait4(process.pid, 0)   # not Popen.wait: the child's CPU time comes with it
@@ -533,9 +546,11 @@ def test_identify_stops_within_seconds_of_sigterm_while_polishing(scratch, long_
         if process.poll() is None:
             process.kill()
             process.wait()
-    stderr = "".join(chunks)
+        os.close(terminal)
+    # the bars' states and the terminal's CR LF as lines, empty ones dropped
+    stderr = "\n".join(line for line in re.split(r"[\r\n]+", b"".join(chunks).decode()) if line.strip())
     cpu_after = usage.ru_utime + usage.ru_stime - cpu_before
-    _assert_stopped(process.returncode, stderr.replace("\r", "\n"), signal.SIGTERM)
+    _assert_stopped(process.returncode, stderr, signal.SIGTERM)
     assert cpu_after < 3.0, f"{cpu_after:.2f} CPU-s ({waited:.2f} s) after SIGTERM: the polish ran on"
     assert waited < 60, f"the command took {waited:.1f} s to stop after SIGTERM"
     assert _leftovers(out) == []

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+from datetime import UTC, datetime
 
 import can
 import pytest
 
 from dbc import FrameCodec, decode_any
-from host.canlog import FrameLog, LogError, check_log_path, mf4_available, read_log
+from host import canlog
+from host.canlog import MF4_START_NAMES, FrameLog, LogError, check_log_path, mf4_available, read_log
 
 SUFFIXES = [".blf", ".asc", ".log", ".csv", pytest.param(".mf4", marks=pytest.mark.skipif(
     not mf4_available(), reason="asammdf is not installed"))]
@@ -71,3 +73,76 @@ def test_monotonic_clamp_keeps_order(tmp_path):
             log.write(msg)
     stamps = [m.timestamp for m in can.LogReader(str(path))]
     assert stamps == sorted(stamps) and not any(math.isnan(s) for s in stamps)
+
+
+def _asc_date(stamp: float) -> str:
+    """A time as an ASC header states it (local time, milliseconds), formatted independently of host.canlog."""
+    dt = datetime.fromtimestamp(stamp)
+    return dt.strftime("%a %b %d %H:%M:%S.") + f"{dt.microsecond // 1000} {dt.year}"
+
+
+def test_an_asc_log_states_the_recordings_start_before_its_first_frame(tmp_path):
+    """Through python-can's public API only: the `date` line and the measurement's start are the recording's start
+    (here 2.25 s before the first frame, as an export of the host's frames only has it), not the time of writing,
+    and every frame keeps its time."""
+    path, written = tmp_path / "bus.asc", frames()
+    start = written[0].timestamp - 2.25
+    with FrameLog(path, start_time=start) as log:
+        for msg in written:
+            log.write(msg)
+    lines = path.read_text().splitlines()
+    assert lines[0] == f"date {_asc_date(start)}"
+    assert f"Begin Triggerblock {_asc_date(start)}" in lines
+    with can.ASCReader(str(path), relative_timestamp=False) as reader:    # times from the header's start
+        back = [m.timestamp for m in reader]
+    # the header's start has milliseconds, the frames' offsets from it microseconds (`write` clamped frame 7 to 6)
+    assert back == pytest.approx([m.timestamp for m in written], abs=1e-3)
+    assert back[0] == pytest.approx(start + 2.25, abs=1e-3)
+
+
+def test_an_asc_log_without_a_given_start_starts_at_its_first_frame(tmp_path):
+    path, written = tmp_path / "bus.asc", frames()
+    with FrameLog(path) as log:
+        for msg in written:
+            log.write(msg)
+    text = path.read_text()
+    assert text.startswith(f"date {_asc_date(written[0].timestamp)}\n")
+    assert "Start of the recording" not in text     # the first frame starts the measurement: no event before it
+
+
+@pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
+def test_python_can_mf4_writer_keeps_its_start_where_the_log_sets_it(tmp_path):
+    """The .mf4 start is set through python-can's private MF4Writer names (it has no public way): this fails on a
+    python-can release that moves them, before any log is written with wrong times."""
+    from asammdf import MDF
+    from can.io.mf4 import MF4Writer
+
+    path = tmp_path / "plain.mf4"
+    writer = MF4Writer(str(path))
+    for name in MF4_START_NAMES:
+        assert hasattr(writer, name), f"python-can {can.__version__}'s MF4Writer has no {name}"
+    header_start = writer._mdf.header.start_time      # the names host.canlog._StartedMF4Writer sets
+    assert isinstance(header_start, datetime)
+    assert writer._start_time == pytest.approx(header_start.timestamp(), abs=1e-6)
+    # the frame times count from _start_time, and the saved header states _mdf.header.start_time
+    writer._mdf.header.start_time = datetime.fromtimestamp(1_600_000_000.0, UTC)
+    writer._start_time = 1_600_000_000.0
+    writer.on_message_received(can.Message(timestamp=1_600_000_002.5, arbitration_id=0x110, data=bytes(8),
+                                           is_extended_id=False))
+    writer.stop()
+    mdf = MDF(str(path))
+    try:
+        assert mdf.header.start_time.timestamp() == 1_600_000_000.0
+        assert mdf.get("CAN_DataFrame.ID").timestamps.tolist() == pytest.approx([2.5], abs=1e-6)
+    finally:
+        mdf.close()
+
+
+@pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
+def test_an_mf4_writer_without_those_names_is_refused_not_written_wrong(tmp_path, monkeypatch):
+    monkeypatch.setattr(canlog, "MF4_START_NAMES", ("_mdf", "_start_time_renamed"))
+    path = tmp_path / "bus.mf4"
+    with pytest.raises(LogError, match=r"keeps its start time elsewhere \(no _start_time_renamed\).*write \.blf"):
+        with FrameLog(path) as log:
+            log.write(frames()[0])
+    assert list(tmp_path.iterdir()) == []
