@@ -87,9 +87,12 @@ def add_subparser(subparsers) -> None:
                    help=f"covariance form the target deploys (default {DEPLOYED_FORM}, see 'bench numerics "
                         "--observer')")
     p.add_argument("--evaluations", type=int, default=800, help="largest number of filter runs while tuning")
+    p.add_argument("--validate", nargs="+", default=None, metavar="FILE",
+                   help="files the observer is not tuned on (files or globs, with --train's mapping): its winding "
+                        "and magnet MSE against the open loop's there, and a warning where it is worse")
     p.add_argument("--out", type=Path, default=Path("out/model/observer.json"), help="artifact to write")
     add_output_flags(p)
-    declare_files(p, inputs=('--model', '--train'), outputs=('--out',))
+    declare_files(p, inputs=('--model', '--train', '--validate'), outputs=('--out',))
     p.set_defaults(func=run)
 
 
@@ -106,8 +109,9 @@ def run(args: argparse.Namespace) -> int:
         tuning_warnings,
         with_observer,
     )
+    from bench.model.observer_eval import validation_check
     from bench.model.pipeline import load_campaign
-    from target_sim.artifact import dumps, load_artifact
+    from target_sim.artifact import dumps, load_artifact, verify
 
     if args.evaluations < 1:
         raise UsageError("--evaluations must be at least 1")
@@ -117,11 +121,15 @@ def run(args: argparse.Namespace) -> int:
     if args.train:
         mapping, period = data_options(args)
         datasets = load_datasets(expand_data_paths(args.train, "--train"), mapping, period)
+        validation = (load_datasets(expand_data_paths(args.validate, "--validate"), mapping, period)
+                      if args.validate else [])
     else:
         if args.mapping is not None:
             raise UsageError("--mapping applies to --train files, not to the built-in motor's datasets")
         campaign = load_campaign(None)
         datasets = [campaign[c] for c in IDENTIFICATION_COOLANTS]
+        validation = load_datasets(expand_data_paths(args.validate, "--validate"), None, None) if args.validate \
+            else []
     # the filter runs of the search as a bar (a terminal's only): a total, an ETA, the criterion so far
     progress = StageBars(args.quiet or args.json, unit="run")
     # in the kinds' order: the sensor, the flux linkage, the winding resistance
@@ -142,10 +150,14 @@ def run(args: argparse.Namespace) -> int:
     warnings = [w for m in measurements for w in m.warnings] + tuning_warnings(fit)
     content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form))
     write_text_atomically(args.out, dumps(content))
+    checked = validation_check(verify(content), validation) if validation else None
+    if checked is not None and checked.warning():
+        warnings.append(checked.warning())
     report = {"model": str(model_path), "out": str(args.out), "sha256": content["sha256"],
               "measurement": measurements[0].describe(), "form": args.form, "bias": fit.bias,
               "consider": fit.consider,
-              **content["observer"]["tuning"], "warnings": warnings}
+              **content["observer"]["tuning"], "warnings": warnings,
+              **({"validation": checked.as_dict()} if checked is not None else {})}
     if not args.quiet:
         for warning in warnings:
             print(f"bench: warning: {warning}", file=sys.stderr)
@@ -161,5 +173,9 @@ def run(args: argparse.Namespace) -> int:
             print(text)
         print(f"Q per step: {q}; R scale {', '.join(f'{v:.3g}' for v in fit.r_scale)}; deployed form {args.form}; "
               f"consider states: {fit.consider or 'none'}")
+        if checked is not None:
+            print("on the validation files, float32 MSE open loop / observer: " + ", ".join(
+                f"{'magnet' if n == 'pm' else n} {checked.open_loop_mse[n]:.3g} / {checked.observer_mse[n]:.3g} K²"
+                for n in checked.observer_mse))
         print(f"wrote {args.out} (sha256 {content['sha256'][:12]})")
     return 0

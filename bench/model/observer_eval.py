@@ -146,3 +146,52 @@ def evaluate_observer(artifact: ModelArtifact, dataset: Dataset, offsets: Sequen
     trace = {"time_s": run.step_time_s, "references": references, "open_loop": open_loop, "observer": observed,
              "sigma": kept["sigma"]}
     return ObserverFileResult(dataset.name, measured[0], nodes, recovery, diff, measured, trace)
+
+
+@dataclass(frozen=True)
+class ValidationCheck:
+    """The tuned observer against its open loop on files it was not tuned on: pooled float32 MSE (K²) per measured
+    node, open loop and observer (the target's own code, from each file's own initial state)."""
+
+    files: tuple[str, ...]
+    open_loop_mse: dict[str, float]
+    observer_mse: dict[str, float]
+
+    @property
+    def worse(self) -> list[str]:
+        """The nodes where the observer is worse than the open loop."""
+        return [n for n, mse in self.observer_mse.items() if mse > self.open_loop_mse[n]]
+
+    def warning(self) -> str | None:
+        """One sentence when the observer is worse than the open loop at a node, else None."""
+        if not self.worse:
+            return None
+        figures = ", ".join(f"the {'magnet' if n == 'pm' else n} {self.observer_mse[n]:.3g} K² against "
+                            f"{self.open_loop_mse[n]:.3g} K²" for n in self.worse)
+        return (f"on the validation files ({', '.join(self.files)}) the observer is worse than the open loop: "
+                f"{figures} (float32 MSE); do not deploy it as it is: try --consider magnet, another --criterion "
+                "or --bias, or check the sensor's lag, gradient and offset")
+
+    def as_dict(self) -> dict:
+        return {"files": list(self.files), "open_loop_mse_K2": self.open_loop_mse, "observer_mse_K2": self.observer_mse,
+                "worse": self.worse}
+
+
+def validation_check(artifact: ModelArtifact, datasets: Sequence[Dataset]) -> ValidationCheck:
+    """`ValidationCheck` of an artifact with an observer on `datasets` (each run from its own initial state)."""
+    errors: dict[str, dict[str, list[np.ndarray]]] = {}
+    for dataset in datasets:
+        drive = artifact_drive(artifact, dataset)
+        initial = initial_temperatures(dataset)
+        _, open_loop = run_offline(artifact, drive, initial)
+        observed = run_observer_offline(artifact, drive, measurement_matrix(artifact, dataset), initial).outputs
+        times = float(dataset.time_s[0]) + np.arange(1, len(open_loop) + 1) * artifact.dt   # as `model_run`'s
+        for node in measured_nodes(dataset):
+            reference = np.interp(times, dataset.time_s, dataset.column(MEASURED_NODES[node]))
+            index = OUTPUT_INDEX[node]
+            pair = errors.setdefault(node, {"open_loop": [], "observer": []})
+            pair["open_loop"].append(open_loop[:, index].astype(np.float64) - reference)
+            pair["observer"].append(observed[:, index].astype(np.float64) - reference)
+    mse = {kind: {n: float(np.mean(np.concatenate(e[kind]) ** 2)) for n, e in errors.items() if n in ("winding", "pm")}
+           for kind in ("open_loop", "observer")}
+    return ValidationCheck(tuple(d.name for d in datasets), mse["open_loop"], mse["observer"])
