@@ -166,7 +166,7 @@ RUN_WHOLE, RUN_SECONDS, RUN_FILES = ("rows",), ("reply_timeout", "connect_timeou
 
 def run_defaults_problem(run: dict[str, Any]) -> str | None:
     """Why a profile's [run] table cannot make a run (one clause naming the key), or None."""
-    from host.run import MODES
+    from host.procedure import MODES
 
     for key in RUN_WHOLE:
         value = run.get(key)
@@ -327,7 +327,7 @@ def stop_bench(proc: subprocess.Popen, log: Path, grace_s: float = STOP_GRACE_S)
         proc.communicate()
     _kill_group(proc.pid)   # anything of the group left behind (its target, after a SIGKILL of the bench)
     _wait_group_gone(proc.pid, grace_s)
-    from bench.leftovers import remove_stale_partials, remove_stale_scratch
+    from bench.run.leftovers import remove_stale_partials, remove_stale_scratch
 
     remove_stale_partials(log)
     remove_stale_scratch()

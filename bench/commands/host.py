@@ -55,8 +55,8 @@ from bench.commands.common import (
     print_json,
 )
 from bench.errors import BenchError, UsageError
-from bench.leftovers import clear_and_say
-from bench.run_inputs import drive_for, load_data, load_model, measurements_for, refuse_over_can
+from bench.run.inputs import drive_for, load_data, load_model, measurements_for, refuse_over_can
+from bench.run.leftovers import clear_and_say
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.database import host_frame_ids
 from dbc.transport import (
@@ -68,7 +68,7 @@ from dbc.transport import (
 )
 from host.canlog import check_log_path
 from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
-from host.run import MODES, run_dataset
+from host.procedure import MODES, run_dataset
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 
 

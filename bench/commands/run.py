@@ -87,9 +87,9 @@ from bench.commands.common import (
     print_summary,
 )
 from bench.errors import BenchError, UsageError
-from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
-from bench.run_inputs import (
+from bench.run.execute import run_with_target
+from bench.run.inputs import (
     drive_for,
     firmware_for_engine,
     load_data,
@@ -98,7 +98,7 @@ from bench.run_inputs import (
     refuse_engine,
     refuse_over_can,
 )
-from bench.runner import run_with_target
+from bench.run.leftovers import clear_and_say
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 from host.canlog import LogError, check_log_path
@@ -163,7 +163,7 @@ def fault_spec(args: argparse.Namespace):
 def load_run_data(args: argparse.Namespace, artifact):
     """The run's dataset (--data through --mapping at --sample-period), the drive rows the host sends (4 values per
     row, 6 with the d/q currents for an electrical loss model) and, for a model with an observer, the measurements
-    (`bench.run_inputs.measurements_for`; else None): BenchError, one sentence, when the data lacks what the model
+    (`bench.run.inputs.measurements_for`; else None): BenchError, one sentence, when the data lacks what the model
     needs or its sample period is not the model's."""
     if args.data is None and getattr(args, "mapping", None) is not None:
         raise UsageError("--mapping says how to read your own data file: pass it with --data FILE")
