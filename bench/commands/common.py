@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 from bench.errors import UsageError
 from bench.fileio import check_writable  # noqa: F401 - the commands import it from here
+from bench.run.request import OPTION, RUN, add_options
+from bench.run.values import sample_period
 from dbc.files import NAME_MAX
 
 if TYPE_CHECKING:
@@ -47,12 +49,10 @@ def add_output_flags(parser) -> None:
 
 
 def add_engine_argument(parser, default: str = "python") -> None:
-    from target_sim.engines import ENGINES
-
-    parser.add_argument("--engine", choices=ENGINES, default=default,
-                        help="what the target runs: the reference node in Python, or the node and model compiled "
-                             "for a Cortex-M4F in the emulated core, with measured cycles (the packaged artifacts "
-                             f"ship their firmware; another artifact needs the compiler) (default {default})")
+    """--engine as `bench run` has it (`bench.run.request`), with this command's default."""
+    option = OPTION["engine"]
+    parser.add_argument(option.flag, dest=option.key, **{**option.argparse_kwargs(RUN), "default": default,
+                                                         "help": option.help_for(RUN, default)})
 
 
 def finite_or_none(value):
@@ -168,29 +168,9 @@ if TYPE_CHECKING:  # the CLI imports every subcommand at start: the loader only 
     from bench.drive.dataset import ColumnMapping
 
 
-def sample_period(text: str) -> float | None:
-    """'--sample-period' value: a positive number of seconds, or 'auto' (None: inferred from the time column)."""
-    if str(text).strip().lower() == "auto":
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise UsageError(f"--sample-period {text!r} is neither a number of seconds nor 'auto'; "
-                         "e.g. --sample-period 1") from None
-    if not math.isfinite(value) or value <= 0:
-        raise UsageError(f"--sample-period {text!r} must be a positive number of seconds (or 'auto')")
-    return value
-
-
 def add_data_arguments(parser) -> None:
     """--mapping FILE and --sample-period S|auto, how a user's own data files are read (see bench.drive.mapping)."""
-    parser.add_argument("--mapping", type=Path, default=None, metavar="FILE",
-                        help="JSON or TOML mapping of your data files onto the bench's columns: names, units, "
-                             "derived columns (mean of several sensors), time column or none, separator and "
-                             "decimal mark")
-    parser.add_argument("--sample-period", type=sample_period, default="auto", metavar="S|auto",
-                        help="the data's sample period in seconds, or 'auto': the mapping's, else inferred from the "
-                             "time column (a file without one needs it given) (default auto)")
+    add_options(parser, RUN, ("mapping", "sample_period"))
 
 
 def data_options(args) -> tuple[ColumnMapping | None, float | None]:

@@ -40,13 +40,12 @@ import sys
 import time
 from pathlib import Path
 
-from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
+from bench.acceptance.cli import finish, prepare
 from bench.acceptance.junit import CleanCase
 from bench.analysis.results import DataIdentity
-from bench.commands.args import add_listener_argument, announce_logger, declare_files, positive_float, positive_int
+from bench.commands.args import announce_logger, declare_files
 from bench.commands.common import (
     SHOWN_NODES,
-    add_data_arguments,
     add_output_flags,
     check_log_names,
     check_writable,
@@ -57,7 +56,7 @@ from bench.commands.common import (
 from bench.errors import BenchError, UsageError
 from bench.run.inputs import drive_for, load_data, load_model, measurements_for, refuse_over_can
 from bench.run.leftovers import clear_and_say
-from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
+from bench.run.request import HOST, add_options
 from dbc.database import host_frame_ids
 from dbc.transport import (
     SenderGuard,
@@ -67,34 +66,16 @@ from dbc.transport import (
     resolve,
 )
 from host.canlog import check_log_path
-from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
-from host.procedure import MODES, run_dataset
-from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
+from host.faults import FaultSpecError, fault_note, spec_from_args
+from host.procedure import run_dataset
+from host.session import SessionError
 
 
 def add_subparser(subparsers) -> None:
     p = subparsers.add_parser("host", help="the host node alone, against a target already on the bus",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", type=Path, required=True, help="dataset CSV (bench.drive schema, or --mapping)")
-    add_data_arguments(p)
-    p.add_argument("--model", type=Path, default=None,
-                   help="artifact the target must run (default: the packaged one)")
-    p.add_argument("--mode", choices=MODES, default="lockstep")
-    p.add_argument("--speed", type=positive_float, default=1.0, help="realtime speed factor (default 1)")
-    p.add_argument("--rows", type=positive_int, default=None, help="replay only the first N rows")
-    p.add_argument("--log", type=Path, default=Path("out/host/host.blf"),
-                   help="bus log, format by suffix .blf .asc .log .csv .mf4 (default out/host/host.blf)")
-    p.add_argument("--reply-timeout", type=positive_float, default=DEFAULT_REPLY_TIMEOUT_S,
-                   help=f"seconds per reply (default {DEFAULT_REPLY_TIMEOUT_S:g})")
-    p.add_argument("--connect-timeout", type=positive_float, default=DEFAULT_CONNECT_TIMEOUT_S,
-                   help=f"seconds to wait for the target's heartbeat (default {DEFAULT_CONNECT_TIMEOUT_S:g})")
-    p.add_argument("--tolerate-gaps", action="store_true", help="exit 0 despite missing replies (still reported)")
-    add_fault_arguments(p, process_faults=False)
-    p.add_argument("--target-events", type=Path, default=None, metavar="FILE",
-                   help="the target's detection journal (its --events file), to check that faults were detected")
+    add_options(p, HOST)   # the options of a run that apply to an attached target (`bench.run.request`)
     add_output_flags(p)
-    add_acceptance_arguments(p)
-    add_listener_argument(p)
     add_bus_arguments(p)
     declare_files(p, inputs=('--data', '--model', '--target-events'), outputs=('--log',))
     p.set_defaults(func=run_host)

@@ -64,21 +64,15 @@ import sys
 import time
 from pathlib import Path
 
-from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
+from bench.acceptance.cli import finish, prepare
 from bench.acceptance.junit import CleanCase
 from bench.analysis.results import BusInfo, DataIdentity, HostFaults, NodeCycles, RunResults, RunSummary
 from bench.commands.args import (
-    add_listener_argument,
     announce_logger,
     bus_from_args,
     declare_files,
-    non_negative_int,
-    positive_float,
-    positive_int,
 )
 from bench.commands.common import (
-    add_data_arguments,
-    add_engine_argument,
     add_output_flags,
     check_log_names,
     check_writable,
@@ -99,55 +93,21 @@ from bench.run.inputs import (
     refuse_over_can,
 )
 from bench.run.leftovers import clear_and_say
-from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
+from bench.run.request import RUN, add_options
 from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
 from host.canlog import LogError, check_log_path
-from host.faults import add_fault_arguments, fault_note, spec_from_args
-
-DEFAULT_LOG = Path("out/run/bench.blf")
-DEFAULT_REPORT = Path("out/run/report")
+from host.faults import fault_note, spec_from_args
 
 
 def add_subparser(subparsers) -> None:
     p = subparsers.add_parser("run", help="run the CAN bench: target process + host replay + log + report",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_run_arguments(p)
-    p.add_argument("--log", type=Path, default=DEFAULT_LOG, help=f"bus log to write (default {DEFAULT_LOG})")
-    p.add_argument("--report", type=Path, default=DEFAULT_REPORT,
-                   help=f"report directory (default {DEFAULT_REPORT})")
-    p.add_argument("--no-report", action="store_true", help="skip the report (metrics are still computed)")
-    add_fault_arguments(p)
+    add_options(p, RUN)   # every option of a run (`bench.run.request`)
     add_output_flags(p)
-    add_acceptance_arguments(p)
-    add_listener_argument(p)
     add_bus_arguments(p)
     declare_files(p, inputs=('--data', '--model'), outputs=('--log', '--report'), replaced=('--report',),
                   off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
-
-
-def add_run_arguments(p) -> None:
-    p.add_argument("--data", type=Path, default=None,
-                   help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
-    p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged one)")
-    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
-                   help="lockstep: each step waits for its reply (default); realtime: at the data rate x --speed")
-    p.add_argument("--speed", type=positive_float, default=1.0, help="realtime speed factor (default 1)")
-    p.add_argument("--rows", type=positive_int, default=None, help="replay only the first N data rows")
-    p.add_argument("--reply-timeout", type=positive_float, default=DEFAULT_REPLY_TIMEOUT_S,
-                   help=f"seconds to wait for a step's reply before counting it missing (default "
-                        f"{DEFAULT_REPLY_TIMEOUT_S:g})")
-    p.add_argument("--tolerate-gaps", action="store_true",
-                   help="exit 0 even with missing replies, sequence gaps or heartbeat loss (still reported); "
-                        "not for runs with injected faults (see --tolerate-faults)")
-    p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
-    add_data_arguments(p)
-    add_engine_argument(p)
-    p.add_argument("--isr-rate", type=non_negative_int, default=0, metavar="HZ",
-                   help="with --engine firmware: a field-oriented current loop's interrupt (bench/firmware/foc_isr.c) "
-                        "preempts the node at this rate on the emulated core, and each model step's response time "
-                        "and the interrupt's CPU load go out in Timing5 into the summary and the report (the image "
-                        "is built with the compiler, once; default 0: no interrupt)")
 
 
 def fault_spec(args: argparse.Namespace):
