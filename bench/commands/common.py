@@ -5,20 +5,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bench.errors import UsageError
 from bench.fileio import check_writable  # noqa: F401 - the commands import it from here
+from bench.run.inputs import data_options  # noqa: F401 - the commands import it from here
 from bench.run.request import OPTION, RUN, add_options
-from bench.run.values import sample_period
-from dbc.files import NAME_MAX
-
-if TYPE_CHECKING:
-    from host.faults import FaultSpec
+from bench.run.values import sample_period  # noqa: F401 - the commands import it from here
 
 
 def float_list(text: str) -> list[float]:
@@ -73,21 +68,6 @@ def print_json(obj) -> None:
 
 # the order a summary line shows the nodes in: the hot spots a model is deployed for first
 SHOWN_NODES = ("winding", "magnet", "yoke", "tooth")
-
-
-def check_log_names(log_path: Path, faults: FaultSpec | None) -> None:
-    """UsageError, before anything runs, when a file written beside the log would need a name longer than NAME_MAX:
-    with faults, the summary `<log>.faults.json`, written through a temporary `.<log>.faults.json.XXXXXXXX`."""
-    if faults is None or not faults.active:
-        return
-    from host.faults import sidecar_path
-
-    sidecar = sidecar_path(log_path).name
-    length = len(os.fsencode(sidecar)) + 10
-    if length > NAME_MAX:
-        raise UsageError(f"--log {log_path}: the fault summary beside it, {sidecar}, would need a file name of "
-                         f"{length} bytes (its temporary name), more than the {NAME_MAX} a name may have; shorten the "
-                         f"log's name by {length - NAME_MAX} characters")
 
 
 def fmt(value, digits: int = 3) -> str:
@@ -165,29 +145,8 @@ def print_summary(m: RunResults, problems: list[str], faults: HostFaults | Fault
 
 if TYPE_CHECKING:  # the CLI imports every subcommand at start: the loader only when a command runs
     from bench.analysis.results import FaultResults, HostFaults, RunResults
-    from bench.drive.dataset import ColumnMapping
 
 
 def add_data_arguments(parser) -> None:
     """--mapping FILE and --sample-period S|auto, how a user's own data files are read (see bench.drive.mapping)."""
     add_options(parser, RUN, ("mapping", "sample_period"))
-
-
-def data_options(args) -> tuple[ColumnMapping | None, float | None]:
-    """(ColumnMapping or None, sample period in s or None for auto) from add_data_arguments' options; a period
-    given on the command line replaces the mapping's, with 'auto' the mapping's period (if any) is used."""
-    from dataclasses import replace
-
-    from bench.drive.mapping import load_mapping
-
-    period = getattr(args, "sample_period", None)
-    if isinstance(period, str):
-        period = sample_period(period)
-    path = getattr(args, "mapping", None)
-    mapping = load_mapping(path) if path is not None else None
-    if mapping is not None:
-        if period is None:
-            period = mapping.sample_period_s
-        else:
-            mapping = replace(mapping, sample_period_s=period)
-    return mapping, period

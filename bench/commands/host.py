@@ -42,21 +42,17 @@ from pathlib import Path
 
 from bench.acceptance.cli import finish, prepare
 from bench.acceptance.junit import CleanCase
-from bench.analysis.results import DataIdentity
 from bench.commands.args import announce_logger, declare_files
 from bench.commands.common import (
     SHOWN_NODES,
     add_output_flags,
-    check_log_names,
-    check_writable,
-    data_options,
     fmt,
     print_json,
 )
 from bench.errors import BenchError, UsageError
-from bench.run.inputs import drive_for, load_data, load_model, measurements_for, refuse_over_can
 from bench.run.leftovers import clear_and_say
-from bench.run.request import HOST, add_options
+from bench.run.prepare import prepare_run
+from bench.run.request import HOST, RunRequest, add_options
 from dbc.database import host_frame_ids
 from dbc.transport import (
     SenderGuard,
@@ -65,7 +61,6 @@ from dbc.transport import (
     first_heard,
     resolve,
 )
-from host.canlog import check_log_path
 from host.faults import FaultSpecError, fault_note, spec_from_args
 from host.procedure import run_dataset
 from host.session import SessionError
@@ -99,19 +94,10 @@ def run_host(args: argparse.Namespace) -> int:
     if config.interface == "virtual":  # python-can's virtual bus lives in one process: no target could answer
         raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
                          "use udp_multicast, socketcan or auto")
-    log_path = check_log_path(args.log)   # the arguments' refusals before any work
-    check_writable(log_path, "--log")   # a directory there would fail the run only at its end
-    check_log_names(log_path, faults)
-    artifact, _ = load_model(args.model)
-    refuse_over_can(artifact)   # an observer whose readings no frame carries: before any work
-    mapping, period = data_options(args)
-    dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
-    drive = drive_for(dataset, artifact)     # with the currents for an electrical loss model; refused without
-    measurements = measurements_for(dataset, artifact)   # a model with an observer: its measurement, else None
-    if args.rows is not None:
-        drive = drive[: args.rows]
-        measurements = None if measurements is None else measurements[: args.rows]
-    acceptor.check_data(DataIdentity(len(drive), dataset.rows_sha256(len(drive))), f"this run of {dataset.path}")
+    # the arguments' refusals before any work (`bench.run.prepare`); the dataset is read quietly, as always here
+    prepared = prepare_run(RunRequest.from_args(args), HOST, faults, acceptor.check_data, quiet=True)
+    log_path, artifact, dataset = prepared.log_path, prepared.artifact, prepared.dataset
+    drive, measurements = prepared.drive, prepared.measurements
     from bench.model.runs import initial_temperatures
 
     clear_and_say(log_path, args.quiet or args.json)   # what a killed host left beside this log

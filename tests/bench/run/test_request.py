@@ -162,3 +162,29 @@ def test_every_settable_option_goes_through_the_plugin_and_the_campaign(tmp_path
         assert getattr(through_plugin, key) == value, key
         if key not in files:
             assert getattr(through_campaign, key) == value, key
+
+
+@pytest.mark.parametrize("command", [RUN, HOST])
+def test_both_commands_refuse_in_one_place_before_any_work(tmp_path, command):
+    """`bench run` and `bench host` share their preparation (`bench.run.prepare`): a log that names a directory,
+    a report directory of other files (run only), a model that does not load, each before the data is read."""
+    from bench.errors import BenchError
+    from bench.run.prepare import prepare_run
+
+    def never(*_):
+        raise AssertionError("the data was checked after a refusal")
+
+    (tmp_path / "d.blf").mkdir()
+    with pytest.raises(BenchError, match="--log"):
+        prepare_run(RunRequest.from_mapping({"log": str(tmp_path / "d.blf")}, "test"), command, None, never,
+                    quiet=True)
+    (tmp_path / "rep").mkdir()
+    (tmp_path / "rep" / "mine.txt").write_text("x")
+    request = RunRequest.from_mapping({"log": str(tmp_path / "x.blf"), "report": str(tmp_path / "rep"),
+                                       "model": str(tmp_path / "none.json")}, "test")
+    from target_sim.artifact import ArtifactError
+
+    with pytest.raises((BenchError, ArtifactError)) as caught:   # the report first (run), else the model (host)
+        prepare_run(request, command, None, never, quiet=True)
+    assert ("--report" in str(caught.value)) == (command == RUN), caught.value
+    assert ("none.json" in str(caught.value)) == (command == HOST), caught.value
