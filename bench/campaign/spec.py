@@ -38,6 +38,7 @@ import tomllib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 from bench.errors import BenchError, UsageError
@@ -309,10 +310,13 @@ def _check_runs(campaign: Campaign) -> None:
             refusal = firmware_refusal(load_artifact(model))
             if refusal is not None:
                 raise SpecError(f"{where}: run {run.label()}: {refusal}")
-        if o["isr_rate"] and o["engine"] != "firmware":
-            raise SpecError(f"{where}: run {run.label()} has isr_rate {o['isr_rate']} on the {o['engine']} engine; "
-                            "the motor-control interrupt runs in the firmware engine's emulated core (engine = "
-                            "\"firmware\")")
+        if o["isr_rate"]:   # the same refusal as `bench run`'s, before any run
+            from bench.run.prepare import refuse_isr_rate
+
+            try:
+                refuse_isr_rate(SimpleNamespace(isr_rate=o["isr_rate"], engine=o["engine"]))
+            except UsageError as exc:
+                raise SpecError(f"{where}: run {run.label()}: {exc}") from None
         if o["faults"] and o["mode"] != "lockstep" and re.search(r"(^|,)\s*(kill|freeze)", o["faults"]):
             raise SpecError(f"{where}: run {run.label()} has kill or freeze faults in {o['mode']} mode; they need "
                             "lockstep (a lost target's rows cannot be sent again on a real-time clock)")

@@ -61,6 +61,20 @@ def check_log_names(log_path: Path, faults: FaultSpec | None) -> None:
                          f"log's name by {length - NAME_MAX} characters")
 
 
+def refuse_isr_rate(request: Any) -> None:
+    """--isr-rate needs the firmware engine and a current-loop rate (UsageError, one sentence)."""
+    if not request.isr_rate:
+        return
+    if request.engine != "firmware":
+        raise UsageError(f"--isr-rate runs the motor-control interrupt in the emulated core of the firmware engine, "
+                         f"not the {request.engine} engine; add --engine firmware or drop --isr-rate")
+    from target_sim.firmware.motor_control import isr_rate_problem
+
+    problem = isr_rate_problem(request.isr_rate)
+    if problem:
+        raise UsageError(problem)
+
+
 def check_outputs(request: Any, command: str, faults: FaultSpec | None) -> Path:
     """The log's path, once it and the report directory (`bench run` without --no-report) are known writable:
     a log or report that cannot be written must not cost a run."""
@@ -98,6 +112,8 @@ def prepare_run(request: Any, command: str, faults: FaultSpec | None, check_data
     a user meets them, before any work; `check_data`: the acceptance gate's check of the data's identity."""
     from bench.analysis.results import DataIdentity
 
+    if command == RUN:
+        refuse_isr_rate(request)   # what the request alone refuses comes first
     log_path = check_outputs(request, command, faults)
     artifact, model_path = load_model(request.model)
     if command == RUN:

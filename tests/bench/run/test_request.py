@@ -114,8 +114,10 @@ def test_campaign_isr_rate_reaches_the_run(tmp_path):
     campaign = parse_spec('[fixed]\nengine = "firmware"\nisr_rate = 10000\nrows = 5\n', tmp_path / "s.toml")
     argv = campaign.runs[0].argv(tmp_path, tmp_path / "d.csv")
     assert argv[argv.index("--isr-rate") + 1] == "10000"
-    with pytest.raises(SpecError, match="isr_rate 10000 on the python engine"):
+    with pytest.raises(SpecError, match="--isr-rate runs the motor-control interrupt .* not the python engine"):
         parse_spec("[fixed]\nisr_rate = 10000\n", tmp_path / "s.toml")
+    with pytest.raises(SpecError, match="--isr-rate 900000 is not a current-loop rate"):
+        parse_spec('[fixed]\nengine = "firmware"\nisr_rate = 900000\n', tmp_path / "s.toml")
 
 
 def test_a_new_campaign_key_at_its_default_keeps_the_run_ids(tmp_path):
