@@ -88,6 +88,7 @@ def _faults(args: argparse.Namespace):
 
 
 def run_host(args: argparse.Namespace) -> int:
+    request = RunRequest.from_args(args)   # the run as the command line describes it (`bench.run.request`)
     faults = _faults(args)
     acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work
     config = resolve(config_from_args(args))
@@ -95,7 +96,7 @@ def run_host(args: argparse.Namespace) -> int:
         raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
                          "use udp_multicast, socketcan or auto")
     # the arguments' refusals before any work (`bench.run.prepare`); the dataset is read quietly, as always here
-    prepared = prepare_run(RunRequest.from_args(args), HOST, faults, acceptor.check_data, quiet=True)
+    prepared = prepare_run(request, HOST, faults, acceptor.check_data, quiet=True)
     log_path, artifact, dataset = prepared.log_path, prepared.artifact, prepared.dataset
     drive, measurements = prepared.drive, prepared.measurements
     from bench.model.runs import initial_temperatures
@@ -109,15 +110,15 @@ def run_host(args: argparse.Namespace) -> int:
                                f"0x{other.arbitration_id:03x}); stop it or pick another channel")
         bus = SenderGuard(bus, config, host_frame_ids(), "host")   # and one that starts later stops this run
         if not (args.quiet or args.json):
-            print(f"bench: host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
+            print(f"bench: host: {len(drive)} rows of {dataset.path} ({request.mode}) over {config.describe()}"
                   + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
-        announce_logger(config, args.quiet, "bench: host: ", wait_s=args.wait_for_listener)
+        announce_logger(config, args.quiet, "bench: host: ", wait_s=request.wait_for_listener)
         started = time.time()
         result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
-                             mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,
-                             log_path=log_path, reply_timeout_s=args.reply_timeout,
-                             connect_timeout_s=args.connect_timeout, faults=faults,
-                             target_events=args.target_events, events_since=started, measurements=measurements)
+                             mode=request.mode, speed=request.speed, sample_period_s=dataset.sample_period_s,
+                             log_path=log_path, reply_timeout_s=request.reply_timeout,
+                             connect_timeout_s=request.connect_timeout, faults=faults,
+                             target_events=request.target_events, events_since=started, measurements=measurements)
     except FaultSpecError as exc:   # kept for its exit status: a plan the host refuses here (faults in real time at
         raise BenchError(str(exc)) from None   # too short a sample interval) exits 1, a bad --fault option 2
     finally:
@@ -131,7 +132,7 @@ def run_host(args: argparse.Namespace) -> int:
     if metrics is not None:
         metrics.acceptance = acceptance
     outcome = verdict(result.problems() + found, fault_note(result.faults), faulted=result.faults is not None,
-                      tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
+                      tolerate_faults=request.tolerate_faults, tolerate_gaps=request.tolerate_gaps)
     problems = outcome.problems
     injected = result.faults["injected_total"] if result.faults else 0
     clean = not problems and not injected
