@@ -1,5 +1,7 @@
 """Atomic file writes: every output goes through a temporary name in its directory and a rename, so a failed or
-interrupted command never leaves a half-written file. Imported by every part of `bench` that writes files."""
+interrupted command never leaves a half-written file; and the scratch directories, named by the process that
+owns them so that a later bench removes those a killed one left (`bench.run.leftovers`). Imported by every part
+of `bench` that writes files."""
 
 from __future__ import annotations
 
@@ -14,6 +16,8 @@ from bench.errors import BenchError
 from dbc import files
 from dbc.files import RANDOM_PART, temporary_prefix
 from host.errors import write_failure
+
+SCRATCH_PREFIX = "bench-"
 
 
 class OutputError(BenchError, OSError):
@@ -128,3 +132,9 @@ def check_writable(path: Path, option: str, *, directory: bool = False) -> Path:
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise BenchError(f"cannot write {path}: the directory {ancestor} is not writable; choose another {option}")
     return path
+
+
+def scratch_dir(kind: str) -> tempfile.TemporaryDirectory:
+    """A temporary directory `bench-KIND-<pid>-XXXXXXXX` in the system's temporary directory, removed on
+    cleanup; one that outlives its process is removed by a later bench (`bench.run.leftovers`)."""
+    return tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{kind}-{os.getpid()}-")

@@ -56,15 +56,16 @@ from typing import Any
 import pytest
 
 from bench.errors import BenchError
+from bench.run.request import HOST, OPTION, RUN, SETTABLE, RunRequest
 from dbc.files import same_file
 from dbc.lifeline import child_environment
 from dbc.transport import bus_interfaces
 
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
+# [run]: every run option a user sets (`bench.run.request`), and how long a run may take
 PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", "bitrate", "bus_kwargs"),
-                "run": ("data", "model", "rows", "mode", "criteria", "baseline", "reply_timeout", "connect_timeout",
-                        "timeout")}
+                "run": (*SETTABLE, "timeout")}
 DEFAULT_TIMEOUT_S = 900.0
 STOP_GRACE_S = 20.0   # a bench told to stop (SIGTERM) stops its target (5 s at most) and exits; then SIGKILL
 # an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
@@ -149,7 +150,7 @@ def load_profile(path: Path) -> dict[str, Any]:
             raise pytest.UsageError(f"--bench-profile {path}: [{section}] has an unknown key {unknown[0]!r}; use "
                                     f"{', '.join(PROFILE_KEYS[section])}")
         out[section] = dict(table)
-    for key in ("data", "model", "criteria", "baseline"):   # relative to the profile
+    for key in RUN_FILES:   # relative to the profile
         value = out.get("run", {}).get(key)
         if isinstance(value, str) and not Path(value).is_absolute():
             out["run"][key] = str(path.parent / value)
@@ -161,12 +162,12 @@ def load_profile(path: Path) -> dict[str, Any]:
 
 # the [run] keys' kinds: a positive whole number, a positive number, one of a few words, a file that must exist
 RUN_WHOLE, RUN_SECONDS, RUN_FILES = ("rows",), ("reply_timeout", "connect_timeout", "timeout"), (
-    "data", "model", "criteria", "baseline")
+    "data", "model", "mapping", "criteria", "baseline")
 
 
 def run_defaults_problem(run: dict[str, Any]) -> str | None:
     """Why a profile's [run] table cannot make a run (one clause naming the key), or None."""
-    from host.run import MODES
+    from host.procedure import MODES
 
     for key in RUN_WHOLE:
         value = run.get(key)
@@ -183,6 +184,12 @@ def run_defaults_problem(run: dict[str, Any]) -> str | None:
         value = run.get(key)
         if value is not None and (not isinstance(value, str) or not Path(value).exists()):
             return f"{key} = {value!r} does not exist (a path relative to the profile)"
+    for key, value in run.items():   # every other run option: the run request's own check
+        if key in OPTION and key not in (*RUN_WHOLE, *RUN_SECONDS, *RUN_FILES, "mode"):
+            try:
+                OPTION[key].check(value)
+            except ValueError as exc:
+                return f"{key} = {value!r}: {exc}"
     return None
 
 
@@ -327,7 +334,7 @@ def stop_bench(proc: subprocess.Popen, log: Path, grace_s: float = STOP_GRACE_S)
         proc.communicate()
     _kill_group(proc.pid)   # anything of the group left behind (its target, after a SIGKILL of the bench)
     _wait_group_gone(proc.pid, grace_s)
-    from bench.leftovers import remove_stale_partials, remove_stale_scratch
+    from bench.run.leftovers import remove_stale_partials, remove_stale_scratch
 
     remove_stale_partials(log)
     remove_stale_scratch()
@@ -371,52 +378,46 @@ class ThermalBench:
     def target(self) -> str:
         return self.config.target
 
-    def _option(self, name: str, value: Any) -> Any:
-        return self.config.defaults.get(name) if value is None else value
-
-    def argv(self, *, data=None, model=None, rows=None, faults=None, mode=None, criteria=None, baseline=None,
-             tolerate_faults: bool = False, report: bool = False, run_dir: Path) -> list[str]:
-        """The `python -m bench ...` command line of one run."""
+    def argv(self, *, run_dir: Path, faults: str | dict[str, float] | None = None, tolerate_faults: bool = False,
+             report: bool = False, **options: Any) -> list[str]:
+        """The `python -m bench ...` command line of one run: the profile's [run] options, then `options` (any run
+        option of `bench.run.request`, None for the profile's), the log, report and JUnit XML in `run_dir`."""
         attach = self.config.attach
-        argv = [sys.executable, "-m", "bench", "host" if attach else "run"]
-        data = self._option("data", data)
-        if data is None and attach:   # `bench host` needs its data named; `bench run` generates the default
+        command = HOST if attach else RUN
+        chosen = {k: v for k, v in self.config.defaults.items() if k in OPTION}
+        chosen |= {k: v for k, v in options.items() if v is not None}
+        if faults:
+            chosen["faults"] = faults
+        if tolerate_faults:
+            chosen["tolerate_faults"] = True
+        if chosen.get("data") is None and attach:   # `bench host` needs its data named; `bench run` generates it
             from bench.drive.generate import ensure_default_datasets
 
-            data = ensure_default_datasets(Path("out/data"))[40]
-        for flag, value in (("--data", data), ("--model", self._option("model", model)),
-                            ("--rows", self._option("rows", rows)), ("--mode", self._option("mode", mode)),
-                            ("--criteria", self._option("criteria", criteria)),
-                            ("--baseline", self._option("baseline", baseline)),
-                            ("--reply-timeout", self.config.defaults.get("reply_timeout"))):
-            if value is not None:
-                argv += [flag, str(value)]
-        if faults:
-            spec = faults if isinstance(faults, str) else ",".join(f"{k}={v!r}" for k, v in faults.items())
-            argv += ["--faults", spec]
-        if tolerate_faults:
-            argv.append("--tolerate-faults")
-        if attach:
-            argv += ["--connect-timeout", str(self.config.defaults.get("connect_timeout", ATTACHED_CONNECT_TIMEOUT_S))]
+            chosen["data"] = ensure_default_datasets(Path("out/data"))[40]
+        if attach:   # an attached target may still be starting
+            chosen.setdefault("connect_timeout", ATTACHED_CONNECT_TIMEOUT_S)
         else:
-            argv += ["--engine", self.config.engine]
-            argv += ["--report", str(run_dir / "report")] if report else ["--no-report"]
-        argv += ["--log", str(run_dir / "bench.blf"), "--junit-xml", str(run_dir / "junit.xml"), "--json",
-                 "--quiet", *self.config.bus_argv()]
+            chosen["engine"] = self.config.engine
+        chosen |= {"log": run_dir / "bench.blf", "junit_xml": run_dir / "junit.xml", "no_report": not report}
+        if report:
+            chosen["report"] = run_dir / "report"
+        request = RunRequest.from_mapping(chosen, "thermal_bench.run")
+        argv = [sys.executable, "-m", "bench", command, *request.to_argv(command), "--json", "--quiet",
+                *self.config.bus_argv()]
         if not attach and self.config.interface is None:
             argv += ["-i", "udp_multicast"]   # a run-unique port: parallel tests never meet
         return argv
 
     def run(self, data: str | Path | None = None, model: str | Path | None = None, rows: int | None = None,
-            faults: str | dict[str, float] | None = None, *, mode: str | None = None,
-            criteria: str | Path | None = None, baseline: str | Path | None = None, tolerate_faults: bool = False,
-            report: bool = False, timeout: float | None = None) -> BenchRun:
+            faults: str | dict[str, float] | None = None, *, tolerate_faults: bool = False, report: bool = False,
+            timeout: float | None = None, **options: Any) -> BenchRun:
         """Run the bench once (`bench run` on a started target, `bench host` on an attached one) and return its
-        typed results; BenchRunError (the bench's sentence) for a run it refused or could not make."""
+        typed results; `options`: any other run option (`bench.run.request`: mode, criteria, baseline, isr_rate,
+        reply_timeout, ...). BenchRunError (the bench's sentence) for a run it refused or could not make."""
         run_dir = self.out_dir / f"run{len(self.runs) + 1}"
         run_dir.mkdir(parents=True, exist_ok=True)
-        argv = self.argv(data=data, model=model, rows=rows, faults=faults, mode=mode, criteria=criteria,
-                         baseline=baseline, tolerate_faults=tolerate_faults, report=report, run_dir=run_dir)
+        argv = self.argv(data=data, model=model, rows=rows, faults=faults, tolerate_faults=tolerate_faults,
+                         report=report, run_dir=run_dir, **options)
         limit = timeout or float(self.config.defaults.get("timeout", DEFAULT_TIMEOUT_S))
         with _bus_turn(self.config):
             try:

@@ -135,7 +135,7 @@ def test_no_import_cycles(graph):
 
 
 def _subpackages(graph: dict[str, dict[str, int]]) -> dict[str, dict[str, int]]:
-    """The graph between bench's parts (bench.drive, bench.analysis, ..., bench.runner): module -> its part."""
+    """The graph between bench's parts (bench.drive, bench.analysis, ..., bench.run.execute): module -> its part."""
     def part(module: str) -> str:
         return ".".join(module.split(".")[:2])
 

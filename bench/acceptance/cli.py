@@ -13,22 +13,12 @@ from bench.acceptance.criteria import Gate, load_gate
 from bench.acceptance.junit import CleanCase, write_junit
 from bench.analysis.results import Acceptance
 from bench.fileio import check_writable
+from bench.run.request import RUN, add_options
 
 
 def add_acceptance_arguments(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("acceptance (a CI's pass/fail rule, beside 'clean')")
-    group.add_argument("--criteria", type=Path, default=None, metavar="FILE",
-                       help="TOML file of named acceptance criteria ([criteria.NAME] tables: kind rmse, max_error, "
-                            "cycles, deadline_misses, missing_replies, heartbeat_losses, bus_load or regression, "
-                            "and a limit); each check's figure, limit and verdict go into the JSON and the report; "
-                            "exit status 1 when any fails, 2 for a bad file (before any work)")
-    group.add_argument("--baseline", type=Path, default=None, metavar="FILE",
-                       help="a stored summary (the --json of bench run, host or analyze, or a report's "
-                            "metrics.json) for the regression criterion; without one in --criteria it adds "
-                            "\"no node's RMSE more than 5 %% worse\"")
-    group.add_argument("--junit-xml", type=Path, default=None, metavar="FILE",
-                       help="write a JUnit XML report: one testcase for 'clean' and one per criterion, figure and "
-                            "limit in properties and the failure message, the log and report attached")
+    """--criteria, --baseline, --junit-xml, as `bench run` has them (`bench.run.request`)."""
+    add_options(parser, RUN, ("criteria", "baseline", "junit_xml"))
 
 
 @dataclass(frozen=True)

@@ -14,14 +14,16 @@
     fault_seed = [1, 2]
     faults = ["drop=0.01,corrupt=0.001"]
 
-Options (the `bench run` options of the same name, `-` or `_`): `model` (a packaged kind, hammerstein, lti-lptn or
-pv-lptn, or an artifact path), `engine` (python, firmware), `data` (20, 40 or 60: the generated dataset of that
+Options: every `bench run` option a user sets (`bench.run.request.RUN_OPTIONS`, the same name with `_` for
+`-`, the same checks): `model` (a packaged kind, hammerstein, lti-lptn or pv-lptn, or an artifact path), `engine`
+(python, firmware), `isr_rate` (Hz, with the firmware engine), `data` (20, 40 or 60: the generated dataset of that
 coolant set point; or a CSV path), `mapping` (path), `sample_period` (seconds or "auto"), `seed` (of the generated
 datasets), `mode` (lockstep, realtime), `speed`, `rows` (a number or "all"), `reply_timeout`, `faults` (as
 `--faults`: "drop=0.01,kill=1", or a table {drop = 0.01, kill = 1}; "" for none), `fault_seed`, `tolerate_faults`,
-`tolerate_gaps`, `report` (false: no per-run report), `criteria` (a criteria TOML file, `bench run --criteria`: each
-run judged by it, its JUnit XML beside its log as junit.xml) and `baseline` (a stored summary, `--baseline`). Paths
-are relative to the spec file.
+`tolerate_gaps`, `criteria` (a criteria TOML file, `bench run --criteria`: each run judged by it, its JUnit XML
+beside its log as junit.xml) and `baseline` (a stored summary, `--baseline`); and the campaign's own `report`
+(false: no per-run report). Each run's log, report and JUnit XML go into its own directory. Paths are relative to
+the spec file.
 
 Every problem is one sentence naming the file and the key (`BenchError`), found before anything is written.
 """
@@ -31,17 +33,18 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-import math
 import re
 import tomllib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 from bench.errors import BenchError, UsageError
+from bench.run.request import OPTION, RUN, SETTABLE, RunRequest
+from bench.run.values import flag, number
 from bench.tomlspec import read_spec, spec_tables
-from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from target_sim.kinds import MODEL_KINDS as model_kind_table
 
 MODEL_KINDS = model_kind_table.names()
@@ -56,34 +59,6 @@ class SpecError(BenchError):
 
 
 # ---------------------------------------------------------------- option values
-
-
-def _number(value: Any, positive: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError("must be a number")
-    if positive and value <= 0:
-        raise ValueError("must be a positive number")
-    return float(value)
-
-
-def _whole(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError("must be a whole number")
-    return value
-
-
-def _flag(value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ValueError("must be true or false")
-    return value
-
-
-def _choice(*choices: str) -> Callable[[Any], str]:
-    def check(value: Any) -> str:
-        if value not in choices:
-            raise ValueError(f"must be one of {', '.join(choices)}")
-        return value
-    return check
 
 
 def _model(value: Any) -> str:
@@ -106,69 +81,35 @@ def _data(value: Any) -> int | str:
     raise ValueError("must be a coolant set point of the generated datasets (20, 40, 60) or a CSV path")
 
 
-def _path(value: Any) -> str:
-    if not isinstance(value, str) or not value.strip():
-        raise ValueError("must be a file path")
-    return value
-
-
-def _rows(value: Any) -> int | None:
-    if value == "all":
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise ValueError('must be a positive whole number of rows or "all"')
-    return value
-
-
-def _sample_period(value: Any) -> float | str:
-    return "auto" if value == "auto" else _number(value)
-
-
-def _faults(value: Any) -> str:
-    """The fault spec as `--faults` takes it ('' for none); a TOML table becomes 'kind=value,...'."""
-    if value is False or value in ("", "none"):
-        return ""
-    if isinstance(value, dict):
-        parts = []
-        for kind, number in value.items():
-            if isinstance(number, bool) or not isinstance(number, int | float):
-                raise ValueError(f"{kind} = {number!r} must be a number (a probability, or a count for kill/freeze)")
-            parts.append(f"{kind}={number!r}")
-        value = ",".join(parts)
-    if not isinstance(value, str):
-        raise ValueError('must be a fault spec such as "drop=0.01,kill=1", a table {drop = 0.01}, or "" for none')
-    from host.faults.spec import parse_faults
-
-    parse_faults([value])   # FaultSpecError is a ValueError: `_check` names the option
-    return ",".join(p.strip() for p in value.split(",") if p.strip())
-
-
 @dataclass(frozen=True)
 class Option:
     check: Callable[[Any], Any]
     default: Any
-    flag: str | None           # the `bench run` option (None: handled by `Run.argv`)
+    new: bool = False   # a key added after run ids existed: left out of the id at its default (`run_id`)
 
 
-OPTIONS: dict[str, Option] = {
-    "model": Option(_model, "hammerstein", None),
-    "engine": Option(_choice("python", "firmware"), "python", "--engine"),
-    "data": Option(_data, 40, None),
-    "mapping": Option(_path, None, None),
-    "sample_period": Option(_sample_period, "auto", "--sample-period"),
-    "seed": Option(_whole, None, None),
-    "mode": Option(_choice("lockstep", "realtime"), "lockstep", "--mode"),
-    "speed": Option(_number, 1.0, "--speed"),
-    "rows": Option(_rows, None, "--rows"),
-    "reply_timeout": Option(_number, DEFAULT_REPLY_TIMEOUT_S, "--reply-timeout"),
-    "faults": Option(_faults, "", None),
-    "fault_seed": Option(_whole, 0, "--fault-seed"),
-    "tolerate_faults": Option(_flag, False, "--tolerate-faults"),
-    "tolerate_gaps": Option(_flag, False, "--tolerate-gaps"),
-    "report": Option(_flag, True, None),
-    "criteria": Option(_path, None, None),
-    "baseline": Option(_path, None, None),
+# The campaign's own spelling of two run options (a packaged model kind, a generated dataset's set point), and its
+# own `report` (false: no per-run report; where it goes is the campaign's, as the log's).
+CAMPAIGN_FORMS: dict[str, Option] = {
+    "model": Option(_model, "hammerstein"),
+    "data": Option(_data, 40),
+    "report": Option(flag, True),
 }
+# the keys run ids were made of before the options came from the run request (`bench.run.request`)
+ID_KEYS = ("model", "engine", "data", "mapping", "sample_period", "seed", "mode", "speed", "rows", "reply_timeout",
+           "faults", "fault_seed", "tolerate_faults", "tolerate_gaps", "report", "criteria", "baseline")
+
+
+def _options() -> dict[str, Option]:
+    """Every run option a campaign's user sets (`bench.run.request.SETTABLE`, the same names and checks), the
+    campaign's own forms of model and data, and `report`."""
+    out = {key: CAMPAIGN_FORMS.get(key) or Option(OPTION[key].check, OPTION[key].default, key not in ID_KEYS)
+           for key in SETTABLE if RUN in OPTION[key].commands}
+    out["report"] = CAMPAIGN_FORMS["report"]
+    return out
+
+
+OPTIONS: dict[str, Option] = _options()
 
 
 def option_name(key: str) -> str:
@@ -203,27 +144,23 @@ class Run:
             return default_artifact_path(value).resolve()
         return self.path_of("model")
 
-    def argv(self, run_dir: Path, data: Path) -> list[str]:
-        """`bench run` arguments (after `run`): absolute paths, its log and report in `run_dir`, JSON on stdout, on
-        udp_multicast with no channel, so the run gets a port of its own."""
+    def request(self, run_dir: Path, data: Path) -> RunRequest:
+        """The run request of this run: absolute paths, its log, report and JUnit XML in `run_dir`."""
         o = self.options
-        args = ["--model", str(self.model_path()), "--data", str(data)]
-        if o["mapping"] is not None:
-            args += ["--mapping", str(self.path_of("mapping"))]
-        for key, opt in OPTIONS.items():
-            value = o[key]
-            if opt.flag is None or value is None or value is False:
-                continue
-            args += [opt.flag] if value is True else [opt.flag, repr(value) if isinstance(value, float) else str(value)]
-        if o["faults"]:
-            args += ["--faults", o["faults"]]
-        for key in ("criteria", "baseline"):   # acceptance criteria (bench.acceptance), the run's JUnit XML
-            if o[key] is not None:
-                args += [f"--{key}", str(self.path_of(key))]
-        if o["criteria"] is not None or o["baseline"] is not None:
-            args += ["--junit-xml", str(run_dir / "junit.xml")]
-        args += ["--log", str(run_dir / "bench.blf")]
-        args += ["--no-report"] if not o["report"] else ["--report", str(run_dir / "report")]
+        paths = {key: self.path_of(key) for key in ("mapping", "criteria", "baseline")}
+        judged = o["criteria"] is not None or o["baseline"] is not None
+        chosen = {k: v for k, v in o.items() if k in SETTABLE} | paths | {
+            "model": self.model_path(), "data": data, "log": run_dir / "bench.blf", "report": run_dir / "report",
+            "no_report": not o["report"], "junit_xml": run_dir / "junit.xml" if judged else None}
+        return RunRequest(**chosen)
+
+    def argv(self, run_dir: Path, data: Path) -> list[str]:
+        """`bench run` arguments (after `run`): the request's, JSON on stdout, on udp_multicast with no channel, so
+        the run gets a port of its own."""
+        request = self.request(run_dir, data)
+        args = request.to_argv(RUN)
+        if request.no_report:   # its default report directory would be out/run/report, not the run's
+            args = [a for a in args if a != "--report" and a != str(request.report)]
         return [*args, "--json", "--quiet", "-i", "udp_multicast"]
 
     def label(self) -> str:
@@ -245,7 +182,8 @@ class Campaign:
 def run_id(axes: dict[str, Any], options: dict[str, Any]) -> str:
     """A slug of the axis values and a hash of every option: the same run has the same id in any spec, so
     `--resume` recognizes it; a changed option (fixed or not) makes another run."""
-    digest = hashlib.sha256(json.dumps(options, sort_keys=True).encode()).hexdigest()[:10]
+    hashed = {k: v for k, v in options.items() if not (OPTIONS[k].new and v == OPTIONS[k].default)}
+    digest = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()[:10]
     parts = []
     for name, value in axes.items():
         if isinstance(value, str):
@@ -294,7 +232,7 @@ def parse_spec(text: str, path: Path, overrides: Iterable[str] = ()) -> Campaign
     if not isinstance(name, str) or not isinstance(description, str):
         raise SpecError(f"{path}: [campaign] name and description must be strings")
     try:
-        timeout_s = _number(head.get("timeout", DEFAULT_TIMEOUT_S))
+        timeout_s = number(head.get("timeout", DEFAULT_TIMEOUT_S))
     except ValueError as exc:
         raise SpecError(f"{path}: [campaign] timeout: {exc} of seconds") from None
 
@@ -372,6 +310,13 @@ def _check_runs(campaign: Campaign) -> None:
             refusal = firmware_refusal(load_artifact(model))
             if refusal is not None:
                 raise SpecError(f"{where}: run {run.label()}: {refusal}")
+        if o["isr_rate"]:   # the same refusal as `bench run`'s, before any run
+            from bench.run.prepare import refuse_isr_rate
+
+            try:
+                refuse_isr_rate(SimpleNamespace(isr_rate=o["isr_rate"], engine=o["engine"]))
+            except UsageError as exc:
+                raise SpecError(f"{where}: run {run.label()}: {exc}") from None
         if o["faults"] and o["mode"] != "lockstep" and re.search(r"(^|,)\s*(kill|freeze)", o["faults"]):
             raise SpecError(f"{where}: run {run.label()} has kill or freeze faults in {o['mode']} mode; they need "
                             "lockstep (a lost target's rows cannot be sent again on a real-time clock)")

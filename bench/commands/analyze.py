@@ -43,7 +43,7 @@ from bench.commands.common import (
     print_summary,
 )
 from bench.errors import BenchError, UsageError
-from bench.run_inputs import data_mismatch, load_data, load_model, matching_dataset
+from bench.run.inputs import data_mismatch, load_data, load_model, matching_dataset
 
 
 def add_subparser(subparsers) -> None:

@@ -18,42 +18,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.errors import UsageError
+from bench.run.request import RUN, add_options
+from bench.run.values import non_negative_int, positive_float, positive_int  # noqa: F401 - the commands import them from here
 from dbc.database import contract
 from dbc.files import same_file
 from dbc.transport import BusConfig, config_from_args, logger_command, resolve
-
-
-def positive_float(text: str) -> float:
-    """An argparse type: a positive, finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise UsageError(f"{text!r} is not a number") from None
-    if not value > 0 or value != value or value == float("inf"):
-        raise UsageError(f"{text!r} must be a positive number")
-    return value
-
-
-def positive_int(text: str) -> int:
-    """An argparse type: a positive whole number."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise UsageError(f"{text!r} is not a whole number") from None
-    if value <= 0:
-        raise UsageError(f"{text!r} must be a positive whole number")
-    return value
-
-
-def non_negative_int(text: str) -> int:
-    """An argparse type: a whole number, 0 or more."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise UsageError(f"{text!r} is not a whole number") from None
-    if value < 0:
-        raise UsageError(f"{text!r} must be a whole number, 0 or more")
-    return value
 
 
 def bus_from_args(args: argparse.Namespace) -> BusConfig:
@@ -69,11 +38,7 @@ def bus_from_args(args: argparse.Namespace) -> BusConfig:
 
 def add_listener_argument(parser: argparse.ArgumentParser) -> None:
     """--wait-for-listener SECONDS: the logger line first, then a pause before anything is sent on the bus."""
-    parser.add_argument("--wait-for-listener", type=positive_float, default=None, metavar="SECONDS",
-                        help="print the 'python -m can.logger ...' line first (with --quiet too), then wait SECONDS "
-                             "before anything is sent on the bus (a target is started, the host sends): the run's udp "
-                             "port exists only for this run, so a logger started from that line during the wait "
-                             "records all of it (or fix the bus beforehand: -c GROUP --bus-kwargs port=N)")
+    add_options(parser, RUN, ("wait_for_listener",))
 
 
 def announce_logger(bus: BusConfig, quiet: bool, prefix: str = "bench: ", wait_s: float | None = None) -> None:

@@ -5,18 +5,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from bench.errors import UsageError
 from bench.fileio import check_writable  # noqa: F401 - the commands import it from here
-from dbc.files import NAME_MAX
-
-if TYPE_CHECKING:
-    from host.faults import FaultSpec
+from bench.run.inputs import data_options  # noqa: F401 - the commands import it from here
+from bench.run.request import OPTION, RUN, add_options
+from bench.run.values import sample_period  # noqa: F401 - the commands import it from here
 
 
 def float_list(text: str) -> list[float]:
@@ -47,12 +44,10 @@ def add_output_flags(parser) -> None:
 
 
 def add_engine_argument(parser, default: str = "python") -> None:
-    from target_sim.engines import ENGINES
-
-    parser.add_argument("--engine", choices=ENGINES, default=default,
-                        help="what the target runs: the reference node in Python, or the node and model compiled "
-                             "for a Cortex-M4F in the emulated core, with measured cycles (the packaged artifacts "
-                             f"ship their firmware; another artifact needs the compiler) (default {default})")
+    """--engine as `bench run` has it (`bench.run.request`), with this command's default."""
+    option = OPTION["engine"]
+    parser.add_argument(option.flag, dest=option.key, **{**option.argparse_kwargs(RUN), "default": default,
+                                                         "help": option.help_for(RUN, default)})
 
 
 def finite_or_none(value):
@@ -73,21 +68,6 @@ def print_json(obj) -> None:
 
 # the order a summary line shows the nodes in: the hot spots a model is deployed for first
 SHOWN_NODES = ("winding", "magnet", "yoke", "tooth")
-
-
-def check_log_names(log_path: Path, faults: FaultSpec | None) -> None:
-    """UsageError, before anything runs, when a file written beside the log would need a name longer than NAME_MAX:
-    with faults, the summary `<log>.faults.json`, written through a temporary `.<log>.faults.json.XXXXXXXX`."""
-    if faults is None or not faults.active:
-        return
-    from host.faults import sidecar_path
-
-    sidecar = sidecar_path(log_path).name
-    length = len(os.fsencode(sidecar)) + 10
-    if length > NAME_MAX:
-        raise UsageError(f"--log {log_path}: the fault summary beside it, {sidecar}, would need a file name of "
-                         f"{length} bytes (its temporary name), more than the {NAME_MAX} a name may have; shorten the "
-                         f"log's name by {length - NAME_MAX} characters")
 
 
 def fmt(value, digits: int = 3) -> str:
@@ -165,49 +145,8 @@ def print_summary(m: RunResults, problems: list[str], faults: HostFaults | Fault
 
 if TYPE_CHECKING:  # the CLI imports every subcommand at start: the loader only when a command runs
     from bench.analysis.results import FaultResults, HostFaults, RunResults
-    from bench.drive.dataset import ColumnMapping
-
-
-def sample_period(text: str) -> float | None:
-    """'--sample-period' value: a positive number of seconds, or 'auto' (None: inferred from the time column)."""
-    if str(text).strip().lower() == "auto":
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise UsageError(f"--sample-period {text!r} is neither a number of seconds nor 'auto'; "
-                         "e.g. --sample-period 1") from None
-    if not math.isfinite(value) or value <= 0:
-        raise UsageError(f"--sample-period {text!r} must be a positive number of seconds (or 'auto')")
-    return value
 
 
 def add_data_arguments(parser) -> None:
     """--mapping FILE and --sample-period S|auto, how a user's own data files are read (see bench.drive.mapping)."""
-    parser.add_argument("--mapping", type=Path, default=None, metavar="FILE",
-                        help="JSON or TOML mapping of your data files onto the bench's columns: names, units, "
-                             "derived columns (mean of several sensors), time column or none, separator and "
-                             "decimal mark")
-    parser.add_argument("--sample-period", type=sample_period, default="auto", metavar="S|auto",
-                        help="the data's sample period in seconds, or 'auto': the mapping's, else inferred from the "
-                             "time column (a file without one needs it given) (default auto)")
-
-
-def data_options(args) -> tuple[ColumnMapping | None, float | None]:
-    """(ColumnMapping or None, sample period in s or None for auto) from add_data_arguments' options; a period
-    given on the command line replaces the mapping's, with 'auto' the mapping's period (if any) is used."""
-    from dataclasses import replace
-
-    from bench.drive.mapping import load_mapping
-
-    period = getattr(args, "sample_period", None)
-    if isinstance(period, str):
-        period = sample_period(period)
-    path = getattr(args, "mapping", None)
-    mapping = load_mapping(path) if path is not None else None
-    if mapping is not None:
-        if period is None:
-            period = mapping.sample_period_s
-        else:
-            mapping = replace(mapping, sample_period_s=period)
-    return mapping, period
+    add_options(parser, RUN, ("mapping", "sample_period"))

@@ -32,7 +32,7 @@ from bench.commands.common import add_engine_argument, add_output_flags, check_w
 from bench.errors import UsageError
 from bench.fileio import write_text_atomically
 from bench.progress import ProgressBar
-from bench.run_inputs import load_data, load_model, refuse_over_can
+from bench.run.inputs import load_data, load_model, refuse_over_can
 from dbc.transport import add_bus_arguments
 from target_sim.artifact import ModelArtifact, dumps
 from target_sim.kinds import MODEL_KINDS
@@ -101,11 +101,11 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
                    quiet: bool = True, engine: str = "firmware") -> list[dict]:
     """Run each artifact through the bench; one table row per artifact (plug identified artifacts in here)."""
     from bench.analysis.report import analyze_log
-    from bench.leftovers import clear_and_say
     from bench.model.artifact_eval import artifact_drive
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import firmware_for_engine, measurements_for
-    from bench.runner import run_with_target
+    from bench.run.execute import run_with_target
+    from bench.run.inputs import firmware_for_engine, measurements_for
+    from bench.run.leftovers import clear_and_say
 
     # every ELF first (built where not packaged): a missing compiler stops the comparison before any run
     loaded = [load_model(path) for path in model_paths]

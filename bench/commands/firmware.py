@@ -130,7 +130,7 @@ ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check, "tim
 
 def _load(model: Path | None):
     from bench.model.default import default_artifact_path
-    from bench.run_inputs import refuse_engine
+    from bench.run.inputs import refuse_engine
     from target_sim.artifact import load_artifact
 
     path = model or default_artifact_path()
@@ -229,11 +229,11 @@ def run_build(args: argparse.Namespace) -> int:
 
 def run_check(args: argparse.Namespace) -> int:
     from bench.commands.common import data_options
+    from bench.fileio import scratch_dir
     from bench.firmware.check import check_firmware
     from bench.firmware.images import firmware_for
-    from bench.leftovers import scratch_dir
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import check_measurement_data, drive_for, load_data, measurements_for
+    from bench.run.inputs import check_measurement_data, drive_for, load_data, measurements_for
     from target_sim.observer_node import raw_channels, raw_sources
 
     path, artifact = _load(args.model)
@@ -285,7 +285,7 @@ def run_timing(args: argparse.Namespace) -> int:
     from bench.firmware.images import firmware_for
     from bench.firmware.timing import CLOCKS_MHZ, static_bounds, timing_report
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import drive_for, load_data
+    from bench.run.inputs import drive_for, load_data
     from target_sim.firmware import read_elf
     from target_sim.firmware.motor_control import isr_rate_problem
 

@@ -40,24 +40,19 @@ import sys
 import time
 from pathlib import Path
 
-from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
+from bench.acceptance.cli import finish, prepare
 from bench.acceptance.junit import CleanCase
-from bench.analysis.results import DataIdentity
-from bench.commands.args import add_listener_argument, announce_logger, declare_files, positive_float, positive_int
+from bench.commands.args import announce_logger, declare_files
 from bench.commands.common import (
     SHOWN_NODES,
-    add_data_arguments,
     add_output_flags,
-    check_log_names,
-    check_writable,
-    data_options,
     fmt,
     print_json,
 )
 from bench.errors import BenchError, UsageError
-from bench.leftovers import clear_and_say
-from bench.run_inputs import drive_for, load_data, load_model, measurements_for, refuse_over_can
-from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
+from bench.run.leftovers import clear_and_say
+from bench.run.prepare import prepare_run
+from bench.run.request import HOST, RunRequest, add_options
 from dbc.database import host_frame_ids
 from dbc.transport import (
     SenderGuard,
@@ -66,35 +61,16 @@ from dbc.transport import (
     first_heard,
     resolve,
 )
-from host.canlog import check_log_path
-from host.faults import FaultSpecError, add_fault_arguments, fault_note, spec_from_args
-from host.run import MODES, run_dataset
-from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
+from host.faults import FaultSpecError, fault_note, spec_from_args
+from host.procedure import run_dataset
+from host.session import SessionError
 
 
 def add_subparser(subparsers) -> None:
     p = subparsers.add_parser("host", help="the host node alone, against a target already on the bus",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", type=Path, required=True, help="dataset CSV (bench.drive schema, or --mapping)")
-    add_data_arguments(p)
-    p.add_argument("--model", type=Path, default=None,
-                   help="artifact the target must run (default: the packaged one)")
-    p.add_argument("--mode", choices=MODES, default="lockstep")
-    p.add_argument("--speed", type=positive_float, default=1.0, help="realtime speed factor (default 1)")
-    p.add_argument("--rows", type=positive_int, default=None, help="replay only the first N rows")
-    p.add_argument("--log", type=Path, default=Path("out/host/host.blf"),
-                   help="bus log, format by suffix .blf .asc .log .csv .mf4 (default out/host/host.blf)")
-    p.add_argument("--reply-timeout", type=positive_float, default=DEFAULT_REPLY_TIMEOUT_S,
-                   help=f"seconds per reply (default {DEFAULT_REPLY_TIMEOUT_S:g})")
-    p.add_argument("--connect-timeout", type=positive_float, default=DEFAULT_CONNECT_TIMEOUT_S,
-                   help=f"seconds to wait for the target's heartbeat (default {DEFAULT_CONNECT_TIMEOUT_S:g})")
-    p.add_argument("--tolerate-gaps", action="store_true", help="exit 0 despite missing replies (still reported)")
-    add_fault_arguments(p, process_faults=False)
-    p.add_argument("--target-events", type=Path, default=None, metavar="FILE",
-                   help="the target's detection journal (its --events file), to check that faults were detected")
+    add_options(p, HOST)   # the options of a run that apply to an attached target (`bench.run.request`)
     add_output_flags(p)
-    add_acceptance_arguments(p)
-    add_listener_argument(p)
     add_bus_arguments(p)
     declare_files(p, inputs=('--data', '--model', '--target-events'), outputs=('--log',))
     p.set_defaults(func=run_host)
@@ -112,25 +88,17 @@ def _faults(args: argparse.Namespace):
 
 
 def run_host(args: argparse.Namespace) -> int:
+    request = RunRequest.from_args(args)   # the run as the command line describes it (`bench.run.request`)
     faults = _faults(args)
     acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work
     config = resolve(config_from_args(args))
     if config.interface == "virtual":  # python-can's virtual bus lives in one process: no target could answer
         raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
                          "use udp_multicast, socketcan or auto")
-    log_path = check_log_path(args.log)   # the arguments' refusals before any work
-    check_writable(log_path, "--log")   # a directory there would fail the run only at its end
-    check_log_names(log_path, faults)
-    artifact, _ = load_model(args.model)
-    refuse_over_can(artifact)   # an observer whose readings no frame carries: before any work
-    mapping, period = data_options(args)
-    dataset = load_data(args.data, artifact, mapping=mapping, sample_period_s=period)
-    drive = drive_for(dataset, artifact)     # with the currents for an electrical loss model; refused without
-    measurements = measurements_for(dataset, artifact)   # a model with an observer: its measurement, else None
-    if args.rows is not None:
-        drive = drive[: args.rows]
-        measurements = None if measurements is None else measurements[: args.rows]
-    acceptor.check_data(DataIdentity(len(drive), dataset.rows_sha256(len(drive))), f"this run of {dataset.path}")
+    # the arguments' refusals before any work (`bench.run.prepare`); the dataset is read quietly, as always here
+    prepared = prepare_run(request, HOST, faults, acceptor.check_data, quiet=True)
+    log_path, artifact, dataset = prepared.log_path, prepared.artifact, prepared.dataset
+    drive, measurements = prepared.drive, prepared.measurements
     from bench.model.runs import initial_temperatures
 
     clear_and_say(log_path, args.quiet or args.json)   # what a killed host left beside this log
@@ -142,15 +110,15 @@ def run_host(args: argparse.Namespace) -> int:
                                f"0x{other.arbitration_id:03x}); stop it or pick another channel")
         bus = SenderGuard(bus, config, host_frame_ids(), "host")   # and one that starts later stops this run
         if not (args.quiet or args.json):
-            print(f"bench: host: {len(drive)} rows of {dataset.path} ({args.mode}) over {config.describe()}"
+            print(f"bench: host: {len(drive)} rows of {dataset.path} ({request.mode}) over {config.describe()}"
                   + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
-        announce_logger(config, args.quiet, "bench: host: ", wait_s=args.wait_for_listener)
+        announce_logger(config, args.quiet, "bench: host: ", wait_s=request.wait_for_listener)
         started = time.time()
         result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
-                             mode=args.mode, speed=args.speed, sample_period_s=dataset.sample_period_s,
-                             log_path=log_path, reply_timeout_s=args.reply_timeout,
-                             connect_timeout_s=args.connect_timeout, faults=faults,
-                             target_events=args.target_events, events_since=started, measurements=measurements)
+                             mode=request.mode, speed=request.speed, sample_period_s=dataset.sample_period_s,
+                             log_path=log_path, reply_timeout_s=request.reply_timeout,
+                             connect_timeout_s=request.connect_timeout, faults=faults,
+                             target_events=request.target_events, events_since=started, measurements=measurements)
     except FaultSpecError as exc:   # kept for its exit status: a plan the host refuses here (faults in real time at
         raise BenchError(str(exc)) from None   # too short a sample interval) exits 1, a bad --fault option 2
     finally:
@@ -164,7 +132,7 @@ def run_host(args: argparse.Namespace) -> int:
     if metrics is not None:
         metrics.acceptance = acceptance
     outcome = verdict(result.problems() + found, fault_note(result.faults), faulted=result.faults is not None,
-                      tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
+                      tolerate_faults=request.tolerate_faults, tolerate_gaps=request.tolerate_gaps)
     problems = outcome.problems
     injected = result.faults["injected_total"] if result.faults else 0
     clean = not problems and not injected

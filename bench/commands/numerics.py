@@ -100,7 +100,7 @@ def run_budget(args: argparse.Namespace) -> int:
     from bench.model.budget import error_budget
     from bench.model.default import default_artifact_path
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import load_data, load_model
+    from bench.run.inputs import load_data, load_model
 
     artifact, model_path = load_model(args.model or default_artifact_path())
     if not MODEL_KINDS[artifact.kind].linear_block:
@@ -135,7 +135,7 @@ def run_observer(args: argparse.Namespace) -> int:
     from bench.model.default import default_artifact_path
     from bench.model.observer import measured_nodes_of
     from bench.model.observer_eval import form_comparison
-    from bench.run_inputs import load_data, load_model
+    from bench.run.inputs import load_data, load_model
     from target_sim.observer import has_observer
 
     artifact, model_path = load_model(args.model or default_artifact_path())

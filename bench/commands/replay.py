@@ -58,10 +58,10 @@ from bench.commands.args import (
 )
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
-from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
-from bench.run_inputs import firmware_for_engine, load_model
-from bench.runner import replay_with_target
+from bench.run.execute import replay_with_target
+from bench.run.inputs import firmware_for_engine, load_model
+from bench.run.leftovers import clear_and_say
 from dbc import FrameError, frame_id
 from dbc.codec import decode_any
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
@@ -168,7 +168,7 @@ def replay_figures(record: BusRecord, artifact) -> tuple[RunResults | None, str]
     """The figures of the replay's log as `bench analyze` makes them (against a dataset in out/data whose rows
     match, else the float64 model), for the acceptance criteria; (None, why) when it cannot be compared."""
     from bench.analysis.canmetrics import compute
-    from bench.run_inputs import matching_dataset
+    from bench.run.inputs import matching_dataset
 
     try:
         return compute(record, artifact, matching_dataset(record.drive, artifact))[0], ""

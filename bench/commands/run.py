@@ -64,90 +64,42 @@ import sys
 import time
 from pathlib import Path
 
-from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
+from bench.acceptance.cli import finish, prepare
 from bench.acceptance.junit import CleanCase
-from bench.analysis.results import BusInfo, DataIdentity, HostFaults, NodeCycles, RunResults, RunSummary
+from bench.analysis.results import BusInfo, HostFaults, NodeCycles, RunResults, RunSummary
 from bench.commands.args import (
-    add_listener_argument,
     announce_logger,
     bus_from_args,
     declare_files,
-    non_negative_int,
-    positive_float,
-    positive_int,
 )
 from bench.commands.common import (
-    add_data_arguments,
-    add_engine_argument,
     add_output_flags,
-    check_log_names,
-    check_writable,
-    data_options,
     print_json,
     print_summary,
 )
 from bench.errors import BenchError, UsageError
-from bench.leftovers import clear_and_say
 from bench.progress import ProgressBar
-from bench.run_inputs import (
-    drive_for,
+from bench.run.execute import run_with_target
+from bench.run.inputs import (
     firmware_for_engine,
-    load_data,
-    load_model,
-    measurements_for,
-    refuse_engine,
-    refuse_over_can,
 )
-from bench.runner import run_with_target
-from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
+from bench.run.leftovers import clear_and_say
+from bench.run.prepare import prepare_run
+from bench.run.request import RUN, RunRequest, add_options
 from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments
-from host.canlog import LogError, check_log_path
-from host.faults import add_fault_arguments, fault_note, spec_from_args
-
-DEFAULT_LOG = Path("out/run/bench.blf")
-DEFAULT_REPORT = Path("out/run/report")
+from host.canlog import LogError
+from host.faults import fault_note, spec_from_args
 
 
 def add_subparser(subparsers) -> None:
     p = subparsers.add_parser("run", help="run the CAN bench: target process + host replay + log + report",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_run_arguments(p)
-    p.add_argument("--log", type=Path, default=DEFAULT_LOG, help=f"bus log to write (default {DEFAULT_LOG})")
-    p.add_argument("--report", type=Path, default=DEFAULT_REPORT,
-                   help=f"report directory (default {DEFAULT_REPORT})")
-    p.add_argument("--no-report", action="store_true", help="skip the report (metrics are still computed)")
-    add_fault_arguments(p)
+    add_options(p, RUN)   # every option of a run (`bench.run.request`)
     add_output_flags(p)
-    add_acceptance_arguments(p)
-    add_listener_argument(p)
     add_bus_arguments(p)
     declare_files(p, inputs=('--data', '--model'), outputs=('--log', '--report'), replaced=('--report',),
                   off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
-
-
-def add_run_arguments(p) -> None:
-    p.add_argument("--data", type=Path, default=None,
-                   help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
-    p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged one)")
-    p.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
-                   help="lockstep: each step waits for its reply (default); realtime: at the data rate x --speed")
-    p.add_argument("--speed", type=positive_float, default=1.0, help="realtime speed factor (default 1)")
-    p.add_argument("--rows", type=positive_int, default=None, help="replay only the first N data rows")
-    p.add_argument("--reply-timeout", type=positive_float, default=DEFAULT_REPLY_TIMEOUT_S,
-                   help=f"seconds to wait for a step's reply before counting it missing (default "
-                        f"{DEFAULT_REPLY_TIMEOUT_S:g})")
-    p.add_argument("--tolerate-gaps", action="store_true",
-                   help="exit 0 even with missing replies, sequence gaps or heartbeat loss (still reported); "
-                        "not for runs with injected faults (see --tolerate-faults)")
-    p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
-    add_data_arguments(p)
-    add_engine_argument(p)
-    p.add_argument("--isr-rate", type=non_negative_int, default=0, metavar="HZ",
-                   help="with --engine firmware: a field-oriented current loop's interrupt (bench/firmware/foc_isr.c) "
-                        "preempts the node at this rate on the emulated core, and each model step's response time "
-                        "and the interrupt's CPU load go out in Timing5 into the summary and the report (the image "
-                        "is built with the compiler, once; default 0: no interrupt)")
 
 
 def fault_spec(args: argparse.Namespace):
@@ -160,63 +112,35 @@ def fault_spec(args: argparse.Namespace):
     return spec
 
 
-def load_run_data(args: argparse.Namespace, artifact):
-    """The run's dataset (--data through --mapping at --sample-period), the drive rows the host sends (4 values per
-    row, 6 with the d/q currents for an electrical loss model) and, for a model with an observer, the measurements
-    (`bench.run_inputs.measurements_for`; else None): BenchError, one sentence, when the data lacks what the model
-    needs or its sample period is not the model's."""
-    if args.data is None and getattr(args, "mapping", None) is not None:
-        raise UsageError("--mapping says how to read your own data file: pass it with --data FILE")
-    mapping, period = data_options(args)
-    dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json, mapping=mapping,
-                        sample_period_s=period)
-    drive = drive_for(dataset, artifact)
-    measurements = measurements_for(dataset, artifact)
-    if args.rows is not None:
-        drive = drive[: args.rows]
-        measurements = None if measurements is None else measurements[: args.rows]
-    return dataset, drive, measurements
-
-
 def run(args: argparse.Namespace) -> int:
+    request = RunRequest.from_args(args)   # the run as the command line describes it (`bench.run.request`)
     faults = fault_spec(args)
     acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work
     # what the arguments alone refuse comes first, before any work (the default data is generated by load_data)
-    check_isr_rate(args)
-    log_path = check_log_path(args.log)
-    check_writable(log_path, "--log")   # a directory there would fail the run only at its end
-    check_log_names(log_path, faults)
-    if not args.no_report:  # a report that cannot be written must not cost a run and leave a log
-        from bench.analysis.report import check_report_dir
-
-        check_writable(Path(args.report), "--report", directory=True)
-        check_report_dir(Path(args.report))   # a directory of other files would be refused only after the run
-    artifact, model_path = load_model(args.model)
-    refuse_engine(args.engine, artifact)               # before any work: a model this engine cannot run
-    refuse_over_can(artifact)                          # an observer whose readings no frame carries
-    dataset, drive, measurements = load_run_data(args, artifact)   # before anything starts: data it cannot run on
-    acceptor.check_data(DataIdentity(len(drive), dataset.rows_sha256(len(drive))), f"this run of {dataset.path}")
+    prepared = prepare_run(request, RUN, faults, acceptor.check_data, quiet=args.quiet or args.json)
+    log_path, artifact, model_path = prepared.log_path, prepared.artifact, prepared.model_path
+    dataset, drive, measurements = prepared.dataset, prepared.drive, prepared.measurements
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
     # the firmware engine's ELF: packaged, or built once beside the log (before the run: no compiler, no run)
-    firmware = firmware_for_engine(args.engine, artifact, Path(log_path).parent / "firmware-cache", quiet=quiet,
-                                   isr=bool(args.isr_rate))
+    firmware = firmware_for_engine(request.engine, artifact, Path(log_path).parent / "firmware-cache", quiet=quiet,
+                                   isr=bool(request.isr_rate))
     from bench.model.runs import initial_temperatures
 
     if not quiet:
         injecting = f", injecting {faults.describe()}" if faults else ""
-        print(f"bench: {artifact.kind} model {artifact.model_id:08x} ({args.engine} engine) on {len(drive)} rows of "
-              f"{dataset.path} ({args.mode}) over {bus.describe()}{injecting}", file=sys.stderr)
+        print(f"bench: {artifact.kind} model {artifact.model_id:08x} ({request.engine} engine) on {len(drive)} rows of "
+              f"{dataset.path} ({request.mode}) over {bus.describe()}{injecting}", file=sys.stderr)
     # with --json too: a script's user attaches a logger the same way (--wait-for-listener: before the target starts)
     clear_and_say(log_path, quiet)   # what a killed run left beside this log and in the temporary directory
-    announce_logger(bus, args.quiet, wait_s=args.wait_for_listener)
-    bar = ProgressBar(len(drive), args.mode, quiet)
+    announce_logger(bus, args.quiet, wait_s=request.wait_for_listener)
+    bar = ProgressBar(len(drive), request.mode, quiet)
     started = time.perf_counter()
     try:
-        outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset), mode=args.mode,
-                                  speed=args.speed, sample_period_s=dataset.sample_period_s, log_path=log_path,
-                                  reply_timeout_s=args.reply_timeout, progress=bar, faults=faults,
-                                  firmware=firmware, isr_rate_hz=args.isr_rate, measurements=measurements)
+        outcome = run_with_target(model_path, artifact, bus, drive, initial_temperatures(dataset), mode=request.mode,
+                                  speed=request.speed, sample_period_s=dataset.sample_period_s, log_path=log_path,
+                                  reply_timeout_s=request.reply_timeout, progress=bar, faults=faults,
+                                  firmware=firmware, isr_rate_hz=request.isr_rate, measurements=measurements)
     finally:
         bar.close()
     host = outcome.result
@@ -224,18 +148,18 @@ def run(args: argparse.Namespace) -> int:
     from bench.analysis.verdict import verdict
 
     node_cycles = _node_cycles(outcome.target_stats)
-    run_info = {"mode": f"{args.mode}" + (f" x{args.speed:g}" if args.mode == "realtime" else ""),
-                "bus": bus.describe(), "engine": _engine_label(args.engine, firmware, args.isr_rate),
+    run_info = {"mode": f"{request.mode}" + (f" x{request.speed:g}" if request.mode == "realtime" else ""),
+                "bus": bus.describe(), "engine": _engine_label(request.engine, firmware, request.isr_rate),
                 "node_cycles": node_cycles.text() if node_cycles else None}
     try:
-        results, found = analyze_log(log_path, artifact, dataset, report_dir=None if args.no_report else
-                                     args.report, bitrate=bus.nominal_bitrate, run_info=run_info,
+        results, found = analyze_log(log_path, artifact, dataset, report_dir=None if request.no_report else
+                                     request.report, bitrate=bus.nominal_bitrate, run_info=run_info,
                                      extra_problems=host.problems(), gate=acceptor.gate)
     except (LogError, ValueError) as exc:
         raise BenchError(f"the log {log_path} cannot be analyzed ({exc})") from None
     outcome = verdict(host.problems() + found, fault_note(host.faults), faulted=host.faults is not None,
-                      tolerate_faults=args.tolerate_faults, tolerate_gaps=args.tolerate_gaps)
-    summary = run_summary(results, host, outcome.problems, time.perf_counter() - started, bus, args.engine,
+                      tolerate_faults=request.tolerate_faults, tolerate_gaps=request.tolerate_gaps)
+    summary = run_summary(results, host, outcome.problems, time.perf_counter() - started, bus, request.engine,
                           firmware, node_cycles)
     if args.json:
         print_json(summary.to_json())
@@ -248,20 +172,6 @@ def run(args: argparse.Namespace) -> int:
                   properties={"model": results.model.id, "engine": summary.engine, "bus": bus.describe(),
                               "log": results.integrity.log, "report": results.report},
                   attachments=[results.integrity.log, results.report])
-
-
-def check_isr_rate(args: argparse.Namespace) -> None:
-    """--isr-rate needs the firmware engine and a current-loop rate (UsageError, one sentence)."""
-    if not args.isr_rate:
-        return
-    if args.engine != "firmware":
-        raise UsageError(f"--isr-rate runs the motor-control interrupt in the emulated core of the firmware engine, "
-                         f"not the {args.engine} engine; add --engine firmware or drop --isr-rate")
-    from target_sim.firmware.motor_control import isr_rate_problem
-
-    problem = isr_rate_problem(args.isr_rate)
-    if problem:
-        raise UsageError(problem)
 
 
 def bus_summary(bus: BusConfig) -> BusInfo:

@@ -34,8 +34,8 @@ from importlib.resources import files
 from pathlib import Path
 
 from bench.errors import BenchError
+from bench.fileio import scratch_dir
 from bench.firmware.codegen import HEADER_NAME, SOURCE_NAME, GeneratedSource
-from bench.leftovers import scratch_dir
 from target_sim.firmware import FirmwareError, memory_from_elf
 
 COMPILER: list[str] = [sys.executable, "-m", "ziglang"]    # tests point this elsewhere to simulate a missing one

@@ -152,24 +152,9 @@ def parse_faults(items: Iterable[str], seed: int = 0) -> FaultSpec:
     return FaultSpec(rates, counts, seed)
 
 
-def add_fault_arguments(parser, *, process_faults: bool = True) -> None:
-    """--fault, --faults, --fault-seed, --tolerate-faults (parsed later by `spec_from_args`)."""
-    group = parser.add_argument_group("fault injection (kill and freeze in lockstep only)")
-    kinds = ", ".join(KINDS if process_faults else BUS_KINDS)
-    group.add_argument("--fault", action="append", default=[], metavar="KIND=VALUE",
-                       help=f"inject a fault kind: a probability per drive frame or row, or a count for "
-                            f"kill/freeze; repeatable. Kinds: {kinds}")
-    group.add_argument("--faults", action="append", default=[], metavar="K=V,K=V",
-                       help="several faults at once, e.g. drop=0.01,corrupt=0.001" + (",kill=1" if process_faults
-                                                                                      else ""))
-    group.add_argument("--fault-seed", type=int, default=0, metavar="N",
-                       help="seed of every fault choice (default 0: the same faults on every run)")
-    group.add_argument("--tolerate-faults", action="store_true",
-                       help="exit 0 after injected faults if every one was detected and nothing else went wrong")
-
-
 def spec_from_args(args) -> FaultSpec | None:
-    """The FaultSpec the options give, or None without any fault option; FaultSpecError for a bad one."""
+    """The FaultSpec the options give (--fault, --faults, --fault-seed: `bench.run.request`), or None without any
+    fault option; FaultSpecError for a bad one."""
     items = list(getattr(args, "fault", []) or []) + list(getattr(args, "faults", []) or [])
     if not items:
         return None

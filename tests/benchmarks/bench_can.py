@@ -33,7 +33,7 @@ from bench.drive.dataset import load_dataset  # noqa: E402
 from bench.drive.generate import ensure_default_datasets  # noqa: E402
 from bench.model.default import default_artifact_path  # noqa: E402
 from bench.model.runs import drive_matrix, initial_temperatures  # noqa: E402
-from bench.runner import run_with_target  # noqa: E402
+from bench.run.execute import run_with_target  # noqa: E402
 from dbc.transport import add_bus_arguments, config_from_args, resolve  # noqa: E402
 from target_sim.artifact import load_artifact  # noqa: E402
 

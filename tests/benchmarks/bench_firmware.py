@@ -115,7 +115,7 @@ def matrix_checks(drive, initial) -> list[dict]:
 
 
 def lockstep(dataset, rows: int | None, repeats: int) -> dict:
-    from bench.runner import run_with_target
+    from bench.run.execute import run_with_target
     from dbc.transport import BusConfig, resolve
 
     artifact_path = default_artifact_path()

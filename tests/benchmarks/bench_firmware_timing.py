@@ -113,7 +113,7 @@ def node_throughput(dataset, rows: int) -> dict:
 
 
 def lockstep(dataset, rows: int, repeats: int) -> dict:
-    from bench.runner import run_with_target
+    from bench.run.execute import run_with_target
     from dbc.transport import BusConfig, resolve
 
     artifact_path = default_artifact_path()

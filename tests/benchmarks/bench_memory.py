@@ -76,8 +76,8 @@ def scaled_dataset(scale: int, work: Path) -> Path:
 def child_host(data: Path, log: Path, trace: bool) -> dict:
     from bench.model.default import default_artifact_path
     from bench.model.runs import drive_matrix, initial_temperatures
-    from bench.run_inputs import load_data
-    from bench.runner import run_with_target
+    from bench.run.execute import run_with_target
+    from bench.run.inputs import load_data
     from dbc.transport import BusConfig, resolve
     from target_sim.artifact import load_artifact
 
@@ -137,7 +137,7 @@ def _warm_up(data: Path) -> None:
     from bench.analysis.canmetrics import references
     from bench.model.default import default_artifact_path
     from bench.model.runs import drive_matrix, initial_temperatures
-    from bench.run_inputs import load_data
+    from bench.run.inputs import load_data
     from target_sim.artifact import load_artifact
 
     artifact = load_artifact(default_artifact_path())

@@ -65,7 +65,7 @@ def test_drive_signals_and_heartbeat_timing():
 
 
 def test_importing_the_layers_reads_no_dbc():
-    code = ("import dbc, dbc.contract, dbc.codec, dbc.mutations, dbc.transport, target_sim.node, host.run, "
+    code = ("import dbc, dbc.contract, dbc.codec, dbc.mutations, dbc.transport, target_sim.node, host.procedure, "
             "bench.cli, bench.commands.run; from dbc.database import contract; "
             "print(contract.cache_info().currsize)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)

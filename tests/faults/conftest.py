@@ -32,7 +32,7 @@ def bench_run(dataset_path: Path, log: Path, bus: BusConfig, faults=None, *, row
     from bench.firmware.images import packaged_elf
     from bench.model.default import default_artifact_path
     from bench.model.runs import drive_matrix, initial_temperatures
-    from bench.runner import run_with_target
+    from bench.run.execute import run_with_target
     from target_sim.artifact import load_artifact
 
     dataset = load_dataset(dataset_path)

@@ -10,7 +10,7 @@ import can
 import pytest
 
 from bench.analysis.logdecode import decode_log
-from host.run import injected_ids
+from host.procedure import injected_ids
 
 from .test_cli import load_only
 from helpers import run_cli

@@ -179,7 +179,7 @@ def _dead_pid() -> int:
 
 
 def test_stale_partial_logs_of_dead_processes_go_and_live_ones_stay(tmp_path):
-    from bench.leftovers import clear_leftovers, remove_stale_partials
+    from bench.run.leftovers import clear_leftovers, remove_stale_partials
     from host.canlog import partial_name
 
     log = tmp_path / "bench.blf"
@@ -195,7 +195,7 @@ def test_stale_partial_logs_of_dead_processes_go_and_live_ones_stay(tmp_path):
 
 
 def test_stale_scratch_dirs_of_dead_processes_go_and_live_ones_stay(tmp_path):
-    from bench.leftovers import remove_stale_scratch
+    from bench.run.leftovers import remove_stale_scratch
 
     dead, alive = _dead_pid(), os.getpid()
     gone = tmp_path / f"bench-target-{dead}-abc_123"

@@ -146,7 +146,7 @@ def test_compare_stops_its_target_and_removes_the_partial_log(material, scratch,
 
 
 def _scratch_dirs(pid: int) -> list[Path]:
-    """The scratch directories (`bench.leftovers.scratch_dir`) of process `pid` in the temporary directory."""
+    """The scratch directories (`bench.fileio.scratch_dir`) of process `pid` in the temporary directory."""
     return sorted(Path(tempfile.gettempdir()).glob(f"bench-*-{pid}-*"))
 
 

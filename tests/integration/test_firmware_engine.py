@@ -110,7 +110,7 @@ def test_a_firmware_fault_ends_the_run_in_one_sentence_naming_it(tmp_path, small
     heartbeat, the host stops at once instead of waiting out the rows, and the reason names the fault."""
     from bench.drive.dataset import load_dataset
     from bench.model.runs import drive_matrix, initial_temperatures
-    from bench.runner import run_with_target
+    from bench.run.execute import run_with_target
     from target_sim.artifact import load_artifact
 
     broken = tmp_path / "broken.elf"

@@ -15,7 +15,7 @@ import pytest
 
 from bench.analysis.logdecode import decode_log
 from bench.model.default import default_artifact_path
-from bench.target_process import TargetProcess
+from bench.run.target import TargetProcess
 from dbc.transport import BusConfig, free_udp_port
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
@@ -213,7 +213,7 @@ def test_a_target_that_fails_to_start_is_reported_with_its_own_words(artifacts, 
 def test_the_host_reports_a_target_that_dies(small_dataset, udp_bus, tmp_path):
     from bench.drive.dataset import load_dataset
     from bench.model.runs import drive_matrix, initial_temperatures
-    from host.run import run_dataset
+    from host.procedure import run_dataset
 
     dataset = load_dataset(small_dataset)
     artifact = load_artifact(default_artifact_path())

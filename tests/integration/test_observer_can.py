@@ -91,8 +91,8 @@ def test_a_faulted_measurement_frame_is_detected_and_the_filter_predicts_only(ki
     from bench.analysis.canmetrics import compute
     from bench.drive.dataset import load_dataset
     from bench.model.runs import drive_matrix, initial_temperatures
-    from bench.run_inputs import measurements_for
-    from bench.runner import run_with_target
+    from bench.run.execute import run_with_target
+    from bench.run.inputs import measurements_for
     from host.faults import parse_faults
 
     dataset, artifact = load_dataset(validation_run), load_artifact(observer_artifact)

@@ -11,7 +11,7 @@ import pytest
 
 from bench.analysis.verdict import verdict
 from bench.errors import BenchError
-from bench.runner import refuse_foreign_target
+from bench.run.execute import refuse_foreign_target
 from dbc import FrameCodec, dbc_version_info
 from dbc.transport import IN_USE_LISTEN_S, UDP_IPV4_GROUP, UDP_LOCAL_GROUP, BusConfig
 

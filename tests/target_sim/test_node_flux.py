@@ -15,7 +15,7 @@ import pytest
 
 from bench.drive.dataset import load_dataset
 from bench.model.runs import drive_matrix
-from bench.run_inputs import measurements_for
+from bench.run.inputs import measurements_for
 from dbc.codec import FrameCodec, decode_any
 from dbc.contract import REPLY_SIGNALS, Command, MeasurementStatus, place_temperatures
 from dbc.database import frame_id

@@ -103,7 +103,7 @@ def _flux_case(flux_observer_artifact) -> Case:
     """The NTC + flux linkage observer on its dataset's first rows: NTC in Measurements, u_d/u_q in DriveVoltages
     (ABSENT every 11th row), the currents in the row; one NTC reading INVALID."""
     from bench.drive.dataset import load_dataset
-    from bench.run_inputs import drive_for, measurements_for
+    from bench.run.inputs import drive_for, measurements_for
 
     path, data = flux_observer_artifact
     artifact = load_artifact(path)
@@ -402,7 +402,7 @@ def test_a_long_run_with_the_ntc_and_the_flux_linkage_is_bit_exact(flux_observer
     from bench.drive.dataset import load_dataset
     from bench.firmware.check import check_firmware
     from bench.model.runs import initial_temperatures
-    from bench.run_inputs import drive_for, measurements_for
+    from bench.run.inputs import drive_for, measurements_for
     from target_sim.observer_node import raw_channels, raw_sources
 
     from helpers import flux_columns, write_synthetic_dataset

@@ -1,9 +1,9 @@
 """Orchestration of a bench run: start the target process, run the host in this process, stop the target.
 
-The target (`bench.target_process.TargetProcess`) is on the same bus options as the host; with `auto` the bus is
+The target (`bench.run.target.TargetProcess`) is on the same bus options as the host; with `auto` the bus is
 SocketCAN vcan0 where usable, else udp_multicast on a port unique to this run (`bench.commands.args.bus_from_args`),
 handed to the target on its command line. What a run needs before it starts (model, data, firmware image) is
-`bench.run_inputs`.
+`bench.run.inputs`.
 
 The host's bus is a `dbc.transport.SenderGuard`: a host frame this process did not send (another host on the
 channel, heard before the run or during it) ends the run in one sentence; a target already on the channel is
@@ -26,15 +26,15 @@ import can
 import numpy as np
 
 from bench.errors import BenchError
-from bench.leftovers import scratch_dir
-from bench.target_process import TargetProcess
+from bench.fileio import scratch_dir
+from bench.run.target import TargetProcess
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.database import host_frame_ids
 from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard
 from host.faults import FaultSpec
+from host.procedure import replay_log, run_dataset
 from host.replay import Progress
 from host.results import HostResult
-from host.run import replay_log, run_dataset
 from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 from target_sim.artifact import ModelArtifact
 from target_sim.node import target_on_channel
@@ -102,7 +102,7 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     With `faults` (active), the target writes its detection journal to a temporary file and the host may kill,
     freeze and restart it; the result carries the fault summary (`result.faults`). With `firmware` (an ELF,
     `firmware_for_engine`) the target runs the firmware engine, with `isr_rate_hz` its motor-control interrupt;
-    `measurements` (a model with an observer, `bench.run_inputs.measurements_for`) go out in each row's Measurements
+    `measurements` (a model with an observer, `bench.run.inputs.measurements_for`) go out in each row's Measurements
     frame."""
     injecting = faults is not None and faults.active
     target_files = scratch_dir("target")   # its stats; its journal when injecting

@@ -190,3 +190,25 @@ def data_mismatch(dataset, drive: np.ndarray) -> str | None:
         row = int(np.argmax(off))
         return f"differs from the log's drive values at data row {row + 1}"
     return None
+
+
+def data_options(args) -> tuple[ColumnMapping | None, float | None]:
+    """(ColumnMapping or None, sample period in s or None for auto) from the --mapping and --sample-period options
+    (`bench.run.request`; any object with those attributes); a period given on the command line replaces the
+    mapping's, with 'auto' the mapping's period (if any) is used."""
+    from dataclasses import replace
+
+    from bench.drive.mapping import load_mapping
+    from bench.run.values import sample_period
+
+    period = getattr(args, "sample_period", None)
+    if isinstance(period, str):
+        period = sample_period(period)
+    path = getattr(args, "mapping", None)
+    mapping = load_mapping(path) if path is not None else None
+    if mapping is not None:
+        if period is None:
+            period = mapping.sample_period_s
+        else:
+            mapping = replace(mapping, sample_period_s=period)
+    return mapping, period

@@ -1,5 +1,5 @@
-"""One host run from start to end: connect, reset, start, replay, stop, and the result (the log is closed
-and renamed into place only if the run got that far; a run that fails before leaves no log).
+"""The host's procedure for one run, from start to end: connect, reset, start, replay, stop, and the result (the
+log is closed and renamed into place only if the run got that far; a run that fails before leaves no log).
 
 With a fault spec (`host.faults`), the bus is wrapped in a `FaultyBus`, the replay is the fault-surviving
 lockstep loop (`host.faults.lockstep`), a last RxErrors is read after STOP, the target's detection journal (if

@@ -3,9 +3,10 @@ by the next bench.
 
 Every temporary file or directory a bench writes carries the id of the process that writes it: a log's partial
 file `.STEM.<pid>.partial.SUFFIX` beside the log (`host.canlog.partial_name`), and the scratch directories in the
-system's temporary directory, `bench-<kind>-<pid>-XXXXXXXX` (`scratch_dir`). A later bench removes those whose
-process no longer runs: the partial files of the log it is about to write, and every stale scratch directory. A
-process that still runs (another bench writing the same log, or a process that reused the id) keeps its files.
+system's temporary directory, `bench-<kind>-<pid>-XXXXXXXX` (`bench.fileio.scratch_dir`). A later bench removes
+those whose process no longer runs: the partial files of the log it is about to write, and every stale scratch
+directory. A process that still runs (another bench writing the same log, or a process that reused the id) keeps
+its files.
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bench.fileio import SCRATCH_PREFIX
 from host.canlog import partials_of
 
-SCRATCH_PREFIX = "bench-"
 SCRATCH_NAME = re.compile(r"^bench-(?P<kind>[a-z-]+?)-(?P<pid>[0-9]+)-[^/]+$")
 
 
@@ -34,12 +35,6 @@ def process_alive(pid: int) -> bool:
     except PermissionError:   # it exists, it is not ours
         return True
     return True
-
-
-def scratch_dir(kind: str) -> tempfile.TemporaryDirectory:
-    """A temporary directory `bench-KIND-<pid>-XXXXXXXX` in the system's temporary directory, removed on
-    cleanup; one that outlives its process is removed by a later bench (`remove_stale_scratch`)."""
-    return tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{kind}-{os.getpid()}-")
 
 
 def remove_stale_scratch(parent: Path | None = None) -> list[Path]:
@@ -87,7 +82,6 @@ def clear_leftovers(log_path: Path | None) -> list[str]:
     for path in remove_stale_scratch():
         notes.append(f"removed {path}, the temporary directory of a bench that ended without removing it")
     return notes
-
 
 
 def clear_and_say(log_path: Path | None, quiet: bool) -> None:
