@@ -37,7 +37,6 @@ workers (a file lock per bus): the target answers one host at a time.
 from __future__ import annotations
 
 import difflib
-import fcntl
 import hashlib
 import json
 import os
@@ -292,6 +291,8 @@ def _bus_turn(config: BenchConfig) -> Iterator[None]:
     if not config.attach:
         yield
         return
+    import fcntl   # here, not at the top: every pytest session of the venv loads the plugin (Windows has none)
+
     key = hashlib.sha256(" ".join(config.bus_argv()).encode()).hexdigest()[:16]
     with open(Path(tempfile.gettempdir()) / f"thermal-bench-{key}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)

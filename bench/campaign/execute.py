@@ -255,7 +255,9 @@ def dask_client(workers: int, address: str | None) -> Iterator[tuple[Any, str]]:
     # a worker that dies running a run fails that run at once (KilledWorker); the campaign retries it itself
     with dask.config.set({"distributed.scheduler.allowed-failures": 0,
                           "distributed.worker.preload": ["bench.campaign.worker_setup"]}):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+        # dashboard_address ":0": the scheduler's HTTP server (it starts one even without a dashboard) on a free
+        # port; with None it tries 8787 and warns on stderr when another cluster or program holds it
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                memory_limit=0, host="127.0.0.1", silence_logs=logging.CRITICAL)
         try:
             client = Client(cluster)

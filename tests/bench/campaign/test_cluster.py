@@ -204,3 +204,25 @@ def test_a_run_that_refuses_its_arguments_is_failed_with_its_sentence(tmp_path, 
     result = execute_run(_task(tmp_path, small_dataset, 60.0, "--engine", "fpga"))
     assert (result["status"], result["exit_code"], result["verdict"]) == ("failed", 2, None)
     assert "invalid choice: 'fpga'" in result["error"] and result["worker"].endswith(f":{os.getpid()}")
+
+
+@pytest.mark.cluster
+def test_the_embedded_cluster_says_nothing_when_port_8787_is_taken():
+    """The scheduler of a LocalCluster starts an HTTP server even without a dashboard, on 8787 by default: with
+    another cluster (or any program) holding that port, dask warned "Port 8787 is already in use" on stderr."""
+    import socket
+    import warnings
+
+    from bench.campaign.execute import dask_client
+
+    with socket.socket() as holder:
+        try:
+            holder.bind(("127.0.0.1", 8787))
+        except OSError:
+            pytest.skip("port 8787 is taken by something else already")   # then the test would prove nothing new
+        holder.listen()
+        with warnings.catch_warnings(record=True) as caught:   # a command line shows each of them on stderr
+            warnings.simplefilter("always")
+            with dask_client(1, None) as (client, label):
+                assert client.submit(sum, [1, 2]).result(timeout=120) == 3 and "local cluster" in label
+    assert [str(w.message) for w in caught if "8787" in str(w.message)] == []
