@@ -291,7 +291,7 @@ def _bus_turn(config: BenchConfig) -> Iterator[None]:
     if not config.attach:
         yield
         return
-    import fcntl   # here, not at the top: every pytest session of the venv loads the plugin (Windows has none)
+    import fcntl  # here, not at the top: every pytest session of the venv loads the plugin (Windows has none)
 
     key = hashlib.sha256(" ".join(config.bus_argv()).encode()).hexdigest()[:16]
     with open(Path(tempfile.gettempdir()) / f"thermal-bench-{key}.lock", "w") as lock:
