@@ -65,6 +65,7 @@ from target_sim.artifact import (
     OUTPUTS,
     ModelArtifact,
     encode_array,
+    observer_gate,
     schema_version_of,
     seal,
     verify,
@@ -213,9 +214,9 @@ def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequenc
     return FilterData(run, readings, tuple(measurements))
 
 
-def _run(model: FilterModel, data: FilterData, q, r, p0, keep=False) -> FilterRuns:
+def _run(model: FilterModel, data: FilterData, q, r, p0, keep=False, gate_sigma: float | None = None) -> FilterRuns:
     return run_filters(model.a, model.b, model.c, model.theta, model.sigmoid, data.run.inputs, data.run.initial,
-                       data.readings, q, r, p0, keep)
+                       data.readings, q, r, p0, keep, gate_sigma)
 
 
 def initial_covariance(model: FilterModel, readings: Readings | None = None) -> np.ndarray:
@@ -528,13 +529,16 @@ def r_scales(artifact: ModelArtifact) -> list[float]:
 
 
 def reference_run(artifact: ModelArtifact, dataset: Dataset) -> tuple[FilterData, FilterRuns]:
-    """The float64 reference of the artifact's observer on one file (estimate and 1-σ per step)."""
+    """The float64 reference of the artifact's observer on one file (estimate and 1-σ per step), with the section's
+    innovation gate (`observer_gate`; its rejections counted in the runs' `rejections`)."""
     model = FilterModel.of(artifact)
     section = artifact.content["observer"]
     data = filter_data(artifact, dataset, lab_measurements(artifact), section.get("bias"), section.get("consider"))
     q = artifact.array("observer", "Q", dtype=np.float64)
     p0 = artifact.array("observer", "P0", dtype=np.float64)
-    return data, _run(model, data, q[None], [r_scales(artifact)], p0, keep=True)
+    gate = observer_gate(section)
+    return data, _run(model, data, q[None], [r_scales(artifact)], p0, keep=True,
+                      gate_sigma=None if gate is None else gate[0])
 
 
 def measurement_of(artifact: ModelArtifact):

@@ -15,7 +15,14 @@ import pytest
 from bench.drive.dataset import load_dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.default import default_artifact_path
-from bench.model.observer import Measurement, ObserverFit, filter_data, observer_section, with_observer
+from bench.model.observer import (
+    Measurement,
+    ObserverFit,
+    filter_data,
+    observer_section,
+    reference_run,
+    with_observer,
+)
 from target_sim.artifact import ArtifactError, load_artifact, observer_gate, seal, verify
 from target_sim.model import run_offline
 from target_sim.observer import OBSERVER_FORMS, BiermanThornton, Float32Observer, run_observer_offline
@@ -49,13 +56,18 @@ def explained(tmp_path_factory):
     cols["winding_C"] = np.round(np.interp(every, rows, truth[:, 1]) + noise, 2)
     cols["pm_C"] = np.interp(every, rows, truth[:, 3])
     cols["rotor_surface_C"] = cols["pm_C"] - 5.0
-    dataset = load_dataset(write_synthetic_dataset(tmp_path_factory.mktemp("gate") / "explained.csv", cols, "gate"))
+    folder = tmp_path_factory.mktemp("gate")
+    dataset = load_dataset(write_synthetic_dataset(folder / "explained.csv", cols, "gate"))
+    cols["winding_C"] = cols["winding_C"].copy()
+    cols["winding_C"][LIE] += 20.0
+    lying = load_dataset(write_synthetic_dataset(folder / "lying.csv", cols, "gate: the sensor lies"))
     fit = ObserverFit((Measurement(),), np.array([1e-4, 1e-4, 1e-4, 1e-6]), np.array([0.05]), None, "magnet", 0.0,
                       0.0, 0, 0, [])
     content = with_observer(packaged, observer_section(packaged, fit, [dataset]))
     artifact = verify(content)
     initial = filter_data(artifact, dataset, (Measurement(),)).run.initial
-    return content, artifact_drive(artifact, dataset), dataset.column("winding_C"), dataset.column("pm_C"), initial
+    return (content, artifact_drive(artifact, dataset), dataset.column("winding_C"), dataset.column("pm_C"), initial,
+            lying)
 
 
 def _magnet_rmse(rows, outputs, truth, window: slice) -> float:
@@ -79,7 +91,7 @@ def test_a_bad_gate_is_refused_in_one_sentence(explained, gate, sentence):
 
 
 def test_without_a_gate_the_section_and_the_run_are_as_before(explained):
-    content, drive, z, _, initial = explained
+    content, drive, z, _, initial, _ = explained
     assert "gate" not in content["observer"] and observer_gate(content["observer"]) is None
     plain, wide = _gated(content, None), _gated(content, {"sigma": 1e6, "flag_after": 10})
     for form in OBSERVER_FORMS:
@@ -89,7 +101,7 @@ def test_without_a_gate_the_section_and_the_run_are_as_before(explained):
 
 
 def test_the_ud_gate_uses_biermans_own_innovation_variance(explained):
-    content, drive, z, _, initial = explained
+    content, drive, z, _, initial, _ = explained
     obs = Float32Observer(verify(content), "ud")
     obs.reset(initial)
     assert isinstance(obs.cov, BiermanThornton)
@@ -107,7 +119,7 @@ def test_a_lying_sensor_is_rejected_counted_and_flagged(explained, form):
     0.042 (37 lying steps rejected, 3 re-admitted); the propagated forms of this hand-set observer are themselves
     poor on this data (53.6 °C with an honest sensor), 563 °C while the sensor lies without the gate, 52.5 with it
     (all 40 lying steps rejected)."""
-    content, drive, honest, truth, initial = explained
+    content, drive, honest, truth, initial, _ = explained
     gated = _gated(content, {"sigma": 3.0, "flag_after": 10})
     lying = honest.copy()
     lying[LIE] += 20.0
@@ -130,3 +142,15 @@ def test_a_lying_sensor_is_rejected_counted_and_flagged(explained, form):
     else:
         assert run.rejected[in_lie].all()
         assert gated_rmse <= 1.5 * _magnet_rmse(clean.rows, clean.outputs, truth, LIE)
+
+
+def test_the_lab_reference_gates_the_same_readings(explained):
+    """The float64 filter (bench.thermal.kalman) with the section's gate: the lying steps rejected there too, as
+    many as the float32 UD form rejects, none on the honest file."""
+    content, drive, honest, _, initial, lying = explained
+    gated = _gated(content, {"sigma": 3.0, "flag_after": 10})
+    _, lab = reference_run(gated, lying)
+    run = run_observer_offline(gated, drive, lying.column("winding_C"), initial, "ud")
+    assert lab.rejections.tolist() == [[int(run.rejected.sum())]] and run.rejected.sum() == 40
+    plain_lab = reference_run(verify(content), lying)[1]
+    assert plain_lab.rejections.tolist() == [[0]] and plain_lab.updates[0] == lab.updates[0] + 40
