@@ -86,6 +86,10 @@ DEPLOYED_FORM = "ud"
 # 12.55 / 8.08 / 10.95; magnet 3.31 / 4.87 / 2.70, 5.05 / 2.74 / 2.28, 7.74 / 7.09 / 7.64. Only "magnet" leaves
 # the magnet no worse than the open loop on every motor (none: worse on air-30kw) with the winding still better.
 DEFAULT_CONSIDER = "magnet"
+# the innovation gate `bench observer` writes unless told otherwise (--gate, --gate-flag-after): a reading more than
+# 3 sigma of its innovation off (ν²/S > 9, the 99.73 % quantile of chi-square with 1 degree of freedom) predicts only;
+# 10 rejections in a row (5 s at 0.5 s steps) flag the sensor
+DEFAULT_GATE = (3.0, 10)
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 START_Q_C2 = 1e-4       # the search starts here for every node (°C² per step), R where each kind says (start_r)
 LOG10_BOUNDS = (-12.0, 3.0)
@@ -441,7 +445,7 @@ def state_names(fit: ObserverFit) -> list[str]:
 
 
 def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequence[Dataset],
-                     form: str = DEPLOYED_FORM) -> dict:
+                     form: str = DEPLOYED_FORM, gate: tuple[float, int] | None = None) -> dict:
     """The artifact's `observer` section (version 2) for a tuned fit; node, column, offset_C, R and lag_s of the
     first measurement as a version 1 reader expects them."""
     model = FilterModel.of(artifact)
@@ -491,6 +495,10 @@ def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequen
         section["rule"] += (f"; consider states ({fit.consider}): a measurement that does not read the "
                             f"{CONSIDER_KINDS[fit.consider][0]} has the gain's rows of its held states zero "
                             "(node coordinates), P in Joseph's form of that gain")
+    if gate is not None:         # only then: a section without a gate is written as it always was
+        section["gate"] = {"sigma": float(gate[0]), "flag_after": int(gate[1])}
+        section["rule"] += (f"; innovation gate: a reading with nu^2 > {gate[0]:g}^2 (h P- h' + R) predicts only, "
+                            f"counted; {gate[1]} in a row flag its sensor")
     return section
 
 
