@@ -30,7 +30,7 @@ The innovation gate (the section's optional `gate`, `target_sim.artifact.observe
 valid reading updates as before): a reading with ν·ν > sigma²·S (S = h P⁻ hᵀ + R as the form's update computes it,
 `innovation_variance`; the steady form: its steady prior's h P⁻ hᵀ, from P_ss and K_ss, + R) is rejected: that
 measurement predicts only this step (its innovation NaN). Rejections are counted per measurement; `flag_after` of one
-measurement in a row flag its sensor (latched until a reset). Re-admission: the propagated forms' covariance grows
+measurement in a row flag its sensor (latched until a reset or restore). Re-admission: the propagated forms' covariance grows
 while a sensor is rejected, so a sensor that truly moved passes again; the steady form admits the next reading
 after `flag_after` rejections in a row.
 
@@ -500,7 +500,7 @@ class Float32Observer:
         self.clear_gate()
 
     def clear_gate(self) -> None:
-        """No reading rejected yet, no sensor flagged (reset; a restore keeps the counts)."""
+        """No reading rejected yet, no sensor flagged (a reset, and so a restore: the counts start again, in C too)."""
         count = len(self.measurements)
         self.rejections = np.zeros(count, dtype=np.int64)       # each measurement's rejected readings
         self.consecutive = np.zeros(count, dtype=np.int64)      # ... rejected in a row, up to now
