@@ -30,9 +30,9 @@ The innovation gate (the section's optional `gate`, `target_sim.artifact.observe
 valid reading updates as before): a reading with ν·ν > sigma²·S (S = h P⁻ hᵀ + R as the form's update computes it,
 `innovation_variance`; the steady form: its steady prior's h P⁻ hᵀ, from P_ss and K_ss, + R) is rejected: that
 measurement predicts only this step (its innovation NaN). Rejections are counted per measurement; `flag_after` of one
-measurement in a row flag its sensor (latched until a reset or restore). Re-admission: the propagated forms' covariance grows
-while a sensor is rejected, so a sensor that truly moved passes again; the steady form admits the next reading
-after `flag_after` rejections in a row.
+measurement in a row flag its sensor (latched until a reset or restore). Re-admission: the propagated forms'
+covariance grows while a sensor is rejected, so a sensor that truly moved passes again; the steady form admits the
+next reading after `flag_after` rejections in a row.
 
 Every operation has a fixed order and a float32 rounding (`fmath.matmul`, `fmath.dot`, elementwise ufuncs), so a C
 version can repeat it bit for bit. The artifact stores Q, P0, K_ss and P_ss in the realization's coordinates; the
