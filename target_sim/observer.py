@@ -556,14 +556,20 @@ class Float32Observer:
         """The filter's state beyond the model's x, float32 bit for bit, in the order of the ObserverCheckpoint
         frames (DBC 1.7.0): the extra states (lags in measurement order, then the bias), then the covariance in the
         deployed form, in the filter's node coordinates: UD d_0..d_{n-1} then U above the diagonal row by row;
-        conventional and Joseph P row by row; the steady-state gain nothing."""
+        conventional and Joseph P row by row; the steady-state gain nothing; then, for the steady form with a gate,
+        each measurement's rejections in a row (its re-admission depends on them: `gate`)."""
         parts = [self.extra]
         cov = self.cov
         if isinstance(cov, BiermanThornton):
             parts += [cov.d, cov.u[np.triu_indices(self.n, 1)]]
         elif isinstance(cov, Conventional):
             parts.append(cov.p.reshape(-1))
+        if self._counts_in_checkpoint():
+            parts.append(self.consecutive.astype(self.f))
         return np.concatenate(parts).astype(self.f)
+
+    def _counts_in_checkpoint(self) -> bool:
+        return self.form == "steady" and self.gate_threshold is not None
 
     def checkpoint_size(self) -> int:
         return len(self.checkpoint())
@@ -585,6 +591,10 @@ class Float32Observer:
             cov.u = u
         elif isinstance(cov, Conventional):
             cov.p = rest.reshape(self.n, self.n).copy()
+        if self._counts_in_checkpoint():
+            # a count that is not one (a forged element: NaN, negative, huge) is 0, as the C's conversion guard
+            counts = rest[len(rest) - len(self.consecutive):]
+            self.consecutive = np.array([int(v) if 0 < v < 1e9 else 0 for v in counts], dtype=np.int64)
 
     def _transition_structure(self) -> None:
         """The constants of F in node coordinates (`target_sim.observer_coordinates`), hoisted: C (I + Δ A) C⁻¹ and

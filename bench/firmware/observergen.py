@@ -24,7 +24,8 @@ operation:
 | obs_variance_<k>,      | BiermanThornton/SteadyState                   | the gate (a section with `gate` only):|
 | obs_gate               | .innovation_variance, Float32Observer.gate    | S, nu*nu > sigma^2 S, the counts      |
 | fw_obs_checkpoint      | Float32Observer.checkpoint                    | extra states, d, U above the diagonal |
-|                        |                                               | (steady form: the extra states only)  |
+|                        |                                               | (steady form: the extra states only,  |
+|                        |                                               | with a gate then its counts in a row) |
 | fw_obs_restore_checkpoint | NodeObserver.restore with every element    | x, then the filter bit for bit        |
 
 What the reference computes once at load (P0's factors U0 and d0 by `ud_factor`, Q's factors G and q, the
@@ -299,7 +300,7 @@ void fw_obs_checkpoint(float values[])
         for (j = i + 1; j < OBS_N; j++) values[at++] = obs_u[i][j];
     }
 #endif
-}
+OBS_COUNTS_CHECKPOINT}
 
 /* NodeObserver.restore with every element: a fresh filter at zero temperatures, x bit for bit, then
    Float32Observer.restore_checkpoint (U unit upper triangular, zeros below; the steady form: the extra states) */
@@ -320,7 +321,7 @@ void fw_obs_restore_checkpoint(const float x[4], const float values[])
         for (j = i + 1; j < OBS_N; j++) obs_u[i][j] = values[at++];
     }
 #endif
-}
+OBS_COUNTS_RESTORE}
 
 /* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) and .innovations */
 void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
@@ -363,6 +364,12 @@ _GATED_UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &
                  "            obs_innovation[INDEX] = nu;\n"
                  "            obs_update_K(r, nu, correction);\n"
                  "            corrected = 1;\n        }\n    }\n")
+# the steady form with a gate: each measurement's rejections in a row in the checkpoint (Float32Observer.checkpoint)
+_COUNTS_CHECKPOINT = "    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) values[at++] = (float)obs_consecutive[i];\n"
+_COUNTS_RESTORE = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
+                   "        obs_consecutive[i] = values[at] > 0.0f && values[at] < 1e9f ? (unsigned long)values[at]\n"
+                   "            : 0u;\n"
+                   "        at++;\n    }\n")
 _GATE_RESET = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
                "        obs_rejections[i] = 0;\n        obs_consecutive[i] = 0;\n        obs_flagged[i] = 0;\n    }\n")
 
@@ -382,7 +389,10 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
         updates.append(template.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index))
                        .replace("PREDICTED", predicted))
         first += m.width
+    counts = obs.form == "steady" and obs.gate_threshold is not None
     return {"OBS_GATE_RESET": "" if obs.gate_threshold is None else _GATE_RESET,
+            "OBS_COUNTS_CHECKPOINT": _COUNTS_CHECKPOINT if counts else "",
+            "OBS_COUNTS_RESTORE": _COUNTS_RESTORE if counts else "",
             "OBS_LAG_PROPAGATE": "".join(propagate), "OBS_LAG_RESET": "".join(reset),
             "OBS_READINGS": "".join(readings), "OBS_UPDATES": "".join(updates)}
 

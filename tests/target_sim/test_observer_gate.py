@@ -154,3 +154,28 @@ def test_the_lab_reference_gates_the_same_readings(explained):
     assert lab.rejections.tolist() == [[int(run.rejected.sum())]] and run.rejected.sum() == 40
     plain_lab = reference_run(verify(content), lying)[1]
     assert plain_lab.rejections.tolist() == [[0]] and plain_lab.updates[0] == lab.updates[0] + 40
+
+
+def test_the_steady_forms_checkpoint_carries_its_rejections_in_a_row(explained):
+    """Its re-admission depends on them: checkpoint() then restore_checkpoint() on a fresh filter continues bit for
+    bit through the lie; a count that is no count (NaN, negative) restores as 0."""
+    content, drive, honest, _, initial, _ = explained
+    gated = _gated(content, {"sigma": 3.0, "flag_after": 10})
+    lying = honest.copy()
+    lying[LIE] += 20.0
+    a, b = Float32Observer(gated, "steady"), Float32Observer(gated, "steady")
+    assert a.checkpoint_size() == Float32Observer(verify(content), "steady").checkpoint_size() + 1
+    a.reset(initial)
+    for row in range(0, 720, 2):             # into the lie: some rejections in a row
+        a.step(*drive[row], z=lying[row])
+    assert a.consecutive[0] > 0
+    b.reset(initial)
+    b.est.restore(a.est.x.tolist())
+    b.restore_checkpoint(a.checkpoint())
+    assert b.consecutive.tolist() == a.consecutive.tolist()
+    for row in range(720, 900, 2):
+        assert a.step(*drive[row], z=lying[row]).tobytes() == b.step(*drive[row], z=lying[row]).tobytes()
+        assert a.rejected.tolist() == b.rejected.tolist()
+    for forged in (float("nan"), -3.0):
+        b.restore_checkpoint([*a.checkpoint()[:-1], forged])
+        assert b.consecutive.tolist() == [0]
