@@ -262,8 +262,9 @@ def test_a_lying_sensor_over_can_is_rejected_counted_and_named(observer_artifact
     lying = tmp_path / "lying.csv"
     write_dataset(lying, columns, {"coolant_setpoint_C": dataset.coolant_setpoint_C, "note": "winding_C lies"})
     log = tmp_path / "run.blf"
+    report = tmp_path / "report"
     proc = run_cli("-m", "bench", "run", "--model", str(observer_artifact), "--data", str(lying), "--log", str(log),
-                   "--reply-timeout", "0.5", "--json", timeout=300)
+                   "--report", str(report), "--reply-timeout", "0.5", "--json", timeout=300)
     assert proc.returncode != 0
     s = json.loads(proc.stdout)
     assert s["clean"] is False and s["missing"] == 0
@@ -271,6 +272,9 @@ def test_a_lying_sensor_over_can_is_rejected_counted_and_named(observer_artifact
     assert len(named) == 1 and s["problems"] == named, s["problems"]
     slot = s["metrics"]["observer"]["measurements"]["sensor"]
     assert slot["sensor_flagged"] is True and slot["sensor"] == "winding_C"
+    text = (report / "report.md").read_text(encoding="utf-8")
+    assert f"The innovation gate rejected {slot['readings_rejected']} readings of winding_C (sensor)" in text
+    assert "the sensor was flagged" in text
     # every lying reading's step rejected (100 rows: 40 model steps), as the target's own code offline counts them
     artifact = load_artifact(observer_artifact)
     record = decode_log(log)
