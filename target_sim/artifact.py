@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -283,6 +284,7 @@ def _check_observer(artifact: ModelArtifact, version: int) -> None:
         if n != len(section["states"]):
             raise ArtifactError(f"artifact observer.states names {len(section['states'])} states, its measurements "
                                 f"and bias make {n}; {fix}")
+    _check_gate(section.get("gate"), fix)
     consider = section.get("consider")
     if consider is not None and (not isinstance(consider, str) or consider not in CONSIDER_KINDS):
         raise ArtifactError(f"artifact observer.consider {_shown(consider)} is not one of "
@@ -303,6 +305,27 @@ def _check_observer(artifact: ModelArtifact, version: int) -> None:
         if low < (-1e-9 * scale if key == "Q" else 1e-300) or (key != "Q" and low <= 0):
             kind = "positive semidefinite" if key == "Q" else "positive definite"
             raise ArtifactError(f"artifact observer.{key} is not {kind} (smallest eigenvalue {low:.3g}); {fix}")
+
+
+def _check_gate(gate: Any, fix: str) -> None:
+    """The optional innovation gate (`observer_gate`): absent or null, or {"sigma": a finite number > 0,
+    "flag_after": an integer >= 1}."""
+    if gate is None:
+        return
+    sigma = gate.get("sigma") if isinstance(gate, dict) else None
+    after = gate.get("flag_after") if isinstance(gate, dict) else None
+    if (not isinstance(gate, dict) or set(gate) != {"sigma", "flag_after"}
+            or isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not math.isfinite(sigma)
+            or not sigma > 0 or isinstance(after, bool) or not isinstance(after, int) or after < 1):
+        raise ArtifactError(f"artifact observer.gate {_shown(gate)} is not {{\"sigma\": a number > 0, "
+                            f"\"flag_after\": an integer >= 1}} or null; {fix}")
+
+
+def observer_gate(section: dict) -> tuple[float, int] | None:
+    """The section's innovation gate: (sigma, flag_after), None without one (a reading with ν² > sigma² S is
+    rejected; `flag_after` consecutive rejections of one measurement flag its sensor)."""
+    gate = section.get("gate")
+    return None if gate is None else (float(gate["sigma"]), int(gate["flag_after"]))
 
 
 def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:

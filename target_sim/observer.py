@@ -26,6 +26,14 @@ gain), `conventional` by adding s δ δᵀ over the held rows to its optimal upd
 update (P_opt + γ v vᵀ, v = P⁻hᵀ on the held rows, γ = 1/s) after Bierman's, `steady` with the lab's consider
 steady state (the held rows of K_ss set to -0 here, exactly).
 
+The innovation gate (the section's optional `gate`, `target_sim.artifact.observer_gate`; absent: none, every
+valid reading updates as before): a reading with ν·ν > sigma²·S (S = h P⁻ hᵀ + R as the form's update computes it,
+`innovation_variance`; the steady form: its steady prior's h P⁻ hᵀ, from P_ss and K_ss, + R) is rejected: that
+measurement predicts only this step (its innovation NaN). Rejections are counted per measurement; `flag_after` of one
+measurement in a row flag its sensor (latched until a reset or restore). Re-admission: the propagated forms'
+covariance grows while a sensor is rejected, so a sensor that truly moved passes again; the steady form admits the
+next reading after `flag_after` rejections in a row.
+
 Every operation has a fixed order and a float32 rounding (`fmath.matmul`, `fmath.dot`, elementwise ufuncs), so a C
 version can repeat it bit for bit. The artifact stores Q, P0, K_ss and P_ss in the realization's coordinates; the
 filter runs in node coordinates (`target_sim.observer_coordinates`: the node temperatures y = C x and the extra
@@ -47,6 +55,7 @@ from target_sim.artifact import (
     ModelArtifact,
     consider_held,
     encode_array,
+    observer_gate,
     observer_state_count,
     section_version,
 )
@@ -92,6 +101,10 @@ class Conventional:
         ph = matvec(self.p, h)                 # P⁻ hᵀ
         s = dot(h, ph) + r
         return ph / s, ph, s
+
+    def innovation_variance(self, h: np.ndarray, r, index: int = 0):
+        """S = h P⁻ hᵀ + R, as the update computes it (the gate's denominator, the same bits)."""
+        return self._gain(h, r)[2]
 
     def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
         """The optimal update; with `held` (consider states) P += s δ δᵀ after it, δ the optimal gain's held rows
@@ -227,6 +240,18 @@ class BiermanThornton:
             self._updates[key] = (nonzero, bierman_schedule(nonzero))
         return self._updates[key]
 
+    def innovation_variance(self, h: np.ndarray, r, index: int = 0):
+        """S = h P⁻ hᵀ + R as Bierman's update reaches it, its final α: R + a_j b_j over the schedule's columns in
+        order (b_j = d_j a_j: a column's b is changed only after its own step), the same bits."""
+        nonzero, schedule = self._bierman_entry(h)
+        a, a_nonzero = masked_matmul(np.asarray(h, dtype=self.f)[None, :], self.u, nonzero[None, :], self.upper)
+        a = a[0]
+        b = structural(self.d * a, a_nonzero[0])
+        alpha = self.f(r)
+        for step in schedule.steps:
+            alpha = alpha + a[step.column] * b[step.column]
+        return alpha
+
     def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
         """Bierman's scalar update (Grewal and Andrews' arrangement) over h's structure: a = Uᵀhᵀ, b = d ∘ a, then
         each column j with a_j != 0 (a column with a_j = 0 changes nothing); returns the gain b·γ.
@@ -258,6 +283,7 @@ class BiermanThornton:
             for i in step.filled:
                 b[i] = b[j] * u[i, j]          # b_i was a structural zero: -0 + b_j u_ij
         gain = b * gamma
+        self.alpha = alpha            # S = h P⁻ hᵀ + R (a test checks innovation_variance against it)
         if held is not None:
             v_nonzero = held & np.asarray(schedule.gain_nonzero)
             self.rank_one(u, d, gamma, structural(b, v_nonzero), self._rank_one(v_nonzero))
@@ -311,11 +337,20 @@ class BiermanThornton:
 class SteadyState:
     """The constant gain K_ss; the covariance is the artifact's steady-state P (posterior)."""
 
-    def __init__(self, gain: np.ndarray, p_steady: np.ndarray):
+    def __init__(self, gain: np.ndarray, p_steady: np.ndarray, rows: Sequence[np.ndarray] = ()):
         self.gain, self.p = gain, p_steady
+        # per measurement h P⁻ hᵀ of the steady prior, from the posterior and the gain (float64, once):
+        # h P hᵀ = h P⁻ hᵀ (1 - h K), since K = P⁻hᵀ/S
+        p64 = np.asarray(p_steady, dtype=np.float64)
+        self.prior = [p_steady.dtype.type(float(h @ p64 @ h) / (1.0 - float(h @ np.asarray(k, dtype=np.float64))))
+                      for h, k in zip((np.asarray(h, dtype=np.float64) for h in rows), gain, strict=False)]
 
     def predict(self, transition: np.ndarray) -> None:
         pass
+
+    def innovation_variance(self, h: np.ndarray, r, index: int = 0):
+        """S = h P⁻ hᵀ + R with the steady prior's h P⁻ hᵀ (constant: the gate of a steady filter never widens)."""
+        return self.prior[index] + r
 
     def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
         return self.gain[index]           # the held rows are already zero (Float32Observer)
@@ -458,10 +493,40 @@ class Float32Observer:
         self.innovation = f(np.nan)
         self._transition_structure()
         self.cov = self._covariance()
+        gate = observer_gate(section)
+        # the gate: ν² > sigma² S rejects a reading (None: every valid reading updates)
+        self.gate_threshold = None if gate is None else f(gate[0]) * f(gate[0])
+        self.flag_after = None if gate is None else gate[1]
+        self.clear_gate()
+
+    def clear_gate(self) -> None:
+        """No reading rejected yet, no sensor flagged (a reset, and so a restore: the counts start again, in C too)."""
+        count = len(self.measurements)
+        self.rejections = np.zeros(count, dtype=np.int64)       # each measurement's rejected readings
+        self.consecutive = np.zeros(count, dtype=np.int64)      # ... rejected in a row, up to now
+        self.flagged = np.zeros(count, dtype=bool)              # ... flag_after in a row at least once (latched)
+        self.rejected = np.zeros(count, dtype=bool)             # ... rejected this step
+
+    def gate(self, index: int, nu, s) -> bool:
+        """Whether the gate rejects the index-th measurement's reading of innovation ν and variance S
+        (ν·ν > sigma²·S in the filter's precision, the C's comparison), counting it."""
+        readmit = self.form == "steady" and self.consecutive[index] >= self.flag_after
+        if self.gate_threshold is None or not nu * nu > self.gate_threshold * s or readmit:
+            # re-admission: a propagated covariance grows while a sensor's readings are rejected (S widens until a
+            # sensor that truly moved passes); the steady form's S never widens, so after flag_after rejections in
+            # a row its next reading is admitted (the flag stays)
+            self.consecutive[index] = 0
+            return False
+        self.rejected[index] = True
+        self.rejections[index] += 1
+        self.consecutive[index] += 1
+        if self.consecutive[index] >= self.flag_after:
+            self.flagged[index] = True
+        return True
 
     def _covariance(self):
         if self.form == "steady":
-            return SteadyState(self.gain_steady, self.p_steady)
+            return SteadyState(self.gain_steady, self.p_steady, self.rows)
         if self.form == "ud":
             # Q = G diag(q) Gᵀ: in node coordinates Q is diagonal, so G = I (its structural zeros skipped)
             return BiermanThornton(self.p0, np.eye(self.n, dtype=self.f), self.q_nodes, self.f)
@@ -477,6 +542,7 @@ class Float32Observer:
         self.cov = self._covariance()
         self.innovations = np.full(len(self.measurements), np.nan, dtype=self.f)
         self.innovation = self.f(np.nan)
+        self.clear_gate()
 
     def reset_lags(self) -> None:
         """Each lag state at the temperature its sensor sees of the current estimate, the bias 0 (a restore
@@ -490,14 +556,20 @@ class Float32Observer:
         """The filter's state beyond the model's x, float32 bit for bit, in the order of the ObserverCheckpoint
         frames (DBC 1.7.0): the extra states (lags in measurement order, then the bias), then the covariance in the
         deployed form, in the filter's node coordinates: UD d_0..d_{n-1} then U above the diagonal row by row;
-        conventional and Joseph P row by row; the steady-state gain nothing."""
+        conventional and Joseph P row by row; the steady-state gain nothing; then, for the steady form with a gate,
+        each measurement's rejections in a row (its re-admission depends on them: `gate`)."""
         parts = [self.extra]
         cov = self.cov
         if isinstance(cov, BiermanThornton):
             parts += [cov.d, cov.u[np.triu_indices(self.n, 1)]]
         elif isinstance(cov, Conventional):
             parts.append(cov.p.reshape(-1))
+        if self._counts_in_checkpoint():
+            parts.append(self.consecutive.astype(self.f))
         return np.concatenate(parts).astype(self.f)
+
+    def _counts_in_checkpoint(self) -> bool:
+        return self.form == "steady" and self.gate_threshold is not None
 
     def checkpoint_size(self) -> int:
         return len(self.checkpoint())
@@ -519,6 +591,10 @@ class Float32Observer:
             cov.u = u
         elif isinstance(cov, Conventional):
             cov.p = rest.reshape(self.n, self.n).copy()
+        if self._counts_in_checkpoint():
+            # a count that is not one (a forged element: NaN, negative, huge) is 0, as the C's conversion guard
+            counts = rest[len(rest) - len(self.consecutive):]
+            self.consecutive = np.array([int(v) if 0 < v < 1e9 else 0 for v in counts], dtype=np.int64)
 
     def _transition_structure(self) -> None:
         """The constants of F in node coordinates (`target_sim.observer_coordinates`), hoisted: C (I + Δ A) C⁻¹ and
@@ -606,6 +682,7 @@ class Float32Observer:
         self.innovations = np.full(len(self.measurements), np.nan, dtype=f)
         correction = np.full(k, NEG_ZERO, dtype=f)     # the step's node corrections, summed (-0: none yet)
         corrected = False
+        self.rejected[:] = False
         for index, (m, raw) in enumerate(zip(self.measurements, self._raw(z), strict=True)):
             reading = m.reading(raw, f(speed), est.y)
             if reading is None:
@@ -614,7 +691,11 @@ class Float32Observer:
             lag = self.lag_index[index]
             predicted = self.extra[lag - k] if lag >= 0 else masked_dot(m.sees[self.sees_nonzero[index]],
                                                                       est.y[self.sees_nonzero[index]], f(NEG_ZERO))
-            self.innovations[index] = nu = value - predicted
+            nu = value - predicted
+            if self.gate_threshold is not None and self.gate(index, nu, self.cov.innovation_variance(
+                    self.rows[index], r, index)):
+                continue                          # rejected: this measurement predicts only (innovation NaN)
+            self.innovations[index] = nu
             gain = self.cov.update(self.rows[index], r, index, self.held[index])      # in node coordinates
             step = gain[:k] * nu
             est.y = est.y + step                  # the next measurement reads the corrected nodes
@@ -667,6 +748,8 @@ class ObserverRun:
     sigmas: np.ndarray | None = None
     all_innovations: np.ndarray | None = None
     filter_covariances: np.ndarray | None = None      # on request: the filter's own P' (node coordinates)
+    rejected: np.ndarray | None = None                # per step and measurement: the gate rejected its reading
+    flagged: np.ndarray | None = None                 # per measurement: its sensor was flagged (latched)
 
 
 def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement: np.ndarray,
@@ -687,13 +770,14 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
                          f"not {drive.shape} and {measurement.shape}")
     rows = np.column_stack([drive, measurement])
     acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width + channels)
-    steps, outputs, innovations, covariances, sigmas, own = [], [], [], [], [], []
+    steps, outputs, innovations, covariances, sigmas, own, rejected = [], [], [], [], [], [], []
     for row, sample in enumerate(rows):
         means = acc.add(row, sample)
         if means is None:
             continue
         outputs.append(obs.step(*means[:width], z=means[width:]))
         innovations.append(obs.innovations.copy())
+        rejected.append(obs.rejected.copy())
         sigmas.append(obs.sigma())
         if keep_covariance:
             covariances.append(np.array(obs.covariance(), dtype=np.float64))
@@ -702,4 +786,5 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
     every = np.array(innovations, dtype=np.float64).reshape(-1, len(obs.measurements))
     return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4), every[:, 0],
                        np.array(covariances) if keep_covariance else None,
-                       np.array(sigmas).reshape(-1, 4), every, np.array(own) if keep_covariance else None)
+                       np.array(sigmas).reshape(-1, 4), every, np.array(own) if keep_covariance else None,
+                       np.array(rejected, dtype=bool).reshape(-1, len(obs.measurements)), obs.flagged.copy())

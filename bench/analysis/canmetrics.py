@@ -100,6 +100,8 @@ class References:
     figure_rows: FigureRows | None = None     # how many, and those left out by reason
     open_loop: np.ndarray | None = None       # (steps, 4) the open loop's float32 run beside an observer's
     sigma: np.ndarray | None = None           # (steps, 4) an observer's 1-sigma per node, from the target's frames
+    rejected: np.ndarray | None = None        # (steps, measurements) the observer's gate rejected the reading
+    flagged: np.ndarray | None = None         # (measurements,) the gate flagged the sensor (in a row, latched)
 
 
 def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int, initial, stop_row: int, *,
@@ -226,11 +228,12 @@ def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None
                measured: np.ndarray | None = None) -> References:
     """The offline float32 and float64 references; for a model with an observer the observer's (the target's own
     code in float32, and in float64) on `measured`, with the open loop's float32 run beside (`open_loop`)."""
-    open_loop = None
+    open_loop = rejected = flagged = None
     if has_observer(artifact):
         z = np.full((len(drive), len(raw_sources(artifact))), np.nan) if measured is None else measured
         run = run_observer_offline(artifact, drive, z, initial)
         step_rows, f32 = run.rows, run.outputs
+        rejected, flagged = run.rejected, run.flagged
         f64 = run_observer_offline(artifact, drive, z, initial, dtype=np.float64).outputs.astype(np.float64)
         open_loop = run_offline(artifact, drive, initial)[1].astype(np.float64)
     else:
@@ -243,7 +246,8 @@ def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None
         winding = np.interp(step_time, dataset.time_s, dataset.winding_C)
         pm = np.interp(step_time, dataset.time_s, dataset.pm_C)
     return References(step_rows[:steps], step_time, f32[:steps].astype(np.float64), f64[:steps], winding, pm,
-                      open_loop=None if open_loop is None else open_loop[:steps])
+                      open_loop=None if open_loop is None else open_loop[:steps],
+                      rejected=None if rejected is None else rejected[:steps], flagged=flagged)
 
 
 def _rmse(a: np.ndarray, b: np.ndarray) -> float | None:

@@ -56,10 +56,15 @@ def observer_results(record: BusRecord, artifact: ModelArtifact, refs) -> Observ
         rows = channels[index] if channels else np.zeros(record.rows, dtype=bool)
         used_by.append(used)
         rows_by.append(rows)
+        rejected = getattr(refs, "rejected", None)
+        flagged = getattr(refs, "flagged", None)
         per_slot[slot] = SlotFigures(
             measured_node="magnet" if slot == "flux" else entry.get("node", section.get("node")),
             rows_measured=int(np.count_nonzero(rows)), model_steps_updated=int(np.count_nonzero(used)),
-            innovation_rms_C=float(np.sqrt(np.mean(innovation ** 2))) if innovation.size else None)
+            innovation_rms_C=float(np.sqrt(np.mean(innovation ** 2))) if innovation.size else None,
+            readings_rejected=0 if rejected is None else int(np.count_nonzero(rejected[:, index])),
+            sensor_flagged=bool(flagged is not None and flagged[index]),
+            sensor=", ".join(entry.get("columns", [])) or str(entry.get("name", section.get("column", slot))))
 
     def per_node(trajectory: np.ndarray | None) -> NodeValues:
         if trajectory is None:

@@ -214,6 +214,11 @@ def observer_section(obs) -> list[str]:
              _row("largest 1-σ, target (°C)", obs.sigma_max_C, 3), "",
              f"RMS of the innovations the target reported: {_fmt(obs.innovation_rms_C)} °C. The RMSEs are against "
              "the measured temperatures (– where the data has none).", ""]
+    gated = [(slot, m) for slot, m in obs.measurements.items() if m.readings_rejected or m.sensor_flagged]
+    for slot, m in gated:      # the innovation gate (the target's float32 code offline, bit for bit)
+        flag = " — **the sensor was flagged**: its readings stayed rejected" if m.sensor_flagged else ""
+        lines += [f"The innovation gate rejected {m.readings_rejected} readings of {m.sensor} ({slot}) as too far "
+                  f"from the prediction: those steps predicted only{flag}.", ""]
     if len(obs.measurements) > 1:     # several measurements per row: each one's share
         lines += ["| measurement (slot) | node it sees | rows with a valid reading | model steps that used it | "
                   "innovation RMS (°C) |", "|---|---|---|---|---|"]

@@ -482,6 +482,12 @@ class SlotFigures:
     rows_measured: int              # rows whose measurement frames carried its channels VALID
     model_steps_updated: int        # model steps whose update used it (its Used flag)
     innovation_rms_C: float | None
+    # the innovation gate (the section's `gate`), from the target's own float32 code offline (which the CAN
+    # estimates are checked against): readings rejected (ν² > sigma² S: predicted only), whether its sensor was
+    # flagged (flag_after rejections in a row), and the sensor's name
+    readings_rejected: int = 0
+    sensor_flagged: bool = False
+    sensor: str = ""
 
 
 @dataclass

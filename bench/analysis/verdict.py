@@ -85,7 +85,19 @@ def problems(results: RunResults) -> list[str]:
     bad = {k: v for k, v in results.integrity.target_rx_errors.items() if v}
     if bad and not injected:
         out.append(f"the target rejected or could not sequence frames: {bad}")
-    return out + integrity_problems(results, injected=bool(injected))
+    return out + gate_problems(results) + integrity_problems(results, injected=bool(injected))
+
+
+def gate_problems(results: RunResults) -> list[str]:
+    """A sensor the observer's innovation gate flagged (its readings rejected many times in a row): one sentence
+    naming it, with its rejected readings."""
+    observer = results.observer
+    if observer is None:
+        return []
+    return [f"the observer's innovation gate flagged the sensor {m.sensor} ({slot}): {m.readings_rejected} of its "
+            f"readings were rejected as too far from the model's prediction, so its estimate ran open loop there "
+            "(a sensor that lies or fails, or a model that no longer fits)"
+            for slot, m in observer.measurements.items() if m.sensor_flagged]
 
 
 def integrity_problems(results: RunResults, *, injected: bool = False) -> list[str]:

@@ -27,6 +27,12 @@ whose estimate then moves only through the model's own coupling; the covariance 
 updates it. It is the default (on the suite's validation profiles the only setting that left the magnet no worse
 than the open loop on every motor); --consider none: every state is updated (--bias magnet with a winding sensor
 alone needs it: a held magnet bias would never move).
+--gate SIGMA (default 3, `bench.model.observer.DEFAULT_GATE`): the innovation gate the target runs: a reading
+whose innovation ν is more than SIGMA of its predicted sigma off (ν²/S > SIGMA², S = h P⁻ hᵀ + R; 3: the 99.73 %
+quantile of chi-square with 1 degree of freedom) predicts only and is counted; --gate-flag-after N (default 10)
+rejections in a row flag the sensor. While a sensor is rejected the covariance grows, so a sensor that truly moved
+passes again (the steady-state-gain form, whose S is constant, admits the next reading after the flag). --gate none:
+no gate (the section written as before).
 --flux adds the flux-linkage magnet temperature from u_d, u_q, i_d, i_q and speed: ψ_0 and α_B (and L_d and
 R_s where the data determine them) are calibrated on the training files against the measured magnet, valid at or
 above --flux-min-speed; the calibration's residual is reported, a large one is a warning, and one that makes the
@@ -58,7 +64,7 @@ from bench.progress import StageBars
 
 def add_subparser(subparsers) -> None:
     from bench.model.measures import LAB_MEASUREMENT_KINDS
-    from bench.model.observer import DEFAULT_CONSIDER, DEPLOYED_FORM, TUNING_CRITERIA
+    from bench.model.observer import DEFAULT_CONSIDER, DEFAULT_GATE, DEPLOYED_FORM, TUNING_CRITERIA
     from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS
     from target_sim.observer import OBSERVER_FORMS
 
@@ -79,6 +85,11 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--consider", choices=["none", *CONSIDER_KINDS], default=DEFAULT_CONSIDER,
                    help="consider states: a measurement that does not read the magnet never updates the magnet "
                         f"node (nor a magnet bias), magnet; or none (default {DEFAULT_CONSIDER})")
+    p.add_argument("--gate", default=str(DEFAULT_GATE[0]), metavar="SIGMA",
+                   help="innovation gate: a reading more than SIGMA innovation sigmas off predicts only and is "
+                        f"counted; none: no gate (default {DEFAULT_GATE[0]:g}, nu^2/S > {DEFAULT_GATE[0] ** 2:g})")
+    p.add_argument("--gate-flag-after", type=int, default=DEFAULT_GATE[1], metavar="N",
+                   help=f"rejections in a row that flag the sensor (default {DEFAULT_GATE[1]})")
     p.add_argument("--pole-pairs", type=float, default=None,
                    help="pole pairs for --flux and --resistance (default: the artifact's electrical loss model's, "
                         "else 1)")
@@ -115,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.evaluations < 1:
         raise UsageError("--evaluations must be at least 1")
+    gate = gate_option(args.gate, args.gate_flag_after)
     check_writable(args.out, "--out")
     model_path = args.model or default_artifact_path()
     artifact = load_artifact(model_path)
@@ -148,14 +160,14 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     warnings = [w for m in measurements for w in m.warnings] + tuning_warnings(fit)
-    content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form))
+    content = with_observer(artifact, observer_section(artifact, fit, datasets, args.form, gate))
     write_text_atomically(args.out, dumps(content))
     checked = validation_check(verify(content), validation) if validation else None
     if checked is not None and checked.warning():
         warnings.append(checked.warning())
     report = {"model": str(model_path), "out": str(args.out), "sha256": content["sha256"],
               "measurement": measurements[0].describe(), "form": args.form, "bias": fit.bias,
-              "consider": fit.consider,
+              "consider": fit.consider, "gate": content["observer"].get("gate"),
               **content["observer"]["tuning"], "warnings": warnings,
               **({"validation": checked.as_dict()} if checked is not None else {})}
     if not args.quiet:
@@ -172,10 +184,28 @@ def run(args: argparse.Namespace) -> int:
         for text in filter(None, (m.calibration_text() for m in measurements)):
             print(text)
         print(f"Q per step: {q}; R scale {', '.join(f'{v:.3g}' for v in fit.r_scale)}; deployed form {args.form}; "
-              f"consider states: {fit.consider or 'none'}")
+              f"consider states: {fit.consider or 'none'}; innovation gate: "
+              f"{f'{gate[0]:g} sigma, flag after {gate[1]}' if gate else 'none'}")
         if checked is not None:
             print("on the validation files, float32 MSE open loop / observer: " + ", ".join(
                 f"{'magnet' if n == 'pm' else n} {checked.open_loop_mse[n]:.3g} / {checked.observer_mse[n]:.3g} K²"
                 for n in checked.observer_mse))
         print(f"wrote {args.out} (sha256 {content['sha256'][:12]})")
     return 0
+
+
+def gate_option(value: str, flag_after: int) -> tuple[float, int] | None:
+    """--gate SIGMA (a number > 0, or none) and --gate-flag-after N (>= 1) as the section's gate (None: none)."""
+    import math
+
+    if flag_after < 1:
+        raise UsageError(f"--gate-flag-after must be at least 1, not {flag_after}")
+    if value.strip().lower() == "none":
+        return None
+    try:
+        sigma = float(value)
+    except ValueError:
+        sigma = math.nan
+    if not math.isfinite(sigma) or sigma <= 0:
+        raise UsageError(f"--gate must be a number of sigmas above 0 or none, not {value!r}")
+    return sigma, flag_after

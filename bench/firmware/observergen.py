@@ -21,8 +21,11 @@ operation:
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
 | fw_obs_report          | Float32Observer.sigma, .innovations           | each node's 1-σ, each innovation      |
 | obs_reading_<k>        | the k-th measurement's `reading` (its kind)   | its value and variance, or no reading |
+| obs_variance_<k>,      | BiermanThornton/SteadyState                   | the gate (a section with `gate` only):|
+| obs_gate               | .innovation_variance, Float32Observer.gate    | S, nu*nu > sigma^2 S, the counts      |
 | fw_obs_checkpoint      | Float32Observer.checkpoint                    | extra states, d, U above the diagonal |
-|                        |                                               | (steady form: the extra states only)  |
+|                        |                                               | (steady form: the extra states only,  |
+|                        |                                               | with a gate then its counts in a row) |
 | fw_obs_restore_checkpoint | NodeObserver.restore with every element    | x, then the filter bit for bit        |
 
 What the reference computes once at load (P0's factors U0 and d0 by `ud_factor`, Q's factors G and q, the
@@ -42,7 +45,18 @@ from __future__ import annotations
 import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
-from bench.firmware.udgen import Value, literal, move_state_c, output_c, predict_c, product, steady_c, total, update_c
+from bench.firmware.udgen import (
+    Value,
+    literal,
+    move_state_c,
+    output_c,
+    predict_c,
+    product,
+    steady_c,
+    total,
+    update_c,
+    variance_c,
+)
 from target_sim.artifact import ModelArtifact
 from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
 from target_sim.observer import Float32Observer, ud_factor
@@ -158,11 +172,45 @@ def observer_declarations(artifact: ModelArtifact) -> str:
     text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment) for name, value, comment in arrays)
     text += "".join(_measurement_declarations(obs, index) for index in range(len(obs.measurements)))
     factors = "" if steady else "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\n"
+    text += _gate_declarations(obs)
     return text + ("/* the observer's state: U, d of P = U diag(d) U^T (UD form), the extra states (lags, bias: by\n"
                    " * index), each measurement's last innovation, the sources' gains of the last step */\n"
                    f"{factors}static float obs_extra[OBS_N];\n"
                    "static float obs_innovation[FW_OBS_MEASUREMENTS];\nstatic float obs_gains[4];\n")
 
+
+def _gate_declarations(obs: Float32Observer) -> str:
+    """The gate's constants and counts (a section with `gate` only: without it the C is what it was)."""
+    if obs.gate_threshold is None:
+        return ""
+    text = (f"#define OBS_FLAG_AFTER {obs.flag_after} /* rejections in a row that flag a sensor */\n"
+            f"static const float OBS_GATE = {c_float(obs.gate_threshold)}; /* sigma^2: nu*nu > OBS_GATE * S "
+            "rejects */\n")
+    if obs.form == "steady":
+        text += _literal_array("OBS_PRIOR", np.array(obs.cov.prior, dtype=np.float32),
+                               "each measurement's h P- h^T of the steady prior (SteadyState.prior)")
+    return text + ("/* each measurement's rejected readings, rejections in a row, flag (Float32Observer.gate) */\n"
+                   "static unsigned long obs_rejections[FW_OBS_MEASUREMENTS];\n"
+                   "static unsigned long obs_consecutive[FW_OBS_MEASUREMENTS];\n"
+                   "static unsigned char obs_flagged[FW_OBS_MEASUREMENTS];\n")
+
+
+GATE_C = """
+/* Float32Observer.gate: whether the k-th measurement's reading (innovation nu, variance s) is rejected, counted;
+ * the steady form re-admits the reading after OBS_FLAG_AFTER rejections in a row */
+static int obs_gate(int k, float nu, float s)
+{
+    int readmit = OBS_STEADY && obs_consecutive[k] >= OBS_FLAG_AFTER;
+    if (!(nu * nu > OBS_GATE * s) || readmit) {
+        obs_consecutive[k] = 0;
+        return 0;
+    }
+    obs_rejections[k] = obs_rejections[k] + 1;
+    obs_consecutive[k] = obs_consecutive[k] + 1;
+    if (obs_consecutive[k] >= OBS_FLAG_AFTER) obs_flagged[k] = 1;
+    return 1;
+}
+"""
 
 OBSERVER_C = """\
 OBS_OUTPUT
@@ -225,7 +273,7 @@ void fw_obs_reset(const float y0[4])
     }
 #endif
     for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_innovation[i] = __builtin_nanf("");
-}
+OBS_GATE_RESET}
 
 /* NodeObserver.restore without the filter's checkpoint: a fresh filter at zero temperatures, x bit for bit, then
    each lag state at what its sensor sees of y = C x (Float32Observer.reset_lags) */
@@ -252,7 +300,7 @@ void fw_obs_checkpoint(float values[])
         for (j = i + 1; j < OBS_N; j++) values[at++] = obs_u[i][j];
     }
 #endif
-}
+OBS_COUNTS_CHECKPOINT}
 
 /* NodeObserver.restore with every element: a fresh filter at zero temperatures, x bit for bit, then
    Float32Observer.restore_checkpoint (U unit upper triangular, zeros below; the steady form: the extra states) */
@@ -273,7 +321,7 @@ void fw_obs_restore_checkpoint(const float x[4], const float values[])
         for (j = i + 1; j < OBS_N; j++) obs_u[i][j] = values[at++];
     }
 #endif
-}
+OBS_COUNTS_RESTORE}
 
 /* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) and .innovations */
 void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
@@ -309,6 +357,21 @@ _UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\
            "        obs_innovation[INDEX] = nu;\n"
            "        obs_update_K(r, nu, correction);\n"
            "        corrected = 1;\n    }\n")
+# ... with the gate: a rejected reading predicts only (its innovation stays NaN)
+_GATED_UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
+                 "        nu = value - (PREDICTED);\n"
+                 "        if (!obs_gate(INDEX, nu, obs_variance_K(r))) {\n"
+                 "            obs_innovation[INDEX] = nu;\n"
+                 "            obs_update_K(r, nu, correction);\n"
+                 "            corrected = 1;\n        }\n    }\n")
+# the steady form with a gate: each measurement's rejections in a row in the checkpoint (Float32Observer.checkpoint)
+_COUNTS_CHECKPOINT = "    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) values[at++] = (float)obs_consecutive[i];\n"
+_COUNTS_RESTORE = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
+                   "        obs_consecutive[i] = values[at] > 0.0f && values[at] < 1e9f ? (unsigned long)values[at]\n"
+                   "            : 0u;\n"
+                   "        at++;\n    }\n")
+_GATE_RESET = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
+               "        obs_rejections[i] = 0;\n        obs_consecutive[i] = 0;\n        obs_flagged[i] = 0;\n    }\n")
 
 
 def _per_measurement(obs: Float32Observer) -> dict[str, str]:
@@ -322,10 +385,15 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
         readings.append("\n" + m.c_reading.replace("_K", suffix))
         predicted = f"obs_extra[{lag}]" if lag >= 0 else total(
             [product(literal(m.sees[i]), Value(f"y_est[{i}]")) for i in range(len(m.sees)) if m.sees[i] != 0])
-        updates.append(_UPDATE.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index))
+        template = _UPDATE if obs.gate_threshold is None else _GATED_UPDATE
+        updates.append(template.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index))
                        .replace("PREDICTED", predicted))
         first += m.width
-    return {"OBS_LAG_PROPAGATE": "".join(propagate), "OBS_LAG_RESET": "".join(reset),
+    counts = obs.form == "steady" and obs.gate_threshold is not None
+    return {"OBS_GATE_RESET": "" if obs.gate_threshold is None else _GATE_RESET,
+            "OBS_COUNTS_CHECKPOINT": _COUNTS_CHECKPOINT if counts else "",
+            "OBS_COUNTS_RESTORE": _COUNTS_RESTORE if counts else "",
+            "OBS_LAG_PROPAGATE": "".join(propagate), "OBS_LAG_RESET": "".join(reset),
             "OBS_READINGS": "".join(readings), "OBS_UPDATES": "".join(updates)}
 
 
@@ -345,9 +413,24 @@ def _kernels(obs: Float32Observer) -> str:
     count = len(obs.measurements)
     moves_y = [k < count - 1 for k in range(count)]     # the last update's y is C x again at the step's end
     if obs.form == "steady":
-        return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k]) for k in range(count)])
-    return predict_c(obs) + "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k], moves_y[k], obs.held[k])
-                                    for k in range(count))
+        return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k]) for k in range(count)]) + \
+            _gate_c(obs)
+    updates = "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k], moves_y[k], obs.held[k])
+                      for k in range(count))
+    return predict_c(obs) + _gate_c(obs) + updates
+
+
+def _gate_c(obs: Float32Observer) -> str:
+    """obs_gate and one obs_variance_<k> per measurement (a section with `gate` only)."""
+    if obs.gate_threshold is None:
+        return ""
+    if obs.form == "steady":
+        variances = "".join(f"\n/* SteadyState.innovation_variance */\nstatic float obs_variance_{k}(float r)\n"
+                            f"{{\n    return OBS_PRIOR[{k}] + r;\n}}\n" for k in range(len(obs.measurements)))
+    else:
+        variances = "".join("\n" + variance_c(obs, f"obs_variance_{k}", obs.rows[k])
+                            for k in range(len(obs.measurements)))
+    return GATE_C + variances
 
 
 def keep_gains(sources_c: str) -> str:

@@ -229,15 +229,7 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = Tru
     u = {(i, j): out.set(f"u{i}_{j}", f"obs_u[{i}][{j}]") for (i, j) in sorted(reads, key=lambda p: (p[1], p[0]))}
     columns = sorted({s.column for s in (*schedule.steps, *rank_one)})
     d = {j: out.set(f"d{j}", f"obs_d[{j}]") for j in columns}
-    out.comment("a = U^T h over h's nonzeros, b = d o a")
-    a: dict[int, Value] = {}
-    b: dict[int, Value] = {}
-    for j, terms in enumerate(schedule.terms):
-        if not terms:
-            continue
-        parts = [h_values[j].expr if i == j else product(h_values[i], u[i, j]) for i in terms]
-        a[j] = ONE if parts == [ONE.expr] else out.set(f"a{j}", total(parts))
-        b[j] = out.set(f"b{j}", product(d[j], a[j]))
+    a, b = _bierman_ab(out, schedule, h_values, u, d)
     updates = any(step.updated for step in schedule.steps)
     out.raw("float alpha = r, beta;" + (" float lambda, held;" if updates else ""))
     out.raw(f"float gamma = {ONE.expr} / alpha;")
@@ -266,6 +258,37 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = Tru
     return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}] and the correction, "
             "unrolled (bench.firmware.udgen) */\n"
             f"static void {name}(float r, float nu, float correction[4])\n{{\n" + out.text() + "\n}\n")
+
+
+def _bierman_ab(out: Lines, schedule, h_values: list[Value], u: dict, d: dict) -> tuple[dict, dict]:
+    """a = U^T h over h's nonzeros, b = d o a (the locals a<j>, b<j>), as BiermanThornton.update begins."""
+    out.comment("a = U^T h over h's nonzeros, b = d o a")
+    a: dict[int, Value] = {}
+    b: dict[int, Value] = {}
+    for j, terms in enumerate(schedule.terms):
+        if not terms:
+            continue
+        parts = [h_values[j].expr if i == j else product(h_values[i], u[i, j]) for i in terms]
+        a[j] = ONE if parts == [ONE.expr] else out.set(f"a{j}", total(parts))
+        b[j] = out.set(f"b{j}", product(d[j], a[j]))
+    return a, b
+
+
+def variance_c(obs: Float32Observer, name: str, h: np.ndarray) -> str:
+    """`name`(r) -> S = h P⁻ hᵀ + r as Bierman's update reaches it (BiermanThornton.innovation_variance: its final
+    alpha, the gate's denominator), the covariance unchanged."""
+    schedule = obs.cov.bierman(h)
+    out = Lines()
+    reads = {(i, j) for j, terms in enumerate(schedule.terms) for i in terms if i < j}
+    u = {(i, j): out.load(f"u{i}_{j}", f"obs_u[{i}][{j}]") for (i, j) in sorted(reads, key=lambda p: (p[1], p[0]))}
+    d = {j: out.load(f"d{j}", f"obs_d[{j}]") for j, terms in enumerate(schedule.terms) if terms}
+    a, b = _bierman_ab(out, schedule, [literal(v) for v in h], u, d)
+    out.raw("float alpha = r;")
+    for step in schedule.steps:
+        out.raw(f"alpha = alpha + {product(a[step.column], b[step.column])};")
+    out.raw("return alpha;")
+    return (f"/* BiermanThornton.innovation_variance for h = [{', '.join(f'{float(v):.6g}' for v in h)}] */\n"
+            f"static float {name}(float r)\n{{\n" + out.text() + "\n}\n")
 
 
 def rank_one_c(out: Lines, steps, rows, b: dict, u: dict, d: dict) -> None:

@@ -65,6 +65,7 @@ from target_sim.artifact import (
     OUTPUTS,
     ModelArtifact,
     encode_array,
+    observer_gate,
     schema_version_of,
     seal,
     verify,
@@ -85,6 +86,10 @@ DEPLOYED_FORM = "ud"
 # 12.55 / 8.08 / 10.95; magnet 3.31 / 4.87 / 2.70, 5.05 / 2.74 / 2.28, 7.74 / 7.09 / 7.64. Only "magnet" leaves
 # the magnet no worse than the open loop on every motor (none: worse on air-30kw) with the winding still better.
 DEFAULT_CONSIDER = "magnet"
+# the innovation gate `bench observer` writes unless told otherwise (--gate, --gate-flag-after): a reading more than
+# 3 sigma of its innovation off (ν²/S > 9, the 99.73 % quantile of chi-square with 1 degree of freedom) predicts only;
+# 10 rejections in a row (5 s at 0.5 s steps) flag the sensor
+DEFAULT_GATE = (3.0, 10)
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 START_Q_C2 = 1e-4       # the search starts here for every node (°C² per step), R where each kind says (start_r)
 LOG10_BOUNDS = (-12.0, 3.0)
@@ -213,9 +218,9 @@ def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequenc
     return FilterData(run, readings, tuple(measurements))
 
 
-def _run(model: FilterModel, data: FilterData, q, r, p0, keep=False) -> FilterRuns:
+def _run(model: FilterModel, data: FilterData, q, r, p0, keep=False, gate_sigma: float | None = None) -> FilterRuns:
     return run_filters(model.a, model.b, model.c, model.theta, model.sigmoid, data.run.inputs, data.run.initial,
-                       data.readings, q, r, p0, keep)
+                       data.readings, q, r, p0, keep, gate_sigma)
 
 
 def initial_covariance(model: FilterModel, readings: Readings | None = None) -> np.ndarray:
@@ -440,7 +445,7 @@ def state_names(fit: ObserverFit) -> list[str]:
 
 
 def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequence[Dataset],
-                     form: str = DEPLOYED_FORM) -> dict:
+                     form: str = DEPLOYED_FORM, gate: tuple[float, int] | None = None) -> dict:
     """The artifact's `observer` section (version 2) for a tuned fit; node, column, offset_C, R and lag_s of the
     first measurement as a version 1 reader expects them."""
     model = FilterModel.of(artifact)
@@ -490,6 +495,10 @@ def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequen
         section["rule"] += (f"; consider states ({fit.consider}): a measurement that does not read the "
                             f"{CONSIDER_KINDS[fit.consider][0]} has the gain's rows of its held states zero "
                             "(node coordinates), P in Joseph's form of that gain")
+    if gate is not None:         # only then: a section without a gate is written as it always was
+        section["gate"] = {"sigma": float(gate[0]), "flag_after": int(gate[1])}
+        section["rule"] += (f"; innovation gate: a reading with nu^2 > {gate[0]:g}^2 (h P- h' + R) predicts only, "
+                            f"counted; {gate[1]} in a row flag its sensor")
     return section
 
 
@@ -528,13 +537,16 @@ def r_scales(artifact: ModelArtifact) -> list[float]:
 
 
 def reference_run(artifact: ModelArtifact, dataset: Dataset) -> tuple[FilterData, FilterRuns]:
-    """The float64 reference of the artifact's observer on one file (estimate and 1-σ per step)."""
+    """The float64 reference of the artifact's observer on one file (estimate and 1-σ per step), with the section's
+    innovation gate (`observer_gate`; its rejections counted in the runs' `rejections`)."""
     model = FilterModel.of(artifact)
     section = artifact.content["observer"]
     data = filter_data(artifact, dataset, lab_measurements(artifact), section.get("bias"), section.get("consider"))
     q = artifact.array("observer", "Q", dtype=np.float64)
     p0 = artifact.array("observer", "P0", dtype=np.float64)
-    return data, _run(model, data, q[None], [r_scales(artifact)], p0, keep=True)
+    gate = observer_gate(section)
+    return data, _run(model, data, q[None], [r_scales(artifact)], p0, keep=True,
+                      gate_sigma=None if gate is None else gate[0])
 
 
 def measurement_of(artifact: ModelArtifact):

@@ -40,7 +40,8 @@ def _source_jacobian(gains, jac):
 
 @numba.njit(cache=True, fastmath=False)
 def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1,
-                rel, sees, lag_pole, lag_index, bias_index, bias_input, held, q, r, p0, traj, sigma, keep, use_sigmoid):
+                rel, sees, lag_pole, lag_index, bias_index, bias_input, held, q, r, p0, traj, sigma, keep, use_sigmoid,
+                gate, rejected):
     n_steps = ratio.shape[0]
     n = q.shape[0]
     x, x_new, y, u, gains = step_buffers(c_inv, y0)
@@ -99,6 +100,9 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
             ph = p @ h
             s = h @ ph + r_k
             nu = (z0[k, m] + z1[k, m] * y[1]) - predicted
+            if gate > 0.0 and nu * nu > gate * s:   # the innovation gate (sigma², 0: none): predict only
+                rejected[m] += 1
+                continue
             gain = ph / s
             if held_any[m]:   # consider states: the gain's rows of the held nodes (node coordinates) and states 0
                 gy = c @ gain[:4]
@@ -129,11 +133,12 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
 @numba.njit(parallel=True, cache=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1, rel,
            sees, lag_pole, lag_index, bias_index, bias_input, held, q, r, p0, traj, sigma, keep, use_sigmoid, nll,
-           updates):
+           updates, gate, rejected):
     for m in numba.prange(q.shape[0]):
         nll[m], updates[m] = _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu,
                                          copper_ref, y0, z0, z1, rel, sees, lag_pole, lag_index, bias_index,
-                                         bias_input, held, q[m], r[m], p0, traj[m], sigma[m], keep, use_sigmoid)
+                                         bias_input, held, q[m], r[m], p0, traj[m], sigma[m], keep, use_sigmoid,
+                                         gate, rejected[m])
 
 
 @dataclass(frozen=True)
@@ -145,6 +150,7 @@ class FilterRuns:
     updates: np.ndarray          # (M,)
     estimates: np.ndarray | None  # (M, steps, 4)
     sigmas: np.ndarray | None     # (M, steps, 4)
+    rejections: np.ndarray | None = None   # (M, measurements): readings the innovation gate rejected
 
 
 @dataclass(frozen=True)
@@ -200,8 +206,9 @@ class Readings:
 
 
 def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, readings: Readings, q, r, p0,
-                keep: bool = False) -> FilterRuns:
-    """Run M filters (Q: (M, n, n), R: (M, measurements)) of one model (A, B, C in shift form) over one run."""
+                keep: bool = False, gate_sigma: float | None = None) -> FilterRuns:
+    """Run M filters (Q: (M, n, n), R: (M, measurements)) of one model (A, B, C in shift form) over one run;
+    `gate_sigma`: the innovation gate (a reading with ν² > sigma² S predicts only, counted; None: none)."""
     f64 = portable.kernel_array    # one compiled signature whatever the arrays' flags (read-only, strided)
     a, b, c, theta, sig, y0, q, p0 = (f64(m) for m in (a, b, c, theta, sig, y0, q, p0))
     steps = inputs.speed_ratio.shape[0]
@@ -218,12 +225,15 @@ def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, readings: Readings,
     nll = np.zeros(n_models)
     updates = np.zeros(n_models, dtype=np.int64)
     lag_index = np.ascontiguousarray(readings.lag_index, dtype=np.int64)
+    rejected = np.zeros((n_models, z0.shape[1]), dtype=np.int64)
+    gate = 0.0 if gate_sigma is None else float(gate_sigma) ** 2
     _batch(a, b, c, portable.inv(c), theta, sig, f64(inputs.table_losses), f64(inputs.speed_ratio),
            f64(inputs.coolant), f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu),
            float(inputs.copper_reference), y0, z0, z1, rel, f64(np.reshape(readings.sees, (-1, 4))),
            f64(np.reshape(readings.lag_pole, -1)), lag_index, int(readings.bias_index), max(readings.bias_input, 0),
-           np.ascontiguousarray(readings.held), q, r, p0, traj, sigma, bool(keep), use_sigmoid, nll, updates)
-    return FilterRuns(nll, updates, traj if keep else None, sigma if keep else None)
+           np.ascontiguousarray(readings.held), q, r, p0, traj, sigma, bool(keep), use_sigmoid, nll, updates, gate,
+           rejected)
+    return FilterRuns(nll, updates, traj if keep else None, sigma if keep else None, rejected)
 
 
 def source_jacobian(gains) -> np.ndarray:

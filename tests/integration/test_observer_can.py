@@ -244,3 +244,59 @@ def test_an_observer_the_frames_cannot_carry_is_refused_before_any_work(what, ob
     target = run_cli("-m", "target_sim", "--model", str(path), "--quiet", timeout=60)
     assert target.returncode == 2 and target.stdout == "", target.stderr
     assert target.stderr.startswith("target_sim: error: " + sentence) and target.stderr.count("\n") == 1
+
+
+def test_a_lying_sensor_over_can_is_rejected_counted_and_named(observer_artifact, validation_run, tmp_path):
+    """The built-in motor's 40 °C run with its winding column +20 K for 100 rows: `bench run` over the bus with the
+    observer `bench observer` wrote (its default 3-sigma gate): every lying reading rejected and counted, the sensor
+    flagged, the run not clean with a sentence naming winding_C, and the observer's magnet while the sensor lies no
+    worse than 1.5× the open loop's (the same observer without the gate: far worse)."""
+    from bench.drive.dataset import OPTIONAL_SCHEMA, SCHEMA, load_dataset, write_dataset
+    from target_sim.artifact import dumps, seal
+
+    rows, lie = 500, slice(200, 300)
+    dataset = load_dataset(validation_run)
+    names = [c.name for c in (*SCHEMA, *OPTIONAL_SCHEMA) if dataset.has(c.name)]
+    columns = {name: np.array(getattr(dataset, name)[:rows], dtype=np.float64) for name in names}
+    columns["winding_C"][lie] += 20.0
+    lying = tmp_path / "lying.csv"
+    write_dataset(lying, columns, {"coolant_setpoint_C": dataset.coolant_setpoint_C, "note": "winding_C lies"})
+    log = tmp_path / "run.blf"
+    report = tmp_path / "report"
+    proc = run_cli("-m", "bench", "run", "--model", str(observer_artifact), "--data", str(lying), "--log", str(log),
+                   "--report", str(report), "--reply-timeout", "0.5", "--json", timeout=300)
+    assert proc.returncode != 0
+    s = json.loads(proc.stdout)
+    assert s["clean"] is False and s["missing"] == 0
+    named = [p for p in s["problems"] if "innovation gate flagged the sensor winding_C" in p]
+    assert len(named) == 1 and s["problems"] == named, s["problems"]
+    slot = s["metrics"]["observer"]["measurements"]["sensor"]
+    assert slot["sensor_flagged"] is True and slot["sensor"] == "winding_C"
+    text = (report / "report.md").read_text(encoding="utf-8")
+    assert f"The innovation gate rejected {slot['readings_rejected']} readings of winding_C (sensor)" in text
+    assert "the sensor was flagged" in text
+    # every lying reading's step rejected (100 rows: 40 model steps), as the target's own code offline counts them
+    artifact = load_artifact(observer_artifact)
+    record = decode_log(log)
+    gated = run_observer_offline(artifact, record.drive, record.measurements[:, 0], record.initial)
+    in_lie = (gated.rows >= lie.start) & (gated.rows < lie.stop)
+    assert gated.rejected[in_lie, 0].all() and slot["readings_rejected"] == int(gated.rejected.sum()) >= 40
+    assert np.max(np.abs(record.temps[gated.rows] - gated.outputs)) <= 0.005 + 1e-9     # CAN = that code
+    section = {k: v for k, v in artifact.content["observer"].items() if k != "gate"}
+    plain = load_artifact_content(dumps(seal({**artifact.content, "observer": section})), tmp_path)
+    ungated = run_observer_offline(plain, record.drive, record.measurements[:, 0], record.initial)
+    _, open_loop = run_offline(artifact, record.drive, record.initial)
+    pm = columns["pm_C"][gated.rows[in_lie]]
+
+    def rmse(values):
+        return float(np.sqrt(np.mean((values[in_lie, 3] - pm) ** 2)))
+
+    figures = {"open loop": rmse(open_loop), "observer": rmse(ungated.outputs), "gated": rmse(gated.outputs)}
+    print(figures)
+    assert figures["gated"] <= 1.5 * figures["open loop"] < figures["observer"], figures
+
+
+def load_artifact_content(text: str, folder):
+    path = folder / "plain.json"
+    path.write_text(text, encoding="utf-8")
+    return load_artifact(path)

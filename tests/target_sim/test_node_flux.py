@@ -208,8 +208,8 @@ def test_the_checkpoint_is_the_filters_state_in_every_form(observed, rows):
         b.restore_checkpoint(a.checkpoint())
         for k in range(30, 60, 5):
             np.testing.assert_array_equal(a.step(*drive[k], z=z[k]), b.step(*drive[k], z=z[k]))
-    with pytest.raises(ValueError, match="elements"):
-        a.restore_checkpoint([1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="elements"):     # (the gated steady form's: the lag, 2 gate counts)
+        a.restore_checkpoint([1.0] * (a.checkpoint_size() + 1))
 
 
 def test_a_flux_observer_of_a_loss_map_model_is_refused_in_one_sentence(observed, artifacts, tmp_path):

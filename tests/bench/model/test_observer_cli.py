@@ -184,3 +184,27 @@ def test_bench_observer_checks_itself_on_validation_files(small_dataset, tmp_pat
     assert report["validation"] == json.loads(json.dumps(expected.as_dict()))
     assert set(report["validation"]["observer_mse_K2"]) == {"winding", "pm"}
     assert (expected.warning() in report["warnings"]) == bool(expected.worse)
+
+
+def test_bench_observer_writes_its_default_gate_and_none_writes_none(observer_artifact, small_dataset, tmp_path):
+    from bench.model.observer import DEFAULT_GATE
+
+    gate = load_artifact(observer_artifact).content["observer"]["gate"]
+    assert gate == {"sigma": DEFAULT_GATE[0], "flag_after": DEFAULT_GATE[1]} == {"sigma": 3.0, "flag_after": 10}
+    out = tmp_path / "ungated.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--gate", "none", "--out", str(out),
+                 "--quiet"]) == 0
+    assert "gate" not in load_artifact(out).content["observer"]
+
+
+@pytest.mark.parametrize(("options", "said"), [
+    (["--gate", "0"], "--gate must be a number of sigmas above 0 or none, not '0'"),
+    (["--gate", "three"], "--gate must be a number of sigmas above 0 or none, not 'three'"),
+    (["--gate-flag-after", "0"], "--gate-flag-after must be at least 1, not 0"),
+])
+def test_a_bad_gate_option_is_one_sentence_before_any_work(options, said, small_dataset, tmp_path, capsys):
+    out = tmp_path / "gate.json"
+    assert main(["observer", "--train", str(small_dataset), *options, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert said in err and err.count("\n") == 1
+    assert not out.exists()
