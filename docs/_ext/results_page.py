@@ -979,12 +979,14 @@ def render_headline(records: dict[str, list[Record]] | None = None) -> str:
         cells = []
         for motor in suite["figures"]["motors"]:
             row = next((r for r in motor["priors"] if r.get("prior") == "designer" and "test" in r), None)
-            if row:
-                ham = row["test"]["hammerstein"]
-                cells.append(f"{motor['motor']} {ham['winding']['mse_K2']:.1f} / {ham['pm']['mse_K2']:.1f}")
+            if row:   # the model `bench identify` deployed (--kind auto), its kind named where not Hammerstein
+                kind = row.get("deployed_kind", "hammerstein")
+                got = row.get("test_deployed") or row["test"]["hammerstein"]
+                named = "" if kind == "hammerstein" else f" ({kind})"
+                cells.append(f"{motor['motor']} {got['winding']['mse_K2']:.1f} / {got['pm']['mse_K2']:.1f}{named}")
         if cells:
-            rows.append(["motors the model cannot be: the suite's test profiles, Hammerstein from the designer's "
-                         "prior (winding / magnet MSE K², goal ≤ 2.0)", ", ".join(cells),
+            rows.append(["motors the model cannot be: the suite's test profiles, the model `bench identify` deploys "
+                         "from the designer's prior (winding / magnet MSE K², goal ≤ 2.0)", ", ".join(cells),
                          "[suite](docs/results.md#the-motor-suite)"])
     dates = sorted(_date(r) for rs in records.values() for r in rs)
     machines = sorted({f"{r['machine']['cpu']}, {r['machine']['cpus']} CPUs" for rs in records.values() for r in rs})
