@@ -208,3 +208,18 @@ def test_a_bad_gate_option_is_one_sentence_before_any_work(options, said, small_
     err = capsys.readouterr().err
     assert said in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_a_node_corrected_by_another_column_is_judged_like_an_estimate(flux_observer_artifact, capsys):
+    """The flux observer's NTC (ntc_C) corrects the winding node, whose reference is winding_C: its winding row is
+    an estimate, not "winding (measured)", so an observer that worsens it is flagged; the default observer's sensor
+    is winding_C itself, which stays labelled measured (test above)."""
+    artifact, data = flux_observer_artifact
+    assert main(["evaluate", "--model", str(artifact), "--data", str(data), "--quiet"]) == 0
+    out = capsys.readouterr().out
+    table = re.compile(r"^\S+\s+(winding|pm|yoke|tooth)( \(measured\))?\s+([\d.]+)\s+[\d.]+\s+([\d.]+)\s+[\d.]+")
+    rows = [(line, m) for line in out.splitlines() if (m := table.match(line))]
+    assert {m.group(1) for _, m in rows} >= {"winding", "pm"}, out
+    assert not any(m.group(2) for _, m in rows)
+    for line, m in rows:   # each row's verdict follows its own figures
+        assert ("observer WORSE than open loop" in line) == (float(m.group(4)) > float(m.group(3))), line
