@@ -233,6 +233,7 @@ def run_check(args: argparse.Namespace) -> int:
     from bench.firmware.check import check_firmware
     from bench.firmware.images import firmware_for
     from bench.model.runs import initial_temperatures
+    from bench.progress import ProgressBar
     from bench.run.inputs import check_measurement_data, drive_for, load_data, measurements_for
     from target_sim.observer_node import raw_channels, raw_sources
 
@@ -251,7 +252,11 @@ def run_check(args: argparse.Namespace) -> int:
         measurement = measurement[: args.rows] if measurement is not None else None
     with scratch_dir("firmware-check") as cache:
         elf = args.firmware or firmware_for(artifact, Path(cache), quiet=args.quiet or args.json)
-        result = check_firmware(artifact, elf, drive, initial_temperatures(dataset), measurement)
+        bar = ProgressBar(len(drive), "firmware check", quiet=args.quiet or args.json)
+        try:
+            result = check_firmware(artifact, elf, drive, initial_temperatures(dataset), measurement, bar)
+        finally:
+            bar.close()
     report = {**_identity(path, artifact), "data": str(dataset.path), "firmware": str(elf), **result}
     if args.json:
         print_json(report)

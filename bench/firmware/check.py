@@ -15,6 +15,7 @@ per step are summarized.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,21 +28,27 @@ from target_sim.losses import reads_currents
 from target_sim.model import F32, Float32Estimator, InputAccumulator
 from target_sim.observer import Float32Observer, has_observer
 
+Progress = Callable[[int, int], None]    # (rows done, rows), as bench.progress.ProgressBar takes it
+PROGRESS_EVERY = 256                      # rows between two progress calls: well under a tenth of a second here
+
 
 def _bits(values: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(values, dtype=np.float32).view(np.uint32)
 
 
-def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: InputAccumulator
-                  ) -> tuple[list[int], np.ndarray, list[int], float]:
+def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: InputAccumulator,
+                  progress: Progress | None = None) -> tuple[list[int], np.ndarray, list[int], float]:
     """(rows with a step, results per step, cycles per step, seconds) of the emulated firmware: a result is the four
     outputs, and for an observer's model each node's 1-sigma and each measurement's innovation after them, and the
-    filter's checkpoint after every CHECKPOINT_EVERY_STEPS-th step (as the node sends it)."""
+    filter's checkpoint after every CHECKPOINT_EVERY_STEPS-th step (as the node sends it). `progress` is told
+    (rows done, rows) every PROGRESS_EVERY rows: the emulated core is the slow part of a check."""
     rows, results, cycles = [], [], []
     width = model.width
     model.reset(initial)
     started = time.perf_counter()
     for row, sample in enumerate(samples):
+        if progress is not None and row % PROGRESS_EVERY == 0:
+            progress(row, len(samples))
         model.accumulate(sample)
         if not rule.ends_interval(row):
             continue
@@ -57,6 +64,8 @@ def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: 
         cycles.append(model.last_cycles)
         rows.append(row)
     seconds = time.perf_counter() - started
+    if progress is not None:
+        progress(len(samples), len(samples))
     return rows, np.array(results, dtype=F32).reshape(len(results), -1), cycles, seconds
 
 
@@ -92,11 +101,11 @@ def _same(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.ndarray, initial,
-                   measurement: np.ndarray | None = None) -> dict:
+                   measurement: np.ndarray | None = None, progress: Progress | None = None) -> dict:
     """The JSON report of `bench firmware check` (FirmwareError for a bad ELF, BenchError for an emulator fault; one
     sentence each). An observer's model also takes its measurements' raw channels per row (rows, channels) (NaN:
     no reading in that row; `target_sim.observer_node.raw_channels`), and each step's 1-sigma, innovations and the
-    periodic checkpoint are compared too."""
+    periodic checkpoint are compared too. `progress` follows the emulated rows (as a replay's bar)."""
     label = elf if isinstance(elf, bytes) else str(elf)
     model = FirmwareEstimator(artifact, elf)
     drive = np.asarray(drive, dtype=F32)
@@ -117,7 +126,7 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
         samples = np.column_stack([drive, raw])
     rule = InputAccumulator(artifact.data_sample_period, artifact.dt, samples.shape[1])
     try:
-        rows, firmware, cycles, seconds = _run_firmware(model, samples, initial, rule)
+        rows, firmware, cycles, seconds = _run_firmware(model, samples, initial, rule, progress)
     except FirmwareFault as exc:
         raise BenchError(f"the firmware {label} faulted in the emulated core: {exc}") from None
     reference = _run_reference(artifact, samples, initial)
