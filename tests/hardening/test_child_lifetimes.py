@@ -21,43 +21,10 @@ from pathlib import Path
 
 import pytest
 
-from helpers import subprocess_env, synthetic_columns, write_synthetic_dataset
+from helpers import alive, processes_of, subprocess_env, synthetic_columns, wait_for, write_synthetic_dataset
 
 GONE_TIMEOUT_S = 30.0      # for the processes and files to go, polling (a loaded CI machine)
 START_TIMEOUT_S = 120.0    # for pytest to start, the bench to load and the run to log its first frames
-
-
-def alive(pid: int) -> bool:
-    """Process `pid` exists and is not a zombie (one waiting for its adopter to reap it has ended)."""
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return False
-    return state not in ("Z", "X")
-
-
-def processes_of(marker: str, exclude: tuple[int, ...] = ()) -> dict[int, str]:
-    """Live processes whose command line holds `marker`: pid -> command line."""
-    found = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) in (os.getpid(), *exclude):
-            continue
-        try:
-            argv = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:
-            continue
-        if marker in argv and alive(int(entry.name)):
-            found[int(entry.name)] = argv
-    return found
-
-
-def wait_for(predicate, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.1)
-    return predicate()
 
 
 def leftovers(case: Path) -> list[str]:
