@@ -43,8 +43,7 @@ from typing import Any
 
 from bench.errors import BenchError, UsageError
 from bench.run.request import OPTION, RUN, SETTABLE, RunRequest
-from bench.run.values import flag, number
-from bench.tomlspec import read_spec, spec_tables
+from bench.tomlspec import flag, number, read_spec, spec_tables
 from target_sim.kinds import MODEL_KINDS as model_kind_table
 
 MODEL_KINDS = model_kind_table.names()

@@ -91,9 +91,9 @@ def test_lanes_run_the_targets_code_bit_for_bit(kind, small_dataset):
         assert np.array_equal(got[index], expected)
 
 
-BAD_SPECS = [("[perturbations.noise]\ntorque = [-1.0]\n", "torque: -1 must not be negative"),
+BAD_SPECS = [("[perturbations.noise]\ntorque = [-1.0]\n", "torque holds -1, which must not be negative"),
              ("[perturbations.nosie]\n", "[perturbations.nosie] is not a perturbation kind"),
-             ("[perturbations.parameter]\nC_w = [-120]\n", "C_w: -120 must be above -100 %"),
+             ("[perturbations.parameter]\nC_w = [-120]\n", "C_w holds -120, which must be above -100 %"),
              ("[perturbations.bias]\nvoltage = [1.0]\n", "unknown key 'voltage'"),
              ("[study]\nseeds = 0\n", "seeds must be a whole number from 1"),
              ("[filters]\ntime_constants = [0]\n", "time_constants must be positive seconds"),
