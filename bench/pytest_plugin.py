@@ -267,24 +267,6 @@ class BenchRun:
         return self.exit_status == 0
 
 
-def summary_of_host(data: dict[str, Any], config: BenchConfig):
-    """`bench host --json` as a RunSummary (the shape `bench run --json` has), so a test reads both alike."""
-    from bench.analysis.results import BusInfo, HostFaults, RunResults, RunSummary
-
-    if "metrics" not in data:
-        raise BenchRunError("the host's log could not be compared with the model: " + "; ".join(data["problems"]),
-                            1)
-    metrics = RunResults.from_json(data["metrics"])
-    host = {k: v for k, v in data.items() if k not in ("metrics", "problems", "clean", "verdict", "acceptance",
-                                                        "faults", "log_path")}
-    port = config.bus_kwargs.get("port")
-    return RunSummary(engine=data.get("engine"), firmware=None,
-                      bus=BusInfo(config.interface or "", config.channel, int(port) if port else None),
-                      problems=list(data["problems"]), clean=bool(data["clean"]),
-                      faults=HostFaults.of_run(data.get("faults"), metrics.faults), host=host, metrics=metrics,
-                      elapsed_s=float(data.get("wall_time_s") or 0.0))
-
-
 @contextmanager
 def _bus_turn(config: BenchConfig) -> Iterator[None]:
     """One run at a time on an attached target's bus, across processes (pytest-xdist workers)."""
@@ -441,7 +423,10 @@ class ThermalBench:
             raise BenchRunError(_one_sentence(proc.stderr, proc.returncode), proc.returncode) from None
         from bench.analysis.results import RunSummary
 
-        summary = summary_of_host(data, self.config) if self.config.attach else RunSummary.from_json(data)
+        if isinstance(data, dict) and "metrics" not in data:   # a run whose log held no figures (`bench host`)
+            raise BenchRunError("the host's log could not be compared with the model: " + "; ".join(data["problems"]),
+                                1)
+        summary = RunSummary.from_json(data)   # `bench run --json` and `bench host --json` print one shape
         junit = run_dir / "junit.xml"
         return BenchRun(argv, proc.returncode, summary, proc.stderr, junit if junit.is_file() else None)
 

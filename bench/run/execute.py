@@ -1,4 +1,5 @@
-"""Orchestration of a bench run: start the target process, run the host in this process, stop the target.
+"""A run's middle stage (`execute`), shared by `bench run` and `bench host`: start the target process (or attach to
+one already on the bus), run the host in this process, stop the target.
 
 The target (`bench.run.target.TargetProcess`) is on the same bus options as the host; with `auto` the bus is
 SocketCAN vcan0 where usable, else udp_multicast on a port unique to this run (`bench.commands.args.bus_from_args`),
@@ -18,9 +19,11 @@ from __future__ import annotations
 
 import json
 import signal
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import can
 import numpy as np
@@ -30,8 +33,8 @@ from bench.fileio import scratch_dir
 from bench.run.target import TargetProcess
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.database import host_frame_ids
-from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard
-from host.faults import FaultSpec
+from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard, first_heard
+from host.faults import FaultSpec, FaultSpecError
 from host.procedure import replay_log, run_dataset
 from host.replay import Progress
 from host.results import HostResult
@@ -39,9 +42,15 @@ from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 from target_sim.artifact import ModelArtifact
 from target_sim.node import target_on_channel
 
+if TYPE_CHECKING:
+    from bench.run.prepare import PreparedRun
+    from bench.run.request import RunRequest
+
 
 @dataclass
 class RunOutcome:
+    """What the execute stage gives the judge: the host's result, and the target's end when the run started it."""
+
     result: HostResult
     target_status: int | None
     target_stderr: str
@@ -135,6 +144,51 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
         raise BenchError(f"the target process ended with status {status} after the run: "
                          f"{stderr.strip().splitlines()[-1] if stderr.strip() else '(no output)'}")
     return RunOutcome(result, status, stderr, target_stats)
+
+
+def execute(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, *, attach: bool,
+            firmware: Path | None = None, progress: Progress | None = None,
+            announce: Callable[[], None] = lambda: None) -> RunOutcome:
+    """A run's middle stage, shared by `bench run` (the target started here) and `bench host` (`attach`: a target
+    already on the bus): replay the prepared rows, log them. `announce` runs once the bus is the run's, just before
+    anything is sent (the command's lines on stderr, --wait-for-listener)."""
+    from bench.model.runs import initial_temperatures
+
+    initial = initial_temperatures(prepared.dataset)
+    if attach:
+        return _attached(prepared, request, bus, faults, initial, announce)
+    announce()
+    return run_with_target(prepared.model_path, prepared.artifact, bus, prepared.drive, initial, mode=request.mode,
+                           speed=request.speed, sample_period_s=prepared.dataset.sample_period_s,
+                           log_path=prepared.log_path, reply_timeout_s=request.reply_timeout, progress=progress,
+                           faults=faults, firmware=firmware, isr_rate_hz=request.isr_rate,
+                           measurements=prepared.measurements)
+
+
+def _attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, initial,
+              announce: Callable[[], None]) -> RunOutcome:
+    """The host alone against a target already on `bus`; a second host on the channel, heard before the run or
+    during it, ends it in one sentence (`dbc.transport.SenderGuard`)."""
+    host_bus = None
+    try:
+        host_bus = bus.open()
+        if (other := first_heard(host_bus, host_frame_ids())) is not None:  # two hosts would both drive the target
+            raise SessionError(f"{bus.describe()} already has a host sending (frame id "
+                               f"0x{other.arbitration_id:03x}); stop it or pick another channel")
+        host_bus = SenderGuard(host_bus, bus, host_frame_ids(), "host")   # and one that starts later stops this run
+        announce()
+        result = run_dataset(host_bus, prepared.drive, initial, model_id=prepared.artifact.model_id,
+                             mode=request.mode, speed=request.speed,
+                             sample_period_s=prepared.dataset.sample_period_s, log_path=prepared.log_path,
+                             reply_timeout_s=request.reply_timeout, connect_timeout_s=request.connect_timeout,
+                             faults=faults, target_events=request.target_events, events_since=time.time(),
+                             measurements=prepared.measurements)
+    except FaultSpecError as exc:   # kept for its exit status: a plan the host refuses here (faults in real time at
+        raise BenchError(str(exc)) from None   # too short a sample interval) exits 1, a bad --fault option 2
+    finally:
+        if host_bus is not None:
+            host_bus.shutdown()
+    return RunOutcome(result, None, "")
 
 
 def killed_sentence(killed: signal.Signals, result: HostResult) -> str:
