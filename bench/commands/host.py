@@ -17,10 +17,11 @@ channel. Exit status 0 when every row was answered and nothing was lost,
 differ from the offline float32 reference, 2 for bad arguments; every error is one sentence on stderr. The log is
 analyzed as `bench run` analyzes its own (`bench.analysis.report.analyze_log`, no report): every reply is compared
 with the model's offline float32 reference, so a target that computes something else (another loss table under
-the same model id, say) is never clean, and the JSON carries the same figures as `bench run --json` ("rmse_C",
-"max_abs_can_minus_float32_C", "figure_rows": the rows they are over and those a check left out, "metrics").
-The `host` package is the node itself (session, replay,
-faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as `bench run`) and hands
+the same model id, say) is never clean, and --json prints the summary `bench run --json` prints ("rmse_C",
+"max_abs_can_minus_float32_C", "figure_rows": the rows they are over and those a check left out, "metrics"; the
+host's own figures, "rows_sent", "sequence_gaps", "target_state", ..., at the top and under "host"); a run whose
+log holds no figures has no "metrics" and none of the keys made of them. The `host` package is the node itself
+(session, replay, faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as `bench run`) and hands
 the host its drive rows, with the d/q currents (DriveCurrents) when the model has an electrical loss model.
 
 Acceptance criteria (--criteria, --baseline, --junit-xml) as `bench run`'s, judged on the log's figures: each
