@@ -21,8 +21,9 @@ the same model id, say) is never clean, and --json prints the summary `bench run
 "max_abs_can_minus_float32_C", "figure_rows": the rows they are over and those a check left out, "metrics"; the
 host's own figures, "rows_sent", "sequence_gaps", "target_state", ..., at the top and under "host"); a run whose
 log holds no figures has no "metrics" and none of the keys made of them. The `host` package is the node itself
-(session, replay, faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as `bench run`) and hands
-the host its drive rows, with the d/q currents (DriveCurrents) when the model has an electrical loss model.
+(session, replay, faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as
+`bench run`) and hands the host its drive rows, with the d/q currents (DriveCurrents) when the model has an
+electrical loss model.
 
 Acceptance criteria (--criteria, --baseline, --junit-xml) as `bench run`'s, judged on the log's figures: each
 check's figure, limit and verdict in the JSON ("acceptance"), exit status 1 when any fails. With a target of your
@@ -44,7 +45,7 @@ from bench.acceptance.cli import finish_run, prepare
 from bench.commands.args import announce_logger, declare_files
 from bench.commands.common import SHOWN_NODES, add_output_flags, fmt, print_json
 from bench.errors import UsageError
-from bench.run.execute import execute
+from bench.run.execute import execute_attached
 from bench.run.judge import JudgedRun, judge
 from bench.run.leftovers import clear_and_say
 from bench.run.prepare import prepare_run
@@ -97,7 +98,7 @@ def run_host(args: argparse.Namespace) -> int:
         announce_logger(config, args.quiet, "bench: host: ", wait_s=request.wait_for_listener)
 
     started = time.perf_counter()
-    outcome = execute(prepared, request, config, faults, attach=True, announce=announce)
+    outcome = execute_attached(prepared, request, config, faults, announce=announce)
     judged = judge(prepared, outcome, request, acceptor.gate, config, engine=outcome.result.engine, firmware=None,
                    started=started, need_figures=False)
     if args.json:

@@ -69,7 +69,7 @@ from bench.commands.args import announce_logger, bus_from_args, declare_files
 from bench.commands.common import add_output_flags, print_json, print_summary
 from bench.errors import UsageError
 from bench.progress import ProgressBar
-from bench.run.execute import execute
+from bench.run.execute import execute_started
 from bench.run.inputs import firmware_for_engine
 from bench.run.judge import judge, node_cycles
 from bench.run.leftovers import clear_and_say
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     bar = ProgressBar(len(drive), request.mode, quiet)
     started = time.perf_counter()
     try:
-        outcome = execute(prepared, request, bus, faults, attach=False, firmware=firmware, progress=bar)
+        outcome = execute_started(prepared, request, bus, faults, firmware=firmware, progress=bar)
     finally:
         bar.close()
     cycles = node_cycles(outcome.target_stats)

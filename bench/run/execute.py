@@ -1,5 +1,5 @@
-"""A run's middle stage (`execute`), shared by `bench run` and `bench host`: start the target process (or attach to
-one already on the bus), run the host in this process, stop the target.
+"""A run's middle stage, `bench run`'s and `bench host`'s: start the target process (`execute_started`) or attach to
+one already on the bus (`execute_attached`), run the host in this process, stop the target.
 
 The target (`bench.run.target.TargetProcess`) is on the same bus options as the host; with `auto` the bus is
 SocketCAN vcan0 where usable, else udp_multicast on a port unique to this run (`bench.commands.args.bus_from_args`),
@@ -146,29 +146,27 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     return RunOutcome(result, status, stderr, target_stats)
 
 
-def execute(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, *, attach: bool,
-            firmware: Path | None = None, progress: Progress | None = None,
-            announce: Callable[[], None] = lambda: None) -> RunOutcome:
-    """A run's middle stage, shared by `bench run` (the target started here) and `bench host` (`attach`: a target
-    already on the bus): replay the prepared rows, log them. `announce` runs once the bus is the run's, just before
-    anything is sent (the command's lines on stderr, --wait-for-listener)."""
+def execute_started(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, *,
+                    firmware: Path | None = None, progress: Progress | None = None) -> RunOutcome:
+    """A run's middle stage for `bench run`: the target started here (`run_with_target`, on the ELF `firmware` for
+    the firmware engine), the prepared rows replayed and logged."""
     from bench.model.runs import initial_temperatures
 
-    initial = initial_temperatures(prepared.dataset)
-    if attach:
-        return _attached(prepared, request, bus, faults, initial, announce)
-    announce()
-    return run_with_target(prepared.model_path, prepared.artifact, bus, prepared.drive, initial, mode=request.mode,
-                           speed=request.speed, sample_period_s=prepared.dataset.sample_period_s,
-                           log_path=prepared.log_path, reply_timeout_s=request.reply_timeout, progress=progress,
-                           faults=faults, firmware=firmware, isr_rate_hz=request.isr_rate,
-                           measurements=prepared.measurements)
+    return run_with_target(prepared.model_path, prepared.artifact, bus, prepared.drive,
+                           initial_temperatures(prepared.dataset), mode=request.mode, speed=request.speed,
+                           sample_period_s=prepared.dataset.sample_period_s, log_path=prepared.log_path,
+                           reply_timeout_s=request.reply_timeout, progress=progress, faults=faults,
+                           firmware=firmware, isr_rate_hz=request.isr_rate, measurements=prepared.measurements)
 
 
-def _attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, initial,
-              announce: Callable[[], None]) -> RunOutcome:
-    """The host alone against a target already on `bus`; a second host on the channel, heard before the run or
-    during it, ends it in one sentence (`dbc.transport.SenderGuard`)."""
+def execute_attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, *,
+                     announce: Callable[[], None] = lambda: None) -> RunOutcome:
+    """A run's middle stage for `bench host`: the prepared rows replayed to a target already on `bus`, and logged.
+    A second host on the channel, heard before the run or during it, ends it in one sentence (`dbc.transport.
+    SenderGuard`); `announce` runs once the bus is this host's alone, before anything is sent (the command's lines,
+    --wait-for-listener)."""
+    from bench.model.runs import initial_temperatures
+
     host_bus = None
     try:
         host_bus = bus.open()
@@ -177,8 +175,8 @@ def _attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults
                                f"0x{other.arbitration_id:03x}); stop it or pick another channel")
         host_bus = SenderGuard(host_bus, bus, host_frame_ids(), "host")   # and one that starts later stops this run
         announce()
-        result = run_dataset(host_bus, prepared.drive, initial, model_id=prepared.artifact.model_id,
-                             mode=request.mode, speed=request.speed,
+        result = run_dataset(host_bus, prepared.drive, initial_temperatures(prepared.dataset),
+                             model_id=prepared.artifact.model_id, mode=request.mode, speed=request.speed,
                              sample_period_s=prepared.dataset.sample_period_s, log_path=prepared.log_path,
                              reply_timeout_s=request.reply_timeout, connect_timeout_s=request.connect_timeout,
                              faults=faults, target_events=request.target_events, events_since=time.time(),
