@@ -159,32 +159,23 @@ def load_profile(path: Path) -> dict[str, Any]:
     return out
 
 
-# the [run] keys' kinds: a positive whole number, a positive number, one of a few words, a file that must exist
-RUN_WHOLE, RUN_SECONDS, RUN_FILES = ("rows",), ("reply_timeout", "connect_timeout", "timeout"), (
-    "data", "model", "mapping", "criteria", "baseline")
+# the [run] keys that name files (relative to the profile, they must exist); the profile's own key, the time limit
+RUN_FILES = ("data", "model", "mapping", "criteria", "baseline")
 
 
 def run_defaults_problem(run: dict[str, Any]) -> str | None:
-    """Why a profile's [run] table cannot make a run (one clause naming the key), or None."""
-    from host.procedure import MODES
-
-    for key in RUN_WHOLE:
-        value = run.get(key)
-        if value is not None and (type(value) is not int or value < 1):
-            return f"{key} = {value!r} must be a whole number of at least 1"
-    for key in RUN_SECONDS:
-        value = run.get(key)
-        if value is not None and (type(value) not in (int, float) or not value > 0):
-            return f"{key} = {value!r} must be a number of seconds above 0"
-    mode = run.get("mode")
-    if mode is not None and mode not in MODES:
-        return f"mode = {mode!r} is not one of {', '.join(MODES)}"
+    """Why a profile's [run] table cannot make a run (one clause naming the key), or None: a file that does not
+    exist, a time limit that is no positive number, any other run option the run request's own check refuses (the
+    words a campaign spec's key gets)."""
     for key in RUN_FILES:
         value = run.get(key)
         if value is not None and (not isinstance(value, str) or not Path(value).exists()):
             return f"{key} = {value!r} does not exist (a path relative to the profile)"
-    for key, value in run.items():   # every other run option: the run request's own check
-        if key in OPTION and key not in (*RUN_WHOLE, *RUN_SECONDS, *RUN_FILES, "mode"):
+    timeout = run.get("timeout")
+    if timeout is not None and (type(timeout) not in (int, float) or not timeout > 0):
+        return f"timeout = {timeout!r} must be a number of seconds above 0"
+    for key, value in run.items():
+        if key in OPTION and key not in RUN_FILES:
             try:
                 OPTION[key].check(value)
             except ValueError as exc:

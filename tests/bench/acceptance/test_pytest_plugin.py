@@ -94,9 +94,11 @@ def test_under_xunit2_the_figures_are_suite_properties(tmp_path):
     ("[target]\nattach = true\n", "attaching to a target needs its bus: --bench-interface"),
     ("[x\n", "is not a readable TOML file"),
     # these failed every test at run time, naming no profile
-    ("[run]\nrows = -5\n", "p.toml: [run] rows = -5 must be a whole number of at least 1"),
-    ("[run]\nmode = 'fast'\n", "p.toml: [run] mode = 'fast' is not one of lockstep, realtime"),
-    ("[run]\nreply_timeout = 0\n", "p.toml: [run] reply_timeout = 0 must be a number of seconds above 0"),
+    # the run request's own checks (`bench.run.request`), in the words a campaign spec's key gets
+    ("[run]\nrows = -5\n", "p.toml: [run] rows = -5: must be a positive whole number of rows"),
+    ("[run]\nmode = 'fast'\n", "p.toml: [run] mode = 'fast': must be one of lockstep, realtime"),
+    ("[run]\nreply_timeout = 0\n", "p.toml: [run] reply_timeout = 0: must be a positive number"),
+    ("[run]\ntimeout = 0\n", "p.toml: [run] timeout = 0 must be a number of seconds above 0"),
     ("[run]\ndata = 'nowhere.csv'\n", "p.toml: [run] data = '"),
     ("[bus]\ninterface = 'udp_multicst'\n", "the bench interface 'udp_multicst' (--bench-interface or [bus] "
                                             "interface) is not a python-can interface; did you mean "
