@@ -159,32 +159,23 @@ def load_profile(path: Path) -> dict[str, Any]:
     return out
 
 
-# the [run] keys' kinds: a positive whole number, a positive number, one of a few words, a file that must exist
-RUN_WHOLE, RUN_SECONDS, RUN_FILES = ("rows",), ("reply_timeout", "connect_timeout", "timeout"), (
-    "data", "model", "mapping", "criteria", "baseline")
+# the [run] keys that name files (relative to the profile, they must exist); the profile's own key, the time limit
+RUN_FILES = ("data", "model", "mapping", "criteria", "baseline")
 
 
 def run_defaults_problem(run: dict[str, Any]) -> str | None:
-    """Why a profile's [run] table cannot make a run (one clause naming the key), or None."""
-    from host.procedure import MODES
-
-    for key in RUN_WHOLE:
-        value = run.get(key)
-        if value is not None and (type(value) is not int or value < 1):
-            return f"{key} = {value!r} must be a whole number of at least 1"
-    for key in RUN_SECONDS:
-        value = run.get(key)
-        if value is not None and (type(value) not in (int, float) or not value > 0):
-            return f"{key} = {value!r} must be a number of seconds above 0"
-    mode = run.get("mode")
-    if mode is not None and mode not in MODES:
-        return f"mode = {mode!r} is not one of {', '.join(MODES)}"
+    """Why a profile's [run] table cannot make a run (one clause naming the key), or None: a file that does not
+    exist, a time limit that is no positive number, any other run option the run request's own check refuses (the
+    words a campaign spec's key gets)."""
     for key in RUN_FILES:
         value = run.get(key)
         if value is not None and (not isinstance(value, str) or not Path(value).exists()):
             return f"{key} = {value!r} does not exist (a path relative to the profile)"
-    for key, value in run.items():   # every other run option: the run request's own check
-        if key in OPTION and key not in (*RUN_WHOLE, *RUN_SECONDS, *RUN_FILES, "mode"):
+    timeout = run.get("timeout")
+    if timeout is not None and (type(timeout) not in (int, float) or not timeout > 0):
+        return f"timeout = {timeout!r} must be a number of seconds above 0"
+    for key, value in run.items():
+        if key in OPTION and key not in RUN_FILES:
             try:
                 OPTION[key].check(value)
             except ValueError as exc:
@@ -265,24 +256,6 @@ class BenchRun:
     def passed(self) -> bool:
         """The bench's exit status was 0: clean (or tolerated) and every acceptance criterion met."""
         return self.exit_status == 0
-
-
-def summary_of_host(data: dict[str, Any], config: BenchConfig):
-    """`bench host --json` as a RunSummary (the shape `bench run --json` has), so a test reads both alike."""
-    from bench.analysis.results import BusInfo, HostFaults, RunResults, RunSummary
-
-    if "metrics" not in data:
-        raise BenchRunError("the host's log could not be compared with the model: " + "; ".join(data["problems"]),
-                            1)
-    metrics = RunResults.from_json(data["metrics"])
-    host = {k: v for k, v in data.items() if k not in ("metrics", "problems", "clean", "verdict", "acceptance",
-                                                        "faults", "log_path")}
-    port = config.bus_kwargs.get("port")
-    return RunSummary(engine=data.get("engine"), firmware=None,
-                      bus=BusInfo(config.interface or "", config.channel, int(port) if port else None),
-                      problems=list(data["problems"]), clean=bool(data["clean"]),
-                      faults=HostFaults.of_run(data.get("faults"), metrics.faults), host=host, metrics=metrics,
-                      elapsed_s=float(data.get("wall_time_s") or 0.0))
 
 
 @contextmanager
@@ -441,7 +414,10 @@ class ThermalBench:
             raise BenchRunError(_one_sentence(proc.stderr, proc.returncode), proc.returncode) from None
         from bench.analysis.results import RunSummary
 
-        summary = summary_of_host(data, self.config) if self.config.attach else RunSummary.from_json(data)
+        if isinstance(data, dict) and "metrics" not in data:   # a run whose log held no figures (`bench host`)
+            raise BenchRunError("the host's log could not be compared with the model: " + "; ".join(data["problems"]),
+                                1)
+        summary = RunSummary.from_json(data)   # `bench run --json` and `bench host --json` print one shape
         junit = run_dir / "junit.xml"
         return BenchRun(argv, proc.returncode, summary, proc.stderr, junit if junit.is_file() else None)
 

@@ -632,8 +632,10 @@ def verdict_text(clean: bool, problems: list[str], injected: int = 0, undetected
 
 @dataclass
 class RunSummary(_Json):
-    """What `bench run --json` prints: the brief's numbers first (copies of `metrics`' own, kept at the top for a
-    script), then the verdict, the bus, the host's figures and the metrics."""
+    """What a run prints with `--json`, `bench run`'s and `bench host`'s alike: the brief's numbers first (copies of
+    `metrics`' own, kept at the top for a script), then the verdict, the bus, the host's figures (under "host", and
+    each at the top too, where `bench host` always had them) and the metrics. A run whose log holds no figures (it
+    ended before its first row) has no metrics, and none of the keys made of them."""
 
     engine: str | None
     firmware: str | None
@@ -642,14 +644,20 @@ class RunSummary(_Json):
     clean: bool
     faults: HostFaults | None
     host: dict[str, Any]          # `host.results.HostResult.to_dict()` (the host package's record), less the above
-    metrics: RunResults
+    metrics: RunResults | None
     elapsed_s: float
     node_cycles: NodeCycles | None = None
+    log_path: str | None = None   # the host's log (the metrics' own once the log is analyzed)
+    # the criteria judged on no figures (each fails, saying why); with metrics, they are the metrics' own
+    unjudged: Acceptance | None = field(default=None, metadata=OMIT_NONE)
+
+    @property
+    def acceptance(self) -> Acceptance | None:
+        return self.metrics.acceptance if self.metrics is not None else self.unjudged
 
     def to_json(self) -> dict[str, Any]:
         m = self.metrics
-        head = {
-            "engine": self.engine, "firmware": self.firmware,
+        figures = {} if m is None else {
             "steps_sent": m.counts.steps_sent, "replies": m.counts.replies, "missing": m.counts.missing,
             "max_abs_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C, "rmse_C": m.accuracy.rmse_C,
             "rmse_reference": m.accuracy.rmse_reference,   # what each node's RMSE is against
@@ -657,12 +665,20 @@ class RunSummary(_Json):
             "step_time_us": m.timing.step_time_us, "est_cycles": m.timing.est_cycles,
             "m4_cycles": m.timing.m4_cycles, "flash_bytes": m.memory.flash_bytes, "ram_bytes": m.memory.ram_bytes,
             "memory_source": m.memory.memory_source, "throughput_steps_per_s": m.throughput.throughput_steps_per_s,
-            "log": m.integrity.log, "report": m.report, "bus": self.bus, "problems": self.problems,
-            "notes": m.notes, "clean": self.clean, "verdict": self.verdict,
-            **({"acceptance": m.acceptance} if m.acceptance is not None else {}),
+            "log": m.integrity.log, "report": m.report}
+        head = {
+            "engine": self.engine, "firmware": self.firmware, **figures, "bus": self.bus, "problems": self.problems,
+            **({"notes": m.notes} if m is not None else {}), "clean": self.clean, "verdict": self.verdict,
+            **({"acceptance": self.acceptance} if self.acceptance is not None else {}),
             "faults": self.faults, "host": self.host}
-        return {SCHEMA_KEY: SCHEMA_VERSION, **_dump(head), "metrics": m.to_json(windows=False),
-                "elapsed_s": round(self.elapsed_s, 2), "node_cycles": _dump(self.node_cycles)}
+        out = {SCHEMA_KEY: SCHEMA_VERSION, **_dump(head)}
+        if m is not None:
+            out["metrics"] = m.to_json(windows=False)
+        out |= {"elapsed_s": round(self.elapsed_s, 2), "node_cycles": _dump(self.node_cycles)}
+        # the host's record at the top as well, each key where `bench host --json` always had it
+        flat = {**self.host, "log_path": self.log_path if self.log_path is not None else
+                (m.integrity.log if m is not None else None)}
+        return out | {k: _dump(v) for k, v in flat.items() if k not in out}
 
     @property
     def verdict(self) -> str:
