@@ -45,7 +45,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import tomllib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -56,6 +55,8 @@ import pytest
 
 from bench.errors import BenchError
 from bench.run.request import HOST, OPTION, RUN, SETTABLE, RunRequest
+from bench.tomlspec import Check, TableSpec, flag, number, read_spec, spec_tables, string, whole_at_least
+from bench.tomlspec import path as path_value
 from dbc.files import same_file
 from dbc.lifeline import child_environment
 from dbc.transport import bus_interfaces
@@ -63,8 +64,6 @@ from dbc.transport import bus_interfaces
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
 # [run]: every run option a user sets (`bench.run.request`), and how long a run may take
-PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", "bitrate", "bus_kwargs"),
-                "run": (*SETTABLE, "timeout")}
 DEFAULT_TIMEOUT_S = 900.0
 STOP_GRACE_S = 20.0   # a bench told to stop (SIGTERM) stops its target (5 s at most) and exits; then SIGKILL
 # an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
@@ -133,29 +132,13 @@ def load_profile(path: Path) -> dict[str, Any]:
         criteria = "criteria.toml"
     """
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise pytest.UsageError(f"--bench-profile {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise pytest.UsageError(f"--bench-profile {path} is not a readable TOML file ({exc})") from None
+    text = read_spec(path, "--bench-profile", "give the path of a TOML profile", pytest.UsageError)
+    doc = spec_tables(text, f"--bench-profile {path}", PROFILE_KEYS, pytest.UsageError, fix="fix the profile",
+                      unknown="has an unknown section {key!r}; a profile has the tables {tables}")
     out: dict[str, Any] = {}
-    for section, table in doc.items():
-        if section not in PROFILE_KEYS or not isinstance(table, dict):
-            raise pytest.UsageError(f"--bench-profile {path}: unknown section {section!r}; a profile has the "
-                                    f"tables {', '.join(f'[{s}]' for s in PROFILE_KEYS)}")
-        unknown = [k for k in table if k not in PROFILE_KEYS[section]]
-        if unknown:
-            raise pytest.UsageError(f"--bench-profile {path}: [{section}] has an unknown key {unknown[0]!r}; use "
-                                    f"{', '.join(PROFILE_KEYS[section])}")
-        out[section] = dict(table)
-    for key in RUN_FILES:   # relative to the profile
-        value = out.get("run", {}).get(key)
-        if isinstance(value, str) and not Path(value).is_absolute():
-            out["run"][key] = str(path.parent / value)
-    problem = run_defaults_problem(out.get("run", {}))
-    if problem:   # at start, naming the profile: not a failure of every test at run time
-        raise pytest.UsageError(f"--bench-profile {path}: [run] {problem}")
+    for section, spec in profile_tables(path.parent).items():
+        if section in doc:    # checked, at start and naming the profile: not a failure of every test at run time
+            out[section] = spec.read(doc[section], f"--bench-profile {path}", pytest.UsageError)
     return out
 
 
@@ -163,24 +146,48 @@ def load_profile(path: Path) -> dict[str, Any]:
 RUN_FILES = ("data", "model", "mapping", "criteria", "baseline")
 
 
-def run_defaults_problem(run: dict[str, Any]) -> str | None:
-    """Why a profile's [run] table cannot make a run (one clause naming the key), or None: a file that does not
-    exist, a time limit that is no positive number, any other run option the run request's own check refuses (the
-    words a campaign spec's key gets)."""
-    for key in RUN_FILES:
-        value = run.get(key)
-        if value is not None and (not isinstance(value, str) or not Path(value).exists()):
-            return f"{key} = {value!r} does not exist (a path relative to the profile)"
-    timeout = run.get("timeout")
-    if timeout is not None and (type(timeout) not in (int, float) or not timeout > 0):
-        return f"timeout = {timeout!r} must be a number of seconds above 0"
-    for key, value in run.items():
-        if key in OPTION and key not in RUN_FILES:
-            try:
-                OPTION[key].check(value)
-            except ValueError as exc:
-                return f"{key} = {value!r}: {exc}"
-    return None
+def profile_tables(base: Path) -> dict[str, TableSpec]:
+    """A profile's tables: [target] and [bus] (checked further against pytest's options in `config_of`), and [run],
+    whose keys are the run request's own options with their own checks (the words a campaign spec's key gets), its
+    files relative to `base` (they must exist), and the profile's own time limit."""
+    run: dict[str, Check] = {key: OPTION[key].check for key in SETTABLE}
+    run.update({key: _existing_file(base) for key in RUN_FILES}, timeout=_seconds)
+    return {"target": TableSpec("[target]", {"engine": string, "attach": flag}),
+            "bus": TableSpec("[bus]", {"interface": string, "channel": _channel, "bitrate": whole_at_least(1),
+                                       "bus_kwargs": _table}),
+            "run": TableSpec("[run]", run)}
+
+
+
+def _existing_file(base: Path) -> Check:
+    def check(value: Any) -> str:
+        where = base / path_value(value)
+        if not where.exists():
+            raise ValueError(f"{value!r} does not exist (a path relative to the profile)")
+        return str(where)
+    return check
+
+
+def _seconds(value: Any) -> float:
+    if number(value, positive=False) <= 0:
+        raise ValueError("must be a number of seconds above 0")
+    return float(value)
+
+
+def _channel(value: Any) -> str | int:
+    if isinstance(value, bool) or not isinstance(value, str | int):
+        raise ValueError("must be a string or a whole number")
+    return value
+
+
+def _table(value: Any) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ValueError("must be a table, e.g. { port = 43113 }")
+    return value
+
+
+# each table's keys (a profile's sections, in order)
+PROFILE_KEYS = {section: tuple(spec.keys) for section, spec in profile_tables(Path()).items()}
 
 
 def _bus_kwargs(items: list[str]) -> dict[str, Any]:

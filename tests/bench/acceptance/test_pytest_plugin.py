@@ -92,14 +92,14 @@ def test_under_xunit2_the_figures_are_suite_properties(tmp_path):
 @pytest.mark.parametrize("profile, words", [
     ("[bus]\nspeed = 1\n", "[bus] has an unknown key 'speed'; use interface, channel, bitrate, bus_kwargs"),
     ("[target]\nattach = true\n", "attaching to a target needs its bus: --bench-interface"),
-    ("[x\n", "is not a readable TOML file"),
+    ("[x\n", "is not valid TOML"),
     # these failed every test at run time, naming no profile
     # the run request's own checks (`bench.run.request`), in the words a campaign spec's key gets
-    ("[run]\nrows = -5\n", "p.toml: [run] rows = -5: must be a positive whole number of rows"),
-    ("[run]\nmode = 'fast'\n", "p.toml: [run] mode = 'fast': must be one of lockstep, realtime"),
-    ("[run]\nreply_timeout = 0\n", "p.toml: [run] reply_timeout = 0: must be a positive number"),
-    ("[run]\ntimeout = 0\n", "p.toml: [run] timeout = 0 must be a number of seconds above 0"),
-    ("[run]\ndata = 'nowhere.csv'\n", "p.toml: [run] data = '"),
+    ("[run]\nrows = -5\n", "p.toml: [run] rows must be a positive whole number of rows"),
+    ("[run]\nmode = 'fast'\n", "p.toml: [run] mode must be one of lockstep, realtime"),
+    ("[run]\nreply_timeout = 0\n", "p.toml: [run] reply_timeout must be a positive number"),
+    ("[run]\ntimeout = 0\n", "p.toml: [run] timeout must be a number of seconds above 0"),
+    ("[run]\ndata = 'nowhere.csv'\n", "p.toml: [run] data 'nowhere.csv' does not exist"),
     ("[bus]\ninterface = 'udp_multicst'\n", "the bench interface 'udp_multicst' (--bench-interface or [bus] "
                                             "interface) is not a python-can interface; did you mean "
                                             "'udp_multicast'?"),
