@@ -315,6 +315,10 @@ def render_markdown(metrics: RunResults, found: list[str], dataset, run_info: di
               f"{_listed(log.invalid_frames_in_log)} |",
               f"| ... of them the target's, by message (none of their values is used) | "
               f"{_listed(log.rejected_target_frames)} |",
+              f"| ... of them the host's measurement frames the target's checks refuse (their readings unused) | "
+              f"{_listed(log.rejected_host_frames)} |",
+              f"| restores not from a checkpoint the target sent (start row, why) | "
+              f"{', '.join(f'{row} {why}' for row, why in log.restores_not_from_target) or 'none'} |",
               f"| frames that pass those checks but are not of this session (not used) | "
               f"{_listed(log.foreign_frames)} |",
               f"| rows with two different replies (not reported) | {log.contested_rows} |",

@@ -22,6 +22,7 @@ import pytest
 
 from bench.analysis.canmetrics import compute
 from bench.analysis.logdecode import decode_log
+from bench.analysis.report import render_markdown
 from bench.analysis.verdict import problems
 from dbc import BenchEvent, Command, FaultKind, FrameCodec, decode_any
 from dbc.codec import apply_crc
@@ -192,6 +193,9 @@ def test_a_replayed_measurements_frame_is_refused_and_counted_as_the_target_coun
     assert results.figure_rows.excluded == {}
     said = [p for p in problems(results) if "of the host's measurement frames" in p]
     assert len(said) == 1 and said[0].startswith("the target's checks refuse 2 of the host's measurement frames")
+    text = render_markdown(results, problems(results), None, {})
+    assert "| ... of them the host's measurement frames the target's checks refuse (their readings unused) | " \
+        "Measurements 2 |" in text
 
 
 def test_forged_checkpoint_frames_are_contested_and_never_restored_from(observer, tmp_path):
@@ -236,3 +240,5 @@ def test_a_restore_from_a_checkpoint_the_target_did_not_send_is_found(observer, 
     assert len(named) == 1 and f"restored at row {session.restore_row}" in named[0]
     assert ("a state the target never sent" if why == "forged" else "contested") in named[0]
     assert results.integrity.restores_not_from_target == [[session.restore_row, why]]
+    text = render_markdown(results, problems(results), None, {})
+    assert f"| restores not from a checkpoint the target sent (start row, why) | {session.restore_row} {why} |" in text
