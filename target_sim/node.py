@@ -33,11 +33,12 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   the kept frames of that Step, and the row's own currents for the flux linkage — are more values of the row,
   averaged over the interval with the drive values (none: NaN, and the model step of an interval with such a row
   makes no update with that measurement; with none valid it predicts only). Every model step is then answered,
-  after its Timing frames, with Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations (each used
-  measurement's innovation in its slot). RESET resets the covariance to P0. RESTORE sets x bit for bit, and the
-  filter's extra states and covariance from the RestoreObserver frames of that Step when all came (bit for bit),
-  else the covariance P0. After each StateCheckpoint the node sends its ObserverCheckpoint. A model without an
-  observer validates the observer's frames and ignores them.
+  after its Timing frames, with Uncertainty1, Uncertainty2 (each node's 1-sigma; Uncertainty1 with each slot's
+  sensor flagged by the innovation gate) and Innovations (each used measurement's innovation in its slot, and
+  each slot's reading rejected by the gate this step, DBC 1.8.0). RESET resets the covariance to P0. RESTORE
+  sets x bit for bit, and the filter's extra states and covariance from the RestoreObserver frames of that Step
+  when all came (bit for bit), else the covariance P0. After each StateCheckpoint the node sends its
+  ObserverCheckpoint. A model without an observer validates the observer's frames and ignores them.
 * Sequence errors (counted, SEQUENCE fault bit, nothing reaches the model): a drive frame outside RUNNING, a
   DriveTemps without its DriveInputs (a DriveCurrents without its DriveTemps), a row whose frames have different
   Steps, a DriveInputs whose row never completed, a row that goes back (or repeats one before the last: not
@@ -275,7 +276,7 @@ class TargetNode:
         """Uncertainty1, Uncertainty2 and Innovations after a model step of the observer."""
         observer = self.observer
         signals = observer_signals(observer.sigma(), observer.innovations(), self._sigma_limits,
-                                   self._innovation_limits)
+                                   self._innovation_limits, observer.gate_status())
         return [frame for name in OBSERVER_MESSAGES for frame in self._encode(name, {"Step": step, **signals[name]})]
 
     # ------------------------------------------------------------------ receiving

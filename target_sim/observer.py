@@ -750,6 +750,7 @@ class ObserverRun:
     filter_covariances: np.ndarray | None = None      # on request: the filter's own P' (node coordinates)
     rejected: np.ndarray | None = None                # per step and measurement: the gate rejected its reading
     flagged: np.ndarray | None = None                 # per measurement: its sensor was flagged (latched)
+    flagged_steps: np.ndarray | None = None           # per step and measurement: its sensor flagged after the step
 
 
 def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement: np.ndarray,
@@ -770,7 +771,7 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
                          f"not {drive.shape} and {measurement.shape}")
     rows = np.column_stack([drive, measurement])
     acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width + channels)
-    steps, outputs, innovations, covariances, sigmas, own, rejected = [], [], [], [], [], [], []
+    steps, outputs, innovations, covariances, sigmas, own, rejected, flagged = [], [], [], [], [], [], [], []
     for row, sample in enumerate(rows):
         means = acc.add(row, sample)
         if means is None:
@@ -778,6 +779,7 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
         outputs.append(obs.step(*means[:width], z=means[width:]))
         innovations.append(obs.innovations.copy())
         rejected.append(obs.rejected.copy())
+        flagged.append(obs.flagged.copy())
         sigmas.append(obs.sigma())
         if keep_covariance:
             covariances.append(np.array(obs.covariance(), dtype=np.float64))
@@ -787,4 +789,5 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
     return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4), every[:, 0],
                        np.array(covariances) if keep_covariance else None,
                        np.array(sigmas).reshape(-1, 4), every, np.array(own) if keep_covariance else None,
-                       np.array(rejected, dtype=bool).reshape(-1, len(obs.measurements)), obs.flagged.copy())
+                       np.array(rejected, dtype=bool).reshape(-1, len(obs.measurements)), obs.flagged.copy(),
+                       np.array(flagged, dtype=bool).reshape(-1, len(obs.measurements)))

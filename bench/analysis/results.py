@@ -248,6 +248,7 @@ class Agreement:
 
 
 REASON_WORDS = {"contested": "contested", "replayed": "replayed",
+                "restored_not_from_target": "restored from a checkpoint the target did not send",
                 "off_reference": "off the float32 reference"}
 
 
@@ -367,6 +368,10 @@ class Integrity:
     log_unclosed: bool
     last_row: int
     log: str
+    # the host's measurement frames the target's checks refuse, by message (a replayed or lost frame: the counter)
+    rejected_host_frames: dict[str, int] = field(default_factory=dict)
+    # segments restored from a state the target never sent or from a contested checkpoint: [start row, why]
+    restores_not_from_target: list[list] = field(default_factory=list)
 
 
 @dataclass
@@ -482,12 +487,20 @@ class SlotFigures:
     rows_measured: int              # rows whose measurement frames carried its channels VALID
     model_steps_updated: int        # model steps whose update used it (its Used flag)
     innovation_rms_C: float | None
-    # the innovation gate (the section's `gate`), from the target's own float32 code offline (which the CAN
-    # estimates are checked against): readings rejected (ν² > sigma² S: predicted only), whether its sensor was
-    # flagged (flag_after rejections in a row), and the sensor's name
+    # the innovation gate (the section's `gate`) as the target reported it on the bus (DBC 1.8.0: each step's
+    # Rejected flag in Innovations, the Flagged flag in Uncertainty1): readings rejected (ν² > sigma² S: predicted
+    # only), whether its sensor was flagged (flag_after rejections in a row), and the sensor's name; a log of an
+    # older target (DBC < 1.8) carries neither: then they are the offline float32 code's (`gate_source`)
     readings_rejected: int = 0
     sensor_flagged: bool = False
     sensor: str = ""
+    gate_source: str = "bus"                # "bus", or "offline float32" for a target of DBC < 1.8
+    # the same from the target's own float32 code offline, and the cross-check: the model steps compared (where
+    # CAN = that code, in the run's first segment) and those whose Rejected or Flagged flag differs (a finding)
+    readings_rejected_float32: int = 0
+    sensor_flagged_float32: bool = False
+    gate_steps_compared: int = 0
+    gate_steps_differing: int = 0
 
 
 @dataclass

@@ -201,3 +201,37 @@ def test_a_tied_child_ends_when_its_parent_is_killed(kernel):
             os.killpg(parent.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+COMPILING_PARENT = """
+import sys
+from bench.firmware import toolchain
+# a "compiler" that says who it is and takes its time: the bench waits for it as for ziglang
+toolchain.COMPILER = [sys.executable, "-c", "import os, sys, time; open(sys.argv[1] + '.tmp', 'w').write("
+                      "str(os.getpid())); os.replace(sys.argv[1] + '.tmp', sys.argv[1]); time.sleep(120)",
+                      sys.argv[1]]
+toolchain.toolchain_version()
+"""
+
+
+def test_the_compiler_ends_when_the_bench_compiling_is_killed(tmp_path):
+    """SIGKILL of a bench process while its cross-compiler runs (`bench.firmware.toolchain`, through
+    `dbc.lifeline.tied_command`): the compiler ends too (it ran on, orphaned, before)."""
+    pid_file = tmp_path / "compiler.pid"
+    parent = subprocess.Popen([sys.executable, "-c", COMPILING_PARENT, str(pid_file)],
+                              env=subprocess_env(can_settings=False), start_new_session=True)
+    try:
+        assert wait_for(pid_file.exists, START_TIMEOUT_S), "the compiler never started"
+        compiler = int(pid_file.read_text())
+        assert alive(compiler) and compiler != parent.pid
+        parent.kill()
+        parent.wait()
+        assert wait_for(lambda: not alive(compiler), GONE_TIMEOUT_S), f"the compiler {compiler} outlived the bench"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+        try:
+            os.killpg(parent.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
