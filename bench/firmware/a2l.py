@@ -29,6 +29,8 @@ from target_sim.xcp.memory import Cell
 
 A2L_LIMIT = 3.4e38      # a float32 cell without limits: the type's range
 TIMEOUT_MS = 2000
+OPTIONAL_COMMANDS = ("GET_COMM_MODE_INFO", "GET_ID", "SHORT_UPLOAD", "BUILD_CHECKSUM", "GET_DAQ_PROCESSOR_INFO",
+                     "GET_DAQ_RESOLUTION_INFO", "FREE_DAQ", "ALLOC_DAQ", "ALLOC_ODT", "ALLOC_ODT_ENTRY")
 
 
 class A2lError(ValueError):
@@ -98,8 +100,9 @@ def a2l_text(artifact: ModelArtifact, elf: str | os.PathLike | None = None) -> s
              f"  /begin MODULE {a2l_name} {_text(f'model {artifact.model_id:08x} ({artifact.kind})')}",
              '    /begin MOD_PAR ""', f"      EPK {_text(text)}", f"      ADDR_EPK 0x{IDENTIFICATION:08X}",
              "    /end MOD_PAR",
-             '    /begin MOD_COMMON ""', "      BYTE_ORDER MSB_LAST", "      ALIGNMENT_BYTE 1", "      ALIGNMENT_WORD 2",
-             "      ALIGNMENT_LONG 4", "      ALIGNMENT_FLOAT32_IEEE 4", "    /end MOD_COMMON",
+             '    /begin MOD_COMMON ""', "      BYTE_ORDER MSB_LAST", "      ALIGNMENT_BYTE 1",
+             "      ALIGNMENT_WORD 2", "      ALIGNMENT_LONG 4", "      ALIGNMENT_FLOAT32_IEEE 4",
+             "    /end MOD_COMMON",
              *_if_data(artifact),
              "    /begin RECORD_LAYOUT RL_FLOAT32", "      FNC_VALUES 1 FLOAT32_IEEE COLUMN_DIR DIRECT",
              "    /end RECORD_LAYOUT"]
@@ -135,10 +138,7 @@ def _if_data(artifact: ModelArtifact) -> list[str]:
             "      /begin PROTOCOL_LAYER",
             f"        0x0100 {' '.join([str(TIMEOUT_MS)] * 7)} {MAX_CTO} {MAX_DTO} BYTE_ORDER_MSB_LAST "
             "ADDRESS_GRANULARITY_BYTE",
-            "        OPTIONAL_CMD GET_COMM_MODE_INFO", "        OPTIONAL_CMD GET_ID", "        OPTIONAL_CMD SHORT_UPLOAD",
-            "        OPTIONAL_CMD BUILD_CHECKSUM", "        OPTIONAL_CMD GET_DAQ_PROCESSOR_INFO",
-            "        OPTIONAL_CMD GET_DAQ_RESOLUTION_INFO", "        OPTIONAL_CMD FREE_DAQ", "        OPTIONAL_CMD ALLOC_DAQ",
-            "        OPTIONAL_CMD ALLOC_ODT", "        OPTIONAL_CMD ALLOC_ODT_ENTRY",
+            *(f"        OPTIONAL_CMD {name}" for name in OPTIONAL_COMMANDS),
             "      /end PROTOCOL_LAYER",
             "      /begin DAQ",
             f"        DYNAMIC {MAX_ODT_ENTRIES} {len(EVENTS)} 0 OPTIMISATION_TYPE_DEFAULT ADDRESS_EXTENSION_FREE "
