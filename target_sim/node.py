@@ -116,7 +116,7 @@ from target_sim.observer import has_observer
 from target_sim.observer_node import NodeObserver, observer_signals
 from target_sim.xcp import node_slave
 from target_sim.xcp.codes import PID_ERR, Err
-from target_sim.xcp.daq import EVENT_MODEL_STEP
+from target_sim.xcp.daq import EVENT_HEARTBEAT, EVENT_MODEL_STEP
 
 SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll before blocking (0 disables)
 
@@ -256,7 +256,8 @@ class TargetNode:
         return self.target_info_frames() + self.status_frames() + self.rx_error_frames()
 
     def heartbeat_frames(self) -> list[can.Message]:
-        return self.status_frames() + self.rx_error_frames()
+        """Status and RxErrors, then the DAQ packets of the XCP time event (the heartbeat tick)."""
+        return self.status_frames() + self.rx_error_frames() + self._xcp_packets(self.xcp.event(EVENT_HEARTBEAT))
 
     def _temperature_frames(self, step: int) -> list[can.Message]:
         values = []

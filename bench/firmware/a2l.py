@@ -7,8 +7,8 @@ firmware ELF when one is given: a cell that mirrors a C symbol takes the symbol'
 float array (anything else is refused: the A2L would misread it); an image without DWARF (the packaged ones) leaves
 the type to the node's catalogue, which says so in the file. Per cell: a MEASUREMENT (read-only) or a CHARACTERISTIC
 VALUE (calibratable, with its limits), FLOAT32_IEEE, identity conversion with its unit; MOD_PAR's EPK is the GET_ID
-text at its address; IF_DATA XCP has the protocol layer, the dynamic DAQ with its one event (the model step) and
-XCP_ON_CAN with the two ids of dbc/xcp.toml.
+text at its address; IF_DATA XCP has the protocol layer, the dynamic DAQ with its two events (the model step, the
+heartbeat tick) and XCP_ON_CAN with the two ids of dbc/xcp.toml.
 """
 
 from __future__ import annotations
@@ -17,18 +17,20 @@ import math
 import os
 from pathlib import Path
 
+from dbc.database import heartbeat_period_s
 from dbc.transport import NOMINAL_BITRATE
 from dbc.xcp import cmd_id, res_id
 from target_sim.artifact import ModelArtifact
 from target_sim.node import TargetNode
 from target_sim.xcp import identification
 from target_sim.xcp.codes import MAX_CTO, MAX_DTO
-from target_sim.xcp.daq import EVENTS, MAX_ODT_ENTRIES, ODT_PAYLOAD
+from target_sim.xcp.daq import EVENT_HEARTBEAT, EVENT_MODEL_STEP, EVENTS, MAX_ODT_ENTRIES, ODT_PAYLOAD
 from target_sim.xcp.layout import IDENTIFICATION
 from target_sim.xcp.memory import Cell
 
 A2L_LIMIT = 3.4e38      # a float32 cell without limits: the type's range
 TIMEOUT_MS = 2000
+TIME_UNIT_1MS = 6          # EVENT_CHANNEL_TIME_UNIT: 1 ms
 OPTIONAL_COMMANDS = ("GET_COMM_MODE_INFO", "GET_ID", "SHORT_UPLOAD", "BUILD_CHECKSUM", "GET_DAQ_PROCESSOR_INFO",
                      "GET_DAQ_RESOLUTION_INFO", "FREE_DAQ", "ALLOC_DAQ", "ALLOC_ODT", "ALLOC_ODT_ENTRY")
 
@@ -131,9 +133,10 @@ def _characteristic(cell: Cell) -> list[str]:
 
 def _if_data(artifact: ModelArtifact) -> list[str]:
     """IF_DATA XCP: protocol layer, dynamic DAQ with the model step's event, XCP on CAN."""
-    cycle_ms = max(1, round(artifact.dt * 1000))
+    period_ms = {EVENT_MODEL_STEP: artifact.dt * 1000, EVENT_HEARTBEAT: heartbeat_period_s() * 1000}
     events = [f'          /begin EVENT {_text(name)} {_text(name.replace(" ", "_")[:8])} {number} DAQ 255 '
-              f"{cycle_ms} 6 0" + "\n          /end EVENT" for number, name in EVENTS.items()]
+              f"{max(1, round(period_ms[number]))} {TIME_UNIT_1MS} 0" + "\n          /end EVENT"
+              for number, name in EVENTS.items()]
     return ["    /begin IF_DATA XCP",
             "      /begin PROTOCOL_LAYER",
             f"        0x0100 {' '.join([str(TIMEOUT_MS)] * 7)} {MAX_CTO} {MAX_DTO} BYTE_ORDER_MSB_LAST "

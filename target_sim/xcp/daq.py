@@ -1,7 +1,8 @@
 """Synchronous data acquisition: dynamic DAQ lists (FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY, SET_DAQ_PTR,
 WRITE_DAQ, SET_DAQ_LIST_MODE, START_STOP_DAQ_LIST, START_STOP_SYNCH) sampled on an event.
 
-One event channel: EVENT_MODEL_STEP (0), after every model step, once the step's reply frames are queued. A running
+Two event channels: EVENT_MODEL_STEP (0), after every model step, once the step's reply frames are queued, and
+EVENT_HEARTBEAT (1), a time event on the node's heartbeat tick (the DBC's Status period, 100 ms). A running
 list sends, every `prescaler`-th event, one DAQ packet per ODT: its packet identifier (absolute ODT number: the list's
 first PID plus the ODT's index) and its entries' bytes read at that moment, so one packet holds values of one step.
 The configuration follows the standard's order (FREE_DAQ, then ALLOC_DAQ, then ALLOC_ODT per list, then
@@ -25,7 +26,8 @@ from target_sim.xcp.codes import (
 from target_sim.xcp.memory import AddressSpace, MemoryError_
 
 EVENT_MODEL_STEP = 0
-EVENTS = {EVENT_MODEL_STEP: "model step"}
+EVENT_HEARTBEAT = 1
+EVENTS = {EVENT_MODEL_STEP: "model step", EVENT_HEARTBEAT: "heartbeat"}
 MAX_ODT_ENTRIES = 64          # the RAM budget of the DAQ tables (entries over all lists)
 MAX_PID = 0xFB                # 0xFC..0xFF are the slave's RES/ERR/EV/SERV packets
 ODT_PAYLOAD = MAX_DTO - 1     # bytes of an ODT after its packet identifier

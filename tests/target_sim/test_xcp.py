@@ -180,3 +180,18 @@ def test_the_a2l_loads_in_a_third_party_parser_and_every_address_reads_the_engin
     assert characteristics == {"cal_alpha_cu": (python.xcp.memory.by_name["cal_alpha_cu"].address, 0.0, 0.01)}
     address = characteristics["cal_alpha_cu"][0]
     assert python.xcp.command(short_upload(address))[1:] == np.float32(python.model.alpha_cu).tobytes()
+
+
+def test_a_daq_list_on_the_time_event_goes_out_with_each_heartbeat(node):
+    slave = node.xcp
+    x0 = slave.memory.by_name["x_state_0"].address
+    for cto in (bytes((0xD6,)), bytes((0xD5, 0, 1, 0)), bytes((0xD4, 0, 0, 0, 1)), bytes((0xD3, 0, 0, 0, 0, 1)),
+                bytes((0xE2, 0, 0, 0, 0, 0)), bytes((0xE1, 0xFF, 4, 0)) + struct.pack("<I", x0),
+                bytes((0xE0, 0, 0, 0, 1, 0, 1, 0)), bytes((0xDE, 2, 0, 0)), bytes((0xDD, 1))):
+        assert slave.command(cto)[0] == 0xFF, cto.hex()
+    assert slave.command(bytes((0xFD,)))[1] & 0x40             # GET_STATUS: DAQ running
+    beats = [node.heartbeat_frames() for _ in range(3)]
+    assert [[bytes(m.data) for m in beat if m.arbitration_id == res_id()] for beat in beats] == \
+        [[bytes((0,)) + np.float32(node.model.x[0]).tobytes()]] * 3
+    assert slave.command(bytes((0xFE,))) == OK                   # DISCONNECT stops the lists
+    assert all(m.arbitration_id != res_id() for m in node.heartbeat_frames())
