@@ -15,12 +15,13 @@ from functools import cache
 from pathlib import Path
 
 from dbc.database import frame_ids
+from dbc.errors import CanLinkError
 
 XCP_PATH = Path(__file__).with_name("xcp.toml")
 MAX_STANDARD_ID = 0x7FF
 
 
-class XcpIdError(ValueError):
+class XcpIdError(CanLinkError):
     """dbc/xcp.toml is unreadable or names ids the bus cannot carry; one sentence."""
 
 

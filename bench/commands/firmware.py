@@ -356,7 +356,7 @@ def _print_timing(report: dict) -> None:
 
 def run_a2l(args: argparse.Namespace) -> int:
     from bench.fileio import write_text_atomically
-    from bench.firmware.a2l import A2lError, a2l_text
+    from bench.firmware.a2l import a2l_text
     from target_sim.artifact import load_artifact
 
     path = args.model
@@ -366,10 +366,7 @@ def run_a2l(args: argparse.Namespace) -> int:
         path = default_artifact_path()
     check_writable(args.out, "--out")
     artifact = load_artifact(path)
-    try:
-        text = a2l_text(artifact, args.elf)
-    except A2lError as exc:
-        raise BenchError(str(exc)) from None
+    text = a2l_text(artifact, args.elf)      # an A2lError is a BenchError: one sentence, exit 1
     write_text_atomically(args.out, text, "the A2L")
     report = {**_identity(path, artifact), "out": str(args.out), "elf": None if args.elf is None else str(args.elf),
               "measurements": text.count("/begin MEASUREMENT"), "characteristics": text.count("/begin CHARACTERISTIC")}

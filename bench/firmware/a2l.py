@@ -17,6 +17,7 @@ import math
 import os
 from pathlib import Path
 
+from bench.errors import BenchError
 from dbc.database import heartbeat_period_s
 from dbc.transport import NOMINAL_BITRATE
 from dbc.xcp import cmd_id, res_id
@@ -35,7 +36,7 @@ OPTIONAL_COMMANDS = ("GET_COMM_MODE_INFO", "GET_ID", "SHORT_UPLOAD", "BUILD_CHEC
                      "GET_DAQ_RESOLUTION_INFO", "FREE_DAQ", "ALLOC_DAQ", "ALLOC_ODT", "ALLOC_ODT_ENTRY")
 
 
-class A2lError(ValueError):
+class A2lError(BenchError):
     """The ELF's DWARF contradicts the node's catalogue; one sentence."""
 
 

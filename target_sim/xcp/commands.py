@@ -40,7 +40,7 @@ from target_sim.xcp.codes import (
     Err,
 )
 from target_sim.xcp.daq import EVENTS, MAX_ODT_ENTRIES, ODT_PAYLOAD, Daq, DaqError
-from target_sim.xcp.memory import AddressSpace, MemoryError_
+from target_sim.xcp.memory import AccessRefused, AddressSpace
 
 # the shortest CTO of each command (its code included)
 MIN_LENGTH = {Cmd.CONNECT: 1, Cmd.GET_ID: 2, Cmd.SET_MTA: 8, Cmd.UPLOAD: 2, Cmd.SHORT_UPLOAD: 8,
@@ -128,7 +128,7 @@ class XcpSlave:
             return self._error(Err.CMD_SYNTAX, cmd.name)
         try:
             return bytes((PID_RES,)) + self._handlers[cmd](cto)
-        except (_Refused, DaqError, MemoryError_) as exc:
+        except (_Refused, DaqError, AccessRefused) as exc:
             return self._error(exc.code, cmd.name)
 
     def _error(self, code: Err, what: str) -> bytes:

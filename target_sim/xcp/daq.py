@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from target_sim.errors import TargetError
 from target_sim.xcp.codes import (
     LIST_RUNNING,
     LIST_SELECTED,
@@ -23,7 +24,7 @@ from target_sim.xcp.codes import (
     MODE_TIMESTAMP,
     Err,
 )
-from target_sim.xcp.memory import AddressSpace, MemoryError_
+from target_sim.xcp.memory import AccessRefused, AddressSpace
 
 EVENT_MODEL_STEP = 0
 EVENT_HEARTBEAT = 1
@@ -33,7 +34,7 @@ MAX_PID = 0xFB                # 0xFC..0xFF are the slave's RES/ERR/EV/SERV packe
 ODT_PAYLOAD = MAX_DTO - 1     # bytes of an ODT after its packet identifier
 
 
-class DaqError(Exception):
+class DaqError(TargetError):
     def __init__(self, code: Err, why: str):
         super().__init__(why)
         self.code = code
@@ -117,7 +118,7 @@ class Daq:
                                            f"at most {ODT_PAYLOAD} fit one CAN frame")
         try:
             pieces = self.memory.locate(address, size)
-        except MemoryError_ as exc:
+        except AccessRefused as exc:
             raise DaqError(exc.code, str(exc)) from None
         record = (address, size, pieces)
         if entry < len(entries):

@@ -14,12 +14,13 @@ import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from target_sim.errors import TargetError
 from target_sim.xcp.codes import Err
 
 FLOAT = struct.Struct("<f")
 
 
-class MemoryError_(Exception):
+class AccessRefused(TargetError):
     """An access the address space refuses; `code` is the XCP error code it answers with."""
 
     def __init__(self, code: Err, why: str):
@@ -70,7 +71,7 @@ class AddressSpace:
         return None
 
     def read(self, address: int, size: int) -> bytes:
-        """`size` bytes from `address` (MemoryError_ ACCESS_DENIED at the first unmapped byte)."""
+        """`size` bytes from `address` (AccessRefused ACCESS_DENIED at the first unmapped byte)."""
         out = bytearray()
         at, end = address, address + size
         while at < end:
@@ -82,7 +83,7 @@ class AddressSpace:
                 base, data = self.text
                 take = data[at - base: min(end, base + len(data)) - base]
             else:
-                raise MemoryError_(Err.ACCESS_DENIED, f"0x{at:08X} is not mapped")
+                raise AccessRefused(Err.ACCESS_DENIED, f"0x{at:08X} is not mapped")
             out += take
             at += len(take)
         return bytes(out)
@@ -90,20 +91,20 @@ class AddressSpace:
     def write(self, address: int, data: bytes) -> list[Cell]:
         """Write whole calibratable cells from `address`; every value checked first, then all written."""
         if len(data) % 4:
-            raise MemoryError_(Err.OUT_OF_RANGE, f"{len(data)} bytes do not fill whole float32 cells")
+            raise AccessRefused(Err.OUT_OF_RANGE, f"{len(data)} bytes do not fill whole float32 cells")
         planned = []
         for offset in range(0, len(data), 4):
             at = address + offset
             cell = self._cell_at(at)
             if cell is None or cell.write is None:
                 what = "not mapped" if cell is None else f"{cell.name}, which is not calibratable"
-                raise MemoryError_(Err.ACCESS_DENIED, f"0x{at:08X} is {what}")
+                raise AccessRefused(Err.ACCESS_DENIED, f"0x{at:08X} is {what}")
             if cell.address != at:
-                raise MemoryError_(Err.OUT_OF_RANGE, f"0x{at:08X} is inside {cell.name}, not at its start")
+                raise AccessRefused(Err.OUT_OF_RANGE, f"0x{at:08X} is inside {cell.name}, not at its start")
             (value,) = FLOAT.unpack_from(data, offset)
             low, high = cell.limits
             if not low <= value <= high:     # NaN fails both comparisons
-                raise MemoryError_(Err.OUT_OF_RANGE, f"{value!r} is outside {cell.name}'s limits [{low:g}, {high:g}]")
+                raise AccessRefused(Err.OUT_OF_RANGE, f"{value!r} is outside {cell.name}'s limits [{low:g}, {high:g}]")
             planned.append((cell, value))
         for cell, value in planned:
             cell.write(value)
@@ -111,7 +112,7 @@ class AddressSpace:
 
     def locate(self, address: int, size: int) -> list[tuple[Cell | None, int, int]]:
         """The pieces (cell, start within its 4 bytes, length) a DAQ entry reads; (None, offset in the
-        identification, length) for its bytes; MemoryError_ when a byte is not mapped. Resolved once per entry."""
+        identification, length) for its bytes; AccessRefused when a byte is not mapped. Resolved once per entry."""
         pieces: list[tuple[Cell | None, int, int]] = []
         at, end = address, address + size
         while at < end:
