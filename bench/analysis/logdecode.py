@@ -30,7 +30,9 @@ the new segment).
 The host's checks: every frame the target sends goes through the host's own `dbc.FrameValidator("HOST")` in log
 order (id, length, CRC, range, and the alive counter per id, forgotten at each TARGET-LOST mark as the host does),
 so a frame the host rejected is never used, whatever it carries; its kind is counted in `invalid` and its message
-in `rejected`. Frames that pass those checks and still do not belong to this session are *foreign*, counted by
+in `rejected`. XCP frames (the two ids of `dbc/xcp.toml`, a calibration master's traffic) count in the bus load
+and are otherwise left alone, as the host leaves them. Frames that pass those checks and still do not belong to
+this session are *foreign*, counted by
 reason in `foreign` and never used: a Status of another model id than the session's first, a reply or timing
 frame for a row the host had not sent in its segment, and a second reply for a row that carries other
 temperatures than the first. So is a reply frame that repeats the alive counter of the one before it for the same
@@ -87,6 +89,7 @@ from dbc.contract import (
     target_info,
 )
 from dbc.database import contract, frame_id, target_frame_ids
+from dbc.xcp import xcp_ids
 from host.canlog import LogError, read_log
 
 # why a frame that passed the host's checks is not used (BusRecord.foreign)
@@ -276,6 +279,7 @@ class _LogDecoder:
         self.invalid: dict[str, int] = {}
         self.rejected: dict[str, int] = {}
         self.foreign: dict[str, int] = {}
+        self.xcp_ids = xcp_ids()
         self.validator = FrameValidator("HOST")      # the host's checks of what the target sends
         self.last_reply_row: dict[int, int] = {}    # per reply id, the row of the last reply frame used
         # reply frames the counter check rejected: (segment index, row, message, signals), judged at the end
@@ -351,6 +355,8 @@ class _LogDecoder:
         self.frame_dlc.append(min(msg.dlc, 255))
         self.frame_ids.append(fid)
         self.frame_bytes += bytes(msg.data[:8]).ljust(8, b"\0")
+        if fid in self.xcp_ids and not msg.is_extended_id:
+            return      # a calibration master's XCP traffic (dbc/xcp.toml): bus load, not a frame of the contract
         from_target = fid in self.target_ids and not msg.is_extended_id
         previous = self.validator.last_counter(fid) if from_target else None
         try:
