@@ -195,3 +195,26 @@ def test_a_daq_list_on_the_time_event_goes_out_with_each_heartbeat(node):
         [[bytes((0,)) + np.float32(node.model.x[0]).tobytes()]] * 3
     assert slave.command(bytes((0xFE,))) == OK                   # DISCONNECT stops the lists
     assert all(m.arbitration_id != res_id() for m in node.heartbeat_frames())
+
+
+def test_a_log_with_xcp_traffic_decodes_as_the_same_session(tmp_path):
+    """XCP frames in a bus log (a master's commands, the slave's replies and DAQ) are bus load for `bench analyze`,
+    never invalid or foreign frames, and change nothing it decodes."""
+    from bench.analysis.logdecode import decode_log
+
+    from helpers import write_frames
+
+    artifact = load_artifact(PACKAGED)
+    frames = session_frames(artifact, session_drive(60, 3))
+    xcp = [can.Message(arbitration_id=cmd_id(), is_extended_id=False, data=bytes((0xFF, 0))),
+           can.Message(arbitration_id=res_id(), is_extended_id=False, data=bytes.fromhex("ff05800808000101")),
+           can.Message(arbitration_id=res_id(), is_extended_id=False, data=bytes((0, 1, 2, 3, 4)))]
+    mixed = [f for i, frame in enumerate(frames) for f in ([frame, *xcp] if i % 20 == 5 else [frame])]
+    for i, frame in enumerate(mixed):
+        frame.timestamp = i * 1e-3
+    clean = decode_log(write_frames(tmp_path / "clean.blf", frames))
+    record = decode_log(write_frames(tmp_path / "xcp.blf", mixed))
+    assert record.frames == clean.frames + len(mixed) - len(frames)
+    assert (record.invalid, record.rejected, record.foreign) == (clean.invalid, clean.rejected, clean.foreign) == \
+        ({}, {}, {})
+    assert np.array_equal(record.drive, clean.drive)
