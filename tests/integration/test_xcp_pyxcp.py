@@ -52,6 +52,7 @@ class Host:
         self.bus, self.codec = bus, FrameCodec("HOST")
         self.daq: list[bytes] = []
         self.temps: dict[int, dict[str, dict]] = {}
+        self.log: list[can.Message] = []      # every frame heard, in bus order (the host's own come back too)
 
     def send(self, frames) -> None:
         for frame in frames:
@@ -63,6 +64,7 @@ class Host:
             msg = self.bus.recv(0.05)
             if msg is None:
                 continue
+            self.log.append(msg)
             if msg.arbitration_id == res_id():
                 if msg.data[0] < 0xFC:
                     self.daq.append(bytes(msg.data))
@@ -81,6 +83,8 @@ class Host:
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
             msg = self.bus.recv(0.05)
+            if msg is not None:
+                self.log.append(msg)
             if msg is not None and msg.arbitration_id == res_id() and msg.data[0] < 0xFC:
                 self.daq.append(bytes(msg.data))
 
@@ -155,7 +159,7 @@ def reference_node(artifact_path, rows, calibrate: bool) -> tuple[TargetNode, di
 DAQ_CELLS = ("y_est_0", "y_est_1", "y_est_2", "y_est_3", "obs_sigma_1")
 
 
-def test_pyxcp_measures_and_calibrates_a_running_target(bench, rows, observer_artifact):
+def test_pyxcp_measures_and_calibrates_a_running_target(bench, rows, observer_artifact, tmp_path):
     config, bus = bench
     host = Host(bus)
     reference, calibrated = reference_node(observer_artifact, rows, calibrate=True)
@@ -194,6 +198,7 @@ def test_pyxcp_measures_and_calibrates_a_running_target(bench, rows, observer_ar
                 xcp.setMta(cells["cal_sensor0_offset"].address)
                 xcp.download(struct.pack("<f", OFFSET))
                 assert struct.unpack("<f", xcp.shortUpload(4, cells["cal_sensor0_offset"].address))[0] == OFFSET
+        host.send([host.codec.encode("Control", {"Command": int(Command.STOP), "Step": 0})])
         xcp.startStopSynch(0x00)
         host.drain()
         # refused: a read-only cell, a value outside the limits, an unknown command
@@ -223,3 +228,20 @@ def test_pyxcp_measures_and_calibrates_a_running_target(bench, rows, observer_ar
         replies = [host.temps[row][message][role] for row in step_rows]
         assert np.allclose(by_pid[pid], replies, atol=0.005 + 1e-9), role
     assert all(v > 0 for v in by_pid[4])               # the winding's 1-sigma
+
+    # bench analyze: the log's calibration is replayed by the target's twin, so the run is clean against its
+    # calibrated reference; the same log without its XCP frames is judged against the uncalibrated references
+    from bench.analysis.canmetrics import compute
+    from bench.analysis.logdecode import decode_log
+    from bench.analysis.verdict import problems
+
+    from helpers import write_frames
+
+    artifact = load_artifact(observer_artifact)
+    record = decode_log(write_frames(tmp_path / "calibrated.blf", host.log))
+    assert record.xcp_downloads >= 1 and record.invalid == {}
+    results, _ = compute(record, artifact)
+    assert results.figure_rows.kept == ROWS and problems(results) == []
+    stripped = [m for m in host.log if m.arbitration_id not in (cmd_id(), res_id())]
+    uncalibrated_results, _ = compute(decode_log(write_frames(tmp_path / "stripped.blf", stripped)), artifact)
+    assert uncalibrated_results.figure_rows.kept < ROWS and problems(uncalibrated_results)
