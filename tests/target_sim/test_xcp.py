@@ -218,3 +218,21 @@ def test_a_log_with_xcp_traffic_decodes_as_the_same_session(tmp_path):
     assert (record.invalid, record.rejected, record.foreign) == (clean.invalid, clean.rejected, clean.foreign) == \
         ({}, {}, {})
     assert np.array_equal(record.drive, clean.drive)
+
+
+def test_the_a2l_checks_the_dwarf_types_where_the_image_has_them(tmp_path):
+    """An object compiled with -g for the Cortex-M4F: DWARF types float arrays as float and anything else not."""
+    import subprocess
+    import sys
+
+    from bench.firmware.a2l import dwarf_float_arrays
+    from bench.firmware.toolchain import TARGET_FLAGS
+
+    source = tmp_path / "cells.c"
+    source.write_text("float x_state[4];\nstatic float y_est[4];\nint estimate[4];\n"
+                      "float *touch(void) { return y_est; }\n", encoding="utf-8")
+    done = subprocess.run([sys.executable, "-m", "ziglang", "cc", *TARGET_FLAGS, "-O2", "-g", "-c", str(source), "-o",
+                           str(tmp_path / "cells.o")], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert dwarf_float_arrays(tmp_path / "cells.o") == {"x_state": True, "y_est": True, "estimate": False}
+    assert dwarf_float_arrays(PACKAGED_ELF) is None          # the packaged images have no DWARF
