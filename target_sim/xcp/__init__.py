@@ -28,7 +28,7 @@ def identification(model_id: int) -> tuple[str, str]:
 
 def node_cells_placed(node, elf: str | os.PathLike | None = None) -> tuple[list[Cell], list[Cell]]:
     """(measurements, calibrations) of `node` with their addresses (`target_sim.xcp.layout`)."""
-    symbols = elf_symbols(elf) if elf is not None else None
+    symbols = elf_symbols(elf, node.artifact.model_id) if elf is not None else None
     measurements, calibrations = node_cells(node)
     return place(measurements, MEASUREMENT_PAGE, symbols), place(calibrations, CALIBRATION_PAGE, symbols)
 

@@ -29,11 +29,23 @@ PAGE_SIZE = 0x1000
 IDENTIFICATION = 0x0803F000
 
 
-def elf_symbols(path: str | os.PathLike) -> dict[str, tuple[int, int]]:
-    """{name: (address, size)} of a checked firmware ELF's symbols (`target_sim.firmware.elf.read_elf`)."""
-    from target_sim.firmware.elf import read_elf
+def elf_symbols(path: str | os.PathLike, model_id: int | None = None) -> dict[str, tuple[int, int]]:
+    """{name: (address, size)} of a checked firmware ELF's symbols (`target_sim.firmware.elf.read_elf`); with
+    `model_id`, FirmwareError (one sentence) for the firmware of another model (its `fw_model_id`)."""
+    from target_sim.firmware.elf import FirmwareError, read_elf
+    from target_sim.firmware.engine import MODEL_ID_SYMBOL
 
-    return {name: (s.address, s.size) for name, s in read_elf(path).symbols.items()}
+    image = read_elf(path)
+    symbol = image.symbols.get(MODEL_ID_SYMBOL)
+    if model_id is not None and symbol is not None:
+        for segment in image.segments:
+            offset = symbol.address - segment.vaddr
+            if 0 <= offset <= len(segment.data) - 4:
+                found = int.from_bytes(segment.data[offset: offset + 4], "little")
+                if found != model_id:
+                    raise FirmwareError(f"{image.name} is the firmware of model {found:08x}, not of model "
+                                        f"{model_id:08x}; its addresses would not fit: give that model's ELF")
+    return {name: (s.address, s.size) for name, s in image.symbols.items()}
 
 
 def symbol_address(symbols: dict[str, tuple[int, int]], symbol: str, index: int) -> int | None:

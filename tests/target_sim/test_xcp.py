@@ -236,3 +236,11 @@ def test_the_a2l_checks_the_dwarf_types_where_the_image_has_them(tmp_path):
     assert done.returncode == 0, done.stderr
     assert dwarf_float_arrays(tmp_path / "cells.o") == {"x_state": True, "y_est": True, "estimate": False}
     assert dwarf_float_arrays(PACKAGED_ELF) is None          # the packaged images have no DWARF
+
+
+def test_an_elf_of_another_model_is_refused_in_one_sentence():
+    from target_sim.firmware.elf import FirmwareError
+
+    other = ROOT / "bench" / "data" / "firmware" / "default_model-lti-lptn.elf"
+    with pytest.raises(FirmwareError, match=r"default_model-lti-lptn.elf is the firmware of model \w{8}, not of"):
+        TargetNode(load_artifact(PACKAGED), xcp_elf=other)
