@@ -8,7 +8,14 @@ command kind (SHORT_UPLOAD of a float, SET_MTA + DOWNLOAD of a calibration, BUIL
 y and the estimate, GET_STATUS), --repeat times each; the DAQ sampling time per model step over a lockstep session of
 --rows rows; the model step's own time in the same session with and without the DAQ list; and the model step's
 period Δt, the deadline each figure is measured against (XCP commands run between frames, DAQ after the step's
-replies, so neither enters the step itself). Writes its record (`tests/benchmarks/record.py`).
+replies, so neither enters the step itself).
+
+With --daq-run (pyxcp needed) it also records a whole run by DAQ: a target process on a private udp_multicast bus,
+pyxcp as the master with a DAQ list of the four temperatures on the model step's event, and `bench host` replaying
+the 40 °C validation run (out/data, generated if missing; --run-rows N: its first N rows) in lockstep with its log;
+figures: model steps, DAQ packets per ODT, packets lost (steps minus packets), the largest |DAQ value − the row's CAN
+reply| (the replies carry 0.01 °C), and whether `bench host` judged the run clean. Writes its record
+(`tests/benchmarks/record.py`).
 """
 
 from __future__ import annotations
@@ -73,6 +80,8 @@ def main() -> int:
     parser.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged one)")
     parser.add_argument("--rows", type=int, default=6000, help="rows of the lockstep session (default 6000)")
     parser.add_argument("--repeat", type=int, default=5000, help="calls of each command (default 5000)")
+    parser.add_argument("--daq-run", action="store_true", help="also record a whole run by DAQ with pyxcp")
+    parser.add_argument("--run-rows", type=int, default=None, help="with --daq-run: only the first N rows")
     add_record_arguments(parser)
     args = parser.parse_args()
     from bench.model.default import default_artifact_path
@@ -113,8 +122,88 @@ def main() -> int:
           f"{record.figures['daq_sample_us']['max']} µs, {with_daq_node.xcp.daq.packets} packets for "
           f"{with_daq_node.model_steps} model steps; worst command {worst} µs = "
           f"{100 * worst / (artifact.dt * 1e6):.4f} % of the period")
+    if args.daq_run:
+        record.figures["daq_run"] = daq_run(artifact, path, args.run_rows)
+        print(f"DAQ run: {record.figures['daq_run']}")
     record.write()
     return 0
+
+
+def daq_run(artifact, model_path: Path, rows: int | None) -> dict:
+    """A whole run recorded by DAQ (see the module docstring)."""
+    import subprocess
+    import tempfile
+
+    import can
+    import numpy as np
+    from pyxcp.config import create_application_from_config
+    from pyxcp.master import Master
+
+    from bench.analysis.logdecode import decode_log
+    from bench.drive.generate import ensure_default_datasets
+    from dbc.transport import BusConfig, resolve
+    from dbc.xcp import cmd_id, res_id
+    from target_sim.model import InputAccumulator
+    from target_sim.node import TargetNode
+
+    data = ensure_default_datasets()[40]
+    config = resolve(BusConfig("udp_multicast"), session_unique=True)
+    cells = TargetNode(artifact).xcp.memory.by_name
+    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(model_path), "--quiet",
+                               *config.to_argv()], cwd=ROOT)
+    bus = config.open()
+    packets: list[bytes] = []
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            msg = bus.recv(0.5)
+            if msg is not None and msg.arbitration_id == 0x230:
+                break
+            assert time.monotonic() < deadline, "no heartbeat from the target"
+        notifier = can.Notifier(bus, [lambda m: packets.append(bytes(m.data))
+                                      if m.arbitration_id == res_id() and m.data[0] < 0xFC else None])
+        app = create_application_from_config({"Transport": {"CAN": {
+            "interface": "udp_multicast", "channel": config.channel, "can_id_master": cmd_id(),
+            "can_id_slave": res_id()}}})
+        app.transport.layer = "CAN"
+        app.transport.can.udp_multicast.port = config.kwargs["port"]
+        app.general.disable_error_handling = True
+        with tempfile.TemporaryDirectory() as work, Master("can", config=app) as xcp:
+            xcp.connect()
+            xcp.freeDaq()
+            xcp.allocDaq(1)
+            xcp.allocOdt(0, 4)
+            for odt in range(4):
+                xcp.allocOdtEntry(0, odt, 1)
+                xcp.setDaqPtr(0, odt, 0)
+                xcp.writeDaq(0xFF, 4, 0, cells[f"y_est_{odt}"].address)
+            xcp.setDaqListMode(0x00, 0, 0, 1, 0)
+            xcp.startStopDaqList(0x02, 0)
+            xcp.startStopSynch(0x01)
+            log = Path(work) / "run.blf"
+            host = subprocess.run([sys.executable, "-m", "bench", "host", "--data", str(data), "--model",
+                                   str(model_path), "--log", str(log), "--quiet",
+                                   *(["--rows", str(rows)] if rows else []), *config.to_argv()],
+                                  cwd=ROOT, capture_output=True, text=True, timeout=7200)
+            time.sleep(1.0)
+            xcp.startStopSynch(0x00)
+            xcp.disconnect()
+            time.sleep(0.5)
+            notifier.stop()
+            record = decode_log(log)
+    finally:
+        bus.shutdown()
+        target.terminate()
+        target.wait(30)
+    accumulator = InputAccumulator(artifact.data_sample_period, artifact.dt)
+    step_rows = [row for row in range(record.rows) if accumulator.ends_interval(row)]
+    by_pid = [np.array([struct.unpack_from("<f", p, 1)[0] for p in packets if p[0] == pid]) for pid in range(4)]
+    order = (0, 1, 2, 3)      # y_est: yoke, winding, tooth, magnet; record.temps has the same order
+    worst = max(float(np.max(np.abs(by_pid[i] - record.temps[step_rows, node]))) if len(by_pid[i]) == len(step_rows)
+                else float("nan") for i, node in enumerate(order))
+    return {"rows": int(record.rows), "model_steps": len(step_rows), "daq_packets_per_odt": [len(v) for v in by_pid],
+            "lost": len(step_rows) - min(len(v) for v in by_pid), "max_abs_daq_minus_can_C": round(worst, 6),
+            "host_exit": host.returncode, "host_stderr": host.stderr.strip()[-300:]}
 
 
 if __name__ == "__main__":
