@@ -892,9 +892,18 @@ def section_xcp(record: Record) -> list[str]:
     for name, v in f["row_with_step_us"].items():
         rows.append([f"a row with its model step and replies, {name.replace('_', ' ')}", _n(v["p50"], 1),
                      _n(v["p99"], 1), _n(v["max"], 1)])
-    return [f"In-process, against the model step period of {_n(f['dt_us'])} µs (commands run between frames, DAQ "
-            f"after the step's replies; {_n(f['daq_packets'])} DAQ packets for {_n(f['model_steps'])} model steps):",
-            "", *_table(["µs", "p50", "p99", "max"], rows)]
+    lines = [f"In-process, against the model step period of {_n(f['dt_us'])} µs (commands run between frames, DAQ "
+             f"after the step's replies; {_n(f['daq_packets'])} DAQ packets for {_n(f['model_steps'])} model steps):",
+             "", *_table(["µs", "p50", "p99", "max"], rows)]
+    run = f.get("daq_run")
+    if run:
+        lines += ["", f"A run recorded by DAQ (pyxcp on the bus, `bench host` replaying {_n(run['rows'])} rows of the "
+                      f"40 °C validation run): {_n(run['model_steps'])} model steps, "
+                      f"{', '.join(_n(n) for n in run['daq_packets_per_odt'])} DAQ packets per ODT, "
+                      f"{run['lost']} lost, "
+                      f"max \\|DAQ − CAN reply\\| {_n(run['max_abs_daq_minus_can_C'], 4)} °C (the replies carry "
+                      f"0.01 °C); `bench host` {'clean' if run['host_exit'] == 0 else 'NOT clean'}."]
+    return lines
 
 
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
