@@ -897,13 +897,14 @@ def section_xcp(record: Record) -> list[str]:
              "", *_table(["µs", "p50", "p99", "max"], rows)]
     run = f.get("daq_run")
     if run:
+        why = run["host_stderr"].removeprefix("bench: host: ")
+        verdict = "clean." if run["host_exit"] == 0 else f"NOT clean ({why})."
         lines += [f"A run recorded by DAQ (pyxcp on the bus, `bench host` replaying {_n(run['rows'])} rows of the "
                       f"40 °C validation run): {_n(run['model_steps'])} model steps, "
                       f"{', '.join(_n(n) for n in run['daq_packets_per_odt'])} DAQ packets per ODT, "
                       f"{run['lost']} lost, "
                       f"max \\|DAQ − CAN reply\\| {_n(run['max_abs_daq_minus_can_C'], 4)} °C (the replies carry "
-                      f"0.01 °C); `bench host` " + ("clean." if run["host_exit"] == 0 else
-                                                     f"NOT clean ({run['host_stderr'].removeprefix('bench: host: ')}).")]
+                      f"0.01 °C); `bench host` " + verdict]
     return lines
 
 
