@@ -244,3 +244,32 @@ def test_an_elf_of_another_model_is_refused_in_one_sentence():
     other = ROOT / "bench" / "data" / "firmware" / "default_model-lti-lptn.elf"
     with pytest.raises(FirmwareError, match=r"default_model-lti-lptn.elf is the firmware of model \w{8}, not of"):
         TargetNode(load_artifact(PACKAGED), xcp_elf=other)
+
+
+def test_random_xcp_commands_never_touch_the_model_or_the_contract_counters():
+    """Thousands of random XCP packets (any code but DOWNLOAD, any length, mid-session) get XCP replies or none, are
+    counted, and leave every frame of the contract the node sends as in the session without them, bit for bit."""
+    artifact = load_artifact(PACKAGED)
+    frames = [f for f in session_frames(artifact, session_drive(80, 5)) if f.arbitration_id in host_frame_ids()]
+    rng = np.random.default_rng(42)
+
+    def run(noise: bool):
+        node = TargetNode(artifact, clock_ns=lambda: 0)
+        out = []
+        if noise:
+            node.handle(can.Message(arbitration_id=cmd_id(), is_extended_id=False, data=bytes((0xFF, 0))))
+        for frame in frames:
+            out += [(m.arbitration_id, bytes(m.data)) for m in node.handle(frame) if m.arbitration_id != res_id()]
+            for _ in range(25 if noise else 0):
+                data = rng.integers(0, 256, int(rng.integers(0, 9)), dtype=np.uint8).tobytes()
+                if data[:1] in (b"\xf0", b"\xfe"):        # no DOWNLOAD (a calibration), no DISCONNECT
+                    continue
+                for reply in node.handle(can.Message(arbitration_id=cmd_id(), is_extended_id=False, data=data)):
+                    assert reply.arbitration_id == res_id() and 1 <= reply.dlc <= 8
+        return node, out
+
+    clean_node, clean = run(False)
+    noisy_node, noisy = run(True)
+    assert noisy == clean
+    assert noisy_node.errors == clean_node.errors and noisy_node.faults == clean_node.faults
+    assert sum(noisy_node.xcp.errors.values()) > 100 and noisy_node.xcp.calibrations == []
