@@ -273,3 +273,21 @@ def test_random_xcp_commands_never_touch_the_model_or_the_contract_counters():
     assert noisy == clean
     assert noisy_node.errors == clean_node.errors and noisy_node.faults == clean_node.faults
     assert sum(noisy_node.xcp.errors.values()) > 100 and noisy_node.xcp.calibrations == []
+
+
+def test_bench_firmware_a2l_writes_the_file_and_refuses_to_overwrite_its_input(tmp_path, capsys):
+    import json
+
+    from bench.cli import main
+
+    out = tmp_path / "target.a2l"
+    assert main(["firmware", "a2l", "--elf", str(PACKAGED_ELF), "--out", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["measurements"], report["characteristics"]) == (12, 1)
+    text = out.read_text(encoding="latin-1")
+    assert "CAN_ID_MASTER 0x6A0 CAN_ID_SLAVE 0x6A1" in text and "ECU_ADDRESS 0x20000000" in text
+    copy = tmp_path / "model.json"
+    copy.write_bytes(PACKAGED.read_bytes())
+    assert main(["firmware", "a2l", "--model", str(copy), "--out", str(copy)]) != 0
+    assert copy.read_bytes() == PACKAGED.read_bytes()
+    assert "--out" in capsys.readouterr().err
