@@ -108,8 +108,13 @@ class XcpSlave:
         return packets
 
     def stats(self) -> dict:
+        def us(times) -> dict:
+            ordered = sorted(times)
+            return {"p50": ordered[len(ordered) // 2] / 1000.0, "max": ordered[-1] / 1000.0} if ordered else {}
+
         return {"commands": dict(self.commands), "errors": dict(self.errors), "ignored": self.ignored,
-                "daq_packets": self.daq.packets, "calibrations": len(self.calibrations)}
+                "daq_packets": self.daq.packets, "calibrations": len(self.calibrations),
+                "handler_us": us(self.handler_ns), "daq_sample_us": us(self.sample_ns)}
 
     # ------------------------------------------------------------------ dispatch
     def _command(self, cto: bytes) -> bytes | None:
