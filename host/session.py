@@ -54,6 +54,7 @@ from dbc.contract import (
 )
 from dbc.database import frame_id, host_frame_ids
 from dbc.transport import OwnFrameFilter
+from dbc.xcp import xcp_ids
 from host.canlog import FrameLog
 from host.errors import HostError
 
@@ -210,6 +211,7 @@ class HostSession:
         self.expected_model_id = expected_model_id
         self.codec = FrameCodec("HOST")
         self.validator = FrameValidator("HOST")
+        self._xcp_ids = xcp_ids()
         self.own = OwnFrameFilter(host_frame_ids())
         self.monitor = Monitor(heartbeat_timeout_s)
         self.invalid = dict.fromkeys(FRAME_ERROR_KINDS, 0)
@@ -334,6 +336,8 @@ class HostSession:
         """Log, validate and dispatch one received frame; None if it was rejected (and counted)."""
         if self.log is not None:
             self._pending_log.append(msg)
+        if msg.arbitration_id in self._xcp_ids and not msg.is_extended_id:
+            return None       # a calibration master's XCP traffic (dbc/xcp.toml): logged, not a frame of the contract
         previous = self.validator.last_counter(msg.arbitration_id)
         try:
             frame = self.validator.validate(msg)

@@ -107,12 +107,17 @@ from dbc.contract import (
 from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
 from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
 from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, first_heard
+from dbc.xcp import cmd_id as xcp_cmd_id
+from dbc.xcp import res_id as xcp_res_id
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import memory_estimate, step_cost
 from target_sim.faults import ReplyFaults
 from target_sim.model import Float32Estimator, InputAccumulator
 from target_sim.observer import has_observer
 from target_sim.observer_node import NodeObserver, observer_signals
+from target_sim.xcp import node_slave
+from target_sim.xcp.codes import PID_ERR, Err
+from target_sim.xcp.daq import EVENT_HEARTBEAT, EVENT_MODEL_STEP
 
 SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll before blocking (0 disables)
 
@@ -166,7 +171,7 @@ class TargetNode:
     engine = "python"
 
     def __init__(self, artifact: ModelArtifact, *, clock_ns: Callable[[], int] = time.perf_counter_ns,
-                 journal: Callable[[dict], None] | None = None):
+                 journal: Callable[[dict], None] | None = None, xcp_elf: str | os.PathLike | None = None):
         self.artifact = artifact
         self.journal = journal
         self._msg: can.Message | None = None
@@ -217,6 +222,9 @@ class TargetNode:
         self._timing3 = {"CpuLoad": _clamp(round(self.cost.cpu_load_percent(artifact.dt), 4), timing3["CpuLoad"])}
         self._sigma_limits = signal_ranges("Uncertainty1")["WindingSigma"]
         self._innovation_limits = signal_ranges(INNOVATION_MESSAGE)["SensorInnovation"]
+        # the XCP slave (`target_sim.xcp`): its cells at the addresses of the firmware ELF `xcp_elf` when given
+        self.xcp = node_slave(self, xcp_elf)
+        self.xcp_cmd_id, self.xcp_res_id = xcp_cmd_id(), xcp_res_id()
 
     # ------------------------------------------------------------------ frames the node sends
     def _encode(self, name: str, signals: dict) -> list[can.Message]:
@@ -249,7 +257,8 @@ class TargetNode:
         return self.target_info_frames() + self.status_frames() + self.rx_error_frames()
 
     def heartbeat_frames(self) -> list[can.Message]:
-        return self.status_frames() + self.rx_error_frames()
+        """Status and RxErrors, then the DAQ packets of the XCP time event (the heartbeat tick)."""
+        return self.status_frames() + self.rx_error_frames() + self._xcp_packets(self.xcp.event(EVENT_HEARTBEAT))
 
     def _temperature_frames(self, step: int) -> list[can.Message]:
         values = []
@@ -300,8 +309,23 @@ class TargetNode:
         self.journal({"kind": kind, "id": msg.arbitration_id, "dlc": msg.dlc, "data": bytes(msg.data).hex(),
                       "detail": detail})
 
+    def _xcp_packets(self, packets: Iterable[bytes]) -> list[can.Message]:
+        return [can.Message(arbitration_id=self.xcp_res_id, is_extended_id=False, data=packet) for packet in packets]
+
+    def _xcp_command(self, msg: can.Message) -> list[can.Message]:
+        """An XCP command (`target_sim.xcp`): its reply, never a frame error of the contract, never a model step."""
+        try:
+            reply = self.xcp.command(bytes(msg.data))
+        except Exception as exc:  # noqa: BLE001 - a calibration master must not end the node
+            self.last_error = f"internal error on an XCP command {bytes(msg.data).hex()}: {exc!r}"
+            reply = bytes((PID_ERR, Err.GENERIC))
+        return self._xcp_packets(() if reply is None else (reply,))
+
     def handle(self, msg: can.Message) -> list[can.Message]:
         """Validate one received frame, act on it, and return the frames to send in reply (maybe none)."""
+        if msg.arbitration_id == self.xcp_cmd_id and not msg.is_extended_id and not msg.is_remote_frame:
+            self.answered_again = False
+            return self._xcp_command(msg)
         self.frames_received += 1
         self._msg = msg
         self.answered_again = False
@@ -495,6 +519,7 @@ class TargetNode:
         observer = self.observer
         step_model = self.model.step if observer is None else (lambda *values: observer.step(values))
         observed = []
+        daq: list[bytes] = []
         for step_inputs in inputs:
             started = self.clock_ns()
             self.estimate = step_model(*step_inputs)
@@ -506,6 +531,7 @@ class TargetNode:
                 self.overruns += 1
                 self.faults |= FaultBit.OVERRUN
             timing.append(elapsed)
+            daq += self.xcp.event(EVENT_MODEL_STEP)     # sampled right after its step, sent after its replies
         out += self._temperature_frames(step)
         self.last_reply_row = row
         for index, elapsed in enumerate(timing):
@@ -514,7 +540,7 @@ class TargetNode:
                 out += observed[index]
         if timing and self.model_steps % CHECKPOINT_EVERY_STEPS == 0:
             out += self._checkpoint_frames(step)
-        return out
+        return out + self._xcp_packets(daq)
 
     # ------------------------------------------------------------------ reporting
     def stats(self) -> dict:
@@ -524,7 +550,7 @@ class TargetNode:
                 "model_steps": self.model_steps, "overruns": self.overruns, "last_error": self.last_error,
                 "model_id": self.artifact.model_id, "engine": self.engine, "est_cycles": self.cost.cycles,
                 "m4_cycles": None, "flash_bytes": self.memory.flash_bytes, "ram_bytes": self.memory.ram_bytes,
-                "memory": "C28x estimate"}
+                "memory": "C28x estimate", "xcp": self.xcp.stats()}
 
 
 def target_on_channel(bus: can.BusABC, listen_s: float = IN_USE_LISTEN_S) -> tuple[int, int | None] | None:
@@ -551,7 +577,7 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
     With `reply_faults` the replies go out through the fault layer (`target_sim.faults`); the heartbeat period
     is the DBC's unless given."""
     heartbeat_period_s = heartbeat_period_s or heartbeat_period_s_of_dbc()
-    own = OwnFrameFilter(target_frame_ids())
+    own = OwnFrameFilter(target_frame_ids() | {xcp_res_id()})   # the XCP slave's packets loop back too
     foreign = reply_faults.foreign_ids if reply_faults is not None else set()
     send_failures = 0
 

@@ -499,6 +499,18 @@ class Float32Observer:
         self.flag_after = None if gate is None else gate[1]
         self.clear_gate()
 
+    def set_process_noise(self, index: int, value: float) -> None:
+        """Calibrate Q's diagonal element `index` (node coordinates; XCP DOWNLOAD): the next prediction adds it,
+        and a RESET keeps it. An element that is 0 stays 0 (no column of G carries it: the filter's structure)."""
+        if float(self.q_nodes[index]) == 0.0 or self.form == "steady":
+            raise ObserverError(f"Q[{index},{index}] is not calibratable in this {self.form} filter")
+        value = self.f(value)
+        self.q_nodes = self.q_nodes.copy()     # the artifact's array is shared: never written in place
+        self.q_nodes[index] = value
+        self.q[index, index] = value           # the conventional and Joseph forms add this very matrix
+        if isinstance(self.cov, BiermanThornton):
+            self.cov.q_kept[list(self.cov.g_columns).index(index)] = value
+
     def clear_gate(self) -> None:
         """No reading rejected yet, no sensor flagged (a reset, and so a restore: the counts start again, in C too)."""
         count = len(self.measurements)

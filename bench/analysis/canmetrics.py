@@ -343,7 +343,9 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         clean = _clean_estimates(refs, record.rows, record.initial)   # the clean run's estimate after each row
         # a faulted Measurements frame may have been refused by the target's alive-counter check, which the log's
         # host frames do not undergo: only the twin knows which measurements the filter got
-        use_twin = bool(lost_rows or (measured is not None and measurement_faults(record)))
+        # and a calibration over XCP (a DOWNLOAD in the log) changed the target from that frame on: the twin replays
+        # the logged XCP commands in their place, the clean references cannot
+        use_twin = bool(lost_rows or (measured is not None and measurement_faults(record)) or record.xcp_downloads)
         if use_twin:
             final_ref, agreement = twin_agreement(artifact, record)
         else:

@@ -30,7 +30,10 @@ the new segment).
 The host's checks: every frame the target sends goes through the host's own `dbc.FrameValidator("HOST")` in log
 order (id, length, CRC, range, and the alive counter per id, forgotten at each TARGET-LOST mark as the host does),
 so a frame the host rejected is never used, whatever it carries; its kind is counted in `invalid` and its message
-in `rejected`. Frames that pass those checks and still do not belong to this session are *foreign*, counted by
+in `rejected`. XCP frames (the two ids of `dbc/xcp.toml`, a calibration master's traffic) count in the bus load
+and are otherwise left alone, as the host leaves them; a log with an XCP DOWNLOAD (a calibration during the run,
+`xcp_downloads`) is judged against the target's twin, which replays the commands in their place. Frames that
+pass those checks and still do not belong to this session are *foreign*, counted by
 reason in `foreign` and never used: a Status of another model id than the session's first, a reply or timing
 frame for a row the host had not sent in its segment, and a second reply for a row that carries other
 temperatures than the first. So is a reply frame that repeats the alive counter of the one before it for the same
@@ -105,7 +108,9 @@ from dbc.contract import (
     target_info,
 )
 from dbc.database import contract, frame_id, target_frame_ids
+from dbc.xcp import cmd_id, xcp_ids
 from host.canlog import LogError, read_log
+from target_sim.xcp.codes import Cmd
 
 # why a frame that passed the host's checks is not used (BusRecord.foreign)
 FOREIGN_MODEL = "Status of another model id"
@@ -160,6 +165,7 @@ class BusRecord:
     # passed the checks (0: the host sent none)
     measurements: np.ndarray = field(default_factory=lambda: np.zeros((0, len(CHANNEL_NAMES))))
     measurement_frames: int = 0
+    xcp_downloads: int = 0        # XCP DOWNLOAD commands in the log: calibrations the twin replays
     sent_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     replied_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -309,6 +315,7 @@ class _LogDecoder:
         self.invalid: dict[str, int] = {}
         self.rejected: dict[str, int] = {}
         self.foreign: dict[str, int] = {}
+        self.xcp_ids, self.xcp_cmd_id = xcp_ids(), cmd_id()
         self.validator = FrameValidator("HOST")      # the host's checks of what the target sends
         self.target_checks = FrameValidator("TARGET")   # the target's checks of the host's measurement frames
         self.measurement_ids = {frame_id(name) for name in MEASUREMENT_MESSAGES}
@@ -396,6 +403,12 @@ class _LogDecoder:
         self.frame_dlc.append(min(msg.dlc, 255))
         self.frame_ids.append(fid)
         self.frame_bytes += bytes(msg.data[:8]).ljust(8, b"\0")
+        if fid in self.xcp_ids and not msg.is_extended_id:
+            # a calibration master's XCP traffic (dbc/xcp.toml): bus load, not a frame of the contract; a DOWNLOAD
+            # may calibrate the target, so the run is judged against its twin, which replays it
+            if fid == self.xcp_cmd_id and msg.data[:1] == bytes((Cmd.DOWNLOAD,)):
+                self.record.xcp_downloads += 1
+            return
         from_target = fid in self.target_ids and not msg.is_extended_id
         previous = self.validator.last_counter(fid) if from_target else None
         measured = fid in self.measurement_ids and not msg.is_extended_id
