@@ -61,7 +61,7 @@ class TableSpec:
     """One table of a TOML file: its keys, each with its check, the keys it must have, and what an unknown key's
     sentence advises (default: the table's keys)."""
 
-    name: str                          # as a sentence shows it: "[study]", "[criteria.pm]"
+    name: str                          # as a sentence shows it: "[study]", "[criteria.pm]"; "" for a file's top
     keys: Mapping[str, Check]
     required: tuple[str, ...] = ()
     advice: str | None = None
@@ -69,7 +69,7 @@ class TableSpec:
     def read(self, table: Any, where: str, error: type[Exception]) -> dict[str, Any]:
         """The checked values of the keys `table` gives (a key it leaves out is absent), or `error` with one
         sentence starting with `where` (the file)."""
-        at = f"{where}: {self.name}"
+        at = f"{where}: {self.name}" if self.name else where
         if not isinstance(table, dict):
             raise error(f"{at} must be a table")
         unknown = [key for key in table if key not in self.keys]
