@@ -9,6 +9,7 @@ import struct
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import can
 import numpy as np
@@ -102,6 +103,19 @@ def session_start(codec: FrameCodec) -> list[can.Message]:
             codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
             codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
             codec.encode("Control", {"Command": int(Command.START), "Step": 0})]
+
+
+@pytest.fixture(scope="module")
+def observer_artifact(tmp_path_factory, small_dataset) -> Path:
+    """The conftest's observer, ungated (`--gate none`): the calibration steps the sensor's reading by OFFSET K at
+    once, which the default 3-sigma innovation gate rightly takes for a lying sensor (it rejects the readings and
+    flags the sensor; the gate's own tests show that). Here the calibration itself is under test."""
+    from bench.cli import main
+
+    out = tmp_path_factory.mktemp("xcp-observer") / "observer.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--gate", "none", "--out",
+                 str(out), "--quiet"]) == 0
+    return out
 
 
 @pytest.fixture(scope="module")
