@@ -908,6 +908,26 @@ def section_xcp(record: Record) -> list[str]:
     return lines
 
 
+@single_record("listeners", "CAN tools attached to a run")
+def section_listeners(record: Record) -> list[str]:
+    """Which of python-can's logger and viewer and cantools' monitor saw every frame of a run, per pacing."""
+    f = record["figures"]
+
+    def share(value: float | None) -> str:
+        return "–" if value is None else f"{100 * min(value, 1.0):.1f} %"
+
+    rows = []
+    for label, summary in f["summary"].items():
+        seen = summary["share_min"]
+        rows.append([label, _n(summary["rows_per_s"]), _n(summary["frames_per_s"]), share(seen["logger"]),
+                     share(seen["viewer"]), share(seen["monitor"])])
+    repeats = record["parameters"]["repeats"]
+    return [f"`bench run --rows {record['parameters']['rows']}` on udp_multicast with the three tools attached, "
+            f"{repeats} run(s) per pacing, alternating; the least share of the run's own log's frames a tool saw "
+            "over those runs (a share above 100 %, the target's heartbeats around the run, is shown as 100 %):",
+            "", *_table(["pacing", "rows/s", "frames/s", "can.logger", "can.viewer", "cantools monitor"], rows)]
+
+
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
 SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
@@ -915,7 +935,8 @@ SECTIONS: dict[str, Section] = {
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "plant_distributed": section_plant_distributed,
     "observer": section_observer,
-    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite, "xcp": section_xcp}
+    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite, "xcp": section_xcp,
+    "listeners": section_listeners}
 BENCHMARKS = tuple(SECTIONS)
 
 
