@@ -403,6 +403,39 @@ def section_can(record: Record) -> list[str]:
     return lines
 
 
+@single_record("sitting", "Lockstep against the bus's round trip")
+def section_sitting(record: Record) -> list[str]:
+    """The performance sitting: per round and condition the one-frame ping-pong, `bench run` on each engine, their
+    ratios; then the medians against the goals."""
+    f, p = record["figures"], record["parameters"]
+    rows_each = "the whole default run" if p.get("rows") is None else f"its first {_n(p['rows'])} rows"
+    lines = [f"Bus: {p.get('bus')}; `bench run` lockstep on {rows_each} (log written, no report), "
+             f"{_count(p['rounds'], 'round')} alternating, quiet and with {_count(p['hogs'], 'CPU-bound process')} "
+             f"beside it; the ping-pong {_n(p['pingpong_seconds'])} s each."
+             + (f" {p['note']}" if p.get("note") else ""), ""]
+    rows = []
+    for condition, rounds in f["rounds"].items():
+        for n, r in enumerate(rounds):
+            rows.append([f"{condition} {n + 1}", _n(r["load_before"], 1), _n(r["pingpong"]["round_trips_per_s"]),
+                         _n(r["python"]["rows_per_s"]), _n(r["firmware"]["rows_per_s"]),
+                         _n(r["ratio"]["python"], 3), _n(r["ratio"]["firmware"], 3),
+                         _n(r["ratio"]["firmware_over_python"], 2)])
+    lines += _table(["round", "load before", "ping-pong round trips/s", "python rows/s", "firmware rows/s",
+                     "python ÷ ping-pong", "firmware ÷ ping-pong", "firmware ÷ python"], rows)
+    goals, met = p.get("goals", {}), f.get("goals_met", {})
+    medians = [[condition, _n(m["pingpong_round_trips_per_s"]), _n(m["python_rows_per_s"]),
+                _n(m["firmware_rows_per_s"]), _n(m["ratio_python"], 3), _n(m["ratio_firmware"], 3),
+                _n(m["ratio_firmware_over_python"], 2)] for condition, m in f["medians"].items()]
+    lines += ["Medians of the sitting:", "",
+              *_table(["condition", "ping-pong round trips/s", "python rows/s", "firmware rows/s",
+                       "python ÷ ping-pong", "firmware ÷ ping-pong", "firmware ÷ python"], medians)]
+    if goals:
+        lines += [f"Goals: python ÷ ping-pong ≥ {goals['quiet']:g} quiet ({'met' if met.get('quiet') else 'not met'}), "
+                  f"≥ {goals['loaded']:g} loaded ({'met' if met.get('loaded') else 'not met'}); firmware ÷ python ≥ "
+                  f"{goals['firmware_over_python']:g} ({'met' if met.get('firmware_over_python') else 'not met'}).", ""]
+    return lines
+
+
 def _worst(per_node: dict | None) -> float | None:
     values = [v for v in (per_node or {}).values() if v is not None]
     return max(values) if values else None
@@ -887,7 +920,8 @@ def _default_rows(motors: list[dict]) -> list[list[str]]:
 SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
     "firmware_timing": section_firmware_timing, "firmware_observer": section_firmware_observer,
-    "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
+    "can": section_can, "sitting": section_sitting, "memory": section_memory, "soak": section_soak,
+    "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "plant_distributed": section_plant_distributed,
     "observer": section_observer,
     "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite}

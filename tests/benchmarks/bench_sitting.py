@@ -42,7 +42,8 @@ from record import Record, add_record_arguments  # noqa: E402
 
 from dbc.transport import UDP_INTERFACE, BusConfig, add_bus_arguments, config_from_args, free_udp_port, resolve  # noqa: E402
 
-PING_ID, PONG_ID = 0x101, 0x201      # the ping-pong's own bus (a port of its own): any two ids do
+PING_ID, PONG_ID, BYE_ID = 0x101, 0x201, 0x1FF   # the ping-pong's own bus (a port of its own): any ids do
+ECHO_IDLE_S = 120.0   # the answering side gives up after this long without a frame (a pinger that never came)
 HOG = "while True: pass"
 GOALS = {"quiet": 0.7, "loaded": 0.3, "firmware_over_python": 0.9}
 ENGINES = ("python", "firmware")
@@ -55,14 +56,15 @@ def _open_bus(bus_json: str):
 
 
 def echo(bus_json: str, seconds: float) -> int:
-    """The answering side: every ping is answered with one pong, until no ping came for `seconds`."""
+    """The answering side: every ping is answered with one pong, until the asking side says bye (or nothing came for
+    `seconds`)."""
     import can
 
     bus = _open_bus(bus_json)
     pong = can.Message(arbitration_id=PONG_ID, data=bytes(8), is_extended_id=False)
     print("ready", flush=True)
     try:
-        while (msg := bus.recv(seconds)) is not None:
+        while (msg := bus.recv(seconds)) is not None and msg.arbitration_id != BYE_ID:
             if msg.arbitration_id == PING_ID:
                 bus.send(pong)
     finally:
@@ -81,7 +83,9 @@ def ping(bus_json: str, seconds: float) -> int:
     try:
         for _ in range(200):   # warm up: the echo is there and both sides' code paths are hot
             bus.send(frame)
-            _await_pong(bus, 1.0)
+            if not _await_pong(bus, 5.0):
+                print(json.dumps({"error": "no answer to the warm-up pings"}), flush=True)
+                return 1
         trips = lost = 0
         started = perf()
         end = started + seconds
@@ -92,6 +96,7 @@ def ping(bus_json: str, seconds: float) -> int:
             else:
                 lost += 1
         elapsed = perf() - started
+        bus.send(can.Message(arbitration_id=BYE_ID, data=bytes(8), is_extended_id=False))
     finally:
         bus.shutdown()
     print(json.dumps({"round_trips": trips, "seconds": elapsed, "lost": lost}), flush=True)
@@ -111,29 +116,35 @@ def run_pingpong(bus: BusConfig, seconds: float) -> dict:
     """Round trips per second of the one-frame ping-pong between two fresh processes on `bus`."""
     bus_json = json.dumps(bus.as_dict())
     me = [sys.executable, str(Path(__file__).resolve())]
-    answering = subprocess.Popen([*me, "--role", "echo", "--bus-json", bus_json, "--seconds", "2"],
+    answering = subprocess.Popen([*me, "--role", "echo", "--bus-json", bus_json, "--seconds", str(ECHO_IDLE_S)],
                                  stdout=subprocess.PIPE, text=True)
     try:
         answering.stdout.readline()   # "ready": its socket has joined the group
         asking = subprocess.run([*me, "--role", "ping", "--bus-json", bus_json, "--seconds", str(seconds)],
-                                capture_output=True, text=True, timeout=seconds + 60)
+                                capture_output=True, text=True, timeout=seconds + 1200)
         result = json.loads(asking.stdout.strip().splitlines()[-1])
     finally:
-        answering.wait(timeout=30)
+        if answering.poll() is None:
+            answering.kill()
+        answering.wait()
+    if "error" in result:
+        raise SystemExit(f"the ping-pong failed: {result['error']}")
     return {"round_trips_per_s": round(result["round_trips"] / result["seconds"]),
             "round_trip_us": round(1e6 * result["seconds"] / max(result["round_trips"], 1), 1),
             "lost": result["lost"], "seconds": round(result["seconds"], 1)}
 
 
 # ---------------------------------------------------------------------------------------------- bench run
-def run_bench(engine: str, bus: BusConfig, rows: int | None, tmp: Path) -> dict:
-    """`bench run` lockstep on `engine` in a fresh process (log written, no report): its own rows/s and verdict."""
+def run_bench(engine: str, bus: BusConfig, rows: int | None, tmp: Path, root: Path = ROOT) -> dict:
+    """`bench run` lockstep on `engine` in a fresh process (log written, no report) of the code in `root`: its own
+    rows/s and verdict."""
     argv = [sys.executable, "-m", "bench", "run", "--engine", engine, "--log", str(tmp / f"{engine}.blf"),
             "--no-report", "--json", "--quiet", *bus.to_argv()]
     if rows:
         argv += ["--rows", str(rows)]
     started = time.perf_counter()
-    done = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, MPLBACKEND="Agg"))
+    env = dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=str(root))
+    done = subprocess.run(argv, capture_output=True, text=True, cwd=root, env=env)
     wall = time.perf_counter() - started
     result = json.loads(done.stdout) if done.stdout.strip().startswith("{") else {}
     if done.returncode != 0 or not result:
@@ -190,21 +201,29 @@ def one_round(bus: BusConfig, args: argparse.Namespace, tmp: Path) -> dict:
     """(a), (b), (c) once: the ping-pong, then `bench run` on each engine; the load before each."""
     out: dict = {"load_before": round(os.getloadavg()[0], 2)}
     out["pingpong"] = run_pingpong(_fresh_port(bus), args.pingpong_seconds)
-    for engine in ENGINES:
+    for label, engine, root in variants(args):
         load = round(os.getloadavg()[0], 2)
-        out[engine] = {**run_bench(engine, _fresh_port(bus), args.rows, tmp), "load_before": load}
+        out[label] = {**run_bench(engine, _fresh_port(bus), args.rows, tmp, root), "load_before": load}
     pp = out["pingpong"]["round_trips_per_s"]
-    out["ratio"] = {engine: _ratio(out[engine]["rows_per_s"], pp) for engine in ENGINES}
+    out["ratio"] = {label: _ratio(out[label]["rows_per_s"], pp) for label, _, _ in variants(args)}
     out["ratio"]["firmware_over_python"] = _ratio(out["firmware"]["rows_per_s"], out["python"]["rows_per_s"])
+    return out
+
+
+def variants(args: argparse.Namespace) -> list[tuple[str, str, Path]]:
+    """(label, engine, code) of each `bench run` of a round: this checkout's engines, then the --baseline's."""
+    out = [(engine, engine, ROOT) for engine in ENGINES]
+    if args.baseline is not None:
+        out += [(f"{engine}_baseline", engine, args.baseline) for engine in ENGINES]
     return out
 
 
 def summary(rounds: list[dict]) -> dict:
     """Medians over the rounds of one condition."""
+    labels = [label for label in rounds[0] if label in ENGINES or label.endswith("_baseline")]
     return {"pingpong_round_trips_per_s": _median([r["pingpong"]["round_trips_per_s"] for r in rounds]),
-            **{f"{e}_rows_per_s": _median([r[e]["rows_per_s"] for r in rounds]) for e in ENGINES},
-            **{f"ratio_{k}": _median([r["ratio"][k] for r in rounds])
-               for k in ("python", "firmware", "firmware_over_python")},
+            **{f"{e}_rows_per_s": _median([r[e]["rows_per_s"] for r in rounds]) for e in labels},
+            **{f"ratio_{k}": _median([r["ratio"][k] for r in rounds]) for k in (*labels, "firmware_over_python")},
             "load_before": _median([r["load_before"] for r in rounds])}
 
 
@@ -215,6 +234,9 @@ def main() -> int:
     parser.add_argument("--pingpong-seconds", type=float, default=5.0, help="length of each ping-pong (default 5)")
     parser.add_argument("--hogs", type=int, default=2, help="CPU-bound processes beside the loaded rounds (default 2)")
     parser.add_argument("--note", default="", help="what else ran on the machine (goes into the record)")
+    parser.add_argument("--baseline", type=Path, default=None, metavar="DIR",
+                        help="a checkout of other code (e.g. `git worktree add DIR main`) whose `bench run` is "
+                             "measured too, alternating: before and after in one sitting")
     parser.add_argument("--role", choices=("echo", "ping"), help=argparse.SUPPRESS)   # the ping-pong's processes
     parser.add_argument("--bus-json", help=argparse.SUPPRESS)
     parser.add_argument("--seconds", type=float, help=argparse.SUPPRESS)
@@ -223,6 +245,8 @@ def main() -> int:
     args = parser.parse_args()
     if args.role:
         return (echo if args.role == "echo" else ping)(args.bus_json, args.seconds)
+    if args.baseline is not None and not (args.baseline / "bench" / "__main__.py").is_file():
+        parser.error(f"--baseline {args.baseline} is no checkout of the bench (no bench/__main__.py there)")
     if args.rounds < 1 or args.pingpong_seconds <= 0 or args.hogs < 0 or (args.rows is not None and args.rows < 1):
         parser.error("--rounds, --pingpong-seconds and --rows must be positive, --hogs not negative")
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(128 + signal.SIGTERM))   # atexit kills the hogs
@@ -230,6 +254,7 @@ def main() -> int:
     record = Record("sitting", args, parameters={
         "rounds": args.rounds, "rows": args.rows, "pingpong_seconds": args.pingpong_seconds, "hogs": args.hogs,
         "bus": bus.describe().rsplit(" port ", 1)[0] + " (a fresh port per measurement)", "note": args.note,
+        "baseline": None if args.baseline is None else _commit_of(args.baseline),
         "goals": GOALS})
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}; bus {bus.describe()}")
     hogs = Hogs(args.hogs)
@@ -247,7 +272,9 @@ def main() -> int:
                 print(f"round {n + 1} {condition:6s} (load {result['load_before']:.1f}): ping-pong "
                       f"{result['pingpong']['round_trips_per_s']} round trips/s; bench run python "
                       f"{_n(result['python']['rows_per_s'])}, firmware {_n(result['firmware']['rows_per_s'])} rows/s; "
-                      f"ratio {r['python']} / {r['firmware']}, firmware/python {r['firmware_over_python']}")
+                      f"ratio {r['python']} / {r['firmware']}, firmware/python {r['firmware_over_python']}"
+                      + (f"; baseline ratio {r['python_baseline']} / {r['firmware_baseline']}"
+                         if args.baseline is not None else ""))
     medians = {condition: summary(results) for condition, results in rounds.items()}
     met = {"quiet": (medians["quiet"]["ratio_python"] or 0) >= GOALS["quiet"],
            "loaded": (medians["loaded"]["ratio_python"] or 0) >= GOALS["loaded"],
@@ -258,10 +285,21 @@ def main() -> int:
               f"{_n(m['python_rows_per_s'])} rows/s (ratio {m['ratio_python']}), firmware "
               f"{_n(m['firmware_rows_per_s'])} (ratio {m['ratio_firmware']}, firmware/python "
               f"{m['ratio_firmware_over_python']})")
+    if args.baseline is not None:
+        for condition, m in medians.items():
+            print(f"median {condition}, baseline: python {_n(m['python_baseline_rows_per_s'])} rows/s (ratio "
+                  f"{m['ratio_python_baseline']}), firmware {_n(m['firmware_baseline_rows_per_s'])} (ratio "
+                  f"{m['ratio_firmware_baseline']})")
     print("goals met: " + ", ".join(f"{k} {'yes' if v else 'no'}" for k, v in met.items()))
     record.figures.update(rounds=rounds, medians=medians, goals_met=met)
     record.write()
     return 0
+
+
+def _commit_of(root: Path) -> str:
+    """The baseline's commit (a checkout), or its path when it is no git checkout."""
+    done = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=root, capture_output=True, text=True)
+    return done.stdout.strip() if done.returncode == 0 else str(root)
 
 
 def _n(value: float | None) -> str:
