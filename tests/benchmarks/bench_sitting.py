@@ -1,7 +1,7 @@
 """Performance sitting (prints figures; not a test): lockstep rows/s against the bus's own one-frame round trip.
 
-    python tests/benchmarks/bench_sitting.py [--rounds N] [--rows N] [--pingpong-seconds S] [--note TEXT]
-                                             [-i ... -c ...]
+    python tests/benchmarks/bench_sitting.py [--rounds N] [--rows N] [--pingpong-seconds S] [--hogs N]
+                                             [--budget-rows N] [--baseline DIR] [--note TEXT] [-i ... -c ...]
 
 A lockstep run is bounded by the bus's round trip: one row is a request and its reply. This script measures, in
 one sitting and alternating so that the machine's state falls on all three alike, per round:
@@ -17,7 +17,13 @@ each quiet and with two CPU-bound processes beside it (`python -c 'while True: p
 killed for sure at exit). Figures: rows/s ÷ round trips/s of the same round and condition, and the medians over
 the rounds. Goals (issue 40): python engine ≥ 0.7 × the ping-pong quiet, ≥ 0.3 × with the two CPU-bound
 processes; firmware ≥ 0.9 × python. A machine shared with other jobs is not quiet: the load average before each
-measurement is recorded beside it (`--note` says what else ran). Writes its record (`tests/benchmarks/record.py`).
+measurement is recorded beside it (`--note` says what else ran). `--baseline DIR` measures the `bench run` of
+another checkout too, in the same rounds (before and after a change, in one sitting).
+
+First, per engine, where a row's µs go: host and target of a lockstep run in this one thread, one after the other
+(no wake-up, no scheduler), each part of the row timed in the thread's CPU time, so the figure holds on a loaded
+machine (`--budget-rows`), beside the ping-pong's round trip timed the same way. Writes its record
+(`tests/benchmarks/record.py`).
 """
 
 from __future__ import annotations
@@ -156,6 +162,129 @@ def run_bench(engine: str, bus: BusConfig, rows: int | None, tmp: Path, root: Pa
             "step_time_us_p50": (result.get("step_time_us") or {}).get("p50")}
 
 
+# ---------------------------------------------------------------------------------------------- the CPU budget
+BUDGET_PARTS = ("host: encode the next row", "host: send the row", "target: receive and handle the row",
+                "target: send the replies", "target: read back its own copies",
+                "host: read its own copies and the replies", "host: write the log")
+
+
+def cpu_budget(engine: str, rows: int, bus: BusConfig, data: Path) -> dict:
+    """Where a row's µs go: host and target of one lockstep run, both in this one thread (each step in turn, so no
+    wake-up and no scheduler), each part timed in CPU time of the thread (`time.thread_time_ns`: a preempted moment
+    is not counted, so the figure holds on a loaded machine); then the one-frame ping-pong timed the same way."""
+    import can
+
+    from bench.drive.dataset import load_dataset
+    from bench.drive.generate import ensure_default_datasets
+    from bench.model.default import default_artifact_path
+    from bench.model.runs import drive_matrix, initial_temperatures
+    from bench.run.inputs import firmware_for_engine
+    from dbc.contract import RESET_SIGNALS, Command, split_temperatures
+    from dbc.database import host_frame_ids, target_frame_ids
+    from dbc.transport import OwnFrameFilter, SenderGuard
+    from host.canlog import FrameLog
+    from host.session import HostSession
+    from target_sim.artifact import load_artifact
+    from target_sim.engines import make_node
+
+    artifact = load_artifact(default_artifact_path())
+    dataset = load_dataset(ensure_default_datasets(data)[40])
+    drive = drive_matrix(dataset)[:rows]
+    with tempfile.TemporaryDirectory() as tmp:
+        firmware = firmware_for_engine(engine, artifact, Path(tmp))
+        node = make_node(artifact, engine=engine, firmware=firmware)
+        host_bus, target_bus = SenderGuard(bus.open(), bus, host_frame_ids()), bus.open()
+        session = HostSession(host_bus, log=FrameLog(Path(tmp) / "budget.blf"), expected_model_id=artifact.model_id)
+        try:
+            initial = [round(float(v), 2) for v in initial_temperatures(dataset)]   # the handshake, straight in
+            for name, signals in split_temperatures(initial, RESET_SIGNALS).items():
+                node.handle(session.codec.encode(name, {"Step": 0, **signals}))
+            node.handle(session.control(Command.RESET))
+            node.handle(session.control(Command.START))
+            parts, frames_out = _budget_rows(session, node, target_bus, OwnFrameFilter(target_frame_ids()), drive)
+        finally:
+            session.log.close(commit=False)
+            host_bus.shutdown()
+            target_bus.shutdown()
+    ping_bus, echo_bus = bus.open(), bus.open()
+    try:
+        ping_us = _budget_pingpong(can, ping_bus, echo_bus, 5000)
+    finally:
+        ping_bus.shutdown()
+        echo_bus.shutdown()
+    per_row = {part: round(ns / 1000 / rows, 1) for part, ns in zip(BUDGET_PARTS, parts, strict=True)}
+    return {"rows": rows, "per_row_us": per_row, "row_us": round(sum(per_row.values()), 1),
+            "target_frames_out_per_row": round(frames_out / rows, 2), "pingpong_round_trip_us": round(ping_us, 1)}
+
+
+def _budget_rows(session, node, target_bus, own, drive) -> tuple[list[int], int]:
+    """The lockstep loop with both nodes in turn in this thread: CPU ns per part (BUDGET_PARTS) and frames sent."""
+    from host.replay import RowValues
+    from host.session import RowBook
+
+    rows = len(drive)
+    book = session.book = RowBook(rows)
+    values = RowValues(drive)
+    clock = time.thread_time_ns
+    parts = [0] * len(BUDGET_PARTS)
+    frames_out = 0
+    upcoming = values.frames(session.codec, 0)
+    for n in range(rows):
+        marks = [clock()]
+        frames, session.last_sent_row = upcoming, n
+        book.sent_ns[n] = time.perf_counter_ns()
+        session.send(frames)
+        marks.append(clock())
+        if n + 1 < rows:
+            upcoming = values.frames(session.codec, n + 1)
+        marks.append(clock())
+        replies, heard = [], 0
+        while heard < len(frames):
+            msg = target_bus.recv(1.0)
+            if msg is None:
+                raise SystemExit(f"the budget's row {n} did not reach the target")
+            if not own.is_own(msg):
+                heard += 1
+                replies += node.handle(msg)
+        marks.append(clock())
+        for frame in replies:
+            target_bus.send(frame)
+        frames_out += len(replies)
+        marks.append(clock())
+        while target_bus.recv(0.0) is not None:
+            pass
+        marks.append(clock())
+        while not book.is_answered(n):
+            if session.receive(1.0) is None:
+                raise SystemExit(f"the budget's row {n} got no reply")
+        session.drain()
+        marks.append(clock())
+        session.flush_log()
+        marks.append(clock())
+        # marks: send, encode, target handle, target send, own copies, host receive, log (in BUDGET_PARTS order)
+        order = (1, 0, 2, 3, 4, 5, 6)
+        for part, index in zip(order, range(len(marks) - 1), strict=True):
+            parts[part] += marks[index + 1] - marks[index]
+    return parts, frames_out
+
+
+def _budget_pingpong(can, ping_bus, echo_bus, trips: int) -> float:
+    """CPU µs of one ping-pong round trip (two sends, four receives with the loopback copies), in this thread."""
+    ping = can.Message(arbitration_id=PING_ID, data=bytes(8), is_extended_id=False)
+    pong = can.Message(arbitration_id=PONG_ID, data=bytes(8), is_extended_id=False)
+    started = time.thread_time_ns()
+    for _ in range(trips):
+        ping_bus.send(ping)
+        while (msg := echo_bus.recv(1.0)) is not None and msg.arbitration_id != PING_ID:
+            pass
+        echo_bus.send(pong)
+        while (msg := ping_bus.recv(1.0)) is not None and msg.arbitration_id != PONG_ID:
+            pass
+        while echo_bus.recv(0.0) is not None:
+            pass
+    return (time.thread_time_ns() - started) / trips / 1000
+
+
 # ---------------------------------------------------------------------------------------------- CPU-bound load
 class Hogs:
     """Two CPU-bound processes beside the measurement while in the `with` block; killed for sure at exit."""
@@ -232,6 +361,8 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=3, help="rounds per condition (default 3)")
     parser.add_argument("--rows", type=int, default=None, help="rows of each `bench run` (default: all 36 371)")
     parser.add_argument("--pingpong-seconds", type=float, default=5.0, help="length of each ping-pong (default 5)")
+    parser.add_argument("--budget-rows", type=int, default=3000,
+                        help="rows of the CPU budget per engine, both nodes in this thread (default 3000; 0: none)")
     parser.add_argument("--hogs", type=int, default=2, help="CPU-bound processes beside the loaded rounds (default 2)")
     parser.add_argument("--note", default="", help="what else ran on the machine (goes into the record)")
     parser.add_argument("--baseline", type=Path, default=None, metavar="DIR",
@@ -257,6 +388,15 @@ def main() -> int:
         "baseline": None if args.baseline is None else _commit_of(args.baseline),
         "goals": GOALS})
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}; bus {bus.describe()}")
+    record.parameters["budget_rows"] = args.budget_rows
+    if args.budget_rows:
+        record.figures["budget"] = {}
+        for engine in ENGINES:
+            budget = record.figures["budget"][engine] = cpu_budget(engine, args.budget_rows, _fresh_port(bus),
+                                                                   ROOT / "out" / "data")
+            print(f"CPU budget, {engine} engine: {budget['row_us']} µs a row (" + ", ".join(
+                f"{part} {us}" for part, us in budget["per_row_us"].items()) + f"); the ping-pong "
+                f"{budget['pingpong_round_trip_us']} µs a round trip")
     hogs = Hogs(args.hogs)
     rounds: dict[str, list[dict]] = {"quiet": [], "loaded": []}
     with tempfile.TemporaryDirectory() as tmp:
