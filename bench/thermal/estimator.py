@@ -116,12 +116,13 @@ LANES = 16
 # per division, which would keep LLVM from vectorizing the lane loops
 @numba.njit(cache=True, fastmath=False, error_model="numpy")
 def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, x, y, ref_w, ref_m, ref_y,
-           ref_t, traj, first, count, keep, sse, use_sigmoid, res, res_at, res_nodes, res_refs, res_weights):
+           ref_t, traj, first, count, keep, sse, use_sigmoid, res, res_at, res_stride, res_nodes, res_refs,
+           res_weights):
     """LANES models (lane-last arrays: a (4,4,L), b (4,8,L), c (4,4,L), theta (14,L), sig (6,4,L)) over one run
     from the states x (4,L) and estimates y (4,L); error sums into sse (4,L); with `keep` the first `count` lanes'
     trajectories into traj[first:first + count]; for each residual row r (none: res_nodes empty) the first `count`
-    lanes' weighted errors res_weights[r] * (y[res_nodes[r]] - res_refs[r]) into res[first + lane, res_at + r·steps
-    + k] (a fit's residuals written where it wants them, no trajectory kept)."""
+    lanes' weighted errors res_weights[r] * (y[res_nodes[r]] - res_refs[r]) into res[first + lane, res_at +
+    r·res_stride + k] (a fit's residuals written where it wants them, no trajectory kept)."""
     n_steps, lanes = ratio.shape[0], x.shape[1]   # lanes as a run-time count: LLVM then vectorizes the lane loops
     u = np.empty((8, lanes))
     x_new = np.empty((4, lanes))
@@ -173,7 +174,7 @@ def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, c
                 for i in range(4):
                     traj[first + lane, k, i] = y[i, lane]
         for r in range(res_nodes.shape[0]):
-            node, at, weight = res_nodes[r], res_at + r * n_steps + k, res_weights[r]
+            node, at, weight = res_nodes[r], res_at + r * res_stride + k, res_weights[r]
             for lane in range(count):
                 res[first + lane, at] = weight * (y[node, lane] - res_refs[r, k])
         for lane in range(lanes):   # yoke and tooth summed separately, so winding and PM keep their bits
@@ -190,7 +191,8 @@ def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, c
 # nogil: the local polish runs its starts in threads, one per core (bench.model.polish)
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w, ref_m,
-           ref_y, ref_t, traj, keep, sse, use_sigmoid, width, res, res_at, res_nodes, res_refs, res_weights):
+           ref_y, ref_t, traj, keep, sse, use_sigmoid, width, res, res_at, res_stride, res_nodes, res_refs,
+           res_weights):
     n_models = a.shape[0]
     groups = (n_models + width - 1) // width
     for g in numba.prange(groups):
@@ -208,8 +210,8 @@ def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alph
         sums = np.zeros((4, width))
         count = min(width, n_models - first)
         _lanes(a_l, b_l, c_l, theta_l, sig_l, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, x, y,
-               ref_w, ref_m, ref_y, ref_t, traj, first, count, keep, sums, use_sigmoid, res, res_at, res_nodes,
-               res_refs, res_weights)
+               ref_w, ref_m, ref_y, ref_t, traj, first, count, keep, sums, use_sigmoid, res, res_at, res_stride,
+               res_nodes, res_refs, res_weights)
         for lane in range(count):
             for i in range(4):
                 sse[first + lane, i] = sums[i, lane]
@@ -220,9 +222,10 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
     """Run P models over one run. Shapes: a (P,4,4), b (P,4,8), c (P,4,4), theta (P,14), sig (P,6,4).
 
     Returns (sse (P, 4) for winding, PM, yoke and tooth against the references (a missing reference counts as
-    zeros), trajectories (P, steps, 4) or None). `residuals` = (out (P, M), at, nodes, refs, weights): each model's
-    weighted errors weights[r] * (y[nodes[r]] - refs[r]) (r a row of steps) written into out[:, at:at + rows·steps],
-    as a fit's residual vector wants them, without keeping trajectories.
+    zeros), trajectories (P, steps, 4) or None). `residuals` = (out (P, M), at, nodes, refs, weights[, stride]): each
+    model's weighted errors weights[r] * (y[nodes[r]] - refs[r]) (r a row of steps) written into out[:, at + r·stride
+    + k] (stride default: the steps, the rows one after the other), as a fit's residual vector wants them, without
+    keeping trajectories.
     """
     f64 = portable.kernel_array    # one compiled signature whatever the arrays' flags (read-only, strided)
     a, b, c, theta, sig, y0 = (f64(m) for m in (a, b, c, theta, sig, y0))
@@ -234,18 +237,20 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
     sse = np.zeros((n_models, 4))
     use_sigmoid = not np.allclose(sig, identity_sigmoid(sig[:, 0, :]), rtol=0, atol=0)
     if residuals is None:
-        res, at, nodes, refs, weights = np.zeros((1, 1)), 0, np.zeros(0, np.int64), np.zeros((0, 1)), np.zeros(0)
+        res, at, stride = np.zeros((1, 1)), 0, 0
+        nodes, refs, weights = np.zeros(0, np.int64), np.zeros((0, 1)), np.zeros(0)
     else:
-        res, at, nodes, refs, weights = residuals
+        res, at, nodes, refs, weights = residuals[:5]
+        stride = residuals[5] if len(residuals) > 5 else n_steps
         nodes = np.ascontiguousarray(nodes, dtype=np.int64)
         refs, weights = f64(np.reshape(refs, (len(nodes), n_steps))), f64(weights)
         if res.dtype != np.float64 or not res.flags.c_contiguous or res.shape[0] != n_models or \
-                at + len(nodes) * n_steps > res.shape[1]:
-            raise ValueError("residuals: a C-contiguous float64 (models, M) array with room for rows x steps at `at`")
+                stride < n_steps or at + (len(nodes) - 1) * stride + n_steps > res.shape[1]:
+            raise ValueError("residuals: a C-contiguous float64 (models, M) array with room for every row at `at`")
     _batch(a, b, c, c_inv, theta, sig, f64(inputs.table_losses), f64(inputs.speed_ratio), f64(inputs.coolant),
            f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu), float(inputs.copper_reference), y0,
            ref_w, ref_m, ref_y, ref_t, traj, bool(keep_trajectories), sse, use_sigmoid, lane_width(n_models), res,
-           int(at), nodes, refs, weights)
+           int(at), int(stride), nodes, refs, weights)
     return sse, (traj if keep_trajectories else None)
 
 

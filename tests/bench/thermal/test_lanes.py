@@ -79,3 +79,25 @@ def test_lane_groups_fill_every_thread_and_hold_at_most_the_lanes():
         width = lane_width(models)
         assert 1 <= width <= min(LANES, models)
         assert width * -(-models // width) >= models
+
+
+@pytest.mark.parametrize("stride", [None, STEPS + 5])
+def test_residuals_written_by_the_kernel_equal_the_trajectories_minus_the_references(stride):
+    """A fit's residual rows (weighted model - measurement), written in place, are those of the kept trajectories."""
+    a, b, c, theta, sig, inputs, y0, refs = _problem(11, True)
+    _, traj = run_batch(a, b, c, theta, sig, inputs, y0, keep_trajectories=True)
+    nodes, weights = [1, 3, 0], np.array([1.0, 2.0, 0.7071067811865476])
+    step = STEPS if stride is None else stride
+    out = np.full((11, 3 + 2 * step + STEPS + 4), np.nan)
+    run_batch(a, b, c, theta, sig, inputs, y0, residuals=(out, 3, nodes, refs[:3], weights)
+              + (() if stride is None else (stride,)))
+    for r, (node, weight) in enumerate(zip(nodes, weights, strict=True)):
+        expected = traj[:, :, node] - refs[r] if weight == 1.0 else weight * (traj[:, :, node] - refs[r])
+        assert np.array_equal(out[:, 3 + r * step:3 + r * step + STEPS], expected)
+    assert np.isnan(out[:, :3]).all()     # nothing written outside the rows
+
+
+def test_residuals_without_room_are_refused():
+    a, b, c, theta, sig, inputs, y0, refs = _problem(2, False)
+    with pytest.raises(ValueError, match="room"):
+        run_batch(a, b, c, theta, sig, inputs, y0, residuals=(np.empty((2, STEPS)), 1, [1], refs[:1], np.ones(1)))
