@@ -103,7 +103,9 @@ def main() -> int:
         data, index, data_s = generate(motor, work)
         rows = training_rows(index)
         print(f"data: {len(index['roles']['train'])} training files, {rows} rows ({data_s:.0f} s)", flush=True)
-        record.figures.update(training_files=len(index["roles"]["train"]), training_rows=rows, identify={})
+        record.figures.update(training_files=len(index["roles"]["train"]), training_rows=rows, data_s=round(data_s, 1),
+                              identify={})
+        record.write()     # after each step: an interrupted run keeps what it measured
         designer_model = None
         for prior in args.priors:
             run = identify(motor, work, data, index, prior)
