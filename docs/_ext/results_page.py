@@ -469,11 +469,14 @@ def section_speed(record: Record) -> list[str]:
         o = f["observer"]
         rows.append([f"observer, {o['evaluations']} filter runs", _n(o["seconds"]), _n(o["cpu_s"]),
                      f"{o['load_average'][0]}, {o['load_average'][1]}", "", "yes" if o["goal_met"] else "no"])
+    missing = [f"identify with the {prior} prior" for prior in p["priors"] if prior not in f.get("identify", {})]
+    missing += [] if "observer" in f else ["the observer"]
     return [f"{f.get('training_rows', 0):,}".replace(",", " ") + f" training rows in {f.get('training_files')} files "
             f"(the suite's {p['motor']} with longer copies of its training profiles), 2 cores "
             f"([method](method.md#identification)). CPU seconds are the work; on a shared machine the wall time is "
             f"the load's.", "",
-            *_table(["command", "wall s", "CPU s", "load", "stages (wall)", f"≤ {p['goal_s']:g} s"], rows)]
+            *_table(["command", "wall s", "CPU s", "load", "stages (wall)", f"≤ {p['goal_s']:g} s"], rows),
+            *([f"Not measured in this record (the run was stopped): {', '.join(missing)}.", ""] if missing else [])]
 
 
 @single_record("data", "Datasets")
