@@ -183,15 +183,19 @@ def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[Mo
     def fun_ridge(v):
         return np.concatenate([fun(v), ridge * (v - v0)])
 
+    # the Jacobian's buffers, written in place at every evaluation (MINPACK copies what it gets): 400 000 residuals
+    # of 37 models are 120 MB, which a fresh array would fault in page by page each time
+    batch = np.empty((len(v0) + 1, n_data))
+    rows = np.empty((len(v0), n_data + len(v0)))
+    rows[:, n_data:] = np.diag(ridge)
+
     def jac_ridge_rows(v):
         # Forward differences, all perturbed models simulated in one parallel batch, the Jacobian transposed (a row
         # per parameter: the layout MINPACK keeps it in, so it is written once and never transposed)
         steps = 1e-6 * np.maximum(1.0, np.abs(v))
-        r = finite_errors(problem.residuals(np.vstack([v, v + np.diag(steps)])))
-        rows = np.empty((len(v), n_data + len(v)))
+        r = finite_errors(problem.residuals(np.vstack([v, v + np.diag(steps)]), out=batch))
         np.subtract(r[1:], r[0], out=rows[:, :n_data])
         np.divide(rows[:, :n_data], steps[:, None], out=rows[:, :n_data])
-        rows[:, n_data:] = np.diag(ridge)
         return rows
 
     r0 = fun(v0)
