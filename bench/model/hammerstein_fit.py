@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, leastsq
 
 from bench.model.builder import SigmoidInputs
 from bench.model.lptn_fit import NODE_WEIGHTS, measured_nodes
@@ -127,16 +127,24 @@ class _Problem:
         c = np.broadcast_to(self.fit_block.c, (n, 4, 4))
         return a, b, c, np.broadcast_to(self.theta, (n, self.theta.size)), sig
 
-    def residuals(self, vectors: np.ndarray) -> np.ndarray:
-        """(P, residuals): winding and PM errors over every run, in °C."""
+    @property
+    def size(self) -> int:
+        """The residuals per model: winding, PM and the measured stator nodes at every step of every run."""
+        return sum(len(run.ref_winding) for run in self.runs) * (2 + len(self.stator))
+
+    def residuals(self, vectors: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(P, residuals): per run the winding, the weighted PM and the weighted stator errors, in °C; written by the
+        kernel straight into `out` (a C-contiguous (P, residuals) array) or a new array."""
         a, b, c, theta, sig = self.models(vectors)
-        parts = []
+        nodes = [1, 3] + [STATOR_OUTPUT[n] for n in self.stator]
+        weights = np.array([1.0, PM_WEIGHT] + [self.stator_weight] * len(self.stator))   # 1.0·e is e, bit for bit
+        out = np.empty((len(vectors), self.size)) if out is None else out
+        at = 0
         for run in self.runs:
-            _, traj = run_batch(a, b, c, theta, sig, run.inputs, run.initial, keep_trajectories=True)
-            parts += [traj[:, :, 1] - run.ref_winding, PM_WEIGHT * (traj[:, :, 3] - run.ref_pm)]
-            parts += [self.stator_weight * (traj[:, :, STATOR_OUTPUT[n]] - run.reference(n))
-                      for n in self.stator]
-        return np.concatenate(parts, axis=1)
+            refs = [run.ref_winding, run.ref_pm] + [run.reference(n) for n in self.stator]
+            run_batch(a, b, c, theta, sig, run.inputs, run.initial, residuals=(out, at, nodes, refs, weights))
+            at += len(nodes) * len(run.ref_winding)
+        return out
 
     def physical_model(self, v: np.ndarray) -> HammersteinModel:
         _, b, _, _, sig = self.models(v[None])
@@ -169,29 +177,72 @@ def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[Mo
             on_iteration(calls["n"], float(np.sqrt(np.mean(r * r))))
         return finite_errors(r)
 
-    def jac(v):
-        # Forward differences, all perturbed models simulated in one parallel batch.
-        steps = 1e-6 * np.maximum(1.0, np.abs(v))
-        batch = np.vstack([v, v + np.diag(steps)])
-        r = finite_errors(problem.residuals(batch))
-        return ((r[1:] - r[0]) / steps[:, None]).T
-
-    n_data = problem.residuals(v0[None]).shape[1]
+    n_data = problem.size
     ridge = np.sqrt(n_data) * RIDGE * ridge_factor
 
     def fun_ridge(v):
         return np.concatenate([fun(v), ridge * (v - v0)])
 
-    def jac_ridge(v):
-        return np.vstack([jac(v), np.diag(ridge)])
+    # the Jacobian's buffers, written in place at every evaluation (MINPACK copies what it gets): 400 000 residuals
+    # of 37 models are 120 MB, which a fresh array would fault in page by page each time
+    batch = np.empty((len(v0) + 1, n_data))
+    rows = np.empty((len(v0), n_data + len(v0)))
+    rows[:, n_data:] = np.diag(ridge)
+
+    def jac_ridge_rows(v):
+        # Forward differences, all perturbed models simulated in one parallel batch, the Jacobian transposed (a row
+        # per parameter: the layout MINPACK keeps it in, so it is written once and never transposed)
+        steps = 1e-6 * np.maximum(1.0, np.abs(v))
+        r = finite_errors(problem.residuals(np.vstack([v, v + np.diag(steps)]), out=batch))
+        np.subtract(r[1:], r[0], out=rows[:, :n_data])
+        np.divide(rows[:, :n_data], steps[:, None], out=rows[:, :n_data])
+        return rows
 
     r0 = fun(v0)
-    result = least_squares(fun_ridge, v0 if start is None else start, jac=jac_ridge, method="lm",
-                           max_nfev=iterations, x_scale="jac")
+    result = levenberg_marquardt(fun_ridge, jac_ridge_rows, v0 if start is None else start, iterations)
     final = result.fun[:n_data]
     return HammersteinFit(problem.physical_model(result.x), path, coordinates,
                           float(np.sqrt(np.mean(r0 ** 2))), float(np.sqrt(np.mean(final ** 2))),
                           int(result.njev or 0), int(result.nfev), result.message, result.x)
+
+
+# scipy.optimize.least_squares(method="lm") with its defaults (ftol = xtol = gtol = 1e-8, x_scale "jac": MINPACK's
+# own scaling, step bound factor 100), run through MINPACK's lmder as scipy.optimize.leastsq calls it: the same
+# routine on the same arguments, so the same iterates bit for bit. Why not least_squares itself: it takes the Jacobian
+# a row per residual and copies it four times per evaluation (its own copy, C order, then MINPACK's column order),
+# which for 400 000 residuals cost as much as the simulations; leastsq's col_deriv takes it a row per parameter, as
+# the finite differences produce it, and copies it once. And least_squares evaluates the Jacobian once more at the
+# end, for figures nothing here uses.
+LM_TOLERANCE = 1e-8
+LM_STEP_BOUND = 100.0
+LM_CONVERGED = (1, 2, 3, 4)    # MINPACK's info: a tolerance met; 5: the evaluation budget; 6-8: tolerance too small
+
+
+def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac_rows: Callable[[np.ndarray], np.ndarray],
+                        x0: np.ndarray, max_nfev: int) -> OptimizeResult:
+    """Minimize |fun(x)|² from x0 by MINPACK's Levenberg-Marquardt with at most `max_nfev` evaluations of fun;
+    `jac_rows(x)` is the Jacobian transposed, (parameters, residuals). The result as least_squares gives it (x, fun,
+    nfev, njev, status, message, success)."""
+    # leastsq calls fun and jac_rows once at x0 to check their shapes, then MINPACK calls them there again
+    x, _, info, message, status = leastsq(_last_call(fun), np.array(x0, dtype=float), Dfun=_last_call(jac_rows),
+                                           col_deriv=True,
+                                           full_output=True, ftol=LM_TOLERANCE, xtol=LM_TOLERANCE, gtol=LM_TOLERANCE,
+                                           maxfev=max_nfev, factor=LM_STEP_BOUND)
+    return OptimizeResult(x=x, fun=info["fvec"], nfev=info["nfev"], njev=info.get("njev"), status=status,
+                          message=message, success=status in LM_CONVERGED)
+
+
+def _last_call(function: Callable[[np.ndarray], np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
+    """`function` that returns its last result again when called with the same x (as least_squares' own wrapper
+    does), so a check of the shapes costs no simulation; MINPACK copies what it gets, so sharing it is safe."""
+    last: list = [None, None]
+
+    def call(x: np.ndarray) -> np.ndarray:
+        if last[0] is None or not np.array_equal(x, last[0]):
+            last[0], last[1] = np.array(x, copy=True), function(x)
+        return last[1]
+
+    return call
 
 
 def lti_vector() -> np.ndarray:

@@ -45,6 +45,7 @@ from bench.errors import BenchError
 from bench.model.artifact_values import artifact_loss_model, artifact_parameters, shift_form
 from bench.model.measures import LAB_MEASUREMENT_KINDS, kind_of
 from bench.model.measures.lagged_sensor import Sensor
+from bench.model.polish import in_threads
 from bench.model.runs import ModelRun, model_run
 from bench.thermal import portable
 from bench.thermal.estimator import identity_sigmoid, loop_parameters
@@ -303,28 +304,33 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
         p0_tuning = initial_covariance(model, data[0].readings)
 
         def score(q, r):
-            return sum(float(_run(model, d, q, [r], p0_tuning).nll[0]) for d in data)
+            return sum(in_threads(lambda d: float(_run(model, d, q, [r], p0_tuning).nll[0]), data))
     else:
         magnet = OUTPUTS.index("magnet")
         scored = [(OUTPUTS.index(node), "pm" if node == "magnet" else node) for node in SCORED_NODES[criterion]]
         guarded = criterion == "nodes"
         # the open loop's magnet log MSE per file from the measured start (the filter with no gain at all)
-        open_loop = [_log_mse(_run(model, d, process_noise(model, np.zeros(n))[None], [np.full(m_count, 1e30)], p0,
-                                   keep=True).estimates[0][:, magnet], d.run.ref_pm) for d in deployed] \
-            if guarded else []
+        open_loop = in_threads(lambda d: _log_mse(_run(model, d, process_noise(model, np.zeros(n))[None],
+                                                       [np.full(m_count, 1e30)], p0, keep=True).estimates[0][:, magnet],
+                                                  d.run.ref_pm), deployed) if guarded else []
+        # every file from every start: independent filter runs, in threads (one per core)
+        shifted = [(index, offset) for index in range(len(deployed)) for offset in TUNING_START_OFFSETS_K]
+
+        def errors_of(q, r, index: int, offset: float) -> dict:
+            d = deployed[index]
+            start = d.run.initial.copy()
+            start[magnet] += offset
+            moved = FilterData(replace(d.run, initial=start), d.readings, d.measurements)
+            estimates = _run(model, moved, q, [r], p0, keep=True).estimates[0]
+            return {i: _log_mse(estimates[:, i], d.run.reference(ref)) for i, ref in scored}
 
         def score(q, r):
-            total = 0.0
-            for index, d in enumerate(deployed):
-                for offset in TUNING_START_OFFSETS_K:
-                    start = d.run.initial.copy()
-                    start[magnet] += offset
-                    shifted = FilterData(replace(d.run, initial=start), d.readings, d.measurements)
-                    estimates = _run(model, shifted, q, [r], p0, keep=True).estimates[0]
-                    errors = {i: _log_mse(estimates[:, i], d.run.reference(ref)) for i, ref in scored}
-                    total += sum(errors.values())
-                    if guarded and offset == 0.0:   # a magnet worse than the open loop's: a steep penalty
-                        total += MAGNET_GUARD_WEIGHT * max(0.0, errors[magnet] - open_loop[index])
+            total = 0.0    # summed in the files' and starts' order, whichever thread ran them
+            for (index, offset), errors in zip(shifted, in_threads(lambda item: errors_of(q, r, *item), shifted),
+                                               strict=True):
+                total += sum(errors.values())
+                if guarded and offset == 0.0:   # a magnet worse than the open loop's: a steep penalty
+                    total += MAGNET_GUARD_WEIGHT * max(0.0, errors[magnet] - open_loop[index])
             return total
 
     calls = [0]

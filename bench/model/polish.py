@@ -100,12 +100,16 @@ class Residuals:
         theta = vectors[:, [names.index(p) for p in LOOP_PARAMETERS]]
         c = np.broadcast_to(np.eye(4), (n, 4, 4))
         sig = np.broadcast_to(identity_sigmoid(np.ones(4)), (n, 6, 4))
-        parts = []
+        total = int(self.count)
+        errors = np.empty((n, len(self.nodes), total))   # written by the kernel, run after run along the samples
+        rows = [OUTPUT_INDEX[node] for node in self.nodes]
+        at = 0
         for run in self.runs:
-            _, traj = run_batch(a_d, b_d, c, theta, sig, run.inputs, run.initial, keep_trajectories=True)
-            parts.append(np.stack([traj[:, :, OUTPUT_INDEX[node]] - run.reference(node) for node in self.nodes],
-                                  axis=1))
-        return finite_errors(np.concatenate(parts, axis=2))
+            refs = [run.reference(node) for node in self.nodes]
+            run_batch(a_d, b_d, c, theta, sig, run.inputs, run.initial,
+                      residuals=(errors.reshape(n, -1), at, rows, refs, np.ones(len(rows)), total))
+            at += len(run.ref_winding)
+        return finite_errors(errors)
 
     def mse(self, errors: np.ndarray) -> np.ndarray:
         """(nodes,) mean squared error of one model's errors (nodes, samples), exactly summed."""

@@ -8,6 +8,7 @@ iteration, so the kernel runs a batch of them in parallel and can return either 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -104,48 +105,127 @@ def step_buffers(c_inv, y0):
     return x, np.zeros(4), y0.copy(), np.empty(8), np.empty(4)
 
 
-@numba.njit(cache=True, fastmath=False)
-def _one_model(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w,
-               ref_m, ref_y, ref_t, traj, keep, use_sigmoid):
-    n_steps = ratio.shape[0]
-    x, x_new, y, u, gains = step_buffers(c_inv, y0)
-    sse_w = 0.0
-    sse_m = 0.0
-    sse_y = 0.0
-    sse_t = 0.0
+# Particles as lanes: `_lanes` steps LANES models side by side, each lane doing exactly `model_step`'s operations in
+# its order (so its bits), the lanes in the innermost loops. One model's step is a chain of dependent operations
+# (its estimate feeds the next step's losses and sources), so a single model waits on latency; LANES independent
+# chains fill the core's pipelines and SIMD units instead, and the drive inputs of a step are read once for all.
+LANES = 16
+
+
+# error_model numpy: a division by zero gives inf or nan (a diverging candidate, the worst cost) instead of a check
+# per division, which would keep LLVM from vectorizing the lane loops
+@numba.njit(cache=True, fastmath=False, error_model="numpy")
+def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, x, y, ref_w, ref_m, ref_y,
+           ref_t, traj, first, count, keep, sse, use_sigmoid, res, res_at, res_stride, res_nodes, res_refs,
+           res_weights):
+    """LANES models (lane-last arrays: a (4,4,L), b (4,8,L), c (4,4,L), theta (14,L), sig (6,4,L)) over one run
+    from the states x (4,L) and estimates y (4,L); error sums into sse (4,L); with `keep` the first `count` lanes'
+    trajectories into traj[first:first + count]; for each residual row r (none: res_nodes empty) the first `count`
+    lanes' weighted errors res_weights[r] * (y[res_nodes[r]] - res_refs[r]) into res[first + lane, res_at +
+    r·res_stride + k] (a fit's residuals written where it wants them, no trajectory kept)."""
+    n_steps, lanes = ratio.shape[0], x.shape[1]   # lanes as a run-time count: LLVM then vectorizes the lane loops
+    u = np.empty((8, lanes))
+    x_new = np.empty((4, lanes))
     for k in range(n_steps):
-        model_step(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, k, x, x_new, y,
-                   u, gains, use_sigmoid)
-        if keep:
+        i_ratio = lut[k, 4] / i_max
+        r_k = ratio[k]
+        for lane in range(lanes):   # losses at the previous winding estimate (eqs. 3-8)
+            factor = 1.0 + alpha_cu * (y[1, lane] - copper_ref)
+            k_s = theta[0, lane] + theta[1, lane] * i_ratio + theta[2, lane] * r_k + theta[3, lane] * i_ratio * r_k
+            u[0, lane] = k_s * lut[k, 2]
+            u[1, lane] = lut[k, 0] * factor + lut[k, 1] / factor
+            u[2, lane] = (1.0 - k_s) * lut[k, 2]
+            u[3, lane] = lut[k, 3]
+        if use_sigmoid:  # sigmoid input nonlinearity on normalized losses (eqs. 28-30)
             for i in range(4):
-                traj[k, i] = y[i]
-        dw = y[1] - ref_w[k]
-        dm = y[3] - ref_m[k]
-        sse_w += dw * dw
-        sse_m += dm * dm
-        d_y = y[0] - ref_y[k]    # yoke and tooth: summed separately, so winding and PM keep their bits
-        d_t = y[2] - ref_t[k]
-        sse_y += d_y * d_y
-        sse_t += d_t * d_t
-    return sse_w, sse_m, sse_y, sse_t
+                for lane in range(lanes):
+                    v = u[i, lane] / sig[0, i, lane]
+                    s = (sig[3, i, lane] / (1.0 + portable.exp(-(sig[1, i, lane] * v + sig[2, i, lane])))
+                         + sig[4, i, lane] * v + sig[5, i, lane])
+                    u[i, lane] = s * sig[0, i, lane]
+        for lane in range(lanes):   # temperature sources from the previous estimate (eqs. 9-18)
+            g_wm = theta[4, lane] * portable.exp(-r_k / theta[5, lane]) / theta[6, lane]
+            g_tm = theta[7, lane] * portable.exp(-r_k / theta[8, lane]) / theta[9, lane]
+            g_ma = theta[10, lane] * portable.exp(-r_k / theta[11, lane]) / theta[12, lane]
+            g_cy = theta[13, lane] * (coolant[k] - 40.0)
+            u[4, lane] = coolant[k] + g_cy * (y[0, lane] - coolant[k]) / (1.0 + g_cy)
+            u[5, lane] = ambient[k] + g_ma * (y[3, lane] - ambient[k]) / (1.0 + g_ma)
+            u[6, lane] = (y[3, lane] + g_tm * y[2, lane]) / (1.0 + g_tm)
+            u[7, lane] = (y[1, lane] + g_wm * y[3, lane]) / (1.0 + g_wm)
+        for i in range(4):  # x <- A x + B u, y = C x
+            for lane in range(lanes):
+                acc = 0.0
+                for j in range(4):
+                    acc += a[i, j, lane] * x[j, lane]
+                for j in range(8):
+                    acc += b[i, j, lane] * u[j, lane]
+                x_new[i, lane] = acc
+        for i in range(4):
+            for lane in range(lanes):
+                x[i, lane] = x_new[i, lane]
+        for i in range(4):
+            for lane in range(lanes):
+                acc = 0.0
+                for j in range(4):
+                    acc += c[i, j, lane] * x[j, lane]
+                y[i, lane] = acc
+        if keep:
+            for lane in range(count):
+                for i in range(4):
+                    traj[first + lane, k, i] = y[i, lane]
+        for r in range(res_nodes.shape[0]):
+            node, at, weight = res_nodes[r], res_at + r * res_stride + k, res_weights[r]
+            for lane in range(count):
+                res[first + lane, at] = weight * (y[node, lane] - res_refs[r, k])
+        for lane in range(lanes):   # yoke and tooth summed separately, so winding and PM keep their bits
+            dw = y[1, lane] - ref_w[k]
+            dm = y[3, lane] - ref_m[k]
+            d_y = y[0, lane] - ref_y[k]
+            d_t = y[2, lane] - ref_t[k]
+            sse[0, lane] += dw * dw
+            sse[1, lane] += dm * dm
+            sse[2, lane] += d_y * d_y
+            sse[3, lane] += d_t * d_t
 
 
 # nogil: the local polish runs its starts in threads, one per core (bench.model.polish)
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w, ref_m,
-           ref_y, ref_t, traj, keep, sse, use_sigmoid):
-    for p in numba.prange(a.shape[0]):
-        sse[p, 0], sse[p, 1], sse[p, 2], sse[p, 3] = _one_model(
-            a[p], b[p], c[p], c_inv[p], theta[p], sig[p], lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref,
-            y0, ref_w, ref_m, ref_y, ref_t, traj[p], keep, use_sigmoid)
+           ref_y, ref_t, traj, keep, sse, use_sigmoid, width, res, res_at, res_stride, res_nodes, res_refs,
+           res_weights):
+    n_models = a.shape[0]
+    groups = (n_models + width - 1) // width
+    for g in numba.prange(groups):
+        # the group's models lane-last; a short last group repeats its last model in the spare lanes
+        first = g * width
+        a_l, b_l, c_l = np.empty((4, 4, width)), np.empty((4, 8, width)), np.empty((4, 4, width))
+        theta_l, sig_l = np.empty((14, width)), np.empty((6, 4, width))
+        x, y = np.empty((4, width)), np.empty((4, width))
+        for lane in range(width):
+            p = min(first + lane, n_models - 1)
+            a_l[:, :, lane], b_l[:, :, lane], c_l[:, :, lane] = a[p], b[p], c[p]
+            theta_l[:, lane], sig_l[:, :, lane] = theta[p], sig[p]
+            x0, _, y_0, _, _ = step_buffers(c_inv[p], y0)
+            x[:, lane], y[:, lane] = x0, y_0
+        sums = np.zeros((4, width))
+        count = min(width, n_models - first)
+        _lanes(a_l, b_l, c_l, theta_l, sig_l, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, x, y,
+               ref_w, ref_m, ref_y, ref_t, traj, first, count, keep, sums, use_sigmoid, res, res_at, res_stride,
+               res_nodes, res_refs, res_weights)
+        for lane in range(count):
+            for i in range(4):
+                sse[first + lane, i] = sums[i, lane]
 
 
 def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=None, keep_trajectories=False,
-              ref_y=None, ref_t=None):
+              ref_y=None, ref_t=None, residuals=None):
     """Run P models over one run. Shapes: a (P,4,4), b (P,4,8), c (P,4,4), theta (P,14), sig (P,6,4).
 
     Returns (sse (P, 4) for winding, PM, yoke and tooth against the references (a missing reference counts as
-    zeros), trajectories (P, steps, 4) or None).
+    zeros), trajectories (P, steps, 4) or None). `residuals` = (out (P, M), at, nodes, refs, weights[, stride]): each
+    model's weighted errors weights[r] * (y[nodes[r]] - refs[r]) (r a row of steps) written into out[:, at + r·stride
+    + k] (stride default: the steps, the rows one after the other), as a fit's residual vector wants them, without
+    keeping trajectories.
     """
     f64 = portable.kernel_array    # one compiled signature whatever the arrays' flags (read-only, strided)
     a, b, c, theta, sig, y0 = (f64(m) for m in (a, b, c, theta, sig, y0))
@@ -156,7 +236,29 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
     traj = np.zeros((n_models, n_steps if keep_trajectories else 1, 4))
     sse = np.zeros((n_models, 4))
     use_sigmoid = not np.allclose(sig, identity_sigmoid(sig[:, 0, :]), rtol=0, atol=0)
+    if residuals is None:
+        res, at, stride = np.zeros((1, 1)), 0, 0
+        nodes, refs, weights = np.zeros(0, np.int64), np.zeros((0, 1)), np.zeros(0)
+    else:
+        res, at, nodes, refs, weights = residuals[:5]
+        stride = residuals[5] if len(residuals) > 5 else n_steps
+        nodes = np.ascontiguousarray(nodes, dtype=np.int64)
+        refs, weights = f64(np.reshape(refs, (len(nodes), n_steps))), f64(weights)
+        if res.dtype != np.float64 or not res.flags.c_contiguous or res.shape[0] != n_models or \
+                stride < n_steps or at + (len(nodes) - 1) * stride + n_steps > res.shape[1]:
+            raise ValueError("residuals: a C-contiguous float64 (models, M) array with room for every row at `at`")
     _batch(a, b, c, c_inv, theta, sig, f64(inputs.table_losses), f64(inputs.speed_ratio), f64(inputs.coolant),
            f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu), float(inputs.copper_reference), y0,
-           ref_w, ref_m, ref_y, ref_t, traj, bool(keep_trajectories), sse, use_sigmoid)
+           ref_w, ref_m, ref_y, ref_t, traj, bool(keep_trajectories), sse, use_sigmoid, lane_width(n_models), res,
+           int(at), int(stride), nodes, refs, weights)
     return sse, (traj if keep_trajectories else None)
+
+
+def lane_width(n_models: int) -> int:
+    """Models per group of lanes: at most LANES, and groups enough to give every thread one (37 models on 2 threads:
+    4 groups of 10, not 3 of 16 of which one thread runs two); one model runs in one lane. The results do not
+    depend on it: the lanes are independent."""
+    threads = numba.get_num_threads()
+    groups = math.ceil(n_models / LANES)
+    groups = min(n_models, math.ceil(groups / threads) * threads)
+    return math.ceil(n_models / groups)

@@ -130,7 +130,8 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
     return nll, updates
 
 
-@numba.njit(parallel=True, cache=True)
+# nogil: the observer's tuning runs its files in threads, one per core (bench.model.observer)
+@numba.njit(parallel=True, cache=True, nogil=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1, rel,
            sees, lag_pole, lag_index, bias_index, bias_input, held, q, r, p0, traj, sigma, keep, use_sigmoid, nll,
            updates, gate, rejected):

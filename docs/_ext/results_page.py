@@ -509,6 +509,28 @@ def section_campaigns(records: dict[str, list[Record]]) -> list[str]:
     return lines
 
 
+@single_record("speed", "Speed of identification and observer tuning")
+def section_speed(record: Record) -> list[str]:
+    """Issue 40: `bench identify --all-kinds` per prior and `bench observer` on about 100 000 training rows."""
+    f, p = record["figures"], record["parameters"]
+    stage = {"pso": "swarm", "standard_errors": "standard errors", "polish": "polish", "lm": "Hammerstein LM"}
+    rows = [[f"identify --all-kinds, {prior} prior", _n(run["seconds"]), _n(run["cpu_s"]),
+             f"{run['load_average']}", ", ".join(f"{stage.get(k, k)} {_n(v)} s" for k, v in run["stages_s"].items()),
+             "yes" if run["goal_met"] else "no"] for prior, run in f.get("identify", {}).items()]
+    if "observer" in f:
+        o = f["observer"]
+        rows.append([f"observer, {o['evaluations']} filter runs", _n(o["seconds"]), _n(o["cpu_s"]),
+                     f"{o['load_average'][0]}, {o['load_average'][1]}", "", "yes" if o["goal_met"] else "no"])
+    missing = [f"identify with the {prior} prior" for prior in p["priors"] if prior not in f.get("identify", {})]
+    missing += [] if "observer" in f else ["the observer"]
+    return [f"{f.get('training_rows', 0):,}".replace(",", " ") + f" training rows in {f.get('training_files')} files "
+            f"(the suite's {p['motor']} with longer copies of its training profiles), 2 cores "
+            f"([method](method.md#identification)). CPU seconds are the work; on a shared machine the wall time is "
+            f"the load's.", "",
+            *_table(["command", "wall s", "CPU s", "load", "stages (wall)", f"≤ {p['goal_s']:g} s"], rows),
+            *([f"Not measured in this record (the run was stopped): {', '.join(missing)}.", ""] if missing else [])]
+
+
 @single_record("data", "Datasets")
 def section_data(record: Record) -> list[str]:
     f = record["figures"]
@@ -987,7 +1009,7 @@ SECTIONS: dict[str, Section] = {
     "can": section_can, "sitting": section_sitting, "memory": section_memory, "soak": section_soak,
     "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "plant_distributed": section_plant_distributed,
-    "observer": section_observer,
+    "observer": section_observer, "speed": section_speed,
     "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite, "xcp": section_xcp,
     "listeners": section_listeners}
 BENCHMARKS = tuple(SECTIONS)
