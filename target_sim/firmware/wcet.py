@@ -32,7 +32,9 @@ from capstone import arm_const
 from dbc.contract import STATE_SIZE
 from target_sim.errors import TargetError
 from target_sim.firmware.cycles import InstructionCost, instruction_cost, new_disassembler
+from target_sim.firmware.counted_loops import trip_count
 from target_sim.firmware.elf import ElfImage, Symbol
+from target_sim.firmware.ipet import Edge, FlowGraph, IpetError, LoopFact, longest_path
 from target_sim.firmware.node_protocol import TX_CAPACITY
 
 RETURN_MNEMONICS = frozenset({"bx", "pop", "ldm", "ldr", "mov"})   # ... when they write the PC
@@ -56,7 +58,7 @@ class Loop:
     header: int
     order: int                     # place of the header among the function's loops, by address
     bound: LoopBound
-    iteration_cycles: int          # longest path header -> back to the header
+    header_runs: int               # the most times its header runs per entry (the IPET's loop fact)
 
 
 @dataclass
@@ -67,12 +69,13 @@ class Bound:
     cycles: int
     loops: list[Loop] = field(default_factory=list)
     calls: dict[str, int] = field(default_factory=dict)
+    block_counts: dict[int, int] = field(default_factory=dict)     # the worst case's runs of each block (IPET)
 
     def as_dict(self) -> dict:
         return {"function": self.function, "cycles": self.cycles, "calls": dict(self.calls),
                 "loops": [{"function": loop.function, "header": f"{loop.header:#010x}", "order": loop.order,
                            "bound": loop.bound.iterations, "reason": loop.bound.reason,
-                           "iteration_cycles": loop.iteration_cycles} for loop in self.loops]}
+                           "header_runs": loop.header_runs} for loop in self.loops]}
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,7 @@ class _Node:
     calls: tuple[str, ...]
     successors: tuple[tuple[int, int], ...]      # (address, extra cycles on that edge)
     returns: int | None                          # extra cycles when it returns (None: it does not)
+    addresses: tuple[int, ...] = ()              # its instructions' addresses, in order
 
 
 class _Image:
@@ -204,9 +208,10 @@ def _blocks(code: _Image, name: str, addresses: list[int], leaders: set[int],
     index = 0
     while index < len(addresses):
         first = addresses[index]
-        cycles, calls = 0, []
+        cycles, calls, members = 0, [], []
         while True:
             address = addresses[index]
+            members.append(address)
             cost, insn = code.instruction(address)
             cycles += cost.cycles
             if cost.mnemonic in ("bl", "blx"):
@@ -227,7 +232,7 @@ def _blocks(code: _Image, name: str, addresses: list[int], leaders: set[int],
                 returns = extra
             else:
                 block_outs.append((target, extra))
-        nodes[first] = _Node(first, cycles, tuple(calls), tuple(block_outs), returns)
+        nodes[first] = _Node(first, cycles, tuple(calls), tuple(block_outs), returns, tuple(members))
     return nodes
 
 
@@ -304,95 +309,56 @@ class _Analysis:
         bound.loops.extend(loop for loop in inner.loops if loop not in bound.loops)
         return inner.cycles
 
+    def _instructions(self, nodes: Mapping[int, _Node]):
+        """block -> its capstone instructions, in order."""
+        return lambda block: [self.code.instruction(address)[1] for address in nodes[block].addresses]
+
     def _longest(self, name: str, nodes: dict[int, _Node], costs: dict[int, int], entry: int, bound: Bound) -> int:
-        """Longest entry -> return path, loops collapsed innermost first."""
+        """The IPET maximum (`target_sim.firmware.ipet`) over the function's blocks, each loop's header bounded by
+        its stated bound per entry into the loop."""
         loops = _loops(nodes, entry)
         headers = sorted(loops)
         stated = self.bounds.get(name, {})
-        # each block's representative: the header of the outermost collapsed loop holding it
-        owner = {start: start for start in nodes}
-        succ = {start: list(node.successors) for start, node in nodes.items()}
-        rets = {start: node.returns for start, node in nodes.items()}
-        weight = dict(costs)
-        for header in sorted(headers, key=lambda h: len(loops[h])):    # innermost (smallest) first
-            order = headers.index(header)
+        worst: dict[tuple[int, int | None], int] = {}      # parallel edges (a jump table's repeats): the dearest
+        for start, node in nodes.items():
+            ways = [*node.successors, *([(None, node.returns)] if node.returns is not None else [])]
+            for target, extra in ways:
+                worst[(start, target)] = max(extra, worst.get((start, target), extra))
+        edges = [Edge(start, target, extra) for (start, target), extra in worst.items()]
+        predecessors: dict[int, list[int]] = {}
+        for start, node in nodes.items():
+            for target, _ in node.successors:
+                predecessors.setdefault(target, []).append(start)
+        facts = []
+        for order, header in enumerate(headers):
+            body = loops[header]
+            entries = tuple(sorted({start for start in predecessors.get(header, []) if start not in body}))
+            counted = trip_count(self._instructions(nodes), nodes, header, body, predecessors)
             limit = stated.get(order)
-            if limit is None:
+            if counted is not None:      # the machine code's own count: exact, and it needs no stated bound
+                runs = counted
+                limit = LoopBound(counted, "counted loop: its induction variable, step and limit in the code")
+            elif limit is None:
                 raise WcetError(f"{name} has a loop at {header:#010x} (loop {order} of the function) without a "
                                 "stated bound (target_sim.firmware.wcet.loop_bounds)")
-            body = {owner[block] for block in loops[header]}
-            iteration = self._path(header, body, succ, weight, to_header=True)
-            way_out = self._path(header, body, succ, weight, to_header=False, rets=rets)
-            bound.loops.append(Loop(name, header, order, limit, iteration))
-            weight[header] = limit.iterations * iteration + way_out
-            exits = [(target, 0) for member in body for target, _ in succ[member] if target not in body]
-            returns = [rets[member] for member in body if rets[member] is not None]
-            for member in body:
-                if member != header:
-                    del succ[member], weight[member], rets[member]
-            succ[header] = sorted(set(exits))
-            rets[header] = 0 if returns else None
-            for start in owner:
-                if owner[start] in body:
-                    owner[start] = header
-            for start in succ:
-                succ[start] = [(owner.get(target, target), extra) for target, extra in succ[start]]
-        return self._dag_longest(entry, succ, weight, rets, name)
+            else:
+                runs = limit.iterations + (1 if _tests_at_top(nodes, header, body) else 0)
+            facts.append(LoopFact(header, entries, runs))
+            bound.loops.append(Loop(name, header, order, limit, runs))
+        try:
+            solution = longest_path(FlowGraph(entry, costs, edges), facts)
+        except IpetError as exc:
+            raise WcetError(f"{name}: {exc}") from None
+        bound.block_counts = {start: runs for start, runs in solution.block_counts.items() if runs}
+        return solution.cycles
 
-    @staticmethod
-    def _path(header: int, body: set[int], succ, weight, *, to_header: bool, rets=None) -> int:
-        """Longest path from the header through the (acyclic once its back edges are cut) body: back to the header
-        (an iteration, the header's own cost included) or out of the loop (the last partial iteration)."""
-        best: dict[int, int] = {}
 
-        def visit(block: int) -> int:
-            if block in best:
-                return best[block]
-            result = -1
-            for target, extra in succ[block]:
-                if target == header:
-                    if to_header:
-                        result = max(result, extra)
-                elif target in body:
-                    tail = visit(target)
-                    if tail >= 0:
-                        result = max(result, extra + tail)
-                elif not to_header:
-                    result = max(result, extra)
-            if not to_header and rets is not None and rets[block] is not None:
-                result = max(result, rets[block])
-            best[block] = result if result < 0 else result + weight[block]
-            return best[block]
-
-        value = visit(header)
-        return max(value, 0)
-
-    @staticmethod
-    def _dag_longest(entry: int, succ, weight, rets, name: str) -> int:
-        best: dict[int, int] = {}
-        visiting: set[int] = set()
-
-        def visit(block: int) -> int:
-            if block in best:
-                return best[block]
-            if block in visiting:
-                raise WcetError(f"{name} has an irreducible loop at {block:#010x}: no static bound")
-            visiting.add(block)
-            result = -1
-            for target, extra in succ[block]:
-                tail = visit(target)
-                if tail >= 0:
-                    result = max(result, extra + tail)
-            if rets[block] is not None:
-                result = max(result, rets[block])
-            visiting.discard(block)
-            best[block] = -1 if result < 0 else result + weight[block]
-            return best[block]
-
-        value = visit(entry)
-        if value < 0:
-            raise WcetError(f"{name} never returns")
-        return value
+def _tests_at_top(nodes: Mapping[int, _Node], header: int, body: set[int]) -> bool:
+    """The loop's header has a way out and is not its own latch: it tests before the body, so it runs once more
+    than the body (a one-block loop tests at its bottom)."""
+    node = nodes[header]
+    leaves = node.returns is not None or any(target not in body for target, _ in node.successors)
+    return leaves and not any(target == header for target, _ in node.successors)
 
 
 def wcet(image: ElfImage, function: str, bounds: Mapping[str, Mapping[int, LoopBound]] | None = None) -> Bound:

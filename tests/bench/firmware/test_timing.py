@@ -217,8 +217,9 @@ def test_the_wcet_bound_holds_for_an_electrical_loss_model(electrical_of, electr
 
 def test_a_loop_without_a_stated_bound_is_named(timing_image):
     _, image = timing_image("hammerstein")
-    with pytest.raises(WcetError, match=r"fw_step has a loop at 0x[0-9a-f]+ \(loop 0 of the function\)"):
-        wcet(image, "fw_step", {})
+    with pytest.raises(WcetError, match=r"node_on_frame has a loop at 0x[0-9a-f]+ \(loop 0 of the function\)"):
+        wcet(image, "node_on_frame", {})
+    assert wcet(image, "fw_step", {}).cycles > 0         # its one loop is counted from the code: no stated bound
     with pytest.raises(ValueError):
         loop_bounds(-1)
     looser = loop_bounds(3)
