@@ -1,8 +1,9 @@
 """The trip count of a counted loop, read from its machine code: what clang made of `for (i = 0; i < N; i++)`.
 
 A loop is counted when (all read from the instructions, nothing assumed):
-- it has one way out, taken from its latch (the block that jumps back to the header), so every iteration ends there
-  (the test at the bottom: clang's rotated loop, including one it unrolled, whose step is then 2, 4, ... per trip);
+- it has one latch (the one block that jumps back to the header), which tests: either back or out of the loop, so
+  every iteration that goes on passes that test (the test at the bottom: clang's rotated loop, including one it
+  unrolled, whose step is then 2, 4, ... per trip); other ways out (a `break`, a `return`) only end it sooner;
 - the latch's conditional branch reads the flags of a `cmp rX, #imm` (or of `subs rX, rX, #imm` / `subs rX, #imm`)
   in the latch itself, with no flag-setting instruction between it and the branch;
 - rX is written exactly once in the loop, by `add`/`adds`/`sub`/`subs` rX, (rX,) #imm, in the latch or the header
@@ -68,13 +69,12 @@ def trip_count(instructions: Callable[[int], list], nodes: Mapping, header: int,
     """The header's runs per entry of the loop (`body`, headed by `header`) when it is counted, else None.
     `instructions(block)` lists a block's capstone instructions; `nodes[block].successors` its (target, extra)
     pairs and `.calls` its callees."""
-    exiting = [block for block in body if any(target not in body for target, _ in nodes[block].successors)
-               or nodes[block].returns is not None]
-    if len(exiting) != 1:
+    latches = [block for block in body if any(target == header for target, _ in nodes[block].successors)]
+    if len(latches) != 1:
         return None
-    latch = exiting[0]
-    if not any(target == header for target, _ in nodes[latch].successors):
-        return None
+    latch = latches[0]
+    if not any(target not in body for target, _ in nodes[latch].successors):
+        return None                     # the latch does not test: the count is decided elsewhere
     code = instructions(latch)
     branch = code[-1]
     if branch.cc in (arm_const.ARM_CC_AL, arm_const.ARM_CC_INVALID) or branch.mnemonic.split(".")[0] in ("cbz",
