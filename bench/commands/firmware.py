@@ -295,7 +295,7 @@ def run_timing(args: argparse.Namespace) -> int:
     check_writable(args.out, "--out", directory=True)
     elf = firmware_for(artifact, args.out, quiet=args.quiet or args.json, isr=True)
     image = read_elf(elf)
-    handler = static_bounds(image)["foc_isr"] + 60     # + entry, return and lazy FP stacking (< 60 cycles)
+    handler = static_bounds(image, artifact)["foc_isr"] + 60     # + entry, return and lazy FP stacking (< 60 cycles)
     slowest = min(CLOCKS_MHZ) * 1e6
     if args.isr_rate * handler >= slowest / 2:
         raise UsageError(f"--isr-rate {args.isr_rate} leaves the background no time: the current loop's bound of "

@@ -30,7 +30,7 @@ from target_sim.firmware.elf import ElfImage, FirmwareError
 from target_sim.firmware.interrupts import InterruptedFirmware
 from target_sim.firmware.motor_control import HANDLER, motor_control_core, start_motor_control
 from target_sim.firmware.node_engine import FirmwareNode
-from target_sim.firmware.wcet import WcetError, loop_bounds, wcet
+from target_sim.firmware.wcet import WcetError, loop_facts, wcet
 
 FRAME_SPACING_S = 250e-6          # between the frames of one row (a 500 kbit/s bus with other traffic)
 CLOCKS_MHZ = (90, 168)
@@ -161,13 +161,32 @@ def _figures(fw: InterruptedFirmware, node: FirmwareNode, step_jobs, other_jobs,
     }
 
 
-def static_bounds(image: ElfImage, *, lost_rows: int = 0) -> dict:
-    """WCET bounds of fw_step, node_on_frame (at most `lost_rows` lost rows per frame) and the handler."""
-    bounds = loop_bounds(lost_rows)
+def model_step_function(image: ElfImage) -> str:
+    """The model step the node runs: the observer's (fw_obs_step) when the image has one, else fw_step."""
+    return "fw_obs_step" if "fw_obs_step" in image.symbols else "fw_step"
+
+
+def timed_functions(image: ElfImage) -> tuple[str, ...]:
+    """The functions `bench firmware timing` bounds and measures: the model step, the frame handler, the ISR."""
+    return (model_step_function(image), "node_on_frame", HANDLER)
+
+
+def timing_sources(artifact: ModelArtifact) -> dict[str, str]:
+    """The sources of `artifact`'s timing image (what its loop annotations are read from)."""
+    from bench.firmware.codegen import generate
+    from bench.firmware.toolchain import firmware_sources
+
+    return firmware_sources(generate(artifact), isr=True)
+
+
+def static_bounds(image: ElfImage, artifact: ModelArtifact, *, lost_rows: int = 0) -> dict:
+    """WCET bounds (IPET, `target_sim.firmware.wcet`) of the model step, node_on_frame (at most `lost_rows` lost
+    rows per frame) and the handler."""
+    facts = loop_facts(timing_sources(artifact), lost_rows)
     out: dict = {}
-    for function in ("fw_step", "node_on_frame", HANDLER):
+    for function in timed_functions(image):
         try:
-            out[function] = wcet(image, function, bounds).cycles
+            out[function] = wcet(image, function, facts).cycles
         except WcetError as exc:
             raise BenchError(f"no static bound of {function}: {exc}") from None
     return out

@@ -24,18 +24,17 @@ the bound covers the emulator's count of every path (the tests check the measure
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from capstone import arm_const
 
-from dbc.contract import STATE_SIZE
 from target_sim.errors import TargetError
 from target_sim.firmware.cycles import InstructionCost, instruction_cost, new_disassembler
 from target_sim.firmware.counted_loops import trip_count
 from target_sim.firmware.elf import ElfImage, Symbol
 from target_sim.firmware.ipet import Edge, FlowGraph, IpetError, LoopFact, longest_path
-from target_sim.firmware.node_protocol import TX_CAPACITY
 
 RETURN_MNEMONICS = frozenset({"bx", "pop", "ldm", "ldr", "mov"})   # ... when they write the PC
 
@@ -275,10 +274,10 @@ def _loops(nodes: Mapping[int, _Node], entry: int) -> dict[int, set[int]]:
 
 
 class _Analysis:
-    def __init__(self, image: ElfImage, bounds: Mapping[str, Mapping[int, LoopBound]]):
+    def __init__(self, image: ElfImage, facts: Mapping[tuple[str, int], LoopBound]):
         self.code = _Image(image)
         self.image = image
-        self.bounds = bounds
+        self.facts = facts
         self.results: dict[str, Bound] = {}
         self.active: list[str] = []
 
@@ -313,12 +312,28 @@ class _Analysis:
         """block -> its capstone instructions, in order."""
         return lambda block: [self.code.instruction(address)[1] for address in nodes[block].addresses]
 
+    def _lines(self, nodes: Mapping[int, _Node], header: int, body: set[int]) -> list[tuple[str, int]]:
+        """The C lines of a loop, most telling first: its back edges' branches, the rest of its latches, its
+        header."""
+        latches = [block for block in body if any(target == header for target, _ in nodes[block].successors)]
+        ordered = [nodes[block].addresses[-1] for block in latches]
+        ordered += [address for block in latches for address in nodes[block].addresses[:-1]]
+        ordered += list(nodes[header].addresses)
+        lines = [self.image.line_of(address) for address in ordered]
+        return list(dict.fromkeys(line for line in lines if line is not None))
+
+    def _stated(self, nodes: Mapping[int, _Node], header: int, body: set[int]) -> LoopBound | None:
+        """The stated bound of the C loop this machine loop comes from (the first of its lines with one)."""
+        for line in self._lines(nodes, header, body):
+            if line in self.facts:
+                return self.facts[line]
+        return None
+
     def _longest(self, name: str, nodes: dict[int, _Node], costs: dict[int, int], entry: int, bound: Bound) -> int:
         """The IPET maximum (`target_sim.firmware.ipet`) over the function's blocks, each loop's header bounded by
         its stated bound per entry into the loop."""
         loops = _loops(nodes, entry)
         headers = sorted(loops)
-        stated = self.bounds.get(name, {})
         worst: dict[tuple[int, int | None], int] = {}      # parallel edges (a jump table's repeats): the dearest
         for start, node in nodes.items():
             ways = [*node.successors, *([(None, node.returns)] if node.returns is not None else [])]
@@ -334,13 +349,16 @@ class _Analysis:
             body = loops[header]
             entries = tuple(sorted({start for start in predecessors.get(header, []) if start not in body}))
             counted = trip_count(self._instructions(nodes), nodes, header, body, predecessors)
-            limit = stated.get(order)
+            limit = self._stated(nodes, header, body)
             if counted is not None:      # the machine code's own count: exact, and it needs no stated bound
                 runs = counted
                 limit = LoopBound(counted, "counted loop: its induction variable, step and limit in the code")
             elif limit is None:
-                raise WcetError(f"{name} has a loop at {header:#010x} (loop {order} of the function) without a "
-                                "stated bound (target_sim.firmware.wcet.loop_bounds)")
+                where = self._lines(nodes, header, body)
+                raise WcetError(f"{name} has a loop at {header:#010x} (loop {order} of the function"
+                                f"{', C ' + where[0][0] + ':' + str(where[0][1]) if where else ''}) whose count the "
+                                "code does not show and without a stated bound (a /* wcet-loop: N */ on its C "
+                                "line; the image needs its line table)")
             else:
                 runs = limit.iterations + (1 if _tests_at_top(nodes, header, body) else 0)
             facts.append(LoopFact(header, entries, runs))
@@ -361,35 +379,43 @@ def _tests_at_top(nodes: Mapping[int, _Node], header: int, body: set[int]) -> bo
     return leaves and not any(target == header for target, _ in node.successors)
 
 
-def wcet(image: ElfImage, function: str, bounds: Mapping[str, Mapping[int, LoopBound]] | None = None) -> Bound:
-    """The WCET bound of `function` in cycles (callees included), with `bounds` (default: `loop_bounds()`)."""
-    return _Analysis(image, loop_bounds() if bounds is None else bounds).function(function)
+def wcet(image: ElfImage, function: str, facts: Mapping[tuple[str, int], LoopBound] | None = None) -> Bound:
+    """The WCET bound of `function` in cycles (callees included); `facts`: the stated bounds of the loops the code
+    does not count itself, by (source file name, line) of their C loop (`loop_facts`; the image must carry its
+    line table then)."""
+    return _Analysis(image, facts or {}).function(function)
 
 
-TIMED_STEPS = TX_CAPACITY // 4      # node.c: the model steps of one row whose 4 timing frames each are queued
-                                    # (a timing image sends 5, Timing5 too: 8 steps, within this bound)
+ANNOTATION = re.compile(r"/\*\s*wcet-loop:\s*([^*]+?)\s*\*/")
+_DEFINE = re.compile(r"^\s*#\s*define\s+([A-Z_][A-Z0-9_]*)\s+\(?\s*(\d+)u?\s*\)?\s*(?:/\*.*)?$", re.MULTILINE)
 
 
-def loop_bounds(lost_rows: int = 0) -> dict[str, dict[int, LoopBound]]:
-    """The loops of the firmware (bench/firmware/node.c and the generated model, clang -O2), by function and by
-    the loop's place in it, with the most iterations each can run; `lost_rows`: the most rows a received data
-    frame may skip (its Step that far ahead of the next expected row). The node steps the model once for each lost
-    row that ends an interval, so no bound holds for every frame the bus can carry (a frame 32 767 rows ahead runs
-    that many loop iterations): the bound of node_on_frame is stated per number of lost rows, 0 for a drive whose
-    rows arrive in order. An electrical loss model adds no loop (its losses are straight-line code, the sqrt one
-    VSQRT), nor does the loss maps' shared-row look-up (the five tables' loop is unrolled by clang)."""
+def loop_facts(sources: Mapping[str, str], lost_rows: int = 0) -> dict[tuple[str, int], LoopBound]:
+    """The stated loop bounds of a firmware's sources: each C loop whose line carries `/* wcet-loop: BOUND */`, the
+    most times its body runs each time the loop is entered. BOUND is an integer, a name of an integer `#define`
+    of the sources, `lost_rows` (the most rows one received data frame may skip: its Step that far ahead of the next
+    expected row), `steps_per_row` (lost_rows + 1: the model steps one frame can run), or `max(A, B, ...)` of those
+    (names a build does not define are left out; a loop none of whose names it defines is compiled out). The node steps the model once for each lost row that ends an
+    interval, so no bound holds for every frame the bus can carry (a frame 32 767 rows ahead runs that many
+    iterations): node_on_frame's bound is stated per number of lost rows, 0 for a drive whose rows arrive in
+    order."""
     if lost_rows < 0:
         raise ValueError(f"lost_rows must be 0 or more, not {lost_rows}")
-    steps = min(lost_rows + 1, TIMED_STEPS)
-    return {
-        "fw_step": {0: LoopBound(STATE_SIZE, "input_nonlinearity: for k < 4, one sigmoid per loss input "
-                                             "(a Hammerstein model; the linear kinds' fw_step has no loop)")},
-        "node_on_frame": {
-            0: LoopBound(lost_rows, f"handle_row: for lost = expected .. row - 1 (RowAccumulator.skip): at most "
-                                    f"{lost_rows} lost row(s) per frame, the stated assumption"),
-            1: LoopBound(steps, "handle_row: send_timing for i < steps && i < TIMED_STEPS: one model step per lost "
-                                "row ending an interval and one for the row itself, at most TIMED_STEPS (10)"),
-            2: LoopBound(STATE_SIZE, "send_checkpoint: one StateCheckpoint frame per state element (4)"),
-        },
-        "send_temperatures": {0: LoopBound(STATE_SIZE, "for i < NODE_STATE_SIZE: clamp each of the 4 outputs")},
-    }
+    values = {"lost_rows": lost_rows, "steps_per_row": lost_rows + 1}
+    for text in sources.values():
+        values.update((name, int(number)) for name, number in _DEFINE.findall(text))
+    facts: dict[tuple[str, int], LoopBound] = {}
+    for file_name, text in sources.items():
+        for number, line in enumerate(text.splitlines(), start=1):
+            found = ANNOTATION.search(line)
+            if found is None:
+                continue
+            expression = found.group(1)
+            names = [name.strip() for name in expression.removeprefix("max(").removesuffix(")").split(",")]
+            known = [int(name) if name.isdigit() else values[name] for name in names if name.isdigit()
+                     or name in values]
+            if not known:        # code this build leaves out (#ifdef): no machine loop comes from it
+                continue
+            reason = f"{file_name}:{number}: {line.split('/*')[0].strip()} (at most {expression})"
+            facts[(file_name, number)] = LoopBound(max(known), reason)
+    return facts
