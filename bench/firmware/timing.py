@@ -18,6 +18,8 @@ the same node without the interrupt. The static bounds (`target_sim.firmware.wce
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from bench.errors import BenchError
@@ -70,9 +72,22 @@ def _temperature_ids() -> set[int]:
     return {frame_id(name) for name in REPLY_MESSAGES}
 
 
-def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float = 10_000.0,
-            clock_mhz: float = 90.0, seed: int = 0) -> dict:
-    """Run the drive through the node with the interrupt; the figures of the module docstring (cycles, µs)."""
+@dataclass
+class FrameRun:
+    """A drive's frames through the node beside the interrupt: the core, the node, the jobs of the frames that
+    ran a model step and of the others, the temperatures' reply bytes, the cycle the run started at."""
+
+    fw: InterruptedFirmware
+    node: FirmwareNode
+    step_jobs: list
+    other_jobs: list
+    outputs: list[bytes]
+    origin: int
+
+
+def run_frames(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float,
+               clock_mhz: float, seed: int = 0) -> FrameRun:
+    """The drive's frames through the node with the interrupt (the module docstring's run)."""
     _TEMPERATURE_IDS.update(_temperature_ids())
     clock_hz = clock_mhz * 1e6
     fw_box: list[InterruptedFirmware] = []
@@ -104,9 +119,17 @@ def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial
             (step_jobs if steps > steps_seen else other_jobs).append(job)
             steps_seen = steps
             outputs += [bytes(reply.data) for reply in replies if reply.arbitration_id in _TEMPERATURE_IDS]
-    bit_exact = outputs == _reference_outputs(artifact, image, frames)
-    span_s = (fw.now - origin) / clock_hz
-    return _figures(fw, node, step_jobs, other_jobs, period, clock_hz, span_s, bit_exact)
+    return FrameRun(fw, node, step_jobs, other_jobs, outputs, origin)
+
+
+def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float = 10_000.0,
+            clock_mhz: float = 90.0, seed: int = 0) -> dict:
+    """Run the drive through the node with the interrupt; the figures of the module docstring (cycles, µs)."""
+    run = run_frames(artifact, image, drive, initial, isr_rate_hz=isr_rate_hz, clock_mhz=clock_mhz, seed=seed)
+    bit_exact = run.outputs == _reference_outputs(artifact, image, _frames(artifact, drive, initial))
+    clock_hz = clock_mhz * 1e6
+    span_s = (run.fw.now - run.origin) / clock_hz
+    return _figures(run.fw, run.node, run.step_jobs, run.other_jobs, run.fw.period, clock_hz, span_s, bit_exact)
 
 
 def _step_cycles(fw: InterruptedFirmware) -> tuple[list[int], list[int]]:
@@ -192,30 +215,80 @@ def static_bounds(image: ElfImage, artifact: ModelArtifact, *, lost_rows: int = 
     return out
 
 
-def direct_step_max(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial) -> int:
-    """The most cycles of fw_step called alone (entry to return, as the bound counts) over the drive's steps
-    (`bench firmware check`'s run: the node's DWT reads around the call add a few cycles of their own)."""
+def direct_step_max(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial,
+                    measurement: np.ndarray | None = None) -> int:
+    """The most cycles of the model step called alone (entry to return, as the bound counts) over the drive's steps
+    (`bench firmware check`'s run: the node's DWT reads around the call add a few cycles of their own); an
+    observer's steps take `measurement`'s raw channels (none given: no reading in any row)."""
     from bench.firmware.check import check_firmware
+    from target_sim.observer import has_observer
 
-    result = check_firmware(artifact, image, drive, initial)     # FirmwareEstimator takes the parsed image
+    if has_observer(artifact) and measurement is None:
+        from target_sim.firmware import FirmwareEstimator
+
+        measurement = np.full((len(drive), FirmwareEstimator(artifact, image).channels), np.nan)
+    result = check_firmware(artifact, image, drive, initial, measurement)   # FirmwareEstimator takes the image
     return int(result["cycles"]["max"])
 
 
+def adversarial_maxima(artifact: ModelArtifact, image: ElfImage, *, evaluations: int, isr_rate_hz: float,
+                       seed: int = 0) -> dict:
+    """The most cycles the input search (`bench.firmware.adversarial`) found for the model step (called alone) and
+    for node_on_frame and the handler (a run of frames beside the interrupt at CLOCKS_MHZ[0]); `evaluations`
+    candidates each (0: no search, None for each)."""
+    from bench.firmware.adversarial import frame_scenario, maximize, step_scenario
+
+    step = model_step_function(image)
+    if evaluations <= 0:
+        return {step: None, "node_on_frame": None, HANDLER: None}
+    objective, dimension = step_scenario(artifact, image)
+    found_step = maximize(objective, dimension, evaluations=evaluations, seed=seed)
+    frames, dimension = frame_scenario(artifact, image, isr_rate_hz=isr_rate_hz, clock_mhz=CLOCKS_MHZ[0], seed=seed)
+    handler = [0]
+
+    def frame_objective(point: np.ndarray) -> int:
+        cycles, run = frames(point)
+        handler[0] = max([handler[0], *(event.handler_cycles for event in run.fw.isr_events)])
+        return cycles
+
+    found_frame = maximize(frame_objective, dimension, evaluations=max(1, evaluations // 2), seed=seed)
+    return {step: found_step.cycles, "node_on_frame": found_frame.cycles, HANDLER: handler[0] or None}
+
+
+def wcet_table(bounds: dict, drive_max: dict, adversarial: dict) -> dict:
+    """Per function: the bound, the drive's and the search's measured maxima, and bound / the larger of them."""
+    table = {}
+    for name, bound in bounds.items():
+        measured = max(value for value in (drive_max.get(name), adversarial.get(name)) if value is not None)
+        table[name] = {"bound": bound, "drive_max": drive_max.get(name), "adversarial_max": adversarial.get(name),
+                       "measured_max": measured, "bound_over_max": round(bound / measured, 3) if measured else None}
+    return table
+
+
 def timing_report(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *,
-                  isr_rate_hz: float = 10_000.0, seed: int = 0) -> dict:
-    """`bench firmware timing`'s JSON: the bounds, then the run at each clock of `CLOCKS_MHZ`."""
-    bounds = static_bounds(image)
+                  isr_rate_hz: float = 10_000.0, seed: int = 0, search: int = 0,
+                  measurement: np.ndarray | None = None) -> dict:
+    """`bench firmware timing`'s JSON: the bounds, the drive's and the input search's (`search` candidates)
+    measured maxima beside them, then the run at each clock of `CLOCKS_MHZ`."""
+    bounds = static_bounds(image, artifact)
+    step = model_step_function(image)
     runs = {f"{mhz}MHz": measure(artifact, image, drive, initial, isr_rate_hz=isr_rate_hz, clock_mhz=mhz,
                                  seed=seed) for mhz in CLOCKS_MHZ}
     main = runs[f"{CLOCKS_MHZ[0]}MHz"]
-    measured = {"fw_step": direct_step_max(artifact, image, drive, initial),
-                **{name: max(run["measured_max_cycles"][name] or 0 for run in runs.values())
-                   for name in bounds if name != "fw_step"}}
+    drive_max = {step: direct_step_max(artifact, image, drive, initial, measurement),
+                 **{name: max(run["measured_max_cycles"][name] or 0 for run in runs.values())
+                    for name in bounds if name != step}}
+    adversarial = adversarial_maxima(artifact, image, evaluations=search, isr_rate_hz=isr_rate_hz, seed=seed)
+    table = wcet_table(bounds, drive_max, adversarial)
+    measured = {name: row["measured_max"] for name, row in table.items()}
     return {
-        "isr_rate_hz": isr_rate_hz, "clock_mhz": CLOCKS_MHZ[0],
-        "wcet_cycles": bounds, "measured_max_cycles": measured,
+        "isr_rate_hz": isr_rate_hz, "clock_mhz": CLOCKS_MHZ[0], "model_step": step,
+        "wcet": table, "wcet_cycles": bounds, "measured_max_cycles": measured,
         "wcet_holds": all(measured[name] <= bounds[name] for name in bounds),
-        "wcet_assumptions": "rows in order (0 lost rows per frame); loop bounds of target_sim.firmware.wcet",
+        "wcet_method": "IPET (Li & Malik 1995) over each function's CFG, solved by scipy.optimize.milp; counted "
+                       "loops from the machine code, the others from the C's /* wcet-loop */ annotations",
+        "wcet_assumptions": "rows in order (0 lost rows per frame), frames as the host sends them",
+        "search_evaluations": search,
         "response_time_us": main["response_time_us"], "isr_latency_cycles": main["isr_latency_cycles"],
         "cpu_load": {name: run["cpu_load"] for name, run in runs.items()},
         "bit_exact": all(run["bit_exact"] for run in runs.values()),
