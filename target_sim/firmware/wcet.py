@@ -1,6 +1,6 @@
 """A static bound of the worst-case execution time of a firmware function, from the ELF alone.
 
-    bound = wcet(image, "fw_step")                       # cycles on every path, with the stated loop bounds
+    bound = wcet(image, "node_on_frame", loop_facts(sources))   # cycles on every path, with the loop bounds
     bound.cycles, bound.loops, bound.calls
 
 The control-flow graph of each function is rebuilt from the disassembly (capstone, recursive descent from the
@@ -12,14 +12,20 @@ jump or call that is not a jump table cannot be bounded: `WcetError` names it.
 
 Each instruction costs what the emulator counts for it (`target_sim.firmware.cycles`, the same table and
 `instruction_cost`): its cycles with a conditional branch not taken, plus `taken_extra` on the edge where the
-branch is taken. The bound is the longest path from the entry to a return with every loop collapsed, innermost
-first, into one node that costs `bound x (longest iteration) + (longest way out)`, where an iteration is a path
-from the loop's header back to it and `bound` is the most times the loop's back edges are taken per entry.
+branch is taken. The bound is the longest path from the entry to a return by implicit path enumeration
+(`target_sim.firmware.ipet`, Li and Malik's integer program, solved by scipy's MILP): a count per block and per
+edge, flow conserved at every block, and each loop's header at most N times per entry into the loop. A callee
+costs its own bound at each call (its worst case, whatever the caller's context).
 
-Loop bounds are stated, never guessed: `loop_bounds()` gives them by function and by the loop's place in it (its
-header's order by address), with the reason taken from the C; a loop without a stated bound is an error naming
-its function and address. Conditional instructions inside an IT block count as executed, as in the emulator, so
-the bound covers the emulator's count of every path (the tests check the measured maximum never exceeds it).
+Loop bounds are never guessed. A counted loop (`target_sim.firmware.counted_loops`: an induction register set to
+a constant before the loop, stepped by a constant once per iteration, compared with a constant in the latch) gets
+its exact trip count from the machine code, however clang rotated or unrolled it. Every other loop needs a bound
+stated in the C, `/* wcet-loop: N */` on its line (`loop_facts` reads them; N may name a #define or `lost_rows`),
+found through the image's DWARF line table (the timing image carries one: `-gline-tables-only`, the same code);
+a loop with neither is an error naming its function, address and C line. A stated bound N is the most times the
+C loop's body runs per entry: the machine loop's header runs N times, or N + 1 when it tests before the body.
+Conditional instructions inside an IT block count as executed, as in the emulator, so the bound covers the
+emulator's count of every path (the tests check the measured maximum never exceeds it).
 """
 
 from __future__ import annotations
@@ -31,8 +37,8 @@ from dataclasses import dataclass, field
 from capstone import arm_const
 
 from target_sim.errors import TargetError
-from target_sim.firmware.cycles import InstructionCost, instruction_cost, new_disassembler
 from target_sim.firmware.counted_loops import trip_count
+from target_sim.firmware.cycles import InstructionCost, instruction_cost, new_disassembler
 from target_sim.firmware.elf import ElfImage, Symbol
 from target_sim.firmware.ipet import Edge, FlowGraph, IpetError, LoopFact, longest_path
 
@@ -395,10 +401,10 @@ def loop_facts(sources: Mapping[str, str], lost_rows: int = 0) -> dict[tuple[str
     most times its body runs each time the loop is entered. BOUND is an integer, a name of an integer `#define`
     of the sources, `lost_rows` (the most rows one received data frame may skip: its Step that far ahead of the next
     expected row), `steps_per_row` (lost_rows + 1: the model steps one frame can run), or `max(A, B, ...)` of those
-    (names a build does not define are left out; a loop none of whose names it defines is compiled out). The node steps the model once for each lost row that ends an
-    interval, so no bound holds for every frame the bus can carry (a frame 32 767 rows ahead runs that many
-    iterations): node_on_frame's bound is stated per number of lost rows, 0 for a drive whose rows arrive in
-    order."""
+    (names a build does not define are left out; a loop none of whose names it defines is compiled out). The node
+    steps the model once for each lost row that ends an interval, so no bound holds for every frame the bus can
+    carry (a frame 32 767 rows ahead runs that many iterations): node_on_frame's bound is stated per number of
+    lost rows, 0 for a drive whose rows arrive in order."""
     if lost_rows < 0:
         raise ValueError(f"lost_rows must be 0 or more, not {lost_rows}")
     values = {"lost_rows": lost_rows, "steps_per_row": lost_rows + 1}
