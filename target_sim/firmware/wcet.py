@@ -409,7 +409,8 @@ def loop_facts(sources: Mapping[str, str], lost_rows: int = 0) -> dict[tuple[str
         raise ValueError(f"lost_rows must be 0 or more, not {lost_rows}")
     values = {"lost_rows": lost_rows, "steps_per_row": lost_rows + 1}
     for text in sources.values():
-        values.update((name, int(number)) for name, number in _DEFINE.findall(text))
+        for name, number in _DEFINE.findall(text):        # defined twice (#if branches): the larger, to be safe
+            values[name] = max(int(number), values.get(name, 0))
     facts: dict[tuple[str, int], LoopBound] = {}
     for file_name, text in sources.items():
         for number, line in enumerate(text.splitlines(), start=1):
