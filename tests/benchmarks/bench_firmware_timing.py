@@ -50,6 +50,7 @@ from target_sim.artifact import load_artifact  # noqa: E402
 from target_sim.firmware import read_elf  # noqa: E402
 
 RATES_HZ = (10_000, 20_000)
+TRAIN_ROWS = 3000          # the observer's training rows (its tuning changes no cycle count)
 PAPER_MODEL_FLASH_BYTES = 10_130
 
 
@@ -74,7 +75,9 @@ def observer_figures(work: Path, dataset, rows: int, search: int) -> dict:
 
     from bench.drive.generate import ensure_default_datasets
 
-    train = ensure_default_datasets(dataset.path.parent)[20]
+    lines = ensure_default_datasets(dataset.path.parent)[20].read_text(encoding="utf-8").splitlines()
+    train = work / "train.csv"                 # a user's CSV: the header and the first TRAIN_ROWS rows
+    train.write_text("\n".join(lines[: TRAIN_ROWS + 1]) + "\n", encoding="utf-8")
     model = work / "observer.json"
     bench("observer", "--train", str(train), "--evaluations", "2", "--out", str(model))
     out = {"case": "winding sensor observer (hammerstein)"}
