@@ -60,6 +60,11 @@ def _writes(insn, register: str) -> bool:
     return any(insn.reg_name(reg) == register for reg in written)
 
 
+def _always(insn) -> bool:
+    """The instruction runs unconditionally (not a conditional one of an IT block)."""
+    return insn.cc in (arm_const.ARM_CC_AL, arm_const.ARM_CC_INVALID)
+
+
 def _sets_flags(insn) -> bool:
     return insn.update_flags or insn.mnemonic.split(".")[0] in ("cmp", "cmn", "tst", "teq")
 
@@ -82,6 +87,8 @@ def trip_count(instructions: Callable[[int], list], nodes: Mapping, header: int,
         return None
     compare = next((insn for insn in reversed(code[:-1]) if _sets_flags(insn)), None)
     if compare is None:
+        return None
+    if not _always(compare):
         return None
     base = compare.mnemonic.split(".")[0]
     registers, immediates = _operands(compare)
@@ -135,8 +142,8 @@ def _single_update(instructions, body: set[int], register: str, compare: int) ->
             base = insn.mnemonic.split(".")[0]
             registers, immediates = _operands(insn)
             if found is not None or base not in _ARITHMETIC or len(immediates) != 1 or \
-                    any(name != register for name in registers):
-                return None
+                    any(name != register for name in registers) or not _always(insn):
+                return None             # a second write, another operation, or one an IT block may skip
             step = 0 if insn.address == compare else _ARITHMETIC[base] * immediates[0]
             found = (block, step, insn.address)
     return found
@@ -151,7 +158,8 @@ def _initial_value(instructions, predecessors, block: int, register: str, depth:
         for insn in reversed(instructions(block)):
             if _writes(insn, register):
                 registers, immediates = _operands(insn)
-                if insn.mnemonic.split(".")[0] in _MOVES and len(immediates) == 1 and registers == [register]:
+                if insn.mnemonic.split(".")[0] in _MOVES and len(immediates) == 1 and registers == [register] \
+                        and _always(insn):
                     return immediates[0] & _MASK
                 return None
         above = predecessors.get(block, [])
