@@ -12,8 +12,10 @@ Measured: the response time of every frame that ran a model step (its arrival ->
 temperatures queued) and of the other frames; each interrupt's latency (release -> the handler's first
 instruction), how much of it the background caused (the instruction in progress at the release) and the lazy FP
 stacking the background's FP context costs it; the CPU load of each task; the model's outputs bit for bit against
-the same node without the interrupt. The static bounds (`target_sim.firmware.wcet`) of fw_step, node_on_frame
-(rows in order) and the handler are set beside the measured maxima.
+the same node without the interrupt. The static bounds (`target_sim.firmware.wcet`: implicit path enumeration) of
+the model step (fw_step, or an observer's fw_obs_step), node_on_frame (rows in order) and the handler are set
+beside two measured maxima: the drive's, and that of a search for the inputs that take the most cycles
+(`bench.firmware.adversarial`), so the gap between bound and truth is shown from both ends.
 """
 
 from __future__ import annotations
