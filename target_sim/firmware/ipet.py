@@ -95,14 +95,15 @@ def longest_path(graph: FlowGraph, loops: Iterable[LoopFact] = (), facts: Iterab
         raise IpetError(f"the entry {graph.entry} is no block of the graph")
     count = len(blocks) + len(edges)
     rows: list[tuple[dict[int, float], float, float]] = []
+    inflows: dict[int, list[int]] = {block: [] for block in blocks}
+    outflows: dict[int, list[int]] = {block: [] for block in blocks}
+    for k, edge in enumerate(edges):
+        outflows[edge.source].append(len(blocks) + k)
+        if edge.target is not None:
+            inflows[edge.target].append(len(blocks) + k)
     for block in blocks:                                   # x_b = flow in (+1 at the entry) = flow out
-        inflow = {block_index[block]: 1.0}
-        outflow = {block_index[block]: 1.0}
-        for k, edge in enumerate(edges):
-            if edge.target == block:
-                inflow[len(blocks) + k] = inflow.get(len(blocks) + k, 0.0) - 1.0
-            if edge.source == block:
-                outflow[len(blocks) + k] = outflow.get(len(blocks) + k, 0.0) - 1.0
+        inflow = {block_index[block]: 1.0, **{column: -1.0 for column in inflows[block]}}
+        outflow = {block_index[block]: 1.0, **{column: -1.0 for column in outflows[block]}}
         entry = 1.0 if block == graph.entry else 0.0
         rows.append((inflow, entry, entry))
         rows.append((outflow, 0.0, 0.0))
