@@ -296,7 +296,6 @@ def run_timing(args: argparse.Namespace) -> int:
     from bench.run.inputs import check_measurement_data, drive_for, load_data, measurements_for
     from target_sim.firmware import read_elf
     from target_sim.firmware.motor_control import isr_rate_problem
-    from target_sim.observer_node import raw_channels, raw_sources
 
     if problem := isr_rate_problem(args.isr_rate):   # before the build: what the arguments alone refuse
         raise UsageError(problem)
@@ -315,8 +314,8 @@ def run_timing(args: argparse.Namespace) -> int:
                         sample_period_s=period)
     drive = drive_for(dataset, artifact)
     check_measurement_data(dataset, artifact)
-    host = measurements_for(dataset, artifact)      # an observer's raw channels, as in `bench firmware check`
-    measurement = raw_channels(raw_sources(artifact), drive, host)[: args.rows] if host is not None else None
+    host = measurements_for(dataset, artifact)      # an observer's host channels per row, as `bench run` sends
+    measurement = host[: args.rows] if host is not None else None     # the host's channels: its frames
     drive = drive[: args.rows]
     report = {**_identity(path, artifact), "data": str(dataset.path), "rows": int(len(drive)), "firmware": str(elf),
               **timing_report(artifact, image, drive, initial_temperatures(dataset), isr_rate_hz=args.isr_rate,

@@ -15,8 +15,9 @@ on them (`target_sim.firmware.cycles`: the same cost model the bound sums). Seed
   reading, in the lower part of its coordinate's range, which switches measurement updates on and off) come from
   the candidate;
 - `frame_scenario`: node_on_frame beside the current loop's interrupt (`bench.firmware.timing.run_frames`), a RESET
-  to start temperatures, START, then rows in order whose values come from the candidate, enough of them to pass a
-  StateCheckpoint (every CHECKPOINT_EVERY_STEPS model steps).
+  to start temperatures, START, then rows in order whose values (and, for an observer, the host's measurement
+  channels, NaN in part of their range: ABSENT) come from the candidate, enough of them to pass a StateCheckpoint
+  (every CHECKPOINT_EVERY_STEPS model steps).
 """
 
 from __future__ import annotations
@@ -130,15 +131,36 @@ def frame_scenario(artifact: ModelArtifact, image: ElfImage, *, isr_rate_hz: flo
     candidate; run(point) gives the most cycles any one call of node_on_frame took, and the run (its
     interrupts' handler cycles too)."""
     from bench.firmware.timing import run_frames
+    from target_sim.observer import has_observer
+    from target_sim.observer_node import measurement_width
 
     width = len(artifact.drive_signals)
+    channels = measurement_width(artifact) if has_observer(artifact) else 0
     rows = frame_rows(artifact)
     ranges = _row_ranges(width)
+    limits = _channel_ranges(channels)
+    per_row = width + channels
 
     def run_of(point: np.ndarray) -> tuple[int, object]:
-        drive = np.array([_scale(point[4 + r * width: 4 + (r + 1) * width], ranges) for r in range(rows)])
+        parts = [point[4 + r * per_row: 4 + (r + 1) * per_row] for r in range(rows)]
+        drive = np.array([_scale(part[:width], ranges) for part in parts])
+        measured = np.array([[np.nan if u < NO_READING_BELOW else low + (u - NO_READING_BELOW)
+                              / (1 - NO_READING_BELOW) * (high - low) for u, (low, high) in zip(part[width:], limits,
+                                                                                                 strict=True)]
+                             for part in parts]) if channels else None
         run = run_frames(artifact, image, drive, _start_temperatures(point[:4]), isr_rate_hz=isr_rate_hz,
-                         clock_mhz=clock_mhz, seed=seed)
+                         clock_mhz=clock_mhz, seed=seed, measurement=measured)
         return max(job.cycles for job in (*run.step_jobs, *run.other_jobs)), run
 
-    return run_of, 4 + rows * width
+    return run_of, 4 + rows * per_row
+
+
+def _channel_ranges(channels: int) -> list[tuple[float, float]]:
+    """(low, high) of the first `channels` host measurement channels on the bus (their value signals)."""
+    from dbc.contract import CHANNEL_NAMES, MEASUREMENT_CHANNELS
+
+    out = []
+    for channel in CHANNEL_NAMES[:channels]:
+        message, value_signal, _ = MEASUREMENT_CHANNELS[channel]
+        out.append(signal_ranges(message)[value_signal])
+    return out

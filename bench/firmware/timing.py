@@ -48,14 +48,17 @@ def _percentiles(values: list[int] | np.ndarray, scale: float = 1.0) -> dict:
             "max": round(float(data.max()), 3)}
 
 
-def _frames(artifact: ModelArtifact, drive: np.ndarray, initial) -> list[list]:
-    """The host's frames: [RESET's frames, START], then one list per row."""
+def _frames(artifact: ModelArtifact, drive: np.ndarray, initial, measurement: np.ndarray | None = None) -> list[list]:
+    """The host's frames: [RESET's frames, START], then one list per row (with `measurement`, an observer's host
+    channels per row, the row's measurement frames first)."""
     codec = FrameCodec("HOST")
     reset = [codec.encode(name, {"Step": 0, **signals}) for name, signals in
              split_temperatures([round(float(v), 2) for v in initial], RESET_SIGNALS).items()]
     reset.append(codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}))
     start = [codec.encode("Control", {"Command": int(Command.START), "Step": 0})]
-    return [reset, start, *(encode_row(codec, row, [float(v) for v in values]) for row, values in enumerate(drive))]
+    return [reset, start, *(encode_row(codec, row, [float(v) for v in values],
+                                       None if measurement is None else [float(v) for v in measurement[row]])
+                            for row, values in enumerate(drive))]
 
 
 def _reference_outputs(artifact: ModelArtifact, image: ElfImage, frames: list[list]) -> list[bytes]:
@@ -88,8 +91,9 @@ class FrameRun:
 
 
 def run_frames(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float,
-               clock_mhz: float, seed: int = 0) -> FrameRun:
-    """The drive's frames through the node with the interrupt (the module docstring's run)."""
+               clock_mhz: float, seed: int = 0, measurement: np.ndarray | None = None) -> FrameRun:
+    """The drive's frames (and an observer's measurement frames) through the node with the interrupt (the module
+    docstring's run)."""
     _TEMPERATURE_IDS.update(_temperature_ids())
     clock_hz = clock_mhz * 1e6
     fw_box: list[InterruptedFirmware] = []
@@ -105,7 +109,7 @@ def run_frames(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, init
     fw = fw_box[0]
     period = fw.period
     rng = start_motor_control(fw, rate_hz=isr_rate_hz, clock_hz=clock_hz, seed=seed)
-    frames = _frames(artifact, drive, initial)
+    frames = _frames(artifact, drive, initial, measurement)
     row_cycles = artifact.data_sample_period * clock_hz
     origin = fw.now + period
     step_jobs, other_jobs, outputs = [], [], []
@@ -125,10 +129,12 @@ def run_frames(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, init
 
 
 def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float = 10_000.0,
-            clock_mhz: float = 90.0, seed: int = 0) -> dict:
+            clock_mhz: float = 90.0, seed: int = 0, measurement: np.ndarray | None = None) -> dict:
     """Run the drive through the node with the interrupt; the figures of the module docstring (cycles, µs)."""
-    run = run_frames(artifact, image, drive, initial, isr_rate_hz=isr_rate_hz, clock_mhz=clock_mhz, seed=seed)
-    bit_exact = run.outputs == _reference_outputs(artifact, image, _frames(artifact, drive, initial))
+    run = run_frames(artifact, image, drive, initial, isr_rate_hz=isr_rate_hz, clock_mhz=clock_mhz, seed=seed,
+                     measurement=measurement)
+    frames = _frames(artifact, drive, initial, measurement)
+    bit_exact = run.outputs == _reference_outputs(artifact, image, frames)
     clock_hz = clock_mhz * 1e6
     span_s = (run.fw.now - run.origin) / clock_hz
     return _figures(run.fw, run.node, run.step_jobs, run.other_jobs, run.fw.period, clock_hz, span_s, bit_exact)
@@ -221,15 +227,17 @@ def direct_step_max(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray,
                     measurement: np.ndarray | None = None) -> int:
     """The most cycles of the model step called alone (entry to return, as the bound counts) over the drive's steps
     (`bench firmware check`'s run: the node's DWT reads around the call add a few cycles of their own); an
-    observer's steps take `measurement`'s raw channels (none given: no reading in any row)."""
+    observer's steps take the raw channels of `measurement`, the host's channels per row (none: no reading)."""
     from bench.firmware.check import check_firmware
     from target_sim.observer import has_observer
 
-    if has_observer(artifact) and measurement is None:
-        from target_sim.firmware import FirmwareEstimator
+    raw = None
+    if has_observer(artifact):
+        from target_sim.observer_node import measurement_width, raw_channels, raw_sources
 
-        measurement = np.full((len(drive), FirmwareEstimator(artifact, image).channels), np.nan)
-    result = check_firmware(artifact, image, drive, initial, measurement)   # FirmwareEstimator takes the image
+        host = measurement if measurement is not None else np.full((len(drive), measurement_width(artifact)), np.nan)
+        raw = raw_channels(raw_sources(artifact), drive, host)
+    result = check_firmware(artifact, image, drive, initial, raw)   # FirmwareEstimator takes the parsed image
     return int(result["cycles"]["max"])
 
 
@@ -271,11 +279,12 @@ def timing_report(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, i
                   isr_rate_hz: float = 10_000.0, seed: int = 0, search: int = 0,
                   measurement: np.ndarray | None = None) -> dict:
     """`bench firmware timing`'s JSON: the bounds, the drive's and the input search's (`search` candidates)
-    measured maxima beside them, then the run at each clock of `CLOCKS_MHZ`."""
+    measured maxima beside them, then the run at each clock of `CLOCKS_MHZ`; `measurement`: an observer's host
+    channels per row (its measurement frames), None for none."""
     bounds = static_bounds(image, artifact)
     step = model_step_function(image)
     runs = {f"{mhz}MHz": measure(artifact, image, drive, initial, isr_rate_hz=isr_rate_hz, clock_mhz=mhz,
-                                 seed=seed) for mhz in CLOCKS_MHZ}
+                                 seed=seed, measurement=measurement) for mhz in CLOCKS_MHZ}
     main = runs[f"{CLOCKS_MHZ[0]}MHz"]
     drive_max = {step: direct_step_max(artifact, image, drive, initial, measurement),
                  **{name: max(run["measured_max_cycles"][name] or 0 for run in runs.values())
