@@ -53,7 +53,8 @@ class FlowGraph:
 @dataclass(frozen=True)
 class LoopFact:
     """The loop's header runs at most `iterations` times for each time control enters the loop from outside
-    (`entries`: the blocks outside the loop with an edge to its header)."""
+    (`entries`: the blocks outside the loop with an edge to its header; the call itself when the header is the
+    graph's entry)."""
 
     header: int
     entries: tuple[int, ...]
@@ -120,7 +121,8 @@ def longest_path(graph: FlowGraph, loops: Iterable[LoopFact] = (), facts: Iterab
             if column is None:
                 raise IpetError(f"no edge {source} -> {loop.header} enters the loop")
             row[column] = row.get(column, 0.0) - float(loop.iterations)
-        rows.append((row, -np.inf, 0.0))
+        # a loop headed by the entry block is entered once more, by the call itself (the virtual edge in)
+        rows.append((row, -np.inf, float(loop.iterations) if loop.header == graph.entry else 0.0))
     for fact in facts:
         row: dict[int, float] = {}
         for block, coefficient in fact.blocks.items():

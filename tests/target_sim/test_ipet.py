@@ -27,6 +27,11 @@ def test_a_loop_runs_its_header_the_stated_times_per_entry():
     assert solution.block_counts[1] == 3 and solution.edge_counts[(1, 1)] == 2
 
 
+def test_a_loop_at_the_entry_is_entered_by_the_call():
+    graph = FlowGraph(1, {1: 4, 2: 1}, [Edge(1, 1, 2), Edge(1, 2), Edge(2, None)])
+    assert longest_path(graph, [LoopFact(1, (), 3)]).cycles == 3 * 4 + 2 * 2 + 1
+
+
 def test_nested_loops_multiply_and_a_fact_removes_an_infeasible_path():
     # outer header 1 (twice per entry), inner header 2 (three times per entry of the inner loop), then out by 3;
     # inside the inner body a choice: 4 (cost 10) or 5 (cost 1), both back to 2's latch 6
