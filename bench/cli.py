@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import functools
 import importlib
 import logging
 import os
@@ -143,7 +144,23 @@ class _RecordingGroup:
 def _recorded(action: argparse.Action, names: list[str]) -> argparse.Action:
     if action.help is not argparse.SUPPRESS:   # a hidden option is never suggested
         names.extend(action.option_strings)
+    if callable(action.type) and action.option_strings:
+        action.type = _naming_its_option(action.type, action.option_strings)
     return action
+
+
+def _naming_its_option(parse, options: list[str]):
+    """The argparse type `parse`, whose UsageError that does not name the option becomes argparse's own type error,
+    whose sentence does ("argument --rows: '0' must be a positive whole number"), as argparse's own errors do."""
+    @functools.wraps(parse)
+    def typed(text: str):
+        try:
+            return parse(text)
+        except UsageError as exc:
+            if str(exc).startswith(tuple(f"{option} " for option in options)):
+                raise     # its sentence names the option already
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return typed
 
 
 class OneLineParser(argparse.ArgumentParser):

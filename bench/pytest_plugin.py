@@ -45,7 +45,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import tomllib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -56,6 +55,8 @@ import pytest
 
 from bench.errors import BenchError
 from bench.run.request import HOST, OPTION, RUN, SETTABLE, RunRequest
+from bench.tomlspec import Check, TableSpec, flag, number, read_spec, spec_tables, string, whole_at_least
+from bench.tomlspec import path as path_value
 from dbc.files import same_file
 from dbc.lifeline import child_environment
 from dbc.transport import bus_interfaces
@@ -63,8 +64,6 @@ from dbc.transport import bus_interfaces
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
 # [run]: every run option a user sets (`bench.run.request`), and how long a run may take
-PROFILE_KEYS = {"target": ("engine", "attach"), "bus": ("interface", "channel", "bitrate", "bus_kwargs"),
-                "run": (*SETTABLE, "timeout")}
 DEFAULT_TIMEOUT_S = 900.0
 STOP_GRACE_S = 20.0   # a bench told to stop (SIGTERM) stops its target (5 s at most) and exits; then SIGKILL
 # an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
@@ -133,63 +132,62 @@ def load_profile(path: Path) -> dict[str, Any]:
         criteria = "criteria.toml"
     """
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise pytest.UsageError(f"--bench-profile {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise pytest.UsageError(f"--bench-profile {path} is not a readable TOML file ({exc})") from None
+    text = read_spec(path, "--bench-profile", "give the path of a TOML profile", pytest.UsageError)
+    doc = spec_tables(text, f"--bench-profile {path}", PROFILE_KEYS, pytest.UsageError, fix="fix the profile",
+                      unknown="has an unknown section {key!r}; a profile has the tables {tables}")
     out: dict[str, Any] = {}
-    for section, table in doc.items():
-        if section not in PROFILE_KEYS or not isinstance(table, dict):
-            raise pytest.UsageError(f"--bench-profile {path}: unknown section {section!r}; a profile has the "
-                                    f"tables {', '.join(f'[{s}]' for s in PROFILE_KEYS)}")
-        unknown = [k for k in table if k not in PROFILE_KEYS[section]]
-        if unknown:
-            raise pytest.UsageError(f"--bench-profile {path}: [{section}] has an unknown key {unknown[0]!r}; use "
-                                    f"{', '.join(PROFILE_KEYS[section])}")
-        out[section] = dict(table)
-    for key in RUN_FILES:   # relative to the profile
-        value = out.get("run", {}).get(key)
-        if isinstance(value, str) and not Path(value).is_absolute():
-            out["run"][key] = str(path.parent / value)
-    problem = run_defaults_problem(out.get("run", {}))
-    if problem:   # at start, naming the profile: not a failure of every test at run time
-        raise pytest.UsageError(f"--bench-profile {path}: [run] {problem}")
+    for section, spec in profile_tables(path.parent).items():
+        if section in doc:    # checked, at start and naming the profile: not a failure of every test at run time
+            out[section] = spec.read(doc[section], f"--bench-profile {path}", pytest.UsageError)
     return out
 
 
-# the [run] keys' kinds: a positive whole number, a positive number, one of a few words, a file that must exist
-RUN_WHOLE, RUN_SECONDS, RUN_FILES = ("rows",), ("reply_timeout", "connect_timeout", "timeout"), (
-    "data", "model", "mapping", "criteria", "baseline")
+# the [run] keys that name files (relative to the profile, they must exist); the profile's own key, the time limit
+RUN_FILES = ("data", "model", "mapping", "criteria", "baseline")
 
 
-def run_defaults_problem(run: dict[str, Any]) -> str | None:
-    """Why a profile's [run] table cannot make a run (one clause naming the key), or None."""
-    from host.procedure import MODES
+def profile_tables(base: Path) -> dict[str, TableSpec]:
+    """A profile's tables: [target] and [bus] (checked further against pytest's options in `config_of`), and [run],
+    whose keys are the run request's own options with their own checks (the words a campaign spec's key gets), its
+    files relative to `base` (they must exist), and the profile's own time limit."""
+    run: dict[str, Check] = {key: OPTION[key].check for key in SETTABLE}
+    run.update({key: _existing_file(base) for key in RUN_FILES}, timeout=_seconds)
+    return {"target": TableSpec("[target]", {"engine": string, "attach": flag}),
+            "bus": TableSpec("[bus]", {"interface": string, "channel": _channel, "bitrate": whole_at_least(1),
+                                       "bus_kwargs": _table}),
+            "run": TableSpec("[run]", run)}
 
-    for key in RUN_WHOLE:
-        value = run.get(key)
-        if value is not None and (type(value) is not int or value < 1):
-            return f"{key} = {value!r} must be a whole number of at least 1"
-    for key in RUN_SECONDS:
-        value = run.get(key)
-        if value is not None and (type(value) not in (int, float) or not value > 0):
-            return f"{key} = {value!r} must be a number of seconds above 0"
-    mode = run.get("mode")
-    if mode is not None and mode not in MODES:
-        return f"mode = {mode!r} is not one of {', '.join(MODES)}"
-    for key in RUN_FILES:
-        value = run.get(key)
-        if value is not None and (not isinstance(value, str) or not Path(value).exists()):
-            return f"{key} = {value!r} does not exist (a path relative to the profile)"
-    for key, value in run.items():   # every other run option: the run request's own check
-        if key in OPTION and key not in (*RUN_WHOLE, *RUN_SECONDS, *RUN_FILES, "mode"):
-            try:
-                OPTION[key].check(value)
-            except ValueError as exc:
-                return f"{key} = {value!r}: {exc}"
-    return None
+
+
+def _existing_file(base: Path) -> Check:
+    def check(value: Any) -> str:
+        where = base / path_value(value)
+        if not where.exists():
+            raise ValueError(f"{value!r} does not exist (a path relative to the profile)")
+        return str(where)
+    return check
+
+
+def _seconds(value: Any) -> float:
+    if number(value, positive=False) <= 0:
+        raise ValueError("must be a number of seconds above 0")
+    return float(value)
+
+
+def _channel(value: Any) -> str | int:
+    if isinstance(value, bool) or not isinstance(value, str | int):
+        raise ValueError("must be a string or a whole number")
+    return value
+
+
+def _table(value: Any) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ValueError("must be a table, e.g. { port = 43113 }")
+    return value
+
+
+# each table's keys (a profile's sections, in order)
+PROFILE_KEYS = {section: tuple(spec.keys) for section, spec in profile_tables(Path()).items()}
 
 
 def _bus_kwargs(items: list[str]) -> dict[str, Any]:
@@ -265,24 +263,6 @@ class BenchRun:
     def passed(self) -> bool:
         """The bench's exit status was 0: clean (or tolerated) and every acceptance criterion met."""
         return self.exit_status == 0
-
-
-def summary_of_host(data: dict[str, Any], config: BenchConfig):
-    """`bench host --json` as a RunSummary (the shape `bench run --json` has), so a test reads both alike."""
-    from bench.analysis.results import BusInfo, HostFaults, RunResults, RunSummary
-
-    if "metrics" not in data:
-        raise BenchRunError("the host's log could not be compared with the model: " + "; ".join(data["problems"]),
-                            1)
-    metrics = RunResults.from_json(data["metrics"])
-    host = {k: v for k, v in data.items() if k not in ("metrics", "problems", "clean", "verdict", "acceptance",
-                                                        "faults", "log_path")}
-    port = config.bus_kwargs.get("port")
-    return RunSummary(engine=data.get("engine"), firmware=None,
-                      bus=BusInfo(config.interface or "", config.channel, int(port) if port else None),
-                      problems=list(data["problems"]), clean=bool(data["clean"]),
-                      faults=HostFaults.of_run(data.get("faults"), metrics.faults), host=host, metrics=metrics,
-                      elapsed_s=float(data.get("wall_time_s") or 0.0))
 
 
 @contextmanager
@@ -441,7 +421,10 @@ class ThermalBench:
             raise BenchRunError(_one_sentence(proc.stderr, proc.returncode), proc.returncode) from None
         from bench.analysis.results import RunSummary
 
-        summary = summary_of_host(data, self.config) if self.config.attach else RunSummary.from_json(data)
+        if isinstance(data, dict) and "metrics" not in data:   # a run whose log held no figures (`bench host`)
+            raise BenchRunError("the host's log could not be compared with the model: " + "; ".join(data["problems"]),
+                                1)
+        summary = RunSummary.from_json(data)   # `bench run --json` and `bench host --json` print one shape
         junit = run_dir / "junit.xml"
         return BenchRun(argv, proc.returncode, summary, proc.stderr, junit if junit.is_file() else None)
 

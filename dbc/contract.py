@@ -90,6 +90,11 @@ MEASUREMENT_SIGNALS: Mapping[str, tuple[str, str]] = MappingProxyType({
 INNOVATION_MESSAGE = "Innovations"
 INNOVATION_SIGNALS: Mapping[str, tuple[str, str]] = MappingProxyType({
     "sensor": ("SensorInnovation", "SensorUsed"), "flux": ("FluxMagnetInnovation", "FluxMagnetUsed")})
+# DBC 1.8.0: the observer's innovation gate, per slot: its reading rejected this step (in Innovations, beside Used)
+# and its sensor flagged (latched until RESET or RESTORE; in Uncertainty1's free bits)
+REJECTED_SIGNALS: Mapping[str, str] = MappingProxyType({"sensor": "SensorRejected", "flux": "FluxMagnetRejected"})
+FLAG_MESSAGE = "Uncertainty1"
+FLAGGED_SIGNALS: Mapping[str, str] = MappingProxyType({"sensor": "SensorFlagged", "flux": "FluxMagnetFlagged"})
 SIGMA_SIGNALS: Mapping[str, tuple[tuple[str, int], ...]] = MappingProxyType({
     "Uncertainty1": (("WindingSigma", 1), ("MagnetSigma", 3)),
     "Uncertainty2": (("YokeSigma", 0), ("ToothSigma", 2))})

@@ -11,6 +11,9 @@ Two ways, both armed by `tie_to_parent` in the child itself (a `preexec_fn` is n
 
 A child learns its parent either from its command line (`python -m target_sim --parent-pid PID`) or from the
 environment (`PARENT_ENV`, read and removed by `tie_from_environment`: its own children are not the parent's).
+A program that is not the bench's own (a compiler) is started through `tied_command`: `python -m dbc.lifeline
+PROGRAM ARGS...` arms the parent-death signal in itself, then becomes PROGRAM (exec: the signal stays armed; the
+watcher thread does not survive it, so this tie is Linux's alone).
 `dbc` imports nothing of the project, so every layer ties its children the same way.
 """
 
@@ -28,6 +31,8 @@ from collections.abc import MutableMapping
 PR_SET_PDEATHSIG = 1          # <linux/prctl.h>
 WATCH_INTERVAL_S = 0.25       # how often the watcher compares the parent id
 PARENT_ENV = "BENCH_PARENT_PID"   # the id of the process a child started with it must die with
+EXEC_FAILED = 127             # `python -m dbc.lifeline`'s status when PROGRAM cannot be started (as a shell's)
+PARENT_GONE = 143             # ... when its parent died before PROGRAM started (128 + SIGTERM, as if signalled)
 
 
 def arm_parent_death(signum: int = signal.SIGTERM) -> bool:
@@ -82,3 +87,38 @@ def child_environment(env: MutableMapping[str, str] | None = None) -> dict[str, 
     """`env` (default: this process's) telling a child started with it to die with this process
     (`tie_from_environment`)."""
     return {**(os.environ if env is None else env), PARENT_ENV: str(os.getpid())}
+
+
+def tied_command(argv: list[str]) -> list[str]:
+    """The command line that runs `argv` tied to the process that starts it with `tied_environment()` (see the
+    module docstring; exit EXEC_FAILED, saying so on stderr, when argv[0] cannot be started)."""
+    return [sys.executable, "-m", "dbc.lifeline", *argv]
+
+
+def tied_environment(env: MutableMapping[str, str] | None = None) -> dict[str, str]:
+    """`child_environment(env)` in which `python -m dbc.lifeline` finds this very `dbc` from any directory (a
+    checkout run without installing it is on the parent's path only through its working directory)."""
+    out = child_environment(env)
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [out.get("PYTHONPATH")])])
+    return out
+
+
+def _exec_tied(argv: list[str]) -> int:
+    """`python -m dbc.lifeline PROGRAM ARGS...`: tie to the parent `PARENT_ENV` names (the kernel's signal only: it
+    survives exec), then become PROGRAM."""
+    if not argv:
+        print("usage: python -m dbc.lifeline PROGRAM [ARGS...]", file=sys.stderr)
+        return 2
+    text = os.environ.pop(PARENT_ENV, None)
+    if text is not None and text.strip().isdigit() and not tie_to_parent(int(text), watch=False):
+        return PARENT_GONE
+    try:
+        os.execvp(argv[0], argv)
+    except OSError as exc:
+        print(f"{argv[0]} cannot be started: {exc.strerror or exc}", file=sys.stderr)
+    return EXEC_FAILED
+
+
+if __name__ == "__main__":
+    sys.exit(_exec_tied(sys.argv[1:]))

@@ -7,7 +7,10 @@ for RUNNING. At the end Control STOP, wait for STOPPED, and collect the trailing
 
 Every frame the host sends or receives (its own loopback copies excepted) is written to the log. Received
 frames are validated (`dbc.FrameValidator`); rejected ones are counted per kind. Status frames feed the
-heartbeat monitor: a gap longer than `heartbeat_timeout_s` is a heartbeat loss.
+heartbeat monitor: a gap longer than `heartbeat_timeout_s` is a heartbeat loss. A checkpoint (StateCheckpoint,
+ObserverCheckpoint) is believed as a reply is: one of whose frames repeats the alive counter of the frame before it
+(and is not a copy of it), or gives an element a second, other value, is *contested* (one of them is not the
+target's: a forged or replayed frame) and is never echoed back in a RESTORE (`contested_checkpoints`).
 
 With a fault layer (`host.faults.FaultyBus`) as the bus, the layer reports each frame as it actually goes on the
 bus (altered, duplicated or late) and that is what the log gets. `marker` puts a BenchEvent (an injected fault,
@@ -24,7 +27,7 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from dbc.codec import DecodedFrame, FrameCodec, FrameValidator
+from dbc.codec import DecodedFrame, FrameCodec, FrameValidator, decode_any
 from dbc.contract import (
     CHECKPOINT_STEP_LOW_MODULO,
     FIRMWARE_TIMING_MESSAGE,
@@ -49,8 +52,9 @@ from dbc.contract import (
     step_of,
     target_info,
 )
-from dbc.database import host_frame_ids
+from dbc.database import frame_id, host_frame_ids
 from dbc.transport import OwnFrameFilter
+from dbc.xcp import xcp_ids
 from host.canlog import FrameLog
 from host.errors import HostError
 
@@ -59,6 +63,11 @@ DEFAULT_CONNECT_TIMEOUT_S = 15.0
 # and SIGCONT, a suspended machine, a starved scheduler), and the target's silence meanwhile is not the target's.
 HOST_PAUSE_S = 0.25
 MAX_REJECTIONS_KEPT = 100_000   # refused frames recorded one by one (counted beyond)
+
+
+def _same_float(a: float, b: float) -> bool:
+    """The same float32 bits (a checkpoint element sent twice by the target is the same value)."""
+    return bool(np.float32(a).view(np.uint32) == np.float32(b).view(np.uint32))
 
 
 class SessionError(HostError):
@@ -202,6 +211,7 @@ class HostSession:
         self.expected_model_id = expected_model_id
         self.codec = FrameCodec("HOST")
         self.validator = FrameValidator("HOST")
+        self._xcp_ids = xcp_ids()
         self.own = OwnFrameFilter(host_frame_ids())
         self.monitor = Monitor(heartbeat_timeout_s)
         self.invalid = dict.fromkeys(FRAME_ERROR_KINDS, 0)
@@ -223,6 +233,11 @@ class HostSession:
         self.checkpoints: dict[int, list[float]] = {}
         # an observer's checkpoints (DBC 1.7.0): row -> {Index: value}, echoed as they came (the target judges them)
         self.observer_checkpoints: dict[int, dict[int, float]] = {}
+        # rows whose checkpoint a contested frame belongs to (never restored from), and the row of the last
+        # checkpoint frame accepted per id (a frame that repeats its counter contests that one too)
+        self.contested_checkpoints: set[int] = set()
+        self._last_checkpoint_row: dict[int, int] = {}
+        self._last_checkpoint_data: dict[int, bytes] = {}
         self._pending_log: list[can.Message] = []
         # a fault layer logs what it really transmits; a plain bus sends what it is given
         self._log_sends = not getattr(bus, "reports_transmissions", False)
@@ -321,14 +336,23 @@ class HostSession:
         """Log, validate and dispatch one received frame; None if it was rejected (and counted)."""
         if self.log is not None:
             self._pending_log.append(msg)
+        if msg.arbitration_id in self._xcp_ids and not msg.is_extended_id:
+            return None       # a calibration master's XCP traffic (dbc/xcp.toml): logged, not a frame of the contract
+        previous = self.validator.last_counter(msg.arbitration_id)
         try:
             frame = self.validator.validate(msg)
         except FrameError as exc:
             self.invalid[exc.kind] += 1
+            if exc.kind == "counter" and msg.arbitration_id in self._checkpoint_ids \
+                    and msg.data[1] & 0x0F == previous and bytes(msg.data) != self._last_checkpoint_data.get(
+                        msg.arbitration_id):      # a copy of the frame before it is harmless
+                self._contest_checkpoint(msg)
             if len(self.rejections) < MAX_REJECTIONS_KEPT:
                 self.rejections.append({"kind": exc.kind, "id": msg.arbitration_id, "data": bytes(msg.data).hex(),
                                         "t": msg.timestamp})
             return None
+        if msg.arbitration_id in self._checkpoint_ids:
+            self._last_checkpoint_data[msg.arbitration_id] = bytes(msg.data)
         self._dispatch(frame)
         return frame
 
@@ -363,9 +387,36 @@ class HostSession:
         if self.on_frame is not None:
             self.on_frame(frame)
 
+    @property
+    def _checkpoint_ids(self) -> dict[int, str]:
+        return {frame_id(name): name for name in ("StateCheckpoint", OBSERVER_CHECKPOINT_MESSAGE)}
+
+    def _checkpoint_row(self, name: str, s: dict) -> int:
+        """The row a checkpoint frame names (an ObserverCheckpoint: by its StepLow)."""
+        if name == OBSERVER_CHECKPOINT_MESSAGE:
+            last = self.last_sent_row
+            return last - ((last - int(s["StepLow"])) % CHECKPOINT_STEP_LOW_MODULO)
+        return self._row_of(int(s["Step"]))
+
+    def _contest_checkpoint(self, msg: can.Message) -> None:
+        """A checkpoint frame that repeats the alive counter of the frame before it: neither checkpoint is
+        believed."""
+        name = self._checkpoint_ids[msg.arbitration_id]
+        try:
+            signals = decode_any(msg).signals
+        except FrameError:
+            return
+        self.contested_checkpoints.add(self._checkpoint_row(name, signals))
+        if msg.arbitration_id in self._last_checkpoint_row:
+            self.contested_checkpoints.add(self._last_checkpoint_row[msg.arbitration_id])
+
     def _checkpoint(self, step: int, index: int, value: float) -> None:
         """Collect one element; four valid elements of one Step make a checkpoint of that row's state."""
+        row = self._row_of(step)
+        self._last_checkpoint_row[frame_id("StateCheckpoint")] = row
         parts = self._checkpoint_parts.setdefault(step, {})
+        if index in parts and not _same_float(parts[index], value):
+            self.contested_checkpoints.add(row)      # an element twice, with another value
         parts[index] = value
         if len(parts) == STATE_SIZE:
             del self._checkpoint_parts[step]
@@ -375,15 +426,28 @@ class HostSession:
 
     def _observer_checkpoint(self, step_low: int, index: int, value: float) -> None:
         """Collect one element of an observer's checkpoint under the latest row whose Step it names."""
-        last = self.last_sent_row
-        row = last - ((last - step_low) % CHECKPOINT_STEP_LOW_MODULO)
-        self.observer_checkpoints.setdefault(row, {})[index] = value
+        row = self._checkpoint_row(OBSERVER_CHECKPOINT_MESSAGE, {"StepLow": step_low})
+        self._last_checkpoint_row[frame_id(OBSERVER_CHECKPOINT_MESSAGE)] = row
+        elements = self.observer_checkpoints.setdefault(row, {})
+        if index in elements and not _same_float(elements[index], value):
+            self.contested_checkpoints.add(row)
+        elements[index] = value
         if len(self.observer_checkpoints) > 8:   # keep the newest few
             self.observer_checkpoints.pop(min(self.observer_checkpoints))
 
+    def _forget_checkpoints(self, from_row: int) -> None:
+        """Forget the checkpoints (and their contest) of rows `from_row` and later, and every incomplete one."""
+        self._checkpoint_parts.clear()
+        for book in (self.checkpoints, self.observer_checkpoints):
+            for row in [r for r in book if r >= from_row]:
+                del book[row]
+        self.contested_checkpoints = {r for r in self.contested_checkpoints if r < from_row}
+        self._last_checkpoint_row.clear()
+
     def last_checkpoint(self, before_row: int) -> tuple[int, list[float]] | None:
-        """(row, state) of the newest complete checkpoint taken after a row before `before_row`, or None."""
-        rows = [row for row in self.checkpoints if row < before_row]
+        """(row, state) of the newest complete checkpoint taken after a row before `before_row`, or None; a
+        contested one never."""
+        rows = [row for row in self.checkpoints if row < before_row and row not in self.contested_checkpoints]
         return (max(rows), self.checkpoints[max(rows)]) if rows else None
 
     def _row_of(self, step: int) -> int:
@@ -448,7 +512,9 @@ class HostSession:
     def restore(self, state: Sequence[float], step: int, tries: int = 3,
                 observer: dict[int, float] | None = None) -> None:
         """Echo a checkpointed state vector in RestoreState frames (and an observer's checkpoint of the same row in
-        RestoreObserver frames) and RESTORE at `step`; wait for READY."""
+        RestoreObserver frames) and RESTORE at `step`; wait for READY. The checkpoints of the rows from there on are
+        forgotten: the restored target sends them again (from a covariance P0 without `observer`: other values)."""
+        self._forget_checkpoints(self._row_of(step))
         low = step % CHECKPOINT_STEP_LOW_MODULO
         for _ in range(tries):
             self.send([self.codec.encode("RestoreState", {"Step": step, "StateIndex": index, "StateValue": value})

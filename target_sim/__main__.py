@@ -67,6 +67,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="with --engine firmware and a timing image (bench/firmware/foc_isr.c linked in): the "
                              "field-oriented current loop's interrupt preempts the node at this rate, and each model "
                              "step's response time goes out in Timing5 (default 0: no interrupt)")
+    parser.add_argument("--xcp-elf", default=None, metavar="ELF",
+                        help="the Python engine's XCP slave places its measurements at this firmware ELF's symbol "
+                             "addresses, so the A2L of 'bench firmware a2l --elf ELF' fits (default: the slave's own "
+                             "pages; see docs/tutorials/xcp.md)")
     parser.add_argument("--stats", default=None, help="write the node's counters to this JSON file at exit")
     parser.add_argument("--events", default=None,
                         help="append the detection journal (one JSON line per rejected frame) to this file")
@@ -121,7 +125,7 @@ def _tie_to_parent(parent: int) -> bool:
 
 
 OUTPUTS = ("stats", "events")
-INPUTS = ("model", "firmware", "can_config")
+INPUTS = ("model", "firmware", "xcp_elf", "can_config")
 
 
 def _output_collision(args: argparse.Namespace) -> str | None:
@@ -165,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--engine firmware needs the model's firmware: --firmware ELF (see 'bench firmware build')")
     if engine == "python" and args.firmware:
         parser.error("--firmware is the firmware engine's ELF; drop it or use --engine firmware")
+    if args.xcp_elf and engine != "python":
+        parser.error("--xcp-elf lays out the Python engine's XCP slave; the firmware engine has no XCP slave yet")
     if args.isr_rate and engine != "firmware":
         parser.error("--isr-rate runs the motor-control interrupt in the firmware engine; add --engine firmware "
                      "--firmware ELF or drop it")
@@ -185,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"target_sim: error: {refusal}", file=sys.stderr)
             return 2
         node = make_node(artifact, engine=engine, firmware=args.firmware,   # the ELF checked before the bus opens
-                         isr_rate_hz=args.isr_rate)
+                         isr_rate_hz=args.isr_rate, xcp_elf=args.xcp_elf)
         bus = config.open()
     except (TargetError, BusUnavailable) as exc:   # the artifact, the firmware image, the bus
         print(f"target_sim: error: {exc}", file=sys.stderr)

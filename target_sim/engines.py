@@ -29,17 +29,19 @@ ENGINES = ("python", "firmware")
 
 
 def make_node(artifact: ModelArtifact, *, engine: str = "python", firmware: str | os.PathLike | bytes | None = None,
-              journal: Callable[[dict], None] | None = None, isr_rate_hz: float = 0.0) -> TargetNode | FirmwareNode:
+              journal: Callable[[dict], None] | None = None, isr_rate_hz: float = 0.0,
+              xcp_elf: str | os.PathLike | None = None) -> TargetNode | FirmwareNode:
     """The node of `engine`; the firmware engine needs the model's node ELF (FirmwareError, one sentence, for an
     ELF of another core, another model, or without the node, and for a model the firmware cannot run). With
     `isr_rate_hz` the firmware node runs the current loop's interrupt of a timing image at that rate
-    (`FirmwareNode`; ValueError for the Python engine, which has no interrupt)."""
+    (`FirmwareNode`; ValueError for the Python engine, which has no interrupt). `xcp_elf` places the Python
+    node's XCP cells at that firmware ELF's addresses (`target_sim.xcp.layout`; FirmwareError for a bad ELF)."""
     if engine not in ENGINES:
         raise ValueError(f"engine {engine!r} is not one of {', '.join(ENGINES)}")
     if engine == "python":
         if isr_rate_hz:
             raise ValueError("the motor-control interrupt (isr_rate_hz) runs in the firmware engine only")
-        return TargetNode(artifact, journal=journal)
+        return TargetNode(artifact, journal=journal, xcp_elf=xcp_elf)
     from target_sim.firmware.elf import FirmwareError
     from target_sim.firmware.node_protocol import firmware_refusal
 

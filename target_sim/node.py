@@ -33,11 +33,12 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   the kept frames of that Step, and the row's own currents for the flux linkage — are more values of the row,
   averaged over the interval with the drive values (none: NaN, and the model step of an interval with such a row
   makes no update with that measurement; with none valid it predicts only). Every model step is then answered,
-  after its Timing frames, with Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations (each used
-  measurement's innovation in its slot). RESET resets the covariance to P0. RESTORE sets x bit for bit, and the
-  filter's extra states and covariance from the RestoreObserver frames of that Step when all came (bit for bit),
-  else the covariance P0. After each StateCheckpoint the node sends its ObserverCheckpoint. A model without an
-  observer validates the observer's frames and ignores them.
+  after its Timing frames, with Uncertainty1, Uncertainty2 (each node's 1-sigma; Uncertainty1 with each slot's
+  sensor flagged by the innovation gate) and Innovations (each used measurement's innovation in its slot, and
+  each slot's reading rejected by the gate this step, DBC 1.8.0). RESET resets the covariance to P0. RESTORE
+  sets x bit for bit, and the filter's extra states and covariance from the RestoreObserver frames of that Step
+  when all came (bit for bit), else the covariance P0. After each StateCheckpoint the node sends its
+  ObserverCheckpoint. A model without an observer validates the observer's frames and ignores them.
 * Sequence errors (counted, SEQUENCE fault bit, nothing reaches the model): a drive frame outside RUNNING, a
   DriveTemps without its DriveInputs (a DriveCurrents without its DriveTemps), a row whose frames have different
   Steps, a DriveInputs whose row never completed, a row that goes back (or repeats one before the last: not
@@ -106,12 +107,17 @@ from dbc.contract import (
 from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
 from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
 from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, first_heard
+from dbc.xcp import cmd_id as xcp_cmd_id
+from dbc.xcp import res_id as xcp_res_id
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import memory_estimate, step_cost
 from target_sim.faults import ReplyFaults
 from target_sim.model import Float32Estimator, InputAccumulator
 from target_sim.observer import has_observer
 from target_sim.observer_node import NodeObserver, observer_signals
+from target_sim.xcp import node_slave
+from target_sim.xcp.codes import PID_ERR, Err
+from target_sim.xcp.daq import EVENT_HEARTBEAT, EVENT_MODEL_STEP
 
 SPIN_S = float(os.environ.get("TARGET_SIM_SPIN_S", "0.0003"))  # busy-poll before blocking (0 disables)
 
@@ -165,7 +171,7 @@ class TargetNode:
     engine = "python"
 
     def __init__(self, artifact: ModelArtifact, *, clock_ns: Callable[[], int] = time.perf_counter_ns,
-                 journal: Callable[[dict], None] | None = None):
+                 journal: Callable[[dict], None] | None = None, xcp_elf: str | os.PathLike | None = None):
         self.artifact = artifact
         self.journal = journal
         self._msg: can.Message | None = None
@@ -216,6 +222,9 @@ class TargetNode:
         self._timing3 = {"CpuLoad": _clamp(round(self.cost.cpu_load_percent(artifact.dt), 4), timing3["CpuLoad"])}
         self._sigma_limits = signal_ranges("Uncertainty1")["WindingSigma"]
         self._innovation_limits = signal_ranges(INNOVATION_MESSAGE)["SensorInnovation"]
+        # the XCP slave (`target_sim.xcp`): its cells at the addresses of the firmware ELF `xcp_elf` when given
+        self.xcp = node_slave(self, xcp_elf)
+        self.xcp_cmd_id, self.xcp_res_id = xcp_cmd_id(), xcp_res_id()
 
     # ------------------------------------------------------------------ frames the node sends
     def _encode(self, name: str, signals: dict) -> list[can.Message]:
@@ -248,7 +257,8 @@ class TargetNode:
         return self.target_info_frames() + self.status_frames() + self.rx_error_frames()
 
     def heartbeat_frames(self) -> list[can.Message]:
-        return self.status_frames() + self.rx_error_frames()
+        """Status and RxErrors, then the DAQ packets of the XCP time event (the heartbeat tick)."""
+        return self.status_frames() + self.rx_error_frames() + self._xcp_packets(self.xcp.event(EVENT_HEARTBEAT))
 
     def _temperature_frames(self, step: int) -> list[can.Message]:
         values = []
@@ -275,7 +285,7 @@ class TargetNode:
         """Uncertainty1, Uncertainty2 and Innovations after a model step of the observer."""
         observer = self.observer
         signals = observer_signals(observer.sigma(), observer.innovations(), self._sigma_limits,
-                                   self._innovation_limits)
+                                   self._innovation_limits, observer.gate_status())
         return [frame for name in OBSERVER_MESSAGES for frame in self._encode(name, {"Step": step, **signals[name]})]
 
     # ------------------------------------------------------------------ receiving
@@ -299,8 +309,23 @@ class TargetNode:
         self.journal({"kind": kind, "id": msg.arbitration_id, "dlc": msg.dlc, "data": bytes(msg.data).hex(),
                       "detail": detail})
 
+    def _xcp_packets(self, packets: Iterable[bytes]) -> list[can.Message]:
+        return [can.Message(arbitration_id=self.xcp_res_id, is_extended_id=False, data=packet) for packet in packets]
+
+    def _xcp_command(self, msg: can.Message) -> list[can.Message]:
+        """An XCP command (`target_sim.xcp`): its reply, never a frame error of the contract, never a model step."""
+        try:
+            reply = self.xcp.command(bytes(msg.data))
+        except Exception as exc:  # noqa: BLE001 - a calibration master must not end the node
+            self.last_error = f"internal error on an XCP command {bytes(msg.data).hex()}: {exc!r}"
+            reply = bytes((PID_ERR, Err.GENERIC))
+        return self._xcp_packets(() if reply is None else (reply,))
+
     def handle(self, msg: can.Message) -> list[can.Message]:
         """Validate one received frame, act on it, and return the frames to send in reply (maybe none)."""
+        if msg.arbitration_id == self.xcp_cmd_id and not msg.is_extended_id and not msg.is_remote_frame:
+            self.answered_again = False
+            return self._xcp_command(msg)
         self.frames_received += 1
         self._msg = msg
         self.answered_again = False
@@ -494,6 +519,7 @@ class TargetNode:
         observer = self.observer
         step_model = self.model.step if observer is None else (lambda *values: observer.step(values))
         observed = []
+        daq: list[bytes] = []
         for step_inputs in inputs:
             started = self.clock_ns()
             self.estimate = step_model(*step_inputs)
@@ -505,6 +531,7 @@ class TargetNode:
                 self.overruns += 1
                 self.faults |= FaultBit.OVERRUN
             timing.append(elapsed)
+            daq += self.xcp.event(EVENT_MODEL_STEP)     # sampled right after its step, sent after its replies
         out += self._temperature_frames(step)
         self.last_reply_row = row
         for index, elapsed in enumerate(timing):
@@ -513,7 +540,7 @@ class TargetNode:
                 out += observed[index]
         if timing and self.model_steps % CHECKPOINT_EVERY_STEPS == 0:
             out += self._checkpoint_frames(step)
-        return out
+        return out + self._xcp_packets(daq)
 
     # ------------------------------------------------------------------ reporting
     def stats(self) -> dict:
@@ -523,7 +550,7 @@ class TargetNode:
                 "model_steps": self.model_steps, "overruns": self.overruns, "last_error": self.last_error,
                 "model_id": self.artifact.model_id, "engine": self.engine, "est_cycles": self.cost.cycles,
                 "m4_cycles": None, "flash_bytes": self.memory.flash_bytes, "ram_bytes": self.memory.ram_bytes,
-                "memory": "C28x estimate"}
+                "memory": "C28x estimate", "xcp": self.xcp.stats()}
 
 
 def target_on_channel(bus: can.BusABC, listen_s: float = IN_USE_LISTEN_S) -> tuple[int, int | None] | None:
@@ -550,7 +577,7 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
     With `reply_faults` the replies go out through the fault layer (`target_sim.faults`); the heartbeat period
     is the DBC's unless given."""
     heartbeat_period_s = heartbeat_period_s or heartbeat_period_s_of_dbc()
-    own = OwnFrameFilter(target_frame_ids())
+    own = OwnFrameFilter(target_frame_ids() | {xcp_res_id()})   # the XCP slave's packets loop back too
     foreign = reply_faults.foreign_ids if reply_faults is not None else set()
     send_failures = 0
 

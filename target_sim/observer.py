@@ -499,6 +499,18 @@ class Float32Observer:
         self.flag_after = None if gate is None else gate[1]
         self.clear_gate()
 
+    def set_process_noise(self, index: int, value: float) -> None:
+        """Calibrate Q's diagonal element `index` (node coordinates; XCP DOWNLOAD): the next prediction adds it,
+        and a RESET keeps it. An element that is 0 stays 0 (no column of G carries it: the filter's structure)."""
+        if float(self.q_nodes[index]) == 0.0 or self.form == "steady":
+            raise ObserverError(f"Q[{index},{index}] is not calibratable in this {self.form} filter")
+        value = self.f(value)
+        self.q_nodes = self.q_nodes.copy()     # the artifact's array is shared: never written in place
+        self.q_nodes[index] = value
+        self.q[index, index] = value           # the conventional and Joseph forms add this very matrix
+        if isinstance(self.cov, BiermanThornton):
+            self.cov.q_kept[list(self.cov.g_columns).index(index)] = value
+
     def clear_gate(self) -> None:
         """No reading rejected yet, no sensor flagged (a reset, and so a restore: the counts start again, in C too)."""
         count = len(self.measurements)
@@ -750,6 +762,7 @@ class ObserverRun:
     filter_covariances: np.ndarray | None = None      # on request: the filter's own P' (node coordinates)
     rejected: np.ndarray | None = None                # per step and measurement: the gate rejected its reading
     flagged: np.ndarray | None = None                 # per measurement: its sensor was flagged (latched)
+    flagged_steps: np.ndarray | None = None           # per step and measurement: its sensor flagged after the step
 
 
 def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement: np.ndarray,
@@ -770,7 +783,7 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
                          f"not {drive.shape} and {measurement.shape}")
     rows = np.column_stack([drive, measurement])
     acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width + channels)
-    steps, outputs, innovations, covariances, sigmas, own, rejected = [], [], [], [], [], [], []
+    steps, outputs, innovations, covariances, sigmas, own, rejected, flagged = [], [], [], [], [], [], [], []
     for row, sample in enumerate(rows):
         means = acc.add(row, sample)
         if means is None:
@@ -778,6 +791,7 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
         outputs.append(obs.step(*means[:width], z=means[width:]))
         innovations.append(obs.innovations.copy())
         rejected.append(obs.rejected.copy())
+        flagged.append(obs.flagged.copy())
         sigmas.append(obs.sigma())
         if keep_covariance:
             covariances.append(np.array(obs.covariance(), dtype=np.float64))
@@ -787,4 +801,5 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
     return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4), every[:, 0],
                        np.array(covariances) if keep_covariance else None,
                        np.array(sigmas).reshape(-1, 4), every, np.array(own) if keep_covariance else None,
-                       np.array(rejected, dtype=bool).reshape(-1, len(obs.measurements)), obs.flagged.copy())
+                       np.array(rejected, dtype=bool).reshape(-1, len(obs.measurements)), obs.flagged.copy(),
+                       np.array(flagged, dtype=bool).reshape(-1, len(obs.measurements)))

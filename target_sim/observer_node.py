@@ -31,10 +31,13 @@ import numpy as np
 
 from dbc.contract import (
     CHANNEL_NAMES,
+    FLAG_MESSAGE,
+    FLAGGED_SIGNALS,
     INNOVATION_MESSAGE,
     INNOVATION_SIGNALS,
     MEASUREMENT_CHANNELS,
     MEASUREMENT_SLOTS,
+    REJECTED_SIGNALS,
     ROW_CHANNELS,
     SIGMA_SIGNALS,
     measurement_messages,
@@ -213,20 +216,32 @@ class NodeObserver:
         """{slot: innovation} of the last step, NaN where a measurement was not used."""
         return {slot: float(value) for slot, value in zip(self.slots, self.filter.innovations, strict=True)}
 
+    def gate_status(self) -> dict[str, tuple[bool, bool]]:
+        """{slot: (its reading rejected by the innovation gate in the last step, its sensor flagged)}; both False
+        without a gate."""
+        f = self.filter
+        return {slot: (bool(f.rejected[i]), bool(f.flagged[i])) for i, slot in enumerate(self.slots)}
+
 
 def observer_signals(sigma: Sequence[float], innovations: dict[str, float],
-                     sigma_limits: tuple[float, float], innovation_limits: tuple[float, float]) -> dict[str, dict]:
+                     sigma_limits: tuple[float, float], innovation_limits: tuple[float, float],
+                     gate: Mapping[str, tuple[bool, bool]] | None = None) -> dict[str, dict]:
     """{message: {signal: value}} of Uncertainty1, Uncertainty2 and Innovations (without Step), values clamped to
-    what the DBC carries (a non-finite sigma as its largest value)."""
+    what the DBC carries (a non-finite sigma as its largest value); `gate` {slot: (rejected, flagged)}
+    (`NodeObserver.gate_status`; a slot without it: 0, 0)."""
     out: dict[str, dict] = {}
     for message, signals in SIGMA_SIGNALS.items():
         out[message] = {signal: _clamp(float(sigma[index]), sigma_limits) for signal, index in signals}
+    gate = gate or {}
+    out[FLAG_MESSAGE].update({signal: int(gate.get(slot, (False, False))[1])
+                              for slot, signal in FLAGGED_SIGNALS.items()})
     values = {}
     for name, (value_signal, used_signal) in INNOVATION_SIGNALS.items():
         innovation = innovations.get(name, float("nan"))
         used = bool(np.isfinite(innovation))
         values[value_signal] = _clamp(innovation, innovation_limits) if used else 0.0
         values[used_signal] = int(used)
+        values[REJECTED_SIGNALS[name]] = int(gate.get(name, (False, False))[0])
     out[INNOVATION_MESSAGE] = values
     return out
 

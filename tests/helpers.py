@@ -105,6 +105,41 @@ def subprocess_env(*, can_settings: bool = True, **extra: str) -> dict[str, str]
     return env
 
 
+def wait_for(predicate, timeout: float, poll_s: float = 0.05) -> bool:
+    """Poll `predicate` until it holds or `timeout` seconds passed; its last value."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll_s)
+    return bool(predicate())
+
+
+def alive(pid: int) -> bool:
+    """Process `pid` exists and is not a zombie (one waiting for its adopter to reap it has ended)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state not in ("Z", "X")
+
+
+def processes_of(marker: str, exclude: tuple[int, ...] = ()) -> dict[int, str]:
+    """Live processes (not this one) whose command line holds `marker`: pid -> command line, words joined by
+    spaces (from /proc/*/cmdline)."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) in (os.getpid(), *exclude):
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if marker in argv and alive(int(entry.name)):
+            found[int(entry.name)] = argv
+    return found
+
+
 # run_cli's `-m bench` and `-m target_sim` as plain subprocesses (`sys.executable -m ...`), not forked, when "1"
 SUBPROCESS_ENV = "BENCH_TESTS_SUBPROCESS"
 FORKED_MODULES = ("bench", "target_sim")

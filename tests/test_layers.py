@@ -160,6 +160,17 @@ def test_subcommands_do_not_import_each_other(graph):
             and m not in shared for t in edges if t.startswith("bench.commands.") and t not in shared] == []
 
 
+def test_a_subcommand_named_as_a_part_of_bench_is_its_adapter(graph):
+    """`bench/commands/X.py` is `bench X`; where a part `bench/X/` does the work (run, campaign, robustness, ...) the
+    module bears its name because it is only that part's command line: it imports the part, never the reverse."""
+    parts = {m for m in graph if m.count(".") == 1 and (ROOT / Path(*m.split("."))).is_dir()}
+    named = {f"bench.{m.rsplit('.', 1)[1]}": m for m in graph if m.startswith("bench.commands.")}
+    pairs = {part: command for part, command in named.items() if part in parts}
+    assert {"bench.run", "bench.campaign"} <= set(pairs)
+    assert [f"{c} does not import {p}" for p, c in sorted(pairs.items())
+            if not any(t == p or t.startswith(p + ".") for t in graph[c])] == []
+
+
 def test_the_nodes_stand_on_dbc(graph):
     """The layering is not vacuous: both nodes use the link layer, and bench uses both nodes."""
     used = {package: {t.split(".")[0] for m, edges in graph.items() if m.split(".")[0] == package for t in edges}

@@ -1,6 +1,7 @@
 """The acceptance options of `bench run`, `bench host`, `bench analyze` and `bench replay`: --criteria FILE,
 --baseline FILE and --junit-xml FILE, read and checked before any work (`prepare`), and the end of such a
-command (`finish`): the JUnit XML written, the failed criteria named in one sentence, the exit status."""
+command (`finish`; `finish_run` for a run's summary): the JUnit XML written, the failed criteria named in one
+sentence, the exit status."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from pathlib import Path
 
 from bench.acceptance.criteria import Gate, load_gate
 from bench.acceptance.junit import CleanCase, write_junit
-from bench.analysis.results import Acceptance
+from bench.analysis.results import Acceptance, RunSummary
 from bench.fileio import check_writable
 from bench.run.request import RUN, add_options
 
@@ -61,6 +62,20 @@ def finish(acceptor: Acceptor, acceptance: Acceptance | None, *, command: str, s
     if not quiet:
         print(f"bench: {acceptance.sentence(subject)}", file=sys.stderr)
     return status
+
+
+def finish_run(acceptor: Acceptor, summary: RunSummary, *, command: str, subject: str, status: int, bus: str,
+               model_id: str, quiet: bool) -> int:
+    """`finish` for a run (`bench run`, `bench host`): its summary's criteria, verdict, log and report; `status`:
+    the verdict's exit status, `bus`: the bus as the run describes it."""
+    metrics = summary.metrics
+    log = metrics.integrity.log if metrics is not None else summary.log_path
+    report = metrics.report if metrics is not None else None
+    return finish(acceptor, summary.acceptance, command=command, subject=subject, status=status,
+                  clean=CleanCase(status == 0, summary.verdict, tuple(summary.problems)),
+                  elapsed_s=summary.elapsed_s, quiet=quiet,
+                  properties={"model": model_id, "engine": summary.engine, "bus": bus, "log": log, "report": report},
+                  attachments=[log, report])
 
 
 def junit_after_error(args: argparse.Namespace | None, sentence: str, elapsed_s: float) -> None:

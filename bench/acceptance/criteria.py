@@ -24,7 +24,7 @@ from typing import Any
 from bench.acceptance.kinds import KINDS, NODES, Criterion, Subject, number
 from bench.analysis.results import Acceptance, CheckResult, DataIdentity, ResultsError, RunResults
 from bench.errors import UsageError
-from bench.tomlspec import read_spec, spec_tables
+from bench.tomlspec import TableSpec, read_spec, spec_tables, string
 
 UNKNOWN_KEY = 'has an unknown key {key!r}; it holds [criteria.NAME] tables and an optional baseline = "FILE"'
 DEFAULT_REGRESSION = Criterion("regression", "regression", 5.0, {"figure": "rmse", "nodes": NODES, "floor": 0.01})
@@ -52,21 +52,20 @@ def parse_criterion(name: str, table: Any, where: str) -> Criterion:
     if not isinstance(kind_name, str) or kind_name not in KINDS:
         raise CriteriaError(f"{at} kind {kind_name!r} is not a kind of criterion; use one of {', '.join(KINDS)}")
     kind = KINDS[kind_name]
-    allowed = ("kind", kind.limit_key, *kind.options)
-    unknown = [k for k in table if k not in allowed]
-    if unknown:
-        raise CriteriaError(f"{at} has an unknown key {unknown[0]!r}; a {kind_name} criterion takes "
-                            f"{', '.join(allowed[1:])}")
     if kind.limit_key not in table:
         raise CriteriaError(f"{at} has no limit; give {kind.limit_key} = NUMBER ({kind.summary})")
-    try:
-        limit = number(table[kind.limit_key])
-    except ValueError as exc:
-        raise CriteriaError(f"{at} {kind.limit_key} {exc}") from None
+    keys = {"kind": string, kind.limit_key: number, **kind.options}
+    values = TableSpec(f"[criteria.{name}]", keys,
+                       advice=f"a {kind_name} criterion takes {', '.join(list(keys)[1:])}").read(table, where,
+                                                                                                   CriteriaError)
+    limit = values.pop(kind.limit_key)
     params = {}
-    for key, parse in kind.options.items():
+    for key, parse in kind.options.items():    # an option left out takes the kind's default, checked alike
+        if key in values:
+            params[key] = values[key]
+            continue
         try:
-            params[key] = parse(table.get(key, kind.defaults.get(key)))
+            params[key] = parse(kind.defaults.get(key))
         except ValueError as exc:
             raise CriteriaError(f"{at} {key} {exc}") from None
     return Criterion(name, kind_name, limit, params)

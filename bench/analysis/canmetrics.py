@@ -102,6 +102,7 @@ class References:
     sigma: np.ndarray | None = None           # (steps, 4) an observer's 1-sigma per node, from the target's frames
     rejected: np.ndarray | None = None        # (steps, measurements) the observer's gate rejected the reading
     flagged: np.ndarray | None = None         # (measurements,) the gate flagged the sensor (in a row, latched)
+    flagged_steps: np.ndarray | None = None   # (steps, measurements) ... flagged after each step
 
 
 def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int, initial, stop_row: int, *,
@@ -228,12 +229,12 @@ def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None
                measured: np.ndarray | None = None) -> References:
     """The offline float32 and float64 references; for a model with an observer the observer's (the target's own
     code in float32, and in float64) on `measured`, with the open loop's float32 run beside (`open_loop`)."""
-    open_loop = rejected = flagged = None
+    open_loop = rejected = flagged = flagged_steps = None
     if has_observer(artifact):
         z = np.full((len(drive), len(raw_sources(artifact))), np.nan) if measured is None else measured
         run = run_observer_offline(artifact, drive, z, initial)
         step_rows, f32 = run.rows, run.outputs
-        rejected, flagged = run.rejected, run.flagged
+        rejected, flagged, flagged_steps = run.rejected, run.flagged, run.flagged_steps
         f64 = run_observer_offline(artifact, drive, z, initial, dtype=np.float64).outputs.astype(np.float64)
         open_loop = run_offline(artifact, drive, initial)[1].astype(np.float64)
     else:
@@ -247,7 +248,8 @@ def references(artifact: ModelArtifact, drive: np.ndarray, initial, dataset=None
         pm = np.interp(step_time, dataset.time_s, dataset.pm_C)
     return References(step_rows[:steps], step_time, f32[:steps].astype(np.float64), f64[:steps], winding, pm,
                       open_loop=None if open_loop is None else open_loop[:steps],
-                      rejected=None if rejected is None else rejected[:steps], flagged=flagged)
+                      rejected=None if rejected is None else rejected[:steps], flagged=flagged,
+                      flagged_steps=None if flagged_steps is None else flagged_steps[:steps])
 
 
 def _rmse(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -341,7 +343,9 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         clean = _clean_estimates(refs, record.rows, record.initial)   # the clean run's estimate after each row
         # a faulted Measurements frame may have been refused by the target's alive-counter check, which the log's
         # host frames do not undergo: only the twin knows which measurements the filter got
-        use_twin = bool(lost_rows or (measured is not None and measurement_faults(record)))
+        # and a calibration over XCP (a DOWNLOAD in the log) changed the target from that frame on: the twin replays
+        # the logged XCP commands in their place, the clean references cannot
+        use_twin = bool(lost_rows or (measured is not None and measurement_faults(record)) or record.xcp_downloads)
         if use_twin:
             final_ref, agreement = twin_agreement(artifact, record)
         else:
@@ -443,7 +447,9 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
             foreign_frames=record.foreign, contested_rows=int(np.count_nonzero(record.contested)),
             target_faults_seen=_fault_names(record.faults_seen), frames_in_log=record.frames,
             log_complete=record.complete, log_stopped=record.stopped, log_unclosed=record.unclosed,
-            last_row=record.rows - 1, log=str(record.path)),
+            last_row=record.rows - 1, log=str(record.path), rejected_host_frames=record.rejected_host,
+            restores_not_from_target=[[s.start_row, s.checkpoint] for s in record.segments
+                                      if s.checkpoint is not None]),
         faults=fault_metrics(record),
         bus_load=bus_load(record, record.frame_data, artifact.data_sample_period, bitrate),
         figure_rows=selection.counts,

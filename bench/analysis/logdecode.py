@@ -30,7 +30,10 @@ the new segment).
 The host's checks: every frame the target sends goes through the host's own `dbc.FrameValidator("HOST")` in log
 order (id, length, CRC, range, and the alive counter per id, forgotten at each TARGET-LOST mark as the host does),
 so a frame the host rejected is never used, whatever it carries; its kind is counted in `invalid` and its message
-in `rejected`. Frames that pass those checks and still do not belong to this session are *foreign*, counted by
+in `rejected`. XCP frames (the two ids of `dbc/xcp.toml`, a calibration master's traffic) count in the bus load
+and are otherwise left alone, as the host leaves them; a log with an XCP DOWNLOAD (a calibration during the run,
+`xcp_downloads`) is judged against the target's twin, which replays the commands in their place. Frames that
+pass those checks and still do not belong to this session are *foreign*, counted by
 reason in `foreign` and never used: a Status of another model id than the session's first, a reply or timing
 frame for a row the host had not sent in its segment, and a second reply for a row that carries other
 temperatures than the first. So is a reply frame that repeats the alive counter of the one before it for the same
@@ -40,7 +43,21 @@ the counter check rejected (a replayed frame: its alive counter is out of sequen
 answered, with other temperatures than that answer, makes the row *replayed* (`BusRecord.replayed`): the host used
 the frame in sequence, but the row had two answers. Contested and replayed rows are flagged as not the target's
 own answer; `bench.analysis.rowfilter` keeps them out of every figure. The host's own frames (DriveInputs,
-DriveTemps, ...) are checked for id, length, CRC and range.
+DriveTemps, ...) are checked for id, length, CRC and range; its measurement frames (Measurements, DriveVoltages)
+also for their alive counter, as the target checks them (`dbc.FrameValidator("TARGET")`, forgotten at each STOP and
+TARGET-LOST mark, as a stopped or restarted target forgets it): one the target refuses (a replayed or lost frame) is
+counted (`invalid`, and by message in `rejected_host`) and its readings are not the row's, as they were not the
+target's.
+
+Checkpoints: the target's StateCheckpoint and ObserverCheckpoint frames are kept as the host's checks accept them,
+by the Step they name (`checkpoints`). Like a reply, a checkpoint frame that repeats the alive counter of the one
+before it and is not a copy of it (rejected by the counter check), or a second accepted frame of an element with
+another value in the same run of the target, makes the
+checkpoints of both frames *contested* (counted foreign): one of them is not the target's (a forged or replayed
+frame). A RESTORE is compared with them: its RestoreState state vector must be a checkpoint the target sent, not
+contested, and its RestoreObserver elements that checkpoint's ObserverCheckpoint, bit for bit; a segment restored
+otherwise starts from a state the target never had (`Segment.checkpoint`: "forged" or "contested"), and
+`bench.analysis.rowfilter` keeps its rows out of every figure.
 
 Complete: a run's log ends with the host's Control STOP; one without it after the last session's START (a killed
 run, a partial file) is `complete = False`, and so is a .blf whose header was never finalized by its writer.
@@ -66,8 +83,12 @@ from dbc.contract import (
     CURRENT_SIGNALS,
     DRIVE_SIGNALS,
     FIRMWARE_TIMING_MESSAGE,
+    FLAG_MESSAGE,
+    FLAGGED_SIGNALS,
     INNOVATION_MESSAGE,
     MEASUREMENT_MESSAGES,
+    OBSERVER_CHECKPOINT_MESSAGE,
+    REJECTED_SIGNALS,
     REPLY_BIT,
     REPLY_COMPLETE,
     REPLY_SIGNALS,
@@ -87,12 +108,19 @@ from dbc.contract import (
     target_info,
 )
 from dbc.database import contract, frame_id, target_frame_ids
+from dbc.xcp import cmd_id, xcp_ids
 from host.canlog import LogError, read_log
+from target_sim.xcp.codes import Cmd
 
 # why a frame that passed the host's checks is not used (BusRecord.foreign)
 FOREIGN_MODEL = "Status of another model id"
 FOREIGN_ROW = "reply or timing for a row not sent"
 FOREIGN_CONTESTED = "second reply with other temperatures"
+FOREIGN_CHECKPOINT = "checkpoint frame contested"
+CHECKPOINT_MESSAGES = ("StateCheckpoint", OBSERVER_CHECKPOINT_MESSAGE)
+# why a segment's restore is not the target's own checkpoint (Segment.checkpoint)
+RESTORE_FORGED = "forged"          # the echoed state (or filter) is no checkpoint the target sent
+RESTORE_CONTESTED = "contested"    # it is one, but a frame of it was contested
 
 
 @dataclass
@@ -104,6 +132,7 @@ class Segment:
     recovery: bool = False                  # started by a re-initialization (REINIT)
     state: np.ndarray | None = None         # float32 state vector of a RESTORE (then `initial` is None)
     observer_checkpoint: dict | None = None  # a RESTORE's RestoreObserver elements {Index: value} (DBC 1.7.0)
+    checkpoint: str | None = None           # a RESTORE not from the target's own checkpoint: forged, contested
     reply_rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     reply_temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     reply_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -127,6 +156,7 @@ class BusRecord:
     frames: int = 0
     invalid: dict[str, int] = field(default_factory=dict)      # frames that failed the checks, by kind
     rejected: dict[str, int] = field(default_factory=dict)     # the target's frames the host's checks reject
+    rejected_host: dict[str, int] = field(default_factory=dict)  # the host's measurement frames the target refuses
     foreign: dict[str, int] = field(default_factory=dict)      # frames that passed them but are not of this session
     initial: np.ndarray | None = None            # [yoke, winding, tooth, magnet] of the session's first RESET
     drive: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))   # (rows, 4), or 6 with the d/q currents
@@ -135,6 +165,7 @@ class BusRecord:
     # passed the checks (0: the host sent none)
     measurements: np.ndarray = field(default_factory=lambda: np.zeros((0, len(CHANNEL_NAMES))))
     measurement_frames: int = 0
+    xcp_downloads: int = 0        # XCP DOWNLOAD commands in the log: calibrations the twin replays
     sent_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     temps: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     replied_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -142,12 +173,14 @@ class BusRecord:
     contested: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # rows whose replies disagree
     replayed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))   # a rejected reply disagrees
     timing: dict[str, np.ndarray] = field(default_factory=dict)   # row, measured_us, overruns, cycles, ...
-    # per model step of an observer (Uncertainty1/2, Innovations): row_u1, winding_sigma, ..., row_inn, sensor_used
+    # per model step of an observer (Uncertainty1/2, Innovations): row_u1, winding_sigma, ..., sensor_flagged, ...,
+    # row_inn, sensor_used, ..., sensor_rejected (DBC 1.8.0)
     observer: dict[str, np.ndarray] = field(default_factory=dict)
     status_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     final_state: str | None = None
     faults_seen: int = 0
     model_id: int | None = None
+    target_dbc: tuple[int, int] | None = None   # (major, minor) of the DBC the target was built against (Status)
     rx_errors: dict[str, int] = field(default_factory=dict)
     target_info: dict[str, object] = field(default_factory=dict)
     frame_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -211,11 +244,13 @@ class _Grow:
 class _SegmentBuilder:
     """One segment's replies, by row - start_row, in columns."""
 
-    def __init__(self, start_row: int, initial, recovery: bool, state=None, observer_checkpoint=None):
+    def __init__(self, start_row: int, initial, recovery: bool, state=None, observer_checkpoint=None,
+                 checkpoint: str | None = None):
         self.start_row = start_row
         self.initial = initial
         self.state = state
         self.observer_checkpoint = observer_checkpoint
+        self.checkpoint = checkpoint
         self.recovery = recovery
         self.host_row = start_row - 1          # the last row sent in this segment
         self.temps = _Grow((STATE_SIZE,))
@@ -242,7 +277,7 @@ class _SegmentBuilder:
         got, contested = self.got.data[:n], self.contested.data[:n]
         complete = np.flatnonzero((got == REPLY_COMPLETE) & ~contested)
         return Segment(self.start_row, self.initial, self.recovery, self.state, self.observer_checkpoint,
-                       reply_rows=(complete + self.start_row).astype(np.int64),
+                       checkpoint=self.checkpoint, reply_rows=(complete + self.start_row).astype(np.int64),
                        reply_temps=self.temps.data[complete].astype(float),
                        reply_s=self.t.data[complete].copy(),
                        contested_rows=(np.flatnonzero(contested) + self.start_row).astype(np.int64))
@@ -262,6 +297,10 @@ _OBSERVER_SIGNALS = {"Uncertainty1": ("row_u1", (("winding_sigma", "WindingSigma
                                                       ("sensor_used", "SensorUsed"),
                                                       ("flux_innovation", "FluxMagnetInnovation"),
                                                       ("flux_used", "FluxMagnetUsed")))}
+# DBC 1.8.0: each slot's innovation gate, `<slot>_rejected` per step (Innovations) and `<slot>_flagged` (latched)
+for _message, _gate in ((INNOVATION_MESSAGE, {f"{slot}_rejected": s for slot, s in REJECTED_SIGNALS.items()}),
+                        (FLAG_MESSAGE, {f"{slot}_flagged": s for slot, s in FLAGGED_SIGNALS.items()})):
+    _OBSERVER_SIGNALS[_message] = (_OBSERVER_SIGNALS[_message][0], (*_OBSERVER_SIGNALS[_message][1], *_gate.items()))
 _STEP_SERIES = {**_TIMING_SIGNALS, **_OBSERVER_SIGNALS}
 # BLF file header (python-can's FILE_HEADER_STRUCT): "LOGG", then at byte 16 the file size its writer records
 # when it closes the file (until then: the header's own size, 144)
@@ -276,7 +315,19 @@ class _LogDecoder:
         self.invalid: dict[str, int] = {}
         self.rejected: dict[str, int] = {}
         self.foreign: dict[str, int] = {}
+        self.xcp_ids, self.xcp_cmd_id = xcp_ids(), cmd_id()
         self.validator = FrameValidator("HOST")      # the host's checks of what the target sends
+        self.target_checks = FrameValidator("TARGET")   # the target's checks of the host's measurement frames
+        self.measurement_ids = {frame_id(name) for name in MEASUREMENT_MESSAGES}
+        self.rejected_host: dict[str, int] = {}
+        # the target's checkpoint frames as accepted: (message, target run, Step) -> {index: float32 bits}; contested
+        # ones; the (message, key) of the last accepted frame per id
+        self.checkpoints: dict[tuple[str, int, int], dict[int, int]] = {}
+        self.contested_checkpoints: set[tuple[str, int, int]] = set()
+        self.last_checkpoint_key: dict[int, tuple[str, int, int]] = {}
+        self.last_checkpoint_data: dict[int, bytes] = {}
+        self.pending_checkpoint: str | None = None
+        self.last_state_checkpoint: int | None = None   # the Step of the last StateCheckpoint frame accepted
         self.last_reply_row: dict[int, int] = {}    # per reply id, the row of the last reply frame used
         # reply frames the counter check rejected: (segment index, row, message, signals), judged at the end
         self.out_of_sequence: list[tuple[int, int, str, dict]] = []
@@ -317,6 +368,7 @@ class _LogDecoder:
                          **dict.fromkeys(_STEP_SERIES, self.timing_frame),
                          **dict.fromkeys(RESET_SIGNALS, self.reset_temps),
                          "RestoreState": self.restore_state, "Control": self.control,
+                         **dict.fromkeys(CHECKPOINT_MESSAGES, self.checkpoint),
                          "BenchEvent": self.bench_event, "Status": self.status, "RxErrors": self.rx_errors,
                          "TargetInfo": self.target_info}
 
@@ -351,15 +403,26 @@ class _LogDecoder:
         self.frame_dlc.append(min(msg.dlc, 255))
         self.frame_ids.append(fid)
         self.frame_bytes += bytes(msg.data[:8]).ljust(8, b"\0")
+        if fid in self.xcp_ids and not msg.is_extended_id:
+            # a calibration master's XCP traffic (dbc/xcp.toml): bus load, not a frame of the contract; a DOWNLOAD
+            # may calibrate the target, so the run is judged against its twin, which replays it
+            if fid == self.xcp_cmd_id and msg.data[:1] == bytes((Cmd.DOWNLOAD,)):
+                self.record.xcp_downloads += 1
+            return
         from_target = fid in self.target_ids and not msg.is_extended_id
         previous = self.validator.last_counter(fid) if from_target else None
+        measured = fid in self.measurement_ids and not msg.is_extended_id
         try:
             if from_target:
                 frame = self.validator.validate(msg)     # what the host accepted of the target's frames
+            elif measured:
+                frame = self.target_checks.validate(msg)   # a measurement frame, as the target accepted it
             else:
                 frame = decode_any(msg)                  # the host's own frames (and unknown ids)
         except FrameError as exc:
             self._count(self.invalid, exc.kind)
+            if measured and exc.kind != "unknown_id":
+                self._count(self.rejected_host, self.by_id[fid].name)
             if from_target:
                 name = self.by_id[fid].name
                 self._count(self.rejected, name)
@@ -369,7 +432,12 @@ class _LogDecoder:
                     if msg.data[1] & 0x0F == previous:
                         self._contest(name, signals, self.last_reply_row.get(fid))
                     self._keep_out_of_sequence(name, signals)
+                elif exc.kind == "counter" and name in CHECKPOINT_MESSAGES and msg.data[1] & 0x0F == previous \
+                        and bytes(msg.data) != self.last_checkpoint_data.get(fid):   # a copy of it is harmless
+                    self._contest_checkpoint(fid, name, decode_any(msg).signals)
             return
+        if frame.name in CHECKPOINT_MESSAGES:
+            self.last_checkpoint_data[fid] = bytes(msg.data)
         handler = self.handlers.get(frame.name)
         if handler is not None:
             handler(frame.name, frame.signals, msg.timestamp)
@@ -488,6 +556,60 @@ class _LogDecoder:
         for key, signal in signals:
             self.timing[key].append(s[signal])
 
+    def _checkpoint_element(self, name: str, s: dict) -> tuple[tuple[str, int, int], int, int]:
+        """(its checkpoint's key, the element's index, its value's float32 bits) of a checkpoint frame: the
+        target's run that sent it (its transitions into RUNNING: a restored target checkpoints the same Steps again,
+        from another state) and the Step it names; an ObserverCheckpoint's StepLow names the StateCheckpoint sent
+        right before it (another StepLow: a key no restore matches)."""
+        if name == OBSERVER_CHECKPOINT_MESSAGE:
+            low, index, value = int(s["StepLow"]), int(s["Index"]), s["Value"]
+            last = self.last_state_checkpoint
+            key = last if last is not None and last % CHECKPOINT_STEP_LOW_MODULO == low else -1 - low
+        else:
+            key, index, value = int(s["Step"]), int(s["StateIndex"]), s["StateValue"]
+        return (name, self.transitions, key), index, int(np.float32(value).view(np.uint32))
+
+    def checkpoint(self, name: str, s: dict, t: float) -> None:
+        """A checkpoint element the host's checks accepted; a second one of the element with another value
+        contests its checkpoint."""
+        key, index, bits = self._checkpoint_element(name, s)
+        elements = self.checkpoints.setdefault(key, {})
+        if elements.get(index, bits) != bits:
+            self.contested_checkpoints.add(key)
+            self._count(self.foreign, FOREIGN_CHECKPOINT)
+        elements[index] = bits
+        self.last_checkpoint_key[frame_id(name)] = key
+        if name != OBSERVER_CHECKPOINT_MESSAGE:
+            self.last_state_checkpoint = key[2]
+
+    def _contest_checkpoint(self, fid: int, name: str, s: dict) -> None:
+        """A checkpoint frame that repeats the alive counter of the one before it: one of the two is not the
+        target's, so neither checkpoint is believed."""
+        key, _, _ = self._checkpoint_element(name, s)
+        self.contested_checkpoints.add(key)
+        if fid in self.last_checkpoint_key:
+            self.contested_checkpoints.add(self.last_checkpoint_key[fid])
+        self._count(self.foreign, FOREIGN_CHECKPOINT)
+
+    def _restore_judged(self, state: np.ndarray, observer: dict[int, float]) -> str | None:
+        """Why a RESTORE of `state` (float32) with the filter's `observer` elements is not the target's own
+        checkpoint (RESTORE_FORGED, RESTORE_CONTESTED), None when it is."""
+        bits = [int(v) for v in np.asarray(state, dtype=np.float32).view(np.uint32)]
+        found = None
+        for key, elements in self.checkpoints.items():
+            if key[0] != "StateCheckpoint" or [elements.get(i) for i in range(STATE_SIZE)] != bits:
+                continue
+            filter_key = (OBSERVER_CHECKPOINT_MESSAGE, *key[1:])
+            sent = self.checkpoints.get(filter_key, {})
+            if any(sent.get(i) != int(np.float32(v).view(np.uint32)) for i, v in observer.items()):
+                continue
+            contested = {key, filter_key} & self.contested_checkpoints if observer else \
+                {key} & self.contested_checkpoints
+            if not contested:
+                return None
+            found = RESTORE_CONTESTED
+        return found or RESTORE_FORGED
+
     def reset_temps(self, name: str, s: dict, t: float) -> None:
         self.reset_frames[name] = s
 
@@ -512,12 +634,14 @@ class _LogDecoder:
                 low = int(s["Step"]) % CHECKPOINT_STEP_LOW_MODULO
                 self.pending_observer = {i: f["Value"] for i, f in self.restore_observer_frames.items()
                                          if f["StepLow"] == low}
+                self.pending_checkpoint = self._restore_judged(self.pending_state, self.pending_observer)
             self.restore_frames = {}
             self.restore_observer_frames = {}
         elif command == Command.START:
             self.start(int(s["Step"]))
         elif command == Command.STOP:
             self.record.stopped = True
+            self.target_checks.reset_counters()   # the target forgets the counters it expects at STOP
 
     def start(self, step: int) -> None:
         """A START: a new segment after a REINIT mark, else a fresh session (the last session of a log wins)."""
@@ -526,7 +650,8 @@ class _LogDecoder:
         if self.reinit_announced and self.segments:
             start = self._row(self.segments[-1], step)
             self.segments.append(_SegmentBuilder(start, self.pending_initial, True, self.pending_state,
-                                                 self.pending_observer))
+                                                 self.pending_observer,
+                                                 self.pending_checkpoint if self.pending_state is not None else None))
         else:
             self.base_step = step
             self.record.initial = self.pending_initial
@@ -549,6 +674,7 @@ class _LogDecoder:
             self.reinit_announced = True
         elif event == BenchEvent.TARGET_LOST:
             self.validator.reset_counters()      # so does the host: a restarted target starts its counters at 0
+            self.target_checks.reset_counters()  # and a restarted target knows none of the host's
 
     def status(self, name: str, s: dict, t: float) -> None:
         model_id = int(s["ModelId"])
@@ -564,6 +690,7 @@ class _LogDecoder:
         self.last_state = state
         self.record.final_state = TargetState(state).name
         self.record.faults_seen |= int(s["FaultBits"])
+        self.record.target_dbc = (int(s["DbcVersionMajor"]), int(s["DbcVersionMinor"]))
 
     def rx_errors(self, name: str, s: dict, t: float) -> None:
         self.record.rx_errors = rx_error_counts(s)
@@ -581,6 +708,7 @@ class _LogDecoder:
             raise LogError(f"log {path} holds no session (no Control START); is it a log of this bench?")
         rows = self.rows
         record.invalid, record.rejected, record.foreign = self.invalid, self.rejected, self.foreign
+        record.rejected_host = self.rejected_host
         drive = self.drive.ensure(rows)[:rows]
         currents = self.currents.ensure(rows)[:rows]
         with_currents = bool(np.isfinite(currents).any())

@@ -214,11 +214,19 @@ def observer_section(obs) -> list[str]:
              _row("largest 1-σ, target (°C)", obs.sigma_max_C, 3), "",
              f"RMS of the innovations the target reported: {_fmt(obs.innovation_rms_C)} °C. The RMSEs are against "
              "the measured temperatures (– where the data has none).", ""]
-    gated = [(slot, m) for slot, m in obs.measurements.items() if m.readings_rejected or m.sensor_flagged]
-    for slot, m in gated:      # the innovation gate (the target's float32 code offline, bit for bit)
+    gated = [(slot, m) for slot, m in obs.measurements.items()
+             if m.readings_rejected or m.sensor_flagged or m.gate_steps_differing]
+    for slot, m in gated:      # the innovation gate: the target's flags on the bus, checked against its code offline
         flag = " — **the sensor was flagged**: its readings stayed rejected" if m.sensor_flagged else ""
+        source = ("as the target reported on the bus" if m.gate_source == "bus" else
+                  "by the target's float32 code offline (its DBC carries no gate flags)")
+        check = (f" The bus agrees with the target's float32 code offline at all {m.gate_steps_compared} model steps "
+                 "compared." if m.gate_steps_compared and not m.gate_steps_differing else
+                 f" **The bus differs from the target's float32 code offline at {m.gate_steps_differing} of "
+                 f"{m.gate_steps_compared} model steps** (offline: {m.readings_rejected_float32} rejected)."
+                 if m.gate_steps_differing else "")
         lines += [f"The innovation gate rejected {m.readings_rejected} readings of {m.sensor} ({slot}) as too far "
-                  f"from the prediction: those steps predicted only{flag}.", ""]
+                  f"from the prediction, {source}: those steps predicted only{flag}.{check}", ""]
     if len(obs.measurements) > 1:     # several measurements per row: each one's share
         lines += ["| measurement (slot) | node it sees | rows with a valid reading | model steps that used it | "
                   "innovation RMS (°C) |", "|---|---|---|---|---|"]
@@ -307,6 +315,10 @@ def render_markdown(metrics: RunResults, found: list[str], dataset, run_info: di
               f"{_listed(log.invalid_frames_in_log)} |",
               f"| ... of them the target's, by message (none of their values is used) | "
               f"{_listed(log.rejected_target_frames)} |",
+              f"| ... of them the host's measurement frames the target's checks refuse (their readings unused) | "
+              f"{_listed(log.rejected_host_frames)} |",
+              f"| restores not from a checkpoint the target sent (start row, why) | "
+              f"{', '.join(f'{row} {why}' for row, why in log.restores_not_from_target) or 'none'} |",
               f"| frames that pass those checks but are not of this session (not used) | "
               f"{_listed(log.foreign_frames)} |",
               f"| rows with two different replies (not reported) | {log.contested_rows} |",

@@ -248,6 +248,7 @@ class Agreement:
 
 
 REASON_WORDS = {"contested": "contested", "replayed": "replayed",
+                "restored_not_from_target": "restored from a checkpoint the target did not send",
                 "off_reference": "off the float32 reference"}
 
 
@@ -367,6 +368,10 @@ class Integrity:
     log_unclosed: bool
     last_row: int
     log: str
+    # the host's measurement frames the target's checks refuse, by message (a replayed or lost frame: the counter)
+    rejected_host_frames: dict[str, int] = field(default_factory=dict)
+    # segments restored from a state the target never sent or from a contested checkpoint: [start row, why]
+    restores_not_from_target: list[list] = field(default_factory=list)
 
 
 @dataclass
@@ -482,12 +487,20 @@ class SlotFigures:
     rows_measured: int              # rows whose measurement frames carried its channels VALID
     model_steps_updated: int        # model steps whose update used it (its Used flag)
     innovation_rms_C: float | None
-    # the innovation gate (the section's `gate`), from the target's own float32 code offline (which the CAN
-    # estimates are checked against): readings rejected (ν² > sigma² S: predicted only), whether its sensor was
-    # flagged (flag_after rejections in a row), and the sensor's name
+    # the innovation gate (the section's `gate`) as the target reported it on the bus (DBC 1.8.0: each step's
+    # Rejected flag in Innovations, the Flagged flag in Uncertainty1): readings rejected (ν² > sigma² S: predicted
+    # only), whether its sensor was flagged (flag_after rejections in a row), and the sensor's name; a log of an
+    # older target (DBC < 1.8) carries neither: then they are the offline float32 code's (`gate_source`)
     readings_rejected: int = 0
     sensor_flagged: bool = False
     sensor: str = ""
+    gate_source: str = "bus"                # "bus", or "offline float32" for a target of DBC < 1.8
+    # the same from the target's own float32 code offline, and the cross-check: the model steps compared (where
+    # CAN = that code, in the run's first segment) and those whose Rejected or Flagged flag differs (a finding)
+    readings_rejected_float32: int = 0
+    sensor_flagged_float32: bool = False
+    gate_steps_compared: int = 0
+    gate_steps_differing: int = 0
 
 
 @dataclass
@@ -632,8 +645,10 @@ def verdict_text(clean: bool, problems: list[str], injected: int = 0, undetected
 
 @dataclass
 class RunSummary(_Json):
-    """What `bench run --json` prints: the brief's numbers first (copies of `metrics`' own, kept at the top for a
-    script), then the verdict, the bus, the host's figures and the metrics."""
+    """What a run prints with `--json`, `bench run`'s and `bench host`'s alike: the brief's numbers first (copies of
+    `metrics`' own, kept at the top for a script), then the verdict, the bus, the host's figures (under "host", and
+    each at the top too, where `bench host` always had them) and the metrics. A run whose log holds no figures (it
+    ended before its first row) has no metrics, and none of the keys made of them."""
 
     engine: str | None
     firmware: str | None
@@ -642,14 +657,20 @@ class RunSummary(_Json):
     clean: bool
     faults: HostFaults | None
     host: dict[str, Any]          # `host.results.HostResult.to_dict()` (the host package's record), less the above
-    metrics: RunResults
+    metrics: RunResults | None
     elapsed_s: float
     node_cycles: NodeCycles | None = None
+    log_path: str | None = None   # the host's log (the metrics' own once the log is analyzed)
+    # the criteria judged on no figures (each fails, saying why); with metrics, they are the metrics' own
+    unjudged: Acceptance | None = field(default=None, metadata=OMIT_NONE)
+
+    @property
+    def acceptance(self) -> Acceptance | None:
+        return self.metrics.acceptance if self.metrics is not None else self.unjudged
 
     def to_json(self) -> dict[str, Any]:
         m = self.metrics
-        head = {
-            "engine": self.engine, "firmware": self.firmware,
+        figures = {} if m is None else {
             "steps_sent": m.counts.steps_sent, "replies": m.counts.replies, "missing": m.counts.missing,
             "max_abs_can_minus_float32_C": m.agreement.max_abs_can_minus_float32_C, "rmse_C": m.accuracy.rmse_C,
             "rmse_reference": m.accuracy.rmse_reference,   # what each node's RMSE is against
@@ -657,12 +678,20 @@ class RunSummary(_Json):
             "step_time_us": m.timing.step_time_us, "est_cycles": m.timing.est_cycles,
             "m4_cycles": m.timing.m4_cycles, "flash_bytes": m.memory.flash_bytes, "ram_bytes": m.memory.ram_bytes,
             "memory_source": m.memory.memory_source, "throughput_steps_per_s": m.throughput.throughput_steps_per_s,
-            "log": m.integrity.log, "report": m.report, "bus": self.bus, "problems": self.problems,
-            "notes": m.notes, "clean": self.clean, "verdict": self.verdict,
-            **({"acceptance": m.acceptance} if m.acceptance is not None else {}),
+            "log": m.integrity.log, "report": m.report}
+        head = {
+            "engine": self.engine, "firmware": self.firmware, **figures, "bus": self.bus, "problems": self.problems,
+            **({"notes": m.notes} if m is not None else {}), "clean": self.clean, "verdict": self.verdict,
+            **({"acceptance": self.acceptance} if self.acceptance is not None else {}),
             "faults": self.faults, "host": self.host}
-        return {SCHEMA_KEY: SCHEMA_VERSION, **_dump(head), "metrics": m.to_json(windows=False),
-                "elapsed_s": round(self.elapsed_s, 2), "node_cycles": _dump(self.node_cycles)}
+        out = {SCHEMA_KEY: SCHEMA_VERSION, **_dump(head)}
+        if m is not None:
+            out["metrics"] = m.to_json(windows=False)
+        out |= {"elapsed_s": round(self.elapsed_s, 2), "node_cycles": _dump(self.node_cycles)}
+        # the host's record at the top as well, each key where `bench host --json` always had it
+        flat = {**self.host, "log_path": self.log_path if self.log_path is not None else
+                (m.integrity.log if m is not None else None)}
+        return out | {k: _dump(v) for k, v in flat.items() if k not in out}
 
     @property
     def verdict(self) -> str:

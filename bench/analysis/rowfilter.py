@@ -6,6 +6,9 @@ clean run|, the round trip, the plots, a replay's comparison) and counted beside
 * `contested`: the row got a second reply with other temperatures (`bench.analysis.logdecode`);
 * `replayed`: a reply frame the host's counter check rejected carried other temperatures for the row than the
   answer that was used (`logdecode`): the row had two answers;
+* `restored_not_from_target`: the row's answer came from a segment whose RESTORE was not the target's own
+  checkpoint (a forged or contested StateCheckpoint/ObserverCheckpoint, `logdecode`): its estimate starts from a
+  state the target never had;
 * `off_reference`: the reply differs from what the target's own code answers, the float32 reference restarted as
   the target was (or the target's twin, when rows were lost on the bus), by more than the 0.005 °C quantization,
   where that reference is inside the DBC range: another run's reply or a forged value that carries valid counters
@@ -28,7 +31,18 @@ from dbc.database import temperature_range
 
 CONTESTED = "contested"
 REPLAYED = "replayed"
+RESTORED = "restored_not_from_target"
 OFF_REFERENCE = "off_reference"
+
+
+def restored_not_from_target(record: BusRecord) -> np.ndarray:
+    """(rows,) the rows whose answer came from a segment restored not from the target's own checkpoint."""
+    out = np.zeros(record.rows, dtype=bool)
+    owner = record.owner if len(record.owner) == record.rows else np.full(record.rows, -1)
+    for index, segment in enumerate(record.segments):
+        if segment.checkpoint is not None:
+            out |= owner == index
+    return out
 
 
 @dataclass
@@ -47,9 +61,11 @@ class RowSelection:
 def kept_rows(record: BusRecord, reference: np.ndarray | None = None, *, tolerance: float) -> RowSelection:
     """The rule: a row is kept when it was answered and no check flagged its answer. `reference` (rows, 4) is what
     the target's own code answers after each row (NaN: not known); without it only the log's own checks flag.
-    A row flagged for several reasons counts under the first of contested, replayed, off_reference."""
+    A row flagged for several reasons counts under the first of contested, replayed, restored_not_from_target,
+    off_reference."""
     answered = record.answered
-    flags = {CONTESTED: record.contested, REPLAYED: record.replayed & answered}
+    flags = {CONTESTED: record.contested, REPLAYED: record.replayed & answered,
+             RESTORED: answered & restored_not_from_target(record)}
     if reference is not None:
         low, high = temperature_range()
         with np.errstate(invalid="ignore"):

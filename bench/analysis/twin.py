@@ -5,7 +5,8 @@ from the rest, and so departs from the clean run; which rows it used depends on 
 CRC, sequence). The twin (`target_sim.node.TargetNode`, no bus, a fixed clock) receives exactly what the target
 received — every logged frame but the target's own (and the target's reply faults on foreign ids, which its fault
 layer filters) — and answers as the target must have, so "CAN = twin within the 0.01 °C quantization" checks the
-target's arithmetic and its handling of every faulty frame at once.
+target's arithmetic and its handling of every faulty frame at once. The logged XCP commands of a calibration master
+reach it too, in their place, so a run calibrated over XCP is checked against the twin calibrated the same way.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from dbc.codec import decode_any
 from dbc.contract import REPLY_SIGNALS, STATE_SIZE, nearest_row, place_temperatures
 from dbc.database import target_frame_ids
 from dbc.mutations import foreign_ids, reply_ids
+from dbc.xcp import res_id
 from target_sim.artifact import ModelArtifact
 from target_sim.node import TargetNode
 
@@ -26,7 +28,8 @@ def twin_estimates(artifact: ModelArtifact, record: BusRecord) -> np.ndarray:
     """(rows, 4) yoke, winding, tooth, magnet the twin answered after each row (its last answer; NaN: none)."""
     node = TargetNode(artifact, clock_ns=lambda: 0)
     out = np.full((record.rows, STATE_SIZE), np.nan)
-    not_received = target_frame_ids() | foreign_ids(REPLY_SIGNALS)  # its own frames, its reply faults' foreign ids
+    # its own frames (and its XCP replies), its reply faults' foreign ids; a master's XCP commands it replays
+    not_received = target_frame_ids() | {res_id()} | foreign_ids(REPLY_SIGNALS)
     replies = reply_ids()
     latest = 0
     for fid, dlc, data in zip(record.frame_ids.tolist(), record.frame_dlc.tolist(), record.frame_data, strict=True):

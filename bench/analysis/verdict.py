@@ -90,14 +90,20 @@ def problems(results: RunResults) -> list[str]:
 
 def gate_problems(results: RunResults) -> list[str]:
     """A sensor the observer's innovation gate flagged (its readings rejected many times in a row): one sentence
-    naming it, with its rejected readings."""
+    naming it, with its rejected readings; and a gate on the bus that is not the target's float32 code's."""
     observer = results.observer
     if observer is None:
         return []
-    return [f"the observer's innovation gate flagged the sensor {m.sensor} ({slot}): {m.readings_rejected} of its "
-            f"readings were rejected as too far from the model's prediction, so its estimate ran open loop there "
-            "(a sensor that lies or fails, or a model that no longer fits)"
-            for slot, m in observer.measurements.items() if m.sensor_flagged]
+    flagged = [f"the observer's innovation gate flagged the sensor {m.sensor} ({slot}): {m.readings_rejected} of "
+               f"its readings were rejected as too far from the model's prediction, so its estimate ran open loop "
+               "there (a sensor that lies or fails, or a model that no longer fits)"
+               for slot, m in observer.measurements.items() if m.sensor_flagged]
+    differing = [f"the target's innovation gate for {m.sensor} ({slot}) on the bus differs from its float32 code "
+                 f"offline at {m.gate_steps_differing} of {m.gate_steps_compared} model steps (bus: "
+                 f"{m.readings_rejected} readings rejected{', flagged' if m.sensor_flagged else ''}; offline: "
+                 f"{m.readings_rejected_float32}{', flagged' if m.sensor_flagged_float32 else ''})"
+                 for slot, m in observer.measurements.items() if m.gate_steps_differing]
+    return flagged + differing
 
 
 def integrity_problems(results: RunResults, *, injected: bool = False) -> list[str]:
@@ -133,6 +139,16 @@ def integrity_problems(results: RunResults, *, injected: bool = False) -> list[s
     if replayed:
         out.append(f"{replayed} rows got, in a frame the host's counter check rejected, other temperatures than the "
                    "answer used (a replayed frame): they are left out of every figure")
+    for start, why in log.restores_not_from_target:
+        restored = results.figure_rows.excluded.get("restored_not_from_target", 0)
+        what = ("a state the target never sent (a forged StateCheckpoint or ObserverCheckpoint)" if why == "forged"
+                else "a checkpoint one of whose frames was contested (a forged or replayed frame)")
+        out.append(f"the target was restored at row {start} from {what}: its estimate from there is not the "
+                   f"target's own, and its {restored} answered rows are left out of every figure")
+    if log.rejected_host_frames and not injected:
+        out.append(f"the target's checks refuse {sum(log.rejected_host_frames.values())} of the host's measurement "
+                   f"frames in the log ({counts_text(log.rejected_host_frames)}: a replayed, repeated or lost "
+                   "frame breaks their alive counter): their readings were not used, by the target nor here")
     if log.rejected_target_frames and not injected:
         out.append(f"the host's checks reject {sum(log.rejected_target_frames.values())} frames of the target in the "
                    f"log ({counts_text(log.invalid_frames_in_log)}; {counts_text(log.rejected_target_frames)}): "

@@ -43,15 +43,13 @@ from typing import Any
 
 from bench.errors import BenchError, UsageError
 from bench.run.request import OPTION, RUN, SETTABLE, RunRequest
-from bench.run.values import flag, number
-from bench.tomlspec import read_spec, spec_tables
+from bench.tomlspec import Check, TableSpec, flag, number, read_spec, spec_tables, string
 from target_sim.kinds import MODEL_KINDS as model_kind_table
 
 MODEL_KINDS = model_kind_table.names()
 COOLANT_SETPOINTS = (20, 40, 60)
 DEFAULT_TIMEOUT_S = 1800.0
 SECTIONS = ("campaign", "fixed", "axes")
-CAMPAIGN_KEYS = ("name", "description", "timeout")
 
 
 class SpecError(BenchError):
@@ -195,14 +193,47 @@ def run_id(axes: dict[str, Any], options: dict[str, Any]) -> str:
     return f"{slug}-{digest}" if slug else digest
 
 
-def _check(where: str, key: str, value: Any) -> Any:
-    name = option_name(key)
-    if name not in OPTIONS:
-        raise SpecError(f"{where} names an unknown option {key!r}; use {', '.join(OPTIONS)}")
+def _set(key: str, value: Any, table: TableSpec) -> Any:
+    """The value of `--set KEY=VALUE`, checked as `table` ([fixed] or [axes]) checks its key."""
+    if key not in table.keys:
+        raise SpecError(f"--set names an unknown option {key!r}; use {', '.join(table.keys)}")
     try:
-        return OPTIONS[name].check(value)
+        return table.keys[key](value)
     except ValueError as exc:
-        raise SpecError(f"{where} {key}: {exc}") from None
+        raise SpecError(f"--set {key} {exc}") from None
+
+
+def _seconds(value: Any) -> float:
+    try:
+        return number(value)
+    except ValueError as exc:
+        raise ValueError(f"{exc} of seconds") from None
+
+
+def _axis(check: Check) -> Check:
+    """An axis of an option: a non-empty list of its values, each checked, none twice."""
+    def values(value: Any) -> list[Any]:
+        if not isinstance(value, list) or not value:
+            raise ValueError("must be a non-empty list of values, e.g. [1, 2]")
+        checked, seen = [check(v) for v in value], set()
+        for one in checked:
+            if json.dumps(one) in seen:
+                raise ValueError(f"lists {one!r} twice; give each value once")
+            seen.add(json.dumps(one))
+        return checked
+    return values
+
+
+# the spec's tables: its head, the options every run shares, the axes swept
+HEAD = TableSpec("[campaign]", {"name": string, "description": string, "timeout": _seconds},
+                 advice="use name, description, timeout (run options go into [fixed] or [axes])")
+FIXED = TableSpec("[fixed]", {key: option.check for key, option in OPTIONS.items()})
+AXES = TableSpec("[axes]", {key: _axis(option.check) for key, option in OPTIONS.items()})
+
+
+def _options_of(table: dict[str, Any]) -> dict[str, Any]:
+    """A table's keys as option names (`tolerate-faults` is `tolerate_faults`)."""
+    return {option_name(key): value for key, value in table.items()}
 
 
 def parse_override(text: str) -> tuple[str, Any]:
@@ -222,49 +253,24 @@ def parse_spec(text: str, path: Path, overrides: Iterable[str] = ()) -> Campaign
     ('KEY=VALUE', --set) replace fixed options, or an axis (a list) or fix it (a single value)."""
     path = Path(path)
     doc = spec_tables(text, str(path), SECTIONS, SpecError)
-    head = doc.get("campaign", {})
-    bad = [k for k in head if k not in CAMPAIGN_KEYS]
-    if bad:
-        raise SpecError(f"{path}: [campaign] has an unknown key {bad[0]!r}; use {', '.join(CAMPAIGN_KEYS)} (run "
-                        "options go into [fixed] or [axes])")
-    name = head.get("name", path.stem)
-    description = head.get("description", "")
-    if not isinstance(name, str) or not isinstance(description, str):
-        raise SpecError(f"{path}: [campaign] name and description must be strings")
-    try:
-        timeout_s = number(head.get("timeout", DEFAULT_TIMEOUT_S))
-    except ValueError as exc:
-        raise SpecError(f"{path}: [campaign] timeout: {exc} of seconds") from None
-
-    fixed = {option_name(k): _check(f"{path}: [fixed]", k, v) for k, v in doc.get("fixed", {}).items()}
-    axes: dict[str, list[Any]] = {}
-    for key, values in doc.get("axes", {}).items():
-        axes[option_name(key)] = _axis_values(f"{path}: [axes]", key, values)
+    head = HEAD.read(doc.get("campaign", {}), str(path), SpecError)
+    name, description = head.get("name", path.stem), head.get("description", "")
+    timeout_s = head.get("timeout", DEFAULT_TIMEOUT_S)
+    fixed = FIXED.read(_options_of(doc.get("fixed", {})), str(path), SpecError)
+    axes: dict[str, list[Any]] = AXES.read(_options_of(doc.get("axes", {})), str(path), SpecError)
     for key, value in (parse_override(o) for o in overrides):
         if isinstance(value, list):
             fixed.pop(key, None)
-            axes[key] = _axis_values("--set", key, value)
+            axes[key] = _set(key, value, AXES)
         else:
             axes.pop(key, None)
-            fixed[key] = _check("--set", key, value)
+            fixed[key] = _set(key, value, FIXED)
     both = sorted(set(fixed) & set(axes))
     if both:
         raise SpecError(f"{path}: {both[0]} is both in [fixed] and in [axes]; keep it in one of them")
     campaign = Campaign(path, text, name, description, timeout_s, axes, fixed, _expand(axes, fixed, path.parent))
     _check_runs(campaign)
     return campaign
-
-
-def _axis_values(where: str, key: str, values: Any) -> list[Any]:
-    if not isinstance(values, list) or not values:
-        raise SpecError(f"{where} {key}: must be a non-empty list of values, e.g. {key} = [1, 2]")
-    checked = [_check(where, key, v) for v in values]
-    seen = set()
-    for value in checked:
-        if json.dumps(value) in seen:
-            raise SpecError(f"{where} {key}: lists {value!r} twice; give each value once")
-        seen.add(json.dumps(value))
-    return checked
 
 
 def _expand(axes: dict[str, list[Any]], fixed: dict[str, Any], base_dir: Path) -> list[Run]:

@@ -50,6 +50,15 @@ COLUMNS = (("run_id", "TEXT PRIMARY KEY"), ("position", "INTEGER"), ("axes", "TE
            *OPTION_COLUMNS, *RESULT_COLUMNS)
 
 
+def holds_another(meta: dict[str, str], identity: dict[str, Any]) -> bool:
+    """Whether a table's meta (`SqliteTable.meta`) holds another campaign or study than `identity` ({meta key:
+    value}, compared as JSON; a key the table lacks reads as {}): a resume into it would mix both in one table and
+    report and replace the stored spec. A table without any of the keys (a new one) holds none."""
+    if not any(key in meta for key in identity):
+        return False
+    return any(json.loads(meta.get(key, "{}")) != json.loads(json.dumps(value)) for key, value in identity.items())
+
+
 class StoreError(BenchError):
     """A table that is not a campaign's, or cannot be read or written."""
 

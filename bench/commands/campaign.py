@@ -111,10 +111,9 @@ def check_same_campaign(meta: dict[str, str], campaign, out: Path) -> None:
     """BenchError (one sentence, before any run) when OUT's table holds another campaign than `campaign` (other
     axes or fixed options, from another spec or other --set values): a resume would mix the two campaigns' runs in
     one table and report, and replace the stored spec. A new table (no stored axes) is this campaign's."""
-    if "axes" not in meta:
-        return
-    stored = (json.loads(meta["axes"]), json.loads(meta.get("fixed", "{}")))
-    if stored != (json.loads(json.dumps(campaign.axes)), json.loads(json.dumps(campaign.fixed))):
+    from bench.campaign.store import holds_another
+
+    if holds_another(meta, {"axes": campaign.axes, "fixed": campaign.fixed}):
         raise BenchError(f"{out} holds the campaign {meta.get('name')!r} of {meta.get('spec_path')} (spec sha256 "
                          f"{meta.get('spec_sha256', '')[:12]}…), whose axes or fixed options differ from "
                          f"{campaign.path}'s; resume it with that spec and the same --set values, or choose "

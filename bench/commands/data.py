@@ -12,6 +12,7 @@ from pathlib import Path
 from bench.commands.args import declare_files
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
+from bench.run.values import non_negative_int
 
 COOLANT_LIMITS_C = (-30.0, 120.0)
 
@@ -28,16 +29,6 @@ def coolant_list(text: str) -> list[float]:
     if len(set(values)) != len(values):
         raise UsageError(f"--coolant {text!r} lists a set point twice")
     return values
-
-
-def seed_value(text: str) -> int:
-    try:
-        seed = int(text)
-    except ValueError:
-        seed = -1
-    if seed < 0:
-        raise UsageError(f"--seed {text!r} must be a non-negative integer")
-    return seed
 
 
 def name_list(text: str) -> list[str]:
@@ -57,7 +48,7 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--coolant", type=coolant_list, default=None,
                    help="coolant inlet set points in °C, comma-separated (default 20,40,60; not with --motor, "
                         "whose profiles set their own)")
-    p.add_argument("--seed", type=seed_value, default=None,
+    p.add_argument("--seed", type=non_negative_int, default=None,
                    help=f"noise seed (default {DEFAULT_SEED}; with --motor the file's virtual_plant.seed)")
     p.add_argument("--plot", action="store_true", help="also write a PNG per dataset (torque, speed, temperatures)")
     p.add_argument("--motor", type=Path, default=None,

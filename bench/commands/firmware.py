@@ -6,6 +6,8 @@
     bench firmware check  [--model A] [--data F] [--firmware ELF] [--rows N] [--json]
                           the whole validation run through the emulated firmware and through the Python float32
                           reference, every output compared bit for bit; cycles, flash, RAM; exit 1 on a mismatch
+    bench firmware a2l    [--model A] [--elf ELF] --out FILE [--json]
+                          the A2L an XCP master (pyxcp, CANape, INCA) measures and calibrates the target with
     bench firmware timing [--model A] [--isr-rate HZ] [--rows N] [--search N] [--json]
                           the node and model beside a field-oriented current loop interrupt: response time,
                           interrupt latency and jitter, CPU load by task, WCET bounds (IPET) vs the drive's and an
@@ -130,7 +132,25 @@ def _add_timing(actions) -> None:
     p.set_defaults(func=run_timing)
 
 
-ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check, "timing": _add_timing}
+def _add_a2l(actions) -> None:
+    p = actions.add_parser("a2l", help="the A2L (ASAM MCD-2 MC) an XCP master measures and calibrates the target "
+                                       "with",
+                           description="Write the A2L of an artifact's target: a MEASUREMENT per state, temperature "
+                                       "and observer value, a CHARACTERISTIC per calibratable parameter (with its "
+                                       "limits), the XCP-on-CAN IF_DATA with the ids of dbc/xcp.toml. With --elf the "
+                                       "addresses are the firmware ELF's symbols (and its DWARF, if any, must type "
+                                       "them float); start the Python target with the same ELF (python -m "
+                                       "target_sim --xcp-elf ELF) and the A2L fits it address for address.")
+    p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged hammerstein one)")
+    p.add_argument("--elf", type=Path, default=None, metavar="ELF",
+                   help="the model's firmware ELF whose symbols place the cells (default: the slave's own pages)")
+    p.add_argument("--out", type=Path, required=True, help="the A2L file to write")
+    add_output_flags(p)
+    declare_files(p, inputs=('--model', '--elf'), outputs=('--out',))
+    p.set_defaults(func=run_a2l)
+
+
+ACTIONS = {"export": _add_export, "build": _add_build, "check": _add_check, "timing": _add_timing, "a2l": _add_a2l}
 
 
 # ------------------------------------------------------------------------------------------------ helpers
@@ -241,6 +261,7 @@ def run_check(args: argparse.Namespace) -> int:
     from bench.firmware.check import check_firmware
     from bench.firmware.images import firmware_for
     from bench.model.runs import initial_temperatures
+    from bench.progress import ProgressBar
     from bench.run.inputs import check_measurement_data, drive_for, load_data, measurements_for
     from target_sim.observer_node import raw_channels, raw_sources
 
@@ -259,7 +280,11 @@ def run_check(args: argparse.Namespace) -> int:
         measurement = measurement[: args.rows] if measurement is not None else None
     with scratch_dir("firmware-check") as cache:
         elf = args.firmware or firmware_for(artifact, Path(cache), quiet=args.quiet or args.json)
-        result = check_firmware(artifact, elf, drive, initial_temperatures(dataset), measurement)
+        bar = ProgressBar(len(drive), "firmware check", quiet=args.quiet or args.json)
+        try:
+            result = check_firmware(artifact, elf, drive, initial_temperatures(dataset), measurement, bar)
+        finally:
+            bar.close()
     report = {**_identity(path, artifact), "data": str(dataset.path), "firmware": str(elf), **result}
     if args.json:
         print_json(report)
@@ -347,3 +372,27 @@ def _print_timing(report: dict) -> None:
               f"(idle {run['isr_latency_idle_cycles']['max']}, jitter {latency['jitter']}); CPU load: current loop "
               f"{100 * load['current_loop_isr']:.2f} %, model step {100 * load['model_step']:.4f} %, frame handling "
               f"{100 * load['frame_handling']:.4f} %; outputs bit for bit: {run['bit_exact']}")
+
+
+def run_a2l(args: argparse.Namespace) -> int:
+    from bench.fileio import write_text_atomically
+    from bench.firmware.a2l import a2l_text
+    from target_sim.artifact import load_artifact
+
+    path = args.model
+    if path is None:
+        from bench.model.default import default_artifact_path
+
+        path = default_artifact_path()
+    check_writable(args.out, "--out")
+    artifact = load_artifact(path)
+    text = a2l_text(artifact, args.elf)      # an A2lError is a BenchError: one sentence, exit 1
+    write_text_atomically(args.out, text, "the A2L")
+    report = {**_identity(path, artifact), "out": str(args.out), "elf": None if args.elf is None else str(args.elf),
+              "measurements": text.count("/begin MEASUREMENT"), "characteristics": text.count("/begin CHARACTERISTIC")}
+    if args.json:
+        print_json(report)
+    elif not args.quiet:
+        print(f"wrote {args.out}: {report['measurements']} measurements, {report['characteristics']} "
+              f"characteristics, XCP on CAN ({'addresses of ' + str(args.elf) if args.elf else 'the slave pages'})")
+    return 0

@@ -17,11 +17,13 @@ channel. Exit status 0 when every row was answered and nothing was lost,
 differ from the offline float32 reference, 2 for bad arguments; every error is one sentence on stderr. The log is
 analyzed as `bench run` analyzes its own (`bench.analysis.report.analyze_log`, no report): every reply is compared
 with the model's offline float32 reference, so a target that computes something else (another loss table under
-the same model id, say) is never clean, and the JSON carries the same figures as `bench run --json` ("rmse_C",
-"max_abs_can_minus_float32_C", "figure_rows": the rows they are over and those a check left out, "metrics").
-The `host` package is the node itself (session, replay,
-faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as `bench run`) and hands
-the host its drive rows, with the d/q currents (DriveCurrents) when the model has an electrical loss model.
+the same model id, say) is never clean, and --json prints the summary `bench run --json` prints ("rmse_C",
+"max_abs_can_minus_float32_C", "figure_rows": the rows they are over and those a check left out, "metrics"; the
+host's own figures, "rows_sent", "sequence_gaps", "target_state", ..., at the top and under "host"); a run whose
+log holds no figures has no "metrics" and none of the keys made of them. The `host` package is the node itself
+(session, replay, faults, logs) and knows no datasets: this command reads the dataset (through --mapping, as
+`bench run`) and hands the host its drive rows, with the d/q currents (DriveCurrents) when the model has an
+electrical loss model.
 
 Acceptance criteria (--criteria, --baseline, --junit-xml) as `bench run`'s, judged on the log's figures: each
 check's figure, limit and verdict in the JSON ("acceptance"), exit status 1 when any fails. With a target of your
@@ -38,32 +40,19 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
-from bench.acceptance.cli import finish, prepare
-from bench.acceptance.junit import CleanCase
+from bench.acceptance.cli import finish_run, prepare
 from bench.commands.args import announce_logger, declare_files
-from bench.commands.common import (
-    SHOWN_NODES,
-    add_output_flags,
-    fmt,
-    print_json,
-)
-from bench.errors import BenchError, UsageError
+from bench.commands.common import SHOWN_NODES, add_output_flags, fmt, print_json
+from bench.errors import UsageError
+from bench.run.execute import execute_attached
+from bench.run.judge import JudgedRun, judge
 from bench.run.leftovers import clear_and_say
 from bench.run.prepare import prepare_run
 from bench.run.request import HOST, RunRequest, add_options
-from dbc.database import host_frame_ids
-from dbc.transport import (
-    SenderGuard,
-    add_bus_arguments,
-    config_from_args,
-    first_heard,
-    resolve,
-)
-from host.faults import FaultSpecError, fault_note, spec_from_args
-from host.procedure import run_dataset
-from host.session import SessionError
+from dbc.transport import add_bus_arguments, config_from_args, resolve
+from host.faults import spec_from_args
+from host.results import HostResult
 
 
 def add_subparser(subparsers) -> None:
@@ -88,6 +77,8 @@ def _faults(args: argparse.Namespace):
 
 
 def run_host(args: argparse.Namespace) -> int:
+    """The adapter of the run pipeline (`bench.run`: request -> prepare -> execute -> judge, attached to a target
+    already on the bus) to the command line."""
     request = RunRequest.from_args(args)   # the run as the command line describes it (`bench.run.request`)
     faults = _faults(args)
     acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work
@@ -95,84 +86,40 @@ def run_host(args: argparse.Namespace) -> int:
     if config.interface == "virtual":  # python-can's virtual bus lives in one process: no target could answer
         raise UsageError("the 'virtual' interface does not cross processes, so no target could answer the host; "
                          "use udp_multicast, socketcan or auto")
+    quiet = args.quiet or args.json
     # the arguments' refusals before any work (`bench.run.prepare`); the dataset is read quietly, as always here
     prepared = prepare_run(request, HOST, faults, acceptor.check_data, quiet=True)
-    log_path, artifact, dataset = prepared.log_path, prepared.artifact, prepared.dataset
-    drive, measurements = prepared.drive, prepared.measurements
-    from bench.model.runs import initial_temperatures
+    clear_and_say(prepared.log_path, quiet)   # what a killed host left beside this log
 
-    clear_and_say(log_path, args.quiet or args.json)   # what a killed host left beside this log
-    bus = None
-    try:
-        bus = config.open()
-        if (other := first_heard(bus, host_frame_ids())) is not None:  # two hosts would both drive the target
-            raise SessionError(f"{config.describe()} already has a host sending (frame id "
-                               f"0x{other.arbitration_id:03x}); stop it or pick another channel")
-        bus = SenderGuard(bus, config, host_frame_ids(), "host")   # and one that starts later stops this run
-        if not (args.quiet or args.json):
-            print(f"bench: host: {len(drive)} rows of {dataset.path} ({request.mode}) over {config.describe()}"
-                  + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
+    def announce() -> None:   # once the bus is this host's alone
+        if not quiet:
+            print(f"bench: host: {len(prepared.drive)} rows of {prepared.dataset.path} ({request.mode}) over "
+                  f"{config.describe()}" + (f", injecting {faults.describe()}" if faults else ""), file=sys.stderr)
         announce_logger(config, args.quiet, "bench: host: ", wait_s=request.wait_for_listener)
-        started = time.time()
-        result = run_dataset(bus, drive, initial_temperatures(dataset), model_id=artifact.model_id,
-                             mode=request.mode, speed=request.speed, sample_period_s=dataset.sample_period_s,
-                             log_path=log_path, reply_timeout_s=request.reply_timeout,
-                             connect_timeout_s=request.connect_timeout, faults=faults,
-                             target_events=request.target_events, events_since=started, measurements=measurements)
-    except FaultSpecError as exc:   # kept for its exit status: a plan the host refuses here (faults in real time at
-        raise BenchError(str(exc)) from None   # too short a sample interval) exits 1, a bad --fault option 2
-    finally:
-        if bus is not None:
-            bus.shutdown()
-    from bench.analysis.results import SCHEMA_KEY, SCHEMA_VERSION, as_json, verdict_text
-    from bench.analysis.verdict import verdict
 
-    metrics, found = _analyze(log_path, artifact, dataset, config.nominal_bitrate, result.problems())
-    acceptance = acceptor.judge(metrics, why_none="; ".join(found) or "the log has no figures")
-    if metrics is not None:
-        metrics.acceptance = acceptance
-    outcome = verdict(result.problems() + found, fault_note(result.faults), faulted=result.faults is not None,
-                      tolerate_faults=request.tolerate_faults, tolerate_gaps=request.tolerate_gaps)
-    problems = outcome.problems
-    injected = result.faults["injected_total"] if result.faults else 0
-    clean = not problems and not injected
-    sentence = verdict_text(clean, problems, injected, result.faults.get("undetected") if result.faults else 0)
+    started = time.perf_counter()
+    outcome = execute_attached(prepared, request, config, faults, announce=announce)
+    judged = judge(prepared, outcome, request, acceptor.gate, config, engine=outcome.result.engine, firmware=None,
+                   started=started, need_figures=False)
     if args.json:
-        figures = {} if metrics is None else {
-            "max_abs_can_minus_float32_C": as_json(metrics.agreement.max_abs_can_minus_float32_C),
-            "rmse_C": as_json(metrics.accuracy.rmse_C), "rmse_reference": as_json(metrics.accuracy.rmse_reference),
-            "figure_rows": as_json(metrics.figure_rows), "notes": metrics.notes,
-            "metrics": metrics.to_json(windows=False)}
-        print_json({SCHEMA_KEY: SCHEMA_VERSION, **result.to_dict(), **figures, "problems": problems, "clean": clean,
-                    "verdict": sentence, **({"acceptance": as_json(acceptance)} if acceptance is not None else {})})
+        print_json(judged.summary.to_json())
     else:
-        print(f"{result.rows_sent} rows sent, {result.replies} answered, {result.missing} missing, "
-              f"{result.rows_per_s:.0f} rows/s, round trip p50 {result.round_trip_us['p50'] or 0:.0f} µs; "
-              f"log {result.log_path}")
-        if metrics is not None:
-            agreement = metrics.agreement.max_abs_can_minus_float32_C
-            print(f"max |CAN - {metrics.agreement.can_reference}| (°C): "
-                  + ", ".join(f"{t} {fmt(agreement.get(t), 4)}" for t in SHOWN_NODES)
-                  + f"; {metrics.figure_rows.text('RMSE and every figure')}")
-        for problem in problems:
-            print(f"bench: host: {problem}", file=sys.stderr)
-    report = metrics.report if metrics is not None else None
-    return finish(acceptor, acceptance, command="bench host", subject="the host's run",
-                  status=outcome.status,   # --tolerate-gaps: not for faults (the shared rule)
-                  clean=CleanCase(outcome.status == 0, sentence, tuple(problems)),
-                  elapsed_s=time.time() - started, quiet=args.quiet or args.json,
-                  properties={"model": f"{artifact.model_id:08x}", "engine": result.engine, "bus": config.describe(),
-                              "log": result.log_path, "report": report},
-                  attachments=[result.log_path])
+        _print_lines(outcome.result, judged)
+    return finish_run(acceptor, judged.summary, command="bench host", subject="the host's run",
+                      bus=config.describe(), status=judged.verdict.status,   # --tolerate-gaps: not for faults
+                      model_id=f"{prepared.artifact.model_id:08x}", quiet=quiet)
 
 
-def _analyze(log_path: Path, artifact, dataset, bitrate: int, host_problems: list[str]):
-    """The log's metrics against the offline references (as `bench run` makes them) and its problems; (None, a
-    sentence) when the log holds nothing to compare (a run that ended before its first row)."""
-    from bench.analysis.report import analyze_log
-    from host.canlog import LogError
-
-    try:
-        return analyze_log(log_path, artifact, dataset, bitrate=bitrate, extra_problems=host_problems)
-    except (LogError, ValueError) as exc:
-        return None, [f"the log {log_path} cannot be compared with the offline float32 reference ({exc})"]
+def _print_lines(result: HostResult, judged: JudgedRun) -> None:
+    """Without --json: the host's figures, the log's agreement with the reference, each problem on stderr."""
+    metrics = judged.summary.metrics
+    print(f"{result.rows_sent} rows sent, {result.replies} answered, {result.missing} missing, "
+          f"{result.rows_per_s:.0f} rows/s, round trip p50 {result.round_trip_us['p50'] or 0:.0f} µs; "
+          f"log {result.log_path}")
+    if metrics is not None:
+        agreement = metrics.agreement.max_abs_can_minus_float32_C
+        print(f"max |CAN - {metrics.agreement.can_reference}| (°C): "
+              + ", ".join(f"{t} {fmt(agreement.get(t), 4)}" for t in SHOWN_NODES)
+              + f"; {metrics.figure_rows.text('RMSE and every figure')}")
+    for problem in judged.summary.problems:
+        print(f"bench: host: {problem}", file=sys.stderr)

@@ -24,6 +24,7 @@ or a bad spec; SIGINT/SIGTERM leave every row written whole (resume with --resum
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import sys
@@ -77,6 +78,21 @@ def _check_out(out: Path, resume: bool) -> None:
                              "what it does not hold as done, or choose another --out")
     elif out.is_dir() and any(out.iterdir()):
         raise BenchError(f"{out} is not empty and holds no robustness table; choose another --out")
+
+
+def check_same_study(meta: dict[str, str], case_ids: list[str], out: Path) -> None:
+    """UsageError (one sentence, exit 2, before any case runs) when OUT's table holds another study than these cases
+    (a case id names its model, data, rows, perturbation and seed: another spec, --seeds, model or data makes others),
+    as `bench campaign` refuses a resume into another campaign (`bench.campaign.store.holds_another`)."""
+    from bench.campaign.store import holds_another
+
+    if holds_another(meta, {"case_ids": case_ids}):
+        study = json.loads(meta.get("study", "{}"))
+        digest = hashlib.sha256(meta.get("spec_text", "").encode()).hexdigest()[:12]
+        spec = study.get("spec") or "the built-in spec"
+        raise UsageError(f"{out} holds the robustness study {study.get('name')!r} of {spec} (spec sha256 {digest}…), "
+                         "whose cases differ from this one's (another spec, --seeds, --rows, model or data); resume "
+                         "it with the same spec and options, or choose another --out")
 
 
 def _inputs(args: argparse.Namespace):
@@ -153,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
             "sample_periods": {str(Path(d.path).resolve()): d.sample_period_s for d in datasets},
             "observers": {str(p): observer_description(a) for p, a in models if observer_description(a)}}
     with CaseStore(out / TABLE_NAME, create=True) as store:
+        check_same_study(store.meta(), [c.case_id for c in cases], out)   # --resume with another spec: refused
         store.set_meta({"study": json.dumps(info), "spec_text": spec.text,
                         "case_ids": json.dumps([c.case_id for c in cases])})   # the report's cases, in order
         outcome = run_study(cases, store, workers=args.workers or os.cpu_count() or 1, address=args.cluster,

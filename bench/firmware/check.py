@@ -5,7 +5,8 @@ Both sides run as the target does: the rows' samples are summed per model-step i
 `InputAccumulator.accumulate`), the interval mean taken at its last row (fw_mean / `mean`) and one model step run
 on it (fw_step / `Float32Estimator.step`). A mismatch is a model step whose four outputs are not the same 32 bits
 on both sides. An observer's model also takes its measurements' raw channels after the drive values; each step
-compares each node's 1-sigma and each measurement's innovation too, and after every CHECKPOINT_EVERY_STEPS-th step
+compares each node's 1-sigma, each measurement's innovation and its innovation gate (rejected this step,
+sensor flagged: fw_obs_gate) too, and after every CHECKPOINT_EVERY_STEPS-th step
 the filter's checkpoint (what ObserverCheckpoint carries) element by element. The drive has the artifact's
 `drive_signals` as columns: 4, or 6 with the d/q currents for a model with an electrical loss model. The
 emulated run is timed on its own (emulated steps per second, block hook and all) and its counted Cortex-M4 cycles
@@ -15,6 +16,7 @@ per step are summarized.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,21 +29,27 @@ from target_sim.losses import reads_currents
 from target_sim.model import F32, Float32Estimator, InputAccumulator
 from target_sim.observer import Float32Observer, has_observer
 
+Progress = Callable[[int, int], None]    # (rows done, rows), as bench.progress.ProgressBar takes it
+PROGRESS_EVERY = 256                      # rows between two progress calls: well under a tenth of a second here
+
 
 def _bits(values: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(values, dtype=np.float32).view(np.uint32)
 
 
-def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: InputAccumulator
-                  ) -> tuple[list[int], np.ndarray, list[int], float]:
+def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: InputAccumulator,
+                  progress: Progress | None = None) -> tuple[list[int], np.ndarray, list[int], float]:
     """(rows with a step, results per step, cycles per step, seconds) of the emulated firmware: a result is the four
-    outputs, and for an observer's model each node's 1-sigma and each measurement's innovation after them, and the
-    filter's checkpoint after every CHECKPOINT_EVERY_STEPS-th step (as the node sends it)."""
+    outputs, and for an observer's model each node's 1-sigma, each measurement's innovation and gate after them, and
+    the filter's checkpoint after every CHECKPOINT_EVERY_STEPS-th step (as the node sends it). `progress` is told
+    (rows done, rows) every PROGRESS_EVERY rows: the emulated core is the slow part of a check."""
     rows, results, cycles = [], [], []
     width = model.width
     model.reset(initial)
     started = time.perf_counter()
     for row, sample in enumerate(samples):
+        if progress is not None and row % PROGRESS_EVERY == 0:
+            progress(row, len(samples))
         model.accumulate(sample)
         if not rule.ends_interval(row):
             continue
@@ -51,12 +59,15 @@ def _run_firmware(model: FirmwareEstimator, samples: np.ndarray, initial, rule: 
         if model.observer:
             y = model.step(*inputs[:width], z=inputs[width:])
             sigma, innovations = model.report()
-            results.append([*y, *sigma, *innovations, *_checkpoint_of(model, len(results) + 1, model.checkpoint_size)])
+            results.append([*y, *sigma, *innovations, *model.gate(),
+                            *_checkpoint_of(model, len(results) + 1, model.checkpoint_size)])
         else:
             results.append(model.step(*inputs))
         cycles.append(model.last_cycles)
         rows.append(row)
     seconds = time.perf_counter() - started
+    if progress is not None:
+        progress(len(samples), len(samples))
     return rows, np.array(results, dtype=F32).reshape(len(results), -1), cycles, seconds
 
 
@@ -79,11 +90,16 @@ def _run_reference(artifact: ModelArtifact, samples: np.ndarray, initial) -> np.
             continue
         if observer:
             y = model.step(*inputs[:width], z=inputs[width:])
-            results.append([*y, *model.sigma(), *model.innovations,
+            results.append([*y, *model.sigma(), *model.innovations, *gate_codes(model),
                             *_checkpoint_of(model, len(results) + 1, model.checkpoint_size())])
         else:
             results.append(model.step(*inputs))
     return np.array(results, dtype=F32).reshape(len(results), -1)
+
+
+def gate_codes(model: Float32Observer) -> np.ndarray:
+    """fw_obs_gate's values of the reference after a step: rejected (bit 0) and flagged (bit 1) per measurement."""
+    return model.rejected.astype(np.uint8) | (model.flagged.astype(np.uint8) << 1)
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -92,11 +108,11 @@ def _same(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.ndarray, initial,
-                   measurement: np.ndarray | None = None) -> dict:
+                   measurement: np.ndarray | None = None, progress: Progress | None = None) -> dict:
     """The JSON report of `bench firmware check` (FirmwareError for a bad ELF, BenchError for an emulator fault; one
     sentence each). An observer's model also takes its measurements' raw channels per row (rows, channels) (NaN:
     no reading in that row; `target_sim.observer_node.raw_channels`), and each step's 1-sigma, innovations and the
-    periodic checkpoint are compared too."""
+    periodic checkpoint are compared too. `progress` follows the emulated rows (as a replay's bar)."""
     label = elf if isinstance(elf, bytes) else str(elf)
     model = FirmwareEstimator(artifact, elf)
     drive = np.asarray(drive, dtype=F32)
@@ -117,7 +133,7 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
         samples = np.column_stack([drive, raw])
     rule = InputAccumulator(artifact.data_sample_period, artifact.dt, samples.shape[1])
     try:
-        rows, firmware, cycles, seconds = _run_firmware(model, samples, initial, rule)
+        rows, firmware, cycles, seconds = _run_firmware(model, samples, initial, rule, progress)
     except FirmwareFault as exc:
         raise BenchError(f"the firmware {label} faulted in the emulated core: {exc}") from None
     reference = _run_reference(artifact, samples, initial)
@@ -137,9 +153,13 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
     used = np.isfinite(reference[:, 8: 8 + model.measurements]) if model.observer else None
     updates = int(np.count_nonzero(used.any(axis=1))) if used is not None else None
     per_measurement = [int(n) for n in used.sum(axis=0)] if used is not None else None
+    gates = reference[:, 8 + model.measurements: 8 + 2 * model.measurements].astype(np.uint8) \
+        if model.observer else None
     return {
         "kind": artifact.kind, "observer": model.observer, "updates": updates,
         "updates_per_measurement": per_measurement, "realization": artifact.realization,
+        "rejected_per_measurement": None if gates is None else [int(n) for n in (gates & 1).sum(axis=0)],
+        "flagged_per_measurement": None if gates is None else [bool(b) for b in (gates & 2).any(axis=0)],
         "dt": artifact.dt,
         "rows": int(len(drive)), "steps": int(len(firmware)),
         "mismatches": int(differ.size), "first_mismatch": first,

@@ -123,6 +123,7 @@ static struct {                                   /* TargetNode._observer_restor
     float value;
 } restore_observer[OBS_CHECKPOINT_SLOTS];
 static float report_of[NODE_TX_CAPACITY / (4u + OBSERVER_FRAMES)][REPORT_WIDTH];   /* per timed step */
+static unsigned char gate_of[NODE_TX_CAPACITY / (4u + OBSERVER_FRAMES)][NODE_OBS_MEASUREMENTS];   /* fw_obs_gate */
 #endif
 
 static uint8_t running_rows;                      /* next_row is not None */
@@ -497,8 +498,9 @@ static int32_t innovation_raw(float value)
 
 /* TargetNode._observer_frames: Uncertainty1, Uncertainty2 (each node's 1-sigma) and Innovations after a model step
  * (report: fw_obs_report's sigma[4], then each measurement's innovation; NaN: not used, its slot's Used 0 and its
- * innovation 0). */
-static void send_observer(uint16_t step, const float report[REPORT_WIDTH])
+ * innovation 0; gate: fw_obs_gate's, each slot's Rejected in Innovations and Flagged in Uncertainty1). */
+static void send_observer(uint16_t step, const float report[REPORT_WIDTH],
+                          const unsigned char gate[NODE_OBS_MEASUREMENTS])
 {
     uint32_t raw[NODE_STATE_SIZE];
     struct node_frame *frame;
@@ -513,6 +515,7 @@ static void send_observer(uint16_t step, const float report[REPORT_WIDTH])
         m.uncertainty1_counter = tx_counter[NODE_TX_UNCERTAINTY1];
         m.uncertainty1_step = step;
         NODE_FILL_UNCERTAINTY1(m, raw);
+        NODE_FILL_GATE_FLAGS(m, gate);
         (void)thermal_bench_uncertainty1_pack(frame->data, &m, 8u);
         tx_finish(frame, THERMAL_BENCH_UNCERTAINTY1_FRAME_ID, NODE_TX_UNCERTAINTY1, NODE_DATA_ID_UNCERTAINTY1);
     }
@@ -530,7 +533,7 @@ static void send_observer(uint16_t step, const float report[REPORT_WIDTH])
         thermal_bench_innovations_init(&m);
         m.innovations_counter = tx_counter[NODE_TX_INNOVATIONS];
         m.innovations_step = step;
-        NODE_FILL_INNOVATIONS(m, report);
+        NODE_FILL_INNOVATIONS(m, report, gate);
         (void)thermal_bench_innovations_pack(frame->data, &m, 8u);
         tx_finish(frame, THERMAL_BENCH_INNOVATIONS_FRAME_ID, NODE_TX_INNOVATIONS, NODE_DATA_ID_INNOVATIONS);
     }
@@ -713,6 +716,7 @@ static void step_on(const float inputs[NODE_SAMPLE_WIDTH], uint32_t cycles_of[TI
         cycles_of[*steps] = cycles;
 #ifdef FW_OBSERVER
         fw_obs_report(report_of[*steps]);
+        fw_obs_gate(gate_of[*steps]);
 #endif
 #ifdef NODE_WITH_ISR
         time_response(*steps);
@@ -784,7 +788,7 @@ static void handle_row(uint16_t step, const float sample[NODE_SAMPLE_WIDTH])
             send_response(step, response_of[i].response, response_of[i].load);
 #endif
 #ifdef FW_OBSERVER
-            send_observer(step, report_of[i]);
+            send_observer(step, report_of[i], gate_of[i]);
 #endif
         }
     }

@@ -46,11 +46,14 @@ from dbc.contract import (
     COUNTER_MODULO,
     DBC_PATH,
     FIRMWARE_TIMING_MESSAGE,
+    FLAG_MESSAGE,
+    FLAGGED_SIGNALS,
     INNOVATION_MESSAGE,
     INNOVATION_SIGNALS,
     M4_CLOCK_HZ,
     MEASUREMENT_CHANNELS,
     MEASUREMENT_MESSAGE,
+    REJECTED_SIGNALS,
     REPLY_SIGNALS,
     RESET_SIGNALS,
     RESPONSE_TIMING_MESSAGE,
@@ -365,9 +368,10 @@ def _measurement_macros(artifact: ModelArtifact) -> list[str]:
 def _observer_macros(artifact: ModelArtifact) -> list[str]:
     """An observer's model (fw_model.h's FW_OBSERVER): what it reads (`_measurement_macros`), its checkpoint's size
     and StepLow, and the Uncertainty1/2 and Innovations replies: each sigma's and the innovation's encoding, and
-    where each goes (NODE_FILL_<MESSAGE>(m, raw); NODE_FILL_INNOVATIONS(m, report): each slot's innovation from its
-    measurement's place in fw_obs_report's out[4..], with its Used flag; a slot no measurement answers in: 0, not
-    used)."""
+    where each goes (NODE_FILL_<MESSAGE>(m, raw); NODE_FILL_INNOVATIONS(m, report, gate): each slot's innovation
+    from its measurement's place in fw_obs_report's out[4..], with its Used flag, and its Rejected flag from
+    fw_obs_gate's bit 0; NODE_FILL_GATE_FLAGS(m, gate): each slot's Flagged flag of Uncertainty1 from bit 1; a slot
+    no measurement answers in: 0, not used, not rejected, not flagged)."""
     slots = measurement_slots(artifact)
     if not slots:
         return []
@@ -392,14 +396,22 @@ def _observer_macros(artifact: ModelArtifact) -> list[str]:
     fills = []
     for slot, (innovation, used) in INNOVATION_SIGNALS.items():
         value_field, used_field = _field(INNOVATION_MESSAGE, innovation), _field(INNOVATION_MESSAGE, used)
+        rejected_field = _field(INNOVATION_MESSAGE, REJECTED_SIGNALS[slot])
         if slot in slots:
             place = f"(report)[4u + {slots.index(slot)}u]"
             fills.append(f"(m).{value_field} = (int16_t)innovation_raw({place}); "
-                         f"(m).{used_field} = (uint8_t)is_finite({place})")
+                         f"(m).{used_field} = (uint8_t)is_finite({place}); "
+                         f"(m).{rejected_field} = (uint8_t)((gate)[{slots.index(slot)}u] & 1u)")
         else:
-            fills.append(f"(m).{value_field} = 0; (m).{used_field} = 0u")
-    out.append(f"#define NODE_FILL_{_snake_upper(INNOVATION_MESSAGE)}(m, report) do {{ {'; '.join(fills)}; }} "
+            fills.append(f"(m).{value_field} = 0; (m).{used_field} = 0u; (m).{rejected_field} = 0u")
+    out.append(f"#define NODE_FILL_{_snake_upper(INNOVATION_MESSAGE)}(m, report, gate) do {{ {'; '.join(fills)}; }} "
                "while (0)")
+    if FLAG_MESSAGE != "Uncertainty1":
+        raise FirmwareGenerationError(f"node.c sends the gate's flags in Uncertainty1, the DBC in {FLAG_MESSAGE}")
+    flags = "; ".join(f"(m).{_field(FLAG_MESSAGE, signal)} = " +
+                      (f"(uint8_t)(((gate)[{slots.index(slot)}u] >> 1) & 1u)" if slot in slots else "0u")
+                      for slot, signal in FLAGGED_SIGNALS.items())
+    out.append(f"#define NODE_FILL_GATE_FLAGS(m, gate) do {{ {flags}; }} while (0)")
     return out
 
 

@@ -20,6 +20,8 @@ operation:
 | obs_move_state         | Float32Observer.step, after the last update   | x += C^-1 (summed correction), y = Cx |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
 | fw_obs_report          | Float32Observer.sigma, .innovations           | each node's 1-σ, each innovation      |
+| fw_obs_gate            | Float32Observer.rejected, .flagged            | the gate's state after a step (DBC    |
+|                        |                                               | 1.8.0: Innovations, Uncertainty1)     |
 | obs_reading_<k>        | the k-th measurement's `reading` (its kind)   | its value and variance, or no reading |
 | obs_variance_<k>,      | BiermanThornton/SteadyState                   | the gate (a section with `gate` only):|
 | obs_gate               | .innovation_variance, Float32Observer.gate    | S, nu*nu > sigma^2 S, the counts      |
@@ -123,6 +125,10 @@ void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4]);
 /* After a step: each node's 1-sigma [yoke, winding, tooth, magnet] (deg C) into out[0..3] and each measurement's
  * innovation (NaN: the step did not use it) into out[4..]. */
 void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS]);
+
+/* After a step: each measurement's innovation gate (Float32Observer.rejected, .flagged): bit 0 its reading was
+ * rejected in this step, bit 1 its sensor is flagged (latched until a reset or restore); 0 without a gate. */
+void fw_obs_gate(unsigned char out[FW_OBS_MEASUREMENTS]);
 """
 
 
@@ -189,10 +195,12 @@ def _gate_declarations(obs: Float32Observer) -> str:
     if obs.form == "steady":
         text += _literal_array("OBS_PRIOR", np.array(obs.cov.prior, dtype=np.float32),
                                "each measurement's h P- h^T of the steady prior (SteadyState.prior)")
-    return text + ("/* each measurement's rejected readings, rejections in a row, flag (Float32Observer.gate) */\n"
+    return text + ("/* each measurement's rejected readings, rejections in a row, flag, rejected in this step "
+                   "(Float32Observer.gate) */\n"
                    "static unsigned long obs_rejections[FW_OBS_MEASUREMENTS];\n"
                    "static unsigned long obs_consecutive[FW_OBS_MEASUREMENTS];\n"
-                   "static unsigned char obs_flagged[FW_OBS_MEASUREMENTS];\n")
+                   "static unsigned char obs_flagged[FW_OBS_MEASUREMENTS];\n"
+                   "static unsigned char obs_rejected[FW_OBS_MEASUREMENTS];\n")
 
 
 GATE_C = """
@@ -205,6 +213,7 @@ static int obs_gate(int k, float nu, float s)
         obs_consecutive[k] = 0;
         return 0;
     }
+    obs_rejected[k] = 1;
     obs_rejections[k] = obs_rejections[k] + 1;
     obs_consecutive[k] = obs_consecutive[k] + 1;
     if (obs_consecutive[k] >= OBS_FLAG_AFTER) obs_flagged[k] = 1;
@@ -249,7 +258,7 @@ void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4])
     obs_propagate_extra();
     obs_predict();
     for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_innovation[i] = __builtin_nanf("");
-OBS_UPDATES    if (corrected) {
+OBS_GATE_STEPOBS_UPDATES    if (corrected) {
         obs_move_state(correction);
         obs_output();
     }
@@ -345,6 +354,13 @@ void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
 #endif
     for (i = 0; i < FW_OBS_MEASUREMENTS; i++) out[4 + i] = obs_innovation[i];
 }
+
+/* Float32Observer.rejected (bit 0) and .flagged (bit 1) of each measurement after a step */
+void fw_obs_gate(unsigned char out[FW_OBS_MEASUREMENTS])
+{
+    int i;
+    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) out[i] = OBS_GATE_STATUS;
+}
 """
 
 # per lagged measurement k (its state OBS_LAG_k): its propagation, its reset
@@ -371,7 +387,12 @@ _COUNTS_RESTORE = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
                    "            : 0u;\n"
                    "        at++;\n    }\n")
 _GATE_RESET = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
-               "        obs_rejections[i] = 0;\n        obs_consecutive[i] = 0;\n        obs_flagged[i] = 0;\n    }\n")
+               "        obs_rejections[i] = 0;\n        obs_consecutive[i] = 0;\n        obs_flagged[i] = 0;\n"
+               "        obs_rejected[i] = 0;\n    }\n")
+# a step starts with no reading rejected yet (Float32Observer.step: rejected[:] = False)
+_GATE_STEP = "    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_rejected[i] = 0;\n"
+# fw_obs_gate's value of measurement i: rejected (bit 0), flagged (bit 1); without a gate none
+_GATE_STATUS = "(unsigned char)(obs_rejected[i] | (obs_flagged[i] << 1))"
 
 
 def _per_measurement(obs: Float32Observer) -> dict[str, str]:
@@ -390,7 +411,9 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
                        .replace("PREDICTED", predicted))
         first += m.width
     counts = obs.form == "steady" and obs.gate_threshold is not None
-    return {"OBS_GATE_RESET": "" if obs.gate_threshold is None else _GATE_RESET,
+    gated = obs.gate_threshold is not None
+    return {"OBS_GATE_RESET": _GATE_RESET if gated else "", "OBS_GATE_STEP": _GATE_STEP if gated else "",
+            "OBS_GATE_STATUS": _GATE_STATUS if gated else "0u",
             "OBS_COUNTS_CHECKPOINT": _COUNTS_CHECKPOINT if counts else "",
             "OBS_COUNTS_RESTORE": _COUNTS_RESTORE if counts else "",
             "OBS_LAG_PROPAGATE": "".join(propagate), "OBS_LAG_RESET": "".join(reset),

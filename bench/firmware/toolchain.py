@@ -36,6 +36,7 @@ from pathlib import Path
 from bench.errors import BenchError
 from bench.fileio import scratch_dir
 from bench.firmware.codegen import HEADER_NAME, SOURCE_NAME, GeneratedSource
+from dbc.lifeline import EXEC_FAILED, tied_command, tied_environment
 from target_sim.firmware import FirmwareError, memory_from_elf
 
 COMPILER: list[str] = [sys.executable, "-m", "ziglang"]    # tests point this elsewhere to simulate a missing one
@@ -119,15 +120,17 @@ def _first_line(text: str) -> str:
 
 
 def _run(args: list[str], cwd: Path, what: str) -> subprocess.CompletedProcess:
+    """The compiler on `args`, tied to this process (`dbc.lifeline.tied_command`): a bench killed while it
+    compiles (SIGKILL, a cancelled CI job) leaves no compiler running."""
     command = [*COMPILER, *args]
     try:
-        done = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S)
-    except FileNotFoundError:
-        raise ToolchainError(f"the C cross-compiler cannot be started ({command[0]} not found); {INSTALL_HINT}"
-                             ) from None
+        done = subprocess.run(tied_command(command), cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT_S,
+                              env=tied_environment())
     except subprocess.TimeoutExpired:
         raise ToolchainError(f"{what} took longer than {TIMEOUT_S:g} s and was stopped; try again on a less "
                              "loaded machine") from None
+    if done.returncode == EXEC_FAILED and done.stderr.startswith(f"{command[0]} cannot be started"):
+        raise ToolchainError(f"the C cross-compiler cannot be started ({command[0]} not found); {INSTALL_HINT}")
     return done
 
 

@@ -25,7 +25,6 @@ is run or written.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,11 +32,20 @@ from typing import Any
 from bench.errors import UsageError
 from bench.robustness.filters import FILTERS
 from bench.robustness.kinds import PERTURBATIONS
-from bench.tomlspec import read_spec, spec_tables
+from bench.tomlspec import (
+    Check,
+    TableSpec,
+    flag,
+    names,
+    numbers,
+    read_spec,
+    spec_tables,
+    string,
+    whole_at_least,
+    whole_between,
+)
 
 SECTIONS = ("study", "perturbations", "filters")
-STUDY_KEYS = ("name", "description", "seeds", "seed", "kinds")
-FILTER_KEYS = ("kinds", "time_constants", "inputs", "enabled")
 DEFAULT_SEEDS = 8
 DEFAULT_TIME_CONSTANTS = (0.5, 1.0, 2.0, 5.0)
 MAX_SEEDS = 1000
@@ -69,45 +77,40 @@ class RobustnessSpec:
     filter_inputs: tuple[str, ...] | None = None
 
 
-def _numbers(where: str, value: Any) -> tuple[float, ...]:
-    if not isinstance(value, list) or not value:
-        raise SpecError(f"{where} must be a non-empty list of numbers, e.g. [1.0, 2.0]")
-    if any(isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) for v in value):
-        raise SpecError(f"{where} must list finite numbers, not {value!r}")
-    return tuple(float(v) for v in value)
-
-
-def _names(where: str, value: Any, known: tuple[str, ...]) -> tuple[str, ...]:
-    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        raise SpecError(f"{where} must be a non-empty list of names, e.g. [{', '.join(map(repr, known[:2]))}]")
-    bad = [v for v in value if v not in known]
-    if bad:
-        raise SpecError(f"{where} names {bad[0]!r}, which is not one of {', '.join(known)}")
-    return tuple(value)
-
-
-def _kind_choice(where: str, kind, table: Any, subjects: tuple[str, ...]) -> KindChoice | None:
-    if not isinstance(table, dict):
-        raise SpecError(f"{where} must be a table, [{where.rsplit(': ', 1)[-1]}]")
-    if table.get("enabled", True) is False:
-        return None
-    if not isinstance(table.get("enabled", True), bool):
-        raise SpecError(f"{where} enabled must be true or false")
-    chosen = _names(f"{where} subjects", table["subjects"], subjects) if "subjects" in table else None
-    magnitudes = {}
-    for key, value in table.items():
-        if key in ("subjects", "enabled"):
-            continue
-        if key not in subjects:
-            raise SpecError(f"{where} has an unknown key {key!r}; use subjects, enabled or a subject of "
-                            f"{kind.name}: {', '.join(subjects)}")
-        values = _numbers(f"{where} {key}", value)
+def _magnitudes(kind) -> Check:
+    """A subject's magnitudes: finite numbers, each one the kind allows."""
+    def check(value: Any) -> tuple[float, ...]:
+        values = numbers(value)
         for v in values:
             problem = kind.problem(v)
             if problem:
-                raise SpecError(f"{where} {key}: {v:g} {problem}")
-        magnitudes[key] = values
-    return KindChoice(chosen, magnitudes)
+                raise ValueError(f"holds {v:g}, which {problem}")     # "C_w holds -120, which must be above -100 %"
+        return values
+    return check
+
+
+def _kind_table(kind, subjects: tuple[str, ...]) -> TableSpec:
+    keys: dict[str, Check] = {"subjects": names(subjects), "enabled": flag}
+    keys.update({subject: _magnitudes(kind) for subject in subjects})
+    return TableSpec(f"[perturbations.{kind.name}]", keys,
+                     advice=f"use subjects, enabled or a subject of {kind.name}: {', '.join(subjects)}")
+
+
+def _study_table(kinds: tuple[str, ...]) -> TableSpec:
+    return TableSpec("[study]", {"name": string, "description": string, "seeds": whole_between(1, MAX_SEEDS),
+                                 "seed": whole_at_least(0), "kinds": names(kinds)})
+
+
+def _positive_seconds(value: Any) -> tuple[float, ...]:
+    values = numbers(value)
+    if any(t <= 0 for t in values):
+        raise ValueError("must be positive seconds")
+    return values
+
+
+def _filters_table(noise_subjects: tuple[str, ...]) -> TableSpec:
+    return TableSpec("[filters]", {"kinds": names(FILTERS), "time_constants": _positive_seconds,
+                                   "inputs": names(noise_subjects), "enabled": flag})
 
 
 def parse_spec(text: str, path: Path | None, subjects: dict[str, tuple[str, ...]]) -> RobustnessSpec:
@@ -115,47 +118,25 @@ def parse_spec(text: str, path: Path | None, subjects: dict[str, tuple[str, ...]
     model has is a mistake)."""
     where = str(path) if path is not None else "the spec"
     doc = spec_tables(text, where, SECTIONS, SpecError)
-    study = doc.get("study", {})
-    bad = [k for k in study if k not in STUDY_KEYS]
-    if bad:
-        raise SpecError(f"{where}: [study] has an unknown key {bad[0]!r}; use {', '.join(STUDY_KEYS)}")
-    name, description = study.get("name", path.stem if path else "robustness"), study.get("description", "")
-    if not isinstance(name, str) or not isinstance(description, str):
-        raise SpecError(f"{where}: [study] name and description must be strings")
-    seeds, seed = study.get("seeds", DEFAULT_SEEDS), study.get("seed", 0)
-    if isinstance(seeds, bool) or not isinstance(seeds, int) or not 1 <= seeds <= MAX_SEEDS:
-        raise SpecError(f"{where}: [study] seeds must be a whole number from 1 to {MAX_SEEDS}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise SpecError(f"{where}: [study] seed must be a whole number, 0 or more")
-    names = PERTURBATIONS.names()
-    wanted = _names(f"{where}: [study] kinds", study["kinds"], names) if "kinds" in study else names
+    kind_names = PERTURBATIONS.names()
+    study = _study_table(kind_names).read(doc.get("study", {}), where, SpecError)
     tables = doc.get("perturbations", {})
-    unknown = [k for k in tables if k not in names]
+    unknown = [k for k in tables if k not in kind_names]
     if unknown:
         raise SpecError(f"{where}: [perturbations.{unknown[0]}] is not a perturbation kind; use "
-                        f"{', '.join(names)}")
+                        f"{', '.join(kind_names)}")
     kinds = {}
-    for name_ in names:
-        if name_ not in wanted:
-            continue
-        choice = _kind_choice(f"{where}: [perturbations.{name_}]", PERTURBATIONS[name_], tables.get(name_, {}),
-                              subjects.get(name_, ()))
-        if choice is not None:
-            kinds[name_] = choice
-    filters = doc.get("filters", {})
-    bad = [k for k in filters if k not in FILTER_KEYS]
-    if bad:
-        raise SpecError(f"{where}: [filters] has an unknown key {bad[0]!r}; use {', '.join(FILTER_KEYS)}")
-    filter_kinds = _names(f"{where}: [filters] kinds", filters["kinds"], FILTERS) if "kinds" in filters else FILTERS
-    if filters.get("enabled", True) is False:
-        filter_kinds = ()
-    taus = _numbers(f"{where}: [filters] time_constants", filters["time_constants"]) \
-        if "time_constants" in filters else DEFAULT_TIME_CONSTANTS
-    if any(t <= 0 for t in taus):
-        raise SpecError(f"{where}: [filters] time_constants must be positive seconds")
-    inputs = _names(f"{where}: [filters] inputs", filters["inputs"], subjects.get("noise", ())) \
-        if "inputs" in filters else None
-    return RobustnessSpec(path, text, name, description, seeds, seed, kinds, tuple(filter_kinds), taus, inputs)
+    for name in study.get("kinds", kind_names):
+        table = _kind_table(PERTURBATIONS[name], subjects.get(name, ())).read(tables.get(name, {}), where, SpecError)
+        if table.pop("enabled", True):
+            kinds[name] = KindChoice(table.pop("subjects", None), table)
+    kinds = {name: kinds[name] for name in kind_names if name in kinds}     # the registry's order
+    filters = _filters_table(subjects.get("noise", ())).read(doc.get("filters", {}), where, SpecError)
+    filter_kinds = filters.get("kinds", FILTERS) if filters.get("enabled", True) else ()
+    return RobustnessSpec(path, text, study.get("name", path.stem if path else "robustness"),
+                          study.get("description", ""), study.get("seeds", DEFAULT_SEEDS), study.get("seed", 0),
+                          kinds, tuple(filter_kinds), filters.get("time_constants", DEFAULT_TIME_CONSTANTS),
+                          filters.get("inputs"))
 
 
 def load_spec(path: Path | None, subjects: dict[str, tuple[str, ...]]) -> RobustnessSpec:

@@ -1,3 +1,5 @@
-"""A bench run's wing: what a run needs before it starts (`inputs`), the target process it starts and stops
-(`target`), the run itself with the target on the bus (`execute`), and the cleanup of what a killed run left
-behind (`leftovers`)."""
+"""A bench run's part: the run as data (`request`, with the one-line parsers of its values in `values`), and the
+pipeline every way to run the bench goes through, request -> `prepare` (every refusal before any work; the model,
+data and rows, read through `inputs`) -> `execute` (the target process of `target` started, or one on the bus
+attached to; replay, log) -> `judge` (analysis, criteria, verdict: one `RunSummary`), with `leftovers`, the
+cleanup of what a killed run left behind. `bench run`, `bench host`, a campaign and the pytest plugin adapt it."""

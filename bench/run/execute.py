@@ -1,4 +1,5 @@
-"""Orchestration of a bench run: start the target process, run the host in this process, stop the target.
+"""A run's middle stage, `bench run`'s and `bench host`'s: start the target process (`execute_started`) or attach to
+one already on the bus (`execute_attached`), run the host in this process, stop the target.
 
 The target (`bench.run.target.TargetProcess`) is on the same bus options as the host; with `auto` the bus is
 SocketCAN vcan0 where usable, else udp_multicast on a port unique to this run (`bench.commands.args.bus_from_args`),
@@ -18,9 +19,11 @@ from __future__ import annotations
 
 import json
 import signal
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import can
 import numpy as np
@@ -30,8 +33,8 @@ from bench.fileio import scratch_dir
 from bench.run.target import TargetProcess
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.database import host_frame_ids
-from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard
-from host.faults import FaultSpec
+from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard, first_heard
+from host.faults import FaultSpec, FaultSpecError
 from host.procedure import replay_log, run_dataset
 from host.replay import Progress
 from host.results import HostResult
@@ -39,9 +42,15 @@ from host.session import DEFAULT_CONNECT_TIMEOUT_S, SessionError
 from target_sim.artifact import ModelArtifact
 from target_sim.node import target_on_channel
 
+if TYPE_CHECKING:
+    from bench.run.prepare import PreparedRun
+    from bench.run.request import RunRequest
+
 
 @dataclass
 class RunOutcome:
+    """What the execute stage gives the judge: the host's result, and the target's end when the run started it."""
+
     result: HostResult
     target_status: int | None
     target_stderr: str
@@ -135,6 +144,49 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
         raise BenchError(f"the target process ended with status {status} after the run: "
                          f"{stderr.strip().splitlines()[-1] if stderr.strip() else '(no output)'}")
     return RunOutcome(result, status, stderr, target_stats)
+
+
+def execute_started(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, *,
+                    firmware: Path | None = None, progress: Progress | None = None) -> RunOutcome:
+    """A run's middle stage for `bench run`: the target started here (`run_with_target`, on the ELF `firmware` for
+    the firmware engine), the prepared rows replayed and logged."""
+    from bench.model.runs import initial_temperatures
+
+    return run_with_target(prepared.model_path, prepared.artifact, bus, prepared.drive,
+                           initial_temperatures(prepared.dataset), mode=request.mode, speed=request.speed,
+                           sample_period_s=prepared.dataset.sample_period_s, log_path=prepared.log_path,
+                           reply_timeout_s=request.reply_timeout, progress=progress, faults=faults,
+                           firmware=firmware, isr_rate_hz=request.isr_rate, measurements=prepared.measurements)
+
+
+def execute_attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, *,
+                     announce: Callable[[], None] = lambda: None) -> RunOutcome:
+    """A run's middle stage for `bench host`: the prepared rows replayed to a target already on `bus`, and logged.
+    A second host on the channel, heard before the run or during it, ends it in one sentence (`dbc.transport.
+    SenderGuard`); `announce` runs once the bus is this host's alone, before anything is sent (the command's lines,
+    --wait-for-listener)."""
+    from bench.model.runs import initial_temperatures
+
+    host_bus = None
+    try:
+        host_bus = bus.open()
+        if (other := first_heard(host_bus, host_frame_ids())) is not None:  # two hosts would both drive the target
+            raise SessionError(f"{bus.describe()} already has a host sending (frame id "
+                               f"0x{other.arbitration_id:03x}); stop it or pick another channel")
+        host_bus = SenderGuard(host_bus, bus, host_frame_ids(), "host")   # and one that starts later stops this run
+        announce()
+        result = run_dataset(host_bus, prepared.drive, initial_temperatures(prepared.dataset),
+                             model_id=prepared.artifact.model_id, mode=request.mode, speed=request.speed,
+                             sample_period_s=prepared.dataset.sample_period_s, log_path=prepared.log_path,
+                             reply_timeout_s=request.reply_timeout, connect_timeout_s=request.connect_timeout,
+                             faults=faults, target_events=request.target_events, events_since=time.time(),
+                             measurements=prepared.measurements)
+    except FaultSpecError as exc:   # kept for its exit status: a plan the host refuses here (faults in real time at
+        raise BenchError(str(exc)) from None   # too short a sample interval) exits 1, a bad --fault option 2
+    finally:
+        if host_bus is not None:
+            host_bus.shutdown()
+    return RunOutcome(result, None, "")
 
 
 def killed_sentence(killed: signal.Signals, result: HostResult) -> str:

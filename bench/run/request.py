@@ -27,6 +27,7 @@ from typing import Any
 
 from bench.errors import UsageError
 from bench.run import values
+from bench.tomlspec import TableSpec
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from host.session import DEFAULT_CONNECT_TIMEOUT_S
 
@@ -270,22 +271,16 @@ def check_value(key: str, value: Any) -> Any:
 
 
 def _from_mapping(cls, options: Mapping[str, Any], where: str) -> RunRequest:
-    """The request of `options` (keys with `-` or `_`), each checked: UsageError naming `where` and the key for an
-    unknown key or a bad value."""
-    checked: dict[str, Any] = {}
-    for key, value in options.items():
-        name = key.strip().replace("-", "_")
-        if name not in OPTION or name == "fault":
-            raise UsageError(f"{where} names an unknown run option {key!r}; use {', '.join(SETTABLE)}")
-        option = OPTION[name]
-        if value is None or (option.parse is Path and isinstance(value, Path)):
-            checked[name] = value
-            continue
-        try:
-            checked[name] = option.check(value)
-        except ValueError as exc:
-            raise UsageError(f"{where} {key}: {exc}") from None
-    return cls(**checked)
+    """The request of `options` (keys with `-` or `_`), each checked by its option's own check (the TOML files'
+    mechanism, `bench.tomlspec.TableSpec`): UsageError naming `where` and the key for an unknown key or a bad
+    value. None and a Path stand as given (a request made in code)."""
+    given = {key.strip().replace("-", "_"): value for key, value in options.items()}
+    table = TableSpec("", {key: option.check for key, option in OPTION.items() if key != "fault"},
+                      advice=f"it names no run option; use {', '.join(SETTABLE)}")
+    as_given = {key: value for key, value in given.items() if key in table.keys and (
+        value is None or (OPTION[key].parse is Path and isinstance(value, Path)))}
+    checked = table.read({k: v for k, v in given.items() if k not in as_given}, where, UsageError)
+    return cls(**as_given, **checked)
 
 
 def _from_toml(cls, text: str, where: str = "the run request") -> RunRequest:

@@ -6,10 +6,10 @@ the key)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import Any
 
 from bench.errors import UsageError
+from bench.tomlspec import choice, flag, number, path, whole, whole_at_least  # noqa: F401 - run options name them here
 
 
 def positive_float(text: str) -> float:
@@ -60,48 +60,7 @@ def sample_period(text: str) -> float | None:
 
 
 # ---------------------------------------------------------------- TOML values (ValueError: one clause)
-
-
-def number(value: Any, positive: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError("must be a number")
-    if positive and value <= 0:
-        raise ValueError("must be a positive number")
-    return float(value)
-
-
-def whole(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError("must be a whole number")
-    return value
-
-
-def whole_at_least(low: int) -> Callable[[Any], int]:
-    def check(value: Any) -> int:
-        if whole(value) < low:
-            raise ValueError(f"must be a whole number, {low} or more")
-        return value
-    return check
-
-
-def flag(value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ValueError("must be true or false")
-    return value
-
-
-def choice(*choices: str) -> Callable[[Any], str]:
-    def check(value: Any) -> str:
-        if value not in choices:
-            raise ValueError(f"must be one of {', '.join(choices)}")
-        return value
-    return check
-
-
-def path(value: Any) -> str:
-    if not isinstance(value, str) or not value.strip():
-        raise ValueError("must be a file path")
-    return value
+# the general checks are the TOML files' own (bench.tomlspec); the run's own follow them
 
 
 def rows(value: Any) -> int | None:

@@ -896,6 +896,31 @@ def _default_rows(motors: list[dict]) -> list[list[str]]:
     return rows
 
 
+@single_record("xcp", "XCP slave (Python node)")
+def section_xcp(record: Record) -> list[str]:
+    f = record["figures"]
+    rows = [[name, _n(v["p50"], 1), _n(v["p99"], 1), _n(v["max"], 1)] for name, v in f["handler_us"].items()]
+    rows.append(["DAQ sample, 4 ODTs, per model step", _n(f["daq_sample_us"]["p50"], 1),
+                 _n(f["daq_sample_us"]["p99"], 1), _n(f["daq_sample_us"]["max"], 1)])
+    for name, v in f["row_with_step_us"].items():
+        rows.append([f"a row with its model step and replies, {name.replace('_', ' ')}", _n(v["p50"], 1),
+                     _n(v["p99"], 1), _n(v["max"], 1)])
+    lines = [f"In-process, against the model step period of {_n(f['dt_us'])} µs (commands run between frames, DAQ "
+             f"after the step's replies; {_n(f['daq_packets'])} DAQ packets for {_n(f['model_steps'])} model steps):",
+             "", *_table(["µs", "p50", "p99", "max"], rows)]
+    run = f.get("daq_run")
+    if run:
+        why = run["host_stderr"].removeprefix("bench: host: ")
+        verdict = "clean." if run["host_exit"] == 0 else f"NOT clean ({why})."
+        lines += [f"A run recorded by DAQ (pyxcp on the bus, `bench host` replaying {_n(run['rows'])} rows of the "
+                      f"40 °C validation run): {_n(run['model_steps'])} model steps, "
+                      f"{', '.join(_n(n) for n in run['daq_packets_per_odt'])} DAQ packets per ODT, "
+                      f"{run['lost']} lost, "
+                      f"max \\|DAQ − CAN reply\\| {_n(run['max_abs_daq_minus_can_C'], 4)} °C (the replies carry "
+                      f"0.01 °C); `bench host` " + verdict]
+    return lines
+
+
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
 SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
@@ -903,7 +928,7 @@ SECTIONS: dict[str, Section] = {
     "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "plant_distributed": section_plant_distributed,
     "observer": section_observer,
-    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite}
+    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite, "xcp": section_xcp}
 BENCHMARKS = tuple(SECTIONS)
 
 

@@ -31,8 +31,8 @@ from target_sim.observer import Float32Observer, has_observer
 MODEL_ID_SYMBOL = "fw_model_id"
 ENTRY_POINTS = ("fw_reset", "fw_restore", "fw_state", "fw_output", "fw_step", "fw_accumulate", "fw_mean",
                 "fw_clear")
-OBSERVER_ENTRY_POINTS = ("fw_obs_reset", "fw_obs_restore", "fw_obs_step", "fw_obs_report", "fw_obs_checkpoint",
-                         "fw_obs_restore_checkpoint")
+OBSERVER_ENTRY_POINTS = ("fw_obs_reset", "fw_obs_restore", "fw_obs_step", "fw_obs_report", "fw_obs_gate",
+                         "fw_obs_checkpoint", "fw_obs_restore_checkpoint")
 F32 = np.float32
 
 
@@ -72,6 +72,7 @@ class FirmwareEstimator:
         self._inputs, self._sample, self._mean = (fw.alloc_f32(sample_width) for _ in range(3))
         self._outputs, self._state = (fw.alloc_f32(4) for _ in range(2))
         self._report = fw.alloc_f32(4 + self.measurements)
+        self._gate = fw.alloc(max(self.measurements, 1))
         self._checkpoint = fw.alloc_f32(max(self.checkpoint_size, 1))
         self._prefix = "fw_obs_" if self.observer else "fw_"
         self.last_cycles: int | None = None
@@ -116,6 +117,12 @@ class FirmwareEstimator:
         self.fw.call("fw_obs_report", self._report)
         out = self.fw.read_f32(self._report, 4 + self.measurements)
         return out[:4].copy(), out[4:].copy()
+
+    def gate(self) -> np.ndarray:
+        """An observer's innovation gate after the last step (fw_obs_gate), per measurement: bit 0 its reading was
+        rejected, bit 1 its sensor is flagged (`Float32Observer.rejected`, `.flagged`)."""
+        self.fw.call("fw_obs_gate", self._gate)
+        return np.frombuffer(self.fw.read_bytes(self._gate, self.measurements), dtype=np.uint8).copy()
 
     def checkpoint(self) -> np.ndarray:
         """An observer's checkpoint (fw_obs_checkpoint): `Float32Observer.checkpoint`'s elements."""

@@ -32,6 +32,10 @@ UNITLESS = E2E_SIGNALS | {
     "FluxMagnetStatus",
     "SensorUsed",
     "FluxMagnetUsed",
+    "SensorRejected",
+    "FluxMagnetRejected",
+    "SensorFlagged",
+    "FluxMagnetFlagged",
     "VoltageStatus",
     "Index",
     "Value",
@@ -361,5 +365,29 @@ def test_version_1_7_adds_the_voltages_and_the_observer_checkpoint_and_says_so()
             ("Index", 12, 8), ("StepLow", 20, 12), ("Value", 32, 32)]
         assert 1 << 12 == dbc.contract.CHECKPOINT_STEP_LOW_MODULO
     network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
+    history = network.split("History: ", 1)[1].split("; 1.7.0 ", 1)[1]
+    assert history.startswith("added DriveVoltages") and "ObserverCheckpoint" in history.split("; 1.6.0")[0]
+
+
+def test_version_1_8_puts_the_observers_gate_in_free_bits_and_says_so():
+    """1.8.0: the innovation gate on the bus, in bits 1.7.0 left free (the same ids, lengths and other signals, so
+    a 1.7.0 log decodes with them 0): a Rejected flag per slot in Innovations (bits 62, 63, beside the Used flags),
+    a Flagged flag per slot in Uncertainty1 (bits 60, 61); one signal each, named per slot as the contract names
+    them; the history's newest entry says so."""
+    assert dbc.dbc_version_info()[:2] >= (1, 8)
+    innovations, flags = contract().by_name["Innovations"], contract().by_name[dbc.contract.FLAG_MESSAGE]
+    assert [(s.name, s.start, s.length) for s in innovations.signals][-2:] == [
+        ("SensorRejected", 62, 1), ("FluxMagnetRejected", 63, 1)]
+    assert [(s.name, s.start, s.length) for s in flags.signals] == [
+        ("Step", 12, 16), ("WindingSigma", 28, 16), ("MagnetSigma", 44, 16), ("SensorFlagged", 60, 1),
+        ("FluxMagnetFlagged", 61, 1)]
+    assert dict(dbc.contract.REJECTED_SIGNALS) == {"sensor": "SensorRejected", "flux": "FluxMagnetRejected"}
+    assert dict(dbc.contract.FLAGGED_SIGNALS) == {"sensor": "SensorFlagged", "flux": "FluxMagnetFlagged"}
+    slots = set(dbc.contract.MEASUREMENT_SLOTS)
+    assert set(dbc.contract.REJECTED_SIGNALS) == slots == set(dbc.contract.FLAGGED_SIGNALS)
+    for message, last in ((innovations, 63), (flags, 61)):      # every bit at most once, within the 8 bytes
+        bits = [b for s in message.signals for b in range(s.start, s.start + s.length)]
+        assert len(bits) == len(set(bits)) and max(bits) == last
+    network = DBC_PATH.read_text(encoding="ascii").split('CM_ "', 1)[1].split('";', 1)[0]
     history = network.split("History: ", 1)[1]
-    assert history.startswith("1.7.0 added DriveVoltages") and "ObserverCheckpoint" in history.split("; 1.6.0")[0]
+    assert history.startswith("1.8.0 added the observer's innovation gate") and "1.7.0 added DriveVoltages" in history

@@ -902,8 +902,11 @@ def test_run_names_the_separator_of_another_csv_dialect(cli, material, scratch, 
     (("firmware", "buld"), ("did you mean 'build'?", "(see 'bench firmware --help')")),
     (("firmware", "build", "--nosuch"), ("(see 'bench firmware build --help')",)),
     (("--nosuch",), ("unrecognized arguments: --nosuch", "(see 'bench --help')")),
-    (("run", "--wait-for-listener", "0"), ("'0' must be a positive number",)),
-    (("host", "--data", "d.csv", "--wait-for-listener", "x"), ("'x' is not a number",)),
+    (("run", "--wait-for-listener", "0"), ("argument --wait-for-listener: '0' must be a positive number",)),
+    (("host", "--data", "d.csv", "--wait-for-listener", "x"), ("argument --wait-for-listener: 'x' is not a number",)),
+    (("run", "--rows", "0"), ("argument --rows: '0' must be a positive whole number", "(see 'bench run --help')")),
+    (("data", "--seed", "-3"), ("argument --seed: '-3' must be a whole number, 0 or more",)),
+    (("run", "--sample-period", "x"), ("--sample-period 'x' is neither a number of seconds nor 'auto'",)),
 ])
 def test_a_bad_argument_is_one_sentence_with_one_prefix(cli, scratch, argv, fragments):
     """One `bench: error: ` (it was doubled: 'bench: error: bench: argument ...'), a close subcommand or choice

@@ -21,43 +21,10 @@ from pathlib import Path
 
 import pytest
 
-from helpers import subprocess_env, synthetic_columns, write_synthetic_dataset
+from helpers import alive, processes_of, subprocess_env, synthetic_columns, wait_for, write_synthetic_dataset
 
 GONE_TIMEOUT_S = 30.0      # for the processes and files to go, polling (a loaded CI machine)
 START_TIMEOUT_S = 120.0    # for pytest to start, the bench to load and the run to log its first frames
-
-
-def alive(pid: int) -> bool:
-    """Process `pid` exists and is not a zombie (one waiting for its adopter to reap it has ended)."""
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return False
-    return state not in ("Z", "X")
-
-
-def processes_of(marker: str, exclude: tuple[int, ...] = ()) -> dict[int, str]:
-    """Live processes whose command line holds `marker`: pid -> command line."""
-    found = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) in (os.getpid(), *exclude):
-            continue
-        try:
-            argv = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except OSError:
-            continue
-        if marker in argv and alive(int(entry.name)):
-            found[int(entry.name)] = argv
-    return found
-
-
-def wait_for(predicate, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.1)
-    return predicate()
 
 
 def leftovers(case: Path) -> list[str]:
@@ -226,6 +193,40 @@ def test_a_tied_child_ends_when_its_parent_is_killed(kernel):
         parent.kill()
         parent.wait()
         assert wait_for(lambda: not alive(child), GONE_TIMEOUT_S), f"process {child} outlived its parent"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+        try:
+            os.killpg(parent.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
+COMPILING_PARENT = """
+import sys
+from bench.firmware import toolchain
+# a "compiler" that says who it is and takes its time: the bench waits for it as for ziglang
+toolchain.COMPILER = [sys.executable, "-c", "import os, sys, time; open(sys.argv[1] + '.tmp', 'w').write("
+                      "str(os.getpid())); os.replace(sys.argv[1] + '.tmp', sys.argv[1]); time.sleep(120)",
+                      sys.argv[1]]
+toolchain.toolchain_version()
+"""
+
+
+def test_the_compiler_ends_when_the_bench_compiling_is_killed(tmp_path):
+    """SIGKILL of a bench process while its cross-compiler runs (`bench.firmware.toolchain`, through
+    `dbc.lifeline.tied_command`): the compiler ends too (it ran on, orphaned, before)."""
+    pid_file = tmp_path / "compiler.pid"
+    parent = subprocess.Popen([sys.executable, "-c", COMPILING_PARENT, str(pid_file)],
+                              env=subprocess_env(can_settings=False), start_new_session=True)
+    try:
+        assert wait_for(pid_file.exists, START_TIMEOUT_S), "the compiler never started"
+        compiler = int(pid_file.read_text())
+        assert alive(compiler) and compiler != parent.pid
+        parent.kill()
+        parent.wait()
+        assert wait_for(lambda: not alive(compiler), GONE_TIMEOUT_S), f"the compiler {compiler} outlived the bench"
     finally:
         if parent.poll() is None:
             parent.kill()

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, subprocess_env, synthetic_columns, write_synthetic_dataset
+from helpers import ROOT, processes_of, subprocess_env, synthetic_columns, wait_for, write_synthetic_dataset
 
 NOTE = "no half-written file is left and any target process it started was stopped"
 
@@ -38,27 +38,8 @@ def _port() -> int:
 
 
 def _targets(port: int) -> list[int]:
-    """Process ids of every `python -m target_sim` on udp port `port` (from /proc/*/cmdline)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if b"target_sim" in argv and f"port={port}".encode() in argv:
-            found.append(int(entry.name))
-    return found
-
-
-def _wait_for(predicate, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return predicate()
+    """Process ids of every live `python -m target_sim` on udp port `port`."""
+    return [pid for pid, argv in processes_of("target_sim").items() if f"port={port}" in argv.split()]
 
 
 def _start(args: list, cwd: Path, port: int) -> subprocess.Popen:
@@ -73,7 +54,7 @@ def _signal_when_running(process: subprocess.Popen, port: int, signum: int, sett
     then killed)."""
     left: list[int] = []
     try:
-        assert _wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
+        assert wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
         assert process.poll() is None, f"the command ended before the signal: {process.communicate()}"
         time.sleep(settle_s)
         assert process.poll() is None, f"the command ended before the signal: {process.communicate()}"
@@ -162,13 +143,13 @@ def test_target_stops_by_itself_when_its_bench_is_killed_and_the_next_run_clears
                       "--log", out / "x.blf", "--no-report", "--quiet"], scratch, port)
     killed = process.pid
     try:
-        assert _wait_for(lambda: _targets(port), 60), "no target started"
+        assert wait_for(lambda: _targets(port), 60), "no target started"
         targets = _targets(port)
         time.sleep(1.0)
         process.kill()
         process.wait()
         assert process.returncode == -signal.SIGKILL
-        assert _wait_for(lambda: not _targets(port), 5), f"target {targets} still running after its bench died"
+        assert wait_for(lambda: not _targets(port), 5), f"target {targets} still running after its bench died"
     finally:
         for pid in _targets(port):
             os.kill(pid, signal.SIGKILL)
@@ -197,7 +178,7 @@ def test_target_killed_by_another_process_is_named_with_its_signal_and_row(mater
     process = _start(["bench", "run", "--data", material.data, "--model", material.art, "--mode", "realtime",
                       "--log", out / "x.blf", "--no-report", "--quiet"], scratch, port)
     try:
-        assert _wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
+        assert wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
         time.sleep(5.0)   # its start and the handshake, then rows going out at 5 a second for 12 s
         for pid in _targets(port):
             os.kill(pid, signal.SIGKILL)
@@ -221,12 +202,12 @@ def test_a_target_started_by_hand_outlives_the_shell_that_started_it(material, s
                            cwd=ROOT, env=child_env(), capture_output=True, text=True, timeout=30)
     pid = int(shell.stdout.strip())
     try:
-        assert _wait_for(lambda: _targets(port) == [pid], 10)
+        assert wait_for(lambda: _targets(port) == [pid], 10)
         time.sleep(2.0)   # its parent, the shell, is long gone
         assert _targets(port) == [pid]
     finally:
         os.kill(pid, signal.SIGTERM)
-    assert _wait_for(lambda: not _targets(port), 10)
+    assert wait_for(lambda: not _targets(port), 10)
 
 
 def test_target_refuses_a_parent_pid_that_is_not_its_parent(cli, material, scratch):
@@ -267,7 +248,7 @@ def _signal_after(process: subprocess.Popen, seconds: float, signum: int) -> tup
     """Send `signum` `seconds` after the command's own handlers are in place (it must still run then); its exit
     status, stdout, stderr."""
     try:
-        assert _wait_for(lambda: _catches_sigterm(process.pid) or process.poll() is not None, 120), (
+        assert wait_for(lambda: _catches_sigterm(process.pid) or process.poll() is not None, 120), (
             "the command installed no SIGTERM handler within 120 s")
         time.sleep(seconds)
         assert process.poll() is None, f"the command ended before the signal: {process.communicate()}"
@@ -317,7 +298,7 @@ def test_nohup_run_survives_the_hangup_and_so_does_its_target(material, scratch)
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
                                preexec_fn=_ignore_sighup)
     try:
-        assert _wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
+        assert wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
         time.sleep(1.0)
         assert process.poll() is None, process.communicate()
         os.killpg(process.pid, signal.SIGHUP)   # the terminal's hangup: the bench and its target
@@ -351,7 +332,7 @@ def test_analyze_stopped_while_drawing_its_report_leaves_no_report(material, scr
     out = scratch / "out"
     process = _start_plain(["bench", "analyze", material.log, "--model", material.art, "--report", out / "rep",
                             "--quiet"], scratch)
-    assert _wait_for(lambda: _drawing(process.pid) or process.poll() is not None, 120), "it never drew"
+    assert wait_for(lambda: _drawing(process.pid) or process.poll() is not None, 120), "it never drew"
     rc, stdout, stderr = _signal_after(process, 0.3, signum)
     _assert_stopped(rc, stderr, signum)
     assert stdout == ""
@@ -532,7 +513,7 @@ def test_identify_stops_within_seconds_of_sigterm_while_polishing(scratch, long_
     reader = _read_terminal(terminal, chunks)
     try:
         # the swarm of 8 takes a second; the polish of 4 starts over 3 × 30 000 rows about 25 s (idle machine)
-        assert _wait_for(lambda: b"LM polish" in b"".join(chunks) or process.poll() is not None, 300), (
+        assert wait_for(lambda: b"LM polish" in b"".join(chunks) or process.poll() is not None, 300), (
             "the polish did not start within 300 s")
         time.sleep(3.0)     # both worker threads in the middle of a fit
         assert process.poll() is None, f"the command ended before the signal: {b''.join(chunks)!r}"
@@ -630,7 +611,7 @@ def test_a_paused_host_is_not_taken_for_a_silent_target(material, scratch, long_
     process = _start(["bench", "run", "--data", long_data, "--model", material.art, "--rows", "30000", "--log",
                       out / "x.blf", "--no-report", "--json"], scratch, port)
     try:
-        assert _wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
+        assert wait_for(lambda: _targets(port) or process.poll() is not None, 60), "no target started"
         # the handshake, then rows going out: 30 000 rows take about 5 s at the 5 800 rows/s of an idle EPYC
         # (8000 rows, this test's earlier length, were done within the 2.5 s it waited there)
         time.sleep(1.5)

@@ -248,9 +248,11 @@ def test_an_observer_the_frames_cannot_carry_is_refused_before_any_work(what, ob
 
 def test_a_lying_sensor_over_can_is_rejected_counted_and_named(observer_artifact, validation_run, tmp_path):
     """The built-in motor's 40 °C run with its winding column +20 K for 100 rows: `bench run` over the bus with the
-    observer `bench observer` wrote (its default 3-sigma gate): every lying reading rejected and counted, the sensor
-    flagged, the run not clean with a sentence naming winding_C, and the observer's magnet while the sensor lies no
-    worse than 1.5× the open loop's (the same observer without the gate: far worse)."""
+    observer `bench observer` wrote (its default 3-sigma gate): every lying reading rejected and counted in the CAN
+    log (DBC 1.8.0: Innovations' SensorRejected, Uncertainty1's SensorFlagged), as the target's float32 code offline
+    counts them step for step, the sensor flagged, the run not clean with a sentence naming winding_C, and the
+    observer's magnet while the sensor lies no worse than 1.5× the open loop's (the same observer without the gate:
+    far worse); the log with some flags cleared is a finding of the cross-check."""
     from bench.drive.dataset import OPTIONAL_SCHEMA, SCHEMA, load_dataset, write_dataset
     from target_sim.artifact import dumps, seal
 
@@ -282,6 +284,15 @@ def test_a_lying_sensor_over_can_is_rejected_counted_and_named(observer_artifact
     in_lie = (gated.rows >= lie.start) & (gated.rows < lie.stop)
     assert gated.rejected[in_lie, 0].all() and slot["readings_rejected"] == int(gated.rejected.sum()) >= 40
     assert np.max(np.abs(record.temps[gated.rows] - gated.outputs)) <= 0.005 + 1e-9     # CAN = that code
+    # DBC 1.8.0: the CAN log itself carries them (a Rejected flag per step, the Flagged flag), and they were
+    # checked against that code at every step
+    on_bus = record.observer["sensor_rejected"] > 0
+    assert int(on_bus.sum()) == slot["readings_rejected"] == slot["readings_rejected_float32"]
+    assert set(record.observer["row_inn"][on_bus].astype(int)) == set(gated.rows[gated.rejected[:, 0]].tolist())
+    assert not (on_bus & (record.observer["sensor_used"] > 0)).any()
+    assert record.observer["sensor_flagged"].any() and slot["gate_source"] == "bus"
+    assert slot["gate_steps_compared"] == len(gated.rows) and slot["gate_steps_differing"] == 0
+    _a_gate_the_bus_does_not_match_is_a_finding(artifact, record, lying)
     section = {k: v for k, v in artifact.content["observer"].items() if k != "gate"}
     plain = load_artifact_content(dumps(seal({**artifact.content, "observer": section})), tmp_path)
     ungated = run_observer_offline(plain, record.drive, record.measurements[:, 0], record.initial)
@@ -294,6 +305,26 @@ def test_a_lying_sensor_over_can_is_rejected_counted_and_named(observer_artifact
     figures = {"open loop": rmse(open_loop), "observer": rmse(ungated.outputs), "gated": rmse(gated.outputs)}
     print(figures)
     assert figures["gated"] <= 1.5 * figures["open loop"] < figures["observer"], figures
+
+
+def _a_gate_the_bus_does_not_match_is_a_finding(artifact, record, data) -> None:
+    """The same log with the Rejected flags of three steps cleared (a target whose gate is not its code's): the
+    cross-check counts those steps and the run's problems name the sensor."""
+    from dataclasses import replace
+
+    from bench.analysis.canmetrics import compute
+    from bench.analysis.verdict import gate_problems
+    from bench.drive.dataset import load_dataset
+
+    observer = dict(record.observer)
+    flags = observer["sensor_rejected"].copy()
+    flags[np.flatnonzero(flags > 0)[:3]] = 0
+    observer["sensor_rejected"] = flags
+    results, _ = compute(replace(record, observer=observer), artifact, load_dataset(data))
+    slot = results.observer.measurements["sensor"]
+    assert slot.gate_steps_differing == 3 and slot.readings_rejected == slot.readings_rejected_float32 - 3
+    said = [p for p in gate_problems(results) if "differs from its float32 code offline" in p]
+    assert len(said) == 1 and "winding_C (sensor)" in said[0] and "at 3 of" in said[0], said
 
 
 def load_artifact_content(text: str, folder):

@@ -92,12 +92,14 @@ def test_under_xunit2_the_figures_are_suite_properties(tmp_path):
 @pytest.mark.parametrize("profile, words", [
     ("[bus]\nspeed = 1\n", "[bus] has an unknown key 'speed'; use interface, channel, bitrate, bus_kwargs"),
     ("[target]\nattach = true\n", "attaching to a target needs its bus: --bench-interface"),
-    ("[x\n", "is not a readable TOML file"),
+    ("[x\n", "is not valid TOML"),
     # these failed every test at run time, naming no profile
-    ("[run]\nrows = -5\n", "p.toml: [run] rows = -5 must be a whole number of at least 1"),
-    ("[run]\nmode = 'fast'\n", "p.toml: [run] mode = 'fast' is not one of lockstep, realtime"),
-    ("[run]\nreply_timeout = 0\n", "p.toml: [run] reply_timeout = 0 must be a number of seconds above 0"),
-    ("[run]\ndata = 'nowhere.csv'\n", "p.toml: [run] data = '"),
+    # the run request's own checks (`bench.run.request`), in the words a campaign spec's key gets
+    ("[run]\nrows = -5\n", "p.toml: [run] rows must be a positive whole number of rows"),
+    ("[run]\nmode = 'fast'\n", "p.toml: [run] mode must be one of lockstep, realtime"),
+    ("[run]\nreply_timeout = 0\n", "p.toml: [run] reply_timeout must be a positive number"),
+    ("[run]\ntimeout = 0\n", "p.toml: [run] timeout must be a number of seconds above 0"),
+    ("[run]\ndata = 'nowhere.csv'\n", "p.toml: [run] data 'nowhere.csv' does not exist"),
     ("[bus]\ninterface = 'udp_multicst'\n", "the bench interface 'udp_multicst' (--bench-interface or [bus] "
                                             "interface) is not a python-can interface; did you mean "
                                             "'udp_multicast'?"),
@@ -142,3 +144,39 @@ def test_the_projects_own_tests_collect_with_the_plugin_on(tmp_path):
                           env=subprocess_env(), capture_output=True, text=True, timeout=SESSION_TIMEOUT_S)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert " tests collected" in proc.stdout.splitlines()[-1]
+
+
+ATTACHED_SUITE = '''
+def test_attached(thermal_bench):
+    result = thermal_bench.run(rows=120)
+    assert type(result.summary).__name__ == "RunSummary", result.summary
+    assert result.clean and result.passed, result.verdict
+    assert result.argv[3] == "host"                      # an attached target: `bench host` made the run
+    assert result.metrics.counts.replies == 120 and result.summary.host["rows_sent"] == 120
+    assert result.summary.bus.interface == "udp_multicast"
+'''
+
+
+@pytest.mark.slow
+def test_an_attached_targets_run_reads_as_the_same_summary(tmp_path, small_dataset, udp_bus):
+    """Issue 38: `bench host --json` prints the summary `bench run --json` prints, so the fixture reads a run on an
+    attached target with `RunSummary.from_json` as it reads its own (no conversion between two shapes)."""
+    import signal
+    import subprocess
+
+    from bench.model.default import default_artifact_path
+
+    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
+                               *udp_bus.to_argv()], cwd=ROOT, env=subprocess_env(), stderr=subprocess.PIPE, text=True)
+    try:
+        (tmp_path / "test_suite.py").write_text(ATTACHED_SUITE)
+        (tmp_path / "profile.toml").write_text(f'[target]\nattach = true\n[run]\ndata = "{small_dataset}"\n')
+        bus = ["--bench-interface", udp_bus.interface, "--bench-channel", str(udp_bus.channel),
+               "--bench-bus-kwargs", *(f"{k}={v}" for k, v in udp_bus.kwargs.items())]
+        proc = pytest_session(tmp_path, "-q", "--bench-out", "runs", "--bench-profile", "profile.toml", *bus,
+                              "test_suite.py")
+    finally:
+        target.send_signal(signal.SIGTERM)
+        target.communicate(timeout=60)   # its exit after SIGTERM: generous on a busy machine
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
+    assert "1 passed" in proc.stdout

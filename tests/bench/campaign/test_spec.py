@@ -89,7 +89,7 @@ def test_paths_are_relative_to_the_spec_and_overrides_replace_axes(tmp_path):
 
 @pytest.mark.parametrize(("text", "expected"), [
     ("[axes\nmodel = 1", "is not valid TOML"),
-    ("[axes]\nmodle = ['hammerstein']", "unknown option 'modle'"),
+    ("[axes]\nmodle = ['hammerstein']", "[axes] has an unknown key 'modle'"),
     ("[axes]\nmodel = ['foo']", "unknown model kind 'foo'"),
     ("[axes]\nmodel = ['missing/model.json']", "is not a file"),
     ("[axes]\ndata = ['nope.csv']", "data 'nope.csv' is not a file"),
@@ -101,9 +101,9 @@ def test_paths_are_relative_to_the_spec_and_overrides_replace_axes(tmp_path):
     ("[axes]\nmodel = []", "must be a non-empty list"),
     ("[axes]\nfault_seed = [1, 1]", "lists 1 twice"),
     ("rows = 3", "unknown section or key 'rows'"),
-    ("[fixed]\nrows = -3", "rows: must be a positive whole number"),
-    ("[fixed]\nspeed = true", "speed: must be a number"),
-    ("[fixed]\nengine = 'fpga'", "engine: must be one of python, firmware"),
+    ("[fixed]\nrows = -3", "[fixed] rows must be a positive whole number"),
+    ("[fixed]\nspeed = true", "[fixed] speed must be a number"),
+    ("[fixed]\nengine = 'fpga'", "[fixed] engine must be one of python, firmware"),
     ("[campaign]\nworkers = 3", "[campaign] has an unknown key 'workers'"),
 ])
 def test_a_bad_spec_is_one_sentence_and_nothing_is_written(tmp_path, capsys, text, expected):

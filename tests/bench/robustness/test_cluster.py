@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import sqlite3
 import subprocess
 import sys
@@ -15,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, subprocess_env
+from helpers import ROOT, DaskCluster, subprocess_env
 
 SPEC = """
 [study]
@@ -34,12 +33,6 @@ enabled = false
 """
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def count(out: Path) -> int:
     try:
         with sqlite3.connect(out / "robustness.sqlite") as db:
@@ -48,40 +41,29 @@ def count(out: Path) -> int:
         return 0
 
 
-def wait_for_workers(address: str, n: int, timeout_s: float = 90) -> None:
-    from distributed import Client
-
-    with Client(address, timeout=30) as client:
-        client.wait_for_workers(n, timeout=timeout_s)
-
-
 @pytest.mark.cluster
 def test_a_study_on_a_user_started_cluster_survives_a_killed_worker(tmp_path, small_dataset):
     spec = tmp_path / "spec.toml"
     spec.write_text(SPEC)
-    port = free_port()
-    address = f"tcp://127.0.0.1:{port}"
     env = subprocess_env()
-    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-                               "--port", str(port), "--dashboard-address", ":0"], cwd=tmp_path, env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
-    try:
-        time.sleep(2)
-        workers = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
-                                     "--no-nanny", "--dashboard-address", ":0"], cwd=tmp_path, env=env,
-                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for _ in range(2)]
-        procs += workers
-        wait_for_workers(address, 2)        # the scheduler and both workers up (generous: a loaded machine)
+    with DaskCluster(tmp_path, workers=2) as cluster:     # the scheduler and both workers up
+        workers = cluster.workers
+        address = cluster.address
         out = tmp_path / "cluster"
         study = subprocess.Popen([sys.executable, "-m", "bench", "robustness", "--data", str(small_dataset),
                                   "--spec", str(spec), "--out", str(out), "--cluster", address, "--json"],
                                  cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + 180
-        while count(out) < 2 and time.monotonic() < deadline and study.poll() is None:
-            time.sleep(0.05)
-        assert study.poll() is None, "the study ended before a worker could be killed"
-        workers[0].send_signal(signal.SIGKILL)           # mid-study: it is running a case (one in flight per worker)
-        stdout, stderr = study.communicate(timeout=300)  # waits for the survivor to finish every case
+        try:
+            deadline = time.monotonic() + 180
+            while count(out) < 2 and time.monotonic() < deadline and study.poll() is None:
+                time.sleep(0.05)
+            assert study.poll() is None, "the study ended before a worker could be killed"
+            workers[0].send_signal(signal.SIGKILL)       # mid-study: it is running a case (one in flight per worker)
+            stdout, stderr = study.communicate(timeout=300)   # waits for the survivor to finish every case
+        finally:
+            if study.poll() is None:                     # a failed wait leaves no study running
+                study.kill()
+                study.communicate()
         assert study.returncode == 0, stderr
         summary = json.loads(stdout)
         assert summary["not_done"] == 0 and summary["cases"] == count(out) == summary["ran"]
@@ -98,11 +80,3 @@ def test_a_study_on_a_user_started_cluster_survives_a_killed_worker(tmp_path, sm
             return json.loads((where / "report" / "robustness.json").read_text())["studies"]
 
         assert studies(out) == studies(tmp_path / "serial")
-    finally:
-        for proc in reversed(procs):
-            if proc.poll() is None:
-                proc.terminate()
-                try:
-                    proc.wait(timeout=20)
-                except subprocess.TimeoutExpired:
-                    proc.kill()

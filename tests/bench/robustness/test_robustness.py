@@ -91,9 +91,9 @@ def test_lanes_run_the_targets_code_bit_for_bit(kind, small_dataset):
         assert np.array_equal(got[index], expected)
 
 
-BAD_SPECS = [("[perturbations.noise]\ntorque = [-1.0]\n", "torque: -1 must not be negative"),
+BAD_SPECS = [("[perturbations.noise]\ntorque = [-1.0]\n", "torque holds -1, which must not be negative"),
              ("[perturbations.nosie]\n", "[perturbations.nosie] is not a perturbation kind"),
-             ("[perturbations.parameter]\nC_w = [-120]\n", "C_w: -120 must be above -100 %"),
+             ("[perturbations.parameter]\nC_w = [-120]\n", "C_w holds -120, which must be above -100 %"),
              ("[perturbations.bias]\nvoltage = [1.0]\n", "unknown key 'voltage'"),
              ("[study]\nseeds = 0\n", "seeds must be a whole number from 1"),
              ("[filters]\ntime_constants = [0]\n", "time_constants must be positive seconds"),
@@ -208,3 +208,31 @@ def test_an_interrupted_study_resumed_gives_the_same_table(tmp_path, spec, small
     assert tables(out) == tables(straight_out)
     again = run_cli("-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(spec), "--out", str(out))
     assert again.returncode == 1 and "already holds a robustness study" in again.stderr
+
+
+def test_a_resume_with_another_spec_is_refused_before_any_case(tmp_path, spec, small_dataset, serial_run, capsys):
+    """`--resume` into a finished study with another spec (or other --seeds) mixed both studies' cases in one table;
+    now one sentence, exit 2, before any case, the table as it was (the same spec resumes, every case skipped)."""
+    import shutil
+
+    from bench.cli import main
+    from bench.robustness.store import TABLE_NAME, CaseStore
+
+    out = tmp_path / "out"
+    shutil.copytree(serial_run[0], out)
+    with CaseStore(out / TABLE_NAME) as store:
+        before = store.meta(), store.rows()
+    other = tmp_path / "other.toml"
+    other.write_text(SPEC.replace("seeds = 3", "seeds = 2"))
+    base = ["robustness", "--data", str(small_dataset), "--out", str(out), "--rows", ROWS, "--serial", "--resume",
+            "--quiet"]
+    for extra in (["--spec", str(other)], ["--spec", str(spec), "--seeds", "4"]):
+        assert main([*base, *extra]) == 2, extra
+        said = capsys.readouterr().err
+        assert said.startswith(f"bench: error: {out} holds the robustness study 'small' of {spec} (spec sha256 ")
+        assert said.count("\n") == 1 and "whose cases differ from this one's" in said, said
+        with CaseStore(out / TABLE_NAME) as store:
+            assert (store.meta(), store.rows()) == before
+    assert main([*base, "--spec", str(spec), "--json"]) == 0
+    resumed = json.loads(capsys.readouterr().out)
+    assert resumed["ran"] == 0 and resumed["skipped"] == resumed["cases"] == len(before[1])

@@ -87,12 +87,12 @@ def test_toml_round_trips():
 
 
 @pytest.mark.parametrize(("text", "said"), [
-    ("rows = 0", "rows: must be a positive whole number"),
-    ('mode = "lokstep"', "mode: must be one of lockstep, realtime"),
-    ("isr_rate = -1", "isr_rate: must be a whole number, 0 or more"),
-    ("speed = true", "speed: must be a number"),
-    ("nosuch = 1", "unknown run option 'nosuch'"),
-    ('faults = "melt=1"', "faults:"),
+    ("rows = 0", "the profile rows must be a positive whole number"),
+    ('mode = "lokstep"', "mode must be one of lockstep, realtime"),
+    ("isr_rate = -1", "isr_rate must be a whole number, 0 or more"),
+    ("speed = true", "speed must be a number"),
+    ("nosuch = 1", "has an unknown key 'nosuch'; it names no run option"),
+    ('faults = "melt=1"', "faults unknown fault kind"),
 ])
 def test_a_bad_value_is_one_sentence_naming_the_key(text, said):
     with pytest.raises(UsageError, match="^the profile ") as caught:
