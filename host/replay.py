@@ -21,7 +21,6 @@ DriveCurrents, wait for that row's replies).
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -52,7 +51,6 @@ from host.session import HOST_PAUSE_S, HostSession, RowBook, SessionError
 
 Progress = Callable[[int, int], None]
 DEFAULT_ABORT_AFTER = 25
-SPIN_S = float(os.environ.get("HOST_SPIN_S", "0.0003"))  # lockstep: busy-poll for the reply before blocking
 
 
 class DataRangeError(HostError, ValueError):
@@ -163,15 +161,24 @@ class ReplayStats:
 def wait_for_reply(session: HostSession, book: RowBook, row: int, timeout: float) -> bool:
     """Receive until both temperature replies of `row` are in or `timeout` s have passed.
 
-    Polls for SPIN_S first: in lockstep the reply is usually less than 0.3 ms away, and blocking costs more.
+    Reads what already waits first, then polls for up to `session.spin.budget()` (`dbc.transport.SpinPolicy`: in
+    lockstep the reply is usually less than 0.3 ms away, and blocking costs more, unless the machine is loaded),
+    then blocks.
     """
     perf = time.perf_counter
     answered = book.is_answered
     deadline = perf() + timeout
-    spin_until = perf() + SPIN_S
-    fresh = True
+    while not answered(row) and session.receive(0.0) is not None:
+        pass
+    if answered(row):
+        return True
+    spin = session.spin
+    started = perf()
+    spin_until = started + spin.budget()
     while not answered(row) and perf() < spin_until:
         session.receive(0.0)
+    blocked = not answered(row)
+    fresh = True
     while not answered(row):
         remaining = deadline - perf()
         if remaining <= 0:
@@ -182,7 +189,11 @@ def wait_for_reply(session: HostSession, book: RowBook, row: int, timeout: float
                 continue
             break
         session.receive(remaining)
-    return answered(row)
+    if not answered(row):
+        return False
+    if fresh:   # a wait the host sat through (not one it was paused in): the spin policy learns from it
+        spin.waited(perf() - started, blocked=blocked)
+    return True
 
 
 def _silent(session: HostSession) -> bool:

@@ -19,6 +19,7 @@ a lost target, a re-initialization, a retransmitted row) on the bus, past the fa
 
 from __future__ import annotations
 
+import os
 import time
 from array import array
 from collections.abc import Callable, Sequence
@@ -53,7 +54,7 @@ from dbc.contract import (
     target_info,
 )
 from dbc.database import frame_id, host_frame_ids
-from dbc.transport import OwnFrameFilter
+from dbc.transport import OwnFrameFilter, SpinPolicy
 from dbc.xcp import xcp_ids
 from host.canlog import FrameLog
 from host.errors import HostError
@@ -63,6 +64,7 @@ DEFAULT_CONNECT_TIMEOUT_S = 15.0
 # and SIGCONT, a suspended machine, a starved scheduler), and the target's silence meanwhile is not the target's.
 HOST_PAUSE_S = 0.25
 MAX_REJECTIONS_KEPT = 100_000   # refused frames recorded one by one (counted beyond)
+SPIN_S = float(os.environ.get("HOST_SPIN_S", "0.0003"))  # lockstep: the longest busy-poll for a reply (0: never)
 
 
 def _same_float(a: float, b: float) -> bool:
@@ -214,6 +216,7 @@ class HostSession:
         self._xcp_ids = xcp_ids()
         self.own = OwnFrameFilter(host_frame_ids())
         self.monitor = Monitor(heartbeat_timeout_s)
+        self.spin = SpinPolicy(SPIN_S)   # how long a lockstep wait polls before it blocks (host.replay)
         self.invalid = dict.fromkeys(FRAME_ERROR_KINDS, 0)
         self.rejections: list[dict] = []   # each refused frame (kind, id, data): the evidence of reply faults
         self.book: RowBook | None = None

@@ -106,7 +106,7 @@ from dbc.contract import (
 )
 from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
 from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
-from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, first_heard
+from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, SpinPolicy, first_heard
 from dbc.xcp import cmd_id as xcp_cmd_id
 from dbc.xcp import res_id as xcp_res_id
 from target_sim.artifact import ModelArtifact
@@ -596,18 +596,23 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
     send(node.startup_frames())
     next_beat = monotonic() + heartbeat_period_s
     perf = time.perf_counter
-    spin_s = SPIN_S if spin_s is None else spin_s
+    spin = SpinPolicy(SPIN_S if spin_s is None else spin_s)
     faulted = node.state == TargetState.FAULT
     while not should_stop():
-        # poll briefly before sleeping: in lockstep the next frame is usually microseconds away, and waking a
-        # sleeping process costs more than the poll
+        # what already waits first; then poll briefly before sleeping (`SpinPolicy`: in lockstep the next frame is
+        # usually microseconds away, and waking a sleeping process costs more than the poll, unless the machine
+        # is loaded)
         msg = bus.recv(0.0)
-        if msg is None and spin_s > 0:
-            until = perf() + spin_s
+        if msg is None:
+            started = perf()
+            until = started + spin.budget()
             while msg is None and perf() < until:
                 msg = bus.recv(0.0)
-        if msg is None:
-            msg = bus.recv(max(0.0, next_beat - monotonic()))
+            blocked = msg is None
+            if blocked:
+                msg = bus.recv(max(0.0, next_beat - monotonic()))
+            if msg is not None:
+                spin.waited(perf() - started, blocked=blocked)
         if msg is not None and not own.is_own(msg):
             if foreign and not msg.is_extended_id and msg.arbitration_id in foreign:
                 continue  # our own reply fault on a foreign id, looped back

@@ -416,6 +416,58 @@ def section_can(record: Record) -> list[str]:
     return lines
 
 
+@single_record("sitting", "Lockstep against the bus's round trip")
+def section_sitting(record: Record) -> list[str]:
+    """The performance sitting: per round and condition the one-frame ping-pong, `bench run` on each engine (and on
+    the baseline's code, if measured), their ratios; the CPU budget of a row; then the medians against the goals."""
+    f, p = record["figures"], record["parameters"]
+    labels = [label for label in ("python", "firmware", "python_baseline", "firmware_baseline")
+              if label in next(iter(f["rounds"].values()))[0]]
+    names = {label: label.replace("_baseline", " (baseline)") for label in labels}
+    rows_each = "the whole default run" if p.get("rows") is None else f"its first {_n(p['rows'])} rows"
+    baseline = f" The baseline is the code at `{p['baseline']}`." if p.get("baseline") else ""
+    lines = [f"Bus: {p.get('bus')}; `bench run` lockstep on {rows_each} (log written, no report), "
+             f"{_count(p['rounds'], 'round')} alternating, quiet and with {p['hogs']} CPU-bound "
+             f"{'process' if p['hogs'] == 1 else 'processes'} "
+             f"beside it; the ping-pong {_n(p['pingpong_seconds'])} s each.{baseline}"
+             + (f" {p['note']}" if p.get("note") else ""), ""]
+    rows = []
+    for condition, rounds in f["rounds"].items():
+        for n, r in enumerate(rounds):
+            rows.append([f"{condition} {n + 1}", _n(r["load_before"], 1), _n(r["pingpong"]["round_trips_per_s"]),
+                         *(f"{_n(r[label]['rows_per_s'])} ({_n(r['ratio'][label], 3)})" for label in labels)])
+    lines += ["rows/s of each `bench run` (÷ the ping-pong's round trips/s):", "",
+              *_table(["round", "load before", "ping-pong round trips/s", *(names[label] for label in labels)], rows)]
+    if f.get("budget"):
+        lines += _sitting_budget(f["budget"])
+    goals, met = p.get("goals", {}), f.get("goals_met", {})
+    medians = [[condition, _n(m["pingpong_round_trips_per_s"]),
+                *(f"{_n(m[label + '_rows_per_s'])} ({_n(m['ratio_' + label], 3)})" for label in labels),
+                _n(m["ratio_firmware_over_python"], 2)] for condition, m in f["medians"].items()]
+    lines += ["Medians of the sitting, rows/s (÷ the ping-pong's round trips/s):", "",
+              *_table(["condition", "ping-pong round trips/s", *(names[label] for label in labels),
+                       "firmware ÷ python"], medians)]
+    if goals:
+        lines += [f"Goals: python ÷ ping-pong ≥ {goals['quiet']:g} quiet ({'met' if met.get('quiet') else 'not met'}), "
+                  f"≥ {goals['loaded']:g} loaded ({'met' if met.get('loaded') else 'not met'}); firmware ÷ python ≥ "
+                  f"{goals['firmware_over_python']:g} ({'met' if met.get('firmware_over_python') else 'not met'}).", ""]
+    return lines
+
+
+def _sitting_budget(budget: dict) -> list[str]:
+    """Where a row's µs go, per engine: each part of the row in CPU time, both nodes in one thread."""
+    engines = list(budget)
+    parts = list(budget[engines[0]]["per_row_us"])
+    rows = [[part, *(_n(budget[e]["per_row_us"].get(part), 1) for e in engines)] for part in parts]
+    rows.append(["**a row in all**", *(f"**{_n(budget[e]['row_us'], 1)}**" for e in engines)])
+    rows.append(["the one-frame ping-pong's round trip, the same way",
+                 *(_n(budget[e]["pingpong_round_trip_us"], 1) for e in engines)])
+    return [f"Where a row's µs go: host and target of {_n(budget[engines[0]]['rows'])} lockstep rows in one thread, "
+            "one after the other (no wake-up, no scheduler), each part in the thread's CPU time; the target sends "
+            + " and ".join(f"{budget[e]['target_frames_out_per_row']:g} frames a row ({e})" for e in engines) + ".",
+            "", *_table(["part of a row (CPU µs)", *(f"{e} engine" for e in engines)], rows)]
+
+
 def _worst(per_node: dict | None) -> float | None:
     values = [v for v in (per_node or {}).values() if v is not None]
     return max(values) if values else None
@@ -921,14 +973,36 @@ def section_xcp(record: Record) -> list[str]:
     return lines
 
 
+@single_record("listeners", "CAN tools attached to a run")
+def section_listeners(record: Record) -> list[str]:
+    """Which of python-can's logger and viewer and cantools' monitor saw every frame of a run, per pacing."""
+    f = record["figures"]
+
+    def share(value: float | None) -> str:
+        return "–" if value is None else f"{100 * min(value, 1.0):.1f} %"
+
+    rows = []
+    for label, summary in f["summary"].items():
+        seen = summary["share_min"]
+        rows.append([label, _n(summary["rows_per_s"]), _n(summary["frames_per_s"]), share(seen["logger"]),
+                     share(seen["viewer"]), share(seen["monitor"])])
+    repeats = record["parameters"]["repeats"]
+    return [f"`bench run --rows {record['parameters']['rows']}` on udp_multicast with the three tools attached, "
+            f"{repeats} run(s) per pacing, alternating; the least share of the run's own log's frames a tool saw "
+            "over those runs (a share above 100 %, the target's heartbeats around the run, is shown as 100 %):",
+            "", *_table(["pacing", "rows/s", "frames/s", "can.logger", "can.viewer", "cantools monitor"], rows)]
+
+
 # Each benchmark (a script `tests/benchmarks/bench_<name>.py`, its records' "benchmark") and its section, in page order.
 SECTIONS: dict[str, Section] = {
     "accuracy": section_accuracy, "firmware": section_firmware, "firmware_node": section_firmware_node,
     "firmware_timing": section_firmware_timing, "firmware_observer": section_firmware_observer,
-    "can": section_can, "memory": section_memory, "soak": section_soak, "campaign": section_campaigns,
+    "can": section_can, "sitting": section_sitting, "memory": section_memory, "soak": section_soak,
+    "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "plant_distributed": section_plant_distributed,
     "observer": section_observer,
-    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite, "xcp": section_xcp}
+    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite, "xcp": section_xcp,
+    "listeners": section_listeners}
 BENCHMARKS = tuple(SECTIONS)
 
 

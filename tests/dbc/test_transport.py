@@ -106,3 +106,27 @@ def test_unusable_buses_are_one_sentence(monkeypatch):
     if not hasattr(__import__("socket"), "AF_CAN") or not transport.socketcan_usable("vcan7"):
         with pytest.raises(BusUnavailable, match=r"cannot open the CAN bus socketcan vcan7 \("):
             BusConfig("socketcan", "vcan7").open()
+
+
+def test_spin_policy_polls_only_while_waits_are_short_and_cores_are_free(monkeypatch):
+    """A lockstep node polls before blocking while its waits end within the spin time and the machine has no more
+    runnable tasks than cores; long waits or a crowded machine make it block at once (polling then takes the CPU
+    the partner needs)."""
+    runnable = {"now": 1}
+    monkeypatch.setattr(transport, "runnable_tasks", lambda: runnable["now"])
+    monkeypatch.setattr(transport, "usable_cpus", lambda: 2)
+    monkeypatch.setattr(transport.SpinPolicy, "SAMPLE_S", 0.0)   # a fresh sample at every budget()
+    policy = transport.SpinPolicy(0.0003)
+    assert policy.budget() == 0.0003
+    for _ in range(40):                           # waits of 2 ms: polling for 0.3 ms never pays
+        policy.waited(0.002, blocked=True)
+    assert policy.budget() == 0.0
+    for _ in range(40):                           # back to 0.1 ms answers (measured while blocking too)
+        policy.waited(0.0001, blocked=True)
+    assert policy.budget() == 0.0003
+    runnable["now"] = 6                           # two CPU-bound processes and more beside it
+    assert [policy.budget() for _ in range(20)][-1] == 0.0
+    runnable["now"] = 1
+    assert [policy.budget() for _ in range(20)][-1] == 0.0003
+    assert (policy.spun, policy.blocked) == (0, 80)
+    assert transport.SpinPolicy(0.0).budget() == 0.0

@@ -134,3 +134,17 @@ def test_the_suite_section_shows_each_motor_prior_observer_and_default(data_reco
     assert "| regularization: fixed | 0.70 / 0.80 |" in section
     assert "This record is partial" in section
     assert "| open loop | 9.00 / 4.00 |" in section and "| bias: off (default) | 0.50 / 3.00 |" in section
+
+
+def test_the_sitting_section_shows_each_round_the_medians_and_the_goals():
+    """The performance sitting's section: every round's rows/s with its ratio to the ping-pong, the medians, and
+    whether each goal was met, all from the record."""
+    record = copy.deepcopy(results_page.load_records()["sitting"][0])
+    page = "\n".join(results_page.section_sitting({"sitting": [record]}))
+    quiet = record["figures"]["medians"]["quiet"]
+    assert f"({quiet['ratio_python']:.3f})" in page
+    assert results_page._n(quiet["pingpong_round_trips_per_s"]) in page
+    assert page.count("| quiet ") + page.count("| loaded ") == 2 + sum(map(len, record["figures"]["rounds"].values()))
+    record["figures"]["goals_met"]["quiet"] = not record["figures"]["goals_met"]["quiet"]
+    changed = "\n".join(results_page.section_sitting({"sitting": [record]}))
+    assert changed != page and ("quiet (met)" in changed) != ("quiet (met)" in page)

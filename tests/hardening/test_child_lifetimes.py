@@ -27,6 +27,17 @@ GONE_TIMEOUT_S = 30.0      # for the processes and files to go, polling (a loade
 START_TIMEOUT_S = 120.0    # for pytest to start, the bench to load and the run to log its first frames
 
 
+def end_group(parent: subprocess.Popen) -> None:
+    """Whatever a test left: the parent and its process group, killed and reaped."""
+    if parent.poll() is None:
+        parent.kill()
+        parent.wait()
+    try:
+        os.killpg(parent.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+
+
 def leftovers(case: Path) -> list[str]:
     """What a stopped run may leave: partial logs under pytest's base directory, the bench's scratch directories
     (`bench-KIND-PID-*`) in the session's temporary directory."""
@@ -194,13 +205,7 @@ def test_a_tied_child_ends_when_its_parent_is_killed(kernel):
         parent.wait()
         assert wait_for(lambda: not alive(child), GONE_TIMEOUT_S), f"process {child} outlived its parent"
     finally:
-        if parent.poll() is None:
-            parent.kill()
-            parent.wait()
-        try:
-            os.killpg(parent.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+        end_group(parent)
 
 
 COMPILING_PARENT = """
@@ -228,10 +233,4 @@ def test_the_compiler_ends_when_the_bench_compiling_is_killed(tmp_path):
         parent.wait()
         assert wait_for(lambda: not alive(compiler), GONE_TIMEOUT_S), f"the compiler {compiler} outlived the bench"
     finally:
-        if parent.poll() is None:
-            parent.kill()
-            parent.wait()
-        try:
-            os.killpg(parent.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+        end_group(parent)

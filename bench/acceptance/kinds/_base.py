@@ -63,14 +63,6 @@ def nodes(value: Any) -> tuple[str, ...]:
     return tuple(dict.fromkeys(items))
 
 
-def choice(*choices: str) -> Callable[[Any], str]:
-    def check(value: Any) -> str:
-        if value not in choices:
-            raise ValueError(f"must be one of {', '.join(repr(c) for c in choices)}")
-        return value
-    return check
-
-
 def fmt(value: float) -> str:
     return f"{value:.4g}"
 

@@ -9,8 +9,9 @@
 from __future__ import annotations
 
 from bench.acceptance.kinds import register
-from bench.acceptance.kinds._base import Criterion, Kind, Subject, choice, judged
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, judged
 from bench.analysis.results import CheckResult
+from bench.tomlspec import choice
 
 
 def judge(criterion: Criterion, subject: Subject) -> CheckResult:

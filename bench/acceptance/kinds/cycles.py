@@ -10,20 +10,13 @@ Timing4 figures), estimated otherwise (the C28x cost table, `target_sim/costs.py
 
 from __future__ import annotations
 
-from typing import Any
-
 from bench.acceptance.kinds import register
-from bench.acceptance.kinds._base import Criterion, Kind, Subject, choice, judged
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, judged
 from bench.analysis.results import CheckResult, RunResults
+from bench.tomlspec import choice, flag
 
 COUNTED = "counted on the firmware engine (emulated Cortex-M4F)"
 ESTIMATED = "estimated from the C28x cost table: the python engine counts none"
-
-
-def _flag(value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ValueError("must be true or false")
-    return value
 
 
 def step_cycles(results: RunResults, statistic: str = "max") -> tuple[float | None, str]:
@@ -46,7 +39,7 @@ def judge(criterion: Criterion, subject: Subject) -> CheckResult:
 
 
 KIND = Kind("cycles", "CPU cycles per model step (counted on the firmware engine, estimated otherwise)", "cycles",
-            judge, options={"statistic": choice("max", "p50"), "counted": _flag},
+            judge, options={"statistic": choice("max", "p50"), "counted": flag},
             defaults={"statistic": "max", "counted": False})
 
 register(KIND)

@@ -17,9 +17,10 @@ The figures must be comparable: both over the same number of rows, each node's R
 from __future__ import annotations
 
 from bench.acceptance.kinds import register
-from bench.acceptance.kinds._base import Criterion, Kind, Subject, choice, judged, nodes, number
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, judged, nodes, number
 from bench.acceptance.kinds.cycles import step_cycles
 from bench.analysis.results import CheckResult, RunResults
+from bench.tomlspec import choice
 
 FIGURES = ("rmse", "max_error", "cycles")
 WORDS = {"rmse": "RMSE", "max_error": "max error", "cycles": "cycles per model step"}

@@ -10,8 +10,9 @@
 from __future__ import annotations
 
 from bench.acceptance.kinds import register
-from bench.acceptance.kinds._base import Criterion, Kind, Subject, choice, node_check, nodes
+from bench.acceptance.kinds._base import Criterion, Kind, Subject, node_check, nodes
 from bench.analysis.results import CheckResult
+from bench.tomlspec import choice
 
 AGAINST = choice("reported", "measured", "float64")
 
