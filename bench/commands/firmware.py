@@ -8,9 +8,10 @@
                           reference, every output compared bit for bit; cycles, flash, RAM; exit 1 on a mismatch
     bench firmware a2l    [--model A] [--elf ELF] --out FILE [--json]
                           the A2L an XCP master (pyxcp, CANape, INCA) measures and calibrates the target with
-    bench firmware timing [--model A] [--isr-rate HZ] [--rows N] [--json]
+    bench firmware timing [--model A] [--isr-rate HZ] [--rows N] [--search N] [--json]
                           the node and model beside a field-oriented current loop interrupt: response time,
-                          interrupt latency and jitter, CPU load by task, WCET bounds vs measured maxima
+                          interrupt latency and jitter, CPU load by task, WCET bounds (IPET) vs the drive's and an
+                          input search's measured maxima
 
 The generated C equals the Python float32 reference bit for bit (bench/firmware/codegen.py); `build` needs the
 ziglang package (a dependency), and so does `check` of an artifact other than the packaged ones (which
@@ -25,9 +26,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.commands.args import declare_files, positive_int
+from bench.commands.args import declare_files, non_negative_int, positive_int
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
+
+SEARCH_EVALUATIONS = 32     # `timing --search`: a few seconds of emulation per image
 
 DEFAULT_OUT = Path("out/firmware")
 
@@ -105,8 +108,9 @@ def _add_timing(actions) -> None:
                                        "periodic interrupt (bench/firmware/foc_isr.c), run a drive's frames through "
                                        "it in the emulated Cortex-M4F with the interrupt preempting (at 90 and "
                                        "168 MHz) and report the model step's response time, the interrupt's "
-                                       "latency and jitter, the CPU load by task, and static WCET bounds of "
-                                       "fw_step, node_on_frame and the handler beside the measured maxima; exit 1 "
+                                       "latency and jitter, the CPU load by task, and static WCET bounds (IPET) "
+                                       "of the model step, node_on_frame and the handler beside the drive's and "
+                                       "an input search's measured maxima; exit 1 "
                                        "if a measured maximum exceeds its bound or an output differs from the "
                                        "run without the interrupt.")
     p.add_argument("--model", type=Path, default=None, help="model artifact (default: the packaged hammerstein one)")
@@ -116,6 +120,10 @@ def _add_timing(actions) -> None:
                    help="dataset CSV (default: the 40 °C validation run in out/data, generated if missing)")
     p.add_argument("--rows", type=positive_int, default=200, help="data rows to run (default 200)")
     p.add_argument("--seed", type=int, default=None, help="seed of the generated default datasets")
+    p.add_argument("--search", type=non_negative_int, default=SEARCH_EVALUATIONS, metavar="N",
+                   help="candidates of the search for the inputs that take the most cycles (the model step; half "
+                        f"as many runs of frames for node_on_frame), beside the drive's maximum (default "
+                        f"{SEARCH_EVALUATIONS}; 0: no search)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT / "cache",
                    help=f"cache directory for the built timing image (default {DEFAULT_OUT / 'cache'})")
     add_data_arguments(p)
@@ -310,7 +318,7 @@ def run_timing(args: argparse.Namespace) -> int:
     from bench.firmware.images import firmware_for
     from bench.firmware.timing import CLOCKS_MHZ, static_bounds, timing_report
     from bench.model.runs import initial_temperatures
-    from bench.run.inputs import drive_for, load_data
+    from bench.run.inputs import check_measurement_data, drive_for, load_data, measurements_for
     from target_sim.firmware import read_elf
     from target_sim.firmware.motor_control import isr_rate_problem
 
@@ -320,7 +328,7 @@ def run_timing(args: argparse.Namespace) -> int:
     check_writable(args.out, "--out", directory=True)
     elf = firmware_for(artifact, args.out, quiet=args.quiet or args.json, isr=True)
     image = read_elf(elf)
-    handler = static_bounds(image)["foc_isr"] + 60     # + entry, return and lazy FP stacking (< 60 cycles)
+    handler = static_bounds(image, artifact)["foc_isr"] + 60     # + entry, return and lazy FP stacking (< 60 cycles)
     slowest = min(CLOCKS_MHZ) * 1e6
     if args.isr_rate * handler >= slowest / 2:
         raise UsageError(f"--isr-rate {args.isr_rate} leaves the background no time: the current loop's bound of "
@@ -329,9 +337,14 @@ def run_timing(args: argparse.Namespace) -> int:
     mapping, period = data_options(args)
     dataset = load_data(args.data, artifact, args.seed, quiet=args.quiet or args.json, mapping=mapping,
                         sample_period_s=period)
-    drive = drive_for(dataset, artifact)[: args.rows]
+    drive = drive_for(dataset, artifact)
+    check_measurement_data(dataset, artifact)
+    host = measurements_for(dataset, artifact)      # an observer's host channels per row, as `bench run` sends
+    measurement = host[: args.rows] if host is not None else None     # the host's channels: its frames
+    drive = drive[: args.rows]
     report = {**_identity(path, artifact), "data": str(dataset.path), "rows": int(len(drive)), "firmware": str(elf),
-              **timing_report(artifact, image, drive, initial_temperatures(dataset), isr_rate_hz=args.isr_rate)}
+              **timing_report(artifact, image, drive, initial_temperatures(dataset), isr_rate_hz=args.isr_rate,
+                              search=args.search, measurement=measurement)}
     if args.json:
         print_json(report)
     else:
@@ -348,8 +361,10 @@ def run_timing(args: argparse.Namespace) -> int:
 def _print_timing(report: dict) -> None:
     print(f"{report['kind']} ({report['realization']}), {report['rows']} rows with the current loop at "
           f"{report['isr_rate_hz']:g} Hz, {report['firmware']}")
-    for name, bound in report["wcet_cycles"].items():
-        print(f"  {name}: WCET bound {bound} cycles, measured max {report['measured_max_cycles'][name]}")
+    for name, row in report["wcet"].items():
+        found = "not searched" if row["adversarial_max"] is None else row["adversarial_max"]
+        print(f"  {name}: WCET bound {row['bound']} cycles (IPET); measured max: drive {row['drive_max']}, input "
+              f"search {found}; bound / measured max {row['bound_over_max']}")
     for clock, run in report["runs"].items():
         response, latency, load = run["response_time_us"], run["isr_latency_cycles"], run["cpu_load"]
         print(f"  {clock}: model step response p50 {response['p50']} / p99 {response['p99']} / max "

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.firmware.literals import FirmwareGenerationError, c_float
+from bench.firmware.loopfacts import annotate_loops
 from bench.firmware.nodegen import CONFIG_NAME, node_config, packers
 from bench.firmware.observergen import (
     keep_gains,
@@ -473,4 +474,5 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
         parts.append(observer_declarations(artifact))
     parts.append(code_text)
     node = {CONFIG_NAME: node_config(artifact), **packers()}
-    return GeneratedSource(header=header, source="\n".join(parts), node=node)
+    # each loop's count, stated where the WCET analysis finds it (bench.firmware.loopfacts)
+    return GeneratedSource(header=header, source=annotate_loops("\n".join(parts)), node=node)

@@ -422,7 +422,7 @@ static void send_response(uint16_t step, uint32_t response, uint32_t load)
 static int values_in_state_range(const float values[], unsigned int n)
 {
     unsigned int i;
-    for (i = 0; i < n; i++) {
+    for (i = 0; i < n; i++) {     /* wcet-loop: max(NODE_STATE_SIZE, NODE_OBS_CHECKPOINT_SIZE) */
         if (!(values[i] >= NODE_STATE_VALUE_MIN && values[i] <= NODE_STATE_VALUE_MAX)) return 0;     /* NaN too */
     }
     return 1;
@@ -558,7 +558,7 @@ static void measured(uint16_t step, float sample[NODE_SAMPLE_WIDTH])
     float channels[NODE_HOST_CHANNELS];
     unsigned int i, c, turn;
     for (c = 0; c < NODE_HOST_CHANNELS; c++) channels[c] = NO_READING;
-    for (turn = 0; turn < measurement_arrivals; turn++) {
+    for (turn = 0; turn < measurement_arrivals; turn++) {  /* wcet-loop: NODE_MEASUREMENT_MESSAGES */
         for (i = 0; i < NODE_MEASUREMENT_MESSAGES; i++) {
             if (!measurement[i].have || measurement[i].order != turn) continue;
             if (measurement[i].step != step) {
@@ -751,7 +751,7 @@ static void handle_row(uint16_t step, const float sample[NODE_SAMPLE_WIDTH])
     }
     row = expected + ahead;
     if (ahead) sequence_error(NODE_WHY_ROWS_LOST, (uint16_t)expected, (uint16_t)(row - 1u));
-    for (lost = expected; lost < row; lost++) {             /* RowAccumulator.skip */
+    for (lost = expected; lost < row; lost++) {             /* RowAccumulator.skip */ /* wcet-loop: lost_rows */
         if (!ends_interval(lost)) continue;
         if (fw_mean(mean)) {                                /* the rows of the interval that did arrive */
             memcpy(last_inputs, mean, sizeof mean);
@@ -782,7 +782,7 @@ static void handle_row(uint16_t step, const float sample[NODE_SAMPLE_WIDTH])
     have_reply_row = 1u;
     {
         uint32_t i;
-        for (i = 0u; i < steps && i < TIMED_STEPS; i++) {
+        for (i = 0u; i < steps && i < TIMED_STEPS; i++) {  /* wcet-loop: steps_per_row */
             send_timing(step, cycles_of[i]);
 #ifdef NODE_WITH_ISR
             send_response(step, response_of[i].response, response_of[i].load);

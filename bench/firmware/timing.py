@@ -12,11 +12,15 @@ Measured: the response time of every frame that ran a model step (its arrival ->
 temperatures queued) and of the other frames; each interrupt's latency (release -> the handler's first
 instruction), how much of it the background caused (the instruction in progress at the release) and the lazy FP
 stacking the background's FP context costs it; the CPU load of each task; the model's outputs bit for bit against
-the same node without the interrupt. The static bounds (`target_sim.firmware.wcet`) of fw_step, node_on_frame
-(rows in order) and the handler are set beside the measured maxima.
+the same node without the interrupt. The static bounds (`target_sim.firmware.wcet`: implicit path enumeration) of
+the model step (fw_step, or an observer's fw_obs_step), node_on_frame (rows in order) and the handler are set
+beside two measured maxima: the drive's, and that of a search for the inputs that take the most cycles
+(`bench.firmware.adversarial`), so the gap between bound and truth is shown from both ends.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -30,7 +34,7 @@ from target_sim.firmware.elf import ElfImage, FirmwareError
 from target_sim.firmware.interrupts import InterruptedFirmware
 from target_sim.firmware.motor_control import HANDLER, motor_control_core, start_motor_control
 from target_sim.firmware.node_engine import FirmwareNode
-from target_sim.firmware.wcet import WcetError, loop_bounds, wcet
+from target_sim.firmware.wcet import WcetError, loop_facts, wcet
 
 FRAME_SPACING_S = 250e-6          # between the frames of one row (a 500 kbit/s bus with other traffic)
 CLOCKS_MHZ = (90, 168)
@@ -44,14 +48,17 @@ def _percentiles(values: list[int] | np.ndarray, scale: float = 1.0) -> dict:
             "max": round(float(data.max()), 3)}
 
 
-def _frames(artifact: ModelArtifact, drive: np.ndarray, initial) -> list[list]:
-    """The host's frames: [RESET's frames, START], then one list per row."""
+def _frames(artifact: ModelArtifact, drive: np.ndarray, initial, measurement: np.ndarray | None = None) -> list[list]:
+    """The host's frames: [RESET's frames, START], then one list per row (with `measurement`, an observer's host
+    channels per row, the row's measurement frames first)."""
     codec = FrameCodec("HOST")
     reset = [codec.encode(name, {"Step": 0, **signals}) for name, signals in
              split_temperatures([round(float(v), 2) for v in initial], RESET_SIGNALS).items()]
     reset.append(codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}))
     start = [codec.encode("Control", {"Command": int(Command.START), "Step": 0})]
-    return [reset, start, *(encode_row(codec, row, [float(v) for v in values]) for row, values in enumerate(drive))]
+    return [reset, start, *(encode_row(codec, row, [float(v) for v in values],
+                                       None if measurement is None else [float(v) for v in measurement[row]])
+                            for row, values in enumerate(drive))]
 
 
 def _reference_outputs(artifact: ModelArtifact, image: ElfImage, frames: list[list]) -> list[bytes]:
@@ -70,9 +77,23 @@ def _temperature_ids() -> set[int]:
     return {frame_id(name) for name in REPLY_MESSAGES}
 
 
-def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float = 10_000.0,
-            clock_mhz: float = 90.0, seed: int = 0) -> dict:
-    """Run the drive through the node with the interrupt; the figures of the module docstring (cycles, µs)."""
+@dataclass
+class FrameRun:
+    """A drive's frames through the node beside the interrupt: the core, the node, the jobs of the frames that
+    ran a model step and of the others, the temperatures' reply bytes, the cycle the run started at."""
+
+    fw: InterruptedFirmware
+    node: FirmwareNode
+    step_jobs: list
+    other_jobs: list
+    outputs: list[bytes]
+    origin: int
+
+
+def run_frames(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float,
+               clock_mhz: float, seed: int = 0, measurement: np.ndarray | None = None) -> FrameRun:
+    """The drive's frames (and an observer's measurement frames) through the node with the interrupt (the module
+    docstring's run)."""
     _TEMPERATURE_IDS.update(_temperature_ids())
     clock_hz = clock_mhz * 1e6
     fw_box: list[InterruptedFirmware] = []
@@ -88,7 +109,7 @@ def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial
     fw = fw_box[0]
     period = fw.period
     rng = start_motor_control(fw, rate_hz=isr_rate_hz, clock_hz=clock_hz, seed=seed)
-    frames = _frames(artifact, drive, initial)
+    frames = _frames(artifact, drive, initial, measurement)
     row_cycles = artifact.data_sample_period * clock_hz
     origin = fw.now + period
     step_jobs, other_jobs, outputs = [], [], []
@@ -104,9 +125,19 @@ def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial
             (step_jobs if steps > steps_seen else other_jobs).append(job)
             steps_seen = steps
             outputs += [bytes(reply.data) for reply in replies if reply.arbitration_id in _TEMPERATURE_IDS]
-    bit_exact = outputs == _reference_outputs(artifact, image, frames)
-    span_s = (fw.now - origin) / clock_hz
-    return _figures(fw, node, step_jobs, other_jobs, period, clock_hz, span_s, bit_exact)
+    return FrameRun(fw, node, step_jobs, other_jobs, outputs, origin)
+
+
+def measure(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *, isr_rate_hz: float = 10_000.0,
+            clock_mhz: float = 90.0, seed: int = 0, measurement: np.ndarray | None = None) -> dict:
+    """Run the drive through the node with the interrupt; the figures of the module docstring (cycles, µs)."""
+    run = run_frames(artifact, image, drive, initial, isr_rate_hz=isr_rate_hz, clock_mhz=clock_mhz, seed=seed,
+                     measurement=measurement)
+    frames = _frames(artifact, drive, initial, measurement)
+    bit_exact = run.outputs == _reference_outputs(artifact, image, frames)
+    clock_hz = clock_mhz * 1e6
+    span_s = (run.fw.now - run.origin) / clock_hz
+    return _figures(run.fw, run.node, run.step_jobs, run.other_jobs, run.fw.period, clock_hz, span_s, bit_exact)
 
 
 def _step_cycles(fw: InterruptedFirmware) -> tuple[list[int], list[int]]:
@@ -161,42 +192,114 @@ def _figures(fw: InterruptedFirmware, node: FirmwareNode, step_jobs, other_jobs,
     }
 
 
-def static_bounds(image: ElfImage, *, lost_rows: int = 0) -> dict:
-    """WCET bounds of fw_step, node_on_frame (at most `lost_rows` lost rows per frame) and the handler."""
-    bounds = loop_bounds(lost_rows)
+def model_step_function(image: ElfImage) -> str:
+    """The model step the node runs: the observer's (fw_obs_step) when the image has one, else fw_step."""
+    return "fw_obs_step" if "fw_obs_step" in image.symbols else "fw_step"
+
+
+def timed_functions(image: ElfImage) -> tuple[str, ...]:
+    """The functions `bench firmware timing` bounds and measures: the model step, the frame handler, the ISR."""
+    return (model_step_function(image), "node_on_frame", HANDLER)
+
+
+def timing_sources(artifact: ModelArtifact) -> dict[str, str]:
+    """The sources of `artifact`'s timing image (what its loop annotations are read from)."""
+    from bench.firmware.codegen import generate
+    from bench.firmware.toolchain import firmware_sources
+
+    return firmware_sources(generate(artifact), isr=True)
+
+
+def static_bounds(image: ElfImage, artifact: ModelArtifact, *, lost_rows: int = 0) -> dict:
+    """WCET bounds (IPET, `target_sim.firmware.wcet`) of the model step, node_on_frame (at most `lost_rows` lost
+    rows per frame) and the handler."""
+    facts = loop_facts(timing_sources(artifact), lost_rows)
     out: dict = {}
-    for function in ("fw_step", "node_on_frame", HANDLER):
+    for function in timed_functions(image):
         try:
-            out[function] = wcet(image, function, bounds).cycles
+            out[function] = wcet(image, function, facts).cycles
         except WcetError as exc:
             raise BenchError(f"no static bound of {function}: {exc}") from None
     return out
 
 
-def direct_step_max(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial) -> int:
-    """The most cycles of fw_step called alone (entry to return, as the bound counts) over the drive's steps
-    (`bench firmware check`'s run: the node's DWT reads around the call add a few cycles of their own)."""
+def direct_step_max(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial,
+                    measurement: np.ndarray | None = None) -> int:
+    """The most cycles of the model step called alone (entry to return, as the bound counts) over the drive's steps
+    (`bench firmware check`'s run: the node's DWT reads around the call add a few cycles of their own); an
+    observer's steps take the raw channels of `measurement`, the host's channels per row (none: no reading)."""
     from bench.firmware.check import check_firmware
+    from target_sim.observer import has_observer
 
-    result = check_firmware(artifact, image, drive, initial)     # FirmwareEstimator takes the parsed image
+    raw = None
+    if has_observer(artifact):
+        from target_sim.observer_node import measurement_width, raw_channels, raw_sources
+
+        host = measurement if measurement is not None else np.full((len(drive), measurement_width(artifact)), np.nan)
+        raw = raw_channels(raw_sources(artifact), drive, host)
+    result = check_firmware(artifact, image, drive, initial, raw)   # FirmwareEstimator takes the parsed image
     return int(result["cycles"]["max"])
 
 
+def adversarial_maxima(artifact: ModelArtifact, image: ElfImage, *, evaluations: int, isr_rate_hz: float,
+                       seed: int = 0) -> dict:
+    """The most cycles the input search (`bench.firmware.adversarial`) found for the model step (called alone) and
+    for node_on_frame and the handler (a run of frames beside the interrupt at CLOCKS_MHZ[0]); `evaluations`
+    candidates each (0: no search, None for each)."""
+    from bench.firmware.adversarial import frame_scenario, maximize, step_scenario
+
+    step = model_step_function(image)
+    if evaluations <= 0:
+        return {step: None, "node_on_frame": None, HANDLER: None}
+    objective, dimension = step_scenario(artifact, image)
+    found_step = maximize(objective, dimension, evaluations=evaluations, seed=seed)
+    frames, dimension = frame_scenario(artifact, image, isr_rate_hz=isr_rate_hz, clock_mhz=CLOCKS_MHZ[0], seed=seed)
+    handler = [0]
+
+    def frame_objective(point: np.ndarray) -> int:
+        cycles, run = frames(point)
+        handler[0] = max([handler[0], *(event.handler_cycles for event in run.fw.isr_events)])
+        return cycles
+
+    found_frame = maximize(frame_objective, dimension, evaluations=max(1, evaluations // 2), seed=seed)
+    return {step: found_step.cycles, "node_on_frame": found_frame.cycles, HANDLER: handler[0] or None}
+
+
+def wcet_table(bounds: dict, drive_max: dict, adversarial: dict) -> dict:
+    """Per function: the bound, the drive's and the search's measured maxima, and bound / the larger of them."""
+    table = {}
+    for name, bound in bounds.items():
+        measured = max(value for value in (drive_max.get(name), adversarial.get(name)) if value is not None)
+        table[name] = {"bound": bound, "drive_max": drive_max.get(name), "adversarial_max": adversarial.get(name),
+                       "measured_max": measured, "bound_over_max": round(bound / measured, 3) if measured else None}
+    return table
+
+
 def timing_report(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, initial, *,
-                  isr_rate_hz: float = 10_000.0, seed: int = 0) -> dict:
-    """`bench firmware timing`'s JSON: the bounds, then the run at each clock of `CLOCKS_MHZ`."""
-    bounds = static_bounds(image)
+                  isr_rate_hz: float = 10_000.0, seed: int = 0, search: int = 0,
+                  measurement: np.ndarray | None = None) -> dict:
+    """`bench firmware timing`'s JSON: the bounds, the drive's and the input search's (`search` candidates)
+    measured maxima beside them, then the run at each clock of `CLOCKS_MHZ`; `measurement`: an observer's host
+    channels per row (its measurement frames), None for none."""
+    bounds = static_bounds(image, artifact)
+    step = model_step_function(image)
     runs = {f"{mhz}MHz": measure(artifact, image, drive, initial, isr_rate_hz=isr_rate_hz, clock_mhz=mhz,
-                                 seed=seed) for mhz in CLOCKS_MHZ}
+                                 seed=seed, measurement=measurement) for mhz in CLOCKS_MHZ}
     main = runs[f"{CLOCKS_MHZ[0]}MHz"]
-    measured = {"fw_step": direct_step_max(artifact, image, drive, initial),
-                **{name: max(run["measured_max_cycles"][name] or 0 for run in runs.values())
-                   for name in bounds if name != "fw_step"}}
+    drive_max = {step: direct_step_max(artifact, image, drive, initial, measurement),
+                 **{name: max(run["measured_max_cycles"][name] or 0 for run in runs.values())
+                    for name in bounds if name != step}}
+    adversarial = adversarial_maxima(artifact, image, evaluations=search, isr_rate_hz=isr_rate_hz, seed=seed)
+    table = wcet_table(bounds, drive_max, adversarial)
+    measured = {name: row["measured_max"] for name, row in table.items()}
     return {
-        "isr_rate_hz": isr_rate_hz, "clock_mhz": CLOCKS_MHZ[0],
-        "wcet_cycles": bounds, "measured_max_cycles": measured,
+        "isr_rate_hz": isr_rate_hz, "clock_mhz": CLOCKS_MHZ[0], "model_step": step,
+        "wcet": table, "wcet_cycles": bounds, "measured_max_cycles": measured,
         "wcet_holds": all(measured[name] <= bounds[name] for name in bounds),
-        "wcet_assumptions": "rows in order (0 lost rows per frame); loop bounds of target_sim.firmware.wcet",
+        "wcet_method": "IPET (Li & Malik 1995) over each function's CFG, solved by scipy.optimize.milp; counted "
+                       "loops from the machine code, the others from the C's /* wcet-loop */ annotations",
+        "wcet_assumptions": "rows in order (0 lost rows per frame), frames as the host sends them",
+        "search_evaluations": search,
         "response_time_us": main["response_time_us"], "isr_latency_cycles": main["isr_latency_cycles"],
         "cpu_load": {name: run["cpu_load"] for name, run in runs.items()},
         "bit_exact": all(run["bit_exact"] for run in runs.values()),

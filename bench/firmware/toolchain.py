@@ -154,7 +154,11 @@ ISR_DEFINE = "-DNODE_WITH_ISR"            # the node of a timing image sends Tim
 
 def compile_flags(work: Path, *, isr: bool = False) -> list[str]:
     # the build directory's path never reaches the objects (there is no debug info, but be sure)
-    return [*TARGET_FLAGS, *CODE_FLAGS, *WARNING_FLAGS, *((ISR_DEFINE,) if isr else ()), "-I.",
+    code = [flag for flag in CODE_FLAGS if not (isr and flag == "-g0")]
+    # a timing image carries the line table (no other debug information, the same code): the WCET analysis finds
+    # the C loop of each machine loop by it, and that loop's stated bound (target_sim.firmware.wcet.loop_facts)
+    lines = ("-gline-tables-only", "-gdwarf-4") if isr else ()
+    return [*TARGET_FLAGS, *code, *lines, *WARNING_FLAGS, *((ISR_DEFINE,) if isr else ()), "-I.",
             f"-ffile-prefix-map={work}=."]
 
 

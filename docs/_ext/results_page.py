@@ -241,6 +241,15 @@ def section_firmware(record: Record) -> list[str]:
     return lines
 
 
+def _wcet_cells(rate: dict) -> list[str]:
+    """Per timed function: bound / drive max / search max (ratio), or bound / measured max in an older record."""
+    if "wcet" not in rate:
+        return [f"{_n(rate['wcet_cycles'][name])} / {_n(rate['measured_max_cycles'][name])}"
+                for name in ("fw_step", "node_on_frame", "foc_isr")]
+    return [f"{_n(row['bound'])} / {_n(row['drive_max'])} / {_n(row['adversarial_max'])} "
+            f"({_n(row['bound_over_max'], 3)})" for row in rate["wcet"].values()]
+
+
 @single_record("firmware_timing", "Beside the motor control")
 def section_firmware_timing(record: Record) -> list[str]:
     f, params = record["figures"], record["parameters"]
@@ -249,9 +258,11 @@ def section_firmware_timing(record: Record) -> list[str]:
     bounds, timing, loads = [], [], []
     for k in f["kinds"]:
         first = k["rates"][str(params["rates_hz"][0])]
-        bounds.append([k["kind"], *(f"{_n(first['wcet_cycles'][name])} / {_n(first['measured_max_cycles'][name])}"
-                                    for name in ("fw_step", "node_on_frame", "foc_isr")),
-                       "yes" if all(r["wcet_holds"] for r in k["rates"].values()) else "NO"])
+        bounds.append([k["kind"], *_wcet_cells(first), "yes" if all(r["wcet_holds"] for r in k["rates"].values())
+                       else "NO"])
+    if "observer" in f:
+        first = f["observer"][str(params["rates_hz"][0])]
+        bounds.append([f["observer"]["case"], *_wcet_cells(first), "yes" if first["wcet_holds"] else "NO"])
         for rate, r in k["rates"].items():
             for clock, run in r["runs"].items():
                 resp, idle, busy = run["response_time_us"], run["isr_latency_idle_cycles"], \
@@ -267,8 +278,10 @@ def section_firmware_timing(record: Record) -> list[str]:
     lines = [f"The model's own flash (`fw_model.o` in the linker map; the paper's figure "
              f"{_n(params['paper_model_flash_bytes'])} B), each distinct loss-table row stored once:", "",
              *_table(["kind", "code (B)", "constants (B)", "total (B)"], flash),
-             "Static WCET bound / measured maximum (cycles; node_on_frame with rows in order):", "",
-             *_table(["kind", "fw_step", "node_on_frame", "foc_isr (handler)", "bound holds"], bounds),
+             "Static WCET bound (IPET) / measured maximum, the drive's and the input search's (cycles; bound over "
+             "the larger in parentheses; node_on_frame with rows in order; the model step is fw_obs_step for the "
+             "observer):", "",
+             *_table(["kind", "model step", "node_on_frame", "foc_isr (handler)", "bound holds"], bounds),
              f"The node and the model beside the field-oriented current loop's interrupt ({_n(params['rows'])} rows "
              "of the 40 °C run): the model step's response time (the arrival of the row that ends an interval to "
              "its temperatures queued), the interrupt's latency when it finds the core idle (the estimator not "

@@ -9,6 +9,7 @@ that is not M-profile. They read the ELF header's e_flags (EABI version 5, hard-
 
 from __future__ import annotations
 
+import bisect
 import io
 import os
 from dataclasses import dataclass
@@ -85,6 +86,16 @@ class ElfImage:
     symbols: dict[str, Symbol]
     sections: tuple[Section, ...]
     thumb_ranges: tuple[tuple[int, int], ...]   # [start, end) of code, from the $t/$d/$a mapping symbols
+    lines: tuple[tuple[int, str, int], ...] = ()   # (address, source file name, line), by address: the DWARF line
+                                                   # table of an image built with one (none: -g0)
+
+    def line_of(self, address: int) -> tuple[str, int] | None:
+        """(source file name, line) of the instruction at `address`, from the line table (None without one)."""
+        index = bisect.bisect_right(self.lines, (address, "\uffff", 1 << 30)) - 1
+        if index < 0:
+            return None
+        _, name, line = self.lines[index]
+        return (name, line) if line > 0 else None
 
 
 def _read_source(source: str | os.PathLike | bytes) -> tuple[bytes, str]:
@@ -165,6 +176,31 @@ def _thumb_ranges(elf: ELFFile, symbols: list) -> tuple[tuple[int, int], ...]:
     return tuple(ranges)
 
 
+def _line_table(elf: ELFFile) -> tuple[tuple[int, str, int], ...]:
+    """The DWARF line table's rows (address, file name, line), sorted; an end of sequence ends a range (line 0)."""
+    if not elf.has_dwarf_info() or elf.get_section_by_name(".debug_line") is None:
+        return ()
+    dwarf = elf.get_dwarf_info()
+    rows: list[tuple[int, str, int]] = []
+    for unit in dwarf.iter_CUs():
+        program = dwarf.line_program_for_CU(unit)
+        if program is None:
+            continue
+        files = program["file_entry"]
+        base = 0 if program["version"] >= 5 else 1                # DWARF 5 numbers files from 0
+        for entry in program.get_entries():
+            state = entry.state
+            if state is None:
+                continue
+            if state.end_sequence:
+                rows.append((state.address, "", 0))
+                continue
+            index = state.file - base
+            name = files[index].name if 0 <= index < len(files) else b"?"
+            rows.append((state.address, Path(name.decode("utf-8", "replace")).name, state.line))
+    return tuple(sorted(rows))
+
+
 def read_elf(source: str | os.PathLike | bytes) -> ElfImage:
     """Parse and check a firmware ELF (a path or its bytes); FirmwareError if it is not one for a Cortex-M4F."""
     data, name = _read_source(source)
@@ -190,11 +226,12 @@ def read_elf(source: str | os.PathLike | bytes) -> ElfImage:
                     bool(section["sh_flags"] & SH_FLAGS.SHF_WRITE), bool(section["sh_flags"] & SH_FLAGS.SHF_EXECINSTR))
             for section in elf.iter_sections() if section["sh_flags"] & SH_FLAGS.SHF_ALLOC and section["sh_size"])
         thumb_ranges = _thumb_ranges(elf, raw)
+        lines = _line_table(elf)
     except (ELFError, ValueError, KeyError, OSError) as error:   # truncated or malformed tables
         raise FirmwareError(f"{name} is not a readable ELF file: {error}") from None
     if not segments:
         raise FirmwareError(f"{name} has no loadable segments (PT_LOAD): nothing to run")
-    return ElfImage(name, segments, symbols, sections, thumb_ranges)
+    return ElfImage(name, segments, symbols, sections, thumb_ranges, lines)
 
 
 def stack_bytes(image: ElfImage) -> int:

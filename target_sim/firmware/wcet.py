@@ -1,6 +1,6 @@
 """A static bound of the worst-case execution time of a firmware function, from the ELF alone.
 
-    bound = wcet(image, "fw_step")                       # cycles on every path, with the stated loop bounds
+    bound = wcet(image, "node_on_frame", loop_facts(sources))   # cycles on every path, with the loop bounds
     bound.cycles, bound.loops, bound.calls
 
 The control-flow graph of each function is rebuilt from the disassembly (capstone, recursive descent from the
@@ -12,28 +12,35 @@ jump or call that is not a jump table cannot be bounded: `WcetError` names it.
 
 Each instruction costs what the emulator counts for it (`target_sim.firmware.cycles`, the same table and
 `instruction_cost`): its cycles with a conditional branch not taken, plus `taken_extra` on the edge where the
-branch is taken. The bound is the longest path from the entry to a return with every loop collapsed, innermost
-first, into one node that costs `bound x (longest iteration) + (longest way out)`, where an iteration is a path
-from the loop's header back to it and `bound` is the most times the loop's back edges are taken per entry.
+branch is taken. The bound is the longest path from the entry to a return by implicit path enumeration
+(`target_sim.firmware.ipet`, Li and Malik's integer program, solved by scipy's MILP): a count per block and per
+edge, flow conserved at every block, and each loop's header at most N times per entry into the loop. A callee
+costs its own bound at each call (its worst case, whatever the caller's context).
 
-Loop bounds are stated, never guessed: `loop_bounds()` gives them by function and by the loop's place in it (its
-header's order by address), with the reason taken from the C; a loop without a stated bound is an error naming
-its function and address. Conditional instructions inside an IT block count as executed, as in the emulator, so
-the bound covers the emulator's count of every path (the tests check the measured maximum never exceeds it).
+Loop bounds are never guessed. A counted loop (`target_sim.firmware.counted_loops`: an induction register set to
+a constant before the loop, stepped by a constant once per iteration, compared with a constant in the latch) gets
+its exact trip count from the machine code, however clang rotated or unrolled it. Every other loop needs a bound
+stated in the C, `/* wcet-loop: N */` on its line (`loop_facts` reads them; N may name a #define or `lost_rows`),
+found through the image's DWARF line table (the timing image carries one: `-gline-tables-only`, the same code);
+a loop with neither is an error naming its function, address and C line. A stated bound N is the most times the
+C loop's body runs per entry: the machine loop's header runs N times, or N + 1 when it tests before the body.
+Conditional instructions inside an IT block count as executed, as in the emulator, so the bound covers the
+emulator's count of every path (the tests check the measured maximum never exceeds it).
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from capstone import arm_const
 
-from dbc.contract import STATE_SIZE
 from target_sim.errors import TargetError
+from target_sim.firmware.counted_loops import trip_count
 from target_sim.firmware.cycles import InstructionCost, instruction_cost, new_disassembler
 from target_sim.firmware.elf import ElfImage, Symbol
-from target_sim.firmware.node_protocol import TX_CAPACITY
+from target_sim.firmware.ipet import Edge, FlowGraph, IpetError, LoopFact, longest_path
 
 RETURN_MNEMONICS = frozenset({"bx", "pop", "ldm", "ldr", "mov"})   # ... when they write the PC
 
@@ -56,7 +63,7 @@ class Loop:
     header: int
     order: int                     # place of the header among the function's loops, by address
     bound: LoopBound
-    iteration_cycles: int          # longest path header -> back to the header
+    header_runs: int               # the most times its header runs per entry (the IPET's loop fact)
 
 
 @dataclass
@@ -67,12 +74,13 @@ class Bound:
     cycles: int
     loops: list[Loop] = field(default_factory=list)
     calls: dict[str, int] = field(default_factory=dict)
+    block_counts: dict[int, int] = field(default_factory=dict)     # the worst case's runs of each block (IPET)
 
     def as_dict(self) -> dict:
         return {"function": self.function, "cycles": self.cycles, "calls": dict(self.calls),
                 "loops": [{"function": loop.function, "header": f"{loop.header:#010x}", "order": loop.order,
                            "bound": loop.bound.iterations, "reason": loop.bound.reason,
-                           "iteration_cycles": loop.iteration_cycles} for loop in self.loops]}
+                           "header_runs": loop.header_runs} for loop in self.loops]}
 
 
 @dataclass(frozen=True)
@@ -84,6 +92,7 @@ class _Node:
     calls: tuple[str, ...]
     successors: tuple[tuple[int, int], ...]      # (address, extra cycles on that edge)
     returns: int | None                          # extra cycles when it returns (None: it does not)
+    addresses: tuple[int, ...] = ()              # its instructions' addresses, in order
 
 
 class _Image:
@@ -204,9 +213,10 @@ def _blocks(code: _Image, name: str, addresses: list[int], leaders: set[int],
     index = 0
     while index < len(addresses):
         first = addresses[index]
-        cycles, calls = 0, []
+        cycles, calls, members = 0, [], []
         while True:
             address = addresses[index]
+            members.append(address)
             cost, insn = code.instruction(address)
             cycles += cost.cycles
             if cost.mnemonic in ("bl", "blx"):
@@ -227,7 +237,7 @@ def _blocks(code: _Image, name: str, addresses: list[int], leaders: set[int],
                 returns = extra
             else:
                 block_outs.append((target, extra))
-        nodes[first] = _Node(first, cycles, tuple(calls), tuple(block_outs), returns)
+        nodes[first] = _Node(first, cycles, tuple(calls), tuple(block_outs), returns, tuple(members))
     return nodes
 
 
@@ -270,10 +280,10 @@ def _loops(nodes: Mapping[int, _Node], entry: int) -> dict[int, set[int]]:
 
 
 class _Analysis:
-    def __init__(self, image: ElfImage, bounds: Mapping[str, Mapping[int, LoopBound]]):
+    def __init__(self, image: ElfImage, facts: Mapping[tuple[str, int], LoopBound]):
         self.code = _Image(image)
         self.image = image
-        self.bounds = bounds
+        self.facts = facts
         self.results: dict[str, Bound] = {}
         self.active: list[str] = []
 
@@ -304,126 +314,115 @@ class _Analysis:
         bound.loops.extend(loop for loop in inner.loops if loop not in bound.loops)
         return inner.cycles
 
+    def _instructions(self, nodes: Mapping[int, _Node]):
+        """block -> its capstone instructions, in order."""
+        return lambda block: [self.code.instruction(address)[1] for address in nodes[block].addresses]
+
+    def _lines(self, nodes: Mapping[int, _Node], header: int, body: set[int]) -> list[tuple[str, int]]:
+        """The C lines of a loop, most telling first: its back edges' branches, the rest of its latches, its
+        header."""
+        latches = [block for block in body if any(target == header for target, _ in nodes[block].successors)]
+        ordered = [nodes[block].addresses[-1] for block in latches]
+        ordered += [address for block in latches for address in nodes[block].addresses[:-1]]
+        ordered += list(nodes[header].addresses)
+        lines = [self.image.line_of(address) for address in ordered]
+        return list(dict.fromkeys(line for line in lines if line is not None))
+
+    def _stated(self, nodes: Mapping[int, _Node], header: int, body: set[int]) -> LoopBound | None:
+        """The stated bound of the C loop this machine loop comes from (the first of its lines with one)."""
+        for line in self._lines(nodes, header, body):
+            if line in self.facts:
+                return self.facts[line]
+        return None
+
     def _longest(self, name: str, nodes: dict[int, _Node], costs: dict[int, int], entry: int, bound: Bound) -> int:
-        """Longest entry -> return path, loops collapsed innermost first."""
+        """The IPET maximum (`target_sim.firmware.ipet`) over the function's blocks, each loop's header bounded by
+        its stated bound per entry into the loop."""
         loops = _loops(nodes, entry)
         headers = sorted(loops)
-        stated = self.bounds.get(name, {})
-        # each block's representative: the header of the outermost collapsed loop holding it
-        owner = {start: start for start in nodes}
-        succ = {start: list(node.successors) for start, node in nodes.items()}
-        rets = {start: node.returns for start, node in nodes.items()}
-        weight = dict(costs)
-        for header in sorted(headers, key=lambda h: len(loops[h])):    # innermost (smallest) first
-            order = headers.index(header)
-            limit = stated.get(order)
-            if limit is None:
-                raise WcetError(f"{name} has a loop at {header:#010x} (loop {order} of the function) without a "
-                                "stated bound (target_sim.firmware.wcet.loop_bounds)")
-            body = {owner[block] for block in loops[header]}
-            iteration = self._path(header, body, succ, weight, to_header=True)
-            way_out = self._path(header, body, succ, weight, to_header=False, rets=rets)
-            bound.loops.append(Loop(name, header, order, limit, iteration))
-            weight[header] = limit.iterations * iteration + way_out
-            exits = [(target, 0) for member in body for target, _ in succ[member] if target not in body]
-            returns = [rets[member] for member in body if rets[member] is not None]
-            for member in body:
-                if member != header:
-                    del succ[member], weight[member], rets[member]
-            succ[header] = sorted(set(exits))
-            rets[header] = 0 if returns else None
-            for start in owner:
-                if owner[start] in body:
-                    owner[start] = header
-            for start in succ:
-                succ[start] = [(owner.get(target, target), extra) for target, extra in succ[start]]
-        return self._dag_longest(entry, succ, weight, rets, name)
-
-    @staticmethod
-    def _path(header: int, body: set[int], succ, weight, *, to_header: bool, rets=None) -> int:
-        """Longest path from the header through the (acyclic once its back edges are cut) body: back to the header
-        (an iteration, the header's own cost included) or out of the loop (the last partial iteration)."""
-        best: dict[int, int] = {}
-
-        def visit(block: int) -> int:
-            if block in best:
-                return best[block]
-            result = -1
-            for target, extra in succ[block]:
-                if target == header:
-                    if to_header:
-                        result = max(result, extra)
-                elif target in body:
-                    tail = visit(target)
-                    if tail >= 0:
-                        result = max(result, extra + tail)
-                elif not to_header:
-                    result = max(result, extra)
-            if not to_header and rets is not None and rets[block] is not None:
-                result = max(result, rets[block])
-            best[block] = result if result < 0 else result + weight[block]
-            return best[block]
-
-        value = visit(header)
-        return max(value, 0)
-
-    @staticmethod
-    def _dag_longest(entry: int, succ, weight, rets, name: str) -> int:
-        best: dict[int, int] = {}
-        visiting: set[int] = set()
-
-        def visit(block: int) -> int:
-            if block in best:
-                return best[block]
-            if block in visiting:
-                raise WcetError(f"{name} has an irreducible loop at {block:#010x}: no static bound")
-            visiting.add(block)
-            result = -1
-            for target, extra in succ[block]:
-                tail = visit(target)
-                if tail >= 0:
-                    result = max(result, extra + tail)
-            if rets[block] is not None:
-                result = max(result, rets[block])
-            visiting.discard(block)
-            best[block] = -1 if result < 0 else result + weight[block]
-            return best[block]
-
-        value = visit(entry)
-        if value < 0:
-            raise WcetError(f"{name} never returns")
-        return value
+        worst: dict[tuple[int, int | None], int] = {}      # parallel edges (a jump table's repeats): the dearest
+        for start, node in nodes.items():
+            ways = [*node.successors, *([(None, node.returns)] if node.returns is not None else [])]
+            for target, extra in ways:
+                worst[(start, target)] = max(extra, worst.get((start, target), extra))
+        edges = [Edge(start, target, extra) for (start, target), extra in worst.items()]
+        predecessors: dict[int, list[int]] = {}
+        for start, node in nodes.items():
+            for target, _ in node.successors:
+                predecessors.setdefault(target, []).append(start)
+        facts = []
+        for order, header in enumerate(headers):
+            body = loops[header]
+            entries = tuple(sorted({start for start in predecessors.get(header, []) if start not in body}))
+            counted = trip_count(self._instructions(nodes), nodes, header, body, predecessors)
+            limit = self._stated(nodes, header, body)
+            if counted is not None:      # the machine code's own count: exact, and it needs no stated bound
+                runs = counted
+                limit = LoopBound(counted, "counted loop: its induction variable, step and limit in the code")
+            elif limit is None:
+                where = self._lines(nodes, header, body)
+                raise WcetError(f"{name} has a loop at {header:#010x} (loop {order} of the function"
+                                f"{', C ' + where[0][0] + ':' + str(where[0][1]) if where else ''}) whose count the "
+                                "code does not show and without a stated bound (a /* wcet-loop: N */ on its C "
+                                "line; the image needs its line table)")
+            else:
+                runs = limit.iterations + (1 if _tests_at_top(nodes, header, body) else 0)
+            facts.append(LoopFact(header, entries, runs))
+            bound.loops.append(Loop(name, header, order, limit, runs))
+        try:
+            solution = longest_path(FlowGraph(entry, costs, edges), facts)
+        except IpetError as exc:
+            raise WcetError(f"{name}: {exc}") from None
+        bound.block_counts = {start: runs for start, runs in solution.block_counts.items() if runs}
+        return solution.cycles
 
 
-def wcet(image: ElfImage, function: str, bounds: Mapping[str, Mapping[int, LoopBound]] | None = None) -> Bound:
-    """The WCET bound of `function` in cycles (callees included), with `bounds` (default: `loop_bounds()`)."""
-    return _Analysis(image, loop_bounds() if bounds is None else bounds).function(function)
+def _tests_at_top(nodes: Mapping[int, _Node], header: int, body: set[int]) -> bool:
+    """The loop's header has a way out and is not its own latch: it tests before the body, so it runs once more
+    than the body (a one-block loop tests at its bottom)."""
+    node = nodes[header]
+    leaves = node.returns is not None or any(target not in body for target, _ in node.successors)
+    return leaves and not any(target == header for target, _ in node.successors)
 
 
-TIMED_STEPS = TX_CAPACITY // 4      # node.c: the model steps of one row whose 4 timing frames each are queued
-                                    # (a timing image sends 5, Timing5 too: 8 steps, within this bound)
+def wcet(image: ElfImage, function: str, facts: Mapping[tuple[str, int], LoopBound] | None = None) -> Bound:
+    """The WCET bound of `function` in cycles (callees included); `facts`: the stated bounds of the loops the code
+    does not count itself, by (source file name, line) of their C loop (`loop_facts`; the image must carry its
+    line table then)."""
+    return _Analysis(image, facts or {}).function(function)
 
 
-def loop_bounds(lost_rows: int = 0) -> dict[str, dict[int, LoopBound]]:
-    """The loops of the firmware (bench/firmware/node.c and the generated model, clang -O2), by function and by
-    the loop's place in it, with the most iterations each can run; `lost_rows`: the most rows a received data
-    frame may skip (its Step that far ahead of the next expected row). The node steps the model once for each lost
-    row that ends an interval, so no bound holds for every frame the bus can carry (a frame 32 767 rows ahead runs
-    that many loop iterations): the bound of node_on_frame is stated per number of lost rows, 0 for a drive whose
-    rows arrive in order. An electrical loss model adds no loop (its losses are straight-line code, the sqrt one
-    VSQRT), nor does the loss maps' shared-row look-up (the five tables' loop is unrolled by clang)."""
+ANNOTATION = re.compile(r"/\*\s*wcet-loop:\s*([^*]+?)\s*\*/")
+_DEFINE = re.compile(r"^\s*#\s*define\s+([A-Z_][A-Z0-9_]*)\s+\(?\s*(\d+)u?\s*\)?\s*(?:/\*.*)?$", re.MULTILINE)
+
+
+def loop_facts(sources: Mapping[str, str], lost_rows: int = 0) -> dict[tuple[str, int], LoopBound]:
+    """The stated loop bounds of a firmware's sources: each C loop whose line carries `/* wcet-loop: BOUND */`, the
+    most times its body runs each time the loop is entered. BOUND is an integer, a name of an integer `#define`
+    of the sources, `lost_rows` (the most rows one received data frame may skip: its Step that far ahead of the next
+    expected row), `steps_per_row` (lost_rows + 1: the model steps one frame can run), or `max(A, B, ...)` of those
+    (names a build does not define are left out; a loop none of whose names it defines is compiled out). The node
+    steps the model once for each lost row that ends an interval, so no bound holds for every frame the bus can
+    carry (a frame 32 767 rows ahead runs that many iterations): node_on_frame's bound is stated per number of
+    lost rows, 0 for a drive whose rows arrive in order."""
     if lost_rows < 0:
         raise ValueError(f"lost_rows must be 0 or more, not {lost_rows}")
-    steps = min(lost_rows + 1, TIMED_STEPS)
-    return {
-        "fw_step": {0: LoopBound(STATE_SIZE, "input_nonlinearity: for k < 4, one sigmoid per loss input "
-                                             "(a Hammerstein model; the linear kinds' fw_step has no loop)")},
-        "node_on_frame": {
-            0: LoopBound(lost_rows, f"handle_row: for lost = expected .. row - 1 (RowAccumulator.skip): at most "
-                                    f"{lost_rows} lost row(s) per frame, the stated assumption"),
-            1: LoopBound(steps, "handle_row: send_timing for i < steps && i < TIMED_STEPS: one model step per lost "
-                                "row ending an interval and one for the row itself, at most TIMED_STEPS (10)"),
-            2: LoopBound(STATE_SIZE, "send_checkpoint: one StateCheckpoint frame per state element (4)"),
-        },
-        "send_temperatures": {0: LoopBound(STATE_SIZE, "for i < NODE_STATE_SIZE: clamp each of the 4 outputs")},
-    }
+    values = {"lost_rows": lost_rows, "steps_per_row": lost_rows + 1}
+    for text in sources.values():
+        for name, number in _DEFINE.findall(text):        # defined twice (#if branches): the larger, to be safe
+            values[name] = max(int(number), values.get(name, 0))
+    facts: dict[tuple[str, int], LoopBound] = {}
+    for file_name, text in sources.items():
+        for number, line in enumerate(text.splitlines(), start=1):
+            found = ANNOTATION.search(line)
+            if found is None:
+                continue
+            expression = found.group(1)
+            names = [name.strip() for name in expression.removeprefix("max(").removesuffix(")").split(",")]
+            known = [int(name) if name.isdigit() else values[name] for name in names if name.isdigit()
+                     or name in values]
+            if not known:        # code this build leaves out (#ifdef): no machine loop comes from it
+                continue
+            reason = f"{file_name}:{number}: {line.split('/*')[0].strip()} (at most {expression})"
+            facts[(file_name, number)] = LoopBound(max(known), reason)
+    return facts

@@ -3,15 +3,19 @@ own flash, the WCET bounds against the measured maxima, the model step's respons
 current loop's latency with and without the estimator running, the CPU load by task at 90 and 168 MHz; then the
 lockstep throughput of `bench run --engine firmware` without and with the interrupt.
 
-    python tests/benchmarks/bench_firmware_timing.py [--rows N] [--lockstep-rows N] [--repeats R] [--skip-lockstep]
+    python tests/benchmarks/bench_firmware_timing.py [--rows N] [--search N] [--lockstep-rows N] [--repeats R]
+                                                     [--skip-lockstep] [--skip-observer]
 
 1. Per packaged kind: its model compiled (the shipped ELF's sources): fw_model.o's code and constants from the
    linker map against the paper's 10.13 kB; the timing image (`build_firmware(isr=True)`) and
    `bench.firmware.timing.timing_report` over the first N rows (default 200) of the 40 °C run at 10 and at
-   20 kHz: static bounds (fw_step, node_on_frame with rows in order, foc_isr) and the measured maxima, the
+   20 kHz: IPET bounds (fw_step, node_on_frame with rows in order, foc_isr) beside the measured maxima of the
+   drive and of an input search (`--search` candidates, bench/firmware/adversarial.py) and their ratio, the
    response time (a row's arrival to its temperatures queued) p50/p99/max, the interrupt's latency when it finds
    the core idle (the estimator not running) and when it preempts the node, and the CPU load by task, each at 90
    and 168 MHz; the outputs bit for bit against the node without the interrupt.
+   Then an observer of the Hammerstein model's winding node (`bench observer` on the 20 °C run), through
+   `bench firmware timing` as a user runs it: fw_obs_step's bound and maxima, node_on_frame's and the handler's.
 2. Lockstep `bench run --engine firmware` on the first M rows (default 3000) of the default run: the shipped image
    without the interrupt, the timing image at 10 and at 20 kHz, alternating (R runs each, default 2), rows/s as the
    host measures the replay, every run clean (CAN values bit-equal to the float32 reference); and the firmware
@@ -30,6 +34,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from record import Record, add_record_arguments  # noqa: E402
 
@@ -45,6 +50,7 @@ from target_sim.artifact import load_artifact  # noqa: E402
 from target_sim.firmware import read_elf  # noqa: E402
 
 RATES_HZ = (10_000, 20_000)
+TRAIN_ROWS = 3000          # the observer's training rows (its tuning changes no cycle count)
 PAPER_MODEL_FLASH_BYTES = 10_130
 
 
@@ -55,7 +61,38 @@ def _run_figures(run: dict) -> dict:
     return {key: run[key] for key in keep}
 
 
-def kind_figures(kind: str, drive, initial) -> dict:
+def _print_wcet(rate: int, table: dict) -> None:
+    for name, row in table.items():
+        print(f"  {rate} Hz {name}: IPET bound {row['bound']}, measured max: drive {row['drive_max']}, input "
+              f"search {row['adversarial_max']}; bound / max {row['bound_over_max']}")
+
+
+def observer_figures(work: Path, dataset, rows: int, search: int) -> dict:
+    """`bench firmware timing` of an observer of the packaged Hammerstein model's winding node (`bench observer`
+    on the first TRAIN_ROWS rows of the 20 °C run, a two-run tuning: its Q and R change no cycle count), as a user
+    runs it: the observer's model step (fw_obs_step) bounded and searched beside node_on_frame and the handler."""
+    from bench_accuracy import bench
+
+    from bench.drive.generate import ensure_default_datasets
+
+    lines = ensure_default_datasets(dataset.path.parent)[20].read_text(encoding="utf-8").splitlines()
+    train = work / "train.csv"                 # a user's CSV: the header and the first TRAIN_ROWS rows
+    train.write_text("\n".join(lines[: TRAIN_ROWS + 1]) + "\n", encoding="utf-8")
+    model = work / "observer.json"
+    bench("observer", "--train", str(train), "--evaluations", "2", "--out", str(model))
+    out = {"case": "winding sensor observer (hammerstein)"}
+    for rate in RATES_HZ:
+        report, seconds = bench("firmware", "timing", "--model", str(model), "--data", str(dataset.path), "--rows",
+                                str(rows), "--isr-rate", str(rate), "--search", str(search), "--out",
+                                str(work / "cache"))
+        out[str(rate)] = {"wcet": report["wcet"], "wcet_holds": report["wcet_holds"],
+                          "bit_exact": report["bit_exact"], "seconds": round(seconds, 1)}
+        print(f"\nobserver at {rate} Hz ({seconds:.0f} s):")
+        _print_wcet(rate, report["wcet"])
+    return out
+
+
+def kind_figures(kind: str, drive, initial, search: int) -> dict:
     artifact = load_artifact(default_artifact_path(kind))
     generated = generate(artifact)
     flash = build_firmware(generated).model_flash
@@ -64,13 +101,13 @@ def kind_figures(kind: str, drive, initial) -> dict:
     print(f"\n{kind}: fw_model.o {flash['bytes']} B (code {flash['code']}, constants {flash['constants']}; "
           f"the paper's {PAPER_MODEL_FLASH_BYTES} B)")
     for rate in RATES_HZ:
-        report = timing_report(artifact, image, drive, initial, isr_rate_hz=rate)
+        report = timing_report(artifact, image, drive, initial, isr_rate_hz=rate, search=search)
         out["rates"][str(rate)] = {
-            "wcet_cycles": report["wcet_cycles"], "measured_max_cycles": report["measured_max_cycles"],
+            "wcet": report["wcet"], "wcet_cycles": report["wcet_cycles"],
+            "measured_max_cycles": report["measured_max_cycles"],
             "wcet_holds": report["wcet_holds"], "bit_exact": report["bit_exact"],
             "runs": {clock: _run_figures(run) for clock, run in report["runs"].items()}}
-        for name, bound in report["wcet_cycles"].items():
-            print(f"  {rate} Hz {name}: bound {bound}, measured max {report['measured_max_cycles'][name]}")
+        _print_wcet(rate, report["wcet"])
         for clock, run in report["runs"].items():
             r, idle, busy = run["response_time_us"], run["isr_latency_idle_cycles"], \
                 run["isr_latency_preempting_cycles"]
@@ -149,15 +186,20 @@ def main() -> int:
     parser.add_argument("--lockstep-rows", type=int, default=3000, help="rows of the lockstep runs (default 3000)")
     parser.add_argument("--repeats", type=int, default=2, help="lockstep runs per variant (default 2)")
     parser.add_argument("--skip-lockstep", action="store_true")
+    parser.add_argument("--search", type=int, default=64, help="input-search candidates per image (default 64)")
+    parser.add_argument("--skip-observer", action="store_true")
     parser.add_argument("--data", type=Path, default=ROOT / "out" / "data")
     add_record_arguments(parser)
     args = parser.parse_args()
     record = Record("firmware_timing", args, parameters={
         "rows": args.rows, "lockstep_rows": args.lockstep_rows, "repeats": args.repeats, "rates_hz": list(RATES_HZ),
-        "paper_model_flash_bytes": PAPER_MODEL_FLASH_BYTES})
+        "paper_model_flash_bytes": PAPER_MODEL_FLASH_BYTES, "search": args.search})
     dataset = load_dataset(ensure_default_datasets(args.data)[40])
     drive, initial = drive_matrix(dataset)[: args.rows], initial_temperatures(dataset)
-    record.figures["kinds"] = [kind_figures(kind, drive, initial) for kind in PACKAGED_KINDS]
+    record.figures["kinds"] = [kind_figures(kind, drive, initial, args.search) for kind in PACKAGED_KINDS]
+    if not args.skip_observer:
+        with tempfile.TemporaryDirectory(prefix="bench-fw-observer-") as tmp:
+            record.figures["observer"] = observer_figures(Path(tmp), dataset, args.rows, args.search)
     if not args.skip_lockstep:
         record.figures["node_throughput"] = node_throughput(dataset, args.lockstep_rows)
         record.figures["lockstep"] = lockstep(dataset, args.lockstep_rows, args.repeats)
