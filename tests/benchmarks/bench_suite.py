@@ -55,6 +55,7 @@ BOUNDS = "0.1,10"
 NODES = ("winding", "pm", "yoke", "tooth")
 GOAL_MSE_K2, GOAL_MAX_K = 2.0, 4.7
 HOLD_TEST = False                # --hold-test: nothing evaluated on the test profiles (while choosing)
+COMPARED = None                  # --compare: only these DEFAULTS (None: all)
 REUSE = False                    # --reuse: an identification kept in --work from an earlier run is read back
 SENSOR = "ntc_C"                 # every suite motor maps its end-winding sensor here
 SENSOR_SIGNAL = "ntc"            # ... from the virtual plant's column of this signal
@@ -227,6 +228,8 @@ def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dic
     """Each identify default against its alternatives on the validation profiles (the default's run reused)."""
     out = {}
     for name, (prior, _, alternatives) in DEFAULTS.items():
+        if COMPARED is not None and name not in COMPARED:
+            continue
         base = runs.get(prior) or identify(motor, work, data, index, prior)
         runs[prior] = base
         row = {"prior": prior, "default": validation_mse(base["json"]), "alternatives": {}}
@@ -260,14 +263,16 @@ def main() -> int:
     parser.add_argument("--defaults", action="store_true",
                         help="also compare each default with its alternatives on the validation profiles")
     parser.add_argument("--work", type=Path, default=None, help="keep the generated files and models here")
+    parser.add_argument("--compare", nargs="+", choices=list(DEFAULTS), default=None,
+                        help="with --defaults: only these identify defaults (default all)")
     parser.add_argument("--hold-test", action="store_true",
                         help="evaluate nothing on the test profiles and skip the observer (while choosing defaults)")
     parser.add_argument("--reuse", action="store_true",
                         help="read back an identification kept in --work by an earlier run of the same code")
     add_record_arguments(parser)
     args = parser.parse_args()
-    global HOLD_TEST, REUSE
-    HOLD_TEST, REUSE = args.hold_test, args.reuse
+    global HOLD_TEST, REUSE, COMPARED
+    HOLD_TEST, REUSE, COMPARED = args.hold_test, args.reuse, args.compare
     if args.reuse and args.work is None:
         parser.error("--reuse reads identifications kept in --work: name it")
     args.skip_observer = args.skip_observer or args.hold_test
@@ -276,7 +281,8 @@ def main() -> int:
         parser.error(f"no suite motor named {args.motors} under {SUITE}")
     record = Record("suite", args, parameters={"motors": [m.name for m in motors], "priors": args.priors,
                                                "bounds": BOUNDS, "observer": not args.skip_observer,
-                                               "defaults": args.defaults, "hold_test": args.hold_test},
+                                               "defaults": args.defaults, "hold_test": args.hold_test,
+                                               "compared": args.compare},
                     variant="defaults" if args.defaults else None)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     record.figures.update(motors=[], complete=False)
