@@ -69,6 +69,8 @@ def suite_motors() -> list[Path]:
 def generate(motor: Path, work: Path) -> tuple[Path, dict, float]:
     """All profiles of a suite motor: the directory, its profiles.json index and the seconds it took."""
     data = work / motor.name / "data"
+    if REUSE and (data / "profiles.json").is_file():
+        return data, json.loads((data / "profiles.json").read_text(encoding="utf-8")), 0.0
     _, seconds = bench("data", "--motor", str(motor / "motor.json"), "--out", str(data), "--quiet")
     index = json.loads((data / "profiles.json").read_text(encoding="utf-8"))
     return data, index, seconds
@@ -268,7 +270,8 @@ def main() -> int:
     parser.add_argument("--hold-test", action="store_true",
                         help="evaluate nothing on the test profiles and skip the observer (while choosing defaults)")
     parser.add_argument("--reuse", action="store_true",
-                        help="read back an identification kept in --work by an earlier run of the same code")
+                        help="read back the profiles and identifications kept in --work by an earlier run of the same "
+                             "code")
     add_record_arguments(parser)
     args = parser.parse_args()
     global HOLD_TEST, REUSE, COMPARED
