@@ -2,7 +2,8 @@
 on test profiles that no choice looked at.
 
     python tests/benchmarks/bench_suite.py [--motors NAME ...] [--priors designer table1 auto] [--skip-observer]
-                                           [--work DIR]
+                                           [--work DIR] [--defaults [--compare DEFAULT ...]] [--hold-test]
+                                           [--reuse]
 
 The suite is `examples/suite/*/`: each motor a motor file whose `virtual_plant` generates its profiles (the
 truth is a plant the bench's four-node model cannot be) and a mapping. Each profile has a fixed role in the motor
@@ -29,6 +30,11 @@ here, never used to choose). Per motor:
    (off, winding, magnet) and --consider (magnet, none; tuned on the training profiles, evaluated on the
    validation profiles). The default
    should be at least as good as its alternatives on most motors; the record says, per default, which won where.
+   `--compare` runs only some of the identify defaults; `--hold-test` evaluates nothing on the test profiles and
+   skips the observer (while choosing, the test figures are not even computed); `--reuse` reads back the profiles
+   and identifications an earlier run of the same code kept in `--work` (identification is deterministic), so a
+   run with `--hold-test` followed by one without it reports the test figures of what was chosen without
+   identifying again.
 
 Goals (issue 37): on every motor, Hammerstein, designer's and auto prior, winding and magnet test MSE ≤ 2.0 K² and
 max ≤ 4.7 K; the observer better than the open loop on the winding and never worse on the magnet.
