@@ -21,7 +21,7 @@ from bench.fileio import write_text_atomically
 from bench.model.coverage import coverage_warnings
 from bench.model.deploy import AUTO, CANDIDATES
 from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS, STATOR_RULE, STATOR_WEIGHT_CHOICES
-from bench.model.polish import POLISH_STARTS
+from bench.model.polish import DEFAULT_FREEZE, POLISH_STARTS
 from bench.model.undetermined import undetermined
 from bench.progress import StageBars, shows_bars
 from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
@@ -64,15 +64,16 @@ def add_subparser(subparsers) -> None:
                         "optional 'bounds'); default: the motor's thermal_prior, else Table 1")
     p.add_argument("--polish", type=int, default=DEFAULT_POLISH, metavar="STARTS",
                    help="local Levenberg-Marquardt polish of the swarm's result from its STARTS best distinct "
-                        f"particles (e.g. {POLISH_STARTS}), in threads, one per core, freezing at the prior what the "
-                        f"data cannot place (default {DEFAULT_POLISH}: the swarm's full result; chosen on the motor "
-                        "suite's validation profiles, see docs/method.md)")
+                        f"particles (e.g. {POLISH_STARTS}), in threads, one per core, see --freeze (default "
+                        f"{DEFAULT_POLISH}: the swarm's full result; chosen on the motor suite's validation profiles, "
+                        "see docs/method.md)")
     p.add_argument("--regularization", choices=REGULARIZATIONS, default=None,
                    help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
                         "with --train files) or fixed (default for the built-in campaign)")
-    p.add_argument("--freeze", choices=("yes", "no"), default="yes",
+    p.add_argument("--freeze", choices=("yes", "no"), default="yes" if DEFAULT_FREEZE else "no",
                    help="with --polish: freeze at the prior a parameter that ends on a bound although the data cannot "
-                        "identify it, and polish the rest again (default yes)")
+                        f"identify it, and polish the rest again (default {'yes' if DEFAULT_FREEZE else 'no'}: "
+                        "chosen on the motor suite's validation profiles, see docs/method.md)")
     p.add_argument("--stator-weight", choices=STATOR_WEIGHT_CHOICES, default=STATOR_RULE,
                    help="with --regularization cv and measured yoke/tooth: the Hammerstein fit's stator weight chosen "
                         f"by its rule (left-out scores, default {STATOR_RULE}) or kept at the swarm's weighting "

@@ -31,7 +31,7 @@ from bench.model.lptn_fit import (
     to_search,
 )
 from bench.model.metrics import error_metrics
-from bench.model.polish import polish_lptn, uncertainty
+from bench.model.polish import DEFAULT_FREEZE, polish_lptn, uncertainty
 from bench.model.prior_scales import adapt_prior
 from bench.model.runs import ModelRun, model_run
 from bench.motor.description import MotorDescription, ThermalPrior, default_motor
@@ -99,7 +99,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              motor: MotorDescription | None = None, prior: ThermalPrior | None = None,
              width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
              regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
-             freeze: bool = True, stator_weight: str = STATOR_RULE,
+             freeze: bool = DEFAULT_FREEZE, stator_weight: str = STATOR_RULE,
              progress: Callable[[str, int, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:

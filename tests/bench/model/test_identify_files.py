@@ -68,7 +68,7 @@ def identified(motor_files, tmp_path_factory):
     capture.setattr(sys, "stdout", buffer)
     try:
         # the polish route, asked for, with the Hammerstein model at --out whatever the validation file favours
-        assert _identify(motor_files, out, "--polish", "2", "--kind", "hammerstein") == 0
+        assert _identify(motor_files, out, "--polish", "2", "--freeze", "yes", "--kind", "hammerstein") == 0
     finally:
         capture.undo()
     return out, json.loads(buffer.getvalue())
@@ -274,9 +274,9 @@ class _Stop(Exception):
     pass
 
 
-@pytest.mark.parametrize(("extra", "freeze", "stator_weight"), [((), True, "rule"),
-                                                                  (("--freeze", "no", "--stator-weight", "fixed"),
-                                                                   False, "fixed")])
+@pytest.mark.parametrize(("extra", "freeze", "stator_weight"), [((), False, "rule"),
+                                                                  (("--freeze", "yes", "--stator-weight", "fixed"),
+                                                                   True, "fixed")])
 def test_the_freezing_and_stator_weight_options_reach_the_identification(motor_files, tmp_path, monkeypatch, extra,
                                                                          freeze, stator_weight):
     import bench.model.identify
