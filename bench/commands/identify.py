@@ -20,8 +20,8 @@ from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.coverage import coverage_warnings
 from bench.model.deploy import AUTO, CANDIDATES
-from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS
-from bench.model.polish import POLISH_STARTS
+from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS, STATOR_RULE, STATOR_WEIGHT_CHOICES
+from bench.model.polish import DEFAULT_FREEZE, POLISH_STARTS
 from bench.model.undetermined import undetermined
 from bench.progress import StageBars, shows_bars
 from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
@@ -64,12 +64,20 @@ def add_subparser(subparsers) -> None:
                         "optional 'bounds'); default: the motor's thermal_prior, else Table 1")
     p.add_argument("--polish", type=int, default=DEFAULT_POLISH, metavar="STARTS",
                    help="local Levenberg-Marquardt polish of the swarm's result from its STARTS best distinct "
-                        f"particles (e.g. {POLISH_STARTS}), in threads, one per core, freezing at the prior what the "
-                        f"data cannot place (default {DEFAULT_POLISH}: the swarm's full result; chosen on the motor "
-                        "suite's validation profiles, see docs/method.md)")
+                        f"particles (e.g. {POLISH_STARTS}), in threads, one per core, see --freeze (default "
+                        f"{DEFAULT_POLISH}: the swarm's full result; chosen on the motor suite's validation profiles, "
+                        "see docs/method.md)")
     p.add_argument("--regularization", choices=REGULARIZATIONS, default=None,
                    help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
                         "with --train files) or fixed (default for the built-in campaign)")
+    p.add_argument("--freeze", choices=("yes", "no"), default="yes" if DEFAULT_FREEZE else "no",
+                   help="with --polish: freeze at the prior a parameter that ends on a bound although the data cannot "
+                        f"identify it, and polish the rest again (default {'yes' if DEFAULT_FREEZE else 'no'}: "
+                        "chosen on the motor suite's validation profiles, see docs/method.md)")
+    p.add_argument("--stator-weight", choices=STATOR_WEIGHT_CHOICES, default=STATOR_RULE,
+                   help="with --regularization cv and measured yoke/tooth: the Hammerstein fit's stator weight chosen "
+                        f"by its rule (left-out scores, default {STATOR_RULE}) or kept at the swarm's weighting "
+                        "(fixed)")
     p.add_argument("--adapt-prior", choices=("yes", "no"), default=None,
                    help="adapt a named prior (another machine's network, e.g. table1) to the training data before "
                         "the search: common factors of the stator and rotor resistances and capacitances, then each "
@@ -140,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
                           lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
-                          standard_errors=files,
+                          standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
                           adapt=adapt, progress=progress)
     finally:
         if progress is not None:

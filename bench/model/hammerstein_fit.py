@@ -49,6 +49,9 @@ STATOR_WEIGHT = math.sqrt(NODE_WEIGHTS["yoke"])
 # first weight and kept for the others.
 STATOR_WEIGHTS = (STATOR_WEIGHT, STATOR_WEIGHT / 2, STATOR_WEIGHT / 4)
 STATOR_MARGIN = 0.10
+# `bench identify --stator-weight`: the rule above, or STATOR_WEIGHT kept (the swarm's own weighting)
+STATOR_RULE, STATOR_FIXED = "rule", "fixed"
+STATOR_WEIGHT_CHOICES = (STATOR_RULE, STATOR_FIXED)
 # Ridge weights (°C of RMS error per unit of parameter change) for [weight, bias, gain, linear, offset] and the
 # relative B changes. Without them the fit makes the sigmoids into steep steps that tell the 20 °C run from the
 # 60 °C one by their loss level (copper losses rise with temperature) and then interpolates badly at 40 °C.
@@ -271,7 +274,8 @@ def cv_steps(runs: Sequence[ModelRun], iterations: int) -> int:
 
 def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence[ModelRun], *,
                        path: str = "statespace", iterations: int = 100,
-                       on_iteration: Callable[[int, float], None] | None = None) -> tuple[HammersteinFit, dict]:
+                       on_iteration: Callable[[int, float], None] | None = None, stator_weight: str = STATOR_RULE
+                       ) -> tuple[HammersteinFit, dict]:
     """The Hammerstein fit with its ridge strength and stator weight chosen by leave-one-file-out cross-validation.
 
     For each factor of CV_FACTORS (strongest first, each fit starting from the previous, more regular one) the model
@@ -288,6 +292,7 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
     picks the weight. The grid stops at the first weight whose stator breaks the margin (a smaller weight holds
     the stator less still). The LTI network is scored on the same files (it saw them in the swarm, so the comparison
     favours it). The chosen fit is kept; `recommended` says which model did better on the left-out files.
+    `stator_weight` STATOR_FIXED keeps the first weight (no grid).
     """
     if len(runs) < 2:
         fit = fit_hammerstein(base, params, runs, path=path, iterations=iterations, on_iteration=on_iteration)
@@ -326,7 +331,8 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
         weights = {STATOR_WEIGHTS[0]: (fits[best], deployed[best], _stator_rms(checks, held[best]))}
         lti_stator = _stator_rms(checks, lti_residuals)
         fit = fits[best]
-        for k, weight in enumerate(STATOR_WEIGHTS[1:]):
+        grid = STATOR_WEIGHTS if stator_weight == STATOR_RULE else STATOR_WEIGHTS[:1]
+        for k, weight in enumerate(grid[1:]):
             if not _keeps_stator(weights[STATOR_WEIGHTS[k]][2], lti_stator):
                 break    # a smaller weight holds the stator less still: no use fitting it
             problem, checks = problems(weight)
@@ -345,7 +351,8 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
             "stator_weight": weight, "stator_margin": STATOR_MARGIN, "lti_stator_rms_C": lti_stator,
             "stator_weights": [{"weight": w, "cv_rms_C": _exact_rms(d), "stator_rms_C": st}
                                for w, (_, d, st) in weights.items()],
-            "stator_rule": f"among the stator weights whose left-out yoke and tooth RMSE stay within "
+            "stator_rule": f"fixed at {STATOR_WEIGHTS[0]:.6g} (--stator-weight {STATOR_FIXED})" if len(grid) == 1 else
+                           f"among the stator weights whose left-out yoke and tooth RMSE stay within "
                            f"{100 * STATOR_MARGIN:g} % of the LTI network's, the largest whose left-out winding+PM "
                            f"score is within one standard error of the lowest (ridge factor {best:g} for every "
                            "weight)"})

@@ -14,6 +14,7 @@ from bench.model.baselines import fit_baselines
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.hammerstein_fit import (
     REGULARIZATIONS,
+    STATOR_RULE,
     HammersteinFit,
     cv_steps,
     fit_hammerstein,
@@ -30,7 +31,7 @@ from bench.model.lptn_fit import (
     to_search,
 )
 from bench.model.metrics import error_metrics
-from bench.model.polish import polish_lptn, uncertainty
+from bench.model.polish import DEFAULT_FREEZE, polish_lptn, uncertainty
 from bench.model.prior_scales import adapt_prior
 from bench.model.runs import ModelRun, model_run
 from bench.motor.description import MotorDescription, ThermalPrior, default_motor
@@ -98,6 +99,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              motor: MotorDescription | None = None, prior: ThermalPrior | None = None,
              width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
              regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
+             freeze: bool = DEFAULT_FREEZE, stator_weight: str = STATOR_RULE,
              progress: Callable[[str, int, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
@@ -105,9 +107,11 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     0.6-1.6; an `auto` prior is read from the training data (bench.model.auto_prior); `adapt` scales a given
     prior to the training data first (bench.model.prior_scales); `width` overrides the prior's bounds.
     `validation` datasets are only recorded in the provenance. `standard_errors` computes the parameters' standard
-    errors (`uncertainty`) without a polish too, at the swarm's result (a polish always does). The defaults (no
-    polish, fixed ridge, no adaptation, no standard errors) are the packaged model's path. `progress` is called
-    with (stage "pso", "polish" or "lm", steps done, steps at most, cost) as each stage goes; a stage may end
+    errors (`uncertainty`) without a polish too, at the swarm's result (a polish always does). `freeze`: the polish
+    freezes at the prior what the data cannot place (bench.model.polish.freeze_unidentified). `stator_weight`: with
+    `cv`, the Hammerstein fit's stator weight chosen by its rule or kept fixed (STATOR_WEIGHT_CHOICES). The
+    defaults (no polish, fixed ridge, no adaptation, no standard errors) are the packaged model's path. `progress`
+    is called with (stage "pso", "polish" or "lm", steps done, steps at most, cost) as each stage goes; a stage may end
     before its most (a stalled swarm, a converged fit)."""
     if discretization != "zoh":
         raise ValueError("identification discretizes by zero-order hold, as the paper's Hammerstein fit did")
@@ -141,7 +145,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
             progress("polish", 0, 1, lptn.cost)
         # a parameter the data cannot place is frozen at the prior: the motor's own guess (its file's network, or
         # read from its data), or a foreign prior adapted to the data path by path (bench.model.prior_scales)
-        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start)
+        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start, freeze=freeze)
         if progress:
             progress("polish", 1, 1, lptn.cost)
         errors = _standard_errors(lptn, runs, dt)
@@ -157,7 +161,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     on_lm = (lambda i, c: progress("lm", i, lm_steps, c)) if progress else None
     if regularization == "cv":
         ham, selection = fit_hammerstein_cv(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
-                                            on_iteration=on_lm)
+                                            on_iteration=on_lm, stator_weight=stator_weight)
     else:
         ham, selection = fit_hammerstein(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
                                          on_iteration=on_lm), None

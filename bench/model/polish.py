@@ -64,6 +64,10 @@ OUTPUT_INDEX = {"winding": 1, "pm": 3, "yoke": 0, "tooth": 2}
 # The weak prior of the polish (`PriorPenalty`): the search box is its ±2σ interval (σ a quarter of the box's width
 # in search coordinates: a factor of 10^(1/2) for the auto prior's 0.1-10), and its weight is 1/N_eff.
 PRIOR_SIGMAS_IN_BOX = 4.0
+# `bench identify --freeze` (and identify()'s `freeze`): off since 2026-12-06. On the motor suite's validation
+# profiles (designer's prior, --polish 2) the polish without freezing beat the one with it on all three motors
+# (winding + magnet MSE 11.98 vs 21.67, 23.75 vs 47.95, 9.79 vs 20.35 K²; docs/method.md).
+DEFAULT_FREEZE = False
 FREEZE_ROUNDS = 2          # freeze_unidentified: re-polishes at most
 INSET = 1e-3               # a start on a wall is moved this share of the box inside (the box map is flat there)
 

@@ -2,7 +2,8 @@
 on test profiles that no choice looked at.
 
     python tests/benchmarks/bench_suite.py [--motors NAME ...] [--priors designer table1 auto] [--skip-observer]
-                                           [--work DIR]
+                                           [--work DIR] [--defaults [--compare DEFAULT ...]] [--hold-test]
+                                           [--reuse]
 
 The suite is `examples/suite/*/`: each motor a motor file whose `virtual_plant` generates its profiles (the
 truth is a plant the bench's four-node model cannot be) and a mapping. Each profile has a fixed role in the motor
@@ -29,6 +30,11 @@ here, never used to choose). Per motor:
    (off, winding, magnet) and --consider (magnet, none; tuned on the training profiles, evaluated on the
    validation profiles). The default
    should be at least as good as its alternatives on most motors; the record says, per default, which won where.
+   `--compare` runs only some of the identify defaults; `--hold-test` evaluates nothing on the test profiles and
+   skips the observer (while choosing, the test figures are not even computed); `--reuse` reads back the profiles
+   and identifications an earlier run of the same code kept in `--work` (identification is deterministic), so a
+   run with `--hold-test` followed by one without it reports the test figures of what was chosen without
+   identifying again.
 
 Goals (issue 37): on every motor, Hammerstein, designer's and auto prior, winding and magnet test MSE ≤ 2.0 K² and
 max ≤ 4.7 K; the observer better than the open loop on the winding and never worse on the magnet.
@@ -54,6 +60,9 @@ PRIORS = ("designer", "table1", "auto")
 BOUNDS = "0.1,10"
 NODES = ("winding", "pm", "yoke", "tooth")
 GOAL_MSE_K2, GOAL_MAX_K = 2.0, 4.7
+HOLD_TEST = False                # --hold-test: nothing evaluated on the test profiles (while choosing)
+COMPARED = None                  # --compare: only these DEFAULTS (None: all)
+REUSE = False                    # --reuse: an identification kept in --work from an earlier run is read back
 SENSOR = "ntc_C"                 # every suite motor maps its end-winding sensor here
 SENSOR_SIGNAL = "ntc"            # ... from the virtual plant's column of this signal
 OBSERVER_EVALUATIONS = "150"     # as bench_observer.py: Nelder-Mead settles within 100-150 filter runs here
@@ -66,6 +75,8 @@ def suite_motors() -> list[Path]:
 def generate(motor: Path, work: Path) -> tuple[Path, dict, float]:
     """All profiles of a suite motor: the directory, its profiles.json index and the seconds it took."""
     data = work / motor.name / "data"
+    if REUSE and (data / "profiles.json").is_file():
+        return data, json.loads((data / "profiles.json").read_text(encoding="utf-8")), 0.0
     _, seconds = bench("data", "--motor", str(motor / "motor.json"), "--out", str(data), "--quiet")
     index = json.loads((data / "profiles.json").read_text(encoding="utf-8"))
     return data, index, seconds
@@ -82,15 +93,28 @@ def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra
         path.write_text('{"parameters": "table1"}\n', encoding="utf-8")
         option = ("--prior", str(path))
     out = work / motor.name / (f"{prior}-{tag}" if tag else prior) / "model.json"
+    kept = out.with_name("identify.json")     # the command's --json, for --reuse
+    if REUSE and kept.is_file():
+        return json.loads(kept.read_text(encoding="utf-8"), object_hook=_paths)
     cpu = children_cpu_s()
     load = os.getloadavg()[0]
     identified, seconds = bench(
         "identify", "--motor", str(motor / "motor.json"), "--mapping", str(motor / "mapping.json"),
         "--train", *files(data, index, "train"), "--validate", *files(data, index, "validate"),
         "--out", str(out), "--all-kinds", "--bounds", BOUNDS, *option, *extra)
-    return {"json": identified, "seconds": seconds, "cpu_s": children_cpu_s() - cpu, "out": out,
-            "artifacts": {kind: Path(path) for kind, path in identified["artifacts"].items()},
-            "load_average": round(max(load, os.getloadavg()[0]), 2)}
+    run = {"json": identified, "seconds": seconds, "cpu_s": children_cpu_s() - cpu, "out": out,
+           "artifacts": {kind: Path(path) for kind, path in identified["artifacts"].items()},
+           "load_average": round(max(load, os.getloadavg()[0]), 2)}
+    kept.write_text(json.dumps(run, default=str), encoding="utf-8")
+    return run
+
+
+def _paths(item: dict) -> dict:
+    """A kept identify run read back: its artifacts as paths."""
+    if "artifacts" in item and "json" in item:
+        item["artifacts"] = {kind: Path(path) for kind, path in item["artifacts"].items()}
+        item["out"] = Path(item["out"])
+    return item
 
 
 def node_figures(nodes: dict) -> dict:
@@ -114,6 +138,11 @@ def prior_row(motor: Path, data: Path, index: dict, prior: str, run: dict) -> di
     kinds = dict.fromkeys(("hammerstein", "lti-lptn", deployed))     # the deployed one too when it is neither
     models = [run["artifacts"][kind] for kind in kinds]
     validation = evaluate(motor, models, files(data, index, "validate"))
+    if HOLD_TEST:
+        return {"prior": prior, "validation": validation, "deployed_kind": deployed,
+                "on_bounds": [h["name"] for h in identified.get("parameters_on_bounds") or []],
+                "frozen": list((identified.get("polish") or {}).get("frozen") or []),
+                "warnings": identified.get("warnings") or []}
     test = evaluate(motor, models, files(data, index, "test"))
     ham_val, lti_val = validation["hammerstein"], validation["lti-lptn"]
     row = {"prior": prior, "identify_s": round(run["seconds"], 1), "identify_cpu_s": round(run["cpu_s"], 1),
@@ -186,7 +215,9 @@ def pooled_observer(per_file: list[dict], index: dict) -> dict:
 DEFAULTS = {
     "adapt-prior": ("table1", (), {"no": ("--adapt-prior", "no")}),
     "regularization": ("designer", (), {"fixed": ("--regularization", "fixed")}),
-    "polish": ("designer", (), {"2": ("--polish", "2")}),   # the default is 0 since the suite's first comparison
+    "stator-weight": ("designer", (), {"fixed": ("--stator-weight", "fixed")}),
+    # the default is 0 since the suite's first comparison; freezing acts only in a polish: with and without it
+    "polish": ("designer", (), {"2": ("--polish", "2"), "2-freeze-no": ("--polish", "2", "--freeze", "no")}),
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
@@ -205,6 +236,8 @@ def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dic
     """Each identify default against its alternatives on the validation profiles (the default's run reused)."""
     out = {}
     for name, (prior, _, alternatives) in DEFAULTS.items():
+        if COMPARED is not None and name not in COMPARED:
+            continue
         base = runs.get(prior) or identify(motor, work, data, index, prior)
         runs[prior] = base
         row = {"prior": prior, "default": validation_mse(base["json"]), "alternatives": {}}
@@ -238,14 +271,27 @@ def main() -> int:
     parser.add_argument("--defaults", action="store_true",
                         help="also compare each default with its alternatives on the validation profiles")
     parser.add_argument("--work", type=Path, default=None, help="keep the generated files and models here")
+    parser.add_argument("--compare", nargs="+", choices=list(DEFAULTS), default=None,
+                        help="with --defaults: only these identify defaults (default all)")
+    parser.add_argument("--hold-test", action="store_true",
+                        help="evaluate nothing on the test profiles and skip the observer (while choosing defaults)")
+    parser.add_argument("--reuse", action="store_true",
+                        help="read back the profiles and identifications kept in --work by an earlier run of the same "
+                             "code")
     add_record_arguments(parser)
     args = parser.parse_args()
+    global HOLD_TEST, REUSE, COMPARED
+    HOLD_TEST, REUSE, COMPARED = args.hold_test, args.reuse, args.compare
+    if args.reuse and args.work is None:
+        parser.error("--reuse reads identifications kept in --work: name it")
+    args.skip_observer = args.skip_observer or args.hold_test
     motors = [m for m in suite_motors() if args.motors is None or m.name in args.motors]
     if not motors:
         parser.error(f"no suite motor named {args.motors} under {SUITE}")
     record = Record("suite", args, parameters={"motors": [m.name for m in motors], "priors": args.priors,
                                                "bounds": BOUNDS, "observer": not args.skip_observer,
-                                               "defaults": args.defaults},
+                                               "defaults": args.defaults, "hold_test": args.hold_test,
+                                               "compared": args.compare},
                     variant="defaults" if args.defaults else None)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     record.figures.update(motors=[], complete=False)

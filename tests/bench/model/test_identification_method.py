@@ -379,6 +379,21 @@ def test_the_stator_weight_falls_only_while_the_stator_stays_near_the_network():
     assert yoke["stator_weights"][0]["stator_rms_C"]["tooth"] > 1.1 * yoke["lti_stator_rms_C"]["tooth"]
 
 
+def test_a_fixed_stator_weight_fits_one_weight_where_the_rule_would_lower_it():
+    """--stator-weight fixed: the misplaced stator sensors that take the rule to the smallest weight (above) leave
+    the weight at the swarm's √½, one fit, and the record says so."""
+    from bench.model.builder import ModelSpec, physical_block
+    from bench.model.hammerstein_fit import STATOR_FIXED, STATOR_WEIGHT
+    from bench.motor.description import default_motor
+
+    motor = default_motor()
+    base = physical_block(ModelSpec("lti-lptn", TRUTH, DT, "zoh", "physical", motor.loss_model, motor.constants()))
+    _, fixed = fit_hammerstein_cv(base, TRUTH, _misplaced_sensors(("yoke", "tooth")), iterations=12,
+                                  stator_weight=STATOR_FIXED)
+    assert fixed["stator_weight"] == STATOR_WEIGHT and [w["weight"] for w in fixed["stator_weights"]] == [STATOR_WEIGHT]
+    assert fixed["stator_rule"].startswith("fixed at")
+
+
 def test_only_another_machines_named_prior_is_scaled_by_default():
     from bench.commands.identify import _adapts
     from bench.motor.description import ThermalPrior, automatic_prior

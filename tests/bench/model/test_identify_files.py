@@ -68,7 +68,7 @@ def identified(motor_files, tmp_path_factory):
     capture.setattr(sys, "stdout", buffer)
     try:
         # the polish route, asked for, with the Hammerstein model at --out whatever the validation file favours
-        assert _identify(motor_files, out, "--polish", "2", "--kind", "hammerstein") == 0
+        assert _identify(motor_files, out, "--polish", "2", "--freeze", "yes", "--kind", "hammerstein") == 0
     finally:
         capture.undo()
     return out, json.loads(buffer.getvalue())
@@ -268,3 +268,26 @@ def test_kind_auto_without_validation_files_is_refused_before_any_work(motor_fil
     assert err.count("\n") == 1 and "Traceback" not in err
     assert "--kind auto chooses the deployed kind on held-out validation files: name them with --validate" in err
     assert not any(tmp_path.iterdir())
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.mark.parametrize(("extra", "freeze", "stator_weight"), [((), False, "rule"),
+                                                                  (("--freeze", "yes", "--stator-weight", "fixed"),
+                                                                   True, "fixed")])
+def test_the_freezing_and_stator_weight_options_reach_the_identification(motor_files, tmp_path, monkeypatch, extra,
+                                                                         freeze, stator_weight):
+    import bench.model.identify
+
+    asked = {}
+
+    def identify(*args, **kwargs):
+        asked.update(kwargs)
+        raise _Stop
+
+    monkeypatch.setattr(bench.model.identify, "identify", identify)
+    with pytest.raises(_Stop):
+        _identify(motor_files, tmp_path / "m.json", *extra)
+    assert asked["freeze"] is freeze and asked["stator_weight"] == stator_weight
