@@ -1,7 +1,7 @@
 """The other side of a WCET bound: inputs searched for the most cycles the emulated core measures.
 
     best = maximize(cycles_of, dimension, evaluations=48, seed=0)     # cycles_of: [0, 1]^d -> measured cycles
-    step_scenario(artifact, image)   /   frame_scenario(artifact, image, ...)     # the two objectives
+    step_scenario(artifact, image)   /   frame_scenario(artifact, image, run_frames, ...)     # the two objectives
 
 A drive cycle's rows show what a drive does, not what the code can be made to do; the gap between a static bound
 and the truth is only shown from both ends when the measured side is pushed too. The search is a (1+1) evolution
@@ -125,12 +125,12 @@ def frame_rows(artifact: ModelArtifact) -> int:
     return int(np.ceil((CHECKPOINT_EVERY_STEPS + 1) * rows_per_step)) + 2
 
 
-def frame_scenario(artifact: ModelArtifact, image: ElfImage, *, isr_rate_hz: float, clock_mhz: float,
-                   seed: int = 0) -> tuple[Callable[[np.ndarray], tuple[int, object]], int]:
+def frame_scenario(artifact: ModelArtifact, image: ElfImage, run_frames: Callable[..., object], *, isr_rate_hz: float,
+                   clock_mhz: float, seed: int = 0) -> tuple[Callable[[np.ndarray], tuple[int, object]], int]:
     """(run, dimension) of node_on_frame beside the interrupt: start temperatures and `frame_rows` rows from the
     candidate; run(point) gives the most cycles any one call of node_on_frame took, and the run (its
-    interrupts' handler cycles too)."""
-    from bench.firmware.timing import run_frames
+    interrupts' handler cycles too). `run_frames` is the timing's own run of frames
+    (`bench.firmware.timing.run_frames`, given by its caller: the timing imports this module, not the reverse)."""
     from target_sim.observer import has_observer
     from target_sim.observer_node import measurement_width
 

@@ -253,7 +253,8 @@ def adversarial_maxima(artifact: ModelArtifact, image: ElfImage, *, evaluations:
         return {step: None, "node_on_frame": None, HANDLER: None}
     objective, dimension = step_scenario(artifact, image)
     found_step = maximize(objective, dimension, evaluations=evaluations, seed=seed)
-    frames, dimension = frame_scenario(artifact, image, isr_rate_hz=isr_rate_hz, clock_mhz=CLOCKS_MHZ[0], seed=seed)
+    frames, dimension = frame_scenario(artifact, image, run_frames, isr_rate_hz=isr_rate_hz, clock_mhz=CLOCKS_MHZ[0],
+                                       seed=seed)
     handler = [0]
 
     def frame_objective(point: np.ndarray) -> int:

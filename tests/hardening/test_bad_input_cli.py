@@ -802,7 +802,7 @@ def _shadow_dbc(root: Path, variant: str) -> Path:
     package = root / "shadow" / "dbc"
     package.mkdir(parents=True)
     source = Path(dbc.codec.__file__).parent
-    for module in source.glob("*.py"):
+    for module in [*source.glob("*.py"), *source.glob("*.toml")]:    # the code and its side files (xcp.toml)
         shutil.copy(module, package / module.name)
     text = (source / "thermal_bench.dbc").read_bytes()
     if variant == "truncated":
