@@ -178,3 +178,22 @@ def test_without_the_field_the_section_is_written_as_before(packaged, small_data
     without = _observer(packaged, dataset, release=None).content["observer"]
     assert "consider_release_C2" not in without and "key-on release" not in without["rule"]
     assert _observer(packaged, dataset).content["observer"]["consider_release_C2"]["f64"] == [RELEASE_C2]
+
+
+def test_unmeasured_consider_states_leave_the_tooth_and_the_magnet_to_the_model(packaged, small_dataset):
+    """`--consider unmeasured` with the end-winding NTC (it reads the winding and, through its gradient, the yoke):
+    every form's gain has the tooth's and the magnet's rows -0, so a winding reading moves them only through the
+    model's coupling; the winding, the yoke and the lag state move. Without the release the magnet stays held at
+    key-on too."""
+    dataset = load_dataset(small_dataset)
+    artifact = _observer(packaged, dataset, "unmeasured", None)
+    assert artifact.content["observer"]["consider"] == "unmeasured"
+    for form in ("conventional", "joseph", "ud"):
+        obs = Float32Observer(artifact, form)
+        obs.reset([40.0, 40.0, 40.0, 45.0])
+        assert obs.holds(0).tolist() == [False, False, True, True, False]
+        gain = obs.cov.update(obs.rows[0], np.float32(0.01), 0, obs.holds(0))
+        assert all(gain[i] == 0 and np.signbit(gain[i]) for i in (2, 3)), form
+        assert all(gain[i] != 0 for i in (0, 1, 4)), form
+    steady = Float32Observer(artifact, "steady")
+    assert all(steady.gain_steady[0][i] == 0 for i in (2, 3))
