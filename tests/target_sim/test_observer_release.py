@@ -197,3 +197,22 @@ def test_unmeasured_consider_states_leave_the_tooth_and_the_magnet_to_the_model(
         assert all(gain[i] != 0 for i in (0, 1, 4)), form
     steady = Float32Observer(artifact, "steady")
     assert all(steady.gain_steady[0][i] == 0 for i in (2, 3))
+
+
+def test_the_cli_option(tmp_path, small_dataset, capsys):
+    from bench.cli import build_parser, main
+
+    assert build_parser().parse_args(["observer"]).consider_release == "none"
+    out = tmp_path / "released.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--consider",
+                 "unmeasured", "--consider-release", "5", "--out", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["consider"] == "unmeasured" and report["consider_release_sigma_C"] == 5.0
+    section = load_artifact(out).content["observer"]
+    assert section["consider_release_C2"]["f64"] == [25.0] and "key-on release" in section["rule"]
+    for value in ("0", "-1", "warm", "nan"):
+        assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--consider-release", value,
+                     "--out", str(tmp_path / "never.json")]) == 2
+        err = capsys.readouterr().err
+        assert "--consider-release must be a 1-sigma in K above 0 or none" in err and err.count("\n") == 1
+    assert not (tmp_path / "never.json").exists()
