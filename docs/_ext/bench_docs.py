@@ -210,6 +210,9 @@ def render_artifact_schema() -> str:
               + ", ".join(f"`{kind}` (the {', '.join(nodes)} node{'s' * (len(nodes) > 1)} a measurement does not "
                           "read, and a bias heating one of them)"
                           for kind, nodes in artifact.CONSIDER_KINDS.items())
+              + "; `observer.consider_release_C2` (an encoded variance, °C²; absent or null: held always) is the "
+              "key-on release: while the magnet's variance before an update exceeds it, no measurement holds the "
+              "magnet (nor a magnet bias)"
               + "; Q, P0 and "
               "P_ss are then n × n with n = len(states), `q_nodes_C2` has n entries and K_ss one row per "
               "measurement. `node`, `column`, `offset_C`, `R` and `lag_s` describe the first measurement.", "",
