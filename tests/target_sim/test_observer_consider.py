@@ -96,8 +96,8 @@ def test_a_bad_consider_kind_is_refused_in_one_sentence(consider, value):
     artifact, _ = consider
     content = json.loads(json.dumps(artifact.content))
     content["observer"]["consider"] = value
-    with pytest.raises(ArtifactError, match="observer.consider .* is not one of magnet, unmeasured or null; rebuild it with "
-                                            "'bench observer'") as info:
+    with pytest.raises(ArtifactError, match="observer.consider .* is not one of magnet, unmeasured or null; rebuild "
+                                            "it with 'bench observer'") as info:
         verify(seal(content))
     assert "\n" not in str(info.value)
     content["observer"]["consider"] = None               # null: none, as an absent field
