@@ -47,10 +47,12 @@ OUTPUTS = TEMPERATURE_NODES   # the model's outputs: the temperatures in the sta
 BIAS_KINDS = {"winding-heat": 1, "magnet-heat": 3}
 # The observer's consider kinds (its section's `consider`; absent or null: none): states that a measurement which
 # does not read them never updates (Schmidt-Kalman "consider" states: their rows of the gain are zero, the covariance
-# is the one of that gain). A kind names its node of OUTPUTS and the bias kind that belongs to it (held too when the
-# section has that bias). A measurement "reads" the node when its `sees` weighs it (the flux linkage reads the magnet;
-# a winding NTC does not, so it cannot move the magnet through a coupling the model may have wrong).
-CONSIDER_KINDS = {"magnet": ("magnet", "magnet-heat")}
+# is the one of that gain). A kind names its nodes of OUTPUTS; a bias state is held with its node (BIAS_KINDS: the
+# bias heats that node). A measurement "reads" a node when its `sees` weighs it (the flux linkage reads the magnet; a
+# winding NTC does not, so it cannot move the magnet through a coupling the model may have wrong). "unmeasured": every
+# node the measurement does not read (an end-winding NTC moves neither the magnet nor the tooth, which reaches the
+# magnet through the tooth-magnet path; with a gradient it reads the yoke too, which it then updates).
+CONSIDER_KINDS = {"magnet": ("magnet",), "unmeasured": ("yoke", "winding", "tooth", "magnet")}
 # losses.model names a loss model of `target_sim.losses` ("maps", "electrical", ...), which owns its fields
 LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
                    "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
@@ -289,6 +291,11 @@ def _check_observer(artifact: ModelArtifact, version: int) -> None:
     if consider is not None and (not isinstance(consider, str) or consider not in CONSIDER_KINDS):
         raise ArtifactError(f"artifact observer.consider {_shown(consider)} is not one of "
                             f"{', '.join(CONSIDER_KINDS)} or null; {fix}")
+    if section.get("consider_release_C2") is not None:
+        release = artifact.array("observer", "consider_release_C2", dtype=np.float64)
+        if consider is None or release.shape != () or not (np.isfinite(release) and release > 0):
+            raise ArtifactError("artifact observer.consider_release_C2 must be one finite variance > 0 beside a "
+                                f"consider kind; {fix}")
     if not np.all(artifact.array("observer", "q_nodes_C2", dtype=np.float64) >= 0):
         raise ArtifactError(f"artifact observer.q_nodes_C2 holds a negative variance; {fix}")
     for key in ("R", "Q", "P0", "P_ss"):
@@ -328,6 +335,13 @@ def observer_gate(section: dict) -> tuple[float, int] | None:
     return None if gate is None else (float(gate["sigma"]), int(gate["flag_after"]))
 
 
+def consider_release(section: dict) -> float | None:
+    """The section's key-on release (`consider_release_C2`, °C²): a held magnet whose variance before an update exceeds
+    it is updated as an ordinary state; None without one (absent or null: held always, as before)."""
+    entry = section.get("consider_release_C2")
+    return None if entry is None else float(decode_array(entry, "observer.consider_release_C2", np.float64))
+
+
 def _expected_shapes(content: dict) -> dict[tuple[str, ...], tuple[int, ...]]:
     """The shape the target's code needs for each non-scalar array field (scalars are ())."""
     kind = LOSS_KINDS[loss_model_of(content)]
@@ -364,20 +378,32 @@ def observer_state_count(section: dict) -> int:
 
 def consider_held(consider: str | None, sees: np.ndarray, bias: str | None, states: int) -> np.ndarray:
     """(measurements, states) booleans: the states each measurement's update leaves as they are (`CONSIDER_KINDS`):
-    for a measurement whose `sees` (a row of 4 node weights) does not weigh the kind's node, that node (its index in
-    OUTPUTS: the filter's node coordinates) and, when the section's bias is the kind's, the bias state (the last)."""
+    for a measurement whose `sees` (a row of 4 node weights) does not weigh one of the kind's nodes, that node (its
+    index in OUTPUTS: the filter's node coordinates) and, when the section's bias heats that node, the bias state (the
+    last)."""
     sees = np.atleast_2d(np.asarray(sees, dtype=np.float64))
     held = np.zeros((len(sees), states), dtype=bool)
     if consider is None:
         return held
-    node_name, bias_name = CONSIDER_KINDS[consider]
-    node = OUTPUTS.index(node_name)
-    for m, row in enumerate(sees):
-        if row[node] == 0:
-            held[m, node] = True
-            if bias == bias_name:
-                held[m, states - 1] = True
+    bias_node = BIAS_KINDS[bias] if bias else None
+    for name in CONSIDER_KINDS[consider]:
+        node = OUTPUTS.index(name)
+        for m, row in enumerate(sees):
+            if row[node] == 0:
+                held[m, node] = True
+                if bias_node == node:
+                    held[m, states - 1] = True
     return held
+
+
+def consider_released(held: np.ndarray, bias: str | None) -> np.ndarray:
+    """`held` (`consider_held`) with the magnet and a magnet heat bias free: what a measurement holds while the
+    magnet's own variance exceeds the section's `consider_release_C2` (key-on, a magnet nobody measured)."""
+    released = np.array(held, dtype=bool, copy=True)
+    released[:, OUTPUTS.index("magnet")] = False
+    if bias is not None and OUTPUTS[BIAS_KINDS[bias]] == "magnet":
+        released[:, -1] = False
+    return released
 
 
 def observer_shapes(section: dict) -> dict[str, tuple[int, ...]]:

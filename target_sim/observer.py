@@ -54,6 +54,8 @@ from target_sim.artifact import (
     OUTPUTS,
     ModelArtifact,
     consider_held,
+    consider_release,
+    consider_released,
     encode_array,
     observer_gate,
     observer_state_count,
@@ -464,6 +466,15 @@ class Float32Observer:
         held = consider_held(section.get("consider"), np.array([m.sees for m in self.measurements]),
                              section.get("bias"), n)
         self.held = [row if row.any() else None for row in held]
+        # the key-on release (the section's consider_release_C2; None: held always): while the magnet's variance
+        # before an update exceeds it, a measurement holds only `released` (the magnet and a magnet bias free); the
+        # steady form has no covariance to ask and holds always
+        release = consider_release(section)
+        self.release = None if release is None or self.form == "steady" else f(release)
+        self.released = [None if h is None else (row if row.any() else None)
+                         for h, row in zip(self.held, consider_released(held, section.get("bias")), strict=True)]
+        self.magnet_row = np.zeros(n, dtype=f)
+        self.magnet_row[OUTPUTS.index("magnet")] = f(1.0)
         for index, row in enumerate(self.held):
             if row is not None:      # the lab wrote them zero up to rounding; the target holds them exactly
                 self.gain_steady[index] = held_gain(self.gain_steady[index], row)
@@ -535,6 +546,17 @@ class Float32Observer:
         if self.consecutive[index] >= self.flag_after:
             self.flagged[index] = True
         return True
+
+    def holds(self, index: int) -> np.ndarray | None:
+        """The states the index-th measurement's update holds now: its consider states, or while the magnet's
+        variance exceeds the key-on release (`innovation_variance` of the magnet's unit row with R = 0, the C's
+        obs_magnet_variance, the same bits) those with the magnet free."""
+        held = self.held[index]
+        if held is None or self.release is None or not held[OUTPUTS.index("magnet")]:
+            return held
+        if self.cov.innovation_variance(self.magnet_row, self.f(0.0)) > self.release:
+            return self.released[index]
+        return held
 
     def _covariance(self):
         if self.form == "steady":
@@ -708,7 +730,7 @@ class Float32Observer:
                     self.rows[index], r, index)):
                 continue                          # rejected: this measurement predicts only (innovation NaN)
             self.innovations[index] = nu
-            gain = self.cov.update(self.rows[index], r, index, self.held[index])      # in node coordinates
+            gain = self.cov.update(self.rows[index], r, index, self.holds(index))      # in node coordinates
             step = gain[:k] * nu
             est.y = est.y + step                  # the next measurement reads the corrected nodes
             correction = correction + step

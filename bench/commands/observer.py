@@ -64,7 +64,13 @@ from bench.progress import StageBars
 
 def add_subparser(subparsers) -> None:
     from bench.model.measures import LAB_MEASUREMENT_KINDS
-    from bench.model.observer import DEFAULT_CONSIDER, DEFAULT_GATE, DEPLOYED_FORM, TUNING_CRITERIA
+    from bench.model.observer import (
+        DEFAULT_CONSIDER,
+        DEFAULT_CONSIDER_RELEASE_C,
+        DEFAULT_GATE,
+        DEPLOYED_FORM,
+        TUNING_CRITERIA,
+    )
     from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS
     from target_sim.observer import OBSERVER_FORMS
 
@@ -84,7 +90,12 @@ def add_subparser(subparsers) -> None:
                         "or the magnet node (default none)")
     p.add_argument("--consider", choices=["none", *CONSIDER_KINDS], default=DEFAULT_CONSIDER,
                    help="consider states: a measurement that does not read the magnet never updates the magnet "
-                        f"node (nor a magnet bias), magnet; or none (default {DEFAULT_CONSIDER})")
+                        "node (nor a magnet bias), magnet; every node it does not read, unmeasured; or none "
+                        f"(default {DEFAULT_CONSIDER})")
+    p.add_argument("--consider-release", default=release_text(DEFAULT_CONSIDER_RELEASE_C), metavar="SIGMA",
+                   help="key-on release of the consider states: while the magnet's 1-sigma exceeds SIGMA K (a "
+                        "magnet nobody measured at key-on), every measurement updates it; below, it is held; none: "
+                        f"held always (default {release_text(DEFAULT_CONSIDER_RELEASE_C)})")
     p.add_argument("--gate", default=str(DEFAULT_GATE[0]), metavar="SIGMA",
                    help="innovation gate: a reading more than SIGMA innovation sigmas off predicts only and is "
                         f"counted; none: no gate (default {DEFAULT_GATE[0]:g}, nu^2/S > {DEFAULT_GATE[0] ** 2:g})")
@@ -127,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
     if args.evaluations < 1:
         raise UsageError("--evaluations must be at least 1")
     gate = gate_option(args.gate, args.gate_flag_after)
+    release = release_option(args.consider_release, args.consider)
     check_writable(args.out, "--out")
     model_path = args.model or default_artifact_path()
     artifact = load_artifact(model_path)
@@ -156,7 +168,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(problem)
     try:
         fit = tune_observer(artifact, datasets, measurements, args.criterion, args.evaluations,
-                            lambda done, most, cost: progress("tuning", done, most, cost), bias, consider)
+                            lambda done, most, cost: progress("tuning", done, most, cost), bias, consider,
+                            None if release is None else release ** 2)
     finally:
         progress.close()
     warnings = [w for m in measurements for w in m.warnings] + tuning_warnings(fit)
@@ -167,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
         warnings.append(checked.warning())
     report = {"model": str(model_path), "out": str(args.out), "sha256": content["sha256"],
               "measurement": measurements[0].describe(), "form": args.form, "bias": fit.bias,
-              "consider": fit.consider, "gate": content["observer"].get("gate"),
+              "consider": fit.consider, "consider_release_sigma_C": release,
+              "gate": content["observer"].get("gate"),
               **content["observer"]["tuning"], "warnings": warnings,
               **({"validation": checked.as_dict()} if checked is not None else {})}
     if not args.quiet:
@@ -184,7 +198,9 @@ def run(args: argparse.Namespace) -> int:
         for text in filter(None, (m.calibration_text() for m in measurements)):
             print(text)
         print(f"Q per step: {q}; R scale {', '.join(f'{v:.3g}' for v in fit.r_scale)}; deployed form {args.form}; "
-              f"consider states: {fit.consider or 'none'}; innovation gate: "
+              f"consider states: {fit.consider or 'none'}"
+              f"{f' (released while the magnet 1-sigma > {release:g} K)' if release is not None else ''}; "
+              "innovation gate: "
               f"{f'{gate[0]:g} sigma, flag after {gate[1]}' if gate else 'none'}")
         if checked is not None:
             print("on the validation files, float32 MSE open loop / observer: " + ", ".join(
@@ -192,6 +208,26 @@ def run(args: argparse.Namespace) -> int:
                 for n in checked.observer_mse))
         print(f"wrote {args.out} (sha256 {content['sha256'][:12]})")
     return 0
+
+
+def release_text(sigma: float | None) -> str:
+    return "none" if sigma is None else f"{sigma:g}"
+
+
+def release_option(value: str, consider: str) -> float | None:
+    """--consider-release SIGMA (K, a number > 0, or none) as the magnet's 1-sigma above which it is not held (None:
+    held always); without consider states there is nothing to release."""
+    import math
+
+    if value.strip().lower() == "none" or consider == "none":
+        return None
+    try:
+        sigma = float(value)
+    except ValueError:
+        sigma = math.nan
+    if not math.isfinite(sigma) or sigma <= 0:
+        raise UsageError(f"--consider-release must be a 1-sigma in K above 0 or none, not {value!r}")
+    return sigma
 
 
 def gate_option(value: str, flag_after: int) -> tuple[float, int] | None:

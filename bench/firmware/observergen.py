@@ -59,7 +59,7 @@ from bench.firmware.udgen import (
     update_c,
     variance_c,
 )
-from target_sim.artifact import ModelArtifact
+from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
 from target_sim.observer import Float32Observer, ud_factor
 
@@ -395,6 +395,18 @@ _GATE_STEP = "    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_rejected[i] = 0;
 _GATE_STATUS = "(unsigned char)(obs_rejected[i] | (obs_flagged[i] << 1))"
 
 
+# ... with the key-on release (Float32Observer.holds): the magnet free while its variance exceeds OBS_RELEASE
+_RELEASED_UPDATE = ("if (obs_magnet_variance(0.0f) > OBS_RELEASE) obs_update_K_released(r, nu, correction);\n"
+                    "            else obs_update_K(r, nu, correction);")
+
+
+def _releases(obs: Float32Observer, index: int) -> bool:
+    """Whether the index-th measurement's update depends on the key-on release (it holds the magnet, and the
+    section has a release)."""
+    held = obs.held[index]
+    return obs.release is not None and held is not None and bool(held[OUTPUTS.index("magnet")])
+
+
 def _per_measurement(obs: Float32Observer) -> dict[str, str]:
     """The generated parts of OBSERVER_C for the section's measurements (their lags, readings and updates)."""
     propagate, reset, readings, updates, first = [], [], [], [], 0
@@ -407,6 +419,8 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
         predicted = f"obs_extra[{lag}]" if lag >= 0 else total(
             [product(literal(m.sees[i]), Value(f"y_est[{i}]")) for i in range(len(m.sees)) if m.sees[i] != 0])
         template = _UPDATE if obs.gate_threshold is None else _GATED_UPDATE
+        if _releases(obs, index):
+            template = template.replace("obs_update_K(r, nu, correction);", _RELEASED_UPDATE)
         updates.append(template.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index))
                        .replace("PREDICTED", predicted))
         first += m.width
@@ -440,6 +454,12 @@ def _kernels(obs: Float32Observer) -> str:
             _gate_c(obs)
     updates = "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k], moves_y[k], obs.held[k])
                       for k in range(count))
+    released = [k for k in range(count) if _releases(obs, k)]
+    if released:
+        updates += (f"\nstatic const float OBS_RELEASE = {c_float(obs.release)}; /* the key-on release (variance) */\n"
+                    + "\n" + variance_c(obs, "obs_magnet_variance", obs.magnet_row)
+                    + "".join("\n" + update_c(obs, f"obs_update_{k}_released", obs.rows[k], moves_y[k],
+                                              obs.released[k]) for k in released))
     return predict_c(obs) + _gate_c(obs) + updates
 
 

@@ -65,6 +65,7 @@ from target_sim.artifact import (
     OBSERVER_SECTION_VERSIONS,
     OUTPUTS,
     ModelArtifact,
+    consider_release,
     encode_array,
     observer_gate,
     schema_version_of,
@@ -87,6 +88,9 @@ DEPLOYED_FORM = "ud"
 # 12.55 / 8.08 / 10.95; magnet 3.31 / 4.87 / 2.70, 5.05 / 2.74 / 2.28, 7.74 / 7.09 / 7.64. Only "magnet" leaves
 # the magnet no worse than the open loop on every motor (none: worse on air-30kw) with the winding still better.
 DEFAULT_CONSIDER = "magnet"
+# the key-on release `bench observer` writes unless told otherwise (--consider-release SIGMA, K; None: the consider
+# states held always): a held magnet whose 1-σ exceeds it is updated by every measurement
+DEFAULT_CONSIDER_RELEASE_C = None
 # the innovation gate `bench observer` writes unless told otherwise (--gate, --gate-flag-after): a reading more than
 # 3 sigma of its innovation off (ν²/S > 9, the 99.73 % quantile of chi-square with 1 degree of freedom) predicts only;
 # 10 rejections in a row (5 s at 0.5 s steps) flag the sensor
@@ -131,11 +135,15 @@ def consider_problem(consider: str | None, bias, measurements: Sequence) -> str 
         return None
     if consider not in CONSIDER_KINDS:
         return f"consider {consider!r} is not one of {', '.join(CONSIDER_KINDS)}"
-    node, held_bias = CONSIDER_KINDS[consider]
-    if bias_kind(bias) == held_bias and all(m.sees[OUTPUTS.index(node)] == 0 for m in measurements):
+    kind = bias_kind(bias)
+    if kind is None:
+        return None
+    node = OUTPUTS[BIAS_KINDS[kind]]
+    if node in CONSIDER_KINDS[consider] and all(m.sees[OUTPUTS.index(node)] == 0 for m in measurements):
+        flag = "--flux" if node == "magnet" else "a sensor of it"
         return (f"--consider {consider} holds the {node} heat bias for every measurement (none reads the {node}), so "
                 f"the bias would never move and its variance would grow without bound; add a measurement of the "
-                f"{node} (--flux), or use --consider none or another --bias")
+                f"{node} ({flag}), or use --consider none or another --bias")
     return None
 
 
@@ -154,6 +162,7 @@ class ObserverFit:
     bias: str | None = None     # the heat-bias state's kind (`BIAS_KINDS`); True is read as "winding-heat"
     converged: bool = True      # False: the search stopped at its cap of filter runs (--evaluations)
     consider: str | None = None  # the consider kind (`CONSIDER_KINDS`): states a measurement not reading them holds
+    release_C2: float | None = None  # the held magnet is updated while its variance exceeds this (None: always held)
 
     @property
     def measurement(self):
@@ -202,7 +211,7 @@ class FilterData:
 
 
 def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequence, bias=None,
-                consider: str | None = None) -> FilterData:
+                consider: str | None = None, release_C2: float | None = None) -> FilterData:
     for m in measurements:
         for column in m.columns:
             if not dataset.has(column):
@@ -215,7 +224,8 @@ def filter_data(artifact: ModelArtifact, dataset: Dataset, measurements: Sequenc
     parts = [m.readings(dataset, artifact.dt, steps) for m in measurements]
     z0, z1, rel = (np.column_stack([p[i] for p in parts]) for i in range(3))
     readings = Readings(z0, z1, rel, np.array([m.sees for m in measurements]),
-                        np.array([m.lag_pole(artifact.dt) for m in measurements]), bias_kind(bias), consider)
+                        np.array([m.lag_pole(artifact.dt) for m in measurements]), bias_kind(bias), consider,
+                        release_C2)
     return FilterData(run, readings, tuple(measurements))
 
 
@@ -271,7 +281,7 @@ TUNING_START_OFFSETS_K = (0.0, 30.0, -30.0)
 
 def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurements, criterion: str = "magnet",
                   max_evaluations: int = 800, progress: Callable[[int, int, float], None] | None = None,
-                  bias=None, consider: str | None = None) -> ObserverFit:
+                  bias=None, consider: str | None = None, release_C2: float | None = None) -> ObserverFit:
     """q (per state) and each measurement's R on the training files by Nelder-Mead over their log10 values,
     minimizing either
     - "magnet": the sum of log magnet MSE over every training file started with the magnet as measured and
@@ -291,7 +301,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     problem = consider_problem(consider, bias, measurements)
     if problem:
         raise BenchError(problem)
-    deployed = [filter_data(artifact, d, measurements, bias, consider) for d in datasets]
+    deployed = [filter_data(artifact, d, measurements, bias, consider, release_C2) for d in datasets]
     layout = deployed[0].readings
     p0 = initial_covariance(model, layout)
     n, m_count = layout.states, len(measurements)
@@ -300,7 +310,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
         use_reference = all(m.node != TUNING_REFERENCE.node for m in measurements) and all(
             d.has(TUNING_REFERENCE.column) for d in datasets)
         tuning = (*measurements, TUNING_REFERENCE) if use_reference else measurements
-        data = [filter_data(artifact, d, tuning, bias, consider) for d in datasets]
+        data = [filter_data(artifact, d, tuning, bias, consider, release_C2) for d in datasets]
         p0_tuning = initial_covariance(model, data[0].readings)
 
         def score(q, r):
@@ -363,7 +373,7 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
     return ObserverFit(measurements, q, r, float(10.0 ** best[n + m_count]) if use_reference else None, criterion,
                        float(cost(best)), sum(float(x.nll[0]) for x in runs), sum(int(x.updates[0]) for x in runs),
                        calls[0], [str(d.path) for d in datasets], bias,
-                       converged=result.status not in NELDER_MEAD_CAPPED, consider=consider)
+                       converged=result.status not in NELDER_MEAD_CAPPED, consider=consider, release_C2=release_C2)
 
 
 def _starts(start: np.ndarray, n: int) -> list[np.ndarray]:
@@ -499,8 +509,12 @@ def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequen
     if fit.consider is not None:   # only then: a section without consider states is written as it always was
         section["consider"] = fit.consider
         section["rule"] += (f"; consider states ({fit.consider}): a measurement that does not read the "
-                            f"{CONSIDER_KINDS[fit.consider][0]} has the gain's rows of its held states zero "
+                            f"{_listed(CONSIDER_KINDS[fit.consider])} has the gain's rows of its held states zero "
                             "(node coordinates), P in Joseph's form of that gain")
+    if fit.release_C2 is not None:   # only then: a section without it holds the magnet always, as before
+        section["consider_release_C2"] = enc(float(fit.release_C2))
+        section["rule"] += (f"; key-on release: while the magnet's variance (node coordinates, before an update) "
+                            f"exceeds {fit.release_C2:g} °C² no measurement holds the magnet (nor a magnet bias)")
     if gate is not None:         # only then: a section without a gate is written as it always was
         section["gate"] = {"sigma": float(gate[0]), "flag_after": int(gate[1])}
         section["rule"] += (f"; innovation gate: a reading with nu^2 > {gate[0]:g}^2 (h P- h' + R) predicts only, "
@@ -547,7 +561,8 @@ def reference_run(artifact: ModelArtifact, dataset: Dataset) -> tuple[FilterData
     innovation gate (`observer_gate`; its rejections counted in the runs' `rejections`)."""
     model = FilterModel.of(artifact)
     section = artifact.content["observer"]
-    data = filter_data(artifact, dataset, lab_measurements(artifact), section.get("bias"), section.get("consider"))
+    data = filter_data(artifact, dataset, lab_measurements(artifact), section.get("bias"), section.get("consider"),
+                       consider_release(section))
     q = artifact.array("observer", "Q", dtype=np.float64)
     p0 = artifact.array("observer", "P0", dtype=np.float64)
     gate = observer_gate(section)

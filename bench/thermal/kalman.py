@@ -21,7 +21,7 @@ import numpy as np
 
 from bench.thermal import portable
 from bench.thermal.estimator import StepInputs, identity_sigmoid, model_step, step_buffers
-from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS, consider_held
+from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS, consider_held, consider_released
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -40,8 +40,8 @@ def _source_jacobian(gains, jac):
 
 @numba.njit(cache=True, fastmath=False)
 def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1,
-                rel, sees, lag_pole, lag_index, bias_index, bias_input, held, q, r, p0, traj, sigma, keep, use_sigmoid,
-                gate, rejected):
+                rel, sees, lag_pole, lag_index, bias_index, bias_input, held, released, release, q, r, p0, traj, sigma,
+                keep, use_sigmoid, gate, rejected):
     n_steps = ratio.shape[0]
     n = q.shape[0]
     x, x_new, y, u, gains = step_buffers(c_inv, y0)
@@ -105,13 +105,21 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
                 continue
             gain = ph / s
             if held_any[m]:   # consider states: the gain's rows of the held nodes (node coordinates) and states 0
+                mask = held[m]
+                if release > 0.0:   # the magnet is held only while its variance (node coordinates) is at most this
+                    variance = 0.0
+                    for i in range(4):
+                        for j in range(4):
+                            variance += c[3, i] * p[i, j] * c[3, j]
+                    if variance > release:
+                        mask = released[m]
                 gy = c @ gain[:4]
                 for i in range(4):
-                    if held[m, i]:
+                    if mask[i]:
                         gy[i] = 0.0
                 gain[:4] = c_inv @ gy
                 for j in range(4, n):
-                    if held[m, j]:
+                    if mask[j]:
                         gain[j] = 0.0
             xa += gain * nu
             i_kh = eye - np.outer(gain, h)
@@ -133,13 +141,13 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
 # nogil: the observer's tuning runs its files in threads, one per core (bench.model.observer)
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1, rel,
-           sees, lag_pole, lag_index, bias_index, bias_input, held, q, r, p0, traj, sigma, keep, use_sigmoid, nll,
-           updates, gate, rejected):
+           sees, lag_pole, lag_index, bias_index, bias_input, held, released, release, q, r, p0, traj, sigma, keep,
+           use_sigmoid, nll, updates, gate, rejected):
     for m in numba.prange(q.shape[0]):
         nll[m], updates[m] = _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu,
                                          copper_ref, y0, z0, z1, rel, sees, lag_pole, lag_index, bias_index,
-                                         bias_input, held, q[m], r[m], p0, traj[m], sigma[m], keep, use_sigmoid,
-                                         gate, rejected[m])
+                                         bias_input, held, released, release, q[m], r[m], p0, traj[m], sigma[m],
+                                         keep, use_sigmoid, gate, rejected[m])
 
 
 @dataclass(frozen=True)
@@ -170,6 +178,7 @@ class Readings:
     lag_pole: np.ndarray     # (m,)
     bias: str | bool | None = None
     consider: str | None = None
+    release_C2: float | None = None   # the magnet is held only while its variance is at most this (None: always)
 
     def __post_init__(self):
         kind = "winding-heat" if self.bias is True else (self.bias or None)
@@ -183,6 +192,12 @@ class Readings:
     def held(self) -> np.ndarray:
         """(m, n) booleans: the states (node coordinates) each measurement's update leaves as they are."""
         return consider_held(self.consider, np.reshape(self.sees, (-1, 4)), self.bias, self.states)
+
+    @property
+    def released(self) -> np.ndarray:
+        """(m, n) booleans: `held` with the magnet (and a magnet bias) free: the states held while the magnet's
+        variance exceeds `release_C2` (key-on: a magnet nobody measured)."""
+        return consider_released(self.held, self.bias)
 
     @property
     def bias_input(self) -> int:
@@ -232,7 +247,8 @@ def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, readings: Readings,
            f64(inputs.coolant), f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu),
            float(inputs.copper_reference), y0, z0, z1, rel, f64(np.reshape(readings.sees, (-1, 4))),
            f64(np.reshape(readings.lag_pole, -1)), lag_index, int(readings.bias_index), max(readings.bias_input, 0),
-           np.ascontiguousarray(readings.held), q, r, p0, traj, sigma, bool(keep), use_sigmoid, nll, updates, gate,
+           np.ascontiguousarray(readings.held), np.ascontiguousarray(readings.released),
+           float(readings.release_C2 or 0.0), q, r, p0, traj, sigma, bool(keep), use_sigmoid, nll, updates, gate,
            rejected)
     return FilterRuns(nll, updates, traj if keep else None, sigma if keep else None, rejected)
 

@@ -207,8 +207,12 @@ def render_artifact_schema() -> str:
                           for kind, index in artifact.BIAS_KINDS.items())
               + "; `observer.consider` (absent or null: none) names consider states, which a measurement that "
               "does not read them never updates (the gain's rows zero, the covariance that of that gain): "
-              + ", ".join(f"`{kind}` (the {node} node, and the `{bias}` bias when the section has it)"
-                          for kind, (node, bias) in artifact.CONSIDER_KINDS.items())
+              + ", ".join(f"`{kind}` (the {', '.join(nodes)} node{'s' * (len(nodes) > 1)} a measurement does not "
+                          "read, and a bias heating one of them)"
+                          for kind, nodes in artifact.CONSIDER_KINDS.items())
+              + "; `observer.consider_release_C2` (an encoded variance, °C²; absent or null: held always) is the "
+              "key-on release: while the magnet's variance before an update exceeds it, no measurement holds the "
+              "magnet (nor a magnet bias)"
               + "; Q, P0 and "
               "P_ss are then n × n with n = len(states), `q_nodes_C2` has n entries and K_ss one row per "
               "measurement. `node`, `column`, `offset_C`, `R` and `lag_s` describe the first measurement.", "",

@@ -27,8 +27,8 @@ here, never used to choose). Per motor:
 5. With --defaults: each default of `bench identify` beside its alternatives, on the VALIDATION profiles only
    (`DEFAULTS`: one identification per alternative and motor, from the designer's prior, or table1 where the
    default concerns a named prior), winding and magnet MSE of both kinds; and the observer's criteria, --bias
-   (off, winding, magnet) and --consider (magnet, none; tuned on the training profiles, evaluated on the
-   validation profiles). The default
+   (off, winding, magnet), --consider (magnet, none, unmeasured) and --consider-release (none, 5 K; tuned on the
+   training profiles, evaluated on the validation profiles). The default
    should be at least as good as its alternatives on most motors; the record says, per default, which won where.
    `--compare` runs only some of the identify defaults; `--hold-test` evaluates nothing on the test profiles and
    skips the observer (while choosing, the test figures are not even computed); `--reuse` reads back the profiles
@@ -223,7 +223,9 @@ OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
                      # on: the winding's; the magnet's with --consider none (a held magnet bias would never move)
                      "bias": ("off", {"on": ("--bias",), "magnet": ("--bias", "magnet", "--consider", "none")}),
-                     "consider": ("magnet", {"none": ("--consider", "none")})}
+                     "consider": ("magnet", {"none": ("--consider", "none"),
+                                             "unmeasured": ("--consider", "unmeasured")}),
+                     "consider-release": ("none", {"5": ("--consider-release", "5")})}
 
 
 def validation_mse(identified: dict) -> dict:

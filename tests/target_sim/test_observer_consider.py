@@ -56,7 +56,19 @@ def test_a_measurement_that_does_not_read_the_magnet_holds_it_and_a_magnet_bias(
     assert consider_held("magnet", np.array([ntc]), "winding-heat", 6).tolist() == [[False, False, False, True,
                                                                                     False, False]]
     assert not consider_held(None, np.array([ntc]), None, 4).any()
-    assert CONSIDER_KINDS["magnet"] == ("magnet", "magnet-heat")
+    assert CONSIDER_KINDS["magnet"] == ("magnet",)
+
+
+def test_unmeasured_holds_every_node_a_measurement_does_not_read_and_a_bias_with_its_node():
+    ntc, winding, flux = [0.1, 0.9, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]
+    held = consider_held("unmeasured", np.array([ntc, winding, flux]), "winding-heat", 5)
+    # the NTC with a gradient reads the yoke and the winding: it holds the tooth and the magnet; the flux linkage
+    # holds the winding and its heat bias
+    assert held.tolist() == [[False, False, True, True, False], [True, False, True, True, False],
+                             [True, True, True, False, True]]
+    assert consider_problem("unmeasured", "winding-heat", [NTC]) is None
+    assert consider_problem("unmeasured", "magnet-heat", [NTC]).startswith(
+        "--consider unmeasured holds the magnet heat bias for every measurement")
 
 
 def test_a_magnet_bias_every_measurement_holds_is_refused_in_one_sentence():
@@ -84,8 +96,8 @@ def test_a_bad_consider_kind_is_refused_in_one_sentence(consider, value):
     artifact, _ = consider
     content = json.loads(json.dumps(artifact.content))
     content["observer"]["consider"] = value
-    with pytest.raises(ArtifactError, match="observer.consider .* is not one of magnet or null; rebuild it with "
-                                            "'bench observer'") as info:
+    with pytest.raises(ArtifactError, match="observer.consider .* is not one of magnet, unmeasured or null; rebuild "
+                                            "it with 'bench observer'") as info:
         verify(seal(content))
     assert "\n" not in str(info.value)
     content["observer"]["consider"] = None               # null: none, as an absent field
