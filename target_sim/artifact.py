@@ -52,7 +52,7 @@ BIAS_KINDS = {"winding-heat": 1, "magnet-heat": 3}
 # winding NTC does not, so it cannot move the magnet through a coupling the model may have wrong). "unmeasured": every
 # node the measurement does not read (an end-winding NTC moves neither the magnet nor the tooth, which reaches the
 # magnet through the tooth-magnet path; with a gradient it reads the yoke too, which it then updates).
-CONSIDER_KINDS = {"magnet": ("magnet",), "unmeasured": ("yoke", "winding", "tooth", "magnet")}
+CONSIDER_KINDS = {"magnet": ("magnet",), "unmeasured": OUTPUTS}   # of those, the ones not read
 # losses.model names a loss model of `target_sim.losses` ("maps", "electrical", ...), which owns its fields
 LPTN_PARAMETERS = ("C_y", "C_w", "C_t", "C_m", "R_yw", "R_yt", "R_wt", "R_cy0", "R_wm0", "a_wm", "b_wm", "R_tm0",
                    "a_tm", "b_tm", "R_ma0", "a_ma", "b_ma", "alpha_cy", "k_0", "k_1", "k_2", "k_3")
