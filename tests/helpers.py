@@ -546,6 +546,17 @@ def session_drive(n: int, seed: int) -> np.ndarray:
                             np.full(n, 40.0), np.full(n, 25.0)])
 
 
+def session_start(codec) -> list:
+    """The host's frames that start a session at SESSION_INITIAL: both ResetTemps, RESET, START."""
+    from dbc import Command
+
+    yoke, winding, tooth, magnet = SESSION_INITIAL
+    return [codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
+            codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
+            codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
+            codec.encode("Control", {"Command": int(Command.START), "Step": 0})]
+
+
 def session_frames(artifact, values: np.ndarray, *, stop: bool = True,
                    measurements: np.ndarray | None = None) -> list[can.Message]:
     """Every frame of a lockstep session as the host logs it (a Python target node answering in-process): the
@@ -563,11 +574,7 @@ def session_frames(artifact, values: np.ndarray, *, stop: bool = True,
             frames.append(message)
             frames.extend(node.handle(message))
 
-    yoke, winding, tooth, magnet = SESSION_INITIAL
-    send([host.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-          host.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-          host.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-          host.encode("Control", {"Command": int(Command.START), "Step": 0})])
+    send(session_start(host))
     for row, value in enumerate(values):
         send(encode_row(host, row, value, None if measurements is None else measurements[row].tolist()))
         if row % 25 == 0:

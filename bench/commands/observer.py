@@ -217,31 +217,29 @@ def release_text(sigma: float | None) -> str:
 def release_option(value: str, consider: str) -> float | None:
     """--consider-release SIGMA (K, a number > 0, or none) as the magnet's 1-sigma above which it is not held (None:
     held always); without consider states there is nothing to release."""
-    import math
-
-    if value.strip().lower() == "none" or consider == "none":
+    if consider == "none":
         return None
-    try:
-        sigma = float(value)
-    except ValueError:
-        sigma = math.nan
-    if not math.isfinite(sigma) or sigma <= 0:
-        raise UsageError(f"--consider-release must be a 1-sigma in K above 0 or none, not {value!r}")
-    return sigma
+    return _positive_or_none(value, f"--consider-release must be a 1-sigma in K above 0 or none, not {value!r}")
 
 
 def gate_option(value: str, flag_after: int) -> tuple[float, int] | None:
     """--gate SIGMA (a number > 0, or none) and --gate-flag-after N (>= 1) as the section's gate (None: none)."""
-    import math
-
     if flag_after < 1:
         raise UsageError(f"--gate-flag-after must be at least 1, not {flag_after}")
+    sigma = _positive_or_none(value, f"--gate must be a number of sigmas above 0 or none, not {value!r}")
+    return None if sigma is None else (sigma, flag_after)
+
+
+def _positive_or_none(value: str, sentence: str) -> float | None:
+    """A finite number above 0, or None for "none"; `sentence` (a UsageError) for anything else."""
+    import math
+
     if value.strip().lower() == "none":
         return None
     try:
-        sigma = float(value)
+        number = float(value)
     except ValueError:
-        sigma = math.nan
-    if not math.isfinite(sigma) or sigma <= 0:
-        raise UsageError(f"--gate must be a number of sigmas above 0 or none, not {value!r}")
-    return sigma, flag_after
+        number = math.nan
+    if not math.isfinite(number) or number <= 0:
+        raise UsageError(sentence)
+    return number

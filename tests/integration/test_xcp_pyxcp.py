@@ -23,7 +23,7 @@ from host.replay import encode_row
 from target_sim.artifact import load_artifact
 from target_sim.node import TargetNode
 
-from helpers import ROOT, SESSION_INITIAL, private_udp_bus, session_drive, subprocess_env
+from helpers import ROOT, SESSION_INITIAL, private_udp_bus, session_drive, session_start, subprocess_env
 
 pyxcp_config = pytest.importorskip("pyxcp.config")
 pyxcp_master = pytest.importorskip("pyxcp.master")
@@ -95,14 +95,6 @@ def message_name(msg: can.Message) -> str | None:
         return decode_any(msg).name
     except Exception:  # noqa: BLE001 - XCP frames, the host's own frames looping back
         return None
-
-
-def session_start(codec: FrameCodec) -> list[can.Message]:
-    yoke, winding, tooth, magnet = SESSION_INITIAL
-    return [codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-            codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-            codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-            codec.encode("Control", {"Command": int(Command.START), "Step": 0})]
 
 
 @pytest.fixture(scope="module")

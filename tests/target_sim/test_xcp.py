@@ -11,7 +11,7 @@ import can
 import numpy as np
 import pytest
 
-from dbc import Command, FrameCodec
+from dbc import FrameCodec
 from dbc.database import host_frame_ids
 from dbc.xcp import cmd_id, res_id
 from host.replay import encode_row
@@ -20,7 +20,7 @@ from target_sim.node import TargetNode
 from target_sim.xcp.codes import Err
 from target_sim.xcp.daq import MAX_ODT_ENTRIES
 
-from helpers import ROOT, SESSION_INITIAL, session_drive, session_frames
+from helpers import ROOT, session_drive, session_frames, session_start
 
 PACKAGED = ROOT / "bench" / "data" / "default_model.json"
 PACKAGED_ELF = ROOT / "bench" / "data" / "firmware" / "default_model.elf"
@@ -112,11 +112,7 @@ def test_daq_configuration_rules(node):
     assert slave.command(bytes((0xE0, 0, 0, 0, 0, 0, 2, 0))) == OK                  # every 2nd model step
     assert slave.command(bytes((0xDE, 1, 0, 0))) == bytes((0xFF, 0))
     codec = FrameCodec("HOST")
-    yoke, winding, tooth, magnet = SESSION_INITIAL
-    for frame in (codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-                  codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-                  codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-                  codec.encode("Control", {"Command": int(Command.START), "Step": 0})):
+    for frame in session_start(codec):
         node.handle(frame)
     daq, outputs = [], []
     for row, values in enumerate(session_drive(40, 1)):
