@@ -165,6 +165,7 @@ def reference_node(artifact_path, rows, calibrate: bool) -> tuple[TargetNode, di
 DAQ_CELLS = ("y_est_0", "y_est_1", "y_est_2", "y_est_3", "obs_sigma_1")
 
 
+@pytest.mark.slow   # about 45 s on one worker: the default run keeps its 5-minute budget; .ci/run runs it
 def test_pyxcp_measures_and_calibrates_a_running_target(bench, rows, observer_artifact, tmp_path):
     config, bus = bench
     host = Host(bus)
