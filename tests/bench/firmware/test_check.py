@@ -110,6 +110,7 @@ def test_check_of_an_electrical_model_on_data_with_currents(tmp_path):
                                "loss model needs the d/q currents (data columns i_d_A, i_q_A)")
 
 
+@pytest.mark.slow   # 7-10 s: the default run keeps its 5-minute budget; .ci/run runs it
 def test_a_damaged_cached_image_is_built_again_and_said(tmp_path, artifacts, capsys):
     """A cached image that is text, or an ELF without the functions the engine calls, made every later run fail
     naming a file the user never gave; it is rebuilt in its place, with one line saying so."""

@@ -253,6 +253,7 @@ def test_the_ipet_bound_covers_the_searched_maximum_and_is_tight(timing_image, k
     assert table["node_on_frame"]["bound_over_max"] <= 1.25
 
 
+@pytest.mark.slow   # 7-10 s: the default run keeps its 5-minute budget; .ci/run runs it
 def test_the_observer_step_is_bounded_within_ten_percent(observer_artifact, firmware_builds):
     """An observer's model step (fw_obs_step: the model step, the UD prediction and update, the gate) is the timed
     model step; its bound covers the searched maximum (readings on and off) within 10 %, node_on_frame's within
