@@ -13,10 +13,12 @@ and an ASC dated the export): `FrameLog` gives them the recording's start, its f
   states the start on the header's `date` line (the first line of Vector's ASC format, formatted with the writer's
   public `FORMAT_DATE`), and the measurement starts at the first event the writer is given (its documented rule):
   the first frame, or an event at the start when that comes before the first frame.
-- .mf4: python-can's MF4Writer has no public way to give the start (it takes the time of writing), so
-  `_StartedMF4Writer` sets the two private names it keeps it in, the upstream-shaped stand-in for a `start_time`
-  argument; it checks they exist and refuses (LogError) rather than write wrong times when a python-can release
-  renames them, and tests/host/test_canlog.py fails on such a release.
+- .mf4: python-can's MF4Writer takes the time of writing as the start and counts the frame times from it, and has
+  no argument to change that; it writes the file, then `_restart_mf4` re-times it with asammdf's public API
+  (`MDF.cut(start=..., time_from_zero=True)` moves every frame time by the same amount, `header.start_time` states
+  the start), so python-can's reader reads the recorded times back and asammdf's times count from the start. The
+  times pass through python-can's offsets from the time of writing: they keep a float64's resolution at an epoch
+  time (0.24 µs).
 """
 
 from __future__ import annotations
@@ -32,7 +34,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import can
-from can.io.mf4 import MF4Writer
 
 from dbc.files import fitted_name
 from host.errors import HostError, write_failure
@@ -121,25 +122,25 @@ def _asc_writer(path: str, start: float, first: float | None) -> can.ASCWriter:
     return writer
 
 
-# python-can's MF4Writer keeps the measurement's start in these (its asammdf MDF, whose header states the start,
-# and the epoch time every frame time is counted from); _StartedMF4Writer checks they are there before it sets them
-MF4_START_NAMES = ("_mdf", "_start_time")
+MF4_COMPRESSION = 2   # python-can's MF4Writer default: transposed and deflated
 
 
-class _StartedMF4Writer(MF4Writer):
-    """python-can's MF4 writer with the measurement's start time `start` (python-can takes the time of writing, and
-    counts every frame time from it): the stand-in for a `start_time` argument upstream."""
+def _restart_mf4(path: Path, start: float) -> None:
+    """Re-time the .mf4 python-can wrote at `path` to start at `start` (seconds since the epoch): the header states
+    `start` and every frame time counts from it, each frame keeping its absolute time. asammdf's public API only."""
+    from asammdf import MDF
 
-    def __init__(self, file: str, start: float, **kwargs) -> None:
-        super().__init__(file, **kwargs)
-        missing = [name for name in MF4_START_NAMES if not hasattr(self, name)]
-        if missing or not hasattr(self._mdf, "header"):
-            self.file.close()
-            raise NotImplementedError(f"python-can {can.__version__}'s MF4Writer keeps its start time elsewhere "
-                                      f"(no {', '.join(missing) or '_mdf.header'}), so its frame times would be "
-                                      "wrong; write .blf instead")
-        self._mdf.header.start_time = datetime.fromtimestamp(start, UTC)
-        self._start_time = self.last_timestamp = start
+    written = MDF(str(path))
+    try:
+        shift = start - written.header.start_time.timestamp()   # the writer's start (its time of writing) to ours
+        restarted = written.cut(start=shift, time_from_zero=True, include_ends=False)
+    finally:
+        written.close()
+    try:
+        restarted.header.start_time = datetime.fromtimestamp(start, UTC)
+        restarted.save(str(path), overwrite=True, compression=MF4_COMPRESSION)
+    finally:
+        restarted.close()
 
 
 class FrameLog:
@@ -153,6 +154,7 @@ class FrameLog:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.tmp_path = self.path.with_name(partial_name(self.path))
         self.start_time = start_time
+        self.start: float | None = None   # the start a header states, once the writer is open
         self._writer: can.io.generic.MessageWriter | None = None
         if self.path.suffix.lower() in STARTED_SUFFIXES:
             try:   # the writer waits for the first frame's time; whether the file can be written is known now
@@ -161,7 +163,8 @@ class FrameLog:
                 raise LogError(write_failure(self.path, "the log", exc)) from None
         else:
             self._writer = self._open(None)
-        self._last = float("-inf")
+        # a frame never goes back before the start a header states (MF4's re-timing would drop it)
+        self._last = float("-inf") if start_time is None else start_time
         self.count = 0
         self.closed = False
 
@@ -173,9 +176,10 @@ class FrameLog:
                 return can.Logger(str(self.tmp_path))
             start = self.start_time if self.start_time is not None else first
             start = datetime.now().timestamp() if start is None else start
+            self.start = start
             if suffix == ".asc":
                 return _asc_writer(str(self.tmp_path), start, first)
-            return _StartedMF4Writer(str(self.tmp_path), start)
+            return can.MF4Writer(str(self.tmp_path), compression_level=MF4_COMPRESSION)
         except (OSError, ValueError, ImportError, NotImplementedError) as exc:
             raise LogError(f"cannot write the log {self.path} ({exc})") from None
 
@@ -201,6 +205,8 @@ class FrameLog:
                 self._writer = self._open(None)
             if self._writer is not None:
                 self._stop_writer(commit)
+            if commit and self.path.suffix.lower() == ".mf4":
+                self._restart_mf4()
             if commit and self.tmp_path.exists():
                 os.replace(self.tmp_path, self.path)
         except OSError as exc:
@@ -208,6 +214,15 @@ class FrameLog:
         finally:   # not committed (a failure, an interruption, a path that is a directory): no temporary file left
             self.tmp_path.unlink(missing_ok=True)
         return self.path if commit else None
+
+    def _restart_mf4(self) -> None:
+        """The finished .mf4 re-timed to its start; an OSError is close's to report, like any write's."""
+        try:
+            _restart_mf4(self.tmp_path, self.start)
+        except Exception as exc:  # noqa: BLE001 - asammdf's failures have no common base
+            if isinstance(exc, OSError):
+                raise
+            raise LogError(f"cannot write the log {self.path} ({_reason(exc)})") from None
 
     def _stop_writer(self, commit: bool) -> None:
         """Flush and close the writer; a log that is being discarded may fail to flush (the disk that stopped it

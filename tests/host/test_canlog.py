@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import math
-from datetime import UTC, datetime
+from datetime import datetime
 
 import can
 import pytest
 
 from dbc import FrameCodec, decode_any
 from host import canlog
-from host.canlog import MF4_START_NAMES, FrameLog, LogError, check_log_path, mf4_available, read_log
+from host.canlog import FrameLog, LogError, check_log_path, mf4_available, read_log
 
 SUFFIXES = [".blf", ".asc", ".log", ".csv", pytest.param(".mf4", marks=pytest.mark.skipif(
     not mf4_available(), reason="asammdf is not installed"))]
@@ -110,39 +110,62 @@ def test_an_asc_log_without_a_given_start_starts_at_its_first_frame(tmp_path):
     assert "Start of the recording" not in text     # the first frame starts the measurement: no event before it
 
 
-@pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
-def test_python_can_mf4_writer_keeps_its_start_where_the_log_sets_it(tmp_path):
-    """The .mf4 start is set through python-can's private MF4Writer names (it has no public way): this fails on a
-    python-can release that moves them, before any log is written with wrong times."""
+def _mf4_start_and_times(path) -> tuple[float, list[float], list[int]]:
+    """What asammdf reads from an .mf4: the header's start (s since the epoch), each data frame's time and id."""
     from asammdf import MDF
-    from can.io.mf4 import MF4Writer
 
-    path = tmp_path / "plain.mf4"
-    writer = MF4Writer(str(path))
-    for name in MF4_START_NAMES:
-        assert hasattr(writer, name), f"python-can {can.__version__}'s MF4Writer has no {name}"
-    header_start = writer._mdf.header.start_time      # the names host.canlog._StartedMF4Writer sets
-    assert isinstance(header_start, datetime)
-    assert writer._start_time == pytest.approx(header_start.timestamp(), abs=1e-6)
-    # the frame times count from _start_time, and the saved header states _mdf.header.start_time
-    writer._mdf.header.start_time = datetime.fromtimestamp(1_600_000_000.0, UTC)
-    writer._start_time = 1_600_000_000.0
-    writer.on_message_received(can.Message(timestamp=1_600_000_002.5, arbitration_id=0x110, data=bytes(8),
-                                           is_extended_id=False))
-    writer.stop()
     mdf = MDF(str(path))
     try:
-        assert mdf.header.start_time.timestamp() == 1_600_000_000.0
-        assert mdf.get("CAN_DataFrame.ID").timestamps.tolist() == pytest.approx([2.5], abs=1e-6)
+        ids = mdf.get("CAN_DataFrame.ID")
+        return mdf.header.start_time.timestamp(), ids.timestamps.tolist(), [int(v) for v in ids.samples]
     finally:
         mdf.close()
 
 
 @pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
-def test_an_mf4_writer_without_those_names_is_refused_not_written_wrong(tmp_path, monkeypatch):
-    monkeypatch.setattr(canlog, "MF4_START_NAMES", ("_mdf", "_start_time_renamed"))
+@pytest.mark.parametrize("given", ["first frame", "before", "drive time"])
+def test_an_mf4_log_states_its_start_and_keeps_every_frames_time(tmp_path, given):
+    """python-can's writer states the time of writing and counts from it (times of -120 s, -1.8e9 s in drive time):
+    the header now states the recording's start, asammdf's times count from it and python-can's reader reads the
+    recorded times back. Public behaviour only: this fails on any python-can or asammdf release that breaks it."""
+    written = frames()
+    if given == "drive time":
+        for msg in written:
+            msg.timestamp -= 1_700_000_000.0
+    start = {"first frame": None, "before": written[0].timestamp - 1.25, "drive time": 0.0}[given]
     path = tmp_path / "bus.mf4"
-    with pytest.raises(LogError, match=r"keeps its start time elsewhere \(no _start_time_renamed\).*write \.blf"):
+    with FrameLog(path, start_time=start) as log:
+        for msg in written:
+            log.write(msg)
+    expected_start = written[0].timestamp if start is None else start
+    header_start, times, ids = _mf4_start_and_times(path)
+    assert header_start == pytest.approx(expected_start, abs=1e-6)
+    assert ids == [m.arbitration_id for m in written]
+    # float64 offsets from an epoch time: 0.24 µs resolution
+    assert times == pytest.approx([m.timestamp - expected_start for m in written], abs=1e-6)
+    assert times[0] >= 0 and (start is not None or times[0] == 0)
+    back = list(can.LogReader(str(path)))
+    assert [m.timestamp for m in back] == pytest.approx([m.timestamp for m in written], abs=1e-6)
+    assert [bytes(m.data) for m in back] == [bytes(m.data) for m in written]
+
+
+@pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
+def test_an_mf4_log_without_frames_states_its_given_start(tmp_path):
+    path = tmp_path / "empty.mf4"
+    with FrameLog(path, start_time=1_600_000_000.0):
+        pass
+    header_start, times, _ = _mf4_start_and_times(path)
+    assert header_start == 1_600_000_000.0 and times == []
+
+
+@pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
+def test_an_mf4_log_that_cannot_be_retimed_is_refused_and_leaves_no_file(tmp_path, monkeypatch):
+    def refuse(path, start):
+        raise ValueError("no such channel group")
+
+    monkeypatch.setattr(canlog, "_restart_mf4", refuse)
+    path = tmp_path / "bus.mf4"
+    with pytest.raises(LogError, match=r"cannot write the log .*bus\.mf4 \(ValueError: no such channel group\)"):
         with FrameLog(path) as log:
             log.write(frames()[0])
     assert list(tmp_path.iterdir()) == []
