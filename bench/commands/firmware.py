@@ -225,14 +225,20 @@ def run_export(args: argparse.Namespace) -> int:
 def run_build(args: argparse.Namespace) -> int:
     from bench.firmware.codegen import generate
     from bench.firmware.toolchain import ELF_NAME, MAP_NAME, SOURCE_NAME, build_firmware
+    from bench.progress import StepBar
 
     path, artifact = _load(args.model)
     names = _output_names()
     _check_out(args.out, names)
     generated = generate(artifact)
-    if not (args.quiet or args.json):
+    quiet = args.quiet or args.json
+    if not quiet:
         print(f"compiling the {artifact.kind} model for the Cortex-M4F ...", file=sys.stderr)
-    result = build_firmware(generated)
+    bar = StepBar(f"firmware {artifact.kind}", quiet)    # the compiler tells no progress: its steps, their time
+    try:
+        result = build_firmware(generated, on_step=bar)
+    finally:
+        bar.close()
     _write(args.out, result.files, names)
     memory = result.memory
     report = {**_identity(path, artifact), "out": str(args.out), "elf": str(args.out / ELF_NAME),

@@ -24,6 +24,7 @@ from bench.fileio import write_bytes_atomically
 from bench.firmware import toolchain
 from bench.firmware.codegen import generate
 from bench.firmware.literals import FirmwareGenerationError
+from bench.progress import StepBar
 from target_sim.artifact import ArtifactError, ModelArtifact, load_artifact
 from target_sim.kinds import MODEL_KINDS
 
@@ -90,10 +91,13 @@ def firmware_for(artifact: ModelArtifact, cache_dir: Path, *, quiet: bool = True
         print(f"bench: the cached firmware {path} {damage}; building it again", file=sys.stderr)
     elif not quiet:
         print(f"bench: compiling the {artifact.kind} model's firmware into {path} (once)", file=sys.stderr)
+    bar = StepBar(f"firmware {label}", quiet)
     try:
-        result = toolchain.build_firmware(generated, isr=isr)
+        result = toolchain.build_firmware(generated, isr=isr, on_step=bar)
     except toolchain.ToolchainError as exc:
         raise BenchError(f"the artifact's firmware is not packaged and must be built, but {exc}") from None
+    finally:
+        bar.close()
     try:
         write_bytes_atomically(path, result.elf)
     except OSError as exc:
@@ -119,13 +123,17 @@ def cached_image_problem(path: Path, isr: bool) -> str | None:
     return f"lacks {', '.join(missing)}" if missing else None
 
 
-def write_packaged() -> list[Path]:
-    """Rebuild the shipped ELFs of the packaged artifacts (needs the compiler)."""
+def write_packaged(quiet: bool = False) -> list[Path]:
+    """Rebuild the shipped ELFs of the packaged artifacts (needs the compiler); a bar per image on a terminal."""
     from bench.model.default import default_artifact_path
 
     written = []
-    for kind in PACKAGED_KINDS:
-        build = toolchain.build_firmware(generate(load_artifact(default_artifact_path(kind))))
+    for number, kind in enumerate(PACKAGED_KINDS, start=1):
+        bar = StepBar(f"firmware {number}/{len(PACKAGED_KINDS)} {kind}", quiet)
+        try:
+            build = toolchain.build_firmware(generate(load_artifact(default_artifact_path(kind))), on_step=bar)
+        finally:
+            bar.close()
         path = packaged_elf_path(kind)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_bytes_atomically(path, build.elf)

@@ -29,6 +29,7 @@ import re
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.resources import files
 from pathlib import Path
@@ -169,11 +170,21 @@ def firmware_sources(generated: GeneratedSource, *, isr: bool = False) -> dict[s
     return {**generated.files, **{name: support_file(name) for name in names}}
 
 
-def build_firmware(generated: GeneratedSource, *, isr: bool = False) -> BuildResult:
+# told of each build step as it starts (its name, steps done, steps in all) and once at the end (all done)
+StepReport = Callable[[str, int, int], None]
+
+
+def _no_report(_step: str, _done: int, _total: int) -> None:
+    pass
+
+
+def build_firmware(generated: GeneratedSource, *, isr: bool = False, on_step: StepReport = _no_report
+                   ) -> BuildResult:
     """Compile and link `generated` with the start-up code and linker script; ToolchainError if that fails.
 
     `isr` links the field-oriented current loop's interrupt (foc_isr.c) into the image as well, for
-    `bench firmware timing`; without it the image is the engine's, byte for byte as before."""
+    `bench firmware timing`; without it the image is the engine's, byte for byte as before. `on_step` is told of
+    each compile and the link as it starts (a compiler call has no progress of its own), then of the end."""
     version = toolchain_version()
     sources = firmware_sources(generated, isr=isr)
     with scratch_dir("firmware") as tmp:   # named by this process: a later bench removes it if we are killed
@@ -183,7 +194,9 @@ def build_firmware(generated: GeneratedSource, *, isr: bool = False) -> BuildRes
         objects = []
         compiled = (STARTUP_NAME, SOURCE_NAME, NODE_NAMES[0], *ISR_NAMES[:1]) if isr else (
             STARTUP_NAME, SOURCE_NAME, NODE_NAMES[0])                    # node.c includes the packers' .c
-        for source in compiled:
+        steps = len(compiled) + 1        # each compile and the link
+        for index, source in enumerate(compiled):
+            on_step(f"compiling {source}", index, steps)
             obj = Path(source).with_suffix(".o").name
             done = _run(["cc", *compile_flags(work, isr=isr), "-c", source, "-o", obj], work,
                         f"compiling {source}")
@@ -191,6 +204,7 @@ def build_firmware(generated: GeneratedSource, *, isr: bool = False) -> BuildRes
                 raise ToolchainError(f"compiling {source} for the Cortex-M4F failed: "
                                      f"{_first_line(done.stderr + done.stdout)}")
             objects.append(obj)
+        on_step(f"linking {ELF_NAME}", steps - 1, steps)
         done = _run(["ld.lld", *LINK_FLAGS, "-T", LINKER_SCRIPT_NAME, f"-Map={MAP_NAME}", "-o", ELF_NAME, *objects],
                     work, "linking the firmware")
         if done.returncode != 0:
@@ -200,6 +214,7 @@ def build_firmware(generated: GeneratedSource, *, isr: bool = False) -> BuildRes
             raise ToolchainError(f"linking the firmware failed ({hint}): {reason}")
         elf = (work / ELF_NAME).read_bytes()
         map_text = (work / MAP_NAME).read_text(encoding="utf-8")
+    on_step("linked", steps, steps)
     try:
         memory = memory_from_elf(elf)
     except FirmwareError as exc:     # the linker wrote something the emulator cannot load: a toolchain problem
@@ -208,4 +223,4 @@ def build_firmware(generated: GeneratedSource, *, isr: bool = False) -> BuildRes
 
 
 __all__ = ["BuildResult", "COMPILER", "ELF_NAME", "HEADER_NAME", "ISR_NAMES", "MAP_NAME", "SOURCE_NAME",
-           "ToolchainError", "build_firmware", "firmware_sources", "support_file", "toolchain_version"]
+           "StepReport", "ToolchainError", "build_firmware", "firmware_sources", "support_file", "toolchain_version"]

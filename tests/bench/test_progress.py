@@ -166,3 +166,52 @@ def test_the_replay_bar_counts_rows_of_its_total(monkeypatch):
         bar(done, 200)
     bar.close()
     assert re.search(r"lockstep: 100%\|.*\| 200/200 \[", terminal.getvalue()), terminal.getvalue()
+
+
+def test_a_step_bar_names_each_step_and_moves_its_elapsed_time_while_a_step_runs(monkeypatch):
+    """A compiler call says nothing while it runs: the bar shows the steps done of all, the step under way, and
+    redraws its elapsed time every TICK_S, so a 10 s compile does not look like a hung one."""
+    monkeypatch.setattr(progress, "TICK_S", 0.05)
+    terminal = _Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    bar = progress.StepBar("firmware hammerstein", quiet=False)
+    bar("compiling fw_model.c", 1, 4)
+    time.sleep(1.3)                 # one step running: no update from the job, the elapsed time still moves
+    bar("linking firmware.elf", 3, 4)
+    bar("linked", 4, 4)
+    bar.close()
+    states = [s for s in re.split(r"[\r\n]+", terminal.getvalue()) if s.strip()]
+    compiling = [s for s in states if "compiling fw_model.c" in s]
+    assert re.search(r"^firmware hammerstein: +25%\|.*\| 1/4 \[00:00<", compiling[0]), states
+    assert any(re.search(r"\| 1/4 \[00:01<", s) for s in compiling), states    # redrawn a second later
+    assert any(re.search(r"100%\|.*\| 4/4 .*linked", s) for s in states), states
+    assert not [t for t in threading.enumerate() if t.name == "step-bar"]      # the redrawing thread ended
+
+
+def test_a_step_bar_is_silent_with_quiet_and_into_a_pipe(monkeypatch):
+    for stream, quiet in ((_Terminal(), True), (io.StringIO(), False)):
+        monkeypatch.setattr(sys, "stderr", stream)
+        bar = progress.StepBar("firmware", quiet=quiet)
+        bar("compiling startup.c", 0, 2)
+        bar("linked", 2, 2)
+        bar.close()
+        assert stream.getvalue() == ""
+        assert not [t for t in threading.enumerate() if t.name == "step-bar"]
+
+
+@pytest.mark.slow
+def test_firmware_build_shows_its_steps_on_a_terminal_and_nothing_with_quiet(tmp_path):
+    """`bench firmware build` (10 s of compiling on a loaded machine): each compile and the link on the bar, all
+    steps done at the end; with --quiet the terminal gets nothing, into a pipe no carriage return."""
+    argv = [sys.executable, "-m", "bench", "firmware", "build", "--out"]
+    rc, screen = _on_terminal([*argv, str(tmp_path / "tty")])
+    assert rc == 0, screen
+    for step in ("compiling startup.c", "compiling fw_model.c", "compiling node.c", "linking firmware.elf"):
+        assert re.search(rf"firmware hammerstein: +\d+%\|.*\| [0-3]/4 \[\d\d:\d\d<.*{step}", screen), (step, screen)
+    assert re.search(r"firmware hammerstein: 100%\|.*\| 4/4 .*linked", screen), screen
+    rc, screen = _on_terminal([*argv, str(tmp_path / "quiet"), "--quiet"])
+    assert rc == 0 and screen == "", screen
+    piped = subprocess.run([*argv, str(tmp_path / "pipe")], capture_output=True, text=True, timeout=TIMEOUT_S,
+                           env=subprocess_env(can_settings=False))
+    assert piped.returncode == 0, piped.stderr
+    assert "\r" not in piped.stderr and piped.stderr == "compiling the hammerstein model for the Cortex-M4F ...\n"
