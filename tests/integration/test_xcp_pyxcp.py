@@ -19,6 +19,7 @@ from dbc import Command, FrameCodec
 from dbc.codec import decode_any
 from dbc.contract import REPLY_SIGNALS
 from dbc.xcp import cmd_id, res_id
+from host.canlog import mf4_available
 from host.replay import encode_row
 from target_sim.artifact import load_artifact
 from target_sim.node import TargetNode
@@ -252,3 +253,87 @@ def test_pyxcp_measures_and_calibrates_a_running_target(bench, rows, observer_ar
     stripped = [m for m in host.log if m.arbitration_id not in (cmd_id(), res_id())]
     uncalibrated_results, _ = compute(decode_log(write_frames(tmp_path / "stripped.blf", stripped)), artifact)
     assert uncalibrated_results.figure_rows.kept < ROWS and problems(uncalibrated_results)
+
+
+MF4_CHANNELS = ("y_est_0", "y_est_1", "y_est_2", "y_est_3", "obs_sigma_1", "obs_extra_0")
+
+
+@pytest.fixture(scope="module")
+def lagged_artifact(tmp_path_factory, small_dataset) -> Path:
+    """An observer whose winding sensor lags (τ 60 s): the filter carries the lag's state, `obs_extra_0`."""
+    from bench.cli import main
+
+    out = tmp_path_factory.mktemp("xcp-lagged") / "lagged.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--out", str(out),
+                 "--quiet"]) == 0
+    return out
+
+
+@pytest.mark.slow   # an observer fit and a target process: about 40 s on a loaded machine
+@pytest.mark.skipif(not mf4_available(), reason="asammdf is not installed")
+def test_a_pyxcp_daq_recording_into_an_mf4_reads_back_as_the_target_sent_it(lagged_artifact, rows, tmp_path):
+    """docs/tutorials/xcp.md's recording: pyxcp sets up the DAQ list of the four temperatures, the winding's 1-σ and
+    the sensor's lag state on the model step's event (`bench.daqrecord`), every step's packets are heard, and
+    asammdf reads back from the MF4 exactly the floats the packets carried: the temperatures the CAN replies', the
+    lag state the in-process node's after the same frames, bit for bit."""
+    from asammdf import MDF
+
+    from bench.daqrecord import DaqRecorder, configure_daq, daq_channels, write_daq_mf4
+
+    artifact = load_artifact(lagged_artifact)
+    channels = daq_channels(artifact, MF4_CHANNELS)
+    config = private_udp_bus()
+    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(lagged_artifact), "--quiet",
+                               *config.to_argv()], cwd=ROOT, env=subprocess_env(can_settings=False))
+    bus = config.open()
+    drive, measured = rows
+    try:
+        deadline = time.monotonic() + 60
+        while message_name(bus.recv(0.5) or can.Message(arbitration_id=0x7FF)) != "Status":
+            assert time.monotonic() < deadline, "the target sent no heartbeat within 60 s"
+        host = Host(bus)
+        with master(config) as xcp:
+            xcp.connect()
+            recorder = DaqRecorder(configure_daq(xcp, channels), len(channels))
+            xcp.startStopSynch(0x01)
+            host.send(session_start(host.codec))
+            for row in range(ROWS):
+                host.send(encode_row(host.codec, row, drive[row], measured[row].tolist()))
+                host.wait(row)
+            xcp.startStopSynch(0x00)
+            host.drain()
+            xcp.disconnect()
+    finally:
+        bus.shutdown()
+        target.terminate()
+        target.wait(30)
+    for msg in host.log:
+        recorder.on_message_received(msg)
+    samples = recorder.samples()
+    path = write_daq_mf4(tmp_path / "daq.mf4", channels, samples)
+
+    # the in-process node after the same frames: its lag state and temperatures at each model step
+    node = TargetNode(artifact, clock_ns=lambda: 0)
+    codec = FrameCodec("HOST")
+    for frame in session_start(codec):
+        node.handle(frame)
+    cells, expected = node.xcp.memory.by_name, []
+    for row in range(ROWS):
+        before = node.model_steps
+        for frame in encode_row(codec, row, drive[row], measured[row].tolist()):
+            node.handle(frame)
+        if node.model_steps > before:
+            expected.append([np.float32(cells[name].read()) for name in MF4_CHANNELS])
+    assert samples.lost == 0 and samples.values.shape == (node.model_steps, len(MF4_CHANNELS))
+    assert np.array_equal(samples.values, np.array(expected, dtype=np.float32))
+    step_rows = [row for row in range(ROWS) if node.accumulator.ends_interval(row)]
+    winding = [host.temps[row]["Temperatures1"]["WindingTemp"] for row in step_rows]
+    assert np.allclose(samples.values[:, 1], winding, atol=0.005 + 1e-9)
+    assert np.all(samples.values[:, 4] > 0) and np.ptp(samples.values[:, 5]) > 0    # a 1-sigma, a lag that moves
+    mdf = MDF(str(path))
+    try:
+        for i, name in enumerate(MF4_CHANNELS):
+            assert np.array_equal(mdf.get(name).samples, samples.values[:, i]), name
+        assert mdf.get("obs_extra_0").unit == "degC"
+    finally:
+        mdf.close()
