@@ -31,9 +31,14 @@ from target_sim.xcp.memory import Cell
 
 A2L_LIMIT = 3.4e38      # a float32 cell without limits: the type's range
 TIMEOUT_MS = 2000
-TIME_UNIT_1MS = 6          # EVENT_CHANNEL_TIME_UNIT: 1 ms
-OPTIONAL_COMMANDS = ("GET_COMM_MODE_INFO", "GET_ID", "SHORT_UPLOAD", "BUILD_CHECKSUM", "GET_DAQ_PROCESSOR_INFO",
-                     "GET_DAQ_RESOLUTION_INFO", "FREE_DAQ", "ALLOC_DAQ", "ALLOC_ODT", "ALLOC_ODT_ENTRY")
+# an EVENT's TIME_CYCLE is a uchar (XCP's AML) counted in its TIME_UNIT: 6 = 1 ms, 7 = 10 ms, 8 = 100 ms, 9 = 1 s
+TIME_UNIT_1MS = 6
+UCHAR_MAX = 255
+# every command the slave answers that XCP 1.x calls optional (SET_MTA and UPLOAD are: a master may not use them
+# unless they are listed); the mandatory ones (CONNECT ... DOWNLOAD, the DAQ list commands) are not listed
+OPTIONAL_COMMANDS = ("GET_COMM_MODE_INFO", "GET_ID", "SET_MTA", "UPLOAD", "SHORT_UPLOAD", "BUILD_CHECKSUM",
+                     "GET_DAQ_PROCESSOR_INFO", "GET_DAQ_RESOLUTION_INFO", "FREE_DAQ", "ALLOC_DAQ", "ALLOC_ODT",
+                     "ALLOC_ODT_ENTRY")
 
 
 class A2lError(BenchError):
@@ -132,11 +137,22 @@ def _characteristic(cell: Cell) -> list[str]:
             "    /end CHARACTERISTIC"]
 
 
+def event_cycle(period_ms: float) -> tuple[int, int]:
+    """(TIME_CYCLE, TIME_UNIT) of an event every `period_ms`: the finest unit whose count fits TIME_CYCLE's uchar
+    (the model step's 500 ms is 50 x 10 ms; 500 x 1 ms overflowed it)."""
+    for unit in range(TIME_UNIT_1MS, TIME_UNIT_1MS + 4):
+        cycle = max(1, round(period_ms / 10 ** (unit - TIME_UNIT_1MS)))
+        if cycle <= UCHAR_MAX:
+            return cycle, unit
+    raise A2lError(f"an event every {period_ms:g} ms is longer than XCP's longest cycle, "
+                   f"{UCHAR_MAX} s; use a shorter model step")
+
+
 def _if_data(artifact: ModelArtifact) -> list[str]:
     """IF_DATA XCP: protocol layer, dynamic DAQ with the model step's event, XCP on CAN."""
     period_ms = {EVENT_MODEL_STEP: artifact.dt * 1000, EVENT_HEARTBEAT: heartbeat_period_s() * 1000}
     events = [f'          /begin EVENT {_text(name)} {_text(name.replace(" ", "_")[:8])} {number} DAQ 255 '
-              f"{max(1, round(period_ms[number]))} {TIME_UNIT_1MS} 0" + "\n          /end EVENT"
+              f"{' '.join(map(str, event_cycle(period_ms[number])))} 0" + "\n          /end EVENT"
               for number, name in EVENTS.items()]
     return ["    /begin IF_DATA XCP",
             "      /begin PROTOCOL_LAYER",
