@@ -1,6 +1,6 @@
 """Benchmark (not a test): what the Python node's XCP slave costs the model step's deadline.
 
-    python tests/benchmarks/bench_xcp.py [--model A] [--rows N] [--repeat N]
+    python tests/benchmarks/bench_xcp.py [--model A] [--rows N] [--repeat N] [--daq-run [--run-rows N] [--mf4 PATH]]
 
 In-process (no bus, so only the node's own work counts): the packaged model's Python node (or --model), connected,
 with a DAQ list of the four temperatures (one ODT each, on the model step's event). Figures: the handler time of each
@@ -14,7 +14,8 @@ With --daq-run (pyxcp needed) it also records a whole run by DAQ: a target proce
 pyxcp as the master with a DAQ list of the four temperatures on the model step's event, and `bench host` replaying
 the 40 °C validation run (out/data, generated if missing; --run-rows N: its first N rows) in lockstep with its log;
 figures: model steps, DAQ packets per ODT, packets lost (steps minus packets), the largest |DAQ value − the row's CAN
-reply| (the replies carry 0.01 °C), and whether `bench host` judged the run clean. Writes its record
+reply| (the replies carry 0.01 °C), and whether `bench host` judged the run clean; with --mf4 PATH the recording is
+also written there as an MF4 (`bench.daqrecord`, asammdf) and read back (`mf4_equal_to_daq`). Writes its record
 (`tests/benchmarks/record.py`).
 """
 
@@ -82,6 +83,8 @@ def main() -> int:
     parser.add_argument("--repeat", type=int, default=5000, help="calls of each command (default 5000)")
     parser.add_argument("--daq-run", action="store_true", help="also record a whole run by DAQ with pyxcp")
     parser.add_argument("--run-rows", type=int, default=None, help="with --daq-run: only the first N rows")
+    parser.add_argument("--mf4", type=Path, default=None,
+                        help="with --daq-run: also write the recording to this .mf4 (bench.daqrecord; asammdf)")
     add_record_arguments(parser)
     args = parser.parse_args()
     from bench.model.default import default_artifact_path
@@ -123,13 +126,13 @@ def main() -> int:
           f"{with_daq_node.model_steps} model steps; worst command {worst} µs = "
           f"{100 * worst / (artifact.dt * 1e6):.4f} % of the period")
     if args.daq_run:
-        record.figures["daq_run"] = daq_run(artifact, path, args.run_rows)
+        record.figures["daq_run"] = daq_run(artifact, path, args.run_rows, args.mf4)
         print(f"DAQ run: {record.figures['daq_run']}")
     record.write()
     return 0
 
 
-def daq_run(artifact, model_path: Path, rows: int | None) -> dict:
+def daq_run(artifact, model_path: Path, rows: int | None, mf4: Path | None = None) -> dict:
     """A whole run recorded by DAQ (see the module docstring)."""
     import subprocess
     import tempfile
@@ -140,19 +143,18 @@ def daq_run(artifact, model_path: Path, rows: int | None) -> dict:
     from pyxcp.master import Master
 
     from bench.analysis.logdecode import decode_log
+    from bench.daqrecord import DaqRecorder, configure_daq, daq_channels, write_daq_mf4
     from bench.drive.generate import ensure_default_datasets
     from dbc.transport import BusConfig, resolve
     from dbc.xcp import cmd_id, res_id
     from target_sim.model import InputAccumulator
-    from target_sim.node import TargetNode
 
     data = ensure_default_datasets()[40]
     config = resolve(BusConfig("udp_multicast"), session_unique=True)
-    cells = TargetNode(artifact).xcp.memory.by_name
+    channels = daq_channels(artifact, [f"y_est_{odt}" for odt in range(4)])
     target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(model_path), "--quiet",
                                *config.to_argv()], cwd=ROOT)
     bus = config.open()
-    packets: list[bytes] = []
     try:
         deadline = time.monotonic() + 60
         while True:
@@ -160,8 +162,6 @@ def daq_run(artifact, model_path: Path, rows: int | None) -> dict:
             if msg is not None and msg.arbitration_id == 0x230:
                 break
             assert time.monotonic() < deadline, "no heartbeat from the target"
-        notifier = can.Notifier(bus, [lambda m: packets.append(bytes(m.data))
-                                      if m.arbitration_id == res_id() and m.data[0] < 0xFC else None])
         app = create_application_from_config({"Transport": {"CAN": {
             "interface": "udp_multicast", "channel": config.channel, "can_id_master": cmd_id(),
             "can_id_slave": res_id()}}})
@@ -170,15 +170,8 @@ def daq_run(artifact, model_path: Path, rows: int | None) -> dict:
         app.general.disable_error_handling = True
         with tempfile.TemporaryDirectory() as work, Master("can", config=app) as xcp:
             xcp.connect()
-            xcp.freeDaq()
-            xcp.allocDaq(1)
-            xcp.allocOdt(0, 4)
-            for odt in range(4):
-                xcp.allocOdtEntry(0, odt, 1)
-                xcp.setDaqPtr(0, odt, 0)
-                xcp.writeDaq(0xFF, 4, 0, cells[f"y_est_{odt}"].address)
-            xcp.setDaqListMode(0x00, 0, 0, 1, 0)
-            xcp.startStopDaqList(0x02, 0)
+            recorder = DaqRecorder(configure_daq(xcp, channels), len(channels))
+            notifier = can.Notifier(bus, [recorder])
             xcp.startStopSynch(0x01)
             log = Path(work) / "run.blf"
             host = subprocess.run([sys.executable, "-m", "bench", "host", "--data", str(data), "--model",
@@ -191,19 +184,35 @@ def daq_run(artifact, model_path: Path, rows: int | None) -> dict:
             time.sleep(0.5)
             notifier.stop()
             record = decode_log(log)
+            samples = recorder.samples()
+            if mf4 is not None:
+                write_daq_mf4(mf4, channels, samples)
     finally:
         bus.shutdown()
         target.terminate()
         target.wait(30)
     accumulator = InputAccumulator(artifact.data_sample_period, artifact.dt)
     step_rows = [row for row in range(record.rows) if accumulator.ends_interval(row)]
-    by_pid = [np.array([struct.unpack_from("<f", p, 1)[0] for p in packets if p[0] == pid]) for pid in range(4)]
-    order = (0, 1, 2, 3)      # y_est: yoke, winding, tooth, magnet; record.temps has the same order
-    worst = max(float(np.max(np.abs(by_pid[i] - record.temps[step_rows, node]))) if len(by_pid[i]) == len(step_rows)
-                else float("nan") for i, node in enumerate(order))
-    return {"rows": int(record.rows), "model_steps": len(step_rows), "daq_packets_per_odt": [len(v) for v in by_pid],
-            "lost": len(step_rows) - min(len(v) for v in by_pid), "max_abs_daq_minus_can_C": round(worst, 6),
-            "host_exit": host.returncode, "host_stderr": host.stderr.strip()[-300:]}
+    # y_est: yoke, winding, tooth, magnet; record.temps has the same order
+    values = samples.values
+    worst = (float(np.max(np.abs(values - record.temps[step_rows, :4]))) if len(values) == len(step_rows)
+             else float("nan"))
+    figures = {"rows": int(record.rows), "model_steps": len(step_rows), "daq_samples": len(values),
+               "daq_packets_per_odt": [int(n) for n in np.sum(~np.isnan(values), axis=0)],
+               "lost": len(step_rows) * len(channels) - int(np.sum(~np.isnan(values))),
+               "max_abs_daq_minus_can_C": round(worst, 6),
+               "host_exit": host.returncode, "host_stderr": host.stderr.strip()[-300:]}
+    if mf4 is not None:
+        from asammdf import MDF
+
+        mdf = MDF(str(mf4))
+        try:
+            figures["mf4_equal_to_daq"] = all(np.array_equal(mdf.get(c.name).samples, values[:, i], equal_nan=True)
+                                              for i, c in enumerate(channels))
+        finally:
+            mdf.close()
+        figures["mf4"] = str(mf4)
+    return figures
 
 
 if __name__ == "__main__":
