@@ -62,7 +62,7 @@ from bench.firmware.udgen import (
 from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
 from target_sim.observer import Float32Observer
-from target_sim.observer.forms import ud_factor
+from target_sim.observer.ud import ud_factor
 
 # the line temperature_sources gets in an observer's C: the gains the transition's Jacobian takes
 KEEP_GAINS_C = "".join(f"    obs_gains[{i}] = {gain};\n" for i, gain in enumerate(("g_tm", "g_wm", "g_ma", "g_cy")))

@@ -3,7 +3,7 @@ what the firmware's generated C does.
 
 - `filter`: the filter step (`Float32Observer`): model step, covariance prediction, each measurement's update,
   consider states, the innovation gate, checkpoints;
-- `forms`: the covariance forms (`OBSERVER_FORMS`: conventional, joseph, ud, steady);
+- `forms`: the covariance forms (`OBSERVER_FORMS`: conventional, joseph, ud, steady), `ud` the UD form;
 - `coordinates`: the node coordinates the filter runs in; `ud_structure`: the UD form's structural zeros and
   schedules;
 - `section`: the artifact's observer section as the target reads it; `measurements/`: one module per measurement

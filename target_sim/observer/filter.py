@@ -54,9 +54,10 @@ from target_sim.kinds import MODEL_KINDS
 from target_sim.model import F32, Float32Estimator
 from target_sim.modelkinds.lti_lptn import SOURCE_JACOBIAN_NONZERO
 from target_sim.observer.coordinates import NodeCoordinates
-from target_sim.observer.forms import OBSERVER_FORMS, BiermanThornton, Conventional, covariance_form, held_gain
+from target_sim.observer.forms import OBSERVER_FORMS, Conventional, covariance_form
 from target_sim.observer.section import ObserverError, bias_input, has_observer, load_measurements
-from target_sim.observer.ud_structure import NEG_ZERO, masked_dot, masked_matmul, pattern_product, structural
+from target_sim.observer.ud import BiermanThornton
+from target_sim.observer.ud_structure import NEG_ZERO, held_gain, masked_dot, masked_matmul, pattern_product, structural
 
 Q_NODES_TOLERANCE = 1e-6            # T Q Tᵀ against diag(q_nodes), relative: float64 rounding of the lab's transform
 

@@ -29,7 +29,8 @@ from target_sim.artifact import (
     verify,
 )
 from target_sim.observer import OBSERVER_FORMS, Float32Observer, ObserverError, run_observer_offline
-from target_sim.observer.forms import BiermanThornton, Joseph, ud_factor
+from target_sim.observer.forms import Joseph
+from target_sim.observer.ud import BiermanThornton, ud_factor
 
 
 def random_spd(rng, n=4, scale=1.0):

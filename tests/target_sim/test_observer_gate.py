@@ -22,7 +22,7 @@ from bench.observer.tune import ObserverFit
 from target_sim.artifact import ArtifactError, load_artifact, observer_gate, seal, verify
 from target_sim.model import run_offline
 from target_sim.observer import OBSERVER_FORMS, Float32Observer, run_observer_offline
-from target_sim.observer.forms import BiermanThornton
+from target_sim.observer.ud import BiermanThornton
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from helpers import synthetic_columns, write_synthetic_dataset  # noqa: E402

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from target_sim.observer.forms import BiermanThornton, Joseph
+from target_sim.observer.forms import Joseph
+from target_sim.observer.ud import BiermanThornton
 from target_sim.observer.ud_structure import (
     NEG_ZERO,
     bierman_schedule,
