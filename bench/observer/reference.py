@@ -32,7 +32,7 @@ INITIAL_SIGMA_C = {"yoke": 5.0, "winding": 2.0, "tooth": 5.0, "magnet": 15.0}
 SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 # the bias state's initial 1-σ per kind (W into its node) and the lag states' (K, beyond what their sensor sees).
 # The magnet's: of the order of a magnet loss (tens of W; 100s of W at most), so P0 does not let the first
-# innovations throw the magnet far (see the module's note on P0)
+# innovations throw the magnet far (see `bench.observer.tune`'s note on P0)
 BIAS_SIGMA_W = {"winding-heat": 50.0, "magnet-heat": 20.0}
 LAG_SIGMA_C = 0.5
 # what the section names each bias state, and the node it heats (as the section's rule says it)
