@@ -38,11 +38,8 @@ from __future__ import annotations
 
 import difflib
 import hashlib
-import json
 import os
-import signal
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -54,18 +51,17 @@ from typing import Any
 import pytest
 
 from bench.errors import BenchError
+from bench.run.child import STOP_GRACE_S, bench_command, run_summary, start_bench, stop_bench_process
 from bench.run.request import HOST, OPTION, RUN, SETTABLE, RunRequest
 from bench.tomlspec import Check, TableSpec, flag, number, read_spec, spec_tables, string, whole_at_least
 from bench.tomlspec import path as path_value
 from dbc.files import same_file
-from dbc.lifeline import child_environment
 from dbc.transport import bus_interfaces
 
 TARGETS = ("python", "firmware", "external")
 MARKER = "bench_engines"
 # [run]: every run option a user sets (`bench.run.request`), and how long a run may take
 DEFAULT_TIMEOUT_S = 900.0
-STOP_GRACE_S = 20.0   # a bench told to stop (SIGTERM) stops its target (5 s at most) and exits; then SIGKILL
 # an attached target that is still starting (a loaded CI runner) is waited for this long: `bench host`'s own
 # default (15 s) is for a target known to run
 ATTACHED_CONNECT_TIMEOUT_S = 120.0
@@ -283,13 +279,12 @@ def _bus_turn(config: BenchConfig) -> Iterator[None]:
 
 
 def run_bench(argv: list[str], timeout_s: float, log: Path) -> subprocess.CompletedProcess:
-    """`argv` (a `python -m bench ...`) to its end, output captured. The bench dies with this process
-    (`dbc.lifeline`: it gets SIGTERM when pytest is terminated or killed, and stops its target and removes its
-    partial log itself). On a timeout or an interruption (Ctrl-C, pytest stopping) it is stopped like a user would
-    (`stop_bench`); subprocess.TimeoutExpired then carries in `output` the sentence of how it was stopped."""
-    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=child_environment({**os.environ, "PYTHONUNBUFFERED": "1"}),
-                            start_new_session=True)   # its own process group: a kill reaches its target too
+    """`argv` (a `python -m bench ...`, `bench.run.child.bench_command`) to its end, output captured. The bench dies
+    with this process (`bench.run.child.start_bench`: it gets SIGTERM when pytest is terminated or killed, and stops
+    its target and removes its partial log itself). On a timeout or an interruption (Ctrl-C, pytest stopping) it is
+    stopped like a user would (`stop_bench`); subprocess.TimeoutExpired then carries in `output` the sentence of how
+    it was stopped."""
+    proc = start_bench(argv, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
         stdout, stderr = proc.communicate(timeout=timeout_s)
     except subprocess.TimeoutExpired:
@@ -301,43 +296,17 @@ def run_bench(argv: list[str], timeout_s: float, log: Path) -> subprocess.Comple
 
 
 def stop_bench(proc: subprocess.Popen, log: Path, grace_s: float = STOP_GRACE_S) -> str:
-    """Stop a running bench: SIGTERM (it stops its target and removes its partial output), after `grace_s` SIGKILL
-    of its whole process group; then remove what a killed bench leaves (its partial `log`, its scratch directory)
-    once nothing of the group runs. How it stopped, as a sentence."""
-    how = "it was stopped with SIGTERM"
-    if proc.poll() is None:
-        proc.terminate()
-    try:
-        proc.communicate(timeout=grace_s)
-    except subprocess.TimeoutExpired:
-        how = f"it did not stop within {grace_s:g} s of SIGTERM and was killed (SIGKILL)"
-        _kill_group(proc.pid)
-        proc.communicate()
-    _kill_group(proc.pid)   # anything of the group left behind (its target, after a SIGKILL of the bench)
-    _wait_group_gone(proc.pid, grace_s)
+    """Stop a running bench (`bench.run.child.stop_bench_process`: SIGTERM, after `grace_s` SIGKILL of its whole
+    process group); then remove what a killed bench leaves (its partial `log`, its scratch directory) once nothing
+    of the group runs. How it stopped, as a sentence."""
+    _, _, killed = stop_bench_process(proc, grace_s)
     from bench.run.leftovers import remove_stale_partials, remove_stale_scratch
 
     remove_stale_partials(log)
     remove_stale_scratch()
-    return how
-
-
-def _kill_group(pgid: int) -> None:
-    try:
-        os.killpg(pgid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-def _wait_group_gone(pgid: int, timeout_s: float) -> None:
-    """Until no process of group `pgid` exists (a zombie not yet reaped by its adopter counts, so bounded)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        try:
-            os.killpg(pgid, 0)
-        except (ProcessLookupError, PermissionError):
-            return
-        time.sleep(0.05)
+    if killed:
+        return f"it did not stop within {grace_s:g} s of SIGTERM and was killed (SIGKILL)"
+    return "it was stopped with SIGTERM"
 
 
 def _one_sentence(stderr: str, status: int) -> str:
@@ -383,8 +352,7 @@ class ThermalBench:
         if report:
             chosen["report"] = run_dir / "report"
         request = RunRequest.from_mapping(chosen, "thermal_bench.run")
-        argv = [sys.executable, "-m", "bench", command, *request.to_argv(command), "--json", "--quiet",
-                *self.config.bus_argv()]
+        argv = bench_command([command, *request.to_argv(command), "--json", "--quiet", *self.config.bus_argv()])
         if not attach and self.config.interface is None:
             argv += ["-i", "udp_multicast"]   # a run-unique port: parallel tests never meet
         return argv
@@ -413,15 +381,12 @@ class ThermalBench:
         return result
 
     def _result(self, argv: list[str], proc: subprocess.CompletedProcess, run_dir: Path) -> BenchRun:
-        if proc.returncode not in (0, 1):
+        data = run_summary(proc.returncode, proc.stdout)
+        if data is None:     # refused, crashed, or no JSON: the bench's own sentence
             raise BenchRunError(_one_sentence(proc.stderr, proc.returncode), proc.returncode)
-        try:
-            data = json.loads(proc.stdout)
-        except ValueError:
-            raise BenchRunError(_one_sentence(proc.stderr, proc.returncode), proc.returncode) from None
         from bench.analysis.results import RunSummary
 
-        if isinstance(data, dict) and "metrics" not in data:   # a run whose log held no figures (`bench host`)
+        if "metrics" not in data:   # a run whose log held no figures (`bench host`)
             raise BenchRunError("the host's log could not be compared with the model: " + "; ".join(data["problems"]),
                                 1)
         summary = RunSummary.from_json(data)   # `bench run --json` and `bench host --json` print one shape

@@ -31,8 +31,8 @@ def problems(html_dir: Path | None = None) -> list[str]:
     from target_sim.artifact import SCHEMA_VERSION
     from target_sim.kinds import REALIZATIONS
     from target_sim.losses import LOSS_KINDS
-    from target_sim.measurements import MEASUREMENT_KINDS
     from target_sim.modelkinds import MODEL_KINDS
+    from target_sim.observer.measurements import MEASUREMENT_KINDS
 
     found = []
     protocol = bench_docs.render_protocol()

@@ -45,7 +45,7 @@ from target_sim.engines import ENGINES, make_node
 from target_sim.errors import TargetError
 from target_sim.faults import ReplyFaults, parse_reply_faults
 from target_sim.node import log_error, serve, target_on_channel
-from target_sim.observer_node import can_refusal
+from target_sim.observer.node import can_refusal
 
 
 class _Parser(argparse.ArgumentParser):

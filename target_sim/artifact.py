@@ -31,7 +31,8 @@ SCHEMA_VERSION = 3
 READABLE_VERSIONS = (1, 2, 3)
 OBSERVER_VERSION = 3
 # the observer section's own version: 1 (absent) one unlagged sensor of one node; 2 a list of measurements of
-# `target_sim.measurements` kinds, lag states and an optional heat bias state (`BIAS_KINDS`: its node's loss input)
+# `target_sim.observer.measurements` kinds, lag states and an optional heat bias state (`BIAS_KINDS`: its node's
+# loss input)
 OBSERVER_SECTION_VERSIONS = (1, 2)
 # The observer section (`target_sim.observer`): its arrays and shapes ((): a scalar), in the realization's
 # coordinates; `node` names the measured output, `form` the covariance form the target deploys.

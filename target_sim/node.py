@@ -27,7 +27,7 @@ Protocol (the DBC's comments are the contract; this is how the target implements
   timing frames; after every CHECKPOINT_EVERY_STEPS-th model step since RESET/RESTORE, four StateCheckpoint frames
   (x after that step). The last used row sent again (a host retransmitting a row whose reply it did not get) is
   answered again with the same temperatures and steps nothing (`repeats`).
-* A model with an observer (the artifact's `observer` section, `target_sim.observer_node`): the measurement frames
+* A model with an observer (the artifact's `observer` section, `target_sim.observer.node`): the measurement frames
   of a row (Measurements, and DriveVoltages when its observer computes the flux linkage; sent before its
   DriveInputs) are kept; when the row completes, the observer's raw channels — the VALID values of its channels in
   the kept frames of that Step, and the row's own currents for the flux linkage — are more values of the row,
@@ -114,7 +114,7 @@ from target_sim.costs import memory_estimate, step_cost
 from target_sim.faults import ReplyFaults
 from target_sim.model import Float32Estimator, InputAccumulator
 from target_sim.observer import has_observer
-from target_sim.observer_node import NodeObserver, observer_signals
+from target_sim.observer.node import NodeObserver, observer_signals
 from target_sim.xcp import node_slave
 from target_sim.xcp.codes import PID_ERR, Err
 from target_sim.xcp.daq import EVENT_HEARTBEAT, EVENT_MODEL_STEP
@@ -175,7 +175,7 @@ class TargetNode:
         self.artifact = artifact
         self.journal = journal
         self._msg: can.Message | None = None
-        # with an observer section the model steps through the filter (`target_sim.observer_node`); x, y and the
+        # with an observer section the model steps through the filter (`target_sim.observer.node`); x, y and the
         # checkpoints are its estimator's
         self.observer = NodeObserver(artifact) if has_observer(artifact) else None
         self.model = self.observer.model if self.observer is not None else Float32Estimator(artifact)

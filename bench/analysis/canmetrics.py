@@ -80,7 +80,7 @@ from target_sim.kinds import MODEL_KINDS, is_delta
 from target_sim.losses import reads_currents, row_of_width
 from target_sim.model import Float32Estimator, InputAccumulator, run_offline
 from target_sim.observer import has_observer, run_observer_offline
-from target_sim.observer_node import NodeObserver, raw_channels, raw_sources
+from target_sim.observer.node import NodeObserver, raw_channels, raw_sources
 
 TEMPERATURES = TEMPERATURE_NODES
 AGREEMENT_TOLERANCE_C = QUANTIZATION_C + 1e-9
@@ -109,7 +109,7 @@ def segment_estimates(artifact: ModelArtifact, drive: np.ndarray, start_row: int
                       state=None, measured: np.ndarray | None = None, checkpoint: dict | None = None) -> np.ndarray:
     """(stop_row - start_row, 4): the estimate the target replies with after each row, for a target reset to
     `initial` (or restored to the state vector `state`) at `start_row` (the target's own float32 code and
-    interval-mean rule, accumulator empty). A model with an observer steps through it (`target_sim.observer_node`:
+    interval-mean rule, accumulator empty). A model with an observer steps through it (`target_sim.observer.node`:
     a restore continues the filter from its echoed `checkpoint` {Index: value} when complete, else starts its
     covariance afresh, as the target's does) on `measured`, its raw channels per row (`observed_channels`; NaN:
     none)."""

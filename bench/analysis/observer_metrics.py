@@ -18,7 +18,7 @@ from bench.analysis.verdict import QUANTIZATION_C
 from dbc.contract import TEMPERATURE_NODES
 from target_sim.artifact import ModelArtifact
 from target_sim.observer import measurement_entries
-from target_sim.observer_node import channel_widths, measurement_slots, raw_channels, raw_sources
+from target_sim.observer.node import channel_widths, measurement_slots, raw_channels, raw_sources
 
 # the sigma series of the log per node (`BusRecord.observer`), in the temperature order
 SIGMA_KEYS = {"yoke": ("row_u2", "yoke_sigma"), "winding": ("row_u1", "winding_sigma"),

@@ -37,9 +37,9 @@ from bench.campaign.spec import Campaign, Run
 from bench.campaign.store import DONE, Store, flatten, option_columns
 from bench.errors import BenchError
 from bench.progress import progress_bar
+from bench.run.child import bench_command, run_summary, start_bench, stop_bench_process
 
 MAX_ATTEMPTS = 2                  # a run that crashed, timed out or lost its worker is retried once
-STOP_GRACE_S = 20.0               # after SIGTERM, how long a run may take to stop its target and clean up
 CONNECT_TIMEOUT_S = 10.0
 POLL_S = 2.0                      # how often the driver, waiting for results, looks whether the cluster has workers
 
@@ -102,9 +102,9 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
 
     run_dir = new_attempt_dir(Path(task["runs_dir"]), task["run_id"])
     started, clock = now(), time.perf_counter()
-    argv = [sys.executable, "-m", "bench.campaign.child", str(os.getpid()), "run", *task["argv"](run_dir)]
-    proc = subprocess.Popen(argv, cwd=run_dir, env=_child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    # tied to this worker (a worker killed with SIGKILL cannot stop its children, and a run left running would write
+    # into a run directory that the retry also writes into) and in its own process group (`bench.run.child`)
+    proc = start_bench(bench_command(["run", *task["argv"](run_dir)]), env=_child_env(), cwd=run_dir)
     with _RUNNING_LOCK:
         _RUNNING.setdefault(task["token"], set()).add(proc)
     timed_out = False
@@ -113,12 +113,8 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
             out, err = proc.communicate(timeout=task["timeout_s"])
         except subprocess.TimeoutExpired:
             timed_out = True
-            proc.terminate()            # bench run stops its target and deletes its temporary files on SIGTERM
-            try:
-                out, err = proc.communicate(timeout=STOP_GRACE_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                out, err = proc.communicate()
+            # bench run stops its target and deletes its temporary files on SIGTERM; its group is killed after a grace
+            out, err, _ = stop_bench_process(proc)
     finally:
         with _RUNNING_LOCK:
             running = _RUNNING.get(task["token"], set())
@@ -127,10 +123,10 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
                 _RUNNING.pop(task["token"], None)
     wall = time.perf_counter() - clock
     summary, unreadable = None, None
-    if proc.returncode in (0, 1) and not timed_out:
-        with contextlib.suppress(ValueError):
-            parsed = json.loads(out)
-            summary = parsed if isinstance(parsed, dict) and "clean" in parsed else None
+    if not timed_out:
+        summary = run_summary(proc.returncode, out)
+        if summary is not None and "clean" not in summary:
+            summary = None
         if summary is not None:
             try:   # the table reads it as a RunSummary: a summary of another schema is no result
                 RunSummary.from_json(summary)

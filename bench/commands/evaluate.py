@@ -167,7 +167,7 @@ def print_file_table(report: dict) -> None:
 def observer_report(artifact, datasets, say, plots: Path | None = None) -> dict:
     """Open loop vs observer per node and the recovery from a wrong initial magnet temperature, on every file that
     has the observer's measurement columns; with `plots`, each file's estimate with its ±2σ band."""
-    from bench.model.observer import lab_measurements, measurement_columns
+    from bench.observer.measured import lab_measurements, measurement_columns
 
     section = artifact.content["observer"]
     columns = measurement_columns(artifact)
@@ -180,8 +180,8 @@ def observer_report(artifact, datasets, say, plots: Path | None = None) -> dict:
 
 
 def _observer_files(artifact, datasets, say, plots: Path | None) -> dict:
-    from bench.model.observer_eval import evaluate_observer
-    from bench.model.observer_plots import observer_figure
+    from bench.observer.evaluate import evaluate_observer
+    from bench.observer.plots import observer_figure
 
     files, figures = [], []
     for d in datasets:
@@ -228,7 +228,7 @@ def print_observer_table(model: dict) -> None:
 
 def _recovered(seconds: float) -> str:
     """"within 2 K after 40 s", or "never within 2 K" (not by the end of the file)."""
-    from bench.model.observer_eval import RECOVERY_BAND_K
+    from bench.observer.evaluate import RECOVERY_BAND_K
 
     band = f"within {RECOVERY_BAND_K:g} K"
     return f"never {band}" if seconds == float("inf") else f"{band} after {seconds:.0f} s"

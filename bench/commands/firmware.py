@@ -269,7 +269,7 @@ def run_check(args: argparse.Namespace) -> int:
     from bench.model.runs import initial_temperatures
     from bench.progress import ProgressBar
     from bench.run.inputs import check_measurement_data, drive_for, load_data, measurements_for
-    from target_sim.observer_node import raw_channels, raw_sources
+    from target_sim.observer.node import raw_channels, raw_sources
 
     path, artifact = _load(args.model)
     mapping, period = data_options(args)

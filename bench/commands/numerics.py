@@ -133,8 +133,8 @@ def run_observer(args: argparse.Namespace) -> int:
 
     from bench.commands.common import data_options
     from bench.model.default import default_artifact_path
-    from bench.model.observer import measured_nodes_of
-    from bench.model.observer_eval import form_comparison
+    from bench.observer.evaluate import form_comparison
+    from bench.observer.measured import measured_nodes_of
     from bench.run.inputs import load_data, load_model
     from target_sim.observer import has_observer
 

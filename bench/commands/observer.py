@@ -27,7 +27,7 @@ whose estimate then moves only through the model's own coupling; the covariance 
 updates it. It is the default (on the suite's validation profiles the only setting that left the magnet no worse
 than the open loop on every motor); --consider none: every state is updated (--bias magnet with a winding sensor
 alone needs it: a held magnet bias would never move).
---gate SIGMA (default 3, `bench.model.observer.DEFAULT_GATE`): the innovation gate the target runs: a reading
+--gate SIGMA (default 3, `bench.observer.section.DEFAULT_GATE`): the innovation gate the target runs: a reading
 whose innovation ν is more than SIGMA of its predicted sigma off (ν²/S > SIGMA², S = h P⁻ hᵀ + R; 3: the 99.73 %
 quantile of chi-square with 1 degree of freedom) predicts only and is counted; --gate-flag-after N (default 10)
 rejections in a row flag the sensor. While a sensor is rejected the covariance grows, so a sensor that truly moved
@@ -63,14 +63,9 @@ from bench.progress import StageBars
 
 
 def add_subparser(subparsers) -> None:
-    from bench.model.measures import LAB_MEASUREMENT_KINDS
-    from bench.model.observer import (
-        DEFAULT_CONSIDER,
-        DEFAULT_CONSIDER_RELEASE_C,
-        DEFAULT_GATE,
-        DEPLOYED_FORM,
-        TUNING_CRITERIA,
-    )
+    from bench.observer.measures import LAB_MEASUREMENT_KINDS
+    from bench.observer.section import DEFAULT_CONSIDER, DEFAULT_CONSIDER_RELEASE_C, DEFAULT_GATE, DEPLOYED_FORM
+    from bench.observer.tune import TUNING_CRITERIA
     from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS
     from target_sim.observer import OBSERVER_FORMS
 
@@ -123,16 +118,11 @@ def run(args: argparse.Namespace) -> int:
     from bench.drive.files import expand_data_paths, load_datasets
     from bench.model.default import default_artifact_path
     from bench.model.identify import IDENTIFICATION_COOLANTS
-    from bench.model.measures import LAB_MEASUREMENT_KINDS
-    from bench.model.observer import (
-        consider_problem,
-        observer_section,
-        tune_observer,
-        tuning_warnings,
-        with_observer,
-    )
-    from bench.model.observer_eval import validation_check
     from bench.model.pipeline import load_campaign
+    from bench.observer.evaluate import validation_check
+    from bench.observer.measures import LAB_MEASUREMENT_KINDS
+    from bench.observer.section import observer_section, with_observer
+    from bench.observer.tune import consider_problem, tune_observer, tuning_warnings
     from target_sim.artifact import dumps, load_artifact, verify
 
     if args.evaluations < 1:

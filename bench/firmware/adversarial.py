@@ -132,7 +132,7 @@ def frame_scenario(artifact: ModelArtifact, image: ElfImage, run_frames: Callabl
     interrupts' handler cycles too). `run_frames` is the timing's own run of frames
     (`bench.firmware.timing.run_frames`, given by its caller: the timing imports this module, not the reverse)."""
     from target_sim.observer import has_observer
-    from target_sim.observer_node import measurement_width
+    from target_sim.observer.node import measurement_width
 
     width = len(artifact.drive_signals)
     channels = measurement_width(artifact) if has_observer(artifact) else 0

@@ -111,7 +111,7 @@ def check_firmware(artifact: ModelArtifact, elf: str | Path | bytes, drive: np.n
                    measurement: np.ndarray | None = None, progress: Progress | None = None) -> dict:
     """The JSON report of `bench firmware check` (FirmwareError for a bad ELF, BenchError for an emulator fault; one
     sentence each). An observer's model also takes its measurements' raw channels per row (rows, channels) (NaN:
-    no reading in that row; `target_sim.observer_node.raw_channels`), and each step's 1-sigma, innovations and the
+    no reading in that row; `target_sim.observer.node.raw_channels`), and each step's 1-sigma, innovations and the
     periodic checkpoint are compared too. `progress` follows the emulated rows (as a replay's bar)."""
     label = elf if isinstance(elf, bytes) else str(elf)
     model = FirmwareEstimator(artifact, elf)

@@ -479,7 +479,7 @@ static void send_checkpoint(uint16_t step)
 }
 
 #ifdef FW_OBSERVER
-/* observer_node._clamp, then the codec's exact rounding: NaN as the largest value, -inf (and below) as the least */
+/* observer.node._clamp, then the codec's exact rounding: NaN as the largest value, -inf (and below) as the least */
 static int32_t clamped_raw(float value, float low, float high, int64_t inv, int64_t offset_raw, int32_t raw_low,
                            int32_t raw_high)
 {

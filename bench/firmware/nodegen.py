@@ -93,7 +93,7 @@ from target_sim.firmware.node_protocol import (
     tx_capacity,
 )
 from target_sim.observer import Float32Observer
-from target_sim.observer_node import measurement_slots, measurement_width, raw_sources
+from target_sim.observer.node import measurement_slots, measurement_width, raw_sources
 
 DATABASE_NAME = "thermal_bench"
 PACKERS = (f"{DATABASE_NAME}.h", f"{DATABASE_NAME}.c")
@@ -326,7 +326,7 @@ def _receive_macros() -> list[str]:
 
 
 def _clamped_encoding(prefix: str, message: str, signal: str) -> list[str]:
-    """How the node encodes a float32 value of `signal` as the Python node does (`observer_node._clamp`, then the
+    """How the node encodes a float32 value of `signal` as the Python node does (`observer.node._clamp`, then the
     codec's exact rounding): the float32 limits that clamp exactly as the double ones, the raw values of the limits,
     and the exact encoder's scale (1/n) and offset."""
     layout = layout_named(message).signal(signal)
@@ -344,7 +344,7 @@ def _measurement_macros(artifact: ModelArtifact) -> list[str]:
     (NODE_MEASUREMENT_LIST(X): X(NAME, name, slot, reason code of a frame of another Step), in the order they are
     sent), each one's channels into the host's channels (NODE_CHANNELS_<NAME>(ch, m): the VALID values decoded to
     float32, NaN otherwise; `dbc.contract.MEASUREMENT_CHANNELS`), and the observer's raw channels of a row's sample
-    from those and the row's own values (NODE_OBS_RAW(sample, ch), `observer_node.raw_sources`)."""
+    from those and the row's own values (NODE_OBS_RAW(sample, ch), `observer.node.raw_sources`)."""
     messages = measurement_messages(measurement_width(artifact))
     why = {MEASUREMENT_MESSAGE: "MEASUREMENT_STEP", VOLTAGE_MESSAGE: "VOLTAGES_STEP"}
     out = [f"#define NODE_HOST_CHANNELS {len(CHANNEL_NAMES)}u",

@@ -35,11 +35,11 @@ constants of F, the bias column of B, each measurement's row h, 1 - a of each la
 its constant 1-σ) is computed by that very code here and written as exact literals: the same float32 values the
 reference starts from. The temperature sources keep their gains for
 the Jacobian (`obs_gains`, written by temperature_sources only in an observer's C). Every measurement of the
-section, in its order: a sample carries their raw channels after the drive values (FW_OBS_CHANNELS), each kind
-turns its channels into a reading with its own C (`c_reading` of its `target_sim.measurements` module, constants
-`c_scalars`), and the valid ones update one after the other, as the reference's loop does. The firmware refuses
-what it cannot run before this (`target_sim.firmware.node_protocol.firmware_refusal`: another form than UD and the
-steady-state gain).
+section, in its order: a sample carries their raw channels after the drive values (FW_OBS_CHANNELS), each kind turns its
+channels into a reading with its own C (`c_reading` of its `target_sim.observer.measurements` module, constants
+`c_scalars`), and the valid ones update one after the other, as the reference's loop does. The firmware refuses what it
+cannot run before this (`target_sim.firmware.node_protocol.firmware_refusal`: another form than UD and the steady-state
+gain).
 """
 
 from __future__ import annotations
@@ -61,7 +61,8 @@ from bench.firmware.udgen import (
 )
 from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
-from target_sim.observer import Float32Observer, ud_factor
+from target_sim.observer import Float32Observer
+from target_sim.observer.ud import ud_factor
 
 # the line temperature_sources gets in an observer's C: the gains the transition's Jacobian takes
 KEEP_GAINS_C = "".join(f"    obs_gains[{i}] = {gain};\n" for i, gain in enumerate(("g_tm", "g_wm", "g_ma", "g_cy")))

@@ -233,7 +233,7 @@ def direct_step_max(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray,
 
     raw = None
     if has_observer(artifact):
-        from target_sim.observer_node import measurement_width, raw_channels, raw_sources
+        from target_sim.observer.node import measurement_width, raw_channels, raw_sources
 
         host = measurement if measurement is not None else np.full((len(drive), measurement_width(artifact)), np.nan)
         raw = raw_channels(raw_sources(artifact), drive, host)

@@ -1,6 +1,6 @@
 """The UD filter's kernels as straight-line C: the transition F (node coordinates), Thornton's prediction and
 Bierman's update of `target_sim.observer` unrolled over the structure the filter has when it is built
-(`target_sim.ud_structure`).
+(`target_sim.observer.ud_structure`).
 
 Every element that is always zero is left out (no variable, no product), a product by an exact one is not
 written, the constants (A, B, C, the Jacobian's pattern, G, q, h) are literals, and every kept sum has the

@@ -79,7 +79,7 @@ def artifact_content(spec: ModelSpec) -> dict[str, Any]:
     enc = schema.encode_array
     content: dict[str, Any] = {
         "schema": schema.SCHEMA,
-        "schema_version": schema.schema_version_of({}),   # no observer: version 2 (bench.model.observer adds one)
+        "schema_version": schema.schema_version_of({}),   # no observer: version 2 (bench.observer.section adds one)
         "model_kind": spec.kind,
         "discretization": spec.discretization,
         "realization": spec.realization if MODEL_KINDS[spec.kind].realizations else "physical",

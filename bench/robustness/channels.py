@@ -43,7 +43,7 @@ def measurement_columns(artifact: ModelArtifact) -> tuple[str, ...]:
     """The raw columns of the observer's measurements in the order it takes them (none without an observer)."""
     if not has_observer(artifact):
         return ()
-    from bench.model.observer import measurement_columns as columns
+    from bench.observer.measured import measurement_columns as columns
 
     return tuple(columns(artifact))
 
@@ -86,7 +86,7 @@ def observer_description(artifact: ModelArtifact) -> dict | None:
     reads) and the measured nodes (their errors are not estimates); None without an observer."""
     if not has_observer(artifact):
         return None
-    from bench.model.observer import measured_nodes_of
+    from bench.observer.measured import measured_nodes_of
     from target_sim.observer import measurement_entries
 
     section = artifact.content["observer"]

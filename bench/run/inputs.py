@@ -108,7 +108,7 @@ def check_measurement_data(dataset: Dataset, artifact: ModelArtifact) -> None:
 
 def measured_columns(artifact: ModelArtifact) -> dict[str, str]:
     """{host measurement channel: dataset column} the artifact's observer reads over CAN ({} without an observer)."""
-    from target_sim.observer_node import measured_columns as columns
+    from target_sim.observer.node import measured_columns as columns
 
     refuse_over_can(artifact)
     return columns(artifact)
@@ -116,9 +116,9 @@ def measured_columns(artifact: ModelArtifact) -> dict[str, str]:
 
 def refuse_over_can(artifact: ModelArtifact) -> None:
     """UsageError (one sentence, exit 2) for an observer the CAN frames cannot carry (two measurements in one slot,
-    the flux linkage of a model whose rows carry no currents: `target_sim.observer_node.can_refusal`); a command
+    the flux linkage of a model whose rows carry no currents: `target_sim.observer.node.can_refusal`); a command
     calls it before any work."""
-    from target_sim.observer_node import can_refusal
+    from target_sim.observer.node import can_refusal
 
     refusal = can_refusal(artifact)
     if refusal is not None:
@@ -126,12 +126,12 @@ def refuse_over_can(artifact: ModelArtifact) -> None:
 
 
 def measurements_for(dataset: Dataset, artifact: ModelArtifact) -> np.ndarray | None:
-    """What the host sends per row in its measurement frames: (rows, `target_sim.observer_node.measurement_width`
+    """What the host sends per row in its measurement frames: (rows, `target_sim.observer.node.measurement_width`
     columns of `dbc.contract.MEASUREMENT_CHANNELS`), each channel the observer reads from its dataset column and NaN
     (absent) elsewhere; None for a model without an observer (no measurement frames, the bus as before)."""
     from dbc.contract import CHANNEL_NAMES
     from target_sim.observer import has_observer
-    from target_sim.observer_node import measurement_width
+    from target_sim.observer.node import measurement_width
 
     columns = measured_columns(artifact)
     if not has_observer(artifact):

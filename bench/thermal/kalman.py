@@ -138,7 +138,7 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
     return nll, updates
 
 
-# nogil: the observer's tuning runs its files in threads, one per core (bench.model.observer)
+# nogil: the observer's tuning runs its files in threads, one per core (bench.observer.tune)
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1, rel,
            sees, lag_pole, lag_index, bias_index, bias_input, held, released, release, q, r, p0, traj, sigma, keep,

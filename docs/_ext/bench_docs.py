@@ -195,7 +195,7 @@ def render_artifact_schema() -> str:
     lines += ["", "| form | summary |", "|---|---|"]
     for name, form in OBSERVER_FORMS.items():
         lines.append(f"| `{name}` | {_cell(form.summary)} |")
-    from target_sim.measurements import MEASUREMENT_KINDS
+    from target_sim.observer.measurements import MEASUREMENT_KINDS
 
     lines += ["", "Observer section version 2 (`observer.version`: 2; without it, version 1 above: one unlagged "
               "sensor) "

@@ -27,7 +27,7 @@ from dbc.database import contract
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
 from target_sim.observer import has_observer
-from target_sim.observer_node import can_refusal
+from target_sim.observer.node import can_refusal
 
 
 def firmware_loss_models() -> tuple[str, ...]:
@@ -44,7 +44,7 @@ FIRMWARE_OBSERVER_FORMS = ("ud", "steady")
 def firmware_refusal(artifact: ModelArtifact) -> str | None:
     """Why the firmware engine cannot run `artifact` (one sentence), or None when it can: a loss model its generated
     C lacks, or an observer it cannot run: one the CAN frames cannot carry (the Python node's sentence,
-    `target_sim.observer_node.can_refusal`: the flux linkage on a loss-map model, two measurements in one slot) or
+    `target_sim.observer.node.can_refusal`: the flux linkage on a loss-map model, two measurements in one slot) or
     one whose covariance form is not one its generated C has (UD, steady-state gain). Every measurement kind has its
     C (the flux linkage, lagged sensors), several per row, in either form."""
     name = f"model {artifact.model_id:08x}" + (f" ({artifact.path})" if artifact.path is not None else "")

@@ -56,7 +56,7 @@ def firmware_figures(model: Path, out: Path, data: list[str], rows: int) -> dict
 
 def steady_variant(observer: Path) -> Path:
     """The same observer (Q, R, K_ss) deploying the steady-state gain: observer-steady.json beside it."""
-    from bench.model.observer import with_observer
+    from bench.observer.section import with_observer
     from target_sim.artifact import dumps, load_artifact
 
     artifact = load_artifact(observer)

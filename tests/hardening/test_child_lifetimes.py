@@ -1,5 +1,6 @@
-"""Every process the bench or its pytest plugin starts dies with its parent (`dbc.lifeline`), and the plugin stops
-a run the way a user would (SIGTERM first, SIGKILL after a grace period) and removes what it left.
+"""Every process the bench or its pytest plugin starts dies with its parent (`dbc.lifeline`; a run started by
+`bench.run.child`, as campaigns and the plugin start theirs, with its target), and the plugin stops a run the way a
+user would (SIGTERM first, SIGKILL after a grace period) and removes what it left.
 
 Each case starts real processes: a pytest session running the `thermal_bench` fixture on a real-time run (300 rows
 at 5 Hz: a minute, far longer than the cases wait), signalled in the middle of it once the run's partial log
@@ -174,6 +175,49 @@ def test_a_bench_that_ignores_sigterm_is_killed_with_its_group_after_the_grace_p
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+TIED_BENCH_PARENT = """
+import sys, time
+from bench.run.child import bench_command, start_bench
+bench = start_bench(bench_command(["run", "--data", sys.argv[1], "--mode", "realtime", "--log", sys.argv[2],
+                                   "--no-report", "--json", "--quiet", "-i", "udp_multicast"]))
+print(bench.pid, flush=True)
+time.sleep(300)
+"""
+
+
+def test_a_bench_started_by_the_shared_helper_leaves_nothing_when_its_parent_is_killed(tmp_path, minute_data):
+    """`bench.run.child.start_bench` (the campaign's and the plugin's way to start a run) in a parent that is then
+    SIGKILLed while the run logs in real time: the bench leads its own process group, and waits up to 30 s for the
+    bench and its target to have ended and for its partial log and scratch directory to be gone."""
+    case = tmp_path / "case"
+    (case / "tmp").mkdir(parents=True)
+    env = subprocess_env(can_settings=False, TMPDIR=str(case / "tmp"), OPENBLAS_NUM_THREADS="1")
+    parent = subprocess.Popen([sys.executable, "-c", TIED_BENCH_PARENT, str(minute_data), str(case / "bench.blf")],
+                              cwd=case, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True,
+                              start_new_session=True)
+    try:
+        bench = int(parent.stdout.readline())
+        assert os.getpgid(bench) == bench != os.getpgid(parent.pid)
+
+        def logging() -> bool:
+            assert parent.poll() is None and alive(bench), "the bench ended before its parent was killed"
+            procs = processes_of(str(case), exclude=(parent.pid,))
+            return any("target_sim" in argv for argv in procs.values()) and any(case.glob("*.partial.*"))
+
+        assert wait_for(logging, START_TIMEOUT_S), "the run did not start logging"
+        procs = processes_of(str(case), exclude=(parent.pid,))
+        assert bench in procs and len(procs) >= 2, procs              # the bench and its target
+        parent.kill()
+        parent.wait()
+        assert wait_for(lambda: not any(alive(pid) for pid in procs), GONE_TIMEOUT_S), \
+            {pid: argv for pid, argv in procs.items() if alive(pid)}
+        assert wait_for(lambda: not [*case.glob("*.partial.*"), *(case / "tmp").glob("bench-*")], GONE_TIMEOUT_S)
+        assert processes_of(str(case)) == {}
+    finally:
+        end_group(parent)
+        kill_all(case)
 
 
 PARENT = """

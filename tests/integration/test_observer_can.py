@@ -172,7 +172,7 @@ def test_bench_run_with_the_flux_linkage_and_the_winding_resistance_is_clean(eng
 
 def test_data_without_the_measured_column_is_refused_before_anything_starts(observer_artifact, tmp_path, capsys):
     """An observer of a stator NTC (ntc_C, an optional column) on data without one."""
-    from bench.model.observer import with_observer
+    from bench.observer.section import with_observer
     from target_sim.artifact import dumps
 
     artifact = load_artifact(observer_artifact)
@@ -194,9 +194,9 @@ def test_data_without_the_measured_column_is_refused_before_anything_starts(obse
 def _uncarried(artifact, tmp_path, what: str):
     """The observer artifact with a section version 2 the Measurements frame cannot carry: `flux` one flux-linkage
     measurement (four raw channels), `two` the lagged sensor twice; (its path, its model)."""
-    from bench.model.observer import with_observer
+    from bench.observer.section import with_observer
     from target_sim.artifact import dumps, encode_array
-    from target_sim.measurements.flux_linkage import COLUMNS, PARAMETERS
+    from target_sim.observer.measurements.flux_linkage import COLUMNS, PARAMETERS
 
     section = artifact.content["observer"]
     sensor = section["measurements"][0]
@@ -223,7 +223,7 @@ def test_an_observer_the_frames_cannot_carry_is_refused_before_any_work(what, ob
     the row's voltages (DriveVoltages) and currents (DriveCurrents): a flux linkage on a loss-map model (its rows
     carry no currents) or two sensors in one slot is refused by `bench run`, `bench host` and the target in one
     sentence, exit 2, with nothing written, not run wrongly."""
-    from target_sim.observer_node import can_refusal
+    from target_sim.observer.node import can_refusal
 
     artifact = load_artifact(observer_artifact)
     assert artifact.content["observer"]["version"] == 2 and can_refusal(artifact) is None

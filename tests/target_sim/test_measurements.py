@@ -1,5 +1,5 @@
-"""The observer's measurement kinds (target_sim.measurements) and their calibrations (bench.model.measures): each
-kind's float32 reading, the flux-linkage calibration recovering ψ_0, α_B, L_d and R_s, and the winding-resistance
+"""The observer's measurement kinds (target_sim.observer.measurements) and their calibrations (bench.observer.measures):
+each kind's float32 reading, the flux-linkage calibration recovering ψ_0, α_B, L_d and R_s, and the winding-resistance
 calibration recovering R_s0 and L_q from synthetic voltages."""
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from bench.errors import BenchError, UsageError
-from bench.model.measures import LAB_MEASUREMENT_KINDS, kind_of
-from bench.model.measures.flux_linkage import FluxLinkage, calibrate_flux
-from bench.model.measures.lagged_sensor import Sensor
-from bench.model.measures.winding_resistance import WindingResistance, calibrate_resistance
-from target_sim.measurements import MEASUREMENT_KINDS
-from target_sim.measurements.flux_linkage import RAD_S_PER_RPM
+from bench.observer.measures import LAB_MEASUREMENT_KINDS, kind_of
+from bench.observer.measures.flux_linkage import FluxLinkage, calibrate_flux
+from bench.observer.measures.lagged_sensor import Sensor
+from bench.observer.measures.winding_resistance import WindingResistance, calibrate_resistance
+from target_sim.observer.measurements import MEASUREMENT_KINDS
+from target_sim.observer.measurements.flux_linkage import RAD_S_PER_RPM
 
 F32 = np.float32
 PSI_0, ALPHA_B, L_D, L_Q, R_S, ALPHA_CU, POLES = 0.065, -0.0011, 1.5e-4, 3.5e-4, 0.0158, 0.0039, 4

@@ -23,7 +23,7 @@ from host.replay import encode_row, measurement_signals
 from target_sim.artifact import ModelArtifact, load_artifact
 from target_sim.node import TargetNode
 from target_sim.observer import run_observer_offline
-from target_sim.observer_node import (
+from target_sim.observer.node import (
     NodeObserver,
     can_refusal,
     measured_columns,
@@ -214,7 +214,7 @@ def test_the_checkpoint_is_the_filters_state_in_every_form(observed, rows):
 
 def test_a_flux_observer_of_a_loss_map_model_is_refused_in_one_sentence(observed, artifacts, tmp_path):
     """The flux linkage needs the row's currents, which a loss-map model's rows do not carry."""
-    from bench.model.observer import with_observer
+    from bench.observer.section import with_observer
 
     plain = load_artifact(artifacts["hammerstein"])
     content = with_observer(plain, observed.content["observer"])

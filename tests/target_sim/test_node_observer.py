@@ -26,7 +26,7 @@ from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
 from target_sim.node import TargetNode
 from target_sim.observer import run_observer_offline
-from target_sim.observer_node import measurement_slots
+from target_sim.observer.node import measurement_slots
 
 from helpers import SESSION_INITIAL, session_drive, session_frames
 

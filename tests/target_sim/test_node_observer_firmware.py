@@ -30,7 +30,7 @@ from target_sim.firmware.node_protocol import firmware_refusal
 from target_sim.model import run_offline
 from target_sim.node import TargetNode
 from target_sim.observer import Float32Observer
-from target_sim.observer_node import measurement_slots
+from target_sim.observer.node import measurement_slots
 
 from .test_node_firmware import comparable
 from helpers import SESSION_INITIAL, session_drive
@@ -116,7 +116,7 @@ def _flux_case(flux_observer_artifact) -> Case:
 
 def _steady(path, tmp_path_factory):
     """The same observer in the steady-state-gain form (the K_ss rows the artifact stores)."""
-    from bench.model.observer import with_observer
+    from bench.observer.section import with_observer
 
     artifact = load_artifact(path)
     out = tmp_path_factory.mktemp("observer-steady") / "steady.json"
@@ -188,7 +188,7 @@ def test_the_steady_state_gain_form_is_cheaper(steady_artifact, lagged_artifact,
 
 def _bit_exact_over_a_run(case, firmware_elf) -> dict:
     from bench.firmware.check import check_firmware
-    from target_sim.observer_node import raw_channels, raw_sources
+    from target_sim.observer.node import raw_channels, raw_sources
 
     measured = case.measured.copy()
     measured[50, 0] = np.nan            # the check feeds the channels as the target decodes them: INVALID is NaN
@@ -309,9 +309,9 @@ def test_the_firmware_node_answers_the_python_node_byte_for_byte(case, with_filt
 
 def _flux(artifact_path, tmp_path):
     """The observer artifact whose one measurement is the flux linkage (four raw channels); (its path, its model)."""
-    from bench.model.observer import with_observer
+    from bench.observer.section import with_observer
     from target_sim.artifact import encode_array
-    from target_sim.measurements.flux_linkage import COLUMNS, PARAMETERS
+    from target_sim.observer.measurements.flux_linkage import COLUMNS, PARAMETERS
 
     artifact = load_artifact(artifact_path)
     section = artifact.content["observer"]
@@ -326,7 +326,7 @@ def _flux(artifact_path, tmp_path):
 
 def test_a_flux_observer_is_refused_in_one_sentence_before_any_work(observer_artifact, small_dataset, tmp_path,
                                                                       capsys):
-    from target_sim.observer_node import can_refusal
+    from target_sim.observer.node import can_refusal
 
     path, model = _flux(observer_artifact, tmp_path)
     sentence = can_refusal(model)
@@ -343,7 +343,7 @@ def test_a_flux_observer_is_refused_in_one_sentence_before_any_work(observer_art
 
 
 def test_an_observer_in_another_form_is_refused_by_the_firmware(observer_artifact, tmp_path):
-    from bench.model.observer import with_observer
+    from bench.observer.section import with_observer
 
     artifact = load_artifact(observer_artifact)
     path = tmp_path / "joseph.json"
@@ -403,7 +403,7 @@ def test_a_long_run_with_the_ntc_and_the_flux_linkage_is_bit_exact(flux_observer
     from bench.firmware.check import check_firmware
     from bench.model.runs import initial_temperatures
     from bench.run.inputs import drive_for, measurements_for
-    from target_sim.observer_node import raw_channels, raw_sources
+    from target_sim.observer.node import raw_channels, raw_sources
 
     from helpers import flux_columns, write_synthetic_dataset
 

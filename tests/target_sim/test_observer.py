@@ -13,19 +13,10 @@ import pytest
 from bench.drive.dataset import load_dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.default import default_artifact_path
-from bench.model.observer import (
-    FilterData,
-    FilterModel,
-    Measurement,
-    ObserverFit,
-    _run,
-    filter_data,
-    initial_covariance,
-    observer_section,
-    reference_run,
-    tune_observer,
-    with_observer,
-)
+from bench.observer.measures.lagged_sensor import Sensor
+from bench.observer.reference import FilterData, FilterModel, filter_data, initial_covariance, reference_run, run_filter
+from bench.observer.section import observer_section, with_observer
+from bench.observer.tune import ObserverFit, tune_observer
 from bench.thermal.estimator import run_batch
 from bench.thermal.kalman import augmented_transition
 from target_sim.artifact import (
@@ -37,15 +28,9 @@ from target_sim.artifact import (
     seal,
     verify,
 )
-from target_sim.observer import (
-    OBSERVER_FORMS,
-    BiermanThornton,
-    Float32Observer,
-    Joseph,
-    ObserverError,
-    run_observer_offline,
-    ud_factor,
-)
+from target_sim.observer import OBSERVER_FORMS, Float32Observer, ObserverError, run_observer_offline
+from target_sim.observer.forms import Joseph
+from target_sim.observer.ud import BiermanThornton, ud_factor
 
 
 def random_spd(rng, n=4, scale=1.0):
@@ -62,7 +47,7 @@ def packaged():
 def observed(packaged, small_dataset):
     """The packaged hammerstein model with a hand-set observer (no tuning) on the winding column."""
     dataset = load_dataset(small_dataset)
-    fit = ObserverFit((Measurement(),), np.array([1e-4, 1e-4, 1e-4, 1e-6]), np.array([0.05]), None, "magnet", 0.0,
+    fit = ObserverFit((Sensor(),), np.array([1e-4, 1e-4, 1e-4, 1e-6]), np.array([0.05]), None, "magnet", 0.0,
                       0.0, 0, 0, [])
     return verify(with_observer(packaged, observer_section(packaged, fit, [dataset]))), dataset
 
@@ -154,7 +139,7 @@ def test_the_filter_recovers_a_wrong_magnet_start_on_data_its_model_explains(obs
     within 2 K after five minutes; the open loop's is still more than 10 K off."""
     artifact, _ = observed
     model = FilterModel.of(artifact)
-    data = filter_data(artifact, ten_minutes, (Measurement(),))
+    data = filter_data(artifact, ten_minutes, (Sensor(),))
     steps = len(data.run.step_time_s)
     _, truth = run_batch(model.a[None], model.b[None], model.c[None], model.theta[None], model.sigmoid[None],
                          data.run.inputs, data.run.initial, keep_trajectories=True)
@@ -164,7 +149,7 @@ def test_the_filter_recovers_a_wrong_magnet_start_on_data_its_model_explains(obs
     start[3] += 30.0
     shifted = FilterData(replace(data.run, initial=start), replace(data.readings, z0=z), data.measurements)
     q = model.to_state([1e-6] * 4)[None]
-    estimate = _run(model, shifted, q, [[0.01]], initial_covariance(model), keep=True).estimates[0]
+    estimate = run_filter(model, shifted, q, [[0.01]], initial_covariance(model), keep=True).estimates[0]
     _, open_loop = run_batch(model.a[None], model.b[None], model.c[None], model.theta[None], model.sigmoid[None],
                              data.run.inputs, start, keep_trajectories=True)
     error, open_error = estimate[:, 3] - truth[:, 3], open_loop[0][:, 3] - truth[:, 3]
@@ -175,7 +160,7 @@ def test_the_filter_recovers_a_wrong_magnet_start_on_data_its_model_explains(obs
 
 def test_tuning_runs_and_writes_a_version_3_artifact(packaged, small_dataset):
     dataset = load_dataset(small_dataset)
-    fit = tune_observer(packaged, [dataset], Measurement(), "likelihood", max_evaluations=12)
+    fit = tune_observer(packaged, [dataset], Sensor(), "likelihood", max_evaluations=12)
     assert fit.evaluations <= 13 and fit.r_reference_C2 is not None and fit.r_C2 > 0
     content = with_observer(packaged, observer_section(packaged, fit, [dataset], "joseph"))
     assert content["schema_version"] == 3 and content["observer"]["form"] == "joseph"
@@ -255,7 +240,7 @@ def augmented(packaged, small_dataset):
     """The packaged model with a lagged, offset end-winding sensor (τ 25 s, gradient -0.1, +0.5 K) on the
     winding column and a winding heat-bias state: 6 states."""
     dataset = load_dataset(small_dataset)
-    fit = ObserverFit((Measurement("winding", "winding_C", 0.5, 25.0, -0.1),),
+    fit = ObserverFit((Sensor("winding", "winding_C", 0.5, 25.0, -0.1),),
                       np.array([1e-4, 1e-4, 1e-4, 1e-6, 1e-4, 10.0]), np.array([0.05]), None, "magnet", 0.0, 0.0, 0,
                       0, [], True)
     return verify(with_observer(packaged, observer_section(packaged, fit, [dataset]))), dataset
@@ -290,11 +275,11 @@ def test_a_lagged_sensor_recovers_a_wrong_magnet_start_faster_than_the_open_loop
     Started 30 K too warm and too cold, the filter that carries the lag (no bias state: a heat bias would explain
     the winding's start as well as the magnet does) brings the magnet within 2 K in about 2.5 minutes; the open
     loop never does in ten."""
-    from bench.model.observer_eval import recovery_time_s
+    from bench.observer.evaluate import recovery_time_s
 
     artifact, _ = augmented
     model = FilterModel.of(artifact)
-    data = filter_data(artifact, ten_minutes, (Measurement("winding", "winding_C", 0.5, 25.0, -0.1),))
+    data = filter_data(artifact, ten_minutes, (Sensor("winding", "winding_C", 0.5, 25.0, -0.1),))
     steps = len(data.run.step_time_s)
     _, truth = run_batch(model.a[None], model.b[None], model.c[None], model.theta[None], model.sigmoid[None],
                          data.run.inputs, data.run.initial, keep_trajectories=True)
@@ -313,7 +298,7 @@ def test_a_lagged_sensor_recovers_a_wrong_magnet_start_faster_than_the_open_loop
         start[3] += offset
         shifted = FilterData(replace(data.run, initial=start), replace(data.readings, z0=z[:, None]),
                              data.measurements)
-        estimate = _run(model, shifted, q[None], [[0.01]], initial_covariance(model, data.readings),
+        estimate = run_filter(model, shifted, q[None], [[0.01]], initial_covariance(model, data.readings),
                         keep=True).estimates[0]
         _, open_loop = run_batch(model.a[None], model.b[None], model.c[None], model.theta[None],
                                  model.sigmoid[None], data.run.inputs, start, keep_trajectories=True)
@@ -343,7 +328,7 @@ def test_a_version_1_observer_section_still_runs_as_before(observed):
 def magnet_augmented(packaged, small_dataset):
     """The augmented observer of `augmented` with the magnet heat-bias state instead of the winding's: 6 states."""
     dataset = load_dataset(small_dataset)
-    fit = ObserverFit((Measurement("winding", "winding_C", 0.5, 25.0, -0.1),),
+    fit = ObserverFit((Sensor("winding", "winding_C", 0.5, 25.0, -0.1),),
                       np.array([1e-4, 1e-4, 1e-4, 1e-6, 1e-4, 1.0]), np.array([0.05]), None, "magnet", 0.0, 0.0, 0,
                       0, [], "magnet-heat")
     return verify(with_observer(packaged, observer_section(packaged, fit, [dataset]))), dataset
@@ -393,7 +378,7 @@ def _magnet_heat_truth(model: FilterModel, artifact, path, rows: int, scale: flo
 
     columns = synthetic_columns(rows, seed=11, speed_offset=4000.0, torque_max=150.0)
     data = filter_data(artifact, load_dataset(write_synthetic_dataset(path.with_suffix(".model.csv"), columns, "")),
-                       (Measurement(),))
+                       (Sensor(),))
     b = model.b.copy()
     b[:, 3] *= scale
     _, truth = run_batch(model.a[None], b[None], model.c[None], model.theta[None], model.sigmoid[None],
@@ -415,7 +400,7 @@ def test_a_magnet_bias_absorbs_an_underrated_magnet_loss_a_winding_bias_cannot(p
     dataset = _magnet_heat_truth(model, packaged, tmp_path / "magnet-heat.csv", 4500, 1.3)
     mse = {}
     for bias in ("winding-heat", "magnet-heat"):
-        fit = tune_observer(packaged, [dataset], Measurement(), "magnet", 150, bias=bias)
+        fit = tune_observer(packaged, [dataset], Sensor(), "magnet", 150, bias=bias)
         artifact = verify(with_observer(packaged, observer_section(packaged, fit, [dataset])))
         data, reference = reference_run(artifact, dataset)
         mse[bias] = float(np.mean((reference.estimates[0][:, 3] - data.run.ref_pm) ** 2))

@@ -14,20 +14,15 @@ import pytest
 from bench.drive.dataset import load_dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.default import default_artifact_path
-from bench.model.observer import (
-    DEFAULT_CONSIDER,
-    Measurement,
-    ObserverFit,
-    consider_problem,
-    observer_section,
-    reference_run,
-    with_observer,
-)
+from bench.observer.measures.lagged_sensor import Sensor
+from bench.observer.reference import reference_run
+from bench.observer.section import DEFAULT_CONSIDER, observer_section, with_observer
+from bench.observer.tune import ObserverFit, consider_problem
 from bench.thermal.kalman import consider_projections, steady_state
 from target_sim.artifact import CONSIDER_KINDS, ArtifactError, consider_held, load_artifact, seal, verify
 from target_sim.observer import Float32Observer, run_observer_offline
 
-NTC = Measurement("winding", "winding_C", 0.5, 25.0, -0.1)   # lagged end-winding mix: reads no magnet
+NTC = Sensor("winding", "winding_C", 0.5, 25.0, -0.1)   # lagged end-winding mix: reads no magnet
 
 
 @pytest.fixture(scope="module")

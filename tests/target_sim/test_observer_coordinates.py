@@ -1,4 +1,4 @@
-"""The observer's node coordinates (target_sim.observer_coordinates): the fixed-order float64 inverse and the
+"""The observer's node coordinates (target_sim.observer.coordinates): the fixed-order float64 inverse and the
 transforms the filter's constants come from."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from target_sim.observer_coordinates import NodeCoordinates, inverse
+from target_sim.observer.coordinates import NodeCoordinates, inverse
 
 
 def test_the_inverse_is_the_inverse_and_the_same_bits_every_time():

@@ -15,17 +15,14 @@ import pytest
 from bench.drive.dataset import load_dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.default import default_artifact_path
-from bench.model.observer import (
-    Measurement,
-    ObserverFit,
-    filter_data,
-    observer_section,
-    reference_run,
-    with_observer,
-)
+from bench.observer.measures.lagged_sensor import Sensor
+from bench.observer.reference import filter_data, reference_run
+from bench.observer.section import observer_section, with_observer
+from bench.observer.tune import ObserverFit
 from target_sim.artifact import ArtifactError, load_artifact, observer_gate, seal, verify
 from target_sim.model import run_offline
-from target_sim.observer import OBSERVER_FORMS, BiermanThornton, Float32Observer, run_observer_offline
+from target_sim.observer import OBSERVER_FORMS, Float32Observer, run_observer_offline
+from target_sim.observer.ud import BiermanThornton
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from helpers import synthetic_columns, write_synthetic_dataset  # noqa: E402
@@ -61,11 +58,11 @@ def explained(tmp_path_factory):
     cols["winding_C"] = cols["winding_C"].copy()
     cols["winding_C"][LIE] += 20.0
     lying = load_dataset(write_synthetic_dataset(folder / "lying.csv", cols, "gate: the sensor lies"))
-    fit = ObserverFit((Measurement(),), np.array([1e-4, 1e-4, 1e-4, 1e-6]), np.array([0.05]), None, "magnet", 0.0,
+    fit = ObserverFit((Sensor(),), np.array([1e-4, 1e-4, 1e-4, 1e-6]), np.array([0.05]), None, "magnet", 0.0,
                       0.0, 0, 0, [])
     content = with_observer(packaged, observer_section(packaged, fit, [dataset]))
     artifact = verify(content)
-    initial = filter_data(artifact, dataset, (Measurement(),)).run.initial
+    initial = filter_data(artifact, dataset, (Sensor(),)).run.initial
     return (content, artifact_drive(artifact, dataset), dataset.column("winding_C"), dataset.column("pm_C"), initial,
             lying)
 

@@ -16,24 +16,16 @@ import pytest
 from bench.drive.dataset import load_dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.default import default_artifact_path
-from bench.model.observer import (
-    FilterData,
-    FilterModel,
-    Measurement,
-    ObserverFit,
-    _run,
-    filter_data,
-    initial_covariance,
-    observer_section,
-    reference_run,
-    with_observer,
-)
-from bench.model.observer_eval import recovery_time_s
+from bench.observer.evaluate import recovery_time_s
+from bench.observer.measures.lagged_sensor import Sensor
+from bench.observer.reference import FilterData, FilterModel, filter_data, initial_covariance, reference_run, run_filter
+from bench.observer.section import observer_section, with_observer
+from bench.observer.tune import ObserverFit
 from bench.thermal.estimator import run_batch
 from target_sim.artifact import ArtifactError, dumps, encode_array, load_artifact, seal, verify
 from target_sim.observer import Float32Observer, run_observer_offline
 
-NTC = Measurement("winding", "winding_C", 0.5, 25.0, -0.1)   # lagged end-winding mix: reads no magnet, no tooth
+NTC = Sensor("winding", "winding_C", 0.5, 25.0, -0.1)   # lagged end-winding mix: reads no magnet, no tooth
 RELEASE_C2 = 4.0        # the magnet held once its 1-sigma is below 2 K
 
 
@@ -87,7 +79,7 @@ def test_a_released_magnet_recovers_from_a_wrong_start_the_held_one_does_not(pac
         for release in (None, RELEASE_C2):
             shifted = FilterData(replace(data.run, initial=start),
                                  replace(data.readings, z0=z[:, None], release_C2=release), data.measurements)
-            runs = _run(model, shifted, q[None], [[0.01]], p0, keep=True)
+            runs = run_filter(model, shifted, q[None], [[0.01]], p0, keep=True)
             times[release] = recovery_time_s(runs.estimates[0][:, 3] - truth[:, 3], data.run.step_time_s)
             if release is not None:
                 held_from = int(np.argmax(runs.sigmas[0][:, 3] ** 2 <= release))

@@ -1,13 +1,14 @@
-"""The UD filter over its structure (target_sim/ud_structure.py): skipping structural zeros with -0 as the additive
-identity gives the C's sums bit for bit, and the schedules (fill-in of the Gram-Schmidt rows, Bierman's skipped
+"""The UD filter over its structure (target_sim/observer/ud_structure.py): skipping structural zeros with -0 as the
+additive identity gives the C's sums bit for bit, and the schedules (fill-in of the Gram-Schmidt rows, Bierman's skipped
 columns) compute the same filter as the dense Joseph form."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from target_sim.observer import BiermanThornton, Joseph
-from target_sim.ud_structure import (
+from target_sim.observer.forms import Joseph
+from target_sim.observer.ud import BiermanThornton
+from target_sim.observer.ud_structure import (
     NEG_ZERO,
     bierman_schedule,
     gram_schmidt_schedule,

@@ -11,8 +11,8 @@ import pytest
 
 from bench.drive.dataset import load_dataset
 from bench.model.artifact_eval import artifact_drive
-from bench.model.observer_eval import measurement_matrix
 from bench.model.runs import initial_temperatures
+from bench.observer.evaluate import measurement_matrix
 from bench.robustness.channels import input_channels, lane_columns
 from bench.robustness.kinds import PERTURBATIONS, Lane
 from bench.robustness.lanes import nominal_steps, run_lanes, run_observer_lanes

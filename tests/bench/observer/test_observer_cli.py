@@ -154,7 +154,7 @@ def test_a_file_without_the_sensor_column_names_the_column_to_map_onto(small_dat
 
 
 def test_the_validation_check_warns_where_the_observer_is_worse_than_the_open_loop():
-    from bench.model.observer_eval import ValidationCheck
+    from bench.observer.evaluate import ValidationCheck
 
     fine = ValidationCheck(("v.csv",), {"winding": 4.0, "pm": 2.0}, {"winding": 1.0, "pm": 2.0})
     assert fine.worse == [] and fine.warning() is None
@@ -170,7 +170,7 @@ def test_bench_observer_checks_itself_on_validation_files(small_dataset, tmp_pat
     0.28 °C, and nothing warned. With --validate it measures itself against the open loop on files it was not tuned
     on, says the figures and warns where it is worse."""
     from bench.drive.dataset import load_dataset
-    from bench.model.observer_eval import validation_check
+    from bench.observer.evaluate import validation_check
 
     from helpers import synthetic_columns, write_synthetic_dataset
 
@@ -187,7 +187,7 @@ def test_bench_observer_checks_itself_on_validation_files(small_dataset, tmp_pat
 
 
 def test_bench_observer_writes_its_default_gate_and_none_writes_none(observer_artifact, small_dataset, tmp_path):
-    from bench.model.observer import DEFAULT_GATE
+    from bench.observer.section import DEFAULT_GATE
 
     gate = load_artifact(observer_artifact).content["observer"]["gate"]
     assert gate == {"sigma": DEFAULT_GATE[0], "flag_after": DEFAULT_GATE[1]} == {"sigma": 3.0, "flag_after": 10}

@@ -9,15 +9,8 @@ sensor: the artifact's `observer.node`, lag ignored) then corrects the state: in
 x <- x + K ν, and the corrected estimate feeds the next step's losses, sigmoid and sources. A row without a
 measurement (NaN) predicts only.
 
-The covariance is kept in one of four forms (`OBSERVER_FORMS`), equal in exact arithmetic, not in float32:
-- `conventional`: P⁻ = F P Fᵀ + Q, K = P⁻hᵀ/(h P⁻ hᵀ + R), P = P⁻ - K (h P⁻), no symmetrization;
-- `joseph`: the same prediction, P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ;
-- `ud`: P = U D Uᵀ (U unit upper triangular), Thornton's modified weighted Gram-Schmidt prediction over
-  [F U, G] with diag(D, q_G) (Q = G diag(q_G) Gᵀ: Q's own UD factors), Bierman's scalar measurement update; P0
-  and Q factored once at start; every operation over the structure known when the filter is built
-  (`target_sim.ud_structure`: structural zeros skipped, U's ones not multiplied);
-- `steady`: the steady-state gain K_ss of the artifact (the lab solves the Riccati equation at a nominal operating
-  point), no covariance at all: x <- x + K_ss ν, a few multiply-adds.
+The covariance is kept in one of four forms (`OBSERVER_FORMS` of `target_sim.observer.forms`: conventional, joseph,
+ud, steady).
 
 Consider states (the section's `consider`, `target_sim.artifact.CONSIDER_KINDS`): a measurement that does not read
 the kind's node holds it (and the kind's bias state): the gain's held rows are -0, K = K_opt - δ, and each form
@@ -36,7 +29,7 @@ next reading after `flag_after` rejections in a row.
 
 Every operation has a fixed order and a float32 rounding (`fmath.matmul`, `fmath.dot`, elementwise ufuncs), so a C
 version can repeat it bit for bit. The artifact stores Q, P0, K_ss and P_ss in the realization's coordinates; the
-filter runs in node coordinates (`target_sim.observer_coordinates`: the node temperatures y = C x and the extra
+filter runs in node coordinates (`target_sim.observer.coordinates`: the node temperatures y = C x and the extra
 states), where Q is diag(q_nodes), a measurement's row h is what its sensor sees and F needs no product by C. Its
 gain corrects the node temperatures (the next measurement of the step reads them), and after the step's last update
 x moves by C⁻¹ of the summed correction and y = C x again. `covariance()` is back in the state coordinates.
@@ -45,384 +38,28 @@ x moves by C⁻¹ of the summed correction and y = C x again. `covariance()` is 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from target_sim.artifact import (
-    BIAS_KINDS,
     OUTPUTS,
     ModelArtifact,
     consider_held,
     consider_release,
     consider_released,
-    encode_array,
     observer_gate,
-    observer_state_count,
-    section_version,
 )
-from target_sim.errors import TargetError
-from target_sim.fmath import dot, matmul, matvec
+from target_sim.fmath import dot, matvec
 from target_sim.kinds import MODEL_KINDS
-from target_sim.measurements import MEASUREMENT_KINDS
-from target_sim.model import F32, Float32Estimator, InputAccumulator
+from target_sim.model import F32, Float32Estimator
 from target_sim.modelkinds.lti_lptn import SOURCE_JACOBIAN_NONZERO
-from target_sim.observer_coordinates import NodeCoordinates
-from target_sim.registry import Registry
-from target_sim.ud_structure import (
-    NEG_ZERO,
-    BiermanSchedule,
-    Pivot,
-    RankOneStep,
-    bierman_schedule,
-    gram_schmidt_schedule,
-    masked_dot,
-    masked_matmul,
-    pattern_product,
-    rank_one_schedule,
-    structural,
-    upper_unit,
-)
-
-
-class ObserverError(TargetError):
-    """An observer that cannot run on this artifact; the message says why."""
-
-
-class Conventional:
-    """P⁻ = F P Fᵀ + Q; P = P⁻ - K (h P⁻)."""
-
-    def __init__(self, p0: np.ndarray, q: np.ndarray, f):
-        self.f, self.q = f, q
-        self.p = p0.copy()
-
-    def predict(self, transition: np.ndarray) -> None:
-        self.p = matmul(matmul(transition, self.p), transition.T) + self.q
-
-    def _gain(self, h: np.ndarray, r) -> tuple[np.ndarray, np.ndarray, np.floating]:
-        ph = matvec(self.p, h)                 # P⁻ hᵀ
-        s = dot(h, ph) + r
-        return ph / s, ph, s
-
-    def innovation_variance(self, h: np.ndarray, r, index: int = 0):
-        """S = h P⁻ hᵀ + R, as the update computes it (the gate's denominator, the same bits)."""
-        return self._gain(h, r)[2]
-
-    def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
-        """The optimal update; with `held` (consider states) P += s δ δᵀ after it, δ the optimal gain's held rows
-        (the covariance of the gain with those rows zero), and that gain is returned."""
-        k, _, s = self._gain(h, r)
-        hp = matvec(self.p.T, h)               # h P⁻ (a row; equal to (P⁻hᵀ)ᵀ only while P⁻ is symmetric)
-        self.p = self.p - k[:, None] * hp[None, :]
-        if held is not None:
-            rows = np.flatnonzero(held)
-            delta = k[rows]
-            self.p[np.ix_(rows, rows)] = self.p[np.ix_(rows, rows)] + (s * delta)[:, None] * delta[None, :]
-            k = held_gain(k, held)
-        return k
-
-    def covariance(self) -> np.ndarray:
-        return self.p
-
-    def variance(self, row: np.ndarray):
-        """row·(P row) in a fixed order: the variance of a linear combination of the states."""
-        return dot(row, matvec(self.p, row))
-
-
-class Joseph(Conventional):
-    """P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ."""
-
-    def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
-        """Joseph's form holds for any gain: with `held` (consider states) the optimal gain's held rows zero."""
-        k, _, _ = self._gain(h, r)
-        if held is not None:
-            k = held_gain(k, held)
-        f = self.f
-        i_kh = np.eye(len(k), dtype=f) - k[:, None] * h[None, :]
-        self.p = matmul(matmul(i_kh, self.p), i_kh.T) + (r * k)[:, None] * k[None, :]
-        return k
-
-
-def held_gain(gain: np.ndarray, held: np.ndarray) -> np.ndarray:
-    """The gain with the rows of the held (consider) states a structural zero (-0: x + (-0)·ν is x)."""
-    return structural(gain, ~held)
-
-
-def ud_factor(m: np.ndarray, f) -> tuple[np.ndarray, np.ndarray]:
-    """(U, d) with M = U diag(d) Uᵀ, U unit upper triangular, for a symmetric positive definite M, column by column
-    from the last (C: fw_ud_factor)."""
-    n = m.shape[0]
-    u = np.eye(n, dtype=f)
-    d = np.zeros(n, dtype=f)
-    for j in range(n - 1, -1, -1):
-        s = m[j, j]
-        for k in range(j + 1, n):
-            s = s - (d[k] * u[j, k]) * u[j, k]
-        d[j] = s
-        if not s > 0:           # not positive definite in this precision: the column carries nothing
-            d[j] = f(0.0)
-            continue
-        for i in range(j - 1, -1, -1):
-            s = m[i, j]
-            for k in range(j + 1, n):
-                s = s - (d[k] * u[i, k]) * u[j, k]
-            u[i, j] = s / d[j]
-    return u, d
-
-
-class BiermanThornton:
-    """P = U diag(d) Uᵀ: Thornton's prediction, Bierman's update. Q enters as G diag(q) Gᵀ (Thornton's method
-    takes any G; `Float32Observer` gives Q's own UD factors, unit upper triangular).
-
-    Both run over the structure known when the filter is built (`target_sim.ud_structure`): F's structural
-    nonzeros (given with F), U's unit upper triangle, G's zeros, the columns of G whose q is 0 (dropped), h's
-    zeros; each schedule is computed once per pattern. Skipped products are left out of their sums; the order of
-    the rest is fixed, so the C repeats it bit for bit."""
-
-    def __init__(self, p0: np.ndarray, g: np.ndarray, q_nodes: np.ndarray, f):
-        self.f = f
-        self.u, self.d = ud_factor(p0, f)
-        n = len(self.d)
-        self.upper = upper_unit(n)
-        kept = np.flatnonzero(np.asarray(q_nodes) != 0)      # a column of weight 0 adds nothing to any product
-        g = np.asarray(g, dtype=f)[:, kept]
-        self.g_nonzero = g != 0
-        self.g = structural(g, self.g_nonzero)
-        self.q_kept = np.asarray(q_nodes, dtype=f)[kept]
-        self.g_columns = kept
-        self._pivots: dict[bytes, list] = {}
-        self._updates: dict[bytes, tuple[np.ndarray, BiermanSchedule]] = {}
-
-    def schedule(self, f_nonzero: np.ndarray) -> tuple[Pivot, ...]:
-        """The MWGS schedule of W = [F U, G] for F's structural nonzeros."""
-        w_nonzero = np.concatenate([pattern_product(f_nonzero, self.upper), self.g_nonzero], axis=1)
-        return gram_schmidt_schedule(w_nonzero)
-
-    def _pivot_indices(self, f_nonzero: np.ndarray) -> list:
-        key = f_nonzero.tobytes()
-        if key not in self._pivots:
-            self._pivots[key] = [(p.row, np.array(p.columns, dtype=np.intp),
-                                  [(r.row, np.array(r.shared, dtype=np.intp)) for r in p.rows])
-                                 for p in self.schedule(f_nonzero)]
-        return self._pivots[key]
-
-    def predict(self, transition: np.ndarray, f_nonzero: np.ndarray | None = None) -> None:
-        """Modified weighted Gram-Schmidt of the rows of W = [F U, G] with weights diag(d, q), last row first:
-        d_j = w_j·(w_j ∘ weights), u_ij = (w_i·(w_j ∘ weights))·(1/d_j) (one division per pivot),
-        w_i <- w_i - u_ij w_j. `f_nonzero`: F's structural nonzeros (None: all)."""
-        f, n = self.f, len(self.d)
-        zero, one = f(NEG_ZERO), f(1.0)
-        if f_nonzero is None:
-            f_nonzero = np.ones((n, n), dtype=bool)
-        fu, _ = masked_matmul(transition, self.u, f_nonzero, self.upper)
-        w = np.concatenate([fu, self.g], axis=1)
-        weights = np.concatenate([self.d, self.q_kept])
-        u = np.eye(n, dtype=f)
-        d = np.zeros(n, dtype=f)
-        for j, columns, rows in self._pivot_indices(f_nonzero):
-            w_j = w[j, columns]
-            c = w_j * weights[columns]
-            d[j] = masked_dot(w_j, c, zero)
-            if not rows:
-                continue
-            inverse = one / d[j]
-            for i, shared in rows:
-                u[i, j] = masked_dot(w[i, columns[shared]], c[shared], zero) * inverse
-                w[i, columns] = w[i, columns] - u[i, j] * w_j
-        self.u, self.d = u, d
-
-    def bierman(self, h: np.ndarray) -> BiermanSchedule:
-        """The update's schedule for the row h (its zeros are structural)."""
-        return self._bierman_entry(h)[1]
-
-    def _bierman_entry(self, h: np.ndarray) -> tuple[np.ndarray, BiermanSchedule]:
-        nonzero = np.asarray(h) != 0
-        key = nonzero.tobytes()
-        if key not in self._updates:
-            self._updates[key] = (nonzero, bierman_schedule(nonzero))
-        return self._updates[key]
-
-    def innovation_variance(self, h: np.ndarray, r, index: int = 0):
-        """S = h P⁻ hᵀ + R as Bierman's update reaches it, its final α: R + a_j b_j over the schedule's columns in
-        order (b_j = d_j a_j: a column's b is changed only after its own step), the same bits."""
-        nonzero, schedule = self._bierman_entry(h)
-        a, a_nonzero = masked_matmul(np.asarray(h, dtype=self.f)[None, :], self.u, nonzero[None, :], self.upper)
-        a = a[0]
-        b = structural(self.d * a, a_nonzero[0])
-        alpha = self.f(r)
-        for step in schedule.steps:
-            alpha = alpha + a[step.column] * b[step.column]
-        return alpha
-
-    def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
-        """Bierman's scalar update (Grewal and Andrews' arrangement) over h's structure: a = Uᵀhᵀ, b = d ∘ a, then
-        each column j with a_j != 0 (a column with a_j = 0 changes nothing); returns the gain b·γ.
-
-        With `held` (consider states): Bierman's update is the optimal gain's; the gain with the held rows zero,
-        K = K_opt - δ, has the covariance P_opt + s δ δᵀ (s = h P⁻ hᵀ + R, the final α; δ = b_held/s), i.e.
-        P_opt + γ v vᵀ with v = b on the held rows: Agee and Turner's rank-one update of U and d, which keeps d
-        positive for a positive weight (`rank_one`)."""
-        f = self.f
-        one = f(1.0)
-        nonzero, schedule = self._bierman_entry(h)
-        u, d = self.u.copy(), self.d.copy()
-        a, a_nonzero = masked_matmul(np.asarray(h, dtype=f)[None, :], u, nonzero[None, :], self.upper)
-        a, a_nonzero = a[0], a_nonzero[0]
-        b = structural(d * a, a_nonzero)
-        alpha = f(r)
-        gamma = one / alpha
-        for step in schedule.steps:
-            j = step.column
-            beta = alpha
-            alpha = alpha + a[j] * b[j]
-            lam = -a[j] * gamma
-            gamma = one / alpha
-            d[j] = (beta * gamma) * d[j]
-            for i in step.updated:
-                before = u[i, j]
-                u[i, j] = before + b[i] * lam
-                b[i] = b[i] + b[j] * before
-            for i in step.filled:
-                b[i] = b[j] * u[i, j]          # b_i was a structural zero: -0 + b_j u_ij
-        gain = b * gamma
-        self.alpha = alpha            # S = h P⁻ hᵀ + R (a test checks innovation_variance against it)
-        if held is not None:
-            v_nonzero = held & np.asarray(schedule.gain_nonzero)
-            self.rank_one(u, d, gamma, structural(b, v_nonzero), self._rank_one(v_nonzero))
-            gain = held_gain(gain, held)
-        self.u, self.d = u, d
-        return gain
-
-    def _rank_one(self, v_nonzero: np.ndarray) -> tuple[RankOneStep, ...]:
-        key = b"r" + v_nonzero.tobytes()
-        if key not in self._pivots:
-            self._pivots[key] = rank_one_schedule(v_nonzero)
-        return self._pivots[key]
-
-    def rank_one_steps(self, v_nonzero: np.ndarray) -> tuple[RankOneStep, ...]:
-        """The Agee-Turner schedule for v's structural nonzeros (the C generator's)."""
-        return self._rank_one(np.asarray(v_nonzero, dtype=bool))
-
-    def rank_one(self, u: np.ndarray, d: np.ndarray, c, v: np.ndarray, steps: tuple[RankOneStep, ...]) -> None:
-        """U diag(d) Uᵀ + c v vᵀ into u and d in place (c > 0; Agee and Turner, Bierman 1977 ch. V), over the
-        schedule, last column first: d̃_j = d_j + (c v_j) v_j, β = (c v_j)/d̃_j, c = (c d_j)/d̃_j, then for each
-        row i < j: v_i -= v_j u_ij, u_ij += β v_i (a d̃_j that is not positive: β = 0 and c as it was)."""
-        f = self.f
-        v = v.copy()
-        for step in steps:
-            j = step.column
-            cv = c * v[j]
-            dn = d[j] + cv * v[j]
-            positive = dn > f(0.0)
-            beta = cv / dn if positive else f(0.0)
-            c = (c * d[j]) / dn if positive else c
-            d[j] = dn
-            for i in step.updated:
-                v[i] = v[i] - v[j] * u[i, j]
-                u[i, j] = u[i, j] + beta * v[i]
-            for i in step.filled:
-                v[i] = -(v[j] * u[i, j])
-                u[i, j] = u[i, j] + beta * v[i]
-
-    def variance(self, row: np.ndarray):
-        """row·(U D Uᵀ row) without forming P: v = Uᵀ row, then ((d_0 v_0) v_0 + (d_1 v_1) v_1) + ... (C:
-        fw_obs_sigma)."""
-        v = matvec(self.u.T, row)
-        return dot(self.d * v, v)
-
-    def covariance(self) -> np.ndarray:
-        """U diag(d) Uᵀ in float64 (for reports; the filter itself never forms it)."""
-        u = self.u.astype(np.float64)
-        return (u * self.d.astype(np.float64)) @ u.T
-
-
-class SteadyState:
-    """The constant gain K_ss; the covariance is the artifact's steady-state P (posterior)."""
-
-    def __init__(self, gain: np.ndarray, p_steady: np.ndarray, rows: Sequence[np.ndarray] = ()):
-        self.gain, self.p = gain, p_steady
-        # per measurement h P⁻ hᵀ of the steady prior, from the posterior and the gain (float64, once):
-        # h P hᵀ = h P⁻ hᵀ (1 - h K), since K = P⁻hᵀ/S
-        p64 = np.asarray(p_steady, dtype=np.float64)
-        self.prior = [p_steady.dtype.type(float(h @ p64 @ h) / (1.0 - float(h @ np.asarray(k, dtype=np.float64))))
-                      for h, k in zip((np.asarray(h, dtype=np.float64) for h in rows), gain, strict=False)]
-
-    def predict(self, transition: np.ndarray) -> None:
-        pass
-
-    def innovation_variance(self, h: np.ndarray, r, index: int = 0):
-        """S = h P⁻ hᵀ + R with the steady prior's h P⁻ hᵀ (constant: the gate of a steady filter never widens)."""
-        return self.prior[index] + r
-
-    def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
-        return self.gain[index]           # the held rows are already zero (Float32Observer)
-
-    def covariance(self) -> np.ndarray:
-        return self.p
-
-    def variance(self, row: np.ndarray):
-        return dot(row, matvec(self.p, row))
-
-
-@dataclass(frozen=True)
-class ObserverForm:
-    """One way to keep the filter's covariance."""
-
-    name: str
-    summary: str
-    propagates: bool          # a covariance is propagated every step (else the steady-state gain)
-
-
-OBSERVER_FORMS: Registry[ObserverForm] = Registry("observer form")
-for _form in (
-    ObserverForm("conventional", "P = P⁻ - K h P⁻ (no symmetrization)", True),
-    ObserverForm("joseph", "P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ", True),
-    ObserverForm("ud", "P = U D Uᵀ: Thornton's prediction, Bierman's update (Agee-Turner's for consider states)",
-                 True),
-    ObserverForm("steady", "constant steady-state gain, no covariance", False),
-):
-    OBSERVER_FORMS.register(_form.name, _form)
-
-_COVARIANCES = {"conventional": Conventional, "joseph": Joseph}
-
-
-def has_observer(artifact: ModelArtifact) -> bool:
-    return isinstance(artifact.content.get("observer"), dict)
-
+from target_sim.observer.coordinates import NodeCoordinates
+from target_sim.observer.forms import OBSERVER_FORMS, Conventional, covariance_form
+from target_sim.observer.section import ObserverError, bias_input, has_observer, load_measurements
+from target_sim.observer.ud import BiermanThornton
+from target_sim.observer.ud_structure import NEG_ZERO, held_gain, masked_dot, masked_matmul, pattern_product, structural
 
 Q_NODES_TOLERANCE = 1e-6            # T Q Tᵀ against diag(q_nodes), relative: float64 rounding of the lab's transform
-
-
-def measurement_entries(section: dict) -> list[dict]:
-    """The section's measurements as version 2 entries (a version 1 section: its one sensor, without lag)."""
-    if section_version(section) >= 2:
-        return list(section["measurements"])
-    sees = np.zeros(len(OUTPUTS))
-    sees[OUTPUTS.index(section["node"])] = 1.0
-    return [{"kind": "lagged-sensor", "name": section["column"], "columns": [section["column"]],
-             "node": section["node"],
-             "arrays": {"sees": encode_array(sees), "lag_pole": encode_array(0.0), "offset_C": section["offset_C"],
-                        "R": section["R"]}}]
-
-
-def load_measurements(section: dict, f=F32) -> list:
-    """The target measurements of the section, in order (`target_sim.measurements`)."""
-    out = []
-    for i, entry in enumerate(measurement_entries(section)):
-        kind = MEASUREMENT_KINDS[entry["kind"]]
-        out.append(kind.load(entry, f"observer.measurements[{i}]", f))
-    return out
-
-
-def bias_input(section: dict) -> int:
-    """The loss input whose column of B the section's bias heats (`BIAS_KINDS`; without a bias: the winding's, as
-    the filter has always computed it and never applies)."""
-    return BIAS_KINDS[section.get("bias") or "winding-heat"]
-
-
-def state_count(section: dict) -> int:
-    """4 model states, one lag state per lagged measurement, one bias state if the section has one."""
-    return observer_state_count(section)
 
 
 class Float32Observer:
@@ -559,12 +196,8 @@ class Float32Observer:
         return held
 
     def _covariance(self):
-        if self.form == "steady":
-            return SteadyState(self.gain_steady, self.p_steady, self.rows)
-        if self.form == "ud":
-            # Q = G diag(q) Gᵀ: in node coordinates Q is diagonal, so G = I (its structural zeros skipped)
-            return BiermanThornton(self.p0, np.eye(self.n, dtype=self.f), self.q_nodes, self.f)
-        return _COVARIANCES[self.form](self.p0, self.q, self.f)
+        return covariance_form(self.form, self.p0, self.q, self.q_nodes, self.gain_steady, self.p_steady, self.rows,
+                               self.f)
 
     def reset(self, temperatures: Sequence[float]) -> None:
         """The model at `temperatures`; each lag state at the temperature its sensor sees, the bias 0."""
@@ -631,7 +264,7 @@ class Float32Observer:
             self.consecutive = np.array([int(v) if 0 < v < 1e9 else 0 for v in counts], dtype=np.int64)
 
     def _transition_structure(self) -> None:
-        """The constants of F in node coordinates (`target_sim.observer_coordinates`), hoisted: C (I + Δ A) C⁻¹ and
+        """The constants of F in node coordinates (`target_sim.observer.coordinates`), hoisted: C (I + Δ A) C⁻¹ and
         Δ C B_s (shift form: C A C⁻¹ and C B_s), the bias's column C Δ B; and F's structural nonzeros: those of
         the first, of (C B_s) J from the Jacobian's pattern, the bias's column, each lag row's sees·F[:4]."""
         part, k, n, f = self.est.part, len(OUTPUTS), self.n, self.f
@@ -768,60 +401,3 @@ class Float32Observer:
             out[i] = np.sqrt(variance) if variance > 0 else f(0.0)
         return out
 
-
-@dataclass(frozen=True)
-class ObserverRun:
-    """A whole run of the float32 observer: per model step the estimate, each node's 1-σ, the first
-    measurement's innovation (NaN without a reading), every measurement's and, on request, the covariance in the
-    state coordinates and the filter's own (node coordinates)."""
-
-    rows: np.ndarray
-    outputs: np.ndarray
-    innovations: np.ndarray
-    covariances: np.ndarray | None
-    sigmas: np.ndarray | None = None
-    all_innovations: np.ndarray | None = None
-    filter_covariances: np.ndarray | None = None      # on request: the filter's own P' (node coordinates)
-    rejected: np.ndarray | None = None                # per step and measurement: the gate rejected its reading
-    flagged: np.ndarray | None = None                 # per measurement: its sensor was flagged (latched)
-    flagged_steps: np.ndarray | None = None           # per step and measurement: its sensor flagged after the step
-
-
-def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement: np.ndarray,
-                         initial: Sequence[float], form: str | None = None, keep_covariance: bool = False,
-                         dtype=F32) -> ObserverRun:
-    """The float32 observer over a whole dataset: `drive` as `target_sim.model.run_offline` takes it,
-    `measurement` the measurements' raw channels per row ((rows,) for one channel; NaN: none), accumulated with the
-    drive into the step's float32 interval mean."""
-    obs = Float32Observer(artifact, form, dtype)
-    obs.reset(initial)
-    drive = np.asarray(drive, dtype=np.float64)
-    measurement = np.asarray(measurement, dtype=np.float64)
-    width, channels = len(artifact.drive_signals), sum(obs.widths)
-    if measurement.ndim == 1:
-        measurement = measurement[:, None]
-    if drive.ndim != 2 or drive.shape[1] != width or measurement.shape != (len(drive), channels):
-        raise ValueError(f"the observer needs {width} drive columns and {channels} measurement channel(s) per row, "
-                         f"not {drive.shape} and {measurement.shape}")
-    rows = np.column_stack([drive, measurement])
-    acc = InputAccumulator(artifact.data_sample_period, artifact.dt, width + channels)
-    steps, outputs, innovations, covariances, sigmas, own, rejected, flagged = [], [], [], [], [], [], [], []
-    for row, sample in enumerate(rows):
-        means = acc.add(row, sample)
-        if means is None:
-            continue
-        outputs.append(obs.step(*means[:width], z=means[width:]))
-        innovations.append(obs.innovations.copy())
-        rejected.append(obs.rejected.copy())
-        flagged.append(obs.flagged.copy())
-        sigmas.append(obs.sigma())
-        if keep_covariance:
-            covariances.append(np.array(obs.covariance(), dtype=np.float64))
-            own.append(obs.filter_covariance())
-        steps.append(row)
-    every = np.array(innovations, dtype=np.float64).reshape(-1, len(obs.measurements))
-    return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4), every[:, 0],
-                       np.array(covariances) if keep_covariance else None,
-                       np.array(sigmas).reshape(-1, 4), every, np.array(own) if keep_covariance else None,
-                       np.array(rejected, dtype=bool).reshape(-1, len(obs.measurements)), obs.flagged.copy(),
-                       np.array(flagged, dtype=bool).reshape(-1, len(obs.measurements)))

@@ -44,8 +44,9 @@ from dbc.contract import (
 )
 from target_sim.artifact import ModelArtifact
 from target_sim.losses import reads_currents
-from target_sim.measurements import MEASUREMENT_KINDS
-from target_sim.observer import Float32Observer, ObserverError, has_observer, load_measurements, measurement_entries
+from target_sim.observer.filter import Float32Observer
+from target_sim.observer.measurements import MEASUREMENT_KINDS
+from target_sim.observer.section import ObserverError, has_observer, load_measurements, measurement_entries
 
 
 def _reads_temperature(entry: dict) -> bool:

@@ -2,7 +2,7 @@
 the float32 comparison of the covariance forms (`bench evaluate`, `bench numerics --observer`).
 
 Every float32 figure comes from the target's own code (`target_sim.model.run_offline`, `target_sim.observer`);
-the float64 reference is `bench.thermal.kalman` through `bench.model.observer.reference_run`.
+the float64 reference is `bench.thermal.kalman` through `bench.observer.reference.reference_run`.
 """
 
 from __future__ import annotations
@@ -16,8 +16,9 @@ from bench.drive.dataset import MEASURED_NODES, Dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.fileeval import OUTPUT_INDEX, measured_nodes
 from bench.model.metrics import error_metrics
-from bench.model.observer import measured_nodes_of, measurement_columns, reference_run
 from bench.model.runs import initial_temperatures
+from bench.observer.measured import measured_nodes_of, measurement_columns
+from bench.observer.reference import reference_run
 from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.model import run_offline
 from target_sim.observer import OBSERVER_FORMS, run_observer_offline

@@ -1,5 +1,5 @@
 """A sensor's lag, gradient and offset estimated from the training files (`bench observer --lag auto --gradient auto
---offset auto`, `bench.model.measures.sensor_fit`): recovered from a known lag filter applied to a synthetic winding
+--offset auto`, `bench.observer.measures.sensor_fit`): recovered from a known lag filter applied to a synthetic winding
 and yoke pair plus noise, pooled over files of their own start; without a yoke reference the gradient is held at 0
 and the estimate says so; a file without the node's reference is one sentence, exit 2."""
 
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from bench.errors import UsageError
-from bench.model.measures import LAB_MEASUREMENT_KINDS, sensor_fit
-from bench.model.measures.sensor_fit import fit_sensor
+from bench.observer.measures import LAB_MEASUREMENT_KINDS, sensor_fit
+from bench.observer.measures.sensor_fit import fit_sensor
 
 TAU_S, GRADIENT, OFFSET_K, NOISE_K = 25.0, -0.12, 0.8, 0.2
 

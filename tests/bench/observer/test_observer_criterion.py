@@ -9,15 +9,24 @@ import numpy as np
 import pytest
 
 from bench.drive.dataset import load_dataset
-from bench.model import observer as lab
 from bench.model.default import default_artifact_path
+from bench.observer.measures.lagged_sensor import Sensor
+from bench.observer.reference import FilterModel, filter_data, initial_covariance, process_noise, run_filter
+from bench.observer.tune import (
+    CAUTIOUS_DECADES,
+    LOG10_BOUNDS,
+    NODES_R_MAX_LOG10,
+    TUNING_CRITERIA,
+    search_starts,
+    tune_observer,
+)
 from target_sim.artifact import OUTPUTS, load_artifact
 
 
 def _magnet_and_winding_mse(artifact, data, q, r) -> np.ndarray:
-    model = lab.FilterModel.of(artifact)
-    p0 = lab.initial_covariance(model, data.readings)
-    runs = lab._run(model, data, lab.process_noise(model, q)[None], [np.atleast_1d(r)], p0, keep=True)
+    model = FilterModel.of(artifact)
+    p0 = initial_covariance(model, data.readings)
+    runs = run_filter(model, data, process_noise(model, q)[None], [np.atleast_1d(r)], p0, keep=True)
     estimate = runs.estimates[0]
     return np.array([np.mean((estimate[:, OUTPUTS.index("magnet")] - data.run.ref_pm) ** 2),
                      np.mean((estimate[:, OUTPUTS.index("winding")] - data.run.ref_winding) ** 2)])
@@ -25,19 +34,19 @@ def _magnet_and_winding_mse(artifact, data, q, r) -> np.ndarray:
 
 def test_the_cautious_start_trusts_the_measurements_far_less():
     start = np.log10([1e-4] * 5 + [0.1])
-    default, cautious = lab._starts(start, 5)
+    default, cautious = search_starts(start, 5)
     assert np.array_equal(default, start)
-    assert np.all(cautious[:5] == start[:5] - lab.CAUTIOUS_DECADES) and cautious[5] == -1 + lab.CAUTIOUS_DECADES
-    assert lab.NODES_R_MAX_LOG10 > lab.LOG10_BOUNDS[1] and "nodes" in lab.TUNING_CRITERIA
+    assert np.all(cautious[:5] == start[:5] - CAUTIOUS_DECADES) and cautious[5] == -1 + CAUTIOUS_DECADES
+    assert NODES_R_MAX_LOG10 > LOG10_BOUNDS[1] and "nodes" in TUNING_CRITERIA
 
 
 @pytest.mark.parametrize("criterion", ["magnet", "nodes"])
 def test_nodes_keeps_the_magnet_no_worse_than_the_open_loop_on_its_training_file(criterion, small_dataset):
     artifact = load_artifact(default_artifact_path("hammerstein"))
     dataset = load_dataset(small_dataset)
-    sensor = lab.Sensor("winding", "winding_C")
-    fit = lab.tune_observer(artifact, [dataset], [sensor], criterion, max_evaluations=40)
-    data = lab.filter_data(artifact, dataset, [sensor])
+    sensor = Sensor("winding", "winding_C")
+    fit = tune_observer(artifact, [dataset], [sensor], criterion, max_evaluations=40)
+    data = filter_data(artifact, dataset, [sensor])
     tuned = _magnet_and_winding_mse(artifact, data, fit.q_C2, fit.r_scale)
     open_loop = _magnet_and_winding_mse(artifact, data, np.zeros(4), [1e30])
     if criterion == "nodes":

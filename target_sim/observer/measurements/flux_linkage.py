@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from target_sim.artifact import OUTPUTS
-from target_sim.measurements import MEASUREMENT_KINDS, MeasurementKind
-from target_sim.measurements._voltages import CAN_CHANNELS, COLUMNS, RAD_S_PER_RPM, VoltageReading  # noqa: F401 (re-exported)
+from target_sim.observer.measurements import MEASUREMENT_KINDS, MeasurementKind
+from target_sim.observer.measurements._voltages import CAN_CHANNELS, COLUMNS, RAD_S_PER_RPM, VoltageReading  # noqa: F401 (re-exported)
 
 PARAMETERS = ("psi_0_Vs", "alpha_B_per_K", "theta_0_C", "L_d_H", "R_s_ohm", "alpha_cu_per_K", "copper_reference_C",
               "pole_pairs", "speed_min_rpm", "R_floor_C2", "R_speed_C2")

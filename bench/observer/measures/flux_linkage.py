@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench.errors import BenchError
-from bench.model.measures import (
+from bench.observer.measures import (
     FromVoltages,
     FromVoltagesKind,
     identifiable_fit,
@@ -30,7 +30,7 @@ from bench.model.measures import (
     training_steps,
     variance_fit,
 )
-from target_sim.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
+from target_sim.observer.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
 
 IDENTIFIABLE = 0.25          # largest relative standard error of L_d or R_s0 that the calibration keeps
 DEFAULT_SPEED_MIN_RPM = 1500.0

@@ -3,7 +3,7 @@
 Its readings are the column less its offset; its variance is the tuned R. With τ > 0 the observer carries the
 lag's state (a = exp(-Δ/τ)), so a lagging sensor no longer reads as a model error of its node. Each of τ, g and the
 offset is given, or `auto`: estimated from the training files' references of its node and the yoke
-(`bench.model.measures.sensor_fit`).
+(`bench.observer.measures.sensor_fit`).
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ import numpy as np
 
 from bench.drive.dataset import BY_NAME as DATASET_COLUMNS
 from bench.errors import UsageError
-from bench.model.measures import LabMeasurementKind, register, step_means
+from bench.observer.measures import LabMeasurementKind, register, step_means
 from target_sim.artifact import OUTPUTS, decode_array, encode_array
-from target_sim.measurements.lagged_sensor import sees
+from target_sim.observer.measurements.lagged_sensor import sees
 
 # the dataset schema's column of a stator sensor (an NTC, an end-winding thermocouple): where a user's own sensor
 # column is mapped to (`bench.drive.dataset`)
@@ -124,7 +124,7 @@ class LabLaggedSensorKind(LabMeasurementKind):
         values = (args.lag, args.gradient, args.offset)
         if AUTO not in values:
             return Sensor(args.node, args.measure, args.offset, args.lag, args.gradient)
-        from bench.model.measures.sensor_fit import fit_sensor
+        from bench.observer.measures.sensor_fit import fit_sensor
 
         lag, gradient, offset = (None if v == AUTO else v for v in values)
         fit = fit_sensor(datasets, artifact.dt, args.measure, args.node, lag, gradient, offset)

@@ -1,5 +1,5 @@
-"""The lab's side of the observer's measurement kinds (`target_sim.measurements`), one module per kind, under the
-name the target's kind has (`lagged_sensor`, `flux_linkage`, `winding_resistance`); each registers itself in
+"""The lab's side of the observer's measurement kinds (`target_sim.observer.measurements`), one module per kind,
+under the name the target's kind has (`lagged_sensor`, `flux_linkage`, `winding_resistance`); each registers itself in
 `LAB_MEASUREMENT_KINDS`, which loads them on first use. A test checks that this table and the target's name the same
 kinds.
 
@@ -108,7 +108,7 @@ class FromVoltages:
 
     @property
     def columns(self) -> tuple[str, ...]:
-        from target_sim.measurements.flux_linkage import COLUMNS
+        from target_sim.observer.measurements.flux_linkage import COLUMNS
 
         return COLUMNS
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from target_sim.artifact import OUTPUTS, decode_array
-from target_sim.measurements import MEASUREMENT_KINDS, MeasurementKind
+from target_sim.observer.measurements import MEASUREMENT_KINDS, MeasurementKind
 
 # the generated C of `reading` (bench.firmware.observergen; _K is the measurement's index there)
 C_READING = """\

@@ -7,15 +7,15 @@ where |i_d| is at least current_min_A: a voltage error δu gives a temperature e
 variance R = R_floor + R_current (i_min/i_d)² grows as |i_d| falls, both fitted to the calibration residual by the
 lab (`bench observer --resistance`). Its raw channels are the flux linkage's (u_d, u_q, i_d, i_q; u_q only travels
 with u_d in DriveVoltages and makes a step invalid when it is), and it answers in the `sensor` slot, as any reading
-of the winding (`target_sim.observer_node`).
+of the winding (`target_sim.observer.node`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from target_sim.measurements import MEASUREMENT_KINDS, MeasurementKind
-from target_sim.measurements._voltages import RAD_S_PER_RPM, VoltageReading
+from target_sim.observer.measurements import MEASUREMENT_KINDS, MeasurementKind
+from target_sim.observer.measurements._voltages import RAD_S_PER_RPM, VoltageReading
 
 PARAMETERS = ("R_s_ohm", "alpha_cu_per_K", "copper_reference_C", "L_q_H", "pole_pairs", "speed_max_rpm",
               "current_min_A", "R_floor_C2", "R_current_C2")

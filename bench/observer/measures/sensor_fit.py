@@ -2,7 +2,7 @@
 --lag auto --gradient auto --offset auto`).
 
 The training files carry the lab's reference of the sensor's node (winding_C for the winding) and of the yoke
-(yoke_C). The sensor is modelled as the target runs it (`target_sim.measurements.lagged_sensor`): it reads
+(yoke_C). The sensor is modelled as the target runs it (`target_sim.observer.measurements.lagged_sensor`): it reads
 y = lag_τ(w + g·(w − yoke)) + offset, the lag first order at the model step Δ, discretized exactly for an input held
 over the step (a = exp(−Δ/τ), y_k = a·y_(k−1) + (1 − a)·x_k) and settled at each file's first step. For a fixed τ
 the lag is linear, y = lag(w) + g·lag(w − yoke) + offset, so g and the offset are least squares pooled over every
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.errors import UsageError
-from bench.model.measures import step_means
+from bench.observer.measures import step_means
 
 # the slowest lag searched: a stator NTC in its potting lags tens of seconds; beyond this the sensor does not follow
 # its node within a drive cycle's phase, and the estimate says it ended at the limit

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench.errors import BenchError, UsageError
-from bench.model.measures import (
+from bench.observer.measures import (
     FromVoltages,
     FromVoltagesKind,
     identifiable_fit,
@@ -32,9 +32,9 @@ from bench.model.measures import (
     training_steps,
     variance_fit,
 )
-from bench.model.measures.flux_linkage import IDENTIFIABLE, pole_pairs_of
-from target_sim.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
-from target_sim.measurements.winding_resistance import PARAMETERS
+from bench.observer.measures.flux_linkage import IDENTIFIABLE, pole_pairs_of
+from target_sim.observer.measurements.flux_linkage import COLUMNS, RAD_S_PER_RPM
+from target_sim.observer.measurements.winding_resistance import PARAMETERS
 
 DEFAULT_SPEED_MAX_RPM = 2000.0
 DEFAULT_CURRENT_MIN_A = 50.0

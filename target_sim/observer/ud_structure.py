@@ -28,6 +28,11 @@ def structural(values: np.ndarray, nonzero: np.ndarray) -> np.ndarray:
     return np.where(nonzero, values, values.dtype.type(NEG_ZERO)).astype(values.dtype)
 
 
+def held_gain(gain: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """The gain with the rows of the held (consider) states a structural zero (-0: x + (-0)·ν is x)."""
+    return structural(gain, ~held)
+
+
 def masked_matmul(a: np.ndarray, b: np.ndarray, a_nonzero: np.ndarray, b_nonzero: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
     """(A B, its structural nonzeros) in `fmath.matmul`'s order, (i, j) = ((a_ik0·b_k0j + a_ik1·b_k1j) + ...), over
