@@ -3,7 +3,7 @@ on test profiles that no choice looked at.
 
     python tests/benchmarks/bench_suite.py [--motors NAME ...] [--priors designer table1 auto] [--skip-observer]
                                            [--work DIR] [--defaults [--compare DEFAULT ...]] [--hold-test]
-                                           [--reuse]
+                                           [--reuse] [--floor]
 
 The suite is `examples/suite/*/`: each motor a motor file whose `virtual_plant` generates its profiles (the
 truth is a plant the bench's four-node model cannot be) and a mapping. Each profile has a fixed role in the motor
@@ -35,6 +35,11 @@ here, never used to choose). Per motor:
    and identifications an earlier run of the same code kept in `--work` (identification is deterministic), so a
    run with `--hold-test` followed by one without it reports the test figures of what was chosen without
    identifying again.
+
+6. With --floor (a bound, not a result): the designer's prior identified on ALL profiles, the test ones included,
+   and evaluated on the test profiles, in-sample. What the four-node model class and this identification reach at
+   best on a motor: when even that misses the goal, no prior and no default can meet it. Nothing is chosen on it.
+   Its record is the variant "floor".
 
 Goals (issue 37): on every motor, Hammerstein, designer's and auto prior, winding and magnet test MSE ≤ 2.0 K² and
 max ≤ 4.7 K; the observer better than the open loop on the winding and never worse on the magnet.
@@ -107,6 +112,37 @@ def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra
            "load_average": round(max(load, os.getloadavg()[0]), 2)}
     kept.write_text(json.dumps(run, default=str), encoding="utf-8")
     return run
+
+
+def floor(motor: Path, work: Path, data: Path, index: dict) -> dict:
+    """The designer's prior identified on every profile and scored on the test ones, in-sample (see --floor).
+
+    identify refuses a --validate file that is also trained on, so the test files are linked under another
+    directory for its --validate (the figures below come from `bench evaluate` of the test files themselves)."""
+    held = work / motor.name / "floor-validate"
+    held.mkdir(parents=True, exist_ok=True)
+    for name in index["roles"]["test"]:
+        if not (held / name).exists():
+            os.link(data / name, held / name)
+    every = [str(data / p["file"]) for p in index["profiles"]]
+    out = work / motor.name / "floor" / "model.json"
+    kept = out.with_name("identify.json")
+    if REUSE and kept.is_file():
+        identified = json.loads(kept.read_text(encoding="utf-8"))
+        seconds = identified.pop("seconds_", 0.0)
+    else:
+        identified, seconds = bench(
+            "identify", "--motor", str(motor / "motor.json"), "--mapping", str(motor / "mapping.json"),
+            "--train", *every, "--validate", *(str(held / n) for n in index["roles"]["test"]),
+            "--out", str(out), "--all-kinds", "--bounds", BOUNDS)
+        kept.write_text(json.dumps({**identified, "seconds_": seconds}), encoding="utf-8")
+    kinds = ("hammerstein", "lti-lptn")
+    test = evaluate(motor, [Path(identified["artifacts"][k]) for k in kinds], files(data, index, "test"))
+    print(f"{motor.name} floor (fitted on all {len(every)} profiles): test "
+          + "; ".join(f"{kind} winding {m['winding']['mse_K2']:.2f} K²/{m['winding']['max_K']:.2f} K, magnet "
+                      f"{m['pm']['mse_K2']:.2f}/{m['pm']['max_K']:.2f}" for kind, m in test.items()), flush=True)
+    return {"fitted_on": [p["file"] for p in index["profiles"]], "identify_s": round(seconds, 1),
+            "test_in_sample": test, "goal_reachable": goal_met(test["hammerstein"])}
 
 
 def _paths(item: dict) -> dict:
@@ -275,6 +311,9 @@ def main() -> int:
     parser.add_argument("--work", type=Path, default=None, help="keep the generated files and models here")
     parser.add_argument("--compare", nargs="+", choices=list(DEFAULTS), default=None,
                         help="with --defaults: only these identify defaults (default all)")
+    parser.add_argument("--floor", action="store_true",
+                        help="only the model class's floor: the designer's prior identified on all profiles, scored "
+                             "on the test ones in-sample (a bound, nothing is chosen on it)")
     parser.add_argument("--hold-test", action="store_true",
                         help="evaluate nothing on the test profiles and skip the observer (while choosing defaults)")
     parser.add_argument("--reuse", action="store_true",
@@ -286,6 +325,8 @@ def main() -> int:
     HOLD_TEST, REUSE, COMPARED = args.hold_test, args.reuse, args.compare
     if args.reuse and args.work is None:
         parser.error("--reuse reads identifications kept in --work: name it")
+    if args.floor and (args.defaults or args.hold_test):
+        parser.error("--floor fits on the test profiles: it runs alone, without --defaults or --hold-test")
     args.skip_observer = args.skip_observer or args.hold_test
     motors = [m for m in suite_motors() if args.motors is None or m.name in args.motors]
     if not motors:
@@ -293,8 +334,8 @@ def main() -> int:
     record = Record("suite", args, parameters={"motors": [m.name for m in motors], "priors": args.priors,
                                                "bounds": BOUNDS, "observer": not args.skip_observer,
                                                "defaults": args.defaults, "hold_test": args.hold_test,
-                                               "compared": args.compare},
-                    variant="defaults" if args.defaults else None)
+                                               "compared": args.compare, "floor": args.floor},
+                    variant="defaults" if args.defaults else "floor" if args.floor else None)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     record.figures.update(motors=[], complete=False)
     with tempfile.TemporaryDirectory(prefix="bench-suite-") as tmp:
@@ -321,6 +362,9 @@ def one_motor(motor: Path, work: Path, args) -> dict:
     entry = {"motor": motor.name, "data_s": round(data_s, 1),
              "profiles": {role: list(names) for role, names in index["roles"].items()},
              "hours": round(sum(p["duration_s"] for p in index["profiles"]) / 3600.0, 1), "priors": []}
+    if args.floor:
+        entry["floor"] = attempt(f"{motor.name} floor", lambda: floor(motor, work, data, index))
+        return entry
     tried = {prior: attempt(f"{motor.name} identify {prior}", lambda prior=prior: identify(
         motor, work, data, index, prior)) for prior in args.priors}
     runs = {prior: run for prior, run in tried.items() if "failed" not in run}

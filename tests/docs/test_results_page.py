@@ -137,6 +137,25 @@ def test_the_suite_section_shows_each_motor_prior_observer_and_default(data_reco
     assert "| open loop | 9.00 / 4.00 |" in section and "| bias: off (default) | 0.50 / 3.00 |" in section
 
 
+def test_the_suite_floor_shows_each_motors_in_sample_test_figures_and_whether_the_goal_is_reachable(data_record):
+    """`bench_suite.py --floor`: per motor and kind the in-sample test figures; a failed motor says so."""
+    missed = {n: {"mse_K2": 7.06, "max_K": 7.76} for n in ("winding", "pm", "yoke", "tooth")}
+    met = {n: {"mse_K2": 1.5, "max_K": 4.0} for n in ("winding", "pm", "yoke", "tooth")}
+    motors = [{"motor": "air-30kw", "floor": {"test_in_sample": {"hammerstein": missed, "lti-lptn": missed},
+                                              "goal_reachable": False}},
+              {"motor": "ipm-60kw", "floor": {"test_in_sample": {"hammerstein": met}, "goal_reachable": True}},
+              {"motor": "outrunner", "floor": {"failed": "bench identify failed (1): boom"}}]
+    records = _suite_record(data_record) + [{**copy.deepcopy(data_record), "benchmark": "suite", "variant": "floor",
+                                             "figures": {"motors": motors, "complete": True}}]
+    page = results_page.render_results({"suite": records})
+    section = page[page.index("## The motor suite"):]
+    assert "model class's floor" in section
+    assert f"| air-30kw | hammerstein | {' | '.join(['7.06 / 7.76'] * 4)} | no |" in section
+    assert f"| air-30kw | lti-lptn | {' | '.join(['7.06 / 7.76'] * 4)} |  |" in section
+    assert f"| ipm-60kw | hammerstein | {' | '.join(['1.50 / 4.00'] * 4)} | yes |" in section
+    assert "| outrunner | – | failed |" in section
+
+
 def test_the_sitting_section_shows_each_round_the_medians_and_the_goals():
     """The performance sitting's section: every round's rows/s with its ratio to the ping-pong, the medians, and
     whether each goal was met, all from the record."""
