@@ -39,10 +39,10 @@ def _us(ns_values) -> dict:
 
 def session(node, rows: int, daq: bool) -> list[int]:
     """Drive a lockstep session through `node`; the model step times (ns) it measured."""
-    from dbc import Command, FrameCodec
+    from dbc import FrameCodec
     from host.replay import encode_row
 
-    from helpers import SESSION_INITIAL, session_drive
+    from helpers import session_drive, session_start
 
     slave = node.xcp
     slave.command(bytes((0xFF, 0)))
@@ -58,11 +58,7 @@ def session(node, rows: int, daq: bool) -> list[int]:
         assert slave.command(bytes((0xE0, 0, 0, 0, 0, 0, 1, 0))) == b"\xff"
         assert slave.command(bytes((0xDE, 1, 0, 0)))[0] == 0xFF
     codec = FrameCodec("HOST")
-    yoke, winding, tooth, magnet = SESSION_INITIAL
-    for frame in (codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-                  codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-                  codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-                  codec.encode("Control", {"Command": int(Command.START), "Step": 0})):
+    for frame in session_start(codec):
         node.handle(frame)
     steps: list[int] = []
     for row, values in enumerate(session_drive(rows, 4)):
@@ -146,55 +142,54 @@ def daq_run(artifact, model_path: Path, rows: int | None) -> dict:
     from target_sim.model import InputAccumulator
     from target_sim.node import TargetNode
 
+    from helpers import start_target
+
     data = ensure_default_datasets()[40]
     config = resolve(BusConfig("udp_multicast"), session_unique=True)
     cells = TargetNode(artifact).xcp.memory.by_name
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(model_path), "--quiet",
-                               *config.to_argv()], cwd=ROOT)
-    bus = config.open()
-    packets: list[bytes] = []
-    try:
-        deadline = time.monotonic() + 60
-        while True:
-            msg = bus.recv(0.5)
-            if msg is not None and msg.arbitration_id == 0x230:
-                break
-            assert time.monotonic() < deadline, "no heartbeat from the target"
-        notifier = can.Notifier(bus, [lambda m: packets.append(bytes(m.data))
-                                      if m.arbitration_id == res_id() and m.data[0] < 0xFC else None])
-        app = create_application_from_config({"Transport": {"CAN": {
-            "interface": "udp_multicast", "channel": config.channel, "can_id_master": cmd_id(),
-            "can_id_slave": res_id()}}})
-        app.transport.layer = "CAN"
-        app.transport.can.udp_multicast.port = config.kwargs["port"]
-        app.general.disable_error_handling = True
-        with tempfile.TemporaryDirectory() as work, Master("can", config=app) as xcp:
-            xcp.connect()
-            xcp.freeDaq()
-            xcp.allocDaq(1)
-            xcp.allocOdt(0, 4)
-            for odt in range(4):
-                xcp.allocOdtEntry(0, odt, 1)
-                xcp.setDaqPtr(0, odt, 0)
-                xcp.writeDaq(0xFF, 4, 0, cells[f"y_est_{odt}"].address)
-            xcp.setDaqListMode(0x00, 0, 0, 1, 0)
-            xcp.startStopDaqList(0x02, 0)
-            xcp.startStopSynch(0x01)
-            log = Path(work) / "run.blf"
-            host = subprocess.run([sys.executable, "-m", "bench", "host", "--data", str(data), "--model",
-                                   str(model_path), "--log", str(log), "--quiet",
-                                   *(["--rows", str(rows)] if rows else []), *config.to_argv()],
-                                  cwd=ROOT, capture_output=True, text=True, timeout=7200)
-            time.sleep(1.0)
-            xcp.startStopSynch(0x00)
-            xcp.disconnect()
-            time.sleep(0.5)
-            notifier.stop()
-            record = decode_log(log)
-    finally:
-        bus.shutdown()
-        target.terminate()
-        target.wait(30)
+    with start_target("--model", model_path, "--quiet", *config.to_argv()):   # stopped when the block ends
+        bus = config.open()
+        packets: list[bytes] = []
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                msg = bus.recv(0.5)
+                if msg is not None and msg.arbitration_id == 0x230:
+                    break
+                assert time.monotonic() < deadline, "no heartbeat from the target"
+            notifier = can.Notifier(bus, [lambda m: packets.append(bytes(m.data))
+                                          if m.arbitration_id == res_id() and m.data[0] < 0xFC else None])
+            app = create_application_from_config({"Transport": {"CAN": {
+                "interface": "udp_multicast", "channel": config.channel, "can_id_master": cmd_id(),
+                "can_id_slave": res_id()}}})
+            app.transport.layer = "CAN"
+            app.transport.can.udp_multicast.port = config.kwargs["port"]
+            app.general.disable_error_handling = True
+            with tempfile.TemporaryDirectory() as work, Master("can", config=app) as xcp:
+                xcp.connect()
+                xcp.freeDaq()
+                xcp.allocDaq(1)
+                xcp.allocOdt(0, 4)
+                for odt in range(4):
+                    xcp.allocOdtEntry(0, odt, 1)
+                    xcp.setDaqPtr(0, odt, 0)
+                    xcp.writeDaq(0xFF, 4, 0, cells[f"y_est_{odt}"].address)
+                xcp.setDaqListMode(0x00, 0, 0, 1, 0)
+                xcp.startStopDaqList(0x02, 0)
+                xcp.startStopSynch(0x01)
+                log = Path(work) / "run.blf"
+                host = subprocess.run([sys.executable, "-m", "bench", "host", "--data", str(data), "--model",
+                                       str(model_path), "--log", str(log), "--quiet",
+                                       *(["--rows", str(rows)] if rows else []), *config.to_argv()],
+                                      cwd=ROOT, capture_output=True, text=True, timeout=7200)
+                time.sleep(1.0)
+                xcp.startStopSynch(0x00)
+                xcp.disconnect()
+                time.sleep(0.5)
+                notifier.stop()
+                record = decode_log(log)
+        finally:
+            bus.shutdown()
     accumulator = InputAccumulator(artifact.data_sample_period, artifact.dt)
     step_rows = [row for row in range(record.rows) if accumulator.ends_interval(row)]
     by_pid = [np.array([struct.unpack_from("<f", p, 1)[0] for p in packets if p[0] == pid]) for pid in range(4)]
