@@ -231,7 +231,7 @@ class HostSession:
             key: TimingSeries() for key in ("measured_us", "overruns", "cycles", "exec_us", "cpu_load", "m4_cycles",
                                             "m4_exec_us")}
         self.on_frame: Callable[[DecodedFrame], None] | None = None
-        # the target's state checkpoints: elements per Step until all four are in, then the complete ones by row
+        # the target's state checkpoints: elements per row until all four are in, then the complete ones by row
         self._checkpoint_parts: dict[int, dict[int, float]] = {}
         self.checkpoints: dict[int, list[float]] = {}
         # an observer's checkpoints (DBC 1.7.0): row -> {Index: value}, echoed as they came (the target judges them)
@@ -415,15 +415,15 @@ class HostSession:
 
     def _checkpoint(self, step: int, index: int, value: float) -> None:
         """Collect one element; four valid elements of one Step make a checkpoint of that row's state."""
-        row = self._row_of(step)
+        row = self._row_of(step)     # by row: a Step names a row only up to 65536 (a long run repeats it)
         self._last_checkpoint_row[frame_id("StateCheckpoint")] = row
-        parts = self._checkpoint_parts.setdefault(step, {})
+        parts = self._checkpoint_parts.setdefault(row, {})
         if index in parts and not _same_float(parts[index], value):
             self.contested_checkpoints.add(row)      # an element twice, with another value
         parts[index] = value
         if len(parts) == STATE_SIZE:
-            del self._checkpoint_parts[step]
-            self.checkpoints[self._row_of(step)] = [parts[i] for i in range(STATE_SIZE)]
+            del self._checkpoint_parts[row]
+            self.checkpoints[row] = [parts[i] for i in range(STATE_SIZE)]
         if len(self._checkpoint_parts) > 4:  # elements of checkpoints that never completed (a lost frame)
             self._checkpoint_parts.pop(next(iter(self._checkpoint_parts)))
 

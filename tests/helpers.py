@@ -140,6 +140,63 @@ def processes_of(marker: str, exclude: tuple[int, ...] = ()) -> dict[int, str]:
     return found
 
 
+class TiedProcess:
+    """`python ARGV...` (e.g. "-m", "target_sim", ...) that dies with this test process: started through
+    `python -m dbc.lifeline` (`dbc.lifeline.tied_command`), which arms Linux's parent-death signal (SIGTERM) in the
+    child and then becomes the command, so a pytest killed in the middle of a test (SIGKILL, a CI job cancelled)
+    leaves no process behind. Start it from the thread that lives as long as it does (a test's or fixture's, not a
+    helper thread): the kernel's signal fires when that thread ends.
+
+    A context manager: `stop()` (SIGTERM, then the exit it reports; SIGKILL after `stop_timeout` s) when the block
+    ends, whatever ended it; `stdout`/`stderr` then hold what it wrote to a PIPE (None otherwise). `env` defaults to
+    `subprocess_env()`; `popen` goes to subprocess.Popen (stdin, stdout, stderr, text, start_new_session...)."""
+
+    def __init__(self, *argv: str, cwd: Path | str | None = None, env: dict[str, str] | None = None,
+                 stop_timeout: float = 60.0, **popen) -> None:
+        from dbc.lifeline import tied_command, tied_environment
+
+        self.stop_timeout = stop_timeout
+        self.stdout: str | bytes | None = None
+        self.stderr: str | bytes | None = None
+        self.process = subprocess.Popen(tied_command([sys.executable, *map(str, argv)]), cwd=cwd or ROOT,
+                                        env=tied_environment(subprocess_env() if env is None else env), **popen)
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    @property
+    def returncode(self) -> int | None:
+        return self.process.returncode
+
+    def poll(self) -> int | None:
+        return self.process.poll()
+
+    def stop(self) -> int:
+        """SIGTERM (if it still runs), then wait for its exit (generous: a busy machine), collecting its piped
+        output; SIGKILL if it has not exited after `stop_timeout` s. Its exit status; again: the same."""
+        if self.process.returncode is None:
+            if self.process.poll() is None:
+                self.process.terminate()
+            try:
+                self.stdout, self.stderr = self.process.communicate(timeout=self.stop_timeout)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.stdout, self.stderr = self.process.communicate()
+        return self.process.returncode
+
+    def __enter__(self) -> TiedProcess:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def start_target(*args: str, **kwargs) -> TiedProcess:
+    """`python -m target_sim ARGS...` as a `TiedProcess` (keyword arguments: its)."""
+    return TiedProcess("-m", "target_sim", *args, **kwargs)
+
+
 # run_cli's `-m bench` and `-m target_sim` as plain subprocesses (`sys.executable -m ...`), not forked, when "1"
 SUBPROCESS_ENV = "BENCH_TESTS_SUBPROCESS"
 FORKED_MODULES = ("bench", "target_sim")
@@ -708,7 +765,8 @@ def assert_table_equals_files(out: Path) -> None:
 
 class DaskCluster:
     """A cluster started the way a user starts one: `dask scheduler` and `dask worker --no-nanny` processes on
-    localhost (stdout and stderr discarded), in `cwd`; a context manager that ends them all."""
+    localhost (stdout and stderr discarded), in `cwd`; a context manager that ends them all. Each is a
+    `TiedProcess`: it dies with the test process too."""
 
     def __init__(self, cwd: Path, workers: int):
         import socket
@@ -721,9 +779,8 @@ class DaskCluster:
         self.workers: list[subprocess.Popen] = []
 
     def _start(self, module: str, *args: str) -> subprocess.Popen:
-        proc = subprocess.Popen([sys.executable, "-m", module, *args], cwd=self.cwd,
-                                env={**os.environ, "PYTHONUNBUFFERED": "1"},
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        proc = TiedProcess("-m", module, *args, cwd=self.cwd, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).process
         self.procs.append(proc)
         return proc
 

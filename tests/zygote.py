@@ -12,6 +12,11 @@ so no test state (logging handlers, warning filters, captured streams) leaks int
 Protocol: one JSON request per line on stdin ({"module", "args", "cwd", "env" (the whole environment),
 "stdout", "stderr", "timeout"}), one JSON reply per line on stdout ({"rc", "timed_out", "seconds"}).
 EOF ends the server.
+
+Neither outlives the test process: EOF on stdin ends the server; while it waits for a child it compares its parent's
+id with the one it started with, and once the test process is gone it stops the child (SIGTERM to its session, as a
+signal would, SIGKILL 10 s later) and ends; a child also gets the kernel's parent-death signal (SIGTERM) if the
+server dies. So a pytest killed in the middle of a `run_cli` leaves no command running.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import bench.cli  # noqa: E402
 import dbc.transport  # noqa: E402, F401
 import target_sim.node  # noqa: E402, F401 - what `python -m target_sim` imports
+from dbc.lifeline import arm_parent_death  # noqa: E402
 
 bench.cli.build_parser()  # imports every subcommand module, as every `bench` invocation does first
 gc.collect()
@@ -55,6 +61,9 @@ def _child(request: dict) -> int:
     for fd in (null, out, err, PROTOCOL_OUT.fileno()):
         os.close(fd)
     os.setsid()
+    arm_parent_death(signal.SIGTERM)     # the server's death (it follows the test process's) stops the command
+    if os.getppid() != request["server"]:
+        return 143                       # the server died before the signal was armed
     os.chdir(request["cwd"])
     os.environ.clear()
     os.environ.update(request["env"])
@@ -83,12 +92,30 @@ def _child(request: dict) -> int:
     return code
 
 
+def _stop_orphaned(pid: int) -> None:
+    """The test process is gone: stop the child's session as a signal would (SIGTERM; SIGKILL 10 s later), then
+    end the server."""
+    for signum in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(pid, signum)
+        except ProcessLookupError:
+            break
+        until = time.monotonic() + 10.0
+        while time.monotonic() < until:
+            if os.waitpid(pid, os.WNOHANG)[0]:
+                os._exit(143)
+            time.sleep(0.05)
+    os._exit(143)
+
+
 def serve() -> None:
+    parent = os.getppid()
     for line in sys.stdin:
         request = json.loads(line)
         sys.stdout.flush()
         sys.stderr.flush()
         started = time.perf_counter()
+        request["server"] = os.getpid()
         pid = os.fork()
         if pid == 0:
             code = 1
@@ -110,6 +137,8 @@ def serve() -> None:
                     pass
                 _, status = os.waitpid(pid, 0)
                 break
+            if os.getppid() != parent:
+                _stop_orphaned(pid)
             time.sleep(0.005)
         rc = os.waitstatus_to_exitcode(status)
         PROTOCOL_OUT.write(json.dumps({"rc": rc, "timed_out": timed_out,

@@ -50,7 +50,8 @@ counted (`invalid`, and by message in `rejected_host`) and its readings are not 
 target's.
 
 Checkpoints: the target's StateCheckpoint and ObserverCheckpoint frames are kept as the host's checks accept them,
-by the Step they name (`checkpoints`). Like a reply, a checkpoint frame that repeats the alive counter of the one
+by the row their Step names, read as a reply's is (nearest the last row sent: two checkpoints of a long log 65536
+steps apart are two checkpoints). Like a reply, a checkpoint frame that repeats the alive counter of the one
 before it and is not a copy of it (rejected by the counter check), or a second accepted frame of an element with
 another value in the same run of the target, makes the
 checkpoints of both frames *contested* (counted foreign): one of them is not the target's (a forged or replayed
@@ -105,6 +106,7 @@ from dbc.contract import (
     join_temperatures,
     nearest_row,
     rx_error_counts,
+    step_of,
     target_info,
 )
 from dbc.database import contract, frame_id, target_frame_ids
@@ -327,7 +329,7 @@ class _LogDecoder:
         self.last_checkpoint_key: dict[int, tuple[str, int, int]] = {}
         self.last_checkpoint_data: dict[int, bytes] = {}
         self.pending_checkpoint: str | None = None
-        self.last_state_checkpoint: int | None = None   # the Step of the last StateCheckpoint frame accepted
+        self.last_state_checkpoint: int | None = None   # the row of the last StateCheckpoint frame accepted
         self.last_reply_row: dict[int, int] = {}    # per reply id, the row of the last reply frame used
         # reply frames the counter check rejected: (segment index, row, message, signals), judged at the end
         self.out_of_sequence: list[tuple[int, int, str, dict]] = []
@@ -556,17 +558,24 @@ class _LogDecoder:
         for key, signal in signals:
             self.timing[key].append(s[signal])
 
+    def _checkpoint_row(self, step: int) -> int:
+        """The row a checkpoint's Step names, read as a reply's (nearest the last row the host sent): the Step
+        repeats every 65536 rows, the row does not."""
+        segment = self.target_segment() or (self.segments[-1] if self.segments else None)
+        return self._row(segment, step) if segment is not None else step - self.base_step
+
     def _checkpoint_element(self, name: str, s: dict) -> tuple[tuple[str, int, int], int, int]:
         """(its checkpoint's key, the element's index, its value's float32 bits) of a checkpoint frame: the
-        target's run that sent it (its transitions into RUNNING: a restored target checkpoints the same Steps again,
-        from another state) and the Step it names; an ObserverCheckpoint's StepLow names the StateCheckpoint sent
-        right before it (another StepLow: a key no restore matches)."""
+        target's run that sent it (its transitions into RUNNING: a restored target checkpoints the same rows again,
+        from another state) and the row its Step names; an ObserverCheckpoint's StepLow names the StateCheckpoint
+        sent right before it (another StepLow: a key no restore matches)."""
         if name == OBSERVER_CHECKPOINT_MESSAGE:
             low, index, value = int(s["StepLow"]), int(s["Index"]), s["Value"]
             last = self.last_state_checkpoint
-            key = last if last is not None and last % CHECKPOINT_STEP_LOW_MODULO == low else -1 - low
+            named = last is not None and step_of(last + self.base_step) % CHECKPOINT_STEP_LOW_MODULO == low
+            key = last if named else -1 - low
         else:
-            key, index, value = int(s["Step"]), int(s["StateIndex"]), s["StateValue"]
+            key, index, value = self._checkpoint_row(int(s["Step"])), int(s["StateIndex"]), s["StateValue"]
         return (name, self.transitions, key), index, int(np.float32(value).view(np.uint32))
 
     def checkpoint(self, name: str, s: dict, t: float) -> None:

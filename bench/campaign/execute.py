@@ -337,23 +337,42 @@ def run_tasks(client, function: Callable[[dict[str, Any]], dict[str, Any]], task
     task that raised `failed(id, exc)`. No more tasks in flight than worker threads: a task waits here, not in a
     worker's queue, so a worker that dies loses only what it was running. A future is let go as soon as its result
     is in, so the scheduler does not run a finished task again when the worker holding its result dies. While the
-    cluster (`where`, its scheduler at `address`) has no worker, the driver says so (`once.WorkerWatch`). `bench
-    campaign` and `bench robustness` share it (and `run_tasks_serially`, the same policy in a plain loop)."""
-    from distributed import KilledWorker, wait
+    cluster (`where`, its scheduler at `address`) has no worker, the driver says so (`once.WorkerWatch`): it never
+    waits longer than POLL_S without asking the scheduler how many workers it has, also while it fetches a result
+    (one whose worker died as it was fetched is computed again once a worker joins). `bench campaign` and `bench
+    robustness` share it (and `run_tasks_serially`, the same policy in a plain loop)."""
+    from distributed import CancelledError, KilledWorker, wait
 
     in_flight: dict[str, Any] = {}                # task key -> its future
     submitted: dict[str, tuple[str, int]] = {}    # task key -> (task id, attempt)
     waiting = deque((task_id, 1) for task_id in tasks)
     watch = WorkerWatch(where, address)
 
-    def fill() -> None:
+    def check(fetching: int = 0) -> int:
+        """The cluster's worker threads, after telling the watch (which says so when there are none)."""
         threads = sum(client.nthreads().values())
-        watch.check(threads, len(waiting) + len(in_flight))
+        watch.check(threads, len(waiting) + len(in_flight) + fetching)
+        return threads
+
+    def fill() -> None:
+        threads = check()
         while waiting and len(in_flight) < max(threads, 1):
             task_id, attempt = waiting.popleft()
             name = key(task_id, attempt)
             in_flight[name] = client.submit(function, tasks[task_id], key=name, pure=False, retries=0)
             submitted[name] = (task_id, attempt)
+
+    def fetch(future) -> dict[str, Any]:
+        """The future's result, asking after the cluster every POLL_S: a result whose worker died before it
+        reached the driver waits for a worker to compute it again, and the driver says meanwhile that none is
+        there (a plain `result()` waited in silence)."""
+        while True:
+            try:
+                return future.result(timeout=POLL_S)
+            except TimeoutError:
+                if future.status == "error":     # the task's own TimeoutError
+                    raise
+                check(fetching=1)
 
     fill()
     while in_flight:
@@ -362,12 +381,14 @@ def run_tasks(client, function: Callable[[dict[str, Any]], dict[str, Any]], task
         except TimeoutError:
             fill()        # nothing ended: does the cluster still have a worker?
             continue
+        except CancelledError:     # `wait` raises for a cancelled future among the done ones: each is taken alone
+            finished = [future for future in in_flight.values() if future.done()]
         for future in finished:
             name = future.key
             del in_flight[name]
             task_id, attempt = submitted.pop(name)
             try:
-                result = future.result()
+                result = fetch(future)
             except KilledWorker as exc:
                 result = lost(task_id, exc)
             except Exception as exc:  # noqa: BLE001 - a task that errored: its worker, or its environment

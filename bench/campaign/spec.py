@@ -25,7 +25,8 @@ beside its log as junit.xml) and `baseline` (a stored summary, `--baseline`); an
 (false: no per-run report). Each run's log, report and JUnit XML go into its own directory. Paths are relative to
 the spec file.
 
-Every problem is one sentence naming the file and the key (`BenchError`), found before anything is written.
+Every problem is one sentence naming the file and the key (`SpecError`, exit status 2), found before anything is
+written.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from bench.errors import BenchError, UsageError
+from bench.errors import UsageError
 from bench.run.request import OPTION, RUN, SETTABLE, RunRequest
 from bench.tomlspec import Check, TableSpec, flag, number, read_spec, spec_tables, string
 from target_sim.kinds import MODEL_KINDS as model_kind_table
@@ -52,7 +53,7 @@ DEFAULT_TIMEOUT_S = 1800.0
 SECTIONS = ("campaign", "fixed", "axes")
 
 
-class SpecError(BenchError):
+class SpecError(UsageError):
     """A campaign spec that cannot be used: one sentence naming the file and the key."""
 
 

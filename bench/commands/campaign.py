@@ -21,7 +21,8 @@ overrides a fixed option, or an axis (a list: --set 'model=["hammerstein"]'), e.
 small.
 
 Exit status 0 when every run is done and its `bench run` exited 0; 1 otherwise (the report lists why); 2 for a
-bad argument; SIGINT/SIGTERM stop the cluster and its runs, leave every row written whole, exit 130/143.
+bad argument or a bad spec, and for an OUT refused before any run (not empty, a campaign without --resume, another
+campaign's table); SIGINT/SIGTERM stop the cluster and its runs, leave every row written whole, exit 130/143.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from pathlib import Path
 from bench.campaign import spec as spec_module  # stdlib only: the spec format for --help
 from bench.commands.args import declare_files, positive_float, positive_int
 from bench.commands.common import add_output_flags, check_writable, print_json
-from bench.errors import BenchError, UsageError
+from bench.errors import UsageError
 from bench.progress import say
 
 DEFAULT_OUT = Path("out/campaigns")
@@ -101,20 +102,20 @@ def _check_out(out: Path, resume: bool) -> None:
     check_writable(out, "--out", directory=True)
     if (out / TABLE_NAME).exists():
         if not resume:
-            raise BenchError(f"{out} already holds a campaign ({TABLE_NAME}); pass --resume to run only what it does "
+            raise UsageError(f"{out} already holds a campaign ({TABLE_NAME}); pass --resume to run only what it does "
                              "not hold as done, or choose another --out")
     elif out.is_dir() and any(out.iterdir()):
-        raise BenchError(f"{out} is not empty and holds no campaign table; choose another --out")
+        raise UsageError(f"{out} is not empty and holds no campaign table; choose another --out")
 
 
 def check_same_campaign(meta: dict[str, str], campaign, out: Path) -> None:
-    """BenchError (one sentence, before any run) when OUT's table holds another campaign than `campaign` (other
+    """UsageError (one sentence, exit 2, before any run) when OUT's table holds another campaign than `campaign` (other
     axes or fixed options, from another spec or other --set values): a resume would mix the two campaigns' runs in
     one table and report, and replace the stored spec. A new table (no stored axes) is this campaign's."""
     from bench.campaign.store import holds_another
 
     if holds_another(meta, {"axes": campaign.axes, "fixed": campaign.fixed}):
-        raise BenchError(f"{out} holds the campaign {meta.get('name')!r} of {meta.get('spec_path')} (spec sha256 "
+        raise UsageError(f"{out} holds the campaign {meta.get('name')!r} of {meta.get('spec_path')} (spec sha256 "
                          f"{meta.get('spec_sha256', '')[:12]}…), whose axes or fixed options differ from "
                          f"{campaign.path}'s; resume it with that spec and the same --set values, or choose "
                          "another --out")

@@ -18,7 +18,8 @@ winding_C, u_d_V, u_q_V) perturbed like any input (a dropped sample: no reading)
 examples/robustness/observer.toml.
 
 Exit status 0 when every case is done (a diverged model is a result); 1 when a case failed; 2 for a bad argument
-or a bad spec; SIGINT/SIGTERM leave every row written whole (resume with --resume).
+or a bad spec, and for an OUT refused before any case (not empty, a study without --resume, another study's table);
+SIGINT/SIGTERM leave every row written whole (resume with --resume).
 """
 
 from __future__ import annotations
@@ -74,10 +75,10 @@ def _check_out(out: Path, resume: bool) -> None:
     check_writable(out, "--out", directory=True)
     if (out / TABLE_NAME).exists():
         if not resume:
-            raise BenchError(f"{out} already holds a robustness study ({TABLE_NAME}); pass --resume to run only "
+            raise UsageError(f"{out} already holds a robustness study ({TABLE_NAME}); pass --resume to run only "
                              "what it does not hold as done, or choose another --out")
     elif out.is_dir() and any(out.iterdir()):
-        raise BenchError(f"{out} is not empty and holds no robustness table; choose another --out")
+        raise UsageError(f"{out} is not empty and holds no robustness table; choose another --out")
 
 
 def check_same_study(meta: dict[str, str], case_ids: list[str], out: Path) -> None:

@@ -6,7 +6,8 @@ wait for
 Temperatures1 + 2 up to the reply timeout. When the deadline passes (the row's *deadline miss*, recorded):
 
 1. Retransmit: mark RETRANSMIT, send row n twice more with fresh alive counters (and again every RETRY_FACTOR
-   reply timeouts while it stays unanswered: the reply to the retransmission may be lost too). After a lost or
+   reply timeouts, but no sooner than RETRY_MIN_S, while it stays unanswered: the reply to the retransmission may be
+   lost too). After a lost or
    rejected frame the target's validator refuses the next frame of that id (its counter jumps) and
    resynchronizes on it, so the first copy may be refused; the second is then accepted. A target that already
    used row n answers it again without stepping (its reply was lost on the way back). Either way row n reaches
@@ -48,7 +49,9 @@ from .spec import FaultSpec
 
 DELAY_FACTOR = 1.5        # a delayed row is held this many reply timeouts: it misses its deadline, not the next
 FREEZE_FACTOR = 2.0       # a freeze lasts this many heartbeat timeouts
-RETRY_FACTOR = 4.0        # an unanswered retransmission is sent again after this many reply timeouts
+RETRY_FACTOR = 4.0        # an unanswered retransmission is sent again after this many reply timeouts,
+RETRY_MIN_S = 0.02        # and no sooner than this: a deadline of 10 µs sent each row ~25 times over (every 40 µs
+                          # until the target, answering in milliseconds, got a word in) and flooded the udp bus
 
 
 @dataclass
@@ -231,7 +234,7 @@ class FaultLockstep:
             self.fault_run.sends[n] += 2
             self.faulty.end_row()
             session.flush_log()
-            again_at = min(deadline, perf() + RETRY_FACTOR * self.reply_timeout_s)
+            again_at = min(deadline, perf() + max(RETRY_FACTOR * self.reply_timeout_s, RETRY_MIN_S))
             while (remaining := again_at - perf()) > 0:
                 session.receive(min(remaining, 0.02))
                 if self.book.is_answered(n):

@@ -40,10 +40,10 @@ def _us(ns_values) -> dict:
 
 def session(node, rows: int, daq: bool) -> list[int]:
     """Drive a lockstep session through `node`; the model step times (ns) it measured."""
-    from dbc import Command, FrameCodec
+    from dbc import FrameCodec
     from host.replay import encode_row
 
-    from helpers import SESSION_INITIAL, session_drive
+    from helpers import session_drive, session_start
 
     slave = node.xcp
     slave.command(bytes((0xFF, 0)))
@@ -59,11 +59,7 @@ def session(node, rows: int, daq: bool) -> list[int]:
         assert slave.command(bytes((0xE0, 0, 0, 0, 0, 0, 1, 0))) == b"\xff"
         assert slave.command(bytes((0xDE, 1, 0, 0)))[0] == 0xFF
     codec = FrameCodec("HOST")
-    yoke, winding, tooth, magnet = SESSION_INITIAL
-    for frame in (codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-                  codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-                  codec.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-                  codec.encode("Control", {"Command": int(Command.START), "Step": 0})):
+    for frame in session_start(codec):
         node.handle(frame)
     steps: list[int] = []
     for row, values in enumerate(session_drive(rows, 4)):
@@ -149,48 +145,47 @@ def daq_run(artifact, model_path: Path, rows: int | None, mf4: Path | None = Non
     from dbc.xcp import cmd_id, res_id
     from target_sim.model import InputAccumulator
 
+    from helpers import start_target
+
     data = ensure_default_datasets()[40]
     config = resolve(BusConfig("udp_multicast"), session_unique=True)
     channels = daq_channels(artifact, [f"y_est_{odt}" for odt in range(4)])
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(model_path), "--quiet",
-                               *config.to_argv()], cwd=ROOT)
-    bus = config.open()
-    try:
-        deadline = time.monotonic() + 60
-        while True:
-            msg = bus.recv(0.5)
-            if msg is not None and msg.arbitration_id == 0x230:
-                break
-            assert time.monotonic() < deadline, "no heartbeat from the target"
-        app = create_application_from_config({"Transport": {"CAN": {
-            "interface": "udp_multicast", "channel": config.channel, "can_id_master": cmd_id(),
-            "can_id_slave": res_id()}}})
-        app.transport.layer = "CAN"
-        app.transport.can.udp_multicast.port = config.kwargs["port"]
-        app.general.disable_error_handling = True
-        with tempfile.TemporaryDirectory() as work, Master("can", config=app) as xcp:
-            xcp.connect()
-            recorder = DaqRecorder(configure_daq(xcp, channels), len(channels))
-            notifier = can.Notifier(bus, [recorder])
-            xcp.startStopSynch(0x01)
-            log = Path(work) / "run.blf"
-            host = subprocess.run([sys.executable, "-m", "bench", "host", "--data", str(data), "--model",
-                                   str(model_path), "--log", str(log), "--quiet",
-                                   *(["--rows", str(rows)] if rows else []), *config.to_argv()],
-                                  cwd=ROOT, capture_output=True, text=True, timeout=7200)
-            time.sleep(1.0)
-            xcp.startStopSynch(0x00)
-            xcp.disconnect()
-            time.sleep(0.5)
-            notifier.stop()
-            record = decode_log(log)
-            samples = recorder.samples()
-            if mf4 is not None:
-                write_daq_mf4(mf4, channels, samples)
-    finally:
-        bus.shutdown()
-        target.terminate()
-        target.wait(30)
+    with start_target("--model", model_path, "--quiet", *config.to_argv()):   # stopped when the block ends
+        bus = config.open()
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                msg = bus.recv(0.5)
+                if msg is not None and msg.arbitration_id == 0x230:
+                    break
+                assert time.monotonic() < deadline, "no heartbeat from the target"
+            app = create_application_from_config({"Transport": {"CAN": {
+                "interface": "udp_multicast", "channel": config.channel, "can_id_master": cmd_id(),
+                "can_id_slave": res_id()}}})
+            app.transport.layer = "CAN"
+            app.transport.can.udp_multicast.port = config.kwargs["port"]
+            app.general.disable_error_handling = True
+            with tempfile.TemporaryDirectory() as work, Master("can", config=app) as xcp:
+                xcp.connect()
+                recorder = DaqRecorder(configure_daq(xcp, channels), len(channels))
+                notifier = can.Notifier(bus, [recorder])
+                xcp.startStopSynch(0x01)
+                log = Path(work) / "run.blf"
+                host = subprocess.run([sys.executable, "-m", "bench", "host", "--data", str(data), "--model",
+                                       str(model_path), "--log", str(log), "--quiet",
+                                       *(["--rows", str(rows)] if rows else []), *config.to_argv()],
+                                      cwd=ROOT, capture_output=True, text=True, timeout=7200)
+                time.sleep(1.0)
+                xcp.startStopSynch(0x00)
+                xcp.disconnect()
+                time.sleep(0.5)
+                notifier.stop()
+                record = decode_log(log)
+                samples = recorder.samples()
+                if mf4 is not None:
+                    write_daq_mf4(mf4, channels, samples)
+        finally:
+            bus.shutdown()
     accumulator = InputAccumulator(artifact.data_sample_period, artifact.dt)
     step_rows = [row for row in range(record.rows) if accumulator.ends_interval(row)]
     # y_est: yoke, winding, tooth, magnet; record.temps has the same order

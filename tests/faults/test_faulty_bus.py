@@ -25,6 +25,8 @@ from host.faults.reconcile import Journal
 from target_sim.artifact import load_artifact
 from target_sim.node import TargetNode
 
+from helpers import session_start
+
 
 class ListBus:
     """A python-can-like bus that keeps what was sent."""
@@ -208,10 +210,7 @@ def test_the_target_journal_names_each_injected_frame(kind):
         return [codec.encode("DriveInputs", {"Step": row, "MotorTorque": 100.0 + row, "MotorSpeed": 2000}),
                 codec.encode("DriveTemps", {"Step": row, "CoolantTemp": 40.0, "AmbientTemp": 25.0})]
 
-    for frame in (codec.encode("ResetTemps1", {"Step": 0, "WindingTempInit": 45.0, "MagnetTempInit": 50.0}),
-                  codec.encode("ResetTemps2", {"Step": 0, "YokeTempInit": 40.0, "ToothTempInit": 41.0}),
-                  codec.encode("Control", {"Command": 1, "Step": 0}),
-                  codec.encode("Control", {"Command": 2, "Step": 0})):
+    for frame in session_start(codec):
         bus.send(frame)
     deliver()
     answered = []

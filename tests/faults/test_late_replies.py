@@ -21,7 +21,7 @@ from helpers import run_cli
 
 MS = 1_000_000   # ns
 # reply deadlines tried in turn until a row misses one (0.2 ms: 19-27 of 60 rows late on a loaded machine, none on
-# an idle CI run once; below ~0.05 ms the retransmissions flood the udp bus)
+# an idle CI run once; below ~0.05 ms the retransmissions flooded the udp bus until they waited RETRY_MIN_S)
 LATE_DEADLINES_S = (0.0002, 0.0001)
 
 

@@ -14,12 +14,12 @@ import os
 import random
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,7 +28,7 @@ import pytest
 
 from host.canlog import mf4_available
 
-from helpers import ROOT
+from helpers import TiedProcess, start_target
 
 IDENTIFY_FAST = ("--swarm", "6", "--iterations", "2", "--lm-iterations", "2", "--quiet")
 REBUILD = "rebuild it with 'bench identify'"
@@ -652,32 +652,25 @@ def test_read_only_output_directory(cli, material, scratch):
 # ---------------------------------------------------------------- a channel already in use
 
 
-def _start_target(model: Path, port: int, workdir: Path) -> subprocess.Popen:
-    """`python -m target_sim` on a udp_multicast port; returns once it serves (its 'serving' line)."""
-    stderr = open(workdir / f"target-{port}.stderr", "w+b")
-    process = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(model), "-i", "udp_multicast",
-                                "--bus-kwargs", f"port={port}"], cwd=workdir, stdin=subprocess.DEVNULL,
-                               stdout=subprocess.DEVNULL, stderr=stderr, env={**os.environ, "MPLBACKEND": "Agg"})
-    started = time.monotonic()
-    serving = False
-    while not serving and time.monotonic() < started + 60 and process.poll() is None:   # generous: a busy machine
+@contextmanager
+def _foreign_target(model: Path, port: int, workdir: Path) -> Iterator[TiedProcess]:
+    """`python -m target_sim` on a udp_multicast port, tied to this process; the block runs once it serves (its
+    'serving' line), and the target is stopped (SIGTERM) when it ends."""
+    with open(workdir / f"target-{port}.stderr", "w+b") as stderr, \
+            start_target("--model", model, "-i", "udp_multicast", "--bus-kwargs", f"port={port}", cwd=workdir,
+                         env={**os.environ, "MPLBACKEND": "Agg"}, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                         stderr=stderr) as process:
+        started = time.monotonic()
+        serving = False
+        while not serving and time.monotonic() < started + 60 and process.poll() is None:   # generous: busy machine
+            stderr.seek(0)
+            serving = b"serving" in stderr.read()   # its start line, printed as its bus opens
+            time.sleep(0.05)
         stderr.seek(0)
-        serving = b"serving" in stderr.read()   # its start line, printed as its bus opens
-        time.sleep(0.05)
-    stderr.seek(0)
-    assert process.poll() is None and serving, (
-        f"the foreign target did not say 'serving' within 60 s: {stderr.read().decode(errors='replace')}")
-    time.sleep(0.5)   # its first heartbeats on the bus before the command under test listens for them
-    return process
-
-
-def _stop(process: subprocess.Popen) -> None:
-    process.send_signal(signal.SIGTERM)
-    try:
-        process.wait(60)   # its exit after SIGTERM: generous on a busy machine
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()
+        assert process.poll() is None and serving, (
+            f"the foreign target did not say 'serving' within 60 s: {stderr.read().decode(errors='replace')}")
+        time.sleep(0.5)   # its first heartbeats on the bus before the command under test listens for them
+        yield process
 
 
 def _port() -> int:
@@ -690,14 +683,11 @@ def test_channel_in_use_by_a_target_of_another_model(cli, material, scratch):
     """udp_multicast lets two processes bind one group and port, so "in use" is what the host can see: a target
     already answering there. One with another model id is refused in one sentence naming that id."""
     port = _port()
-    foreign = _start_target(material.lti, port, scratch)
-    try:
+    with _foreign_target(material.lti, port, scratch):
         out = scratch / "out"
         result = cli("bench", "run", "--data", material.data, "--model", material.art, "--rows", 50, "--log",
                      out / "x.blf", "--report", out / "rep", "--quiet", "-i", "udp_multicast", "--bus-kwargs",
                      f"port={port}", cwd=scratch, timeout=60)
-    finally:
-        _stop(foreign)
     assert_one_sentence(result, (f"runs model {material.model_id(material.lti)}",
                                  material.model_id(material.art)))
     assert tree(out) is None or tree(out) == {}
@@ -707,14 +697,11 @@ def test_channel_in_use_by_a_target_of_the_same_model(cli, material, scratch):
     """A target of the run's own model would pass the handshake and answer the run: the runner listens for one
     before it starts its own and refuses, naming the channel and the model, before anything is written."""
     port = _port()
-    foreign = _start_target(material.art, port, scratch)
-    try:
+    with _foreign_target(material.art, port, scratch):
         out = scratch / "out"
         result = cli("bench", "run", "--data", material.data, "--model", material.art, "--rows", 50, "--log",
                      out / "x.blf", "--no-report", "--quiet", "-i", "udp_multicast", "--bus-kwargs", f"port={port}",
                      cwd=scratch, timeout=60)
-    finally:
-        _stop(foreign)
     line = assert_one_sentence(result, (f"port {port} on udp_multicast already has a target sending heartbeats",
                                         f"runs model {material.model_id(material.art)}, the same as this run's",
                                         "stop it or pick another channel"))
@@ -725,14 +712,11 @@ def test_channel_in_use_by_a_target_of_the_same_model(cli, material, scratch):
 def test_replay_refuses_a_channel_with_a_target_on_it(cli, material, scratch):
     """`bench replay` starts a target of its own too (unless --no-start-target): the same check, the same line."""
     port = _port()
-    foreign = _start_target(material.art, port, scratch)
-    try:
+    with _foreign_target(material.art, port, scratch):
         out = scratch / "out"
         result = cli("bench", "replay", material.log, "--model", material.art, "--log", out / "r.blf", "--quiet",
                      "--as-fast-as-possible", "-i", "udp_multicast", "--bus-kwargs", f"port={port}", cwd=scratch,
                      timeout=60)
-    finally:
-        _stop(foreign)
     assert_one_sentence(result, (f"port {port} on udp_multicast already has a target sending heartbeats",
                                  "stop it or pick another channel"))
     assert tree(out) is None or tree(out) == {}
@@ -742,14 +726,11 @@ def test_target_sim_refuses_a_channel_with_a_target_on_it(cli, material, scratch
     """A second target would answer every row too: `python -m target_sim` listens before it joins, and refuses in
     one sentence naming the channel and the other target's model, writing neither stats nor events."""
     port = _port()
-    foreign = _start_target(material.art, port, scratch)
-    try:
+    with _foreign_target(material.art, port, scratch):
         out = scratch / "out"
         result = cli("target_sim", "--model", material.art, "--stats", out / "stats.json", "--events",
                      out / "events.jsonl", "-i", "udp_multicast", "--bus-kwargs", f"port={port}", cwd=scratch,
                      timeout=30)
-    finally:
-        _stop(foreign)
     assert_one_sentence(result, (f"port {port} already has a target sending",
                                  f"heartbeats of model {material.model_id(material.art)}",
                                  "stop it or pick another channel"), prefix="target_sim: error: ", rc=1)
@@ -777,16 +758,13 @@ def test_host_refuses_a_channel_with_another_host_on_it(cli, material, scratch):
     from dbc.transport import UDP_LOCAL_GROUP
 
     port = _port()
-    foreign = subprocess.Popen([sys.executable, "-c", FOREIGN_HOST, UDP_LOCAL_GROUP, str(port)], cwd=ROOT,
-                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    try:
-        assert foreign.stdout.readline().strip() == "sending"
+    with TiedProcess("-c", FOREIGN_HOST, UDP_LOCAL_GROUP, str(port), stdout=subprocess.PIPE,
+                     stderr=subprocess.DEVNULL, text=True) as foreign:
+        assert foreign.process.stdout.readline().strip() == "sending"
         out = scratch / "out"
         result = cli("bench", "host", "--data", material.data, "--model", material.art, "--log", out / "h.blf",
                      "--quiet", "-i", "udp_multicast", "-c", UDP_LOCAL_GROUP, "--bus-kwargs", f"port={port}",
                      cwd=scratch, timeout=30)
-    finally:
-        _stop(foreign)
     assert_one_sentence(result, (f"port {port} already has a host sending (frame id 0x100)",
                                  "stop it or pick another channel"), rc=1)
     assert tree(out) is None or tree(out) == {}

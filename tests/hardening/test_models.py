@@ -11,7 +11,7 @@ import pytest
 
 from target_sim.artifact import ArtifactError, dumps, encode_array, load_artifact, verify
 
-from helpers import ROOT, artifact_text
+from helpers import ROOT, artifact_text, session_start
 
 PACKAGED = sorted((ROOT / "bench" / "data").glob("default_model*.json"))
 
@@ -121,10 +121,7 @@ def session_log(path, artifact, rows: int, seed: int = 3):
                               np.full(rows, 40.0), np.full(rows, 25.0)])
     node, host, log = TargetNode(artifact, clock_ns=lambda: 0), FrameCodec("HOST"), FrameLog(path)
     frames = list(node.startup_frames())
-    sent = [host.encode("ResetTemps1", {"Step": 0, "WindingTempInit": 45.0, "MagnetTempInit": 50.0}),
-            host.encode("ResetTemps2", {"Step": 0, "YokeTempInit": 40.0, "ToothTempInit": 41.0}),
-            host.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-            host.encode("Control", {"Command": int(Command.START), "Step": 0})]
+    sent = session_start(host)
     for row, value in enumerate(values):
         sent += encode_row(host, row, value)
     sent.append(host.encode("Control", {"Command": int(Command.STOP), "Step": 0}))

@@ -22,7 +22,15 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, processes_of, subprocess_env, synthetic_columns, wait_for, write_synthetic_dataset
+from helpers import (
+    ROOT,
+    processes_of,
+    start_target,
+    subprocess_env,
+    synthetic_columns,
+    wait_for,
+    write_synthetic_dataset,
+)
 
 NOTE = "no half-written file is left and any target process it started was stopped"
 
@@ -413,18 +421,13 @@ def test_host_stops_on_a_signal_and_leaves_no_log(material, scratch, signum):
     target it did not start runs on."""
     port = _port()
     out = scratch / "out"
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(material.art), "-i",
-                               "udp_multicast", "--bus-kwargs", f"port={port}", "--quiet"], cwd=scratch,
-                              env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
+    with start_target("--model", material.art, "-i", "udp_multicast", "--bus-kwargs", f"port={port}", "--quiet",
+                      cwd=scratch, env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                      stderr=subprocess.DEVNULL, start_new_session=True) as target:
         process = _start(["bench", "host", "--data", material.data, "--model", material.art, "--mode", "realtime",
                           "--log", out / "h.blf", "--quiet"], scratch, port)
         rc, stdout, stderr = _signal_after(process, 5.0, signum)   # its imports, the handshake, rows going out
         assert target.poll() is None, "the target started by hand was stopped"
-    finally:
-        target.terminate()
-        target.wait(60)
     _assert_stopped(rc, stderr, signum)
     assert _leftovers(out) == []
 

@@ -19,7 +19,7 @@ from dbc.transport import BusConfig
 from host.canlog import mf4_available
 from target_sim.model import InputAccumulator
 
-from helpers import ROOT, private_udp_bus, run_cli, subprocess_env
+from helpers import ROOT, private_udp_bus, run_cli, start_target, subprocess_env
 
 ROWS = 300
 PERIOD = 0.2       # the synthetic dataset's sample period (5 Hz); the packaged model steps at 0.5 s
@@ -93,9 +93,7 @@ def test_the_host_only_export_replays_with_can_player_and_every_row_is_answered(
 
     stats = tmp_path / "stats.json"
     env = subprocess_env(can_settings=False)
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
-                               *bus.to_argv(), "--quiet", "--stats", str(stats)], cwd=ROOT, env=env)
-    try:
+    with start_target("--model", default_artifact_path(), *bus.to_argv(), "--quiet", "--stats", stats, env=env):
         listener = bus.open()
         try:
             deadline = time.monotonic() + 60
@@ -112,9 +110,7 @@ def test_the_host_only_export_replays_with_can_player_and_every_row_is_answered(
                                  str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
         assert player.returncode == 0, player.stderr
         time.sleep(0.5)
-    finally:
-        target.terminate()
-        target.wait(60)   # its exit after SIGTERM (it writes its stats then): generous on a busy machine
+    # stopped with SIGTERM as the block ended (it writes its stats then)
     s = json.loads(stats.read_text())
     assert s["rows_used"] == ROWS
     assert s["frames_received"] == len([m for m in frames(run_log) if m.arbitration_id in host_frame_ids()])

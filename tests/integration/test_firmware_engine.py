@@ -6,9 +6,7 @@ ends the run in one sentence naming the fault, never a hang."""
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -18,7 +16,7 @@ from bench.firmware.images import packaged_elf_path
 from bench.model.default import default_artifact_path
 from target_sim.firmware import memory_from_elf
 
-from helpers import ROOT, patched_elf, run_cli, subprocess_env
+from helpers import patched_elf, run_cli, start_target
 
 ROWS = 400
 # DWT-measured cycles of one Hammerstein step in the packaged ELF (delta realization): fw_step's 1414 plus the
@@ -85,16 +83,12 @@ def test_replay_and_analyze_of_a_firmware_log(runs, tmp_path, small_dataset):
 
 def test_target_sim_with_the_firmware_engine_serves_a_host(tmp_path, small_dataset, udp_bus):
     stats = tmp_path / "target.json"
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
-                               "--engine", "firmware", "--firmware", str(packaged_elf_path("hammerstein")),
-                               "--stats", str(stats), *udp_bus.to_argv()], cwd=ROOT, env=subprocess_env(),
-                              stderr=subprocess.PIPE, text=True)
-    try:
+    with start_target("--model", default_artifact_path(), "--engine", "firmware", "--firmware",
+                      packaged_elf_path("hammerstein"), "--stats", stats, *udp_bus.to_argv(), stderr=subprocess.PIPE,
+                      text=True) as target:
         host = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", "200", "--log",
                        str(tmp_path / "h.blf"), "--json", *udp_bus.to_argv())
-    finally:
-        target.send_signal(signal.SIGTERM)
-        _, target_err = target.communicate(timeout=60)   # its exit after SIGTERM: generous on a busy machine
+    target_err = target.stderr    # stopped with SIGTERM as the block ended
     assert host.returncode == 0, host.stderr
     result = json.loads(host.stdout)
     assert result["replies"] == 200 and result["engine"] == "firmware" and result["m4_cycles"]["max"] == STEP_CYCLES
@@ -148,17 +142,12 @@ def test_bench_host_against_a_firmware_that_computes_something_else_is_not_clean
     values = np.frombuffer(image[at:at + symbol["st_size"]], dtype="<f4")
     altered = tmp_path / "altered.elf"
     altered.write_bytes(patched_elf(elf, "LOSS_TABLES_ROWS", (values * 1.5).astype("<f4").tobytes()))
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
-                               "--engine", "firmware", "--firmware", str(altered), *udp_bus.to_argv()], cwd=ROOT,
-                              env=subprocess_env(), stderr=subprocess.PIPE, text=True)
-    try:
+    with start_target("--model", default_artifact_path(), "--engine", "firmware", "--firmware", altered,
+                      *udp_bus.to_argv(), stderr=subprocess.PIPE, text=True):
         host = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", "200", "--log",
                        str(tmp_path / "h.blf"), "--json", *udp_bus.to_argv())
         text = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", "60", "--log",
                        str(tmp_path / "t.blf"), "--quiet", *udp_bus.to_argv())
-    finally:
-        target.send_signal(signal.SIGTERM)
-        target.communicate(timeout=60)   # its exit after SIGTERM: generous on a busy machine
     assert host.returncode == 1, host.stderr
     result = json.loads(host.stdout)
     assert (result["replies"], result["missing"], result["clean"]) == (200, 0, False)

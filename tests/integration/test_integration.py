@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 import time
@@ -20,7 +19,7 @@ from dbc.transport import BusConfig, free_udp_port
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
 
-from helpers import ROOT, run_cli, subprocess_env
+from helpers import ROOT, run_cli, start_target
 
 DBC = ROOT / "dbc" / "thermal_bench.dbc"
 
@@ -37,16 +36,12 @@ def can_vs_float32(log: Path, artifact_path: Path) -> float:
 
 def test_target_and_host_processes_over_udp_multicast(tmp_path, small_dataset, udp_bus):
     stats = tmp_path / "target.json"
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
-                               "--stats", str(stats), *bus_argv(udp_bus)], cwd=ROOT, env=subprocess_env(),
-                              stderr=subprocess.PIPE, text=True)
-    try:
-        log = tmp_path / "host.log"
+    log = tmp_path / "host.log"
+    with start_target("--model", default_artifact_path(), "--stats", stats, *bus_argv(udp_bus),
+                      stderr=subprocess.PIPE, text=True) as target:
         host = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", "300", "--log", str(log),
                        "--json", *bus_argv(udp_bus))
-    finally:
-        target.send_signal(signal.SIGTERM)
-        _, target_err = target.communicate(timeout=60)   # its exit after SIGTERM: generous on a busy machine
+    target_err = target.stderr    # stopped with SIGTERM as the block ended
     assert host.returncode == 0, host.stderr
     result = json.loads(host.stdout)
     assert (result["rows_sent"], result["replies"], result["missing"], result["sequence_gaps"]) == (300, 300, 0, 0)

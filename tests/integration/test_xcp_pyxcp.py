@@ -6,8 +6,6 @@ the same calibration at the same row, bit for bit, and differ from the uncalibra
 from __future__ import annotations
 
 import struct
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -24,7 +22,7 @@ from host.replay import encode_row
 from target_sim.artifact import load_artifact
 from target_sim.node import TargetNode
 
-from helpers import ROOT, SESSION_INITIAL, private_udp_bus, session_drive, session_start, subprocess_env
+from helpers import SESSION_INITIAL, private_udp_bus, session_drive, session_start, start_target, subprocess_env
 
 pyxcp_config = pytest.importorskip("pyxcp.config")
 pyxcp_master = pytest.importorskip("pyxcp.master")
@@ -115,18 +113,16 @@ def observer_artifact(tmp_path_factory, small_dataset) -> Path:
 def bench(observer_artifact):
     """(bus config, host bus) with a Python target serving the observer model on a private udp_multicast bus."""
     config = private_udp_bus()
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(observer_artifact), "--quiet",
-                               *config.to_argv()], cwd=ROOT, env=subprocess_env(can_settings=False))
-    bus = config.open()
-    try:
-        deadline = time.monotonic() + 60
-        while message_name(bus.recv(0.5) or can.Message(arbitration_id=0x7FF)) != "Status":
-            assert time.monotonic() < deadline, "the target sent no heartbeat within 60 s"
-        yield config, bus
-    finally:
-        bus.shutdown()
-        target.terminate()
-        target.wait(30)
+    with start_target("--model", observer_artifact, "--quiet", *config.to_argv(),
+                      env=subprocess_env(can_settings=False)):
+        bus = config.open()
+        try:
+            deadline = time.monotonic() + 60
+            while message_name(bus.recv(0.5) or can.Message(arbitration_id=0x7FF)) != "Status":
+                assert time.monotonic() < deadline, "the target sent no heartbeat within 60 s"
+            yield config, bus
+        finally:
+            bus.shutdown()
 
 
 @pytest.fixture(scope="module")

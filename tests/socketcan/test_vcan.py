@@ -8,9 +8,7 @@ Python runs 10-20x slower in that software-emulated VM.
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
-import sys
 from functools import partial
 from pathlib import Path
 
@@ -22,8 +20,8 @@ from bench.model.default import default_artifact_path
 from target_sim.artifact import load_artifact
 from target_sim.model import run_offline
 
-from helpers import ROOT
 from helpers import run_cli as _run_cli
+from helpers import start_target
 
 pytestmark = pytest.mark.socketcan
 
@@ -65,14 +63,11 @@ def test_bench_run_on_vcan0_answers_every_step_and_matches_float32(vcan0, small_
 def test_target_sim_and_host_as_separate_processes_on_vcan0(vcan0, small_dataset, tmp_path):
     stats, log = tmp_path / "target.json", tmp_path / "host.log"
     bus = ["-i", "socketcan", "-c", vcan0]
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
-                               "--stats", str(stats), *bus], cwd=ROOT, stderr=subprocess.PIPE, text=True)
-    try:
+    with start_target("--model", default_artifact_path(), "--stats", stats, *bus, stderr=subprocess.PIPE,
+                      text=True) as target:
         host = run_cli("-m", "bench", "host", "--data", str(small_dataset), "--rows", str(ROWS), "--log", str(log),
                        "--reply-timeout", REPLY_TIMEOUT, "--connect-timeout", "120", "--json", *bus)
-    finally:
-        target.send_signal(signal.SIGTERM)
-        _, target_err = target.communicate(timeout=60)
+    target_err = target.stderr    # stopped with SIGTERM as the block ended
     assert host.returncode == 0, host.stderr
     result = json.loads(host.stdout)
     assert (result["rows_sent"], result["replies"], result["missing"], result["sequence_gaps"]) == (ROWS, ROWS, 0, 0)

@@ -33,7 +33,7 @@ from target_sim.observer.node import (
     raw_sources,
 )
 
-from helpers import SESSION_INITIAL, session_frames
+from helpers import SESSION_INITIAL, session_frames, session_start
 
 ROWS = 400
 
@@ -121,11 +121,7 @@ def test_a_lost_or_corrupted_voltage_frame_is_counted_and_no_flux_update_follows
     drive, measured = rows
     hit = 41
     host, node = FrameCodec("HOST"), TargetNode(observed, clock_ns=lambda: 0)
-    yoke, winding, tooth, magnet = SESSION_INITIAL
-    for frame in (host.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-                  host.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-                  host.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-                  host.encode("Control", {"Command": int(Command.START), "Step": 0})):
+    for frame in session_start(host):
         node.handle(frame)
     out = []
     for row in range(ROWS):

@@ -28,7 +28,7 @@ from target_sim.node import TargetNode
 from target_sim.observer import run_observer_offline
 from target_sim.observer.node import measurement_slots
 
-from helpers import SESSION_INITIAL, session_drive, session_frames
+from helpers import SESSION_INITIAL, session_drive, session_frames, session_start
 
 ROWS = 200
 
@@ -127,11 +127,7 @@ def test_replies_equal_the_offline_observer_on_the_decoded_measurements(observed
 def _run_node(artifact, frames_per_row):
     """A node through RESET, START and the given rows' frames; (node, replies per row: temperatures)."""
     node, host = TargetNode(artifact, clock_ns=lambda: 0), FrameCodec("HOST")
-    yoke, winding, tooth, magnet = SESSION_INITIAL
-    for frame in (host.encode("ResetTemps1", {"Step": 0, "WindingTempInit": winding, "MagnetTempInit": magnet}),
-                  host.encode("ResetTemps2", {"Step": 0, "YokeTempInit": yoke, "ToothTempInit": tooth}),
-                  host.encode("Control", {"Command": int(Command.RESET), "Step": 0}),
-                  host.encode("Control", {"Command": int(Command.START), "Step": 0})):
+    for frame in session_start(host):
         node.handle(frame)
     temps = np.full((len(frames_per_row), 4), np.nan)
     for row, frames in enumerate(frames_per_row):

@@ -12,7 +12,7 @@ import pytest
 
 from bench.acceptance.junit import PROJECT_DIR_VARIABLE
 
-from helpers import subprocess_env
+from helpers import start_target, subprocess_env
 
 junitparser = pytest.importorskip("junitparser")
 
@@ -161,22 +161,16 @@ def test_attached(thermal_bench):
 def test_an_attached_targets_run_reads_as_the_same_summary(tmp_path, small_dataset, udp_bus):
     """Issue 38: `bench host --json` prints the summary `bench run --json` prints, so the fixture reads a run on an
     attached target with `RunSummary.from_json` as it reads its own (no conversion between two shapes)."""
-    import signal
     import subprocess
 
     from bench.model.default import default_artifact_path
 
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(default_artifact_path()),
-                               *udp_bus.to_argv()], cwd=ROOT, env=subprocess_env(), stderr=subprocess.PIPE, text=True)
-    try:
+    with start_target("--model", default_artifact_path(), *udp_bus.to_argv(), stderr=subprocess.PIPE, text=True):
         (tmp_path / "test_suite.py").write_text(ATTACHED_SUITE)
         (tmp_path / "profile.toml").write_text(f'[target]\nattach = true\n[run]\ndata = "{small_dataset}"\n')
         bus = ["--bench-interface", udp_bus.interface, "--bench-channel", str(udp_bus.channel),
                "--bench-bus-kwargs", *(f"{k}={v}" for k, v in udp_bus.kwargs.items())]
         proc = pytest_session(tmp_path, "-q", "--bench-out", "runs", "--bench-profile", "profile.toml", *bus,
                               "test_suite.py")
-    finally:
-        target.send_signal(signal.SIGTERM)
-        target.communicate(timeout=60)   # its exit after SIGTERM: generous on a busy machine
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
     assert "1 passed" in proc.stdout

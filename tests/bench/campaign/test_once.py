@@ -127,6 +127,59 @@ def test_a_run_executed_twice_is_recorded_once_and_its_second_attempt_discarded(
 
 
 @pytest.mark.cluster
+def test_a_result_lost_as_it_is_fetched_is_waited_for_saying_no_worker_is_there(tmp_path, monkeypatch):
+    """Every worker killed after two tasks finished and before the driver fetched the second's result (the flaky
+    "every worker killed" case, made certain: both results come in one `wait`, and the first one's record kills the
+    workers): the fetch waited for a worker to compute it again without a word; now the driver says within
+    POLL_S + a loaded machine's margin that no worker is there, and goes on when one joins."""
+    import functools
+
+    import distributed
+    from distributed import Client
+
+    from bench.campaign import execute
+
+    real_wait = distributed.wait
+    monkeypatch.setattr(distributed, "wait", lambda fs, timeout, return_when: real_wait(
+        fs, timeout=timeout, return_when="ALL_COMPLETED"))               # both results in one batch
+    notes: list[tuple[float, str]] = []
+    monkeypatch.setattr(execute, "WorkerWatch", functools.partial(
+        execute.WorkerWatch, notice=lambda text: notes.append((time.monotonic(), text))))
+    tasks = {name: {"name": name, "status": "done"} for name in ("a", "b")}
+    recorded: dict[str, dict] = {}
+    with DaskCluster(tmp_path, workers=2) as cluster, Client(cluster.address, timeout=60) as client:
+        killed: list[float] = []
+
+        def record(task_id: str, outcome: dict, attempt: int, final: bool) -> bool:
+            recorded[task_id] = outcome
+            if not killed:                     # the first result in: every worker dies before the second's fetch
+                for worker in cluster.workers:
+                    worker.kill()
+                    worker.wait(30)
+                until(lambda: not client.nthreads(), 60, "the scheduler saw both workers go")
+                killed.append(time.monotonic())
+            return True
+
+        def lost(task_id: str, exc: BaseException) -> dict:
+            return {"name": task_id, "status": "lost-worker"}
+
+        driver = threading.Thread(target=execute.run_tasks, args=(client, dict, tasks), daemon=True, kwargs=dict(
+            key=lambda task_id, attempt: f"fetch-{task_id}-{attempt}", record=record, lost=lost, failed=lost,
+            where="the scheduler", address=cluster.address))
+        driver.start()
+        try:
+            said = until(lambda: [at for at, text in notes if text.startswith("no Dask worker is available")],
+                         POLL_S + 60, "the driver said no worker is available")
+            assert said[0] - killed[0] < POLL_S + 10, said[0] - killed[0]
+        finally:
+            cluster.start_worker()             # a worker joins: the lost result is computed again
+            driver.join(timeout=120)
+        assert not driver.is_alive()
+    assert recorded == tasks                                # both results, each once
+    assert any(text.startswith("a Dask worker joined the scheduler") for _, text in notes), notes
+
+
+@pytest.mark.cluster
 @pytest.mark.parametrize("repetition", range(REPEATS))
 def test_a_worker_killed_while_it_runs_a_run_leaves_a_table_equal_to_its_files(tmp_path, small_dataset, repetition):
     """The worker killed is one that has finished a run already (it held that run's result, which the scheduler

@@ -113,7 +113,7 @@ def test_a_bad_spec_is_one_sentence_and_nothing_is_written(tmp_path, capsys, tex
         load_spec(spec)
     out = tmp_path / "out"
     for action in (["run", str(spec), "--out", str(out)], ["plan", str(spec)]):
-        assert main(["campaign", *action]) == 1
+        assert main(["campaign", *action]) == 2
         err = capsys.readouterr().err
         assert expected in err and err.count("\n") == 1 and err.startswith("bench: error: ")
         assert "Traceback" not in err
@@ -124,7 +124,7 @@ def test_bad_arguments_are_one_sentence(tmp_path, capsys):
     spec = tmp_path / "s.toml"
     spec.write_text("[axes]\nmodel = ['hammerstein']\n")
     cases = [
-        (["run", str(tmp_path / "none.toml")], 1, "does not exist"),
+        (["run", str(tmp_path / "none.toml")], 2, "does not exist"),
         (["run", str(spec), "--workers", "0"], 2, "must be a positive whole number"),
         (["run", str(spec), "--cluster", "127.0.0.1:1", "--workers", "2"], 2, "--workers sizes the local cluster"),
         (["run", str(spec), "--cluster", "no-port"], 1, "is not a scheduler address"),
@@ -147,7 +147,7 @@ def test_an_occupied_out_is_refused(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
-    assert main(["campaign", "run", str(spec), "--out", str(out)]) == 1
+    assert main(["campaign", "run", str(spec), "--out", str(out)]) == 2
     assert "is not empty and holds no campaign table" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
 

@@ -171,7 +171,8 @@ def test_a_report_directory_with_foreign_files_and_a_foreign_table_are_refused(t
 
 def test_a_resume_with_another_spec_is_refused_before_any_run(table, capsys):
     """A resume into a finished campaign with another spec mixed both specs' runs in one table and replaced the
-    stored spec; now one sentence, before any run, the table as it was."""
+    stored spec; now one sentence, exit 2 (refused before any work, as `bench robustness --resume` refuses another
+    study), the table as it was; so is the same table without --resume."""
     out, campaign = table
     (out / "spec.toml").write_text(SPEC)
     with Store(out / TABLE_NAME) as store:
@@ -180,14 +181,16 @@ def test_a_resume_with_another_spec_is_refused_before_any_run(table, capsys):
         before = store.meta(), store.rows()
     other = out.parent / "other.toml"
     other.write_text(SPEC.replace("[1, 2, 3]", "[4]"))
-    assert main(["campaign", "run", str(other), "--out", str(out), "--resume", "--quiet"]) == 1
+    assert main(["campaign", "run", str(other), "--out", str(out), "--resume", "--quiet"]) == 2
     said = capsys.readouterr().err.strip()
     assert said == (f"bench: error: {out} holds the campaign 'unit' of {out / 'spec.toml'} (spec sha256 "
                     f"abababababab…), whose axes or fixed options differ from {other}'s; resume it with that spec "
                     "and the same --set values, or choose another --out")
     assert main(["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--resume", "--quiet",
-                 "--set", "rows=200"]) == 1                         # the same spec with other values: another one
+                 "--set", "rows=200"]) == 2                         # the same spec with other values: another one
     assert "whose axes or fixed options differ" in capsys.readouterr().err
+    assert main(["campaign", "run", str(out / "spec.toml"), "--out", str(out), "--quiet"]) == 2
+    assert "already holds a campaign (campaign.sqlite); pass --resume" in capsys.readouterr().err
     with Store(out / TABLE_NAME) as store:
         assert (store.meta(), store.rows()) == before
 

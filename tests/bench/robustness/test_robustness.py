@@ -207,7 +207,7 @@ def test_an_interrupted_study_resumed_gives_the_same_table(tmp_path, spec, small
     assert straight["cases"] == resumed["cases"]
     assert tables(out) == tables(straight_out)
     again = run_cli("-m", "bench", "robustness", "--data", str(small_dataset), "--spec", str(spec), "--out", str(out))
-    assert again.returncode == 1 and "already holds a robustness study" in again.stderr
+    assert again.returncode == 2 and "already holds a robustness study" in again.stderr
 
 
 def test_a_resume_with_another_spec_is_refused_before_any_case(tmp_path, spec, small_dataset, serial_run, capsys):
@@ -233,6 +233,8 @@ def test_a_resume_with_another_spec_is_refused_before_any_case(tmp_path, spec, s
         assert said.count("\n") == 1 and "whose cases differ from this one's" in said, said
         with CaseStore(out / TABLE_NAME) as store:
             assert (store.meta(), store.rows()) == before
+    assert main([arg for arg in base if arg != "--resume"] + ["--spec", str(spec)]) == 2   # exit 2 as campaign's
+    assert "already holds a robustness study" in capsys.readouterr().err
     assert main([*base, "--spec", str(spec), "--json"]) == 0
     resumed = json.loads(capsys.readouterr().out)
     assert resumed["ran"] == 0 and resumed["skipped"] == resumed["cases"] == len(before[1])
