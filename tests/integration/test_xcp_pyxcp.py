@@ -279,30 +279,28 @@ def test_a_pyxcp_daq_recording_into_an_mf4_reads_back_as_the_target_sent_it(lagg
     artifact = load_artifact(lagged_artifact)
     channels = daq_channels(artifact, MF4_CHANNELS)
     config = private_udp_bus()
-    target = subprocess.Popen([sys.executable, "-m", "target_sim", "--model", str(lagged_artifact), "--quiet",
-                               *config.to_argv()], cwd=ROOT, env=subprocess_env(can_settings=False))
-    bus = config.open()
     drive, measured = rows
-    try:
-        deadline = time.monotonic() + 60
-        while message_name(bus.recv(0.5) or can.Message(arbitration_id=0x7FF)) != "Status":
-            assert time.monotonic() < deadline, "the target sent no heartbeat within 60 s"
-        host = Host(bus)
-        with master(config) as xcp:
-            xcp.connect()
-            recorder = DaqRecorder(configure_daq(xcp, channels), len(channels))
-            xcp.startStopSynch(0x01)
-            host.send(session_start(host.codec))
-            for row in range(ROWS):
-                host.send(encode_row(host.codec, row, drive[row], measured[row].tolist()))
-                host.wait(row)
-            xcp.startStopSynch(0x00)
-            host.drain()
-            xcp.disconnect()
-    finally:
-        bus.shutdown()
-        target.terminate()
-        target.wait(30)
+    with start_target("--model", lagged_artifact, "--quiet", *config.to_argv(),
+                      env=subprocess_env(can_settings=False)):     # stopped when the block ends
+        bus = config.open()
+        try:
+            deadline = time.monotonic() + 60
+            while message_name(bus.recv(0.5) or can.Message(arbitration_id=0x7FF)) != "Status":
+                assert time.monotonic() < deadline, "the target sent no heartbeat within 60 s"
+            host = Host(bus)
+            with master(config) as xcp:
+                xcp.connect()
+                recorder = DaqRecorder(configure_daq(xcp, channels), len(channels))
+                xcp.startStopSynch(0x01)
+                host.send(session_start(host.codec))
+                for row in range(ROWS):
+                    host.send(encode_row(host.codec, row, drive[row], measured[row].tolist()))
+                    host.wait(row)
+                xcp.startStopSynch(0x00)
+                host.drain()
+                xcp.disconnect()
+        finally:
+            bus.shutdown()
     for msg in host.log:
         recorder.on_message_received(msg)
     samples = recorder.samples()
