@@ -115,6 +115,11 @@ void node_on_tick(uint32_t now_ms);
 /* An internal fault the node's host detected (the core faulted, a watchdog): INTERNAL, state FAULT, Status. */
 void node_internal_fault(uint32_t code);
 
+/* The XCP slave (xcp.c; node_on_frame calls it for the XCP command id): one command's reply into node_out.tx, and
+ * an event channel's DAQ packets (after each model step, on the heartbeat tick), sent at the end of the call. */
+void xcp_command(uint32_t dlc, const uint8_t *data);
+void xcp_event(uint32_t event);
+
 /* The raw value a temperature (deg C) goes out with: clamped to the DBC range, round half to even of
  * (value - offset) / scale computed exactly (what the Python codec's double arithmetic gives); exposed for tests. */
 uint32_t node_temperature_raw(float value);
