@@ -62,12 +62,16 @@ static struct {
     uint8_t countdown;
 } daq_list[XCP_MAX_DAQ_LISTS];
 static struct {
+    uint8_t owner;                    /* its list */
     uint8_t capacity;                 /* entries allocated */
     uint8_t length;                   /* entries written or skipped (the Python list's length) */
+    uint8_t complete;                 /* length == capacity, every entry written (Daq._complete, per ODT) */
     uint8_t size[XCP_ODT_PAYLOAD];    /* 0: skipped, never written */
     uint32_t address[XCP_ODT_PAYLOAD];
+    uint8_t bytes;                    /* the packet's payload: its entries' bytes in order, by address */
+    const uint8_t *byte_at[XCP_ODT_PAYLOAD];
 } daq_odt[XCP_MAX_ODTS];
-static uint32_t daq_lists, daq_stage, daq_allocated;
+static uint32_t daq_lists, daq_odts, daq_stage, daq_allocated;
 static uint8_t daq_have_pointer, daq_pointer_list, daq_pointer_odt, daq_pointer_entry;
 static struct {
     uint8_t dlc;
@@ -124,6 +128,13 @@ static int xcp_readable(uint32_t address, uint32_t size) { return xcp_mapped(add
 
 static const uint8_t *xcp_bytes(uint32_t address) { return (const uint8_t *)(uintptr_t)address; }
 
+/* `n` bytes (at most a CAN frame's 8), with a loop the WCET analysis has a bound for (memcpy's has none) */
+static void xcp_copy(uint8_t *to, const uint8_t *from, uint32_t n)
+{
+    uint32_t i;
+    for (i = 0u; i < n && i < 8u; i++) to[i] = from[i];    /* wcet-loop: 8 */
+}
+
 /* ------------------------------------------------------------------------------------------------ replies */
 static uint8_t xcp_reply[8];
 static uint32_t xcp_reply_length;
@@ -168,7 +179,7 @@ static uint32_t xcp_upload(uint32_t size, uint32_t address)
 {
     if (size < 1u || size > XCP_MAX_CTO - 1u) return xcp_error(XCP_ERR_OUT_OF_RANGE);
     if (!xcp_readable(address, size)) return xcp_error(XCP_ERR_ACCESS_DENIED);
-    memcpy(xcp_reply + 1, xcp_bytes(address), size);
+    xcp_copy(xcp_reply + 1, xcp_bytes(address), size);
     xcp_mta = address + size;
     return xcp_ok(size);
 }
@@ -225,18 +236,31 @@ static int daq_running(void)
     return 0;
 }
 
-/* Daq._complete: every ODT's entries written, as many as allocated */
-static int daq_complete(uint32_t d)
+/* Daq._complete of list `d` (d < 0: of every selected list) */
+static int daq_complete(int32_t d)
 {
-    uint32_t k, e;
-    for (k = 0u; k < daq_list[d].odts; k++) {               /* wcet-loop: XCP_MAX_ODTS */
-        const uint32_t o = daq_list[d].first_pid + k;
-        if (daq_odt[o].length != daq_odt[o].capacity) return 0;
-        for (e = 0u; e < daq_odt[o].length; e++) {          /* wcet-loop: XCP_ODT_PAYLOAD */
-            if (!daq_odt[o].size[e]) return 0;
-        }
+    uint32_t o;
+    for (o = 0u; o < daq_odts; o++) {                       /* wcet-loop: XCP_MAX_ODTS */
+        const int32_t owner = daq_odt[o].owner;
+        if ((owner == d || (d < 0 && daq_list[owner].selected)) && !daq_odt[o].complete) return 0;
     }
     return 1;
+}
+
+/* After its entries changed: whether ODT `o` is complete, and the addresses of its packet's bytes (so a sample is
+ * one loop over at most XCP_ODT_PAYLOAD bytes) */
+static void daq_refresh(uint32_t o)
+{
+    uint32_t e, b, n = 0u;
+    uint8_t complete = (uint8_t)(daq_odt[o].length == daq_odt[o].capacity);
+    for (e = 0u; e < daq_odt[o].length; e++) {              /* wcet-loop: XCP_ODT_PAYLOAD */
+        if (!daq_odt[o].size[e]) complete = 0u;
+        for (b = 0u; b < daq_odt[o].size[e] && n < XCP_ODT_PAYLOAD; b++) {   /* wcet-loop: XCP_ODT_PAYLOAD */
+            daq_odt[o].byte_at[n++] = xcp_bytes(daq_odt[o].address[e] + b);
+        }
+    }
+    daq_odt[o].complete = complete;
+    daq_odt[o].bytes = (uint8_t)n;
 }
 
 static uint32_t daq_alloc_daq(const uint8_t *cto)
@@ -244,13 +268,16 @@ static uint32_t daq_alloc_daq(const uint8_t *cto)
     const uint32_t count = xcp_u16(cto + 2);
     if (daq_stage != DAQ_LISTS || daq_lists) return xcp_error(XCP_ERR_SEQUENCE);
     if (count > XCP_MAX_DAQ_LISTS) return xcp_error(XCP_ERR_MEMORY_OVERFLOW);
-    memset(daq_list, 0, sizeof daq_list);
-    memset(daq_odt, 0, sizeof daq_odt);
     {
         uint32_t d;
-        for (d = 0u; d < XCP_MAX_DAQ_LISTS; d++) daq_list[d].prescaler = 1u;   /* wcet-loop: XCP_MAX_DAQ_LISTS */
+        for (d = 0u; d < XCP_MAX_DAQ_LISTS; d++) {          /* wcet-loop: XCP_MAX_DAQ_LISTS */
+            daq_list[d].odts = daq_list[d].first_pid = daq_list[d].event = daq_list[d].mode = 0u;
+            daq_list[d].selected = daq_list[d].running = daq_list[d].countdown = 0u;
+            daq_list[d].prescaler = 1u;
+        }
     }
     daq_lists = count;
+    daq_odts = 0u;
     daq_stage = DAQ_ODTS;
     return xcp_ok(0u);
 }
@@ -265,9 +292,16 @@ static uint32_t daq_alloc_odt(const uint8_t *cto)
     if (total + count > XCP_MAX_ODTS) return xcp_error(XCP_ERR_MEMORY_OVERFLOW);
     daq_list[d].odts = (uint8_t)count;
     for (total = 0u, i = 0u; i < daq_lists; i++) {          /* wcet-loop: XCP_MAX_DAQ_LISTS */
+        uint32_t k;
         daq_list[i].first_pid = (uint8_t)total;
+        for (k = 0u; k < daq_list[i].odts; k++) {           /* wcet-loop: XCP_MAX_ODTS */
+            daq_odt[total + k].owner = (uint8_t)i;          /* every ODT is empty until ALLOC_ODT_ENTRY */
+            daq_odt[total + k].capacity = daq_odt[total + k].length = daq_odt[total + k].bytes = 0u;
+            daq_odt[total + k].complete = 1u;
+        }
         total += daq_list[i].odts;
     }
+    daq_odts = total;
     return xcp_ok(0u);
 }
 
@@ -282,6 +316,7 @@ static uint32_t daq_alloc_odt_entry(const uint8_t *cto)
     if (daq_allocated - daq_odt[o].capacity + count > XCP_MAX_ODT_ENTRIES) return xcp_error(XCP_ERR_MEMORY_OVERFLOW);
     daq_allocated = daq_allocated - daq_odt[o].capacity + count;
     daq_odt[o].capacity = (uint8_t)count;
+    daq_refresh(o);
     daq_stage = DAQ_ENTRIES;
     return xcp_ok(0u);
 }
@@ -318,6 +353,7 @@ static uint32_t daq_write(const uint8_t *cto)
     daq_odt[o].size[e] = (uint8_t)size;
     daq_odt[o].address[e] = address;
     if (e >= daq_odt[o].length) daq_odt[o].length = (uint8_t)(e + 1u);
+    daq_refresh(o);
     daq_pointer_entry = (uint8_t)(e + 1u);                  /* WRITE_DAQ post-increments the pointer */
     return xcp_ok(0u);
 }
@@ -340,7 +376,7 @@ static uint32_t daq_start_stop_list(const uint8_t *cto)
     const uint32_t mode = cto[1], d = xcp_u16(cto + 2);
     if (d >= daq_lists) return xcp_error(XCP_ERR_OUT_OF_RANGE);
     if (mode > 2u) return xcp_error(XCP_ERR_MODE_NOT_VALID);
-    if (mode == 1u && !daq_complete(d)) return xcp_error(XCP_ERR_DAQ_CONFIG);
+    if (mode == 1u && !daq_complete((int32_t)d)) return xcp_error(XCP_ERR_DAQ_CONFIG);
     if (mode == 0u) {
         daq_list[d].running = 0u;
     } else if (mode == 1u) {
@@ -358,11 +394,7 @@ static uint32_t daq_start_stop_synch(const uint8_t *cto)
     const uint32_t mode = cto[1];
     uint32_t d;
     if (mode > 2u) return xcp_error(XCP_ERR_MODE_NOT_VALID);
-    if (mode == 1u) {
-        for (d = 0u; d < daq_lists; d++) {                  /* wcet-loop: XCP_MAX_DAQ_LISTS */
-            if (daq_list[d].selected && !daq_complete(d)) return xcp_error(XCP_ERR_DAQ_CONFIG);
-        }
-    }
+    if (mode == 1u && !daq_complete(-1)) return xcp_error(XCP_ERR_DAQ_CONFIG);
     for (d = 0u; d < daq_lists; d++) {                      /* wcet-loop: XCP_MAX_DAQ_LISTS */
         if (mode == 0u) {
             daq_list[d].running = 0u;
@@ -389,32 +421,34 @@ static void daq_free(void)
     daq_stage = DAQ_LISTS;
 }
 
-/* Daq.sample: one packet per ODT of each running list of `event` whose prescaler is due */
+/* Daq.sample: one packet per ODT of each running list of `event` whose prescaler is due, in ODT order (the lists'
+ * order): which lists are due first, then one loop over the ODTs, each packet a loop over its bytes */
 static void daq_sample(uint32_t event)
 {
-    uint32_t d, k, e;
+    uint8_t due[XCP_MAX_DAQ_LISTS];
+    uint32_t d, o, b;
     for (d = 0u; d < daq_lists; d++) {                      /* wcet-loop: XCP_MAX_DAQ_LISTS */
+        due[d] = 0u;
         if (!daq_list[d].running || daq_list[d].event != event) continue;
         if (daq_list[d].countdown) {
             daq_list[d].countdown--;
             continue;
         }
         daq_list[d].countdown = (uint8_t)(daq_list[d].prescaler - 1u);
-        for (k = 0u; k < daq_list[d].odts; k++) {           /* wcet-loop: XCP_MAX_ODTS */
-            const uint32_t o = daq_list[d].first_pid + k;
-            uint32_t length = 1u;
-            xcp_counters.daq_packets++;
-            if (daq_queued >= XCP_MAX_ODTS) {               /* a row of several steps: see the top */
-                node_out.tx_dropped++;
-                continue;
-            }
-            daq_queue[daq_queued].data[0] = (uint8_t)o;
-            for (e = 0u; e < daq_odt[o].length; e++) {      /* wcet-loop: XCP_ODT_PAYLOAD */
-                memcpy(daq_queue[daq_queued].data + length, xcp_bytes(daq_odt[o].address[e]), daq_odt[o].size[e]);
-                length += daq_odt[o].size[e];
-            }
-            daq_queue[daq_queued++].dlc = (uint8_t)length;
+        due[d] = 1u;
+    }
+    for (o = 0u; o < daq_odts; o++) {                       /* wcet-loop: XCP_MAX_ODTS */
+        uint8_t *packet;
+        if (!due[daq_odt[o].owner]) continue;
+        xcp_counters.daq_packets++;
+        if (daq_queued >= XCP_MAX_ODTS) {                   /* a row of several steps: see the top */
+            node_out.tx_dropped++;
+            continue;
         }
+        packet = daq_queue[daq_queued].data;
+        packet[0] = (uint8_t)o;
+        for (b = 0u; b < daq_odt[o].bytes; b++) packet[1u + b] = *daq_odt[o].byte_at[b];   /* wcet-loop: XCP_ODT_PAYLOAD */
+        daq_queue[daq_queued++].dlc = (uint8_t)(1u + daq_odt[o].bytes);
     }
 }
 
@@ -538,7 +572,7 @@ void xcp_command(uint32_t dlc, const uint8_t *data)
     frame->id = XCP_RES_ID;
     frame->dlc = xcp_reply_length;
     memset(frame->data, 0, sizeof frame->data);
-    memcpy(frame->data, xcp_reply, xcp_reply_length);
+    xcp_copy(frame->data, xcp_reply, xcp_reply_length);
 }
 
 /* An event channel's DAQ (XcpSlave.event): nothing while disconnected or no list runs; timed with the DWT. */
@@ -565,7 +599,7 @@ static void xcp_flush(void)
         frame->id = XCP_RES_ID;
         frame->dlc = daq_queue[i].dlc;
         memset(frame->data, 0, sizeof frame->data);
-        memcpy(frame->data, daq_queue[i].data, daq_queue[i].dlc);
+        xcp_copy(frame->data, daq_queue[i].data, daq_queue[i].dlc);
     }
     daq_queued = 0u;
 }
