@@ -20,6 +20,9 @@
  * the call's other frames (xcp_flush, from end_call), as the Python node sends them after a row's replies. A row
  * that runs several model steps (lost rows) may sample more: those packets are dropped and counted in
  * node_out.tx_dropped, like the timing frames of such a row (the one place the two engines may differ).
+ *
+ * Flash: the functions called from several places are kept out of line (noinline): the node's entry points share
+ * one copy instead of each inlining its own.
  */
 
 /* what a calibration tool reads and writes: float32 cells at the addresses of the C's variables */
@@ -249,7 +252,7 @@ static int daq_complete(int32_t d)
 
 /* After its entries changed: whether ODT `o` is complete, and the addresses of its packet's bytes (so a sample is
  * one loop over at most XCP_ODT_PAYLOAD bytes) */
-static void daq_refresh(uint32_t o)
+static __attribute__((noinline)) void daq_refresh(uint32_t o)
 {
     uint32_t e, b, n = 0u;
     uint8_t complete = (uint8_t)(daq_odt[o].length == daq_odt[o].capacity);
@@ -576,7 +579,7 @@ void xcp_command(uint32_t dlc, const uint8_t *data)
 }
 
 /* An event channel's DAQ (XcpSlave.event): nothing while disconnected or no list runs; timed with the DWT. */
-void xcp_event(uint32_t event)
+__attribute__((noinline)) void xcp_event(uint32_t event)
 {
     uint32_t started, before;
     if (!xcp_connected || !daq_running()) return;
@@ -591,7 +594,7 @@ void xcp_event(uint32_t event)
 
 /* The sampled DAQ packets after the call's other frames (the room kept for them: NODE_TX_CAPACITY's last
  * XCP_MAX_ODTS frames). */
-static void xcp_flush(void)
+static __attribute__((noinline)) void xcp_flush(void)
 {
     uint32_t i;
     for (i = 0u; i < daq_queued; i++) {                     /* wcet-loop: XCP_MAX_ODTS */
