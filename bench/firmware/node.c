@@ -1126,11 +1126,6 @@ void node_on_frame(uint32_t id, uint32_t dlc, const uint8_t *data)
     union rx_signals m;
     int index;
     begin_call();
-    if ((id & ~NODE_ID_FD) == XCP_CMD_ID) {                 /* XCP: never a frame error, never a model step */
-        xcp_command(dlc, data);
-        end_call();
-        return;
-    }
     node_counters.frames_received++;
     rx_frame = &node_rx;
     if (data != node_rx.data) {                             /* a frame not in the mailbox: judge a copy of it */
@@ -1140,6 +1135,13 @@ void node_on_frame(uint32_t id, uint32_t dlc, const uint8_t *data)
     }
     index = validate(id, dlc, node_rx.data, &m);
     if (index >= 0) dispatch(index, &m);
+    end_call();
+}
+
+void node_on_xcp(uint32_t dlc, const uint8_t *data)
+{
+    begin_call();
+    xcp_command(dlc, data);
     end_call();
 }
 

@@ -461,7 +461,8 @@ def _xcp_macros(artifact: ModelArtifact) -> list[str]:
                     "MAX_ODTS": min(daq.MAX_ODTS, daq.MAX_PID + 1), "ODT_PAYLOAD": daq.ODT_PAYLOAD,
                     "EVENT_MODEL_STEP": daq.EVENT_MODEL_STEP, "EVENT_HEARTBEAT": daq.EVENT_HEARTBEAT,
                     "EVENTS": len(daq.EVENTS), "MAX_BLOCK": MAX_BLOCK, "CMD_ID": cmd_id(), "RES_ID": res_id(),
-                    "CELLS": len(cells), "PIECES": len(cells) + 1, "ID_ASCII_LENGTH": len(text), "ID_LENGTH": len(text) + len(a2l_name),
+                    "CELLS": len(cells), "PIECES": len(cells) + 1,
+                    "ID_ASCII_LENGTH": len(text), "ID_LENGTH": len(text) + len(a2l_name),
                     "MAPPED_BYTES": 4 * len(cells) + len(text) + len(a2l_name)})
     if max(daq.EVENTS) > 1 or len(cells) == 0:
         raise FirmwareGenerationError("the XCP slave's C has two event channels and at least one cell")

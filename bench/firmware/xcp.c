@@ -1,6 +1,6 @@
 /* xcp.c - the firmware node's XCP-on-CAN slave (ASAM MCD-1 XCP 1.x): target_sim/xcp's command processor, in C99.
  *
- * Included by node.c (one translation unit: it queues its packets with node.c's tx_slot). The Python slave
+ * Included by node.c (one translation unit: it queues its packets with node.c's tx_slot); node_on_xcp calls it. The Python slave
  * (target_sim.xcp: commands.py, daq.py, memory.py) is the reference; each function names what it mirrors, and the
  * conformance test sends one command sequence to both engines and compares the reply bytes. Every fact comes from
  * fw_node_config.h (nodegen.py's _xcp_macros): the CAN ids (dbc/xcp.toml), the protocol's numbers
@@ -20,6 +20,10 @@
  * the call's other frames (xcp_flush, from end_call), as the Python node sends them after a row's replies. A row
  * that runs several model steps (lost rows) may sample more: those packets are dropped and counted in
  * node_out.tx_dropped, like the timing frames of such a row (the one place the two engines may differ).
+ *
+ * The DAQ path's loops are bounded by `daq_lists` and `daq_odts` (target_sim.firmware.wcet.loop_facts): the DAQ
+ * lists and ODTs a master configured, 0 without one (`bench firmware timing`'s assumption), the tables' whole budget
+ * for the bound with XCP (tests/benchmarks/bench_xcp.py).
  *
  * Flash: the functions called from several places are kept out of line (noinline): the node's entry points share
  * one copy instead of each inlining its own.
@@ -233,7 +237,7 @@ static uint32_t xcp_checksum(const uint8_t *cto)
 static int daq_running(void)
 {
     uint32_t d;
-    for (d = 0u; d < daq_lists; d++) {                      /* wcet-loop: XCP_MAX_DAQ_LISTS */
+    for (d = 0u; d < daq_lists; d++) {                      /* wcet-loop: daq_lists */
         if (daq_list[d].running) return 1;
     }
     return 0;
@@ -424,13 +428,21 @@ static void daq_free(void)
     daq_stage = DAQ_LISTS;
 }
 
+/* ODT `o`'s packet: its number, then its bytes as they are now (out of line: one copy of the loop to bound) */
+static __attribute__((noinline)) void daq_packet(uint32_t o, uint8_t *packet)
+{
+    uint32_t b;
+    packet[0] = (uint8_t)o;
+    for (b = 0u; b < daq_odt[o].bytes; b++) packet[1u + b] = *daq_odt[o].byte_at[b];   /* wcet-loop: XCP_ODT_PAYLOAD */
+}
+
 /* Daq.sample: one packet per ODT of each running list of `event` whose prescaler is due, in ODT order (the lists'
  * order): which lists are due first, then one loop over the ODTs, each packet a loop over its bytes */
 static void daq_sample(uint32_t event)
 {
     uint8_t due[XCP_MAX_DAQ_LISTS];
-    uint32_t d, o, b;
-    for (d = 0u; d < daq_lists; d++) {                      /* wcet-loop: XCP_MAX_DAQ_LISTS */
+    uint32_t d, o;
+    for (d = 0u; d < daq_lists; d++) {                      /* wcet-loop: daq_lists */
         due[d] = 0u;
         if (!daq_list[d].running || daq_list[d].event != event) continue;
         if (daq_list[d].countdown) {
@@ -440,17 +452,14 @@ static void daq_sample(uint32_t event)
         daq_list[d].countdown = (uint8_t)(daq_list[d].prescaler - 1u);
         due[d] = 1u;
     }
-    for (o = 0u; o < daq_odts; o++) {                       /* wcet-loop: XCP_MAX_ODTS */
-        uint8_t *packet;
+    for (o = 0u; o < daq_odts; o++) {                       /* wcet-loop: daq_odts */
         if (!due[daq_odt[o].owner]) continue;
         xcp_counters.daq_packets++;
         if (daq_queued >= XCP_MAX_ODTS) {                   /* a row of several steps: see the top */
             node_out.tx_dropped++;
             continue;
         }
-        packet = daq_queue[daq_queued].data;
-        packet[0] = (uint8_t)o;
-        for (b = 0u; b < daq_odt[o].bytes; b++) packet[1u + b] = *daq_odt[o].byte_at[b];   /* wcet-loop: XCP_ODT_PAYLOAD */
+        daq_packet(o, daq_queue[daq_queued].data);
         daq_queue[daq_queued++].dlc = (uint8_t)(1u + daq_odt[o].bytes);
     }
 }
@@ -597,7 +606,7 @@ __attribute__((noinline)) void xcp_event(uint32_t event)
 static __attribute__((noinline)) void xcp_flush(void)
 {
     uint32_t i;
-    for (i = 0u; i < daq_queued; i++) {                     /* wcet-loop: XCP_MAX_ODTS */
+    for (i = 0u; i < daq_queued; i++) {                     /* wcet-loop: daq_odts */
         struct node_frame *frame = &node_out.tx[node_out.tx_count++];
         frame->id = XCP_RES_ID;
         frame->dlc = daq_queue[i].dlc;

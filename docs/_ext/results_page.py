@@ -1009,13 +1009,16 @@ def _xcp_firmware(fw: dict) -> list[str]:
              f"load; a command's cycles are node_on_frame's whole call):", "",
              *_table(["cycles", "p50", "max"], rows)]
     base = fw.get("baseline")
-    bound_rows = [[name, _n(base["wcet_cycles"].get(name)) if base and name in base["wcet_cycles"] else "–",
-                   _n(cycles)] for name, cycles in fw["wcet_cycles"].items()]
-    section_rows = [[name, _n(base["sections"].get(name, 0)) if base else "–", _n(size)]
+    daq = fw.get("wcet_cycles_daq", {})
+    bound_rows = [[f"WCET bound of {name}, cycles",
+                   _n(base["wcet_cycles"].get(name)) if base and name in base["wcet_cycles"] else "–",
+                   _n(cycles), _n(daq.get(name))] for name, cycles in fw["wcet_cycles"].items()]
+    section_rows = [[f"{name}, bytes", _n(base["sections"].get(name, 0)) if base else "–", _n(size), ""]
                     for name, size in fw["sections"].items()]
     before = f"revision {base['revision']}, before the slave" if base else "before"
-    lines += ["", "WCET bounds (IPET, rows in order) of the timing image and the ELF's sections:", "",
-              *_table(["", before, "with the slave"], bound_rows + section_rows)]
+    lines += ["", "The timing image's WCET bounds (IPET, rows in order) without an XCP master and with the DAQ tables "
+              "full (16 lists, 16 ODTs of 7 bytes), and the shipped ELF's sections:", "",
+              *_table(["", before, "with the slave", "with the DAQ tables full"], bound_rows + section_rows)]
     return lines
 
 

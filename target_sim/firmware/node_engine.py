@@ -23,9 +23,10 @@ writes that release as the CAN controller's time stamp (`node_rx_stamp`, DWT cyc
 each step's response (Timing5). The bytes of every other frame are those of the run without the interrupt.
 
 Measured per call: the cycles of `node_on_frame` (the emulator's count) minus those of the model steps in it (the
-firmware's DWT reads): frame handling per received frame, and per reply frame for calls that queued replies. An XCP
-command (bench/firmware/xcp.c: the node answers the XCP command id of dbc/xcp.toml before the DBC's validation) is
-counted apart (`xcp_cycles`), and so is each DAQ sample (the firmware's DWT reads around it, `xcp_counters`).
+firmware's DWT reads): frame handling per received frame, and per reply frame for calls that queued replies. A frame of
+the XCP command id (dbc/xcp.toml) goes to `node_on_xcp` instead (bench/firmware/xcp.c; a CAN controller's filter
+would route it to its own FIFO): its cycles are counted apart (`xcp_cycles`), and so is each DAQ sample (the
+firmware's DWT reads around it, `xcp_counters`).
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ from target_sim.firmware.node_protocol import (
     tx_capacity,
 )
 
-ENTRY_POINTS = ("node_init", "node_on_frame", "node_on_tick", "node_internal_fault")
+ENTRY_POINTS = ("node_init", "node_on_frame", "node_on_xcp", "node_on_tick", "node_internal_fault")
 BUFFERS = ("node_rx", "node_out", "node_counters", "fw_model_id")
 XCP_COUNTERS = struct.Struct("<7I")      # xcp.c's struct xcp_counters
 _MASK32 = 0xFFFF_FFFF
@@ -171,7 +172,7 @@ class FirmwareNode:
             fw.call(function, *args)
         except FirmwareFault as fault:
             return self._core_faulted(fault)
-        return self._collect(function == "node_on_frame", fw.last.cycles)
+        return self._collect(function in ("node_on_frame", "node_on_xcp"), fw.last.cycles)
 
     def _collect(self, on_frame: bool, cycles: int | None) -> list[can.Message]:
         fw = self.fw
@@ -275,8 +276,10 @@ class FirmwareNode:
         data = bytes(msg.data)
         self.fw.write_bytes(self._rx, FRAME.pack(fid, msg.dlc, data[:8].ljust(8, b"\0")))
         self._msg = msg
-        self._is_xcp = (fid & ~ID_FD) == self._xcp_id
+        self._is_xcp = (fid & ~ID_FD) == self._xcp_id       # the Python node's rule: any 11-bit data frame
         try:
+            if self._is_xcp:
+                return self._run("node_on_xcp", msg.dlc & _MASK32, self._rx_data)
             return self._run("node_on_frame", fid, msg.dlc & _MASK32, self._rx_data)
         finally:
             self._msg = None

@@ -13,9 +13,10 @@ replies, so neither enters the step itself).
 The firmware node's C slave (bench/firmware/xcp.c), the packaged model's shipped ELF in the emulated Cortex-M4F
 (cycles, which the machine's load does not change): the cycles of node_on_frame for each of the same commands
 (--repeat // 10 times each), and of a DAQ sample of the same four ODTs (the firmware's DWT reads around it) over
-the same session; the IPET WCET bounds (`bench.firmware.timing`'s tool, rows in order) of its timing image: the
-model step (fw_step), node_on_frame (a data row with its model step and DAQ sample, or an XCP command),
-node_on_tick (the heartbeat with the time event's DAQ), xcp_command and xcp_event; and the ELF's sections. With
+the same session; the IPET WCET bounds (`bench.firmware.timing`'s tool, rows in order) of its timing image, without
+a DAQ list and with the DAQ tables full (16 lists, 16 ODTs of 7 bytes): the model step (fw_step), node_on_frame (a
+data row with its model step and DAQ sample), node_on_tick (the heartbeat with the time event's DAQ), node_on_xcp
+(an XCP command) and xcp_event (a DAQ sample); and the ELF's sections. With
 --baseline REV (a git revision; default the last one without the C slave) the same bounds and sections of that
 revision's firmware, built from its own sources (`git archive`), beside them: what the slave added.
 
@@ -148,11 +149,15 @@ def main() -> int:
 
 
 BASELINE = "d7017f8"      # the last revision whose firmware node has no XCP slave
-TIMED = ("fw_step", "node_on_frame", "node_on_tick", "xcp_command", "xcp_event")
+TIMED = ("fw_step", "node_on_frame", "node_on_tick", "node_on_xcp", "xcp_event")
 
 
 def _bounds_script(timed: tuple[str, ...]) -> str:
-    """What a checkout runs to give its packaged model's shipped ELF sections and its timing image's WCET bounds."""
+    """What a checkout runs to give its packaged model's shipped ELF sections and its timing image's WCET bounds:
+    without an XCP master (no DAQ list: `bench firmware timing`'s assumption) and with the DAQ tables full."""
+    from target_sim.xcp.daq import MAX_DAQ_LISTS, MAX_ODTS
+
+    daq = (MAX_DAQ_LISTS, MAX_ODTS)
     return f"""
 import json, sys, tempfile
 from pathlib import Path
@@ -165,9 +170,15 @@ from target_sim.firmware.wcet import loop_facts, wcet
 artifact = load_artifact(default_artifact_path())
 with tempfile.TemporaryDirectory() as cache:
     image = read_elf(firmware_for(artifact, Path(cache), isr=True))
-facts = loop_facts(timing_sources(artifact), 0)
-bounds = {{name: wcet(image, name, facts).cycles for name in {timed!r} if name in image.symbols}}
-json.dump({{"sections": memory_from_elf(packaged_elf(artifact))["sections"], "wcet_cycles": bounds}}, sys.stdout)
+sources = timing_sources(artifact)
+out = {{"sections": memory_from_elf(packaged_elf(artifact))["sections"]}}
+for key, facts in (("wcet_cycles", lambda: loop_facts(sources, 0)),
+                   ("wcet_cycles_daq", lambda: loop_facts(sources, 0, daq={daq!r}))):
+    try:
+        out[key] = {{name: wcet(image, name, facts()).cycles for name in {timed!r} if name in image.symbols}}
+    except TypeError:        # a revision without the XCP slave: no DAQ to bound
+        pass
+json.dump(out, sys.stdout)
 """
 
 
@@ -248,7 +259,9 @@ def firmware_figures(artifact, rows: int, repeat: int, baseline: str | None) -> 
             "sections": {k: figures["sections"].get(k, 0) - base["sections"].get(k, 0)
                          for k in sorted(set(figures["sections"]) | set(base["sections"]))},
             "wcet_cycles": {k: figures["wcet_cycles"][k] - base["wcet_cycles"][k]
-                            for k in figures["wcet_cycles"] if k in base["wcet_cycles"]}}
+                            for k in figures["wcet_cycles"] if k in base["wcet_cycles"]},
+            "wcet_cycles_daq": {k: figures["wcet_cycles_daq"][k] - base["wcet_cycles"][k]
+                                for k in figures["wcet_cycles_daq"] if k in base["wcet_cycles"]}}
     return figures
 
 
