@@ -1016,7 +1016,7 @@ def _xcp_firmware(fw: dict) -> list[str]:
     section_rows = [[f"{name}, bytes", _n(base["sections"].get(name, 0)) if base else "–", _n(size), ""]
                     for name, size in fw["sections"].items()]
     before = f"revision {base['revision']}, before the slave" if base else "before"
-    lines += ["", "The timing image's WCET bounds (IPET, rows in order) without an XCP master and with the DAQ tables "
+    lines += ["The timing image's WCET bounds (IPET, rows in order) without an XCP master and with the DAQ tables "
               "full (16 lists, 16 ODTs of 7 bytes), and the shipped ELF's sections:", "",
               *_table(["", before, "with the slave", "with the DAQ tables full"], bound_rows + section_rows)]
     return lines
