@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from dbc import FrameCodec
+from dbc.database import host_frame_ids
 from dbc.xcp import cmd_id, res_id
 from host.replay import encode_row
 from target_sim.artifact import load_artifact
@@ -207,3 +208,33 @@ def test_xcp_frames_are_not_frames_of_the_contract_to_the_firmware(engines):
     assert frames == [bytes.fromhex("ff05800808000101")]
     counters = firmware.counters()
     assert counters["frames_received"] == 0 and counters["errors"]["unknown_id"] == 0
+
+
+def test_an_observer_models_c_slave_shows_the_cells_the_c_has(observer_artifact, firmware_elf):
+    """An observer model's firmware: every cell the C has a variable for (the model's state, outputs, estimate and
+    alpha_cu) reads the same bytes in both engines after a session with measurements; the observer's own cells
+    (lag states, 1-sigma, innovations, its calibrations) are in the Python slave's pages only, where the C slave
+    answers ERR_ACCESS_DENIED (docs/tutorials/xcp.md: not done yet)."""
+    from target_sim.firmware.node_engine import FirmwareNode
+
+    from helpers import session_frames
+
+    artifact = load_artifact(observer_artifact)
+    elf = firmware_elf(observer_artifact)
+    pair = (TargetNode(artifact, clock_ns=lambda: 0, xcp_elf=elf), FirmwareNode(artifact, elf))
+    measured = np.column_stack([np.linspace(60.0, 70.0, 40), np.full(40, np.nan)])
+    for frame in session_frames(artifact, session_drive(40, 8), stop=False, measurements=measured):
+        if frame.arbitration_id in host_frame_ids():
+            for node in pair:
+                node.handle(frame)
+    assert pair[0].model_steps == pair[1].model_steps > 0
+    both(pair, bytes((0xFF, 0)))
+    cells = pair[0].xcp.memory.cells
+    shared = [c for c in cells if c.symbol is not None]
+    assert {c.name for c in shared} == {f"{s}_{i}" for s in ("x_state", "y_est", "estimate") for i in range(4)} \
+        | {"cal_alpha_cu"}
+    for cell in shared:
+        assert both(pair, bytes((0xF4, 4, 0, 0)) + u32(cell.address))[0][0] == 0xFF, cell.name
+    for cell in (c for c in cells if c.symbol is None):
+        python, firmware = (command(node, bytes((0xF4, 4, 0, 0)) + u32(cell.address)) for node in pair)
+        assert python[0][0] == 0xFF and firmware == [bytes((0xFE, Err.ACCESS_DENIED))], cell.name
