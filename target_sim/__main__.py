@@ -170,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     if engine == "python" and args.firmware:
         parser.error("--firmware is the firmware engine's ELF; drop it or use --engine firmware")
     if args.xcp_elf and engine != "python":
-        parser.error("--xcp-elf lays out the Python engine's XCP slave; the firmware engine has no XCP slave yet")
+        parser.error("--xcp-elf lays out the Python engine's XCP slave; the firmware engine's slave has its ELF's "
+                     "own addresses: drop it")
     if args.isr_rate and engine != "firmware":
         parser.error("--isr-rate runs the motor-control interrupt in the firmware engine; add --engine firmware "
                      "--firmware ELF or drop it")

@@ -55,6 +55,7 @@ from target_sim.kinds import MODEL_KINDS, REALIZATIONS
 from target_sim.losses import C_NAMES, LOSS_KINDS, LossKind, reads_currents
 from target_sim.network import COOLANT_REFERENCE_C
 from target_sim.observer import has_observer
+from target_sim.xcp.variables import ALPHA_CU_SYMBOL
 
 HEADER_NAME = "fw_model.h"
 SOURCE_NAME = "fw_model.c"
@@ -212,7 +213,7 @@ static void node_losses({parameters}, float losses[4])
     float table[LOSS_TABLE_COUNT];
     float factor, p_w, i_ratio, n_ratio, k_s;
     {lookup}
-    factor = 1.0f + ALPHA_CU * (y_est[1] - COPPER_REF);
+    factor = 1.0f + fw_cal_alpha_cu * (y_est[1] - COPPER_REF);
     p_w = (table[0] * factor) + (table[1] / factor);
     i_ratio = table[4] / CURRENT_MAX;
     n_ratio = speed / SPEED_MAX;
@@ -335,6 +336,13 @@ _HEADER = """\
  * image so a flashed firmware can be matched with its artifact. */
 extern const uint32_t fw_model_id;
 
+/* What the node's XCP slave (xcp.c) shows a calibration tool at these symbols' addresses (the A2L's): the model's
+ * state x and outputs y (read-only), and its calibratable copper temperature coefficient (losses.alpha_cu_per_K,
+ * 1/K; target_sim.xcp.variables' cal_alpha_cu), which the loss correction reads at every step. */
+extern float x_state[4];
+extern float y_est[4];
+extern float fw_cal_alpha_cu;
+
 /* Start from temperatures y0: y = y0, x = C_inv y0 (delta: C_inv (y0 - r); pv-lptn: x = y0); clears the
  * accumulator. */
 void fw_reset(const float y0[4]);
@@ -385,6 +393,17 @@ def _scalar_constants(artifact: ModelArtifact) -> list[tuple[str, str, str]]:
     out += [("COOLANT_REF", c_float(np.float32(COOLANT_REFERENCE_C)), "coolant temperature of R_cy0 (eq. 16)"),
             ("DT", c_float(np.float32(artifact.dt)), "timing.dt_s: the model step (s)")]
     return out
+
+
+# the scalars a calibration tool may change (XCP DOWNLOAD): C name in the step -> the RAM variable it reads
+CALIBRATABLE = {"ALPHA_CU": ALPHA_CU_SYMBOL}
+
+
+def _calibratable(artifact: ModelArtifact) -> list[tuple[str, str, str, str]]:
+    """(name in the step, RAM variable, initial literal, comment) of each calibratable scalar (always emitted: the
+    node's XCP table names them)."""
+    return [(name, CALIBRATABLE[name], literal, comment) for name, literal, comment in _scalar_constants(artifact)
+            if name in CALIBRATABLE]
 
 
 def _value_comment(literal: str) -> str:
@@ -455,9 +474,13 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
     exp_lines = [f"static const float EXP_{name} = {c_float(value)}; /* {float(value):.9g} */"
                  for name, value in EXP_CONSTANTS.items()]
     parts.append("/* fw_exp's constants (target_sim.fmath.EXP_CONSTANTS) */\n" + "\n".join(exp_lines) + "\n")
+    calibratable = {name for name, _, _, _ in _calibratable(artifact)}
     scalars = [f"static const float {name} = {literal}; /* {comment} = {_value_comment(literal)} */"
-               for name, literal, comment in _scalar_constants(artifact) if name in used]
+               for name, literal, comment in _scalar_constants(artifact) if name in used and name not in calibratable]
     parts.append("\n".join(scalars) + "\n")
+    # the calibratable scalars: in RAM (.data), written by the XCP slave's DOWNLOAD, read by the step
+    parts.append("".join(f"float {symbol} = {literal}; /* {comment} = {_value_comment(literal)}, calibratable */\n"
+                         for name, symbol, literal, comment in _calibratable(artifact)))
     defines, arrays = loss_kind.c_declarations(artifact)
     parts.append("".join(f"{line}\n" for line in defines))
     for array in arrays + model_kind.c_arrays(artifact):   # the loss model's, then the kind's
@@ -466,8 +489,8 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
         parts.append(_c_shared_rows(array.name, literals, array.comment) if array.shared_rows
                      else _c_array(array.name, literals, array.comment))
     parts.append("/* ---- state (.bss): x, the latest outputs y, the interval sum and count ---- */\n"
-                 "static float x_state[4];\n"
-                 f"static float y_est[4]; /* [{', '.join(OUTPUTS)}] */\n"
+                 "float x_state[4];\n"
+                 f"float y_est[4]; /* [{', '.join(OUTPUTS)}] */\n"
                  f"static float acc_sum[{sample_width}];\n"
                  "static unsigned int acc_count;\n")
     if observer:

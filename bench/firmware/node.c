@@ -49,6 +49,10 @@ typedef char node_observer_is_the_model_observer[(NODE_OBSERVER == FW_OBSERVER &
 #define MODEL_RESTORE fw_restore
 #endif
 
+/* node_out.tx holds the call's replies, then the XCP slave's DAQ packets (xcp.c): the last XCP_MAX_ODTS frames are
+ * theirs */
+#define NODE_REPLY_CAPACITY (NODE_TX_CAPACITY - XCP_MAX_ODTS)
+
 struct node_frame node_rx;
 struct node_output node_out;
 struct node_counters node_counters;
@@ -72,7 +76,7 @@ static uint32_t ticks_since, busy_since;          /* IsrLoad's window: foc_ticks
 static struct {
     uint32_t response;                            /* DWT cycles, reception -> result */
     uint32_t load;                                /* IsrLoad's raw value (0.01 %) */
-} response_of[NODE_TX_CAPACITY / TIMING_FRAMES];
+} response_of[NODE_REPLY_CAPACITY / TIMING_FRAMES];
 #else
 #define TIMING_FRAMES 4u
 #endif
@@ -122,8 +126,8 @@ static struct {                                   /* TargetNode._observer_restor
     uint16_t step_low;
     float value;
 } restore_observer[OBS_CHECKPOINT_SLOTS];
-static float report_of[NODE_TX_CAPACITY / (4u + OBSERVER_FRAMES)][REPORT_WIDTH];   /* per timed step */
-static unsigned char gate_of[NODE_TX_CAPACITY / (4u + OBSERVER_FRAMES)][NODE_OBS_MEASUREMENTS];   /* fw_obs_gate */
+static float report_of[NODE_REPLY_CAPACITY / (4u + OBSERVER_FRAMES)][REPORT_WIDTH];   /* per timed step */
+static unsigned char gate_of[NODE_REPLY_CAPACITY / (4u + OBSERVER_FRAMES)][NODE_OBS_MEASUREMENTS];   /* fw_obs_gate */
 #endif
 
 static uint8_t running_rows;                      /* next_row is not None */
@@ -168,7 +172,7 @@ static uint8_t profile2_crc(const uint8_t data[8], uint8_t data_id)
 /* ------------------------------------------------------------------------------------------------ queues */
 static struct node_frame *tx_slot(void)
 {
-    if (node_out.tx_count >= NODE_TX_CAPACITY) {
+    if (node_out.tx_count >= NODE_REPLY_CAPACITY) {
         node_out.tx_dropped++;
         return NULL;
     }
@@ -201,6 +205,9 @@ static void record(uint8_t kind, uint8_t code, int32_t a, int32_t b)
     }
     node_out.events[node_out.event_count++] = *event;
 }
+
+/* The XCP slave (xcp.c): its replies and DAQ packets go through tx_slot and node_out. */
+#include "xcp.c"
 
 /* ------------------------------------------------------------------------------------------------ sending */
 static uint8_t saturate8(uint32_t value)
@@ -689,7 +696,7 @@ static uint32_t model_step(const float inputs[NODE_SAMPLE_WIDTH])
 
 /* The model steps of one row whose timing frames (TIMING_FRAMES each) can be queued; a step beyond runs untimed on
  * the bus. */
-#define TIMED_STEPS (NODE_TX_CAPACITY / (TIMING_FRAMES + OBSERVER_FRAMES))
+#define TIMED_STEPS (NODE_REPLY_CAPACITY / (TIMING_FRAMES + OBSERVER_FRAMES))
 
 #ifdef NODE_WITH_ISR
 /* The step just run: its response time, and the interrupt's CPU load over the interrupts since the previous step:
@@ -712,6 +719,7 @@ static void time_response(uint32_t index)
 static void step_on(const float inputs[NODE_SAMPLE_WIDTH], uint32_t cycles_of[TIMED_STEPS], uint32_t *steps)
 {
     const uint32_t cycles = model_step(inputs);
+    xcp_event(XCP_EVENT_MODEL_STEP);                        /* DAQ sampled right after its step */
     if (*steps < TIMED_STEPS) {
         cycles_of[*steps] = cycles;
 #ifdef FW_OBSERVER
@@ -1071,6 +1079,7 @@ static void begin_call(void)
 
 static void end_call(void)
 {
+    xcp_flush();                                            /* the DAQ packets after the call's replies */
     node_out.state = state;
     node_out.faults = faults;
     node_out.next_beat_ms = next_beat_ms;
@@ -1101,6 +1110,7 @@ void node_init(uint32_t now_ms)
     running_rows = have_reply_row = have_last_inputs = 0u;
     next_row = 0u;
     fw_clear();
+    xcp_init();
     state = NODE_STATE_IDLE;
     faults = 0u;
     begin_call();
@@ -1128,12 +1138,20 @@ void node_on_frame(uint32_t id, uint32_t dlc, const uint8_t *data)
     end_call();
 }
 
+void node_on_xcp(uint32_t dlc, const uint8_t *data)
+{
+    begin_call();
+    xcp_command(dlc, data);
+    end_call();
+}
+
 void node_on_tick(uint32_t now_ms)
 {
     begin_call();
     if ((int32_t)(now_ms - next_beat_ms) >= 0) {            /* serve()'s heartbeat schedule */
         send_status();
         send_rx_errors();
+        xcp_event(XCP_EVENT_HEARTBEAT);                     /* the XCP time event */
         next_beat_ms += NODE_HEARTBEAT_MS;
         if ((int32_t)(next_beat_ms - now_ms) <= 0) next_beat_ms = now_ms + NODE_HEARTBEAT_MS;
     }

@@ -18,7 +18,8 @@
  *
  * Use (an MCU's main loop; the bench's shell, target_sim.firmware.node_engine, does the same in the emulator):
  *   node_init(now_ms);                               once: IDLE, queues TargetInfo, Status, RxErrors
- *   per received frame: copy it into node_rx (the receive mailbox) and call node_on_frame(id, dlc, node_rx.data)
+ *   per received frame: copy it into node_rx (the receive mailbox) and call node_on_frame(id, dlc, node_rx.data),
+ *   or node_on_xcp(dlc, node_rx.data) for the XCP command id
  *   every millisecond or so: node_on_tick(now_ms)    queues Status + RxErrors when a heartbeat period is over
  *   after each call: send node_out.tx[0 .. node_out.tx_count-1] in order; read node_out.events (the journal)
  * Every entry point starts by emptying node_out: what a call queued must be sent before the next call.
@@ -114,6 +115,15 @@ void node_on_tick(uint32_t now_ms);
 
 /* An internal fault the node's host detected (the core faulted, a watchdog): INTERNAL, state FAULT, Status. */
 void node_internal_fault(uint32_t code);
+
+/* One XCP command (a frame of the XCP command id, dbc/xcp.toml: the shell routes it here, as a CAN controller's
+ * filter routes it to its own FIFO; never a frame of the contract, never a model step): its reply in node_out.tx. */
+void node_on_xcp(uint32_t dlc, const uint8_t *data);
+
+/* The XCP slave (xcp.c): a command's reply into node_out.tx, and an event channel's DAQ packets (after each model
+ * step, on the heartbeat tick), sent at the end of the call. */
+void xcp_command(uint32_t dlc, const uint8_t *data);
+void xcp_event(uint32_t event);
 
 /* The raw value a temperature (deg C) goes out with: clamped to the DBC range, round half to even of
  * (value - offset) / scale computed exactly (what the Python codec's double arithmetic gives); exposed for tests. */

@@ -415,6 +415,67 @@ def _observer_macros(artifact: ModelArtifact) -> list[str]:
     return out
 
 
+def _f32_limits(low: float, high: float) -> tuple[float, float]:
+    """The float32 limits that accept exactly the float32 values the Python slave's double limits accept."""
+    f_low, f_high = np.float32(low), np.float32(high)
+    if float(f_low) < low:
+        f_low = np.nextafter(f_low, np.float32(np.inf))
+    if float(f_high) > high:
+        f_high = np.nextafter(f_high, np.float32(-np.inf))
+    return float(f_low), float(f_high)
+
+
+def xcp_cells(artifact: ModelArtifact) -> list[tuple[str, str, int, bool, tuple[float, float]]]:
+    """(name, C symbol, element index, writable, float32 limits) of every cell of the Python node's XCP catalogue
+    (`target_sim.xcp.variables`) that the C node has a variable for, in catalogue order."""
+    from target_sim.node import TargetNode
+    from target_sim.xcp.variables import node_cells
+
+    measurements, calibrations = node_cells(TargetNode(artifact))
+    out = []
+    for spec in (*measurements, *calibrations):
+        if spec.symbol is None:
+            continue                  # a cell of the slave's pages: the C has no variable for it (yet)
+        writable = spec.write is not None
+        out.append((spec.name, spec.symbol, spec.index, writable,
+                    _f32_limits(*spec.limits) if writable else (0.0, 0.0)))
+    return out
+
+
+def _xcp_macros(artifact: ModelArtifact) -> list[str]:
+    """The XCP slave's facts (xcp.c): its CAN ids (dbc/xcp.toml), the protocol's numbers (`target_sim.xcp.codes`),
+    the DAQ tables' budget and events (`target_sim.xcp.daq`), the GET_ID texts (`target_sim.xcp.identification`),
+    and the cells (XCP_CELL_LIST(X): X(C address, writable, float32 low, high) per cell the C has)."""
+    from dbc.xcp import cmd_id, res_id
+    from target_sim.xcp import codes, daq, identification
+    from target_sim.xcp.commands import MAX_BLOCK
+
+    text, a2l_name = identification(artifact.model_id)
+    cells = xcp_cells(artifact)
+    numbers = {name: getattr(codes, name) for name in (
+        "PID_RES", "PID_ERR", "RESOURCE_CAL_PAG", "RESOURCE_DAQ", "COMM_MODE_BASIC", "PROTOCOL_LAYER_VERSION",
+        "TRANSPORT_LAYER_VERSION", "DRIVER_VERSION", "SESSION_DAQ_RUNNING", "MAX_CTO", "MAX_DTO",
+        "CHECKSUM_CRC_32", "MODE_DIRECTION_STIM", "MODE_TIMESTAMP", "MODE_PID_OFF", "DAQ_PROPERTIES",
+        "DAQ_KEY_BYTE", "ID_ASCII", "ID_A2L_NAME")}
+    numbers.update({"MAX_ODT_ENTRIES": daq.MAX_ODT_ENTRIES, "MAX_DAQ_LISTS": daq.MAX_DAQ_LISTS,
+                    "MAX_ODTS": min(daq.MAX_ODTS, daq.MAX_PID + 1), "ODT_PAYLOAD": daq.ODT_PAYLOAD,
+                    "EVENT_MODEL_STEP": daq.EVENT_MODEL_STEP, "EVENT_HEARTBEAT": daq.EVENT_HEARTBEAT,
+                    "EVENTS": len(daq.EVENTS), "MAX_BLOCK": MAX_BLOCK, "CMD_ID": cmd_id(), "RES_ID": res_id(),
+                    "CELLS": len(cells), "PIECES": len(cells) + 1,
+                    "ID_ASCII_LENGTH": len(text), "ID_LENGTH": len(text) + len(a2l_name),
+                    "MAPPED_BYTES": 4 * len(cells) + len(text) + len(a2l_name)})
+    if max(daq.EVENTS) > 1 or len(cells) == 0:
+        raise FirmwareGenerationError("the XCP slave's C has two event channels and at least one cell")
+    out = [f"#define XCP_{name} {int(value)}u" for name, value in numbers.items()]
+    out += [f"#define XCP_CMD_{cmd.name} {int(cmd)}u" for cmd in codes.Cmd]
+    out += [f"#define XCP_ERR_{err.name} {int(err)}u" for err in codes.Err]
+    out.append(f'#define XCP_ID_TEXT "{text}{a2l_name}"')
+    out.append("#define XCP_CELL_LIST(X) " + " ".join(
+        f"X(((float *)&{symbol}) + {index}, {int(writable)}u, {c_float(low)}, {c_float(high)})"
+        for _, symbol, index, writable, (low, high) in cells))
+    return out
+
+
 def node_config(artifact: ModelArtifact) -> str:
     """fw_node_config.h for `artifact`'s model (FirmwareGenerationError, one sentence, for a model the node cannot
     run)."""
@@ -474,5 +535,6 @@ def node_config(artifact: ModelArtifact) -> str:
     lines += _receive_macros()
     lines += _row_macros(artifact)
     lines += _observer_macros(artifact)
+    lines += _xcp_macros(artifact)
     lines += ["", "#endif /* FW_NODE_CONFIG_H */", ""]
     return "\n".join(lines)

@@ -299,7 +299,8 @@ def timing_report(artifact: ModelArtifact, image: ElfImage, drive: np.ndarray, i
         "wcet_holds": all(measured[name] <= bounds[name] for name in bounds),
         "wcet_method": "IPET (Li & Malik 1995) over each function's CFG, solved by scipy.optimize.milp; counted "
                        "loops from the machine code, the others from the C's /* wcet-loop */ annotations",
-        "wcet_assumptions": "rows in order (0 lost rows per frame), frames as the host sends them",
+        "wcet_assumptions": "rows in order (0 lost rows per frame), frames as the host sends them, no XCP DAQ list "
+                            "running (the bounds with one: tests/benchmarks/bench_xcp.py)",
         "search_evaluations": search,
         "response_time_us": main["response_time_us"], "isr_latency_cycles": main["isr_latency_cycles"],
         "cpu_load": {name: run["cpu_load"] for name, run in runs.items()},

@@ -46,7 +46,7 @@ INSTALL_HINT = "reinstall the project (pip install -e . in a checkout), whose zi
 TIMEOUT_S = 300.0
 STARTUP_NAME = "startup.c"
 LINKER_SCRIPT_NAME = "firmware.ld"
-NODE_NAMES = ("node.c", "node.h")        # the CAN node, hand-written (bench/firmware/node.c)
+NODE_NAMES = ("node.c", "node.h", "xcp.c")   # the CAN node and its XCP slave (included by node.c), hand-written
 SHIM_NAME = "string.h"                   # declares the two memory functions node.c defines (there is no libc)
 SUPPORT_FILES = (STARTUP_NAME, *NODE_NAMES, SHIM_NAME, LINKER_SCRIPT_NAME)
 ISR_NAMES = ("foc_isr.c", "foc_isr.h")   # the motor-control interrupt, linked only into a timing image (isr=True)

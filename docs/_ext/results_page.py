@@ -992,7 +992,7 @@ def _default_rows(motors: list[dict]) -> list[list[str]]:
     return rows
 
 
-@single_record("xcp", "XCP slave (Python node)")
+@single_record("xcp", "XCP slave (Python node and firmware)")
 def section_xcp(record: Record) -> list[str]:
     f = record["figures"]
     rows = [[name, _n(v["p50"], 1), _n(v["p99"], 1), _n(v["max"], 1)] for name, v in f["handler_us"].items()]
@@ -1014,6 +1014,33 @@ def section_xcp(record: Record) -> list[str]:
                       f"{run['lost']} lost, "
                       f"max \\|DAQ − CAN reply\\| {_n(run['max_abs_daq_minus_can_C'], 4)} °C (the replies carry "
                       f"0.01 °C); `bench host` " + verdict]
+    fw = f.get("firmware")
+    if fw:
+        lines += ["", *_xcp_firmware(fw)]
+    return lines
+
+
+def _xcp_firmware(fw: dict) -> list[str]:
+    """The firmware's C slave: cycles per command and DAQ sample, WCET bounds and sections beside its baseline."""
+    rows = [[name, _n(v["p50"]), _n(v["max"])] for name, v in fw["handler_cycles"].items()]
+    rows.append(["DAQ sample, 4 ODTs, per model step", _n(fw["daq_sample_cycles"]["p50"]),
+                 _n(fw["daq_sample_cycles"]["max"])])
+    rows.append(["the model step itself (Timing4)", _n(fw["model_step_cycles"]["p50"]),
+                 _n(fw["model_step_cycles"]["max"])])
+    lines = [f"The firmware node's C slave ({fw['elf']} in the emulated Cortex-M4F; cycles, whatever the machine's "
+             f"load; a command's cycles are node_on_frame's whole call):", "",
+             *_table(["cycles", "p50", "max"], rows)]
+    base = fw.get("baseline")
+    daq = fw.get("wcet_cycles_daq", {})
+    bound_rows = [[f"WCET bound of {name}, cycles",
+                   _n(base["wcet_cycles"].get(name)) if base and name in base["wcet_cycles"] else "–",
+                   _n(cycles), _n(daq.get(name))] for name, cycles in fw["wcet_cycles"].items()]
+    section_rows = [[f"{name}, bytes", _n(base["sections"].get(name, 0)) if base else "–", _n(size), ""]
+                    for name, size in fw["sections"].items()]
+    before = f"revision {base['revision']}, before the slave" if base else "before"
+    lines += ["The timing image's WCET bounds (IPET, rows in order) without an XCP master and with the DAQ tables "
+              "full (16 lists, 16 ODTs of 7 bytes), and the shipped ELF's sections:", "",
+              *_table(["", before, "with the slave", "with the DAQ tables full"], bound_rows + section_rows)]
     return lines
 
 

@@ -23,12 +23,16 @@ writes that release as the CAN controller's time stamp (`node_rx_stamp`, DWT cyc
 each step's response (Timing5). The bytes of every other frame are those of the run without the interrupt.
 
 Measured per call: the cycles of `node_on_frame` (the emulator's count) minus those of the model steps in it (the
-firmware's DWT reads): frame handling per received frame, and per reply frame for calls that queued replies.
+firmware's DWT reads): frame handling per received frame, and per reply frame for calls that queued replies. A frame of
+the XCP command id (dbc/xcp.toml) goes to `node_on_xcp` instead (bench/firmware/xcp.c; a CAN controller's filter
+would route it to its own FIFO): its cycles are counted apart (`xcp_cycles`), and so is each DAQ sample (the
+firmware's DWT reads around it, `xcp_counters`).
 """
 
 from __future__ import annotations
 
 import os
+import struct
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -40,6 +44,7 @@ import numpy as np
 
 from dbc.contract import FIRMWARE_TIMING_MESSAGE, M4_CLOCK_HZ, RX_ERROR_KINDS, FaultBit, TargetState
 from dbc.database import frame_id, layout_named
+from dbc.xcp import cmd_id as xcp_cmd_id
 from target_sim.artifact import ModelArtifact
 from target_sim.costs import step_cost
 from target_sim.firmware.elf import ElfImage, FirmwareError, memory_from_elf, read_elf
@@ -64,8 +69,9 @@ from target_sim.firmware.node_protocol import (
     tx_capacity,
 )
 
-ENTRY_POINTS = ("node_init", "node_on_frame", "node_on_tick", "node_internal_fault")
+ENTRY_POINTS = ("node_init", "node_on_frame", "node_on_xcp", "node_on_tick", "node_internal_fault")
 BUFFERS = ("node_rx", "node_out", "node_counters", "fw_model_id")
+XCP_COUNTERS = struct.Struct("<7I")      # xcp.c's struct xcp_counters
 _MASK32 = 0xFFFF_FFFF
 
 
@@ -131,6 +137,12 @@ class FirmwareNode:
         self.m4_cycles: Counter[int] = Counter()      # per model step (Timing4), value -> steps
         self.frame_cycles: Counter[int] = Counter()   # per received frame, model steps excluded
         self.reply_cycles: Counter[int] = Counter()   # per reply frame of calls that queued replies
+        self.xcp_cycles: Counter[int] = Counter()     # per XCP command (node_on_frame's whole call)
+        self.xcp_sample_cycles: Counter[int] = Counter()   # per DAQ sample (the mean of a call's samples)
+        self._xcp = fw.symbols["xcp_counters"].address if "xcp_counters" in fw.symbols else None
+        self._xcp_last = (0, 0)
+        self._xcp_id = xcp_cmd_id()
+        self._is_xcp = False
         self.answered_again = False
         self.state = TargetState.BOOT
         self.faults = 0
@@ -160,7 +172,7 @@ class FirmwareNode:
             fw.call(function, *args)
         except FirmwareFault as fault:
             return self._core_faulted(fault)
-        return self._collect(function == "node_on_frame", fw.last.cycles)
+        return self._collect(function in ("node_on_frame", "node_on_xcp"), fw.last.cycles)
 
     def _collect(self, on_frame: bool, cycles: int | None) -> list[can.Message]:
         fw = self.fw
@@ -187,12 +199,36 @@ class FirmwareNode:
                 event = Event.unpack(raw[index * EVENT.size:(index + 1) * EVENT.size])
                 self.journal({"kind": event.kind, "id": msg.arbitration_id, "dlc": msg.dlc,
                               "data": bytes(msg.data).hex(), "detail": event.sentence})
-        if on_frame and cycles is not None:
+        if self._xcp is not None:
+            self._xcp_samples()
+        if on_frame and cycles is not None and self._is_xcp:
+            self.xcp_cycles[cycles] += 1
+        elif on_frame and cycles is not None:
             handling = max(cycles - step_cycles, 0)
             self.frame_cycles[handling] += 1
             if frames:
                 self.reply_cycles[handling // len(frames)] += 1
         return frames
+
+    def _xcp_counters(self) -> tuple[int, ...]:
+        return XCP_COUNTERS.unpack(self.fw.read_bytes(self._xcp, XCP_COUNTERS.size))
+
+    def _xcp_samples(self) -> None:
+        """The DAQ samples of the last call: their mean cycles, once per sample."""
+        samples, cycles = self._xcp_counters()[5:7]
+        new, spent = samples - self._xcp_last[0], (cycles - self._xcp_last[1]) & _MASK32
+        if new > 0:
+            self.xcp_sample_cycles[spent // new] += new
+        self._xcp_last = (samples, cycles)
+
+    def xcp_stats(self) -> dict:
+        """The XCP slave's counters and cycles (the Python slave's `stats` has times where these have cycles)."""
+        if self._xcp is None:
+            return {}
+        commands, errors, ignored, packets, calibrations, _, _ = self._xcp_counters()
+        return {"commands": commands, "errors": errors, "ignored": ignored, "daq_packets": packets,
+                "calibrations": calibrations, "handler_cycles": cycle_figures(self.xcp_cycles),
+                "daq_sample_cycles": cycle_figures(self.xcp_sample_cycles)}
 
     def _core_faulted(self, fault: FirmwareFault) -> list[can.Message]:
         """The node's INTERNAL fault (see the module docstring); the fault's sentence is the last error."""
@@ -240,10 +276,14 @@ class FirmwareNode:
         data = bytes(msg.data)
         self.fw.write_bytes(self._rx, FRAME.pack(fid, msg.dlc, data[:8].ljust(8, b"\0")))
         self._msg = msg
+        self._is_xcp = (fid & ~ID_FD) == self._xcp_id       # the Python node's rule: any 11-bit data frame
         try:
+            if self._is_xcp:
+                return self._run("node_on_xcp", msg.dlc & _MASK32, self._rx_data)
             return self._run("node_on_frame", fid, msg.dlc & _MASK32, self._rx_data)
         finally:
             self._msg = None
+            self._is_xcp = False
 
     def heartbeat_frames(self) -> list[can.Message]:
         """A heartbeat now: node_on_tick at the firmware's own next heartbeat time (serve() keeps the period)."""
@@ -311,5 +351,5 @@ class FirmwareNode:
                 "reply_cycles": cycle_figures(self.reply_cycles), "tx_dropped": header[5],
                 "events_dropped": header[6], "flash_bytes": self.memory_figures["flash_bytes"],
                 "ram_bytes": self.memory_figures["ram_bytes"], "memory": "measured from the firmware ELF",
-                "stack_used_bytes": self.fw.stack_used(),
+                "stack_used_bytes": self.fw.stack_used(), "xcp": self.xcp_stats(),
                 **({"isr": interrupt_figures(self.fw)} if isinstance(self.fw, InterruptedFirmware) else {})}

@@ -28,6 +28,7 @@ from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
 from target_sim.observer import has_observer
 from target_sim.observer.node import can_refusal
+from target_sim.xcp.daq import MAX_ODTS
 
 
 def firmware_loss_models() -> tuple[str, ...]:
@@ -104,7 +105,8 @@ FRAME = struct.Struct("<II8s")                      # struct node_frame
 EVENT = struct.Struct("<BBBBI8sii")                 # struct node_event
 OUTPUT_HEADER = struct.Struct("<10I")               # struct node_output up to tx[]
 COUNTERS = struct.Struct("<11I")                    # struct node_counters up to last_error
-TX_CAPACITY = 40                                    # NODE_TX_CAPACITY of fw_node_config.h (nodegen), open loop
+REPLY_CAPACITY = 40                                 # the node's own replies of one call (open loop)
+TX_CAPACITY = REPLY_CAPACITY + MAX_ODTS             # NODE_TX_CAPACITY (nodegen), open loop: + the XCP DAQ packets
 EVENT_CAPACITY = 8                                  # NODE_EVENT_CAPACITY
 TX_OFFSET = OUTPUT_HEADER.size
 EVENTS_OFFSET = TX_OFFSET + TX_CAPACITY * FRAME.size
@@ -114,7 +116,8 @@ OUTPUT_SIZE = EVENTS_OFFSET + EVENT_CAPACITY * EVENT.size      # sizeof(struct n
 def tx_capacity(artifact: ModelArtifact) -> int:
     """NODE_TX_CAPACITY of the artifact's node: TX_CAPACITY, and for an observer its checkpoint's elements more (its
     ObserverCheckpoint frames follow a StateCheckpoint in the same call, after the row's replies; the Python node
-    queues them all)."""
+    queues them all). The last MAX_ODTS frames are the XCP slave's DAQ packets' (`target_sim.xcp.daq`: one per ODT
+    of a step), after the replies."""
     if not has_observer(artifact):
         return TX_CAPACITY
     from target_sim.observer import Float32Observer

@@ -396,7 +396,8 @@ ANNOTATION = re.compile(r"/\*\s*wcet-loop:\s*([^*]+?)\s*\*/")
 _DEFINE = re.compile(r"^\s*#\s*define\s+([A-Z_][A-Z0-9_]*)\s+\(?\s*(\d+)u?\s*\)?\s*(?:/\*.*)?$", re.MULTILINE)
 
 
-def loop_facts(sources: Mapping[str, str], lost_rows: int = 0) -> dict[tuple[str, int], LoopBound]:
+def loop_facts(sources: Mapping[str, str], lost_rows: int = 0, daq: tuple[int, int] = (0, 0)
+               ) -> dict[tuple[str, int], LoopBound]:
     """The stated loop bounds of a firmware's sources: each C loop whose line carries `/* wcet-loop: BOUND */`, the
     most times its body runs each time the loop is entered. BOUND is an integer, a name of an integer `#define`
     of the sources, `lost_rows` (the most rows one received data frame may skip: its Step that far ahead of the next
@@ -404,10 +405,11 @@ def loop_facts(sources: Mapping[str, str], lost_rows: int = 0) -> dict[tuple[str
     (names a build does not define are left out; a loop none of whose names it defines is compiled out). The node
     steps the model once for each lost row that ends an interval, so no bound holds for every frame the bus can
     carry (a frame 32 767 rows ahead runs that many iterations): node_on_frame's bound is stated per number of
-    lost rows, 0 for a drive whose rows arrive in order."""
-    if lost_rows < 0:
-        raise ValueError(f"lost_rows must be 0 or more, not {lost_rows}")
-    values = {"lost_rows": lost_rows, "steps_per_row": lost_rows + 1}
+    lost rows, 0 for a drive whose rows arrive in order. Likewise the XCP slave's DAQ sampling: `daq_lists` and
+    `daq_odts` (`daq`) are the DAQ lists and ODTs a master has configured, (0, 0) without an XCP master."""
+    if lost_rows < 0 or min(daq) < 0:
+        raise ValueError(f"lost_rows and the DAQ lists and ODTs must be 0 or more, not {lost_rows}, {daq}")
+    values = {"lost_rows": lost_rows, "steps_per_row": lost_rows + 1, "daq_lists": daq[0], "daq_odts": daq[1]}
     for text in sources.values():
         for name, number in _DEFINE.findall(text):        # defined twice (#if branches): the larger, to be safe
             values[name] = max(int(number), values.get(name, 0))

@@ -6,9 +6,12 @@ EVENT_HEARTBEAT (1), a time event on the node's heartbeat tick (the DBC's Status
 list sends, every `prescaler`-th event, one DAQ packet per ODT: its packet identifier (absolute ODT number: the list's
 first PID plus the ODT's index) and its entries' bytes read at that moment, so one packet holds values of one step.
 The configuration follows the standard's order (FREE_DAQ, then ALLOC_DAQ, then ALLOC_ODT per list, then
-ALLOC_ODT_ENTRY per ODT; ERR_SEQUENCE otherwise) within a RAM budget (MAX_ODT_ENTRIES entries in all, as the C node
-would reserve a fixed table; ERR_MEMORY_OVERFLOW beyond it); an ODT's entries must fit one CAN frame after the PID
-(7 bytes; ERR_DAQ_CONFIG), and every entry must read mapped bytes (ERR_ACCESS_DENIED at WRITE_DAQ)."""
+ALLOC_ODT_ENTRY per ODT; ERR_SEQUENCE otherwise) within the RAM budget of the C node's fixed tables
+(bench/firmware/xcp.c): MAX_DAQ_LISTS lists, MAX_ODTS ODTs and MAX_ODT_ENTRIES entries over all lists
+(ERR_MEMORY_OVERFLOW beyond them), at most ODT_PAYLOAD entries in one ODT (ERR_OUT_OF_RANGE: each entry is a byte at
+least, so no more can ever be written); an ODT's entries must fit one CAN frame after the PID (7 bytes;
+ERR_DAQ_CONFIG), and every entry must read mapped bytes (ERR_ACCESS_DENIED at WRITE_DAQ). Both engines answer
+alike, so these limits are the slave's, not the Python node's."""
 
 from __future__ import annotations
 
@@ -30,8 +33,10 @@ EVENT_MODEL_STEP = 0
 EVENT_HEARTBEAT = 1
 EVENTS = {EVENT_MODEL_STEP: "model step", EVENT_HEARTBEAT: "heartbeat"}
 MAX_ODT_ENTRIES = 64          # the RAM budget of the DAQ tables (entries over all lists)
+MAX_DAQ_LISTS = 16            # ... lists
+MAX_ODTS = 16                 # ... ODTs over all lists (each a DAQ packet per event: the C node's queue)
 MAX_PID = 0xFB                # 0xFC..0xFF are the slave's RES/ERR/EV/SERV packets
-ODT_PAYLOAD = MAX_DTO - 1     # bytes of an ODT after its packet identifier
+ODT_PAYLOAD = MAX_DTO - 1     # bytes of an ODT after its packet identifier (and so its most entries)
 
 
 class DaqError(TargetError):
@@ -69,6 +74,8 @@ class Daq:
     def alloc_daq(self, count: int) -> None:
         if self.stage != "daq" or self.lists:
             raise DaqError(Err.SEQUENCE, "ALLOC_DAQ needs a FREE_DAQ before it")
+        if count > MAX_DAQ_LISTS:
+            raise DaqError(Err.MEMORY_OVERFLOW, f"more than {MAX_DAQ_LISTS} DAQ lists (the DAQ RAM budget)")
         self.lists = [DaqList(odts=[], capacity=[]) for _ in range(count)]
         self.stage = "odt"
 
@@ -76,8 +83,8 @@ class Daq:
         if self.stage != "odt":
             raise DaqError(Err.SEQUENCE, "ALLOC_ODT comes after ALLOC_DAQ and before ALLOC_ODT_ENTRY")
         daq_list = self._list(daq)
-        if sum(len(d.odts) for d in self.lists) + count > MAX_PID + 1:
-            raise DaqError(Err.MEMORY_OVERFLOW, "more ODTs than packet identifiers")
+        if sum(len(d.odts) for d in self.lists) + count > min(MAX_ODTS, MAX_PID + 1):
+            raise DaqError(Err.MEMORY_OVERFLOW, f"more than {MAX_ODTS} ODTs (the DAQ RAM budget)")
         daq_list.odts = [[] for _ in range(count)]
         daq_list.capacity = [0] * count
         first = 0
@@ -91,6 +98,8 @@ class Daq:
         daq_list = self._list(daq)
         if not 0 <= odt < len(daq_list.odts):
             raise DaqError(Err.OUT_OF_RANGE, f"DAQ list {daq} has no ODT {odt}")
+        if count > ODT_PAYLOAD:
+            raise DaqError(Err.OUT_OF_RANGE, f"{count} entries in one ODT: at most {ODT_PAYLOAD} fit its packet")
         if self.allocated_entries - daq_list.capacity[odt] + count > MAX_ODT_ENTRIES:
             raise DaqError(Err.MEMORY_OVERFLOW, f"more than {MAX_ODT_ENTRIES} ODT entries (the DAQ RAM budget)")
         self.allocated_entries += count - daq_list.capacity[odt]

@@ -9,7 +9,8 @@ Cortex-M4F's RAM (0x20000000, 64 KiB, bench/firmware/firmware.ld) that the C nod
 
     MEASUREMENT_PAGE  0x2000E000   read-only cells
     CALIBRATION_PAGE  0x2000F000   calibratable cells (the C node's calibration RAM, once it has one)
-    IDENTIFICATION    0x0803F000   the GET_ID text (the last 4 KiB of flash), the A2L's EPK address
+    IDENTIFICATION    0x0803F000   the GET_ID text (the last 4 KiB of flash), the A2L's EPK address; an ELF
+                                   whose node has the XCP slave gives its text's own address (xcp_identification)
 
 The layout is a function of the cells and the ELF only, so the A2L generated with an ELF (`bench firmware a2l`) and a
 node started with the same ELF (`python -m target_sim --xcp-elf ELF`) agree address for address.
@@ -27,6 +28,7 @@ MEASUREMENT_PAGE = 0x2000E000
 CALIBRATION_PAGE = 0x2000F000
 PAGE_SIZE = 0x1000
 IDENTIFICATION = 0x0803F000
+IDENTIFICATION_SYMBOL = "xcp_identification"     # the C node's GET_ID text (bench/firmware/xcp.c), where it has one
 
 
 def elf_symbols(path: str | os.PathLike, model_id: int | None = None) -> dict[str, tuple[int, int]]:
@@ -46,6 +48,12 @@ def elf_symbols(path: str | os.PathLike, model_id: int | None = None) -> dict[st
                     raise FirmwareError(f"{image.name} is the firmware of model {found:08x}, not of model "
                                         f"{model_id:08x}; its addresses would not fit: give that model's ELF")
     return {name: (s.address, s.size) for name, s in image.symbols.items()}
+
+
+def identification_address(symbols: dict[str, tuple[int, int]] | None) -> int:
+    """Where the GET_ID text lives: the C node's `xcp_identification` when the ELF has it, else IDENTIFICATION."""
+    found = symbols.get(IDENTIFICATION_SYMBOL) if symbols else None
+    return found[0] if found is not None else IDENTIFICATION
 
 
 def symbol_address(symbols: dict[str, tuple[int, int]], symbol: str, index: int) -> int | None:

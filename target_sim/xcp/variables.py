@@ -16,7 +16,8 @@ Calibration (DOWNLOAD; each value finite and within its limits, checked before i
 
 | name                | limits          | what                                                          |
 |---------------------|-----------------|---------------------------------------------------------------|
-| cal_alpha_cu        | 0 .. 0.01 1/K   | copper temperature coefficient of the loss correction (eq. 3) |
+| cal_alpha_cu        | 0 .. 0.01 1/K   | copper temperature coefficient of the loss correction (eq. 3);|
+|                     |                 | the C model's fw_cal_alpha_cu                                 |
 | cal_sensor<k>_offset| -20 .. 20 °C    | measurement k's sensor offset (a lagged sensor's offset_C)    |
 | cal_sensor<k>_lag   | 0 .. 0.9999     | its lag pole a = exp(-Δt/τ) (only a sensor with a lag)        |
 | cal_sensor<k>_r     | 1e-6 .. 1e4 °C² | its measurement variance R                                    |
@@ -43,6 +44,7 @@ OFFSET_LIMITS = (-20.0, 20.0)
 LAG_LIMITS = (0.0, 0.9999)
 R_LIMITS = (1e-6, 1e4)
 Q_LIMITS = (1e-12, 1e4)
+ALPHA_CU_SYMBOL = "fw_cal_alpha_cu"     # the generated model's calibratable alpha_cu (bench/firmware/codegen.py)
 
 
 @dataclass(frozen=True)
@@ -98,7 +100,8 @@ def _setter(obj, attribute: str) -> Callable[[float], None]:
 def _calibrations(node) -> list[CellSpec]:
     est = node.model
     specs = [CellSpec("cal_alpha_cu", lambda: float(est.alpha_cu), _setter(est, "alpha_cu"), ALPHA_CU_LIMITS,
-                      "1/K", "copper temperature coefficient of the loss correction (eqs. 3-5)")]
+                      "1/K", "copper temperature coefficient of the loss correction (eqs. 3-5)",
+                      symbol=ALPHA_CU_SYMBOL)]
     if node.observer is None:
         return specs
     filt = node.observer.filter

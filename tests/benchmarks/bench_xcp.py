@@ -1,14 +1,25 @@
-"""Benchmark (not a test): what the Python node's XCP slave costs the model step's deadline.
+"""Benchmark (not a test): what the XCP slave costs the model step's deadline, in the Python node and in the firmware.
 
-    python tests/benchmarks/bench_xcp.py [--model A] [--rows N] [--repeat N] [--daq-run [--run-rows N] [--mf4 PATH]]
+    python tests/benchmarks/bench_xcp.py [--model A] [--rows N] [--repeat N] [--baseline REV]
+                                         [--daq-run [--run-rows N] [--mf4 PATH]]
 
 In-process (no bus, so only the node's own work counts): the packaged model's Python node (or --model), connected,
 with a DAQ list of the four temperatures (one ODT each, on the model step's event). Figures: the handler time of each
-command kind (SHORT_UPLOAD of a float, SET_MTA + DOWNLOAD of a calibration, BUILD_CHECKSUM of the 48 bytes of x,
-y and the estimate, GET_STATUS), --repeat times each; the DAQ sampling time per model step over a lockstep session of
+command kind (SHORT_UPLOAD of a float, SET_MTA + DOWNLOAD of a calibration, BUILD_CHECKSUM of the 32 bytes of x
+and y, GET_STATUS), --repeat times each; the DAQ sampling time per model step over a lockstep session of
 --rows rows; the model step's own time in the same session with and without the DAQ list; and the model step's
 period Δt, the deadline each figure is measured against (XCP commands run between frames, DAQ after the step's
 replies, so neither enters the step itself).
+
+The firmware node's C slave (bench/firmware/xcp.c), the packaged model's shipped ELF in the emulated Cortex-M4F
+(cycles, which the machine's load does not change): the cycles of node_on_frame for each of the same commands
+(--repeat // 10 times each), and of a DAQ sample of the same four ODTs (the firmware's DWT reads around it) over
+the same session; the IPET WCET bounds (`bench.firmware.timing`'s tool, rows in order) of its timing image, without
+a DAQ list and with the DAQ tables full (16 lists, 16 ODTs of 7 bytes): the model step (fw_step), node_on_frame (a
+data row with its model step and DAQ sample), node_on_tick (the heartbeat with the time event's DAQ), node_on_xcp
+(an XCP command) and xcp_event (a DAQ sample); and the ELF's sections. With
+--baseline REV (a git revision; default the last one without the C slave) the same bounds and sections of that
+revision's firmware, built from its own sources (`git archive`), beside them: what the slave added.
 
 With --daq-run (pyxcp needed) it also records a whole run by DAQ: a target process on a private udp_multicast bus,
 pyxcp as the master with a DAQ list of the four temperatures on the model step's event, and `bench host` replaying
@@ -78,6 +89,9 @@ def main() -> int:
     parser.add_argument("--rows", type=int, default=6000, help="rows of the lockstep session (default 6000)")
     parser.add_argument("--repeat", type=int, default=5000, help="calls of each command (default 5000)")
     parser.add_argument("--daq-run", action="store_true", help="also record a whole run by DAQ with pyxcp")
+    parser.add_argument("--baseline", default=BASELINE, metavar="REV",
+                        help=f"the git revision whose firmware is the baseline (default {BASELINE}: the last "
+                             "without the C slave; '' for none)")
     parser.add_argument("--run-rows", type=int, default=None, help="with --daq-run: only the first N rows")
     parser.add_argument("--mf4", type=Path, default=None,
                         help="with --daq-run: also write the recording to this .mf4 (bench.daqrecord; asammdf)")
@@ -97,7 +111,7 @@ def main() -> int:
     commands = {"SHORT_UPLOAD float": [bytes((0xF4, 4, 0, 0)) + struct.pack("<I", x0)],
                 "SET_MTA + DOWNLOAD float": [bytes((0xF6, 0, 0, 0)) + struct.pack("<I", alpha),
                                              bytes((0xF0, 4)) + struct.pack("<f", float(node.model.alpha_cu))],
-                "BUILD_CHECKSUM 48 bytes": [bytes((0xF6, 0, 0, 0)) + struct.pack("<I", x0),
+                "BUILD_CHECKSUM 32 bytes": [bytes((0xF6, 0, 0, 0)) + struct.pack("<I", x0),
                                             bytes((0xF3, 0, 0, 0)) + struct.pack("<I", 32)],
                 "GET_STATUS": [bytes((0xFD,))]}
     handlers = {}
@@ -121,11 +135,166 @@ def main() -> int:
           f"{record.figures['daq_sample_us']['max']} µs, {with_daq_node.xcp.daq.packets} packets for "
           f"{with_daq_node.model_steps} model steps; worst command {worst} µs = "
           f"{100 * worst / (artifact.dt * 1e6):.4f} % of the period")
+    if path.resolve() == default_artifact_path().resolve():
+        record.figures["firmware"] = firmware_figures(artifact, args.rows, max(1, args.repeat // 10),
+                                                      args.baseline or None)
+        fw = record.figures["firmware"]
+        print(f"firmware: handler cycles p50/max {fw['handler_cycles']}; DAQ sample {fw['daq_sample_cycles']}; "
+              f"WCET {fw['wcet_cycles']}; sections {fw['sections']}; baseline {fw.get('baseline')}")
     if args.daq_run:
         record.figures["daq_run"] = daq_run(artifact, path, args.run_rows, args.mf4)
         print(f"DAQ run: {record.figures['daq_run']}")
     record.write()
     return 0
+
+
+BASELINE = "d7017f8"      # the last revision whose firmware node has no XCP slave
+TIMED = ("fw_step", "node_on_frame", "node_on_tick", "node_on_xcp", "xcp_event")
+
+
+def _bounds_script(timed: tuple[str, ...]) -> str:
+    """What a checkout runs to give its packaged model's shipped ELF sections and its timing image's WCET bounds:
+    without an XCP master (no DAQ list: `bench firmware timing`'s assumption) and with the DAQ tables full."""
+    from target_sim.xcp.daq import MAX_DAQ_LISTS, MAX_ODTS
+
+    daq = (MAX_DAQ_LISTS, MAX_ODTS)
+    return f"""
+import json, sys, tempfile
+from pathlib import Path
+from bench.firmware.images import firmware_for, packaged_elf
+from bench.firmware.timing import timing_sources
+from bench.model.default import default_artifact_path
+from target_sim.artifact import load_artifact
+from target_sim.firmware.elf import memory_from_elf, read_elf
+from target_sim.firmware.wcet import loop_facts, wcet
+artifact = load_artifact(default_artifact_path())
+with tempfile.TemporaryDirectory() as cache:
+    image = read_elf(firmware_for(artifact, Path(cache), isr=True))
+sources = timing_sources(artifact)
+out = {{"sections": memory_from_elf(packaged_elf(artifact))["sections"]}}
+for key, facts in (("wcet_cycles", lambda: loop_facts(sources, 0)),
+                   ("wcet_cycles_daq", lambda: loop_facts(sources, 0, daq={daq!r}))):
+    try:
+        out[key] = {{name: wcet(image, name, facts()).cycles for name in {timed!r} if name in image.symbols}}
+    except TypeError:        # a revision without the XCP slave: no DAQ to bound
+        pass
+json.dump(out, sys.stdout)
+"""
+
+
+def _checkout_figures(tree: Path) -> dict:
+    import json
+    import subprocess
+
+    done = subprocess.run([sys.executable, "-c", _bounds_script(TIMED)], cwd=tree, capture_output=True, text=True,
+                          timeout=1800, env={**__import__("os").environ, "PYTHONPATH": str(tree)})
+    if done.returncode != 0:
+        raise RuntimeError(f"the bounds of {tree} failed: {done.stderr.strip()[-400:]}")
+    return json.loads(done.stdout)
+
+
+def baseline_figures(rev: str) -> dict:
+    """The sections and WCET bounds of revision `rev`'s firmware, from its own sources (git archive)."""
+    import subprocess
+    import tarfile
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as work:
+        archive = Path(work) / "rev.tar"
+        with archive.open("wb") as out:
+            subprocess.run(["git", "archive", rev], cwd=ROOT, stdout=out, check=True, timeout=300)
+        tree = Path(work) / "tree"
+        with tarfile.open(archive) as tar:
+            tar.extractall(tree, filter="data")
+        return {"revision": rev, **_checkout_figures(tree)}
+
+
+def firmware_figures(artifact, rows: int, repeat: int, baseline: str | None) -> dict:
+    """The C slave's cycles, bounds and memory (see the module docstring)."""
+    from collections import Counter
+
+    import can
+
+    from bench.firmware.images import packaged_elf
+    from dbc.xcp import cmd_id
+    from target_sim.firmware.node_engine import FirmwareNode, cycle_figures
+    from target_sim.node import TargetNode
+
+    elf = packaged_elf(artifact)
+    node = FirmwareNode(artifact, elf)
+    cells = TargetNode(artifact, xcp_elf=elf).xcp.memory.by_name       # the A2L's addresses of this ELF
+    x0, alpha = cells["x_state_0"].address, cells["cal_alpha_cu"].address
+
+    def send(cto: bytes) -> list:
+        return node.handle(can.Message(arbitration_id=cmd_id(), is_extended_id=False, data=cto))
+
+    send(bytes((0xFF, 0)))
+    set_mta = {name: bytes((0xF6, 0, 0, 0)) + struct.pack("<I", address) for name, address in (("x", x0),
+                                                                                                 ("alpha", alpha))}
+    # per kind: the commands sent before it (not counted), then the command counted
+    commands = {"SHORT_UPLOAD float": ((), bytes((0xF4, 4, 0, 0)) + struct.pack("<I", x0)),
+                "SET_MTA": ((), set_mta["alpha"]),
+                "DOWNLOAD float": ((set_mta["alpha"],), bytes((0xF0, 4)) + struct.pack("<f", artifact_alpha(artifact))),
+                "BUILD_CHECKSUM 32 bytes": ((set_mta["x"],), bytes((0xF3, 0, 0, 0)) + struct.pack("<I", 32)),
+                "GET_STATUS": ((), bytes((0xFD,)))}
+    handlers = {}
+    for name, (before, cto) in commands.items():
+        counted: Counter[int] = Counter()
+        for _ in range(repeat):
+            for setup in before:
+                send(setup)
+            seen = node.xcp_cycles.copy()
+            assert bytes(send(cto)[0].data)[0] == 0xFF, name
+            counted += node.xcp_cycles - seen
+        handlers[name] = cycle_figures(counted)
+    session(_FirmwareAsPython(node, cells), rows, daq=True)
+    figures = {"elf": elf.name, "handler_cycles": handlers, "daq_sample_cycles": cycle_figures(node.xcp_sample_cycles),
+               "daq_packets": node.xcp_stats()["daq_packets"], "model_steps": node.model_steps,
+               "model_step_cycles": cycle_figures(node.m4_cycles)}
+    figures.update(_checkout_figures(ROOT))
+    if baseline:
+        base = baseline_figures(baseline)
+        figures["baseline"] = base
+        figures["added"] = {
+            "sections": {k: figures["sections"].get(k, 0) - base["sections"].get(k, 0)
+                         for k in sorted(set(figures["sections"]) | set(base["sections"]))},
+            "wcet_cycles": {k: figures["wcet_cycles"][k] - base["wcet_cycles"][k]
+                            for k in figures["wcet_cycles"] if k in base["wcet_cycles"]},
+            "wcet_cycles_daq": {k: figures["wcet_cycles_daq"][k] - base["wcet_cycles"][k]
+                                for k in figures["wcet_cycles_daq"] if k in base["wcet_cycles"]}}
+    return figures
+
+
+def artifact_alpha(artifact) -> float:
+    from target_sim.model import Float32Estimator
+
+    return float(Float32Estimator(artifact).alpha_cu)
+
+
+class _FirmwareAsPython:
+    """The firmware node behind `session`'s interface (an `xcp.command` and `xcp.memory.by_name` like the Python
+    slave's), so the DAQ session drives both engines alike."""
+
+    def __init__(self, node, cells):
+        from dbc.xcp import cmd_id
+
+        self._node, self._cmd = node, cmd_id()
+        self.xcp = self
+        self.memory = self
+        self.by_name = cells
+
+    def command(self, cto: bytes) -> bytes | None:
+        import can
+
+        replies = self._node.handle(can.Message(arbitration_id=self._cmd, is_extended_id=False, data=cto))
+        return bytes(replies[0].data) if replies else None
+
+    def handle(self, frame):
+        return self._node.handle(frame)
+
+    @property
+    def model_steps(self) -> int:
+        return self._node.model_steps
 
 
 def daq_run(artifact, model_path: Path, rows: int | None, mf4: Path | None = None) -> dict:

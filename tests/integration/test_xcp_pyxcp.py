@@ -1,7 +1,8 @@
-"""pyxcp as the XCP master of the Python target node over the bench's own bus (udp_multicast, pyxcp's public CAN
-config): connect, identify, read the temperatures by UPLOAD, record them by DAQ at every model step, and calibrate
-the observer's sensor offset during a run; the run's replies equal an in-process node given the same frames and
-the same calibration at the same row, bit for bit, and differ from the uncalibrated run."""
+"""pyxcp as the XCP master of the Python target node (and of the firmware node's C slave) over the bench's own bus
+(udp_multicast, pyxcp's public CAN config): connect, identify, read the temperatures by UPLOAD, record them by DAQ
+at every model step, and calibrate the observer's sensor offset (the firmware's alpha_cu) during a run; the run's
+replies equal an in-process node given the same frames and the same calibration at the same row, bit for bit, and
+differ from the uncalibrated run."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from host.replay import encode_row
 from target_sim.artifact import load_artifact
 from target_sim.node import TargetNode
 
-from helpers import SESSION_INITIAL, private_udp_bus, session_drive, session_start, start_target, subprocess_env
+from helpers import ROOT, SESSION_INITIAL, private_udp_bus, session_drive, session_start, start_target, subprocess_env
 
 pyxcp_config = pytest.importorskip("pyxcp.config")
 pyxcp_master = pytest.importorskip("pyxcp.master")
@@ -331,3 +332,100 @@ def test_a_pyxcp_daq_recording_into_an_mf4_reads_back_as_the_target_sent_it(lagg
         assert mdf.get("obs_extra_0").unit == "degC"
     finally:
         mdf.close()
+
+
+PACKAGED = ROOT / "bench" / "data" / "default_model.json"
+PACKAGED_ELF = ROOT / "bench" / "data" / "firmware" / "default_model.elf"
+FIRMWARE_ROWS = 80
+FIRMWARE_CALIBRATE_AT = 30
+ALPHA_CU = 0.005           # 1/K: the copper coefficient the master downloads (the model's is 0.0039)
+FIRMWARE_DAQ = ("y_est_0", "y_est_1", "y_est_2", "y_est_3", "estimate_1")
+
+
+@pytest.fixture(scope="module")
+def firmware_bench():
+    """(bus config, host bus) with a firmware target (the packaged model's ELF in the emulated Cortex-M4F, its XCP
+    slave in C) on a private udp_multicast bus."""
+    config = private_udp_bus()
+    with start_target("--model", PACKAGED, "--engine", "firmware", "--firmware", PACKAGED_ELF, "--quiet",
+                      *config.to_argv(), env=subprocess_env(can_settings=False)):    # stopped when the block ends
+        bus = config.open()
+        try:
+            deadline = time.monotonic() + 60
+            while message_name(bus.recv(0.5) or can.Message(arbitration_id=0x7FF)) != "Status":
+                assert time.monotonic() < deadline, "the firmware target sent no heartbeat within 60 s"
+            yield config, bus
+        finally:
+            bus.shutdown()
+
+
+@pytest.mark.slow   # the emulated core: about 20 s on one worker; .ci/run runs it
+def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench):
+    """pyxcp against the C slave: identify, DAQ of the temperatures at every model step, a DOWNLOAD of alpha_cu
+    after row 30; the firmware's replies equal, bit for bit, the Python node given the same frames and calibration
+    (its cells at the same ELF's addresses), and every DAQ value is its step's CAN reply within 0.005 K."""
+    config, bus = firmware_bench
+    host = Host(bus)
+    artifact = load_artifact(PACKAGED)
+    reference = TargetNode(artifact, clock_ns=lambda: 0, xcp_elf=PACKAGED_ELF)
+    cells = reference.xcp.memory.by_name
+    drive = session_drive(FIRMWARE_ROWS, 7)
+    with master(config) as xcp:
+        connected = xcp.connect()
+        assert connected.maxCto == 8 and connected.resource.daq and connected.resource.calpag
+        assert xcp.identifier(0) == f"pmsm-thermal-bench model {artifact.model_id:08x}"
+        xcp.freeDaq()
+        xcp.allocDaq(1)
+        xcp.allocOdt(0, len(FIRMWARE_DAQ))
+        for odt in range(len(FIRMWARE_DAQ)):
+            xcp.allocOdtEntry(0, odt, 1)
+        for odt, name in enumerate(FIRMWARE_DAQ):
+            xcp.setDaqPtr(0, odt, 0)
+            xcp.writeDaq(0xFF, 4, 0, cells[name].address)
+        xcp.setDaqListMode(0x00, 0, 0, 1, 0)
+        assert xcp.startStopDaqList(0x02, 0).firstPid == 0
+        xcp.startStopSynch(0x01)
+        assert xcp.getStatus().sessionStatus.daqRunning is True
+
+        for frame in session_start(host.codec):
+            reference.handle(frame)
+        host.send(session_start(host.codec))
+        expected = {}
+        for row in range(FIRMWARE_ROWS):
+            frames = encode_row(host.codec, row, drive[row])
+            replies = [r for frame in frames for r in reference.handle(frame)]
+            expected[row] = [decode_any(r).signals["WindingTemp"] for r in replies
+                             if message_name(r) == "Temperatures1"][0]
+            host.send(frames)
+            host.wait(row)
+            if row == FIRMWARE_CALIBRATE_AT:
+                (winding,) = struct.unpack("<f", xcp.shortUpload(4, cells["estimate_1"].address))
+                assert winding == pytest.approx(host.temps[row]["Temperatures1"]["WindingTemp"], abs=0.005)
+                xcp.setMta(cells["cal_alpha_cu"].address)
+                xcp.download(struct.pack("<f", ALPHA_CU))
+                assert reference.xcp.command(bytes((0xFF, 0)))[0] == 0xFF          # the same calibration
+                address = struct.pack("<I", cells["cal_alpha_cu"].address)
+                assert reference.xcp.command(bytes((0xF6, 0, 0, 0)) + address) == b"\xff"
+                assert reference.xcp.command(bytes((0xF0, 4)) + struct.pack("<f", ALPHA_CU)) == b"\xff"
+                assert struct.unpack("<f", xcp.shortUpload(4, cells["cal_alpha_cu"].address))[0] == \
+                    np.float32(ALPHA_CU)
+        xcp.startStopSynch(0x00)
+        host.drain()
+        xcp.setMta(cells["x_state_0"].address)
+        with pytest.raises(Exception, match="ACCESS_DENIED"):
+            xcp.download(struct.pack("<f", 1.0))
+        xcp.setMta(cells["cal_alpha_cu"].address)
+        with pytest.raises(Exception, match="OUT_OF_RANGE"):
+            xcp.download(struct.pack("<f", 0.5))
+        xcp.disconnect()
+
+    assert {row: host.temps[row]["Temperatures1"]["WindingTemp"] for row in range(FIRMWARE_ROWS)} == expected
+    steps = reference.model_steps
+    by_pid = {pid: [struct.unpack_from("<f", p, 1)[0] for p in host.daq if p[0] == pid]
+              for pid in range(len(FIRMWARE_DAQ))}
+    assert [len(v) for v in by_pid.values()] == [steps] * len(FIRMWARE_DAQ) and steps > 20
+    step_rows = sorted({row for row in range(FIRMWARE_ROWS) if reference.accumulator.ends_interval(row)})
+    for pid, role in ((0, "YokeTemp"), (1, "WindingTemp"), (2, "ToothTemp"), (3, "MagnetTemp")):
+        message = "Temperatures1" if role in ("WindingTemp", "MagnetTemp") else "Temperatures2"
+        replies = [host.temps[row][message][role] for row in step_rows]
+        assert np.allclose(by_pid[pid], replies, atol=0.005 + 1e-9), role

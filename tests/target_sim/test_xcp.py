@@ -18,7 +18,7 @@ from host.replay import encode_row
 from target_sim.artifact import load_artifact
 from target_sim.node import TargetNode
 from target_sim.xcp.codes import Err
-from target_sim.xcp.daq import MAX_ODT_ENTRIES
+from target_sim.xcp.daq import MAX_DAQ_LISTS, MAX_ODT_ENTRIES, MAX_ODTS, ODT_PAYLOAD
 
 from helpers import ROOT, session_drive, session_frames, session_start
 
@@ -96,7 +96,7 @@ def test_daq_configuration_rules(node):
     assert slave.command(bytes((0xD6,))) == OK
     assert slave.command(bytes((0xD5, 0, 1, 0))) == OK
     assert slave.command(bytes((0xD4, 0, 0, 0, 2))) == OK
-    assert slave.command(bytes((0xD3, 0, 0, 0, 0, MAX_ODT_ENTRIES + 1))) == err(Err.MEMORY_OVERFLOW)
+    assert slave.command(bytes((0xD3, 0, 0, 0, 0, ODT_PAYLOAD + 1))) == err(Err.OUT_OF_RANGE)   # > 7 per ODT
     assert slave.command(bytes((0xD3, 0, 0, 0, 0, 2))) == OK
     assert slave.command(bytes((0xD3, 0, 0, 0, 1, 1))) == OK
     y0 = slave.memory.by_name["y_est_0"].address
@@ -126,6 +126,23 @@ def test_daq_configuration_rules(node):
     assert daq == [p for y in sampled for p in (bytes((0,)) + y[:2].tobytes()[:7], bytes((1,)) + y[3:].tobytes())]
 
 
+def test_the_daq_tables_have_the_c_nodes_ram_budget(node):
+    """The limits the firmware's fixed tables set (bench/firmware/xcp.c), refused alike by both slaves:
+    MAX_DAQ_LISTS lists, MAX_ODTS ODTs, MAX_ODT_ENTRIES entries in all (ERR_MEMORY_OVERFLOW)."""
+    slave = node.xcp
+    assert slave.command(bytes((0xD6,))) == OK
+    assert slave.command(bytes((0xD5, 0, MAX_DAQ_LISTS + 1, 0))) == err(Err.MEMORY_OVERFLOW)
+    assert slave.command(bytes((0xD5, 0, 2, 0))) == OK
+    assert slave.command(bytes((0xD4, 0, 0, 0, MAX_ODTS))) == OK
+    assert slave.command(bytes((0xD4, 0, 1, 0, 1))) == err(Err.MEMORY_OVERFLOW)
+    full = MAX_ODT_ENTRIES // ODT_PAYLOAD
+    for odt in range(full):
+        assert slave.command(bytes((0xD3, 0, 0, 0, odt, ODT_PAYLOAD))) == OK
+    left = MAX_ODT_ENTRIES - full * ODT_PAYLOAD
+    assert slave.command(bytes((0xD3, 0, 0, 0, full, left + 1))) == err(Err.MEMORY_OVERFLOW)
+    assert slave.command(bytes((0xD3, 0, 0, 0, full, left))) == OK
+
+
 def drive_both(rows: int):
     """The packaged model's Python node (its XCP cells at the packaged ELF's addresses) and its firmware node, fed
     the same session."""
@@ -146,7 +163,8 @@ def test_cells_that_mirror_c_symbols_hold_the_firmware_ram_bytes():
     assert python.model_steps == firmware.model_steps > 0
     python.xcp.command(bytes((0xFF, 0)))
     mirrored = [c for c in python.xcp.memory.cells if c.symbol is not None]
-    assert {c.name for c in mirrored} == {f"{s}_{i}" for s in ("x_state", "y_est", "estimate") for i in range(4)}
+    assert {c.name for c in mirrored} == {f"{s}_{i}" for s in ("x_state", "y_est", "estimate") for i in range(4)} \
+        | {"cal_alpha_cu"}
     for cell in mirrored:
         reply = python.xcp.command(short_upload(cell.address))
         assert reply[1:] == firmware.fw.read_bytes(cell.address, 4), cell.name
@@ -281,7 +299,10 @@ def test_bench_firmware_a2l_writes_the_file_and_refuses_to_overwrite_its_input(t
     report = json.loads(capsys.readouterr().out)
     assert (report["measurements"], report["characteristics"]) == (12, 1)
     text = out.read_text(encoding="latin-1")
-    assert "CAN_ID_MASTER 0x6A0 CAN_ID_SLAVE 0x6A1" in text and "ECU_ADDRESS 0x20000000" in text
+    from target_sim.xcp.layout import elf_symbols
+
+    x_state = elf_symbols(PACKAGED_ELF)["x_state"][0]
+    assert "CAN_ID_MASTER 0x6A0 CAN_ID_SLAVE 0x6A1" in text and f"ECU_ADDRESS 0x{x_state:08X}" in text
     copy = tmp_path / "model.json"
     copy.write_bytes(PACKAGED.read_bytes())
     assert main(["firmware", "a2l", "--model", str(copy), "--out", str(copy)]) != 0

@@ -19,7 +19,7 @@ from target_sim.firmware import Firmware, memory_from_elf
 
 # what export writes (and build beside the ELF and map): the generated model and node files, the shipped ones
 SOURCES = ["fw_model.c", "fw_model.h", "fw_node_config.h", "thermal_bench.c", "thermal_bench.h", "node.c", "node.h",
-           "string.h", "startup.c", "firmware.ld"]
+           "xcp.c", "string.h", "startup.c", "firmware.ld"]
 
 KIND_REALIZATIONS = [("lti-lptn", r) for r in ("physical", "original", "balanced", "modal")]
 KIND_REALIZATIONS += [("hammerstein", r) for r in ("physical", "original", "balanced", "modal")]
@@ -121,7 +121,8 @@ def test_memory_map_and_vector_table(firmware_of):
     assert build.memory["stack_bytes"] == sections[".stack"] == 1024
     # vector table at the start of flash: initial SP = _estack, reset vector = Reset_Handler (Thumb bit set)
     sp, reset = np.frombuffer(fw.read_bytes(0x0800_0000, 8), "<u4")
-    assert sp == fw.address("_estack") == 0x2000_0000 + sections[".bss"] + (-sections[".bss"] % 8) + 1024
+    ram = sections.get(".data", 0) + sections[".bss"]      # .data: the calibratable alpha_cu (XCP)
+    assert sp == fw.address("_estack") == 0x2000_0000 + ram + (-ram % 8) + 1024
     assert reset == fw.address("Reset_Handler") | 1
     assert "fw_step" in build.map_text and "fw_model.o" in build.map_text
 
