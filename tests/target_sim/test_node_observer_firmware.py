@@ -144,8 +144,16 @@ def steady_sensor_artifact(observer_artifact, tmp_path_factory):
     return _steady(observer_artifact, tmp_path_factory)
 
 
-@pytest.fixture(params=["sensor", "lagged", "magnet-bias", "ntc+flux", "steady", "sensor-steady", "ntc+flux-steady",
-                        "flux+resistance", "consider", "consider-sensor", "consider-steady"])
+# Each case builds its firmware and emulates a run (5-10 s): the default run keeps one per feature of the generated
+# observer (a sensor, its lag, several measurements, the consider state); the forms and combinations run under
+# `-m slow`, as .ci/run does (the default run has a 5-minute budget).
+DEFAULT_RUN_CASES = ("sensor", "lagged", "ntc+flux", "consider")
+OBSERVER_CASES = ("sensor", "lagged", "magnet-bias", "ntc+flux", "steady", "sensor-steady", "ntc+flux-steady",
+                  "flux+resistance", "consider", "consider-sensor", "consider-steady")
+
+
+@pytest.fixture(params=[pytest.param(c, marks=() if c in DEFAULT_RUN_CASES else (pytest.mark.slow,))
+                        for c in OBSERVER_CASES])
 def case(request, observer_artifact, lagged_artifact, magnet_bias_artifact, flux_observer_artifact, steady_artifact,
          steady_sensor_artifact, steady_flux_artifact, resistance_observer_artifact, consider_artifact,
          consider_sensor_artifact, consider_steady_artifact) -> Case:
@@ -365,6 +373,7 @@ def test_open_loop_artifacts_get_none_of_the_observer_code(artifacts):
         assert "FW_OBSERVER" not in source.header
 
 
+@pytest.mark.slow   # the same firmware as the bit-exact cases 'ntc+flux'/'flux+resistance'
 def test_bench_firmware_check_runs_the_ntc_and_the_flux_linkage(flux_observer_artifact, capsys):
     """The Python node's NTC + flux linkage observer (DBC 1.7.0) runs in the firmware too (the refusal of several
     measurements and of the flux linkage is gone): the check names both and counts each one's updates."""
@@ -376,6 +385,7 @@ def test_bench_firmware_check_runs_the_ntc_and_the_flux_linkage(flux_observer_ar
     assert re.search(r"\(ntc_C \d+, flux \d+\)", stdout), stdout
 
 
+@pytest.mark.slow   # the same firmware as the bit-exact cases 'ntc+flux'/'flux+resistance'
 def test_bench_firmware_check_runs_the_winding_resistance(resistance_observer_artifact, capsys):
     """The flux linkage and the winding resistance read the same raw channels; the generated C reads both bit for
     bit, the resistance at low speed only and the flux linkage at high speed only."""
