@@ -31,11 +31,18 @@ KINDS = MODEL_KINDS.names()
 # the built-in campaign keeps the packaged model's kind; --train files deploy what their validation files favour
 BUILTIN_KIND = "hammerstein"
 DEFAULT_DT_S = 0.5
-# No polish by default: on the motor suite's validation profiles (examples/suite, tests/benchmarks/bench_suite.py
-# --defaults) the Hammerstein model from the swarm's full result beat the polished one (2 starts, MAP LM, freezing)
-# on 2 of 3 motors (winding + magnet MSE: air-30kw 9.6 vs 25.7 K², ipm-60kw 24.5 vs 44.9; outrunner-200kw 19.9 vs
-# 13.0): with a plant the four-node network cannot be, the polish fits the training files' misfit.
-DEFAULT_POLISH = 0
+# The polish when --polish is not given, chosen on the motor suite's validation profiles (examples/suite,
+# tests/benchmarks/bench_suite.py; Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw,
+# measured 2026-12-06, docs/method.md): from the motor's own prior, no polish 16.4 / 8.3 / 20.3 against
+# POLISH_STARTS starts unfrozen 12.0 / 23.8 / 9.8 (2 of 3); from --prior auto 20.8 / 23.5 / 52.2 against
+# 20.4 / 12.6 / 49.8 (3 of 3); from an adapted foreign network (Table 1) 14.2 / 8.6 / 62.0 against 20.4 / 11.6 /
+# 69.0 (0 of 3). So --train files polish unless the prior is adapted; the built-in campaign never does (its
+# packaged artifacts are reproduced).
+def default_polish(files: bool, adapt: bool) -> int:
+    """--polish's default: POLISH_STARTS starts on the --train files path unless the prior is adapted, else 0."""
+    return POLISH_STARTS if files and not adapt else 0
+
+
 # every model step must hold at least one data sample (the target averages the samples of each step)
 PERIOD_TOLERANCE = 1e-6
 
@@ -62,11 +69,12 @@ def add_subparser(subparsers) -> None:
                    help="'auto' (a starting network read from the training data: each measured node's gain and "
                         "time constant) or a prior file (.json/.toml: 'parameters' = a set name or all 22 values, "
                         "optional 'bounds'); default: the motor's thermal_prior, else Table 1")
-    p.add_argument("--polish", type=int, default=DEFAULT_POLISH, metavar="STARTS",
+    p.add_argument("--polish", type=int, default=None, metavar="STARTS",
                    help="local Levenberg-Marquardt polish of the swarm's result from its STARTS best distinct "
-                        f"particles (e.g. {POLISH_STARTS}), in threads, one per core, see --freeze (default "
-                        f"{DEFAULT_POLISH}: the swarm's full result; chosen on the motor suite's validation profiles, "
-                        "see docs/method.md)")
+                        "particles, in threads, one per core, see --freeze; 0: the swarm's full result (default "
+                        f"with --train files {POLISH_STARTS}, or 0 when the prior is adapted (--adapt-prior), and 0 "
+                        "for the built-in campaign: chosen on the motor suite's validation profiles, see "
+                        "docs/method.md)")
     p.add_argument("--regularization", choices=REGULARIZATIONS, default=None,
                    help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
                         "with --train files) or fixed (default for the built-in campaign)")
@@ -135,9 +143,9 @@ def run(args: argparse.Namespace) -> int:
     train, validate = _split(args, motor)
     # the built-in campaign keeps the packaged model's path unless asked otherwise (its artifact is reproduced)
     files = args.train is not None
-    polish = args.polish
     regularization = args.regularization or ("cv" if files else "fixed")
     adapt = _adapts(args.adapt_prior, files, prior or motor.prior)
+    polish = args.polish if args.polish is not None else default_polish(files, adapt)
     dt = _model_step(args.dt, train + validate)
     coverage = coverage_warnings(train, validate, motor.limits.speed_rpm)
     if not args.quiet:    # before the fit: the user may stop it and choose other files

@@ -252,8 +252,11 @@ DEFAULTS = {
     "adapt-prior": ("table1", (), {"no": ("--adapt-prior", "no")}),
     "regularization": ("designer", (), {"fixed": ("--regularization", "fixed")}),
     "stator-weight": ("designer", (), {"fixed": ("--stator-weight", "fixed")}),
-    # the default is 0 since the suite's first comparison; freezing acts only in a polish: with and without it
-    "polish": ("designer", (), {"2": ("--polish", "2"), "2-freeze-no": ("--polish", "2", "--freeze", "no")}),
+    # --train files polish by default (2 starts, unfrozen) unless the prior is adapted (a named foreign network)
+    "polish": ("designer", (), {"0": ("--polish", "0")}),
+    "polish-auto": ("auto", (), {"0": ("--polish", "0")}),
+    "polish-adapted": ("table1", (), {"2": ("--polish", "2")}),
+    "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),

@@ -233,6 +233,28 @@ def test_without_a_polish_the_files_path_still_names_what_the_data_cannot_determ
     assert "standard_errors" in summary["timings_s"]
 
 
+def test_the_files_path_polishes_by_default_unless_the_prior_is_adapted(motor_files, tmp_path, capsys):
+    """--polish unset: the motor suite's choice (docs/method.md): --train files from the automatic (or the motor's
+    own) prior are polished from POLISH_STARTS starts, unfrozen; an adapted foreign network (Table 1 named in a
+    prior file) is not."""
+    from bench.commands.identify import default_polish
+    from bench.model.polish import POLISH_STARTS
+
+    assert default_polish(files=True, adapt=False) == POLISH_STARTS
+    assert default_polish(files=True, adapt=True) == 0 and default_polish(files=False, adapt=False) == 0
+    common = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+              "--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_02.csv"),
+              "--swarm", "4", "--iterations", "1", "--lm-iterations", "1", "--regularization", "fixed",
+              "--kind", "lti-lptn", "--json"]
+    assert main([*common, "--prior", "auto", "--out", str(tmp_path / "auto.json")]) == 0
+    polished = json.loads(capsys.readouterr().out)["polish"]
+    assert polished["starts"] == POLISH_STARTS and not polished.get("frozen")
+    (tmp_path / "table1-prior.json").write_text('{"parameters": "table1"}')
+    assert main([*common, "--prior", str(tmp_path / "table1-prior.json"), "--out", str(tmp_path / "table1.json")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["adapted_prior"] and summary["polish"] is None
+
+
 def test_kind_auto_deploys_the_kind_the_validation_file_favours(motor_files, tmp_path, capsys):
     """The default with --train files: all three kinds from one fit, the one with the smallest validation winding +
     magnet MSE at --out, the others beside it, the choice in --json and in every artifact's provenance."""
