@@ -101,7 +101,8 @@ def test_minute(thermal_bench):
 
 
 @pytest.mark.parametrize("signum, options", [(signal.SIGTERM, ()), (signal.SIGKILL, ()),
-                                             (signal.SIGTERM, ("-n", "1"))],
+                                             # 10 s: kept out of the 5-min default run
+                                             pytest.param(signal.SIGTERM, ("-n", "1"), marks=pytest.mark.slow)],
                          ids=["SIGTERM", "SIGKILL", "SIGTERM to the xdist controller"])
 def test_a_terminated_or_killed_pytest_leaves_no_bench_target_or_partial_log(tmp_path, minute_data, signum, options):
     """pytest signalled (a CI job cancelled) while `thermal_bench.run()` goes: waits up to 30 s for the bench and its

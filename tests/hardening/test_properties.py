@@ -264,6 +264,7 @@ def node_elves(node_artifacts, firmware_builds):
     return {kind: firmware_builds.elf(generate(artifact)) for kind, artifact in node_artifacts.items()}
 
 
+@pytest.mark.slow   # 14 s with its firmware fixtures: kept out of the 5-min default run
 @settings(PROPERTY, max_examples=120)
 @given(data=st.data(), kind=st.sampled_from(["hammerstein", "lti-lptn", "pv-lptn"]), rows=st.integers(0, 7),
        engine=st.sampled_from(["python", "firmware"]))

@@ -145,6 +145,7 @@ def _clean_run(path, data, engine: str, tmp_path) -> dict:
     return metrics
 
 
+@pytest.mark.slow   # 6 s, its flux linkage bit-exact in firmware check
 def test_bench_run_on_the_firmware_engine_with_the_ntc_and_the_flux_linkage_is_clean(flux_observer_artifact,
                                                                                      tmp_path):
     """Two measurements per row in the generated C (DBC 1.7.0): the NTC in Measurements, the flux linkage from

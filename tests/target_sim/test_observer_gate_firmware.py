@@ -45,7 +45,9 @@ def gated_consider(small_dataset, tmp_path_factory):
     return _gated(out, tmp_path_factory)
 
 
-@pytest.fixture(params=["sensor", "sensor-steady", "consider"])
+# 3.5 s each: the forms beyond the sensor's are kept out of the 5-min default run
+@pytest.fixture(params=["sensor", pytest.param("sensor-steady", marks=pytest.mark.slow),
+                        pytest.param("consider", marks=pytest.mark.slow)])
 def gated_case(request, observer_artifact, gated_consider, tmp_path_factory):
     if request.param == "consider":
         return _sensor_case(gated_consider)

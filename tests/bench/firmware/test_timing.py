@@ -83,6 +83,7 @@ def test_preemption_leaves_the_model_bit_for_bit_and_its_cycles_unchanged(timing
         assert len(inside) == job.preemptions
 
 
+@pytest.mark.slow   # 4 s: kept out of the 5-min default run
 def test_the_exception_model_costs(timing_image):
     _, image = timing_image("lti-lptn")
     costs = ExceptionCosts()
@@ -192,6 +193,7 @@ def test_the_wcet_bound_holds_over_the_measured_maximum(timing_image, kind):
     assert 0 < run["cpu_load"]["current_loop_isr"] < 0.1 and run["cpu_load"]["idle"] > 0.9
 
 
+@pytest.mark.slow   # 5 s; the packaged kinds' bounds are checked in the default run: kept out of the 5-min default run
 @pytest.mark.parametrize(("kind", "realization"), [
     ("hammerstein", "balanced"),
     pytest.param("lti-lptn", "physical", marks=pytest.mark.slow),

@@ -94,6 +94,7 @@ def _first_steps(run, n: int):
                                ref_pm=run.ref_pm[:n])
 
 
+@pytest.mark.slow   # 14 s: identifications in subprocesses under each kernel: kept out of the 5-min default run
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86-64 kernels")
 def test_identification_numerics_do_not_depend_on_blas_kernel_simd_level_or_threads(default_data_dir):
     from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
