@@ -81,6 +81,7 @@ def test_drive_time_spans_the_rows_at_the_sample_period(run_log, tmp_path):
     assert json.loads(given.stdout)["last_timestamp"] == pytest.approx(ROWS - 1)
 
 
+@pytest.mark.slow   # 5 s: kept out of the 5-min default run
 def test_the_host_only_export_replays_with_can_player_and_every_row_is_answered(run_log, tmp_path):
     """The recipe of the README: `python -m can.player` sends the exported host frames to a new target (paced with
     --ignore-timestamps -g: udp_multicast loses frames in the bursts of the recorded lockstep timing; 3 ms, not the

@@ -115,6 +115,7 @@ def test_a_faulted_measurement_frame_is_detected_and_the_filter_predicts_only(ki
     assert max(metrics["max_abs_can_minus_clean_C"].values()) > 0
 
 
+@pytest.mark.slow   # 6 s (its C bit-exact in the firmware checks): kept out of the 5-min default run
 def test_bench_run_on_the_firmware_engine_with_an_observer_is_clean(observer_artifact, validation_run, tmp_path):
     """The observer in the generated C (fw_obs_*): clean over CAN, its replies the offline float32 observer's, every
     model step updated and answered with each node's 1-sigma, its cycles counted (predict + update)."""

@@ -187,6 +187,7 @@ def test_bench_firmware_check_is_bit_exact_over_a_run(case, firmware_elf):
     _bit_exact_over_a_run(case, firmware_elf)
 
 
+@pytest.mark.slow   # 5 s: kept out of the 5-min default run
 def test_the_steady_state_gain_form_is_cheaper(steady_artifact, lagged_artifact, firmware_elf):
     """The steady-state gain in the generated C: no covariance, a constant 1-sigma, fewer cycles than the UD form."""
     steady = _bit_exact_over_a_run(_sensor_case(steady_artifact), firmware_elf)
@@ -398,6 +399,7 @@ def test_bench_firmware_check_runs_the_winding_resistance(resistance_observer_ar
     assert used and int(used[1]) > 0 and int(used[2]) > 0, stdout
 
 
+@pytest.mark.slow   # the same firmware check as the bit-exact case "sensor": kept out of the 5-min default run
 def test_bench_firmware_check_names_the_observers_measurement(observer_artifact, small_dataset, capsys):
     assert main(["firmware", "check", "--model", str(observer_artifact), "--data", str(small_dataset), "--rows", "200",
                  "--quiet"]) == 0

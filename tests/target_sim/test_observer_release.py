@@ -139,6 +139,7 @@ def test_the_float32_forms_follow_the_float64_released_filter(packaged, small_da
     assert np.max(np.abs(always.outputs[:, 3] - held.outputs[:, 3])) > 1e-3      # the release changed the magnet
 
 
+@pytest.mark.slow   # 4 s: kept out of the 5-min default run
 def test_the_release_is_bit_exact_in_the_firmware(packaged, small_dataset, tmp_path, firmware_elf):
     from .test_node_observer_firmware import _bit_exact_over_a_run, _sensor_case
 

@@ -66,7 +66,8 @@ def test_generated_c_is_float_only_and_compiles_warning_free(firmware_of, kind, 
     assert elf.read_i32(elf.address("fw_model_id"), 1).view(np.uint32)[0] == artifact.model_id
 
 
-@pytest.mark.parametrize("kind", ["hammerstein", "pv-lptn"])
+# pv-lptn kept out of the 5-min default run
+@pytest.mark.parametrize("kind", ["hammerstein", pytest.param("pv-lptn", marks=pytest.mark.slow)])
 def test_an_electrical_loss_model_is_generated_float_only_without_tables_or_libm(electrical_of, kind):
     """The electrical loss model's C: its coefficients as the artifact's f32_hex, no loss tables, six inputs per
     row in the API, sqrt and |x| by the builtins (VSQRT.F32, VABS.F32 with -fno-math-errno), nothing to link."""
@@ -101,6 +102,7 @@ def test_a_loss_map_model_keeps_its_four_inputs(firmware_of):
     assert "#define NODE_ROW_MESSAGES 2u" in config and "NODE_ROW_INDEX_DRIVE_CURRENTS" not in config
 
 
+@pytest.mark.slow   # two builds: kept out of the 5-min default run
 def test_build_is_deterministic_and_holds_no_path(firmware_of):
     artifact, first = firmware_of("hammerstein", "balanced", 0.5)
     second = toolchain.build_firmware(generate(artifact))
@@ -187,6 +189,7 @@ def test_missing_toolchain_is_one_sentence_and_writes_nothing(tmp_path, capsys, 
     assert not out.exists()
 
 
+@pytest.mark.slow   # kept out of the 5-min default run
 def test_the_compiler_is_asked_its_version_once_per_process_and_compiler(monkeypatch):
     """Each build names its toolchain; asking `python -m ziglang version` again for every build of a process cost a
     process start each (88 in one test run). A missing compiler is still asked, and still refused."""

@@ -166,6 +166,7 @@ def test_an_interrupt_taken_inside_an_it_block_runs_the_handler_unconditionally(
     assert fw.uc.reg_read(arm.UC_ARM_REG_XPSR) & XPSR_IT == it_state       # restored for the interrupted code
 
 
+@pytest.mark.slow   # kept out of the 5-min default run
 def test_a_period_shorter_than_the_handler_is_a_fault_not_a_hang(timing_image):
     from target_sim.firmware import FirmwareFault
 
@@ -176,7 +177,8 @@ def test_a_period_shorter_than_the_handler_is_a_fault_not_a_hang(timing_image):
         fw.idle_until(10_000)
 
 
-@pytest.mark.parametrize("kind", KINDS)
+# the packaged kind in the default run, the others kept out of the 5-min default run
+@pytest.mark.parametrize("kind", [k if k == "hammerstein" else pytest.param(k, marks=pytest.mark.slow) for k in KINDS])
 def test_the_wcet_bound_holds_over_the_measured_maximum(timing_image, kind):
     from bench.firmware.timing import direct_step_max, measure, static_bounds
 
@@ -243,7 +245,8 @@ def test_a_loop_without_a_stated_bound_is_named(timing_image):
         loop_facts(sources, 0, (-1, 0))
 
 
-@pytest.mark.parametrize("kind", KINDS)
+# the packaged kind in the default run, the others kept out of the 5-min default run
+@pytest.mark.parametrize("kind", [k if k == "hammerstein" else pytest.param(k, marks=pytest.mark.slow) for k in KINDS])
 def test_the_ipet_bound_covers_the_searched_maximum_and_is_tight(timing_image, kind):
     """Each timed function's IPET bound is at least the most cycles measured, on a drive and by the input search,
     and within the issue's margins of it: 10 % for the model step, 25 % for the frame handler (rows in order)."""
