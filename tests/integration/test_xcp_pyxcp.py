@@ -14,6 +14,7 @@ import can
 import numpy as np
 import pytest
 
+from bench.daqrecord import configure_daq, daq_channels
 from dbc import Command, FrameCodec
 from dbc.codec import decode_any
 from dbc.contract import REPLY_SIGNALS
@@ -179,16 +180,7 @@ def test_pyxcp_measures_and_calibrates_a_running_target(bench, rows, observer_ar
         model_id = load_artifact(observer_artifact).model_id
         assert xcp.identifier(0) == f"pmsm-thermal-bench model {model_id:08x}"
         # DAQ: the four temperatures and the winding's 1-sigma, one float per ODT, on the model step's event
-        xcp.freeDaq()
-        xcp.allocDaq(1)
-        xcp.allocOdt(0, len(DAQ_CELLS))
-        for odt in range(len(DAQ_CELLS)):
-            xcp.allocOdtEntry(0, odt, 1)
-        for odt, name in enumerate(DAQ_CELLS):
-            xcp.setDaqPtr(0, odt, 0)
-            xcp.writeDaq(0xFF, 4, 0, cells[name].address)
-        xcp.setDaqListMode(0x00, 0, 0, 1, 0)
-        assert xcp.startStopDaqList(0x02, 0).firstPid == 0
+        assert configure_daq(xcp, daq_channels(load_artifact(observer_artifact), DAQ_CELLS)) == 0
         xcp.startStopSynch(0x01)
         assert xcp.getStatus().sessionStatus.daqRunning is True
 
@@ -275,7 +267,7 @@ def test_a_pyxcp_daq_recording_into_an_mf4_reads_back_as_the_target_sent_it(lagg
     lag state the in-process node's after the same frames, bit for bit."""
     from asammdf import MDF
 
-    from bench.daqrecord import DaqRecorder, configure_daq, daq_channels, write_daq_mf4
+    from bench.daqrecord import DaqRecorder, write_daq_mf4
 
     artifact = load_artifact(lagged_artifact)
     channels = daq_channels(artifact, MF4_CHANNELS)
@@ -374,16 +366,7 @@ def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench):
         connected = xcp.connect()
         assert connected.maxCto == 8 and connected.resource.daq and connected.resource.calpag
         assert xcp.identifier(0) == f"pmsm-thermal-bench model {artifact.model_id:08x}"
-        xcp.freeDaq()
-        xcp.allocDaq(1)
-        xcp.allocOdt(0, len(FIRMWARE_DAQ))
-        for odt in range(len(FIRMWARE_DAQ)):
-            xcp.allocOdtEntry(0, odt, 1)
-        for odt, name in enumerate(FIRMWARE_DAQ):
-            xcp.setDaqPtr(0, odt, 0)
-            xcp.writeDaq(0xFF, 4, 0, cells[name].address)
-        xcp.setDaqListMode(0x00, 0, 0, 1, 0)
-        assert xcp.startStopDaqList(0x02, 0).firstPid == 0
+        assert configure_daq(xcp, daq_channels(artifact, FIRMWARE_DAQ, PACKAGED_ELF)) == 0
         xcp.startStopSynch(0x01)
         assert xcp.getStatus().sessionStatus.daqRunning is True
 
