@@ -36,6 +36,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -64,10 +65,19 @@ class ProcessControl:
     exit_reason: Callable[[], str | None] | None = None
 
 
+class RowPass(NamedTuple):
+    """One pass of a data row: 0 the first time the row goes out, 1 after a re-initialization replays it, ... (a
+    deadline miss is one: a row misses at most once per pass, at its first send)."""
+
+    row: int
+    pass_: int = 0
+
+
 @dataclass
 class Recovery:
-    """One re-initialization: the target was lost at `lost_row` and restarted at `restart_row` from the checkpoint
-    of `checkpoint_row` (its state vector `state`), or, with no checkpoint yet, from the initial temperatures."""
+    """One re-initialization: the target was lost at `lost_row` (in pass `lost_pass` of it) and restarted at
+    `restart_row` from the checkpoint of `checkpoint_row` (its state vector `state`), or, with no checkpoint yet,
+    from the initial temperatures."""
 
     lost_row: int
     restart_row: int
@@ -78,6 +88,7 @@ class Recovery:
     checkpoint_row: int | None
     state: list[float] | None
     reset_temps: list[float] | None
+    lost_pass: int = 0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -90,7 +101,7 @@ class FaultRun:
     spec: FaultSpec
     injections: list[Injection] = field(default_factory=list)
     recoveries: list[Recovery] = field(default_factory=list)
-    deadline_misses: list[int] = field(default_factory=list)
+    deadline_misses: list[RowPass] = field(default_factory=list)
     retransmitted_rows: int = 0
     started_at: float = 0.0
     frames_transmitted: int = 0
@@ -101,18 +112,38 @@ class FaultRun:
     sends: np.ndarray | None = None
     book: RowBook | None = None
     stall_limit_s: float | None = None
+    # lockstep: the misses of abandoned passes, judged before a re-initialization cleared their replies (seconds to
+    # the first reply of a pass answered at every send, None for one that was not), and when each replayed pass of
+    # a row began (wall clock: the target's reply faults know their Step and time, not the pass)
+    settled: dict[RowPass, float | None] = field(default_factory=dict)
+    replayed_at: dict[RowPass, float] = field(default_factory=dict)
 
-    def late_replies(self) -> dict[int, float]:
-        """Rows that missed their deadline although the target answered every send of them, the first one
-        included (nothing was lost on the way; the reply came late), with the seconds until the first reply."""
+    def late_replies(self) -> dict[RowPass, float]:
+        """Deadline misses whose pass the target answered at every send, the first one included (nothing was lost
+        on the way; the reply came late), with the seconds until the first reply."""
         if self.sends is None or self.book is None:
             return {}
-        book, out = self.book, {}
-        for row in dict.fromkeys(self.deadline_misses):
-            sends = int(self.sends[row])
-            if sends and book.replies(row) >= sends and book.first_replied_ns[row]:
-                out[row] = (int(book.first_replied_ns[row]) - int(book.sent_ns[row])) / 1e9
+        out = {}
+        for miss in dict.fromkeys(self.deadline_misses):
+            late = self.settled[miss] if miss in self.settled else self._late(miss.row)
+            if late is not None:
+                out[miss] = late
         return out
+
+    def settle(self, start: int, stop: int) -> None:
+        """Judge the misses of rows start..stop-1 from the book and the send counts now: their pass is abandoned,
+        and a re-initialization is about to clear both."""
+        for miss in self.deadline_misses:
+            if start <= miss.row < stop and miss not in self.settled:
+                self.settled[miss] = self._late(miss.row)
+
+    def _late(self, row: int) -> float | None:
+        """Seconds from the first send to the first reply of `row`'s current pass if every send of it was
+        answered, else None."""
+        book, sends = self.book, int(self.sends[row])
+        if sends and book.replies(row) >= sends and book.first_replied_ns[row]:
+            return (int(book.first_replied_ns[row]) - int(book.sent_ns[row])) / 1e9
+        return None
 
 
 def mark_new_injections(session: HostSession, faulty: FaultyBus, row: int) -> None:
@@ -163,7 +194,7 @@ class FaultLockstep:
             self._send_row(n, pass_, eligible=n != segment_start and process is None)
             sent_rows = max(sent_rows, n + 1)
             if not wait_for_reply(self.session, self.book, n, self.reply_timeout_s):
-                self.fault_run.deadline_misses.append(n)
+                self.fault_run.deadline_misses.append(RowPass(n, pass_))
                 outcome = self._retry(n, pass_)
                 if outcome == "lost":
                     try:
@@ -203,6 +234,8 @@ class FaultLockstep:
         """Row n's first send in this pass, through the fault layer (faulted where the plan says so)."""
         self.session.last_sent_row = n
         self.book.sent_ns[n] = time.perf_counter_ns()
+        if pass_:
+            self.fault_run.replayed_at[RowPass(n, pass_)] = time.time()
         self.fault_run.sends[n] += 1
         self.faulty.begin_row(n, pass_, eligible=eligible)
         self.session.send(self.values.frames(self.session.codec, n))
@@ -264,11 +297,13 @@ class FaultLockstep:
             session.restore(checkpoint[1], step=step_of(s),
                             observer=session.observer_checkpoints.get(checkpoint[0]))
         session.start(step=step_of(s))
+        self.fault_run.settle(s, n + 1)   # the pass of rows s..n is abandoned: judge its misses before the clear
         self.book.clear(s, n + 1)
         self.fault_run.sends[s:n + 1] = 0
         self.fault_run.recoveries.append(Recovery(
             n, s, reason, round(silent, 4), lost_at, time.time(), None if checkpoint is None else checkpoint[0],
-            None if checkpoint is None else checkpoint[1], self.initial if checkpoint is None else None))
+            None if checkpoint is None else checkpoint[1], self.initial if checkpoint is None else None,
+            lost_pass=self.passes[n] - 1))
         return s
 
 

@@ -23,7 +23,7 @@ from host.replay import Progress, ReplayStats, run_realtime
 from host.session import HostSession
 
 from .bus import FaultyBus
-from .lockstep import FaultRun, mark_new_injections
+from .lockstep import FaultRun, RowPass, mark_new_injections
 from .plan import FaultPlan
 from .spec import FaultSpecError
 
@@ -71,6 +71,6 @@ def run_realtime_with_faults(session: HostSession, drive: np.ndarray, *, faulty:
     book = session.book
     sent = stats.rows_sent
     late = (book.replied_ns[:sent] - book.sent_ns[:sent]) > reply_timeout_s * 1e9
-    run.deadline_misses = np.flatnonzero(~book.answered()[:sent] | late).tolist()
+    run.deadline_misses = [RowPass(row) for row in np.flatnonzero(~book.answered()[:sent] | late).tolist()]
     run.frames_transmitted = faulty.transmitted
     return stats, run

@@ -54,7 +54,7 @@ from dbc.mutations import FRAME_FAULT_KINDS, REPLY_PREFIX
 from host.errors import HostError, write_failure
 
 from .bus import Injection
-from .lockstep import FaultRun
+from .lockstep import FaultRun, RowPass
 from .spec import KINDS, PROCESS_KINDS, REPLY_KINDS, TARGET_DETECTED
 
 TARGET_EVIDENCE = {"drop": "counter", "duplicate": "counter", "stale_counter": "counter", "corrupt": "crc",
@@ -151,6 +151,20 @@ def chained_rows(injections: Iterable[Injection]) -> list[int]:
     return rows
 
 
+def reply_passes(injections: Iterable[Injection], run: FaultRun) -> None:
+    """Set the pass of each of the target's reply injections, which know their Step and time, not the pass: the
+    newest pass of a row of that Step that the host had begun by then (`run.replayed_at`; none: the first).
+    A target kept from running (freeze) answers the lost row's first send only when it resumes, possibly after the
+    host began the new pass, but before that pass reaches the lost row (the target answers in order; unless the new
+    pass begins at the lost row, when its fault may count for the new pass: that miss is the recovery's anyway)."""
+    begun: dict[int, list[tuple[float, int]]] = {}
+    for replay, t in run.replayed_at.items():
+        begun.setdefault(step_of(replay.row), []).append((t, replay.pass_))
+    for injection in injections:
+        injection.pass_ = max(((t, p) for t, p in begun.get(injection.row, ()) if t <= injection.t),
+                              default=(0.0, 0))[1]
+
+
 def _key(kind: str, frame_id, data) -> tuple:
     return kind, int(frame_id) if frame_id is not None else None, data
 
@@ -182,6 +196,8 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
     misses = Counter(run.deadline_misses)
     recoveries = sorted(run.recoveries, key=lambda r: r.lost_at)
     used_recoveries: set[int] = set()
+    if journal is not None:
+        reply_passes(journal.injections, run)
     injections = run.injections + (journal.injections if journal is not None else [])
     for injection in injections:
         injection.detected, injection.detected_by = False, None
@@ -192,8 +208,8 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
             if (category := _confirm(injection, host_records, "host")) is not None:
                 host_confirming[category] += 1
         elif injection.kind == "delay":
-            if misses[injection.row] > 0:
-                misses[injection.row] -= 1
+            if misses[(here := RowPass(injection.row, injection.pass_))] > 0:
+                misses[here] -= 1
                 injection.detected, injection.detected_by = True, "host deadline miss"
         elif injection.kind in PROCESS_KINDS:
             for i, recovery in enumerate(recoveries):
@@ -204,20 +220,22 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
     injected = Counter(i.kind for i in injections)
     detected = Counter(i.kind for i in injections if i.detected)
     unknown = journal is None and any(k in TARGET_DETECTED for k in injected)
-    # a reply injection knows its Step (not the row), so deadline misses are explained by Step; in real
-    # time a lost or refused frame also costs the row whose frame of its id carries the counter jump
-    explained = Counter(step_of(i.row) for i in injections) + Counter(step_of(r.lost_row) for r in run.recoveries)
+    # a reply injection knows its Step (not the row), so deadline misses are explained by Step and pass: a miss
+    # of an abandoned pass is not explained by a fault of the pass that replayed its row; in real time (one pass)
+    # a lost or refused frame also costs the row whose frame of its id carries the counter jump
+    explained = (Counter((step_of(i.row), i.pass_) for i in injections)
+                 + Counter((step_of(r.lost_row), r.lost_pass) for r in run.recoveries))
     if run.mode == "realtime":
-        explained += Counter(step_of(row) for row in chained_rows(injections))
+        explained += Counter((step_of(row), 0) for row in chained_rows(injections))
     unexplained_misses, late = [], {}
     answered_late = run.late_replies()
-    for row in run.deadline_misses:
-        if explained[step_of(row)] > 0:
-            explained[step_of(row)] -= 1
-        elif answered_late.get(row, math.inf) <= (run.stall_limit_s or 0.0):
-            late[row] = answered_late[row]    # every send answered, within the stall limit: late, not lost
+    for miss in run.deadline_misses:
+        if explained[(key := (step_of(miss.row), miss.pass_))] > 0:
+            explained[key] -= 1
+        elif answered_late.get(miss, math.inf) <= (run.stall_limit_s or 0.0):
+            late[miss] = answered_late[miss]    # every send answered, within the stall limit: late, not lost
         else:
-            unexplained_misses.append(row)
+            unexplained_misses.append(miss.row)
     process = sum(injected[k] for k in PROCESS_KINDS)
     # the host refuses nothing the target sends unless a reply fault made it so: a refused reply that confirms no
     # injection is a problem, except the counter jumps that follow a lost or refused reply (its consequences)
@@ -256,7 +274,7 @@ def reconcile(run: FaultRun, journal: Journal | None, *, heartbeat_losses: int =
         "retransmitted_rows": run.retransmitted_rows,
         "deadline_misses": len(run.deadline_misses),
         "late_replies": len(late),
-        "late_reply_rows": list(late)[:LISTED],
+        "late_reply_rows": [miss.row for miss in late][:LISTED],
         "late_reply_max_ms": round(1e3 * max(late.values()), 1) if late else None,
         "stall_limit_s": run.stall_limit_s,
         "unexplained_deadline_misses": len(unexplained_misses),

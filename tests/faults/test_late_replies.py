@@ -15,6 +15,7 @@ import pytest
 
 from dbc.contract import REPLY_BIT, REPLY_COMPLETE, REPLY_MESSAGES
 from host.faults import FaultRun, fault_problems, parse_faults, reconcile
+from host.faults.lockstep import RowPass
 from host.session import RowBook
 
 from helpers import run_cli
@@ -37,7 +38,8 @@ def faulted_run(book: RowBook, sends: dict[int, int], misses: list[int]) -> Faul
     counts = np.zeros(book.rows, dtype=np.int32)
     for row, n in sends.items():
         counts[row] = n
-    return FaultRun(parse_faults(["drop=0.01"]), deadline_misses=misses, sends=counts, book=book, stall_limit_s=0.5)
+    return FaultRun(parse_faults(["drop=0.01"]), deadline_misses=[RowPass(row) for row in misses], sends=counts,
+                    book=book, stall_limit_s=0.5)
 
 
 def test_the_book_counts_each_complete_reply_and_keeps_the_first_time():
@@ -80,7 +82,8 @@ def test_a_reply_later_than_the_stall_limit_is_still_an_unexplained_miss():
 
 def test_without_the_send_counts_every_uninjected_miss_is_unexplained():
     """Real time sends nothing again: a late row there is the run's timing, judged as before."""
-    summary = reconcile(FaultRun(parse_faults(["drop=0.01"]), deadline_misses=[3, 5], mode="realtime"), None)
+    summary = reconcile(FaultRun(parse_faults(["drop=0.01"]), deadline_misses=[RowPass(3), RowPass(5)],
+                                 mode="realtime"), None)
     assert summary["late_replies"] == 0 and summary["unexplained_deadline_misses"] == 2
 
 

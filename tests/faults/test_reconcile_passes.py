@@ -1,0 +1,113 @@
+"""Deadline misses are matched to injected faults by (Step, pass), not by Step alone (issue 39).
+
+A lockstep run whose target is lost abandons the pass of rows s..n and replays them from the last checkpoint: a row
+of that range can miss its deadline in both passes. At a 10 µs reply deadline (every row misses it) with bus faults
+and a freeze, `bench run` exited 1 with "3 row(s) missed their reply deadline without an injected fault (rows [70,
+79, 95])": each of those rows had a fault in its replayed pass, and the abandoned pass's miss of the same row, late
+but answered, had used up that fault's explanation, while the book of its pass was already cleared. Now each miss
+knows its pass, an abandoned pass is judged before the re-initialization clears its replies, and a fault explains
+only a miss of its own pass."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dbc.contract import REPLY_BIT, REPLY_MESSAGES
+from host.faults import FaultRun, Injection, fault_problems, parse_faults, reconcile
+from host.faults.lockstep import Recovery, RowPass
+from host.faults.reconcile import Journal
+from host.session import RowBook
+
+MS = 1_000_000   # ns
+ROWS = 120
+RESTART, LOST = 50, 99   # the target was lost at row 99 (pass 0) and the rows from 50 were replayed (pass 1)
+ROW = 70                  # a row of the replayed range that missed its deadline in both passes
+
+
+def answer(book: RowBook, row: int, times: int, first_after_ms: float = 3.0) -> None:
+    """The target answered `row` `times` times, the first complete reply `first_after_ms` after its first send."""
+    book.sent_ns[row] = 1_000 * MS
+    for i in range(times):
+        for name in REPLY_MESSAGES:
+            book.book_reply(row, REPLY_BIT[name], int(book.sent_ns[row] + (first_after_ms + i) * MS))
+
+
+def injected(kind: str, row: int, pass_: int, t: float = 0.0) -> Injection:
+    return Injection(kind, row, pass_, 0x110, 0x110, 3, "00" * 8, t)
+
+
+def two_passes(first_replies: int, second_replies: int, faults: list[Injection]) -> FaultRun:
+    """Row ROW went out three times in each pass (a first send and two retransmitted copies) and got
+    `first_replies`, then `second_replies` complete replies; the lost row LOST got none. The run does what
+    `FaultLockstep` does: misses recorded with their pass, the abandoned pass settled before the clear."""
+    book = RowBook(ROWS)
+    run = FaultRun(parse_faults(["drop=0.01", "freeze=1"]), injections=faults,
+                   sends=np.zeros(ROWS, dtype=np.int32), book=book, stall_limit_s=0.5)
+    run.deadline_misses += [RowPass(ROW, 0), RowPass(LOST, 0)]
+    run.sends[ROW] = run.sends[LOST] = 3
+    answer(book, ROW, first_replies)
+    run.settle(RESTART, LOST + 1)
+    book.clear(RESTART, LOST + 1)
+    run.sends[RESTART:LOST + 1] = 0
+    run.recoveries.append(Recovery(LOST, RESTART, "no heartbeat for 0.51 s", 0.51, 10.0, 10.6, RESTART - 1,
+                                   [0.0] * 4, None, lost_pass=0))
+    run.replayed_at.update({RowPass(row, 1): 11.0 + row / 1000 for row in range(RESTART, LOST + 1)})
+    run.deadline_misses.append(RowPass(ROW, 1))
+    run.sends[ROW] = 3
+    answer(book, ROW, second_replies)
+    return run
+
+
+def freeze_at_the_lost_row() -> Injection:
+    return injected("freeze", LOST, 0)
+
+
+def test_a_fault_of_the_replayed_pass_explains_its_own_miss_not_the_abandoned_pass_s():
+    """Pass 0 of row 70 was late but answered at every send; pass 1 lost its first send to an injected drop (two
+    replies for three sends). Matched by Step only, pass 0's miss took the drop's explanation and pass 1's miss
+    was "without an injected fault"."""
+    run = two_passes(first_replies=3, second_replies=2, faults=[freeze_at_the_lost_row(), injected("drop", ROW, 1)])
+    summary = reconcile(run, None)
+    assert summary["deadline_misses"] == 3
+    assert summary["unexplained_deadline_misses"] == 0, summary["unexplained_deadline_miss_rows"]
+    assert (summary["late_replies"], summary["late_reply_rows"]) == (1, [ROW])    # pass 0, judged before the clear
+    assert not any("deadline" in p for p in fault_problems(summary))
+
+
+def test_an_abandoned_pass_s_unexplained_miss_is_reported_although_the_replay_of_its_row_has_a_fault():
+    """Pass 0 of row 70 lost a send with no fault injected in that pass (two replies for three sends); pass 1 has
+    a fault and was answered at every send. Matched by Step only, the replayed pass's fault explained pass 0's miss
+    and pass 1's miss passed as late: nothing was reported."""
+    run = two_passes(first_replies=2, second_replies=3, faults=[freeze_at_the_lost_row(), injected("corrupt", ROW, 1)])
+    summary = reconcile(run, None)
+    assert summary["unexplained_deadline_misses"] == 1 and summary["unexplained_deadline_miss_rows"] == [ROW]
+    assert any("1 row(s) missed their reply deadline without an injected fault (rows [70])" in p
+               for p in fault_problems(summary))
+
+
+def test_the_lost_row_s_miss_is_the_recovery_s_in_the_pass_that_lost_it():
+    run = two_passes(first_replies=3, second_replies=3, faults=[freeze_at_the_lost_row()])
+    run.deadline_misses.append(RowPass(LOST, 1))     # the replayed lost row missed too, answered at no send
+    run.sends[LOST] = 3
+    summary = reconcile(run, None)
+    assert summary["unexplained_deadline_miss_rows"] == [LOST]   # the recovery explains pass 0's miss only
+
+
+def test_a_delay_is_detected_by_a_miss_of_its_own_pass():
+    run = two_passes(first_replies=3, second_replies=3, faults=[freeze_at_the_lost_row(), injected("delay", ROW, 1)])
+    reconcile(run, None)
+    assert run.injections[1].detected and run.injections[1].detected_by == "host deadline miss"
+    run = two_passes(first_replies=3, second_replies=3, faults=[freeze_at_the_lost_row(), injected("delay", ROW, 1)])
+    run.deadline_misses.remove(RowPass(ROW, 1))       # only the abandoned pass missed: the delay shows nowhere
+    summary = reconcile(run, None)
+    assert not run.injections[1].detected and summary["undetected"] == 1
+
+
+def test_a_reply_fault_belongs_to_the_newest_pass_of_its_step_begun_before_it():
+    """The target's reply injections know their Step and time, not the pass: the host's replay times give it."""
+    early = Injection("reply_corrupt", ROW, 0, 0x120, 0x120, 3, "11" * 8, 10.2)    # before the re-initialization
+    late = Injection("reply_corrupt", ROW, 0, 0x120, 0x120, 4, "22" * 8, 11.5)     # after row 70's replay began
+    run = two_passes(first_replies=3, second_replies=3, faults=[freeze_at_the_lost_row()])
+    summary = reconcile(run, Journal(instances=1, injections=[early, late]))
+    assert (early.pass_, late.pass_) == (0, 1)
+    assert summary["unexplained_deadline_misses"] == 0 and summary["late_replies"] == 0   # each its pass's miss
