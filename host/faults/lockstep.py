@@ -3,7 +3,9 @@ was lost, with BenchEvent marks in the log.
 
 Per data row n (as `host.replay.run_lockstep`): send (Measurements +) DriveInputs + DriveTemps (+ DriveCurrents),
 wait for
-Temperatures1 + 2 up to the reply timeout. When the deadline passes (the row's *deadline miss*, recorded):
+Temperatures1 + 2 up to the reply timeout. When the deadline passes (the row's *deadline miss*, recorded with the
+row's pass; a row answered after its deadline, which the wait can see when the deadline is shorter than its spin,
+is a miss too, and is not sent again):
 
 1. Retransmit: mark RETRANSMIT, send row n twice more with fresh alive counters (and again every RETRY_FACTOR
    reply timeouts, but no sooner than RETRY_MIN_S, while it stays unanswered: the reply to the retransmission may be
@@ -191,6 +193,7 @@ class FaultLockstep:
             process = self.plan.process_fault(n, pass_)
             if process is not None:
                 self._process_fault(process, n, pass_)
+            pauses = self._pauses()
             self._send_row(n, pass_, eligible=n != segment_start and process is None)
             sent_rows = max(sent_rows, n + 1)
             if not wait_for_reply(self.session, self.book, n, self.reply_timeout_s):
@@ -207,6 +210,8 @@ class FaultLockstep:
                     aborted = (f"the target stopped answering: row {n} got no reply in {self.give_up_s:g} s although "
                                "its heartbeat went on")
                     break
+            elif self._answered_late(n, pauses):
+                self.fault_run.deadline_misses.append(RowPass(n, pass_))   # answered: nothing to send again
             n += 1
             if self.progress is not None and (n & 127) == 0:
                 self.progress(n, self.rows)
@@ -242,6 +247,18 @@ class FaultLockstep:
         self.faulty.end_row()
         mark_new_injections(self.session, self.faulty, n)
         self.session.flush_log()
+
+    def _pauses(self) -> tuple[int, float]:
+        """Where the host's own pauses stand (how many windows, the last one's end): a change means a pause."""
+        windows = self.session.monitor.host_paused_s
+        return len(windows), windows[-1][1] if windows else 0.0
+
+    def _answered_late(self, n: int, pauses: tuple[int, float]) -> bool:
+        """Row n was answered, but after its deadline: a miss (as in real time), unless the host itself was paused
+        meanwhile. The wait polls for up to its spin budget (0.3 ms) whatever the deadline, and a blocked receive
+        can return late, so at a 10 µs deadline a row answered in 0.2 ms, a delayed one too, counted as in time."""
+        late_ns = int(self.book.first_replied_ns[n]) - int(self.book.sent_ns[n])
+        return late_ns > self.reply_timeout_s * 1e9 and self._pauses() == pauses
 
     def _lost(self) -> str | None:
         """Why the target counts as lost (silent, or no longer RUNNING: it restarted), or None."""

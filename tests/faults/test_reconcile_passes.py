@@ -10,13 +10,17 @@ only a miss of its own pass."""
 
 from __future__ import annotations
 
+import time
+
+import can
 import numpy as np
 
+from dbc import FrameCodec, decode_any, frame_id
 from dbc.contract import REPLY_BIT, REPLY_MESSAGES
-from host.faults import FaultRun, Injection, fault_problems, parse_faults, reconcile
-from host.faults.lockstep import Recovery, RowPass
+from host.faults import DELAY_FACTOR, FaultPlan, FaultRun, FaultyBus, Injection, fault_problems, parse_faults, reconcile
+from host.faults.lockstep import FaultLockstep, Recovery, RowPass
 from host.faults.reconcile import Journal
-from host.session import RowBook
+from host.session import HostSession, RowBook
 
 MS = 1_000_000   # ns
 ROWS = 120
@@ -111,3 +115,67 @@ def test_a_reply_fault_belongs_to_the_newest_pass_of_its_step_begun_before_it():
     summary = reconcile(run, Journal(instances=1, injections=[early, late]))
     assert (early.pass_, late.pass_) == (0, 1)
     assert summary["unexplained_deadline_misses"] == 0 and summary["late_replies"] == 0   # each its pass's miss
+
+
+class SlowTarget:
+    """A python-can-like bus in this thread: each DriveInputs frame (after a DriveTemps one, the row's last) is
+    answered, but the send takes ANSWER_S, as a target answering in a millisecond would."""
+
+    ANSWER_S = 0.001
+
+    def __init__(self) -> None:
+        self.codec = FrameCodec("TARGET")
+        self.waiting: list[can.Message] = []
+        self.steps: list[int] = []
+
+    def send(self, msg: can.Message, timeout=None) -> None:
+        if msg.arbitration_id != frame_id("DriveInputs"):
+            return
+        time.sleep(self.ANSWER_S)
+        step = int(decode_any(msg).signals["Step"])
+        self.steps.append(step)
+        self.waiting += [self.codec.encode("Temperatures1", {"Step": step, "WindingTemp": 45.0, "MagnetTemp": 50.0}),
+                         self.codec.encode("Temperatures2", {"Step": step, "YokeTemp": 40.0, "ToothTemp": 41.0})]
+
+    def recv(self, timeout=None) -> can.Message | None:
+        if self.waiting:
+            return self.waiting.pop(0)
+        if timeout:
+            time.sleep(min(timeout, 0.001))
+        return None
+
+    def shutdown(self) -> None:
+        pass
+
+
+class LongSpin:
+    """The wait's spin policy, fixed at 10 ms of polling: what an idle machine's 0.3 ms is to a 10 µs deadline."""
+
+    def budget(self) -> float:
+        return 0.01
+
+    def waited(self, seconds: float, *, blocked: bool) -> None:
+        pass
+
+
+def test_a_row_answered_after_its_deadline_is_a_miss_even_when_the_wait_saw_the_reply():
+    """At a 10 µs deadline the wait, which polls for its spin budget whatever the deadline, saw replies that came
+    0.2 ms after the send and counted them in time: a delayed row (held 15 µs) then missed nothing and its delay
+    went undetected (1 to 3 of 5 in the 10 µs runs). A reply after the deadline is a miss, the row is not sent
+    again, and the late reply is not a problem."""
+    rows, reply_timeout_s = 4, 1e-5
+    spec = parse_faults(["delay=1"])
+    plan = FaultPlan(spec, rows)
+    target = SlowTarget()
+    faulty = FaultyBus(target, plan, delay_s=DELAY_FACTOR * reply_timeout_s)
+    session = HostSession(faulty)
+    session.spin = LongSpin()
+    lockstep = FaultLockstep(session, np.tile([100.0, 2000.0, 40.0, 25.0], (rows, 1)), [40.0, 45.0, 41.0, 50.0],
+                             faulty=faulty, plan=plan, control=None, reply_timeout_s=reply_timeout_s,
+                             connect_timeout_s=5.0, abort_after=100)
+    stats, run = lockstep.run()
+    assert stats.aborted is None and target.steps == list(range(rows))      # each row sent once: none again
+    assert run.deadline_misses == [RowPass(row) for row in range(rows)] and run.retransmitted_rows == 0
+    summary = reconcile(run, None)
+    assert summary["injected"]["delay"] == summary["detected"]["delay"] == rows - 1   # the first row is not faulted
+    assert summary["late_replies"] == 1 and summary["unexplained_deadline_misses"] == 0   # row 0: late, answered
