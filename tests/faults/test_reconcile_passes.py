@@ -10,10 +10,12 @@ only a miss of its own pass."""
 
 from __future__ import annotations
 
+import json
 import time
 
 import can
 import numpy as np
+import pytest
 
 from dbc import FrameCodec, decode_any, frame_id
 from dbc.contract import REPLY_BIT, REPLY_MESSAGES
@@ -21,6 +23,8 @@ from host.faults import DELAY_FACTOR, FaultPlan, FaultRun, FaultyBus, Injection,
 from host.faults.lockstep import FaultLockstep, Recovery, RowPass
 from host.faults.reconcile import Journal
 from host.session import HostSession, RowBook
+
+from helpers import run_cli
 
 MS = 1_000_000   # ns
 ROWS = 120
@@ -179,3 +183,26 @@ def test_a_row_answered_after_its_deadline_is_a_miss_even_when_the_wait_saw_the_
     summary = reconcile(run, None)
     assert summary["injected"]["delay"] == summary["detected"]["delay"] == rows - 1   # the first row is not faulted
     assert summary["late_replies"] == 1 and summary["unexplained_deadline_misses"] == 0   # row 0: late, answered
+
+
+@pytest.mark.slow
+def test_a_10_us_deadline_with_faults_and_a_freeze_exits_0_with_every_miss_explained(fault_dataset, tmp_path):
+    """The run of issue 39: 200 rows at a 10 µs reply deadline (every row of every pass misses it), six bus kinds,
+    two reply kinds and a freeze (the target is lost at row 99 and rows 50-99 are replayed). Before, it exited 1
+    with 3-6 rows "without an injected fault" (each with a fault in its replayed pass) and 0-3 delays undetected.
+    About 10 s."""
+    faults = ("drop=0.02,duplicate=0.02,corrupt=0.02,stale_counter=0.02,reorder=0.02,delay=0.02,freeze=1,"
+              "reply_drop=0.02,reply_corrupt=0.02")
+    proc = run_cli("-m", "bench", "run", "--data", str(fault_dataset), "--rows", "200", "--faults", faults,
+                   "--fault-seed", "3", "--tolerate-faults", "--reply-timeout", "0.00001", "--no-report",
+                   "--log", str(tmp_path / "run.blf"), "--json", timeout=300)
+    s = json.loads(proc.stdout)
+    f = s["faults"]
+    assert proc.returncode == 0, (s["problems"], proc.stderr[-400:])
+    assert [(r["lost_row"], r["lost_pass"]) for r in f["recoveries"]] == [(99, 0)]
+    replayed = 99 - f["recoveries"][0]["restart_row"] + 1
+    assert f["deadline_misses"] == 200 + replayed            # every row of both passes, none judged in time
+    assert f["unexplained_deadline_misses"] == 0 and f["undetected"] == 0
+    assert f["injected"] == f["detected"] and f["injected"]["delay"] > 0 and f["injected"]["reply_drop"] > 0
+    sidecar = json.loads((tmp_path / "run.blf.faults.json").read_text())
+    assert {i["pass_"] for i in sidecar["injections"] if i["kind"].startswith("reply_")} == {0, 1}
