@@ -30,7 +30,9 @@ The target also journals the reply faults it injects ("inject" and "witness" rec
 validator's rejections (`HostSession.rejections`), which confirm them.
 
 A deadline miss on a row without an injected fault, or a heartbeat loss beyond the number of kills and freezes,
-is unexplained: a problem of the run, as is any fault that went undetected. Except, in lockstep, a *late reply*: a
+is unexplained: a problem of the run, as is any fault that went undetected. A fault explains only a miss of its own
+pass of the row (rows replayed after a re-initialization miss again in a new pass; the abandoned pass's misses are
+judged before its replies are cleared). Except, in lockstep, a *late reply*: a
 missed row that the target answered once for every time the host sent it (the first send and each retransmitted
 copy), so its first send reached the target and nothing was lost, whose first reply came within the stall limit
 (the heartbeat timeout). On a loaded machine the host and the target are both kept off the CPU now and then, for
