@@ -201,7 +201,8 @@ def test_a_10_us_deadline_with_faults_and_a_freeze_exits_0_with_every_miss_expla
     assert proc.returncode == 0, (s["problems"], proc.stderr[-400:])
     assert [(r["lost_row"], r["lost_pass"]) for r in f["recoveries"]] == [(99, 0)]
     replayed = 99 - f["recoveries"][0]["restart_row"] + 1
-    assert f["deadline_misses"] == 200 + replayed            # every row of both passes, none judged in time
+    # every row of both passes misses (a wait the host itself was paused in does not count: none on a quiet machine)
+    assert 200 < f["deadline_misses"] <= 200 + replayed
     assert f["unexplained_deadline_misses"] == 0 and f["undetected"] == 0
     assert f["injected"] == f["detected"] and f["injected"]["delay"] > 0 and f["injected"]["reply_drop"] > 0
     sidecar = json.loads((tmp_path / "run.blf.faults.json").read_text())
