@@ -24,7 +24,7 @@ from target_sim.model import run_offline
 from target_sim.observer import OBSERVER_FORMS, Float32Observer, run_observer_offline
 from target_sim.observer.ud import BiermanThornton
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from helpers import synthetic_columns, write_synthetic_dataset  # noqa: E402
 
 ROWS, LIE = 1500, slice(700, 800)        # 100 rows (20 s, 40 model steps) of +20 K
