@@ -67,7 +67,24 @@ def _node_tuples() -> list[str]:
     return found
 
 
+def _callers(name: str) -> list[str]:
+    """Where a module of the four layers calls a function named `name` (plain or as an attribute)."""
+    found = []
+    for layer in LAYERS:
+        for path in sorted((ROOT / layer).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Call):
+                    func = node.func
+                    called = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", None)
+                    if called == name:
+                        found.append(str(path.relative_to(ROOT)))
+    return found
+
+
 def test_each_shared_fact_is_defined_once():
     assert _assignments("NAME_MAX") == ["dbc/files.py"]
     assert _assignments("DEFAULT_REPLY_TIMEOUT_S") == ["dbc/contract.py"]
+    # the one atomic file write: the only temporary file made beside an output (a directory's write and a streamed
+    # log's partial file are their own)
+    assert _callers("mkstemp") == ["dbc/files.py"]
     assert sorted(p.split(":")[0] for p in _node_tuples()) == ["bench/commands/common.py", "dbc/contract.py"]
