@@ -145,6 +145,7 @@ class Float32Observer:
         self.gate.restore(values[cov_end:])
 
     def step(self, torque, speed, coolant, ambient, i_d=0.0, i_q=0.0, z=float("nan")) -> np.ndarray:
+        """One model step, its time update and each valid reading's update; the corrected node temperatures."""
         self.est.step(torque, speed, coolant, ambient, i_d, i_q)
         self._time_update()
         return self._measurement_update(self.f(speed), z)
