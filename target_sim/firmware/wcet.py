@@ -26,6 +26,11 @@ a loop with neither is an error naming its function, address and C line. A state
 C loop's body runs per entry: the machine loop's header runs N times, or N + 1 when it tests before the body.
 Conditional instructions inside an IT block count as executed, as in the emulator, so the bound covers the
 emulator's count of every path (the tests check the measured maximum never exceeds it).
+
+A mode of the firmware may fix globals (`value_facts`: `/* wcet-value(MODE): name = N */` in the C, e.g. no XCP
+master since power-on keeps `xcp_connected` 0): with `values`, a block whose own instructions load such a global
+and test it (`target_sim.firmware.known_values`) has its other way out infeasible, an IPET fact (count 0); the
+bound's `decided` lists those branches.
 """
 
 from __future__ import annotations
@@ -390,7 +395,6 @@ class _Analysis:
             raise WcetError(f"{name}: {exc}") from None
         bound.block_counts = {start: runs for start, runs in solution.block_counts.items() if runs}
         return solution.cycles
-
 
     def _infeasible(self, name: str, nodes: Mapping[int, _Node], edges: Mapping[tuple[int, int | None], int],
                     bound: Bound) -> list[Fact]:

@@ -11,6 +11,7 @@ import pytest
 from target_sim.firmware.cycles import new_disassembler
 from target_sim.firmware.elf import Symbol
 from target_sim.firmware.known_values import ValueFactError, decided_branch, memory_reader
+from target_sim.firmware.wcet import value_facts
 
 FLAG, COUNT = 0x2000_0050, 0x2000_05BC          # a uint8_t and a uint32_t global
 IMAGE = SimpleNamespace(name="test.elf", symbols={"flag": Symbol("flag", FLAG, 1, "STT_OBJECT", False),
@@ -57,3 +58,12 @@ def test_a_load_straddling_a_known_global_is_unknown_and_bad_facts_are_refused()
         memory_reader(IMAGE, {"missing": 0})
     with pytest.raises(ValueFactError, match="does not fit its 1 bytes"):
         memory_reader(IMAGE, {"flag": 256})
+
+
+def test_value_facts_are_read_per_mode_from_the_c_and_a_malformed_one_is_refused():
+    sources = {"a.c": "static uint8_t a, b;   /* wcet-value(quiet): a = 0, b = 3 */\n"
+                      "static uint32_t c;     /* wcet-value(loud): c = 7 */\n"}
+    assert value_facts(sources, "quiet") == {"a": 0, "b": 3} and value_facts(sources, "loud") == {"c": 7}
+    assert value_facts(sources, "other") == {}
+    with pytest.raises(ValueError, match=r"a\.c:1: a wcet-value fact is 'name = N, \.\.\.'"):
+        value_facts({"a.c": "int a; /* wcet-value(quiet): a is 0 */"}, "quiet")
