@@ -22,8 +22,15 @@
  * node_out.tx_dropped, like the timing frames of such a row (the one place the two engines may differ).
  *
  * The DAQ path's loops are bounded by `daq_lists` and `daq_odts` (target_sim.firmware.wcet.loop_facts): the DAQ
- * lists and ODTs a master configured, 0 without one (`bench firmware timing`'s assumption), the tables' whole budget
- * for the bound with XCP (tests/benchmarks/bench_xcp.py).
+ * lists and ODTs a master configured, 0 without one, the tables' whole budget for the bound with XCP
+ * (bench.firmware.timing.XCP_MODES, tests/benchmarks/bench_xcp.py).
+ *
+ * Without an XCP master since power-on (a drive run: `bench firmware timing`'s first mode), the globals marked
+ * `wcet-value(no_master)` keep their power-on 0 (target_sim.firmware.wcet.value_facts; the WCET analysis then
+ * knows which way the tests of them branch): xcp_connected is set only by CONNECT, daq_lists/daq_odts only by
+ * ALLOC_DAQ/ALLOC_ODT, all commands that only node_on_xcp dispatches; daq_queued grows only in daq_sample, which
+ * only xcp_event calls, after its test of xcp_connected. All four are 0 at power-on (.bss; xcp_init sets three of
+ * them again). So xcp_event returns at that test and xcp_flush sends nothing.
  *
  * Flash: the functions called from several places are kept out of line (noinline): the node's entry points share
  * one copy instead of each inlining its own.
@@ -53,7 +60,7 @@ struct xcp_counters {
 };
 struct xcp_counters xcp_counters;
 
-static uint8_t xcp_connected;
+static uint8_t xcp_connected;             /* wcet-value(no_master): xcp_connected = 0 */
 static uint32_t xcp_mta;
 
 /* ---- the DAQ tables (daq.py's Daq): lists, ODTs by absolute number (a list's first PID + its index), entries */
@@ -78,13 +85,13 @@ static struct {
     uint8_t bytes;                    /* the packet's payload: its entries' bytes in order, by address */
     const uint8_t *byte_at[XCP_ODT_PAYLOAD];
 } daq_odt[XCP_MAX_ODTS];
-static uint32_t daq_lists, daq_odts, daq_stage, daq_allocated;
+static uint32_t daq_lists, daq_odts, daq_stage, daq_allocated;   /* wcet-value(no_master): daq_lists = 0, daq_odts = 0 */
 static uint8_t daq_have_pointer, daq_pointer_list, daq_pointer_odt, daq_pointer_entry;
 static struct {
     uint8_t dlc;
     uint8_t data[8];
 } daq_queue[XCP_MAX_ODTS];
-static uint32_t daq_queued;
+static uint32_t daq_queued;                /* wcet-value(no_master): daq_queued = 0 */
 
 /* ------------------------------------------------------------------------------------------------ helpers */
 static uint32_t xcp_u16(const uint8_t *p) { return (uint32_t)p[0] | (uint32_t)p[1] << 8; }

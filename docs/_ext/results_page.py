@@ -242,12 +242,16 @@ def section_firmware(record: Record) -> list[str]:
 
 
 def _wcet_cells(rate: dict) -> list[str]:
-    """Per timed function: bound / drive max / search max (ratio), or bound / measured max in an older record."""
+    """Per timed function: bound / drive max / search max (ratio), or bound / measured max in an older record; then
+    node_on_frame's with an XCP master running DAQ."""
     if "wcet" not in rate:
-        return [f"{_n(rate['wcet_cycles'][name])} / {_n(rate['measured_max_cycles'][name])}"
-                for name in ("fw_step", "node_on_frame", "foc_isr")]
-    return [f"{_n(row['bound'])} / {_n(row['drive_max'])} / {_n(row['adversarial_max'])} "
-            f"({_n(row['bound_over_max'], 3)})" for row in rate["wcet"].values()]
+        return [*(f"{_n(rate['wcet_cycles'][name])} / {_n(rate['measured_max_cycles'][name])}"
+                  for name in ("fw_step", "node_on_frame", "foc_isr")), "not measured"]
+    cells = [f"{_n(row['bound'])} / {_n(row['drive_max'])} / {_n(row['adversarial_max'])} "
+             f"({_n(row['bound_over_max'], 3)})" for row in rate["wcet"].values()]
+    daq = rate.get("wcet_with_xcp_daq", {}).get("node_on_frame")
+    return [*cells, f"{_n(daq['bound'])} / {_n(daq['measured_max'])} ({_n(daq['bound_over_max'], 3)})"
+            if daq else "not measured"]
 
 
 @single_record("firmware_timing", "Beside the motor control")
@@ -279,9 +283,11 @@ def section_firmware_timing(record: Record) -> list[str]:
              f"{_n(params['paper_model_flash_bytes'])} B), each distinct loss-table row stored once:", "",
              *_table(["kind", "code (B)", "constants (B)", "total (B)"], flash),
              "Static WCET bound (IPET) / measured maximum, the drive's and the input search's (cycles; bound over "
-             "the larger in parentheses; node_on_frame with rows in order; the model step is fw_obs_step for the "
-             "observer):", "",
-             *_table(["kind", "model step", "node_on_frame", "foc_isr (handler)", "bound holds"], bounds),
+             "the larger in parentheses; node_on_frame with rows in order and no XCP master, as the drive runs; the "
+             "model step is fw_obs_step for the observer); last, node_on_frame's bound with an XCP master running "
+             "the DAQ tables' whole budget / the drive's maximum under that DAQ:", "",
+             *_table(["kind", "model step", "node_on_frame", "foc_isr (handler)", "node_on_frame, XCP DAQ running",
+                      "bound holds"], bounds),
              f"The node and the model beside the field-oriented current loop's interrupt ({_n(params['rows'])} rows "
              "of the 40 °C run): the model step's response time (the arrival of the row that ends an interval to "
              "its temperatures queued), the interrupt's latency when it finds the core idle (the estimator not "

@@ -26,6 +26,11 @@ a loop with neither is an error naming its function, address and C line. A state
 C loop's body runs per entry: the machine loop's header runs N times, or N + 1 when it tests before the body.
 Conditional instructions inside an IT block count as executed, as in the emulator, so the bound covers the
 emulator's count of every path (the tests check the measured maximum never exceeds it).
+
+A mode of the firmware may fix globals (`value_facts`: `/* wcet-value(MODE): name = N */` in the C, e.g. no XCP
+master since power-on keeps `xcp_connected` 0): with `values`, a block whose own instructions load such a global
+and test it (`target_sim.firmware.known_values`) has its other way out infeasible, an IPET fact (count 0); the
+bound's `decided` lists those branches.
 """
 
 from __future__ import annotations
@@ -40,7 +45,8 @@ from target_sim.errors import TargetError
 from target_sim.firmware.counted_loops import trip_count
 from target_sim.firmware.cycles import InstructionCost, instruction_cost, new_disassembler
 from target_sim.firmware.elf import ElfImage, Symbol
-from target_sim.firmware.ipet import Edge, FlowGraph, IpetError, LoopFact, longest_path
+from target_sim.firmware.ipet import Edge, Fact, FlowGraph, IpetError, LoopFact, longest_path
+from target_sim.firmware.known_values import Read, ValueFactError, decided_branch, memory_reader
 
 RETURN_MNEMONICS = frozenset({"bx", "pop", "ldm", "ldr", "mov"})   # ... when they write the PC
 
@@ -66,6 +72,15 @@ class Loop:
     header_runs: int               # the most times its header runs per entry (the IPET's loop fact)
 
 
+@dataclass(frozen=True)
+class Decided:
+    """A conditional branch the mode's known values decide (`known_values`): its other way out never runs."""
+
+    function: str
+    address: int
+    taken: bool
+
+
 @dataclass
 class Bound:
     """The WCET bound of a function: cycles, and what it rests on (its loops, its callees' bounds)."""
@@ -75,9 +90,12 @@ class Bound:
     loops: list[Loop] = field(default_factory=list)
     calls: dict[str, int] = field(default_factory=dict)
     block_counts: dict[int, int] = field(default_factory=dict)     # the worst case's runs of each block (IPET)
+    decided: list[Decided] = field(default_factory=list)            # branches the mode's values decide
 
     def as_dict(self) -> dict:
         return {"function": self.function, "cycles": self.cycles, "calls": dict(self.calls),
+                "decided": [{"function": branch.function, "branch": f"{branch.address:#010x}",
+                             "taken": branch.taken} for branch in self.decided],
                 "loops": [{"function": loop.function, "header": f"{loop.header:#010x}", "order": loop.order,
                            "bound": loop.bound.iterations, "reason": loop.bound.reason,
                            "header_runs": loop.header_runs} for loop in self.loops]}
@@ -280,10 +298,11 @@ def _loops(nodes: Mapping[int, _Node], entry: int) -> dict[int, set[int]]:
 
 
 class _Analysis:
-    def __init__(self, image: ElfImage, facts: Mapping[tuple[str, int], LoopBound]):
+    def __init__(self, image: ElfImage, facts: Mapping[tuple[str, int], LoopBound], read: Read | None = None):
         self.code = _Image(image)
         self.image = image
         self.facts = facts
+        self.read = read
         self.results: dict[str, Bound] = {}
         self.active: list[str] = []
 
@@ -312,6 +331,7 @@ class _Analysis:
         inner = self.function(callee)
         bound.calls[callee] = inner.cycles
         bound.loops.extend(loop for loop in inner.loops if loop not in bound.loops)
+        bound.decided.extend(branch for branch in inner.decided if branch not in bound.decided)
         return inner.cycles
 
     def _instructions(self, nodes: Mapping[int, _Node]):
@@ -370,11 +390,35 @@ class _Analysis:
             facts.append(LoopFact(header, entries, runs))
             bound.loops.append(Loop(name, header, order, limit, runs))
         try:
-            solution = longest_path(FlowGraph(entry, costs, edges), facts)
+            solution = longest_path(FlowGraph(entry, costs, edges), facts, self._infeasible(name, nodes, worst, bound))
         except IpetError as exc:
             raise WcetError(f"{name}: {exc}") from None
         bound.block_counts = {start: runs for start, runs in solution.block_counts.items() if runs}
         return solution.cycles
+
+    def _infeasible(self, name: str, nodes: Mapping[int, _Node], edges: Mapping[tuple[int, int | None], int],
+                    bound: Bound) -> list[Fact]:
+        """The way out of each block whose conditional branch the mode's known values decide: count 0."""
+        if self.read is None:
+            return []
+        instructions = self._instructions(nodes)
+        facts = []
+        for start, node in nodes.items():
+            cost, insn = self.code.instruction(node.addresses[-1])
+            if not cost.conditional_branch:
+                continue
+            taken = decided_branch(instructions(start), self.read)
+            if taken is None:
+                continue
+            target = _target(insn) if cost.mnemonic in ("b", "cbz", "cbnz") else None
+            taken_way = target if target in nodes else None          # out of the function: a return, a tail call
+            following = node.addresses[-1] + cost.size
+            never = following if taken else taken_way
+            if taken_way == following or (start, never) not in edges:
+                continue
+            facts.append(Fact(edges={(start, never): 1.0}, upper=0))
+            bound.decided.append(Decided(name, node.addresses[-1], taken))
+        return facts
 
 
 def _tests_at_top(nodes: Mapping[int, _Node], header: int, body: set[int]) -> bool:
@@ -385,11 +429,17 @@ def _tests_at_top(nodes: Mapping[int, _Node], header: int, body: set[int]) -> bo
     return leaves and not any(target == header for target, _ in node.successors)
 
 
-def wcet(image: ElfImage, function: str, facts: Mapping[tuple[str, int], LoopBound] | None = None) -> Bound:
+def wcet(image: ElfImage, function: str, facts: Mapping[tuple[str, int], LoopBound] | None = None,
+         values: Mapping[str, int] | None = None) -> Bound:
     """The WCET bound of `function` in cycles (callees included); `facts`: the stated bounds of the loops the code
     does not count itself, by (source file name, line) of their C loop (`loop_facts`; the image must carry its
-    line table then)."""
-    return _Analysis(image, facts or {}).function(function)
+    line table then); `values`: globals a mode fixes (`value_facts`), whose tests decide branches
+    (`target_sim.firmware.known_values`: the other way out of such a block is infeasible)."""
+    try:
+        read = memory_reader(image, values) if values else None
+    except ValueFactError as exc:
+        raise WcetError(str(exc)) from None
+    return _Analysis(image, facts or {}, read).function(function)
 
 
 ANNOTATION = re.compile(r"/\*\s*wcet-loop:\s*([^*]+?)\s*\*/")
@@ -428,3 +478,27 @@ def loop_facts(sources: Mapping[str, str], lost_rows: int = 0, daq: tuple[int, i
             reason = f"{file_name}:{number}: {line.split('/*')[0].strip()} (at most {expression})"
             facts[(file_name, number)] = LoopBound(max(known), reason)
     return facts
+
+
+VALUE_ANNOTATION = re.compile(r"/\*\s*wcet-value\((\w+)\):\s*([^*]+?)\s*\*/")
+_ASSIGNMENT = re.compile(r"([A-Za-z_]\w*)\s*=\s*(\d+)")
+
+
+def value_facts(sources: Mapping[str, str], mode: str) -> dict[str, int]:
+    """The globals `mode` fixes, as the sources state them: `/* wcet-value(MODE): name = N, ... */` on the line
+    that declares them (the C says why beside it), each `name` keeping the value N for as long as the mode lasts.
+    A mode no annotation names fixes nothing ({})."""
+    values: dict[str, int] = {}
+    for file_name, text in sources.items():
+        for number, line in enumerate(text.splitlines(), start=1):
+            for found in VALUE_ANNOTATION.finditer(line):
+                if found.group(1) != mode:
+                    continue
+                pairs = [part.strip() for part in found.group(2).split(",")]
+                matched = [_ASSIGNMENT.fullmatch(pair) for pair in pairs]
+                if not all(matched):
+                    raise ValueError(f"{file_name}:{number}: a wcet-value fact is 'name = N, ...', not "
+                                     f"{found.group(2)!r}")
+                for assignment in matched:
+                    values[assignment.group(1)] = int(assignment.group(2))
+    return values

@@ -40,10 +40,8 @@ def masked_matmul(a: np.ndarray, b: np.ndarray, a_nonzero: np.ndarray, b_nonzero
     computed (exact); the C leaves them out."""
     keep = a_nonzero[:, :, None] & b_nonzero[None, :, :]
     products = np.where(keep, a[:, :, None] * b[None, :, :], a.dtype.type(NEG_ZERO))
-    acc = products[:, 0, :]
-    for k in range(1, products.shape[1]):
-        acc = acc + products[:, k, :]
-    return acc, keep.any(axis=1)
+    # accumulate is a running sum in index order (never reduce's pairwise summation): the loop's bits, in C
+    return np.add.accumulate(products, axis=1)[:, -1, :], keep.any(axis=1)
 
 
 def pattern_product(a_nonzero: np.ndarray, b_nonzero: np.ndarray) -> np.ndarray:
@@ -55,11 +53,7 @@ def masked_dot(a: np.ndarray, b: np.ndarray, zero):
     """a·b left to right, ((a_0·b_0 + a_1·b_1) + ...); `zero` (-0 of the dtype) when there is no product."""
     if len(a) == 0:
         return zero
-    products = a * b
-    acc = products[0]
-    for value in products[1:]:
-        acc = acc + value
-    return acc
+    return np.add.accumulate(a * b)[-1]     # a running sum left to right (reduce would sum pairwise)
 
 
 def upper_unit(n: int) -> np.ndarray:

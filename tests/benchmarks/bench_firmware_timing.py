@@ -11,7 +11,9 @@ lockstep throughput of `bench run --engine firmware` without and with the interr
    `bench.firmware.timing.timing_report` over the first N rows (default 200) of the 40 °C run at 10 and at
    20 kHz: IPET bounds (fw_step, node_on_frame with rows in order, foc_isr) beside the measured maxima of the
    drive and of an input search (`--search` candidates, bench/firmware/adversarial.py) and their ratio, the
-   response time (a row's arrival to its temperatures queued) p50/p99/max, the interrupt's latency when it finds
+   response time (a row's arrival to its temperatures queued) p50/p99/max, node_on_frame's bound with an XCP
+   master running the DAQ tables' whole budget beside a drive under that DAQ (`bench.firmware.timing.XCP_MODES`:
+   the first bounds are without a master, as the drive runs), the interrupt's latency when it finds
    the core idle (the estimator not running) and when it preempts the node, and the CPU load by task, each at 90
    and 168 MHz; the outputs bit for bit against the node without the interrupt.
    Then an observer of the Hammerstein model's winding node (`bench observer` on the 20 °C run), through
@@ -61,10 +63,13 @@ def _run_figures(run: dict) -> dict:
     return {key: run[key] for key in keep}
 
 
-def _print_wcet(rate: int, table: dict) -> None:
+def _print_wcet(rate: int, table: dict, with_daq: dict) -> None:
     for name, row in table.items():
         print(f"  {rate} Hz {name}: IPET bound {row['bound']}, measured max: drive {row['drive_max']}, input "
               f"search {row['adversarial_max']}; bound / max {row['bound_over_max']}")
+    row = with_daq["node_on_frame"]
+    print(f"  {rate} Hz node_on_frame with {with_daq['description']}: IPET bound {row['bound']}, measured max "
+          f"{row['measured_max']} ({with_daq['daq_packets']} DAQ packets); bound / max {row['bound_over_max']}")
 
 
 def observer_figures(work: Path, dataset, rows: int, search: int) -> dict:
@@ -85,10 +90,11 @@ def observer_figures(work: Path, dataset, rows: int, search: int) -> dict:
         report, seconds = bench("firmware", "timing", "--model", str(model), "--data", str(dataset.path), "--rows",
                                 str(rows), "--isr-rate", str(rate), "--search", str(search), "--out",
                                 str(work / "cache"))
-        out[str(rate)] = {"wcet": report["wcet"], "wcet_holds": report["wcet_holds"],
-                          "bit_exact": report["bit_exact"], "seconds": round(seconds, 1)}
+        out[str(rate)] = {"wcet": report["wcet"], "wcet_with_xcp_daq": report["wcet_with_xcp_daq"],
+                          "wcet_holds": report["wcet_holds"], "bit_exact": report["bit_exact"],
+                          "seconds": round(seconds, 1)}
         print(f"\nobserver at {rate} Hz ({seconds:.0f} s):")
-        _print_wcet(rate, report["wcet"])
+        _print_wcet(rate, report["wcet"], report["wcet_with_xcp_daq"])
     return out
 
 
@@ -104,10 +110,10 @@ def kind_figures(kind: str, drive, initial, search: int) -> dict:
         report = timing_report(artifact, image, drive, initial, isr_rate_hz=rate, search=search)
         out["rates"][str(rate)] = {
             "wcet": report["wcet"], "wcet_cycles": report["wcet_cycles"],
-            "measured_max_cycles": report["measured_max_cycles"],
+            "measured_max_cycles": report["measured_max_cycles"], "wcet_with_xcp_daq": report["wcet_with_xcp_daq"],
             "wcet_holds": report["wcet_holds"], "bit_exact": report["bit_exact"],
             "runs": {clock: _run_figures(run) for clock, run in report["runs"].items()}}
-        _print_wcet(rate, report["wcet"])
+        _print_wcet(rate, report["wcet"], report["wcet_with_xcp_daq"])
         for clock, run in report["runs"].items():
             r, idle, busy = run["response_time_us"], run["isr_latency_idle_cycles"], \
                 run["isr_latency_preempting_cycles"]

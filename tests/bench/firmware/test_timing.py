@@ -245,11 +245,44 @@ def test_a_loop_without_a_stated_bound_is_named(timing_image):
         loop_facts(sources, 0, (-1, 0))
 
 
+def test_without_a_master_the_xcp_paths_are_infeasible_and_with_one_the_bound_covers_a_daq_run(timing_image):
+    """The no_master mode's facts (bench/firmware/xcp.c's wcet-value(no_master) globals) decide branches of the
+    XCP slave only and tighten node_on_frame's bound. They are what the emulated core has after a drive (the
+    globals still at their stated values), and they do not hold with a master: a drive under the DAQ tables' whole
+    budget takes more cycles than the no-master bound, and no more than the bound with a master (DAQ_MODE)."""
+    from bench.firmware.timing import DAQ_MODE, DRIVE_MODE, _frames, daq_mode_bound, timing_sources
+    from target_sim.firmware.node_engine import FirmwareNode
+    from target_sim.firmware.wcet import value_facts
+
+    artifact, image = timing_image("hammerstein")
+    sources = timing_sources(artifact)
+    values = value_facts(sources, DRIVE_MODE.name)
+    assert values == {"xcp_connected": 0, "daq_lists": 0, "daq_odts": 0, "daq_queued": 0}
+    assert value_facts(sources, DAQ_MODE.name) == {}
+    facts = loop_facts(sources)
+    bound = wcet(image, "node_on_frame", facts, values)
+    assert bound.decided and {branch.function for branch in bound.decided} <= {"xcp_event", "xcp_flush"}
+    assert bound.cycles < wcet(image, "node_on_frame", facts).cycles
+    node = FirmwareNode(artifact, image)
+    for group in _frames(artifact, _drive(), [60.0] * 4):
+        for frame in group:
+            node.handle(frame)
+    assert node.model_steps > 0
+    for name, value in values.items():
+        symbol = image.symbols[name]
+        assert int.from_bytes(node.fw.read_bytes(symbol.address, symbol.size), "little") == value, name
+    with_daq = daq_mode_bound(artifact, image, _drive(), [60.0] * 4)
+    row = with_daq["node_on_frame"]
+    assert with_daq["daq_packets"] == 16 * with_daq["model_steps"] > 0
+    assert bound.cycles < row["measured_max"] <= row["bound"]
+
+
 # the packaged kind in the default run, the others kept out of the 5-min default run
 @pytest.mark.parametrize("kind", [k if k == "hammerstein" else pytest.param(k, marks=pytest.mark.slow) for k in KINDS])
 def test_the_ipet_bound_covers_the_searched_maximum_and_is_tight(timing_image, kind):
     """Each timed function's IPET bound is at least the most cycles measured, on a drive and by the input search,
-    and within the issue's margins of it: 10 % for the model step, 25 % for the frame handler (rows in order)."""
+    and within 10 % of it (the frame handler's without an XCP master, rows in order); node_on_frame's bound with a
+    master running DAQ covers a drive under that DAQ."""
     from bench.firmware.timing import timing_report
 
     artifact, image = timing_image(kind)
@@ -260,14 +293,16 @@ def test_the_ipet_bound_covers_the_searched_maximum_and_is_tight(timing_image, k
         assert row["drive_max"] > 0 and row["adversarial_max"] > 0, name
         assert row["measured_max"] == max(row["drive_max"], row["adversarial_max"]) <= row["bound"], name
     assert table["fw_step"]["bound_over_max"] <= 1.10
-    assert table["node_on_frame"]["bound_over_max"] <= 1.25
+    assert table["node_on_frame"]["bound_over_max"] <= 1.10
+    daq = report["wcet_with_xcp_daq"]["node_on_frame"]
+    assert table["node_on_frame"]["bound"] < daq["measured_max"] <= daq["bound"]
 
 
 @pytest.mark.slow   # 7-10 s: the default run keeps its 5-minute budget; .ci/run runs it
 def test_the_observer_step_is_bounded_within_ten_percent(observer_artifact, firmware_builds):
     """An observer's model step (fw_obs_step: the model step, the UD prediction and update, the gate) is the timed
     model step; its bound covers the searched maximum (readings on and off) within 10 %, node_on_frame's within
-    25 %."""
+    25 % (the benchmark record's drive and longer search show it within 10 %)."""
     from bench.firmware.codegen import generate
     from bench.firmware.timing import adversarial_maxima, static_bounds, timed_functions
     from target_sim.artifact import load_artifact
@@ -280,7 +315,7 @@ def test_the_observer_step_is_bounded_within_ten_percent(observer_artifact, firm
     for name, bound in bounds.items():
         assert 0 < found[name] <= bound, name
     assert bounds["fw_obs_step"] / found["fw_obs_step"] <= 1.10
-    assert bounds["node_on_frame"] / found["node_on_frame"] <= 1.25
+    assert bounds["node_on_frame"] / found["node_on_frame"] <= 1.25   # 12 frame candidates: a short search
 
 
 @pytest.mark.slow
