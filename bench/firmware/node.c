@@ -719,9 +719,6 @@ static void time_response(uint32_t index)
 static void step_on(const float inputs[NODE_SAMPLE_WIDTH], uint32_t cycles_of[TIMED_STEPS], uint32_t *steps)
 {
     const uint32_t cycles = model_step(inputs);
-#ifdef FW_OBSERVER
-    fw_obs_sigma();                                         /* the 1-sigma XCP reads and the report sends */
-#endif
     xcp_event(XCP_EVENT_MODEL_STEP);                        /* DAQ sampled right after its step */
     if (*steps < TIMED_STEPS) {
         cycles_of[*steps] = cycles;

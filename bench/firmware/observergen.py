@@ -134,8 +134,8 @@ void fw_obs_checkpoint(float values[]);
  * reading in u, in order, the update; writes the corrected outputs to y. */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4]);
 
-/* After a step (and after a reset or restore by themselves): each node's 1-sigma [yoke, winding, tooth, magnet]
- * (deg C) into obs_sigma. */
+/* Each node's 1-sigma [yoke, winding, tooth, magnet] (deg C) into obs_sigma; fw_obs_step, fw_obs_reset and the
+ * restores call it last. */
 void fw_obs_sigma(void);
 
 /* After a step: obs_sigma into out[0..3] and each measurement's innovation (NaN: the step did not use it) into
@@ -308,6 +308,7 @@ OBS_GATE_STEPOBS_UPDATES    if (corrected) {
         obs_output();
     }
     for (i = 0; i < 4; i++) y[i] = y_est[i];
+    fw_obs_sigma();                                         /* what XCP reads right after the step */
 }
 
 /* Float32Observer.reset */
