@@ -16,10 +16,11 @@
  * anything else ERR_CMD_UNKNOWN. A command other than CONNECT while disconnected gets no answer.
  *
  * DAQ packets of an event are sampled when it happens (xcp_event: after each model step, on the heartbeat tick)
- * into a queue of XCP_MAX_ODTS packets (one per ODT of the tables: a step's packets always fit) and go out after
+ * into a queue of XCP_DAQ_QUEUE packets (one per ODT of the tables: a step's packets always fit) and go out after
  * the call's other frames (xcp_flush, from end_call), as the Python node sends them after a row's replies. A row
- * that runs several model steps (lost rows) may sample more: those packets are dropped and counted in
- * node_out.tx_dropped, like the timing frames of such a row (the one place the two engines may differ).
+ * that runs several model steps (lost rows) queues the packets of its steps in order while they fit; those past the
+ * queue are dropped and counted in node_out.tx_dropped, as the Python slave drops and counts them
+ * (XcpSlave.queued).
  *
  * The DAQ path's loops are bounded by `daq_lists` and `daq_odts` (target_sim.firmware.wcet.loop_facts): the DAQ
  * lists and ODTs a master configured, 0 without one (`bench firmware timing`'s assumption), the tables' whole budget
@@ -83,7 +84,7 @@ static uint8_t daq_have_pointer, daq_pointer_list, daq_pointer_odt, daq_pointer_
 static struct {
     uint8_t dlc;
     uint8_t data[8];
-} daq_queue[XCP_MAX_ODTS];
+} daq_queue[XCP_DAQ_QUEUE];
 static uint32_t daq_queued;
 
 /* ------------------------------------------------------------------------------------------------ helpers */
@@ -455,7 +456,7 @@ static void daq_sample(uint32_t event)
     for (o = 0u; o < daq_odts; o++) {                       /* wcet-loop: daq_odts */
         if (!due[daq_odt[o].owner]) continue;
         xcp_counters.daq_packets++;
-        if (daq_queued >= XCP_MAX_ODTS) {                   /* a row of several steps: see the top */
+        if (daq_queued >= XCP_DAQ_QUEUE) {                  /* a row of several steps: see the top */
             node_out.tx_dropped++;
             continue;
         }
@@ -602,7 +603,7 @@ __attribute__((noinline)) void xcp_event(uint32_t event)
 }
 
 /* The sampled DAQ packets after the call's other frames (the room kept for them: NODE_TX_CAPACITY's last
- * XCP_MAX_ODTS frames). */
+ * XCP_DAQ_QUEUE frames). */
 static __attribute__((noinline)) void xcp_flush(void)
 {
     uint32_t i;

@@ -19,7 +19,7 @@ from host.replay import encode_row
 from target_sim.artifact import load_artifact
 from target_sim.node import TargetNode
 from target_sim.xcp.codes import Err
-from target_sim.xcp.daq import MAX_DAQ_LISTS, MAX_ODT_ENTRIES, MAX_ODTS, ODT_PAYLOAD
+from target_sim.xcp.daq import DAQ_QUEUE, MAX_DAQ_LISTS, MAX_ODT_ENTRIES, MAX_ODTS, ODT_PAYLOAD
 
 from helpers import ROOT, session_drive, session_start
 
@@ -374,3 +374,37 @@ def steady_observer_artifact(lagged_observer_artifact, tmp_path_factory):
     out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "steady"})),
                    encoding="utf-8")
     return out
+
+
+@pytest.mark.slow
+def test_a_row_of_several_steps_queues_their_daq_packets_alike(engines):
+    """Rows after lost rows run several model steps: each step's packets (4 ODTs) in order, while they fit the
+    slave's queue of DAQ_QUEUE packets, the rest dropped and counted, the same bytes from both engines."""
+    pair = engines()
+    python, firmware = pair
+    codec = FrameCodec("HOST")
+    cells = python.xcp.memory.by_name
+    names = ("y_est_0", "y_est_1", "estimate_2", "x_state_3")
+    both(pair, bytes((0xFF, 0)))
+    for cto in (bytes((0xD6,)), bytes((0xD5, 0, 1, 0)), bytes((0xD4, 0, 0, 0, len(names)))):
+        both(pair, cto)
+    for k, name in enumerate(names):
+        both(pair, bytes((0xD3, 0, 0, 0, k, 1)))
+        both(pair, bytes((0xE2, 0, 0, 0, k, 0)))
+        assert both(pair, bytes((0xE1, 0xFF, 4, 0)) + u32(cells[name].address)) == [b"\xff"]
+    both(pair, bytes((0xE0, 0, 0, 0, 0, 0, 1, 0)))
+    both(pair, bytes((0xDE, 1, 0, 0)))
+    for frame in session_start(codec):
+        assert feed(pair, [frame]) == 0
+    drive, row, counts = session_drive(80, 4), 0, []
+    for gap in (0, 2, 0, 7, 0, 12, 0, 3):
+        row += gap
+        before = python.model_steps
+        counts.append((feed(pair, encode_row(codec, row, drive[row])), python.model_steps - before))
+        row += 1
+    assert all(packets == min(len(names) * steps, DAQ_QUEUE) for packets, steps in counts), counts
+    assert any(DAQ_QUEUE >= packets > len(names) for packets, _ in counts), counts     # several steps, all sent
+    assert any(steps * len(names) > DAQ_QUEUE for _, steps in counts), counts         # more than the queue
+    dropped = sum(len(names) * steps - packets for packets, steps in counts)
+    assert python.xcp.stats()["daq_dropped"] == dropped > 0
+    assert firmware.stats()["xcp"]["daq_packets"] == python.xcp.daq.packets
