@@ -8,7 +8,8 @@
  * (XCP_CELL_LIST: every cell of the Python node's catalogue that the C has a variable for, with its writability and
  * float32 limits). The address space is the image's own RAM and flash at those variables' addresses, so UPLOAD,
  * DAQ and BUILD_CHECKSUM read the bytes the model computes with, and DOWNLOAD writes the variable the model reads
- * (fw_cal_alpha_cu): the addresses the A2L gives (`bench firmware a2l --elf`).
+ * (fw_cal_alpha_cu; an observer's obs_offset_<k>, obs_lag_pole_<k>, obs_r_<k>, obs_q): the addresses the A2L gives
+ * (`bench firmware a2l --elf`).
  *
  * Commands: CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID, SET_MTA, UPLOAD, SHORT_UPLOAD,
  * DOWNLOAD, BUILD_CHECKSUM (XCP_CRC_32), FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY, SET_DAQ_PTR, WRITE_DAQ,
