@@ -3,6 +3,11 @@ cycles (which the machine's load does not change), against a baseline revision's
 
     python tests/benchmarks/bench_xcp_observer.py --model OBSERVER.json [--rows N] [--baseline REV]
 
+The committed record's observer: the packaged Hammerstein model with a lagged winding sensor and the winding
+heat-bias state (six filter states, UD form), `bench observer --train SMALL.csv --evaluations 2 --lag 60 --bias`
+on the tests' synthetic dataset (tests/conftest.py's small_dataset), as tests/target_sim/test_xcp_firmware.py's
+slow case makes it.
+
 For the observer artifact's firmware (built from this checkout's sources, and with --baseline from REV's own
 sources, `git archive`): the ELF's sections; a lockstep session of --rows rows (default 300) with a winding sensor
 1.5 K warm of the open loop (ABSENT every 7th row) and a DAQ list of three ODTs on the model step (the observer's
@@ -10,7 +15,7 @@ sources, `git archive`): the ELF's sections; a lockstep session of --rows rows (
 cycles (Timing4) and the DAQ sample's; the cycles of node_on_xcp for SHORT_UPLOAD and DOWNLOAD of the cells the
 firmware serves; and the IPET WCET bounds of the timing image (`bench firmware timing`'s tool) of fw_obs_step,
 fw_obs_sigma, fw_obs_report, node_on_frame, node_on_tick, node_on_xcp and xcp_event, without an XCP master and with
-the DAQ tables full. Writes its record (`tests/benchmarks/record.py`) only with --json PATH.
+the DAQ tables full. Writes its record (`tests/benchmarks/record.py`).
 """
 
 from __future__ import annotations
@@ -159,8 +164,6 @@ def main() -> int:
     if args.inner:
         json.dump(figures(args.model, args.rows), sys.stdout)
         return 0
-    if args.json is None:
-        args.no_json = True
     record = Record("xcp_observer", args, parameters={"model": args.model.name, "rows": args.rows})
     record.figures = figures(args.model, args.rows)
     if args.baseline:
