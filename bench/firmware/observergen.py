@@ -67,7 +67,9 @@ from target_sim.xcp.variables import (
     EXTRA_SYMBOL,
     INNOVATION_SYMBOL,
     LAG_SYMBOL,
+    OFFSET_SYMBOL,
     Q_SYMBOL,
+    R_SYMBOL,
     SIGMA_SYMBOL,
 )
 
@@ -164,9 +166,9 @@ def calibrated_scalars(artifact: ModelArtifact) -> list[str]:
     from target_sim.xcp.variables import node_cells
 
     _, calibrations = node_cells(TargetNode(artifact))
-    arrays = {Q_SYMBOL}
+    per_measurement = (OFFSET_SYMBOL, LAG_SYMBOL, R_SYMBOL)        # each <name>_<k>
     return [spec.symbol for spec in calibrations
-            if spec.symbol is not None and spec.symbol not in arrays and spec.symbol.startswith("obs_")]
+            if spec.symbol is not None and spec.symbol.rpartition("_")[0] in per_measurement]
 
 
 def observer_defines(artifact: ModelArtifact) -> str:
