@@ -540,7 +540,7 @@ class TargetNode:
                 out += observed[index]
         if timing and self.model_steps % CHECKPOINT_EVERY_STEPS == 0:
             out += self._checkpoint_frames(step)
-        return out + self._xcp_packets(daq)
+        return out + self._xcp_packets(self.xcp.queued(daq))
 
     # ------------------------------------------------------------------ reporting
     def stats(self) -> dict:

@@ -437,7 +437,7 @@ def generate(artifact: ModelArtifact) -> GeneratedSource:
                                  "void fw_accumulate(const float sample[FW_SAMPLE_WIDTH]);")
                   .replace(f"unsigned int fw_mean(float u[{width}]);",
                            "unsigned int fw_mean(float u[FW_SAMPLE_WIDTH]);")
-                  .replace("#endif /* FW_MODEL_H */", observer_header() + "\n#endif /* FW_MODEL_H */"))
+                  .replace("#endif /* FW_MODEL_H */", observer_header(artifact) + "\n#endif /* FW_MODEL_H */"))
         header = re.sub(r"(#define FW_INPUTS [^\n]*\n)", lambda m: m.group(1) + observer_defines(artifact), header)
 
     # the code first: only the constants it names are emitted (an unused static const is a warning)

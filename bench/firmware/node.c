@@ -49,9 +49,9 @@ typedef char node_observer_is_the_model_observer[(NODE_OBSERVER == FW_OBSERVER &
 #define MODEL_RESTORE fw_restore
 #endif
 
-/* node_out.tx holds the call's replies, then the XCP slave's DAQ packets (xcp.c): the last XCP_MAX_ODTS frames are
+/* node_out.tx holds the call's replies, then the XCP slave's DAQ packets (xcp.c): the last XCP_DAQ_QUEUE frames are
  * theirs */
-#define NODE_REPLY_CAPACITY (NODE_TX_CAPACITY - XCP_MAX_ODTS)
+#define NODE_REPLY_CAPACITY (NODE_TX_CAPACITY - XCP_DAQ_QUEUE)
 
 struct node_frame node_rx;
 struct node_output node_out;

@@ -458,7 +458,8 @@ def _xcp_macros(artifact: ModelArtifact) -> list[str]:
         "CHECKSUM_CRC_32", "MODE_DIRECTION_STIM", "MODE_TIMESTAMP", "MODE_PID_OFF", "DAQ_PROPERTIES",
         "DAQ_KEY_BYTE", "ID_ASCII", "ID_A2L_NAME")}
     numbers.update({"MAX_ODT_ENTRIES": daq.MAX_ODT_ENTRIES, "MAX_DAQ_LISTS": daq.MAX_DAQ_LISTS,
-                    "MAX_ODTS": min(daq.MAX_ODTS, daq.MAX_PID + 1), "ODT_PAYLOAD": daq.ODT_PAYLOAD,
+                    "MAX_ODTS": min(daq.MAX_ODTS, daq.MAX_PID + 1), "DAQ_QUEUE": daq.DAQ_QUEUE,
+                    "ODT_PAYLOAD": daq.ODT_PAYLOAD,
                     "EVENT_MODEL_STEP": daq.EVENT_MODEL_STEP, "EVENT_HEARTBEAT": daq.EVENT_HEARTBEAT,
                     "EVENTS": len(daq.EVENTS), "MAX_BLOCK": MAX_BLOCK, "CMD_ID": cmd_id(), "RES_ID": res_id(),
                     "CELLS": len(cells), "PIECES": len(cells) + 1,

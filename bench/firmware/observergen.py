@@ -63,13 +63,22 @@ from target_sim.artifact import OUTPUTS, ModelArtifact
 from target_sim.firmware.node_protocol import FIRMWARE_OBSERVER_FORMS
 from target_sim.observer import Float32Observer
 from target_sim.observer.ud import ud_factor
+from target_sim.xcp.variables import (
+    EXTRA_SYMBOL,
+    INNOVATION_SYMBOL,
+    LAG_SYMBOL,
+    OFFSET_SYMBOL,
+    Q_SYMBOL,
+    R_SYMBOL,
+    SIGMA_SYMBOL,
+)
 
 # the line temperature_sources gets in an observer's C: the gains the transition's Jacobian takes
 KEEP_GAINS_C = "".join(f"    obs_gains[{i}] = {gain};\n" for i, gain in enumerate(("g_tm", "g_wm", "g_ma", "g_cy")))
 SOURCES_END = "    src[3] = (y_est[1] + g_wm * y_est[3]) / (1.0f + g_wm);\n"
 
 
-def _literal_array(name: str, values: np.ndarray, comment: str) -> str:
+def _literal_array(name: str, values: np.ndarray, comment: str, storage: str = "static const ") -> str:
     values = np.asarray(values, dtype=np.float32)
     dims = "".join(f"[{n}]" for n in values.shape)
     if values.ndim == 1:
@@ -77,7 +86,7 @@ def _literal_array(name: str, values: np.ndarray, comment: str) -> str:
     else:
         rows = ",\n    ".join("{" + ", ".join(c_float(v) for v in row) + "}" for row in values)
         body = "{\n    " + rows + "\n}"
-    return f"/* {comment} */\nstatic const float {name}{dims} = {body};\n"
+    return f"/* {comment} */\n{storage}float {name}{dims} = {body};\n"
 
 
 def observer_filter(artifact: ModelArtifact) -> Float32Observer:
@@ -95,9 +104,13 @@ def observer_channels(artifact: ModelArtifact) -> int:
     return sum(Float32Observer(artifact).layout.widths)
 
 
-def observer_header() -> str:
+def observer_header(artifact: ModelArtifact) -> str:
     """fw_model.h's observer part."""
-    return """
+    externs = "".join(f"extern float {name};\n" for name in calibrated_scalars(artifact))
+    return _HEADER.replace("OBS_CALIBRATED_EXTERNS", externs)
+
+
+_HEADER = """
 /* The observer (the artifact's observer section: a float32 Kalman filter on the linear block, Bierman-Thornton UD
  * form or the steady-state gain, as target_sim.observer.Float32Observer): a sample and a step's inputs carry the
  * raw channels of its measurements after the drive values (FW_OBS_CHANNELS; NaN in a measurement's channels: no
@@ -123,14 +136,39 @@ void fw_obs_checkpoint(float values[]);
  * reading in u, in order, the update; writes the corrected outputs to y. */
 void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4]);
 
-/* After a step: each node's 1-sigma [yoke, winding, tooth, magnet] (deg C) into out[0..3] and each measurement's
- * innovation (NaN: the step did not use it) into out[4..]. */
+/* Each node's 1-sigma [yoke, winding, tooth, magnet] (deg C) into obs_sigma; fw_obs_step, fw_obs_reset and the
+ * restores call it last. */
+void fw_obs_sigma(void);
+
+/* After a step: obs_sigma into out[0..3] and each measurement's innovation (NaN: the step did not use it) into
+ * out[4..]. */
 void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS]);
 
+/* What an XCP master measures and calibrates (target_sim.xcp.variables: the C symbols of its cells): the filter's
+ * states from index 4 on (the lag states, the bias), each node's 1-sigma (fw_obs_sigma), each measurement's
+ * innovation of the last step, Q's diagonal (node coordinates; read by each prediction), and each measurement's
+ * calibratable constants (read by each step). */
+extern float obs_extra[FW_OBS_STATES];
+extern float obs_sigma[4];
+extern float obs_innovation[FW_OBS_MEASUREMENTS];
+extern float obs_q[FW_OBS_STATES];
+OBS_CALIBRATED_EXTERNS
 /* After a step: each measurement's innovation gate (InnovationGate.rejected, .flagged): bit 0 its reading was
  * rejected in this step, bit 1 its sensor is flagged (latched until a reset or restore); 0 without a gate. */
 void fw_obs_gate(unsigned char out[FW_OBS_MEASUREMENTS]);
 """
+
+
+def calibrated_scalars(artifact: ModelArtifact) -> list[str]:
+    """The C names of the measurements' scalars an XCP master calibrates (the cells of `target_sim.xcp.variables`
+    with a per-measurement symbol): each a variable in RAM, the others constants in flash."""
+    from target_sim.node import TargetNode
+    from target_sim.xcp.variables import node_cells
+
+    _, calibrations = node_cells(TargetNode(artifact))
+    per_measurement = (OFFSET_SYMBOL, LAG_SYMBOL, R_SYMBOL)        # each <name>_<k>
+    return [spec.symbol for spec in calibrations
+            if spec.symbol is not None and spec.symbol.rpartition("_")[0] in per_measurement]
 
 
 def observer_defines(artifact: ModelArtifact) -> str:
@@ -138,22 +176,24 @@ def observer_defines(artifact: ModelArtifact) -> str:
     obs = observer_filter(artifact)
     return ("#define FW_OBSERVER 1 /* the model has an observer: fw_obs_* below */\n"
             f"#define FW_OBS_MEASUREMENTS {len(obs.measurements)} /* its measurements, in the section's order */\n"
+            f"#define FW_OBS_STATES {obs.n} /* the filter's states: the model's 4, the lag states, the bias */\n"
             f"#define FW_OBS_CHANNELS {sum(obs.layout.widths)} /* their raw channels in a sample */\n"
             f"#define FW_OBS_CHECKPOINT_SIZE {obs.checkpoint_size()} /* the ObserverCheckpoint elements */\n"
             "#define FW_SAMPLE_WIDTH (FW_INPUTS + FW_OBS_CHANNELS) /* a sample: the drive values, then the raw "
             "channels */\n")
 
 
-def _measurement_declarations(obs: Float32Observer, index: int) -> str:
+def _measurement_declarations(obs: Float32Observer, index: int, calibrated: set[str]) -> str:
     """The constants of the index-th measurement (suffix _<index>): what it sees, its lag, its kind's, and in the
-    steady form its row of K_ss (its row h is in its update's code: udgen.update_c)."""
-    m, lag, f = obs.measurements[index], obs.layout.lag_index[index], obs.f
+    steady form its row of K_ss (its row h is in its update's code: udgen.update_c); those in `calibrated` are
+    variables an XCP master writes (RAM), the others constants (flash)."""
+    m, lag = obs.measurements[index], obs.layout.lag_index[index]
     k = f"_{index}"
     lines = [f"#define OBS_LAG{k} {lag} /* {m.name}: its lag state's index (-1: it reads the model without lag) */"]
-    scalars = [(f"OBS_LAG_POLE{k}", m.lag_pole, "its lag a = exp(-dt/tau)"),
-               (f"OBS_LAG_GAIN{k}", f(1.0) - m.lag_pole, "1 - a")] if lag >= 0 else []
+    scalars = [(f"{LAG_SYMBOL}{k}", m.lag_pole, "its lag a = exp(-dt/tau)")] if lag >= 0 else []
     scalars += [(f"{name}{k}", value, comment) for name, value, comment in m.c_scalars()]
-    lines += [f"static const float {name} = {c_float(value)}; /* {comment} */" for name, value, comment in scalars]
+    lines += [f"{'float' if name in calibrated else 'static const float'} {name} = {c_float(value)}; /* {comment} */"
+              for name, value, comment in scalars]
     arrays = [(f"OBS_SEES{k}", m.sees, "what it sees of [yoke, winding, tooth, magnet]")] if lag >= 0 else []
     if obs.form == "steady":
         arrays.append((f"OBS_GAIN{k}", obs.gain_steady[index], "its row of K_ss: the steady-state gain"))
@@ -165,12 +205,13 @@ def observer_declarations(artifact: ModelArtifact) -> str:
     obs = observer_filter(artifact)
     f, n = obs.f, obs.n
     bias, steady = obs.layout.bias_index, obs.form == "steady"
+    calibrated = set(calibrated_scalars(artifact))
     lines = [f"#define OBS_N {n} /* the filter's states: the model's 4, then a lag state per lagged measurement, "
              "then the bias */",
              f"#define OBS_STEADY {int(steady)} /* 1: the steady-state gain K_ss (no covariance), 0: the UD form */",
              f"#define OBS_BIAS {bias} /* the bias state's index (-1: none) */"]
     if steady:
-        arrays = [("OBS_SIGMA", obs.sigma(), "each node's 1-sigma of P_ss (Float32Observer.sigma: constant)")]
+        arrays = []
     else:
         u0, d0 = ud_factor(obs.p0, f)
         arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0")]
@@ -178,13 +219,18 @@ def observer_declarations(artifact: ModelArtifact) -> str:
         arrays.append(("OBS_BIAS_COLUMN", obs.layout.bias_column,
                        "the bias's column of B: its node's loss (delta: times dt)"))
     text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment) for name, value, comment in arrays)
-    text += "".join(_measurement_declarations(obs, index) for index in range(len(obs.measurements)))
+    text += "".join(_measurement_declarations(obs, index, calibrated) for index in range(len(obs.measurements)))
     factors = "" if steady else "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\n"
     text += _gate_declarations(obs)
+    nans = ", ".join(["__builtin_nanf(\"\")"] * len(obs.measurements))
     return text + ("/* the observer's state: U, d of P = U diag(d) U^T (UD form), the extra states (lags, bias: by\n"
-                   " * index), each measurement's last innovation, the sources' gains of the last step */\n"
-                   f"{factors}static float obs_extra[OBS_N];\n"
-                   "static float obs_innovation[FW_OBS_MEASUREMENTS];\nstatic float obs_gains[4];\n")
+                   " * index), each measurement's last innovation, the sources' gains of the last step; each node's\n"
+                   " * 1-sigma and Q's diagonal. Those an XCP master reads start as the Python filter does at\n"
+                   " * power-on (P0's 1-sigma, no innovation yet, the artifact's Q) */\n"
+                   f"{factors}float {EXTRA_SYMBOL}[OBS_N];\n"
+                   f"float {INNOVATION_SYMBOL}[FW_OBS_MEASUREMENTS] = {{{nans}}};\nstatic float obs_gains[4];\n"
+                   + _literal_array(SIGMA_SYMBOL, obs.sigma(), "each node's 1-sigma (fw_obs_sigma)", "")
+                   + _literal_array(Q_SYMBOL, obs.q_nodes, "Q's diagonal (node coordinates)", ""))
 
 
 def _gate_declarations(obs: Float32Observer) -> str:
@@ -265,6 +311,7 @@ OBS_GATE_STEPOBS_UPDATES    if (corrected) {
         obs_output();
     }
     for (i = 0; i < 4; i++) y[i] = y_est[i];
+    fw_obs_sigma();                                         /* what XCP reads right after the step */
 }
 
 /* Float32Observer.reset */
@@ -284,7 +331,8 @@ void fw_obs_reset(const float y0[4])
     }
 #endif
     for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_innovation[i] = __builtin_nanf("");
-OBS_GATE_RESET}
+OBS_GATE_RESET    fw_obs_sigma();
+}
 
 /* NodeObserver.restore without the filter's checkpoint: a fresh filter at zero temperatures, x bit for bit, then
    each lag state at what its sensor sees of y = C x (AugmentedLayout.initial_extra) */
@@ -332,18 +380,17 @@ void fw_obs_restore_checkpoint(const float x[4], const float values[])
         for (j = i + 1; j < OBS_N; j++) obs_u[i][j] = values[at++];
     }
 #endif
-OBS_COUNTS_RESTORE}
+OBS_COUNTS_RESTORE    fw_obs_sigma();
+}
 
-/* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) and .innovations */
-void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
+/* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) into obs_sigma; the
+   steady form's P_ss is the same every step (obs_sigma keeps its initial values) */
+void fw_obs_sigma(void)
 {
-    int node, i;
-#if OBS_STEADY
-    for (node = 0; node < 4; node++) out[node] = OBS_SIGMA[node];   /* P_ss: the same every step */
-#else
+#if !OBS_STEADY
     float v[OBS_N];
     float s;
-    int j;
+    int node, i, j;
     for (node = 0; node < 4; node++) {
         for (j = 0; j < OBS_N; j++) {                       /* c padded with zeros to the filter's states */
             v[j] = obs_u[0][j] * (node == 0 ? 1.0f : 0.0f);  /* c: the node's unit row (node coordinates) */
@@ -351,9 +398,16 @@ void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
         }
         s = (obs_d[0] * v[0]) * v[0];
         for (j = 1; j < OBS_N; j++) s = s + (obs_d[j] * v[j]) * v[j];
-        out[node] = s > 0.0f ? __builtin_sqrtf(s) : 0.0f;
+        obs_sigma[node] = s > 0.0f ? __builtin_sqrtf(s) : 0.0f;
     }
 #endif
+}
+
+/* Float32Observer.sigma (fw_obs_sigma's, after the step) and .innovations */
+void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
+{
+    int i;
+    for (i = 0; i < 4; i++) out[i] = obs_sigma[i];
     for (i = 0; i < FW_OBS_MEASUREMENTS; i++) out[4 + i] = obs_innovation[i];
 }
 
@@ -366,7 +420,7 @@ void fw_obs_gate(unsigned char out[FW_OBS_MEASUREMENTS])
 """
 
 # per lagged measurement k (its state OBS_LAG_k): its propagation, its reset
-_LAG_PROPAGATE = ("    obs_extra[OBS_LAG_K] = OBS_LAG_POLE_K * obs_extra[OBS_LAG_K] + OBS_LAG_GAIN_K * "
+_LAG_PROPAGATE = (f"    obs_extra[OBS_LAG_K] = {LAG_SYMBOL}_K * obs_extra[OBS_LAG_K] + (1.0f - {LAG_SYMBOL}_K) * "
                   "dot(OBS_SEES_K, y_est, 4);\n")
 _LAG_RESET = "    obs_extra[OBS_LAG_K] = dot(OBS_SEES_K, y_est, 4);\n"
 # per measurement k: its reading, its own update (the row h is its code's) and the correction

@@ -25,6 +25,7 @@ import numpy as np
 from bench.firmware.literals import c_float
 from target_sim.artifact import OUTPUTS
 from target_sim.observer import Float32Observer
+from target_sim.xcp.variables import LAG_SYMBOL, Q_SYMBOL
 
 # the Jacobian's elements as target_sim.modelkinds.lti_lptn.LinearBlockPart.source_jacobian computes them, from
 # r_x = 1 / (1 + g_x) (obs_gains: g_tm, g_wm, g_ma, g_cy, as temperature_sources keeps them)
@@ -133,15 +134,17 @@ def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
             if obs.transition.bias_node[i] != 0:
                 f[i][obs.layout.bias_index] = literal(obs.transition.bias_node[i])
         f[obs.layout.bias_index][obs.layout.bias_index] = ONE
-    for m, lag in zip(obs.measurements, obs.layout.lag_index, strict=True):
+    for index, (m, lag) in enumerate(zip(obs.measurements, obs.layout.lag_index, strict=True)):
         if lag < 0:
             continue
-        gain = literal(np.float32(1.0) - m.lag_pole)
+        # the lag pole is calibratable (XCP): read from its variable at every step, 1 - a computed as the reference's
+        pole = f"{LAG_SYMBOL}_{index}"
+        gain = out.load(f"gain{lag}", f"{ONE.expr} - {pole}")
         for j in range(n):
             terms = [product(literal(m.sees[i]), f[i][j]) for i in range(k) if m.sees[i] != 0 and f[i][j] is not None]
             if terms and j != lag:
                 f[lag][j] = out.set(f"f{lag}_{j}", product(gain, Value(f"({total(terms)})")))
-        f[lag][lag] = literal(m.lag_pole)
+        f[lag][lag] = out.load(f"pole{lag}", pole)
     return f
 
 
@@ -172,7 +175,8 @@ def predict_c(obs: Float32Observer) -> str:
         for m in range(len(cov.g_columns)):
             if cov.g_nonzero[i, m]:
                 w[i][n + m] = literal(cov.g[i, m])
-    weights = old_d + [literal(q) for q in cov.q_kept]
+    # Q's kept diagonal, calibratable (XCP): read from its variable at every prediction
+    weights = old_d + [out.load(f"q{col}", f"{Q_SYMBOL}[{col}]") for col in cov.g_columns]
     out.comment("modified weighted Gram-Schmidt, last row first: d_j = w_j (w_j o weights), "
                 "u_ij = (w_i (w_j o weights)) / d_j, w_i -= u_ij w_j")
     for pivot in cov.schedule(obs.transition.nonzero):

@@ -8,7 +8,8 @@
  * (XCP_CELL_LIST: every cell of the Python node's catalogue that the C has a variable for, with its writability and
  * float32 limits). The address space is the image's own RAM and flash at those variables' addresses, so UPLOAD,
  * DAQ and BUILD_CHECKSUM read the bytes the model computes with, and DOWNLOAD writes the variable the model reads
- * (fw_cal_alpha_cu): the addresses the A2L gives (`bench firmware a2l --elf`).
+ * (fw_cal_alpha_cu; an observer's obs_offset_<k>, obs_lag_pole_<k>, obs_r_<k>, obs_q): the addresses the A2L gives
+ * (`bench firmware a2l --elf`).
  *
  * Commands: CONNECT, DISCONNECT, GET_STATUS, SYNCH, GET_COMM_MODE_INFO, GET_ID, SET_MTA, UPLOAD, SHORT_UPLOAD,
  * DOWNLOAD, BUILD_CHECKSUM (XCP_CRC_32), FREE_DAQ, ALLOC_DAQ, ALLOC_ODT, ALLOC_ODT_ENTRY, SET_DAQ_PTR, WRITE_DAQ,
@@ -16,10 +17,11 @@
  * anything else ERR_CMD_UNKNOWN. A command other than CONNECT while disconnected gets no answer.
  *
  * DAQ packets of an event are sampled when it happens (xcp_event: after each model step, on the heartbeat tick)
- * into a queue of XCP_MAX_ODTS packets (one per ODT of the tables: a step's packets always fit) and go out after
+ * into a queue of XCP_DAQ_QUEUE packets (one per ODT of the tables: a step's packets always fit) and go out after
  * the call's other frames (xcp_flush, from end_call), as the Python node sends them after a row's replies. A row
- * that runs several model steps (lost rows) may sample more: those packets are dropped and counted in
- * node_out.tx_dropped, like the timing frames of such a row (the one place the two engines may differ).
+ * that runs several model steps (lost rows) queues the packets of its steps in order while they fit; those past the
+ * queue are dropped and counted in node_out.tx_dropped, as the Python slave drops and counts them
+ * (XcpSlave.queued).
  *
  * The DAQ path's loops are bounded by `daq_lists` and `daq_odts` (target_sim.firmware.wcet.loop_facts): the DAQ
  * lists and ODTs a master configured, 0 without one, the tables' whole budget for the bound with XCP
@@ -90,7 +92,7 @@ static uint8_t daq_have_pointer, daq_pointer_list, daq_pointer_odt, daq_pointer_
 static struct {
     uint8_t dlc;
     uint8_t data[8];
-} daq_queue[XCP_MAX_ODTS];
+} daq_queue[XCP_DAQ_QUEUE];
 static uint32_t daq_queued;                /* wcet-value(no_master): daq_queued = 0 */
 
 /* ------------------------------------------------------------------------------------------------ helpers */
@@ -462,7 +464,7 @@ static void daq_sample(uint32_t event)
     for (o = 0u; o < daq_odts; o++) {                       /* wcet-loop: daq_odts */
         if (!due[daq_odt[o].owner]) continue;
         xcp_counters.daq_packets++;
-        if (daq_queued >= XCP_MAX_ODTS) {                   /* a row of several steps: see the top */
+        if (daq_queued >= XCP_DAQ_QUEUE) {                  /* a row of several steps: see the top */
             node_out.tx_dropped++;
             continue;
         }
@@ -609,7 +611,7 @@ __attribute__((noinline)) void xcp_event(uint32_t event)
 }
 
 /* The sampled DAQ packets after the call's other frames (the room kept for them: NODE_TX_CAPACITY's last
- * XCP_MAX_ODTS frames). */
+ * XCP_DAQ_QUEUE frames). */
 static __attribute__((noinline)) void xcp_flush(void)
 {
     uint32_t i;

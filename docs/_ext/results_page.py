@@ -1050,6 +1050,39 @@ def _xcp_firmware(fw: dict) -> list[str]:
     return lines
 
 
+@single_record("xcp_observer", "XCP: an observer's cells in the firmware")
+def section_xcp_observer(record: Record) -> list[str]:
+    """An observer's firmware serving its XCP cells, beside the baseline revision's firmware of the same artifact."""
+    f = record["figures"]
+    base = f.get("baseline") or {}
+
+    def cell(figures: dict, key: str, name: str) -> str:
+        value = figures.get(key, {}).get(name)
+        return "no bound" if isinstance(value, str) else _n(value)     # a loop without a stated bound
+
+    rows = [[f"WCET bound of {name}" + (", DAQ tables full" if key == "wcet_cycles_daq" else ""),
+             cell(base, key, name), cell(f, key, name)]
+            for key in ("wcet_cycles", "wcet_cycles_daq") for name in f[key]
+            if key == "wcet_cycles" or name in ("node_on_frame", "node_on_xcp", "xcp_event")]
+    for key, label in (("model_step_cycles", "the model step (Timing4)"), ("daq_sample_cycles", "a DAQ sample")):
+        rows.append([f"{label}, p50 / max", *(f"{_n(g[key]['p50'])} / {_n(g[key]['max'])}" if g.get(key) else "–"
+                                              for g in (base, f))])
+    rows += [[f"{name}, p50", _n(base.get("handler_cycles", {}).get(name, {}).get("p50")), _n(v["p50"])]
+             for name, v in f["handler_cycles"].items()]
+    rows += [[f"{name}, bytes", _n(base.get("sections", {}).get(name)), _n(size)]
+             for name, size in f["sections"].items()]
+    before = f"revision {base['revision']}" if base else "before"
+
+    def entries(figures: dict) -> str:
+        return ", ".join(n for odt in figures.get("daq_entries", []) for n in odt)
+
+    other = (f" (the baseline, which does not serve them, over {entries(base)})"
+             if base and entries(base) != entries(f) else "")
+    return [f"The observer {record['parameters']['model']}'s firmware in the emulated Cortex-M4F (cycles, whatever the "
+            f"machine's load), a {_n(record['parameters']['rows'])}-row session with a DAQ list of three ODTs over "
+            f"{entries(f)}{other}:", "", *_table(["cycles", before, "serving the observer's cells"], rows)]
+
+
 @single_record("listeners", "CAN tools attached to a run")
 def section_listeners(record: Record) -> list[str]:
     """Which of python-can's logger and viewer and cantools' monitor saw every frame of a run, per pacing."""
@@ -1079,7 +1112,7 @@ SECTIONS: dict[str, Section] = {
     "identify": section_identify, "data": section_data, "plant_distributed": section_plant_distributed,
     "observer": section_observer, "speed": section_speed,
     "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite, "xcp": section_xcp,
-    "listeners": section_listeners}
+    "xcp_observer": section_xcp_observer, "listeners": section_listeners}
 BENCHMARKS = tuple(SECTIONS)
 
 

@@ -39,7 +39,7 @@ from target_sim.xcp.codes import (
     Cmd,
     Err,
 )
-from target_sim.xcp.daq import EVENTS, MAX_ODT_ENTRIES, ODT_PAYLOAD, Daq, DaqError
+from target_sim.xcp.daq import DAQ_QUEUE, EVENTS, MAX_ODT_ENTRIES, ODT_PAYLOAD, Daq, DaqError
 from target_sim.xcp.memory import AccessRefused, AddressSpace
 
 # the shortest CTO of each command (its code included)
@@ -72,6 +72,7 @@ class XcpSlave:
         self.commands: Counter[str] = Counter()
         self.errors: Counter[str] = Counter()
         self.ignored = 0                  # commands while disconnected (no answer)
+        self.daq_dropped = 0              # DAQ packets sampled past a call's queue (DAQ_QUEUE), never sent
         self.calibrations: list[tuple[str, float]] = []   # (cell, value) of every accepted DOWNLOAD, in order
         self.handler_ns: deque[int] = deque(maxlen=HISTORY)   # each command's handling time
         self.sample_ns: deque[int] = deque(maxlen=HISTORY)    # each DAQ event sampled (a packet at least)
@@ -107,13 +108,20 @@ class XcpSlave:
             self.sample_ns.append(time.perf_counter_ns() - started)
         return packets
 
+    def queued(self, packets: list[bytes]) -> list[bytes]:
+        """The DAQ packets of one call of the node that it sends: the first DAQ_QUEUE (the C node's queue); the
+        rest are dropped and counted (`daq_dropped`)."""
+        self.daq_dropped += max(0, len(packets) - DAQ_QUEUE)
+        return packets[:DAQ_QUEUE]
+
     def stats(self) -> dict:
         def us(times) -> dict:
             ordered = sorted(times)
             return {"p50": ordered[len(ordered) // 2] / 1000.0, "max": ordered[-1] / 1000.0} if ordered else {}
 
         return {"commands": dict(self.commands), "errors": dict(self.errors), "ignored": self.ignored,
-                "daq_packets": self.daq.packets, "calibrations": len(self.calibrations),
+                "daq_packets": self.daq.packets, "daq_dropped": self.daq_dropped,
+                "calibrations": len(self.calibrations),
                 "handler_us": us(self.handler_ns), "daq_sample_us": us(self.sample_ns)}
 
     # ------------------------------------------------------------------ dispatch

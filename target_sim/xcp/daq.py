@@ -36,6 +36,10 @@ MAX_ODT_ENTRIES = 64          # the RAM budget of the DAQ tables (entries over a
 MAX_DAQ_LISTS = 16            # ... lists
 MAX_ODTS = 16                 # ... ODTs over all lists (each a DAQ packet per event: the C node's queue)
 MAX_PID = 0xFB                # 0xFC..0xFF are the slave's RES/ERR/EV/SERV packets
+# the DAQ packets one call of the node (a row's reply, a heartbeat) carries at most: the C node's queue, one per ODT
+# of the tables, so one event's packets always fit; a row that runs several model steps (after lost rows) may sample
+# more, and both engines drop those past the queue and count them (XcpSlave.queued)
+DAQ_QUEUE = min(MAX_ODTS, MAX_PID + 1)
 ODT_PAYLOAD = MAX_DTO - 1     # bytes of an ODT after its packet identifier (and so its most entries)
 
 

@@ -19,7 +19,7 @@ from host.replay import encode_row
 from target_sim.artifact import load_artifact
 from target_sim.node import TargetNode
 from target_sim.xcp.codes import Err
-from target_sim.xcp.daq import MAX_DAQ_LISTS, MAX_ODT_ENTRIES, MAX_ODTS, ODT_PAYLOAD
+from target_sim.xcp.daq import DAQ_QUEUE, MAX_DAQ_LISTS, MAX_ODT_ENTRIES, MAX_ODTS, ODT_PAYLOAD
 
 from helpers import ROOT, session_drive, session_start
 
@@ -210,31 +210,201 @@ def test_xcp_frames_are_not_frames_of_the_contract_to_the_firmware(engines):
     assert counters["frames_received"] == 0 and counters["errors"]["unknown_id"] == 0
 
 
-def test_an_observer_models_c_slave_shows_the_cells_the_c_has(observer_artifact, firmware_elf):
-    """An observer model's firmware: every cell the C has a variable for (the model's state, outputs, estimate and
-    alpha_cu) reads the same bytes in both engines after a session with measurements; the observer's own cells
-    (lag states, 1-sigma, innovations, its calibrations) are in the Python slave's pages only, where the C slave
-    answers ERR_ACCESS_DENIED (docs/tutorials/xcp.md: not done yet)."""
+def observer_pair(path, firmware_elf):
+    """(Python node with the ELF's layout, firmware node) of the observer artifact at `path`, its firmware built."""
     from target_sim.firmware.node_engine import FirmwareNode
 
-    from helpers import session_frames
+    artifact = load_artifact(path)
+    elf = firmware_elf(path)
+    return (TargetNode(artifact, clock_ns=lambda: 0, xcp_elf=elf), FirmwareNode(artifact, elf))
 
-    artifact = load_artifact(observer_artifact)
-    elf = firmware_elf(observer_artifact)
-    pair = (TargetNode(artifact, clock_ns=lambda: 0, xcp_elf=elf), FirmwareNode(artifact, elf))
-    measured = np.column_stack([np.linspace(60.0, 70.0, 40), np.full(40, np.nan)])
-    for frame in session_frames(artifact, session_drive(40, 8), stop=False, measurements=measured):
-        if frame.arbitration_id in host_frame_ids():
-            for node in pair:
-                node.handle(frame)
-    assert pair[0].model_steps == pair[1].model_steps > 0
-    both(pair, bytes((0xFF, 0)))
-    cells = pair[0].xcp.memory.cells
-    shared = [c for c in cells if c.symbol is not None]
-    assert {c.name for c in shared} == {f"{s}_{i}" for s in ("x_state", "y_est", "estimate") for i in range(4)} \
-        | {"cal_alpha_cu"}
-    for cell in shared:
+
+def observer_session(artifact, rows: int) -> list[can.Message]:
+    """The host's frames of a session of `rows` rows with a winding sensor 1.5 K warm of the open loop (within the
+    gate: the filter updates), ABSENT every 7th row, not stopped."""
+    from target_sim.model import run_offline
+
+    from helpers import SESSION_INITIAL, session_frames
+
+    drive = session_drive(rows, 8)
+    steps, open_loop = run_offline(artifact, drive, SESSION_INITIAL)
+    sensor = np.round(np.interp(np.arange(rows), steps, open_loop[:, 1]) + 1.5, 2)
+    sensor[::7] = np.nan
+    measured = np.column_stack([sensor, np.full(rows, np.nan)])
+    return [f for f in session_frames(artifact, drive, stop=False, measurements=measured)
+            if f.arbitration_id in host_frame_ids()]
+
+
+def feed(pair, frames) -> int:
+    """`frames` into both engines: their XCP frames (DAQ packets) must be the same bytes; how many there were."""
+    packets = 0
+    for frame in frames:
+        replies = [xcp_of(node.handle(frame)) for node in pair]
+        assert replies[1] == replies[0], frame
+        packets += len(replies[0])
+    return packets
+
+
+def read_every_cell(pair) -> None:
+    """Each cell of the catalogue, and runs of bytes across neighbours, read alike by both engines."""
+    for cell in pair[0].xcp.memory.cells:
         assert both(pair, bytes((0xF4, 4, 0, 0)) + u32(cell.address))[0][0] == 0xFF, cell.name
-    for cell in (c for c in cells if c.symbol is None):
-        python, firmware = (command(node, bytes((0xF4, 4, 0, 0)) + u32(cell.address)) for node in pair)
-        assert python[0][0] == 0xFF and firmware == [bytes((0xFE, Err.ACCESS_DENIED))], cell.name
+        both(pair, bytes((0xF4, 7, 0, 0)) + u32(cell.address + 1))
+
+
+# a value within each calibratable observer cell's limits, and one outside them (name prefix -> values)
+CALIBRATIONS = {"cal_sensor0_offset": (1.5, 20.5), "cal_sensor0_lag": (0.95, 1.0), "cal_sensor0_r": (2.5, 0.0),
+                "cal_q_": (0.02, -1.0)}
+
+
+def calibrate_every_cell(pair) -> list[str]:
+    """DOWNLOADs to every writable observer cell (refused out of its limits, accepted within), the same replies."""
+    done = []
+    for cell in pair[0].xcp.memory.cells:
+        if cell.write is None or cell.name == "cal_alpha_cu":
+            continue
+        good, bad = next(v for prefix, v in CALIBRATIONS.items() if cell.name.startswith(prefix))
+        both(pair, bytes((0xF6, 0, 0, 0)) + u32(cell.address))
+        assert both(pair, bytes((0xF0, 4)) + f32(bad)) == [bytes((0xFE, Err.OUT_OF_RANGE))], cell.name
+        assert both(pair, bytes((0xF0, 4)) + f32(good)) == [b"\xff"], cell.name
+        done.append(cell.name)
+    return done
+
+
+def test_the_c_slave_serves_the_observers_cells_as_the_python_slave(observer_artifact, firmware_elf):
+    """An observer model's firmware: every cell of the catalogue, the observer's too (1-sigma, innovations, sensor
+    offset and R, Q), is a C variable at the address the A2L gives; before a session (P0's 1-sigma, no innovation),
+    after steps, its calibrations and their refusals, and after steps with them, both engines answer the same
+    bytes, and the calibrated filters give the same estimate."""
+    pair = observer_pair(observer_artifact, firmware_elf)
+    python, firmware = pair
+    cells = python.xcp.memory.cells
+    for cell in cells:
+        symbol, _, index = cell.symbol.rstrip("]").partition("[")
+        assert cell.address == firmware.fw.symbols[symbol].address + 4 * int(index or 0), cell.name
+    assert {c.name for c in cells} >= {"obs_sigma_0", "obs_innov_0", "cal_sensor0_offset", "cal_sensor0_r",
+                                       "cal_q_1"}
+    both(pair, bytes((0xFF, 0)))
+    read_every_cell(pair)
+    frames = observer_session(python.artifact, 40)
+    feed(pair, frames[:25])
+    assert python.model_steps == firmware.model_steps > 0
+    read_every_cell(pair)
+    assert calibrate_every_cell(pair)
+    feed(pair, frames[25:])
+    read_every_cell(pair)
+    sigma = python.xcp.memory.by_name["obs_sigma_0"].address
+    both(pair, bytes((0xF6, 0, 0, 0)) + u32(sigma))
+    assert both(pair, bytes((0xF3, 0, 0, 0)) + u32(16))[0][0] == 0xFF           # the 1-sigma array, checksummed
+    assert np.array_equal(python.estimate, firmware.estimate)
+    assert firmware.stats()["xcp"]["calibrations"] == len(python.xcp.calibrations) > 3
+    assert np.isfinite(python.observer.filter.innovations[0])                 # the last step used its reading
+
+
+def observer_daq(pair) -> int:
+    """DAQ list 0 on the model step over the observer's cells (ODT 0: the winding's 1-sigma and 3 bytes of the
+    first innovation; ODT 1: the sensor offset and 3 bytes of Q's winding element; ODT 2 where the filter has extra
+    states: the first of them), started; its ODT count."""
+    cells = pair[0].xcp.memory.by_name
+    odts = [[("obs_sigma_1", 4), ("obs_innov_0", 3)], [("cal_sensor0_offset", 4), ("cal_q_1", 3)]]
+    if "obs_extra_0" in cells:
+        odts.append([("obs_extra_0", 4)])
+    both(pair, bytes((0xD6,)))
+    both(pair, bytes((0xD5, 0, 1, 0)))
+    both(pair, bytes((0xD4, 0, 0, 0, len(odts))))
+    for k, entries in enumerate(odts):
+        both(pair, bytes((0xD3, 0, 0, 0, k, len(entries))))
+    for k, entries in enumerate(odts):
+        both(pair, bytes((0xE2, 0, 0, 0, k, 0)))
+        for name, size in entries:
+            assert both(pair, bytes((0xE1, 0xFF, size, 0)) + u32(cells[name].address)) == [b"\xff"], name
+    both(pair, bytes((0xE0, 0, 0, 0, 0, 0, 1, 0)))
+    assert both(pair, bytes((0xDE, 1, 0, 0))) == [bytes((0xFF, 0))]
+    return len(odts)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("which", ["lagged", "steady"])
+def test_observer_cells_in_a_daq_run_with_calibrations_give_the_same_packets(which, request, firmware_elf):
+    """The lagged winding sensor with the heat-bias state (UD form: the lag pole and Q in the prediction), and the
+    same in the steady-state-gain form (Q read-only): a DAQ list over the observer's cells at every model step, the
+    calibrations of every observer cell during the run (the lag pole, offset, R, Q), the same packets, replies
+    and estimates from both engines; the calibration moved the estimate (against an uncalibrated Python node)."""
+    path = request.getfixturevalue(f"{which}_observer_artifact")
+    pair = observer_pair(path, firmware_elf)
+    python, firmware = pair
+    plain = TargetNode(python.artifact, clock_ns=lambda: 0)
+    assert {"obs_extra_0", "obs_extra_1", "cal_sensor0_lag"} <= set(python.xcp.memory.by_name)
+    both(pair, bytes((0xFF, 0)))
+    read_every_cell(pair)
+    odts = observer_daq(pair)
+    frames = observer_session(python.artifact, 60)
+    packets = feed(pair, frames[:30])
+    calibrated = calibrate_every_cell(pair)
+    assert "cal_sensor0_lag" in calibrated and any(n.startswith("cal_q_") for n in calibrated) == (which == "lagged")
+    packets += feed(pair, frames[30:])
+    for frame in frames:
+        plain.handle(frame)
+    read_every_cell(pair)
+    assert packets == odts * python.model_steps and python.model_steps == firmware.model_steps
+    assert np.array_equal(python.estimate, firmware.estimate)
+    assert not np.array_equal(python.estimate, plain.estimate)
+    assert firmware.stats()["xcp"]["daq_packets"] == python.xcp.daq.packets
+
+
+@pytest.fixture(scope="module")
+def lagged_observer_artifact(small_dataset, tmp_path_factory):
+    """The packaged hammerstein model with a lagged winding sensor (tau 60 s) and the winding heat-bias state."""
+    from bench.cli import main
+
+    out = tmp_path_factory.mktemp("xcp-observer-lag") / "lagged.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "--out",
+                 str(out), "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def steady_observer_artifact(lagged_observer_artifact, tmp_path_factory):
+    """The same observer in the steady-state-gain form."""
+    from bench.observer.section import with_observer
+    from target_sim.artifact import dumps
+
+    artifact = load_artifact(lagged_observer_artifact)
+    out = tmp_path_factory.mktemp("xcp-observer-steady") / "steady.json"
+    out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "steady"})),
+                   encoding="utf-8")
+    return out
+
+
+@pytest.mark.slow
+def test_a_row_of_several_steps_queues_their_daq_packets_alike(engines):
+    """Rows after lost rows run several model steps: each step's packets (4 ODTs) in order, while they fit the
+    slave's queue of DAQ_QUEUE packets, the rest dropped and counted, the same bytes from both engines."""
+    pair = engines()
+    python, firmware = pair
+    codec = FrameCodec("HOST")
+    cells = python.xcp.memory.by_name
+    names = ("y_est_0", "y_est_1", "estimate_2", "x_state_3")
+    both(pair, bytes((0xFF, 0)))
+    for cto in (bytes((0xD6,)), bytes((0xD5, 0, 1, 0)), bytes((0xD4, 0, 0, 0, len(names)))):
+        both(pair, cto)
+    for k, name in enumerate(names):
+        both(pair, bytes((0xD3, 0, 0, 0, k, 1)))
+        both(pair, bytes((0xE2, 0, 0, 0, k, 0)))
+        assert both(pair, bytes((0xE1, 0xFF, 4, 0)) + u32(cells[name].address)) == [b"\xff"]
+    both(pair, bytes((0xE0, 0, 0, 0, 0, 0, 1, 0)))
+    both(pair, bytes((0xDE, 1, 0, 0)))
+    for frame in session_start(codec):
+        assert feed(pair, [frame]) == 0
+    drive, row, counts = session_drive(80, 4), 0, []
+    for gap in (0, 2, 0, 7, 0, 12, 0, 3):
+        row += gap
+        before = python.model_steps
+        counts.append((feed(pair, encode_row(codec, row, drive[row])), python.model_steps - before))
+        row += 1
+    assert all(packets == min(len(names) * steps, DAQ_QUEUE) for packets, steps in counts), counts
+    assert any(DAQ_QUEUE >= packets > len(names) for packets, _ in counts), counts     # several steps, all sent
+    assert any(steps * len(names) > DAQ_QUEUE for _, steps in counts), counts         # more than the queue
+    dropped = sum(len(names) * steps - packets for packets, steps in counts)
+    assert python.xcp.stats()["daq_dropped"] == dropped > 0
+    assert firmware.stats()["xcp"]["daq_packets"] == python.xcp.daq.packets

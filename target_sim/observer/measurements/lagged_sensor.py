@@ -12,18 +12,20 @@ import numpy as np
 
 from target_sim.artifact import OUTPUTS, decode_array
 from target_sim.observer.measurements import MEASUREMENT_KINDS, MeasurementKind
+from target_sim.xcp.variables import OFFSET_SYMBOL, R_SYMBOL
 
-# the generated C of `reading` (bench.firmware.observergen; _K is the measurement's index there)
-C_READING = """\
-/* LaggedSensor.reading: a finite reading less its offset, with the constant variance R */
+# the generated C of `reading` (bench.firmware.observergen; _K is the measurement's index there); its offset and R
+# are variables an XCP master calibrates (target_sim.xcp.variables)
+C_READING = f"""\
+/* LaggedSensor.reading: a finite reading less its offset, with the variance R */
 static int obs_reading_K(const float raw[1], float speed, float *value, float *r)
-{
+{{
     (void)speed;
     if (!obs_finite(raw[0])) return 0;
-    *value = raw[0] - OBS_OFFSET_K;
-    *r = OBS_R_K;
+    *value = raw[0] - {OFFSET_SYMBOL}_K;
+    *r = {R_SYMBOL}_K;
     return 1;
-}
+}}
 """
 
 
@@ -47,7 +49,7 @@ class LaggedSensor:
 
     def c_scalars(self) -> list[tuple[str, np.floating, str]]:
         """(C name, float32 value, comment) of the constants `C_READING` names (the generator suffixes them)."""
-        return [("OBS_OFFSET", self.offset, "its offset (deg C)"), ("OBS_R", self.r, "its variance R (deg C^2)")]
+        return [(OFFSET_SYMBOL, self.offset, "its offset (deg C)"), (R_SYMBOL, self.r, "its variance R (deg C^2)")]
 
     c_reading = C_READING
 
