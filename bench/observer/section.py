@@ -29,7 +29,7 @@ from bench.model.artifact_values import artifact_loss_model
 from bench.model.runs import model_run
 from bench.observer.reference import (
     BIAS_NAMES,
-    BIAS_NODES,
+    BIAS_RULES,
     INITIAL_SIGMA_C,
     FilterModel,
     bias_kind,
@@ -122,7 +122,7 @@ def observer_section(artifact: ModelArtifact, fit: ObserverFit, datasets: Sequen
         "lag_s": float(getattr(first, "lag_s", 0.0)), "form": form,
         "measurements": [m.entry(dt, float(s)) for m, s in zip(fit.measurements, fit.r_scale, strict=True)],
         "states": names, "bias": bias_kind(fit.bias),
-        "rule": f"after each model step: the bias heats the {BIAS_NODES[bias_kind(fit.bias) or 'winding-heat']}, "
+        "rule": f"after each model step: {BIAS_RULES[bias_kind(fit.bias) or 'winding-heat']}, "
                 "each lag state follows what its "
                 "sensor sees (s = a s + (1 - a) sees.y); F = A + B_s G C (delta: I + dt (A + B_s G C)), augmented; "
                 "P- = F P F' + Q; per measurement with a valid reading z (variance R): nu = z - (s or sees.y), "

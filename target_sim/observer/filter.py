@@ -42,6 +42,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from target_sim.artifact import (
+    BIAS_KINDS,
+    OUTPUT_BIAS_KINDS,
     OUTPUTS,
     ModelArtifact,
     consider_held,
@@ -121,8 +123,12 @@ class Float32Observer:
             self.lag_index.append(nxt if m.lag_pole > 0 else -1)
             nxt += 1 if m.lag_pole > 0 else 0
         self.bias_index = nxt if section.get("bias") else -1
+        # an output bias (`OUTPUT_BIAS_KINDS`): added to its node's output, heats nothing (-1: none, or a heat bias)
+        self.bias_output = BIAS_KINDS[section["bias"]] if section.get("bias") in OUTPUT_BIAS_KINDS else -1
         self.bias_input = bias_input(section)
         self.bias_column = part.b[:, self.bias_input] * (est.dt if part.delta else f(1.0))
+        if self.bias_output >= 0:
+            self.bias_column = np.zeros_like(self.bias_column)
         # the filter's rows h in node coordinates: a lag state, or what the sensor sees of the nodes
         self.rows = []
         for lag, m in zip(self.lag_index, self.measurements, strict=True):
@@ -131,6 +137,8 @@ class Float32Observer:
                 h[lag] = f(1.0)
             else:
                 h[: len(OUTPUTS)] = m.sees
+                if self.bias_output >= 0:
+                    h[self.bias_index] = m.sees[self.bias_output]
             self.rows.append(h)
         self.h = self.rows[0]
         self.offset = getattr(self.measurements[0], "offset", f(0.0))
@@ -291,6 +299,8 @@ class Float32Observer:
             if lag >= 0:
                 nonzero[lag] = pattern_product(sees_nonzero[None, :], nonzero[:k])[0]
                 nonzero[lag, lag] = True
+                if self.bias_output >= 0 and sees_nonzero[self.bias_output]:
+                    nonzero[lag, self.bias_index] = True
         self.f_nonzero = nonzero
 
     def transition(self) -> np.ndarray:
@@ -312,6 +322,8 @@ class Float32Observer:
             if lag >= 0:
                 row, _ = masked_matmul(m.sees[None, :], full[:k], sees_nonzero[None, :], self.f_nonzero[:k])
                 full[lag] = (f(1.0) - m.lag_pole) * row[0]
+                if self.bias_output >= 0 and sees_nonzero[self.bias_output]:   # it sees the output bias too
+                    full[lag, self.bias_index] = (f(1.0) - m.lag_pole) * m.sees[self.bias_output]
                 full[lag, lag] = m.lag_pole
         return full
 
@@ -319,13 +331,27 @@ class Float32Observer:
         """The bias heats its node (B's column of the node's loss); each lag state follows what its sensor sees
         (after the model step)."""
         est, k = self.est, len(OUTPUTS)
-        if self.bias_index >= 0:
+        if self.bias_index >= 0 and self.bias_output < 0:
             est.x = est.x + self.bias_column * self.extra[self.bias_index - k]
             est.y = est.part.output(est.x)
         for m, lag in zip(self.measurements, self.lag_index, strict=True):
             if lag >= 0:
                 i = lag - k
-                self.extra[i] = m.lag_pole * self.extra[i] + (self.f(1.0) - m.lag_pole) * dot(m.sees, est.y)
+                self.extra[i] = m.lag_pole * self.extra[i] + (self.f(1.0) - m.lag_pole) * self.seen(m)
+
+    def seen(self, m) -> np.floating:
+        """What measurement m sees of the estimate: sees·y, plus its weight of an output bias's node times the bias."""
+        view = dot(m.sees, self.est.y)
+        if self.bias_output >= 0:
+            view = view + m.sees[self.bias_output] * self.extra[self.bias_index - len(OUTPUTS)]
+        return view
+
+    def reported(self) -> np.ndarray:
+        """The estimate the target reports: the model's y, with an output bias added to its node."""
+        y = self.est.y.copy()
+        if self.bias_output >= 0:
+            y[self.bias_output] = y[self.bias_output] + self.extra[self.bias_index - len(OUTPUTS)]
+        return y
 
     def _raw(self, z) -> list[np.ndarray]:
         raw = np.atleast_1d(np.asarray(z, dtype=self.f))
@@ -358,6 +384,8 @@ class Float32Observer:
             lag = self.lag_index[index]
             predicted = self.extra[lag - k] if lag >= 0 else masked_dot(m.sees[self.sees_nonzero[index]],
                                                                       est.y[self.sees_nonzero[index]], f(NEG_ZERO))
+            if lag < 0 and self.bias_output >= 0:
+                predicted = predicted + m.sees[self.bias_output] * self.extra[self.bias_index - k]
             nu = value - predicted
             if self.gate_threshold is not None and self.gate(index, nu, self.cov.innovation_variance(
                     self.rows[index], r, index)):
@@ -376,7 +404,7 @@ class Float32Observer:
             est.x = est.x + matvec(self.c_inv, correction)
             est.y = est.part.output(est.x)
         self.innovation = self.innovations[0]
-        return est.y.copy()
+        return self.reported()
 
     def covariance(self) -> np.ndarray:
         """The covariance in the state coordinates (float64: T⁻¹ P' T⁻ᵀ of the filter's node-coordinate P')."""
@@ -397,6 +425,8 @@ class Float32Observer:
         for i in range(len(OUTPUTS)):
             row = np.zeros(self.n, dtype=f)
             row[i] = f(1.0)
+            if i == self.bias_output:      # the reported node: its output plus the bias
+                row[self.bias_index] = f(1.0)
             variance = self.cov.variance(row)
             out[i] = np.sqrt(variance) if variance > 0 else f(0.0)
         return out
