@@ -99,7 +99,7 @@ def _run_reference(artifact: ModelArtifact, samples: np.ndarray, initial) -> np.
 
 def gate_codes(model: Float32Observer) -> np.ndarray:
     """fw_obs_gate's values of the reference after a step: rejected (bit 0) and flagged (bit 1) per measurement."""
-    return model.rejected.astype(np.uint8) | (model.flagged.astype(np.uint8) << 1)
+    return model.gate.rejected.astype(np.uint8) | (model.gate.flagged.astype(np.uint8) << 1)
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> np.ndarray:

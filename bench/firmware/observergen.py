@@ -7,24 +7,24 @@ operation:
 
 | C (fw_model.c)         | Python (target_sim.observer)                  | what                                  |
 |------------------------|-----------------------------------------------|---------------------------------------|
-| obs_propagate_extra    | Float32Observer._propagate_extra              | bias into x, the lag states           |
-| obs_predict            | Float32Observer.transition,                   | F of the step, augmented; Thornton's  |
+| obs_propagate_extra    | AugmentedLayout.propagate                     | bias into x, the lag states           |
+| obs_predict            | Transition.matrix,                            | F of the step, augmented; Thornton's  |
 |                        | BiermanThornton.predict                       | MWGS over [F U, G] (udgen.py)         |
 | obs_update_<k>         | BiermanThornton.update with the k-th row h    | Bierman's scalar update (udgen.py),   |
 |                        | (SteadyState.update)                          | then Agee-Turner's for consider       |
 |                        |                                               | states; the steady form: the k-th row |
 |                        |                                               | of K_ss (its held rows -0)            |
 | fw_obs_step            | Float32Observer.step                          | model step, predict, update           |
-| obs_update_<k>, tail   | Float32Observer.step's correction             | y += K nu (node coordinates), summed  |
+| obs_update_<k>, tail   | Float32Observer._update                       | y += K nu (node coordinates), summed  |
 | obs_output             | LinearBlockPart.output                        | y = C x (+ r), unrolled               |
-| obs_move_state         | Float32Observer.step, after the last update   | x += C^-1 (summed correction), y = Cx |
+| obs_move_state         | Float32Observer._measurement_update's end     | x += C^-1 (summed correction), y = Cx |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
 | fw_obs_report          | Float32Observer.sigma, .innovations           | each node's 1-σ, each innovation      |
-| fw_obs_gate            | Float32Observer.rejected, .flagged            | the gate's state after a step (DBC    |
+| fw_obs_gate            | InnovationGate.rejected, .flagged             | the gate's state after a step (DBC    |
 |                        |                                               | 1.8.0: Innovations, Uncertainty1)     |
 | obs_reading_<k>        | the k-th measurement's `reading` (its kind)   | its value and variance, or no reading |
 | obs_variance_<k>,      | BiermanThornton/SteadyState                   | the gate (a section with `gate` only):|
-| obs_gate               | .innovation_variance, Float32Observer.gate    | S, nu*nu > sigma^2 S, the counts      |
+| obs_gate               | .innovation_variance, InnovationGate.rejects  | S, nu*nu > sigma^2 S, the counts      |
 | fw_obs_checkpoint      | Float32Observer.checkpoint                    | extra states, d, U above the diagonal |
 |                        |                                               | (steady form: the extra states only,  |
 |                        |                                               | with a gate then its counts in a row) |
@@ -92,7 +92,7 @@ def observer_filter(artifact: ModelArtifact) -> Float32Observer:
 
 def observer_channels(artifact: ModelArtifact) -> int:
     """The raw channels of the observer's measurements a sample carries after the drive values."""
-    return sum(Float32Observer(artifact).widths)
+    return sum(Float32Observer(artifact).layout.widths)
 
 
 def observer_header() -> str:
@@ -127,7 +127,7 @@ void fw_obs_step(const float u[FW_SAMPLE_WIDTH], float y[4]);
  * innovation (NaN: the step did not use it) into out[4..]. */
 void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS]);
 
-/* After a step: each measurement's innovation gate (Float32Observer.rejected, .flagged): bit 0 its reading was
+/* After a step: each measurement's innovation gate (InnovationGate.rejected, .flagged): bit 0 its reading was
  * rejected in this step, bit 1 its sensor is flagged (latched until a reset or restore); 0 without a gate. */
 void fw_obs_gate(unsigned char out[FW_OBS_MEASUREMENTS]);
 """
@@ -138,7 +138,7 @@ def observer_defines(artifact: ModelArtifact) -> str:
     obs = observer_filter(artifact)
     return ("#define FW_OBSERVER 1 /* the model has an observer: fw_obs_* below */\n"
             f"#define FW_OBS_MEASUREMENTS {len(obs.measurements)} /* its measurements, in the section's order */\n"
-            f"#define FW_OBS_CHANNELS {sum(obs.widths)} /* their raw channels in a sample */\n"
+            f"#define FW_OBS_CHANNELS {sum(obs.layout.widths)} /* their raw channels in a sample */\n"
             f"#define FW_OBS_CHECKPOINT_SIZE {obs.checkpoint_size()} /* the ObserverCheckpoint elements */\n"
             "#define FW_SAMPLE_WIDTH (FW_INPUTS + FW_OBS_CHANNELS) /* a sample: the drive values, then the raw "
             "channels */\n")
@@ -147,7 +147,7 @@ def observer_defines(artifact: ModelArtifact) -> str:
 def _measurement_declarations(obs: Float32Observer, index: int) -> str:
     """The constants of the index-th measurement (suffix _<index>): what it sees, its lag, its kind's, and in the
     steady form its row of K_ss (its row h is in its update's code: udgen.update_c)."""
-    m, lag, f = obs.measurements[index], obs.lag_index[index], obs.f
+    m, lag, f = obs.measurements[index], obs.layout.lag_index[index], obs.f
     k = f"_{index}"
     lines = [f"#define OBS_LAG{k} {lag} /* {m.name}: its lag state's index (-1: it reads the model without lag) */"]
     scalars = [(f"OBS_LAG_POLE{k}", m.lag_pole, "its lag a = exp(-dt/tau)"),
@@ -164,7 +164,7 @@ def observer_declarations(artifact: ModelArtifact) -> str:
     """The observer's constants (computed by the reference's own float32 code) and state (.bss)."""
     obs = observer_filter(artifact)
     f, n = obs.f, obs.n
-    bias, steady = obs.bias_index, obs.form == "steady"
+    bias, steady = obs.layout.bias_index, obs.form == "steady"
     lines = [f"#define OBS_N {n} /* the filter's states: the model's 4, then a lag state per lagged measurement, "
              "then the bias */",
              f"#define OBS_STEADY {int(steady)} /* 1: the steady-state gain K_ss (no covariance), 0: the UD form */",
@@ -175,7 +175,8 @@ def observer_declarations(artifact: ModelArtifact) -> str:
         u0, d0 = ud_factor(obs.p0, f)
         arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0")]
     if bias >= 0:
-        arrays.append(("OBS_BIAS_COLUMN", obs.bias_column, "the bias's column of B: its node's loss (delta: times dt)"))
+        arrays.append(("OBS_BIAS_COLUMN", obs.layout.bias_column,
+                       "the bias's column of B: its node's loss (delta: times dt)"))
     text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment) for name, value, comment in arrays)
     text += "".join(_measurement_declarations(obs, index) for index in range(len(obs.measurements)))
     factors = "" if steady else "static float obs_u[OBS_N][OBS_N];\nstatic float obs_d[OBS_N];\n"
@@ -188,16 +189,16 @@ def observer_declarations(artifact: ModelArtifact) -> str:
 
 def _gate_declarations(obs: Float32Observer) -> str:
     """The gate's constants and counts (a section with `gate` only: without it the C is what it was)."""
-    if obs.gate_threshold is None:
+    if obs.gate.threshold is None:
         return ""
-    text = (f"#define OBS_FLAG_AFTER {obs.flag_after} /* rejections in a row that flag a sensor */\n"
-            f"static const float OBS_GATE = {c_float(obs.gate_threshold)}; /* sigma^2: nu*nu > OBS_GATE * S "
+    text = (f"#define OBS_FLAG_AFTER {obs.gate.flag_after} /* rejections in a row that flag a sensor */\n"
+            f"static const float OBS_GATE = {c_float(obs.gate.threshold)}; /* sigma^2: nu*nu > OBS_GATE * S "
             "rejects */\n")
     if obs.form == "steady":
         text += _literal_array("OBS_PRIOR", np.array(obs.cov.prior, dtype=np.float32),
                                "each measurement's h P- h^T of the steady prior (SteadyState.prior)")
     return text + ("/* each measurement's rejected readings, rejections in a row, flag, rejected in this step "
-                   "(Float32Observer.gate) */\n"
+                   "(InnovationGate.rejects) */\n"
                    "static unsigned long obs_rejections[FW_OBS_MEASUREMENTS];\n"
                    "static unsigned long obs_consecutive[FW_OBS_MEASUREMENTS];\n"
                    "static unsigned char obs_flagged[FW_OBS_MEASUREMENTS];\n"
@@ -205,7 +206,7 @@ def _gate_declarations(obs: Float32Observer) -> str:
 
 
 GATE_C = """
-/* Float32Observer.gate: whether the k-th measurement's reading (innovation nu, variance s) is rejected, counted;
+/* InnovationGate.rejects: whether the k-th measurement's reading (innovation nu, variance s) is rejected, counted;
  * the steady form re-admits the reading after OBS_FLAG_AFTER rejections in a row */
 static int obs_gate(int k, float nu, float s)
 {
@@ -224,7 +225,7 @@ static int obs_gate(int k, float nu, float s)
 
 OBSERVER_C = """\
 OBS_OUTPUT
-/* Float32Observer._propagate_extra: the bias heats its node, each lag state follows what its sensor sees */
+/* AugmentedLayout.propagate: the bias heats its node, each lag state follows what its sensor sees */
 static void obs_propagate_extra(void)
 {
 #if OBS_BIAS >= 0
@@ -234,7 +235,7 @@ static void obs_propagate_extra(void)
 #endif
 OBS_LAG_PROPAGATE}
 
-/* Each lag state at what its sensor sees of y (Float32Observer.reset_lags) */
+/* Each lag state at what its sensor sees of y (AugmentedLayout.initial_extra) */
 static void obs_reset_lags(void)
 {
 OBS_LAG_RESET}
@@ -286,7 +287,7 @@ void fw_obs_reset(const float y0[4])
 OBS_GATE_RESET}
 
 /* NodeObserver.restore without the filter's checkpoint: a fresh filter at zero temperatures, x bit for bit, then
-   each lag state at what its sensor sees of y = C x (Float32Observer.reset_lags) */
+   each lag state at what its sensor sees of y = C x (AugmentedLayout.initial_extra) */
 void fw_obs_restore(const float x[4])
 {
     static const float zero[4] = {0.0f, 0.0f, 0.0f, 0.0f};
@@ -356,7 +357,7 @@ void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
     for (i = 0; i < FW_OBS_MEASUREMENTS; i++) out[4 + i] = obs_innovation[i];
 }
 
-/* Float32Observer.rejected (bit 0) and .flagged (bit 1) of each measurement after a step */
+/* InnovationGate.rejected (bit 0) and .flagged (bit 1) of each measurement after a step */
 void fw_obs_gate(unsigned char out[FW_OBS_MEASUREMENTS])
 {
     int i;
@@ -381,7 +382,7 @@ _GATED_UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &
                  "            obs_innovation[INDEX] = nu;\n"
                  "            obs_update_K(r, nu, correction);\n"
                  "            corrected = 1;\n        }\n    }\n")
-# the steady form with a gate: each measurement's rejections in a row in the checkpoint (Float32Observer.checkpoint)
+# the steady form with a gate: each measurement's rejections in a row in the checkpoint (InnovationGate.checkpoint)
 _COUNTS_CHECKPOINT = "    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) values[at++] = (float)obs_consecutive[i];\n"
 _COUNTS_RESTORE = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
                    "        obs_consecutive[i] = values[at] > 0.0f && values[at] < 1e9f ? (unsigned long)values[at]\n"
@@ -390,13 +391,13 @@ _COUNTS_RESTORE = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
 _GATE_RESET = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
                "        obs_rejections[i] = 0;\n        obs_consecutive[i] = 0;\n        obs_flagged[i] = 0;\n"
                "        obs_rejected[i] = 0;\n    }\n")
-# a step starts with no reading rejected yet (Float32Observer.step: rejected[:] = False)
+# a step starts with no reading rejected yet (InnovationGate.new_step)
 _GATE_STEP = "    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) obs_rejected[i] = 0;\n"
 # fw_obs_gate's value of measurement i: rejected (bit 0), flagged (bit 1); without a gate none
 _GATE_STATUS = "(unsigned char)(obs_rejected[i] | (obs_flagged[i] << 1))"
 
 
-# ... with the key-on release (Float32Observer.holds): the magnet free while its variance exceeds OBS_RELEASE
+# ... with the key-on release (ConsiderStates.holds): the magnet free while its variance exceeds OBS_RELEASE
 _RELEASED_UPDATE = ("if (obs_magnet_variance(0.0f) > OBS_RELEASE) obs_update_K_released(r, nu, correction);\n"
                     "            else obs_update_K(r, nu, correction);")
 
@@ -404,14 +405,14 @@ _RELEASED_UPDATE = ("if (obs_magnet_variance(0.0f) > OBS_RELEASE) obs_update_K_r
 def _releases(obs: Float32Observer, index: int) -> bool:
     """Whether the index-th measurement's update depends on the key-on release (it holds the magnet, and the
     section has a release)."""
-    held = obs.held[index]
-    return obs.release is not None and held is not None and bool(held[OUTPUTS.index("magnet")])
+    held = obs.consider.held[index]
+    return obs.consider.release is not None and held is not None and bool(held[OUTPUTS.index("magnet")])
 
 
 def _per_measurement(obs: Float32Observer) -> dict[str, str]:
     """The generated parts of OBSERVER_C for the section's measurements (their lags, readings and updates)."""
     propagate, reset, readings, updates, first = [], [], [], [], 0
-    for index, (m, lag) in enumerate(zip(obs.measurements, obs.lag_index, strict=True)):
+    for index, (m, lag) in enumerate(zip(obs.measurements, obs.layout.lag_index, strict=True)):
         suffix = f"_{index}"
         if lag >= 0:
             propagate.append(_LAG_PROPAGATE.replace("_K", suffix))
@@ -419,14 +420,14 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
         readings.append("\n" + m.c_reading.replace("_K", suffix))
         predicted = f"obs_extra[{lag}]" if lag >= 0 else total(
             [product(literal(m.sees[i]), Value(f"y_est[{i}]")) for i in range(len(m.sees)) if m.sees[i] != 0])
-        template = _UPDATE if obs.gate_threshold is None else _GATED_UPDATE
+        template = _UPDATE if obs.gate.threshold is None else _GATED_UPDATE
         if _releases(obs, index):
             template = template.replace("obs_update_K(r, nu, correction);", _RELEASED_UPDATE)
         updates.append(template.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index))
                        .replace("PREDICTED", predicted))
         first += m.width
-    counts = obs.form == "steady" and obs.gate_threshold is not None
-    gated = obs.gate_threshold is not None
+    counts = obs.gate.in_checkpoint
+    gated = obs.gate.threshold is not None
     return {"OBS_GATE_RESET": _GATE_RESET if gated else "", "OBS_GATE_STEP": _GATE_STEP if gated else "",
             "OBS_GATE_STATUS": _GATE_STATUS if gated else "0u",
             "OBS_COUNTS_CHECKPOINT": _COUNTS_CHECKPOINT if counts else "",
@@ -453,26 +454,27 @@ def _kernels(obs: Float32Observer) -> str:
     if obs.form == "steady":
         return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k]) for k in range(count)]) + \
             _gate_c(obs)
-    updates = "".join("\n" + update_c(obs, f"obs_update_{k}", obs.rows[k], moves_y[k], obs.held[k])
+    updates = "".join("\n" + update_c(obs, f"obs_update_{k}", obs.layout.rows[k], moves_y[k], obs.consider.held[k])
                       for k in range(count))
     released = [k for k in range(count) if _releases(obs, k)]
     if released:
-        updates += (f"\nstatic const float OBS_RELEASE = {c_float(obs.release)}; /* the key-on release (variance) */\n"
-                    + "\n" + variance_c(obs, "obs_magnet_variance", obs.magnet_row)
-                    + "".join("\n" + update_c(obs, f"obs_update_{k}_released", obs.rows[k], moves_y[k],
-                                              obs.released[k]) for k in released))
+        release = c_float(obs.consider.release)
+        updates += (f"\nstatic const float OBS_RELEASE = {release}; /* the key-on release (variance) */\n"
+                    + "\n" + variance_c(obs, "obs_magnet_variance", obs.consider.magnet_row)
+                    + "".join("\n" + update_c(obs, f"obs_update_{k}_released", obs.layout.rows[k], moves_y[k],
+                                              obs.consider.released[k]) for k in released))
     return predict_c(obs) + _gate_c(obs) + updates
 
 
 def _gate_c(obs: Float32Observer) -> str:
     """obs_gate and one obs_variance_<k> per measurement (a section with `gate` only)."""
-    if obs.gate_threshold is None:
+    if obs.gate.threshold is None:
         return ""
     if obs.form == "steady":
         variances = "".join(f"\n/* SteadyState.innovation_variance */\nstatic float obs_variance_{k}(float r)\n"
                             f"{{\n    return OBS_PRIOR[{k}] + r;\n}}\n" for k in range(len(obs.measurements)))
     else:
-        variances = "".join("\n" + variance_c(obs, f"obs_variance_{k}", obs.rows[k])
+        variances = "".join("\n" + variance_c(obs, f"obs_variance_{k}", obs.layout.rows[k])
                             for k in range(len(obs.measurements)))
     return GATE_C + variances
 

@@ -8,10 +8,10 @@ reference's left-to-right order, so the C equals the Python reference bit for bi
 products and sums apart (no fused multiply-add). The locals are the compiler's to keep in registers: no loop
 counters, no index arithmetic, no loads of zeros.
 
-    obs_predict(void)              Float32Observer.transition + BiermanThornton.predict: F, F U, the MWGS
+    obs_predict(void)              Transition.matrix + BiermanThornton.predict: F, F U, the MWGS
     obs_update_<k>(r, nu, corr.)   BiermanThornton.update for the k-th measurement's row h, then the correction
     obs_output(void)               LinearBlockPart.output: y = C x (+ r)
-    obs_move_state(correction)     Float32Observer.step's x <- x + C⁻¹ (the step's node correction)
+    obs_move_state(correction)     Float32Observer._measurement_update's x <- x + C⁻¹ (the step's node correction)
     steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
 """
 
@@ -99,41 +99,41 @@ class Lines:
 
 
 def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
-    """F's elements (None: a structural zero) as Float32Observer.transition computes them."""
+    """F's elements (None: a structural zero) as Transition.matrix computes them."""
     n, k = obs.n, len(OUTPUTS)
     out.comment("F in node coordinates: C (I + dt A) C^-1 + (dt C B_s) J (shift form: C A C^-1 + (C B_s) J), J the "
-                "sources' Jacobian (Float32Observer.transition)")
+                "sources' Jacobian (Transition.matrix)")
     for index, gain in enumerate(GAINS):
         out.load(gain, f"obs_gains[{index}]")
     for gain in GAINS:
         out.load(f"r_{gain[2:]}", f"{ONE.expr} / ({ONE.expr} + {gain})")
     jac: dict[tuple[int, int], Value] = {}
     for (s, node), expr in JACOBIAN_C.items():
-        if obs.jacobian_nonzero[s, node]:
+        if obs.transition.jacobian_nonzero[s, node]:
             jac[s, node] = out.set(f"jac{s}_{node}", expr)
     bj: dict[tuple[int, int], Value] = {}
     for i in range(k):
         for j in range(k):
-            terms = [product(literal(obs.b_sources[i, s]), jac[s, j]) for s in range(k)
-                     if obs.b_sources_nonzero[i, s] and obs.jacobian_nonzero[s, j]]
+            terms = [product(literal(obs.transition.b_sources[i, s]), jac[s, j]) for s in range(k)
+                     if obs.transition.b_sources_nonzero[i, s] and obs.transition.jacobian_nonzero[s, j]]
             if terms:
                 bj[i, j] = out.set(f"bj{i}_{j}", total(terms))
     f: list[list[Value | None]] = [[None] * n for _ in range(n)]
     for i in range(k):
         for j in range(k):
-            constant = obs.a_step[i, j]
+            constant = obs.transition.a_step[i, j]
             if constant != 0 and (i, j) in bj:
                 f[i][j] = out.set(f"f{i}_{j}", f"{literal(constant).expr} + ({bj[i, j].expr})")
             elif constant != 0:
                 f[i][j] = literal(constant)
             elif (i, j) in bj:
                 f[i][j] = bj[i, j]
-    if obs.bias_index >= 0:
+    if obs.layout.bias_index >= 0:
         for i in range(k):
-            if obs.bias_node[i] != 0:
-                f[i][obs.bias_index] = literal(obs.bias_node[i])
-        f[obs.bias_index][obs.bias_index] = ONE
-    for m, lag in zip(obs.measurements, obs.lag_index, strict=True):
+            if obs.transition.bias_node[i] != 0:
+                f[i][obs.layout.bias_index] = literal(obs.transition.bias_node[i])
+        f[obs.layout.bias_index][obs.layout.bias_index] = ONE
+    for m, lag in zip(obs.measurements, obs.layout.lag_index, strict=True):
         if lag < 0:
             continue
         gain = literal(np.float32(1.0) - m.lag_pole)
@@ -148,8 +148,8 @@ def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
 def _check_structure(obs: Float32Observer, f: list[list[Value | None]]) -> None:
     """The C's zeros are the reference's (a generator bug otherwise)."""
     mine = np.array([[value is not None for value in row] for row in f])
-    if not np.array_equal(mine, obs.f_nonzero):
-        raise AssertionError("the generated transition's structure differs from Float32Observer.f_nonzero")
+    if not np.array_equal(mine, obs.transition.nonzero):
+        raise AssertionError("the generated transition's structure differs from Transition.nonzero")
 
 
 def predict_c(obs: Float32Observer) -> str:
@@ -175,7 +175,7 @@ def predict_c(obs: Float32Observer) -> str:
     weights = old_d + [literal(q) for q in cov.q_kept]
     out.comment("modified weighted Gram-Schmidt, last row first: d_j = w_j (w_j o weights), "
                 "u_ij = (w_i (w_j o weights)) / d_j, w_i -= u_ij w_j")
-    for pivot in cov.schedule(obs.f_nonzero):
+    for pivot in cov.schedule(obs.transition.nonzero):
         j, columns = pivot.row, pivot.columns
         c = {col: out.set(f"c{j}_{col}", product(w[j][col], weights[col])) for col in columns}
         d_j = out.set(f"d{j}", total([product(w[j][col], c[col]) for col in columns]))
@@ -194,12 +194,12 @@ def predict_c(obs: Float32Observer) -> str:
                     w[i][col] = out.set(f"w{i}_{col}", f"-({step})")
                 else:
                     w[i][col] = out.set(f"w{i}_{col}", f"{w[i][col].expr} - {step}")
-    return ("/* Float32Observer.transition and BiermanThornton.predict, unrolled (bench.firmware.udgen) */\n"
+    return ("/* Transition.matrix and BiermanThornton.predict, unrolled (bench.firmware.udgen) */\n"
             "__attribute__((noinline)) static void obs_predict(void)\n{\n" + out.text() + "\n}\n")
 
 
 def correction_c(n: int, gain: list[str], moves_y: bool) -> str:
-    """Float32Observer.step's correction with the gain's elements `gain` (C expressions) and the innovation nu:
+    """Float32Observer._update's correction with the gain's elements `gain` (C expressions) and the innovation nu:
     each node's step (gain_i nu) onto y (when a later measurement of the step may read it: `moves_y`) and onto the
     step's summed correction, each extra state + gain_i nu."""
     k = len(OUTPUTS)
@@ -345,8 +345,9 @@ def output_c(obs: Float32Observer) -> str:
 
 
 def move_state_c(obs: Float32Observer) -> str:
-    """obs_move_state(correction): x <- x + C⁻¹ correction (Float32Observer.step: the step's node corrections moved
-    into the model's states once), C⁻¹'s elements as literals, every product kept (zeros too: `fmath.matvec`)."""
+    """obs_move_state(correction): x <- x + C⁻¹ correction (Float32Observer._measurement_update: the step's node
+    corrections moved into the model's states once), C⁻¹'s elements as literals, every product kept (zeros too:
+    `fmath.matvec`)."""
     k = len(OUTPUTS)
     lines = []
     for i in range(k):

@@ -54,7 +54,7 @@ class FirmwareEstimator:
         # the drive values; it reports each node's 1-sigma and each measurement's innovation, and checkpoints
         self.observer = has_observer(artifact)
         reference = Float32Observer(artifact) if self.observer else None
-        self.channels = sum(reference.widths) if reference is not None else 0
+        self.channels = sum(reference.layout.widths) if reference is not None else 0
         self.measurements = len(reference.measurements) if reference is not None else 0
         self.checkpoint_size = reference.checkpoint_size() if reference is not None else 0
         needed = (MODEL_ID_SYMBOL, *ENTRY_POINTS, *(OBSERVER_ENTRY_POINTS if self.observer else ()))
@@ -120,7 +120,7 @@ class FirmwareEstimator:
 
     def gate(self) -> np.ndarray:
         """An observer's innovation gate after the last step (fw_obs_gate), per measurement: bit 0 its reading was
-        rejected, bit 1 its sensor is flagged (`Float32Observer.rejected`, `.flagged`)."""
+        rejected, bit 1 its sensor is flagged (`InnovationGate.rejected`, `.flagged`)."""
         self.fw.call("fw_obs_gate", self._gate)
         return np.frombuffer(self.fw.read_bytes(self._gate, self.measurements), dtype=np.uint8).copy()
 

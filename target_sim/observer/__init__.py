@@ -1,8 +1,10 @@
 """The observer as the target runs it: a discrete Kalman filter on the model's linear block, in float32, bit for bit
 what the firmware's generated C does.
 
-- `filter`: the filter step (`Float32Observer`): model step, covariance prediction, each measurement's update,
-  consider states, the innovation gate, checkpoints;
+- `filter`: the filter step (`Float32Observer`): model step, time update, each measurement's update, checkpoints;
+- `transition`: the time update's F (`Transition`); `layout`: the extra states (lags, bias) and each measurement's
+  row h (`AugmentedLayout`); `consider`: the states an update holds (`ConsiderStates`); `gate`: the innovation gate
+  (`InnovationGate`);
 - `forms`: the covariance forms (`OBSERVER_FORMS`: conventional, joseph, ud, steady), `ud` the UD form;
 - `coordinates`: the node coordinates the filter runs in; `ud_structure`: the UD form's structural zeros and
   schedules;

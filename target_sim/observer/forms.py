@@ -32,7 +32,8 @@ class Conventional:
         self.f, self.q = f, q
         self.p = p0.copy()
 
-    def predict(self, transition: np.ndarray) -> None:
+    def predict(self, transition: np.ndarray, nonzero: np.ndarray | None = None) -> None:
+        """P⁻ = F P Fᵀ + Q (`nonzero`, F's structural nonzeros, only the UD form's schedules need)."""
         self.p = matmul(matmul(transition, self.p), transition.T) + self.q
 
     def _gain(self, h: np.ndarray, r) -> tuple[np.ndarray, np.ndarray, np.floating]:
@@ -64,6 +65,14 @@ class Conventional:
         """row·(P row) in a fixed order: the variance of a linear combination of the states."""
         return dot(row, matvec(self.p, row))
 
+    def checkpoint(self) -> np.ndarray:
+        """P row by row (the covariance's part of the filter's checkpoint)."""
+        return self.p.reshape(-1)
+
+    def restore(self, values: np.ndarray) -> None:
+        """P from `checkpoint()`'s values."""
+        self.p = values.reshape(self.p.shape).copy()
+
 
 class Joseph(Conventional):
     """P = (I - K h) P⁻ (I - K h)ᵀ + R K Kᵀ."""
@@ -79,8 +88,6 @@ class Joseph(Conventional):
         return k
 
 
-
-
 class SteadyState:
     """The constant gain K_ss; the covariance is the artifact's steady-state P (posterior)."""
 
@@ -92,7 +99,7 @@ class SteadyState:
         self.prior = [p_steady.dtype.type(float(h @ p64 @ h) / (1.0 - float(h @ np.asarray(k, dtype=np.float64))))
                       for h, k in zip((np.asarray(h, dtype=np.float64) for h in rows), gain, strict=False)]
 
-    def predict(self, transition: np.ndarray) -> None:
+    def predict(self, transition: np.ndarray, nonzero: np.ndarray | None = None) -> None:
         pass
 
     def innovation_variance(self, h: np.ndarray, r, index: int = 0):
@@ -100,13 +107,20 @@ class SteadyState:
         return self.prior[index] + r
 
     def update(self, h: np.ndarray, r, index: int = 0, held: np.ndarray | None = None) -> np.ndarray:
-        return self.gain[index]           # the held rows are already zero (Float32Observer)
+        return self.gain[index]           # the held rows are already zero (ConsiderStates.steady_gain)
 
     def covariance(self) -> np.ndarray:
         return self.p
 
     def variance(self, row: np.ndarray):
         return dot(row, matvec(self.p, row))
+
+    def checkpoint(self) -> np.ndarray:
+        """Nothing: the steady-state gain keeps no covariance of its own."""
+        return np.zeros(0, dtype=self.p.dtype)
+
+    def restore(self, values: np.ndarray) -> None:
+        pass
 
 
 @dataclass(frozen=True)

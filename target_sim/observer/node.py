@@ -221,7 +221,7 @@ class NodeObserver:
         """{slot: (its reading rejected by the innovation gate in the last step, its sensor flagged)}; both False
         without a gate."""
         f = self.filter
-        return {slot: (bool(f.rejected[i]), bool(f.flagged[i])) for i, slot in enumerate(self.slots)}
+        return {slot: (bool(f.gate.rejected[i]), bool(f.gate.flagged[i])) for i, slot in enumerate(self.slots)}
 
 
 def observer_signals(sigma: Sequence[float], innovations: dict[str, float],

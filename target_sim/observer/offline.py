@@ -42,7 +42,7 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
     obs.reset(initial)
     drive = np.asarray(drive, dtype=np.float64)
     measurement = np.asarray(measurement, dtype=np.float64)
-    width, channels = len(artifact.drive_signals), sum(obs.widths)
+    width, channels = len(artifact.drive_signals), sum(obs.layout.widths)
     if measurement.ndim == 1:
         measurement = measurement[:, None]
     if drive.ndim != 2 or drive.shape[1] != width or measurement.shape != (len(drive), channels):
@@ -57,8 +57,8 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
             continue
         outputs.append(obs.step(*means[:width], z=means[width:]))
         innovations.append(obs.innovations.copy())
-        rejected.append(obs.rejected.copy())
-        flagged.append(obs.flagged.copy())
+        rejected.append(obs.gate.rejected.copy())
+        flagged.append(obs.gate.flagged.copy())
         sigmas.append(obs.sigma())
         if keep_covariance:
             covariances.append(np.array(obs.covariance(), dtype=np.float64))
@@ -68,5 +68,5 @@ def run_observer_offline(artifact: ModelArtifact, drive: np.ndarray, measurement
     return ObserverRun(np.array(steps, dtype=np.int64), np.array(outputs, dtype=dtype).reshape(-1, 4), every[:, 0],
                        np.array(covariances) if keep_covariance else None,
                        np.array(sigmas).reshape(-1, 4), every, np.array(own) if keep_covariance else None,
-                       np.array(rejected, dtype=bool).reshape(-1, len(obs.measurements)), obs.flagged.copy(),
+                       np.array(rejected, dtype=bool).reshape(-1, len(obs.measurements)), obs.gate.flagged.copy(),
                        np.array(flagged, dtype=bool).reshape(-1, len(obs.measurements)))

@@ -213,3 +213,15 @@ class BiermanThornton:
         """U diag(d) Uᵀ in float64 (for reports; the filter itself never forms it)."""
         u = self.u.astype(np.float64)
         return (u * self.d.astype(np.float64)) @ u.T
+
+    def checkpoint(self) -> np.ndarray:
+        """d_0..d_{n-1}, then U above its diagonal row by row (the covariance's part of the filter's checkpoint)."""
+        return np.concatenate([self.d, self.u[np.triu_indices(len(self.d), 1)]])
+
+    def restore(self, values: np.ndarray) -> None:
+        """d and U from `checkpoint()`'s values (U unit upper triangular, zeros below)."""
+        n = len(self.d)
+        self.d = values[:n].copy()
+        u = np.eye(n, dtype=self.f)
+        u[np.triu_indices(n, 1)] = values[n:]
+        self.u = u

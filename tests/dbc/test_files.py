@@ -41,33 +41,43 @@ def test_a_long_legal_name_gets_a_legal_temporary_name_with_its_suffix(tmp_path)
     assert fitted_name("x" * 300, lambda s: f"{s}.replay.blf") == "x" * (NAME_MAX - 11) + ".replay.blf"
 
 
-def _assignments(name: str) -> list[str]:
-    """Where a module of the four layers assigns `name` a literal value (not an import, not a rebinding)."""
-    found = []
-    for layer in LAYERS:
-        for path in sorted((ROOT / layer).rglob("*.py")):
-            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-                if isinstance(node, ast.Assign | ast.AnnAssign) and isinstance(node.value, ast.Constant):
-                    targets = node.targets if isinstance(node, ast.Assign) else [node.target]
-                    if any(isinstance(t, ast.Name) and t.id == name for t in targets):
-                        found.append(str(path.relative_to(ROOT)))
-    return found
+NODE_SETS = ({"yoke", "winding", "tooth", "magnet"}, {"yoke", "winding", "tooth", "pm"})
 
 
-def _node_tuples() -> list[str]:
-    """Where a module of the four layers writes the four temperature nodes out as a tuple, in any order."""
-    found = []
-    for layer in LAYERS:
-        for path in sorted((ROOT / layer).rglob("*.py")):
-            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-                if isinstance(node, ast.Tuple) and all(isinstance(e, ast.Constant) for e in node.elts):
-                    values = {e.value for e in node.elts}
-                    if values in ({"yoke", "winding", "tooth", "magnet"}, {"yoke", "winding", "tooth", "pm"}):
-                        found.append(f"{path.relative_to(ROOT)}:{node.lineno}")
-    return found
+class _Facts:
+    """One walk over the four layers' modules: where each name is assigned a literal value (not an import, not a
+    rebinding), where the four temperature nodes are written out as a tuple (in any order), where each function
+    name is called (plain or as an attribute)."""
+
+    def __init__(self):
+        self.assigned: dict[str, list[str]] = {}
+        self.node_tuples: list[str] = []
+        self.called: dict[str, list[str]] = {}
+        for layer in LAYERS:
+            for path in sorted((ROOT / layer).rglob("*.py")):
+                module = str(path.relative_to(ROOT))
+                for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                    self._note(module, node)
+
+    def _note(self, module: str, node: ast.AST) -> None:
+        if isinstance(node, ast.Assign | ast.AnnAssign) and isinstance(node.value, ast.Constant):
+            for target in node.targets if isinstance(node, ast.Assign) else [node.target]:
+                if isinstance(target, ast.Name):
+                    self.assigned.setdefault(target.id, []).append(module)
+        elif isinstance(node, ast.Tuple) and all(isinstance(e, ast.Constant) for e in node.elts):
+            if {e.value for e in node.elts} in NODE_SETS:
+                self.node_tuples.append(f"{module}:{node.lineno}")
+        elif isinstance(node, ast.Call):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", None)
+            self.called.setdefault(name, []).append(module)
 
 
 def test_each_shared_fact_is_defined_once():
-    assert _assignments("NAME_MAX") == ["dbc/files.py"]
-    assert _assignments("DEFAULT_REPLY_TIMEOUT_S") == ["dbc/contract.py"]
-    assert sorted(p.split(":")[0] for p in _node_tuples()) == ["bench/commands/common.py", "dbc/contract.py"]
+    facts = _Facts()
+    assert facts.assigned["NAME_MAX"] == ["dbc/files.py"]
+    assert facts.assigned["DEFAULT_REPLY_TIMEOUT_S"] == ["dbc/contract.py"]
+    # the one atomic file write: the only temporary file made beside an output (a directory's write and a streamed
+    # log's partial file are their own)
+    assert facts.called["mkstemp"] == ["dbc/files.py"]
+    assert sorted(p.split(":")[0] for p in facts.node_tuples) == ["bench/commands/common.py", "dbc/contract.py"]

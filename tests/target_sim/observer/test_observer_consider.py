@@ -83,7 +83,7 @@ def test_the_section_records_the_kind_and_without_it_is_written_as_before(consid
         (NTC,), np.array([1e-4, 1e-4, 1e-4, 1e-6, 1e-4, 10.0]), np.array([0.05]), None, "magnet", 0.0, 0.0, 0, 0, [],
         "winding-heat"), [dataset]))
     assert "consider" not in plain["observer"]           # no field: the bytes an older bench wrote
-    assert Float32Observer(verify(plain)).held == [None]
+    assert Float32Observer(verify(plain)).consider.held == [None]
 
 
 @pytest.mark.parametrize("value", ["rotor", 1, True, ["magnet"]])
@@ -96,7 +96,7 @@ def test_a_bad_consider_kind_is_refused_in_one_sentence(consider, value):
         verify(seal(content))
     assert "\n" not in str(info.value)
     content["observer"]["consider"] = None               # null: none, as an absent field
-    assert Float32Observer(verify(seal(content))).held == [None]
+    assert Float32Observer(verify(seal(content))).consider.held == [None]
 
 
 @pytest.mark.parametrize("form", ["conventional", "joseph", "ud", "steady"])
@@ -124,7 +124,7 @@ def test_the_held_row_of_every_gain_is_exactly_zero(consider):
     for form in ("conventional", "joseph", "ud"):
         obs = Float32Observer(artifact, form)
         obs.reset([40.0, 40.0, 40.0, 45.0])
-        gain = obs.cov.update(obs.rows[0], np.float32(0.05), 0, obs.held[0])
+        gain = obs.cov.update(obs.layout.rows[0], np.float32(0.05), 0, obs.consider.held[0])
         assert gain[3] == 0 and np.signbit(gain[3]), form       # -0: y + (-0)·ν is y
         assert gain[1] > 0.5 and gain[4] > 0.5, form             # the winding and the lag state move
     steady = Float32Observer(artifact, "steady")

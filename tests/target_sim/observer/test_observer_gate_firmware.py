@@ -22,7 +22,7 @@ from target_sim.node import TargetNode
 from target_sim.observer import run_observer_offline
 from target_sim.observer.node import raw_channels, raw_sources
 
-from .test_node_firmware import comparable
+from ..test_node_firmware import comparable
 from .test_node_observer_firmware import _bit_exact_over_a_run, _sensor_case, _session, _steady
 from helpers import SESSION_INITIAL
 

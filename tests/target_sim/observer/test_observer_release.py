@@ -100,12 +100,12 @@ def test_in_steady_operation_the_released_filter_holds_the_magnet(packaged, smal
     for form in ("conventional", "joseph", "ud"):
         obs = Float32Observer(artifact, form)
         obs.reset([40.0, 40.0, 40.0, 45.0])
-        assert obs.holds(0) is None                  # key-on: sigma 15 K, the magnet free (nothing else held)
-        gain = obs.cov.update(obs.rows[0], np.float32(0.01), 0, obs.holds(0))
+        assert obs.consider.holds(0, obs.cov) is None     # key-on: sigma 15 K, the magnet free (nothing else held)
+        gain = obs.cov.update(obs.layout.rows[0], np.float32(0.01), 0, obs.consider.holds(0, obs.cov))
         assert gain[3] != 0, form
-        obs.release = np.float32(1e6)                # as if its variance were below: held
-        assert obs.holds(0)[3] == np.True_
-        gain = obs.cov.update(obs.rows[0], np.float32(0.01), 0, obs.holds(0))
+        obs.consider.release = np.float32(1e6)     # as if its variance were below: held
+        assert obs.consider.holds(0, obs.cov)[3] == np.True_
+        gain = obs.cov.update(obs.layout.rows[0], np.float32(0.01), 0, obs.consider.holds(0, obs.cov))
         assert gain[3] == 0 and np.signbit(gain[3]), form
         obs.step(*drive[0], z=45.0)
 
@@ -184,8 +184,8 @@ def test_unmeasured_consider_states_leave_the_tooth_and_the_magnet_to_the_model(
     for form in ("conventional", "joseph", "ud"):
         obs = Float32Observer(artifact, form)
         obs.reset([40.0, 40.0, 40.0, 45.0])
-        assert obs.holds(0).tolist() == [False, False, True, True, False]
-        gain = obs.cov.update(obs.rows[0], np.float32(0.01), 0, obs.holds(0))
+        assert obs.consider.holds(0, obs.cov).tolist() == [False, False, True, True, False]
+        gain = obs.cov.update(obs.layout.rows[0], np.float32(0.01), 0, obs.consider.holds(0, obs.cov))
         assert all(gain[i] == 0 and np.signbit(gain[i]) for i in (2, 3)), form
         assert all(gain[i] != 0 for i in (0, 1, 4)), form
     steady = Float32Observer(artifact, "steady")

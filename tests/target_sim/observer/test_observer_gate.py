@@ -24,7 +24,7 @@ from target_sim.model import run_offline
 from target_sim.observer import OBSERVER_FORMS, Float32Observer, run_observer_offline
 from target_sim.observer.ud import BiermanThornton
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from helpers import synthetic_columns, write_synthetic_dataset  # noqa: E402
 
 ROWS, LIE = 1500, slice(700, 800)        # 100 rows (20 s, 40 model steps) of +20 K
@@ -104,9 +104,10 @@ def test_the_ud_gate_uses_biermans_own_innovation_variance(explained):
     assert isinstance(obs.cov, BiermanThornton)
     for row in range(40):
         obs.est.step(*drive[row])
-        obs.cov.predict(obs.transition(), obs.f_nonzero)
-        s = obs.cov.innovation_variance(obs.rows[0], obs.r)
-        obs.cov.update(obs.rows[0], obs.r)
+        obs.cov.predict(obs.transition.matrix(), obs.transition.nonzero)
+        r = obs.measurements[0].r
+        s = obs.cov.innovation_variance(obs.layout.rows[0], r)
+        obs.cov.update(obs.layout.rows[0], r)
         assert s.tobytes() == obs.cov.alpha.tobytes()
 
 
@@ -165,14 +166,14 @@ def test_the_steady_forms_checkpoint_carries_its_rejections_in_a_row(explained):
     a.reset(initial)
     for row in range(0, 720, 2):             # into the lie: some rejections in a row
         a.step(*drive[row], z=lying[row])
-    assert a.consecutive[0] > 0
+    assert a.gate.consecutive[0] > 0
     b.reset(initial)
     b.est.restore(a.est.x.tolist())
     b.restore_checkpoint(a.checkpoint())
-    assert b.consecutive.tolist() == a.consecutive.tolist()
+    assert b.gate.consecutive.tolist() == a.gate.consecutive.tolist()
     for row in range(720, 900, 2):
         assert a.step(*drive[row], z=lying[row]).tobytes() == b.step(*drive[row], z=lying[row]).tobytes()
-        assert a.rejected.tolist() == b.rejected.tolist()
+        assert a.gate.rejected.tolist() == b.gate.rejected.tolist()
     for forged in (float("nan"), -3.0):
         b.restore_checkpoint([*a.checkpoint()[:-1], forged])
-        assert b.consecutive.tolist() == [0]
+        assert b.gate.consecutive.tolist() == [0]

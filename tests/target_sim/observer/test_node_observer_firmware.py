@@ -32,7 +32,7 @@ from target_sim.node import TargetNode
 from target_sim.observer import Float32Observer
 from target_sim.observer.node import measurement_slots
 
-from .test_node_firmware import comparable
+from ..test_node_firmware import comparable
 from helpers import SESSION_INITIAL, session_drive
 
 ROWS = 240

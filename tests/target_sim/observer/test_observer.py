@@ -214,8 +214,8 @@ def test_in_node_coordinates_q_is_diagonal_and_a_sensor_row_is_what_it_sees(obse
     state coordinates for the reports (the float64 UD form equals the Joseph form there)."""
     artifact, dataset = observed
     obs = Float32Observer(artifact)
-    assert np.array_equal(obs.rows[0], [0.0, 1.0, 0.0, 0.0])
-    assert [step.column for step in obs.cov.bierman(obs.rows[0]).steps] == [1, 2, 3]
+    assert np.array_equal(obs.layout.rows[0], [0.0, 1.0, 0.0, 0.0])
+    assert [step.column for step in obs.cov.bierman(obs.layout.rows[0]).steps] == [1, 2, 3]
     assert np.array_equal(obs.cov.g_nonzero, np.eye(4, dtype=bool))
     drive, z = artifact_drive(artifact, dataset)[:200], dataset.column("winding_C")[:200]
     start = [40.0, 40.0, 40.0, 45.0]
@@ -343,8 +343,8 @@ def test_the_magnet_bias_heats_the_magnet_and_the_float32_forms_follow_the_float
     assert "the bias heats the magnet" in section["rule"]
     target = Float32Observer(artifact)
     part, model = target.est.part, FilterModel.of(artifact)
-    assert BIAS_KINDS["magnet-heat"] == 3 and target.bias_index == 5
-    assert np.array_equal(target.bias_column, part.b[:, 3] * target.est.dt)       # the packaged model: delta form
+    assert BIAS_KINDS["magnet-heat"] == 3 and target.layout.bias_index == 5
+    assert np.array_equal(target.layout.bias_column, part.b[:, 3] * target.est.dt)   # the packaged model: delta form
     data, reference = reference_run(artifact, dataset)
     assert data.readings.bias == "magnet-heat" and data.readings.bias_input == 3
     assert np.allclose(augmented_transition(model.a, model.b, model.c, data.readings)[:4, 5], model.b[:, 3])
@@ -360,9 +360,9 @@ def test_a_section_without_the_new_kind_is_written_and_read_as_before(augmented,
     section = artifact.content["observer"]
     assert section["bias"] == "winding-heat" and section["states"][-1] == "winding heat bias (W)"
     assert section["rule"].startswith("after each model step: the bias heats the winding (x += b_w beta), each lag")
-    assert Float32Observer(artifact).bias_column.tolist() == (
+    assert Float32Observer(artifact).layout.bias_column.tolist() == (
         Float32Observer(artifact).est.part.b[:, 1] * Float32Observer(artifact).est.dt).tolist()
-    assert observed[0].content["observer"]["bias"] is None and Float32Observer(observed[0]).bias_index == -1
+    assert observed[0].content["observer"]["bias"] is None and Float32Observer(observed[0]).layout.bias_index == -1
     from bench.cli import build_parser
 
     parse = build_parser().parse_args
