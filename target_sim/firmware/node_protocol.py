@@ -24,7 +24,7 @@ from dbc.contract import (
     row_messages,
 )
 from dbc.database import contract
-from target_sim.artifact import OUTPUT_BIAS_KINDS, ModelArtifact
+from target_sim.artifact import ModelArtifact
 from target_sim.losses import LOSS_KINDS
 from target_sim.observer import has_observer
 from target_sim.observer.node import can_refusal
@@ -53,10 +53,7 @@ def firmware_refusal(artifact: ModelArtifact) -> str | None:
         refusal = can_refusal(artifact)
         if refusal is not None:
             return refusal
-        form, bias = artifact.content["observer"].get("form"), artifact.content["observer"].get("bias")
-        if bias in OUTPUT_BIAS_KINDS:
-            return (f"the firmware engine does not run an output bias yet, and {name} has the observer bias {bias}: "
-                    "use --engine python, or rebuild it with 'bench observer' and another --bias")
+        form = artifact.content["observer"].get("form")
         if form not in FIRMWARE_OBSERVER_FORMS:
             return (f"the firmware engine runs an observer in the ud form (Bierman-Thornton) or the steady form "
                     f"(the steady-state gain), and {name} deploys the {form} form: rebuild it with 'bench observer "
