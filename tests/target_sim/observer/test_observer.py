@@ -367,7 +367,7 @@ def test_a_section_without_the_new_kind_is_written_and_read_as_before(augmented,
 
     parse = build_parser().parse_args
     assert [parse(["observer", *flags]).bias for flags in ([], ["--bias"], ["--bias", "magnet"])] == [
-        "none", "winding", "magnet"]
+        "auto", "winding", "magnet"]
 
 
 def _magnet_heat_truth(model: FilterModel, artifact, path, rows: int, scale: float):

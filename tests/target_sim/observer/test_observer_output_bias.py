@@ -100,3 +100,19 @@ def test_an_output_bias_nobody_reads_is_refused_in_one_sentence_and_the_firmware
     from bench.cli import build_parser
 
     assert build_parser().parse_args(["observer", "--bias", "winding-output"]).bias == "winding-output"
+
+
+def test_bench_observer_adds_the_output_bias_by_default_where_a_measurement_reads_the_winding(small_dataset,
+                                                                                             tmp_path):
+    """The default (`DEFAULT_BIAS`, chosen on the motor suite) where a sensor reads the winding; --bias none and a
+    measurement of the magnet alone keep no bias state (an output bias nobody reads would never move)."""
+    import json
+
+    from bench.cli import main
+    from bench.observer.section import DEFAULT_BIAS, default_bias
+
+    out = tmp_path / "default.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--out", str(out), "--quiet"]) == 0
+    assert DEFAULT_BIAS == "winding-output"
+    assert json.loads(out.read_text(encoding="utf-8"))["observer"]["bias"] == DEFAULT_BIAS
+    assert default_bias([Sensor("magnet", "pm_C")]) is None and default_bias([SENSOR]) == DEFAULT_BIAS
