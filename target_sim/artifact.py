@@ -45,7 +45,14 @@ OUTPUTS = TEMPERATURE_NODES   # the model's outputs: the temperatures in the sta
 # The observer's bias kinds (its section's `bias`, null: none): a state of watts into one node the loss model
 # misses, a random walk, and the column of B it heats: its node's loss input (the inputs P_y, P_w, P_t, P_m are in
 # the order of OUTPUTS). The one table of them: the target, the firmware generator and the lab read it here.
-BIAS_KINDS = {"winding-heat": 1, "magnet-heat": 3}
+BIAS_KINDS = {"winding-heat": 1, "magnet-heat": 3, "winding-output": 1}
+# Of those, the kinds whose state is added to its node's output instead (°C: the model's error at that node, a random
+# walk that the node's sensors see and the estimate reports) and heats nothing: every measurement that reads the node
+# holds all four nodes (`consider_held`), so the model's dynamics, and the magnet with them, stay the open loop's.
+# Why: on the motor suite's validation profiles a winding sensor that corrects the winding node drives the magnet
+# through the model's winding-magnet coupling (IPM: magnet MSE 1.38 -> 9.8 K² while the winding went 22.4 -> 0.4);
+# the output bias brings the winding to 0.2-0.4 K² and leaves the magnet exactly as the model has it.
+OUTPUT_BIAS_KINDS = ("winding-output",)
 # The observer's consider kinds (its section's `consider`; absent or null: none): states that a measurement which
 # does not read them never updates (Schmidt-Kalman "consider" states: their rows of the gain are zero, the covariance
 # is the one of that gain). A kind names its nodes of OUTPUTS; a bias state is held with its node (BIAS_KINDS: the
@@ -384,9 +391,12 @@ def consider_held(consider: str | None, sees: np.ndarray, bias: str | None, stat
     last)."""
     sees = np.atleast_2d(np.asarray(sees, dtype=np.float64))
     held = np.zeros((len(sees), states), dtype=bool)
+    bias_node = BIAS_KINDS[bias] if bias else None
+    if bias in OUTPUT_BIAS_KINDS:      # a reading of the output bias's node moves the bias, never a node
+        held[sees[:, bias_node] != 0, :len(OUTPUTS)] = True
+        bias_node = None
     if consider is None:
         return held
-    bias_node = BIAS_KINDS[bias] if bias else None
     for name in CONSIDER_KINDS[consider]:
         node = OUTPUTS.index(name)
         for m, row in enumerate(sees):
@@ -401,6 +411,8 @@ def consider_released(held: np.ndarray, bias: str | None) -> np.ndarray:
     """`held` (`consider_held`) with the magnet and a magnet heat bias free: what a measurement holds while the
     magnet's own variance exceeds the section's `consider_release_C2` (key-on, a magnet nobody measured)."""
     released = np.array(held, dtype=bool, copy=True)
+    if bias in OUTPUT_BIAS_KINDS:      # what the output bias holds it holds always
+        return released
     released[:, OUTPUTS.index("magnet")] = False
     if bias is not None and OUTPUTS[BIAS_KINDS[bias]] == "magnet":
         released[:, -1] = False

@@ -19,7 +19,12 @@ offset by least squares (τ by a bounded search, τ = 0 allowed; without yoke_C 
 residual reported: `--lag auto --gradient auto --offset auto` for a sensor nobody measured. --bias adds a heat-bias
 state, a random walk of the watts the loss model misses: --bias winding (or --bias alone) into the winding node,
 --bias magnet into the magnet node (for a persistent magnet-side model error: a magnet loss or winding-magnet
-coupling the model has wrong); --bias none (the default): no bias state.
+coupling the model has wrong); --bias winding-output: a random walk in °C added to the winding's output, which the
+sensor sees and the estimate reports, heating nothing: a winding sensor's readings move that bias and no node, so the
+model's dynamics (and the magnet) stay the open loop's while the winding follows the sensor (on the motor suite's
+validation profiles a corrected winding node drove the magnet through the model's coupling); --bias none: no bias
+state. The default (auto) is winding-output when a measurement reads the winding, else none
+(`bench.observer.section.DEFAULT_BIAS`, chosen on the motor suite).
 --consider magnet makes the magnet node (and a magnet bias state) consider states (Schmidt-Kalman): a measurement
 that does not read the magnet (an end-winding NTC) corrects the winding and the other nodes but never the magnet,
 whose estimate then moves only through the model's own coupling; the covariance is that of the gain actually used
@@ -64,12 +69,18 @@ from bench.progress import StageBars
 
 def add_subparser(subparsers) -> None:
     from bench.observer.measures import LAB_MEASUREMENT_KINDS
-    from bench.observer.section import DEFAULT_CONSIDER, DEFAULT_CONSIDER_RELEASE_C, DEFAULT_GATE, DEPLOYED_FORM
+    from bench.observer.section import (
+        DEFAULT_BIAS,
+        DEFAULT_CONSIDER,
+        DEFAULT_CONSIDER_RELEASE_C,
+        DEFAULT_GATE,
+        DEPLOYED_FORM,
+    )
     from bench.observer.tune import TUNING_CRITERIA
     from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS
     from target_sim.observer import OBSERVER_FORMS
 
-    bias_nodes = [kind.removesuffix("-heat") for kind in BIAS_KINDS]   # winding-heat: --bias winding
+    bias_names = [bias_option(kind) for kind in BIAS_KINDS]   # winding-heat: --bias winding
 
     p = subparsers.add_parser("observer", help="tune a Kalman observer (Q, R) on training files, add it to an artifact",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -80,9 +91,11 @@ def add_subparser(subparsers) -> None:
     add_data_arguments(p)
     for _, kind in LAB_MEASUREMENT_KINDS.items():     # each kind's own options (the sensor, --flux, --resistance)
         kind.add_arguments(p)
-    p.add_argument("--bias", nargs="?", const="winding", default="none", choices=["none", *bias_nodes],
+    p.add_argument("--bias", nargs="?", const="winding", default=AUTO_BIAS, choices=[AUTO_BIAS, "none", *bias_names],
                    help="add a heat-bias state (W the loss model misses) into the winding (--bias alone: winding) "
-                        "or the magnet node (default none)")
+                        "or the magnet node, or an output bias of the winding (winding-output: °C added to the "
+                        f"winding estimate; its sensor moves the bias, never a node); none: no bias state (default "
+                        f"{AUTO_BIAS}: {DEFAULT_BIAS} when a measurement reads the winding, else none)")
     p.add_argument("--consider", choices=["none", *CONSIDER_KINDS], default=DEFAULT_CONSIDER,
                    help="consider states: a measurement that does not read the magnet never updates the magnet "
                         "node (nor a magnet bias), magnet; every node it does not read, unmeasured; or none "
@@ -121,9 +134,9 @@ def run(args: argparse.Namespace) -> int:
     from bench.model.pipeline import load_campaign
     from bench.observer.evaluate import validation_check
     from bench.observer.measures import LAB_MEASUREMENT_KINDS
-    from bench.observer.section import observer_section, with_observer
+    from bench.observer.section import default_bias, observer_section, with_observer
     from bench.observer.tune import consider_problem, tune_observer, tuning_warnings
-    from target_sim.artifact import dumps, load_artifact, verify
+    from target_sim.artifact import BIAS_KINDS, dumps, load_artifact, verify
 
     if args.evaluations < 1:
         raise UsageError("--evaluations must be at least 1")
@@ -151,7 +164,8 @@ def run(args: argparse.Namespace) -> int:
     measurements = [m for m in asked if m is not None]
     if not measurements:
         raise UsageError("--measure none needs --flux or --resistance: the observer needs a measurement")
-    bias = None if args.bias == "none" else f"{args.bias}-heat"      # a kind of target_sim.artifact.BIAS_KINDS
+    bias = ({bias_option(kind): kind for kind in BIAS_KINDS}.get(args.bias) if args.bias != AUTO_BIAS
+            else default_bias(measurements))   # a kind of BIAS_KINDS, None: none
     consider = None if args.consider == "none" else args.consider    # a kind of target_sim.artifact.CONSIDER_KINDS
     problem = consider_problem(consider, bias, measurements)
     if problem:
@@ -198,6 +212,14 @@ def run(args: argparse.Namespace) -> int:
                 for n in checked.observer_mse))
         print(f"wrote {args.out} (sha256 {content['sha256'][:12]})")
     return 0
+
+
+AUTO_BIAS = "auto"      # --bias's default: `bench.observer.section.default_bias` of the measurements
+
+
+def bias_option(kind: str) -> str:
+    """The --bias value of a bias kind: a heat bias by its node (winding-heat: winding), an output bias by its name."""
+    return kind.removesuffix("-heat")
 
 
 def release_text(sigma: float | None) -> str:

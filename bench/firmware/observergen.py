@@ -209,13 +209,15 @@ def observer_declarations(artifact: ModelArtifact) -> str:
     lines = [f"#define OBS_N {n} /* the filter's states: the model's 4, then a lag state per lagged measurement, "
              "then the bias */",
              f"#define OBS_STEADY {int(steady)} /* 1: the steady-state gain K_ss (no covariance), 0: the UD form */",
-             f"#define OBS_BIAS {bias} /* the bias state's index (-1: none) */"]
+             f"#define OBS_BIAS {bias} /* the bias state's index (-1: none) */",
+             f"#define OBS_BIAS_OUTPUT {obs.layout.bias_output} /* the node an output bias adds to (-1: none, or a "
+             "heat bias) */"]
     if steady:
         arrays = []
     else:
         u0, d0 = ud_factor(obs.p0, f)
         arrays = [("OBS_U0", u0, "U0 of P0 = U0 diag(d0) U0^T (ud_factor)"), ("OBS_D0", d0, "d0")]
-    if bias >= 0:
+    if bias >= 0 and obs.layout.bias_output < 0:
         arrays.append(("OBS_BIAS_COLUMN", obs.layout.bias_column,
                        "the bias's column of B: its node's loss (delta: times dt)"))
     text = "\n".join(lines) + "\n" + "".join(_literal_array(name, value, comment) for name, value, comment in arrays)
@@ -274,7 +276,7 @@ OBS_OUTPUT
 /* AugmentedLayout.propagate: the bias heats its node, each lag state follows what its sensor sees */
 static void obs_propagate_extra(void)
 {
-#if OBS_BIAS >= 0
+#if OBS_BIAS >= 0 && OBS_BIAS_OUTPUT < 0
     int i;
     for (i = 0; i < 4; i++) x_state[i] = x_state[i] + OBS_BIAS_COLUMN[i] * obs_extra[OBS_BIAS];
     obs_output();
@@ -311,6 +313,9 @@ OBS_GATE_STEPOBS_UPDATES    if (corrected) {
         obs_output();
     }
     for (i = 0; i < 4; i++) y[i] = y_est[i];
+#if OBS_BIAS_OUTPUT >= 0
+    y[OBS_BIAS_OUTPUT] = y[OBS_BIAS_OUTPUT] + obs_extra[OBS_BIAS];   /* AugmentedLayout.reported */
+#endif
     fw_obs_sigma();                                         /* what XCP reads right after the step */
 }
 
@@ -394,7 +399,8 @@ void fw_obs_sigma(void)
     for (node = 0; node < 4; node++) {
         for (j = 0; j < OBS_N; j++) {                       /* c padded with zeros to the filter's states */
             v[j] = obs_u[0][j] * (node == 0 ? 1.0f : 0.0f);  /* c: the node's unit row (node coordinates) */
-            for (i = 1; i < OBS_N; i++) v[j] = v[j] + obs_u[i][j] * (i == node ? 1.0f : 0.0f);
+            for (i = 1; i < OBS_N; i++) v[j] = v[j] + obs_u[i][j] * (i == node || (node == OBS_BIAS_OUTPUT
+                                                                                && i == OBS_BIAS) ? 1.0f : 0.0f);
         }
         s = (obs_d[0] * v[0]) * v[0];
         for (j = 1; j < OBS_N; j++) s = s + (obs_d[j] * v[j]) * v[j];
@@ -421,7 +427,7 @@ void fw_obs_gate(unsigned char out[FW_OBS_MEASUREMENTS])
 
 # per lagged measurement k (its state OBS_LAG_k): its propagation, its reset
 _LAG_PROPAGATE = (f"    obs_extra[OBS_LAG_K] = {LAG_SYMBOL}_K * obs_extra[OBS_LAG_K] + (1.0f - {LAG_SYMBOL}_K) * "
-                  "dot(OBS_SEES_K, y_est, 4);\n")
+                  "(dot(OBS_SEES_K, y_est, 4)BIAS_SEEN);\n")
 _LAG_RESET = "    obs_extra[OBS_LAG_K] = dot(OBS_SEES_K, y_est, 4);\n"
 # per measurement k: its reading, its own update (the row h is its code's) and the correction
 _UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
@@ -463,17 +469,26 @@ def _releases(obs: Float32Observer, index: int) -> bool:
     return obs.consider.release is not None and held is not None and bool(held[OUTPUTS.index("magnet")])
 
 
+def _output_bias_seen(obs: Float32Observer, m) -> str:
+    """What measurement m sees of an output bias (AugmentedLayout.seen): " + w * obs_extra[bias]", or nothing."""
+    output = obs.layout.bias_output
+    if output < 0 or m.sees[output] == 0:
+        return ""
+    return f" + {product(literal(m.sees[output]), Value(f'obs_extra[{obs.layout.bias_index}]'))}"
+
+
 def _per_measurement(obs: Float32Observer) -> dict[str, str]:
     """The generated parts of OBSERVER_C for the section's measurements (their lags, readings and updates)."""
     propagate, reset, readings, updates, first = [], [], [], [], 0
     for index, (m, lag) in enumerate(zip(obs.measurements, obs.layout.lag_index, strict=True)):
         suffix = f"_{index}"
+        seen = _output_bias_seen(obs, m)
         if lag >= 0:
-            propagate.append(_LAG_PROPAGATE.replace("_K", suffix))
+            propagate.append(_LAG_PROPAGATE.replace("_K", suffix).replace("BIAS_SEEN", seen))
             reset.append(_LAG_RESET.replace("_K", suffix))
         readings.append("\n" + m.c_reading.replace("_K", suffix))
         predicted = f"obs_extra[{lag}]" if lag >= 0 else total(
-            [product(literal(m.sees[i]), Value(f"y_est[{i}]")) for i in range(len(m.sees)) if m.sees[i] != 0])
+            [product(literal(m.sees[i]), Value(f"y_est[{i}]")) for i in range(len(m.sees)) if m.sees[i] != 0]) + seen
         template = _UPDATE if obs.gate.threshold is None else _GATED_UPDATE
         if _releases(obs, index):
             template = template.replace("obs_update_K(r, nu, correction);", _RELEASED_UPDATE)

@@ -144,6 +144,10 @@ def _transition(obs: Float32Observer, out: Lines) -> list[list[Value | None]]:
             terms = [product(literal(m.sees[i]), f[i][j]) for i in range(k) if m.sees[i] != 0 and f[i][j] is not None]
             if terms and j != lag:
                 f[lag][j] = out.set(f"f{lag}_{j}", product(gain, Value(f"({total(terms)})")))
+        output = obs.layout.bias_output
+        if output >= 0 and m.sees[output] != 0:     # the sensor sees the output bias too (Transition.matrix)
+            f[lag][obs.layout.bias_index] = out.set(f"f{lag}_{obs.layout.bias_index}",
+                                                    product(gain, literal(m.sees[output])))
         f[lag][lag] = out.load(f"pole{lag}", pole)
     return f
 

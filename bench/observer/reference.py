@@ -33,11 +33,16 @@ SIGMOID_KEYS = ("scale_W", "weight", "bias", "gain", "linear", "offset")
 # the bias state's initial 1-σ per kind (W into its node) and the lag states' (K, beyond what their sensor sees).
 # The magnet's: of the order of a magnet loss (tens of W; 100s of W at most), so P0 does not let the first
 # innovations throw the magnet far (see `bench.observer.tune`'s note on P0)
-BIAS_SIGMA_W = {"winding-heat": 50.0, "magnet-heat": 20.0}
+# An output bias's (°C): the model starts at the measured winding, so its error there starts small
+BIAS_SIGMA_W = {"winding-heat": 50.0, "magnet-heat": 20.0, "winding-output": 1.0}
 LAG_SIGMA_C = 0.5
 # what the section names each bias state, and the node it heats (as the section's rule says it)
-BIAS_NAMES = {"winding-heat": "winding heat bias (W)", "magnet-heat": "magnet heat bias (W)"}
-BIAS_NODES = {"winding-heat": "winding (x += b_w beta)", "magnet-heat": "magnet (x += b_m beta)"}   # the rule's
+BIAS_NAMES = {"winding-heat": "winding heat bias (W)", "magnet-heat": "magnet heat bias (W)",
+              "winding-output": "winding output bias (°C)"}
+BIAS_RULES = {"winding-heat": "the bias heats the winding (x += b_w beta)",
+              "magnet-heat": "the bias heats the magnet (x += b_m beta)",
+              "winding-output": "the bias adds to the winding's output (y_w + b_w, what the sensors see and the "
+                                "estimate reports) and heats nothing; a winding reading moves the bias, no node"}
 
 
 def bias_kind(bias) -> str | None:

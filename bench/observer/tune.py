@@ -31,7 +31,7 @@ from bench.model.polish import in_threads
 from bench.observer.measures import kind_of
 from bench.observer.measures.lagged_sensor import Sensor
 from bench.observer.reference import (
-    BIAS_NODES,
+    BIAS_NAMES,
     FilterData,
     FilterModel,
     bias_kind,
@@ -40,7 +40,7 @@ from bench.observer.reference import (
     process_noise,
     run_filter,
 )
-from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS, OUTPUTS, ModelArtifact
+from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS, OUTPUT_BIAS_KINDS, OUTPUTS, ModelArtifact
 
 START_Q_C2 = 1e-4       # the search starts here for every node (°C² per step), R where each kind says (start_r)
 LOG10_BOUNDS = (-12.0, 3.0)
@@ -51,19 +51,24 @@ NELDER_MEAD_CAPPED = (1, 2)     # scipy's Nelder-Mead status: stopped at its cap
 # the lab's reference of the magnet in the training files, used while tuning only
 TUNING_REFERENCE = Sensor("magnet", "pm_C")
 # the search's start of the bias's q (W² per step)
-START_Q_BIAS = {"winding-heat": 10.0, "magnet-heat": 1.0}
+START_Q_BIAS = {"winding-heat": 10.0, "magnet-heat": 1.0, "winding-output": 1e-2}   # an output bias: °C²
 
 
 def consider_problem(consider: str | None, bias, measurements: Sequence) -> str | None:
     """Why the consider kind cannot go with this bias and these measurements (None: it can): a bias that every
     measurement holds is never corrected, a random walk whose variance grows without bound (and the steady-state
     gain does not exist)."""
+    kind = bias_kind(bias)
+    if kind in OUTPUT_BIAS_KINDS:
+        node = OUTPUTS[BIAS_KINDS[kind]]
+        if all(m.sees[OUTPUTS.index(node)] == 0 for m in measurements):
+            return (f"--bias {kind} adds to the {node}'s output, which no measurement reads, so the bias would never "
+                    f"move; add a sensor of the {node}, or use another --bias")
     if consider is None:
         return None
     if consider not in CONSIDER_KINDS:
         return f"consider {consider!r} is not one of {', '.join(CONSIDER_KINDS)}"
-    kind = bias_kind(bias)
-    if kind is None:
+    if kind is None or kind in OUTPUT_BIAS_KINDS:
         return None
     node = OUTPUTS[BIAS_KINDS[kind]]
     if node in CONSIDER_KINDS[consider] and all(m.sees[OUTPUTS.index(node)] == 0 for m in measurements):
@@ -118,6 +123,15 @@ CAUTIOUS_DECADES = 4.0
 NODES_R_MAX_LOG10 = 6.0
 
 
+def scored_nodes(criterion: str, bias: str | None) -> tuple[str, ...]:
+    """What a criterion scores: its `SCORED_NODES`, and the node of an output bias (`OUTPUT_BIAS_KINDS`), whose
+    correction never reaches the magnet: scored by the magnet alone, its tuning would be flat."""
+    nodes = SCORED_NODES[criterion]
+    if bias in OUTPUT_BIAS_KINDS and OUTPUTS[BIAS_KINDS[bias]] not in nodes:
+        nodes = (*nodes, OUTPUTS[BIAS_KINDS[bias]])
+    return nodes
+
+
 def search_bounds(criterion: str) -> tuple[tuple[float, float], tuple[float, float]]:
     """The bounds of the tuning's search, log10 of (q, R), for a criterion."""
     low, high = LOG10_BOUNDS
@@ -166,10 +180,11 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
             return sum(in_threads(lambda d: float(run_filter(model, d, q, [r], p0_tuning).nll[0]), data))
     else:
         magnet = OUTPUTS.index("magnet")
-        scored = [(OUTPUTS.index(node), "pm" if node == "magnet" else node) for node in SCORED_NODES[criterion]]
+        scored = [(OUTPUTS.index(node), "pm" if node == "magnet" else node) for node in scored_nodes(criterion, bias)]
         # the guarded nodes every training file has a reference of, and their open loop's log MSE per file from
         # the measured start (the filter with no gain at all)
         guarded = [(OUTPUTS.index(node), "pm" if node == "magnet" else node) for node in GUARDED_NODES[criterion]
+                   if node not in scored_nodes(criterion, bias)[len(SCORED_NODES[criterion]):]   # an output bias's
                    if all(d.run.reference("pm" if node == "magnet" else node) is not None for d in deployed)]
 
         def open_loop_of(d: FilterData) -> dict:
@@ -279,8 +294,8 @@ def tuning_warnings(fit: ObserverFit) -> list[str]:
             out.append(f"the tuning ended at q {10.0 ** bound:.0e} °C² per step for {which}, its {limit} limit: "
                        f"{meaning}")
     if fit.bias and log_q[-1] <= q_low + LIMIT_MARGIN_DECADES:
-        node = BIAS_NODES[bias_kind(fit.bias) or "winding-heat"].split()[0]
-        out.append(f"the tuning ended at the lower limit of the {node} heat bias's q: the bias never moves, so --bias "
+        name = BIAS_NAMES[bias_kind(fit.bias) or "winding-heat"].split(" (")[0]
+        out.append(f"the tuning ended at the lower limit of the {name}'s q: the bias never moves, so --bias "
                    "adds nothing")
     if not fit.converged:
         out.append(f"the tuning stopped after {fit.evaluations} filter runs, at its cap (--evaluations), before the "

@@ -21,7 +21,7 @@ import numpy as np
 
 from bench.thermal import portable
 from bench.thermal.estimator import StepInputs, identity_sigmoid, model_step, step_buffers
-from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS, consider_held, consider_released
+from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS, OUTPUT_BIAS_KINDS, consider_held, consider_released
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -40,8 +40,8 @@ def _source_jacobian(gains, jac):
 
 @numba.njit(cache=True, fastmath=False)
 def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1,
-                rel, sees, lag_pole, lag_index, bias_index, bias_input, held, released, release, q, r, p0, traj, sigma,
-                keep, use_sigmoid, gate, rejected):
+                rel, sees, lag_pole, lag_index, bias_index, bias_input, bias_output, held, released, release, q, r, p0,
+                traj, sigma, keep, use_sigmoid, gate, rejected):
     n_steps = ratio.shape[0]
     n = q.shape[0]
     x, x_new, y, u, gains = step_buffers(c_inv, y0)
@@ -67,9 +67,10 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
         _source_jacobian(gains, jac)
         full[:, :] = 0.0
         full[:4, :4] = a + b_s @ jac @ c
-        if bias_index >= 0:   # the bias heats its node (the column of its node's loss)
-            full[:4, bias_index] = bias_column
+        if bias_index >= 0:
             full[bias_index, bias_index] = 1.0
+        if bias_index >= 0 and bias_output < 0:   # a heat bias heats its node (the column of its node's loss)
+            full[:4, bias_index] = bias_column
             for i in range(4):
                 x[i] += bias_column[i] * xa[bias_index]
             y[:] = c @ x
@@ -80,9 +81,14 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
                     acc = 0.0
                     for i in range(4):
                         acc += sees_c[m, i] * full[i, j]
+                    if bias_output >= 0:   # the sensor sees its node's output, the output bias with it
+                        acc += sees[m, bias_output] * full[bias_index, j]
                     full[lag, j] = (1.0 - lag_pole[m]) * acc
                 full[lag, lag] += lag_pole[m]
-                xa[lag] = lag_pole[m] * xa[lag] + (1.0 - lag_pole[m]) * (sees[m] @ y)
+                view = sees[m] @ y
+                if bias_output >= 0:
+                    view += sees[m, bias_output] * xa[bias_index]
+                xa[lag] = lag_pole[m] * xa[lag] + (1.0 - lag_pole[m]) * view
         xa[:4] = x
         p = full @ p @ full.T + q
         for m in range(sees.shape[0]):   # sequential scalar updates (R is diagonal)
@@ -96,6 +102,9 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
             else:
                 h[:4] = sees_c[m]
                 predicted = sees[m] @ y
+                if bias_output >= 0:
+                    h[bias_index] = sees[m, bias_output]
+                    predicted += sees[m, bias_output] * xa[bias_index]
             r_k = r[m] * rel[k, m]
             ph = p @ h
             s = h @ ph + r_k
@@ -135,19 +144,26 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
             for i in range(4):
                 traj[k, i] = y[i]
                 sigma[k, i] = np.sqrt(max(cp[i, i], 0.0))
+            if bias_output >= 0:   # the reported node: its output plus the bias, and their joint variance
+                cross = 0.0
+                for j in range(4):
+                    cross += c[bias_output, j] * p[j, bias_index]
+                traj[k, bias_output] += xa[bias_index]
+                sigma[k, bias_output] = np.sqrt(max(cp[bias_output, bias_output] + 2.0 * cross
+                                                    + p[bias_index, bias_index], 0.0))
     return nll, updates
 
 
 # nogil: the observer's tuning runs its files in threads, one per core (bench.observer.tune)
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1, rel,
-           sees, lag_pole, lag_index, bias_index, bias_input, held, released, release, q, r, p0, traj, sigma, keep,
-           use_sigmoid, nll, updates, gate, rejected):
+           sees, lag_pole, lag_index, bias_index, bias_input, bias_output, held, released, release, q, r, p0, traj,
+           sigma, keep, use_sigmoid, nll, updates, gate, rejected):
     for m in numba.prange(q.shape[0]):
         nll[m], updates[m] = _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu,
                                          copper_ref, y0, z0, z1, rel, sees, lag_pole, lag_index, bias_index,
-                                         bias_input, held, released, release, q[m], r[m], p0, traj[m], sigma[m],
-                                         keep, use_sigmoid, gate, rejected[m])
+                                         bias_input, bias_output, held, released, release, q[m], r[m], p0,
+                                         traj[m], sigma[m], keep, use_sigmoid, gate, rejected[m])
 
 
 @dataclass(frozen=True)
@@ -167,7 +183,7 @@ class Readings:
     """The measurements per model step as the filter takes them: reading_k = z0 + z1·ŷ_winding (the flux
     linkage's resistance at the winding estimate; 0 for a sensor), NaN z0: none; variance R·rel_k; each reads
     sees·y, through its lag state when lag_pole > 0 (the lag states follow the model's, in order, then the bias).
-    `bias`: the heat-bias state's kind (`target_sim.artifact.BIAS_KINDS`: watts into the node whose loss column of
+    `bias`: the bias state's kind (`target_sim.artifact.BIAS_KINDS`: watts into the node whose loss column of
     B it heats) or None; True is read as "winding-heat" (the one kind there was). `consider`: a kind of
     `target_sim.artifact.CONSIDER_KINDS` (states a measurement that does not read them never updates) or None."""
 
@@ -203,6 +219,11 @@ class Readings:
     def bias_input(self) -> int:
         """The loss input whose column of B the bias heats (-1: no bias)."""
         return BIAS_KINDS[self.bias] if self.bias else -1
+
+    @property
+    def bias_output(self) -> int:
+        """The node an output bias adds to (`OUTPUT_BIAS_KINDS`; -1: no bias, or one that heats)."""
+        return BIAS_KINDS[self.bias] if self.bias in OUTPUT_BIAS_KINDS else -1
 
     @property
     def lag_index(self) -> np.ndarray:
@@ -247,6 +268,7 @@ def run_filters(a, b, c, theta, sig, inputs: StepInputs, y0, readings: Readings,
            f64(inputs.coolant), f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu),
            float(inputs.copper_reference), y0, z0, z1, rel, f64(np.reshape(readings.sees, (-1, 4))),
            f64(np.reshape(readings.lag_pole, -1)), lag_index, int(readings.bias_index), max(readings.bias_input, 0),
+           readings.bias_output,
            np.ascontiguousarray(readings.held), np.ascontiguousarray(readings.released),
            float(readings.release_C2 or 0.0), q, r, p0, traj, sigma, bool(keep), use_sigmoid, nll, updates, gate,
            rejected)
@@ -265,14 +287,25 @@ def augmented_transition(block: np.ndarray, b: np.ndarray, c: np.ndarray, readin
     n, full = readings.states, np.zeros((readings.states, readings.states))
     full[:4, :4] = block
     if readings.bias:
-        full[:4, n - 1] = b[:, readings.bias_input]
         full[n - 1, n - 1] = 1.0
+        if readings.bias_output < 0:
+            full[:4, n - 1] = b[:, readings.bias_input]
     for m, lag in enumerate(readings.lag_index):
         if lag >= 0:
             a = readings.lag_pole[m]
-            full[lag] = (1.0 - a) * (readings.sees[m] @ c @ full[:4])
+            full[lag] = (1.0 - a) * (output_view(c, readings, m) @ full)
             full[lag, lag] += a
     return full
+
+
+def output_view(c: np.ndarray, readings: Readings, m: int) -> np.ndarray:
+    """What the m-th measurement sees of the augmented state (n,): sees·C on the block's states, and its weight of
+    an output bias's node on the bias state."""
+    row = np.zeros(readings.states)
+    row[:4] = readings.sees[m] @ c
+    if readings.bias_output >= 0:
+        row[readings.bias_index] = readings.sees[m][readings.bias_output]
+    return row
 
 
 def measurement_rows(c: np.ndarray, readings: Readings) -> np.ndarray:
@@ -282,7 +315,7 @@ def measurement_rows(c: np.ndarray, readings: Readings) -> np.ndarray:
         if lag >= 0:
             rows[m, lag] = 1.0
         else:
-            rows[m, :4] = readings.sees[m] @ c
+            rows[m] = output_view(c, readings, m)
     return rows
 
 

@@ -176,7 +176,7 @@ class Float32Observer:
         if corrected:
             est.x = est.x + matvec(self.c_inv, correction)
             est.y = est.part.output(est.x)
-        return est.y.copy()
+        return self.layout.reported(self.extra, est.y)
 
     def _update(self, index: int, value, r) -> np.ndarray | None:
         """The index-th measurement's correction with its reading `value` of variance `r`: the gain (node
@@ -214,6 +214,8 @@ class Float32Observer:
         for i in range(len(OUTPUTS)):
             row = np.zeros(self.n, dtype=f)
             row[i] = f(1.0)
+            if i == self.layout.bias_output:      # the reported node: its output plus the bias
+                row[self.layout.bias_index] = f(1.0)
             variance = self.cov.variance(row)
             out[i] = np.sqrt(variance) if variance > 0 else f(0.0)
         return out

@@ -47,6 +47,8 @@ class Transition:
             if lag >= 0:
                 nonzero[lag] = pattern_product(sees_nonzero[None, :], nonzero[:k])[0]
                 nonzero[lag, lag] = True
+                if layout.bias_output >= 0 and sees_nonzero[layout.bias_output]:
+                    nonzero[lag, layout.bias_index] = True
         self.nonzero = nonzero
 
     def matrix(self) -> np.ndarray:
@@ -68,5 +70,7 @@ class Transition:
             if lag >= 0:
                 row, _ = masked_matmul(m.sees[None, :], full[:k], sees_nonzero[None, :], self.nonzero[:k])
                 full[lag] = (f(1.0) - m.lag_pole) * row[0]
+                if layout.bias_output >= 0 and sees_nonzero[layout.bias_output]:   # it sees the output bias too
+                    full[lag, layout.bias_index] = (f(1.0) - m.lag_pole) * m.sees[layout.bias_output]
                 full[lag, lag] = m.lag_pole
         return full

@@ -214,8 +214,13 @@ def sensor_truth(motor: Path) -> dict:
     raise SystemExit(f"{motor / 'motor.json'} has no column with signal {SENSOR_SIGNAL!r}")
 
 
+# the observer's runs on the test profiles: (label, how its sensor is given, extra arguments, tag of its artifact)
+OBSERVER_RUNS = (("estimated", "estimated", (), ""), ("file", "file", (), ""),
+                 ("estimated, output bias", "estimated", ("--bias", "winding-output"), "output-bias"))
+
+
 def observer(motor: Path, data: Path, index: dict, model: Path, how: str, truth: dict | None, extra: tuple = (),
-             role: str = "test", tag: str = "") -> dict:
+             role: str = "test", tag: str = "", label: str | None = None) -> dict:
     """`bench observer` on the training profiles with the sensor estimated (how = "estimated") or as the motor file
     says ("file"), then `bench evaluate` of it on the profiles of `role`."""
     sensor = (("--lag", "auto", "--gradient", "auto", "--offset", "auto") if how == "estimated" else
@@ -227,7 +232,7 @@ def observer(motor: Path, data: Path, index: dict, model: Path, how: str, truth:
     evaluated, _ = bench("evaluate", "--model", str(out), "--mapping", str(motor / "mapping.json"),
                          "--data", *files(data, index, role))
     per_file = evaluated["models"][0]["observer"]["files"]
-    return {"how": how, "observer_s": round(seconds, 1), "tuning": tuned,
+    return {"how": label or how, "observer_s": round(seconds, 1), "tuning": tuned,
             "pooled": pooled_observer(per_file, index), "files": per_file}
 
 
@@ -261,7 +266,8 @@ DEFAULTS = {
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
                      # on: the winding's; the magnet's with --consider none (a held magnet bias would never move)
-                     "bias": ("off", {"on": ("--bias",), "magnet": ("--bias", "magnet", "--consider", "none")}),
+                     "bias": ("off", {"on": ("--bias",), "magnet": ("--bias", "magnet", "--consider", "none"),
+                                      "winding-output": ("--bias", "winding-output")}),
                      "consider": ("magnet", {"none": ("--consider", "none"),
                                              "unmeasured": ("--consider", "unmeasured")}),
                      "consider-release": ("none", {"5": ("--consider-release", "5")})}
@@ -378,9 +384,10 @@ def one_motor(motor: Path, work: Path, args) -> dict:
         hammerstein = runs["designer"]["artifacts"]["hammerstein"]
         truth = sensor_truth(motor)
         entry["sensor"] = truth
-        entry["observer"] = [attempt(f"{motor.name} observer ({how})",
-                                     lambda how=how: observer(motor, data, index, hammerstein, how, truth))
-                             for how in ("estimated", "file")]
+        entry["observer"] = [attempt(f"{motor.name} observer ({label})",
+                                     lambda label=label, how=how, extra=extra, tag=tag: observer(
+                                         motor, data, index, hammerstein, how, truth, extra, tag=tag, label=label))
+                             for label, how, extra, tag in OBSERVER_RUNS]
     if args.defaults:
         entry["defaults"] = attempt(f"{motor.name} defaults",
                                     lambda: compare_defaults(motor, work, data, index, runs))

@@ -85,6 +85,25 @@ def consider_steady_artifact(consider_artifact, tmp_path_factory):
     return _steady(consider_artifact, tmp_path_factory)
 
 
+@pytest.fixture(scope="module")
+def output_bias_artifact(small_dataset, tmp_path_factory):
+    """The lagged winding sensor (τ 60 s) with the winding output bias (`--bias winding-output`): the sensor's update
+    holds every node and moves the lag and the bias, which the lag row of F sees and the reported winding adds."""
+    out = tmp_path_factory.mktemp("observer-output-bias") / "output-bias.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias",
+                 "winding-output", "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def output_bias_sensor_artifact(small_dataset, tmp_path_factory):
+    """The winding sensor without lag and the winding output bias: the bias in the sensor's row h."""
+    out = tmp_path_factory.mktemp("observer-output-bias-sensor") / "output-bias-sensor.json"
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--bias", "winding-output",
+                 "--out", str(out), "--quiet"]) == 0
+    return out
+
+
 class Case:
     """An observer artifact with its drive (rows, 4 or 6) and its host measurement matrix (rows, 2 or 4)."""
 
@@ -149,14 +168,16 @@ def steady_sensor_artifact(observer_artifact, tmp_path_factory):
 # `-m slow`, as .ci/run does (the default run has a 5-minute budget).
 DEFAULT_RUN_CASES = ("sensor", "lagged", "ntc+flux", "consider")
 OBSERVER_CASES = ("sensor", "lagged", "magnet-bias", "ntc+flux", "steady", "sensor-steady", "ntc+flux-steady",
-                  "flux+resistance", "consider", "consider-sensor", "consider-steady")
+                  "flux+resistance", "consider", "consider-sensor", "consider-steady", "output-bias",
+                  "output-bias-sensor", "output-bias-steady")
 
 
 @pytest.fixture(params=[pytest.param(c, marks=() if c in DEFAULT_RUN_CASES else (pytest.mark.slow,))
                         for c in OBSERVER_CASES])
 def case(request, observer_artifact, lagged_artifact, magnet_bias_artifact, flux_observer_artifact, steady_artifact,
          steady_sensor_artifact, steady_flux_artifact, resistance_observer_artifact, consider_artifact,
-         consider_sensor_artifact, consider_steady_artifact) -> Case:
+         consider_sensor_artifact, consider_steady_artifact, output_bias_artifact, output_bias_sensor_artifact,
+         tmp_path_factory) -> Case:
     if request.param == "ntc+flux":
         return _flux_case(flux_observer_artifact)
     if request.param == "flux+resistance":        # both from DriveVoltages and the row's currents, no sensor
@@ -166,7 +187,10 @@ def case(request, observer_artifact, lagged_artifact, magnet_bias_artifact, flux
     paths = {"sensor": observer_artifact, "lagged": lagged_artifact, "magnet-bias": magnet_bias_artifact,
              "steady": steady_artifact,
              "sensor-steady": steady_sensor_artifact, "consider": consider_artifact,
-             "consider-sensor": consider_sensor_artifact, "consider-steady": consider_steady_artifact}
+             "consider-sensor": consider_sensor_artifact, "consider-steady": consider_steady_artifact,
+             "output-bias": output_bias_artifact, "output-bias-sensor": output_bias_sensor_artifact}
+    if request.param == "output-bias-steady":
+        return _sensor_case(_steady(output_bias_artifact, tmp_path_factory))
     return _sensor_case(paths[request.param])
 
 

@@ -181,7 +181,7 @@ def _edited(artifact, change) -> dict:
      "observer.R is -1, a measurement variance must be positive"),
     (lambda c: c["observer"].pop("P0"), "missing the field observer.P0"),
     (lambda c: c["observer"].update(bias="rotor-heat"),
-     "observer.bias 'rotor-heat' is not one of winding-heat, magnet-heat or null"),
+     "observer.bias 'rotor-heat' is not one of winding-heat, magnet-heat, winding-output or null"),
     # a section of a version this target does not know was read as version 2 (99) or ended in a traceback ("two")
     (lambda c: c["observer"].update(version=99), "observer.version 99 is not supported .* versions 1 to 2"),
     (lambda c: c["observer"].update(version="two"), "observer.version 'two' is not supported"),
@@ -367,7 +367,7 @@ def test_a_section_without_the_new_kind_is_written_and_read_as_before(augmented,
 
     parse = build_parser().parse_args
     assert [parse(["observer", *flags]).bias for flags in ([], ["--bias"], ["--bias", "magnet"])] == [
-        "none", "winding", "magnet"]
+        "auto", "winding", "magnet"]
 
 
 def _magnet_heat_truth(model: FilterModel, artifact, path, rows: int, scale: float):
