@@ -215,8 +215,9 @@ def sensor_truth(motor: Path) -> dict:
 
 
 # the observer's runs on the test profiles: (label, how its sensor is given, extra arguments, tag of its artifact)
-OBSERVER_RUNS = (("estimated", "estimated", (), ""), ("file", "file", (), ""),
-                 ("estimated, output bias", "estimated", ("--bias", "winding-output"), "output-bias"))
+OBSERVER_RUNS = (("estimated, no bias", "estimated", ("--bias", "none"), ""),
+                 ("file, no bias", "file", ("--bias", "none"), ""),
+                 ("estimated, output bias (default)", "estimated", (), "output-bias"))
 
 
 def observer(motor: Path, data: Path, index: dict, model: Path, how: str, truth: dict | None, extra: tuple = (),
@@ -266,8 +267,8 @@ DEFAULTS = {
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
                      # on: the winding's; the magnet's with --consider none (a held magnet bias would never move)
-                     "bias": ("off", {"on": ("--bias",), "magnet": ("--bias", "magnet", "--consider", "none"),
-                                      "winding-output": ("--bias", "winding-output")}),
+                     "bias": ("winding-output", {"off": ("--bias", "none"), "on": ("--bias",),
+                                                 "magnet": ("--bias", "magnet", "--consider", "none")}),
                      "consider": ("magnet", {"none": ("--consider", "none"),
                                              "unmeasured": ("--consider", "unmeasured")}),
                      "consider-release": ("none", {"5": ("--consider-release", "5")})}
