@@ -93,13 +93,18 @@ def compare(name: str, open_loop: Path, observer: Path, work: Path, data: list[s
             "goal_met": closed["cycles"]["max"] <= GOAL_CYCLES}
 
 
-def builtin_motor(work: Path, rows: int) -> dict:
+def builtin_motor(work: Path, rows: int) -> list[dict]:
+    """The built-in motor's winding sensor as `bench observer` builds it (its default: the winding's output bias,
+    five states) and without a bias (the four-state filter issue 25's goal was set for)."""
     from bench.model.default import default_artifact_path
 
-    model = work / "builtin-observer.json"
-    bench("observer", "--evaluations", "2", "--out", str(model))
-    return compare("built-in winding sensor", default_artifact_path("hammerstein"), model, work,
-                   ["--data", BUILTIN_VALIDATION], rows)
+    cases = []
+    for name, extra in (("built-in winding sensor", ()), ("built-in winding sensor, --bias none", ("--bias", "none"))):
+        model = work / f"builtin-observer{'-' + extra[-1] if extra else ''}.json"
+        bench("observer", "--evaluations", "2", *extra, "--out", str(model))
+        cases.append(compare(name, default_artifact_path("hammerstein"), model, work, ["--data", BUILTIN_VALIDATION],
+                             rows))
+    return cases
 
 
 def ipm_example(work: Path, rows: int) -> tuple[list[dict], list[dict]]:
@@ -162,7 +167,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = (args.work or Path(tmp)).resolve()
         work.mkdir(parents=True, exist_ok=True)
-        cases, runs = [builtin_motor(work, args.rows)], []
+        cases, runs = builtin_motor(work, args.rows), []
         if not args.skip_ipm:
             ipm, runs = ipm_example(work, args.rows)
             cases += ipm
