@@ -1210,6 +1210,11 @@ def render_headline(records: dict[str, list[Record]] | None = None) -> str:
             rows.append(["motors the model cannot be: the suite's test profiles, the model `bench identify` deploys "
                          "from the designer's prior (winding / magnet MSE K², goal ≤ 2.0)", ", ".join(cells),
                          "[suite](docs/results.md#the-motor-suite)"])
+        observed = _suite_output_bias(suite)
+        if observed:
+            rows.append(["... with the end-winding NTC and the observer's output bias (its lag, gradient and offset "
+                         "estimated; winding MSE K² open loop → observer, the magnet the open loop's)",
+                         ", ".join(observed), "[suite](docs/results.md#the-motor-suite)"])
     dates = sorted(_date(r) for rs in records.values() for r in rs)
     machines = sorted({f"{r['machine']['cpu']}, {r['machine']['cpus']} CPUs" for rs in records.values() for r in rs})
     when = dates[0] if dates and dates[0] == dates[-1] else f"{dates[0]} to {dates[-1]}" if dates else ""
@@ -1219,6 +1224,17 @@ def render_headline(records: dict[str, list[Record]] | None = None) -> str:
              "each one's conditions and the full tables.") if dates else \
         "Not measured yet: run the scripts in `tests/benchmarks/`."
     return "\n".join([README_BEGIN, "", intro, "", *_table(["what", "result", "details"], rows), README_END]) + "\n"
+
+
+def _suite_output_bias(suite: Record) -> list[str]:
+    """Per suite motor, the observer run with the winding's output bias: winding MSE open loop → observer."""
+    cells = []
+    for motor in suite["figures"]["motors"]:
+        run = next((o for o in motor.get("observer") or [] if "output bias" in str(o.get("how"))), None)
+        winding = ((run or {}).get("pooled") or {}).get("winding")
+        if winding:
+            cells.append(f"{motor['motor']} {winding['open_loop_mse_K2']:.1f} → {winding['observer_mse_K2']:.2f}")
+    return cells
 
 
 def splice_readme(readme: str, headline: str) -> str:
