@@ -7,9 +7,14 @@ received — every logged frame but the target's own (and the target's reply fau
 layer filters) — and answers as the target must have, so "CAN = twin within the 0.01 °C quantization" checks the
 target's arithmetic and its handling of every faulty frame at once. The logged XCP commands of a calibration master
 reach it too, in their place, so a run calibrated over XCP is checked against the twin calibrated the same way.
+A DOWNLOAD names its cell by address, so the twin's cells must sit where the target's did: at the firmware ELF's
+addresses for a firmware target (its C slave serves its own RAM variables) or a Python target started with
+`--xcp-elf`, else in the Python slave's pages; the one mapping from addresses to cells is `target_sim.xcp.layout`'s.
 """
 
 from __future__ import annotations
+
+import os
 
 import can
 import numpy as np
@@ -24,9 +29,11 @@ from target_sim.artifact import ModelArtifact
 from target_sim.node import TargetNode
 
 
-def twin_estimates(artifact: ModelArtifact, record: BusRecord) -> np.ndarray:
-    """(rows, 4) yoke, winding, tooth, magnet the twin answered after each row (its last answer; NaN: none)."""
-    node = TargetNode(artifact, clock_ns=lambda: 0)
+def twin_estimates(artifact: ModelArtifact, record: BusRecord, xcp_elf: str | os.PathLike | None = None
+                   ) -> np.ndarray:
+    """(rows, 4) yoke, winding, tooth, magnet the twin answered after each row (its last answer; NaN: none); its XCP
+    cells at the addresses of the firmware ELF `xcp_elf`, the target's layout (None: the Python slave's pages)."""
+    node = TargetNode(artifact, clock_ns=lambda: 0, xcp_elf=xcp_elf)
     out = np.full((record.rows, STATE_SIZE), np.nan)
     # its own frames (and its XCP replies), its reply faults' foreign ids; a master's XCP commands it replays
     not_received = target_frame_ids() | {res_id()} | foreign_ids(REPLY_SIGNALS)
