@@ -323,9 +323,10 @@ def twin_agreement(artifact: ModelArtifact, record: BusRecord, xcp_elf: str | os
                    ) -> tuple[np.ndarray, dict]:
     """Every final reply against the target's twin fed the logged frames (`bench.analysis.twin`), its XCP cells
     laid out by `xcp_elf`."""
-    from bench.analysis.twin import twin_estimates
+    from bench.analysis.twin import run_twin
 
-    twin = twin_estimates(artifact, record, xcp_elf)
+    run = run_twin(artifact, record, xcp_elf)
+    twin = run.estimates
     both = record.answered & np.isfinite(twin).all(axis=1)
     low, high = temperature_range()
     in_range = (twin >= low) & (twin <= high)
@@ -333,7 +334,8 @@ def twin_agreement(artifact: ModelArtifact, record: BusRecord, xcp_elf: str | os
     worst = np.nanmax(np.where(np.isnan(diff), -np.inf, diff), axis=0) if diff.size else np.full(4, np.nan)
     worst = np.where(np.isinf(worst), np.nan, worst)
     return twin, {"max_abs": worst, "compared": int(np.count_nonzero(both)),
-                  "saturated": int(np.count_nonzero(~in_range[both]))}
+                  "saturated": int(np.count_nonzero(~in_range[both])),
+                  "downloads_unlike_target": run.downloads_unlike_target}
 
 
 def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *, bitrate: int = NOMINAL_BITRATE,
@@ -421,7 +423,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *, bitrate
             can_agrees_with_float32=all(v is None or v <= AGREEMENT_TOLERANCE_C for v in max_agree.values()),
             replies_compared=agreement["compared"], can_reference="target twin" if use_twin else "offline float32",
             rows_lost_on_the_bus=lost_rows, max_abs_can_minus_clean_C=_deviation(record, clean, selection),
-            segments=len(record.segments), saturated_values=saturated),
+            segments=len(record.segments), saturated_values=saturated,
+            xcp_downloads_unlike_target=agreement.get("downloads_unlike_target", 0)),
         accuracy=Accuracy(
             max_abs_float32_minus_float64_C=NodeValues(*(
                 _max_abs_finite(f32_err[:, i], f"max_abs_float32_minus_float64_C.{name}", nulls)

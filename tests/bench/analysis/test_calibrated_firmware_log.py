@@ -115,7 +115,8 @@ def assert_clean_and_bit_exact(frames, path: Path, artifact_path: Path, elf: Pat
 
 def assert_not_clean(frames, path: Path, artifact_path: Path, elf: Path, wrong_value: float) -> None:
     """The same run judged from a log without its calibration, with the calibration's value misstated, and with
-    the twin laid out by the Python slave's pages: each is not clean, the rows after the calibration left out."""
+    the twin laid out by the Python slave's pages: each is not clean, the rows after the calibration left out; the
+    pages' twin refused the DOWNLOAD the target accepted, which the verdict names."""
     artifact = load_artifact(artifact_path)
     stripped = [m for m in frames if m.arbitration_id not in (cmd_id(), res_id())]
     for name, logged, layout in (("unrecorded", stripped, elf), ("misstated", relogged(frames, wrong_value), elf),
@@ -123,6 +124,9 @@ def assert_not_clean(frames, path: Path, artifact_path: Path, elf: Path, wrong_v
         _, results, found = judged(logged, path.with_name(f"{name}.blf"), artifact, layout)
         assert found and "differ from the offline float32 reference" in found[0], name
         assert CALIBRATE_AFTER < results.figure_rows.kept < ROWS, (name, results.figure_rows.kept)
+        # the pages' twin refused the DOWNLOAD the target accepted: said as such
+        assert results.agreement.xcp_downloads_unlike_target == (name == "pages"), name
+        assert any("twin answered 1 of the log's XCP DOWNLOADs otherwise" in f for f in found) == (name == "pages")
 
 
 @pytest.fixture(scope="module")
