@@ -352,10 +352,11 @@ def firmware_bench():
 
 
 @pytest.mark.slow   # the emulated core: about 20 s on one worker; .ci/run runs it
-def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench):
+def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench, tmp_path):
     """pyxcp against the C slave: identify, DAQ of the temperatures at every model step, a DOWNLOAD of alpha_cu
     after row 30; the firmware's replies equal, bit for bit, the Python node given the same frames and calibration
-    (its cells at the same ELF's addresses), and every DAQ value is its step's CAN reply within 0.005 K."""
+    (its cells at the same ELF's addresses), and every DAQ value is its step's CAN reply within 0.005 K; `bench
+    analyze` of the host's log replays the calibration at the ELF's addresses: clean, every row kept."""
     config, bus = firmware_bench
     host = Host(bus)
     artifact = load_artifact(PACKAGED)
@@ -392,6 +393,7 @@ def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench):
                 assert reference.xcp.command(bytes((0xF0, 4)) + struct.pack("<f", ALPHA_CU)) == b"\xff"
                 assert struct.unpack("<f", xcp.shortUpload(4, cells["cal_alpha_cu"].address))[0] == \
                     np.float32(ALPHA_CU)
+        host.send([host.codec.encode("Control", {"Command": int(Command.STOP), "Step": 0})])
         xcp.startStopSynch(0x00)
         host.drain()
         xcp.setMta(cells["x_state_0"].address)
@@ -412,3 +414,12 @@ def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench):
         message = "Temperatures1" if role in ("WindingTemp", "MagnetTemp") else "Temperatures2"
         replies = [host.temps[row][message][role] for row in step_rows]
         assert np.allclose(by_pid[pid], replies, atol=0.005 + 1e-9), role
+
+    # bench analyze: a firmware log's twin takes the packaged model's shipped ELF, so the DOWNLOAD at the C's
+    # fw_cal_alpha_cu is replayed (the refused ones refused alike): the calibrated run is clean (exit status 0)
+    from bench.cli import main
+
+    from helpers import write_frames
+
+    log = write_frames(tmp_path / "firmware.blf", host.log)
+    assert main(["analyze", str(log), "--no-report", "--quiet"]) == 0
