@@ -61,8 +61,10 @@ def run_twin(artifact: ModelArtifact, record: BusRecord, xcp_elf: str | os.PathL
         msg = can.Message(arbitration_id=fid, is_extended_id=False, dlc=dlc, data=bytes(data[:dlc]), check=False)
         answers = node.handle(msg)
         if fid == command:     # XCP has one command outstanding: a new one ends the wait for the last one's answer
-            answer = [r.data[0] for r in answers if r.arbitration_id == response and r.data[0] >= PID_ERR]
-            pending = answer[0] if answer and dlc and data[0] == Cmd.DOWNLOAD else None
+            pending = None
+            if dlc and data[0] == Cmd.DOWNLOAD:
+                pending = next((r.data[0] for r in answers if r.arbitration_id == response and r.data[0] >= PID_ERR),
+                               None)
         for reply in answers:
             if reply.arbitration_id not in replies:
                 continue
