@@ -100,14 +100,15 @@ def message_name(msg: can.Message) -> str | None:
 
 @pytest.fixture(scope="module")
 def observer_artifact(tmp_path_factory, small_dataset) -> Path:
-    """The conftest's observer, ungated (`--gate none`): the calibration steps the sensor's reading by OFFSET K at
-    once, which the default 3-sigma innovation gate rightly takes for a lying sensor (it rejects the readings and
-    flags the sensor; the gate's own tests show that). Here the calibration itself is under test."""
+    """The conftest's observer (`--bias none`: the DAQ's y_est is the reply), ungated (`--gate none`): the
+    calibration steps the sensor's reading by OFFSET K at once, which the default 3-sigma innovation gate rightly
+    takes for a lying sensor (it rejects the readings and flags the sensor; the gate's own tests show that). Here
+    the calibration itself is under test."""
     from bench.cli import main
 
     out = tmp_path_factory.mktemp("xcp-observer") / "observer.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--gate", "none", "--out",
-                 str(out), "--quiet"]) == 0
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--gate", "none", "--bias", "none",
+                 "--out", str(out), "--quiet"]) == 0
     return out
 
 
