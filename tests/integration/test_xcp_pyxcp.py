@@ -250,12 +250,13 @@ MF4_CHANNELS = ("y_est_0", "y_est_1", "y_est_2", "y_est_3", "obs_sigma_1", "obs_
 
 @pytest.fixture(scope="module")
 def lagged_artifact(tmp_path_factory, small_dataset) -> Path:
-    """An observer whose winding sensor lags (τ 60 s): the filter carries the lag's state, `obs_extra_0`."""
+    """An observer whose winding sensor lags (τ 60 s): the filter carries the lag's state, `obs_extra_0` (no output
+    bias, `--bias none`: the DAQ's y_est is the reply)."""
     from bench.cli import main
 
     out = tmp_path_factory.mktemp("xcp-lagged") / "lagged.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--out", str(out),
-                 "--quiet"]) == 0
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "none",
+                 "--out", str(out), "--quiet"]) == 0
     return out
 
 
