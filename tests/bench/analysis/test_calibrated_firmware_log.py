@@ -129,26 +129,13 @@ def assert_not_clean(frames, path: Path, artifact_path: Path, elf: Path, wrong_v
         assert any("twin answered 1 of the log's XCP DOWNLOADs otherwise" in f for f in found) == (name == "pages")
 
 
-@pytest.fixture(scope="module")
-def alpha_session() -> list[can.Message]:
-    return firmware_session(PACKAGED, PACKAGED_ELF, "cal_alpha_cu", ALPHA_CU)
-
-
-def test_a_firmware_run_calibrated_mid_run_is_clean_against_its_calibrated_twin(alpha_session, tmp_path):
-    """The packaged model's firmware (the shipped ELF), alpha_cu downloaded after row 100 of 200: clean and
-    bit-exact against the twin laid out by the ELF; not clean without the calibration in the log, with another
-    value in it (0.0045), or with the twin in the Python slave's pages."""
-    assert_clean_and_bit_exact(alpha_session, tmp_path / "calibrated.blf", PACKAGED, PACKAGED_ELF)
-    assert_not_clean(alpha_session, tmp_path / "calibrated.blf", PACKAGED, PACKAGED_ELF, 0.0045)
-
-
-def test_bench_analyze_lays_out_a_firmware_logs_twin_by_its_elf(alpha_session, tmp_path, capsys, monkeypatch):
-    """`bench analyze` of the firmware log: clean with the packaged model's shipped ELF by default and with
-    --xcp-elf; an ELF of another model refused in one sentence before the log is read; a firmware log of a model
-    that ships no ELF refused in one sentence asking for --xcp-elf."""
+def assert_bench_analyze_lays_out_the_twin(frames, path: Path, capsys, monkeypatch) -> None:
+    """`bench analyze` of the packaged model's calibrated firmware log: clean with the shipped ELF by default and
+    with --xcp-elf; an ELF of another model refused in one sentence before the log is read; a firmware log of a
+    model that ships no ELF refused in one sentence asking for --xcp-elf."""
     from bench.cli import main
 
-    log = write_frames(tmp_path / "calibrated.blf", alpha_session)
+    log = write_frames(path, frames)
     for extra in ([], ["--xcp-elf", str(PACKAGED_ELF)]):
         assert main(["analyze", str(log), "--no-report", "--json", *extra]) == 0, extra
         assert json.loads(capsys.readouterr().out)["clean"] is True
@@ -160,6 +147,17 @@ def test_bench_analyze_lays_out_a_firmware_logs_twin_by_its_elf(alpha_session, t
     assert main(["analyze", str(log), "--no-report"]) != 0
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "firmware target calibrated over XCP" in err and "--xcp-elf" in err
+
+
+def test_a_firmware_run_calibrated_mid_run_is_clean_against_its_calibrated_twin(tmp_path, capsys, monkeypatch):
+    """The packaged model's firmware (the shipped ELF, about 0.2 s of emulation), alpha_cu downloaded after row 100
+    of 200: clean and bit-exact against the twin laid out by the ELF, in `compute` and in `bench analyze`; not clean
+    without the calibration in the log, with another value in it (0.0045), or with the twin in the Python slave's
+    pages."""
+    frames = firmware_session(PACKAGED, PACKAGED_ELF, "cal_alpha_cu", ALPHA_CU)
+    assert_clean_and_bit_exact(frames, tmp_path / "calibrated.blf", PACKAGED, PACKAGED_ELF)
+    assert_not_clean(frames, tmp_path / "calibrated.blf", PACKAGED, PACKAGED_ELF, 0.0045)
+    assert_bench_analyze_lays_out_the_twin(frames, tmp_path / "cli.blf", capsys, monkeypatch)
 
 
 OFFSET = 0.5               # K: the NTC offset downloaded (within the innovation gate: the filter keeps the sensor)
