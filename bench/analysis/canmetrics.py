@@ -35,6 +35,7 @@ figures ignore numpy's overflow warnings, and the nulls say which values were no
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -312,11 +313,20 @@ def measurement_faults(record: BusRecord) -> int:
                if mark.event == "fault" and mark.frame_id in ids and mark.fault in FRAME_FAULT_KINDS)
 
 
-def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarray, dict]:
-    """Every final reply against the target's twin fed the logged frames (`bench.analysis.twin`)."""
-    from bench.analysis.twin import twin_estimates
+def ran_firmware(record: BusRecord) -> bool:
+    """The log's target ran the firmware engine: it sent the measured Cortex-M4F cycles (Timing4)."""
+    cycles = record.timing.get("m4_cycles")
+    return cycles is not None and cycles.size > 0
 
-    twin = twin_estimates(artifact, record)
+
+def twin_agreement(artifact: ModelArtifact, record: BusRecord, xcp_elf: str | os.PathLike | None = None
+                   ) -> tuple[np.ndarray, dict]:
+    """Every final reply against the target's twin fed the logged frames (`bench.analysis.twin`), its XCP cells
+    laid out by `xcp_elf`."""
+    from bench.analysis.twin import run_twin
+
+    run = run_twin(artifact, record, xcp_elf)
+    twin = run.estimates
     both = record.answered & np.isfinite(twin).all(axis=1)
     low, high = temperature_range()
     in_range = (twin >= low) & (twin <= high)
@@ -324,15 +334,18 @@ def twin_agreement(artifact: ModelArtifact, record: BusRecord) -> tuple[np.ndarr
     worst = np.nanmax(np.where(np.isnan(diff), -np.inf, diff), axis=0) if diff.size else np.full(4, np.nan)
     worst = np.where(np.isinf(worst), np.nan, worst)
     return twin, {"max_abs": worst, "compared": int(np.count_nonzero(both)),
-                  "saturated": int(np.count_nonzero(~in_range[both]))}
+                  "saturated": int(np.count_nonzero(~in_range[both])),
+                  "downloads_unlike_target": run.downloads_unlike_target}
 
 
-def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
-            bitrate: int = NOMINAL_BITRATE) -> tuple[RunResults, References]:
+def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *, bitrate: int = NOMINAL_BITRATE,
+            xcp_elf: str | os.PathLike | None = None) -> tuple[RunResults, References]:
     """The report's metric table (`RunResults`) and the reference trajectories.
 
     A log whose rows did not all reach the target (faults in real time) is checked against the target's twin,
-    and the clean references run on the drive values the host meant to send."""
+    and the clean references run on the drive values the host meant to send. So is a log with XCP DOWNLOADs: the
+    twin replays them at the addresses of `xcp_elf`, the firmware ELF the target's XCP slave was laid out by (a
+    firmware target's own, or a Python target's `--xcp-elf`; None: the Python slave's pages)."""
     if record.initial is None:
         raise ValueError("the log has no complete RESET (ResetTemps1, ResetTemps2, Control RESET)")
     record = drive_for_model(record, artifact)
@@ -347,7 +360,7 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
         # the logged XCP commands in their place, the clean references cannot
         use_twin = bool(lost_rows or (measured is not None and measurement_faults(record)) or record.xcp_downloads)
         if use_twin:
-            final_ref, agreement = twin_agreement(artifact, record)
+            final_ref, agreement = twin_agreement(artifact, record, xcp_elf)
         else:
             final_ref, agreement = restarted_agreement(artifact, record, clean)
     selection = kept_rows(record, final_ref, tolerance=AGREEMENT_TOLERANCE_C)   # the rows every figure is over
@@ -394,7 +407,7 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
     status_gaps = np.diff(record.status_s) if len(record.status_s) > 1 else np.zeros(0)
     timing = record.timing
     info = record.target_info
-    firmware = timing.get("m4_cycles") is not None and timing["m4_cycles"].size > 0
+    firmware = ran_firmware(record)
     estimate = memory_estimate(artifact)
     max_agree = NodeValues(*(None if np.isnan(agreement["max_abs"][i]) else float(agreement["max_abs"][i])
                              for i in range(len(TEMPERATURES))))
@@ -410,7 +423,8 @@ def compute(record: BusRecord, artifact: ModelArtifact, dataset=None, *,
             can_agrees_with_float32=all(v is None or v <= AGREEMENT_TOLERANCE_C for v in max_agree.values()),
             replies_compared=agreement["compared"], can_reference="target twin" if use_twin else "offline float32",
             rows_lost_on_the_bus=lost_rows, max_abs_can_minus_clean_C=_deviation(record, clean, selection),
-            segments=len(record.segments), saturated_values=saturated),
+            segments=len(record.segments), saturated_values=saturated,
+            xcp_downloads_unlike_target=agreement.get("downloads_unlike_target", 0)),
         accuracy=Accuracy(
             max_abs_float32_minus_float64_C=NodeValues(*(
                 _max_abs_finite(f32_err[:, i], f"max_abs_float32_minus_float64_C.{name}", nulls)

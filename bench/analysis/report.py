@@ -52,13 +52,15 @@ def check_report_dir(report_dir: Path, option: str = "--report") -> None:
 
 def analyze_log(log_path: str | Path, artifact: ModelArtifact, dataset=None, *, report_dir: str | Path | None = None,
                 bitrate: int | None = None, run_info: dict | None = None,
-                extra_problems: list[str] | None = None, gate=None) -> tuple[RunResults, list[str]]:
+                extra_problems: list[str] | None = None, gate=None,
+                xcp_elf: str | Path | None = None) -> tuple[RunResults, list[str]]:
     """Decode the log, compute the metrics against the references, write the report if `report_dir`.
 
     `extra_problems` (what the live run saw, e.g. the host's) are listed in the report too; `gate` (a
-    `bench.acceptance.criteria.Gate`) judges the acceptance criteria, which go into the results and the report."""
+    `bench.acceptance.criteria.Gate`) judges the acceptance criteria, which go into the results and the report;
+    `xcp_elf` lays out the twin that replays the log's XCP calibrations (`canmetrics.compute`)."""
     record = decode_log(log_path)
-    results, refs = compute(record, artifact, dataset, **({"bitrate": bitrate} if bitrate else {}))
+    results, refs = compute(record, artifact, dataset, **({"bitrate": bitrate} if bitrate else {}), xcp_elf=xcp_elf)
     if gate is not None:
         results.acceptance = gate.judge(results)
     found = list(dict.fromkeys((extra_problems or []) + problems(results)))

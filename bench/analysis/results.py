@@ -245,6 +245,8 @@ class Agreement:
     max_abs_can_minus_clean_C: NodeValues
     segments: int
     saturated_values: int
+    # the log's XCP DOWNLOADs the twin answered otherwise than the target (its cells not where the target's were)
+    xcp_downloads_unlike_target: int = 0
 
 
 REASON_WORDS = {"contested": "contested", "replayed": "replayed",

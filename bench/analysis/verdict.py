@@ -82,6 +82,11 @@ def problems(results: RunResults) -> list[str]:
         left_out = f" at {off} rows, which are left out of every figure" if off else ""
         out.append(f"CAN temperatures differ from the offline float32 reference by up to {worst:.4f} °C "
                    f"(more than the {QUANTIZATION_C} °C quantization){left_out}")
+    if agreement.xcp_downloads_unlike_target:
+        out.append(f"the target's twin answered {agreement.xcp_downloads_unlike_target} of the log's XCP DOWNLOADs "
+                   "otherwise than the target (accepted a calibration it refused, or refused one it accepted): the "
+                   "twin's cells are not at the target's addresses (give bench analyze the target's ELF, --xcp-elf) "
+                   "or the target's XCP slave is not its reference's")
     bad = {k: v for k, v in results.integrity.target_rx_errors.items() if v}
     if bad and not injected:
         out.append(f"the target rejected or could not sequence frames: {bad}")

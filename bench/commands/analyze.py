@@ -1,6 +1,6 @@
 """`bench analyze LOG`: decode a bus log of this bench offline into the same report as `bench run`.
 
-    bench analyze LOG [--model FILE] [--data FILE [--mapping FILE] [--sample-period S|auto]]
+    bench analyze LOG [--model FILE] [--data FILE [--mapping FILE] [--sample-period S|auto]] [--xcp-elf ELF]
                       [--report DIR | --no-report] [--tolerate-faults] [--json] [--quiet]
                       [--criteria FILE] [--baseline FILE] [--junit-xml FILE]
 
@@ -9,6 +9,11 @@ reference comes from --data, or else from a dataset in out/data whose rows match
 (so a log of the default `bench run` gets the same report); without one, RMSE is against the float64 model only.
 A log of a model with an electrical loss model carries each row's d/q currents (DriveCurrents): the references
 run on them, and --data must have them too.
+
+A log with XCP DOWNLOADs (a calibration master changed the target during the run) is judged against the target's
+twin, which replays them; a DOWNLOAD names its cell by address, so the twin lays out its cells as the target did:
+by --xcp-elf, the firmware ELF of a firmware target (or the ELF a Python target had as --xcp-elf). A firmware target's
+log takes the packaged model's shipped ELF without it; for any other model's firmware it is needed.
 
 Exit status as `bench run`'s: 1 when the log is not clean, and a log with injected faults (BenchEvent marks; the
 `<log>.faults.json` sidecar beside it says whether each was detected) is not, unless --tolerate-faults; a fault
@@ -53,6 +58,10 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--model", type=Path, default=None, help="artifact the log was made with (default: packaged)")
     p.add_argument("--data", type=Path, default=None, help="dataset with the measured reference")
     add_data_arguments(p)
+    p.add_argument("--xcp-elf", type=Path, default=None, metavar="ELF",
+                   help="the firmware ELF whose addresses the target's XCP slave had (a firmware target's own, a "
+                        "Python target's --xcp-elf): the twin replays the log's calibrations at them (default: a "
+                        "firmware target's packaged ELF, else the Python slave's pages)")
     p.add_argument("--report", type=Path, default=None,
                    help="report directory (default: <log dir>/<log name>-report)")
     p.add_argument("--no-report", action="store_true",
@@ -61,9 +70,37 @@ def add_subparser(subparsers) -> None:
                    help="exit 0 for a log with injected faults if every one was detected and nothing else went wrong")
     add_output_flags(p)
     add_acceptance_arguments(p)
-    declare_files(p, inputs=('LOG', '--model', '--data'), outputs=('--report',), replaced=('--report',),
+    declare_files(p, inputs=('LOG', '--model', '--data', '--xcp-elf'), outputs=('--report',), replaced=('--report',),
                   off_with={'--report': '--no-report'})
     p.set_defaults(func=run)
+
+
+def check_xcp_elf(path: Path, artifact) -> None:
+    """BenchError (one sentence) unless `path` is a firmware ELF of `artifact`'s model (`--xcp-elf`)."""
+    from target_sim.firmware.elf import FirmwareError
+    from target_sim.xcp.layout import elf_symbols
+
+    try:
+        elf_symbols(path, artifact.model_id)
+    except FirmwareError as exc:
+        raise BenchError(f"--xcp-elf: {exc}") from None
+
+
+def twin_layout(log: Path, record, artifact) -> Path | None:
+    """The ELF the twin lays out its XCP cells by when --xcp-elf is not given: a firmware target's log with
+    calibrations takes the packaged model's shipped ELF (`bench run --engine firmware` ran it); BenchError (one
+    sentence) for another model's firmware; None (the Python slave's pages) for every other log."""
+    from bench.analysis.canmetrics import ran_firmware
+    from bench.firmware.images import packaged_elf
+
+    if not (record.xcp_downloads and ran_firmware(record)):
+        return None
+    shipped = packaged_elf(artifact)
+    if shipped is None:
+        raise BenchError(f"log {log} is of a firmware target calibrated over XCP ({record.xcp_downloads} DOWNLOADs), "
+                         f"whose cells sit at its ELF's addresses, and model {artifact.model_id:08x} ships no ELF; "
+                         "pass the target's ELF with --xcp-elf")
+    return shipped
 
 
 def run(args: argparse.Namespace) -> int:
@@ -82,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
         check_writable(report_dir, "--report", directory=True)
         check_report_dir(report_dir)
     artifact, model_path = load_model(args.model)
+    if args.xcp_elf is not None:    # an ELF of another model, or no ELF: one sentence before the log is read
+        check_xcp_elf(args.xcp_elf, artifact)
     dataset = None
     if args.data:  # read before the log: the loader's transient peak then does not add to the decoded log
         mapping, period = data_options(args)
@@ -101,8 +140,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         dataset = matching_dataset(record.drive, artifact)
     acceptor.check_data(data_identity(dataset, record.rows), f"log {args.log}")   # before the figures are computed
+    xcp_elf = args.xcp_elf or twin_layout(args.log, record, artifact)
     try:
-        results, refs = compute(record, artifact, dataset)
+        results, refs = compute(record, artifact, dataset, xcp_elf=xcp_elf)
     except ValueError as exc:     # e.g. an electrical loss model and a log without the d/q currents
         raise BenchError(f"log {args.log} cannot be compared with {model_path}: {exc}") from None
     in_log = problems(results)

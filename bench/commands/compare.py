@@ -126,7 +126,7 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
                                       firmware=firmware, measurements=measurements)
         finally:
             bar.close()
-        results, found = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate)
+        results, found = analyze_log(log_path, artifact, dataset, bitrate=bus.nominal_bitrate, xcp_elf=firmware)
         # the host and the log analysis may both see one problem (a clamped value): report it once
         table.append(table_row(artifact, model_path, results, list(dict.fromkeys(outcome.result.problems() + found))))
     return table

@@ -66,7 +66,7 @@ def judge(prepared: PreparedRun, outcome: RunOutcome, request: RunRequest, gate:
     try:
         metrics, found = analyze_log(log_path, prepared.artifact, prepared.dataset, report_dir=report_dir,
                                      bitrate=bus.nominal_bitrate, run_info=run_info, extra_problems=host.problems(),
-                                     gate=gate)
+                                     gate=gate, xcp_elf=firmware)   # a calibration master's DOWNLOADs: its addresses
     except (LogError, ValueError) as exc:
         if need_figures:
             raise BenchError(f"the log {log_path} cannot be analyzed ({exc})") from None

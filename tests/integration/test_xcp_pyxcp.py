@@ -100,14 +100,15 @@ def message_name(msg: can.Message) -> str | None:
 
 @pytest.fixture(scope="module")
 def observer_artifact(tmp_path_factory, small_dataset) -> Path:
-    """The conftest's observer, ungated (`--gate none`): the calibration steps the sensor's reading by OFFSET K at
-    once, which the default 3-sigma innovation gate rightly takes for a lying sensor (it rejects the readings and
-    flags the sensor; the gate's own tests show that). Here the calibration itself is under test."""
+    """The conftest's observer (`--bias none`: the DAQ's y_est is the reply), ungated (`--gate none`): the
+    calibration steps the sensor's reading by OFFSET K at once, which the default 3-sigma innovation gate rightly
+    takes for a lying sensor (it rejects the readings and flags the sensor; the gate's own tests show that). Here
+    the calibration itself is under test."""
     from bench.cli import main
 
     out = tmp_path_factory.mktemp("xcp-observer") / "observer.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--gate", "none", "--out",
-                 str(out), "--quiet"]) == 0
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--gate", "none", "--bias", "none",
+                 "--out", str(out), "--quiet"]) == 0
     return out
 
 
@@ -249,12 +250,13 @@ MF4_CHANNELS = ("y_est_0", "y_est_1", "y_est_2", "y_est_3", "obs_sigma_1", "obs_
 
 @pytest.fixture(scope="module")
 def lagged_artifact(tmp_path_factory, small_dataset) -> Path:
-    """An observer whose winding sensor lags (τ 60 s): the filter carries the lag's state, `obs_extra_0`."""
+    """An observer whose winding sensor lags (τ 60 s): the filter carries the lag's state, `obs_extra_0` (no output
+    bias, `--bias none`: the DAQ's y_est is the reply)."""
     from bench.cli import main
 
     out = tmp_path_factory.mktemp("xcp-lagged") / "lagged.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--out", str(out),
-                 "--quiet"]) == 0
+    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "none",
+                 "--out", str(out), "--quiet"]) == 0
     return out
 
 
@@ -352,10 +354,11 @@ def firmware_bench():
 
 
 @pytest.mark.slow   # the emulated core: about 20 s on one worker; .ci/run runs it
-def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench):
+def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench, tmp_path):
     """pyxcp against the C slave: identify, DAQ of the temperatures at every model step, a DOWNLOAD of alpha_cu
     after row 30; the firmware's replies equal, bit for bit, the Python node given the same frames and calibration
-    (its cells at the same ELF's addresses), and every DAQ value is its step's CAN reply within 0.005 K."""
+    (its cells at the same ELF's addresses), and every DAQ value is its step's CAN reply within 0.005 K; `bench
+    analyze` of the host's log replays the calibration at the ELF's addresses: clean, every row kept."""
     config, bus = firmware_bench
     host = Host(bus)
     artifact = load_artifact(PACKAGED)
@@ -392,6 +395,7 @@ def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench):
                 assert reference.xcp.command(bytes((0xF0, 4)) + struct.pack("<f", ALPHA_CU)) == b"\xff"
                 assert struct.unpack("<f", xcp.shortUpload(4, cells["cal_alpha_cu"].address))[0] == \
                     np.float32(ALPHA_CU)
+        host.send([host.codec.encode("Control", {"Command": int(Command.STOP), "Step": 0})])
         xcp.startStopSynch(0x00)
         host.drain()
         xcp.setMta(cells["x_state_0"].address)
@@ -412,3 +416,12 @@ def test_pyxcp_measures_and_calibrates_the_firmware_target(firmware_bench):
         message = "Temperatures1" if role in ("WindingTemp", "MagnetTemp") else "Temperatures2"
         replies = [host.temps[row][message][role] for row in step_rows]
         assert np.allclose(by_pid[pid], replies, atol=0.005 + 1e-9), role
+
+    # bench analyze: a firmware log's twin takes the packaged model's shipped ELF, so the DOWNLOAD at the C's
+    # fw_cal_alpha_cu is replayed (the refused ones refused alike): the calibrated run is clean (exit status 0)
+    from bench.cli import main
+
+    from helpers import write_frames
+
+    log = write_frames(tmp_path / "firmware.blf", host.log)
+    assert main(["analyze", str(log), "--no-report", "--quiet"]) == 0
