@@ -394,14 +394,15 @@ def test_a_fixed_stator_weight_fits_one_weight_where_the_rule_would_lower_it():
     assert fixed["stator_rule"].startswith("fixed at")
 
 
-def test_only_another_machines_named_prior_is_scaled_by_default():
+def test_a_prior_is_adapted_only_when_asked():
+    """The motor suite's choice (docs/method.md): no prior is adapted by default, a named foreign one neither."""
+    from bench.cli import build_parser
     from bench.commands.identify import _adapts
     from bench.motor.description import ThermalPrior, automatic_prior
 
     named = ThermalPrior(TRUTH, "table1", (0.5, 2.0))
     own = ThermalPrior(TRUTH, "file", (0.5, 2.0))
-    assert _adapts(None, True, named) and _adapts(None, True, None)     # no prior at all is Table 1's
-    assert not _adapts(None, True, own)                  # 22 values: the motor's own network
-    assert not _adapts(None, False, named)               # the built-in campaign: the packaged model's path
+    default = build_parser().parse_args(["identify"]).adapt_prior
+    assert default == "no" and not _adapts(default, True, named) and not _adapts(default, True, None)
     assert not _adapts("yes", True, automatic_prior())   # auto is read from the data already
-    assert _adapts("yes", False, own) and not _adapts("no", True, named)
+    assert _adapts("yes", False, own) and _adapts("yes", True, named) and not _adapts("no", True, named)

@@ -67,8 +67,10 @@ def identified(motor_files, tmp_path_factory):
     buffer = io.StringIO()
     capture.setattr(sys, "stdout", buffer)
     try:
-        # the polish route, asked for, with the Hammerstein model at --out whatever the validation file favours
-        assert _identify(motor_files, out, "--polish", "2", "--freeze", "yes", "--kind", "hammerstein") == 0
+        # the polish route and the cross-validated ridge, asked for, with the Hammerstein model at --out whatever the
+        # validation file favours
+        assert _identify(motor_files, out, "--polish", "2", "--freeze", "yes", "--kind", "hammerstein",
+                         "--regularization", "cv") == 0
     finally:
         capture.undo()
     return out, json.loads(buffer.getvalue())
@@ -234,9 +236,9 @@ def test_without_a_polish_the_files_path_still_names_what_the_data_cannot_determ
 
 
 def test_the_files_path_polishes_by_default_unless_the_prior_is_adapted(motor_files, tmp_path, capsys):
-    """--polish unset: the motor suite's choice (docs/method.md): --train files from the automatic (or the motor's
-    own) prior are polished from POLISH_STARTS starts, unfrozen; an adapted foreign network (Table 1 named in a
-    prior file) is not."""
+    """--polish unset: the motor suite's choice (docs/method.md): --train files are polished from POLISH_STARTS
+    starts, unfrozen, from the automatic, the motor's own or a named prior; an adapted foreign network (Table 1
+    named in a prior file, --adapt-prior yes) is not."""
     from bench.commands.identify import default_polish
     from bench.model.polish import POLISH_STARTS
 
@@ -250,9 +252,13 @@ def test_the_files_path_polishes_by_default_unless_the_prior_is_adapted(motor_fi
     polished = json.loads(capsys.readouterr().out)["polish"]
     assert polished["starts"] == POLISH_STARTS and not polished.get("frozen")
     (tmp_path / "table1-prior.json").write_text('{"parameters": "table1"}')
-    assert main([*common, "--prior", str(tmp_path / "table1-prior.json"), "--out", str(tmp_path / "table1.json")]) == 0
+    table1 = ["--prior", str(tmp_path / "table1-prior.json")]
+    assert main([*common, *table1, "--adapt-prior", "yes", "--out", str(tmp_path / "adapted.json")]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["adapted_prior"] and summary["polish"] is None
+    assert main([*common, *table1, "--out", str(tmp_path / "table1.json")]) == 0    # named, not adapted: polished
+    summary = json.loads(capsys.readouterr().out)
+    assert not summary.get("adapted_prior") and summary["polish"]["starts"] == POLISH_STARTS
 
 
 def test_kind_auto_deploys_the_kind_the_validation_file_favours(motor_files, tmp_path, capsys):
