@@ -21,9 +21,14 @@ from target_sim.firmware import Firmware, memory_from_elf
 SOURCES = ["fw_model.c", "fw_model.h", "fw_node_config.h", "thermal_bench.c", "thermal_bench.h", "node.c", "node.h",
            "xcp.c", "string.h", "startup.c", "firmware.ld"]
 
+# each compiles a firmware (5-25 s on a loaded machine): the default run keeps one per kind, the other realizations
+# run under `-m slow` (as .ci/run does; the default run has a 5-minute budget)
+DEFAULT_RUN_BUILDS = (("lti-lptn", "physical"), ("hammerstein", "balanced"), ("pv-lptn", "physical"))
 KIND_REALIZATIONS = [("lti-lptn", r) for r in ("physical", "original", "balanced", "modal")]
 KIND_REALIZATIONS += [("hammerstein", r) for r in ("physical", "original", "balanced", "modal")]
 KIND_REALIZATIONS += [("pv-lptn", "physical")]
+KIND_REALIZATION_CASES = [pair if pair in DEFAULT_RUN_BUILDS else pytest.param(*pair, marks=pytest.mark.slow)
+                          for pair in KIND_REALIZATIONS]
 HEX_FLOAT = re.compile(r"-?0x[0-9a-f]+(?:\.[0-9a-f]*)?p[+-]\d+f?")
 
 
@@ -40,7 +45,7 @@ def test_c_float_is_exact_hex_with_the_f_suffix():
         c_float(float("inf"))
 
 
-@pytest.mark.parametrize(("kind", "realization"), KIND_REALIZATIONS)
+@pytest.mark.parametrize(("kind", "realization"), KIND_REALIZATION_CASES)
 def test_generated_c_is_float_only_and_compiles_warning_free(firmware_of, kind, realization):
     artifact, build = firmware_of(kind, realization, 0.5)    # the build compiles with -Werror and more warnings
     source = build.sources[codegen.SOURCE_NAME]
@@ -67,7 +72,8 @@ def test_generated_c_is_float_only_and_compiles_warning_free(firmware_of, kind, 
 
 
 # pv-lptn kept out of the 5-min default run
-@pytest.mark.parametrize("kind", ["hammerstein", pytest.param("pv-lptn", marks=pytest.mark.slow)])
+@pytest.mark.slow   # 13 s loaded; test_export_and_build_of_an_electrical_model builds one in the default run
+@pytest.mark.parametrize("kind", ["hammerstein", "pv-lptn"])
 def test_an_electrical_loss_model_is_generated_float_only_without_tables_or_libm(electrical_of, kind):
     """The electrical loss model's C: its coefficients as the artifact's f32_hex, no loss tables, six inputs per
     row in the API, sqrt and |x| by the builtins (VSQRT.F32, VABS.F32 with -fno-math-errno), nothing to link."""
@@ -135,6 +141,7 @@ def run(capsys, *argv: str) -> tuple[int, str, str]:
     return status, out, err
 
 
+@pytest.mark.slow   # 26 s loaded: a build of its own
 def test_build_json_gives_the_elf_section_sizes(tmp_path, capsys, artifacts):
     out = tmp_path / "fw"
     status, stdout, stderr = run(capsys, "build", "--model", str(artifacts["pv"]), "--out", str(out), "--json")

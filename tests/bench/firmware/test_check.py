@@ -128,6 +128,7 @@ def test_a_damaged_cached_image_is_built_again_and_said(tmp_path, artifacts, cap
     assert "lacks node_on_frame; building it again" in capsys.readouterr().err
 
 
+@pytest.mark.slow   # 12 s loaded: builds twice; kept out of the 5-minute default run
 def test_firmware_for_caches_a_build_under_a_key_of_its_sources(tmp_path, artifacts, monkeypatch):
     from bench.firmware import toolchain
 

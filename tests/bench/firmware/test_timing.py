@@ -53,6 +53,7 @@ def _steps(fw: Firmware, interrupted: bool, count: int = 12) -> tuple[np.ndarray
     return np.array(values), cycles
 
 
+@pytest.mark.slow   # 12 s loaded: kept out of the 5-minute default run
 def test_the_shipped_images_have_no_interrupt_and_the_timing_image_links_it(timing_image):
     from bench.firmware.images import packaged_elf_path
 
@@ -128,6 +129,7 @@ def test_the_charged_exception_costs_are_arms_documented_figures():
     assert (FRAME_WORDS, FP_FRAME_WORDS) == (8, 17 + 1)     # R0-R3, R12, LR, PC, xPSR; S0-S15, FPSCR, reserved
 
 
+@pytest.mark.slow   # 14 s loaded: kept out of the 5-minute default run
 def test_tail_chaining_costs_six_cycles_between_handlers(timing_image):
     """A release pending when the handler returns: the next handler starts 6 cycles after, no unstacking."""
     _, image = timing_image("lti-lptn")
