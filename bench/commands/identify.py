@@ -20,13 +20,7 @@ from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.coverage import coverage_warnings
 from bench.model.deploy import AUTO, CANDIDATES
-from bench.model.hammerstein_fit import (
-    DEFAULT_REGULARIZATION,
-    FIT_PATHS,
-    REGULARIZATIONS,
-    STATOR_RULE,
-    STATOR_WEIGHT_CHOICES,
-)
+from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS, STATOR_RULE, STATOR_WEIGHT_CHOICES
 from bench.model.polish import DEFAULT_FREEZE, POLISH_STARTS
 from bench.model.undetermined import undetermined
 from bench.progress import StageBars, shows_bars
@@ -81,10 +75,10 @@ def add_subparser(subparsers) -> None:
                         f"with --train files {POLISH_STARTS}, or 0 when the prior is adapted (--adapt-prior), and 0 "
                         "for the built-in campaign: chosen on the motor suite's validation profiles, see "
                         "docs/method.md)")
-    p.add_argument("--regularization", choices=REGULARIZATIONS, default=DEFAULT_REGULARIZATION,
-                   help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation) or fixed "
-                        f"(default {DEFAULT_REGULARIZATION}: chosen on the motor suite's validation profiles, see "
-                        "docs/method.md)")
+    p.add_argument("--regularization", choices=REGULARIZATIONS, default=None,
+                   help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
+                        "with --train files: chosen on the motor suite's validation profiles, see docs/method.md) or "
+                        "fixed (default for the built-in campaign)")
     p.add_argument("--freeze", choices=("yes", "no"), default="yes" if DEFAULT_FREEZE else "no",
                    help="with --polish: freeze at the prior a parameter that ends on a bound although the data cannot "
                         f"identify it, and polish the rest again (default {'yes' if DEFAULT_FREEZE else 'no'}: "
@@ -149,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     train, validate = _split(args, motor)
     # the built-in campaign keeps the packaged model's path unless asked otherwise (its artifact is reproduced)
     files = args.train is not None
-    regularization = args.regularization
+    regularization = args.regularization or ("cv" if files else "fixed")
     adapt = _adapts(args.adapt_prior, files, prior or motor.prior)
     polish = args.polish if args.polish is not None else default_polish(files, adapt)
     dt = _model_step(args.dt, train + validate)

@@ -61,10 +61,6 @@ RIDGE = np.concatenate([np.full(4, 0.01), np.full(4, 0.01), np.full(4, 0.002), n
 # `fixed`: the factor 1 (the packaged model's path). Larger factors keep the model nearer the LTI network.
 STATOR_OUTPUT = {"yoke": 0, "tooth": 2}
 REGULARIZATIONS = ("fixed", "cv")
-# `bench identify --regularization`'s default on every path. Chosen on the motor suite's validation profiles
-# (2026-12-06, designer's priors, today's other defaults; Hammerstein winding + magnet MSE K², cv → fixed): air-30kw
-# 11.98 → 14.80, ipm-60kw-distributed 23.75 → 20.38, outrunner-200kw 9.79 → 6.75: fixed better on 2 of 3.
-DEFAULT_REGULARIZATION = "fixed"
 CV_FACTORS = (100.0, 10.0, 1.0)    # strongest first: each factor's fit starts from the more regular one
 LOO_STEPS = 3          # damped Gauss-Newton steps per left-out fold (loo_vectors)
 LOO_TRIALS = 8         # damping increases per step before the fold keeps its current vector

@@ -257,6 +257,7 @@ def pooled_observer(per_file: list[dict], index: dict) -> dict:
 DEFAULTS = {
     "adapt-prior": ("table1", (), {"no": ("--adapt-prior", "no")}),
     "regularization": ("designer", (), {"fixed": ("--regularization", "fixed")}),
+    "regularization-auto": ("auto", (), {"fixed": ("--regularization", "fixed")}),
     "stator-weight": ("designer", (), {"fixed": ("--stator-weight", "fixed")}),
     # --train files polish by default (2 starts, unfrozen) unless the prior is adapted (a named foreign network)
     "polish": ("designer", (), {"0": ("--polish", "0")}),
