@@ -183,8 +183,9 @@ def tune_observer(artifact: ModelArtifact, datasets: Sequence[Dataset], measurem
         scored = [(OUTPUTS.index(node), "pm" if node == "magnet" else node) for node in scored_nodes(criterion, bias)]
         # the guarded nodes every training file has a reference of, and their open loop's log MSE per file from
         # the measured start (the filter with no gain at all)
+        output_node = set(scored_nodes(criterion, bias)) - set(SCORED_NODES[criterion])   # scored, not guarded
         guarded = [(OUTPUTS.index(node), "pm" if node == "magnet" else node) for node in GUARDED_NODES[criterion]
-                   if node not in scored_nodes(criterion, bias)[len(SCORED_NODES[criterion]):]   # an output bias's
+                   if node not in output_node
                    if all(d.run.reference("pm" if node == "magnet" else node) is not None for d in deployed)]
 
         def open_loop_of(d: FilterData) -> dict:
