@@ -32,6 +32,7 @@ from helpers import (  # noqa: E402
     FirmwareBuilds,
     KernelCompile,
     artifact_text,
+    built_observer,
     close_fork_server,
     private_udp_bus,
     run_shared_dir,
@@ -123,12 +124,7 @@ def observer_artifact(tmp_path_factory, small_dataset) -> Path:
     """The packaged hammerstein model with an observer of its winding node (winding_C), written by `bench observer`
     on the small synthetic dataset with a two-run tuning (its Q and R are the search's start: what matters here is
     the protocol, not the tuning), without a bias state (the filter these protocol tests were written for)."""
-    from bench.cli import main
-
-    out = tmp_path_factory.mktemp("observer") / "observer.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--bias", "none", "--out", str(out),
-                 "--quiet"]) == 0
-    return out
+    return built_observer(tmp_path_factory, small_dataset, "observer", "--bias", "none")
 
 
 @pytest.fixture(scope="session")

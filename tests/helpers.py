@@ -406,6 +406,32 @@ def wait_for_kernels(timeout: float = 600.0) -> bool:
         os.close(fd)
 
 
+# ---------------------------------------------------------------- observers
+
+
+def built_observer(tmp_path_factory, dataset: Path, name: str, *options: str) -> Path:
+    """`bench observer` on `dataset` with a two-run tuning (the protocol matters here, not the tuning) and `options`,
+    written as NAME.json into a fresh directory of its own."""
+    from bench.cli import main
+
+    out = tmp_path_factory.mktemp(f"observer-{name}") / f"{name}.json"
+    assert main(["observer", "--train", str(dataset), "--evaluations", "2", *options, "--out", str(out),
+                 "--quiet"]) == 0
+    return out
+
+
+def steady_form(path: Path, tmp_path_factory) -> Path:
+    """The observer artifact at `path` in the steady-state-gain form (the K_ss rows the artifact stores)."""
+    from bench.observer.section import with_observer
+    from target_sim.artifact import dumps, load_artifact
+
+    artifact = load_artifact(path)
+    out = tmp_path_factory.mktemp("observer-steady") / "steady.json"
+    out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "steady"})),
+                   encoding="utf-8")
+    return out
+
+
 # ---------------------------------------------------------------- firmware
 
 

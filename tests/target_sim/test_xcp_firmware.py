@@ -21,7 +21,7 @@ from target_sim.node import TargetNode
 from target_sim.xcp.codes import Err
 from target_sim.xcp.daq import DAQ_QUEUE, MAX_DAQ_LISTS, MAX_ODT_ENTRIES, MAX_ODTS, ODT_PAYLOAD
 
-from helpers import ROOT, session_drive, session_start
+from helpers import ROOT, built_observer, session_drive, session_start, steady_form
 
 PACKAGED = ROOT / "bench" / "data" / "default_model.json"
 PACKAGED_ELF = ROOT / "bench" / "data" / "firmware" / "default_model.elf"
@@ -355,25 +355,13 @@ def test_observer_cells_in_a_daq_run_with_calibrations_give_the_same_packets(whi
 @pytest.fixture(scope="module")
 def lagged_observer_artifact(small_dataset, tmp_path_factory):
     """The packaged hammerstein model with a lagged winding sensor (tau 60 s) and the winding heat-bias state."""
-    from bench.cli import main
-
-    out = tmp_path_factory.mktemp("xcp-observer-lag") / "lagged.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "--out",
-                 str(out), "--quiet"]) == 0
-    return out
+    return built_observer(tmp_path_factory, small_dataset, "lagged", "--lag", "60", "--bias")
 
 
 @pytest.fixture(scope="module")
 def steady_observer_artifact(lagged_observer_artifact, tmp_path_factory):
     """The same observer in the steady-state-gain form."""
-    from bench.observer.section import with_observer
-    from target_sim.artifact import dumps
-
-    artifact = load_artifact(lagged_observer_artifact)
-    out = tmp_path_factory.mktemp("xcp-observer-steady") / "steady.json"
-    out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "steady"})),
-                   encoding="utf-8")
-    return out
+    return steady_form(lagged_observer_artifact, tmp_path_factory)
 
 
 @pytest.mark.slow

@@ -33,7 +33,7 @@ from target_sim.observer import Float32Observer
 from target_sim.observer.node import measurement_slots
 
 from ..test_node_firmware import comparable
-from helpers import SESSION_INITIAL, session_drive
+from helpers import SESSION_INITIAL, built_observer, session_drive, steady_form
 
 ROWS = 240
 
@@ -42,10 +42,7 @@ ROWS = 240
 def lagged_artifact(small_dataset, tmp_path_factory):
     """The packaged hammerstein model with a lagged winding sensor (τ 60 s) and the winding heat-bias state: six
     filter states."""
-    out = tmp_path_factory.mktemp("observer-lag") / "lagged.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "--out",
-                 str(out), "--quiet"]) == 0
-    return out
+    return built_observer(tmp_path_factory, small_dataset, "lagged", "--lag", "60", "--bias")
 
 
 @pytest.fixture(scope="module")
@@ -53,10 +50,8 @@ def magnet_bias_artifact(small_dataset, tmp_path_factory):
     """The lagged winding sensor (τ 60 s) with the magnet heat-bias state (`--bias magnet`, the magnet no consider
     state: a winding sensor would never move a held bias): six filter states, the bias heating the magnet through
     the magnet loss's column of B."""
-    out = tmp_path_factory.mktemp("observer-magnet-bias") / "magnet-bias.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "magnet",
-                 "--consider", "none", "--out", str(out), "--quiet"]) == 0
-    return out
+    return built_observer(tmp_path_factory, small_dataset, "magnet-bias", "--lag", "60", "--bias", "magnet",
+                          "--consider", "none")
 
 
 @pytest.fixture(scope="module")
@@ -64,44 +59,33 @@ def consider_artifact(small_dataset, tmp_path_factory):
     """The lagged winding sensor (τ 60 s) with the winding heat-bias state and the magnet a consider state
     (`--consider magnet`): the sensor's update holds the magnet node, a column Bierman's update for the lag state's
     row does not touch, so Agee-Turner's update reads and writes its own part of U and d."""
-    out = tmp_path_factory.mktemp("observer-consider") / "consider.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias", "winding",
-                 "--consider", "magnet", "--out", str(out), "--quiet"]) == 0
-    return out
+    return built_observer(tmp_path_factory, small_dataset, "consider", "--lag", "60", "--bias", "winding",
+                          "--consider", "magnet")
 
 
 @pytest.fixture(scope="module")
 def consider_sensor_artifact(small_dataset, tmp_path_factory):
     """The winding sensor without lag or bias, the magnet a consider state: the held column is one of Bierman's."""
-    out = tmp_path_factory.mktemp("observer-consider-sensor") / "consider-sensor.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--consider", "magnet", "--out",
-                 str(out), "--quiet"]) == 0
-    return out
+    return built_observer(tmp_path_factory, small_dataset, "consider-sensor", "--consider", "magnet")
 
 
 @pytest.fixture(scope="module")
 def consider_steady_artifact(consider_artifact, tmp_path_factory):
     """The consider observer in the steady-state-gain form (its K_ss's magnet row held at -0)."""
-    return _steady(consider_artifact, tmp_path_factory)
+    return steady_form(consider_artifact, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
 def output_bias_artifact(small_dataset, tmp_path_factory):
     """The lagged winding sensor (τ 60 s) with the winding output bias (`--bias winding-output`): the sensor's update
     holds every node and moves the lag and the bias, which the lag row of F sees and the reported winding adds."""
-    out = tmp_path_factory.mktemp("observer-output-bias") / "output-bias.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias",
-                 "winding-output", "--out", str(out), "--quiet"]) == 0
-    return out
+    return built_observer(tmp_path_factory, small_dataset, "output-bias", "--lag", "60", "--bias", "winding-output")
 
 
 @pytest.fixture(scope="module")
 def output_bias_sensor_artifact(small_dataset, tmp_path_factory):
     """The winding sensor without lag and the winding output bias: the bias in the sensor's row h."""
-    out = tmp_path_factory.mktemp("observer-output-bias-sensor") / "output-bias-sensor.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--bias", "winding-output",
-                 "--out", str(out), "--quiet"]) == 0
-    return out
+    return built_observer(tmp_path_factory, small_dataset, "output-bias-sensor", "--bias", "winding-output")
 
 
 class Case:
@@ -133,34 +117,23 @@ def _flux_case(flux_observer_artifact) -> Case:
     return Case(path, drive, measured)
 
 
-def _steady(path, tmp_path_factory):
-    """The same observer in the steady-state-gain form (the K_ss rows the artifact stores)."""
-    from bench.observer.section import with_observer
-
-    artifact = load_artifact(path)
-    out = tmp_path_factory.mktemp("observer-steady") / "steady.json"
-    out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "steady"})),
-                   encoding="utf-8")
-    return out
-
-
 @pytest.fixture(scope="module")
 def steady_artifact(lagged_artifact, tmp_path_factory):
     """The lagged sensor + bias observer in the steady-state-gain form."""
-    return _steady(lagged_artifact, tmp_path_factory)
+    return steady_form(lagged_artifact, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
 def steady_flux_artifact(flux_observer_artifact, tmp_path_factory):
     """The NTC + flux linkage observer in the steady-state-gain form (a row of K_ss per measurement); (path, data)."""
     path, data = flux_observer_artifact
-    return _steady(path, tmp_path_factory), data
+    return steady_form(path, tmp_path_factory), data
 
 
 @pytest.fixture(scope="module")
 def steady_sensor_artifact(observer_artifact, tmp_path_factory):
     """The winding sensor without lag or bias in the steady-state-gain form: a filter with an empty checkpoint."""
-    return _steady(observer_artifact, tmp_path_factory)
+    return steady_form(observer_artifact, tmp_path_factory)
 
 
 # Each case builds its firmware and emulates a run (5-10 s): the default run keeps one per feature of the generated
@@ -190,7 +163,7 @@ def case(request, observer_artifact, lagged_artifact, magnet_bias_artifact, flux
              "consider-sensor": consider_sensor_artifact, "consider-steady": consider_steady_artifact,
              "output-bias": output_bias_artifact, "output-bias-sensor": output_bias_sensor_artifact}
     if request.param == "output-bias-steady":
-        return _sensor_case(_steady(output_bias_artifact, tmp_path_factory))
+        return _sensor_case(steady_form(output_bias_artifact, tmp_path_factory))
     return _sensor_case(paths[request.param])
 
 

@@ -12,7 +12,6 @@ import json
 import numpy as np
 import pytest
 
-from bench.cli import main
 from dbc import decode_any
 from dbc.contract import FLAG_MESSAGE, FLAGGED_SIGNALS, INNOVATION_MESSAGE, INNOVATION_SIGNALS, REJECTED_SIGNALS
 from dbc.database import frame_id
@@ -23,8 +22,8 @@ from target_sim.observer import run_observer_offline
 from target_sim.observer.node import raw_channels, raw_sources
 
 from ..test_node_firmware import comparable
-from .test_node_observer_firmware import _bit_exact_over_a_run, _sensor_case, _session, _steady
-from helpers import SESSION_INITIAL
+from .test_node_observer_firmware import _bit_exact_over_a_run, _sensor_case, _session
+from helpers import SESSION_INITIAL, built_observer, steady_form
 
 GATE = {"sigma": 1.0, "flag_after": 3}     # tight: the test sensor (1.5 K warm, 0.3 K noise) is often rejected
 
@@ -39,9 +38,8 @@ def _gated(path, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def gated_consider(small_dataset, tmp_path_factory):
-    out = tmp_path_factory.mktemp("observer-gate-consider") / "consider.json"
-    assert main(["observer", "--train", str(small_dataset), "--evaluations", "2", "--lag", "60", "--bias",
-                 "--consider", "magnet", "--out", str(out), "--quiet"]) == 0
+    out = built_observer(tmp_path_factory, small_dataset, "gate-consider", "--lag", "60", "--bias", "--consider",
+                         "magnet")
     return _gated(out, tmp_path_factory)
 
 
@@ -52,7 +50,7 @@ def gated_case(request, observer_artifact, gated_consider, tmp_path_factory):
     if request.param == "consider":
         return _sensor_case(gated_consider)
     gated = _gated(observer_artifact, tmp_path_factory)
-    return _sensor_case(_steady(gated, tmp_path_factory) if request.param == "sensor-steady" else gated)
+    return _sensor_case(steady_form(gated, tmp_path_factory) if request.param == "sensor-steady" else gated)
 
 
 def test_the_gate_is_bit_exact_in_the_firmware(gated_case, firmware_elf):
