@@ -420,16 +420,19 @@ def built_observer(tmp_path_factory, dataset: Path, name: str, *options: str) ->
     return out
 
 
-def steady_form(path: Path, tmp_path_factory) -> Path:
-    """The observer artifact at `path` in the steady-state-gain form (the K_ss rows the artifact stores)."""
+def observer_in_form(path: Path, form: str, out: Path) -> Path:
+    """The observer artifact at `path` deploying the covariance form `form` instead, written to `out`."""
     from bench.observer.section import with_observer
     from target_sim.artifact import dumps, load_artifact
 
     artifact = load_artifact(path)
-    out = tmp_path_factory.mktemp("observer-steady") / "steady.json"
-    out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "steady"})),
-                   encoding="utf-8")
+    out.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": form})), encoding="utf-8")
     return out
+
+
+def steady_form(path: Path, tmp_path_factory) -> Path:
+    """The observer artifact at `path` in the steady-state-gain form (the K_ss rows the artifact stores)."""
+    return observer_in_form(path, "steady", tmp_path_factory.mktemp("observer-steady") / "steady.json")
 
 
 # ---------------------------------------------------------------- firmware

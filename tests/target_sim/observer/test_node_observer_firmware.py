@@ -33,7 +33,7 @@ from target_sim.observer import Float32Observer
 from target_sim.observer.node import measurement_slots
 
 from ..test_node_firmware import comparable
-from helpers import SESSION_INITIAL, built_observer, session_drive, steady_form
+from helpers import SESSION_INITIAL, built_observer, observer_in_form, session_drive, steady_form
 
 ROWS = 240
 
@@ -349,12 +349,7 @@ def test_a_flux_observer_is_refused_in_one_sentence_before_any_work(observer_art
 
 
 def test_an_observer_in_another_form_is_refused_by_the_firmware(observer_artifact, tmp_path):
-    from bench.observer.section import with_observer
-
-    artifact = load_artifact(observer_artifact)
-    path = tmp_path / "joseph.json"
-    path.write_text(dumps(with_observer(artifact, {**artifact.content["observer"], "form": "joseph"})),
-                    encoding="utf-8")
+    path = observer_in_form(observer_artifact, "joseph", tmp_path / "joseph.json")
     model = load_artifact(path)
     assert firmware_refusal(model) == (
         f"the firmware engine runs an observer in the ud form (Bierman-Thornton) or the steady form (the "
