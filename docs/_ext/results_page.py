@@ -1227,10 +1227,14 @@ def render_headline(records: dict[str, list[Record]] | None = None) -> str:
 
 
 def _suite_output_bias(suite: Record) -> list[str]:
-    """Per suite motor, the observer run with the winding's output bias: winding MSE open loop → observer."""
+    """Per suite motor, the observer run with an output bias (as its `bench observer` JSON says it tuned):
+    winding MSE open loop → observer."""
+    from target_sim.artifact import OUTPUT_BIAS_KINDS
+
     cells = []
     for motor in suite["figures"]["motors"]:
-        run = next((o for o in motor.get("observer") or [] if "output bias" in str(o.get("how"))), None)
+        run = next((o for o in motor.get("observer") or []
+                    if (o.get("tuning") or {}).get("bias") in OUTPUT_BIAS_KINDS), None)
         winding = ((run or {}).get("pooled") or {}).get("winding")
         if winding:
             cells.append(f"{motor['motor']} {winding['open_loop_mse_K2']:.1f} → {winding['observer_mse_K2']:.2f}")
