@@ -70,11 +70,15 @@ class AugmentedLayout:
                 extra[i] = m.lag_pole * extra[i] + (self.f(1.0) - m.lag_pole) * self.seen(m, extra, est.y)
 
     def seen(self, m, extra: np.ndarray, y: np.ndarray):
-        """What measurement m sees: sees·y, plus its weight of an output bias's node times the bias."""
-        view = dot(m.sees, y)
-        if self.bias_output >= 0:
-            view = view + m.sees[self.bias_output] * extra[self.bias_index - len(OUTPUTS)]
-        return view
+        """What measurement m sees: sees·y, plus an output bias it sees (`plus_bias`)."""
+        return self.plus_bias(dot(m.sees, y), m, extra)
+
+    def plus_bias(self, view, m, extra: np.ndarray):
+        """`view` plus measurement m's weight of an output bias's node times the bias, where it weighs that node (as
+        the C adds it: bench.firmware.observergen)."""
+        if self.bias_output < 0 or m.sees[self.bias_output] == 0:
+            return view
+        return view + m.sees[self.bias_output] * extra[self.bias_index - len(OUTPUTS)]
 
     def reported(self, extra: np.ndarray, y: np.ndarray) -> np.ndarray:
         """The estimate the target reports: the nodes y, with an output bias added to its node."""
@@ -89,11 +93,8 @@ class AugmentedLayout:
         lag = self.lag_index[index]
         if lag >= 0:
             return extra[lag - len(OUTPUTS)]
-        nonzero = self.sees_nonzero[index]
-        view = masked_dot(self.measurements[index].sees[nonzero], y[nonzero], self.f(NEG_ZERO))
-        if self.bias_output >= 0:
-            view = view + self.measurements[index].sees[self.bias_output] * extra[self.bias_index - len(OUTPUTS)]
-        return view
+        m, nonzero = self.measurements[index], self.sees_nonzero[index]
+        return self.plus_bias(masked_dot(m.sees[nonzero], y[nonzero], self.f(NEG_ZERO)), m, extra)
 
     def split(self, z) -> list[np.ndarray]:
         """A sample's raw channels by measurement (a lone NaN: no measurement at all)."""
