@@ -7,7 +7,10 @@ Measurements (read-only):
 |----------------|------------------|-------------------------------------------------------------|
 | x_state_<i>    | x_state          | the model's state vector x (the realization's coordinates)  |
 | y_est_<i>      | y_est            | the model's temperatures y = C x: yoke, winding, tooth, PM  |
-| estimate_<i>   | estimate         | the node's latest estimate (what Temperatures1/2 carry)     |
+|                |                  | (without an observer's output bias)                         |
+| estimate_<i>   | estimate         | the node's latest reported estimate, what Temperatures1/2   |
+|                |                  | carry: y, with an observer's output bias added to its node  |
+|                |                  | (`AugmentedLayout.reported`); DAQ this to see the reply     |
 | obs_extra_<i>  | obs_extra[4 + i] | an observer's extra states: each lag state, then the bias   |
 | obs_sigma_<i>  | obs_sigma        | each node's 1-σ (°C) as Uncertainty1/2 carry it             |
 | obs_innov_<k>  | obs_innovation   | each measurement's innovation of the last step (NaN: none)  |
@@ -81,8 +84,8 @@ def _element(get: Callable[[], np.ndarray], i: int) -> Callable[[], float]:
 def _measurements(node) -> list[CellSpec]:
     specs = []
     for symbol, get, what in (("x_state", lambda: node.model.x, "model state x"),
-                              ("y_est", lambda: node.model.y, "model temperature"),
-                              ("estimate", lambda: node.estimate, "node estimate")):
+                              ("y_est", lambda: node.model.y, "model temperature (no output bias)"),
+                              ("estimate", lambda: node.estimate, "reported estimate (the CAN reply's)")):
         for i in range(len(OUTPUTS)):
             unit = "" if symbol == "x_state" else "degC"
             comment = f"{what} [{i}]" if symbol == "x_state" else f"{what}: {OUTPUTS[i]}"

@@ -396,3 +396,83 @@ def test_a_row_of_several_steps_queues_their_daq_packets_alike(engines):
     dropped = sum(len(names) * steps - packets for packets, steps in counts)
     assert python.xcp.stats()["daq_dropped"] == dropped > 0
     assert firmware.stats()["xcp"]["daq_packets"] == python.xcp.daq.packets
+
+
+@pytest.fixture(scope="module")
+def output_bias_observer_artifact(small_dataset, tmp_path_factory):
+    """The packaged hammerstein model observing its winding with `bench observer`'s default bias (auto: the winding's
+    output bias, added to the winding the target reports)."""
+    path = built_observer(tmp_path_factory, small_dataset, "output-bias")
+    assert load_artifact(path).content["observer"]["bias"] == "winding-output"
+    return path
+
+
+def winding_bits(value: float) -> int:
+    """The bits Temperatures1's WindingTemp carries for `value` (as the codec encodes it)."""
+    from dbc.database import layout_named
+
+    s = layout_named("Temperatures1").signal("WindingTemp")
+    return round((value - s.offset) / s.scale)
+
+
+def reported_winding_by_daq(node, frames) -> list[tuple[int, float, float]]:
+    """A DAQ list on the model step over the reported winding (`estimate_1`, ODT 0) and the model's (`y_est_1`,
+    ODT 1), `frames` into `node`: per model step (the reply's WindingTemp bits, the two DAQ'd values)."""
+    from dbc.database import frame_id, layout_named
+
+    rows = []
+    reply_id, s = frame_id("Temperatures1"), layout_named("Temperatures1").signal("WindingTemp")
+    for frame in frames:
+        out = node.handle(frame)
+        replies = [int.from_bytes(bytes(m.data), "little") >> s.start & s.mask for m in out
+                   if m.arbitration_id == reply_id]
+        daq = {p[0]: struct.unpack_from("<f", p, 1)[0] for p in xcp_of(out)}
+        if daq:
+            assert len(replies) == 1 and sorted(daq) == [0, 1], (replies, daq)
+            rows.append((replies[0], daq[0], daq[1]))
+    return rows
+
+
+def daq_the_reported_winding(node, addresses: dict[str, int]) -> None:
+    """CONNECT, then DAQ list 0 on the model step: ODT 0 `estimate_1`, ODT 1 `y_est_1`, started."""
+    for cto in (bytes((0xFF, 0)), bytes((0xD6,)), bytes((0xD5, 0, 1, 0)), bytes((0xD4, 0, 0, 0, 2))):
+        assert command(node, cto)[0][0] == 0xFF
+    for k, name in enumerate(("estimate_1", "y_est_1")):
+        assert command(node, bytes((0xD3, 0, 0, 0, k, 1))) == [b"\xff"]
+        assert command(node, bytes((0xE2, 0, 0, 0, k, 0))) == [b"\xff"]
+        assert command(node, bytes((0xE1, 0xFF, 4, 0)) + u32(addresses[name])) == [b"\xff"], name
+    assert command(node, bytes((0xE0, 0, 0, 0, 0, 0, 1, 0))) == [b"\xff"]
+    assert command(node, bytes((0xDE, 1, 0, 0))) == [bytes((0xFF, 0))]
+
+
+def check_reported_winding(rows, steps: int) -> None:
+    """Every model step's DAQ'd reported winding is the CAN reply's WindingTemp bit for bit; the model's winding
+    (y_est_1) is not, once the output bias has moved."""
+    assert len(rows) == steps > 20
+    assert all(bits == winding_bits(reported) for bits, reported, _ in rows)
+    assert sum(bits != winding_bits(model) for bits, _, model in rows) > steps // 2
+
+
+def test_a_daq_of_the_reported_winding_is_the_can_reply_with_an_output_bias(output_bias_observer_artifact):
+    """With the winding's output bias, the cell `estimate_1` (y_w + bias, what Temperatures1 carries) DAQ'd at every
+    model step equals the reply's WindingTemp bits; `y_est_1` (the model's winding y = C x) differs by the bias."""
+    node = TargetNode(load_artifact(output_bias_observer_artifact), clock_ns=lambda: 0)
+    daq_the_reported_winding(node, {c.name: c.address for c in node.xcp.memory.cells})
+    rows = reported_winding_by_daq(node, observer_session(node.artifact, 60))
+    check_reported_winding(rows, node.model_steps)
+    assert node.observer.filter.extra[-1] != 0                         # the bias the reply carries
+
+
+@pytest.mark.slow
+def test_the_c_slave_daqs_the_reported_winding_as_the_can_reply(output_bias_observer_artifact, firmware_elf):
+    """The same DAQ in the firmware node of the output-bias observer (its own C build): the DAQ'd reported winding is
+    its CAN reply bit for bit, and both engines send the same packets."""
+    pair = observer_pair(output_bias_observer_artifact, firmware_elf)
+    addresses = {c.name: c.address for c in pair[0].xcp.memory.cells}
+    frames = observer_session(pair[0].artifact, 60)
+    runs = []
+    for node in pair:
+        daq_the_reported_winding(node, addresses)
+        runs.append(reported_winding_by_daq(node, frames))
+        check_reported_winding(runs[-1], node.model_steps)
+    assert runs[1] == runs[0]
