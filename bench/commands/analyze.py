@@ -12,8 +12,11 @@ run on them, and --data must have them too.
 
 A log with XCP DOWNLOADs (a calibration master changed the target during the run) is judged against the target's
 twin, which replays them; a DOWNLOAD names its cell by address, so the twin lays out its cells as the target did:
-by --xcp-elf, the firmware ELF of a firmware target (or the ELF a Python target had as --xcp-elf). A firmware target's
-log takes the packaged model's shipped ELF without it; for any other model's firmware it is needed.
+by --xcp-elf, the firmware ELF of a firmware target (or the ELF a Python target had as --xcp-elf). Without it, a log
+that `bench run`/`bench replay --engine firmware` wrote names its ELF in the note beside it (`<log>.elf.json`: path
+and sha256), and the twin takes that ELF, refused in one sentence when it is gone or its bytes changed (an
+--xcp-elf that is not the noted ELF is refused too); a firmware target's log without a note takes the packaged
+model's shipped ELF; for any other model's firmware the ELF is needed.
 
 Exit status as `bench run`'s: 1 when the log is not clean, and a log with injected faults (BenchEvent marks; the
 `<log>.faults.json` sidecar beside it says whether each was detected) is not, unless --tolerate-faults; a fault
@@ -86,14 +89,31 @@ def check_xcp_elf(path: Path, artifact) -> None:
         raise BenchError(f"--xcp-elf: {exc}") from None
 
 
+def check_given_elf(elf: Path, log: Path) -> None:
+    """BenchError (one sentence) when the log's note (`bench.run.elfnote`) names another ELF than --xcp-elf's."""
+    from bench.run.elfnote import check_ran, read_note
+
+    note = read_note(log)
+    if note is not None:
+        check_ran(note, elf, log)
+
+
 def twin_layout(log: Path, record, artifact) -> Path | None:
-    """The ELF the twin lays out its XCP cells by when --xcp-elf is not given: a firmware target's log with
-    calibrations takes the packaged model's shipped ELF (`bench run --engine firmware` ran it); BenchError (one
-    sentence) for another model's firmware; None (the Python slave's pages) for every other log."""
+    """The ELF the twin lays out its XCP cells by when --xcp-elf is not given, for a log with calibrations: the ELF
+    its run's note names (`bench.run.elfnote`: BenchError, one sentence, when it is gone or changed), else for a
+    firmware target's log the packaged model's shipped ELF (BenchError for another model's firmware); None (the
+    Python slave's pages) for every other log."""
     from bench.analysis.canmetrics import ran_firmware
     from bench.firmware.images import packaged_elf
+    from bench.run.elfnote import noted_elf
 
-    if not (record.xcp_downloads and ran_firmware(record)):
+    if not record.xcp_downloads:
+        return None
+    noted = noted_elf(log)
+    if noted is not None:
+        check_xcp_elf(noted, artifact)
+        return noted
+    if not ran_firmware(record):
         return None
     shipped = packaged_elf(artifact)
     if shipped is None:
@@ -119,8 +139,9 @@ def run(args: argparse.Namespace) -> int:
         check_writable(report_dir, "--report", directory=True)
         check_report_dir(report_dir)
     artifact, model_path = load_model(args.model)
-    if args.xcp_elf is not None:    # an ELF of another model, or no ELF: one sentence before the log is read
-        check_xcp_elf(args.xcp_elf, artifact)
+    if args.xcp_elf is not None:    # an ELF of another model, no ELF, or not the one the log's note names: one
+        check_xcp_elf(args.xcp_elf, artifact)              # sentence before the log is read
+        check_given_elf(args.xcp_elf, args.log)
     dataset = None
     if args.data:  # read before the log: the loader's transient peak then does not add to the decoded log
         mapping, period = data_options(args)

@@ -30,6 +30,7 @@ import numpy as np
 
 from bench.errors import BenchError
 from bench.fileio import scratch_dir
+from bench.run.elfnote import note_target
 from bench.run.target import TargetProcess
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.database import host_frame_ids
@@ -138,6 +139,8 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     finally:
         host_bus.shutdown()
         target_files.cleanup()
+    if result.log_path:    # which ELF ran, for `bench analyze` (an earlier run's note of this name goes)
+        note_target(result.log_path, firmware)
     if killed is not None:
         raise BenchError(killed_sentence(killed, result))
     if status not in (0, None):
@@ -186,6 +189,8 @@ def execute_attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig,
     finally:
         if host_bus is not None:
             host_bus.shutdown()
+    if result.log_path:    # a target not started here: its ELF is unknown (an earlier run's note of this name goes)
+        note_target(result.log_path, None)
     return RunOutcome(result, None, "")
 
 
@@ -242,4 +247,6 @@ def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, 
         if target is not None:
             target.close()
         host_bus.shutdown()
+    if result.log_path:    # which ELF ran (none known for a target not started here)
+        note_target(result.log_path, firmware if target is not None else None)
     return RunOutcome(result, status, stderr)

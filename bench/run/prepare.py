@@ -46,19 +46,21 @@ class PreparedRun:
     measurements: np.ndarray | None
 
 
-def check_log_names(log_path: Path, faults: FaultSpec | None) -> None:
-    """UsageError, before anything runs, when a file written beside the log would need a name longer than NAME_MAX:
-    with faults, the summary `<log>.faults.json`, written through a temporary `.<log>.faults.json.XXXXXXXX`."""
-    if faults is None or not faults.active:
-        return
+def check_log_names(log_path: Path, faults: FaultSpec | None, firmware: bool = False) -> None:
+    """UsageError, before anything runs, when a file written beside the log would need a name longer than NAME_MAX
+    (through its temporary name, `.<name>.XXXXXXXX`): with faults, the summary `<log>.faults.json`; on the firmware
+    engine, the note of its ELF `<log>.elf.json` (`bench.run.elfnote`)."""
+    from bench.run.elfnote import note_path
     from host.faults import sidecar_path
 
-    sidecar = sidecar_path(log_path).name
-    length = len(os.fsencode(sidecar)) + 10
-    if length > NAME_MAX:
-        raise UsageError(f"--log {log_path}: the fault summary beside it, {sidecar}, would need a file name of "
-                         f"{length} bytes (its temporary name), more than the {NAME_MAX} a name may have; shorten the "
-                         f"log's name by {length - NAME_MAX} characters")
+    beside = ([("the fault summary", sidecar_path(log_path).name)] if faults is not None and faults.active else []) \
+        + ([("the note of its firmware ELF", note_path(log_path).name)] if firmware else [])
+    for what, name in beside:
+        length = len(os.fsencode(name)) + 10
+        if length > NAME_MAX:
+            raise UsageError(f"--log {log_path}: {what} beside it, {name}, would need a file name of {length} bytes "
+                             f"(its temporary name), more than the {NAME_MAX} a name may have; shorten the log's "
+                             f"name by {length - NAME_MAX} characters")
 
 
 def refuse_isr_rate(request: Any) -> None:
@@ -80,7 +82,7 @@ def check_outputs(request: Any, command: str, faults: FaultSpec | None) -> Path:
     a log or report that cannot be written must not cost a run."""
     log_path = check_log_path(request.log)
     check_writable(log_path, "--log")   # a directory there would fail the run only at its end
-    check_log_names(log_path, faults)
+    check_log_names(log_path, faults, getattr(request, "engine", None) == "firmware")
     if command == RUN and not request.no_report:
         from bench.analysis.report import check_report_dir
 

@@ -179,3 +179,45 @@ def test_a_firmware_observer_with_its_ntc_offset_calibrated_mid_run_is_clean(obs
     frames = firmware_session(observer_artifact, elf, "cal_sensor0_offset", OFFSET, measured)
     assert_clean_and_bit_exact(frames, tmp_path / "calibrated.blf", observer_artifact, elf)
     assert_not_clean(frames, tmp_path / "calibrated.blf", observer_artifact, elf, OFFSET / 2)
+
+
+def analyzed(capsys, log: Path, *extra: str) -> tuple[int, str]:
+    """`bench analyze LOG --no-report --json` with `extra`: (exit status, its last stderr line or its verdict)."""
+    from bench.cli import main
+
+    status = main(["analyze", str(log), "--no-report", "--json", *extra])
+    out, err = capsys.readouterr()
+    return status, json.loads(out)["verdict"] if status == 0 else err.strip().splitlines()[-1]
+
+
+def test_bench_analyze_takes_the_elf_the_logs_note_names_and_refuses_it_gone_or_changed(tmp_path, capsys,
+                                                                                       monkeypatch):
+    """A calibrated firmware log with its note (`<log>.elf.json`, as `bench run --engine firmware` writes it) naming
+    a copy of the ELF that ran: `bench analyze` lays out the twin by it without --xcp-elf (the packaged default
+    taken away), clean; an --xcp-elf whose bytes are not the noted ELF's, the noted ELF changed, and the noted ELF
+    gone: each refused in one sentence."""
+    import shutil
+
+    from bench.run.elfnote import note_path, note_target
+
+    frames = firmware_session(PACKAGED, PACKAGED_ELF, "cal_alpha_cu", ALPHA_CU)
+    log = write_frames(tmp_path / "noted.blf", frames)
+    ran = shutil.copyfile(PACKAGED_ELF, tmp_path / "ran.elf")
+    assert note_target(log, ran) == note_path(log)
+    note = json.loads(note_path(log).read_text(encoding="utf-8"))
+    assert note["elf"] == str(ran.resolve()) and len(note["sha256"]) == 64 and note["log"] == "noted.blf"
+    monkeypatch.setattr("bench.firmware.images.packaged_elf", lambda artifact: None)
+    assert analyzed(capsys, log) == (0, "clean")
+    altered = tmp_path / "altered.elf"
+    altered.write_bytes(PACKAGED_ELF.read_bytes() + b"\0")      # the same model's ELF, other bytes
+    status, err = analyzed(capsys, log, "--xcp-elf", str(altered))
+    not_ran = "is not the firmware ELF the run of log"
+    assert status != 0 and err.startswith(f"bench: error: {altered} {not_ran} {log} ran on"), err
+    ran.write_bytes(altered.read_bytes())
+    status, err = analyzed(capsys, log)
+    assert status != 0 and f"{ran} {not_ran} {log} ran on" in err and "Traceback" not in err, err
+    ran.unlink()
+    status, err = analyzed(capsys, log)
+    assert status != 0 and f"ran on the firmware ELF {ran.resolve()}" in err and "not there any more" in err, err
+    assert analyzed(capsys, log, "--xcp-elf", str(PACKAGED_ELF)) == (0, "clean")     # the same bytes elsewhere
+    assert note_target(log, None) is None and not note_path(log).exists()      # a run of no known ELF: no note
