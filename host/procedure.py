@@ -20,6 +20,7 @@ from dbc.contract import DEFAULT_REPLY_TIMEOUT_S, FrameError, measurement_messag
 from dbc.database import frame_id, host_frame_ids
 from dbc.mutations import FAULTED_HOST_MESSAGES, foreign_ids
 from dbc.transport import OwnFrameFilter
+from dbc.xcp import cmd_id
 from host.canlog import FrameLog
 from host.faults import (
     DELAY_FACTOR,
@@ -150,7 +151,8 @@ class ReplaySession(HostSession):
 
     def __init__(self, bus: can.BusABC, **kwargs) -> None:
         super().__init__(bus, **kwargs)
-        self.own = OwnFrameFilter(host_frame_ids() | injected_ids())  # udp_multicast loops those back to us too
+        # udp_multicast loops what it sends back to it too: the host's frames, a faulted log's, a master's XCP commands
+        self.own = OwnFrameFilter(host_frame_ids() | injected_ids() | {cmd_id()})
         self._drive_inputs = frame_id("DriveInputs")
         self._row_of_step: dict[int, int] = {}
 
@@ -171,8 +173,9 @@ def replay_log(bus: can.BusABC, messages: Sequence[can.Message], *, model_id: in
                speed: float = 1.0, log_path: str | Path | None = None,
                reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
                alive: Callable[[], str | None] | None = None, progress: Progress | None = None) -> HostResult:
-    """Re-send the host frames of a recorded log; the result's arrays hold the new replies by DriveInputs frame."""
-    frames = host_frames(messages, also=injected_ids())  # the unknown_id fault's frames too
+    """Re-send the host frames of a recorded log, and a calibration master's XCP commands in their place (its
+    DOWNLOADs calibrate the target where they did); the result's arrays hold the new replies by DriveInputs frame."""
+    frames = host_frames(messages, also=injected_ids() | {cmd_id()})  # the unknown_id fault's frames too
     log = FrameLog(log_path) if log_path is not None else None
     with discarded_on_error(log):
         session = ReplaySession(bus, log=log, expected_model_id=model_id)

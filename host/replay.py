@@ -46,6 +46,7 @@ from dbc.contract import (
     step_of,
 )
 from dbc.database import frame_id, host_frame_ids, signal_ranges
+from dbc.xcp import cmd_id
 from host.errors import HostError
 from host.session import HOST_PAUSE_S, HostSession, RowBook, SessionError
 
@@ -365,8 +366,27 @@ def last_row_frame_id(frames: Sequence[can.Message]) -> int:
     return currents if with_currents else frame_id(row_messages(len(DRIVE_SIGNALS))[-1])
 
 
+XCP_ANSWER_POLL_S = 0.002    # how long one receive waits while a replayed XCP command waits for its answer
+
+
+def send_xcp_command(session, frame: can.Message, timeout_s: float) -> bool:
+    """Send a calibration master's logged XCP command and wait for its answer (RES or ERR, at most `timeout_s`), as
+    the master did (XCP has one command outstanding): the target gets the commands in their logged order among the
+    rows, and the new log pairs each command with its answer. False when none came (the slave ignores a command
+    while not connected)."""
+    before = session.xcp_answers
+    session.send([frame])
+    deadline = time.perf_counter() + timeout_s
+    while session.xcp_answers == before:
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0:
+            return False
+        session.receive(min(remaining, XCP_ANSWER_POLL_S))    # an XCP frame is no frame of the contract: None
+    return True
+
+
 def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> None:
-    drive_inputs, control = frame_id("DriveInputs"), frame_id("Control")
+    drive_inputs, control, xcp_command = frame_id("DriveInputs"), frame_id("Control"), cmd_id()
     last_of_row = last_row_frame_id(frames)
     row = -1
     for frame in frames:
@@ -374,7 +394,10 @@ def _replay_lockstep(session, frames, book, reply_timeout_s, progress) -> None:
             row += 1
             session.last_sent_row = row
             book.sent_ns[row] = time.perf_counter_ns()
-        session.send([frame])
+        if frame.arbitration_id == xcp_command:
+            send_xcp_command(session, frame, reply_timeout_s)
+        else:
+            session.send([frame])
         session.flush_log()
         if frame.arbitration_id == last_of_row and row >= 0:
             if not wait_for_reply(session, book, row, reply_timeout_s) and _silent(session):
@@ -397,7 +420,7 @@ def _replay_timed(session, frames, book, speed, reply_timeout_s, progress) -> No
     base = frames[0].timestamp if frames else 0.0
     scaled = [can.Message(timestamp=base + (f.timestamp - base) / speed, arbitration_id=f.arbitration_id,
                           is_extended_id=False, dlc=f.dlc, data=f.data) for f in frames]
-    drive_inputs = frame_id("DriveInputs")
+    drive_inputs, xcp_command = frame_id("DriveInputs"), cmd_id()
     row = -1
     for frame in can.MessageSync(scaled, timestamps=True, gap=0.0, skip=60.0):
         while session.receive(0.0) is not None:  # what arrived while MessageSync slept
@@ -412,7 +435,10 @@ def _replay_timed(session, frames, book, speed, reply_timeout_s, progress) -> No
             if progress is not None and (row & 1023) == 0:
                 progress(row, book.rows)
         session.flush_log()
-        session.send([frame])
+        if frame.arbitration_id == xcp_command:
+            send_xcp_command(session, frame, reply_timeout_s)
+        else:
+            session.send([frame])
         session.flush_log()
     if book.rows:
         wait_for_reply(session, book, book.rows - 1, reply_timeout_s)

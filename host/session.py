@@ -55,7 +55,7 @@ from dbc.contract import (
 )
 from dbc.database import frame_id, host_frame_ids
 from dbc.transport import OwnFrameFilter, SpinPolicy
-from dbc.xcp import xcp_ids
+from dbc.xcp import res_id, xcp_ids
 from host.canlog import FrameLog
 from host.errors import HostError
 
@@ -213,7 +213,8 @@ class HostSession:
         self.expected_model_id = expected_model_id
         self.codec = FrameCodec("HOST")
         self.validator = FrameValidator("HOST")
-        self._xcp_ids = xcp_ids()
+        self._xcp_ids, self._xcp_res = xcp_ids(), res_id()
+        self.xcp_answers = 0     # XCP command answers (RES, ERR) received: a replayed master waits for each one
         self.own = OwnFrameFilter(host_frame_ids())
         self.monitor = Monitor(heartbeat_timeout_s)
         self.spin = SpinPolicy(SPIN_S)   # how long a lockstep wait polls before it blocks (host.replay)
@@ -340,7 +341,10 @@ class HostSession:
         if self.log is not None:
             self._pending_log.append(msg)
         if msg.arbitration_id in self._xcp_ids and not msg.is_extended_id:
-            return None       # a calibration master's XCP traffic (dbc/xcp.toml): logged, not a frame of the contract
+            # a calibration master's XCP traffic (dbc/xcp.toml): logged, not a frame of the contract; a command's
+            # answer is counted (RES 0xFF or ERR 0xFE: a DAQ packet's identifier is an ODT number, below 0xFC)
+            self.xcp_answers += msg.arbitration_id == self._xcp_res and msg.data[:1] in (b"\xff", b"\xfe")
+            return None
         previous = self.validator.last_counter(msg.arbitration_id)
         try:
             frame = self.validator.validate(msg)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import struct
 import subprocess
 import sys
 import tempfile
@@ -668,6 +669,51 @@ def session_frames(artifact, values: np.ndarray, *, stop: bool = True,
     if stop:
         send([host.encode("Control", {"Command": int(Command.STOP), "Step": 0})])
         frames.extend(node.heartbeat_frames())
+    return frames
+
+
+def xcp_download(address: int, value: float) -> list[can.Message]:
+    """A calibration master's CONNECT, SET_MTA and DOWNLOAD of one float32 `value` at `address`."""
+    import can
+
+    from dbc.xcp import cmd_id
+    from target_sim.xcp.codes import Cmd
+
+    def xcp(data: bytes) -> can.Message:
+        return can.Message(arbitration_id=cmd_id(), is_extended_id=False, data=data)
+    return [xcp(bytes((Cmd.CONNECT, 0))), xcp(bytes((Cmd.SET_MTA, 0, 0, 0)) + struct.pack("<I", address)),
+            xcp(bytes((Cmd.DOWNLOAD, 4)) + struct.pack("<f", value))]
+
+
+def calibrated_session(node, rows: int, calibrate_after: int, cell: str | None, value: float, address: int = 0,
+                       measured: np.ndarray | None = None) -> list[can.Message]:
+    """Every frame of a lockstep session of `rows` rows with `node` (a Python or firmware target node, in-process:
+    its startup frames and heartbeats too), and the DOWNLOAD of `value` into `cell` at `address` (None: no
+    calibration) after row `calibrate_after`; every XCP reply positive."""
+    from dbc import Command, FrameCodec
+    from dbc.xcp import res_id
+    from host.replay import encode_row
+
+    host = FrameCodec("HOST")
+    frames = list(node.startup_frames())
+
+    def send(messages):
+        for message in messages:
+            frames.append(message)
+            replies = node.handle(message)
+            assert all(r.data[0] == 0xFF for r in replies if r.arbitration_id == res_id()), message
+            frames.extend(replies)
+
+    send(session_start(host))
+    drive = session_drive(rows, 11)
+    for row in range(rows):
+        send(encode_row(host, row, drive[row], None if measured is None else measured[row].tolist()))
+        if cell and row == calibrate_after:
+            send(xcp_download(address, value))
+        if row % 25 == 0:
+            frames.extend(node.heartbeat_frames())
+    send([host.encode("Control", {"Command": int(Command.STOP), "Step": 0})])
+    frames.extend(node.heartbeat_frames())
     return frames
 
 

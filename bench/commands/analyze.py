@@ -51,6 +51,7 @@ from bench.commands.common import (
     print_summary,
 )
 from bench.errors import BenchError, UsageError
+from bench.run.elfnote import check_given_elf, recorded_layout
 from bench.run.inputs import data_mismatch, load_data, load_model, matching_dataset
 
 
@@ -78,51 +79,6 @@ def add_subparser(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def check_xcp_elf(path: Path, artifact) -> None:
-    """BenchError (one sentence) unless `path` is a firmware ELF of `artifact`'s model (`--xcp-elf`)."""
-    from target_sim.firmware.elf import FirmwareError
-    from target_sim.xcp.layout import elf_symbols
-
-    try:
-        elf_symbols(path, artifact.model_id)
-    except FirmwareError as exc:
-        raise BenchError(f"--xcp-elf: {exc}") from None
-
-
-def check_given_elf(elf: Path, log: Path) -> None:
-    """BenchError (one sentence) when the log's note (`bench.run.elfnote`) names another ELF than --xcp-elf's."""
-    from bench.run.elfnote import check_ran, read_note
-
-    note = read_note(log)
-    if note is not None:
-        check_ran(note, elf, log)
-
-
-def twin_layout(log: Path, record, artifact) -> Path | None:
-    """The ELF the twin lays out its XCP cells by when --xcp-elf is not given, for a log with calibrations: the ELF
-    its run's note names (`bench.run.elfnote`: BenchError, one sentence, when it is gone or changed), else for a
-    firmware target's log the packaged model's shipped ELF (BenchError for another model's firmware); None (the
-    Python slave's pages) for every other log."""
-    from bench.analysis.canmetrics import ran_firmware
-    from bench.firmware.images import packaged_elf
-    from bench.run.elfnote import noted_elf
-
-    if not record.xcp_downloads:
-        return None
-    noted = noted_elf(log)
-    if noted is not None:
-        check_xcp_elf(noted, artifact)
-        return noted
-    if not ran_firmware(record):
-        return None
-    shipped = packaged_elf(artifact)
-    if shipped is None:
-        raise BenchError(f"log {log} is of a firmware target calibrated over XCP ({record.xcp_downloads} DOWNLOADs), "
-                         f"whose cells sit at its ELF's addresses, and model {artifact.model_id:08x} ships no ELF; "
-                         "pass the target's ELF with --xcp-elf")
-    return shipped
-
-
 def run(args: argparse.Namespace) -> int:
     from bench.analysis.canmetrics import compute, data_identity
     from bench.analysis.logdecode import decode_log
@@ -140,8 +96,7 @@ def run(args: argparse.Namespace) -> int:
         check_report_dir(report_dir)
     artifact, model_path = load_model(args.model)
     if args.xcp_elf is not None:    # an ELF of another model, no ELF, or not the one the log's note names: one
-        check_xcp_elf(args.xcp_elf, artifact)              # sentence before the log is read
-        check_given_elf(args.xcp_elf, args.log)
+        check_given_elf(args.xcp_elf, artifact, args.log)  # sentence before the log is read
     dataset = None
     if args.data:  # read before the log: the loader's transient peak then does not add to the decoded log
         mapping, period = data_options(args)
@@ -161,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         dataset = matching_dataset(record.drive, artifact)
     acceptor.check_data(data_identity(dataset, record.rows), f"log {args.log}")   # before the figures are computed
-    xcp_elf = args.xcp_elf or twin_layout(args.log, record, artifact)
+    xcp_elf = args.xcp_elf or recorded_layout(args.log, record, artifact)
     try:
         results, refs = compute(record, artifact, dataset, xcp_elf=xcp_elf)
     except ValueError as exc:     # e.g. an electrical loss model and a log without the d/q currents

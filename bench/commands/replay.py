@@ -1,7 +1,7 @@
 """`bench replay LOG`: re-send the host frames of a recorded log and compare the new replies with the recorded ones.
 
     bench replay LOG [--speed X | --as-fast-as-possible] [--model FILE] [--no-start-target] [--log FILE]
-                     [--engine python|firmware] [--reply-timeout S] [--json] [--quiet]
+                     [--engine python|firmware] [--xcp-elf ELF] [--reply-timeout S] [--json] [--quiet]
                      [--wait-for-listener SECONDS] [-i INTERFACE] [-c CHANNEL] [--bus-kwargs K=V ...]
                      [--criteria FILE] [--baseline FILE] [--junit-xml FILE]
 
@@ -22,6 +22,15 @@ Acceptance criteria (--criteria, --baseline, --junit-xml) as `bench run`'s, judg
 session's log (against the measurement of a dataset in out/data whose rows match, else the float64 model): each
 check's figure, limit and verdict in the JSON ("acceptance"), exit status 1 when any fails; the JUnit testcase
 "clean" is "reproduced".
+
+A log with XCP calibrations (a master's DOWNLOADs during the run) replays calibrated: the master's commands go out
+in their logged place among the rows, each waiting for its answer as the master did, and the started target's
+cells sit where the recorded target's were: the ELF --xcp-elf names, else the one the log's note names
+(`<log>.elf.json`, written by `bench run`/`bench replay` on the firmware engine; refused in one sentence when gone
+or changed), else a firmware log's packaged ELF, runs on the firmware engine, or lays out the Python engine's
+cells; a Python target's calibrated log (its cells in the Python slave's pages) is refused on the firmware engine.
+A DOWNLOAD the new target answers otherwise than the recorded one (its cells elsewhere) makes the replay not
+reproduced.
 
 A log of a run with bus faults (`bench run --faults drop=...`) replays as it was made: its faulty frames go out
 again byte for byte (those on the unknown_id fault's ids too), the target rejects the same frames, and the replay
@@ -59,6 +68,7 @@ from bench.commands.args import (
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
 from bench.progress import ProgressBar
+from bench.run.elfnote import check_given_elf, recorded_layout
 from bench.run.execute import replay_with_target
 from bench.run.inputs import firmware_for_engine, load_model
 from bench.run.leftovers import clear_and_say
@@ -67,9 +77,11 @@ from dbc.codec import decode_any
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.files import fitted_name
 from dbc.transport import add_bus_arguments
+from dbc.xcp import cmd_id, res_id
 from host.canlog import check_log_path, read_log
 from host.replay import count_rows, host_frames
 from target_sim.engines import ENGINES
+from target_sim.xcp.codes import PID_ERR, PID_RES, Cmd
 
 PROCESS_FAULTS = ("kill", "freeze")
 
@@ -93,11 +105,15 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--engine", choices=ENGINES, default=None,
                    help="what the started target runs: the Python model or the firmware in the emulated core "
                         "(default: what the log's target ran)")
+    p.add_argument("--xcp-elf", type=Path, default=None, metavar="ELF",
+                   help="for a log with XCP calibrations: the firmware ELF whose addresses the recorded target's XCP "
+                        "cells had (default: the ELF the log's note names, else a firmware target's packaged ELF, "
+                        "else the Python slave's pages); the started target's cells are laid out by it")
     add_output_flags(p)
     add_acceptance_arguments(p)
     add_listener_argument(p)
     add_bus_arguments(p)
-    declare_files(p, inputs=('LOG', '--model'), outputs=(('--log', 'new_log'),))
+    declare_files(p, inputs=('LOG', '--model', '--xcp-elf'), outputs=(('--log', 'new_log'),))
     p.set_defaults(func=run)
 
 
@@ -131,6 +147,43 @@ def injected_faults(record: BusRecord) -> dict[str, int]:
     return dict(Counter(m.fault for m in record.marks if m.event == "fault" and m.fault))
 
 
+def download_answers(record: BusRecord) -> list[int]:
+    """The packet identifier (RES or ERR) that answered each XCP DOWNLOAD of a log, in order (-1: none logged)."""
+    command, response = cmd_id(), res_id()
+    answers: list[int] = []
+    waiting = False
+    for fid, dlc, data in zip(record.frame_ids.tolist(), record.frame_dlc.tolist(), record.frame_data, strict=True):
+        if fid == command and dlc:
+            waiting = data[0] == Cmd.DOWNLOAD     # one command outstanding: a new one ends the wait for the last
+            answers += [-1] if waiting else []
+        elif fid == response and waiting and dlc and data[0] in (PID_RES, PID_ERR):     # not a DAQ packet
+            answers[-1], waiting = int(data[0]), False
+    return answers
+
+
+def downloads_answered_otherwise(recorded: BusRecord, replayed: BusRecord) -> int:
+    """How many of the recorded log's XCP DOWNLOADs the replay's target answered otherwise (accepted one the
+    recorded target refused or the reverse, or did not answer): its cells were not where the recorded target's."""
+    ours, theirs = download_answers(replayed), download_answers(recorded)
+    return sum(a != b for a, b in zip(ours, theirs, strict=False)) + abs(len(ours) - len(theirs))
+
+
+def engine_layout(log: Path, recorded: BusRecord, engine: str, layout: Path | None) -> tuple[Path | None, Path | None]:
+    """(firmware, xcp_elf) of the target a replay starts, so that a log's XCP DOWNLOADs reach the cells they
+    reached: `layout`, the ELF whose addresses the recorded target's cells had, is the firmware engine's ELF or the
+    Python engine's --xcp-elf. (None, None) for a log without calibrations (the engine's defaults); BenchError (one
+    sentence) for a Python target's calibrated log (its cells in the Python slave's pages) on the firmware engine."""
+    if not recorded.xcp_downloads:
+        return None, None
+    if engine == "python":
+        return None, layout
+    if layout is None:
+        raise BenchError(f"log {log} calibrated a Python target over XCP ({recorded.xcp_downloads} DOWNLOADs) at the "
+                         "Python slave's own addresses, where the firmware has no cells; replay it with --engine "
+                         "python, or give the ELF whose addresses the target had with --xcp-elf")
+    return layout, None
+
+
 def compare_replies(recorded: BusRecord, recorded_rows: RowSelection, new: BusRecord,
                     new_rows: RowSelection) -> ReplyComparison:
     """Each row's final reply of the replay against the recorded one, over the rows the rule keeps in both (a row
@@ -151,27 +204,29 @@ def compare_replies(recorded: BusRecord, recorded_rows: RowSelection, new: BusRe
                            replayed_excluded=dict(new_rows.counts.excluded))
 
 
-def figure_rows(record: BusRecord, artifact) -> RowSelection:
+def figure_rows(record: BusRecord, artifact, xcp_elf: Path | None = None) -> RowSelection:
     """The rows of a log the rule keeps, judged against the log's offline float32 reference as `bench analyze`
-    judges them (`canmetrics.compute`); a log that cannot be compared with the model (no complete RESET, no
-    currents for an electrical loss model) by the log's own checks only."""
+    judges them (`canmetrics.compute`, the twin that replays its XCP calibrations laid out by `xcp_elf`); a log
+    that cannot be compared with the model (no complete RESET, no currents for an electrical loss model) by the
+    log's own checks only."""
     from bench.analysis.canmetrics import AGREEMENT_TOLERANCE_C, compute
 
     try:
-        _, refs = compute(record, artifact)
+        _, refs = compute(record, artifact, xcp_elf=xcp_elf)
     except ValueError:
         return kept_rows(record, tolerance=AGREEMENT_TOLERANCE_C)
     return RowSelection(refs.kept, refs.figure_rows)
 
 
-def replay_figures(record: BusRecord, artifact) -> tuple[RunResults | None, str]:
+def replay_figures(record: BusRecord, artifact, xcp_elf: Path | None = None) -> tuple[RunResults | None, str]:
     """The figures of the replay's log as `bench analyze` makes them (against a dataset in out/data whose rows
-    match, else the float64 model), for the acceptance criteria; (None, why) when it cannot be compared."""
+    match, else the float64 model; its calibrations' cells laid out by `xcp_elf`), for the acceptance criteria;
+    (None, why) when it cannot be compared."""
     from bench.analysis.canmetrics import compute
     from bench.run.inputs import matching_dataset
 
     try:
-        return compute(record, artifact, matching_dataset(record.drive, artifact))[0], ""
+        return compute(record, artifact, matching_dataset(record.drive, artifact), xcp_elf=xcp_elf)[0], ""
     except ValueError as exc:
         return None, f"the replay's log cannot be compared with the model ({exc})"
 
@@ -197,11 +252,17 @@ def run(args: argparse.Namespace) -> int:
     if recorded_id is not None and recorded_id != artifact.model_id:
         raise BenchError(f"log {path} was recorded with model {recorded_id:08x}, but {model_path} is "
                          f"{artifact.model_id:08x}; pass the log's artifact with --model")
+    if args.xcp_elf is not None:
+        check_given_elf(args.xcp_elf, artifact, path)
     bus = bus_from_args(args)
     quiet = args.quiet or args.json
     engine = args.engine or ("firmware" if len(recorded.timing.get("m4_cycles", ())) else "python")
-    firmware = None if args.no_start_target else firmware_for_engine(engine, artifact,
-                                                                     new_log.parent / "firmware-cache", quiet=quiet)
+    # the ELF whose addresses the recorded target's XCP cells had (None: the Python slave's pages, or no calibration)
+    layout = (args.xcp_elf or recorded_layout(path, recorded, artifact)) if recorded.xcp_downloads else None
+    firmware, xcp_elf = None, None
+    if not args.no_start_target:
+        firmware, xcp_elf = engine_layout(path, recorded, engine, layout)
+        firmware = firmware or firmware_for_engine(engine, artifact, new_log.parent / "firmware-cache", quiet=quiet)
     if not quiet:
         print(f"bench: replaying {recorded.rows} rows of {path} "
               f"({'as fast as possible' if args.as_fast_as_possible else f'recorded timing x{args.speed:g}'}) "
@@ -212,32 +273,38 @@ def run(args: argparse.Namespace) -> int:
     try:
         outcome = replay_with_target(None if args.no_start_target else model_path, artifact, bus, messages,
                                      timed=not args.as_fast_as_possible, speed=args.speed, log_path=new_log,
-                                     reply_timeout_s=args.reply_timeout, progress=bar, firmware=firmware)
+                                     reply_timeout_s=args.reply_timeout, progress=bar, firmware=firmware,
+                                     xcp_elf=xcp_elf)
     finally:
         bar.close()
     result = outcome.result
     replayed = decode_log(Path(result.log_path))
-    recorded_rows = figure_rows(recorded, artifact)
-    comparison = compare_replies(recorded, recorded_rows, replayed, figure_rows(replayed, artifact))
+    recorded_rows = figure_rows(recorded, artifact, layout)
+    comparison = compare_replies(recorded, recorded_rows, replayed, figure_rows(replayed, artifact, layout))
     excluded = recorded_rows.counts.excluded_total
     # the target must reject what it rejected then; a target that ran before (--no-start-target) counted before,
     # and the recorded counters of a log whose target restarted are only those of its last process
     compare_rejections = bool(faults) and not args.no_start_target and not restarted
     same_rejections = not compare_rejections or replayed.rx_errors == recorded.rx_errors
+    unlike = downloads_answered_otherwise(recorded, replayed)
     reproduced = (comparison.different == 0 and comparison.missing_in_replay == 0 and not excluded
-                  and comparison.compared == recorded_rows.counts.kept and same_rejections)
+                  and comparison.compared == recorded_rows.counts.kept and same_rejections and not unlike)
     # of a faulted log, the passes the faults left unanswered and the target's rejections are expected
     problems = (replace(result, missing=0, target_rx_errors={}) if faults else result).problems()
     if not same_rejections:
         problems.append(f"the target's rejections {replayed.rx_errors} differ from the recorded "
                         f"{recorded.rx_errors}")
+    if unlike:
+        problems.append(f"the replay's target answered {unlike} of the log's {recorded.xcp_downloads} XCP DOWNLOADs "
+                        "otherwise than the recorded target (its calibration cells are not where the recorded "
+                        "target's were: give the ELF whose addresses they had with --xcp-elf)")
     if excluded:
         problems.append(f"the recorded log has {excluded} rows a check flagged as not the target's own answer "
                         f"({counts_text(recorded_rows.counts.excluded)}): they are left out of the comparison, and "
                         "the log is not reproduced")
     acceptance = None
     if acceptor.gate is not None:
-        figures, why = replay_figures(replayed, artifact)
+        figures, why = replay_figures(replayed, artifact, layout)
         acceptance = acceptor.judge(figures, why)
     summary = ReplayResults(
         log=str(path), replay_log=result.log_path, reproduced=reproduced, comparison=comparison,

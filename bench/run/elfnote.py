@@ -1,10 +1,11 @@
-"""`<log>.elf.json`: which firmware ELF the target of a run ran, written beside the run's log.
+"""`<log>.elf.json`: which firmware ELF the target of a run ran (or laid out its XCP cells by), beside the run's log.
 
 A bus log holds CAN frames only; a firmware target's XCP cells sit at its ELF's addresses, so a DOWNLOAD in the log
-names its cell by an address that only that ELF explains. `bench run --engine firmware` and `bench replay --engine
-firmware` (a target of their own) write the note: the ELF's absolute path and its sha256. `bench analyze` lays out
-the twin that replays the log's calibrations by the ELF the note names, after checking it is still there and still
-the same file (one sentence if not). A run on the Python engine, or of a target the bench did not start (`bench
+names its cell by an address that only that ELF explains. `bench run --engine firmware` and `bench replay` (a target
+of their own on the firmware engine, or on the Python engine laid out by an ELF, `--xcp-elf`) write the note: the
+ELF's absolute path and its sha256. `bench analyze` lays out the twin that replays the log's calibrations by the ELF
+the note names, and `bench replay` its target's cells, after checking it is still there and still the same file
+(one sentence if not). A run on the Python engine's own pages, or of a target the bench did not start (`bench
 host`), removes a note an earlier run left beside the same log name, so a note never describes another run.
 
     {"log": "run.blf", "elf": "/abs/path/model.elf", "sha256": "<64 hex digits>"}
@@ -93,3 +94,47 @@ def noted_elf(log_path: str | os.PathLike) -> Path | None:
                          f"{note.sha256[:12]}...) with --xcp-elf")
     check_ran(note, note.elf, log_path)
     return note.elf
+
+
+def check_model_elf(path: str | os.PathLike, artifact) -> None:
+    """BenchError (one sentence) unless `path` is a firmware ELF of `artifact`'s model (`--xcp-elf`)."""
+    from target_sim.firmware.elf import FirmwareError
+    from target_sim.xcp.layout import elf_symbols
+
+    try:
+        elf_symbols(path, artifact.model_id)
+    except FirmwareError as exc:
+        raise BenchError(f"--xcp-elf: {exc}") from None
+
+
+def check_given_elf(elf: str | os.PathLike, artifact, log_path: str | os.PathLike) -> None:
+    """--xcp-elf `elf` for log `log_path`: BenchError (one sentence) for an ELF of another model, or one whose bytes
+    are not those of the ELF the log's note names."""
+    check_model_elf(elf, artifact)
+    note = read_note(log_path)
+    if note is not None:
+        check_ran(note, elf, log_path)
+
+
+def recorded_layout(log_path: str | os.PathLike, record, artifact) -> Path | None:
+    """For a log with XCP DOWNLOADs (a `BusRecord`), the firmware ELF whose addresses its target's cells had, when
+    no --xcp-elf says it: the ELF the log's note names (BenchError, one sentence, when it is gone or changed), else
+    for a firmware target's log the packaged model's shipped ELF (BenchError for another model's firmware); None
+    (the Python slave's pages) for a Python target's log and for a log without calibrations."""
+    from bench.analysis.canmetrics import ran_firmware
+    from bench.firmware.images import packaged_elf
+
+    if not record.xcp_downloads:
+        return None
+    noted = noted_elf(log_path)
+    if noted is not None:
+        check_model_elf(noted, artifact)
+        return noted
+    if not ran_firmware(record):
+        return None
+    shipped = packaged_elf(artifact)
+    if shipped is None:
+        raise BenchError(f"log {log_path} is of a firmware target calibrated over XCP ({record.xcp_downloads} "
+                         f"DOWNLOADs), whose cells sit at its ELF's addresses, and model {artifact.model_id:08x} "
+                         "ships no ELF; pass the target's ELF with --xcp-elf")
+    return shipped

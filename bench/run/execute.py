@@ -226,15 +226,17 @@ def _name_the_fault(result: HostResult, stderr: str) -> None:
 def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, bus: BusConfig, messages, *,
                        timed: bool, speed: float = 1.0, log_path: str | Path | None = None,
                        reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S, progress: Progress | None = None,
-                       firmware: Path | None = None) -> RunOutcome:
-    """Re-send a log's host frames to a target started here (or, with model_path None, one already running),
-    which runs the firmware engine on the ELF `firmware` if one is given."""
+                       firmware: Path | None = None, xcp_elf: Path | None = None) -> RunOutcome:
+    """Re-send a log's host frames (and a master's XCP commands) to a target started here (or, with model_path
+    None, one already running), which runs the firmware engine on the ELF `firmware` if one is given, else the
+    Python engine, its XCP cells at the addresses of the ELF `xcp_elf` if one is given."""
     host_bus = _open(bus)
     target = None
     try:
         if model_path is not None:  # a target of our own: none may be on the channel already
             refuse_foreign_target(host_bus, bus, artifact)
-            target = TargetProcess(model_path, bus, firmware=firmware).start()
+            target = TargetProcess(model_path, bus, firmware=firmware,
+                                   extra_argv=["--xcp-elf", str(xcp_elf)] if xcp_elf is not None else None).start()
         alive = target.exit_reason if target is not None else None
         result = _host_session(lambda: replay_log(
             host_bus, messages, model_id=artifact.model_id if artifact else None, timed=timed, speed=speed,
@@ -247,6 +249,6 @@ def replay_with_target(model_path: Path | None, artifact: ModelArtifact | None, 
         if target is not None:
             target.close()
         host_bus.shutdown()
-    if result.log_path:    # which ELF ran (none known for a target not started here)
-        note_target(result.log_path, firmware if target is not None else None)
+    if result.log_path:    # whose addresses its XCP cells had (none known for a target not started here)
+        note_target(result.log_path, (firmware or xcp_elf) if target is not None else None)
     return RunOutcome(result, status, stderr)

@@ -20,13 +20,11 @@ from bench.analysis.canmetrics import compute
 from bench.analysis.logdecode import decode_log
 from bench.analysis.twin import twin_estimates
 from bench.analysis.verdict import problems
-from dbc import Command, FrameCodec
 from dbc.xcp import cmd_id, res_id
-from host.replay import encode_row
 from target_sim.artifact import load_artifact
 from target_sim.xcp.codes import Cmd
 
-from helpers import ROOT, SESSION_INITIAL, session_drive, session_start, write_frames
+from helpers import ROOT, SESSION_INITIAL, calibrated_session, session_drive, write_frames
 
 PACKAGED = ROOT / "bench" / "data" / "default_model.json"
 PACKAGED_ELF = ROOT / "bench" / "data" / "firmware" / "default_model.elf"
@@ -39,12 +37,6 @@ def xcp(data: bytes) -> can.Message:
     return can.Message(arbitration_id=cmd_id(), is_extended_id=False, data=data)
 
 
-def calibration(address: int, value: float) -> list[can.Message]:
-    """A master's CONNECT, SET_MTA and DOWNLOAD of one float32 `value` at `address`."""
-    return [xcp(bytes((Cmd.CONNECT, 0))), xcp(bytes((Cmd.SET_MTA, 0, 0, 0)) + struct.pack("<I", address)),
-            xcp(bytes((Cmd.DOWNLOAD, 4)) + struct.pack("<f", value))]
-
-
 def firmware_session(artifact_path: Path, elf: Path, cell: str | None, value: float,
                      measured: np.ndarray | None = None) -> list[can.Message]:
     """Every frame of a lockstep session of ROWS rows with the firmware node on `elf` (its startup frames and
@@ -54,29 +46,8 @@ def firmware_session(artifact_path: Path, elf: Path, cell: str | None, value: fl
     from target_sim.node import TargetNode
 
     artifact = load_artifact(artifact_path)
-    node = FirmwareNode(artifact, elf)
     address = TargetNode(artifact, clock_ns=lambda: 0, xcp_elf=elf).xcp.memory.by_name[cell].address if cell else 0
-    host = FrameCodec("HOST")
-    frames = list(node.startup_frames())
-
-    def send(messages):
-        for message in messages:
-            frames.append(message)
-            replies = node.handle(message)
-            assert all(r.data[0] == 0xFF for r in replies if r.arbitration_id == res_id()), message
-            frames.extend(replies)
-
-    send(session_start(host))
-    drive = session_drive(ROWS, 11)
-    for row in range(ROWS):
-        send(encode_row(host, row, drive[row], None if measured is None else measured[row].tolist()))
-        if cell and row == CALIBRATE_AFTER:
-            send(calibration(address, value))
-        if row % 25 == 0:
-            frames.extend(node.heartbeat_frames())
-    send([host.encode("Control", {"Command": int(Command.STOP), "Step": 0})])
-    frames.extend(node.heartbeat_frames())
-    return frames
+    return calibrated_session(FirmwareNode(artifact, elf), ROWS, CALIBRATE_AFTER, cell, value, address, measured)
 
 
 def relogged(frames: list[can.Message], value: float) -> list[can.Message]:
