@@ -72,6 +72,7 @@ from bench.run.elfnote import check_given_elf, recorded_layout
 from bench.run.execute import replay_with_target
 from bench.run.inputs import firmware_for_engine, load_model
 from bench.run.leftovers import clear_and_say
+from bench.run.prepare import check_log_names
 from dbc import FrameError, frame_id
 from dbc.codec import decode_any
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
@@ -238,6 +239,7 @@ def run(args: argparse.Namespace) -> int:
     new_log = args.new_log or Path("out/replay") / default_replay_name(path)
     check_log_path(new_log)   # the arguments' refusals before the log is read
     check_writable(new_log, "--log")
+    check_log_names(new_log, None, firmware=True)     # the note of an ELF it may write beside it
     if args.new_log is None:   # the default beside nothing the user named: `bench.cli` checked the options given
         refuse_same("--log", new_log, "LOG", path)
     messages = list(read_log(path))
