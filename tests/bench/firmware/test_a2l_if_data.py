@@ -1,7 +1,8 @@
 """The A2L's IF_DATA XCP read by a parser that knows XCP's AML: pya2ldb's IF_DATA parser (`pya2l.aml.ifdata_parser`)
-with the XCP AML pya2ldb ships (`pya2l/examples/vector.aml`, Vector's rendering of ASAM's XCP 1.x AML; our A2L
-carries no A2ML of its own), so the keywords, their order and their enumerations are checked by a grammar that is
-not ours. pya2ldb does not range-check values (a TIME_CYCLE of 500 in the AML's uchar passed), so the parsed values
+with the XCP AML pya2ldb ships (`pya2l/examples/vector.aml`, Vector's rendering of ASAM's XCP 1.x AML, in place
+of the A2L's own A2ML block), so the keywords, their order and their enumerations are checked by a grammar that is
+not ours; and by the A2L's own A2ML, which must read the IF_DATA into the same values. pya2ldb does not
+range-check values (a TIME_CYCLE of 500 in the AML's uchar passed), so the parsed values
 are checked here against the AML's types and against what the slave answers."""
 
 from __future__ import annotations
@@ -39,13 +40,19 @@ def xcp_aml() -> str:
     return aml.read_text(encoding="latin-1")
 
 
+def with_vector_aml(a2l: str) -> str:
+    """The A2L with XCP's AML as pya2ldb ships it in place of the A2L's own A2ML block."""
+    start, end = a2l.index("    /begin A2ML"), a2l.index("    /end A2ML\n") + len("    /end A2ML\n")
+    return a2l[:start] + xcp_aml() + "\n" + a2l[end:]
+
+
 def parsed_if_data(a2l: str, tmp_path, caplog) -> tuple[dict, list[str]]:
-    """(what pya2ldb's IF_DATA parser reads from the A2L's one IF_DATA XCP with XCP's AML, what it complained of)."""
+    """(what pya2ldb's IF_DATA parser reads from the A2L's one IF_DATA XCP with the A2L's A2ML, what it complained
+    of)."""
     from pya2l import model
 
-    marker = "    /begin MOD_PAR"
     path = tmp_path / "with_aml.a2l"
-    path.write_text(a2l.replace(marker, xcp_aml() + "\n" + marker, 1), encoding="latin-1")
+    path.write_text(a2l, encoding="latin-1")
     session = pya2l.import_a2l(str(path), in_memory=True, remove_existing=True, progress_bar=False,
                                loglevel="ERROR")
     blocks = [block.raw for block in session.query(model.IfData).all()]
@@ -133,8 +140,18 @@ def artifact():
 
 
 def test_the_if_data_parses_with_xcps_aml_and_holds_what_the_slave_answers(artifact, tmp_path, caplog):
-    parsed, complaints = parsed_if_data(a2l_text(artifact), tmp_path, caplog)
+    parsed, complaints = parsed_if_data(with_vector_aml(a2l_text(artifact)), tmp_path, caplog)
     assert if_data_problems(parsed, complaints, TargetNode(artifact), artifact.dt) == []
+
+
+def test_the_a2ls_own_a2ml_reads_its_if_data_as_xcps_aml_does(artifact, tmp_path, caplog):
+    """The A2L's own A2ML block (no AML added): pya2ldb parses it, and its IF_DATA parser reads the IF_DATA by it
+    without a complaint into what it reads by the XCP AML pya2ldb ships."""
+    text = a2l_text(artifact)
+    assert text.count("/begin A2ML") == 1
+    own, complaints = parsed_if_data(text, tmp_path, caplog)
+    assert complaints == [] and own == parsed_if_data(with_vector_aml(text), tmp_path, caplog)[0]
+    assert if_data_problems(own, complaints, TargetNode(artifact), artifact.dt) == []
 
 
 @pytest.mark.parametrize(("written", "edited"), [
@@ -148,8 +165,9 @@ def test_a_wrong_if_data_is_found(artifact, tmp_path, caplog, written, edited):
     """The check fails on what it is there to catch: each of these edits of the IF_DATA is reported."""
     text = a2l_text(artifact)
     assert written in text
-    parsed, complaints = parsed_if_data(text.replace(written, edited, 1), tmp_path, caplog)
-    assert if_data_problems(parsed, complaints, TargetNode(artifact), artifact.dt) != []
+    for a2l in (text, with_vector_aml(text)):       # by its own A2ML, and by XCP's AML
+        parsed, complaints = parsed_if_data(a2l.replace(written, edited, 1), tmp_path, caplog)
+        assert if_data_problems(parsed, complaints, TargetNode(artifact), artifact.dt) != []
 
 
 def test_an_event_cycle_fits_the_amls_uchar():
