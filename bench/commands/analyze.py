@@ -13,8 +13,8 @@ run on them, and --data must have them too.
 A log with XCP DOWNLOADs (a calibration master changed the target during the run) is judged against the target's
 twin, which replays them; a DOWNLOAD names its cell by address, so the twin lays out its cells as the target did:
 by --xcp-elf, the firmware ELF of a firmware target (or the ELF a Python target had as --xcp-elf). Without it, a log
-that `bench run`/`bench replay --engine firmware` wrote names its ELF in the note beside it (`<log>.elf.json`: path
-and sha256), and the twin takes that ELF, refused in one sentence when it is gone or its bytes changed (an
+that `bench run --engine firmware` or `bench replay` wrote names that ELF in the note beside it (`<log>.elf.json`:
+path and sha256), and the twin takes it, refused in one sentence when it is gone or its bytes changed (an
 --xcp-elf that is not the noted ELF is refused too); a firmware target's log without a note takes the packaged
 model's shipped ELF; for any other model's firmware the ELF is needed.
 
