@@ -29,6 +29,7 @@ from bench.commands.common import (
 )
 from bench.drive.dataset import MEASURED_NODES
 from bench.errors import BenchError, UsageError
+from bench.model.deploy import DEPLOYED_NODES
 from bench.thermal.realizations import REALIZATIONS
 from target_sim.artifact import OUTPUTS
 from target_sim.kinds import MODEL_KINDS
@@ -276,7 +277,7 @@ def print_table(report: dict) -> None:
     head = f"{'domain':8} {'method':12} {'dt':>4} {'prec':7} {'MSE °C²':>9} {'RMSE °C':>8} {'NRMSE':>7}"
     print(head)
     print("-" * len(head))
-    for domain in ("winding", "pm"):
+    for domain in DEPLOYED_NODES:
         for row in report["rows"]:
             for prec in ("float64", "float32"):
                 m = row[prec][domain]

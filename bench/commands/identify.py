@@ -19,7 +19,7 @@ from bench.commands.common import add_data_arguments, add_output_flags, check_wr
 from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.coverage import coverage_warnings
-from bench.model.deploy import AUTO, CANDIDATES
+from bench.model.deploy import AUTO, CANDIDATES, DEPLOYED_NODES
 from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS, STATOR_RULE, STATOR_WEIGHT_CHOICES
 from bench.model.polish import DEFAULT_FREEZE, POLISH_STARTS
 from bench.model.undetermined import undetermined
@@ -301,7 +301,7 @@ def _warnings(on_bounds: list[dict], prov: dict, gaps: dict | None) -> list[str]
 
 
 LTI = "lti-lptn"           # the network the Hammerstein model refines
-COMPARED_NODES = ("winding", "pm")
+COMPARED_NODES = DEPLOYED_NODES
 
 
 def _deployment(selection: dict | None, metrics: dict, written: dict[str, str],

@@ -16,11 +16,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from bench.model.deploy import DEPLOYED_NODES
 from bench.model.runs import ModelRun
 from bench.thermal import portable
 
 TAU_GRID_S = np.geomspace(5.0, 20000.0, 121)
-NODES = ("winding", "pm")
+NODES = DEPLOYED_NODES
 
 
 def copper_loss(run: ModelRun) -> np.ndarray:

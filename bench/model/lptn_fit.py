@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.drive.dataset import MEASURED_NODES
+from bench.model.deploy import DEPLOYED_NODES
 from bench.model.runs import ModelRun
 from bench.thermal import portable
 from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
@@ -89,7 +90,7 @@ def search_bounds(bounds: dict[str, tuple[float, float]] = BOUNDS) -> tuple[np.n
 # (a fit to winding and PM alone leaves them 6-8 °C off) without outvoting the two deployed outputs.
 NODES = tuple(MEASURED_NODES)   # winding, pm, yoke, tooth: the data's measured nodes
 NODE_WEIGHTS = {"winding": 1.0, "pm": 1.0, "yoke": 0.5, "tooth": 0.5}
-FITTED_ALWAYS = ("winding", "pm")
+FITTED_ALWAYS = DEPLOYED_NODES      # the outputs a model is deployed for are always fitted
 
 
 def measured_nodes(runs: Sequence[ModelRun]) -> tuple[str, ...]:

@@ -8,6 +8,7 @@ from pathlib import Path
 from bench.drive.dataset import Dataset, dataset_filename, load_dataset
 from bench.drive.generate import ensure_default_datasets
 from bench.errors import BenchError
+from bench.model.deploy import DEPLOYED_NODES
 from bench.model.fileeval import PRECISIONS, evaluate_file, summarize
 from bench.model.identify import (
     IDENTIFICATION_COOLANTS,
@@ -60,6 +61,6 @@ def validation_metrics(result: Identification, validation: Sequence[Dataset],
     for kind in kinds:
         artifact = verify(seal(result.content(kind, realization)))
         pooled = summarize([evaluate_file(artifact, d) for d in validation])
-        metrics[kind] = {**{p: {n: pooled["nodes"][n][p] for n in ("winding", "pm")} for p in PRECISIONS},
+        metrics[kind] = {**{p: {n: pooled["nodes"][n][p] for n in DEPLOYED_NODES} for p in PRECISIONS},
                          "max_abs_f32_minus_f64_C": pooled["max_abs_f32_minus_f64_C"]}
     return metrics

@@ -14,6 +14,7 @@ import numpy as np
 
 from bench.drive.dataset import MEASURED_NODES, Dataset
 from bench.model.artifact_eval import artifact_drive
+from bench.model.deploy import DEPLOYED_NODES
 from bench.model.fileeval import OUTPUT_INDEX, measured_nodes
 from bench.model.metrics import error_metrics
 from bench.model.runs import initial_temperatures
@@ -193,6 +194,6 @@ def validation_check(artifact: ModelArtifact, datasets: Sequence[Dataset]) -> Va
             pair = errors.setdefault(node, {"open_loop": [], "observer": []})
             pair["open_loop"].append(open_loop[:, index].astype(np.float64) - reference)
             pair["observer"].append(observed[:, index].astype(np.float64) - reference)
-    mse = {kind: {n: float(np.mean(np.concatenate(e[kind]) ** 2)) for n, e in errors.items() if n in ("winding", "pm")}
+    mse = {kind: {n: float(np.mean(np.concatenate(e[kind]) ** 2)) for n, e in errors.items() if n in DEPLOYED_NODES}
            for kind in ("open_loop", "observer")}
     return ValidationCheck(tuple(d.name for d in datasets), mse["open_loop"], mse["observer"])
