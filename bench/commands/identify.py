@@ -21,6 +21,7 @@ from bench.fileio import write_text_atomically
 from bench.model.coverage import coverage_warnings
 from bench.model.deploy import AUTO, CANDIDATES, DEPLOYED_NODES
 from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS, STATOR_RULE, STATOR_WEIGHT_CHOICES
+from bench.model.loss_scales import SCALE_CHOICES
 from bench.model.polish import DEFAULT_FREEZE, POLISH_STARTS
 from bench.model.undetermined import undetermined
 from bench.progress import StageBars, shows_bars
@@ -41,6 +42,14 @@ DEFAULT_DT_S = 0.5
 def default_polish(files: bool, adapt: bool) -> int:
     """--polish's default: POLISH_STARTS starts on the --train files path unless the prior is adapted, else 0."""
     return POLISH_STARTS if files and not adapt else 0
+
+
+# --loss-scales when not given, chosen on the motor suite's validation profiles (designer's prior, --polish 2;
+# Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw, 2026-12-07, docs/method.md): none
+# 12.0 / 23.8 / 9.8, stator iron and magnet fitted 11.1 / 20.2 / 15.6 (2 of 3); with the ac copper factor fitted
+# too 12.4 / 5.5 / 17.2 (1 of 3: not offered). The built-in campaign keeps its packaged artifacts.
+def _loss_scales(choice: str | None, files: bool) -> bool:
+    return (choice or ("fit" if files else "none")) == "fit"
 
 
 # every model step must hold at least one data sample (the target averages the samples of each step)
@@ -92,6 +101,11 @@ def add_subparser(subparsers) -> None:
                         "the search: common factors of the stator and rotor resistances and capacitances, then each "
                         "resistance and capacitance on its own; the --bounds box then around the adapted prior "
                         "(default no: chosen on the motor suite's validation profiles, see docs/method.md)")
+    p.add_argument("--loss-scales", choices=SCALE_CHOICES, default=None,
+                   help="fit: scale the loss model's stator iron and magnet losses by factors (0.5-2) fitted with "
+                        "the network, copper the reference; the artifacts carry the scaled model; none: the motor "
+                        "file's losses as given (default fit with --train files, none for the built-in campaign: "
+                        "chosen on the motor suite's validation profiles, see docs/method.md)")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -157,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
                           lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
                           standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
-                          adapt=adapt, progress=progress)
+                          adapt=adapt, loss_scales=_loss_scales(args.loss_scales, files), progress=progress)
     finally:
         if progress is not None:
             progress.close()
@@ -193,6 +207,7 @@ def run(args: argparse.Namespace) -> int:
                       "evaluations": result.hammerstein.evaluations},
                "baselines": result.provenance["baselines"], "timings_s": result.timings_s, "validation": metrics,
                "nodes": list(result.lptn.nodes), "polish": prov.get("polish"), "uncertainty": uncertainty,
+               "loss_scales": prov.get("loss_scales"),
                "undetermined": gaps,
                "auto_prior": prov["pso"].get("auto_prior"), "adapted_prior": prov["pso"].get("adapted_prior"),
                "regularization": selection, "warnings": coverage + warnings}
@@ -426,7 +441,8 @@ def _print_uncertainty(u: dict, gaps: dict | None) -> None:
         print(f"  {gaps['sentence']}")
 
 
-STAGES = {"pso": "PSO LPTN", "polish": "LM polish", "lm": "LM Hammerstein"}   # identify()'s progress stages
+# identify()'s progress stages
+STAGES = {"pso": "PSO LPTN", "polish": "LM polish", "scales": "LM loss scales", "lm": "LM Hammerstein"}
 
 
 class _ProgressBars(StageBars):
@@ -449,6 +465,11 @@ def _print_summary(s: dict) -> None:
         if p.get("prior"):
             print(f"  maximum a posteriori: weak prior around the {s['prior']} network, weight 1/N_eff = "
                   f"1/{p['prior']['n_eff']:.0f}; frozen at the prior: {', '.join(p['frozen']) or 'none'}")
+    if s.get("loss_scales"):
+        ls = s["loss_scales"]
+        print(f"loss scales {s['timings_s']['scales']:.1f} s, fitted with the network (cost {ls['cost_before']:.4f} "
+              f"-> {ls['cost']:.4f}): " + ", ".join(f"{n} × {f:.3g}" for n, f in ls["factors"].items())
+              + "; the artifacts carry the scaled loss model")
     if s.get("adapted_prior"):
         a = s["adapted_prior"]
         print(f"{s['prior']} prior adapted to the training data (cost {a['cost_prior']:.4f} -> scaled "

@@ -20,6 +20,7 @@ from bench.model.hammerstein_fit import (
     fit_hammerstein,
     fit_hammerstein_cv,
 )
+from bench.model.loss_scales import fit_loss_scales
 from bench.model.lptn_fit import (
     DEFAULT_WIDTH,
     FITTED_ALWAYS,
@@ -36,6 +37,7 @@ from bench.model.prior_scales import adapt_prior
 from bench.model.runs import ModelRun, model_run
 from bench.motor.description import MotorDescription, ThermalPrior, default_motor
 from bench.motor.losses import EstimatorMotor, LossModel
+from bench.motor.losskinds import LAB_LOSS_KINDS
 from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.parameters import TABLE1, LptnParameters
 from bench.thermal.pso import Stall
@@ -99,7 +101,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              motor: MotorDescription | None = None, prior: ThermalPrior | None = None,
              width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
              regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
-             freeze: bool = DEFAULT_FREEZE, stator_weight: str = STATOR_RULE,
+             freeze: bool = DEFAULT_FREEZE, stator_weight: str = STATOR_RULE, loss_scales: bool = False,
              progress: Callable[[str, int, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
@@ -109,10 +111,12 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     `validation` datasets are only recorded in the provenance. `standard_errors` computes the parameters' standard
     errors (`uncertainty`) without a polish too, at the swarm's result (a polish always does). `freeze`: the polish
     freezes at the prior what the data cannot place (bench.model.polish.freeze_unidentified). `stator_weight`: with
-    `cv`, the Hammerstein fit's stator weight chosen by its rule or kept fixed (STATOR_WEIGHT_CHOICES). The
-    defaults (no polish, fixed ridge, no adaptation, no standard errors) are the packaged model's path. `progress`
-    is called with (stage "pso", "polish" or "lm", steps done, steps at most, cost) as each stage goes; a stage may end
-    before its most (a stalled swarm, a converged fit)."""
+    `cv`, the Hammerstein fit's stator weight chosen by its rule or kept fixed (STATOR_WEIGHT_CHOICES). `loss_scales`:
+    the stator iron and magnet losses scaled by factors fitted with the network after the swarm and the polish
+    (bench.model.loss_scales); the artifacts then carry the scaled loss model. The defaults (no polish, fixed
+    ridge, no adaptation, no standard errors, no loss scales) are the packaged model's path. `progress`
+    is called with (stage "pso", "polish", "scales" or "lm", steps done, steps at most, cost) as each stage goes;
+    a stage may end before its most (a stalled swarm, a converged fit)."""
     if discretization != "zoh":
         raise ValueError("identification discretizes by zero-order hold, as the paper's Hammerstein fit did")
     if regularization not in REGULARIZATIONS:
@@ -154,8 +158,21 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         started = time.perf_counter()
         errors = _standard_errors(lptn, runs, dt)
         timings["standard_errors"] = time.perf_counter() - started
+    loss_model, scales = motor.loss_model, None
+    if loss_scales:
+        started = time.perf_counter()
+        if progress:
+            progress("scales", 0, 1, lptn.cost)
+        lptn, scales = fit_loss_scales(lptn, runs, dt, start)
+        loss_model = LAB_LOSS_KINDS[loss_model.kind].scaled(loss_model, scales.factors)
+        runs = prepare_runs(datasets, loss_model, constants, dt)     # the Hammerstein fit's losses
+        if errors is not None:
+            errors = _standard_errors(lptn, runs, dt)
+        if progress:
+            progress("scales", 1, 1, lptn.cost)
+        timings["scales"] = time.perf_counter() - started
     started = time.perf_counter()
-    base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", motor.loss_model,
+    base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", loss_model,
                                     constants))
     lm_steps = cv_steps(runs, lm_iterations) if regularization == "cv" else lm_iterations + 1
     on_lm = (lambda i, c: progress("lm", i, lm_steps, c)) if progress else None
@@ -197,12 +214,14 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
                                 "cost": polished.cost, "swarm_cost": polished.swarm_cost,
                                 "prior": polished.prior.record() if polished.prior else None,
                                 "frozen": list(polished.frozen)}
+    if scales is not None:
+        provenance["loss_scales"] = scales.record()
     if errors is not None:
         provenance["uncertainty"] = errors
     if selection is not None:
         provenance["lm"]["regularization"] = selection
     period = datasets[0].sample_period_s
-    return Identification(dt, discretization, lptn, ham, motor.loss_model, constants, provenance, period, timings,
+    return Identification(dt, discretization, lptn, ham, loss_model, constants, provenance, period, timings,
                           delta_reference(datasets))
 
 

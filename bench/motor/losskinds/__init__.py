@@ -47,6 +47,11 @@ class LabLossKind:
         """What `bench motor check --json` shows of the model."""
         return {}
 
+    def scaled(self, model, factors: Mapping[str, float]):
+        """The model with loss inputs multiplied: `factors` maps a loss input (p_stator, p_magnet: `MAP_TABLES`
+        names) to its factor (bench.model.loss_scales)."""
+        raise NotImplementedError
+
 
 LAB_LOSS_KINDS: Registry[LabLossKind] = Registry("loss model", __name__, first=("maps", "electrical"))
 

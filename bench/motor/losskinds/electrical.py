@@ -11,7 +11,8 @@ copper_reference_C; magnet_no_load_share from 0 to 1); the data need i_d_A and i
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +73,11 @@ class ElectricalLosses:
 
 
 
+# the coefficients each loss input is proportional to (`LabElectricalKind.scaled`)
+SCALED_COEFFICIENTS = {"p_dc0": ("stator_resistance_ohm",), "p_stator": ("iron_hysteresis_W", "iron_eddy_W"),
+                       "p_magnet": ("magnet_W",)}
+
+
 class LabElectricalKind(LabLossKind):
     name = target.ElectricalKind.name
     keys = KEYS
@@ -95,6 +101,14 @@ class LabElectricalKind(LabLossKind):
 
     def describe(self, model: ElectricalLosses) -> dict[str, Any]:
         return {"loss_coefficients": model.coefficients()}
+
+    def scaled(self, model: ElectricalLosses, factors: Mapping[str, float]) -> ElectricalLosses:
+        """p_stator scales with both iron coefficients, p_magnet with magnet_W."""
+        unknown = set(factors) - set(SCALED_COEFFICIENTS)
+        if unknown:
+            raise ValueError(f"the electrical loss model cannot scale {', '.join(sorted(unknown))}")
+        return replace(model, **{key: getattr(model, key) * factor
+                                 for name, factor in factors.items() for key in SCALED_COEFFICIENTS[name]})
 
 
 register(LabElectricalKind())

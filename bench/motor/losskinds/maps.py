@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -179,6 +180,14 @@ class LabMapsKind(LabLossKind):
             return artifact.array("losses", *keys, dtype=np.float64)
 
         return LossMaps(f64(AXES[0]), f64(AXES[1]), {n: f64("tables", n) for n in MAP_TABLES})
+
+    def scaled(self, model: LossMaps, factors: Mapping[str, float]) -> LossMaps:
+        """Each named loss table times its factor (the current table is not a loss)."""
+        unknown = set(factors) - set(MAP_TABLES[:-1])
+        if unknown:
+            raise ValueError(f"loss maps have no loss table {', '.join(sorted(unknown))}")
+        return LossMaps(model.torque_Nm, model.speed_rpm,
+                        {name: table * factors.get(name, 1.0) for name, table in model.tables.items()})
 
     def describe(self, model: LossMaps) -> dict[str, Any]:
         return {"loss_maps_grid": {"torque_Nm": [float(model.torque_Nm[0]), float(model.torque_Nm[-1]),
