@@ -19,6 +19,7 @@ operation:
 | obs_output             | LinearBlockPart.output                        | y = C x (+ r), unrolled               |
 | obs_move_state         | Float32Observer._measurement_update's end     | x += C^-1 (summed correction), y = Cx |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
+| fw_obs_sigma           | Float32Observer.sigma                         | each node's 1-σ, unrolled (udgen.py)  |
 | fw_obs_report          | Float32Observer.sigma, .innovations           | each node's 1-σ, each innovation      |
 | fw_obs_gate            | InnovationGate.rejected, .flagged             | the gate's state after a step (DBC    |
 |                        |                                               | 1.8.0: Innovations, Uncertainty1)     |
@@ -54,6 +55,7 @@ from bench.firmware.udgen import (
     output_c,
     predict_c,
     product,
+    sigma_c,
     steady_c,
     total,
     update_c,
@@ -388,27 +390,7 @@ void fw_obs_restore_checkpoint(const float x[4], const float values[])
 OBS_COUNTS_RESTORE    fw_obs_sigma();
 }
 
-/* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) into obs_sigma; the
-   steady form's P_ss is the same every step (obs_sigma keeps its initial values) */
-void fw_obs_sigma(void)
-{
-#if !OBS_STEADY
-    float v[OBS_N];
-    float s;
-    int node, i, j;
-    for (node = 0; node < 4; node++) {
-        for (j = 0; j < OBS_N; j++) {                       /* c padded with zeros to the filter's states */
-            v[j] = obs_u[0][j] * (node == 0 ? 1.0f : 0.0f);  /* c: the node's unit row (node coordinates) */
-            for (i = 1; i < OBS_N; i++) v[j] = v[j] + obs_u[i][j] * (i == node || (node == OBS_BIAS_OUTPUT
-                                                                                && i == OBS_BIAS) ? 1.0f : 0.0f);
-        }
-        s = (obs_d[0] * v[0]) * v[0];
-        for (j = 1; j < OBS_N; j++) s = s + (obs_d[j] * v[j]) * v[j];
-        obs_sigma[node] = s > 0.0f ? __builtin_sqrtf(s) : 0.0f;
-    }
-#endif
-}
-
+OBS_SIGMA
 /* Float32Observer.sigma (fw_obs_sigma's, after the step) and .innovations */
 void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
 {
@@ -509,7 +491,7 @@ def observer_code(artifact: ModelArtifact) -> str:
     """The observer's functions (after the model's: they call fw_step, fw_reset, fw_restore and dot)."""
     obs = observer_filter(artifact)
     code = (OBSERVER_C.replace("OBS_KERNELS", _kernels(obs)).replace("OBS_MOVE_STATE", move_state_c(obs))
-            .replace("OBS_OUTPUT", output_c(obs)))
+            .replace("OBS_OUTPUT", output_c(obs)).replace("OBS_SIGMA", sigma_c(obs)))
     for name, text in _per_measurement(obs).items():
         code = code.replace(name, text)
     return code

@@ -11,6 +11,7 @@ counters, no index arithmetic, no loads of zeros.
     obs_predict(void)              Transition.matrix + BiermanThornton.predict: F, F U, the MWGS
     obs_update_<k>(r, nu, corr.)   BiermanThornton.update for the k-th measurement's row h, then the correction
     obs_output(void)               LinearBlockPart.output: y = C x (+ r)
+    fw_obs_sigma(void)             Float32Observer.sigma: each node's 1-σ (BiermanThornton.variance)
     obs_move_state(correction)     Float32Observer._measurement_update's x <- x + C⁻¹ (the step's node correction)
     steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
 """
@@ -337,6 +338,33 @@ def steady_c(n: int, updates: list[tuple[str, str, bool]]) -> str:
                  f"static void {name}(float r, float nu, float correction[4])\n{{\n    float step;\n    (void)r;\n"
                  f"{body}\n}}\n")
     return code
+
+
+def sigma_c(obs: Float32Observer) -> str:
+    """fw_obs_sigma: each node's 1-σ into obs_sigma (Float32Observer.sigma with BiermanThornton.variance), over the
+    structure: c the node's unit row (and the bias's one for the node an output bias adds to), v_j = Σ_i c_i u_ij
+    over U's unit upper triangle (the ones not multiplied), σ² = (d_j v_j) v_j summed over v's structural nonzeros
+    in order; the steady form's P_ss is the same every step (obs_sigma keeps its initial values)."""
+    head = ("/* Float32Observer.sigma (BiermanThornton.variance over the structure: v = U^T c, sigma^2 = (d_j v_j) v_j "
+            "summed), unrolled (bench.firmware.udgen) */\nvoid fw_obs_sigma(void)\n{\n")
+    if obs.form == "steady":
+        return head + "}\n"
+    n, out = obs.n, Lines()
+    u = {(i, j): out.load(f"u{i}_{j}", f"obs_u[{i}][{j}]") for j in range(n) for i in range(j)}
+    d = [out.load(f"d{j}", f"obs_d[{j}]") for j in range(n)]
+    bias, bias_output = obs.layout.bias_index, obs.layout.bias_output
+    for node in range(len(OUTPUTS)):
+        rows = [node, bias] if node == bias_output and bias >= 0 else [node]
+        terms = []
+        for j in range(n):
+            parts = [ONE if i == j else u[i, j] for i in rows if i <= j]
+            if not parts:
+                continue
+            v = parts[0] if len(parts) == 1 else out.set(f"v{node}_{j}", total([p.expr for p in parts]))
+            terms.append(d[j].expr if v.one else f"({product(d[j], v)}) * {v.expr}")
+        s = out.set(f"s{node}", total(terms))
+        out.raw(f"obs_sigma[{node}] = {s.expr} > 0.0f ? __builtin_sqrtf({s.expr}) : 0.0f;")
+    return head + out.text() + "\n}\n"
 
 
 def output_c(obs: Float32Observer) -> str:
