@@ -415,15 +415,13 @@ _LAG_RESET = "    obs_extra[OBS_LAG_K] = dot(OBS_SEES_K, y_est, 4);\n"
 _UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
            "        nu = value - (PREDICTED);\n"
            "        obs_innovation[INDEX] = nu;\n"
-           "        obs_update_K(r, nu, correction);\n"
-           "        corrected = 1;\n    }\n")
+           "        corrected |= obs_update_K(r, nu, correction);\n    }\n")
 # ... with the gate: a rejected reading predicts only (its innovation stays NaN)
 _GATED_UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
                  "        nu = value - (PREDICTED);\n"
                  "        if (!obs_gate(INDEX, nu, obs_variance_K(r))) {\n"
                  "            obs_innovation[INDEX] = nu;\n"
-                 "            obs_update_K(r, nu, correction);\n"
-                 "            corrected = 1;\n        }\n    }\n")
+                 "            corrected |= obs_update_K(r, nu, correction);\n        }\n    }\n")
 # the steady form with a gate: each measurement's rejections in a row in the checkpoint (InnovationGate.checkpoint)
 _COUNTS_CHECKPOINT = "    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) values[at++] = (float)obs_consecutive[i];\n"
 _COUNTS_RESTORE = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
@@ -440,8 +438,8 @@ _GATE_STATUS = "(unsigned char)(obs_rejected[i] | (obs_flagged[i] << 1))"
 
 
 # ... with the key-on release (ConsiderStates.holds): the magnet free while its variance exceeds OBS_RELEASE
-_RELEASED_UPDATE = ("if (obs_magnet_variance(0.0f) > OBS_RELEASE) obs_update_K_released(r, nu, correction);\n"
-                    "            else obs_update_K(r, nu, correction);")
+_RELEASED_UPDATE = ("(obs_magnet_variance(0.0f) > OBS_RELEASE ? obs_update_K_released(r, nu, correction)\n"
+                    "                : obs_update_K(r, nu, correction))")
 
 
 def _releases(obs: Float32Observer, index: int) -> bool:
@@ -473,7 +471,7 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
             [product(literal(m.sees[i]), Value(f"y_est[{i}]")) for i in range(len(m.sees)) if m.sees[i] != 0]) + seen
         template = _UPDATE if obs.gate.threshold is None else _GATED_UPDATE
         if _releases(obs, index):
-            template = template.replace("obs_update_K(r, nu, correction);", _RELEASED_UPDATE)
+            template = template.replace("obs_update_K(r, nu, correction)", _RELEASED_UPDATE)
         updates.append(template.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index))
                        .replace("PREDICTED", predicted))
         first += m.width
@@ -503,7 +501,8 @@ def _kernels(obs: Float32Observer) -> str:
     count = len(obs.measurements)
     moves_y = [k < count - 1 for k in range(count)]     # the last update's y is C x again at the step's end
     if obs.form == "steady":
-        return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k]) for k in range(count)]) + \
+        return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k], obs.consider.held[k])
+                                for k in range(count)]) + \
             _gate_c(obs)
     updates = "".join("\n" + update_c(obs, f"obs_update_{k}", obs.layout.rows[k], moves_y[k], obs.consider.held[k])
                       for k in range(count))
