@@ -19,6 +19,7 @@ operation:
 | obs_output             | LinearBlockPart.output                        | y = C x (+ r), unrolled               |
 | obs_move_state         | Float32Observer._measurement_update's end     | x += C^-1 (summed correction), y = Cx |
 | fw_obs_reset, _restore | Float32Observer.reset, NodeObserver.restore   | x0, lag state, U0 d0                  |
+| fw_obs_sigma           | Float32Observer.sigma                         | each node's 1-σ, unrolled (udgen.py)  |
 | fw_obs_report          | Float32Observer.sigma, .innovations           | each node's 1-σ, each innovation      |
 | fw_obs_gate            | InnovationGate.rejected, .flagged             | the gate's state after a step (DBC    |
 |                        |                                               | 1.8.0: Innovations, Uncertainty1)     |
@@ -54,6 +55,7 @@ from bench.firmware.udgen import (
     output_c,
     predict_c,
     product,
+    sigma_c,
     steady_c,
     total,
     update_c,
@@ -388,27 +390,7 @@ void fw_obs_restore_checkpoint(const float x[4], const float values[])
 OBS_COUNTS_RESTORE    fw_obs_sigma();
 }
 
-/* Float32Observer.sigma (BiermanThornton.variance: v = U^T c, sigma^2 = (d_0 v_0) v_0 + ...) into obs_sigma; the
-   steady form's P_ss is the same every step (obs_sigma keeps its initial values) */
-void fw_obs_sigma(void)
-{
-#if !OBS_STEADY
-    float v[OBS_N];
-    float s;
-    int node, i, j;
-    for (node = 0; node < 4; node++) {
-        for (j = 0; j < OBS_N; j++) {                       /* c padded with zeros to the filter's states */
-            v[j] = obs_u[0][j] * (node == 0 ? 1.0f : 0.0f);  /* c: the node's unit row (node coordinates) */
-            for (i = 1; i < OBS_N; i++) v[j] = v[j] + obs_u[i][j] * (i == node || (node == OBS_BIAS_OUTPUT
-                                                                                && i == OBS_BIAS) ? 1.0f : 0.0f);
-        }
-        s = (obs_d[0] * v[0]) * v[0];
-        for (j = 1; j < OBS_N; j++) s = s + (obs_d[j] * v[j]) * v[j];
-        obs_sigma[node] = s > 0.0f ? __builtin_sqrtf(s) : 0.0f;
-    }
-#endif
-}
-
+OBS_SIGMA
 /* Float32Observer.sigma (fw_obs_sigma's, after the step) and .innovations */
 void fw_obs_report(float out[4 + FW_OBS_MEASUREMENTS])
 {
@@ -433,15 +415,13 @@ _LAG_RESET = "    obs_extra[OBS_LAG_K] = dot(OBS_SEES_K, y_est, 4);\n"
 _UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
            "        nu = value - (PREDICTED);\n"
            "        obs_innovation[INDEX] = nu;\n"
-           "        obs_update_K(r, nu, correction);\n"
-           "        corrected = 1;\n    }\n")
+           "        corrected |= obs_update_K(r, nu, correction);\n    }\n")
 # ... with the gate: a rejected reading predicts only (its innovation stays NaN)
 _GATED_UPDATE = ("    if (obs_reading_K(u + FW_INPUTS + {first}, u[1], &value, &r)) {\n"
                  "        nu = value - (PREDICTED);\n"
                  "        if (!obs_gate(INDEX, nu, obs_variance_K(r))) {\n"
                  "            obs_innovation[INDEX] = nu;\n"
-                 "            obs_update_K(r, nu, correction);\n"
-                 "            corrected = 1;\n        }\n    }\n")
+                 "            corrected |= obs_update_K(r, nu, correction);\n        }\n    }\n")
 # the steady form with a gate: each measurement's rejections in a row in the checkpoint (InnovationGate.checkpoint)
 _COUNTS_CHECKPOINT = "    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) values[at++] = (float)obs_consecutive[i];\n"
 _COUNTS_RESTORE = ("    for (i = 0; i < FW_OBS_MEASUREMENTS; i++) {\n"
@@ -458,8 +438,8 @@ _GATE_STATUS = "(unsigned char)(obs_rejected[i] | (obs_flagged[i] << 1))"
 
 
 # ... with the key-on release (ConsiderStates.holds): the magnet free while its variance exceeds OBS_RELEASE
-_RELEASED_UPDATE = ("if (obs_magnet_variance(0.0f) > OBS_RELEASE) obs_update_K_released(r, nu, correction);\n"
-                    "            else obs_update_K(r, nu, correction);")
+_RELEASED_UPDATE = ("(obs_magnet_variance(0.0f) > OBS_RELEASE ? obs_update_K_released(r, nu, correction)\n"
+                    "                : obs_update_K(r, nu, correction))")
 
 
 def _releases(obs: Float32Observer, index: int) -> bool:
@@ -491,7 +471,7 @@ def _per_measurement(obs: Float32Observer) -> dict[str, str]:
             [product(literal(m.sees[i]), Value(f"y_est[{i}]")) for i in range(len(m.sees)) if m.sees[i] != 0]) + seen
         template = _UPDATE if obs.gate.threshold is None else _GATED_UPDATE
         if _releases(obs, index):
-            template = template.replace("obs_update_K(r, nu, correction);", _RELEASED_UPDATE)
+            template = template.replace("obs_update_K(r, nu, correction)", _RELEASED_UPDATE)
         updates.append(template.replace("{first}", str(first)).replace("_K", suffix).replace("INDEX", str(index))
                        .replace("PREDICTED", predicted))
         first += m.width
@@ -509,7 +489,7 @@ def observer_code(artifact: ModelArtifact) -> str:
     """The observer's functions (after the model's: they call fw_step, fw_reset, fw_restore and dot)."""
     obs = observer_filter(artifact)
     code = (OBSERVER_C.replace("OBS_KERNELS", _kernels(obs)).replace("OBS_MOVE_STATE", move_state_c(obs))
-            .replace("OBS_OUTPUT", output_c(obs)))
+            .replace("OBS_OUTPUT", output_c(obs)).replace("OBS_SIGMA", sigma_c(obs)))
     for name, text in _per_measurement(obs).items():
         code = code.replace(name, text)
     return code
@@ -521,7 +501,8 @@ def _kernels(obs: Float32Observer) -> str:
     count = len(obs.measurements)
     moves_y = [k < count - 1 for k in range(count)]     # the last update's y is C x again at the step's end
     if obs.form == "steady":
-        return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k]) for k in range(count)]) + \
+        return steady_c(obs.n, [(f"obs_update_{k}", f"OBS_GAIN_{k}", moves_y[k], obs.consider.held[k])
+                                for k in range(count)]) + \
             _gate_c(obs)
     updates = "".join("\n" + update_c(obs, f"obs_update_{k}", obs.layout.rows[k], moves_y[k], obs.consider.held[k])
                       for k in range(count))

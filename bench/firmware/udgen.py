@@ -10,7 +10,9 @@ counters, no index arithmetic, no loads of zeros.
 
     obs_predict(void)              Transition.matrix + BiermanThornton.predict: F, F U, the MWGS
     obs_update_<k>(r, nu, corr.)   BiermanThornton.update for the k-th measurement's row h, then the correction
+                                   (1: it moved a node)
     obs_output(void)               LinearBlockPart.output: y = C x (+ r)
+    fw_obs_sigma(void)             Float32Observer.sigma: each node's 1-σ (BiermanThornton.variance)
     obs_move_state(correction)     Float32Observer._measurement_update's x <- x + C⁻¹ (the step's node correction)
     steady_c                       the steady-state-gain form's (SteadyState): no prediction, the gain K_ss
 """
@@ -206,19 +208,26 @@ def predict_c(obs: Float32Observer) -> str:
             "__attribute__((noinline)) static void obs_predict(void)\n{\n" + out.text() + "\n}\n")
 
 
-def correction_c(n: int, gain: list[str], moves_y: bool) -> str:
+def correction_c(n: int, gain: list[str], moves_y: bool, held: np.ndarray | None = None) -> str:
     """Float32Observer._update's correction with the gain's elements `gain` (C expressions) and the innovation nu:
     each node's step (gain_i nu) onto y (when a later measurement of the step may read it: `moves_y`) and onto the
-    step's summed correction, each extra state + gain_i nu."""
+    step's summed correction, each extra state + gain_i nu; a `held` state's step is a structural zero, not
+    written, and then the function's value says whether any node moves (`update_return`)."""
     k = len(OUTPUTS)
-    lines = []
-    for i in range(k):
+    kept = [i for i in range(n) if held is None or not held[i]]
+    lines = ["    float step;"] if any(i < k for i in kept) else ["    (void)correction;"]
+    for i in (i for i in kept if i < k):
         lines.append(f"    step = ({gain[i]}) * nu;")
         if moves_y:
             lines.append(f"    y_est[{i}] = y_est[{i}] + step;")
         lines.append(f"    correction[{i}] = correction[{i}] + step;")
-    lines += [f"    obs_extra[{i}] = obs_extra[{i}] + ({gain[i]}) * nu;" for i in range(k, n)]
-    return "\n".join(lines)
+    lines += [f"    obs_extra[{i}] = obs_extra[{i}] + ({gain[i]}) * nu;" for i in kept if i >= k]
+    return "\n".join(lines + [f"    return {int(moves_nodes(held))};"])
+
+
+def moves_nodes(held: np.ndarray | None) -> bool:
+    """Whether an update that holds `held` moves any node (Float32Observer._update's None when it does not)."""
+    return held is None or not held[:len(OUTPUTS)].all()
 
 
 def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = True,
@@ -259,13 +268,11 @@ def update_c(obs: Float32Observer, name: str, h: np.ndarray, moves_y: bool = Tru
             b[i] = out.set(f"b{i}", f"{b[j].expr} * {u[i, j].expr}")
     if rank_one:
         rank_one_c(out, rank_one, np.flatnonzero(v_nonzero), b, u, d)
-    out.raw("float step;")
-    gain = [C_NEG_ZERO if held is not None and held[i] else f"{b[i].expr if i in b else C_NEG_ZERO} * gamma"
-            for i in range(n)]
-    out.lines.append(correction_c(n, gain, moves_y))
+    gain = [f"{b[i].expr if i in b else C_NEG_ZERO} * gamma" for i in range(n)]
+    out.lines.append(correction_c(n, gain, moves_y, held))
     return (f"/* BiermanThornton.update for h = [{', '.join(f'{float(v):.6g}' for v in h)}] and the correction, "
-            "unrolled (bench.firmware.udgen) */\n"
-            f"static void {name}(float r, float nu, float correction[4])\n{{\n" + out.text() + "\n}\n")
+            "unrolled (bench.firmware.udgen); 1: it moved a node */\n"
+            f"static int {name}(float r, float nu, float correction[4])\n{{\n" + out.text() + "\n}\n")
 
 
 def _bierman_ab(out: Lines, schedule, h_values: list[Value], u: dict, d: dict) -> tuple[dict, dict]:
@@ -327,16 +334,43 @@ def rank_one_c(out: Lines, steps, rows, b: dict, u: dict, d: dict) -> None:
             out.raw(f"obs_u[{i}][{j}] = {u[i, j].expr};")
 
 
-def steady_c(n: int, updates: list[tuple[str, str, bool]]) -> str:
-    """The steady-state-gain form's kernels (SteadyState): no prediction; each (function, gain array, moves_y) of
-    `updates` corrects with its measurement's row of K_ss, whatever r (`correction_c`)."""
+def steady_c(n: int, updates: list[tuple[str, str, bool, np.ndarray | None]]) -> str:
+    """The steady-state-gain form's kernels (SteadyState): no prediction; each (function, gain array, moves_y,
+    held) of `updates` corrects with its measurement's row of K_ss, whatever r (`correction_c`)."""
     code = "/* SteadyState.predict: nothing (no covariance) */\nstatic void obs_predict(void)\n{\n}\n"
-    for name, gain, moves_y in updates:
-        body = correction_c(n, [f"{gain}[{i}]" for i in range(n)], moves_y)
-        code += (f"\n/* SteadyState.update: the constant gain {gain} (K_ss's row), whatever r, and the correction */\n"
-                 f"static void {name}(float r, float nu, float correction[4])\n{{\n    float step;\n    (void)r;\n"
-                 f"{body}\n}}\n")
+    for name, gain, moves_y, held in updates:
+        body = correction_c(n, [f"{gain}[{i}]" for i in range(n)], moves_y, held)
+        code += (f"\n/* SteadyState.update: the constant gain {gain} (K_ss's row), whatever r, and the correction; "
+                 "1: it moved a node */\n"
+                 f"static int {name}(float r, float nu, float correction[4])\n{{\n    (void)r;\n{body}\n}}\n")
     return code
+
+
+def sigma_c(obs: Float32Observer) -> str:
+    """fw_obs_sigma: each node's 1-σ into obs_sigma (Float32Observer.sigma with BiermanThornton.variance), over the
+    structure: c the node's unit row (and the bias's one for the node an output bias adds to), v_j = Σ_i c_i u_ij
+    over U's unit upper triangle (the ones not multiplied), σ² = (d_j v_j) v_j summed over v's structural nonzeros
+    in order; the steady form's P_ss is the same every step (obs_sigma keeps its initial values)."""
+    head = ("/* Float32Observer.sigma (BiermanThornton.variance over the structure: v = U^T c, sigma^2 = (d_j v_j) v_j "
+            "summed), unrolled (bench.firmware.udgen) */\nvoid fw_obs_sigma(void)\n{\n")
+    if obs.form == "steady":
+        return head + "}\n"
+    n, out = obs.n, Lines()
+    u = {(i, j): out.load(f"u{i}_{j}", f"obs_u[{i}][{j}]") for j in range(n) for i in range(j)}
+    d = [out.load(f"d{j}", f"obs_d[{j}]") for j in range(n)]
+    bias, bias_output = obs.layout.bias_index, obs.layout.bias_output
+    for node in range(len(OUTPUTS)):
+        rows = [node, bias] if node == bias_output and bias >= 0 else [node]
+        terms = []
+        for j in range(n):
+            parts = [ONE if i == j else u[i, j] for i in rows if i <= j]
+            if not parts:
+                continue
+            v = parts[0] if len(parts) == 1 else out.set(f"v{node}_{j}", total([p.expr for p in parts]))
+            terms.append(d[j].expr if v.one else f"({product(d[j], v)}) * {v.expr}")
+        s = out.set(f"s{node}", total(terms))
+        out.raw(f"obs_sigma[{node}] = {s.expr} > 0.0f ? __builtin_sqrtf({s.expr}) : 0.0f;")
+    return head + out.text() + "\n}\n"
 
 
 def output_c(obs: Float32Observer) -> str:

@@ -37,7 +37,7 @@ from target_sim.observer.layout import AugmentedLayout
 from target_sim.observer.section import ObserverError, has_observer, load_measurements
 from target_sim.observer.transition import Transition
 from target_sim.observer.ud import BiermanThornton
-from target_sim.observer.ud_structure import NEG_ZERO
+from target_sim.observer.ud_structure import NEG_ZERO, structural
 
 Q_NODES_TOLERANCE = 1e-6            # T Q Tᵀ against diag(q_nodes), relative: float64 rounding of the lab's transform
 
@@ -180,19 +180,26 @@ class Float32Observer:
 
     def _update(self, index: int, value, r) -> np.ndarray | None:
         """The index-th measurement's correction with its reading `value` of variance `r`: the gain (node
-        coordinates) moves the nodes (the next measurement reads them) and the extra states. Returns the nodes'
-        correction; None when the gate rejects the reading (this measurement predicts only, its innovation NaN)."""
+        coordinates) moves the nodes (the next measurement reads them) and the extra states, each state the update
+        holds (consider states) not at all. Returns the nodes' correction; None when the gate rejects the reading
+        (this measurement predicts only, its innovation NaN) or the update holds every node."""
         est, k, h = self.est, len(OUTPUTS), self.layout.rows[index]
         nu = value - self.layout.predicted(index, self.extra, est.y)
         if self.gate.threshold is not None and self.gate.rejects(index, nu,
                                                                  self.cov.innovation_variance(h, r, index)):
             return None
         self.innovations[index] = nu
-        gain = self.cov.update(h, r, index, self.consider.holds(index, self.cov))
-        step = gain[:k] * nu
-        est.y = est.y + step
+        held = self.consider.holds(index, self.cov)
+        gain = self.cov.update(h, r, index, held)
+        moves = gain * nu
+        if held is not None:        # a held row's step is a structural zero (-0: y + -0 is y; the C skips it)
+            moves = structural(moves, ~held)
         if self.n > k:
-            self.extra = self.extra + gain[k:] * nu
+            self.extra = self.extra + moves[k:]
+        if held is not None and held[:k].all():
+            return None             # no node moves: x and y stay as they are (the C moves nothing)
+        step = moves[:k]
+        est.y = est.y + step
         return step
 
     def covariance(self) -> np.ndarray:

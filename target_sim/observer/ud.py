@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from target_sim.fmath import dot, matvec
 from target_sim.observer.ud_structure import (
     NEG_ZERO,
     BiermanSchedule,
@@ -204,10 +203,13 @@ class BiermanThornton:
                 u[i, j] = u[i, j] + beta * v[i]
 
     def variance(self, row: np.ndarray):
-        """row·(U D Uᵀ row) without forming P: v = Uᵀ row, then ((d_0 v_0) v_0 + (d_1 v_1) v_1) + ... (C:
-        fw_obs_sigma)."""
-        v = matvec(self.u.T, row)
-        return dot(self.d * v, v)
+        """row·(U D Uᵀ row) without forming P, over the row's structure (C: fw_obs_sigma, unrolled): v = Uᵀ row over
+        U's unit upper triangle and the row's nonzeros, then ((d_j v_j) v_j + ...) over v's structural nonzeros
+        in order (a skipped term would be (d_j·0)·0, +0 for d_j >= 0, but NaN for an infinite d_j)."""
+        nonzero = np.asarray(row) != 0
+        v, v_nonzero = masked_matmul(np.asarray(row, dtype=self.f)[None, :], self.u, nonzero[None, :], self.upper)
+        kept = v_nonzero[0]
+        return masked_dot((self.d * v[0])[kept], v[0][kept], self.f(NEG_ZERO))
 
     def covariance(self) -> np.ndarray:
         """U diag(d) Uᵀ in float64 (for reports; the filter itself never forms it)."""

@@ -15,9 +15,11 @@ The firmware node's C slave (bench/firmware/xcp.c), the packaged model's shipped
 (cycles, which the machine's load does not change): the cycles of node_on_frame for each of the same commands
 (--repeat // 10 times each), and of a DAQ sample of the same four ODTs (the firmware's DWT reads around it) over
 the same session; the IPET WCET bounds (`bench.firmware.timing`'s tool, rows in order) of its timing image, without
-a DAQ list and with the DAQ tables full (16 lists, 16 ODTs of 7 bytes): the model step (fw_step), node_on_frame (a
-data row with its model step and DAQ sample), node_on_tick (the heartbeat with the time event's DAQ), node_on_xcp
-(an XCP command) and xcp_event (a DAQ sample); and the ELF's sections. With
+an XCP master (`bench.firmware.timing.XCP_MODES`' no_master: no DAQ list, and the globals the C's
+`wcet-value(no_master)` facts fix keep their power-on values, so the master's paths are infeasible, as
+`bench firmware timing` bounds a drive) and with the DAQ tables full (16 lists, 16 ODTs of 7 bytes): the model step
+(fw_step), node_on_frame (a data row with its model step and DAQ sample), node_on_tick (the heartbeat with the time
+event's DAQ), node_on_xcp (an XCP command) and xcp_event (a DAQ sample); and the ELF's sections. With
 --baseline REV (a git revision; default the last one without the C slave) the same bounds and sections of that
 revision's firmware, built from its own sources (`git archive`), beside them: what the slave added.
 
@@ -153,8 +155,11 @@ TIMED = ("fw_step", "node_on_frame", "node_on_tick", "node_on_xcp", "xcp_event")
 
 
 def _bounds_script(timed: tuple[str, ...]) -> str:
-    """What a checkout runs to give its packaged model's shipped ELF sections and its timing image's WCET bounds:
-    without an XCP master (no DAQ list: `bench firmware timing`'s assumption) and with the DAQ tables full."""
+    """What a checkout runs to give its packaged model's shipped ELF sections and its timing image's WCET bounds in
+    `bench firmware timing`'s XCP modes (`bench.firmware.timing.static_bounds`): without an XCP master (the C's
+    `wcet-value(no_master)` facts: the master's paths infeasible, as a drive runs) and with the DAQ tables full. A
+    revision older than the modes: its loop facts alone, without a master's DAQ lists, and with them when it has
+    the slave."""
     from target_sim.xcp.daq import MAX_DAQ_LISTS, MAX_ODTS
 
     daq = (MAX_DAQ_LISTS, MAX_ODTS)
@@ -162,7 +167,7 @@ def _bounds_script(timed: tuple[str, ...]) -> str:
 import json, sys, tempfile
 from pathlib import Path
 from bench.firmware.images import firmware_for, packaged_elf
-from bench.firmware.timing import timing_sources
+from bench.firmware import timing
 from bench.model.default import default_artifact_path
 from target_sim.artifact import load_artifact
 from target_sim.firmware.elf import memory_from_elf, read_elf
@@ -170,14 +175,19 @@ from target_sim.firmware.wcet import loop_facts, wcet
 artifact = load_artifact(default_artifact_path())
 with tempfile.TemporaryDirectory() as cache:
     image = read_elf(firmware_for(artifact, Path(cache), isr=True))
-sources = timing_sources(artifact)
+timed = tuple(name for name in {timed!r} if name in image.symbols)
 out = {{"sections": memory_from_elf(packaged_elf(artifact))["sections"]}}
-for key, facts in (("wcet_cycles", lambda: loop_facts(sources, 0)),
-                   ("wcet_cycles_daq", lambda: loop_facts(sources, 0, daq={daq!r}))):
-    try:
-        out[key] = {{name: wcet(image, name, facts()).cycles for name in {timed!r} if name in image.symbols}}
-    except TypeError:        # a revision without the XCP slave: no DAQ to bound
-        pass
+if hasattr(timing, "XCP_MODES"):
+    for key, mode in (("wcet_cycles", timing.DRIVE_MODE), ("wcet_cycles_daq", timing.DAQ_MODE)):
+        out[key] = timing.static_bounds(image, artifact, mode=mode, functions=timed)
+else:
+    sources = timing.timing_sources(artifact)
+    for key, facts in (("wcet_cycles", lambda: loop_facts(sources, 0)),
+                       ("wcet_cycles_daq", lambda: loop_facts(sources, 0, daq={daq!r}))):
+        try:
+            out[key] = {{name: wcet(image, name, facts()).cycles for name in timed}}
+        except TypeError:        # a revision without the XCP slave: no DAQ to bound
+            pass
 json.dump(out, sys.stdout)
 """
 
