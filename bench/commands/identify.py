@@ -44,12 +44,10 @@ def default_polish(files: bool, adapt: bool) -> int:
     return POLISH_STARTS if files and not adapt else 0
 
 
-# --loss-scales when not given, chosen on the motor suite's validation profiles (designer's prior, --polish 2;
-# Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw, 2026-12-07, docs/method.md): none
-# 12.0 / 23.8 / 9.8, stator iron and magnet fitted 11.1 / 20.2 / 15.6 (2 of 3); with the ac copper factor fitted
-# too 12.4 / 5.5 / 17.2 (1 of 3: not offered). The built-in campaign keeps its packaged artifacts.
-def _loss_scales(choice: str | None, files: bool) -> bool:
-    return (choice or ("fit" if files else "none")) == "fit"
+# --loss-scales when not given: none, compared on the motor suite's validation profiles (designer's prior, the
+# files path's defaults; Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw, 2026-12-07,
+# docs/method.md): none 12.0 / 23.8 / 9.8 against fit 10.5 / 24.0 / 18.0, fit better on 1 of 3.
+DEFAULT_LOSS_SCALES = "none"
 
 
 # every model step must hold at least one data sample (the target averages the samples of each step)
@@ -101,11 +99,11 @@ def add_subparser(subparsers) -> None:
                         "the search: common factors of the stator and rotor resistances and capacitances, then each "
                         "resistance and capacitance on its own; the --bounds box then around the adapted prior "
                         "(default no: chosen on the motor suite's validation profiles, see docs/method.md)")
-    p.add_argument("--loss-scales", choices=SCALE_CHOICES, default=None,
+    p.add_argument("--loss-scales", choices=SCALE_CHOICES, default=DEFAULT_LOSS_SCALES,
                    help="fit: scale the loss model's stator iron and magnet losses by factors (0.5-2) fitted with "
-                        "the network, copper the reference; the artifacts carry the scaled model; none: the motor "
-                        "file's losses as given (default fit with --train files, none for the built-in campaign: "
-                        "chosen on the motor suite's validation profiles, see docs/method.md)")
+                        "the network after the polish, copper the reference; the artifacts carry the scaled model; "
+                        f"none: the motor file's losses as given (default {DEFAULT_LOSS_SCALES}: compared on the "
+                        "motor suite's validation profiles, see docs/method.md)")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -171,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
                           lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
                           standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
-                          adapt=adapt, loss_scales=_loss_scales(args.loss_scales, files), progress=progress)
+                          adapt=adapt, loss_scales=args.loss_scales == "fit", progress=progress)
     finally:
         if progress is not None:
             progress.close()

@@ -319,3 +319,33 @@ def test_the_freezing_and_stator_weight_options_reach_the_identification(motor_f
     with pytest.raises(_Stop):
         _identify(motor_files, tmp_path / "m.json", *extra)
     assert asked["freeze"] is freeze and asked["stator_weight"] == stator_weight
+
+
+def test_loss_scales_are_fitted_only_when_asked_and_the_artifact_carries_them(motor_files, tmp_path, capsys):
+    """--loss-scales fit: the summary gives each factor within the box and every artifact's loss model holds the
+    motor file's iron and magnet coefficients times them (copper untouched); the default (none) leaves them."""
+    from bench.model.loss_scales import SCALE_BOX
+    from bench.motor.description import load_motor
+
+    common = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+              "--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_02.csv"),
+              "--swarm", "4", "--iterations", "1", "--lm-iterations", "1", "--regularization", "fixed",
+              "--kind", "hammerstein", "--json"]
+    given = load_motor(motor_files / "motor.toml").loss_model
+    assert main([*common, "--out", str(tmp_path / "plain.json")]) == 0
+    assert json.loads(capsys.readouterr().out)["loss_scales"] is None
+    plain = load_artifact(tmp_path / "plain.json")
+    assert float(plain.array("losses", "magnet_W", dtype=np.float64)) == given.magnet_W
+    assert main([*common, "--loss-scales", "fit", "--out", str(tmp_path / "scaled.json")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    factors = summary["loss_scales"]["factors"]
+    assert set(factors) == {"p_stator", "p_magnet"}
+    assert all(SCALE_BOX[0] <= f <= SCALE_BOX[1] for f in factors.values())
+    assert any(abs(f - 1.0) > 1e-4 for f in factors.values())      # they moved: the check below can fail
+    assert summary["timings_s"]["scales"] > 0
+    scaled = load_artifact(tmp_path / "scaled.json")
+    for key, name in (("iron_hysteresis_W", "p_stator"), ("iron_eddy_W", "p_stator"), ("magnet_W", "p_magnet")):
+        expected = getattr(given, key) * factors[name]
+        assert float(scaled.array("losses", key, dtype=np.float64)) == pytest.approx(expected, rel=1e-6)
+    assert float(scaled.array("losses", "stator_resistance_ohm", dtype=np.float64)) == given.stator_resistance_ohm
+    assert float(scaled.array("losses", "ac_factor", dtype=np.float64)) == given.ac_factor
