@@ -965,10 +965,14 @@ def _verdicts(sums: dict[str, dict[str, tuple[str, dict[str, float]] | None]]) -
             continue
         best = {motor: min(scores, key=scores.get) for motor, (_, scores) in measured.items()}
         held = [motor for motor, (default, scores) in measured.items() if scores[default] <= min(scores.values())]
+        # a setting with no effect there (every alternative within 0.1 % of the default) decides nothing
+        inert = [motor for motor, (default, scores) in measured.items()
+                 if max(scores.values()) - min(scores.values()) <= 1e-3 * scores[default]]
         lost = "; ".join(f"{best[motor]} on {motor} ({measured[motor][1][best[motor]]:.2f} against "
                          f"{measured[motor][1][measured[motor][0]]:.2f})" for motor in measured if motor not in held)
         lines.append(f"- {name}: the default has the smallest winding + magnet MSE on {len(held)} of {len(measured)} "
-                     f"motors" + (f"; better: {lost}" if lost else ""))
+                     f"motors" + (f" (no effect on {len(inert)}: every setting within 0.1 %)" if inert else "")
+                     + (f"; better: {lost}" if lost else ""))
     return [*lines, ""] if lines else []
 
 
