@@ -924,15 +924,56 @@ def suite_defaults(record: Record) -> list[str]:
     lines = []
     if compared:
         lines += ["`bench identify` (Hammerstein winding / magnet MSE K² on the validation profiles; the default as "
-                  "it was when measured first):", ""]
+                  "the record's code had it, a setting in brackets held by both sides):", ""]
         lines += _table(["setting", *(m["motor"] for m in compared)], _default_rows(compared))
+        lines += _verdicts({name: {m["motor"]: _identify_sums(m["defaults"].get(name)) for m in compared}
+                            for name in compared[0]["defaults"]})
     observed = [m for m in motors if isinstance(m.get("observer_defaults"), dict)
                 and "failed" not in m["observer_defaults"]]
     if observed:
         lines += ["`bench observer` on the designer's Hammerstein model, the end-winding NTC estimated (winding / "
                   "magnet MSE K² on the validation profiles, open loop first):", ""]
         lines += _table(["setting", *(m["motor"] for m in observed)], _observer_default_rows(observed))
+        lines += _verdicts({name: {m["motor"]: _observer_sums(m["observer_defaults"].get(name)) for m in observed}
+                            for name in observed[0]["observer_defaults"]})
     return lines
+
+
+def _identify_sums(row: dict | None) -> tuple[str, dict[str, float]] | None:
+    """An identify default's row: the default's name and each setting's Hammerstein winding + magnet MSE."""
+    if not row:
+        return None
+    settings = {"default": row["default"], **row["alternatives"]}
+    return "default", {name: fig["hammerstein"]["winding"] + fig["hammerstein"]["pm"]
+                       for name, fig in settings.items() if fig and "hammerstein" in fig}
+
+
+def _observer_sums(row: dict | None) -> tuple[str, dict[str, float]] | None:
+    """An observer default's row: the default's name and each setting's winding + magnet MSE with the filter."""
+    if not row:
+        return None
+    return row["default"], {name: fig["winding"]["observer_mse_K2"] + fig["pm"]["observer_mse_K2"]
+                            for name, fig in row["scores"].items() if fig and "winding" in fig and "pm" in fig}
+
+
+def _verdicts(sums: dict[str, dict[str, tuple[str, dict[str, float]] | None]]) -> list[str]:
+    """Per default: on how many motors it has the smallest winding + magnet MSE, and what won elsewhere."""
+    lines = []
+    for name, motors in sums.items():
+        measured = {motor: v for motor, v in motors.items() if v and v[0] in v[1]}
+        if not measured:
+            continue
+        best = {motor: min(scores, key=scores.get) for motor, (_, scores) in measured.items()}
+        held = [motor for motor, (default, scores) in measured.items() if scores[default] <= min(scores.values())]
+        # a setting with no effect there (every alternative within 0.1 % of the default) decides nothing
+        inert = [motor for motor, (default, scores) in measured.items()
+                 if max(scores.values()) - min(scores.values()) <= 1e-3 * scores[default]]
+        lost = "; ".join(f"{best[motor]} on {motor} ({measured[motor][1][best[motor]]:.2f} against "
+                         f"{measured[motor][1][measured[motor][0]]:.2f})" for motor in measured if motor not in held)
+        lines.append(f"- {name}: the default has the smallest winding + magnet MSE on {len(held)} of {len(measured)} "
+                     f"motors" + (f" (no effect on {len(inert)}: every setting within 0.1 %)" if inert else "")
+                     + (f"; better: {lost}" if lost else ""))
+    return [*lines, ""] if lines else []
 
 
 def _observer_default_rows(motors: list[dict]) -> list[list[str]]:
@@ -991,7 +1032,8 @@ def _default_rows(motors: list[dict]) -> list[list[str]]:
     rows = []
     for name in motors[0]["defaults"]:
         first = motors[0]["defaults"][name]
-        rows.append([f"{name}: default", *(cell(m["defaults"].get(name, {}).get("default")) for m in motors)])
+        held = f" ({' '.join(first['held'])})" if first.get("held") else ""
+        rows.append([f"{name}{held}: default", *(cell(m["defaults"].get(name, {}).get("default")) for m in motors)])
         for alt in first["alternatives"]:
             rows.append([f"{name}: {alt}",
                          *(cell(m["defaults"].get(name, {}).get("alternatives", {}).get(alt)) for m in motors)])

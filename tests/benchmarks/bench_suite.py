@@ -26,15 +26,18 @@ here, never used to choose). Per motor:
 
 5. With --defaults: each default of `bench identify` beside its alternatives, on the VALIDATION profiles only
    (`DEFAULTS`: one identification per alternative and motor, from the designer's prior, or table1 where the
-   default concerns a named prior), winding and magnet MSE of both kinds; and the observer's criteria, --bias
-   (off, winding, magnet), --consider (magnet, none, unmeasured) and --consider-release (none, 5 K; tuned on the
-   training profiles, evaluated on the validation profiles). The default
-   should be at least as good as its alternatives on most motors; the record says, per default, which won where.
-   `--compare` runs only some of the identify defaults; `--hold-test` evaluates nothing on the test profiles and
-   skips the observer (while choosing, the test figures are not even computed); `--reuse` reads back the profiles
-   and identifications an earlier run of the same code kept in `--work` (identification is deterministic), so a
-   run with `--hold-test` followed by one without it reports the test figures of what was chosen without
-   identifying again.
+   default concerns a named prior), winding and magnet MSE of both kinds; and each default of `bench observer`
+   (`OBSERVER_DEFAULTS`: --criterion, --bias, --consider, --consider-release) beside its alternatives on the
+   designer's Hammerstein model with the end-winding sensor estimated, tuned on the training profiles and scored on
+   the validation profiles (one observer run per distinct setting). The default should be at least as good as its
+   alternatives on most motors; the record says, per default, which won where. `--compare` runs only some of the
+   identify defaults; `--hold-test` evaluates nothing on the test profiles (the priors' test rows and step 4's
+   observer on the test profiles are skipped; the defaults' comparisons, on validation profiles only, still run:
+   while choosing, the test figures are not even computed); `--skip-observer` skips every observer run (step 4
+   and the observer's defaults). `--reuse` reads back the profiles and identifications an earlier run of the same
+   code kept in `--work` (identification is deterministic; a kept run is found by its prior and arguments, so a
+   work directory may be copied elsewhere), so a run with `--hold-test` followed by one without it reports the
+   test figures of what was chosen without identifying again.
 
 6. With --floor (a bound, not a result): the designer's prior identified on ALL profiles, the test ones included,
    and evaluated on the test profiles, in-sample. What the four-node model class and this identification reach at
@@ -100,7 +103,9 @@ def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra
     out = work / motor.name / (f"{prior}-{tag}" if tag else prior) / "model.json"
     kept = out.with_name("identify.json")     # the command's --json, for --reuse
     if REUSE and kept.is_file():
-        return json.loads(kept.read_text(encoding="utf-8"), object_hook=_paths)
+        run = json.loads(kept.read_text(encoding="utf-8"))
+        run["out"], run["artifacts"] = out, rerooted(run["artifacts"], out.parent)
+        return run
     cpu = children_cpu_s()
     load = os.getloadavg()[0]
     identified, seconds = bench(
@@ -129,6 +134,7 @@ def floor(motor: Path, work: Path, data: Path, index: dict) -> dict:
     kept = out.with_name("identify.json")
     if REUSE and kept.is_file():
         identified = json.loads(kept.read_text(encoding="utf-8"))
+        identified["artifacts"] = rerooted(identified["artifacts"], out.parent)
         seconds = identified.pop("seconds_", 0.0)
     else:
         identified, seconds = bench(
@@ -145,12 +151,10 @@ def floor(motor: Path, work: Path, data: Path, index: dict) -> dict:
             "test_in_sample": test, "goal_reachable": goal_met(test["hammerstein"])}
 
 
-def _paths(item: dict) -> dict:
-    """A kept identify run read back: its artifacts as paths."""
-    if "artifacts" in item and "json" in item:
-        item["artifacts"] = {kind: Path(path) for kind, path in item["artifacts"].items()}
-        item["out"] = Path(item["out"])
-    return item
+def rerooted(artifacts: dict, directory: Path) -> dict:
+    """A kept run's artifacts (absolute paths where it was made) as the files beside its identify.json now: a work
+    directory read back from a copy never reads or writes the original."""
+    return {kind: directory / Path(path).name for kind, path in artifacts.items()}
 
 
 def node_figures(nodes: dict) -> dict:
@@ -238,7 +242,8 @@ def observer(motor: Path, data: Path, index: dict, model: Path, how: str, truth:
 
 
 def pooled_observer(per_file: list[dict], index: dict) -> dict:
-    """Open loop and observer per node over the test files: MSE weighted by each file's duration, the largest max."""
+    """Open loop and observer per node over the evaluated files: MSE weighted by each file's duration, the largest
+    max."""
     seconds = {p["file"]: p["duration_s"] for p in index["profiles"]}
     weights = [seconds[Path(f["file"]).name if Path(f["file"]).suffix else f"{f['file']}.csv"] for f in per_file]
     out = {}
@@ -253,16 +258,17 @@ def pooled_observer(per_file: list[dict], index: dict) -> dict:
     return out
 
 
-# default -> (prior it is compared on, the default's extra arguments, {alternative: its arguments})
+# default -> (prior it is compared on, the arguments the comparison holds (the default is today's without them),
+# {alternative: its arguments beside those}); a run is kept under its prior and arguments (`run_tag`)
 DEFAULTS = {
-    "adapt-prior": ("table1", (), {"no": ("--adapt-prior", "no")}),
+    "adapt-prior": ("table1", (), {"yes": ("--adapt-prior", "yes")}),
     "regularization": ("designer", (), {"fixed": ("--regularization", "fixed")}),
     "regularization-auto": ("auto", (), {"fixed": ("--regularization", "fixed")}),
     "stator-weight": ("designer", (), {"fixed": ("--stator-weight", "fixed")}),
     # --train files polish by default (2 starts, unfrozen) unless the prior is adapted (a named foreign network)
     "polish": ("designer", (), {"0": ("--polish", "0")}),
     "polish-auto": ("auto", (), {"0": ("--polish", "0")}),
-    "polish-adapted": ("table1", (), {"2": ("--polish", "2")}),
+    "polish-adapted": ("table1", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
     "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
@@ -281,17 +287,25 @@ def validation_mse(identified: dict) -> dict:
             for kind, v in identified["validation"].items() if isinstance(v, dict) and "float32" in v}
 
 
+def run_tag(arguments: tuple) -> str:
+    """The name a run with these extra arguments is kept under: the same arguments, the same run."""
+    return "-".join(a.lstrip("-") for a in arguments)
+
+
 def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dict) -> dict:
-    """Each identify default against its alternatives on the validation profiles (the default's run reused)."""
+    """Each identify default against its alternatives on the validation profiles (the prior's run reused)."""
     out = {}
-    for name, (prior, _, alternatives) in DEFAULTS.items():
+    for name, (prior, held, alternatives) in DEFAULTS.items():
         if COMPARED is not None and name not in COMPARED:
             continue
-        base = runs.get(prior) or identify(motor, work, data, index, prior)
-        runs[prior] = base
-        row = {"prior": prior, "default": validation_mse(base["json"]), "alternatives": {}}
+        if held:
+            base = identify(motor, work, data, index, prior, held, tag=run_tag(held))
+        else:
+            base = runs.get(prior) or identify(motor, work, data, index, prior)
+            runs[prior] = base
+        row = {"prior": prior, "held": list(held), "default": validation_mse(base["json"]), "alternatives": {}}
         for alt, extra in alternatives.items():
-            run = identify(motor, work, data, index, prior, extra, tag=f"{name}-{alt}")
+            run = identify(motor, work, data, index, prior, (*held, *extra), tag=run_tag((*held, *extra)))
             row["alternatives"][alt] = validation_mse(run["json"])
         out[name] = row
         print(f"{motor.name} default {name}: {row}", flush=True)
@@ -299,14 +313,18 @@ def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dic
 
 
 def compare_observer_defaults(motor: Path, data: Path, index: dict, model: Path) -> dict:
-    """The observer's criterion and bias defaults against their alternatives, tuned on training, scored on
-    validation (sensor lag, gradient and offset estimated, as a user without the truth does)."""
-    out = {}
+    """Each observer default against its alternatives, tuned on training, scored on validation (sensor lag,
+    gradient and offset estimated, as a user without the truth does). The defaults' own setting is one run, shared
+    by every row."""
+    out, done = {}, {}
     for name, (default, alternatives) in OBSERVER_DEFAULTS.items():
-        row = {"default": default, "scores": {}}
+        row = {"default": default, "scores": {}, "observer_s": {}}
         for alt, extra in {default: (), **alternatives}.items():
-            run = observer(motor, data, index, model, "estimated", None, extra, role="validate", tag=f"{name}-{alt}")
-            row["scores"][alt] = run["pooled"]
+            if extra not in done:
+                done[extra] = observer(motor, data, index, model, "estimated", None, extra, role="validate",
+                                       tag=f"defaults-{run_tag(extra) or 'default'}")
+            row["scores"][alt] = done[extra]["pooled"]
+            row["observer_s"][alt] = done[extra]["observer_s"]
         out[name] = row
         print(f"{motor.name} observer default {name}: {row}", flush=True)
     return out
@@ -316,7 +334,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--motors", nargs="+", default=None, help="suite motors by directory name (default all)")
     parser.add_argument("--priors", nargs="+", choices=PRIORS, default=list(PRIORS))
-    parser.add_argument("--skip-observer", action="store_true")
+    parser.add_argument("--skip-observer", action="store_true",
+                        help="no observer run (neither on the test profiles nor the observer's defaults)")
     parser.add_argument("--defaults", action="store_true",
                         help="also compare each default with its alternatives on the validation profiles")
     parser.add_argument("--work", type=Path, default=None, help="keep the generated files and models here")
@@ -326,7 +345,8 @@ def main() -> int:
                         help="only the model class's floor: the designer's prior identified on all profiles, scored "
                              "on the test ones in-sample (a bound, nothing is chosen on it)")
     parser.add_argument("--hold-test", action="store_true",
-                        help="evaluate nothing on the test profiles and skip the observer (while choosing defaults)")
+                        help="evaluate nothing on the test profiles (while choosing defaults; the observer's "
+                             "defaults, on validation profiles, still run)")
     parser.add_argument("--reuse", action="store_true",
                         help="read back the profiles and identifications kept in --work by an earlier run of the same "
                              "code")
@@ -338,12 +358,12 @@ def main() -> int:
         parser.error("--reuse reads identifications kept in --work: name it")
     if args.floor and (args.defaults or args.hold_test):
         parser.error("--floor fits on the test profiles: it runs alone, without --defaults or --hold-test")
-    args.skip_observer = args.skip_observer or args.hold_test
     motors = [m for m in suite_motors() if args.motors is None or m.name in args.motors]
     if not motors:
         parser.error(f"no suite motor named {args.motors} under {SUITE}")
+    observed = not args.skip_observer and (args.defaults or not args.hold_test)
     record = Record("suite", args, parameters={"motors": [m.name for m in motors], "priors": args.priors,
-                                               "bounds": BOUNDS, "observer": not args.skip_observer,
+                                               "bounds": BOUNDS, "observer": observed,
                                                "defaults": args.defaults, "hold_test": args.hold_test,
                                                "compared": args.compare, "floor": args.floor},
                     variant="defaults" if args.defaults else "floor" if args.floor else None)
@@ -382,7 +402,7 @@ def one_motor(motor: Path, work: Path, args) -> dict:
     entry["priors"] = [{"prior": prior, **run} for prior, run in tried.items() if "failed" in run] + [
         attempt(f"{motor.name} {prior}", lambda prior=prior, run=run: prior_row(motor, data, index, prior, run))
         for prior, run in runs.items()]
-    if not args.skip_observer and "designer" in runs:
+    if not (args.skip_observer or args.hold_test) and "designer" in runs:
         hammerstein = runs["designer"]["artifacts"]["hammerstein"]
         truth = sensor_truth(motor)
         entry["sensor"] = truth
@@ -393,7 +413,7 @@ def one_motor(motor: Path, work: Path, args) -> dict:
     if args.defaults:
         entry["defaults"] = attempt(f"{motor.name} defaults",
                                     lambda: compare_defaults(motor, work, data, index, runs))
-        if not args.skip_observer:
+        if not args.skip_observer and "designer" in runs:
             entry["observer_defaults"] = attempt(
                 f"{motor.name} observer defaults",
                 lambda: compare_observer_defaults(motor, data, index, runs["designer"]["artifacts"]["hammerstein"]))

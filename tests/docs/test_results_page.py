@@ -135,6 +135,16 @@ def test_the_suite_section_shows_each_motor_prior_observer_and_default(data_reco
     assert "| regularization: fixed | 0.70 / 0.80 |" in section
     assert "This record is partial" in section
     assert "| open loop | 9.00 / 4.00 |" in section and "| bias: off (default) | 0.50 / 3.00 |" in section
+    assert "- regularization: the default has the smallest winding + magnet MSE on 1 of 1 motors\n" in section
+    assert "- bias: the default has the smallest winding + magnet MSE on 1 of 1 motors (no effect on 1" in section
+
+
+def test_a_defaults_verdict_names_what_won_where_the_default_lost():
+    sums = {"bias": {"air": ("output", {"output": 2.0, "off": 11.8}), "ipm": ("output", {"output": 3.0, "on": 2.5}),
+                     "out": None}}
+    [line, _] = results_page._verdicts(sums)
+    assert line == ("- bias: the default has the smallest winding + magnet MSE on 1 of 2 motors; better: on on ipm "
+                    "(2.50 against 3.00)")
 
 
 def test_the_suite_floor_shows_each_motors_in_sample_test_figures_and_whether_the_goal_is_reachable(data_record):
