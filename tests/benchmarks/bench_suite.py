@@ -270,6 +270,7 @@ DEFAULTS = {
     "polish-auto": ("auto", (), {"0": ("--polish", "0")}),
     "polish-adapted": ("table1", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
     "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
+    "loss-scales": ("designer", (), {"fit": ("--loss-scales", "fit")}),
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
