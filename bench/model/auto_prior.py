@@ -24,8 +24,9 @@ The steps (docs/method.md, "The automatic prior"):
    response to the magnet loss cannot be seen; what the data show is how the magnet follows its measured
    neighbours: ϑ_PM − ϑ_a ≈ LP_τ(w_w·(ϑ_w − ϑ_a) + w_t·(ϑ_t − ϑ_a) + K_m·P_magnet). The weights are the shares of
    the magnet's conductance G to winding, tooth and (the rest) ambient, K_m = 1/G and τ = C_m/G, so C_m = τ/K_m
-   and each path's resistance is 1/(share·G) at the training data's mean speed, split into equal fixed and
-   speed-dependent parts (R_xx0 = a_xx).
+   and each path's resistance is 1/(share·G) at the training data's mean speed, split into a fixed part a_xx and
+   a speed-dependent part R_xx0 (AT_REST: R_xx0 = 10 a_xx where the rotor stirs the end-space air, winding and
+   ambient; 1 × across the air gap, to the tooth).
 4. Capacitances from the time constants: the stator charges through R_cy0 (τ_slow = C_stator·R_cy0, the yoke's
    τ when measured), the winding through R_w; the winding's single τ is their gain-weighted mix,
    τ_w·K_w = C_stator·R_cy0² + C_w·R_w². The stator's rest is split yoke 60 %, tooth 40 %.
@@ -70,6 +71,10 @@ ROTOR_C_LIMITS = (0.05, 3.0)    # C_m from the data within these × machine_C (a
 # only for b > 0, as convection does (more air movement, more heat transfer). Table 1's b_ma = −0.176 makes the
 # magnet-ambient resistance grow ~300× at full speed, and a box in factors of the prior never changes a sign.
 SPEED_EXPONENTS = {name: abs(getattr(TABLE1, name)) for name in ("b_wm", "b_tm", "b_ma")}
+# R_xx0 / a_xx, the path's resistance at rest over the part that stays at speed: the winding and the air reach the
+# magnet through the end-space air, which the rotor stirs (at rest natural convection only, h ≈ 5-10 W/m²K; forced
+# by the rotor about ten times that), the tooth across the air gap, which a thin gap's conduction bridges at rest too
+AT_REST = {"wm": 10.0, "tm": 1.0, "ma": 10.0}
 STATOR_WINDING_SHARE = 0.35     # C_w / C_stator without a yoke sensor
 YOKE_SHARE_OF_IRON = 0.6        # of C_stator − C_w
 STORED_HEAT_PER_NM = 40.0       # J/K of the whole machine per Nm of peak torque (fallback)
@@ -231,8 +236,8 @@ def copper_share(runs: Sequence[ModelRun]) -> float:
 
 def rotor_paths(rotor: RotorResponse, conductance: float, speed_ratio: float) -> dict[str, float]:
     """R_xx0 and a_xx of the three magnet paths from the magnet's conductance G (W/K) and its neighbours' shares,
-    at the training data's mean speed ratio: R(ω) = R_xx0·exp(−ω/b) + a_xx with R_xx0 = a_xx. Without a tooth
-    sensor the stator's share is split evenly between winding and tooth."""
+    at the training data's mean speed ratio: R(ω) = R_xx0·exp(−ω/b) + a_xx with R_xx0 = AT_REST × a_xx. Without a
+    tooth sensor the stator's share is split evenly between winding and tooth."""
     stator = rotor.weight_winding + rotor.weight_tooth
     shares = {"wm": rotor.weight_winding, "tm": rotor.weight_tooth} if rotor.weight_tooth > 0 else \
         {"wm": stator / 2, "tm": stator / 2}
@@ -240,8 +245,8 @@ def rotor_paths(rotor: RotorResponse, conductance: float, speed_ratio: float) ->
     values = {}
     for path, share in shares.items():
         resistance = 1.0 / (max(share, ROTOR_MIN_SHARE) * conductance)
-        fixed = resistance / (1.0 + portable.exp(-speed_ratio / SPEED_EXPONENTS[f"b_{path}"]))
-        values.update({f"R_{path}0": fixed, f"a_{path}": fixed})
+        fixed = resistance / (1.0 + AT_REST[path] * portable.exp(-speed_ratio / SPEED_EXPONENTS[f"b_{path}"]))
+        values.update({f"R_{path}0": AT_REST[path] * fixed, f"a_{path}": fixed})
     return values
 
 

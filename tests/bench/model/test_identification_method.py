@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 
 from bench.model import polish as polish_module
-from bench.model.auto_prior import auto_prior, copper_share, winding_split
+from bench.model.auto_prior import (
+    AT_REST,
+    SPEED_EXPONENTS,
+    RotorResponse,
+    auto_prior,
+    copper_share,
+    rotor_paths,
+    winding_split,
+)
 from bench.model.hammerstein_fit import CV_FACTORS, fit_hammerstein_cv
 from bench.model.identify import POLISHED_SWARM_STALL
 from bench.model.lptn_fit import (
@@ -157,6 +165,19 @@ def test_the_automatic_prior_reads_the_rotor_from_how_the_magnet_follows_its_nei
     # the magnet's path to the air: its share of G (15 %), at the runs' speed (0) R_ma0 + a_ma
     p = derived.parameters
     assert 1.0 / (p.R_ma0 + p.a_ma) / (p.C_m / rotor.tau_s) == pytest.approx(g[2] / sum(g), abs=0.03)
+
+
+def test_the_rotor_paths_give_the_magnets_conductance_at_the_data_speed_and_lose_convection_at_rest():
+    rotor = RotorResponse(weight_winding=0.1, weight_tooth=0.8, gain_magnet_K_per_W=0.1, tau_s=1000.0, rmse_C=1.0)
+    paths = rotor_paths(rotor, conductance=10.0, speed_ratio=0.4)
+    p = TRUTH.with_values(**paths, **SPEED_EXPONENTS)
+    at_data, at_rest = varying_resistances(p, 0.4, 40.0), varying_resistances(p, 0.0, 40.0)
+    for path, share in (("wm", 0.1), ("tm", 0.8), ("ma", 0.1)):
+        # the data's conductance share at the data's mean speed ...
+        assert at_data[f"R_{path}1"] + paths[f"a_{path}"] == pytest.approx(1.0 / (share * 10.0), rel=1e-12)
+        # ... and at rest the end-space paths (stirred by the rotor) 11 × their resistance at full convection
+        assert (at_rest[f"R_{path}1"] + paths[f"a_{path}"]) / paths[f"a_{path}"] == pytest.approx(1 + AT_REST[path])
+    assert AT_REST["wm"] == AT_REST["ma"] > AT_REST["tm"]
 
 
 @pytest.fixture(scope="module")
