@@ -21,6 +21,7 @@ from pathlib import Path
 
 from bench.errors import BenchError
 from bench.fileio import write_text_atomically
+from dbc.files import NAME_MAX
 
 ELF_NOTE_SUFFIX = ".elf.json"
 
@@ -38,6 +39,12 @@ def note_path(log_path: str | os.PathLike) -> Path:
     return log_path.with_name(log_path.name + ELF_NOTE_SUFFIX)
 
 
+def can_exist(note: Path) -> bool:
+    """Whether a note of this name can be on disk: a log with a name of the longest legal length has a note name
+    too long to write (a firmware run refuses such a log name before it starts, `check_log_names`), so it has none."""
+    return len(os.fsencode(note.name)) <= NAME_MAX
+
+
 def file_sha256(path: str | os.PathLike) -> str:
     with open(path, "rb") as file:
         return hashlib.file_digest(file, "sha256").hexdigest()
@@ -48,7 +55,8 @@ def note_target(log_path: str | os.PathLike, elf: str | os.PathLike | None) -> P
     started here, so an earlier run's note there goes). Nothing without the log (a run that wrote none)."""
     path = note_path(log_path)
     if elf is None:
-        path.unlink(missing_ok=True)
+        if can_exist(path):
+            path.unlink(missing_ok=True)
         return None
     if not Path(log_path).is_file():
         return None
@@ -60,6 +68,8 @@ def note_target(log_path: str | os.PathLike, elf: str | os.PathLike | None) -> P
 def read_note(log_path: str | os.PathLike) -> ElfNote | None:
     """The note beside `log_path`, None without one; BenchError (one sentence) for a note that cannot be read."""
     path = note_path(log_path)
+    if not can_exist(path):
+        return None
     try:
         body = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
