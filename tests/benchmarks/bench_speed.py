@@ -7,7 +7,7 @@ training profile's phases twice over at 5 °C warmer coolant and other random-st
 files, 98 947 rows at 1 s (the size of a real motor's 81 000 rows in 13 files that issue 40 timed), the suite's own
 validation profiles. Then, as a user runs them and as `bench_suite.py` does:
 
-1. Per prior (`designer`: the motor file's own; `table1`: another machine's network, adapted; `auto`: read from the
+1. Per prior (`designer`: the motor file's own; `table1`: another machine's network, as named; `auto`: read from the
    data), `bench identify --all-kinds --bounds 0.1,10` on the 13 training files with the validation profiles as
    --validate; wall time, CPU time (the child's user + system seconds: on a shared machine the wall time is the
    load's, the CPU time the work's) and the load average before and after.
