@@ -44,7 +44,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy.signal import lfilter
@@ -91,8 +91,7 @@ class NodeResponse:
     rmse_C: float
 
     def as_dict(self) -> dict:
-        return {"gain_stator_K_per_W": self.gain_stator_K_per_W, "gain_magnet_K_per_W": self.gain_magnet_K_per_W,
-                "tau_s": self.tau_s, "rmse_C": self.rmse_C}
+        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -106,8 +105,7 @@ class RotorResponse:
     rmse_C: float
 
     def as_dict(self) -> dict:
-        return {"weight_winding": self.weight_winding, "weight_tooth": self.weight_tooth,
-                "gain_magnet_K_per_W": self.gain_magnet_K_per_W, "tau_s": self.tau_s, "rmse_C": self.rmse_C}
+        return asdict(self)
 
 
 @dataclass(frozen=True)
