@@ -152,9 +152,10 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start, freeze=freeze)
         if progress:
             progress("polish", 1, 1, lptn.cost)
-        errors = _standard_errors(lptn, runs, dt)
+        if not loss_scales:     # else at the network the loss scales move, on the scaled losses
+            errors = _standard_errors(lptn, runs, dt)
         timings["polish"] = time.perf_counter() - started
-    elif standard_errors:
+    elif standard_errors and not loss_scales:
         started = time.perf_counter()
         errors = _standard_errors(lptn, runs, dt)
         timings["standard_errors"] = time.perf_counter() - started
@@ -166,7 +167,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         lptn, scales = fit_loss_scales(lptn, runs, dt, start)
         loss_model = LAB_LOSS_KINDS[loss_model.kind].scaled(loss_model, scales.factors)
         runs = prepare_runs(datasets, loss_model, constants, dt)     # the Hammerstein fit's losses
-        if errors is not None:
+        if polish_starts > 0 or standard_errors:
             errors = _standard_errors(lptn, runs, dt)
         if progress:
             progress("scales", 1, 1, lptn.cost)

@@ -67,10 +67,7 @@ class ScaledResiduals(Residuals):
     run as one batch on runs scaled by them (a Jacobian's batch: the network's columns share the current factors,
     each factor's column has its own)."""
 
-    def __init__(self, runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...]):
-        super().__init__(runs, dt, nodes, scaled)
-        self.unscaled = list(runs)
-        self.width = len(LptnParameters.names())
+    width = len(LptnParameters.names())     # the network's coordinates, before the log factors
 
     def errors(self, coords: np.ndarray) -> np.ndarray:
         coords = np.atleast_2d(coords)
@@ -78,9 +75,8 @@ class ScaledResiduals(Residuals):
         keys = [tuple(c[self.width:]) for c in coords]
         for key in dict.fromkeys(keys):
             rows = [i for i, k in enumerate(keys) if k == key]
-            self.runs = scaled_runs(self.unscaled, factors_of(np.array(key)))
-            out[rows] = Residuals.errors(self, coords[rows, :self.width])
-        self.runs = self.unscaled
+            runs = scaled_runs(self.runs, factors_of(np.array(key)))
+            out[rows] = Residuals(runs, self.dt, self.nodes, self.scaled).errors(coords[rows, :self.width])
         return out
 
 
