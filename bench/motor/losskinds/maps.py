@@ -183,7 +183,7 @@ class LabMapsKind(LabLossKind):
 
     def scaled(self, model: LossMaps, factors: Mapping[str, float]) -> LossMaps:
         """Each named loss table times its factor (the current table is not a loss)."""
-        unknown = set(factors) - set(MAP_TABLES[:-1])
+        unknown = set(factors) - (set(MAP_TABLES) - {"current"})
         if unknown:
             raise ValueError(f"loss maps have no loss table {', '.join(sorted(unknown))}")
         return LossMaps(model.torque_Nm, model.speed_rpm,
