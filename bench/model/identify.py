@@ -206,6 +206,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         provenance["pso"]["auto_prior"] = {"parameters": derived.parameters.as_dict(),
                                            "responses": {n: r.as_dict() for n, r in derived.responses.items()},
                                            "rotor": derived.rotor.as_dict(),
+                                           "winding": derived.winding.as_dict() if derived.winding else None,
                                            "fallbacks": list(derived.fallbacks)}
     if adapted is not None:
         provenance["pso"]["adapted_prior"] = adapted.record()
