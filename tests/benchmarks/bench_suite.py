@@ -286,6 +286,7 @@ DEFAULTS = {
     "polish-adapted": ("table1", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
     "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
     "loss-scales": ("designer", (), {"fit": ("--loss-scales", "fit")}),
+    "loss-scales-auto": ("auto", (), {"fit": ("--loss-scales", "fit")}),
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
