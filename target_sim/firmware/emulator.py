@@ -122,9 +122,11 @@ class FirmwareFault(TargetError):
         self.kind = kind     # "memory", "undefined instruction", "exception", "endless loop", "stack overflow"
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class CallStats:
-    """What the core executed in one call: instructions and Cortex-M4 cycles (None without the block hook)."""
+    """What the core executed in one call: instructions and Cortex-M4 cycles (None without the block hook).
+
+    Not frozen: one is made per call, and a frozen dataclass's construction costs several times as much."""
 
     function: str
     instructions: int | None
