@@ -242,6 +242,7 @@ class HostSession:
         self.contested_checkpoints: set[int] = set()
         self._last_checkpoint_row: dict[int, int] = {}
         self._last_checkpoint_data: dict[int, bytes] = {}
+        self._checkpoint_ids = {frame_id(name): name for name in ("StateCheckpoint", OBSERVER_CHECKPOINT_MESSAGE)}
         self._pending_log: list[can.Message] = []
         # a fault layer logs what it really transmits; a plain bus sends what it is given
         self._log_sends = not getattr(bus, "reports_transmissions", False)
@@ -404,10 +405,6 @@ class HostSession:
             self.monitor.target_info = target_info(s)
         if self.on_frame is not None:
             self.on_frame(frame)
-
-    @property
-    def _checkpoint_ids(self) -> dict[int, str]:
-        return {frame_id(name): name for name in ("StateCheckpoint", OBSERVER_CHECKPOINT_MESSAGE)}
 
     def _checkpoint_row(self, name: str, s: dict) -> int:
         """The row a checkpoint frame names (an ObserverCheckpoint: by its StepLow)."""
