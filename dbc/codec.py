@@ -65,9 +65,11 @@ def apply_crc(frame_id: int, payload: bytes) -> bytes:
     return bytes(data)
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class DecodedFrame:
-    """A frame that passed validation; ``signals`` holds scaled values without the CRC and counter signals."""
+    """A frame that passed validation; ``signals`` holds scaled values without the CRC and counter signals.
+
+    Not frozen: one is made per received frame, and a frozen dataclass's construction costs four times as much."""
 
     name: str
     frame_id: int
@@ -136,6 +138,7 @@ class FrameCodec:
     def __init__(self, sender: str) -> None:
         self.sender = _check_node(sender)
         self._next_counter: dict[int, int] = {}
+        self._layouts: dict[str, MessageLayout] = {}    # the messages encoded so far (this node sends them)
 
     def reset_counters(self) -> None:
         """Restart every alive counter at 0 (receivers accept the first frame after their own reset only)."""
@@ -149,9 +152,12 @@ class FrameCodec:
         units; enum signals also take their value-table names. Values outside the DBC range raise
         FrameError("out_of_range") instead of wrapping, and a refused frame does not use up a counter value.
         """
-        layout = contract().by_name.get(name) or layout_named(name)
-        if layout.sender != self.sender:
-            raise FrameError("unknown_id", f"message {name} is sent by {layout.sender}, not by {self.sender}.")
+        layout = self._layouts.get(name)
+        if layout is None:
+            layout = contract().by_name.get(name) or layout_named(name)
+            if layout.sender != self.sender:
+                raise FrameError("unknown_id", f"message {name} is sent by {layout.sender}, not by {self.sender}.")
+            self._layouts[name] = layout
         if len(signals) != len(layout.packed):
             _check_signal_set(layout, signals)
         word = 0
@@ -214,14 +220,15 @@ def _check_frame(msg: can.Message, accepted: frozenset[int] | None) -> tuple[Mes
         raise FrameError("crc", f"{layout.label} has CRC 0x{payload[0]:02X} instead of 0x{expected_crc:02X}.")
     word = int.from_bytes(payload, "little")
     values: dict[str, SignalValue] = {}
-    for name, start, length, signed, mask, conversion, low, high, _, _, _, ieee in layout.packed:
+    for name, start, mask, sign, wrap, scale, offset, conversion, low, high, ieee in layout.unpacked:
         raw = (word >> start) & mask
         if ieee is not None:
             value = struct.unpack(ieee[0], struct.pack(ieee[1], raw))[0]
         else:
-            if signed and raw >> (length - 1):
-                raw -= 1 << length
-            value = conversion.raw_to_scaled(raw, False)
+            if raw & sign:
+                raw -= wrap
+            # cantools' own arithmetic where its conversion is that (`dbc.database`), without a call per signal
+            value = raw * scale + offset if scale is not None else conversion.raw_to_scaled(raw, False)
         if not low <= value <= high:
             s = layout.signal(name)
             raise FrameError("out_of_range", f"{layout.label} carries {s.dbc_name} = "

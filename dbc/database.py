@@ -62,6 +62,24 @@ class SignalLayout:
         return (self.name, self.start, self.length, self.signed, self.mask, self.conversion, self.low, self.high,
                 self.inline, self.offset, self.scale, self.ieee)
 
+    def unpacked(self) -> tuple:
+        """The fields the codec's decoding loop reads: name, start, mask, the sign bit (0: unsigned) and what a
+        negative raw value takes off, scale and offset (None: ask the conversion), range, IEEE formats."""
+        sign = 1 << (self.length - 1) if self.signed else 0
+        linear = not self.ieee and _linear(self.conversion, self.scale, self.offset, self.mask)
+        return (self.name, self.start, self.mask, sign, 1 << self.length, self.scale if linear else None,
+                self.offset, self.conversion, self.low, self.high, self.ieee)
+
+
+def _linear(conversion, scale, offset, mask: int) -> bool:
+    """cantools' scaled value of this conversion (without choices) is `raw * scale + offset`, type and all (an
+    identity's int 1 and 0 keep an int an int): checked on raw values across the signal's range."""
+    for raw in (0, 1, 2, 3, mask // 2, mask, -(mask // 2), -1):
+        value, inline = conversion.raw_to_scaled(raw, False), raw * scale + offset
+        if type(value) is not type(inline) or value != inline:
+            return False
+    return True
+
 
 @dataclass(frozen=True)
 class MessageLayout:
@@ -75,6 +93,7 @@ class MessageLayout:
     cycle_time_ms: int
     message: DbcMessage
     packed: tuple[tuple, ...]   # SignalLayout.packed() of every signal, in order
+    unpacked: tuple[tuple, ...]  # SignalLayout.unpacked() of every signal, in order
 
     @property
     def label(self) -> str:
@@ -189,7 +208,8 @@ def contract() -> Contract:
             name=message.name, frame_id=message.frame_id, sender=message.senders[0],
             data_id=int(attributes["E2EDataID"].value), signals=signals,
             cycle_time_ms=int(cycle.value) if cycle is not None else 0, message=message,
-            packed=tuple(signal.packed() for signal in signals)))
+            packed=tuple(signal.packed() for signal in signals),
+            unpacked=tuple(signal.unpacked() for signal in signals)))
     return Contract(database=database, version=str(database.version),
                     by_id=MappingProxyType({m.frame_id: m for m in layouts}),
                     by_name=MappingProxyType({m.name: m for m in layouts}))

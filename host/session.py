@@ -242,6 +242,7 @@ class HostSession:
         self.contested_checkpoints: set[int] = set()
         self._last_checkpoint_row: dict[int, int] = {}
         self._last_checkpoint_data: dict[int, bytes] = {}
+        self._checkpoint_ids = {frame_id(name): name for name in ("StateCheckpoint", OBSERVER_CHECKPOINT_MESSAGE)}
         self._pending_log: list[can.Message] = []
         # a fault layer logs what it really transmits; a plain bus sends what it is given
         self._log_sends = not getattr(bus, "reports_transmissions", False)
@@ -249,21 +250,34 @@ class HostSession:
             bus.on_transmit = self._pending_log.append
 
     # ------------------------------------------------------------------ sending
-    def _catch_up(self) -> None:
-        """Before a frame is stamped and sent: a host that has not been on the bus for longer than it can be
-        without being stopped (its clock jumped) first reads what the target sent meanwhile, so the log keeps the
-        bus's order and the target's heartbeats count (a frame stamped after the pause must not precede them)."""
+    def _catch_up(self) -> bool:
+        """A host that has not been on the bus for longer than it can be without being stopped (its clock jumped)
+        first reads what the target sent meanwhile, so the log keeps the bus's order and the target's heartbeats
+        count (a frame stamped after the pause must not precede them). Whether it did."""
         now = time.perf_counter()
         self._note_late(now - self._on_bus_at)
         self._on_bus_at = now
-        if self._paused_s > HOST_PAUSE_S:
-            self.host_paused(self._paused_s)
+        if self._paused_s <= HOST_PAUSE_S:
+            return False
+        self.host_paused(self._paused_s)
+        return True
+
+    def _stamp(self, frame: can.Message) -> None:
+        """Stamp one of the host's frames with the time it goes on the bus, after catching up with a pause.
+
+        The pause is looked for after the stamp, and again after each catch-up, until none came between: a host
+        stopped after the look but before the stamp (in the send of a row's first frame: SIGSTOP takes effect as
+        that system call returns) stamped the row's next frame after the pause and logged it before the frames that
+        waited in its socket; the log, whose times never go back, then gave all the target's heartbeats of the
+        pause that frame's time, a silence as long as the pause (a heartbeat loss in the report)."""
+        frame.timestamp = time.time()
+        while self._catch_up():
+            frame.timestamp = time.time()
+        frame.is_rx = False
 
     def send(self, frames: Sequence[can.Message]) -> None:
-        self._catch_up()
         for frame in frames:
-            frame.timestamp = time.time()
-            frame.is_rx = False
+            self._stamp(frame)
             try:
                 self.bus.send(frame)
             except can.CanError as exc:
@@ -276,9 +290,7 @@ class HostSession:
         """Put a BenchEvent mark on the bus (past any fault layer) and into the log."""
         frame = self.codec.encode("BenchEvent", {"Step": step_of(row), "Event": int(event),
                                                  "FaultKind": int(kind), "FrameId": int(frame_id or 0)})
-        self._catch_up()
-        frame.timestamp = time.time()
-        frame.is_rx = False
+        self._stamp(frame)
         direct = getattr(self.bus, "send_direct", None)
         try:
             (direct or self.bus.send)(frame)
@@ -393,10 +405,6 @@ class HostSession:
             self.monitor.target_info = target_info(s)
         if self.on_frame is not None:
             self.on_frame(frame)
-
-    @property
-    def _checkpoint_ids(self) -> dict[int, str]:
-        return {frame_id(name): name for name in ("StateCheckpoint", OBSERVER_CHECKPOINT_MESSAGE)}
 
     def _checkpoint_row(self, name: str, s: dict) -> int:
         """The row a checkpoint frame names (an ObserverCheckpoint: by its StepLow)."""

@@ -102,7 +102,6 @@ from dbc.contract import (
     join_temperatures,
     row_messages,
     row_signals,
-    split_temperatures,
 )
 from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
 from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
@@ -271,8 +270,13 @@ class TargetNode:
                 self.faults |= FaultBit.SATURATED
                 value = _clamp(value, limits)
             values.append(value)
-        return [frame for name, signals in split_temperatures(values, REPLY_SIGNALS).items()
-                for frame in self._encode(name, {"Step": step, **signals})]
+        out = []
+        for name, signals in REPLY_SIGNALS.items():   # split_temperatures, straight into each frame's signals
+            frame_signals = {"Step": step}
+            for signal, index in signals:
+                frame_signals[signal] = values[index]
+            out += self._encode(name, frame_signals)
+        return out
 
     def _timing_frames(self, step: int, elapsed_ns: int) -> list[can.Message]:
         measured = _clamp(round(elapsed_ns / 1000.0, 1), self._timing1_limits)
@@ -392,8 +396,8 @@ class TargetNode:
             pending.append(signals)
             return []
         self._pending = []
-        frames = {message: frame for message, frame in zip(row, (*pending, signals), strict=True)}
-        sample = tuple(frames[message][signal] for message, signal in self._row_signals)
+        frames = dict(zip(row, (*pending, signals), strict=True))
+        sample = tuple([frames[message][signal] for message, signal in self._row_signals])
         if self.observer is not None:
             sample += self.observer.raw(sample, self._measured(int(signals["Step"])))
         return self._row(int(signals["Step"]), sample)

@@ -870,6 +870,12 @@ def section_suite(records: dict[str, list[Record]]) -> list[str]:
     if compared is not None:
         lines += ["Each default against its alternatives (`python tests/benchmarks/bench_suite.py --defaults`):", "",
                   provenance(compared), "", *suite_defaults(compared)]
+    folded = found.get("folds")
+    if folded is not None:
+        lines += ["The identify defaults by the decision rule of the method page (`python "
+                  "tests/benchmarks/bench_suite.py --defaults --folds 3 --hold-test`): the mean over three folds of "
+                  "the nine non-test profiles, each fold trained on six and scored on the three it holds out:", "",
+                  provenance(folded), "", *suite_defaults(folded)]
     bound = found.get("floor")
     if bound is not None:
         lines += ["The four-node model class's floor (`python tests/benchmarks/bench_suite.py --floor`): the "
@@ -923,8 +929,10 @@ def suite_defaults(record: Record) -> list[str]:
     compared = [m for m in motors if isinstance(m.get("defaults"), dict) and "failed" not in m["defaults"]]
     lines = []
     if compared:
-        lines += ["`bench identify` (Hammerstein winding / magnet MSE K² on the validation profiles; the default as "
-                  "the record's code had it, a setting in brackets held by both sides):", ""]
+        folds = record["parameters"].get("folds")
+        where = (f"mean of {folds} folds' held-out profiles" if folds else "on the validation profiles")
+        lines += [f"`bench identify` (Hammerstein winding / magnet MSE K², {where}; the default as the record's code "
+                  "had it, a setting in brackets held by both sides):", ""]
         lines += _table(["setting", *(m["motor"] for m in compared)], _default_rows(compared))
         lines += _verdicts({name: {m["motor"]: _identify_sums(m["defaults"].get(name)) for m in compared}
                             for name in compared[0]["defaults"]})

@@ -122,9 +122,11 @@ class FirmwareFault(TargetError):
         self.kind = kind     # "memory", "undefined instruction", "exception", "endless loop", "stack overflow"
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class CallStats:
-    """What the core executed in one call: instructions and Cortex-M4 cycles (None without the block hook)."""
+    """What the core executed in one call: instructions and Cortex-M4 cycles (None without the block hook).
+
+    Not frozen: one is made per call, and a frozen dataclass's construction costs several times as much."""
 
     function: str
     instructions: int | None
@@ -466,11 +468,14 @@ class Firmware:
         self._cycles = self._instructions = self._extra = 0
         self._fall = entry & ~1        # the first block is entered by the call: no branch of ours to charge
         self._fault = self._hook_error = None
+        # the instruction limit: with the block hook it counts them itself (unicorn's own count adds a callback per
+        # instruction, which costs more than the call's blocks); without the hook, unicorn's count
+        count = 0 if self.cycle_model is not None else self.max_instructions
         try:
             if raw is not None:
-                raw.start(entry, HALT, self.max_instructions)
+                raw.start(entry, HALT, count)
             else:
-                uc.emu_start(entry, HALT, count=self.max_instructions)
+                uc.emu_start(entry, HALT, count=count)
         except UcError as error:
             raise self._failed(self._fault_from(error, name)) from None
         if self._hook_error is not None:
@@ -513,12 +518,14 @@ class Firmware:
             block = self._blocks.get((address, size))
             if block is None:
                 block = self.cycle_model.block(address, size)
+            cycles, extra, fall, count = block
             if address != self._fall:      # the previous block's final branch was taken
-                self._cycles += self._extra
-            self._cycles += block[0]
-            self._extra = block[1]
-            self._fall = block[2]
-            self._instructions += block[3]
+                cycles += self._extra
+            self._cycles += cycles
+            self._extra, self._fall = extra, fall
+            self._instructions += count
+            if self._instructions > self.max_instructions:   # an endless loop: stop here, `call` reports it
+                self._uc.emu_stop()
         except Exception as error:         # a C callback must not raise: stop and report it
             self._hook_error = error
             self._uc.emu_stop()

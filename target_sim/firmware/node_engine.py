@@ -73,6 +73,7 @@ ENTRY_POINTS = ("node_init", "node_on_frame", "node_on_xcp", "node_on_tick", "no
 BUFFERS = ("node_rx", "node_out", "node_counters", "fw_model_id")
 XCP_COUNTERS = struct.Struct("<7I")      # xcp.c's struct xcp_counters
 _MASK32 = 0xFFFF_FFFF
+_STATES = {int(state): state for state in TargetState}   # the enum by value without its call's cost per frame
 
 
 def _ms(seconds: float) -> int:
@@ -178,7 +179,7 @@ class FirmwareNode:
         fw = self.fw
         header = OUTPUT_HEADER.unpack(fw.read_bytes(self._out, OUTPUT_HEADER.size))
         tx_count, event_count, state, faults, again, _, _, _, step_cycles, next_beat_ms = header
-        self.state = TargetState(state)
+        self.state = _STATES.get(state) or TargetState(state)   # (an unknown value raises, as the call does)
         self.faults = faults
         self.answered_again = bool(again)
         self._next_beat_ms = next_beat_ms

@@ -3,7 +3,7 @@ on test profiles that no choice looked at.
 
     python tests/benchmarks/bench_suite.py [--motors NAME ...] [--priors designer table1 auto] [--skip-observer]
                                            [--work DIR] [--defaults [--compare DEFAULT ...]] [--hold-test]
-                                           [--reuse] [--floor]
+                                           [--folds K] [--reuse] [--floor]
 
 The suite is `examples/suite/*/`: each motor a motor file whose `virtual_plant` generates its profiles (the
 truth is a plant the bench's four-node model cannot be) and a mapping. Each profile has a fixed role in the motor
@@ -37,7 +37,9 @@ here, never used to choose). Per motor:
    and the observer's defaults). `--reuse` reads back the profiles and identifications an earlier run of the same
    code kept in `--work` (identification is deterministic; a kept run is found by its prior and arguments, so a
    work directory may be copied elsewhere), so a run with `--hold-test` followed by one without it reports the
-   test figures of what was chosen without identifying again.
+   test figures of what was chosen without identifying again. With `--folds K` the identify defaults are
+   compared by K-fold cross-validation over the nine non-test profiles instead (`fold_split`; the mean over the
+   folds of the held-out MSE; the decision rule of docs/method.md is K = 3; record variant "folds").
 
 6. With --floor (a bound, not a result): the designer's prior identified on ALL profiles, the test ones included,
    and evaluated on the test profiles, in-sample. What the four-node model class and this identification reach at
@@ -70,6 +72,7 @@ NODES = ("winding", "pm", "yoke", "tooth")
 GOAL_MSE_K2, GOAL_MAX_K = 2.0, 4.7
 HOLD_TEST = False                # --hold-test: nothing evaluated on the test profiles (while choosing)
 COMPARED = None                  # --compare: only these DEFAULTS (None: all)
+FOLDS = 0                        # --folds: the identify defaults compared by this many folds (0: on validation)
 REUSE = False                    # --reuse: an identification kept in --work from an earlier run is read back
 SENSOR = "ntc_C"                 # every suite motor maps its end-winding sensor here
 SENSOR_SIGNAL = "ntc"            # ... from the virtual plant's column of this signal
@@ -94,12 +97,24 @@ def files(data: Path, index: dict, role: str) -> list[str]:
     return [str(data / name) for name in index["roles"][role]]
 
 
-def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra: tuple = (), tag: str = "") -> dict:
+def fold_split(data: Path, index: dict, fold: int, folds: int) -> dict[str, list[str]]:
+    """Fold `fold` of `folds` over the non-test profiles (training and validation roles, by name): the j-th of them
+    is held out in fold j mod folds, the others train. The test profiles are in no fold."""
+    names = sorted(index["roles"]["train"] + index["roles"]["validate"])
+    return {"train": [str(data / n) for j, n in enumerate(names) if j % folds != fold],
+            "validate": [str(data / n) for j, n in enumerate(names) if j % folds == fold]}
+
+
+def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra: tuple = (), tag: str = "",
+             split: dict[str, list[str]] | None = None) -> dict:
+    """`bench identify` of a suite motor from `prior` with `extra` arguments, kept under `tag`; on the motor file's
+    training and validation profiles, or on `split`'s (a fold's, whose name `tag` then carries)."""
     option = {"designer": (), "auto": ("--prior", "auto")}.get(prior)
     if option is None:
         path = work / "table1-prior.json"
         path.write_text('{"parameters": "table1"}\n', encoding="utf-8")
         option = ("--prior", str(path))
+    split = split or {role: files(data, index, role) for role in ("train", "validate")}
     out = work / motor.name / (f"{prior}-{tag}" if tag else prior) / "model.json"
     kept = out.with_name("identify.json")     # the command's --json, for --reuse
     if REUSE and kept.is_file():
@@ -110,7 +125,7 @@ def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra
     load = os.getloadavg()[0]
     identified, seconds = bench(
         "identify", "--motor", str(motor / "motor.json"), "--mapping", str(motor / "mapping.json"),
-        "--train", *files(data, index, "train"), "--validate", *files(data, index, "validate"),
+        "--train", *split["train"], "--validate", *split["validate"],
         "--out", str(out), "--all-kinds", "--bounds", BOUNDS, *option, *extra)
     run = {"json": identified, "seconds": seconds, "cpu_s": children_cpu_s() - cpu, "out": out,
            "artifacts": {kind: Path(path) for kind, path in identified["artifacts"].items()},
@@ -271,6 +286,7 @@ DEFAULTS = {
     "polish-adapted": ("table1", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
     "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
     "loss-scales": ("designer", (), {"fit": ("--loss-scales", "fit")}),
+    "loss-scales-auto": ("auto", (), {"fit": ("--loss-scales", "fit")}),
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
@@ -294,23 +310,50 @@ def run_tag(arguments: tuple) -> str:
 
 
 def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dict) -> dict:
-    """Each identify default against its alternatives on the validation profiles (the prior's run reused)."""
+    """Each identify default against its alternatives: on the validation profiles (the prior's run reused), or with
+    --folds by cross-validation over the non-test profiles (`cross_validated`)."""
     out = {}
     for name, (prior, held, alternatives) in DEFAULTS.items():
         if COMPARED is not None and name not in COMPARED:
             continue
-        if held:
-            base = identify(motor, work, data, index, prior, held, tag=run_tag(held))
+        settings = {"default": held, **{alt: (*held, *extra) for alt, extra in alternatives.items()}}
+        row = {"prior": prior, "held": list(held)}
+        if FOLDS:
+            folds = {setting: cross_validated(motor, work, data, index, prior, arguments)
+                     for setting, arguments in settings.items()}
+            scores = {setting: mean_mse(per_fold) for setting, per_fold in folds.items()}
+            row["folds"] = {"count": FOLDS, "per_fold": folds}
         else:
-            base = runs.get(prior) or identify(motor, work, data, index, prior)
-            runs[prior] = base
-        row = {"prior": prior, "held": list(held), "default": validation_mse(base["json"]), "alternatives": {}}
-        for alt, extra in alternatives.items():
-            run = identify(motor, work, data, index, prior, (*held, *extra), tag=run_tag((*held, *extra)))
-            row["alternatives"][alt] = validation_mse(run["json"])
+            scores = {setting: validation_mse(validation_run(motor, work, data, index, prior, arguments, runs)["json"])
+                      for setting, arguments in settings.items()}
+        row.update(default=scores.pop("default"), alternatives=scores)
         out[name] = row
         print(f"{motor.name} default {name}: {row}", flush=True)
     return out
+
+
+def validation_run(motor: Path, work: Path, data: Path, index: dict, prior: str, arguments: tuple, runs: dict) -> dict:
+    """The identification with these arguments on the motor file's split; the prior's own run (no arguments) is
+    the one step 2 made."""
+    if arguments:
+        return identify(motor, work, data, index, prior, arguments, tag=run_tag(arguments))
+    runs[prior] = runs.get(prior) or identify(motor, work, data, index, prior)
+    return runs[prior]
+
+
+def cross_validated(motor: Path, work: Path, data: Path, index: dict, prior: str, arguments: tuple) -> list[dict]:
+    """Per fold of --folds, the identification's figures on the fold's held-out profiles (`validation_mse`)."""
+    return [validation_mse(identify(motor, work, data, index, prior, arguments,
+                                    tag=f"fold{fold}of{FOLDS}-{run_tag(arguments) or 'default'}",
+                                    split=fold_split(data, index, fold, FOLDS))["json"])
+            for fold in range(FOLDS)]
+
+
+def mean_mse(per_fold: list[dict]) -> dict:
+    """The folds' figures averaged: per kind and node, the mean of the held-out MSEs (K²)."""
+    kinds = set.intersection(*(set(f) for f in per_fold))
+    return {kind: {node: round(sum(f[kind][node] for f in per_fold) / len(per_fold), 4) for node in ("winding", "pm")}
+            for kind in sorted(kinds)}
 
 
 def compare_observer_defaults(motor: Path, data: Path, index: dict, model: Path) -> dict:
@@ -342,6 +385,10 @@ def main() -> int:
     parser.add_argument("--work", type=Path, default=None, help="keep the generated files and models here")
     parser.add_argument("--compare", nargs="+", choices=list(DEFAULTS), default=None,
                         help="with --defaults: only these identify defaults (default all)")
+    parser.add_argument("--folds", type=int, default=0,
+                        help="with --defaults: compare the identify defaults by this many folds of cross-validation "
+                             "over the non-test profiles instead of on the validation profiles (the decision rule "
+                             "of docs/method.md: 3)")
     parser.add_argument("--floor", action="store_true",
                         help="only the model class's floor: the designer's prior identified on all profiles, scored "
                              "on the test ones in-sample (a bound, nothing is chosen on it)")
@@ -353,8 +400,10 @@ def main() -> int:
                              "code")
     add_record_arguments(parser)
     args = parser.parse_args()
-    global HOLD_TEST, REUSE, COMPARED
-    HOLD_TEST, REUSE, COMPARED = args.hold_test, args.reuse, args.compare
+    global HOLD_TEST, REUSE, COMPARED, FOLDS
+    HOLD_TEST, REUSE, COMPARED, FOLDS = args.hold_test, args.reuse, args.compare, args.folds
+    if args.folds and (not args.defaults or args.folds < 2):
+        parser.error("--folds N (N ≥ 2) cross-validates the identify defaults: give it with --defaults")
     if args.reuse and args.work is None:
         parser.error("--reuse reads identifications kept in --work: name it")
     if args.floor and (args.defaults or args.hold_test):
@@ -366,8 +415,10 @@ def main() -> int:
     record = Record("suite", args, parameters={"motors": [m.name for m in motors], "priors": args.priors,
                                                "bounds": BOUNDS, "observer": observed,
                                                "defaults": args.defaults, "hold_test": args.hold_test,
-                                               "compared": args.compare, "floor": args.floor},
-                    variant="defaults" if args.defaults else "floor" if args.floor else None)
+                                               "compared": args.compare, "folds": args.folds,
+                                               "floor": args.floor},
+                    variant=("folds" if args.folds else "defaults") if args.defaults else
+                    "floor" if args.floor else None)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     record.figures.update(motors=[], complete=False)
     with tempfile.TemporaryDirectory(prefix="bench-suite-") as tmp:

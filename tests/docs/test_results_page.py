@@ -147,6 +147,22 @@ def test_a_defaults_verdict_names_what_won_where_the_default_lost():
                     "(2.50 against 3.00)")
 
 
+def test_the_suite_folds_record_shows_the_identify_defaults_by_cross_validation(data_record):
+    """`bench_suite.py --defaults --folds 3`: its own section, the figures named as the folds' mean, the verdicts."""
+    folded = {"motor": "air-30kw", "priors": [], "defaults": {"loss-scales": {
+        "prior": "designer", "held": [], "default": {"hammerstein": {"winding": 15.97, "pm": 24.99}},
+        "alternatives": {"fit": {"hammerstein": {"winding": 10.65, "pm": 21.95}}}, "folds": {"count": 3}}}}
+    records = _suite_record(data_record) + [{**copy.deepcopy(data_record), "benchmark": "suite", "variant": "folds",
+                                             "parameters": {**data_record["parameters"], "folds": 3},
+                                             "figures": {"motors": [folded], "complete": True}}]
+    page = results_page.render_results({"suite": records})
+    section = page[page.index("--folds 3"):]
+    assert "mean of 3 folds' held-out profiles" in section
+    assert "| loss-scales: default | 15.97 / 24.99 |" in section and "| loss-scales: fit | 10.65 / 21.95 |" in section
+    assert "- loss-scales: the default has the smallest winding + magnet MSE on 0 of 1 motors; better: fit on " \
+           "air-30kw (32.60 against 40.96)" in section
+
+
 def test_the_suite_floor_shows_each_motors_in_sample_test_figures_and_whether_the_goal_is_reachable(data_record):
     """`bench_suite.py --floor`: per motor and kind the in-sample test figures; a failed motor says so."""
     missed = {n: {"mse_K2": 7.06, "max_K": 7.76} for n in ("winding", "pm", "yoke", "tooth")}
