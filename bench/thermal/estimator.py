@@ -128,6 +128,8 @@ def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, c
     n_steps, lanes = ratio.shape[0], x.shape[1]   # lanes as a run-time count: LLVM then vectorizes the lane loops
     u = np.empty((8, lanes))
     x_new = np.empty((4, lanes))
+    # a step's exp arguments and values, lane after lane (portable.exp_into: one vectorized row, `exp`'s bits)
+    argument, exps, normalized = np.empty(4 * lanes), np.empty(4 * lanes), np.empty(4 * lanes)
     for k in range(n_steps):
         i_ratio = lut[k, 4] / i_max
         r_k = ratio[k]
@@ -142,8 +144,13 @@ def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, c
             for i in range(4):
                 for lane in range(lanes):
                     v = u[i, lane] / sig[0, i, lane]
-                    s = (sig[3, i, lane] / (1.0 + portable.exp(-(sig[1, i, lane] * v + sig[2, i, lane])))
-                         + sig[4, i, lane] * v + sig[5, i, lane])
+                    normalized[i * lanes + lane] = v
+                    argument[i * lanes + lane] = -(sig[1, i, lane] * v + sig[2, i, lane])
+            portable.exp_into(argument, exps)    # the exps of a step in one vectorized row
+            for i in range(4):
+                for lane in range(lanes):
+                    v = normalized[i * lanes + lane]
+                    s = sig[3, i, lane] / (1.0 + exps[i * lanes + lane]) + sig[4, i, lane] * v + sig[5, i, lane]
                     u[i, lane] = s * sig[0, i, lane]
         if shared:   # the same sources' gains in every lane, computed once per step by shared_gains
             g_wm, g_tm, g_ma, g_cy = gains[k, 0], gains[k, 1], gains[k, 2], gains[k, 3]
@@ -152,11 +159,16 @@ def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, c
                 u[5, lane] = ambient[k] + g_ma * (y[3, lane] - ambient[k]) / (1.0 + g_ma)
                 u[6, lane] = (y[3, lane] + g_tm * y[2, lane]) / (1.0 + g_tm)
                 u[7, lane] = (y[1, lane] + g_wm * y[3, lane]) / (1.0 + g_wm)
-        else:
-            for lane in range(lanes):   # temperature sources from the previous estimate (eqs. 9-18)
-                g_wm = theta[4, lane] * portable.exp(-r_k / theta[5, lane]) / theta[6, lane]
-                g_tm = theta[7, lane] * portable.exp(-r_k / theta[8, lane]) / theta[9, lane]
-                g_ma = theta[10, lane] * portable.exp(-r_k / theta[11, lane]) / theta[12, lane]
+        else:   # temperature sources from the previous estimate (eqs. 9-18)
+            for lane in range(lanes):
+                argument[lane] = -r_k / theta[5, lane]
+                argument[lanes + lane] = -r_k / theta[8, lane]
+                argument[2 * lanes + lane] = -r_k / theta[11, lane]
+            portable.exp_into(argument[:3 * lanes], exps[:3 * lanes])
+            for lane in range(lanes):
+                g_wm = theta[4, lane] * exps[lane] / theta[6, lane]
+                g_tm = theta[7, lane] * exps[lanes + lane] / theta[9, lane]
+                g_ma = theta[10, lane] * exps[2 * lanes + lane] / theta[12, lane]
                 g_cy = theta[13, lane] * (coolant[k] - 40.0)
                 u[4, lane] = coolant[k] + g_cy * (y[0, lane] - coolant[k]) / (1.0 + g_cy)
                 u[5, lane] = ambient[k] + g_ma * (y[3, lane] - ambient[k]) / (1.0 + g_ma)
