@@ -172,13 +172,15 @@ def log_array(x) -> np.ndarray:
 
 @numba.njit(**_JIT)
 def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    # each out[i, j] is summed over k in ascending order from 0.0, as in the plain i-j-k loop; the k-j order only
+    # runs a row of them side by side (contiguous in b and out, which LLVM vectorizes: a Gram matrix of 36 columns
+    # over 400 000 rows in a fit's cross-validation)
     out = np.zeros((a.shape[0], b.shape[1]))
     for i in range(a.shape[0]):
-        for j in range(b.shape[1]):
-            acc = 0.0
-            for k in range(a.shape[1]):
-                acc += a[i, k] * b[k, j]
-            out[i, j] = acc
+        for k in range(a.shape[1]):
+            aik = a[i, k]
+            for j in range(b.shape[1]):
+                out[i, j] += aik * b[k, j]
     return out
 
 
