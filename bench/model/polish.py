@@ -7,9 +7,10 @@ start in its own process on the available cores, and keeps the lowest training c
 The cost is the swarm's J = Σ w_n log MSE_n (lptn_fit.NODE_WEIGHTS). A sum of logs is not a sum of squares, so
 each round fixes the variances at their current values, σ_n² = MSE_n, and minimizes Σ w_n ‖r_n‖²/(N σ_n²) by LM
 (MINPACK's lmder as scipy's least_squares method "lm" runs it; bench.model.minpack); the next round re-estimates
-σ_n. At a fixed point the gradient of J is zero (the concentrated-likelihood iteration). The search box is kept by a smooth map u -> x = lo + (hi − lo)(1 + u/√(1+u²))/2
-made of +, −, ×, / and √ only. MINPACK uses no BLAS and the simulations run on bench.thermal.portable, so the
-result is the same bits on every x86-64 CPU and at any number of threads.
+σ_n. At a fixed point the gradient of J is zero (the concentrated-likelihood iteration). The search box is kept
+by a smooth map u -> x = lo + (hi − lo)(1 + u/√(1+u²))/2 made of +, −, ×, / and √ only. MINPACK uses no BLAS
+and the simulations run on bench.thermal.portable, so the result is the same bits on every x86-64 CPU and at any
+number of threads.
 
 Standard errors (`uncertainty`): at the optimum, the Jacobian of the residuals scaled by 1/σ_n, each node's rows
 shrunk by √(N_eff/N) with N_eff = N(1 − ρ)/(1 + ρ) for the residuals' lag-1 autocorrelation ρ (model errors are
