@@ -2,7 +2,7 @@
 
 Why: a particle swarm finds the right basin but stops short of its bottom (its last steps are random), and with a
 wide search box that gap is large. The polish starts from the swarm's best distinct particles (multi-start), each
-start in its own process on the available cores, and keeps the lowest training cost (ties: the earlier start).
+start in its own thread on the available cores, and keeps the lowest training cost (ties: the earlier start).
 
 The cost is the swarm's J = Σ w_n log MSE_n (lptn_fit.NODE_WEIGHTS). A sum of logs is not a sum of squares, so
 each round fixes the variances at their current values, σ_n² = MSE_n, and minimizes Σ w_n ‖r_n‖²/(N σ_n²) by LM
