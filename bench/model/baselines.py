@@ -51,24 +51,33 @@ def _decay(run: ModelRun, tau: float) -> np.ndarray:
 
 def fit_copper_lowpass(runs: Sequence[ModelRun], node: str) -> dict[str, float]:
     """{gain_K_per_W, tau_s, rmse_C} minimizing the pooled squared error over the runs."""
-    best = None
+    return fit_copper_lowpasses(runs, (node,))[node]
+
+
+def fit_copper_lowpasses(runs: Sequence[ModelRun], nodes: Sequence[str] = NODES) -> dict[str, dict[str, float]]:
+    """`fit_copper_lowpass` of each node, the low-passed losses and decays of each τ computed once for all nodes."""
+    best = dict.fromkeys(nodes)
     for tau in TAU_GRID_S:
-        rises = [_reference(r, node) - r.inputs.coolant - _initial_rise(r, node) * _decay(r, tau) for r in runs]
+        decays = [_decay(r, tau) for r in runs]
         filtered = [lowpass(copper_loss(r), tau, r.dt) for r in runs]
         # exact sums (portable.dot): a BLAS dot's last bit depends on the CPU's kernel, and the gain is recorded
-        num = math.fsum(portable.dot(f, y) for f, y in zip(filtered, rises, strict=True))
         den = math.fsum(portable.dot(f, f) for f in filtered)
-        gain = num / den if den > 0 else 0.0
-        sse = math.fsum(portable.dot(y - gain * f, y - gain * f) for f, y in zip(filtered, rises, strict=True))
-        if best is None or sse < best[0]:
-            best = (sse, gain, float(tau))
+        for node in nodes:
+            rises = [_reference(r, node) - r.inputs.coolant - _initial_rise(r, node) * d
+                     for r, d in zip(runs, decays, strict=True)]
+            num = math.fsum(portable.dot(f, y) for f, y in zip(filtered, rises, strict=True))
+            gain = num / den if den > 0 else 0.0
+            sse = math.fsum(portable.dot(e, e) for e in (y - gain * f for f, y in zip(filtered, rises, strict=True)))
+            if best[node] is None or sse < best[node][0]:
+                best[node] = (sse, gain, float(tau))
     count = sum(len(r.inputs.coolant) for r in runs)
-    return {"gain_K_per_W": best[1], "tau_s": best[2], "rmse_C": float(np.sqrt(best[0] / count))}
+    return {node: {"gain_K_per_W": gain, "tau_s": tau, "rmse_C": float(np.sqrt(sse / count))}
+            for node, (sse, gain, tau) in best.items()}
 
 
 def fit_baselines(runs: Sequence[ModelRun]) -> dict:
     """What the artifact records: the fitted copper low-pass per node (the coolant baseline has no parameter)."""
-    return {"copper_lowpass": {node: fit_copper_lowpass(runs, node) for node in NODES}}
+    return {"copper_lowpass": fit_copper_lowpasses(runs, NODES)}
 
 
 def baseline_estimates(baselines: dict, run: ModelRun) -> dict[str, dict[str, np.ndarray]]:

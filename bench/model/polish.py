@@ -2,14 +2,15 @@
 
 Why: a particle swarm finds the right basin but stops short of its bottom (its last steps are random), and with a
 wide search box that gap is large. The polish starts from the swarm's best distinct particles (multi-start), each
-start in its own process on the available cores, and keeps the lowest training cost (ties: the earlier start).
+start in its own thread on the available cores, and keeps the lowest training cost (ties: the earlier start).
 
 The cost is the swarm's J = Σ w_n log MSE_n (lptn_fit.NODE_WEIGHTS). A sum of logs is not a sum of squares, so
 each round fixes the variances at their current values, σ_n² = MSE_n, and minimizes Σ w_n ‖r_n‖²/(N σ_n²) by LM
-(MINPACK, scipy's method "lm"); the next round re-estimates σ_n. At a fixed point the gradient of J is zero (the
-concentrated-likelihood iteration). The search box is kept by a smooth map u -> x = lo + (hi − lo)(1 + u/√(1+u²))/2
-made of +, −, ×, / and √ only. MINPACK uses no BLAS and the simulations run on bench.thermal.portable, so the
-result is the same bits on every x86-64 CPU and at any number of threads.
+(MINPACK's lmder as scipy's least_squares method "lm" runs it; bench.model.minpack); the next round re-estimates
+σ_n. At a fixed point the gradient of J is zero (the concentrated-likelihood iteration). The search box is kept
+by a smooth map u -> x = lo + (hi − lo)(1 + u/√(1+u²))/2 made of +, −, ×, / and √ only. MINPACK uses no BLAS
+and the simulations run on bench.thermal.portable, so the result is the same bits on every x86-64 CPU and at any
+number of threads.
 
 Standard errors (`uncertainty`): at the optimum, the Jacobian of the residuals scaled by 1/σ_n, each node's rows
 shrunk by √(N_eff/N) with N_eff = N(1 − ρ)/(1 + ρ) for the residuals' lag-1 autocorrelation ρ (model errors are
@@ -29,7 +30,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from bench import stop
 from bench.model.lptn_fit import (
@@ -44,6 +44,7 @@ from bench.model.lptn_fit import (
     to_search,
 )
 from bench.model.metrics import finite_errors
+from bench.model.minpack import levenberg_marquardt
 from bench.model.runs import ModelRun
 from bench.thermal import portable
 from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
@@ -223,12 +224,12 @@ def polish_one(problem: Residuals, start: np.ndarray, lower: np.ndarray, upper: 
         def fun(v):
             return rows(v[None])[0]
 
-        def jac(v):
+        def jac_rows(v):    # the Jacobian transposed, a row per LM variable (bench.model.minpack)
             steps = STEP * np.maximum(1.0, np.abs(v))
             r = rows(np.vstack([v, v + np.diag(steps)]))
-            return ((r[1:] - r[0]) / steps[:, None]).T
+            return (r[1:] - r[0]) / steps[:, None]
 
-        result = least_squares(fun, u, jac=jac, method="lm", max_nfev=ROUND_EVALUATIONS, x_scale="jac")
+        result = levenberg_marquardt(fun, jac_rows, u, ROUND_EVALUATIONS)
         evaluations += int(result.nfev) + int(result.njev or 0) * (len(u) + 1)
         x = box(result.x[None])[0]
         cost = problem.cost(problem.errors(x[None])[0]) + extra(x)

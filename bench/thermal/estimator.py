@@ -117,15 +117,19 @@ LANES = 16
 @numba.njit(cache=True, fastmath=False, error_model="numpy")
 def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, x, y, ref_w, ref_m, ref_y,
            ref_t, traj, first, count, keep, sse, use_sigmoid, res, res_at, res_stride, res_nodes, res_refs,
-           res_weights):
+           res_weights, shared, gains):
     """LANES models (lane-last arrays: a (4,4,L), b (4,8,L), c (4,4,L), theta (14,L), sig (6,4,L)) over one run
     from the states x (4,L) and estimates y (4,L); error sums into sse (4,L); with `keep` the first `count` lanes'
     trajectories into traj[first:first + count]; for each residual row r (none: res_nodes empty) the first `count`
     lanes' weighted errors res_weights[r] * (y[res_nodes[r]] - res_refs[r]) into res[first + lane, res_at +
-    r·res_stride + k] (a fit's residuals written where it wants them, no trajectory kept)."""
+    r·res_stride + k] (a fit's residuals written where it wants them, no trajectory kept). `shared`: every lane has
+    the same loop parameters, and `gains` (steps, 4) holds their sources' (g_wm, g_tm, g_ma, g_cy) per step
+    (`shared_gains`), which the lanes then read instead of computing them each."""
     n_steps, lanes = ratio.shape[0], x.shape[1]   # lanes as a run-time count: LLVM then vectorizes the lane loops
     u = np.empty((8, lanes))
     x_new = np.empty((4, lanes))
+    # a step's exp arguments and values, lane after lane (portable.exp_into: one vectorized row, `exp`'s bits)
+    argument, exps, normalized = np.empty(4 * lanes), np.empty(4 * lanes), np.empty(4 * lanes)
     for k in range(n_steps):
         i_ratio = lut[k, 4] / i_max
         r_k = ratio[k]
@@ -140,18 +144,36 @@ def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, c
             for i in range(4):
                 for lane in range(lanes):
                     v = u[i, lane] / sig[0, i, lane]
-                    s = (sig[3, i, lane] / (1.0 + portable.exp(-(sig[1, i, lane] * v + sig[2, i, lane])))
-                         + sig[4, i, lane] * v + sig[5, i, lane])
+                    normalized[i * lanes + lane] = v
+                    argument[i * lanes + lane] = -(sig[1, i, lane] * v + sig[2, i, lane])
+            portable.exp_into(argument, exps)    # the exps of a step in one vectorized row
+            for i in range(4):
+                for lane in range(lanes):
+                    v = normalized[i * lanes + lane]
+                    s = sig[3, i, lane] / (1.0 + exps[i * lanes + lane]) + sig[4, i, lane] * v + sig[5, i, lane]
                     u[i, lane] = s * sig[0, i, lane]
-        for lane in range(lanes):   # temperature sources from the previous estimate (eqs. 9-18)
-            g_wm = theta[4, lane] * portable.exp(-r_k / theta[5, lane]) / theta[6, lane]
-            g_tm = theta[7, lane] * portable.exp(-r_k / theta[8, lane]) / theta[9, lane]
-            g_ma = theta[10, lane] * portable.exp(-r_k / theta[11, lane]) / theta[12, lane]
-            g_cy = theta[13, lane] * (coolant[k] - 40.0)
-            u[4, lane] = coolant[k] + g_cy * (y[0, lane] - coolant[k]) / (1.0 + g_cy)
-            u[5, lane] = ambient[k] + g_ma * (y[3, lane] - ambient[k]) / (1.0 + g_ma)
-            u[6, lane] = (y[3, lane] + g_tm * y[2, lane]) / (1.0 + g_tm)
-            u[7, lane] = (y[1, lane] + g_wm * y[3, lane]) / (1.0 + g_wm)
+        if shared:   # the same sources' gains in every lane, computed once per step by shared_gains
+            g_wm, g_tm, g_ma, g_cy = gains[k, 0], gains[k, 1], gains[k, 2], gains[k, 3]
+            for lane in range(lanes):
+                u[4, lane] = coolant[k] + g_cy * (y[0, lane] - coolant[k]) / (1.0 + g_cy)
+                u[5, lane] = ambient[k] + g_ma * (y[3, lane] - ambient[k]) / (1.0 + g_ma)
+                u[6, lane] = (y[3, lane] + g_tm * y[2, lane]) / (1.0 + g_tm)
+                u[7, lane] = (y[1, lane] + g_wm * y[3, lane]) / (1.0 + g_wm)
+        else:   # temperature sources from the previous estimate (eqs. 9-18)
+            for lane in range(lanes):
+                argument[lane] = -r_k / theta[5, lane]
+                argument[lanes + lane] = -r_k / theta[8, lane]
+                argument[2 * lanes + lane] = -r_k / theta[11, lane]
+            portable.exp_into(argument[:3 * lanes], exps[:3 * lanes])
+            for lane in range(lanes):
+                g_wm = theta[4, lane] * exps[lane] / theta[6, lane]
+                g_tm = theta[7, lane] * exps[lanes + lane] / theta[9, lane]
+                g_ma = theta[10, lane] * exps[2 * lanes + lane] / theta[12, lane]
+                g_cy = theta[13, lane] * (coolant[k] - 40.0)
+                u[4, lane] = coolant[k] + g_cy * (y[0, lane] - coolant[k]) / (1.0 + g_cy)
+                u[5, lane] = ambient[k] + g_ma * (y[3, lane] - ambient[k]) / (1.0 + g_ma)
+                u[6, lane] = (y[3, lane] + g_tm * y[2, lane]) / (1.0 + g_tm)
+                u[7, lane] = (y[1, lane] + g_wm * y[3, lane]) / (1.0 + g_wm)
         for i in range(4):  # x <- A x + B u, y = C x
             for lane in range(lanes):
                 acc = 0.0
@@ -192,7 +214,7 @@ def _lanes(a, b, c, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, c
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, ref_w, ref_m,
            ref_y, ref_t, traj, keep, sse, use_sigmoid, width, res, res_at, res_stride, res_nodes, res_refs,
-           res_weights):
+           res_weights, shared, gains):
     n_models = a.shape[0]
     groups = (n_models + width - 1) // width
     for g in numba.prange(groups):
@@ -211,7 +233,7 @@ def _batch(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alph
         count = min(width, n_models - first)
         _lanes(a_l, b_l, c_l, theta_l, sig_l, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, x, y,
                ref_w, ref_m, ref_y, ref_t, traj, first, count, keep, sums, use_sigmoid, res, res_at, res_stride,
-               res_nodes, res_refs, res_weights)
+               res_nodes, res_refs, res_weights, shared, gains)
         for lane in range(count):
             for i in range(4):
                 sse[first + lane, i] = sums[i, lane]
@@ -247,11 +269,29 @@ def run_batch(a, b, c, theta, sig, inputs: StepInputs, y0, ref_w=None, ref_m=Non
         if res.dtype != np.float64 or not res.flags.c_contiguous or res.shape[0] != n_models or \
                 stride < n_steps or at + (len(nodes) - 1) * stride + n_steps > res.shape[1]:
             raise ValueError("residuals: a C-contiguous float64 (models, M) array with room for every row at `at`")
-    _batch(a, b, c, c_inv, theta, sig, f64(inputs.table_losses), f64(inputs.speed_ratio), f64(inputs.coolant),
+    ratio, coolant = f64(inputs.speed_ratio), f64(inputs.coolant)
+    # a Hammerstein fit's candidates share the network's loop parameters: their sources' gains once for all lanes
+    shared = n_models > 1 and bool(np.all(theta == theta[0]))
+    gains = shared_gains(theta[0], ratio, coolant) if shared else np.zeros((1, 4))
+    _batch(a, b, c, c_inv, theta, sig, f64(inputs.table_losses), ratio, coolant,
            f64(inputs.ambient), float(inputs.current_max), float(inputs.alpha_cu), float(inputs.copper_reference), y0,
            ref_w, ref_m, ref_y, ref_t, traj, bool(keep_trajectories), sse, use_sigmoid, lane_width(n_models), res,
-           int(at), int(stride), nodes, refs, weights)
+           int(at), int(stride), nodes, refs, weights, shared, gains)
     return sse, (traj if keep_trajectories else None)
+
+
+@numba.njit(cache=True, fastmath=False)
+def shared_gains(theta, ratio, coolant):
+    """(steps, 4): the sources' (g_wm, g_tm, g_ma, g_cy) of one set of loop parameters at every step, by the
+    operations `_lanes` does per lane (so the same bits)."""
+    gains = np.empty((ratio.shape[0], 4))
+    for k in range(ratio.shape[0]):
+        r_k = ratio[k]
+        gains[k, 0] = theta[4] * portable.exp(-r_k / theta[5]) / theta[6]
+        gains[k, 1] = theta[7] * portable.exp(-r_k / theta[8]) / theta[9]
+        gains[k, 2] = theta[10] * portable.exp(-r_k / theta[11]) / theta[12]
+        gains[k, 3] = theta[13] * (coolant[k] - 40.0)
+    return gains
 
 
 def lane_width(n_models: int) -> int:

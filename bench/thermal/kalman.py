@@ -38,6 +38,52 @@ def _source_jacobian(gains, jac):
     jac[3, 3] = g_wm / (1.0 + g_wm)
 
 
+# The filter's small matrix algebra as loops into buffers allocated once per run: numba's '@' on (n, n) arrays calls
+# BLAS and allocates its result, which cost ~5 µs per step on a 6-state filter (issue 40); the loops below cost a
+# tenth of that. Sums run in index order without fused multiply-adds (no fastmath), so the filter gives the same bits
+# on every x86-64 CPU (the BLAS kernels did not: OpenBLAS picks its kernel, FMA or not, by CPU).
+@numba.njit(cache=True, fastmath=False)
+def _product(left, right, out):
+    """out = left @ right for small square-or-not matrices, summed in index order."""
+    for i in range(left.shape[0]):
+        for j in range(right.shape[1]):
+            acc = 0.0
+            for m in range(left.shape[1]):
+                acc += left[i, m] * right[m, j]
+            out[i, j] = acc
+
+
+@numba.njit(cache=True, fastmath=False)
+def _congruence(f, p, add, tmp, out):
+    """out = f @ p @ fᵀ + add (f, p, add, tmp, out: (n, n)); tmp receives f @ p."""
+    n = f.shape[0]
+    _product(f, p, tmp)
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for m in range(n):
+                acc += tmp[i, m] * f[j, m]
+            out[i, j] = acc + add[i, j]
+
+
+@numba.njit(cache=True, fastmath=False)
+def _dot(u, v):
+    acc = 0.0
+    for i in range(u.shape[0]):
+        acc += u[i] * v[i]
+    return acc
+
+
+@numba.njit(cache=True, fastmath=False)
+def _apply(m, v, out):
+    """out = m @ v."""
+    for i in range(m.shape[0]):
+        acc = 0.0
+        for j in range(m.shape[1]):
+            acc += m[i, j] * v[j]
+        out[i] = acc
+
+
 @numba.njit(cache=True, fastmath=False)
 def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max, alpha_cu, copper_ref, y0, z0, z1,
                 rel, sees, lag_pole, lag_index, bias_index, bias_input, bias_output, held, released, release, q, r, p0,
@@ -49,16 +95,29 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
     xa = np.zeros(n)
     for m in range(sees.shape[0]):
         if lag_index[m] >= 0:
-            xa[lag_index[m]] = sees[m] @ y0
+            xa[lag_index[m]] = _dot(sees[m], y0)
     p = p0.copy()
     b_s = b[:, 4:].copy()
     bias_column = b[:, bias_input].copy()
-    sees_c = sees @ c
+    sees_c = np.zeros((sees.shape[0], 4))
+    _product(sees, c, sees_c)
     held_any = np.zeros(sees.shape[0], dtype=np.bool_)
     for m in range(sees.shape[0]):
         held_any[m] = np.any(held[m])
-    eye = np.eye(n)
     full = np.zeros((n, n))
+    b_jac = np.zeros((4, 4))
+    b_jac_c = np.zeros((4, 4))
+    tmp = np.zeros((n, n))
+    p_new = np.zeros((n, n))
+    i_kh = np.zeros((n, n))
+    added = np.zeros((n, n))
+    h = np.zeros(n)
+    ph = np.zeros(n)
+    gain = np.zeros(n)
+    gy = np.zeros(4)
+    p_nodes = np.zeros((4, 4))
+    cp_tmp = np.zeros((4, 4))
+    cp = np.zeros((4, 4))
     nll = 0.0
     updates = 0
     for k in range(n_steps):
@@ -66,14 +125,19 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
                    u, gains, use_sigmoid)
         _source_jacobian(gains, jac)
         full[:, :] = 0.0
-        full[:4, :4] = a + b_s @ jac @ c
+        _product(b_s, jac, b_jac)          # A + (B_s G) C
+        _product(b_jac, c, b_jac_c)
+        for i in range(4):
+            for j in range(4):
+                full[i, j] = a[i, j] + b_jac_c[i, j]
         if bias_index >= 0:
             full[bias_index, bias_index] = 1.0
         if bias_index >= 0 and bias_output < 0:   # a heat bias heats its node (the column of its node's loss)
-            full[:4, bias_index] = bias_column
+            for i in range(4):
+                full[i, bias_index] = bias_column[i]
             for i in range(4):
                 x[i] += bias_column[i] * xa[bias_index]
-            y[:] = c @ x
+            _apply(c, x, y)
         for m in range(sees.shape[0]):   # each lag follows what its sensor sees
             lag = lag_index[m]
             if lag >= 0:
@@ -85,34 +149,38 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
                         acc += sees[m, bias_output] * full[bias_index, j]
                     full[lag, j] = (1.0 - lag_pole[m]) * acc
                 full[lag, lag] += lag_pole[m]
-                view = sees[m] @ y
+                view = _dot(sees[m], y)
                 if bias_output >= 0:
                     view += sees[m, bias_output] * xa[bias_index]
                 xa[lag] = lag_pole[m] * xa[lag] + (1.0 - lag_pole[m]) * view
-        xa[:4] = x
-        p = full @ p @ full.T + q
+        for i in range(4):
+            xa[i] = x[i]
+        _congruence(full, p, q, tmp, p_new)    # P = F P Fᵀ + Q
+        p[:, :] = p_new
         for m in range(sees.shape[0]):   # sequential scalar updates (R is diagonal)
             if not np.isfinite(z0[k, m]):
                 continue
-            h = np.zeros(n)
+            h[:] = 0.0
             lag = lag_index[m]
             if lag >= 0:
                 h[lag] = 1.0
                 predicted = xa[lag]
             else:
-                h[:4] = sees_c[m]
-                predicted = sees[m] @ y
+                for i in range(4):
+                    h[i] = sees_c[m, i]
+                predicted = _dot(sees[m], y)
                 if bias_output >= 0:
                     h[bias_index] = sees[m, bias_output]
                     predicted += sees[m, bias_output] * xa[bias_index]
             r_k = r[m] * rel[k, m]
-            ph = p @ h
-            s = h @ ph + r_k
+            _apply(p, h, ph)
+            s = _dot(h, ph) + r_k
             nu = (z0[k, m] + z1[k, m] * y[1]) - predicted
             if gate > 0.0 and nu * nu > gate * s:   # the innovation gate (sigma², 0: none): predict only
                 rejected[m] += 1
                 continue
-            gain = ph / s
+            for i in range(n):
+                gain[i] = ph[i] / s
             if held_any[m]:   # consider states: the gain's rows of the held nodes (node coordinates) and states 0
                 mask = held[m]
                 if release > 0.0:   # the magnet is held only while its variance (node coordinates) is at most this
@@ -122,25 +190,40 @@ def _one_filter(a, b, c, c_inv, theta, sig, lut, ratio, coolant, ambient, i_max,
                             variance += c[3, i] * p[i, j] * c[3, j]
                     if variance > release:
                         mask = released[m]
-                gy = c @ gain[:4]
+                _apply(c, gain[:4], gy)
                 for i in range(4):
                     if mask[i]:
                         gy[i] = 0.0
-                gain[:4] = c_inv @ gy
+                _apply(c_inv, gy, gain[:4])
                 for j in range(4, n):
                     if mask[j]:
                         gain[j] = 0.0
-            xa += gain * nu
-            i_kh = eye - np.outer(gain, h)
-            p = i_kh @ p @ i_kh.T + r_k * np.outer(gain, gain)
-            p = 0.5 * (p + p.T)
-            x[:] = xa[:4]
-            y[:] = c @ x
+            for i in range(n):
+                xa[i] += gain[i] * nu
+            for i in range(n):    # Joseph: (I − K h) P (I − K h)ᵀ + r K Kᵀ, then symmetrized
+                for j in range(n):
+                    i_kh[i, j] = (1.0 if i == j else 0.0) - gain[i] * h[j]
+                    added[i, j] = r_k * (gain[i] * gain[j])
+            _congruence(i_kh, p, added, tmp, p_new)
+            for i in range(n):
+                for j in range(n):
+                    p[i, j] = 0.5 * (p_new[i, j] + p_new[j, i])
+            for i in range(4):
+                x[i] = xa[i]
+            _apply(c, x, y)
             nll += LOG_2PI + np.log(s) + nu * nu / s
             updates += 1
         if keep:
-            # the node block copied whole: numba's '@' copies a strided view anyway, and warns on stderr when it does
-            cp = c @ np.ascontiguousarray(p[:4, :4]) @ c.T
+            for i in range(4):
+                for j in range(4):
+                    p_nodes[i, j] = p[i, j]
+            _product(c, p_nodes, cp_tmp)     # C P Cᵀ of the nodes
+            for i in range(4):
+                for j in range(4):
+                    acc = 0.0
+                    for m in range(4):
+                        acc += cp_tmp[i, m] * c[j, m]
+                    cp[i, j] = acc
             for i in range(4):
                 traj[k, i] = y[i]
                 sigma[k, i] = np.sqrt(max(cp[i, i], 0.0))

@@ -24,12 +24,13 @@ def _estimator() -> None:
 
     steps = 3
     inputs = StepInputs(np.ones((steps, 5)), np.full(steps, 0.5), np.full(steps, 40.0), np.full(steps, 25.0), 100.0)
-    a = np.eye(4)[None] * 0.9
-    b = np.full((1, 4, 8), 0.01)
-    theta = np.ones((1, 14))
-    sig = identity_sigmoid(np.ones((1, 4)))
+    a = np.repeat(np.eye(4)[None] * 0.9, 2, axis=0)
+    b = np.full((2, 4, 8), 0.01)
+    theta = np.ones((2, 14))     # two models with the same loop parameters: their gains shared (shared_gains)
+    sig = identity_sigmoid(np.ones((2, 4)))
     for keep in (False, True):   # one signature: `keep` is a bool either way
-        run_batch(a, b, np.eye(4)[None], theta, sig, inputs, np.full(4, 40.0), keep_trajectories=keep)
+        run_batch(a, b, np.repeat(np.eye(4)[None], 2, axis=0), theta, sig, inputs, np.full(4, 40.0),
+                  keep_trajectories=keep)
 
 
 def _kalman() -> None:

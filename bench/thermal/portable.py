@@ -86,6 +86,32 @@ def exp(x: float) -> float:
     return math.ldexp(y, e)  # subnormal result: one rounding
 
 
+# exp_into: `exp`'s normal path for |x| <= VECTOR_EXP_LIMIT, where it is the whole of `exp` (no overflow, underflow
+# or subnormal branch is taken), written without branches so LLVM vectorizes it across a row of values (the table
+# index and exponent from floor, exact on these small integers, instead of integer shifts); the rest by `exp`.
+VECTOR_EXP_LIMIT = 700.0
+_C0, _C1, _C2, _C3, _C4 = EXP_C
+
+
+@numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy")
+def exp_into(x: np.ndarray, out: np.ndarray) -> None:
+    """out[i] = exp(x[i]) for a 1-D row, the same bits as `exp`."""
+    for i in range(x.shape[0]):
+        v = x[i]
+        v = v if v >= -VECTOR_EXP_LIMIT else -VECTOR_EXP_LIMIT    # NaN too: fixed below
+        v = v if v <= VECTOR_EXP_LIMIT else VECTOR_EXP_LIMIT
+        kd = np.floor(v * N_OVER_LN2 + 0.5)
+        r = (v - kd * LN2_HI_N) - kd * LN2_LO_N
+        ed = np.floor(kd * (1.0 / _EXP_N))          # k >> 6
+        j = np.int32(kd - _EXP_N * ed)              # k & 63
+        p = r + r * r * (_C0 + r * (_C1 + r * (_C2 + r * (_C3 + r * _C4))))
+        t = EXP_TABLE_HI[j]
+        out[i] = (t + (EXP_TABLE_LO[j] + t * p)) * POW2[np.int32(ed) + np.int32(1022)]
+    for i in range(x.shape[0]):
+        if not (-VECTOR_EXP_LIMIT <= x[i] <= VECTOR_EXP_LIMIT):
+            out[i] = exp(x[i])
+
+
 @numba.njit(**_JIT)
 def log(x: float) -> float:
     """Natural logarithm (fdlibm's algorithm)."""
@@ -146,13 +172,15 @@ def log_array(x) -> np.ndarray:
 
 @numba.njit(**_JIT)
 def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    # each out[i, j] is summed over k in ascending order from 0.0, as in the plain i-j-k loop; the k-j order only
+    # runs a row of them side by side (contiguous in b and out, which LLVM vectorizes: a Gram matrix of 36 columns
+    # over 400 000 rows in a fit's cross-validation)
     out = np.zeros((a.shape[0], b.shape[1]))
     for i in range(a.shape[0]):
-        for j in range(b.shape[1]):
-            acc = 0.0
-            for k in range(a.shape[1]):
-                acc += a[i, k] * b[k, j]
-            out[i, j] = acc
+        for k in range(a.shape[1]):
+            aik = a[i, k]
+            for j in range(b.shape[1]):
+                out[i, j] += aik * b[k, j]
     return out
 
 
