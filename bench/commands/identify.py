@@ -20,7 +20,14 @@ from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.coverage import coverage_warnings
 from bench.model.deploy import AUTO, CANDIDATES, DEPLOYED_NODES
-from bench.model.hammerstein_fit import FIT_PATHS, REGULARIZATIONS, STATOR_RULE, STATOR_WEIGHT_CHOICES
+from bench.model.hammerstein_fit import (
+    FIT_PATHS,
+    POLE_CHOICES,
+    POLES_FIXED,
+    REGULARIZATIONS,
+    STATOR_RULE,
+    STATOR_WEIGHT_CHOICES,
+)
 from bench.model.loss_scales import SCALE_CHOICES
 from bench.model.polish import DEFAULT_FREEZE, POLISH_STARTS
 from bench.model.undetermined import undetermined
@@ -96,6 +103,9 @@ def add_subparser(subparsers) -> None:
                    help="with --regularization cv and measured yoke/tooth: the Hammerstein fit's stator weight chosen "
                         f"by its rule (left-out scores, default {STATOR_RULE}) or kept at the swarm's weighting "
                         "(fixed)")
+    p.add_argument("--hammerstein-poles", choices=POLE_CHOICES, default=POLES_FIXED,
+                   help=f"the Hammerstein fit keeps the LTI network's poles (default {POLES_FIXED}, the paper's model) "
+                        "or fits its four modes' time constants too, each mode's static gain kept (fit)")
     p.add_argument("--adapt-prior", choices=("yes", "no"), default="no",
                    help="adapt the prior (another machine's network, e.g. table1) to the training data before "
                         "the search: common factors of the stator and rotor resistances and capacitances, then each "
@@ -171,7 +181,8 @@ def run(args: argparse.Namespace) -> int:
                           lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
                           standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
-                          adapt=adapt, loss_scales=args.loss_scales == "fit", progress=progress)
+                          adapt=adapt, loss_scales=args.loss_scales == "fit",
+                          hammerstein_poles=args.hammerstein_poles, progress=progress)
     finally:
         if progress is not None:
             progress.close()
@@ -204,7 +215,8 @@ def run(args: argparse.Namespace) -> int:
                "pso_cost": result.lptn.cost, "pso_history": result.lptn.history,
                "pso_stalled_at": result.lptn.stalled_at,
                "lm": {"rms_initial": result.hammerstein.cost_initial, "rms_final": result.hammerstein.cost_final,
-                      "evaluations": result.hammerstein.evaluations},
+                      "evaluations": result.hammerstein.evaluations,
+                      **({"poles": prov["lm"]["poles"]} if "poles" in prov["lm"] else {})},
                "baselines": result.provenance["baselines"], "timings_s": result.timings_s, "validation": metrics,
                "nodes": list(result.lptn.nodes), "polish": prov.get("polish"), "uncertainty": uncertainty,
                "loss_scales": prov.get("loss_scales"),

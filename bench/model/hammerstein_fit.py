@@ -65,6 +65,15 @@ CV_FACTORS = (100.0, 10.0, 1.0)    # strongest first: each factor's fit starts f
 LOO_STEPS = 3          # damped Gauss-Newton steps per left-out fold (loo_vectors)
 LOO_TRIALS = 8         # damping increases per step before the fold keeps its current vector
 LOO_DAMPING = 1e-3     # Marquardt damping (× diag of the Gauss-Newton matrix) of a fold's first trial
+# `bench identify --hammerstein-poles`: the LTI network's poles kept (the paper's model), or fitted too: each mode's
+# time constant τ_i → τ_i·exp(p_i), its discrete pole λ_i → λ_i^exp(-p_i) (in (0, 1) for every p: stable by
+# construction), its row of B scaled by (1 - λ_i')/(1 - λ_i) so each mode keeps its static gain (the zero-order hold
+# of the same continuous mode with the new time constant: the coolant still sets the steady state, the poles move
+# only the dynamics). POLE_RIDGE: °C of RMS error per unit of log change, as RIDGE's for the relative B changes.
+POLES_FIXED, POLES_FIT = "fixed", "fit"
+POLE_CHOICES = (POLES_FIXED, POLES_FIT)
+POLE_RIDGE = 0.02
+N_POLES = 4
 
 
 @dataclass(frozen=True)
@@ -85,7 +94,15 @@ class HammersteinFit:
     iterations: int
     evaluations: int
     status: str
-    vector: np.ndarray | None = None     # the fitted sigmoid and B-change parameters
+    vector: np.ndarray | None = None     # the fitted sigmoid and B-change parameters (and pole changes)
+    poles: str = POLES_FIXED
+
+    @property
+    def time_constant_factors(self) -> list[float] | None:
+        """With the poles fitted, each mode's τ'/τ (slowest mode first), else None."""
+        if self.poles != POLES_FIT or self.vector is None:
+            return None
+        return [float(f) for f in np.exp(self.vector[N_SIGMOID + 16:])]
 
 
 def loss_scales(runs: Sequence[ModelRun], params: LptnParameters) -> np.ndarray:
@@ -109,7 +126,10 @@ class _Problem:
     """Maps a parameter vector to models in the fit coordinates and to residuals."""
 
     def __init__(self, base: Realization, coordinates: str, params: LptnParameters, runs: Sequence[ModelRun],
-                 scale_w: np.ndarray, nodes: tuple[str, ...] | None = None, stator_weight: float = STATOR_WEIGHT):
+                 scale_w: np.ndarray, nodes: tuple[str, ...] | None = None, stator_weight: float = STATOR_WEIGHT,
+                 poles: str = POLES_FIXED):
+        if poles not in POLE_CHOICES:
+            raise ValueError(f"unknown Hammerstein poles {poles!r}; choose one of {', '.join(POLE_CHOICES)}")
         self.fit_block = realize(base, coordinates)
         self.transform = self.fit_block.c  # x_physical = C_z z, since C is the identity in physical coordinates
         self.theta = loop_parameters(params)
@@ -117,6 +137,10 @@ class _Problem:
         self.b_loss0 = self.fit_block.b[:, :4].copy()
         self.stator = [n for n in ("yoke", "tooth") if n in (measured_nodes(runs) if nodes is None else nodes)]
         self.stator_weight = stator_weight
+        self.poles = poles
+        self.v0, self.ridge = lti_vector(poles), ridge_weights(poles)
+        if poles == POLES_FIT:
+            self.modes = _Modes(self.fit_block.a)
 
     def models(self, vectors: np.ndarray):
         n = len(vectors)
@@ -125,7 +149,13 @@ class _Problem:
         for p, v in enumerate(vectors):
             sig[p, 0] = self.scale_w
             sig[p, 1:] = v[:N_SIGMOID].reshape(5, 4)
-            b[p, :, :4] = self.b_loss0 * (1.0 + v[N_SIGMOID:].reshape(4, 4))
+            b[p, :, :4] = self.b_loss0 * (1.0 + v[N_SIGMOID:N_SIGMOID + 16].reshape(4, 4))
+        if self.poles == POLES_FIT:
+            a = np.empty((n, 4, 4))
+            for p, v in enumerate(vectors):
+                a[p], b[p] = self.modes.moved(v[N_SIGMOID + 16:], b[p])
+            return a, b, np.broadcast_to(self.fit_block.c, (n, 4, 4)), np.broadcast_to(self.theta,
+                                                                                      (n, self.theta.size)), sig
         a = np.broadcast_to(self.fit_block.a, (n, 4, 4))
         c = np.broadcast_to(self.fit_block.c, (n, 4, 4))
         return a, b, c, np.broadcast_to(self.theta, (n, self.theta.size)), sig
@@ -150,27 +180,80 @@ class _Problem:
         return out
 
     def physical_model(self, v: np.ndarray) -> HammersteinModel:
-        _, b, _, _, sig = self.models(v[None])
+        a, b, _, _, sig = self.models(v[None])
         t, t_inv, mm = self.transform, portable.inv(self.transform), portable.matmul  # same bits on every CPU
-        fitted = Realization("physical", mm(t, self.fit_block.a, t_inv), mm(t, b[0]), mm(self.fit_block.c, t_inv),
+        fitted = Realization("physical", mm(t, a[0], t_inv), mm(t, b[0]), mm(self.fit_block.c, t_inv),
                              self.fit_block.d)
         return HammersteinModel(SigmoidInputs.from_vector(self.scale_w, sig[0, 1:].ravel()), fitted)
+
+
+class _Modes:
+    """The real modal decomposition A = V M V⁻¹ of the fit block's A, to move its time constants. A real pole λ in
+    (0, 1) is one mode, s = ln λ its continuous rate: one parameter scales its time constant. A complex pair (the
+    network's temperature-dependent paths need not be reciprocal) is a 2 × 2 block [[Re λ, Im λ], [-Im λ, Re λ]] on
+    (Re v, Im v): two parameters, one for its decay's time constant (Re s) and one for its period (Im s). Either way
+    |λ'| = exp(Re s·exp(-p)) < 1: stable for every p."""
+
+    def __init__(self, a: np.ndarray):
+        lam, v = np.linalg.eig(a)
+        order = np.lexsort((-lam.imag, -np.abs(lam)))     # slowest first, a pair's +Im member first
+        lam, v = lam[order], v[:, order]
+        if np.any(np.abs(lam) >= 1) or np.any((lam.imag == 0) & (lam.real <= 0)):
+            raise ValueError("the Hammerstein pole fit needs stable poles off the negative real axis; the network's "
+                             "are " + ", ".join(f"{z:.6g}" for z in lam))
+        columns, self.rates, k = [], [], 0
+        while k < len(lam):
+            rate = np.log(lam[k])
+            if lam[k].imag == 0:
+                columns.append(v[:, k].real)
+                self.rates.append((rate.real, None))
+                k += 1
+            else:     # the pair's conjugate member follows (lexsort puts it next)
+                columns += [v[:, k].real, v[:, k].imag]
+                self.rates.append((rate.real, rate.imag))
+                k += 2
+        self.v = np.ascontiguousarray(np.column_stack(columns))
+        self.v_inv = portable.inv(self.v)
+
+    def moved(self, p: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A', B') with the modes' time constants × exp(p) and each mode's static gain kept (the zero-order hold of
+        the same continuous mode: B's modal rows × (1 - λ')/(1 - λ))."""
+        n = len(self.v)
+        transition, gain = np.zeros((n, n)), np.zeros((n, n))
+        k = 0
+        for decay, frequency in self.rates:
+            if frequency is None:
+                moved = math.exp(decay * math.exp(-p[k]))
+                transition[k, k], gain[k, k] = moved, (1.0 - moved) / (1.0 - math.exp(decay))
+                k += 1
+                continue
+            old = complex(math.exp(decay) * math.cos(frequency), math.exp(decay) * math.sin(frequency))
+            d, w = decay * math.exp(-p[k]), frequency * math.exp(-p[k + 1])
+            new = complex(math.exp(d) * math.cos(w), math.exp(d) * math.sin(w))
+            ratio = (1.0 - new) / (1.0 - old)
+            for block, z in ((transition, new), (gain, ratio)):
+                block[k:k + 2, k:k + 2] = [[z.real, z.imag], [-z.imag, z.real]]
+            k += 2
+        mm = portable.matmul
+        return mm(self.v, transition, self.v_inv), mm(self.v, gain, self.v_inv, b)
 
 
 def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[ModelRun], *,
                     path: str = "statespace", iterations: int = 100,
                     on_iteration: Callable[[int, float], None] | None = None, ridge_factor: float = 1.0,
                     start: np.ndarray | None = None, scale_w: np.ndarray | None = None,
-                    nodes: tuple[str, ...] | None = None, stator_weight: float = STATOR_WEIGHT) -> HammersteinFit:
-    """Fit sigmoid inputs and B's loss columns with the poles of `base` (physical, discrete) held fixed; the ridge
-    pulls toward the LTI network with `ridge_factor` × RIDGE, the fit starts from `start` (default: there); the
-    measured yoke and tooth errors enter with `stator_weight`."""
+                    nodes: tuple[str, ...] | None = None, stator_weight: float = STATOR_WEIGHT,
+                    poles: str = POLES_FIXED) -> HammersteinFit:
+    """Fit sigmoid inputs and B's loss columns with the poles of `base` (physical, discrete) held fixed, or with
+    `poles` POLES_FIT its modes' time constants too; the ridge pulls toward the LTI network with `ridge_factor` ×
+    RIDGE (and POLE_RIDGE), the fit starts from `start` (default: there); the measured yoke and tooth errors enter
+    with `stator_weight`."""
     if path not in FIT_PATHS:
         raise ValueError(f"unknown fit path {path!r}; choose one of {', '.join(FIT_PATHS)}")
     coordinates = FIT_PATHS[path]
     problem = _Problem(base, coordinates, params, runs, loss_scales(runs, params) if scale_w is None else scale_w,
-                       nodes, stator_weight)
-    v0 = lti_vector()
+                       nodes, stator_weight, poles)
+    v0 = problem.v0
     calls = {"n": 0}
 
     def fun(v):
@@ -181,7 +264,7 @@ def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[Mo
         return finite_errors(r)
 
     n_data = problem.size
-    ridge = np.sqrt(n_data) * RIDGE * ridge_factor
+    ridge = np.sqrt(n_data) * problem.ridge * ridge_factor
 
     def fun_ridge(v):
         return np.concatenate([fun(v), ridge * (v - v0)])
@@ -206,17 +289,27 @@ def fit_hammerstein(base: Realization, params: LptnParameters, runs: Sequence[Mo
     final = result.fun[:n_data]
     return HammersteinFit(problem.physical_model(result.x), path, coordinates,
                           float(np.sqrt(np.mean(r0 ** 2))), float(np.sqrt(np.mean(final ** 2))),
-                          int(result.njev or 0), int(result.nfev), result.message, result.x)
+                          int(result.njev or 0), int(result.nfev), result.message, result.x, poles)
 
 
-def lti_vector() -> np.ndarray:
-    """Where the fit starts and what its ridge pulls toward: near-identity sigmoids and B unchanged."""
-    return np.concatenate([initial_sigmoid_vector(), np.zeros(16)])
+def lti_vector(poles: str = POLES_FIXED) -> np.ndarray:
+    """Where the fit starts and what its ridge pulls toward: near-identity sigmoids, B (and the poles) unchanged."""
+    return np.concatenate([initial_sigmoid_vector(), np.zeros(16 + _pole_count(poles))])
 
 
-def exact_lti_vector() -> np.ndarray:
-    """The LTI network itself: S(u) = u (no sigmoid term) and B unchanged."""
-    return np.concatenate([np.ones(4), np.zeros(4), np.zeros(4), np.ones(4), np.zeros(4), np.zeros(16)])
+def exact_lti_vector(poles: str = POLES_FIXED) -> np.ndarray:
+    """The LTI network itself: S(u) = u (no sigmoid term), B (and the poles) unchanged."""
+    return np.concatenate([np.ones(4), np.zeros(4), np.zeros(4), np.ones(4), np.zeros(4),
+                           np.zeros(16 + _pole_count(poles))])
+
+
+def ridge_weights(poles: str = POLES_FIXED) -> np.ndarray:
+    """RIDGE, and POLE_RIDGE for each pole change when the poles are fitted."""
+    return np.concatenate([RIDGE, np.full(_pole_count(poles), POLE_RIDGE)]) if poles == POLES_FIT else RIDGE
+
+
+def _pole_count(poles: str) -> int:
+    return N_POLES if poles == POLES_FIT else 0
 
 
 def _exact_rms(parts: Sequence[np.ndarray]) -> float:
@@ -235,8 +328,8 @@ def cv_steps(runs: Sequence[ModelRun], iterations: int) -> int:
 
 def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence[ModelRun], *,
                        path: str = "statespace", iterations: int = 100,
-                       on_iteration: Callable[[int, float], None] | None = None, stator_weight: str = STATOR_RULE
-                       ) -> tuple[HammersteinFit, dict]:
+                       on_iteration: Callable[[int, float], None] | None = None, stator_weight: str = STATOR_RULE,
+                       poles: str = POLES_FIXED) -> tuple[HammersteinFit, dict]:
     """The Hammerstein fit with its ridge strength and stator weight chosen by leave-one-file-out cross-validation.
 
     For each factor of CV_FACTORS (strongest first, each fit starting from the previous, more regular one) the model
@@ -256,25 +349,26 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
     `stator_weight` STATOR_FIXED keeps the first weight (no grid).
     """
     if len(runs) < 2:
-        fit = fit_hammerstein(base, params, runs, path=path, iterations=iterations, on_iteration=on_iteration)
+        fit = fit_hammerstein(base, params, runs, path=path, iterations=iterations, on_iteration=on_iteration,
+                              poles=poles)
         return fit, {"method": "fixed (cross-validation needs two training files or more)", "factor": 1.0}
     scale_w = loss_scales(runs, params)
     nodes = measured_nodes(runs)
 
     def problems(weight: float) -> tuple[_Problem, list[_Problem]]:
-        return (_Problem(base, FIT_PATHS[path], params, runs, scale_w, nodes, weight),
-                [_Problem(base, FIT_PATHS[path], params, [run], scale_w, nodes, weight) for run in runs])
+        return (_Problem(base, FIT_PATHS[path], params, runs, scale_w, nodes, weight, poles),
+                [_Problem(base, FIT_PATHS[path], params, [run], scale_w, nodes, weight, poles) for run in runs])
 
     def left_out(checks: list[_Problem], vectors) -> list[np.ndarray]:
         return [finite_errors(check.residuals(v[None])[0]) for check, v in zip(checks, vectors, strict=True)]
 
     problem, checks = problems(STATOR_WEIGHTS[0])
-    lti_residuals = left_out(checks, [exact_lti_vector()] * len(checks))
+    lti_residuals = left_out(checks, [exact_lti_vector(poles)] * len(checks))
     lti = [_deployed(check, r) for check, r in zip(checks, lti_residuals, strict=True)]
     fits, held, start = {}, {}, None
     for k, factor in enumerate(CV_FACTORS):
         fits[factor] = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 3, 1),
-                                       ridge_factor=factor, start=start, scale_w=scale_w, nodes=nodes)
+                                       ridge_factor=factor, start=start, scale_w=scale_w, nodes=nodes, poles=poles)
         start = fits[factor].vector
         held[factor] = left_out(checks, loo_vectors(problem, checks, start, factor))
         if on_iteration is not None:
@@ -300,7 +394,7 @@ def fit_hammerstein_cv(base: Realization, params: LptnParameters, runs: Sequence
             # a weight's fit starts from the one before (the same ridge, half the weight): half the evaluations
             fit = fit_hammerstein(base, params, runs, path=path, iterations=max(iterations // 6, 1),
                                   ridge_factor=best, start=fit.vector, scale_w=scale_w, nodes=nodes,
-                                  stator_weight=weight)
+                                  stator_weight=weight, poles=poles)
             parts = left_out(checks, loo_vectors(problem, checks, fit.vector, best))
             deployed_parts = [_deployed(c, r) for c, r in zip(checks, parts, strict=True)]
             weights[weight] = (fit, deployed_parts, _stator_rms(checks, parts))
@@ -387,12 +481,12 @@ def loo_vectors(problem: _Problem, checks: Sequence[_Problem], v: np.ndarray, fa
     blocks = list(zip(edges[:-1], edges[1:], strict=True))
     grams = [portable.matmul(jac[a:b].T, jac[a:b]) for a, b in blocks]
     jacs = [np.ascontiguousarray(jac[a:b].T) for a, b in blocks]
-    v0 = lti_vector()
+    v0 = problem.v0
     n = len(v)
 
     def fold(f: int) -> np.ndarray:
         others = [k for k in range(len(problem.runs)) if k != f]
-        ridge2 = float(edges[-1] - sizes[f]) * (RIDGE * factor) ** 2
+        ridge2 = float(edges[-1] - sizes[f]) * (problem.ridge * factor) ** 2
         gram = np.array([[math.fsum(grams[k][i, j] for k in others) for j in range(n)] for i in range(n)])
         gram += np.diag(ridge2)
         damping = LOO_DAMPING * np.diag(gram)

@@ -13,6 +13,9 @@ from bench.model.auto_prior import auto_prior
 from bench.model.baselines import fit_baselines
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.hammerstein_fit import (
+    POLE_CHOICES,
+    POLES_FIT,
+    POLES_FIXED,
     REGULARIZATIONS,
     STATOR_RULE,
     HammersteinFit,
@@ -102,6 +105,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
              regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
              freeze: bool = DEFAULT_FREEZE, stator_weight: str = STATOR_RULE, loss_scales: bool = False,
+             hammerstein_poles: str = POLES_FIXED,
              progress: Callable[[str, int, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
@@ -113,7 +117,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     freezes at the prior what the data cannot place (bench.model.polish.freeze_unidentified). `stator_weight`: with
     `cv`, the Hammerstein fit's stator weight chosen by its rule or kept fixed (STATOR_WEIGHT_CHOICES). `loss_scales`:
     the stator iron and magnet losses scaled by factors fitted with the network after the swarm and the polish
-    (bench.model.loss_scales); the artifacts then carry the scaled loss model. The defaults (no polish, fixed
+    (bench.model.loss_scales); the artifacts then carry the scaled loss model. `hammerstein_poles`: the Hammerstein
+    fit keeps the network's poles or fits its modes' time constants too (POLE_CHOICES). The defaults (no polish, fixed
     ridge, no adaptation, no standard errors, no loss scales) are the packaged model's path. `progress`
     is called with (stage "pso", "polish", "scales" or "lm", steps done, steps at most, cost) as each stage goes;
     a stage may end before its most (a stalled swarm, a converged fit)."""
@@ -121,6 +126,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         raise ValueError("identification discretizes by zero-order hold, as the paper's Hammerstein fit did")
     if regularization not in REGULARIZATIONS:
         raise ValueError(f"unknown regularization {regularization!r}; choose one of {', '.join(REGULARIZATIONS)}")
+    if hammerstein_poles not in POLE_CHOICES:
+        raise ValueError(f"unknown Hammerstein poles {hammerstein_poles!r}; choose one of {', '.join(POLE_CHOICES)}")
     motor = motor or default_motor()
     prior = prior or motor.prior
     width = width or (prior.bounds if prior else DEFAULT_WIDTH)
@@ -179,10 +186,11 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     on_lm = (lambda i, c: progress("lm", i, lm_steps, c)) if progress else None
     if regularization == "cv":
         ham, selection = fit_hammerstein_cv(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
-                                            on_iteration=on_lm, stator_weight=stator_weight)
+                                            on_iteration=on_lm, stator_weight=stator_weight,
+                                            poles=hammerstein_poles)
     else:
         ham, selection = fit_hammerstein(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
-                                         on_iteration=on_lm), None
+                                         on_iteration=on_lm, poles=hammerstein_poles), None
     timings["lm"] = time.perf_counter() - started
     provenance = {
         "motor": motor.provenance(),
@@ -223,6 +231,9 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         provenance["uncertainty"] = errors
     if selection is not None:
         provenance["lm"]["regularization"] = selection
+    if hammerstein_poles == POLES_FIT:
+        provenance["lm"]["poles"] = {"fit": "each mode's time constant × exp(p), its static gain kept, ridge "
+                                     "toward the network's", "time_constant_factors": ham.time_constant_factors}
     period = datasets[0].sample_period_s
     return Identification(dt, discretization, lptn, ham, loss_model, constants, provenance, period, timings,
                           delta_reference(datasets))

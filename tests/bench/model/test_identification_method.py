@@ -532,3 +532,31 @@ def test_a_prior_is_adapted_only_when_asked():
     assert default == "no" and not _adapts(default, True, named) and not _adapts(default, True, None)
     assert not _adapts("yes", True, automatic_prior())   # auto is read from the data already
     assert _adapts("yes", False, own) and _adapts("yes", True, named) and not _adapts("no", True, named)
+
+
+def test_the_hammerstein_pole_fit_moves_the_time_constants_to_the_truth(runs):
+    """A prior whose capacitances are all 1.5 × the truth's has every time constant 1.5 × too long and the same
+    static gains: with the poles fixed the fit cannot reach the data; with them fitted each mode's time constant
+    comes back to about 2/3 of the prior's, the cost to the noise (0.1 °C), the poles stay stable and the
+    coolant's steady state is the network's. Measured: factors 0.667, 0.667, 0.668 (the fastest, least seen
+    mode 0.74), RMS 0.12 °C against 4.1 °C with the poles fixed, 20 evaluations each."""
+    import dataclasses
+
+    from bench.model.builder import ModelSpec, physical_block
+    from bench.model.hammerstein_fit import POLES_FIT, fit_hammerstein
+    from bench.motor.description import default_motor
+
+    motor = default_motor()
+    slow = dataclasses.replace(TRUTH, **{c: 1.5 * getattr(TRUTH, c) for c in ("C_y", "C_w", "C_t", "C_m")})
+    base = physical_block(ModelSpec("lti-lptn", slow, DT, "zoh", "physical", motor.loss_model, motor.constants()))
+    fixed = fit_hammerstein(base, slow, runs[:2], iterations=20)
+    moved = fit_hammerstein(base, slow, runs[:2], iterations=20, poles=POLES_FIT)
+    assert fixed.time_constant_factors is None
+    assert abs(moved.cost_initial - fixed.cost_initial) < 1e-9 * fixed.cost_initial   # the same start
+    assert fixed.cost_final > 2.0 and moved.cost_final < 0.25
+    factors = moved.time_constant_factors
+    assert all(abs(f - 2 / 3) < 0.03 for f in factors[:3]) and all(0.55 < f < 0.9 for f in factors)
+    block = moved.model.block
+    assert np.all(np.abs(np.linalg.eigvals(block.a)) < 1.0)
+    steady = np.linalg.solve(np.eye(4) - block.a, block.b[:, 4:])
+    np.testing.assert_allclose(steady, np.linalg.solve(np.eye(4) - base.a, base.b[:, 4:]), rtol=1e-6, atol=1e-9)
