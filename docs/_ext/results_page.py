@@ -886,6 +886,28 @@ def section_suite(records: dict[str, list[Record]]) -> list[str]:
     return lines
 
 
+def section_lag_bank(records: dict[str, list[Record]]) -> list[str]:
+    """The motor suite's diagnostic: would more states close the gap to the goal on these data?"""
+    lines = ["### More states or more data?", ""]
+    banks = records.get("lag_bank", [])
+    if not banks:
+        return lines + _missing("lag_bank")
+    for bank in banks:
+        lines += [f"`python tests/benchmarks/bench_lag_bank.py --prior {bank['parameters']['prior']}`: the deployed "
+                  "model of the suite's table plus a bank of first-order lags of the node losses and the coolant "
+                  f"(time constants {', '.join(f'{t:g}' for t in bank['parameters']['taus_s'])} s: 20 extra states "
+                  "per node) fitted to its errors by ridge least squares on the nine non-test profiles (held out) or "
+                  "on all twelve (in-sample, a bound); test profiles, float64, MSE K² / max K. A diagnostic: nothing "
+                  "is chosen on it.", "", provenance(bank), "", *lag_bank_table(bank)]
+    return lines
+
+
+def lag_bank_table(record: Record) -> list[str]:
+    rows = [[m["motor"], name, *(_mse_max(m[node][key]) for key in ("model", "bank_held_out", "bank_in_sample"))]
+            for m in record["figures"]["motors"] for node, name in (("winding", "winding"), ("pm", "magnet"))]
+    return _table(["motor", "node", "model", "with the bank, fitted held out", "with the bank, in-sample"], rows)
+
+
 def suite_floor(record: Record) -> list[str]:
     """Per motor and kind, the in-sample test figures of the fit to every profile."""
     rows = []
@@ -1161,7 +1183,8 @@ SECTIONS: dict[str, Section] = {
     "campaign": section_campaigns,
     "identify": section_identify, "data": section_data, "plant_distributed": section_plant_distributed,
     "observer": section_observer, "speed": section_speed,
-    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite, "xcp": section_xcp,
+    "robustness": section_robustness, "fault_sweep": section_fault_sweep, "suite": section_suite,
+    "lag_bank": section_lag_bank, "xcp": section_xcp,
     "xcp_observer": section_xcp_observer, "listeners": section_listeners}
 BENCHMARKS = tuple(SECTIONS)
 
