@@ -287,8 +287,8 @@ DEFAULTS = {
     "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
     "loss-scales": ("designer", (), {"fit": ("--loss-scales", "fit")}),
     "loss-scales-auto": ("auto", (), {"fit": ("--loss-scales", "fit")}),
-    "hammerstein-poles": ("designer", (), {"fit": ("--hammerstein-poles", "fit")}),
-    "hammerstein-poles-auto": ("auto", (), {"fit": ("--hammerstein-poles", "fit")}),
+    "hammerstein-poles": ("designer", (), {"fixed": ("--hammerstein-poles", "fixed")}),
+    "hammerstein-poles-auto": ("auto", (), {"fixed": ("--hammerstein-poles", "fixed")}),
 }
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
