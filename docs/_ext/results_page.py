@@ -137,9 +137,16 @@ def ipm_priors_table(record: Record) -> list[str]:
     return [*_table(["prior", "LTI winding", "LTI PM", "Hammerstein winding", "Hammerstein PM", "on a bound",
                      "frozen", "ridge factor", "stator weight", "prior scaled (R, C stator; R, C rotor)",
                      "paths moved > 2×", "`bench identify` s"], rows),
-            f"(°C, RMSE / max \\|error\\|; `table1 0.5-2` is what `bench motor template` gives, adapted to the data "
-            f"first: common factors, then each path; the ridge factor and stator weight are the Hammerstein step's, "
-            f"chosen by cross-validation; measured {_date(record)}.)"]
+            f"(°C, RMSE / max \\|error\\|; `table1 0.5-2` is what `bench motor template` gives, "
+            f"{_adaptation(record)}; the ridge factor and stator weight are the Hammerstein step's, chosen by "
+            f"cross-validation; measured {_date(record)}.)"]
+
+
+def _adaptation(record: Record) -> str:
+    """How the table's named prior was used: adapted to the data first (a 'prior scaled' column), or as named."""
+    adapted = any(row.get("prior_scales") for row in record["figures"]["ipm_priors"])
+    return ("adapted to the data first: common factors, then each path" if adapted else
+            "searched as named (`--adapt-prior no`, the default)")
 
 
 def _moved_paths(paths: dict[str, float] | None) -> str:
