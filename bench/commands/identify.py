@@ -339,6 +339,9 @@ def _warnings(on_bounds: list[dict], prov: dict, gaps: dict | None) -> list[str]
                         "the data cannot identify them and the fit had left them on a bound")
     if gaps:
         warnings.append(gaps["sentence"])
+    kept = ((prov.get("lm") or {}).get("poles") or {}).get("kept")
+    if kept:
+        warnings.append(f"the Hammerstein fit kept the network's poles: {kept}")
     return warnings
 
 

@@ -187,6 +187,20 @@ class _Problem:
         return HammersteinModel(SigmoidInputs.from_vector(self.scale_w, sig[0, 1:].ravel()), fitted)
 
 
+def _movable(lam: np.ndarray) -> bool:
+    return not (np.any(np.abs(lam) >= 1) or np.any((lam.imag == 0) & (lam.real <= 0)))
+
+
+def poles_kept_reason(a: np.ndarray) -> str | None:
+    """None when the pole fit can move the discrete network A's modes (every pole stable and off the negative real
+    axis, so each has a continuous time constant), else the sentence why it keeps them."""
+    lam = np.linalg.eigvals(a)
+    if _movable(lam):
+        return None
+    return ("the Hammerstein pole fit needs stable poles off the negative real axis; the network's are "
+            + ", ".join(f"{z:.6g}" for z in lam))
+
+
 class _Modes:
     """The real modal decomposition A = V M V⁻¹ of the fit block's A, to move its time constants. A real pole λ in
     (0, 1) is one mode, s = ln λ its continuous rate: one parameter scales its time constant. A complex pair (the
@@ -198,9 +212,8 @@ class _Modes:
         lam, v = np.linalg.eig(a)
         order = np.lexsort((-lam.imag, -np.abs(lam)))     # slowest first, a pair's +Im member first
         lam, v = lam[order], v[:, order]
-        if np.any(np.abs(lam) >= 1) or np.any((lam.imag == 0) & (lam.real <= 0)):
-            raise ValueError("the Hammerstein pole fit needs stable poles off the negative real axis; the network's "
-                             "are " + ", ".join(f"{z:.6g}" for z in lam))
+        if not _movable(lam):
+            raise ValueError(poles_kept_reason(a))
         columns, self.rates, k = [], [], 0
         while k < len(lam):
             rate = np.log(lam[k])

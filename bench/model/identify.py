@@ -22,6 +22,7 @@ from bench.model.hammerstein_fit import (
     cv_steps,
     fit_hammerstein,
     fit_hammerstein_cv,
+    poles_kept_reason,
 )
 from bench.model.loss_scales import fit_loss_scales
 from bench.model.lptn_fit import (
@@ -182,6 +183,10 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     started = time.perf_counter()
     base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", loss_model,
                                     constants))
+    # a network whose modes have no time constant to move (unstable, or a pole on the negative real axis) keeps them
+    poles_kept = poles_kept_reason(base.a) if hammerstein_poles == POLES_FIT else None
+    if poles_kept:
+        hammerstein_poles = POLES_FIXED
     lm_steps = cv_steps(runs, lm_iterations) if regularization == "cv" else lm_iterations + 1
     on_lm = (lambda i, c: progress("lm", i, lm_steps, c)) if progress else None
     if regularization == "cv":
@@ -234,6 +239,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     if hammerstein_poles == POLES_FIT:
         provenance["lm"]["poles"] = {"fit": "each mode's time constant × exp(p), its static gain kept, ridge "
                                      "toward the network's", "time_constant_factors": ham.time_constant_factors}
+    elif poles_kept:
+        provenance["lm"]["poles"] = {"kept": poles_kept}
     period = datasets[0].sample_period_s
     return Identification(dt, discretization, lptn, ham, loss_model, constants, provenance, period, timings,
                           delta_reference(datasets))

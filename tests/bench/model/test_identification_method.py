@@ -560,3 +560,17 @@ def test_the_hammerstein_pole_fit_moves_the_time_constants_to_the_truth(runs):
     assert np.all(np.abs(np.linalg.eigvals(block.a)) < 1.0)
     steady = np.linalg.solve(np.eye(4) - block.a, block.b[:, 4:])
     np.testing.assert_allclose(steady, np.linalg.solve(np.eye(4) - base.a, base.b[:, 4:]), rtol=1e-6, atol=1e-9)
+
+
+def test_a_network_whose_modes_have_no_time_constant_keeps_its_poles():
+    """The pole fit (the files path's default) needs every discrete pole stable and off the negative real axis (a
+    continuous time constant to scale); otherwise identify keeps the poles and says why, instead of failing after
+    the swarm. The sentence names the poles."""
+    from bench.model.hammerstein_fit import poles_kept_reason
+
+    assert poles_kept_reason(np.diag([0.999, 0.99, 0.9, 0.5])) is None
+    rotated = np.array([[0.9, 0.1], [-0.1, 0.9]])            # a stable complex pair can move too
+    assert poles_kept_reason(np.block([[rotated, np.zeros((2, 2))], [np.zeros((2, 2)), np.diag([0.8, 0.7])]])) is None
+    for a in (np.diag([0.999, 0.99, 0.9, -0.2]), np.diag([1.001, 0.99, 0.9, 0.5])):
+        reason = poles_kept_reason(a)
+        assert reason and "negative real axis" in reason and ("-0.2" in reason or "1.001" in reason)
