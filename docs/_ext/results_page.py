@@ -877,8 +877,8 @@ def section_suite(records: dict[str, list[Record]]) -> list[str]:
     if compared is not None:
         lines += ["Each default against its alternatives (`python tests/benchmarks/bench_suite.py --defaults`):", "",
                   provenance(compared), "", *suite_defaults(compared)]
-    folded = found.get("folds")
-    if folded is not None:
+    for variant in sorted(v for v in found if v and v.startswith("folds")):
+        folded = found[variant]
         lines += ["The identify defaults by the decision rule of the method page (`python "
                   "tests/benchmarks/bench_suite.py --defaults --folds 3 --hold-test`): the mean over three folds of "
                   "the nine non-test profiles, each fold trained on six and scored on the three it holds out:", "",

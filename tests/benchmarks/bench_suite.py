@@ -39,7 +39,8 @@ here, never used to choose). Per motor:
    work directory may be copied elsewhere), so a run with `--hold-test` followed by one without it reports the
    test figures of what was chosen without identifying again. With `--folds K` the identify defaults are
    compared by K-fold cross-validation over the nine non-test profiles instead (`fold_split`; the mean over the
-   folds of the held-out MSE; the decision rule of docs/method.md is K = 3; record variant "folds").
+   folds of the held-out MSE; the decision rule of docs/method.md is K = 3; record variant "folds", or with --compare
+   "folds-<the defaults compared>").
 
 6. With --floor (a bound, not a result): the designer's prior identified on ALL profiles, the test ones included,
    and evaluated on the test profiles, in-sample. What the four-node model class and this identification reach at
@@ -419,7 +420,7 @@ def main() -> int:
                                                "defaults": args.defaults, "hold_test": args.hold_test,
                                                "compared": args.compare, "folds": args.folds,
                                                "floor": args.floor},
-                    variant=("folds" if args.folds else "defaults") if args.defaults else
+                    variant=(folds_variant(args.compare) if args.folds else "defaults") if args.defaults else
                     "floor" if args.floor else None)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     record.figures.update(motors=[], complete=False)
@@ -431,6 +432,14 @@ def main() -> int:
     record.figures["complete"] = True
     record.write()
     return 0
+
+
+def folds_variant(compared: list[str] | None) -> str:
+    """The folds record's variant: "folds", or with --compare "folds-" and the defaults compared (each once, whatever
+    prior), so comparisons run on different days (and code) keep their own records."""
+    if not compared:
+        return "folds"
+    return "folds-" + "-".join(sorted({name.removesuffix("-auto") for name in compared}))
 
 
 def attempt(what: str, step):

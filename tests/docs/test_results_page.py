@@ -194,3 +194,25 @@ def test_the_sitting_section_shows_each_round_the_medians_and_the_goals():
     record["figures"]["goals_met"]["quiet"] = not record["figures"]["goals_met"]["quiet"]
     changed = "\n".join(results_page.section_sitting({"sitting": [record]}))
     assert changed != page and ("quiet (met)" in changed) != ("quiet (met)" in page)
+
+
+def test_folds_records_of_different_comparisons_each_keep_their_section(data_record):
+    """Comparisons run on different days (and code) keep their own records, variant "folds-<defaults compared>"
+    (`bench_suite.folds_variant`), and the page shows every one of them."""
+    sys.path.insert(0, str(ROOT / "tests" / "benchmarks"))
+    from bench_suite import folds_variant
+
+    assert folds_variant(None) == "folds"
+    assert folds_variant(["regularization-auto", "regularization"]) == "folds-regularization"
+    assert folds_variant(["loss-scales", "hammerstein-poles-auto"]) == "folds-hammerstein-poles-loss-scales"
+    rows = {}
+    for variant, name, figure in (("folds", "loss-scales", 15.97), ("folds-regularization", "regularization", 7.25)):
+        motor = {"motor": "air-30kw", "priors": [], "defaults": {name: {
+            "prior": "designer", "held": [], "default": {"hammerstein": {"winding": figure, "pm": 1.0}},
+            "alternatives": {"fixed": {"hammerstein": {"winding": 9.0, "pm": 1.0}}}, "folds": {"count": 3}}}}
+        rows[variant] = {**copy.deepcopy(data_record), "benchmark": "suite", "variant": variant,
+                         "parameters": {**data_record["parameters"], "folds": 3},
+                         "figures": {"motors": [motor], "complete": True}}
+    page = results_page.render_results({"suite": _suite_record(data_record) + list(rows.values())})
+    assert page.count("--defaults --folds 3 --hold-test") == 2
+    assert "| loss-scales: default | 15.97 / 1.00 |" in page and "| regularization: default | 7.25 / 1.00 |" in page
