@@ -105,6 +105,7 @@ from dbc.contract import (
 )
 from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
 from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
+from dbc.loopback_filter import drop_own_frames
 from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, SpinPolicy, first_heard
 from dbc.xcp import cmd_id as xcp_cmd_id
 from dbc.xcp import res_id as xcp_res_id
@@ -582,6 +583,7 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
     is the DBC's unless given."""
     heartbeat_period_s = heartbeat_period_s or heartbeat_period_s_of_dbc()
     own = OwnFrameFilter(target_frame_ids() | {xcp_res_id()})   # the XCP slave's packets loop back too
+    drop_own_frames(bus, own.own_ids)   # udp_multicast: the kernel drops the copies before they wake us (Linux)
     foreign = reply_faults.foreign_ids if reply_faults is not None else set()
     send_failures = 0
 

@@ -181,7 +181,9 @@ def cpu_budget(engine: str, rows: int, bus: BusConfig, data: Path) -> dict:
     from bench.run.inputs import firmware_for_engine
     from dbc.contract import RESET_SIGNALS, Command, split_temperatures
     from dbc.database import host_frame_ids, target_frame_ids
+    from dbc.loopback_filter import drop_own_frames
     from dbc.transport import OwnFrameFilter, SenderGuard
+    from dbc.xcp import res_id
     from host.canlog import FrameLog
     from host.session import HostSession
     from target_sim.artifact import load_artifact
@@ -194,6 +196,7 @@ def cpu_budget(engine: str, rows: int, bus: BusConfig, data: Path) -> dict:
         firmware = firmware_for_engine(engine, artifact, Path(tmp))
         node = make_node(artifact, engine=engine, firmware=firmware)
         host_bus, target_bus = SenderGuard(bus.open(), bus, host_frame_ids()), bus.open()
+        drop_own_frames(target_bus, target_frame_ids() | {res_id()})   # as `target_sim.node.serve` does
         session = HostSession(host_bus, log=FrameLog(Path(tmp) / "budget.blf"), expected_model_id=artifact.model_id)
         try:
             initial = [round(float(v), 2) for v in initial_temperatures(dataset)]   # the handshake, straight in
