@@ -24,6 +24,7 @@ import sys
 from collections.abc import Iterable
 
 import can
+from can.interfaces.udp_multicast import UdpMulticastBus
 
 SO_ATTACH_FILTER = 26      # Linux <asm-generic/socket.h>; the socket module does not name it
 UDP_HEADER = 8             # a UDP socket's filter sees the datagram from its UDP header on
@@ -139,7 +140,7 @@ class _SockFprog(ctypes.Structure):
 def drop_own_frames(bus: can.BusABC, own_ids: Iterable[int]) -> bool:
     """Attach the filter to a udp_multicast bus's socket (Linux); whether it is attached. Anything else (another
     interface, another system, a socket that refuses it) is left as it was: the node filters in Python as before."""
-    if not sys.platform.startswith("linux") or not isinstance(bus, can.interfaces.udp_multicast.UdpMulticastBus):
+    if not sys.platform.startswith("linux") or not isinstance(bus, UdpMulticastBus):
         return False
     program = own_frames_program(own_ids)
     instructions = (_SockFilter * len(program))(*program)
