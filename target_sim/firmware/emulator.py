@@ -79,6 +79,7 @@ from target_sim.firmware.elf import (
     read_elf,
     stack_bytes,
 )
+from target_sim.firmware.native_hook import CYCLES, EXTRA, FALL, INSTRUCTIONS, BlockCounter
 
 FLASH = (0x0800_0000, 256 * 1024)      # (base, size): STM32-like Cortex-M4F
 RAM = (0x2000_0000, 64 * 1024)
@@ -90,6 +91,7 @@ PAGE = 0x1000                          # Unicorn maps 4 kB pages
 MAX_INSTRUCTIONS = 1_000_000           # per call: an endless loop stops here (a model step runs ~300-20,000)
 RAW_BLOCK_HOOK = True                  # hook blocks through libunicorn's C API (faster); False: the binding's hook_add
 RAW_CALLS = True                       # registers, memory and emu_start of a call through libunicorn's C API (faster)
+NATIVE_BLOCK_HOOK = True               # count known blocks in compiled code (`native_hook`); False: the Python hook
 PF_W = 0x2                             # ELF segment flag: writable (RAM)
 STACK_FILL = 0xA5                      # stack bytes before use: high-water mark and overflow guard
 _GUARD = bytes([STACK_FILL]) * 4       # the bottom word of the stack: changed = overflowed
@@ -219,6 +221,26 @@ class _RawCore:
             raise UcError(status, address, len(data))
 
 
+def _native_counter(fw: Firmware) -> BlockCounter | None:
+    """The compiled block hook on `fw`'s core (`native_hook`), or None where it cannot be set up (then the Python
+    hook counts)."""
+    if not NATIVE_BLOCK_HOOK:
+        return None
+    try:
+        from unicorn.unicorn_py3 import unicorn as binding
+
+        counter = BlockCounter(fw.flash, fw.max_instructions, fw._on_block_native)
+        handle = binding.uc_hook_h()
+        status = binding.uclib.uc_hook_add(fw.uc._uch, ctypes.byref(handle), UC_HOOK_BLOCK,
+                                           ctypes.c_void_p(counter.function), ctypes.c_void_p(counter.user_data),
+                                           ctypes.c_uint64(1), ctypes.c_uint64(0))
+    except (ImportError, AttributeError, TypeError, ctypes.ArgumentError):
+        return None
+    if status != UC_ERR_OK:
+        raise UcError(status)
+    return counter
+
+
 def _raw_core(uc: Uc) -> _RawCore | None:
     if not RAW_CALLS:
         return None
@@ -276,11 +298,13 @@ class Firmware:
                 uc.mem_write(segment.vaddr, segment.data + bytes(segment.memsz - len(segment.data)))
         self.reset()                   # the image is in memory before the cycle model disassembles it
         self.cycle_model: CycleModel | None = None
+        self._native = None
         if count_cycles:
             self.cycle_model = CycleModel(lambda address, size: bytes(uc.mem_read(address, size)),
                                           image.thumb_ranges)
             self._blocks = self.cycle_model.blocks
-            self._block_hook = _add_block_hook(uc, self._on_block)
+            self._native = _native_counter(self) if type(self)._on_block is Firmware._on_block else None
+            self._block_hook = self._native or _add_block_hook(uc, self._on_block)
         uc.hook_add(UC_HOOK_MEM_INVALID, self._on_invalid_memory)
         uc.hook_add(UC_HOOK_INTR, self._on_exception)
         self._raw = _raw_core(uc)
@@ -468,6 +492,9 @@ class Firmware:
         self._cycles = self._instructions = self._extra = 0
         self._fall = entry & ~1        # the first block is entered by the call: no branch of ours to charge
         self._fault = self._hook_error = None
+        native = self._native
+        if native is not None:         # the counters live in the native hook's state during the call
+            native.state[:5] = (0, 0, 0, self._fall, self.max_instructions)
         # the instruction limit: with the block hook it counts them itself (unicorn's own count adds a callback per
         # instruction, which costs more than the call's blocks); without the hook, unicorn's count
         count = 0 if self.cycle_model is not None else self.max_instructions
@@ -478,6 +505,9 @@ class Firmware:
                 uc.emu_start(entry, HALT, count=count)
         except UcError as error:
             raise self._failed(self._fault_from(error, name)) from None
+        finally:
+            if native is not None:
+                self._cycles, self._instructions, self._extra, self._fall = native.state[:4].tolist()
         if self._hook_error is not None:
             raise RuntimeError(f"counting the cycles of {name} failed: {self._hook_error}") from self._hook_error
         pc = raw.read_register(arm.UC_ARM_REG_PC) if raw is not None else uc.reg_read(arm.UC_ARM_REG_PC)
@@ -530,6 +560,32 @@ class Firmware:
             self._hook_error = error
             self._uc.emu_stop()
 
+    def _on_block_native(self, _engine: object, address: int, size: int, _user_data: object) -> None:
+        """`_on_block` for the native hook's blocks it has not seen (and calls past their instruction limit): the
+        block's cost computed and entered in its table, and counted here with the same rule on its state."""
+        try:
+            block = self._blocks.get((address, size))
+            if block is None:
+                block = self.cycle_model.block(address, size)
+            native = self._native
+            native.learn(address, size, block)
+            state = native.state
+            cycles, extra, fall, count = block
+            if address != state[FALL]:
+                cycles += int(state[EXTRA])
+            state[CYCLES] += cycles
+            state[EXTRA], state[FALL] = extra, fall
+            state[INSTRUCTIONS] += count
+            if state[INSTRUCTIONS] > self.max_instructions:
+                self._uc.emu_stop()
+        except Exception as error:         # a C callback must not raise: stop and report it
+            self._hook_error = error
+            self._uc.emu_stop()
+
+    def _call_cycles(self) -> int:
+        """The cycles counted so far in the running call."""
+        return int(self._native.state[CYCLES]) if self._native is not None else self._cycles
+
     def cyccnt(self) -> int:
         """What DWT_CYCCNT reads between calls: the cycles of every call so far."""
         return (self.total_cycles - self._cyccnt_base) & 0xFFFF_FFFF
@@ -539,11 +595,11 @@ class Firmware:
         difference of two reads is exact to within the instructions after the second read in its block)."""
         if offset != 4:
             return 0
-        return (self.total_cycles + self._cycles - self._cyccnt_base) & 0xFFFF_FFFF
+        return (self.total_cycles + self._call_cycles() - self._cyccnt_base) & 0xFFFF_FFFF
 
     def _on_dwt_write(self, _uc: Uc, offset: int, _size: int, value: int, _user: object) -> None:
         if offset == 4:            # DWT_CYCCNT = value
-            self._cyccnt_base = (self.total_cycles + self._cycles - value) & 0xFFFF_FFFF
+            self._cyccnt_base = (self.total_cycles + self._call_cycles() - value) & 0xFFFF_FFFF
 
     def _on_invalid_memory(self, uc: Uc, access: int, address: int, size: int, value: int, _user: object) -> bool:
         what = _ACCESS.get(access, f"invalid access {access} to address")
