@@ -10,9 +10,10 @@ one of the given ids. Its encoding (`can.interfaces.udp_multicast`: a msgpack ma
 byte for byte, key names too; a datagram of any other layout is let through, so `OwnFrameFilter` still decides
 everything that reaches Python and a python-can that encodes otherwise only loses the speed, never a frame.
 
-Only for a node that must never hear these ids from anyone (the target: its own ids are the target's; another
-target on the channel is refused before it serves, `target_sim.node.target_on_channel`). A host does not use it:
-its `SenderGuard` must see its own copies to tell another host's frames from them.
+`drop_own_frames` is only for a node that must never hear these ids from anyone (the target: its own ids are the
+target's; another target on the channel is refused before it serves, `target_sim.node.target_on_channel`). A host
+must still hear another host's frames (`dbc.transport.SenderGuard`): it sends from a socket of its own instead
+(`UnechoedSender`), whose datagrams its bus's socket drops by their source port.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from collections.abc import Iterable
 
 import can
 from can.interfaces.udp_multicast import UdpMulticastBus
+from can.interfaces.udp_multicast.utils import pack_message
 
 SO_ATTACH_FILTER = 26      # Linux <asm-generic/socket.h>; the socket module does not name it
 UDP_HEADER = 8             # a UDP socket's filter sees the datagram from its UDP header on
@@ -142,7 +144,21 @@ def drop_own_frames(bus: can.BusABC, own_ids: Iterable[int]) -> bool:
     interface, another system, a socket that refuses it) is left as it was: the node filters in Python as before."""
     if not sys.platform.startswith("linux") or not isinstance(bus, UdpMulticastBus):
         return False
-    program = own_frames_program(own_ids)
+    return _attach(bus, own_frames_program(own_ids))
+
+
+def own_port_program(port: int) -> list[tuple[int, int, int, int]]:
+    """The filter: DROP a datagram whose UDP source port is `port`, else ACCEPT."""
+    p = _Program()
+    p.load(0, 2)                                  # the UDP header's source port
+    p.jump(_JEQ, port, "drop", 0)
+    p.ret(ACCEPT)
+    p.label("drop")
+    p.ret(DROP)
+    return p.resolve()
+
+
+def _attach(bus: can.BusABC, program: list[tuple[int, int, int, int]]) -> bool:
     instructions = (_SockFilter * len(program))(*program)
     fprog = _SockFprog(len(program), ctypes.cast(instructions, ctypes.POINTER(_SockFilter)))
     try:
@@ -151,3 +167,55 @@ def drop_own_frames(bus: can.BusABC, own_ids: Iterable[int]) -> bool:
     except (OSError, ValueError):
         return False
     return True
+
+
+class UnechoedSender:
+    """Sends a udp_multicast bus's frames from a socket of its own, whose copies the bus's socket drops in the kernel.
+
+    For a node that must tell its own frames from another node's of the same ids (a host's `SenderGuard`): the
+    bus's own socket sends from the group's port, as every python-can node does, so nothing tells its frames from
+    another node's there; this socket sends from a port of its own (bound to port 0: one the kernel has free), and
+    the bus's socket drops the datagrams from that port (a classic BPF filter on the UDP source port). What goes out
+    is python-can's own encoding (`can.interfaces.udp_multicast.utils.pack_message`) to the same group and port,
+    so every other node hears the same datagrams. `attach` returns None where this cannot be set up (not Linux,
+    not udp_multicast, a socket that refuses it): the node then sends through the bus and drops its copies itself.
+    """
+
+    def __init__(self, sock: socket.socket, destination: tuple[str, int]) -> None:
+        self.sock = sock
+        self.destination = destination
+
+    @classmethod
+    def attach(cls, bus: can.BusABC, group: str, port: int, hop_limit: int = 1) -> UnechoedSender | None:
+        if not sys.platform.startswith("linux") or not isinstance(bus, UdpMulticastBus):
+            return None
+        try:
+            family = socket.getaddrinfo(group, port, type=socket.SOCK_DGRAM)[0][0]
+            sock = socket.socket(family, socket.SOCK_DGRAM)
+        except OSError:
+            return None
+        try:
+            hops = hop_limit.to_bytes(4, sys.byteorder)       # python-can's setting: struct "@I"
+            if family == socket.AF_INET6:
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, hops)
+            else:
+                sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, hops)
+            sock.bind(("", 0))
+            if _attach(bus, own_port_program(sock.getsockname()[1])):
+                return cls(sock, (group, port))
+        except OSError:
+            pass
+        sock.close()
+        return None
+
+    def send(self, msg: can.Message) -> None:
+        data = pack_message(msg)
+        try:
+            sent = self.sock.sendto(data, self.destination)
+        except OSError as error:
+            raise can.CanOperationError("failed to send via socket") from error
+        if sent < len(data):
+            raise can.CanOperationError("the frame's datagram went out incomplete")
+
+    def close(self) -> None:
+        self.sock.close()
