@@ -467,7 +467,10 @@ class Firmware:
         registers: list[tuple[int, int]] = []
         ints = floats = 0
         for value in args:
-            if isinstance(value, float | np.floating):
+            if type(value) is int and ints < len(_R):     # the common case first (the node's calls: ints only)
+                registers.append((_R[ints], value & 0xFFFFFFFF))
+                ints += 1
+            elif isinstance(value, float | np.floating):
                 if floats == len(_S):
                     raise FirmwareError(f"{name}: more than {len(_S)} float arguments need the stack (unsupported)")
                 registers.append((_S[floats], _float32_bits(value)))

@@ -74,6 +74,7 @@ BUFFERS = ("node_rx", "node_out", "node_counters", "fw_model_id")
 XCP_COUNTERS = struct.Struct("<7I")      # xcp.c's struct xcp_counters
 _MASK32 = 0xFFFF_FFFF
 _STATES = {int(state): state for state in TargetState}   # the enum by value without its call's cost per frame
+PREFETCH_FRAMES = 8      # frames read with the output's header (a row's replies: 2 temperatures, 4 timing frames)
 
 
 def _ms(seconds: float) -> int:
@@ -177,7 +178,9 @@ class FirmwareNode:
 
     def _collect(self, on_frame: bool, cycles: int | None) -> list[can.Message]:
         fw = self.fw
-        header = OUTPUT_HEADER.unpack(fw.read_bytes(self._out, OUTPUT_HEADER.size))
+        # the header and the first frames in one read (one call into the emulator less a reply)
+        head = fw.read_bytes(self._out, TX_OFFSET + PREFETCH_FRAMES * FRAME.size)
+        header = OUTPUT_HEADER.unpack_from(head)
         tx_count, event_count, state, faults, again, _, _, _, step_cycles, next_beat_ms = header
         self.state = _STATES.get(state) or TargetState(state)   # (an unknown value raises, as the call does)
         self.faults = faults
@@ -185,7 +188,8 @@ class FirmwareNode:
         self._next_beat_ms = next_beat_ms
         frames: list[can.Message] = []
         if tx_count:
-            raw = fw.read_bytes(self._out + TX_OFFSET, tx_count * FRAME.size)
+            raw = head[TX_OFFSET:TX_OFFSET + tx_count * FRAME.size] if tx_count <= PREFETCH_FRAMES else \
+                fw.read_bytes(self._out + TX_OFFSET, tx_count * FRAME.size)
             now = time.time()
             timing4, start, mask = self._timing4
             for fid, dlc, data in FRAME.iter_unpack(raw):
