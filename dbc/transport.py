@@ -47,6 +47,7 @@ UDP_LOCAL_GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:6173"  # interface-local s
 UDP_IPV4_GROUP = "239.74.163.2"      # python-can's UdpMulticastBus.DEFAULT_GROUP_IPv4 (fallback without IPv6)
 UDP_DEFAULT_PORT = 43113             # python-can's default port
 NOMINAL_BITRATE = 500_000            # the vehicle bus the report's bus load refers to
+LEAN_UDP_RECEIVE = True              # udp_multicast opens as `dbc.udp_bus.LeanUdpMulticastBus` (False: python-can's)
 
 
 class BusUnavailable(CanLinkError):
@@ -96,6 +97,11 @@ class BusConfig:
         if self.bitrate is not None:
             config["bitrate"] = self.bitrate
         try:
+            if self.interface == UDP_INTERFACE and LEAN_UDP_RECEIVE:    # python-can's bus, a leaner receive
+                from dbc.udp_bus import LeanUdpMulticastBus
+
+                config.pop("interface")
+                return LeanUdpMulticastBus(**config)
             return can.Bus(**config)
         except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
             reason = str(exc).strip().rstrip(".") or exc.__class__.__name__
