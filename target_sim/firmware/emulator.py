@@ -180,6 +180,7 @@ class _RawCore:
         self.lib = binding.uclib
         self.uch = uc._uch
         self.ids = (ctypes.c_int * self.SLOTS)()
+        self._ids: tuple[int, ...] = ()       # what `ids` holds
         self.values = (ctypes.c_uint32 * self.SLOTS)()
         base = ctypes.addressof(self.values)
         self.pointers = (ctypes.c_void_p * self.SLOTS)(*(base + 4 * i for i in range(self.SLOTS)))
@@ -187,6 +188,17 @@ class _RawCore:
         self.buffer = ctypes.create_string_buffer(4096)
         for name in ("uc_reg_write_batch", "uc_reg_read", "uc_emu_start", "uc_mem_read", "uc_mem_write"):
             getattr(self.lib, name)        # AttributeError here: use the binding instead
+
+    def set_registers(self, registers: list[tuple[int, int]]) -> None:
+        """Write (register, value) pairs in one batch; the ids are rewritten only when they change (a call's
+        registers are those of the last call of the same arguments' kinds)."""
+        ids = tuple(register for register, _ in registers)
+        if ids != self._ids:
+            for slot, register in enumerate(ids):
+                self.ids[slot] = register
+            self._ids = ids
+        self.values[:len(registers)] = [value for _, value in registers]
+        self.write_registers(len(registers))
 
     def write_registers(self, count: int) -> None:
         status = self.lib.uc_reg_write_batch(self.uch, self.ids, self.pointers, count)
@@ -485,10 +497,7 @@ class Firmware:
         registers += ((arm.UC_ARM_REG_SP, self._stack_top), (arm.UC_ARM_REG_LR, HALT | 1))
         raw = self._raw
         if raw is not None:
-            for slot, (register, value) in enumerate(registers):
-                raw.ids[slot] = register
-                raw.values[slot] = value
-            raw.write_registers(len(registers))
+            raw.set_registers(registers)
         else:
             for register, value in registers:
                 uc.reg_write(register, value)
