@@ -506,7 +506,9 @@ class Firmware:
         self._fault = self._hook_error = None
         native = self._native
         if native is not None:         # the counters live in the native hook's state during the call
-            native.state[:5] = (0, 0, 0, self._fall, self.max_instructions)
+            counters = native.counters
+            counters[0] = counters[1] = counters[2] = 0
+            counters[3], counters[4] = self._fall, self.max_instructions
         # the instruction limit: with the block hook it counts them itself (unicorn's own count adds a callback per
         # instruction, which costs more than the call's blocks); without the hook, unicorn's count
         count = 0 if self.cycle_model is not None else self.max_instructions
@@ -519,7 +521,7 @@ class Firmware:
             raise self._failed(self._fault_from(error, name)) from None
         finally:
             if native is not None:
-                self._cycles, self._instructions, self._extra, self._fall = native.state[:4].tolist()
+                self._cycles, self._instructions, self._extra, self._fall = counters[:4]
         if self._hook_error is not None:
             raise RuntimeError(f"counting the cycles of {name} failed: {self._hook_error}") from self._hook_error
         pc = raw.read_register(arm.UC_ARM_REG_PC) if raw is not None else uc.reg_read(arm.UC_ARM_REG_PC)

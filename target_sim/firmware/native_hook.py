@@ -78,6 +78,7 @@ class BlockCounter:
                  slow: Callable[[object, int, int, object], None]):
         entries = flash[1] // 2
         self.state = np.zeros(HEADER + ENTRY * entries, dtype=np.int64)
+        self.counters = memoryview(self.state)[:HEADER]      # the header as Python ints, without numpy's per-item cost
         self.table = self.state[HEADER:].reshape(entries, ENTRY)
         self.flash_base = flash[0]
         self.slow = HOOK_CTYPE(slow)           # kept referenced while the hook lives
