@@ -103,3 +103,28 @@ def test_what_it_does_not_cover_steps_with_numpy():
 def test_the_python_engine_steps_with_the_compiled_step():
     node = TargetNode(loads(artifact_text()))
     assert node.model_step.__qualname__.startswith("compiled_step")
+
+
+def test_a_nodes_replies_in_two_parts_are_its_replies_in_one():
+    """`TargetNode.handle_split` (what `serve` sends: the temperatures, then the rest once they are out) gives the
+    frames `handle` gives, in the same order, on every row of a session (model steps and checkpoints among them)."""
+    from dbc import FrameCodec
+    from host.replay import encode_row
+
+    from helpers import session_drive, session_start
+
+    artifact = loads(artifact_text())
+    whole, split = TargetNode(artifact, clock_ns=lambda: 0), TargetNode(artifact, clock_ns=lambda: 0)
+    host = FrameCodec("HOST")
+    messages = session_start(host)
+    for row, values in enumerate(session_drive(400, seed=4)):
+        messages += encode_row(host, row, values)
+    rests = 0
+    for message in messages:
+        first, rest = split.handle_split(message)
+        rests += rest is not None
+        got = first + (rest() if rest is not None else [])
+        expected = whole.handle(message)
+        assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(m.arbitration_id, bytes(m.data))
+                                                                    for m in expected]
+    assert rests == 400
