@@ -110,7 +110,6 @@ from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, SpinPolicy, first_hea
 from dbc.xcp import cmd_id as xcp_cmd_id
 from dbc.xcp import res_id as xcp_res_id
 from target_sim.artifact import ModelArtifact
-from target_sim.compiled import compiled_step
 from target_sim.costs import memory_estimate, step_cost
 from target_sim.faults import ReplyFaults
 from target_sim.model import Float32Estimator, InputAccumulator
@@ -180,7 +179,10 @@ class TargetNode:
         # checkpoints are its estimator's
         self.observer = NodeObserver(artifact) if has_observer(artifact) else None
         self.model = self.observer.model if self.observer is not None else Float32Estimator(artifact)
-        # the compiled step where it covers the model (`target_sim.compiled`, bit for bit the numpy step), else numpy
+        # the compiled step where it covers the model (`target_sim.compiled`, bit for bit the numpy step), else numpy;
+        # numba loads only here, with the first node of a process
+        from target_sim.compiled import compiled_step
+
         self.model_step = (compiled_step(self.model) if self.observer is None else None) or self.model.step
         self.cost = step_cost(artifact)
         self.memory = memory_estimate(artifact, self.cost)
