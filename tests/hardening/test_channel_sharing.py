@@ -1,6 +1,7 @@
 """Two hosts on one channel would both drive the target. A host's bus is a `dbc.transport.SenderGuard`: a host frame
 it did not send (udp_multicast hands a node its own frames back: the guard sends from a socket whose copies the
-kernel drops, or else counts what it sent until its copy returns) stops it in one sentence naming the channel, from the pre-start listening of `bench run` to the end of a run.
+kernel drops, or else counts what it sent until its copy returns) stops it in one sentence naming the channel, from
+the pre-start listening of `bench run` to the end of a run.
 """
 
 from __future__ import annotations
