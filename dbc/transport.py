@@ -98,10 +98,11 @@ class BusConfig:
             config["bitrate"] = self.bitrate
         try:
             if self.interface == UDP_INTERFACE and LEAN_UDP_RECEIVE:    # python-can's bus, a leaner receive
-                from dbc.udp_bus import LeanUdpMulticastBus
+                from dbc.udp_bus import LeanUdpMulticastBus, lean_receive_available
 
-                config.pop("interface")
-                return LeanUdpMulticastBus(**config)
+                if lean_receive_available():
+                    config.pop("interface")
+                    return LeanUdpMulticastBus(**config)
             return can.Bus(**config)
         except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
             reason = str(exc).strip().rstrip(".") or exc.__class__.__name__

@@ -29,6 +29,11 @@ _ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") 
 _MAX_DATAGRAM = 4096                                       # python-can's receive buffer
 
 
+def lean_receive_available() -> bool:
+    """This system's sockets have what the lean receive uses (`recvmsg`, `MSG_DONTWAIT`: not Windows)."""
+    return hasattr(socket.socket, "recvmsg") and hasattr(socket, "MSG_DONTWAIT") and bool(_ANCILLARY)
+
+
 class LeanUdpMulticastBus(UdpMulticastBus):
     """python-can's udp_multicast bus with the receive described above."""
 
