@@ -38,6 +38,7 @@ import can
 from can.util import cast_from_string, load_environment_config, load_file_config
 
 from dbc.errors import CanLinkError
+from dbc.loopback_filter import UnechoedSender
 
 AUTO = "auto"
 AUTO_SOCKETCAN_CHANNEL = "vcan0"
@@ -46,6 +47,7 @@ UDP_LOCAL_GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:6173"  # interface-local s
 UDP_IPV4_GROUP = "239.74.163.2"      # python-can's UdpMulticastBus.DEFAULT_GROUP_IPv4 (fallback without IPv6)
 UDP_DEFAULT_PORT = 43113             # python-can's default port
 NOMINAL_BITRATE = 500_000            # the vehicle bus the report's bus load refers to
+LEAN_UDP_RECEIVE = True              # udp_multicast opens as `dbc.udp_bus.LeanUdpMulticastBus` (False: python-can's)
 
 
 class BusUnavailable(CanLinkError):
@@ -95,6 +97,12 @@ class BusConfig:
         if self.bitrate is not None:
             config["bitrate"] = self.bitrate
         try:
+            if self.interface == UDP_INTERFACE and LEAN_UDP_RECEIVE:    # python-can's bus, a leaner receive
+                from dbc.udp_bus import LeanUdpMulticastBus, lean_receive_available
+
+                if lean_receive_available():
+                    config.pop("interface")
+                    return LeanUdpMulticastBus(**config)
             return can.Bus(**config)
         except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
             reason = str(exc).strip().rstrip(".") or exc.__class__.__name__
@@ -357,6 +365,7 @@ class OtherSender(CanLinkError):
 # A copy of a sent frame not back after this long is taken as lost (udp_multicast drops some in bursts); the
 # record of frames sent is pruned of those only when it grows past GUARD_PRUNE_AT entries.
 GUARD_ECHO_HORIZON_S = 10.0
+SEND_UNECHOED = True    # udp_multicast: the guard sends from its own socket, whose copies the kernel drops
 GUARD_PRUNE_AT = 4096
 
 
@@ -365,21 +374,31 @@ class SenderGuard:
 
     Wraps a python-can bus (`send`, `recv`, `shutdown` and every other attribute pass through). A received
     standard frame with one of `own_ids` that this node did not send makes `recv` raise `OtherSender`: two hosts
-    on one channel would both drive the target. Where the bus hands a node its own frames back (udp_multicast
-    always; any interface opened with `receive_own_messages`), every frame sent with one of `own_ids` is counted
-    by (id, bytes) until its copy comes back, so only a frame nobody here sent counts as another node's; a fault
-    layer above this one (duplicates, corruption, delays) is seen as what it really transmits. Elsewhere (SocketCAN,
-    real interfaces) a node never hears itself, so any such frame is another node's."""
+    on one channel would both drive the target. udp_multicast hands a node its own frames back; on Linux the guard
+    sends from a socket of its own whose copies the bus's socket drops in the kernel (`dbc.loopback_filter.
+    UnechoedSender`: a lockstep row costs the host two reads less), so, as on SocketCAN and real interfaces, any
+    such frame is another node's. Where that cannot be set up (and for any interface opened with
+    `receive_own_messages`), every frame sent with one of `own_ids` is counted by (id, bytes) until its copy comes
+    back, so only a frame nobody here sent counts as another node's; a fault layer above this one (duplicates,
+    corruption, delays) is seen as what it really transmits."""
 
     def __init__(self, bus: can.BusABC, config: BusConfig, own_ids, role: str = "host") -> None:
         self.inner = bus
         self.own_ids = frozenset(own_ids)
         self.role = role
         self.channel = config.describe()
-        self.echoes = config.interface == UDP_INTERFACE or bool(config.kwargs.get("receive_own_messages"))
+        # udp_multicast: send from a socket whose copies the kernel drops (`UnechoedSender`) where it can be set up
+        self.unechoed = UnechoedSender.attach(bus, config.channel, config.kwargs.get("port", UDP_DEFAULT_PORT),
+                                              config.kwargs.get("hop_limit", 1)) \
+            if config.interface == UDP_INTERFACE and SEND_UNECHOED else None
+        self.echoes = (config.interface == UDP_INTERFACE and self.unechoed is None) \
+            or bool(config.kwargs.get("receive_own_messages"))
         self._pending: dict[tuple[int, bytes], list] = {}   # (id, data) -> [copies still to come, last sent]
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.unechoed is not None:
+            self.unechoed.send(msg)
+            return
         if self.echoes and not msg.is_extended_id and msg.arbitration_id in self.own_ids:
             key = (msg.arbitration_id, bytes(msg.data))
             entry = self._pending.get(key)
@@ -418,6 +437,8 @@ class SenderGuard:
             del self._pending[key]
 
     def shutdown(self) -> None:
+        if self.unechoed is not None:
+            self.unechoed.close()
         self.inner.shutdown()
 
     def __getattr__(self, name):  # channel_info, state, ... of the wrapped bus

@@ -105,6 +105,7 @@ from dbc.contract import (
 )
 from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
 from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
+from dbc.loopback_filter import drop_own_frames
 from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, SpinPolicy, first_heard
 from dbc.xcp import cmd_id as xcp_cmd_id
 from dbc.xcp import res_id as xcp_res_id
@@ -178,6 +179,11 @@ class TargetNode:
         # checkpoints are its estimator's
         self.observer = NodeObserver(artifact) if has_observer(artifact) else None
         self.model = self.observer.model if self.observer is not None else Float32Estimator(artifact)
+        # the compiled step where it covers the model (`target_sim.compiled`, bit for bit the numpy step), else numpy;
+        # numba loads only here, with the first node of a process
+        from target_sim.compiled import compiled_step
+
+        self.model_step = (compiled_step(self.model) if self.observer is None else None) or self.model.step
         self.cost = step_cost(artifact)
         self.memory = memory_estimate(artifact, self.cost)
         self.dt_ns = int(round(artifact.dt * 1e9))
@@ -204,6 +210,7 @@ class TargetNode:
         self.last_reply_row: int | None = None
         self.repeats = 0
         self.answered_again = False    # the last handle() answered a row again (a retransmission)
+        self._rest: Callable[[], list[can.Message]] | None = None   # the rest of the frame's replies (handle_split)
         self._pending: list[dict] = []     # the frames of the row being received, in row order
         self.next_row: int | None = None
         self.rows_used = 0
@@ -327,6 +334,29 @@ class TargetNode:
 
     def handle(self, msg: can.Message) -> list[can.Message]:
         """Validate one received frame, act on it, and return the frames to send in reply (maybe none)."""
+        frames, rest = self.handle_split(msg)
+        return frames if rest is None else frames + rest()
+
+    def handle_split(self, msg: can.Message) -> tuple[list[can.Message], Callable[[], list[can.Message]] | None]:
+        """`handle` in two parts: the frames to send first, and what builds the rest once they are out (None: no
+        rest). A row's temperature replies come first; its model step's Timing, observer, checkpoint and DAQ frames
+        are encoded only after them, so a host waiting for the temperatures does not wait for that (`serve`)."""
+        self._rest = None
+        frames = self._handle(msg)
+        rest, self._rest = self._rest, None
+        if rest is None:
+            return frames, None
+
+        def finish() -> list[can.Message]:
+            try:
+                return rest()
+            except Exception as exc:  # noqa: BLE001 - as in `_handle`: the node survives, in FAULT
+                self.faults |= FaultBit.INTERNAL
+                self.last_error = f"internal error after a row's replies: {exc!r}"
+                return self._set_state(TargetState.FAULT)
+        return frames, finish
+
+    def _handle(self, msg: can.Message) -> list[can.Message]:
         if msg.arbitration_id == self.xcp_cmd_id and not msg.is_extended_id and not msg.is_remote_frame:
             self.answered_again = False
             return self._xcp_command(msg)
@@ -521,7 +551,7 @@ class TargetNode:
             inputs.append(mean)
         timing = []
         observer = self.observer
-        step_model = self.model.step if observer is None else (lambda *values: observer.step(values))
+        step_model = self.model_step if observer is None else (lambda *values: observer.step(values))
         observed = []
         daq: list[bytes] = []
         for step_inputs in inputs:
@@ -538,13 +568,20 @@ class TargetNode:
             daq += self.xcp.event(EVENT_MODEL_STEP)     # sampled right after its step, sent after its replies
         out += self._temperature_frames(step)
         self.last_reply_row = row
-        for index, elapsed in enumerate(timing):
-            out += self._timing_frames(step, elapsed)
-            if observed:
-                out += observed[index]
-        if timing and self.model_steps % CHECKPOINT_EVERY_STEPS == 0:
-            out += self._checkpoint_frames(step)
-        return out + self._xcp_packets(self.xcp.queued(daq))
+        checkpoint = bool(timing) and self.model_steps % CHECKPOINT_EVERY_STEPS == 0
+
+        def rest() -> list[can.Message]:   # after the temperatures (`handle_split`)
+            frames = []
+            for index, elapsed in enumerate(timing):
+                frames += self._timing_frames(step, elapsed)
+                if observed:
+                    frames += observed[index]
+            if checkpoint:
+                frames += self._checkpoint_frames(step)
+            return frames + self._xcp_packets(self.xcp.queued(daq))
+
+        self._rest = rest
+        return out
 
     # ------------------------------------------------------------------ reporting
     def stats(self) -> dict:
@@ -582,6 +619,7 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
     is the DBC's unless given."""
     heartbeat_period_s = heartbeat_period_s or heartbeat_period_s_of_dbc()
     own = OwnFrameFilter(target_frame_ids() | {xcp_res_id()})   # the XCP slave's packets loop back too
+    drop_own_frames(bus, own.own_ids)   # udp_multicast: the kernel drops the copies before they wake us (Linux)
     foreign = reply_faults.foreign_ids if reply_faults is not None else set()
     send_failures = 0
 
@@ -601,6 +639,7 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
     next_beat = monotonic() + heartbeat_period_s
     perf = time.perf_counter
     spin = SpinPolicy(SPIN_S if spin_s is None else spin_s)
+    split = getattr(node, "handle_split", None)   # the Python node: a row's temperatures out before the rest
     faulted = node.state == TargetState.FAULT
     while not should_stop():
         # what already waits first; then poll briefly before sleeping (`SpinPolicy`: in lockstep the next frame is
@@ -620,13 +659,16 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
         if msg is not None and not own.is_own(msg):
             if foreign and not msg.is_extended_id and msg.arbitration_id in foreign:
                 continue  # our own reply fault on a foreign id, looped back
-            replies = node.handle(msg)
-            if node.state == TargetState.FAULT and not faulted and on_error is not None:
-                on_error(f"internal fault, state FAULT until a RESET: {node.last_error}")
-            faulted = node.state == TargetState.FAULT
+            replies, rest = split(msg) if split is not None else (node.handle(msg), None)
             if reply_faults is not None:
                 replies = reply_faults.apply(replies, again=node.answered_again)
             send(replies)
+            if rest is not None:     # a row's timing, checkpoint and DAQ frames: after its temperatures went out
+                more = rest()
+                send(more if reply_faults is None else reply_faults.apply(more, again=node.answered_again))
+            if node.state == TargetState.FAULT and not faulted and on_error is not None:
+                on_error(f"internal fault, state FAULT until a RESET: {node.last_error}")
+            faulted = node.state == TargetState.FAULT
         now = monotonic()
         if now >= next_beat:
             send(node.heartbeat_frames())

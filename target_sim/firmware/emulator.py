@@ -79,6 +79,7 @@ from target_sim.firmware.elf import (
     read_elf,
     stack_bytes,
 )
+from target_sim.firmware.native_hook import CYCLES, EXTRA, FALL, INSTRUCTIONS, BlockCounter
 
 FLASH = (0x0800_0000, 256 * 1024)      # (base, size): STM32-like Cortex-M4F
 RAM = (0x2000_0000, 64 * 1024)
@@ -90,6 +91,7 @@ PAGE = 0x1000                          # Unicorn maps 4 kB pages
 MAX_INSTRUCTIONS = 1_000_000           # per call: an endless loop stops here (a model step runs ~300-20,000)
 RAW_BLOCK_HOOK = True                  # hook blocks through libunicorn's C API (faster); False: the binding's hook_add
 RAW_CALLS = True                       # registers, memory and emu_start of a call through libunicorn's C API (faster)
+NATIVE_BLOCK_HOOK = True               # count known blocks in compiled code (`native_hook`); False: the Python hook
 PF_W = 0x2                             # ELF segment flag: writable (RAM)
 STACK_FILL = 0xA5                      # stack bytes before use: high-water mark and overflow guard
 _GUARD = bytes([STACK_FILL]) * 4       # the bottom word of the stack: changed = overflowed
@@ -178,6 +180,7 @@ class _RawCore:
         self.lib = binding.uclib
         self.uch = uc._uch
         self.ids = (ctypes.c_int * self.SLOTS)()
+        self._ids: tuple[int, ...] = ()       # what `ids` holds
         self.values = (ctypes.c_uint32 * self.SLOTS)()
         base = ctypes.addressof(self.values)
         self.pointers = (ctypes.c_void_p * self.SLOTS)(*(base + 4 * i for i in range(self.SLOTS)))
@@ -185,6 +188,17 @@ class _RawCore:
         self.buffer = ctypes.create_string_buffer(4096)
         for name in ("uc_reg_write_batch", "uc_reg_read", "uc_emu_start", "uc_mem_read", "uc_mem_write"):
             getattr(self.lib, name)        # AttributeError here: use the binding instead
+
+    def set_registers(self, registers: list[tuple[int, int]]) -> None:
+        """Write (register, value) pairs in one batch; the ids are rewritten only when they change (a call's
+        registers are those of the last call of the same arguments' kinds)."""
+        ids = tuple(register for register, _ in registers)
+        if ids != self._ids:
+            for slot, register in enumerate(ids):
+                self.ids[slot] = register
+            self._ids = ids
+        self.values[:len(registers)] = [value for _, value in registers]
+        self.write_registers(len(registers))
 
     def write_registers(self, count: int) -> None:
         status = self.lib.uc_reg_write_batch(self.uch, self.ids, self.pointers, count)
@@ -217,6 +231,26 @@ class _RawCore:
         status = self.lib.uc_mem_write(self.uch, address, data, len(data))
         if status != UC_ERR_OK:
             raise UcError(status, address, len(data))
+
+
+def _native_counter(fw: Firmware) -> BlockCounter | None:
+    """The compiled block hook on `fw`'s core (`native_hook`), or None where it cannot be set up (then the Python
+    hook counts)."""
+    if not NATIVE_BLOCK_HOOK:
+        return None
+    try:
+        from unicorn.unicorn_py3 import unicorn as binding
+
+        counter = BlockCounter(fw.flash, fw.max_instructions, fw._on_block_native)
+        handle = binding.uc_hook_h()
+        status = binding.uclib.uc_hook_add(fw.uc._uch, ctypes.byref(handle), UC_HOOK_BLOCK,
+                                           ctypes.c_void_p(counter.function), ctypes.c_void_p(counter.user_data),
+                                           ctypes.c_uint64(1), ctypes.c_uint64(0))
+    except (ImportError, AttributeError, TypeError, ctypes.ArgumentError):
+        return None
+    if status != UC_ERR_OK:
+        raise UcError(status)
+    return counter
 
 
 def _raw_core(uc: Uc) -> _RawCore | None:
@@ -276,11 +310,13 @@ class Firmware:
                 uc.mem_write(segment.vaddr, segment.data + bytes(segment.memsz - len(segment.data)))
         self.reset()                   # the image is in memory before the cycle model disassembles it
         self.cycle_model: CycleModel | None = None
+        self._native = None
         if count_cycles:
             self.cycle_model = CycleModel(lambda address, size: bytes(uc.mem_read(address, size)),
                                           image.thumb_ranges)
             self._blocks = self.cycle_model.blocks
-            self._block_hook = _add_block_hook(uc, self._on_block)
+            self._native = _native_counter(self) if type(self)._on_block is Firmware._on_block else None
+            self._block_hook = self._native or _add_block_hook(uc, self._on_block)
         uc.hook_add(UC_HOOK_MEM_INVALID, self._on_invalid_memory)
         uc.hook_add(UC_HOOK_INTR, self._on_exception)
         self._raw = _raw_core(uc)
@@ -443,7 +479,10 @@ class Firmware:
         registers: list[tuple[int, int]] = []
         ints = floats = 0
         for value in args:
-            if isinstance(value, float | np.floating):
+            if type(value) is int and ints < len(_R):     # the common case first (the node's calls: ints only)
+                registers.append((_R[ints], value & 0xFFFFFFFF))
+                ints += 1
+            elif isinstance(value, float | np.floating):
                 if floats == len(_S):
                     raise FirmwareError(f"{name}: more than {len(_S)} float arguments need the stack (unsupported)")
                 registers.append((_S[floats], _float32_bits(value)))
@@ -458,16 +497,18 @@ class Firmware:
         registers += ((arm.UC_ARM_REG_SP, self._stack_top), (arm.UC_ARM_REG_LR, HALT | 1))
         raw = self._raw
         if raw is not None:
-            for slot, (register, value) in enumerate(registers):
-                raw.ids[slot] = register
-                raw.values[slot] = value
-            raw.write_registers(len(registers))
+            raw.set_registers(registers)
         else:
             for register, value in registers:
                 uc.reg_write(register, value)
         self._cycles = self._instructions = self._extra = 0
         self._fall = entry & ~1        # the first block is entered by the call: no branch of ours to charge
         self._fault = self._hook_error = None
+        native = self._native
+        if native is not None:         # the counters live in the native hook's state during the call
+            counters = native.counters
+            counters[0] = counters[1] = counters[2] = 0
+            counters[3], counters[4] = self._fall, self.max_instructions
         # the instruction limit: with the block hook it counts them itself (unicorn's own count adds a callback per
         # instruction, which costs more than the call's blocks); without the hook, unicorn's count
         count = 0 if self.cycle_model is not None else self.max_instructions
@@ -478,6 +519,9 @@ class Firmware:
                 uc.emu_start(entry, HALT, count=count)
         except UcError as error:
             raise self._failed(self._fault_from(error, name)) from None
+        finally:
+            if native is not None:
+                self._cycles, self._instructions, self._extra, self._fall = counters[:4]
         if self._hook_error is not None:
             raise RuntimeError(f"counting the cycles of {name} failed: {self._hook_error}") from self._hook_error
         pc = raw.read_register(arm.UC_ARM_REG_PC) if raw is not None else uc.reg_read(arm.UC_ARM_REG_PC)
@@ -530,6 +574,32 @@ class Firmware:
             self._hook_error = error
             self._uc.emu_stop()
 
+    def _on_block_native(self, _engine: object, address: int, size: int, _user_data: object) -> None:
+        """`_on_block` for the native hook's blocks it has not seen (and calls past their instruction limit): the
+        block's cost computed and entered in its table, and counted here with the same rule on its state."""
+        try:
+            block = self._blocks.get((address, size))
+            if block is None:
+                block = self.cycle_model.block(address, size)
+            native = self._native
+            native.learn(address, size, block)
+            state = native.state
+            cycles, extra, fall, count = block
+            if address != state[FALL]:
+                cycles += int(state[EXTRA])
+            state[CYCLES] += cycles
+            state[EXTRA], state[FALL] = extra, fall
+            state[INSTRUCTIONS] += count
+            if state[INSTRUCTIONS] > self.max_instructions:
+                self._uc.emu_stop()
+        except Exception as error:         # a C callback must not raise: stop and report it
+            self._hook_error = error
+            self._uc.emu_stop()
+
+    def _call_cycles(self) -> int:
+        """The cycles counted so far in the running call."""
+        return int(self._native.state[CYCLES]) if self._native is not None else self._cycles
+
     def cyccnt(self) -> int:
         """What DWT_CYCCNT reads between calls: the cycles of every call so far."""
         return (self.total_cycles - self._cyccnt_base) & 0xFFFF_FFFF
@@ -539,11 +609,11 @@ class Firmware:
         difference of two reads is exact to within the instructions after the second read in its block)."""
         if offset != 4:
             return 0
-        return (self.total_cycles + self._cycles - self._cyccnt_base) & 0xFFFF_FFFF
+        return (self.total_cycles + self._call_cycles() - self._cyccnt_base) & 0xFFFF_FFFF
 
     def _on_dwt_write(self, _uc: Uc, offset: int, _size: int, value: int, _user: object) -> None:
         if offset == 4:            # DWT_CYCCNT = value
-            self._cyccnt_base = (self.total_cycles + self._cycles - value) & 0xFFFF_FFFF
+            self._cyccnt_base = (self.total_cycles + self._call_cycles() - value) & 0xFFFF_FFFF
 
     def _on_invalid_memory(self, uc: Uc, access: int, address: int, size: int, value: int, _user: object) -> bool:
         what = _ACCESS.get(access, f"invalid access {access} to address")

@@ -74,6 +74,7 @@ BUFFERS = ("node_rx", "node_out", "node_counters", "fw_model_id")
 XCP_COUNTERS = struct.Struct("<7I")      # xcp.c's struct xcp_counters
 _MASK32 = 0xFFFF_FFFF
 _STATES = {int(state): state for state in TargetState}   # the enum by value without its call's cost per frame
+PREFETCH_FRAMES = 8      # frames read with the output's header (a row's replies: 2 temperatures, 4 timing frames)
 
 
 def _ms(seconds: float) -> int:
@@ -141,6 +142,7 @@ class FirmwareNode:
         self.xcp_cycles: Counter[int] = Counter()     # per XCP command (node_on_frame's whole call)
         self.xcp_sample_cycles: Counter[int] = Counter()   # per DAQ sample (the mean of a call's samples)
         self._xcp = fw.symbols["xcp_counters"].address if "xcp_counters" in fw.symbols else None
+        self._xcp_before_out = self._xcp is not None and self._xcp + XCP_COUNTERS.size == self._out
         self._xcp_last = (0, 0)
         self._xcp_id = xcp_cmd_id()
         self._is_xcp = False
@@ -177,7 +179,16 @@ class FirmwareNode:
 
     def _collect(self, on_frame: bool, cycles: int | None) -> list[can.Message]:
         fw = self.fw
-        header = OUTPUT_HEADER.unpack(fw.read_bytes(self._out, OUTPUT_HEADER.size))
+        # the header and the first frames in one read (one call into the emulator less a reply), and the XCP
+        # slave's counters with them where the firmware placed them right before its output (the usual layout)
+        span = TX_OFFSET + PREFETCH_FRAMES * FRAME.size
+        if self._xcp_before_out:
+            both = fw.read_bytes(self._xcp, XCP_COUNTERS.size + span)
+            head = both[XCP_COUNTERS.size:]
+            self._xcp_samples(XCP_COUNTERS.unpack_from(both))
+        else:
+            head = fw.read_bytes(self._out, span)
+        header = OUTPUT_HEADER.unpack_from(head)
         tx_count, event_count, state, faults, again, _, _, _, step_cycles, next_beat_ms = header
         self.state = _STATES.get(state) or TargetState(state)   # (an unknown value raises, as the call does)
         self.faults = faults
@@ -185,7 +196,8 @@ class FirmwareNode:
         self._next_beat_ms = next_beat_ms
         frames: list[can.Message] = []
         if tx_count:
-            raw = fw.read_bytes(self._out + TX_OFFSET, tx_count * FRAME.size)
+            raw = head[TX_OFFSET:TX_OFFSET + tx_count * FRAME.size] if tx_count <= PREFETCH_FRAMES else \
+                fw.read_bytes(self._out + TX_OFFSET, tx_count * FRAME.size)
             now = time.time()
             timing4, start, mask = self._timing4
             for fid, dlc, data in FRAME.iter_unpack(raw):
@@ -200,8 +212,8 @@ class FirmwareNode:
                 event = Event.unpack(raw[index * EVENT.size:(index + 1) * EVENT.size])
                 self.journal({"kind": event.kind, "id": msg.arbitration_id, "dlc": msg.dlc,
                               "data": bytes(msg.data).hex(), "detail": event.sentence})
-        if self._xcp is not None:
-            self._xcp_samples()
+        if self._xcp is not None and not self._xcp_before_out:
+            self._xcp_samples(self._xcp_counters())
         if on_frame and cycles is not None and self._is_xcp:
             self.xcp_cycles[cycles] += 1
         elif on_frame and cycles is not None:
@@ -214,9 +226,10 @@ class FirmwareNode:
     def _xcp_counters(self) -> tuple[int, ...]:
         return XCP_COUNTERS.unpack(self.fw.read_bytes(self._xcp, XCP_COUNTERS.size))
 
-    def _xcp_samples(self) -> None:
-        """The DAQ samples of the last call: their mean cycles, once per sample."""
-        samples, cycles = self._xcp_counters()[5:7]
+    def _xcp_samples(self, counters: tuple[int, ...]) -> None:
+        """The DAQ samples of the last call (from the slave's `counters` after it): their mean cycles, once per
+        sample."""
+        samples, cycles = counters[5:7]
         new, spent = samples - self._xcp_last[0], (cycles - self._xcp_last[1]) & _MASK32
         if new > 0:
             self.xcp_sample_cycles[spent // new] += new

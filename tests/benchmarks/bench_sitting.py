@@ -8,7 +8,8 @@ one sitting and alternating so that the machine's state falls on all three alike
 
 (a) the python-can one-frame ping-pong: two processes on the same bus the bench uses (udp_multicast on its own
     group and a fresh port here, SocketCAN where the bench resolves to it), one sends a frame and waits for the
-    other's answer, with python-can's plain blocking `recv`, for `--pingpong-seconds`: round trips per second;
+    other's answer, with python-can's own bus (`can.Bus`, not the bench's leaner udp_multicast receive) and its
+    plain blocking `recv`, for `--pingpong-seconds`: round trips per second;
 (b) `bench run` in lockstep on the python engine, (c) on the firmware engine, each in a fresh process as a user
     starts it (log written, no report; `--rows` rows of the default 40 °C run, all 36 371 unless given): the run's
     own rows/s (`throughput_steps_per_s`, the replay loop from the first row to the last reply);
@@ -58,7 +59,20 @@ ENGINES = ("python", "firmware")
 # ---------------------------------------------------------------------------------------------- the ping-pong
 def _open_bus(bus_json: str):
     config = json.loads(bus_json)
-    return BusConfig(config.pop("interface"), config.pop("channel"), config.pop("bitrate"), config).open()
+    return python_can_bus(BusConfig(config.pop("interface"), config.pop("channel"), config.pop("bitrate"), config))
+
+
+def python_can_bus(bus: BusConfig):
+    """python-can's own bus of `bus` (`can.Bus`), for the ping-pong: the floor is python-can's round trip, not the
+    bench's (`BusConfig.open` gives udp_multicast a leaner receive, `dbc.udp_bus`)."""
+    import can
+
+    config = {"interface": bus.interface, **bus.kwargs}
+    if bus.channel is not None:
+        config["channel"] = bus.channel
+    if bus.bitrate is not None:
+        config["bitrate"] = bus.bitrate
+    return can.Bus(**config)
 
 
 def echo(bus_json: str, seconds: float) -> int:
@@ -181,7 +195,9 @@ def cpu_budget(engine: str, rows: int, bus: BusConfig, data: Path) -> dict:
     from bench.run.inputs import firmware_for_engine
     from dbc.contract import RESET_SIGNALS, Command, split_temperatures
     from dbc.database import host_frame_ids, target_frame_ids
+    from dbc.loopback_filter import drop_own_frames
     from dbc.transport import OwnFrameFilter, SenderGuard
+    from dbc.xcp import res_id
     from host.canlog import FrameLog
     from host.session import HostSession
     from target_sim.artifact import load_artifact
@@ -194,6 +210,7 @@ def cpu_budget(engine: str, rows: int, bus: BusConfig, data: Path) -> dict:
         firmware = firmware_for_engine(engine, artifact, Path(tmp))
         node = make_node(artifact, engine=engine, firmware=firmware)
         host_bus, target_bus = SenderGuard(bus.open(), bus, host_frame_ids()), bus.open()
+        drop_own_frames(target_bus, target_frame_ids() | {res_id()})   # as `target_sim.node.serve` does
         session = HostSession(host_bus, log=FrameLog(Path(tmp) / "budget.blf"), expected_model_id=artifact.model_id)
         try:
             initial = [round(float(v), 2) for v in initial_temperatures(dataset)]   # the handshake, straight in
@@ -206,7 +223,7 @@ def cpu_budget(engine: str, rows: int, bus: BusConfig, data: Path) -> dict:
             session.log.close(commit=False)
             host_bus.shutdown()
             target_bus.shutdown()
-    ping_bus, echo_bus = bus.open(), bus.open()
+    ping_bus, echo_bus = python_can_bus(bus), python_can_bus(bus)
     try:
         ping_us = _budget_pingpong(can, ping_bus, echo_bus, 5000)
     finally:

@@ -1,6 +1,7 @@
 """Two hosts on one channel would both drive the target. A host's bus is a `dbc.transport.SenderGuard`: a host frame
-it did not send (udp_multicast hands a node its own frames back, so what it sent is counted until its copy returns)
-stops it in one sentence naming the channel, from the pre-start listening of `bench run` to the end of a run.
+it did not send (udp_multicast hands a node its own frames back: the guard sends from a socket whose copies the
+kernel drops, or else counts what it sent until its copy returns) stops it in one sentence naming the channel, from
+the pre-start listening of `bench run` to the end of a run.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 import can
 import pytest
 
-from dbc import FrameCodec
+from dbc import FrameCodec, transport
 from dbc.database import host_frame_ids
 from dbc.transport import UDP_LOCAL_GROUP, BusConfig, OtherSender, SenderGuard, free_udp_port
 
@@ -29,18 +30,27 @@ def _drain(bus, quiet_s: float = 0.2) -> list[can.Message]:
     return got
 
 
-def test_guard_knows_its_own_frames_from_another_hosts():
+@pytest.mark.parametrize("unechoed", [True, False], ids=["own-socket", "copies-counted"])
+def test_guard_knows_its_own_frames_from_another_hosts(unechoed, monkeypatch):
+    """Sending from its own socket (`UnechoedSender`: the kernel drops the copies) or through the bus (copies counted
+    until they come back), the guard hears no frame of its own and stops at another host's."""
+    monkeypatch.setattr(transport, "SEND_UNECHOED", unechoed)
     config = private_udp_bus()
     mine, other = config.open(), config.open()
     guard = SenderGuard(mine, config, host_frame_ids(), "host")
+    assert (guard.unechoed is not None) == unechoed and guard.echoes != unechoed
     try:
         host, target = FrameCodec("HOST"), FrameCodec("TARGET")
         sent = [host.encode("Control", {"Command": 0, "Step": step % 16}) for step in range(40)]
         sent.append(can.Message(arbitration_id=sent[0].arbitration_id, data=sent[0].data, is_extended_id=False))
-        for msg in sent + [sent[-1]]:          # the same bytes twice: two copies come back, both ours
+        for msg in sent + [sent[-1]]:          # the same bytes twice: two copies come back (or none), both ours
             guard.send(msg)
         echoes = _drain(guard)
-        assert sorted(bytes(m.data) for m in echoes) == sorted(bytes(m.data) for m in sent + [sent[-1]])
+        expected = [] if unechoed else sorted(bytes(m.data) for m in sent + [sent[-1]])
+        assert sorted(bytes(m.data) for m in echoes) == expected
+        heard = _drain(other)                  # every other node hears them all, as python-can sent them
+        assert sorted((m.arbitration_id, bytes(m.data)) for m in heard) == \
+            sorted((m.arbitration_id, bytes(m.data)) for m in sent + [sent[-1]])
         other.send(target.encode("RxErrors", dict.fromkeys(  # a target's frame: not a host's business here
             ["CounterError", "CrcError", "OutOfRange", "SequenceError", "UnknownId", "WrongLength"], 0)))
         assert [m.arbitration_id for m in _drain(guard)] == [0x231]

@@ -238,10 +238,38 @@ def test_block_counts_equal_an_instruction_trace(fw):
 
 
 def test_the_bindings_hook_add_counts_the_same(elf, monkeypatch):
+    monkeypatch.setattr(emulator, "NATIVE_BLOCK_HOOK", False)
     monkeypatch.setattr(emulator, "RAW_BLOCK_HOOK", False)
     fw = Firmware.load(elf)
     assert fw.call("count_down", 5, returns=int) == 15
     assert (fw.last.instructions, fw.last.cycles) == (24, 38)
+
+
+def test_the_native_block_hook_counts_what_the_python_hook_counts(elf, fw, monkeypatch):
+    """The compiled hook (`native_hook`) against the Python one: instructions, cycles, the DWT count the firmware
+    reads and the endless-loop fault, call for call, from its first (unseen) blocks on."""
+    monkeypatch.setattr(emulator, "NATIVE_BLOCK_HOOK", False)
+    python = Firmware.load(elf)
+    assert fw._native is not None and python._native is None
+    seen = []
+    for firmware in (fw, python):
+        u, y = firmware.alloc_f32([5.0, 90.0]), firmware.alloc_f32(4)
+        firmware.call("fw_reset", firmware.alloc_f32([50.0, 60.0, 70.0, 80.0]))
+        counts = []
+        for n in range(30):
+            firmware.write_f32(u, [5.0 + 7 * n, 90.0 - n])
+            firmware.call("fw_step", u, y)
+            counts.append((firmware.last.instructions, firmware.last.cycles, firmware.cyccnt(),
+                           firmware.read_f32(y, 4).tobytes()))
+        for function, args in (("recurse", (6,)), ("count_down", (9,)), ("is_zero", (0,))):
+            firmware.call(function, *args)
+            counts.append((firmware.last.instructions, firmware.last.cycles, firmware.cyccnt()))
+        firmware.max_instructions = 5000
+        with pytest.raises(FirmwareFault) as raised:
+            firmware.call("spin_forever")
+        counts.append((raised.value.kind, raised.value.pc))
+        seen.append(counts)
+    assert seen[0] == seen[1]
 
 
 @pytest.mark.parametrize("function", ["read_bad_pointer", "trap", "spin_forever", "recurse"])

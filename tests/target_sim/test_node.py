@@ -319,7 +319,7 @@ def test_an_internal_error_is_a_fault_not_a_crash(running, monkeypatch):
         raise RuntimeError("boom")
 
     if isinstance(node, TargetNode):
-        monkeypatch.setattr(node.model, "step", broken)
+        monkeypatch.setattr(node, "model_step", broken)   # the step the node calls (compiled or numpy)
     else:
         node.fw.max_instructions = 1500     # a row with a model step runs ~2,000: the core "does not return"
     host.row(0, drive[0])
