@@ -20,8 +20,10 @@ import datetime as _dt
 import json
 import os
 import platform
+import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -82,6 +84,20 @@ def code() -> dict[str, Any]:
     return out
 
 
+def stop_on_sigterm() -> None:
+    """A benchmark stopped with SIGTERM (kill, a CI timeout) stops as on Ctrl-C: SystemExit unwinds it, so the child
+    `subprocess.run` waits for is killed and temporary directories are removed; without this the script died at
+    once and left its `bench` child running and its work directory behind. Only from the main thread, and only
+    where SIGTERM still has its default action (a caller's own handler stays)."""
+    if threading.current_thread() is threading.main_thread() and \
+            signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _exit_on_sigterm)
+
+
+def _exit_on_sigterm(signum, _frame) -> None:
+    raise SystemExit(128 + signum)
+
+
 class Record:
     """The figures of one benchmark invocation, written as one JSON file by `write()`."""
 
@@ -97,6 +113,7 @@ class Record:
         self._date = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
         self._load_start = os.getloadavg()[0]
         self._code = code()            # the code as it was when the measurement started
+        stop_on_sigterm()
 
     def to_json(self) -> dict[str, Any]:
         return {"record_schema": RECORD_SCHEMA, "benchmark": self.benchmark, "variant": self.variant,

@@ -216,3 +216,42 @@ def test_folds_records_of_different_comparisons_each_keep_their_section(data_rec
     page = results_page.render_results({"suite": _suite_record(data_record) + list(rows.values())})
     assert page.count("--defaults --folds 3 --hold-test") == 2
     assert "| loss-scales: default | 15.97 / 1.00 |" in page and "| regularization: default | 7.25 / 1.00 |" in page
+
+
+def test_a_benchmark_stopped_with_sigterm_leaves_no_child_and_no_work_directory(tmp_path):
+    """`kill` of a benchmark script (record.Record installs the handler) unwinds it as Ctrl-C would: the `bench`
+    child it waits for is killed and its temporary directory removed (before, both stayed behind)."""
+    import os
+    import signal
+    import time
+
+    script = tmp_path / "stopped.py"
+    script.write_text(
+        "import argparse, subprocess, sys, tempfile\n"
+        f"sys.path.insert(0, {str(ROOT / 'tests' / 'benchmarks')!r})\n"
+        "from record import Record, add_record_arguments\n"
+        "parser = argparse.ArgumentParser(); add_record_arguments(parser)\n"
+        "Record('stopped', parser.parse_args(['--no-json']))\n"
+        f"with tempfile.TemporaryDirectory(dir={str(tmp_path)!r}) as work:\n"
+        "    child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)'])\n"
+        "    print(work, child.pid, flush=True)\n"
+        "    child.wait()\n"
+        "    subprocess.run([sys.executable, '-c', 'import time; time.sleep(120)'])\n")
+    runner = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    work, pid = runner.stdout.readline().split()     # waited for: the script has its child and its directory
+    os.kill(int(pid), signal.SIGKILL)                  # the first child ends; the script starts the second
+    time.sleep(1.0)
+    runner.send_signal(signal.SIGTERM)
+    assert runner.wait(timeout=60) == 128 + signal.SIGTERM
+    assert not Path(work).exists()
+    deadline = time.monotonic() + 30
+    while any("time.sleep(120)" in _cmdline(p) for p in Path("/proc").glob("[0-9]*")):
+        assert time.monotonic() < deadline, "the benchmark's child outlived it"
+        time.sleep(0.2)
+
+
+def _cmdline(proc: Path) -> str:
+    try:
+        return (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
