@@ -286,6 +286,7 @@ DEFAULTS = {
     "polish-auto": ("auto", (), {"0": ("--polish", "0")}),
     "polish-adapted": ("table1", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
     "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
+    "freeze-auto": ("auto", (), {"yes": ("--freeze", "yes")}),
     "loss-scales": ("designer", (), {"fit": ("--loss-scales", "fit")}),
     "loss-scales-auto": ("auto", (), {"fit": ("--loss-scales", "fit")}),
     "hammerstein-poles": ("designer", (), {"fixed": ("--hammerstein-poles", "fixed")}),
