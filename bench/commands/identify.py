@@ -40,13 +40,6 @@ KINDS = MODEL_KINDS.names()
 # the built-in campaign keeps the packaged model's kind; --train files deploy what their validation files favour
 BUILTIN_KIND = "hammerstein"
 DEFAULT_DT_S = 0.5
-# The polish when --polish is not given, chosen on the motor suite's validation profiles (examples/suite,
-# tests/benchmarks/bench_suite.py; Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw,
-# measured 2026-12-06, docs/method.md): from the motor's own prior, no polish 16.4 / 8.3 / 20.3 against
-# POLISH_STARTS starts unfrozen 12.0 / 23.8 / 9.8 (2 of 3); from --prior auto 20.8 / 23.5 / 52.2 against
-# 20.4 / 12.6 / 49.8 (3 of 3); from an adapted foreign network (Table 1) 14.2 / 8.6 / 62.0 against 20.4 / 11.6 /
-# 69.0 (0 of 3). So --train files polish unless the prior is adapted; the built-in campaign never does (its
-# packaged artifacts are reproduced).
 # --hammerstein-poles when not given, by the decision rule (three folds, suite-folds.json, 2026-12-07; mean held-out
 # Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw): from the designer's prior fixed
 # 41.0 / 11.0 / 18.3 against fit 36.8 / 8.9 / 21.0, from --prior auto 24.4 / 13.3 / 14.5 against 23.8 / 11.3 / 25.4:
@@ -57,6 +50,15 @@ def default_poles(files: bool) -> str:
     return POLES_FIT if files else POLES_FIXED
 
 
+# The polish when --polish is not given, chosen on the motor suite's validation profiles (examples/suite,
+# tests/benchmarks/bench_suite.py; Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw,
+# measured 2026-12-06, docs/method.md): from the motor's own prior, no polish 16.4 / 8.3 / 20.3 against
+# POLISH_STARTS starts unfrozen 12.0 / 23.8 / 9.8 (2 of 3); from --prior auto 20.8 / 23.5 / 52.2 against
+# 20.4 / 12.6 / 49.8 (3 of 3); from an adapted foreign network (Table 1) 14.2 / 8.6 / 62.0 against 20.4 / 11.6 /
+# 69.0 (0 of 3). So --train files polish unless the prior is adapted; the built-in campaign never does (its
+# packaged artifacts are reproduced). Under the decision rule (three folds, 2026-12-07, suite-folds-freeze-polish.json)
+# the polish wins 2 of 3 from both priors (designer 36.8 / 8.9 / 21.0 against 34.1 / 15.9 / 23.2 without; auto
+# 23.8 / 11.3 / 25.4 against 51.7 / 10.2 / 25.6).
 def default_polish(files: bool, adapt: bool) -> int:
     """--polish's default: POLISH_STARTS starts on the --train files path unless the prior is adapted, else 0."""
     return POLISH_STARTS if files and not adapt else 0
@@ -181,6 +183,8 @@ def run(args: argparse.Namespace) -> int:
     train, validate = _split(args, motor)
     # the built-in campaign keeps the packaged model's path unless asked otherwise (its artifact is reproduced)
     files = args.train is not None
+    # cv by the decision rule (suite-folds-regularization.json): cv 2 of 3 from the designer's prior, fixed 2 of 3
+    # from auto; a default changes only when the alternative wins under each prior
     regularization = args.regularization or ("cv" if files else "fixed")
     adapt = _adapts(args.adapt_prior, files, prior or motor.prior)
     polish = args.polish if args.polish is not None else default_polish(files, adapt)

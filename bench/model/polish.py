@@ -67,7 +67,10 @@ OUTPUT_INDEX = {"winding": 1, "pm": 3, "yoke": 0, "tooth": 2}
 PRIOR_SIGMAS_IN_BOX = 4.0
 # `bench identify --freeze` (and identify()'s `freeze`): off since 2026-12-06. On the motor suite's validation
 # profiles (designer's prior, --polish 2) the polish without freezing beat the one with it on all three motors
-# (winding + magnet MSE 11.98 vs 21.67, 23.75 vs 47.95, 9.79 vs 20.35 K²; docs/method.md).
+# (winding + magnet MSE 11.98 vs 21.67, 23.75 vs 47.95, 9.79 vs 20.35 K²; docs/method.md). Under the decision rule
+# (three folds, 2026-12-07, suite-folds-freeze-polish.json; air / IPM / outrunner): freezing wins 2 of 3 from the
+# designer's prior (36.77 / 8.93 / 20.99 against 33.39 / 21.92 / 15.06) but 1 of 3 from --prior auto (23.80 / 11.26 /
+# 25.35 against 37.43 / 14.65 / 9.41), so it stays off.
 DEFAULT_FREEZE = False
 FREEZE_ROUNDS = 2          # freeze_unidentified: re-polishes at most
 INSET = 1e-3               # a start on a wall is moved this share of the box inside (the box map is flat there)
