@@ -30,6 +30,7 @@ from record import Record, add_record_arguments  # noqa: E402
 
 from bench.drive.dataset import load_dataset  # noqa: E402
 from bench.drive.mapping import load_mapping  # noqa: E402
+from bench.model.baselines import lowpass  # noqa: E402
 from bench.model.fileeval import evaluate_file  # noqa: E402
 from target_sim.artifact import load_artifact  # noqa: E402
 
@@ -41,15 +42,7 @@ RIDGE = 1e-3          # × rows, on features scaled to unit spread: a light hold
 
 def lagged(u: np.ndarray, dt: float, taus: tuple[float, ...]) -> np.ndarray:
     """(steps, len(taus)·width): each input column through each unit-gain first-order lag, from zero."""
-    out = []
-    for tau in taus:
-        a = np.exp(-dt / tau)
-        z, column = np.zeros(u.shape[1]), np.empty_like(u)
-        for k, row in enumerate(u):
-            z = a * z + (1.0 - a) * row
-            column[k] = z
-        out.append(column)
-    return np.hstack(out)
+    return np.column_stack([lowpass(column, tau, dt) for tau in taus for column in u.T])
 
 
 def profile_errors(artifact, mapping, path: Path, taus) -> tuple[np.ndarray, dict[str, np.ndarray]]:
