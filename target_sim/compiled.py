@@ -6,11 +6,11 @@ compiled function (numba without fastmath: no reassociation, no FMA contraction,
 float32 as numpy rounds it; exp is `fmath.exp_f32`'s steps, the 2^n from `math.ldexp`, exact on its range): a few
 µs a step.
 
-It covers what the default and most models are: a linear-block kind (`lti-lptn`, `hammerstein`: the kinds whose
-part is `LinearBlockPart` or `HammersteinPart`, any realization, delta or not) on loss maps, one trajectory, float32,
-no observer (`compiled_step` returns None for anything else, and the node steps with the numpy code, which stays
-the reference: the offline reference and every test against it use it). tests/target_sim/test_compiled.py
-compares the two bit for bit over a drive cycle for each kind and realization covered.
+It covers what the default and most models are: a linear-block kind (`lti-lptn`, `hammerstein`: the registry's
+`linear_block` kinds, the sigmoid where it says `input_nonlinearity`; any realization, delta or not) on loss
+maps, one trajectory, float32, no observer (`compiled_step` returns None for anything else, and the node steps
+with the numpy code, which stays the reference: the offline reference and every test against it use it).
+tests/target_sim/test_compiled.py compares the two bit for bit over a drive cycle for each kind and realization covered.
 
 The step reads the estimator's x and y and writes the new ones into them in place, so a checkpoint, a RESET or
 RESTORE (which give the estimator new arrays) and the XCP slave see what the numpy step would have left; the one
@@ -145,12 +145,9 @@ def compiled_step(estimator) -> Callable[..., np.ndarray] | None:
     """The compiled `estimator.step(torque, speed, coolant, ambient)` for what this module covers (see above), or
     None."""
     from target_sim.losses.maps import LossTables
-    from target_sim.modelkinds.hammerstein import HammersteinPart
-    from target_sim.modelkinds.lti_lptn import LinearBlockPart
 
-    part = estimator.part
-    if estimator.f is not F32 or type(part) not in (LinearBlockPart, HammersteinPart) \
-            or type(estimator.luts) is not LossTables:
+    kind, part = estimator.model_kind, estimator.part
+    if estimator.f is not F32 or not kind.linear_block or type(estimator.luts) is not LossTables:
         return None
     kernel = step_kernel
     luts, p = estimator.luts, estimator.p
@@ -162,7 +159,7 @@ def compiled_step(estimator) -> Callable[..., np.ndarray] | None:
     tables = np.ascontiguousarray(luts.tables, dtype=F32)
     a, b, cm = (np.ascontiguousarray(m, dtype=F32) for m in (part.a, part.b, part.c))
     conv = np.stack([estimator.conv_b, estimator.conv_r0, estimator.conv_a]).astype(F32)
-    sigmoid = isinstance(part, HammersteinPart)
+    sigmoid = kind.input_nonlinearity
     if sigmoid:
         from target_sim.modelkinds.hammerstein import SIGMOID_KEYS
 
