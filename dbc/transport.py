@@ -87,8 +87,9 @@ class BusConfig:
     def nominal_bitrate(self) -> int:
         return int(self.bitrate or NOMINAL_BITRATE)
 
-    def open(self) -> can.BusABC:
-        """Open the bus or raise BusUnavailable (one sentence)."""
+    def open(self, lean: bool | None = None) -> can.BusABC:
+        """Open the bus or raise BusUnavailable (one sentence). lean=False: python-can's own bus (`can.Bus`) for
+        udp_multicast too, not `dbc.udp_bus.LeanUdpMulticastBus` (default: LEAN_UDP_RECEIVE)."""
         if self.interface == AUTO:
             raise BusUnavailable("resolve the 'auto' interface before opening it")
         config: dict[str, Any] = {"interface": self.interface, **self.kwargs}
@@ -97,7 +98,7 @@ class BusConfig:
         if self.bitrate is not None:
             config["bitrate"] = self.bitrate
         try:
-            if self.interface == UDP_INTERFACE and LEAN_UDP_RECEIVE:    # python-can's bus, a leaner receive
+            if self.interface == UDP_INTERFACE and (LEAN_UDP_RECEIVE if lean is None else lean):   # a leaner receive
                 from dbc.udp_bus import LeanUdpMulticastBus, lean_receive_available
 
                 if lean_receive_available():

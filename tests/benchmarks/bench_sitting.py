@@ -65,14 +65,7 @@ def _open_bus(bus_json: str):
 def python_can_bus(bus: BusConfig):
     """python-can's own bus of `bus` (`can.Bus`), for the ping-pong: the floor is python-can's round trip, not the
     bench's (`BusConfig.open` gives udp_multicast a leaner receive, `dbc.udp_bus`)."""
-    import can
-
-    config = {"interface": bus.interface, **bus.kwargs}
-    if bus.channel is not None:
-        config["channel"] = bus.channel
-    if bus.bitrate is not None:
-        config["bitrate"] = bus.bitrate
-    return can.Bus(**config)
+    return bus.open(lean=False)
 
 
 def echo(bus_json: str, seconds: float) -> int:

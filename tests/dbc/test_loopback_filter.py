@@ -70,10 +70,11 @@ def test_other_buses_are_left_as_they_were():
 def test_the_lean_receive_gives_what_python_cans_bus_gives():
     config = private_udp_bus()
     lean = config.open()
-    plain = can.Bus(interface="udp_multicast", channel=config.channel, **config.kwargs)
+    plain = config.open(lean=False)      # python-can's own bus, as the sitting's ping-pong opens it
     sender = can.Bus(interface="udp_multicast", channel=config.channel, **config.kwargs)
     try:
         assert isinstance(lean, LeanUdpMulticastBus)
+        assert type(plain) is not LeanUdpMulticastBus and isinstance(plain, can.BusABC)
         assert lean.recv(0.0) is None and lean.recv(0.05) is None     # nothing there: None, polled or waited for
         before = time.time()
         frames = _frames() + [can.Message(arbitration_id=0x123, data=bytes(range(12)), is_fd=True, dlc=12)]
