@@ -575,6 +575,8 @@ class BusInfo:
     interface: str
     channel: Any
     port: int | None = field(default=None, metadata=OMIT_NONE)
+    # frames other listeners lost at full receive buffers during the run (`dbc.udp_listeners`; udp_multicast)
+    listener_drops: int | None = field(default=None, metadata=OMIT_NONE)
 
 
 @dataclass

@@ -53,6 +53,15 @@ def announce_logger(bus: BusConfig, quiet: bool, prefix: str = "bench: ", wait_s
         time.sleep(wait_s)
 
 
+def warn_listener_drops(dropped: int | None, quiet: bool, prefix: str = "bench: ") -> None:
+    """On stderr (unless `quiet`; the JSON's "bus" has it anyway), how many frames other listeners on the run's
+    udp bus lost at their full receive buffers (`dbc.udp_listeners`): a logger's copy of the run is incomplete."""
+    if dropped and not quiet:
+        print(f"{prefix}warning: listeners on this bus (e.g. python-can's logger) dropped {dropped} frames of the run "
+              "at their full receive buffers, so their copies are incomplete (the run's own log is not); on a busy "
+              "machine record with --log, or give the listener the CPU it needs", file=sys.stderr, flush=True)
+
+
 # ---------------------------------------------------------------- inputs and outputs of a command
 
 FILES_DEFAULT = "_bench_files"   # the parser default (namespace attribute) holding a command's FileRoles

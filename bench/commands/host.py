@@ -42,7 +42,7 @@ import sys
 import time
 
 from bench.acceptance.cli import finish_run, prepare
-from bench.commands.args import announce_logger, declare_files
+from bench.commands.args import announce_logger, declare_files, warn_listener_drops
 from bench.commands.common import SHOWN_NODES, add_output_flags, fmt, print_json
 from bench.errors import UsageError
 from bench.run.execute import execute_attached
@@ -99,6 +99,7 @@ def run_host(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     outcome = execute_attached(prepared, request, config, faults, announce=announce)
+    warn_listener_drops(outcome.listener_drops, args.quiet, "bench: host: ")
     judged = judge(prepared, outcome, request, acceptor.gate, config, engine=outcome.result.engine, firmware=None,
                    started=started, need_figures=False)
     if args.json:

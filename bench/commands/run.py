@@ -29,7 +29,9 @@ too, not with --quiet) stderr has the `python -m can.logger ...` line that recor
 on a channel you chose (-c, CAN_CHANNEL, a config file) uses python-can's port 43113 unless --bus-kwargs port=N;
 with no channel chosen the bench's own group and a port unique to the run, which exists only once the run has
 started: `--wait-for-listener SECONDS` prints the logger line first and waits before the target starts, so a
-logger started from it records the whole run. A target already sending on
+logger started from it records the whole run. Frames other listeners on a udp bus lost at their full receive
+buffers (a logger starved of CPU) are counted from the kernel's figures: a warning and "listener_drops" in the
+JSON's "bus". A target already sending on
 the channel is refused before the run starts its own, and so is a host; a host frame this run did not send stops
 it at any time (`dbc.transport.SenderGuard`). A --log that cannot be written (a directory) is refused before the
 run, and so is a --report directory holding other files. SIGINT, SIGTERM and SIGHUP stop the target, discard the
@@ -65,7 +67,7 @@ import time
 from pathlib import Path
 
 from bench.acceptance.cli import finish_run, prepare
-from bench.commands.args import announce_logger, bus_from_args, declare_files
+from bench.commands.args import announce_logger, bus_from_args, declare_files, warn_listener_drops
 from bench.commands.common import add_output_flags, print_json, print_summary
 from bench.errors import UsageError
 from bench.progress import ProgressBar
@@ -126,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
         outcome = execute_started(prepared, request, bus, faults, firmware=firmware, progress=bar)
     finally:
         bar.close()
+    warn_listener_drops(outcome.listener_drops, args.quiet)
     cycles = node_cycles(outcome.target_stats)
     run_info = {"mode": f"{request.mode}" + (f" x{request.speed:g}" if request.mode == "realtime" else ""),
                 "bus": bus.describe(), "engine": _engine_label(request.engine, firmware, request.isr_rate),

@@ -34,7 +34,8 @@ from bench.run.elfnote import note_target
 from bench.run.target import TargetProcess
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S
 from dbc.database import host_frame_ids
-from dbc.transport import IN_USE_LISTEN_S, BusConfig, SenderGuard, first_heard
+from dbc.transport import IN_USE_LISTEN_S, UDP_INTERFACE, BusConfig, SenderGuard, first_heard
+from dbc.udp_listeners import ListenerDrops
 from host.faults import FaultSpec, FaultSpecError
 from host.procedure import replay_log, run_dataset
 from host.replay import Progress
@@ -56,6 +57,12 @@ class RunOutcome:
     target_status: int | None
     target_stderr: str
     target_stats: dict | None = None    # the target's counters at exit (`python -m target_sim --stats`)
+    listener_drops: int | None = None   # frames other listeners on a udp bus lost (`dbc.udp_listeners`)
+
+
+def listener_drops(bus: BusConfig) -> ListenerDrops | None:
+    """The kernel's drop counts of the listeners on `bus` from now on, where it keeps them (udp_multicast)."""
+    return ListenerDrops(int(bus.kwargs["port"])) if bus.interface == UDP_INTERFACE and "port" in bus.kwargs else None
 
 
 def _open(bus: BusConfig) -> SenderGuard:
@@ -120,6 +127,8 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     stats_path = Path(target_files.name) / "target-stats.json"
     target_stats = None
     host_bus = _open(bus)
+    listeners = listener_drops(bus)
+    dropped = None
     try:
         refuse_foreign_target(host_bus, bus, artifact)   # (the guard raises OtherSender if it hears another host)
         with TargetProcess(model_path, bus, events_path=events, firmware=firmware, stats_path=stats_path,
@@ -131,6 +140,8 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
                 faults=faults if injecting else None,
                 control=target.control() if injecting else None, target_events=events,
                 measurements=measurements), target)
+            if listeners is not None:   # while the target's socket is open: its filtered own copies are not a loss
+                dropped = listeners.count([target.process.pid] if target.process is not None else [])
             killed = target.killed_by_other()   # before stop(): it ended while the host still ran
             status = target.stop()
             stderr = target.stderr_text()
@@ -146,7 +157,7 @@ def run_with_target(model_path: Path, artifact: ModelArtifact, bus: BusConfig, d
     if status not in (0, None):
         raise BenchError(f"the target process ended with status {status} after the run: "
                          f"{stderr.strip().splitlines()[-1] if stderr.strip() else '(no output)'}")
-    return RunOutcome(result, status, stderr, target_stats)
+    return RunOutcome(result, status, stderr, target_stats, dropped)
 
 
 def execute_started(prepared: PreparedRun, request: RunRequest, bus: BusConfig, faults: FaultSpec | None, *,
@@ -171,6 +182,7 @@ def execute_attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig,
     from bench.model.runs import initial_temperatures
 
     host_bus = None
+    listeners = listener_drops(bus)
     try:
         host_bus = bus.open()
         if (other := first_heard(host_bus, host_frame_ids())) is not None:  # two hosts would both drive the target
@@ -184,6 +196,7 @@ def execute_attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig,
                              reply_timeout_s=request.reply_timeout, connect_timeout_s=request.connect_timeout,
                              faults=faults, target_events=request.target_events, events_since=time.time(),
                              measurements=prepared.measurements)
+        dropped = listeners.count() if listeners is not None else None
     except FaultSpecError as exc:   # kept for its exit status: a plan the host refuses here (faults in real time at
         raise BenchError(str(exc)) from None   # too short a sample interval) exits 1, a bad --fault option 2
     finally:
@@ -191,7 +204,7 @@ def execute_attached(prepared: PreparedRun, request: RunRequest, bus: BusConfig,
             host_bus.shutdown()
     if result.log_path:    # a target not started here: its ELF is unknown (an earlier run's note of this name goes)
         note_target(result.log_path, None)
-    return RunOutcome(result, None, "")
+    return RunOutcome(result, None, "", listener_drops=dropped)
 
 
 def killed_sentence(killed: signal.Signals, result: HostResult) -> str:

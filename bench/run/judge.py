@@ -32,10 +32,11 @@ class JudgedRun:
     verdict: Verdict
 
 
-def bus_summary(bus: BusConfig) -> BusInfo:
-    """The bus a run used, `auto` resolved (a script needs it to reach the same bus, e.g. its udp port)."""
+def bus_summary(bus: BusConfig, listener_drops: int | None = None) -> BusInfo:
+    """The bus a run used, `auto` resolved (a script needs it to reach the same bus, e.g. its udp port), and what
+    other listeners on it lost during the run."""
     port = bus.kwargs.get("port") if bus.interface == UDP_INTERFACE else None
-    return BusInfo(bus.interface, bus.channel, port)
+    return BusInfo(bus.interface, bus.channel, port, listener_drops)
 
 
 def node_cycles(stats: dict | None) -> NodeCycles | None:
@@ -78,7 +79,7 @@ def judge(prepared: PreparedRun, outcome: RunOutcome, request: RunRequest, gate:
     summary = RunSummary(
         engine=engine or (metrics.timing.engine if metrics is not None else host.engine),
         firmware=str(firmware) if firmware is not None else None,
-        bus=bus_summary(bus),
+        bus=bus_summary(bus, outcome.listener_drops),
         problems=judged.problems,
         clean=not judged.problems and not injected,
         faults=HostFaults.of_run(host.faults, metrics.faults if metrics is not None else None),
