@@ -202,7 +202,8 @@ LISTENER_WAIT_S = 20   # generous: python-can's logger imports and opens the bus
 def test_a_logger_started_during_the_wait_for_listener_records_the_whole_run(small_dataset, tmp_path):
     """The logger line names the run's own udp port, which exists only once `bench run` has started: with
     --wait-for-listener the line comes first (with --quiet too) and the run waits before its target starts, so a
-    logger started from the line during the wait records every frame of the run."""
+    logger started from the line during the wait records every frame of the run (but those the run counted as
+    lost at its full receive buffer)."""
     env = subprocess_env(can_settings=False)
     run = subprocess.Popen([sys.executable, "-m", "bench", "run", "--data", str(small_dataset), "--rows", "200",
                             "--no-report", "--json", "--quiet", "--log", str(tmp_path / "run.log"),
@@ -235,7 +236,8 @@ def test_a_logger_started_during_the_wait_for_listener_records_the_whole_run(sma
         assert copy.exists(), f"python-can's logger did not open the bus during the {LISTENER_WAIT_S} s wait"
         out, _ = run.communicate(timeout=240)
         reader.join(10)
-        time.sleep(0.5)   # the last frames reach the logger
+        port = json.loads(out)["bus"]["port"]
+        assert _drained(port, timeout_s=60), "python-can's logger did not read its socket empty within 60 s"
     finally:
         if run.poll() is None:
             run.kill()
@@ -253,5 +255,7 @@ def test_a_logger_started_during_the_wait_for_listener_records_the_whole_run(sma
     assert json.loads(out)["verdict"] == "clean"
     recorded, copied = _frames(tmp_path / "run.log"), _frames(copy)
     assert sum(recorded.values()) > 200 * 4
-    assert recorded - copied == Counter(), (f"frames of the run the logger (ready {ready_after:.1f} s into the "
-                                            f"{LISTENER_WAIT_S} s wait) did not record")
+    # all but those the run counted as lost at the logger's full buffer (a busy machine; see the test above)
+    missing, dropped = sum((recorded - copied).values()), json.loads(out)["bus"]["listener_drops"]
+    assert missing <= dropped <= missing + 2, (f"the logger (ready {ready_after:.1f} s into the {LISTENER_WAIT_S} s "
+                                               f"wait) lost {missing} frames of the run, the run counted {dropped}")
