@@ -278,13 +278,16 @@ def pooled_observer(per_file: list[dict], index: dict) -> dict:
 # {alternative: its arguments beside those}); a run is kept under its prior and arguments (`run_tag`)
 DEFAULTS = {
     "adapt-prior": ("table1", (), {"yes": ("--adapt-prior", "yes")}),
+    "adapt-prior-designer": ("designer", (), {"yes": ("--adapt-prior", "yes")}),   # acts on every prior but auto
     "regularization": ("designer", (), {"fixed": ("--regularization", "fixed")}),
     "regularization-auto": ("auto", (), {"fixed": ("--regularization", "fixed")}),
     "stator-weight": ("designer", (), {"fixed": ("--stator-weight", "fixed")}),
+    "stator-weight-auto": ("auto", (), {"fixed": ("--stator-weight", "fixed")}),
     # --train files polish by default (2 starts, unfrozen) unless the prior is adapted (a named foreign network)
     "polish": ("designer", (), {"0": ("--polish", "0")}),
     "polish-auto": ("auto", (), {"0": ("--polish", "0")}),
     "polish-adapted": ("table1", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
+    "polish-adapted-designer": ("designer", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
     "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
     "freeze-auto": ("auto", (), {"yes": ("--freeze", "yes")}),
     "loss-scales": ("designer", (), {"fit": ("--loss-scales", "fit")}),
