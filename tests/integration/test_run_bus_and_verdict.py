@@ -27,7 +27,8 @@ def test_bench_run_json_names_the_udp_multicast_bus(small_dataset, tmp_path):
     assert proc.returncode == 0, proc.stderr
     s = json.loads(proc.stdout)
     bus = s["bus"]
-    assert set(bus) == {"interface", "channel", "port"}, bus
+    assert set(bus) == {"interface", "channel", "port", "listener_drops"}, bus
+    assert bus["listener_drops"] == 0, bus   # nobody else listens on the run's own port
     assert bus["interface"] == "udp_multicast" and bus["channel"] in (UDP_LOCAL_GROUP, UDP_IPV4_GROUP)
     assert isinstance(bus["port"], int) and 0 < bus["port"] < 65536 and bus["port"] != 43113  # run-unique
     assert (s["steps_sent"], s["replies"], s["missing"]) == (60, 60, 0)
