@@ -19,6 +19,7 @@ from bench.commands.common import add_data_arguments, add_output_flags, check_wr
 from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.coverage import coverage_warnings
+from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
 from bench.model.deploy import AUTO, CANDIDATES, DEPLOYED_NODES
 from bench.model.hammerstein_fit import (
     FIT_PATHS,
@@ -132,6 +133,10 @@ def add_subparser(subparsers) -> None:
                         "the network after the polish, copper the reference; the artifacts carry the scaled model; "
                         f"none: the motor file's losses as given (default {DEFAULT_LOSS_SCALES}: compared on the "
                         "motor suite's validation profiles, see docs/method.md)")
+    p.add_argument("--network-cost", choices=list(CRITERIA), default=DEFAULT_CRITERION,
+                   help="the network fit's criterion (swarm and polish): likelihood, the sum of the measured nodes' "
+                        "log MSE (every node by its relative fit), or pooled, the log of their summed MSE (every "
+                        f"node by its error in K²) (default {DEFAULT_CRITERION}, see docs/method.md)")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -201,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
                           standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
                           adapt=adapt, loss_scales=args.loss_scales == "fit",
-                          hammerstein_poles=poles, progress=progress)
+                          hammerstein_poles=poles, network_cost=args.network_cost, progress=progress)
     finally:
         if progress is not None:
             progress.close()
@@ -210,17 +215,22 @@ def run(args: argparse.Namespace) -> int:
     if deployment is not None:     # every artifact says which kind was deployed, and why
         result.provenance["deployment"] = deployment.record()
     deployed = deployment.kind if deployment else kind
+    contents = {each: result.content(each, args.realization if MODEL_KINDS[each].realizations else "physical",
+                                     metrics) for each in kinds}
+    refused = {k: why for k, content in contents.items() if (why := _refusal(content))}
+    if deployed in refused:    # every candidate refused, or the one asked for
+        raise BenchError(refused[deployed])
     written = {}
-    for each in kinds:
+    for each in (k for k in kinds if k not in refused):   # an artifact the target would refuse is not written
         path = args.out if each == deployed else _beside(args.out, each)
-        realization = args.realization if MODEL_KINDS[each].realizations else "physical"
-        write_text_atomically(path, _artifact_text(result.content(each, realization, metrics)))
+        write_text_atomically(path, _artifact_text(contents[each]))
         written[each] = str(path)
     prov = result.provenance
     uncertainty = prov.get("uncertainty")
     gaps = undetermined(uncertainty)
     selection = prov["lm"].get("regularization")
     warnings = _warnings(result.lptn.on_bounds, prov, gaps)
+    warnings += [f"no {k} artifact written (the target would refuse it): {why}" for k, why in refused.items()]
     deploy = _deployment(selection, metrics, written, deployed if auto else None)
     if deploy:
         warnings.append(deploy)
@@ -380,7 +390,7 @@ def _evidence(selection: dict | None, metrics: dict) -> tuple[list[str], list[st
         side.append(f"on left-out training files (RMS Hammerstein {selection['selected_rms_C']:.3f} vs LTI "
                     f"{selection['lti_rms_C']:.3f} °C)")
     ham, lti = metrics.get("hammerstein"), metrics.get(LTI)
-    if ham and lti:
+    if ham and lti and "refused" not in ham and "refused" not in lti:
         rmse = {n: (ham["float32"][n]["rmse"], lti["float32"][n]["rmse"]) for n in COMPARED_NODES}
         worse = [f"{n} {h:.3f} vs {t:.3f}" for n, (h, t) in rmse.items() if h > t]
         better = [f"{n} {h:.3f} vs {t:.3f}" for n, (h, t) in rmse.items() if h < t]
@@ -452,6 +462,18 @@ def _box_advice(prior: str, bounds: list[float]) -> str:
         return " or ".join(advice)
     return ("a box this wide around a prior read from these data already holds any network they support, so a "
             "wider one would only bend the network further: check the motor file's losses and the data's units")
+
+
+def _refusal(content: dict) -> str | None:
+    """The sentence with which the target would refuse this artifact (a step unstable somewhere in the operating
+    range), None when it loads."""
+    from target_sim.artifact import ArtifactError, seal, verify
+
+    try:
+        verify(seal(content))
+    except ArtifactError as exc:
+        return str(exc)
+    return None
 
 
 def _artifact_text(content: dict) -> str:

@@ -56,7 +56,10 @@ class Deployment:
 
 def validation_score(figures: dict) -> float:
     """One kind's score from its validation figures ({float32: {node: {mse, ...}}}): the deployed nodes' float32
-    MSE summed, inf when the model diverged (a NaN or an inf estimate is never deployed)."""
+    MSE summed, inf when the model diverged (a NaN or an inf estimate is never deployed) or the target would refuse
+    its artifact ({"refused": why})."""
+    if "refused" in figures:
+        return math.inf
     score = math.fsum(figures["float32"][node]["mse"] for node in DEPLOYED_NODES)
     return score if math.isfinite(score) else math.inf
 

@@ -12,6 +12,7 @@ import numpy as np
 from bench.model.auto_prior import auto_prior
 from bench.model.baselines import fit_baselines
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
+from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
 from bench.model.hammerstein_fit import (
     POLE_CHOICES,
     POLES_FIT,
@@ -106,7 +107,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              width: tuple[float, float] | None = None, validation=(), polish_starts: int = 0,
              regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
              freeze: bool = DEFAULT_FREEZE, stator_weight: str = STATOR_RULE, loss_scales: bool = False,
-             hammerstein_poles: str = POLES_FIXED,
+             hammerstein_poles: str = POLES_FIXED, network_cost: str = DEFAULT_CRITERION,
              progress: Callable[[str, int, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
@@ -119,8 +120,10 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     `cv`, the Hammerstein fit's stator weight chosen by its rule or kept fixed (STATOR_WEIGHT_CHOICES). `loss_scales`:
     the stator iron and magnet losses scaled by factors fitted with the network after the swarm and the polish
     (bench.model.loss_scales); the artifacts then carry the scaled loss model. `hammerstein_poles`: the Hammerstein
-    fit keeps the network's poles or fits its modes' time constants too (POLE_CHOICES). The defaults (no polish, fixed
-    ridge, no adaptation, no standard errors, no loss scales) are the packaged model's path. `progress`
+    fit keeps the network's poles or fits its modes' time constants too (POLE_CHOICES). `network_cost`: the swarm's
+    and the polish's criterion (bench.model.criteria.CRITERIA; a foreign prior's adaptation keeps the likelihood).
+    The defaults (no polish, fixed ridge, no adaptation, no standard errors, no loss scales) are the packaged model's
+    path. `progress`
     is called with (stage "pso", "polish", "scales" or "lm", steps done, steps at most, cost) as each stage goes;
     a stage may end before its most (a stalled swarm, a converged fit)."""
     if discretization != "zoh":
@@ -129,6 +132,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         raise ValueError(f"unknown regularization {regularization!r}; choose one of {', '.join(REGULARIZATIONS)}")
     if hammerstein_poles not in POLE_CHOICES:
         raise ValueError(f"unknown Hammerstein poles {hammerstein_poles!r}; choose one of {', '.join(POLE_CHOICES)}")
+    if network_cost not in CRITERIA:
+        raise ValueError(f"unknown network cost {network_cost!r}; choose one of {', '.join(CRITERIA)}")
     motor = motor or default_motor()
     prior = prior or motor.prior
     width = width or (prior.bounds if prior else DEFAULT_WIDTH)
@@ -148,7 +153,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         start = adapted.parameters
     lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
                          width=width, stall=POLISHED_SWARM_STALL if polish_starts > 0 else None,
-                         on_iteration=(lambda i, c: progress("pso", i + 1, pso_iterations, c)) if progress else None)
+                         on_iteration=(lambda i, c: progress("pso", i + 1, pso_iterations, c)) if progress else None,
+                         criterion=network_cost)
     timings["pso"] = time.perf_counter() - started
     polished, errors = None, None
     if polish_starts > 0:
@@ -213,6 +219,9 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         provenance["pso"]["nodes"] = {node: NODE_WEIGHTS[node] for node in lptn.nodes}
         provenance["pso"]["cost"] = ("weighted sum of log MSE over the measured nodes: Gaussian maximum "
                                      "likelihood with unknown variances")
+    if network_cost != DEFAULT_CRITERION:
+        provenance["pso"]["cost"] = CRITERIA[network_cost].description
+        provenance["pso"]["criterion"] = network_cost
     if lptn.stalled_at is not None:
         provenance["pso"]["stalled_at"] = lptn.stalled_at
     if derived is not None:

@@ -96,7 +96,7 @@ def fit_loss_scales(fit: LptnFit, runs: Sequence[ModelRun], dt: float, prior: Lp
     upper = np.concatenate([upper22, np.full(count, box[1])])
     start = np.concatenate([to_search(np.array(fit.params.as_vector()), scaled), np.zeros(count)])
     centre = np.concatenate([to_search(np.array(prior.as_vector()), scaled), np.zeros(count)])
-    problem = ScaledResiduals(runs, dt, fit.nodes, scaled)
+    problem = ScaledResiduals(runs, dt, fit.nodes, scaled, fit.criterion)
     penalty = prior_penalty(problem, start, centre, lower, upper)
     before = problem.cost(problem.errors(start[None])[0])
     coords, _, evaluations = polish_one(problem, start, lower, upper, penalty)

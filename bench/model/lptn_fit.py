@@ -3,7 +3,8 @@
 Cost: the maximum-likelihood criterion for independent Gaussian output errors with unknown variances,
 J = Σ_nodes w_node · log(MSE_node), over every node the training runs measure (winding and PM always, the stator
 yoke and tooth when every training file has them; NODE_WEIGHTS) of all identification runs together; it is
-scale-free, so the nodes weigh by their relative fit, not by their size in °C.
+scale-free, so the nodes weigh by their relative fit, not by their size in °C. (`--network-cost pooled`: log Σ w MSE
+instead, bench.model.criteria.)
 Each candidate is simulated exactly as the estimator runs (closed loop, sources from its previous estimate).
 The search is done in log coordinates for the positive parameters, so a factor of two up or down is one step.
 """
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.drive.dataset import MEASURED_NODES
+from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
 from bench.model.deploy import DEPLOYED_NODES
 from bench.model.runs import ModelRun
 from bench.thermal import portable
@@ -128,15 +130,16 @@ def discrete_blocks(vectors: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndar
     return phi[:, :4, :4], phi[:, :4, 4:]
 
 
-def likelihood_cost(sse: np.ndarray, counts: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    """Σ w·log(MSE) over the fitted nodes; sse (P, nodes) summed over runs, counts (nodes,) samples per node."""
+def likelihood_cost(sse: np.ndarray, counts: np.ndarray, weights: np.ndarray | None = None,
+                    criterion: str = DEFAULT_CRITERION) -> np.ndarray:
+    """The `criterion`'s cost (bench.model.criteria; the default Σ w·log(MSE)) over the fitted nodes; sse (P, nodes)
+    summed over runs, counts (nodes,) samples per node."""
     weights = np.ones(sse.shape[1]) if weights is None else np.asarray(weights, float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.sum(weights * portable.log_array(sse / counts), axis=1)
+    return CRITERIA[criterion].cost(sse / counts, weights)
 
 
 def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w: np.ndarray,
-               nodes: tuple[str, ...] = FITTED_ALWAYS) -> np.ndarray:
+               nodes: tuple[str, ...] = FITTED_ALWAYS, criterion: str = DEFAULT_CRITERION) -> np.ndarray:
     """The cost of each parameter vector (P, 22) over all runs and the given measured nodes."""
     a_d, b_d = discrete_blocks(vectors, dt)
     n = len(vectors)
@@ -151,7 +154,7 @@ def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w
                             ref_y=run.ref_yoke, ref_t=run.ref_tooth)
         sse += part[:, columns]
     counts = np.full(len(nodes), float(sum(len(r.ref_winding) for r in runs)))
-    return likelihood_cost(sse, counts, [NODE_WEIGHTS[node] for node in nodes])
+    return likelihood_cost(sse, counts, [NODE_WEIGHTS[node] for node in nodes], criterion)
 
 
 @dataclass(frozen=True)
@@ -168,13 +171,15 @@ class LptnFit:
     nodes: tuple[str, ...] = FITTED_ALWAYS    # the measured nodes in the cost
     candidates: np.ndarray | None = None      # the swarm's personal bests (search coordinates), best first
     stalled_at: int | None = None             # iterations run when the swarm stopped at a stall (pso.Stall)
+    criterion: str = DEFAULT_CRITERION        # the cost's criterion (bench.model.criteria), the polish's too
 
 
 def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220, iterations: int = 100,
                   seed: int = 0, start: LptnParameters = TABLE1, width: tuple[float, float] = DEFAULT_WIDTH,
-                  stall: Stall | None = None, on_iteration: Callable[[int, float], None] | None = None) -> LptnFit:
+                  stall: Stall | None = None, on_iteration: Callable[[int, float], None] | None = None,
+                  criterion: str = DEFAULT_CRITERION) -> LptnFit:
     """PSO over the 22 parameters within `width` × `start` (the prior, which is one of the initial particles),
-    stopped early at a `stall` if one is given."""
+    stopped early at a `stall` if one is given, on the `criterion`'s cost (bench.model.criteria)."""
 
     scale_w = np.ones(4)
     bounds = parameter_bounds(start, width)
@@ -183,11 +188,11 @@ def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220,
     initial = to_search(np.clip(start.as_vector(), [b[0] for b in bounds.values()], [b[1] for b in bounds.values()]),
                         scaled)
     nodes = measured_nodes(runs)
-    result = particle_swarm(lambda pos: batch_cost(from_search(pos, scaled), runs, dt, scale_w, nodes), lower,
-                            upper, swarm_size=swarm_size, iterations=iterations, seed=seed,
+    result = particle_swarm(lambda pos: batch_cost(from_search(pos, scaled), runs, dt, scale_w, nodes, criterion),
+                            lower, upper, swarm_size=swarm_size, iterations=iterations, seed=seed,
                             initial=initial, stall=stall, on_iteration=on_iteration)
     params = LptnParameters.from_vector(from_search(result.best, scaled))
     order = np.argsort(result.personal_costs, kind="stable")
     return LptnFit(params, result.best_cost, result.history.tolist(), result.evaluations, seed, swarm_size,
                    iterations, bounds, parameters_on_bounds(params, bounds), nodes, result.personal_bests[order],
-                   result.stalled_at)
+                   result.stalled_at, criterion)

@@ -5,7 +5,8 @@ wide search box that gap is large. The polish starts from the swarm's best disti
 start in its own thread on the available cores, and keeps the lowest training cost (ties: the earlier start).
 
 The cost is the swarm's J = Σ w_n log MSE_n (lptn_fit.NODE_WEIGHTS). A sum of logs is not a sum of squares, so
-each round fixes the variances at their current values, σ_n² = MSE_n, and minimizes Σ w_n ‖r_n‖²/(N σ_n²) by LM
+each round fixes the variances at their current values, σ_n² = MSE_n (the `pooled` criterion, J = log Σ w_n MSE_n:
+one σ² = Σ w_n MSE_n for every node; bench.model.criteria), and minimizes Σ w_n ‖r_n‖²/(N σ_n²) by LM
 (MINPACK's lmder as scipy's least_squares method "lm" runs it; bench.model.minpack); the next round re-estimates
 σ_n. At a fixed point the gradient of J is zero (the concentrated-likelihood iteration). The search box is kept
 by a smooth map u -> x = lo + (hi − lo)(1 + u/√(1+u²))/2 made of +, −, ×, / and √ only. MINPACK uses no BLAS
@@ -32,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from bench import stop
+from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
 from bench.model.lptn_fit import (
     NODE_WEIGHTS,
     LptnFit,
@@ -92,8 +94,11 @@ class Polish:
 class Residuals:
     """The fitted nodes' errors of a batch of parameter vectors, over every run."""
 
-    def __init__(self, runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...]):
+    def __init__(self, runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...],
+                 criterion: str = DEFAULT_CRITERION):
         self.runs, self.dt, self.nodes, self.scaled = runs, dt, nodes, scaled
+        self.criterion = CRITERIA[criterion]
+        self.weights = np.array([NODE_WEIGHTS[node] for node in nodes])
         self.count = float(sum(len(r.ref_winding) for r in runs))
 
     def errors(self, coords: np.ndarray) -> np.ndarray:
@@ -124,10 +129,12 @@ class Residuals:
         return np.array([math.fsum(e * e) / self.count for e in errors])
 
     def cost(self, errors: np.ndarray) -> float:
-        """The swarm's likelihood cost of one model's errors (nodes, samples)."""
-        mse = self.mse(errors)
-        return math.fsum(NODE_WEIGHTS[node] * float(portable.log_array(np.array([m]))[0])
-                         for node, m in zip(self.nodes, mse, strict=True))
+        """The swarm's cost (its criterion's) of one model's errors (nodes, samples)."""
+        return self.criterion.exact_cost(self.mse(errors), self.weights)
+
+    def variances(self, errors: np.ndarray) -> np.ndarray:
+        """(nodes,) the variances a polish round divides each node's squared errors by (its criterion's)."""
+        return self.criterion.variances(self.mse(errors), self.weights)
 
 
 @dataclass(frozen=True)
@@ -211,12 +218,11 @@ def polish_one(problem: Residuals, start: np.ndarray, lower: np.ndarray, upper: 
         return x
 
     u = u + shift
-    weights = np.array([NODE_WEIGHTS[node] for node in problem.nodes])
     extra = (lambda x: 0.0) if penalty is None else penalty.cost
     evaluations = 0
     best_x, best_cost = start, problem.cost(problem.errors(start[None])[0]) + extra(start)
     for _ in range(ROUNDS):
-        scale = np.sqrt(weights / (problem.count * problem.mse(problem.errors(box(u[None]))[0])))
+        scale = np.sqrt(problem.weights / (problem.count * problem.variances(problem.errors(box(u[None]))[0])))
 
         def rows(batch, scale=scale):
             stop.check()    # a worker thread: the signal handler cannot reach it (bench.stop)
@@ -299,18 +305,18 @@ def in_threads(task, items: Sequence) -> list:
 
 def polish(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...],
            candidates: np.ndarray, lower: np.ndarray, upper: np.ndarray, starts: int = POLISH_STARTS,
-           centre: np.ndarray | None = None) -> Polish:
-    """Polish from the best `starts` distinct candidates (search coordinates, best first); keep the lowest cost.
-    With the prior's `centre` (search coordinates) the cost is maximum a posteriori (PriorPenalty), its weight
-    from the errors at the best candidate."""
-    problem = Residuals(runs, dt, nodes, scaled)
+           centre: np.ndarray | None = None, criterion: str = DEFAULT_CRITERION) -> Polish:
+    """Polish from the best `starts` distinct candidates (search coordinates, best first); keep the lowest cost
+    (the swarm's `criterion`'s). With the prior's `centre` (search coordinates) the cost is maximum a posteriori
+    (PriorPenalty), its weight from the errors at the best candidate."""
+    problem = Residuals(runs, dt, nodes, scaled, criterion)
     chosen = distinct_starts(candidates, lower, upper, starts)
     penalty = None if centre is None else prior_penalty(problem, chosen[0], centre, lower, upper)
     extra = (lambda x: 0.0) if penalty is None else penalty.cost
 
     def costs(points: list[np.ndarray]) -> list[float]:
         # the swarm's kernel sums, so the comparison with the swarm is exact
-        data = batch_cost(from_search(np.array(points), scaled), runs, dt, np.ones(4), nodes)
+        data = batch_cost(from_search(np.array(points), scaled), runs, dt, np.ones(4), nodes, criterion)
         return [float(c) + extra(x) for c, x in zip(data, points, strict=True)]
 
     start_costs = costs(chosen)
@@ -330,7 +336,7 @@ def polish_lptn(fit: LptnFit, runs: Sequence[ModelRun], dt: float, starts: int =
     scaled = log_scaled(fit.bounds)
     lower, upper = search_bounds(fit.bounds)
     centre = None if prior is None else to_search(np.array(prior.as_vector()), scaled)
-    result = polish(runs, dt, fit.nodes, scaled, fit.candidates, lower, upper, starts, centre)
+    result = polish(runs, dt, fit.nodes, scaled, fit.candidates, lower, upper, starts, centre, fit.criterion)
     swarm = to_search(np.array(fit.params.as_vector()), scaled)
     swarm_cost = fit.cost + (0.0 if result.prior is None else result.prior.cost(swarm))
     result = replace(result, swarm_cost=swarm_cost)
@@ -353,7 +359,7 @@ def freeze_unidentified(fit: LptnFit, result: Polish, runs: Sequence[ModelRun], 
     scaled = log_scaled(fit.bounds)
     lower, upper = search_bounds(fit.bounds)
     names = LptnParameters.names()
-    problem = Residuals(runs, dt, fit.nodes, scaled)
+    problem = Residuals(runs, dt, fit.nodes, scaled, fit.criterion)
     frozen = list(result.frozen)
     coords = to_search(np.array(fit.params.as_vector()), scaled)
     for _ in range(FREEZE_ROUNDS):

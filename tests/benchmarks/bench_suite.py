@@ -55,10 +55,12 @@ Every figure comes from the commands' own `--json`. Writes its record (`tests/be
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -118,10 +120,42 @@ def identify(motor: Path, work: Path, data: Path, index: dict, prior: str, extra
     split = split or {role: files(data, index, role) for role in ("train", "validate")}
     out = work / motor.name / (f"{prior}-{tag}" if tag else prior) / "model.json"
     kept = out.with_name("identify.json")     # the command's --json, for --reuse
-    if REUSE and kept.is_file():
-        run = json.loads(kept.read_text(encoding="utf-8"))
-        run["out"], run["artifacts"] = out, rerooted(run["artifacts"], out.parent)
-        return run
+    with claimed(out.with_name("identify.lock")):   # another suite process on this --work may be making this run
+        if REUSE and kept.is_file():
+            run = json.loads(kept.read_text(encoding="utf-8"))
+            run["out"], run["artifacts"] = out, rerooted(run["artifacts"], out.parent)
+            return run
+        return identified_run(motor, out, kept, option, split, extra)
+
+
+@contextlib.contextmanager
+def claimed(lock: Path, poll_s: float = 5.0):
+    """While held, no other suite process makes the same run: suite processes comparing different defaults on one
+    --work (--reuse) share the runs they have in common (the defaults' own folds) instead of making them twice. A
+    lock whose process is gone is taken over."""
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            break
+        except FileExistsError:
+            try:
+                holder = int(lock.read_text() or "0")
+                os.kill(holder, 0)
+            except (ValueError, ProcessLookupError, FileNotFoundError):
+                lock.unlink(missing_ok=True)    # its process is gone (or it is being written: try again)
+                continue
+            time.sleep(poll_s)
+    try:
+        os.write(fd, str(os.getpid()).encode())
+        os.close(fd)
+        yield
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def identified_run(motor: Path, out: Path, kept: Path, option: tuple, split: dict, extra: tuple) -> dict:
+    """`bench identify` made now, its --json kept beside its artifacts for --reuse."""
     cpu = children_cpu_s()
     load = os.getloadavg()[0]
     identified, seconds = bench(
@@ -292,6 +326,8 @@ DEFAULTS = {
     "freeze-auto": ("auto", (), {"yes": ("--freeze", "yes")}),
     "loss-scales": ("designer", (), {"fit": ("--loss-scales", "fit")}),
     "loss-scales-auto": ("auto", (), {"fit": ("--loss-scales", "fit")}),
+    "network-cost": ("designer", (), {"pooled": ("--network-cost", "pooled")}),
+    "network-cost-auto": ("auto", (), {"pooled": ("--network-cost", "pooled")}),
     "hammerstein-poles": ("designer", (), {"fixed": ("--hammerstein-poles", "fixed")}),
     "hammerstein-poles-auto": ("auto", (), {"fixed": ("--hammerstein-poles", "fixed")}),
 }
@@ -463,7 +499,8 @@ def one_motor(motor: Path, work: Path, args) -> dict:
     if args.floor:
         entry["floor"] = attempt(f"{motor.name} floor", lambda: floor(motor, work, data, index))
         return entry
-    tried = {prior: attempt(f"{motor.name} identify {prior}", lambda prior=prior: identify(
+    # the priors' own runs on the motor file's split (a folds comparison needs none: it makes its own per fold)
+    tried = {} if args.folds else {prior: attempt(f"{motor.name} identify {prior}", lambda prior=prior: identify(
         motor, work, data, index, prior)) for prior in args.priors}
     runs = {prior: run for prior, run in tried.items() if "failed" not in run}
     entry["priors"] = [{"prior": prior, **run} for prior, run in tried.items() if "failed" in run] + [

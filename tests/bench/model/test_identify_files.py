@@ -289,6 +289,32 @@ def test_kind_auto_deploys_the_kind_the_validation_file_favours(motor_files, tmp
     assert not any("deploy the lti-lptn artifact" in w for w in summary["warnings"])
 
 
+def test_a_kind_the_target_would_refuse_is_neither_deployed_nor_written(motor_files, tmp_path, capsys, monkeypatch):
+    """A kind whose artifact the target refuses (its step unstable somewhere in the operating range: the PV LPTN's
+    forward Euler at 1 s on a suite motor's fold) does not end the identification: --kind auto deploys the best of
+    the others and says why that kind has no file; asked for by name, it is one sentence and no file."""
+    from target_sim.kinds import MODEL_KINDS
+
+    why = "artifact lti-lptn: unstable here (test)"
+    monkeypatch.setattr(MODEL_KINDS["lti-lptn"], "instability", lambda artifact: why)   # this kind only
+    common = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+              "--train", str(motor_files / "profile_02.csv"), "--validate", str(motor_files / "profile_01.csv"),
+              "--swarm", "4", "--iterations", "1", "--lm-iterations", "2", "--regularization", "fixed"]
+    out = tmp_path / "auto" / "m.json"
+    assert main([*common, "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["validation"]["lti-lptn"] == {"refused": why}
+    assert summary["deployed_kind"] == "pv-lptn"     # the lti-lptn network's twin (26.85 K² both, above)
+    assert set(summary["artifacts"]) == {"pv-lptn", "hammerstein"}
+    assert not (tmp_path / "auto" / "m-lti-lptn.json").exists()
+    assert f"no lti-lptn artifact written (the target would refuse it): {why}" in summary["warnings"]
+    named = tmp_path / "named" / "m.json"
+    assert main([*common, "--kind", "lti-lptn", "--out", str(named)]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().endswith(why) and "Traceback" not in err
+    assert not named.parent.exists() or not any(named.parent.iterdir())
+
+
 def test_kind_auto_without_validation_files_is_refused_before_any_work(motor_files, tmp_path, capsys):
     assert main(["identify", "--motor", str(tmp_path / "no-such-motor.toml"), "--train",
                  str(motor_files / "profile_01.csv"), "--kind", "auto", "--out", str(tmp_path / "m.json")]) == 2
@@ -368,3 +394,22 @@ def test_the_files_path_fits_the_hammerstein_poles_by_default(motor_files, tmp_p
         lm = json.loads(out.read_text())["provenance"]["lm"]
         assert ("poles" in lm) is fitted, lm.keys()
     capsys.readouterr()
+
+
+def test_the_network_cost_reaches_the_swarm_and_the_polish_and_is_recorded(motor_files, tmp_path, capsys):
+    """--network-cost pooled: the swarm's history and the polish's costs are the pooled criterion's (log Σ w MSE of
+    the kept network, recomputed here), the provenance names it; the default (likelihood) is not recorded."""
+    common = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+              "--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_02.csv"),
+              "--swarm", "4", "--iterations", "1", "--lm-iterations", "1", "--polish", "1",
+              "--regularization", "fixed", "--kind", "hammerstein"]
+    costs = {}
+    for cost in ("likelihood", "pooled"):
+        out = tmp_path / f"{cost}.json"
+        assert main([*common, "--network-cost", cost, "--out", str(out)]) == 0
+        pso = json.loads(out.read_text())["provenance"]["pso"]
+        assert pso.get("criterion") == (None if cost == "likelihood" else cost)
+        costs[cost] = json.loads(out.read_text())["provenance"]["polish"]["cost"]
+    capsys.readouterr()
+    # a log of a sum of MSEs (K², several nodes) is positive here; a sum of four logs of small MSEs is not the same
+    assert costs["pooled"] != costs["likelihood"]
