@@ -89,9 +89,10 @@ def suite_motors() -> list[Path]:
 def generate(motor: Path, work: Path) -> tuple[Path, dict, float]:
     """All profiles of a suite motor: the directory, its profiles.json index and the seconds it took."""
     data = work / motor.name / "data"
-    if REUSE and (data / "profiles.json").is_file():
-        return data, json.loads((data / "profiles.json").read_text(encoding="utf-8")), 0.0
-    _, seconds = bench("data", "--motor", str(motor / "motor.json"), "--out", str(data), "--quiet")
+    with claimed(work / motor.name / "data.lock"):   # (another suite process on this --work may be making them)
+        if REUSE and (data / "profiles.json").is_file():
+            return data, json.loads((data / "profiles.json").read_text(encoding="utf-8")), 0.0
+        _, seconds = bench("data", "--motor", str(motor / "motor.json"), "--out", str(data), "--quiet")
     index = json.loads((data / "profiles.json").read_text(encoding="utf-8"))
     return data, index, seconds
 
