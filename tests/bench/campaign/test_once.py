@@ -198,8 +198,12 @@ def test_a_worker_killed_while_it_runs_a_run_leaves_a_table_equal_to_its_files(t
                 """A worker with a recorded run that is running another."""
                 done_on = {r["worker"] for r in rows_of(out).values() if r["status"] == "done"}
                 for run in bench_runs_under(out):
-                    if run.ppid() in {pids[a] for a in done_on if a in pids}:
-                        return psutil.Process(run.ppid())
+                    try:    # a run may end between the listing and this look at it
+                        parent = run.ppid()
+                        if parent in {pids[a] for a in done_on if a in pids}:
+                            return psutil.Process(parent)
+                    except psutil.NoSuchProcess:
+                        continue
                 return None
 
             worker = until(victim, 180, "a worker that recorded a run and is running another")
