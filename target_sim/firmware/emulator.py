@@ -501,6 +501,40 @@ class Firmware:
         else:
             for register, value in registers:
                 uc.reg_write(register, value)
+        self._execute(entry, name)
+        if returns is None:
+            return None
+        read = raw.read_register if raw is not None else uc.reg_read
+        if returns is float:
+            return _F32.unpack(_U32.pack(read(_S[0])))[0]
+        value = read(arm.UC_ARM_REG_R0)
+        return value - (1 << 32) if value & 0x8000_0000 else value
+
+    def caller(self, function: str, ints: int) -> Callable[..., None] | None:
+        """`function` with `ints` int arguments (at most 4) and no result, prepared once: `caller(...)(a, b)` runs
+        as `call(function, a, b)` does (the same run, checks, faults and `last`), with its register ids, SP and LR
+        written into a batch of its own beforehand, so a call costs one uc_reg_write_batch of the arguments (the
+        firmware engine's per-frame calls). None where `call` must run instead: no raw core, or a subclass's `call`
+        (an interrupted core times its jobs there)."""
+        raw = self._raw
+        if raw is None or type(self).call is not Firmware.call or not 0 <= ints <= len(_R):
+            return None
+        entry, name = self._entry(function)
+        batch = _RawCore(self._uc)
+        batch.set_registers([*((register, 0) for register in _R[:ints]), (arm.UC_ARM_REG_SP, self._stack_top),
+                             (arm.UC_ARM_REG_LR, HALT | 1)])
+        values, write, count, run = batch.values, batch.write_registers, ints + 2, self._execute
+
+        def call(*args: int) -> None:
+            values[:ints] = [value & 0xFFFFFFFF for value in args]    # (a wrong count raises here)
+            write(count)
+            run(entry, name)
+
+        return call
+
+    def _execute(self, entry: int, name: str) -> None:
+        """Run from `entry` (the registers written) to the halt address; `last` and the faults as `call` says."""
+        uc, raw = self._uc, self._raw
         self._cycles = self._instructions = self._extra = 0
         self._fall = entry & ~1        # the first block is entered by the call: no branch of ours to charge
         self._fault = self._hook_error = None
@@ -547,13 +581,6 @@ class Firmware:
             self.total_cycles += self._cycles
         else:
             self.last = CallStats(name, None, None)
-        if returns is None:
-            return None
-        read = raw.read_register if raw is not None else uc.reg_read
-        if returns is float:
-            return _F32.unpack(_U32.pack(read(_S[0])))[0]
-        value = read(arm.UC_ARM_REG_R0)
-        return value - (1 << 32) if value & 0x8000_0000 else value
 
     # --- hooks ---------------------------------------------------------------------------------------------------
 

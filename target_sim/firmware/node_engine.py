@@ -75,6 +75,9 @@ XCP_COUNTERS = struct.Struct("<7I")      # xcp.c's struct xcp_counters
 _MASK32 = 0xFFFF_FFFF
 _STATES = {int(state): state for state in TargetState}   # the enum by value without its call's cost per frame
 PREFETCH_FRAMES = 8      # frames read with the output's header (a row's replies: 2 temperatures, 4 timing frames)
+PREFETCH_SPAN = TX_OFFSET + PREFETCH_FRAMES * FRAME.size
+_XCP_SAMPLES = struct.Struct("<2I")     # xcp_counters' DAQ samples and their cycles (its last two words)
+_XCP_SAMPLES_OFFSET = XCP_COUNTERS.size - _XCP_SAMPLES.size
 
 
 def _ms(seconds: float) -> int:
@@ -151,6 +154,9 @@ class FirmwareNode:
         self.faults = 0
         self._next_beat_ms = 0
         self._t0 = clock_s()
+        # the per-frame entry points prepared once (`Firmware.caller`: None on a core that must take `call`)
+        self._callers = {name: call for name, ints in (("node_on_frame", 3), ("node_on_xcp", 2), ("node_on_tick", 1))
+                         if (call := fw.caller(name, ints)) is not None}
         self._startup = self._run("node_init", 0)
         self._stamp = fw.symbols["node_rx_stamp"].address if "node_rx_stamp" in fw.symbols else None
         if isr_rate_hz:                 # interrupts on after the node's start, as a main() enables them
@@ -167,53 +173,60 @@ class FirmwareNode:
         """Call an entry point; its queued frames as messages (journal records handed on)."""
         fw = self.fw
         try:
-            if function != "node_init":
+            if self.isr_rate_hz and function != "node_init":
                 self._release()
             if self._stamp is not None:          # the reception's time stamp: the release, or now
                 stamp = fw.cyccnt_at(fw.job_release) if isinstance(fw, InterruptedFirmware) else fw.cyccnt()
                 fw.write_bytes(self._stamp, stamp.to_bytes(4, "little"))
-            fw.call(function, *args)
+            call = self._callers.get(function)
+            if call is not None:
+                call(*args)
+            else:
+                fw.call(function, *args)
         except FirmwareFault as fault:
             return self._core_faulted(fault)
         return self._collect(function in ("node_on_frame", "node_on_xcp"), fw.last.cycles)
 
     def _collect(self, on_frame: bool, cycles: int | None) -> list[can.Message]:
-        fw = self.fw
+        read = self.fw.read_bytes
         # the header and the first frames in one read (one call into the emulator less a reply), and the XCP
-        # slave's counters with them where the firmware placed them right before its output (the usual layout)
-        span = TX_OFFSET + PREFETCH_FRAMES * FRAME.size
+        # slave's counters with them where the firmware placed them right before its output (the usual layout);
+        # unpacked in place (offsets into the one buffer, no slices of it)
         if self._xcp_before_out:
-            both = fw.read_bytes(self._xcp, XCP_COUNTERS.size + span)
-            head = both[XCP_COUNTERS.size:]
-            self._xcp_samples(XCP_COUNTERS.unpack_from(both))
+            head, base = read(self._xcp, XCP_COUNTERS.size + PREFETCH_SPAN), XCP_COUNTERS.size
+            self._xcp_samples(_XCP_SAMPLES.unpack_from(head, _XCP_SAMPLES_OFFSET))
         else:
-            head = fw.read_bytes(self._out, span)
-        header = OUTPUT_HEADER.unpack_from(head)
-        tx_count, event_count, state, faults, again, _, _, _, step_cycles, next_beat_ms = header
+            head, base = read(self._out, PREFETCH_SPAN), 0
+        tx_count, event_count, state, faults, again, _, _, _, step_cycles, next_beat_ms = \
+            OUTPUT_HEADER.unpack_from(head, base)
         self.state = _STATES.get(state) or TargetState(state)   # (an unknown value raises, as the call does)
         self.faults = faults
         self.answered_again = bool(again)
         self._next_beat_ms = next_beat_ms
         frames: list[can.Message] = []
         if tx_count:
-            raw = head[TX_OFFSET:TX_OFFSET + tx_count * FRAME.size] if tx_count <= PREFETCH_FRAMES else \
-                fw.read_bytes(self._out + TX_OFFSET, tx_count * FRAME.size)
+            if tx_count <= PREFETCH_FRAMES:
+                start = base + TX_OFFSET
+                raw = head[start:start + tx_count * FRAME.size]
+            else:
+                raw = read(self._out + TX_OFFSET, tx_count * FRAME.size)
             now = time.time()
             timing4, start, mask = self._timing4
+            append = frames.append
             for fid, dlc, data in FRAME.iter_unpack(raw):
                 if fid == timing4:
                     self.m4_cycles[(int.from_bytes(data, "little") >> start) & mask] += 1
-                frames.append(can.Message(timestamp=now, arbitration_id=fid, is_extended_id=False, dlc=dlc,
-                                          data=data[:dlc], check=False))
+                append(can.Message(timestamp=now, arbitration_id=fid, is_extended_id=False, dlc=dlc,
+                                   data=data[:dlc], check=False))
         if event_count and self.journal is not None and self._msg is not None:
-            raw = fw.read_bytes(self._out + self._events_offset, event_count * EVENT.size)
+            raw = read(self._out + self._events_offset, event_count * EVENT.size)
             msg = self._msg
             for index in range(event_count):
                 event = Event.unpack(raw[index * EVENT.size:(index + 1) * EVENT.size])
                 self.journal({"kind": event.kind, "id": msg.arbitration_id, "dlc": msg.dlc,
                               "data": bytes(msg.data).hex(), "detail": event.sentence})
         if self._xcp is not None and not self._xcp_before_out:
-            self._xcp_samples(self._xcp_counters())
+            self._xcp_samples(self._xcp_counters()[5:7])
         if on_frame and cycles is not None and self._is_xcp:
             self.xcp_cycles[cycles] += 1
         elif on_frame and cycles is not None:
@@ -227,9 +240,9 @@ class FirmwareNode:
         return XCP_COUNTERS.unpack(self.fw.read_bytes(self._xcp, XCP_COUNTERS.size))
 
     def _xcp_samples(self, counters: tuple[int, ...]) -> None:
-        """The DAQ samples of the last call (from the slave's `counters` after it): their mean cycles, once per
-        sample."""
-        samples, cycles = counters[5:7]
+        """The DAQ samples of the last call (from the slave's sample count and cycles after it): their mean
+        cycles, once per sample."""
+        samples, cycles = counters
         new, spent = samples - self._xcp_last[0], (cycles - self._xcp_last[1]) & _MASK32
         if new > 0:
             self.xcp_sample_cycles[spent // new] += new
@@ -287,8 +300,8 @@ class FirmwareNode:
             fid |= ID_ERROR
         if msg.is_fd:
             fid |= ID_FD
-        data = bytes(msg.data)
-        self.fw.write_bytes(self._rx, FRAME.pack(fid, msg.dlc, data[:8].ljust(8, b"\0")))
+        # (the "8s" field pads the data with zeros to 8 bytes, or cuts it there)
+        self.fw.write_bytes(self._rx, FRAME.pack(fid, msg.dlc, bytes(msg.data)))
         self._msg = msg
         self._is_xcp = (fid & ~ID_FD) == self._xcp_id       # the Python node's rule: any 11-bit data frame
         try:
