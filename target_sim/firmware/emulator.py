@@ -185,7 +185,7 @@ class _RawCore:
         base = ctypes.addressof(self.values)
         self.pointers = (ctypes.c_void_p * self.SLOTS)(*(base + 4 * i for i in range(self.SLOTS)))
         self.word = ctypes.c_uint32()
-        self.buffer = ctypes.create_string_buffer(4096)
+        self.buffers: dict[int, ctypes.Array[ctypes.c_char]] = {}
         for name in ("uc_reg_write_batch", "uc_reg_read", "uc_emu_start", "uc_mem_read", "uc_mem_write"):
             getattr(self.lib, name)        # AttributeError here: use the binding instead
 
@@ -221,11 +221,16 @@ class _RawCore:
             raise self.uc._hook_exception
 
     def read(self, address: int, size: int) -> bytes:
-        buffer = self.buffer if size <= len(self.buffer) else ctypes.create_string_buffer(size)
+        # a buffer of each size read (a call's few: the stack guard, the node's output): `.raw` copies it whole
+        buffer = self.buffers.get(size)
+        if buffer is None:
+            buffer = ctypes.create_string_buffer(size)
+            if len(self.buffers) < 64:
+                self.buffers[size] = buffer
         status = self.lib.uc_mem_read(self.uch, address, buffer, size)
         if status != UC_ERR_OK:
             raise UcError(status, address, size)
-        return buffer.raw[:size]
+        return buffer.raw
 
     def write(self, address: int, data: bytes) -> None:
         status = self.lib.uc_mem_write(self.uch, address, data, len(data))
