@@ -79,7 +79,7 @@ from target_sim.firmware.elf import (
     read_elf,
     stack_bytes,
 )
-from target_sim.firmware.native_hook import CYCLES, EXTRA, FALL, INSTRUCTIONS, BlockCounter
+from target_sim.firmware.native_hook import CYCCNT_BEFORE, CYCLES, EXTRA, FALL, INSTRUCTIONS, BlockCounter
 
 FLASH = (0x0800_0000, 256 * 1024)      # (base, size): STM32-like Cortex-M4F
 RAM = (0x2000_0000, 64 * 1024)
@@ -258,6 +258,32 @@ def _native_counter(fw: Firmware) -> BlockCounter | None:
     return counter
 
 
+def _native_dwt(fw: Firmware) -> object | None:
+    """The DWT page mapped with `native_hook.dwt_read` answering its reads (writes still go to `_on_dwt_write`):
+    what stays referenced while the mapping lives, or None where the Python callbacks must answer (no native
+    hook, a subclass's own DWT)."""
+    native = fw._native
+    if native is None or type(fw)._on_dwt_read is not Firmware._on_dwt_read:
+        return None
+    try:
+        from unicorn.unicorn_py3 import unicorn as binding
+
+        from target_sim.firmware.native_hook import dwt_read
+
+        def write(_engine: object, offset: int, size: int, value: int, _user: object) -> None:
+            fw._on_dwt_write(fw.uc, offset, size, value, None)
+
+        write_callback = binding.MMIO_WRITE_CFUNC(write)
+        status = binding.uclib.uc_mmio_map(fw.uc._uch, DWT, PAGE, ctypes.c_void_p(dwt_read.address),
+                                           ctypes.c_void_p(native.user_data), write_callback, None)
+    except (ImportError, AttributeError, TypeError, ctypes.ArgumentError):
+        return None
+    if status != UC_ERR_OK:
+        raise UcError(status)
+    fw._sync_cyccnt()
+    return write_callback
+
+
 def _raw_core(uc: Uc) -> _RawCore | None:
     if not RAW_CALLS:
         return None
@@ -299,7 +325,6 @@ class Firmware:
         # the cycle counter firmware reads to time itself (DWT_CYCCNT): the counted cycles, running across calls
         self.total_cycles = 0
         self._cyccnt_base = 0
-        uc.mmio_map(DWT, PAGE, self._on_dwt_read, None, self._on_dwt_write, None)
         uc.mmio_map(SCS, PAGE, lambda *_: 0, None, lambda *_: None, None)
         self._stack_top, self._stack_bottom = self._stack_range()
         self._scratch_next = scratch[0]
@@ -322,6 +347,9 @@ class Firmware:
             self._blocks = self.cycle_model.blocks
             self._native = _native_counter(self) if type(self)._on_block is Firmware._on_block else None
             self._block_hook = self._native or _add_block_hook(uc, self._on_block)
+        self._dwt = _native_dwt(self)       # the DWT page (the cycle counter) answered natively, or here
+        if self._dwt is None:
+            uc.mmio_map(DWT, PAGE, self._on_dwt_read, None, self._on_dwt_write, None)
         uc.hook_add(UC_HOOK_MEM_INVALID, self._on_invalid_memory)
         uc.hook_add(UC_HOOK_INTR, self._on_exception)
         self._raw = _raw_core(uc)
@@ -563,7 +591,10 @@ class Firmware:
                 self._cycles, self._instructions, self._extra, self._fall = counters[:4]
         if self._hook_error is not None:
             raise RuntimeError(f"counting the cycles of {name} failed: {self._hook_error}") from self._hook_error
-        pc = raw.read_register(arm.UC_ARM_REG_PC) if raw is not None else uc.reg_read(arm.UC_ARM_REG_PC)
+        if native is not None and self._fault is None and self._instructions <= self.max_instructions:
+            pc = HALT      # the native hook stops a call only past its instruction limit, or a fault's hook does
+        else:
+            pc = raw.read_register(arm.UC_ARM_REG_PC) if raw is not None else uc.reg_read(arm.UC_ARM_REG_PC)
         if self._fault is not None:
             kind, what, at = self._fault
             raise self._failed(FirmwareFault(f"{name} in {self.name} raised a CPU exception at PC {at:#010x}"
@@ -584,6 +615,8 @@ class Firmware:
                 self._cycles += self._extra
             self.last = CallStats(name, self._instructions, self._cycles)
             self.total_cycles += self._cycles
+            if self._dwt is not None:
+                self._sync_cyccnt()
         else:
             self.last = CallStats(name, None, None)
 
@@ -646,6 +679,12 @@ class Firmware:
     def _on_dwt_write(self, _uc: Uc, offset: int, _size: int, value: int, _user: object) -> None:
         if offset == 4:            # DWT_CYCCNT = value
             self._cyccnt_base = (self.total_cycles + self._call_cycles() - value) & 0xFFFF_FFFF
+            if self._dwt is not None:
+                self._sync_cyccnt()
+
+    def _sync_cyccnt(self) -> None:
+        """What DWT_CYCCNT reads at a call's start, for the native read (`native_hook.dwt_read`)."""
+        self._native.counters[CYCCNT_BEFORE] = self.total_cycles - self._cyccnt_base
 
     def _on_invalid_memory(self, uc: Uc, access: int, address: int, size: int, value: int, _user: object) -> bool:
         what = _ACCESS.get(access, f"invalid access {access} to address")

@@ -9,6 +9,8 @@ a block it has not seen (or one outside flash, or a call past its instruction li
 the same rule. So every count, DWT read and fault is what the Python hook gives (tests/target_sim/test_emulator.py
 compares the two).
 
+`dwt_read` answers the firmware's reads of DWT_CYCCNT (an MMIO page) from the same state, also without Python.
+
 The state the hook shares with Python is one int64 array (`BlockCounter.state`): the per-call counters first
 (STATE_FIELDS), then per flash half-word (a Thumb block starts on one) the block's size, cycles, extra cycles when
 its final branch is taken, fall-through address and instruction count (size 0: not seen).
@@ -25,8 +27,8 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-CYCLES, INSTRUCTIONS, EXTRA, FALL, MAX_INSTRUCTIONS, SLOW_HOOK, FLASH_BASE, ENTRIES = range(8)
-HEADER = 8
+CYCLES, INSTRUCTIONS, EXTRA, FALL, MAX_INSTRUCTIONS, SLOW_HOOK, FLASH_BASE, ENTRIES, CYCCNT_BEFORE = range(9)
+HEADER = 9
 ENTRY = 5                 # size, cycles, extra, fall, instructions
 SIZE, COST, TAKEN, NEXT, COUNT = range(ENTRY)
 
@@ -69,6 +71,20 @@ def block_hook(engine, address, size, user):
     header[EXTRA] = table[at + TAKEN]
     header[FALL] = table[at + NEXT]
     header[INSTRUCTIONS] += table[at + COUNT]
+
+
+# an MMIO read callback's C type: uint64_t (*)(uc_engine *uc, uint64_t offset, unsigned size, void *user_data)
+DWT_READ_SIGNATURE = types.uint64(types.voidptr, types.uint64, types.uint32, types.voidptr)
+
+
+@numba.cfunc(DWT_READ_SIGNATURE, cache=True, nopython=True)
+def dwt_read(engine, offset, size, user):
+    """`Firmware._on_dwt_read` without entering Python (a model step reads DWT_CYCCNT twice): what it read as the
+    call started (CYCCNT_BEFORE, kept by `Firmware`) plus this call's cycles so far; the other registers read 0."""
+    if offset != 4:
+        return np.uint64(0)
+    header = numba.carray(user, HEADER, dtype=np.int64)
+    return np.uint64((header[CYCCNT_BEFORE] + header[CYCLES]) & 0xFFFF_FFFF)
 
 
 class BlockCounter:
