@@ -88,6 +88,7 @@ HALT = 0x1F00_0000                     # every call returns here: below EXC_RETU
 SCS = 0xE000_E000                      # System Control Space page (DEMCR at +0xDFC): writes taken, reads 0
 DWT = 0xE000_1000                      # Data Watchpoint and Trace unit page: DWT_CTRL +0, DWT_CYCCNT +4
 PAGE = 0x1000                          # Unicorn maps 4 kB pages
+ONE_READ = 8192                        # `caller`: the stack guard read with the memory asked for when this close
 MAX_INSTRUCTIONS = 1_000_000           # per call: an endless loop stops here (a model step runs ~300-20,000)
 RAW_BLOCK_HOOK = True                  # hook blocks through libunicorn's C API (faster); False: the binding's hook_add
 RAW_CALLS = True                       # registers, memory and emu_start of a call through libunicorn's C API (faster)
@@ -543,12 +544,15 @@ class Firmware:
         value = read(arm.UC_ARM_REG_R0)
         return value - (1 << 32) if value & 0x8000_0000 else value
 
-    def caller(self, function: str, ints: int) -> Callable[..., None] | None:
+    def caller(self, function: str, ints: int, read: tuple[int, int] | None = None
+               ) -> Callable[..., bytes | None] | None:
         """`function` with `ints` int arguments (at most 4) and no result, prepared once: `caller(...)(a, b)` runs
         as `call(function, a, b)` does (the same run, checks, faults and `last`), with its register ids, SP and LR
         written into a batch of its own beforehand, so a call costs one uc_reg_write_batch of the arguments (the
-        firmware engine's per-frame calls). None where `call` must run instead: no raw core, or a subclass's `call`
-        (an interrupted core times its jobs there)."""
+        firmware engine's per-frame calls). With `read` (address, size) it returns the memory from that address
+        after the call (at least `size` bytes: the stack's guard word comes from the same read when it lies
+        within ONE_READ bytes above, one call into the emulator less). None where `call` must run instead: no raw
+        core, or a subclass's `call` (an interrupted core times its jobs there)."""
         raw = self._raw
         if raw is None or type(self).call is not Firmware.call or not 0 <= ints <= len(_R):
             return None
@@ -557,16 +561,23 @@ class Firmware:
         batch.set_registers([*((register, 0) for register in _R[:ints]), (arm.UC_ARM_REG_SP, self._stack_top),
                              (arm.UC_ARM_REG_LR, HALT | 1)])
         values, write, count, run = batch.values, batch.write_registers, ints + 2, self._execute
+        after = None
+        if read is not None:
+            address, size = read
+            guard = self._stack_bottom - address
+            after = (address, max(size, guard + 4), guard) if self._stack_top > self._stack_bottom and \
+                0 <= guard <= ONE_READ - 4 else (address, size, None)
 
-        def call(*args: int) -> None:
+        def call(*args: int) -> bytes | None:
             values[:ints] = [value & 0xFFFFFFFF for value in args]    # (a wrong count raises here)
             write(count)
-            run(entry, name)
+            return run(entry, name, after)
 
         return call
 
-    def _execute(self, entry: int, name: str) -> None:
-        """Run from `entry` (the registers written) to the halt address; `last` and the faults as `call` says."""
+    def _execute(self, entry: int, name: str, after: tuple[int, int, int | None] | None = None) -> bytes | None:
+        """Run from `entry` (the registers written) to the halt address; `last` and the faults as `call` says.
+        `after` (address, size, the guard word's offset in it or None): that memory, read after the call."""
         uc, raw = self._uc, self._raw
         self._cycles = self._instructions = self._extra = 0
         self._fall = entry & ~1        # the first block is entered by the call: no branch of ours to charge
@@ -603,8 +614,13 @@ class Firmware:
             raise self._failed(FirmwareFault(f"{name} in {self.name} did not return within "
                                              f"{self.max_instructions:,} instructions (an endless loop?), stopped at "
                                              f"PC {pc:#010x}", function=name, pc=pc, kind="endless loop"))
-        guard = (raw.read(self._stack_bottom, 4) if raw is not None else bytes(uc.mem_read(self._stack_bottom, 4))
-                 ) if self._stack_top > self._stack_bottom else _GUARD
+        data = raw.read(after[0], after[1]) if after is not None else None
+        if self._stack_top <= self._stack_bottom:
+            guard = _GUARD
+        elif after is not None and after[2] is not None:
+            guard = data[after[2]:after[2] + 4]
+        else:
+            guard = raw.read(self._stack_bottom, 4) if raw is not None else bytes(uc.mem_read(self._stack_bottom, 4))
         if guard != _GUARD:
             raise self._failed(FirmwareFault(f"{name} in {self.name} overflowed its stack "
                                              f"({self._stack_top - self._stack_bottom} bytes from "
@@ -619,6 +635,7 @@ class Firmware:
                 self._sync_cyccnt()
         else:
             self.last = CallStats(name, None, None)
+        return data
 
     # --- hooks ---------------------------------------------------------------------------------------------------
 

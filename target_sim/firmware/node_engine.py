@@ -155,8 +155,10 @@ class FirmwareNode:
         self._next_beat_ms = 0
         self._t0 = clock_s()
         # the per-frame entry points prepared once (`Firmware.caller`: None on a core that must take `call`)
+        # (each returns the output's head, `_collect`'s read)
+        head = (self._xcp, XCP_COUNTERS.size + PREFETCH_SPAN) if self._xcp_before_out else (self._out, PREFETCH_SPAN)
         self._callers = {name: call for name, ints in (("node_on_frame", 3), ("node_on_xcp", 2), ("node_on_tick", 1))
-                         if (call := fw.caller(name, ints)) is not None}
+                         if (call := fw.caller(name, ints, head)) is not None}
         self._startup = self._run("node_init", 0)
         self._stamp = fw.symbols["node_rx_stamp"].address if "node_rx_stamp" in fw.symbols else None
         if isr_rate_hz:                 # interrupts on after the node's start, as a main() enables them
@@ -180,23 +182,24 @@ class FirmwareNode:
                 fw.write_bytes(self._stamp, stamp.to_bytes(4, "little"))
             call = self._callers.get(function)
             if call is not None:
-                call(*args)
+                head = call(*args)
             else:
+                head = None
                 fw.call(function, *args)
         except FirmwareFault as fault:
             return self._core_faulted(fault)
-        return self._collect(function in ("node_on_frame", "node_on_xcp"), fw.last.cycles)
+        return self._collect(function in ("node_on_frame", "node_on_xcp"), fw.last.cycles, head)
 
-    def _collect(self, on_frame: bool, cycles: int | None) -> list[can.Message]:
+    def _collect(self, on_frame: bool, cycles: int | None, head: bytes | None = None) -> list[can.Message]:
         read = self.fw.read_bytes
         # the header and the first frames in one read (one call into the emulator less a reply), and the XCP
         # slave's counters with them where the firmware placed them right before its output (the usual layout);
-        # unpacked in place (offsets into the one buffer, no slices of it)
+        # unpacked in place (offsets into the one buffer, no slices of it). `head`: that read, made by the call
         if self._xcp_before_out:
-            head, base = read(self._xcp, XCP_COUNTERS.size + PREFETCH_SPAN), XCP_COUNTERS.size
+            head, base = head or read(self._xcp, XCP_COUNTERS.size + PREFETCH_SPAN), XCP_COUNTERS.size
             self._xcp_samples(_XCP_SAMPLES.unpack_from(head, _XCP_SAMPLES_OFFSET))
         else:
-            head, base = read(self._out, PREFETCH_SPAN), 0
+            head, base = head or read(self._out, PREFETCH_SPAN), 0
         tx_count, event_count, state, faults, again, _, _, _, step_cycles, next_beat_ms = \
             OUTPUT_HEADER.unpack_from(head, base)
         self.state = _STATES.get(state) or TargetState(state)   # (an unknown value raises, as the call does)
