@@ -560,7 +560,8 @@ class Firmware:
         batch = _RawCore(self._uc)
         batch.set_registers([*((register, 0) for register in _R[:ints]), (arm.UC_ARM_REG_SP, self._stack_top),
                              (arm.UC_ARM_REG_LR, HALT | 1)])
-        values, write, count, run = batch.values, batch.write_registers, ints + 2, self._execute
+        values, count, run = batch.values, ints + 2, self._execute
+        lib, uch, ids, pointers = batch.lib, batch.uch, batch.ids, batch.pointers
         after = None
         if read is not None:
             address, size = read
@@ -570,7 +571,9 @@ class Firmware:
 
         def call(*args: int) -> bytes | None:
             values[:ints] = [value & 0xFFFFFFFF for value in args]    # (a wrong count raises here)
-            write(count)
+            status = lib.uc_reg_write_batch(uch, ids, pointers, count)   # (write_registers, inline: per frame)
+            if status != UC_ERR_OK:
+                raise UcError(status)
             return run(entry, name, after)
 
         return call
