@@ -20,6 +20,8 @@ from dbc.contract import FIRMWARE_TIMING_MESSAGE, M4_CLOCK_HZ
 from target_sim.artifact import load_artifact
 from target_sim.engines import make_node
 from target_sim.firmware import FirmwareError, FirmwareEstimator, memory_from_elf
+from target_sim.firmware.elf import read_elf
+from target_sim.firmware.emulator import Firmware
 from target_sim.firmware.node_engine import FirmwareNode
 from target_sim.node import TargetNode
 
@@ -104,6 +106,53 @@ def test_the_firmware_engine_answers_bit_for_bit_as_the_python_engine(artifacts,
     stats = firmware.stats()
     assert stats["engine"] == "firmware" and stats["m4_cycles"]["max"] == max(cycles)
     assert python.stats()["engine"] == "python" and python.stats()["m4_cycles"] is None
+
+
+class ReferenceCore(Firmware):
+    """Every call through `Firmware.call`, its blocks counted by the Python hook and DWT_CYCCNT read by the Python
+    callback: none of the firmware engine's per-frame fast paths (`Firmware.caller` with the output and the stack
+    guard in one read, the native block hook and DWT read, the PC read skipped)."""
+
+    def call(self, *args, **kwargs):
+        return super().call(*args, **kwargs)
+
+    def _on_block(self, *args) -> None:
+        super()._on_block(*args)
+
+    def _on_dwt_read(self, *args) -> int:
+        return super()._on_dwt_read(*args)
+
+
+@pytest.mark.parametrize("name", ["lti", "hammerstein"])
+def test_the_fast_paths_change_no_frame_and_no_cycle_figure(artifacts, firmware_elf, name):
+    """The same frames in (a DAQ list on the model step, rows with a gap and a repeat, heartbeats): the same frames
+    out (ids, data, order), journal records, per-frame cycle statistics, counters and DWT count with the engine's
+    per-frame fast paths as through the plain calls."""
+    from bench.firmware.daqload import full_daq_commands
+    from dbc.xcp import cmd_id
+
+    artifact = load_artifact(artifacts[name])
+    image = read_elf(firmware_elf(name))
+    journals: tuple[list, list] = ([], [])
+    fast = FirmwareNode(artifact, image, journal=journals[0].append, clock_s=lambda: 0.0)
+    plain = FirmwareNode(artifact, image, journal=journals[1].append, clock_s=lambda: 0.0, core=ReferenceCore)
+    assert set(fast._callers) == {"node_on_frame", "node_on_xcp", "node_on_tick"} and fast.fw._dwt is not None
+    assert not plain._callers and plain.fw._native is None and plain.fw._dwt is None
+    xcp = [can.Message(arbitration_id=cmd_id(), is_extended_id=False, data=cto) for cto in full_daq_commands(image)]
+    drive = drive_rows(60, seed=7)
+    outputs = []
+    for node in (fast, plain):
+        out = [f for frame in xcp for f in node.handle(frame)]
+        out += session(node, drive, lost={20, 21, 40})
+        out += node.heartbeat_frames()
+        outputs.append([(f.arbitration_id, f.dlc, bytes(f.data)) for f in out])
+    assert outputs[0] == outputs[1] and journals[0] == journals[1] and journals[0]
+    assert sum(1 for fid, _, _ in outputs[0] if fid == 0x225) == fast.model_steps > 20     # Timing4: steps ran
+    stats = fast.stats(), plain.stats()
+    assert stats[0] == stats[1] and stats[0]["xcp"]["daq_sample_cycles"]["max"]
+    assert fast.frame_cycles == plain.frame_cycles and fast.reply_cycles == plain.reply_cycles
+    assert fast.xcp_cycles == plain.xcp_cycles and fast.xcp_sample_cycles == plain.xcp_sample_cycles
+    assert fast.fw.total_cycles == plain.fw.total_cycles and fast.fw.cyccnt() == plain.fw.cyccnt()
 
 
 def session_with_currents(node, drive: np.ndarray) -> list[can.Message]:
