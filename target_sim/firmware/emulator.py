@@ -16,7 +16,10 @@ One Unicorn instance serves every call: `call` writes the argument registers, SP
 like symbol, else the end of RAM) and LR (the halt address), and runs; nothing is re-mapped. Registers, memory and
 emu_start go straight through libunicorn's C API (`_RawCore`: one uc_reg_write_batch from preallocated ctypes
 arrays), which makes a call of a small entry point about 5 us instead of 13 us through the binding's wrappers;
-`RAW_CALLS = False` uses the binding (the same results, counts and faults: a test compares them). Memory persists
+`RAW_CALLS = False` uses the binding (the same results, counts and faults: a test compares them). `caller` prepares
+an entry point called again and again (the node's per-frame calls): its register batch fixed once, the memory the
+caller reads next and the stack's guard word in one read, about 4.5 us a call of node_on_tick instead of 5.5 us
+through `call`. Memory persists
 between calls, as on the target (the model's state lives in its RAM); `reset` restores .data and zeroes .bss.
 Flash is loaded once (host writes to it, `write_bytes`, are not undone by `reset` nor seen by the cycle model).
 
@@ -26,7 +29,9 @@ guard word at the bottom of the stack changed) raises `FirmwareFault` with one s
 
 Cycles are counted by `target_sim.firmware.cycles` (Cortex-M4 TRM timings, zero wait states; its docstring
 states the table and assumptions) from a block hook: one dict look-up and a few additions per executed basic
-block. `count_cycles=False` drops the hook, for speed when only the results matter.
+block. `count_cycles=False` drops the hook, for speed when only the results matter. With the compiled hook
+(`native_hook`) the firmware's reads of DWT_CYCCNT are answered in compiled code too (`native_hook.dwt_read`), and a
+call's PC is not read back when the hook ran it to its end (it stops a call early only past the instruction limit).
 
 Unicorn quirks met (unicorn 2.1): the Cortex-M4 model starts with the FPU enabled (CPACR CP10/CP11 full access,
 CONTROL.FPCA set) and does not emulate the System Control Space, so CPACR at 0xE000ED88 cannot be written and there

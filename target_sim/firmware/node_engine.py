@@ -4,7 +4,8 @@
     node.startup_frames(); node.handle(msg) -> frames; node.heartbeat_frames(); node.stats()
 
 The Python side only moves frames: a received frame goes into the MCU's receive mailbox (`node_rx`) and
-`node_on_frame` runs; what the firmware queued (`node_out.tx`) goes out as python-can messages, in order
+`node_on_frame` runs, one call per frame (through `Firmware.caller`, which also reads the output's head back with
+the stack's guard word); what the firmware queued (`node_out.tx`) goes out as python-can messages, in order
 (`node_on_tick` queues the heartbeat); its journal records (`node_out.events`) go to `journal` with the frame
 they judged. Every rule of the protocol is the
 firmware's; this class has the interface of the Python reference node (`target_sim.node.TargetNode`), so `serve`,
