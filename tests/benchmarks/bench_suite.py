@@ -488,6 +488,8 @@ def attempt(what: str, step):
     try:
         return step()
     except SystemExit as failed:
+        if not isinstance(failed.code, str):   # a stop (SIGTERM, record.py: 128 + signal), not a failed command
+            raise
         print(f"{what} failed: {failed}", flush=True)
         return {"failed": str(failed)}
 
