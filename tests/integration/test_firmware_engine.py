@@ -35,7 +35,7 @@ def runs(tmp_path_factory, small_dataset):
         log, report = directory / "bench.blf", directory / "report"
         proc = run_cli("-m", "bench", "run", "--engine", engine, "--data", str(small_dataset), "--rows", str(ROWS),
                        "--log", str(log), "--report", str(report), "--json")
-        assert proc.returncode == 0, proc.stderr
+        assert proc.returncode == 0, proc.stderr + proc.stdout[-3000:]   # the JSON's verdict says why not clean
         out[engine] = (json.loads(proc.stdout), log, report)
     return out
 
