@@ -59,7 +59,9 @@ def default_poles(files: bool) -> str:
 # 69.0 (0 of 3). So --train files polish unless the prior is adapted; the built-in campaign never does (its
 # packaged artifacts are reproduced). Under the decision rule (three folds, 2026-12-07, suite-folds-freeze-polish.json)
 # the polish wins 2 of 3 from both priors (designer 36.8 / 8.9 / 21.0 against 34.1 / 15.9 / 23.2 without; auto
-# 23.8 / 11.3 / 25.4 against 51.7 / 10.2 / 25.6).
+# 23.8 / 11.3 / 25.4 against 51.7 / 10.2 / 25.6). From an adapted designer's prior the polish wins 1 of 3 (folds,
+# suite-folds-adapt-prior-designer-polish-adapted-designer.json: 25.9 / 23.9 / 15.8 against 34.0 / 22.7 / 22.5), so an
+# adapted prior stays unpolished.
 def default_polish(files: bool, adapt: bool) -> int:
     """--polish's default: POLISH_STARTS starts on the --train files path unless the prior is adapted, else 0."""
     return POLISH_STARTS if files and not adapt else 0
@@ -281,7 +283,9 @@ def _adapts(choice: str | None, files: bool, prior) -> bool:
     """Whether the prior is adapted to the data first: only when asked (--adapt-prior yes), never for `auto` (already
     read from the data). Why not by default for a named foreign network: on the motor suite's validation profiles
     (2026-12-06, Table 1 named, bounds 0.1-10; Hammerstein winding + magnet MSE K², adapted → as named and polished)
-    air-30kw 14.15 → 9.42, ipm-60kw-distributed 8.56 → 8.36, outrunner-200kw 61.95 → 55.15: better on 3 of 3."""
+    air-30kw 14.15 → 9.42, ipm-60kw-distributed 8.56 → 8.36, outrunner-200kw 61.95 → 55.15: better on 3 of 3. Under the
+    decision rule (three folds, 2026-12-07, suite-folds-adapt-prior-*.json, mean held-out winding + magnet MSE K²)
+    adapting the designer's prior loses 2 of 3 (25.46 → 25.86, 8.92 → 23.87, 21.00 → 15.79), so no stays."""
     if prior is not None and prior.automatic:
         return False
     return choice == "yes"
