@@ -3,7 +3,7 @@ on test profiles that no choice looked at.
 
     python tests/benchmarks/bench_suite.py [--motors NAME ...] [--priors designer table1 auto] [--skip-observer]
                                            [--work DIR] [--defaults [--compare DEFAULT ...]] [--hold-test]
-                                           [--folds K] [--reuse] [--floor]
+                                           [--folds K [--seeds N]] [--reuse] [--floor]
 
 The suite is `examples/suite/*/`: each motor a motor file whose `virtual_plant` generates its profiles (the
 truth is a plant the bench's four-node model cannot be) and a mapping. Each profile has a fixed role in the motor
@@ -40,7 +40,9 @@ here, never used to choose). Per motor:
    test figures of what was chosen without identifying again. With `--folds K` the identify defaults are
    compared by K-fold cross-validation over the nine non-test profiles instead (`fold_split`; the mean over the
    folds of the held-out MSE; the decision rule of docs/method.md is K = 3; record variant "folds", or with --compare
-   "folds-<the defaults compared>").
+   "folds-<the defaults compared>"). `--seeds N` repeats each fold's identification with swarm seeds 0 … N−1 and
+   averages them; the record gives each setting's spread over the seeds (`seed_spread_K2`): one fold's score moves
+   by up to a third with the data's last bits, so a difference below the seeds' spread decides nothing.
 
 6. With --floor (a bound, not a result): the designer's prior identified on ALL profiles, the test ones included,
    and evaluated on the test profiles, in-sample. What the four-node model class and this identification reach at
@@ -76,6 +78,7 @@ GOAL_MSE_K2, GOAL_MAX_K = 2.0, 4.7
 HOLD_TEST = False                # --hold-test: nothing evaluated on the test profiles (while choosing)
 COMPARED = None                  # --compare: only these DEFAULTS (None: all)
 FOLDS = 0                        # --folds: the identify defaults compared by this many folds (0: on validation)
+SEEDS = 1                        # --seeds: each fold's identification with this many swarm seeds (0, 1, ...)
 REUSE = False                    # --reuse: an identification kept in --work from an earlier run is read back
 SENSOR = "ntc_C"                 # every suite motor maps its end-winding sensor here
 SENSOR_SIGNAL = "ntc"            # ... from the virtual plant's column of this signal
@@ -363,10 +366,14 @@ def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dic
         settings = {"default": held, **{alt: (*held, *extra) for alt, extra in alternatives.items()}}
         row = {"prior": prior, "held": list(held)}
         if FOLDS:
-            folds = {setting: cross_validated(motor, work, data, index, prior, arguments)
-                     for setting, arguments in settings.items()}
+            results = {setting: cross_validated(motor, work, data, index, prior, arguments)
+                       for setting, arguments in settings.items()}
+            folds = {setting: per_fold for setting, (per_fold, _) in results.items()}
             scores = {setting: mean_mse(per_fold) for setting, per_fold in folds.items()}
             row["folds"] = {"count": FOLDS, "per_fold": folds}
+            if SEEDS > 1:
+                row["folds"].update(seeds=SEEDS, per_seed={setting: r[1] for setting, r in results.items()},
+                                    seed_spread_K2={setting: seed_spread(r[1]) for setting, r in results.items()})
         else:
             scores = {setting: validation_mse(validation_run(motor, work, data, index, prior, arguments, runs)["json"])
                       for setting, arguments in settings.items()}
@@ -385,12 +392,31 @@ def validation_run(motor: Path, work: Path, data: Path, index: dict, prior: str,
     return runs[prior]
 
 
-def cross_validated(motor: Path, work: Path, data: Path, index: dict, prior: str, arguments: tuple) -> list[dict]:
-    """Per fold of --folds, the identification's figures on the fold's held-out profiles (`validation_mse`)."""
-    return [validation_mse(identify(motor, work, data, index, prior, arguments,
-                                    tag=f"fold{fold}of{FOLDS}-{run_tag(arguments) or 'default'}",
-                                    split=fold_split(data, index, fold, FOLDS))["json"])
-            for fold in range(FOLDS)]
+def cross_validated(motor: Path, work: Path, data: Path, index: dict, prior: str, arguments: tuple
+                    ) -> tuple[list[dict], list[list[dict]]]:
+    """Per fold of --folds, the identification's figures on the fold's held-out profiles (`validation_mse`),
+    averaged over --seeds swarm seeds; and per fold the figures of each seed. Seed 0 is the command's default (its
+    runs keep their names, so earlier runs are reused)."""
+    per_seed = []
+    for fold in range(FOLDS):
+        split = fold_split(data, index, fold, FOLDS)
+        runs = [(*arguments, *(("--seed", str(seed)) if seed else ())) for seed in range(SEEDS)]
+        per_seed.append([validation_mse(identify(motor, work, data, index, prior, seeded,
+                                                 tag=f"fold{fold}of{FOLDS}-{run_tag(seeded) or 'default'}",
+                                                 split=split)["json"]) for seeded in runs])
+    return [mean_mse(seeds) for seeds in per_seed], per_seed
+
+
+def seed_spread(per_seed: list[list[dict]]) -> float | None:
+    """How far the swarm's seed alone moves a fold's score: the Hammerstein winding + magnet MSE's range over the
+    seeds (max − min, K²), averaged over the folds. A difference between two settings smaller than this is not
+    evidence for either (docs/method.md)."""
+    ranges = []
+    for seeds in per_seed:
+        scores = [f["hammerstein"]["winding"] + f["hammerstein"]["pm"] for f in seeds if "hammerstein" in f]
+        if len(scores) == len(seeds) > 1:
+            ranges.append(max(scores) - min(scores))
+    return round(sum(ranges) / len(ranges), 4) if ranges else None
 
 
 def mean_mse(per_fold: list[dict]) -> dict:
@@ -433,6 +459,9 @@ def main() -> int:
                         help="with --defaults: compare the identify defaults by this many folds of cross-validation "
                              "over the non-test profiles instead of on the validation profiles (the decision rule "
                              "of docs/method.md: 3)")
+    parser.add_argument("--seeds", type=int, default=1,
+                        help="with --folds: each fold's identification with this many swarm seeds (0, 1, ...); the "
+                             "scores average them and the record gives each setting's spread over the seeds")
     parser.add_argument("--floor", action="store_true",
                         help="only the model class's floor: the designer's prior identified on all profiles, scored "
                              "on the test ones in-sample (a bound, nothing is chosen on it)")
@@ -444,8 +473,10 @@ def main() -> int:
                              "code")
     add_record_arguments(parser)
     args = parser.parse_args()
-    global HOLD_TEST, REUSE, COMPARED, FOLDS
-    HOLD_TEST, REUSE, COMPARED, FOLDS = args.hold_test, args.reuse, args.compare, args.folds
+    global HOLD_TEST, REUSE, COMPARED, FOLDS, SEEDS
+    HOLD_TEST, REUSE, COMPARED, FOLDS, SEEDS = args.hold_test, args.reuse, args.compare, args.folds, args.seeds
+    if args.seeds < 1 or (args.seeds > 1 and not args.folds):
+        parser.error("--seeds N (N ≥ 1) repeats each fold's identification with N swarm seeds: give it with --folds")
     if args.folds and (not args.defaults or args.folds < 2):
         parser.error("--folds N (N ≥ 2) cross-validates the identify defaults: give it with --defaults")
     if args.reuse and args.work is None:
@@ -459,10 +490,10 @@ def main() -> int:
     record = Record("suite", args, parameters={"motors": [m.name for m in motors], "priors": args.priors,
                                                "bounds": BOUNDS, "observer": observed,
                                                "defaults": args.defaults, "hold_test": args.hold_test,
-                                               "compared": args.compare, "folds": args.folds,
+                                               "compared": args.compare, "folds": args.folds, "seeds": args.seeds,
                                                "floor": args.floor},
-                    variant=(folds_variant(args.compare) if args.folds else "defaults") if args.defaults else
-                    "floor" if args.floor else None)
+                    variant=(folds_variant(args.compare, args.seeds) if args.folds else "defaults")
+                    if args.defaults else "floor" if args.floor else None)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     record.figures.update(motors=[], complete=False)
     with tempfile.TemporaryDirectory(prefix="bench-suite-") as tmp:
@@ -475,12 +506,11 @@ def main() -> int:
     return 0
 
 
-def folds_variant(compared: list[str] | None) -> str:
+def folds_variant(compared: list[str] | None, seeds: int = 1) -> str:
     """The folds record's variant: "folds", or with --compare "folds-" and the defaults compared (each once, whatever
-    prior), so comparisons run on different days (and code) keep their own records."""
-    if not compared:
-        return "folds"
-    return "folds-" + "-".join(sorted({name.removesuffix("-auto") for name in compared}))
+    prior), so comparisons run on different days (and code) keep their own records; "-seedsN" with --seeds N > 1."""
+    name = "folds" if not compared else "folds-" + "-".join(sorted({n.removesuffix("-auto") for n in compared}))
+    return name + (f"-seeds{seeds}" if seeds > 1 else "")
 
 
 def attempt(what: str, step):

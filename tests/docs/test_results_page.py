@@ -196,6 +196,19 @@ def test_the_sitting_section_shows_each_round_the_medians_and_the_goals():
     assert changed != page and ("quiet (met)" in changed) != ("quiet (met)" in page)
 
 
+def test_the_seed_spread_is_the_mean_over_folds_of_the_seeds_range():
+    """bench_suite.seed_spread: per fold the Hammerstein winding + magnet range over the seeds, averaged over folds;
+    None with one seed."""
+    sys.path.insert(0, str(ROOT / "tests" / "benchmarks"))
+    from bench_suite import seed_spread
+
+    def run(w, m):
+        return {"hammerstein": {"winding": w, "pm": m}, "lti-lptn": {"winding": 99.0, "pm": 99.0}}
+
+    assert seed_spread([[run(1, 2), run(2, 4)], [run(10, 10), run(4, 6)]]) == (3 + 10) / 2
+    assert seed_spread([[run(1, 2)], [run(3, 4)]]) is None
+
+
 def test_folds_records_of_different_comparisons_each_keep_their_section(data_record):
     """Comparisons run on different days (and code) keep their own records, variant "folds-<defaults compared>"
     (`bench_suite.folds_variant`), and the page shows every one of them."""
@@ -205,6 +218,7 @@ def test_folds_records_of_different_comparisons_each_keep_their_section(data_rec
     assert folds_variant(None) == "folds"
     assert folds_variant(["regularization-auto", "regularization"]) == "folds-regularization"
     assert folds_variant(["loss-scales", "hammerstein-poles-auto"]) == "folds-hammerstein-poles-loss-scales"
+    assert folds_variant(["stator-weight"], seeds=3) == "folds-stator-weight-seeds3"
     rows = {}
     for variant, name, figure in (("folds", "loss-scales", 15.97), ("folds-regularization", "regularization", 7.25)):
         motor = {"motor": "air-30kw", "priors": [], "defaults": {name: {
