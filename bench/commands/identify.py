@@ -166,7 +166,7 @@ def add_subparser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.model.deploy import choose_kind
     from bench.model.identify import identify
-    from bench.model.pipeline import COMPARED_KINDS, validation_metrics
+    from bench.model.pipeline import COMPARED_KINDS, target_artifact, validation_metrics
     from bench.motor.description import AUTO_PRIOR, automatic_prior, default_motor, load_motor, load_prior, parse_bounds
 
     kind = _kind(args)
@@ -219,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
     deployed = deployment.kind if deployment else kind
     contents = {each: result.content(each, args.realization if MODEL_KINDS[each].realizations else "physical",
                                      metrics) for each in kinds}
-    refused = {k: why for k, content in contents.items() if (why := _refusal(content))}
+    refused = {k: why for k, content in contents.items() if isinstance(why := target_artifact(content), str)}
     if deployed in refused:    # every candidate refused, or the one asked for
         raise BenchError(refused[deployed])
     written = {}
@@ -466,18 +466,6 @@ def _box_advice(prior: str, bounds: list[float]) -> str:
         return " or ".join(advice)
     return ("a box this wide around a prior read from these data already holds any network they support, so a "
             "wider one would only bend the network further: check the motor file's losses and the data's units")
-
-
-def _refusal(content: dict) -> str | None:
-    """The sentence with which the target would refuse this artifact (a step unstable somewhere in the operating
-    range), None when it loads."""
-    from target_sim.artifact import ArtifactError, seal, verify
-
-    try:
-        verify(seal(content))
-    except ArtifactError as exc:
-        return str(exc)
-    return None
 
 
 def _artifact_text(content: dict) -> str:

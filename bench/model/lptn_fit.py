@@ -130,17 +130,10 @@ def discrete_blocks(vectors: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndar
     return phi[:, :4, :4], phi[:, :4, 4:]
 
 
-def likelihood_cost(sse: np.ndarray, counts: np.ndarray, weights: np.ndarray | None = None,
-                    criterion: str = DEFAULT_CRITERION) -> np.ndarray:
-    """The `criterion`'s cost (bench.model.criteria; the default Σ w·log(MSE)) over the fitted nodes; sse (P, nodes)
-    summed over runs, counts (nodes,) samples per node."""
-    weights = np.ones(sse.shape[1]) if weights is None else np.asarray(weights, float)
-    return CRITERIA[criterion].cost(sse / counts, weights)
-
-
 def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w: np.ndarray,
                nodes: tuple[str, ...] = FITTED_ALWAYS, criterion: str = DEFAULT_CRITERION) -> np.ndarray:
-    """The cost of each parameter vector (P, 22) over all runs and the given measured nodes."""
+    """The `criterion`'s cost (bench.model.criteria; the default Σ w·log MSE) of each parameter vector (P, 22) over
+    all runs and the given measured nodes."""
     a_d, b_d = discrete_blocks(vectors, dt)
     n = len(vectors)
     c = np.broadcast_to(np.eye(4), (n, 4, 4))
@@ -154,7 +147,7 @@ def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w
                             ref_y=run.ref_yoke, ref_t=run.ref_tooth)
         sse += part[:, columns]
     counts = np.full(len(nodes), float(sum(len(r.ref_winding) for r in runs)))
-    return likelihood_cost(sse, counts, [NODE_WEIGHTS[node] for node in nodes], criterion)
+    return CRITERIA[criterion].cost(sse / counts, np.asarray([NODE_WEIGHTS[node] for node in nodes], float))
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from bench.model.identify import (
     identify,
 )
 from bench.thermal.realizations import DEPLOYED_REALIZATION
-from target_sim.artifact import ArtifactError, seal, verify
+from target_sim.artifact import ArtifactError, ModelArtifact, seal, verify
 
 
 def load_campaign(data_dir: Path | None) -> dict[int, Dataset]:
@@ -53,6 +53,15 @@ def identify_from_directory(data_dir: Path | None, progress: Callable | None = N
 COMPARED_KINDS = ("lti-lptn", "hammerstein")
 
 
+def target_artifact(content: dict) -> ModelArtifact | str:
+    """The artifact as the target loads it (sealed and verified), or the sentence with which the target refuses it
+    (e.g. a step unstable somewhere in the operating range)."""
+    try:
+        return verify(seal(content))
+    except ArtifactError as exc:
+        return str(exc)
+
+
 def validation_metrics(result: Identification, validation: Sequence[Dataset],
                        realization: str = DEPLOYED_REALIZATION, kinds: Sequence[str] = COMPARED_KINDS) -> dict:
     """Accuracy at the identification Δt on the validation files together, float64 and float32 (the target's
@@ -60,10 +69,9 @@ def validation_metrics(result: Identification, validation: Sequence[Dataset],
     artifact the target would refuse (a step unstable somewhere in the operating range) {"refused": its sentence}."""
     metrics = {}
     for kind in kinds:
-        try:
-            artifact = verify(seal(result.content(kind, realization)))
-        except ArtifactError as exc:
-            metrics[kind] = {"refused": str(exc)}
+        artifact = target_artifact(result.content(kind, realization))
+        if isinstance(artifact, str):
+            metrics[kind] = {"refused": artifact}
             continue
         pooled = summarize([evaluate_file(artifact, d) for d in validation])
         metrics[kind] = {**{p: {n: pooled["nodes"][n][p] for n in DEPLOYED_NODES} for p in PRECISIONS},
