@@ -63,6 +63,7 @@ def _portable() -> None:
     portable.expm(np.stack([m, m]))
     portable.cholesky_lower(m)
     portable.svd(m)
+    portable.blended_matvec(np.stack([m, m]), np.array([1, 0]), np.array([0.25, 0.75]), np.ones(3))
 
 
 # each entry calls the kernels of one module through their wrappers

@@ -185,6 +185,27 @@ def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(**_JIT)
+def _blended_matvec(mats: np.ndarray, which: np.ndarray, weights: np.ndarray, z: np.ndarray) -> np.ndarray:
+    out = np.zeros(mats.shape[1])
+    for c in range(which.shape[0]):
+        m, w = mats[which[c]], weights[c]
+        for i in range(m.shape[0]):
+            acc = 0.0
+            for j in range(m.shape[1]):
+                acc += m[i, j] * z[j]
+            out[i] += w * acc
+    return out
+
+
+def blended_matvec(mats: np.ndarray, which: np.ndarray, weights: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Σ_c weights[c] · (mats[which[c]] @ z), each product summed over j in ascending order and the blend over c in
+    order: an interpolation between precomputed matrices (a plant's exact steps at grid corners). The arrays must
+    be float64 C-contiguous (mats, weights, z) and integer (which): a plant step calls this once per step and
+    converts nothing."""
+    return _blended_matvec(mats, which, weights, z)
+
+
+@numba.njit(**_JIT)
 def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x = b by Gaussian elimination with partial pivoting (b: n x m)."""
     n = a.shape[0]

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import copy
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -401,3 +404,42 @@ def test_air_cooling_and_an_outer_rotor_run_a_profile(variant):
     assert truth["coolant_out"][-1] > truth["coolant"][-1] + 0.2
     if variant == "outer":
         assert truth["tooth"][-1] > truth["at:magnet"][-1] > truth["at:rotor"][-1] > truth["ambient"][-1]
+
+
+PORTABLE_RUN = """
+import hashlib, json, sys
+import numpy as np
+from bench.drive.virtual.schema import virtual_plant
+from bench.motor.description import motor_from_dict
+plant = virtual_plant(motor_from_dict(json.loads(open(sys.argv[1], encoding="utf-8").read())))
+run = plant.simulate(plant.profiles[0])
+digest = hashlib.sha256()
+for name in sorted(run.truth):
+    digest.update(np.ascontiguousarray(run.truth[name], dtype=float).tobytes())
+digest.update(np.ascontiguousarray(run.losses, dtype=float).tobytes())
+print(digest.hexdigest())
+"""
+# numpy's SIMD dispatch targets (names of numpy 1.2x and 2.x; a name a build lacks is ignored)
+NUMPY_SIMD = "X86_V3,X86_V4,AVX512_ICL,AVX512_SPR,AVX512_SKX,AVX512F,AVX2,FMA3"
+
+
+def test_a_suite_motor_is_the_same_bits_under_other_blas_and_simd_kernels(tmp_path):
+    """The plant's linear algebra is bench.thermal.portable's, so a profile's float64 truth and losses do not depend
+    on the machine: OpenBLAS's Haswell kernel (FMA) and its Sandybridge kernel with numpy's AVX2/AVX-512 loops off
+    give the same bytes. (With numpy's and scipy's BLAS calls, as before, the three digests of this profile under
+    Haswell, SkylakeX and Sandybridge were all different.)"""
+    content = json.loads((ROOT / "examples" / "suite" / "air-30kw" / "motor.json").read_text(encoding="utf-8"))
+    content["virtual_plant"]["profiles"] = [{
+        "name": "steps", "role": "train", "coolant_C": 45,
+        "phases": [{"kind": "random_steps", "seed": 210, "count": 6, "torque_Nm": [0.0, 33.0],
+                    "speed_rpm": [600.0, 11400.0], "hold_s": [60, 300]}]}]
+    motor = tmp_path / "motor.json"
+    motor.write_text(json.dumps(content), encoding="utf-8")
+    digests = []
+    for env in ({"OPENBLAS_CORETYPE": "Haswell"},
+                {"OPENBLAS_CORETYPE": "Sandybridge", "NPY_DISABLE_CPU_FEATURES": NUMPY_SIMD}):
+        done = subprocess.run([sys.executable, "-c", PORTABLE_RUN, str(motor)], capture_output=True, text=True,
+                              env={**os.environ, **env}, cwd=ROOT, timeout=600)
+        assert done.returncode == 0, done.stderr
+        digests.append(done.stdout.strip())
+    assert digests[0] == digests[1]

@@ -94,7 +94,10 @@ class Position:
         states = np.asarray(states, dtype=float)
         if len(self.nodes) == 1:
             return states[..., self.nodes[0]].copy()
-        return states[..., list(self.nodes)] @ np.asarray(self.weights)
+        out = states[..., self.nodes[0]] * self.weights[0]   # summed in order, element by element: no BLAS
+        for node, weight in zip(self.nodes[1:], self.weights[1:], strict=True):
+            out = out + states[..., node] * weight
+        return out
 
 
 def mix(nodes, weights=None) -> Position:

@@ -61,6 +61,7 @@ from bench.drive.virtual.plants.materials import AXIAL, materials
 from bench.drive.virtual.plants.network import AMBIENT, Conditions, Network, discretize
 from bench.motor.check import Checker
 from bench.motor.description import MotorDescription
+from bench.thermal import portable
 
 KEYS = ("kind", "rotor", "slices", "geometry", "materials", "cooling", "end_space", "losses")
 ROTORS = ("inner", "outer")
@@ -455,14 +456,14 @@ class DistributedPlant(ThermalPlant):
         yoke_share = self.yoke_share
 
         def place(x, inputs, p_bearing: float, p_wind: float):
-            th_m = float(x[m_idx] @ m_w)
-            th_fe = float(x[fe_idx] @ fe_w)
+            th_m = portable.dot(x[m_idx], m_w)
+            th_fe = portable.dot(x[fe_idx], fe_w)
             p_dc0, p_ac0, load, p_s, p_m, _ = evaluate(*inputs, th_m, th_fe)
             cu = 1.0 + alpha * (x[cu_idx] - ref)
             p_cu = (p_dc0 * dc * cu + p_ac0 * ac / cu) * load
             p = iron * p_s + magnet * p_m + bearing * p_bearing + wind * p_wind
             p[cu_idx] += p_cu
-            groups = (yoke_share * p_s, float(p_cu.sum()), (1.0 - yoke_share) * p_s, p_m,
+            groups = (yoke_share * p_s, math.fsum(p_cu), (1.0 - yoke_share) * p_s, p_m,
                       2.0 * p_bearing + p_wind)
             return p, groups
 
@@ -515,7 +516,7 @@ class DistributedPlant(ThermalPlant):
             z[n:2 * n] = p
             z[2 * n] = cool_l[k]
             z[2 * n + 1] = amb_l[k]
-            x = weights[k] @ (table[slots[k]] @ z)
+            x = portable.blended_matvec(table, slots[k], weights[k], z)
         if count % stride == 0:
             states.append(x)
         return ThermalRun(np.array(states), np.array(groups))
@@ -533,7 +534,7 @@ class DistributedPlant(ThermalPlant):
         x = np.full(self.net.size, float(coolant_C))
         for _ in range(iterations):
             p, _ = place(x, inputs, bearing, wind)
-            new = np.linalg.solve(g, -(e @ u + p))
+            new = portable.solve(g, -(portable.matmul(e, u[:, None])[:, 0] + p))
             if np.max(np.abs(new - x)) < 1e-10:
                 x = new
                 break

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench.thermal import portable
+
 INLET, AMBIENT = 0, 1          # columns of E: the boundary temperatures
 
 
@@ -112,10 +114,10 @@ def _value(g: Conductance, cond: Conditions) -> float:
 def discretize(g: np.ndarray, e: np.ndarray, caps: np.ndarray, h: float) -> np.ndarray:
     """The exact step over h with inputs held: x' = A_d x + B_loss P + B_env u, returned as one (n, 2n + 2) matrix
     [A_d | B_loss | B_env]. A = C⁻¹G, A_d = e^{Ah}; Γ = ∫₀ʰ e^{As} ds = A⁻¹(e^{Ah} - I) (A is invertible: every
-    node reaches a boundary), B_loss = ΓC⁻¹, B_env = ΓC⁻¹E."""
-    from scipy.linalg import expm
-
+    node reaches a boundary), B_loss = ΓC⁻¹, B_env = ΓC⁻¹E. In bench.thermal.portable's arithmetic, not BLAS's:
+    a suite motor's profiles are then the same bytes on every machine (scipy's expm and numpy's solve and matmul
+    sum in the order of the CPU's OpenBLAS kernel, and the identification amplifies a last bit into a K²)."""
     a = g / caps[:, None]
-    a_d = expm(a * h)
-    gamma = np.linalg.solve(a, a_d - np.eye(len(caps)))
-    return np.hstack([a_d, gamma / caps[None, :], gamma @ (e / caps[:, None])])
+    a_d = portable.expm(a * h)
+    gamma = portable.solve(a, a_d - np.eye(len(caps)))
+    return np.hstack([a_d, gamma / caps[None, :], portable.matmul(gamma, e / caps[:, None])])
