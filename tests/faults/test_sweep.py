@@ -1,6 +1,6 @@
 """Each fault kind through a real target process on a real bus: injected == detected, and the temperatures
-outside the marked gaps are the clean run's. With the Python engine every kind; with the firmware engine (the
-compiled model in the emulated core) a representative subset, the rest under `-m slow`.
+outside the marked gaps are the clean run's. With the Python engine and with the firmware engine (the compiled
+model in the emulated core) a representative subset in the default run, every kind under `-m slow`.
 
 Every kind (the host's drive-frame and process faults, the target's reply faults) runs once over the same 500
 rows (lockstep, udp_multicast, a port per run) with a seed that injects several faults, and is compared with a
@@ -51,7 +51,12 @@ def clean(tmp_path_factory, fault_dataset):
 # run: a kill restored from a checkpoint (a corrupted drive frame, the node's own checks, and the whole sweep with
 # `-m slow`). Its replies are compared with the Python engine's clean run: equal, bit for bit.
 FIRMWARE_DEFAULT = ("kill",)    # the rest with -m slow: the default run has a 5-minute budget
-CASES = [pytest.param(kind, "python", id=kind) for kind in KINDS] + [
+# The Python engine: one kind of each way a frame can go wrong (lost, damaged, late, out of order, a dead or frozen
+# target, and a reply lost or damaged) in the default run; the kinds whose detection is the same check on another
+# field (duplicate, stale counter, wrong length, unknown id, out of range, both ways) with -m slow.
+PYTHON_DEFAULT = ("drop", "corrupt", "delay", "reorder", "kill", "freeze", "reply_drop", "reply_corrupt")
+CASES = [pytest.param(kind, "python", id=kind, marks=() if kind in PYTHON_DEFAULT else (pytest.mark.slow,))
+         for kind in KINDS] + [
     pytest.param(kind, "firmware", id=f"{kind}-firmware",
                  marks=() if kind in FIRMWARE_DEFAULT else (pytest.mark.slow,)) for kind in KINDS]
 
