@@ -965,6 +965,7 @@ def suite_defaults(record: Record) -> list[str]:
         lines += _table(["setting", *(m["motor"] for m in compared)], _default_rows(compared))
         lines += _verdicts({name: {m["motor"]: _identify_sums(m["defaults"].get(name)) for m in compared}
                             for name in compared[0]["defaults"]})
+        lines += _margin_verdicts(compared)
     observed = [m for m in motors if isinstance(m.get("observer_defaults"), dict)
                 and "failed" not in m["observer_defaults"]]
     if observed:
@@ -1010,6 +1011,25 @@ def _verdicts(sums: dict[str, dict[str, tuple[str, dict[str, float]] | None]]) -
         lines.append(f"- {name}: the default has the smallest winding + magnet MSE on {len(held)} of {len(measured)} "
                      f"motors" + (f" (no effect on {len(inert)}: every setting within 0.1 %)" if inert else "")
                      + (f"; better: {lost}" if lost else ""))
+    return [*lines, ""] if lines else []
+
+
+def _margin_verdicts(motors: list[dict]) -> list[str]:
+    """With several swarm seeds (`bench_suite.py --seeds N`): per default and alternative, where it wins beyond the
+    seeds' spread (the decision rule's margin), where it loses, and where the seeds cannot tell."""
+    lines = []
+    for name in motors[0]["defaults"]:
+        rows = {m["motor"]: (m["defaults"].get(name) or {}).get("verdict") or {} for m in motors}
+        for alt in sorted({alt for verdicts in rows.values() for alt in verdicts}):
+            said = {motor: verdicts[alt] for motor, verdicts in rows.items() if "margin_K2" in verdicts.get(alt, {})}
+            if not said:
+                continue
+            parts = [f"{motor} {v['default_K2']:.2f} → {v['alternative_K2']:.2f} (margin {v['margin_K2']:.2f}: "
+                     f"{v['verdict']})" for motor, v in said.items()]
+            wins = sum(v["verdict"] == "alternative" for v in said.values())
+            losses = sum(v["verdict"] == "default" for v in said.values())
+            lines.append(f"- {name}, {alt} against the default, beyond the seeds' spread: better on {wins}, worse on "
+                         f"{losses} of {len(said)} motors; " + "; ".join(parts))
     return [*lines, ""] if lines else []
 
 

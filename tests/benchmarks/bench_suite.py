@@ -372,8 +372,11 @@ def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dic
             scores = {setting: mean_mse(per_fold) for setting, per_fold in folds.items()}
             row["folds"] = {"count": FOLDS, "per_fold": folds}
             if SEEDS > 1:
+                spreads = {setting: seed_spread(r[1]) for setting, r in results.items()}
                 row["folds"].update(seeds=SEEDS, per_seed={setting: r[1] for setting, r in results.items()},
-                                    seed_spread_K2={setting: seed_spread(r[1]) for setting, r in results.items()})
+                                    seed_spread_K2=spreads)
+                row["verdict"] = {alt: margin_verdict(scores["default"], scores[alt], spreads["default"],
+                                                      spreads[alt]) for alt in alternatives}
         else:
             scores = {setting: validation_mse(validation_run(motor, work, data, index, prior, arguments, runs)["json"])
                       for setting, arguments in settings.items()}
@@ -417,6 +420,20 @@ def seed_spread(per_seed: list[list[dict]]) -> float | None:
         if len(scores) == len(seeds) > 1:
             ranges.append(max(scores) - min(scores))
     return round(sum(ranges) / len(ranges), 4) if ranges else None
+
+
+def margin_verdict(default: dict, alternative: dict, spread_default: float | None,
+                   spread_alternative: float | None) -> dict:
+    """The decision rule's margin (docs/method.md): an alternative beats the default on a motor only when its mean
+    held-out Hammerstein winding + magnet MSE is lower by more than the larger of the two settings' seed spreads;
+    worse by more than that, the default wins; in between, the seeds cannot tell them apart (and the default stays)."""
+    if "hammerstein" not in default or "hammerstein" not in alternative:
+        return {"verdict": "no hammerstein figures"}
+    a, b = (sum(s["hammerstein"][n] for n in ("winding", "pm")) for s in (default, alternative))
+    margin = max(spread_default or 0.0, spread_alternative or 0.0)
+    verdict = ("alternative" if b < a - margin else "default" if b > a + margin else "within the seeds' spread")
+    return {"default_K2": round(a, 4), "alternative_K2": round(b, 4), "margin_K2": round(margin, 4),
+            "verdict": verdict}
 
 
 def mean_mse(per_fold: list[dict]) -> dict:

@@ -209,6 +209,25 @@ def test_the_seed_spread_is_the_mean_over_folds_of_the_seeds_range():
     assert seed_spread([[run(1, 2)], [run(3, 4)]]) is None
 
 
+def test_an_alternative_wins_only_beyond_the_seeds_spread():
+    """bench_suite.margin_verdict: the alternative beats the default only by more than the larger seed spread; the
+    page says per motor which side won or that the seeds cannot tell."""
+    sys.path.insert(0, str(ROOT / "tests" / "benchmarks"))
+    from bench_suite import margin_verdict
+
+    def fig(w, m):
+        return {"hammerstein": {"winding": w, "pm": m}}
+
+    assert margin_verdict(fig(10, 5), fig(4, 1), 3.0, 12.0)["verdict"] == "within the seeds' spread"  # 15 → 5, ±12
+    assert margin_verdict(fig(10, 5), fig(4, 1), 3.0, 2.0)["verdict"] == "alternative"
+    assert margin_verdict(fig(4, 1), fig(10, 5), 3.0, None)["verdict"] == "default"
+    assert margin_verdict(fig(4, 1), {"lti-lptn": {}}, 1.0, 1.0)["verdict"] == "no hammerstein figures"
+    motors = [{"motor": motor, "defaults": {"hammerstein-poles": {
+        "verdict": {"fixed": margin_verdict(fig(10, 5), fig(w, 1), 1.0, 1.0)}}}} for motor, w in (("a", 1), ("b", 30))]
+    (line,) = [x for x in results_page._margin_verdicts(motors) if x]
+    assert "better on 1, worse on 1 of 2 motors" in line and "a 15.00 → 2.00" in line
+
+
 def test_folds_records_of_different_comparisons_each_keep_their_section(data_record):
     """Comparisons run on different days (and code) keep their own records, variant "folds-<defaults compared>"
     (`bench_suite.folds_variant`), and the page shows every one of them."""
