@@ -27,7 +27,6 @@ from bench.commands.common import (
     float_list,
     print_json,
 )
-from bench.drive.dataset import MEASURED_NODES
 from bench.errors import BenchError, UsageError
 from bench.model.deploy import DEPLOYED_NODES
 from target_sim.artifact import OUTPUTS
@@ -195,6 +194,8 @@ def _observer_files(artifact, datasets, say, plots: Path | None) -> dict:
 
 
 def print_observer_table(model: dict) -> None:
+    from bench.drive.dataset import MEASURED_NODES
+
     obs = model["observer"]
     said = "; ".join(f"the {m['node']} node with {m.get('column') or ', '.join(m['columns'])} ({m['kind']})"
                      for m in obs.get("measurements", [{"node": obs["node"], "column": obs["column"],
