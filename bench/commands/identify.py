@@ -166,9 +166,6 @@ def add_subparser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.model.coverage import coverage_warnings
     from bench.model.deploy import choose_kind
-    from bench.model.identify import identify
-    from bench.model.pipeline import COMPARED_KINDS, target_artifact, validation_metrics
-    from bench.model.undetermined import undetermined
     from bench.motor.description import AUTO_PRIOR, automatic_prior, default_motor, load_motor, load_prior, parse_bounds
 
     kind = _kind(args)
@@ -190,6 +187,11 @@ def run(args: argparse.Namespace) -> int:
     for path in {args.out, *(_beside(args.out, k) for k in kinds if auto or k != kind)}:  # before the fit
         check_writable(path, "--out")
     train, validate = _split(args, motor)
+    # the fit (scipy, numba) once the arguments, the motor and the data are known good: a bad one is one sentence
+    from bench.model.identify import identify
+    from bench.model.pipeline import COMPARED_KINDS, target_artifact, validation_metrics
+    from bench.model.undetermined import undetermined
+
     # the built-in campaign keeps the packaged model's path unless asked otherwise (its artifact is reproduced)
     files = args.train is not None
     # cv by the decision rule (suite-folds-regularization.json): cv 2 of 3 from the designer's prior, fixed 2 of 3

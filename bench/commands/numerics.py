@@ -49,9 +49,6 @@ def add_subparser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.thermal.excitation import SAMPLE_PERIOD_S, interval_means, synthetic_lti_inputs
-    from bench.thermal.precision import numerics_report, precision_table
-
     if args.budget and args.observer:
         raise UsageError("--budget and --observer are two reports; ask for one at a time")
     if args.budget:
@@ -64,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
         params = parameter_set(args.params)
     except KeyError as exc:
         raise UsageError(exc.args[0]) from None
+    from bench.thermal.excitation import SAMPLE_PERIOD_S, interval_means, synthetic_lti_inputs
+    from bench.thermal.precision import numerics_report, precision_table
+
     started = time.perf_counter()
     samples = synthetic_lti_inputs(seed=args.seed)
     rows = precision_table(params, args.disc, args.dt, lambda dt: interval_means(samples, SAMPLE_PERIOD_S, dt),
