@@ -175,11 +175,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.isr_rate and engine != "firmware":
         parser.error("--isr-rate runs the motor-control interrupt in the firmware engine; add --engine firmware "
                      "--firmware ELF or drop it")
-    from target_sim.firmware.motor_control import isr_rate_problem
+    if args.isr_rate:   # 0, no interrupt, needs no check (nor the firmware package, unicorn, in a Python target)
+        from target_sim.firmware.motor_control import isr_rate_problem
 
-    problem = isr_rate_problem(args.isr_rate)
-    if problem:
-        parser.error(problem)
+        problem = isr_rate_problem(args.isr_rate)
+        if problem:
+            parser.error(problem)
     journal = None
     try:
         config = resolve(config_from_args(args))

@@ -20,10 +20,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from target_sim.artifact import ModelArtifact
-from target_sim.node import TargetNode
 
 if TYPE_CHECKING:
     from target_sim.firmware.node_engine import FirmwareNode
+    from target_sim.node import TargetNode
 
 ENGINES = ("python", "firmware")
 
@@ -41,6 +41,8 @@ def make_node(artifact: ModelArtifact, *, engine: str = "python", firmware: str 
     if engine == "python":
         if isr_rate_hz:
             raise ValueError("the motor-control interrupt (isr_rate_hz) runs in the firmware engine only")
+        from target_sim.node import TargetNode  # here, not at the top: `bench` lists ENGINES without the node
+
         return TargetNode(artifact, journal=journal, xcp_elf=xcp_elf)
     from target_sim.firmware.elf import FirmwareError
     from target_sim.firmware.node_protocol import firmware_refusal

@@ -38,12 +38,26 @@ if sys.path and os.path.realpath(sys.path[0] or ".") == os.path.dirname(os.path.
     del sys.path[0]
 os.environ.setdefault("MPLBACKEND", "Agg")
 
+import importlib  # noqa: E402
+
 import bench.cli  # noqa: E402
 import dbc.transport  # noqa: E402, F401
 import target_sim.node  # noqa: E402, F401 - what `python -m target_sim` imports
 from dbc.lifeline import arm_parent_death  # noqa: E402
 
+# What the subcommands import when they run (the fit, the numerics, the observer's tuning, the run pipeline, the log
+# decoder; with them scipy and numba), which `bench` itself imports only in the command that needs it: here once, so
+# a forked command finds it imported as it did when building the parser imported it all.
+RUN_TIME_MODULES = ("bench.drive.generate", "scipy.signal", "bench.thermal.precision", "bench.model.identify",
+                    "bench.model.pipeline", "bench.model.undetermined", "bench.model.coverage",
+                    "bench.observer.section", "bench.acceptance.criteria", "bench.acceptance.junit",
+                    "bench.analysis.logdecode", "bench.analysis.rowfilter", "bench.analysis.verdict",
+                    "bench.run.execute", "bench.run.judge", "bench.run.prepare", "bench.run.leftovers",
+                    "host.results")
+
 bench.cli.build_parser()  # imports every subcommand module, as every `bench` invocation does first
+for _module in RUN_TIME_MODULES:
+    importlib.import_module(_module)
 gc.collect()
 gc.freeze()  # what was imported is permanent: a child's collections scan only what the child made
 

@@ -1,7 +1,8 @@
 """The acceptance options of `bench run`, `bench host`, `bench analyze` and `bench replay`: --criteria FILE,
 --baseline FILE and --junit-xml FILE, read and checked before any work (`prepare`), and the end of such a
 command (`finish`; `finish_run` for a run's summary): the JUnit XML written, the failed criteria named in one
-sentence, the exit status."""
+sentence, the exit status. `add_acceptance_arguments` is all the commands need to build their parsers: the criteria,
+the JUnit writer and the results are imported when a command is prepared and finished."""
 
 from __future__ import annotations
 
@@ -9,12 +10,15 @@ import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from bench.acceptance.criteria import Gate, load_gate
-from bench.acceptance.junit import CleanCase, write_junit
-from bench.analysis.results import Acceptance, RunSummary
 from bench.fileio import check_writable
 from bench.run.request import RUN, add_options
+
+if TYPE_CHECKING:
+    from bench.acceptance.criteria import Gate
+    from bench.acceptance.junit import CleanCase
+    from bench.analysis.results import Acceptance, RunSummary
 
 
 def add_acceptance_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,6 +44,8 @@ class Acceptor:
 
 def prepare(args: argparse.Namespace) -> Acceptor:
     """The criteria and baseline read, the JUnit path checked: a bad one is one sentence, before any work."""
+    from bench.acceptance.criteria import load_gate
+
     junit = getattr(args, "junit_xml", None)
     if junit is not None:
         check_writable(junit, "--junit-xml")
@@ -52,6 +58,8 @@ def finish(acceptor: Acceptor, acceptance: Acceptance | None, *, command: str, s
     """The command's exit status once the criteria are judged (1 when any fails: the sentence names each failed
     one on stderr, with --json too), after the JUnit XML is written when asked for."""
     if acceptor.junit_xml is not None:
+        from bench.acceptance.junit import write_junit
+
         write_junit(acceptor.junit_xml, command, clean, acceptance, elapsed_s=elapsed_s, properties=properties,
                     attachments=attachments)
     if acceptance is None:
@@ -68,6 +76,8 @@ def finish_run(acceptor: Acceptor, summary: RunSummary, *, command: str, subject
                model_id: str, quiet: bool) -> int:
     """`finish` for a run (`bench run`, `bench host`): its summary's criteria, verdict, log and report; `status`:
     the verdict's exit status, `bus`: the bus as the run describes it."""
+    from bench.acceptance.junit import CleanCase
+
     metrics = summary.metrics
     log = metrics.integrity.log if metrics is not None else summary.log_path
     report = metrics.report if metrics is not None else None

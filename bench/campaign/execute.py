@@ -169,7 +169,8 @@ def prepare_datasets(runs: list[Run], out_dir: Path, quiet: bool) -> dict[str, P
     """run id -> the data file it replays; the generated datasets a run names by set point are made here, once,
     before any run starts (runs generating them side by side would write the same files): the default seed's in
     out/data as `bench run` does, another seed's in OUT/data/seed-<N>."""
-    from bench.drive.generate import DEFAULT_SEED, ensure_default_datasets
+    from bench.drive.generate import ensure_default_datasets
+    from bench.drive.seed import DEFAULT_SEED
 
     made: dict[int | None, dict[int, Path]] = {}
     paths = {}

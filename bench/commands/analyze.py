@@ -40,7 +40,6 @@ import time
 from pathlib import Path
 
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
-from bench.acceptance.junit import CleanCase
 from bench.commands.args import declare_files
 from bench.commands.common import (
     add_data_arguments,
@@ -80,6 +79,7 @@ def add_subparser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.acceptance.junit import CleanCase
     from bench.analysis.canmetrics import compute, data_identity
     from bench.analysis.logdecode import decode_log
     from bench.analysis.report import check_report_dir, write_report

@@ -25,17 +25,19 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from bench.analysis.results import RunResults
 from bench.commands.args import bus_from_args, declare_files, positive_float, positive_int
 from bench.commands.common import add_engine_argument, add_output_flags, check_writable, fmt, print_json
 from bench.errors import UsageError
 from bench.fileio import write_text_atomically
-from bench.progress import ProgressBar
 from bench.run.inputs import load_data, load_model, refuse_over_can
 from dbc.transport import add_bus_arguments
 from target_sim.artifact import ModelArtifact, dumps
 from target_sim.kinds import MODEL_KINDS
+
+if TYPE_CHECKING:  # the CLI builds every subcommand's parser at start: the results when a comparison runs
+    from bench.analysis.results import RunResults
 
 KINDS = MODEL_KINDS.names()
 
@@ -103,6 +105,7 @@ def compare_models(model_paths: list[Path], dataset, bus, *, rows: int | None, o
     from bench.analysis.report import analyze_log
     from bench.model.artifact_eval import artifact_drive
     from bench.model.runs import initial_temperatures
+    from bench.progress import ProgressBar
     from bench.run.execute import run_with_target
     from bench.run.inputs import firmware_for_engine, measurements_for
     from bench.run.leftovers import clear_and_say

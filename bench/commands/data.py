@@ -11,6 +11,7 @@ from pathlib import Path
 
 from bench.commands.args import declare_files
 from bench.commands.common import add_output_flags, check_writable, print_json
+from bench.drive.seed import DEFAULT_SEED
 from bench.errors import BenchError, UsageError
 from bench.run.values import non_negative_int
 
@@ -39,8 +40,6 @@ def name_list(text: str) -> list[str]:
 
 
 def add_subparser(subparsers) -> None:
-    from bench.drive.generate import DEFAULT_SEED
-
     p = subparsers.add_parser("data", help="generate the FTP-75/WLTC3 datasets of the virtual 200 kW motor",
                               description=__doc__ + " Identification uses 20 and 60 °C, validation 40 °C.")
     p.add_argument("--out", type=Path, default=None,
@@ -64,7 +63,7 @@ def add_subparser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.drive.dataset import dataset_filename, default_dataset_dir, load_dataset
-    from bench.drive.generate import COOLANT_SETPOINTS_C, DEFAULT_SEED, GENERATOR_VERSION, ROLES, generate_and_write
+    from bench.drive.generate import COOLANT_SETPOINTS_C, GENERATOR_VERSION, ROLES, generate_and_write
     from bench.drive.sequence import TestSequence
 
     if args.motor is not None:

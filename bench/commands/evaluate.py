@@ -27,12 +27,11 @@ from bench.commands.common import (
     float_list,
     print_json,
 )
-from bench.drive.dataset import MEASURED_NODES
 from bench.errors import BenchError, UsageError
 from bench.model.deploy import DEPLOYED_NODES
-from bench.thermal.realizations import REALIZATIONS
 from target_sim.artifact import OUTPUTS
 from target_sim.kinds import MODEL_KINDS
+from target_sim.kinds import REALIZATIONS as REALIZATION_KINDS
 
 DEFAULT_DTS = [0.5, 1.0, 2.0, 4.0]
 BUILT_IN_MOTOR = "virtual-200kw"
@@ -49,12 +48,13 @@ def add_subparser(subparsers) -> None:
                         "datasets for the Table 5 analogue (default out/data)")
     add_data_arguments(p)
     p.add_argument("--dt", type=float_list, default=DEFAULT_DTS, help="Table 5: steps in s (default 0.5,1,2,4)")
-    p.add_argument("--realization", choices=REALIZATIONS, default=None,
+    realizations = REALIZATION_KINDS.names()
+    p.add_argument("--realization", choices=realizations, default=None,
                    help="deployed realization for the float32 rows (default: the artifact's)")
     p.add_argument("--plots", type=Path, default=None,
                    help="directory for the figures: one per data file, or with a directory the Figs. 6/7 analogues "
                         "(original vs balanced realization in float32)")
-    p.add_argument("--plot-realizations", type=choice_list(REALIZATIONS), default=["original", "balanced", "delta"],
+    p.add_argument("--plot-realizations", type=choice_list(realizations), default=["original", "balanced", "delta"],
                    help="realizations to plot (default original,balanced,delta)")
     add_output_flags(p)
     declare_files(p, inputs=('--model', '--data'), outputs=('--plots',))
@@ -194,6 +194,8 @@ def _observer_files(artifact, datasets, say, plots: Path | None) -> dict:
 
 
 def print_observer_table(model: dict) -> None:
+    from bench.drive.dataset import MEASURED_NODES
+
     obs = model["observer"]
     said = "; ".join(f"the {m['node']} node with {m.get('column') or ', '.join(m['columns'])} ({m['kind']})"
                      for m in obs.get("measurements", [{"node": obs["node"], "column": obs["column"],

@@ -40,19 +40,17 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import TYPE_CHECKING
 
-from bench.acceptance.cli import finish_run, prepare
 from bench.commands.args import announce_logger, declare_files, warn_listener_drops
 from bench.commands.common import SHOWN_NODES, add_output_flags, fmt, print_json
 from bench.errors import UsageError
-from bench.run.execute import execute_attached
-from bench.run.judge import JudgedRun, judge
-from bench.run.leftovers import clear_and_say
-from bench.run.prepare import prepare_run
 from bench.run.request import HOST, RunRequest, add_options
 from dbc.transport import add_bus_arguments, config_from_args, resolve
-from host.faults import spec_from_args
-from host.results import HostResult
+
+if TYPE_CHECKING:  # the CLI builds every subcommand's parser at start: the run pipeline when this one runs
+    from bench.run.judge import JudgedRun
+    from host.results import HostResult
 
 
 def add_subparser(subparsers) -> None:
@@ -66,6 +64,8 @@ def add_subparser(subparsers) -> None:
 
 
 def _faults(args: argparse.Namespace):
+    from host.faults import spec_from_args
+
     faults = spec_from_args(args)
     if faults is not None and faults.process_faults:
         raise UsageError("kill and freeze faults need the bench runner, which owns the target process: use "
@@ -79,6 +79,12 @@ def _faults(args: argparse.Namespace):
 def run_host(args: argparse.Namespace) -> int:
     """The adapter of the run pipeline (`bench.run`: request -> prepare -> execute -> judge, attached to a target
     already on the bus) to the command line."""
+    from bench.acceptance.cli import finish_run, prepare
+    from bench.run.execute import execute_attached
+    from bench.run.judge import judge
+    from bench.run.leftovers import clear_and_say
+    from bench.run.prepare import prepare_run
+
     request = RunRequest.from_args(args)   # the run as the command line describes it (`bench.run.request`)
     faults = _faults(args)
     acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work

@@ -18,24 +18,24 @@ from bench.commands.args import declare_files
 from bench.commands.common import add_data_arguments, add_output_flags, check_writable, print_json
 from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
-from bench.model.coverage import coverage_warnings
-from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
-from bench.model.deploy import AUTO, CANDIDATES, DEPLOYED_NODES
-from bench.model.hammerstein_fit import (
+from bench.model.choices import (
+    DEFAULT_FREEZE,
+    DEPLOYED_REALIZATION,
     FIT_PATHS,
     POLE_CHOICES,
     POLES_FIT,
     POLES_FIXED,
+    POLISH_STARTS,
     REGULARIZATIONS,
+    SCALE_CHOICES,
     STATOR_RULE,
     STATOR_WEIGHT_CHOICES,
 )
-from bench.model.loss_scales import SCALE_CHOICES
-from bench.model.polish import DEFAULT_FREEZE, POLISH_STARTS
-from bench.model.undetermined import undetermined
+from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
+from bench.model.deploy import AUTO, CANDIDATES, DEPLOYED_NODES
 from bench.progress import StageBars, shows_bars
-from bench.thermal.realizations import DEPLOYED_REALIZATION, REALIZATIONS
 from target_sim.kinds import MODEL_KINDS
+from target_sim.kinds import REALIZATIONS as REALIZATION_KINDS
 
 KINDS = MODEL_KINDS.names()
 # the built-in campaign keeps the packaged model's kind; --train files deploy what their validation files favour
@@ -147,7 +147,7 @@ def add_subparser(subparsers) -> None:
                         "winding + magnet float32 MSE on the validation files (a tie goes to the simpler kind) and "
                         f"the others beside it as --all-kinds does (default {AUTO} with --train files, "
                         f"{BUILTIN_KIND} for the built-in campaign)")
-    p.add_argument("--realization", choices=REALIZATIONS, default=DEPLOYED_REALIZATION,
+    p.add_argument("--realization", choices=REALIZATION_KINDS.names(), default=DEPLOYED_REALIZATION,
                    help=f"realization deployed in the artifact (default {DEPLOYED_REALIZATION}: the delta operator "
                         "about the middle of the training temperatures, the most accurate in float32)")
     p.add_argument("--fit-path", choices=tuple(FIT_PATHS), default="statespace",
@@ -164,9 +164,8 @@ def add_subparser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.model.coverage import coverage_warnings
     from bench.model.deploy import choose_kind
-    from bench.model.identify import identify
-    from bench.model.pipeline import COMPARED_KINDS, target_artifact, validation_metrics
     from bench.motor.description import AUTO_PRIOR, automatic_prior, default_motor, load_motor, load_prior, parse_bounds
 
     kind = _kind(args)
@@ -188,6 +187,11 @@ def run(args: argparse.Namespace) -> int:
     for path in {args.out, *(_beside(args.out, k) for k in kinds if auto or k != kind)}:  # before the fit
         check_writable(path, "--out")
     train, validate = _split(args, motor)
+    # the fit (scipy, numba) once the arguments, the motor and the data are known good: a bad one is one sentence
+    from bench.model.identify import identify
+    from bench.model.pipeline import COMPARED_KINDS, target_artifact, validation_metrics
+    from bench.model.undetermined import undetermined
+
     # the built-in campaign keeps the packaged model's path unless asked otherwise (its artifact is reproduced)
     files = args.train is not None
     # cv by the decision rule (suite-folds-regularization.json): cv 2 of 3 from the designer's prior, fixed 2 of 3

@@ -6,16 +6,18 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bench.commands.args import declare_files
 from bench.commands.common import add_data_arguments, add_output_flags, choice_list, float_list, print_json
 from bench.errors import BenchError, UsageError
-from bench.thermal.excitation import SAMPLE_PERIOD_S, interval_means, synthetic_lti_inputs
 from bench.thermal.parameters import PARAMETER_SETS, parameter_set
-from bench.thermal.precision import PrecisionRow, numerics_report, precision_table
-from bench.thermal.realizations import REALIZATIONS
 from dbc.contract import TEMPERATURE_NODES
 from target_sim.kinds import MODEL_KINDS
+from target_sim.kinds import REALIZATIONS as REALIZATION_KINDS
+
+if TYPE_CHECKING:  # the CLI builds every subcommand's parser at start: the realizations' numerics when one runs
+    from bench.thermal.precision import PrecisionRow
 
 
 def add_subparser(subparsers) -> None:
@@ -25,7 +27,8 @@ def add_subparser(subparsers) -> None:
     p.add_argument("--disc", type=choice_list(("zoh", "tustin", "euler")), default=["zoh", "tustin"],
                    help="discretizations, comma-separated (default zoh,tustin)")
     p.add_argument("--dt", type=float_list, default=[0.5, 1.0, 2.0, 4.0], help="steps in s (default 0.5,1,2,4)")
-    p.add_argument("--realizations", type=choice_list(REALIZATIONS), default=list(REALIZATIONS),
+    realizations = REALIZATION_KINDS.names()
+    p.add_argument("--realizations", type=choice_list(realizations), default=list(realizations),
                    help="realizations, comma-separated (default all)")
     p.add_argument("--seed", type=int, default=7, help="seed of the synthetic 7274 s excitation")
     p.add_argument("--budget", action="store_true",
@@ -58,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
         params = parameter_set(args.params)
     except KeyError as exc:
         raise UsageError(exc.args[0]) from None
+    from bench.thermal.excitation import SAMPLE_PERIOD_S, interval_means, synthetic_lti_inputs
+    from bench.thermal.precision import numerics_report, precision_table
+
     started = time.perf_counter()
     samples = synthetic_lti_inputs(seed=args.seed)
     rows = precision_table(params, args.disc, args.dt, lambda dt: interval_means(samples, SAMPLE_PERIOD_S, dt),

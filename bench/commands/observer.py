@@ -68,15 +68,15 @@ from bench.progress import StageBars
 
 
 def add_subparser(subparsers) -> None:
-    from bench.observer.measures import LAB_MEASUREMENT_KINDS
-    from bench.observer.section import (
+    from bench.observer.choices import (
         DEFAULT_BIAS,
         DEFAULT_CONSIDER,
         DEFAULT_CONSIDER_RELEASE_C,
         DEFAULT_GATE,
         DEPLOYED_FORM,
+        TUNING_CRITERIA,
     )
-    from bench.observer.tune import TUNING_CRITERIA
+    from bench.observer.measures import LAB_MEASUREMENT_KINDS
     from target_sim.artifact import BIAS_KINDS, CONSIDER_KINDS
     from target_sim.observer import OBSERVER_FORMS
 

@@ -48,15 +48,11 @@ import time
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.acceptance.cli import add_acceptance_arguments, finish, prepare
-from bench.acceptance.junit import CleanCase
-from bench.analysis.logdecode import BusRecord, decode_log
-from bench.analysis.results import Percentiles, Rejections, ReplayResults, ReplyComparison, RunResults
-from bench.analysis.rowfilter import RowSelection, kept_rows
-from bench.analysis.verdict import counts_text
 from bench.commands.args import (
     add_listener_argument,
     announce_logger,
@@ -67,9 +63,7 @@ from bench.commands.args import (
 )
 from bench.commands.common import add_output_flags, check_writable, print_json
 from bench.errors import BenchError
-from bench.progress import ProgressBar
 from bench.run.elfnote import check_given_elf, recorded_layout
-from bench.run.execute import replay_with_target
 from bench.run.inputs import firmware_for_engine, load_model
 from bench.run.leftovers import clear_and_say
 from bench.run.prepare import check_log_names
@@ -82,7 +76,11 @@ from dbc.xcp import cmd_id, res_id
 from host.canlog import check_log_path, read_log
 from host.replay import count_rows, host_frames
 from target_sim.engines import ENGINES
-from target_sim.xcp.codes import PID_ERR, PID_RES, Cmd
+
+if TYPE_CHECKING:  # the CLI builds every subcommand's parser at start: the log decoder when a replay runs
+    from bench.analysis.logdecode import BusRecord
+    from bench.analysis.results import ReplyComparison, RunResults
+    from bench.analysis.rowfilter import RowSelection
 
 PROCESS_FAULTS = ("kill", "freeze")
 
@@ -150,6 +148,8 @@ def injected_faults(record: BusRecord) -> dict[str, int]:
 
 def download_answers(record: BusRecord) -> list[int]:
     """The packet identifier (RES or ERR) that answered each XCP DOWNLOAD of a log, in order (-1: none logged)."""
+    from target_sim.xcp.codes import PID_ERR, PID_RES, Cmd
+
     command, response = cmd_id(), res_id()
     answers: list[int] = []
     waiting = False
@@ -189,6 +189,8 @@ def compare_replies(recorded: BusRecord, recorded_rows: RowSelection, new: BusRe
                     new_rows: RowSelection) -> ReplyComparison:
     """Each row's final reply of the replay against the recorded one, over the rows the rule keeps in both (a row
     the replay answered but a check flagged is neither compared nor missing: it counts in replayed_excluded)."""
+    from bench.analysis.results import ReplyComparison
+
     rows = min(recorded.rows, new.rows)
     recorded_ok, new_ok = recorded_rows.kept[:rows], new_rows.kept[:rows]
     both = recorded_ok & new_ok
@@ -211,6 +213,7 @@ def figure_rows(record: BusRecord, artifact, xcp_elf: Path | None = None) -> Row
     that cannot be compared with the model (no complete RESET, no currents for an electrical loss model) by the
     log's own checks only."""
     from bench.analysis.canmetrics import AGREEMENT_TOLERANCE_C, compute
+    from bench.analysis.rowfilter import RowSelection, kept_rows
 
     try:
         _, refs = compute(record, artifact, xcp_elf=xcp_elf)
@@ -233,6 +236,13 @@ def replay_figures(record: BusRecord, artifact, xcp_elf: Path | None = None) -> 
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.acceptance.junit import CleanCase
+    from bench.analysis.logdecode import decode_log
+    from bench.analysis.results import Percentiles, Rejections, ReplayResults
+    from bench.analysis.verdict import counts_text
+    from bench.progress import ProgressBar
+    from bench.run.execute import replay_with_target
+
     started = time.perf_counter()
     acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work
     path = check_log_path(args.log, for_reading=True)

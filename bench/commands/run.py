@@ -66,19 +66,11 @@ import sys
 import time
 from pathlib import Path
 
-from bench.acceptance.cli import finish_run, prepare
 from bench.commands.args import announce_logger, bus_from_args, declare_files, warn_listener_drops
 from bench.commands.common import add_output_flags, print_json, print_summary
 from bench.errors import UsageError
-from bench.progress import ProgressBar
-from bench.run.execute import execute_started
-from bench.run.inputs import firmware_for_engine
-from bench.run.judge import judge, node_cycles
-from bench.run.leftovers import clear_and_say
-from bench.run.prepare import prepare_run
 from bench.run.request import RUN, RunRequest, add_options
 from dbc.transport import add_bus_arguments
-from host.faults import spec_from_args
 
 
 def add_subparser(subparsers) -> None:
@@ -95,6 +87,8 @@ def add_subparser(subparsers) -> None:
 def fault_spec(args: argparse.Namespace):
     """The fault options as a FaultSpec (None without faults); FaultSpecError or UsageError (exit status 2) for a
     bad one."""
+    from host.faults import spec_from_args
+
     spec = spec_from_args(args)
     if spec is not None and spec.process_faults and getattr(args, "mode", "lockstep") != "lockstep":
         raise UsageError("kill and freeze faults need lockstep mode (a lost target's rows cannot be sent again on a "
@@ -104,6 +98,14 @@ def fault_spec(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     """The adapter of the run pipeline (`bench.run`: request -> prepare -> execute -> judge) to the command line."""
+    from bench.acceptance.cli import finish_run, prepare
+    from bench.progress import ProgressBar
+    from bench.run.execute import execute_started
+    from bench.run.inputs import firmware_for_engine
+    from bench.run.judge import judge, node_cycles
+    from bench.run.leftovers import clear_and_say
+    from bench.run.prepare import prepare_run
+
     request = RunRequest.from_args(args)   # the run as the command line describes it (`bench.run.request`)
     faults = fault_spec(args)
     acceptor = prepare(args)   # a bad criteria or baseline file: one sentence, exit status 2, before any work

@@ -9,6 +9,7 @@ Modules (imported on demand; this package imports nothing heavy):
 - plant: the thermal truth (parameter-varying LPTN, true losses), exact-step and ODE integration
 - sensors: 5 Hz instruments with noise and quantization
 - generate: one measurement run for one coolant set point, and the default datasets written from them
+- seed: the datasets' default noise seed (standard library only: `bench data --help` names it)
 - dataset: the file format: schema, CSV + JSON sidecar writer, loader with column mapping, DatasetError
 - baseline: the LTI LPTN with nominal maps, the gap the Hammerstein model has to close
 - plots: PNGs of a dataset (matplotlib, imported lazily)

@@ -21,6 +21,7 @@ from bench.drive.dataset import (
     write_dataset,
 )
 from bench.drive.plant import PLANT_STEP_S, TRUE_EFFECTS, TrueEffects, simulate
+from bench.drive.seed import DEFAULT_SEED
 from bench.drive.sensors import measure
 from bench.drive.sequence import TestSequence
 from bench.drive.stand import STAND, StandSpec, environment, sequence_losses
@@ -29,7 +30,6 @@ from bench.thermal.parameters import TABLE1_REFINED, LptnParameters
 PARAMETER_SET = "table1-refined"
 # Bump when anything that changes the generated numbers changes (plant, sensors, stand, sequence, motor).
 GENERATOR_VERSION = "1.1.0"
-DEFAULT_SEED = 20240
 COOLANT_SETPOINTS_C = (20.0, 40.0, 60.0)
 ROLES = {20.0: "identification", 40.0: "validation", 60.0: "identification"}
 

@@ -19,7 +19,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from bench.drive.motor import parametric_losses
 from bench.drive.sequence import TestSequence
@@ -60,6 +59,8 @@ STAND = StandSpec(coolant_lag_s=None, coolant_gain_K_per_kW=0.35, coolant_heat_l
 
 def lowpass(x: np.ndarray, tau_s: float, x0: float) -> np.ndarray:
     """Exact first-order lag on a 1 s grid for a held input, starting from x0."""
+    from scipy.signal import lfilter  # scipy.signal: when a dataset is generated, not when one is found current
+
     a = np.exp(-1.0 / tau_s)
     y, _ = lfilter([1 - a], [1, -a], x, zi=[a * x0])
     return y
@@ -67,6 +68,8 @@ def lowpass(x: np.ndarray, tau_s: float, x0: float) -> np.ndarray:
 
 def wander(rng: np.random.Generator, n: int, sigma: float, tau_s: float) -> np.ndarray:
     """A stationary AR(1) process with standard deviation sigma and correlation time tau_s."""
+    from scipy.signal import lfilter
+
     a = np.exp(-1.0 / tau_s)
     e = rng.standard_normal(n) * sigma * np.sqrt(1 - a * a)
     x0 = rng.standard_normal() * sigma

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.model.builder import SigmoidInputs
+from bench.model.choices import FIT_PATHS, POLE_CHOICES, POLES_FIT, POLES_FIXED, STATOR_FIXED, STATOR_RULE
 from bench.model.lptn_fit import NODE_WEIGHTS, measured_nodes
 from bench.model.metrics import finite_errors
 from bench.model.minpack import levenberg_marquardt
@@ -29,7 +30,6 @@ from bench.thermal.estimator import loop_parameters, run_batch
 from bench.thermal.parameters import LptnParameters
 from bench.thermal.realizations import Realization, realize
 
-FIT_PATHS = {"polynomial": "original", "statespace": "balanced", "statespace-modal": "modal"}
 N_SIGMOID = 20
 # The PM error counts double: its reference is near its noise floor, and the fit must not buy winding accuracy
 # with PM accuracy. Yoke and tooth, when every training file measures them, enter with the swarm's weight 1/2 on
@@ -49,9 +49,6 @@ STATOR_WEIGHT = math.sqrt(NODE_WEIGHTS["yoke"])
 # first weight and kept for the others.
 STATOR_WEIGHTS = (STATOR_WEIGHT, STATOR_WEIGHT / 2, STATOR_WEIGHT / 4)
 STATOR_MARGIN = 0.10
-# `bench identify --stator-weight`: the rule above, or STATOR_WEIGHT kept (the swarm's own weighting)
-STATOR_RULE, STATOR_FIXED = "rule", "fixed"
-STATOR_WEIGHT_CHOICES = (STATOR_RULE, STATOR_FIXED)
 # Ridge weights (°C of RMS error per unit of parameter change) for [weight, bias, gain, linear, offset] and the
 # relative B changes. Without them the fit makes the sigmoids into steep steps that tell the 20 °C run from the
 # 60 °C one by their loss level (copper losses rise with temperature) and then interpolates badly at 40 °C.
@@ -60,7 +57,6 @@ RIDGE = np.concatenate([np.full(4, 0.01), np.full(4, 0.01), np.full(4, 0.002), n
 # `cv`: the ridge's overall strength (a factor on RIDGE) chosen by leave-one-file-out cross-validation among these;
 # `fixed`: the factor 1 (the packaged model's path). Larger factors keep the model nearer the LTI network.
 STATOR_OUTPUT = {"yoke": 0, "tooth": 2}
-REGULARIZATIONS = ("fixed", "cv")
 CV_FACTORS = (100.0, 10.0, 1.0)    # strongest first: each factor's fit starts from the more regular one
 LOO_STEPS = 3          # damped Gauss-Newton steps per left-out fold (loo_vectors)
 LOO_TRIALS = 8         # damping increases per step before the fold keeps its current vector
@@ -70,8 +66,6 @@ LOO_DAMPING = 1e-3     # Marquardt damping (× diag of the Gauss-Newton matrix) 
 # construction), its row of B scaled by (1 - λ_i')/(1 - λ_i) so each mode keeps its static gain (the zero-order hold
 # of the same continuous mode with the new time constant: the coolant still sets the steady state, the poles move
 # only the dynamics). POLE_RIDGE: °C of RMS error per unit of log change, as RIDGE's for the relative B changes.
-POLES_FIXED, POLES_FIT = "fixed", "fit"
-POLE_CHOICES = (POLES_FIXED, POLES_FIT)
 POLE_RIDGE = 0.02
 N_POLES = 4
 

@@ -12,13 +12,17 @@ import numpy as np
 from bench.model.auto_prior import auto_prior
 from bench.model.baselines import fit_baselines
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
-from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
-from bench.model.hammerstein_fit import (
+from bench.model.choices import (
+    DEFAULT_FREEZE,
+    DEPLOYED_REALIZATION,
     POLE_CHOICES,
     POLES_FIT,
     POLES_FIXED,
     REGULARIZATIONS,
     STATOR_RULE,
+)
+from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
+from bench.model.hammerstein_fit import (
     HammersteinFit,
     cv_steps,
     fit_hammerstein,
@@ -37,7 +41,7 @@ from bench.model.lptn_fit import (
     to_search,
 )
 from bench.model.metrics import error_metrics
-from bench.model.polish import DEFAULT_FREEZE, polish_lptn, uncertainty
+from bench.model.polish import polish_lptn, uncertainty
 from bench.model.prior_scales import adapt_prior
 from bench.model.runs import ModelRun, model_run
 from bench.motor.description import MotorDescription, ThermalPrior, default_motor
@@ -46,7 +50,7 @@ from bench.motor.losskinds import LAB_LOSS_KINDS
 from bench.thermal.estimator import identity_sigmoid, loop_parameters, run_batch
 from bench.thermal.parameters import TABLE1, LptnParameters
 from bench.thermal.pso import Stall
-from bench.thermal.realizations import DEPLOYED_REALIZATION, Realization
+from bench.thermal.realizations import Realization
 from dbc.contract import DRIVE_SAMPLE_PERIOD_S
 from target_sim.kinds import MODEL_KINDS
 

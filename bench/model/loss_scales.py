@@ -32,7 +32,6 @@ from bench.thermal.parameters import LptnParameters
 
 SCALED_LOSSES = ("p_stator", "p_magnet")     # the loss inputs scaled (columns of MAP_TABLES)
 SCALE_BOX = (0.5, 2.0)                       # a designer's loss path is off by at most this factor
-SCALE_CHOICES = ("fit", "none")              # `bench identify --loss-scales`
 
 
 @dataclass(frozen=True)

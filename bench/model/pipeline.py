@@ -8,6 +8,7 @@ from pathlib import Path
 from bench.drive.dataset import Dataset, dataset_filename, load_dataset
 from bench.drive.generate import ensure_default_datasets
 from bench.errors import BenchError
+from bench.model.choices import DEPLOYED_REALIZATION
 from bench.model.deploy import DEPLOYED_NODES
 from bench.model.fileeval import PRECISIONS, evaluate_file, summarize
 from bench.model.identify import (
@@ -16,7 +17,6 @@ from bench.model.identify import (
     Identification,
     identify,
 )
-from bench.thermal.realizations import DEPLOYED_REALIZATION
 from target_sim.artifact import ArtifactError, ModelArtifact, seal, verify
 
 

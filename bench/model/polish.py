@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from bench import stop
+from bench.model.choices import POLISH_STARTS
 from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
 from bench.model.lptn_fit import (
     NODE_WEIGHTS,
@@ -52,10 +53,6 @@ from bench.thermal import portable
 from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
 from bench.thermal.parameters import LptnParameters
 
-# Default number of starts (the swarm's best distinct particles): one per core of a 2-core machine, so they run in
-# one wave. On the IPM example (--prior auto) four starts ended within 0.003 of each other in the cost (0.3 % of
-# MSE); the third and fourth cost as much wall time again as the first two.
-POLISH_STARTS = 2
 ROUNDS = 3                 # variance re-estimations
 ROUND_EVALUATIONS = 40     # LM function evaluations per round
 DISTINCT = 1e-3            # starts closer than this (share of the box, RMS over dimensions) are one start
@@ -67,13 +64,6 @@ OUTPUT_INDEX = {"winding": 1, "pm": 3, "yoke": 0, "tooth": 2}
 # The weak prior of the polish (`PriorPenalty`): the search box is its ±2σ interval (σ a quarter of the box's width
 # in search coordinates: a factor of 10^(1/2) for the auto prior's 0.1-10), and its weight is 1/N_eff.
 PRIOR_SIGMAS_IN_BOX = 4.0
-# `bench identify --freeze` (and identify()'s `freeze`): off since 2026-12-06. On the motor suite's validation
-# profiles (designer's prior, --polish 2) the polish without freezing beat the one with it on all three motors
-# (winding + magnet MSE 11.98 vs 21.67, 23.75 vs 47.95, 9.79 vs 20.35 K²; docs/method.md). Under the decision rule
-# (three folds, 2026-12-07, suite-folds-freeze-polish.json; air / IPM / outrunner): freezing wins 2 of 3 from the
-# designer's prior (36.77 / 8.93 / 20.99 against 33.39 / 21.92 / 15.06) but 1 of 3 from --prior auto (23.80 / 11.26 /
-# 25.35 against 37.43 / 14.65 / 9.41), so it stays off.
-DEFAULT_FREEZE = False
 FREEZE_ROUNDS = 2          # freeze_unidentified: re-polishes at most
 INSET = 1e-3               # a start on a wall is moved this share of the box inside (the box map is flat there)
 

@@ -28,6 +28,7 @@ import numpy as np
 from bench.drive.dataset import Dataset
 from bench.errors import BenchError
 from bench.model.polish import in_threads
+from bench.observer.choices import TUNING_CRITERIA
 from bench.observer.measures import kind_of
 from bench.observer.measures.lagged_sensor import Sensor
 from bench.observer.reference import (
@@ -105,8 +106,6 @@ class ObserverFit:
         return float(self.r_scale[0])
 
 
-
-TUNING_CRITERIA = ("magnet", "nodes", "likelihood")
 # what each criterion scores (log MSE against the lab's reference, summed): "nodes" adds the winding to the magnet
 SCORED_NODES = {"magnet": ("magnet",), "nodes": ("magnet", "winding")}
 # "nodes": the filter must not make the magnet worse than the open loop on any training file started as measured;

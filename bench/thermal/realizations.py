@@ -23,8 +23,6 @@ from bench.thermal import portable
 from target_sim.kinds import REALIZATIONS as REALIZATION_KINDS
 
 REALIZATIONS = REALIZATION_KINDS.names()   # target_sim.kinds: what each realization is
-# What `bench identify` deploys: the most accurate in float32 at a comparable cycle count (README, bench numerics)
-DEPLOYED_REALIZATION = "delta"
 
 
 @dataclass(frozen=True)

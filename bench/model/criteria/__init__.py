@@ -8,6 +8,9 @@ One module per kind: `likelihood` (Σ w log MSE, the default: scale-free, every 
 `pooled` (log Σ w MSE: every node by its error in K², so a large error weighs more than a small one halved). A
 criterion's variances make one round of the polish's least squares (Σ w ‖r‖² / (N σ²)) have the criterion's
 gradient at its start (bench.model.polish).
+
+The package imports nothing heavy (the criteria import bench.thermal.portable, and with it numba, when they compute
+a cost): `bench identify` takes its --network-cost choices and default from here when it builds its parser.
 """
 
 from __future__ import annotations

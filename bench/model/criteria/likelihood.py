@@ -7,8 +7,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.thermal import portable
-
 
 @dataclass(frozen=True)
 class Likelihood:
@@ -17,10 +15,14 @@ class Likelihood:
                         "variances")
 
     def cost(self, mse: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        from bench.thermal import portable  # numba: imported by a cost, not by the criteria's names
+
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.sum(weights * portable.log_array(mse), axis=-1)
 
     def exact_cost(self, mse: np.ndarray, weights: np.ndarray) -> float:
+        from bench.thermal import portable  # numba: imported by a cost, not by the criteria's names
+
         logs = (float(portable.log_array(np.array([m]))[0]) for m in mse)
         return math.fsum(float(w) * log for w, log in zip(weights, logs, strict=True))
 

@@ -13,8 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.thermal import portable
-
 
 @dataclass(frozen=True)
 class Pooled:
@@ -22,10 +20,14 @@ class Pooled:
     description: str = "log of the weighted sum of MSE over the measured nodes: one common error variance"
 
     def cost(self, mse: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        from bench.thermal import portable  # numba: imported by a cost, not by the criteria's names
+
         with np.errstate(divide="ignore", invalid="ignore"):
             return portable.log_array(np.sum(weights * mse, axis=-1))
 
     def exact_cost(self, mse: np.ndarray, weights: np.ndarray) -> float:
+        from bench.thermal import portable  # numba: imported by a cost, not by the criteria's names
+
         return float(portable.log_array(np.array([math.fsum(weights * mse)]))[0])
 
     def variances(self, mse: np.ndarray, weights: np.ndarray) -> np.ndarray:

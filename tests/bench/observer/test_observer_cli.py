@@ -187,7 +187,7 @@ def test_bench_observer_checks_itself_on_validation_files(small_dataset, tmp_pat
 
 
 def test_bench_observer_writes_its_default_gate_and_none_writes_none(observer_artifact, small_dataset, tmp_path):
-    from bench.observer.section import DEFAULT_GATE
+    from bench.observer.choices import DEFAULT_GATE
 
     gate = load_artifact(observer_artifact).content["observer"]["gate"]
     assert gate == {"sigma": DEFAULT_GATE[0], "flag_after": DEFAULT_GATE[1]} == {"sigma": 3.0, "flag_after": 10}

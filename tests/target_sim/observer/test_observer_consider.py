@@ -14,9 +14,10 @@ import pytest
 from bench.drive.dataset import load_dataset
 from bench.model.artifact_eval import artifact_drive
 from bench.model.default import default_artifact_path
+from bench.observer.choices import DEFAULT_CONSIDER
 from bench.observer.measures.lagged_sensor import Sensor
 from bench.observer.reference import reference_run
-from bench.observer.section import DEFAULT_CONSIDER, observer_section, with_observer
+from bench.observer.section import observer_section, with_observer
 from bench.observer.tune import ObserverFit, consider_problem
 from bench.thermal.kalman import consider_projections, steady_state
 from target_sim.artifact import CONSIDER_KINDS, ArtifactError, consider_held, load_artifact, seal, verify

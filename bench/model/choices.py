@@ -1,0 +1,43 @@
+"""The names `bench identify`'s options choose among, and their defaults: the fit's methods as the command line
+and identify() name them. Defined here, with nothing but the standard library, so the command line is built (its
+--help, a bad argument's one sentence) without importing the fit (scipy, numba); the modules that implement each
+method import its names from here."""
+
+from __future__ import annotations
+
+# `bench identify --fit-path`: the coordinates the Hammerstein fit works in (bench.model.hammerstein_fit)
+FIT_PATHS = {"polynomial": "original", "statespace": "balanced", "statespace-modal": "modal"}
+
+# `bench identify --stator-weight`: the Hammerstein fit's stator weight chosen by its rule, or STATOR_WEIGHT kept (the
+# swarm's own weighting; bench.model.hammerstein_fit)
+STATOR_RULE, STATOR_FIXED = "rule", "fixed"
+STATOR_WEIGHT_CHOICES = (STATOR_RULE, STATOR_FIXED)
+
+# `bench identify --regularization`: the Hammerstein fit's ridge factor chosen by leave-one-file-out cross-validation
+# (`cv`) or the factor 1 (`fixed`, the packaged model's path; bench.model.hammerstein_fit)
+REGULARIZATIONS = ("fixed", "cv")
+
+# `bench identify --hammerstein-poles`: the LTI network's poles kept (the paper's model), or fitted too
+# (bench.model.hammerstein_fit)
+POLES_FIXED, POLES_FIT = "fixed", "fit"
+POLE_CHOICES = (POLES_FIXED, POLES_FIT)
+
+# `bench identify --loss-scales` (bench.model.loss_scales)
+SCALE_CHOICES = ("fit", "none")
+
+# Default number of starts (the swarm's best distinct particles): one per core of a 2-core machine, so they run in
+# one wave. On the IPM example (--prior auto) four starts ended within 0.003 of each other in the cost (0.3 % of
+# MSE); the third and fourth cost as much wall time again as the first two. (bench.model.polish)
+POLISH_STARTS = 2
+
+# `bench identify --freeze` (and identify()'s `freeze`; bench.model.polish): off since 2026-12-06. On the motor
+# suite's validation profiles (designer's prior, --polish 2) the polish without freezing beat the one with it on all
+# three motors (winding + magnet MSE 11.98 vs 21.67, 23.75 vs 47.95, 9.79 vs 20.35 K²; docs/method.md). Under the
+# decision rule (three folds, 2026-12-07, suite-folds-freeze-polish.json; air / IPM / outrunner): freezing wins 2 of
+# 3 from the designer's prior (36.77 / 8.93 / 20.99 against 33.39 / 21.92 / 15.06) but 1 of 3 from --prior auto
+# (23.80 / 11.26 / 25.35 against 37.43 / 14.65 / 9.41), so it stays off.
+DEFAULT_FREEZE = False
+
+# What `bench identify` deploys: the most accurate realization in float32 at a comparable cycle count (README,
+# bench numerics)
+DEPLOYED_REALIZATION = "delta"
