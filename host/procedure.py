@@ -19,7 +19,6 @@ from dbc.codec import decode_any
 from dbc.contract import DEFAULT_REPLY_TIMEOUT_S, FrameError, measurement_messages, row_messages
 from dbc.database import frame_id, host_frame_ids
 from dbc.mutations import FAULTED_HOST_MESSAGES, foreign_ids
-from dbc.scheduling import request_short_slices
 from dbc.transport import OwnFrameFilter
 from dbc.xcp import cmd_id
 from host.canlog import FrameLog
@@ -99,7 +98,6 @@ def run_dataset(bus: can.BusABC, drive: np.ndarray, initial: Sequence[float], *,
         faulty = FaultyBus(bus, plan, delay_s=DELAY_FACTOR * reply_timeout_s)
     log = FrameLog(log_path) if log_path is not None else None
     gc.freeze()  # the loaded data and modules stay out of the collector's scans during the replay
-    request_short_slices()   # a loaded machine's neighbours delay each wake-up less (dbc.scheduling)
     fault_run = None
     with discarded_on_error(log):
         session = HostSession(faulty or bus, log=log, expected_model_id=model_id)

@@ -106,7 +106,6 @@ from dbc.contract import (
 from dbc.database import dbc_version_info, frame_id, signal_ranges, target_frame_ids, temperature_range
 from dbc.database import heartbeat_period_s as heartbeat_period_s_of_dbc
 from dbc.loopback_filter import drop_own_frames
-from dbc.scheduling import request_short_slices
 from dbc.transport import IN_USE_LISTEN_S, OwnFrameFilter, SpinPolicy, first_heard
 from dbc.xcp import cmd_id as xcp_cmd_id
 from dbc.xcp import res_id as xcp_res_id
@@ -636,7 +635,6 @@ def serve(node: TargetNode, bus: can.BusABC, should_stop: Callable[[], bool],
 
     monotonic = time.monotonic
     gc.freeze()  # everything loaded so far is permanent: keep it out of the collector's scans
-    request_short_slices()   # a loaded machine's neighbours delay each wake-up less (dbc.scheduling)
     send(node.startup_frames())
     next_beat = monotonic() + heartbeat_period_s
     perf = time.perf_counter
