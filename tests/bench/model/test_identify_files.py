@@ -377,18 +377,16 @@ def test_loss_scales_are_fitted_only_when_asked_and_the_artifact_carries_them(mo
     assert float(scaled.array("losses", "ac_factor", dtype=np.float64)) == given.ac_factor
 
 
-def test_the_files_path_fits_the_hammerstein_poles_by_default(motor_files, tmp_path, capsys):
-    """--hammerstein-poles unset: the decision rule's choice (docs/method.md): --train files fit the poles, the
-    built-in campaign keeps them (its packaged artifacts are reproduced); given, it is obeyed."""
-    from bench.commands.identify import default_poles
-    from bench.model.hammerstein_fit import POLES_FIT, POLES_FIXED
+def test_the_files_path_keeps_the_hammerstein_poles_by_default(motor_files, tmp_path, capsys):
+    """--hammerstein-poles unset: the decision rule's choice (docs/method.md, the rule's margin): the poles are kept
+    on the files path as in the built-in campaign; --hammerstein-poles fit is obeyed."""
+    from bench.model.hammerstein_fit import POLES_FIT
 
-    assert default_poles(files=True) == POLES_FIT and default_poles(files=False) == POLES_FIXED
     common = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
               "--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_02.csv"),
               "--swarm", "4", "--iterations", "1", "--lm-iterations", "2", "--polish", "0",
               "--regularization", "fixed", "--kind", "hammerstein"]
-    for given, fitted in (([], True), (["--hammerstein-poles", POLES_FIXED], False)):
+    for given, fitted in (([], False), (["--hammerstein-poles", POLES_FIT], True)):
         out = tmp_path / f"m{len(given)}.json"
         assert main([*common, *given, "--out", str(out)]) == 0
         lm = json.loads(out.read_text())["provenance"]["lm"]
