@@ -24,7 +24,7 @@ sensor sees and the estimate reports, heating nothing: a winding sensor's readin
 model's dynamics (and the magnet) stay the open loop's while the winding follows the sensor (on the motor suite's
 validation profiles a corrected winding node drove the magnet through the model's coupling); --bias none: no bias
 state. The default (auto) is winding-output when a measurement reads the winding, else none
-(`bench.observer.section.DEFAULT_BIAS`, chosen on the motor suite).
+(`bench.observer.choices.DEFAULT_BIAS`, chosen on the motor suite).
 --consider magnet makes the magnet node (and a magnet bias state) consider states (Schmidt-Kalman): a measurement
 that does not read the magnet (an end-winding NTC) corrects the winding and the other nodes but never the magnet,
 whose estimate then moves only through the model's own coupling; the covariance is that of the gain actually used
@@ -32,7 +32,7 @@ whose estimate then moves only through the model's own coupling; the covariance 
 updates it. It is the default (on the suite's validation profiles the only setting that left the magnet no worse
 than the open loop on every motor); --consider none: every state is updated (--bias magnet with a winding sensor
 alone needs it: a held magnet bias would never move).
---gate SIGMA (default 3, `bench.observer.section.DEFAULT_GATE`): the innovation gate the target runs: a reading
+--gate SIGMA (default 3, `bench.observer.choices.DEFAULT_GATE`): the innovation gate the target runs: a reading
 whose innovation ν is more than SIGMA of its predicted sigma off (ν²/S > SIGMA², S = h P⁻ hᵀ + R; 3: the 99.73 %
 quantile of chi-square with 1 degree of freedom) predicts only and is counted; --gate-flag-after N (default 10)
 rejections in a row flag the sensor. While a sensor is rejected the covariance grows, so a sensor that truly moved

@@ -27,7 +27,7 @@ from bench.drive.dataset import Dataset
 from bench.errors import BenchError
 from bench.model.artifact_values import artifact_loss_model
 from bench.model.runs import model_run
-from bench.observer.choices import DEFAULT_BIAS, DEFAULT_GATE, DEPLOYED_FORM  # noqa: F401 - `bench observer --help` names DEFAULT_GATE here
+from bench.observer.choices import DEFAULT_BIAS, DEPLOYED_FORM
 from bench.observer.reference import (
     BIAS_NAMES,
     BIAS_RULES,
