@@ -416,10 +416,15 @@ def seed_spread(per_seed: list[list[dict]]) -> float | None:
     evidence for either (docs/method.md)."""
     ranges = []
     for seeds in per_seed:
-        scores = [f["hammerstein"]["winding"] + f["hammerstein"]["pm"] for f in seeds if "hammerstein" in f]
+        scores = [rule_score(f) for f in seeds if "hammerstein" in f]
         if len(scores) == len(seeds) > 1:
             ranges.append(max(scores) - min(scores))
     return round(sum(ranges) / len(ranges), 4) if ranges else None
+
+
+def rule_score(figures: dict) -> float:
+    """What the decision rule scores (docs/method.md): the Hammerstein model's winding + magnet MSE (K²)."""
+    return figures["hammerstein"]["winding"] + figures["hammerstein"]["pm"]
 
 
 def margin_verdict(default: dict, alternative: dict, spread_default: float | None,
@@ -429,7 +434,7 @@ def margin_verdict(default: dict, alternative: dict, spread_default: float | Non
     worse by more than that, the default wins; in between, the seeds cannot tell them apart (and the default stays)."""
     if "hammerstein" not in default or "hammerstein" not in alternative:
         return {"verdict": "no hammerstein figures"}
-    a, b = (sum(s["hammerstein"][n] for n in ("winding", "pm")) for s in (default, alternative))
+    a, b = rule_score(default), rule_score(alternative)
     margin = max(spread_default or 0.0, spread_alternative or 0.0)
     verdict = ("alternative" if b < a - margin else "default" if b > a + margin else "within the seeds' spread")
     return {"default_K2": round(a, 4), "alternative_K2": round(b, 4), "margin_K2": round(margin, 4),
