@@ -136,6 +136,10 @@ def add_subparser(subparsers) -> None:
                    help="the network fit's criterion (swarm and polish): likelihood, the sum of the measured nodes' "
                         "log MSE (every node by its relative fit), or pooled, the log of their summed MSE (every "
                         f"node by its error in K²) (default {DEFAULT_CRITERION}, see docs/method.md)")
+    p.add_argument("--prior-factor", type=float, default=None, metavar="F",
+                   help="with --polish and a prior: the polish believes each capacitance and resistance within a "
+                        "factor F of the prior (2σ of its log-normal prior; a designer's 'within a factor of two' is "
+                        "2); default: a quarter of the --bounds box as σ")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -151,7 +155,9 @@ def add_subparser(subparsers) -> None:
                    help="polynomial (the paper's, companion coordinates) or statespace (balanced coordinates)")
     p.add_argument("--all-kinds", action="store_true",
                    help="also write the other two model kinds beside --out (<stem>-<kind>.json; --kind auto does)")
-    p.add_argument("--swarm", type=int, default=220, help="PSO swarm size (default 220)")
+    p.add_argument("--swarm", type=int, default=220,
+                   help="PSO swarm size (default 220); 0: no swarm, the polish starts from the prior alone (its "
+                        "result then has no seed)")
     p.add_argument("--iterations", type=int, default=100, help="PSO iterations (default 100)")
     p.add_argument("--lm-iterations", type=int, default=100, help="Levenberg-Marquardt iterations (default 100)")
     p.add_argument("--seed", type=int, default=0, help="PSO seed (default 0)")
@@ -168,8 +174,10 @@ def run(args: argparse.Namespace) -> int:
     kind = _kind(args)
     if args.dt is not None and not 0 < args.dt < math.inf:
         raise UsageError("--dt must be a positive number of seconds")
-    if args.swarm < 2 or args.iterations < 1 or args.lm_iterations < 1:
-        raise UsageError("--swarm must be at least 2 and the iteration counts at least 1")
+    if args.swarm < 0 or args.swarm == 1 or args.iterations < 1 or args.lm_iterations < 1:
+        raise UsageError("--swarm must be 0 (no swarm) or at least 2, and the iteration counts at least 1")
+    if args.prior_factor is not None and not 1 < args.prior_factor < math.inf:
+        raise UsageError("--prior-factor must be a number above 1 (e.g. 2: within a factor of two)")
     if args.polish is not None and args.polish < 0:
         raise UsageError("--polish must be 0 (no polish) or a number of starts")
     motor = load_motor(args.motor) if args.motor else default_motor()
@@ -209,7 +217,8 @@ def run(args: argparse.Namespace) -> int:
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
                           standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
                           adapt=adapt, loss_scales=args.loss_scales == "fit",
-                          hammerstein_poles=poles, network_cost=args.network_cost, progress=progress)
+                          hammerstein_poles=poles, network_cost=args.network_cost,
+                          prior_factor=args.prior_factor, progress=progress)
     finally:
         if progress is not None:
             progress.close()

@@ -38,6 +38,7 @@ from bench.model.lptn_fit import (
     identify_lptn,
     log_scaled,
     measured_nodes,
+    prior_lptn,
     to_search,
 )
 from bench.model.metrics import error_metrics
@@ -112,6 +113,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
              freeze: bool = DEFAULT_FREEZE, stator_weight: str = STATOR_RULE, loss_scales: bool = False,
              hammerstein_poles: str = POLES_FIXED, network_cost: str = DEFAULT_CRITERION,
+             prior_factor: float | None = None,
              progress: Callable[[str, int, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
@@ -126,6 +128,9 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     (bench.model.loss_scales); the artifacts then carry the scaled loss model. `hammerstein_poles`: the Hammerstein
     fit keeps the network's poles or fits its modes' time constants too (POLE_CHOICES). `network_cost`: the swarm's
     and the polish's criterion (bench.model.criteria.CRITERIA; a foreign prior's adaptation keeps the likelihood).
+    `swarm_size` 0: no swarm, the polish starts from the prior (lptn_fit.prior_lptn). `prior_factor`: the polish's
+    prior believes each positive parameter within that factor at 2σ (bench.model.polish.prior_sigmas; None: the
+    search box's quarter).
     The defaults (no polish, fixed ridge, no adaptation, no standard errors, no loss scales) are the packaged model's
     path. `progress`
     is called with (stage "pso", "polish", "scales" or "lm", steps done, steps at most, cost) as each stage goes;
@@ -155,10 +160,13 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     if adapt and derived is None:
         adapted = adapt_prior(runs, dt, start)
         start = adapted.parameters
-    lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
-                         width=width, stall=POLISHED_SWARM_STALL if polish_starts > 0 else None,
-                         on_iteration=(lambda i, c: progress("pso", i + 1, pso_iterations, c)) if progress else None,
-                         criterion=network_cost)
+    if swarm_size:
+        lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
+                             width=width, stall=POLISHED_SWARM_STALL if polish_starts > 0 else None,
+                             on_iteration=(lambda i, c: progress("pso", i + 1, pso_iterations, c)) if progress
+                             else None, criterion=network_cost)
+    else:
+        lptn = prior_lptn(runs, dt, start=start, width=width, criterion=network_cost)
     timings["pso"] = time.perf_counter() - started
     polished, errors = None, None
     if polish_starts > 0:
@@ -167,7 +175,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
             progress("polish", 0, 1, lptn.cost)
         # a parameter the data cannot place is frozen at the prior: the motor's own guess (its file's network, or
         # read from its data), or a foreign prior adapted to the data path by path (bench.model.prior_scales)
-        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start, freeze=freeze)
+        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start, freeze=freeze,
+                                     prior_factor=prior_factor)
         if progress:
             progress("polish", 1, 1, lptn.cost)
         if not loss_scales:     # else at the network the loss scales move, on the scaled losses

@@ -189,3 +189,18 @@ def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220,
     return LptnFit(params, result.best_cost, result.history.tolist(), result.evaluations, seed, swarm_size,
                    iterations, bounds, parameters_on_bounds(params, bounds), nodes, result.personal_bests[order],
                    result.stalled_at, criterion)
+
+
+def prior_lptn(runs: Sequence[ModelRun], dt: float, *, start: LptnParameters = TABLE1,
+               width: tuple[float, float] = DEFAULT_WIDTH, criterion: str = DEFAULT_CRITERION) -> LptnFit:
+    """No search (`bench identify --swarm 0`): the prior itself (clipped into its box) as the swarm's result and
+    the polish's one start. Why: the swarm's seed moves a fold's held-out score by up to 5x on the motor suite
+    (docs/method.md), the prior's local optimum has no seed."""
+    bounds = parameter_bounds(start, width)
+    scaled = log_scaled(bounds)
+    vector = np.clip(start.as_vector(), [b[0] for b in bounds.values()], [b[1] for b in bounds.values()])
+    nodes = measured_nodes(runs)
+    cost = float(batch_cost(vector[None], runs, dt, np.ones(4), nodes, criterion)[0])
+    params = LptnParameters.from_vector(vector)
+    return LptnFit(params, cost, [cost], 1, 0, 0, 0, bounds, parameters_on_bounds(params, bounds), nodes,
+                   to_search(vector, scaled)[None], None, criterion)

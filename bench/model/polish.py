@@ -146,6 +146,7 @@ class PriorPenalty:
     sigma: np.ndarray       # per coordinate
     weight: float           # 1 / N_eff
     n_eff: float
+    factor: float | None = None     # the log-scaled parameters' 2σ factor (prior_sigmas), None: the box's quarter
 
     def rows(self, coords: np.ndarray) -> np.ndarray:
         """(…, 22) residual rows whose sum of squares is the penalty."""
@@ -155,18 +156,36 @@ class PriorPenalty:
         return self.weight * math.fsum((((coords - self.centre) / self.sigma) ** 2).ravel())
 
     def record(self) -> dict:
-        return {"kind": "Gaussian in search coordinates (log-normal for the log-scaled parameters), centred on the "
-                        "prior, σ = a quarter of the search box", "weight": self.weight, "n_eff": self.n_eff}
+        width = ("σ = a quarter of the search box" if self.factor is None else
+                 f"σ = ln({self.factor:g})/2 for the log-scaled parameters (within a factor {self.factor:g} at 2σ), "
+                 "a quarter of the search box for the others")
+        record = {"kind": "Gaussian in search coordinates (log-normal for the log-scaled parameters), centred on the "
+                          f"prior, {width}", "weight": self.weight, "n_eff": self.n_eff}
+        return record if self.factor is None else {**record, "factor": self.factor}
 
 
 def prior_penalty(problem: Residuals, at: np.ndarray, centre: np.ndarray, lower: np.ndarray,
-                  upper: np.ndarray) -> PriorPenalty:
-    """The prior of the polish, its weight from the errors' autocorrelation at `at` (search coordinates)."""
+                  upper: np.ndarray, factor: float | None = None) -> PriorPenalty:
+    """The prior of the polish, its weight from the errors' autocorrelation at `at` (search coordinates); σ a
+    quarter of the box, or with a `factor` ln(factor)/2 for the log-scaled parameters (each believed within that
+    factor of the prior at 2σ; `prior_sigmas`)."""
     errors = problem.errors(at[None])[0]
     weights = np.array([NODE_WEIGHTS[node] for node in problem.nodes])
     rho = np.array([max(0.0, _lag1(e)) for e in errors])
     n_eff = math.fsum(weights * problem.count * (1 - rho) / (1 + rho)) / math.fsum(weights)
-    return PriorPenalty(np.clip(centre, lower, upper), (upper - lower) / PRIOR_SIGMAS_IN_BOX, 1.0 / n_eff, n_eff)
+    return PriorPenalty(np.clip(centre, lower, upper), prior_sigmas(problem.scaled, lower, upper, factor),
+                        1.0 / n_eff, n_eff, factor)
+
+
+def prior_sigmas(scaled: tuple[str, ...], lower: np.ndarray, upper: np.ndarray, factor: float | None) -> np.ndarray:
+    """The prior's σ per search coordinate: a quarter of the box; with a `factor`, ln(factor)/2 for the log-scaled
+    parameters (a designer's "within a factor of two" is factor 2), the box's quarter for the others (the stator
+    split and the coolant's temperature coefficient have fixed physical bounds, not a designer's guess)."""
+    sigma = (upper - lower) / PRIOR_SIGMAS_IN_BOX
+    if factor is not None:
+        logs = np.array([name in scaled for name in LptnParameters.names()])
+        sigma = np.where(logs, math.log(factor) / 2.0, sigma)
+    return sigma
 
 
 def _to_box(u: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -295,13 +314,14 @@ def in_threads(task, items: Sequence) -> list:
 
 def polish(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: tuple[str, ...],
            candidates: np.ndarray, lower: np.ndarray, upper: np.ndarray, starts: int = POLISH_STARTS,
-           centre: np.ndarray | None = None, criterion: str = DEFAULT_CRITERION) -> Polish:
+           centre: np.ndarray | None = None, criterion: str = DEFAULT_CRITERION,
+           prior_factor: float | None = None) -> Polish:
     """Polish from the best `starts` distinct candidates (search coordinates, best first); keep the lowest cost
     (the swarm's `criterion`'s). With the prior's `centre` (search coordinates) the cost is maximum a posteriori
-    (PriorPenalty), its weight from the errors at the best candidate."""
+    (PriorPenalty, its width `prior_factor`'s), its weight from the errors at the best candidate."""
     problem = Residuals(runs, dt, nodes, scaled, criterion)
     chosen = distinct_starts(candidates, lower, upper, starts)
-    penalty = None if centre is None else prior_penalty(problem, chosen[0], centre, lower, upper)
+    penalty = None if centre is None else prior_penalty(problem, chosen[0], centre, lower, upper, prior_factor)
     extra = (lambda x: 0.0) if penalty is None else penalty.cost
 
     def costs(points: list[np.ndarray]) -> list[float]:
@@ -318,15 +338,18 @@ def polish(runs: Sequence[ModelRun], dt: float, nodes: tuple[str, ...], scaled: 
 
 
 def polish_lptn(fit: LptnFit, runs: Sequence[ModelRun], dt: float, starts: int = POLISH_STARTS,
-                prior: LptnParameters | None = None, freeze: bool = True) -> tuple[LptnFit, Polish]:
+                prior: LptnParameters | None = None, freeze: bool = True, prior_factor: float | None = None
+                ) -> tuple[LptnFit, Polish]:
     """The swarm's fit polished from its `starts` best distinct particles; the swarm's own best if none improves.
-    With a `prior` network the polish is maximum a posteriori around it (PriorPenalty), and (if `freeze`) a
+    With a `prior` network the polish is maximum a posteriori around it (PriorPenalty; σ by `prior_factor`,
+    `prior_sigmas`), and (if `freeze`) a
     parameter that then still ends on a bound although the data cannot identify it is frozen at the prior
     (`freeze_unidentified`)."""
     scaled = log_scaled(fit.bounds)
     lower, upper = search_bounds(fit.bounds)
     centre = None if prior is None else to_search(np.array(prior.as_vector()), scaled)
-    result = polish(runs, dt, fit.nodes, scaled, fit.candidates, lower, upper, starts, centre, fit.criterion)
+    result = polish(runs, dt, fit.nodes, scaled, fit.candidates, lower, upper, starts, centre, fit.criterion,
+                    prior_factor)
     swarm = to_search(np.array(fit.params.as_vector()), scaled)
     swarm_cost = fit.cost + (0.0 if result.prior is None else result.prior.cost(swarm))
     result = replace(result, swarm_cost=swarm_cost)

@@ -334,7 +334,15 @@ DEFAULTS = {
     "network-cost-auto": ("auto", (), {"pooled": ("--network-cost", "pooled")}),
     "hammerstein-poles": ("designer", (), {"fixed": ("--hammerstein-poles", "fixed")}),
     "hammerstein-poles-auto": ("auto", (), {"fixed": ("--hammerstein-poles", "fixed")}),
+    # the polish's prior: a quarter of the box as σ, or a designer's "within a factor of two" (2σ)
+    "prior-factor": ("designer", (), {"2": ("--prior-factor", "2")}),
+    "prior-factor-auto": ("auto", (), {"2": ("--prior-factor", "2")}),
+    # the swarm, or the polish from the prior alone (no seed)
+    "swarm": ("designer", (), {"0": ("--swarm", "0")}),
+    "swarm-auto": ("auto", (), {"0": ("--swarm", "0")}),
 }
+# arguments under which the swarm's seed changes nothing (no swarm): one run stands for every seed
+SEEDLESS = (("--swarm", "0"),)
 OBSERVER_DEFAULTS = {"criterion": ("magnet", {"nodes": ("--criterion", "nodes"),
                                               "likelihood": ("--criterion", "likelihood")}),
                      # on: the winding's; the magnet's with --consider none (a held magnet bias would never move)
@@ -401,13 +409,20 @@ def cross_validated(motor: Path, work: Path, data: Path, index: dict, prior: str
     averaged over --seeds swarm seeds; and per fold the figures of each seed. Seed 0 is the command's default (its
     runs keep their names, so earlier runs are reused)."""
     per_seed = []
+    seed_range = range(1 if seedless(arguments) else SEEDS)
     for fold in range(FOLDS):
         split = fold_split(data, index, fold, FOLDS)
-        runs = [(*arguments, *(("--seed", str(seed)) if seed else ())) for seed in range(SEEDS)]
+        runs = [(*arguments, *(("--seed", str(seed)) if seed else ())) for seed in seed_range]
         per_seed.append([validation_mse(identify(motor, work, data, index, prior, seeded,
                                                  tag=f"fold{fold}of{FOLDS}-{run_tag(seeded) or 'default'}",
-                                                 split=split)["json"]) for seeded in runs])
+                                                 split=split)["json"]) for seeded in runs] * (SEEDS // len(runs)))
     return [mean_mse(seeds) for seeds in per_seed], per_seed
+
+
+def seedless(arguments: tuple) -> bool:
+    """Whether the swarm's seed cannot change a run with these arguments (SEEDLESS)."""
+    pairs = set(zip(arguments, arguments[1:], strict=False))
+    return any(pair in pairs for pair in SEEDLESS)
 
 
 def seed_spread(per_seed: list[list[dict]]) -> float | None:

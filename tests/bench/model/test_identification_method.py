@@ -574,3 +574,20 @@ def test_a_network_whose_modes_have_no_time_constant_keeps_its_poles():
     for a in (np.diag([0.999, 0.99, 0.9, -0.2]), np.diag([1.001, 0.99, 0.9, 0.5])):
         reason = poles_kept_reason(a)
         assert reason and "negative real axis" in reason and ("-0.2" in reason or "1.001" in reason)
+
+
+def test_a_prior_factor_sets_the_log_scaled_parameters_sigma_and_leaves_the_others_the_box():
+    """--prior-factor F: each log-scaled parameter's σ is ln(F)/2 (within a factor F at 2σ); the stator split and
+    the coolant coefficient (fixed physical bounds) keep a quarter of their box; without F every σ is the box's."""
+    from bench.model.polish import prior_sigmas
+
+    bounds = parameter_bounds(TRUTH, (0.1, 10.0))
+    scaled = log_scaled(bounds)
+    lower, upper = search_bounds(bounds)
+    names = LptnParameters.names()
+    box = prior_sigmas(scaled, lower, upper, None)
+    assert box == pytest.approx((upper - lower) / 4)
+    two = prior_sigmas(scaled, lower, upper, 2.0)
+    for i, name in enumerate(names):
+        assert two[i] == pytest.approx(math.log(2) / 2 if name in scaled else box[i]), name
+    assert box[names.index("C_w")] == pytest.approx(math.log(100) / 4)    # 0.1-10: a factor 10 at 2σ

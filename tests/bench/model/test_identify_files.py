@@ -235,6 +235,30 @@ def test_without_a_polish_the_files_path_still_names_what_the_data_cannot_determ
     assert "standard_errors" in summary["timings_s"]
 
 
+def test_without_a_swarm_the_polish_starts_from_the_prior_and_the_seed_changes_nothing(motor_files, tmp_path,
+                                                                                         capsys):
+    """--swarm 0: no search; the polish's one start is the prior itself, so two seeds give the same network and model;
+    --prior-factor is recorded with the polish's prior. Bad values are one sentence before any work."""
+    common = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+              "--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_02.csv"),
+              "--swarm", "0", "--lm-iterations", "1", "--regularization", "fixed", "--kind", "lti-lptn",
+              "--prior-factor", "2", "--json"]
+    summaries = []
+    for seed in ("0", "7"):
+        assert main([*common, "--seed", seed, "--out", str(tmp_path / f"seed{seed}.json")]) == 0
+        summaries.append(json.loads(capsys.readouterr().out))
+    polished = summaries[0]["polish"]
+    assert polished["starts"] == 1 and polished["prior"]["factor"] == 2.0
+    assert len(summaries[0]["pso_history"]) == 1       # the prior's cost, no iteration
+    for key in ("lptn_parameters", "validation", "lm"):
+        assert summaries[0][key] == summaries[1][key], key
+    for bad, fragment in ((("--swarm", "1"), "--swarm must be 0"), (("--prior-factor", "1"), "--prior-factor must")):
+        assert main([*common[:-1], *bad, "--out", str(tmp_path / "bad.json")]) != 0
+        err = capsys.readouterr().err
+        assert fragment in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "bad.json").exists()
+
+
 def test_the_files_path_polishes_by_default_unless_the_prior_is_adapted(motor_files, tmp_path, capsys):
     """--polish unset: the motor suite's choice (docs/method.md): --train files are polished from POLISH_STARTS
     starts, unfrozen, from the automatic, the motor's own or a named prior; an adapted foreign network (Table 1
