@@ -337,9 +337,9 @@ DEFAULTS = {
     # the polish's prior: a quarter of the box as σ, or a designer's "within a factor of two" (2σ)
     "prior-factor": ("designer", (), {"2": ("--prior-factor", "2")}),
     "prior-factor-auto": ("auto", (), {"2": ("--prior-factor", "2")}),
-    # the swarm, or the polish from the prior alone (no seed)
-    "swarm": ("designer", (), {"0": ("--swarm", "0")}),
-    "swarm-auto": ("auto", (), {"0": ("--swarm", "0")}),
+    # the swarm, or the polish from the prior alone (no seed), with the prior's default width or a factor of two
+    "swarm": ("designer", (), {"0": ("--swarm", "0"), "0-prior-factor-2": ("--swarm", "0", "--prior-factor", "2")}),
+    "swarm-auto": ("auto", (), {"0": ("--swarm", "0"), "0-prior-factor-2": ("--swarm", "0", "--prior-factor", "2")}),
 }
 # arguments under which the swarm's seed changes nothing (no swarm): one run stands for every seed
 SEEDLESS = (("--swarm", "0"),)
