@@ -204,6 +204,9 @@ def run(args: argparse.Namespace) -> int:
     regularization = args.regularization or ("cv" if files else "fixed")
     adapt = _adapts(args.adapt_prior, files, prior or motor.prior)
     polish = args.polish if args.polish is not None else default_polish(files, adapt)
+    if args.prior_factor is not None and not polish:
+        raise UsageError("--prior-factor sets the polish's prior, and this command does not polish (the built-in "
+                         "campaign and an adapted prior do not by default): add --polish 2")
     poles = args.hammerstein_poles
     dt = _model_step(args.dt, train + validate)
     coverage = coverage_warnings(train, validate, motor.limits.speed_rpm)

@@ -252,7 +252,8 @@ def test_without_a_swarm_the_polish_starts_from_the_prior_and_the_seed_changes_n
     assert len(summaries[0]["pso_history"]) == 1       # the prior's cost, no iteration
     for key in ("lptn_parameters", "validation", "lm"):
         assert summaries[0][key] == summaries[1][key], key
-    for bad, fragment in ((("--swarm", "1"), "--swarm must be 0"), (("--prior-factor", "1"), "--prior-factor must")):
+    for bad, fragment in ((("--swarm", "1"), "--swarm must be 0"), (("--prior-factor", "1"), "--prior-factor must"),
+                          (("--polish", "0"), "does not polish")):
         assert main([*common[:-1], *bad, "--out", str(tmp_path / "bad.json")]) != 0
         err = capsys.readouterr().err
         assert fragment in err and err.count("\n") == 1 and "Traceback" not in err
