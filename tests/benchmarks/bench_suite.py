@@ -407,7 +407,8 @@ def cross_validated(motor: Path, work: Path, data: Path, index: dict, prior: str
                     ) -> tuple[list[dict], list[list[dict]]]:
     """Per fold of --folds, the identification's figures on the fold's held-out profiles (`validation_mse`),
     averaged over --seeds swarm seeds; and per fold the figures of each seed. Seed 0 is the command's default (its
-    runs keep their names, so earlier runs are reused)."""
+    runs keep their names, so earlier runs are reused). A setting the seed cannot change (`seedless`) is identified
+    once per fold and stands for every seed (its spread is then 0)."""
     per_seed = []
     seed_range = range(1 if seedless(arguments) else SEEDS)
     for fold in range(FOLDS):

@@ -209,6 +209,16 @@ def test_the_seed_spread_is_the_mean_over_folds_of_the_seeds_range():
     assert seed_spread([[run(1, 2)], [run(3, 4)]]) is None
 
 
+def test_a_setting_without_a_swarm_is_identified_once_for_every_seed():
+    """bench_suite.seedless: --swarm 0 (alone or with other arguments) has no seed to vary; any other setting has."""
+    sys.path.insert(0, str(ROOT / "tests" / "benchmarks"))
+    from bench_suite import seedless
+
+    assert seedless(("--swarm", "0")) and seedless(("--freeze", "yes", "--swarm", "0", "--prior-factor", "2"))
+    assert not seedless(("--prior-factor", "2")) and not seedless(("--swarm", "20")) and not seedless(())
+    assert not seedless(("--seed", "0", "--swarm", "1"))
+
+
 def test_an_alternative_wins_only_beyond_the_seeds_spread():
     """bench_suite.margin_verdict: the alternative beats the default only by more than the larger seed spread; the
     page says per motor which side won or that the seeds cannot tell."""
