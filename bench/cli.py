@@ -289,14 +289,20 @@ def _catch_termination() -> tuple[dict, Callable]:
     `Terminated` (or `KeyboardInterrupt`) is delivered again, so the command still stops."""
     raised = []
 
-    def terminate(signum, frame) -> None:  # noqa: ARG001 - signal API
+    def terminate(signum, frame) -> None:
         stop.request(signum)   # worker threads see it too (bench.stop): the main thread's way out waits for them
         if not raised:
+            if _inside_import(frame):
+                _resend(signum)
+                return
             raised.append(signum)
             raise Terminated(signum)
 
     def interrupt(signum, frame) -> None:
         stop.request(signum)
+        if _inside_import(frame):
+            _resend(signum)
+            return
         signal.default_int_handler(signum, frame)   # KeyboardInterrupt, as without this handler
 
     previous = {}
@@ -326,6 +332,18 @@ def _catch_termination() -> tuple[dict, Callable]:
 
 
 RESEND_DELAY_S = 0.02   # the hook and the finalizer that called it return first
+
+
+def _inside_import(frame) -> bool:
+    """Whether the main thread is importing a module (a command's lazy import of the fit). A signal's exception
+    raised there can reach a C extension's module init, which prints it with its traceback and raises an ImportError
+    of its own (numba's dispatcher: "numba._devicearray failed to import"), so the stop would end in a traceback;
+    such a signal is sent again (`_resend`) until the import is done: an import takes a second or two at most."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _resend(signum: int) -> None:

@@ -635,3 +635,18 @@ def test_a_paused_host_is_not_taken_for_a_silent_target(material, scratch, long_
     summary = json.loads(stdout)
     assert summary["clean"] is True, summary["verdict"]
     assert summary["host"]["missing"] == 0 and summary["host"]["heartbeat_losses"] == 0
+
+
+def test_a_signal_during_an_import_waits_for_the_import(tmp_path, monkeypatch):
+    """A stop signal that lands while a module is being imported (a command's lazy import of numba, whose C init
+    prints the exception and raises an ImportError of its own) is sent again after the import: the handlers see
+    the import on the stack, and only there."""
+    from bench.cli import _inside_import
+
+    assert not _inside_import(sys._getframe())
+    (tmp_path / "probe_during_import.py").write_text(
+        "import sys\nfrom bench.cli import _inside_import\nSEEN = _inside_import(sys._getframe())\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import probe_during_import
+
+    assert probe_during_import.SEEN is True
