@@ -150,6 +150,11 @@ def batch_cost(vectors: np.ndarray, runs: Sequence[ModelRun], dt: float, scale_w
     return CRITERIA[criterion].cost(sse / counts, np.asarray([NODE_WEIGHTS[node] for node in nodes], float))
 
 
+def within_bounds(params: LptnParameters, bounds: dict[str, tuple[float, float]]) -> np.ndarray:
+    """The parameter vector clipped into its search box: where the swarm puts the prior, and the --swarm 0 start."""
+    return np.clip(params.as_vector(), [b[0] for b in bounds.values()], [b[1] for b in bounds.values()])
+
+
 @dataclass(frozen=True)
 class LptnFit:
     params: LptnParameters
@@ -178,8 +183,7 @@ def identify_lptn(runs: Sequence[ModelRun], dt: float, *, swarm_size: int = 220,
     bounds = parameter_bounds(start, width)
     scaled = log_scaled(bounds)
     lower, upper = search_bounds(bounds)
-    initial = to_search(np.clip(start.as_vector(), [b[0] for b in bounds.values()], [b[1] for b in bounds.values()]),
-                        scaled)
+    initial = to_search(within_bounds(start, bounds), scaled)
     nodes = measured_nodes(runs)
     result = particle_swarm(lambda pos: batch_cost(from_search(pos, scaled), runs, dt, scale_w, nodes, criterion),
                             lower, upper, swarm_size=swarm_size, iterations=iterations, seed=seed,
@@ -198,7 +202,7 @@ def prior_lptn(runs: Sequence[ModelRun], dt: float, *, start: LptnParameters = T
     (docs/method.md), the prior's local optimum has no seed."""
     bounds = parameter_bounds(start, width)
     scaled = log_scaled(bounds)
-    vector = np.clip(start.as_vector(), [b[0] for b in bounds.values()], [b[1] for b in bounds.values()])
+    vector = within_bounds(start, bounds)
     nodes = measured_nodes(runs)
     cost = float(batch_cost(vector[None], runs, dt, np.ones(4), nodes, criterion)[0])
     params = LptnParameters.from_vector(vector)
