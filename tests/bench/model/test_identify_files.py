@@ -262,7 +262,7 @@ def test_without_a_swarm_the_polish_starts_from_the_prior_and_the_seed_changes_n
 
 def test_the_files_path_polishes_by_default_unless_the_prior_is_adapted(motor_files, tmp_path, capsys):
     """--polish unset: the motor suite's choice (docs/method.md): --train files are polished from POLISH_STARTS
-    starts, unfrozen, from the automatic, the motor's own or a named prior; an adapted foreign network (Table 1
+    starts, freezing what the data cannot place (the record names what was frozen, if anything), from the automatic, the motor's own or a named prior; an adapted foreign network (Table 1
     named in a prior file, --adapt-prior yes) is not."""
     from bench.commands.identify import default_polish
     from bench.model.polish import POLISH_STARTS
@@ -275,7 +275,7 @@ def test_the_files_path_polishes_by_default_unless_the_prior_is_adapted(motor_fi
               "--kind", "lti-lptn", "--json"]
     assert main([*common, "--prior", "auto", "--out", str(tmp_path / "auto.json")]) == 0
     polished = json.loads(capsys.readouterr().out)["polish"]
-    assert polished["starts"] == POLISH_STARTS and not polished.get("frozen")
+    assert polished["starts"] == POLISH_STARTS and isinstance(polished["frozen"], list)
     (tmp_path / "table1-prior.json").write_text('{"parameters": "table1"}')
     table1 = ["--prior", str(tmp_path / "table1-prior.json")]
     assert main([*common, *table1, "--adapt-prior", "yes", "--out", str(tmp_path / "adapted.json")]) == 0
@@ -353,9 +353,9 @@ class _Stop(Exception):
     pass
 
 
-@pytest.mark.parametrize(("extra", "freeze", "stator_weight"), [((), False, "rule"),
-                                                                  (("--freeze", "yes", "--stator-weight", "fixed"),
-                                                                   True, "fixed")])
+@pytest.mark.parametrize(("extra", "freeze", "stator_weight"), [((), True, "rule"),
+                                                                  (("--freeze", "no", "--stator-weight", "fixed"),
+                                                                   False, "fixed")])
 def test_the_freezing_and_stator_weight_options_reach_the_identification(motor_files, tmp_path, monkeypatch, extra,
                                                                          freeze, stator_weight):
     import bench.model.identify
