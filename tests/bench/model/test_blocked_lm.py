@@ -3,7 +3,6 @@ replaces: the factor's algebra, MINPACK's iteration on the same problems, and th
 
 from __future__ import annotations
 
-import hashlib
 import os
 import subprocess
 import sys
