@@ -20,8 +20,10 @@ from bench.errors import BenchError, UsageError
 from bench.fileio import write_text_atomically
 from bench.model.choices import (
     DEFAULT_FREEZE,
+    DEFAULT_LM_FACTORIZATION,
     DEPLOYED_REALIZATION,
     FIT_PATHS,
+    LM_FACTORIZATIONS,
     POLE_CHOICES,
     POLES_FIT,
     POLES_FIXED,
@@ -140,6 +142,10 @@ def add_subparser(subparsers) -> None:
                    help="with --polish and a prior: the polish believes each capacitance and resistance within a "
                         "factor F of the prior (2σ of its log-normal prior; a designer's 'within a factor of two' is "
                         "2); default: a quarter of the --bounds box as σ")
+    p.add_argument("--lm-factorization", choices=LM_FACTORIZATIONS, default=DEFAULT_LM_FACTORIZATION,
+                   help="how the Levenberg-Marquardt fits factor their Jacobian: minpack (MINPACK's QR through scipy) "
+                        "or blocked (the same iteration on a QR reduced in cache-sized blocks, without the GIL; "
+                        f"results differ in the last bits) (default {DEFAULT_LM_FACTORIZATION}, see docs/method.md)")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -221,7 +227,8 @@ def run(args: argparse.Namespace) -> int:
                           standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
                           adapt=adapt, loss_scales=args.loss_scales == "fit",
                           hammerstein_poles=poles, network_cost=args.network_cost,
-                          prior_factor=args.prior_factor, progress=progress)
+                          prior_factor=args.prior_factor, lm_factorization=args.lm_factorization,
+                          progress=progress)
     finally:
         if progress is not None:
             progress.close()
@@ -260,7 +267,8 @@ def run(args: argparse.Namespace) -> int:
                "pso_stalled_at": result.lptn.stalled_at,
                "lm": {"rms_initial": result.hammerstein.cost_initial, "rms_final": result.hammerstein.cost_final,
                       "evaluations": result.hammerstein.evaluations,
-                      **({"poles": prov["lm"]["poles"]} if "poles" in prov["lm"] else {})},
+                      **({"poles": prov["lm"]["poles"]} if "poles" in prov["lm"] else {}),
+                      **({"factorization": prov["lm"]["factorization"]} if "factorization" in prov["lm"] else {})},
                "baselines": result.provenance["baselines"], "timings_s": result.timings_s, "validation": metrics,
                "nodes": list(result.lptn.nodes), "polish": prov.get("polish"), "uncertainty": uncertainty,
                "loss_scales": prov.get("loss_scales"),

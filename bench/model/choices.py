@@ -25,6 +25,12 @@ POLE_CHOICES = (POLES_FIXED, POLES_FIT)
 # `bench identify --loss-scales` (bench.model.loss_scales)
 SCALE_CHOICES = ("fit", "none")
 
+# `bench identify --lm-factorization`: how the Levenberg-Marquardt fits (the polish, the loss scales, the Hammerstein
+# fit) factor their Jacobian: MINPACK's own QR through scipy (bench.model.minpack), or the same iteration on a QR
+# reduced in cache blocks without the GIL (bench.model.blocked_lm). Decided on the suite: docs/method.md.
+LM_FACTORIZATIONS = ("minpack", "blocked")
+DEFAULT_LM_FACTORIZATION = "minpack"
+
 # Default number of starts (the swarm's best distinct particles): one per core of a 2-core machine, so they run in
 # one wave. On the IPM example (--prior auto) four starts ended within 0.003 of each other in the cost (0.3 % of
 # MSE); the third and fourth cost as much wall time again as the first two. (bench.model.polish)

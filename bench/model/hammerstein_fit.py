@@ -20,9 +20,9 @@ import numpy as np
 
 from bench.model.builder import SigmoidInputs
 from bench.model.choices import FIT_PATHS, POLE_CHOICES, POLES_FIT, POLES_FIXED, STATOR_FIXED, STATOR_RULE
+from bench.model.lm import levenberg_marquardt
 from bench.model.lptn_fit import NODE_WEIGHTS, measured_nodes
 from bench.model.metrics import finite_errors
-from bench.model.minpack import levenberg_marquardt
 from bench.model.polish import in_threads
 from bench.model.runs import ModelRun
 from bench.thermal import portable

@@ -9,11 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.model import lm
 from bench.model.auto_prior import auto_prior
 from bench.model.baselines import fit_baselines
 from bench.model.builder import ModelSpec, SigmoidInputs, artifact_content, physical_block
 from bench.model.choices import (
     DEFAULT_FREEZE,
+    DEFAULT_LM_FACTORIZATION,
     DEPLOYED_REALIZATION,
     POLE_CHOICES,
     POLES_FIT,
@@ -113,7 +115,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
              regularization: str = "fixed", adapt: bool = False, standard_errors: bool = False,
              freeze: bool = DEFAULT_FREEZE, stator_weight: str = STATOR_RULE, loss_scales: bool = False,
              hammerstein_poles: str = POLES_FIXED, network_cost: str = DEFAULT_CRITERION,
-             prior_factor: float | None = None,
+             prior_factor: float | None = None, lm_factorization: str = DEFAULT_LM_FACTORIZATION,
              progress: Callable[[str, int, int, float], None] | None = None) -> Identification:
     """Identify the LPTN (PSO, then `polish_starts` local LM polishes) and the Hammerstein model (LM; its ridge
     `fixed` or chosen by leave-one-file-out cross-validation, `cv`) on the training datasets of `motor` (default:
@@ -130,7 +132,7 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     and the polish's criterion (bench.model.criteria.CRITERIA; a foreign prior's adaptation keeps the likelihood).
     `swarm_size` 0: no swarm, the polish starts from the prior (lptn_fit.prior_lptn). `prior_factor`: the polish's
     prior believes each positive parameter within that factor at 2σ (bench.model.polish.prior_sigmas; None: the
-    search box's quarter).
+    search box's quarter). `lm_factorization`: how the LM fits factor their Jacobian (bench.model.lm).
     The defaults (no polish, fixed ridge, no adaptation, no standard errors, no loss scales) are the packaged model's
     path. `progress`
     is called with (stage "pso", "polish", "scales" or "lm", steps done, steps at most, cost) as each stage goes;
@@ -143,79 +145,80 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         raise ValueError(f"unknown Hammerstein poles {hammerstein_poles!r}; choose one of {', '.join(POLE_CHOICES)}")
     if network_cost not in CRITERIA:
         raise ValueError(f"unknown network cost {network_cost!r}; choose one of {', '.join(CRITERIA)}")
-    motor = motor or default_motor()
-    prior = prior or motor.prior
-    width = width or (prior.bounds if prior else DEFAULT_WIDTH)
-    constants = motor.constants()
-    runs = prepare_runs(datasets, motor.loss_model, constants, dt)
-    timings = {}
-    started = time.perf_counter()
-    derived = None
-    if prior is not None and prior.automatic:
-        derived = auto_prior(runs, measured_nodes(runs), motor.limits.torque_Nm)
-        start = derived.parameters
-    else:
-        start = prior.parameters if prior else TABLE1
-    adapted = None
-    if adapt and derived is None:
-        adapted = adapt_prior(runs, dt, start)
-        start = adapted.parameters
-    if swarm_size:
-        lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
-                             width=width, stall=POLISHED_SWARM_STALL if polish_starts > 0 else None,
-                             on_iteration=(lambda i, c: progress("pso", i + 1, pso_iterations, c)) if progress
-                             else None, criterion=network_cost)
-    else:
-        lptn = prior_lptn(runs, dt, start=start, width=width, criterion=network_cost)
-    timings["pso"] = time.perf_counter() - started
-    polished, errors = None, None
-    if polish_starts > 0:
+    with lm.using(lm_factorization):     # every LM fit below factors so, in worker threads too
+        motor = motor or default_motor()
+        prior = prior or motor.prior
+        width = width or (prior.bounds if prior else DEFAULT_WIDTH)
+        constants = motor.constants()
+        runs = prepare_runs(datasets, motor.loss_model, constants, dt)
+        timings = {}
         started = time.perf_counter()
-        if progress:
-            progress("polish", 0, 1, lptn.cost)
-        # a parameter the data cannot place is frozen at the prior: the motor's own guess (its file's network, or
-        # read from its data), or a foreign prior adapted to the data path by path (bench.model.prior_scales)
-        lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start, freeze=freeze,
-                                     prior_factor=prior_factor)
-        if progress:
-            progress("polish", 1, 1, lptn.cost)
-        if not loss_scales:     # else at the network the loss scales move, on the scaled losses
+        derived = None
+        if prior is not None and prior.automatic:
+            derived = auto_prior(runs, measured_nodes(runs), motor.limits.torque_Nm)
+            start = derived.parameters
+        else:
+            start = prior.parameters if prior else TABLE1
+        adapted = None
+        if adapt and derived is None:
+            adapted = adapt_prior(runs, dt, start)
+            start = adapted.parameters
+        if swarm_size:
+            lptn = identify_lptn(runs, dt, swarm_size=swarm_size, iterations=pso_iterations, seed=seed, start=start,
+                                 width=width, stall=POLISHED_SWARM_STALL if polish_starts > 0 else None,
+                                 on_iteration=(lambda i, c: progress("pso", i + 1, pso_iterations, c)) if progress
+                                 else None, criterion=network_cost)
+        else:
+            lptn = prior_lptn(runs, dt, start=start, width=width, criterion=network_cost)
+        timings["pso"] = time.perf_counter() - started
+        polished, errors = None, None
+        if polish_starts > 0:
+            started = time.perf_counter()
+            if progress:
+                progress("polish", 0, 1, lptn.cost)
+            # a parameter the data cannot place is frozen at the prior: the motor's own guess (its file's network, or
+            # read from its data), or a foreign prior adapted to the data path by path (bench.model.prior_scales)
+            lptn, polished = polish_lptn(lptn, runs, dt, polish_starts, prior=start, freeze=freeze,
+                                         prior_factor=prior_factor)
+            if progress:
+                progress("polish", 1, 1, lptn.cost)
+            if not loss_scales:     # else at the network the loss scales move, on the scaled losses
+                errors = _standard_errors(lptn, runs, dt)
+            timings["polish"] = time.perf_counter() - started
+        elif standard_errors and not loss_scales:
+            started = time.perf_counter()
             errors = _standard_errors(lptn, runs, dt)
-        timings["polish"] = time.perf_counter() - started
-    elif standard_errors and not loss_scales:
+            timings["standard_errors"] = time.perf_counter() - started
+        loss_model, scales = motor.loss_model, None
+        if loss_scales:
+            started = time.perf_counter()
+            if progress:
+                progress("scales", 0, 1, lptn.cost)
+            lptn, scales = fit_loss_scales(lptn, runs, dt, start)
+            loss_model = LAB_LOSS_KINDS[loss_model.kind].scaled(loss_model, scales.factors)
+            runs = prepare_runs(datasets, loss_model, constants, dt)     # the Hammerstein fit's losses
+            if polish_starts > 0 or standard_errors:
+                errors = _standard_errors(lptn, runs, dt)
+            if progress:
+                progress("scales", 1, 1, lptn.cost)
+            timings["scales"] = time.perf_counter() - started
         started = time.perf_counter()
-        errors = _standard_errors(lptn, runs, dt)
-        timings["standard_errors"] = time.perf_counter() - started
-    loss_model, scales = motor.loss_model, None
-    if loss_scales:
-        started = time.perf_counter()
-        if progress:
-            progress("scales", 0, 1, lptn.cost)
-        lptn, scales = fit_loss_scales(lptn, runs, dt, start)
-        loss_model = LAB_LOSS_KINDS[loss_model.kind].scaled(loss_model, scales.factors)
-        runs = prepare_runs(datasets, loss_model, constants, dt)     # the Hammerstein fit's losses
-        if polish_starts > 0 or standard_errors:
-            errors = _standard_errors(lptn, runs, dt)
-        if progress:
-            progress("scales", 1, 1, lptn.cost)
-        timings["scales"] = time.perf_counter() - started
-    started = time.perf_counter()
-    base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", loss_model,
-                                    constants))
-    # a network whose modes have no time constant to move (unstable, or a pole on the negative real axis) keeps them
-    poles_kept = poles_kept_reason(base.a) if hammerstein_poles == POLES_FIT else None
-    if poles_kept:
-        hammerstein_poles = POLES_FIXED
-    lm_steps = cv_steps(runs, lm_iterations) if regularization == "cv" else lm_iterations + 1
-    on_lm = (lambda i, c: progress("lm", i, lm_steps, c)) if progress else None
-    if regularization == "cv":
-        ham, selection = fit_hammerstein_cv(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
-                                            on_iteration=on_lm, stator_weight=stator_weight,
-                                            poles=hammerstein_poles)
-    else:
-        ham, selection = fit_hammerstein(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
-                                         on_iteration=on_lm, poles=hammerstein_poles), None
-    timings["lm"] = time.perf_counter() - started
+        base = physical_block(ModelSpec("lti-lptn", lptn.params, dt, discretization, "physical", loss_model,
+                                        constants))
+        # a network whose modes have no time constant to move (unstable, or a pole on the negative real axis) keeps them
+        poles_kept = poles_kept_reason(base.a) if hammerstein_poles == POLES_FIT else None
+        if poles_kept:
+            hammerstein_poles = POLES_FIXED
+        lm_steps = cv_steps(runs, lm_iterations) if regularization == "cv" else lm_iterations + 1
+        on_lm = (lambda i, c: progress("lm", i, lm_steps, c)) if progress else None
+        if regularization == "cv":
+            ham, selection = fit_hammerstein_cv(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
+                                                on_iteration=on_lm, stator_weight=stator_weight,
+                                                poles=hammerstein_poles)
+        else:
+            ham, selection = fit_hammerstein(base, lptn.params, runs, path=fit_path, iterations=lm_iterations,
+                                             on_iteration=on_lm, poles=hammerstein_poles), None
+        timings["lm"] = time.perf_counter() - started
     provenance = {
         "motor": motor.provenance(),
         "split": {"train": [_file_record(d) for d in datasets], "validate": [_file_record(d) for d in validation]},
@@ -246,8 +249,9 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
     if adapted is not None:
         provenance["pso"]["adapted_prior"] = adapted.record()
     if polished is not None:
-        provenance["polish"] = {"starts": len(polished.start_costs), "method": "Levenberg-Marquardt (MINPACK) in "
-                                "log-parameter space, variances re-estimated each round", "start_costs":
+        method = (f"Levenberg-Marquardt ({lm.DESCRIPTIONS[lm_factorization]}) in log-parameter space, variances "
+                  "re-estimated each round")
+        provenance["polish"] = {"starts": len(polished.start_costs), "method": method, "start_costs":
                                 polished.start_costs, "final_costs": polished.final_costs, "kept": polished.kept,
                                 "cost": polished.cost, "swarm_cost": polished.swarm_cost,
                                 "prior": polished.prior.record() if polished.prior else None,
@@ -258,6 +262,8 @@ def identify(datasets, *, dt: float = 0.5, discretization: str = "zoh", swarm_si
         provenance["uncertainty"] = errors
     if selection is not None:
         provenance["lm"]["regularization"] = selection
+    if lm_factorization != DEFAULT_LM_FACTORIZATION:
+        provenance["lm"]["factorization"] = lm.DESCRIPTIONS[lm_factorization]
     if hammerstein_poles == POLES_FIT:
         provenance["lm"]["poles"] = {"fit": "each mode's time constant × exp(p), its static gain kept, ridge "
                                      "toward the network's", "time_constant_factors": ham.time_constant_factors}

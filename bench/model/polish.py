@@ -24,6 +24,7 @@ within a factor of two) or half its search range (the others), or when it lies i
 
 from __future__ import annotations
 
+import contextvars
 import math
 import os
 from collections.abc import Sequence
@@ -35,6 +36,7 @@ import numpy as np
 from bench import stop
 from bench.model.choices import POLISH_STARTS
 from bench.model.criteria import CRITERIA, DEFAULT_CRITERION
+from bench.model.lm import levenberg_marquardt
 from bench.model.lptn_fit import (
     NODE_WEIGHTS,
     LptnFit,
@@ -47,7 +49,6 @@ from bench.model.lptn_fit import (
     to_search,
 )
 from bench.model.metrics import finite_errors
-from bench.model.minpack import levenberg_marquardt
 from bench.model.runs import ModelRun
 from bench.thermal import portable
 from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
@@ -274,12 +275,15 @@ def distinct_starts(candidates: np.ndarray, lower: np.ndarray, upper: np.ndarray
 
 def _single_threaded(task):
     """Run task in this thread with numba's kernels on one thread (numba's thread count is per calling thread):
-    the parallelism is across starts, one per core."""
+    the parallelism is across starts, one per core; in a copy of the caller's context (the LM factorization in use,
+    bench.model.lm), which a pool's thread does not inherit."""
     import numba
+
+    context = contextvars.copy_context()
 
     def run(*args):
         numba.set_num_threads(1)
-        return task(*args)
+        return context.copy().run(task, *args)
 
     return run
 

@@ -66,9 +66,21 @@ def _portable() -> None:
     portable.blended_matvec(np.stack([m, m]), np.array([1, 0]), np.array([0.25, 0.75]), np.ones(3))
 
 
+def _blocked_qr() -> None:
+    from bench.thermal import blocked_qr
+
+    rows = np.array([[1.0, 2.0, 3.0, 4.0], [0.5, -1.0, 2.0, 0.0]])
+    residuals = np.array([1.0, 0.0, -1.0, 2.0])
+    r, ipvt, qtf, acnorm = blocked_qr.pivoted(blocked_qr.triangle(rows, residuals))
+    blocked_qr.norm(residuals)
+    blocked_qr.lm_parameter(r, ipvt, acnorm, qtf, 1.0, 0.0)
+    blocked_qr.predicted(r, ipvt, qtf)
+    blocked_qr.gradient_norm(r, ipvt, qtf, acnorm, 1.0)
+
+
 # each entry calls the kernels of one module through their wrappers
 KERNEL_MODULES = {"bench.thermal.estimator": _estimator, "bench.thermal.kalman": _kalman,
-                  "bench.thermal.portable": _portable}
+                  "bench.thermal.portable": _portable, "bench.thermal.blocked_qr": _blocked_qr}
 
 
 def compile_kernels(modules: Iterable[str] = tuple(KERNEL_MODULES)) -> None:

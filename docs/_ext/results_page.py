@@ -551,8 +551,9 @@ def section_speed(record: Record) -> list[str]:
     missing += [] if "observer" in f else ["the observer"]
     return [f"{f.get('training_rows', 0):,}".replace(",", " ") + f" training rows in {f.get('training_files')} files "
             f"(the suite's {p['motor']} with longer copies of its training profiles), 2 cores "
-            f"([method](method.md#identification)). CPU seconds are the work; on a shared machine the wall time is "
-            f"the load's.", "",
+            f"([method](method.md#identification))"
+            + (f", the LM fits' factorization {p['lm_factorization']}" if p.get("lm_factorization") else "")
+            + ". CPU seconds are the work; on a shared machine the wall time is the load's.", "",
             *_table(["command", "wall s", "CPU s", "load", "stages (wall)", f"≤ {p['goal_s']:g} s"], rows),
             *([f"Not measured in this record (the run was stopped): {', '.join(missing)}.", ""] if missing else [])]
 

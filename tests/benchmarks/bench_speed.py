@@ -33,8 +33,19 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_accuracy import bench, children_cpu_s  # noqa: E402
-from bench_suite import BOUNDS, OBSERVER_EVALUATIONS, PRIORS, SENSOR, files, generate, identify  # noqa: E402
+from bench_suite import (  # noqa: E402
+    BOUNDS,
+    OBSERVER_EVALUATIONS,
+    PRIORS,
+    SENSOR,
+    files,
+    generate,
+    identify,
+    run_tag,
+)
 from record import Record, add_record_arguments  # noqa: E402
+
+from bench.model.choices import DEFAULT_LM_FACTORIZATION, LM_FACTORIZATIONS  # noqa: E402
 
 SUITE_MOTOR = ROOT / "examples" / "suite" / "ipm-60kw-distributed"
 GOAL_S = 120.0
@@ -91,11 +102,15 @@ def main() -> int:
     parser.add_argument("--priors", nargs="+", choices=PRIORS, default=list(PRIORS))
     parser.add_argument("--skip-observer", action="store_true")
     parser.add_argument("--work", type=Path, default=None, help="keep the generated files and models here")
+    parser.add_argument("--lm-factorization", choices=LM_FACTORIZATIONS, default=DEFAULT_LM_FACTORIZATION,
+                        help="identify's --lm-factorization (default: identify's own)")
     add_record_arguments(parser)
     args = parser.parse_args()
     record = Record("speed", args, parameters={"motor": SUITE_MOTOR.name, "extra_training_profiles": list(LONGER),
                                                "priors": args.priors, "bounds": BOUNDS, "goal_s": GOAL_S,
-                                               "observer_evaluations": int(OBSERVER_EVALUATIONS)})
+                                               "observer_evaluations": int(OBSERVER_EVALUATIONS),
+                                               "lm_factorization": args.lm_factorization})
+    chosen = () if args.lm_factorization == DEFAULT_LM_FACTORIZATION else ("--lm-factorization", args.lm_factorization)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     with tempfile.TemporaryDirectory(prefix="bench-speed-") as tmp:
         work = args.work or Path(tmp)
@@ -108,7 +123,7 @@ def main() -> int:
         record.write()     # after each step: an interrupted run keeps what it measured
         designer_model = None
         for prior in args.priors:
-            run = identify(motor, work, data, index, prior)
+            run = identify(motor, work, data, index, prior, extra=chosen, tag=run_tag(chosen))
             timings = {k: round(v, 1) for k, v in run["json"]["timings_s"].items()}
             record.figures["identify"][prior] = {
                 "seconds": round(run["seconds"], 1), "cpu_s": round(run["cpu_s"], 1),
@@ -122,7 +137,8 @@ def main() -> int:
             record.write()
         if not args.skip_observer:
             if designer_model is None:
-                designer_model = identify(motor, work, data, index, "designer")["artifacts"]["hammerstein"]
+                designer_model = identify(motor, work, data, index, "designer", extra=chosen,
+                                          tag=run_tag(chosen))["artifacts"]["hammerstein"]
             tuned = tune_observer(motor, data, index, designer_model)
             record.figures["observer"] = tuned
             print(f"observer ({SENSOR}, lag/gradient/offset auto, {tuned['evaluations']} filter runs): "

@@ -260,6 +260,24 @@ def test_without_a_swarm_the_polish_starts_from_the_prior_and_the_seed_changes_n
     assert not (tmp_path / "bad.json").exists()
 
 
+def test_the_blocked_factorization_is_recorded_where_the_fits_say_how_they_ran(motor_files, tmp_path, capsys):
+    """--lm-factorization blocked: the polish's method and the Hammerstein fit's record name it; the default
+    (MINPACK) adds nothing, so an artifact made without the option keeps its bytes."""
+    common = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
+              "--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_02.csv"),
+              "--swarm", "0", "--lm-iterations", "2", "--regularization", "fixed", "--kind", "hammerstein",
+              "--json"]
+    assert main([*common, "--lm-factorization", "blocked", "--out", str(tmp_path / "blocked.json")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert "blocked QR" in summary["polish"]["method"] and "blocked QR" in summary["lm"]["factorization"]
+    assert main([*common, "--out", str(tmp_path / "minpack.json")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert "(MINPACK)" in summary["polish"]["method"] and "factorization" not in summary["lm"]
+    assert main([*common, "--lm-factorization", "qr", "--out", str(tmp_path / "bad.json")]) != 0
+    err = capsys.readouterr().err
+    assert "--lm-factorization" in err and "Traceback" not in err and not (tmp_path / "bad.json").exists()
+
+
 def test_the_files_path_polishes_by_default_unless_the_prior_is_adapted(motor_files, tmp_path, capsys):
     """--polish unset: the motor suite's choice (docs/method.md): --train files are polished from POLISH_STARTS
     starts, freezing what the data cannot place (the record names what was frozen, if anything), from the automatic, the motor's own or a named prior; an adapted foreign network (Table 1

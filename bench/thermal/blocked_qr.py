@@ -1,0 +1,345 @@
+"""The linear algebra of a Levenberg-Marquardt step on a tall Jacobian, in loops of a fixed order.
+
+Why: MINPACK's lmder (scipy's leastsq) factors the whole m x n Jacobian column by column, one sequential sum per
+pair of columns over all m rows, and holds the GIL while it does: on the Hammerstein fit's 400 000 x 36 Jacobian
+that is 1.2-1.5 s per Jacobian (one core; the polish's two starts cannot overlap it). Here the Jacobian, with the
+residuals as an extra column, is reduced BLOCK rows at a time onto an n x (n+1) triangle (Householder reflections of
+the triangle stacked on each block), in cache, with sums kept in LANES fixed partial sums, and without the GIL.
+What lmder needs of the factorization is only R, the column pivots and the first n entries of Qᵀf; the pivoting
+is done afterwards on the small triangle (MINPACK's qrfac on n x n), the same factorization in exact arithmetic.
+
+Every sum runs in an order fixed by the code, not by the CPU: the partial sums are LANES independent chains that
+numba may put into vector registers of any width without changing a bit (no fastmath: no reassociation, no FMA
+contraction). So the result depends on the inputs alone, as everything in bench.thermal.portable does.
+lm_parameter and _solve_damped follow MINPACK's lmpar and qrsolv (Moré 1978) step for step.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_JIT = {"cache": True, "fastmath": False, "nogil": True}
+
+BLOCK = 256      # rows of the Jacobian reflected onto the triangle at a time: (n + 1) x BLOCK doubles stay in L2
+LANES = 8        # partial sums of a long dot product; fixed, so the bits do not depend on the vector width
+_DWARF = np.finfo(np.float64).tiny
+_EPSMCH = np.finfo(np.float64).eps
+
+
+@numba.njit(**_JIT)
+def _lane_dot(a: np.ndarray, b: np.ndarray, count: int) -> float:
+    """Σ a[i]·b[i] for i < count: LANES chains over i mod LANES, then the chains and the tail in order."""
+    acc = np.zeros(LANES)
+    full = count - count % LANES
+    for i in range(0, full, LANES):
+        for lane in range(LANES):
+            acc[lane] += a[i + lane] * b[i + lane]
+    total = 0.0
+    for lane in range(LANES):
+        total += acc[lane]
+    for i in range(full, count):
+        total += a[i] * b[i]
+    return total
+
+
+@numba.njit(**_JIT)
+def norm(v: np.ndarray) -> float:
+    """The Euclidean norm of v, summed in the fixed lane order."""
+    return np.sqrt(_lane_dot(v, v, len(v)))
+
+
+@numba.njit(**_JIT)
+def _reflect(triangle: np.ndarray, block: np.ndarray, rows: int) -> None:
+    """Reduce [triangle; blockᵀ] to an upper triangle in place: `triangle` (n, n+1) upper triangular in its first n
+    columns, `block` (n+1, rows) the block's columns as rows (the last one the residuals). Householder reflections,
+    one per column, each acting on the triangle's diagonal entry and the block's column (the triangle's entries
+    below the diagonal are zero)."""
+    n = triangle.shape[0]
+    for j in range(n):
+        v = block[j]
+        rjj = triangle[j, j]
+        squares = rjj * rjj + _lane_dot(v, v, rows)
+        if squares == 0.0:
+            continue
+        size = np.sqrt(squares)
+        alpha = -size if rjj >= 0.0 else size
+        v0 = rjj - alpha
+        beta = 1.0 / (size * (size + abs(rjj)))      # 2 / |v|², v = (v0, block[j])
+        for k in range(j + 1, n + 1):
+            column = block[k]
+            w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
+            triangle[j, k] -= v0 * w
+            for i in range(rows):
+                column[i] -= w * v[i]
+        triangle[j, j] = alpha
+
+
+@numba.njit(**_JIT)
+def triangle(jacobian_rows: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """(n, n+1) [R | Qᵀr]: R upper triangular with RᵀR = JᵀJ and Qᵀr its projection of the residuals (RᵀQᵀr =
+    Jᵀr), from the Jacobian transposed (n, m) (a row per parameter) and the residuals (m,). Neither is changed."""
+    n, m = jacobian_rows.shape
+    out = np.zeros((n, n + 1))
+    block = np.empty((n + 1, BLOCK))
+    for start in range(0, m, BLOCK):
+        rows = min(BLOCK, m - start)
+        for c in range(n):
+            block[c, :rows] = jacobian_rows[c, start:start + rows]
+        block[n, :rows] = residuals[start:start + rows]
+        _reflect(out, block, rows)
+    return out
+
+
+@numba.njit(**_JIT)
+def pivoted(reduced: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """MINPACK's qrfac with column pivoting, then its Qᵀf, on the small [R | Qᵀr] of `triangle`: (r, ipvt, qtf,
+    acnorm) as lmder holds them after its own factorization of J: r's upper triangle the pivoted factor with its
+    diagonal, ipvt the permutation (J P = Q r), qtf the first n entries of Qᵀ f, acnorm the norms of J's columns."""
+    n = reduced.shape[0]
+    a = reduced[:, :n].copy()
+    wa4 = reduced[:, n].copy()
+    acnorm = np.empty(n)
+    rdiag = np.empty(n)
+    wa = np.empty(n)
+    ipvt = np.arange(n)
+    for j in range(n):
+        total = 0.0
+        for i in range(n):
+            total += a[i, j] * a[i, j]
+        acnorm[j] = np.sqrt(total)
+        rdiag[j] = acnorm[j]
+        wa[j] = rdiag[j]
+    for j in range(n):
+        kmax = j
+        for k in range(j, n):
+            if rdiag[k] > rdiag[kmax]:
+                kmax = k
+        if kmax != j:
+            for i in range(n):
+                a[i, j], a[i, kmax] = a[i, kmax], a[i, j]
+            rdiag[kmax] = rdiag[j]
+            wa[kmax] = wa[j]
+            ipvt[j], ipvt[kmax] = ipvt[kmax], ipvt[j]
+        ajnorm = 0.0
+        for i in range(j, n):
+            ajnorm += a[i, j] * a[i, j]
+        ajnorm = np.sqrt(ajnorm)
+        if ajnorm != 0.0:
+            if a[j, j] < 0.0:
+                ajnorm = -ajnorm
+            for i in range(j, n):
+                a[i, j] /= ajnorm
+            a[j, j] += 1.0
+            for k in range(j + 1, n):
+                total = 0.0
+                for i in range(j, n):
+                    total += a[i, j] * a[i, k]
+                temp = total / a[j, j]
+                for i in range(j, n):
+                    a[i, k] -= temp * a[i, j]
+                if rdiag[k] != 0.0:
+                    temp = a[j, k] / rdiag[k]
+                    rdiag[k] *= np.sqrt(max(0.0, 1.0 - temp * temp))
+                    if 0.05 * (rdiag[k] / wa[k]) ** 2 <= _EPSMCH:
+                        rest = 0.0
+                        for i in range(j + 1, n):
+                            rest += a[i, k] * a[i, k]
+                        rdiag[k] = np.sqrt(rest)
+                        wa[k] = rdiag[k]
+        rdiag[j] = -ajnorm
+    qtf = np.empty(n)
+    for j in range(n):     # lmder's Qᵀf with the Householder vectors qrfac left below the diagonal
+        if a[j, j] != 0.0:
+            total = 0.0
+            for i in range(j, n):
+                total += a[i, j] * wa4[i]
+            temp = -total / a[j, j]
+            for i in range(j, n):
+                wa4[i] += a[i, j] * temp
+        a[j, j] = rdiag[j]
+        qtf[j] = wa4[j]
+    return a, ipvt, qtf, acnorm
+
+
+@numba.njit(**_JIT)
+def _small_norm(v: np.ndarray) -> float:
+    total = 0.0
+    for x in v:
+        total += x * x
+    return np.sqrt(total)
+
+
+@numba.njit(**_JIT)
+def _solve_damped(r: np.ndarray, ipvt: np.ndarray, diag: np.ndarray, qtb: np.ndarray, x: np.ndarray,
+                  sdiag: np.ndarray) -> None:
+    """MINPACK's qrsolv: x solving J x = b, D x = 0 in the least-squares sense, from J's pivoted factor r (upper
+    triangle, kept) and Qᵀb; the factor S of the damped system goes to r's strict lower triangle and sdiag."""
+    n = r.shape[0]
+    wa = np.empty(n)
+    for j in range(n):
+        for i in range(j, n):
+            r[i, j] = r[j, i]
+        x[j] = r[j, j]
+        wa[j] = qtb[j]
+    for j in range(n):
+        pj = ipvt[j]
+        if diag[pj] != 0.0:
+            for k in range(j, n):
+                sdiag[k] = 0.0
+            sdiag[j] = diag[pj]
+            qtbpj = 0.0
+            for k in range(j, n):     # Givens rotations eliminate the row of D
+                if sdiag[k] == 0.0:
+                    continue
+                if abs(r[k, k]) < abs(sdiag[k]):
+                    cotan = r[k, k] / sdiag[k]
+                    sin = 0.5 / np.sqrt(0.25 + 0.25 * (cotan * cotan))
+                    cos = sin * cotan
+                else:
+                    tan = sdiag[k] / r[k, k]
+                    cos = 0.5 / np.sqrt(0.25 + 0.25 * (tan * tan))
+                    sin = cos * tan
+                r[k, k] = cos * r[k, k] + sin * sdiag[k]
+                temp = cos * wa[k] + sin * qtbpj
+                qtbpj = -sin * wa[k] + cos * qtbpj
+                wa[k] = temp
+                for i in range(k + 1, n):
+                    temp = cos * r[i, k] + sin * sdiag[i]
+                    sdiag[i] = -sin * r[i, k] + cos * sdiag[i]
+                    r[i, k] = temp
+        sdiag[j] = r[j, j]
+        r[j, j] = x[j]
+    nsing = n
+    for j in range(n):
+        if sdiag[j] == 0.0 and nsing == n:
+            nsing = j
+        if nsing < n:
+            wa[j] = 0.0
+    for k in range(nsing):
+        j = nsing - k - 1
+        total = 0.0
+        for i in range(j + 1, nsing):
+            total += r[i, j] * wa[i]
+        wa[j] = (wa[j] - total) / sdiag[j]
+    for j in range(n):
+        x[ipvt[j]] = wa[j]
+
+
+@numba.njit(**_JIT)
+def lm_parameter(r: np.ndarray, ipvt: np.ndarray, diag: np.ndarray, qtb: np.ndarray, delta: float,
+                 par: float) -> tuple[float, np.ndarray]:
+    """MINPACK's lmpar: (par, x) with x the step solving J x = b, √par D x = 0 in the least-squares sense and
+    |D x| within 10 % of `delta` (or par = 0 and |D x| below it), from J's pivoted factor (r, ipvt) and Qᵀb; `par`
+    the previous value as the first guess. r's strict lower triangle is overwritten."""
+    n = r.shape[0]
+    x = np.empty(n)
+    sdiag = np.empty(n)
+    wa1 = np.empty(n)
+    wa2 = np.empty(n)
+    nsing = n
+    for j in range(n):     # the Gauss-Newton direction; a least-squares one if r is singular
+        wa1[j] = qtb[j]
+        if r[j, j] == 0.0 and nsing == n:
+            nsing = j
+        if nsing < n:
+            wa1[j] = 0.0
+    for k in range(nsing):
+        j = nsing - k - 1
+        wa1[j] /= r[j, j]
+        temp = wa1[j]
+        for i in range(j):
+            wa1[i] -= r[i, j] * temp
+    for j in range(n):
+        x[ipvt[j]] = wa1[j]
+    iteration = 0
+    for j in range(n):
+        wa2[j] = diag[j] * x[j]
+    dxnorm = _small_norm(wa2)
+    fp = dxnorm - delta
+    if fp <= 0.1 * delta:
+        return 0.0, x
+    parl = 0.0     # a lower bound for par: from the Newton step, unless r is singular
+    if nsing >= n:
+        for j in range(n):
+            pj = ipvt[j]
+            wa1[j] = diag[pj] * (wa2[pj] / dxnorm)
+        for j in range(n):
+            total = 0.0
+            for i in range(j):
+                total += r[i, j] * wa1[i]
+            wa1[j] = (wa1[j] - total) / r[j, j]
+        temp = _small_norm(wa1)
+        parl = fp / delta / temp / temp
+    for j in range(n):     # an upper bound: the gradient's norm over delta
+        total = 0.0
+        for i in range(j + 1):
+            total += r[i, j] * qtb[i]
+        wa1[j] = total / diag[ipvt[j]]
+    gnorm = _small_norm(wa1)
+    paru = gnorm / delta
+    if paru == 0.0:
+        paru = _DWARF / min(delta, 0.1)
+    par = min(max(par, parl), paru)
+    if par == 0.0:
+        par = gnorm / dxnorm
+    while True:
+        iteration += 1
+        if par == 0.0:
+            par = max(_DWARF, 0.001 * paru)
+        temp = np.sqrt(par)
+        for j in range(n):
+            wa1[j] = temp * diag[j]
+        _solve_damped(r, ipvt, wa1, qtb, x, sdiag)
+        for j in range(n):
+            wa2[j] = diag[j] * x[j]
+        dxnorm = _small_norm(wa2)
+        temp = fp
+        fp = dxnorm - delta
+        if abs(fp) <= 0.1 * delta or (parl == 0.0 and fp <= temp and temp < 0.0) or iteration == 10:
+            break
+        for j in range(n):     # the Newton correction
+            pj = ipvt[j]
+            wa1[j] = diag[pj] * (wa2[pj] / dxnorm)
+        for j in range(n):
+            wa1[j] /= sdiag[j]
+            temp = wa1[j]
+            for i in range(j + 1, n):
+                wa1[i] -= r[i, j] * temp
+        temp = _small_norm(wa1)
+        parc = fp / delta / temp / temp
+        if fp > 0.0:
+            parl = max(parl, par)
+        elif fp < 0.0:
+            paru = min(paru, par)
+        par = max(parl, par + parc)
+    return par, x
+
+
+@numba.njit(**_JIT)
+def predicted(r: np.ndarray, ipvt: np.ndarray, step: np.ndarray) -> float:
+    """|J step| from J's pivoted factor: |r Pᵀ step| (lmder's predicted reduction)."""
+    n = r.shape[0]
+    wa3 = np.zeros(n)
+    for j in range(n):
+        temp = step[ipvt[j]]
+        for i in range(j + 1):
+            wa3[i] += r[i, j] * temp
+    return _small_norm(wa3)
+
+
+@numba.njit(**_JIT)
+def gradient_norm(r: np.ndarray, ipvt: np.ndarray, qtf: np.ndarray, acnorm: np.ndarray, fnorm: float) -> float:
+    """lmder's scaled gradient norm: the largest |cosine| between the residuals and a column of J."""
+    n = r.shape[0]
+    gnorm = 0.0
+    if fnorm == 0.0:
+        return gnorm
+    for j in range(n):
+        pj = ipvt[j]
+        if acnorm[pj] != 0.0:
+            total = 0.0
+            for i in range(j + 1):
+                total += r[i, j] * (qtf[i] / fnorm)
+            gnorm = max(gnorm, abs(total / acnorm[pj]))
+    return gnorm
