@@ -103,7 +103,7 @@ def test_the_command_names_an_unknown_module_in_one_sentence(capsys):
     assert kernels.main(["bench.thermal.nope"]) == 2
     err = capsys.readouterr().err
     assert err.strip() == ("bench.thermal.nope is not one of bench.thermal.estimator, bench.thermal.kalman, "
-                           "bench.thermal.portable")
+                           "bench.thermal.portable, bench.thermal.blocked_qr")
 
 
 HOLD = "import fcntl, sys, time; f = open(sys.argv[1], 'w'); fcntl.flock(f, fcntl.LOCK_EX); print(1, flush=True); " \
