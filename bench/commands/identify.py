@@ -22,6 +22,7 @@ from bench.model.choices import (
     DEFAULT_FREEZE,
     DEFAULT_LM_FACTORIZATION,
     DEPLOYED_REALIZATION,
+    FILES_LM_FACTORIZATION,
     FIT_PATHS,
     LM_FACTORIZATIONS,
     POLE_CHOICES,
@@ -142,10 +143,12 @@ def add_subparser(subparsers) -> None:
                    help="with --polish and a prior: the polish believes each capacitance and resistance within a "
                         "factor F of the prior (2σ of its log-normal prior; a designer's 'within a factor of two' is "
                         "2); default: a quarter of the --bounds box as σ")
-    p.add_argument("--lm-factorization", choices=LM_FACTORIZATIONS, default=DEFAULT_LM_FACTORIZATION,
+    p.add_argument("--lm-factorization", choices=LM_FACTORIZATIONS, default=None,
                    help="how the Levenberg-Marquardt fits factor their Jacobian: minpack (MINPACK's QR through scipy) "
                         "or blocked (the same iteration on a QR reduced in cache-sized blocks, without the GIL; "
-                        f"results differ in the last bits) (default {DEFAULT_LM_FACTORIZATION}, see docs/method.md)")
+                        f"results differ in the last bits) (default {FILES_LM_FACTORIZATION} with --train files, by "
+                        f"the motor suite's decision rule, see docs/method.md; {DEFAULT_LM_FACTORIZATION} for the "
+                        "built-in campaign, whose packaged artifacts it reproduces)")
     p.add_argument("--dt", type=float, default=None,
                    help=f"model step in s (default {DEFAULT_DT_S:g}, or the data's sample period when that is longer)")
     p.add_argument("--out", type=Path, default=Path("out/model/hammerstein.json"), help="artifact to write")
@@ -210,6 +213,7 @@ def run(args: argparse.Namespace) -> int:
     regularization = args.regularization or ("cv" if files else "fixed")
     adapt = _adapts(args.adapt_prior, files, prior or motor.prior)
     polish = args.polish if args.polish is not None else default_polish(files, adapt)
+    factorization = args.lm_factorization or (FILES_LM_FACTORIZATION if files else DEFAULT_LM_FACTORIZATION)
     if args.prior_factor is not None and not polish:
         raise UsageError("--prior-factor sets the polish's prior, and this command does not polish (the built-in "
                          "campaign and an adapted prior do not by default): add --polish 2")
@@ -227,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
                           standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
                           adapt=adapt, loss_scales=args.loss_scales == "fit",
                           hammerstein_poles=poles, network_cost=args.network_cost,
-                          prior_factor=args.prior_factor, lm_factorization=args.lm_factorization,
+                          prior_factor=args.prior_factor, lm_factorization=factorization,
                           progress=progress)
     finally:
         if progress is not None:

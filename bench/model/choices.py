@@ -27,9 +27,12 @@ SCALE_CHOICES = ("fit", "none")
 
 # `bench identify --lm-factorization`: how the Levenberg-Marquardt fits (the polish, the loss scales, the Hammerstein
 # fit) factor their Jacobian: MINPACK's own QR through scipy (bench.model.minpack), or the same iteration on a QR
-# reduced in cache blocks without the GIL (bench.model.blocked_lm). Decided on the suite: docs/method.md.
+# reduced in cache blocks without the GIL (bench.model.blocked_lm). identify() and the built-in campaign keep MINPACK
+# (the packaged artifacts are reproduced bit for bit); the --train files path factors blocked since 2026-12-07 by the
+# decision rule's clause for a change of arithmetic (docs/method.md): LM_DECISION_PLACEHOLDER
 LM_FACTORIZATIONS = ("minpack", "blocked")
 DEFAULT_LM_FACTORIZATION = "minpack"
+FILES_LM_FACTORIZATION = "blocked"
 
 # Default number of starts (the swarm's best distinct particles): one per core of a 2-core machine, so they run in
 # one wave. On the IPM example (--prior auto) four starts ended within 0.003 of each other in the cost (0.3 % of

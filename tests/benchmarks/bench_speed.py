@@ -45,7 +45,7 @@ from bench_suite import (  # noqa: E402
 )
 from record import Record, add_record_arguments  # noqa: E402
 
-from bench.model.choices import DEFAULT_LM_FACTORIZATION, LM_FACTORIZATIONS  # noqa: E402
+from bench.model.choices import FILES_LM_FACTORIZATION, LM_FACTORIZATIONS  # noqa: E402
 
 SUITE_MOTOR = ROOT / "examples" / "suite" / "ipm-60kw-distributed"
 GOAL_S = 120.0
@@ -102,15 +102,15 @@ def main() -> int:
     parser.add_argument("--priors", nargs="+", choices=PRIORS, default=list(PRIORS))
     parser.add_argument("--skip-observer", action="store_true")
     parser.add_argument("--work", type=Path, default=None, help="keep the generated files and models here")
-    parser.add_argument("--lm-factorization", choices=LM_FACTORIZATIONS, default=DEFAULT_LM_FACTORIZATION,
-                        help="identify's --lm-factorization (default: identify's own)")
+    parser.add_argument("--lm-factorization", choices=LM_FACTORIZATIONS, default=FILES_LM_FACTORIZATION,
+                        help="identify's --lm-factorization (default: identify's own with --train files)")
     add_record_arguments(parser)
     args = parser.parse_args()
     record = Record("speed", args, parameters={"motor": SUITE_MOTOR.name, "extra_training_profiles": list(LONGER),
                                                "priors": args.priors, "bounds": BOUNDS, "goal_s": GOAL_S,
                                                "observer_evaluations": int(OBSERVER_EVALUATIONS),
                                                "lm_factorization": args.lm_factorization})
-    chosen = () if args.lm_factorization == DEFAULT_LM_FACTORIZATION else ("--lm-factorization", args.lm_factorization)
+    chosen = () if args.lm_factorization == FILES_LM_FACTORIZATION else ("--lm-factorization", args.lm_factorization)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}", flush=True)
     with tempfile.TemporaryDirectory(prefix="bench-speed-") as tmp:
         work = args.work or Path(tmp)

@@ -341,8 +341,8 @@ DEFAULTS = {
     "swarm": ("designer", (), {"0": ("--swarm", "0"), "0-prior-factor-2": ("--swarm", "0", "--prior-factor", "2")}),
     "swarm-auto": ("auto", (), {"0": ("--swarm", "0"), "0-prior-factor-2": ("--swarm", "0", "--prior-factor", "2")}),
     # the LM's factorization: the same iteration, different rounding (judged for equivalence, docs/method.md)
-    "lm-factorization": ("designer", (), {"blocked": ("--lm-factorization", "blocked")}),
-    "lm-factorization-auto": ("auto", (), {"blocked": ("--lm-factorization", "blocked")}),
+    "lm-factorization": ("designer", (), {"minpack": ("--lm-factorization", "minpack")}),
+    "lm-factorization-auto": ("auto", (), {"minpack": ("--lm-factorization", "minpack")}),
 }
 # arguments under which the swarm's seed changes nothing (no swarm): one run stands for every seed
 SEEDLESS = (("--swarm", "0"),)

@@ -260,17 +260,18 @@ def test_without_a_swarm_the_polish_starts_from_the_prior_and_the_seed_changes_n
     assert not (tmp_path / "bad.json").exists()
 
 
-def test_the_blocked_factorization_is_recorded_where_the_fits_say_how_they_ran(motor_files, tmp_path, capsys):
-    """--lm-factorization blocked: the polish's method and the Hammerstein fit's record name it; the default
-    (MINPACK) adds nothing, so an artifact made without the option keeps its bytes."""
+def test_the_files_path_factors_blocked_and_says_so_where_the_fits_say_how_they_ran(motor_files, tmp_path, capsys):
+    """--train files factor the LM's Jacobian blocked by default (the suite's decision): the polish's method and the
+    Hammerstein fit's record name it; --lm-factorization minpack adds nothing, as the built-in campaign, whose
+    packaged artifacts keep their bytes."""
     common = ["identify", "--motor", str(motor_files / "motor.toml"), "--mapping", str(motor_files / "mapping.json"),
               "--train", str(motor_files / "profile_01.csv"), "--validate", str(motor_files / "profile_02.csv"),
               "--swarm", "0", "--lm-iterations", "2", "--regularization", "fixed", "--kind", "hammerstein",
               "--json"]
-    assert main([*common, "--lm-factorization", "blocked", "--out", str(tmp_path / "blocked.json")]) == 0
+    assert main([*common, "--out", str(tmp_path / "blocked.json")]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert "blocked QR" in summary["polish"]["method"] and "blocked QR" in summary["lm"]["factorization"]
-    assert main([*common, "--out", str(tmp_path / "minpack.json")]) == 0
+    assert main([*common, "--lm-factorization", "minpack", "--out", str(tmp_path / "minpack.json")]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert "(MINPACK)" in summary["polish"]["method"] and "factorization" not in summary["lm"]
     assert main([*common, "--lm-factorization", "qr", "--out", str(tmp_path / "bad.json")]) != 0
