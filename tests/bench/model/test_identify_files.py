@@ -281,8 +281,9 @@ def test_the_files_path_factors_blocked_and_says_so_where_the_fits_say_how_they_
 
 def test_the_files_path_polishes_by_default_unless_the_prior_is_adapted(motor_files, tmp_path, capsys):
     """--polish unset: the motor suite's choice (docs/method.md): --train files are polished from POLISH_STARTS
-    starts, freezing what the data cannot place (the record names what was frozen, if anything), from the automatic, the motor's own or a named prior; an adapted foreign network (Table 1
-    named in a prior file, --adapt-prior yes) is not."""
+    starts, freezing what the data cannot place (the record names what was frozen, if anything), from the
+    automatic, the motor's own or a named prior; an adapted foreign network (Table 1 named in a prior file,
+    --adapt-prior yes) is not."""
     from bench.commands.identify import default_polish
     from bench.model.polish import POLISH_STARTS
 
