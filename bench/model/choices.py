@@ -29,7 +29,11 @@ SCALE_CHOICES = ("fit", "none")
 # fit) factor their Jacobian: MINPACK's own QR through scipy (bench.model.minpack), or the same iteration on a QR
 # reduced in cache blocks without the GIL (bench.model.blocked_lm). identify() and the built-in campaign keep MINPACK
 # (the packaged artifacts are reproduced bit for bit); the --train files path factors blocked since 2026-12-07 by the
-# decision rule's clause for a change of arithmetic (docs/method.md): LM_DECISION_PLACEHOLDER
+# decision rule's clause for a change of arithmetic (docs/method.md): three folds, three seeds, both priors
+# (suite-folds-lm-factorization-seeds3.json), MINPACK wins beyond the seeds' spread on no motor (designer 32.06 /
+# 23.39 / 17.01 against blocked 25.94 / 23.80 / 17.54, auto 24.57 / 13.00 / 14.46 against 24.60 / 12.49 / 14.64 K²),
+# and the blocked path is faster (a fold's identification 80 → 57 CPU-s from the designer's prior, 72 → 60 from auto;
+# the speed benchmark: docs/method.md).
 LM_FACTORIZATIONS = ("minpack", "blocked")
 DEFAULT_LM_FACTORIZATION = "minpack"
 FILES_LM_FACTORIZATION = "blocked"
