@@ -57,6 +57,17 @@ DEFAULT_DT_S = 0.5
 # 23.8 / 11.3 / 25.4 against 51.7 / 10.2 / 25.6). From an adapted designer's prior the polish wins 1 of 3 (folds,
 # suite-folds-adapt-prior-designer-polish-adapted-designer.json: 25.9 / 23.9 / 15.8 against 34.0 / 22.7 / 22.5), so an
 # adapted prior stays unpolished.
+def default_freeze(prior, adapt: bool) -> bool:
+    """--freeze's default: DEFAULT_FREEZE when the prior is an estimate of this motor (its file's network, read from
+    its data, or another network adapted to its data), no when it is a named parameter set as named (Table 1:
+    another machine's network; also with no prior at all). Why: freezing puts what the data cannot place at the
+    prior's value, which for another machine is no estimate of this one, and the freeze was judged under the
+    decision rule from the designer's and the automatic prior only. Seen on the suite (2026-12-07, sixth session):
+    with Table 1 named and frozen, the air motor's polish froze 9 parameters at Table 1's values, its cost rose from
+    13.36 to 21.11 and the validation LTI MSE was 1 353 K²."""
+    return DEFAULT_FREEZE and (adapt or (prior is not None and not prior.named))
+
+
 def default_polish(files: bool, adapt: bool) -> int:
     """--polish's default: POLISH_STARTS starts on the --train files path unless the prior is adapted, else 0."""
     return POLISH_STARTS if files and not adapt else 0
@@ -107,10 +118,11 @@ def add_subparser(subparsers) -> None:
                    help="the Hammerstein fit's ridge: cv (chosen by leave-one-file-out cross-validation, default "
                         "with --train files: chosen on the motor suite's validation profiles, see docs/method.md) or "
                         "fixed (default for the built-in campaign)")
-    p.add_argument("--freeze", choices=("yes", "no"), default="yes" if DEFAULT_FREEZE else "no",
+    p.add_argument("--freeze", choices=("yes", "no"), default=None,
                    help="with --polish: freeze at the prior a parameter that ends on a bound although the data cannot "
-                        f"identify it, and polish the rest again (default {'yes' if DEFAULT_FREEZE else 'no'}: "
-                        "chosen on the motor suite's validation profiles, see docs/method.md)")
+                        f"identify it, and polish the rest again (default {'yes' if DEFAULT_FREEZE else 'no'} for the "
+                        "motor's own prior and --prior auto, by the motor suite's decision rule; no for a named "
+                        "parameter set such as table1, another machine's network; see docs/method.md)")
     p.add_argument("--stator-weight", choices=STATOR_WEIGHT_CHOICES, default=STATOR_RULE,
                    help="with --regularization cv and measured yoke/tooth: the Hammerstein fit's stator weight chosen "
                         f"by its rule (left-out scores, default {STATOR_RULE}) or kept at the swarm's weighting "
@@ -213,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
     regularization = args.regularization or ("cv" if files else "fixed")
     adapt = _adapts(args.adapt_prior, files, prior or motor.prior)
     polish = args.polish if args.polish is not None else default_polish(files, adapt)
+    freeze = args.freeze == "yes" if args.freeze else default_freeze(prior or motor.prior, adapt)
     factorization = args.lm_factorization or (FILES_LM_FACTORIZATION if files else DEFAULT_LM_FACTORIZATION)
     if args.prior_factor is not None and not polish:
         raise UsageError("--prior-factor sets the polish's prior, and this command does not polish (the built-in "
@@ -228,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
         result = identify(train, validation=validate, dt=dt, swarm_size=args.swarm, pso_iterations=args.iterations,
                           lm_iterations=args.lm_iterations, seed=args.seed, fit_path=args.fit_path, motor=motor,
                           prior=prior, width=width, polish_starts=polish, regularization=regularization,
-                          standard_errors=files, freeze=args.freeze == "yes", stator_weight=args.stator_weight,
+                          standard_errors=files, freeze=freeze, stator_weight=args.stator_weight,
                           adapt=adapt, loss_scales=args.loss_scales == "fit",
                           hammerstein_poles=poles, network_cost=args.network_cost,
                           prior_factor=args.prior_factor, lm_factorization=factorization,

@@ -79,6 +79,11 @@ class ThermalPrior:
     def automatic(self) -> bool:
         return self.source == AUTO_PRIOR
 
+    @property
+    def named(self) -> bool:
+        """A built-in parameter set (PARAMETER_SETS: Table 1's out-runner), not an estimate of this motor."""
+        return self.source in PARAMETER_SETS
+
 
 AUTO_PRIOR = "auto"
 AUTO_BOUNDS = (0.1, 10.0)     # bench.model.auto_prior.AUTO_BOUNDS: a data-derived prior is right within a few ×

@@ -392,6 +392,31 @@ def test_the_freezing_and_stator_weight_options_reach_the_identification(motor_f
     assert asked["freeze"] is freeze and asked["stator_weight"] == stator_weight
 
 
+def test_a_named_parameter_set_is_not_frozen_at_by_default(motor_files, tmp_path, monkeypatch):
+    """--freeze unset: freezing at the motor's own or automatic prior (the suite's decision), not at a named
+    parameter set as named (Table 1 is another machine's network), unless it was adapted to the data first."""
+    import bench.model.identify
+    from bench.commands.identify import default_freeze
+    from bench.motor.description import ThermalPrior, automatic_prior
+    from bench.thermal.parameters import TABLE1
+
+    table1 = ThermalPrior(TABLE1, "table1")
+    assert default_freeze(ThermalPrior(TABLE1, "file"), adapt=False) and default_freeze(automatic_prior(), False)
+    assert not default_freeze(table1, adapt=False) and not default_freeze(None, adapt=False)
+    assert default_freeze(table1, adapt=True)
+    asked = {}
+
+    def identify(*args, **kwargs):
+        asked.update(kwargs)
+        raise _Stop
+
+    monkeypatch.setattr(bench.model.identify, "identify", identify)
+    (tmp_path / "table1-prior.json").write_text('{"parameters": "table1"}')
+    with pytest.raises(_Stop):
+        _identify(motor_files, tmp_path / "m.json", "--prior", str(tmp_path / "table1-prior.json"))
+    assert asked["freeze"] is False
+
+
 def test_loss_scales_are_fitted_only_when_asked_and_the_artifact_carries_them(motor_files, tmp_path, capsys):
     """--loss-scales fit: the summary gives each factor within the box and every artifact's loss model holds the
     motor file's iron and magnet coefficients times them (copper untouched); the default (none) leaves them."""
