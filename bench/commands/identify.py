@@ -46,17 +46,6 @@ BUILTIN_KIND = "hammerstein"
 DEFAULT_DT_S = 0.5
 
 
-# The polish when --polish is not given, chosen on the motor suite's validation profiles (examples/suite,
-# tests/benchmarks/bench_suite.py; Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw,
-# measured 2026-12-06, docs/method.md): from the motor's own prior, no polish 16.4 / 8.3 / 20.3 against
-# POLISH_STARTS starts unfrozen 12.0 / 23.8 / 9.8 (2 of 3); from --prior auto 20.8 / 23.5 / 52.2 against
-# 20.4 / 12.6 / 49.8 (3 of 3); from an adapted foreign network (Table 1) 14.2 / 8.6 / 62.0 against 20.4 / 11.6 /
-# 69.0 (0 of 3). So --train files polish unless the prior is adapted; the built-in campaign never does (its
-# packaged artifacts are reproduced). Under the decision rule (three folds, 2026-12-07, suite-folds-freeze-polish.json)
-# the polish wins 2 of 3 from both priors (designer 36.8 / 8.9 / 21.0 against 34.1 / 15.9 / 23.2 without; auto
-# 23.8 / 11.3 / 25.4 against 51.7 / 10.2 / 25.6). From an adapted designer's prior the polish wins 1 of 3 (folds,
-# suite-folds-adapt-prior-designer-polish-adapted-designer.json: 25.9 / 23.9 / 15.8 against 34.0 / 22.7 / 22.5), so an
-# adapted prior stays unpolished.
 def default_freeze(prior, adapt: bool) -> bool:
     """--freeze's default: DEFAULT_FREEZE when the prior is an estimate of this motor (its file's network, read from
     its data, or another network adapted to its data), no when it is a named parameter set as named (Table 1:
@@ -68,6 +57,17 @@ def default_freeze(prior, adapt: bool) -> bool:
     return DEFAULT_FREEZE and (adapt or (prior is not None and not prior.named))
 
 
+# The polish when --polish is not given, chosen on the motor suite's validation profiles (examples/suite,
+# tests/benchmarks/bench_suite.py; Hammerstein winding + magnet MSE, K², air-30kw / ipm-60kw / outrunner-200kw,
+# measured 2026-12-06, docs/method.md): from the motor's own prior, no polish 16.4 / 8.3 / 20.3 against
+# POLISH_STARTS starts unfrozen 12.0 / 23.8 / 9.8 (2 of 3); from --prior auto 20.8 / 23.5 / 52.2 against
+# 20.4 / 12.6 / 49.8 (3 of 3); from an adapted foreign network (Table 1) 14.2 / 8.6 / 62.0 against 20.4 / 11.6 /
+# 69.0 (0 of 3). So --train files polish unless the prior is adapted; the built-in campaign never does (its
+# packaged artifacts are reproduced). Under the decision rule (three folds, 2026-12-07, suite-folds-freeze-polish.json)
+# the polish wins 2 of 3 from both priors (designer 36.8 / 8.9 / 21.0 against 34.1 / 15.9 / 23.2 without; auto
+# 23.8 / 11.3 / 25.4 against 51.7 / 10.2 / 25.6). From an adapted designer's prior the polish wins 1 of 3 (folds,
+# suite-folds-adapt-prior-designer-polish-adapted-designer.json: 25.9 / 23.9 / 15.8 against 34.0 / 22.7 / 22.5), so an
+# adapted prior stays unpolished.
 def default_polish(files: bool, adapt: bool) -> int:
     """--polish's default: POLISH_STARTS starts on the --train files path unless the prior is adapted, else 0."""
     return POLISH_STARTS if files and not adapt else 0
