@@ -326,8 +326,10 @@ DEFAULTS = {
     "polish-auto": ("auto", (), {"0": ("--polish", "0")}),
     "polish-adapted": ("table1", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
     "polish-adapted-designer": ("designer", ("--adapt-prior", "yes"), {"2": ("--polish", "2")}),
-    "freeze": ("designer", (), {"yes": ("--freeze", "yes")}),     # acts only in a polish
-    "freeze-auto": ("auto", (), {"yes": ("--freeze", "yes")}),
+    # acts only in a polish; the default is yes for the motor's own and auto prior, no for a named parameter set
+    "freeze": ("designer", (), {"no": ("--freeze", "no")}),
+    "freeze-auto": ("auto", (), {"no": ("--freeze", "no")}),
+    "freeze-table1": ("table1", (), {"yes": ("--freeze", "yes")}),
     "loss-scales": ("designer", (), {"fit": ("--loss-scales", "fit")}),
     "loss-scales-auto": ("auto", (), {"fit": ("--loss-scales", "fit")}),
     "network-cost": ("designer", (), {"pooled": ("--network-cost", "pooled")}),
