@@ -234,8 +234,11 @@ def test_target_refuses_a_parent_pid_that_is_not_its_parent(cli, material, scrat
 # doing (computing, drawing, writing); its outputs are either as they were or absent, never half-written.
 
 def _start_plain(args: list, cwd: Path, **popen) -> subprocess.Popen:
-    """`python -m ARGS` without bus options (commands that start no target)."""
-    return subprocess.Popen([sys.executable, "-m", *map(str, args)], cwd=cwd, env=child_env(),
+    """`python -m ARGS` without bus options (commands that start no target); a crash (SIGSEGV and the like) prints
+    the Python frames it happened in to the stderr the assertions show (CI once saw identify end by SIGSEGV, -11,
+    with an empty stderr after a SIGINT)."""
+    return subprocess.Popen([sys.executable, "-m", *map(str, args)], cwd=cwd,
+                            env={**child_env(), "PYTHONFAULTHANDLER": "1"},
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, **popen)
 
