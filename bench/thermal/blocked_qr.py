@@ -92,6 +92,15 @@ def triangle(jacobian_rows: np.ndarray, residuals: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(**_JIT)
+def _column_norm(a: np.ndarray, column: int, first: int) -> float:
+    """|a[first:, column]|, summed in row order (qrfac's column norms)."""
+    total = 0.0
+    for i in range(first, a.shape[0]):
+        total += a[i, column] * a[i, column]
+    return np.sqrt(total)
+
+
+@numba.njit(**_JIT)
 def pivoted(reduced: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """MINPACK's qrfac with column pivoting, then its Qᵀf, on the small [R | Qᵀr] of `triangle`: (r, ipvt, qtf,
     acnorm) as lmder holds them after its own factorization of J: r's upper triangle the pivoted factor with its
@@ -104,10 +113,7 @@ def pivoted(reduced: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     wa = np.empty(n)
     ipvt = np.arange(n)
     for j in range(n):
-        total = 0.0
-        for i in range(n):
-            total += a[i, j] * a[i, j]
-        acnorm[j] = np.sqrt(total)
+        acnorm[j] = _column_norm(a, j, 0)
         rdiag[j] = acnorm[j]
         wa[j] = rdiag[j]
     for j in range(n):
@@ -121,10 +127,7 @@ def pivoted(reduced: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
             rdiag[kmax] = rdiag[j]
             wa[kmax] = wa[j]
             ipvt[j], ipvt[kmax] = ipvt[kmax], ipvt[j]
-        ajnorm = 0.0
-        for i in range(j, n):
-            ajnorm += a[i, j] * a[i, j]
-        ajnorm = np.sqrt(ajnorm)
+        ajnorm = _column_norm(a, j, j)
         if ajnorm != 0.0:
             if a[j, j] < 0.0:
                 ajnorm = -ajnorm
@@ -142,10 +145,7 @@ def pivoted(reduced: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
                     temp = a[j, k] / rdiag[k]
                     rdiag[k] *= np.sqrt(max(0.0, 1.0 - temp * temp))
                     if 0.05 * (rdiag[k] / wa[k]) ** 2 <= _EPSMCH:
-                        rest = 0.0
-                        for i in range(j + 1, n):
-                            rest += a[i, k] * a[i, k]
-                        rdiag[k] = np.sqrt(rest)
+                        rdiag[k] = _column_norm(a, k, j + 1)
                         wa[k] = rdiag[k]
         rdiag[j] = -ajnorm
     qtf = np.empty(n)
