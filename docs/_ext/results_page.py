@@ -884,6 +884,12 @@ def section_suite(records: dict[str, list[Record]]) -> list[str]:
                   "tests/benchmarks/bench_suite.py --defaults --folds 3 --hold-test`): the mean over three folds of "
                   "the nine non-test profiles, each fold trained on six and scored on the three it holds out:", "",
                   provenance(folded), "", *suite_defaults(folded)]
+    rejudged = found.get("rejudged")
+    if rejudged is not None:
+        lines += ["The seeded comparisons judged again by the decision rule's standard-error form (`python "
+                  "tests/benchmarks/bench_suite.py --rejudge RECORD ...`; per motor the nine fold × seed "
+                  "differences alternative − default, their mean and standard error, t against t0 = 2.306):", "",
+                  provenance(rejudged), "", *suite_rejudged(rejudged)]
     bound = found.get("floor")
     if bound is not None:
         lines += ["The four-node model class's floor (`python tests/benchmarks/bench_suite.py --floor`): the "
@@ -966,7 +972,7 @@ def suite_defaults(record: Record) -> list[str]:
         lines += _table(["setting", *(m["motor"] for m in compared)], _default_rows(compared))
         lines += _verdicts({name: {m["motor"]: _identify_sums(m["defaults"].get(name)) for m in compared}
                             for name in compared[0]["defaults"]})
-        lines += _margin_verdicts(compared)
+        lines += _seeded_verdicts(compared)
     observed = [m for m in motors if isinstance(m.get("observer_defaults"), dict)
                 and "failed" not in m["observer_defaults"]]
     if observed:
@@ -1015,23 +1021,40 @@ def _verdicts(sums: dict[str, dict[str, tuple[str, dict[str, float]] | None]]) -
     return [*lines, ""] if lines else []
 
 
-def _margin_verdicts(motors: list[dict]) -> list[str]:
-    """With several swarm seeds (`bench_suite.py --seeds N`): per default and alternative, where it wins beyond the
-    seeds' spread (the decision rule's margin), where it loses, and where the seeds cannot tell."""
+def _seeded_verdicts(motors: list[dict]) -> list[str]:
+    """With several swarm seeds (`bench_suite.py --seeds N`): per default and alternative, where it wins under the
+    decision rule its record was judged by (the paired standard-error test, or before 2026-12-08 the seeds'
+    spread as a margin), where it loses, and where the rule cannot tell."""
     lines = []
     for name in motors[0]["defaults"]:
         rows = {m["motor"]: (m["defaults"].get(name) or {}).get("verdict") or {} for m in motors}
         for alt in sorted({alt for verdicts in rows.values() for alt in verdicts}):
-            said = {motor: verdicts[alt] for motor, verdicts in rows.items() if "margin_K2" in verdicts.get(alt, {})}
+            said = {motor: verdicts[alt] for motor, verdicts in rows.items() if "default_K2" in verdicts.get(alt, {})}
             if not said:
                 continue
-            parts = [f"{motor} {v['default_K2']:.2f} → {v['alternative_K2']:.2f} (margin {v['margin_K2']:.2f}: "
-                     f"{v['verdict']})" for motor, v in said.items()]
+            paired = all("t" in v for v in said.values())
+            parts = [f"{motor} {v['default_K2']:.2f} → {v['alternative_K2']:.2f} ("
+                     + (f"d {v['mean_difference_K2']:+.2f} ± {v['standard_error_K2']:.2f}, t {v['t']:+.2f}"
+                        if paired else f"margin {v['margin_K2']:.2f}") + f": {v['verdict']})"
+                     for motor, v in said.items()]
             wins = sum(v["verdict"] == "alternative" for v in said.values())
             losses = sum(v["verdict"] == "default" for v in said.values())
-            lines.append(f"- {name}, {alt} against the default, beyond the seeds' spread: better on {wins}, worse on "
+            rule = "beyond t0 standard errors of the paired differences" if paired else "beyond the seeds' spread"
+            lines.append(f"- {name}, {alt} against the default, {rule}: better on {wins}, worse on "
                          f"{losses} of {len(said)} motors; " + "; ".join(parts))
     return [*lines, ""] if lines else []
+
+
+def suite_rejudged(record: Record) -> list[str]:
+    """The seeded folds records judged again under today's rule (`bench_suite.py --rejudge`)."""
+    rows = [[j["record"].removeprefix("suite-folds-").removesuffix(".json"), j["motor"], j["prior"],
+             f"{j['default']}: {j['alternative']}",
+             "–" if "t" not in j else f"{j['default_K2']:.2f} → {j['alternative_K2']:.2f}",
+             "–" if "t" not in j else f"{j['mean_difference_K2']:+.2f} ± {j['standard_error_K2']:.2f} "
+                                      f"(t {j['t']:+.2f})",
+             j["verdict"], j.get("verdict_then") or "–"] for j in record["figures"]["rejudged"]]
+    return _table(["comparison", "motor", "prior", "default: alternative", "default → alternative K²",
+                   "mean difference ± SE", "verdict", "verdict of its day"], rows)
 
 
 def _observer_default_rows(motors: list[dict]) -> list[list[str]]:

@@ -65,6 +65,9 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+from scipy import stats
+
 ROOT = Path(__file__).resolve().parents[2]
 
 from bench_accuracy import bench, children_cpu_s  # noqa: E402
@@ -388,8 +391,7 @@ def compare_defaults(motor: Path, work: Path, data: Path, index: dict, runs: dic
                 spreads = {setting: seed_spread(r[1]) for setting, r in results.items()}
                 row["folds"].update(seeds=SEEDS, per_seed={setting: r[1] for setting, r in results.items()},
                                     seed_spread_K2=spreads)
-                row["verdict"] = {alt: margin_verdict(scores["default"], scores[alt], spreads["default"],
-                                                      spreads[alt]) for alt in alternatives}
+                row["verdict"] = {alt: paired_verdict(results["default"][1], results[alt][1]) for alt in alternatives}
         else:
             scores = {setting: validation_mse(validation_run(motor, work, data, index, prior, arguments, runs)["json"])
                       for setting, arguments in settings.items()}
@@ -448,18 +450,25 @@ def rule_score(figures: dict) -> float:
     return figures["hammerstein"]["winding"] + figures["hammerstein"]["pm"]
 
 
-def margin_verdict(default: dict, alternative: dict, spread_default: float | None,
-                   spread_alternative: float | None) -> dict:
-    """The decision rule's margin (docs/method.md): an alternative beats the default on a motor only when its mean
-    held-out Hammerstein winding + magnet MSE is lower by more than the larger of the two settings' seed spreads;
-    worse by more than that, the default wins; in between, the seeds cannot tell them apart (and the default stays)."""
-    if "hammerstein" not in default or "hammerstein" not in alternative:
+def paired_verdict(default: list[list[dict]], alternative: list[list[dict]]) -> dict:
+    """The decision rule's standard-error form (docs/method.md): per fold and seed, the alternative's held-out
+    Hammerstein winding + magnet MSE minus the default's; the alternative wins on the motor when the mean difference
+    is below −t₀ standard errors, the default when above +t₀, t₀ Student's two-sided 5 % quantile for the pairs'
+    degrees of freedom (2.306 for 3 folds × 3 seeds); in between the motor decides nothing (the default stays)."""
+    pairs = [(rule_score(d), rule_score(a)) for folds in zip(default, alternative, strict=True)
+             for d, a in zip(*folds, strict=True) if "hammerstein" in d and "hammerstein" in a]
+    if len(pairs) < 2 or len(pairs) < sum(len(seeds) for seeds in default):
         return {"verdict": "no hammerstein figures"}
-    a, b = rule_score(default), rule_score(alternative)
-    margin = max(spread_default or 0.0, spread_alternative or 0.0)
-    verdict = ("alternative" if b < a - margin else "default" if b > a + margin else "within the seeds' spread")
-    return {"default_K2": round(a, 4), "alternative_K2": round(b, 4), "margin_K2": round(margin, 4),
-            "verdict": verdict}
+    differences = np.array([a - d for d, a in pairs])
+    standard_error = differences.std(ddof=1) / np.sqrt(len(differences))
+    t0 = float(stats.t.ppf(0.975, len(differences) - 1))
+    t = float(differences.mean() / standard_error) if standard_error > 0 else 0.0
+    verdict = "alternative" if t < -t0 else "default" if t > t0 else "not beyond t0 standard errors"
+    return {"default_K2": round(float(np.mean([d for d, _ in pairs])), 4),
+            "alternative_K2": round(float(np.mean([a for _, a in pairs])), 4),
+            "mean_difference_K2": round(float(differences.mean()), 4),
+            "standard_error_K2": round(float(standard_error), 4), "t": round(t, 3), "t0": round(t0, 3),
+            "pairs": len(differences), "verdict": verdict}
 
 
 def mean_mse(per_fold: list[dict]) -> dict:
@@ -514,6 +523,9 @@ def main() -> int:
     parser.add_argument("--reuse", action="store_true",
                         help="read back the profiles and identifications kept in --work by an earlier run of the same "
                              "code")
+    parser.add_argument("--rejudge", nargs="+", type=Path, default=None, metavar="RECORD",
+                        help="only judge the seeded folds records named (--folds K --seeds N) again under today's "
+                             "decision rule (`paired_verdict`); identifies nothing")
     add_record_arguments(parser)
     args = parser.parse_args()
     global HOLD_TEST, REUSE, COMPARED, FOLDS, SEEDS
@@ -526,6 +538,8 @@ def main() -> int:
         parser.error("--reuse reads identifications kept in --work: name it")
     if args.floor and (args.defaults or args.hold_test):
         parser.error("--floor fits on the test profiles: it runs alone, without --defaults or --hold-test")
+    if args.rejudge:
+        return rejudge(args)
     motors = [m for m in suite_motors() if args.motors is None or m.name in args.motors]
     if not motors:
         parser.error(f"no suite motor named {args.motors} under {SUITE}")
@@ -545,6 +559,40 @@ def main() -> int:
             record.figures["motors"].append(one_motor(m, work, args))
             record.write()
     record.figures["complete"] = True
+    record.write()
+    return 0
+
+
+def rejudge(args) -> int:
+    """The seeded folds records named by --rejudge judged again by `paired_verdict`: per record, motor, default and
+    alternative, the verdict; the record's own verdict (made by the rule of its day) beside it. Bad records are one
+    sentence before any work."""
+    sources = {}
+    for path in args.rejudge:
+        try:
+            source = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as failed:
+            sys.exit(f"--rejudge {path}: not a readable JSON record ({failed})")
+        if (source.get("parameters") or {}).get("seeds", 1) < 2:
+            sys.exit(f"--rejudge {path}: not a seeded folds record (bench_suite.py --folds K --seeds N, N ≥ 2)")
+        sources[path] = source
+    record = Record("suite", args, parameters={"rejudged": [p.name for p in sources]}, variant="rejudged")
+    judged = []
+    for path, source in sources.items():
+        for motor in source["figures"]["motors"]:
+            for name, row in (motor.get("defaults") or {}).items():
+                per_seed = (row.get("folds") or {}).get("per_seed") or {}
+                for alternative in (a for a in per_seed if a != "default"):
+                    verdict = paired_verdict(per_seed["default"], per_seed[alternative])
+                    judged.append({"record": path.name, "code": source["code"].get("commit"),
+                                   "motor": motor["motor"], "default": name, "prior": row["prior"],
+                                   "alternative": alternative, **verdict,
+                                   "verdict_then": (row.get("verdict") or {}).get(alternative, {}).get("verdict")})
+                    print(f"{path.name} {motor['motor']} {name} ({row['prior']}) {alternative}: "
+                          f"{verdict.get('default_K2')} against {verdict.get('alternative_K2')}, "
+                          f"d {verdict.get('mean_difference_K2')} ± {verdict.get('standard_error_K2')} "
+                          f"(t {verdict.get('t')}): {verdict['verdict']}", flush=True)
+    record.figures.update(rejudged=judged, complete=True)
     record.write()
     return 0
 

@@ -219,23 +219,46 @@ def test_a_setting_without_a_swarm_is_identified_once_for_every_seed():
     assert not seedless(("--seed", "0", "--swarm", "1"))
 
 
-def test_an_alternative_wins_only_beyond_the_seeds_spread():
-    """bench_suite.margin_verdict: the alternative beats the default only by more than the larger seed spread; the
-    page says per motor which side won or that the seeds cannot tell."""
+def test_an_alternative_wins_only_beyond_t0_standard_errors_of_the_paired_differences():
+    """bench_suite.paired_verdict: per fold and seed the alternative's score minus the default's; a win only when the
+    mean difference is beyond t0 (2.306 for nine pairs) standard errors; the page says per motor which side won."""
     sys.path.insert(0, str(ROOT / "tests" / "benchmarks"))
-    from bench_suite import margin_verdict
+    from bench_suite import paired_verdict
 
-    def fig(w, m):
-        return {"hammerstein": {"winding": w, "pm": m}}
+    def folds(*scores):   # three folds × three seeds, each score all on the winding
+        return [[{"hammerstein": {"winding": x, "pm": 0.0}} for x in scores[i:i + 3]] for i in (0, 3, 6)]
 
-    assert margin_verdict(fig(10, 5), fig(4, 1), 3.0, 12.0)["verdict"] == "within the seeds' spread"  # 15 → 5, ±12
-    assert margin_verdict(fig(10, 5), fig(4, 1), 3.0, 2.0)["verdict"] == "alternative"
-    assert margin_verdict(fig(4, 1), fig(10, 5), 3.0, None)["verdict"] == "default"
-    assert margin_verdict(fig(4, 1), {"lti-lptn": {}}, 1.0, 1.0)["verdict"] == "no hammerstein figures"
-    motors = [{"motor": motor, "defaults": {"hammerstein-poles": {
-        "verdict": {"fixed": margin_verdict(fig(10, 5), fig(w, 1), 1.0, 1.0)}}}} for motor, w in (("a", 1), ("b", 30))]
-    (line,) = [x for x in results_page._margin_verdicts(motors) if x]
-    assert "better on 1, worse on 1 of 2 motors" in line and "a 15.00 → 2.00" in line
+    base = folds(10, 12, 11, 3, 2, 4, 80, 60, 100)
+    steady = paired_verdict(base, folds(9, 11, 10, 2.2, 1, 3.1, 79, 58.9, 99))     # 1 lower, always: t ≪ −t0
+    assert steady["verdict"] == "alternative" and steady["t0"] == 2.306 and steady["pairs"] == 9
+    noisy = paired_verdict(base, folds(1, 3, 2, 1, 1, 1, 140, 20, 60))              # lower on average, not steadily
+    assert noisy["verdict"] == "not beyond t0 standard errors" and noisy["mean_difference_K2"] < 0
+    assert paired_verdict(folds(9, 11, 10, 2.2, 1, 3.1, 79, 58.9, 99), base)["verdict"] == "default"
+    lost = [[{"lti-lptn": {}}] * 3] * 3
+    assert paired_verdict(base, lost)["verdict"] == "no hammerstein figures"
+    motors = [{"motor": motor, "defaults": {"freeze": {"verdict": {"yes": verdict}}}}
+              for motor, verdict in (("a", steady), ("b", noisy))]
+    (line,) = [x for x in results_page._seeded_verdicts(motors) if x]
+    assert "better on 1, worse on 0 of 2 motors" in line and "t0 standard errors" in line
+    assert f"a {steady['default_K2']:.2f} → {steady['alternative_K2']:.2f}" in line
+
+
+def test_records_judged_by_the_seeds_margin_keep_their_verdicts_on_the_page():
+    """A folds record made before the standard-error form (its verdicts carry a margin) is shown as it was judged."""
+    old = {"default_K2": 15.0, "alternative_K2": 2.0, "margin_K2": 1.0, "verdict": "alternative"}
+    motors = [{"motor": "a", "defaults": {"hammerstein-poles": {"verdict": {"fixed": old}}}}]
+    (line,) = [x for x in results_page._seeded_verdicts(motors) if x]
+    assert "beyond the seeds' spread: better on 1" in line and "margin 1.00" in line
+
+
+def test_the_rejudged_comparisons_each_have_a_row_with_their_verdict_then_and_now():
+    """`bench_suite.py --rejudge`'s record: one row per record, motor and alternative on the suite section."""
+    record = next(r for r in results_page.load_records()["suite"] if r.get("variant") == "rejudged")
+    page = "\n".join(results_page.section_suite({"suite": [record]}))
+    judged = record["figures"]["rejudged"]
+    assert len(judged) >= 6 and sum(line.count(j["verdict_then"]) > 0 for j in judged for line in [page]) == len(judged)
+    for j in judged:
+        assert f"{j['mean_difference_K2']:+.2f} ± {j['standard_error_K2']:.2f} (t {j['t']:+.2f})" in page
 
 
 def test_folds_records_of_different_comparisons_each_keep_their_section(data_record):
