@@ -68,15 +68,17 @@ class ScaledResiduals(Residuals):
 
     width = len(LptnParameters.names())     # the network's coordinates, before the log factors
 
-    def errors(self, coords: np.ndarray) -> np.ndarray:
+    def errors(self, coords: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         coords = np.atleast_2d(coords)
-        out = np.empty((len(coords), len(self.nodes), int(self.count)))
+        size = len(self.nodes) * int(self.count)
+        out = np.empty((len(coords), size)) if out is None else out
+        errors = out[:, :size].reshape(len(coords), len(self.nodes), int(self.count))
         keys = [tuple(c[self.width:]) for c in coords]
         for key in dict.fromkeys(keys):
             rows = [i for i, k in enumerate(keys) if k == key]
             runs = scaled_runs(self.runs, factors_of(np.array(key)))
-            out[rows] = Residuals(runs, self.dt, self.nodes, self.scaled).errors(coords[rows, :self.width])
-        return out
+            errors[rows] = Residuals(runs, self.dt, self.nodes, self.scaled).errors(coords[rows, :self.width])
+        return errors
 
 
 def factors_of(log_factors: np.ndarray) -> dict[str, float]:

@@ -44,3 +44,10 @@ def finite_errors(errors: np.ndarray) -> np.ndarray:
     if np.isfinite(errors).all():
         return errors
     return np.nan_to_num(errors, nan=BLOWN_UP, posinf=BLOWN_UP, neginf=-BLOWN_UP)
+
+
+def finite_in_place(errors: np.ndarray) -> np.ndarray:
+    """`finite_errors` written into `errors` itself (an array a fit's residual rows are built in), which it returns."""
+    if not np.isfinite(errors).all():
+        np.nan_to_num(errors, copy=False, nan=BLOWN_UP, posinf=BLOWN_UP, neginf=-BLOWN_UP)
+    return errors

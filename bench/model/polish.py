@@ -48,7 +48,7 @@ from bench.model.lptn_fit import (
     search_bounds,
     to_search,
 )
-from bench.model.metrics import finite_errors
+from bench.model.metrics import finite_in_place
 from bench.model.runs import ModelRun
 from bench.thermal import portable
 from bench.thermal.estimator import LOOP_PARAMETERS, identity_sigmoid, run_batch
@@ -92,12 +92,14 @@ class Residuals:
         self.weights = np.array([NODE_WEIGHTS[node] for node in nodes])
         self.count = float(sum(len(r.ref_winding) for r in runs))
 
-    def errors(self, coords: np.ndarray) -> np.ndarray:
-        """(P, nodes, samples) model − measurement for search coordinates (P, 22)."""
-        return self.vector_errors(from_search(coords, self.scaled))
+    def errors(self, coords: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(P, nodes, samples) model − measurement for search coordinates (P, 22) (`out`: vector_errors')."""
+        return self.vector_errors(from_search(coords, self.scaled), out)
 
-    def vector_errors(self, vectors: np.ndarray) -> np.ndarray:
-        """(P, nodes, samples) model − measurement for parameter vectors (P, 22)."""
+    def vector_errors(self, vectors: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(P, nodes, samples) model − measurement for parameter vectors (P, 22). With `out`, a C-contiguous
+        (P, M ≥ nodes × samples) array, the errors are written into its first nodes × samples columns (node after
+        node) and returned as a (P, nodes, samples) view of them: a fit's residual rows built in place, not copied."""
         a_d, b_d = discrete_blocks(vectors, self.dt)
         n = len(vectors)
         names = LptnParameters.names()
@@ -105,15 +107,18 @@ class Residuals:
         c = np.broadcast_to(np.eye(4), (n, 4, 4))
         sig = np.broadcast_to(identity_sigmoid(np.ones(4)), (n, 6, 4))
         total = int(self.count)
-        errors = np.empty((n, len(self.nodes), total))   # written by the kernel, run after run along the samples
+        size = len(self.nodes) * total
+        if out is None:
+            out = np.empty((n, size))   # written by the kernel, run after run along the samples
         rows = [OUTPUT_INDEX[node] for node in self.nodes]
         at = 0
         for run in self.runs:
             refs = [run.reference(node) for node in self.nodes]
             run_batch(a_d, b_d, c, theta, sig, run.inputs, run.initial,
-                      residuals=(errors.reshape(n, -1), at, rows, refs, np.ones(len(rows)), total))
+                      residuals=(out, at, rows, refs, np.ones(len(rows)), total))
             at += len(run.ref_winding)
-        return finite_errors(errors)
+        errors = out[:, :size].reshape(n, len(self.nodes), total)
+        return finite_in_place(errors)
 
     def mse(self, errors: np.ndarray) -> np.ndarray:
         """(nodes,) mean squared error of one model's errors (nodes, samples), exactly summed."""
@@ -229,24 +234,37 @@ def polish_one(problem: Residuals, start: np.ndarray, lower: np.ndarray, upper: 
 
     u = u + shift
     extra = (lambda x: 0.0) if penalty is None else penalty.cost
+    # the Jacobian's finite differences are written in one buffer at every evaluation (both LMs copy or reduce
+    # what they get before the next call): 23 rows of 400 000 residuals are 74 MB, which fresh arrays would fault
+    # in page by page and copy three times over
+    width = len(problem.nodes) * int(problem.count) + (0 if penalty is None else len(start))
+    jacobian = np.empty((len(u) + 1, width))
     evaluations = 0
     best_x, best_cost = start, problem.cost(problem.errors(start[None])[0]) + extra(start)
     for _ in range(ROUNDS):
         scale = np.sqrt(problem.weights / (problem.count * problem.variances(problem.errors(box(u[None]))[0])))
 
-        def rows(batch, scale=scale):
+        def rows(batch, out=None, scale=scale):
+            # each row: the scaled errors, then the prior's rows; built in `out` (or a new array) in place
             stop.check()    # a worker thread: the signal handler cannot reach it (bench.stop)
             x = box(batch)
-            r = (problem.errors(x) * scale[None, :, None]).reshape(len(batch), -1)
-            return r if penalty is None else np.hstack([r, penalty.rows(x)])
+            if out is None:
+                out = np.empty((len(batch), width))
+            errors = problem.errors(x, out)
+            np.multiply(errors, scale[None, :, None], out=errors)
+            if penalty is not None:
+                out[:, errors[0].size:] = penalty.rows(x)
+            return out
 
         def fun(v):
             return rows(v[None])[0]
 
         def jac_rows(v):    # the Jacobian transposed, a row per LM variable (bench.model.minpack)
             steps = STEP * np.maximum(1.0, np.abs(v))
-            r = rows(np.vstack([v, v + np.diag(steps)]))
-            return (r[1:] - r[0]) / steps[:, None]
+            r = rows(np.vstack([v, v + np.diag(steps)]), jacobian)
+            np.subtract(r[1:], r[0], out=r[1:])
+            np.divide(r[1:], steps[:, None], out=r[1:])
+            return r[1:]
 
         result = levenberg_marquardt(fun, jac_rows, u, ROUND_EVALUATIONS)
         evaluations += int(result.nfev) + int(result.njev or 0) * (len(u) + 1)

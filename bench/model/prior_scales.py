@@ -92,8 +92,8 @@ class _ScaledResiduals(Residuals):
         super().__init__(runs, dt, measured_nodes(runs), ())
         self.prior = prior
 
-    def errors(self, coords: np.ndarray) -> np.ndarray:
-        return self.vector_errors(scaled(self.prior, coords))
+    def errors(self, coords: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        return self.vector_errors(scaled(self.prior, coords), out)
 
 
 def adapt_prior(runs: Sequence[ModelRun], dt: float, prior: LptnParameters) -> AdaptedPrior:
