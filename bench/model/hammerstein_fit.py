@@ -320,7 +320,7 @@ def _pole_count(poles: str) -> int:
 
 
 def _exact_rms(parts: Sequence[np.ndarray]) -> float:
-    return math.sqrt(math.fsum(math.fsum(p * p) for p in parts) / sum(p.size for p in parts))
+    return math.sqrt(math.fsum(portable.sum_of_products(p, p) for p in parts) / sum(p.size for p in parts))
 
 
 def cv_steps(runs: Sequence[ModelRun], iterations: int) -> int:
@@ -465,7 +465,7 @@ def one_se_choice(held: dict[float, Sequence[np.ndarray]]) -> tuple[float, float
     parts = held[best]
     sizes = np.array([p.size for p in parts], float)
     weights = sizes / math.fsum(sizes)
-    folds = np.array([math.fsum(p * p) / p.size for p in parts])
+    folds = np.array([portable.sum_of_products(p, p) / p.size for p in parts])
     k = len(parts)
     se = math.sqrt(math.fsum((weights * (folds - mse[best])) ** 2) * k / (k - 1))
     limit = mse[best] + se
@@ -487,7 +487,7 @@ def loo_vectors(problem: _Problem, checks: Sequence[_Problem], v: np.ndarray, fa
     edges = np.cumsum([0, *sizes])
     blocks = list(zip(edges[:-1], edges[1:], strict=True))
     grams = [portable.matmul(jac[a:b].T, jac[a:b]) for a, b in blocks]
-    jacs = [np.ascontiguousarray(jac[a:b].T) for a, b in blocks]
+    jacs = [np.ascontiguousarray(jac[a:b]) for a, b in blocks]    # (rows of run k, parameters)
     v0 = problem.v0
     n = len(v)
 
@@ -502,13 +502,13 @@ def loo_vectors(problem: _Problem, checks: Sequence[_Problem], v: np.ndarray, fa
             return [finite_errors(checks[k].residuals(x[None])[0]) for k in others]
 
         def cost(x, residuals, ridge2=ridge2):
-            return math.fsum(math.fsum(p * p) for p in residuals) + math.fsum(ridge2 * (x - v0) ** 2)
+            return math.fsum(portable.sum_of_products(p, p) for p in residuals) + math.fsum(ridge2 * (x - v0) ** 2)
 
         x, res = v, [r[0, a:b] for k, (a, b) in enumerate(blocks) if k != f]
         best = cost(x, res)
         mu = 1.0
         for _ in range(LOO_STEPS):
-            terms = np.array([portable.matmul(jacs[k], res[i][:, None])[:, 0] for i, k in enumerate(others)])
+            terms = np.array([portable.transposed_matvec(jacs[k], res[i]) for i, k in enumerate(others)])
             grad = np.array([math.fsum(column) for column in terms.T]) + ridge2 * (x - v0)
             for _ in range(LOO_TRIALS):
                 trial = x - portable.solve(gram + np.diag(mu * damping), grad)

@@ -122,7 +122,7 @@ class Residuals:
 
     def mse(self, errors: np.ndarray) -> np.ndarray:
         """(nodes,) mean squared error of one model's errors (nodes, samples), exactly summed."""
-        return np.array([math.fsum(e * e) / self.count for e in errors])
+        return np.array([portable.sum_of_products(e, e) / self.count for e in errors])
 
     def cost(self, errors: np.ndarray) -> float:
         """The swarm's cost (its criterion's) of one model's errors (nodes, samples)."""

@@ -64,6 +64,8 @@ def _portable() -> None:
     portable.cholesky_lower(m)
     portable.svd(m)
     portable.blended_matvec(np.stack([m, m]), np.array([1, 0]), np.array([0.25, 0.75]), np.ones(3))
+    portable.sum_of_products(np.ones(3), np.ones(3))
+    portable.transposed_matvec(m, np.ones(3))
 
 
 def _blocked_qr() -> None:

@@ -96,6 +96,32 @@ def _first_steps(run, n: int):
 
 @pytest.mark.slow   # 14 s: identifications in subprocesses under each kernel: kept out of the 5-min default run
 @pytest.mark.skipif(platform.machine().lower() not in ("x86_64", "amd64"), reason="x86-64 kernels")
+def test_the_compiled_exact_sum_is_math_fsum_to_the_bit():
+    """portable.sum_of_products is math.fsum(x * y): cancellation, a wide range of magnitudes (more partials than
+    its first buffer holds), ties to even, and fsum's own errors for overflow and infinities."""
+    rng = np.random.default_rng(7)
+    cases = [(rng.normal(size=1000), rng.normal(size=1000)),
+             (rng.normal(size=300) * 10.0 ** rng.integers(-300, 150, size=300),
+              rng.normal(size=300) * 10.0 ** rng.integers(-150, 150, size=300)),
+             (np.array([1e16, 1.0, -1e16, 1.0, 1e-16] * 40), np.ones(200)),
+             (np.array([1.0, 2.0 ** -53, 2.0 ** -106, -(2.0 ** -160)]), np.ones(4)),
+             (rng.integers(-5, 5, size=500) * 2.0 ** rng.integers(-60, 60, size=500), np.full(500, 1.5)),
+             (np.zeros(0), np.zeros(0))]
+    for x, y in cases:
+        assert portable.sum_of_products(x, y) == math.fsum(x * y)
+    with np.errstate(over="ignore"):
+        assert portable.sum_of_products(np.array([1e200, 1.0]), np.array([1e200, 1.0])) == math.inf
+        with pytest.raises(OverflowError):
+            portable.sum_of_products(np.array([1e308, 1e308]), np.ones(2))
+
+
+def test_the_transposed_matrix_vector_product_is_matmul_to_the_bit():
+    """portable.transposed_matvec sums each output in matmul's order: the same bits as matmul(aᵀ, r)."""
+    rng = np.random.default_rng(8)
+    rows, r = rng.normal(size=(5000, 37)) * 10.0 ** rng.integers(-3, 3, size=(5000, 37)), rng.normal(size=5000)
+    assert np.array_equal(portable.transposed_matvec(rows, r), portable.matmul(rows.T, r[:, None])[:, 0])
+
+
 def test_identification_numerics_do_not_depend_on_blas_kernel_simd_level_or_threads(default_data_dir):
     from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
 
