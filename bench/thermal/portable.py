@@ -154,8 +154,9 @@ def _log_flat(x: np.ndarray) -> np.ndarray:
 
 def dot(x: np.ndarray, y: np.ndarray) -> float:
     """Σ x·y of two float64 vectors, exactly rounded: the same sum on every CPU, unlike a BLAS dot (whose kernel,
-    and so its summation order, depends on the CPU and OPENBLAS_CORETYPE)."""
-    return math.fsum(np.asarray(x, float) * np.asarray(y, float))
+    and so its summation order, depends on the CPU and OPENBLAS_CORETYPE). math.fsum(x * y) to the bit."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    return sum_of_products(x, y) if x.shape == y.shape else math.fsum(x * y)
 
 
 @numba.njit(**_JIT)
