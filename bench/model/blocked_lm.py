@@ -39,7 +39,7 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac_rows: Calla
     par, iteration, delta, xnorm = 0.0, 1, 0.0, 0.0
     diag = np.empty(0)
     while info == 0:
-        reduced = kernels.triangle(np.ascontiguousarray(jac_rows(x)), fvec)
+        reduced = kernels.reduce(np.ascontiguousarray(jac_rows(x)), fvec)
         njev += 1
         r, ipvt, qtf, acnorm = kernels.pivoted(reduced)
         if iteration == 1:

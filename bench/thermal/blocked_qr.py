@@ -91,6 +91,178 @@ def triangle(jacobian_rows: np.ndarray, residuals: np.ndarray) -> np.ndarray:
     return out
 
 
+# The same reduction on two cores, to the bit: the columns split at `split`, the left ones' reflections made by one
+# thread a chunk of blocks ahead, the right ones (and the residuals) reflected by the other with the left's
+# reflectors as they were made, then their own. Every column sees the same reflections in the same order and every
+# entry the same operations as in `_reflect`, so the triangle is `triangle`'s bit for bit; only who computes which
+# column changes. A thread whose numba kernels run on one thread (a polish start's, bench.model.polish) keeps the
+# one-thread reduction.
+CHUNK_BLOCKS = 32        # blocks handed from the left thread to the right at a time (8 192 rows)
+SPLIT_MIN_ROWS = 4 * CHUNK_BLOCKS * BLOCK    # below this the hand-over costs more than the second core saves
+SPLIT_MIN_COLUMNS = 8
+
+
+def split_column(columns: int) -> int:
+    """Where the work of reflecting `columns` columns (the residuals included) halves: the left thread's reflectors
+    touch only its own columns (about split²/2 updates a block), the right thread's columns take every reflector."""
+    return max(1, min(columns - 1, round(columns / np.sqrt(2.0))))
+
+
+@numba.njit(**_JIT)
+def _reflect_left(triangle: np.ndarray, block: np.ndarray, rows: int, v0s: np.ndarray, betas: np.ndarray,
+                  made: np.ndarray) -> None:
+    """`_reflect` restricted to the left columns 0 … split−1 (`triangle` (split, split), `block` (split, rows)):
+    each reflector j made and applied to the left columns after j, its v0 and beta and whether it was made kept
+    for the right columns (its vector stays in block[j])."""
+    split = triangle.shape[0]
+    for j in range(split):
+        v = block[j]
+        rjj = triangle[j, j]
+        squares = rjj * rjj + _lane_dot(v, v, rows)
+        made[j] = squares != 0.0
+        if squares == 0.0:
+            continue
+        size = np.sqrt(squares)
+        alpha = -size if rjj >= 0.0 else size
+        v0 = rjj - alpha
+        beta = 1.0 / (size * (size + abs(rjj)))
+        v0s[j], betas[j] = v0, beta
+        for k in range(j + 1, split):
+            column = block[k]
+            w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
+            triangle[j, k] -= v0 * w
+            for i in range(rows):
+                column[i] -= w * v[i]
+        triangle[j, j] = alpha
+
+
+@numba.njit(**_JIT)
+def _reflect_right(triangle: np.ndarray, block: np.ndarray, rows: int, left: np.ndarray, v0s: np.ndarray,
+                   betas: np.ndarray, made: np.ndarray) -> None:
+    """The right columns split … n of `_reflect` (`triangle` (n, n+1−split), `block` (n+1−split, rows)): the left
+    reflectors (vectors `left` (split, rows), `v0s`, `betas`, `made`) applied in their order, then the right
+    columns' own reflectors as `_reflect` makes them."""
+    split = left.shape[0]
+    n = triangle.shape[0]
+    width = triangle.shape[1]
+    for j in range(split):
+        if not made[j]:
+            continue
+        v = left[j]
+        v0, beta = v0s[j], betas[j]
+        for k in range(width):
+            column = block[k]
+            w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
+            triangle[j, k] -= v0 * w
+            for i in range(rows):
+                column[i] -= w * v[i]
+    for j in range(split, n):
+        c = j - split
+        v = block[c]
+        rjj = triangle[j, c]
+        squares = rjj * rjj + _lane_dot(v, v, rows)
+        if squares == 0.0:
+            continue
+        size = np.sqrt(squares)
+        alpha = -size if rjj >= 0.0 else size
+        v0 = rjj - alpha
+        beta = 1.0 / (size * (size + abs(rjj)))
+        for k in range(c + 1, width):
+            column = block[k]
+            w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
+            triangle[j, k] -= v0 * w
+            for i in range(rows):
+                column[i] -= w * v[i]
+        triangle[j, c] = alpha
+
+
+@numba.njit(**_JIT)
+def _left_chunk(jacobian_rows: np.ndarray, start: int, stop: int, triangle: np.ndarray, vectors: np.ndarray,
+                v0s: np.ndarray, betas: np.ndarray, made: np.ndarray) -> None:
+    """The left columns of the blocks from row `start` to `stop`: block b's reflectors into vectors[b], v0s[b], …"""
+    split = triangle.shape[0]
+    for b, first in enumerate(range(start, stop, BLOCK)):
+        rows = min(BLOCK, stop - first)
+        block = vectors[b]
+        for c in range(split):
+            block[c, :rows] = jacobian_rows[c, first:first + rows]
+        _reflect_left(triangle, block, rows, v0s[b], betas[b], made[b])
+
+
+@numba.njit(**_JIT)
+def _right_chunk(jacobian_rows: np.ndarray, residuals: np.ndarray, start: int, stop: int, triangle: np.ndarray,
+                 block: np.ndarray, vectors: np.ndarray, v0s: np.ndarray, betas: np.ndarray, made: np.ndarray) -> None:
+    """The right columns and the residuals of the blocks from `start` to `stop`, with the left thread's reflectors."""
+    n = jacobian_rows.shape[0]
+    split = vectors.shape[1]
+    for b, first in enumerate(range(start, stop, BLOCK)):
+        rows = min(BLOCK, stop - first)
+        for c in range(split, n):
+            block[c - split, :rows] = jacobian_rows[c, first:first + rows]
+        block[n - split, :rows] = residuals[first:first + rows]
+        _reflect_right(triangle, block, rows, vectors[b], v0s[b], betas[b], made[b])
+
+
+def reduce(jacobian_rows: np.ndarray, residuals: np.ndarray, two_threads: bool | None = None) -> np.ndarray:
+    """`triangle(jacobian_rows, residuals)`, bit for bit, on two threads when the calling thread's numba kernels may
+    use two or more and the Jacobian is large enough to gain by it (the Hammerstein fit's and the freeze's LM);
+    `two_threads` True or False decides instead (the kernels' warm-up, the tests)."""
+    n, m = jacobian_rows.shape
+    if two_threads is None:
+        two_threads = m >= SPLIT_MIN_ROWS and n >= SPLIT_MIN_COLUMNS and numba.get_num_threads() >= 2
+    if not two_threads or n < 1:
+        return triangle(jacobian_rows, residuals)
+    import threading
+
+    split = split_column(n + 1)
+    left = np.zeros((split, split))
+    right = np.zeros((n, n + 1 - split))
+    # two sets of hand-over buffers: the left thread fills one while the right one reads the other
+    vectors = np.empty((2, CHUNK_BLOCKS, split, BLOCK))
+    v0s, betas = np.zeros((2, CHUNK_BLOCKS, split)), np.zeros((2, CHUNK_BLOCKS, split))
+    made = np.zeros((2, CHUNK_BLOCKS, split), dtype=np.bool_)
+    chunks = list(range(0, m, CHUNK_BLOCKS * BLOCK))
+    free, ready = threading.Semaphore(2), threading.Semaphore(0)
+    failed: list[BaseException] = []
+
+    def lead() -> None:
+        try:
+            for c, start in enumerate(chunks):
+                free.acquire()
+                if given_up:
+                    return
+                _left_chunk(jacobian_rows, start, min(m, start + CHUNK_BLOCKS * BLOCK), left, vectors[c % 2],
+                            v0s[c % 2], betas[c % 2], made[c % 2])
+                ready.release()
+        except BaseException as error:     # re-raised by the calling thread
+            failed.append(error)
+            ready.release()
+
+    given_up: list[bool] = []
+    leader = threading.Thread(target=lead, name="qr-left", daemon=True)
+    leader.start()
+    block = np.empty((n + 1 - split, BLOCK))
+    try:
+        for c, start in enumerate(chunks):
+            ready.acquire()
+            if failed:
+                break
+            _right_chunk(jacobian_rows, residuals, start, min(m, start + CHUNK_BLOCKS * BLOCK), right, block,
+                         vectors[c % 2], v0s[c % 2], betas[c % 2], made[c % 2])
+            free.release()
+    except BaseException:
+        given_up.append(True)    # a stop signal in this thread: the leader ends at its next chunk
+        free.release()
+        raise
+    leader.join()
+    if failed:
+        raise failed[0]
+    out = np.zeros((n, n + 1))
+    out[:split, :split] = left
+    out[:, split:] = right
+    return out
+
+
 @numba.njit(**_JIT)
 def _column_norm(a: np.ndarray, column: int, first: int) -> float:
     """|a[first:, column]|, summed in row order (qrfac's column norms)."""

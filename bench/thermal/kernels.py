@@ -74,6 +74,7 @@ def _blocked_qr() -> None:
     rows = np.array([[1.0, 2.0, 3.0, 4.0], [0.5, -1.0, 2.0, 0.0]])
     residuals = np.array([1.0, 0.0, -1.0, 2.0])
     r, ipvt, qtf, acnorm = blocked_qr.pivoted(blocked_qr.triangle(rows, residuals))
+    blocked_qr.reduce(rows, residuals, two_threads=True)
     blocked_qr.norm(residuals)
     blocked_qr.lm_parameter(r, ipvt, acnorm, qtf, 1.0, 0.0)
     blocked_qr.predicted(r, ipvt, qtf)

@@ -34,6 +34,37 @@ def test_the_triangle_is_the_jacobians_factor_and_projects_the_residuals(rows):
     assert np.allclose(r.T @ qtr, jacobian_rows @ residuals, rtol=1e-12, atol=1e-12 * np.abs(gram).max())
 
 
+@pytest.mark.parametrize("n, rows", [(9, 3 * blocked_qr.CHUNK_BLOCKS * blocked_qr.BLOCK + 301), (36, 70_001), (3, 600)])
+def test_the_two_thread_reduction_is_the_one_thread_triangle_to_the_bit(n, rows):
+    """blocked_qr.reduce on two threads (the left columns' reflectors handed over a chunk at a time) gives
+    `triangle`'s bits: several chunks and a part, a column without data (its reflector not made), two equal
+    columns, and a Jacobian too narrow to split but forced to."""
+    rng = np.random.default_rng(n)
+    jacobian_rows = rng.standard_normal((n, rows)) * 10.0 ** rng.integers(-3, 4, size=(n, 1))
+    jacobian_rows[1] = 0.0
+    jacobian_rows[-1] = jacobian_rows[-2]
+    residuals = rng.standard_normal(rows)
+    kept = jacobian_rows.copy()
+    one = blocked_qr.triangle(jacobian_rows, residuals)
+    two = blocked_qr.reduce(jacobian_rows, residuals, two_threads=True)
+    assert np.array_equal(one.view(np.uint64), two.view(np.uint64))
+    assert np.array_equal(jacobian_rows, kept)
+    assert np.array_equal(blocked_qr.reduce(jacobian_rows, residuals).view(np.uint64), one.view(np.uint64))
+
+
+def test_a_polish_starts_thread_reduces_on_its_own_core(monkeypatch):
+    """In a thread whose numba kernels run on one thread (the polish's starts, in_threads), `reduce` keeps the
+    one-thread `triangle`: the two starts already fill the cores."""
+    calls = []
+    one_thread = blocked_qr.triangle
+    monkeypatch.setattr(blocked_qr, "triangle", lambda *a: calls.append(1) or one_thread(*a))
+    rng = np.random.default_rng(1)
+    rows = rng.standard_normal((12, blocked_qr.SPLIT_MIN_ROWS))
+    residuals = rng.standard_normal(blocked_qr.SPLIT_MIN_ROWS)
+    reduced = in_threads(lambda _: blocked_qr.reduce(rows, residuals), [0, 1])
+    assert len(calls) == 2 and np.array_equal(reduced[0], reduced[1])
+
+
 def test_the_pivoted_factor_is_minpacks_with_its_column_norms():
     """J P = Q r with |r_jj| non-increasing (MINPACK's pivoting), acnorm J's column norms, qtf = Qᵀf's first n."""
     rng = np.random.default_rng(1)
