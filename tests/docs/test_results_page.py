@@ -253,8 +253,9 @@ def test_records_judged_by_the_seeds_margin_keep_their_verdicts_on_the_page():
 
 def test_the_rejudged_comparisons_each_have_a_row_with_their_verdict_then_and_now():
     """`bench_suite.py --rejudge`'s record: one row per record, motor and alternative on the suite section."""
-    record = next(r for r in results_page.load_records()["suite"] if r.get("variant") == "rejudged")
-    page = "\n".join(results_page.section_suite({"suite": [record]}))
+    suite = results_page.load_records()["suite"]
+    record = next(r for r in suite if r.get("variant") == "rejudged")
+    page = "\n".join(results_page.section_suite({"suite": suite}))
     judged = record["figures"]["rejudged"]
     assert len(judged) >= 6 and sum(line.count(j["verdict_then"]) > 0 for j in judged for line in [page]) == len(judged)
     for j in judged:
