@@ -4,6 +4,7 @@ on test profiles that no choice looked at.
     python tests/benchmarks/bench_suite.py [--motors NAME ...] [--priors designer table1 auto] [--skip-observer]
                                            [--work DIR] [--defaults [--compare DEFAULT ...]] [--hold-test]
                                            [--folds K [--seeds N]] [--reuse] [--floor]
+    python tests/benchmarks/bench_suite.py --rejudge RECORD [RECORD ...]
 
 The suite is `examples/suite/*/`: each motor a motor file whose `virtual_plant` generates its profiles (the
 truth is a plant the bench's four-node model cannot be) and a mapping. Each profile has a fixed role in the motor
@@ -42,7 +43,10 @@ here, never used to choose). Per motor:
    folds of the held-out MSE; the decision rule of docs/method.md is K = 3; record variant "folds", or with --compare
    "folds-<the defaults compared>"). `--seeds N` repeats each fold's identification with swarm seeds 0 … N−1 and
    averages them; the record gives each setting's spread over the seeds (`seed_spread_K2`): one fold's score moves
-   by up to a third with the data's last bits, so a difference below the seeds' spread decides nothing.
+   by up to a third with the data's last bits; the record's `verdict` is the decision rule's paired test
+   (`paired_verdict`: the nine fold × seed differences, a win only beyond t0 standard errors). `--rejudge` reads
+   earlier seeded folds records and judges them again by today's rule (record variant "rejudged"), identifying
+   nothing.
 
 6. With --floor (a bound, not a result): the designer's prior identified on ALL profiles, the test ones included,
    and evaluated on the test profiles, in-sample. What the four-node model class and this identification reach at
