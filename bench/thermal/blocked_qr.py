@@ -50,29 +50,41 @@ def norm(v: np.ndarray) -> float:
 
 
 @numba.njit(**_JIT)
-def _reflect(triangle: np.ndarray, block: np.ndarray, rows: int) -> None:
-    """Reduce [triangle; blockᵀ] to an upper triangle in place: `triangle` (n, n+1) upper triangular in its first n
-    columns, `block` (n+1, rows) the block's columns as rows (the last one the residuals). Householder reflections,
-    one per column, each acting on the triangle's diagonal entry and the block's column (the triangle's entries
-    below the diagonal are zero)."""
-    n = triangle.shape[0]
-    for j in range(n):
-        v = block[j]
-        rjj = triangle[j, j]
+def _apply(triangle: np.ndarray, j: int, first: int, block: np.ndarray, v: np.ndarray, v0: float, beta: float,
+           rows: int) -> None:
+    """Reflector j (vector (v0, v), 2/|v|² = beta) applied to the columns k ≥ `first` of `triangle`: each one's
+    entry in row j and its block rows block[k]."""
+    for k in range(first, triangle.shape[1]):
+        column = block[k]
+        w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
+        triangle[j, k] -= v0 * w
+        for i in range(rows):
+            column[i] -= w * v[i]
+
+
+@numba.njit(**_JIT)
+def _reflect_own(triangle: np.ndarray, block: np.ndarray, rows: int, first: int, v0s: np.ndarray,
+                 betas: np.ndarray, made: np.ndarray) -> None:
+    """The reflections of `triangle`'s rows first … n−1 in place, their columns local: row j's diagonal entry is
+    triangle[j, j − first], its block column block[j − first]; each reflector made from them (Householder, on the
+    diagonal entry and the block column; the entries below the diagonal are zero) and applied to the columns after
+    it. Reflector c's v0, beta and whether it was made go to v0s[c], betas[c], made[c] (its vector stays in
+    block[c])."""
+    for j in range(first, triangle.shape[0]):
+        c = j - first
+        v = block[c]
+        rjj = triangle[j, c]
         squares = rjj * rjj + _lane_dot(v, v, rows)
+        made[c] = squares != 0.0
         if squares == 0.0:
             continue
         size = np.sqrt(squares)
         alpha = -size if rjj >= 0.0 else size
         v0 = rjj - alpha
-        beta = 1.0 / (size * (size + abs(rjj)))      # 2 / |v|², v = (v0, block[j])
-        for k in range(j + 1, n + 1):
-            column = block[k]
-            w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
-            triangle[j, k] -= v0 * w
-            for i in range(rows):
-                column[i] -= w * v[i]
-        triangle[j, j] = alpha
+        beta = 1.0 / (size * (size + abs(rjj)))      # 2 / |v|², v = (v0, block[c])
+        v0s[c], betas[c] = v0, beta
+        _apply(triangle, j, c + 1, block, v, v0, beta, rows)
+        triangle[j, c] = alpha
 
 
 @numba.njit(**_JIT)
@@ -82,19 +94,20 @@ def triangle(jacobian_rows: np.ndarray, residuals: np.ndarray) -> np.ndarray:
     n, m = jacobian_rows.shape
     out = np.zeros((n, n + 1))
     block = np.empty((n + 1, BLOCK))
+    v0s, betas, made = np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)    # kept by nobody here
     for start in range(0, m, BLOCK):
         rows = min(BLOCK, m - start)
         for c in range(n):
             block[c, :rows] = jacobian_rows[c, start:start + rows]
         block[n, :rows] = residuals[start:start + rows]
-        _reflect(out, block, rows)
+        _reflect_own(out, block, rows, 0, v0s, betas, made)
     return out
 
 
 # The same reduction on two cores, to the bit: the columns split at `split`, the left ones' reflections made by one
 # thread a chunk of blocks ahead, the right ones (and the residuals) reflected by the other with the left's
 # reflectors as they were made, then their own. Every column sees the same reflections in the same order and every
-# entry the same operations as in `_reflect`, so the triangle is `triangle`'s bit for bit; only who computes which
+# entry the same operations as in `triangle`, so the triangle is `triangle`'s bit for bit; only who computes which
 # column changes. A thread whose numba kernels run on one thread (a polish start's, bench.model.polish) keeps the
 # one-thread reduction.
 CHUNK_BLOCKS = 32        # blocks handed from the left thread to the right at a time (8 192 rows)
@@ -109,74 +122,6 @@ def split_column(columns: int) -> int:
 
 
 @numba.njit(**_JIT)
-def _reflect_left(triangle: np.ndarray, block: np.ndarray, rows: int, v0s: np.ndarray, betas: np.ndarray,
-                  made: np.ndarray) -> None:
-    """`_reflect` restricted to the left columns 0 … split−1 (`triangle` (split, split), `block` (split, rows)):
-    each reflector j made and applied to the left columns after j, its v0 and beta and whether it was made kept
-    for the right columns (its vector stays in block[j])."""
-    split = triangle.shape[0]
-    for j in range(split):
-        v = block[j]
-        rjj = triangle[j, j]
-        squares = rjj * rjj + _lane_dot(v, v, rows)
-        made[j] = squares != 0.0
-        if squares == 0.0:
-            continue
-        size = np.sqrt(squares)
-        alpha = -size if rjj >= 0.0 else size
-        v0 = rjj - alpha
-        beta = 1.0 / (size * (size + abs(rjj)))
-        v0s[j], betas[j] = v0, beta
-        for k in range(j + 1, split):
-            column = block[k]
-            w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
-            triangle[j, k] -= v0 * w
-            for i in range(rows):
-                column[i] -= w * v[i]
-        triangle[j, j] = alpha
-
-
-@numba.njit(**_JIT)
-def _reflect_right(triangle: np.ndarray, block: np.ndarray, rows: int, left: np.ndarray, v0s: np.ndarray,
-                   betas: np.ndarray, made: np.ndarray) -> None:
-    """The right columns split … n of `_reflect` (`triangle` (n, n+1−split), `block` (n+1−split, rows)): the left
-    reflectors (vectors `left` (split, rows), `v0s`, `betas`, `made`) applied in their order, then the right
-    columns' own reflectors as `_reflect` makes them."""
-    split = left.shape[0]
-    n = triangle.shape[0]
-    width = triangle.shape[1]
-    for j in range(split):
-        if not made[j]:
-            continue
-        v = left[j]
-        v0, beta = v0s[j], betas[j]
-        for k in range(width):
-            column = block[k]
-            w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
-            triangle[j, k] -= v0 * w
-            for i in range(rows):
-                column[i] -= w * v[i]
-    for j in range(split, n):
-        c = j - split
-        v = block[c]
-        rjj = triangle[j, c]
-        squares = rjj * rjj + _lane_dot(v, v, rows)
-        if squares == 0.0:
-            continue
-        size = np.sqrt(squares)
-        alpha = -size if rjj >= 0.0 else size
-        v0 = rjj - alpha
-        beta = 1.0 / (size * (size + abs(rjj)))
-        for k in range(c + 1, width):
-            column = block[k]
-            w = beta * (v0 * triangle[j, k] + _lane_dot(v, column, rows))
-            triangle[j, k] -= v0 * w
-            for i in range(rows):
-                column[i] -= w * v[i]
-        triangle[j, c] = alpha
-
-
-@numba.njit(**_JIT)
 def _left_chunk(jacobian_rows: np.ndarray, start: int, stop: int, triangle: np.ndarray, vectors: np.ndarray,
                 v0s: np.ndarray, betas: np.ndarray, made: np.ndarray) -> None:
     """The left columns of the blocks from row `start` to `stop`: block b's reflectors into vectors[b], v0s[b], …"""
@@ -186,21 +131,28 @@ def _left_chunk(jacobian_rows: np.ndarray, start: int, stop: int, triangle: np.n
         block = vectors[b]
         for c in range(split):
             block[c, :rows] = jacobian_rows[c, first:first + rows]
-        _reflect_left(triangle, block, rows, v0s[b], betas[b], made[b])
+        _reflect_own(triangle, block, rows, 0, v0s[b], betas[b], made[b])
 
 
 @numba.njit(**_JIT)
 def _right_chunk(jacobian_rows: np.ndarray, residuals: np.ndarray, start: int, stop: int, triangle: np.ndarray,
                  block: np.ndarray, vectors: np.ndarray, v0s: np.ndarray, betas: np.ndarray, made: np.ndarray) -> None:
-    """The right columns and the residuals of the blocks from `start` to `stop`, with the left thread's reflectors."""
+    """The right columns and the residuals (`triangle` (n, n+1−split), `block` (n+1−split, BLOCK)) of the blocks
+    from `start` to `stop`: the left thread's reflectors of each block applied in their order, then the right
+    columns' own."""
     n = jacobian_rows.shape[0]
     split = vectors.shape[1]
+    own_v0s, own_betas, own_made = np.empty(n - split), np.empty(n - split), np.empty(n - split, dtype=np.bool_)
     for b, first in enumerate(range(start, stop, BLOCK)):
         rows = min(BLOCK, stop - first)
         for c in range(split, n):
             block[c - split, :rows] = jacobian_rows[c, first:first + rows]
         block[n - split, :rows] = residuals[first:first + rows]
-        _reflect_right(triangle, block, rows, vectors[b], v0s[b], betas[b], made[b])
+        left, left_v0s, left_betas, left_made = vectors[b], v0s[b], betas[b], made[b]
+        for j in range(split):
+            if left_made[j]:
+                _apply(triangle, j, 0, block, left[j], left_v0s[j], left_betas[j], rows)
+        _reflect_own(triangle, block, rows, split, own_v0s, own_betas, own_made)
 
 
 def reduce(jacobian_rows: np.ndarray, residuals: np.ndarray, two_threads: bool | None = None) -> np.ndarray:
